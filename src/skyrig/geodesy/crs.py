@@ -1,0 +1,236 @@
+"""Coordinate reference systems through pyproj (PROJ): geodetic, ECEF, projected, heights and geoids.
+
+Every CRS or geoid operation in skyrig goes through PROJ; nothing here re-derives a projection.
+
+Heights
+-------
+``h`` is the ellipsoidal height, ``H`` the orthometric height (altitude) and ``N`` the geoid
+undulation with ``h = H + N``.  A geoid grid is used through PROJ's own grid mechanism
+(``+proj=vgridshift +grids=...``): pass either an absolute path to a grid file (``.gtx``, ``.tif``)
+or the name of a grid installed where PROJ looks for grids (``PROJ_DATA``, the user-writable
+directory, see https://proj.org/en/stable/resource_files.html).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pyproj
+from numpy.typing import ArrayLike, NDArray
+from pyproj.exceptions import CRSError as _PyprojCRSError, ProjError
+
+from skyrig.errors import CRSError
+
+HeightKind = Literal["ellipsoidal", "orthometric"]
+
+#: Geographic 3D WGS84 (lat, lon in degrees, ellipsoidal height in metres).
+WGS84_GEOGRAPHIC_3D = "EPSG:4979"
+#: WGS84 geocentric (ECEF, metres).
+WGS84_ECEF = "EPSG:4978"
+
+
+def resolve_crs(spec: Any) -> pyproj.CRS:
+    """A :class:`pyproj.CRS` from an EPSG code (``2154``, ``"EPSG:2154"``), WKT, PROJ string or CRS.
+
+    Raises
+    ------
+    CRSError
+        If PROJ does not know the CRS.
+    """
+    if isinstance(spec, pyproj.CRS):
+        return spec
+    try:
+        if isinstance(spec, (int, np.integer)):
+            return pyproj.CRS.from_epsg(int(spec))
+        text = str(spec).strip()
+        if text.isdigit():
+            return pyproj.CRS.from_epsg(int(text))
+        return pyproj.CRS.from_user_input(text)
+    except (_PyprojCRSError, ProjError, ValueError, TypeError) as exc:
+        raise CRSError(f"unknown coordinate reference system {spec!r}: {exc}") from None
+
+
+@lru_cache(maxsize=256)
+def _transformer(src: str, dst: str) -> pyproj.Transformer:
+    return pyproj.Transformer.from_crs(src, dst, always_xy=True)
+
+
+def transformer(src: Any, dst: Any) -> pyproj.Transformer:
+    """Cached ``always_xy`` transformer between two CRS specs (x = easting/longitude first)."""
+    return _transformer(resolve_crs(src).to_wkt(), resolve_crs(dst).to_wkt())
+
+
+def _check_finite(tx: NDArray[np.float64], what: str) -> NDArray[np.float64]:
+    if not np.all(np.isfinite(tx)):
+        bad = int(np.argmax(~np.isfinite(tx).reshape(tx.shape[0], -1).all(axis=1))) if tx.ndim > 1 else 0
+        raise CRSError(f"{what}: PROJ returned non-finite coordinates (first at index {bad}); point outside the CRS area?")
+    return tx
+
+
+def geodetic_to_ecef(lat_deg: ArrayLike, lon_deg: ArrayLike, h: ArrayLike) -> NDArray[np.float64]:
+    """WGS84 geodetic (degrees, ellipsoidal metres) to ECEF ``(N, 3)`` metres."""
+    t = transformer(WGS84_GEOGRAPHIC_3D, WGS84_ECEF)
+    x, y, z = t.transform(np.asarray(lon_deg, float), np.asarray(lat_deg, float), np.asarray(h, float))
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def ecef_to_geodetic(xyz: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """ECEF ``(N, 3)`` to WGS84 ``(lat_deg, lon_deg, h)``."""
+    p = np.asarray(xyz, dtype=np.float64)
+    t = transformer(WGS84_ECEF, WGS84_GEOGRAPHIC_3D)
+    lon, lat, h = t.transform(p[..., 0], p[..., 1], p[..., 2])
+    return np.asarray(lat), np.asarray(lon), np.asarray(h)
+
+
+@dataclass(frozen=True)
+class Geoid:
+    """A geoid undulation model ``N(lat, lon)`` backed by a PROJ vertical grid.
+
+    Parameters
+    ----------
+    grid
+        Absolute path of a grid file (``egm96_15.gtx``, ``fr_ign_RAF20.tif``...) or the name of a grid
+        PROJ can find on its own search path.
+    """
+
+    grid: str
+
+    def __post_init__(self) -> None:
+        g = str(self.grid)
+        if os.path.sep in g or g.startswith("."):
+            p = Path(g).expanduser().resolve()
+            if not p.is_file():
+                raise CRSError(f"geoid grid file {g!r} does not exist")
+            g = str(p)
+        object.__setattr__(self, "grid", g)
+        try:
+            self._pipeline(1.0)
+        except (ProjError, _PyprojCRSError) as exc:
+            raise CRSError(f"PROJ cannot use geoid grid {self.grid!r}: {exc}") from None
+
+    def _pipeline(self, multiplier: float) -> pyproj.Transformer:
+        return _vgrid(self.grid, multiplier)
+
+    def undulation(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np.float64]:
+        """Geoid undulation ``N`` in metres (``h = H + N``) at geographic positions (degrees)."""
+        lat = np.asarray(lat_deg, dtype=np.float64)
+        lon = np.asarray(lon_deg, dtype=np.float64)
+        lat, lon = np.broadcast_arrays(lat, lon)
+        t = self._pipeline(1.0)
+        _, _, n = t.transform(lon, lat, np.zeros(lat.shape))
+        n = np.asarray(n, dtype=np.float64)
+        if not np.all(np.isfinite(n)) or np.any(np.abs(n) > 1e4):
+            raise CRSError(f"geoid grid {self.grid!r} does not cover every requested position")
+        return n
+
+    def to_ellipsoidal(self, lat_deg: ArrayLike, lon_deg: ArrayLike, H: ArrayLike) -> NDArray[np.float64]:
+        """``h = H + N``."""
+        return np.asarray(H, dtype=np.float64) + self.undulation(lat_deg, lon_deg)
+
+    def to_orthometric(self, lat_deg: ArrayLike, lon_deg: ArrayLike, h: ArrayLike) -> NDArray[np.float64]:
+        """``H = h - N``."""
+        return np.asarray(h, dtype=np.float64) - self.undulation(lat_deg, lon_deg)
+
+
+@lru_cache(maxsize=32)
+def _vgrid(grid: str, multiplier: float) -> pyproj.Transformer:
+    # +proj=vgridshift applies z_out = z_in + multiplier * grid_value in the forward direction.
+    return pyproj.Transformer.from_pipeline(
+        f"+proj=pipeline +step +proj=vgridshift +grids={grid} +multiplier={multiplier}"
+    )
+
+
+@dataclass(frozen=True)
+class MapProjection:
+    """A mapping CRS (projected, or geographic) with its height reference.
+
+    Parameters
+    ----------
+    crs
+        Anything :func:`resolve_crs` accepts; its horizontal part is used (a compound CRS's vertical
+        part is ignored in favour of ``geoid``).
+    geoid
+        Geoid model when heights in this frame are orthometric; ``None`` means heights are
+        ellipsoidal (WGS84/GRS80; the two differ by at most 0.1 mm in height).
+    """
+
+    crs: pyproj.CRS
+    geoid: Geoid | None = None
+    _fwd: pyproj.Transformer = field(init=False, repr=False, compare=False)
+    _inv: pyproj.Transformer = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        crs = resolve_crs(self.crs)
+        if crs.is_compound:
+            crs = crs.sub_crs_list[0]
+        if crs.is_geocentric:
+            raise CRSError("a mapping frame must be projected or geographic, not geocentric")
+        object.__setattr__(self, "crs", crs)
+        src = pyproj.CRS.from_epsg(4326)
+        object.__setattr__(self, "_fwd", pyproj.Transformer.from_crs(src, crs, always_xy=True))
+        object.__setattr__(self, "_inv", pyproj.Transformer.from_crs(crs, src, always_xy=True))
+
+    @property
+    def height_kind(self) -> HeightKind:
+        return "ellipsoidal" if self.geoid is None else "orthometric"
+
+    def to_geodetic(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Map coordinates ``(N, 3)`` (x, y, height in this frame) to ``(N, 3)`` (lat, lon deg, h ellipsoidal)."""
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        lon, lat = self._inv.transform(p[:, 0], p[:, 1])
+        lat, lon = np.asarray(lat), np.asarray(lon)
+        h = p[:, 2] if self.geoid is None else self.geoid.to_ellipsoidal(lat, lon, p[:, 2])
+        return _check_finite(np.stack([lat, lon, h], axis=1), f"{self.crs.name} -> geodetic")
+
+    def from_geodetic(self, llh: ArrayLike) -> NDArray[np.float64]:
+        """``(N, 3)`` (lat, lon deg, h ellipsoidal) to map coordinates ``(N, 3)``."""
+        g = np.atleast_2d(np.asarray(llh, dtype=np.float64))
+        x, y = self._fwd.transform(g[:, 1], g[:, 0])
+        z = g[:, 2] if self.geoid is None else self.geoid.to_orthometric(g[:, 0], g[:, 1], g[:, 2])
+        return _check_finite(np.stack([np.asarray(x), np.asarray(y), z], axis=1), f"geodetic -> {self.crs.name}")
+
+    def to_ecef(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Map coordinates ``(N, 3)`` to ECEF ``(N, 3)``."""
+        g = self.to_geodetic(points)
+        return geodetic_to_ecef(g[:, 0], g[:, 1], g[:, 2])
+
+    def from_ecef(self, xyz: ArrayLike) -> NDArray[np.float64]:
+        """ECEF ``(N, 3)`` to map coordinates ``(N, 3)``."""
+        lat, lon, h = ecef_to_geodetic(np.atleast_2d(xyz))
+        return self.from_geodetic(np.stack([lat, lon, h], axis=1))
+
+    def factors(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Meridian convergence (radians) and point scale factor at map positions ``(N, 2+)``.
+
+        The convergence ``gamma`` is the azimuth of grid north measured clockwise from geographic
+        north (PROJ's ``meridian_convergence``); so ``grid_azimuth = true_azimuth - gamma`` and
+        ``grid_from_enu = rot_z(gamma)``.  The scale factor is PROJ's meridional scale (equal to the
+        parallel scale in a conformal projection).  For a geographic CRS both are 0 and 1.
+        """
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        if self.crs.is_geographic:
+            return np.zeros(len(p)), np.ones(len(p))
+        lon, lat = self._inv.transform(p[:, 0], p[:, 1])
+        return geodetic_factors(self.crs, np.asarray(lat), np.asarray(lon))
+
+
+@lru_cache(maxsize=64)
+def _proj(wkt: str) -> pyproj.Proj:
+    return pyproj.Proj(pyproj.CRS.from_wkt(wkt))
+
+
+def geodetic_factors(
+    crs: Any, lat_deg: ArrayLike, lon_deg: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Meridian convergence (radians, see :meth:`MapProjection.factors`) and point scale factor of a
+    projected CRS at geographic positions (degrees), from PROJ's ``proj_factors``."""
+    c = resolve_crs(crs)
+    f = _proj(c.to_wkt()).get_factors(np.asarray(lon_deg, float), np.asarray(lat_deg, float))
+    conv = np.radians(np.asarray(f.meridian_convergence, dtype=np.float64))
+    scale = np.asarray(f.meridional_scale, dtype=np.float64)
+    return np.atleast_1d(conv), np.atleast_1d(scale)
