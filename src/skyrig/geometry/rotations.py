@@ -259,3 +259,13 @@ def orthonormalize(matrix: ArrayLike) -> NDArray[np.float64]:
     d = np.sign(np.linalg.det(u @ vt))
     u[..., :, 2] *= d[..., None]
     return u @ vt
+
+
+#: ``body_from_camera`` of the standard nadir mount: image x along the body's forward axis, image y to the
+#: left, camera z up (body: x forward, y right, z down).  With it, level flight to the north gives kappa = +90 deg.
+NADIR_BODY_FROM_CAMERA = np.diag([1.0, -1.0, -1.0])
+
+#: ``gimbal_from_camera`` for DJI-style gimbal angles (gimbal frame: x along the optical axis, y right,
+#: z down; gimbal yaw/pitch/roll give ``ned_from_gimbal``; pitch -90 deg looks straight down with the image
+#: top towards the gimbal yaw direction).
+GIMBAL_FROM_CAMERA = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])

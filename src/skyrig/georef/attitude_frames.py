@@ -1,0 +1,49 @@
+"""Camera attitudes as navigation angles (yaw/pitch/roll) in any world frame.
+
+A camera's "YPR" attitude in skyrig files is the roll, pitch and yaw (heading from geographic north)
+of a virtual platform that carries the camera in the standard nadir mount
+(:data:`skyrig.geometry.rotations.NADIR_BODY_FROM_CAMERA`)::
+
+    enu_from_camera = ENU_FROM_NED @ Rz(yaw) Ry(pitch) Rx(roll) @ NADIR_BODY_FROM_CAMERA
+
+with ENU the local tangent frame at the projection centre.  In a map frame the meridian convergence
+enters through the grid axes (``grid_from_enu = Rz(convergence)``), so YPR and OPK differ in kappa by
+about 90 deg minus the convergence for level flight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from skyrig.geodesy.local import ecef_from_enu_rotation
+from skyrig.georef.eo import WorldFrame
+from skyrig.geometry.rotations import ENU_FROM_NED, NADIR_BODY_FROM_CAMERA, matrix_from_rpy, rpy_from_matrix
+
+
+def _frame_from_enu(frame: WorldFrame, centres: NDArray[np.float64]) -> NDArray[np.float64]:
+    ecef = frame.to_ecef(centres)
+    from skyrig.geodesy.crs import ecef_to_geodetic
+
+    lat, lon, _ = ecef_to_geodetic(ecef)
+    return np.swapaxes(frame.ecef_from_frame_rotation(centres), -1, -2) @ ecef_from_enu_rotation(lat, lon)
+
+
+def rotation_from_ypr(
+    frame: WorldFrame, centres: ArrayLike, yaw: ArrayLike, pitch: ArrayLike, roll: ArrayLike, unit: str = "deg"
+) -> NDArray[np.float64]:
+    """``frame_from_camera`` ``(N, 3, 3)`` from camera YPR angles at projection centres ``(N, 3)`` of ``frame``."""
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    enu_from_cam = ENU_FROM_NED @ matrix_from_rpy(roll, pitch, yaw, unit=unit) @ NADIR_BODY_FROM_CAMERA
+    return _frame_from_enu(frame, c) @ enu_from_cam
+
+
+def ypr_from_rotation(
+    frame: WorldFrame, centres: ArrayLike, rotation: ArrayLike, unit: str = "deg"
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Inverse of :func:`rotation_from_ypr`: ``(yaw, pitch, roll)`` in ``unit``."""
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    enu_from_cam = np.swapaxes(_frame_from_enu(frame, c), -1, -2) @ np.asarray(rotation, dtype=np.float64)
+    ned_from_body = ENU_FROM_NED @ enu_from_cam @ NADIR_BODY_FROM_CAMERA.T
+    roll, pitch, yaw = rpy_from_matrix(ned_from_body, unit=unit)
+    return yaw, pitch, roll

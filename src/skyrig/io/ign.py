@@ -1,0 +1,141 @@
+"""IGN (Institut national de l'information géographique et forestière) aerial-triangulation files.
+
+As found in the IGN aerial block (``../shared/data/ign-aerial-block``):
+
+``*.OPK``
+    A header line ``NOM X Y Z O P K CAMERA`` then one whitespace-separated line per image: name, projection
+    centre X Y Z in the mapping CRS (Lambert-93 for that block), omega phi kappa in **degrees** with the
+    omega-phi-kappa sequence in the map-grid frame, and the camera name.  The Z of IGN projection centres
+    are altitudes from an adjustment made in map coordinates (see :mod:`skyrig.geodesy.mapheights`).
+``*.mes``
+    Image measurements ``point image column row`` (pixels, column right, row down); point names may be quoted.
+``*_world.mes``
+    Ground coordinates ``point X Y Z``.
+``*.app``
+    Ground control ``"name" type X Y Z``.
+``Camera*.txt``
+    ``key = value`` lines: ``Name``, ``PPAx``, ``PPAy`` (principal point, column and row in pixels),
+    ``focal`` (pixels), ``width``, ``height``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import InputFormatError
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.geometry.angles import check_plausible
+from skyrig.geometry.rotations import matrix_from_opk
+
+PathLike = str | os.PathLike[str]
+
+
+def _lines(path: PathLike) -> list[tuple[int, list[str]]]:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8", errors="strict")
+    except FileNotFoundError:
+        raise InputFormatError("file not found", p) from None
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(f"not a text file ({exc.reason})", p) from None
+    out = []
+    for i, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if s and not s.startswith("#"):
+            out.append((i, s.split()))
+    return out
+
+
+def _num(path: PathLike, line: int, field: str, text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputFormatError(f"{text!r} is not a number", path, line, field) from None
+    if not np.isfinite(v):
+        raise InputFormatError(f"{text!r} is not a finite number", path, line, field)
+    return v
+
+
+def _name(s: str) -> str:
+    return s.strip('"').strip("'")
+
+
+def read_ign_opk(path: PathLike, frame: WorldFrame) -> ExteriorOrientations:
+    """Read an IGN ``.OPK`` file into exterior orientations in ``frame`` (a map frame: CRS + geoid).
+
+    Heights are returned as stored (with the linear alteration of a map adjustment, if any); use
+    :meth:`ExteriorOrientations.with_map_heights_reduced` to undo it.
+    """
+    rows = _lines(path)
+    if not rows:
+        raise InputFormatError("empty OPK file", path)
+    header = [h.upper() for h in rows[0][1]]
+    expected = ["NOM", "X", "Y", "Z", "O", "P", "K", "CAMERA"]
+    if header[: len(expected)] != expected:
+        raise InputFormatError(f"header must be {' '.join(expected)}, got {' '.join(rows[0][1])}", path, rows[0][0])
+    names, cams, vals = [], [], []
+    fields = expected[1:7]
+    for line, f in rows[1:]:
+        if len(f) != 8:
+            raise InputFormatError(f"expected 8 fields, found {len(f)}", path, line, expected[min(len(f), 7)])
+        vals.append([_num(path, line, fields[j], f[j + 1]) for j in range(6)])
+        names.append(f[0])
+        cams.append(f[7])
+    v = np.array(vals)
+    for j, fld in enumerate(("O", "P", "K")):
+        why = check_plausible(v[:, 3 + j], "deg")
+        if why:
+            bad = int(np.argmax(np.abs(v[:, 3 + j])))
+            raise InputFormatError(why, path, rows[1 + bad][0], fld)
+    rot = matrix_from_opk(v[:, 3], v[:, 4], v[:, 5], unit="deg", sequence="opk")
+    return ExteriorOrientations(np.array(names), np.array(cams), v[:, :3], rot, frame)
+
+
+def read_ign_camera(path: PathLike, pixel_size_mm: float = 0.001) -> FrameCamera:
+    """Read an IGN camera ``.txt`` (focal and principal point in pixels, no distortion)."""
+    values: dict[str, tuple[int, str]] = {}
+    for line, f in _lines(path):
+        joined = " ".join(f)
+        if "=" not in joined:
+            raise InputFormatError("expected 'key = value'", path, line)
+        k, v = (s.strip() for s in joined.split("=", 1))
+        values[k.lower()] = (line, v)
+    for k in ("name", "ppax", "ppay", "focal", "width", "height"):
+        if k not in values:
+            raise InputFormatError("missing key", path, None, k)
+    num = {k: _num(path, values[k][0], k, values[k][1]) for k in ("ppax", "ppay", "focal", "width", "height")}
+    return FrameCamera.from_pixels(
+        values["name"][1], int(num["width"]), int(num["height"]), num["focal"], num["ppax"], num["ppay"], pixel_size_mm
+    )
+
+
+def read_ign_measurements(path: PathLike) -> ImageMeasurements:
+    """Read image measurements ``point image column row`` (``.mes``)."""
+    pts, imgs, px = [], [], []
+    for line, f in _lines(path):
+        if len(f) != 4:
+            raise InputFormatError(f"expected 4 fields (point image column row), found {len(f)}", path, line)
+        pts.append(_name(f[0]))
+        imgs.append(f[1])
+        px.append((_num(path, line, "column", f[2]), _num(path, line, "row", f[3])))
+    return ImageMeasurements(np.array(pts, dtype=str), np.array(imgs, dtype=str), np.array(px).reshape(-1, 2))
+
+
+def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:
+    """Read ground points: ``.app`` (``"name" type X Y Z``) or ``_world.mes`` (``name X Y Z``)."""
+    names, kinds, xyz = [], [], []
+    for line, f in _lines(path):
+        if len(f) == 5:
+            kinds.append(int(_num(path, line, "type", f[1])))
+            f = [f[0]] + f[2:]
+        elif len(f) != 4:
+            raise InputFormatError(f"expected 'name [type] X Y Z', found {len(f)} fields", path, line)
+        names.append(_name(f[0]))
+        xyz.append([_num(path, line, k, f[1 + j]) for j, k in enumerate("XYZ")])
+    kind = np.array(kinds, dtype=np.int64) if kinds and len(kinds) == len(names) else None
+    return GroundPoints(np.array(names, dtype=str), np.array(xyz).reshape(-1, 3), frame, kind)
