@@ -18,7 +18,9 @@ Conversions between frames are rigorous (through ECEF).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -61,6 +63,8 @@ class WorldFrame:
     @classmethod
     def map(cls, crs: object, geoid: str | None = None) -> "WorldFrame":
         resolve_crs(crs)  # validate early
+        if geoid is not None and (os.path.sep in str(geoid) or str(geoid).startswith(".")):
+            geoid = str(Path(geoid).expanduser().resolve())  # a file: make the frame independent of the cwd
         return cls("map", crs=str(crs), geoid=geoid)
 
     @classmethod

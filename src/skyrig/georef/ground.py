@@ -167,8 +167,11 @@ class Dem:
 def _height_on_ray(
     frame: WorldFrame, local: WorldFrame, origin: NDArray, direction: NDArray, t: NDArray
 ) -> NDArray[np.float64]:
-    pts = local.to_ecef(origin + t[:, None] * direction)
-    return frame.from_ecef(pts)
+    out = np.full((len(t), 3), np.nan)
+    ok = np.isfinite(t) & np.all(np.isfinite(direction), axis=1)
+    if np.any(ok):
+        out[ok] = frame.from_ecef(local.to_ecef(origin[ok] + t[ok, None] * direction[ok]))
+    return out
 
 
 def _intersect_height(

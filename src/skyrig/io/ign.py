@@ -139,3 +139,16 @@ def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:
         xyz.append([_num(path, line, k, f[1 + j]) for j, k in enumerate("XYZ")])
     kind = np.array(kinds, dtype=np.int64) if kinds and len(kinds) == len(names) else None
     return GroundPoints(np.array(names, dtype=str), np.array(xyz).reshape(-1, 3), frame, kind)
+
+
+def write_ign_opk(path: PathLike, eo: ExteriorOrientations) -> None:
+    """Write an IGN ``.OPK`` file (degrees, omega-phi-kappa in the frame's grid axes), atomically."""
+    from skyrig.geometry.rotations import opk_from_matrix
+    from skyrig.io._text import atomic_write
+
+    o, p, k = opk_from_matrix(eo.rotation, unit="deg", sequence="opk")
+    with atomic_write(path) as fh:
+        fh.write("NOM\tX\tY\tZ\tO\tP\tK\tCAMERA\n")
+        for i in range(len(eo)):
+            c = eo.centre[i]
+            fh.write(f"{eo.image[i]}     {c[0]:.3f}    {c[1]:.3f}       {c[2]:.3f}     {o[i]:.12f}     {p[i]:.12f}     {k[i]:.12f}     {eo.camera[i]}\n")

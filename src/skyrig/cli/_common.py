@@ -1,0 +1,139 @@
+"""Loaders shared by subcommands: EO files, cameras and ground points in any supported format.
+
+Formats are chosen through registries keyed by name (``--eo-format``), or guessed from the file name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import click
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import InputFormatError
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+from skyrig.georef.observations import GroundPoints, ImageMeasurements
+
+
+def map_frame(crs: str | None, geoid: str | None, what: str) -> WorldFrame:
+    if not crs:
+        raise click.UsageError(f"{what} needs --crs (the file does not say which CRS it is in)")
+    return WorldFrame.map(crs, geoid)
+
+
+def _eo_ign(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+    from skyrig.io.ign import read_ign_opk
+
+    eo = read_ign_opk(path, map_frame(crs, geoid, "an IGN OPK file"))
+    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
+
+
+def _eo_csv(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+    from skyrig.io.eo_csv import read_eo_csv
+
+    eo = read_eo_csv(path)
+    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
+
+
+def _eo_geo_txt(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+    import numpy as np
+
+    from skyrig.io.odm import read_geo_txt, rotation_from_gimbal_ypr
+
+    g = read_geo_txt(path, geoid)
+    if g.ypr_deg is None:
+        raise InputFormatError("geo.txt has no camera angles; it cannot give exterior orientations", path)
+    rot = rotation_from_gimbal_ypr(g.frame, g.xyz, g.ypr_deg)
+    return ExteriorOrientations(g.image, np.full(len(g.image), "camera"), g.xyz, rot, g.frame)
+
+
+EO_READERS: dict[str, Callable[..., ExteriorOrientations]] = {
+    "skyrig-csv": _eo_csv,
+    "ign-opk": _eo_ign,
+    "odm-geo": _eo_geo_txt,
+}
+
+
+def guess_eo_format(path: str) -> str:
+    name = Path(path).name.lower()
+    if name.endswith(".opk"):
+        return "ign-opk"
+    if name.startswith("geo") and name.endswith(".txt"):
+        return "odm-geo"
+    return "skyrig-csv"
+
+
+def load_eo(path: str, fmt: str | None, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+    fmt = fmt or guess_eo_format(path)
+    if fmt not in EO_READERS:
+        raise click.UsageError(f"unknown EO format {fmt!r}; known: {', '.join(EO_READERS)}")
+    return EO_READERS[fmt](path, crs, geoid, z_ground)
+
+
+def load_cameras(paths: Sequence[str]) -> dict[str, FrameCamera]:
+    """Cameras from IGN camera .txt files and/or skyrig rig files (YAML)."""
+    out: dict[str, FrameCamera] = {}
+    for p in paths:
+        if p.lower().endswith((".yaml", ".yml")):
+            from skyrig.io.rig_file import read_rig
+
+            rig = read_rig(p)
+            for name, head in rig.heads.items():
+                out[name] = head.camera
+                out[head.camera.name] = head.camera
+        else:
+            from skyrig.io.ign import read_ign_camera
+
+            cam = read_ign_camera(p)
+            out[cam.name] = cam
+    if not out:
+        raise click.UsageError("no camera given (--camera)")
+    return out
+
+
+def load_points(path: str, crs: str | None, heights: str, geoid: str | None) -> GroundPoints:
+    """Ground points from IGN .app / _world.mes, ODM gcp_list.txt, or a skyrig points CSV."""
+    name = Path(path).name.lower()
+    frame = None if crs is None else WorldFrame.map(crs, geoid if heights == "orthometric" else None)
+    if name.endswith((".app", ".mes")):
+        from skyrig.io.ign import read_ign_ground_points
+
+        return read_ign_ground_points(path, frame if frame else map_frame(crs, None, "an IGN point file"))
+    if name.startswith("gcp_list"):
+        from skyrig.io.odm import read_gcp_list
+
+        return read_gcp_list(path, geoid if heights == "orthometric" else None)[0]
+    from skyrig.io.points_csv import read_points_csv
+
+    return read_points_csv(path, frame)
+
+
+def load_measurements(path: str) -> ImageMeasurements:
+    name = Path(path).name.lower()
+    if name.endswith(".mes"):
+        from skyrig.io.ign import read_ign_measurements
+
+        return read_ign_measurements(path)
+    if name.startswith("gcp_list"):
+        from skyrig.io.odm import read_gcp_list
+
+        return read_gcp_list(path)[1]
+    from skyrig.io.points_csv import read_measurements_csv
+
+    return read_measurements_csv(path)
+
+
+def eo_options(f: Callable) -> Callable:
+    """Options describing how to read an EO file."""
+    opts = [
+        click.option("--eo", "eo_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Exterior orientation file (skyrig EO CSV, IGN .OPK, ODM geo.txt)."),
+        click.option("--eo-format", type=click.Choice(sorted(EO_READERS)), default=None, help="EO file format (default: from the file name)."),
+        click.option("--eo-crs", default=None, help="CRS of the EO file when it does not say (e.g. EPSG:2154 for IGN .OPK)."),
+        click.option("--eo-geoid", default=None, help="Geoid grid (path or PROJ name) when EO heights are orthometric."),
+        click.option("--eo-map-z-ground", type=float, default=None, help="Undo the linear alteration of projection-centre heights from an adjustment in map coordinates, with this mean ground height (m)."),
+        click.option("--camera", "camera_paths", multiple=True, required=True, type=click.Path(exists=True, dir_okay=False), help="Camera file (IGN camera .txt or skyrig rig YAML); repeat for several."),
+    ]
+    for o in reversed(opts):
+        f = o(f)
+    return f
