@@ -1,6 +1,37 @@
-"""Layer 1 camera models: the photogrammetric frame camera and its distortion models."""
+"""Layer 1 camera models: the photogrammetric frame camera and its distortion models.
 
-from skyrig.camera.distortion import Distortion, NoDistortion
-from skyrig.camera.frame import FrameCamera, footprint_on_plane
+* :mod:`skyrig.camera.frame`: :class:`FrameCamera` (conventions of image, pixel and camera frames),
+  ground sampling and footprints on planes and surfaces.
+* :mod:`skyrig.camera.distortion`: the :class:`Distortion` interface and the model registry.
+* :mod:`skyrig.camera.brown`: Brown / Australis (K1 K2 K3 P1 P2 B1 B2, mm-based).
+* :mod:`skyrig.camera.opencv`: OpenCV radial-tangential and rational models.
+* :mod:`skyrig.camera.jacobians`: projection with analytic Jacobians for bundle adjustment.
+"""
 
-__all__ = ["Distortion", "NoDistortion", "FrameCamera", "footprint_on_plane"]
+from skyrig.camera.distortion import (
+    CorrectionModel,
+    Distortion,
+    NoDistortion,
+    distortion_class,
+    distortion_from_dict,
+    distortion_models,
+    register_distortion,
+)
+from skyrig.camera.brown import BrownDistortion
+from skyrig.camera.opencv import OpenCVDistortion, OpenCVRationalDistortion
+from skyrig.camera.frame import (
+    FrameCamera,
+    GroundSampling,
+    HeightFunction,
+    footprint_on_plane,
+    footprint_on_surface,
+    intersect_rays_with_surface,
+)
+from skyrig.camera.jacobians import JACOBIAN_KINDS, project_camera_with_jacobians, project_with_jacobians
+
+__all__ = [
+    "CorrectionModel", "Distortion", "NoDistortion", "distortion_class", "distortion_from_dict", "distortion_models",
+    "register_distortion", "BrownDistortion", "OpenCVDistortion", "OpenCVRationalDistortion", "FrameCamera",
+    "GroundSampling", "HeightFunction", "footprint_on_plane", "footprint_on_surface", "intersect_rays_with_surface",
+    "JACOBIAN_KINDS", "project_camera_with_jacobians", "project_with_jacobians",
+]

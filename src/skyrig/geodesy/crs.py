@@ -140,8 +140,10 @@ class Geoid:
 @lru_cache(maxsize=32)
 def _vgrid(grid: str, multiplier: float) -> pyproj.Transformer:
     # +proj=vgridshift applies z_out = z_in + multiplier * grid_value in the forward direction.
+    # PROJ strings split on whitespace: a path with spaces must be double-quoted.
+    value = f'"{grid}"' if any(c.isspace() for c in grid) else grid
     return pyproj.Transformer.from_pipeline(
-        f"+proj=pipeline +step +proj=vgridshift +grids={grid} +multiplier={multiplier}"
+        f"+proj=pipeline +step +proj=vgridshift +grids={value} +multiplier={multiplier}"
     )
 
 
@@ -163,6 +165,7 @@ class MapProjection:
     geoid: Geoid | None = None
     _fwd: pyproj.Transformer = field(init=False, repr=False, compare=False)
     _inv: pyproj.Transformer = field(init=False, repr=False, compare=False)
+    _to_base: pyproj.Transformer | None = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         crs = resolve_crs(self.crs)
@@ -174,6 +177,9 @@ class MapProjection:
         src = pyproj.CRS.from_epsg(4326)
         object.__setattr__(self, "_fwd", pyproj.Transformer.from_crs(src, crs, always_xy=True))
         object.__setattr__(self, "_inv", pyproj.Transformer.from_crs(crs, src, always_xy=True))
+        # map -> the CRS's own geographic CRS (no datum shift), which is what proj_factors expects
+        base = None if crs.is_geographic else pyproj.Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True)
+        object.__setattr__(self, "_to_base", base)
 
     @property
     def height_kind(self) -> HeightKind:
@@ -213,9 +219,9 @@ class MapProjection:
         parallel scale in a conformal projection).  For a geographic CRS both are 0 and 1.
         """
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-        if self.crs.is_geographic:
+        if self._to_base is None:
             return np.zeros(len(p)), np.ones(len(p))
-        lon, lat = self._inv.transform(p[:, 0], p[:, 1])
+        lon, lat = self._to_base.transform(p[:, 0], p[:, 1])
         return geodetic_factors(self.crs, np.asarray(lat), np.asarray(lon))
 
 
@@ -228,7 +234,14 @@ def geodetic_factors(
     crs: Any, lat_deg: ArrayLike, lon_deg: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Meridian convergence (radians, see :meth:`MapProjection.factors`) and point scale factor of a
-    projected CRS at geographic positions (degrees), from PROJ's ``proj_factors``."""
+    projected CRS at geographic positions (degrees), from PROJ's ``proj_factors``.
+
+    ``lat_deg`` and ``lon_deg`` are in the CRS's own geographic CRS (``crs.geodetic_crs``: RGF93 for
+    Lambert-93, OSGB36 for the British National Grid...).  For CRSs on a WGS84 realisation (ETRS89,
+    RGF93, GDA2020...) WGS84 positions may be passed; for older datums (OSGB36, ED50...) a ~100 m datum
+    shift would change the convergence by a few arc seconds: use :meth:`MapProjection.factors`, which
+    takes map coordinates.
+    """
     c = resolve_crs(crs)
     f = _proj(c.to_wkt()).get_factors(np.asarray(lon_deg, float), np.asarray(lat_deg, float))
     conv = np.radians(np.asarray(f.meridian_convergence, dtype=np.float64))

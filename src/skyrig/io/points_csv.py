@@ -18,6 +18,10 @@ from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
 
 
+#: Extra columns skyrig writes next to ground points (read back and ignored).
+POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz"]
+
+
 def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tuple[dict, list[int], dict[str, list[str]]]:
     lines = read_text(path).splitlines()
     meta: dict[str, tuple[int, str]] = {}
@@ -55,7 +59,7 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None) -> GroundPo
     """Read ``name,x,y,z``; the frame comes from the header or from ``frame``."""
     from skyrig.io.eo_csv import frame_from_header
 
-    meta, ln, cols = _table(path, ["name", "x", "y", "z"])
+    meta, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
     if frame is None:
         if "crs" not in meta:
             raise InputFormatError("no '# crs:' header line and no CRS given", path, 1, "crs")

@@ -1,0 +1,435 @@
+"""Rig files: YAML, ``format: skyrig-rig``, ``version: 1`` (documented in ``docs/formats/rig_file.md``).
+
+Every quantity carries its unit in its key (``lever_arm_m``, ``focal_mm``, ``pixel_size_um``,
+``*_deg``).  Unknown keys are errors; every error names the file, the line and the key path
+(e.g. ``heads[1].camera.focal_mm``).  Writing goes to a temporary file renamed into place.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import yaml
+
+from skyrig.camera.distortion import NoDistortion
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.io._text import atomic_write, read_text
+from skyrig.rig.boresight_curve import BoresightCurve
+from skyrig.rig.rig import ActuatedHead, Head, Rig, boresight_from_opk, mounting_from_rpy
+
+logger = logging.getLogger(__name__)
+
+FORMAT = "skyrig-rig"
+VERSION = 1
+_DEG = 180.0 / np.pi
+#: Writers fall back to ``mounting_matrix`` when |pitch| of the view is this close to 90 deg (gimbal lock).
+_GIMBAL_LOCK_COS = 1e-6
+
+
+# ---------------------------------------------------------------------- YAML with line numbers
+class _Map(dict):  # type: ignore[type-arg]
+    """A YAML mapping that remembers the line of itself and of each key (1-based)."""
+
+    line: int = 0
+    key_lines: dict[str, int]
+
+
+class _Seq(list):  # type: ignore[type-arg]
+    line: int = 0
+
+
+class _LineLoader(yaml.SafeLoader):
+    pass
+
+
+def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode) -> _Map:
+    loader.flatten_mapping(node)
+    out = _Map()
+    out.line = node.start_mark.line + 1
+    out.key_lines = {}
+    for k_node, v_node in node.value:
+        key = loader.construct_object(k_node, deep=True)
+        if not isinstance(key, str):
+            raise InputFormatError(f"keys must be text, got {key!r}", getattr(loader, "_path", None),
+                                   k_node.start_mark.line + 1)
+        if key in out:
+            raise InputFormatError(f"duplicate key {key!r}", getattr(loader, "_path", None), k_node.start_mark.line + 1)
+        out[key] = loader.construct_object(v_node, deep=True)
+        out.key_lines[key] = k_node.start_mark.line + 1
+    return out
+
+
+def _construct_sequence(loader: _LineLoader, node: yaml.SequenceNode) -> _Seq:
+    out = _Seq(loader.construct_object(n, deep=True) for n in node.value)
+    out.line = node.start_mark.line + 1
+    return out
+
+
+_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_sequence)
+
+
+class _Ctx:
+    """Where we are in the file, for error messages."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def error(self, message: str, m: _Map | None, key_path: str, key: str | None = None) -> InputFormatError:
+        line = None
+        if m is not None:
+            line = m.key_lines.get(key, m.line) if key is not None else m.line
+        return InputFormatError(message, self.path, line, key_path)
+
+    def mapping(self, value: Any, parent: _Map | None, key_path: str, key: str | None,
+                allowed: set[str], required: set[str]) -> _Map:
+        if not isinstance(value, _Map):
+            raise self.error(f"expected a mapping, got {type(value).__name__}", parent, key_path, key)
+        for k in value:
+            if k not in allowed:
+                sub = f"{key_path}.{k}" if key_path else k
+                raise self.error(f"unknown key {k!r} (allowed: {', '.join(sorted(allowed))})", value, sub, k)
+        for k in sorted(required):
+            if k not in value:
+                sub = f"{key_path}.{k}" if key_path else k
+                raise self.error(f"missing key {k!r}", value, sub)
+        return value
+
+    def number(self, m: _Map, key: str, key_path: str, positive: bool = False) -> float:
+        v = m[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise self.error(f"expected a finite number, got {v!r}", m, key_path, key)
+        if positive and v <= 0:
+            raise self.error(f"must be positive, got {v!r}", m, key_path, key)
+        return float(v)
+
+    def integer(self, m: _Map, key: str, key_path: str) -> int:
+        v = m[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+            raise self.error(f"expected a positive integer, got {v!r}", m, key_path, key)
+        return int(v)
+
+    def text(self, m: _Map, key: str, key_path: str) -> str:
+        v = m[key]
+        if not isinstance(v, str) or not v.strip():
+            raise self.error(f"expected non-empty text, got {v!r}", m, key_path, key)
+        return v
+
+    def numbers(
+        self, m: _Map, key: str, key_path: str, shape: tuple[int, ...] | None = None, allow_null: bool = False
+    ) -> np.ndarray:
+        """A (nested) list of finite numbers as an array; ``null`` entries become NaN if allowed."""
+        v = m[key]
+        try:
+            if not isinstance(v, list):
+                raise TypeError
+            flat = list(np.ravel(np.array(v, dtype=object)))
+            if any(isinstance(x, (bool, str)) or (x is None and not allow_null) for x in flat):
+                raise TypeError
+            arr = np.array(_nulls_to_nan(v), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.error(f"expected a list of numbers, got {v!r}", m, key_path, key) from None
+        if shape is not None and arr.shape != shape:
+            raise self.error(f"expected shape {shape}, got {arr.shape}", m, key_path, key)
+        if np.any(np.isinf(arr)) or (not allow_null and np.any(np.isnan(arr))):
+            raise self.error("values must be finite numbers", m, key_path, key)
+        return arr
+
+
+def _nulls_to_nan(v: Any) -> Any:
+    if isinstance(v, list):
+        return [_nulls_to_nan(x) for x in v]
+    return np.nan if v is None else v
+
+
+# ---------------------------------------------------------------------- distortion hooks
+def _distortion_from_dict() -> Callable[[dict[str, Any]], Any] | None:
+    for module in ("skyrig.camera.distortion", "skyrig.camera"):
+        try:
+            mod = __import__(module, fromlist=["distortion_from_dict"])
+        except ImportError:  # pragma: no cover - the package always has these modules
+            continue
+        fn = getattr(mod, "distortion_from_dict", None)
+        if fn is not None:
+            return fn  # type: ignore[no-any-return]
+    return None
+
+
+def _plain(value: Any) -> Any:
+    """numpy containers/scalars -> plain Python for YAML."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _unplain(value: Any) -> Any:
+    """Our line-annotated containers -> plain dict/list (for distortion_from_dict)."""
+    if isinstance(value, dict):
+        return {k: _unplain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_unplain(v) for v in value]
+    return value
+
+
+# ---------------------------------------------------------------------- reading
+_CAMERA_KEYS = {"name", "width_px", "height_px", "pixel_size_um", "focal_mm", "ppx_mm", "ppy_mm", "distortion"}
+_HEAD_KEYS = {"name", "camera", "lever_arm_m", "mounting_rpy_deg", "mounting_matrix", "boresight_opk_deg", "actuator"}
+_ACTUATOR_KEYS = {"type", "gamma_deg", "law", "boresight_curve"}
+_CURVE_KEYS = {"interpolation", "beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg", "std_deg", "count"}
+_STD_KEYS = {"droll_deg", "dpitch_deg", "dyaw_deg"}
+_TOP_KEYS = {"format", "version", "name", "description", "antenna_lever_arm_m", "heads"}
+
+
+def _read_camera(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> FrameCamera:
+    m = ctx.mapping(value, parent, kp, "camera", _CAMERA_KEYS,
+                    {"name", "width_px", "height_px", "pixel_size_um", "focal_mm"})
+    distortion: Any = NoDistortion()
+    d = m.get("distortion")
+    if d is not None:
+        if not isinstance(d, _Map):
+            raise ctx.error("expected a mapping or null", m, f"{kp}.distortion", "distortion")
+        fn = _distortion_from_dict()
+        if fn is None:
+            raise ctx.error("this skyrig cannot read distortion models (no distortion_from_dict)", m,
+                            f"{kp}.distortion", "distortion")
+        try:
+            distortion = fn(_unplain(d))
+        except (KeyError, TypeError, ValueError) as exc:
+            msg = exc.reason if isinstance(exc, InputFormatError) else str(exc)
+            raise InputFormatError(f"bad distortion: {msg}", ctx.path, d.line, f"{kp}.distortion") from None
+    try:
+        return FrameCamera(
+            ctx.text(m, "name", f"{kp}.name"),
+            ctx.integer(m, "width_px", f"{kp}.width_px"),
+            ctx.integer(m, "height_px", f"{kp}.height_px"),
+            ctx.number(m, "pixel_size_um", f"{kp}.pixel_size_um", positive=True) / 1000.0,
+            ctx.number(m, "focal_mm", f"{kp}.focal_mm", positive=True),
+            ctx.number(m, "ppx_mm", f"{kp}.ppx_mm") if "ppx_mm" in m else 0.0,
+            ctx.number(m, "ppy_mm", f"{kp}.ppy_mm") if "ppy_mm" in m else 0.0,
+            distortion,
+        )
+    except InputFormatError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise InputFormatError(str(exc), ctx.path, m.line, kp) from None
+
+
+def _read_curve(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> BoresightCurve:
+    m = ctx.mapping(value, parent, kp, "boresight_curve", _CURVE_KEYS, {"beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg"})
+    beta = ctx.numbers(m, "beta_deg", f"{kp}.beta_deg")
+    if beta.ndim != 1 or beta.size == 0:
+        raise ctx.error("expected a non-empty list of numbers", m, f"{kp}.beta_deg", "beta_deg")
+    k = beta.size
+    corr = np.stack([ctx.numbers(m, a, f"{kp}.{a}", (k,)) for a in ("droll_deg", "dpitch_deg", "dyaw_deg")], axis=1)
+    std = None
+    if m.get("std_deg") is not None:
+        s = ctx.mapping(m["std_deg"], m, f"{kp}.std_deg", "std_deg", _STD_KEYS, _STD_KEYS)
+        std = np.stack([ctx.numbers(s, a, f"{kp}.std_deg.{a}", (k,), allow_null=True)
+                        for a in ("droll_deg", "dpitch_deg", "dyaw_deg")], axis=1)
+    count = None
+    if m.get("count") is not None:
+        c = ctx.numbers(m, "count", f"{kp}.count", (k,))
+        if np.any(c < 1) or np.any(c != np.round(c)):
+            raise ctx.error("expected positive integers", m, f"{kp}.count", "count")
+        count = c.astype(np.int64)
+    interp = m.get("interpolation", "cubic")
+    if interp not in ("cubic", "linear"):
+        raise ctx.error(f"expected 'cubic' or 'linear', got {interp!r}", m, f"{kp}.interpolation", "interpolation")
+    try:
+        return BoresightCurve(beta / _DEG, corr / _DEG, None if std is None else std / _DEG, count, interp)
+    except SkyrigError as exc:
+        raise InputFormatError(str(exc), ctx.path, m.line, kp) from None
+
+
+def _read_head(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
+    kp = f"heads[{index}]"
+    if not isinstance(value, _Map):
+        raise InputFormatError(f"expected a mapping, got {type(value).__name__}", ctx.path, parent.line, kp)
+    m = ctx.mapping(value, None, kp, None, _HEAD_KEYS, {"name", "camera"})
+    name = ctx.text(m, "name", f"{kp}.name")
+    camera = _read_camera(ctx, m["camera"], m, f"{kp}.camera")
+    lever = ctx.numbers(m, "lever_arm_m", f"{kp}.lever_arm_m", (3,)) if "lever_arm_m" in m else np.zeros(3)
+    if "mounting_rpy_deg" in m and "mounting_matrix" in m:
+        raise ctx.error("give either mounting_rpy_deg or mounting_matrix, not both", m, f"{kp}.mounting_matrix",
+                        "mounting_matrix")
+    if "mounting_matrix" in m:
+        mounting = ctx.numbers(m, "mounting_matrix", f"{kp}.mounting_matrix", (3, 3))
+    else:
+        rpy = ctx.numbers(m, "mounting_rpy_deg", f"{kp}.mounting_rpy_deg", (3,)) if "mounting_rpy_deg" in m else np.zeros(3)
+        mounting = mounting_from_rpy(*rpy, unit="deg")
+    opk = ctx.numbers(m, "boresight_opk_deg", f"{kp}.boresight_opk_deg", (3,)) if "boresight_opk_deg" in m else np.zeros(3)
+    boresight = boresight_from_opk(*opk, unit="deg")
+    try:
+        if m.get("actuator") is None:
+            return Head(name, camera, lever, mounting, boresight)
+        akp = f"{kp}.actuator"
+        a = ctx.mapping(m["actuator"], m, akp, "actuator", _ACTUATOR_KEYS, {"type", "gamma_deg"})
+        if a["type"] != "tumbling":
+            raise ctx.error(f"unknown actuator type {a['type']!r}; supported: tumbling", a, f"{akp}.type", "type")
+        gamma = ctx.number(a, "gamma_deg", f"{akp}.gamma_deg") / _DEG
+        law = a.get("law", "paper")
+        if law not in ("paper", "cardan"):
+            raise ctx.error(f"expected 'paper' or 'cardan', got {law!r}", a, f"{akp}.law", "law")
+        curve = None
+        if a.get("boresight_curve") is not None:
+            curve = _read_curve(ctx, a["boresight_curve"], a, f"{akp}.boresight_curve")
+        return ActuatedHead(name, camera, lever, mounting, boresight, gamma, curve, law)
+    except InputFormatError:
+        raise
+    except SkyrigError as exc:  # e.g. a mounting_matrix that is not a rotation
+        raise InputFormatError(str(exc), ctx.path, m.line, kp) from None
+
+
+def read_rig(path: str | os.PathLike[str]) -> Rig:
+    """Read a rig file (``format: skyrig-rig``, ``version: 1``).
+
+    Raises
+    ------
+    InputFormatError
+        For anything the format does not allow, naming the file, line and key path.
+    """
+    p = os.fspath(path)
+    ctx = _Ctx(p)
+    text = read_text(p)
+    loader = _LineLoader(text)
+    loader._path = p  # type: ignore[attr-defined]
+    try:
+        doc = loader.get_single_data()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", p, None if mark is None else mark.line + 1) from None
+    except yaml.YAMLError as exc:
+        raise InputFormatError(f"not valid YAML: {exc}", p) from None
+    finally:
+        loader.dispose()
+    if not isinstance(doc, _Map):
+        raise InputFormatError("a rig file is a YAML mapping", p, 1)
+    for key in ("format", "version"):
+        if key not in doc:
+            raise InputFormatError(f"missing key {key!r} (is this a skyrig rig file?)", p, doc.line, key)
+    if doc["format"] != FORMAT:
+        raise ctx.error(f"expected {FORMAT!r}, got {doc['format']!r}", doc, "format", "format")
+    v = doc["version"]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ctx.error(f"expected an integer, got {v!r}", doc, "version", "version")
+    if v != VERSION:
+        raise ctx.error(f"unsupported version {v} (this skyrig reads version {VERSION})", doc, "version", "version")
+    ctx.mapping(doc, None, "", None, _TOP_KEYS, {"format", "version", "name", "heads"})
+    name = ctx.text(doc, "name", "name")
+    description = doc.get("description") or ""
+    if not isinstance(description, str):
+        raise ctx.error("expected text", doc, "description", "description")
+    antenna = ctx.numbers(doc, "antenna_lever_arm_m", "antenna_lever_arm_m", (3,)) if "antenna_lever_arm_m" in doc \
+        else np.zeros(3)
+    heads_v = doc["heads"]
+    if not isinstance(heads_v, _Seq) or not heads_v:
+        raise ctx.error("expected a non-empty list of heads", doc, "heads", "heads")
+    heads = [_read_head(ctx, h, heads_v, i) for i, h in enumerate(heads_v)]
+    seen: dict[str, int] = {}
+    for i, h in enumerate(heads):
+        if h.name in seen:
+            raise InputFormatError(f"duplicate head name {h.name!r} (also heads[{seen[h.name]}])", p,
+                                   heads_v[i].line, f"heads[{i}].name")
+        seen[h.name] = i
+    return Rig(name, heads, antenna, description)
+
+
+# ---------------------------------------------------------------------- writing
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = all(not isinstance(x, (dict, list)) or (isinstance(x, list) and all(not isinstance(y, (dict, list)) for y in x))
+               for x in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_Dumper.add_representer(list, _represent_list)
+
+
+def _deg(values: Any) -> Any:
+    """Radians -> degrees for writing, rounded to 1e-12 deg (about 2e-14 rad) so that 30 deg does
+    not come out as 29.999999999999996, and without negative zeros."""
+    return _plain(np.round(np.asarray(values, dtype=np.float64) * _DEG, 12) + 0.0)
+
+
+def _camera_dict(cam: FrameCamera) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "name": cam.name,
+        "width_px": int(cam.width),
+        "height_px": int(cam.height),
+        "pixel_size_um": float(cam.pixel_size_mm) * 1000.0,
+        "focal_mm": float(cam.focal_mm),
+        "ppx_mm": float(cam.ppx_mm),
+        "ppy_mm": float(cam.ppy_mm),
+    }
+    d = cam.distortion
+    if d is None or isinstance(d, NoDistortion):
+        out["distortion"] = None
+    elif hasattr(d, "to_dict"):
+        out["distortion"] = _plain(d.to_dict())
+    else:
+        raise SkyrigError(f"camera {cam.name!r}: cannot write distortion model {type(d).__name__} (no to_dict)")
+    return out
+
+
+def _curve_dict(c: BoresightCurve) -> dict[str, Any]:
+    out: dict[str, Any] = {"interpolation": c.interpolation, "beta_deg": _deg(c.beta_rad)}
+    for i, a in enumerate(("droll_deg", "dpitch_deg", "dyaw_deg")):
+        out[a] = _deg(c.corrections_rad[:, i])
+    if c.std_rad is not None:
+        std = np.asarray(_deg(c.std_rad), dtype=np.float64)
+        out["std_deg"] = {a: [None if not np.isfinite(x) else float(x) for x in std[:, i]]
+                          for i, a in enumerate(("droll_deg", "dpitch_deg", "dyaw_deg"))}
+    if c.count is not None:
+        out["count"] = [int(x) for x in c.count]
+    return out
+
+
+def _head_dict(h: Head) -> dict[str, Any]:
+    out: dict[str, Any] = {"name": h.name, "camera": _camera_dict(h.camera), "lever_arm_m": _plain(h.lever_arm_m)}
+    r, p, y = h.mounting_rpy("rad")
+    if abs(np.cos(p)) < _GIMBAL_LOCK_COS:
+        out["mounting_matrix"] = _plain(h.mounting)
+    else:
+        out["mounting_rpy_deg"] = _deg([r, p, y])
+    out["boresight_opk_deg"] = _deg(h.boresight_opk("rad"))
+    if isinstance(h, ActuatedHead):
+        act: dict[str, Any] = {"type": "tumbling", "gamma_deg": _deg(h.gamma_rad), "law": h.law}
+        if h.curve is not None:
+            act["boresight_curve"] = _curve_dict(h.curve)
+        out["actuator"] = act
+    return out
+
+
+def rig_to_dict(rig: Rig) -> dict[str, Any]:
+    """The YAML document of a rig as plain Python (what :func:`write_rig` writes)."""
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "name": rig.name,
+        "description": rig.description,
+        "antenna_lever_arm_m": _plain(rig.antenna_lever_arm_m),
+        "heads": [_head_dict(h) for h in rig],
+    }
+
+
+def write_rig(rig: Rig, path: str | os.PathLike[str]) -> None:
+    """Write ``rig`` as a version-1 rig file (temporary file, then ``os.replace``)."""
+    text = yaml.dump(rig_to_dict(rig), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=120)
+    with atomic_write(path) as fh:
+        fh.write("# skyrig rig file; format described in docs/formats/rig_file.md\n")
+        fh.write(text)
+    logger.debug("wrote rig %s with %d heads to %s", rig.name, len(rig), os.fspath(path))

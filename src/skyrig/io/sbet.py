@@ -1,0 +1,180 @@
+"""Applanix SBET (Smoothed Best Estimate of Trajectory) files, as written by POSPac.
+
+Layout
+------
+No header.  Records of 17 little-endian IEEE float64 (136 bytes), in this order:
+
+====  ====================  =========================================================
+ #    field                 unit / meaning
+====  ====================  =========================================================
+ 0    ``time``              GPS seconds of week
+ 1    ``latitude``          radians (WGS84 or the processing datum)
+ 2    ``longitude``         radians
+ 3    ``altitude``          metres, ellipsoidal height
+ 4    ``x_velocity``        m/s, local-level *wander-angle* frame
+ 5    ``y_velocity``        m/s, wander-angle frame
+ 6    ``z_velocity``        m/s, wander-angle frame
+ 7    ``roll``              radians
+ 8    ``pitch``             radians
+ 9    ``heading``           radians, platform (true) heading
+ 10   ``wander``            radians, wander angle
+ 11   ``x_acceleration``    m/s^2, body frame
+ 12   ``y_acceleration``
+ 13   ``z_acceleration``
+ 14   ``x_angular_rate``    rad/s, body frame
+ 15   ``y_angular_rate``
+ 16   ``z_angular_rate``
+====  ====================  =========================================================
+
+Roll, pitch and the platform heading are the aerospace z-y'-x'' angles of the IMU body frame
+(x forward, y right, z down) relative to local North-East-Down, the convention of
+:func:`skyrig.geometry.rotations.matrix_from_rpy`.
+
+What skyrig assumes and what it leaves alone
+--------------------------------------------
+Public descriptions of the format agree on the field order and units but not on the axes of the
+three velocities (some call x/y east/north, Applanix documents them in the wander-angle frame whose
+axes are turned from north by the wander angle, with sign conventions that vary between
+descriptions).  :func:`read_sbet` therefore does **not** turn them into ``velocity_ned``: the
+trajectory it returns has ``velocity_ned=None`` (cubic interpolation then uses a spline through the
+positions, which at SBET rates of 50-200 Hz is accurate to well below a millimetre).  The raw
+values of every field are available from :func:`read_sbet_records`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from skyrig.errors import InputFormatError
+from skyrig.io._text import atomic_write
+from skyrig.trajectory.trajectory import Trajectory
+
+__all__ = ["SBET_FIELDS", "SBET_RECORD_SIZE", "read_sbet", "read_sbet_records", "write_sbet"]
+
+PathLike = str | os.PathLike[str]
+
+#: Field names of one SBET record, in file order.
+SBET_FIELDS: tuple[str, ...] = (
+    "time", "latitude", "longitude", "altitude", "x_velocity", "y_velocity", "z_velocity",
+    "roll", "pitch", "heading", "wander", "x_acceleration", "y_acceleration", "z_acceleration",
+    "x_angular_rate", "y_angular_rate", "z_angular_rate",
+)
+SBET_DTYPE = np.dtype([(name, "<f8") for name in SBET_FIELDS])
+#: Bytes per record.
+SBET_RECORD_SIZE = SBET_DTYPE.itemsize  # 136
+
+
+def read_sbet_records(path: PathLike) -> NDArray[np.void]:
+    """All records of an SBET file as a structured array ``(N,)`` with the fields :data:`SBET_FIELDS`.
+
+    Raises
+    ------
+    InputFormatError
+        If the file size is not a multiple of 136 bytes (names the incomplete record, 1-based, as
+        ``line``), or the file is empty.
+    """
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise InputFormatError("file not found", p) from None
+    n, rest = divmod(len(raw), SBET_RECORD_SIZE)
+    if rest:
+        raise InputFormatError(
+            f"file size {len(raw)} is not a multiple of the {SBET_RECORD_SIZE}-byte SBET record: record {n + 1} "
+            f"is truncated ({rest} bytes); not an SBET file, or a truncated one", p, n + 1, None)
+    if n == 0:
+        raise InputFormatError("empty SBET file", p, 1, None)
+    return np.frombuffer(raw, dtype=SBET_DTYPE)
+
+
+def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
+    """Read an Applanix SBET file as a :class:`~skyrig.trajectory.Trajectory`.
+
+    Parameters
+    ----------
+    path
+        The ``sbet_*.out`` file.
+    reference
+        Which point the SBET positions refer to; POSPac usually exports the IMU centre (``"imu"``)
+        unless a lever arm to another point was set in the export.
+
+    Returns
+    -------
+    Trajectory
+        ``time_system="gps-sow"``, positions in degrees, heading as true heading, no velocities (see
+        the module documentation).
+
+    Raises
+    ------
+    InputFormatError
+        ``line`` is the 1-based record number: truncated file, non-finite value (``field`` names it),
+        latitude beyond +-pi/2, times that do not increase (e.g. a week rollover; split the file).
+    """
+    rec = read_sbet_records(path)
+    for name in ("time", "latitude", "longitude", "altitude", "roll", "pitch", "heading"):
+        v = rec[name]
+        bad = ~np.isfinite(v)
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise InputFormatError(f"{name} is not a finite number ({v[k]!r})", path, k + 1, name)
+    lat = rec["latitude"]
+    bad = np.abs(lat) > np.pi / 2 + 1e-12
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputFormatError(f"latitude {lat[k]!r} rad beyond +-pi/2 (degrees instead of radians?)", path,
+                               k + 1, "latitude")
+    t = rec["time"]
+    bad = np.diff(t) <= 0
+    if np.any(bad):
+        k = int(np.argmax(bad)) + 1
+        raise InputFormatError(f"time {t[k]!r} is not after the previous record's {t[k - 1]!r}", path, k + 1,
+                               "time")
+    if len(rec) < 2:
+        raise InputFormatError("an SBET trajectory needs at least 2 records", path, 1, None)
+    return Trajectory.from_rpy(
+        t, np.degrees(lat), np.degrees(rec["longitude"]), rec["altitude"], rec["roll"], rec["pitch"],
+        rec["heading"], "rad", time_system="gps-sow", reference=reference,
+    )
+
+
+def write_sbet(path: PathLike, trajectory: Trajectory, extra: Mapping[str, ArrayLike] | None = None) -> None:
+    """Write a trajectory as an SBET file (temporary file, then renamed into place).
+
+    Parameters
+    ----------
+    path
+        Output file.
+    trajectory
+        Must be in GPS seconds of week (``time_system="gps-sow"``).
+    extra
+        Optional raw values ``(N,)`` for the fields skyrig does not model: ``x_velocity``,
+        ``y_velocity``, ``z_velocity``, ``wander``, the accelerations and angular rates, in SBET
+        units.  Fields not given are written as 0.
+    """
+    if trajectory.time_system != "gps-sow":
+        raise InputFormatError(f"SBET times are GPS seconds of week, the trajectory is in "
+                               f"{trajectory.time_system!r}", path, None, "time")
+    n = len(trajectory)
+    rec = np.zeros(n, dtype=SBET_DTYPE)
+    r, p, y = trajectory.rpy("rad")
+    rec["time"] = trajectory.time_s
+    rec["latitude"] = np.radians(trajectory.lat_deg)
+    rec["longitude"] = np.radians(trajectory.lon_deg)
+    rec["altitude"] = trajectory.h_m
+    rec["roll"], rec["pitch"], rec["heading"] = r, p, y
+    own = {"time", "latitude", "longitude", "altitude", "roll", "pitch", "heading"}
+    for name, values in (extra or {}).items():
+        if name not in SBET_FIELDS or name in own:
+            raise InputFormatError(f"{name!r} is not an extra SBET field", path, None, name)
+        v = np.asarray(values, dtype=np.float64)
+        if v.shape != (n,):
+            raise InputFormatError(f"expected {n} values, got shape {v.shape}", path, None, name)
+        rec[name] = v
+    with atomic_write(path, "wb") as fh:
+        fh.write(rec.tobytes())
