@@ -148,7 +148,7 @@ def write_events_csv(path: PathLike, events: CameraEvents, *, angles: str = "deg
     buf.write(f"# time: {events.time_system}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["image", "time", "head"] + (["beta"] if has_beta else []) + ["exposure"])
-    beta = from_radians(events.beta_rad, unit)
+    beta = from_radians(np.mod(events.beta_rad, 2.0 * np.pi), unit)  # one turn, [0, 360) deg: what the reader accepts
     for k in range(len(events)):
         row = [str(events.image_name[k]), f"{events.time_s[k]:.6f}", str(events.head[k])]
         if has_beta:

@@ -160,6 +160,15 @@ def _distortion_from_dict() -> Callable[[dict[str, Any]], Any] | None:
     return None
 
 
+def _distortion_registry() -> dict[str, Any] | None:
+    try:
+        from skyrig.camera import distortion as mod
+    except ImportError:  # pragma: no cover
+        return None
+    fn = getattr(mod, "distortion_models", None)
+    return None if fn is None else {str(k).lower(): v for k, v in fn().items()}
+
+
 def _plain(value: Any) -> Any:
     """numpy containers/scalars -> plain Python for YAML."""
     if isinstance(value, dict):
@@ -206,8 +215,11 @@ def _read_camera(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> FrameCamera:
         try:
             distortion = fn(_unplain(d))
         except (KeyError, TypeError, ValueError) as exc:
+            sub = getattr(exc, "field", None)
             msg = exc.reason if isinstance(exc, InputFormatError) else str(exc)
-            raise InputFormatError(f"bad distortion: {msg}", ctx.path, d.line, f"{kp}.distortion") from None
+            line = d.key_lines.get(sub, d.line) if sub else d.line
+            field = f"{kp}.distortion.{sub}" if sub else f"{kp}.distortion"
+            raise InputFormatError(f"bad distortion: {msg}", ctx.path, line, field) from None
     try:
         return FrameCamera(
             ctx.text(m, "name", f"{kp}.name"),
@@ -226,7 +238,8 @@ def _read_camera(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> FrameCamera:
 
 
 def _read_curve(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> BoresightCurve:
-    m = ctx.mapping(value, parent, kp, "boresight_curve", _CURVE_KEYS, {"beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg"})
+    required = {"beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg"}
+    m = ctx.mapping(value, parent, kp, "boresight_curve", _CURVE_KEYS, required)
     beta = ctx.numbers(m, "beta_deg", f"{kp}.beta_deg")
     if beta.ndim != 1 or beta.size == 0:
         raise ctx.error("expected a non-empty list of numbers", m, f"{kp}.beta_deg", "beta_deg")
@@ -266,9 +279,13 @@ def _read_head(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
     if "mounting_matrix" in m:
         mounting = ctx.numbers(m, "mounting_matrix", f"{kp}.mounting_matrix", (3, 3))
     else:
-        rpy = ctx.numbers(m, "mounting_rpy_deg", f"{kp}.mounting_rpy_deg", (3,)) if "mounting_rpy_deg" in m else np.zeros(3)
+        rpy = np.zeros(3)
+        if "mounting_rpy_deg" in m:
+            rpy = ctx.numbers(m, "mounting_rpy_deg", f"{kp}.mounting_rpy_deg", (3,))
         mounting = mounting_from_rpy(*rpy, unit="deg")
-    opk = ctx.numbers(m, "boresight_opk_deg", f"{kp}.boresight_opk_deg", (3,)) if "boresight_opk_deg" in m else np.zeros(3)
+    opk = np.zeros(3)
+    if "boresight_opk_deg" in m:
+        opk = ctx.numbers(m, "boresight_opk_deg", f"{kp}.boresight_opk_deg", (3,))
     boresight = boresight_from_opk(*opk, unit="deg")
     try:
         if m.get("actuator") is None:
@@ -308,7 +325,8 @@ def read_rig(path: str | os.PathLike[str]) -> Rig:
         doc = loader.get_single_data()
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", p, None if mark is None else mark.line + 1) from None
+        line = None if mark is None else mark.line + 1
+        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", p, line) from None
     except yaml.YAMLError as exc:
         raise InputFormatError(f"not valid YAML: {exc}", p) from None
     finally:
@@ -351,8 +369,11 @@ class _Dumper(yaml.SafeDumper):
 
 
 def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
-    flow = all(not isinstance(x, (dict, list)) or (isinstance(x, list) and all(not isinstance(y, (dict, list)) for y in x))
-               for x in data)
+    def scalar(x: Any) -> bool:
+        return not isinstance(x, (dict, list))
+
+    # lists of numbers and lists of lists of numbers (matrices) go in flow style: [1.0, 2.0, 3.0]
+    flow = all(scalar(x) or (isinstance(x, list) and all(scalar(y) for y in x)) for x in data)
     return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
 
 
@@ -379,6 +400,12 @@ def _camera_dict(cam: FrameCamera) -> dict[str, Any]:
     if d is None or isinstance(d, NoDistortion):
         out["distortion"] = None
     elif hasattr(d, "to_dict"):
+        registry = _distortion_registry()
+        if registry is not None and str(getattr(d, "name", "")).lower() not in registry:
+            raise SkyrigError(
+                f"camera {cam.name!r}: cannot write distortion model {type(d).__name__} "
+                f"({getattr(d, 'name', '?')!r} is not a registered model, so it could not be read back)"
+            )
         out["distortion"] = _plain(d.to_dict())
     else:
         raise SkyrigError(f"camera {cam.name!r}: cannot write distortion model {type(d).__name__} (no to_dict)")

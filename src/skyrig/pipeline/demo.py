@@ -188,8 +188,9 @@ def independent_eo(traj: Trajectory, events: CameraEvents, rig: Rig) -> tuple[np
 
 def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (degrees) of the rotations ``a^T b`` for stacks of rotation matrices."""
-    tr = np.einsum("nij,nij->n", a, b)
-    return np.degrees(np.arccos(np.clip((tr - 1) / 2, -1.0, 1.0)))
+    # ||A - B||_F = 2 sqrt(2) sin(theta / 2): well conditioned for small angles, unlike arccos of the trace
+    d = np.linalg.norm(np.asarray(a) - np.asarray(b), axis=(-2, -1))
+    return np.degrees(2.0 * np.arcsin(np.clip(d / (2.0 * np.sqrt(2.0)), 0.0, 1.0)))
 
 
 __all__ = ["build_demo_project", "demo_flight", "demo_rig", "demo_check_points", "independent_eo",

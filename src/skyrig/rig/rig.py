@@ -54,7 +54,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from types import MappingProxyType
 from typing import Any, Literal
 
 import numpy as np
@@ -253,7 +252,8 @@ class Head:
         :func:`mounting_from_rpy`) and boresight angles (omega, phi, kappa about the camera axes),
         all in ``unit``."""
         o, p, k = np.asarray(boresight_opk, dtype=np.float64).reshape(3)
-        return cls(name, camera, lever_arm_m, mounting_from_rpy(roll, pitch, yaw, unit), boresight_from_opk(o, p, k, unit))
+        mounting = mounting_from_rpy(roll, pitch, yaw, unit)
+        return cls(name, camera, lever_arm_m, mounting, boresight_from_opk(o, p, k, unit))
 
     def with_(self, **changes: Any) -> "Head":
         """A copy with some fields changed."""
@@ -445,7 +445,7 @@ class Rig:
     name
         Rig name.
     heads
-        Ordered read-only mapping ``head name -> Head`` (a sequence of heads is accepted and keyed by
+        Ordered mapping ``head name -> Head`` (do not modify) (a sequence of heads is accepted and keyed by
         their names).
     antenna_lever_arm_m
         ``(3,)`` GNSS antenna phase centre in the body frame, metres.
@@ -477,7 +477,7 @@ class Rig:
             if key in out:
                 raise SkyrigError(f"rig {self.name!r}: two heads named {key!r}")
             out[key] = h
-        object.__setattr__(self, "heads", MappingProxyType(out))
+        object.__setattr__(self, "heads", out)  # a plain dict (picklable for parallel stages); treat as read-only
         object.__setattr__(self, "antenna_lever_arm_m", _vector3(self.antenna_lever_arm_m, "antenna_lever_arm_m"))
 
     @property
