@@ -172,6 +172,19 @@ def test_oblique_mounting_is_upright(azimuth: float) -> None:
     assert up[:2] @ [np.cos(a), np.sin(a)] > 0  # ... and towards the far field
 
 
+def test_rig_pickles() -> None:
+    """Rigs travel to worker processes in parallel stages."""
+    import pickle
+
+    beta_s, corr_s = _curve_samples()
+    rig = preset("macs-tumblecam")
+    rig = Rig(rig.name, [rig.head("nadir"), rig.head("oblique").with_(curve=BoresightCurve(beta_s, corr_s))])
+    back = pickle.loads(pickle.dumps(rig))
+    assert back.isclose(rig, atol=0.0)
+    b = np.linspace(0, 7, 9)
+    assert np.array_equal(back.body_from_camera("oblique", b).rotation, rig.body_from_camera("oblique", b).rotation)
+
+
 def test_rig_errors() -> None:
     cam = FrameCamera("c", 100, 80, 0.01, 10.0)
     rig = Rig("r", [Head("a", cam), Head("b", cam)])

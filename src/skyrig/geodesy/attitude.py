@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from skyrig.errors import GeometryError
 from skyrig.geometry.rotations import (
     ENU_FROM_NED,
+    NADIR_BODY_FROM_CAMERA,
     matrix_from_opk,
     matrix_from_rpy,
     opk_from_matrix,
@@ -46,9 +47,6 @@ from skyrig.geometry.rotations import (
     rpy_from_matrix,
 )
 
-#: ``body_from_camera`` of a standard nadir camera: image x along the flight direction (body x),
-#: image y to the left (-body y), camera z up (-body z).
-NADIR_BODY_FROM_CAMERA = np.diag([1.0, -1.0, -1.0])
 
 Angles = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 

@@ -63,14 +63,13 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.errors import GeometryError, SkyrigError
 from skyrig.geometry.angles import to_radians
 from skyrig.geometry.pose import Pose
-from skyrig.geometry.rotations import matrix_from_opk, matrix_from_rpy, opk_from_matrix, rot_y, rot_z, rpy_from_matrix
+from skyrig.geometry.rotations import NADIR_BODY_FROM_CAMERA, matrix_from_opk, matrix_from_rpy, opk_from_matrix, rot_y, rot_z, rpy_from_matrix
 from skyrig.rig.boresight_curve import BoresightCurve
 
 TumbleLaw = Literal["paper", "cardan"]
 
 #: ``body_from_camera`` of the standard nadir mount: image x forward, image y left, camera z up.
-NADIR_BODY_FROM_CAMERA: NDArray[np.float64] = np.diag([1.0, -1.0, -1.0])
-NADIR_BODY_FROM_CAMERA.setflags(write=False)
+NADIR_BODY_FROM_CAMERA.setflags(write=False)  # defined in skyrig.geometry.rotations
 
 #: Direction of view (the optical axis, pointing away from the camera) in the camera frame.
 VIEW_DIRECTION_CAMERA: NDArray[np.float64] = np.array([0.0, 0.0, -1.0])
@@ -445,8 +444,8 @@ class Rig:
     name
         Rig name.
     heads
-        Ordered mapping ``head name -> Head`` (do not modify) (a sequence of heads is accepted and keyed by
-        their names).
+        Ordered mapping ``head name -> Head``, stored as a new dict (treat it as read-only); a sequence
+        of heads is accepted and keyed by their names.
     antenna_lever_arm_m
         ``(3,)`` GNSS antenna phase centre in the body frame, metres.
     description
