@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.camera.frame import FrameCamera
+from skyrig.camera.jacobians import project_with_jacobians
 from skyrig.errors import GeometryError, InputFormatError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame, local_frame_for
 from skyrig.geometry.pose import Pose
@@ -334,7 +335,7 @@ def forward_intersection(
     """Least-squares intersection of the rays of every point measured in two or more images.
 
     The linear solution (minimum sum of squared ray distances) is refined by Gauss-Newton on the image
-    residuals (numerical derivatives of the full camera model, 3 unknowns per point).  Points with fewer
+    residuals (analytic Jacobians of the full camera model, 3 unknowns per point).  Points with fewer
     than two rays come back as NaN.
     """
     names = np.asarray(points, dtype=str).reshape(-1)
@@ -355,17 +356,24 @@ def forward_intersection(
     if np.any(good):
         X[good] = np.linalg.solve(A[good] + 1e-12 * np.eye(3), b[good][..., None])[..., 0]
     eo_l = eo.to_frame(local)
+    rows = _lookup(eo_l, images)
+    cam_names = eo_l.camera[rows]
+    groups = [(_camera_for(cameras, str(c)), np.flatnonzero(cam_names == c)) for c in np.unique(cam_names)]
 
-    def reproject(Xp: NDArray) -> NDArray:
-        return world_to_image(eo_l, cameras, images, Xp[pid], local)
+    def reproject(Xp: NDArray, jac: bool = False) -> tuple[NDArray, NDArray | None]:
+        out = np.full((len(px), 2), np.nan)
+        J = np.full((len(px), 2, 3), np.nan) if jac else None
+        for cam, sel in groups:
+            pose = Pose(eo_l.rotation[rows[sel]], eo_l.centre[rows[sel]], "world", "camera")
+            pix, jd = project_with_jacobians(cam, pose, Xp[pid[sel]], want=("point",) if jac else ())
+            out[sel] = pix
+            if jac:
+                J[sel] = jd["point"]
+        return out, J
 
     for _ in range(iterations):
-        r = px - reproject(X)
-        J = np.empty((len(px), 2, 3))
-        for j in range(3):
-            dx = np.zeros(3)
-            dx[j] = 1e-3
-            J[:, :, j] = (reproject(X + dx) - reproject(X - dx)) / 2e-3
+        proj, J = reproject(X, jac=True)
+        r = px - proj
         N = np.zeros((P, 3, 3))
         g = np.zeros((P, 3))
         ok = np.all(np.isfinite(r), axis=1) & good[pid]
@@ -377,7 +385,7 @@ def forward_intersection(
         X = X + step
         if np.nanmax(np.abs(step), initial=0.0) < 1e-6:
             break
-    res = px - reproject(X)
+    res = px - reproject(X)[0]
     v = X[pid] - origin
     dist = np.linalg.norm(v - np.sum(v * d, axis=1)[:, None] * d, axis=1)
     sq = np.zeros(P)
