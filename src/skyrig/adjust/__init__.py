@@ -1,0 +1,7 @@
+"""Layer 2: bundle block adjustment and integrated sensor orientation (papers 003 and 004)."""
+
+from skyrig.adjust.block import AdjustConfig, BalCamera, Block, BlockError
+from skyrig.adjust.adjust import AdjustmentResult, DatumDefectError, Rejection, adjust
+
+__all__ = ["AdjustConfig", "BalCamera", "Block", "BlockError", "AdjustmentResult", "DatumDefectError", "Rejection",
+           "adjust"]

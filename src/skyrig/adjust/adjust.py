@@ -1,0 +1,329 @@
+"""``adjust(block, config) -> AdjustmentResult``: the adjustment stage as one library call."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.model import Layout, Model, State
+from skyrig.adjust.solver import (
+    SingularError,
+    SolveInfo,
+    assemble,
+    levenberg_marquardt,
+    schur_matrix,
+    solve_reduced,
+)
+from skyrig.adjust.stats import (
+    Covariance,
+    GroupStats,
+    correlation_warnings,
+    covariance,
+    critical_value,
+    describe_null_space,
+    row_cofactors,
+)
+from skyrig.errors import SkyrigError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["adjust", "AdjustmentResult", "Rejection", "DatumDefectError"]
+
+
+class DatumDefectError(SingularError):
+    """The block is rank deficient; ``reasons`` says why in words."""
+
+    def __init__(self, reasons: list[str]) -> None:
+        self.reasons = reasons
+        super().__init__("; ".join(reasons) if reasons else "the normal equations are singular")
+
+
+@dataclass
+class Rejection:
+    """An observation rejected by data snooping."""
+
+    group: str
+    index: int
+    label: str
+    normalised_residual: float
+
+
+@dataclass
+class GroupResiduals:
+    """Residuals of one observation group in observation units (computed minus observed)."""
+
+    residual: NDArray[np.float64]
+    normalised: NDArray[np.float64] | None
+    redundancy: NDArray[np.float64] | None
+    weight: NDArray[np.float64]
+
+
+@dataclass
+class AdjustmentResult:
+    """Everything an adjustment produced.
+
+    Attributes
+    ----------
+    block
+        The adjusted block (a copy: stations, points, intrinsics, lever arm... at their adjusted values).
+    initial
+        The block as given.
+    info
+        Optimiser record (iterations, costs, wall time).
+    sigma0
+        A-posteriori standard deviation of unit weight.
+    n_observations, n_unknowns, redundancy
+        Scalar observations used, unknowns, and their difference (plus datum defect for a free network).
+    groups
+        Per observation group statistics (variance components).
+    residuals
+        Per group residuals, normalised residuals and redundancy numbers.
+    rejected
+        Observations rejected by data snooping, in rejection order.
+    covariance
+        Cofactors (None when not computed); :meth:`sigma_reduced`, :attr:`point_sigma`.
+    warnings
+        Near-singularities and other remarks in words.
+    layout
+        Column labels of the reduced unknowns.
+    """
+
+    block: Block
+    initial: Block
+    info: SolveInfo
+    sigma0: float
+    n_observations: int
+    n_unknowns: int
+    redundancy: int
+    groups: dict[str, GroupStats]
+    residuals: dict[str, GroupResiduals]
+    rejected: list[Rejection]
+    covariance: Covariance | None
+    warnings: list[str]
+    layout: Layout
+    config: AdjustConfig
+    _point_free: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def sigma_reduced(self) -> dict[tuple[str, str, str], float]:
+        """A-posteriori sigma of every reduced unknown ``{(group, owner, component): sigma}``."""
+        if self.covariance is None:
+            return {}
+        s = self.sigma0 * np.sqrt(np.clip(np.diag(self.covariance.Qcc), 0, None))
+        return dict(zip(self.layout.labels, s.tolist()))
+
+    @property
+    def pose_sigma(self) -> NDArray[np.float64] | None:
+        """``(S, 6)`` sigma of station centres (m) and rotations (rad); NaN for fixed ones."""
+        if self.covariance is None:
+            return None
+        d = np.concatenate([np.diag(self.covariance.Qcc), [np.nan]])
+        return self.sigma0 * np.sqrt(np.clip(d[np.where(self.layout.pose >= 0, self.layout.pose, -1)], 0, None))
+
+    @property
+    def point_sigma(self) -> NDArray[np.float64] | None:
+        """``(P, 3)`` sigma of the object points (m); NaN for fixed points."""
+        if self.covariance is None:
+            return None
+        out = np.full((self.block.n_points, 3), np.nan)
+        free = self.layout.point >= 0
+        q = np.diagonal(self.covariance.Qpp, axis1=1, axis2=2)
+        out[free] = self.sigma0 * np.sqrt(np.clip(q[self.layout.point[free]], 0, None))
+        return out
+
+    def point_covariance(self) -> NDArray[np.float64] | None:
+        """``(P, 3, 3)`` a-posteriori covariance of the points (m²)."""
+        if self.covariance is None:
+            return None
+        out = np.full((self.block.n_points, 3, 3), np.nan)
+        free = self.layout.point >= 0
+        out[free] = self.sigma0**2 * self.covariance.Qpp[self.layout.point[free]]
+        return out
+
+
+def _block_from_state(block: Block, model: Model, s: State) -> Block:
+    out = block.copy()
+    out.station_rotation = s.R.copy()
+    out.station_centre = s.C.copy()
+    out.cameras = model.cameras(s)
+    out.head_boresight = s.bore.copy()
+    out.lever_arm = s.lever.copy()
+    out.datum_shift = s.shift.copy()
+    out.strip_shift = s.sshift.copy()
+    out.strip_drift = s.sdrift.copy()
+    out.point_xyz = s.X.copy()
+    return out
+
+
+def _weights(model: Model) -> dict[str, NDArray[np.float64]]:
+    return {"image": model.obs_weight, "control": model.control_weight, "gnss": model.gnss_weight,
+            "imu": model.imu_weight}
+
+
+def _label(block: Block, group: str, i: int) -> str:
+    if group == "image":
+        return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
+    if group == "control":
+        return f"control point {block.point_name[block.control_point[i]]}"  # type: ignore[index]
+    if group == "gnss":
+        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"  # type: ignore[index]
+    if group == "imu":
+        return f"IMU attitude of station {block.station_name[block.imu_station[i]]}"  # type: ignore[index]
+    return f"{group}[{i}]"
+
+
+def check_datum(model: Model, state: State, free_datum: bool) -> None:
+    """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular."""
+    lay = model.layout
+    if lay.n_c == 0:
+        return
+    N = assemble(model.evaluate(state), lay, model.block.obs_image)
+    S, rhs, _ = schur_matrix(N, 0.0)
+    if free_datum:
+        return
+    try:
+        solve_reduced(S, rhs)
+    except SingularError:
+        raise DatumDefectError(describe_null_space(model, state)) from None
+
+
+def adjust(block: Block, config: AdjustConfig | None = None,
+           callback: Callable[[str, int, float], None] | None = None) -> AdjustmentResult:
+    """Adjust a block.
+
+    Parameters
+    ----------
+    block
+        Observations and starting values (validated first; :class:`~skyrig.adjust.block.BlockError`).
+    config
+        How; default :class:`AdjustConfig()`.
+    callback
+        ``callback(stage, iteration, cost)`` after each iteration (progress display).
+
+    Returns
+    -------
+    AdjustmentResult
+
+    Raises
+    ------
+    DatumDefectError
+        The block is rank deficient (e.g. no datum); the message says which motions or unknowns.
+    """
+    cfg = config or AdjustConfig()
+    block.validate()
+    model = Model(block, cfg)
+    state = State.from_block(block)
+    free = cfg.datum == "free"
+    if cfg.datum != "none":
+        check_datum(model, state, free)
+    huber = cfg.robust_k if cfg.robust == "huber" else None
+    crit = critical_value(cfg.snooping_alpha)
+    rejected: list[Rejection] = []
+    total_info = SolveInfo()
+    stage = "adjust"
+    while True:
+        cb = None if callback is None else (lambda i, c, lam, _s=stage: callback(_s, i, c))
+        state, info = levenberg_marquardt(
+            model, state, cfg.max_iterations, cfg.function_tolerance, cfg.parameter_tolerance,
+            cfg.gradient_tolerance, huber, free, cb)
+        if not rejected:
+            total_info = info
+        else:
+            total_info.iterations += info.iterations
+            total_info.final_cost = info.final_cost
+            total_info.wall_s += info.wall_s
+            total_info.converged = info.converged
+            total_info.message = info.message
+        if huber is not None:  # freeze the final Huber weights for the statistics
+            f = model.evaluate(state, jacobians=False)[0]
+            root = np.sqrt((f.r ** 2).sum(axis=1))
+            model.obs_weight = model.obs_weight * np.where(root <= huber, 1.0, huber / np.maximum(root, 1e-300))
+            huber = None
+        res = _statistics(block, model, state, cfg if cfg.datum != "none" else cfg.with_(statistics=False), free)
+        if not cfg.snooping or len(rejected) >= cfg.max_rejections or res[0] is None:
+            break
+        # data snooping: the largest normalised residual among active observations
+        best = (0.0, "", -1)
+        for g, gr in res[1].items():
+            if gr.normalised is None or g.startswith("prior"):
+                continue
+            act = gr.weight > 0
+            if not act.any():
+                continue
+            w = np.abs(gr.normalised).max(axis=1)
+            w[~act] = 0.0
+            i = int(np.argmax(w))
+            if w[i] > best[0]:
+                best = (float(w[i]), g, i)
+        if cfg.snooping_familywise:
+            n_tests = sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in res[1].items()
+                          if gr.normalised is not None and not g.startswith("prior"))
+            crit = critical_value(cfg.snooping_alpha / max(n_tests, 1))
+        if best[0] <= crit:
+            break
+        g, i = best[1], best[2]
+        _weights(model)[g][i] = 0.0
+        rejected.append(Rejection(g, i, _label(block, g, i), best[0]))
+        logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, best[0])
+        stage = f"snooping {len(rejected)}"
+    cov, residuals, groups, sigma0, n_obs, n_unk, warnings = res
+    total_info.final_cost = float(sum(0.5 * float(((r.residual / _sigma(block, g)) ** 2 * r.weight[:, None]).sum())
+                                      for g, r in residuals.items() if not g.startswith("prior")))
+    return AdjustmentResult(
+        _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, n_obs - n_unk
+        + (7 if free else 0), groups, residuals, rejected, cov, warnings, model.layout, cfg)
+
+
+def _sigma(block: Block, g: str) -> NDArray[np.float64]:
+    return {"image": block.obs_sigma_px, "control": block.control_sigma, "gnss": block.gnss_sigma,
+            "imu": block.imu_sigma_rad}[g]  # type: ignore[return-value]
+
+
+def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):  # type: ignore[no-untyped-def]
+    lay = model.layout
+    factors = model.evaluate(state)
+    N = assemble(factors, lay, block.obs_image)
+    n_obs = int(sum(((f.weight if f.weight is not None else np.ones(len(f))) > 0).sum() * f.r.shape[1]
+                    for f in factors))
+    n_unk = lay.n_c + 3 * lay.n_p
+    red = n_obs - n_unk + (7 if free else 0)
+    sigma0 = float(np.sqrt(2.0 * N.cost / red)) if red > 0 else float("nan")
+    cov = None
+    warnings: list[str] = []
+    if red <= 0:
+        warnings.append(f"no redundancy ({n_obs} observations for {n_unk} unknowns): sigma0 is undefined")
+    if cfg.statistics and lay.n_c <= cfg.max_statistics_parameters:
+        try:
+            cov = covariance(N, lay, state, free)
+        except SingularError as e:
+            warnings.append(f"covariance not available: {e}")
+        if cov is not None:
+            warnings.extend(correlation_warnings(cov, lay))
+    elif cfg.statistics:
+        warnings.append(f"covariance and redundancy numbers skipped: {lay.n_c} reduced unknowns > "
+                        f"max_statistics_parameters = {cfg.max_statistics_parameters}")
+    residuals: dict[str, GroupResiduals] = {}
+    groups: dict[str, GroupStats] = {}
+    for f in factors:
+        w = f.weight if f.weight is not None else np.ones(len(f))
+        v = f.r * f.sigma
+        wn = rr = None
+        if cov is not None:
+            H = row_cofactors(f, cov)
+            if H is not None:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    qvv = np.where(w[:, None] > 0, 1.0 / np.where(w > 0, w, 1.0)[:, None] - H, 1.0 + H)
+                    rr = np.where(w[:, None] > 0, 1.0 - w[:, None] * H, 0.0)
+                    wn = np.where(qvv > 1e-12, f.r / np.sqrt(np.clip(qvv, 1e-300, None)), 0.0)
+        residuals[f.name] = GroupResiduals(v, wn, rr, w)
+        act = w > 0
+        r_g = float(rr.sum()) if rr is not None else float("nan")
+        vtpv = float((f.r[act] ** 2 * w[act, None]).sum())
+        rms = np.sqrt(np.mean(v[act] ** 2, axis=0)).tolist() if act.any() else [float("nan")] * f.r.shape[1]
+        groups[f.name] = GroupStats(f.name, int(act.sum()), int(act.sum() * f.r.shape[1]), r_g,
+                                    float(np.sqrt(vtpv / r_g)) if r_g and r_g > 0 else float("nan"), rms)
+    return cov, residuals, groups, sigma0, n_obs, n_unk, warnings

@@ -1,0 +1,435 @@
+"""The data of a bundle block: observations, parameters and how each parameter group is treated.
+
+Frames
+------
+Everything in a :class:`Block` is in **one Cartesian world frame** (normally the tangential / local
+ENU frame of the block, :meth:`skyrig.georef.WorldFrame.local`; see ``docs/frames.md``), metres and
+radians.  Map inputs are transformed into it before the adjustment and results back afterwards
+(:mod:`skyrig.adjust.frames`).
+
+Stations, images and heads
+--------------------------
+A *station* carries one pose unknown ``world_from_station = (R, C)``: a single image, or one platform
+exposure of a rig (station = IMU body).  Each image belongs to a station and has a fixed
+``station_from_camera`` rotation and offset (identity and zero for a single camera; the head's
+``body_from_camera`` for a rig, possibly per image for an actuated head), and a *head* index whose
+small boresight correction ``b`` (a rotation vector, camera frame) may be estimated::
+
+    world_from_camera = R_station @ station_from_camera @ expmap(b_head)
+    C_camera          = C_station + R_station @ offset
+
+GNSS antenna positions observe ``C_station + R_station @ lever_arm + datum_shift + strip_shift[s]
++ strip_drift[s] * (t - t0[s])``; IMU attitudes observe ``R_station``.
+
+Parameter groups
+----------------
+Each group of :class:`AdjustConfig` is ``"fixed"``, ``"free"`` or ``"weighted"`` (free with a prior
+equal to the starting value and the sigma given in the config).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Literal, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import SkyrigError
+
+Mode = Literal["fixed", "free", "weighted"]
+MODES = ("fixed", "free", "weighted")
+
+__all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]
+
+
+class BlockError(SkyrigError, ValueError):
+    """A block is inconsistent (an observation naming an unknown image, a NaN, a point seen once...)."""
+
+
+@dataclass(frozen=True)
+class BalCamera:
+    """The camera model of the Bundle Adjustment in the Large (BAL) problems (Agarwal et al. 2010).
+
+    ``p = -P_xy / P_z`` (camera looks along -z, y up as skyrig's camera frame),
+    ``r = 1 + k1 |p|^2 + k2 |p|^4``, observation ``= f r p`` in pixels relative to the image centre
+    (x right, y up).  Intrinsics vector ``(f, k1, k2)``.
+    """
+
+    name: str
+    f: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @property
+    def intrinsic_names(self) -> tuple[str, ...]:
+        return ("f", "k1", "k2")
+
+    @property
+    def intrinsics(self) -> NDArray[np.float64]:
+        return np.array([self.f, self.k1, self.k2])
+
+    def with_intrinsics(self, v: NDArray[np.float64]) -> "BalCamera":
+        return replace(self, f=float(v[0]), k1=float(v[1]), k2=float(v[2]))
+
+
+CameraModel = FrameCamera | BalCamera
+
+
+def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:  # type: ignore[no-untyped-def]
+    a = np.asarray(x, dtype=dtype)
+    if n is None:
+        n = a.shape[0] if a.ndim else 0
+    return a.reshape((n,) + tuple(shape_tail))
+
+
+@dataclass
+class Block:
+    """Observations and parameter values of a bundle block (all in one Cartesian world frame).
+
+    Attributes
+    ----------
+    cameras
+        Camera models (interior orientation); images refer to them by index.
+    station_name, station_rotation, station_centre
+        ``(S,)``, ``(S, 3, 3)`` ``world_from_station``, ``(S, 3)`` metres: pose unknowns.
+    station_time
+        ``(S,)`` seconds (for strip drift), default zeros.
+    station_strip
+        ``(S,)`` strip index per station (-1: none), for per-strip GNSS shift and drift.
+    image_name, image_station, image_camera, image_head
+        ``(I,)`` names and indices into stations, cameras and heads.
+    image_rotation, image_offset
+        ``(I, 3, 3)`` ``station_from_camera`` and ``(I, 3)`` camera offset in the station frame (m).
+    head_name
+        ``(H,)`` names of heads (boresight-correction groups).
+    point_name, point_xyz
+        ``(P,)``, ``(P, 3)`` object points (starting values), metres.
+    obs_image, obs_point, obs_pixel, obs_sigma_px
+        Image measurements ``(N,)``, ``(N,)``, ``(N, 2)`` (column, row) px, ``(N, 2)`` px.
+    control_point, control_xyz, control_sigma, control_check
+        Ground coordinates of control points ``(K,)``, ``(K, 3)``, ``(K, 3)`` metres per axis, and
+        ``(K,)`` bool: True for a *check* point (not used in the adjustment, compared afterwards).
+    gnss_station, gnss_xyz, gnss_sigma
+        GNSS antenna positions ``(G,)``, ``(G, 3)``, ``(G, 3)`` metres.
+    imu_station, imu_rotation, imu_sigma_rad
+        IMU attitudes ``world_from_station`` ``(M,)``, ``(M, 3, 3)``, ``(M, 3)`` rad (about the station axes).
+    lever_arm
+        ``(3,)`` GNSS antenna in the station frame, metres.
+    head_boresight
+        ``(H, 3)`` boresight corrections (rotation vectors, camera frame), rad.
+    datum_shift, strip_shift, strip_drift
+        ``(3,)`` GNSS datum shift, ``(T, 3)`` per-strip shifts (m), ``(T, 3)`` drifts (m/s).
+    strip_t0
+        ``(T,)`` reference time of each strip's drift (s).
+    frame
+        Description of the world frame (for reports), e.g. ``WorldFrame.describe()``.
+    """
+
+    cameras: list
+    station_name: NDArray[np.str_]
+    station_rotation: NDArray[np.float64]
+    station_centre: NDArray[np.float64]
+    image_name: NDArray[np.str_]
+    image_station: NDArray[np.int64]
+    image_camera: NDArray[np.int64]
+    point_name: NDArray[np.str_]
+    point_xyz: NDArray[np.float64]
+    obs_image: NDArray[np.int64]
+    obs_point: NDArray[np.int64]
+    obs_pixel: NDArray[np.float64]
+    obs_sigma_px: NDArray[np.float64] | float = 1.0
+    image_rotation: NDArray[np.float64] | None = None
+    image_offset: NDArray[np.float64] | None = None
+    image_head: NDArray[np.int64] | None = None
+    head_name: NDArray[np.str_] | None = None
+    station_time: NDArray[np.float64] | None = None
+    station_strip: NDArray[np.int64] | None = None
+    control_point: NDArray[np.int64] | None = None
+    control_xyz: NDArray[np.float64] | None = None
+    control_sigma: NDArray[np.float64] | float = 0.01
+    control_check: NDArray[np.bool_] | None = None
+    gnss_station: NDArray[np.int64] | None = None
+    gnss_xyz: NDArray[np.float64] | None = None
+    gnss_sigma: NDArray[np.float64] | float = 0.05
+    imu_station: NDArray[np.int64] | None = None
+    imu_rotation: NDArray[np.float64] | None = None
+    imu_sigma_rad: NDArray[np.float64] | float = 1e-4
+    lever_arm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    head_boresight: NDArray[np.float64] | None = None
+    datum_shift: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    strip_shift: NDArray[np.float64] | None = None
+    strip_drift: NDArray[np.float64] | None = None
+    strip_t0: NDArray[np.float64] | None = None
+    frame: str = "local Cartesian frame"
+
+    def __post_init__(self) -> None:
+        self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
+        s = len(self.station_name)
+        self.station_rotation = _arr(self.station_rotation, (3, 3), n=s)
+        self.station_centre = _arr(self.station_centre, (3,), n=s)
+        self.image_name = np.asarray(self.image_name, dtype=str).reshape(-1)
+        i = len(self.image_name)
+        self.image_station = _arr(self.image_station, (), np.int64, i)
+        self.image_camera = _arr(self.image_camera, (), np.int64, i)
+        self.image_rotation = (np.broadcast_to(np.eye(3), (i, 3, 3)).copy() if self.image_rotation is None
+                               else _arr(self.image_rotation, (3, 3), n=i))
+        self.image_offset = np.zeros((i, 3)) if self.image_offset is None else _arr(self.image_offset, (3,), n=i)
+        self.image_head = np.zeros(i, np.int64) if self.image_head is None else _arr(self.image_head, (), np.int64, i)
+        nh = int(self.image_head.max()) + 1 if i else 1
+        if self.head_name is None:
+            self.head_name = np.array([f"head{k}" for k in range(nh)])
+        self.head_name = np.asarray(self.head_name, dtype=str).reshape(-1)
+        h = len(self.head_name)
+        self.head_boresight = np.zeros((h, 3)) if self.head_boresight is None else _arr(self.head_boresight, (3,), n=h)
+        self.station_time = np.zeros(s) if self.station_time is None else _arr(self.station_time, (), n=s)
+        self.station_strip = (np.full(s, -1, np.int64) if self.station_strip is None
+                              else _arr(self.station_strip, (), np.int64, s))
+        t = int(self.station_strip.max()) + 1 if s else 0
+        self.strip_shift = np.zeros((t, 3)) if self.strip_shift is None else _arr(self.strip_shift, (3,), n=t)
+        self.strip_drift = np.zeros((t, 3)) if self.strip_drift is None else _arr(self.strip_drift, (3,), n=t)
+        if self.strip_t0 is None:
+            t0 = np.zeros(t)
+            for k in range(t):
+                sel = self.station_strip == k
+                t0[k] = self.station_time[sel].mean() if sel.any() else 0.0
+            self.strip_t0 = t0
+        self.strip_t0 = _arr(self.strip_t0, (), n=t)
+        self.point_name = np.asarray(self.point_name, dtype=str).reshape(-1)
+        p = len(self.point_name)
+        self.point_xyz = _arr(self.point_xyz, (3,), n=p)
+        self.obs_image = np.asarray(self.obs_image, dtype=np.int64).reshape(-1)
+        n = len(self.obs_image)
+        self.obs_point = _arr(self.obs_point, (), np.int64, n)
+        self.obs_pixel = _arr(self.obs_pixel, (2,), n=n)
+        self.obs_sigma_px = np.broadcast_to(np.asarray(self.obs_sigma_px, dtype=np.float64), (n, 2)).copy()
+        self.lever_arm = np.asarray(self.lever_arm, dtype=np.float64).reshape(3)
+        self.datum_shift = np.asarray(self.datum_shift, dtype=np.float64).reshape(3)
+        if self.control_point is None:
+            self.control_point = np.zeros(0, np.int64)
+            self.control_xyz = np.zeros((0, 3))
+        k = len(np.asarray(self.control_point).reshape(-1))
+        self.control_point = _arr(self.control_point, (), np.int64, k)
+        self.control_xyz = _arr(self.control_xyz, (3,), n=k)
+        self.control_sigma = np.broadcast_to(np.asarray(self.control_sigma, dtype=np.float64), (k, 3)).copy()
+        self.control_check = (np.zeros(k, bool) if self.control_check is None
+                              else np.asarray(self.control_check, dtype=bool).reshape(k))
+        if self.gnss_station is None:
+            self.gnss_station = np.zeros(0, np.int64)
+            self.gnss_xyz = np.zeros((0, 3))
+        g = len(np.asarray(self.gnss_station).reshape(-1))
+        self.gnss_station = _arr(self.gnss_station, (), np.int64, g)
+        self.gnss_xyz = _arr(self.gnss_xyz, (3,), n=g)
+        self.gnss_sigma = np.broadcast_to(np.asarray(self.gnss_sigma, dtype=np.float64), (g, 3)).copy()
+        if self.imu_station is None:
+            self.imu_station = np.zeros(0, np.int64)
+            self.imu_rotation = np.zeros((0, 3, 3))
+        m = len(np.asarray(self.imu_station).reshape(-1))
+        self.imu_station = _arr(self.imu_station, (), np.int64, m)
+        self.imu_rotation = _arr(self.imu_rotation, (3, 3), n=m)
+        self.imu_sigma_rad = np.broadcast_to(np.asarray(self.imu_sigma_rad, dtype=np.float64), (m, 3)).copy()
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_stations(self) -> int:
+        return len(self.station_name)
+
+    @property
+    def n_images(self) -> int:
+        return len(self.image_name)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.point_name)
+
+    @property
+    def n_observations(self) -> int:
+        return len(self.obs_image)
+
+    @property
+    def n_strips(self) -> int:
+        return len(self.strip_t0)  # type: ignore[arg-type]
+
+    def copy(self) -> "Block":
+        """A deep copy of the arrays (cameras are immutable)."""
+        kw = {}
+        for f in self.__dataclass_fields__:
+            v = getattr(self, f)
+            kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
+        return Block(**kw)
+
+    # ------------------------------------------------------------------ checks
+    def validate(self) -> None:
+        """Raise :class:`BlockError` naming the first inconsistency found (indices, NaN, sigma, rays)."""
+
+        def rng(name: str, idx: NDArray, n: int, what: str) -> None:
+            bad = np.flatnonzero((idx < 0) | (idx >= n))
+            if bad.size:
+                raise BlockError(f"{name}[{bad[0]}] = {idx[bad[0]]} names an unknown {what} (have {n})")
+
+        def finite(name: str, a: NDArray) -> None:
+            bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []
+            if len(bad):
+                raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
+
+        def positive(name: str, a: NDArray) -> None:
+            bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []
+            if len(bad):
+                raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
+
+        rng("image_station", self.image_station, self.n_stations, "station")
+        rng("image_camera", self.image_camera, len(self.cameras), "camera")
+        rng("image_head", self.image_head, len(self.head_name), "head")  # type: ignore[arg-type]
+        rng("obs_image", self.obs_image, self.n_images, "image")
+        rng("obs_point", self.obs_point, self.n_points, "point")
+        rng("control_point", self.control_point, self.n_points, "point")  # type: ignore[arg-type]
+        rng("gnss_station", self.gnss_station, self.n_stations, "station")  # type: ignore[arg-type]
+        rng("imu_station", self.imu_station, self.n_stations, "station")  # type: ignore[arg-type]
+        for name in ("station_rotation", "station_centre", "point_xyz", "obs_pixel", "obs_sigma_px", "control_xyz",
+                     "control_sigma", "gnss_xyz", "gnss_sigma", "imu_rotation", "imu_sigma_rad", "image_rotation",
+                     "image_offset"):
+            finite(name, getattr(self, name))
+        for name in ("obs_sigma_px", "control_sigma", "gnss_sigma", "imu_sigma_rad"):
+            positive(name, getattr(self, name))
+        det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
+        bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
+        if bad.size:
+            raise BlockError(f"station_rotation[{bad[0]}] is not a rotation (det {det[bad[0]]:.6f})")
+        # every point needs two rays or control
+        rays = np.bincount(self.obs_point, minlength=self.n_points)
+        ctrl = np.zeros(self.n_points, bool)
+        ctrl[self.control_point[~self.control_check]] = True  # type: ignore[index]
+        bad = np.flatnonzero((rays < 2) & ~ctrl)
+        if bad.size:
+            raise BlockError(
+                f"point {self.point_name[bad[0]]!r} is seen in {rays[bad[0]]} image(s) and is not control: "
+                f"it cannot be determined ({bad.size} such points); remove it or add observations"
+            )
+        pair = self.obs_image * max(self.n_points, 1) + self.obs_point
+        u, c = np.unique(pair, return_counts=True)
+        if (c > 1).any():
+            k = u[c > 1][0]
+            raise BlockError(f"point {self.point_name[k % self.n_points]!r} is measured more than once in image "
+                             f"{self.image_name[k // self.n_points]!r}")
+
+
+@dataclass(frozen=True)
+class AdjustConfig:
+    """How to adjust a block (frozen; unknown keys in a config file are an error).
+
+    Attributes
+    ----------
+    poses
+        Station poses: ``"free"`` (default), ``"fixed"`` or ``"weighted"`` (prior = starting value).
+    pose_sigma_m, pose_sigma_rad
+        Prior sigma of weighted poses (centre metres, rotation radians).
+    points
+        Object points: ``"free"`` (default) or ``"fixed"``.
+    intrinsics
+        ``"fixed"`` (default), ``"free"`` or ``"weighted"``: interior orientation / additional parameters.
+    intrinsic_names
+        Which intrinsics take part when not fixed (names of the camera's ``intrinsic_names``);
+        None = all.  Others stay fixed.
+    intrinsic_sigma
+        Prior sigma per intrinsic name for ``"weighted"`` (units of the parameter).
+    lever_arm, boresight, datum_shift, strip_shift, strip_drift
+        Mode of these groups (default fixed).
+    lever_arm_sigma_m, boresight_sigma_rad, datum_shift_sigma_m, strip_shift_sigma_m, strip_drift_sigma_m_s
+        Prior sigma for ``"weighted"``.
+    datum
+        ``"auto"`` (control and/or GNSS, whatever the block has), or ``"free"``: inner constraints on
+        the station poses (minimum norm of the pose corrections; 7-parameter similarity), or
+        ``"none"``: no datum at all, the Levenberg-Marquardt damping picks one solution among the
+        equivalent ones (as Ceres does for BAL problems); no rank check, no covariance.
+    max_iterations
+        Levenberg-Marquardt iterations.
+    function_tolerance, parameter_tolerance, gradient_tolerance
+        Stop when the relative cost decrease, the relative step or the max gradient fall below these
+        (Ceres's definitions).
+    robust
+        ``None`` or ``"huber"``: robust reweighting of image observations (Huber's weights).
+    robust_k
+        Huber threshold in units of the observation's sigma.
+    snooping
+        Run Baarda's data snooping: repeatedly reject the observation with the largest normalised
+        residual above the critical value and re-adjust.
+    snooping_alpha
+        Significance level (two-sided), default 0.001.  With ``snooping_familywise`` (default) it is the
+        probability of *any* false rejection in the block: each of the n tests uses ``alpha / n``
+        (Bonferroni; n = 10,000 gives a critical value of 5.3); otherwise it is Baarda's per-test alpha0
+        (0.001 -> 3.29, which rejects about one good observation per thousand tests).
+    snooping_familywise
+        See ``snooping_alpha``.
+    max_rejections
+        Cap on rejected observations.
+    statistics
+        Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
+        reduced system; skipped above ``max_statistics_parameters``).
+    max_statistics_parameters
+        Size limit of the reduced system for full statistics.
+    """
+
+    poses: Mode = "free"
+    pose_sigma_m: float = 1.0
+    pose_sigma_rad: float = 1e-3
+    points: Literal["free", "fixed"] = "free"
+    intrinsics: Mode = "fixed"
+    intrinsic_names: tuple[str, ...] | None = None
+    intrinsic_sigma: tuple[tuple[str, float], ...] = ()
+    lever_arm: Mode = "fixed"
+    lever_arm_sigma_m: float = 0.1
+    boresight: Mode = "fixed"
+    boresight_sigma_rad: float = 0.01
+    datum_shift: Mode = "fixed"
+    datum_shift_sigma_m: float = 1.0
+    strip_shift: Mode = "fixed"
+    strip_shift_sigma_m: float = 1.0
+    strip_drift: Mode = "fixed"
+    strip_drift_sigma_m_s: float = 0.01
+    datum: Literal["auto", "free", "none"] = "auto"
+    max_iterations: int = 50
+    function_tolerance: float = 1e-6
+    parameter_tolerance: float = 1e-8
+    gradient_tolerance: float = 1e-10
+    robust: Literal["huber"] | None = None
+    robust_k: float = 2.5
+    snooping: bool = False
+    snooping_alpha: float = 0.001
+    snooping_familywise: bool = True
+    max_rejections: int = 100
+    statistics: bool = True
+    max_statistics_parameters: int = 6000
+
+    def __post_init__(self) -> None:
+        for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift"):
+            if getattr(self, name) not in MODES:
+                raise ValueError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
+        if self.points not in ("free", "fixed"):
+            raise ValueError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
+        if self.datum not in ("auto", "free", "none"):
+            raise ValueError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
+        if self.robust not in (None, "huber"):
+            raise ValueError(f"AdjustConfig.robust must be None or 'huber', got {self.robust!r}")
+
+    def with_(self, **changes: object) -> "AdjustConfig":
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> "AdjustConfig":
+        """Build from a mapping; unknown keys raise ``ValueError`` naming them."""
+        known = set(cls.__dataclass_fields__)
+        bad = sorted(set(data) - known)
+        if bad:
+            raise ValueError(f"{source}: unknown adjustment option(s) {bad}; known: {sorted(known)}")
+        d = dict(data)
+        if "intrinsic_names" in d and d["intrinsic_names"] is not None:
+            d["intrinsic_names"] = tuple(d["intrinsic_names"])
+        if "intrinsic_sigma" in d:
+            v = d["intrinsic_sigma"]
+            d["intrinsic_sigma"] = tuple(sorted(v.items())) if isinstance(v, dict) else tuple(map(tuple, v))
+        return cls(**d)
+
+
+def sequence_index(names: Sequence[str]) -> dict[str, int]:
+    return {str(n): i for i, n in enumerate(names)}

@@ -1,0 +1,151 @@
+"""Bridge between georef data (map / ECEF frames) and a :class:`Block` in a local tangential frame.
+
+:func:`block_from_georef` transforms exterior orientations, ground control and GNSS/IMU data given in
+any :class:`~skyrig.georef.WorldFrame` rigorously (through ECEF, PROJ for map projections and geoids)
+into a local ENU (tangential) frame at the block, builds the block there, and
+:func:`eo_from_block` / :func:`points_to_frame` carry the adjusted values back.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.block import Block, BlockError
+from skyrig.camera.frame import FrameCamera
+from skyrig.geodesy.crs import ecef_to_geodetic
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+from skyrig.georef.ground import forward_intersection
+from skyrig.georef.observations import GroundPoints, ImageMeasurements
+
+__all__ = ["local_frame_at", "block_from_georef", "eo_from_block", "points_to_frame"]
+
+
+def local_frame_at(points_ecef: NDArray[np.float64], height: float | None = None) -> WorldFrame:
+    """Local ENU frame at the centroid of ECEF points (on the ellipsoid, or at ``height``)."""
+    lat, lon, h = ecef_to_geodetic(np.asarray(points_ecef, float).mean(axis=0, keepdims=True))
+    return WorldFrame.local(float(lat[0]), float(lon[0]), float(h[0]) if height is None else float(height))
+
+
+def block_from_georef(
+    eo: ExteriorOrientations,
+    cameras: Mapping[str, FrameCamera],
+    measurements: ImageMeasurements,
+    control: GroundPoints | None = None,
+    *,
+    start_eo: ExteriorOrientations | None = None,
+    gnss_sigma_m: float | tuple[float, float, float] | None = 0.05,
+    imu_sigma_rad: float | tuple[float, float, float] | None = 1e-4,
+    control_sigma_m: float | tuple[float, float, float] = 0.02,
+    check_points: tuple[str, ...] = (),
+    sigma_px: float = 0.5,
+    frame: WorldFrame | None = None,
+    min_rays: int = 2,
+) -> tuple[Block, WorldFrame]:
+    """A block in a local frame from exterior orientations, measurements and control.
+
+    Parameters
+    ----------
+    eo
+        Exterior orientations of (at least) the measured images, any frame.  With ``gnss_sigma_m`` /
+        ``imu_sigma_rad`` their centres / rotations enter as GNSS / IMU observations of the cameras.
+    cameras
+        Camera name -> camera.
+    measurements
+        Image measurements of tie and control points; images not in ``eo`` raise :class:`BlockError`.
+    control
+        Ground control points (any frame); those named in ``check_points`` are check points.
+    start_eo
+        Starting values of the orientations (default ``eo``).
+    frame
+        Local frame to adjust in (default: ENU at the centroid of the projection centres, on the ellipsoid).
+    min_rays
+        Tie points measured in fewer images (and not control) are dropped.
+
+    Returns
+    -------
+    block, frame
+        Starting object points come from a forward intersection with the starting orientations.
+    """
+    idx = eo.index()
+    unknown = sorted(set(measurements.image.tolist()) - set(idx))
+    if unknown:
+        raise BlockError(f"measurements name {len(unknown)} image(s) without an exterior orientation, e.g. "
+                         f"{unknown[0]!r}")
+    imgs = np.unique(measurements.image)
+    rows = np.array([idx[i] for i in imgs])
+    eo_sel = eo.subset(rows)
+    if frame is None:
+        frame = local_frame_at(eo_sel.frame.to_ecef(eo_sel.centre))
+    obs_l = eo_sel.to_frame(frame)
+    st = (start_eo if start_eo is not None else eo)
+    st_l = st.subset(np.array([st.index()[i] for i in imgs])).to_frame(frame)
+    cam_names = sorted(set(obs_l.camera.tolist()))
+    missing = [c for c in cam_names if c not in cameras]
+    if missing:
+        raise BlockError(f"no camera model for camera {missing[0]!r}")
+    cam_idx = {c: k for k, c in enumerate(cam_names)}
+    # points: tie points with enough rays, control points
+    ctrl_names = set() if control is None else set(control.name.tolist())
+    pnames, pid, counts = np.unique(measurements.point, return_inverse=True, return_counts=True)
+    keep_pt = (counts >= min_rays) | np.isin(pnames, list(ctrl_names))
+    keep_obs = keep_pt[pid]
+    m_point = measurements.point[keep_obs]
+    m_image = measurements.image[keep_obs]
+    m_pixel = measurements.pixel[keep_obs]
+    pnames = pnames[keep_pt]
+    pidx = {p: k for k, p in enumerate(pnames)}
+    inter = forward_intersection(st_l, cameras, m_point, m_image, m_pixel, frame)
+    X0 = np.full((len(pnames), 3), np.nan)
+    ii = {p: k for k, p in enumerate(inter.point)}
+    for p, k in pidx.items():
+        if p in ii:
+            X0[k] = inter.xyz[ii[p]]
+    ctrl_kw: dict = {}
+    if control is not None:
+        c_local = frame.from_ecef(control.frame.to_ecef(control.xyz))
+        sel = np.array([n in pidx for n in control.name])
+        cp = np.array([pidx[n] for n in control.name[sel]], dtype=np.int64)
+        ctrl_kw = dict(control_point=cp, control_xyz=c_local[sel], control_sigma=control_sigma_m,
+                       control_check=np.isin(control.name[sel], list(check_points)))
+        bad = ~np.isfinite(X0[cp]).all(axis=1)
+        X0[cp[bad]] = c_local[sel][bad]
+    if not np.isfinite(X0).all():
+        k = int(np.flatnonzero(~np.isfinite(X0).all(axis=1))[0])
+        raise BlockError(f"point {pnames[k]!r} could not be intersected from the starting orientations")
+    img_index = {n: k for k, n in enumerate(imgs)}
+    n = len(imgs)
+    kw: dict = {}
+    if gnss_sigma_m is not None:
+        kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre, gnss_sigma=gnss_sigma_m)
+    if imu_sigma_rad is not None:
+        kw.update(imu_station=np.arange(n), imu_rotation=obs_l.rotation, imu_sigma_rad=imu_sigma_rad)
+    block = Block(
+        cameras=[cameras[c] for c in cam_names], station_name=imgs, station_rotation=st_l.rotation,
+        station_centre=st_l.centre, image_name=imgs, image_station=np.arange(n),
+        image_camera=np.array([cam_idx[c] for c in obs_l.camera]), image_head=np.array([cam_idx[c] for c in obs_l.camera]),
+        head_name=np.array(cam_names), point_name=pnames, point_xyz=X0,
+        obs_image=np.array([img_index[i] for i in m_image], dtype=np.int64),
+        obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel, obs_sigma_px=sigma_px,
+        frame=frame.describe(), **ctrl_kw, **kw,
+    )
+    return block, frame
+
+
+def eo_from_block(block: Block, frame: WorldFrame, to: WorldFrame | None = None) -> ExteriorOrientations:
+    """Exterior orientations of the block's images (``world_from_camera``) in ``frame``, optionally converted."""
+    from skyrig.geometry.rotations import matrix_from_rotvec
+
+    Rs = block.station_rotation[block.image_station]
+    R = Rs @ block.image_rotation @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
+    C = block.station_centre[block.image_station] + np.einsum("nij,nj->ni", Rs, block.image_offset)
+    cams = np.array([block.cameras[c].name for c in block.image_camera])
+    eo = ExteriorOrientations(block.image_name, cams, C, R, frame)
+    return eo if to is None else eo.to_frame(to)
+
+
+def points_to_frame(xyz: NDArray[np.float64], frame: WorldFrame, to: WorldFrame) -> NDArray[np.float64]:
+    """Points ``(N, 3)`` from one world frame to another (through ECEF)."""
+    return to.from_ecef(frame.to_ecef(xyz))

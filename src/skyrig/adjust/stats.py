@@ -1,0 +1,251 @@
+"""Precision and reliability: covariance, redundancy numbers, normalised residuals, data snooping,
+variance components, and rank-deficiency / near-singularity diagnosis in words.
+
+Notation (whitened observations, a-priori sigma0 = 1): for an observation row block ``o`` with Jacobian
+``J_o`` and weight ``w`` (1, 0 when rejected, Huber weight in between), ``Q_xx`` the cofactor matrix of
+the unknowns::
+
+    H_o    = J_o Q_xx J_o^T                   cofactor of the adjusted observation
+    Q_vv   = 1/w - H_o                        cofactor of the residual
+    r_i    = 1 - w diag(H_o)                  redundancy number (sum over all rows = n - u)
+    w_i    = v_i / sqrt(diag(Q_vv))           Baarda's normalised residual (N(0,1) without blunders)
+
+``Q_xx`` is obtained from the Schur complement: ``Q_cc = S^-1``,
+``Q_cp = -Q_cc W V^-1``, ``Q_pp = V^-1 + V^-1 W^T Q_cc W V^-1`` (only the 3x3 diagonal point blocks).
+For a free network ``S^-1`` is replaced by the pseudo-inverse under inner constraints,
+``(S + G G^T)^-1 - G G^T`` with G orthonormal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.stats import norm
+
+from skyrig.adjust.model import Factor, Layout, Model, State
+from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix
+
+__all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
+           "correlation_warnings", "GroupStats"]
+
+
+def critical_value(alpha: float) -> float:
+    """Two-sided critical value of the standard normal distribution (alpha 0.001 -> 3.29)."""
+    return float(norm.ppf(1.0 - alpha / 2.0))
+
+
+@dataclass
+class Covariance:
+    """Cofactors of the unknowns (multiply by sigma0^2 for the a-posteriori covariance).
+
+    Attributes
+    ----------
+    Qcc
+        ``(n_c, n_c)`` dense cofactor matrix of the reduced unknowns (columns: ``Layout.labels``).
+    Qpp
+        ``(n_p, 3, 3)`` cofactor blocks of the free points.
+    M
+        ``(n_c, 3 n_p)`` ``Q_cc W`` (for the point/reduced cross terms), or None when too large.
+    Vinv
+        ``(n_p, 3, 3)`` inverse point blocks of the normal matrix.
+    """
+
+    Qcc: NDArray[np.float64]
+    Qpp: NDArray[np.float64]
+    Vinv: NDArray[np.float64]
+    M: NDArray[np.float64] | None = None
+
+
+def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.float64]:
+    q, _ = np.linalg.qr(G[:, np.linalg.norm(G, axis=0) > 0])
+    return np.linalg.inv(S + q @ q.T) - q @ q.T
+
+
+def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False,
+               max_dense_products: int = 60_000_000) -> Covariance:
+    """Cofactor matrices at the solution (see module docstring).  Raises :class:`SingularError`."""
+    S, _, Vinv = schur_matrix(N, 0.0)
+    Sd = S.toarray()
+    if free_datum:
+        Q = _pinv_inner(Sd, inner_constraint_basis(state, layout))
+    else:
+        d = np.diag(Sd).copy()
+        if np.any(d <= 0):
+            raise SingularError("unknowns without observations")
+        sc = 1.0 / np.sqrt(d)
+        try:
+            L = np.linalg.cholesky(Sd * sc[:, None] * sc[None, :])
+        except np.linalg.LinAlgError as e:
+            raise SingularError(f"the normal matrix is singular: {e}") from e
+        Li = np.linalg.inv(L)
+        Q = (Li.T @ Li) * sc[:, None] * sc[None, :]
+    n_p = layout.n_p
+    Qpp = Vinv.copy()
+    M = None
+    if n_p and N.Wb is not None:
+        Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]
+        if Q.shape[0] * 3 * n_p <= max_dense_products:
+            M = np.asarray(Wfull.T @ Q).T  # Q_cc W  (n_c, 3 n_p)
+            Wc = Wfull.tocsc()
+            WtM = np.zeros((n_p, 3, 3))
+            for a in range(3):
+                for b in range(3):
+                    WtM[:, a, b] = np.asarray(Wc[:, a::3].multiply(M[:, b::3]).sum(axis=0)).reshape(-1)
+            Qpp = Vinv + Vinv @ WtM @ Vinv
+        else:  # chunks of points, without keeping M
+            Wc = Wfull.tocsc()
+            for s0 in range(0, n_p, max(1, max_dense_products // (3 * Q.shape[0]))):
+                s1 = min(n_p, s0 + max(1, max_dense_products // (3 * Q.shape[0])))
+                Wk = Wc[:, 3 * s0: 3 * s1]
+                Mk = np.asarray(Wk.T @ Q).T
+                WtM = np.zeros((s1 - s0, 3, 3))
+                for a in range(3):
+                    for b in range(3):
+                        WtM[:, a, b] = np.asarray(Wk[:, a::3].multiply(Mk[:, b::3]).sum(axis=0)).reshape(-1)
+                Qpp[s0:s1] = Vinv[s0:s1] + Vinv[s0:s1] @ WtM @ Vinv[s0:s1]
+    return Covariance(Q, Qpp, Vinv, M)
+
+
+def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
+    """``diag(H_o)`` ``(n, d)`` for the *unweighted* whitened rows of a factor (None if not computable)."""
+    n, d = f.r.shape
+    H = np.zeros((n, d))
+    Q = cov.Qcc
+    n_c = Q.shape[0]
+    if f.jc is not None and f.cols is not None and f.cols.shape[1]:
+        Qe = np.zeros((n_c + 1, n_c + 1))
+        Qe[:n_c, :n_c] = Q
+        c = np.where(f.cols >= 0, f.cols, n_c)
+        for s0 in range(0, n, 100_000):
+            sl = slice(s0, s0 + 100_000)
+            Qs = Qe[c[sl][:, :, None], c[sl][:, None, :]]
+            H[sl] += np.einsum("ndk,nkl,ndl->nd", f.jc[sl], Qs, f.jc[sl])
+    if f.jp is not None and f.point is not None:
+        has = f.point >= 0
+        p = np.where(has, f.point, 0)
+        jp = f.jp * has[:, None, None]
+        H += np.einsum("nda,nab,ndb->nd", jp, cov.Qpp[p], jp)
+        if f.jc is not None and f.cols is not None and f.cols.shape[1]:
+            if cov.M is None:
+                return None
+            Me = np.vstack([cov.M, np.zeros((1, cov.M.shape[1]))])
+            c = np.where(f.cols >= 0, f.cols, n_c)
+            cols3 = 3 * p[:, None] + np.arange(3)[None, :]
+            QcW = Me[c[:, :, None], cols3[:, None, :]]  # (n, k, 3) = (Q_cc W)[cols, point]
+            Qcp = -QcW @ cov.Vinv[p]
+            H += 2.0 * np.einsum("ndk,nka,nda->nd", f.jc, Qcp, jp)
+    return H
+
+
+@dataclass
+class GroupStats:
+    """Per observation group: count, redundancy, variance component and residual RMS (observation units)."""
+
+    name: str
+    n_rows: int
+    n_scalar: int
+    redundancy: float
+    sigma0: float
+    rms: list[float] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------- rank deficiency in words
+_MOTIONS = ("translation along X", "translation along Y", "translation along Z", "rotation about X",
+            "rotation about Y", "rotation about Z", "scale")
+
+
+def describe_null_space(model: Model, state: State, max_size: int = 6000) -> list[str]:
+    """Words for the singular directions of the reduced normal matrix at ``state`` (empty if regular)."""
+    lay = model.layout
+    N = assemble(model.evaluate(state), lay, model.block.obs_image)
+    S, _, _ = schur_matrix(N, 0.0)
+    n = S.shape[0]
+    if n == 0:
+        return []
+    d = S.diagonal()
+    out: list[str] = []
+    zero = np.flatnonzero(d <= 0)
+    for j in zero[:10]:
+        g, o, c = lay.labels[j]
+        out.append(f"{g} {o} {c} has no observations (nothing determines it)")
+    if zero.size > 10:
+        out.append(f"... and {zero.size - 10} more unknowns without observations")
+    if zero.size:
+        return out
+    if n > max_size:
+        return [f"the reduced normal matrix ({n} unknowns) is singular; too large for an eigen-analysis"]
+    sc = 1.0 / np.sqrt(d)
+    A = S.toarray() * sc[:, None] * sc[None, :]
+    ev, vec = np.linalg.eigh(A)
+    tol = max(ev[-1], 1.0) * 1e-10
+    null = np.flatnonzero(ev <= tol)
+    if null.size == 0:
+        return []
+    out.append(f"the normal equations are rank deficient by {null.size}")
+    G = inner_constraint_basis(state, lay)
+    vecs = vec[:, null] * sc[:, None]  # back to parameter units
+    if np.any(G):
+        # how much of the null space each similarity motion explains
+        Gn = G / np.linalg.norm(G, axis=0).clip(1e-300)
+        qn, _ = np.linalg.qr(vecs)
+        expl = np.linalg.norm(qn.T @ Gn, axis=0)
+        free = [m for m, e in zip(_MOTIONS, expl) if e > 0.9]
+        if free:
+            out.append("the datum is not defined: the block can move by " + ", ".join(free)
+                       + " without changing any observation (add control points, GNSS positions, or use "
+                       "datum='free' for inner constraints)")
+            null_rest = null.size - len(free)
+        else:
+            null_rest = null.size
+    else:
+        null_rest = null.size
+    if null_rest > 0:
+        # name the groups involved in the remaining singular directions
+        for v in vec[:, null].T[: max(1, null_rest)]:
+            big = np.argsort(-np.abs(v))[:4]
+            names = [" ".join(lay.labels[j]) for j in big if abs(v[j]) > 0.1]
+            if names:
+                out.append("these unknowns cannot be separated: " + ", ".join(names))
+    return out
+
+
+def correlation_warnings(cov: Covariance, layout: Layout, limit: float = 0.98, max_items: int = 20) -> list[str]:
+    """Words for pairs of reduced unknowns of *different* groups correlated above ``limit`` (and ill-conditioning)."""
+    Q = cov.Qcc
+    if Q.size == 0:
+        return []
+    sd = np.sqrt(np.clip(np.diag(Q), 1e-300, None))
+    Rm = Q / sd[:, None] / sd[None, :]
+    groups = np.array([g for g, _, _ in layout.labels])
+    owners = np.array([o for _, o, _ in layout.labels])
+    # pose-pose correlations within a station are common and uninteresting; report across groups
+    # and for the global groups (lever arm, boresight, shifts, intrinsics) among themselves
+    glob = groups != "pose"
+    out = []
+    idx = np.flatnonzero(glob)
+    if idx.size == 0:
+        return out
+    sub = np.abs(Rm[np.ix_(idx, np.arange(len(Q)))])
+    for a_i, a in enumerate(idx):
+        sub[a_i, a] = 0.0
+        same = (groups == groups[a]) & (owners == owners[a])
+        sub[a_i, same] = 0.0
+    pairs = np.argwhere(sub > limit)
+    seen = set()
+    for a_i, b in pairs:
+        a = idx[a_i]
+        key = tuple(sorted((a, b)))
+        if key in seen:
+            continue
+        seen.add(key)
+        if groups[b] == "pose":
+            # a global unknown correlated with a pose: summarise per group
+            pass
+        out.append(f"{' '.join(layout.labels[a])} and {' '.join(layout.labels[b])} are correlated at "
+                   f"{Rm[a, b]:+.3f}: this block cannot separate them (near-singular)")
+        if len(out) >= max_items:
+            break
+    return out
