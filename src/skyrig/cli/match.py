@@ -1,0 +1,321 @@
+"""``skyrig match PROJECT``: tie points for a folder of images, resumable and parallel (Dask).
+
+PROJECT is a folder; images are taken from ``PROJECT/images`` if it exists, else from PROJECT itself, or from
+one or more ``--images`` folders (e.g. one per rig head).  Results go to ``PROJECT/match`` (or ``--out``):
+``features/`` and ``matches/`` (resumable store), ``tie_points.csv`` (point,image,column,row; skyrig pixels),
+``report.json`` and ``coverage.png``.
+
+Pairs: ``guided`` (footprints from the images' own GPS + DJI gimbal attitudes, or ``--eo`` + ``--camera``),
+``gps`` (nearest centres + heading), ``exhaustive``; ``auto`` picks guided when attitudes exist, else gps.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import click
+import numpy as np
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.georef.eo import ExteriorOrientations
+from skyrig.io.image_read import (
+    ImageMetadata, camera_from_metadata, list_images, orientations_from_metadata, read_image, read_image_metadata,
+)
+from skyrig.io.match_db import MatchDatabase
+from skyrig.match.features import FeatureConfig, extract_features
+from skyrig.match.matching import MatchConfig, PairMatches, match_pair
+from skyrig.match.pairs import exhaustive_pairs, footprint_pairs, gps_pairs
+from skyrig.match.report import coverage_image, tie_point_report
+from skyrig.match.tracks import Tracks, build_tracks, thin_tracks, tracks_to_measurements
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class MatchRunResult:
+    """What :func:`match_images` produced."""
+
+    names: list[str]
+    skipped: dict[str, str]
+    pairs: np.ndarray
+    pair_mode: str
+    pair_matches: dict[tuple[int, int], PairMatches]
+    features: list
+    tracks: Tracks
+    thinned: Tracks
+    report: dict
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+def collect_images(folders: Sequence[str | Path]) -> tuple[list[ImageMetadata], dict[str, str]]:
+    """Metadata of all images in the folders; unreadable images are skipped with a logged reason.
+
+    Raises
+    ------
+    InputFormatError
+        Two images share a name (the name is the image identifier), or no image is readable.
+    """
+    metas: list[ImageMetadata] = []
+    skipped: dict[str, str] = {}
+    seen: dict[str, str] = {}
+    for folder in folders:
+        for p in list_images(folder):
+            if p.name in seen:
+                raise InputFormatError(f"duplicate image name {p.name!r} (also {seen[p.name]}); image names must "
+                                       "be unique across folders", p)
+            seen[p.name] = str(p)
+            try:
+                metas.append(read_image_metadata(p))
+            except InputFormatError as exc:
+                logger.warning("skipping %s: %s", p, exc.reason)
+                skipped[p.name] = exc.reason
+    if not metas:
+        raise InputFormatError("no readable images", ", ".join(str(f) for f in folders))
+    return metas, skipped
+
+
+def _extract_one(path: str, name: str, db_root: str, cfg: FeatureConfig) -> str:
+    db = MatchDatabase(db_root)
+    if db.has_features(name):
+        return "cached"
+    try:
+        img = read_image(path)
+    except InputFormatError as exc:
+        return f"skip: {exc.reason}"
+    db.write_features(name, extract_features(img, cfg))
+    return "done"
+
+
+def _match_one(i: int, j: int, names: list[str], db_root: str, cfg: MatchConfig,
+               cams: list[FrameCamera | None], poses: list) -> str:
+    db = MatchDatabase(db_root)
+    if db.has_matches(names[i], names[j]):
+        return "cached"
+    f1, f2 = db.read_features(names[i]), db.read_features(names[j])
+    pm = match_pair(f1, f2, cfg, cams[i], poses[i], cams[j], poses[j])
+    db.write_matches(names[i], names[j], pm)
+    return "done"
+
+
+def _run_dask(tasks: list[Callable[[], str]], scheduler: str, workers: int,
+              progress: Callable[[int], None] | None) -> list[str]:
+    import dask
+    from dask.callbacks import Callback
+
+    class _Tick(Callback):
+        def _posttask(self, key, result, dsk, state, id):  # noqa: ANN001, A002
+            if progress is not None and isinstance(key, tuple | str) and "task-" in str(key):
+                progress(1)
+
+    delayed = [dask.delayed(t, pure=False, name=f"task-{k}")() for k, t in enumerate(tasks)]
+    kw = {"scheduler": scheduler}
+    if scheduler in ("threads", "processes"):
+        kw["num_workers"] = workers
+    with _Tick():
+        return list(dask.compute(*delayed, **kw))
+
+
+class _Call:
+    """Picklable deferred call (for the processes scheduler)."""
+
+    def __init__(self, fn: Callable, *args: object) -> None:
+        self.fn, self.args = fn, args
+
+    def __call__(self) -> str:
+        return self.fn(*self.args)
+
+
+def match_images(
+    folders: Sequence[str | Path], out: str | Path, feature_config: FeatureConfig = FeatureConfig(),
+    match_config: MatchConfig | None = None, pair_mode: str = "auto", eo: ExteriorOrientations | None = None,
+    cameras: dict[str, FrameCamera] | None = None, terrain_height: float | None = None,
+    min_overlap: float = 0.1, gps_neighbours: int = 8, scheduler: str = "threads", workers: int = 2,
+    thin_per_cell: int = 0, overwrite: bool = False, progress: Callable[[str, int, int], None] | None = None,
+) -> MatchRunResult:
+    """Feature extraction, pair selection, guided matching, tracks, tie-point file and report for a block.
+
+    Parameters are as the CLI options.  ``progress(stage, done, total)`` is called as work completes.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    metas, skipped = collect_images(folders)
+    names = [m.name for m in metas]
+    if match_config is None:
+        scale = max(max(m.width, m.height) for m in metas) / feature_config.max_size if feature_config.max_size else 1.0
+        match_config = MatchConfig(threshold_scale=max(1.0, scale))
+    cfg_json = {"features": asdict(feature_config), "matching": asdict(match_config)}
+    db = MatchDatabase(out, cfg_json, overwrite=overwrite)
+
+    def tick(stage: str, total: int) -> Callable[[int], None]:
+        state = {"n": 0}
+
+        def f(k: int) -> None:
+            state["n"] += k
+            if progress:
+                progress(stage, state["n"], total)
+        return f
+
+    tasks = [_Call(_extract_one, m.path, m.name, str(out), feature_config) for m in metas]
+    res = _run_dask(tasks, scheduler, workers, tick("features", len(tasks)))
+    for m, r in zip(metas, res):
+        if r.startswith("skip"):
+            skipped[m.name] = r[6:]
+            logger.warning("skipping %s: %s", m.path, r[6:])
+    keep = [k for k, m in enumerate(metas) if m.name not in skipped]
+    metas = [metas[k] for k in keep]
+    names = [m.name for m in metas]
+    t1 = time.perf_counter()
+
+    # ---- approximate orientations and cameras
+    cams: list[FrameCamera | None] = [None] * len(metas)
+    poses: list = [None] * len(metas)
+    heading = None
+    mode = pair_mode
+    if eo is not None:
+        idx = eo.index()
+        missing = [n for n in names if n not in idx]
+        if missing:
+            raise InputFormatError(f"no exterior orientation for {len(missing)} images, e.g. {missing[0]!r}")
+        eo = eo.subset(np.array([idx[n] for n in names]))
+        if cameras is None:
+            raise click.UsageError("--eo needs --camera")
+        cams = [cameras[str(c)] for c in eo.camera]
+        if terrain_height is None:
+            raise click.UsageError("--eo needs --terrain-height")
+    elif all(m.has_gps for m in metas):
+        mo = orientations_from_metadata(metas)
+        heading = mo.heading_deg
+        try:
+            cams = [camera_from_metadata(m) for m in metas]
+            cameras = {c.name: c for c in cams if c is not None}
+        except InputFormatError as exc:
+            logger.warning("no cameras from EXIF (%s): guided matching off", exc.reason)
+        if np.all(np.isfinite(mo.eo.rotation)) and all(c is not None for c in cams):
+            eo = ExteriorOrientations(mo.eo.image, np.array([c.name for c in cams]), mo.eo.centre, mo.eo.rotation,
+                                      mo.eo.frame)
+            if terrain_height is None:
+                terrain_height = mo.ground_height
+    if mode == "auto":
+        mode = "guided" if eo is not None and terrain_height is not None else (
+            "gps" if all(m.has_gps for m in metas) else "exhaustive")
+    if mode == "guided":
+        if eo is None or terrain_height is None:
+            raise InputFormatError("guided pairs need orientations (GPS + gimbal attitudes or --eo) and a terrain "
+                                   "height (--terrain-height or DJI RelativeAltitude)")
+        pairs, _ = footprint_pairs(eo, cameras or {}, terrain_height, min_overlap=min_overlap)
+        poses = [eo.pose()[k] for k in range(len(eo))]
+    elif mode == "gps":
+        if not all(m.has_gps for m in metas):
+            bad = next(m for m in metas if not m.has_gps)
+            raise InputFormatError("gps pairs need EXIF GPS on every image", bad.path, None, "GPSLatitude")
+        c = (eo.centre if eo is not None else orientations_from_metadata(metas).eo.centre)
+        pairs = gps_pairs(c, k=gps_neighbours, heading_deg=heading)
+        cams = [None] * len(metas)
+    elif mode == "exhaustive":
+        pairs = exhaustive_pairs(len(metas))
+        if eo is not None:
+            poses = [eo.pose()[k] for k in range(len(eo))]
+    else:
+        raise click.UsageError(f"unknown pair mode {pair_mode!r}")
+    logger.info("%d images, %d pairs (%s)", len(names), len(pairs), mode)
+    if not all(p is not None for p in poses):
+        cams = [None] * len(metas)
+        poses = [None] * len(metas)
+
+    tasks = [_Call(_match_one, int(i), int(j), names, str(out), match_config, cams, poses) for i, j in pairs]
+    _run_dask(tasks, scheduler, workers, tick("matches", len(tasks)))
+    t2 = time.perf_counter()
+
+    feats = [db.read_features(n) for n in names]
+    pm = {(int(i), int(j)): db.read_matches(names[i], names[j]) for i, j in pairs}
+    tracks = build_tracks([len(f) for f in feats], {k: v.matches for k, v in pm.items() if v.ok})
+    xy = [f.xy for f in feats]
+    sizes = [f.image_size for f in feats]
+    thinned = thin_tracks(tracks, xy, sizes, per_cell=thin_per_cell) if thin_per_cell > 0 else tracks
+    report = tie_point_report(thinned, names, pm)
+    report["pair_mode"] = mode
+    report["skipped_images"] = skipped
+    report["n_tracks_before_thinning"] = tracks.n_tracks
+
+    from skyrig.io.points_csv import write_measurements_csv
+
+    write_measurements_csv(out / "tie_points.csv", tracks_to_measurements(thinned, xy, names))
+    tmp = out / "report.json.tmp"
+    tmp.write_text(json.dumps(report, indent=1))
+    os.replace(tmp, out / "report.json")
+    import cv2
+
+    png = coverage_image(thinned, xy, sizes)
+    tmp_png = out / "coverage.tmp.png"
+    cv2.imwrite(str(tmp_png), png[..., ::-1])
+    os.replace(tmp_png, out / "coverage.png")
+    t3 = time.perf_counter()
+    return MatchRunResult(names, skipped, pairs, mode, pm, feats, tracks, thinned, report,
+                          {"features": t1 - t0, "matching": t2 - t1, "tracks_report": t3 - t2, "total": t3 - t0})
+
+
+@click.command("match")
+@click.argument("project", type=click.Path(file_okay=False))
+@click.option("--images", "image_dirs", multiple=True, type=click.Path(exists=True, file_okay=False),
+              help="Image folder(s) (default PROJECT/images or PROJECT); repeat for one folder per head.")
+@click.option("-o", "--out", type=click.Path(file_okay=False), help="Output folder (default PROJECT/match).")
+@click.option("--pairs", "pair_mode", type=click.Choice(["auto", "guided", "gps", "exhaustive"]), default="auto",
+              show_default=True)
+@click.option("--method", type=click.Choice(["pycolmap", "opencv"]), default="pycolmap", show_default=True,
+              help="SIFT implementation.")
+@click.option("--max-size", type=int, default=1600, show_default=True, help="Detect on images downscaled to this.")
+@click.option("--max-features", type=int, default=8000, show_default=True)
+@click.option("--min-overlap", type=float, default=0.1, show_default=True, help="Guided pairs: footprint overlap.")
+@click.option("--neighbours", type=int, default=8, show_default=True, help="GPS pairs: nearest images.")
+@click.option("--eo", "eo_path", type=click.Path(exists=True, dir_okay=False), help="Approximate EO file.")
+@click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--terrain-height", type=float, help="Mean terrain height in the EO frame (guided pairs).")
+@click.option("--thin", "thin_per_cell", type=int, default=0, show_default=True,
+              help="Keep this many tracks per 8x8 image cell (0 = all).")
+@click.option("--scheduler", type=click.Choice(["threads", "processes", "sync"]), default="threads",
+              show_default=True, help="Dask local scheduler.")
+@click.option("-j", "--workers", type=int, default=2, show_default=True)
+@click.option("--overwrite", is_flag=True, help="Discard stored features and matches.")
+def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mode: str, method: str, max_size: int,
+            max_features: int, min_overlap: float, neighbours: int, eo_path: str | None, camera_paths: tuple[str, ...],
+            terrain_height: float | None, thin_per_cell: int, scheduler: str, workers: int, overwrite: bool) -> None:
+    """Tie points for the images of PROJECT (resumable: rerun to continue an interrupted run)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    proj = Path(project)
+    folders = list(image_dirs) or [proj / "images" if (proj / "images").is_dir() else proj]
+    eo = cameras = None
+    if eo_path:
+        from skyrig.cli._common import load_cameras, load_eo
+
+        eo = load_eo(eo_path, None, None, None, None)
+        cameras = load_cameras(camera_paths)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
+        ids: dict[str, object] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in ids:
+                ids[stage] = bar.add_task(stage, total=total)
+            bar.update(ids[stage], completed=done)  # type: ignore[arg-type]
+
+        try:
+            r = match_images(folders, out or proj / "match",
+                             FeatureConfig(method=method, max_size=max_size, max_features=max_features),  # type: ignore[arg-type]
+                             None, pair_mode, eo, cameras, terrain_height, min_overlap, neighbours, scheduler,
+                             workers, thin_per_cell, overwrite, progress)
+        except SkyrigError:
+            raise
+    rep = r.report
+    click.echo(f"{len(r.names)} images ({len(r.skipped)} skipped), {rep['pairs_matched']}/{rep['pairs_tried']} "
+               f"pairs matched ({r.pair_mode}), {rep['n_tracks']} tie points, {rep['n_observations']} observations, "
+               f"mean multiplicity {rep['mean_multiplicity']:.2f}")
+    if rep["images_without_ties"]:
+        click.echo(f"images without tie points: {', '.join(rep['images_without_ties'])}")

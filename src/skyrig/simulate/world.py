@@ -1,0 +1,452 @@
+"""Seeded procedural worlds: smooth terrain, a small town (flat and gabled roofs, façades), ground texture.
+
+The scene lives in a **local Cartesian frame** (``x`` east, ``y`` north, ``z`` up, metres): the
+tangent-plane ENU frame :meth:`skyrig.georef.WorldFrame.local` at ``Scene.origin`` (lat, lon, h).
+Rendering in this frame is rigorous (no map scale factor, no earth curvature approximation); map
+coordinates of anything in the scene come from ``WorldFrame.to_ecef`` / ``from_ecef``.
+
+The truth of the scene is analytic:
+
+* **terrain** ``z = base + sum_k a_k sin(kx_k x + ky_k y + phase_k)`` (gentle: wavelengths >= 150 m);
+* **buildings**: convex prisms (a rectangle of half sizes ``hl x hw`` turned by ``azimuth``; a flat roof,
+  or a gabled roof with its ridge along the long axis); each is the intersection of 7 (gabled) or 6
+  (flat) half-spaces, which makes ray casting exact;
+* **ground texture** :meth:`Scene.ground_rgb`: multi-octave hashed value noise (non-repeating at every
+  scale between ``texture_coarse_m`` and ``texture_fine_m``) on patches of land cover, plus roads;
+* **façade texture rule** :meth:`Scene.facade_rgb`: per-building wall colour, a window grid
+  (``window_spacing_m``) and hashed noise, a function of (building, along-wall coordinate, height);
+* **signalised targets** (GCPs): a white disc of radius ``r`` (linear edge ramp of width ``r / 2``) in a black square of half side ``2.5 r``
+  painted onto the ground texture, centred on ``(x, y, terrain(x, y))``.
+
+:func:`rasterize_dsm` and :func:`rasterize_orthophoto` sample the scene on grids (the files written
+by a simulated project); the renderer uses the analytic scene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from skyrig.errors import SkyrigError
+
+_U32 = np.uint32
+
+
+def _hash2(ix: NDArray[np.int64], iy: NDArray[np.int64], seed: int) -> NDArray[np.float64]:
+    """Deterministic hash of integer lattice points to ``[0, 1)`` (vectorised, 32-bit integer mixing)."""
+    with np.errstate(over="ignore"):
+        h = (ix.astype(np.int64) * 374761393 + iy.astype(np.int64) * 668265263 + seed * 2147483647) & 0xFFFFFFFF
+        h = h.astype(_U32)
+        h = (h ^ (h >> _U32(13))) * _U32(1274126177)
+        h = h ^ (h >> _U32(16))
+    return h.astype(np.float64) / 4294967296.0
+
+
+def value_noise(x: NDArray[np.float64], y: NDArray[np.float64], scale_m: float, seed: int) -> NDArray[np.float64]:
+    """Smooth value noise in ``[0, 1)`` with lattice spacing ``scale_m`` (smoothstep interpolation)."""
+    u, v = x / scale_m, y / scale_m
+    fx, fy = np.floor(u), np.floor(v)
+    tx, ty = u - fx, v - fy
+    tx = tx * tx * (3.0 - 2.0 * tx)
+    ty = ty * ty * (3.0 - 2.0 * ty)
+    ix, iy = fx.astype(np.int64), fy.astype(np.int64)
+    a = _hash2(ix, iy, seed)
+    b = _hash2(ix + 1, iy, seed)
+    c = _hash2(ix, iy + 1, seed)
+    d = _hash2(ix + 1, iy + 1, seed)
+    return (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+
+
+@dataclass(frozen=True)
+class Buildings:
+    """``B`` convex buildings (all arrays ``(B,)``, metres / radians).
+
+    Attributes
+    ----------
+    cx, cy
+        Footprint centre.
+    hl, hw
+        Half length (along ``azimuth``) and half width.
+    azimuth_rad
+        Direction of the long axis, counter-clockwise from the x (east) axis.
+    base_z
+        Bottom of the walls (below the terrain under the footprint).
+    eave_z
+        Height of the eaves (= roof height of a flat roof).
+    ridge_z
+        Ridge height; equal to ``eave_z`` for a flat roof.
+    """
+
+    cx: NDArray[np.float64]
+    cy: NDArray[np.float64]
+    hl: NDArray[np.float64]
+    hw: NDArray[np.float64]
+    azimuth_rad: NDArray[np.float64]
+    base_z: NDArray[np.float64]
+    eave_z: NDArray[np.float64]
+    ridge_z: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return int(np.asarray(self.cx).shape[0])
+
+    @property
+    def gabled(self) -> NDArray[np.bool_]:
+        return self.ridge_z > self.eave_z + 1e-9
+
+    def planes(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+        """Half-spaces ``n . p <= d`` of building ``i``: normals ``(P, 3)``, offsets ``(P,)`` and face kinds
+        ``(P,)`` (0 wall, 1 roof, 2 bottom)."""
+        a = self.azimuth_rad[i]
+        ux = np.array([np.cos(a), np.sin(a), 0.0])
+        uy = np.array([-np.sin(a), np.cos(a), 0.0])
+        c = np.array([self.cx[i], self.cy[i], 0.0])
+        n = [ux, -ux, uy, -uy, np.array([0.0, 0.0, -1.0])]
+        d = [ux @ c + self.hl[i], -ux @ c + self.hl[i], uy @ c + self.hw[i], -uy @ c + self.hw[i], -self.base_z[i]]
+        kind = [0, 0, 0, 0, 2]
+        if self.gabled[i]:
+            rise = self.ridge_z[i] - self.eave_z[i]
+            for s in (1.0, -1.0):  # planes through the ridge and the eave on side s
+                nn = np.array([s * uy[0] * rise, s * uy[1] * rise, self.hw[i]])
+                nn /= np.linalg.norm(nn)
+                ridge_pt = c + np.array([0.0, 0.0, self.ridge_z[i]])
+                n.append(nn)
+                d.append(nn @ ridge_pt)
+                kind.append(1)
+        else:
+            n.append(np.array([0.0, 0.0, 1.0]))
+            d.append(self.eave_z[i])
+            kind.append(1)
+        return np.array(n), np.array(d), np.array(kind)
+
+    def vertices(self, i: int) -> NDArray[np.float64]:
+        """``(10, 3)`` points enclosing building ``i`` (footprint corners at base and eave, ridge ends)."""
+        a = self.azimuth_rad[i]
+        ux = np.array([np.cos(a), np.sin(a)])
+        uy = np.array([-np.sin(a), np.cos(a)])
+        c = np.array([self.cx[i], self.cy[i]])
+        corners = [c + sx * self.hl[i] * ux + sy * self.hw[i] * uy for sx, sy in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
+        pts = [np.r_[p, self.base_z[i]] for p in corners] + [np.r_[p, self.eave_z[i]] for p in corners]
+        pts += [np.r_[c + s * self.hl[i] * ux, self.ridge_z[i]] for s in (1, -1)]
+        return np.array(pts)
+
+    def top_height(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Roof height and building index at points (NaN / -1 where no building)."""
+        z = np.full(np.shape(x), np.nan)
+        idx = np.full(np.shape(x), -1, dtype=np.int64)
+        for i in range(len(self)):
+            a = self.azimuth_rad[i]
+            dx, dy = x - self.cx[i], y - self.cy[i]
+            u = dx * np.cos(a) + dy * np.sin(a)
+            v = -dx * np.sin(a) + dy * np.cos(a)
+            inside = (np.abs(u) <= self.hl[i]) & (np.abs(v) <= self.hw[i])
+            roof = self.ridge_z[i] - (self.ridge_z[i] - self.eave_z[i]) * np.abs(v) / self.hw[i]
+            better = inside & ~(z >= roof)
+            z = np.where(better, roof, z)
+            idx = np.where(better, i, idx)
+        return z, idx
+
+
+@dataclass(frozen=True)
+class Target:
+    """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local
+    frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``)."""
+
+    name: NDArray[np.str_]
+    xyz: NDArray[np.float64]
+    radius_m: float
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A procedural scene in a local ENU frame (see the module docstring).
+
+    Attributes
+    ----------
+    origin
+        ``(lat_deg, lon_deg, h_m)`` of the local frame's origin (WGS84, ellipsoidal height).
+    extent
+        ``(xmin, ymin, xmax, ymax)`` of the modelled area, metres.
+    seed
+        Seed of every random choice and of the texture hashes.
+    base_height_m
+        Mean terrain height in the local frame (metres above the tangent plane).
+    terrain_amp_m, terrain_kx, terrain_ky, terrain_phase
+        ``(K,)`` sinusoid amplitudes (m), wave numbers (rad/m) and phases (rad).
+    buildings
+        The town.
+    targets
+        Signalised targets painted on the ground, or None.
+    texture_fine_m, texture_coarse_m
+        Finest and coarsest noise scales of the ground texture (metres).
+    window_spacing_m
+        Window grid spacing on façades (metres).
+    sun
+        ``(3,)`` unit vector towards the sun (Lambertian shading, the same for every view).
+    """
+
+    origin: tuple[float, float, float]
+    extent: tuple[float, float, float, float]
+    seed: int
+    base_height_m: float
+    terrain_amp_m: NDArray[np.float64]
+    terrain_kx: NDArray[np.float64]
+    terrain_ky: NDArray[np.float64]
+    terrain_phase: NDArray[np.float64]
+    buildings: Buildings
+    targets: Target | None = None
+    texture_fine_m: float = 0.05
+    texture_coarse_m: float = 40.0
+    window_spacing_m: float = 3.0
+    sun: NDArray[np.float64] = field(default_factory=lambda: np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82]))
+
+    # ------------------------------------------------------------------ terrain
+    def terrain_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """Terrain height ``z`` (metres, local frame) at ``x, y`` (any equal shapes)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        z = np.full(np.broadcast(x, y).shape, self.base_height_m)
+        for a, kx, ky, ph in zip(self.terrain_amp_m, self.terrain_kx, self.terrain_ky, self.terrain_phase):
+            z = z + a * np.sin(kx * x + ky * y + ph)
+        return z
+
+    def terrain_gradient(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(dz/dx, dz/dy)`` of the terrain."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        gx = np.zeros(np.broadcast(x, y).shape)
+        gy = np.zeros_like(gx)
+        for a, kx, ky, ph in zip(self.terrain_amp_m, self.terrain_kx, self.terrain_ky, self.terrain_phase):
+            c = a * np.cos(kx * x + ky * y + ph)
+            gx = gx + kx * c
+            gy = gy + ky * c
+        return gx, gy
+
+    @property
+    def terrain_range(self) -> tuple[float, float]:
+        """Bounds ``(zmin, zmax)`` of the terrain (conservative)."""
+        s = float(np.sum(np.abs(self.terrain_amp_m)))
+        return self.base_height_m - s, self.base_height_m + s
+
+    @property
+    def top(self) -> float:
+        """Highest point of the scene (terrain or roof)."""
+        top = self.terrain_range[1]
+        if len(self.buildings):
+            top = max(top, float(np.max(self.buildings.ridge_z)))
+        return top
+
+    def surface_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """Digital surface model: the roof where there is a building, else the terrain."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        roof, _ = self.buildings.top_height(x, y)
+        t = self.terrain_height(x, y)
+        return np.where(np.isfinite(roof), np.fmax(roof, t), t)
+
+    # ------------------------------------------------------------------ textures (values in [0, 1])
+    def ground_rgb(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Ground texture ``(N, 3)`` at points ``(N,)``: land-cover patches, roads, multi-octave noise, targets."""
+        s = self.seed
+        cover = value_noise(x, y, self.texture_coarse_m, s + 11)
+        detail = np.zeros_like(x)
+        amp, tot = 1.0, 0.0
+        # at most 7 octaves, ending at the finest scale (coarser structure comes from the cover / hue fields)
+        n_oct = int(min(7, max(1, np.floor(np.log2(self.texture_coarse_m / 2.0 / self.texture_fine_m)) + 1)))
+        scale = self.texture_fine_m * 2.0 ** (n_oct - 1)
+        k = 0
+        while k < n_oct:
+            detail += amp * value_noise(x, y, scale, s + 100 + k)
+            tot += amp
+            amp *= 0.72
+            scale /= 2.0
+            k += 1
+        detail = detail / max(tot, 1e-9)
+        sharp = value_noise(x, y, max(self.texture_fine_m * 3.0, 0.01), s + 7)  # speckle at the finest scale
+        hue = value_noise(x, y, self.texture_coarse_m * 0.7, s + 23)
+        base = np.stack([0.30 + 0.25 * hue, 0.42 + 0.12 * cover, 0.20 + 0.15 * (1 - hue)], axis=-1)  # fields
+        soil = np.stack([0.55 + 0.1 * hue, 0.45 + 0.05 * cover, 0.32 + 0.05 * hue], axis=-1)
+        m = (cover > 0.55)[..., None]
+        rgb = np.where(m, soil, base) * (0.55 + 0.9 * (detail[..., None] - 0.5) + 0.5) * (0.85 + 0.3 * sharp[..., None])
+        # roads: a grid of 6 m wide asphalt bands every 60 m (turned by 10 deg), with noise
+        ca, sa = np.cos(0.17), np.sin(0.17)
+        u, v = ca * x + sa * y, -sa * x + ca * y
+        road = (np.abs(((u + 30.0) % 60.0) - 30.0) < 3.0) | (np.abs(((v + 30.0) % 60.0) - 30.0) < 3.0)
+        asphalt = (0.30 + 0.25 * detail + 0.1 * sharp)[..., None] * np.ones(3)
+        rgb = np.where(road[..., None], asphalt, rgb)
+        if self.targets is not None:
+            rgb = self._paint_targets(x, y, rgb)
+        return np.clip(rgb, 0.0, 1.0)
+
+    def target_intensity(self, x: NDArray[np.float64], y: NDArray[np.float64], k: int) -> tuple[NDArray, NDArray]:
+        """Coverage ``(N,)`` in [0, 1] of target ``k``'s black square and white disc at ground points."""
+        t = self.targets
+        assert t is not None
+        r = t.radius_m
+        dx, dy = x - t.xyz[k, 0], y - t.xyz[k, 1]
+        w = max(0.5 * r, 1e-3)  # anti-aliasing ramp (symmetric: keeps the centroid unbiased)
+        sq = np.clip((2.5 * r - np.maximum(np.abs(dx), np.abs(dy))) / w + 0.5, 0.0, 1.0)
+        disc = np.clip((r - np.hypot(dx, dy)) / w + 0.5, 0.0, 1.0)
+        return sq, disc
+
+    def _paint_targets(self, x: NDArray, y: NDArray, rgb: NDArray) -> NDArray:
+        t = self.targets
+        assert t is not None
+        reach = 2.5 * t.radius_m * 1.5 + 1.0
+        for k in range(len(t.name)):
+            near = (np.abs(x - t.xyz[k, 0]) < reach) & (np.abs(y - t.xyz[k, 1]) < reach)
+            if not np.any(near):
+                continue
+            sq, disc = self.target_intensity(x[near], y[near], k)
+            val = 0.05 + 0.9 * disc
+            rgb[near] = rgb[near] * (1 - sq[:, None]) + (sq * val)[:, None]
+        return rgb
+
+    def facade_rgb(self, building: NDArray[np.int64], u: NDArray[np.float64], z: NDArray[np.float64],
+                   face: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Façade texture rule ``(N, 3)``: wall colour of the building, windows on a grid, hashed noise.
+
+        ``u`` is the horizontal coordinate along the wall, ``z`` the height, ``face`` the wall index 0-3.
+        """
+        s = self.seed
+        b = building.astype(np.int64)
+        col = np.stack([_hash2(b, np.full_like(b, c), s + 31) for c in range(3)], axis=-1)
+        wall = 0.45 + 0.4 * col
+        sp = self.window_spacing_m
+        zb = self.buildings.base_z[b]
+        gu = (u % sp) / sp
+        gz = ((z - zb - 0.8) % sp) / sp
+        win = (gu > 0.3) & (gu < 0.7) & (gz > 0.35) & (gz < 0.8) & (z - zb > 1.5)
+        noise = value_noise(u + 1000.0 * face, z + 1000.0 * b, 0.25, s + 41)
+        fine = value_noise(u + 37.0 * face, z + 53.0 * b, 0.06, s + 43)
+        rgb = wall * (0.8 + 0.3 * noise[:, None] + 0.15 * fine[:, None])
+        glass = (0.12 + 0.25 * noise)[:, None] * np.array([0.8, 0.9, 1.0])
+        return np.clip(np.where(win[:, None], glass, rgb), 0.0, 1.0)
+
+    def roof_rgb(self, building: NDArray[np.int64], x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Roof texture ``(N, 3)``: per-building tile colour with noise."""
+        s = self.seed
+        b = building.astype(np.int64)
+        col = np.stack([_hash2(b, np.full_like(b, c + 5), s + 61) for c in range(3)], axis=-1)
+        roof = np.where((_hash2(b, b, s + 62) > 0.5)[:, None], np.array([0.55, 0.22, 0.15]), np.array([0.35, 0.35, 0.38]))
+        roof = roof * (0.7 + 0.5 * col)
+        n = value_noise(x, y, 0.5, s + 63) * 0.6 + value_noise(x, y, 0.12, s + 64) * 0.4
+        return np.clip(roof * (0.75 + 0.5 * n[:, None]), 0.0, 1.0)
+
+
+def make_scene(
+    seed: int,
+    extent: tuple[float, float, float, float],
+    origin: tuple[float, float, float] = (52.3759, 9.7320, 0.0),
+    base_height_m: float = 80.0,
+    relief_m: float = 6.0,
+    town: tuple[float, float, float, float] | None = None,
+    n_buildings: int = 20,
+    building_size_m: tuple[float, float] = (8.0, 25.0),
+    texture_fine_m: float = 0.05,
+    targets: tuple[ArrayLike, ArrayLike] | None = None,
+    target_radius_m: float = 0.5,
+) -> Scene:
+    """A seeded scene: gentle terrain of total relief ``relief_m``, ``n_buildings`` houses in ``town``.
+
+    Parameters
+    ----------
+    seed
+        Random seed (the scene is a deterministic function of all arguments).
+    extent
+        ``(xmin, ymin, xmax, ymax)`` metres in the local frame.
+    origin
+        ``(lat, lon, h)`` of the local frame (default: Hannover).
+    town
+        Rectangle of the town; default the middle half of ``extent``.
+    building_size_m
+        Range of footprint side lengths.
+    targets
+        ``(names (K,), xy (K, 2))`` of signalised targets; their heights are put on the terrain; buildings
+        are kept ``3 radius + 3 m`` away from them.
+    """
+    rng = np.random.default_rng(seed)
+    xmin, ymin, xmax, ymax = extent
+    if not (xmax > xmin and ymax > ymin):
+        raise SkyrigError(f"scene extent {extent} is empty")
+    k = 4
+    wl = rng.uniform(150.0, 600.0, k)
+    ang = rng.uniform(0, 2 * np.pi, k)
+    amp = rng.uniform(0.5, 1.0, k)
+    amp = amp / amp.sum() * relief_m / 2.0
+    kx, ky = 2 * np.pi / wl * np.cos(ang), 2 * np.pi / wl * np.sin(ang)
+    phase = rng.uniform(0, 2 * np.pi, k)
+    proto = Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase,
+                  Buildings(*(np.zeros(0) for _ in range(8))), texture_fine_m=texture_fine_m)
+    if town is None:
+        w, h = xmax - xmin, ymax - ymin
+        town = (xmin + w / 4, ymin + h / 4, xmax - w / 4, ymax - h / 4)
+    tx0, ty0, tx1, ty1 = town
+    tg_xy = None if targets is None else np.asarray(targets[1], dtype=np.float64).reshape(-1, 2)
+    lo, hi = building_size_m
+    b: dict[str, list[float]] = {k_: [] for k_ in ("cx", "cy", "hl", "hw", "az", "base", "eave", "ridge")}
+    tries = 0
+    while len(b["cx"]) < n_buildings and tries < 50 * max(n_buildings, 1):
+        tries += 1
+        L, W = rng.uniform(lo, hi), rng.uniform(lo, hi)
+        L, W = max(L, W), min(L, W)
+        cx, cy = rng.uniform(tx0, tx1), rng.uniform(ty0, ty1)
+        az = 0.17 + rng.choice([0.0, np.pi / 2]) + rng.normal(0, 0.03)
+        rad = 0.5 * np.hypot(L, W)
+        if any(np.hypot(cx - ox, cy - oy) < rad + orad + 3.0 for ox, oy, orad in
+               zip(b["cx"], b["cy"], [0.5 * np.hypot(2 * a, 2 * c) for a, c in zip(b["hl"], b["hw"])])):
+            continue
+        if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + 3 * target_radius_m + 3.0:
+            continue
+        corners_x = cx + np.array([-1, 1, 1, -1]) * rad
+        corners_y = cy + np.array([-1, -1, 1, 1]) * rad
+        tz = proto.terrain_height(corners_x, corners_y)
+        ground = float(proto.terrain_height(cx, cy))
+        eave = ground + rng.uniform(4.0, 14.0)
+        gabled = rng.uniform() < 0.55
+        ridge = eave + (rng.uniform(0.35, 0.7) * W / 2 if gabled else 0.0)
+        for key, val in (("cx", cx), ("cy", cy), ("hl", L / 2), ("hw", W / 2), ("az", az),
+                         ("base", float(tz.min()) - 2.0), ("eave", eave), ("ridge", ridge)):
+            b[key].append(val)
+    bld = Buildings(*(np.array(b[k_], dtype=np.float64) for k_ in ("cx", "cy", "hl", "hw", "az", "base", "eave", "ridge")))
+    tgt = None
+    if targets is not None:
+        names = np.asarray(targets[0], dtype=str).reshape(-1)
+        z = proto.terrain_height(tg_xy[:, 0], tg_xy[:, 1])
+        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m))
+    return Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase, bld, tgt, texture_fine_m=texture_fine_m,
+                 texture_coarse_m=40.0)
+
+
+def grid_transform(extent: tuple[float, float, float, float], cell_m: float) -> tuple[tuple[float, ...], int, int]:
+    """GDAL affine ``(a, b, c, d, e, f)`` (north-up) and ``(rows, cols)`` of a grid covering ``extent``."""
+    xmin, ymin, xmax, ymax = extent
+    cols = int(np.ceil((xmax - xmin) / cell_m))
+    rows = int(np.ceil((ymax - ymin) / cell_m))
+    return (cell_m, 0.0, xmin, 0.0, -cell_m, ymin + rows * cell_m), rows, cols
+
+
+def _cell_centres(extent: tuple[float, float, float, float], cell_m: float) -> tuple[NDArray, NDArray, tuple]:
+    tr, rows, cols = grid_transform(extent, cell_m)
+    x = tr[2] + (np.arange(cols) + 0.5) * cell_m
+    y = tr[5] - (np.arange(rows) + 0.5) * cell_m
+    return np.meshgrid(x, y), tr  # type: ignore[return-value]
+
+
+def rasterize_dsm(scene: Scene, cell_m: float) -> tuple[NDArray[np.float64], tuple[float, ...]]:
+    """DSM ``(rows, cols)`` (surface heights at cell centres, local frame metres) and its affine transform."""
+    (xx, yy), tr = _cell_centres(scene.extent, cell_m)
+    return scene.surface_height(xx, yy), tr
+
+
+def rasterize_orthophoto(scene: Scene, cell_m: float) -> tuple[NDArray[np.uint8], tuple[float, ...]]:
+    """True orthophoto ``(rows, cols, 3)`` uint8 (ground or roof texture seen from above) and its transform."""
+    (xx, yy), tr = _cell_centres(scene.extent, cell_m)
+    x, y = xx.ravel(), yy.ravel()
+    rgb = scene.ground_rgb(x, y)
+    _, bidx = scene.buildings.top_height(x, y)
+    on = bidx >= 0
+    if np.any(on):
+        rgb[on] = scene.roof_rgb(bidx[on], x[on], y[on])
+    return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8).reshape(xx.shape + (3,)), tr
