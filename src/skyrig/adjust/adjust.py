@@ -269,6 +269,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         _weights(model)[g][i] = 0.0
         rejected.append(Rejection(g, i, _label(block, g, i), best[0]))
         logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, best[0])
+        if g == "image":
+            model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
         stage = f"snooping {len(rejected)}"
     cov, residuals, groups, sigma0, n_obs, n_unk, warnings = res
     total_info.final_cost = float(sum(0.5 * float(((r.residual / _sigma(block, g)) ** 2 * r.weight[:, None]).sum())
@@ -276,6 +278,27 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     return AdjustmentResult(
         _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, n_obs - n_unk
         + (7 if free else 0), groups, residuals, rejected, cov, warnings, model.layout, cfg)
+
+
+def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[Rejection]) -> Model:
+    """After rejecting an image observation of point ``p``: if ``p`` is left with fewer than two active
+    rays and is not active control, its other observations cannot be checked either (a two-ray point's
+    normalised residuals are equal, the blunder cannot be located), so the point leaves the adjustment."""
+    rows = np.flatnonzero(block.obs_point == p)
+    active = rows[model.obs_weight[rows] > 0]
+    ctrl = np.flatnonzero((block.control_point == p) & (model.control_weight > 0))  # type: ignore[operator]
+    if active.size >= 2 or ctrl.size:
+        return model
+    for j in active:
+        model.obs_weight[j] = 0.0
+        rejected.append(Rejection("image", int(j), _label(block, "image", int(j)) + " (point left with one ray)",
+                                  float("nan")))
+    weights = (model.obs_weight, model.control_weight, model.gnss_weight, model.imu_weight)
+    act = model.point_active.copy()
+    act[p] = False
+    new = Model(block, model.config, act)
+    new.obs_weight, new.control_weight, new.gnss_weight, new.imu_weight = weights
+    return new
 
 
 def _sigma(block: Block, g: str) -> NDArray[np.float64]:

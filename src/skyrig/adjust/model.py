@@ -127,7 +127,8 @@ class Layout:
     labels: list[tuple[str, str, str]] = field(default_factory=list)
 
     @classmethod
-    def build(cls, b: Block, cfg: AdjustConfig) -> "Layout":
+    def build(cls, b: Block, cfg: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> "Layout":
+        """Columns for ``b`` under ``cfg``; points with ``point_active`` False are not estimated."""
         labels: list[tuple[str, str, str]] = []
         n = 0
 
@@ -169,8 +170,11 @@ class Layout:
                       ("X", "Y", "Z"))
         if cfg.points == "fixed":
             point = np.full(b.n_points, -1, np.int64)
-        else:
+        elif point_active is None:
             point = np.arange(b.n_points, dtype=np.int64)
+        else:
+            act = np.asarray(point_active, bool)
+            point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
         return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels)
 
     def apply(self, s: State, dc: NDArray[np.float64], dp: NDArray[np.float64]) -> State:
@@ -241,10 +245,12 @@ class Model:
         The block and the adjustment configuration.
     """
 
-    def __init__(self, block: Block, config: AdjustConfig) -> None:
+    def __init__(self, block: Block, config: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> None:
         self.block = block
         self.config = config
-        self.layout = Layout.build(block, config)
+        #: points still estimated (data snooping drops a point left with fewer than two rays)
+        self.point_active = np.ones(block.n_points, bool) if point_active is None else np.asarray(point_active, bool)
+        self.layout = Layout.build(block, config, self.point_active)
         self.initial = State.from_block(block)
         #: per image observation weight (robust reweighting, 0 = rejected by data snooping)
         self.obs_weight = np.ones(block.n_observations)

@@ -70,6 +70,22 @@ def command(outdir: str) -> None:
     if not ok:
         raise click.ClickException("demo checks FAILED (built-in flight)")
 
+    # --- bundle adjustment of the demo flight (integrated sensor orientation) ---------------------------
+    from skyrig.cli.adjust import adjust_demo_project
+
+    click.echo("\n=== bundle adjustment of the built-in flight (GNSS/IMU + control, check points) ===")
+    adj = adjust_demo_project(p, Path(outdir) / "output" / "adjust")
+    import json
+
+    rep = json.loads(Path(adj["json"]).read_text())
+    sm, chk = rep["summary"], rep["check"]["stats"]
+    click.echo(f"sigma0 {sm['sigma0']:.3f}, {sm['images']} images, {sm['points']} points, {sm['iterations']} iterations, "
+               f"{sm['wall_s']:.1f} s; check points (n={chk['n']}) RMS X/Y/Z "
+               + "/".join(f"{v * 100:.1f}" for v in chk["rms_m"]) + " cm = "
+               + "/".join(f"{v:.2f}" for v in chk["rms_gsd"]) + f" GSD; report {adj['html']}")
+    if not (0.7 < sm["sigma0"] < 1.3 and max(chk["rms_gsd"]) < 2.0):
+        raise click.ClickException("demo checks FAILED (adjustment)")
+
     # --- simulated penta-rig flight with rendered images (skyrig.simulate) -----------------------------
     from skyrig.pipeline.simulate import simulate_demo_project
 

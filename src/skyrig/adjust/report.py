@@ -1,0 +1,122 @@
+"""Report tables of an adjustment as plain data (paper 004 Tables 2-11 layouts); no I/O.
+
+:func:`adjustment_report` returns a JSON-ready dict:
+
+``summary``
+    sigma0, observations, unknowns, redundancy, iterations, convergence, wall time.
+``groups``
+    per observation group: count, redundancy, variance factor, residual RMS per axis.
+``control`` / ``check``
+    one row per point ``{point, VX, VY, VZ, VXYZ}`` (metres, adjusted minus given; for control
+    points the residual, for check points the true error) and a ``stats`` row: RMS per axis in metres
+    and GSD, max |V| per axis against ``limits_m``.
+``orientation``
+    RMS of the photo positions against GNSS and of the attitudes against the IMU (per axis; metres,
+    degrees), the GNSS block shift (mean GNSS residual, and the estimated datum shift).
+``images``
+    per camera: observations, residual RMS column/row and max (px).
+``rejected``, ``warnings``
+    data snooping rejections and near-singularities in words.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.adjust import AdjustmentResult
+
+__all__ = ["adjustment_report", "point_table"]
+
+
+def _rms(a: NDArray[np.float64]) -> list[float]:
+    return np.sqrt(np.mean(a**2, axis=0)).tolist() if len(a) else [float("nan")] * a.shape[1]
+
+
+def point_table(names: NDArray[np.str_], v: NDArray[np.float64], gsd_m: float | None,
+                limits_m: tuple[float, float, float] | None) -> dict[str, Any]:
+    """Rows ``{point, VX, VY, VZ, VXYZ}`` and RMS / max statistics of differences ``v (N, 3)`` (m)."""
+    rows = [dict(point=str(n), VX=float(a), VY=float(b), VZ=float(c), VXYZ=float(np.linalg.norm([a, b, c])))
+            for n, (a, b, c) in zip(names, v)]
+    rms = _rms(v)
+    stats: dict[str, Any] = dict(n=len(v), rms_m=rms, rms_xyz_m=float(np.sqrt(np.mean((v**2).sum(1)))) if len(v)
+                                 else float("nan"), max_abs_m=np.abs(v).max(axis=0).tolist() if len(v) else
+                                 [float("nan")] * 3, mean_m=v.mean(axis=0).tolist() if len(v) else [float("nan")] * 3)
+    if gsd_m:
+        stats["rms_gsd"] = (np.asarray(rms) / gsd_m).tolist()
+    if limits_m is not None:
+        stats["limits_m"] = list(limits_m)
+        stats["within_limits"] = bool(len(v) == 0 or np.all(np.abs(v) <= np.asarray(limits_m)))
+    return dict(rows=rows, stats=stats)
+
+
+def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
+                      limits_m: tuple[float, float, float] | None = None,
+                      check_xyz: NDArray[np.float64] | None = None) -> dict[str, Any]:
+    """All report tables of ``result`` (module docstring).
+
+    Parameters
+    ----------
+    gsd_m
+        Ground sampling distance for RMS in GSD units.
+    limits_m
+        Maximum allowed |V| per axis for control/check tables.
+    check_xyz
+        Optional ``(K, 3)`` given coordinates for the block's control rows (default ``control_xyz``).
+    """
+    b, b0 = result.block, result.initial
+    info = result.info
+    out: dict[str, Any] = {
+        "summary": dict(frame=b.frame, sigma0=result.sigma0, observations=result.n_observations,
+                        unknowns=result.n_unknowns, redundancy=result.redundancy, iterations=info.iterations,
+                        converged=info.converged, message=info.message, wall_s=info.wall_s,
+                        initial_cost=info.initial_cost, final_cost=info.final_cost, images=b.n_images,
+                        stations=b.n_stations, points=b.n_points, image_observations=b.n_observations),
+        "groups": {g: dict(n=s.n_rows, redundancy=s.redundancy, variance_factor=s.sigma0, rms=s.rms)
+                   for g, s in result.groups.items()},
+    }
+    given = b0.control_xyz if check_xyz is None else np.asarray(check_xyz, float)
+    cp = b0.control_point
+    v = b.point_xyz[cp] - given  # type: ignore[index]
+    chk = b0.control_check
+    out["control"] = point_table(b.point_name[cp[~chk]], v[~chk], gsd_m, limits_m)  # type: ignore[index]
+    out["check"] = point_table(b.point_name[cp[chk]], v[chk], gsd_m, limits_m)  # type: ignore[index]
+    orient: dict[str, Any] = {}
+    if "gnss" in result.residuals:
+        r = result.residuals["gnss"].residual
+        orient["gnss_rms_m"] = _rms(r)
+        orient["gnss_block_shift_m"] = (-r.mean(axis=0)).tolist()  # mean (GNSS - adjusted)
+        orient["gnss_n"] = len(r)
+    orient["datum_shift_m"] = b.datum_shift.tolist()
+    orient["lever_arm_m"] = b.lever_arm.tolist()
+    if "imu" in result.residuals:
+        r = np.degrees(result.residuals["imu"].residual)
+        orient["imu_rms_deg"] = _rms(r)
+        orient["imu_mean_deg"] = r.mean(axis=0).tolist()
+    orient["boresight_deg"] = {str(h): np.degrees(v).tolist() for h, v in zip(b.head_name, b.head_boresight)}  # type: ignore[arg-type]
+    orient["cameras"] = {c.name: dict(zip(c.intrinsic_names, np.asarray(c.intrinsics).tolist())) for c in b.cameras}
+    sr = result.sigma_reduced()
+    if sr:
+        orient["sigma"] = {" ".join(k): v for k, v in sr.items() if k[0] != "pose"}
+        ps = result.pose_sigma
+        if ps is not None and np.isfinite(ps).any():
+            orient["pose_sigma_rms"] = dict(centre_m=np.sqrt(np.nanmean(ps[:, :3] ** 2, axis=0)).tolist(),
+                                            rotation_deg=np.degrees(np.sqrt(np.nanmean(ps[:, 3:] ** 2, axis=0))).tolist())
+    out["orientation"] = orient
+    img = result.residuals["image"]
+    cams = {}
+    cam_of_obs = b.image_camera[b.obs_image]
+    act = img.weight > 0
+    for k, c in enumerate(b.cameras):
+        sel = (cam_of_obs == k) & act
+        if not sel.any():
+            continue
+        r = img.residual[sel]
+        cams[c.name] = dict(n=int(sel.sum()), rms_px=_rms(r), max_abs_px=np.abs(r).max(axis=0).tolist())
+    out["images"] = cams
+    out["rejected"] = [dict(group=r.group, index=r.index, label=r.label, normalised_residual=r.normalised_residual)
+                       for r in result.rejected]
+    out["warnings"] = list(result.warnings)
+    return out

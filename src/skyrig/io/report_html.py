@@ -1,0 +1,157 @@
+"""Adjustment reports on disk: JSON (the tables of :func:`skyrig.adjust.report.adjustment_report`), a
+self-contained HTML page and a residual-vector plot (PNG, matplotlib).  Every file is written atomically."""
+
+from __future__ import annotations
+
+import html
+import io
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skyrig.adjust.adjust import AdjustmentResult
+from skyrig.io._text import atomic_write
+
+__all__ = ["write_report_json", "write_report_html", "write_residual_plot", "write_report"]
+
+PathLike = str | os.PathLike[str]
+
+
+def _clean(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def write_report_json(path: PathLike, report: dict[str, Any]) -> None:
+    """The report dict as JSON (NaN written as null)."""
+    with atomic_write(path) as fh:
+        json.dump(_clean(report), fh, indent=1)
+        fh.write("\n")
+
+
+def write_residual_plot(path: PathLike, result: AdjustmentResult, camera: int = 0, grid: int = 12,
+                        scale: float | None = None) -> None:
+    """Image residuals of one camera averaged on a ``grid x grid`` raster, drawn as vectors (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    b = result.block
+    cam = b.cameras[camera]
+    img = result.residuals["image"]
+    sel = (b.image_camera[b.obs_image] == camera) & (img.weight > 0)
+    px, v = b.obs_pixel[sel], img.residual[sel]
+    w = float(getattr(cam, "width", 0) or (np.ptp(px[:, 0]) if len(px) else 1.0))
+    h = float(getattr(cam, "height", 0) or (np.ptp(px[:, 1]) if len(px) else 1.0))
+    x0 = 0.0 if hasattr(cam, "width") else float(px[:, 0].min()) if len(px) else 0.0
+    y0 = 0.0 if hasattr(cam, "height") else float(px[:, 1].min()) if len(px) else 0.0
+    fig, ax = plt.subplots(figsize=(7, 7 * h / w if w else 5))
+    if len(px):
+        gx = np.clip(((px[:, 0] - x0) / w * grid).astype(int), 0, grid - 1)
+        gy = np.clip(((px[:, 1] - y0) / h * grid).astype(int), 0, grid - 1)
+        cell = gy * grid + gx
+        n = np.bincount(cell, minlength=grid * grid)
+        mx = np.bincount(cell, v[:, 0], grid * grid) / np.maximum(n, 1)
+        my = np.bincount(cell, v[:, 1], grid * grid) / np.maximum(n, 1)
+        cx = (np.arange(grid * grid) % grid + 0.5) * w / grid + x0
+        cy = (np.arange(grid * grid) // grid + 0.5) * h / grid + y0
+        ok = n > 0
+        mag = np.hypot(mx[ok], my[ok])
+        s = scale or (0.5 * w / grid / max(float(mag.max()) if mag.size else 1.0, 1e-12))
+        ax.quiver(cx[ok], cy[ok], mx[ok] * s, my[ok] * s, angles="xy", scale_units="xy", scale=1, width=0.003)
+        ax.set_title(f"{cam.name}: mean image residual per cell ({len(px)} obs), arrows x{s:.0f}")
+    ax.set_xlim(x0, x0 + w)
+    ax.set_ylim(y0 + h, y0)
+    ax.set_xlabel("column (px)")
+    ax.set_ylabel("row (px)")
+    ax.set_aspect("equal")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
+
+
+def _fmt(v: Any, nd: int = 3) -> str:
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.{nd}f}"
+    if isinstance(v, list):
+        return " / ".join(_fmt(x, nd) for x in v)
+    return html.escape(str(v))
+
+
+def _table(rows: list[dict[str, Any]], cols: list[str], nd: int = 3) -> str:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{_fmt(r.get(c), nd)}</td>" for c in cols) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def write_report_html(path: PathLike, report: dict[str, Any], title: str = "skyrig adjustment",
+                      plots: list[str] = ()) -> None:
+    """A self-contained HTML page of the report tables (plots referenced by relative file name)."""
+    r = report
+    parts = [f"<h1>{html.escape(title)}</h1>", "<h2>Summary</h2>",
+             _table([{"item": k, "value": v} for k, v in r["summary"].items()], ["item", "value"], 4),
+             "<h2>Observation groups (variance components)</h2>",
+             _table([dict(group=g, **s) for g, s in r["groups"].items()],
+                    ["group", "n", "redundancy", "variance_factor", "rms"], 4)]
+    for key, name in (("control", "Control points"), ("check", "Check points")):
+        t = r[key]
+        if t["rows"]:
+            parts += [f"<h2>{name} (V = adjusted - given, m)</h2>",
+                      _table(sorted(t["rows"], key=lambda x: x["VXYZ"]), ["point", "VX", "VY", "VZ", "VXYZ"]),
+                      _table([t["stats"]], [k for k in ("n", "rms_m", "rms_gsd", "mean_m", "max_abs_m", "limits_m",
+                                                        "within_limits") if k in t["stats"]])]
+    o = r["orientation"]
+    parts += ["<h2>Orientation vs GNSS/IMU</h2>",
+              _table([{"item": k, "value": v} for k, v in o.items() if not isinstance(v, dict)], ["item", "value"], 5),
+              "<h2>Image residuals per camera (px)</h2>",
+              _table([dict(camera=c, **s) for c, s in r["images"].items()], ["camera", "n", "rms_px", "max_abs_px"])]
+    if r["rejected"]:
+        parts += ["<h2>Rejected observations (data snooping)</h2>",
+                  _table(r["rejected"], ["group", "label", "normalised_residual"], 2)]
+    if r["warnings"]:
+        parts += ["<h2>Warnings</h2><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in r["warnings"]) + "</ul>"]
+    for p in plots:
+        parts.append(f'<h2>Residual vectors</h2><img src="{html.escape(p)}" alt="residual vectors">')
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse;margin:8px 0}"
+             "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}")
+    doc = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+           f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+    with atomic_write(path) as fh:
+        fh.write(doc)
+
+
+def write_report(outdir: PathLike, result: AdjustmentResult, report: dict[str, Any],
+                 title: str = "skyrig adjustment") -> dict[str, Path]:
+    """``report.json``, ``report.html`` and ``residuals_<camera>.png`` (frame cameras) in ``outdir``."""
+    d = Path(outdir)
+    d.mkdir(parents=True, exist_ok=True)
+    plots = []
+    b = result.block
+    for k, cam in enumerate(b.cameras[:8]):
+        if not np.any(b.image_camera[b.obs_image] == k):
+            continue
+        name = f"residuals_{k}.png"
+        write_residual_plot(d / name, result, k)
+        plots.append(name)
+    write_report_json(d / "report.json", report)
+    write_report_html(d / "report.html", report, title, plots)
+    out = {"json": d / "report.json", "html": d / "report.html"}
+    out.update({p: d / p for p in plots})
+    return out
