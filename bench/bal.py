@@ -1,17 +1,35 @@
-"""skyrig's bundle adjuster on BAL problems: final cost and wall time.
+"""skyrig's bundle adjuster against Ceres (through pycolmap) on BAL problems: final cost and wall time.
 
     .venv/bin/python bench/bal.py                          # ../shared/data/bal/problem-49-7776-pre.txt
     .venv/bin/python bench/bal.py --generate 1000 200000   # a generated BAL block (cameras, points)
+    .venv/bin/python bench/bal.py --skip-skyrig ...        # Ceres only (or --skip-ceres)
 
-The Ceres side (through pycolmap) is NOT implemented yet: pycolmap 4.2.1 is installed, and the plan is
-to build a pycolmap.Reconstruction with RADIAL cameras (f, cx=cy=0, k1, k2; camera frame flipped
-diag(1,-1,-1) so that COLMAP's u = X/Z equals BAL's -P_x/P_z and v = -y_BAL) and run
-pycolmap.create_default_bundle_adjuster(options, config, reconstruction).solve().
+Both solvers start from the same block and stop on the same tolerances (Ceres's definitions:
+function 1e-6, parameter 1e-8, gradient 1e-10, at most 100 iterations), both Levenberg-Marquardt with
+the points eliminated by the Schur complement, no gauge fixed (as Ceres's own BAL example).
+
+The BAL model on a COLMAP camera
+--------------------------------
+BAL: ``P = R X + t``, ``p = -P_xy / P_z``, ``uv = f (1 + k1 |p|^2 + k2 |p|^4) p`` (x right, y up).
+COLMAP's ``RADIAL`` model with params ``(f, cx, cy, k1, k2)`` projects ``q = Q_xy / Q_z`` to
+``f (1 + k1 |q|^2 + k2 |q|^4) q + (cx, cy)``.  With ``cam_from_world = F (R, t)``, ``F = diag(1, -1, -1)``
+(180 degrees about x, so that BAL's points in front, ``P_z < 0``, are in front for COLMAP, ``Q_z > 0``):
+``Q = F P``, ``q = (-P_x / P_z, P_y / P_z) = (p_x, -p_y)`` and ``|q| = |p|``; so with ``cx = cy = 0`` and the
+measured ``v`` negated the two residuals are equal up to the sign of the second component, and the
+costs are identical.  One camera (own f, k1, k2) and one trivial rig/frame per BAL camera.
+
+Known difference: COLMAP's reprojection cost gives a zero residual to an observation whose point is
+behind the camera (``Q_z <= 0``); BAL's model has no such test (problem-49-7776 has 31 such
+observations at the start).  By default the bench therefore drops the observations behind their
+camera at the start (and points left with one ray) from the block both solvers get, and re-evaluates
+the *BAL* cost (all remaining observations, skyrig's model) at Ceres's solution so that the final
+costs compare the same objective; ``--keep-behind`` runs the file as it is.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -19,12 +37,15 @@ from pathlib import Path
 import numpy as np
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.block import BalCamera, Block
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import factor_cost
 from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from skyrig.io.bal import read_bal
 
 ROOT = Path(__file__).resolve().parents[1]
+FLIP = np.diag([1.0, -1.0, -1.0])  # COLMAP camera (x right, y down, z forward) from BAL camera (z back)
+TOL = dict(function_tolerance=1e-6, parameter_tolerance=1e-8, gradient_tolerance=1e-10, max_iterations=100)
 
 
 def generate(path: Path, n_cam: int, n_pts: int, obs_per_point: int = 5, seed: int = 0) -> None:
@@ -57,34 +78,195 @@ def generate(path: Path, n_cam: int, n_pts: int, obs_per_point: int = 5, seed: i
         np.savetxt(fh, (X + rng.normal(0, 0.05, X.shape)).reshape(-1, 1), fmt="%.12g")
 
 
-def run_skyrig(path: Path) -> dict:
+def bal_cost(block: Block) -> float:
+    """The BAL cost ``0.5 * sum(r^2)`` of a block, all observations, skyrig's model."""
+    m = Model(block, AdjustConfig(intrinsics="free", datum="none"))
+    return factor_cost(m.evaluate(State.from_block(block), jacobians=False))
+
+
+def drop_behind(block: Block) -> tuple[Block, int, int]:
+    """The block without observations whose point is behind the camera at the start (BAL: ``P_z >= 0``),
+    and without points left with fewer than two observations.  Returns ``(block, n_obs_dropped,
+    n_points_dropped)``."""
+    Rwc = block.station_rotation[block.image_station] @ block.image_rotation
+    Cs = block.station_centre[block.image_station]
+    o = block.obs_image
+    z = np.einsum("nj,nj->n", Rwc[o][:, :, 2], block.point_xyz[block.obs_point] - Cs[o])
+    keep = z < 0
+    n_rays = np.bincount(block.obs_point[keep], minlength=block.n_points)
+    pkeep = n_rays >= 2
+    keep &= pkeep[block.obs_point]
+    new_index = np.cumsum(pkeep) - 1
+    out = block.copy()
+    out.point_name, out.point_xyz = block.point_name[pkeep], block.point_xyz[pkeep]
+    out.obs_image, out.obs_point = block.obs_image[keep], new_index[block.obs_point[keep]]
+    out.obs_pixel = block.obs_pixel[keep]
+    out.obs_sigma_px = block.obs_sigma_px[keep]  # type: ignore[index]
+    return out, int((~keep).sum()), int((~pkeep).sum())
+
+
+# ----------------------------------------------------------------------------------------- Ceres side
+def to_colmap(block: Block):  # type: ignore[no-untyped-def]
+    """A ``pycolmap.Reconstruction`` equal to a BAL block (one RADIAL camera, rig and frame per image).
+
+    Returns ``(reconstruction, point3D_ids)``; image and camera ids are ``index + 1``.
+    """
+    import pycolmap
+
+    if not all(isinstance(c, BalCamera) for c in block.cameras):
+        raise ValueError("to_colmap needs a block of BalCamera cameras (read_bal)")
+    rec = pycolmap.Reconstruction()
+    Rwc = block.station_rotation[block.image_station] @ block.image_rotation
+    R = np.swapaxes(Rwc, 1, 2)  # BAL camera_from_world
+    t = -np.einsum("nij,nj->ni", R, block.station_centre[block.image_station])
+    order = np.argsort(block.obs_image, kind="stable")
+    ci, pi = block.obs_image[order], block.obs_point[order]
+    uv = block.obs_pixel[order] * np.array([1.0, -1.0])
+    starts = np.searchsorted(ci, np.arange(block.n_images + 1))
+    kp_index = np.arange(len(ci)) - starts[ci]
+    half = int(np.ceil(np.abs(uv).max())) + 1 if len(uv) else 1
+    for i in range(block.n_images):
+        c = block.cameras[int(block.image_camera[i])]
+        cam = pycolmap.Camera.create_from_model_name(i + 1, "RADIAL", c.f, 2 * half, 2 * half)
+        cam.params = [c.f, 0.0, 0.0, c.k1, c.k2]
+        rec.add_camera_with_trivial_rig(cam)
+        img = pycolmap.Image(name=str(block.image_name[i]), keypoints=uv[starts[i]:starts[i + 1]],
+                             camera_id=i + 1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(pycolmap.Rotation3d(FLIP @ R[i]), FLIP @ t[i]))
+    po = np.argsort(pi, kind="stable")
+    ps = np.searchsorted(pi[po], np.arange(block.n_points + 1))
+    img_id = (ci + 1).tolist()
+    kp = kp_index.tolist()
+    TE = pycolmap.TrackElement
+    ids = np.empty(block.n_points, np.int64)
+    for k in range(block.n_points):
+        track = pycolmap.Track([TE(img_id[j], kp[j]) for j in po[ps[k]:ps[k + 1]].tolist()])
+        ids[k] = rec.add_point3D(block.point_xyz[k], track)
+    return rec, ids
+
+
+def from_colmap(block: Block, rec, point_ids: np.ndarray) -> Block:  # type: ignore[no-untyped-def]
+    """The block with poses, intrinsics and points taken from a (solved) reconstruction."""
+    out = block.copy()
+    R = np.empty((block.n_images, 3, 3))
+    C = np.empty((block.n_images, 3))
+    cams = []
+    for i in range(block.n_images):
+        im = rec.image(i + 1)
+        T = im.cam_from_world()
+        Rb = FLIP @ T.rotation.matrix()
+        tb = FLIP @ np.asarray(T.translation)
+        R[i], C[i] = Rb.T, -Rb.T @ tb
+        prm = rec.camera(i + 1).params
+        cams.append(BalCamera(block.cameras[i].name, float(prm[0]), float(prm[3]), float(prm[4])))
+    # BAL blocks from read_bal: one station, image and camera per BAL camera, identity station_from_camera
+    out.station_rotation, out.station_centre, out.cameras = R, C, cams
+    out.point_xyz = np.array([rec.point3D(int(p)).xyz for p in point_ids])
+    return out
+
+
+def run_ceres(block: Block, threads: int = -1, linear_solver: str = "auto") -> dict:
+    """Ceres (COLMAP's bundle adjuster) on a BAL block; costs as Ceres reports them and the BAL cost."""
+    import pycolmap
+
     t0 = time.perf_counter()
-    b = read_bal(path)
-    t_read = time.perf_counter() - t0
-    cfg = AdjustConfig(intrinsics="free", datum="none", max_iterations=100, function_tolerance=1e-6)
-    m = Model(b, cfg)
-    c0 = factor_cost(m.evaluate(State.from_block(b), jacobians=False))
+    rec, ids = to_colmap(block)
+    t_build = time.perf_counter() - t0
+    opt = pycolmap.BundleAdjustmentOptions()
+    opt.print_summary = False
+    opt.refine_focal_length = True
+    opt.refine_extra_params = True
+    opt.refine_principal_point = False
+    so = opt.ceres.solver_options
+    so.function_tolerance = TOL["function_tolerance"]
+    so.parameter_tolerance = TOL["parameter_tolerance"]
+    so.gradient_tolerance = TOL["gradient_tolerance"]
+    so.max_num_iterations = TOL["max_iterations"]
+    so.num_threads = threads
+    if linear_solver != "auto":
+        opt.ceres.auto_select_solver_type = False
+        so.linear_solver_type = getattr(pycolmap.LinearSolverType, linear_solver.upper())
+        if linear_solver.lower() == "iterative_schur":
+            so.preconditioner_type = pycolmap.PreconditionerType.SCHUR_JACOBI
+    cfg = pycolmap.BundleAdjustmentConfig()
+    for i in range(block.n_images):
+        cfg.add_image(i + 1)
+    cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.UNSPECIFIED)
     t1 = time.perf_counter()
-    r = adjust(b, cfg)
-    return dict(cameras=b.n_images, points=b.n_points, observations=b.n_observations, read_s=t_read,
-                initial_cost=c0, final_cost=r.info.final_cost, iterations=r.info.iterations,
-                solve_s=time.perf_counter() - t1)
+    ba = pycolmap.create_default_bundle_adjuster(opt, cfg, rec)
+    s = ba.solve()
+    t_solve = time.perf_counter() - t1
+    cs = s.ceres_summary
+    final = from_colmap(block, rec, ids)
+    return dict(build_s=t_build, initial_cost=cs.initial_cost, final_cost=cs.final_cost,
+                final_bal_cost=bal_cost(final), iterations=cs.num_successful_steps + cs.num_unsuccessful_steps,
+                solve_s=t_solve, ceres_total_s=cs.total_time_in_seconds,
+                linear_solver=str(cs.linear_solver_type_used).split(".")[-1], threads=cs.num_threads_used,
+                termination=str(cs.termination_type).split(".")[-1])
+
+
+# ----------------------------------------------------------------------------------------- skyrig side
+def run_skyrig(block: Block) -> dict:
+    cfg = AdjustConfig(intrinsics="free", datum="none", statistics=False, **TOL)
+    c0 = bal_cost(block)
+    t1 = time.perf_counter()
+    r = adjust(block, cfg)
+    return dict(initial_cost=c0, final_cost=r.info.final_cost, iterations=r.info.iterations,
+                solve_s=time.perf_counter() - t1, termination=r.info.message)
+
+
+def _fmt(v: object) -> str:
+    return f"{v:.7g}" if isinstance(v, float) else str(v)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--problem", default=str(ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.txt"))
     ap.add_argument("--generate", nargs=2, type=int, metavar=("CAMERAS", "POINTS"))
+    ap.add_argument("--threads", type=int, default=-1, help="Ceres threads (-1: all cores)")
+    ap.add_argument("--linear-solver", default="auto",
+                    help="Ceres linear solver: auto (COLMAP's choice by image count), dense_schur, sparse_schur, "
+                         "iterative_schur")
+    ap.add_argument("--keep-behind", action="store_true",
+                    help="keep observations whose point is behind the camera (COLMAP's cost zeroes them, "
+                         "BAL's does not: the two then minimise different objectives)")
+    ap.add_argument("--skip-skyrig", action="store_true")
+    ap.add_argument("--skip-ceres", action="store_true")
     a = ap.parse_args()
+    t0 = time.perf_counter()
     if a.generate:
         with tempfile.TemporaryDirectory() as d:
             p = Path(d) / "gen.txt"
             generate(p, *a.generate)
-            res = run_skyrig(p)
+            block = read_bal(p)
+        name = f"generated {a.generate[0]} cameras x {a.generate[1]} points"
     else:
-        res = run_skyrig(Path(a.problem))
-    print("skyrig:", ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in res.items()))
-    print("ceres (pycolmap): not run - see the module docstring")
+        block = read_bal(a.problem)
+        name = Path(a.problem).name
+    print(f"{name}: {block.n_images} cameras, {block.n_points} points, {block.n_observations} observations "
+          f"(prepared in {time.perf_counter() - t0:.1f} s); os.cpu_count() = {os.cpu_count()}")
+    if not a.keep_behind:
+        block, n_o, n_p = drop_behind(block)
+        print(f"dropped {n_o} observations with the point behind the camera and {n_p} points left with < 2 "
+              f"(--keep-behind keeps them): {block.n_points} points, {block.n_observations} observations")
+    sk = ce = None
+    if not a.skip_ceres:
+        ce = run_ceres(block, a.threads, a.linear_solver)
+        print("ceres :", ", ".join(f"{k}={_fmt(v)}" for k, v in ce.items()), flush=True)
+    if not a.skip_skyrig:
+        sk = run_skyrig(block)
+        print("skyrig:", ", ".join(f"{k}={_fmt(v)}" for k, v in sk.items()), flush=True)
+    if sk and ce:
+        print()
+        print(f"{'':22s}{'skyrig':>14s}{'ceres':>14s}{'skyrig/ceres':>14s}")
+        print(f"{'initial BAL cost':22s}{sk['initial_cost']:14.7e}{ce['initial_cost']:14.7e}"
+              f"{sk['initial_cost'] / ce['initial_cost']:14.6f}"
+              + ("   (ceres: observations in front only)" if a.keep_behind else ""))
+        print(f"{'final BAL cost':22s}{sk['final_cost']:14.7e}{ce['final_bal_cost']:14.7e}"
+              f"{sk['final_cost'] / ce['final_bal_cost']:14.6f}")
+        print(f"{'iterations':22s}{sk['iterations']:14d}{ce['iterations']:14d}")
+        print(f"{'solve wall time (s)':22s}{sk['solve_s']:14.2f}{ce['solve_s']:14.2f}"
+              f"{sk['solve_s'] / ce['solve_s']:14.2f}   (ceres {ce['linear_solver']}, {ce['threads']} threads)")
 
 
 if __name__ == "__main__":

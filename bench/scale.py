@@ -1,0 +1,131 @@
+"""How skyrig's adjustment grows with the block: a penta-rig (MIDAS) block from 100 to 2,000+ exposures.
+
+    .venv/bin/python bench/scale.py                       # 100 200 500 1000 2000 exposures
+    .venv/bin/python bench/scale.py --sizes 100 400 --points-per-exposure 30
+
+Each size runs in its own child process (so that the peak memory of one size does not hide the next):
+a seeded :func:`skyrig.adjust.synthetic.synthetic_block` with the MIDAS rig (5 heads: nadir + 4 obliques
+at 45 deg), roughly square blocks (strips ~ sqrt(exposures / 4)), ``--points-per-exposure`` object
+points scattered over the area, GNSS and IMU observations and a few control points; then
+``adjust(block, AdjustConfig(statistics=False))``.  Reported per size: block size, generation time,
+adjustment wall time and iterations, peak resident memory of the adjustment phase (sampled from
+/proc/self/statm every 5 ms, minus the resident memory before it) and of the whole child process
+(``resource.getrusage``), and the growth exponent ``d log(time) / d log(exposures)`` between sizes and
+over the whole range (least squares).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def _rss() -> int:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * PAGE
+
+
+class _PeakRss:
+    """Sample the resident set size in a thread; ``peak`` in bytes."""
+
+    def __init__(self, period: float = 0.005) -> None:
+        self.period, self.peak, self._stop = period, _rss(), threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, _rss())
+            time.sleep(self.period)
+
+    def __enter__(self) -> "_PeakRss":
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._t.join()
+        self.peak = max(self.peak, _rss())
+
+
+def one(n_exposures: int, points_per_exposure: int, seed: int) -> dict:
+    """Generate and adjust one block; a dict of figures."""
+    from skyrig.adjust import AdjustConfig, adjust
+    from skyrig.adjust.synthetic import synthetic_block
+    from skyrig.rig.presets import midas
+
+    n_strips = max(2, int(round(np.sqrt(n_exposures / 4.0))))
+    n_per_strip = int(np.ceil(n_exposures / n_strips))
+    t0 = time.perf_counter()
+    block, truth = synthetic_block(seed=seed, n_strips=n_strips, n_per_strip=n_per_strip,
+                                   n_points=points_per_exposure * n_strips * n_per_strip, rig=midas(),
+                                   height_m=500.0, n_control=9)
+    t_gen = time.perf_counter() - t0
+    base = _rss()
+    t1 = time.perf_counter()
+    with _PeakRss() as mem:
+        res = adjust(block, AdjustConfig(statistics=False, max_iterations=50))
+    t_adj = time.perf_counter() - t1
+    err = np.sqrt(np.mean((res.block.station_centre - truth.station_centre) ** 2))
+    return dict(exposures=block.n_stations, images=block.n_images, points=block.n_points,
+                observations=block.n_observations, generate_s=t_gen, adjust_s=t_adj,
+                iterations=res.info.iterations, converged=bool(res.info.converged),
+                sigma0=res.sigma0, centre_rmse_m=float(err), adjust_peak_mib=(mem.peak - base) / 2**20,
+                process_peak_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 200, 500, 1000, 2000])
+    ap.add_argument("--points-per-exposure", type=int, default=40)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.one:
+        print(json.dumps(one(a.one, a.points_per_exposure, a.seed)))
+        return
+    rows = []
+    hdr = (f"{'exposures':>9} {'images':>7} {'points':>8} {'obs':>9} {'gen s':>7} {'adjust s':>9} {'iter':>5} "
+           f"{'s/iter':>7} {'adj MiB':>8} {'proc MiB':>9} {'sigma0':>7} {'exp(t)':>7} {'exp(mem)':>8}")
+    print(f"MIDAS penta rig, {a.points_per_exposure} points per exposure, seed {a.seed}, "
+          f"os.cpu_count() = {os.cpu_count()}")
+    print(hdr, flush=True)
+    for n in a.sizes:
+        out = subprocess.run([sys.executable, __file__, "--one", str(n), "--points-per-exposure",
+                              str(a.points_per_exposure), "--seed", str(a.seed)],
+                             capture_output=True, text=True)
+        if out.returncode:
+            print(f"size {n} failed:\n{out.stderr[-2000:]}")
+            break
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        ex_t = ex_m = float("nan")
+        if rows:
+            p = rows[-1]
+            lx = np.log(r["exposures"] / p["exposures"])
+            ex_t = np.log(r["adjust_s"] / p["adjust_s"]) / lx
+            ex_m = np.log(max(r["adjust_peak_mib"], 1e-3) / max(p["adjust_peak_mib"], 1e-3)) / lx
+        rows.append(r)
+        print(f"{r['exposures']:9d} {r['images']:7d} {r['points']:8d} {r['observations']:9d} {r['generate_s']:7.1f} "
+              f"{r['adjust_s']:9.2f} {r['iterations']:5d} {r['adjust_s'] / max(r['iterations'], 1):7.2f} "
+              f"{r['adjust_peak_mib']:8.0f} {r['process_peak_mib']:9.0f} {r['sigma0']:7.3f} {ex_t:7.2f} {ex_m:8.2f}",
+              flush=True)
+    if len(rows) >= 2:
+        x = np.log([r["exposures"] for r in rows])
+        bt = np.polyfit(x, np.log([r["adjust_s"] for r in rows]), 1)[0]
+        bi = np.polyfit(x, np.log([r["adjust_s"] / max(r["iterations"], 1) for r in rows]), 1)[0]
+        bm = np.polyfit(x, np.log([max(r["adjust_peak_mib"], 1e-3) for r in rows]), 1)[0]
+        print(f"growth exponent over {rows[0]['exposures']}..{rows[-1]['exposures']} exposures (least squares on "
+              f"log-log): time {bt:.2f}, time per iteration {bi:.2f}, adjustment peak memory {bm:.2f}")
+
+
+if __name__ == "__main__":
+    main()
