@@ -110,10 +110,10 @@ def _run_dask(tasks: list[Callable[[], str]], scheduler: str, workers: int,
 
     class _Tick(Callback):
         def _posttask(self, key, result, dsk, state, id):  # noqa: ANN001, A002
-            if progress is not None and isinstance(key, tuple | str) and "task-" in str(key):
+            if progress is not None and str(key).startswith("skyrig-task-"):
                 progress(1)
 
-    delayed = [dask.delayed(t, pure=False, name=f"task-{k}")() for k, t in enumerate(tasks)]
+    delayed = [dask.delayed(t, pure=False)(dask_key_name=f"skyrig-task-{k}") for k, t in enumerate(tasks)]
     kw = {"scheduler": scheduler}
     if scheduler in ("threads", "processes"):
         kw["num_workers"] = workers
@@ -137,6 +137,7 @@ def match_images(
     cameras: dict[str, FrameCamera] | None = None, terrain_height: float | None = None,
     min_overlap: float = 0.1, gps_neighbours: int = 8, scheduler: str = "threads", workers: int = 2,
     thin_per_cell: int = 0, overwrite: bool = False, progress: Callable[[str, int, int], None] | None = None,
+    lsm: bool = False, max_heading_diff_deg: float | None = None,
 ) -> MatchRunResult:
     """Feature extraction, pair selection, guided matching, tracks, tie-point file and report for a block.
 
@@ -217,7 +218,7 @@ def match_images(
             bad = next(m for m in metas if not m.has_gps)
             raise InputFormatError("gps pairs need EXIF GPS on every image", bad.path, None, "GPSLatitude")
         c = (eo.centre if eo is not None else orientations_from_metadata(metas).eo.centre)
-        pairs = gps_pairs(c, k=gps_neighbours, heading_deg=heading)
+        pairs = gps_pairs(c, k=gps_neighbours, heading_deg=heading, max_heading_diff_deg=max_heading_diff_deg)
         cams = [None] * len(metas)
     elif mode == "exhaustive":
         pairs = exhaustive_pairs(len(metas))
@@ -240,14 +241,27 @@ def match_images(
     xy = [f.xy for f in feats]
     sizes = [f.image_size for f in feats]
     thinned = thin_tracks(tracks, xy, sizes, per_cell=thin_per_cell) if thin_per_cell > 0 else tracks
+    xy_obs = np.array([xy[i][f] for i, f in zip(thinned.image, thinned.feature)]).reshape(-1, 2)
+    if lsm and thinned.n_tracks:
+        from skyrig.match.lsm import refine_tracks
+
+        paths = [m.path for m in metas]
+        xy_obs, ok = refine_tracks(thinned.track, thinned.image, xy_obs,
+                                   lambda i: read_image(paths[i]))
     report = tie_point_report(thinned, names, pm)
+    if lsm:
+        report["lsm_refined_fraction"] = float(ok.mean()) if thinned.n_tracks else 0.0
     report["pair_mode"] = mode
     report["skipped_images"] = skipped
     report["n_tracks_before_thinning"] = tracks.n_tracks
 
     from skyrig.io.points_csv import write_measurements_csv
 
-    write_measurements_csv(out / "tie_points.csv", tracks_to_measurements(thinned, xy, names))
+    meas = tracks_to_measurements(thinned, xy, names)
+    if lsm and thinned.n_tracks:  # same ordering as tracks_to_measurements
+        order = np.lexsort((np.array([names[i] for i in thinned.image]), thinned.track))
+        meas = type(meas)(meas.point, meas.image, xy_obs[order])
+    write_measurements_csv(out / "tie_points.csv", meas)
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     os.replace(tmp, out / "report.json")
@@ -275,6 +289,8 @@ def match_images(
 @click.option("--max-features", type=int, default=8000, show_default=True)
 @click.option("--min-overlap", type=float, default=0.1, show_default=True, help="Guided pairs: footprint overlap.")
 @click.option("--neighbours", type=int, default=8, show_default=True, help="GPS pairs: nearest images.")
+@click.option("--max-heading-diff", type=float, default=None,
+              help="GPS pairs: drop pairs whose EXIF/XMP headings differ more (degrees; default: no filter).")
 @click.option("--eo", "eo_path", type=click.Path(exists=True, dir_okay=False), help="Approximate EO file.")
 @click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--terrain-height", type=float, help="Mean terrain height in the EO frame (guided pairs).")
@@ -284,9 +300,11 @@ def match_images(
               show_default=True, help="Dask local scheduler.")
 @click.option("-j", "--workers", type=int, default=2, show_default=True)
 @click.option("--overwrite", is_flag=True, help="Discard stored features and matches.")
+@click.option("--lsm", is_flag=True, help="Refine tie points by least-squares matching (full resolution).")
 def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mode: str, method: str, max_size: int,
-            max_features: int, min_overlap: float, neighbours: int, eo_path: str | None, camera_paths: tuple[str, ...],
-            terrain_height: float | None, thin_per_cell: int, scheduler: str, workers: int, overwrite: bool) -> None:
+            max_features: int, min_overlap: float, neighbours: int, max_heading_diff: float | None, eo_path: str | None, camera_paths: tuple[str, ...],
+            terrain_height: float | None, thin_per_cell: int, scheduler: str, workers: int, overwrite: bool,
+            lsm: bool) -> None:
     """Tie points for the images of PROJECT (resumable: rerun to continue an interrupted run)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -310,7 +328,7 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
             r = match_images(folders, out or proj / "match",
                              FeatureConfig(method=method, max_size=max_size, max_features=max_features),  # type: ignore[arg-type]
                              None, pair_mode, eo, cameras, terrain_height, min_overlap, neighbours, scheduler,
-                             workers, thin_per_cell, overwrite, progress)
+                             workers, thin_per_cell, overwrite, progress, lsm, max_heading_diff)
         except SkyrigError:
             raise
     rep = r.report

@@ -1,0 +1,169 @@
+"""Tie-point benchmark: guided vs exhaustive matching as the block grows, and skyrig vs pycolmap's own pipeline.
+
+Usage::
+
+    .venv/bin/python bench/match.py [--data ../shared/data] [--max-size 1600] [--max-features 8000]
+        [--work /tmp/skyrig-bench-match] [--skip-growth] [--datasets brighton,lund]
+
+For each dataset (brighton-uav: DJI nadir strips with gimbal attitudes -> guided footprint pairs; opensfm/lund:
+phone walk with GPS only -> GPS-neighbour pairs):
+
+1. skyrig matching (features + pairs + verified matches), time and pair counts;
+2. pycolmap incremental mapping on a database holding skyrig's keypoints and verified matches;
+3. pycolmap's own extraction + exhaustive matching + mapping on the same images;
+4. camera-centre differences after a similarity transform, reprojection RMS side by side.
+
+Growth: pair counts and matching times of guided vs exhaustive on the first n images (n = 6, 12, 18).
+Nothing is written into the repository; everything goes under --work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skyrig.cli.match import match_images
+from skyrig.match.colmap_check import compare_centres, reconstruct_from_matches, reconstruct_with_pycolmap
+from skyrig.match.features import FeatureConfig
+
+
+def run_dataset(name: str, images: Path, work: Path, fc: FeatureConfig, mode: str, mapper: str) -> dict:
+    from skyrig.io.image_read import orientations_from_metadata, read_image_metadata
+
+    out = work / name
+    shutil.rmtree(out, ignore_errors=True)
+    t = time.perf_counter()
+    r = match_images([images], out / "skyrig", fc, pair_mode=mode)
+    t_match = time.perf_counter() - t
+    metas = [read_image_metadata(images / n) for n in r.names]
+    focal = metas[0].focal_px
+    t = time.perf_counter()
+    rec_s, sum_s = reconstruct_from_matches(images, r.names, r.features, r.pair_matches, out / "colmap_skyrig",
+                                            focal_px=focal, mapper=mapper)
+    t_map_s = time.perf_counter() - t
+    t = time.perf_counter()
+    rec_c, sum_c = reconstruct_with_pycolmap(images, r.names, out / "colmap_own", max_image_size=fc.max_size or 10000,
+                                             max_features=fc.max_features, focal_px=focal, mapper=mapper)
+    t_colmap = time.perf_counter() - t
+    gps = dict(zip(r.names, orientations_from_metadata(metas).eo.centre))
+    n = len(r.names)
+    res = {
+        "images": n, "pair_mode": r.pair_mode, "pairs_tried": len(r.pairs), "pairs_exhaustive": n * (n - 1) // 2,
+        "pairs_matched": r.report["pairs_matched"], "tie_points": r.report["n_tracks"],
+        "tie_points_per_image": r.report["per_image"], "images_without_ties": r.report["images_without_ties"],
+        "mean_multiplicity": r.report["mean_multiplicity"],
+        "skyrig_time_s": {**{k: round(v, 1) for k, v in r.timings_s.items()}, "mapping": round(t_map_s, 1),
+                          "total_with_mapping": round(t_match + t_map_s, 1)},
+        "pycolmap_own_time_s": round(t_colmap, 1), "mapper": mapper,
+    }
+    for key, s in (("skyrig_matches_in_pycolmap", sum_s), ("pycolmap_own", sum_c)):
+        res[key] = None if s is None else {
+            "registered": int(len(s.names)), "points": s.n_points, "reprojection_rms_px": round(s.reprojection_rms_px, 3),
+            "mean_track_length": round(s.mean_track_length, 2), "components": list(s.components),
+            "unregistered_in_largest": sorted(set(r.names) - set(s.names)),
+        }
+    if sum_s is not None and sum_c is not None and len(set(sum_s.names) & set(sum_c.names)) >= 3:
+        names, diff, scale = compare_centres(sum_s, sum_c)
+        # express in metres: scale pycolmap's frame by the GPS distance spread where possible
+        d = np.linalg.norm(diff, axis=1)
+        extent = float(np.ptp(sum_c.centres, axis=0).max())
+        # metric scale: similarity of pycolmap's own centres onto the EXIF GPS centres (local ENU, metres)
+        from skyrig.match.colmap_check import similarity_transform
+
+        m_per_unit = similarity_transform(sum_c.centres, np.array([gps[n] for n in sum_c.names]))[0]
+        res["centre_differences"] = {
+            "rms_m_via_gps_scale": float(np.sqrt(np.mean(d**2)) * m_per_unit),
+            "max_m_via_gps_scale": float(d.max() * m_per_unit),
+            "common_images": int(len(names)), "rms_colmap_units": float(np.sqrt(np.mean(d**2))),
+            "max_colmap_units": float(d.max()), "block_extent_colmap_units": extent,
+            "rms_relative_to_extent": float(np.sqrt(np.mean(d**2)) / extent),
+        }
+    return res
+
+
+def growth(images: Path, work: Path, fc: FeatureConfig, sizes: list[int]) -> list[dict]:
+    """Guided vs exhaustive pair counts and matching times on the first n images (features cached per run)."""
+    from skyrig.io.image_read import list_images
+
+    all_imgs = list_images(images)
+    rows = []
+    for n in sizes:
+        sub = work / f"growth_{n}" / "images"
+        shutil.rmtree(sub.parent, ignore_errors=True)
+        sub.mkdir(parents=True)
+        for p in all_imgs[:n]:
+            (sub / p.name).symlink_to(p.resolve())
+        row = {"images": n}
+        for mode in ("guided", "exhaustive"):
+            if mode == "exhaustive":  # same features, extracted once: time the matching alone fairly
+                shutil.copytree(sub.parent / "guided" / "features", sub.parent / mode / "features")
+                shutil.copy(sub.parent / "guided" / "config.json", sub.parent / mode / "config.json")
+            t = time.perf_counter()
+            r = match_images([sub], sub.parent / mode, fc, pair_mode=mode)
+            row[mode] = {"pairs": int(len(r.pairs)), "pairs_matched": r.report["pairs_matched"],
+                         "tie_points": r.report["n_tracks"], "matching_s": round(r.timings_s["matching"], 1),
+                         "total_s": round(time.perf_counter() - t, 1)}
+        rows.append(row)
+        print(json.dumps(row))
+    return rows
+
+
+def pair_growth_synthetic(strips: list[int], per_strip: int = 20) -> list[dict]:
+    """Pair counts and selection time, footprint-guided vs exhaustive, for simulated nadir blocks
+    (60 % forward, 30 % side overlap) of growing size: linear vs quadratic."""
+    from skyrig.camera.frame import FrameCamera
+    from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+    from skyrig.match.pairs import footprint_pairs
+
+    cam = FrameCamera.from_pixels("c", 4000, 3000, 4000.0, 1999.5, 1499.5)
+    rows = []
+    for ns in strips:
+        foot_w, foot_h = 300.0, 225.0  # at 300 m: 4000 px * 300 / 4000
+        xs, ys = np.meshgrid(np.arange(per_strip) * foot_w * 0.4, np.arange(ns) * foot_h * 0.7)
+        c = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 300.0)])
+        eo = ExteriorOrientations(np.array([f"i{k}" for k in range(len(c))]), "c", c,
+                                  np.broadcast_to(np.eye(3), (len(c), 3, 3)), WorldFrame.local(0, 0, 0))
+        t = time.perf_counter()
+        p, _ = footprint_pairs(eo, {"c": cam}, 0.0, min_overlap=0.1)
+        rows.append({"images": len(c), "guided_pairs": int(len(p)), "exhaustive_pairs": len(c) * (len(c) - 1) // 2,
+                     "selection_s": round(time.perf_counter() - t, 2)})
+        print(json.dumps(rows[-1]))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    ap.add_argument("--work", default="/tmp/skyrig-bench-match")
+    ap.add_argument("--max-size", type=int, default=1600)
+    ap.add_argument("--max-features", type=int, default=8000)
+    ap.add_argument("--method", default="pycolmap")
+    ap.add_argument("--datasets", default="brighton,lund")
+    ap.add_argument("--skip-growth", action="store_true")
+    a = ap.parse_args()
+    data, work = Path(a.data), Path(a.work)
+    work.mkdir(parents=True, exist_ok=True)
+    fc = FeatureConfig(method=a.method, max_size=a.max_size, max_features=a.max_features)
+    results = {"config": {"max_size": a.max_size, "max_features": a.max_features, "method": a.method}}
+    # lund is a forward-moving phone walk: COLMAP's incremental mapper cannot initialise on it (with its own
+    # matches either), so both pipelines use the global mapper there
+    sets = {"brighton": (data / "brighton-uav", "guided", "incremental"),
+            "lund": (data / "opensfm" / "lund" / "images", "gps", "global")}
+    results["pair_growth_synthetic"] = pair_growth_synthetic([2, 4, 8, 16, 32])
+    for name in a.datasets.split(","):
+        folder, mode, mapper = sets[name]
+        results[name] = run_dataset(name, folder, work, fc, mode, mapper)
+        print(name, json.dumps(results[name], indent=1))
+    if not a.skip_growth:
+        results["growth_brighton"] = growth(data / "brighton-uav", work, fc, [6, 12, 18])
+    (work / "bench_match.json").write_text(json.dumps(results, indent=1))
+    print(f"written {work / 'bench_match.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,348 @@
+"""Reading images (JPEG / TIFF / PNG, 8 or 16 bit) and their EXIF GPS / DJI XMP metadata.
+
+Pixels: column right, row down, origin at the centre of the top-left pixel (as everywhere in skyrig).
+
+Metadata comes from Pillow's EXIF reader plus a small parser of the XMP packet that DJI drones embed in
+the JPEG (``drone-dji:GimbalYawDegree`` ...); no external ``exiftool`` binary is needed.  Phone images
+that carry a Mapillary JSON ``ImageDescription`` give a compass heading too.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.errors import InputFormatError
+from skyrig.io._text import PathLike
+
+logger = logging.getLogger(__name__)
+
+#: File name suffixes treated as images.
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
+
+_XMP_ATTR = re.compile(rb'([A-Za-z0-9_-]+):([A-Za-z0-9_]+)\s*=\s*"([^"]*)"')
+_XMP_ELEM = re.compile(rb"<([A-Za-z0-9_-]+):([A-Za-z0-9_]+)>([^<]*)</\1:\2>")
+
+
+@dataclass(frozen=True)
+class ImageMetadata:
+    """What an image file says about itself.
+
+    Attributes
+    ----------
+    name, path
+        File name (the image's identifier in skyrig) and full path.
+    width, height
+        Size in pixels.
+    bits
+        Bits per sample (8 or 16).
+    make, model
+        Camera make and model (EXIF), '' when absent.
+    lat_deg, lon_deg, alt_m
+        EXIF GPS position (WGS84 degrees; altitude in metres as the camera wrote it, usually above mean sea
+        level); None when absent.
+    gimbal_ypr_deg, flight_ypr_deg
+        DJI XMP gimbal and aircraft (yaw, pitch, roll) in degrees (yaw clockwise from north; gimbal pitch
+        -90 looks straight down); None when absent.
+    relative_alt_m
+        DJI XMP altitude above the take-off point, metres; None when absent.
+    heading_deg
+        A compass heading of the camera (e.g. Mapillary JSON description), degrees clockwise from north.
+    focal_mm, focal35_mm
+        EXIF focal length and its 35 mm equivalent; None when absent.
+    sensor_width_mm
+        Sensor width derived from ``focal_mm`` and ``focal35_mm`` (36 mm frame width), or from the
+        focal-plane resolution tags; None when unknown.
+    """
+
+    name: str
+    path: str
+    width: int
+    height: int
+    bits: int = 8
+    make: str = ""
+    model: str = ""
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    alt_m: float | None = None
+    gimbal_ypr_deg: tuple[float, float, float] | None = None
+    flight_ypr_deg: tuple[float, float, float] | None = None
+    relative_alt_m: float | None = None
+    heading_deg: float | None = None
+    focal_mm: float | None = None
+    focal35_mm: float | None = None
+    sensor_width_mm: float | None = None
+    xmp: dict[str, str] = field(default_factory=dict, repr=False)
+
+    @property
+    def has_gps(self) -> bool:
+        return self.lat_deg is not None and self.lon_deg is not None
+
+    @property
+    def focal_px(self) -> float | None:
+        """Focal length in pixels from the EXIF tags (None when they do not allow it)."""
+        if self.focal_mm and self.sensor_width_mm:
+            return self.focal_mm / self.sensor_width_mm * max(self.width, self.height)
+        if self.focal35_mm:
+            return self.focal35_mm / 36.0 * max(self.width, self.height)
+        return None
+
+
+def _clean(text: object) -> str:
+    return str(text).replace("\x00", "").strip() if text is not None else ""
+
+
+def _rational(v: object) -> float:
+    return float(v)  # Pillow IFDRational / float / int
+
+
+def _dms(v: object, ref: object, path: PathLike, tag: str) -> float:
+    try:
+        d, m, s = (_rational(x) for x in v)  # type: ignore[union-attr]
+    except Exception as exc:  # noqa: BLE001
+        raise InputFormatError(f"cannot read GPS {tag} {v!r} ({exc})", path, None, tag) from None
+    val = d + m / 60.0 + s / 3600.0
+    r = _clean(ref).upper()
+    if r in ("S", "W"):
+        val = -val
+    if not math.isfinite(val):
+        raise InputFormatError(f"GPS {tag} is not a number", path, None, tag)
+    return val
+
+
+def parse_xmp(data: bytes) -> dict[str, str]:
+    """``prefix:Name -> value`` of every attribute / simple element in the first XMP packet of ``data``."""
+    i = data.find(b"<x:xmpmeta")
+    if i < 0:
+        return {}
+    j = data.find(b"</x:xmpmeta>", i)
+    block = data[i : (j if j > 0 else i + 65536)]
+    out: dict[str, str] = {}
+    for rx in (_XMP_ATTR, _XMP_ELEM):
+        for ns, key, val in rx.findall(block):
+            out[f"{ns.decode()}:{key.decode()}"] = val.decode("utf-8", "replace").strip()
+    return out
+
+
+def _xmp_float(xmp: dict[str, str], key: str, path: PathLike) -> float | None:
+    if key not in xmp:
+        return None
+    try:
+        v = float(xmp[key])
+    except ValueError:
+        raise InputFormatError(f"XMP value {xmp[key]!r} is not a number", path, None, key) from None
+    return v
+
+
+def read_image_metadata(path: PathLike) -> ImageMetadata:
+    """Read size, EXIF GPS / focal length and DJI XMP attitudes of one image.
+
+    Raises
+    ------
+    InputFormatError
+        The file is missing, not an image, or a metadata field cannot be parsed (naming the field).
+    """
+    from PIL import ExifTags, Image, UnidentifiedImageError
+
+    p = Path(path)
+    try:
+        with Image.open(p) as im:
+            width, height = im.size
+            mode = im.mode
+            exif = im.getexif()
+            bits = 16 if mode in ("I;16", "I;16B", "I;16L", "I", "I;16N") else 8
+            exif_ifd = dict(exif.get_ifd(0x8769))
+            gps_ifd = dict(exif.get_ifd(0x8825))
+    except FileNotFoundError:
+        raise InputFormatError("image file not found", p) from None
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise InputFormatError(f"not a readable image ({exc})", p) from None
+    tags = {ExifTags.TAGS.get(k, k): v for k, v in exif.items()}
+    tags.update({ExifTags.TAGS.get(k, k): v for k, v in exif_ifd.items()})
+    gps = {ExifTags.GPSTAGS.get(k, k): v for k, v in gps_ifd.items()}
+
+    lat = lon = alt = None
+    if "GPSLatitude" in gps and "GPSLongitude" in gps:
+        lat = _dms(gps["GPSLatitude"], gps.get("GPSLatitudeRef", "N"), p, "GPSLatitude")
+        lon = _dms(gps["GPSLongitude"], gps.get("GPSLongitudeRef", "E"), p, "GPSLongitude")
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            raise InputFormatError(f"GPS position {lat}, {lon} out of range", p, None, "GPSLatitude")
+        if "GPSAltitude" in gps:
+            alt = _rational(gps["GPSAltitude"])
+            ref = gps.get("GPSAltitudeRef", b"\x00")
+            if ref in (1, b"\x01", "1"):
+                alt = -alt
+
+    def num(tag: str) -> float | None:
+        if tag not in tags:
+            return None
+        try:
+            v = _rational(tags[tag])
+        except (TypeError, ValueError, ZeroDivisionError):
+            return None
+        return v if math.isfinite(v) and v > 0 else None
+
+    focal = num("FocalLength")
+    f35 = num("FocalLengthIn35mmFilm")
+    sensor_w = None
+    if focal and f35:
+        sensor_w = focal * 36.0 / f35
+    else:
+        fpx, unit = num("FocalPlaneXResolution"), tags.get("FocalPlaneResolutionUnit")
+        if fpx and unit in (2, 3, 4, 5):
+            mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}[int(unit)]
+            sensor_w = max(width, height) / fpx * mm_per_unit
+
+    xmp: dict[str, str] = {}
+    heading = None
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(256 * 1024)
+        xmp = parse_xmp(head)
+    except OSError as exc:
+        raise InputFormatError(f"cannot read file ({exc})", p) from None
+
+    def ypr(kind: str) -> tuple[float, float, float] | None:
+        vals = [_xmp_float(xmp, f"drone-dji:{kind}{a}Degree", p) for a in ("Yaw", "Pitch", "Roll")]
+        return None if any(v is None for v in vals) else (vals[0], vals[1], vals[2])  # type: ignore[return-value]
+
+    desc = _clean(tags.get("ImageDescription"))
+    if desc.startswith("{"):
+        try:
+            h = json.loads(desc).get("MAPCompassHeading", {}).get("TrueHeading")
+            heading = float(h) if h is not None else None
+        except (ValueError, AttributeError, TypeError):
+            heading = None
+    gimbal = ypr("Gimbal")
+    if gimbal is not None:
+        heading = gimbal[0]
+
+    return ImageMetadata(
+        name=p.name, path=str(p), width=int(width), height=int(height), bits=bits,
+        make=_clean(tags.get("Make")), model=_clean(tags.get("Model")),
+        lat_deg=lat, lon_deg=lon, alt_m=alt,
+        gimbal_ypr_deg=gimbal, flight_ypr_deg=ypr("Flight"),
+        relative_alt_m=_xmp_float(xmp, "drone-dji:RelativeAltitude", p),
+        heading_deg=heading, focal_mm=focal, focal35_mm=f35, sensor_width_mm=sensor_w, xmp=xmp,
+    )
+
+
+def read_image(path: PathLike, gray: bool = True, max_size: int | None = None) -> NDArray:
+    """Read pixels of a JPEG / TIFF / PNG image, keeping 8 or 16 bit depth.
+
+    Parameters
+    ----------
+    path
+        Image file.
+    gray
+        Convert colour to one channel (``(H, W)``); else ``(H, W, 3)`` in RGB order.
+    max_size
+        If given, downscale (area averaging) so that the longer side is at most this many pixels.
+
+    Returns
+    -------
+    ``(H, W)`` or ``(H, W, 3)`` uint8 or uint16 array.
+    """
+    import cv2
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFormatError("image file not found", p)
+    flags = cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
+    img = cv2.imread(str(p), flags)
+    if img is None:
+        raise InputFormatError("not a readable image (OpenCV could not decode it)", p)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise InputFormatError(f"unsupported sample type {img.dtype} (8 or 16 bit expected)", p)
+    if not gray and img.ndim == 3:
+        img = img[..., ::-1].copy()
+    if max_size is not None and max(img.shape[:2]) > max_size:
+        s = max_size / max(img.shape[:2])
+        size = (max(1, round(img.shape[1] * s)), max(1, round(img.shape[0] * s)))
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    return img
+
+
+def list_images(folder: PathLike) -> list[Path]:
+    """Image files (by suffix, case-insensitive) directly in ``folder``, sorted by name."""
+    f = Path(folder)
+    if not f.is_dir():
+        raise InputFormatError("image folder not found", f)
+    return sorted(q for q in f.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def camera_from_metadata(meta: ImageMetadata, name: str | None = None) -> FrameCamera:
+    """A distortion-free :class:`FrameCamera` from EXIF focal length (principal point at the centre).
+
+    Raises
+    ------
+    InputFormatError
+        The EXIF tags do not give a focal length in pixels.
+    """
+    f_px = meta.focal_px
+    if f_px is None:
+        raise InputFormatError("no usable focal length (FocalLength with FocalLengthIn35mmFilm or "
+                               "FocalPlaneXResolution)", meta.path, None, "FocalLength")
+    pix_mm = (meta.sensor_width_mm / max(meta.width, meta.height)) if meta.sensor_width_mm else 0.001
+    return FrameCamera.from_pixels(name or (meta.model or "camera"), meta.width, meta.height, f_px,
+                                   (meta.width - 1) / 2.0, (meta.height - 1) / 2.0, pixel_size_mm=pix_mm)
+
+
+@dataclass(frozen=True)
+class MetadataOrientations:
+    """Approximate exterior orientations of images from their own metadata.
+
+    Attributes
+    ----------
+    eo
+        Orientations in a local ENU frame at the mean GPS position.  Rotations come from the DJI gimbal
+        angles; images without them get NaN rotations (use :attr:`heading_deg`).
+    heading_deg
+        ``(N,)`` viewing heading (gimbal yaw or compass), NaN when unknown.
+    ground_height
+        Estimated terrain height in the ENU frame (from DJI ``RelativeAltitude``: height of the take-off
+        point), or None.
+    """
+
+    eo: "object"
+    heading_deg: NDArray[np.float64]
+    ground_height: float | None
+
+
+def orientations_from_metadata(metas: list[ImageMetadata]) -> MetadataOrientations:
+    """Direct georeferencing from EXIF / XMP: GPS centres and DJI gimbal attitudes in local ENU.
+
+    Raises
+    ------
+    InputFormatError
+        An image has no GPS position (naming the image and the field).
+    """
+    from skyrig.geodesy.crs import geodetic_to_ecef
+    from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+    from skyrig.io.odm import rotation_from_gimbal_ypr
+
+    for m in metas:
+        if not m.has_gps:
+            raise InputFormatError("no EXIF GPS position", m.path, None, "GPSLatitude")
+    llh = np.array([[m.lat_deg, m.lon_deg, m.alt_m if m.alt_m is not None else 0.0] for m in metas], dtype=float)
+    frame = WorldFrame.local(*llh.mean(axis=0))
+    centres = frame.from_ecef(geodetic_to_ecef(llh[:, 0], llh[:, 1], llh[:, 2]))
+    rot = np.full((len(metas), 3, 3), np.nan)
+    have = np.array([m.gimbal_ypr_deg is not None for m in metas])
+    if have.any():
+        ypr = np.array([m.gimbal_ypr_deg for m in metas if m.gimbal_ypr_deg is not None], dtype=float)
+        rot[have] = rotation_from_gimbal_ypr(frame, centres[have], ypr)
+    heading = np.array([np.nan if m.heading_deg is None else m.heading_deg for m in metas])
+    rel = [c[2] - m.relative_alt_m for c, m in zip(centres, metas) if m.relative_alt_m is not None]
+    ground = float(np.median(rel)) if rel else None
+    eo = ExteriorOrientations(np.array([m.name for m in metas]), np.array([m.model or "camera" for m in metas]),
+                              centres, rot, frame)
+    return MetadataOrientations(eo, heading, ground)

@@ -1,0 +1,201 @@
+"""Which image pairs to match.
+
+* :func:`footprint_pairs` — guided by direct georeferencing: a grid of pixels of each image is intersected with
+  the terrain (a DEM-like height function or a mean height), and a pair is kept when enough of one image's
+  ground samples fall inside the other image (in front of it).  Works for any mix of nadir and oblique heads
+  (nadir-oblique and oblique-oblique pairs across heads and strips).  Candidates come from a KD-tree over
+  footprint centres, so the cost grows linearly with the block, not quadratically.
+* :func:`gps_pairs` — fallback when only EXIF exists: k nearest projection centres (plus an optional radius),
+  dropping pairs whose viewing headings differ too much.
+* :func:`exhaustive_pairs` — every pair, the reference.
+
+Pairs are ``(P, 2)`` int arrays with ``i < j``, sorted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from skyrig.camera.frame import FrameCamera, intersect_rays_with_surface
+from skyrig.errors import GeometryError
+from skyrig.georef.eo import ExteriorOrientations
+
+HeightFunction = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
+
+
+def _unique_pairs(pairs: NDArray) -> NDArray[np.int64]:
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    p = np.sort(p, axis=1)
+    p = p[p[:, 0] != p[:, 1]]
+    if len(p) == 0:
+        return np.zeros((0, 2), np.int64)
+    return np.unique(p, axis=0)
+
+
+def exhaustive_pairs(n: int) -> NDArray[np.int64]:
+    """All ``n (n - 1) / 2`` pairs ``(P, 2)``."""
+    i, j = np.triu_indices(int(n), k=1)
+    return np.column_stack([i, j]).astype(np.int64)
+
+
+def gps_pairs(
+    centres: NDArray, k: int = 8, radius_m: float | None = None,
+    heading_deg: NDArray | None = None, max_heading_diff_deg: float | None = None,
+) -> NDArray[np.int64]:
+    """Pairs of each image with its ``k`` nearest neighbours by projection centre (and all within ``radius_m``).
+
+    Parameters
+    ----------
+    centres
+        ``(N, 3)`` (or ``(N, 2)``) positions in metres (a local ENU or map frame, not degrees).
+    k
+        Neighbours per image.
+    radius_m
+        Also pair all images closer than this.
+    heading_deg, max_heading_diff_deg
+        ``(N,)`` viewing headings (NaN = unknown) and a limit: pairs with both known and differing by more than
+        the limit are dropped.  Off by default: phone compasses (lund: 21 deg accuracy) and even DJI gimbal yaws
+        (brighton strip 2: 180 deg off) are not reliable enough to drop pairs on.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    n = len(c)
+    if n < 2:
+        return np.zeros((0, 2), np.int64)
+    tree = cKDTree(c)
+    kk = min(k + 1, n)
+    _, idx = tree.query(c, k=kk)
+    pairs = [np.column_stack([np.repeat(np.arange(n), kk - 1), idx[:, 1:].reshape(-1)])]
+    if radius_m is not None:
+        pairs.append(tree.query_pairs(radius_m, output_type="ndarray"))
+    p = _unique_pairs(np.concatenate(pairs))
+    if heading_deg is not None and max_heading_diff_deg is not None and len(p):
+        h = np.asarray(heading_deg, dtype=np.float64)
+        d = np.abs((h[p[:, 0]] - h[p[:, 1]] + 180.0) % 360.0 - 180.0)
+        p = p[~(d > max_heading_diff_deg)]  # NaN compares False: unknown headings keep the pair
+    return p
+
+
+def ground_samples(
+    camera: FrameCamera, world_from_camera: "object", height: float | HeightFunction, grid: int = 9,
+    max_distance_m: float | None = None,
+) -> NDArray[np.float64]:
+    """Ground points ``(M, 3)`` of a ``grid x grid`` lattice of pixels (rays that miss the terrain are dropped).
+
+    ``height`` is a constant terrain height or a function ``z = h(x, y)`` (e.g. ``Dem.sample``).
+    ``max_distance_m`` drops ground points farther than this from the projection centre (near-horizon rays
+    of oblique heads).
+    """
+    g = (np.arange(grid) + 0.5) / grid
+    px = np.stack(np.meshgrid(g * camera.width - 0.5, g * camera.height - 0.5), -1).reshape(-1, 2)
+    d = world_from_camera.rotate(camera.rays_from_pixels(px))  # type: ignore[attr-defined]
+    c = np.broadcast_to(world_from_camera.translation, d.shape)  # type: ignore[attr-defined]
+    if callable(height):
+        out = np.full(d.shape, np.nan)
+        down = d[:, 2] < 0
+        if down.any():
+            try:
+                out[down] = intersect_rays_with_surface(c[down], d[down], height,
+                                                        max_distance_m=max_distance_m or 1e6)
+            except GeometryError:
+                for r in np.nonzero(down)[0]:  # some rays miss: intersect one by one, keep the good ones
+                    try:
+                        out[r] = intersect_rays_with_surface(c[r:r + 1], d[r:r + 1], height,
+                                                             max_distance_m=max_distance_m or 1e6)[0]
+                    except GeometryError:
+                        pass
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (float(height) - c[:, 2]) / d[:, 2]
+        t = np.where(t > 0, t, np.nan)
+        out = c + t[:, None] * d
+    ok = np.all(np.isfinite(out), axis=1)
+    if max_distance_m is not None:
+        ok &= np.linalg.norm(out - c, axis=1) <= max_distance_m
+    return out[ok]
+
+
+def footprint_pairs(
+    eo: ExteriorOrientations,
+    cameras: Mapping[str, FrameCamera],
+    height: float | HeightFunction,
+    min_overlap: float = 0.05,
+    max_view_angle_deg: float = 75.0,
+    grid: int = 9,
+    max_distance_m: float | None = None,
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Image pairs whose terrain footprints overlap, predicted from exterior orientations.
+
+    Parameters
+    ----------
+    eo
+        Approximate exterior orientations in a frame with z vertical (map grid with heights, or local ENU).
+    cameras
+        Camera name -> :class:`FrameCamera` (``eo.camera`` names).
+    height
+        Mean terrain height (same frame) or a height function ``z = h(x, y)`` (a DEM's ``sample``).
+    min_overlap
+        Keep a pair when the larger of the two fractions "ground samples of image a seen by image b" reaches this.
+    max_view_angle_deg
+        Drop pairs whose optical axes differ by more than this (e.g. forward- vs backward-looking obliques,
+        whose views of the ground are too different for SIFT).
+    grid
+        Pixels per image side sampled.
+    max_distance_m
+        Ignore ground points farther than this from the camera (default: 20 x the median flying height).
+
+    Returns
+    -------
+    pairs
+        ``(P, 2)`` image-row pairs ``i < j``.
+    overlap
+        ``(P,)`` the overlap fraction of each pair.
+
+    Raises
+    ------
+    GeometryError
+        An image's footprint does not reach the terrain at all.
+    """
+    n = len(eo)
+    if n < 2:
+        return np.zeros((0, 2), np.int64), np.zeros(0)
+    pose = eo.pose()
+    if not np.all(np.isfinite(eo.rotation)):
+        raise GeometryError("footprint pairs need finite rotations for every image (use gps_pairs instead)")
+    if max_distance_m is None:
+        z = float(height) if not callable(height) else float(np.median(height(eo.centre[:, 0], eo.centre[:, 1])))
+        max_distance_m = 20.0 * max(float(np.median(np.abs(eo.centre[:, 2] - z))), 1.0)
+    samples = []
+    for i in range(n):
+        cam = cameras[str(eo.camera[i])]
+        s = ground_samples(cam, pose[i], height, grid, max_distance_m)
+        if len(s) == 0:
+            raise GeometryError(f"image {eo.image[i]!r}: no footprint ray reaches the terrain")
+        samples.append(s)
+    centre = np.array([s[:, :2].mean(axis=0) for s in samples])
+    radius = np.array([np.max(np.linalg.norm(s[:, :2] - c, axis=1)) for s, c in zip(samples, centre)])
+    tree = cKDTree(centre)
+    rmax = float(radius.max())
+    cand = []
+    for i in range(n):  # linear: each image only meets footprints within reach
+        for j in tree.query_ball_point(centre[i], radius[i] + rmax):
+            if j > i and np.linalg.norm(centre[i] - centre[j]) <= radius[i] + radius[j]:
+                cand.append((i, j))
+    if not cand:
+        return np.zeros((0, 2), np.int64), np.zeros(0)
+    cand_a = np.array(cand, dtype=np.int64)
+    axis = -eo.rotation[:, :, 2]  # viewing direction (camera looks along -z)
+    cosang = np.einsum("ij,ij->i", axis[cand_a[:, 0]], axis[cand_a[:, 1]])
+    cand_a = cand_a[cosang >= np.cos(np.radians(max_view_angle_deg))]
+
+    def seen(a: int, b: int) -> float:
+        cam = cameras[str(eo.camera[b])]
+        px = cam.world_to_pixel(pose[b], samples[a])
+        return float(np.mean(cam.in_image(px)))
+
+    ov = np.array([max(seen(a, b), seen(b, a)) for a, b in cand_a]) if len(cand_a) else np.zeros(0)
+    keep = ov >= min_overlap
+    return cand_a[keep], ov[keep]
