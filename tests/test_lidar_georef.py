@@ -307,3 +307,27 @@ def test_bad_input(scene):
     geo = PulseGeoreferencer(traj, mount)
     with pytest.raises(InputFormatError):
         geo.ecef(scan.time_s[:3], np.zeros((3, 2)))
+
+
+def test_compiled_kernel_equals_numpy_path():
+    """The numba kernel (when installed) and the numpy path compute the same georeferenced points."""
+    import skyrig.lidar.georef as G
+
+    if G._NUMBA_KERNEL is None:
+        pytest.skip("numba not installed: only the numpy path exists")
+    from skyrig.geodesy.local import LocalTangentFrame
+    from skyrig.trajectory.trajectory import Trajectory
+
+    rng = np.random.default_rng(5)
+    tt = np.arange(0.0, 20.0, 0.01)
+    lat, lon, h = LocalTangentFrame(51.0, 13.7, 150.0).to_geodetic(np.c_[2 * tt, np.sin(tt), 5 + np.cos(tt)])
+    traj = Trajectory.from_rpy(tt, lat, lon, h, 3 * np.sin(tt), 2 * np.cos(tt), 90 + 20 * np.sin(0.2 * tt))
+    mount = G.ScannerMount(np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]]), np.array([0.1, 0.0, 0.15]))
+    t = np.sort(rng.uniform(0.0, 19.99, 20000))
+    xs = rng.normal(0, 10, (20000, 3))
+    for position in ("cubic", "linear"):
+        geo = G.PulseGeoreferencer(traj, mount, position=position)
+        fast = geo.ecef(t, xs)
+        geo.use_numba = False
+        slow = geo.ecef(t, xs)
+        assert np.abs(fast - slow).max() < 1e-7

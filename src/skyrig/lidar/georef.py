@@ -235,6 +235,8 @@ class PulseGeoreferencer:
         self.mount = mount
         self.position = position
         self.chunk = int(chunk)
+        #: use the compiled kernel when numba is installed (set False to force the numpy path)
+        self.use_numba = True
         t = trajectory.time_s
         self._t = t
         e = trajectory.ecef
@@ -325,6 +327,11 @@ class PulseGeoreferencer:
         xs = np.asarray(sensor_xyz, dtype=np.float64)
         if xs.shape != (len(t), 3):
             raise InputFormatError(f"sensor points must be ({len(t)}, 3), got {xs.shape}", field="sensor_xyz")
+        if _NUMBA_KERNEL is not None and self.use_numba:
+            t0, t1 = self.trajectory.span
+            if len(t) and (t.min() < t0 or t.max() > t1):
+                self._locate(t)  # raises, naming the first pulse outside the span
+            return self._ecef_numba(t, xs)
         i_all, dt_all = self._locate(t)
         out = np.empty((len(t), 3))
         b = self.mount.body_from_scanner
@@ -371,6 +378,29 @@ class PulseGeoreferencer:
                     pj = p0[j][i] + (dt * inv_h[i]) * dp[j][i]
                 out[sl, j] = rj + pj
         out += self._origin
+        return out
+
+    def _ecef_numba(self, t: NDArray[np.float64], xs: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The same arithmetic as the numpy path, one pulse at a time in a compiled loop (numba)."""
+        th = np.where(self._theta > 1e-12, self._theta, 1e-12)
+        inv_sin = 1.0 / np.sin(th)
+        q0 = np.ascontiguousarray(self._q0 * inv_sin[:, None])
+        q1 = np.ascontiguousarray(self._q1 * inv_sin[:, None])
+        inv_h = 1.0 / np.diff(self._t)
+        if self.position == "cubic":
+            coef = np.ascontiguousarray(np.transpose(self._c, (1, 0, 2)))  # (n-1, 4, 3)
+            cubic = True
+        else:
+            p = self._p
+            coef = np.zeros((len(p) - 1, 4, 3))
+            coef[:, 3] = p[:-1]
+            coef[:, 2] = (p[1:] - p[:-1]) * inv_h[:, None]  # linear: slope per second
+            cubic = False
+        out = np.empty((len(t), 3))
+        _NUMBA_KERNEL(np.ascontiguousarray(t), np.ascontiguousarray(self._t), np.ascontiguousarray(xs, dtype=np.float64),
+                      np.ascontiguousarray(self.mount.body_from_scanner, dtype=np.float64),
+                      np.asarray(self._lever, dtype=np.float64), th, inv_h, q0, q1, coef, cubic,
+                      np.asarray(self._origin, dtype=np.float64), out)
         return out
 
     def sensor(self, time_s: ArrayLike, ecef: ArrayLike) -> NDArray[np.float64]:
@@ -488,3 +518,67 @@ def invert_points(
     geo = PulseGeoreferencer(traj, mount, position)
     e = frame.to_ecef(np.asarray(xyz, dtype=np.float64))
     return polar_from_sensor(geo.sensor(time_s, e))
+
+
+def _make_numba_kernel():  # pragma: no cover - exercised when numba is installed
+    try:
+        import numba
+    except ImportError:
+        return None
+
+    @numba.njit(cache=True, fastmath=False, nogil=True)
+    def kernel(t, knots, xs, b, lev, th, inv_h, q0, q1, coef, cubic, origin, out):
+        last = knots.shape[0] - 2
+        j = 0
+        for k in range(t.shape[0]):
+            tk = t[k]
+            # interval of tk: walk from the previous one (pulses are nearly sorted), binary search otherwise
+            if not (knots[j] <= tk < knots[j + 1]):
+                if j < last and knots[j + 1] <= tk < knots[j + 2]:
+                    j += 1
+                else:
+                    j = np.searchsorted(knots, tk, "right") - 1
+                    if j < 0:
+                        j = 0
+                    elif j > last:
+                        j = last
+            d = tk - knots[j]
+            x0, x1, x2 = xs[k, 0], xs[k, 1], xs[k, 2]
+            v0 = b[0, 0] * x0 + b[0, 1] * x1 + b[0, 2] * x2 + lev[0]
+            v1 = b[1, 0] * x0 + b[1, 1] * x1 + b[1, 2] * x2 + lev[1]
+            v2 = b[2, 0] * x0 + b[2, 1] * x1 + b[2, 2] * x2 + lev[2]
+            tht = th[j]
+            ut = d * inv_h[j] * tht
+            wa = np.sin(tht - ut)
+            wb = np.sin(ut)
+            qw = wa * q0[j, 0] + wb * q1[j, 0]
+            qx = wa * q0[j, 1] + wb * q1[j, 1]
+            qy = wa * q0[j, 2] + wb * q1[j, 2]
+            qz = wa * q0[j, 3] + wb * q1[j, 3]
+            nrm = 1.0 / np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qw *= nrm
+            qx *= nrm
+            qy *= nrm
+            qz *= nrm
+            t0 = 2.0 * (qy * v2 - qz * v1)
+            t1 = 2.0 * (qz * v0 - qx * v2)
+            t2 = 2.0 * (qx * v1 - qy * v0)
+            r0 = v0 + qw * t0 + (qy * t2 - qz * t1)
+            r1 = v1 + qw * t1 + (qz * t0 - qx * t2)
+            r2 = v2 + qw * t2 + (qx * t1 - qy * t0)
+            for a in range(3):
+                if cubic:
+                    pa = ((coef[j, 0, a] * d + coef[j, 1, a]) * d + coef[j, 2, a]) * d + coef[j, 3, a]
+                else:
+                    pa = coef[j, 3, a] + d * coef[j, 2, a]
+                if a == 0:
+                    out[k, 0] = r0 + pa + origin[0]
+                elif a == 1:
+                    out[k, 1] = r1 + pa + origin[1]
+                else:
+                    out[k, 2] = r2 + pa + origin[2]
+
+    return kernel
+
+
+_NUMBA_KERNEL = _make_numba_kernel()
