@@ -69,6 +69,91 @@ def test_injected_boresight_and_antenna_offset_are_recovered(midas_survey):
     np.testing.assert_allclose(off, np.tile(np.array(s.spec.errors.antenna_lever_error_m), (len(off), 1)), atol=1e-3)
 
 
+def test_injected_imu_bias_alone_is_the_attitude_deviation():
+    bias = np.array([1e-3, -2e-3, 3e-3])  # roll, pitch, yaw (rad)
+    s = build_survey(replace(scenario_spec("midas", "ci", 6), errors=SensorErrors(imu_bias_rad=tuple(bias))))
+    # the trajectory file's attitudes: recorded minus true roll, pitch, yaw = the bias at every sample
+    rt, pt, yt = s.trajectory_true.rpy("rad")
+    rr, pr, yr = s.trajectory_recorded.rpy("rad")
+    d = np.column_stack([rr - rt, pr - pt, np.angle(np.exp(1j * (yr - yt)))])
+    np.testing.assert_allclose(d, np.tile(bias, (len(d), 1)), atol=1e-12)
+    np.testing.assert_array_equal(s.trajectory_recorded.ecef, s.trajectory_true.ecef)  # positions untouched
+    # through direct georeferencing with the true rig: the implied IMU attitude differs by the bias only
+    rec = georeference_recorded(s, rig=s.rig_true)
+    a = inverse_georeference(s.eo_true.to_frame(WorldFrame.ecef()), s.rig_true)
+    b = inverse_georeference(rec.to_frame(WorldFrame.ecef()), s.rig_true)
+    from skyrig.trajectory.trajectory import ecef_from_ned_rotation
+    from skyrig.geodesy.crs import ecef_to_geodetic
+
+    lat, lon, _ = ecef_to_geodetic(a.imu_ecef)
+    ned = np.swapaxes(ecef_from_ned_rotation(lat, lon), -1, -2)
+    ra, pa, ya = rpy_from_matrix(ned @ a.ecef_from_body, unit="rad")
+    rb, pb, yb = rpy_from_matrix(ned @ b.ecef_from_body, unit="rad")
+    d = np.column_stack([rb - ra, pb - pa, np.angle(np.exp(1j * (yb - ya)))])
+    np.testing.assert_allclose(d, np.tile(bias, (len(d), 1)), atol=1e-9)
+    np.testing.assert_allclose(b.imu_ecef, a.imu_ecef, atol=1e-6)  # the antenna lever arm turns by ~3 mrad
+
+
+def test_injected_focal_change_alone_scales_the_image_measurements():
+    spec = scenario_spec("midas", "ci", 6)
+    df = 0.05  # mm, true minus recorded principal distance of the nadir head
+    s = build_survey(replace(spec, errors=SensorErrors(focal_change_mm={"nadir": df})))
+    # the orientations are untouched: the recorded data georeference to the true EO (recorded rig = nominal)
+    eo = georeference_recorded(s, rig=s.rig_recorded)
+    np.testing.assert_allclose(eo.centre, s.eo_true.centre, atol=1e-6)
+    np.testing.assert_allclose(eo.rotation, s.eo_true.rotation, atol=1e-12)
+    m = s.measurements
+    nominal = s.rig_recorded.head("nadir").camera
+    f_true = s.rig_true.head("nadir").camera.focal_mm
+    assert f_true == pytest.approx(nominal.focal_mm + df)
+    idx = s.eo_true.index()
+    pts = dict(zip(s.gcp_names, s.gcp_local))
+    rows = [i for i, im in enumerate(m["image"]) if str(s.eo_true.head[idx[im]]) == "nadir"]
+    assert len(rows) >= 3
+    for i in rows:
+        k = idx[m["image"][i]]
+        pose = Pose(s.eo_true.rotation[k], s.eo_true.centre[k], "world", "camera")
+        x_nom = nominal.pixel_to_image(nominal.world_to_pixel(pose, pts[m["point"][i]][None])) - [nominal.ppx_mm, nominal.ppy_mm]
+        x_true = nominal.pixel_to_image(m["pixel_true"][i][None]) - [nominal.ppx_mm, nominal.ppy_mm]
+        # central projection: image coordinates scale with the principal distance (no distortion in CI midas)
+        np.testing.assert_allclose(x_true, x_nom * f_true / nominal.focal_mm, atol=1e-9)
+
+
+def test_tie_points_with_false_matches(tmp_path):
+    from skyrig.io.points_csv import read_measurements_csv
+    from skyrig.io.truth import read_truth
+    from skyrig.pipeline.simulate import write_project
+
+    err = SensorErrors(tie_points=80, wrong_tie_points=6, measurement_sigma_px=0.5)
+    s = build_survey(replace(scenario_spec("midas", "ci", 4), errors=err))
+    tie = s.tie_points
+    assert len(tie["name"]) > 20 and tie["wrong"].sum() == 6
+    # every point is seen at least twice
+    _, counts = np.unique(tie["point"], return_counts=True)
+    assert counts.min() >= 2
+    # independent check of the true positions: the ray back through the pixel hits the surface at the point
+    idx = s.eo_true.index()
+    xyz = dict(zip(tie["name"], tie["xyz"]))
+    for i in range(0, len(tie["point"]), 7):
+        k = idx[tie["image"][i]]
+        cam = s.rig_true.head(str(s.eo_true.head[k])).camera
+        hit = ray_hits_at_pixels(s.scene, cam, Pose(s.eo_true.rotation[k], s.eo_true.centre[k], "world", "camera"),
+                                 tie["pixel_true"][i][None])
+        np.testing.assert_allclose(hit.xyz[0], xyz[tie["point"][i]], atol=1e-4)
+    # noise of the right size on the good observations, false matches far off
+    res = np.linalg.norm(tie["pixel"] - tie["pixel_true"], axis=1)
+    good = ~tie["wrong"]
+    assert 0.5 * 0.85 < np.sqrt(np.mean(res[good] ** 2) / 2) < 0.5 * 1.15
+    assert np.all(res[tie["wrong"]] > 3.0)
+    # the project holds them, and the truth file names the false matches
+    write_project(s, tmp_path, workers=1, images=False)
+    obs = read_measurements_csv(tmp_path / "tie" / "image_measurements.csv")
+    np.testing.assert_allclose(obs.pixel, tie["pixel"], atol=1e-3)
+    t = read_truth(tmp_path / "truth" / "truth.json")
+    assert t["injected"]["wrong_tie_measurements"] == np.nonzero(tie["wrong"])[0].tolist()
+    assert SensorErrors.from_dict(t["errors"]) == err
+
+
 def test_scenarios_are_deterministic():
     a = build_survey(scenario_spec("tumblecam", "ci", 7))
     b = build_survey(scenario_spec("tumblecam", "ci", 7))

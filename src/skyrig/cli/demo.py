@@ -118,4 +118,22 @@ def command(outdir: str) -> None:
                "adjustment's data snooping)")
     if p50 > 0.3 or blunders > 0.1:
         raise click.ClickException("demo checks FAILED (tie points)")
+    # --- LiDAR: simulated UAV 2D-scanner flight along a bridge (paper 002), georeferenced and compared ---
+    from skyrig.pipeline.simulate import lidar_demo
+
+    click.echo("\n=== LiDAR: UAV 2D scanner along a bridge (paper 002): georeference, compare with TLS, calibrate ===")
+    fig = lidar_demo(Path(outdir) / "lidar")
+    click.echo(f"{fig['returns']} returns of {fig['pulses']} pulses vs {fig['reference_points']} reference points "
+               f"({fig['seconds']:.1f} s)")
+    for key, label in (("gnss_heights", "GNSS heights"), ("barometric_heights", "barometric heights"),
+                       ("corrected", "after estimated corrections")):
+        if key in fig:
+            c = fig[key]
+            click.echo(f"  {label:28s} C2C RMS {c['c2c_rms_m']:.3f} m, 68% below {c['c2c_p68_m']:.3f} m, "
+                       f"M3C2 median |d| {c['m3c2_median_abs_m']:.3f} m")
+    hb = fig["heading_plus_boresight_y_deg"]
+    click.echo(f"  heading correction + boresight about scanner y: estimated {hb['estimated']:.3f} deg, "
+               f"injected {hb['injected']:.3f} deg")
+    if abs(hb["estimated"] - hb["injected"]) > 0.2 or fig["corrected"]["c2c_rms_m"] > fig["gnss_heights"]["c2c_rms_m"]:
+        raise click.ClickException("demo checks FAILED (lidar)")
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")

@@ -19,5 +19,8 @@ def command(scenario: str, outdir: str, size: str, seed: int, workers: int | Non
     from skyrig.pipeline.simulate import simulate_scenario
 
     info = simulate_scenario(scenario, outdir, size=size, seed=seed, workers=workers, images=not no_images)
+    if info.n_images == 0 and info.summary:
+        click.echo(f"{scenario} ({size}, seed {seed}): {info.summary}, total {info.total_s:.1f} s -> {info.outdir}")
+        return
     click.echo(f"{scenario} ({size}, seed {seed}): {info.n_images} images, {info.megapixels:.1f} MP rendered in "
                f"{info.render_s:.1f} s, total {info.total_s:.1f} s -> {info.outdir}")

@@ -15,6 +15,18 @@ Layout (``docs/formats/simulated_project.md``)::
     OUTDIR/truth/truth.json               scenario, seed, error configuration and drawn values
     OUTDIR/truth/rig.yaml, trajectory.csv, events.csv, eo.csv (local frame), eo_map.csv (map CRS),
     OUTDIR/truth/points.csv, image_measurements.csv, injected_errors.csv
+    OUTDIR/tie/image_measurements.csv     simulated tie-point measurements (only with SensorErrors.tie_points)
+    OUTDIR/truth/tie_points.csv, tie_measurements.csv
+
+The laser-scanning scenario ``uav-bridge-lidar`` writes a different folder (:func:`write_lidar_project`)::
+
+    OUTDIR/raw_scan.csv                   recorded raw pulses (docs/formats/raw_scan_csv.md)
+    OUTDIR/trajectory.csv                 recorded GNSS/IMU trajectory of the IMU (with errors, NED velocities)
+    OUTDIR/barometric.csv                 'time,h' barometric ellipsoidal heights of the IMU
+    OUTDIR/scanner.json                   recorded scanner mount and the georeferencing command line
+    OUTDIR/reference/tls.laz              terrestrial reference cloud (map CRS, ellipsoidal heights)
+    OUTDIR/scene/bridge.json              the bridge (boxes) and the ground plane, local ENU frame
+    OUTDIR/truth/truth.json, trajectory.csv, scanner.json, points.laz (true surface point per pulse)
 """
 
 from __future__ import annotations
@@ -81,6 +93,7 @@ class ProjectInfo:
     megapixels: float
     render_s: float
     total_s: float
+    summary: str = ""
 
 
 def render_images(survey: Survey, outdir: Path, workers: int | None = None) -> tuple[float, float]:
@@ -214,6 +227,13 @@ def write_project(survey: Survey, outdir: str | Path, workers: int | None = None
     write_measurements_csv(out / "gcp" / "image_measurements.csv", ImageMeasurements(m["point"], m["image"], m["pixel"]))
     write_measurements_csv(out / "truth" / "image_measurements.csv", ImageMeasurements(m["point"], m["image"], m["pixel_true"]))
     write_points_csv(out / "truth" / "points.csv", GroundPoints(survey.gcp_names, survey.gcp_local, survey.frame))
+    tie = survey.tie_points
+    if tie is not None:
+        (out / "tie").mkdir(exist_ok=True)
+        write_measurements_csv(out / "tie" / "image_measurements.csv", ImageMeasurements(tie["point"], tie["image"], tie["pixel"]))
+        write_measurements_csv(out / "truth" / "tie_measurements.csv",
+                               ImageMeasurements(tie["point"], tie["image"], tie["pixel_true"]))
+        write_points_csv(out / "truth" / "tie_points.csv", GroundPoints(tie["name"], tie["xyz"], survey.frame))
     traj = survey.trajectory_true
     with open(out / "truth" / "injected_errors.csv", "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
@@ -240,10 +260,13 @@ def write_project(survey: Survey, outdir: str | Path, workers: int | None = None
                      "tumble_curve": None if survey.tumble_curve is None else {
                          "beta_rad": survey.tumble_curve.beta_rad, "corrections_rad": survey.tumble_curve.corrections_rad},
                      "displaced_gcps": survey.gcp_names[survey.gcp_displaced].tolist(),
-                     "gross_measurements": np.nonzero(m["gross"])[0].tolist()},
+                     "gross_measurements": np.nonzero(m["gross"])[0].tolist(),
+                     "wrong_tie_measurements": [] if tie is None else np.nonzero(tie["wrong"])[0].tolist()},
         "files": {"rig": "truth/rig.yaml", "trajectory": "truth/trajectory.csv", "events": "truth/events.csv",
                   "eo_local": "truth/eo.csv", "eo_map": "truth/eo_map.csv", "points_local": "truth/points.csv",
-                  "image_measurements": "truth/image_measurements.csv", "injected_errors": "truth/injected_errors.csv"},
+                  "image_measurements": "truth/image_measurements.csv", "injected_errors": "truth/injected_errors.csv",
+                  **({} if tie is None else {"tie_measurements": "truth/tie_measurements.csv",
+                                             "tie_points_local": "truth/tie_points.csv"})},
         "statistics": {"images": len(survey.eo_true), "megapixels": mp, "render_s": render_s},
     }
     write_truth(out / "truth" / "truth.json", truth)
@@ -252,11 +275,17 @@ def write_project(survey: Survey, outdir: str | Path, workers: int | None = None
 
 def simulate_scenario(name: str, outdir: str | Path, size: str = "ci", seed: int = 1, workers: int | None = None,
                       images: bool = True) -> ProjectInfo:
-    """Build and write a named scenario (``skyrig simulate``)."""
-    if name.strip().lower() == "uav-bridge-lidar":
-        from skyrig.errors import SkyrigError
+    """Build and write a named scenario (``skyrig simulate``).
 
-        raise SkyrigError("scenario 'uav-bridge-lidar' is not implemented yet (the 2D scanner simulator is pending)")
+    ``uav-bridge-lidar`` writes a laser-scanning project (:func:`write_lidar_project`, no images; the
+    returned info has ``n_images = 0`` and the pulse counts in ``summary``)."""
+    if name.strip().lower() == "uav-bridge-lidar":
+        from skyrig.simulate.lidar import build_lidar_survey, lidar_scenario_spec
+
+        t0 = time.perf_counter()
+        info = write_lidar_project(build_lidar_survey(lidar_scenario_spec(size, seed)), outdir)
+        return ProjectInfo(info.outdir, 0, 0.0, 0.0, time.perf_counter() - t0,
+                           f"{info.n_returns:,} returns of {info.n_pulses:,} pulses, {info.n_reference:,} reference points")
     return write_project(build_survey(scenario_spec(name, size, seed)), outdir, workers, images)
 
 
@@ -278,3 +307,277 @@ def simulate_demo_project(outdir: str | Path, workers: int | None = None) -> dic
     dr = float(np.max(np.abs(eo.rotation - truth_eo.rotation)))
     return {"outdir": str(out), "images": info.n_images, "max_centre_error_m": dc, "max_rotation_error": dr,
             "seconds": info.total_s}
+
+
+# ------------------------------------------------------------------------------------------ laser scanning
+@dataclass(frozen=True)
+class LidarProjectInfo:
+    """Where a simulated laser-scanning project was written."""
+
+    outdir: Path
+    n_pulses: int
+    n_returns: int
+    n_reference: int
+    total_s: float
+
+
+SCANNER_JSON_FORMAT = "skyrig-scanner-mount"
+
+
+def _mount_json(mount: Any, scanner: Any, crs: str, note: str) -> dict[str, Any]:
+    from dataclasses import asdict
+
+    b = np.asarray(mount.body_from_scanner)
+    lever = np.asarray(mount.lever_arm_m)
+    cmd = ("skyrig lidar georef --scan raw_scan.csv --trajectory trajectory.csv "
+           f"--mounting {','.join('%.15g' % v for v in b.ravel())} --lever-arm {','.join('%.15g' % v for v in lever)} "
+           f"--crs {crs} -o georef.laz")
+    return {"format": SCANNER_JSON_FORMAT, "version": 1, "note": note,
+            "scanner": {"model": "2D line scanner", **asdict(scanner)},
+            "body_from_scanner": b.tolist(), "lever_arm_m": lever.tolist(),
+            "antenna_lever_arm_m": np.asarray(mount.antenna_lever_arm_m).tolist(),
+            "boresight": "included in body_from_scanner", "trajectory_reference": "imu",
+            "georef_command": cmd,
+            "georef_command_barometric": cmd.replace(" -o georef.laz", " --barometric barometric.csv -o georef.laz")}
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    from skyrig.io._text import atomic_write
+    from skyrig.io.truth import _plain
+
+    with atomic_write(path) as fh:
+        json.dump(_plain(obj), fh, indent=1)
+        fh.write("\n")
+
+
+def write_lidar_project(survey: Any, outdir: str | Path) -> LidarProjectInfo:
+    """Write a :class:`skyrig.simulate.lidar.LidarSurvey` as a project folder (see the module docstring
+    and ``docs/formats/simulated_project.md``)."""
+    from skyrig.io._text import atomic_write
+    from skyrig.io.laz import write_las
+    from skyrig.io.raw_scan_csv import write_raw_scan_csv
+    from skyrig.io.trajectory_csv import write_trajectory_csv
+    from skyrig.io.truth import write_truth
+
+    t0 = time.perf_counter()
+    out = Path(outdir)
+    for sub in ("reference", "scene", "truth"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    spec = survey.spec
+    write_raw_scan_csv(out / "raw_scan.csv", survey.scan, "deg", survey.trajectory_recorded.time_system)
+    write_trajectory_csv(out / "trajectory.csv", survey.trajectory_recorded, crs="EPSG:4979")
+    write_trajectory_csv(out / "truth" / "trajectory.csv", survey.trajectory_true, crs="EPSG:4979")
+    with atomic_write(out / "barometric.csv") as fh:
+        fh.write("time,h\n")
+        np.savetxt(fh, np.column_stack([survey.barometric_time_s, survey.barometric_h_m]), fmt=["%.6f", "%.5f"],
+                   delimiter=",")
+    _write_json(out / "scanner.json", _mount_json(survey.mount_recorded, spec.scanner, spec.crs,
+                                                  "recorded (nominal) mount"))
+    _write_json(out / "truth" / "scanner.json", _mount_json(survey.mount_true, spec.scanner, spec.crs,
+                                                            "TRUE mount (boresight and lever-arm errors applied)"))
+    mf = WorldFrame.map(spec.crs)
+    to_map = lambda p: mf.from_ecef(survey.frame.to_ecef(p))  # noqa: E731
+    write_las(out / "reference" / "tls.laz", to_map(survey.reference_xyz), spec.crs)
+    n = survey.truth_normal
+    write_las(out / "truth" / "points.laz", to_map(survey.truth_xyz), spec.crs, gps_time=survey.scan.time_s,
+              intensity=survey.scan.intensity, scan_angle_deg=np.degrees(survey.scan.alpha_rad), scale=1e-4,
+              extra={"true_time": survey.true_time_s, "true_range": survey.true_range_m, "normal_e": n[:, 0],
+                     "normal_n": n[:, 1], "normal_u": n[:, 2], "component": survey.truth_component.astype(float)})
+    _write_json(out / "scene" / "bridge.json", {"local_frame": list(spec.origin), **survey.scene.to_dict()})
+    err = spec.errors
+    truth = {
+        "scenario": spec.name, "size": spec.size, "seed": spec.seed, "local_frame": list(spec.origin), "crs": spec.crs,
+        "notes": ["heights of trajectory, barometer, reference and truth points are WGS84 ellipsoidal",
+                  "truth/points.laz row i is the true surface point of raw_scan.csv pulse i; normals in the local ENU "
+                  "frame; component: index into scene/bridge.json boxes, -1 ground"],
+        "errors": err.to_dict(), "injected": survey.injected,
+        "files": {"trajectory": "truth/trajectory.csv", "scanner": "truth/scanner.json", "points": "truth/points.laz",
+                  "scene": "scene/bridge.json", "reference": "reference/tls.laz"},
+        "statistics": {"pulses": survey.pulses_fired, "returns": len(survey.scan),
+                       "reference_points": len(survey.reference_xyz),
+                       "scan_lines": survey.injected["motion"]["scan_lines"]},
+    }
+    write_truth(out / "truth" / "truth.json", truth)
+    return LidarProjectInfo(out, survey.pulses_fired, len(survey.scan), len(survey.reference_xyz),
+                            time.perf_counter() - t0)
+
+
+def lidar_demo(outdir: str | Path, size: str = "ci", seed: int = 1) -> dict[str, Any]:
+    """``make demo``: simulate the ``uav-bridge-lidar`` project (paper 002's errors), then from its files
+    georeference the scan (GNSS heights, then barometric heights), compare it with the terrestrial
+    reference (C2C with a local plane, M3C2), estimate the heading correction and the boresight against
+    the reference, georeference again with them and compare again.
+
+    Writes ``OUTDIR/georef_gnss.laz``, ``georef_baro.laz``, ``georef_corrected.laz`` (C2C distance as an
+    extra dimension) next to the project files.  Returns the figures: point counts, C2C statistics
+    (RMS and paper 002's "2/3 of the points below") of each cloud, M3C2 (normal radius 0.25 m, cylinder
+    radius 0.15 m, half-length 1 m, on 5,000 reference points; mean, median and 68 % of the absolute values,
+    std - inflated by cylinders at the bridge's edges - and the significant share) of each, the estimated
+    heading correction and boresight with their standard deviations next to the injected values (degrees;
+    flying level, the heading correction and the boresight about the scanner's downward y axis are one
+    unknown, so their sum is reported too), and the seconds.
+    The other injected errors (GNSS wander, IMU noise, lever arm) are not modelled by the estimation and
+    bias it beyond its sigmas: the figures show how far a paper-002 flight gets.
+    """
+    from skyrig.io.laz import read_las, write_las
+    from skyrig.io.raw_scan_csv import read_raw_scan_csv
+    from skyrig.io.trajectory_csv import read_trajectory_csv
+    from skyrig.io.truth import read_truth
+    from skyrig.lidar.boresight import estimate_boresight
+    from skyrig.lidar.compare import M3C2Params, cloud_to_cloud, distance_statistics, m3c2
+    from skyrig.lidar.georef import ScannerMount, georeference_scan
+    from skyrig.simulate.lidar import build_lidar_survey, lidar_scenario_spec
+
+    t0 = time.perf_counter()
+    out = Path(outdir)
+    info = write_lidar_project(build_lidar_survey(lidar_scenario_spec(size, seed)), out)
+    truth = read_truth(out / "truth" / "truth.json")
+    scan, _ = read_raw_scan_csv(out / "raw_scan.csv")
+    traj = read_trajectory_csv(out / "trajectory.csv")
+    baro = np.loadtxt(out / "barometric.csv", delimiter=",", skiprows=1, ndmin=2)
+    mj = json.loads((out / "scanner.json").read_text(encoding="utf-8"))
+    mount = ScannerMount(np.array(mj["body_from_scanner"]), np.array(mj["lever_arm_m"]))
+    ref_las = read_las(out / "reference" / "tls.laz", require_crs=True)
+    crs = truth["crs"]
+    frame = WorldFrame.map(crs)
+    origin = ref_las.xyz.mean(axis=0)
+    ref = ref_las.xyz - origin
+    rng = np.random.default_rng(seed)
+    core = ref[np.sort(rng.choice(len(ref), min(5000, len(ref)), replace=False))]
+    params = M3C2Params.cloudcompare(0.25, 0.15, 1.0)
+
+    def judge(xyz: np.ndarray, name: str) -> dict[str, float]:
+        c2c = cloud_to_cloud(xyz - origin, ref, model="plane", k=8, max_distance=2.0).distance_m
+        st = distance_statistics(c2c)
+        write_las(out / f"{name}.laz", xyz, crs, extra={"distance": np.nan_to_num(c2c, nan=-9999.0)})
+        r = m3c2(ref, xyz - origin, core, params)
+        ok = np.isfinite(r.distance_m)
+        return {"c2c_rms_m": st.rms_m, "c2c_p68_m": st.p68_abs_m, "c2c_mean_m": st.mean_m,
+                "m3c2_core_points": int(ok.sum()), "m3c2_mean_m": float(np.mean(r.distance_m[ok])),
+                "m3c2_median_abs_m": float(np.median(np.abs(r.distance_m[ok]))),
+                "m3c2_p68_abs_m": float(np.percentile(np.abs(r.distance_m[ok]), 68.0)),
+                "m3c2_std_m": float(np.std(r.distance_m[ok])), "m3c2_significant_share": float(np.mean(r.significant[ok]))}
+
+    gnss = georeference_scan(scan, traj, mount, frame)
+    fig: dict[str, Any] = {"outdir": str(out), "pulses": info.n_pulses, "returns": info.n_returns,
+                           "reference_points": info.n_reference}
+    fig["gnss_heights"] = judge(gnss.xyz, "georef_gnss")
+    barom = (baro[:, 0], baro[:, 1])
+    bar = georeference_scan(scan, traj, mount, frame, barometric=barom)
+    fig["barometric_heights"] = judge(bar.xyz, "georef_baro")
+    # paper 002: a heading correction term from the reference first, then the boresight
+    from skyrig.lidar.georef import with_barometric_height
+
+    traj_b = with_barometric_height(traj, *barom)
+    yaw = estimate_boresight(scan, traj_b, mount, ref_las.xyz, frame, estimate=("yaw",), max_points=30_000,
+                             max_distance=1.0, seed=seed)
+    bore = estimate_boresight(scan, traj_b, mount, ref_las.xyz, frame, estimate=("boresight",),
+                              yaw_correction_rad=yaw.yaw_correction_rad, max_points=30_000, max_distance=0.5, seed=seed)
+    inj = truth["injected"]
+    # flying level, a rotation about the scanner's y axis (body z, down) IS a heading change: only their sum
+    # is determined (skyrig.lidar.boresight refuses to estimate both at once); report x, z and the sum
+    b_est, b_sig, b_inj = np.degrees(bore.value), np.degrees(bore.sigma), np.degrees(inj["boresight_rad"])
+    yaw_d, yaw_inj = float(np.degrees(yaw.yaw_correction_rad)), float(np.degrees(inj["heading_correction_rad"]))
+    fig["heading_correction_deg"] = {"estimated": yaw_d, "sigma": float(np.degrees(yaw.get("yaw")[1])), "injected": yaw_inj}
+    fig["boresight_deg"] = {"estimated": b_est.tolist(), "sigma": b_sig.tolist(), "injected": b_inj.tolist()}
+    fig["heading_plus_boresight_y_deg"] = {"estimated": yaw_d + float(b_est[1]), "injected": yaw_inj + float(b_inj[1])}
+    cor = georeference_scan(scan, traj, bore.mount, frame, barometric=barom, yaw_correction_rad=yaw.yaw_correction_rad)
+    fig["corrected"] = judge(cor.xyz, "georef_corrected")
+    fig["seconds"] = time.perf_counter() - t0
+    return fig
+
+
+# ------------------------------------------------------------------------------------------ given rasters
+def load_raster_scene(dsm_path: str | Path, ortho_path: str | Path, origin: tuple[float, float, float] | None = None,
+                      cell_m: float | None = None, seed: int = 0, geoid: str | None = None) -> Any:
+    """A :class:`skyrig.simulate.world.RasterScene` from a DSM and an orthophoto GeoTIFF (issue 3 item 2).
+
+    Two kinds of input:
+
+    * rasters of a simulated project (``scene/dsm.tif``, ``scene/orthophoto.tif``): no CRS, tags
+      ``SKYRIG_FRAME`` / ``SKYRIG_LOCAL_ORIGIN``: already on a grid of the local ENU frame, used as they are;
+    * real rasters in a projected CRS (heights ellipsoidal, or orthometric with ``geoid``): resampled
+      (bilinear) onto north-up grids of the local ENU frame at ``origin`` (default: the DSM's centre on its
+      surface), with the DSM's cell size unless ``cell_m`` is given.  A local node (x, y) takes the height
+      at the map position of (x, y, 0); the earth's curvature is then applied to the height, the horizontal
+      shift it implies (height x distance / earth radius, 1 cm at 100 m and 600 m) is neglected.
+
+    Raises
+    ------
+    InputFormatError
+        A raster without CRS and without the skyrig local-frame tags, a rotated grid, a DSM that is not one
+        band or an orthophoto that is not 3 bands (or 1: grey).
+    """
+    import rasterio
+
+    from skyrig.errors import InputFormatError
+    from skyrig.simulate.world import RasterScene
+
+    def read(path: str | Path) -> tuple[np.ndarray, Any, Any, dict]:
+        with rasterio.open(path) as ds:
+            arr = ds.read()
+            tr = ds.transform
+            if abs(tr.b) > 1e-12 or abs(tr.d) > 1e-12 or tr.e >= 0:
+                raise InputFormatError("only north-up, unrotated rasters are supported", path)
+            nod = ds.nodata
+            return arr, tr, ds.crs, {**ds.tags(), "_nodata": nod}
+
+    z, tz, crs, tags = read(dsm_path)
+    o, to, crs_o, _ = read(ortho_path)
+    if z.shape[0] != 1:
+        raise InputFormatError(f"the DSM must have one band, not {z.shape[0]}", dsm_path)
+    if o.shape[0] == 1:
+        o = np.repeat(o, 3, axis=0)
+    if o.shape[0] < 3:
+        raise InputFormatError(f"the orthophoto must have 3 bands (RGB) or 1, not {o.shape[0]}", ortho_path)
+    z = z[0].astype(np.float64)
+    if tags["_nodata"] is not None:
+        z[z == tags["_nodata"]] = np.nan
+    rgb = np.moveaxis(o[:3], 0, -1)
+    if rgb.dtype != np.uint8:
+        rgb = np.clip(rgb.astype(np.float32) / max(float(np.nanmax(rgb)), 1e-9), 0, 1)
+    if crs is None:
+        if "SKYRIG_LOCAL_ORIGIN" not in tags:
+            raise InputFormatError("the DSM has neither a CRS nor skyrig's local-frame tags", dsm_path, field="crs")
+        org = tuple(float(v) for v in tags["SKYRIG_LOCAL_ORIGIN"].split())
+        return RasterScene.from_grids(org, z, tz.c, tz.f, tz.a, rgb, to.c, to.f, to.a, seed=seed)
+    # a projected CRS: resample onto the local frame
+    if crs_o is not None and crs_o != crs:
+        raise InputFormatError("the orthophoto's CRS differs from the DSM's", ortho_path, field="crs")
+    mf = WorldFrame.map(crs.to_wkt(), geoid)
+    rows, cols = z.shape
+    if origin is None:
+        cx, cy = tz.c + tz.a * cols / 2, tz.f + tz.e * rows / 2
+        hc = float(np.nanmedian(z))
+        from skyrig.geodesy.crs import ecef_to_geodetic
+
+        lat, lon, h = ecef_to_geodetic(mf.to_ecef(np.array([[cx, cy, hc]])))
+        origin = (float(np.ravel(lat)[0]), float(np.ravel(lon)[0]), float(np.ravel(h)[0]))
+    lf = WorldFrame.local(*origin)
+    corners = np.array([[tz.c, tz.f, 0.0], [tz.c + tz.a * cols, tz.f, 0.0], [tz.c, tz.f + tz.e * rows, 0.0],
+                        [tz.c + tz.a * cols, tz.f + tz.e * rows, 0.0]])
+    corners[:, 2] = origin[2]
+    lc = lf.from_ecef(mf.to_ecef(corners))
+    # the inscribed north-up local rectangle (the map grid is turned by the meridian convergence)
+    x0, x1 = np.sort(lc[:, 0])[1], np.sort(lc[:, 0])[2]
+    y0, y1 = np.sort(lc[:, 1])[1], np.sort(lc[:, 1])[2]
+
+    def resample(grid: np.ndarray, tr: Any, cell: float) -> tuple[np.ndarray, float, float]:
+        nx, ny = int(np.floor((x1 - x0) / cell)), int(np.floor((y1 - y0) / cell))
+        xs = x0 + (np.arange(nx) + 0.5) * cell
+        ys = y1 - (np.arange(ny) + 0.5) * cell
+        xx, yy = np.meshgrid(xs, ys)
+        m = mf.from_ecef(lf.to_ecef(np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])))
+        from skyrig.simulate.world import _bilinear
+
+        v = _bilinear(grid, tr.c, tr.f, tr.a, m[:, 0], m[:, 1])[0]
+        return v.reshape((ny, nx) + grid.shape[2:]), m
+
+    cell = float(cell_m or tz.a)
+    zz, m = resample(z, tz, cell)
+    # heights: the local z of the map point (mx, my, H)
+    loc = lf.from_ecef(mf.to_ecef(np.column_stack([m[:, :2], zz.ravel()])))
+    zl = loc[:, 2].reshape(zz.shape)
+    ocell = float(to.a) if cell_m is None else cell / 2.0
+    oo, _ = resample(rgb.astype(np.float32) / (255.0 if rgb.dtype == np.uint8 else 1.0), to, ocell)
+    return RasterScene.from_grids(origin, zl, x0, y1, cell, oo, x0, y1, ocell, seed=seed)

@@ -5,4 +5,6 @@
 * :mod:`skyrig.simulate.errors`: :class:`SensorErrors` and the error generators.
 * :mod:`skyrig.simulate.scenarios`: :func:`scenario_spec`, :func:`build_survey` (in memory; files are
   written by :mod:`skyrig.pipeline.simulate`).
+* :mod:`skyrig.simulate.lidar`: the ``uav-bridge-lidar`` scenario (paper 002): :func:`make_bridge`,
+  :class:`LidarErrors`, :func:`lidar_scenario_spec`, :func:`build_lidar_survey`.
 """

@@ -16,6 +16,10 @@ Sign conventions (all vectors in the scene's local ENU frame, metres; angles rad
 * **focal length** change in flight per head (true = recorded + change).
 * **image measurements**: Gaussian noise ``measurement_sigma_px``; ``gross_measurements`` of them moved by
   ``gross_measurement_px``; ``displaced_gcps`` ground control points moved by ``gcp_displacement_m``.
+* **tie points**: ``tie_points`` surface points (roofs and ground) drawn over the flown area, measured in every
+  image that sees them (unoccluded, in the frame) with the measurement noise; ``wrong_tie_points`` of these
+  observations are false matches: the image position of another tie point in the same image (or, in an
+  image with no other, a random position).
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ class SensorErrors:
     gcp_sigma_m: _Vec = (0.0, 0.0, 0.0)  # noise of the surveyed GCP coordinates (E N U)
     displaced_gcps: int = 0
     gcp_displacement_m: float = 5.0
+    tie_points: int = 0  # natural tie points (roof / ground points seen in >= 2 images) to simulate
+    wrong_tie_points: int = 0  # tie observations replaced by a false match (another point's image position)
 
     def to_dict(self) -> dict:
         out = {}
@@ -75,6 +81,8 @@ class SensorErrors:
                 kw[k] = {h: tuple(map(float, x)) for h, x in v.items()}
             elif isinstance(v, list):
                 kw[k] = tuple(map(float, v))
+            elif k in ("tie_points", "wrong_tie_points", "gross_measurements", "displaced_gcps"):
+                kw[k] = int(v)
             else:
                 kw[k] = v
         return cls(**kw)

@@ -18,6 +18,9 @@ scenario               set-up
 
 Each has a CI size (few small images, seconds to generate) and a full size (the papers' sensors).  CI
 sizes keep each camera's field of view and scale its pixel pitch to a 640-pixel-wide sensor.
+:func:`with_scene` flies a scenario over a given scene instead of the procedural one (e.g. a real DSM and
+orthophoto, :func:`skyrig.pipeline.simulate.load_raster_scene`); ``SensorErrors.tie_points`` adds natural
+tie points with false matches.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from skyrig.rig import presets
 from skyrig.simulate.errors import (
     SensorErrors, add_measurement_errors, gnss_errors, imu_errors, tumble_curve_samples,
 )
-from skyrig.simulate.world import Scene, make_scene
+from skyrig.simulate.world import Scene, Target, make_scene
 from skyrig.trajectory.events import CameraEvents
 from skyrig.trajectory.trajectory import Trajectory, ecef_from_ned_rotation
 
@@ -91,6 +94,16 @@ class ScenarioSpec:
     image_format: str = "png"
     true_antenna_lever_m: tuple[float, float, float] = (0.0, 0.0, -1.2)
     t0_s: float = 345_600.0
+    scene: Scene | None = None  # a given scene (e.g. a RasterScene from a real DSM + orthophoto): see with_scene
+
+
+def with_scene(spec: ScenarioSpec, scene: Scene) -> ScenarioSpec:
+    """The scenario flown over a given scene (e.g. :class:`~skyrig.simulate.world.RasterScene` of a real DSM
+    and orthophoto, see :func:`skyrig.pipeline.simulate.load_raster_scene`): the scene's origin, extent and
+    mean height replace the spec's; the flight blocks keep their areas (local frame, metres from the origin).
+    Targets are painted onto a copy of the scene."""
+    return replace(spec, scene=scene, origin=tuple(scene.origin), scene_extent=tuple(scene.extent),
+                   base_height_m=float(scene.base_height_m))
 
 
 def ci_camera(cam: FrameCamera, width: int = 640) -> FrameCamera:
@@ -175,6 +188,9 @@ def scenario_spec(name: str, size: str = "ci", seed: int = 1) -> ScenarioSpec:
                             gcp_crs="EPSG:3763", gcp_geoid="auto", n_gcp=19 if not ci else 8, n_check=4,
                             scene_extent=ext, n_buildings=20 if ci else 80, base_height_m=200.0,
                             true_antenna_lever_m=(-0.75, 0.0, 0.0), image_noise_dn=1.0)
+    if key == "uav-bridge-lidar":
+        raise SkyrigError("'uav-bridge-lidar' is a laser-scanning scenario: use skyrig.simulate.lidar.lidar_scenario_spec "
+                          "and build_lidar_survey (skyrig.pipeline.simulate.simulate_scenario dispatches to them)")
     if key in ("demo", "midas-demo"):
         s = scenario_spec("midas", "ci", seed)
         return replace(s, name="midas-demo", flights=(FlightSpec(150.0, 2, (-50, -50, 50, 50), speed_mps=50.0),))
@@ -234,6 +250,7 @@ class Survey:
     gcp_displaced: NDArray[np.bool_]
     measurements: dict[str, Any]
     tumble_curve: BoresightCurve | None = None
+    tie_points: dict[str, Any] | None = None
 
 
 def _true_rig(spec: ScenarioSpec, rng: np.random.Generator) -> tuple[Rig, BoresightCurve | None]:
@@ -321,10 +338,16 @@ def build_survey(spec: ScenarioSpec) -> Survey:
     # ---- scene with targets
     txy = _targets_xy(spec, plan, rng)
     names = np.array([f"GCP{i + 1:02d}" for i in range(spec.n_gcp)] + [f"CHK{i + 1:02d}" for i in range(spec.n_check)])
-    scene = make_scene(spec.seed, spec.scene_extent, spec.origin, base_height_m=spec.base_height_m,
-                       n_buildings=spec.n_buildings, texture_fine_m=max(gsd * 0.6, 0.005),
-                       targets=(names, txy), target_radius_m=max(6.0 * gsd, 0.05),
-                       town=_town(plan), building_size_m=(8.0, 25.0) if gsd < 0.5 else (20.0, 60.0))
+    if spec.scene is not None:
+        if tuple(spec.scene.origin) != tuple(spec.origin):
+            raise SkyrigError("the given scene's origin differs from the scenario's: build the spec with with_scene()")
+        tz = spec.scene.terrain_height(txy[:, 0], txy[:, 1]) if len(txy) else np.zeros(0)
+        scene = replace(spec.scene, targets=Target(names, np.column_stack([txy, tz]), max(6.0 * gsd, 0.05)))
+    else:
+        scene = make_scene(spec.seed, spec.scene_extent, spec.origin, base_height_m=spec.base_height_m,
+                           n_buildings=spec.n_buildings, texture_fine_m=max(gsd * 0.6, 0.005),
+                           targets=(names, txy), target_radius_m=max(6.0 * gsd, 0.05),
+                           town=_town(plan), building_size_m=(8.0, 25.0) if gsd < 0.5 else (20.0, 60.0))
     # ---- dense true trajectory: samples per strip + the station times, with attitude / lateral wobble
     t_all, strip_all = [], []
     for s in np.unique(plan.strip):
@@ -395,8 +418,9 @@ def build_survey(spec: ScenarioSpec) -> Survey:
         surveyed[k, :2] += err.gcp_displacement_m * np.column_stack([np.cos(ang), np.sin(ang)])
         displaced[k] = True
     meas = _measure_targets(scene, rig_true, eo_true, names, gl, rng, err)
+    ties = _tie_points(scene, rig_true, eo_true, plan, rng, err) if err.tie_points > 0 else None
     return Survey(spec, scene, frame, flown, rig_true, rig_rec, traj_true, traj_rec, events_true, events_rec, eo_true,
-                  g.total_m, e_imu, g.strip_shift_m, names, gl, is_chk, surveyed, displaced, meas, curve)
+                  g.total_m, e_imu, g.strip_shift_m, names, gl, is_chk, surveyed, displaced, meas, curve, ties)
 
 
 def _town(plan: FlightPlan) -> tuple[float, float, float, float]:
@@ -475,6 +499,65 @@ def _measure_targets(scene: Scene, rig: Rig, eo: ExteriorOrientations, names: ND
     noisy, gross = add_measurement_errors(pix_a, err, rng)
     return {"point": np.array(pts, dtype=str), "image": np.array(imgs, dtype=str), "pixel_true": pix_a,
             "pixel": noisy, "gross": gross}
+
+
+def _tie_points(scene: Scene, rig: Rig, eo: ExteriorOrientations, plan: FlightPlan, rng: np.random.Generator,
+                err: SensorErrors) -> dict[str, Any]:
+    """Natural tie points: surface points over the flown area measured in every image that sees them.
+
+    Returns ``name (K,)``, ``xyz (K, 3)`` (local frame, on roofs or the terrain) and the observations
+    ``point``, ``image``, ``pixel_true``, ``pixel`` (noise, false matches) and ``wrong`` (the false matches).
+    Points seen in fewer than two images are left out.
+    """
+    from skyrig.geometry.pose import Pose
+    from skyrig.simulate.render import cast_rays
+
+    p = plan.position[:, :2]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    pad = 0.3 * max(float(np.max(hi - lo)), 50.0)
+    n = int(err.tie_points)
+    xy = rng.uniform(lo - pad, hi + pad, (n, 2))
+    xyz = np.column_stack([xy, scene.surface_height(xy[:, 0], xy[:, 1])])
+    obs_pt, obs_im, obs_px = [], [], []
+    for k in range(len(eo)):
+        cam = rig.head(str(eo.head[k])).camera
+        pose = Pose(eo.rotation[k], eo.centre[k], "world", "camera")
+        px = cam.world_to_pixel(pose, xyz)
+        ok = cam.in_image(px, margin_px=-1.0)
+        if not np.any(ok):
+            continue
+        d = xyz[ok] - eo.centre[k]
+        hits = cast_rays(scene, eo.centre[k], d)
+        vis = np.abs(hits.t - np.linalg.norm(d, axis=1)) < 1e-3
+        j = np.nonzero(ok)[0][vis]
+        obs_pt.append(j)
+        obs_im.append(np.full(j.size, k))
+        obs_px.append(px[j])
+    pt = np.concatenate(obs_pt) if obs_pt else np.zeros(0, int)
+    im = np.concatenate(obs_im) if obs_im else np.zeros(0, int)
+    pix = np.concatenate(obs_px).reshape(-1, 2) if obs_px else np.zeros((0, 2))
+    seen = np.bincount(pt, minlength=n)
+    keep = seen[pt] >= 2
+    pt, im, pix = pt[keep], im[keep], pix[keep]
+    used = np.unique(pt)
+    renum = np.full(n, -1)
+    renum[used] = np.arange(used.size)
+    pt = renum[pt]
+    noisy = pix + rng.normal(0.0, err.measurement_sigma_px, pix.shape) if err.measurement_sigma_px > 0 else pix.copy()
+    wrong = np.zeros(len(pt), bool)
+    m = min(int(err.wrong_tie_points), len(pt))
+    if m:
+        for r in rng.choice(len(pt), m, replace=False):
+            same = np.nonzero((im == im[r]) & (pt != pt[r]))[0]
+            if same.size:
+                noisy[r] = pix[rng.choice(same)]  # the position of another point: a false match
+            else:
+                cam = rig.head(str(eo.head[im[r]])).camera
+                noisy[r] = rng.uniform([0, 0], [cam.width - 1, cam.height - 1])
+            wrong[r] = True
+    names = np.array([f"TIE{i + 1:05d}" for i in range(used.size)])
+    return {"name": names, "xyz": xyz[used], "point": names[pt], "image": eo.image[im].astype(str),
+            "pixel_true": pix, "pixel": noisy, "wrong": wrong}
 
 
 def georeference_recorded(survey: Survey, frame: WorldFrame | None = None, rig: Rig | None = None,

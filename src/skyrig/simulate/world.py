@@ -34,14 +34,28 @@ from skyrig.errors import SkyrigError
 _U32 = np.uint32
 
 
+_C1, _C2, _C3 = _U32(374761393), _U32(668265263), _U32(1274126177)
+_INV32 = 1.0 / 4294967296.0
+
+
+def _mix(h: NDArray[np.uint32]) -> NDArray[np.float64]:
+    """Final mixing of a 32-bit lattice hash to ``[0, 1)`` (in place on ``h``)."""
+    h ^= h >> _U32(13)
+    h *= _C3
+    h ^= h >> _U32(16)
+    return h * _INV32
+
+
 def _hash2(ix: NDArray[np.int64], iy: NDArray[np.int64], seed: int) -> NDArray[np.float64]:
-    """Deterministic hash of integer lattice points to ``[0, 1)`` (vectorised, 32-bit integer mixing)."""
+    """Deterministic hash of integer lattice points to ``[0, 1)`` (vectorised, 32-bit integer mixing).
+
+    ``h = (ix * 374761393 + iy * 668265263 + seed * 2147483647) mod 2**32``, computed in wrapping uint32
+    arithmetic (the same value as in 64-bit integers masked to 32 bits), then mixed."""
     with np.errstate(over="ignore"):
-        h = (ix.astype(np.int64) * 374761393 + iy.astype(np.int64) * 668265263 + seed * 2147483647) & 0xFFFFFFFF
-        h = h.astype(_U32)
-        h = (h ^ (h >> _U32(13))) * _U32(1274126177)
-        h = h ^ (h >> _U32(16))
-    return h.astype(np.float64) / 4294967296.0
+        h = np.asarray(ix).astype(_U32) * _C1
+        h += np.asarray(iy).astype(_U32) * _C2
+        h += _U32((seed * 2147483647) & 0xFFFFFFFF)
+        return _mix(h)
 
 
 def value_noise(x: NDArray[np.float64], y: NDArray[np.float64], scale_m: float, seed: int) -> NDArray[np.float64]:
@@ -51,12 +65,21 @@ def value_noise(x: NDArray[np.float64], y: NDArray[np.float64], scale_m: float, 
     tx, ty = u - fx, v - fy
     tx = tx * tx * (3.0 - 2.0 * tx)
     ty = ty * ty * (3.0 - 2.0 * ty)
-    ix, iy = fx.astype(np.int64), fy.astype(np.int64)
-    a = _hash2(ix, iy, seed)
-    b = _hash2(ix + 1, iy, seed)
-    c = _hash2(ix, iy + 1, seed)
-    d = _hash2(ix + 1, iy + 1, seed)
-    return (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * ty
+    with np.errstate(over="ignore"):
+        # the four corner hashes share their products: (ix + 1) * C1 = ix * C1 + C1 (mod 2**32)
+        hx = fx.astype(np.int64).astype(_U32) * _C1
+        hy = fy.astype(np.int64).astype(_U32) * _C2
+        hy += _U32((seed * 2147483647) & 0xFFFFFFFF)
+        h00 = hx + hy
+        a = _mix(h00.copy())
+        h00 += _C1
+        b = _mix(h00.copy())
+        h00 += _C2
+        d = _mix(h00.copy())
+        h00 -= _C1
+        c = _mix(h00)
+    ab = a + (b - a) * tx
+    return ab + ((c + (d - c) * tx) - ab) * ty
 
 
 @dataclass(frozen=True)
@@ -265,19 +288,23 @@ class Scene:
         detail = detail / max(tot, 1e-9)
         sharp = value_noise(x, y, max(self.texture_fine_m * 3.0, 0.01), s + 7)  # speckle at the finest scale
         hue = value_noise(x, y, self.texture_coarse_m * 0.7, s + 23)
-        base = np.stack([0.30 + 0.25 * hue, 0.42 + 0.12 * cover, 0.20 + 0.15 * (1 - hue)], axis=-1)  # fields
-        soil = np.stack([0.55 + 0.1 * hue, 0.45 + 0.05 * cover, 0.32 + 0.05 * hue], axis=-1)
-        m = (cover > 0.55)[..., None]
-        rgb = np.where(m, soil, base) * (0.55 + 0.9 * (detail[..., None] - 0.5) + 0.5) * (0.85 + 0.3 * sharp[..., None])
+        # fields (base) and bare soil, channel by channel (no (N, 3) temporaries)
+        base = (0.30 + 0.25 * hue, 0.42 + 0.12 * cover, 0.20 + 0.15 * (1 - hue))
+        soil = (0.55 + 0.1 * hue, 0.45 + 0.05 * cover, 0.32 + 0.05 * hue)
+        m = cover > 0.55
+        fa = 0.55 + 0.9 * (detail - 0.5) + 0.5
+        fb = 0.85 + 0.3 * sharp
         # roads: a grid of 6 m wide asphalt bands every 60 m (turned by 10 deg), with noise
         ca, sa = np.cos(0.17), np.sin(0.17)
         u, v = ca * x + sa * y, -sa * x + ca * y
         road = (np.abs(((u + 30.0) % 60.0) - 30.0) < 3.0) | (np.abs(((v + 30.0) % 60.0) - 30.0) < 3.0)
-        asphalt = (0.30 + 0.25 * detail + 0.1 * sharp)[..., None] * np.ones(3)
-        rgb = np.where(road[..., None], asphalt, rgb)
+        asphalt = 0.30 + 0.25 * detail + 0.1 * sharp
+        rgb = np.empty(np.shape(x) + (3,))
+        for j in range(3):
+            rgb[..., j] = np.where(road, asphalt, np.where(m, soil[j], base[j]) * fa * fb)
         if self.targets is not None:
             rgb = self._paint_targets(x, y, rgb)
-        return np.clip(rgb, 0.0, 1.0)
+        return np.clip(rgb, 0.0, 1.0, out=rgb)
 
     def target_intensity(self, x: NDArray[np.float64], y: NDArray[np.float64], k: int) -> tuple[NDArray, NDArray]:
         """Coverage ``(N,)`` in [0, 1] of target ``k``'s black square and white disc at ground points."""
@@ -450,3 +477,122 @@ def rasterize_orthophoto(scene: Scene, cell_m: float) -> tuple[NDArray[np.uint8]
     if np.any(on):
         rgb[on] = scene.roof_rgb(bidx[on], x[on], y[on])
     return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8).reshape(xx.shape + (3,)), tr
+
+
+# ------------------------------------------------------------------------------------------ raster scenes
+def _bilinear(grid: NDArray, x0: float, ytop: float, cell: float, x: NDArray[np.float64], y: NDArray[np.float64]
+              ) -> tuple[NDArray, NDArray[np.float64], NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]:
+    """Bilinear interpolation of a north-up grid of cell-centre values (clamped at the border).
+
+    Returns the values and, for derivatives, the fractional offsets and the lower-left cell indices."""
+    rows, cols = grid.shape[:2]
+    u = np.clip((x - x0) / cell - 0.5, 0.0, cols - 1.000001)
+    v = np.clip((ytop - y) / cell - 0.5, 0.0, rows - 1.000001)
+    j = np.minimum(u.astype(np.intp), max(cols - 2, 0))
+    i = np.minimum(v.astype(np.intp), max(rows - 2, 0))
+    fu, fv = u - j, v - i
+    j1 = np.minimum(j + 1, cols - 1)
+    i1 = np.minimum(i + 1, rows - 1)
+    if grid.ndim == 3:
+        fu_, fv_ = fu[..., None], fv[..., None]
+    else:
+        fu_, fv_ = fu, fv
+    top = grid[i, j] + (grid[i, j1] - grid[i, j]) * fu_
+    bot = grid[i1, j] + (grid[i1, j1] - grid[i1, j]) * fu_
+    return top + (bot - top) * fv_, fu, fv, i, j
+
+
+@dataclass(frozen=True, eq=False)
+class RasterScene(Scene):
+    """A scene given by a DSM and an orthophoto on north-up grids of the local ENU frame (issue 3 item 2).
+
+    The surface is the bilinear interpolation of the DSM's cell-centre heights (buildings included, as a
+    2.5D surface: walls become steep faces one cell wide); its texture is the bilinearly interpolated
+    orthophoto.  There are no separate buildings.  :func:`skyrig.simulate.render.cast_rays` marches along
+    each ray in steps of half a DSM cell before refining the first crossing, so that the *first*
+    intersection with a roof or wall is found.
+
+    Attributes (besides :class:`Scene`'s)
+    ----------
+    dsm
+        ``(R, C)`` heights (local frame, metres) at cell centres, row 0 the northernmost.
+    dsm_x0, dsm_ytop, dsm_cell
+        West edge, north edge and cell size of the DSM grid (metres).
+    ortho
+        ``(R', C', 3)`` colours in [0, 1] at cell centres.
+    ortho_x0, ortho_ytop, ortho_cell
+        Its grid.
+    """
+
+    dsm: NDArray[np.float64] | None = None
+    dsm_x0: float = 0.0
+    dsm_ytop: float = 0.0
+    dsm_cell: float = 1.0
+    ortho: NDArray[np.float32] | None = None
+    ortho_x0: float = 0.0
+    ortho_ytop: float = 0.0
+    ortho_cell: float = 1.0
+
+    @classmethod
+    def from_grids(cls, origin: tuple[float, float, float], dsm: ArrayLike, dsm_x0: float, dsm_ytop: float,
+                   dsm_cell: float, ortho: ArrayLike, ortho_x0: float, ortho_ytop: float, ortho_cell: float,
+                   seed: int = 0, targets: "Target | None" = None) -> "RasterScene":
+        """Build from grids; ``ortho`` may be uint8 (0-255) or float (0-1).
+
+        Raises
+        ------
+        SkyrigError
+            On non-finite DSM heights, wrong shapes or non-positive cells.
+        """
+        z = np.asarray(dsm, dtype=np.float64)
+        o = np.asarray(ortho)
+        o = o.astype(np.float32) / 255.0 if o.dtype == np.uint8 else o.astype(np.float32)
+        if z.ndim != 2 or z.shape[0] < 2 or z.shape[1] < 2:
+            raise SkyrigError(f"the DSM must be a 2-D grid of at least 2 x 2 cells, got {z.shape}")
+        if not np.all(np.isfinite(z)):
+            raise SkyrigError(f"the DSM has {int((~np.isfinite(z)).sum())} void (non-finite) cells: fill them first")
+        if o.ndim != 3 or o.shape[2] != 3:
+            raise SkyrigError(f"the orthophoto must be (rows, cols, 3), got {o.shape}")
+        if dsm_cell <= 0 or ortho_cell <= 0:
+            raise SkyrigError("cell sizes must be positive")
+        extent = (dsm_x0, dsm_ytop - z.shape[0] * dsm_cell, dsm_x0 + z.shape[1] * dsm_cell, dsm_ytop)
+        empty = np.zeros(0)
+        return cls(tuple(map(float, origin)), extent, int(seed), float(z.mean()), empty, empty, empty, empty,
+                   Buildings(empty, empty, empty, empty, empty, empty, empty, empty), targets,
+                   dsm=z, dsm_x0=float(dsm_x0), dsm_ytop=float(dsm_ytop), dsm_cell=float(dsm_cell), ortho=o,
+                   ortho_x0=float(ortho_x0), ortho_ytop=float(ortho_ytop), ortho_cell=float(ortho_cell))
+
+    @property
+    def march_step_m(self) -> float:
+        """Horizontal step of the ray marching (half a DSM cell)."""
+        return 0.5 * self.dsm_cell
+
+    def terrain_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        return _bilinear(self.dsm, self.dsm_x0, self.dsm_ytop, self.dsm_cell, x, y)[0]
+
+    def terrain_gradient(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        g = self.dsm
+        _, fu, fv, i, j = _bilinear(g, self.dsm_x0, self.dsm_ytop, self.dsm_cell, x, y)
+        rows, cols = g.shape
+        i1, j1 = np.minimum(i + 1, rows - 1), np.minimum(j + 1, cols - 1)
+        dzdu = (g[i, j1] - g[i, j]) * (1 - fv) + (g[i1, j1] - g[i1, j]) * fv
+        dzdv = (g[i1, j] - g[i, j]) * (1 - fu) + (g[i1, j1] - g[i, j1]) * fu
+        return dzdu / self.dsm_cell, -dzdv / self.dsm_cell  # v grows southwards
+
+    @property
+    def terrain_range(self) -> tuple[float, float]:
+        return float(self.dsm.min()), float(self.dsm.max())
+
+    def surface_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        return self.terrain_height(x, y)
+
+    def ground_rgb(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        rgb = _bilinear(self.ortho, self.ortho_x0, self.ortho_ytop, self.ortho_cell, np.asarray(x, float),
+                        np.asarray(y, float))[0].astype(np.float64)
+        if self.targets is not None:
+            rgb = self._paint_targets(np.asarray(x, float), np.asarray(y, float), rgb)
+        return np.clip(rgb, 0.0, 1.0)
