@@ -22,7 +22,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/georef.py
-	$(BIN)/python bench/ign_world_to_image.py
+	$(BIN)/python examples/ign_world_to_image.py
+	$(BIN)/python bench/simulate.py
+	OMP_NUM_THREADS=1 $(BIN)/python bench/lidar.py
 
 clean:
 	rm -rf $(VENV) demo-output
