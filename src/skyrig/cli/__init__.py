@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
+
+# COLMAP (pycolmap) logs every feature extractor it creates through glog at INFO level; keep warnings and errors.
+os.environ.setdefault("GLOG_minloglevel", "1")
 
 import click
 
