@@ -22,6 +22,12 @@ def residual_summary(d: np.ndarray) -> str:
     )
 
 
+def _positions(names: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Row in ``names`` of every entry of ``wanted`` (all present), vectorised by sorting."""
+    order = np.argsort(names, kind="stable")
+    return order[np.searchsorted(names[order], wanted)]
+
+
 @click.command("world-to-image")
 @eo_options
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Ground points (IGN .app or _world.mes, ODM gcp_list.txt, or CSV name,x,y,z).")
@@ -51,12 +57,11 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         pairs_p = np.repeat(pts.name, len(eo))
         pairs_i = np.tile(eo.image, len(pts))
         skipped = 0
-    rows = np.array([idx[p] for p in pairs_p], dtype=np.int64)
+    rows = _positions(pts.name, pairs_p)
     px = world_to_image(eo, cams, pairs_i, pts.xyz[rows], pts.frame)
     inside = np.ones(len(px), bool)
     if not mes_path:
-        cam_of = dict(zip(eo.image, eo.camera))
-        pair_cam = np.array([cam_of[i] for i in pairs_i]) if len(pairs_i) else np.array([], dtype=str)
+        pair_cam = eo.camera[_positions(eo.image, pairs_i)]
         for name in np.unique(pair_cam):
             sel = pair_cam == name
             inside[sel] = cams[name].in_image(px[sel])

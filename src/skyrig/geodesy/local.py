@@ -37,6 +37,17 @@ def ecef_from_enu_rotation(lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np
     return r
 
 
+def ecef_from_ned_rotation(lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np.float64]:
+    """``ecef_from_ned`` rotation matrices ``(..., 3, 3)`` at geodetic positions (degrees).
+
+    Columns are the north, east and down unit vectors (down = minus the ellipsoid normal) in ECEF.
+    """
+    enu = ecef_from_enu_rotation(lat_deg, lon_deg)
+    out = enu[..., :, [1, 0, 2]]  # = ecef_from_enu @ ENU_FROM_NED, without a batched product
+    out[..., :, 2] *= -1.0
+    return out
+
+
 def grid_from_enu_rotation(convergence_rad: ArrayLike) -> NDArray[np.float64]:
     """``grid_from_enu``: rotation from the local ENU frame to the map grid axes (E_grid, N_grid, Up).
 

@@ -16,34 +16,34 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from skyrig.geodesy.attitude import grid_from_camera_from_rpy, ned_from_body_from_grid_from_camera
+from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.geodesy.local import ecef_from_enu_rotation
 from skyrig.georef.eo import WorldFrame
-from skyrig.geometry.rotations import ENU_FROM_NED, NADIR_BODY_FROM_CAMERA, matrix_from_rpy, rpy_from_matrix
+from skyrig.geometry.rotations import NADIR_BODY_FROM_CAMERA, rpy_from_matrix
 
 
-def _frame_from_enu(frame: WorldFrame, centres: NDArray[np.float64]) -> NDArray[np.float64]:
-    ecef = frame.to_ecef(centres)
-    from skyrig.geodesy.crs import ecef_to_geodetic
-
-    lat, lon, _ = ecef_to_geodetic(ecef)
-    return np.swapaxes(frame.ecef_from_frame_rotation(centres), -1, -2) @ ecef_from_enu_rotation(lat, lon)
+def frame_from_enu_rotation(frame: WorldFrame, centres: ArrayLike) -> NDArray[np.float64]:
+    """``frame_from_enu`` ``(N, 3, 3)``: the local ENU axes at points ``(N, 3)`` of ``frame`` in that frame's axes."""
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    lat, lon, _ = ecef_to_geodetic(frame.to_ecef(c))
+    return np.swapaxes(frame.ecef_from_frame_rotation(c), -1, -2) @ ecef_from_enu_rotation(lat, lon)
 
 
 def rotation_from_ypr(
     frame: WorldFrame, centres: ArrayLike, yaw: ArrayLike, pitch: ArrayLike, roll: ArrayLike, unit: str = "deg"
 ) -> NDArray[np.float64]:
     """``frame_from_camera`` ``(N, 3, 3)`` from camera YPR angles at projection centres ``(N, 3)`` of ``frame``."""
-    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
-    enu_from_cam = ENU_FROM_NED @ matrix_from_rpy(roll, pitch, yaw, unit=unit) @ NADIR_BODY_FROM_CAMERA
-    return _frame_from_enu(frame, c) @ enu_from_cam
+    # ENU is the grid of a frame with zero convergence
+    enu_from_cam = grid_from_camera_from_rpy(roll, pitch, yaw, NADIR_BODY_FROM_CAMERA, 0.0, unit=unit)
+    return frame_from_enu_rotation(frame, centres) @ enu_from_cam
 
 
 def ypr_from_rotation(
     frame: WorldFrame, centres: ArrayLike, rotation: ArrayLike, unit: str = "deg"
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Inverse of :func:`rotation_from_ypr`: ``(yaw, pitch, roll)`` in ``unit``."""
-    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
-    enu_from_cam = np.swapaxes(_frame_from_enu(frame, c), -1, -2) @ np.asarray(rotation, dtype=np.float64)
-    ned_from_body = ENU_FROM_NED @ enu_from_cam @ NADIR_BODY_FROM_CAMERA.T
+    enu_from_cam = np.swapaxes(frame_from_enu_rotation(frame, centres), -1, -2) @ np.asarray(rotation, dtype=np.float64)
+    ned_from_body = ned_from_body_from_grid_from_camera(enu_from_cam, NADIR_BODY_FROM_CAMERA, 0.0)
     roll, pitch, yaw = rpy_from_matrix(ned_from_body, unit=unit)
     return yaw, pitch, roll

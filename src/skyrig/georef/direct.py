@@ -22,9 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.geodesy.crs import ecef_to_geodetic
-from skyrig.geodesy.local import ecef_from_enu_rotation
+from skyrig.geodesy.local import ecef_from_ned_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
-from skyrig.geometry.rotations import ENU_FROM_NED, rpy_from_matrix
+from skyrig.geometry.rotations import rpy_from_matrix
 from skyrig.rig.rig import Rig
 from skyrig.trajectory.events import CameraEvents, interpolate_events
 from skyrig.trajectory.trajectory import Trajectory
@@ -125,8 +125,7 @@ class PlatformStates:
     def ned_from_body(self, at: str = "imu") -> NDArray[np.float64]:
         """Attitudes in the NED frame at the IMU (``at="imu"``) or antenna position, ``(M, 3, 3)``."""
         lat, lon, _ = ecef_to_geodetic(self.imu_ecef if at == "imu" else self.antenna_ecef)
-        ecef_from_ned = ecef_from_enu_rotation(lat, lon) @ ENU_FROM_NED
-        return np.swapaxes(ecef_from_ned, -1, -2) @ self.ecef_from_body
+        return np.swapaxes(ecef_from_ned_rotation(lat, lon), -1, -2) @ self.ecef_from_body
 
     def rpy(self, unit: str = "deg", at: str = "imu") -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Roll, pitch and yaw (true heading) ``(M,)`` each in ``unit``."""

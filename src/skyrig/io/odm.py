@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from skyrig.errors import CRSError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
+from skyrig.georef.attitude_frames import frame_from_enu_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.rotations import ENU_FROM_NED, GIMBAL_FROM_CAMERA, matrix_from_rpy, rpy_from_matrix
@@ -138,9 +139,7 @@ def read_geo_txt(path: PathLike, geoid: str | None = None) -> ImageGeolocation:
 
 def gimbal_ypr_from_eo(eo: ExteriorOrientations) -> NDArray[np.float64]:
     """DJI-gimbal (yaw, pitch, roll) in degrees ``(N, 3)`` of exterior orientations in any frame."""
-    from skyrig.georef.attitude_frames import _frame_from_enu
-
-    enu_from_cam = np.swapaxes(_frame_from_enu(eo.frame, eo.centre), -1, -2) @ eo.rotation
+    enu_from_cam = np.swapaxes(frame_from_enu_rotation(eo.frame, eo.centre), -1, -2) @ eo.rotation
     ned_from_gimbal = ENU_FROM_NED @ enu_from_cam @ GIMBAL_FROM_CAMERA.T
     r, p, y = rpy_from_matrix(ned_from_gimbal, unit="deg")
     return np.stack([y, p, r], axis=1)
@@ -148,10 +147,8 @@ def gimbal_ypr_from_eo(eo: ExteriorOrientations) -> NDArray[np.float64]:
 
 def rotation_from_gimbal_ypr(frame: WorldFrame, centres: NDArray, ypr_deg: NDArray) -> NDArray[np.float64]:
     """``frame_from_camera`` from DJI-gimbal (yaw, pitch, roll) degrees at projection centres."""
-    from skyrig.georef.attitude_frames import _frame_from_enu
-
     ned_from_gimbal = matrix_from_rpy(ypr_deg[:, 2], ypr_deg[:, 1], ypr_deg[:, 0], unit="deg")
-    return _frame_from_enu(frame, centres) @ (ENU_FROM_NED @ ned_from_gimbal @ GIMBAL_FROM_CAMERA)
+    return frame_from_enu_rotation(frame, centres) @ (ENU_FROM_NED @ ned_from_gimbal @ GIMBAL_FROM_CAMERA)
 
 
 def write_geo_txt(path: PathLike, eo: ExteriorOrientations, accuracy_m: tuple[float, float] | None = None) -> None:

@@ -34,7 +34,7 @@ from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from skyrig.errors import InputFormatError, OutOfRangeError
 from skyrig.geodesy.crs import MapProjection, ecef_to_geodetic, geodetic_to_ecef
-from skyrig.geodesy.local import ecef_from_enu_rotation
+from skyrig.geodesy.local import ecef_from_ned_rotation  # re-exported: part of this module's API
 from skyrig.geometry.angles import from_radians, normalize_unit, to_radians
 from skyrig.geometry.rotations import (
     matrix_from_quaternion,
@@ -49,17 +49,6 @@ Reference = Literal["imu", "antenna"]
 HeadingReference = Literal["true", "grid"]
 
 __all__ = ["Trajectory", "TrajectorySample", "ecef_from_ned_rotation"]
-
-
-def ecef_from_ned_rotation(lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np.float64]:
-    """``ecef_from_ned`` rotation matrices ``(..., 3, 3)`` at geodetic positions (degrees).
-
-    Columns are the north, east and down unit vectors (down = minus the ellipsoid normal) in ECEF.
-    """
-    enu = ecef_from_enu_rotation(lat_deg, lon_deg)
-    out = enu[..., :, [1, 0, 2]]  # = ecef_from_enu @ ENU_FROM_NED, without a batched product
-    out[..., :, 2] *= -1.0
-    return out
 
 
 def _arr(name: str, value: ArrayLike | None, shape: tuple[int, ...]) -> NDArray[np.float64] | None:
