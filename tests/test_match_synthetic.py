@@ -1,6 +1,7 @@
 """Tie-point accuracy on a seeded synthetic penta-rig scene: a randomly textured plane rendered (inverse mapping
 with OpenCV remap) through skyrig cameras of the MIDAS head geometry, so the true projection of every tie is
-known exactly.  Tolerances from the issue: 0.3 px RMS for SIFT ties, 0.1 px after least-squares matching."""
+known exactly.  Tolerances from the issue: 0.3 px RMS for SIFT ties, 0.1 px after least-squares matching.
+The simulator's penta-rig project (3-D town, rendered images) is tests/test_match_simulated.py."""
 
 from __future__ import annotations
 
@@ -99,28 +100,28 @@ def test_footprint_pairs_find_cross_head_pairs(scene):
     assert len(got) < len(exhaustive_pairs(len(names)))
 
 
-# SIFT tolerance per pair: the issue's 0.3 px; the nadir-to-side-oblique pair (45 deg tilt, 28 vs 50 mm, strong
-# anisotropic foreshortening that SIFT does not model) measures about 0.48 px transfer RMS and is held to 0.6 px —
-# it misses the 0.3 px goal without refinement; with LSM every pair must reach 0.1 px.
-@pytest.mark.parametrize("pair,sift_tol", [(("a0_nadir", "a1_nadir"), 0.3), (("a2_nadir", "a0_forward"), 0.3),
-                                           (("b1_nadir", "a1_left"), 0.6), (("a0_forward", "a1_forward"), 0.3)])
-def test_tie_accuracy_against_true_projection(scene, pair, sift_tol):
+# The issue's tolerances: 0.3 px RMS for SIFT ties, 0.1 px after least-squares matching.  The figure checked is the
+# RMS per image coordinate of the *transfer* error x2 - T(x1) of ALL verified ties (no outlier trimming): it holds
+# both images' localisation errors, so it bounds the per-image error from above.  Oblique images are detected on
+# their ground-plane rectification (FeatureConfig.rectify="oblique", the default) from the true orientation.
+@pytest.mark.parametrize("pair", [("a0_nadir", "a1_nadir"), ("a2_nadir", "a0_forward"), ("b1_nadir", "a1_left"),
+                                  ("a0_forward", "a1_forward")])
+def test_tie_accuracy_against_true_projection(scene, pair):
     cams, poses, names, heads, imgs, eo = scene
     i, j = names.index(pair[0]), names.index(pair[1])
     cfg = FeatureConfig(method="opencv", max_size=None, max_features=3000)
-    f1, f2 = extract_features(imgs[i], cfg), extract_features(imgs[j], cfg)
     c1, c2 = cams[heads[i]], cams[heads[j]]
-    pm = match_pair(f1, f2, MatchConfig(), c1, poses[i], c2, poses[j])
+    f1 = extract_features(imgs[i], cfg, c1, poses[i], 0.0)
+    f2 = extract_features(imgs[j], cfg, c2, poses[j], 0.0)
+    pm = match_pair(f1, f2, MatchConfig(matcher="bruteforce"), c1, poses[i], c2, poses[j])
     assert pm.ok and pm.guided, pm.reason
     assert len(pm) >= 50
     x1, x2 = f1.xy[pm.matches[:, 0]], f2.xy[pm.matches[:, 1]]
     true2 = _truth(c1, poses[i], c2, poses[j], x1)
     err = x2 - true2
-    # transfer error holds both images' localisation errors; per-axis RMS after dropping gross outliers (>3 px)
-    good = np.linalg.norm(err, axis=1) < 3.0
-    assert good.mean() > 0.95
-    rms = np.sqrt(np.mean(err[good] ** 2))
-    assert rms < sift_tol, f"SIFT tie RMS {rms:.3f} px"
+    rms = np.sqrt(np.mean(err**2))  # all verified ties
+    assert rms < 0.3, f"SIFT tie RMS {rms:.3f} px"
+    assert np.max(np.linalg.norm(err, axis=1)) < 3.0  # no gross mismatch survives verification
     res = lsm_refine(imgs[i], imgs[j], x1, x2, local_affine(x1, x2), half_size=7)
     assert res.ok.mean() > 0.8
     e2 = res.xy2[res.ok] - true2[res.ok]
@@ -128,6 +129,65 @@ def test_tie_accuracy_against_true_projection(scene, pair, sift_tol):
     assert rms_lsm < 0.1, f"LSM tie RMS {rms_lsm:.3f} px"
     assert rms_lsm < rms
     print(f"{pair}: {len(pm)} ties, SIFT transfer RMS {rms:.3f} px, LSM {rms_lsm:.3f} px ({res.ok.mean():.0%} refined)")
+
+
+def test_opencv_keypoints_follow_pixel_centre_convention(scene):
+    """A 180-degree turned copy of an image has every feature at (W-1-x, H-1-y) exactly (no resampling): OpenCV's
+    default first-octave upscaling put keypoints 0.25 px off (0.5 px apart in this test), which biased
+    nadir-to-side-oblique ties by 0.57 px (the 90-degree turn between the images does not cancel it)."""
+    from scipy.spatial import cKDTree
+
+    cams, poses, names, heads, imgs, eo = scene
+    img = imgs[names.index("a0_nadir")]
+    h, w = img.shape
+    for method in ("opencv", "pycolmap"):
+        if method == "pycolmap":
+            pytest.importorskip("pycolmap")
+        cfg = FeatureConfig(method=method, max_size=None, max_features=2000)
+        f1, f2 = extract_features(img, cfg), extract_features(img[::-1, ::-1].copy(), cfg)
+        back = np.column_stack([w - 1 - f2.xy[:, 0], h - 1 - f2.xy[:, 1]])
+        d, k = cKDTree(back).query(f1.xy)
+        same = (d < 1.0) & (np.abs(f1.scale - f2.scale[k]) < 0.1 * f1.scale)
+        assert same.sum() > 500
+        off = np.mean(f1.xy[same] - back[k[same]], axis=0)
+        assert np.all(np.abs(off) < 0.02), f"{method}: mean keypoint offset {off} px"
+
+
+def test_rectification_improves_oblique_ties_and_leaves_nadir_alone(scene):
+    cams, poses, names, heads, imgs, eo = scene
+    n, o = names.index("b1_nadir"), names.index("a1_left")
+    cn, co = cams[heads[n]], cams[heads[o]]
+    on, off = FeatureConfig(max_size=None, max_features=3000), FeatureConfig(max_size=None, max_features=3000,
+                                                                             rectify="off")
+    # a nadir image is never rectified by "oblique": identical features with and without an orientation
+    fa, fb = extract_features(imgs[n], on, cn, poses[n], 0.0), extract_features(imgs[n], off)
+    np.testing.assert_array_equal(fa.xy, fb.xy)
+    rms = {}
+    for label, cfg in (("on", on), ("off", off)):
+        f2 = extract_features(imgs[o], cfg, co, poses[o], 0.0)
+        pm = match_pair(fa, f2, MatchConfig(matcher="bruteforce"), cn, poses[n], co, poses[o])
+        assert pm.ok, pm.reason
+        err = f2.xy[pm.matches[:, 1]] - _truth(cn, poses[n], co, poses[o], fa.xy[pm.matches[:, 0]])
+        rms[label] = (np.sqrt(np.mean(err**2)), len(pm))
+    # rectified detection: better localisation and more ties for the 45-degree side-looking head
+    assert rms["on"][0] < 0.8 * rms["off"][0], rms
+    assert rms["on"][1] > rms["off"][1], rms
+
+
+def test_consistency_check_removes_slid_mismatches():
+    """Mismatches that slid along their epipolar line pass a fundamental-matrix check; the local affine
+    consistency check must find them (truth: which matches were corrupted)."""
+    from skyrig.match.matching import consistent_matches
+
+    rng = np.random.default_rng(5)
+    x1 = rng.uniform(0, 700, (600, 2))
+    A = np.array([[1.3, 0.1], [-0.05, 0.9]])
+    x2 = x1 @ A.T + [20.0, -5.0] + 2e-4 * (x1 - 350) ** 2 + rng.normal(0, 0.3, x1.shape)  # smooth + noise
+    bad = rng.choice(600, 12, replace=False)
+    x2[bad] += rng.choice([-1, 1], (12, 1)) * rng.uniform(4, 200, (12, 1)) * np.array([[1.0, 0.0]])
+    ok = consistent_matches(x1, x2, 2.0)
+    assert not ok[bad].any()
+    assert ok.sum() >= 600 - 12 - 6  # few true matches lost
 
 
 def test_track_refinement_against_true_projection(scene):

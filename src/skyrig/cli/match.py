@@ -20,6 +20,7 @@ from pathlib import Path
 
 import click
 import numpy as np
+from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError, SkyrigError
@@ -80,7 +81,8 @@ def collect_images(folders: Sequence[str | Path]) -> tuple[list[ImageMetadata], 
     return metas, skipped
 
 
-def _extract_one(path: str, name: str, db_root: str, cfg: FeatureConfig) -> str:
+def _extract_one(path: str, name: str, db_root: str, cfg: FeatureConfig, camera: FrameCamera | None = None,
+                 world_from_camera: object = None, ground_height: float | None = None) -> str:
     db = MatchDatabase(db_root)
     if db.has_features(name):
         return "cached"
@@ -88,7 +90,7 @@ def _extract_one(path: str, name: str, db_root: str, cfg: FeatureConfig) -> str:
         img = read_image(path)
     except InputFormatError as exc:
         return f"skip: {exc.reason}"
-    db.write_features(name, extract_features(img, cfg))
+    db.write_features(name, extract_features(img, cfg, camera, world_from_camera, ground_height))
     return "done"
 
 
@@ -131,6 +133,45 @@ class _Call:
         return self.fn(*self.args)
 
 
+def _approximate_orientations(
+    metas: list[ImageMetadata], eo: ExteriorOrientations | None, cameras: dict[str, FrameCamera] | None,
+    terrain_height: float | None,
+) -> tuple[ExteriorOrientations | None, list[FrameCamera | None], dict[str, FrameCamera] | None, float | None,
+           NDArray[np.float64] | None]:
+    """Approximate orientations and cameras of ``metas``: from ``--eo`` + ``--camera``, or EXIF GPS + gimbal attitudes.
+
+    Returns ``(eo, cams, cameras, terrain_height, heading_deg)``; ``eo`` is None when the images carry no attitude.
+    """
+    names = [m.name for m in metas]
+    cams: list[FrameCamera | None] = [None] * len(metas)
+    heading = None
+    if eo is not None:
+        idx = eo.index()
+        missing = [n for n in names if n not in idx]
+        if missing:
+            raise InputFormatError(f"no exterior orientation for {len(missing)} images, e.g. {missing[0]!r}")
+        eo = eo.subset(np.array([idx[n] for n in names]))
+        if cameras is None:
+            raise click.UsageError("--eo needs --camera")
+        cams = [cameras[str(c)] for c in eo.camera]
+        if terrain_height is None:
+            raise click.UsageError("--eo needs --terrain-height")
+    elif metas and all(m.has_gps for m in metas):
+        mo = orientations_from_metadata(metas)
+        heading = mo.heading_deg
+        try:
+            cams = [camera_from_metadata(m) for m in metas]
+            cameras = {c.name: c for c in cams if c is not None}
+        except InputFormatError as exc:
+            logger.warning("no cameras from EXIF (%s): guided matching off", exc.reason)
+        if np.all(np.isfinite(mo.eo.rotation)) and all(c is not None for c in cams):
+            eo = ExteriorOrientations(mo.eo.image, np.array([c.name for c in cams]), mo.eo.centre, mo.eo.rotation,
+                                      mo.eo.frame)
+            if terrain_height is None:
+                terrain_height = mo.ground_height
+    return eo, cams, cameras, terrain_height, heading
+
+
 def match_images(
     folders: Sequence[str | Path], out: str | Path, feature_config: FeatureConfig = FeatureConfig(),
     match_config: MatchConfig | None = None, pair_mode: str = "auto", eo: ExteriorOrientations | None = None,
@@ -164,7 +205,13 @@ def match_images(
                 progress(stage, state["n"], total)
         return f
 
-    tasks = [_Call(_extract_one, m.path, m.name, str(out), feature_config) for m in metas]
+    # Oblique images are detected on their ground-plane rectification when approximate orientations exist
+    # (FeatureConfig.rectify); so orientations come first.
+    eo_given, cameras_given, terrain_given = eo, cameras, terrain_height
+    eo0, cams0, _, th0, _ = _approximate_orientations(metas, eo, cameras, terrain_height)
+    rect = [(cams0[k], eo0.pose()[k], th0) if eo0 is not None and cams0[k] is not None and th0 is not None
+            else (None, None, None) for k in range(len(metas))]
+    tasks = [_Call(_extract_one, m.path, m.name, str(out), feature_config, *rect[k]) for k, m in enumerate(metas)]
     res = _run_dask(tasks, scheduler, workers, tick("features", len(tasks)))
     for m, r in zip(metas, res):
         if r.startswith("skip"):
@@ -175,35 +222,11 @@ def match_images(
     names = [m.name for m in metas]
     t1 = time.perf_counter()
 
-    # ---- approximate orientations and cameras
-    cams: list[FrameCamera | None] = [None] * len(metas)
+    # ---- approximate orientations and cameras (again, without the skipped images)
+    eo, cams, cameras, terrain_height, heading = _approximate_orientations(metas, eo_given, cameras_given,
+                                                                          terrain_given)
     poses: list = [None] * len(metas)
-    heading = None
     mode = pair_mode
-    if eo is not None:
-        idx = eo.index()
-        missing = [n for n in names if n not in idx]
-        if missing:
-            raise InputFormatError(f"no exterior orientation for {len(missing)} images, e.g. {missing[0]!r}")
-        eo = eo.subset(np.array([idx[n] for n in names]))
-        if cameras is None:
-            raise click.UsageError("--eo needs --camera")
-        cams = [cameras[str(c)] for c in eo.camera]
-        if terrain_height is None:
-            raise click.UsageError("--eo needs --terrain-height")
-    elif all(m.has_gps for m in metas):
-        mo = orientations_from_metadata(metas)
-        heading = mo.heading_deg
-        try:
-            cams = [camera_from_metadata(m) for m in metas]
-            cameras = {c.name: c for c in cams if c is not None}
-        except InputFormatError as exc:
-            logger.warning("no cameras from EXIF (%s): guided matching off", exc.reason)
-        if np.all(np.isfinite(mo.eo.rotation)) and all(c is not None for c in cams):
-            eo = ExteriorOrientations(mo.eo.image, np.array([c.name for c in cams]), mo.eo.centre, mo.eo.rotation,
-                                      mo.eo.frame)
-            if terrain_height is None:
-                terrain_height = mo.ground_height
     if mode == "auto":
         mode = "guided" if eo is not None and terrain_height is not None else (
             "gps" if all(m.has_gps for m in metas) else "exhaustive")

@@ -5,12 +5,15 @@ Modules
 -------
 features
     SIFT (OpenCV or pycolmap) on downscaled images / pyramids; keypoints in full-resolution skyrig pixels.
+rectify
+    Oblique images detected on their ground-plane rectification from the approximate orientation (exact back
+    mapping of keypoints).
 pairs
     Footprint-overlap pairs from exterior orientations (any nadir/oblique head mix), GPS-neighbour pairs,
     exhaustive pairs.
 matching
     Ratio + mutual nearest-neighbour matching, epipolar-band guided search from predicted geometry,
-    MAGSAC++ fundamental / essential verification.
+    MAGSAC++ fundamental / essential verification, local affine consistency of the inliers.
 lsm
     Least-squares matching (affine + radiometric) sub-pixel refinement.
 tracks

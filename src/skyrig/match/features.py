@@ -8,13 +8,21 @@ A level downscaled by ``s`` maps back as ``x_full = (x_level + 0.5) * s - 0.5``.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+if TYPE_CHECKING:
+    from skyrig.camera.frame import FrameCamera
+    from skyrig.geometry.pose import Pose
+
+logger = logging.getLogger(__name__)
+
 Method = Literal["opencv", "pycolmap"]
+Rectify = Literal["off", "oblique", "always"]
 
 
 @dataclass(frozen=True)
@@ -33,6 +41,14 @@ class FeatureConfig:
     contrast_threshold: float = 0.02
     #: Convert descriptors to RootSIFT (L1-normalise, square root) before quantising to uint8.
     root_sift: bool = True
+    #: Detect on the ground-plane rectification of the image when an approximate orientation and a terrain height
+    #: are given to :func:`extract_features`: ``"oblique"`` (images tilted by ``rectify_min_tilt_deg`` or more),
+    #: ``"always"`` or ``"off"``.  Nadir images and images without orientation are never affected by "oblique".
+    rectify: Rectify = "oblique"
+    #: Tilt from the vertical (degrees) from which "oblique" rectifies.
+    rectify_min_tilt_deg: float = 20.0
+    #: Largest rectified image as a multiple of the image's own pixel count (the far field is coarsened beyond).
+    rectify_max_area: float = 3.0
 
     def __post_init__(self) -> None:
         if self.method not in ("opencv", "pycolmap"):
@@ -41,6 +57,8 @@ class FeatureConfig:
             raise ValueError("max_size must be at least 32 pixels")
         if self.max_features < 1:
             raise ValueError("max_features must be positive")
+        if self.rectify not in ("off", "oblique", "always"):
+            raise ValueError(f"unknown rectify mode {self.rectify!r} (off, oblique or always)")
 
 
 @dataclass(frozen=True)
@@ -133,7 +151,83 @@ def _colmap_sift(opts: object) -> object:
         return pycolmap.Sift(opts, device=pycolmap.Device.cpu)
 
 
-def extract_features(image: NDArray, config: FeatureConfig = FeatureConfig()) -> Features:
+def _opencv_sift(config: FeatureConfig) -> object:
+    """cv2.SIFT with OpenCV's *precise* first-octave upscaling.
+
+    OpenCV's default doubles the image with a pixel-centre bilinear resize (index ``x`` -> ``2 x + 0.5``) but
+    halves keypoint coordinates as if it mapped ``x`` -> ``2 x``: every keypoint lands 0.25 px right of and
+    below the feature (measured: a 180-degree rotated copy gives keypoints 0.5 px apart).  The offset cancels
+    between images of the same orientation but not between images turned against each other (e.g. a nadir
+    and a side-looking oblique head, 90 degrees apart: 0.57 px tie bias).  ``enable_precise_upscale`` (OpenCV
+    >= 4.8) maps ``x`` -> ``2 x`` and removes it; older OpenCV gets the 0.25 px subtracted instead.
+    """
+    import cv2
+
+    try:
+        return cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold,
+                               enable_precise_upscale=True)
+    except TypeError:  # pragma: no cover - OpenCV < 4.8
+        return _ShiftedSift(cv2.SIFT_create(nfeatures=config.max_features,
+                                            contrastThreshold=config.contrast_threshold), -0.25)
+
+
+class _ShiftedSift:  # pragma: no cover - OpenCV < 4.8
+    def __init__(self, sift: object, shift: float) -> None:
+        self.sift, self.shift = sift, shift
+
+    def detectAndCompute(self, image: NDArray, mask: object) -> tuple:  # noqa: N802 - OpenCV's name
+        import cv2
+
+        kps, desc = self.sift.detectAndCompute(image, mask)  # type: ignore[attr-defined]
+        kps = [cv2.KeyPoint(k.pt[0] + self.shift, k.pt[1] + self.shift, k.size, k.angle, k.response, k.octave,
+                            k.class_id) for k in kps]
+        return kps, desc
+
+
+def _detect(level: NDArray[np.uint8], config: FeatureConfig) -> tuple[NDArray, ...]:
+    """SIFT on one grey uint8 image: level pixels (skyrig origin), diameters, angles, responses, descriptors
+    and whether the descriptors are already RootSIFT-normalised."""
+    if config.method == "opencv":
+        kps, desc = _opencv_sift(config).detectAndCompute(level, None)  # type: ignore[attr-defined]
+        if not kps:
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 128), np.float32), False
+        xy = np.array([k.pt for k in kps], dtype=np.float64)
+        size = np.array([k.size for k in kps], dtype=np.float64)
+        ang = np.array([k.angle for k in kps], dtype=np.float64)
+        resp = np.array([k.response for k in kps], dtype=np.float64)
+        return xy, size, ang, resp, desc.astype(np.float32), False
+    import pycolmap
+
+    opts = pycolmap.FeatureExtractionOptions()
+    opts.max_image_size = max(level.shape[:2]) + 1
+    opts.sift.max_num_features = config.max_features
+    opts.sift.peak_threshold = config.contrast_threshold / 3.0
+    opts.use_gpu = False
+    kp, desc = _colmap_sift(opts).extract(np.ascontiguousarray(level))  # type: ignore[attr-defined]
+    kp = np.asarray(kp, dtype=np.float64).reshape(-1, 4)
+    xy = kp[:, :2] - 0.5  # COLMAP: origin at the top-left corner of the top-left pixel
+    size = kp[:, 2] * 2.0
+    ang = np.degrees(kp[:, 3])
+    # COLMAP keeps the strongest already; prefer larger scales when trimming.  Unit-norm RootSIFT floats: same
+    # uint8 scale as _root_sift
+    return xy, size, ang, size.copy(), np.asarray(desc, dtype=np.float32).reshape(-1, 128) * 512.0, True
+
+
+def wants_rectification(config: FeatureConfig, world_from_camera: Pose | None) -> bool:
+    """Whether :func:`extract_features` rectifies an image of this orientation under ``config``."""
+    if world_from_camera is None or config.rectify == "off":
+        return False
+    if not np.all(np.isfinite(world_from_camera.rotation)):
+        return False
+    from skyrig.match.rectify import tilt_deg
+
+    return config.rectify == "always" or tilt_deg(world_from_camera) >= config.rectify_min_tilt_deg
+
+
+def extract_features(
+    image: NDArray, config: FeatureConfig = FeatureConfig(), camera: FrameCamera | None = None,
+    world_from_camera: Pose | None = None, ground_height: float | None = None,
+) -> Features:
     """Detect and describe SIFT features.
 
     Parameters
@@ -142,6 +236,11 @@ def extract_features(image: NDArray, config: FeatureConfig = FeatureConfig()) ->
         ``(H, W)`` or ``(H, W, 3)`` uint8 / uint16 full-resolution image.
     config
         Detector settings.
+    camera, world_from_camera, ground_height
+        Optional approximate orientation of the image (world frame with z up) and the mean terrain height in
+        that frame (metres).  With all three, an image tilted by ``config.rectify_min_tilt_deg`` or more (an
+        oblique head) is detected on its ground-plane rectification (:mod:`skyrig.match.rectify`) and the
+        keypoints are mapped back exactly; without them, or for nadir images, nothing changes.
 
     Returns
     -------
@@ -150,41 +249,43 @@ def extract_features(image: NDArray, config: FeatureConfig = FeatureConfig()) ->
     img = to_uint8(image)
     h, w = img.shape[:2]
     level, s = downscale(img, config.max_size)
-    if config.method == "opencv":
+    rect = None
+    if camera is not None and ground_height is not None and wants_rectification(config, world_from_camera):
+        from skyrig.errors import GeometryError
+        from skyrig.match.rectify import ground_rectification, keypoints_to_image, rectify_image
+
+        assert world_from_camera is not None
+        try:
+            full = ground_rectification(camera, world_from_camera, float(ground_height),
+                                        max_pixels=config.rectify_max_area * w * h)
+        except GeometryError as exc:
+            logger.info("no rectification (%s): features on the original image", exc)
+        else:
+            from dataclasses import replace as _replace
+
+            rect = _replace(full, gsd_m=full.gsd_m * s,
+                            size=(int(np.ceil(full.size[0] / s)), int(np.ceil(full.size[1] / s))))
+    if rect is not None:
         import cv2
 
-        sift = cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold)
-        kps, desc = sift.detectAndCompute(level, None)
-        if not kps:
-            return Features(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 128), np.uint8), (w, h))
-        xy = np.array([k.pt for k in kps], dtype=np.float64)
-        size = np.array([k.size for k in kps], dtype=np.float64)
-        ang = np.array([k.angle for k in kps], dtype=np.float64)
-        resp = np.array([k.response for k in kps], dtype=np.float64)
-        desc = desc.astype(np.float32)
-        pre_normalised = False
+        rimg, mask = rectify_image(level, camera, world_from_camera, rect, level_scale=s)  # type: ignore[arg-type]
+        xy_r, size_r, ang_r, resp, desc, pre_normalised = _detect(rimg, config)
+        inner = cv2.erode(mask, np.ones((9, 9), np.uint8))
+        ij = np.round(xy_r).astype(np.int64)
+        ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < inner.shape[1]) & (ij[:, 1] < inner.shape[0])
+        ok[ok] = inner[ij[ok, 1], ij[ok, 0]] > 0
+        xy_r, size_r, ang_r, resp, desc = xy_r[ok], size_r[ok], ang_r[ok], resp[ok], desc[ok]
+        xy_full, size_full, ang = keypoints_to_image(xy_r, size_r, ang_r, camera, world_from_camera, rect)  # type: ignore[arg-type]
+        fin = np.all(np.isfinite(xy_full), axis=1)
+        xy_full, size_full, ang, resp, desc = xy_full[fin], size_full[fin], ang[fin], resp[fin], desc[fin]
     else:
-        import pycolmap
-
-        opts = pycolmap.FeatureExtractionOptions()
-        opts.max_image_size = max(level.shape[:2]) + 1
-        opts.sift.max_num_features = config.max_features
-        opts.sift.peak_threshold = config.contrast_threshold / 3.0
-        opts.use_gpu = False
-        kp, desc = _colmap_sift(opts).extract(np.ascontiguousarray(level))
-        kp = np.asarray(kp, dtype=np.float64)
-        xy = kp[:, :2] - 0.5  # COLMAP: origin at the top-left corner of the top-left pixel
-        size = kp[:, 2] * 2.0
-        ang = np.degrees(kp[:, 3])
-        resp = size  # COLMAP keeps the strongest already; prefer larger scales when trimming
-        desc = np.asarray(desc, dtype=np.float32)
-        desc = desc * 512.0  # COLMAP returns unit-norm RootSIFT floats; same uint8 scale as _root_sift
-        pre_normalised = True
+        xy, size, ang, resp, desc, pre_normalised = _detect(level, config)
+        xy_full = (xy + 0.5) * s - 0.5
+        size_full = size * s
     order = np.argsort(-resp, kind="stable")[: config.max_features]
-    xy, size, ang, desc = xy[order], size[order], ang[order], desc[order]
-    xy_full = (xy + 0.5) * s - 0.5
+    xy_full, size_full, ang, desc = xy_full[order], size_full[order], ang[order], desc[order]
     if pre_normalised:
         d8 = np.clip(np.round(desc), 0, 255).astype(np.uint8)
     else:
         d8 = _root_sift(desc) if config.root_sift else _quantise(desc)
-    return Features(xy_full, size * s, ang, d8, (w, h))
+    return Features(xy_full, size_full, ang, d8, (w, h))
