@@ -125,6 +125,30 @@ class Block:
         ``(T,)`` reference time of each strip's drift (s).
     frame
         Description of the world frame (for reports), e.g. ``WorldFrame.describe()``.
+    obs_cov_px2, control_cov_m2, gnss_cov_m2
+        Optional full covariance per observation: ``(N, 2, 2)`` px² (column, row), ``(K, 3, 3)`` and
+        ``(G, 3, 3)`` m² (X, Y, Z).  When given it replaces the per-axis sigma of that group (which is
+        then set to ``sqrt(diag)`` for reports); the model whitens each row with the Cholesky factor of
+        the inverse covariance (:mod:`skyrig.adjust.model`).
+    distance_point, distance_m, distance_sigma_m
+        Distance observations (scale bars): ``(D, 2)`` point indices, ``(D,)`` observed distances and
+        ``(D,)`` sigma (m).  Their end points are estimated in the reduced part of the unknowns.
+    image_beta_rad
+        ``(I,)`` actuator angle beta of each exposure (radians; NaN for images of fixed heads).
+    head_actuated
+        ``(H,)`` :class:`~skyrig.rig.rig.ActuatedHead` of each actuated head, None for fixed heads.
+        The mounting ``station_from_camera`` of an image of an actuated head is computed from its
+        beta (``image_rotation`` is then only the nominal value, for reports)::
+
+            beta' = (1 + scale) beta + offset
+            a     = tilt_angles(beta') + sum_n c_n cos(n beta') + s_n sin(n beta')   (roll, pitch, yaw)
+            station_from_camera = body_from_head @ Rz(a_yaw) Ry(a_pitch) Rx(a_roll) @ NADIR @ boresight
+
+        (paper 000 eqs 1-2, :meth:`ActuatedHead.tilt_angles` with its calibrated curve), followed by the
+        head's boresight correction ``expmap(head_boresight)`` like any head.
+    actuator_correction
+        ``(H, 2 + 6 N)`` correction of each actuated head: ``[offset_rad, scale]`` then, for ``n = 1..N``,
+        the Fourier coefficients ``[c_roll, c_pitch, c_yaw, s_roll, s_pitch, s_yaw]`` (rad); default zeros.
     """
 
     cameras: list
@@ -163,6 +187,15 @@ class Block:
     strip_drift: NDArray[np.float64] | None = None
     strip_t0: NDArray[np.float64] | None = None
     frame: str = "local Cartesian frame"
+    obs_cov_px2: NDArray[np.float64] | None = None
+    control_cov_m2: NDArray[np.float64] | None = None
+    gnss_cov_m2: NDArray[np.float64] | None = None
+    distance_point: NDArray[np.int64] | None = None
+    distance_m: NDArray[np.float64] | None = None
+    distance_sigma_m: NDArray[np.float64] | float = 0.001
+    image_beta_rad: NDArray[np.float64] | None = None
+    head_actuated: list | None = None
+    actuator_correction: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
@@ -229,6 +262,37 @@ class Block:
         self.imu_station = _arr(self.imu_station, (), np.int64, m)
         self.imu_rotation = _arr(self.imu_rotation, (3, 3), n=m)
         self.imu_sigma_rad = np.broadcast_to(np.asarray(self.imu_sigma_rad, dtype=np.float64), (m, 3)).copy()
+        for cov_name, sig_name, count, d in (("obs_cov_px2", "obs_sigma_px", n, 2), ("control_cov_m2", "control_sigma",
+                                                                                     k, 3),
+                                             ("gnss_cov_m2", "gnss_sigma", g, 3)):
+            cv = getattr(self, cov_name)
+            if cv is None:
+                continue
+            cv = np.asarray(cv, dtype=np.float64)
+            if cv.shape != (count, d, d):
+                raise BlockError(f"{cov_name} must have shape ({count}, {d}, {d}), got {cv.shape}")
+            setattr(self, cov_name, cv.copy())
+            with np.errstate(invalid="ignore"):
+                setattr(self, sig_name, np.sqrt(np.diagonal(cv, axis1=1, axis2=2)).copy())
+        h = len(self.head_name)
+        if self.head_actuated is None:
+            self.head_actuated = [None] * h
+        self.head_actuated = list(self.head_actuated)
+        if len(self.head_actuated) != h:
+            raise BlockError(f"head_actuated has {len(self.head_actuated)} entries for {h} heads")
+        self.image_beta_rad = (np.full(i, np.nan) if self.image_beta_rad is None
+                               else _arr(self.image_beta_rad, (), n=i).copy())
+        ac = np.zeros((h, 2)) if self.actuator_correction is None else np.asarray(self.actuator_correction, float)
+        if ac.ndim != 2 or ac.shape[0] != h or ac.shape[1] < 2 or (ac.shape[1] - 2) % 6:
+            raise BlockError(f"actuator_correction must have shape ({h}, 2 + 6 N), got {ac.shape}")
+        self.actuator_correction = ac.copy()
+        if self.distance_point is None:
+            self.distance_point = np.zeros((0, 2), np.int64)
+            self.distance_m = np.zeros(0)
+        nd = len(np.asarray(self.distance_point).reshape(-1, 2))
+        self.distance_point = _arr(self.distance_point, (2,), np.int64, nd)
+        self.distance_m = _arr(self.distance_m, (), n=nd)
+        self.distance_sigma_m = np.broadcast_to(np.asarray(self.distance_sigma_m, dtype=np.float64), (nd,)).copy()
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -246,6 +310,10 @@ class Block:
     @property
     def n_observations(self) -> int:
         return len(self.obs_image)
+
+    @property
+    def n_distances(self) -> int:
+        return len(self.distance_point)  # type: ignore[arg-type]
 
     @property
     def n_strips(self) -> int:
@@ -290,8 +358,33 @@ class Block:
                      "control_sigma", "gnss_xyz", "gnss_sigma", "imu_rotation", "imu_sigma_rad", "image_rotation",
                      "image_offset"):
             finite(name, getattr(self, name))
-        for name in ("obs_sigma_px", "control_sigma", "gnss_sigma", "imu_sigma_rad"):
+        for name in ("obs_sigma_px", "control_sigma", "gnss_sigma", "imu_sigma_rad", "distance_sigma_m"):
             positive(name, getattr(self, name))
+        for name in ("obs_cov_px2", "control_cov_m2", "gnss_cov_m2"):
+            cv = getattr(self, name)
+            if cv is None or not len(cv):
+                continue
+            finite(name, cv)
+            asym = np.abs(cv - np.swapaxes(cv, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cv).max(axis=(1, 2))
+            bad = np.flatnonzero(asym | ~(np.linalg.eigvalsh(0.5 * (cv + np.swapaxes(cv, 1, 2)))[:, 0] > 0))
+            if bad.size:
+                raise BlockError(f"{name}[{bad[0]}] is not a symmetric positive definite covariance: "
+                                 f"{cv[bad[0]].tolist()}")
+        act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)  # type: ignore[index]
+        bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))  # type: ignore[arg-type]
+        if bad.size:
+            raise BlockError(f"image {self.image_name[bad[0]]!r} belongs to the actuated head "
+                             f"{self.head_name[self.image_head[bad[0]]]!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
+        finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
+        rng("distance_point", self.distance_point.reshape(-1), self.n_points, "point")  # type: ignore[union-attr]
+        finite("distance_m", self.distance_m)  # type: ignore[arg-type]
+        bad = np.flatnonzero(~(self.distance_m > 0))  # type: ignore[operator]
+        if bad.size:
+            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {self.distance_m[bad[0]]}")  # type: ignore[index]
+        bad = np.flatnonzero(self.distance_point[:, 0] == self.distance_point[:, 1])  # type: ignore[index]
+        if bad.size:
+            raise BlockError(f"distance {bad[0]} joins point {self.point_name[self.distance_point[bad[0], 0]]!r} "  # type: ignore[index]
+                             "to itself")
         det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
         bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
         if bad.size:
@@ -367,7 +460,22 @@ class AdjustConfig:
         Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
         reduced system; skipped above ``max_statistics_parameters``).
     max_statistics_parameters
-        Size limit of the reduced system for full statistics.
+        Size limit of the reduced system for full statistics.  Above it, only the covariance of chosen
+        unknowns is computed (sparse solves with the factorised reduced system): every reduced unknown
+        that is not a station pose (calibration, lever arm, boresight, shifts, actuator corrections,
+        end points of distances) plus ``statistics_images`` and ``statistics_points``.
+    statistics_images
+        Image (or station) names whose pose covariance is wanted at any block size.
+    statistics_points
+        Point names whose covariance is wanted at any block size.
+    actuator, actuator_sigma
+        Mode of the actuator-angle correction of actuated heads (``offset`` rad and ``scale``: ``beta' =
+        (1 + scale) beta + offset``) and its prior sigma ``(offset_rad, scale)`` for ``"weighted"``.
+        Needs beta to vary over the head's images (a constant beta is reported as a datum defect).
+    actuator_curve, actuator_fourier_order, actuator_curve_sigma_rad
+        Mode, order N and prior sigma (rad) of the Fourier series of the periodic boresight curve
+        (roll, pitch, yaw corrections, orders 1..N; the constant term is the head's boresight).  The
+        first order in roll/pitch is the same motion as the actuator offset: estimate one of them.
     """
 
     poses: Mode = "free"
@@ -400,9 +508,19 @@ class AdjustConfig:
     max_rejections: int = 100
     statistics: bool = True
     max_statistics_parameters: int = 6000
+    statistics_images: tuple[str, ...] = ()
+    statistics_points: tuple[str, ...] = ()
+    actuator: Mode = "fixed"
+    actuator_sigma: tuple[float, float] = (1e-3, 1e-3)
+    actuator_curve: Mode = "fixed"
+    actuator_fourier_order: int = 0
+    actuator_curve_sigma_rad: float = 1e-3
 
     def __post_init__(self) -> None:
-        for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift"):
+        if int(self.actuator_fourier_order) < 0:
+            raise ValueError(f"AdjustConfig.actuator_fourier_order must be >= 0, got {self.actuator_fourier_order}")
+        for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift",
+                     "actuator", "actuator_curve"):
             if getattr(self, name) not in MODES:
                 raise ValueError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
         if self.points not in ("free", "fixed"):
@@ -425,6 +543,11 @@ class AdjustConfig:
         d = dict(data)
         if "intrinsic_names" in d and d["intrinsic_names"] is not None:
             d["intrinsic_names"] = tuple(d["intrinsic_names"])
+        if "actuator_sigma" in d:
+            d["actuator_sigma"] = tuple(float(v) for v in d["actuator_sigma"])
+        for key in ("statistics_images", "statistics_points"):
+            if key in d:
+                d[key] = tuple(str(v) for v in d[key])
         if "intrinsic_sigma" in d:
             v = d["intrinsic_sigma"]
             d["intrinsic_sigma"] = tuple(sorted(v.items())) if isinstance(v, dict) else tuple(map(tuple, v))

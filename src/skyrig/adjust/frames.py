@@ -43,6 +43,7 @@ def block_from_georef(
     sigma_px: float = 0.5,
     frame: WorldFrame | None = None,
     min_rays: int = 2,
+    eo_pivot_m: float | None = None,
 ) -> tuple[Block, WorldFrame]:
     """A block in a local frame from exterior orientations, measurements and control.
 
@@ -63,6 +64,18 @@ def block_from_georef(
         Local frame to adjust in (default: ENU at the centroid of the projection centres, on the ellipsoid).
     min_rays
         Tie points measured in fewer images (and not control) are dropped.
+    eo_pivot_m
+        When given, the GNSS observation of each orientation is not its projection centre ``C`` but the
+        point ``C + R @ (0, 0, -eo_pivot_m)`` on its optical axis ``eo_pivot_m`` metres in front of the
+        camera (about the ground for the flying height), as a fixed GNSS lever arm.  Use it when the
+        "GNSS/IMU" observations are themselves *adjusted* orientations (an earlier aerial triangulation):
+        such orientations fix where each image looks on the ground far better than how that is split
+        between centre and attitude (a centre shift ``dX`` with a tilt ``-dX / H`` leaves the footprint
+        in place).  With ``gnss_sigma_m`` then the sigma of that ground point and ``imu_sigma_rad`` the
+        attitude sigma, the implied prior of the centre has the strong centre/attitude correlation of an
+        adjusted orientation (horizontal sigma ``sqrt(gnss^2 + (eo_pivot_m * imu)^2)``) instead of
+        independent centre and attitude errors.  Single-camera blocks only (the lever arm is in the camera
+        frame, which looks along -z).
 
     Returns
     -------
@@ -119,7 +132,14 @@ def block_from_georef(
     n = len(imgs)
     kw: dict = {}
     if gnss_sigma_m is not None:
-        kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre, gnss_sigma=gnss_sigma_m)
+        if eo_pivot_m is None:
+            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre, gnss_sigma=gnss_sigma_m)
+        else:
+            if not np.isfinite(eo_pivot_m) or eo_pivot_m <= 0:
+                raise BlockError(f"eo_pivot_m must be a positive distance in metres, not {eo_pivot_m!r}")
+            lever = np.array([0.0, 0.0, -float(eo_pivot_m)])
+            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre + obs_l.rotation @ lever,
+                      gnss_sigma=gnss_sigma_m, lever_arm=lever)
     if imu_sigma_rad is not None:
         kw.update(imu_station=np.arange(n), imu_rotation=obs_l.rotation, imu_sigma_rad=imu_sigma_rad)
     block = Block(

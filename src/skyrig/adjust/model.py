@@ -13,7 +13,17 @@ the Jacobian ``(n, d, k)`` with respect to ``k`` reduced columns per row (column
 respect to that point.  All of it is computed with vectorised numpy over the rows; the only Python
 loop is over the (few) frame cameras.
 
-Residuals are *computed minus observed*, divided by the a-priori sigma.
+Residuals are *computed minus observed*, divided by the a-priori sigma.  Where a group carries a full
+covariance ``Σ`` per row (image ``(2, 2)``, control and GNSS ``(3, 3)``), the row is whitened instead by
+``W = U``, the upper Cholesky factor of the inverse covariance (``Σ^-1 = U^T U``): residual ``W v`` and
+Jacobian ``W J``, so that ``|W v|^2 = v^T Σ^-1 v``; the solver and the statistics see independent unit
+rows either way (the factor keeps ``W`` in ``whiten`` to un-whiten residuals for reports).
+
+Distance observations (scale bars) couple two object points; since the Schur elimination needs every
+row to touch at most one eliminated point, the end points of distances are estimated in the reduced
+part (``Layout.rpoint``): their image rows carry the point Jacobian among the reduced columns.  As rows
+of one image must share their reduced columns, each image's rows get one 3-column slot per reduced
+point seen in that image (zero for the other rows).
 """
 
 from __future__ import annotations
@@ -26,9 +36,23 @@ from numpy.typing import NDArray
 from skyrig.adjust.block import AdjustConfig, BalCamera, Block
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.jacobians import project_camera_with_jacobians
-from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix, skew
+from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix, skew
 
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project"]
+
+
+def whitening_matrices(cov: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, d, d)`` upper Cholesky factors ``U`` of the inverse covariances, ``Σ^-1 = U^T U``.
+
+    Parameters
+    ----------
+    cov
+        ``(n, d, d)`` symmetric positive definite covariances (observation units squared).
+    """
+    if len(cov) == 0:
+        return np.zeros(cov.shape)
+    L = np.linalg.cholesky(np.linalg.inv(cov))
+    return np.swapaxes(L, 1, 2).copy()
 
 
 def _expmap(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -94,16 +118,29 @@ class State:
     sshift: NDArray[np.float64]
     sdrift: NDArray[np.float64]
     X: NDArray[np.float64]
+    #: ``(H, 2 + 6 N)`` actuator corrections of actuated heads (see ``Block.actuator_correction``)
+    act: NDArray[np.float64] | None = None
 
     @classmethod
     def from_block(cls, b: Block) -> "State":
         return cls(b.station_rotation.copy(), b.station_centre.copy(), [c.intrinsics.copy() for c in b.cameras],
                    b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
-                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy())  # type: ignore[union-attr]
+                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
+                   None if b.actuator_correction is None else b.actuator_correction.copy())
 
     def copy(self) -> "State":
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
-                     self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy())
+                     self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
+                     None if self.act is None else self.act.copy())
+
+
+def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
+    """Actuator corrections ``(H, width)``: ``a`` cut or padded with zeros (higher Fourier orders)."""
+    out = np.zeros((n_heads, width))
+    if a is not None and a.size:
+        w = min(width, a.shape[1])
+        out[:, :w] = a[:, :w]
+    return out
 
 
 @dataclass
@@ -125,6 +162,12 @@ class Layout:
     n_c: int
     n_p: int
     labels: list[tuple[str, str, str]] = field(default_factory=list)
+    #: ``(P, 3)`` reduced columns of the points estimated in the reduced part (end points of distance
+    #: observations: a distance couples two points, which the Schur elimination of points cannot);
+    #: -1 for the others (eliminated or fixed).  None = no such points.
+    rpoint: NDArray[np.int64] | None = None
+    #: ``(H, 2 + 6 N)`` columns of the actuator corrections of actuated heads (-1: fixed / not actuated)
+    act: NDArray[np.int64] | None = None
 
     @classmethod
     def build(cls, b: Block, cfg: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> "Layout":
@@ -168,14 +211,40 @@ class Layout:
                       ("X", "Y", "Z"))
         sdrift = take((b.n_strips, 3), cfg.strip_drift != "fixed" and has_gnss, "strip_drift", strips,
                       ("X", "Y", "Z"))
+        width = 2 + 6 * int(cfg.actuator_fourier_order)
+        act_cols = np.full((len(b.head_name), width), -1, np.int64)  # type: ignore[arg-type]
+        fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.actuator_fourier_order) + 1)
+                         for cs in ("c", "s") for ax in ("roll", "pitch", "yaw")]
+        for h, head in enumerate(b.head_actuated):  # type: ignore[arg-type]
+            if head is None or not np.any(b.image_head == h):
+                continue
+            for j, on, nm in ([(0, cfg.actuator != "fixed", "beta_offset"), (1, cfg.actuator != "fixed", "beta_scale")]
+                              + [(2 + q, cfg.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
+                if on:
+                    act_cols[h, j] = n
+                    labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))  # type: ignore[index]
+                    n += 1
+        act = np.ones(b.n_points, bool) if point_active is None else np.asarray(point_active, bool).copy()
+        rpoint = None
+        if cfg.points != "fixed" and b.n_distances:
+            red = np.zeros(b.n_points, bool)
+            red[np.asarray(b.distance_point).reshape(-1)] = True
+            red &= act
+            if red.any():
+                rpoint = np.full((b.n_points, 3), -1, np.int64)
+                rpoint[red] = take((int(red.sum()), 3), True, "point", b.point_name[red], ("X", "Y", "Z"))
+                act &= ~red
         if cfg.points == "fixed":
             point = np.full(b.n_points, -1, np.int64)
-        elif point_active is None:
-            point = np.arange(b.n_points, dtype=np.int64)
         else:
-            act = np.asarray(point_active, bool)
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
-        return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels)
+        return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels,
+                   rpoint, act_cols)
+
+    @property
+    def has_rpoint(self) -> bool:
+        """True when some points are estimated in the reduced part (see ``rpoint``)."""
+        return self.rpoint is not None and bool((self.rpoint >= 0).any())
 
     def apply(self, s: State, dc: NDArray[np.float64], dp: NDArray[np.float64]) -> State:
         """A new state with the reduced step ``dc (n_c,)`` and point step ``dp (n_p, 3)`` applied."""
@@ -196,10 +265,16 @@ class Layout:
         out.shift = s.shift + step(self.shift)
         out.sshift = s.sshift + step(self.sshift)
         out.sdrift = s.sdrift + step(self.sdrift)
-        if self.n_p:
+        if self.act is not None and (self.act >= 0).any():
+            out.act = pad_actuator(s.act, self.act.shape[0], self.act.shape[1]) + step(self.act)
+        if self.n_p or self.has_rpoint:
             out.X = s.X.copy()
+        if self.n_p:
             free = self.point >= 0
             out.X[free] += dp[self.point[free]]
+        if self.has_rpoint:
+            red = (self.rpoint >= 0).all(axis=1)  # type: ignore[operator]
+            out.X[red] += step(self.rpoint[red])  # type: ignore[index]
         return out
 
 
@@ -221,6 +296,9 @@ class Factor:
         ``(n, d)`` a-priori sigma (for un-whitening).
     weight
         ``(n,)`` extra weight (robust reweighting; 0 = rejected).
+    whiten
+        ``(n, d, d)`` whitening matrices of rows with a full covariance (residual = ``whiten @ v``), or
+        None when the rows are whitened by ``sigma`` alone.
     """
 
     name: str
@@ -231,6 +309,13 @@ class Factor:
     point: NDArray[np.int64] | None = None
     jp: NDArray[np.float64] | None = None
     weight: NDArray[np.float64] | None = None
+    whiten: NDArray[np.float64] | None = None
+
+    def unwhitened(self) -> NDArray[np.float64]:
+        """``(n, d)`` residuals in observation units (computed minus observed)."""
+        if self.whiten is not None:
+            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]
+        return self.r * self.sigma
 
     def __len__(self) -> int:
         return len(self.r)
@@ -258,7 +343,27 @@ class Model:
         self.control_weight[block.control_check] = 0.0
         self.gnss_weight = np.ones(len(block.gnss_station))  # type: ignore[arg-type]
         self.imu_weight = np.ones(len(block.imu_station))  # type: ignore[arg-type]
+        self.distance_weight = np.ones(block.n_distances)
         b = block
+        self._obs_W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
+        self._ctrl_W = None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
+        self._gnss_W = None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
+        lay = self.layout
+        self._red_cols = self._red_rows = self._red_idx = None
+        if lay.has_rpoint:
+            rp = lay.rpoint[b.obs_point]  # type: ignore[index]
+            rows = np.flatnonzero(rp[:, 0] >= 0)
+            rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
+            img = b.obs_image[rows]
+            first = np.searchsorted(img, img, side="left")
+            rank = np.arange(len(rows)) - first
+            m = int(rank.max()) + 1 if rows.size else 0
+            img_cols = np.full((b.n_images, 3 * m), -1, np.int64)
+            for c in range(3):
+                img_cols[img, 3 * rank + c] = rp[rows, c]
+            self._red_cols = img_cols[b.obs_image]
+            self._red_rows = rows
+            self._red_idx = 3 * rank[:, None] + np.arange(3)[None, :]
         self._bal = np.array([isinstance(c, BalCamera) for c in b.cameras], bool)
         obs_cam = b.image_camera[b.obs_image]
         self._obs_cam = obs_cam
@@ -273,16 +378,86 @@ class Model:
         self._icols = icols
         self._intr_on = bool((icols >= 0).any())
         self._bore_on = bool((self.layout.bore >= 0).any())
+        # actuated heads: images whose mounting is computed from beta
+        heads = b.head_actuated or [None] * len(b.head_name)  # type: ignore[arg-type]
+        is_act = np.array([heads[h] is not None for h in b.image_head], bool) if b.n_images else np.zeros(0, bool)
+        self._act_images = np.flatnonzero(is_act)
+        self._act_width = 2 + 6 * int(config.actuator_fourier_order)
+        self._act_on = lay.act is not None and bool((lay.act >= 0).any())
+        if self._act_images.size:
+            from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA
+
+            hi = b.image_head[self._act_images]
+            eye = np.eye(3)
+            self._act_B = np.array([heads[h].body_from_head if heads[h] is not None else eye for h in hi])
+            self._act_K = np.array([NADIR_BODY_FROM_CAMERA @ heads[h].boresight for h in hi])
+            self._img2act = np.full(b.n_images, -1, np.int64)
+            self._img2act[self._act_images] = np.arange(self._act_images.size)
 
     # ------------------------------------------------------------------ cameras
     def cameras(self, s: State) -> list:
         return [c.with_intrinsics(v) for c, v in zip(self.block.cameras, s.intr)]
+
+    def actuated_mounts(self, s: State, jacobian: bool = False
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """Mountings ``station_from_camera`` ``(A, 3, 3)`` of the images of actuated heads from their beta.
+
+        With ``jacobian``: also ``(A, 3, W)``, the derivative of the mounting with respect to the
+        actuator corrections of the image's head, as a rotation vector in the camera frame (before the
+        head's boresight correction): ``M(θ + dθ) = M(θ) expmap(D dθ)``.  The derivative of the
+        nominal tilt law (and of a calibrated curve) with respect to beta is a central difference
+        (step 1e-6 rad); everything else is analytic.
+        """
+        b = self.block
+        ai = self._act_images
+        hi = b.image_head[ai]
+        beta = b.image_beta_rad[ai]  # type: ignore[index]
+        A = pad_actuator(s.act, len(b.head_name), self._act_width)[hi]  # type: ignore[arg-type]
+        bp = (1.0 + A[:, 1]) * beta + A[:, 0]
+        a = np.zeros((ai.size, 3))
+        da = np.zeros((ai.size, 3))
+        h = 1e-6
+        for k in np.unique(hi):
+            sel = hi == k
+            head = b.head_actuated[k]  # type: ignore[index]
+            a[sel] = head.tilt_angles(bp[sel])
+            if jacobian:
+                da[sel] = (head.tilt_angles(bp[sel] + h) - head.tilt_angles(bp[sel] - h)) / (2 * h)
+        n_f = (self._act_width - 2) // 6
+        for q in range(1, n_f + 1):
+            c = A[:, 2 + 6 * (q - 1): 5 + 6 * (q - 1)]
+            sn = A[:, 5 + 6 * (q - 1): 8 + 6 * (q - 1)]
+            cq, sq = np.cos(q * bp)[:, None], np.sin(q * bp)[:, None]
+            a += c * cq + sn * sq
+            da += q * (-c * sq + sn * cq)
+        T = matrix_from_rpy(a[:, 0], a[:, 1], a[:, 2])
+        M = self._act_B @ T @ self._act_K
+        if not jacobian:
+            return M, None
+        # right Jacobian of Rz(y) Ry(p) Rx(r): T(a + da) = T(a) expmap(Jr da)
+        cr, sr, cp, sp = np.cos(a[:, 0]), np.sin(a[:, 0]), np.cos(a[:, 1]), np.sin(a[:, 1])
+        Jr = np.zeros((ai.size, 3, 3))
+        Jr[:, 0, 0] = 1.0
+        Jr[:, 1, 1], Jr[:, 2, 1] = cr, -sr
+        Jr[:, 0, 2], Jr[:, 1, 2], Jr[:, 2, 2] = -sp, sr * cp, cr * cp
+        dadt = np.zeros((ai.size, 3, self._act_width))
+        dadt[:, :, 0] = da
+        dadt[:, :, 1] = da * beta[:, None]
+        for q in range(1, n_f + 1):
+            for j in range(3):
+                dadt[:, j, 2 + 6 * (q - 1) + j] = np.cos(q * bp)
+                dadt[:, j, 5 + 6 * (q - 1) + j] = np.sin(q * bp)
+        D = np.swapaxes(self._act_K, 1, 2) @ Jr @ dadt
+        return M, D
 
     def camera_poses(self, s: State) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """``world_from_camera`` rotation ``(I, 3, 3)``, centre ``(I, 3)`` and mount ``M (I, 3, 3)`` per image."""
         b = self.block
         st = b.image_station
         M = b.image_rotation
+        if self._act_images.size:
+            M = M.copy()
+            M[self._act_images] = self.actuated_mounts(s)[0]
         if self._bore_on or np.any(s.bore):
             M = M @ _expmap(s.bore[b.image_head])
         Rs = s.R[st]
@@ -299,10 +474,15 @@ class Model:
             out.append(self._gnss(s, jacobians))
         if len(b.imu_station):  # type: ignore[arg-type]
             out.append(self._imu(s, jacobians))
+        if b.n_distances:
+            out.append(self._distance(s, jacobians))
         out.extend(self._priors(s, jacobians))
         return out
 
     def _image(self, s: State, jac: bool) -> Factor:
+        if (_BAL_KERNEL is not None and self._bal.size and self._bal.all() and self.block.n_observations
+                and getattr(self, "_obs_W", None) is None and getattr(self, "_red_cols", None) is None):
+            return self._image_bal(s, jac)
         b, lay = self.block, self.layout
         n = b.n_observations
         Rc, Cc, M = self.camera_poses(s)
@@ -334,17 +514,27 @@ class Model:
                     d_in[idx, :, :3] = din
         sig = b.obs_sigma_px
         w = self.obs_weight
-        r = (pred - b.obs_pixel) / sig
+        Wm = self._obs_W
+        if Wm is None:
+            r = (pred - b.obs_pixel) / sig
+        else:
+            r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
         bad = ~np.isfinite(r).all(axis=1)
         if bad.any():
             r[bad] = 0.0  # behind the camera: reported by the solver
-        f = Factor("image", r, sig, weight=w)
+        f = Factor("image", r, sig, weight=w, whiten=Wm)
         f.bad = bad  # type: ignore[attr-defined]
         if not jac:
             return f
         isig = (1.0 / sig)[:, :, None]
-        dpc = d_pc * isig  # type: ignore[operator]
+
+        def wh(J: NDArray[np.float64]) -> NDArray[np.float64]:
+            return J * isig if Wm is None else Wm @ J
+
+        dpc = wh(d_pc)  # type: ignore[arg-type]
         dpc[bad] = 0.0
+        if d_in is not None:
+            d_in[bad] = 0.0  # (a point in the camera plane: NaN derivatives would poison the normals)
         RoT = np.swapaxes(Ro, 1, 2)
         jX = dpc @ RoT
         blocks = []
@@ -369,8 +559,25 @@ class Model:
             blocks.append(dpc @ skew(pc))
             colblocks.append(lay.bore[b.image_head[oi]])
         if d_in is not None:
-            blocks.append(d_in * isig)
+            blocks.append(wh(d_in))
             colblocks.append(self._icols[self._obs_cam])
+        if self._act_on:
+            _, D = self.actuated_mounts(s, True)
+            ia = self._img2act[oi]
+            rows = np.flatnonzero(ia >= 0)
+            ext = np.zeros((n, 2, self._act_width))
+            Rb = _expmap(s.bore[b.image_head[oi[rows]]])
+            ext[rows] = (dpc[rows] @ skew(pc[rows])) @ np.swapaxes(Rb, 1, 2) @ D[ia[rows]]  # type: ignore[index]
+            cols = np.full((n, self._act_width), -1, np.int64)
+            cols[rows] = self.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
+            blocks.append(ext)
+            colblocks.append(cols)
+        if self._red_cols is not None and self._red_cols.shape[1]:
+            ext = np.zeros((n, 2, self._red_cols.shape[1]))
+            rows = self._red_rows
+            ext[rows[:, None, None], np.arange(2)[None, :, None], self._red_idx[:, None, :]] = jX[rows]  # type: ignore[index]
+            blocks.append(ext)
+            colblocks.append(self._red_cols)
         if blocks:
             f.jc = np.concatenate(blocks, axis=2)
             f.cols = np.concatenate(colblocks, axis=1)
@@ -379,16 +586,74 @@ class Model:
             f.jp = jX
         return f
 
+    def _image_bal(self, s: State, jac: bool) -> Factor:
+        """:meth:`_image` for blocks of BAL cameras only, through the compiled kernel (same values)."""
+        b, lay = self.block, self.layout
+        n = b.n_observations
+        Rc, Cc, M = self.camera_poses(s)
+        intr = np.ascontiguousarray(np.array(s.intr, dtype=np.float64)[b.image_camera])
+        pose_on = bool((lay.pose >= 0).any())
+        widths = []
+        if pose_on:
+            widths.append(6)
+        if self._bore_on:
+            widths.append(3)
+        if self._intr_on:
+            widths.append(self._icols.shape[1])
+        offs = np.concatenate([[0], np.cumsum(widths)]).astype(np.int64)
+        k = int(offs[-1]) if jac else 0
+        o_pose = int(offs[0]) if pose_on else -1
+        o_bore = int(offs[int(pose_on)]) if self._bore_on else -1
+        o_intr = int(offs[int(pose_on) + int(self._bore_on)]) if self._intr_on else -1
+        r = np.empty((n, 2))
+        bad = np.empty(n, np.bool_)
+        jc = np.empty((n if jac else 0, 2, k))  # the kernel writes every column
+        jp = np.empty((n if jac else 0, 2, 3))
+        off = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+        _BAL_KERNEL(b.obs_image, b.obs_point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
+                    np.ascontiguousarray(M), np.ascontiguousarray(s.R), off, bool(np.any(off)),
+                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(b.obs_pixel, dtype=np.float64),
+                    np.ascontiguousarray(b.obs_sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
+        f = Factor("image", r, b.obs_sigma_px, weight=self.obs_weight)
+        f.bad = bad  # type: ignore[attr-defined]
+        if not jac:
+            return f
+        if k:
+            f.jc = jc
+            if getattr(self, "_bal_cols", None) is None:  # fixed for the model: computed once
+                colblocks = []
+                if pose_on:
+                    colblocks.append(lay.pose[b.image_station[b.obs_image]])
+                if self._bore_on:
+                    colblocks.append(lay.bore[b.image_head[b.obs_image]])
+                if self._intr_on:
+                    colblocks.append(self._icols[self._obs_cam])
+                self._bal_cols = np.concatenate(colblocks, axis=1)
+            f.cols = self._bal_cols
+        if lay.n_p:
+            f.point = lay.point[b.obs_point]
+            f.jp = jp
+        return f
+
     def _control(self, s: State, jac: bool) -> Factor:
         b, lay = self.block, self.layout
         p = b.control_point
         sig = b.control_sigma
-        r = (s.X[p] - b.control_xyz) / sig  # type: ignore[operator]
-        f = Factor("control", r, sig, weight=self.control_weight)  # type: ignore[arg-type]
+        Wm = self._ctrl_W
+        if Wm is None:
+            r = (s.X[p] - b.control_xyz) / sig  # type: ignore[operator]
+            J = np.zeros((len(p), 3, 3))  # type: ignore[arg-type]
+            J[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig  # type: ignore[operator]
+        else:
+            r = np.einsum("nij,nj->ni", Wm, s.X[p] - b.control_xyz)  # type: ignore[index]
+            J = Wm
+        f = Factor("control", r, sig, weight=self.control_weight, whiten=Wm)  # type: ignore[arg-type]
         if jac and lay.n_p:
             f.point = lay.point[p]
-            f.jp = np.zeros((len(p), 3, 3))  # type: ignore[arg-type]
-            f.jp[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig  # type: ignore[operator]
+            f.jp = J
+        if jac and lay.has_rpoint:
+            f.jc = J
+            f.cols = lay.rpoint[p]  # type: ignore[index]
         return f
 
     def _gnss(self, s: State, jac: bool) -> Factor:
@@ -403,8 +668,12 @@ class Model:
         if b.n_strips:
             pred = pred + has[:, None] * (s.sshift[sk] + s.sdrift[sk] * dt[:, None])
         sig = b.gnss_sigma
-        r = (pred - b.gnss_xyz) / sig  # type: ignore[operator]
-        f = Factor("gnss", r, sig, weight=self.gnss_weight)  # type: ignore[arg-type]
+        Wm = self._gnss_W
+        if Wm is None:
+            r = (pred - b.gnss_xyz) / sig  # type: ignore[operator]
+        else:
+            r = np.einsum("nij,nj->ni", Wm, pred - b.gnss_xyz)
+        f = Factor("gnss", r, sig, weight=self.gnss_weight, whiten=Wm)  # type: ignore[arg-type]
         if not jac:
             return f
         n = len(st)  # type: ignore[arg-type]
@@ -416,8 +685,25 @@ class Model:
             neg = np.full(3, -1, np.int64)
             blocks += [eye, eye * dt[:, None, None]]
             cols += [np.where(has[:, None], lay.sshift[sk], neg), np.where(has[:, None], lay.sdrift[sk], neg)]
-        f.jc = np.concatenate(blocks, axis=2) * isig
+        f.jc = np.concatenate(blocks, axis=2) * isig if Wm is None else Wm @ np.concatenate(blocks, axis=2)
         f.cols = np.concatenate(cols, axis=1)
+        return f
+
+    def _distance(self, s: State, jac: bool) -> Factor:
+        """Distances between two object points (scale bars): ``|X_a - X_b| - d``, one row each."""
+        b, lay = self.block, self.layout
+        a, c = b.distance_point[:, 0], b.distance_point[:, 1]  # type: ignore[index]
+        dx = s.X[a] - s.X[c]
+        L = np.linalg.norm(dx, axis=1)
+        sig = b.distance_sigma_m[:, None]  # type: ignore[index]
+        f = Factor("distance", ((L - b.distance_m) / sig[:, 0])[:, None], sig,  # type: ignore[operator]
+                   weight=self.distance_weight)
+        if not jac:
+            return f
+        u = dx / np.where(L > 0, L, 1.0)[:, None]
+        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
+        f.jc = (np.concatenate([u, -u], axis=1) / sig)[:, None, :]
+        f.cols = np.concatenate([rp[a], rp[c]], axis=1)
         return f
 
     def _imu(self, s: State, jac: bool) -> Factor:
@@ -476,4 +762,124 @@ class Model:
         ):
             if getattr(cfg, grp) == "weighted" and (cols >= 0).any():
                 prior(grp, (cur - ini).reshape(-1, 3), cols.reshape(-1, 3), np.array(sig))
+        if lay.act is not None and (lay.act >= 0).any():
+            H, W = lay.act.shape
+            d = pad_actuator(s.act, H, W) - pad_actuator(s0.act, H, W)
+            on = (lay.act[:, :2] >= 0).all(axis=1)
+            if cfg.actuator == "weighted" and on.any():
+                prior("actuator", d[on, :2], lay.act[on, :2], np.array(cfg.actuator_sigma, float))
+            on = (lay.act[:, 2:] >= 0).all(axis=1) & (W > 2)
+            if cfg.actuator_curve == "weighted" and on.any():
+                prior("actuator_curve", d[on, 2:], lay.act[on, 2:], np.array(cfg.actuator_curve_sigma_rad))
         return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Compiled path of Model._image for blocks whose cameras are all BAL cameras (same results as the numpy
+# path; one pass over the observations instead of a dozen (n, 2, 3) temporaries).
+def _make_bal_kernel():  # type: ignore[no-untyped-def]
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - depends on the environment
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def bal_rows(oi, op, ist, Rc, Cc, M, Rst, off, has_off, X, intr, pix, sig, jac, o_pose, o_bore, o_intr,
+                 r, bad, jc, jp):  # pragma: no cover - compiled
+        n = len(oi)
+        for o in numba.prange(n):
+            i = oi[o]
+            p = op[o]
+            dx = X[p, 0] - Cc[i, 0]
+            dy = X[p, 1] - Cc[i, 1]
+            dz = X[p, 2] - Cc[i, 2]
+            P0 = Rc[i, 0, 0] * dx + Rc[i, 1, 0] * dy + Rc[i, 2, 0] * dz
+            P1 = Rc[i, 0, 1] * dx + Rc[i, 1, 1] * dy + Rc[i, 2, 1] * dz
+            P2 = Rc[i, 0, 2] * dx + Rc[i, 1, 2] * dy + Rc[i, 2, 2] * dz
+            f = intr[i, 0]
+            k1 = intr[i, 1]
+            k2 = intr[i, 2]
+            iz = -1.0 / P2
+            p0 = P0 * iz
+            p1 = P1 * iz
+            r2 = p0 * p0 + p1 * p1
+            rad = 1.0 + r2 * (k1 + k2 * r2)
+            s0 = sig[o, 0]
+            s1 = sig[o, 1]
+            e0 = (f * rad * p0 - pix[o, 0]) / s0
+            e1 = (f * rad * p1 - pix[o, 1]) / s1
+            isbad = not (np.isfinite(e0) and np.isfinite(e1))
+            bad[o] = isbad
+            if isbad:
+                e0 = 0.0
+                e1 = 0.0
+            r[o, 0] = e0
+            r[o, 1] = e1
+            if not jac:
+                continue
+            # d uv / d p = f (rad I + drad p p^T);  d p / d P: iz on the diagonal, p * iz in the last column
+            drad = 2.0 * (k1 + 2.0 * k2 * r2)
+            a00 = f * rad + f * drad * p0 * p0
+            a01 = f * drad * p0 * p1
+            a11 = f * rad + f * drad * p1 * p1
+            d00 = a00 * iz / s0
+            d01 = a01 * iz / s0
+            d02 = (a00 * p0 + a01 * p1) * iz / s0
+            d10 = a01 * iz / s1
+            d11 = a11 * iz / s1
+            d12 = (a01 * p0 + a11 * p1) * iz / s1
+            if isbad:
+                d00 = d01 = d02 = d10 = d11 = d12 = 0.0
+            for e in range(2):
+                if e == 0:
+                    q0, q1, q2, se, pe = d00, d01, d02, s0, p0
+                else:
+                    q0, q1, q2, se, pe = d10, d11, d12, s1, p1
+                # jX = d Rc^T (point), jth_cam = d skew(pc)
+                jx0 = q0 * Rc[i, 0, 0] + q1 * Rc[i, 0, 1] + q2 * Rc[i, 0, 2]
+                jx1 = q0 * Rc[i, 1, 0] + q1 * Rc[i, 1, 1] + q2 * Rc[i, 1, 2]
+                jx2 = q0 * Rc[i, 2, 0] + q1 * Rc[i, 2, 1] + q2 * Rc[i, 2, 2]
+                jp[o, e, 0] = jx0
+                jp[o, e, 1] = jx1
+                jp[o, e, 2] = jx2
+                t0 = q1 * P2 - q2 * P1
+                t1 = q2 * P0 - q0 * P2
+                t2 = q0 * P1 - q1 * P0
+                if o_pose >= 0:
+                    jc[o, e, o_pose + 0] = -jx0
+                    jc[o, e, o_pose + 1] = -jx1
+                    jc[o, e, o_pose + 2] = -jx2
+                    # jth = jth_cam M^T (+ jX R_st skew(off) for a head offset from the station)
+                    v0 = t0 * M[i, 0, 0] + t1 * M[i, 0, 1] + t2 * M[i, 0, 2]
+                    v1 = t0 * M[i, 1, 0] + t1 * M[i, 1, 1] + t2 * M[i, 1, 2]
+                    v2 = t0 * M[i, 2, 0] + t1 * M[i, 2, 1] + t2 * M[i, 2, 2]
+                    if has_off:
+                        st = ist[i]
+                        # y = jX R_st, then y skew(off) = off x y (as a row): (y1 o2 - y2 o1, y2 o0 - y0 o2, ...)
+                        y0 = jx0 * Rst[st, 0, 0] + jx1 * Rst[st, 1, 0] + jx2 * Rst[st, 2, 0]
+                        y1 = jx0 * Rst[st, 0, 1] + jx1 * Rst[st, 1, 1] + jx2 * Rst[st, 2, 1]
+                        y2 = jx0 * Rst[st, 0, 2] + jx1 * Rst[st, 1, 2] + jx2 * Rst[st, 2, 2]
+                        v0 += y1 * off[i, 2] - y2 * off[i, 1]
+                        v1 += y2 * off[i, 0] - y0 * off[i, 2]
+                        v2 += y0 * off[i, 1] - y1 * off[i, 0]
+                    jc[o, e, o_pose + 3] = v0
+                    jc[o, e, o_pose + 4] = v1
+                    jc[o, e, o_pose + 5] = v2
+                if o_bore >= 0:
+                    jc[o, e, o_bore + 0] = t0
+                    jc[o, e, o_bore + 1] = t1
+                    jc[o, e, o_bore + 2] = t2
+                if o_intr >= 0:
+                    if isbad:
+                        jc[o, e, o_intr + 0] = 0.0
+                        jc[o, e, o_intr + 1] = 0.0
+                        jc[o, e, o_intr + 2] = 0.0
+                    else:
+                        jc[o, e, o_intr + 0] = rad * pe / se
+                        jc[o, e, o_intr + 1] = f * r2 * pe / se
+                        jc[o, e, o_intr + 2] = f * r2 * r2 * pe / se
+
+    return bal_rows
+
+
+_BAL_KERNEL = _make_bal_kernel()

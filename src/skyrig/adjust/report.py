@@ -15,6 +15,11 @@
     degrees), the GNSS block shift (mean GNSS residual, and the estimated datum shift).
 ``images``
     per camera: observations, residual RMS column/row and max (px).
+``distances``
+    (blocks with distance observations) one row per distance ``{point_a, point_b, observed_m,
+    adjusted_m, residual_m, sigma_m, normalised, redundancy, used}`` (residual = adjusted - observed;
+    normalised: Baarda's w, redundancy: the redundancy number; NaN when statistics were skipped) and
+    a ``stats`` row (n, RMS residual, max |w|).
 ``rejected``, ``warnings``
     data snooping rejections and near-singularities in words.
 """
@@ -28,7 +33,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult
 
-__all__ = ["adjustment_report", "point_table"]
+__all__ = ["adjustment_report", "point_table", "distance_table"]
 
 
 def _rms(a: NDArray[np.float64]) -> list[float]:
@@ -49,6 +54,27 @@ def point_table(names: NDArray[np.str_], v: NDArray[np.float64], gsd_m: float | 
     if limits_m is not None:
         stats["limits_m"] = list(limits_m)
         stats["within_limits"] = bool(len(v) == 0 or np.all(np.abs(v) <= np.asarray(limits_m)))
+    return dict(rows=rows, stats=stats)
+
+
+def distance_table(result: AdjustmentResult) -> dict[str, Any]:
+    """Residual table of the distance observations (scale bars) of ``result`` (see module docstring)."""
+    b = result.block
+    g = result.residuals.get("distance")
+    n = b.n_distances
+    nan = np.full(n, np.nan)
+    v = g.residual[:, 0] if g is not None else nan
+    w = g.normalised[:, 0] if g is not None and g.normalised is not None else nan
+    rr = g.redundancy[:, 0] if g is not None and g.redundancy is not None else nan
+    used = g.weight > 0 if g is not None else np.ones(n, bool)
+    dp = b.distance_point
+    adj = np.linalg.norm(b.point_xyz[dp[:, 0]] - b.point_xyz[dp[:, 1]], axis=1)  # type: ignore[index]
+    rows = [dict(point_a=str(b.point_name[i]), point_b=str(b.point_name[j]), observed_m=float(o), adjusted_m=float(a),
+                 residual_m=float(x), sigma_m=float(sg), normalised=float(wi), redundancy=float(ri), used=bool(u))
+            for (i, j), o, a, x, sg, wi, ri, u in zip(dp, b.distance_m, adj, v, b.distance_sigma_m, w, rr, used)]  # type: ignore[arg-type]
+    stats = dict(n=int(used.sum()), rms_m=float(np.sqrt(np.mean(v[used] ** 2))) if used.any() else float("nan"),
+                 max_abs_normalised=float(np.nanmax(np.abs(w[used]))) if used.any() and np.isfinite(w[used]).any()
+                 else float("nan"))
     return dict(rows=rows, stats=stats)
 
 
@@ -116,6 +142,8 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
         r = img.residual[sel]
         cams[c.name] = dict(n=int(sel.sum()), rms_px=_rms(r), max_abs_px=np.abs(r).max(axis=0).tolist())
     out["images"] = cams
+    if b0.n_distances:
+        out["distances"] = distance_table(result)
     out["rejected"] = [dict(group=r.group, index=r.index, label=r.label, normalised_residual=r.normalised_residual)
                        for r in result.rejected]
     out["warnings"] = list(result.warnings)

@@ -8,18 +8,31 @@ With whitened residuals ``r`` and Jacobian ``J = [J_c  J_p]`` (reduced unknowns,
     [ W^T V ] [dp] = - [g_p]        g = J^T r
 
 The points are eliminated: ``S = U - W V^-1 W^T``, ``S dc = -(g_c - W V^-1 g_p)``,
-``dp = -V^-1 (g_p + W^T dc)``.  Image observations are grouped per image so that ``W`` is a block
-sparse (BSR) matrix with one ``k x 3`` block per (image, point) and the product ``W V^-1 W^T`` runs in
-scipy's compiled BSR kernels; a selection matrix maps each image's ``k`` local columns to the global
-reduced columns (shared intrinsics, boresights...).
+``dp = -V^-1 (g_p + W^T dc)``.  Image observations are grouped per unit (images with the same reduced
+columns: a station when only poses are free) so that ``W`` is a block sparse (BSR) matrix with one
+``k x 3`` block per (unit, point) and the product ``W V^-1 W^T`` runs in scipy's compiled BSR kernels; a
+selection matrix maps each unit's ``k`` local columns to the global reduced columns (shared intrinsics,
+boresights...).
 
 Linear solver
 -------------
-``S`` (Jacobi-scaled) is factored with CHOLMOD through ``cholespy`` (pip wheel; supernodal sparse
-Cholesky with fill-reducing ordering).  Without ``cholespy`` it falls back to a dense Cholesky
-(scipy.linalg) up to 4000 unknowns and to SuperLU (``scipy.sparse.linalg.splu``) above, which is
-slower but exact.  A free network (``datum="free"``) adds inner constraints on the station poses
-(``S + a G G^T``, G the 7 similarity motions of the poses) and always uses the dense path.
+``S`` (Jacobi-scaled) is factored densely (LAPACK Cholesky) up to a few hundred (``solve_reduced``) or
+1500 (:class:`SchurEngine`) unknowns and with SuperLU above (``scipy.sparse.linalg.splu`` in symmetric
+mode: minimum degree ordering on ``A + A^T``, diagonal pivots, every pivot checked positive), whose
+supernodal kernels run on scipy's OpenBLAS.  CHOLMOD through ``cholespy`` stays selectable
+(``method="cholmod"``) but its wheel ships the reference BLAS and is 2x (BAL, 9,000 unknowns) to 10x
+(penta rig, 6,000 unknowns of a denser ``S``) slower.  A free network (``datum="free"``) adds inner
+constraints on the station poses (``S + a G G^T``, G the 7 similarity motions of the poses) and always
+uses the dense path.
+
+Compiled engine
+---------------
+:func:`levenberg_marquardt` runs on :class:`SchurEngine` (numba) when numba is installed: the reduced
+system is accumulated per observation directly into a block pattern fixed for the whole solve, per
+*unit* (the distinct reduced-column sets of the image rows: one per station when only poses are free,
+so that all heads of a rig exposure share one 6 x 6 block), and trust-region retries reuse everything
+but the damped point inverses and the Schur product.  :func:`assemble` / :func:`schur_matrix` (scipy
+sparse BSR products) remain the reference path (``engine="scipy"``) and serve the statistics.
 
 Damping follows Ceres: ``(A + diag(A)/radius) d = -g`` with the trust-region radius grown or shrunk
 by the gain ratio.
@@ -47,10 +60,29 @@ try:  # optional fast sparse Cholesky (CHOLMOD)
 except ImportError:  # pragma: no cover - depends on the environment
     _cholespy = None
 
-__all__ = ["Normal", "SolveInfo", "assemble", "solve_reduced", "levenberg_marquardt", "SingularError",
-           "inner_constraint_basis", "HAVE_CHOLMOD"]
+__all__ = ["Normal", "SolveInfo", "SchurEngine", "assemble", "solve_reduced", "levenberg_marquardt", "SingularError",
+           "inner_constraint_basis", "HAVE_CHOLMOD", "HAVE_NUMBA"]
 
 HAVE_CHOLMOD = _cholespy is not None
+
+
+def _blas_single_thread():  # type: ignore[no-untyped-def]
+    """Context: BLAS on one thread (threadpoolctl when installed).  OpenBLAS's threads busy-wait for each
+    other; on a loaded machine a small factorisation then takes 100x longer than on one thread."""
+    global _TPC
+    try:
+        if _TPC is None:
+            from threadpoolctl import ThreadpoolController
+
+            _TPC = ThreadpoolController()
+        return _TPC.limit(limits=1, user_api="blas")
+    except Exception:  # pragma: no cover - threadpoolctl missing or failing
+        import contextlib
+
+        return contextlib.nullcontext()
+
+
+_TPC = None
 DENSE_LIMIT = 4000
 
 
@@ -107,7 +139,10 @@ def assemble(factors: list[Factor], layout: Layout, image_group: NDArray[np.int6
         sw, c = _robust(f, huber_k)
         cost += c
         r = f.r * sw[:, None]
-        if f.jp is not None and f.point is not None:
+        if f.jp is not None and f.point is not None and _K is not None and n_p:
+            _K["point_normals"](np.ascontiguousarray(f.point, np.int64), np.ascontiguousarray(f.jp),
+                                np.ascontiguousarray(f.r), np.ascontiguousarray(sw * sw), V, gp)
+        elif f.jp is not None and f.point is not None:
             has = f.point >= 0
             pt = np.where(has, f.point, 0)
             jp = f.jp * (sw * has)[:, None, None]
@@ -153,13 +188,28 @@ def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layou
     n_c, n_p = layout.n_c, layout.n_p
     n, d, k = jc.shape
     n_img = int(group.max()) + 1 if n else 0
-    # columns of each image (rows of one image share them)
+    # columns of each image (rows of one image share them); images with the same columns (the heads of
+    # one rig exposure when only poses are free) are merged into one unit: one k x k block per station
     gcols = np.full((n_img, k), -1, np.int64)
     gcols[group] = f.cols
+    gcols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
+    group = img_unit.reshape(-1)[group]
+    n_img = len(gcols)
     # U blocks and gradient per image
     Ub = np.zeros((n_img, k * k))
     gb = np.zeros((n_img, k))
-    for s0 in range(0, n, chunk):
+    Wobs = None
+    if _K is not None:  # compiled: U, g and the W block of every row in one pass (jc, r unscaled, w = sw^2)
+        uo = np.argsort(group, kind="stable")
+        uptr = np.zeros(n_img + 1, np.int64)
+        uptr[1:] = np.cumsum(np.bincount(group, minlength=n_img))
+        pt = np.ascontiguousarray(f.point, np.int64) if (f.point is not None and n_p) else np.full(n, -1, np.int64)
+        jp0 = np.ascontiguousarray(f.jp) if (f.jp is not None and n_p) else np.zeros((n, d, 3))
+        Wobs = np.empty((n, k, 3))
+        Ub3 = Ub.reshape(n_img, k, k)
+        _K["unit_normals"](uptr, uo, np.ascontiguousarray(f.jc), jp0, np.ascontiguousarray(f.r),
+                           np.ascontiguousarray(sw * sw), pt, Ub3, gb, Wobs)
+    for s0 in range(0, n if Wobs is None else 0, chunk):
         sl = slice(s0, s0 + chunk)
         jtj = np.einsum("nda,ndb->nab", jc[sl], jc[sl]).reshape(-1, k * k)
         jtr = np.einsum("nda,nd->na", jc[sl], r[sl])
@@ -183,13 +233,22 @@ def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layou
         return None, P, U, gc
     has = f.point >= 0
     order = np.flatnonzero(has)
-    order = order[np.argsort(group[order], kind="stable")]
-    jp = f.jp[order] * sw[order, None, None]  # jc already carries the row scale; jp must too
-    jcs = jc[order]
-    blocks = np.einsum("nda,ndb->nab", jcs, jp)
+    key = group[order] * n_p + f.point[order]
+    srt = np.argsort(key, kind="stable")
+    order, key = order[srt], key[srt]
+    if Wobs is not None:
+        blocks = Wobs[order]
+    else:
+        jp = f.jp[order] * sw[order, None, None]  # jc already carries the row scale; jp must too
+        blocks = np.einsum("nda,ndb->nab", jc[order], jp)
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])) if len(key) else np.zeros(0, np.int64)
+    if len(first) < len(key):  # one point seen twice in one unit (two heads): sum the blocks
+        blocks = np.add.reduceat(blocks, first, axis=0)
+    key = key[first]
+    unit = key // max(n_p, 1)
     indptr = np.zeros(n_img + 1, np.int64)
-    indptr[1:] = np.cumsum(np.bincount(group[order], minlength=n_img))
-    Wb = sp.bsr_matrix((blocks, f.point[order], indptr), shape=(n_img * k, n_p * 3))
+    indptr[1:] = np.cumsum(np.bincount(unit, minlength=n_img))
+    Wb = sp.bsr_matrix((blocks, key - unit * n_p, indptr), shape=(n_img * k, n_p * 3))
     return Wb, P, U, gc
 
 
@@ -220,9 +279,47 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
             G[cols[on, 3 + b], 3 + a] = th[:, b]
     for b in range(3):
         G[cols[on, b], 6] = dC[:, b]
+    rp = getattr(layout, "rpoint", None)
+    if rp is not None and (rp >= 0).any():
+        # points estimated in the reduced part (end points of distances) move with the block; the
+        # distances fix the scale, so the scale is no null-space motion then
+        red = (rp >= 0).all(axis=1)
+        dX = state.X[red] - c0
+        for a in range(3):
+            e = np.zeros(3)
+            e[a] = 1.0
+            G[rp[red, a], a] = 1.0
+            rot_x = np.cross(e, dX)
+            for b in range(3):
+                G[rp[red, b], 3 + a] = rot_x[:, b]
+        G[:, 6] = 0.0
     nrm = np.linalg.norm(G, axis=0)
     nrm[nrm == 0] = 1.0
     return G / nrm
+
+
+def _splu_spd(indptr: NDArray, indices: NDArray, data: NDArray, n: int, b: NDArray) -> NDArray[np.float64]:
+    """Solve a Jacobi-scaled symmetric positive definite CSR system with SuperLU (symmetric mode, minimum
+    degree ordering on ``A + A^T``, diagonal pivots); raises :class:`SingularError` unless every pivot is
+    positive (``> 1e-14``: the scaled diagonal is 1, so smaller pivots mean a numerically singular matrix).
+
+    SuperLU's supernodal kernels run on the BLAS scipy links (OpenBLAS), which makes it several times
+    faster here than CHOLMOD as the cholespy wheel ships it (reference BLAS).
+    """
+    import scipy.sparse.linalg as spl
+
+    A = sp.csc_matrix(sp.csr_matrix((data, indices, indptr), shape=(n, n)))  # symmetric: CSR == CSC^T
+    try:
+        lu = spl.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+    except RuntimeError as e:
+        raise SingularError(f"the reduced normal matrix is singular ({e})") from e
+    piv = lu.U.diagonal()
+    if not (piv.min(initial=1.0) > 1e-14) or np.any(lu.perm_r != lu.perm_c):
+        raise SingularError("the reduced normal matrix is not positive definite "
+                            f"(smallest pivot {piv.min(initial=1.0):.3g})")
+    return lu.solve(b)
+
 
 
 def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float64] | None = None,
@@ -243,8 +340,7 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
     Ss = sp.csr_matrix(S.multiply(s[:, None]).multiply(s[None, :]))
     b = rhs * (s if rhs.ndim == 1 else s[:, None])
     if method == "auto":
-        method = "dense" if (G is not None or n <= 400 or not HAVE_CHOLMOD and n <= DENSE_LIMIT) else (
-            "cholmod" if HAVE_CHOLMOD else "splu")
+        method = "dense" if (G is not None or n <= 400) else "splu"
     try:
         if method == "dense":
             A = Ss.toarray()
@@ -252,8 +348,9 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
                 Gs = G / s[:, None]
                 Gs /= np.linalg.norm(Gs, axis=0).clip(1e-300)
                 A = A + Gs @ Gs.T
-            c = scipy.linalg.cho_factor(A, lower=True, check_finite=False)
-            x = scipy.linalg.cho_solve(c, b, check_finite=False)
+            with _blas_single_thread():
+                c = scipy.linalg.cho_factor(A, lower=True, check_finite=False)
+                x = scipy.linalg.cho_solve(c, b, check_finite=False)
         elif method == "cholmod":
             coo = Ss.tocoo()
             solver = _cholespy.CholeskySolverD(n, coo.row.astype(np.int32), coo.col.astype(np.int32),  # type: ignore[union-attr]
@@ -261,11 +358,7 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
             x = np.zeros_like(b)
             solver.solve(np.ascontiguousarray(b), x)
         else:
-            import scipy.sparse.linalg as spl
-
-            lu = spl.splu(Ss.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                          options={"SymmetricMode": True})
-            x = lu.solve(b)
+            x = _splu_spd(Ss.indptr, Ss.indices, Ss.data, n, b)
     except (np.linalg.LinAlgError, ValueError, RuntimeError) as e:
         raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
     if not np.all(np.isfinite(x)):
@@ -306,9 +399,469 @@ def back_substitute(N: Normal, Vinv: NDArray[np.float64], dc: NDArray[np.float64
     return -np.einsum("pij,pj->pi", Vinv, t.reshape(-1, 3))
 
 
+# ============================================================================ compiled Schur engine
+# The levenberg_marquardt loop builds the reduced camera system directly from per-observation blocks:
+# rows of the "image" factor are grouped into *units* (the distinct sets of reduced columns: a station
+# when only poses are free, so that all heads of a rig exposure share one block; an image when each
+# head has its own boresight or camera columns), the point blocks are eliminated point by point and the
+# k x k unit-pair blocks ``-sum_p W_ap V_p^-1 W_bp^T`` are accumulated in place (numba, parallel over
+# unit rows, each thread writing only its own row) into a block pattern computed once per solve.  The
+# global sparse pattern of ``S`` and the maps from unit blocks and from the other factors to it are
+# symbolic too; only the values change between iterations and trust-region retries.
+
+try:  # numba is a dependency; the scipy path above stays as the reference and the fallback
+    import numba as _numba
+except ImportError:  # pragma: no cover - depends on the environment
+    _numba = None
+
+HAVE_NUMBA = _numba is not None
+
+
+def _make_kernels():  # type: ignore[no-untyped-def]
+    if _numba is None:  # pragma: no cover
+        return None
+    njit, prange = _numba.njit, _numba.prange
+
+    @njit(cache=True, nogil=True)
+    def point_normals(pt, jp, r, w, V, gp):  # pragma: no cover - compiled
+        n, d = r.shape
+        for o in range(n):
+            p = pt[o]
+            if p < 0 or w[o] == 0.0:
+                continue
+            wo = w[o]
+            for a in range(3):
+                s = 0.0
+                for e in range(d):
+                    s += jp[o, e, a] * r[o, e]
+                gp[p, a] += wo * s
+                for b in range(3):
+                    s = 0.0
+                    for e in range(d):
+                        s += jp[o, e, a] * jp[o, e, b]
+                    V[p, a, b] += wo * s
+
+    @njit(cache=True, nogil=True, parallel=True)
+    def unit_normals(unit_ptr, unit_obs, jc, jp, r, w, pt, Uu, gu, W):  # pragma: no cover - compiled
+        d = jc.shape[1]
+        k = jc.shape[2]
+        n_u = len(unit_ptr) - 1
+        for u in prange(n_u):
+            for ii in range(unit_ptr[u], unit_ptr[u + 1]):
+                o = unit_obs[ii]
+                wo = w[o]
+                for a in range(k):
+                    s = 0.0
+                    for e in range(d):
+                        s += jc[o, e, a] * r[o, e]
+                    gu[u, a] += wo * s
+                    for b in range(a, k):
+                        s = 0.0
+                        for e in range(d):
+                            s += jc[o, e, a] * jc[o, e, b]
+                        Uu[u, a, b] += wo * s
+                    if pt[o] >= 0:
+                        for b in range(3):
+                            s = 0.0
+                            for e in range(d):
+                                s += jc[o, e, a] * jp[o, e, b]
+                            W[o, a, b] = wo * s
+            for a in range(k):
+                for b in range(a):
+                    Uu[u, a, b] = Uu[u, b, a]
+
+    @njit(cache=True, nogil=True, parallel=True)
+    def damped_inverse(V, lam, diag_min, Vinv):  # pragma: no cover - compiled
+        n = V.shape[0]
+        bad = 0
+        for p in prange(n):
+            a00 = V[p, 0, 0] + lam * max(V[p, 0, 0], diag_min)
+            a11 = V[p, 1, 1] + lam * max(V[p, 1, 1], diag_min)
+            a22 = V[p, 2, 2] + lam * max(V[p, 2, 2], diag_min)
+            a01 = V[p, 0, 1]
+            a02 = V[p, 0, 2]
+            a12 = V[p, 1, 2]
+            c00 = a11 * a22 - a12 * a12
+            c01 = a02 * a12 - a01 * a22
+            c02 = a01 * a12 - a02 * a11
+            det = a00 * c00 + a01 * c01 + a02 * c02
+            if not (det > 0.0) or not np.isfinite(det):
+                bad += 1
+                det = np.inf
+            i = 1.0 / det
+            Vinv[p, 0, 0] = c00 * i
+            Vinv[p, 0, 1] = c01 * i
+            Vinv[p, 0, 2] = c02 * i
+            Vinv[p, 1, 0] = c01 * i
+            Vinv[p, 1, 1] = (a00 * a22 - a02 * a02) * i
+            Vinv[p, 1, 2] = (a01 * a02 - a00 * a12) * i
+            Vinv[p, 2, 0] = c02 * i
+            Vinv[p, 2, 1] = (a01 * a02 - a00 * a12) * i
+            Vinv[p, 2, 2] = (a00 * a11 - a01 * a01) * i
+        return bad
+
+    @njit(cache=True, nogil=True, parallel=True)
+    def schur(unit_ptr, unit_obs, obs_unit, pt, pt_ptr, pt_obs, W, Vinv, gp, row_ptr, col_idx,
+              out, rhs_u, n_chunks):  # pragma: no cover - compiled
+        n_u = len(unit_ptr) - 1
+        k = W.shape[1]
+        # each chunk (thread) takes every n_chunks-th unit row (balance) and keeps a dense column -> slot
+        # map of the row it works on
+        for c in prange(n_chunks):
+            T = np.empty((k, 3))
+            slot = np.full(n_u, -1, np.int64)
+            for u in range(c, n_u, n_chunks):
+                r0 = row_ptr[u]
+                r1 = row_ptr[u + 1]
+                for q in range(r0, r1):
+                    slot[col_idx[q]] = q
+                for ii in range(unit_ptr[u], unit_ptr[u + 1]):
+                    a = unit_obs[ii]
+                    p = pt[a]
+                    if p < 0:
+                        continue
+                    for i in range(k):
+                        for cc in range(3):
+                            T[i, cc] = W[a, i, 0] * Vinv[p, 0, cc] + W[a, i, 1] * Vinv[p, 1, cc] + W[a, i, 2] * Vinv[p, 2, cc]
+                        rhs_u[u, i] += T[i, 0] * gp[p, 0] + T[i, 1] * gp[p, 1] + T[i, 2] * gp[p, 2]
+                    for jj in range(pt_ptr[p], pt_ptr[p + 1]):
+                        b = pt_obs[jj]
+                        ub = obs_unit[b]
+                        if ub < u:
+                            continue
+                        q = slot[ub]
+                        for i in range(k):
+                            t0 = T[i, 0]
+                            t1 = T[i, 1]
+                            t2 = T[i, 2]
+                            for j in range(k):
+                                out[q, i, j] -= t0 * W[b, j, 0] + t1 * W[b, j, 1] + t2 * W[b, j, 2]
+                for q in range(r0, r1):
+                    slot[col_idx[q]] = -1
+
+    @njit(cache=True, nogil=True)
+    def scatter(vals, map_a, map_b, dst):  # pragma: no cover - compiled
+        for e in range(len(vals)):
+            m = map_a[e]
+            if m >= 0:
+                dst[m] += vals[e]
+            m = map_b[e]
+            if m >= 0:
+                dst[m] += vals[e]
+
+    @njit(cache=True, nogil=True, parallel=True)
+    def back_substitute(pt_ptr, pt_obs, obs_unit, W, dcu, Vinv, gp, dp):  # pragma: no cover - compiled
+        n_p = len(pt_ptr) - 1
+        k = W.shape[1]
+        for p in prange(n_p):
+            t0 = gp[p, 0]
+            t1 = gp[p, 1]
+            t2 = gp[p, 2]
+            for jj in range(pt_ptr[p], pt_ptr[p + 1]):
+                b = pt_obs[jj]
+                u = obs_unit[b]
+                for i in range(k):
+                    x = dcu[u, i]
+                    t0 += W[b, i, 0] * x
+                    t1 += W[b, i, 1] * x
+                    t2 += W[b, i, 2] * x
+            for c in range(3):
+                dp[p, c] = -(Vinv[p, c, 0] * t0 + Vinv[p, c, 1] * t1 + Vinv[p, c, 2] * t2)
+
+    @njit(cache=True, nogil=True)
+    def pair_pattern(unit_ptr, unit_obs, pt, pt_ptr, pt_obs, obs_unit):  # pragma: no cover - compiled
+        n_u = len(unit_ptr) - 1
+        mark = np.full(n_u, -1, np.int64)
+        row_ptr = np.zeros(n_u + 1, np.int64)
+        cap = 1024
+        cols = np.empty(cap, np.int64)
+        n = 0
+        for u in range(n_u):
+            start = n
+            if mark[u] != u:  # the diagonal block is always there
+                mark[u] = u
+                if n == cap:
+                    cap *= 2
+                    cols = np.concatenate((cols, np.empty(cap - n, np.int64)))
+                cols[n] = u
+                n += 1
+            for ii in range(unit_ptr[u], unit_ptr[u + 1]):
+                p = pt[unit_obs[ii]]
+                if p < 0:
+                    continue
+                for jj in range(pt_ptr[p], pt_ptr[p + 1]):
+                    ub = obs_unit[pt_obs[jj]]
+                    if ub >= u and mark[ub] != u:
+                        mark[ub] = u
+                        if n == cap:
+                            cap *= 2
+                            cols = np.concatenate((cols, np.empty(cap - n, np.int64)))
+                        cols[n] = ub
+                        n += 1
+            cols[start:n] = np.sort(cols[start:n])
+            row_ptr[u + 1] = n
+        return row_ptr, cols[:n].copy()
+
+    return dict(point_normals=point_normals, unit_normals=unit_normals, damped_inverse=damped_inverse,
+                schur=schur, scatter=scatter, back_substitute=back_substitute, pair_pattern=pair_pattern)
+
+
+_K = _make_kernels()
+
+
+def _csr_pattern(keys: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Sorted unique keys ``row * n + col`` -> (keys, indptr, indices)."""
+    keys = np.sort(keys)
+    keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys
+    rows = keys // max(n, 1)
+    indptr = np.zeros(n + 1, np.int64)
+    indptr[1:] = np.cumsum(np.bincount(rows, minlength=n))
+    return keys, indptr, keys - rows * n
+
+
+class SchurEngine:
+    """Reduced camera system of a :class:`Model` with a fixed sparsity pattern (see the section comment).
+
+    ``linearize(factors)`` takes the factors of one state (with Jacobians); ``solve(lam)`` returns the
+    damped step ``(dc (n_c,), dp (n_p, 3), predicted cost decrease)`` of ``(A + lam D) d = -g``,
+    ``D = diag(A)`` clipped below at ``diag_min`` (Ceres's Levenberg-Marquardt); it may be called several
+    times per linearisation (trust-region retries) and reuses everything that does not depend on ``lam``.
+    """
+
+    def __init__(self, factors: list[Factor], layout: Layout, image_group: NDArray[np.int64],
+                 diag_min: float = 1e-6, dense_limit: int = 1500, linear_solver: str = "auto") -> None:
+        if _K is None:  # pragma: no cover
+            raise RuntimeError("SchurEngine needs numba")
+        if linear_solver not in ("auto", "dense", "splu", "cholmod"):
+            raise ValueError(f"linear_solver must be auto, dense, splu or cholmod, got {linear_solver!r}")
+        self.layout, self.diag_min, self.dense_limit = layout, diag_min, dense_limit
+        #: "auto" (dense Cholesky up to ``dense_limit`` unknowns, SuperLU above), "dense", "splu", "cholmod"
+        self.linear_solver = linear_solver
+        n_c, n_p = layout.n_c, layout.n_p
+        self.n_c, self.n_p = n_c, n_p
+        img = next((f for f in factors if f.name == "image"), None)
+        self._img_index = None if img is None else factors.index(img)
+        has_jc = img is not None and img.jc is not None and img.cols is not None and img.cols.shape[1] > 0
+        # ---- units: distinct column sets of the image rows (rows of one image share their columns)
+        if has_jc:
+            n_img = int(image_group.max()) + 1 if len(image_group) else 0
+            gcols = np.full((n_img, img.cols.shape[1]), -1, np.int64)  # type: ignore[union-attr]
+            gcols[image_group] = img.cols
+            ucols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
+            img_unit = img_unit.reshape(-1)
+            keep = (ucols >= 0).any(axis=1)  # a unit without any free column takes no part
+            self.k = ucols.shape[1]
+        else:
+            ucols, img_unit, keep, self.k = np.zeros((0, 0), np.int64), np.zeros(0, np.int64), np.zeros(0, bool), 0
+        k = self.k
+        self.ucols = ucols
+        n_u = len(ucols)
+        self.n_u = n_u
+        n_obs = len(img) if img is not None else 0
+        self.obs_unit = img_unit[image_group].astype(np.int64) if has_jc else np.zeros(n_obs, np.int64)
+        pt = img.point if (img is not None and img.point is not None and n_p) else np.full(n_obs, -1, np.int64)
+        self.pt = np.ascontiguousarray(pt, np.int64)
+        with_pt = np.flatnonzero(self.pt >= 0) if has_jc else np.zeros(0, np.int64)
+        order = with_pt[np.argsort(self.pt[with_pt], kind="stable")]
+        self.pt_ptr = np.zeros(n_p + 1, np.int64)
+        self.pt_ptr[1:] = np.cumsum(np.bincount(self.pt[order], minlength=n_p))
+        self.pt_obs = order
+        uorder = np.argsort(self.obs_unit, kind="stable") if has_jc else np.zeros(0, np.int64)
+        self.unit_ptr = np.zeros(n_u + 1, np.int64)
+        self.unit_ptr[1:] = np.cumsum(np.bincount(self.obs_unit, minlength=n_u)) if has_jc else 0
+        self.unit_obs = uorder
+        # ---- unit-pair block pattern (upper triangle incl. diagonal)
+        if has_jc:
+            self.row_ptr, self.col_idx = _K["pair_pattern"](self.unit_ptr, self.unit_obs, self.pt, self.pt_ptr,
+                                                            self.pt_obs, self.obs_unit)
+            self.diag_slot = self.row_ptr[:-1].copy()  # rows start with their diagonal block (sorted, ub >= u)
+            ua = np.repeat(np.arange(n_u), np.diff(self.row_ptr))
+            ub = self.col_idx
+        else:
+            self.row_ptr, self.col_idx = np.zeros(n_u + 1, np.int64), np.zeros(0, np.int64)
+            self.diag_slot, ua, ub = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        del keep
+        # ---- global pattern of S: unit blocks (and mirrors), other factors, the diagonal
+        ga = np.broadcast_to(ucols[ua][:, :, None], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
+        gb = np.broadcast_to(ucols[ub][:, None, :], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
+        mirror = np.repeat(ua != ub, k * k) if has_jc else np.zeros(0, bool)
+        src_r = [ga, gb[mirror]]
+        src_c = [gb, ga[mirror]]
+        self.others: list[tuple[int, NDArray[np.int64]]] = []
+        oth_rc = []
+        for i, f in enumerate(factors):
+            if i == self._img_index or f.jc is None or f.cols is None or f.cols.shape[1] == 0:
+                continue
+            kf = f.cols.shape[1]
+            r_ = np.broadcast_to(f.cols[:, :, None], (len(f), kf, kf)).reshape(-1)
+            c_ = np.broadcast_to(f.cols[:, None, :], (len(f), kf, kf)).reshape(-1)
+            oth_rc.append((i, r_, c_))
+            src_r.append(r_)
+            src_c.append(c_)
+        diag = np.arange(n_c, dtype=np.int64)
+        src_r.append(diag)
+        src_c.append(diag)
+        allr, allc = np.concatenate(src_r), np.concatenate(src_c)
+        ok = (allr >= 0) & (allc >= 0)
+        self.keys, self.indptr, self.indices = _csr_pattern(allr[ok] * n_c + allc[ok], n_c)
+        self.nnz = len(self.keys)
+
+        def pos(r_: NDArray[np.int64], c_: NDArray[np.int64]) -> NDArray[np.int64]:
+            v = (r_ >= 0) & (c_ >= 0)
+            out = np.full(len(r_), -1, np.int64)
+            out[v] = np.searchsorted(self.keys, r_[v] * n_c + c_[v])
+            return out
+
+        self.map_a = pos(ga, gb)
+        self.map_b = np.full(len(ga), -1, np.int64)
+        self.map_b[mirror] = pos(gb[mirror], ga[mirror])
+        self.others = [(i, pos(r_, c_)) for i, r_, c_ in oth_rc]
+        self.diagpos = pos(diag, diag)
+        self.rows = np.repeat(np.arange(n_c, dtype=np.int64), np.diff(self.indptr))
+        self.indptr32 = self.indptr.astype(np.int32)
+        self.indices32 = self.indices.astype(np.int32)
+        # the diagonal block slot's entries within map_a (for U of the image factor)
+        self._diag_entries = (self.diag_slot[:, None] * (k * k) + np.arange(k * k)[None, :]).reshape(-1)
+
+    # ------------------------------------------------------------------ per linearisation
+    def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
+        """Take the factors (with Jacobians) of the current state; returns the cost."""
+        n_c, n_p, k = self.n_c, self.n_p, self.k
+        cost = 0.0
+        U0 = np.zeros(self.nnz)
+        gc = np.zeros(n_c)
+        V = np.zeros((n_p, 3, 3))
+        gp = np.zeros((n_p, 3))
+        self.W = np.zeros((0, k, 3))
+        oth = dict(self.others)
+        for i, f in enumerate(factors):
+            sw, c = _robust(f, huber_k)
+            cost += c
+            w = np.ascontiguousarray(sw * sw)
+            r = np.ascontiguousarray(f.r)
+            jp = None
+            if f.jp is not None and f.point is not None and n_p:
+                jp = np.ascontiguousarray(f.jp)
+                _K["point_normals"](np.ascontiguousarray(f.point, np.int64), jp, r, w, V, gp)
+            if i == self._img_index:
+                if k == 0:
+                    continue
+                jc = np.ascontiguousarray(f.jc)
+                Uu = np.zeros((self.n_u, k, k))
+                gu = np.zeros((self.n_u, k))
+                W = np.empty((len(f), k, 3))
+                _K["unit_normals"](self.unit_ptr, self.unit_obs, jc, jp if jp is not None else np.zeros((len(f), r.shape[1], 3)),
+                                   r, w, self.pt, Uu, gu, W)
+                self.W = W
+                m = self.map_a[self._diag_entries]
+                v = m >= 0
+                U0 += np.bincount(m[v], weights=Uu.reshape(-1)[v], minlength=self.nnz)
+                cv = self.ucols >= 0
+                gc += np.bincount(self.ucols[cv], weights=gu[cv], minlength=n_c)
+                continue
+            if i not in oth:
+                continue
+            jc = f.jc * sw[:, None, None]  # type: ignore[operator]
+            r = r * sw[:, None]
+            cols = f.cols
+            valid = cols >= 0  # type: ignore[operator]
+            g = np.einsum("ndk,nd->nk", jc, r)
+            gc += np.bincount(cols[valid], weights=g[valid], minlength=n_c)  # type: ignore[index]
+            jtj = np.einsum("nda,ndb->nab", jc, jc).reshape(-1)
+            m = oth[i]
+            v = m >= 0
+            U0 += np.bincount(m[v], weights=jtj[v], minlength=self.nnz)
+        self.cost, self.U0, self.gc, self.V, self.gp = cost, U0, gc, V, gp
+        self.diagU = U0[self.diagpos]
+        return cost
+
+    def gradient_max(self) -> float:
+        return float(max(np.abs(self.gc).max(initial=0.0), np.abs(self.gp).max(initial=0.0)))
+
+    # ------------------------------------------------------------------ per damping
+    def reduced_system(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """CSR values of the damped ``S`` (pattern ``indptr``/``indices``), its right-hand side, ``V^-1``."""
+        n_p, k = self.n_p, self.k
+        Vinv = np.empty((n_p, 3, 3))
+        if n_p and _K["damped_inverse"](self.V, lam, self.diag_min, Vinv):
+            raise SingularError("a point's normal block is singular (fewer than two rays and no control)")
+        S = self.U0.copy()
+        S[self.diagpos] += lam * np.clip(self.diagU, self.diag_min, None)
+        rhs = -self.gc.copy()
+        if k and n_p and len(self.W):
+            blocks = np.zeros((len(self.col_idx), k, k))
+            rhs_u = np.zeros((self.n_u, k))
+            _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.pt_obs, self.W, Vinv,
+                        self.gp, self.row_ptr, self.col_idx, blocks, rhs_u, 8 * _numba.get_num_threads())
+            _K["scatter"](blocks.reshape(-1), self.map_a, self.map_b, S)
+            cv = self.ucols >= 0
+            rhs += np.bincount(self.ucols[cv], weights=rhs_u[cv], minlength=self.n_c)
+        return S, rhs, Vinv
+
+    def solve(self, lam: float, G: NDArray[np.float64] | None = None
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """Damped step ``(dc, dp, predicted decrease)``; raises :class:`SingularError`."""
+        n_c, n_p = self.n_c, self.n_p
+        S, rhs, Vinv = self.reduced_system(lam)
+        dc = self._solve_csr(S, rhs, G) if n_c else np.zeros(0)
+        dp = np.zeros((n_p, 3))
+        if n_p:
+            dcu = np.where(self.ucols >= 0, np.concatenate([dc, [0.0]])[self.ucols], 0.0) if self.k else \
+                np.zeros((self.n_u, 0))
+            W = self.W if len(self.W) else np.zeros((0, self.k, 3))
+            _K["back_substitute"](self.pt_ptr, self.pt_obs, self.obs_unit, W, np.ascontiguousarray(dcu), Vinv,
+                                  self.gp, dp)
+        du = np.clip(self.diagU, self.diag_min, None)
+        dv = np.clip(np.diagonal(self.V, axis1=1, axis2=2), self.diag_min, None).reshape(-1)
+        dpf = dp.reshape(-1)
+        pred = 0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
+                      - (self.gc * dc).sum() - (self.gp.reshape(-1) * dpf).sum())
+        return dc, dp, float(pred)
+
+    def _solve_csr(self, data: NDArray[np.float64], rhs: NDArray[np.float64],
+                   G: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        n = self.n_c
+        d = data[self.diagpos]
+        if np.any(d <= 0) or not np.all(np.isfinite(d)):
+            raise SingularError(f"{int(np.sum(d <= 0))} reduced unknown(s) have no observations")
+        s = 1.0 / np.sqrt(d)
+        vals = data * s[self.rows] * s[self.indices]
+        b = rhs * s
+        method = self.linear_solver
+        if method == "auto":
+            method = "dense" if (G is not None or n <= self.dense_limit) else "splu"
+        try:
+            if method == "dense" or G is not None:
+                A = np.zeros((n, n))
+                A[self.rows, self.indices] = vals
+                if G is not None:
+                    Gs = G / s[:, None]
+                    Gs /= np.linalg.norm(Gs, axis=0).clip(1e-300)
+                    A += Gs @ Gs.T
+                with _blas_single_thread():
+                    c = scipy.linalg.cho_factor(A, lower=True, check_finite=False)
+                    x = scipy.linalg.cho_solve(c, b, check_finite=False)
+            elif method == "cholmod" and HAVE_CHOLMOD:
+                solver = _cholespy.CholeskySolverD(n, self.indptr32, self.indices32, vals,  # type: ignore[union-attr]
+                                                   _cholespy.MatrixType.CSR)  # type: ignore[union-attr]
+                x = np.zeros_like(b)
+                solver.solve(np.ascontiguousarray(b), x)
+            else:
+                x = _splu_spd(self.indptr, self.indices, vals, n, b)
+        except (np.linalg.LinAlgError, ValueError, RuntimeError) as e:
+            raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
+        if not np.all(np.isfinite(x)):
+            raise SingularError("the reduced normal matrix is singular (non-finite solution)")
+        return x * s
+
+
 @dataclass
 class SolveInfo:
-    """What the optimiser did."""
+    """What the optimiser did.
+
+    ``iterations`` counts accepted steps; ``unsuccessful`` the rejected trust-region trials (Ceres's
+    "iterations" are the sum of both); ``linearizations`` the Jacobian evaluations.
+    """
 
     iterations: int = 0
     initial_cost: float = float("nan")
@@ -317,6 +870,36 @@ class SolveInfo:
     message: str = ""
     wall_s: float = 0.0
     history: list[tuple[int, float, float]] = field(default_factory=list)
+    unsuccessful: int = 0
+    engine: str = ""
+
+
+class _ScipyEngine:
+    """The reference path: :func:`assemble`, :func:`schur_matrix`, :func:`solve_reduced`."""
+
+    def __init__(self, layout: Layout, image_group: NDArray[np.int64], huber_k: float | None) -> None:
+        self.layout, self.group, self.huber_k = layout, image_group, huber_k
+
+    def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
+        self.N = assemble(factors, self.layout, self.group, huber_k)
+        return self.N.cost
+
+    def gradient_max(self) -> float:
+        N = self.N
+        return float(max(np.abs(N.gc).max(initial=0.0), np.abs(N.gp).max(initial=0.0)))
+
+    def solve(self, lam: float, G: NDArray[np.float64] | None = None
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        N = self.N
+        S, rhs, Vinv = schur_matrix(N, lam)
+        dc = solve_reduced(S, rhs, G)
+        dp = back_substitute(N, Vinv, dc) if self.layout.n_p else np.zeros((0, 3))
+        du = np.clip(N.U.diagonal(), 1e-6, None)
+        dv = np.clip(np.diagonal(N.V, axis1=1, axis2=2), 1e-6, None).reshape(-1)
+        dpf = dp.reshape(-1)
+        pred = 0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
+                      - (N.gc * dc).sum() - (N.gp.reshape(-1) * dpf).sum())
+        return dc, dp, float(pred)
 
 
 def levenberg_marquardt(
@@ -330,49 +913,55 @@ def levenberg_marquardt(
     free_datum: bool = False,
     callback: Callable[[int, float, float], None] | None = None,
     initial_radius: float = 1e4,
+    engine: str = "auto",
 ) -> tuple[State, SolveInfo]:
     """Minimise ``0.5 * sum(rho(|r|^2))`` over the model's unknowns starting from ``state``.
 
-    Stops as Ceres does: relative cost decrease below ``function_tolerance``, relative step below
-    ``parameter_tolerance``, or max gradient below ``gradient_tolerance``.
+    Trust-region Levenberg-Marquardt as Ceres's: ``(A + D / radius) d = -g`` with ``D = diag(A)``
+    clipped below at 1e-6, radius grown by ``1 / max(1/3, 1 - (2 rho - 1)^3)`` after a successful step
+    and divided by a doubling factor after a rejected one.  Stops as Ceres does: relative cost decrease
+    below ``function_tolerance``, relative step below ``parameter_tolerance``, or max gradient below
+    ``gradient_tolerance``.  ``engine``: ``"numba"`` (:class:`SchurEngine`), ``"scipy"`` (the sparse
+    matrix reference path) or ``"auto"`` (numba when installed).
     """
     t0 = time.perf_counter()
     lay = model.layout
     info = SolveInfo()
     group = model.block.obs_image
     factors = model.evaluate(state)
-    N = assemble(factors, lay, group, huber_k)
-    info.initial_cost = N.cost
+    if engine == "auto":
+        engine = "numba" if HAVE_NUMBA else "scipy"
+    if engine == "numba":
+        eng: SchurEngine | _ScipyEngine = SchurEngine(factors, lay, group)
+    elif engine == "scipy":
+        eng = _ScipyEngine(lay, group, huber_k)
+    else:
+        raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
+    info.engine = engine
+    cost = eng.linearize(factors, huber_k)
+    info.initial_cost = cost
     radius = initial_radius
     nu = 2.0
-    cost = N.cost
     for it in range(1, max_iterations + 1):
-        gmax = max(np.abs(N.gc).max(initial=0.0), np.abs(N.gp).max(initial=0.0))
-        if gmax <= gradient_tolerance:
+        if eng.gradient_max() <= gradient_tolerance:
             info.converged, info.message = True, "gradient tolerance reached"
             break
         G = inner_constraint_basis(state, lay) if free_datum else None
         accepted = False
         while not accepted:
-            S, rhs, Vinv = schur_matrix(N, 1.0 / radius)
+            lam = 1.0 / radius
             try:
-                dc = solve_reduced(S, rhs, G)
+                dc, dp, pred = eng.solve(lam, G)
             except SingularError:
                 radius /= 4.0
+                info.unsuccessful += 1
                 if radius < 1e-12:
                     raise
                 continue
-            dp = back_substitute(N, Vinv, dc) if lay.n_p else np.zeros((0, 3))
             new = lay.apply(state, dc, dp)
-            new_factors = model.evaluate(new, jacobians=False)
+            # the Jacobians at the candidate are needed anyway when it is accepted (most steps)
+            new_factors = model.evaluate(new, jacobians=True)
             new_cost = factor_cost(new_factors, huber_k)
-            # predicted decrease of the linear model: 0.5 d^T (lam D d - g)  (with (A + lam D) d = -g)
-            du = np.clip(N.U.diagonal(), 1e-6, None)
-            dv = np.clip(np.diagonal(N.V, axis1=1, axis2=2), 1e-6, None).reshape(-1)
-            lam = 1.0 / radius
-            dpf = dp.reshape(-1)
-            pred = 0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
-                          - (N.gc * dc).sum() - (N.gp.reshape(-1) * dpf).sum())
             rho = (cost - new_cost) / pred if pred > 0 else -1.0
             if np.isfinite(new_cost) and rho > 0:
                 accepted = True
@@ -380,6 +969,7 @@ def levenberg_marquardt(
                 radius = min(radius, 1e16)
                 nu = 2.0
             else:
+                info.unsuccessful += 1
                 radius /= nu
                 nu *= 2.0
                 if radius < 1e-32:
@@ -399,9 +989,7 @@ def levenberg_marquardt(
         if dcost <= function_tolerance * max(cost, 1e-300) or step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
             info.converged, info.message = True, "function tolerance reached" if dcost <= function_tolerance * cost else "parameter tolerance reached"
             break
-        factors = model.evaluate(state)
-        N = assemble(factors, lay, group, huber_k)
-        cost = N.cost
+        cost = eng.linearize(new_factors, huber_k)
     else:
         info.message = "maximum number of iterations reached"
     info.final_cost = cost

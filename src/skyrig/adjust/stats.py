@@ -29,7 +29,8 @@ from skyrig.adjust.model import Factor, Layout, Model, State
 from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
-           "correlation_warnings", "GroupStats"]
+           "correlation_warnings", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
+           "chosen_unknowns"]
 
 
 def critical_value(alpha: float) -> float:
@@ -107,6 +108,127 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                         WtM[:, a, b] = np.asarray(Wk[:, a::3].multiply(Mk[:, b::3]).sum(axis=0)).reshape(-1)
                 Qpp[s0:s1] = Vinv[s0:s1] + Vinv[s0:s1] @ WtM @ Vinv[s0:s1]
     return Covariance(Q, Qpp, Vinv, M)
+
+
+@dataclass
+class SelectedCovariance:
+    """Cofactors of *chosen* unknowns (multiply by sigma0² for the a-posteriori covariance).
+
+    Attributes
+    ----------
+    labels
+        ``(group, owner, component)`` of the chosen reduced columns.
+    columns
+        ``(m,)`` their indices among the reduced unknowns.
+    Qcc
+        ``(m, m)`` cofactors of the chosen reduced unknowns.
+    points
+        ``(k,)`` indices (into the block's points) of the chosen eliminated points.
+    Qpp
+        ``(k, 3, 3)`` their cofactor blocks.
+    Qcp
+        ``(m, k, 3)`` cross cofactors chosen reduced unknowns x chosen points.
+    method
+        ``"dense inverse"`` or ``"sparse solves"`` (factorised reduced system, one solve per chosen column).
+    """
+
+    labels: list[tuple[str, str, str]]
+    columns: NDArray[np.int64]
+    Qcc: NDArray[np.float64]
+    points: NDArray[np.int64]
+    Qpp: NDArray[np.float64]
+    Qcp: NDArray[np.float64]
+    method: str
+
+    def sigma(self, sigma0: float) -> dict[tuple[str, str, str], float]:
+        """A-posteriori sigma of every chosen reduced unknown."""
+        return dict(zip(self.labels, (sigma0 * np.sqrt(np.clip(np.diag(self.Qcc), 0, None))).tolist()))
+
+
+def chosen_unknowns(model: Model, images: tuple[str, ...] = (), points: tuple[str, ...] = ()
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Reduced columns and eliminated points whose covariance is wanted.
+
+    Always every reduced column that is not a station pose (calibration, lever arm, boresight, shifts,
+    actuator corrections, end points of distances); plus the pose columns of the stations of
+    ``images`` (image or station names) and the coordinates of ``points`` (point names).  Unknown names
+    raise ``ValueError``.
+    """
+    b, lay = model.block, model.layout
+    cols = [j for j, (g, _, _) in enumerate(lay.labels) if g != "pose"]
+    st_of = {str(n): int(b.image_station[k]) for k, n in enumerate(b.image_name)}
+    st_of.update({str(n): k for k, n in enumerate(b.station_name)})
+    bad = [n for n in images if n not in st_of]
+    if bad:
+        raise ValueError(f"statistics_images names unknown images/stations {bad[:5]}")
+    for n in images:
+        cols.extend(int(c) for c in lay.pose[st_of[n]] if c >= 0)
+    pidx = {str(n): k for k, n in enumerate(b.point_name)}
+    bad = [n for n in points if n not in pidx]
+    if bad:
+        raise ValueError(f"statistics_points names unknown points {bad[:5]}")
+    pts = []
+    for n in points:
+        k = pidx[n]
+        if lay.point[k] >= 0:
+            pts.append(k)
+        elif lay.rpoint is not None and lay.rpoint[k, 0] >= 0:
+            cols.extend(int(c) for c in lay.rpoint[k])
+    return np.unique(np.array(cols, np.int64)), np.unique(np.array(pts, np.int64))
+
+
+def selected_from_dense(cov: Covariance, layout: Layout, columns: NDArray[np.int64],
+                        points: NDArray[np.int64]) -> SelectedCovariance | None:
+    """The chosen cofactors sliced from a full :class:`Covariance` (None if its cross terms are missing)."""
+    pi = layout.point[points]
+    Qcp = np.zeros((len(columns), len(points), 3))
+    if len(points):
+        if cov.M is None:
+            return None
+        cols3 = 3 * pi[:, None] + np.arange(3)[None, :]
+        QcW = cov.M[columns][:, cols3]  # (m, k, 3)
+        Qcp = -np.einsum("mka,kab->mkb", QcW, cov.Vinv[pi])
+    return SelectedCovariance([layout.labels[j] for j in columns], columns, cov.Qcc[np.ix_(columns, columns)],
+                              points, cov.Qpp[pi], Qcp, "dense inverse")
+
+
+def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], points: NDArray[np.int64]
+                        ) -> SelectedCovariance:
+    """Cofactors of chosen unknowns at any block size, without the dense inverse.
+
+    The reduced system ``S`` is factorised once (sparse Cholesky / SuperLU, :func:`solve_reduced`)
+    and solved only for the chosen columns: ``Q_cc[:, j] = S^-1 e_j``; for a chosen point ``p`` with
+    ``W_p`` its ``(n_c, 3)`` block of ``W``: ``Y_p = S^-1 W_p``, ``Q_pp = V_p^-1 + V_p^-1 W_p^T Y_p V_p^-1``
+    and ``Q_cp = -Y_p V_p^-1``.  Memory: ``n_c x (m + 3 k)`` doubles.  Datum by observations only (not a
+    free network).  Raises :class:`SingularError`.
+    """
+    from skyrig.adjust.solver import solve_reduced
+
+    S, _, Vinv = schur_matrix(N, 0.0)
+    n_c = layout.n_c
+    m, k = len(columns), len(points)
+    pi = layout.point[points]
+    rhs = np.zeros((n_c, m + 3 * k))
+    rhs[columns, np.arange(m)] = 1.0
+    Wk = None
+    if k:
+        Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]
+        cols3 = (3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)
+        Wk = Wfull[:, cols3].toarray()
+        rhs[:, m:] = Wk
+    X = solve_reduced(S, rhs) if n_c else rhs
+    Qcc = X[columns, :m]
+    Qcc = 0.5 * (Qcc + Qcc.T)
+    Qpp = np.zeros((k, 3, 3))
+    Qcp = np.zeros((m, k, 3))
+    if k:
+        Y = X[:, m:].reshape(n_c, k, 3)
+        Wp = Wk.reshape(n_c, k, 3)  # type: ignore[union-attr]
+        WtY = np.einsum("nka,nkb->kab", Wp, Y)
+        Vi = Vinv[pi]
+        Qpp = Vi + Vi @ WtY @ Vi
+        Qcp = -np.einsum("mka,kab->mkb", Y[columns], Vi)
+    return SelectedCovariance([layout.labels[j] for j in columns], columns, Qcc, points, Qpp, Qcp, "sparse solves")
 
 
 def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
@@ -193,6 +315,17 @@ def describe_null_space(model: Model, state: State, max_size: int = 6000) -> lis
         qn, _ = np.linalg.qr(vecs)
         expl = np.linalg.norm(qn.T @ Gn, axis=0)
         free = [m for m, e in zip(_MOTIONS, expl) if e > 0.9]
+        # a rotation or scale about another point than the centroid is the motion plus a translation:
+        # null directions inside the span of the motions name their rotation/scale parts
+        on = np.linalg.norm(Gn, axis=0) > 0
+        coef, *_ = np.linalg.lstsq(Gn[:, on], qn, rcond=None)
+        inside = np.linalg.norm(qn - Gn[:, on] @ coef, axis=0) < 0.1
+        if inside.any():
+            mags = np.zeros(7)
+            mags[on] = np.linalg.norm(coef[:, inside], axis=1)
+            for j in range(3, 7):
+                if _MOTIONS[j] not in free and mags[j] > 0.3 * mags.max():
+                    free.append(_MOTIONS[j] + " (about some point)")
         if free:
             out.append("the datum is not defined: the block can move by " + ", ".join(free)
                        + " without changing any observation (add control points, GNSS positions, or use "

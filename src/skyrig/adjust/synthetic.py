@@ -62,6 +62,10 @@ def synthetic_block(
     perturb_pose_rad: float = 3e-3,
     perturb_point_m: float = 1.0,
     true_camera: FrameCamera | None = None,
+    beta_rad: NDArray[np.float64] | None = None,
+    true_rig: Rig | None = None,
+    beta_offset_rad: float = 0.0,
+    beta_scale: float = 0.0,
 ) -> tuple[Block, SyntheticTruth]:
     """A seeded block and its truth.
 
@@ -78,6 +82,14 @@ def synthetic_block(
         shift; the block starts from zeros for all three.
     perturb_pose_m, perturb_pose_rad, perturb_point_m
         Sigma of the Gaussian perturbation of the starting values.
+    beta_rad
+        ``(S,)`` actuator angle of every station (needed when ``rig`` has actuated heads); the block
+        gets it as ``image_beta_rad`` and the rig's heads as ``head_actuated``.
+    true_rig
+        The rig the measurements are simulated with (e.g. actuated heads with a boresight curve the
+        block's rig lacks); default ``rig``.
+    beta_offset_rad, beta_scale
+        True actuator error: images are taken at ``(1 + beta_scale) beta + beta_offset_rad``.
 
     Returns
     -------
@@ -90,7 +102,11 @@ def synthetic_block(
 
         heads = [("nadir", cam, NADIR_BODY_FROM_CAMERA, np.zeros(3))]
     else:
-        heads = [(h.name, h.camera, h.body_from_camera_rotation(), h.lever_arm_m) for h in rig.heads.values()]
+        heads = [(h.name, h.camera, None if h.is_actuated else h.body_from_camera_rotation(), h.lever_arm_m)
+                 for h in rig.heads.values()]
+    head_objs = list(rig.heads.values()) if rig is not None else [None]
+    true_objs = list((true_rig or rig).heads.values()) if rig is not None else [None]
+    actuated = [h is not None and h.is_actuated for h in head_objs]
     nh = len(heads)
     true_cams = [true_camera or h[1] for h in heads] if rig is None else [h[1] for h in heads]
     given_cams = [cam] if rig is None else [h[1] for h in heads]
@@ -128,10 +144,24 @@ def synthetic_block(
     # images
     img_station = np.repeat(np.arange(S), nh)
     img_head = np.tile(np.arange(nh), S)
-    img_rot = np.array([heads[h][2] for h in img_head])
+    if any(actuated) and beta_rad is None:
+        raise ValueError("synthetic_block: the rig has actuated heads; give beta_rad (one angle per station)")
+    img_beta = np.full(len(img_head), np.nan)
+    img_rot = np.empty((len(img_head), 3, 3))
+    true_rot = np.empty((len(img_head), 3, 3))
+    for h in range(nh):
+        sel = img_head == h
+        if actuated[h]:
+            b_nom = np.asarray(beta_rad, float)[img_station[sel]]
+            img_beta[sel] = b_nom
+            img_rot[sel] = head_objs[h].body_from_camera_rotation(b_nom)  # type: ignore[union-attr]
+            true_rot[sel] = true_objs[h].body_from_camera_rotation((1 + beta_scale) * b_nom + beta_offset_rad)  # type: ignore[union-attr]
+        else:
+            img_rot[sel] = heads[h][2]
+            true_rot[sel] = heads[h][2] if rig is None else true_objs[h].body_from_camera_rotation()  # type: ignore[union-attr]
     img_off = np.array([heads[h][3] for h in img_head])
     names = np.array([f"s{s:04d}_{heads[h][0]}" for s, h in zip(img_station, img_head)])
-    Rc = R[img_station] @ img_rot @ matrix_from_rotvec(bore[img_head])
+    Rc = R[img_station] @ true_rot @ matrix_from_rotvec(bore[img_head])
     Cc = C[img_station] + np.einsum("nij,nj->ni", R[img_station], img_off)
     oi, op, px = [], [], []
     for i in range(len(names)):  # loop over images only (tens to thousands), vectorised over points
@@ -184,5 +214,9 @@ def synthetic_block(
         obs_pixel=px_a, obs_sigma_px=sigma_px, control_point=ctrl, control_xyz=ctrl_xyz,
         control_sigma=sigma_control_m, frame="synthetic local ENU", **block_kw,
     )
+    if any(actuated):
+        block.image_beta_rad = img_beta
+        block.head_actuated = [h if a else None for h, a in zip(head_objs, actuated)]
+        block.__post_init__()
     truth = SyntheticTruth(R, C, X, list(true_cams), lever, bore, shift)
     return block, truth

@@ -1,8 +1,8 @@
-"""skyrig block files (version 1): a JSON manifest plus CSV observation tables.
+"""skyrig block files (version 1.1): a JSON manifest plus CSV observation tables.
 
 See ``docs/formats/block.md`` for the full description.  In short, ``block.json``::
 
-    {"format": "skyrig-block", "version": 1,
+    {"format": "skyrig-block", "version": 1.1,             (1 when no 1.1 feature is used)
      "frame": "local ENU at lat ... (free text)",
      "cameras": [{"name": ..., "width": ..., "height": ..., "focal_px": ..., "pp_col": ..., "pp_row": ...,
                   "distortion": {"model": "brown", "k1": ...}}],
@@ -10,13 +10,18 @@ See ``docs/formats/block.md`` for the full description.  In short, ``block.json`
      "lever_arm_m": [x, y, z],                                  (optional)
      "tables": {"stations": "stations.csv", "images": "images.csv", "points": "points.csv",
                 "observations": "observations.csv", "control": "control.csv", "gnss": "gnss.csv",
-                "imu": "imu.csv"},                              (control, gnss, imu optional)
+                "imu": "imu.csv", "distances": "distances.csv"},  (control, gnss, imu, distances optional)
      "adjustment": {<AdjustConfig fields>}}                     (optional)
 
 Every table is a CSV with a header of fixed column names that carry their units (``_m``, ``_deg``,
 ``_px``, ``_s``); a column in another unit (``omega_rad``) is an error naming the expected one.  Angles
 are omega/phi/kappa in degrees (``Rx(omega) Ry(phi) Rz(kappa)``, ``world_from_station`` and
 ``station_from_camera``).  Errors name the file, the line and the field.
+
+Version 1.1 adds optional full covariances (``cov_col_col_px2, cov_col_row_px2, cov_row_row_px2`` in
+observations; ``cov_XX_m2 ... cov_ZZ_m2`` in control and gnss, replacing the sigma columns) and the
+``distances`` table (scale bars).  Version 1 files are read unchanged; the writer writes version 1
+whenever the block uses no 1.1 feature.
 """
 
 from __future__ import annotations
@@ -40,7 +45,10 @@ from skyrig.io._text import atomic_write, parse_float, read_text
 __all__ = ["read_block", "write_block", "FORMAT", "VERSION", "BlockFile"]
 
 FORMAT = "skyrig-block"
-VERSION = 1
+#: the version written when a 1.1 feature is used (covariance columns, distances); 1 otherwise
+VERSION = 1.1
+#: versions this reader accepts
+READ_VERSIONS = (1, 1.1)
 PathLike = str | os.PathLike[str]
 
 #: required and optional columns of every table
@@ -48,14 +56,22 @@ COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "stations": (("name", "X_m", "Y_m", "Z_m", "omega_deg", "phi_deg", "kappa_deg"), ("time_s", "strip")),
     "images": (("name", "station", "camera"),
                ("head", "mount_omega_deg", "mount_phi_deg", "mount_kappa_deg", "offset_x_m", "offset_y_m",
-                "offset_z_m")),
+                "offset_z_m", "beta_deg")),
     "points": (("name", "X_m", "Y_m", "Z_m"), ()),
-    "observations": (("point", "image", "col_px", "row_px"), ("sigma_col_px", "sigma_row_px")),
-    "control": (("point", "X_m", "Y_m", "Z_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m"), ("role",)),
-    "gnss": (("station", "X_m", "Y_m", "Z_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m"), ()),
+    "observations": (("point", "image", "col_px", "row_px"),
+                     ("sigma_col_px", "sigma_row_px", "cov_col_col_px2", "cov_col_row_px2", "cov_row_row_px2")),
+    "control": (("point", "X_m", "Y_m", "Z_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m"),
+                ("role", "cov_XX_m2", "cov_XY_m2", "cov_XZ_m2", "cov_YY_m2", "cov_YZ_m2", "cov_ZZ_m2")),
+    "gnss": (("station", "X_m", "Y_m", "Z_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m"),
+             ("cov_XX_m2", "cov_XY_m2", "cov_XZ_m2", "cov_YY_m2", "cov_YZ_m2", "cov_ZZ_m2")),
     "imu": (("station", "omega_deg", "phi_deg", "kappa_deg", "sigma_omega_deg", "sigma_phi_deg",
              "sigma_kappa_deg"), ()),
+    "distances": (("point_a", "point_b", "distance_m", "sigma_m"), ()),
 }
+#: covariance columns (upper triangle, row-major) that may replace required sigma columns
+_COV2 = ("cov_col_col_px2", "cov_col_row_px2", "cov_row_row_px2")
+_COV3 = ("cov_XX_m2", "cov_XY_m2", "cov_XZ_m2", "cov_YY_m2", "cov_YZ_m2", "cov_ZZ_m2")
+_SIGMA3 = ("sigma_X_m", "sigma_Y_m", "sigma_Z_m")
 _UNITS = ("_m", "_deg", "_px", "_s", "_rad", "_mm", "_gon", "_cm", "_arcsec", "_mrad", "_urad")
 #: plausibility limits on sigmas (a sigma beyond these is almost surely in the wrong unit)
 _SIGMA_LIMITS = {"_px": 1000.0, "_m": 1000.0, "_deg": 90.0}
@@ -89,8 +105,14 @@ class _Table:
                 expect = [k for k in known if stem is not None and k.startswith(stem + "_")]
                 hint = f" (wrong unit? expected {expect[0]!r})" if expect else f"; known columns: {sorted(known)}"
                 raise InputFormatError(f"unknown column {h!r}{hint}", path, hl, h)
+        cov_cols = _COV3 if kind in ("control", "gnss") else _COV2 if kind == "observations" else ()
+        have_cov = [c for c in cov_cols if c in header]
+        if have_cov and len(have_cov) != len(cov_cols):
+            miss = next(c for c in cov_cols if c not in header)
+            raise InputFormatError(f"covariance columns come as a set: {have_cov[0]!r} given without {miss!r}",
+                                   path, hl, miss)
         for r in required:
-            if r not in header:
+            if r not in header and not (have_cov and r in _SIGMA3):
                 raise InputFormatError(f"missing required column {r!r}", path, hl, r)
         self.col = {h: k for k, h in enumerate(header)}
         self.lines = []
@@ -136,6 +158,30 @@ class _Table:
                                            f"{name[name.rindex('_') + 1:]!r} (wrong units?)", self.path,
                                            self.lines[bad[0]], name)
         return v
+
+    def cov(self) -> np.ndarray | None:
+        """``(n, d, d)`` covariances from the ``cov_*`` columns (None when absent); must be positive definite."""
+        names = _COV3 if "cov_XX_m2" in self.col else _COV2 if "cov_col_col_px2" in self.col else None
+        if names is None:
+            return None
+        d = 3 if names is _COV3 else 2
+        iu = np.triu_indices(d)
+        out = np.zeros((len(self.rows), d, d))
+        for nm, a, b in zip(names, *iu):
+            out[:, a, b] = out[:, b, a] = self.num(nm)
+        for j in range(len(out)):
+            diag_name = names[0] if not out[j, 0, 0] > 0 else names[-1]
+            try:
+                np.linalg.cholesky(out[j])
+            except np.linalg.LinAlgError:
+                raise InputFormatError(f"covariance {out[j].tolist()} is not positive definite", self.path,
+                                       self.lines[j], diag_name) from None
+            lim = 1000.0**2
+            if out[j].diagonal().max() > lim:
+                raise InputFormatError(f"variance {out[j].diagonal().max()} is implausibly large (wrong units? "
+                                       f"variances are squared: {names[0][-3:]!r})", self.path, self.lines[j],
+                                       names[0])
+        return out
 
     def ref(self, name: str, index: dict[str, int], what: str) -> np.ndarray:
         out = np.empty(len(self.rows), np.int64)
@@ -197,10 +243,16 @@ def read_block(path: PathLike) -> BlockFile:
         raise InputFormatError(f"not valid JSON ({e.msg})", p, e.lineno) from None
     if not isinstance(man, dict) or man.get("format") != FORMAT:
         raise InputFormatError(f"not a {FORMAT} manifest (need \"format\": \"{FORMAT}\")", p, None, "format")
-    if man.get("version") != VERSION:
-        raise InputFormatError(f"unsupported version {man.get('version')!r} (this skyrig reads {VERSION})", p,
-                               None, "version")
-    known = {"format", "version", "frame", "cameras", "heads", "lever_arm_m", "tables", "adjustment"}
+    ver = man.get("version")
+    try:
+        ok = not isinstance(ver, bool) and float(ver) in READ_VERSIONS  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InputFormatError(f"unsupported version {ver!r} (this skyrig reads {', '.join(map(str, READ_VERSIONS))})",
+                               p, None, "version")
+    known = {"format", "version", "frame", "cameras", "heads", "lever_arm_m", "tables", "adjustment", "rig",
+             "actuator_correction"}
     bad = sorted(set(man) - known)
     if bad:
         raise InputFormatError(f"unknown manifest key(s) {bad}", p, None, bad[0])
@@ -243,6 +295,43 @@ def read_block(path: PathLike) -> BlockFile:
     sig = np.column_stack([ob.num("sigma_col_px", 1.0, True) if ob.has("sigma_col_px") else np.ones(len(ob)),
                            ob.num("sigma_row_px", 1.0, True) if ob.has("sigma_row_px") else np.ones(len(ob))])
     kw: dict[str, Any] = {}
+    kw["obs_cov_px2"] = ob.cov()
+    if "rig" in man:  # version 1.1: actuated heads from a rig file, beta per image
+        from skyrig.io.rig_file import read_rig
+
+        rig = read_rig(p.parent / str(man["rig"]))
+        act = {n: h for n, h in rig.heads.items() if h.is_actuated}
+        kw["head_actuated"] = [act.get(h) for h in heads]
+        beta = np.full(len(im), np.nan)
+        if im.has("beta_deg"):  # empty (or nan) for images of fixed heads
+            kb = im.col["beta_deg"]
+            for j, (ln, r) in enumerate(zip(im.lines, im.rows)):
+                if r[kb].strip().lower() not in ("", "nan"):
+                    beta[j] = np.radians(parse_float(r[kb], im.path, ln, "beta_deg"))
+        for j, hn in enumerate(head_names):
+            if hn in act and not np.isfinite(beta[j]):
+                raise InputFormatError(f"image of the actuated head {hn!r} needs its actuator angle", im.path,
+                                       im.lines[j], "beta_deg")
+        kw["image_beta_rad"] = beta
+        ac = man.get("actuator_correction") or {}
+        bad = sorted(set(ac) - set(act))
+        if bad:
+            raise InputFormatError(f"actuator_correction names heads that are not actuated in the rig: {bad}", p, None,
+                                   "actuator_correction")
+        if ac:
+            width = max(len(v) for v in ac.values())
+            corr = np.zeros((len(heads), width))
+            for hn, v in ac.items():
+                corr[heads.index(hn), : len(v)] = np.asarray(v, float)
+            kw["actuator_correction"] = corr
+    elif im.has("beta_deg") or "actuator_correction" in man:
+        raise InputFormatError("beta_deg / actuator_correction need the manifest key 'rig' (the actuated heads)", p,
+                               None, "rig")
+
+    def sig3(t: _Table) -> np.ndarray:
+        if t.has("sigma_X_m") or t.cov() is None:
+            return np.column_stack([t.num(x, positive=True) for x in _SIGMA3])
+        return np.ones((len(t), 3))  # replaced by sqrt(diag(cov))
     ctrl_pts = np.zeros(0, np.int64)
     if "control" in T:
         c = T["control"]
@@ -252,21 +341,28 @@ def read_block(path: PathLike) -> BlockFile:
             if r not in ("control", "check"):
                 raise InputFormatError(f"role must be 'control' or 'check', got {r!r}", c.path, ln, "role")
         kw.update(control_point=ctrl_pts, control_xyz=np.column_stack([c.num(x) for x in ("X_m", "Y_m", "Z_m")]),
-                  control_sigma=np.column_stack([c.num(x, positive=True) for x in ("sigma_X_m", "sigma_Y_m",
-                                                                                   "sigma_Z_m")]),
-                  control_check=np.array([r == "check" for r in roles]))
+                  control_sigma=sig3(c), control_cov_m2=c.cov(), control_check=np.array([r == "check" for r in roles]))
     if "gnss" in T:
         g = T["gnss"]
         kw.update(gnss_station=g.ref("station", st_idx, "station"),
                   gnss_xyz=np.column_stack([g.num(x) for x in ("X_m", "Y_m", "Z_m")]),
-                  gnss_sigma=np.column_stack([g.num(x, positive=True) for x in ("sigma_X_m", "sigma_Y_m",
-                                                                                "sigma_Z_m")]))
+                  gnss_sigma=sig3(g), gnss_cov_m2=g.cov())
     if "imu" in T:
         u = T["imu"]
         kw.update(imu_station=u.ref("station", st_idx, "station"),
                   imu_rotation=matrix_from_opk(u.num("omega_deg"), u.num("phi_deg"), u.num("kappa_deg"), unit="deg"),
                   imu_sigma_rad=np.radians(np.column_stack([u.num(x, positive=True) for x in (
                       "sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg")])))
+    if "distances" in T:
+        dt = T["distances"]
+        dp = np.column_stack([dt.ref("point_a", pt_idx, "point"), dt.ref("point_b", pt_idx, "point")])
+        dm = dt.num("distance_m")
+        for j in range(len(dt)):
+            if dp[j, 0] == dp[j, 1]:
+                raise InputFormatError("a distance joins a point to itself", dt.path, dt.lines[j], "point_b")
+            if not dm[j] > 0:
+                raise InputFormatError(f"distance must be > 0, got {dm[j]}", dt.path, dt.lines[j], "distance_m")
+        kw.update(distance_point=dp, distance_m=dm, distance_sigma_m=dt.num("sigma_m", positive=True))
     # a point seen once that is not control cannot be determined: name it where it is observed
     rays = np.bincount(o_point, minlength=len(pt_names))
     is_ctrl = np.zeros(len(pt_names), bool)
@@ -324,8 +420,13 @@ def _write_csv(path: Path, header: list[str], cols: list[Any]) -> None:
                         else str(c[i]) for c in cols])
 
 
-def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None) -> None:
-    """Write ``block`` (frame cameras only) as a manifest ``path`` and CSV tables next to it (atomic per file)."""
+def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None, rig_file: str | None = None) -> None:
+    """Write ``block`` (frame cameras only) as a manifest ``path`` and CSV tables next to it (atomic per file).
+
+    ``rig_file``: for a block with actuated heads, the rig file (path relative to the manifest) that
+    defines them; written as the manifest key ``rig`` with the images' ``beta_deg`` and the adjusted
+    ``actuator_correction``.  Required when the block has actuated heads.
+    """
     p = Path(path)
     stem = p.stem
     for c in block.cameras:
@@ -339,37 +440,62 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
                 block.station_strip.tolist()])  # type: ignore[union-attr]
     mo, mp, mk = opk_from_matrix(block.image_rotation, unit="deg")
     off = block.image_offset
+    actuated = [h is not None for h in block.head_actuated]  # type: ignore[union-attr]
+    if any(actuated) and rig_file is None:
+        raise ValueError("write_block: the block has actuated heads; give rig_file (the rig defining them)")
+    extra_h, extra_c = ([], []) if not any(actuated) else (
+        ["beta_deg"], [["" if not np.isfinite(v) else repr(float(v)) for v in np.degrees(block.image_beta_rad)]])
     _write_csv(p.parent / tables["images"], ["name", "station", "camera", "head", "mount_omega_deg",
                                              "mount_phi_deg", "mount_kappa_deg", "offset_x_m", "offset_y_m",
-                                             "offset_z_m"],
+                                             "offset_z_m"] + extra_h,
                [block.image_name.tolist(), block.station_name[block.image_station].tolist(),
                 [block.cameras[c].name for c in block.image_camera], block.head_name[block.image_head].tolist(),  # type: ignore[index]
-                mo, mp, mk, off[:, 0], off[:, 1], off[:, 2]])  # type: ignore[index]
+                mo, mp, mk, off[:, 0], off[:, 1], off[:, 2]] + extra_c)  # type: ignore[index]
     X = block.point_xyz
     _write_csv(p.parent / tables["points"], list(COLUMNS["points"][0]), [block.point_name.tolist(), X[:, 0], X[:, 1],
                                                                          X[:, 2]])
     px, sg = block.obs_pixel, block.obs_sigma_px
-    _write_csv(p.parent / tables["observations"], ["point", "image", "col_px", "row_px", "sigma_col_px", "sigma_row_px"],
-               [block.point_name[block.obs_point].tolist(), block.image_name[block.obs_image].tolist(), px[:, 0],
-                px[:, 1], sg[:, 0], sg[:, 1]])  # type: ignore[index]
+    version: float = 1
+
+    def cov_cols(cov: np.ndarray | None, names: tuple[str, ...]) -> tuple[list[str], list[Any]]:
+        nonlocal version
+        if cov is None:
+            return [], []
+        version = VERSION
+        iu = np.triu_indices(cov.shape[1])
+        return list(names), [cov[:, a, b] for a, b in zip(*iu)]
+
+    h, c = cov_cols(block.obs_cov_px2, _COV2)
+    _write_csv(p.parent / tables["observations"], ["point", "image", "col_px", "row_px", "sigma_col_px", "sigma_row_px"]
+               + h, [block.point_name[block.obs_point].tolist(), block.image_name[block.obs_image].tolist(), px[:, 0],
+                     px[:, 1], sg[:, 0], sg[:, 1]] + c)  # type: ignore[index]
     if len(block.control_point):  # type: ignore[arg-type]
         tables["control"] = f"{stem}_control.csv"
         cx, cs = block.control_xyz, block.control_sigma
-        _write_csv(p.parent / tables["control"], list(COLUMNS["control"][0]) + ["role"],
+        h, c = cov_cols(block.control_cov_m2, _COV3)
+        _write_csv(p.parent / tables["control"], list(COLUMNS["control"][0]) + ["role"] + h,
                    [block.point_name[block.control_point].tolist(), cx[:, 0], cx[:, 1], cx[:, 2], cs[:, 0],  # type: ignore[index]
-                    cs[:, 1], cs[:, 2], ["check" if c else "control" for c in block.control_check]])  # type: ignore[union-attr, index]
+                    cs[:, 1], cs[:, 2], ["check" if k else "control" for k in block.control_check]] + c)  # type: ignore[union-attr, index]
     if len(block.gnss_station):  # type: ignore[arg-type]
         tables["gnss"] = f"{stem}_gnss.csv"
         g, gs = block.gnss_xyz, block.gnss_sigma
-        _write_csv(p.parent / tables["gnss"], list(COLUMNS["gnss"][0]),
+        h, c = cov_cols(block.gnss_cov_m2, _COV3)
+        _write_csv(p.parent / tables["gnss"], list(COLUMNS["gnss"][0]) + h,
                    [block.station_name[block.gnss_station].tolist(), g[:, 0], g[:, 1], g[:, 2], gs[:, 0], gs[:, 1],  # type: ignore[index]
-                    gs[:, 2]])  # type: ignore[index]
+                    gs[:, 2]] + c)  # type: ignore[index]
     if len(block.imu_station):  # type: ignore[arg-type]
         tables["imu"] = f"{stem}_imu.csv"
         io_, ip, ik = opk_from_matrix(block.imu_rotation, unit="deg")
         s = np.degrees(block.imu_sigma_rad)
         _write_csv(p.parent / tables["imu"], list(COLUMNS["imu"][0]),
                    [block.station_name[block.imu_station].tolist(), io_, ip, ik, s[:, 0], s[:, 1], s[:, 2]])  # type: ignore[index]
+    if block.n_distances:
+        version = VERSION
+        tables["distances"] = f"{stem}_distances.csv"
+        dp = block.distance_point
+        _write_csv(p.parent / tables["distances"], list(COLUMNS["distances"][0]),
+                   [block.point_name[dp[:, 0]].tolist(), block.point_name[dp[:, 1]].tolist(),  # type: ignore[index]
+                    block.distance_m, block.distance_sigma_m])
     cams = []
     for c in block.cameras:
         col, row = c.principal_point_px
@@ -378,9 +504,14 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         if c.distortion.n_params:
             d["distortion"] = c.distortion.to_dict()
         cams.append(d)
-    man: dict[str, Any] = {"format": FORMAT, "version": VERSION, "frame": block.frame, "cameras": cams,
+    man: dict[str, Any] = {"format": FORMAT, "version": version, "frame": block.frame, "cameras": cams,
                            "heads": block.head_name.tolist(), "lever_arm_m": block.lever_arm.tolist(),  # type: ignore[union-attr]
                            "tables": tables}
+    if any(actuated):
+        man["version"] = VERSION
+        man["rig"] = str(rig_file)
+        man["actuator_correction"] = {str(block.head_name[k]): block.actuator_correction[k].tolist()  # type: ignore[index]
+                                      for k, a in enumerate(actuated) if a}
     if config is not None:
         man["adjustment"] = {k: (list(map(list, v)) if k == "intrinsic_sigma" else v)
                              for k, v in config.__dict__.items() if v != AdjustConfig.__dataclass_fields__[k].default}

@@ -122,6 +122,12 @@ def write_report_html(path: PathLike, report: dict[str, Any], title: str = "skyr
               _table([{"item": k, "value": v} for k, v in o.items() if not isinstance(v, dict)], ["item", "value"], 5),
               "<h2>Image residuals per camera (px)</h2>",
               _table([dict(camera=c, **s) for c, s in r["images"].items()], ["camera", "n", "rms_px", "max_abs_px"])]
+    if r.get("distances"):
+        d = r["distances"]
+        parts += ["<h2>Distances (scale bars; residual = adjusted - observed, m)</h2>",
+                  _table(d["rows"], ["point_a", "point_b", "observed_m", "adjusted_m", "residual_m", "sigma_m",
+                                     "normalised", "redundancy", "used"], 4),
+                  _table([d["stats"]], ["n", "rms_m", "max_abs_normalised"], 4)]
     if r["rejected"]:
         parts += ["<h2>Rejected observations (data snooping)</h2>",
                   _table(r["rejected"], ["group", "label", "normalised_residual"], 2)]
