@@ -1,0 +1,125 @@
+"""``skyrig block``: assemble a block file (docs/formats/block.md) from what a flight recorded.
+
+Two ways in:
+
+* rig mode - ``--trajectory``, ``--events``, ``--rig``: one station per platform exposure (the heads of a
+  rig share its pose), GNSS antenna positions through the rig's antenna lever arm and IMU attitudes as
+  observations (:func:`skyrig.adjust.rig_block.block_from_trajectory`);
+* image mode - ``--eo`` + ``--camera``: one station per image, the given orientations as GNSS/IMU
+  observations of the projection centres and attitudes (:func:`skyrig.adjust.frames.block_from_georef`).
+
+Measurements (``--measurements``, repeatable: tie points from ``skyrig match``, control point
+measurements) in pixels; ground points (``--control``, ``--check``) with their CRS in the file header.
+``--free`` names the system-calibration groups the block's adjustment section sets free (the adjustment
+preset of ``skyrig adjust --preset`` replaces that section).  The file is written atomically.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+__all__ = ["command"]
+
+_GROUPS = {"boresight": "boresight", "lever-arm": "lever_arm", "datum-shift": "datum_shift",
+           "strip-shift": "strip_shift", "intrinsics": "intrinsics"}
+
+
+def _triple(text: str, what: str) -> tuple[float, float, float]:
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"{what}: numbers separated by commas, not {text!r}") from None
+    if len(v) == 1:
+        v = v * 3
+    if len(v) != 3 or not all(np.isfinite(v)) or min(v) <= 0:
+        raise click.BadParameter(f"{what}: one or three positive numbers, not {text!r}")
+    return v[0], v[1], v[2]
+
+
+@click.command("block")
+@click.option("--trajectory", type=click.Path(exists=True, dir_okay=False), help="Rig mode: trajectory CSV or SBET.")
+@click.option("--events", type=click.Path(exists=True, dir_okay=False), help="Rig mode: camera events CSV.")
+@click.option("--rig", "rig_path", type=click.Path(exists=True, dir_okay=False), help="Rig mode: rig file (YAML).")
+@click.option("--eo", "eo_path", type=click.Path(exists=True, dir_okay=False), help="Image mode: EO file.")
+@click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Image mode: camera / rig file(s).")
+@click.option("--measurements", "meas_paths", multiple=True, required=True,
+              type=click.Path(exists=True, dir_okay=False), help="Image measurements CSV (repeatable).")
+@click.option("--control", "control_path", type=click.Path(exists=True, dir_okay=False),
+              help="Control points CSV (CRS in its header).")
+@click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False),
+              help="Check points CSV: compared after the adjustment, not used in it.")
+@click.option("--sigma-px", type=float, default=0.5, show_default=True, help="Image measurement sigma (pixels).")
+@click.option("--gnss-sigma", default="0.05,0.05,0.08", show_default=True,
+              help="GNSS sigma E,N,U (metres; one value for all axes).")
+@click.option("--imu-sigma-deg", default="0.005,0.005,0.01", show_default=True,
+              help="IMU attitude sigma roll,pitch,yaw (degrees) in rig mode; about the camera axes in image mode.")
+@click.option("--control-sigma", default="0.02", show_default=True, help="Control point sigma X,Y,Z (metres).")
+@click.option("--free", "free", default="", help=f"Comma-separated groups to estimate: {', '.join(_GROUPS)}.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file (.json) to write.")
+def command(trajectory: str | None, events: str | None, rig_path: str | None, eo_path: str | None,
+            camera_paths: tuple[str, ...], meas_paths: tuple[str, ...], control_path: str | None,
+            check_path: str | None, sigma_px: float, gnss_sigma: str, imu_sigma_deg: str, control_sigma: str,
+            free: str, output: str) -> None:
+    """Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."""
+    from skyrig.adjust import AdjustConfig
+    from skyrig.cli._common import load_measurements
+    from skyrig.georef.observations import GroundPoints, ImageMeasurements
+    from skyrig.io.block_file import write_block
+    from skyrig.io.points_csv import read_points_csv
+
+    rig_mode = any(x is not None for x in (trajectory, events, rig_path))
+    if rig_mode and not all(x is not None for x in (trajectory, events, rig_path)):
+        raise click.UsageError("rig mode needs --trajectory, --events and --rig together")
+    if rig_mode == (eo_path is not None):
+        raise click.UsageError("give either --trajectory/--events/--rig or --eo/--camera")
+    if not np.isfinite(sigma_px) or sigma_px <= 0:
+        raise click.BadParameter(f"--sigma-px must be positive, not {sigma_px}")
+    gs = _triple(gnss_sigma, "--gnss-sigma")
+    imu = tuple(np.radians(_triple(imu_sigma_deg, "--imu-sigma-deg")))
+    cs = _triple(control_sigma, "--control-sigma")
+    groups = [g.strip() for g in free.split(",") if g.strip()]
+    unknown = [g for g in groups if g not in _GROUPS]
+    if unknown:
+        raise click.BadParameter(f"--free: unknown group {unknown[0]!r}; known: {', '.join(_GROUPS)}")
+    ms = [load_measurements(p) for p in meas_paths]
+    m = ImageMeasurements(np.concatenate([x.point for x in ms]), np.concatenate([x.image for x in ms]),
+                          np.vstack([x.pixel for x in ms]))
+    pts = [read_points_csv(p) for p in (control_path, check_path) if p is not None]
+    checks: tuple[str, ...] = ()
+    control = None
+    if pts:
+        if len(pts) == 2 and pts[0].frame != pts[1].frame:
+            pts[1] = GroundPoints(pts[1].name, pts[0].frame.from_ecef(pts[1].frame.to_ecef(pts[1].xyz)), pts[0].frame)
+        control = GroundPoints(np.concatenate([p.name for p in pts]), np.vstack([p.xyz for p in pts]), pts[0].frame)
+        if check_path is not None:
+            checks = tuple(str(n) for n in pts[-1].name)
+    if rig_mode:
+        from skyrig.adjust.rig_block import block_from_trajectory
+        from skyrig.cli.georef import load_trajectory
+        from skyrig.io.events_csv import read_events_csv
+        from skyrig.io.rig_file import read_rig
+
+        block, frame = block_from_trajectory(load_trajectory(trajectory, None), read_rig(rig_path),
+                                             read_events_csv(events), m, control, gnss_sigma_m=gs,
+                                             imu_sigma_rad=imu, control_sigma_m=cs, check_points=checks,
+                                             sigma_px=sigma_px)
+    else:
+        from skyrig.adjust.frames import block_from_georef
+        from skyrig.cli._common import load_cameras, load_eo
+
+        eo = load_eo(eo_path, None, None, None, None)
+        block, frame = block_from_georef(eo, load_cameras(list(camera_paths)), m, control, gnss_sigma_m=gs,
+                                         imu_sigma_rad=imu, control_sigma_m=cs, check_points=checks,
+                                         sigma_px=sigma_px)
+    cfg = AdjustConfig(datum_shift="free" if len(block.gnss_station) and len(block.control_point) else "fixed",
+                       snooping=True, **{_GROUPS[g]: "free" for g in groups})
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    write_block(output, block, cfg)
+    click.echo(f"wrote {output}: {block.n_stations} stations, {block.n_images} images, {block.n_points} points, "
+               f"{block.n_observations} image observations, {len(block.control_point)} ground points "
+               f"({int(np.sum(block.control_check))} check), {len(block.gnss_station)} GNSS, "
+               f"{len(block.imu_station)} IMU; frame {frame.describe()}")
