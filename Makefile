@@ -25,6 +25,7 @@ bench: $(STAMP)
 	$(BIN)/python examples/ign_world_to_image.py
 	$(BIN)/python bench/simulate.py
 	OMP_NUM_THREADS=1 $(BIN)/python bench/lidar.py
+	$(BIN)/python bench/ign_block.py
 
 clean:
 	rm -rf $(VENV) demo-output
