@@ -40,10 +40,10 @@ def main(verbose: int) -> None:
 
 
 def _register() -> None:
-    from skyrig.cli import (adjust, block, convert, demo, georef, image_to_world, lidar, match, plan, simulate,
+    from skyrig.cli import (adjust, block, convert, demo, georef, image_to_world, lidar, match, plan, simulate, uav,
                             world_to_image)
 
-    for mod in (georef, world_to_image, image_to_world, convert, match, block, adjust, plan, simulate, lidar, demo):
+    for mod in (georef, world_to_image, image_to_world, convert, match, block, adjust, uav, plan, simulate, lidar, demo):
         main.add_command(mod.command)
 
 
