@@ -217,7 +217,7 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
     """skyrig's Levenberg-Marquardt (:func:`skyrig.adjust.solver.levenberg_marquardt`) on a BAL block."""
     import numba
 
-    from skyrig.adjust.solver import levenberg_marquardt
+    from skyrig.adjust.solver import SERIAL_BELOW, levenberg_marquardt
 
     cfg = AdjustConfig(intrinsics="free", datum="none", statistics=False)
     c0 = bal_cost(block)
@@ -227,7 +227,8 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
                                   TOL["parameter_tolerance"], TOL["gradient_tolerance"], engine=engine)
     return dict(initial_cost=c0, final_cost=info.final_cost, iterations=info.iterations + info.unsuccessful,
                 successful=info.iterations, solve_s=time.perf_counter() - t1, termination=info.message,
-                engine=info.engine, threads=numba.get_num_threads() if info.engine == "numba" else 1)
+                engine=info.engine, threads=(1 if block.n_observations < SERIAL_BELOW else numba.get_num_threads())
+                if info.engine == "numba" else 1)
 
 
 def _fmt(v: object) -> str:

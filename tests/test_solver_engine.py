@@ -163,3 +163,26 @@ def test_datum_defect_is_reported_by_the_sparse_solver(method):
     S2, rhs2, _ = schur_matrix(N, 1e-3)
     np.testing.assert_allclose(solve_reduced(S2, rhs2, method=method), solve_reduced(S2, rhs2, method="dense"),
                                rtol=1e-8, atol=1e-12)
+
+
+@pytest.mark.parametrize("cfg", [AdjustConfig(), AdjustConfig(boresight="free", intrinsics="free"),
+                                 AdjustConfig(poses="fixed", boresight="free")])
+def test_compiled_chain_rule_equals_the_numpy_path(monkeypatch, cfg):
+    # frame cameras on a penta rig with lever arms (head offsets) and boresights: the numpy chain rule of
+    # Model._image is the reference (itself checked against finite differences in test_adjust.py)
+    import skyrig.adjust.model as model_mod
+
+    if model_mod._CHAIN_KERNEL is None:
+        pytest.skip("numba not installed")
+    b, _ = _rig_block(seed=13)
+    b.image_offset = np.random.default_rng(3).normal(0, 0.3, b.image_offset.shape)  # heads off the station
+    model = Model(b, cfg)
+    s = State.from_block(b)
+    s.bore = np.random.default_rng(2).normal(0, 1e-3, s.bore.shape)
+    got = model._image(s, True)
+    monkeypatch.setattr(model_mod, "_CHAIN_KERNEL", None)
+    ref = model._image(s, True)
+    np.testing.assert_array_equal(got.cols, ref.cols)
+    for a, c in ((got.jc, ref.jc), (got.jp, ref.jp)):
+        scale = np.abs(c).max(axis=(0, 1))
+        assert np.all(np.abs(a - c).max(axis=(0, 1)) <= 1e-12 * np.where(scale > 0, scale, 1.0))

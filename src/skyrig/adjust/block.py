@@ -125,11 +125,13 @@ class Block:
         ``(T,)`` reference time of each strip's drift (s).
     frame
         Description of the world frame (for reports), e.g. ``WorldFrame.describe()``.
-    obs_cov_px2, control_cov_m2, gnss_cov_m2
+    obs_cov_px2, control_cov_m2, gnss_cov_m2, imu_cov_rad2
         Optional full covariance per observation: ``(N, 2, 2)`` px² (column, row), ``(K, 3, 3)`` and
-        ``(G, 3, 3)`` m² (X, Y, Z).  When given it replaces the per-axis sigma of that group (which is
-        then set to ``sqrt(diag)`` for reports); the model whitens each row with the Cholesky factor of
-        the inverse covariance (:mod:`skyrig.adjust.model`).
+        ``(G, 3, 3)`` m² (X, Y, Z), ``(M, 3, 3)`` rad² of the IMU attitude error as a rotation vector
+        about the station axes (x, y, z; the same components as ``imu_sigma_rad``: ``R_imu^T R_station
+        = expmap(e)``).  When given it replaces the per-axis sigma of that group (which is then set to
+        ``sqrt(diag)`` for reports); the model whitens each row with the Cholesky factor of the inverse
+        covariance (:mod:`skyrig.adjust.model`).
     distance_point, distance_m, distance_sigma_m
         Distance observations (scale bars): ``(D, 2)`` point indices, ``(D,)`` observed distances and
         ``(D,)`` sigma (m).  Their end points are estimated in the reduced part of the unknowns.
@@ -196,6 +198,7 @@ class Block:
     image_beta_rad: NDArray[np.float64] | None = None
     head_actuated: list | None = None
     actuator_correction: NDArray[np.float64] | None = None
+    imu_cov_rad2: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
@@ -264,7 +267,8 @@ class Block:
         self.imu_sigma_rad = np.broadcast_to(np.asarray(self.imu_sigma_rad, dtype=np.float64), (m, 3)).copy()
         for cov_name, sig_name, count, d in (("obs_cov_px2", "obs_sigma_px", n, 2), ("control_cov_m2", "control_sigma",
                                                                                      k, 3),
-                                             ("gnss_cov_m2", "gnss_sigma", g, 3)):
+                                             ("gnss_cov_m2", "gnss_sigma", g, 3),
+                                             ("imu_cov_rad2", "imu_sigma_rad", m, 3)):
             cv = getattr(self, cov_name)
             if cv is None:
                 continue
@@ -360,7 +364,7 @@ class Block:
             finite(name, getattr(self, name))
         for name in ("obs_sigma_px", "control_sigma", "gnss_sigma", "imu_sigma_rad", "distance_sigma_m"):
             positive(name, getattr(self, name))
-        for name in ("obs_cov_px2", "control_cov_m2", "gnss_cov_m2"):
+        for name in ("obs_cov_px2", "control_cov_m2", "gnss_cov_m2", "imu_cov_rad2"):
             cv = getattr(self, name)
             if cv is None or not len(cv):
                 continue

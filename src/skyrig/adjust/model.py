@@ -14,7 +14,7 @@ respect to that point.  All of it is computed with vectorised numpy over the row
 loop is over the (few) frame cameras.
 
 Residuals are *computed minus observed*, divided by the a-priori sigma.  Where a group carries a full
-covariance ``Σ`` per row (image ``(2, 2)``, control and GNSS ``(3, 3)``), the row is whitened instead by
+covariance ``Σ`` per row (image ``(2, 2)``, control, GNSS and IMU ``(3, 3)``), the row is whitened instead by
 ``W = U``, the upper Cholesky factor of the inverse covariance (``Σ^-1 = U^T U``): residual ``W v`` and
 Jacobian ``W J``, so that ``|W v|^2 = v^T Σ^-1 v``; the solver and the statistics see independent unit
 rows either way (the factor keeps ``W`` in ``whiten`` to un-whiten residuals for reports).
@@ -348,6 +348,7 @@ class Model:
         self._obs_W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         self._ctrl_W = None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
         self._gnss_W = None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
+        self._imu_W = None if getattr(b, "imu_cov_rad2", None) is None else whitening_matrices(b.imu_cov_rad2)
         lay = self.layout
         self._red_cols = self._red_rows = self._red_idx = None
         if lay.has_rpoint:
@@ -535,12 +536,28 @@ class Model:
         dpc[bad] = 0.0
         if d_in is not None:
             d_in[bad] = 0.0  # (a point in the camera plane: NaN derivatives would poison the normals)
-        RoT = np.swapaxes(Ro, 1, 2)
-        jX = dpc @ RoT
+        chain = None
+        if _CHAIN_KERNEL is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
+            chain = (np.empty((n, 2, 3)), np.empty((n, 2, 6)), np.empty((n, 2, 3)))
+            off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+            _CHAIN_KERNEL(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
+                          np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
+                          bool(np.any(off_i)), *chain)
+            jX = chain[0]
+        else:
+            RoT = np.swapaxes(Ro, 1, 2)
+            jX = dpc @ RoT
         blocks = []
         colblocks = []
         st = b.image_station[oi]
-        if (lay.pose >= 0).any():
+        if (lay.pose >= 0).any() and chain is not None:
+            jth_cam, jpose = chain[2], chain[1]
+            blocks.append(jpose)
+            colblocks.append(lay.pose[st])
+            if self._bore_on:
+                blocks.append(jth_cam)
+                colblocks.append(lay.bore[b.image_head[oi]])
+        elif (lay.pose >= 0).any():
             jth_cam = dpc @ skew(pc)
             Mo = M[oi]
             jpose = np.empty((n, 2, 6))
@@ -556,7 +573,7 @@ class Model:
                 blocks.append(jth_cam)
                 colblocks.append(lay.bore[b.image_head[oi]])
         elif self._bore_on:
-            blocks.append(dpc @ skew(pc))
+            blocks.append(dpc @ skew(pc) if chain is None else chain[2])
             colblocks.append(lay.bore[b.image_head[oi]])
         if d_in is not None:
             blocks.append(wh(d_in))
@@ -711,14 +728,16 @@ class Model:
         st = b.imu_station
         e = _logmap(np.swapaxes(b.imu_rotation, 1, 2) @ s.R[st])  # type: ignore[arg-type]
         sig = b.imu_sigma_rad
-        f = Factor("imu", e / sig, sig, weight=self.imu_weight)  # type: ignore[arg-type, operator]
+        Wm = self._imu_W  # full 3x3 covariance about the station axes (Block.imu_cov_rad2), or None
+        r = e / sig if Wm is None else np.einsum("nij,nj->ni", Wm, e)  # type: ignore[operator]
+        f = Factor("imu", r, sig, weight=self.imu_weight, whiten=Wm)  # type: ignore[arg-type]
         if not jac:
             return f
         n = len(st)  # type: ignore[arg-type]
         jinv = np.eye(3)[None] + 0.5 * skew(e)  # inverse right Jacobian of SO(3) to first order
         j = np.zeros((n, 3, 6))
         j[:, :, 3:] = jinv
-        f.jc = j / sig[:, :, None]  # type: ignore[index]
+        f.jc = j / sig[:, :, None] if Wm is None else Wm @ j  # type: ignore[index]
         f.cols = lay.pose[st]
         return f
 
@@ -883,3 +902,58 @@ def _make_bal_kernel():  # type: ignore[no-untyped-def]
 
 
 _BAL_KERNEL = _make_bal_kernel()
+
+
+def _make_chain_kernel():  # type: ignore[no-untyped-def]
+    """Compiled chain rule of :meth:`Model._image` from ``d (whitened px) / d (camera-frame point)``."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - depends on the environment
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def chain(oi, ist, dpc, pc, Rc, M, Rst, off, has_off, jX, jpose, jthc):  # pragma: no cover - compiled
+        # jX = dpc Rc^T; jth_cam = dpc skew(pc); jpose = [-jX, jth_cam M^T + jX R_st skew(off)]
+        for o in numba.prange(len(oi)):
+            i = oi[o]
+            P0 = pc[o, 0]
+            P1 = pc[o, 1]
+            P2 = pc[o, 2]
+            for e in range(2):
+                q0 = dpc[o, e, 0]
+                q1 = dpc[o, e, 1]
+                q2 = dpc[o, e, 2]
+                jx0 = q0 * Rc[i, 0, 0] + q1 * Rc[i, 0, 1] + q2 * Rc[i, 0, 2]
+                jx1 = q0 * Rc[i, 1, 0] + q1 * Rc[i, 1, 1] + q2 * Rc[i, 1, 2]
+                jx2 = q0 * Rc[i, 2, 0] + q1 * Rc[i, 2, 1] + q2 * Rc[i, 2, 2]
+                jX[o, e, 0] = jx0
+                jX[o, e, 1] = jx1
+                jX[o, e, 2] = jx2
+                t0 = q1 * P2 - q2 * P1
+                t1 = q2 * P0 - q0 * P2
+                t2 = q0 * P1 - q1 * P0
+                jthc[o, e, 0] = t0
+                jthc[o, e, 1] = t1
+                jthc[o, e, 2] = t2
+                jpose[o, e, 0] = -jx0
+                jpose[o, e, 1] = -jx1
+                jpose[o, e, 2] = -jx2
+                v0 = t0 * M[i, 0, 0] + t1 * M[i, 0, 1] + t2 * M[i, 0, 2]
+                v1 = t0 * M[i, 1, 0] + t1 * M[i, 1, 1] + t2 * M[i, 1, 2]
+                v2 = t0 * M[i, 2, 0] + t1 * M[i, 2, 1] + t2 * M[i, 2, 2]
+                if has_off:
+                    st = ist[i]
+                    y0 = jx0 * Rst[st, 0, 0] + jx1 * Rst[st, 1, 0] + jx2 * Rst[st, 2, 0]
+                    y1 = jx0 * Rst[st, 0, 1] + jx1 * Rst[st, 1, 1] + jx2 * Rst[st, 2, 1]
+                    y2 = jx0 * Rst[st, 0, 2] + jx1 * Rst[st, 1, 2] + jx2 * Rst[st, 2, 2]
+                    v0 += y1 * off[i, 2] - y2 * off[i, 1]
+                    v1 += y2 * off[i, 0] - y0 * off[i, 2]
+                    v2 += y0 * off[i, 1] - y1 * off[i, 0]
+                jpose[o, e, 3] = v0
+                jpose[o, e, 4] = v1
+                jpose[o, e, 5] = v2
+
+    return chain
+
+
+_CHAIN_KERNEL = _make_chain_kernel()

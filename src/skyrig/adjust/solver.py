@@ -501,8 +501,9 @@ def _make_kernels():  # type: ignore[no-untyped-def]
         return bad
 
     @njit(cache=True, nogil=True, parallel=True)
-    def schur(unit_ptr, unit_obs, obs_unit, pt, pt_ptr, pt_obs, W, Vinv, gp, row_ptr, col_idx,
+    def schur(unit_ptr, unit_obs, obs_unit, pt, pt_ptr, upt, W, Wp, Vinv, gp, row_ptr, col_idx,
               out, rhs_u, n_chunks):  # pragma: no cover - compiled
+        # Wp, upt: W blocks and units of the rows in point order (pt_obs), read sequentially per point
         n_u = len(unit_ptr) - 1
         k = W.shape[1]
         # each chunk (thread) takes every n_chunks-th unit row (balance) and keeps a dense column -> slot
@@ -525,8 +526,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                             T[i, cc] = W[a, i, 0] * Vinv[p, 0, cc] + W[a, i, 1] * Vinv[p, 1, cc] + W[a, i, 2] * Vinv[p, 2, cc]
                         rhs_u[u, i] += T[i, 0] * gp[p, 0] + T[i, 1] * gp[p, 1] + T[i, 2] * gp[p, 2]
                     for jj in range(pt_ptr[p], pt_ptr[p + 1]):
-                        b = pt_obs[jj]
-                        ub = obs_unit[b]
+                        ub = upt[jj]
                         if ub < u:
                             continue
                         q = slot[ub]
@@ -535,7 +535,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                             t1 = T[i, 1]
                             t2 = T[i, 2]
                             for j in range(k):
-                                out[q, i, j] -= t0 * W[b, j, 0] + t1 * W[b, j, 1] + t2 * W[b, j, 2]
+                                out[q, i, j] -= t0 * Wp[jj, j, 0] + t1 * Wp[jj, j, 1] + t2 * Wp[jj, j, 2]
                 for q in range(r0, r1):
                     slot[col_idx[q]] = -1
 
@@ -550,21 +550,20 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                 dst[m] += vals[e]
 
     @njit(cache=True, nogil=True, parallel=True)
-    def back_substitute(pt_ptr, pt_obs, obs_unit, W, dcu, Vinv, gp, dp):  # pragma: no cover - compiled
+    def back_substitute(pt_ptr, upt, Wp, dcu, Vinv, gp, dp):  # pragma: no cover - compiled
         n_p = len(pt_ptr) - 1
-        k = W.shape[1]
+        k = Wp.shape[1]
         for p in prange(n_p):
             t0 = gp[p, 0]
             t1 = gp[p, 1]
             t2 = gp[p, 2]
             for jj in range(pt_ptr[p], pt_ptr[p + 1]):
-                b = pt_obs[jj]
-                u = obs_unit[b]
+                u = upt[jj]
                 for i in range(k):
                     x = dcu[u, i]
-                    t0 += W[b, i, 0] * x
-                    t1 += W[b, i, 1] * x
-                    t2 += W[b, i, 2] * x
+                    t0 += Wp[jj, i, 0] * x
+                    t1 += Wp[jj, i, 1] * x
+                    t2 += Wp[jj, i, 2] * x
             for c in range(3):
                 dp[p, c] = -(Vinv[p, c, 0] * t0 + Vinv[p, c, 1] * t1 + Vinv[p, c, 2] * t2)
 
@@ -670,6 +669,7 @@ class SchurEngine:
         self.unit_ptr = np.zeros(n_u + 1, np.int64)
         self.unit_ptr[1:] = np.cumsum(np.bincount(self.obs_unit, minlength=n_u)) if has_jc else 0
         self.unit_obs = uorder
+        self.upt = self.obs_unit[self.pt_obs]  # unit of each row in point order
         # ---- unit-pair block pattern (upper triangle incl. diagonal)
         if has_jc:
             self.row_ptr, self.col_idx = _K["pair_pattern"](self.unit_ptr, self.unit_obs, self.pt, self.pt_ptr,
@@ -732,7 +732,7 @@ class SchurEngine:
         gc = np.zeros(n_c)
         V = np.zeros((n_p, 3, 3))
         gp = np.zeros((n_p, 3))
-        self.W = np.zeros((0, k, 3))
+        self.W = self.Wp = np.zeros((0, k, 3))
         oth = dict(self.others)
         for i, f in enumerate(factors):
             sw, c = _robust(f, huber_k)
@@ -753,6 +753,7 @@ class SchurEngine:
                 _K["unit_normals"](self.unit_ptr, self.unit_obs, jc, jp if jp is not None else np.zeros((len(f), r.shape[1], 3)),
                                    r, w, self.pt, Uu, gu, W)
                 self.W = W
+                self.Wp = W[self.pt_obs]  # point order: the Schur product reads them point by point
                 m = self.map_a[self._diag_entries]
                 v = m >= 0
                 U0 += np.bincount(m[v], weights=Uu.reshape(-1)[v], minlength=self.nnz)
@@ -791,8 +792,8 @@ class SchurEngine:
         if k and n_p and len(self.W):
             blocks = np.zeros((len(self.col_idx), k, k))
             rhs_u = np.zeros((self.n_u, k))
-            _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.pt_obs, self.W, Vinv,
-                        self.gp, self.row_ptr, self.col_idx, blocks, rhs_u, 8 * _numba.get_num_threads())
+            _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.upt, self.W, self.Wp,
+                        Vinv, self.gp, self.row_ptr, self.col_idx, blocks, rhs_u, 8 * _numba.get_num_threads())
             _K["scatter"](blocks.reshape(-1), self.map_a, self.map_b, S)
             cv = self.ucols >= 0
             rhs += np.bincount(self.ucols[cv], weights=rhs_u[cv], minlength=self.n_c)
@@ -808,9 +809,8 @@ class SchurEngine:
         if n_p:
             dcu = np.where(self.ucols >= 0, np.concatenate([dc, [0.0]])[self.ucols], 0.0) if self.k else \
                 np.zeros((self.n_u, 0))
-            W = self.W if len(self.W) else np.zeros((0, self.k, 3))
-            _K["back_substitute"](self.pt_ptr, self.pt_obs, self.obs_unit, W, np.ascontiguousarray(dcu), Vinv,
-                                  self.gp, dp)
+            Wp = self.Wp if len(self.Wp) else np.zeros((0, self.k, 3))
+            _K["back_substitute"](self.pt_ptr, self.upt, Wp, np.ascontiguousarray(dcu), Vinv, self.gp, dp)
         du = np.clip(self.diagU, self.diag_min, None)
         dv = np.clip(np.diagonal(self.V, axis1=1, axis2=2), self.diag_min, None).reshape(-1)
         dpf = dp.reshape(-1)
@@ -924,6 +924,29 @@ def levenberg_marquardt(
     ``gradient_tolerance``.  ``engine``: ``"numba"`` (:class:`SchurEngine`), ``"scipy"`` (the sparse
     matrix reference path) or ``"auto"`` (numba when installed).
     """
+    if engine == "auto":
+        engine = "numba" if HAVE_NUMBA else "scipy"
+    threads = None
+    if HAVE_NUMBA and model.block.n_observations < SERIAL_BELOW:
+        # small blocks: the compiled kernels' parallel regions cost more in thread hand-offs than they save
+        threads = _numba.get_num_threads()
+        _numba.set_num_threads(1)
+    try:
+        return _levenberg_marquardt(model, state, max_iterations, function_tolerance, parameter_tolerance,
+                                    gradient_tolerance, huber_k, free_datum, callback, initial_radius, engine)
+    finally:
+        if threads is not None:
+            _numba.set_num_threads(threads)
+
+
+#: below this many image observations the compiled kernels run on one thread
+SERIAL_BELOW = 100_000
+
+
+def _levenberg_marquardt(model: Model, state: State, max_iterations: int, function_tolerance: float,
+                         parameter_tolerance: float, gradient_tolerance: float, huber_k: float | None,
+                         free_datum: bool, callback: Callable[[int, float, float], None] | None,
+                         initial_radius: float, engine: str) -> tuple[State, SolveInfo]:
     t0 = time.perf_counter()
     lay = model.layout
     info = SolveInfo()

@@ -1,15 +1,31 @@
 """Variance component estimation: choosing the a-priori sigma of observation groups from the data.
 
 Förstner's iterative estimate: for a group ``g`` (or a set of its axes) with whitened residuals
-``v_i / sigma_i`` and redundancy numbers ``r_i`` (sum over all rows = n - u)::
+``z_i`` (``v_i / sigma_i``, or ``W v`` for rows with a full covariance, ``W^T W = Σ^-1``) and
+redundancy numbers ``r_i`` (sum over all rows = n - u)::
 
-    s_g^2 = sum_g (v_i / sigma_i)^2 / sum_g r_i          sigma_i <- sigma_i * s_g
+    s_g^2 = sum_g z_i^2 / sum_g r_i          sigma_i <- sigma_i * s_g     (Σ_i <- s_g^2 Σ_i)
 
 repeated until every factor ``s_g`` is within ``tolerance`` of 1.  At convergence each group's
 a-posteriori variance factor is 1: the weights are those the block's own residuals support.  The
 estimate needs redundancy in the group (a group with ``sum r_i`` below ``min_redundancy`` is left as
 given) and assumes the functional model is right: a systematic model error shows up as an inflated
 variance of the group that absorbs it.
+
+Full covariances
+----------------
+Where a group carries full covariances (``Block.obs_cov_px2``, ``control_cov_m2``, ``gnss_cov_m2``,
+``imu_cov_rad2``) the covariance rows are what is scaled (and the per-axis sigmas, ``sqrt(diag)``, with
+them), so the correlations stay as given:
+
+* a component made of a set of axes (e.g. horizontal ``(0, 1)`` and vertical ``(2,)`` of GNSS) scales
+  the diagonal block ``Σ[axes, axes]`` by ``s^2``.  This is exact when no row correlates axes of
+  different sets (``Σ`` block diagonal with respect to the split): the whitened components of a set
+  then depend on that set's axes only;
+* when some row of the group does correlate axes of different sets (a general 3x3 GNSS covariance),
+  a horizontal / vertical split has no meaning: the group's sets are **merged into one component**
+  over all its axes, one factor scales the whole covariance ``Σ <- s^2 Σ``, and
+  :attr:`VarianceComponents.notes` says so.
 """
 
 from __future__ import annotations
@@ -18,14 +34,18 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.model import whitening_matrices
 
 __all__ = ["VarianceComponents", "estimate_variance_components", "DEFAULT_SPLIT"]
 
 #: block attribute holding each group's sigma
 _SIGMA_ATTR = {"image": "obs_sigma_px", "control": "control_sigma", "gnss": "gnss_sigma", "imu": "imu_sigma_rad"}
+#: block attribute holding each group's optional full covariance
+_COV_ATTR = {"image": "obs_cov_px2", "control": "control_cov_m2", "gnss": "gnss_cov_m2", "imu": "imu_cov_rad2"}
 
 #: default axis sets: one component for image x/y, horizontal vs vertical for GNSS and control,
 #: one for the three IMU angles
@@ -44,16 +64,23 @@ class VarianceComponents:
     Attributes
     ----------
     block
-        The block with re-scaled sigmas (a copy).
+        The block with re-scaled sigmas and covariances (a copy).
     result
         The adjustment at the final weights.
     sigma
         Final a-priori sigma per component ``{"gnss[0, 1]": value, ...}`` (the first row's value; units
         of the group: px, m, rad).
+    variance_factor
+        Per component the total factor by which the given variances (and covariance blocks) were
+        multiplied: the estimated variance of unit weight of the component relative to the input
+        (4 means the given sigmas were 2x too small).
     history
-        Per iteration the factors ``s_g`` of every component.
+        Per iteration the factors ``s_g`` (sigma ratios) of every component.
     converged
         All factors within tolerance of 1.
+    notes
+        What was done differently from the requested split (components merged because full
+        covariances correlate their axes).
     """
 
     block: Block
@@ -61,6 +88,42 @@ class VarianceComponents:
     sigma: dict[str, float]
     history: list[dict[str, float]] = field(default_factory=list)
     converged: bool = False
+    variance_factor: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def _separable(cov: NDArray[np.float64], sets: Sequence[Sequence[int]], rtol: float = 1e-12) -> bool:
+    """True when no covariance row correlates axes of different sets (axes in no set form one more set)."""
+    d = cov.shape[1]
+    label = np.full(d, -1)
+    for k, axes in enumerate(sets):
+        label[list(axes)] = k
+    cross = label[:, None] != label[None, :]
+    if not cross.any() or len(cov) == 0:
+        return True
+    sd = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
+    scale = sd[:, :, None] * sd[:, None, :]
+    return bool((np.abs(cov[:, cross]) <= rtol * scale[:, cross]).all())
+
+
+def _components(block: Block, split: Mapping[str, Sequence[Sequence[int]]]
+                ) -> tuple[dict[str, list[list[int]]], list[str]]:
+    """Effective axis sets per group (merged where full covariances correlate the requested sets)."""
+    out: dict[str, list[list[int]]] = {}
+    notes: list[str] = []
+    for g, sets in split.items():
+        if g not in _SIGMA_ATTR:
+            raise ValueError(f"unknown observation group {g!r} in split; known: {sorted(_SIGMA_ATTR)}")
+        sets_l = [sorted(int(a) for a in axes) for axes in sets]
+        cov = getattr(block, _COV_ATTR[g])
+        if cov is not None and len(sets_l) > 1 and not _separable(cov, sets_l):
+            d = cov.shape[1]
+            notes.append(f"{g}: the full covariances correlate axes of different components "
+                         f"{', '.join(map(str, sets_l))}; one variance factor scales the whole {d}x{d} "
+                         f"covariance (component {g}{list(range(d))})")
+            sets_l = [list(range(d))]
+        out[g] = sets_l
+    return out, notes
 
 
 def estimate_variance_components(
@@ -77,12 +140,14 @@ def estimate_variance_components(
     Parameters
     ----------
     block
-        Block with a-priori sigmas (starting values of the iteration; only their ratios within a
-        component are kept).
+        Block with a-priori sigmas or covariances (starting values of the iteration; only their
+        ratios and correlations within a component are kept).
     config
         Adjustment configuration (``statistics`` must be on: redundancy numbers are needed).
     split
         Axis sets per group (default :data:`DEFAULT_SPLIT`); groups absent from the block are skipped.
+        For a group with full covariances that correlate axes of different sets the sets are merged
+        (see the module docstring and ``notes`` of the result).
     max_iterations, tolerance
         Stop after this many adjustments or when every ``|s_g - 1| < tolerance``.
     min_redundancy
@@ -95,29 +160,43 @@ def estimate_variance_components(
         raise ValueError("variance component estimation needs statistics=True (redundancy numbers)")
     split = DEFAULT_SPLIT if split is None else split
     b = block.copy()
+    comps, notes = _components(b, split)
+    total: dict[str, float] = {}
     history: list[dict[str, float]] = []
     converged = False
     res = None
     for it in range(1, max_iterations + 1):
         res = adjust(b, cfg)
         factors: dict[str, float] = {}
-        for g, sets in split.items():
+        for g, sets in comps.items():
             gr = res.residuals.get(g)
             if gr is None or gr.redundancy is None or len(gr.residual) == 0:
                 continue
             sig = getattr(b, _SIGMA_ATTR[g])
+            cov = getattr(b, _COV_ATTR[g])
             act = gr.weight > 0
-            z2 = (gr.residual / sig) ** 2
+            if cov is None:
+                z = gr.residual / sig
+            else:  # the rows the adjustment used: W v with W^T W = cov^-1
+                z = np.einsum("nij,nj->ni", whitening_matrices(cov), gr.residual)
+            z2 = z**2
             new = sig.copy()
-            for axes in sets:
-                ax = list(axes)
+            new_cov = None if cov is None else cov.copy()
+            for ax in sets:
                 red = float(gr.redundancy[act][:, ax].sum())
                 if red < min_redundancy:
                     continue
                 s = float(np.sqrt(z2[act][:, ax].sum() / red))
-                factors[f"{g}{ax}"] = s
+                key = f"{g}{ax}"
+                factors[key] = s
+                total[key] = total.get(key, 1.0) * s * s
                 new[:, ax] = sig[:, ax] * s
+                if new_cov is not None:
+                    new_cov[:, np.array(ax)[:, None], np.array(ax)[None, :]] *= s * s
             setattr(b, _SIGMA_ATTR[g], new)
+            if new_cov is not None:
+                setattr(b, _COV_ATTR[g], new_cov)
+                setattr(b, _SIGMA_ATTR[g], np.sqrt(np.diagonal(new_cov, axis1=1, axis2=2)).copy())
         history.append(factors)
         if callback is not None:
             callback(it, factors)
@@ -126,11 +205,12 @@ def estimate_variance_components(
             break
     if not converged:  # the weights were changed after the last adjustment
         res = adjust(b, cfg)
-    assert res is not None
+    if res is None:
+        raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
     sigma = {}
-    for g, sets in split.items():
+    for g, sets in comps.items():
         sig = getattr(b, _SIGMA_ATTR[g])
         if len(sig):
-            for axes in sets:
-                sigma[f"{g}{list(axes)}"] = float(sig[0, list(axes)[0]])
-    return VarianceComponents(b, res, sigma, history, converged)
+            for ax in sets:
+                sigma[f"{g}{ax}"] = float(sig[0, ax[0]])
+    return VarianceComponents(b, res, sigma, history, converged, total, notes)

@@ -19,8 +19,9 @@ are omega/phi/kappa in degrees (``Rx(omega) Ry(phi) Rz(kappa)``, ``world_from_st
 ``station_from_camera``).  Errors name the file, the line and the field.
 
 Version 1.1 adds optional full covariances (``cov_col_col_px2, cov_col_row_px2, cov_row_row_px2`` in
-observations; ``cov_XX_m2 ... cov_ZZ_m2`` in control and gnss, replacing the sigma columns) and the
-``distances`` table (scale bars).  Version 1 files are read unchanged; the writer writes version 1
+observations; ``cov_XX_m2 ... cov_ZZ_m2`` in control and gnss; ``cov_rx_rx_deg2 ... cov_rz_rz_deg2`` in
+imu, the attitude error as a rotation vector about the station axes; each replacing the sigma
+columns) and the ``distances`` table (scale bars).  Version 1 files are read unchanged; the writer writes version 1
 whenever the block uses no 1.1 feature.
 """
 
@@ -65,13 +66,20 @@ COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "gnss": (("station", "X_m", "Y_m", "Z_m", "sigma_X_m", "sigma_Y_m", "sigma_Z_m"),
              ("cov_XX_m2", "cov_XY_m2", "cov_XZ_m2", "cov_YY_m2", "cov_YZ_m2", "cov_ZZ_m2")),
     "imu": (("station", "omega_deg", "phi_deg", "kappa_deg", "sigma_omega_deg", "sigma_phi_deg",
-             "sigma_kappa_deg"), ()),
+             "sigma_kappa_deg"),
+            ("cov_rx_rx_deg2", "cov_rx_ry_deg2", "cov_rx_rz_deg2", "cov_ry_ry_deg2", "cov_ry_rz_deg2",
+             "cov_rz_rz_deg2")),
     "distances": (("point_a", "point_b", "distance_m", "sigma_m"), ()),
 }
 #: covariance columns (upper triangle, row-major) that may replace required sigma columns
 _COV2 = ("cov_col_col_px2", "cov_col_row_px2", "cov_row_row_px2")
 _COV3 = ("cov_XX_m2", "cov_XY_m2", "cov_XZ_m2", "cov_YY_m2", "cov_YZ_m2", "cov_ZZ_m2")
 _SIGMA3 = ("sigma_X_m", "sigma_Y_m", "sigma_Z_m")
+#: IMU attitude covariance (deg², rotation vector about the station axes x, y, z), upper triangle
+_COVR = ("cov_rx_rx_deg2", "cov_rx_ry_deg2", "cov_rx_rz_deg2", "cov_ry_ry_deg2", "cov_ry_rz_deg2", "cov_rz_rz_deg2")
+_SIGMAR = ("sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg")
+#: plausibility limits on variances by the unit of the covariance columns
+_VARIANCE_LIMITS = {"_px2": 1000.0**2, "_m2": 1000.0**2, "_deg2": 90.0**2}
 _UNITS = ("_m", "_deg", "_px", "_s", "_rad", "_mm", "_gon", "_cm", "_arcsec", "_mrad", "_urad")
 #: plausibility limits on sigmas (a sigma beyond these is almost surely in the wrong unit)
 _SIGMA_LIMITS = {"_px": 1000.0, "_m": 1000.0, "_deg": 90.0}
@@ -105,14 +113,15 @@ class _Table:
                 expect = [k for k in known if stem is not None and k.startswith(stem + "_")]
                 hint = f" (wrong unit? expected {expect[0]!r})" if expect else f"; known columns: {sorted(known)}"
                 raise InputFormatError(f"unknown column {h!r}{hint}", path, hl, h)
-        cov_cols = _COV3 if kind in ("control", "gnss") else _COV2 if kind == "observations" else ()
+        cov_cols = (_COV3 if kind in ("control", "gnss") else _COV2 if kind == "observations" else
+                    _COVR if kind == "imu" else ())
         have_cov = [c for c in cov_cols if c in header]
         if have_cov and len(have_cov) != len(cov_cols):
             miss = next(c for c in cov_cols if c not in header)
             raise InputFormatError(f"covariance columns come as a set: {have_cov[0]!r} given without {miss!r}",
                                    path, hl, miss)
         for r in required:
-            if r not in header and not (have_cov and r in _SIGMA3):
+            if r not in header and not (have_cov and r in _SIGMA3 + _SIGMAR):
                 raise InputFormatError(f"missing required column {r!r}", path, hl, r)
         self.col = {h: k for k, h in enumerate(header)}
         self.lines = []
@@ -161,10 +170,11 @@ class _Table:
 
     def cov(self) -> np.ndarray | None:
         """``(n, d, d)`` covariances from the ``cov_*`` columns (None when absent); must be positive definite."""
-        names = _COV3 if "cov_XX_m2" in self.col else _COV2 if "cov_col_col_px2" in self.col else None
+        names = (_COV3 if "cov_XX_m2" in self.col else _COV2 if "cov_col_col_px2" in self.col else
+                 _COVR if "cov_rx_rx_deg2" in self.col else None)
         if names is None:
             return None
-        d = 3 if names is _COV3 else 2
+        d = 2 if names is _COV2 else 3
         iu = np.triu_indices(d)
         out = np.zeros((len(self.rows), d, d))
         for nm, a, b in zip(names, *iu):
@@ -176,10 +186,10 @@ class _Table:
             except np.linalg.LinAlgError:
                 raise InputFormatError(f"covariance {out[j].tolist()} is not positive definite", self.path,
                                        self.lines[j], diag_name) from None
-            lim = 1000.0**2
-            if out[j].diagonal().max() > lim:
+            unit = names[0][names[0].rindex("_"):]
+            if out[j].diagonal().max() > _VARIANCE_LIMITS[unit]:
                 raise InputFormatError(f"variance {out[j].diagonal().max()} is implausibly large (wrong units? "
-                                       f"variances are squared: {names[0][-3:]!r})", self.path, self.lines[j],
+                                       f"variances are squared: {unit[1:]!r})", self.path, self.lines[j],
                                        names[0])
         return out
 
@@ -349,10 +359,12 @@ def read_block(path: PathLike) -> BlockFile:
                   gnss_sigma=sig3(g), gnss_cov_m2=g.cov())
     if "imu" in T:
         u = T["imu"]
+        ucov = u.cov()  # (1.1) deg² about the station axes -> rad²
+        usig = (np.ones((len(u), 3)) if ucov is not None and not u.has("sigma_omega_deg")
+                else np.radians(np.column_stack([u.num(x, positive=True) for x in _SIGMAR])))
         kw.update(imu_station=u.ref("station", st_idx, "station"),
                   imu_rotation=matrix_from_opk(u.num("omega_deg"), u.num("phi_deg"), u.num("kappa_deg"), unit="deg"),
-                  imu_sigma_rad=np.radians(np.column_stack([u.num(x, positive=True) for x in (
-                      "sigma_omega_deg", "sigma_phi_deg", "sigma_kappa_deg")])))
+                  imu_sigma_rad=usig, imu_cov_rad2=None if ucov is None else ucov * np.radians(1.0) ** 2)
     if "distances" in T:
         dt = T["distances"]
         dp = np.column_stack([dt.ref("point_a", pt_idx, "point"), dt.ref("point_b", pt_idx, "point")])
@@ -487,8 +499,10 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         tables["imu"] = f"{stem}_imu.csv"
         io_, ip, ik = opk_from_matrix(block.imu_rotation, unit="deg")
         s = np.degrees(block.imu_sigma_rad)
-        _write_csv(p.parent / tables["imu"], list(COLUMNS["imu"][0]),
-                   [block.station_name[block.imu_station].tolist(), io_, ip, ik, s[:, 0], s[:, 1], s[:, 2]])  # type: ignore[index]
+        ucov = getattr(block, "imu_cov_rad2", None)
+        h, c = cov_cols(None if ucov is None else ucov * np.degrees(1.0) ** 2, _COVR)
+        _write_csv(p.parent / tables["imu"], list(COLUMNS["imu"][0]) + h,
+                   [block.station_name[block.imu_station].tolist(), io_, ip, ik, s[:, 0], s[:, 1], s[:, 2]] + c)  # type: ignore[index]
     if block.n_distances:
         version = VERSION
         tables["distances"] = f"{stem}_distances.csv"
