@@ -15,6 +15,7 @@ from skyrig.adjust.solver import (
     SingularError,
     SolveInfo,
     assemble,
+    factor_cost,
     levenberg_marquardt,
     schur_matrix,
     solve_reduced,
@@ -409,13 +410,15 @@ def _sigma(block: Block, g: str) -> NDArray[np.float64]:
 
 def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):  # type: ignore[no-untyped-def]
     lay = model.layout
-    factors = model.evaluate(state)
-    N = assemble(factors, lay, block.obs_image)
+    # without statistics only the cost is needed: no Jacobians, no normal equations
+    factors = model.evaluate(state, jacobians=cfg.statistics)
+    N = assemble(factors, lay, block.obs_image) if cfg.statistics else None
+    cost = N.cost if N is not None else factor_cost(factors)
     n_obs = int(sum(((f.weight if f.weight is not None else np.ones(len(f))) > 0).sum() * f.r.shape[1]
                     for f in factors))
     n_unk = lay.n_c + 3 * lay.n_p
     red = n_obs - n_unk + (_datum_defect(lay) if free else 0)
-    sigma0 = float(np.sqrt(2.0 * N.cost / red)) if red > 0 else float("nan")
+    sigma0 = float(np.sqrt(2.0 * cost / red)) if red > 0 else float("nan")
     cov = None
     warnings: list[str] = []
     if red <= 0:
