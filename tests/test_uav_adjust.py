@@ -196,3 +196,35 @@ def test_brighton_centres_agree_with_pycolmap(brighton):
     tol = 3.0 * float(np.sqrt(np.mean(ps ** 2)))
     assert c["rms_m"] < tol, (c["rms_m"], tol)
     assert c["max_m"] < 2 * tol, (c["max_m"], tol)
+
+
+def test_detect_strips_finds_the_simulated_flight_lines():
+    # the simulated flight: 3 strips x 7 images, alternate directions, GNSS noise 0.5 m; truth by construction
+    inp, truth = _sim_block(n_points=50)
+    from skyrig.pipeline.uav import detect_strips
+
+    lab = detect_strips(inp.gnss)
+    assert lab.tolist() == np.repeat(np.arange(3), 7).tolist()
+    # a straight line of images is one strip; isolated turn images get none
+    line = np.column_stack([np.arange(5.0), np.zeros(5), np.zeros(5)])
+    assert detect_strips(line).tolist() == [0] * 5
+    assert detect_strips(line[:2]).tolist() == [-1, -1]
+
+
+def test_robust_similarity_recovers_a_known_transform_despite_outliers() -> None:
+    """A part seeded on its own is tied to the oriented block through common tie points (robust similarity);
+    checked against a known similarity with 20 % gross outliers, and refused when the points do not fit."""
+    from skyrig.geometry.rotations import matrix_from_rotvec
+    from skyrig.pipeline.uav import _robust_similarity
+
+    rng = np.random.default_rng(5)
+    src = rng.normal(0, 10, (60, 3))
+    Rt = matrix_from_rotvec(np.array([0.3, -0.2, 1.1]))
+    dst = 2.5 * src @ Rt.T + np.array([100.0, -50.0, 3.0]) + rng.normal(0, 0.01, (60, 3))
+    dst[:12] += rng.normal(0, 30, (12, 3))
+    fit = _robust_similarity(src, dst)
+    assert fit is not None
+    s, R, t, n_in = fit
+    assert abs(s - 2.5) < 1e-3 and np.abs(R - Rt).max() < 1e-3 and np.abs(t - [100.0, -50.0, 3.0]).max() < 0.05
+    assert 45 <= n_in <= 48
+    assert _robust_similarity(src, rng.normal(0, 10, (60, 3))) is None

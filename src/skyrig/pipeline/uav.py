@@ -30,6 +30,13 @@ Stages (:func:`adjust_uav_block` on arrays, :func:`adjust_uav` on a project fold
    weighted prior), principal point and OpenCV distortion k1 k2 p1 p2 k3; then residuals above
    ``reject_k`` x robust RMS are removed and the block re-adjusted with full statistics.
 
+   Options (defaults keep the behaviour above): ``focal="exif"`` fixes the focal length at its EXIF value;
+   ``focal="auto"`` self-calibrates it but fixes it at EXIF when its formal sigma is not below
+   ``focal_determinable`` x the prior sigma (the decision is reported in words in ``summary["focal"]``);
+   ``gnss_strip_shift="weighted"`` estimates a GNSS shift per flight strip (:func:`detect_strips`).  On brighton
+   (1600-px ties) none of them, nor dropping the attitude prior, changes the 1 m misfit of strip DJI_0018-0023
+   (see ``bench/uav.py --variants``), so they stay off by default.
+
 Everything is in the local ENU frame (metres); pixels follow skyrig's convention (origin at the centre of
 the top-left pixel).
 """
@@ -56,7 +63,7 @@ from skyrig.geometry.rotations import rotvec_from_matrix
 logger = logging.getLogger(__name__)
 
 __all__ = ["UavConfig", "UavBlockInput", "UavResult", "metadata_block_input", "adjust_uav_block", "adjust_uav",
-           "compare_with_reconstruction", "triangulate_tracks"]
+           "compare_with_reconstruction", "triangulate_tracks", "detect_strips"]
 
 #: OpenCV camera frame (x right, y down, z forward) -> skyrig camera frame (x right, y up, z back)
 _SKYRIG_FROM_CV = np.diag([1.0, -1.0, -1.0])
@@ -102,6 +109,15 @@ class UavConfig:
     reject_min_px: float = 2.0
     #: Levenberg-Marquardt iterations per adjustment
     max_iterations: int = 40
+    #: per-strip GNSS shift (strips found from the flight path, see :func:`detect_strips`): "off", or "weighted"
+    #: (a shift per strip with prior sigma ``strip_shift_sigma_m``; absorbs a GPS height/position offset per strip)
+    gnss_strip_shift: Literal["off", "weighted"] = "off"
+    strip_shift_sigma_m: float = 1.0
+    #: focal length: "self" (self-calibrated with the EXIF prior), "exif" (fixed at the EXIF value) or "auto"
+    #: (self-calibrated, but fixed at the EXIF value when the block cannot determine it: posterior sigma above
+    #: ``focal_determinable`` x the prior sigma, e.g. a flat nadir block flown at one height)
+    focal: Literal["self", "exif", "auto"] = "self"
+    focal_determinable: float = 0.5
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "UavConfig":
@@ -379,11 +395,13 @@ def _largest_component(agree: NDArray[np.bool_]) -> NDArray[np.int64]:
     return members if len(members) >= 2 else np.zeros(0, np.int64)
 
 
-def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_] | None = None
-                   ) -> tuple[NDArray[np.int64], NDArray, NDArray]:
+def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_] | None = None,
+                   need_gnss_base: bool = True) -> tuple[NDArray[np.int64], NDArray, NDArray]:
     """Seed without attitude metadata: essential matrix of the best-connected pair with a long enough GNSS
     base; relative rotation, base direction from the images and base length from GNSS.  The frame is provisional
-    (the rotation about the base is arbitrary); :func:`_seed_component` replaces it by a similarity onto GNSS."""
+    (the rotation about the base is arbitrary); :func:`_seed_component` replaces it by a similarity onto GNSS.
+    With ``need_gnss_base=False`` (the part will be tied to an oriented block through common points, which
+    fix the scale) a pair with (nearly) equal GNSS positions may start it, with a nominal base of 1 m."""
     import cv2
 
     n = len(inp.names)
@@ -397,12 +415,15 @@ def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_
         while j < len(t) and t[j] == t[k]:
             pairs[(int(im[k]), int(im[j]))] = pairs.get((int(im[k]), int(im[j])), 0) + 1
             j += 1
+    tried = 0
     for (i, j), c in sorted(pairs.items(), key=lambda kv: -kv[1]):
         if allowed is not None and not (allowed[i] and allowed[j]):
             continue
-        base = np.linalg.norm(inp.gnss[i] - inp.gnss[j])
-        if base < 1.0 or c < 50:
+        base = float(np.linalg.norm(inp.gnss[i] - inp.gnss[j]))
+        if c < 50 or (base < 1.0 and need_gnss_base):
             continue
+        if base < 1.0:
+            base = 1.0
         ti = {int(a): p for a, p in zip(inp.obs_track[inp.obs_image == i], inp.obs_pixel[inp.obs_image == i])}
         tj = {int(a): p for a, p in zip(inp.obs_track[inp.obs_image == j], inp.obs_pixel[inp.obs_image == j])}
         common = sorted(set(ti) & set(tj))
@@ -414,17 +435,28 @@ def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_
         nin, R21, t21, mask = cv2.recoverPose(E, p1, p2, np.eye(3), mask=mask)
         if nin < cfg.pnp_min_inliers:
             continue
-        best = (i, j, R21, t21[:, 0], base)
-        break
+        # a seed needs parallax: rays of a (near) pure rotation pair stay parallel once rotated
+        inl = mask.ravel() > 0
+        r1 = np.column_stack([p1[inl], np.ones(int(inl.sum()))])
+        r2 = np.column_stack([p2[inl], np.ones(int(inl.sum()))]) @ R21  # R21^T x2, row-wise
+        cosang = np.sum(r1 * r2, axis=1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+        score = int(np.sum(cosang < np.cos(np.radians(2.0 * cfg.min_angle_deg))))
+        if score < cfg.pnp_min_inliers:
+            continue
+        if best is None or score > best[5]:
+            best = (i, j, R21, t21[:, 0], base, score)
+        tried += 1
+        if tried >= 12:  # the best-connected candidates; the one with most parallax wins
+            break
     if best is None:
         raise UavAdjustError("no image pair with enough matches and GNSS base to start the block")
-    i, j, R21, t21, base = best
+    i, j, R21, t21, base, _ = best
     # camera 1 (cv) at origin; camera 2: x2 = R21 x1 + t21  -> centre2 = -R21^T t21 (unit), scaled by base
     c2_cv1 = -R21.T @ t21 * base
     # world from cv1: align the base with the GNSS base; roll about the base: image "up" (-y_cv) to world up
     g_base = inp.gnss[j] - inp.gnss[i]
     u = c2_cv1 / np.linalg.norm(c2_cv1)
-    w = g_base / np.linalg.norm(g_base)
+    w = g_base / np.linalg.norm(g_base) if np.linalg.norm(g_base) > 1e-6 else np.array([1.0, 0.0, 0.0])
     up_cam = np.array([0.0, -1.0, 0.0])
     up_world = np.array([0.0, 0.0, 1.0])
 
@@ -447,7 +479,8 @@ def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_
 # ---------------------------------------------------------------------------------------------- adjustment
 def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDArray,
                  img_sel: NDArray[np.int64], obs_sel: NDArray[np.bool_], cfg: UavConfig, sigma_px: float,
-                 imu_images: NDArray[np.int64]) -> tuple[Block, NDArray[np.int64], NDArray[np.int64]]:
+                 imu_images: NDArray[np.int64], strip: NDArray[np.int64] | None = None
+                 ) -> tuple[Block, NDArray[np.int64], NDArray[np.int64]]:
     n = len(inp.names)
     img_map = np.full(n, -1)
     img_map[img_sel] = np.arange(len(img_sel))
@@ -466,8 +499,60 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
         imu_rotation=inp.rotation[img_sel[imu]] if cfg.attitude_sigma_deg else None,
         imu_sigma_rad=np.radians(cfg.attitude_sigma_deg or 1.0),
         frame=inp.frame.describe() if inp.frame is not None else "local ENU",
+        station_strip=None if strip is None else _renumber_strips(strip[img_sel]),
     )
     return block, tracks, np.flatnonzero(obs_sel)
+
+
+def _renumber_strips(strip: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Strip labels of a subset renumbered 0..T-1 (-1 kept)."""
+    out = np.full(len(strip), -1, np.int64)
+    ok = strip >= 0
+    if ok.any():
+        out[ok] = np.unique(strip[ok], return_inverse=True)[1]
+    return out
+
+
+def detect_strips(gnss: NDArray, max_turn_deg: float = 45.0, min_images: int = 3) -> NDArray[np.int64]:
+    """Flight strips from GNSS positions in capture order.
+
+    A strip is a run of consecutive images whose horizontal displacement keeps its direction (within
+    ``max_turn_deg`` of the strip's first leg).
+
+    Parameters
+    ----------
+    gnss
+        ``(I, 3)`` positions (m) in capture order.
+    max_turn_deg
+        Direction change that starts a new strip (deg).
+    min_images
+        Runs shorter than this get no strip.
+
+    Returns
+    -------
+    ``(I,)`` strip index per image (0..T-1), -1 for images in no strip.
+    """
+    g = np.asarray(gnss, float)
+    n = len(g)
+    lab = np.full(n, -1, np.int64)
+    if n < 2:
+        return lab
+    leg = np.diff(g[:, :2], axis=0)
+    ang = np.arctan2(leg[:, 1], leg[:, 0])
+    start, k = 0, 0
+    runs = []
+    ref = ang[0]
+    for j in range(1, n - 1):  # leg j joins image j and j+1
+        d = np.degrees(abs((ang[j] - ref + np.pi) % (2 * np.pi) - np.pi))
+        if d > max_turn_deg:
+            runs.append((start, j + 1))  # images start..j
+            start, ref = j + 1, ang[j + 1] if j + 1 < n - 1 else ang[j]
+    runs.append((start, n))
+    for a, b in runs:
+        if b - a >= min_images:
+            lab[a:b] = k
+            k += 1
+    return lab
 
 
 def _usable_obs(inp: UavBlockInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
@@ -548,11 +633,40 @@ def _resect_all(inp: UavBlockInput, camera: FrameCamera, X: NDArray, R: NDArray,
     return added
 
 
+_MIN_COMMON = 12
+
+
+def _robust_similarity(src: NDArray[np.float64], dst: NDArray[np.float64]
+                       ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], int] | None:
+    """Similarity ``dst ~ s R src + t`` with iterative trimming (3 robust sigma); None if fewer than
+    ``_MIN_COMMON`` points survive or the fit stays poor (inlier residual median above 5 % of the spread)."""
+    from skyrig.match.colmap_check import similarity_transform
+
+    keep = np.ones(len(src), bool)
+    for _ in range(10):
+        if keep.sum() < _MIN_COMMON:
+            return None
+        sc, Rs, ts = similarity_transform(src[keep], dst[keep])
+        res = np.linalg.norm(sc * src @ Rs.T + ts - dst, axis=1)
+        thr = 3.0 * 1.4826 * float(np.median(res[keep])) + 1e-9
+        new = res <= thr
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    spread = float(np.sqrt(np.mean(np.sum((dst[keep] - dst[keep].mean(axis=0)) ** 2, axis=1))))
+    if keep.sum() < _MIN_COMMON or not float(np.median(res[keep])) < 0.05 * spread:
+        return None
+    return float(sc), Rs, ts, int(keep.sum())
+
+
 def _seed_component(inp: UavBlockInput, cfg: UavConfig, camera: FrameCamera, allowed: NDArray[np.bool_],
-                    active: NDArray[np.bool_], check: dict[str, dict[str, Any]]
+                    active: NDArray[np.bool_], check: dict[str, dict[str, Any]],
+                    anchor_X: NDArray[np.float64] | None = None,
                     ) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
     """Orient a connected part of the block among ``allowed`` images without attitude metadata: two-view seed,
-    growth by resection in the seed's frame, then a similarity onto the GNSS positions.
+    growth by resection in the seed's frame, then a similarity onto the already oriented block through the
+    tie points both have triangulated (``anchor_X``, ``(T, 3)``, NaN where not triangulated; at least
+    ``_MIN_COMMON`` common points, robust fit), or else onto the GNSS positions.
 
     Returns ``R (I, 3, 3)``, ``C (I, 3)`` (NaN outside the part) and the ``(I,)`` mask of the part (all False
     when no part of >= 3 images with non-collinear GNSS positions could be made).
@@ -560,8 +674,9 @@ def _seed_component(inp: UavBlockInput, cfg: UavConfig, camera: FrameCamera, all
     n, T = len(inp.names), len(inp.track_name)
     none = (np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool))
     try:
-        seed, R, C = _two_view_seed(inp, cfg, allowed)
-    except UavAdjustError:
+        seed, R, C = _two_view_seed(inp, cfg, allowed, need_gnss_base=anchor_X is None)
+    except UavAdjustError as exc:
+        logger.info("no two-view seed among the %d remaining images: %s", int(allowed.sum()), exc)
         return none
     part = np.zeros(n, bool)
     part[seed] = True
@@ -579,6 +694,28 @@ def _seed_component(inp: UavBlockInput, cfg: UavConfig, camera: FrameCamera, all
         if not added:
             break
     idx = np.flatnonzero(part)
+    from skyrig.match.colmap_check import similarity_transform
+
+    if anchor_X is not None and len(idx) >= 2:
+        sel = part[inp.obs_image] & act
+        Xp, okp = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel],
+                                     inp.obs_image[sel], inp.obs_pixel[sel], T, cfg.min_angle_deg)
+        common = np.flatnonzero(okp & np.isfinite(anchor_X).all(axis=1) & np.isfinite(Xp).all(axis=1))
+        fit = _robust_similarity(Xp[common], anchor_X[common]) if len(common) >= _MIN_COMMON else None
+        if fit is None:
+            logger.info("part of %d images: %d tie points in common with the oriented block, no robust similarity",
+                        len(idx), len(common))
+        if fit is not None:
+            sc, Rs, ts, n_in = fit
+            C[idx] = sc * C[idx] @ Rs.T + ts
+            R[idx] = Rs @ R[idx]
+            for k in idx:
+                check[str(inp.names[k])].update(sub_check[str(inp.names[k])])
+                check[str(inp.names[k])]["seeded"] = (f"two-view seed + resection, similarity onto the oriented "
+                                                      f"block through {n_in} common tie points")
+            logger.info("two-view seed grown to %d images, tied to the oriented block through %d of %d common "
+                        "tie points (scale %.3f)", len(idx), n_in, len(common), sc)
+            return R, C, part
     if len(idx) < 3:
         return none
     G = inp.gnss[idx] - inp.gnss[idx].mean(axis=0)
@@ -587,8 +724,6 @@ def _seed_component(inp: UavBlockInput, cfg: UavConfig, camera: FrameCamera, all
         logger.warning("%d images oriented from a two-view seed, but their GNSS positions are (nearly) collinear and "
                        "no attitude metadata is usable: the rotation about the line cannot be determined", len(idx))
         return none
-    from skyrig.match.colmap_check import similarity_transform
-
     sc, Rs, ts = similarity_transform(C[idx], inp.gnss[idx])
     C[idx] = sc * C[idx] @ Rs.T + ts
     R[idx] = Rs @ R[idx]
@@ -672,7 +807,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         added = _resect_all(inp, camera, X, R, C, oriented, active, cfg, check)
         if not added:
             # a part of the block not connected by enough tie points: its own seed, tied in by GNSS
-            R2, C2, part = _seed_component(inp, cfg, camera, ~oriented, active, check)
+            R2, C2, part = _seed_component(inp, cfg, camera, ~oriented, active, check, anchor_X=X)
             if not part.any():
                 break
             R[part], C[part] = R2[part], C2[part]
@@ -687,11 +822,19 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     w_mm = camera.width * camera.pixel_size_mm
     sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
-    names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
-    final_cfg = AdjustConfig(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,
-                             intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
-                             robust="huber", robust_k=cfg.robust_k, statistics=False,
-                             max_iterations=cfg.max_iterations)
+    names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration
+                      and not (nm == "focal_mm" and cfg.focal == "exif"))
+
+    def cal_cfg(names: tuple[str, ...]) -> AdjustConfig:
+        return AdjustConfig(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
+                            intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names),
+                            robust="huber", robust_k=cfg.robust_k, statistics=False,
+                            max_iterations=cfg.max_iterations,
+                            strip_shift="weighted" if cfg.gnss_strip_shift == "weighted" else "fixed",
+                            strip_shift_sigma_m=cfg.strip_shift_sigma_m)
+
+    final_cfg = cal_cfg(names_cal)
+    strip = detect_strips(inp.gnss) if cfg.gnss_strip_shift != "off" else None
     img_sel = np.flatnonzero(oriented)
     imu_imgs = np.intersect1d(trusted_att, img_sel)
     for stage in range(2):
@@ -704,7 +847,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         # the focal prior is anchored at the EXIF value in every stage (the prior of a "weighted" group is its
         # starting value)
         block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
-                                           cfg.pixel_sigma_px, imu_imgs)
+                                           cfg.pixel_sigma_px, imu_imgs, strip)
         res = _run(block, final_cfg)
         camera = res.block.cameras[0]
         R[img_sel] = res.block.station_rotation
@@ -721,8 +864,30 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     # last run: plain least squares on the cleaned observations, with statistics
     obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
     block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
-                                       cfg.pixel_sigma_px, imu_imgs)
+                                       cfg.pixel_sigma_px, imu_imgs, strip)
     res = _run(block, final_cfg.with_(robust=None, statistics=True))
+    focal_note = ("focal length fixed at the EXIF value (focal='exif')" if cfg.focal == "exif" or
+                  "focal_mm" not in cfg.self_calibration else "focal length self-calibrated")
+    focal_ratio = float("nan")
+    if "focal_mm" in names_cal:
+        # formal (a-priori) sigma of the focal length from the block's geometry and the prior, over the prior
+        sf = res.sigma_reduced().get(("intrinsics", res.block.cameras[0].name, "focal_mm"))
+        focal_ratio = float(sf) / max(res.sigma0, 1e-12) / sig["focal_mm"] if sf is not None else float("nan")
+        if cfg.focal == "auto" and not focal_ratio <= cfg.focal_determinable:
+            cam_self = res.block.cameras[0]
+            f_self = cam_self.focal_mm / cam_self.pixel_size_mm
+            names_nf = tuple(nm for nm in names_cal if nm != "focal_mm")
+            R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
+            X[:] = np.nan
+            X[tracks] = res.block.point_xyz
+            block, tracks, rows = _build_block(inp, cam_self.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
+                                               cfg.pixel_sigma_px, imu_imgs, strip)
+            res = _run(block, cal_cfg(names_nf).with_(robust=None, statistics=True))
+            focal_note = (f"focal length not determinable by this block (posterior sigma {focal_ratio:.2f} x the EXIF "
+                          f"prior sigma; self-calibrated value {f_self:.0f} px): fixed at the EXIF value")
+        elif cfg.focal == "auto":
+            focal_note = f"focal length self-calibrated (posterior sigma {focal_ratio:.2f} x the EXIF prior sigma)"
+    logger.info(focal_note)
     camera = res.block.cameras[0]
     R[img_sel] = res.block.station_rotation
     C[img_sel] = res.block.station_centre
@@ -738,6 +903,12 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     summary = _summary(inp, res, img_sel, camera, oriented, rounds, time.perf_counter() - t_start)
     summary["attitude_pairs_compared"] = int(np.isfinite(dis).sum() // 2)
     summary["attitude_pairs_agreeing"] = int(agree.sum() // 2)
+    summary["focal"] = focal_note
+    summary["focal_sigma_over_prior"] = focal_ratio
+    if strip is not None:
+        b = res.block
+        summary["strips"] = {int(k): [str(x) for x in inp.names[strip == k]] for k in np.unique(strip[strip >= 0])}
+        summary["strip_shift_m"] = np.asarray(b.strip_shift).tolist()
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
