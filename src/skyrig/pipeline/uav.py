@@ -610,9 +610,11 @@ def _resect_all(inp: UavBlockInput, camera: FrameCamera, X: NDArray, R: NDArray,
     for k in np.flatnonzero(~oriented):
         m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
         if m.sum() < cfg.pnp_min_inliers:
+            logger.debug("resection of %s: only %d triangulated points", inp.names[k], int(m.sum()))
             continue
         out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px, cfg.pnp_min_inliers)
         if out is None:
+            logger.debug("resection of %s failed on %d triangulated points", inp.names[k], int(m.sum()))
             continue
         Rk, Ck, inl = out
         R[k], C[k] = Rk, Ck
