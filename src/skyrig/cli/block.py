@@ -86,6 +86,20 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
     if unknown:
         raise click.BadParameter(f"--free: unknown group {unknown[0]!r}; known: {', '.join(_GROUPS)}")
     ms = [load_measurements(p) for p in meas_paths]
+    if rig_mode:
+        from skyrig.io.events_csv import read_events_csv
+
+        known, source = set(read_events_csv(events).image_name.tolist()), events
+    else:
+        from skyrig.cli._common import load_eo
+
+        known, source = set(load_eo(eo_path, None, None, None, None).image.tolist()), eo_path
+    for path, x in zip(meas_paths, ms):
+        bad = np.flatnonzero(~np.isin(x.image, list(known)))
+        if len(bad):
+            k = int(bad[0])
+            raise click.ClickException(f"{path}: image {str(x.image[k])!r} (point {str(x.point[k])!r}, measurement {k + 1}) is not "
+                                       f"in {source}; {len(bad)} measurement(s) name images without an orientation")
     m = ImageMeasurements(np.concatenate([x.point for x in ms]), np.concatenate([x.image for x in ms]),
                           np.vstack([x.pixel for x in ms]))
     pts = [read_points_csv(p) for p in (control_path, check_path) if p is not None]
