@@ -1,6 +1,7 @@
 """Height investigation on the real IGN 68-image block: the hypothesis table of tests/test_adjust_ign.py.
 
-Run:  .venv/bin/python bench/ign_block.py        (needs ../shared/data/ign-aerial-block; about a minute)
+Run:  .venv/bin/python bench/ign_block.py        (needs ../shared/data/ign-aerial-block; about two minutes)
+      .venv/bin/python bench/ign_block.py h6     (H6 only, about 30 s)
 
 Prints, each against IGN's own tie-point coordinates (``all_liaisons2_world.mes``), in GSD (5.7 cm):
 
@@ -11,7 +12,12 @@ Prints, each against IGN's own tie-point coordinates (``all_liaisons2_world.mes`
       (the ground point on the optical axis observed; VCE weights of the test): tie RMS, predicted RMS,
       adjusted-minus-given EO statistics and the centre / attitude correlation;
 * H4  height errors by strip combination and rays, their mean, and the normalised errors;
-* H1  self-calibration (Brown K1-K3, P1 P2, B1 B2 free) on top of the pivot model.
+* H1  self-calibration (Brown K1-K3, P1 P2, B1 B2 free) on top of the pivot model;
+* H6  sensor-tile (band) correction grid: the mean residual of IGN's solution per cell of an image grid
+      (``skyrig.adjust.corrections.fit_image_grid``), removed from the measurements like the refraction:
+      IGN-EO intersections with a fraction alpha of it, the adjustment with the test's and re-estimated
+      (VCE) weights, and a cross-validation (grid fitted on strips 27 + 55, heights of points seen only in
+      strips 26 / 28 / 54, and the reverse).
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ from test_adjust_ign import (  # noqa: E402
 )
 
 from skyrig.adjust import AdjustConfig, adjust  # noqa: E402
-from skyrig.adjust.corrections import remove_refraction  # noqa: E402
+from skyrig.adjust.corrections import fit_image_grid, remove_image_grid, remove_refraction  # noqa: E402
+from skyrig.adjust.vce import estimate_variance_components  # noqa: E402
 from skyrig.camera.brown import BrownDistortion  # noqa: E402
 from skyrig.georef.ground import forward_intersection, world_to_image  # noqa: E402
 from skyrig.georef.observations import ImageMeasurements  # noqa: E402
@@ -139,6 +146,71 @@ def report(label, conv, world, frame, res, block, detail=False):
     return dd
 
 
+def h6_grid(grid_shape=(9, 6)):
+    """The sensor-tile hypothesis: a camera correction grid estimated from IGN's orientations and points."""
+    conv, eo, cams, m, gcp, world = _load(DATA)
+    used = {eo.camera[eo.index()[i]] for i in np.unique(m.image)}
+    cams = {c: cams[c] for c in used}
+    (cam,) = cams.values()
+    k, _ = ign_refraction(eo, cams, m, world)
+    px0 = remove_refraction(m.pixel, cam, k)
+    idx = world.index()
+    sel = np.array([p in idx for p in m.point])
+    r = np.full_like(px0, np.nan)
+    r[sel] = world_to_image(eo, cams, m.image[sel], world.xyz[[idx[p] for p in m.point[sel]]], world.frame) - px0[sel]
+    strip = np.array([s.split("_")[0][-2:] for s in m.image])
+    seen = defaultdict(set)
+    for p, st in zip(m.point, strip):
+        seen[p].add(st)
+    print(f"H6  sensor-tile correction grid {grid_shape[0]} rows x {grid_shape[1]} columns, fitted from IGN's "
+          f"EO + points (refraction removed); IGN residual RMS {fmt(np.sqrt(np.mean(r[sel] ** 2, 0)))} px")
+    rows = px0[sel, 1]
+    band = (rows / cam.height * 17).astype(int)
+    print("    IGN residual row component, mean per 1000-row band: "
+          + " ".join(f"{r[sel, 1][band == j].mean():+.2f}" for j in range(17)))
+    g_all = fit_image_grid(r[sel], px0[sel], cam.width, cam.height, grid_shape)
+    print(f"    residual RMS after the grid {fmt(np.sqrt(np.mean((r[sel] - g_all(px0[sel])) ** 2, 0)))} px")
+    for a in (-1.0, -0.5, 0.0, 0.5, 1.0):
+        inter = forward_intersection(eo, cams, m.point, m.image, px0 + a * g_all(px0), world.frame)
+        ii = {p: j for j, p in enumerate(inter.point)}
+        s = np.array([p in ii for p in world.name])
+        dd = inter.xyz[[ii[p] for p in world.name[s]]] - world.xyz[s]
+        print(f"    IGN's EO fixed, measurements + {a:+.1f} x grid: intersection RMS "
+              f"{fmt(np.sqrt(np.mean(dd**2, 0)) / GSD)} GSD")
+
+    def adjusted(grid, label, vce):
+        conv, eo_, world_, block, frame, _ = ign_block(DATA)
+        if grid is not None:
+            block.obs_pixel = remove_image_grid(block.obs_pixel, grid)
+        if vce:
+            vc = estimate_variance_components(block)
+            res = vc.result
+            label += " VCE: " + ", ".join(f"{a} {np.degrees(b):.5f} deg" if "imu" in a else f"{a} {b:.4f}"
+                                          for a, b in vc.sigma.items())
+        else:
+            res = adjust(block, AdjustConfig())
+        dd = report(label, conv, world_, frame, res, block)
+        _, kk = _tie_differences(conv, world_, frame, res)
+        return dd, res.block.point_name[kk]
+
+    base = {}
+    for vce in (False, True):
+        w = "re-estimated weights" if vce else "test weights"
+        base[vce] = adjusted(None, f"  H6 no grid, {w}", vce)
+        adjusted(g_all, f"  H6 grid fitted on all images, {w}", vce)
+    for fit in ({"27", "55"}, {"26", "28", "54"}):
+        fs = sel & np.isin(strip, sorted(fit))
+        held = set(np.unique(strip)) - fit
+        g = fit_image_grid(r[fs], px0[fs], cam.width, cam.height, grid_shape)
+        dd, pn = adjusted(g, f"  H6 cross-validation: grid fitted on strips {'+'.join(sorted(fit))}, "
+                          "re-estimated weights", True)
+        s = np.array([seen[p] <= held for p in pn])
+        b = np.array([seen[p] <= held for p in base[True][1]])
+        print(f"    held-out points (seen only in strips {'+'.join(sorted(held))}, n={s.sum()}): RMS "
+              f"{fmt(np.sqrt(np.mean(dd[s] ** 2, 0)) / GSD)} GSD; without grid "
+              f"{fmt(np.sqrt(np.mean(base[True][0][b] ** 2, 0)) / GSD)} GSD")
+
+
 def main() -> None:
     conv, eo, cams, m, gcp, world = _load(DATA)
     used = {eo.camera[eo.index()[i]] for i in np.unique(m.image)}
@@ -180,6 +252,11 @@ def main() -> None:
         for n in ("k1", "k2", "k3", "p1", "p2", "b1", "b2")))
     report("    (self-calibrated)", conv, world, frame, res, block)
 
+    h6_grid()
+
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:] == ["h6"]:
+        h6_grid()
+    else:
+        main()

@@ -55,6 +55,17 @@ reached, and the investigation says it cannot be with this data and weights the 
 * a systematic image pattern exists (row residuals -0.15 / +0.12 px in horizontal bands), but
   self-calibration (Brown K1-K3, P1 P2, B1 B2 free) lowers sigma0 to 0.975 and moves heights *away*
   from IGN's (0.89 GSD, mean -0.43 GSD): IGN's heights were computed without that correction.
+* the sensor-tile hypothesis (the UltraCam Eagle M3 panchromatic image is stitched from several CCDs;
+  maybe IGN's adjustment modelled the row bands and the missing correction is what moves our EO by
+  0.0018 deg) is refuted (``bench/ign_block.py h6``).  A 9 x 6 correction grid, the mean residual of
+  IGN's solution per cell (``fit_image_grid``; row bands -0.19 / +0.08 px around rows 10,000 - 17,000),
+  estimated from IGN's orientations and points like K, lowers the image residuals, sigma0 (0.89) and the
+  attitude VCE sigma (0.0018 -> 0.0011 deg), but heights change only from 0.65 to 0.62 GSD (0.20 / 0.13 /
+  0.62 with re-estimated weights).  The decisive check needs no adjustment: with IGN's orientations held
+  fixed, intersections of the corrected measurements move *away* from IGN's points (0.29 -> 0.48 GSD in
+  height), symmetrically for +1 and -1 times the grid, minimum at 0: IGN's heights contain none of it.
+  Cross-validated (grid fitted on strips 27 + 55, heights of points seen only in 26 / 28 / 54, and the
+  reverse) held-out heights go 0.75 -> 0.69 and 0.60 -> 0.76 GSD: no consistent gain.
 
 The test checks the achieved figures and that they match the adjustment's own predicted precision.
 """
@@ -68,7 +79,7 @@ import pytest
 
 from conftest import shared_path
 from skyrig.adjust import AdjustConfig, adjust
-from skyrig.adjust.corrections import fit_radial_scale, remove_refraction
+from skyrig.adjust.corrections import fit_image_grid, fit_radial_scale, remove_image_grid, remove_refraction
 from skyrig.adjust.frames import block_from_georef, eo_from_block, points_to_frame
 from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.georef.ground import forward_intersection, world_to_image
@@ -191,6 +202,51 @@ def test_ign_tie_points_agree_with_ign(ign):
     pred = np.sqrt(np.mean(res.point_sigma[k] ** 2, axis=0))
     ratio = rms / pred
     assert np.all((ratio > 0.6) & (ratio < 1.4)), (rms / GSD, pred / GSD)
+
+
+def test_image_grid_recovers_a_seeded_tile_pattern():
+    """fit_image_grid returns each cell's true shift of a seeded piecewise (sensor-tile) field within
+    4 sigma of the mean of its noisy residuals; the bilinear field equals the values at the cell centres."""
+    rng = np.random.default_rng(7)
+    w, h, shape = 2646, 1700, (9, 6)
+    truth = rng.normal(0, 0.2, shape + (2,))
+    px = rng.uniform(0, [w, h], (20000, 2))
+    cell = (px[:, 1] / h * shape[0]).astype(int), (px[:, 0] / w * shape[1]).astype(int)
+    noise = 0.15
+    grid = fit_image_grid(truth[cell] + rng.normal(0, noise, px.shape), px, w, h, shape, min_count=1)
+    assert grid.count.sum() == len(px)
+    assert np.all(np.abs(grid.shift_px - truth) < 4 * noise / np.sqrt(grid.count)[..., None])
+    jc, ic = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    centres = np.c_[(ic.ravel() + 0.5) * w / shape[1], (jc.ravel() + 0.5) * h / shape[0]]
+    np.testing.assert_allclose(grid(centres), grid.shift_px.reshape(-1, 2), atol=1e-12)
+    np.testing.assert_allclose(remove_image_grid(centres, grid) - centres, grid.shift_px.reshape(-1, 2), atol=1e-9)
+    with pytest.raises(ValueError):
+        fit_image_grid(np.zeros((5, 2)), np.ones((5, 2)), w, h, shape)  # 5 residuals: no cell reaches 30
+
+
+def test_ign_band_pattern_is_not_in_ign_heights():
+    """The row-band pattern of IGN's solution is significant, but removing it moves IGN-EO intersections away
+    from IGN's points (module docstring: the sensor-tile hypothesis is refuted)."""
+    d = shared_path("ign-aerial-block")
+    conv, eo, cams, m, gcp, world = _load(d)
+    cams = {c: cams[c] for c in {eo.camera[eo.index()[i]] for i in np.unique(m.image)}}
+    (cam,) = cams.values()
+    px = remove_refraction(m.pixel, cam, ign_refraction(eo, cams, m, world)[0])
+    idx = world.index()
+    sel = np.array([p in idx for p in m.point])
+    r = world_to_image(eo, cams, m.image[sel], world.xyz[[idx[p] for p in m.point[sel]]], world.frame) - px[sel]
+    grid = fit_image_grid(r, px[sel], cam.width, cam.height, (9, 6))
+    band = grid.shift_px[5:7, :, 1]  # rows 9,400 - 13,200: the negative band
+    assert band.mean() < -5 * r[:, 1].std() / np.sqrt(grid.count[5:7].sum())
+    rms_z = []
+    for a in (-1.0, 0.0, 1.0):
+        inter = forward_intersection(eo, cams, m.point, m.image, px + a * grid(px), world.frame)
+        ii = {p: j for j, p in enumerate(inter.point)}
+        s = np.array([p in ii for p in world.name])
+        dz = inter.xyz[[ii[p] for p in world.name[s]], 2] - world.xyz[s, 2]
+        rms_z.append(np.sqrt(np.mean(dz**2)))
+    assert rms_z[1] < 0.35 * GSD
+    assert rms_z[0] > 1.3 * rms_z[1] and rms_z[2] > 1.3 * rms_z[1], np.array(rms_z) / GSD
 
 
 def _ground_point(C, R, h):
