@@ -42,10 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
-from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust import AdjustConfig
 from skyrig.adjust.block import BalCamera, Block
 from skyrig.adjust.model import Model, State
-from skyrig.adjust.solver import factor_cost
+from skyrig.adjust.solver import SERIAL_BELOW, factor_cost, levenberg_marquardt
 from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from skyrig.io.bal import read_bal
 
@@ -217,8 +217,6 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
     """skyrig's Levenberg-Marquardt (:func:`skyrig.adjust.solver.levenberg_marquardt`) on a BAL block."""
     import numba
 
-    from skyrig.adjust.solver import SERIAL_BELOW, levenberg_marquardt
-
     cfg = AdjustConfig(intrinsics="free", datum="none", statistics=False)
     c0 = bal_cost(block)
     t1 = time.perf_counter()
@@ -269,8 +267,6 @@ def main() -> None:
               f"(--keep-behind keeps them): {block.n_points} points, {block.n_observations} observations")
     sk = ce = None
     if not a.skip_skyrig:  # compile (numba caches the kernels on disk; the first run of a fresh install pays it)
-        from skyrig.adjust.solver import levenberg_marquardt
-
         small = Model(block, AdjustConfig(intrinsics="free", datum="none"))
         levenberg_marquardt(small, State.from_block(block), 1, engine=a.engine)
     for rep in range(a.repeat):  # back to back, in turns, so that both see the same machine load

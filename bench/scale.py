@@ -130,14 +130,14 @@ def main() -> None:
         rows.append(r)
         print(f"{r['exposures']:9d} {r['images']:7d} {r['points']:8d} {r['observations']:9d} {r['generate_s']:7.1f} "
               f"{r['adjust_s']:9.2f} {r['lm_s']:7.2f} {r['iterations'] + r['unsuccessful']:5d} "
-              f"{r['adjust_s'] / max(r['iterations'], 1):7.2f} "
+              f"{r['adjust_s'] / max(r['iterations'] + r['unsuccessful'], 1):7.2f} "
               f"{r['adjust_peak_mib']:8.0f} {r['process_peak_mib']:9.0f} {r['sigma0']:7.3f} {ex_t:7.2f} {ex_m:8.2f} "
-              f"{r.get('warmup_s', float('nan')):7.2f}",
+              f"{r['warmup_s']:7.2f}",
               flush=True)
     if len(rows) >= 2:
         x = np.log([r["exposures"] for r in rows])
         bt = np.polyfit(x, np.log([r["adjust_s"] for r in rows]), 1)[0]
-        bi = np.polyfit(x, np.log([r["adjust_s"] / max(r["iterations"], 1) for r in rows]), 1)[0]
+        bi = np.polyfit(x, np.log([r["adjust_s"] / max(r["iterations"] + r["unsuccessful"], 1) for r in rows]), 1)[0]
         bm = np.polyfit(x, np.log([max(r["adjust_peak_mib"], 1e-3) for r in rows]), 1)[0]
         print(f"growth exponent over {rows[0]['exposures']}..{rows[-1]['exposures']} exposures (least squares on "
               f"log-log): time {bt:.2f}, time per iteration {bi:.2f}, adjustment peak memory {bm:.2f}")

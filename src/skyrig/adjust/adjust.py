@@ -343,10 +343,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         if g == "image":
             model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
         stage = f"snooping {len(rejected)}"
-    cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected = res
-    total_info.final_cost = float(sum(0.5 * float((f.r ** 2 * f.weight[:, None]).sum())  # type: ignore[index]
-                                      for f in model.evaluate(state, jacobians=False)
-                                      if not f.name.startswith("prior")))
+    cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, total_info.final_cost = res
     return AdjustmentResult(
         _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, n_obs - n_unk
         + (_datum_defect(model.layout) if free else 0), groups, residuals, rejected, cov, warnings, model.layout, cfg,
@@ -367,11 +364,16 @@ def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[
         model.obs_weight[j] = 0.0
         rejected.append(Rejection("image", int(j), _label(block, "image", int(j)) + " (point left with one ray)",
                                   float("nan")))
-    weights = (model.obs_weight, model.control_weight, model.gnss_weight, model.imu_weight, model.distance_weight)
     act = model.point_active.copy()
     act[p] = False
-    new = Model(block, model.config, act)
-    new.obs_weight, new.control_weight, new.gnss_weight, new.imu_weight, new.distance_weight = weights
+    return _with_points(block, model, act)
+
+
+def _with_points(block: Block, model: Model, point_active: NDArray[np.bool_]) -> Model:
+    """``model`` rebuilt for another set of active points, keeping its (snooping / Huber) weights."""
+    new = Model(block, model.config, point_active)
+    new.obs_weight, new.control_weight, new.gnss_weight, new.imu_weight, new.distance_weight = (
+        model.obs_weight, model.control_weight, model.gnss_weight, model.imu_weight, model.distance_weight)
     return new
 
 
@@ -397,15 +399,7 @@ def _drop_lost_points(block: Block, model: Model, state: State, rejected: list[R
                                       float("nan")))
         if int(p) not in ctrl:
             act[p] = False
-    weights = (model.obs_weight, model.control_weight, model.gnss_weight, model.imu_weight, model.distance_weight)
-    new = Model(block, model.config, act)
-    new.obs_weight, new.control_weight, new.gnss_weight, new.imu_weight, new.distance_weight = weights
-    return new
-
-
-def _sigma(block: Block, g: str) -> NDArray[np.float64]:
-    return {"image": block.obs_sigma_px, "control": block.control_sigma, "gnss": block.gnss_sigma,
-            "imu": block.imu_sigma_rad, "distance": block.distance_sigma_m[:, None]}[g]  # type: ignore[return-value,index]
+    return _with_points(block, model, act)
 
 
 def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):  # type: ignore[no-untyped-def]
@@ -451,6 +445,7 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
                 warnings.append(f"covariance of the chosen unknowns not available: {e}")
     residuals: dict[str, GroupResiduals] = {}
     groups: dict[str, GroupStats] = {}
+    data_cost = 0.0  # cost of the observations, priors left out
     for f in factors:
         w = f.weight if f.weight is not None else np.ones(len(f))
         v = f.unwhitened()
@@ -466,7 +461,9 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
         act = w > 0
         r_g = float(rr.sum()) if rr is not None else float("nan")
         vtpv = float((f.r[act] ** 2 * w[act, None]).sum())
+        if not f.name.startswith("prior"):
+            data_cost += 0.5 * vtpv
         rms = np.sqrt(np.mean(v[act] ** 2, axis=0)).tolist() if act.any() else [float("nan")] * f.r.shape[1]
         groups[f.name] = GroupStats(f.name, int(act.sum()), int(act.sum() * f.r.shape[1]), r_g,
                                     float(np.sqrt(vtpv / r_g)) if r_g and r_g > 0 else float("nan"), rms)
-    return cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected
+    return cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, data_cost

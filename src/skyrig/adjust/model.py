@@ -348,9 +348,10 @@ class Model:
         self._obs_W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         self._ctrl_W = None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
         self._gnss_W = None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
-        self._imu_W = None if getattr(b, "imu_cov_rad2", None) is None else whitening_matrices(b.imu_cov_rad2)
+        self._imu_W = None if b.imu_cov_rad2 is None else whitening_matrices(b.imu_cov_rad2)
         lay = self.layout
         self._red_cols = self._red_rows = self._red_idx = None
+        self._bal_cols = None  # columns of the compiled BAL path's rows (fixed for the model: set once)
         if lay.has_rpoint:
             rp = lay.rpoint[b.obs_point]  # type: ignore[index]
             rows = np.flatnonzero(rp[:, 0] >= 0)
@@ -482,7 +483,7 @@ class Model:
 
     def _image(self, s: State, jac: bool) -> Factor:
         if (_BAL_KERNEL is not None and self._bal.size and self._bal.all() and self.block.n_observations
-                and getattr(self, "_obs_W", None) is None and getattr(self, "_red_cols", None) is None):
+                and self._obs_W is None and self._red_cols is None):
             return self._image_bal(s, jac)
         b, lay = self.block, self.layout
         n = b.n_observations
@@ -637,7 +638,7 @@ class Model:
             return f
         if k:
             f.jc = jc
-            if getattr(self, "_bal_cols", None) is None:  # fixed for the model: computed once
+            if self._bal_cols is None:
                 colblocks = []
                 if pose_on:
                     colblocks.append(lay.pose[b.image_station[b.obs_image]])
@@ -796,11 +797,38 @@ class Model:
 # ---------------------------------------------------------------------------------------------------
 # Compiled path of Model._image for blocks whose cameras are all BAL cameras (same results as the numpy
 # path; one pass over the observations instead of a dozen (n, 2, 3) temporaries).
-def _make_bal_kernel():  # type: ignore[no-untyped-def]
+def _make_image_kernels():  # type: ignore[no-untyped-def]
+    """``(bal_rows, chain)``: the compiled BAL path and chain rule of :meth:`Model._image` (None without numba)."""
     try:
         import numba
     except ImportError:  # pragma: no cover - depends on the environment
-        return None
+        return None, None
+
+    @numba.njit(inline="always")
+    def pose_chain(q0, q1, q2, P0, P1, P2, i, ist, Rc, M, Rst, off, has_off):  # pragma: no cover - compiled
+        """One row ``q = d (whitened px) / d (camera-frame point P)`` of image ``i`` through the pose:
+        ``jX = q Rc^T`` (point), ``jth_cam = q skew(P)`` (camera-frame rotation, boresight) and the station
+        rotation ``jth = jth_cam M^T + jX R_st skew(off)`` (the second term for a head offset from the
+        station); the station centre's row is ``-jX``."""
+        jx0 = q0 * Rc[i, 0, 0] + q1 * Rc[i, 0, 1] + q2 * Rc[i, 0, 2]
+        jx1 = q0 * Rc[i, 1, 0] + q1 * Rc[i, 1, 1] + q2 * Rc[i, 1, 2]
+        jx2 = q0 * Rc[i, 2, 0] + q1 * Rc[i, 2, 1] + q2 * Rc[i, 2, 2]
+        t0 = q1 * P2 - q2 * P1
+        t1 = q2 * P0 - q0 * P2
+        t2 = q0 * P1 - q1 * P0
+        v0 = t0 * M[i, 0, 0] + t1 * M[i, 0, 1] + t2 * M[i, 0, 2]
+        v1 = t0 * M[i, 1, 0] + t1 * M[i, 1, 1] + t2 * M[i, 1, 2]
+        v2 = t0 * M[i, 2, 0] + t1 * M[i, 2, 1] + t2 * M[i, 2, 2]
+        if has_off:
+            st = ist[i]
+            # y = jX R_st, then y skew(off) = off x y (as a row): (y1 o2 - y2 o1, y2 o0 - y0 o2, ...)
+            y0 = jx0 * Rst[st, 0, 0] + jx1 * Rst[st, 1, 0] + jx2 * Rst[st, 2, 0]
+            y1 = jx0 * Rst[st, 0, 1] + jx1 * Rst[st, 1, 1] + jx2 * Rst[st, 2, 1]
+            y2 = jx0 * Rst[st, 0, 2] + jx1 * Rst[st, 1, 2] + jx2 * Rst[st, 2, 2]
+            v0 += y1 * off[i, 2] - y2 * off[i, 1]
+            v1 += y2 * off[i, 0] - y0 * off[i, 2]
+            v2 += y0 * off[i, 1] - y1 * off[i, 0]
+        return jx0, jx1, jx2, t0, t1, t2, v0, v1, v2
 
     @numba.njit(cache=True, nogil=True, parallel=True)
     def bal_rows(oi, op, ist, Rc, Cc, M, Rst, off, has_off, X, intr, pix, sig, jac, o_pose, o_bore, o_intr,
@@ -854,33 +882,15 @@ def _make_bal_kernel():  # type: ignore[no-untyped-def]
                     q0, q1, q2, se, pe = d00, d01, d02, s0, p0
                 else:
                     q0, q1, q2, se, pe = d10, d11, d12, s1, p1
-                # jX = d Rc^T (point), jth_cam = d skew(pc)
-                jx0 = q0 * Rc[i, 0, 0] + q1 * Rc[i, 0, 1] + q2 * Rc[i, 0, 2]
-                jx1 = q0 * Rc[i, 1, 0] + q1 * Rc[i, 1, 1] + q2 * Rc[i, 1, 2]
-                jx2 = q0 * Rc[i, 2, 0] + q1 * Rc[i, 2, 1] + q2 * Rc[i, 2, 2]
+                jx0, jx1, jx2, t0, t1, t2, v0, v1, v2 = pose_chain(q0, q1, q2, P0, P1, P2, i, ist, Rc, M, Rst, off,
+                                                                  has_off)
                 jp[o, e, 0] = jx0
                 jp[o, e, 1] = jx1
                 jp[o, e, 2] = jx2
-                t0 = q1 * P2 - q2 * P1
-                t1 = q2 * P0 - q0 * P2
-                t2 = q0 * P1 - q1 * P0
                 if o_pose >= 0:
                     jc[o, e, o_pose + 0] = -jx0
                     jc[o, e, o_pose + 1] = -jx1
                     jc[o, e, o_pose + 2] = -jx2
-                    # jth = jth_cam M^T (+ jX R_st skew(off) for a head offset from the station)
-                    v0 = t0 * M[i, 0, 0] + t1 * M[i, 0, 1] + t2 * M[i, 0, 2]
-                    v1 = t0 * M[i, 1, 0] + t1 * M[i, 1, 1] + t2 * M[i, 1, 2]
-                    v2 = t0 * M[i, 2, 0] + t1 * M[i, 2, 1] + t2 * M[i, 2, 2]
-                    if has_off:
-                        st = ist[i]
-                        # y = jX R_st, then y skew(off) = off x y (as a row): (y1 o2 - y2 o1, y2 o0 - y0 o2, ...)
-                        y0 = jx0 * Rst[st, 0, 0] + jx1 * Rst[st, 1, 0] + jx2 * Rst[st, 2, 0]
-                        y1 = jx0 * Rst[st, 0, 1] + jx1 * Rst[st, 1, 1] + jx2 * Rst[st, 2, 1]
-                        y2 = jx0 * Rst[st, 0, 2] + jx1 * Rst[st, 1, 2] + jx2 * Rst[st, 2, 2]
-                        v0 += y1 * off[i, 2] - y2 * off[i, 1]
-                        v1 += y2 * off[i, 0] - y0 * off[i, 2]
-                        v2 += y0 * off[i, 1] - y1 * off[i, 0]
                     jc[o, e, o_pose + 3] = v0
                     jc[o, e, o_pose + 4] = v1
                     jc[o, e, o_pose + 5] = v2
@@ -898,19 +908,6 @@ def _make_bal_kernel():  # type: ignore[no-untyped-def]
                         jc[o, e, o_intr + 1] = f * r2 * pe / se
                         jc[o, e, o_intr + 2] = f * r2 * r2 * pe / se
 
-    return bal_rows
-
-
-_BAL_KERNEL = _make_bal_kernel()
-
-
-def _make_chain_kernel():  # type: ignore[no-untyped-def]
-    """Compiled chain rule of :meth:`Model._image` from ``d (whitened px) / d (camera-frame point)``."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - depends on the environment
-        return None
-
     @numba.njit(cache=True, nogil=True, parallel=True)
     def chain(oi, ist, dpc, pc, Rc, M, Rst, off, has_off, jX, jpose, jthc):  # pragma: no cover - compiled
         # jX = dpc Rc^T; jth_cam = dpc skew(pc); jpose = [-jX, jth_cam M^T + jX R_st skew(off)]
@@ -923,37 +920,22 @@ def _make_chain_kernel():  # type: ignore[no-untyped-def]
                 q0 = dpc[o, e, 0]
                 q1 = dpc[o, e, 1]
                 q2 = dpc[o, e, 2]
-                jx0 = q0 * Rc[i, 0, 0] + q1 * Rc[i, 0, 1] + q2 * Rc[i, 0, 2]
-                jx1 = q0 * Rc[i, 1, 0] + q1 * Rc[i, 1, 1] + q2 * Rc[i, 1, 2]
-                jx2 = q0 * Rc[i, 2, 0] + q1 * Rc[i, 2, 1] + q2 * Rc[i, 2, 2]
+                jx0, jx1, jx2, t0, t1, t2, v0, v1, v2 = pose_chain(q0, q1, q2, P0, P1, P2, i, ist, Rc, M, Rst, off,
+                                                                  has_off)
                 jX[o, e, 0] = jx0
                 jX[o, e, 1] = jx1
                 jX[o, e, 2] = jx2
-                t0 = q1 * P2 - q2 * P1
-                t1 = q2 * P0 - q0 * P2
-                t2 = q0 * P1 - q1 * P0
                 jthc[o, e, 0] = t0
                 jthc[o, e, 1] = t1
                 jthc[o, e, 2] = t2
                 jpose[o, e, 0] = -jx0
                 jpose[o, e, 1] = -jx1
                 jpose[o, e, 2] = -jx2
-                v0 = t0 * M[i, 0, 0] + t1 * M[i, 0, 1] + t2 * M[i, 0, 2]
-                v1 = t0 * M[i, 1, 0] + t1 * M[i, 1, 1] + t2 * M[i, 1, 2]
-                v2 = t0 * M[i, 2, 0] + t1 * M[i, 2, 1] + t2 * M[i, 2, 2]
-                if has_off:
-                    st = ist[i]
-                    y0 = jx0 * Rst[st, 0, 0] + jx1 * Rst[st, 1, 0] + jx2 * Rst[st, 2, 0]
-                    y1 = jx0 * Rst[st, 0, 1] + jx1 * Rst[st, 1, 1] + jx2 * Rst[st, 2, 1]
-                    y2 = jx0 * Rst[st, 0, 2] + jx1 * Rst[st, 1, 2] + jx2 * Rst[st, 2, 2]
-                    v0 += y1 * off[i, 2] - y2 * off[i, 1]
-                    v1 += y2 * off[i, 0] - y0 * off[i, 2]
-                    v2 += y0 * off[i, 1] - y1 * off[i, 0]
                 jpose[o, e, 3] = v0
                 jpose[o, e, 4] = v1
                 jpose[o, e, 5] = v2
 
-    return chain
+    return bal_rows, chain
 
 
-_CHAIN_KERNEL = _make_chain_kernel()
+_BAL_KERNEL, _CHAIN_KERNEL = _make_image_kernels()

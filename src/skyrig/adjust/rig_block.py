@@ -20,8 +20,9 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.adjust.block import Block, BlockError
+from skyrig.adjust.block import AdjustConfig, Block, BlockError
 from skyrig.adjust.frames import block_from_georef
+from skyrig.adjust.model import Model, State
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
@@ -94,15 +95,16 @@ def block_from_trajectory(
     ev = events.subset(rows)
     expo, station_of_image = np.unique(np.asarray(ev.exposure_id), return_inverse=True)
     t = np.asarray(ev.time_s, dtype=np.float64)
-    first = np.zeros(len(expo), dtype=np.int64)
-    for s in range(len(expo)):
-        members = np.flatnonzero(station_of_image == s)
-        first[s] = members[0]
-        spread = float(np.ptp(t[members]))
-        if spread > same_exposure_s:
-            raise BlockError(f"exposure {int(expo[s])}: its images were taken {spread:.6f} s apart (more than "
-                             f"{same_exposure_s} s), so they cannot share one platform pose; give them separate "
-                             f"exposure ids in {events.source or 'the events'}")
+    order = np.argsort(station_of_image, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(station_of_image[order]) != 0])
+    first = order[starts]  # first image (in block order) of each exposure
+    spreads = np.maximum.reduceat(t[order], starts) - np.minimum.reduceat(t[order], starts)
+    too_long = np.flatnonzero(spreads > same_exposure_s)
+    if too_long.size:
+        s, spread = int(too_long[0]), float(spreads[too_long[0]])
+        raise BlockError(f"exposure {int(expo[s])}: its images were taken {spread:.6f} s apart (more than "
+                         f"{same_exposure_s} s), so they cannot share one platform pose; give them separate "
+                         f"exposure ids in {events.source or 'the events'}")
     # platform (IMU body) pose per station, in the local frame
     st = interpolate_events(trajectory, ev.subset(first), position=position)  # type: ignore[arg-type]
     ecef_from_body = st.ecef_from_body
@@ -116,19 +118,24 @@ def block_from_trajectory(
     heads = rig.head_names
     head_idx = {h: k for k, h in enumerate(heads)}
     n_img = len(base.image_name)
+    image_head = np.array([head_idx[str(h)] for h in ev.head], dtype=np.int64)
     image_rotation = np.empty((n_img, 3, 3))
     image_offset = np.empty((n_img, 3))
     beta = np.asarray(ev.beta_rad, dtype=np.float64)
-    for i in range(n_img):
-        head = rig.head(str(ev.head[i]))
-        b = None if not head.is_actuated else beta[i]
-        pose = head.body_from_camera(b)
-        image_rotation[i] = pose.rotation
-        image_offset[i] = pose.translation
-    cam_names = [c.name for c in base.cameras]
-    for i in range(n_img):
-        if cam_names[base.image_camera[i]] != rig.head(str(ev.head[i])).camera.name:  # pragma: no cover
-            raise BlockError(f"image {base.image_name[i]!r}: camera does not match head {ev.head[i]!r}")
+    actuated = np.array([rig.head(h).is_actuated for h in heads], bool)
+    cam_names = np.array([c.name for c in base.cameras])
+    for k, h in enumerate(heads):  # one batched mounting per head
+        sel = image_head == k
+        if not sel.any():
+            continue
+        head = rig.head(h)
+        pose = head.body_from_camera(beta[sel] if actuated[k] else np.zeros(int(sel.sum())))
+        image_rotation[sel] = pose.rotation
+        image_offset[sel] = pose.translation
+        wrong = np.flatnonzero(cam_names[base.image_camera[sel]] != head.camera.name)
+        if wrong.size:  # pragma: no cover
+            i = int(np.flatnonzero(sel)[wrong[0]])
+            raise BlockError(f"image {base.image_name[i]!r}: camera does not match head {h!r}")
     kw: dict = {}
     n_st = len(expo)
     if gnss_sigma_m is not None:
@@ -143,11 +150,11 @@ def block_from_trajectory(
         station_name=names, station_rotation=body.rotation, station_centre=body.centre,
         station_time=t[first], station_strip=np.full(n_st, -1, dtype=np.int64),
         image_station=station_of_image.astype(np.int64), image_rotation=image_rotation, image_offset=image_offset,
-        image_head=np.array([head_idx[str(h)] for h in ev.head], dtype=np.int64), head_name=np.array(heads),
+        image_head=image_head, head_name=np.array(heads),
         lever_arm=np.asarray(rig.antenna_lever_arm_m, dtype=np.float64).copy(),
         head_boresight=None, strip_shift=None, strip_drift=None, strip_t0=None,
-        head_actuated=[rig.head(h) if rig.head(h).is_actuated else None for h in heads],
-        image_beta_rad=np.where([rig.head(str(h)).is_actuated for h in ev.head], beta, np.nan),
+        head_actuated=[rig.head(h) if a else None for h, a in zip(heads, actuated)],
+        image_beta_rad=np.where(actuated[image_head], beta, np.nan),
         actuator_correction=None,
         **kw,
     )
@@ -174,9 +181,6 @@ def _gross_at_start(block: Block, limit_px: float) -> NDArray[np.bool_]:
     Such points are mismatches whose forward intersection landed anywhere (above the aircraft, behind
     an oblique camera); they carry no information and would make the normal equations singular.
     """
-    from skyrig.adjust.block import AdjustConfig
-    from skyrig.adjust.model import Model, State
-
     f = next(f for f in Model(block, AdjustConfig()).evaluate(State.from_block(block), jacobians=False)
              if f.name == "image")
     res = np.abs(f.r) * block.obs_sigma_px
@@ -195,8 +199,8 @@ def _drop_points(block: Block, drop: NDArray[np.bool_]) -> Block:
         return block
     logger.info("dropped %d of %d points at the start (single exposure or gross start residual)",
                 int((~keep).sum()), block.n_points)
-
-
+    if len(block.distance_point):  # type: ignore[arg-type]
+        raise BlockError("distance observations with single-exposure points are not supported here")
     new_index = np.cumsum(keep) - 1
     obs_keep = keep[block.obs_point]
     ctrl_keep = keep[block.control_point]
@@ -211,8 +215,6 @@ def _drop_points(block: Block, drop: NDArray[np.bool_]) -> Block:
         kw["obs_cov_px2"] = block.obs_cov_px2[obs_keep]
     if block.control_cov_m2 is not None:
         kw["control_cov_m2"] = block.control_cov_m2[ctrl_keep]
-    if len(block.distance_point):
-        raise BlockError("distance observations with single-exposure points are not supported here")
     return replace(block, **kw)
 
 

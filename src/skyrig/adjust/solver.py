@@ -183,17 +183,25 @@ def assemble(factors: list[Factor], layout: Layout, image_group: NDArray[np.int6
     return Normal(cost, gc, U, V, gp, Wb, P)
 
 
+def _units(cols: NDArray[np.int64], group: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Units of image rows: ``(ucols (U, k), unit of each row (n,))``, the distinct reduced-column sets.
+
+    Rows of one image (``group``) share their columns ``cols (n, k)``; images with the same columns (the
+    heads of one rig exposure when only poses are free) are merged into one unit.
+    """
+    n_img = int(group.max()) + 1 if len(group) else 0
+    gcols = np.full((n_img, cols.shape[1]), -1, np.int64)
+    gcols[group] = cols
+    ucols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
+    return ucols, img_unit.reshape(-1)[group].astype(np.int64)
+
+
 def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layout, group: NDArray[np.int64],
                   chunk: int):  # type: ignore[no-untyped-def]
     n_c, n_p = layout.n_c, layout.n_p
     n, d, k = jc.shape
-    n_img = int(group.max()) + 1 if n else 0
-    # columns of each image (rows of one image share them); images with the same columns (the heads of
-    # one rig exposure when only poses are free) are merged into one unit: one k x k block per station
-    gcols = np.full((n_img, k), -1, np.int64)
-    gcols[group] = f.cols
-    gcols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
-    group = img_unit.reshape(-1)[group]
+    # one k x k block per unit (a station when only poses are free)
+    gcols, group = _units(f.cols, group)  # type: ignore[arg-type]
     n_img = len(gcols)
     # U blocks and gradient per image
     Ub = np.zeros((n_img, k * k))
@@ -263,35 +271,24 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
     G = np.zeros((layout.n_c, 7))
     if not on.any():
         return G
-    C = state.C[on]
-    c0 = C.mean(axis=0)
-    dC = C - c0
-    R = state.R[on]
+    c0 = state.C[on].mean(axis=0)
+
+    def move(pos_cols: NDArray[np.int64], d: NDArray[np.float64]) -> None:
+        """Translation and rotation columns of positions ``d (m, 3)`` (from ``c0``) at ``pos_cols (m, 3)``."""
+        for a in range(3):
+            G[pos_cols[:, a], a] = 1.0
+            G[pos_cols, 3 + a] = np.cross(np.eye(3)[a], d)
+
+    dC = state.C[on] - c0
+    move(cols[on, :3], dC)
     for a in range(3):
-        e = np.zeros(3)
-        e[a] = 1.0
-        G[cols[on, a], a] = 1.0
-        rot_c = np.cross(e, dC)
-        for b in range(3):
-            G[cols[on, b], 3 + a] = rot_c[:, b]
-        th = np.einsum("nji,j->ni", R, e)
-        for b in range(3):
-            G[cols[on, 3 + b], 3 + a] = th[:, b]
-    for b in range(3):
-        G[cols[on, b], 6] = dC[:, b]
-    rp = getattr(layout, "rpoint", None)
-    if rp is not None and (rp >= 0).any():
+        G[cols[on, 3:], 3 + a] = state.R[on, a, :]  # R^T e_a
+    G[cols[on, :3], 6] = dC
+    if layout.has_rpoint:
         # points estimated in the reduced part (end points of distances) move with the block; the
         # distances fix the scale, so the scale is no null-space motion then
-        red = (rp >= 0).all(axis=1)
-        dX = state.X[red] - c0
-        for a in range(3):
-            e = np.zeros(3)
-            e[a] = 1.0
-            G[rp[red, a], a] = 1.0
-            rot_x = np.cross(e, dX)
-            for b in range(3):
-                G[rp[red, b], 3 + a] = rot_x[:, b]
+        red = (layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
+        move(layout.rpoint[red], state.X[red] - c0)  # type: ignore[index]
         G[:, 6] = 0.0
     nrm = np.linalg.norm(G, axis=0)
     nrm[nrm == 0] = 1.0
@@ -642,22 +639,16 @@ class SchurEngine:
         self._img_index = None if img is None else factors.index(img)
         has_jc = img is not None and img.jc is not None and img.cols is not None and img.cols.shape[1] > 0
         # ---- units: distinct column sets of the image rows (rows of one image share their columns)
+        n_obs = len(img) if img is not None else 0
         if has_jc:
-            n_img = int(image_group.max()) + 1 if len(image_group) else 0
-            gcols = np.full((n_img, img.cols.shape[1]), -1, np.int64)  # type: ignore[union-attr]
-            gcols[image_group] = img.cols
-            ucols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
-            img_unit = img_unit.reshape(-1)
-            keep = (ucols >= 0).any(axis=1)  # a unit without any free column takes no part
+            ucols, self.obs_unit = _units(img.cols, image_group)  # type: ignore[union-attr, arg-type]
             self.k = ucols.shape[1]
         else:
-            ucols, img_unit, keep, self.k = np.zeros((0, 0), np.int64), np.zeros(0, np.int64), np.zeros(0, bool), 0
+            ucols, self.obs_unit, self.k = np.zeros((0, 0), np.int64), np.zeros(n_obs, np.int64), 0
         k = self.k
         self.ucols = ucols
         n_u = len(ucols)
         self.n_u = n_u
-        n_obs = len(img) if img is not None else 0
-        self.obs_unit = img_unit[image_group].astype(np.int64) if has_jc else np.zeros(n_obs, np.int64)
         pt = img.point if (img is not None and img.point is not None and n_p) else np.full(n_obs, -1, np.int64)
         self.pt = np.ascontiguousarray(pt, np.int64)
         with_pt = np.flatnonzero(self.pt >= 0) if has_jc else np.zeros(0, np.int64)
@@ -680,14 +671,12 @@ class SchurEngine:
         else:
             self.row_ptr, self.col_idx = np.zeros(n_u + 1, np.int64), np.zeros(0, np.int64)
             self.diag_slot, ua, ub = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
-        del keep
         # ---- global pattern of S: unit blocks (and mirrors), other factors, the diagonal
         ga = np.broadcast_to(ucols[ua][:, :, None], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
         gb = np.broadcast_to(ucols[ub][:, None, :], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
         mirror = np.repeat(ua != ub, k * k) if has_jc else np.zeros(0, bool)
         src_r = [ga, gb[mirror]]
         src_c = [gb, ga[mirror]]
-        self.others: list[tuple[int, NDArray[np.int64]]] = []
         oth_rc = []
         for i, f in enumerate(factors):
             if i == self._img_index or f.jc is None or f.cols is None or f.cols.shape[1] == 0:
@@ -715,7 +704,7 @@ class SchurEngine:
         self.map_a = pos(ga, gb)
         self.map_b = np.full(len(ga), -1, np.int64)
         self.map_b[mirror] = pos(gb[mirror], ga[mirror])
-        self.others = [(i, pos(r_, c_)) for i, r_, c_ in oth_rc]
+        self.others: list[tuple[int, NDArray[np.int64]]] = [(i, pos(r_, c_)) for i, r_, c_ in oth_rc]
         self.diagpos = pos(diag, diag)
         self.rows = np.repeat(np.arange(n_c, dtype=np.int64), np.diff(self.indptr))
         self.indptr32 = self.indptr.astype(np.int32)
@@ -811,12 +800,7 @@ class SchurEngine:
                 np.zeros((self.n_u, 0))
             Wp = self.Wp if len(self.Wp) else np.zeros((0, self.k, 3))
             _K["back_substitute"](self.pt_ptr, self.upt, Wp, np.ascontiguousarray(dcu), Vinv, self.gp, dp)
-        du = np.clip(self.diagU, self.diag_min, None)
-        dv = np.clip(np.diagonal(self.V, axis1=1, axis2=2), self.diag_min, None).reshape(-1)
-        dpf = dp.reshape(-1)
-        pred = 0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
-                      - (self.gc * dc).sum() - (self.gp.reshape(-1) * dpf).sum())
-        return dc, dp, float(pred)
+        return dc, dp, _predicted_decrease(lam, self.diagU, self.V, self.gc, self.gp, dc, dp, self.diag_min)
 
     def _solve_csr(self, data: NDArray[np.float64], rhs: NDArray[np.float64],
                    G: NDArray[np.float64] | None) -> NDArray[np.float64]:
@@ -874,11 +858,24 @@ class SolveInfo:
     engine: str = ""
 
 
+def _predicted_decrease(lam: float, diag_u: NDArray[np.float64], V: NDArray[np.float64], gc: NDArray[np.float64],
+                        gp: NDArray[np.float64], dc: NDArray[np.float64], dp: NDArray[np.float64],
+                        diag_min: float) -> float:
+    """Decrease of the linear model by the step solving ``(A + lam D) d = -g``: ``0.5 d^T (lam D d - g)``,
+    ``D`` the diagonal of ``A`` (``diag_u`` of ``U``, the diagonals of the point blocks ``V``) clipped below
+    at ``diag_min``."""
+    du = np.clip(diag_u, diag_min, None)
+    dv = np.clip(np.diagonal(V, axis1=1, axis2=2), diag_min, None).reshape(-1)
+    dpf = dp.reshape(-1)
+    return float(0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
+                        - (gc * dc).sum() - (gp.reshape(-1) * dpf).sum()))
+
+
 class _ScipyEngine:
     """The reference path: :func:`assemble`, :func:`schur_matrix`, :func:`solve_reduced`."""
 
-    def __init__(self, layout: Layout, image_group: NDArray[np.int64], huber_k: float | None) -> None:
-        self.layout, self.group, self.huber_k = layout, image_group, huber_k
+    def __init__(self, layout: Layout, image_group: NDArray[np.int64]) -> None:
+        self.layout, self.group = layout, image_group
 
     def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
         self.N = assemble(factors, self.layout, self.group, huber_k)
@@ -894,12 +891,7 @@ class _ScipyEngine:
         S, rhs, Vinv = schur_matrix(N, lam)
         dc = solve_reduced(S, rhs, G)
         dp = back_substitute(N, Vinv, dc) if self.layout.n_p else np.zeros((0, 3))
-        du = np.clip(N.U.diagonal(), 1e-6, None)
-        dv = np.clip(np.diagonal(N.V, axis1=1, axis2=2), 1e-6, None).reshape(-1)
-        dpf = dp.reshape(-1)
-        pred = 0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
-                      - (N.gc * dc).sum() - (N.gp.reshape(-1) * dpf).sum())
-        return dc, dp, float(pred)
+        return dc, dp, _predicted_decrease(lam, N.U.diagonal(), N.V, N.gc, N.gp, dc, dp, 1e-6)
 
 
 def levenberg_marquardt(
@@ -952,12 +944,10 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     info = SolveInfo()
     group = model.block.obs_image
     factors = model.evaluate(state)
-    if engine == "auto":
-        engine = "numba" if HAVE_NUMBA else "scipy"
     if engine == "numba":
         eng: SchurEngine | _ScipyEngine = SchurEngine(factors, lay, group)
     elif engine == "scipy":
-        eng = _ScipyEngine(lay, group, huber_k)
+        eng = _ScipyEngine(lay, group)
     else:
         raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from scipy.stats import norm
 
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix
+from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
            "correlation_warnings", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
@@ -202,8 +202,6 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     and ``Q_cp = -Y_p V_p^-1``.  Memory: ``n_c x (m + 3 k)`` doubles.  Datum by observations only (not a
     free network).  Raises :class:`SingularError`.
     """
-    from skyrig.adjust.solver import solve_reduced
-
     S, _, Vinv = schur_matrix(N, 0.0)
     n_c = layout.n_c
     m, k = len(columns), len(points)
@@ -212,9 +210,9 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     rhs[columns, np.arange(m)] = 1.0
     Wk = None
     if k:
-        Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]
         cols3 = (3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)
-        Wk = Wfull[:, cols3].toarray()
+        # the (n_c, 3 k) columns of W = P^T Wb of the chosen points (sliced before the product)
+        Wk = np.asarray(N.P.T @ N.Wb.tocsc()[:, cols3].toarray())  # type: ignore[union-attr]
         rhs[:, m:] = Wk
     X = solve_reduced(S, rhs) if n_c else rhs
     Qcc = X[columns, :m]

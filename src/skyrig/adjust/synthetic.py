@@ -195,6 +195,8 @@ def synthetic_block(
         ctrl = np.unique(np.argmin(d, axis=1))
     ctrl_xyz = X[ctrl] + rng.normal(0, sigma_control_m, (len(ctrl), 3))
     block_kw: dict = {}
+    if any(actuated):
+        block_kw.update(image_beta_rad=img_beta, head_actuated=[h if a else None for h, a in zip(head_objs, actuated)])
     if gnss_sigma_m is not None:
         ant = C + np.einsum("nij,j->ni", R, lever) + shift
         block_kw.update(gnss_station=np.arange(S), gnss_xyz=ant + rng.normal(0, gnss_sigma_m, (S, 3)),
@@ -214,9 +216,5 @@ def synthetic_block(
         obs_pixel=px_a, obs_sigma_px=sigma_px, control_point=ctrl, control_xyz=ctrl_xyz,
         control_sigma=sigma_control_m, frame="synthetic local ENU", **block_kw,
     )
-    if any(actuated):
-        block.image_beta_rad = img_beta
-        block.head_actuated = [h if a else None for h, a in zip(head_objs, actuated)]
-        block.__post_init__()
     truth = SyntheticTruth(R, C, X, list(true_cams), lever, bore, shift)
     return block, truth

@@ -215,6 +215,35 @@ def _rays_world(camera: FrameCamera, R: NDArray, pixel: NDArray) -> NDArray[np.f
     return np.einsum("nij,nj->ni", R, d)
 
 
+def _spread_ok(d: NDArray, track: NDArray, n_tracks: int, min_angle_deg: float) -> NDArray[np.bool_]:
+    """``(T,)`` bool: track has >= 2 rays and its unit ray directions ``d`` ``(N, 3)`` span at least
+    ``min_angle_deg`` (twice the widest angle of a ray from the tracks' mean direction)."""
+    mean_d = np.zeros((n_tracks, 3))
+    np.add.at(mean_d, track, d)
+    mean_d /= np.maximum(np.linalg.norm(mean_d, axis=1, keepdims=True), 1e-12)
+    min_cos = np.ones(n_tracks)
+    np.minimum.at(min_cos, track, np.einsum("ni,ni->n", d, mean_d[track]))
+    ang = 2.0 * np.degrees(np.arccos(np.clip(min_cos, -1, 1)))
+    return (np.bincount(track, minlength=n_tracks) >= 2) & (ang >= min_angle_deg)
+
+
+def _track_pairs(track: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """All pairs ``(a, b)``, ``a < b``, of rows of one track, for ``(N,)`` track indices sorted ascending;
+    returned in lexicographic order of ``(a, b)``."""
+    start = np.r_[0, np.flatnonzero(np.diff(track)) + 1]
+    cnt = np.diff(np.r_[start, len(track)])
+    rows_a, rows_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for m in range(2, int(cnt.max(initial=0)) + 1):
+        s = start[cnt == m]
+        for a in range(m):
+            for b in range(a + 1, m):
+                rows_a.append(s + a)
+                rows_b.append(s + b)
+    ra, rb = np.concatenate(rows_a), np.concatenate(rows_b)
+    order = np.lexsort((rb, ra))
+    return ra[order], rb[order]
+
+
 def triangulate_tracks(
     camera: FrameCamera, R: NDArray, C: NDArray, obs_track: NDArray, obs_image: NDArray, obs_pixel: NDArray,
     n_tracks: int, min_angle_deg: float = 1.0,
@@ -248,16 +277,7 @@ def triangulate_tracks(
     b = np.zeros((n_tracks, 3))
     np.add.at(A, obs_track, P)
     np.add.at(b, obs_track, np.einsum("nij,nj->ni", P, C[obs_image]))
-    cnt = np.bincount(obs_track, minlength=n_tracks)
-    # widest angle: 1 - smallest eigenvalue structure; use the spread of ray directions instead
-    mean_d = np.zeros((n_tracks, 3))
-    np.add.at(mean_d, obs_track, d)
-    mean_d /= np.maximum(np.linalg.norm(mean_d, axis=1, keepdims=True), 1e-12)
-    cosang = np.einsum("ni,ni->n", d, mean_d[obs_track])
-    min_cos = np.ones(n_tracks)
-    np.minimum.at(min_cos, obs_track, cosang)
-    ang = 2.0 * np.degrees(np.arccos(np.clip(min_cos, -1, 1)))
-    ok = (cnt >= 2) & (ang >= min_angle_deg)
+    ok = _spread_ok(d, obs_track, n_tracks, min_angle_deg)
     xyz = np.full((n_tracks, 3), np.nan)
     if ok.any():
         A_ok = A[ok] + 1e-12 * np.eye(3)
@@ -283,10 +303,9 @@ def _rotation_angle_deg(Ra: NDArray, Rb: NDArray) -> NDArray[np.float64]:
 
 
 def _k_matrix(camera: FrameCamera) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    pix = camera.pixel_size_mm
-    f = camera.focal_mm / pix
-    cx = (camera.width - 1) / 2.0 + camera.ppx_mm / pix
-    cy = (camera.height - 1) / 2.0 - camera.ppy_mm / pix
+    """OpenCV camera matrix ``(3, 3)`` and distortion coefficients of ``camera`` (OpenCV pixel origin = skyrig's)."""
+    f = camera.focal_px
+    cx, cy = camera.principal_point_px
     dist = (np.asarray(camera.distortion.params, float) if isinstance(camera.distortion, OpenCVDistortion)
             else np.zeros(5))
     return np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]), dist
@@ -357,19 +376,9 @@ def attitude_agreement(inp: UavBlockInput, cfg: UavConfig) -> tuple[NDArray[np.b
     thr = cfg.agree_fraction * max(height, 1.0)
     order = np.lexsort((ii, ti))
     ti, ii, ground = ti[order], ii[order], ground[order]
-    # all observation pairs within a track
-    start = np.r_[0, np.flatnonzero(np.diff(ti)) + 1]
-    cnt = np.diff(np.r_[start, len(ti)])
-    rows_a, rows_b = [], []
-    for m in range(2, int(cnt.max(initial=0)) + 1):
-        s = start[cnt == m]
-        for a in range(m):
-            for b in range(a + 1, m):
-                rows_a.append(s + a)
-                rows_b.append(s + b)
-    if not rows_a:
+    ra, rb = _track_pairs(ti)  # all observation pairs within a track
+    if not len(ra):
         return agree, dis
-    ra, rb = np.concatenate(rows_a), np.concatenate(rows_b)
     dist = np.linalg.norm(ground[ra] - ground[rb], axis=1)
     key = ii[ra] * n + ii[rb]
     order = np.argsort(key, kind="stable")
@@ -408,16 +417,16 @@ def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_
     n = len(inp.names)
     K, dist = _k_matrix(inp.camera)
     best = None
-    pairs: dict[tuple[int, int], int] = {}
+    # image pairs by common tie points, most first (ties: first met in (track, image) order)
     order = np.lexsort((inp.obs_image, inp.obs_track))
-    t, im = inp.obs_track[order], inp.obs_image[order]
-    for k in range(len(t) - 1):
-        j = k + 1
-        while j < len(t) and t[j] == t[k]:
-            pairs[(int(im[k]), int(im[j]))] = pairs.get((int(im[k]), int(im[j])), 0) + 1
-            j += 1
+    im = inp.obs_image[order]
+    ra, rb = _track_pairs(inp.obs_track[order])
+    key = im[ra] * n + im[rb]
+    uk, first, counts = np.unique(key, return_index=True, return_counts=True)
+    rank = np.lexsort((first, -counts))
     tried = 0
-    for (i, j), c in sorted(pairs.items(), key=lambda kv: -kv[1]):
+    for k, c in zip(uk[rank].tolist(), counts[rank].tolist()):
+        i, j = divmod(k, n)
         if allowed is not None and not (allowed[i] and allowed[j]):
             continue
         base = float(np.linalg.norm(inp.gnss[i] - inp.gnss[j]))
@@ -425,11 +434,10 @@ def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_
             continue
         if base < 1.0:
             base = 1.0
-        ti = {int(a): p for a, p in zip(inp.obs_track[inp.obs_image == i], inp.obs_pixel[inp.obs_image == i])}
-        tj = {int(a): p for a, p in zip(inp.obs_track[inp.obs_image == j], inp.obs_pixel[inp.obs_image == j])}
-        common = sorted(set(ti) & set(tj))
-        p1 = cv2.undistortPoints(np.array([ti[a] for a in common])[:, None], K, dist)[:, 0]
-        p2 = cv2.undistortPoints(np.array([tj[a] for a in common])[:, None], K, dist)[:, 0]
+        mi, mj = inp.obs_image == i, inp.obs_image == j
+        _, ci, cj = np.intersect1d(inp.obs_track[mi], inp.obs_track[mj], return_indices=True)
+        p1 = cv2.undistortPoints(inp.obs_pixel[mi][ci][:, None], K, dist)[:, 0]
+        p2 = cv2.undistortPoints(inp.obs_pixel[mj][cj][:, None], K, dist)[:, 0]
         E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.RANSAC, 0.999, cfg.pnp_threshold_px / K[0, 0])
         if E is None or E.shape != (3, 3):
             continue
@@ -574,22 +582,10 @@ def _usable_obs(inp: UavBlockInput, oriented: NDArray[np.bool_], X: NDArray, act
         err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
     front &= np.nan_to_num(err, nan=np.inf) < max_px
     rows, ti, v = rows[front], ti[front], v[front]
-    d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
-    mean_d = np.zeros((T, 3))
-    np.add.at(mean_d, ti, d)
-    mean_d /= np.maximum(np.linalg.norm(mean_d, axis=1, keepdims=True), 1e-12)
-    min_cos = np.ones(T)
-    np.minimum.at(min_cos, ti, np.einsum("ni,ni->n", d, mean_d[ti]))
-    ang = 2.0 * np.degrees(np.arccos(np.clip(min_cos, -1, 1)))
-    cnt = np.bincount(ti, minlength=T)
-    good_t = (cnt >= 2) & (ang >= min_angle_deg)
+    good_t = _spread_ok(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), ti, T, min_angle_deg)
     out = np.zeros(len(inp.obs_track), bool)
     out[rows[good_t[ti]]] = True
     return out
-
-
-def _run(block: Block, cfg: AdjustConfig) -> AdjustmentResult:
-    return adjust(block, cfg)
 
 
 def _image_residuals(b: Block) -> NDArray[np.float64]:
@@ -641,8 +637,8 @@ _MIN_COMMON = 12
 
 def _robust_similarity(src: NDArray[np.float64], dst: NDArray[np.float64]
                        ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], int] | None:
-    """Similarity ``dst ~ s R src + t`` with iterative trimming (3 robust sigma); None if fewer than
-    ``_MIN_COMMON`` points survive or the fit stays poor (inlier residual median above 5 % of the spread)."""
+    """Similarity ``dst ~ s R src + t`` with iterative trimming (points farther than 3 x 1.4826 x the median
+    distance leave); None if fewer than ``_MIN_COMMON`` points survive or the fit stays poor (inlier residual median above 5 % of the spread)."""
     from skyrig.match.colmap_check import similarity_transform
 
     keep = np.ones(len(src), bool)
@@ -790,7 +786,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         block, tracks, rows = _build_block(inp, camera, R, C, X, img_sel, obs_sel, cfg, sigma_px,
                                            np.intersect1d(trusted_att, img_sel))
         try:
-            res = _run(block, grow_cfg)
+            res = adjust(block, grow_cfg)
         except SkyrigError as exc:
             raise UavAdjustError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
         R[img_sel] = res.block.station_rotation
@@ -851,14 +847,14 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         # starting value)
         block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
                                            cfg.pixel_sigma_px, imu_imgs, strip)
-        res = _run(block, final_cfg)
+        res = adjust(block, final_cfg)
         camera = res.block.cameras[0]
         R[img_sel] = res.block.station_rotation
         C[img_sel] = res.block.station_centre
         X[:] = np.nan
         X[tracks] = res.block.point_xyz
         r = np.nan_to_num(np.linalg.norm(_image_residuals(res.block), axis=1), nan=np.inf)
-        robust_rms = 1.4826 * float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median -> sigma per axis
+        robust_rms = float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median = sigma sqrt(ln 4)
         lim = max(cfg.reject_k * robust_rms * np.sqrt(2.0), cfg.reject_min_px)
         bad = r > lim
         active[rows[bad]] = False
@@ -868,7 +864,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
     block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
                                        cfg.pixel_sigma_px, imu_imgs, strip)
-    res = _run(block, final_cfg.with_(robust=None, statistics=True))
+    res = adjust(block, final_cfg.with_(robust=None, statistics=True))
     focal_note = ("focal length fixed at the EXIF value (focal='exif')" if cfg.focal == "exif" or
                   "focal_mm" not in cfg.self_calibration else "focal length self-calibrated")
     focal_ratio = float("nan")
@@ -885,7 +881,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
             X[tracks] = res.block.point_xyz
             block, tracks, rows = _build_block(inp, cam_self.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
                                                cfg.pixel_sigma_px, imu_imgs, strip)
-            res = _run(block, cal_cfg(names_nf).with_(robust=None, statistics=True))
+            res = adjust(block, cal_cfg(names_nf).with_(robust=None, statistics=True))
             focal_note = (f"focal length not determinable by this block (posterior sigma {focal_ratio:.2f} x the EXIF "
                           f"prior sigma; self-calibrated value {f_self:.0f} px): fixed at the EXIF value")
         elif cfg.focal == "auto":
@@ -999,12 +995,15 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
                                metas[0].path)
     cam = cam.with_(distortion=OpenCVDistortion())
     names = np.array([m.name for m in metas], dtype=str)
-    idx = {n: k for k, n in enumerate(names)}
-    unknown = sorted(set(measurements.image.tolist()) - set(idx))
-    if unknown:
+    meas_image = np.asarray(measurements.image, dtype=str)
+    by_name = np.argsort(names, kind="stable")
+    pos = np.minimum(np.searchsorted(names[by_name], meas_image), len(names) - 1)
+    known = names[by_name][pos] == meas_image
+    if not known.all():
+        unknown = sorted(set(meas_image[~known].tolist()))
         raise InputFormatError(f"tie points name {len(unknown)} image(s) without metadata, e.g. {unknown[0]!r}")
     track_name, obs_track = np.unique(measurements.point, return_inverse=True)
-    obs_image = np.array([idx[s] for s in measurements.image], np.int64)
+    obs_image = by_name[pos].astype(np.int64)
     return UavBlockInput(names, cam, gnss, rot, ground, obs_track.astype(np.int64), obs_image,
                          np.asarray(measurements.pixel, float), track_name, frame, notes)
 
