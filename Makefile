@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test env bench clean
+.PHONY: demo test test-all env bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,9 @@ demo: $(STAMP)
 	$(BIN)/skyrig demo demo-output
 
 test: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 -m 'not slow' tests
+
+test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 tests
 
 bench: $(STAMP)
