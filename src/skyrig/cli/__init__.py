@@ -1,10 +1,22 @@
-"""Command-line interface: thin shims over library functions, one module per subcommand."""
+"""Command-line interface: thin shims over library functions, one module per subcommand.
+
+Commands are loaded lazily: :data:`COMMANDS` maps each command name to ``"module:attribute"`` and a one-line
+help text, and a command's module (with its numpy / scipy / numba stack) is imported only when that command
+runs or its own ``--help`` is asked, so that ``skyrig --help`` and ``skyrig --version`` start at once.
+Adding a subcommand = one module with a click command + one line in :data:`COMMANDS`.
+
+Global flags (``-v``/``--verbose``, ``-q``/``--quiet``) may stand anywhere on the line, before or after the
+subcommand.
+"""
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
+import re
 import sys
+from typing import NamedTuple
 
 # COLMAP (pycolmap) logs every feature extractor it creates through glog at INFO level; keep warnings and errors.
 os.environ.setdefault("GLOG_minloglevel", "1")
@@ -15,7 +27,99 @@ from skyrig import __version__
 from skyrig.errors import SkyrigError
 
 
-class _Group(click.Group):
+class CommandEntry(NamedTuple):
+    """Where a subcommand lives and what ``skyrig --help`` says about it."""
+
+    target: str  # "module:attribute" of the click command
+    help: str  # one line, shown in the command list without importing the module
+
+
+COMMANDS: dict[str, CommandEntry] = {
+    "georef": CommandEntry("skyrig.cli.georef:command",
+                           "Exterior orientation of every image from GNSS/IMU, lever arms, boresights and actuator angles."),
+    "world-to-image": CommandEntry("skyrig.cli.world_to_image:command",
+                                   "Project ground points into every image that sees them (or into measured pairs)."),
+    "image-to-world": CommandEntry("skyrig.cli.image_to_world:command",
+                                   "Ground coordinates of measured image points (DEM, height or intersection)."),
+    "convert": CommandEntry("skyrig.cli.convert:command", "Convert an exterior-orientation file SRC into DST."),
+    "match": CommandEntry("skyrig.cli.match:command",
+                          "Tie points for the images of PROJECT (resumable: rerun to continue an interrupted run)."),
+    "block": CommandEntry("skyrig.cli.block:command",
+                          "Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."),
+    "adjust": CommandEntry("skyrig.cli.adjust:command",
+                           "Adjust a block file and write the adjusted EO, points and report."),
+    "adjust-uav": CommandEntry("skyrig.cli.uav:command",
+                               "GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."),
+    "dsm": CommandEntry("skyrig.cli.dsm:command",
+                        "Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images"),
+    "plan": CommandEntry("skyrig.cli.plan:command",
+                         "Plan a flight for a rig over an area; write stations, footprints and strips."),
+    "simulate": CommandEntry("skyrig.cli.simulate:command",
+                             "Simulate SCENARIO (tumblecam, midas, 3k, southeast, uav-bridge-lidar) into OUTDIR."),
+    "lidar": CommandEntry("skyrig.cli.lidar:command",
+                          "Laser scanning: georeference raw scans, register and compare point clouds."),
+    "demo": CommandEntry("skyrig.cli.demo:command",
+                         "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
+}
+
+# Global flags that may also follow the subcommand: -v, -vv, -q, -vq..., --verbose, --quiet.
+_GLOBAL_FLAG = re.compile(r"^(-[vq]+|--verbose|--quiet)$")
+
+
+def hoist_global_flags(args: list[str]) -> list[str]:
+    """Move the global flags found anywhere on the line (up to a ``--``) to the front.
+
+    No subcommand defines ``-v`` or ``-q`` of its own, so these tokens always mean the global flags.
+
+    >>> hoist_global_flags(["georef", "--crs", "EPSG:25832", "-v", "-o", "eo.csv"])
+    ['-v', 'georef', '--crs', 'EPSG:25832', '-o', 'eo.csv']
+    """
+    args = list(args)
+    end = args.index("--") if "--" in args else len(args)
+    flags = [a for a in args[:end] if _GLOBAL_FLAG.match(a)]
+    rest = [a for a in args[:end] if not _GLOBAL_FLAG.match(a)]
+    return flags + rest + args[end:]
+
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands are imported on first use (see :data:`COMMANDS`)."""
+
+    def __init__(self, *args, lazy_commands: dict[str, CommandEntry] | None = None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = dict(lazy_commands or {})
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(super().list_commands(ctx)) | set(self.lazy_commands))
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.commands:
+            return self.commands[cmd_name]
+        entry = self.lazy_commands.get(cmd_name)
+        if entry is None:
+            return None
+        cmd = _load(cmd_name, entry.target)
+        self.commands[cmd_name] = cmd  # loaded once per process
+        return cmd
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list from the table's help texts, without importing any command module."""
+        rows = []
+        for name in self.list_commands(ctx):
+            if name in self.lazy_commands and name not in self.commands:
+                rows.append((name, self.lazy_commands[name].help))
+            else:
+                cmd = self.commands.get(name)
+                if cmd is not None and not cmd.hidden:
+                    rows.append((name, cmd.get_short_help_str(formatter.width)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if ctx.parent is None:
+            args = hoist_global_flags(args)
+        return super().parse_args(ctx, args)
+
     def invoke(self, ctx: click.Context):  # type: ignore[override]
         try:
             return super().invoke(ctx)
@@ -24,12 +128,28 @@ class _Group(click.Group):
             sys.exit(2)
 
 
-@click.group(cls=_Group)
-@click.version_option(__version__, prog_name="skyrig")
-@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
-def main(verbose: int) -> None:
-    """skyrig: aerial and UAV photogrammetry for multi-head camera rigs with GNSS/IMU."""
-    level = logging.WARNING - 10 * min(verbose, 2)
+def _load(name: str, target: str) -> click.Command:
+    """Import ``module:attribute`` for command ``name``; a missing module is a clean error, not a traceback."""
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        missing = exc.name or str(exc)
+        if missing == module_name or module_name.startswith(missing + "."):
+            raise click.ClickException(
+                f"command '{name}' is not available in this installation (module {module_name} is missing)"
+            ) from None
+        raise click.ClickException(
+            f"command '{name}' needs the Python package '{missing.split('.')[0]}', which is not installed"
+        ) from None
+    cmd = getattr(module, attr, None)
+    if not isinstance(cmd, click.Command):
+        raise click.ClickException(f"command '{name}': {module_name} defines no click command '{attr}'")
+    return cmd
+
+
+def _configure_logging(verbose: int, quiet: int) -> None:
+    level = min(max(logging.WARNING - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
     try:
         from rich.logging import RichHandler
 
@@ -39,12 +159,11 @@ def main(verbose: int) -> None:
     logging.basicConfig(level=level, handlers=[handler], format="%(message)s")
 
 
-def _register() -> None:
-    from skyrig.cli import (adjust, block, convert, demo, georef, image_to_world, lidar, match, plan, simulate, uav,
-                            world_to_image)
-
-    for mod in (georef, world_to_image, image_to_world, convert, match, block, adjust, uav, plan, simulate, lidar, demo):
-        main.add_command(mod.command)
-
-
-_register()
+@click.group(cls=LazyGroup, lazy_commands=COMMANDS)
+@click.version_option(__version__, prog_name="skyrig")
+@click.option("-v", "--verbose", count=True,
+              help="More log output (-v info, -vv debug); anywhere on the line.")
+@click.option("-q", "--quiet", count=True, help="Less log output (-q errors only); anywhere on the line.")
+def main(verbose: int, quiet: int) -> None:
+    """skyrig: aerial and UAV photogrammetry for multi-head camera rigs with GNSS/IMU."""
+    _configure_logging(verbose, quiet)
