@@ -18,11 +18,19 @@ PathLike = str | os.PathLike[str]
 
 
 def read_text(path: PathLike) -> str:
+    """The whole of a UTF-8 text file; a leading byte-order mark (as Excel writes) is dropped.
+
+    Every skyrig text reader opens its file through this function.
+    """
     p = Path(path)
     try:
-        return p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputFormatError("file not found", p) from None
+    except IsADirectoryError:
+        raise InputFormatError("is a folder, not a file", p) from None
+    except PermissionError:
+        raise InputFormatError("cannot be read (permission denied)", p) from None
     except UnicodeDecodeError as exc:
         raise InputFormatError(f"not a UTF-8 text file ({exc.reason})", p) from None
 

@@ -33,6 +33,8 @@ def read_bal(path: str | PathLike[str]) -> Block:
     """Read a BAL problem into a :class:`Block` (one station, image and camera per BAL camera)."""
     p = Path(path)
     with open(p, "rb") as fh:
+        if fh.read(3) != b"\xef\xbb\xbf":  # a UTF-8 byte-order mark (as Excel writes) is skipped
+            fh.seek(0)
         head = fh.readline().split()
         if len(head) != 3:
             raise InputFormatError("expected 'num_cameras num_points num_observations'", p, 1)

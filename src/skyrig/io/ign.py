@@ -31,18 +31,13 @@ from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.angles import check_plausible
 from skyrig.geometry.rotations import matrix_from_opk
+from skyrig.io._text import read_text
 
 PathLike = str | os.PathLike[str]
 
 
 def _lines(path: PathLike) -> list[tuple[int, list[str]]]:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise InputFormatError("file not found", p) from None
-    except UnicodeDecodeError as exc:
-        raise InputFormatError(f"not a text file ({exc.reason})", p) from None
+    text = read_text(path)
     out = []
     for i, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
