@@ -5,10 +5,11 @@ Formats are chosen through registries keyed by name (``--eo-format``), or guesse
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import click
+import numpy as np
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError
@@ -110,18 +111,50 @@ def load_points(path: str, crs: str | None, heights: str, geoid: str | None) -> 
 
 
 def load_measurements(path: str) -> ImageMeasurements:
+    """Image measurements from a skyrig CSV, an IGN .mes or an ODM gcp_list.txt."""
+    return load_measurements_lines(path)[0]
+
+
+def load_measurements_lines(path: str) -> tuple[ImageMeasurements, np.ndarray]:
+    """:func:`load_measurements` and the ``(N,)`` 1-based line of each measurement in its file."""
     name = Path(path).name.lower()
     if name.endswith(".mes"):
-        from skyrig.io.ign import read_ign_measurements
+        from skyrig.io.ign import read_ign_measurements_lines
 
-        return read_ign_measurements(path)
+        return read_ign_measurements_lines(path)
     if name.startswith("gcp_list"):
-        from skyrig.io.odm import read_gcp_list
+        from skyrig.io.odm import read_gcp_list_lines
 
-        return read_gcp_list(path)[1]
-    from skyrig.io.points_csv import read_measurements_csv
+        _, m, lines = read_gcp_list_lines(path)
+        return m, lines
+    from skyrig.io.points_csv import read_measurements_csv_lines
 
-    return read_measurements_csv(path)
+    return read_measurements_csv_lines(path)
+
+
+def check_measurements(m: ImageMeasurements, lines: np.ndarray, path: str, eo: ExteriorOrientations,
+                       cameras: Mapping[str, FrameCamera]) -> None:
+    """Refuse measurements of an image without orientation, or far outside their image, naming file and line."""
+    from skyrig.georef.ground import far_outside_image
+
+    known = eo.index()
+    for k, img in enumerate(m.image):
+        if img not in known:
+            raise InputFormatError(f"image {img!r} has no exterior orientation", path, int(lines[k]), "image")
+    for c in np.unique([str(eo.camera[known[i]]) for i in np.unique(m.image)]):
+        if c not in cameras:
+            raise click.UsageError(f"camera {c!r} of the EO file is not defined by any --camera file "
+                                   f"(known: {', '.join(sorted(cameras))})")
+    far = far_outside_image(eo, cameras, m.image, m.pixel)
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        cam = cameras[str(eo.camera[known[m.image[k]]])]
+        col, row = (float(v) for v in m.pixel[k])
+        field = "column" if not -0.5 - cam.width <= col <= 2 * cam.width - 0.5 else "row"
+        more = f" ({int(far.sum())} such measurements in all)" if far.sum() > 1 else ""
+        raise InputFormatError(
+            f"pixel ({col:.6g}, {row:.6g}) of point {str(m.point[k])!r} lies more than one image size outside image "
+            f"{str(m.image[k])!r} ({cam.width} x {cam.height} px){more}", path, int(lines[k]), field)
 
 
 def eo_options(f: Callable) -> Callable:

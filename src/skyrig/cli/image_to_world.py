@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from skyrig.cli._common import eo_options, load_cameras, load_eo, load_measurements
+from skyrig.cli._common import check_measurements, eo_options, load_cameras, load_eo, load_measurements_lines
+from skyrig.errors import GeometryError
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.ground import forward_intersection, image_to_world_dem, image_to_world_height
 from skyrig.georef.observations import GroundPoints
@@ -31,7 +32,8 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         raise click.UsageError("give exactly one of --height, --dem, --intersect")
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
     cams = load_cameras(camera_paths)
-    m = load_measurements(mes_path)
+    m, lines = load_measurements_lines(mes_path)
+    check_measurements(m, lines, mes_path, eo, cams)
     if dem_path:
         from skyrig.io.dem import read_dem
 
@@ -55,7 +57,17 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         click.echo(f"wrote {len(xyz)} points to {output}")
         return
     res = forward_intersection(eo, cams, m.point, m.image, m.pixel, frame)
-    write_points_csv(output, GroundPoints(res.point, res.xyz, frame), {"n_rays": res.n_rays, "rms_px": res.rms_px})
-    good = res.n_rays >= 2
-    click.echo(f"intersected {int(good.sum())} of {len(res.point)} points; image residual RMS "
-               f"{np.sqrt(np.nanmean(res.residual_px ** 2)):.3f} px; wrote {output}")
+    if not res.valid.any():
+        why = "; ".join(f"{str(n)!r}: {t}" for n, t in list(zip(res.point, res.note))[:5])
+        raise GeometryError(f"{mes_path}: no point could be intersected ({why})")
+    xyz = np.where(res.valid[:, None], res.xyz, np.nan)  # an invalid point is not written as if it were one
+    write_points_csv(output, GroundPoints(res.point, xyz, frame), {"n_rays": res.n_rays, "rms_px": res.rms_px})
+    for name, note in zip(res.point[~res.valid], res.note[~res.valid]):
+        click.echo(f"warning: point {str(name)!r}: {note}", err=True)
+    obs_ok = res.used & res.valid[np.unique(m.point, return_inverse=True)[1]]
+    if obs_ok.any():
+        rms = f"{np.sqrt(np.mean(res.residual_px[obs_ok] ** 2)):.3f} px over {int(obs_ok.sum())} measurements"
+    else:
+        rms = "n/a (no valid point)"
+    click.echo(f"intersected {int(res.valid.sum())} of {len(res.point)} points; image residual RMS {rms}; "
+               f"wrote {output}")

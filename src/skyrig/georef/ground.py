@@ -295,6 +295,39 @@ def _along(a: NDArray, u: NDArray) -> NDArray:
     return a[idx, i0] * (1 - w) + a[idx, i0 + 1] * w
 
 
+def far_outside_image(
+    eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], images: ArrayLike, pixels: ArrayLike,
+    margin_images: float = 1.0,
+) -> NDArray[np.bool_]:
+    """Which measurements are not finite or lie more than ``margin_images`` image sizes outside their image.
+
+    Such a pixel cannot be a measurement (a typing slip, a unit or axis mix-up); its ray is meaningless.
+
+    Parameters
+    ----------
+    images
+        ``(N,)`` image names (each must have an exterior orientation).
+    pixels
+        ``(N, 2)`` (column, row) in pixels.
+    margin_images
+        Allowed distance outside the image, in image widths (columns) and heights (rows).
+
+    Returns
+    -------
+    ``(N,)`` bool, True where the pixel is not finite or beyond the margin.
+    """
+    images = np.asarray(images, dtype=str).reshape(-1)
+    px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    rows = _lookup(eo, images)
+    size = np.empty((len(px), 2))
+    for c in np.unique(eo.camera[rows]):
+        cam = _camera_for(cameras, str(c))
+        size[eo.camera[rows] == c] = (cam.width, cam.height)
+    with np.errstate(invalid="ignore"):
+        inside = np.all((px >= -0.5 - margin_images * size) & (px <= size - 0.5 + margin_images * size), axis=1)
+    return ~inside
+
+
 @dataclass(frozen=True)
 class Intersection:
     """Result of :func:`forward_intersection`.
@@ -304,15 +337,25 @@ class Intersection:
     point
         ``(P,)`` point names.
     xyz
-        ``(P, 3)`` coordinates in the requested frame.
+        ``(P, 3)`` coordinates in the requested frame (NaN for points with fewer than two usable rays).
     n_rays
         ``(P,)`` number of rays used.
     residual_px
-        ``(N, 2)`` per observation: measured minus re-projected pixel (NaN for points with < 2 rays).
+        ``(N, 2)`` per observation: measured minus re-projected pixel, also for observations that were not
+        used; NaN where the point has no position or lies behind that camera. Never set to zero.
     ray_distance_m
         ``(N,)`` per observation: perpendicular distance of the point from the ray.
     rms_px
-        ``(P,)`` per point: RMS of its image residuals (both axes).
+        ``(P,)`` per point: RMS of the image residuals (both axes) of its used observations; NaN when the
+        point has no position or a used observation does not re-project (point behind the camera).
+    used
+        ``(N,)`` whether the observation entered the solution (False: pixel not finite or more than one image
+        size outside its image, see :func:`far_outside_image`).
+    valid
+        ``(P,)`` whether the point is trustworthy: at least two used rays, a finite position in front of every
+        camera of its used rays.
+    note
+        ``(P,)`` why a point is not valid or which of its observations were left out (empty when all is well).
     """
 
     point: NDArray[np.str_]
@@ -321,6 +364,9 @@ class Intersection:
     residual_px: NDArray[np.float64]
     ray_distance_m: NDArray[np.float64]
     rms_px: NDArray[np.float64]
+    used: NDArray[np.bool_]
+    valid: NDArray[np.bool_]
+    note: NDArray[np.str_]
 
 
 def forward_intersection(
@@ -335,22 +381,30 @@ def forward_intersection(
     """Least-squares intersection of the rays of every point measured in two or more images.
 
     The linear solution (minimum sum of squared ray distances) is refined by Gauss-Newton on the image
-    residuals (analytic Jacobians of the full camera model, 3 unknowns per point).  Points with fewer
-    than two rays come back as NaN.
+    residuals (analytic Jacobians of the full camera model, 3 unknowns per point).  Observations whose pixel
+    is not finite or lies more than one image size outside its image are left out (``used`` False) and named
+    in the point's ``note``; points with fewer than two used rays come back as NaN; a point behind one of its
+    cameras is kept but marked not ``valid`` with an RMS of NaN (see :class:`Intersection`).
     """
     names = np.asarray(points, dtype=str).reshape(-1)
     images = np.asarray(images, dtype=str).reshape(-1)
     px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if not (len(names) == len(images) == len(px)):
+        raise ValueError(f"{len(names)} point names, {len(images)} image names and {len(px)} pixels: "
+                         "one of each per observation")
+    used = ~far_outside_image(eo, cameras, images, px)
+    px_ray = np.where(used[:, None], px, 0.0)  # left-out observations: any finite ray, weight 0 below
     local = local_frame_for(eo.frame.to_ecef(eo.centre))
-    origin, d = _rays_local(eo, cameras, images, px, local)
+    origin, d = _rays_local(eo, cameras, images, px_ray, local)
     uniq, pid = np.unique(names, return_inverse=True)
     P = len(uniq)
     M = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    M[~used] = 0.0
     A = np.zeros((P, 3, 3))
     b = np.zeros((P, 3))
     np.add.at(A, pid, M)
     np.add.at(b, pid, np.einsum("nij,nj->ni", M, origin))
-    n_rays = np.bincount(pid, minlength=P)
+    n_rays = np.bincount(pid[used], minlength=P)
     good = n_rays >= 2
     X = np.full((P, 3), np.nan)
     if np.any(good):
@@ -371,28 +425,41 @@ def forward_intersection(
                 J[sel] = jd["point"]
         return out, J
 
-    for _ in range(iterations):
-        proj, J = reproject(X, jac=True)
-        r = px - proj
-        N = np.zeros((P, 3, 3))
-        g = np.zeros((P, 3))
-        ok = np.all(np.isfinite(r), axis=1) & good[pid]
-        np.add.at(N, pid[ok], np.einsum("nki,nkj->nij", J[ok], J[ok]))
-        np.add.at(g, pid[ok], np.einsum("nki,nk->ni", J[ok], r[ok]))
-        solvable = good & (np.linalg.matrix_rank(N) == 3)
-        step = np.zeros((P, 3))
-        step[solvable] = np.linalg.solve(N[solvable], g[solvable][..., None])[..., 0]
-        X = X + step
-        if np.nanmax(np.abs(step), initial=0.0) < 1e-6:
-            break
-    res = px - reproject(X)[0]
-    v = X[pid] - origin
-    dist = np.linalg.norm(v - np.sum(v * d, axis=1)[:, None] * d, axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for _ in range(iterations):
+            proj, J = reproject(X, jac=True)
+            r = px - proj
+            N = np.zeros((P, 3, 3))
+            g = np.zeros((P, 3))
+            ok = np.all(np.isfinite(r), axis=1) & good[pid] & used
+            np.add.at(N, pid[ok], np.einsum("nki,nkj->nij", J[ok], J[ok]))
+            np.add.at(g, pid[ok], np.einsum("nki,nk->ni", J[ok], r[ok]))
+            solvable = good & (np.linalg.matrix_rank(N) == 3)
+            step = np.zeros((P, 3))
+            step[solvable] = np.linalg.solve(N[solvable], g[solvable][..., None])[..., 0]
+            X = X + step
+            if np.nanmax(np.abs(step), initial=0.0) < 1e-6:
+                break
+        res = px - reproject(X)[0]
+        v = X[pid] - origin
+        dist = np.linalg.norm(v - np.sum(v * d, axis=1)[:, None] * d, axis=1)
+    dist[~used] = np.nan
+    res_finite = np.all(np.isfinite(res), axis=1)
     sq = np.zeros(P)
-    np.add.at(sq, pid, np.sum(np.nan_to_num(res) ** 2, axis=1))
+    np.add.at(sq, pid[used & res_finite], np.sum(res[used & res_finite] ** 2, axis=1))
+    behind = np.bincount(pid[used & ~res_finite], minlength=P) > 0  # a used ray that does not see the point
     rms = np.sqrt(sq / np.maximum(2 * n_rays, 1))
-    rms[~good] = np.nan
+    valid = good & ~behind & np.all(np.isfinite(X), axis=1)
+    rms[~valid] = np.nan
+    note = np.full(P, "", dtype=object)
+    for k in np.flatnonzero(~used):
+        note[pid[k]] += f"; measurement in {images[k]} left out (not finite or more than one image size outside)"
+    for p in np.flatnonzero(~good):
+        note[p] += f"; {n_rays[p]} usable ray{'s' if n_rays[p] != 1 else ''} (needs 2)"
+    for p in np.flatnonzero(good & behind):
+        note[p] += "; behind the camera of a measurement: no valid intersection"
+    note = np.array([s.lstrip("; ") for s in note], dtype=str)
     xyz = np.full((P, 3), np.nan)
     if np.any(good):
         xyz[good] = frame.from_ecef(local.to_ecef(X[good]))
-    return Intersection(uniq, xyz, n_rays, res, dist, rms)
+    return Intersection(uniq, xyz, n_rays, res, dist, rms, used, valid, note)

@@ -111,14 +111,21 @@ def read_ign_camera(path: PathLike, pixel_size_mm: float = 0.001) -> FrameCamera
 
 def read_ign_measurements(path: PathLike) -> ImageMeasurements:
     """Read image measurements ``point image column row`` (``.mes``)."""
-    pts, imgs, px = [], [], []
+    return read_ign_measurements_lines(path)[0]
+
+
+def read_ign_measurements_lines(path: PathLike) -> tuple[ImageMeasurements, np.ndarray]:
+    """:func:`read_ign_measurements` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
+    pts, imgs, px, lines = [], [], [], []
     for line, f in _lines(path):
         if len(f) != 4:
             raise InputFormatError(f"expected 4 fields (point image column row), found {len(f)}", path, line)
         pts.append(_name(f[0]))
         imgs.append(f[1])
         px.append((_num(path, line, "column", f[2]), _num(path, line, "row", f[3])))
-    return ImageMeasurements(np.array(pts, dtype=str), np.array(imgs, dtype=str), np.array(px).reshape(-1, 2))
+        lines.append(line)
+    m = ImageMeasurements(np.array(pts, dtype=str), np.array(imgs, dtype=str), np.array(px).reshape(-1, 2))
+    return m, np.array(lines, dtype=np.int64)
 
 
 def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:

@@ -68,6 +68,11 @@ def read_gcp_list(path: PathLike, geoid: str | None = None) -> tuple[GroundPoint
 
     GCPs without a name are named after their coordinates.  ``geoid`` makes the heights orthometric.
     """
+    return read_gcp_list_lines(path, geoid)[:2]
+
+
+def read_gcp_list_lines(path: PathLike, geoid: str | None = None) -> tuple[GroundPoints, ImageMeasurements, NDArray]:
+    """:func:`read_gcp_list` and the ``(N,)`` 1-based line number of each image measurement (for messages)."""
     crs, rows = _data_lines(path)
     frame = WorldFrame.map(crs, geoid)
     gname, gxyz, mp, mi, mpx = [], [], [], [], []
@@ -91,6 +96,7 @@ def read_gcp_list(path: PathLike, geoid: str | None = None) -> tuple[GroundPoint
     return (
         GroundPoints(np.array(gname), np.array(gxyz).reshape(-1, 3), frame),
         ImageMeasurements(np.array(mp), np.array(mi), np.array(mpx).reshape(-1, 2)),
+        np.array([line for line, _ in rows], dtype=np.int64),
     )
 
 

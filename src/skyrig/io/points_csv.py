@@ -71,10 +71,16 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None) -> GroundPo
 
 def read_measurements_csv(path: PathLike) -> ImageMeasurements:
     """Read ``point,image,column,row`` (extra columns of skyrig's own output are accepted and ignored)."""
+    return read_measurements_csv_lines(path)[0]
+
+
+def read_measurements_csv_lines(path: PathLike) -> tuple[ImageMeasurements, np.ndarray]:
+    """:func:`read_measurements_csv` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
     _, ln, cols = _table(path, ["point", "image", "column", "row"],
                          ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z"])
     px = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in ("column", "row")] for i in range(len(ln))])
-    return ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
+    m = ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
+    return m, np.array(ln, dtype=np.int64)
 
 
 def write_measurements_csv(
