@@ -56,6 +56,19 @@ def _num(path: PathLike, line: int, field: str, text: str) -> float:
     return v
 
 
+def _truncated(path: PathLike, line: int, rows: list[tuple[int, list[str]]]) -> str:
+    """A hint when the bad line is the file's last one and the file does not end with a newline."""
+    if line != rows[-1][0]:
+        return ""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(-1, os.SEEK_END)
+            ends_open = fh.read(1) not in (b"\n", b"\r")
+    except OSError:
+        return ""
+    return " (the file ends in the middle of this line: truncated?)" if ends_open else " (last line: truncated?)"
+
+
 def _name(s: str) -> str:
     return s.strip('"').strip("'")
 
@@ -75,12 +88,19 @@ def read_ign_opk(path: PathLike, frame: WorldFrame) -> ExteriorOrientations:
         raise InputFormatError(f"header must be {' '.join(expected)}, got {' '.join(rows[0][1])}", path, rows[0][0])
     names, cams, vals = [], [], []
     fields = expected[1:7]
+    seen: dict[str, int] = {}
     for line, f in rows[1:]:
         if len(f) != 8:
-            raise InputFormatError(f"expected 8 fields, found {len(f)}", path, line, expected[min(len(f), 7)])
+            raise InputFormatError(f"expected 8 fields, found {len(f)}" + _truncated(path, line, rows),
+                                   path, line, expected[min(len(f), 7)])
         vals.append([_num(path, line, fields[j], f[j + 1]) for j in range(6)])
+        if f[0] in seen:
+            raise InputFormatError(f"image {f[0]!r} appears twice (first on line {seen[f[0]]})", path, line, "NOM")
+        seen[f[0]] = line
         names.append(f[0])
         cams.append(f[7])
+    if not names:
+        raise InputFormatError("no image after the header line", path, rows[0][0])
     v = np.array(vals)
     for j, fld in enumerate(("O", "P", "K")):
         why = check_plausible(v[:, 3 + j], "deg")
@@ -116,11 +136,21 @@ def read_ign_measurements(path: PathLike) -> ImageMeasurements:
 
 def read_ign_measurements_lines(path: PathLike) -> tuple[ImageMeasurements, np.ndarray]:
     """:func:`read_ign_measurements` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
+    rows = _lines(path)
+    if not rows:
+        raise InputFormatError("no measurement in the file (expected lines 'point image column row')", path)
     pts, imgs, px, lines = [], [], [], []
-    for line, f in _lines(path):
+    seen: dict[tuple[str, str], int] = {}
+    for line, f in rows:
         if len(f) != 4:
-            raise InputFormatError(f"expected 4 fields (point image column row), found {len(f)}", path, line)
-        pts.append(_name(f[0]))
+            raise InputFormatError(f"expected 4 fields (point image column row), found {len(f)}"
+                                   + _truncated(path, line, rows), path, line)
+        key = (_name(f[0]), f[1])
+        if key in seen:
+            raise InputFormatError(f"point {key[0]!r} is measured twice in image {key[1]!r} (first on line "
+                                   f"{seen[key]})", path, line, "point")
+        seen[key] = line
+        pts.append(key[0])
         imgs.append(f[1])
         px.append((_num(path, line, "column", f[2]), _num(path, line, "row", f[3])))
         lines.append(line)
@@ -130,16 +160,29 @@ def read_ign_measurements_lines(path: PathLike) -> tuple[ImageMeasurements, np.n
 
 def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:
     """Read ground points: ``.app`` (``"name" type X Y Z``) or ``_world.mes`` (``name X Y Z``)."""
+    rows = _lines(path)
+    if not rows:
+        raise InputFormatError("no point in the file (expected lines 'name [type] X Y Z')", path)
+    width = len(rows[0][1])  # every line has the layout of the first: 5 fields (.app) or 4 (_world.mes)
+    if width not in (4, 5):
+        raise InputFormatError(f"expected 'name [type] X Y Z', found {width} fields", path, rows[0][0])
+    layout = "name type X Y Z" if width == 5 else "name X Y Z"
     names, kinds, xyz = [], [], []
-    for line, f in _lines(path):
-        if len(f) == 5:
+    seen: dict[str, int] = {}
+    for line, f in rows:
+        if len(f) != width:
+            raise InputFormatError(f"expected {width} fields ({layout}, as on line {rows[0][0]}), found {len(f)}"
+                                   + _truncated(path, line, rows), path, line)
+        if width == 5:
             kinds.append(int(_num(path, line, "type", f[1])))
             f = [f[0]] + f[2:]
-        elif len(f) != 4:
-            raise InputFormatError(f"expected 'name [type] X Y Z', found {len(f)} fields", path, line)
-        names.append(_name(f[0]))
+        name = _name(f[0])
+        if name in seen:
+            raise InputFormatError(f"point {name!r} appears twice (first on line {seen[name]})", path, line, "name")
+        seen[name] = line
+        names.append(name)
         xyz.append([_num(path, line, k, f[1 + j]) for j, k in enumerate("XYZ")])
-    kind = np.array(kinds, dtype=np.int64) if kinds and len(kinds) == len(names) else None
+    kind = np.array(kinds, dtype=np.int64) if width == 5 else None
     return GroundPoints(np.array(names, dtype=str), np.array(xyz).reshape(-1, 3), frame, kind)
 
 
