@@ -8,19 +8,20 @@ from skyrig.simulate.scenarios import SCENARIOS
 
 
 @click.command("simulate")
-@click.argument("scenario", type=click.Choice([*SCENARIOS, "midas-demo"], case_sensitive=False))
+@click.argument("scenario", type=click.Choice([*SCENARIOS, "midas-demo", "uav-bridge-camera"], case_sensitive=False))
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--size", type=click.Choice(["ci", "full"]), default="ci", show_default=True, help="CI size (small) or the papers' full size.")
 @click.option("--seed", type=int, default=1, show_default=True, help="Random seed (the project is a deterministic function of it).")
 @click.option("--workers", type=int, default=None, help="Processes rendering images (default: all cores).")
 @click.option("--no-images", is_flag=True, help="Write everything but the images.")
 def command(scenario: str, outdir: str, size: str, seed: int, workers: int | None, no_images: bool) -> None:
-    """Simulate SCENARIO (tumblecam, midas, 3k, southeast, uav-bridge-lidar) into OUTDIR."""
+    """Simulate SCENARIO (tumblecam, midas, 3k, southeast, uav-bridge-lidar, uav-bridge-camera) into OUTDIR."""
     from skyrig.pipeline.simulate import simulate_scenario
 
     info = simulate_scenario(scenario, outdir, size=size, seed=seed, workers=workers, images=not no_images)
     if info.n_images == 0 and info.summary:
         click.echo(f"{scenario} ({size}, seed {seed}): {info.summary}, total {info.total_s:.1f} s -> {info.outdir}")
         return
+    extra = f" ({info.summary})" if info.summary else ""
     click.echo(f"{scenario} ({size}, seed {seed}): {info.n_images} images, {info.megapixels:.1f} MP rendered in "
-               f"{info.render_s:.1f} s, total {info.total_s:.1f} s -> {info.outdir}")
+               f"{info.render_s:.1f} s, total {info.total_s:.1f} s{extra} -> {info.outdir}")

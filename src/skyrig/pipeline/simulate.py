@@ -27,6 +27,15 @@ The laser-scanning scenario ``uav-bridge-lidar`` writes a different folder (:fun
     OUTDIR/reference/tls.laz              terrestrial reference cloud (map CRS, ellipsoidal heights)
     OUTDIR/scene/bridge.json              the bridge (boxes) and the ground plane, local ENU frame
     OUTDIR/truth/truth.json, trajectory.csv, scanner.json, points.laz (true surface point per pulse)
+
+The camera scenario ``uav-bridge-camera`` (:func:`write_bridge_camera_project`)::
+
+    OUTDIR/images/<side>_r<row>_<k>.png   rendered images (true orientations, camera with distortion)
+    OUTDIR/rig.yaml                       the camera (one-head rig; calibrated interior orientation)
+    OUTDIR/eo.csv                         adjusted-level orientations (truth + seeded noise), map CRS
+    OUTDIR/reference/tls.laz              terrestrial reference cloud (map CRS, ellipsoidal heights)
+    OUTDIR/scene/bridge.json              the bridge (boxes), ground plane and texture, local ENU frame
+    OUTDIR/truth/eo.csv, eo_map.csv       true orientations (local ENU frame / map CRS), truth.json
 """
 
 from __future__ import annotations
@@ -278,7 +287,13 @@ def simulate_scenario(name: str, outdir: str | Path, size: str = "ci", seed: int
     """Build and write a named scenario (``skyrig simulate``).
 
     ``uav-bridge-lidar`` writes a laser-scanning project (:func:`write_lidar_project`, no images; the
-    returned info has ``n_images = 0`` and the pulse counts in ``summary``)."""
+    returned info has ``n_images = 0`` and the pulse counts in ``summary``); ``uav-bridge-camera`` a camera
+    flight along the same bridge (:func:`write_bridge_camera_project`)."""
+    if name.strip().lower() == "uav-bridge-camera":
+        from skyrig.simulate.bridge_camera import bridge_camera_spec, build_bridge_camera_survey
+
+        return write_bridge_camera_project(build_bridge_camera_survey(bridge_camera_spec(size, seed)), outdir,
+                                           workers, images)
     if name.strip().lower() == "uav-bridge-lidar":
         from skyrig.simulate.lidar import build_lidar_survey, lidar_scenario_spec
 
@@ -350,6 +365,15 @@ def _write_json(path: Path, obj: Any) -> None:
         fh.write("\n")
 
 
+def _write_reference(out: Path, frame: WorldFrame, xyz_local: np.ndarray, crs: str) -> None:
+    """``reference/tls.laz``: the terrestrial reference scan ``(M, 3)`` (local ENU) in the map CRS
+    (ellipsoidal heights, 1 mm steps)."""
+    from skyrig.io.laz import write_las
+
+    (out / "reference").mkdir(parents=True, exist_ok=True)
+    write_las(out / "reference" / "tls.laz", WorldFrame.map(crs).from_ecef(frame.to_ecef(xyz_local)), crs)
+
+
 def write_lidar_project(survey: Any, outdir: str | Path) -> LidarProjectInfo:
     """Write a :class:`skyrig.simulate.lidar.LidarSurvey` as a project folder (see the module docstring
     and ``docs/formats/simulated_project.md``)."""
@@ -377,7 +401,7 @@ def write_lidar_project(survey: Any, outdir: str | Path) -> LidarProjectInfo:
                                                             "TRUE mount (boresight and lever-arm errors applied)"))
     mf = WorldFrame.map(spec.crs)
     to_map = lambda p: mf.from_ecef(survey.frame.to_ecef(p))  # noqa: E731
-    write_las(out / "reference" / "tls.laz", to_map(survey.reference_xyz), spec.crs)
+    _write_reference(out, survey.frame, survey.reference_xyz, spec.crs)
     n = survey.truth_normal
     write_las(out / "truth" / "points.laz", to_map(survey.truth_xyz), spec.crs, gps_time=survey.scan.time_s,
               intensity=survey.scan.intensity, scan_angle_deg=np.degrees(survey.scan.alpha_rad), scale=1e-4,
@@ -485,6 +509,116 @@ def lidar_demo(outdir: str | Path, size: str = "ci", seed: int = 1) -> dict[str,
     fig["corrected"] = judge(cor.xyz, "georef_corrected")
     fig["seconds"] = time.perf_counter() - t0
     return fig
+
+
+# ------------------------------------------------------------------------------------------ bridge camera
+_BRIDGE: tuple | None = None
+
+
+def _init_bridge_worker(state: tuple) -> None:
+    global _BRIDGE
+    _BRIDGE = state
+
+
+def _render_bridge_one(job: tuple) -> float:
+    """Render and write image ``k`` of the bridge flight (in a worker or in-process)."""
+    from skyrig.io.images import write_image
+    from skyrig.simulate.bridge_camera import render_bridge_image
+
+    k, path, seed = job
+    if _BRIDGE is None:  # pragma: no cover - a worker without its initializer
+        raise RuntimeError("bridge render worker not initialised")
+    scene, look, camera, rotation, centre, noise = _BRIDGE
+    t = time.perf_counter()
+    img = render_bridge_image(scene, look, camera, Pose(rotation[k], centre[k], "world", "camera"), noise, seed)
+    write_image(path, img)
+    return time.perf_counter() - t
+
+
+def write_bridge_camera_project(survey: Any, outdir: str | Path, workers: int | None = None,
+                                images: bool = True) -> ProjectInfo:
+    """Write a :class:`skyrig.simulate.bridge_camera.BridgeCameraSurvey` as a project folder.
+
+    Layout (``docs/formats/simulated_project.md``, section "The camera flight along the bridge"):
+    ``images/*.png``, ``rig.yaml``, ``eo.csv`` (adjusted-level orientations, map CRS), ``reference/tls.laz``,
+    ``scene/bridge.json``, ``truth/eo.csv`` (local ENU), ``truth/eo_map.csv`` (map CRS), ``truth/truth.json``.
+
+    Parameters
+    ----------
+    survey
+        The simulated flight.
+    outdir
+        Project folder (created).
+    workers
+        Processes rendering images (None: all cores, at most one per image; 1: in this process).
+    images
+        Render the images (False: everything else only).
+    """
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.rig_file import write_rig
+    from skyrig.io.truth import write_truth
+
+    t0 = time.perf_counter()
+    out = Path(outdir)
+    for sub in ("images", "reference", "scene", "truth"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    spec = survey.spec
+    mframe = WorldFrame.map(spec.crs)
+    write_rig(survey.rig, out / "rig.yaml")
+    write_eo_csv(survey.eo_adjusted.to_frame(mframe), out / "eo.csv")
+    write_eo_csv(survey.eo_true, out / "truth" / "eo.csv")
+    write_eo_csv(survey.eo_true.to_frame(mframe), out / "truth" / "eo_map.csv")
+    _write_reference(out, survey.frame, survey.reference_xyz, spec.crs)
+    _write_json(out / "scene" / "bridge.json", {"local_frame": list(spec.origin), **survey.scene.to_dict(),
+                                                 "look": spec.look.to_dict(),
+                                                 "texture_rule": "skyrig.simulate.bridge_camera.shade_bridge"})
+    eo = survey.eo_true
+    n = len(eo)
+    cam = survey.camera
+    mp = n * cam.width * cam.height / 1e6 if images else 0.0
+    render_s = 0.0
+    if images:
+        jobs = [(k, out / "images" / str(eo.image[k]), survey.image_seed(k)) for k in range(n)]
+        state = (survey.scene, spec.look, cam, eo.rotation, eo.centre, spec.noise_dn)
+        nw = workers if workers is not None else min(os.cpu_count() or 1, n)
+        t = time.perf_counter()
+        if nw <= 1:
+            _init_bridge_worker(state)
+            for j in jobs:
+                _render_bridge_one(j)
+        else:
+            with ProcessPoolExecutor(max_workers=nw, initializer=_init_bridge_worker, initargs=(state,)) as ex:
+                list(ex.map(_render_bridge_one, jobs))
+        render_s = time.perf_counter() - t
+    c = cam
+    truth = {
+        "scenario": spec.name, "size": spec.size, "seed": spec.seed, "local_frame": list(spec.origin), "crs": spec.crs,
+        "notes": ["eo.csv: ADJUSTED-LEVEL orientations = truth + independent Gaussian errors per image "
+                  f"(centre {spec.adjusted_sigma_m} m per local ENU axis, rotation {spec.adjusted_sigma_deg} deg per "
+                  "camera axis as a rotation vector on the camera side: R_adjusted = R_true @ expmap(error))",
+                  "truth/eo.csv: exact orientations in the local ENU frame; truth/eo_map.csv: the same in the map CRS",
+                  "heights of eo.csv, truth/eo_map.csv and reference/tls.laz are WGS84 ellipsoidal",
+                  "images are rendered with the true orientations and the rig.yaml camera (distortion included); "
+                  "the camera in rig.yaml is exact (a perfect calibration)"],
+        "errors": {"adjusted_sigma_m": spec.adjusted_sigma_m, "adjusted_sigma_deg": spec.adjusted_sigma_deg,
+                   "image_noise_dn": spec.noise_dn, "jitter_m": list(spec.jitter_m), "jitter_deg": list(spec.jitter_deg)},
+        "injected": {"eo_centre_error_m": survey.adjusted_error_m, "eo_rotation_error_rad": survey.adjusted_error_rad,
+                     "images": eo.image.tolist()},
+        "camera": {"name": c.name, "width_px": c.width, "height_px": c.height, "pixel_size_mm": c.pixel_size_mm,
+                   "focal_mm": c.focal_mm, "ppx_mm": c.ppx_mm, "ppy_mm": c.ppy_mm, "distortion": c.distortion.to_dict(),
+                   "binning": spec.binning},
+        "flight": survey.flight,
+        "reference": {"density_per_m2": spec.reference_density_per_m2,
+                      "ground_density_per_m2": spec.reference_ground_density_per_m2, "noise_m": spec.reference_noise_m,
+                      "points": len(survey.reference_xyz)},
+        "files": {"images": "images/", "camera": "rig.yaml", "eo_adjusted_map": "eo.csv", "eo_local": "truth/eo.csv",
+                  "eo_map": "truth/eo_map.csv", "reference": "reference/tls.laz", "scene": "scene/bridge.json"},
+        "statistics": {"images": n, "megapixels": mp, "render_s": render_s},
+    }
+    write_truth(out / "truth" / "truth.json", truth)
+    return ProjectInfo(out, n if images else 0, mp, render_s, time.perf_counter() - t0,
+                       f"{n} images ({cam.width} x {cam.height} px), GSD {100 * survey.flight['gsd_on_deck_side_m']:.2f} cm "
+                       f"on the deck side, {len(survey.reference_xyz):,} reference points")
 
 
 # ------------------------------------------------------------------------------------------ given rasters
