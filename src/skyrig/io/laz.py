@@ -1,21 +1,24 @@
 """LAS / LAZ 1.4 point clouds (laspy, with lazrs for LAZ compression).
 
-Written files are LAS 1.4, point format 6 (GPS time, intensity, scan angle in 0.006 deg steps), with the
-CRS as an OGC WKT VLR (global encoding WKT bit set) and optional float extra dimensions (e.g. a
-comparison distance for colour coding in CloudCompare or QGIS).  ``.laz`` compresses with lazrs.
-Writes go to a temporary file renamed into place.  Reading accepts any LAS/LAZ version laspy reads; the
+Written files are LAS 1.4, point format 6 (GPS time, intensity, scan angle in 0.006 deg steps) or 7 (the
+same plus 16-bit RGB) when colours are given, with the CRS as an OGC WKT VLR (global encoding WKT bit set;
+pyproj writes WKT2, which can hold a compound or 3D CRS), optional extra dimensions (float64 unless a type is
+given; e.g. a comparison distance for colour coding in CloudCompare or QGIS) and optional key/value metadata
+in a JSON VLR (user id ``skyrig``).  ``.laz`` compresses with lazrs.  Writes go to a temporary file renamed
+into place.  Reading accepts any LAS/LAZ version laspy reads; the
 CRS is taken from a WKT or GeoTIFF VLR (``laspy.LasHeader.parse_crs``).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from skyrig.errors import CRSError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
@@ -24,6 +27,8 @@ __all__ = ["LasPoints", "read_las", "write_las"]
 
 PathLike = str | os.PathLike[str]
 SCAN_ANGLE_STEP_DEG = 0.006  # LAS 1.4 point formats 6-10
+METADATA_VLR_USER_ID = "skyrig"  # JSON key/value VLR written by write_las(metadata=...)
+METADATA_VLR_RECORD_ID = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,6 +45,10 @@ class LasPoints:
         The file's CRS as WKT, or None.
     extra
         Extra-byte dimensions by name, ``(N,)`` each.
+    rgb
+        ``(N, 3)`` uint16 colours (LAS 16-bit scale), or None when the point format has none.
+    metadata
+        Key/value metadata from a ``skyrig`` JSON VLR (empty when absent).
     """
 
     xyz: NDArray[np.float64]
@@ -48,6 +57,8 @@ class LasPoints:
     scan_angle_deg: NDArray[np.float64] | None
     crs_wkt: str | None
     extra: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    rgb: NDArray[np.uint16] | None = None
+    metadata: dict[str, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -89,7 +100,17 @@ def read_las(path: PathLike, require_crs: bool = False) -> LasPoints:
     else:
         sa = None
     extra = {d: np.asarray(las[d], float) for d in dims - std}
-    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra)
+    rgb = None
+    if {"red", "green", "blue"} <= dims:
+        rgb = np.column_stack([np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)]).astype(np.uint16)
+    meta: dict[str, str] = {}
+    for vlr in las.header.vlrs:
+        if vlr.user_id == METADATA_VLR_USER_ID and vlr.record_id == METADATA_VLR_RECORD_ID:
+            try:
+                meta = {str(k): str(v) for k, v in json.loads(bytes(vlr.record_data).decode("utf-8")).items()}
+            except (ValueError, AttributeError, UnicodeDecodeError):
+                raise InputFormatError("unreadable skyrig metadata VLR", p, field="metadata") from None
+    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra, rgb, meta)
 
 
 def write_las(
@@ -101,9 +122,12 @@ def write_las(
     intensity: ArrayLike | None = None,
     scan_angle_deg: ArrayLike | None = None,
     extra: dict[str, ArrayLike] | None = None,
-    scale: float = 0.001,
+    scale: float | ArrayLike = 0.001,
+    rgb: ArrayLike | None = None,
+    extra_types: dict[str, DTypeLike] | None = None,
+    metadata: dict[str, str] | None = None,
 ) -> None:
-    """Write a LAS 1.4 (``.las``) or LAZ (``.laz``) file, point format 6, with the CRS as WKT.
+    """Write a LAS 1.4 (``.las``) or LAZ (``.laz``) file, point format 6 (7 with ``rgb``), with the CRS as WKT.
 
     Parameters
     ----------
@@ -117,9 +141,16 @@ def write_las(
     gps_time, intensity, scan_angle_deg
         ``(N,)`` each, optional (intensity clipped to 0..65535, scan angle to +-180 deg).
     extra
-        Extra dimensions ``{name: (N,)}``, stored as float64.
+        Extra dimensions ``{name: (N,)}``, stored as float64 unless ``extra_types`` names a type.
     scale
-        Coordinate resolution in CRS units (offsets are chosen from the data).
+        Coordinate resolution in CRS units, one value or ``(sx, sy, sz)`` (offsets are chosen from the data).
+    rgb
+        ``(N, 3)`` colours: uint8 (scaled to LAS's 16 bits by 257, so 255 -> 65535) or uint16 (as is);
+        selects point format 7.
+    extra_types
+        numpy type per extra dimension (e.g. ``{"support": np.int16}``); values are cast to it.
+    metadata
+        Key/value strings stored as JSON in a VLR (user id ``skyrig``, record 1); :func:`read_las` returns them.
 
     Raises
     ------
@@ -136,14 +167,34 @@ def write_las(
         raise InputFormatError(f"points must be a finite (N, 3) array, got {pts.shape}", field="xyz")
     n = len(pts)
     c = resolve_crs(crs)
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.array([scale] * 3)
+    scales = np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,)).copy()
+    if not np.all(np.isfinite(scales) & (scales > 0)):
+        raise InputFormatError(f"scale must be positive, got {scale!r}", field="scale")
+    colours = None
+    if rgb is not None:
+        colours = np.asarray(rgb)
+        if colours.shape != (n, 3):
+            raise InputFormatError(f"rgb must be ({n}, 3), got {colours.shape}", field="rgb")
+        if colours.dtype == np.uint8:
+            colours = colours.astype(np.uint16) * np.uint16(257)
+        elif colours.dtype != np.uint16:
+            raise InputFormatError(f"rgb must be uint8 or uint16, got {colours.dtype}", field="rgb")
+    header = laspy.LasHeader(point_format=6 if colours is None else 7, version="1.4")
+    header.scales = scales
     header.offsets = np.floor(pts.min(axis=0)) if n else np.zeros(3)
+    span = (pts.max(axis=0) - header.offsets) / scales if n else np.zeros(3)
+    if np.any(span > 2**31 - 1):
+        raise InputFormatError(f"coordinates span {np.ptp(pts, axis=0)} does not fit LAS 32-bit integers at scale "
+                               f"{scales}; use a coarser scale", field="scale")
     extra = extra or {}
+    extra_types = extra_types or {}
     for name, v in extra.items():
         if np.asarray(v).shape != (n,):
             raise InputFormatError(f"extra dimension must be ({n},), got {np.asarray(v).shape}", field=name)
-        header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float64))
+        header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.dtype(extra_types.get(name, np.float64))))
+    if metadata:
+        header.vlrs.append(laspy.VLR(METADATA_VLR_USER_ID, METADATA_VLR_RECORD_ID, "skyrig metadata (JSON)",
+                                     json.dumps({str(k): str(v) for k, v in metadata.items()}).encode("utf-8")))
     try:
         header.add_crs(c)
     except Exception as exc:
@@ -160,14 +211,29 @@ def write_las(
     if scan_angle_deg is not None:
         raw = np.round(np.clip(np.asarray(scan_angle_deg, float), -180, 180) / SCAN_ANGLE_STEP_DEG)
         las.scan_angle = np.clip(raw, -30000, 30000).astype(np.int16)
+    if colours is not None:
+        las.red, las.green, las.blue = colours[:, 0], colours[:, 1], colours[:, 2]
     for name, v in extra.items():
-        las[name] = np.asarray(v, float)
+        las[name] = np.asarray(v).astype(np.dtype(extra_types.get(name, np.float64)))
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=p.suffix, dir=p.parent)
     os.close(fd)
     try:
         las.write(tmp, do_compress=p.suffix.lower() == ".laz")
+        _publishable(tmp)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _publishable(tmp: str) -> None:
+    """Give a ``mkstemp`` file (mode 0600) the permissions a normally created file gets (0666 & ~umask)."""
+    umask = 0o022
+    try:  # read the umask without the thread-unsafe os.umask set-and-restore (Linux >= 4.7)
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                umask = int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    os.chmod(tmp, 0o666 & ~umask)

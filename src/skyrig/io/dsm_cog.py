@@ -1,0 +1,618 @@
+"""DSM grids as Cloud Optimized GeoTIFF (rasterio / GDAL), a hillshade preview PNG, and the CRS statement
+(horizontal CRS + vertical reference) shared with the dense-cloud writer.
+
+What GDAL keeps of the vertical reference
+-----------------------------------------
+Checked with GDAL 3.10 (rasterio 1.4) by writing and reading back files without their ``.aux.xml``:
+
+* **Compound CRS with a vertical CRS from the EPSG registry** (e.g. ``EPSG:32631+5773``, UTM 31N + EGM96
+  height): GDAL's GeoTIFF writer stores it in the GeoKeys (``VerticalGeoKey`` = the EPSG code, GeoTIFF 1.1)
+  and reads it back as the same compound CRS (``pyproj.CRS ==``).  QGIS shows it as the compound CRS.
+* **3D projected CRS** (projected CRS with an ellipsoidal-height axis, ``pyproj.CRS.to_3d()``): GeoTIFF
+  has no GeoKey encoding for "projected CRS + ellipsoidal height" (GeoTIFF 1.1 only knows a geographic
+  3D CRS, annex D.3).  GDAL then writes *no* GeoKeys at all and puts the whole CRS into a side-car
+  ``.aux.xml`` (PAM) -- the ``.tif`` alone has no CRS.  Unusable for a COG, so it is not done.
+* **Custom vertical CRS** (a geoid grid PROJ's database does not tie to a vertical CRS): GDAL writes a
+  user-defined vertical CS whose name survives, but WKT2's ``GEOIDMODEL`` is lost.
+
+So the COG carries:
+
+* ellipsoidal heights: the horizontal CRS in the GeoKeys, and dataset tags ``VERTICAL_REFERENCE=ellipsoidal``,
+  ``VERTICAL_CRS`` (words naming the geographic 3D CRS whose ellipsoid the heights refer to) and
+  ``CRS_3D_WKT`` (the 3D projected CRS as WKT2);
+* orthometric heights through a geoid PROJ identifies (its grid is named in PROJ's ``grid_alternatives`` /
+  ``grid_transformation`` tables, e.g. ``egm96_15.gtx`` -> EGM96 height EPSG:5773, ``fr_ign_RAF20.tif`` ->
+  NGF-IGN69 height EPSG:5720): the compound CRS in the GeoKeys, plus the tags below;
+* orthometric heights through any other geoid: the horizontal CRS in the GeoKeys, ``VERTICAL_REFERENCE=
+  orthometric``, ``GEOID`` (the grid as given) and ``CRS_3D_WKT`` (a compound CRS with a custom vertical CRS
+  carrying ``GEOIDMODEL``).
+
+Tags: ``VERTICAL_REFERENCE``, ``VERTICAL_CRS``, ``CRS_3D_WKT``, ``GEOID`` (only for
+orthometric heights: GDAL drops empty tags), ``SKYRIG_VERTICAL_REFERENCE`` (:attr:`DsmGrid.vertical_reference`) and
+``SKYRIG_METADATA`` (:attr:`DsmGrid.metadata` as JSON).  Band units are ``metre`` for height, spread and
+sigma (GDAL stores band units and descriptions in the file's ``GDAL_METADATA`` TIFF tag, not in a side-car).
+
+The file layout is GDAL's COG driver: tiles of 256 (grids below 4096 cells a side) or 512, DEFLATE with
+the floating-point predictor, internal overviews (nearest neighbour, so that counts and flags stay counts
+and flags) down to one tile, IFDs before the data.  :func:`cog_problems` checks that layout independently
+of GDAL's own claim.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sqlite3
+import struct
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pyproj
+from numpy.typing import NDArray
+
+from skyrig.dense.grid import DsmGrid, GridSpec
+from skyrig.errors import CRSError, InputFormatError
+from skyrig.geodesy.crs import resolve_crs
+from skyrig.georef.eo import WorldFrame
+from skyrig.io.laz import _publishable
+
+__all__ = [
+    "FileCRS",
+    "file_crs",
+    "frame_from_file_crs",
+    "vertical_crs_of_geoid",
+    "write_dsm_cog",
+    "read_dsm_cog",
+    "write_hillshade_png",
+    "hillshade",
+    "cog_problems",
+    "DSM_BANDS",
+    "DSM_NODATA",
+]
+
+log = logging.getLogger(__name__)
+
+PathLike = str | os.PathLike[str]
+
+#: Band order and names (band descriptions) of a DSM COG.
+DSM_BANDS = ("height", "support", "spread", "sigma", "filled")
+#: No-data value of the float bands (height, spread, sigma); GeoTIFF has one no-data value per file.
+DSM_NODATA = -32767.0
+_UNITS = {"height": "metre", "spread": "metre", "sigma": "metre", "support": "", "filled": ""}
+
+
+# --------------------------------------------------------------------------------------------------
+# CRS statement
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FileCRS:
+    """How a frame's coordinates are stated in a file.
+
+    Attributes
+    ----------
+    horizontal
+        The 2D horizontal CRS.
+    full
+        The complete 3D statement: a compound CRS (orthometric heights) or a 3D projected / geographic
+        CRS (ellipsoidal heights).
+    vertical_identified
+        True when the vertical CRS is one PROJ's database knows (an EPSG code), so ``full`` is a plain
+        ``horizontal + EPSG vertical`` compound that GeoTIFF GeoKeys can hold.
+    kind
+        ``"ellipsoidal"`` or ``"orthometric"``.
+    geoid
+        The frame's geoid grid as given, or None.
+    vertical_words
+        Human-readable vertical reference, e.g. ``"EGM96 height (EPSG:5773)"``.
+    """
+
+    horizontal: pyproj.CRS
+    full: pyproj.CRS
+    vertical_identified: bool
+    kind: str
+    geoid: str | None
+    vertical_words: str
+
+
+def _proj_db() -> Path:
+    return Path(pyproj.datadir.get_data_dir()) / "proj.db"
+
+
+@lru_cache(maxsize=64)
+def _vertical_code_of_grid(name: str) -> tuple[str, str] | None:
+    """(auth, code) of the vertical CRS that PROJ's database ties to a geoid grid file name."""
+    try:
+        con = sqlite3.connect(f"file:{_proj_db()}?mode=ro", uri=True)
+    except sqlite3.Error:  # pragma: no cover - PROJ without its database does not work at all
+        return None
+    try:
+        low = name.lower()
+        names = {low}
+        for row in con.execute(
+            "SELECT original_grid_name FROM grid_alternatives WHERE lower(original_grid_name)=? "
+            "OR lower(proj_grid_name)=? OR lower(old_proj_grid_name)=?", (low, low, low)):
+            names.add(row[0].lower())
+        for gname in sorted(names):
+            rows = con.execute(
+                "SELECT g.target_crs_auth_name, g.target_crs_code FROM grid_transformation g "
+                "JOIN vertical_crs v ON v.auth_name=g.target_crs_auth_name AND v.code=g.target_crs_code "
+                "WHERE lower(g.grid_name)=? AND g.deprecated=0 ORDER BY g.auth_name, g.code", (gname,)).fetchall()
+            if rows:
+                return rows[0][0], rows[0][1]
+        return None
+    finally:
+        con.close()
+
+
+def vertical_crs_of_geoid(geoid: str) -> pyproj.CRS | None:
+    """The vertical CRS of heights above a geoid grid, when PROJ's database identifies the grid.
+
+    The grid's file name (``egm96_15.gtx``, ``us_nga_egm96_15.tif``, ``fr_ign_RAF20.tif``...) is looked up
+    in PROJ's ``grid_alternatives`` and ``grid_transformation`` tables (``proj.db``).
+
+    Examples
+    --------
+    >>> vertical_crs_of_geoid("egm96_15.gtx").to_epsg()
+    5773
+    >>> vertical_crs_of_geoid("no_such_grid.tif") is None
+    True
+    """
+    code = _vertical_code_of_grid(Path(str(geoid)).name)
+    if code is None:
+        return None
+    return pyproj.CRS.from_authority(*code)
+
+
+def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
+    if crs.is_compound:
+        return crs.sub_crs_list[0]
+    if len(crs.axis_info) == 3:
+        return crs.to_2d()
+    return crs
+
+
+def file_crs(frame: WorldFrame) -> FileCRS:
+    """The CRS statement of a ``map`` frame for a file.
+
+    Raises
+    ------
+    CRSError
+        If the frame is not a ``map`` frame.
+    """
+    if frame.kind != "map" or frame.crs is None:
+        raise CRSError(f"outputs are written in a map frame (a CRS), not a {frame.kind} frame")
+    h = _horizontal(resolve_crs(frame.crs))
+    if frame.geoid is None:
+        full = h.to_3d()
+        ell = h.geodetic_crs.to_3d() if h.geodetic_crs is not None else None
+        code = ell.to_epsg() if ell is not None else None
+        words = "ellipsoidal heights" + (f" ({ell.name} ellipsoid, EPSG:{code})" if code else
+                                         f" ({ell.name})" if ell is not None else "")
+        return FileCRS(h, full, False, "ellipsoidal", None, words)
+    v = vertical_crs_of_geoid(frame.geoid)
+    gname = Path(str(frame.geoid)).name
+    if v is not None:
+        full = pyproj.crs.CompoundCRS(f"{h.name} + {v.name}", [h, v])
+        code = v.to_epsg()
+        words = f"orthometric heights, {v.name}" + (f" (EPSG:{code})" if code else "") + f", geoid grid {gname}"
+        return FileCRS(h, full, True, "orthometric", str(frame.geoid), words)
+    datum = pyproj.crs.Datum.from_json_dict({"type": "VerticalReferenceFrame", "name": f"geoid {gname}"})
+    v = pyproj.crs.VerticalCRS(name=f"height above geoid {gname}", datum=datum, geoid_model=gname)
+    full = pyproj.crs.CompoundCRS(f"{h.name} + {v.name}", [h, v])
+    return FileCRS(h, full, False, "orthometric", str(frame.geoid), f"orthometric heights, geoid grid {gname}")
+
+
+def _crs_spec(crs: pyproj.CRS) -> str:
+    code = crs.to_epsg(min_confidence=100)
+    return f"EPSG:{code}" if code is not None else crs.to_wkt()
+
+
+def frame_from_file_crs(crs: pyproj.CRS, geoid: str | None = None, kind: str | None = None) -> WorldFrame:
+    """A ``map`` frame from a CRS read from a file (the inverse of :func:`file_crs`).
+
+    Parameters
+    ----------
+    crs
+        The file's CRS: compound (orthometric), 3D (ellipsoidal) or 2D (then ``kind`` decides).
+    geoid
+        The geoid grid recorded in the file; without it, a compound CRS with an EPSG vertical CRS gets
+        the grid PROJ's database names for it, a custom vertical CRS its ``GEOIDMODEL``.
+    kind
+        ``"ellipsoidal"`` / ``"orthometric"`` as recorded in the file, if any.
+    """
+    h = _horizontal(crs)
+    if crs.is_compound or kind == "orthometric":
+        if not geoid and crs.is_compound:
+            v = crs.sub_crs_list[1]
+            geoid = (v.to_json_dict().get("geoid_model") or {}).get("name")
+            if geoid is None and v.to_epsg() is not None:
+                geoid = _grid_of_vertical(v.to_epsg())
+        if not geoid:
+            raise CRSError(f"the file states orthometric heights ({crs.name}) but no geoid grid for them")
+        return WorldFrame.map(_crs_spec(h), geoid)
+    if kind is None and len(crs.axis_info) < 3:
+        log.warning("%s: the file states no vertical reference; heights taken as ellipsoidal", crs.name)
+    return WorldFrame.map(_crs_spec(h))
+
+
+@lru_cache(maxsize=64)
+def _grid_of_vertical(code: int) -> str | None:
+    con = sqlite3.connect(f"file:{_proj_db()}?mode=ro", uri=True)
+    try:
+        row = con.execute(
+            "SELECT coalesce(a.proj_grid_name, g.grid_name) FROM grid_transformation g LEFT JOIN grid_alternatives a "
+            "ON a.original_grid_name=g.grid_name WHERE g.target_crs_auth_name='EPSG' AND g.target_crs_code=? "
+            "AND g.deprecated=0 ORDER BY g.code", (str(code),)).fetchone()
+        return None if row is None else row[0]
+    finally:
+        con.close()
+
+
+# --------------------------------------------------------------------------------------------------
+# atomic output
+# --------------------------------------------------------------------------------------------------
+
+
+@contextmanager
+def _atomic_target(path: PathLike, suffix: str) -> Iterator[str]:
+    """A temporary file name in ``path``'s folder, renamed onto ``path`` when the block succeeds.
+
+    On any error the temporary file (and a GDAL side-car ``.aux.xml`` of it) is removed and ``path`` is
+    left as it was.
+    """
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix, dir=p.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        _publishable(tmp)
+        os.replace(tmp, p)
+    finally:
+        for leftover in (tmp, tmp + ".aux.xml"):
+            Path(leftover).unlink(missing_ok=True)
+
+
+# --------------------------------------------------------------------------------------------------
+# COG
+# --------------------------------------------------------------------------------------------------
+
+
+def write_dsm_cog(path: PathLike, dsm: DsmGrid, *, overviews: bool = True, blocksize: int | None = None) -> None:
+    """Write a DSM as a Cloud Optimized GeoTIFF, atomically.
+
+    Bands (float32, descriptions set): 1 ``height`` (metres, no-data :data:`DSM_NODATA` where NaN),
+    2 ``support`` (count, 0 = no data), 3 ``spread`` (metres), 4 ``sigma`` (metres), 5 ``filled`` (1 where
+    the height was interpolated).  The CRS and the vertical reference are stated as the module docstring
+    describes (compound CRS when the geoid's vertical CRS is identified, tags otherwise).
+
+    Parameters
+    ----------
+    path
+        Output ``.tif``; written to a temporary file in the same folder and renamed, so that on any
+        error nothing is left at ``path`` (an existing file stays as it was) and no temporary remains.
+    dsm
+        The grid; ``dsm.frame`` must be a ``map`` frame.
+    overviews
+        Internal overviews (nearest neighbour) down to one tile.
+    blocksize
+        Tile size (256 or 512); default 256 below 4096 cells a side, else 512.
+
+    Raises
+    ------
+    CRSError
+        If the frame is not a map frame.
+    InputFormatError
+        On a bad block size.
+    """
+    import rasterio
+    from affine import Affine
+    from rasterio.crs import CRS as RioCRS
+    from rasterio.io import MemoryFile
+    from rasterio.shutil import copy as rio_copy
+
+    fc = file_crs(dsm.frame)
+    rows, cols = dsm.grid.shape
+    if blocksize is None:
+        blocksize = 256 if max(rows, cols) < 4096 else 512
+    if blocksize not in (256, 512):
+        raise InputFormatError(f"COG tile size must be 256 or 512, got {blocksize}", field="blocksize")
+    geokeys_crs = fc.full if fc.vertical_identified else fc.horizontal
+    tags = {
+        "VERTICAL_REFERENCE": fc.kind,
+        "VERTICAL_CRS": fc.vertical_words,
+        "CRS_3D_WKT": fc.full.to_wkt(),
+        "SKYRIG_VERTICAL_REFERENCE": dsm.vertical_reference or fc.vertical_words,
+        "SKYRIG_METADATA": json.dumps(dsm.metadata, default=str, sort_keys=True),
+        "AREA_OR_POINT": "Area",
+    }
+    if fc.geoid:
+        tags["GEOID"] = fc.geoid
+
+    def fl(a: NDArray) -> NDArray[np.float32]:
+        a = np.asarray(a, np.float32)
+        return np.where(np.isfinite(a), a, np.float32(DSM_NODATA)).astype(np.float32)
+
+    bands = {
+        "height": fl(dsm.height),
+        "support": np.asarray(dsm.support, np.float32),
+        "spread": fl(dsm.spread),
+        "sigma": fl(dsm.sigma),
+        "filled": np.asarray(dsm.filled, np.float32),
+    }
+    profile = dict(driver="GTiff", width=cols, height=rows, count=len(DSM_BANDS), dtype="float32",
+                   nodata=DSM_NODATA, crs=RioCRS.from_wkt(geokeys_crs.to_wkt()), transform=Affine(*dsm.grid.transform))
+    cog_options = dict(BLOCKSIZE=str(blocksize), COMPRESS="DEFLATE", PREDICTOR="YES", BIGTIFF="IF_SAFER",
+                       OVERVIEWS="AUTO" if overviews else "NONE", OVERVIEW_RESAMPLING="NEAREST")
+    with _atomic_target(path, ".tif") as tmp:
+        # PAM off: everything must be inside the .tif, never in a side-car a COG copy would lose
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), MemoryFile() as mem:
+            with mem.open(**profile) as src:
+                for i, name in enumerate(DSM_BANDS, start=1):
+                    src.write(bands[name], i)
+                    src.set_band_description(i, name)
+                src.units = tuple(_UNITS[n] for n in DSM_BANDS)
+                src.update_tags(**tags)
+            with mem.open() as src:
+                rio_copy(src, tmp, driver="COG", **cog_options)
+        problems = cog_problems(tmp, expect_overviews=overviews)
+        if problems:
+            raise InputFormatError("GDAL wrote an invalid COG: " + "; ".join(problems), path)
+
+
+def read_dsm_cog(path: PathLike) -> DsmGrid:
+    """Read a DSM written by :func:`write_dsm_cog` (or any north-up raster with a height band).
+
+    Bands are found by description (``height``, ``support``...); a raster without them is read as heights
+    in band 1 with support 1 where valid.
+
+    Raises
+    ------
+    InputFormatError
+        If the file is missing, unreadable, not north-up, or has no CRS.
+    """
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    p = Path(path)
+    if not p.exists():
+        raise InputFormatError("file not found", p)
+    try:
+        with rasterio.open(p) as ds:
+            if ds.crs is None:
+                raise InputFormatError("raster has no CRS", p, field="crs")
+            t = ds.transform
+            if abs(t.b) > 0 or abs(t.d) > 0 or not np.isclose(-t.e, t.a, rtol=1e-12, atol=0):
+                raise InputFormatError(f"not a north-up grid with square cells (transform {tuple(t)[:6]})", p)
+            tags = ds.tags()
+            desc = {d: i + 1 for i, d in enumerate(ds.descriptions) if d}
+            nodata = ds.nodata
+
+            def band(name: str) -> NDArray[np.float64] | None:
+                i = desc.get(name, 1 if name == "height" and "height" not in desc else None)
+                if i is None:
+                    return None
+                a = ds.read(i).astype(np.float64)
+                if nodata is not None and name in ("height", "spread", "sigma"):
+                    a[a == nodata] = np.nan
+                return a
+
+            h, sup, spr, sig, fil = (band(n) for n in DSM_BANDS)
+            crs = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+            shape = (ds.height, ds.width)
+    except RasterioIOError as exc:
+        raise InputFormatError(f"cannot read raster: {exc}", p) from None
+    grid = GridSpec(float(t.c), float(t.f), float(t.a), shape[1], shape[0])
+    valid = np.isfinite(h)
+    nan = np.full(shape, np.nan, np.float32)
+    kind = tags.get("VERTICAL_REFERENCE") or None
+    try:
+        frame = frame_from_file_crs(crs, tags.get("GEOID") or None, kind)
+    except CRSError as exc:
+        raise InputFormatError(str(exc), p, field="crs") from None
+    try:
+        meta = json.loads(tags.get("SKYRIG_METADATA", "{}"))
+    except ValueError:
+        meta = {}
+    return DsmGrid(
+        grid=grid, frame=frame, height=h.astype(np.float32),
+        support=(np.where(valid, 1, 0) if sup is None else np.round(sup)).astype(np.int16),
+        spread=nan.copy() if spr is None else spr.astype(np.float32),
+        sigma=nan.copy() if sig is None else sig.astype(np.float32),
+        filled=np.zeros(shape, bool) if fil is None else fil > 0.5,
+        vertical_reference=tags.get("SKYRIG_VERTICAL_REFERENCE", tags.get("VERTICAL_CRS", "")),
+        metadata=meta if isinstance(meta, dict) else {},
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# COG layout check (the checks of GDAL's validate_cloud_optimized_geotiff.py, written from the TIFF spec)
+# --------------------------------------------------------------------------------------------------
+
+_TIFF_TYPES = {1: ("B", 1), 3: ("H", 2), 4: ("I", 4), 16: ("Q", 8), 2: ("c", 1), 7: ("B", 1), 12: ("d", 8)}
+
+
+def _tiff_ifds(f) -> tuple[list[tuple[int, dict[int, tuple]]], bool]:
+    """Walk a TIFF's IFD chain: [(ifd_offset, {tag: values})], is_bigtiff."""
+    head = f.read(16)
+    bo = {b"II": "<", b"MM": ">"}.get(head[:2])
+    if bo is None:
+        raise ValueError("not a TIFF file")
+    magic = struct.unpack(bo + "H", head[2:4])[0]
+    big = magic == 43
+    if magic not in (42, 43):
+        raise ValueError(f"not a TIFF file (magic {magic})")
+    off = struct.unpack(bo + ("Q" if big else "I"), head[8:16] if big else head[4:8])[0]
+    ifds = []
+    seen = set()
+    while off and off not in seen and len(ifds) < 64:
+        seen.add(off)
+        f.seek(off)
+        n = struct.unpack(bo + ("Q" if big else "H"), f.read(8 if big else 2))[0]
+        esize = 20 if big else 12
+        raw = f.read(n * esize)
+        nxt = struct.unpack(bo + ("Q" if big else "I"), f.read(8 if big else 4))[0]
+        tags: dict[int, tuple] = {}
+        for k in range(n):
+            e = raw[k * esize:(k + 1) * esize]
+            if big:
+                tag, typ, cnt = struct.unpack(bo + "HHQ", e[:12])
+                val = e[12:20]
+            else:
+                tag, typ, cnt = struct.unpack(bo + "HHI", e[:8])
+                val = e[8:12]
+            if typ not in _TIFF_TYPES or tag not in (254, 256, 257, 322, 323, 324, 325):
+                continue
+            fmt, size = _TIFF_TYPES[typ]
+            if cnt * size <= len(val):
+                data = val[:cnt * size]
+            else:
+                pos = f.tell()
+                f.seek(struct.unpack(bo + ("Q" if big else "I"), val)[0])
+                data = f.read(cnt * size)
+                f.seek(pos)
+            tags[tag] = struct.unpack(bo + fmt * cnt, data)
+        ifds.append((off, tags))
+        off = nxt
+    return ifds, big
+
+
+def cog_problems(path: PathLike, *, expect_overviews: bool = True) -> list[str]:
+    """Why a GeoTIFF is not a Cloud Optimized GeoTIFF; an empty list when it is one.
+
+    Checks, from the file's bytes: GDAL's structural-metadata "ghost" header with
+    ``LAYOUT=IFDS_BEFORE_DATA``; every image (full resolution and overviews) tiled with square 256 or 512
+    tiles; overviews present when the image is larger than one tile (and ``expect_overviews``), each half
+    the size of the previous; all IFDs before the first tile; the tiles of smaller overviews before those
+    of larger ones and the full-resolution tiles last.  Also that GDAL (rasterio) reports the file as tiled
+    with overviews.
+    """
+    import rasterio
+
+    problems: list[str] = []
+    with open(path, "rb") as f:
+        try:
+            ifds, big = _tiff_ifds(f)
+        except (ValueError, struct.error) as exc:
+            return [str(exc)]
+        f.seek(16 if big else 8)
+        ghost = f.read(1024)
+    if not ghost.startswith(b"GDAL_STRUCTURAL_METADATA_SIZE="):
+        problems.append("no GDAL structural-metadata header after the TIFF header")
+    elif b"LAYOUT=IFDS_BEFORE_DATA" not in ghost:
+        problems.append("structural metadata lacks LAYOUT=IFDS_BEFORE_DATA")
+    images = [(o, t) for o, t in ifds if not (t.get(254, (0,))[0] & 4)]  # drop mask IFDs
+    if not images:
+        return problems + ["no image IFD"]
+    for k, (_, t) in enumerate(images):
+        if 322 not in t or 324 not in t:
+            problems.append(f"IFD {k} is not tiled")
+            continue
+        tw, th = t[322][0], t[323][0]
+        if tw != th or tw not in (256, 512):
+            problems.append(f"IFD {k} tiles are {tw}x{th}, not 256 or 512 square")
+    w0, h0 = images[0][1].get(256, (0,))[0], images[0][1].get(257, (0,))[0]
+    tile0 = images[0][1].get(322, (0,))[0]
+    if expect_overviews and max(w0, h0) > tile0 and len(images) < 2:
+        problems.append("no internal overviews")
+    for k in range(1, len(images)):
+        wp, wk = images[k - 1][1].get(256, (0,))[0], images[k][1].get(256, (0,))[0]
+        if not (wk < wp):
+            problems.append(f"overview {k} is not smaller than the image before it")
+    first_data = min((min((x for x in t.get(324, ()) if x), default=2**63) for _, t in ifds), default=2**63)
+    if any(o > first_data for o, _ in ifds):
+        problems.append("an IFD lies after tile data (IFDs must come first)")
+    if any(ifds[k][0] > ifds[k + 1][0] for k in range(len(ifds) - 1)):
+        problems.append("IFDs are not in increasing file order")
+    starts = [min((x for x in t.get(324, ()) if x), default=None) for _, t in images]
+    for k in range(len(images) - 1):
+        if starts[k] is not None and starts[k + 1] is not None and starts[k + 1] > starts[k]:
+            problems.append(f"tiles of overview {k + 1} come after those of image {k} (smallest must come first)")
+    with rasterio.open(path) as ds:
+        if not all(bs[0] == bs[1] == tile0 for bs in ds.block_shapes):
+            problems.append(f"GDAL reports blocks {ds.block_shapes}")
+        if expect_overviews and max(w0, h0) > tile0 and not ds.overviews(1):
+            problems.append("GDAL reports no overviews")
+    return problems
+
+
+# --------------------------------------------------------------------------------------------------
+# hillshade
+# --------------------------------------------------------------------------------------------------
+
+
+def hillshade(height: NDArray, cell_m: float, *, azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
+              z_factor: float = 1.0) -> NDArray[np.float64]:
+    """Shaded relief in [0, 1] by Horn's (1981) gradient and Burrough's illumination formula.
+
+    With the 3x3 window ``a b c / d e f / g h i`` (row 0 north)::
+
+        dz/dx = ((c + 2f + i) - (a + 2d + g)) / (8 cell)
+        dz/dy = ((g + 2h + i) - (a + 2b + c)) / (8 cell)
+        slope = atan(z_factor * hypot(dz/dx, dz/dy)),  aspect = atan2(dz/dy, -dz/dx)
+        shade = cos(zenith) cos(slope) + sin(zenith) sin(slope) cos(azimuth_math - aspect)
+
+    with ``zenith = 90 - altitude`` and ``azimuth_math = 360 - azimuth + 90`` (the ArcGIS / GDAL
+    ``gdaldem hillshade`` definition).  Edge cells use replicated borders; cells whose window holds a NaN
+    are NaN.
+
+    Parameters
+    ----------
+    height
+        ``(rows, cols)`` heights in metres, NaN = no data.
+    cell_m
+        Cell size in metres.
+
+    Examples
+    --------
+    >>> float(hillshade(np.zeros((3, 3)), 1.0)[1, 1])  # flat ground: cos(45 deg)
+    0.7071067811865476
+    """
+    z = np.pad(np.asarray(height, np.float64), 1, mode="edge")
+    a, b, c = z[:-2, :-2], z[:-2, 1:-1], z[:-2, 2:]
+    d, f = z[1:-1, :-2], z[1:-1, 2:]
+    g, h, i = z[2:, :-2], z[2:, 1:-1], z[2:, 2:]
+    dzdx = ((c + 2 * f + i) - (a + 2 * d + g)) / (8.0 * cell_m)
+    dzdy = ((g + 2 * h + i) - (a + 2 * b + c)) / (8.0 * cell_m)
+    slope = np.arctan(z_factor * np.hypot(dzdx, dzdy))
+    aspect = np.arctan2(dzdy, -dzdx)
+    zen = np.radians(90.0 - altitude_deg)
+    az = np.radians((360.0 - azimuth_deg + 90.0) % 360.0)
+    shade = np.cos(zen) * np.cos(slope) + np.sin(zen) * np.sin(slope) * np.cos(az - aspect)
+    shade = np.clip(shade, 0.0, 1.0)
+    shade[~np.isfinite(z[1:-1, 1:-1])] = np.nan
+    return shade
+
+
+def write_hillshade_png(path: PathLike, dsm: DsmGrid, *, azimuth_deg: float = 315.0,
+                        altitude_deg: float = 45.0, z_factor: float = 1.0) -> None:
+    """Write a shaded-relief preview of the DSM's height band as an 8-bit grey + alpha PNG (atomically).
+
+    Computed by :func:`hillshade` (sun azimuth 315 deg, altitude 45 deg by default); no-data cells are
+    transparent.  One pixel per cell.
+
+    Raises
+    ------
+    InputFormatError
+        If the grid is empty.
+    """
+    from PIL import Image
+
+    if dsm.height.size == 0:
+        raise InputFormatError("empty DSM grid", path)
+    s = hillshade(dsm.height, dsm.grid.cell_m, azimuth_deg=azimuth_deg, altitude_deg=altitude_deg,
+                  z_factor=z_factor)
+    ok = np.isfinite(s)
+    grey = np.where(ok, np.round(np.nan_to_num(s) * 255.0), 0).astype(np.uint8)
+    alpha = np.where(ok, 255, 0).astype(np.uint8)
+    img = Image.fromarray(np.dstack([grey, alpha]), mode="LA")
+    with _atomic_target(path, ".png") as tmp:
+        img.save(tmp, format="PNG")
