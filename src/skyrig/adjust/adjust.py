@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.model import Layout, Model, State, pad_actuator
+from skyrig.adjust.model import Factor, Layout, Model, State, pad_actuator
 from skyrig.adjust.solver import (
     SingularError,
     SolveInfo,
@@ -66,6 +66,13 @@ class GroupResiduals:
     normalised: NDArray[np.float64] | None
     redundancy: NDArray[np.float64] | None
     weight: NDArray[np.float64]
+    #: ``(n,)`` rows that depend on no unknown (e.g. control on fixed points, GNSS of fixed poses): not
+    #: observations of this adjustment (not counted, not in sigma0, not tested)
+    constant: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+
+    def __post_init__(self) -> None:
+        if self.constant.shape != self.weight.shape:
+            self.constant = np.zeros(self.weight.shape, bool)
 
 
 @dataclass
@@ -100,6 +107,11 @@ class AdjustmentResult:
         Covariance of the chosen unknowns (:class:`~skyrig.adjust.stats.SelectedCovariance`: every
         non-pose reduced unknown plus ``config.statistics_images`` / ``statistics_points``), from the
         dense inverse when it was computed, otherwise by sparse solves (any block size).
+    failures
+        Why the result must not be trusted, in words (empty when it can): no convergence, sigma0 not
+        finite, no redundancy, a single image with points to intersect, data snooping at its cap or
+        rejecting an implausible share of a GNSS / IMU / control group (a probable model error).
+        :attr:`ok` is True when empty; ``skyrig adjust`` exits non-zero otherwise.
     """
 
     block: Block
@@ -118,6 +130,12 @@ class AdjustmentResult:
     config: AdjustConfig
     _point_free: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     selected: SelectedCovariance | None = None
+    failures: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when nothing in :attr:`failures` speaks against the result."""
+        return not self.failures
 
     def sigma_reduced(self) -> dict[tuple[str, str, str], float]:
         """A-posteriori sigma of every reduced unknown ``{(group, owner, component): sigma}``
@@ -220,7 +238,7 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
             spread = 1.0 - float(np.hypot(np.cos(beta).mean(), np.sin(beta).mean()))
             if spread < 1e-10:
                 raise DatumDefectError([
-                    f"the actuator angle beta of head {block.head_name[h]!r} is constant over its {int(sel.sum())} "  # type: ignore[index]
+                    f"the actuator angle beta of head {str(block.head_name[h])!r} is constant over its {int(sel.sum())} "  # type: ignore[index]
                     f"images ({np.degrees(beta[0]):.4f} deg): its mounting is one fixed rotation, so the actuator "
                     "offset/scale and the boresight curve cannot be separated from the head's boresight; "
                     "fix the 'actuator' and 'actuator_curve' groups (or fly several beta)"])
@@ -228,7 +246,7 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
             need = 2 * int(cfg.actuator_fourier_order) + 1
             if cfg.actuator_curve == "free" and cfg.actuator_fourier_order and n_distinct < need:
                 raise DatumDefectError([
-                    f"head {block.head_name[h]!r} has images at only {n_distinct} distinct actuator angles: a Fourier "  # type: ignore[index]
+                    f"head {str(block.head_name[h])!r} has images at only {n_distinct} distinct actuator angles: a Fourier "  # type: ignore[index]
                     f"boresight curve of order {cfg.actuator_fourier_order} needs at least {need}"])
 
 
@@ -243,7 +261,18 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
     if lay.n_c == 0:
         return
     N = assemble(model.evaluate(state), lay, model.block.obs_image)
-    S, rhs, _ = schur_matrix(N, 0.0)
+    try:
+        S, rhs, _ = schur_matrix(N, 0.0)
+    except SingularError as e:
+        b = model.block
+        pts = np.flatnonzero(lay.point >= 0)[getattr(e, "points", np.zeros(0, np.int64))]
+        reasons = []
+        for p in pts[:10]:
+            rows = np.flatnonzero((b.obs_point == p) & (model.obs_weight > 0))
+            imgs = ", ".join(str(b.image_name[i]) for i in b.obs_image[rows][:5])
+            reasons.append(f"point {b.point_name[p]!s} is not determined: {rows.size} ray(s) from "
+                           f"{np.unique(b.image_station[b.obs_image[rows]]).size} station(s) ({imgs or 'none'})")
+        raise DatumDefectError(reasons or [str(e)]) from None
     if free_datum:
         return
     try:
@@ -288,20 +317,34 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     model = Model(block, cfg)
     state = State.from_block(block)
     free = cfg.datum == "free"
+    rejected: list[Rejection] = []
+    # points that start behind one of their cameras give no Jacobian there: left out with their rays
+    model = _drop_lost_points(block, model, state, rejected)
+    start_warnings = []
+    if rejected:
+        pts = sorted({str(block.point_name[block.obs_point[r.index]]) for r in rejected})
+        start_warnings.append(f"{len(pts)} point(s) start behind a camera and were left out of the adjustment "
+                              f"({len(rejected)} image observation(s) rejected): "
+                              + "; ".join(r.label for r in rejected[:5]) + (" ..." if len(rejected) > 5 else ""))
+        for w in start_warnings:
+            logger.warning(w)
     if cfg.datum != "none":
         check_datum(model, state, free)
     huber = cfg.robust_k if cfg.robust == "huber" else None
     crit = critical_value(cfg.snooping_alpha)
-    rejected: list[Rejection] = []
+    n_start = len(rejected)
+    failures: list[str] = []
     total_info = SolveInfo()
     stage = "adjust"
+    first = True
     while True:
         cb = None if callback is None else (lambda i, c, lam, _s=stage: callback(_s, i, c))
         state, info = levenberg_marquardt(
             model, state, cfg.max_iterations, cfg.function_tolerance, cfg.parameter_tolerance,
             cfg.gradient_tolerance, huber, free, cb)
-        if not rejected:
+        if first:
             total_info = info
+            first = False
         else:
             total_info.iterations += info.iterations
             total_info.final_cost = info.final_cost
@@ -315,14 +358,19 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             model.obs_weight = model.obs_weight * np.where(root <= huber, 1.0, huber / np.maximum(root, 1e-300))
             huber = None
         res = _statistics(block, model, state, cfg if cfg.datum != "none" else cfg.with_(statistics=False), free)
-        if not cfg.snooping or len(rejected) >= cfg.max_rejections or res[0] is None:
+        if not cfg.snooping or res[0] is None:
+            break
+        snooped = [r for r in rejected[n_start:] if np.isfinite(r.normalised_residual)]
+        msg = _implausible_rejections(model, snooped, cfg)
+        if msg:
+            failures.append(msg)
             break
         # data snooping: the largest normalised residual among active observations
         best = (0.0, "", -1)
         for g, gr in res[1].items():
             if gr.normalised is None or g.startswith("prior"):
                 continue
-            act = gr.weight > 0
+            act = (gr.weight > 0) & ~gr.constant
             if not act.any():
                 continue
             w = np.abs(gr.normalised).max(axis=1)
@@ -336,6 +384,14 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             crit = critical_value(cfg.snooping_alpha / max(n_tests, 1))
         if best[0] <= crit:
             break
+        if len(snooped) >= cfg.max_rejections:
+            counts = ", ".join(f"{n} {_GROUP_WORDS.get(g, g)}" for g, n in _counts(snooped).items())
+            failures.append(
+                f"data snooping stopped at its cap of {cfg.max_rejections} rejections ({counts}) with observations "
+                f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
+                "so many blunders mean the functional model is probably wrong - " + _what_to_free(
+                    cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
+            break
         g, i = best[1], best[2]
         _weights(model)[g][i] = 0.0
         rejected.append(Rejection(g, i, _label(block, g, i), best[0]))
@@ -344,10 +400,87 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
         stage = f"snooping {len(rejected)}"
     cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, total_info.final_cost = res
+    redundancy = n_obs - n_unk + (_datum_defect(model.layout) if free else 0)
+    failures = _failures(block, model, total_info, sigma0, redundancy) + failures
+    for f in failures:
+        logger.warning("adjustment failed: %s", f)
     return AdjustmentResult(
-        _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, n_obs - n_unk
-        + (_datum_defect(model.layout) if free else 0), groups, residuals, rejected, cov, warnings, model.layout, cfg,
-        selected=selected)
+        _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, redundancy, groups,
+        residuals, rejected, cov, start_warnings + warnings, model.layout, cfg, selected=selected, failures=failures)
+
+
+_GROUP_WORDS = {"image": "image", "gnss": "GNSS", "imu": "IMU", "control": "control-point", "distance": "distance"}
+
+
+def _counts(rejected: list[Rejection]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for r in rejected:
+        out[r.group] = out.get(r.group, 0) + 1
+    return out
+
+
+def _what_to_free(cfg: AdjustConfig, groups: list[str]) -> str:
+    """Words: which unmodelled effects would make these observation groups disagree, and what to free."""
+    hints = []
+    for g in groups:
+        if g == "imu":
+            cand = [("boresight", "an uncalibrated boresight misalignment")]
+        elif g == "gnss":
+            cand = [("lever_arm", "a wrong GNSS lever arm"), ("datum_shift", "a GNSS datum shift"),
+                    ("strip_shift", "per-strip GNSS shifts")]
+        elif g == "control":
+            cand = [("datum_shift", "a datum difference between GNSS and control (or control in another CRS / "
+                                    "height reference)")]
+        elif g == "image":
+            cand = [("intrinsics", "an uncalibrated interior orientation"), ("boresight", "a boresight misalignment")]
+        else:
+            cand = []
+        fix = [(k, why) for k, why in cand if getattr(cfg, k) == "fixed"]
+        if fix:
+            hints.append(f"{_GROUP_WORDS.get(g, g)} observations: probably " + " or ".join(w for _, w in fix)
+                         + " (free " + ", ".join(repr(k) for k, _ in fix) + ", e.g. skyrig block --free "
+                         + ",".join(k.replace("_", "-") for k, _ in fix) + ")")
+        elif cand:
+            hints.append(f"{_GROUP_WORDS.get(g, g)} observations: their sigmas or the data themselves")
+    return "; ".join(hints) if hints else "check the observations' sigmas and the model"
+
+
+def _implausible_rejections(model: Model, snooped: list[Rejection], cfg: AdjustConfig) -> str | None:
+    """Words when data snooping has rejected more of a GNSS / IMU / control / distance group than blunders
+    explain (more than ``cfg.snooping_max_group_share`` of its observations, at least 3)."""
+    n_all = {"gnss": int(len(model.block.gnss_station)), "imu": int(len(model.block.imu_station)),  # type: ignore[arg-type]
+             "control": int((~model.block.control_check).sum()), "distance": int(model.block.n_distances)}
+    for g, k in _counts(snooped).items():
+        n = n_all.get(g, 0)
+        if n and k >= 3 and k > cfg.snooping_max_group_share * n:
+            others = ", ".join(f"{m} {_GROUP_WORDS.get(h, h)}" for h, m in _counts(snooped).items() if h != g)
+            return (f"data snooping rejected {k} of {n} {_GROUP_WORDS[g]} observations ({100.0 * k / n:.0f} %, more "
+                    f"than the {100 * cfg.snooping_max_group_share:.0f} % that blunders explain"
+                    + (f"; also {others}" if others else "") + "): the functional model is probably wrong - "
+                    + _what_to_free(cfg, [g]) + "; snooping stopped")
+    return None
+
+
+def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redundancy: int) -> list[str]:
+    """The reasons (in words) why an adjustment result must not be trusted."""
+    out = []
+    if not info.converged:
+        out.append(f"the adjustment did not converge ({info.message or 'no iterations'}, {info.iterations} "
+                   "iterations)")
+    if redundancy <= 0:
+        out.append(f"no redundancy (redundancy {redundancy}): nothing checks the observations and sigma0 is undefined")
+    elif not np.isfinite(sigma0):
+        out.append(f"sigma0 is {sigma0} (not finite)")
+    used = np.unique(block.obs_image[model.obs_weight > 0])
+    lay = model.layout
+    free = lay.point >= 0
+    if lay.has_rpoint:
+        free |= (lay.rpoint >= 0).any(axis=1)  # type: ignore[union-attr]
+    free[block.control_point[model.control_weight > 0]] = False  # type: ignore[index, operator]
+    if used.size == 1 and free[block.obs_point[model.obs_weight > 0]].any():
+        out.append(f"a single image ({block.image_name[used[0]]!s}) cannot intersect object points: give more "
+                   "images, or fix the points (points='fixed') for a space resection")
+    return out
 
 
 def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[Rejection]) -> Model:
@@ -407,9 +540,12 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     # without statistics only the cost is needed: no Jacobians, no normal equations
     factors = model.evaluate(state, jacobians=cfg.statistics)
     N = assemble(factors, lay, block.obs_image) if cfg.statistics else None
-    cost = N.cost if N is not None else factor_cost(factors)
-    n_obs = int(sum(((f.weight if f.weight is not None else np.ones(len(f))) > 0).sum() * f.r.shape[1]
-                    for f in factors))
+    # rows that depend on no unknown (control of fixed points, GNSS/IMU of fixed poses...) are constants,
+    # not observations: they count neither as observations nor in the cost behind sigma0
+    varying = {f.name: model.varying_rows(f) for f in factors}
+    cost = factor_cost([Factor(f.name, f.r * varying[f.name][:, None], f.sigma, weight=f.weight) for f in factors])
+    n_obs = int(sum((((f.weight if f.weight is not None else np.ones(len(f))) > 0) & varying[f.name]).sum()
+                    * f.r.shape[1] for f in factors))
     n_unk = lay.n_c + 3 * lay.n_p
     red = n_obs - n_unk + (_datum_defect(lay) if free else 0)
     sigma0 = float(np.sqrt(2.0 * cost / red)) if red > 0 else float("nan")
@@ -448,6 +584,7 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     data_cost = 0.0  # cost of the observations, priors left out
     for f in factors:
         w = f.weight if f.weight is not None else np.ones(len(f))
+        const = ~varying[f.name]
         v = f.unwhitened()
         wn = rr = None
         if cov is not None:
@@ -455,10 +592,10 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
             if H is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     qvv = np.where(w[:, None] > 0, 1.0 / np.where(w > 0, w, 1.0)[:, None] - H, 1.0 + H)
-                    rr = np.where(w[:, None] > 0, 1.0 - w[:, None] * H, 0.0)
-                    wn = np.where(qvv > 1e-12, f.r / np.sqrt(np.clip(qvv, 1e-300, None)), 0.0)
-        residuals[f.name] = GroupResiduals(v, wn, rr, w)
-        act = w > 0
+                    rr = np.where((w > 0)[:, None] & ~const[:, None], 1.0 - w[:, None] * H, 0.0)
+                    wn = np.where((qvv > 1e-12) & ~const[:, None], f.r / np.sqrt(np.clip(qvv, 1e-300, None)), 0.0)
+        residuals[f.name] = GroupResiduals(v, wn, rr, w, const)
+        act = (w > 0) & ~const
         r_g = float(rr.sum()) if rr is not None else float("nan")
         vtpv = float((f.r[act] ** 2 * w[act, None]).sum())
         if not f.name.startswith("prior"):

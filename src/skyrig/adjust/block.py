@@ -377,8 +377,8 @@ class Block:
         act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)  # type: ignore[index]
         bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))  # type: ignore[arg-type]
         if bad.size:
-            raise BlockError(f"image {self.image_name[bad[0]]!r} belongs to the actuated head "
-                             f"{self.head_name[self.image_head[bad[0]]]!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
+            raise BlockError(f"image {str(self.image_name[bad[0]])!r} belongs to the actuated head "
+                             f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
         finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
         rng("distance_point", self.distance_point.reshape(-1), self.n_points, "point")  # type: ignore[union-attr]
         finite("distance_m", self.distance_m)  # type: ignore[arg-type]
@@ -387,7 +387,7 @@ class Block:
             raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {self.distance_m[bad[0]]}")  # type: ignore[index]
         bad = np.flatnonzero(self.distance_point[:, 0] == self.distance_point[:, 1])  # type: ignore[index]
         if bad.size:
-            raise BlockError(f"distance {bad[0]} joins point {self.point_name[self.distance_point[bad[0], 0]]!r} "  # type: ignore[index]
+            raise BlockError(f"distance {bad[0]} joins point {str(self.point_name[self.distance_point[bad[0], 0]])!r} "  # type: ignore[index]
                              "to itself")
         det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
         bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
@@ -400,15 +400,15 @@ class Block:
         bad = np.flatnonzero((rays < 2) & ~ctrl)
         if bad.size:
             raise BlockError(
-                f"point {self.point_name[bad[0]]!r} is seen in {rays[bad[0]]} image(s) and is not control: "
+                f"point {str(self.point_name[bad[0]])!r} is seen in {rays[bad[0]]} image(s) and is not control: "
                 f"it cannot be determined ({bad.size} such points); remove it or add observations"
             )
         pair = self.obs_image * max(self.n_points, 1) + self.obs_point
         u, c = np.unique(pair, return_counts=True)
         if (c > 1).any():
             k = u[c > 1][0]
-            raise BlockError(f"point {self.point_name[k % self.n_points]!r} is measured more than once in image "
-                             f"{self.image_name[k // self.n_points]!r}")
+            raise BlockError(f"point {str(self.point_name[k % self.n_points])!r} is measured more than once in image "
+                             f"{str(self.image_name[k // self.n_points])!r}")
 
 
 @dataclass(frozen=True)
@@ -459,7 +459,12 @@ class AdjustConfig:
     snooping_familywise
         See ``snooping_alpha``.
     max_rejections
-        Cap on rejected observations.
+        Cap on rejected observations.  Reaching it with observations still above the critical value is
+        a failure of the adjustment (``AdjustmentResult.failures``): so many blunders mean a wrong model.
+    snooping_max_group_share
+        Largest share of a GNSS, IMU, control or distance group that data snooping may reject (at least
+        3 observations): beyond it snooping stops and the result fails with a probable model error
+        (uncalibrated boresight, lever arm, datum shift...) named in words.
     statistics
         Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
         reduced system; skipped above ``max_statistics_parameters``).
@@ -510,6 +515,7 @@ class AdjustConfig:
     snooping_alpha: float = 0.001
     snooping_familywise: bool = True
     max_rejections: int = 100
+    snooping_max_group_share: float = 0.1
     statistics: bool = True
     max_statistics_parameters: int = 6000
     statistics_images: tuple[str, ...] = ()
@@ -531,6 +537,9 @@ class AdjustConfig:
             raise ValueError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
         if self.datum not in ("auto", "free", "none"):
             raise ValueError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
+        if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
+            raise ValueError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
+                             f"{self.snooping_max_group_share!r}")
         if self.robust not in (None, "huber"):
             raise ValueError(f"AdjustConfig.robust must be None or 'huber', got {self.robust!r}")
 

@@ -396,6 +396,43 @@ class Model:
             self._img2act = np.full(b.n_images, -1, np.int64)
             self._img2act[self._act_images] = np.arange(self._act_images.size)
 
+    def varying_rows(self, f: "Factor") -> NDArray[np.bool_]:
+        """``(n,)`` True for the rows of factor ``f`` (of this model) that depend on at least one unknown.
+
+        A row whose every parameter is fixed (a control point with ``points="fixed"``, the GNSS position
+        or IMU attitude of a fixed pose with no free lever arm / shift...) is a constant of this
+        adjustment, not an observation: it must not count in the redundancy or in sigma0.
+        """
+        b, lay = self.block, self.layout
+
+        def any_on(cols: NDArray[np.int64]) -> NDArray[np.bool_]:
+            c = np.asarray(cols)
+            return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)
+
+        name = f.name
+        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
+        pt = (lay.point >= 0) | (rp >= 0).any(axis=1)
+        if name == "image":
+            img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]
+                   | (self._icols >= 0).any(axis=1)[b.image_camera])
+            if lay.act is not None:
+                img |= any_on(lay.act)[b.image_head]
+            return img[b.obs_image] | pt[b.obs_point]
+        if name == "control":
+            return pt[b.control_point]
+        if name == "gnss":
+            st = b.gnss_station
+            on = any_on(lay.pose)[st] | bool((lay.lever >= 0).any() or (lay.shift >= 0).any())
+            if b.n_strips:
+                strip = b.station_strip[st]
+                on |= (strip >= 0) & (any_on(lay.sshift) | any_on(lay.sdrift))[np.where(strip >= 0, strip, 0)]
+            return on
+        if name == "imu":
+            return any_on(lay.pose)[b.imu_station]
+        if name == "distance":
+            return (rp >= 0).any(axis=1)[b.distance_point].any(axis=1)
+        return np.ones(len(f), bool)  # priors act on free unknowns
+
     # ------------------------------------------------------------------ cameras
     def cameras(self, s: State) -> list:
         return [c.with_intrinsics(v) for c, v in zip(self.block.cameras, s.intr)]

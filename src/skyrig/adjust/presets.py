@@ -10,17 +10,25 @@
 ``refine-eo-check`` ("Refine POSEO with Check Points")
     The GNSS/IMU orientations are refined by the bundle adjustment (datum from GNSS alone: no block
     shift, which no control could separate from a translation); *all* ground points become check points.
+
+A preset is a *variant*, not a whole configuration: it decides the fields in its ``decides`` (how the
+orientations and the GNSS datum shift enter) and supplies defaults for a few others (blunder detection);
+everything else - the system-calibration groups freed with ``skyrig block --free`` (boresight, lever arm,
+intrinsics, strip shifts, ...), sigmas, solver options - comes from the block file's ``adjustment``
+section (:func:`merge_preset`).  Where the block file explicitly sets a field the preset decides to
+another value, the preset's value is used and the conflict is returned in words.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 
 from skyrig.adjust.block import AdjustConfig, Block
 
-__all__ = ["Preset", "PRESETS", "apply_preset"]
+__all__ = ["Preset", "PRESETS", "apply_preset", "merge_preset"]
 
 
 @dataclass(frozen=True)
@@ -32,32 +40,85 @@ class Preset:
     config: AdjustConfig
     all_check: bool = False
     datum_shift_needs_gnss: bool = True
+    #: configuration fields the variant decides (and why, for conflict messages); its other non-default
+    #: fields are defaults that an explicit setting in the block file overrides
+    decides: tuple[tuple[str, str], ...] = ()
 
 
 PRESETS: dict[str, Preset] = {
     "ba-eo-control": Preset("ba-eo-control", "Bundle Adjustment + EO + Control",
-                            AdjustConfig(poses="free", datum_shift="free", snooping=True)),
-    "dg-control": Preset("dg-control", "Direct Geo Referencing + Control", AdjustConfig(poses="fixed")),
+                            AdjustConfig(poses="free", datum_shift="free", snooping=True),
+                            decides=(("poses", "the GNSS/IMU orientations are refined by the adjustment"),
+                                     ("datum_shift", "the control points determine a GNSS block shift"))),
+    "dg-control": Preset("dg-control", "Direct Geo Referencing + Control", AdjustConfig(poses="fixed"),
+                         decides=(("poses", "direct georeferencing holds the GNSS/IMU orientations"),)),
     "refine-eo-check": Preset("refine-eo-check", "Refine EO with Check Points",
-                              AdjustConfig(poses="free", snooping=True), all_check=True),
+                              AdjustConfig(poses="free", snooping=True), all_check=True,
+                              decides=(("poses", "the GNSS/IMU orientations are refined by the adjustment"),
+                                       ("datum_shift", "every ground point is a check point, so nothing separates "
+                                        "a GNSS datum shift from a translation of the block"))),
 }
 
 
-def apply_preset(block: Block, name: str, **overrides: object) -> tuple[Block, AdjustConfig]:
-    """A copy of ``block`` with control roles set for preset ``name`` and its configuration.
+def merge_preset(name: str, base: AdjustConfig | None = None, explicit: Iterable[str] = (),
+                 has_gnss: bool = True) -> tuple[AdjustConfig, list[str]]:
+    """The configuration of preset ``name`` merged with a block file's configuration.
 
-    A GNSS datum shift is only estimated when the block has GNSS observations; ``overrides`` replace
-    configuration fields.  Unknown names raise ``ValueError`` listing the presets.
+    Parameters
+    ----------
+    name
+        A key of :data:`PRESETS` (``ValueError`` listing them otherwise).
+    base
+        The block file's configuration (default: :class:`AdjustConfig` defaults).
+    explicit
+        The fields the block file sets explicitly (``BlockFile.adjustment_keys``).
+    has_gnss
+        Whether the block has GNSS observations (without them no datum shift is estimated).
+
+    Returns
+    -------
+    config, conflicts
+        ``base`` with the fields the preset decides replaced, the preset's other settings where the
+        block file is silent; and one sentence per explicit field the preset overrode.
     """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
     p = PRESETS[name]
+    base = base or AdjustConfig()
+    explicit = set(explicit)
+    pc = p.config if has_gnss or not p.datum_shift_needs_gnss else p.config.with_(datum_shift="fixed")
+    decided = dict(p.decides)
+    fields = AdjustConfig.__dataclass_fields__
+    changes: dict[str, object] = {}
+    conflicts: list[str] = []
+    for k, f in fields.items():
+        pv, bv = getattr(pc, k), getattr(base, k)
+        if k in decided:
+            if k in explicit and bv != pv:
+                conflicts.append(f"preset {name!r} sets {k} = {pv!r} although the block file's adjustment section "
+                                 f"says {bv!r}: {decided[k]} (edit the block file or choose another preset)")
+            changes[k] = pv
+        elif k not in explicit and pv != f.default:
+            changes[k] = pv
+    if not has_gnss and "datum_shift" not in explicit:
+        changes["datum_shift"] = "fixed"
+    return base.with_(**changes), conflicts
+
+
+def apply_preset(block: Block, name: str, base: AdjustConfig | None = None, explicit: Iterable[str] = (),
+                 **overrides: object) -> tuple[Block, AdjustConfig]:
+    """A copy of ``block`` with control roles set for preset ``name`` and its configuration.
+
+    The configuration is :func:`merge_preset` of the preset with ``base`` (a block file's configuration,
+    ``explicit`` its explicitly set fields; default: none); a GNSS datum shift is only estimated when the
+    block has GNSS observations; ``overrides`` replace configuration fields.  Unknown names raise
+    ``ValueError`` listing the presets.  (:func:`merge_preset` also returns the conflicts in words.)
+    """
+    cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))  # type: ignore[arg-type]
+    p = PRESETS[name]
     b = block.copy()
-    cfg = p.config
     if p.all_check:
         b.control_check = np.ones(len(b.control_point), bool)  # type: ignore[arg-type]
-    if not len(b.gnss_station):  # type: ignore[arg-type]
-        cfg = cfg.with_(datum_shift="fixed")
     if overrides:
         cfg = cfg.with_(**overrides)
     return b, cfg

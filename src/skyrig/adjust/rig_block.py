@@ -135,7 +135,7 @@ def block_from_trajectory(
         wrong = np.flatnonzero(cam_names[base.image_camera[sel]] != head.camera.name)
         if wrong.size:  # pragma: no cover
             i = int(np.flatnonzero(sel)[wrong[0]])
-            raise BlockError(f"image {base.image_name[i]!r}: camera does not match head {h!r}")
+            raise BlockError(f"image {str(base.image_name[i])!r}: camera does not match head {h!r}")
     kw: dict = {}
     n_st = len(expo)
     if gnss_sigma_m is not None:

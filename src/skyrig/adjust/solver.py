@@ -374,7 +374,14 @@ def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):  # type: 
         dv = np.clip(np.diagonal(V, axis1=1, axis2=2), diag_min, None)
         V = V + lam * dv[:, :, None] * np.eye(3)[None]
     if n_p:
-        Vinv = np.linalg.inv(V)
+        try:
+            Vinv = np.linalg.inv(V)
+        except np.linalg.LinAlgError:
+            ev = np.linalg.eigvalsh(V)
+            bad = np.flatnonzero(~(ev[:, 0] > 1e-12 * np.abs(ev[:, -1]).clip(1e-300)))
+            err = SingularError(f"{bad.size} object point(s) not determined by their observations")
+            err.points = bad  # type: ignore[attr-defined]  # free-point indices
+            raise err from None
     else:
         Vinv = np.zeros((0, 3, 3))
     S = U

@@ -16,7 +16,7 @@ import click
 import numpy as np
 
 from skyrig.adjust import AdjustmentResult, adjust
-from skyrig.adjust.presets import PRESETS, apply_preset
+from skyrig.adjust.presets import PRESETS, apply_preset, merge_preset
 from skyrig.adjust.report import adjustment_report
 from skyrig.georef.eo import WorldFrame
 
@@ -67,11 +67,20 @@ def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, tit
 @click.command("adjust")
 @click.argument("block_path", metavar="BLOCK", type=click.Path(exists=True, dir_okay=False))
 @click.option("--preset", type=click.Choice(sorted(PRESETS)), default=None,
-              help="Paper 004 variant; default: the block file's own 'adjustment' section.")
+              help="Paper 004 variant, merged with the block file's 'adjustment' section (groups freed there stay "
+                   "free; a field the preset decides overrides the file, with a warning); default: the section alone.")
 @click.option("--gsd", type=float, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
-def command(block_path: str, preset: str | None, gsd: float | None, outdir: str) -> None:
-    """Adjust a block file (docs/formats/block.md) and write the adjusted EO, points and report."""
+@click.option("--keep-failed", is_flag=True, default=False,
+              help="Write the outputs even when the adjustment failed (no convergence, sigma0 not finite, no "
+                   "redundancy, a single image, data snooping at its cap or rejecting most of a GNSS/IMU group); "
+                   "the exit status is non-zero either way.")
+def command(block_path: str, preset: str | None, gsd: float | None, outdir: str, keep_failed: bool) -> None:
+    """Adjust a block file (docs/formats/block.md) and write the adjusted EO, points and report.
+
+    Exits with status 1 and the reasons in words when the adjustment failed; nothing is written then
+    unless --keep-failed is given.
+    """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from skyrig.io.block_file import read_block
@@ -79,9 +88,14 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str)
     bf = read_block(block_path)
     block, cfg = bf.block, bf.config
     title = f"skyrig adjust {Path(block_path).name}"
+    conflicts: list[str] = []
     if preset:
-        block, cfg = apply_preset(block, preset)
+        # the preset decides the variant; the groups the block file frees (skyrig block --free) stay free
+        cfg, conflicts = merge_preset(preset, cfg, bf.adjustment_keys, bool(len(block.gnss_station)))
+        block, _ = apply_preset(block, preset)
         title += f" - {PRESETS[preset].title}"
+        for c in conflicts:
+            click.echo(f"warning: {c}", err=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
                   TimeElapsedColumn(), transient=False) as prog:
         task = prog.add_task("adjusting", total=cfg.max_iterations, info="")
@@ -91,11 +105,21 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str)
 
         res = adjust(block, cfg, callback=cb)
         prog.update(task, completed=cfg.max_iterations)
-    paths = write_outputs(outdir, res, cfg, title, gsd)
+    own = list(res.warnings)
+    # the report states the preset conflicts and the failure too
+    res.warnings[:0] = [f"the adjustment FAILED: {f}" for f in res.failures] + conflicts
+    if not res.ok:
+        title += " - FAILED"
+    paths = write_outputs(outdir, res, cfg, title, gsd) if res.ok or keep_failed else {}
     click.echo(f"sigma0 {res.sigma0:.3f}, {res.info.iterations} iterations ({res.info.message}), "
-               f"{len(res.rejected)} rejected; wrote {', '.join(str(p) for p in paths.values())}")
-    for w in res.warnings:
+               f"{len(res.rejected)} rejected; "
+               + (f"wrote {', '.join(str(p) for p in paths.values())}" if paths else "no outputs written"))
+    for w in own:
         click.echo(f"warning: {w}")
+    if not res.ok:
+        raise click.ClickException(
+            f"{block_path}: the adjustment failed: " + "; ".join(res.failures)
+            + ("" if keep_failed else " (nothing written; --keep-failed writes the outputs anyway)"))
 
 
 def adjust_demo_project(paths: Any, outdir: str | Path, preset: str = "ba-eo-control", seed: int = 0,

@@ -10,8 +10,8 @@ Two ways in:
 
 Measurements (``--measurements``, repeatable: tie points from ``skyrig match``, control point
 measurements) in pixels; ground points (``--control``, ``--check``) with their CRS in the file header.
-``--free`` names the system-calibration groups the block's adjustment section sets free (the adjustment
-preset of ``skyrig adjust --preset`` replaces that section).  The file is written atomically.
+``--free`` names the system-calibration groups the block's adjustment section sets free (``skyrig adjust
+--preset`` merges its variant with that section: the groups freed here stay free).  The file is written atomically.
 """
 
 from __future__ import annotations
@@ -129,8 +129,12 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
         block, frame = block_from_georef(eo, load_cameras(list(camera_paths)), m, control, gnss_sigma_m=gs,
                                          imu_sigma_rad=imu, control_sigma_m=cs, check_points=checks,
                                          sigma_px=sigma_px)
-    cfg = AdjustConfig(datum_shift="free" if len(block.gnss_station) and len(block.control_point) else "fixed",
-                       snooping=True, **{_GROUPS[g]: "free" for g in groups})
+    # the GNSS datum shift is free by default when control can separate it from a block translation;
+    # --free datum-shift frees it in any case (one keyword each: the groups override the default)
+    modes: dict[str, object] = {"datum_shift": "free" if len(block.gnss_station) and len(block.control_point)
+                                else "fixed", "snooping": True}
+    modes.update({_GROUPS[g]: "free" for g in groups})
+    cfg = AdjustConfig(**modes)  # type: ignore[arg-type]
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     write_block(output, block, cfg)
     click.echo(f"wrote {output}: {block.n_stations} stations, {block.n_images} images, {block.n_points} points, "

@@ -86,12 +86,19 @@ _SIGMA_LIMITS = {"_px": 1000.0, "_m": 1000.0, "_deg": 90.0}
 
 
 class BlockFile:
-    """A block read from disk with its manifest (``block``, ``config``, ``path``)."""
+    """A block read from disk with its manifest (``block``, ``config``, ``path``).
 
-    def __init__(self, block: Block, config: AdjustConfig, path: Path) -> None:
+    ``adjustment_keys`` names the configuration fields the file's ``adjustment`` section sets explicitly
+    (the others are defaults), so that an adjustment preset can merge with them
+    (:func:`skyrig.adjust.presets.merge_preset`).
+    """
+
+    def __init__(self, block: Block, config: AdjustConfig, path: Path,
+                 adjustment_keys: frozenset[str] = frozenset()) -> None:
         self.block = block
         self.config = config
         self.path = path
+        self.adjustment_keys = adjustment_keys
 
 
 class _Table:
@@ -415,11 +422,15 @@ def read_block(path: PathLike) -> BlockFile:
         block.validate()
     except BlockError as e:
         raise InputFormatError(str(e), p) from None
+    section = man.get("adjustment") or {}
+    if not isinstance(section, dict):
+        raise InputFormatError(f"'adjustment' must be a mapping of AdjustConfig fields, not {type(section).__name__}",
+                               p, None, "adjustment")
     try:
-        cfg = AdjustConfig.from_dict(man.get("adjustment") or {}, source=str(p))
+        cfg = AdjustConfig.from_dict(section, source=str(p))
     except (TypeError, ValueError) as e:
         raise InputFormatError(str(e), p, None, "adjustment") from None
-    return BlockFile(block, cfg, p)
+    return BlockFile(block, cfg, p, frozenset(section))
 
 
 def _write_csv(path: Path, header: list[str], cols: list[Any]) -> None:
