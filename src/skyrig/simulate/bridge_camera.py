@@ -11,11 +11,12 @@ ray-cast exactly by :meth:`~skyrig.simulate.lidar.BridgeScene.cast`), now with a
   down to 6.6 mm, factor 2.5) in **world coordinates of the face** (bridge frame: ``(v, z)`` on faces
   across the axis, ``(u, z)`` on faces along it, ``(u, v)`` on horizontal faces);
 * ground: grass and gravel patches (6 m noise) with the same multi-scale noise in ``(x, y)``;
-* every octave (and each joint line) is **band-limited to the pixel footprint** on the surface
-  (``range * pixel angle / |cos incidence|``): an octave of lattice spacing ``s`` has full weight where the
-  footprint is below ``s / 2`` and none above ``s``, a joint line is widened to the footprint with its
-  contrast lowered to keep its integral.  One ray per pixel then gives no aliasing, and the texture a
-  matcher sees is the same object texture in every view (up to that blur);
+* every octave (and each joint line) is **band-limited to the pixel footprint** on the surface, taken as
+  the side of a square of the pixel's area there (``range * pixel angle / sqrt(|cos incidence|)``): an
+  octave of lattice spacing ``s`` has full weight where the footprint is below ``s / 2`` and none above
+  ``s``; a joint line is widened to the footprint with its contrast lowered to keep its integral.  One ray
+  per pixel then shows the same object texture in every view (up to that blur) without aliasing, except
+  for a little along the slope of surfaces seen at grazing incidence (far ground);
 * shading: Lambertian under a fixed sun (``ambient + (1 - ambient) max(n . sun, 0)``) with cast shadows
   (a shadow ray per lit hit), sky gradient where nothing is hit, Gaussian sensor noise.
 
@@ -47,7 +48,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from skyrig.camera.brown import BrownDistortion
 from skyrig.camera.frame import FrameCamera
@@ -417,7 +418,7 @@ def render_bridge_image(
         xyz[hit] = o + t[hit, None] * d[hit]
         cosi = np.abs(np.einsum("ij,ij->i", d, nrm))
         with np.errstate(invalid="ignore"):
-            fp = np.where(hit, t * ipx / np.maximum(cosi, 0.1), np.inf)
+            fp = np.where(hit, t * ipx / np.sqrt(np.maximum(cosi, 0.01)), np.inf)  # side of the pixel's area
         col = shade_bridge(scene, look, xyz, nrm, comp, d, fp)
         shadow = np.zeros(e - s, dtype=bool)
         if look.shadows:
@@ -683,5 +684,5 @@ def build_bridge_camera_survey(spec: BridgeCameraSpec) -> BridgeCameraSurvey:
               "footprint_on_deck_side_m": float(footprint), "forward_overlap_on_deck_side": float(1.0 - base / footprint),
               "distance_to_deck_side_m": float(spec.distance_m), "depth_along_axis_m": float(depth),
               "gsd_on_deck_side_m": float(gsd), "base_to_depth": float(base / depth),
-              "tilt_deg": float(spec.tilt_deg), "reference_u_range_m": list(u_ref)}
+              "tilt_deg": float(spec.tilt_deg), "reference_u_range_m": [float(v) for v in u_ref]}
     return BridgeCameraSurvey(spec, scene, frame, cam, rig, eo_true, eo_adj, de, dr, ref, ref_n, flight)
