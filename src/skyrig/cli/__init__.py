@@ -118,14 +118,50 @@ class LazyGroup(click.Group):
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         if ctx.parent is None:
             args = hoist_global_flags(args)
+            ctx.meta["skyrig.args"] = list(args)
         return super().parse_args(ctx, args)
 
     def invoke(self, ctx: click.Context):  # type: ignore[override]
         try:
             return super().invoke(ctx)
         except SkyrigError as exc:
+            if getattr(exc, "option", "") is None and hasattr(exc, "with_option"):  # an output path: name its option
+                found = option_for_path(ctx.meta.get("skyrig.args", []), exc.path)  # type: ignore[attr-defined]
+                if found is not None:
+                    exc = exc.with_option(*found)  # type: ignore[attr-defined]
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
+
+
+def option_for_path(args: list[str], path: str) -> tuple[str, str] | None:
+    """The option (or "argument") of the command line whose value is ``path`` or a folder containing it.
+
+    >>> option_for_path(["georef", "--crs", "EPSG:25832", "-o", "out/eo.csv"], "out/eo.csv")
+    ('-o', 'out/eo.csv')
+    >>> option_for_path(["adjust-uav", "P", "--out=res"], "res/eo.csv")
+    ('--out', 'res')
+    """
+    target = os.path.abspath(path)
+
+    def holds(value: str) -> bool:
+        v = os.path.abspath(value)
+        return target == v or target.startswith(v.rstrip(os.sep) + os.sep)
+
+    best: tuple[str, str] | None = None
+    for i, tok in enumerate(args):
+        if tok == "--":
+            break
+        if tok.startswith("-") and "=" in tok:
+            opt, value = tok.split("=", 1)
+        elif tok.startswith("-") and i + 1 < len(args):
+            opt, value = tok, args[i + 1]
+        elif not tok.startswith("-") and (i == 0 or not args[i - 1].startswith("-")):
+            opt, value = "argument", tok
+        else:
+            continue
+        if value and holds(value) and (best is None or len(value) > len(best[1])):
+            best = (opt, value)
+    return best
 
 
 def _load(name: str, target: str) -> click.Command:

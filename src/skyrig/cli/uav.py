@@ -4,13 +4,23 @@ and the images' own EXIF GPS / DJI gimbal metadata (:func:`skyrig.pipeline.uav.a
 Images come from ``PROJECT/images`` if it exists, else PROJECT (or ``--images``); tie points from
 ``PROJECT/match/tie_points.csv`` (or ``--match``).  Writes ``eo.csv`` (local ENU frame of the block),
 ``points.csv``, ``report.json``, ``report.html`` and residual plots to ``PROJECT/adjust-uav`` (or ``--out``).
+
+A run whose adjustment cannot be trusted (no convergence, sigma0 not finite, no redundancy, or any other failure
+the adjustment states) exits with status 2 and the reason; its outputs are then not published (a previous run's
+files stay as they were) unless ``--keep-failed`` is given. Outputs are written to a staging folder next to the
+output folder and moved into place only when the run is kept.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
+import os
+import shutil
+import tempfile
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -42,10 +52,12 @@ __all__ = ["command"]
               show_default=True, help="pycolmap comparison: COLMAP incremental or GLOMAP global mapper.")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False),
               help="JSON file of UavConfig options (overrides the options above).")
+@click.option("--keep-failed", is_flag=True,
+              help="Write the outputs even when the adjustment failed (the exit status is still 2).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: tuple[float, float, float], attitude_sigma: float, altitude: str, geoid: str | None,
             focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
-            pycolmap_mapper: str, config_path: str | None) -> None:
+            pycolmap_mapper: str, config_path: str | None, keep_failed: bool) -> None:
     """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."""
     from skyrig.pipeline.uav import UavConfig, adjust_uav
 
@@ -60,10 +72,78 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     if no_self_calibration:
         kw["self_calibration"] = ()
     if config_path:
-        kw.update(json.loads(Path(config_path).read_text()))
+        from skyrig.errors import InputFormatError
+        from skyrig.io._text import read_text
+
+        try:
+            kw.update(json.loads(read_text(config_path)))
+        except json.JSONDecodeError as exc:
+            raise InputFormatError(f"not JSON ({exc.msg})", config_path, exc.lineno) from None
     cfg = UavConfig.from_dict(kw, str(config_path or "options"))
-    res, rep = adjust_uav(images, match, outdir, cfg, outdir / "pycolmap" if compare_pycolmap else None,
-                          pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper)
+    staging = _staging_dir(outdir, "-o/--out" if out else None)
+    try:
+        res, rep = adjust_uav(images, match, staging, cfg, outdir / "pycolmap" if compare_pycolmap else None,
+                              pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper)
+        failures = failure_reasons(res.adjustment)
+        _echo_summary(rep, outdir)
+        if not failures or keep_failed:
+            _publish(staging, outdir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    if failures:
+        kept = (f"outputs kept in {outdir} (--keep-failed)" if keep_failed
+                else "no outputs written (--keep-failed writes them anyway)")
+        click.echo("error: the UAV adjustment failed: " + "; ".join(failures) + f"; {kept}", err=True)
+        raise SystemExit(2)
+    click.echo(f"{rep['uav']['total_wall_s']:.1f} s; written to {outdir}")
+
+
+def failure_reasons(adj: Any) -> list[str]:
+    """Why an adjustment result must not be trusted, in words (empty when it can).
+
+    The adjustment's own ``failures`` when it states them; otherwise no convergence, a sigma0 that is not
+    finite, or no redundancy.
+    """
+    stated = getattr(adj, "failures", None)
+    if stated is not None:
+        return [str(f) for f in stated]
+    out = []
+    info = adj.info
+    if not info.converged:
+        out.append(f"did not converge ({info.message}; {info.iterations} iterations)")
+    if not math.isfinite(float(adj.sigma0)):
+        out.append(f"sigma0 is {float(adj.sigma0)} (not finite)")
+    if int(adj.redundancy) <= 0:
+        out.append(f"no redundancy ({int(adj.redundancy)} observations more than unknowns)")
+    return out
+
+
+def _staging_dir(outdir: Path, option: str | None) -> Path:
+    """An empty folder next to ``outdir`` (same file system, so that publishing is a rename)."""
+    from skyrig.io._text import OutputPathError, check_output_dir
+
+    try:
+        check_output_dir(outdir, create=False)
+        check_output_dir(outdir.parent)
+        return Path(tempfile.mkdtemp(prefix=f".{outdir.name}.staging-", dir=outdir.parent))
+    except OutputPathError as exc:
+        raise (exc.with_option(option) if option else exc) from None
+    except OSError as exc:
+        err = OutputPathError(f"cannot write next to it ({exc.strerror or exc})", outdir)
+        raise (err.with_option(option) if option else err) from None
+
+
+def _publish(staging: Path, outdir: Path) -> None:
+    """Move every entry of ``staging`` into ``outdir`` (replacing entries of the same name)."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    for entry in sorted(staging.iterdir()):
+        target = outdir / entry.name
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        os.replace(entry, target)
+
+
+def _echo_summary(rep: dict[str, Any], outdir: Path) -> None:
     s = rep["uav"]
     click.echo(f"{s['oriented']}/{s['images']} images oriented, {s['tie_points']} tie points, "
                f"reprojection RMS {s['reprojection_rms_px']:.3f} px, sigma0 {s['sigma0']:.3f}, "
@@ -79,7 +159,6 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         click.echo(f"pycolmap: {rep['pycolmap']['registered']} images, reprojection RMS "
                    f"{rep['pycolmap']['reprojection_rms_px']:.3f} px; centre differences after similarity "
                    f"RMS {c['rms_m']:.3f} m, max {c['max_m']:.3f} m")
-    click.echo(f"{s['total_wall_s']:.1f} s; written to {outdir}")
 
 
 if __name__ == "__main__":  # until the lead registers it: python -m skyrig.cli.uav PROJECT ...

@@ -12,7 +12,7 @@ from typing import IO
 
 import numpy as np
 
-from skyrig.errors import InputFormatError
+from skyrig.errors import InputFormatError, SkyrigError
 
 PathLike = str | os.PathLike[str]
 
@@ -46,17 +46,124 @@ def parse_float(text: str, path: PathLike, line: int, field: str) -> float:
     return v
 
 
+class OutputPathError(SkyrigError, OSError):
+    """An output file or folder cannot be written where the user asked (a path under a regular file, a folder
+    where a file is expected, no permission...).
+
+    ``path`` is the output as given; ``option`` the command-line option that named it, when known (the CLI
+    fills it in from the command line when a library function raised the error).
+    """
+
+    def __init__(self, reason: str, path: PathLike, option: str | None = None) -> None:
+        self.path = str(path)
+        self.reason = reason
+        self.option = option
+        super().__init__(self._text())
+
+    def _text(self) -> str:
+        where = f"{self.option} {self.path}" if self.option else f"output {self.path}"
+        return f"{where}: {self.reason}"
+
+    def with_option(self, option: str, given: str | None = None) -> OutputPathError:
+        """The same error naming the option (and the value given to it, when the path lies inside it)."""
+        err = OutputPathError(self.reason, self.path, option)
+        if given is not None and given != self.path:
+            err = OutputPathError(f"{self.reason} (writing {self.path})", given, option)
+        return err
+
+    def __str__(self) -> str:
+        return self._text()
+
+
+def _blocking_reason(p: Path) -> str | None:
+    """Why no file or folder can be created at ``p`` (None when nothing is in the way)."""
+    for anc in reversed(p.parents):
+        if anc.exists() and not anc.is_dir():
+            return f"'{anc}' is a file, not a folder"
+    return None
+
+
+def check_output_dir(path: PathLike, create: bool = True) -> Path:
+    """Make sure ``path`` is, or can be created as, a folder (and create it unless ``create`` is False).
+
+    Raises :class:`OutputPathError` naming the path.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputPathError("is a file, not a folder", p)
+    why = _blocking_reason(p)
+    if why:
+        raise OutputPathError(why, p)
+    if not create:
+        return p
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"cannot create the folder ({exc.strerror or exc})", p) from None
+    return p
+
+
+def output_temp(path: PathLike, suffix: str = ".tmp") -> tuple[int, str]:
+    """A temporary file ``(fd, name)`` next to output ``path``, to be renamed onto it when complete.
+
+    The parent folders are created. Every atomic writer starts here, so that an output path that cannot be
+    written is one clear :class:`OutputPathError` naming the path (never a traceback about the temporary file).
+    The file gets the permissions a plainly created file would get (0666 less the umask), not ``mkstemp``'s 0600.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise OutputPathError("is a folder; give a file name", p)
+    why = _blocking_reason(p)
+    if why:
+        raise OutputPathError(why, p)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix, dir=p.parent)
+    except PermissionError:
+        raise OutputPathError(f"no permission to write in the folder '{p.parent}'", p) from None
+    except OSError as exc:
+        raise OutputPathError(f"cannot be written ({exc.strerror or exc})", p) from None
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    except OSError:  # pragma: no cover - a file system without permissions
+        pass
+    return fd, tmp
+
+
+def _umask() -> int:
+    """The process umask, read without the thread-unsafe set-and-restore of ``os.umask`` where Linux allows."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def publish(tmp: PathLike, path: PathLike) -> None:
+    """Rename a complete temporary file onto ``path`` (see :func:`output_temp`)."""
+    try:
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputPathError(f"cannot be replaced ({exc.strerror or exc})", path) from None
+
+
 @contextmanager
 def atomic_write(path: PathLike, mode: str = "w", newline: str | None = None) -> Iterator[IO]:
-    """Write to a temporary file next to ``path`` and rename it into place only on success."""
+    """Write to a temporary file next to ``path`` and rename it into place only on success.
+
+    Raises :class:`OutputPathError` when ``path`` cannot be written (see :func:`output_temp`).
+    """
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    fd, tmp = output_temp(p)
     try:
         kwargs = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
-        os.replace(tmp, p)
+        publish(tmp, p)
     except BaseException:
         try:
             os.unlink(tmp)

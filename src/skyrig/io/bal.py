@@ -16,7 +16,6 @@ from the image centre, x right, y up).  In skyrig terms the camera frame is skyr
 from __future__ import annotations
 
 import os
-import tempfile
 from os import PathLike
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 from skyrig.adjust.block import BalCamera, Block
 from skyrig.errors import InputFormatError
 from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
+from skyrig.io._text import output_temp, publish
 
 __all__ = ["read_bal", "write_bal"]
 
@@ -87,7 +87,7 @@ def write_bal(path: str | PathLike[str], block: Block) -> None:
     intr = np.array([block.cameras[c].intrinsics for c in block.image_camera])
     cam = np.column_stack([rotvec_from_matrix(R), t, intr])
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=p.name, suffix=".tmp")
+    fd, tmp = output_temp(p)
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(f"{block.n_images} {block.n_points} {block.n_observations}\n")
@@ -95,7 +95,7 @@ def write_bal(path: str | PathLike[str], block: Block) -> None:
             fh.writelines(f"{int(a)} {int(b)} {x:.17g} {y:.17g}\n" for a, b, x, y in rows)
             np.savetxt(fh, cam.reshape(-1, 1), fmt="%.17g")
             np.savetxt(fh, block.point_xyz.reshape(-1, 1), fmt="%.17g")
-        os.replace(tmp, p)
+        publish(tmp, p)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -9,7 +9,7 @@ from rasterio.errors import RasterioIOError
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.ground import Dem
-from skyrig.io._text import PathLike
+from skyrig.io._text import PathLike, output_temp, publish
 
 
 def read_dem(path: PathLike, geoid: str | None = None, band: int = 1, crs: str | None = None) -> Dem:
@@ -40,7 +40,6 @@ def read_dem(path: PathLike, geoid: str | None = None, band: int = 1, crs: str |
 def write_dem(path: PathLike, dem: Dem, nodata: float = -32767.0) -> None:
     """Write a DEM as a tiled, compressed GeoTIFF (atomically)."""
     import os
-    import tempfile
     from pathlib import Path
 
     from affine import Affine
@@ -48,7 +47,7 @@ def write_dem(path: PathLike, dem: Dem, nodata: float = -32767.0) -> None:
     from skyrig.geodesy.crs import resolve_crs
 
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tif", dir=p.parent or ".")
+    fd, tmp = output_temp(p, ".tif")
     os.close(fd)
     h = np.where(np.isfinite(dem.heights), dem.heights, nodata).astype(np.float32)
     try:
@@ -62,7 +61,7 @@ def write_dem(path: PathLike, dem: Dem, nodata: float = -32767.0) -> None:
             profile["tiled"] = False
         with rasterio.open(tmp, "w", **profile) as ds:
             ds.write(h, 1)
-        os.replace(tmp, p)
+        publish(tmp, p)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

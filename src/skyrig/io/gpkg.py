@@ -8,14 +8,13 @@ type and a dict of equally long columns (numbers or strings).
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from skyrig.errors import SkyrigError
-from skyrig.io._text import PathLike
+from skyrig.io._text import PathLike, output_temp, publish
 
 
 def write_gpkg(path: PathLike, layers: Mapping[str, tuple[Sequence[Any], Mapping[str, Any]]], crs: str | None) -> None:
@@ -26,7 +25,7 @@ def write_gpkg(path: PathLike, layers: Mapping[str, tuple[Sequence[Any], Mapping
     from skyrig.geodesy.crs import resolve_crs
 
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".gpkg", dir=p.parent if str(p.parent) else ".")
+    fd, tmp = output_temp(p, ".gpkg")
     os.close(fd)
     os.unlink(tmp)  # GDAL creates the file
     wkt = resolve_crs(crs).to_wkt() if crs else None
@@ -52,7 +51,7 @@ def write_gpkg(path: PathLike, layers: Mapping[str, tuple[Sequence[Any], Mapping
             first = False
         if first:
             raise SkyrigError("GeoPackage: nothing to write (all layers empty)")
-        os.replace(tmp, p)
+        publish(tmp, p)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.errors import InputFormatError
-from skyrig.io._text import PathLike
+from skyrig.io._text import PathLike, output_temp, publish
 
 
 def write_image(path: PathLike, rgb: NDArray[np.uint8]) -> None:
@@ -21,12 +20,12 @@ def write_image(path: PathLike, rgb: NDArray[np.uint8]) -> None:
     arr = np.asarray(rgb)
     if arr.ndim == 3:
         arr = arr[:, :, ::-1]
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent if str(p.parent) else ".")
+    fd, tmp = output_temp(p, p.suffix)
     os.close(fd)
     try:
         if not cv2.imwrite(tmp, np.ascontiguousarray(arr)):
             raise OSError(f"OpenCV could not write {p}")
-        os.replace(tmp, p)
+        publish(tmp, p)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)

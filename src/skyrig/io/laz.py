@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from skyrig.errors import CRSError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
+from skyrig.io._text import output_temp, publish
 
 __all__ = ["LasPoints", "read_las", "write_las"]
 
@@ -215,13 +215,12 @@ def write_las(
         las.red, las.green, las.blue = colours[:, 0], colours[:, 1], colours[:, 2]
     for name, v in extra.items():
         las[name] = np.asarray(v).astype(np.dtype(extra_types.get(name, np.float64)))
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=p.suffix, dir=p.parent)
+    fd, tmp = output_temp(p, p.suffix)
     os.close(fd)
     try:
         las.write(tmp, do_compress=p.suffix.lower() == ".laz")
         _publishable(tmp)
-        os.replace(tmp, p)
+        publish(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
