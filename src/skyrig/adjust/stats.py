@@ -12,8 +12,8 @@ the unknowns::
 
 ``Q_xx`` is obtained from the Schur complement: ``Q_cc = S^-1``,
 ``Q_cp = -Q_cc W V^-1``, ``Q_pp = V^-1 + V^-1 W^T Q_cc W V^-1`` (only the 3x3 diagonal point blocks).
-For a free network ``S^-1`` is replaced by the pseudo-inverse under inner constraints,
-``(S + G G^T)^-1 - G G^T`` with G orthonormal.
+For a free network ``S^-1`` is replaced by the Moore-Penrose inverse ``S^+`` (inner constraints on the
+station poses: minimum trace), computed in the Jacobi-scaled space and projected (:func:`_pinv_inner`).
 """
 
 from __future__ import annotations
@@ -61,8 +61,44 @@ class Covariance:
 
 
 def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.float64]:
-    q, _ = np.linalg.qr(G[:, np.linalg.norm(G, axis=0) > 0])
-    return np.linalg.inv(S + q @ q.T) - q @ q.T
+    """Moore-Penrose inverse of the symmetric positive semi-definite ``S`` whose null space is spanned by
+    the columns of ``G`` (the inner-constraint / minimum-trace cofactor matrix), scale-robustly.
+
+    The diagonal of a normal matrix spans many orders of magnitude (1e-3 .. 1e16 with distortion terms in
+    millimetres), so ``S + q q^T`` with an orthonormal ``q`` in parameter units loses every digit of the
+    small entries.  Instead, in the Jacobi-scaled space ``S_s = D S D`` (``D = diag(S)^-1/2``), whose null
+    space is spanned by ``D^-1 G``, with ``H`` an orthonormal basis of it::
+
+        X = D (S_s + H H^T)^-1 D            a generalised inverse of S  (S X S = S)
+        S^+ = P X P,  P = I - q q^T          q: orthonormal basis of G (in parameter units)
+
+    (for symmetric ``S`` and any generalised inverse ``X``, ``P X P = S^+ S X S S^+ = S^+``: the projector
+    onto the range of ``S`` removes the datum part).  Raises :class:`SingularError` when ``S`` has a
+    rank defect beyond the span of ``G``.
+    """
+    n = S.shape[0]
+    G = G[:, np.linalg.norm(G, axis=0) > 0]
+    d = np.diag(S).copy()
+    if np.any(~(d > 0)):
+        raise SingularError("unknowns without observations")
+    sc = 1.0 / np.sqrt(d)
+    if G.shape[1] == 0:
+        H = np.zeros((n, 0))
+    else:
+        H, _ = np.linalg.qr(G / sc[:, None])
+    A = S * sc[:, None] * sc[None, :] + H @ H.T
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError as e:
+        raise SingularError(f"the normal matrix is singular beyond the datum defect: {e}") from e
+    Li = np.linalg.inv(L)
+    X = (Li.T @ Li) * sc[:, None] * sc[None, :]
+    if G.shape[1] == 0:
+        return X
+    q, _ = np.linalg.qr(G)
+    Xq = X @ q
+    Q = X - Xq @ q.T - q @ Xq.T + q @ (q.T @ Xq) @ q.T
+    return 0.5 * (Q + Q.T)
 
 
 def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False,
