@@ -194,6 +194,13 @@ def scenario_spec(name: str, size: str = "ci", seed: int = 1) -> ScenarioSpec:
     if key in ("demo", "midas-demo"):
         s = scenario_spec("midas", "ci", seed)
         return replace(s, name="midas-demo", flights=(FlightSpec(150.0, 2, (-50, -50, 50, 50), speed_mps=50.0),))
+    if key == "midas-dsm":
+        # a photogrammetric surface flight of the MIDAS rig: 80 % forward / 60 % side overlap, so that every
+        # ground point is seen by several nadir stereo pairs (what a DSM from multi-view matching needs)
+        s = scenario_spec("midas", size, seed)
+        fl = (FlightSpec(150.0, 3, (-50, -50, 50, 50), speed_mps=50.0, forward_overlap=0.8, side_overlap=0.6),) if ci \
+            else (FlightSpec(609.6, 6, (-1200, -1200, 1200, 1200), speed_mps=60.0, forward_overlap=0.8, side_overlap=0.6),)
+        return replace(s, name="midas-dsm", flights=fl)
     raise SkyrigError(f"unknown scenario {name!r}; scenarios: {', '.join(SCENARIOS)}")
 
 

@@ -1,0 +1,203 @@
+"""Semi-global matching of rectified images with OpenCV's StereoSGBM, in tiles of bounded memory.
+
+:func:`match_rectified` is the one matching path of skyrig: the Middlebury benchmarks and the aerial
+blocks both go through it.  The disparity search window ``[d_min, d_max]`` comes from the caller (for
+oriented images: from the geometry and the scene box, see :mod:`skyrig.dense.stereo`); the right image is
+shifted by ``d_min`` so that OpenCV searches ``0 .. n`` only.  Large images are cut into tiles with an
+overlap (``SgmConfig.tile_px``, ``margin_px``); a tile's result is kept only in its interior, so memory
+is bounded by the tile, not the image.
+
+Filters (all OpenCV's, applied inside StereoSGBM): sub-pixel parabola fit (1/16 px), uniqueness ratio,
+left-right consistency (``disp12MaxDiff``), speckle filtering of small disconnected disparity blobs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import logging
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.errors import SkyrigError
+
+logger = logging.getLogger(__name__)
+
+MODES = ("sgbm", "hh", "3way", "hh4")
+
+
+@dataclass(frozen=True)
+class SgmConfig:
+    """Semi-global matching options.
+
+    Attributes
+    ----------
+    mode
+        ``"sgbm"`` (5 paths, OpenCV default), ``"hh"`` (8 paths, full Hirschmueller), ``"3way"`` or ``"hh4"``.
+    block_size
+        Matched block size (odd, 1..11; SGBM's pixel-wise cost over this window).
+    p1, p2
+        Smoothness penalties per channel and block pixel; OpenCV's ``P1 = p1 * cn * block_size**2``.
+    uniqueness
+        Uniqueness ratio in percent (best cost must beat the second by this margin).
+    lr_max_diff
+        Left-right consistency tolerance in pixels (``disp12MaxDiff``; < 0 disables).
+    speckle_window
+        Largest disconnected blob (pixels) removed as speckle (0 disables).
+    speckle_range
+        Disparity variation (pixels) within one connected blob.
+    pre_filter_cap
+        Truncation of the x-derivative pre-filter.
+    max_disparities
+        Upper limit of the search width; wider windows are cut (with a warning) to bound time and memory.
+    tile_px
+        Tile side (interior) for large images.
+    margin_px
+        Tile overlap on each side (aggregation paths see this much context).
+    disparity_sigma_px
+        Assumed precision of a matched disparity (1 sigma, pixels), used for predicted point precision.
+    edge_jump_px, edge_erode_px
+        Against "foreground fattening" (area matching spreads the nearer surface over the farther one next to
+        a depth edge): at disparity jumps above ``edge_jump_px`` the nearer side loses ``edge_erode_px``
+        pixels (0 disables).
+    """
+
+    mode: str = "sgbm"
+    block_size: int = 5
+    p1: int = 8
+    p2: int = 32
+    uniqueness: int = 10
+    lr_max_diff: int = 1
+    speckle_window: int = 100
+    speckle_range: int = 2
+    pre_filter_cap: int = 63
+    max_disparities: int = 512
+    tile_px: int = 1024
+    margin_px: int = 48
+    disparity_sigma_px: float = 0.3
+    edge_jump_px: float = 2.0
+    edge_erode_px: int = 2
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise SkyrigError(f"SGM mode must be one of {', '.join(MODES)}, not {self.mode!r} (option: mode)")
+        if self.block_size % 2 != 1 or not 1 <= self.block_size <= 11:
+            raise SkyrigError(f"SGM block size must be odd and 1..11, not {self.block_size} (option: block_size)")
+        if self.tile_px < 64 or self.margin_px < 0:
+            raise SkyrigError("SGM tile_px must be >= 64 and margin_px >= 0")
+
+
+def _matcher(cfg: SgmConfig, num_disp: int, channels: int):  # type: ignore[no-untyped-def]
+    import cv2
+
+    mode = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
+            "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}[cfg.mode]
+    bs2 = cfg.block_size * cfg.block_size
+    return cv2.StereoSGBM_create(minDisparity=0, numDisparities=num_disp, blockSize=cfg.block_size,
+                                 P1=cfg.p1 * channels * bs2, P2=cfg.p2 * channels * bs2,
+                                 disp12MaxDiff=cfg.lr_max_diff, preFilterCap=cfg.pre_filter_cap,
+                                 uniquenessRatio=cfg.uniqueness, speckleWindowSize=cfg.speckle_window,
+                                 speckleRange=cfg.speckle_range, mode=mode)
+
+
+def disparity_window(d_min: float, d_max: float, cfg: SgmConfig) -> tuple[int, int]:
+    """Integer shift and OpenCV search width (a multiple of 16) covering ``[d_min, d_max]``."""
+    if not (np.isfinite(d_min) and np.isfinite(d_max)) or d_max < d_min:
+        raise SkyrigError(f"invalid disparity window [{d_min}, {d_max}]")
+    shift = int(np.floor(d_min))
+    width = int(np.ceil(d_max)) - shift + 1
+    n = max(16, int(np.ceil(width / 16.0)) * 16)
+    if n > cfg.max_disparities:
+        logger.warning("disparity window %.0f px wider than max_disparities %d: cut (near surfaces may be missed)",
+                       width, cfg.max_disparities)
+        n = cfg.max_disparities
+    return shift, n
+
+
+def match_rectified(left: NDArray, right: NDArray, d_min: float, d_max: float, cfg: SgmConfig = SgmConfig(),
+                    valid_left: NDArray[np.bool_] | None = None) -> NDArray[np.float32]:
+    """Disparities of a rectified pair (``x_right = x_left - d``), NaN where no reliable match.
+
+    Parameters
+    ----------
+    left, right
+        Rectified images of equal shape ``(H, W)`` or ``(H, W, C)``, uint8.  Column ``c`` of ``right``
+        covers the same rectified column as column ``c`` of ``left``.
+    d_min, d_max
+        Disparity search window (pixels, may be negative).
+    cfg
+        Matcher options.
+    valid_left
+        Optional ``(H, W)`` mask of left pixels that carry image content (results elsewhere are NaN).
+
+    Returns
+    -------
+    ``(H, W)`` float32 disparities in pixels (1/16 px steps), NaN = invalid.
+    """
+    if left.shape != right.shape:
+        raise SkyrigError(f"rectified images differ in shape: {left.shape} vs {right.shape}")
+    shift, n = disparity_window(d_min, d_max, cfg)
+    H, W = left.shape[:2]
+    channels = 1 if left.ndim == 2 else left.shape[2]
+    matcher = _matcher(cfg, n, channels)
+    out = np.full((H, W), np.nan, np.float32)
+    t, m = cfg.tile_px, cfg.margin_px
+    for r0 in range(0, H, t):
+        r1 = min(H, r0 + t)
+        for c0 in range(0, W, t):
+            c1 = min(W, c0 + t)
+            out[r0:r1, c0:c1] = _match_tile(left, right, matcher, shift, n, r0, r1, c0, c1, m)
+    if valid_left is not None:
+        out[~valid_left] = np.nan
+    return out
+
+
+def _match_tile(left: NDArray, right: NDArray, matcher, shift: int, n: int, r0: int, r1: int, c0: int, c1: int,
+                m: int) -> NDArray[np.float32]:  # type: ignore[no-untyped-def]
+    """Disparities of the tile ``[r0:r1, c0:c1]`` from a crop with ``m`` px context and the search width."""
+    H, W = left.shape[:2]
+    a0, a1 = max(0, r0 - m), min(H, r1 + m)
+    b0 = c0 - m - n  # OpenCV leaves the first n columns without result
+    b1 = min(W, c1 + m)
+    lc = _crop_cols(left[a0:a1], b0, b1)
+    rc = _crop_cols(right[a0:a1], b0 - shift, b1 - shift)
+    d16 = matcher.compute(lc, rc)
+    d = d16.astype(np.float32) / 16.0
+    d[d16 < 0] = np.nan
+    d += shift
+    return d[r0 - a0:r1 - a0, c0 - b0:c1 - b0]
+
+
+def _crop_cols(img: NDArray, b0: int, b1: int) -> NDArray:
+    """Columns ``b0:b1`` of an image, zero outside it."""
+    W = img.shape[1]
+    out = np.zeros((img.shape[0], b1 - b0) + img.shape[2:], img.dtype)
+    s0, s1 = max(0, b0), min(W, b1)
+    if s1 > s0:
+        out[:, s0 - b0:s1 - b0] = img[:, s0:s1]
+    return np.ascontiguousarray(out)
+
+
+def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> NDArray[np.float32]:
+    """Remove the ``erode_px`` pixels of the nearer surface at the left edge of every disparity step up (along
+    rows) larger than ``jump_px``.
+
+    On a rectified left image, the farther surface just left of a nearer one is hidden from the right image
+    (the nearer surface shifts more); area matching spreads the nearer disparity into that band.  NaN pixels
+    count as far."""
+    if erode_px <= 0:
+        return d
+    dd = np.where(np.isfinite(d), d, -np.inf)
+    with np.errstate(invalid="ignore"):
+        step = dd[:, 1:] - dd[:, :-1]
+    start = np.zeros(d.shape, bool)
+    start[:, 1:] = (step > jump_px) & np.isfinite(d[:, 1:])
+    fg = start.copy()
+    for k in range(1, erode_px):
+        shifted = np.zeros_like(start)
+        shifted[:, k:] = start[:, :-k]
+        # keep walking right only while the surface stays at the near disparity
+        fg |= shifted
+    out = d.copy()
+    out[fg] = np.nan
+    return out

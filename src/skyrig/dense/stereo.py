@@ -1,0 +1,182 @@
+"""One stereo pair from original images to triangulated points, block by block.
+
+A pair's left rectified image is cut into fixed blocks (:func:`pair_blocks`); each block is matched on its
+own crop with context (:func:`match_block`), so the result of a block never depends on which ground tile
+asked for it: tiled and untiled runs give the same points, bit for bit.  The disparity window of each block
+comes from its rays and the scene box (the nearest and farthest box crossing of every sampled ray), never
+from a hand-set number.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.dense.pairs import ray_box_interval
+from skyrig.dense.rectify import Rectification
+from skyrig.dense.sgm import SgmConfig, _matcher, disparity_window, erode_foreground
+
+#: image loader: image row index -> uint8 array (H, W, 3) RGB or (H, W) grey, as the camera sees it
+ImageLoader = Callable[[int], NDArray[np.uint8]]
+
+
+@dataclass(frozen=True)
+class Block:
+    """A block of a pair's left rectified image: rows ``v0..v1``, columns ``u0..u1`` (rectified coordinates,
+    exclusive ends) and its disparity window."""
+
+    u0: int
+    u1: int
+    v0: int
+    v1: int
+    d_min: float
+    d_max: float
+
+
+@dataclass(frozen=True)
+class PairPoints:
+    """Triangulated points of one block.
+
+    Attributes
+    ----------
+    xyz
+        ``(M, 3)`` world points (the orientations' Cartesian frame, metres).
+    sigma_h
+        ``(M,)`` predicted precision of the point's height (m, 1 sigma, from ``disparity_sigma_px``).
+    sigma_3d
+        ``(M,)`` predicted precision along the left ray (m).
+    angle_deg
+        ``(M,)`` intersection angle.
+    rgb
+        ``(M, 3)`` uint8 colour of the left image.
+    normal
+        ``(M, 3)`` float32 unit normals from the depth grid, facing the left camera (NaN at depth edges).
+    """
+
+    xyz: NDArray[np.float64]
+    sigma_h: NDArray[np.float32]
+    sigma_3d: NDArray[np.float32]
+    angle_deg: NDArray[np.float32]
+    rgb: NDArray[np.uint8]
+    normal: NDArray[np.float32]
+
+    @staticmethod
+    def empty() -> "PairPoints":
+        return PairPoints(np.zeros((0, 3)), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                          np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+
+def block_window(rect: Rectification, u0: int, u1: int, v0: int, v1: int,
+                 box: tuple[float, float, float, float, float, float], samples: int = 9,
+                 margin_px: float = 3.0) -> tuple[float, float] | None:
+    """Disparity window of a rectified block from its rays through the scene box (None: the block's rays
+    miss the box)."""
+    uu, vv = np.meshgrid(np.linspace(u0, u1 - 1, samples), np.linspace(v0, v1 - 1, samples))
+    d = rect.rect_directions(uu.ravel(), vv.ravel()) @ rect.rotation.T  # world, depth 1 along the rectified axis
+    tn, tf = ray_box_interval(rect.centres[0], d, box)
+    hit = tn < tf
+    if not hit.any():
+        return None
+    fb = rect.focal_px * rect.base_m
+    near = np.maximum(tn[hit], 1e-6)
+    return float(fb / tf[hit].max() - margin_px), float(fb / near.min() + margin_px)
+
+
+def pair_blocks(rect: Rectification, box: tuple[float, float, float, float, float, float], block_px: int = 768
+                ) -> list[Block]:
+    """Fixed blocks covering the left image on the rectified plane (rows both images share)."""
+    u0, u1, v0, v1 = (int(x) for x in rect.bounds[0])
+    out = []
+    for a in range(v0, v1, block_px):
+        for b in range(u0, u1, block_px):
+            bb = (b, min(u1, b + block_px), a, min(v1, a + block_px))
+            w = block_window(rect, *bb, box)
+            if w is not None:
+                out.append(Block(*bb, *w))
+    return out
+
+
+def block_ground_bounds(rect: Rectification, blk: Block, samples: int = 5) -> NDArray[np.float64]:
+    """``(xmin, ymin, xmax, ymax)`` of what a block can see between its nearest and farthest depth (world)."""
+    uu, vv = np.meshgrid(np.linspace(blk.u0, blk.u1 - 1, samples), np.linspace(blk.v0, blk.v1 - 1, samples))
+    dirs = rect.rect_directions(uu.ravel(), vv.ravel()) @ rect.rotation.T
+    fb = rect.focal_px * rect.base_m
+    depths = [fb / max(blk.d_max, 1e-6), fb / max(blk.d_min, 1e-6) if blk.d_min > 0 else 1e7]
+    pts = np.concatenate([rect.centres[0] + dirs * dd for dd in depths])
+    return np.array([pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max()])
+
+
+def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk: Block, cfg: SgmConfig
+                ) -> tuple[NDArray[np.float32], NDArray, NDArray[np.bool_]]:
+    """Disparities ``(v1-v0, u1-u0)`` of a block (NaN invalid), its left colour crop and validity.
+
+    The crop carries ``cfg.margin_px`` of context on every side and the search width on the left; the right
+    crop is shifted by the window's start so OpenCV searches ``0..n``.
+    """
+    import cv2
+
+    shift, n = disparity_window(blk.d_min, blk.d_max, cfg)
+    m = cfg.margin_px
+    cu0 = blk.u0 - m - n
+    w = (blk.u1 + m) - cu0
+    cv0 = blk.v0 - m
+    h = (blk.v1 + m) - cv0
+    lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
+    rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
+    lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
+    rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
+    d16 = _matcher(cfg, n, 1).compute(lg, rg)
+    d = d16.astype(np.float32) / 16.0
+    d[d16 < 0] = np.nan
+    # the right pixel each left pixel matched must lie inside the right image
+    cols = np.arange(w)[None, :] - d
+    ci = np.clip(np.round(np.nan_to_num(cols, nan=-1)).astype(np.int64), 0, w - 1)
+    rok = np.take_along_axis(rvalid, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
+    d[~(lvalid & rok)] = np.nan
+    d += shift
+    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+    sl = (slice(m, m + blk.v1 - blk.v0), slice(m + n, m + n + blk.u1 - blk.u0))
+    return d[sl], lc[sl], lvalid[sl]
+
+
+def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig
+                 ) -> PairPoints:
+    """Triangulate every matched pixel of a block, with precision, intersection angle, colour and normal."""
+    ok = np.isfinite(disp) & (disp > 0)
+    if not ok.any():
+        return PairPoints.empty()
+    vv, uu = np.mgrid[blk.v0:blk.v1, blk.u0:blk.u1].astype(np.float64)
+    grid = np.full(disp.shape + (3,), np.nan)
+    xyz, D = rect.triangulate(uu[ok], vv[ok], disp[ok].astype(np.float64))
+    grid[ok] = xyz
+    # predicted precision: a disparity error moves the point along the left ray by |P - C| / d per pixel
+    ray = xyz - rect.centres[0]
+    per_px = 1.0 / disp[ok].astype(np.float64)
+    s = cfg.disparity_sigma_px
+    sigma_3d = np.linalg.norm(ray, axis=1) * per_px * s
+    sigma_h = np.abs(ray[:, 2]) * per_px * s
+    r2 = xyz - rect.centres[1]
+    cosang = np.sum(ray * r2, axis=1) / (np.linalg.norm(ray, axis=1) * np.linalg.norm(r2, axis=1))
+    ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    # normals from central differences of the point grid (2 px apart), facing the camera
+    nrm = np.full(grid.shape, np.nan)
+    du = np.full(grid.shape, np.nan)
+    dv = np.full(grid.shape, np.nan)
+    du[:, 1:-1] = grid[:, 2:] - grid[:, :-2]
+    dv[1:-1] = grid[2:] - grid[:-2]
+    cr = np.cross(dv, du)
+    nn = np.linalg.norm(cr, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nrm = cr / nn
+    nv = nrm[ok]
+    flip = np.sum(nv * (rect.centres[0] - xyz), axis=1) < 0
+    nv[flip] *= -1
+    rgb = colour[ok] if colour.ndim == 3 else np.repeat(colour[ok][:, None], 3, axis=1)
+    return PairPoints(xyz, sigma_h.astype(np.float32), sigma_3d.astype(np.float32), ang.astype(np.float32),
+                      rgb.astype(np.uint8), nv.astype(np.float32))

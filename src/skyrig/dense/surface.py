@@ -1,0 +1,457 @@
+"""The dense stage over a block: plan (pairs, rectifications, blocks, ground tiles), run tiles, assemble.
+
+Work is cut twice:
+
+* each stereo pair's left rectified image into fixed *blocks* (bounded memory per SGM run, and results that do
+  not depend on the tiling);
+* the output grid into ground *tiles*: a tile matches the blocks whose view can reach it, triangulates, keeps
+  the points inside it and fuses them.  Tiles are independent (:func:`run_tile`), so any ``map`` runs them:
+  the builtin one, a process pool, or a Dask cluster (``skyrig.pipeline.executor``).  Cells are computed
+  from the same points in any tiling, so tiled and untiled DSMs are bit-identical.
+
+Frames: matching and triangulation run in a local tangent frame (east, north, up) at the block; points are
+then converted rigorously (through ECEF, with the output frame's geoid if any) to the output map frame,
+where the DSM grid lives.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.fusion import FusionConfig, fuse_cloud, fuse_grid
+from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
+from skyrig.dense.pairs import PairConfig, StereoPair, ray_box_interval, select_pairs
+from skyrig.dense.rectify import Rectification, rectify_pair
+from skyrig.dense.sgm import SgmConfig
+from skyrig.dense.stereo import Block, ImageLoader, PairPoints, block_ground_bounds, block_points, match_block, pair_blocks
+from skyrig.errors import GeometryError, SkyrigError
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame, local_frame_for
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DenseConfig:
+    """Options of the dense stage.
+
+    Attributes
+    ----------
+    cell_m
+        DSM cell size (metres); None: the median ground sample distance of the images (1 GSD).
+    pairs, sgm, fusion
+        Pair selection, matching and fusion options.
+    block_px
+        Side of a rectified block matched in one SGM run (bounds memory: about
+        ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
+    tile_cells
+        Side of a ground tile in cells (the unit of parallel work).
+    fill_holes
+        Interpolate holes of at most ``fill_max_cells`` cells' distance from measured cells (flagged in the
+        ``filled`` layer).
+    fill_max_cells
+        Largest distance (cells) from a measured cell that is filled.
+    max_cells
+        Refuse grids larger than this (a resolution typo would ask for 10^10 cells).
+    cloud
+        Also fuse a dense point cloud.
+    cloud_voxel_m
+        Voxel size of the point cloud (None: the cell size).
+    """
+
+    cell_m: float | None = None
+    pairs: PairConfig = field(default_factory=PairConfig)
+    sgm: SgmConfig = field(default_factory=SgmConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    block_px: int = 768
+    tile_cells: int = 2048
+    fill_holes: bool = False
+    fill_max_cells: int = 16
+    max_cells: int = 400_000_000
+    cloud: bool = True
+    cloud_voxel_m: float | None = None
+
+
+@dataclass(frozen=True)
+class DensePlan:
+    """What :func:`run_tile` needs: everything derived from the orientations, no pixels.
+
+    Attributes
+    ----------
+    eo
+        Orientations in the working local frame.
+    cameras
+        Camera name -> camera.
+    out_frame
+        The output map frame (CRS and height reference).
+    box
+        Scene box in the local frame ``(xmin, ymin, zmin, xmax, ymax, zmax)``.
+    grid
+        The output grid (map frame).
+    gsd_m
+        Median ground sample distance of the images (metres).
+    pairs, rects, blocks
+        Selected pairs, their rectifications and rectified blocks.
+    block_bounds
+        Per pair, ``(n_blocks, 4)`` map ``(xmin, ymin, xmax, ymax)`` each block can see.
+    tiles
+        ``(row0, col0, height, width)`` windows of the grid.
+    config
+        The options.
+    """
+
+    eo: ExteriorOrientations
+    cameras: Mapping[str, FrameCamera]
+    out_frame: WorldFrame
+    box: tuple[float, float, float, float, float, float]
+    grid: GridSpec
+    gsd_m: float
+    pairs: tuple[StereoPair, ...]
+    rects: tuple[Rectification, ...]
+    blocks: tuple[tuple[Block, ...], ...]
+    block_bounds: tuple[NDArray[np.float64], ...]
+    tiles: tuple[tuple[int, int, int, int], ...]
+    config: DenseConfig
+
+    @property
+    def local_frame(self) -> WorldFrame:
+        return self.eo.frame
+
+
+@dataclass
+class TileResult:
+    """The fused layers of one ground tile, its cloud points and counts."""
+
+    window: tuple[int, int, int, int]
+    height: NDArray[np.float32]
+    support: NDArray[np.int16]
+    spread: NDArray[np.float32]
+    sigma: NDArray[np.float32]
+    cloud: tuple[NDArray, ...] | None
+    points: int
+    blocks: int
+    megapixels: float
+    seconds: float
+
+
+def vertical_reference(frame: WorldFrame) -> str:
+    """Words for the height reference of a map frame."""
+    from skyrig.geodesy.crs import resolve_crs
+
+    if frame.kind != "map":
+        return frame.describe()
+    crs = resolve_crs(frame.crs)
+    if frame.geoid is not None:
+        return f"orthometric heights through geoid grid {frame.geoid}"
+    datum = crs.geodetic_crs.datum.name if crs.geodetic_crs is not None else "unknown datum"
+    ell = crs.ellipsoid.name if crs.ellipsoid is not None else "unknown ellipsoid"
+    return f"ellipsoidal heights ({datum}, {ell})"
+
+
+def _map_to_local(frame: WorldFrame, local: WorldFrame, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+    return local.from_ecef(frame.to_ecef(xyz))
+
+
+def _local_to_map(local: WorldFrame, frame: WorldFrame, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+    return frame.from_ecef(local.to_ecef(xyz))
+
+
+def _sample_rays(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i: int, n: int = 7) -> NDArray:
+    cam = cameras[str(eo.camera[i])]
+    c = np.linspace(0, 1, n)
+    cc, rr = np.meshgrid(c * (cam.width - 1), c * (cam.height - 1))
+    return cam.rays_from_pixels(np.stack([cc.ravel(), rr.ravel()], 1)) @ eo.rotation[i].T
+
+
+def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out_frame: WorldFrame,
+               height_range: tuple[float, float], area: tuple[float, float, float, float] | None = None,
+               config: DenseConfig = DenseConfig()) -> DensePlan:
+    """Plan the dense stage of a block.
+
+    Parameters
+    ----------
+    eo
+        Orientations in any frame.
+    cameras
+        Camera name -> camera for every ``eo.camera``.
+    out_frame
+        Output map frame: a projected CRS (metres) and its height reference.
+    height_range
+        ``(min, max)`` expected surface heights in ``out_frame`` heights (metres); sets the disparity search.
+    area
+        ``(xmin, ymin, xmax, ymax)`` in ``out_frame`` to compute; None: where the images see the mid height
+        (at most 3 flying heights from each projection centre).
+    config
+        Options.
+
+    Raises
+    ------
+    SkyrigError
+        On a non-projected output CRS, an implausible height range, a grid over ``max_cells``, or a block
+        without any stereo pair.
+    """
+    from skyrig.geodesy.crs import resolve_crs
+
+    if out_frame.kind != "map":
+        raise SkyrigError("the DSM needs a map frame (a projected CRS), not a " + out_frame.kind + " frame (option: crs)")
+    crs = resolve_crs(out_frame.crs)
+    if not crs.is_projected:
+        raise SkyrigError(f"the DSM needs a projected CRS with metre cells, not {crs.name} (option: crs)")
+    zmin, zmax = (float(v) for v in height_range)
+    if not (np.isfinite(zmin) and np.isfinite(zmax) and zmin < zmax):
+        raise SkyrigError(f"height range must be two finite heights min < max, got {height_range} (option: height-range)")
+    if zmax - zmin > 9000 or min(abs(zmin), abs(zmax)) > 9000:
+        raise SkyrigError(f"height range {zmin:g}..{zmax:g} m is not a surface on Earth (heights in mm?) "
+                          "(option: height-range)")
+    if len(eo) < 2:
+        raise SkyrigError("dense matching needs at least two oriented images")
+    missing = sorted(set(eo.camera.tolist()) - set(cameras))
+    if missing:
+        raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
+    zmid = 0.5 * (zmin + zmax)
+    eo_map = eo.to_frame(out_frame)
+    ctr = np.array([[*eo_map.centre[:, :2].mean(axis=0), zmid]])
+    local = local_frame_for(out_frame.to_ecef(ctr))
+    eo_l = eo.to_frame(local)
+    z_plane = float(_map_to_local(out_frame, local, ctr)[0, 2])
+    if np.any(eo_l.centre[:, 2] <= z_plane) and area is None:
+        raise SkyrigError("some projection centres lie below the expected surface heights: give the area to compute "
+                          "(option: area) or check the height range and the orientations' height reference")
+    # area and GSD from the rays through the mid-height plane
+    gsd, foot = [], []
+    for i in range(len(eo_l)):
+        rays = _sample_rays(eo_l, cameras, i)
+        c = eo_l.centre[i]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (z_plane - c[2]) / rays[:, 2]
+        hgt = abs(c[2] - z_plane)
+        p = c + rays * t[:, None]
+        ok = (t > 0) & (np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) <= 3 * max(hgt, 1.0))
+        foot.append(p[ok])
+        cam = cameras[str(eo_l.camera[i])]
+        axis = -eo_l.rotation[i][:, 2]
+        if axis[2] < -0.2:
+            s = (z_plane - c[2]) / axis[2]
+            gsd.append((s / cam.focal_px, abs(axis[2])))
+    if not gsd:
+        raise SkyrigError("no image looks down onto the expected heights; a DSM needs aerial views (use the point "
+                          "cloud with an explicit area for terrestrial image sets)")
+    g = np.array(gsd)
+    steep = g[:, 1] > np.cos(np.radians(20))
+    gsd_m = float(np.median(g[steep, 0] if steep.any() else g[:, 0]))
+    if area is None:
+        fp = np.concatenate(foot)
+        if len(fp) == 0:
+            raise SkyrigError("the images see no ground at the expected heights (option: height-range)")
+        fm = _local_to_map(local, out_frame, fp)
+        area = (float(fm[:, 0].min()), float(fm[:, 1].min()), float(fm[:, 0].max()), float(fm[:, 1].max()))
+    xmin, ymin, xmax, ymax = (float(v) for v in area)
+    if not (xmax > xmin and ymax > ymin):
+        raise SkyrigError(f"empty area {area} (option: area)")
+    cell = float(config.cell_m) if config.cell_m else gsd_m
+    if not (cell > 0 and np.isfinite(cell)):
+        raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")
+    x0 = np.floor(xmin / cell) * cell
+    y0 = np.ceil(ymax / cell) * cell
+    W = int(np.ceil((xmax - x0) / cell))
+    H = int(np.ceil((y0 - ymin) / cell))
+    if W * H > config.max_cells:
+        raise SkyrigError(f"a {cell:g} m grid over {xmax - xmin:.0f} x {ymax - ymin:.0f} m has {W * H:.3g} cells, more "
+                          f"than the limit {config.max_cells:.3g} (option: resolution, or max_cells)")
+    grid = GridSpec(float(x0), float(y0), cell, W, H)
+    corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (zmin, zmax)]
+                       + [[0.5 * (xmin + xmax), 0.5 * (ymin + ymax), z] for z in (zmin, zmax)])
+    cl = _map_to_local(out_frame, local, corners)
+    pad = 2 * cell
+    box = (float(cl[:, 0].min() - pad), float(cl[:, 1].min() - pad), float(cl[:, 2].min() - pad),
+           float(cl[:, 0].max() + pad), float(cl[:, 1].max() + pad), float(cl[:, 2].max() + pad))
+    pairs = select_pairs(eo_l, cameras, box, config.pairs)
+    rects, blocks, bounds, kept = [], [], [], []
+    for p in pairs:
+        try:
+            r = rectify_pair(cameras[str(eo_l.camera[p.left])], eo_l.rotation[p.left], eo_l.centre[p.left],
+                             cameras[str(eo_l.camera[p.right])], eo_l.rotation[p.right], eo_l.centre[p.right])
+        except GeometryError as exc:
+            logger.info("pair %s-%s skipped: %s", eo_l.image[p.left], eo_l.image[p.right], exc)
+            continue
+        bl = pair_blocks(r, box, config.block_px)
+        if not bl:
+            continue
+        bb = []
+        for b in bl:
+            lb = block_ground_bounds(r, b)
+            q = np.array([[lb[0], lb[1], z_plane], [lb[2], lb[1], z_plane], [lb[0], lb[3], z_plane],
+                          [lb[2], lb[3], z_plane]])
+            m = _local_to_map(local, out_frame, q)
+            bb.append([m[:, 0].min() - pad, m[:, 1].min() - pad, m[:, 0].max() + pad, m[:, 1].max() + pad])
+        kept.append(p)
+        rects.append(r)
+        blocks.append(tuple(bl))
+        bounds.append(np.array(bb))
+    if not kept:
+        raise SkyrigError("no stereo pair: the images do not overlap with a usable base and viewing direction "
+                          f"({len(eo)} images; options: pairs.min_overlap, pairs.intersection_deg)")
+    t = config.tile_cells
+    tiles = tuple((r0, c0, min(t, H - r0), min(t, W - c0)) for r0 in range(0, H, t) for c0 in range(0, W, t))
+    return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
+                     tuple(bounds), tiles, config)
+
+
+def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``grid_from_local`` rotation at a map point (for normals)."""
+    ecef_from_grid = plan.out_frame.ecef_from_frame_rotation(at_map[None])[0]
+    ecef_from_local = plan.local_frame.ecef_from_frame_rotation(np.zeros((1, 3)))[0]
+    return ecef_from_grid.T @ ecef_from_local
+
+
+def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
+    """Match, triangulate and fuse one ground tile (``plan.tiles[k]``)."""
+    t0 = time.perf_counter()
+    r0, c0, h, w = plan.tiles[k]
+    tg = plan.grid.window(r0, c0, h, w)
+    xb0, yb0, xb1, yb1 = tg.bounds
+    images: dict[int, NDArray] = {}
+
+    def image(i: int) -> NDArray:
+        if i not in images:
+            images[i] = loader(i)
+        return images[i]
+
+    pts: list[tuple[int, PairPoints, NDArray]] = []
+    nblocks, mpx = 0, 0.0
+    for pid, (pair, rect, bl, bb) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, plan.block_bounds)):
+        hit = (bb[:, 0] <= xb1) & (bb[:, 2] >= xb0) & (bb[:, 1] <= yb1) & (bb[:, 3] >= yb0)
+        for bi in np.flatnonzero(hit):
+            blk = bl[bi]
+            disp, colour, _ = match_block(rect, image(pair.left), image(pair.right), blk, plan.config.sgm)
+            nblocks += 1
+            mpx += disp.size / 1e6
+            pp = block_points(rect, blk, disp, colour, plan.config.sgm)
+            if len(pp) == 0:
+                continue
+            xyz_m = _local_to_map(plan.local_frame, plan.out_frame, pp.xyz)
+            inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
+            if inside.any():
+                sel = np.flatnonzero(inside)
+                pts.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
+                                            pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
+    if pts:
+        pid = np.concatenate([np.full(len(p[1]), p[0], np.int64) for p in pts])
+        xyz = np.concatenate([p[2] for p in pts])
+        sig = np.concatenate([p[1].sigma_h for p in pts]).astype(np.float64)
+    else:
+        pid, xyz, sig = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
+    hgt, sup, spr, sg = fuse_grid(tg, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, plan.config.fusion)
+    cloud = None
+    if plan.config.cloud and pts:
+        rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
+        nrm = np.concatenate([p[1].normal for p in pts]).astype(np.float64) @ rot.T
+        vox = plan.config.cloud_voxel_m or plan.grid.cell_m
+        cloud = fuse_cloud((plan.grid.x0, plan.grid.y0, 0.0), vox, pid, xyz,
+                           np.concatenate([p[1].sigma_3d for p in pts]).astype(np.float64),
+                           np.concatenate([p[1].rgb for p in pts]), nrm.astype(np.float32), plan.config.fusion)
+    return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud, len(xyz), nblocks, mpx, time.perf_counter() - t0)
+
+
+def fill_holes(height: NDArray[np.float32], max_cells: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Fill NaN holes within ``max_cells`` of measured cells by OpenCV's Telea inpainting of the height field.
+
+    Returns the filled heights and the mask of filled cells."""
+    import cv2
+    from scipy import ndimage
+
+    hole = ~np.isfinite(height)
+    if not hole.any() or hole.all():
+        return height, np.zeros_like(hole)
+    dist = ndimage.distance_transform_edt(hole)
+    target = hole & (dist <= max_cells)
+    lo = float(np.nanmin(height))
+    base = np.where(hole, 0, height - lo).astype(np.float32)
+    filled = cv2.inpaint(base, hole.astype(np.uint8), 3, cv2.INPAINT_TELEA) + lo
+    out = height.copy()
+    out[target] = filled[target]
+    return out, target
+
+
+@dataclass
+class DenseStats:
+    """Counts and timings of a dense run."""
+
+    pairs: int
+    tiles: int
+    blocks: int
+    points: int
+    megapixels: float
+    seconds: float
+    gsd_m: float
+    cell_m: float
+
+
+def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, DenseCloud | None, DenseStats]:
+    """Put tile results together into the DSM (and cloud)."""
+    H, W = plan.grid.shape
+    height = np.full((H, W), np.nan, np.float32)
+    support = np.zeros((H, W), np.int16)
+    spread = np.full((H, W), np.nan, np.float32)
+    sigma = np.full((H, W), np.nan, np.float32)
+    clouds = []
+    nb = npt = 0
+    mpx = secs = 0.0
+    ntiles = 0
+    for r in results:
+        r0, c0, h, w = r.window
+        sl = (slice(r0, r0 + h), slice(c0, c0 + w))
+        height[sl], support[sl], spread[sl], sigma[sl] = r.height, r.support, r.spread, r.sigma
+        if r.cloud is not None:
+            clouds.append(r.cloud)
+        nb += r.blocks
+        npt += r.points
+        mpx += r.megapixels
+        secs += r.seconds
+        ntiles += 1
+    filled = np.zeros((H, W), bool)
+    if plan.config.fill_holes:
+        height, filled = fill_holes(height, plan.config.fill_max_cells)
+    vref = vertical_reference(plan.out_frame)
+    dsm = DsmGrid(plan.grid, plan.out_frame, height, support, spread, sigma, filled, vref,
+                  {"gsd_m": plan.gsd_m, "pairs": len(plan.pairs)})
+    cloud = None
+    if plan.config.cloud:
+        if clouds:
+            cat = [np.concatenate([c[k] for c in clouds]) for k in range(5)]
+        else:
+            cat = [np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32), np.zeros(0, np.int16),
+                   np.zeros(0, np.float32)]
+        cloud = DenseCloud(cat[0], cat[1], cat[2], cat[3], cat[4], plan.out_frame, vref)
+    return dsm, cloud, DenseStats(len(plan.pairs), ntiles, nb, npt, mpx, secs, plan.gsd_m, plan.grid.cell_m)
+
+
+def dense_surface(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], loader: ImageLoader,
+                  out_frame: WorldFrame, height_range: tuple[float, float],
+                  area: tuple[float, float, float, float] | None = None, config: DenseConfig = DenseConfig(),
+                  map_fn: Callable | None = None) -> tuple[DsmGrid, DenseCloud | None, DenseStats]:
+    """DSM and dense cloud of a block: :func:`plan_dense`, :func:`run_tile` for every tile through ``map_fn``
+    (default: the builtin ``map``), :func:`assemble`.
+
+    ``loader(i)`` returns the image of ``eo`` row ``i`` (uint8, RGB or grey)."""
+    plan = plan_dense(eo, cameras, out_frame, height_range, area, config)
+    fn = map_fn or (lambda f, items: list(map(f, items)))
+    results = fn(_TileJob(plan, loader), range(len(plan.tiles)))
+    return assemble(plan, results)
+
+
+class _TileJob:
+    """Picklable ``k -> run_tile(plan, k, loader)``."""
+
+    def __init__(self, plan: DensePlan, loader: ImageLoader) -> None:
+        self.plan = plan
+        self.loader = loader
+
+    def __call__(self, k: int) -> TileResult:
+        return run_tile(self.plan, k, self.loader)
