@@ -203,4 +203,7 @@ def test_reader_accepts_utf8_bom(tmp_path, fmt):
     data = (plain / name).read_bytes()
     assert not data.startswith(BOM)
     (bom / name).write_bytes(BOM + data)
+    for side in plain.iterdir():  # side-cars (NAME.csv.json, .csvt, .prj) travel with their table unchanged
+        if side.name != name and side.is_file():
+            (bom / side.name).write_bytes(side.read_bytes())
     _same(read(plain / name), read(bom / name), fmt)

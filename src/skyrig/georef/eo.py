@@ -13,119 +13,22 @@ An :class:`ExteriorOrientations` holds, for N images, the projection centre and 
 * ``WorldFrame.local(lat, lon, h)``: a local tangent plane ENU frame (the tangential frame of
   paper 003) with origin at a geodetic position; rotations are ``local_from_camera``.
 
-Conversions between frames are rigorous (through ECEF).
+Conversions between frames are rigorous (through ECEF).  :class:`WorldFrame` lives in layer 0
+(:mod:`skyrig.geodesy.frame`, with its text form) and is re-exported here.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from skyrig.errors import CRSError
-from skyrig.geodesy.crs import Geoid, MapProjection, ecef_to_geodetic, resolve_crs
-from skyrig.geodesy.local import LocalTangentFrame, ecef_from_enu_rotation, grid_from_enu_rotation
+from skyrig.geodesy.frame import FrameKind, WorldFrame, local_frame_for
 from skyrig.geodesy.mapheights import map_height_from_true_height, true_height_from_map_height
 from skyrig.geometry.pose import Pose
 
-FrameKind = Literal["ecef", "map", "local"]
-
-
-@dataclass(frozen=True)
-class WorldFrame:
-    """Where exterior orientations and ground points live.
-
-    Attributes
-    ----------
-    kind
-        ``"ecef"``, ``"map"`` or ``"local"``.
-    crs
-        For ``map``: the CRS as given by the user (EPSG code, WKT...).
-    geoid
-        For ``map``: geoid grid (path or PROJ name) if heights are orthometric, else None.
-    origin
-        For ``local``: (lat_deg, lon_deg, h) of the ENU origin.
-    """
-
-    kind: FrameKind
-    crs: str | None = None
-    geoid: str | None = None
-    origin: tuple[float, float, float] | None = None
-
-    @classmethod
-    def ecef(cls) -> "WorldFrame":
-        return cls("ecef")
-
-    @classmethod
-    def map(cls, crs: object, geoid: str | None = None) -> "WorldFrame":
-        resolve_crs(crs)  # validate early
-        if geoid is not None and (os.path.sep in str(geoid) or str(geoid).startswith(".")):
-            geoid = str(Path(geoid).expanduser().resolve())  # a file: make the frame independent of the cwd
-        return cls("map", crs=str(crs), geoid=geoid)
-
-    @classmethod
-    def local(cls, lat_deg: float, lon_deg: float, h: float) -> "WorldFrame":
-        return cls("local", origin=(float(lat_deg), float(lon_deg), float(h)))
-
-    @property
-    def projection(self) -> MapProjection:
-        if self.kind != "map":
-            raise CRSError(f"a {self.kind} frame has no map projection")
-        return _projection(self.crs, self.geoid)
-
-    @property
-    def tangent(self) -> LocalTangentFrame:
-        if self.kind != "local" or self.origin is None:
-            raise CRSError(f"a {self.kind} frame is not a local tangent frame")
-        return LocalTangentFrame(*self.origin, kind="enu")
-
-    def describe(self) -> str:
-        """One line for file headers and reports."""
-        if self.kind == "ecef":
-            return "ECEF WGS84 (EPSG:4978)"
-        if self.kind == "local":
-            return "local ENU at lat %.9f lon %.9f h %.3f" % self.origin  # type: ignore[str-format]
-        h = "ellipsoidal heights" if self.geoid is None else f"orthometric heights (geoid {self.geoid})"
-        return f"{resolve_crs(self.crs).name} [{self.crs}], {h}"
-
-    # ----------------------------------------------------------------- points
-    def to_ecef(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Points ``(N, 3)`` of this frame to ECEF."""
-        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-        if self.kind == "ecef":
-            return p.copy()
-        if self.kind == "local":
-            return self.tangent.to_ecef(p)
-        return self.projection.to_ecef(p)
-
-    def from_ecef(self, xyz: ArrayLike) -> NDArray[np.float64]:
-        """ECEF points ``(N, 3)`` to this frame."""
-        p = np.atleast_2d(np.asarray(xyz, dtype=np.float64))
-        if self.kind == "ecef":
-            return p.copy()
-        if self.kind == "local":
-            return self.tangent.from_ecef(p)
-        return self.projection.from_ecef(p)
-
-    # ----------------------------------------------------------------- rotations
-    def ecef_from_frame_rotation(self, points: ArrayLike) -> NDArray[np.float64]:
-        """``ecef_from_<frame axes at each point>`` ``(N, 3, 3)`` for points ``(N, 3)`` of this frame."""
-        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-        n = len(p)
-        if self.kind == "ecef":
-            return np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        if self.kind == "local":
-            return np.broadcast_to(self.tangent.ecef_from_local, (n, 3, 3)).copy()
-        proj = self.projection
-        g = proj.to_geodetic(p)
-        conv, _ = proj.factors(p)
-        enu_from_grid = np.swapaxes(grid_from_enu_rotation(conv), -1, -2)
-        return ecef_from_enu_rotation(g[:, 0], g[:, 1]) @ enu_from_grid
-
+__all__ = ["ExteriorOrientations", "FrameKind", "WorldFrame", "local_frame_for"]
 
 @dataclass(frozen=True)
 class ExteriorOrientations:
@@ -225,22 +128,3 @@ class ExteriorOrientations:
         c = self.centre.copy()
         c[:, 2] = map_height_from_true_height(c[:, 2], k, z_ground)
         return replace(self, centre=c)
-
-
-def _projection(crs: str | None, geoid: str | None) -> MapProjection:
-    return _projection_cached(crs, geoid)
-
-
-from functools import lru_cache  # noqa: E402
-
-
-@lru_cache(maxsize=64)
-def _projection_cached(crs: str | None, geoid: str | None) -> MapProjection:
-    return MapProjection(resolve_crs(crs), None if geoid is None else Geoid(geoid))
-
-
-def local_frame_for(points_ecef: ArrayLike) -> WorldFrame:
-    """A local ENU frame at the mean of ECEF points projected to the ellipsoid (h = 0)."""
-    p = np.atleast_2d(np.asarray(points_ecef, dtype=np.float64))
-    lat, lon, _ = ecef_to_geodetic(p.mean(axis=0, keepdims=True))
-    return WorldFrame.local(float(lat[0]), float(lon[0]), 0.0)

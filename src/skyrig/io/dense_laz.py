@@ -32,7 +32,7 @@ import pyproj
 
 from skyrig.dense.grid import DenseCloud
 from skyrig.errors import CRSError, InputFormatError
-from skyrig.io.dsm_cog import file_crs, frame_from_file_crs
+from skyrig.geodesy.statement import file_crs, frame_from_file_crs
 from skyrig.io.laz import read_las, write_las
 
 if TYPE_CHECKING:

@@ -43,13 +43,10 @@ from __future__ import annotations
 import json
 import logging
 import os
-import sqlite3
 import struct
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -58,8 +55,8 @@ from numpy.typing import NDArray
 
 from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.errors import CRSError, InputFormatError
-from skyrig.geodesy.crs import resolve_crs
-from skyrig.georef.eo import WorldFrame
+from skyrig.geodesy.frame import WorldFrame
+from skyrig.geodesy.statement import FileCRS, file_crs, frame_from_file_crs, vertical_crs_of_geoid
 from skyrig.io.laz import _publishable
 
 __all__ = [
@@ -85,175 +82,6 @@ DSM_BANDS = ("height", "support", "spread", "sigma", "filled")
 #: No-data value of the float bands (height, spread, sigma); GeoTIFF has one no-data value per file.
 DSM_NODATA = -32767.0
 _UNITS = {"height": "metre", "spread": "metre", "sigma": "metre", "support": "", "filled": ""}
-
-
-# --------------------------------------------------------------------------------------------------
-# CRS statement
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FileCRS:
-    """How a frame's coordinates are stated in a file.
-
-    Attributes
-    ----------
-    horizontal
-        The 2D horizontal CRS.
-    full
-        The complete 3D statement: a compound CRS (orthometric heights) or a 3D projected / geographic
-        CRS (ellipsoidal heights).
-    vertical_identified
-        True when the vertical CRS is one PROJ's database knows (an EPSG code), so ``full`` is a plain
-        ``horizontal + EPSG vertical`` compound that GeoTIFF GeoKeys can hold.
-    kind
-        ``"ellipsoidal"`` or ``"orthometric"``.
-    geoid
-        The frame's geoid grid as given, or None.
-    vertical_words
-        Human-readable vertical reference, e.g. ``"EGM96 height (EPSG:5773)"``.
-    """
-
-    horizontal: pyproj.CRS
-    full: pyproj.CRS
-    vertical_identified: bool
-    kind: str
-    geoid: str | None
-    vertical_words: str
-
-
-def _proj_db() -> Path:
-    return Path(pyproj.datadir.get_data_dir()) / "proj.db"
-
-
-@lru_cache(maxsize=64)
-def _vertical_code_of_grid(name: str) -> tuple[str, str] | None:
-    """(auth, code) of the vertical CRS that PROJ's database ties to a geoid grid file name."""
-    try:
-        con = sqlite3.connect(f"file:{_proj_db()}?mode=ro", uri=True)
-    except sqlite3.Error:  # pragma: no cover - PROJ without its database does not work at all
-        return None
-    try:
-        low = name.lower()
-        names = {low}
-        for row in con.execute(
-            "SELECT original_grid_name FROM grid_alternatives WHERE lower(original_grid_name)=? "
-            "OR lower(proj_grid_name)=? OR lower(old_proj_grid_name)=?", (low, low, low)):
-            names.add(row[0].lower())
-        for gname in sorted(names):
-            rows = con.execute(
-                "SELECT g.target_crs_auth_name, g.target_crs_code FROM grid_transformation g "
-                "JOIN vertical_crs v ON v.auth_name=g.target_crs_auth_name AND v.code=g.target_crs_code "
-                "WHERE lower(g.grid_name)=? AND g.deprecated=0 ORDER BY g.auth_name, g.code", (gname,)).fetchall()
-            if rows:
-                return rows[0][0], rows[0][1]
-        return None
-    finally:
-        con.close()
-
-
-def vertical_crs_of_geoid(geoid: str) -> pyproj.CRS | None:
-    """The vertical CRS of heights above a geoid grid, when PROJ's database identifies the grid.
-
-    The grid's file name (``egm96_15.gtx``, ``us_nga_egm96_15.tif``, ``fr_ign_RAF20.tif``...) is looked up
-    in PROJ's ``grid_alternatives`` and ``grid_transformation`` tables (``proj.db``).
-
-    Examples
-    --------
-    >>> vertical_crs_of_geoid("egm96_15.gtx").to_epsg()
-    5773
-    >>> vertical_crs_of_geoid("no_such_grid.tif") is None
-    True
-    """
-    code = _vertical_code_of_grid(Path(str(geoid)).name)
-    if code is None:
-        return None
-    return pyproj.CRS.from_authority(*code)
-
-
-def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
-    if crs.is_compound:
-        return crs.sub_crs_list[0]
-    if len(crs.axis_info) == 3:
-        return crs.to_2d()
-    return crs
-
-
-def file_crs(frame: WorldFrame) -> FileCRS:
-    """The CRS statement of a ``map`` frame for a file.
-
-    Raises
-    ------
-    CRSError
-        If the frame is not a ``map`` frame.
-    """
-    if frame.kind != "map" or frame.crs is None:
-        raise CRSError(f"outputs are written in a map frame (a CRS), not a {frame.kind} frame")
-    h = _horizontal(resolve_crs(frame.crs))
-    if frame.geoid is None:
-        full = h.to_3d()
-        ell = h.geodetic_crs.to_3d() if h.geodetic_crs is not None else None
-        code = ell.to_epsg() if ell is not None else None
-        words = "ellipsoidal heights" + (f" ({ell.name} ellipsoid, EPSG:{code})" if code else
-                                         f" ({ell.name})" if ell is not None else "")
-        return FileCRS(h, full, False, "ellipsoidal", None, words)
-    v = vertical_crs_of_geoid(frame.geoid)
-    gname = Path(str(frame.geoid)).name
-    if v is not None:
-        full = pyproj.crs.CompoundCRS(f"{h.name} + {v.name}", [h, v])
-        code = v.to_epsg()
-        words = f"orthometric heights, {v.name}" + (f" (EPSG:{code})" if code else "") + f", geoid grid {gname}"
-        return FileCRS(h, full, True, "orthometric", str(frame.geoid), words)
-    datum = pyproj.crs.Datum.from_json_dict({"type": "VerticalReferenceFrame", "name": f"geoid {gname}"})
-    v = pyproj.crs.VerticalCRS(name=f"height above geoid {gname}", datum=datum, geoid_model=gname)
-    full = pyproj.crs.CompoundCRS(f"{h.name} + {v.name}", [h, v])
-    return FileCRS(h, full, False, "orthometric", str(frame.geoid), f"orthometric heights, geoid grid {gname}")
-
-
-def _crs_spec(crs: pyproj.CRS) -> str:
-    code = crs.to_epsg(min_confidence=100)
-    return f"EPSG:{code}" if code is not None else crs.to_wkt()
-
-
-def frame_from_file_crs(crs: pyproj.CRS, geoid: str | None = None, kind: str | None = None) -> WorldFrame:
-    """A ``map`` frame from a CRS read from a file (the inverse of :func:`file_crs`).
-
-    Parameters
-    ----------
-    crs
-        The file's CRS: compound (orthometric), 3D (ellipsoidal) or 2D (then ``kind`` decides).
-    geoid
-        The geoid grid recorded in the file; without it, a compound CRS with an EPSG vertical CRS gets
-        the grid PROJ's database names for it, a custom vertical CRS its ``GEOIDMODEL``.
-    kind
-        ``"ellipsoidal"`` / ``"orthometric"`` as recorded in the file, if any.
-    """
-    h = _horizontal(crs)
-    if crs.is_compound or kind == "orthometric":
-        if not geoid and crs.is_compound:
-            v = crs.sub_crs_list[1]
-            geoid = (v.to_json_dict().get("geoid_model") or {}).get("name")
-            if geoid is None and v.to_epsg() is not None:
-                geoid = _grid_of_vertical(v.to_epsg())
-        if not geoid:
-            raise CRSError(f"the file states orthometric heights ({crs.name}) but no geoid grid for them")
-        return WorldFrame.map(_crs_spec(h), geoid)
-    if kind is None and len(crs.axis_info) < 3:
-        log.warning("%s: the file states no vertical reference; heights taken as ellipsoidal", crs.name)
-    return WorldFrame.map(_crs_spec(h))
-
-
-@lru_cache(maxsize=64)
-def _grid_of_vertical(code: int) -> str | None:
-    con = sqlite3.connect(f"file:{_proj_db()}?mode=ro", uri=True)
-    try:
-        row = con.execute(
-            "SELECT coalesce(a.proj_grid_name, g.grid_name) FROM grid_transformation g LEFT JOIN grid_alternatives a "
-            "ON a.original_grid_name=g.grid_name WHERE g.target_crs_auth_name='EPSG' AND g.target_crs_code=? "
-            "AND g.deprecated=0 ORDER BY g.code", (str(code),)).fetchone()
-        return None if row is None else row[0]
-    finally:
-        con.close()
 
 
 # --------------------------------------------------------------------------------------------------

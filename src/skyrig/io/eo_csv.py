@@ -45,6 +45,7 @@ from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.angles import check_plausible, normalize_unit
 from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
 from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
+from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta, write_table_meta
 
 MAGIC = "skyrig-eo"
 VERSION = 1
@@ -54,25 +55,27 @@ _OPTIONAL = ("time", "head", "exposure")
 
 def frame_from_header(crs: str, heights: str, geoid: str | None, path: PathLike, line: int) -> WorldFrame:
     """Build the :class:`WorldFrame` a file header describes (errors name file and line)."""
-    text = crs.strip()
     try:
-        if text.lower().startswith("local"):
-            parts = text.split()
+        if crs.strip().lower().startswith("local"):
+            parts = crs.split()
             if len(parts) != 4:
                 raise InputFormatError("expected 'local <lat_deg> <lon_deg> <h_m>'", path, line, "crs")
-            return WorldFrame.local(*(parse_float(p, path, line, "crs") for p in parts[1:]))
-        if text.upper() in ("EPSG:4978", "ECEF"):
-            return WorldFrame.ecef()
-        if heights not in ("ellipsoidal", "orthometric"):
-            raise InputFormatError(f"heights must be 'ellipsoidal' or 'orthometric', not {heights!r}", path, line, "heights")
-        if heights == "orthometric" and not geoid:
-            raise InputFormatError("orthometric heights need a '# geoid:' header line", path, line, "geoid")
-        if geoid and not Path(geoid).is_absolute() and ("/" in geoid or "\\" in geoid):
-            geoid = str((Path(path).parent / geoid).resolve())
-        frame = WorldFrame.map(text, geoid if heights == "orthometric" else None)
+            for p_ in parts[1:]:
+                parse_float(p_, path, line, "crs")
+        elif crs.strip().upper() not in ("EPSG:4978", "ECEF"):
+            if heights not in ("ellipsoidal", "orthometric"):
+                raise InputFormatError(f"heights must be 'ellipsoidal' or 'orthometric', not {heights!r}", path, line,
+                                       "heights")
+            if heights == "orthometric" and not geoid:
+                raise InputFormatError("orthometric heights need a '# geoid:' header line", path, line, "geoid")
+        frame = WorldFrame.from_fields(crs, heights, geoid, base=Path(path).parent)
         if frame.geoid:
             frame.projection  # noqa: B018  (validates the grid now)
         return frame
+    except ValueError as exc:
+        if isinstance(exc, InputFormatError):
+            raise
+        raise InputFormatError(str(exc), path, line, "crs") from None
     except CRSError as exc:
         raise InputFormatError(str(exc), path, line, "crs" if "grid" not in str(exc) else "geoid") from None
 
@@ -100,23 +103,40 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
     text = read_text(path)
     lines = text.splitlines()
     meta, start = _parse_header(path, lines)
+    frame = None
+    if not meta:  # no '#' header: the statement is in the side-car NAME.csv.json
+        side = read_table_meta(path)
+        if side is None:
+            raise InputFormatError(f"first line must be '# {MAGIC} {VERSION}', or the table needs its side-car "
+                                   f"{meta_path(path).name}", path, 1)
+        where = str(meta_path(path))
+        meta = {"_magic": (1, str(side.get("table", ""))), **{k: (0, str(side[k])) for k in ("angles", "convention")
+                                                               if k in side}}
+        frame = frame_of_meta(side, path)
+        if frame is None:
+            raise InputFormatError("the side-car states no frame", where, None, "frame")
+        path_hdr = where
+    else:
+        path_hdr = path
     magic = meta.get("_magic", (1, ""))[1].split()
     if len(magic) != 2 or magic[0] != MAGIC:
-        raise InputFormatError(f"first line must be '# {MAGIC} {VERSION}'", path, 1)
+        raise InputFormatError(f"first line must be '# {MAGIC} {VERSION}'", path_hdr, 1)
     if magic[1] != str(VERSION):
-        raise InputFormatError(f"unsupported {MAGIC} version {magic[1]!r} (this skyrig reads {VERSION})", path, 1)
+        raise InputFormatError(f"unsupported {MAGIC} version {magic[1]!r} (this skyrig reads {VERSION})", path_hdr, 1)
     for key in ("crs", "angles", "convention"):
-        if key not in meta:
-            raise InputFormatError("missing header line", path, None, key)
+        if key not in meta and not (key == "crs" and frame is not None):
+            raise InputFormatError("missing header line", path_hdr, None, key)
     try:
         unit = normalize_unit(meta["angles"][1])
     except UnitError as exc:
-        raise InputFormatError(str(exc), path, meta["angles"][0], "angles") from None
+        raise InputFormatError(str(exc), path_hdr, meta["angles"][0] or None, "angles") from None
     conv = meta["convention"][1].lower()
     if conv not in _ANGLES:
-        raise InputFormatError(f"convention must be opk, pok or ypr, not {conv!r}", path, meta["convention"][0], "convention")
-    heights = meta.get("heights", (0, "ellipsoidal"))
-    frame = frame_from_header(meta["crs"][1], heights[1], meta.get("geoid", (0, None))[1], path, meta["crs"][0])
+        raise InputFormatError(f"convention must be opk, pok or ypr, not {conv!r}", path_hdr,
+                               meta["convention"][0] or None, "convention")
+    if frame is None:
+        heights = meta.get("heights", (0, "ellipsoidal"))
+        frame = frame_from_header(meta["crs"][1], heights[1], meta.get("geoid", (0, None))[1], path, meta["crs"][0])
     if start >= len(lines):
         raise InputFormatError("no column header row", path, len(lines))
     reader = csv.reader(io.StringIO("\n".join(lines[start:])))
@@ -178,19 +198,18 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
     )
 
 
-def write_eo_csv(eo: ExteriorOrientations, path: PathLike, unit: str = "deg", convention: str = "opk") -> None:
-    """Write exterior orientations as a ``skyrig-eo`` CSV (atomically)."""
+def write_eo_csv(eo: ExteriorOrientations, path: PathLike, unit: str = "deg", convention: str = "opk",
+                 sidecar: bool = True) -> None:
+    """Write exterior orientations as a ``skyrig-eo`` CSV (atomically).
+
+    ``sidecar`` (default): a plain CSV that GDAL reads as it is, the header keys in ``NAME.csv.json`` with GDAL's
+    ``NAME.csvt`` / ``NAME.prj`` (:mod:`skyrig.io.table_meta`); False: the ``#`` header lines in the file.
+    """
     unit = normalize_unit(unit)
     convention = convention.lower()
     if convention not in _ANGLES:
         raise ValueError(f"convention must be opk, pok or ypr, not {convention!r}")
     f = eo.frame
-    if f.kind == "ecef":
-        crs, heights = "EPSG:4978", "ellipsoidal"
-    elif f.kind == "local":
-        crs, heights = "local %.12f %.12f %.6f" % f.origin, "ellipsoidal"  # type: ignore[str-format]
-    else:
-        crs, heights = str(f.crs), ("ellipsoidal" if f.geoid is None else "orthometric")
     if convention == "ypr":
         a = ypr_from_rotation(f, eo.centre, eo.rotation, unit=unit)
     else:
@@ -200,10 +219,10 @@ def write_eo_csv(eo: ExteriorOrientations, path: PathLike, unit: str = "deg", co
     cols = ["image", "camera", "x", "y", "z", *_ANGLES[convention]]
     opt = [c for c, v in (("time", eo.time_s), ("head", eo.head), ("exposure", eo.exposure)) if v is not None]
     with atomic_write(path, newline="") as fh:
-        fh.write(f"# {MAGIC} {VERSION}\n# crs: {crs}\n# heights: {heights}\n")
-        if f.kind == "map" and f.geoid:
-            fh.write(f"# geoid: {f.geoid}\n")
-        fh.write(f"# frame: {f.describe()}\n# angles: {unit}\n# convention: {convention}\n")
+        if not sidecar:
+            fh.write(f"# {MAGIC} {VERSION}\n")
+            fh.write("".join(f"# {k}: {v}\n" for k, v in f.fields().items()))
+            fh.write(f"# frame: {f.describe()}\n# angles: {unit}\n# convention: {convention}\n")
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(cols + opt)
         for i in range(len(eo)):
@@ -216,3 +235,24 @@ def write_eo_csv(eo: ExteriorOrientations, path: PathLike, unit: str = "deg", co
             if eo.exposure is not None:
                 row.append(str(int(eo.exposure[i])))
             w.writerow(row)
+    if not sidecar:
+        stale = meta_path(path)
+        if stale.exists():
+            stale.unlink()
+        return
+    xyu = "degree" if geographic else "metre"
+    axes = ("longitude", "latitude") if geographic else ("x (grid east)", "y (grid north)")
+    au = {"deg": "degree", "rad": "radian", "gon": "gon"}[unit]
+    columns: dict[str, dict[str, str]] = {
+        "image": {"type": "String"}, "camera": {"type": "String"},
+        "x": {"type": "Point(X)", "unit": xyu, "axis": axes[0] if f.kind == "map" else "x"},
+        "y": {"type": "Point(Y)", "unit": xyu, "axis": axes[1] if f.kind == "map" else "y"},
+        "z": {"type": "Point(Z)", "unit": "metre", "axis": f"height ({f.heights})" if f.kind == "map" else "z"},
+        **{c: {"type": "Real", "unit": au} for c in _ANGLES[convention]},
+        **{c: t for c, t in (("time", {"type": "Real", "unit": "second"}), ("head", {"type": "String"}),
+                               ("exposure", {"type": "Integer"})) if c in opt},
+    }
+    write_table_meta(path, f, columns, f"{MAGIC} {VERSION}", {
+        "angles": unit, "convention": convention,
+        "rotation": "frame_from_camera; map frames: grid axes (grid east, grid north, ellipsoid normal up) at "
+                    "each projection centre"})

@@ -1,7 +1,9 @@
 """Plain CSV files of ground points (``name,x,y,z``) and image measurements (``point,image,column,row``).
 
 Both have an optional ``#`` comment header; the ground-point file may carry ``# crs:``, ``# heights:`` and
-``# geoid:`` lines like the EO CSV (``docs/formats/eo_csv.md``).  Pixel coordinates: column right, row down,
+``# geoid:`` lines like the EO CSV (``docs/formats/eo_csv.md``), or, as skyrig writes it, no ``#`` line and the
+frame in the side-car ``NAME.csv.json`` next to GDAL's ``NAME.csvt`` / ``NAME.prj`` (:mod:`skyrig.io.table_meta`),
+so that GDAL reads the table as 3D points in its CRS.  Pixel coordinates: column right, row down,
 origin at the centre of the top-left pixel.
 """
 
@@ -16,10 +18,12 @@ from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
+from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta, write_table_meta
 
 
 #: Extra columns skyrig writes next to ground points (read back and ignored).
-POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz"]
+POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz", "role", "rays", "given_x", "given_y",
+                "given_z", "vx", "vy", "vz"]
 
 
 def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tuple[dict, list[int], dict[str, list[str]]]:
@@ -60,9 +64,13 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None) -> GroundPo
     from skyrig.io.eo_csv import frame_from_header
 
     meta, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
+    if frame is None and "crs" not in meta:
+        side = read_table_meta(path)
+        frame = None if side is None else frame_of_meta(side, path)
+        if frame is None:
+            raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1,
+                                   "crs")
     if frame is None:
-        if "crs" not in meta:
-            raise InputFormatError("no '# crs:' header line and no CRS given", path, 1, "crs")
         frame = frame_from_header(meta["crs"][1], meta.get("heights", (0, "ellipsoidal"))[1],
                                   meta.get("geoid", (0, None))[1], path, meta["crs"][0])
     xyz = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in "xyz"] for i in range(len(ln))]).reshape(-1, 3)
@@ -103,23 +111,35 @@ def write_measurements_csv(
             w.writerow(row)
 
 
-def write_points_csv(path: PathLike, points: GroundPoints, extra: dict[str, np.ndarray] | None = None) -> None:
-    """Write ``name,x,y,z`` with the frame in the header (+ extra numeric columns)."""
+def write_points_csv(path: PathLike, points: GroundPoints, extra: dict[str, np.ndarray] | None = None,
+                     sidecar: bool = True) -> None:
+    """Write ``name,x,y,z`` (+ extra columns: numbers, or strings for ``role``) with the frame in the side-car
+    ``NAME.csv.json`` and GDAL's ``NAME.csvt`` / ``NAME.prj`` (``sidecar``, default) or in ``#`` header lines."""
     f = points.frame
     geographic = f.kind == "map" and f.projection.crs.is_geographic
     fmt = "%.10f" if geographic else "%.4f"
     extra = extra or {}
+    text = {k for k, v in extra.items() if np.asarray(v).dtype.kind in "USO"}
     with atomic_write(path, newline="") as fh:
-        if f.kind == "map":
-            fh.write(f"# crs: {f.crs}\n# heights: {'ellipsoidal' if f.geoid is None else 'orthometric'}\n")
-            if f.geoid:
-                fh.write(f"# geoid: {f.geoid}\n")
-        elif f.kind == "ecef":
-            fh.write("# crs: EPSG:4978\n")
-        else:
-            fh.write("# crs: local %.12f %.12f %.6f\n" % f.origin)  # type: ignore[str-format]
+        if not sidecar:
+            fh.write("".join(f"# {k}: {v}\n" for k, v in f.fields().items()))
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(["name", "x", "y", "z", *extra])
         for i in range(len(points)):
             w.writerow([points.name[i], fmt % points.xyz[i, 0], fmt % points.xyz[i, 1], "%.4f" % points.xyz[i, 2],
-                        *("%.4f" % extra[k][i] for k in extra)])
+                        *(str(extra[k][i]) if k in text else "%.4f" % extra[k][i] for k in extra)])
+    if not sidecar:
+        stale = meta_path(path)
+        if stale.exists():
+            stale.unlink()
+        return
+    xyu = "degree" if geographic else "metre"
+    columns: dict[str, dict[str, str]] = {
+        "name": {"type": "String"}, "x": {"type": "Point(X)", "unit": xyu}, "y": {"type": "Point(Y)", "unit": xyu},
+        "z": {"type": "Point(Z)", "unit": "metre", "axis": f"height ({f.heights})" if f.kind == "map" else "z"}}
+    for k in extra:
+        columns[k] = ({"type": "String"} if k in text else {"type": "Real"} if k in ("n_rays", "rays")
+                      else {"type": "Real", "unit": "pixel" if k in ("rms_px", "image_column", "image_row") else "metre"})
+    write_table_meta(path, f, columns, "skyrig-points 1", {
+        "sigmas": "sx, sy, sz: a-posteriori standard deviations along the frame's axes (map frames: grid east, "
+                  "grid north, up at the point)" if {"sx", "sy", "sz"} & set(extra) else None})

@@ -1,0 +1,126 @@
+"""Side-cars of skyrig's CSV tables: the table stays a plain CSV (one header row, then data) that GDAL's CSV
+driver (QGIS's default) reads as it is, and what the old ``#`` header lines said moves next to it.
+
+For ``NAME.csv`` skyrig writes
+
+``NAME.csv.json``
+    skyrig's own statement, read back by skyrig's readers::
+
+        {"format": "skyrig-table", "version": 1, "table": "skyrig-eo 1",
+         "frame": "EPSG:25832; heights: ellipsoidal",           (WorldFrame text form)
+         "crs_wkt": "...",                                        (horizontal + vertical CRS, WKT2)
+         "vertical": "ellipsoidal heights (ETRS89 ellipsoid, EPSG:4937)",
+         "columns": {"x": {"type": "Real", "unit": "metre", "axis": "easting"}, ...},
+         ... table keys (angles, convention, ...)}
+
+``NAME.csvt``
+    GDAL's column types (``"String"``, ``"Real"``, ``"Integer"``; ``"Point(X)"``, ``"Point(Y)"``,
+    ``"Point(Z)"`` for the coordinate columns so that GDAL builds 3D points);
+``NAME.prj``
+    the CRS as WKT (GeoCSV convention GDAL reads): a compound CRS (horizontal + vertical CRS from the EPSG
+    registry) for orthometric heights PROJ identifies, else the 3D CRS (ellipsoidal heights) or a compound
+    CRS with a custom vertical CRS naming the geoid.  No ``.prj`` for a local tangent frame (no CRS PROJ
+    can state; the frame is in the JSON).
+
+Every file is written atomically; the JSON last, so a table with a JSON next to it is complete.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+from skyrig.errors import InputFormatError
+from skyrig.geodesy.frame import WorldFrame
+from skyrig.io._text import PathLike, atomic_write, read_text
+
+__all__ = ["FORMAT", "meta_path", "write_table_meta", "read_table_meta", "frame_of_meta", "crs_statement"]
+
+FORMAT = "skyrig-table"
+VERSION = 1
+
+
+def meta_path(path: PathLike) -> Path:
+    """``NAME.csv.json`` of a table ``NAME.csv``."""
+    p = Path(path)
+    return p.with_name(p.name + ".json")
+
+
+def crs_statement(frame: WorldFrame) -> tuple[str | None, str]:
+    """``(wkt or None, words)``: the CRS of a frame for files (WKT2 of the compound / 3D CRS) and its vertical
+    reference in words; None for a local frame."""
+    if frame.kind == "local":
+        return None, "local ENU frame: z up from the tangent plane at the origin"
+    if frame.kind == "ecef":
+        from skyrig.geodesy.crs import resolve_crs
+
+        return resolve_crs("EPSG:4978").to_wkt(), "geocentric (ECEF) coordinates"
+    from skyrig.geodesy.statement import file_crs
+
+    fc = file_crs(frame)
+    return fc.full.to_wkt(), fc.vertical_words
+
+
+def write_table_meta(path: PathLike, frame: WorldFrame | None, columns: Mapping[str, Mapping[str, str]],
+                     table: str, extra: Mapping[str, Any] | None = None) -> None:
+    """Write the side-cars of the CSV table ``path`` (module docstring).
+
+    ``columns``: ``{name: {"type": "String" | "Real" | "Integer" | "Point(X)" ..., "unit": ..., ...}}`` in the
+    order of the CSV's columns; ``table``: the table's format and version (``"skyrig-eo 1"``).
+    """
+    p = Path(path)
+    with atomic_write(p.with_suffix(".csvt"), newline="") as fh:
+        fh.write(",".join(f'"{c.get("type", "String")}"' for c in columns.values()) + "\n")
+    wkt, words = (None, "") if frame is None else crs_statement(frame)
+    prj = p.with_suffix(".prj")
+    if wkt is not None:
+        with atomic_write(prj) as fh:
+            fh.write(wkt + "\n")
+    elif prj.exists():
+        prj.unlink()
+    meta: dict[str, Any] = {"format": FORMAT, "version": VERSION, "table": table}
+    if frame is not None:
+        meta.update(frame=frame.to_text(), frame_words=frame.describe(), crs_wkt=wkt, vertical=words)
+    meta.update(extra or {})
+    meta["columns"] = {k: dict(v) for k, v in columns.items()}
+    with atomic_write(meta_path(p)) as fh:
+        json.dump(meta, fh, indent=1)
+        fh.write("\n")
+
+
+def read_table_meta(path: PathLike) -> dict[str, Any] | None:
+    """The ``NAME.csv.json`` side-car of ``path`` as a dict, or None when there is none.
+
+    Raises :class:`InputFormatError` (naming the side-car) when it is not a skyrig table statement.
+    """
+    m = meta_path(path)
+    if not m.is_file():
+        return None
+    try:
+        meta = json.loads(read_text(m))
+    except json.JSONDecodeError as e:
+        raise InputFormatError(f"not valid JSON ({e.msg})", m, e.lineno) from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise InputFormatError(f"not a {FORMAT} side-car (need \"format\": \"{FORMAT}\")", m, None, "format")
+    if meta.get("version") != VERSION:
+        raise InputFormatError(f"unsupported version {meta.get('version')!r} (this skyrig reads {VERSION})", m, None,
+                               "version")
+    return meta
+
+
+def frame_of_meta(meta: Mapping[str, Any], path: PathLike) -> WorldFrame | None:
+    """The :class:`WorldFrame` a side-car states (None when it states none); errors name the side-car."""
+    from skyrig.errors import CRSError
+
+    text = meta.get("frame")
+    if text is None:
+        return None
+    m = meta_path(path)
+    try:
+        frame = WorldFrame.from_text(str(text), base=Path(path).parent)
+        if frame.kind == "map" and frame.geoid:
+            frame.projection  # noqa: B018  (validates the grid now)
+        return frame
+    except (CRSError, ValueError) as exc:
+        raise InputFormatError(str(exc), m, None, "frame") from None
