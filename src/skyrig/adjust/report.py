@@ -80,7 +80,8 @@ def distance_table(result: AdjustmentResult) -> dict[str, Any]:
 
 def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
                       limits_m: tuple[float, float, float] | None = None,
-                      check_xyz: NDArray[np.float64] | None = None) -> dict[str, Any]:
+                      check_xyz: NDArray[np.float64] | None = None,
+                      frames: tuple[Any, Any] | None = None) -> dict[str, Any]:
     """All report tables of ``result`` (module docstring).
 
     Parameters
@@ -91,6 +92,10 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
         Maximum allowed |V| per axis for control/check tables.
     check_xyz
         Optional ``(K, 3)`` given coordinates for the block's control rows (default ``control_xyz``).
+    frames
+        ``(block_frame, project_frame)`` (:class:`skyrig.geodesy.WorldFrame`): the control / check tables are
+        then adjusted minus given in the project CRS (grid east, grid north, height as stated), and the summary
+        states the project frame (``frame``, ``vertical``) and the frame the adjustment ran in (``adjusted_in``).
     """
     b, b0 = result.block, result.initial
     info = result.info
@@ -105,7 +110,18 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
     }
     given = b0.control_xyz if check_xyz is None else np.asarray(check_xyz, float)
     cp = b0.control_point
-    v = b.point_xyz[cp] - given  # type: ignore[index]
+    if frames is not None and len(cp):  # type: ignore[arg-type]
+        f, to = frames
+        v = f.points_to(b.point_xyz[cp], to) - f.points_to(given, to)  # type: ignore[index]
+    else:
+        v = b.point_xyz[cp] - given  # type: ignore[index]
+    if frames is not None:
+        from skyrig.geodesy.statement import crs_statement
+
+        f, to = frames
+        out["summary"]["adjusted_in"] = f.to_text()
+        out["summary"]["frame"] = to.to_text()
+        out["summary"]["vertical"] = crs_statement(to)[1]
     chk = b0.control_check
     out["control"] = point_table(b.point_name[cp[~chk]], v[~chk], gsd_m, limits_m)  # type: ignore[index]
     out["check"] = point_table(b.point_name[cp[chk]], v[chk], gsd_m, limits_m)  # type: ignore[index]

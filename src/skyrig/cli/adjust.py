@@ -1,14 +1,16 @@
 """``skyrig adjust BLOCK --preset NAME -o OUTDIR``: bundle adjustment / integrated sensor orientation.
 
-Writes into OUTDIR: the adjusted block (``adjusted.json`` + tables, same format as the input), the
-adjusted exterior orientations (``eo.csv``, skyrig EO CSV) and points (``points.csv``) when the block's
-frame is a local ENU frame (``local ENU at lat .. lon .. h ..``), and ``report.json`` / ``report.html``
-/ ``residuals_*.png``.  Also :func:`adjust_demo_project` for ``make demo``.
+Writes into OUTDIR: the adjusted block (``adjusted.json`` + tables, same format as the input, in the block's
+tangential frame), and in the project CRS (``--crs``; default the block file's ``crs``, the frame of its control
+points or EO; else the UTM zone of the block) with the vertical reference stated: the adjusted exterior
+orientations (``eo.csv``), points (``points.csv``), control / check points with their residuals
+(``ground_control.csv``), all as GDAL-readable CSVs with side-cars, the same as GeoPackage layers
+(``adjusted.gpkg``, :mod:`skyrig.io.adjust_outputs`), and ``report.json`` / ``report.html`` (the
+self-contained report of :mod:`skyrig.report`; control / check tables in the project CRS).  Also :func:`adjust_demo_project` for ``make demo``.
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
@@ -22,45 +24,55 @@ from skyrig.georef.eo import WorldFrame
 
 __all__ = ["command", "adjust_demo_project", "write_outputs"]
 
-_LOCAL = re.compile(r"local ENU at lat ([-\d.eE+]+) lon ([-\d.eE+]+) h ([-\d.eE+]+)")
-
 
 def _frame(desc: str) -> WorldFrame | None:
-    m = _LOCAL.search(desc or "")
-    return None if m is None else WorldFrame.local(float(m.group(1)), float(m.group(2)), float(m.group(3)))
+    """The block's frame from its text (None for a free-text description)."""
+    from skyrig.errors import CRSError
+
+    try:
+        return WorldFrame.from_text(desc or "")
+    except (CRSError, ValueError):
+        return None
+
+
+def default_project(frame: WorldFrame) -> WorldFrame:
+    """The project frame when none is given: a map frame as it is, else the UTM zone (WGS84, ellipsoidal heights)
+    at the frame's origin (local) or at the ellipsoid point under its origin (ECEF: lat 0, lon 0)."""
+    from skyrig.geodesy.statement import utm_frame
+
+    if frame.kind == "map":
+        return frame
+    if frame.kind == "local":
+        return utm_frame(frame.origin[0], frame.origin[1])  # type: ignore[index]
+    return utm_frame(0.0, 0.0)
 
 
 def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, title: str,
                   gsd_m: float | None = None, frame: WorldFrame | None = None,
-                  to: WorldFrame | None = None) -> dict[str, Path]:
-    """Adjusted block, EO CSV, points CSV (when the frame is known) and the report; returns the paths."""
-    from skyrig.adjust.frames import eo_from_block, points_to_frame
-    from skyrig.georef.observations import GroundPoints
+                  to: WorldFrame | None = None, inputs: Any = (), options: dict[str, Any] | None = None
+                  ) -> dict[str, Path]:
+    """Adjusted block, then in the project frame ``to`` (default :func:`default_project` of the block's frame)
+    the EO, points and ground-control CSVs and GeoPackage (:func:`skyrig.io.adjust_outputs.write_adjusted_tables`,
+    when the block's frame is known) and the report; returns the paths."""
+    from skyrig.camera.frame import FrameCamera
+    from skyrig.io.adjust_outputs import write_adjusted_tables
     from skyrig.io.block_file import write_block
-    from skyrig.io.eo_csv import write_eo_csv
-    from skyrig.io.points_csv import write_points_csv
-    from skyrig.io.report_html import write_report
+    from skyrig.report import write_adjustment_report
 
     d = Path(outdir)
     d.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}
     b = result.block
-    from skyrig.camera.frame import FrameCamera
-
-    if all(isinstance(c, FrameCamera) for c in b.cameras):
-        write_block(d / "adjusted.json", b, config)
-        out["block"] = d / "adjusted.json"
     frame = frame or _frame(b.frame)
-    if frame is not None:
-        eo = eo_from_block(b, frame, to)
-        write_eo_csv(eo, d / "eo.csv")
-        xyz = b.point_xyz if to is None else points_to_frame(b.point_xyz, frame, to)
-        ps = result.point_sigma
-        extra = {} if ps is None else {"sx": ps[:, 0], "sy": ps[:, 1], "sz": ps[:, 2]}
-        write_points_csv(d / "points.csv", GroundPoints(b.point_name, xyz, to or frame), extra)
-        out["eo"], out["points"] = d / "eo.csv", d / "points.csv"
-    rep = adjustment_report(result, gsd_m=gsd_m)
-    out.update(write_report(d, result, rep, title))
+    project = None if frame is None else (to or default_project(frame))
+    if all(isinstance(c, FrameCamera) for c in b.cameras):
+        write_block(d / "adjusted.json", b, config, crs=project)
+        out["block"] = d / "adjusted.json"
+    if frame is not None and project is not None:
+        out.update(write_adjusted_tables(d, result, frame, project))
+    rep = adjustment_report(result, gsd_m=gsd_m, frames=None if project is None else (frame, project))
+    out.update(write_adjustment_report(d, result, rep, title, frame=frame, map_frame=project, inputs=inputs,
+                                       options=options or {}))
     return out
 
 
@@ -71,11 +83,17 @@ def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, tit
                    "free; a field the preset decides overrides the file, with a warning); default: the section alone.")
 @click.option("--gsd", type=float, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--crs", "crs", default=None,
+              help="Project CRS of the outputs (e.g. EPSG:25832; a compound CRS such as EPSG:25832+5773 gives "
+                   "orthometric heights through its geoid). Default: the block file's 'crs' (skyrig block: the "
+                   "control points' CRS), else the UTM zone of the block.")
+@click.option("--geoid", default=None, help="With --crs: geoid grid (path or PROJ name) for orthometric heights.")
 @click.option("--keep-failed", is_flag=True, default=False,
               help="Write the outputs even when the adjustment failed (no convergence, sigma0 not finite, no "
                    "redundancy, a single image, data snooping at its cap or rejecting most of a GNSS/IMU group); "
                    "the exit status is non-zero either way.")
-def command(block_path: str, preset: str | None, gsd: float | None, outdir: str, keep_failed: bool) -> None:
+def command(block_path: str, preset: str | None, gsd: float | None, outdir: str, crs: str | None, geoid: str | None,
+            keep_failed: bool) -> None:
     """Adjust a block file (docs/formats/block.md) and write the adjusted EO, points and report.
 
     Exits with status 1 and the reasons in words when the adjustment failed; nothing is written then
@@ -87,6 +105,20 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
 
     bf = read_block(block_path)
     block, cfg = bf.block, bf.config
+    project = bf.crs
+    if crs is not None:
+        from skyrig.errors import CRSError
+        from skyrig.geodesy.statement import project_frame
+
+        try:
+            project = project_frame(crs, geoid)
+        except CRSError as e:
+            raise click.BadParameter(str(e), param_hint="--crs") from None
+    elif geoid is not None:
+        raise click.UsageError("--geoid goes with --crs")
+    if bf.frame is None:
+        click.echo(f"warning: {block_path}: the block's frame {block.frame!r} is not a frame skyrig knows; EO and "
+                   "points are not written (only the adjusted block and the report)", err=True)
     title = f"skyrig adjust {Path(block_path).name}"
     conflicts: list[str] = []
     if preset:
@@ -110,7 +142,11 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
     res.warnings[:0] = [f"the adjustment FAILED: {f}" for f in res.failures] + conflicts
     if not res.ok:
         title += " - FAILED"
-    paths = write_outputs(outdir, res, cfg, title, gsd) if res.ok or keep_failed else {}
+    from skyrig.report import block_file_inputs
+
+    opts = dict(block=block_path, preset=preset, gsd=gsd, crs=crs, geoid=geoid, keep_failed=keep_failed)
+    paths = write_outputs(outdir, res, cfg, title, gsd, bf.frame, project, inputs=block_file_inputs(block_path),
+                          options=opts) if res.ok or keep_failed else {}
     click.echo(f"sigma0 {res.sigma0:.3f}, {res.info.iterations} iterations ({res.info.message}), "
                f"{len(res.rejected)} rejected; "
                + (f"wrote {', '.join(str(p) for p in paths.values())}" if paths else "no outputs written"))

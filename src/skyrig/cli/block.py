@@ -10,7 +10,8 @@ Two ways in:
 
 Measurements (``--measurements``, repeatable: tie points from ``skyrig match``, control point
 measurements) in pixels; ground points (``--control``, ``--check``) with their CRS in the file header.
-``--free`` names the system-calibration groups the block's adjustment section sets free (``skyrig adjust
+``--crs`` (default: the control points' CRS, else the EO's) is the project CRS recorded in the block file, in
+which ``skyrig adjust`` writes the results.  ``--free`` names the system-calibration groups the block's adjustment section sets free (``skyrig adjust
 --preset`` merges its variant with that section: the groups freed here stay free).  The file is written atomically.
 """
 
@@ -59,11 +60,16 @@ def _triple(text: str, what: str) -> tuple[float, float, float]:
               help="IMU attitude sigma roll,pitch,yaw (degrees) in rig mode; about the camera axes in image mode.")
 @click.option("--control-sigma", default="0.02", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--free", "free", default="", help=f"Comma-separated groups to estimate: {', '.join(_GROUPS)}.")
+@click.option("--crs", "crs", default=None,
+              help="Project CRS the adjusted results are written in (recorded in the block file); a compound CRS "
+                   "(e.g. EPSG:25832+5773) gives orthometric heights through the geoid PROJ ties to it. Default: the "
+                   "control points' CRS and heights, else the EO file's (image mode).")
+@click.option("--geoid", default=None, help="With --crs: geoid grid (path or PROJ name) for orthometric heights.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file (.json) to write.")
 def command(trajectory: str | None, events: str | None, rig_path: str | None, eo_path: str | None,
             camera_paths: tuple[str, ...], meas_paths: tuple[str, ...], control_path: str | None,
             check_path: str | None, sigma_px: float, gnss_sigma: str, imu_sigma_deg: str, control_sigma: str,
-            free: str, output: str) -> None:
+            free: str, crs: str | None, geoid: str | None, output: str) -> None:
     """Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."""
     from skyrig.adjust import AdjustConfig
     from skyrig.cli._common import load_measurements
@@ -81,6 +87,17 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
     gs = _triple(gnss_sigma, "--gnss-sigma")
     imu = tuple(np.radians(_triple(imu_sigma_deg, "--imu-sigma-deg")))
     cs = _triple(control_sigma, "--control-sigma")
+    project = None
+    if crs is not None:
+        from skyrig.errors import CRSError
+        from skyrig.geodesy.statement import project_frame
+
+        try:
+            project = project_frame(crs, geoid)
+        except CRSError as e:
+            raise click.BadParameter(str(e), param_hint="--crs") from None
+    elif geoid is not None:
+        raise click.UsageError("--geoid goes with --crs")
     groups = [g.strip() for g in free.split(",") if g.strip()]
     unknown = [g for g in groups if g not in _GROUPS]
     if unknown:
@@ -136,8 +153,14 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
     modes.update({_GROUPS[g]: "free" for g in groups})
     cfg = AdjustConfig(**modes)  # type: ignore[arg-type]
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    write_block(output, block, cfg)
+    if project is None and control is not None and control.frame.kind == "map":
+        project = control.frame
+    if project is None and not rig_mode and eo.frame.kind == "map":
+        project = eo.frame
+    write_block(output, block, cfg, crs=project)
     click.echo(f"wrote {output}: {block.n_stations} stations, {block.n_images} images, {block.n_points} points, "
                f"{block.n_observations} image observations, {len(block.control_point)} ground points "
                f"({int(np.sum(block.control_check))} check), {len(block.gnss_station)} GNSS, "
-               f"{len(block.imu_station)} IMU; frame {frame.describe()}")
+               f"{len(block.imu_station)} IMU; frame {frame.describe()}; results in "
+               + (project.describe() if project is not None else "the UTM zone of the block (no --crs, no map CRS in "
+                  "the inputs)"))

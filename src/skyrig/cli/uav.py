@@ -2,8 +2,10 @@
 and the images' own EXIF GPS / DJI gimbal metadata (:func:`skyrig.pipeline.uav.adjust_uav`).
 
 Images come from ``PROJECT/images`` if it exists, else PROJECT (or ``--images``); tie points from
-``PROJECT/match/tie_points.csv`` (or ``--match``).  Writes ``eo.csv`` (local ENU frame of the block),
-``points.csv``, ``report.json``, ``report.html`` and residual plots to ``PROJECT/adjust-uav`` (or ``--out``).
+``PROJECT/match/tie_points.csv`` (or ``--match``).  Writes ``eo.csv``, ``points.csv`` and ``adjusted.gpkg`` in the
+project CRS (``--crs``; default the WGS84 UTM zone of the images' GNSS, ellipsoidal heights; GDAL-readable CSVs with
+side-cars, :mod:`skyrig.io.adjust_outputs`), ``report.json``, ``report.html`` and residual plots to
+``PROJECT/adjust-uav`` (or ``--out``).
 
 A run whose adjustment cannot be trusted (no convergence, sigma0 not finite, no redundancy, or any other failure
 the adjustment states) exits with status 2 and the reason; its outputs are then not published (a previous run's
@@ -50,6 +52,9 @@ __all__ = ["command"]
               help="pycolmap comparison: SIFT on images downscaled to this.")
 @click.option("--pycolmap-mapper", type=click.Choice(["incremental", "global"]), default="incremental",
               show_default=True, help="pycolmap comparison: COLMAP incremental or GLOMAP global mapper.")
+@click.option("--crs", "crs", default=None,
+              help="Project CRS of the outputs (a compound CRS such as EPSG:32630+5773 gives orthometric heights "
+                   "through its geoid); default: the UTM zone of the images' GNSS, ellipsoidal heights.")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False),
               help="JSON file of UavConfig options (overrides the options above).")
 @click.option("--keep-failed", is_flag=True,
@@ -57,7 +62,7 @@ __all__ = ["command"]
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: tuple[float, float, float], attitude_sigma: float, altitude: str, geoid: str | None,
             focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
-            pycolmap_mapper: str, config_path: str | None, keep_failed: bool) -> None:
+            pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool) -> None:
     """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."""
     from skyrig.pipeline.uav import UavConfig, adjust_uav
 
@@ -80,10 +85,24 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         except json.JSONDecodeError as exc:
             raise InputFormatError(f"not JSON ({exc.msg})", config_path, exc.lineno) from None
     cfg = UavConfig.from_dict(kw, str(config_path or "options"))
+    if crs is not None:
+        from skyrig.errors import CRSError
+        from skyrig.geodesy.statement import project_frame
+
+        try:
+            project_frame(crs)
+        except CRSError as e:
+            raise click.BadParameter(str(e), param_hint="--crs") from None
     staging = _staging_dir(outdir, "-o/--out" if out else None)
     try:
         res, rep = adjust_uav(images, match, staging, cfg, outdir / "pycolmap" if compare_pycolmap else None,
-                              pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper)
+                              pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs)
+        if (staging / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
+            from skyrig.io.image_read import list_images
+            from skyrig.report import report_data_from_uav, write_report
+
+            write_report(staging / "report.html", report_data_from_uav(
+                res, rep, inputs=[match / "tie_points.csv", *list_images(images)], options=rep["uav"]["config"]))
         failures = failure_reasons(res.adjustment)
         _echo_summary(rep, outdir)
         if not failures or keep_failed:

@@ -22,7 +22,7 @@ from skyrig.errors import CRSError
 from skyrig.geodesy.crs import resolve_crs
 from skyrig.geodesy.frame import WorldFrame
 
-__all__ = ["FileCRS", "file_crs", "frame_from_file_crs", "vertical_crs_of_geoid", "project_frame", "utm_frame"]
+__all__ = ["FileCRS", "crs_statement", "file_crs", "frame_from_file_crs", "vertical_crs_of_geoid", "project_frame", "utm_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -229,3 +229,14 @@ def utm_frame(lat_deg: Any, lon_deg: Any, geoid: str | None = None) -> WorldFram
     if not codes:
         raise CRSError(f"no UTM zone for lat {lat:.6f} lon {lon:.6f}")
     return WorldFrame.map(codes[0], geoid)
+
+
+def crs_statement(frame: WorldFrame) -> tuple[str | None, str]:
+    """``(wkt or None, words)``: the CRS of a frame for files (WKT2 of the compound / 3D CRS) and its vertical
+    reference in words; None for a local frame."""
+    if frame.kind == "local":
+        return None, "local ENU frame: z up from the tangent plane at the origin"
+    if frame.kind == "ecef":
+        return resolve_crs("EPSG:4978").to_wkt(), "geocentric (ECEF) coordinates"
+    fc = file_crs(frame)
+    return fc.full.to_wkt(), fc.vertical_words

@@ -3,7 +3,8 @@
 See ``docs/formats/block.md`` for the full description.  In short, ``block.json``::
 
     {"format": "skyrig-block", "version": 1.1,             (1 when no 1.1 feature is used)
-     "frame": "local ENU at lat ... (free text)",
+     "frame": "local 43.64 4.57 1807.36",                   (the block's frame, WorldFrame text form)
+     "crs": "EPSG:25832; heights: ellipsoidal",             (optional: the project frame of the results)
      "cameras": [{"name": ..., "width": ..., "height": ..., "focal_px": ..., "pp_col": ..., "pp_row": ...,
                   "distortion": {"model": "brown", "k1": ...}}],
      "heads": ["nadir", ...],                                   (optional)
@@ -39,7 +40,8 @@ import numpy as np
 from skyrig.adjust.block import AdjustConfig, Block, BlockError
 from skyrig.camera.distortion import distortion_from_dict
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import InputFormatError
+from skyrig.errors import CRSError, InputFormatError
+from skyrig.geodesy.frame import WorldFrame
 from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
 from skyrig.io._text import atomic_write, parse_float, read_text
 
@@ -91,14 +93,22 @@ class BlockFile:
     ``adjustment_keys`` names the configuration fields the file's ``adjustment`` section sets explicitly
     (the others are defaults), so that an adjustment preset can merge with them
     (:func:`skyrig.adjust.presets.merge_preset`).
+
+    ``frame`` is the block's own (tangential) frame as data when the manifest's ``frame`` is a frame text
+    (:meth:`skyrig.geodesy.WorldFrame.from_text`, also the older ``local ENU at lat ..`` description), else None;
+    ``crs`` the project frame (manifest key ``crs``: the frame of the control / GNSS the block was built from, in
+    which the adjusted results are written), or None in files without it.
     """
 
     def __init__(self, block: Block, config: AdjustConfig, path: Path,
-                 adjustment_keys: frozenset[str] = frozenset()) -> None:
+                 adjustment_keys: frozenset[str] = frozenset(), frame: WorldFrame | None = None,
+                 crs: WorldFrame | None = None) -> None:
         self.block = block
         self.config = config
         self.path = path
         self.adjustment_keys = adjustment_keys
+        self.frame = frame
+        self.crs = crs
 
 
 class _Table:
@@ -268,7 +278,7 @@ def read_block(path: PathLike) -> BlockFile:
     if not ok:
         raise InputFormatError(f"unsupported version {ver!r} (this skyrig reads {', '.join(map(str, READ_VERSIONS))})",
                                p, None, "version")
-    known = {"format", "version", "frame", "cameras", "heads", "lever_arm_m", "tables", "adjustment", "rig",
+    known = {"format", "version", "frame", "crs", "cameras", "heads", "lever_arm_m", "tables", "adjustment", "rig",
              "actuator_correction"}
     bad = sorted(set(man) - known)
     if bad:
@@ -430,7 +440,17 @@ def read_block(path: PathLike) -> BlockFile:
         cfg = AdjustConfig.from_dict(section, source=str(p))
     except (TypeError, ValueError) as e:
         raise InputFormatError(str(e), p, None, "adjustment") from None
-    return BlockFile(block, cfg, p, frozenset(section))
+    try:
+        frame = WorldFrame.from_text(str(man.get("frame", "")), base=p.parent)
+    except (CRSError, ValueError):
+        frame = None  # a free-text description (files not written by skyrig): the block is adjusted all the same
+    crs = None
+    if man.get("crs") is not None:
+        try:
+            crs = WorldFrame.from_text(str(man["crs"]), base=p.parent)
+        except (CRSError, ValueError) as e:
+            raise InputFormatError(f"not a frame skyrig knows ({e})", p, None, "crs") from None
+    return BlockFile(block, cfg, p, frozenset(section), frame, crs)
 
 
 def _write_csv(path: Path, header: list[str], cols: list[Any]) -> None:
@@ -443,8 +463,13 @@ def _write_csv(path: Path, header: list[str], cols: list[Any]) -> None:
                         else str(c[i]) for c in cols])
 
 
-def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None, rig_file: str | None = None) -> None:
+def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None, rig_file: str | None = None,
+                crs: WorldFrame | None = None) -> None:
     """Write ``block`` (frame cameras only) as a manifest ``path`` and CSV tables next to it (atomic per file).
+
+    ``crs``: the project frame (the frame of the control / GNSS data), written as the manifest key ``crs``
+    (:meth:`WorldFrame.to_text`): ``skyrig adjust`` writes its results there.  The manifest's ``frame`` is the
+    block's frame text when ``block.frame`` is one (or an older description skyrig reads back).
 
     ``rig_file``: for a block with actuated heads, the rig file (path relative to the manifest) that
     defines them; written as the manifest key ``rig`` with the images' ``beta_deg`` and the adjusted
@@ -529,7 +554,11 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         if c.distortion.n_params:
             d["distortion"] = c.distortion.to_dict()
         cams.append(d)
-    man: dict[str, Any] = {"format": FORMAT, "version": version, "frame": block.frame, "cameras": cams,
+    try:
+        frame_text = WorldFrame.from_text(block.frame).to_text()
+    except (CRSError, ValueError):
+        frame_text = block.frame
+    man: dict[str, Any] = {"format": FORMAT, "version": version, "frame": frame_text, "cameras": cams,
                            "heads": block.head_name.tolist(), "lever_arm_m": block.lever_arm.tolist(),  # type: ignore[union-attr]
                            "tables": tables}
     if any(actuated):
@@ -537,6 +566,8 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         man["rig"] = str(rig_file)
         man["actuator_correction"] = {str(block.head_name[k]): block.actuator_correction[k].tolist()  # type: ignore[index]
                                       for k, a in enumerate(actuated) if a}
+    if crs is not None:
+        man["crs"] = crs.to_text()
     if config is not None:
         man["adjustment"] = {k: (list(map(list, v)) if k == "intrinsic_sigma" else v)
                              for k, v in config.__dict__.items() if v != AdjustConfig.__dataclass_fields__[k].default}

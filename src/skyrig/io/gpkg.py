@@ -2,7 +2,8 @@
 
 ``write_gpkg(path, layers, crs)`` writes every layer into one new GeoPackage (temporary file, then
 renamed), readable by QGIS and GDAL.  A layer is ``(geometries, fields)``: shapely geometries of one
-type and a dict of equally long columns (numbers or strings).
+type and a dict of equally long columns (numbers or strings); 3D geometries give a ``... Z`` layer.  ``crs``: anything
+PROJ reads, a compound or 3D CRS included (the heights' vertical reference).
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ def write_gpkg(path: PathLike, layers: Mapping[str, tuple[Sequence[Any], Mapping
             if len(types) != 1:
                 raise SkyrigError(f"GeoPackage layer {name!r}: geometries of mixed types")
             gtype = {0: "Point", 1: "LineString", 3: "Polygon"}[types.pop()]
+            if bool(np.all(shapely.has_z(g))):
+                gtype += " Z"  # 3D geometries (heights in the CRS's vertical reference)
             keys = list(fields)
             data = []
             for k in keys:

@@ -33,6 +33,7 @@ from typing import Any, Mapping
 
 from skyrig.errors import InputFormatError
 from skyrig.geodesy.frame import WorldFrame
+from skyrig.geodesy.statement import crs_statement
 from skyrig.io._text import PathLike, atomic_write, read_text
 
 __all__ = ["FORMAT", "meta_path", "write_table_meta", "read_table_meta", "frame_of_meta", "crs_statement"]
@@ -45,21 +46,6 @@ def meta_path(path: PathLike) -> Path:
     """``NAME.csv.json`` of a table ``NAME.csv``."""
     p = Path(path)
     return p.with_name(p.name + ".json")
-
-
-def crs_statement(frame: WorldFrame) -> tuple[str | None, str]:
-    """``(wkt or None, words)``: the CRS of a frame for files (WKT2 of the compound / 3D CRS) and its vertical
-    reference in words; None for a local frame."""
-    if frame.kind == "local":
-        return None, "local ENU frame: z up from the tangent plane at the origin"
-    if frame.kind == "ecef":
-        from skyrig.geodesy.crs import resolve_crs
-
-        return resolve_crs("EPSG:4978").to_wkt(), "geocentric (ECEF) coordinates"
-    from skyrig.geodesy.statement import file_crs
-
-    fc = file_crs(frame)
-    return fc.full.to_wkt(), fc.vertical_words
 
 
 def write_table_meta(path: PathLike, frame: WorldFrame | None, columns: Mapping[str, Mapping[str, str]],

@@ -137,13 +137,25 @@ def _write_rasters(survey: Survey, outdir: Path, max_cells: int = 800) -> None:
     cell = max((xmax - xmin), (ymax - ymin)) / max_cells
     dsm, tr = rasterize_dsm(sc, cell)
     ortho, tr2 = rasterize_orthophoto(sc, cell / 2.0)
+    # The grids are north-up grids of the local ENU frame at the scene origin.  Their CRS is PROJ's ellipsoidal
+    # orthographic projection at that origin (EPSG method 9840): its x, y are the ENU x, y of the point's foot on
+    # the ellipsoid -- for a point h above the ellipsoid d from the origin they differ from the ENU x, y by about
+    # h * d / R (1 cm at 80 m and 800 m), far below a cell.  GeoTIFF stores it in its GeoKeys (CT_Orthographic),
+    # so GDAL / QGIS place the rasters on the earth.  Heights (DSM values) stay the local ENU z (up from the
+    # tangent plane at the origin: h - d^2 / 2R); the SKYRIG_* tags keep the frame for skyrig's own readers.
+    lat0, lon0, h0 = sc.origin
+    crs = ("+proj=ortho +lat_0=%.12f +lon_0=%.12f +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs +type=crs"
+           % (lat0, lon0))
     tags = {"SKYRIG_FRAME": "local ENU (x east, y north, z up), metres",
-            "SKYRIG_LOCAL_ORIGIN": "%.12f %.12f %.6f" % sc.origin}
+            "SKYRIG_LOCAL_ORIGIN": "%.12f %.12f %.6f" % sc.origin,
+            "SKYRIG_WORLD_FRAME": WorldFrame.local(*sc.origin).to_text(),
+            "VERTICAL_REFERENCE": "local ENU z: height above the tangent plane of the WGS84 ellipsoid at lat %.9f "
+                                  "lon %.9f h %.3f (not an ellipsoidal height)" % (lat0, lon0, h0)}
     for path, arr, t, dtype in ((outdir / "scene" / "dsm.tif", dsm[None].astype(np.float32), tr, "float32"),
                                 (outdir / "scene" / "orthophoto.tif", np.moveaxis(ortho, -1, 0), tr2, "uint8")):
         tmp = path.with_name("." + path.name + ".tmp.tif")
         with rasterio.open(tmp, "w", driver="GTiff", width=arr.shape[2], height=arr.shape[1], count=arr.shape[0],
-                           dtype=dtype, transform=Affine(*t), compress="deflate") as ds:
+                           dtype=dtype, transform=Affine(*t), compress="deflate", crs=crs) as ds:
             ds.write(arr)
             ds.update_tags(**tags)
         os.replace(tmp, path)
@@ -628,8 +640,9 @@ def load_raster_scene(dsm_path: str | Path, ortho_path: str | Path, origin: tupl
 
     Two kinds of input:
 
-    * rasters of a simulated project (``scene/dsm.tif``, ``scene/orthophoto.tif``): no CRS, tags
-      ``SKYRIG_FRAME`` / ``SKYRIG_LOCAL_ORIGIN``: already on a grid of the local ENU frame, used as they are;
+    * rasters of a simulated project (``scene/dsm.tif``, ``scene/orthophoto.tif``): tags ``SKYRIG_FRAME`` /
+      ``SKYRIG_LOCAL_ORIGIN`` (and, since they carry one, the orthographic CRS at the origin): already on a grid of
+      the local ENU frame, used as they are;
     * real rasters in a projected CRS (heights ellipsoidal, or orthometric with ``geoid``): resampled
       (bilinear) onto north-up grids of the local ENU frame at ``origin`` (default: the DSM's centre on its
       surface), with the DSM's cell size unless ``cell_m`` is given.  A local node (x, y) takes the height
@@ -670,7 +683,7 @@ def load_raster_scene(dsm_path: str | Path, ortho_path: str | Path, origin: tupl
     rgb = np.moveaxis(o[:3], 0, -1)
     if rgb.dtype != np.uint8:
         rgb = np.clip(rgb.astype(np.float32) / max(float(np.nanmax(rgb)), 1e-9), 0, 1)
-    if crs is None:
+    if "SKYRIG_LOCAL_ORIGIN" in tags or crs is None:  # a simulated project's grids (with or without their CRS)
         if "SKYRIG_LOCAL_ORIGIN" not in tags:
             raise InputFormatError("the DSM has neither a CRS nor skyrig's local-frame tags", dsm_path, field="crs")
         org = tuple(float(v) for v in tags["SKYRIG_LOCAL_ORIGIN"].split())

@@ -1043,7 +1043,7 @@ def compare_with_reconstruction(result: UavResult, other_names: Sequence[str], o
 def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None = None,
                cfg: UavConfig = UavConfig(), pycolmap_workdir: str | Path | None = None,
                pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
-               pycolmap_mapper: str = "incremental") -> tuple[UavResult, dict[str, Any]]:
+               pycolmap_mapper: str = "incremental", crs: str | None = None) -> tuple[UavResult, dict[str, Any]]:
     """Project-level stage: images + ``skyrig match`` output -> adjusted EO, camera and report.
 
     Parameters
@@ -1053,8 +1053,11 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     match_dir
         Output folder of ``skyrig match`` (``tie_points.csv``).
     out
-        If given: ``eo.csv`` (local ENU... converted with :mod:`skyrig.io.eo_csv`), ``report.json``,
-        ``report.html`` and residual plots are written there.
+        If given: ``eo.csv``, ``points.csv`` and ``adjusted.gpkg`` in the project CRS
+        (:mod:`skyrig.io.adjust_outputs`), ``report.json``, ``report.html`` and residual plots are written there.
+    crs
+        Project CRS of the outputs (a compound CRS gives orthometric heights through its geoid); default the
+        WGS84 UTM zone of the images' GNSS positions, ellipsoidal heights.
     pycolmap_workdir
         If given, pycolmap's own pipeline (SIFT, exhaustive matching, incremental mapping) runs there on the
         same images and its camera centres / reprojection RMS are compared (needs ``pycolmap``), with SIFT on
@@ -1075,7 +1078,8 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     res = adjust_uav_block(inp, cfg)
     from skyrig.adjust.report import adjustment_report
 
-    report = adjustment_report(res.adjustment)
+    project = uav_project_frame(inp, crs)
+    report = adjustment_report(res.adjustment, frames=None if project is None else (inp.frame, project))
     report["uav"] = dict(res.summary)
     report["uav"]["config"] = asdict(cfg)
     report["uav"]["attitude_check"] = res.attitude_check
@@ -1096,27 +1100,40 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
                                   "centre_differences": cmp}
     report["uav"]["total_wall_s"] = time.perf_counter() - t0
     if out is not None:
-        _write_outputs(Path(out), res, report, inp)
+        _write_outputs(Path(out), res, report, inp, project)
     return res, report
 
 
-def _write_outputs(out: Path, res: UavResult, report: dict[str, Any], inp: UavBlockInput) -> dict[str, Path]:
-    """``eo.csv`` (local ENU frame of the block), ``points.csv`` (tie points with sigmas), ``report.json``,
-    ``report.html`` and residual plots in ``out``."""
+def uav_project_frame(inp: UavBlockInput, crs: str | None = None) -> Any:
+    """The project frame of a UAV block's outputs: ``crs`` (:func:`skyrig.geodesy.statement.project_frame`), else
+    the WGS84 UTM zone of the GNSS positions (ellipsoidal heights); None when the block has no frame."""
+    from skyrig.geodesy.statement import project_frame, utm_frame
+
+    if crs is not None:
+        return project_frame(crs)
+    if inp.frame is None:
+        return None
+    from skyrig.geodesy.crs import ecef_to_geodetic
+
+    lat, lon, _ = ecef_to_geodetic(inp.frame.to_ecef(np.nanmean(inp.gnss, axis=0, keepdims=True)))
+    return utm_frame(lat, lon)
+
+
+def _write_outputs(out: Path, res: UavResult, report: dict[str, Any], inp: UavBlockInput,
+                   project: Any = None) -> dict[str, Path]:
+    """``eo.csv``, ``points.csv`` (tie points with sigmas) and ``adjusted.gpkg`` in the project frame (default
+    :func:`uav_project_frame`), ``report.json``, ``report.html`` and residual plots in ``out``."""
     from skyrig.georef.eo import ExteriorOrientations
-    from skyrig.georef.observations import GroundPoints
-    from skyrig.io.eo_csv import write_eo_csv
-    from skyrig.io.points_csv import write_points_csv
+    from skyrig.io.adjust_outputs import write_adjusted_tables
     from skyrig.io.report_html import write_report
 
     out.mkdir(parents=True, exist_ok=True)
     k = res.block_image
-    eo = ExteriorOrientations(res.names[k], np.array([res.camera.name] * len(k)), res.centre[k], res.rotation[k],
-                              inp.frame)
-    write_eo_csv(eo, out / "eo.csv")
-    b = res.adjustment.block
-    ps = res.adjustment.point_sigma
-    extra = {} if ps is None else {"sx": ps[:, 0], "sy": ps[:, 1], "sz": ps[:, 2]}
-    write_points_csv(out / "points.csv", GroundPoints(b.point_name, b.point_xyz, inp.frame), extra)
-    paths = write_report(out, res.adjustment, report, title="skyrig UAV GNSS-supported adjustment")
-    return {"eo": out / "eo.csv", "points": out / "points.csv", **paths}
+    paths: dict[str, Path] = {}
+    project = project or uav_project_frame(inp)
+    if inp.frame is not None and project is not None:
+        eo = ExteriorOrientations(res.names[k], np.array([res.camera.name] * len(k)), res.centre[k], res.rotation[k],
+                                  inp.frame)
+        paths.update(write_adjusted_tables(out, res.adjustment, inp.frame, project, eo_local=eo))
+    paths.update(write_report(out, res.adjustment, report, title="skyrig UAV GNSS-supported adjustment"))
+    return paths
