@@ -69,7 +69,9 @@ def test_cli_writes_outputs(blk, tmp_path):
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert len(rep["check"]["rows"]) == len(b.control_point) and not rep["control"]["rows"]
     assert (tmp_path / "out" / "report.html").read_text().startswith("<!DOCTYPE html>")
-    assert (tmp_path / "out" / "residuals_0.png").read_bytes()[:4] == b"\x89PNG"
+    # one self-contained page (skyrig.report): plots embedded, no separate PNG files
+    assert "data:image/png;base64," in (tmp_path / "out" / "report.html").read_text()
+    assert not list((tmp_path / "out").glob("residuals_*.png"))
     assert (tmp_path / "out" / "adjusted.json").exists()
     # bad block: clear error, not a traceback
     (tmp_path / "in" / "block_observations.csv").write_text("point,image,col_px,row_px\np0,ghost,1,2\n")
