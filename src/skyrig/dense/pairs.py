@@ -49,7 +49,7 @@ class PairConfig:
     intersection_deg: tuple[float, float] = (4.0, 45.0)
     base_height: tuple[float, float] = (0.05, 1.2)
     max_axis_angle_deg: float = 25.0
-    pairs_per_image: int = 4
+    pairs_per_image: int = 6
     samples: int = 12
 
 

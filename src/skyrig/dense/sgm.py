@@ -60,10 +60,19 @@ class SgmConfig:
         Against "foreground fattening" (area matching spreads the nearer surface over the farther one next to
         a depth edge): at disparity jumps above ``edge_jump_px`` the nearer side loses ``edge_erode_px``
         pixels (0 disables).
+    lr_check
+        ``"full"``: a second matching from the right image (the mirrored pair) must confirm every disparity
+        within ``lr_max_diff`` (occlusions and fattening next to depth edges fail); ``"opencv"``: only
+        OpenCV's internal check (``disp12MaxDiff``), half the time.
+    max_incidence_deg
+        Points whose surface (from the depth grid of the pair) is seen at a more grazing angle than this
+        (angle between the surface normal and the ray to the camera) are dropped: next to a depth edge the
+        matcher smooths the jump into a steep ramp whose points float off the surface; a real surface seen
+        that obliquely cannot be matched reliably either.  90 disables.
     """
 
     mode: str = "sgbm"
-    block_size: int = 5
+    block_size: int = 3
     p1: int = 8
     p2: int = 32
     uniqueness: int = 10
@@ -77,12 +86,16 @@ class SgmConfig:
     disparity_sigma_px: float = 0.3
     edge_jump_px: float = 2.0
     edge_erode_px: int = 2
+    max_incidence_deg: float = 75.0
+    lr_check: str = "full"
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise SkyrigError(f"SGM mode must be one of {', '.join(MODES)}, not {self.mode!r} (option: mode)")
         if self.block_size % 2 != 1 or not 1 <= self.block_size <= 11:
             raise SkyrigError(f"SGM block size must be odd and 1..11, not {self.block_size} (option: block_size)")
+        if self.lr_check not in ("full", "opencv"):
+            raise SkyrigError(f"lr_check must be 'full' or 'opencv', not {self.lr_check!r} (option: lr_check)")
         if self.tile_px < 64 or self.margin_px < 0:
             raise SkyrigError("SGM tile_px must be >= 64 and margin_px >= 0")
 
@@ -179,25 +192,28 @@ def _crop_cols(img: NDArray, b0: int, b1: int) -> NDArray:
 
 
 def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> NDArray[np.float32]:
-    """Remove the ``erode_px`` pixels of the nearer surface at the left edge of every disparity step up (along
-    rows) larger than ``jump_px``.
+    """Remove ``erode_px`` pixels of the nearer surface at every disparity jump larger than ``jump_px``
+    between two matched neighbours (along rows and columns).
 
-    On a rectified left image, the farther surface just left of a nearer one is hidden from the right image
-    (the nearer surface shifts more); area matching spreads the nearer disparity into that band.  NaN pixels
-    count as far."""
+    Area matching (the cost window, OpenCV's derivative pre-filter and the smoothness term) spreads the
+    nearer surface over the farther one by about a pixel or two next to a depth edge ("foreground
+    fattening"); this puts the edge back where the images have it, at the price of a thin band at edges that
+    other pairs may fill."""
     if erode_px <= 0:
         return d
-    dd = np.where(np.isfinite(d), d, -np.inf)
+    fg = np.zeros(d.shape, bool)
+    dd = np.where(np.isfinite(d), d, -np.inf)  # no match: as far as it gets (occlusion holes border the edges)
     with np.errstate(invalid="ignore"):
-        step = dd[:, 1:] - dd[:, :-1]
-    start = np.zeros(d.shape, bool)
-    start[:, 1:] = (step > jump_px) & np.isfinite(d[:, 1:])
-    fg = start.copy()
-    for k in range(1, erode_px):
-        shifted = np.zeros_like(start)
-        shifted[:, k:] = start[:, :-k]
-        # keep walking right only while the surface stays at the near disparity
-        fg |= shifted
+        dx = dd[:, 1:] - dd[:, :-1]
+        dy = dd[1:, :] - dd[:-1, :]
+    fg[:, 1:] |= dx > jump_px
+    fg[:, :-1] |= dx < -jump_px
+    fg[1:, :] |= dy > jump_px
+    fg[:-1, :] |= dy < -jump_px
+    if erode_px > 1:
+        from scipy import ndimage
+
+        fg = ndimage.binary_dilation(fg, iterations=erode_px - 1)
     out = d.copy()
-    out[fg] = np.nan
+    out[fg & np.isfinite(d)] = np.nan
     return out

@@ -124,16 +124,19 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
     shift, n = disparity_window(blk.d_min, blk.d_max, cfg)
     m = cfg.margin_px
     cu0 = blk.u0 - m - n
-    w = (blk.u1 + m) - cu0
+    w = (blk.u1 + m + (n if cfg.lr_check == "full" else 0)) - cu0  # the right-based pass needs n more on the right
     cv0 = blk.v0 - m
     h = (blk.v1 + m) - cv0
     lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
     rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
     lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
     rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
-    d16 = _matcher(cfg, n, 1).compute(lg, rg)
+    matcher = _matcher(cfg, n, 1)
+    d16 = matcher.compute(lg, rg)
     d = d16.astype(np.float32) / 16.0
     d[d16 < 0] = np.nan
+    if cfg.lr_check == "full":
+        d = _left_right_check(d, matcher, lg, rg, cfg.lr_max_diff)
     # the right pixel each left pixel matched must lie inside the right image
     cols = np.arange(w)[None, :] - d
     ci = np.clip(np.round(np.nan_to_num(cols, nan=-1)).astype(np.int64), 0, w - 1)
@@ -143,6 +146,25 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
     d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
     sl = (slice(m, m + blk.v1 - blk.v0), slice(m + n, m + n + blk.u1 - blk.u0))
     return d[sl], lc[sl], lvalid[sl]
+
+
+def _left_right_check(d: NDArray[np.float32], matcher, lg: NDArray, rg: NDArray, tol: float
+                      ) -> NDArray[np.float32]:  # type: ignore[no-untyped-def]
+    """Keep the left disparities that the right-based matching (same matcher on the mirrored pair) confirms
+    within ``tol`` pixels; occluded and fattened pixels fail."""
+    e16 = matcher.compute(np.ascontiguousarray(rg[:, ::-1]), np.ascontiguousarray(lg[:, ::-1]))[:, ::-1]
+    e = e16.astype(np.float32) / 16.0
+    e[e16 < 0] = np.nan
+    w = d.shape[1]
+    jr = np.arange(w)[None, :] - d
+    ok = np.isfinite(jr) & (jr >= 0) & (jr <= w - 1)
+    ji = np.clip(np.round(np.nan_to_num(jr, nan=0.0)).astype(np.int64), 0, w - 1)
+    er = np.take_along_axis(e, ji, axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= np.abs(er - d) <= max(tol, 0.5)
+    out = d.copy()
+    out[~ok] = np.nan
+    return out
 
 
 def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig
@@ -175,8 +197,10 @@ def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], col
     with np.errstate(invalid="ignore", divide="ignore"):
         nrm = cr / nn
     nv = nrm[ok]
-    flip = np.sum(nv * (rect.centres[0] - xyz), axis=1) < 0
-    nv[flip] *= -1
+    to_cam = rect.centres[0] - xyz
+    cos_inc = np.sum(nv * to_cam, axis=1) / np.linalg.norm(to_cam, axis=1)
+    nv[cos_inc < 0] *= -1
+    keep = ~(np.abs(cos_inc) < np.cos(np.radians(cfg.max_incidence_deg)))  # NaN normals (no neighbours) stay
     rgb = colour[ok] if colour.ndim == 3 else np.repeat(colour[ok][:, None], 3, axis=1)
-    return PairPoints(xyz, sigma_h.astype(np.float32), sigma_3d.astype(np.float32), ang.astype(np.float32),
-                      rgb.astype(np.uint8), nv.astype(np.float32))
+    return PairPoints(xyz[keep], sigma_h[keep].astype(np.float32), sigma_3d[keep].astype(np.float32),
+                      ang[keep].astype(np.float32), rgb[keep].astype(np.uint8), nv[keep].astype(np.float32))
