@@ -1,0 +1,262 @@
+"""Dense-stage benchmark: the whole chain against raw StereoSGBM on the same pairs, and growth with the block.
+
+Usage::
+
+    .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
+        [--profile N] [--workers 2]
+
+Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
+images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
+(obliques are not rendered: the dense chain matches nadir with nadir), and the block has 4 strips of 16
+exposures (area 100 x 400 m) so that 4..64-image blocks are rectangular sub-blocks of one flight
+(``s`` strips x ``m`` exposures: 4 = 2x2, 8 = 2x4, 16 = 4x4, 32 = 4x8, 64 = 4x16).  The 64 images are rendered
+once (~1 min on 2 cores) into ``--cache`` and reused; orientations are the true ones (``survey.eo_true``,
+local frame), the output frame EPSG:25832, the height range the scene's ``terrain_range[0] .. top`` (+-2 m).
+
+Per size, in a fresh subprocess (so ``ru_maxrss`` is that size's peak):
+
+* **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
+  image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`;
+* **raw**: for every pair the plan selected, ``cv2.StereoSGBM_create(...).compute`` once on the pair's
+  whole rectified overlap (the left image's rectified bounds plus the search width on the left, the right
+  image shifted by the window start), grey, with the same disparity window (the union of the pair's block
+  windows, via the same multiple-of-16 rounding) and the same block size / penalties / filters as
+  ``SgmConfig``.  Rectification and image reading are *not* timed for raw (they are for the chain).
+
+Megapixels are the pairs' rectified left pixels (each pair once), the same count for both; MP/s = that count /
+seconds, and ``ratio = MP/s chain / MP/s raw`` (issue 10 goal: >= 0.6).  ``matched MP`` is what the chain
+actually ran SGM on (blocks with their context and search-width margins are counted by their interior only;
+a block reaching several ground tiles is matched once per tile).
+
+``--profile N`` runs the chain for the N-image block under cProfile in this process and prints the functions
+with the most own time and cumulative time.  Nothing is written into the repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import resource
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+N_STRIPS, N_PER_STRIP = 4, 16
+LAYOUT = {4: (2, 2), 8: (2, 4), 16: (4, 4), 32: (4, 8), 64: (4, 16)}
+
+
+def bench_spec():  # type: ignore[no-untyped-def]
+    """The midas-dsm spec flown with the nadir head only, 4 strips x 16 exposures."""
+    from skyrig.simulate.scenarios import scenario_spec
+
+    s = scenario_spec("midas-dsm", "ci", 1)
+    rig = replace(s.rig, heads={"nadir": s.rig.heads["nadir"]})
+    fl = replace(s.flights[0], n_strips=N_STRIPS, area=(-50.0, -200.0, 50.0, 200.0))
+    return replace(s, name="midas-dsm-nadir-bench", rig=rig, flights=(fl,))
+
+
+def ensure_block(cache: Path, workers: int | None):  # type: ignore[no-untyped-def]
+    """The survey (rebuilt: deterministic, < 1 s) and its rendered images in ``cache/images`` (rendered once)."""
+    from skyrig.pipeline.simulate import render_images
+    from skyrig.simulate.scenarios import build_survey
+
+    survey = build_survey(bench_spec())
+    names = [str(n) for n in survey.eo_true.image]
+    if len(names) != N_STRIPS * N_PER_STRIP:
+        raise SystemExit(f"bench block has {len(names)} images, expected {N_STRIPS * N_PER_STRIP}")
+    stamp = cache / "block.json"
+    want = {"spec": repr(bench_spec().flights) + repr(sorted(bench_spec().rig.heads)), "images": names}
+    ok = stamp.exists() and json.loads(stamp.read_text()) == want and all((cache / "images" / n).exists() for n in names)
+    if not ok:
+        cache.mkdir(parents=True, exist_ok=True)
+        print(f"rendering {len(names)} nadir images into {cache} (once) ...", flush=True)
+        mp, secs = render_images(survey, cache, workers)
+        print(f"  {mp:.1f} MP in {secs:.0f} s", flush=True)
+        stamp.write_text(json.dumps(want))
+    return survey
+
+
+def subset_rows(names: list[str], along: np.ndarray, n: int) -> np.ndarray:
+    """Rows of a rectangular sub-block of ``n`` images: the first strips, in each the exposures furthest
+    south (``along``: the projection centres' northing; strips are flown back and forth)."""
+    s, m = LAYOUT[n]
+    by_strip: dict[int, list[tuple[float, int]]] = {}
+    for i, name in enumerate(names):
+        g = re.match(r"s(\d+)_e(\d+)_", name)
+        if g is None:
+            raise SystemExit(f"unexpected image name {name}")
+        by_strip.setdefault(int(g.group(1)), []).append((float(along[i]), i))
+    out: list[int] = []
+    for strip in sorted(by_strip)[:s]:
+        out += [i for _, i in sorted(by_strip[strip])[:m]]
+    return np.array(sorted(out))
+
+
+def setup(cache: Path, n: int, workers: int | None = None):  # type: ignore[no-untyped-def]
+    """Orientations, cameras, loader, output frame and height range of the n-image sub-block."""
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.images import read_image
+
+    survey = ensure_block(cache, workers)
+    eo = survey.eo_true.subset(subset_rows([str(x) for x in survey.eo_true.image], survey.eo_true.centre[:, 1], n))
+    cameras = {h.camera.name: h.camera for h in survey.rig_true.heads.values()}
+    paths = [cache / "images" / str(x) for x in eo.image]
+
+    def loader(i: int) -> np.ndarray:
+        return read_image(paths[i])
+
+    sc = survey.scene
+    hr = (float(sc.terrain_range[0]) - 2.0, float(sc.top) + 2.0)
+    return eo, cameras, loader, WorldFrame.map(survey.spec.crs), hr
+
+
+def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None):  # type: ignore[no-untyped-def]
+    from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
+
+    cfg = DenseConfig() if tile_cells is None else DenseConfig(tile_cells=tile_cells)
+    t0 = time.perf_counter()
+    plan = plan_dense(eo, cameras, out_frame, hr, None, cfg)
+    t1 = time.perf_counter()
+    results = [run_tile(plan, k, loader) for k in range(len(plan.tiles))]
+    t2 = time.perf_counter()
+    dsm, cloud, stats = assemble(plan, results)
+    t3 = time.perf_counter()
+    return plan, dsm, cloud, stats, {"plan_s": t1 - t0, "tiles_s": t2 - t1, "assemble_s": t3 - t2, "chain_s": t3 - t0}
+
+
+def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
+    """Raw StereoSGBM on each planned pair's whole rectified overlap (only ``compute`` is timed)."""
+    import cv2
+
+    from skyrig.dense.sgm import disparity_window
+
+    cfg = plan.config.sgm
+    mode = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
+            "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}[cfg.mode]
+    bs2 = cfg.block_size ** 2
+    secs, mp, valid = 0.0, 0.0, 0
+    images: dict[int, np.ndarray] = {}
+    for pair, rect, blocks in zip(plan.pairs, plan.rects, plan.blocks):
+        for i in (pair.left, pair.right):
+            if i not in images:
+                images[i] = loader(i)
+        u0 = min(b.u0 for b in blocks)
+        u1 = max(b.u1 for b in blocks)
+        v0 = min(b.v0 for b in blocks)
+        v1 = max(b.v1 for b in blocks)
+        shift, n = disparity_window(min(b.d_min for b in blocks), max(b.d_max for b in blocks), cfg)
+        w, h = (u1 - u0) + n, v1 - v0
+        lc, _ = rect.remap(0, images[pair.left], u0 - n, v0, w, h)
+        rc, _ = rect.remap(1, images[pair.right], u0 - n - shift, v0, w, h)
+        lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
+        rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
+        m = cv2.StereoSGBM_create(minDisparity=0, numDisparities=n, blockSize=cfg.block_size,
+                                  P1=cfg.p1 * bs2, P2=cfg.p2 * bs2, disp12MaxDiff=cfg.lr_max_diff,
+                                  preFilterCap=cfg.pre_filter_cap, uniquenessRatio=cfg.uniqueness,
+                                  speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range, mode=mode)
+        t = time.perf_counter()
+        d16 = m.compute(lg, rg)
+        secs += time.perf_counter() - t
+        mp += (u1 - u0) * (v1 - v0) / 1e6
+        valid += int((d16[:, n:] >= 0).sum())
+    return {"raw_s": secs, "pair_mp": mp, "raw_valid": valid}
+
+
+def worker(cache: Path, n: int, tile_cells: int | None) -> dict:
+    """One size, in this (fresh) process: chain, then raw; peak memory of each phase."""
+    eo, cameras, loader, out_frame, hr = setup(cache, n)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells)
+    rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    raw = run_raw(plan, loader)
+    h = dsm.height
+    return {"n": n, "pairs": stats.pairs, "tiles": stats.tiles, "blocks": stats.blocks, "points": stats.points,
+            "matched_mp": stats.megapixels, "cells": int(h.size), "valid_cells": float(np.isfinite(h).mean()),
+            "rss0_mb": rss0 / 1024, "rss_chain_mb": rss_chain / 1024, **t, **raw}
+
+
+def profile(cache: Path, n: int, top: int = 25) -> None:
+    import cProfile
+    import pstats
+
+    eo, cameras, loader, out_frame, hr = setup(cache, n)
+    pr = cProfile.Profile()
+    pr.enable()
+    run_chain(eo, cameras, loader, out_frame, hr)
+    pr.disable()
+    st = pstats.Stats(pr)
+    print(f"\n--- cProfile of the chain, {n} images: by own time ---")
+    st.sort_stats("tottime").print_stats(top)
+    print(f"--- by cumulative time ---")
+    st.sort_stats("cumulative").print_stats(top)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="sizes 4, 8, 16 only")
+    ap.add_argument("--sizes", default=None, help="comma-separated block sizes out of 4,8,16,32,64")
+    ap.add_argument("--cache", default=os.environ.get("SKYRIG_BENCH_DENSE_CACHE", "/tmp/skyrig-bench-dense"))
+    ap.add_argument("--workers", type=int, default=None, help="render processes (default: all cores)")
+    ap.add_argument("--profile", type=int, default=None, metavar="N", help="cProfile the chain on N images")
+    ap.add_argument("--tile-cells", type=int, default=None,
+                    help="DenseConfig.tile_cells (default: its default, one tile for these blocks); smaller tiles "
+                         "show memory bounded by the tile (blocks reaching several tiles are matched again)")
+    ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    cache = Path(a.cache)
+    if a.worker is not None:
+        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells)))
+        return
+    if a.profile is not None:
+        profile(cache, a.profile)
+        return
+    sizes = [int(x) for x in a.sizes.split(",")] if a.sizes else ([4, 8, 16] if a.quick else [4, 8, 16, 32, 64])
+    bad = [s for s in sizes if s not in LAYOUT]
+    if bad:
+        raise SystemExit(f"sizes must be among {sorted(LAYOUT)}, not {bad}")
+    ensure_block(cache, a.workers)
+    import cv2
+
+    print(f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} cores; cache {cache}")
+    rows = []
+    for n in sizes:
+        cmd = [sys.executable, __file__, "--worker", str(n), "--cache", str(cache)]
+        if a.tile_cells is not None:
+            cmd += ["--tile-cells", str(a.tile_cells)]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+        if p.returncode != 0 or not line:
+            print(p.stdout[-3000:], p.stderr[-3000:])
+            raise SystemExit(f"worker for {n} images failed")
+        rows.append(json.loads(line[0][7:]))
+    hdr = (f"{'images':>6} {'pairs':>5} {'blocks':>6} {'pair MP':>7} {'matched MP':>10} {'chain s':>7} "
+           f"{'(plan/tiles/asm)':>18} {'raw s':>6} {'chain MP/s':>10} {'raw MP/s':>8} {'ratio':>5} "
+           f"{'tiles':>5} {'s/image':>7} {'peak MB':>7} {'+MB':>5} {'valid %':>7}")
+    print(hdr)
+    for r in rows:
+        mps_c = r["pair_mp"] / r["chain_s"]
+        mps_r = r["pair_mp"] / r["raw_s"]
+        print(f"{r['n']:>6} {r['pairs']:>5} {r['blocks']:>6} {r['pair_mp']:>7.2f} {r['matched_mp']:>10.2f} "
+              f"{r['chain_s']:>7.2f} {r['plan_s']:>5.2f}/{r['tiles_s']:>5.2f}/{r['assemble_s']:>5.2f} "
+              f"{r['raw_s']:>6.2f} {mps_c:>10.2f} {mps_r:>8.2f} {mps_c / mps_r:>5.2f} "
+              f"{r['tiles']:>5} {r['chain_s'] / r['n']:>7.3f} {r['rss_chain_mb']:>7.0f} {r['rss_chain_mb'] - r['rss0_mb']:>5.0f} "
+              f"{100 * r['valid_cells']:>7.1f}")
+    if len(rows) >= 2:
+        a0, a1 = rows[0], rows[-1]
+        k = a1["n"] / a0["n"]
+        print(f"growth {a0['n']} -> {a1['n']} images (x{k:g}): chain time x{a1['chain_s'] / a0['chain_s']:.2f}, "
+              f"pairs x{a1['pairs'] / max(a0['pairs'], 1):.2f}, peak RSS x{a1['rss_chain_mb'] / a0['rss_chain_mb']:.2f} "
+              f"(+MB over the process after imports x{(a1['rss_chain_mb'] - a1['rss0_mb']) / max(a0['rss_chain_mb'] - a0['rss0_mb'], 1):.2f})")
+    tot_c = sum(r["chain_s"] for r in rows)
+    tot_r = sum(r["raw_s"] for r in rows)
+    print(f"overall: chain / raw SGBM throughput ratio {tot_r / tot_c:.2f} (goal >= 0.6)")
+
+
+if __name__ == "__main__":
+    main()
