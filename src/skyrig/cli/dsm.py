@@ -1,0 +1,108 @@
+"""``skyrig dsm``: dense matching of oriented images -> DSM (COG), dense cloud (LAZ), hillshade, report."""
+
+from __future__ import annotations
+
+import click
+
+from skyrig.cli._common import eo_options
+
+
+@click.command("dsm")
+@eo_options
+@click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
+              help="Image folder or image file; repeat for several. Only images with an orientation are used.")
+@click.option("--heads", default=None, help="Use only these rig heads / name parts (comma list, e.g. 'nadir').")
+@click.option("--crs", default=None, help="Output CRS (projected, metres); default: the EO file's CRS.")
+@click.option("--geoid", default=None, help="Geoid grid for orthometric output heights (default: the EO file's).")
+@click.option("--height-range", nargs=2, type=float, default=None, metavar="MIN MAX",
+              help="Expected surface heights in the output heights (m); sets the disparity search.")
+@click.option("--points", "points_path", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Sparse points (e.g. skyrig adjust's points.csv) to derive the height range from.")
+@click.option("--area", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+              help="Area to compute in the output CRS (default: where the images see the ground).")
+@click.option("--resolution", type=float, default=None, help="Cell size in metres (default: 1 GSD).")
+@click.option("--mode", type=click.Choice(["sgbm", "hh", "3way", "hh4"]), default="sgbm", show_default=True,
+              help="OpenCV semi-global matching mode.")
+@click.option("--pairs-per-image", type=int, default=6, show_default=True, help="Stereo pairs an image takes part in.")
+@click.option("--min-support", type=int, default=2, show_default=True,
+              help="Stereo pairs that must agree on a cell's height.")
+@click.option("--fill", is_flag=True, help="Interpolate small holes (flagged in the 'filled' band).")
+@click.option("--no-cloud", is_flag=True, help="Do not write the dense point cloud.")
+@click.option("--tile-cells", type=int, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
+@click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
+              help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
+@click.option("--workers", type=int, default=None, help="Local worker processes.")
+@click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
+def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
+            points_path, area, resolution, mode, pairs_per_image, min_support, fill, no_cloud, tile_cells, executor,
+            workers, scheduler, output) -> None:
+    """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
+
+    Pairs are chosen from the orientations, rectified exactly (distortion included), matched by OpenCV's
+    semi-global matcher, triangulated and fused over all pairs; heights no second pair confirms are left out.
+    """
+    from dataclasses import replace
+
+    import numpy as np
+
+    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.dense.fusion import FusionConfig
+    from skyrig.dense.pairs import PairConfig
+    from skyrig.dense.sgm import SgmConfig
+    from skyrig.dense.surface import DenseConfig
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.pipeline.dense import find_images, height_range_from_points, run_dsm
+
+    eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
+    if heads:
+        want = [h.strip() for h in heads.split(",") if h.strip()]
+        sel = np.array([(eo.head is not None and str(eo.head[i]) in want) or any(w in str(n) for w in want)
+                        for i, n in enumerate(eo.image)])
+        if not sel.any():
+            raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
+        eo = eo.subset(sel)
+    cameras = load_cameras(camera_paths)
+    if crs:
+        out_frame = WorldFrame.map(crs, geoid)
+    elif eo.frame.kind == "map":
+        out_frame = WorldFrame.map(eo.frame.crs, geoid if geoid else eo.frame.geoid)
+    else:
+        raise click.UsageError(f"the EO file is in a {eo.frame.kind} frame: give the output CRS with --crs")
+    if height_range is None:
+        if points_path is None:
+            raise click.UsageError("give the expected surface heights (--height-range MIN MAX) or sparse points "
+                                   "to derive them from (--points)")
+        from skyrig.io.points_csv import read_points_csv
+
+        pts = read_points_csv(points_path)
+        xyz = out_frame.from_ecef(pts.frame.to_ecef(pts.xyz))
+        height_range = height_range_from_points(xyz[:, 2])
+        click.echo(f"height range from {len(pts)} points: {height_range[0]:.2f} .. {height_range[1]:.2f} m")
+    if resolution is not None and not resolution > 0:
+        raise click.BadParameter("must be a positive cell size in metres", param_hint="--resolution")
+    if min_support < 1:
+        raise click.BadParameter("must be at least 1", param_hint="--min-support")
+    paths = find_images(eo, images)
+    cfg = DenseConfig(cell_m=resolution, pairs=replace(PairConfig(), pairs_per_image=pairs_per_image),
+                      sgm=replace(SgmConfig(), mode=mode), fusion=replace(FusionConfig(), min_support=min_support),
+                      fill_holes=fill, cloud=not no_cloud, tile_cells=tile_cells)
+    options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": list(height_range), "area": area,
+               "resolution": resolution, "mode": mode, "pairs_per_image": pairs_per_image, "min_support": min_support,
+               "fill": fill, "cloud": not no_cloud, "tile_cells": tile_cells, "heads": heads}
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        task = bar.add_task("dense tiles", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        res = run_dsm(eo, cameras, paths, out_frame, tuple(height_range), output, area=tuple(area) if area else None,
+                      config=cfg, executor=executor, workers=workers, scheduler=scheduler,
+                      inputs=[eo_path, *camera_paths] + ([points_path] if points_path else []), options=options,
+                      progress=progress)
+    s = res.summary
+    click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "
+               f"cells ({res.stats.cell_m:.3f} m), {s['cloud_points']} cloud points -> {res.outdir} "
+               f"({s['vertical_reference']})")

@@ -1,0 +1,167 @@
+"""The dense stage over files: oriented images in, a DSM (COG), a dense cloud (LAZ), a hillshade and a report out.
+
+``run_dsm`` checks the inputs (every oriented image exists, is readable and has its camera's size), plans the
+work with :func:`skyrig.dense.surface.plan_dense`, runs the ground tiles through
+:class:`skyrig.pipeline.executor.Executor` (serial, local worker processes or a ``dask.distributed``
+scheduler) and publishes the output folder as a set (:func:`skyrig.io.stage.stage_folder`): nothing is
+half-written, the manifest comes last.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.surface import DenseConfig, DenseStats, _TileJob, assemble, plan_dense
+from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+
+logger = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+class ImageFiles:
+    """Picklable image loader for the tiles: ``loader(i)`` reads image ``i`` as RGB uint8 and checks its size."""
+
+    def __init__(self, paths: Sequence[str], sizes: Sequence[tuple[int, int]]) -> None:
+        self.paths = [str(p) for p in paths]
+        self.sizes = [tuple(s) for s in sizes]
+
+    def __call__(self, i: int) -> np.ndarray:
+        import cv2
+
+        img = cv2.imread(self.paths[i], cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputFormatError("cannot read the image (missing, truncated or not an image)", self.paths[i])
+        h, w = img.shape[:2]
+        if (w, h) != self.sizes[i]:
+            raise InputFormatError(f"image is {w} x {h} px but its camera is {self.sizes[i][0]} x {self.sizes[i][1]} "
+                                   "px (wrong camera, or a resized copy)", self.paths[i])
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def find_images(eo: ExteriorOrientations, images: Sequence[str]) -> list[str]:
+    """The file of every oriented image, from folders and/or files.
+
+    Raises
+    ------
+    InputFormatError
+        When an oriented image has no file, or a file given explicitly has no orientation.
+    """
+    by_name: dict[str, str] = {}
+    explicit: list[Path] = []
+    for entry in images:
+        p = Path(entry)
+        if p.is_dir():
+            for f in sorted(p.iterdir()):
+                if f.suffix.lower() in IMAGE_SUFFIXES:
+                    by_name.setdefault(f.name, str(f))
+        elif p.is_file():
+            by_name[p.name] = str(p)
+            explicit.append(p)
+        else:
+            raise InputFormatError("no such image or folder", p, field="images")
+    names = set(eo.image.tolist())
+    stray = [str(p) for p in explicit if p.name not in names]
+    if stray:
+        raise InputFormatError(f"{len(stray)} image(s) given have no orientation in the EO file: "
+                               + ", ".join(stray[:5]) + (" ..." if len(stray) > 5 else ""), stray[0], field="images")
+    missing = [n for n in eo.image if n not in by_name]
+    if missing:
+        raise InputFormatError(f"{len(missing)} oriented image(s) not found among the images given: "
+                               + ", ".join(missing[:5]) + (" ..." if len(missing) > 5 else ""), field="images")
+    unused = len(set(by_name) - names)
+    if unused:
+        logger.info("%d image file(s) have no orientation and are not used", unused)
+    return [by_name[n] for n in eo.image]
+
+
+def height_range_from_points(xyz_heights: np.ndarray, margin_m: float = 5.0) -> tuple[float, float]:
+    """Expected surface heights from sparse points (e.g. an adjustment's tie points): 0.5-99.5 percentiles,
+    widened by 10 % of their span and ``margin_m``."""
+    h = np.asarray(xyz_heights, float)
+    h = h[np.isfinite(h)]
+    if len(h) < 3:
+        raise SkyrigError("fewer than 3 points with heights: cannot derive the height range (option: height-range)")
+    lo, hi = np.percentile(h, [0.5, 99.5])
+    pad = 0.1 * (hi - lo) + margin_m
+    return float(lo - pad), float(hi + pad)
+
+
+@dataclass
+class DsmOutputs:
+    """Where :func:`run_dsm` put things, and its counts."""
+
+    outdir: Path
+    dsm: Path
+    cloud: Path | None
+    hillshade: Path
+    report: Path
+    stats: DenseStats
+    summary: dict
+
+
+def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str],
+            out_frame: WorldFrame, height_range: tuple[float, float], outdir: str | Path, *,
+            area: tuple[float, float, float, float] | None = None, config: DenseConfig = DenseConfig(),
+            executor: str = "auto", workers: int | None = None, scheduler: str | None = None,
+            inputs: Sequence[str] = (), options: dict | None = None,
+            progress: Callable[[int, int], None] | None = None) -> DsmOutputs:
+    """Dense matching of oriented images into ``outdir`` (``dsm.tif``, ``cloud.laz``, ``dsm_hillshade.png``,
+    ``dense.json``, ``manifest.json``).
+
+    ``executor``: ``"serial"``, ``"local"`` (Dask worker processes), ``"scheduler"`` (with ``scheduler``), or
+    ``"auto"`` (serial for one tile, local processes otherwise)."""
+    from skyrig.io.dense_laz import write_dense_cloud
+    from skyrig.io.dsm_cog import write_dsm_cog, write_hillshade_png
+    from skyrig.io.stage import describe_inputs, stage_folder
+    from skyrig.pipeline.executor import Executor
+
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    plan = plan_dense(eo, cameras, out_frame, height_range, area, config)
+    logger.info("dense: %d pairs, %d tiles of %d x %d cells (%.3f m), GSD %.3f m", len(plan.pairs), len(plan.tiles),
+                plan.grid.width, plan.grid.height, plan.grid.cell_m, plan.gsd_m)
+    kind = executor
+    if kind == "auto":
+        kind = "scheduler" if scheduler else ("serial" if len(plan.tiles) == 1 else "local")
+    job = _TileJob(plan, loader)
+    with Executor(kind, workers=workers, scheduler=scheduler) as ex:
+        results = ex.map(job, list(range(len(plan.tiles))), desc="dense tiles", progress=progress)
+    dsm, cloud, stats = assemble(plan, results)
+    valid = np.isfinite(dsm.height)
+    if not valid.any():
+        raise SkyrigError("dense matching found no surface: no cell has a height confirmed by two stereo pairs "
+                          "(check the orientations, the height range and the image overlap)")
+    summary = {
+        "pairs": [{"left": str(plan.eo.image[p.left]), "right": str(plan.eo.image[p.right]),
+                   "overlap": round(p.overlap, 3), "base_height": round(p.base_height, 3),
+                   "intersection_deg": round(p.intersection_deg, 2)} for p in plan.pairs],
+        "grid": {"x0": plan.grid.x0, "y0": plan.grid.y0, "cell_m": plan.grid.cell_m, "width": plan.grid.width,
+                 "height": plan.grid.height},
+        "frame": out_frame.to_text() if hasattr(out_frame, "to_text") else out_frame.describe(),
+        "vertical_reference": dsm.vertical_reference,
+        "height_range": list(height_range),
+        "cells_valid": int(valid.sum()), "cells": int(valid.size),
+        "height_sigma_median_m": float(np.nanmedian(dsm.sigma)) if valid.any() else None,
+        "support_median": float(np.median(dsm.support[valid])),
+        "cloud_points": 0 if cloud is None else len(cloud),
+        "stats": asdict(stats),
+        "config": json.loads(json.dumps(asdict(config), default=str)),
+        "executor": kind,
+    }
+    out = Path(outdir)
+    with stage_folder(out, stage="dsm", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:
+        write_dsm_cog(tmp / "dsm.tif", dsm)
+        write_hillshade_png(tmp / "dsm_hillshade.png", dsm)
+        if cloud is not None and len(cloud):
+            write_dense_cloud(tmp / "cloud.laz", cloud)
+        (tmp / "dense.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return DsmOutputs(out, out / "dsm.tif", out / "cloud.laz" if cloud is not None and len(cloud) else None,
+                      out / "dsm_hillshade.png", out / "dense.json", stats, summary)
