@@ -5,6 +5,10 @@
 * :mod:`skyrig.camera.distortion`: the :class:`Distortion` interface and the model registry.
 * :mod:`skyrig.camera.brown`: Brown / Australis (K1 K2 K3 P1 P2 B1 B2, mm-based).
 * :mod:`skyrig.camera.opencv`: OpenCV radial-tangential and rational models.
+* :mod:`skyrig.camera.forward`: distortion at the ideal point (balanced radial K1..K4 with R0, distortion
+  centre, decentring, affinity, shear), as calibration reports and other bundle programs give it.
+* :mod:`skyrig.camera.convert`: :func:`convert_camera`, a least-squares fit of one model to another over
+  the whole frame, with its residual.
 * :mod:`skyrig.camera.jacobians`: projection with analytic Jacobians for bundle adjustment.
 """
 
@@ -19,6 +23,7 @@ from skyrig.camera.distortion import (
 )
 from skyrig.camera.brown import BrownDistortion
 from skyrig.camera.opencv import OpenCVDistortion, OpenCVRationalDistortion
+from skyrig.camera.forward import ForwardDistortion
 from skyrig.camera.frame import (
     FrameCamera,
     GroundSampling,
@@ -28,10 +33,12 @@ from skyrig.camera.frame import (
     intersect_rays_with_surface,
 )
 from skyrig.camera.jacobians import JACOBIAN_KINDS, project_camera_with_jacobians, project_with_jacobians
+from skyrig.camera.convert import ConversionReport, RegionResidual, compare_cameras, convert_camera
 
 __all__ = [
     "CorrectionModel", "Distortion", "NoDistortion", "distortion_class", "distortion_from_dict", "distortion_models",
-    "register_distortion", "BrownDistortion", "OpenCVDistortion", "OpenCVRationalDistortion", "FrameCamera",
+    "register_distortion", "BrownDistortion", "OpenCVDistortion", "OpenCVRationalDistortion", "ForwardDistortion", "FrameCamera",
     "GroundSampling", "HeightFunction", "footprint_on_plane", "footprint_on_surface", "intersect_rays_with_surface",
-    "JACOBIAN_KINDS", "project_camera_with_jacobians", "project_with_jacobians",
+    "JACOBIAN_KINDS", "project_camera_with_jacobians", "project_with_jacobians", "ConversionReport", "RegionResidual",
+    "compare_cameras", "convert_camera",
 ]

@@ -135,6 +135,10 @@ class Distortion:
     param_names: ClassVar[tuple[str, ...]] = ()
     #: unit of each parameter (documentation, for reports)
     param_units: ClassVar[tuple[str, ...]] = ()
+    #: model constants: dataclass fields that are part of the model's definition but never estimated
+    #: (e.g. the radius of zero distortion R0 of a balanced radial model); written to and read from
+    #: dictionaries with the parameters, kept by :meth:`with_params`, not in :attr:`params`
+    constant_names: ClassVar[tuple[str, ...]] = ()
 
     # ------------------------------------------------------------------ parameters
     @property
@@ -151,17 +155,28 @@ class Distortion:
         """``{name: value}`` of the parameters."""
         return {n: float(getattr(self, n)) for n in self.param_names}
 
+    def constants_dict(self) -> dict[str, float]:
+        """``{name: value}`` of the model constants (empty for most models)."""
+        return {n: float(getattr(self, n)) for n in self.constant_names}
+
     @classmethod
     def from_params(cls: type[D], params: ArrayLike) -> D:
-        """A model from a vector ``(P,)`` ordered as ``param_names``."""
+        """A model from a vector ``(P,)`` ordered as ``param_names`` (constants at their defaults)."""
         p = np.asarray(params, dtype=np.float64).reshape(-1)
         if p.size != len(cls.param_names):
             raise ValueError(f"{cls.name}: expected {len(cls.param_names)} parameters, got {p.size}")
         return cls(**{n: float(v) for n, v in zip(cls.param_names, p)})  # type: ignore[call-arg]
 
+    def with_params(self: D, params: ArrayLike) -> D:
+        """A copy with the parameter vector ``(P,)`` replaced and the model constants kept."""
+        p = np.asarray(params, dtype=np.float64).reshape(-1)
+        if p.size != len(self.param_names):
+            raise ValueError(f"{self.name}: expected {len(self.param_names)} parameters, got {p.size}")
+        return dataclasses.replace(self, **{n: float(v) for n, v in zip(self.param_names, p)})  # type: ignore[type-var]
+
     def to_dict(self) -> dict[str, Any]:
-        """``{"model": name, <param>: value, ...}`` for rig and camera files."""
-        return {"model": self.name, **self.params_dict()}
+        """``{"model": name, <constant>: value, ..., <param>: value, ...}`` for rig and camera files."""
+        return {"model": self.name, **self.constants_dict(), **self.params_dict()}
 
     @classmethod
     def from_dict(cls: type[D], data: Mapping[str, Any]) -> D:
@@ -174,9 +189,10 @@ class Distortion:
             if key == "model":
                 continue
             k = str(key).lower()
-            if k not in cls.param_names:
+            if k not in cls.param_names and k not in cls.constant_names:
                 raise InputFormatError(
-                    f"unknown parameter for distortion model {cls.name!r}; expected {', '.join(cls.param_names)}",
+                    f"unknown parameter for distortion model {cls.name!r}; expected "
+                    f"{', '.join(cls.constant_names + cls.param_names)}",
                     field=str(key),
                 )
             try:
@@ -324,12 +340,13 @@ class NoDistortion(Distortion):
 
 
 def _fields_are_params(cls: type[Distortion]) -> None:
-    """Sanity check used by the tests: dataclass fields == param_names."""
+    """Sanity check used by the tests: dataclass fields == constant_names + param_names."""
     names = tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
-    if names != cls.param_names:
+    if sorted(names) != sorted(cls.constant_names + cls.param_names):
         raise SkyrigError(f"{cls.__name__}: fields {names} differ from param_names {cls.param_names}")
 
 
 # Register the shipped models (import for the side effect; they import this module first).
 from skyrig.camera import brown as _brown  # noqa: E402,F401
 from skyrig.camera import opencv as _opencv  # noqa: E402,F401
+from skyrig.camera import forward as _forward  # noqa: E402,F401

@@ -153,7 +153,7 @@ class FrameCamera:
             focal_mm=float(v[0]),
             ppx_mm=float(v[1]),
             ppy_mm=float(v[2]),
-            distortion=type(self.distortion).from_params(v[3:]),
+            distortion=self.distortion.with_params(v[3:]),  # keeps model constants (e.g. R0)
         )
 
     # ------------------------------------------------------------------ derived quantities
