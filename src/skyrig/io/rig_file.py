@@ -3,6 +3,12 @@
 Every quantity carries its unit in its key (``lever_arm_m``, ``focal_mm``, ``pixel_size_um``,
 ``*_deg``).  Unknown keys are errors; every error names the file, the line and the key path
 (e.g. ``heads[1].camera.focal_mm``).  Writing goes to a temporary file renamed into place.
+
+A *calibrated* rig file adds optional ``calibration`` sections (top level and per head): sigma and
+correlations of the lever arms, boresights, interior orientations and actuator curve, and provenance.
+:func:`read_rig` checks them and returns the :class:`~skyrig.rig.rig.Rig` (so every command that takes a
+rig takes a calibrated one); :func:`read_calibrated_rig` returns the
+:class:`~skyrig.calibrate.rig_calibration.RigCalibration` as well.
 """
 
 from __future__ import annotations
@@ -15,6 +21,14 @@ from typing import Any
 import numpy as np
 import yaml
 
+from skyrig.calibrate.rig_calibration import (
+    BORESIGHT_PARAMETERS,
+    LEVER_ARM_PARAMETERS,
+    CovarianceBlock,
+    HeadCalibration,
+    Provenance,
+    RigCalibration,
+)
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError, SkyrigError
@@ -193,11 +207,95 @@ def _unplain(value: Any) -> Any:
 
 # ---------------------------------------------------------------------- reading
 _CAMERA_KEYS = {"name", "width_px", "height_px", "pixel_size_um", "focal_mm", "ppx_mm", "ppy_mm", "distortion"}
-_HEAD_KEYS = {"name", "camera", "lever_arm_m", "mounting_rpy_deg", "mounting_matrix", "boresight_opk_deg", "actuator"}
+_HEAD_KEYS = {"name", "camera", "lever_arm_m", "mounting_rpy_deg", "mounting_matrix", "boresight_opk_deg", "actuator",
+              "calibration"}
 _ACTUATOR_KEYS = {"type", "gamma_deg", "law", "boresight_curve"}
 _CURVE_KEYS = {"interpolation", "beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg", "std_deg", "count"}
 _STD_KEYS = {"droll_deg", "dpitch_deg", "dyaw_deg"}
-_TOP_KEYS = {"format", "version", "name", "description", "antenna_lever_arm_m", "heads"}
+_TOP_KEYS = {"format", "version", "name", "description", "antenna_lever_arm_m", "heads", "calibration"}
+_BLOCK_KEYS = {"parameters", "sigma", "correlation", "values"}
+_PROV_KEYS = {"recipe", "flight", "date", "software", "statistics", "notes"}
+_HEAD_CAL_KEYS = {"lever_arm_m", "boresight_opk_deg", "interior", "actuator", "provenance"}
+_TOP_CAL_KEYS = {"antenna_lever_arm_m", "provenance"}
+
+
+def _read_block(ctx: _Ctx, value: Any, parent: _Map, kp: str, key: str, fixed: tuple[str, ...] | None = None,
+                allowed_names: tuple[str, ...] | None = None, need_values: bool = False) -> CovarianceBlock:
+    """A covariance block ``{parameters, sigma, correlation[, values]}``."""
+    required = {"sigma"} | ({"parameters"} if fixed is None else set()) | ({"values"} if need_values else set())
+    m = ctx.mapping(value, parent, kp, key, _BLOCK_KEYS if need_values else _BLOCK_KEYS - {"values"}, required)
+    if "parameters" in m:
+        names = m["parameters"]
+        if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
+            raise ctx.error(f"expected a non-empty list of names, got {names!r}", m, f"{kp}.parameters", "parameters")
+        if len(set(names)) != len(names):
+            raise ctx.error("parameter names must be distinct", m, f"{kp}.parameters", "parameters")
+        if fixed is not None and tuple(names) != fixed:
+            raise ctx.error(f"expected {list(fixed)}, got {list(names)}", m, f"{kp}.parameters", "parameters")
+        if allowed_names is not None:
+            bad = [n for n in names if n not in allowed_names]
+            if bad:
+                raise ctx.error(f"{bad} are not parameters of this camera ({', '.join(allowed_names)})", m,
+                                f"{kp}.parameters", "parameters")
+        names_t = tuple(str(n) for n in names)
+    else:
+        names_t = fixed  # type: ignore[assignment]
+    p = len(names_t)
+    sigma = ctx.numbers(m, "sigma", f"{kp}.sigma", (p,))
+    if np.any(sigma < 0):
+        raise ctx.error("standard deviations must be >= 0", m, f"{kp}.sigma", "sigma")
+    corr = ctx.numbers(m, "correlation", f"{kp}.correlation", (p, p)) if "correlation" in m else np.eye(p)
+    values = ctx.numbers(m, "values", f"{kp}.values", (p,)) if "values" in m else None
+    try:
+        return CovarianceBlock(names_t, sigma, corr, values)
+    except SkyrigError as exc:
+        field = f"{kp}.correlation" if "correlation" in str(exc) else kp
+        raise ctx.error(str(exc), m, field, "correlation" if "correlation" in str(exc) else None) from None
+
+
+def _read_provenance(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> Provenance:
+    m = ctx.mapping(value, parent, kp, "provenance", _PROV_KEYS, {"recipe"})
+    text = {}
+    for k in ("recipe", "flight", "date", "software", "notes"):
+        if k in m:
+            v = m[k]
+            if k == "date" and not isinstance(v, str) and v is not None:
+                v = str(v)  # YAML reads 2011-05-12 as a date
+            if v is not None and not isinstance(v, str):
+                raise ctx.error(f"expected text, got {v!r}", m, f"{kp}.{k}", k)
+            text[k] = v or ""
+    stats: dict[str, float] = {}
+    if m.get("statistics") is not None:
+        st = m["statistics"]
+        if not isinstance(st, _Map):
+            raise ctx.error("expected a mapping name: number", m, f"{kp}.statistics", "statistics")
+        for k in st:
+            v = st[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise ctx.error(f"expected a finite number, got {v!r}", st, f"{kp}.statistics.{k}", k)
+            stats[k] = v
+    if not text.get("recipe", "").strip():
+        raise ctx.error("expected non-empty text", m, f"{kp}.recipe", "recipe")
+    return Provenance(statistics=stats, **text)
+
+
+def _read_head_calibration(ctx: _Ctx, value: Any, parent: _Map, kp: str, camera: FrameCamera) -> HeadCalibration:
+    m = ctx.mapping(value, parent, kp, "calibration", _HEAD_CAL_KEYS, set())
+    kw: dict[str, Any] = {}
+    if m.get("lever_arm_m") is not None:
+        kw["lever_arm_m"] = _read_block(ctx, m["lever_arm_m"], m, f"{kp}.lever_arm_m", "lever_arm_m",
+                                        LEVER_ARM_PARAMETERS)
+    if m.get("boresight_opk_deg") is not None:
+        kw["boresight_opk_deg"] = _read_block(ctx, m["boresight_opk_deg"], m, f"{kp}.boresight_opk_deg",
+                                              "boresight_opk_deg", BORESIGHT_PARAMETERS)
+    if m.get("interior") is not None:
+        kw["interior"] = _read_block(ctx, m["interior"], m, f"{kp}.interior", "interior",
+                                     allowed_names=camera.intrinsic_names)
+    if m.get("actuator") is not None:
+        kw["actuator"] = _read_block(ctx, m["actuator"], m, f"{kp}.actuator", "actuator", need_values=True)
+    if m.get("provenance") is not None:
+        kw["provenance"] = _read_provenance(ctx, m["provenance"], m, f"{kp}.provenance")
+    return HeadCalibration(**kw)
 
 
 def _read_camera(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> FrameCamera:
@@ -265,7 +363,19 @@ def _read_curve(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> BoresightCurve:
         raise InputFormatError(str(exc), ctx.path, m.line, kp) from None
 
 
-def _read_head(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
+def _read_head(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> tuple[Head, HeadCalibration | None]:
+    head = _read_head_only(ctx, value, parent, index)
+    m = value
+    cal = None
+    if m.get("calibration") is not None:
+        cal = _read_head_calibration(ctx, m["calibration"], m, f"heads[{index}].calibration", head.camera)
+        if cal.actuator is not None and not head.is_actuated:
+            raise ctx.error("an actuator block for a head without an actuator", m["calibration"],
+                            f"heads[{index}].calibration.actuator", "actuator")
+    return head, cal
+
+
+def _read_head_only(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
     kp = f"heads[{index}]"
     if not isinstance(value, _Map):
         raise InputFormatError(f"expected a mapping, got {type(value).__name__}", ctx.path, parent.line, kp)
@@ -309,7 +419,22 @@ def _read_head(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
 
 
 def read_rig(path: str | os.PathLike[str]) -> Rig:
-    """Read a rig file (``format: skyrig-rig``, ``version: 1``).
+    """Read a rig file (``format: skyrig-rig``, ``version: 1``), calibrated or not.
+
+    The ``calibration`` sections of a calibrated rig file are checked like the rest and left out of the
+    returned rig (its values already hold the calibrated figures); :func:`read_calibrated_rig` returns them.
+
+    Raises
+    ------
+    InputFormatError
+        For anything the format does not allow, naming the file, line and key path.
+    """
+    return read_calibrated_rig(path)[0]
+
+
+def read_calibrated_rig(path: str | os.PathLike[str]) -> tuple[Rig, RigCalibration | None]:
+    """Read a rig file and its calibration: ``(rig, calibration)``, ``calibration`` None when the file has no
+    ``calibration`` section at all.
 
     Raises
     ------
@@ -353,14 +478,29 @@ def read_rig(path: str | os.PathLike[str]) -> Rig:
     heads_v = doc["heads"]
     if not isinstance(heads_v, _Seq) or not heads_v:
         raise ctx.error("expected a non-empty list of heads", doc, "heads", "heads")
-    heads = [_read_head(ctx, h, heads_v, i) for i, h in enumerate(heads_v)]
+    read = [_read_head(ctx, h, heads_v, i) for i, h in enumerate(heads_v)]
+    heads = [h for h, _ in read]
     seen: dict[str, int] = {}
     for i, h in enumerate(heads):
         if h.name in seen:
             raise InputFormatError(f"duplicate head name {h.name!r} (also heads[{seen[h.name]}])", p,
                                    heads_v[i].line, f"heads[{i}].name")
         seen[h.name] = i
-    return Rig(name, heads, antenna, description)
+    rig = Rig(name, heads, antenna, description)
+    head_cal = {h.name: c for h, c in read if c is not None}
+    calibration = None
+    if doc.get("calibration") is not None or head_cal:
+        kw: dict[str, Any] = {}
+        if doc.get("calibration") is not None:
+            c = ctx.mapping(doc["calibration"], doc, "calibration", "calibration", _TOP_CAL_KEYS, set())
+            if c.get("antenna_lever_arm_m") is not None:
+                kw["antenna_lever_arm_m"] = _read_block(ctx, c["antenna_lever_arm_m"], c,
+                                                        "calibration.antenna_lever_arm_m", "antenna_lever_arm_m",
+                                                        LEVER_ARM_PARAMETERS)
+            if c.get("provenance") is not None:
+                kw["provenance"] = _read_provenance(ctx, c["provenance"], c, "calibration.provenance")
+        calibration = RigCalibration(head_cal, **kw)
+    return rig, calibration
 
 
 # ---------------------------------------------------------------------- writing
@@ -441,21 +581,75 @@ def _head_dict(h: Head) -> dict[str, Any]:
     return out
 
 
-def rig_to_dict(rig: Rig) -> dict[str, Any]:
-    """The YAML document of a rig as plain Python (what :func:`write_rig` writes)."""
-    return {
+def _block_dict(b: CovarianceBlock, with_names: bool = True) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if with_names:
+        out["parameters"] = list(b.parameters)
+    if b.values is not None:
+        out["values"] = _plain(b.values)
+    out["sigma"] = _plain(b.sigma)
+    out["correlation"] = _plain(np.round(b.correlation, 12) + 0.0)
+    return out
+
+
+def _provenance_dict(p: Provenance) -> dict[str, Any]:
+    out: dict[str, Any] = {"recipe": p.recipe}
+    for k in ("flight", "date", "software", "notes"):
+        if getattr(p, k):
+            out[k] = getattr(p, k)
+    if p.statistics:
+        out["statistics"] = _plain(dict(p.statistics))
+    return out
+
+
+def _head_calibration_dict(c: HeadCalibration) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if c.provenance is not None:
+        out["provenance"] = _provenance_dict(c.provenance)
+    for key, b in c.groups.items():
+        out[key] = _block_dict(b, key in ("interior", "actuator"))
+    return out
+
+
+def rig_to_dict(rig: Rig, calibration: RigCalibration | None = None) -> dict[str, Any]:
+    """The YAML document of a rig (and its calibration) as plain Python (what :func:`write_rig` writes)."""
+    heads = [_head_dict(h) for h in rig]
+    out: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
         "name": rig.name,
         "description": rig.description,
         "antenna_lever_arm_m": _plain(rig.antenna_lever_arm_m),
-        "heads": [_head_dict(h) for h in rig],
     }
+    if calibration is not None:
+        unknown = [n for n in calibration.heads if n not in rig]
+        if unknown:
+            raise SkyrigError(f"calibration names heads {unknown} that rig {rig.name!r} does not have")
+        top: dict[str, Any] = {}
+        if calibration.provenance is not None:
+            top["provenance"] = _provenance_dict(calibration.provenance)
+        if calibration.antenna_lever_arm_m is not None:
+            top["antenna_lever_arm_m"] = _block_dict(calibration.antenna_lever_arm_m, False)
+        if top:
+            out["calibration"] = top
+        for h, d in zip(rig, heads):
+            c = calibration.heads.get(h.name)
+            if c is None:
+                continue
+            if c.interior is not None:
+                bad = [n for n in c.interior.parameters if n not in h.camera.intrinsic_names]
+                if bad:
+                    raise SkyrigError(f"head {h.name!r}: interior block names {bad}, not intrinsics of its camera")
+            if c.actuator is not None and not h.is_actuated:
+                raise SkyrigError(f"head {h.name!r}: an actuator block for a head without an actuator")
+            d["calibration"] = _head_calibration_dict(c)
+    out["heads"] = heads
+    return out
 
 
-def write_rig(rig: Rig, path: str | os.PathLike[str]) -> None:
-    """Write ``rig`` as a version-1 rig file (temporary file, then ``os.replace``)."""
-    text = yaml.dump(rig_to_dict(rig), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=120)
+def write_rig(rig: Rig, path: str | os.PathLike[str], calibration: RigCalibration | None = None) -> None:
+    """Write ``rig`` (and its ``calibration``) as a version-1 rig file (temporary file, then ``os.replace``)."""
+    text = yaml.dump(rig_to_dict(rig, calibration), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=120)
     with atomic_write(path) as fh:
         fh.write("# skyrig rig file; format described in docs/formats/rig_file.md\n")
         fh.write(text)

@@ -1,0 +1,132 @@
+"""``skyrig calibrate RECIPE``: the papers' calibration recipes (:mod:`skyrig.calibrate`).
+
+``skyrig calibrate camera``: test-field (cage) calibration of one camera (paper 004, section 2.5) from the
+target coordinates (points CSV ``name,x,y,z``, metres in the test field's Cartesian frame) and the image
+measurements (measurements CSV ``point,image,column,row``), with fixed stations (a points CSV of the
+projection centres, named by image) or free ones; writes the calibrated camera into a calibrated rig file
+and a JSON report.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+@click.group("calibrate")
+def command() -> None:
+    """Calibration recipes; the result is a calibrated rig file and a report."""
+
+
+@command.command("camera")
+@click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Target coordinates: points CSV name,x,y,z (metres, the test field's Cartesian frame; a CRS header "
+                   "is not used). The targets are fixed.")
+@click.option("--measurements", "meas_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Image measurements CSV point,image,column,row (pixels).")
+@click.option("--stations", "stations_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Projection centres: points CSV name,x,y,z with name = image name; the stations are then fixed "
+                   "(only the rotations are estimated). Without it the stations are free.")
+@click.option("--rig", "rig_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Rig file holding the camera to calibrate (its size, pixel size and starting values); the output "
+                   "rig is this rig with the head's camera calibrated.")
+@click.option("--head", default=None, help="Head of --rig to calibrate (default: the only one).")
+@click.option("--name", default="camera", show_default=True, help="Camera name (without --rig).")
+@click.option("--width-px", type=int, default=None, help="Image width (without --rig).")
+@click.option("--height-px", type=int, default=None, help="Image height (without --rig).")
+@click.option("--pixel-size-um", type=float, default=None, help="Pixel pitch (without --rig).")
+@click.option("--focal-mm", type=float, default=None, help="Starting principal distance (without --rig).")
+@click.option("--model", default="brown", show_default=True,
+              help="Distortion model to calibrate (brown, forward, opencv, ...).")
+@click.option("--r0-mm", type=float, default=None, help="Radius of zero distortion of the forward model.")
+@click.option("--parameters", default=None,
+              help="Comma-separated intrinsics to estimate (default: all of the model, a forward model's "
+                   "distortion centre excepted).")
+@click.option("--image-sigma-px", type=float, default=0.1, show_default=True, help="Sigma of an image coordinate.")
+@click.option("--flight", default="", help="Provenance: session / data set.")
+@click.option("--date", default="", help="Provenance: date of the images (ISO 8601).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="JSON report (default: the output with suffix .json).")
+def camera_command(points_path, meas_path, stations_path, rig_path, head, name, width_px, height_px, pixel_size_um,
+                   focal_mm, model, r0_mm, parameters, image_sigma_px, flight, date, output, report_path) -> None:
+    """Test-field (cage) calibration of one camera: fixed targets, fixed or free stations, self-calibration."""
+    from skyrig.calibrate.camera import calibrate_camera
+    from skyrig.camera.distortion import distortion_class
+    from skyrig.camera.frame import FrameCamera
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io._text import atomic_write
+    from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+    from skyrig.io.rig_file import write_rig
+    from skyrig.rig.rig import Head, Rig
+
+    object_frame = WorldFrame.local(0.0, 0.0, 0.0)  # a stand-in: coordinates are used as Cartesian metres
+    if rig_path is not None:
+        from skyrig.io.rig_file import read_calibrated_rig
+
+        rig, rig_cal = read_calibrated_rig(rig_path)
+        if head is None:
+            if len(rig) != 1:
+                raise click.UsageError(f"--rig has {len(rig)} heads ({', '.join(rig.head_names)}); name one with --head")
+            head = rig.head_names[0]
+        cam0 = rig.head(head).camera
+    else:
+        missing = [o for o, v in (("--width-px", width_px), ("--height-px", height_px),
+                                  ("--pixel-size-um", pixel_size_um), ("--focal-mm", focal_mm)) if v is None]
+        if missing:
+            raise click.UsageError(f"without --rig give {', '.join(missing)}")
+        cam0 = FrameCamera(name, width_px, height_px, pixel_size_um / 1000.0, focal_mm)
+        rig, rig_cal, head = None, None, name
+    try:
+        cls = distortion_class(model)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--model") from None
+    if r0_mm is not None:
+        if "r0_mm" not in cls.constant_names:
+            raise click.BadParameter(f"model {model!r} has no radius of zero distortion", param_hint="--r0-mm")
+        start = cls(r0_mm=r0_mm) if cam0.distortion.name != cls.name else cam0.distortion.__class__(
+            **{**cam0.distortion.params_dict(), "r0_mm": r0_mm})
+    else:
+        start = cam0.distortion if cam0.distortion.name == cls.name else cls()
+    targets = read_points_csv(points_path, object_frame)
+    meas = read_measurements_csv(meas_path)
+    centres = None
+    if stations_path is not None:
+        st = read_points_csv(stations_path, object_frame)
+        centres = {str(n): x for n, x in zip(st.name, st.xyz)}
+    params = None if parameters is None else tuple(p.strip() for p in parameters.split(",") if p.strip())
+    cal = calibrate_camera(cam0, targets.name, targets.xyz, meas.image, meas.point, meas.pixel, model=start,
+                           parameters=params, stations="fixed" if centres is not None else "free",
+                           station_centres=centres, image_sigma_px=image_sigma_px)
+    new_cal = cal.rig_calibration(head, flight, date)
+    if rig is None:
+        out_rig = Rig(cal.camera.name, [Head(head, cal.camera)], description="camera calibrated by skyrig calibrate camera")
+        out_cal = new_cal
+    else:
+        from skyrig.calibrate.rig_calibration import HeadCalibration, RigCalibration
+
+        heads = [h.with_(camera=cal.camera) if h.name == head else h for h in rig]
+        out_rig = Rig(rig.name, heads, rig.antenna_lever_arm_m, rig.description)
+        old = dict(rig_cal.heads) if rig_cal is not None else {}
+        prev = old.get(head, HeadCalibration())
+        old[head] = HeadCalibration(prev.lever_arm_m, prev.boresight_opk_deg, new_cal.heads[head].interior,
+                                    prev.actuator, new_cal.heads[head].provenance)
+        out_cal = RigCalibration(old, None if rig_cal is None else rig_cal.antenna_lever_arm_m,
+                                 None if rig_cal is None else rig_cal.provenance)
+    report = cal.to_dict()
+    report["inputs"] = {"points": str(points_path), "measurements": str(meas_path), "stations": stations_path,
+                        "rig": rig_path, "head": head}
+    report["output"] = str(output)
+    write_rig(out_rig, output, out_cal)
+    report_path = report_path or str(Path(output).with_suffix(".json"))
+    with atomic_write(report_path) as fh:
+        json.dump(report, fh, indent=2)
+        fh.write("\n")
+    names = ", ".join(f"{n} {v:.6g} ± {s:.2g}" for n, v, s in zip(cal.parameters, cal.values, cal.sigma))
+    click.echo(f"calibrated {cal.camera.name!r} ({cal.camera.distortion.name}) from {len(cal.image_names)} images, "
+               f"{cal.n_observations} observations: sigma0 {cal.sigma0:.3f}, redundancy {cal.redundancy}, residual RMS "
+               f"{cal.residual_rms_px[0]:.3f} / {cal.residual_rms_px[1]:.3f} px")
+    click.echo(names)
+    click.echo(f"-> {output}, {report_path}")
