@@ -84,12 +84,30 @@ class Rectification:
             D = np.where(r[:, 2] < 0, -r[:, 2], np.nan)
             return np.stack([self.focal_px * r[:, 0] / D, -self.focal_px * r[:, 1] / D], axis=1)
 
-    def maps(self, side: int, u0: float, v0: float, width: int, height: int
+    def maps(self, side: int, u0: float, v0: float, width: int, height: int, step: int = 4
              ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """``cv2.remap`` maps (col, row float32 arrays ``(height, width)``) of a rectified crop starting at
-        ``(u0, v0)``; pixels behind the camera map to -1e6 (outside any image)."""
-        uu, vv = np.meshgrid(u0 + np.arange(width, dtype=np.float64), v0 + np.arange(height, dtype=np.float64))
-        pix = self.to_original(side, uu, vv)
+        ``(u0, v0)``; pixels behind the camera map to -1e6 (outside any image).
+
+        The exact mapping (:meth:`to_original`, distortion included) is evaluated on a lattice every ``step``
+        pixels and interpolated bilinearly in between (in float64); the interpolation error is the mapping's
+        curvature over ``step`` pixels (below 0.005 px for 25 % barrel distortion, see tests); ``step=1`` is exact.
+        """
+        if step <= 1:
+            uu, vv = np.meshgrid(u0 + np.arange(width, dtype=np.float64), v0 + np.arange(height, dtype=np.float64))
+            pix = self.to_original(side, uu, vv)
+        else:
+            nu, nv = -(-(width - 1) // step) + 1, -(-(height - 1) // step) + 1
+            lu, lv = np.meshgrid(u0 + step * np.arange(nu, dtype=np.float64), v0 + step * np.arange(nv, dtype=np.float64))
+            lat = self.to_original(side, lu, lv)  # (nv, nu, 2)
+            cu = np.arange(width) / step
+            cv = np.arange(height) / step
+            iu = np.minimum(cu.astype(np.int64), nu - 2)
+            iv = np.minimum(cv.astype(np.int64), nv - 2)
+            fu = (cu - iu)[None, :, None]
+            fv = (cv - iv)[:, None, None]
+            rows = lat[:, iu] * (1 - fu) + lat[:, iu + 1] * fu  # (nv, width, 2): along u first (separable)
+            pix = rows[iv] * (1 - fv) + rows[iv + 1] * fv
         pix = np.where(np.isfinite(pix), pix, -1e6)
         return pix[..., 0].astype(np.float32), pix[..., 1].astype(np.float32)
 

@@ -151,33 +151,67 @@ def match_rectified(left: NDArray, right: NDArray, d_min: float, d_max: float, c
         raise SkyrigError(f"rectified images differ in shape: {left.shape} vs {right.shape}")
     shift, n = disparity_window(d_min, d_max, cfg)
     H, W = left.shape[:2]
-    channels = 1 if left.ndim == 2 else left.shape[2]
-    matcher = _matcher(cfg, n, channels)
     out = np.full((H, W), np.nan, np.float32)
-    t, m = cfg.tile_px, cfg.margin_px
+    t = cfg.tile_px
     for r0 in range(0, H, t):
         r1 = min(H, r0 + t)
         for c0 in range(0, W, t):
             c1 = min(W, c0 + t)
-            out[r0:r1, c0:c1] = _match_tile(left, right, matcher, shift, n, r0, r1, c0, c1, m)
+            out[r0:r1, c0:c1] = _match_tile(left, right, cfg, shift, n, r0, r1, c0, c1)
     if valid_left is not None:
         out[~valid_left] = np.nan
     return out
 
 
-def _match_tile(left: NDArray, right: NDArray, matcher, shift: int, n: int, r0: int, r1: int, c0: int, c1: int,
-                m: int) -> NDArray[np.float32]:  # type: ignore[no-untyped-def]
-    """Disparities of the tile ``[r0:r1, c0:c1]`` from a crop with ``m`` px context and the search width."""
-    H, W = left.shape[:2]
-    a0, a1 = max(0, r0 - m), min(H, r1 + m)
-    b0 = c0 - m - n  # OpenCV leaves the first n columns without result
-    b1 = min(W, c1 + m)
-    lc = _crop_cols(left[a0:a1], b0, b1)
-    rc = _crop_cols(right[a0:a1], b0 - shift, b1 - shift)
-    d16 = matcher.compute(lc, rc)
+def crop_extra_right(n: int, cfg: SgmConfig) -> int:
+    """Columns a crop needs right of its interior: the right-based pass of the full left-right check leaves
+    its last ``n`` columns without result."""
+    return n if cfg.lr_check == "full" else 0
+
+
+def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig,
+               valid_left: NDArray[np.bool_] | None = None, valid_right: NDArray[np.bool_] | None = None
+               ) -> NDArray[np.float32]:
+    """The matching core every path goes through (benchmarks and oriented images alike).
+
+    ``left`` and ``right`` are equal crops, the right one shifted so that a disparity ``d`` appears as
+    ``d - shift`` (searched over ``0..n``).  Runs StereoSGBM, the left-right check (``cfg.lr_check``),
+    refuses matches on pixels without image content (``valid_*``), adds the shift back and erodes the
+    foreground at depth edges.  Returns ``(H, W)`` float32 disparities, NaN = invalid; the first ``n`` columns
+    (and with the full check the last ``n``) are always invalid.
+    """
+    channels = 1 if left.ndim == 2 else left.shape[2]
+    matcher = _matcher(cfg, n, channels)
+    d16 = matcher.compute(left, right)
     d = d16.astype(np.float32) / 16.0
     d[d16 < 0] = np.nan
+    if cfg.lr_check == "full":
+        d = left_right_check(d, matcher, left, right, cfg.lr_max_diff)
+    if valid_left is not None:
+        d[~valid_left] = np.nan
+    if valid_right is not None:  # the right pixel each left pixel matched must carry image content
+        w = d.shape[1]
+        cols = np.arange(w)[None, :] - d
+        ci = np.clip(np.round(np.nan_to_num(cols, nan=-1)).astype(np.int64), 0, w - 1)
+        rok = np.take_along_axis(valid_right, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
+        d[~rok] = np.nan
     d += shift
+    return erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+
+
+def _match_tile(left: NDArray, right: NDArray, cfg: SgmConfig, shift: int, n: int, r0: int, r1: int, c0: int,
+                c1: int) -> NDArray[np.float32]:
+    """Disparities of the tile ``[r0:r1, c0:c1]`` from a zero-padded crop with context and the search width."""
+    H, W = left.shape[:2]
+    m = cfg.margin_px
+    a0, a1 = max(0, r0 - m), min(H, r1 + m)
+    b0 = c0 - m - n  # OpenCV leaves the first n columns without result
+    b1 = c1 + m + crop_extra_right(n, cfg)
+    lc = _crop_cols(left[a0:a1], b0, b1)
+    rc = _crop_cols(right[a0:a1], b0 - shift, b1 - shift)
+    vl = _crop_cols(np.ones(left.shape[:2], bool)[a0:a1], b0, b1)
+    vr = _crop_cols(np.ones(right.shape[:2], bool)[a0:a1], b0 - shift, b1 - shift)
+    d = match_crop(lc, rc, shift, n, cfg, vl, vr)
     return d[r0 - a0:r1 - a0, c0 - b0:c1 - b0]
 
 
@@ -216,4 +250,23 @@ def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> N
         fg = ndimage.binary_dilation(fg, iterations=erode_px - 1)
     out = d.copy()
     out[fg & np.isfinite(d)] = np.nan
+    return out
+
+
+def left_right_check(d: NDArray[np.float32], matcher, lg: NDArray, rg: NDArray, tol: float
+                      ) -> NDArray[np.float32]:  # type: ignore[no-untyped-def]
+    """Keep the left disparities that the right-based matching (same matcher on the mirrored pair) confirms
+    within ``tol`` pixels; occluded and fattened pixels fail."""
+    e16 = matcher.compute(np.ascontiguousarray(rg[:, ::-1]), np.ascontiguousarray(lg[:, ::-1]))[:, ::-1]
+    e = e16.astype(np.float32) / 16.0
+    e[e16 < 0] = np.nan
+    w = d.shape[1]
+    jr = np.arange(w)[None, :] - d
+    ok = np.isfinite(jr) & (jr >= 0) & (jr <= w - 1)
+    ji = np.clip(np.round(np.nan_to_num(jr, nan=0.0)).astype(np.int64), 0, w - 1)
+    er = np.take_along_axis(e, ji, axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= np.abs(er - d) <= max(tol, 0.5)
+    out = d.copy()
+    out[~ok] = np.nan
     return out

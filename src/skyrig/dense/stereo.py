@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from skyrig.dense.pairs import ray_box_interval
 from skyrig.dense.rectify import Rectification
-from skyrig.dense.sgm import SgmConfig, _matcher, disparity_window, erode_foreground
+from skyrig.dense.sgm import SgmConfig, crop_extra_right, disparity_window, match_crop
 
 #: image loader: image row index -> uint8 array (H, W, 3) RGB or (H, W) grey, as the camera sees it
 ImageLoader = Callable[[int], NDArray[np.uint8]]
@@ -124,83 +124,65 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
     shift, n = disparity_window(blk.d_min, blk.d_max, cfg)
     m = cfg.margin_px
     cu0 = blk.u0 - m - n
-    w = (blk.u1 + m + (n if cfg.lr_check == "full" else 0)) - cu0  # the right-based pass needs n more on the right
+    w = (blk.u1 + m + crop_extra_right(n, cfg)) - cu0
     cv0 = blk.v0 - m
     h = (blk.v1 + m) - cv0
     lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
     rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
     lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
     rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
-    matcher = _matcher(cfg, n, 1)
-    d16 = matcher.compute(lg, rg)
-    d = d16.astype(np.float32) / 16.0
-    d[d16 < 0] = np.nan
-    if cfg.lr_check == "full":
-        d = _left_right_check(d, matcher, lg, rg, cfg.lr_max_diff)
-    # the right pixel each left pixel matched must lie inside the right image
-    cols = np.arange(w)[None, :] - d
-    ci = np.clip(np.round(np.nan_to_num(cols, nan=-1)).astype(np.int64), 0, w - 1)
-    rok = np.take_along_axis(rvalid, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
-    d[~(lvalid & rok)] = np.nan
-    d += shift
-    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+    d = match_crop(lg, rg, shift, n, cfg, lvalid, rvalid)
     sl = (slice(m, m + blk.v1 - blk.v0), slice(m + n, m + n + blk.u1 - blk.u0))
     return d[sl], lc[sl], lvalid[sl]
 
 
-def _left_right_check(d: NDArray[np.float32], matcher, lg: NDArray, rg: NDArray, tol: float
-                      ) -> NDArray[np.float32]:  # type: ignore[no-untyped-def]
-    """Keep the left disparities that the right-based matching (same matcher on the mirrored pair) confirms
-    within ``tol`` pixels; occluded and fattened pixels fail."""
-    e16 = matcher.compute(np.ascontiguousarray(rg[:, ::-1]), np.ascontiguousarray(lg[:, ::-1]))[:, ::-1]
-    e = e16.astype(np.float32) / 16.0
-    e[e16 < 0] = np.nan
-    w = d.shape[1]
-    jr = np.arange(w)[None, :] - d
-    ok = np.isfinite(jr) & (jr >= 0) & (jr <= w - 1)
-    ji = np.clip(np.round(np.nan_to_num(jr, nan=0.0)).astype(np.int64), 0, w - 1)
-    er = np.take_along_axis(e, ji, axis=1)
-    with np.errstate(invalid="ignore"):
-        ok &= np.abs(er - d) <= max(tol, 0.5)
-    out = d.copy()
-    out[~ok] = np.nan
-    return out
-
-
 def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig
                  ) -> PairPoints:
-    """Triangulate every matched pixel of a block, with precision, intersection angle, colour and normal."""
+    """Triangulate every matched pixel of a block, with precision, intersection angle, colour and normal.
+
+    Everything is computed in the rectified frame of the left camera, where a pixel ``(u, v)`` with depth
+    ``D = f B / d`` is the point ``p = (u D / f, -v D / f, -D)``; normals come from the depth's derivatives
+    along the grid (central differences), ``n = dp/dv x dp/du``; world = ``C_left + R p``.
+    """
     ok = np.isfinite(disp) & (disp > 0)
     if not ok.any():
         return PairPoints.empty()
-    vv, uu = np.mgrid[blk.v0:blk.v1, blk.u0:blk.u1].astype(np.float64)
-    grid = np.full(disp.shape + (3,), np.nan)
-    xyz, D = rect.triangulate(uu[ok], vv[ok], disp[ok].astype(np.float64))
-    grid[ok] = xyz
-    # predicted precision: a disparity error moves the point along the left ray by |P - C| / d per pixel
-    ray = xyz - rect.centres[0]
-    per_px = 1.0 / disp[ok].astype(np.float64)
-    s = cfg.disparity_sigma_px
-    sigma_3d = np.linalg.norm(ray, axis=1) * per_px * s
-    sigma_h = np.abs(ray[:, 2]) * per_px * s
-    r2 = xyz - rect.centres[1]
-    cosang = np.sum(ray * r2, axis=1) / (np.linalg.norm(ray, axis=1) * np.linalg.norm(r2, axis=1))
-    ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
-    # normals from central differences of the point grid (2 px apart), facing the camera
-    nrm = np.full(grid.shape, np.nan)
-    du = np.full(grid.shape, np.nan)
-    dv = np.full(grid.shape, np.nan)
-    du[:, 1:-1] = grid[:, 2:] - grid[:, :-2]
-    dv[1:-1] = grid[2:] - grid[:-2]
-    cr = np.cross(dv, du)
-    nn = np.linalg.norm(cr, axis=-1, keepdims=True)
+    f, B = rect.focal_px, rect.base_m
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(ok, np.float32(f * B) / disp, np.nan).astype(np.float32)
+    Du = np.full(depth.shape, np.nan, np.float32)
+    Dv = np.full(depth.shape, np.nan, np.float32)
+    Du[:, 1:-1] = 0.5 * (depth[:, 2:] - depth[:, :-2])
+    Dv[1:-1] = 0.5 * (depth[2:] - depth[:-2])
+    r, c = np.nonzero(ok)
+    u = (blk.u0 + c).astype(np.float64)
+    v = (blk.v0 + r).astype(np.float64)
+    D = depth[r, c].astype(np.float64)
+    du, dv = Du[r, c].astype(np.float64), Dv[r, c].astype(np.float64)
+    px, py, pz = u * D / f, -v * D / f, -D
+    # tangents dp/du, dp/dv and their cross product (rectified frame)
+    ax, ay, az = (D + u * du) / f, -v * du / f, -du
+    bx, by, bz = u * dv / f, -(D + v * dv) / f, -dv
+    nx, ny, nz = by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax
+    nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+    rng = np.sqrt(px * px + py * py + pz * pz)
     with np.errstate(invalid="ignore", divide="ignore"):
-        nrm = cr / nn
-    nv = nrm[ok]
-    to_cam = rect.centres[0] - xyz
-    cos_inc = np.sum(nv * to_cam, axis=1) / np.linalg.norm(to_cam, axis=1)
-    nv[cos_inc < 0] *= -1
+        cos_inc = -(nx * px + ny * py + nz * pz) / (nn * rng)
+        sgn = np.where(cos_inc < 0, -1.0, 1.0) / nn
     keep = ~(np.abs(cos_inc) < np.cos(np.radians(cfg.max_incidence_deg)))  # NaN normals (no neighbours) stay
-    rgb = colour[ok] if colour.ndim == 3 else np.repeat(colour[ok][:, None], 3, axis=1)
-    return PairPoints(xyz[keep], sigma_h[keep].astype(np.float32), sigma_3d[keep].astype(np.float32),
-                      ang[keep].astype(np.float32), rgb[keep].astype(np.uint8), nv[keep].astype(np.float32))
+    R = rect.rotation
+    p = np.stack([px, py, pz], axis=1)[keep]
+    xyz = rect.centres[0] + p @ R.T
+    n_rect = (np.stack([nx, ny, nz], axis=1) * sgn[:, None])[keep]
+    normal = (n_rect @ R.T).astype(np.float32)
+    s = cfg.disparity_sigma_px
+    dk = disp[r, c][keep].astype(np.float64)
+    sigma_3d = rng[keep] / dk * s
+    sigma_h = np.abs(p @ R[2]) / dk * s
+    q = p - np.array([B, 0.0, 0.0])
+    cosang = np.sum(p * q, axis=1) / (rng[keep] * np.linalg.norm(q, axis=1))
+    ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    rr, cc = r[keep], c[keep]
+    rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
+    return PairPoints(xyz, sigma_h.astype(np.float32), sigma_3d.astype(np.float32), ang.astype(np.float32),
+                      rgb.astype(np.uint8), normal)

@@ -118,6 +118,7 @@ class DensePlan:
     block_bounds: tuple[NDArray[np.float64], ...]
     tiles: tuple[tuple[int, int, int, int], ...]
     config: DenseConfig
+    to_map: "FrameMap"
 
     @property
     def local_frame(self) -> WorldFrame:
@@ -152,6 +153,61 @@ def vertical_reference(frame: WorldFrame) -> str:
     datum = crs.geodetic_crs.datum.name if crs.geodetic_crs is not None else "unknown datum"
     ell = crs.ellipsoid.name if crs.ellipsoid is not None else "unknown ellipsoid"
     return f"ellipsoidal heights ({datum}, {ell})"
+
+
+class FrameMap:
+    """Points of the local working frame to the output map frame: a polynomial verified against PROJ, or PROJ.
+
+    Over a block the rigorous conversion (local ENU -> ECEF -> map projection, geoid) is smooth; a cubic in
+    (x, y) with quadratic height terms, fitted on a lattice over the scene box, reproduces it to well below
+    0.1 mm.  The fit is checked on a second, interleaved lattice; if any point is off by more than
+    ``tol_m`` the rigorous path is used instead (e.g. a geoid grid that is not smooth over the box).
+    """
+
+    def __init__(self, local: WorldFrame, out: WorldFrame, box: tuple[float, ...], tol_m: float = 1e-4) -> None:
+        self.local, self.out = local, out
+        lo, hi = np.array(box[:3], float), np.array(box[3:], float)
+        self.c = 0.5 * (lo + hi)
+        self.s = np.maximum(0.5 * (hi - lo), 1.0)
+        g = [np.linspace(-1, 1, 7), np.linspace(-1, 1, 7), np.linspace(-1, 1, 3)]
+        fit = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+        h = [np.linspace(-1, 1, 13)[1::2], np.linspace(-1, 1, 13)[1::2], np.array([-1.0, -0.3, 0.4, 1.0])]
+        chk = np.stack(np.meshgrid(*h, indexing="ij"), -1).reshape(-1, 3)
+        self.coef = None
+        try:
+            A = self._terms(fit)
+            y = self._rigorous(self.c + fit * self.s)
+            coef, *_ = np.linalg.lstsq(A, y - self._rigorous(self.c[None])[0], rcond=None)
+            self.offset = self._rigorous(self.c[None])[0]
+            err = np.abs(self._terms(chk) @ coef + self.offset - self._rigorous(self.c + chk * self.s)).max()
+            if np.isfinite(err) and err <= tol_m:
+                self.coef = coef
+            else:
+                logger.info("local->map polynomial off by %.2g m over the box: rigorous conversion used", err)
+        except Exception as exc:  # noqa: BLE001 - any failure means: use PROJ
+            logger.info("local->map polynomial not usable (%s): rigorous conversion used", exc)
+
+    @staticmethod
+    def _terms(q: NDArray[np.float64]) -> NDArray[np.float64]:
+        x, y, z = q[:, 0], q[:, 1], q[:, 2]
+        one = np.ones_like(x)
+        return np.stack([one, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z,
+                         x * x * x, x * x * y, x * y * y, y * y * y], axis=1)
+
+    def _rigorous(self, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.out.from_ecef(self.local.to_ecef(xyz))
+
+    def __call__(self, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.coef is None:
+            return self._rigorous(xyz)
+        q = (np.asarray(xyz, np.float64) - self.c) / self.s
+        x, y, z = q[:, 0], q[:, 1], q[:, 2]
+        out = np.empty_like(q)
+        for k in range(3):  # the terms of _terms, evaluated without forming them (Horner in x and y)
+            c = self.coef[:, k]
+            out[:, k] = (c[0] + self.offset[k] + z * (c[3] + z * c[9]) + x * (c[1] + c[7] * z + x * (c[4] + c[10] * x))
+                         + y * (c[2] + c[8] * z + y * (c[6] + c[13] * y) + x * (c[5] + c[11] * x + c[12] * y)))
+        return out
 
 
 def _map_to_local(frame: WorldFrame, local: WorldFrame, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -300,7 +356,7 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     t = config.tile_cells
     tiles = tuple((r0, c0, min(t, H - r0), min(t, W - c0)) for r0 in range(0, H, t) for c0 in range(0, W, t))
     return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
-                     tuple(bounds), tiles, config)
+                     tuple(bounds), tiles, config, FrameMap(local, out_frame, box))
 
 
 def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -335,7 +391,7 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
             pp = block_points(rect, blk, disp, colour, plan.config.sgm)
             if len(pp) == 0:
                 continue
-            xyz_m = _local_to_map(plan.local_frame, plan.out_frame, pp.xyz)
+            xyz_m = plan.to_map(pp.xyz)
             inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
             if inside.any():
                 sel = np.flatnonzero(inside)
@@ -353,7 +409,9 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
         rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
         nrm = np.concatenate([p[1].normal for p in pts]).astype(np.float64) @ rot.T
         vox = plan.config.cloud_voxel_m or plan.grid.cell_m
-        cloud = fuse_cloud((plan.grid.x0, plan.grid.y0, 0.0), vox, pid, xyz,
+        vg = tg if vox == plan.grid.cell_m else GridSpec(tg.x0, tg.y0, vox, int(np.ceil(w * tg.cell_m / vox)),
+                                                        int(np.ceil(h * tg.cell_m / vox)))
+        cloud = fuse_cloud(vg, vox, pid, xyz,
                            np.concatenate([p[1].sigma_3d for p in pts]).astype(np.float64),
                            np.concatenate([p[1].rgb for p in pts]), nrm.astype(np.float32), plan.config.fusion)
     return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud, len(xyz), nblocks, mpx, time.perf_counter() - t0)

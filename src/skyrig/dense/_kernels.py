@@ -1,0 +1,195 @@
+"""Compiled per-cell fusion kernels (numba): a counting sort by cell, then small sorts inside each cell.
+
+The rules are those documented in :mod:`skyrig.dense.fusion`; these kernels only make them O(N) in the number
+of points instead of several global sorts.  Every result of a cell depends only on that cell's points (in
+their input order for ties), so a cell gets the same value in any tiling.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def counting_order(cell, ncells):  # pragma: no cover - compiled
+    """Stable order of points by cell index (0..ncells-1), and each cell's start offset ``(ncells + 1,)``."""
+    n = cell.shape[0]
+    start = np.zeros(ncells + 1, np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(ncells):
+        start[c + 1] += start[c]
+    pos = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        c = cell[i]
+        order[pos[c]] = i
+        pos[c] += 1
+    return order, start
+
+
+@numba.njit(cache=True)
+def _sort2(a, b, idx):  # pragma: no cover - compiled
+    """Insertion sort of ``idx`` by (a, b) (small arrays, stable)."""
+    for i in range(1, idx.shape[0]):
+        j = i
+        t = idx[i]
+        while j > 0 and (a[idx[j - 1]] > a[t] or (a[idx[j - 1]] == a[t] and b[idx[j - 1]] > b[t])):
+            idx[j] = idx[j - 1]
+            j -= 1
+        idx[j] = t
+
+
+@numba.njit(cache=True)
+def _sort1(a, idx):  # pragma: no cover - compiled
+    for i in range(1, idx.shape[0]):
+        j = i
+        t = idx[i]
+        while j > 0 and a[idx[j - 1]] > a[t]:
+            idx[j] = idx[j - 1]
+            j -= 1
+        idx[j] = t
+
+
+@numba.njit(cache=True)
+def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support, min_ratio,
+                    out_h, out_n, out_sp, out_s):  # pragma: no cover - compiled
+    """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays."""
+    ncells = start.shape[0] - 1
+    for c in range(ncells):
+        a, b = start[c], start[c + 1]
+        m = b - a
+        if m == 0:
+            continue
+        idx = order[a:b].copy()
+        _sort2(pair, h, idx)
+        # one height per pair: median of its points (sigma of the median point(s))
+        ph = np.empty(m)
+        ps = np.empty(m)
+        k = 0
+        i = 0
+        while i < m:
+            j = i
+            while j < m and pair[idx[j]] == pair[idx[i]]:
+                j += 1
+            cnt = j - i
+            lo = i + (cnt - 1) // 2
+            hi = i + cnt // 2
+            ph[k] = 0.5 * (h[idx[lo]] + h[idx[hi]])
+            ps[k] = 0.5 * (sigma[idx[lo]] + sigma[idx[hi]])
+            k += 1
+            i = j
+        np_ = k
+        pi = np.arange(np_)
+        _sort1(ph, pi)
+        # precision-weighted median
+        tot = 0.0
+        for q in range(np_):
+            tot += 1.0 / (ps[q] * ps[q])
+        acc = 0.0
+        med_i = pi[np_ - 1]
+        for q in range(np_):
+            acc += 1.0 / (ps[pi[q]] * ps[pi[q]])
+            if acc >= 0.5 * tot * (1 - 1e-12):
+                med_i = pi[q]
+                break
+        med = ph[med_i]
+        smed = ps[med_i]
+        nsup = 0
+        wsum = 0.0
+        hsum = 0.0
+        for q in range(np_):
+            tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
+            if abs(ph[q] - med) <= tol:
+                w = 1.0 / (ps[q] * ps[q])
+                nsup += 1
+                wsum += w
+                hsum += w * ph[q]
+        if nsup < min_support or nsup < min_ratio * np_:
+            continue
+        fused = hsum / wsum
+        dev = np.empty(nsup)
+        t = 0
+        for q in range(np_):
+            tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
+            if abs(ph[q] - med) <= tol:
+                dev[t] = abs(ph[q] - fused)
+                t += 1
+        dev.sort()
+        out_h[c] = fused
+        out_n[c] = min(nsup, 32767)
+        out_s[c] = 1.0 / np.sqrt(wsum)
+        out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
+
+
+@numba.njit(cache=True)
+def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, min_support,
+                o_xyz, o_rgb, o_n, o_sup, o_sig):  # pragma: no cover - compiled
+    """Voxel fusion: inside each column cell, points grouped by vertical voxel index ``kz``; a voxel with
+    points of at least ``min_support`` distinct pairs becomes one point.  Returns the number written."""
+    ncells = start.shape[0] - 1
+    out = 0
+    for c in range(ncells):
+        a, b = start[c], start[c + 1]
+        m = b - a
+        if m == 0:
+            continue
+        idx = order[a:b].copy()
+        _sort2(kz, pair, idx)
+        i = 0
+        while i < m:
+            j = i
+            while j < m and kz[idx[j]] == kz[idx[i]]:
+                j += 1
+            npairs = 0
+            for q in range(i, j):
+                if q == i or pair[idx[q]] != pair[idx[q - 1]]:
+                    npairs += 1
+            if npairs >= min_support:
+                wsum = 0.0
+                sx = 0.0
+                sy = 0.0
+                sz = 0.0
+                r0 = 0.0
+                r1 = 0.0
+                r2 = 0.0
+                n0 = 0.0
+                n1 = 0.0
+                n2 = 0.0
+                for q in range(i, j):
+                    p = idx[q]
+                    s = max(sigma[p], 1e-9)
+                    w = 1.0 / (s * s)
+                    wsum += w
+                    sx += w * xyz[p, 0]
+                    sy += w * xyz[p, 1]
+                    sz += w * xyz[p, 2]
+                    r0 += rgb[p, 0]
+                    r1 += rgb[p, 1]
+                    r2 += rgb[p, 2]
+                    if normal[p, 0] == normal[p, 0]:  # not NaN
+                        n0 += normal[p, 0]
+                        n1 += normal[p, 1]
+                        n2 += normal[p, 2]
+                cnt = j - i
+                o_xyz[out, 0] = sx / wsum
+                o_xyz[out, 1] = sy / wsum
+                o_xyz[out, 2] = sz / wsum
+                o_rgb[out, 0] = np.uint8(min(255.0, r0 / cnt + 0.5))
+                o_rgb[out, 1] = np.uint8(min(255.0, r1 / cnt + 0.5))
+                o_rgb[out, 2] = np.uint8(min(255.0, r2 / cnt + 0.5))
+                nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+                if nn > 0:
+                    o_n[out, 0] = n0 / nn
+                    o_n[out, 1] = n1 / nn
+                    o_n[out, 2] = n2 / nn
+                else:
+                    o_n[out, 0] = np.nan
+                    o_n[out, 1] = np.nan
+                    o_n[out, 2] = np.nan
+                o_sup[out] = min(npairs, 32767)
+                o_sig[out] = 1.0 / np.sqrt(wsum)
+                out += 1
+            i = j
+    return out
