@@ -209,6 +209,22 @@ def test_calibrated_rig_file_round_trip_and_old_files(tmp_path) -> None:  # type
     assert e.value.field.endswith("calibration.interior.parameters")
 
 
+def test_documented_calibrated_example_reads(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import re
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "formats" / "rig_file.md"
+    blocks = re.findall(r"```yml\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.S)
+    assert len(blocks) == 1
+    (tmp_path / "c.yaml").write_text(blocks[0], encoding="utf-8")
+    rig, cal = read_calibrated_rig(tmp_path / "c.yaml")
+    assert cal is not None and cal.provenance.recipe == "calqc"  # type: ignore[union-attr]
+    interior = cal.heads["nadir"].interior  # type: ignore[union-attr]
+    assert interior.parameters == ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "k3")
+    assert cal.heads["nadir"].provenance.statistics["redundancy"] == 1710  # type: ignore[union-attr]
+    assert rig.head("nadir").camera.focal_mm == 28.0512
+
+
 def test_georef_and_block_take_the_calibrated_rig_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
     p, rig, cal = _calibrated(tmp_path)
     out = tmp_path / "calibrated.yaml"
