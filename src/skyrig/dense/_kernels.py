@@ -193,3 +193,93 @@ def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, min_support,
                 out += 1
             i = j
     return out
+
+
+@numba.njit(cache=True)
+def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: no cover - compiled
+    """Points of every matched pixel of a rectified block (see :func:`skyrig.dense.stereo.block_points`).
+
+    Returns ``rows, cols, xyz (N, 3), normal (N, 3) float32, sigma_h, sigma_3d, angle_deg`` for the pixels
+    kept (positive disparity, surface not seen more grazing than ``acos(cos_lim)``)."""
+    H, W = disp.shape
+    fb = f * B
+    nmax = 0
+    for r in range(H):
+        for c in range(W):
+            if disp[r, c] > 0:
+                nmax += 1
+    rows = np.empty(nmax, np.int64)
+    cols = np.empty(nmax, np.int64)
+    xyz = np.empty((nmax, 3))
+    nrm = np.empty((nmax, 3), np.float32)
+    sh = np.empty(nmax, np.float32)
+    s3 = np.empty(nmax, np.float32)
+    ang = np.empty(nmax, np.float32)
+    k = 0
+    for r in range(H):
+        for c in range(W):
+            d = disp[r, c]
+            if not d > 0:
+                continue
+            D = fb / d
+            du = np.nan
+            if 0 < c < W - 1 and disp[r, c - 1] > 0 and disp[r, c + 1] > 0:
+                du = 0.5 * (fb / disp[r, c + 1] - fb / disp[r, c - 1])
+            dv = np.nan
+            if 0 < r < H - 1 and disp[r - 1, c] > 0 and disp[r + 1, c] > 0:
+                dv = 0.5 * (fb / disp[r + 1, c] - fb / disp[r - 1, c])
+            u = u0 + c
+            v = v0 + r
+            px = u * D / f
+            py = -v * D / f
+            pz = -D
+            ax = (D + u * du) / f
+            ay = -v * du / f
+            az = -du
+            bx = u * dv / f
+            by = -(D + v * dv) / f
+            bz = -dv
+            nx = by * az - bz * ay
+            ny = bz * ax - bx * az
+            nz = bx * ay - by * ax
+            nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+            rng = np.sqrt(px * px + py * py + pz * pz)
+            cosi = -(nx * px + ny * py + nz * pz) / (nn * rng)
+            if abs(cosi) < cos_lim:  # NaN (no neighbours) passes
+                continue
+            sg = 1.0 / nn
+            if cosi < 0:
+                sg = -sg
+            rows[k] = r
+            cols[k] = c
+            for i in range(3):
+                xyz[k, i] = C[i] + R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz
+                nrm[k, i] = (R[i, 0] * nx + R[i, 1] * ny + R[i, 2] * nz) * sg
+            wz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
+            s3[k] = rng / d * sigma_px
+            sh[k] = abs(wz) / d * sigma_px
+            qx = px - B
+            qn = np.sqrt(qx * qx + py * py + pz * pz)
+            ca = (px * qx + py * py + pz * pz) / (rng * qn)
+            ca = min(1.0, max(-1.0, ca))
+            ang[k] = np.degrees(np.arccos(ca))
+            k += 1
+    return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], ang[:k]
+
+
+@numba.njit(cache=True)
+def poly_map(xyz, c0, s, coef, offset):  # pragma: no cover - compiled
+    """The polynomial of :class:`skyrig.dense.surface.FrameMap` (terms as ``FrameMap._terms``)."""
+    n = xyz.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        x = (xyz[i, 0] - c0[0]) / s[0]
+        y = (xyz[i, 1] - c0[1]) / s[1]
+        z = (xyz[i, 2] - c0[2]) / s[2]
+        t = (1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z, x * x * x, x * x * y, x * y * y, y * y * y)
+        for k in range(3):
+            acc = offset[k]
+            for j in range(14):
+                acc += coef[j, k] * t[j]
+            out[i, k] = acc
+    return out

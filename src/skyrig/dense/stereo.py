@@ -144,45 +144,12 @@ def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], col
     ``D = f B / d`` is the point ``p = (u D / f, -v D / f, -D)``; normals come from the depth's derivatives
     along the grid (central differences), ``n = dp/dv x dp/du``; world = ``C_left + R p``.
     """
-    ok = np.isfinite(disp) & (disp > 0)
-    if not ok.any():
-        return PairPoints.empty()
-    f, B = rect.focal_px, rect.base_m
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(ok, np.float32(f * B) / disp, np.nan).astype(np.float32)
-    Du = np.full(depth.shape, np.nan, np.float32)
-    Dv = np.full(depth.shape, np.nan, np.float32)
-    Du[:, 1:-1] = 0.5 * (depth[:, 2:] - depth[:, :-2])
-    Dv[1:-1] = 0.5 * (depth[2:] - depth[:-2])
-    r, c = np.nonzero(ok)
-    u = (blk.u0 + c).astype(np.float64)
-    v = (blk.v0 + r).astype(np.float64)
-    D = depth[r, c].astype(np.float64)
-    du, dv = Du[r, c].astype(np.float64), Dv[r, c].astype(np.float64)
-    px, py, pz = u * D / f, -v * D / f, -D
-    # tangents dp/du, dp/dv and their cross product (rectified frame)
-    ax, ay, az = (D + u * du) / f, -v * du / f, -du
-    bx, by, bz = u * dv / f, -(D + v * dv) / f, -dv
-    nx, ny, nz = by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax
-    nn = np.sqrt(nx * nx + ny * ny + nz * nz)
-    rng = np.sqrt(px * px + py * py + pz * pz)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_inc = -(nx * px + ny * py + nz * pz) / (nn * rng)
-        sgn = np.where(cos_inc < 0, -1.0, 1.0) / nn
-    keep = ~(np.abs(cos_inc) < np.cos(np.radians(cfg.max_incidence_deg)))  # NaN normals (no neighbours) stay
-    R = rect.rotation
-    p = np.stack([px, py, pz], axis=1)[keep]
-    xyz = rect.centres[0] + p @ R.T
-    n_rect = (np.stack([nx, ny, nz], axis=1) * sgn[:, None])[keep]
-    normal = (n_rect @ R.T).astype(np.float32)
-    s = cfg.disparity_sigma_px
-    dk = disp[r, c][keep].astype(np.float64)
-    sigma_3d = rng[keep] / dk * s
-    sigma_h = np.abs(p @ R[2]) / dk * s
-    q = p - np.array([B, 0.0, 0.0])
-    cosang = np.sum(p * q, axis=1) / (rng[keep] * np.linalg.norm(q, axis=1))
-    ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
-    rr, cc = r[keep], c[keep]
+    from skyrig.dense._kernels import triangulate_block
+
+    cos_lim = float(np.cos(np.radians(cfg.max_incidence_deg)))
+    d = np.nan_to_num(np.ascontiguousarray(disp, np.float32), nan=-1.0)
+    rr, cc, xyz, normal, sigma_h, sigma_3d, ang = triangulate_block(
+        d, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m), np.ascontiguousarray(rect.rotation),
+        np.ascontiguousarray(rect.centres[0]), float(cfg.disparity_sigma_px), cos_lim)
     rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
-    return PairPoints(xyz, sigma_h.astype(np.float32), sigma_3d.astype(np.float32), ang.astype(np.float32),
-                      rgb.astype(np.uint8), normal)
+    return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb.astype(np.uint8), normal)

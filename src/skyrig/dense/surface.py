@@ -200,14 +200,9 @@ class FrameMap:
     def __call__(self, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.coef is None:
             return self._rigorous(xyz)
-        q = (np.asarray(xyz, np.float64) - self.c) / self.s
-        x, y, z = q[:, 0], q[:, 1], q[:, 2]
-        out = np.empty_like(q)
-        for k in range(3):  # the terms of _terms, evaluated without forming them (Horner in x and y)
-            c = self.coef[:, k]
-            out[:, k] = (c[0] + self.offset[k] + z * (c[3] + z * c[9]) + x * (c[1] + c[7] * z + x * (c[4] + c[10] * x))
-                         + y * (c[2] + c[8] * z + y * (c[6] + c[13] * y) + x * (c[5] + c[11] * x + c[12] * y)))
-        return out
+        from skyrig.dense._kernels import poly_map
+
+        return poly_map(np.ascontiguousarray(xyz, np.float64), self.c, self.s, self.coef, self.offset)
 
 
 def _map_to_local(frame: WorldFrame, local: WorldFrame, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
