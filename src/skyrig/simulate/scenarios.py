@@ -14,6 +14,9 @@ scenario               set-up
                        boresight misalignment and datum shift of its Tab. 4, GCPs with sigma 0.6 m in another
                        projection (PT-TM06, EPSG:3763) with geoid heights, GNSS/IMU in UTM 29N.
 ``uav-bridge-lidar``   paper 002: see :mod:`skyrig.simulate.lidar`.
+``midas-dsm``          ``midas`` flown as a surface block (80 % forward / 60 % side overlap) for dense matching.
+``tumblecam-dsm``      ``tumblecam`` (same rig, height, speed, crab, 45 deg gear steps) flown as an 80 / 60 nadir
+                       block (CI: 4 strips x 6 exposures over 100 x 90 m) for dense matching (issue 10).
 =====================  ====================================================================================
 
 Each has a CI size (few small images, seconds to generate) and a full size (the papers' sensors).  CI
@@ -201,6 +204,21 @@ def scenario_spec(name: str, size: str = "ci", seed: int = 1) -> ScenarioSpec:
         fl = (FlightSpec(150.0, 3, (-50, -50, 50, 50), speed_mps=50.0, forward_overlap=0.8, side_overlap=0.6),) if ci \
             else (FlightSpec(609.6, 6, (-1200, -1200, 1200, 1200), speed_mps=60.0, forward_overlap=0.8, side_overlap=0.6),)
         return replace(s, name="midas-dsm", flights=fl)
+    if key == "tumblecam-dsm":
+        # paper 000's DEM flight of the TumbleCam: the same rig, height, speed, crab and 45 deg gear steps, flown
+        # as a photogrammetric surface block (80 % forward / 60 % side overlap of the nadir head) so that every
+        # ground point is seen by several nadir stereo pairs; the frame rate follows from the forward overlap
+        # and the tumbling speed from the frame rate (gear step kept at 45 deg)
+        from skyrig.plan.flight import head_footprint_extent
+
+        s = scenario_spec("tumblecam", size, seed)
+        f0 = s.flights[0]
+        along, _ = head_footprint_extent(s.rig, "nadir", f0.flying_height_m)
+        rate = f0.speed_mps / ((1.0 - 0.8) * along)
+        step_deg = f0.rotation_speed_deg_s / float(f0.frame_rate_hz)
+        fl = replace(f0, n_strips=4 if ci else 12, area=(-50.0, -45.0, 50.0, 45.0) if ci else f0.area,
+                     forward_overlap=0.8, side_overlap=0.6, frame_rate_hz=rate, rotation_speed_deg_s=step_deg * rate)
+        return replace(s, name="tumblecam-dsm", flights=(fl,))
     raise SkyrigError(f"unknown scenario {name!r}; scenarios: {', '.join(SCENARIOS)}")
 
 
