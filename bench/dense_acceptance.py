@@ -127,8 +127,17 @@ def nadir_only(project: Path, head: str = "nadir") -> dict[str, Path]:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(rows[0])
         w.writerows(r for r in rows[1:] if r[1] in names)
+    # the rig file of that head alone: `skyrig block` stops with "write_block: the block has actuated heads; give
+    # rig_file" (a traceback) for any rig with the TumbleCam's tumbling head, even when no image of it is used
+    from skyrig.io.rig_file import read_rig, write_rig
+    from skyrig.rig.rig import Rig
+
+    rig = read_rig(project / "rig.yaml")
+    if not (out / "rig.yaml").exists():
+        write_rig(Rig(rig.name + "-" + head, [rig.heads[head]], antenna_lever_arm_m=rig.antenna_lever_arm_m,
+                      description=f"{rig.description} ({head} head only)"), out / "rig.yaml")
     return {"events": out / "events.csv", "images": img, "gcp_image": out / "image_measurements.csv",
-            "n_images": len(names)}
+            "rig": out / "rig.yaml", "n_images": len(names)}
 
 
 def judge(dsm_dir: Path, scenario: str) -> dict[str, Any]:
@@ -176,23 +185,24 @@ def adjusted_block(scenario: str, cache: Path, nadir: bool) -> dict[str, Path]:
     out.mkdir(exist_ok=True)
     if nadir:
         sub = nadir_only(p)
-        events, images, gcp_image = sub["events"], sub["images"], sub["gcp_image"]
+        events, images, gcp_image, rig = sub["events"], sub["images"], sub["gcp_image"], sub["rig"]
     else:
-        events, images, gcp_image = p / "events.csv", p / "images", p / "gcp" / "image_measurements.csv"
+        events, images, gcp_image, rig = (p / "events.csv", p / "images", p / "gcp" / "image_measurements.csv",
+                                          p / "rig.yaml")
     spec_errors = json.loads((p / "truth" / "truth.json").read_text())["errors"]
     gn = ",".join(f"{max(v, 0.01):g}" for v in spec_errors["gnss_noise_m"])
     imu = ",".join(f"{max(np.degrees(v), 0.001):.4f}" for v in spec_errors["imu_noise_rad"])
     eo_dg = out / "eo_dg.csv"
     if not eo_dg.exists():
-        skyrig("georef", "--trajectory", p / "trajectory.csv", "--events", events, "--rig", p / "rig.yaml",
+        skyrig("georef", "--trajectory", p / "trajectory.csv", "--events", events, "--rig", rig,
                "--crs", "EPSG:25832", "-o", eo_dg)
     match = p / "match"
     if not (match / "tie_points.csv").exists():
-        skyrig("match", p, "--images", images, "--eo", eo_dg, "--camera", p / "rig.yaml", "--terrain-height", "0",
+        skyrig("match", p, "--images", images, "--eo", eo_dg, "--camera", rig, "--terrain-height", "0",
                "-o", match)
     blk = out / "block" / "block.json"
     if not blk.exists():
-        skyrig("block", "--trajectory", p / "trajectory.csv", "--events", events, "--rig", p / "rig.yaml",
+        skyrig("block", "--trajectory", p / "trajectory.csv", "--events", events, "--rig", rig,
                "--measurements", match / "tie_points.csv", "--measurements", gcp_image,
                "--control", p / "gcp" / "ground_points.csv", "--check", p / "gcp" / "check_points.csv",
                "--sigma-px", "0.3", "--gnss-sigma", gn, "--imu-sigma-deg", imu, "--control-sigma", "0.01",
@@ -200,7 +210,7 @@ def adjusted_block(scenario: str, cache: Path, nadir: bool) -> dict[str, Path]:
     adj = out / "adjust"
     if not (adj / "eo.csv").exists():
         skyrig("adjust", blk, "-o", adj)
-    return {"project": p, "images": images, "eo_dg": eo_dg, "adjust": adj, "out": out}
+    return {"project": p, "images": images, "eo_dg": eo_dg, "adjust": adj, "out": out, "rig": rig}
 
 
 def orientation_errors(eo_path: Path, truth_path: Path) -> dict[str, float]:
@@ -227,7 +237,7 @@ def case_adjusted(scenario: str, cache: Path, nadir_adjust: bool) -> dict[str, A
     res["direct_georef"] = orientation_errors(b["eo_dg"], p / "truth" / "eo_map.csv")
     d_adj = fresh(out / "dsm_adjusted")
     if not (d_adj / "dsm.tif").exists():
-        skyrig("dsm", "--eo", adj / "eo.csv", "--camera", p / "rig.yaml", "--images", b["images"], "--heads", "nadir",
+        skyrig("dsm", "--eo", adj / "eo.csv", "--camera", b["rig"], "--images", b["images"], "--heads", "nadir",
                "--points", adj / "points.csv", "-o", d_adj)
     hr = json.loads((d_adj / "dense.json").read_text())["height_range"]
     d_tru = fresh(out / "dsm_truth")

@@ -60,12 +60,10 @@ def test_tumblecam_nadir_dsm_from_adjusted_orientations(bench) -> None:
     assert 0.5 < res["adjust"]["sigma0"] < 1.5
     r = res["adjusted"]
     _issue_thresholds(r)
-    # ISSUE THRESHOLD NOT MET (as for MIDAS): edge completeness >= 80 %; held at what is achieved
-    assert r["edge"]["completeness"] >= EDGE_TUMBLECAM, r["edge"]
+    # measured: flat NMAD 0.30 GSD, bias -0.01 GSD, completeness 100.0 %, outliers 0.3 % of valid cells;
+    # edge cells completeness 83.4 % (RMSE 3.0 m = 20 GSD, reported, no threshold)
+    assert r["edge"]["completeness"] >= 0.80, r["edge"]
     assert r["flat"]["nmad_gsd"] <= res["truth"]["flat"]["nmad_gsd"] + 0.05
-
-
-EDGE_TUMBLECAM = 0.5
 
 
 def test_3k_direct_georeferencing_matches_navigation_prediction(bench) -> None:
