@@ -1,0 +1,367 @@
+"""Dense stage (skyrig.dense, skyrig.pipeline.dense, `skyrig dsm`) against independent answers.
+
+The scene of these tests is ray-cast here, in the test, with its own pinhole formula (no skyrig code): a
+textured sloped ground plane with one box-shaped building, seen by a small nadir block.  The DSM must give the
+plane and the roof back within the predicted precision; tiled and untiled runs must be bit-identical; every
+bad input must be a clear error that leaves no output behind.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.fusion import FusionConfig, fuse_grid
+from skyrig.dense.grid import GridSpec
+from skyrig.dense.pairs import PairConfig, select_pairs
+from skyrig.dense.rectify import rectify_pair
+from skyrig.dense.sgm import SgmConfig, disparity_window
+from skyrig.dense.stereo import block_window, pair_blocks
+from skyrig.dense.surface import DenseConfig, dense_surface
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+
+CRS = "EPSG:25832"
+LOCAL = WorldFrame.local(52.35, 9.73, 0.0)  # the scene lives in this local ENU frame (rigorous, no map scale)
+W_PX, H_PX, F_PX = 640, 480, 600.0
+HEIGHT = 120.0  # flying height above the plane (m) -> GSD 0.2 m
+BOX = (-12.0, -8.0, 10.0, 9.0, 14.0)  # x0, y0, x1, y1 (local m around the origin), roof height above plane
+
+
+def _plane(x, y):
+    return 50.0 + 0.02 * x - 0.01 * y
+
+
+def _texture(x, y):
+    """Deterministic multi-scale texture of world position (0..255)."""
+    t = np.zeros_like(x)
+    for k, s in enumerate((0.35, 0.9, 2.3, 6.0)):
+        t += np.sin(x / s * 1.7 + 0.3 * k) * np.cos(y / s * 1.3 - 0.7 * k) * (1.0 / (k + 1))
+        t += 0.6 * np.sin((x + y) / s * 1.1 + k) / (k + 1)
+    return np.clip(128 + 45 * t, 0, 255)
+
+
+def _surface(x, y):
+    inside = (x >= BOX[0]) & (x <= BOX[2]) & (y >= BOX[1]) & (y <= BOX[3])
+    return np.where(inside, _plane(x, y) + BOX[4], _plane(x, y))
+
+
+def _render(centre, yaw_rad=0.0):
+    """Ray-cast a nadir image (camera x right = east when yaw 0, y up = north, looking down)."""
+    cols, rows = np.meshgrid(np.arange(W_PX), np.arange(H_PX))
+    # pixel -> camera ray (pinhole, principal point at the image centre, y up)
+    xc = (cols - (W_PX - 1) / 2) / F_PX
+    yc = -(rows - (H_PX - 1) / 2) / F_PX
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    dx, dy, dz = c * xc - s * yc, s * xc + c * yc, -np.ones_like(xc)
+    cx, cy, cz = centre
+    # roof plane first (box top), then walls are ignored (nadir block, walls thin), then ground
+    t_roof = (cz - (50.0 + BOX[4])) / 1.0  # approx, refined below with the sloped plane
+    for _ in range(3):
+        x, y = cx + dx * t_roof, cy + dy * t_roof
+        t_roof = cz - (_plane(x, y) + BOX[4])
+    x, y = cx + dx * t_roof, cy + dy * t_roof
+    on_roof = (x >= BOX[0]) & (x <= BOX[2]) & (y >= BOX[1]) & (y <= BOX[3])
+    t = np.full_like(xc, cz - 50.0)
+    for _ in range(4):
+        gx, gy = cx + dx * t, cy + dy * t
+        t = cz - _plane(gx, gy)
+    gx, gy = cx + dx * t, cy + dy * t
+    # ground points hidden by the box: the ray passes through the box volume above the plane
+    hidden = np.zeros_like(on_roof)
+    for frac in np.linspace(0.0, 1.0, 40):
+        tz = t_roof + (t - t_roof) * frac
+        px, py = cx + dx * tz, cy + dy * tz
+        inb = (px >= BOX[0]) & (px <= BOX[2]) & (py >= BOX[1]) & (py <= BOX[3])
+        hidden |= inb & (cz - tz > _plane(px, py)) & (cz - tz < _plane(px, py) + BOX[4])
+    X = np.where(on_roof, x, gx)
+    Y = np.where(on_roof, y, gy)
+    val = _texture(X, Y) * np.where(on_roof, 0.8, 1.0)
+    val = np.where(hidden & ~on_roof, 60.0 + 0.3 * _texture(gx * 3, gy * 3), val)  # walls: darker, other texture
+    img = np.clip(val, 0, 255).astype(np.uint8)
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+def _block():
+    """Three strips x four exposures, 80 % / 60 % overlap, small yaw differences."""
+    cam = FrameCamera.from_pixels("cam", W_PX, H_PX, F_PX, (W_PX - 1) / 2, (H_PX - 1) / 2, pixel_size_mm=0.005)
+    names, centres, rots, imgs = [], [], [], []
+    rng = np.random.default_rng(3)
+    for i, yy in enumerate((-24.0, 0.0, 24.0)):
+        for j, xx in enumerate((-24.0, -8.0, 8.0, 24.0)):
+            c = np.array([xx + rng.normal(0, 0.3), yy + rng.normal(0, 0.3), 50.0 + HEIGHT])
+            yaw = rng.normal(0, 0.02)
+            R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
+            names.append(f"s{i}_e{j}.png")
+            centres.append(c)
+            rots.append(R)
+            imgs.append(_render(c, yaw))
+    eo = ExteriorOrientations(np.array(names), "cam", np.array(centres), np.array(rots), LOCAL)
+    return eo, {"cam": cam}, imgs
+
+
+def _to_local(frame, x, y, h):
+    """Map points (any shape) to the scene's local frame (rigorous, through ECEF)."""
+    L = LOCAL.from_ecef(frame.to_ecef(np.stack([np.ravel(x), np.ravel(y), np.ravel(h)], 1)))
+    return L[:, 0].reshape(np.shape(x)), L[:, 1].reshape(np.shape(x)), L[:, 2].reshape(np.shape(x))
+
+
+def _to_map(x, y, h):
+    return WorldFrame.map(CRS).from_ecef(LOCAL.to_ecef(np.stack([np.ravel(x), np.ravel(y), np.ravel(h)], 1)))
+
+
+@pytest.fixture(scope="module")
+def block():
+    return _block()
+
+
+@pytest.fixture(scope="module")
+def dense_result(block):
+    eo, cams, imgs = block
+    cfg = DenseConfig(tile_cells=4096, block_px=256)
+    return dense_surface(eo, cams, lambda i: imgs[i], WorldFrame.map(CRS), (40.0, 75.0), config=cfg)
+
+
+def test_rectification_is_exact_with_distortion():
+    from skyrig.camera.opencv import OpenCVDistortion
+
+    rng = np.random.default_rng(7)
+    cam = FrameCamera.from_pixels("c", 800, 600, 700.0, 405.0, 296.0,
+                                  distortion=OpenCVDistortion(k1=-0.12, k2=0.04, p1=0.0008, p2=-0.0005, k3=-0.01))
+    from skyrig.geometry.rotations import matrix_from_rotvec
+
+    for _ in range(5):
+        Rl = matrix_from_rotvec(rng.normal(0, 0.05, 3))
+        Rr = matrix_from_rotvec(rng.normal(0, 0.05, 3))
+        cl = np.array([0.0, 0.0, 100.0])
+        cr = cl + np.array([rng.uniform(20, 40), rng.normal(0, 3), rng.normal(0, 2)])
+        r = rectify_pair(cam, Rl, cl, cam, Rr, cr)
+        P = np.column_stack([rng.uniform(5, 25, 50), rng.uniform(-20, 20, 50), rng.uniform(-5, 10, 50)])
+        pl = cam.project_pixels((P - cl) @ Rl)
+        pr = cam.project_pixels((P - cr) @ Rr)
+        ul, ur = r.to_rect(0, pl), r.to_rect(1, pr)
+        assert np.abs(ul[:, 1] - ur[:, 1]).max() < 1e-8  # same row: exact epipolar geometry
+        X, _ = r.triangulate(ul[:, 0], ul[:, 1], ul[:, 0] - ur[:, 0])
+        assert np.abs(X - P).max() < 1e-7
+        back = r.to_original(0, ul[:, 0], ul[:, 1])
+        assert np.abs(back - pl).max() < 1e-8
+        # the lattice maps stay within 0.005 px of the exact mapping
+        u0, u1, v0, v1 = r.bounds[0]
+        ex = np.stack(r.maps(0, u0, v0, u1 - u0, v1 - v0, step=1), -1)
+        ap = np.stack(r.maps(0, u0, v0, u1 - u0, v1 - v0), -1)
+        inside = (ex[..., 0] > 0) & (ex[..., 0] < 799) & (ex[..., 1] > 0) & (ex[..., 1] < 599)
+        assert np.abs(ex - ap)[inside].max() < 0.005
+
+
+def test_disparity_window_contains_the_scene(block):
+    eo, cams, _ = block
+    e = eo
+    c = e.centre.mean(axis=0)
+    box = (c[0] - 40, c[1] - 40, c[2] - HEIGHT - 20, c[0] + 40, c[1] + 40, c[2] - HEIGHT + 30)
+    pairs = select_pairs(e, cams, box, PairConfig())
+    assert pairs
+    p = pairs[0]
+    r = rectify_pair(cams["cam"], e.rotation[p.left], e.centre[p.left], cams["cam"], e.rotation[p.right],
+                     e.centre[p.right])
+    blk = pair_blocks(r, box)[0]
+    corners = np.array([[x, y, z] for x in box[0::3] for y in box[1::3] for z in box[2::3]])
+    rr = r.to_rect(0, cams["cam"].project_pixels((corners - r.centres[0]) @ r.rotations[0]))
+    rt = r.to_rect(1, cams["cam"].project_pixels((corners - r.centres[1]) @ r.rotations[1]))
+    d = rr[:, 0] - rt[:, 0]
+    w = block_window(r, r.bounds[0][0], r.bounds[0][1], r.bounds[0][2], r.bounds[0][3], box)
+    assert w is not None and w[0] <= np.nanmin(d) and w[1] >= np.nanmax(d)
+    shift, n = disparity_window(blk.d_min, blk.d_max, SgmConfig())
+    assert n % 16 == 0 and shift <= blk.d_min
+
+
+def test_pair_selection_budget_and_directions(block):
+    eo, cams, _ = block
+    e = eo
+    c = e.centre.mean(axis=0)
+    box = (c[0] - 40, c[1] - 40, c[2] - HEIGHT - 20, c[0] + 40, c[1] + 40, c[2] - HEIGHT + 30)
+    pairs = select_pairs(e, cams, box, PairConfig(pairs_per_image=3))
+    counts = np.bincount([p.left for p in pairs] + [p.right for p in pairs], minlength=len(e))
+    assert counts.max() <= 3
+    for p in pairs:
+        base = np.linalg.norm(e.centre[p.left] - e.centre[p.right])
+        assert abs(base - p.base_m) < 1e-9 and p.overlap >= 0.3
+    # an image looking the other way (a tilted oblique) never pairs with the nadir images
+    tilt = np.array([[1, 0, 0], [0, np.cos(0.8), -np.sin(0.8)], [0, np.sin(0.8), np.cos(0.8)]])
+    e2 = ExteriorOrientations(np.r_[e.image, ["obl"]], "cam", np.vstack([e.centre, e.centre[0]]),
+                              np.concatenate([e.rotation, (e.rotation[0] @ tilt)[None]]), e.frame)
+    assert all(len(e2) - 1 not in (p.left, p.right) for p in select_pairs(e2, cams, box, PairConfig()))
+
+
+def test_fusion_rules_against_hand_computation():
+    g = GridSpec(0.0, 10.0, 1.0, 3, 1)
+    # cell 0: pairs 0,1,2 agree near 5.0, pair 3 is off by 3 m; cell 1: one pair only; cell 2: two pairs disagree
+    x = np.array([0.5, 0.5, 0.5, 0.5, 0.5, 1.5, 2.5, 2.5])
+    y = np.full(8, 9.5)
+    h = np.array([5.00, 5.02, 4.99, 5.01, 8.0, 7.0, 3.0, 9.0])
+    pair = np.array([0, 0, 1, 2, 3, 0, 0, 1])
+    sig = np.array([0.05, 0.05, 0.05, 0.10, 0.05, 0.05, 0.05, 0.05])
+    H, N, SP, S = fuse_grid(g, pair, x, y, h, sig, FusionConfig(min_support=2, k_sigma=3.0, min_tol_cells=0.2))
+    # independent: per-pair medians 5.01 (pair 0), 4.99, 5.01; weights 1/0.05^2, 1/0.05^2, 1/0.1^2
+    v = np.array([5.01, 4.99, 5.01])
+    w = 1 / np.array([0.05, 0.05, 0.10]) ** 2
+    fused = np.sum(w * v) / np.sum(w)
+    assert N[0, 0] == 3 and abs(H[0, 0] - fused) < 1e-5
+    assert abs(S[0, 0] - 1 / np.sqrt(w.sum())) < 1e-6
+    assert abs(SP[0, 0] - 1.4826 * np.median(np.abs(v - fused))) < 1e-5
+    assert np.isnan(H[0, 1]) and N[0, 1] == 0  # no second pair confirms it
+    assert np.isnan(H[0, 2])  # two pairs 6 m apart: neither is confirmed
+
+
+def test_dsm_of_the_synthetic_block(dense_result, block):
+    dsm, cloud, stats = dense_result
+    assert dsm.frame.crs == CRS and "ellipsoidal" in dsm.vertical_reference
+    xx, yy = dsm.grid.cell_centres()
+    lx, ly, lz = _to_local(dsm.frame, xx, yy, np.where(np.isfinite(dsm.height), dsm.height, 50.0))
+    truth = _surface(lx, ly)
+    inner = (np.abs(lx) < 30) & (np.abs(ly) < 22)
+    bx = (lx > BOX[0] - 1) & (lx < BOX[2] + 1) & (ly > BOX[1] - 1) & (ly < BOX[3] + 1)
+    edge = bx & ~((lx > BOX[0] + 1) & (lx < BOX[2] - 1) & (ly > BOX[1] + 1) & (ly < BOX[3] - 1))
+    flat = inner & ~edge
+    err = np.where(np.isfinite(dsm.height), lz - truth, np.nan)
+    v = err[flat & np.isfinite(err)]
+    gsd = stats.gsd_m
+    assert abs(gsd - (50.0 + HEIGHT - 0.5 * (40.0 + 75.0)) / F_PX) < 0.005  # GSD at the middle of the height range
+    assert np.isfinite(err[flat]).mean() > 0.95
+    assert abs(np.median(v)) < 0.2 * gsd
+    nmad = 1.4826 * np.median(np.abs(v - np.median(v)))
+    # predicted precision of the fused heights (from the disparity sigma) vs measured: same order
+    pred = np.nanmedian(dsm.sigma[flat])
+    assert nmad < 1.0 * gsd and 0.2 < nmad / pred < 5.0
+    assert np.mean(np.abs(v) > 5 * gsd) < 0.01
+    roof = inner & (lx > BOX[0] + 1.5) & (lx < BOX[2] - 1.5) & (ly > BOX[1] + 1.5) & (ly < BOX[3] - 1.5)
+    assert np.nanmedian(np.abs(err[roof])) < 0.5 * gsd
+    assert cloud is not None and len(cloud) > 1000 and cloud.support.min() >= 2
+    cx, cy, czz = _to_local(cloud.frame, cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2])
+    cz = czz - _surface(cx, cy)
+    assert np.median(np.abs(cz)) < gsd
+
+
+def test_tiled_equals_untiled_bit_for_bit(block):
+    eo, cams, imgs = block
+    keep = np.flatnonzero(np.isin(eo.image, ["s0_e1.png", "s0_e2.png", "s1_e1.png", "s1_e2.png"]))
+    eo, imgs = eo.subset(keep), [imgs[i] for i in keep]
+    c = _to_map(np.array([-14.0, 14.0]), np.array([-11.0, 11.0]), np.array([50.0, 50.0]))
+    area = (c[0, 0], c[0, 1], c[1, 0], c[1, 1])
+    runs = [dense_surface(eo, cams, lambda i: imgs[i], WorldFrame.map(CRS), (40.0, 75.0), area=area,
+                          config=DenseConfig(tile_cells=t, block_px=256)) for t in (4096, 90)]
+    (whole, cloud_whole, s1), (tiled, cloud_tiled, s2) = runs
+    assert s1.tiles == 1 and s2.tiles >= 4
+    assert np.isfinite(whole.height).mean() > 0.5
+    for a, b in ((whole.height, tiled.height), (whole.support, tiled.support), (whole.sigma, tiled.sigma),
+                 (whole.spread, tiled.spread)):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert len(cloud_tiled) == len(cloud_whole)
+    assert np.array_equal(np.sort(cloud_whole.xyz, axis=0), np.sort(cloud_tiled.xyz, axis=0))
+
+
+# --------------------------------------------------------------------------------------------- files and CLI
+@pytest.fixture(scope="module")
+def project(tmp_path_factory, block):
+    import cv2
+
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.rig_file import write_rig
+    from skyrig.rig import Head, Rig
+
+    eo, cams, imgs = block
+    d = tmp_path_factory.mktemp("dense_project")
+    (d / "images").mkdir()
+    for n, im in zip(eo.image, imgs):
+        cv2.imwrite(str(d / "images" / n), im)
+    write_eo_csv(eo, d / "eo.csv")
+    write_rig(Rig("test", [Head("cam", cams["cam"])]), d / "rig.yaml")
+    return d
+
+
+def _dsm(project, out, *extra):
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+
+    args = ["dsm", "--eo", str(project / "eo.csv"), "--camera", str(project / "rig.yaml"), "--images",
+            str(project / "images"), "-o", str(out), "--executor", "serial", *extra]
+    if "--crs" not in extra:
+        args += ["--crs", CRS]
+    return CliRunner().invoke(main, args, catch_exceptions=False)
+
+
+def test_cli_writes_cog_and_laz_that_gdal_and_laspy_read(project, tmp_path):
+    import laspy
+    import pyproj
+    import rasterio
+
+    out = tmp_path / "dsm"
+    r = _dsm(project, out, "--height-range", "40", "75")
+    assert r.exit_code == 0, r.output
+    with rasterio.open(out / "dsm.tif") as ds:
+        assert pyproj.CRS(ds.crs.to_wkt()).equals(pyproj.CRS(CRS))
+        assert ds.overviews(1) or min(ds.width, ds.height) < 512
+        # a known point: the roof centre and a ground point, read with GDAL's own sampling
+        loc = np.array([[0.5 * (BOX[0] + BOX[2]), 0.5 * (BOX[1] + BOX[3])], [-20.0, -15.0]])
+        true_h = _surface(loc[:, 0], loc[:, 1])
+        mp = _to_map(loc[:, 0], loc[:, 1], true_h)  # the true surface points in the map CRS (PROJ)
+        vals = np.array([v[0] for v in ds.sample([tuple(q[:2]) for q in mp], indexes=1)])
+        gsd = HEIGHT / F_PX
+        assert np.abs(vals - mp[:, 2]).max() < gsd
+        assert ds.tags().get("VERTICAL_REFERENCE", "").startswith("ellipsoidal")
+    las = laspy.read(out / "cloud.laz")
+    assert pyproj.CRS.from_wkt(las.header.parse_crs().to_wkt()).to_2d().equals(pyproj.CRS(CRS)) or \
+        las.header.parse_crs() is not None
+    xyz = np.column_stack([las.x, las.y, las.z])
+    lx, ly, lz = _to_local(WorldFrame.map(CRS), xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    dz = lz - _surface(lx, ly)
+    assert np.median(np.abs(dz)) < gsd and len(las.red) == len(xyz)
+    m = json.loads((out / "manifest.json").read_text())
+    names = {f["path"] for f in m["files"]}
+    assert {"dsm.tif", "cloud.laz", "dsm_hillshade.png", "dense.json"} <= names
+
+
+@pytest.mark.parametrize("case", ["missing_image", "unoriented_image", "geographic_crs", "huge_grid", "no_overlap",
+                                  "no_height_range", "bad_height_range"])
+def test_cli_bad_input_is_a_clear_error_and_writes_nothing(project, tmp_path, case):
+    import shutil
+
+    import cv2
+
+    out = tmp_path / "out"
+    p = project
+    extra = ["--height-range", "40", "75"]
+    if case == "missing_image":
+        q = tmp_path / "p"
+        shutil.copytree(p, q)
+        (q / "images" / "s1_e2.png").unlink()
+        p, want = q, "not found"
+    elif case == "unoriented_image":
+        stray = tmp_path / "stray.png"
+        cv2.imwrite(str(stray), np.zeros((H_PX, W_PX), np.uint8))
+        extra += ["--images", str(stray)]
+        want = "no orientation"
+    elif case == "geographic_crs":
+        extra += ["--crs", "EPSG:4326"]
+        want = "projected CRS"
+    elif case == "huge_grid":
+        extra += ["--resolution", "0.0001"]
+        want = "resolution"
+    elif case == "no_overlap":
+        extra = ["--height-range", "40", "75", "--heads", "s0_e0,s2_e3"]  # opposite corners of the block
+        want = "no stereo pair"
+    elif case == "no_height_range":
+        extra = []
+        want = "--height-range"
+    else:
+        extra = ["--height-range", "40000", "75000"]
+        want = "height range"
+    r = _dsm(p, out, *extra)
+    assert r.exit_code != 0
+    assert want in r.output, r.output
+    assert "Traceback" not in r.output
+    assert not out.exists()
+    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".out.partial")]
