@@ -47,9 +47,6 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     import numpy as np
 
     from skyrig.cli._common import load_cameras, load_eo
-    from skyrig.dense.fusion import FusionConfig
-    from skyrig.dense.pairs import PairConfig
-    from skyrig.dense.sgm import SgmConfig
     from skyrig.dense.surface import DenseConfig
     from skyrig.georef.eo import WorldFrame
     from skyrig.pipeline.dense import find_images, height_range_from_points, run_dsm
@@ -84,8 +81,9 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     if min_support < 1:
         raise click.BadParameter("must be at least 1", param_hint="--min-support")
     paths = find_images(eo, images)
-    cfg = DenseConfig(cell_m=resolution, pairs=replace(PairConfig(), pairs_per_image=pairs_per_image),
-                      sgm=replace(SgmConfig(), mode=mode), fusion=replace(FusionConfig(), min_support=min_support),
+    base = DenseConfig()
+    cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
+                      sgm=replace(base.sgm, mode=mode), fusion=replace(base.fusion, min_support=min_support),
                       fill_holes=fill, cloud=not no_cloud, tile_cells=tile_cells)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": list(height_range), "area": area,
                "resolution": resolution, "mode": mode, "pairs_per_image": pairs_per_image, "min_support": min_support,

@@ -85,7 +85,7 @@ class SgmConfig:
     margin_px: int = 48
     disparity_sigma_px: float = 0.3
     edge_jump_px: float = 2.0
-    edge_erode_px: int = 2
+    edge_erode_px: int = 0
     max_incidence_deg: float = 75.0
     lr_check: str = "full"
 

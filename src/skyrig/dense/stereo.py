@@ -74,9 +74,10 @@ class PairPoints:
 
 def block_window(rect: Rectification, u0: int, u1: int, v0: int, v1: int,
                  box: tuple[float, float, float, float, float, float], samples: int = 9,
-                 margin_px: float = 3.0) -> tuple[float, float] | None:
+                 margin_px: float = 3.0, min_depth_m: float = 0.0) -> tuple[float, float] | None:
     """Disparity window of a rectified block from its rays through the scene box (None: the block's rays
-    miss the box)."""
+    miss the box).  Depths below ``min_depth_m`` are not searched (a camera inside the box, as in a
+    terrestrial set, would otherwise ask for an unbounded window)."""
     uu, vv = np.meshgrid(np.linspace(u0, u1 - 1, samples), np.linspace(v0, v1 - 1, samples))
     d = rect.rect_directions(uu.ravel(), vv.ravel()) @ rect.rotation.T  # world, depth 1 along the rectified axis
     tn, tf = ray_box_interval(rect.centres[0], d, box)
@@ -84,19 +85,21 @@ def block_window(rect: Rectification, u0: int, u1: int, v0: int, v1: int,
     if not hit.any():
         return None
     fb = rect.focal_px * rect.base_m
-    near = np.maximum(tn[hit], 1e-6)
+    near = np.maximum(tn[hit], max(min_depth_m, 1e-6))
+    if not np.any(tf[hit] > near):
+        return None
     return float(fb / tf[hit].max() - margin_px), float(fb / near.min() + margin_px)
 
 
-def pair_blocks(rect: Rectification, box: tuple[float, float, float, float, float, float], block_px: int = 768
-                ) -> list[Block]:
+def pair_blocks(rect: Rectification, box: tuple[float, float, float, float, float, float], block_px: int = 768,
+                min_depth_m: float = 0.0) -> list[Block]:
     """Fixed blocks covering the left image on the rectified plane (rows both images share)."""
     u0, u1, v0, v1 = (int(x) for x in rect.bounds[0])
     out = []
     for a in range(v0, v1, block_px):
         for b in range(u0, u1, block_px):
             bb = (b, min(u1, b + block_px), a, min(v1, a + block_px))
-            w = block_window(rect, *bb, box)
+            w = block_window(rect, *bb, box, min_depth_m=min_depth_m)
             if w is not None:
                 out.append(Block(*bb, *w))
     return out

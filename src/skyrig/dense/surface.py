@@ -46,7 +46,9 @@ class DenseConfig:
     cell_m
         DSM cell size (metres); None: the median ground sample distance of the images (1 GSD).
     pairs, sgm, fusion
-        Pair selection, matching and fusion options.
+        Pair selection, matching and fusion options.  The DSM's matcher erodes 2 px of foreground at depth
+        edges (``SgmConfig.edge_erode_px``): on the midas-dsm block this takes the cells off by more than 5 GSD
+        from 1.3 % to 0.4 % at the price of edge completeness (62 % instead of 80 %).
     block_px
         Side of a rectified block matched in one SGM run (bounds memory: about
         ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
@@ -62,12 +64,15 @@ class DenseConfig:
     cloud
         Also fuse a dense point cloud.
     cloud_voxel_m
-        Voxel size of the point cloud (None: the cell size).
+        Voxel size of the point cloud (None: the cell size; tiled runs are bit-identical to untiled ones only
+        with the cell size).
+    min_depth_m
+        Nearest depth searched from a camera (None: a quarter of its distance to the scene box's centre).
     """
 
     cell_m: float | None = None
     pairs: PairConfig = field(default_factory=PairConfig)
-    sgm: SgmConfig = field(default_factory=SgmConfig)
+    sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
@@ -76,6 +81,7 @@ class DenseConfig:
     max_cells: int = 400_000_000
     cloud: bool = True
     cloud_voxel_m: float | None = None
+    min_depth_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -290,12 +296,17 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
         if axis[2] < -0.2:
             s = (z_plane - c[2]) / axis[2]
             gsd.append((s / cam.focal_px, abs(axis[2])))
-    if not gsd:
-        raise SkyrigError("no image looks down onto the expected heights; a DSM needs aerial views (use the point "
-                          "cloud with an explicit area for terrestrial image sets)")
-    g = np.array(gsd)
-    steep = g[:, 1] > np.cos(np.radians(20))
-    gsd_m = float(np.median(g[steep, 0] if steep.any() else g[:, 0]))
+    if gsd:
+        g = np.array(gsd)
+        steep = g[:, 1] > np.cos(np.radians(20))
+        gsd_m = float(np.median(g[steep, 0] if steep.any() else g[:, 0]))
+    elif area is not None:  # side-looking / terrestrial views of a given area: GSD at the area's centre
+        ac = _map_to_local(out_frame, local, np.array([[0.5 * (area[0] + area[2]), 0.5 * (area[1] + area[3]), zmid]]))[0]
+        gsd_m = float(np.median([np.linalg.norm(ac - eo_l.centre[i]) / cameras[str(eo_l.camera[i])].focal_px
+                                 for i in range(len(eo_l))]))
+    else:
+        raise SkyrigError("no image looks down onto the expected heights: for side-looking or terrestrial images "
+                          "give the area to compute (option: area)")
     if area is None:
         fp = np.concatenate(foot)
         if len(fp) == 0:
@@ -331,7 +342,10 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
         except GeometryError as exc:
             logger.info("pair %s-%s skipped: %s", eo_l.image[p.left], eo_l.image[p.right], exc)
             continue
-        bl = pair_blocks(r, box, config.block_px)
+        box_c = 0.5 * (np.array(box[:3]) + np.array(box[3:]))
+        min_depth = config.min_depth_m if config.min_depth_m is not None else \
+            0.25 * float(np.linalg.norm(box_c - eo_l.centre[p.left]))
+        bl = pair_blocks(r, box, config.block_px, min_depth)
         if not bl:
             continue
         bb = []
