@@ -1,14 +1,24 @@
-"""skyrig's bundle adjuster against Ceres (through pycolmap) on BAL problems: final cost and wall time.
+"""skyrig's bundle adjuster against Ceres (through pycolmap) on BAL problems: time, iterations, cost, memory.
 
     .venv/bin/python bench/bal.py                          # ../shared/data/bal/problem-49-7776-pre.txt
     .venv/bin/python bench/bal.py --generate 1000 200000   # a generated BAL block (cameras, points)
+    .venv/bin/python bench/bal.py --series 200,1000,3000,6000   # generated blocks, 200 points per camera
+    .venv/bin/python bench/bal.py --ceres auto,sparse_schur,iterative_schur   # the Ceres configurations run
     .venv/bin/python bench/bal.py --skip-skyrig ...        # Ceres only (or --skip-ceres)
     .venv/bin/python bench/bal.py --engine scipy           # skyrig's reference (scipy sparse) path
 
-Each solver runs ``--repeat`` times (default 2) in turns in the same process and the best wall time is
-reported (other work on the machine disturbs single runs); skyrig's numba kernels are compiled (or
-loaded from numba's cache) before the first timed run.  "iterations" counts successful and
-unsuccessful steps for both (Ceres's ``num_successful_steps + num_unsuccessful_steps``).
+Solvers: skyrig and, by default, two Ceres configurations: ``ceres-auto`` (what a COLMAP user gets:
+COLMAP picks DENSE_SCHUR up to 50 images, SPARSE_SCHUR up to 1,000, ITERATIVE_SCHUR above) and
+``ceres-sparse_schur`` (Ceres's best direct configuration for these blocks).  Every run of every solver
+is a fresh child process (this script with ``--child``) that reads the block, loads what it needs
+(skyrig: the numba kernels from numba's cache, through a one-iteration warm-up; Ceres: pycolmap), and
+runs the solver once; the child reports its figures and its peak resident memory (``VmHWM`` of
+/proc/self/status at its end) and the resident memory just before the solver.  Each solver runs
+``--repeat`` times (default 2) in turns and the best wall time is reported (other work on the machine
+disturbs single runs); a run longer than ``--timeout`` is stopped and reported as such.  "iterations"
+counts successful and unsuccessful steps for both (Ceres's ``num_successful_steps +
+num_unsuccessful_steps``).  The table gives per solver: linear solver used, threads, solve wall time,
+iterations, final BAL cost, peak and solve-phase memory, and the ratios skyrig / that solver.
 
 Both solvers start from the same block and stop on the same tolerances (Ceres's definitions:
 function 1e-6, parameter 1e-8, gradient 1e-10, at most 100 iterations), both Levenberg-Marquardt with
@@ -191,9 +201,11 @@ def run_ceres(block: Block, threads: int = -1, linear_solver: str = "auto") -> d
     so.num_threads = threads
     if linear_solver != "auto":
         opt.ceres.auto_select_solver_type = False
-        so.linear_solver_type = getattr(pycolmap.LinearSolverType, linear_solver.upper())
+        # pycolmap 4.2 exposes the Ceres enums only as the types of the option fields
+        # (there is no ``pycolmap.LinearSolverType``)
+        so.linear_solver_type = getattr(type(so.linear_solver_type), linear_solver.upper())
         if linear_solver.lower() == "iterative_schur":
-            so.preconditioner_type = pycolmap.PreconditionerType.SCHUR_JACOBI
+            so.preconditioner_type = getattr(type(so.preconditioner_type), "SCHUR_JACOBI")
     cfg = pycolmap.BundleAdjustmentConfig()
     for i in range(block.n_images):
         cfg.add_image(i + 1)
@@ -229,68 +241,175 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
                 if info.engine == "numba" else 1)
 
 
+# ----------------------------------------------------------------------------------------- driver
+def _mib(field: str) -> float:
+    """A ``/proc/self/status`` memory field (``VmHWM``, ``VmRSS``) in MiB."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def load(path: str, keep_behind: bool) -> tuple[Block, int, int]:
+    """A BAL file as the block both solvers get (see the module notes on ``drop_behind``)."""
+    block = read_bal(path)
+    if keep_behind:
+        return block, 0, 0
+    return drop_behind(block)
+
+
+def child(solver: str, path: str, keep_behind: bool, threads: int, engine: str) -> dict:
+    """One solver on one problem, in this (fresh) process; its figures with the peak resident memory."""
+    block, _, _ = load(path, keep_behind)
+    if solver == "skyrig":  # load the numba kernels (from numba's disk cache) before the timed run
+        levenberg_marquardt(Model(block, AdjustConfig(intrinsics="free", datum="none")), State.from_block(block), 1,
+                            engine=engine)
+    else:
+        import pycolmap  # noqa: F401  (its import is not the solver's memory)
+    base = _mib("VmRSS")
+    if solver == "skyrig":
+        r = run_skyrig(block, engine)
+        r["final_bal_cost"] = r["final_cost"]
+        r["linear_solver"] = r["engine"]
+    else:
+        r = run_ceres(block, threads, solver.split("-", 1)[1])
+    r.update(base_mib=base, peak_mib=_mib("VmHWM"))
+    return r
+
+
+def run_child(solver: str, path: str, a: argparse.Namespace) -> dict:
+    """:func:`child` in a subprocess (so that each solver's peak memory is its own); ``{"error": ...}`` on
+    failure or timeout."""
+    import json
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, __file__, "--child", solver, "--problem", path, "--threads", str(a.threads),
+           "--engine", a.engine] + (["--keep-behind"] if a.keep_behind else [])
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=a.timeout)
+    except subprocess.TimeoutExpired:
+        return dict(error=f"timeout after {a.timeout:.0f} s")
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("RESULT ")]
+    if out.returncode or not lines:
+        return dict(error=f"exit {out.returncode}: {(out.stderr.strip().splitlines() or [''])[-1]}")
+    return json.loads(lines[-1][7:])
+
+
 def _fmt(v: object) -> str:
     return f"{v:.7g}" if isinstance(v, float) else str(v)
 
 
+def bench_problem(name: str, path: str, a: argparse.Namespace, solvers: list[str]) -> list[dict]:
+    """All solvers on one problem, each ``--repeat`` times in turns, each run in its own process; the best
+    wall time per solver (its peak memory the largest over its runs)."""
+    t0 = time.perf_counter()
+    block0 = read_bal(path)
+    block, n_o, n_p = load(path, a.keep_behind)
+    print(f"\n{name}: {block0.n_images} cameras, {block0.n_points} points, {block0.n_observations} observations; "
+          + (f"dropped {n_o} observations with the point behind the camera and {n_p} points left with < 2 "
+             f"(--keep-behind keeps them): " if not a.keep_behind else "")
+          + f"{block.n_points} points, {block.n_observations} observations (read in {time.perf_counter() - t0:.1f} s)",
+          flush=True)
+    problem = dict(problem=name, cameras=block.n_images, points=block.n_points, observations=block.n_observations)
+    best: dict[str, dict] = {}
+    failed: set[str] = set()
+    for rep in range(a.repeat):  # in turns, so that all solvers see the same machine load
+        for s in solvers:
+            if s in failed:
+                continue
+            r = run_child(s, path, a)
+            print(f"  {s:20s} run {rep + 1}:", ", ".join(f"{k}={_fmt(v)}" for k, v in r.items()), flush=True)
+            if "error" in r:
+                failed.add(s)
+                best[s] = r
+                continue
+            if s not in best or r["solve_s"] < best[s]["solve_s"]:
+                r["peak_mib"] = max(r["peak_mib"], best.get(s, {}).get("peak_mib", 0.0))
+                best[s] = r
+            else:
+                best[s]["peak_mib"] = max(best[s]["peak_mib"], r["peak_mib"])
+    return [dict(problem, solver=s, **best[s]) for s in solvers if s in best]
+
+
+def print_table(rows: list[dict], repeat: int) -> None:
+    """One line per problem and solver; the ratios skyrig / that solver (time, peak memory, final cost)."""
+    print(f"\nbest of {repeat} wall times per solver, each run in its own process; peak MiB = the process's VmHWM "
+          f"(block read + solver), solve MiB = VmHWM - VmRSS before the solver (for Ceres that includes building "
+          f"the COLMAP reconstruction); iterations = successful + unsuccessful steps; cost = the BAL cost at the "
+          f"solver's solution (skyrig's model, same observations); sk/x = skyrig / that solver")
+    hdr = (f"{'problem':34s} {'solver':20s} {'linear solver':16s} {'thr':>3s} {'time s':>8s} {'iter':>5s} "
+           f"{'final cost':>14s} {'peak MiB':>9s} {'solve MiB':>9s} {'t sk/x':>7s} {'peak sk/x':>9s} {'solve sk/x':>10s} {'cost sk/x-1':>12s}")
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        sk = next((q for q in rows if q["problem"] == r["problem"] and q["solver"] == "skyrig" and "error" not in q),
+                  None)
+        if "error" in r:
+            print(f"{r['problem'][:34]:34s} {r['solver']:20s} {r['error']}")
+            continue
+        rt = rm = rs = rc = ""
+        if sk is not None and r is not sk:
+            rt = f"{sk['solve_s'] / r['solve_s']:7.2f}"
+            rm = f"{sk['peak_mib'] / r['peak_mib']:9.2f}"
+            rs = f"{(sk['peak_mib'] - sk['base_mib']) / (r['peak_mib'] - r['base_mib']):10.2f}"
+            rc = f"{sk['final_bal_cost'] / r['final_bal_cost'] - 1:12.2e}"
+        print(f"{r['problem'][:34]:34s} {r['solver']:20s} {r['linear_solver']:16s} {r['threads']:3d} "
+              f"{r['solve_s']:8.2f} {r['iterations']:5d} {r['final_bal_cost']:14.7e} {r['peak_mib']:9.0f} "
+              f"{r['peak_mib'] - r['base_mib']:9.0f} {rt:>7s} {rm:>9s} {rs:>10s} {rc:>12s}")
+
+
 def main() -> None:
+    import json
+    import sys
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--problem", default=str(ROOT / ".." / "shared" / "data" / "bal" / "problem-49-7776-pre.txt"))
     ap.add_argument("--generate", nargs=2, type=int, metavar=("CAMERAS", "POINTS"))
+    ap.add_argument("--series", help="comma-separated camera counts of generated blocks, e.g. 200,1000,3000,6000 "
+                                     "(points: --points-per-camera each)")
+    ap.add_argument("--points-per-camera", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the generated blocks")
     ap.add_argument("--threads", type=int, default=-1, help="Ceres threads (-1: all cores)")
-    ap.add_argument("--linear-solver", default="auto",
-                    help="Ceres linear solver: auto (COLMAP's choice by image count), dense_schur, sparse_schur, "
-                         "iterative_schur")
+    ap.add_argument("--ceres", default="auto,sparse_schur",
+                    help="comma-separated Ceres linear solvers, each run: auto (COLMAP's choice by image count), "
+                         "dense_schur, sparse_schur, iterative_schur (SCHUR_JACOBI)")
+    ap.add_argument("--linear-solver", help="one Ceres linear solver (the same as --ceres with one entry)")
     ap.add_argument("--keep-behind", action="store_true",
                     help="keep observations whose point is behind the camera (COLMAP's cost zeroes them, "
                          "BAL's does not: the two then minimise different objectives)")
     ap.add_argument("--skip-skyrig", action="store_true")
     ap.add_argument("--skip-ceres", action="store_true")
     ap.add_argument("--repeat", type=int, default=2, help="runs of each solver (the best time is reported)")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds per solver run (then reported as such)")
     ap.add_argument("--engine", default="auto", help="skyrig's engine: auto, numba or scipy (reference path)")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
     a = ap.parse_args()
-    t0 = time.perf_counter()
-    if a.generate:
+    if a.child:
+        print("RESULT " + json.dumps(child(a.child, a.problem, a.keep_behind, a.threads, a.engine)), flush=True)
+        return
+    solvers = [] if a.skip_skyrig else ["skyrig"]
+    if not a.skip_ceres:
+        solvers += ["ceres-" + s.strip().lower() for s in (a.linear_solver or a.ceres).split(",") if s.strip()]
+    print(f"solvers: {', '.join(solvers)}; os.cpu_count() = {os.cpu_count()}; python {sys.version.split()[0]}")
+    rows: list[dict] = []
+    if a.series or a.generate:
+        sizes = ([(int(c), int(c) * a.points_per_camera) for c in a.series.split(",")] if a.series
+                 else [tuple(a.generate)])
         with tempfile.TemporaryDirectory() as d:
-            p = Path(d) / "gen.txt"
-            generate(p, *a.generate)
-            block = read_bal(p)
-        name = f"generated {a.generate[0]} cameras x {a.generate[1]} points"
+            for n_cam, n_pts in sizes:
+                p = Path(d) / f"gen-{n_cam}.txt"
+                t0 = time.perf_counter()
+                generate(p, n_cam, n_pts, seed=a.seed)
+                print(f"generated {n_cam} cameras x {n_pts} points (seed {a.seed}) in {time.perf_counter() - t0:.1f} s",
+                      flush=True)
+                rows += bench_problem(f"generated {n_cam} x {n_pts} s{a.seed}", str(p), a, solvers)
+                p.unlink()
+                print_table(rows, a.repeat)  # after every size: a long series leaves its figures as it goes
     else:
-        block = read_bal(a.problem)
-        name = Path(a.problem).name
-    print(f"{name}: {block.n_images} cameras, {block.n_points} points, {block.n_observations} observations "
-          f"(prepared in {time.perf_counter() - t0:.1f} s); os.cpu_count() = {os.cpu_count()}")
-    if not a.keep_behind:
-        block, n_o, n_p = drop_behind(block)
-        print(f"dropped {n_o} observations with the point behind the camera and {n_p} points left with < 2 "
-              f"(--keep-behind keeps them): {block.n_points} points, {block.n_observations} observations")
-    sk = ce = None
-    if not a.skip_skyrig:  # compile (numba caches the kernels on disk; the first run of a fresh install pays it)
-        small = Model(block, AdjustConfig(intrinsics="free", datum="none"))
-        levenberg_marquardt(small, State.from_block(block), 1, engine=a.engine)
-    for rep in range(a.repeat):  # back to back, in turns, so that both see the same machine load
-        if not a.skip_ceres:
-            c = run_ceres(block, a.threads, a.linear_solver)
-            print(f"ceres  run {rep + 1}:", ", ".join(f"{k}={_fmt(v)}" for k, v in c.items()), flush=True)
-            ce = c if ce is None or c["solve_s"] < ce["solve_s"] else ce
-        if not a.skip_skyrig:
-            r = run_skyrig(block, a.engine)
-            print(f"skyrig run {rep + 1}:", ", ".join(f"{k}={_fmt(v)}" for k, v in r.items()), flush=True)
-            sk = r if sk is None or r["solve_s"] < sk["solve_s"] else sk
-    if sk and ce:
-        print()
-        print(f"{'':22s}{'skyrig':>14s}{'ceres':>14s}{'skyrig/ceres':>14s}")
-        print(f"{'initial BAL cost':22s}{sk['initial_cost']:14.7e}{ce['initial_cost']:14.7e}"
-              f"{sk['initial_cost'] / ce['initial_cost']:14.6f}"
-              + ("   (ceres: observations in front only)" if a.keep_behind else ""))
-        print(f"{'final BAL cost':22s}{sk['final_cost']:14.7e}{ce['final_bal_cost']:14.7e}"
-              f"{sk['final_cost'] / ce['final_bal_cost']:14.6f}")
-        print(f"{'iterations (all)':22s}{sk['iterations']:14d}{ce['iterations']:14d}   (successful + unsuccessful)")
-        print(f"{'successful steps':22s}{sk['successful']:14d}{ce['successful']:14d}")
-        print(f"{'solve wall time (s)':22s}{sk['solve_s']:14.2f}{ce['solve_s']:14.2f}"
-              f"{sk['solve_s'] / ce['solve_s']:14.2f}   (best of {a.repeat}; ceres {ce['linear_solver']}, "
-              f"{ce['threads']} threads; skyrig {sk['engine']}, {sk['threads']} threads)")
+        rows += bench_problem(Path(a.problem).name, a.problem, a, solvers)
+        print_table(rows, a.repeat)
 
 
 if __name__ == "__main__":
