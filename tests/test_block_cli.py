@@ -69,5 +69,5 @@ def test_block_names_the_file_of_an_unknown_image(tmp_path) -> None:  # type: ig
     bad.write_text(meas.read_text() + "CP00,no_such_image.tif,10.0,20.0\n")
     r = CliRunner().invoke(main, ["block", "--trajectory", str(p.trajectory), "--events", str(p.events), "--rig",
                                   str(p.rig), "--measurements", str(bad), "-o", str(tmp_path / "b.json")])
-    assert r.exit_code != 0 and "bad.csv" in r.output and "no_such_image.tif" in r.output
+    assert r.exit_code == 2 and "bad.csv" in r.output and "no_such_image.tif" in r.output
     assert not (tmp_path / "b.json").exists()

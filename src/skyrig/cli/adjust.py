@@ -7,10 +7,18 @@ orientations (``eo.csv``), points (``points.csv``), control / check points with 
 (``ground_control.csv``), all as GDAL-readable CSVs with side-cars, the same as GeoPackage layers
 (``adjusted.gpkg``, :mod:`skyrig.io.adjust_outputs`), and ``report.json`` / ``report.html`` (the
 self-contained report of :mod:`skyrig.report`; control / check tables in the project CRS).  Also :func:`adjust_demo_project` for ``make demo``.
+
+OUTDIR is published as a set (:func:`skyrig.io.stage.stage_folder`): the outputs are written into a staging
+folder next to it, ``manifest.json`` (inputs with SHA-256, options, version, every output's checksum) last, then
+swapped into place - a killed run leaves the previous OUTDIR as it was (or none), never a mixed one; the staging
+folders killed runs left are removed by the next run.  A failed adjustment publishes nothing (exit status 1)
+unless ``--keep-failed``.
 """
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +57,15 @@ def default_project(frame: WorldFrame) -> WorldFrame:
 
 def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, title: str,
                   gsd_m: float | None = None, frame: WorldFrame | None = None,
-                  to: WorldFrame | None = None, inputs: Any = (), options: dict[str, Any] | None = None
-                  ) -> dict[str, Path]:
+                  to: WorldFrame | None = None, inputs: Any = (), options: dict[str, Any] | None = None,
+                  rig_file: str | Path | None = None) -> dict[str, Path]:
     """Adjusted block, then in the project frame ``to`` (default :func:`default_project` of the block's frame)
     the EO, points and ground-control CSVs and GeoPackage (:func:`skyrig.io.adjust_outputs.write_adjusted_tables`,
-    when the block's frame is known) and the report; returns the paths."""
+    when the block's frame is known) and the report; returns the paths.
+
+    ``rig_file``: the rig file defining the block's actuated heads (a block with a tumbling head needs it); the
+    adjusted block names it by its path relative to ``outdir``'s parent folder joined with ``outdir``'s name
+    (the same from a staging folder next to the published one)."""
     from skyrig.camera.frame import FrameCamera
     from skyrig.io.adjust_outputs import write_adjusted_tables
     from skyrig.io.block_file import write_block
@@ -66,7 +78,8 @@ def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, tit
     frame = frame or _frame(b.frame)
     project = None if frame is None else (to or default_project(frame))
     if all(isinstance(c, FrameCamera) for c in b.cameras):
-        write_block(d / "adjusted.json", b, config, crs=project)
+        rel = None if rig_file is None else os.path.relpath(Path(rig_file).resolve(), d.resolve())
+        write_block(d / "adjusted.json", b, config, rig_file=rel, crs=project)
         out["block"] = d / "adjusted.json"
     if frame is not None and project is not None:
         out.update(write_adjusted_tables(d, result, frame, project))
@@ -82,7 +95,8 @@ def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, tit
               help="Paper 004 variant, merged with the block file's 'adjustment' section (groups freed there stay "
                    "free; a field the preset decides overrides the file, with a warning); default: the section alone.")
 @click.option("--gsd", type=float, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("-o", "--output", "--outdir", "outdir", required=True, type=click.Path(file_okay=False),
+              help="Output folder, published as a set with manifest.json (--outdir: the older spelling).")
 @click.option("--crs", "crs", default=None,
               help="Project CRS of the outputs (e.g. EPSG:25832; a compound CRS such as EPSG:25832+5773 gives "
                    "orthometric heights through its geoid). Default: the block file's 'crs' (skyrig block: the "
@@ -102,8 +116,12 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from skyrig.io.block_file import read_block
+    from skyrig.io.stage import clean_stale
 
+    started = time.time()
+    clean_stale(outdir, started)  # what killed runs left next to OUTDIR
     bf = read_block(block_path)
+    rig_file = _rig_of(block_path)
     block, cfg = bf.block, bf.config
     project = bf.crs
     if crs is not None:
@@ -145,8 +163,17 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
     from skyrig.report import block_file_inputs
 
     opts = dict(block=block_path, preset=preset, gsd=gsd, crs=crs, geoid=geoid, keep_failed=keep_failed)
-    paths = write_outputs(outdir, res, cfg, title, gsd, bf.frame, project, inputs=block_file_inputs(block_path),
-                          options=opts) if res.ok or keep_failed else {}
+    paths: dict[str, Path] = {}
+    if res.ok or keep_failed:
+        from skyrig.io.stage import describe_inputs, stage_folder
+
+        inputs = block_file_inputs(block_path) + ([Path(rig_file)] if rig_file else [])
+        with stage_folder(outdir, stage="adjust", inputs=describe_inputs(inputs),
+                          options=dict(opts, ok=res.ok), started=started) as tmp:
+            staged = write_outputs(tmp, res, cfg, title, gsd, bf.frame, project, inputs=inputs, options=opts,
+                                   rig_file=rig_file)
+        paths = {k: Path(outdir) / p.relative_to(tmp) for k, p in staged.items()}
+        paths["manifest"] = Path(outdir) / "manifest.json"
     click.echo(f"sigma0 {res.sigma0:.3f}, {res.info.iterations} iterations ({res.info.message}), "
                f"{len(res.rejected)} rejected; "
                + (f"wrote {', '.join(str(p) for p in paths.values())}" if paths else "no outputs written"))
@@ -156,6 +183,17 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
         raise click.ClickException(
             f"{block_path}: the adjustment failed: " + "; ".join(res.failures)
             + ("" if keep_failed else " (nothing written; --keep-failed writes the outputs anyway)"))
+
+
+def _rig_of(block_path: str) -> str | None:
+    """The rig file a block file's manifest names (key ``rig``: blocks with actuated heads), as a path."""
+    import json
+
+    try:
+        rig = json.loads(Path(block_path).read_text(encoding="utf-8-sig")).get("rig")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return None if not rig else str(Path(block_path).parent / str(rig))
 
 
 def adjust_demo_project(paths: Any, outdir: str | Path, preset: str = "ba-eo-control", seed: int = 0,

@@ -17,6 +17,7 @@ which ``skyrig adjust`` writes the results.  ``--free`` names the system-calibra
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
@@ -115,8 +116,10 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
         bad = np.flatnonzero(~np.isin(x.image, list(known)))
         if len(bad):
             k = int(bad[0])
-            raise click.ClickException(f"{path}: image {str(x.image[k])!r} (point {str(x.point[k])!r}, measurement {k + 1}) is not "
+            err = click.ClickException(f"{path}: image {str(x.image[k])!r} (point {str(x.point[k])!r}, measurement {k + 1}) is not "
                                        f"in {source}; {len(bad)} measurement(s) name images without an orientation")
+            err.exit_code = 2  # wrong input: 2, as every input error (docs/cli.md)
+            raise err
     m = ImageMeasurements(np.concatenate([x.point for x in ms]), np.concatenate([x.image for x in ms]),
                           np.vstack([x.pixel for x in ms]))
     pts = [read_points_csv(p) for p in (control_path, check_path) if p is not None]
@@ -157,7 +160,9 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
         project = control.frame
     if project is None and not rig_mode and eo.frame.kind == "map":
         project = eo.frame
-    write_block(output, block, cfg, crs=project)
+    # a rig with actuated (tumbling) heads: the block file names the rig that defines them, relative to itself
+    rig_file = os.path.relpath(rig_path, Path(output).parent) if rig_mode else None
+    write_block(output, block, cfg, rig_file=rig_file, crs=project)
     click.echo(f"wrote {output}: {block.n_stations} stations, {block.n_images} images, {block.n_points} points, "
                f"{block.n_observations} image observations, {len(block.control_point)} ground points "
                f"({int(np.sum(block.control_check))} check), {len(block.gnss_station)} GNSS, "

@@ -8,7 +8,7 @@ side-cars, :mod:`skyrig.io.adjust_outputs`), ``report.json``, ``report.html`` an
 ``PROJECT/adjust-uav`` (or ``--out``).
 
 A run whose adjustment cannot be trusted (no convergence, sigma0 not finite, no redundancy, or any other failure
-the adjustment states) exits with status 2 and the reason; its outputs are then not published (a previous run's
+the adjustment states) exits with status 1 (a failed run; 2 is a wrong command line or input, docs/cli.md) and the reason; its outputs are then not published (a previous run's
 files stay as they were) unless ``--keep-failed`` is given. Outputs are written to a staging folder next to the
 output folder and moved into place only when the run is kept.
 """
@@ -58,7 +58,7 @@ __all__ = ["command"]
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False),
               help="JSON file of UavConfig options (overrides the options above).")
 @click.option("--keep-failed", is_flag=True,
-              help="Write the outputs even when the adjustment failed (the exit status is still 2).")
+              help="Write the outputs even when the adjustment failed (the exit status is still 1).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: tuple[float, float, float], attitude_sigma: float, altitude: str, geoid: str | None,
             focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
@@ -113,7 +113,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         kept = (f"outputs kept in {outdir} (--keep-failed)" if keep_failed
                 else "no outputs written (--keep-failed writes them anyway)")
         click.echo("error: the UAV adjustment failed: " + "; ".join(failures) + f"; {kept}", err=True)
-        raise SystemExit(2)
+        raise SystemExit(1)
     click.echo(f"{rep['uav']['total_wall_s']:.1f} s; written to {outdir}")
 
 

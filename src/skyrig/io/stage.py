@@ -4,6 +4,11 @@ A killed run never leaves a folder whose files come from two runs: the previous 
 the new one is complete, then the two are swapped (rename) and the old one removed.  The manifest
 (``manifest.json``) lists the inputs (path, size, SHA-256), the options, the software version, the date and
 every output file with its size and SHA-256.
+
+A run killed while staging leaves a ``.NAME.partial-*`` sibling, one killed while swapping a ``.NAME.old-*``
+sibling; the next run removes those older than itself (:func:`clean_stale`) and, when the kill fell between the
+two renames of the swap (NAME absent, the previous complete folder inside ``.NAME.old-*``), puts the previous
+folder back first.
 """
 
 from __future__ import annotations
@@ -46,12 +51,41 @@ def describe_inputs(paths: list[PathLike]) -> list[dict[str, Any]]:
     return out
 
 
+def clean_stale(outdir: PathLike, started: float | None = None) -> list[Path]:
+    """Remove the ``.NAME.partial-*`` / ``.NAME.old-*`` siblings of ``outdir`` last modified before ``started``
+    (a Unix time; default now) - what killed runs left.  When ``outdir`` is absent and such an ``.old-*`` sibling
+    holds the previously published folder (a run killed between the two renames of the swap), that folder is moved
+    back to ``outdir`` first.  Returns the paths removed."""
+    out = Path(outdir)
+    if not out.parent.is_dir():
+        return []
+    t = time.time() if started is None else started
+    stale = []
+    for p in out.parent.iterdir():
+        if not (p.name.startswith(f".{out.name}.partial-") or p.name.startswith(f".{out.name}.old-")):
+            continue
+        try:
+            if p.is_dir() and not p.is_symlink() and p.stat().st_mtime < t:
+                stale.append(p)
+        except OSError:
+            continue
+    if not out.exists() and not out.is_symlink():
+        olds = sorted((p for p in stale if ".old-" in p.name and (p / out.name / MANIFEST).is_file()),
+                      key=lambda p: p.stat().st_mtime)
+        if olds:
+            os.replace(olds[-1] / out.name, out)
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return stale
+
+
 @contextmanager
 def stage_folder(outdir: PathLike, *, stage: str, inputs: list[dict[str, Any]] | None = None,
-                 options: dict[str, Any] | None = None) -> Iterator[Path]:
+                 options: dict[str, Any] | None = None, started: float | None = None) -> Iterator[Path]:
     """Yield a staging folder next to ``outdir``; on success write the manifest and swap it into place.
 
-    On any exception the staging folder is removed and ``outdir`` is left untouched.
+    On any exception the staging folder is removed and ``outdir`` is left untouched.  First the stale siblings
+    of killed runs older than ``started`` (the run's start, a Unix time; default now) go (:func:`clean_stale`).
     """
     from skyrig import __version__
 
@@ -61,6 +95,7 @@ def stage_folder(outdir: PathLike, *, stage: str, inputs: list[dict[str, Any]] |
         raise OutputPathError(why, out)
     if out.exists() and not out.is_dir():
         raise OutputPathError("is a file; give a folder", out)
+    clean_stale(out, started)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
