@@ -316,9 +316,11 @@ def simulate_scenario(name: str, outdir: str | Path, size: str = "ci", seed: int
     return write_project(build_survey(scenario_spec(name, size, seed)), outdir, workers, images)
 
 
-def simulate_demo_project(outdir: str | Path, workers: int | None = None) -> dict[str, Any]:
-    """``make demo``: simulate a small MIDAS penta-rig flight, georeference the written files with the
-    truth rig and compare with the true orientations; returns the largest deviations."""
+def simulate_demo_project(outdir: str | Path, workers: int | None = None, scenario: str = "midas-dsm"
+                          ) -> dict[str, Any]:
+    """``make demo``: simulate a small MIDAS penta-rig flight (default: the 80/60 surface flight ``midas-dsm``,
+    3 strips x 4 exposures x 5 heads), georeference the written files with the truth rig and compare with the
+    true orientations; returns the largest deviations."""
     from skyrig.georef.direct import direct_georeference
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.events_csv import read_events_csv
@@ -326,7 +328,7 @@ def simulate_demo_project(outdir: str | Path, workers: int | None = None) -> dic
     from skyrig.io.trajectory_csv import read_trajectory_csv
 
     out = Path(outdir)
-    info = write_project(build_survey(scenario_spec("midas-demo", "ci", 1)), out, workers)
+    info = write_project(build_survey(scenario_spec(scenario, "ci", 1)), out, workers)
     truth_eo = read_eo_csv(out / "truth" / "eo.csv")
     eo = direct_georeference(read_trajectory_csv(out / "truth" / "trajectory.csv"), read_rig(out / "truth" / "rig.yaml"),
                              read_events_csv(out / "truth" / "events.csv"), truth_eo.frame)
