@@ -84,11 +84,15 @@ def test_3k_direct_georeferencing_matches_navigation_prediction(bench) -> None:
 
 
 def test_bridge_image_cloud_beats_laser_cloud(bench) -> None:
+    # skyrig dsm on the side-looking uav-bridge-camera images with --area (the pillar pass at CI size), cloud.laz
+    # vs reference/tls.laz with skyrig lidar compare; the laser clouds of uav-bridge-lidar vs theirs
     res = bench.case_bridge(CACHE)
-    # skyrig dsm refuses side-looking images (reported; the bench plans them itself)
-    assert res["skyrig_dsm"]["exit"] != 0
     img = res["image_vs_tls"]["c2c"]
     assert res["image_cloud"]["points"] > 10_000
     for k in ("laser_gnss_vs_tls", "laser_baro_vs_tls"):
         assert img["rms_m"] < res[k]["c2c"]["rms_m"], (img, res[k]["c2c"])
         assert img["p68_abs_m"] < res[k]["c2c"]["p68_abs_m"], (img, res[k]["c2c"])
+    # measured (pillar pass, 3 pairs per image, 33 pairs, 335,640 points): image cloud C2C RMS 2.3 cm, 2/3 below
+    # 2.1 cm (structure alone 2.5 / 2.2 cm); laser 34.0 / 41.3 cm (GNSS heights), 10.7 / 7.6 cm (barometric).
+    # Paper 002: 4.9 cm (image) vs 31.7 cm (laser).
+    assert img["rms_m"] < 0.049 and res["image_vs_tls_structure"]["rms_m"] < 0.049, (img, res["image_vs_tls_structure"])
