@@ -121,7 +121,7 @@ def block():
 @pytest.fixture(scope="module")
 def dense_result(block):
     eo, cams, imgs = block
-    cfg = DenseConfig(tile_cells=4096, block_px=256)
+    cfg = DenseConfig(tile_cells=4096, block_px=256, pairs=PairConfig(pairs_per_image=4))
     return dense_surface(eo, cams, lambda i: imgs[i], WorldFrame.map(CRS), (40.0, 75.0), config=cfg)
 
 
@@ -299,7 +299,9 @@ def test_cli_writes_cog_and_laz_that_gdal_and_laspy_read(project, tmp_path):
     import rasterio
 
     out = tmp_path / "dsm"
-    r = _dsm(project, out, "--height-range", "40", "75")
+    c = _to_map(np.array([-22.0, 22.0]), np.array([-18.0, 18.0]), np.array([50.0, 50.0]))
+    r = _dsm(project, out, "--height-range", "40", "75", "--pairs-per-image", "3", "--area",
+             *(str(v) for v in (c[0, 0], c[0, 1], c[1, 0], c[1, 1])))
     assert r.exit_code == 0, r.output
     with rasterio.open(out / "dsm.tif") as ds:
         assert pyproj.CRS(ds.crs.to_wkt()).equals(pyproj.CRS(CRS))

@@ -28,6 +28,8 @@ from skyrig.cli._common import eo_options
               help="Stereo pairs that must agree on a cell's height.")
 @click.option("--fill", is_flag=True, help="Interpolate small holes (flagged in the 'filled' band).")
 @click.option("--no-cloud", is_flag=True, help="Do not write the dense point cloud.")
+@click.option("--min-depth", type=float, default=None,
+              help="Nearest depth searched from a camera in metres (default: a quarter of its distance to the scene).")
 @click.option("--tile-cells", type=int, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
@@ -35,7 +37,7 @@ from skyrig.cli._common import eo_options
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
-            points_path, area, resolution, mode, pairs_per_image, min_support, fill, no_cloud, tile_cells, executor,
+            points_path, area, resolution, mode, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, executor,
             workers, scheduler, output) -> None:
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
@@ -84,10 +86,10 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     base = DenseConfig()
     cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
                       sgm=replace(base.sgm, mode=mode), fusion=replace(base.fusion, min_support=min_support),
-                      fill_holes=fill, cloud=not no_cloud, tile_cells=tile_cells)
+                      fill_holes=fill, cloud=not no_cloud, tile_cells=tile_cells, min_depth_m=min_depth)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": list(height_range), "area": area,
                "resolution": resolution, "mode": mode, "pairs_per_image": pairs_per_image, "min_support": min_support,
-               "fill": fill, "cloud": not no_cloud, "tile_cells": tile_cells, "heads": heads}
+               "fill": fill, "cloud": not no_cloud, "tile_cells": tile_cells, "heads": heads, "min_depth": min_depth}
     from rich.progress import Progress
 
     with Progress(transient=True) as bar:
