@@ -9,7 +9,6 @@ bad input must be a clear error that leaves no output behind.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -56,7 +55,7 @@ def _render(centre, yaw_rad=0.0):
     xc = (cols - (W_PX - 1) / 2) / F_PX
     yc = -(rows - (H_PX - 1) / 2) / F_PX
     c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    dx, dy, dz = c * xc - s * yc, s * xc + c * yc, -np.ones_like(xc)
+    dx, dy = c * xc - s * yc, s * xc + c * yc  # the ray's z component is -1 (looking down)
     cx, cy, cz = centre
     # roof plane first (box top), then walls are ignored (nadir block, walls thin), then ground
     t_roof = (cz - (50.0 + BOX[4])) / 1.0  # approx, refined below with the sloped plane

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense.fusion import FusionConfig, fuse_cloud, fuse_grid
 from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
-from skyrig.dense.pairs import PairConfig, StereoPair, ray_box_interval, select_pairs
+from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
 from skyrig.dense.rectify import Rectification, rectify_pair
 from skyrig.dense.sgm import SgmConfig
 from skyrig.dense.stereo import Block, ImageLoader, PairPoints, block_ground_bounds, block_points, match_block, pair_blocks
