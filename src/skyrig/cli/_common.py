@@ -17,6 +17,21 @@ from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 
 
+def project_frame_option(crs: str | None, geoid: str | None) -> WorldFrame | None:
+    """The project frame from ``--crs`` / ``--geoid`` (a compound CRS brings its geoid); None without ``--crs``."""
+    if crs is None:
+        if geoid is not None:
+            raise click.UsageError("--geoid goes with --crs")
+        return None
+    from skyrig.errors import CRSError
+    from skyrig.geodesy.statement import project_frame
+
+    try:
+        return project_frame(crs, geoid)
+    except CRSError as e:
+        raise click.BadParameter(str(e), param_hint="--crs") from None
+
+
 def map_frame(crs: str | None, geoid: str | None, what: str) -> WorldFrame:
     if not crs:
         raise click.UsageError(f"{what} needs --crs (the file does not say which CRS it is in)")

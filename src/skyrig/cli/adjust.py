@@ -123,17 +123,10 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
     bf = read_block(block_path)
     rig_file = _rig_of(block_path)
     block, cfg = bf.block, bf.config
-    project = bf.crs
-    if crs is not None:
-        from skyrig.errors import CRSError
-        from skyrig.geodesy.statement import project_frame
+    from skyrig.cli._common import project_frame_option
 
-        try:
-            project = project_frame(crs, geoid)
-        except CRSError as e:
-            raise click.BadParameter(str(e), param_hint="--crs") from None
-    elif geoid is not None:
-        raise click.UsageError("--geoid goes with --crs")
+    given = project_frame_option(crs, geoid)
+    project = given if given is not None else bf.crs
     if bf.frame is None:
         click.echo(f"warning: {block_path}: the block's frame {block.frame!r} is not a frame skyrig knows; EO and "
                    "points are not written (only the adjusted block and the report)", err=True)

@@ -88,17 +88,9 @@ def command(trajectory: str | None, events: str | None, rig_path: str | None, eo
     gs = _triple(gnss_sigma, "--gnss-sigma")
     imu = tuple(np.radians(_triple(imu_sigma_deg, "--imu-sigma-deg")))
     cs = _triple(control_sigma, "--control-sigma")
-    project = None
-    if crs is not None:
-        from skyrig.errors import CRSError
-        from skyrig.geodesy.statement import project_frame
+    from skyrig.cli._common import project_frame_option
 
-        try:
-            project = project_frame(crs, geoid)
-        except CRSError as e:
-            raise click.BadParameter(str(e), param_hint="--crs") from None
-    elif geoid is not None:
-        raise click.UsageError("--geoid goes with --crs")
+    project = project_frame_option(crs, geoid)
     groups = [g.strip() for g in free.split(",") if g.strip()]
     unknown = [g for g in groups if g not in _GROUPS]
     if unknown:
