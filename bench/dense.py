@@ -193,7 +193,7 @@ def profile(cache: Path, n: int, top: int = 25) -> None:
     st = pstats.Stats(pr)
     print(f"\n--- cProfile of the chain, {n} images: by own time ---")
     st.sort_stats("tottime").print_stats(top)
-    print(f"--- by cumulative time ---")
+    print("--- by cumulative time ---")
     st.sort_stats("cumulative").print_stats(top)
 
 

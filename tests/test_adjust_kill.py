@@ -62,7 +62,6 @@ def test_adjust_killed_at_20_random_moments_never_leaves_a_mixed_folder(tmp_path
     assert p.wait(timeout=300) == 0
     full = time.perf_counter() - t0  # one whole run, imports included
     assert verify_folder(out) == []
-    published = {json.loads((out / MANIFEST).read_text())["created"] + str(blocks[0])}
     rng = np.random.default_rng(13)
     # half the moments anywhere in a run, half in its last 40 % (adjustment done: writing, manifest, swap)
     moments = np.concatenate([rng.uniform(0.0, 1.0, 10), rng.uniform(0.6, 1.05, 10)]) * full

@@ -33,7 +33,6 @@ from skyrig.adjust.stats import (
     describe_null_space,
     row_cofactors,
 )
-from skyrig.errors import SkyrigError
 
 logger = logging.getLogger(__name__)
 

@@ -54,15 +54,6 @@ class FusionConfig:
     min_support_ratio: float = 0.5
 
 
-def _group_starts(sorted_keys: NDArray[np.int64]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Start index and length of runs of equal keys in a sorted array."""
-    if len(sorted_keys) == 0:
-        return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
-    lengths = np.diff(np.r_[starts, len(sorted_keys)])
-    return starts, lengths
-
-
 def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y: NDArray[np.float64],
               h: NDArray[np.float64], sigma: NDArray[np.float64], cfg: FusionConfig = FusionConfig()
               ) -> tuple[NDArray[np.float32], NDArray[np.int16], NDArray[np.float32], NDArray[np.float32]]:

@@ -176,21 +176,30 @@ def select_pairs(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
     for name in set(eo.camera.tolist()):
         if name not in cameras:
             raise SkyrigError(f"no camera {name!r} for the orientations (cameras given: {', '.join(sorted(cameras))})")
+    from scipy.spatial import cKDTree
+
     pts, ok = _view_samples(eo, cameras, box, config.samples)
     axis = -eo.rotation[:, :, 2]  # viewing direction (camera looks along -z)
-    cos_axis = np.clip(axis @ axis.T, -1, 1)
-    cand = np.argwhere(np.triu(cos_axis >= np.cos(np.radians(config.max_axis_angle_deg)), 1))
-    # cheap prefilter on the centroids of the viewed areas
-    cen = np.array([p[o].mean(axis=0) if o.any() else np.full(3, np.nan) for p, o in zip(pts, ok)])
-    rad = np.array([np.sqrt(np.max(np.sum((p[o] - c) ** 2, axis=1))) if o.any() else 0.0
-                    for p, o, c in zip(pts, ok, cen)])
+    # candidates: images whose viewed areas (centroid + radius) can touch - a KD-tree, not all n^2 pairs -
+    # and that look in similar directions
+    sees = ok.any(axis=1)
+    cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
+    cen = np.where(ok[..., None], np.nan_to_num(pts), 0.0).sum(axis=1) / cnt
+    rad = np.sqrt(np.max(np.where(ok, np.sum((np.nan_to_num(pts) - cen[:, None]) ** 2, axis=2), 0.0), axis=1))
+    idx = np.flatnonzero(sees)
+    if len(idx) < 2:
+        return []
+    near = cKDTree(cen[idx]).query_pairs(2.0 * float(rad[idx].max()), output_type="ndarray")
+    cand = idx[near] if len(near) else np.zeros((0, 2), np.int64)
+    if len(cand):
+        i0, j0 = cand[:, 0], cand[:, 1]
+        keep = (np.linalg.norm(cen[i0] - cen[j0], axis=1) <= rad[i0] + rad[j0]) & \
+            (np.sum(axis[i0] * axis[j0], axis=1) >= np.cos(np.radians(config.max_axis_angle_deg)))
+        cand = np.sort(cand[keep], axis=1)
+        cand = cand[np.lexsort((cand[:, 1], cand[:, 0]))]
     out: list[StereoPair] = []
     lo_i, hi_i = np.radians(config.intersection_deg)
     for i, j in cand:
-        if not (ok[i].any() and ok[j].any()):
-            continue
-        if np.linalg.norm(cen[i] - cen[j]) > rad[i] + rad[j]:
-            continue
         shares = []
         common = []
         for a, b in ((i, j), (j, i)):

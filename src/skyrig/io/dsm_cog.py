@@ -55,7 +55,6 @@ from numpy.typing import NDArray
 
 from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.errors import CRSError, InputFormatError
-from skyrig.geodesy.frame import WorldFrame
 from skyrig.geodesy.statement import FileCRS, file_crs, frame_from_file_crs, vertical_crs_of_geoid
 from skyrig.io.laz import _publishable
 

@@ -21,7 +21,6 @@ As found in the IGN aerial block (``../shared/data/ign-aerial-block``):
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 

@@ -145,7 +145,7 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
                    "intersection_deg": round(p.intersection_deg, 2)} for p in plan.pairs],
         "grid": {"x0": plan.grid.x0, "y0": plan.grid.y0, "cell_m": plan.grid.cell_m, "width": plan.grid.width,
                  "height": plan.grid.height},
-        "frame": out_frame.to_text() if hasattr(out_frame, "to_text") else out_frame.describe(),
+        "frame": out_frame.to_text(),
         "vertical_reference": dsm.vertical_reference,
         "height_range": list(height_range),
         "cells_valid": int(valid.sum()), "cells": int(valid.size),
