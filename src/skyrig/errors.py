@@ -69,3 +69,57 @@ class OutOfRangeError(SkyrigError, ValueError):
 
 class GeometryError(SkyrigError, ValueError):
     """Degenerate or impossible geometry (a ray parallel to a plane, a point behind the camera...)."""
+
+
+class OutputPathError(SkyrigError, OSError):
+    """An output file or folder cannot be written where the user asked (a path under a regular file, a folder
+    where a file is expected, no permission...).
+
+    ``path`` is the output as given; ``option`` the command-line option that named it, when known (the CLI
+    fills it in from the command line when a library function raised the error).
+    """
+
+    def __init__(self, reason: str, path: str | PathLike[str], option: str | None = None) -> None:
+        self.path = str(path)
+        self.reason = reason
+        self.option = option
+        super().__init__(self._text())
+
+    def _text(self) -> str:
+        where = f"{self.option} {self.path}" if self.option else f"output {self.path}"
+        return f"{where}: {self.reason}"
+
+    def with_option(self, option: str, given: str | None = None) -> OutputPathError:
+        """The same error naming the option (and the value given to it, when the path lies inside it)."""
+        err = OutputPathError(self.reason, self.path, option)
+        if given is not None and given != self.path:
+            err = OutputPathError(f"{self.reason} (writing {self.path})", given, option)
+        return err
+
+    def __str__(self) -> str:
+        return self._text()
+
+
+class PlausibilityWarning(UserWarning):
+    """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
+    lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""
+
+
+def show_warnings_in_words() -> None:
+    """Print :class:`PlausibilityWarning` (and any warning skyrig emits on purpose) as one ``warning: message``
+    line on standard error, without Python's file and source line; other warnings keep Python's format."""
+    import sys
+    import warnings
+
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+        if isinstance(category, type) and issubclass(category, PlausibilityWarning):
+            print(f"warning: {message}", file=file or sys.stderr)
+            return
+        previous(message, category, filename, lineno, file, line)
+
+    if getattr(previous, "_skyrig", False):
+        return
+    show._skyrig = True  # type: ignore[attr-defined]
+    warnings.showwarning = show

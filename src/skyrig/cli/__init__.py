@@ -24,7 +24,7 @@ os.environ.setdefault("GLOG_minloglevel", "1")
 import click
 
 from skyrig import __version__
-from skyrig.errors import SkyrigError
+from skyrig.errors import SkyrigError, show_warnings_in_words
 
 
 class CommandEntry(NamedTuple):
@@ -204,3 +204,4 @@ def _configure_logging(verbose: int, quiet: int) -> None:
 def main(verbose: int, quiet: int) -> None:
     """skyrig: aerial and UAV photogrammetry for multi-head camera rigs with GNSS/IMU."""
     _configure_logging(verbose, quiet)
+    show_warnings_in_words()  # plausibility warnings as "warning: ..." lines (skyrig.io.plausibility)

@@ -108,21 +108,30 @@ def load_cameras(paths: Sequence[str]) -> dict[str, FrameCamera]:
     return out
 
 
-def load_points(path: str, crs: str | None, heights: str, geoid: str | None) -> GroundPoints:
-    """Ground points from IGN .app / _world.mes, ODM gcp_list.txt, or a skyrig points CSV."""
+def load_points(path: str, crs: str | None, heights: str, geoid: str | None, default_crs: str | None = None,
+                option: str = "--points-crs") -> GroundPoints:
+    """Ground points from IGN .app / _world.mes, ODM gcp_list.txt, or a skyrig points CSV.
+
+    ``crs`` (with ``heights`` / ``geoid``) is the frame given on the command line by ``option``: a skyrig CSV that
+    states its own frame must agree with it.  ``default_crs`` (ellipsoidal heights unless ``heights`` says
+    orthometric) is used only for a file that states no frame (e.g. the EO's CRS); the file's statement wins.
+    """
     name = Path(path).name.lower()
-    frame = None if crs is None else WorldFrame.map(crs, geoid if heights == "orthometric" else None)
+    g = geoid if heights == "orthometric" else None
+    frame = None if crs is None else WorldFrame.map(crs, g)
+    default = None if default_crs is None else WorldFrame.map(default_crs, g)
     if name.endswith((".app", ".mes")):
         from skyrig.io.ign import read_ign_ground_points
 
-        return read_ign_ground_points(path, frame if frame else map_frame(crs, None, "an IGN point file"))
+        use = frame or default
+        return read_ign_ground_points(path, use if use else map_frame(crs, None, "an IGN point file"))
     if name.startswith("gcp_list"):
         from skyrig.io.odm import read_gcp_list
 
-        return read_gcp_list(path, geoid if heights == "orthometric" else None)[0]
+        return read_gcp_list(path, g)[0]
     from skyrig.io.points_csv import read_points_csv
 
-    return read_points_csv(path, frame)
+    return read_points_csv(path, frame, default, option)
 
 
 def load_measurements(path: str) -> ImageMeasurements:

@@ -44,8 +44,9 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     if images:
         eo = eo.subset(np.isin(eo.image, list(images)))
     cams = load_cameras(camera_paths)
-    pts = load_points(points_path, points_crs or eo_crs or (eo.frame.crs if eo.frame.kind == "map" else None),
-                      points_heights, points_geoid)
+    # the points file's own frame (header or side-car) wins; the EO's CRS only stands in for a file that states none
+    pts = load_points(points_path, points_crs, points_heights, points_geoid,
+                      default_crs=eo_crs or (eo.frame.crs if eo.frame.kind == "map" else None))
     idx = pts.index()
     if mes_path:
         m = load_measurements(mes_path)

@@ -12,9 +12,12 @@ from typing import IO
 
 import numpy as np
 
-from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.errors import InputFormatError, OutputPathError
 
 PathLike = str | os.PathLike[str]
+
+__all__ = ["OutputPathError", "PathLike", "atomic_write", "check_output_dir", "output_temp", "parse_float", "publish",
+           "read_text"]  # OutputPathError lives in skyrig.errors; re-exported here where it was first defined
 
 
 def read_text(path: PathLike) -> str:
@@ -44,35 +47,6 @@ def parse_float(text: str, path: PathLike, line: int, field: str) -> float:
     if not np.isfinite(v):
         raise InputFormatError(f"{text.strip()!r} is not a finite number", path, line, field)
     return v
-
-
-class OutputPathError(SkyrigError, OSError):
-    """An output file or folder cannot be written where the user asked (a path under a regular file, a folder
-    where a file is expected, no permission...).
-
-    ``path`` is the output as given; ``option`` the command-line option that named it, when known (the CLI
-    fills it in from the command line when a library function raised the error).
-    """
-
-    def __init__(self, reason: str, path: PathLike, option: str | None = None) -> None:
-        self.path = str(path)
-        self.reason = reason
-        self.option = option
-        super().__init__(self._text())
-
-    def _text(self) -> str:
-        where = f"{self.option} {self.path}" if self.option else f"output {self.path}"
-        return f"{where}: {self.reason}"
-
-    def with_option(self, option: str, given: str | None = None) -> OutputPathError:
-        """The same error naming the option (and the value given to it, when the path lies inside it)."""
-        err = OutputPathError(self.reason, self.path, option)
-        if given is not None and given != self.path:
-            err = OutputPathError(f"{self.reason} (writing {self.path})", given, option)
-        return err
-
-    def __str__(self) -> str:
-        return self._text()
 
 
 def _blocking_reason(p: Path) -> str | None:

@@ -175,6 +175,9 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
             raise InputFormatError(f"duplicate image {n!r} (first on line {seen[n]})", path, ln, "image")
         seen[n] = ln
     centre = np.stack([values["x"], values["y"], values["z"]], axis=1)
+    from skyrig.io.plausibility import check_coordinates
+
+    check_coordinates(centre, frame, path, line_no, "camera")
     if conv == "ypr":
         rot = rotation_from_ypr(frame, centre, values["yaw"], values["pitch"], values["roll"], unit=unit)
     else:

@@ -106,6 +106,9 @@ def read_ign_opk(path: PathLike, frame: WorldFrame) -> ExteriorOrientations:
         if why:
             bad = int(np.argmax(np.abs(v[:, 3 + j])))
             raise InputFormatError(why, path, rows[1 + bad][0], fld)
+    from skyrig.io.plausibility import check_coordinates
+
+    check_coordinates(v[:, :3], frame, path, [r[0] for r in rows[1:]], "camera", ("X", "Y", "Z"))
     rot = matrix_from_opk(v[:, 3], v[:, 4], v[:, 5], unit="deg", sequence="opk")
     return ExteriorOrientations(np.array(names), np.array(cams), v[:, :3], rot, frame)
 
@@ -182,6 +185,9 @@ def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:
         names.append(name)
         xyz.append([_num(path, line, k, f[1 + j]) for j, k in enumerate("XYZ")])
     kind = np.array(kinds, dtype=np.int64) if width == 5 else None
+    from skyrig.io.plausibility import check_coordinates
+
+    check_coordinates(np.array(xyz).reshape(-1, 3), frame, path, [r[0] for r in rows], "ground", ("X", "Y", "Z"))
     return GroundPoints(np.array(names, dtype=str), np.array(xyz).reshape(-1, 3), frame, kind)
 
 

@@ -93,6 +93,11 @@ def read_gcp_list_lines(path: PathLike, geoid: str | None = None) -> tuple[Groun
         mp.append(name)
         mi.append(f[5])
         mpx.append(px)
+    from skyrig.io.plausibility import check_coordinates
+
+    first_line = {n: ln for n, (ln, _) in seen.items()}
+    check_coordinates(np.array(gxyz).reshape(-1, 3), frame, path, [first_line[n] for n in gname], "ground",
+                      ("geo_x", "geo_y", "geo_z"))
     return (
         GroundPoints(np.array(gname), np.array(gxyz).reshape(-1, 3), frame),
         ImageMeasurements(np.array(mp), np.array(mi), np.array(mpx).reshape(-1, 2)),
@@ -135,10 +140,22 @@ def read_geo_txt(path: PathLike, geoid: str | None = None) -> ImageGeolocation:
         xyz.append([parse_float(f[1], path, line, "geo_x"), parse_float(f[2], path, line, "geo_y"), z])
         ypr.append([parse_float(f[4 + k], path, line, n) for k, n in enumerate(("yaw", "pitch", "roll"))] if len(f) >= 7 else [np.nan] * 3)
         acc.append([parse_float(f[7 + k], path, line, n) for k, n in enumerate(("horz_accuracy", "vert_accuracy"))] if len(f) >= 9 else [np.nan] * 2)
+    seen: dict[str, int] = {}
+    for n, (line, _) in zip(names, rows):
+        if n in seen:
+            raise InputFormatError(f"image {n!r} appears twice (first on line {seen[n]})", path, line, "image_name")
+        seen[n] = line
+    frame = WorldFrame.map(crs, geoid)
+    xyz_a = np.array(xyz).reshape(-1, 3)
+    from skyrig.io.plausibility import check_coordinates
+
+    has_z = np.isfinite(xyz_a[:, 2])
+    check_coordinates(np.where(has_z[:, None], xyz_a, np.c_[xyz_a[:, :2], np.zeros(len(xyz_a))]), frame, path,
+                      [line for line, _ in rows], "camera", ("geo_x", "geo_y", "geo_z"))
     ypr_a = np.array(ypr).reshape(-1, 3)
     acc_a = np.array(acc).reshape(-1, 2)
     return ImageGeolocation(
-        np.array(names), np.array(xyz).reshape(-1, 3), WorldFrame.map(crs, geoid),
+        np.array(names), xyz_a, frame,
         None if np.all(np.isnan(ypr_a)) else ypr_a, None if np.all(np.isnan(acc_a)) else acc_a,
     )
 

@@ -59,22 +59,76 @@ def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tup
     return meta, line_no, cols
 
 
-def read_points_csv(path: PathLike, frame: WorldFrame | None = None) -> GroundPoints:
-    """Read ``name,x,y,z``; the frame comes from the header or from ``frame``."""
+_HEADER_KEYS = ("crs", "heights", "height", "geoid")
+
+
+def _check_keys(meta: dict[str, tuple[int, str]], path: PathLike) -> None:
+    """Refuse a header key that is a misspelling of a known one (``# hieghts:``): it would be passed over."""
+    import difflib
+
+    for key, (line, _) in meta.items():
+        if key in _HEADER_KEYS or not key.replace("_", "").replace("-", "").isalpha():
+            continue
+        near = difflib.get_close_matches(key, _HEADER_KEYS, n=1, cutoff=0.7)
+        if near:
+            raise InputFormatError(f"unknown header key {key!r} (did you mean {near[0]!r}?)", path, line, key)
+
+
+def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_frame: WorldFrame | None = None,
+                    option: str = "the command line") -> GroundPoints:
+    """Read ``name,x,y,z`` in the frame the file states (``#`` header lines or the side-car).
+
+    Parameters
+    ----------
+    frame
+        A frame the caller insists on: when the file states one too, they must agree (else
+        :class:`InputFormatError` naming the header line and ``option``); a file that states none is read in it.
+    default_frame
+        The frame of a file that states none (e.g. the EO's CRS); the file's own statement wins.
+    option
+        What named ``frame`` (``"--points-crs"``), for the message when file and caller disagree.
+
+    Raises
+    ------
+    InputFormatError
+        Naming file, line and field for malformed rows, duplicate names, heights no ground point can have,
+        x/y or longitude/latitude that only fit the CRS's area of use when swapped; a
+        :class:`~skyrig.errors.PlausibilityWarning` for positions outside that area.
+    """
     from skyrig.io.eo_csv import frame_from_header
+    from skyrig.io.plausibility import check_coordinates, check_same_frame
 
     meta, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
-    if frame is None and "crs" not in meta:
+    _check_keys(meta, path)
+    if "height" in meta and "heights" not in meta:  # the trajectory format's spelling, accepted here too
+        meta["heights"] = meta["height"]
+    stated, stated_line, stated_path = None, None, path
+    if "crs" in meta:
+        stated_line = meta["crs"][0]
+        stated = frame_from_header(meta["crs"][1], meta.get("heights", (0, "ellipsoidal"))[1],
+                                   meta.get("geoid", (0, None))[1], path, stated_line)
+    elif "heights" in meta or "geoid" in meta:
+        key = next(k for k in ("heights", "geoid") if k in meta)
+        raise InputFormatError(f"'# {key}:' without a '# crs:' line", path, meta[key][0], key)
+    else:
         side = read_table_meta(path)
-        frame = None if side is None else frame_of_meta(side, path)
-        if frame is None:
-            raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1,
-                                   "crs")
-    if frame is None:
-        frame = frame_from_header(meta["crs"][1], meta.get("heights", (0, "ellipsoidal"))[1],
-                                  meta.get("geoid", (0, None))[1], path, meta["crs"][0])
+        stated = None if side is None else frame_of_meta(side, path)
+        stated_path = meta_path(path) if stated is not None else path
+    if stated is not None and frame is not None:
+        check_same_frame(stated, frame, stated_path, stated_line, option)
+    use = stated or frame or default_frame
+    if use is None:
+        raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1, "crs")
     xyz = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in "xyz"] for i in range(len(ln))]).reshape(-1, 3)
-    return GroundPoints(np.array(cols["name"]), xyz, frame)
+    seen: dict[str, int] = {}
+    for n, line in zip(cols["name"], ln):
+        if not n:
+            raise InputFormatError("empty point name", path, line, "name")
+        if n in seen:
+            raise InputFormatError(f"point {n!r} appears twice (first on line {seen[n]})", path, line, "name")
+        seen[n] = line
+    check_coordinates(xyz, use, path, ln, "ground")
+    return GroundPoints(np.array(cols["name"]), xyz, use)
 
 
 def read_measurements_csv(path: PathLike) -> ImageMeasurements:

@@ -383,6 +383,10 @@ def _read_head_only(ctx: _Ctx, value: Any, parent: _Seq, index: int) -> Head:
     name = ctx.text(m, "name", f"{kp}.name")
     camera = _read_camera(ctx, m["camera"], m, f"{kp}.camera")
     lever = ctx.numbers(m, "lever_arm_m", f"{kp}.lever_arm_m", (3,)) if "lever_arm_m" in m else np.zeros(3)
+    if "lever_arm_m" in m:
+        from skyrig.io.plausibility import check_lever_arm
+
+        check_lever_arm(lever, ctx.path, m.key_lines.get("lever_arm_m", m.line), f"{kp}.lever_arm_m")
     if "mounting_rpy_deg" in m and "mounting_matrix" in m:
         raise ctx.error("give either mounting_rpy_deg or mounting_matrix, not both", m, f"{kp}.mounting_matrix",
                         "mounting_matrix")
@@ -475,6 +479,10 @@ def read_calibrated_rig(path: str | os.PathLike[str]) -> tuple[Rig, RigCalibrati
         raise ctx.error("expected text", doc, "description", "description")
     antenna = ctx.numbers(doc, "antenna_lever_arm_m", "antenna_lever_arm_m", (3,)) if "antenna_lever_arm_m" in doc \
         else np.zeros(3)
+    if "antenna_lever_arm_m" in doc:
+        from skyrig.io.plausibility import check_lever_arm
+
+        check_lever_arm(antenna, ctx.path, doc.key_lines.get("antenna_lever_arm_m", doc.line), "antenna_lever_arm_m")
     heads_v = doc["heads"]
     if not isinstance(heads_v, _Seq) or not heads_v:
         raise ctx.error("expected a non-empty list of heads", doc, "heads", "heads")

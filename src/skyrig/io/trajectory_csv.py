@@ -327,6 +327,13 @@ def read_trajectory_csv(path: PathLike) -> Trajectory:
     time_s, tsys = _read_time(path, hdr, table, tsys)
     _check_increasing(path, hdr, time_s)
 
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.io.plausibility import check_coordinates
+
+    p_cols = [col(c) for c in ((["lon", "lat", "h"]) if crs.is_geographic else pos_cols)]
+    check_coordinates(np.stack(p_cols, axis=1), WorldFrame.ecef() if crs.is_geocentric else WorldFrame.map(crs_text),
+                      path, [no for no, _ in hdr.data], "camera",
+                      ("lon", "lat", "h") if crs.is_geographic else tuple(pos_cols))  # type: ignore[arg-type]
     if crs.is_geographic:
         lat = col("lat")
         if np.any(np.abs(lat) > 90.0):
