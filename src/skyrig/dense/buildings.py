@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig.dense.grid import DsmGrid, GridSpec
+from skyrig.errors import SkyrigError
 from skyrig.geodesy.frame import WorldFrame
 
 
@@ -104,6 +106,10 @@ class FacadeTexture:
         Texel size in metres.
     images
         Names of the source images, best first.
+    source
+        ``(H, W)`` index into ``images`` of the image each texel's colour mostly came from (-1: none), or None.
+    stats
+        Counts of the texturing (see :func:`skyrig.dense.facades.texture_plane`).
     """
 
     facade: Facade
@@ -111,6 +117,8 @@ class FacadeTexture:
     valid: NDArray[np.bool_]
     texel_m: float
     images: tuple[str, ...] = ()
+    source: NDArray[np.int16] | None = None
+    stats: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -122,3 +130,342 @@ class BuildingModel:
     textures: tuple[FacadeTexture, ...] = ()
     vertical_reference: str = ""
     metadata: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------------------------- extraction
+@dataclass(frozen=True)
+class ExtractionConfig:
+    """Options of :func:`extract_buildings` (lengths in metres of the DSM frame).
+
+    Attributes
+    ----------
+    min_height_m
+        Least height above the ground estimate of a building cell.
+    min_area_m2
+        Smallest footprint kept.
+    max_building_m
+        Side of the square structuring element of the ground estimate (a grey opening): larger than the widest
+        building, smaller than the terrain's wavelengths.
+    rect_fit
+        A footprint becomes its minimum-area rectangle when the building cells fill at least this fraction of it.
+    simplify_m
+        Tolerance of :func:`cv2.approxPolyDP` for footprints that are not rectangles (None: one cell).
+    ring_m
+        Width of the ring outside the footprint whose DSM heights give the ground height (10th percentile).
+    edge_cells
+        Cells eroded from the footprint before the roof heights are read (mixed cells at the eaves).
+    gable_gain
+        A two-plane (gabled) roof is chosen when it lowers the robust height spread of the roof cells to this
+        fraction of the flat roof's, with planes sloping by at least ``min_slope_deg``.
+    min_slope_deg
+        Least slope of a roof plane that is not flat.
+    """
+
+    min_height_m: float = 2.5
+    min_area_m2: float = 20.0
+    max_building_m: float = 40.0
+    rect_fit: float = 0.85
+    simplify_m: float | None = None
+    ring_m: float = 2.0
+    edge_cells: int = 2
+    gable_gain: float = 0.5
+    min_slope_deg: float = 5.0
+
+
+def _fill_nearest(h: NDArray) -> NDArray[np.float32]:
+    """NaN cells take the value of the nearest measured cell."""
+    from scipy import ndimage
+
+    bad = ~np.isfinite(h)
+    if not bad.any():
+        return np.asarray(h, np.float32)
+    if bad.all():
+        raise SkyrigError("the DSM has no measured cell")
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return np.asarray(h, np.float32)[tuple(idx)]
+
+
+def ground_estimate(dsm: DsmGrid, max_building_m: float = 40.0) -> NDArray[np.float32]:
+    """The bare ground under a DSM: a grey opening with a square of side ``max_building_m`` (removes anything
+    narrower, i.e. buildings; exact on planar slopes) smoothed by a box filter of the same size.
+
+    Holes (NaN) are filled from the nearest measured cell first."""
+    import cv2
+
+    h = _fill_nearest(dsm.height)
+    k = max(3, int(round(max_building_m / dsm.grid.cell_m)) | 1)
+    se = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    opened = cv2.morphologyEx(h, cv2.MORPH_OPEN, se, borderType=cv2.BORDER_REPLICATE)
+    # the opening is a lower envelope made of flat plateaus; a box filter no wider than the element keeps it
+    # under the surface on average and removes the steps
+    smooth = cv2.blur(opened, (k // 2 | 1, k // 2 | 1), borderType=cv2.BORDER_REPLICATE)
+    return np.minimum(smooth, h).astype(np.float32)
+
+
+def _robust_plane(a: NDArray, b: NDArray, z: NDArray, iters: int = 5) -> tuple[NDArray, float]:
+    """``z = p0 + p1 a + p2 b`` by iteratively reweighted least squares (Tukey weights); returns the
+    coefficients and the robust spread (1.4826 MAD) of the residuals."""
+    A = np.column_stack([np.ones_like(a), a, b])
+    w = np.ones_like(z)
+    p = np.zeros(3)
+    for _ in range(iters):
+        p, *_ = np.linalg.lstsq(A * w[:, None], z * w, rcond=None)
+        r = z - A @ p
+        s = 1.4826 * np.median(np.abs(r - np.median(r))) + 1e-6
+        u = r / (4.685 * s)
+        w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+        if w.sum() < 3:
+            break
+    r = z - A @ p
+    return p, float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def _ccw(poly: NDArray) -> NDArray[np.float64]:
+    p = np.asarray(poly, float)
+    x, y = p[:, 0], p[:, 1]
+    area2 = np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    return p if area2 > 0 else p[::-1].copy()
+
+
+def _cells_to_xy(grid: GridSpec, col: NDArray, row: NDArray) -> NDArray[np.float64]:
+    """Fractional cell indices (cell centres at integers) to frame x, y."""
+    return np.column_stack([grid.x0 + (np.asarray(col) + 0.5) * grid.cell_m,
+                            grid.y0 - (np.asarray(row) + 0.5) * grid.cell_m])
+
+
+def _footprint_from_mask(mask: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int, cfg: ExtractionConfig
+                         ) -> tuple[NDArray[np.float64], bool, tuple | None]:
+    """Footprint polygon (frame x, y; CCW) of one component given as a mask window at (r0, c0).
+
+    The mask is upsampled 4 x so that boundary pixel centres lie 1/8 cell inside the cells' outer edges; the
+    rectangle is then grown by that 1/8 cell.  Returns the polygon, whether it is a rectangle, and the
+    rectangle ``(centre (2,), axis_long (2,), half_long, half_short)`` in frame units (None for polygons)."""
+    import cv2
+
+    up = 4
+    big = cv2.resize(mask.astype(np.uint8), (mask.shape[1] * up, mask.shape[0] * up), interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    cont = max(contours, key=cv2.contourArea)[:, 0, :].astype(np.float64)
+    cc = (cont + 0.5) / up - 0.5  # (col, row) in cell units of the window, cell centres at integers
+    (ux, uy), (w, h), ang = cv2.minAreaRect(cc.astype(np.float32))
+    grow = 2.0 / up / 2.0  # 1/8 cell on each side -> 1/4 cell per dimension
+    w, h = w + grow, h + grow
+    area_cells = float(mask.sum())
+    fit = area_cells / max(w * h, 1e-9)
+    cell = grid.cell_m
+    if fit >= cfg.rect_fit:
+        t = np.radians(ang)
+        ax_w = np.array([np.cos(t), np.sin(t)])  # along the 'w' side in (col, row)
+        ax_h = np.array([-np.sin(t), np.cos(t)])
+        ctr = np.array([ux, uy])
+        pts = np.array([ctr + sx * w / 2 * ax_w + sy * h / 2 * ax_h for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        xy = _cells_to_xy(grid, pts[:, 0] + c0, pts[:, 1] + r0)
+        cxy = _cells_to_xy(grid, np.array([ctr[0] + c0]), np.array([ctr[1] + r0]))[0]
+        # axes in the frame (x east, y north): row grows southwards
+        long_ax = ax_w if w >= h else ax_h
+        la = np.array([long_ax[0], -long_ax[1]])
+        rect = (cxy, la / np.linalg.norm(la), 0.5 * max(w, h) * cell, 0.5 * min(w, h) * cell)
+        return _ccw(xy), True, rect
+    eps = (cfg.simplify_m / cell if cfg.simplify_m else 1.0) * up
+    approx = cv2.approxPolyDP(cont.astype(np.int32).reshape(-1, 1, 2), eps, True)[:, 0, :].astype(np.float64)
+    ac = (approx + 0.5) / up - 0.5
+    return _ccw(_cells_to_xy(grid, ac[:, 0] + c0, ac[:, 1] + r0)), False, None
+
+
+def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: float = 20.0,
+                      max_building_m: float = 40.0, config: ExtractionConfig | None = None) -> list[BuildingBlock]:
+    """Building blocks from a DSM: footprints, ground and eave heights, roof planes.
+
+    Steps: a ground estimate (:func:`ground_estimate`, a grey opening larger than the widest building), the
+    normalised DSM, cells higher than ``min_height_m`` above the ground, connected components (4-neighbours)
+    of at least ``min_area_m2``; per component a footprint (the minimum-area rectangle when the cells fill at
+    least ``rect_fit`` of it, else a polygon simplified by :func:`cv2.approxPolyDP`; counter-clockwise), the
+    ground height (10th percentile of the DSM in a ring of ``ring_m`` around it, other buildings left out)
+    and the roof: robust plane fits on the roof cells (the footprint eroded by ``edge_cells``) choose
+    between a flat roof (eaves at the median roof height) and, for rectangles, a gabled roof with its ridge
+    along either axis (two planes; eave and ridge heights from the planes at the walls and at the ridge).
+
+    Parameters
+    ----------
+    dsm
+        The DSM (any frame whose x, y, z are metres: a projected map CRS or a local ENU frame).  NaN holes are
+        tolerated (filled from the nearest cell for the ground estimate, left out of the height statistics).
+    min_height_m, min_area_m2, max_building_m
+        As :class:`ExtractionConfig` (these arguments win over ``config``'s).
+    config
+        The other options.
+
+    Returns
+    -------
+    Buildings numbered from 0, in the DSM's frame, ``source="dsm"``.
+
+    Raises
+    ------
+    SkyrigError
+        On a DSM without measured cells or nonsensical options.
+    """
+    import cv2
+    from dataclasses import replace
+    from scipy import ndimage
+
+    cfg = replace(config or ExtractionConfig(), min_height_m=min_height_m, min_area_m2=min_area_m2,
+                  max_building_m=max_building_m)
+    if not (cfg.min_height_m > 0 and cfg.min_area_m2 > 0 and cfg.max_building_m > 0):
+        raise SkyrigError(f"building extraction: min_height_m, min_area_m2 and max_building_m must be positive, got "
+                          f"{cfg.min_height_m}, {cfg.min_area_m2}, {cfg.max_building_m}")
+    grid = dsm.grid
+    cell = grid.cell_m
+    h = np.asarray(dsm.height, np.float64)
+    meas = np.isfinite(h)
+    if not meas.any():
+        raise SkyrigError("the DSM has no measured cell: no buildings can be extracted")
+    ground = ground_estimate(dsm, cfg.max_building_m).astype(np.float64)
+    hf = _fill_nearest(h).astype(np.float64)
+    ndsm = hf - ground
+    mask = (ndsm > cfg.min_height_m).astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    # holes far from any measurement are not buildings: keep cells within 2 cells of a measurement
+    near = ndimage.binary_dilation(meas, iterations=2)
+    mask &= near.astype(np.uint8)
+    lab, n = ndimage.label(mask, structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
+    any_bld = ndimage.binary_dilation(mask.astype(bool), iterations=1)
+    ring_px = max(1, int(np.ceil(cfg.ring_m / cell)))
+    out: list[BuildingBlock] = []
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        comp_full = lab[sl] == k
+        if comp_full.sum() * cell * cell < cfg.min_area_m2:
+            continue
+        pad = ring_px + 2
+        r0, r1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, lab.shape[0])
+        c0, c1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, lab.shape[1])
+        comp = lab[r0:r1, c0:c1] == k
+        if comp[0].any() or comp[-1].any() or comp[:, 0].any() or comp[:, -1].any():
+            if r0 == 0 or c0 == 0 or r1 == lab.shape[0] or c1 == lab.shape[1]:
+                continue  # cut by the DSM's edge: its footprint is not known
+        hw = h[r0:r1, c0:c1]
+        mw = meas[r0:r1, c0:c1]
+        foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg)
+        ring = ndimage.binary_dilation(comp, iterations=ring_px) & ~any_bld[r0:r1, c0:c1] & mw
+        if ring.sum() >= 5:
+            gz = float(np.percentile(hw[ring], 10))
+        else:
+            gz = float(np.median(ground[r0:r1, c0:c1][comp]))
+        inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
+        if inner.sum() < 6:
+            inner = comp & mw
+        if inner.sum() < 3:
+            continue
+        rr, cc = np.nonzero(inner)
+        xy = _cells_to_xy(grid, cc + c0, rr + r0)
+        z = hw[inner]
+        zf = float(np.median(z))
+        flat_spread = float(1.4826 * np.median(np.abs(z - zf)))
+        eave, roof = zf, (np.column_stack([foot, np.full(len(foot), zf)]),)
+        if is_rect and rect is not None and len(z) >= 12:
+            got = _gable(xy, z, rect, flat_spread, cfg)
+            if got is not None:
+                eave, roof = got
+        if eave - gz < 0.5 * cfg.min_height_m:
+            continue
+        out.append(BuildingBlock(len(out), foot, gz, float(eave), roof, "dsm"))
+    return out
+
+
+def _gable(xy: NDArray, z: NDArray, rect: tuple, flat_spread: float, cfg: ExtractionConfig
+           ) -> tuple[float, tuple[NDArray[np.float64], ...]] | None:
+    """A gabled roof over a rectangle, if two planes explain the roof cells much better than one level."""
+    ctr, la, hl, hs = rect
+    lb = np.array([-la[1], la[0]])
+    best = None
+    for axis, half_ridge, half_across in ((la, hl, hs), (lb, hs, hl)):
+        across = np.array([-axis[1], axis[0]])
+        a = (xy - ctr) @ axis
+        b = (xy - ctr) @ across
+        planes, spreads, ok = [], [], True
+        for side in (b >= 0, b < 0):
+            if side.sum() < 6:
+                ok = False
+                break
+            p, s = _robust_plane(a[side], b[side], z[side])
+            planes.append(p)
+            spreads.append(s)
+        if not ok:
+            continue
+        # both planes slope down away from the ridge, by a similar amount
+        s_pos, s_neg = planes[0][2], planes[1][2]
+        slope = np.degrees(np.arctan(0.5 * (abs(s_pos) + abs(s_neg))))
+        if not (s_pos < 0 < s_neg and slope >= cfg.min_slope_deg):
+            continue
+        spread = float(np.sqrt(0.5 * (spreads[0] ** 2 + spreads[1] ** 2)))
+        if best is None or spread < best[0]:
+            best = (spread, axis, across, half_ridge, half_across, planes)
+    if best is None or best[0] > cfg.gable_gain * flat_spread:
+        return None
+    _, axis, across, hr, ha, (pp, pn) = best
+    eave = 0.5 * ((pp[0] + pp[2] * ha) + (pn[0] - pn[2] * ha))
+    ridge = 0.5 * (pp[0] + pn[0])
+    if ridge <= eave:
+        return None
+    c3 = lambda s_a, s_b, zz: np.r_[ctr + s_a * hr * axis + s_b * ha * across, zz]  # noqa: E731
+    pos = _ccw3(np.array([c3(-1, 0, ridge), c3(1, 0, ridge), c3(1, 1, eave), c3(-1, 1, eave)]))
+    neg = _ccw3(np.array([c3(-1, -1, eave), c3(1, -1, eave), c3(1, 0, ridge), c3(-1, 0, ridge)]))
+    return float(eave), (pos, neg)
+
+
+def _ccw3(p: NDArray) -> NDArray[np.float64]:
+    x, y = p[:, 0], p[:, 1]
+    return p if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0 else p[::-1].copy()
+
+
+def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source: str = "footprints",
+                              config: ExtractionConfig | None = None) -> list[BuildingBlock]:
+    """Building blocks from given footprints (in the DSM's frame), heights from the DSM.
+
+    Ground height: 10th percentile of the DSM in a ring of ``ring_m`` around the footprint; eave height: the
+    median of the DSM cells inside the footprint eroded by ``edge_cells`` (a flat roof).
+
+    Raises
+    ------
+    SkyrigError
+        On a footprint with fewer than 3 vertices, one outside the DSM, or without measured cells inside.
+    """
+    import cv2
+    from scipy import ndimage
+
+    cfg = config or ExtractionConfig()
+    g = dsm.grid
+    h = np.asarray(dsm.height, np.float64)
+    out = []
+    for k, fp in enumerate(footprints):
+        fp = np.asarray(fp, float)[:, :2]
+        if len(fp) > 3 and np.allclose(fp[0], fp[-1]):
+            fp = fp[:-1]
+        if len(fp) < 3:
+            raise SkyrigError(f"footprint {k}: fewer than 3 vertices")
+        col = (fp[:, 0] - g.x0) / g.cell_m - 0.5
+        row = (g.y0 - fp[:, 1]) / g.cell_m - 0.5
+        if col.min() < 0 or row.min() < 0 or col.max() > g.width - 1 or row.max() > g.height - 1:
+            raise SkyrigError(f"footprint {k} ({source}) lies (partly) outside the DSM {g.bounds}")
+        ring_px = max(1, int(np.ceil(cfg.ring_m / g.cell_m)))
+        pad = ring_px + 2
+        r0, c0 = max(int(row.min()) - pad, 0), max(int(col.min()) - pad, 0)
+        r1, c1 = min(int(row.max()) + pad + 2, g.height), min(int(col.max()) + pad + 2, g.width)
+        m = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        pts = np.round(np.column_stack([col - c0, row - r0]) * 16).astype(np.int32)
+        cv2.fillPoly(m, [pts], 1, shift=4)
+        comp = m.astype(bool)
+        hw = h[r0:r1, c0:c1]
+        mw = np.isfinite(hw)
+        inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
+        if inner.sum() < 3:
+            inner = comp & mw
+        if inner.sum() == 0:
+            raise SkyrigError(f"footprint {k} ({source}): the DSM has no measured cell inside it")
+        ring = ndimage.binary_dilation(comp, iterations=ring_px) & ~ndimage.binary_dilation(comp) & mw
+        eave = float(np.median(hw[inner]))
+        gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else float(np.nanmin(hw))
+        foot = _ccw(fp)
+        out.append(BuildingBlock(k, foot, gz, eave, (np.column_stack([foot, np.full(len(foot), eave)]),), source))
+    return out

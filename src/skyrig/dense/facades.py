@@ -1,0 +1,449 @@
+"""Occlusion-aware façade textures: rectified textures of building walls (and any plane) from oriented images.
+
+For every texel of a plane (a façade of :class:`~skyrig.dense.buildings.BuildingBlock`, or a roof plane) the
+texel centre is projected backwards into the candidate images with the full camera model (distortion
+included: :meth:`FrameCamera.project_pixels`) and sampled bilinearly (``cv2.remap``).  A texel takes its
+colour from the image that sees it best:
+
+* candidates face the plane (angle between its outward normal and the direction to the camera below
+  ``max_angle_deg``) and see part of it inside the image;
+* per texel, visibility along the ray to each camera is checked against the DSM (a march in half-cell steps,
+  a numba kernel): a texel hidden behind another building in one image takes its colour from another.  A
+  wall is vertical, so the DSM cells of its own roof edge lie right above it: the march starts
+  ``self_margin_m`` away from the plane (measured along its normal), beyond the eave's mixed cells;
+* the best visible image per texel has the smallest texel footprint (``distance / (focal_px cos(incidence))``,
+  i.e. the highest resolution and most frontal view); image boundaries are feathered over ``feather_texels``;
+* the texel size defaults to the best image's footprint on the plane (median over the plane).
+
+Frames: the planes are in the DSM's frame (a projected map CRS with its height reference, or a local ENU
+frame); the orientations may be in any frame.  Projection runs in a local tangent frame at the buildings:
+orientations are converted rigorously (:meth:`ExteriorOrientations.to_frame`), texel centres through
+:class:`skyrig.dense.surface.FrameMap` (a polynomial checked against PROJ, so map scale factor and geoid are
+honoured).  Occlusion rays are marched in the DSM's frame (a straight line there is straight in the local
+frame to well below a millimetre over a block).  Texels are in the DSM frame's metres (grid metres for a map
+CRS).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Callable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture
+from skyrig.dense.grid import DsmGrid
+from skyrig.errors import SkyrigError
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame, local_frame_for
+
+logger = logging.getLogger(__name__)
+
+ImageLoader = Callable[[int], NDArray[np.uint8]]
+
+
+@dataclass(frozen=True)
+class TextureConfig:
+    """Options of :func:`texture_plane` / :func:`texture_facades`.
+
+    Attributes
+    ----------
+    texel_m
+        Texel size (frame metres); None: the best image's texel footprint on the plane.
+    max_images
+        Images that contribute at most (more are tried, up to ``max_candidates``, only while texels remain that
+        no chosen image sees).
+    max_candidates
+        Images whose visibility is computed at most per plane.
+    max_angle_deg
+        Largest angle between the plane's normal and the direction to a camera.
+    feather_texels
+        Width of the blend across a change of source image (Gaussian sigma, texels); 0: no blending.
+    occlusion_tol_m
+        A ray is blocked where the DSM is higher than the ray by more than this.
+    self_margin_m
+        Distance from the plane (along its normal) where the occlusion march starts; None: 3 DSM cells.
+    edge_margin_px
+        Image pixels this close to the image border do not count as seen.
+    """
+
+    texel_m: float | None = None
+    max_images: int = 3
+    max_candidates: int = 8
+    max_angle_deg: float = 75.0
+    feather_texels: float = 2.0
+    occlusion_tol_m: float = 0.3
+    self_margin_m: float | None = None
+    edge_margin_px: float = 1.0
+
+
+@njit(cache=True, nogil=True)
+def _visible(dsm, x0, y0, cell, pts, cam, t0, step, zmax, tol):  # pragma: no cover - compiled
+    """For points ``(N, 3)`` of the DSM frame: is the segment to ``cam`` free of the DSM from ``t0[i]`` on?"""
+    rows, cols = dsm.shape
+    n = pts.shape[0]
+    out = np.zeros(n, np.bool_)
+    for i in range(n):
+        px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
+        dx, dy, dz = cam[0] - px, cam[1] - py, cam[2] - pz
+        ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = dx / ln, dy / ln, dz / ln
+        hz = np.sqrt(dx * dx + dy * dy)
+        dt = step / max(hz, 1e-6)
+        t = t0[i]
+        ok = True
+        while t < ln:
+            z = pz + t * dz
+            if z > zmax:
+                break
+            u = (px + t * dx - x0) / cell - 0.5
+            v = (y0 - (py + t * dy)) / cell - 0.5
+            if u < 0.0 or v < 0.0 or u > cols - 1.0 or v > rows - 1.0:
+                break  # left the DSM: nothing known blocks it
+            j = min(int(u), cols - 2)
+            k = min(int(v), rows - 2)
+            fu, fv = u - j, v - k
+            h = (dsm[k, j] * (1 - fu) + dsm[k, j + 1] * fu) * (1 - fv) + \
+                (dsm[k + 1, j] * (1 - fu) + dsm[k + 1, j + 1] * fu) * fv
+            if h > z + tol:
+                ok = False
+                break
+            t += dt
+        out[i] = ok
+    return out
+
+
+class _Images:
+    """Loads images on demand and keeps the last few."""
+
+    def __init__(self, loader: ImageLoader, keep: int = 16) -> None:
+        self.loader, self.keep, self.cache = loader, keep, {}
+
+    def __call__(self, i: int) -> NDArray[np.uint8]:
+        if i not in self.cache:
+            if len(self.cache) >= self.keep:
+                self.cache.pop(next(iter(self.cache)))
+            img = np.asarray(self.loader(i))
+            if img.ndim == 2:
+                img = np.repeat(img[..., None], 3, axis=2)
+            self.cache[i] = img
+        return self.cache[i]
+
+
+@dataclass
+class _Context:
+    """What is shared by all planes of one texturing run."""
+
+    eo_l: ExteriorOrientations
+    centres_dsm: NDArray[np.float64]
+    cameras: Mapping[str, FrameCamera]
+    to_local: Callable[[NDArray], NDArray]
+    dsm: DsmGrid
+    dsm_filled: NDArray[np.float32]
+    zmax: float
+    images: _Images
+
+
+def _context(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], loader: ImageLoader, dsm: DsmGrid,
+             box: tuple[float, ...]) -> _Context:
+    from skyrig.dense.buildings import _fill_nearest
+    from skyrig.dense.surface import FrameMap
+
+    missing = sorted(set(eo.camera.tolist()) - set(cameras))
+    if missing:
+        raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
+    if dsm.frame.kind == "map":
+        from skyrig.geodesy.crs import resolve_crs
+
+        if not resolve_crs(dsm.frame.crs).is_projected:
+            raise SkyrigError(f"façade texturing needs a DSM in a projected CRS or a local frame, not {dsm.frame.crs}")
+    elif dsm.frame.kind != "local":
+        raise SkyrigError(f"façade texturing needs a DSM in a map or local frame, not a {dsm.frame.kind} frame")
+    ctr = 0.5 * (np.array(box[:3]) + np.array(box[3:]))
+    local = local_frame_for(dsm.frame.to_ecef(ctr[None]))
+    eo_l = eo.to_frame(local)
+    centres = eo.to_frame(dsm.frame).centre if eo.frame != dsm.frame else eo.centre
+    to_local = FrameMap(dsm.frame, local, box)
+    filled = _fill_nearest(dsm.height)
+    return _Context(eo_l, centres, cameras, to_local, dsm, filled, float(np.nanmax(dsm.height)), _Images(loader))
+
+
+def _plane_axes(corners: NDArray) -> tuple[NDArray, NDArray, NDArray, float, float]:
+    c = np.asarray(corners, float)
+    du, dv = c[1] - c[0], c[3] - c[0]
+    w, h = float(np.linalg.norm(du)), float(np.linalg.norm(dv))
+    if w <= 0 or h <= 0:
+        raise SkyrigError(f"degenerate plane (width {w:g} m, height {h:g} m)")
+    u, v = du / w, dv / h
+    n = np.cross(u, v)
+    return u, v, n / np.linalg.norm(n), w, h
+
+
+def _footprint_per_image(ctx: _Context, P_l: NDArray, n_l: NDArray, k: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Pixels ``(N, 2)``, texel footprint in metres per image pixel ``(N,)`` and cos of incidence for image k."""
+    cam = ctx.cameras[str(ctx.eo_l.camera[k])]
+    C, R = ctx.eo_l.centre[k], ctx.eo_l.rotation[k]
+    d = C - P_l
+    dist = np.linalg.norm(d, axis=1)
+    cosi = (d @ n_l) / dist
+    px = cam.project_pixels((P_l - C) @ R)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fp = dist / (cam.focal_px * cosi)
+    return px, np.where(cosi > 0, fp, np.inf), cosi
+
+
+def _candidates(ctx: _Context, corners: NDArray, n_dsm: NDArray, cfg: TextureConfig) -> list[tuple[int, float]]:
+    """Images facing the plane that see part of it, with their median texel footprint, best first."""
+    u, v, _, w, h = _plane_axes(corners)
+    s = np.linspace(0.02, 0.98, 7)
+    ss, tt = np.meshgrid(s * w, s * h)
+    P = corners[0] + ss.reshape(-1, 1) * u + tt.reshape(-1, 1) * v
+    P_l = ctx.to_local(P)
+    n_l = ctx.to_local(corners[:1] + n_dsm) - ctx.to_local(corners[:1])
+    n_l = n_l[0] / np.linalg.norm(n_l[0])
+    cmax = np.cos(np.radians(cfg.max_angle_deg))
+    out = []
+    for k in range(len(ctx.eo_l)):
+        px, fp, cosi = _footprint_per_image(ctx, P_l, n_l, k)
+        cam = ctx.cameras[str(ctx.eo_l.camera[k])]
+        inside = cam.in_image(px, -cfg.edge_margin_px) & (cosi >= cmax)
+        if inside.sum() == 0:
+            continue
+        cen = np.median(cosi)
+        if cen < cmax:
+            continue
+        out.append((k, float(np.median(fp[inside])), float(inside.mean())))
+    out.sort(key=lambda t: t[1])
+    return [(k, f) for k, f, _ in out]
+
+
+class PlaneTexture(NamedTuple):
+    """The texture of one plane (see :func:`texture_plane`)."""
+
+    rgb: NDArray[np.uint8]
+    valid: NDArray[np.bool_]
+    texel_m: float
+    images: tuple[str, ...]
+    source: NDArray[np.int16]
+    stats: dict
+
+
+def texture_plane(corners: NDArray, eo: ExteriorOrientations | None = None,
+                  cameras: Mapping[str, FrameCamera] | None = None, loader: ImageLoader | None = None,
+                  dsm: DsmGrid | None = None, *, texel_m: float | None = None, max_images: int = 3,
+                  normal: NDArray | None = None, config: TextureConfig | None = None,
+                  context: "_Context | None" = None) -> PlaneTexture:
+    """Occlusion-aware texture of one planar rectangle of the DSM's frame (a wall, a roof plane ...).
+
+    Parameters
+    ----------
+    corners
+        ``(4, 3)`` bottom-start, bottom-end, top-end, top-start (DSM frame).  Texel ``(i, j)`` has its centre at
+        ``corners[3] + (j + 0.5) t u - (i + 0.5) t v`` with ``u`` along bottom-start -> bottom-end and ``v``
+        along bottom-start -> top-start, ``t`` the texel size: row 0 at the top edge.
+    eo, cameras, loader, dsm
+        As :func:`texture_facades`; not needed when ``context`` is given.
+    texel_m, max_images
+        As :class:`TextureConfig` (these arguments win over ``config``'s).
+    normal
+        Outward unit normal (DSM frame); default ``u x v`` (outward for a façade's corners, up for a roof whose
+        corners run counter-clockwise seen from above).
+    config
+        The other options.
+    context
+        From :func:`texturing_context`, to share orientations, DSM and image cache between planes.
+
+    Returns
+    -------
+    rgb ``(H, W, 3)`` uint8, valid ``(H, W)``, texel size, names of the images used (most texels first), the
+    source image per texel ``(H, W)`` (index into the names, -1 none) and counts: ``texels``, ``valid``,
+    ``occluded_in_best`` (texels inside the best image but hidden there by the DSM),
+    ``occluded_filled`` (of those, texels coloured from another image), ``candidates``.
+    """
+    from dataclasses import replace
+
+    cfg = replace(config or TextureConfig(), texel_m=texel_m, max_images=int(max_images))
+    if context is None:
+        if eo is None or cameras is None or loader is None or dsm is None:
+            raise SkyrigError("texture_plane needs eo, cameras, loader and dsm, or a context")
+        context = texturing_context(eo, cameras, loader, dsm, np.asarray(corners, float).reshape(4, 3))
+    return PlaneTexture(*_texture_plane(np.asarray(corners, float), context, cfg, normal))
+
+
+def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: NDArray | None
+                   ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], float, tuple[str, ...], NDArray[np.int16], dict]:
+    import cv2
+
+    corners = np.asarray(corners, float).reshape(4, 3)
+    u, v, n, w, h = _plane_axes(corners)
+    if normal is not None:
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+    cand = _candidates(ctx, corners, n, cfg)
+    if cfg.texel_m is not None:
+        texel = float(cfg.texel_m)
+        if not (texel > 0 and np.isfinite(texel)):
+            raise SkyrigError(f"texel size must be positive, got {cfg.texel_m} (option: texel_m)")
+    elif cand:
+        texel = cand[0][1]
+    else:
+        texel = max(w, h) / 64.0
+    W = max(1, int(np.ceil(w / texel - 1e-6)))
+    H = max(1, int(np.ceil(h / texel - 1e-6)))
+    if W * H > 25_000_000:
+        raise SkyrigError(f"a {texel:g} m texel over a {w:.1f} x {h:.1f} m plane is {W * H:.3g} texels (option: texel_m)")
+    jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    P = corners[3] + (jj.reshape(-1, 1) * texel) * u - (ii.reshape(-1, 1) * texel) * v
+    inside_plane = ((jj * texel <= w + 1e-9) & (ii * texel <= h + 1e-9)).reshape(-1)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    stats = {"texels": int(inside_plane.sum()), "valid": 0, "occluded_in_best": 0, "occluded_filled": 0,
+             "candidates": len(cand)}
+    if not cand:
+        return rgb, np.zeros((H, W), bool), texel, (), np.full((H, W), -1, np.int16), stats
+    P_l = ctx.to_local(P)
+    n_l = ctx.to_local(corners[:1] + n) - ctx.to_local(corners[:1])
+    n_l = n_l[0] / np.linalg.norm(n_l[0])
+    g = ctx.dsm.grid
+    margin = cfg.self_margin_m if cfg.self_margin_m is not None else 3.0 * g.cell_m
+    cmax = np.cos(np.radians(cfg.max_angle_deg))
+    N = len(P)
+    used: list[int] = []
+    fps, vis_l, maps = [], [], []
+    covered = np.zeros(N, bool)
+    for k, _ in cand[: cfg.max_candidates]:
+        if len(used) >= cfg.max_images and covered[inside_plane].all():
+            break
+        px, fp, cosi = _footprint_per_image(ctx, P_l, n_l, k)
+        cam = ctx.cameras[str(ctx.eo_l.camera[k])]
+        seen = cam.in_image(px, -cfg.edge_margin_px) & (cosi >= cmax) & inside_plane
+        vis = np.zeros(N, bool)
+        if seen.any():
+            idx = np.flatnonzero(seen)
+            C = ctx.centres_dsm[k]
+            d = C[None] - P[idx]
+            dn = np.linalg.norm(d, axis=1)
+            t0 = margin / np.maximum((d @ n) / dn, 0.05)
+            vis[idx] = _visible(ctx.dsm_filled, g.x0, g.y0, g.cell_m, np.ascontiguousarray(P[idx]),
+                                np.ascontiguousarray(C), t0, 0.5 * g.cell_m, ctx.zmax, cfg.occlusion_tol_m)
+        new = vis & ~covered
+        if len(used) >= cfg.max_images and not new.any():
+            continue
+        if not vis.any():
+            if not used:  # the best image is blind here: count its occluded texels
+                stats["occluded_in_best"] += int(seen.sum())
+                used.append(k)
+                fps.append(np.where(seen, fp, np.inf))
+                vis_l.append(vis)
+                maps.append((px, seen))
+            continue
+        if not used:
+            stats["occluded_in_best"] = int((seen & ~vis).sum())
+        used.append(k)
+        fps.append(np.where(vis, fp, np.inf))
+        vis_l.append(vis)
+        maps.append((px, seen))
+        covered |= vis
+    F = np.stack(fps)  # (M, N)
+    best = np.argmin(F, axis=0)
+    valid = np.isfinite(F.min(axis=0)) & inside_plane
+    first_seen = maps[0][1] & ~vis_l[0]
+    stats["occluded_filled"] = int((first_seen & valid).sum())
+    stats["valid"] = int(valid.sum())
+    # blend: per image, its share of the labels smoothed over the feather width, where the image sees the texel
+    acc = np.zeros((H, W, 3), np.float64)
+    wsum = np.zeros((H, W), np.float64)
+    counts = np.bincount(best[valid], minlength=len(used))
+    for m, k in enumerate(used):
+        if counts[m] == 0:
+            continue
+        px, _ = maps[m]
+        img = ctx.images(k)
+        mx = px[:, 0].reshape(H, W).astype(np.float32)
+        my = px[:, 1].reshape(H, W).astype(np.float32)
+        col = cv2.remap(img, np.nan_to_num(mx, nan=-10), np.nan_to_num(my, nan=-10), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        lab = ((best == m) & valid).reshape(H, W).astype(np.float32)
+        if cfg.feather_texels > 0:
+            lab = cv2.GaussianBlur(lab, (0, 0), cfg.feather_texels, borderType=cv2.BORDER_REPLICATE)
+        wk = lab * vis_l[m].reshape(H, W)
+        acc += col * wk[..., None]
+        wsum += wk
+    ok = valid.reshape(H, W) & (wsum > 1e-6)
+    rgb[ok] = np.clip(acc[ok] / wsum[ok, None] + 0.5, 0, 255).astype(np.uint8)
+    order = np.argsort(-counts, kind="stable")
+    keep = [m for m in order if counts[m] > 0]
+    names = tuple(str(ctx.eo_l.image[used[m]]) for m in keep)
+    remap = np.full(len(used), -1, np.int16)
+    remap[keep] = np.arange(len(keep), dtype=np.int16)
+    src = np.where(ok.reshape(-1), remap[best], -1).astype(np.int16).reshape(H, W)
+    return rgb, ok, texel, names, src, stats
+
+
+def texturing_context(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], loader: ImageLoader,
+                      dsm: DsmGrid, points: NDArray | None = None) -> _Context:
+    """The shared state of a texturing run (orientations in a local frame at ``points``, the DSM prepared for the
+    occlusion march, an image cache).  ``points`` ``(N, 3)`` in the DSM's frame bound the planes to texture
+    (default: the DSM's extent)."""
+    if points is None or len(points) == 0:
+        b = dsm.grid.bounds
+        zl, zh = float(np.nanmin(dsm.height)), float(np.nanmax(dsm.height))
+        points = np.array([[b[0], b[1], zl], [b[2], b[3], zh]])
+    p = np.asarray(points, float).reshape(-1, 3)
+    lo, hi = p.min(axis=0) - 5.0, p.max(axis=0) + 5.0
+    return _context(eo, cameras, loader, dsm, (*lo, *hi))
+
+
+def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
+                    loader: ImageLoader, dsm: DsmGrid, *, texel_m: float | None = None, max_images: int = 3,
+                    config: TextureConfig | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> list[FacadeTexture]:
+    """Occlusion-aware rectified textures of every façade of ``buildings``.
+
+    Parameters
+    ----------
+    buildings
+        Building blocks in the DSM's frame (:func:`skyrig.dense.buildings.extract_buildings`, or given footprints).
+    eo
+        Orientations of the images (any frame; converted rigorously).
+    cameras
+        Camera name -> camera (with its distortion) for every ``eo.camera``.
+    loader
+        ``loader(i)`` -> image of ``eo`` row ``i`` (RGB uint8, e.g. :class:`skyrig.pipeline.dense.ImageFiles`).
+    dsm
+        The surface the occlusions are checked against (a projected map CRS or a local frame).
+    texel_m, max_images
+        As :class:`TextureConfig` (these arguments win over ``config``'s).
+    config
+        The other options.
+    progress
+        Called with (façades done, façades) after each façade.
+
+    Returns
+    -------
+    One :class:`FacadeTexture` per façade (``valid`` all False where no image sees it), in the order of
+    ``buildings`` and their footprint edges; ``stats`` holds the counts of :func:`texture_plane`.
+
+    Raises
+    ------
+    SkyrigError
+        On a camera missing for an image, a DSM in a geographic CRS or ECEF, or a bad texel size.
+    """
+    from dataclasses import replace
+
+    cfg = replace(config or TextureConfig(), texel_m=texel_m, max_images=int(max_images))
+    if cfg.max_images < 1:
+        raise SkyrigError(f"max_images must be at least 1, got {max_images} (option: max_images)")
+    facades: list[Facade] = [f for b in buildings for f in b.facades()]
+    if not facades:
+        return []
+    pts = np.concatenate([f.corners for f in facades])
+    ctx = texturing_context(eo, cameras, loader, dsm, pts)
+    out = []
+    for i, f in enumerate(facades):
+        rgb, valid, texel, names, src, stats = _texture_plane(f.corners, ctx, cfg, f.normal)
+        out.append(FacadeTexture(f, rgb, valid, texel, names, src, stats))
+        if progress is not None:
+            progress(i + 1, len(facades))
+    return out
