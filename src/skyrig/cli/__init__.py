@@ -59,6 +59,8 @@ COMMANDS: dict[str, CommandEntry] = {
                              "Simulate SCENARIO (tumblecam, midas, 3k, southeast, uav-bridge-lidar) into OUTDIR."),
     "lidar": CommandEntry("skyrig.cli.lidar:command",
                           "Laser scanning: georeference raw scans, register and compare point clouds."),
+    "transfer": CommandEntry("skyrig.cli.transfer:command",
+                             "Oblique (tumbling-head) orientations from adjusted nadir orientations through the calibrated mounting."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }

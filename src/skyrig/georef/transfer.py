@@ -214,7 +214,9 @@ def transfer_orientations(
     if heads is None:
         heads = [n for n, h in rig.heads.items() if h.is_actuated and np.any(events.head == n)]
     if not heads:
-        raise TransferError("no actuated head with events to transfer to; give heads= or check the rig and events")
+        raise TransferError("no event belongs to an actuated head of the rig (heads: "
+                            f"{', '.join(f'{n} (actuated)' if h.is_actuated else n for n, h in rig.heads.items())}; "
+                            f"event heads: {', '.join(events.heads)})")
     sel = np.isin(events.head, np.asarray(heads, dtype=str))
     if not np.any(sel):
         raise TransferError(f"no events of head(s) {', '.join(heads)}")
