@@ -1,0 +1,27 @@
+"""Orientation of image blocks (layer 2b): triangulation, space resection, strip detection, similarity fits and
+the incremental GNSS-supported orientation of a UAV block.  Arrays in, arrays out; no file is opened here
+(:mod:`skyrig.pipeline.uav` is the file-level wrapper behind ``skyrig adjust-uav``).
+
+Modules
+-------
+triangulation
+    :func:`triangulate_tracks` (multi-view midpoint with depth / angle checks), :func:`resect` (EPnP RANSAC + LM).
+strips
+    :func:`detect_strips` from a sequence of GNSS positions.
+similarity
+    :func:`robust_similarity` (trimmed Umeyama), :func:`compare_with_reconstruction`.
+gnss_block
+    :class:`UavConfig`, :class:`UavBlockInput`, :class:`UavResult`, :func:`attitude_agreement`,
+    :func:`adjust_uav_block` (seed from trusted attitudes or a two-view relative orientation, growth,
+    self-calibrating final adjustment).
+"""
+
+from skyrig.orient.gnss_block import (
+    UavAdjustError, UavBlockInput, UavConfig, UavResult, adjust_uav_block, attitude_agreement,
+)
+from skyrig.orient.similarity import compare_with_reconstruction, robust_similarity
+from skyrig.orient.strips import detect_strips
+from skyrig.orient.triangulation import resect, triangulate_tracks
+
+__all__ = ["UavAdjustError", "UavBlockInput", "UavConfig", "UavResult", "adjust_uav_block", "attitude_agreement",
+           "compare_with_reconstruction", "robust_similarity", "detect_strips", "resect", "triangulate_tracks"]

@@ -1,0 +1,686 @@
+"""Incremental orientation of an image block with GNSS positions (and metadata attitudes when they can be trusted):
+attitude check, two-view or metadata seed, growth by triangulation + resection + bundle adjustment, final
+self-calibrating adjustment (layer 2b: arrays in, arrays out; no file is opened here).
+
+The algorithm is described in :mod:`skyrig.pipeline.uav` (the file-level wrapper: image metadata and
+``skyrig match`` tie points in, EO / points / report files out).  Everything is in one local Cartesian frame
+(metres); pixels follow skyrig's convention.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
+from skyrig.camera.frame import FrameCamera
+from skyrig.camera.opencv import OpenCVDistortion
+from skyrig.errors import SkyrigError
+from skyrig.orient.similarity import _MIN_COMMON, _robust_similarity
+from skyrig.orient.strips import _renumber_strips, detect_strips
+from skyrig.orient.triangulation import (
+    _SKYRIG_FROM_CV, _k_matrix, _rays_world, _reproject, _rotation_angle_deg, _spread_ok, _track_pairs, resect,
+    triangulate_tracks,
+)
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["UavAdjustError", "UavConfig", "UavBlockInput", "UavResult", "attitude_agreement", "adjust_uav_block"]
+
+class UavAdjustError(SkyrigError, ValueError):
+    """The UAV block cannot be oriented (no seed, too few tie points...); the message says why."""
+
+
+@dataclass(frozen=True)
+class UavConfig:
+    """Settings of the UAV GNSS-supported adjustment (frozen; unknown keys are an error)."""
+
+    #: EXIF altitude reference: "egm96" (orthometric, DJI) or "ellipsoidal" (WGS84 h)
+    altitude: Literal["egm96", "ellipsoidal"] = "egm96"
+    #: geoid grid (path or PROJ name) for altitude "egm96"; None: $SKYRIG_GEOID, ../shared/data/geoid, PROJ's
+    geoid: str | None = None
+    #: GNSS sigma (east, north, up) in metres: consumer single-frequency GPS + barometric height
+    gnss_sigma_m: tuple[float, float, float] = (2.0, 2.0, 4.0)
+    #: sigma of verified gimbal attitudes used as observations (deg); None: attitudes not observed
+    attitude_sigma_deg: float | None = 5.0
+    #: a-priori sigma of a tie-point measurement (px, full resolution)
+    pixel_sigma_px: float = 1.0
+    #: relative sigma of the EXIF focal length prior (0.1 = 10 %)
+    focal_prior_rel: float = 0.1
+    #: self-calibrated intrinsics (FrameCamera + OpenCV distortion names)
+    self_calibration: tuple[str, ...] = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
+    #: two images agree when their common tie points on the ground plane differ by < this x flying height
+    agree_fraction: float = 0.15
+    #: a resected image whose metadata attitude differs more than this (deg) is reported as rejected
+    max_attitude_error_deg: float = 15.0
+    #: common tie points needed to compare two images
+    min_common: int = 20
+    #: resection: RANSAC threshold (px) and minimum inliers
+    pnp_threshold_px: float = 8.0
+    pnp_min_inliers: int = 20
+    #: minimum intersection angle of a triangulated tie point (deg); small enough for forward motion (a walk:
+    #: lund 24 -> 29 of 29 images oriented going from 1.0 to 0.3 deg)
+    min_angle_deg: float = 0.3
+    #: Huber threshold (units of pixel_sigma_px)
+    robust_k: float = 2.0
+    #: after the robust adjustment remove observations whose residual exceeds reject_k x robust RMS (>= reject_min_px)
+    reject_k: float = 4.0
+    reject_min_px: float = 2.0
+    #: Levenberg-Marquardt iterations per adjustment
+    max_iterations: int = 40
+    #: per-strip GNSS shift (strips found from the flight path, see :func:`detect_strips`): "off", or "weighted"
+    #: (a shift per strip with prior sigma ``strip_shift_sigma_m``; absorbs a GPS height/position offset per strip)
+    gnss_strip_shift: Literal["off", "weighted"] = "off"
+    strip_shift_sigma_m: float = 1.0
+    #: focal length: "self" (self-calibrated with the EXIF prior), "exif" (fixed at the EXIF value) or "auto"
+    #: (self-calibrated, but fixed at the EXIF value when the block cannot determine it: posterior sigma above
+    #: ``focal_determinable`` x the prior sigma, e.g. a flat nadir block flown at one height)
+    focal: Literal["self", "exif", "auto"] = "self"
+    focal_determinable: float = 0.5
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> "UavConfig":
+        bad = sorted(set(data) - set(cls.__dataclass_fields__))
+        if bad:
+            raise ValueError(f"{source}: unknown UAV adjustment option(s) {bad}; "
+                             f"known: {sorted(cls.__dataclass_fields__)}")
+        d = dict(data)
+        for k in ("gnss_sigma_m", "self_calibration"):
+            if k in d and d[k] is not None:
+                d[k] = tuple(d[k])
+        return cls(**d)
+
+
+@dataclass
+class UavBlockInput:
+    """What the adjustment needs, in the local ENU frame.
+
+    Attributes
+    ----------
+    names
+        ``(I,)`` image names.
+    camera
+        Starting camera (EXIF focal length, principal point at the centre, OpenCV distortion zero).
+    gnss
+        ``(I, 3)`` GNSS positions in the local frame, metres.
+    rotation
+        ``(I, 3, 3)`` metadata ``world_from_camera`` (NaN where unknown).
+    ground_height
+        Approximate terrain height in the local frame (m), or None.
+    obs_track, obs_image, obs_pixel
+        Tie-point observations ``(N,)`` track index, ``(N,)`` image index, ``(N, 2)`` pixels.
+    track_name
+        ``(T,)`` names of the tie points.
+    frame
+        :class:`skyrig.georef.eo.WorldFrame` of the local coordinates (or None).
+    notes
+        What was assumed while reading (height reference...).
+    """
+
+    names: NDArray[np.str_]
+    camera: FrameCamera
+    gnss: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    ground_height: float | None
+    obs_track: NDArray[np.int64]
+    obs_image: NDArray[np.int64]
+    obs_pixel: NDArray[np.float64]
+    track_name: NDArray[np.str_]
+    frame: Any = None
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class UavResult:
+    """Result of :func:`adjust_uav_block`.
+
+    Attributes
+    ----------
+    names
+        ``(I,)`` image names (input order).
+    oriented
+        ``(I,)`` bool: image oriented by the adjustment.
+    rotation, centre
+        ``(I, 3, 3)`` adjusted ``world_from_camera`` and ``(I, 3)`` projection centres (NaN if not oriented).
+    camera
+        Self-calibrated camera.
+    adjustment
+        The final :class:`~skyrig.adjust.AdjustmentResult` (its block holds the oriented images only).
+    block_image
+        ``(I_oriented,)`` index into ``names`` of every image of the adjusted block.
+    attitude_check
+        Per image: how its metadata attitude was judged ("seed", "resected", "none") and the angle between
+        metadata and adjusted attitude (deg).
+    summary
+        Figures for the report (tie points per image, reprojection RMS, GNSS fit...).
+    """
+
+    names: NDArray[np.str_]
+    oriented: NDArray[np.bool_]
+    rotation: NDArray[np.float64]
+    centre: NDArray[np.float64]
+    camera: FrameCamera
+    adjustment: AdjustmentResult
+    block_image: NDArray[np.int64]
+    attitude_check: dict[str, dict[str, Any]]
+    summary: dict[str, Any]
+
+
+# ---------------------------------------------------------------------------------------------- seed
+def attitude_agreement(inp: UavBlockInput, cfg: UavConfig) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Which pairs of images agree under their metadata poses (tie points on the ground plane).
+
+    Returns
+    -------
+    agree
+        ``(I, I)`` bool.
+    disagreement
+        ``(I, I)`` median ground distance of common tie points (m; NaN: not compared).
+    """
+    n = len(inp.names)
+    agree = np.zeros((n, n), bool)
+    dis = np.full((n, n), np.nan)
+    have = np.isfinite(inp.rotation.reshape(n, -1)).all(axis=1)
+    if inp.ground_height is None or have.sum() < 2:
+        return agree, dis
+    g = inp.ground_height
+    sel = have[inp.obs_image]
+    ti, ii, px = inp.obs_track[sel], inp.obs_image[sel], inp.obs_pixel[sel]
+    d = _rays_world(inp.camera, inp.rotation[ii], px)
+    C = inp.gnss[ii]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (g - C[:, 2]) / d[:, 2]
+    good = np.isfinite(t) & (t > 0)
+    ground = (C + t[:, None] * d)[:, :2]
+    ti, ii, ground = ti[good], ii[good], ground[good]
+    height = float(np.median(inp.gnss[have, 2]) - g)
+    thr = cfg.agree_fraction * max(height, 1.0)
+    order = np.lexsort((ii, ti))
+    ti, ii, ground = ti[order], ii[order], ground[order]
+    ra, rb = _track_pairs(ti)  # all observation pairs within a track
+    if not len(ra):
+        return agree, dis
+    dist = np.linalg.norm(ground[ra] - ground[rb], axis=1)
+    key = ii[ra] * n + ii[rb]
+    order = np.argsort(key, kind="stable")
+    key, dist = key[order], dist[order]
+    uk, first, counts = np.unique(key, return_index=True, return_counts=True)
+    for k, f0, c in zip(uk, first, counts):
+        if c < cfg.min_common:
+            continue
+        med = float(np.median(dist[f0:f0 + c]))
+        i, j = divmod(int(k), n)
+        dis[i, j] = dis[j, i] = med
+        agree[i, j] = agree[j, i] = med < thr
+    return agree, dis
+
+
+def _largest_component(agree: NDArray[np.bool_]) -> NDArray[np.int64]:
+    n = len(agree)
+    if not agree.any():
+        return np.zeros(0, np.int64)
+    nc, lab = connected_components(coo_matrix(agree.astype(np.int8)), directed=False)
+    sizes = np.bincount(lab, weights=agree.any(axis=1).astype(float), minlength=nc)
+    best = int(np.argmax(sizes))
+    members = np.flatnonzero((lab == best) & agree.any(axis=1))
+    return members if len(members) >= 2 else np.zeros(0, np.int64)
+
+
+def _two_view_seed(inp: UavBlockInput, cfg: UavConfig, allowed: NDArray[np.bool_] | None = None,
+                   need_gnss_base: bool = True) -> tuple[NDArray[np.int64], NDArray, NDArray]:
+    """Seed without attitude metadata: essential matrix of the best-connected pair with a long enough GNSS
+    base; relative rotation, base direction from the images and base length from GNSS.  The frame is provisional
+    (the rotation about the base is arbitrary); :func:`_seed_component` replaces it by a similarity onto GNSS.
+    With ``need_gnss_base=False`` (the part will be tied to an oriented block through common points, which
+    fix the scale) a pair with (nearly) equal GNSS positions may start it, with a nominal base of 1 m."""
+    import cv2
+
+    n = len(inp.names)
+    K, dist = _k_matrix(inp.camera)
+    best = None
+    # image pairs by common tie points, most first (ties: first met in (track, image) order)
+    order = np.lexsort((inp.obs_image, inp.obs_track))
+    im = inp.obs_image[order]
+    ra, rb = _track_pairs(inp.obs_track[order])
+    key = im[ra] * n + im[rb]
+    uk, first, counts = np.unique(key, return_index=True, return_counts=True)
+    rank = np.lexsort((first, -counts))
+    tried = 0
+    for k, c in zip(uk[rank].tolist(), counts[rank].tolist()):
+        i, j = divmod(k, n)
+        if allowed is not None and not (allowed[i] and allowed[j]):
+            continue
+        base = float(np.linalg.norm(inp.gnss[i] - inp.gnss[j]))
+        if c < 50 or (base < 1.0 and need_gnss_base):
+            continue
+        if base < 1.0:
+            base = 1.0
+        mi, mj = inp.obs_image == i, inp.obs_image == j
+        _, ci, cj = np.intersect1d(inp.obs_track[mi], inp.obs_track[mj], return_indices=True)
+        p1 = cv2.undistortPoints(inp.obs_pixel[mi][ci][:, None], K, dist)[:, 0]
+        p2 = cv2.undistortPoints(inp.obs_pixel[mj][cj][:, None], K, dist)[:, 0]
+        E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.RANSAC, 0.999, cfg.pnp_threshold_px / K[0, 0])
+        if E is None or E.shape != (3, 3):
+            continue
+        nin, R21, t21, mask = cv2.recoverPose(E, p1, p2, np.eye(3), mask=mask)
+        if nin < cfg.pnp_min_inliers:
+            continue
+        # a seed needs parallax: rays of a (near) pure rotation pair stay parallel once rotated
+        inl = mask.ravel() > 0
+        r1 = np.column_stack([p1[inl], np.ones(int(inl.sum()))])
+        r2 = np.column_stack([p2[inl], np.ones(int(inl.sum()))]) @ R21  # R21^T x2, row-wise
+        cosang = np.sum(r1 * r2, axis=1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+        score = int(np.sum(cosang < np.cos(np.radians(2.0 * cfg.min_angle_deg))))
+        if score < cfg.pnp_min_inliers:
+            continue
+        if best is None or score > best[5]:
+            best = (i, j, R21, t21[:, 0], base, score)
+        tried += 1
+        if tried >= 12:  # the best-connected candidates; the one with most parallax wins
+            break
+    if best is None:
+        raise UavAdjustError("no image pair with enough matches and GNSS base to start the block")
+    i, j, R21, t21, base, _ = best
+    # camera 1 (cv) at origin; camera 2: x2 = R21 x1 + t21  -> centre2 = -R21^T t21 (unit), scaled by base
+    c2_cv1 = -R21.T @ t21 * base
+    # world from cv1: align the base with the GNSS base; roll about the base: image "up" (-y_cv) to world up
+    g_base = inp.gnss[j] - inp.gnss[i]
+    u = c2_cv1 / np.linalg.norm(c2_cv1)
+    w = g_base / np.linalg.norm(g_base) if np.linalg.norm(g_base) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    up_cam = np.array([0.0, -1.0, 0.0])
+    up_world = np.array([0.0, 0.0, 1.0])
+
+    def frame(a: NDArray, b: NDArray) -> NDArray:
+        e1 = a
+        e2 = b - a * (a @ b)
+        e2 = e2 / max(np.linalg.norm(e2), 1e-12)
+        return np.column_stack([e1, e2, np.cross(e1, e2)])
+
+    world_from_cv1 = frame(w, up_world) @ frame(u, up_cam).T
+    R = np.full((n, 3, 3), np.nan)
+    C = np.full((n, 3), np.nan)
+    R[i] = world_from_cv1 @ _SKYRIG_FROM_CV
+    C[i] = inp.gnss[i]
+    R[j] = world_from_cv1 @ R21.T @ _SKYRIG_FROM_CV
+    C[j] = inp.gnss[i] + world_from_cv1 @ c2_cv1
+    return np.array([i, j]), R, C
+
+
+# ---------------------------------------------------------------------------------------------- adjustment
+def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDArray,
+                 img_sel: NDArray[np.int64], obs_sel: NDArray[np.bool_], cfg: UavConfig, sigma_px: float,
+                 imu_images: NDArray[np.int64], strip: NDArray[np.int64] | None = None
+                 ) -> tuple[Block, NDArray[np.int64], NDArray[np.int64]]:
+    n = len(inp.names)
+    img_map = np.full(n, -1)
+    img_map[img_sel] = np.arange(len(img_sel))
+    ot, oi, op = inp.obs_track[obs_sel], inp.obs_image[obs_sel], inp.obs_pixel[obs_sel]
+    tracks, tmap = np.unique(ot, return_inverse=True)
+    names = inp.names[img_sel]
+    imu = np.array([img_map[k] for k in imu_images if img_map[k] >= 0], np.int64)
+    block = Block(
+        cameras=[camera], station_name=names, station_rotation=R[img_sel], station_centre=C[img_sel],
+        image_name=names, image_station=np.arange(len(img_sel)), image_camera=np.zeros(len(img_sel), np.int64),
+        point_name=inp.track_name[tracks], point_xyz=X[tracks], obs_image=img_map[oi], obs_point=tmap,
+        obs_pixel=op, obs_sigma_px=sigma_px,
+        gnss_station=np.arange(len(img_sel)), gnss_xyz=inp.gnss[img_sel],
+        gnss_sigma=np.broadcast_to(np.asarray(cfg.gnss_sigma_m, float), (len(img_sel), 3)),
+        imu_station=imu if cfg.attitude_sigma_deg else None,
+        imu_rotation=inp.rotation[img_sel[imu]] if cfg.attitude_sigma_deg else None,
+        imu_sigma_rad=np.radians(cfg.attitude_sigma_deg or 1.0),
+        frame=inp.frame.describe() if inp.frame is not None else "local ENU",
+        station_strip=None if strip is None else _renumber_strips(strip[img_sel]),
+    )
+    return block, tracks, np.flatnonzero(obs_sel)
+
+
+def _usable_obs(inp: UavBlockInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
+                camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float,
+                max_px: float = np.inf) -> NDArray[np.bool_]:
+    """Observations that can enter an adjustment: oriented image, active, point finite and in front of the
+    camera, reprojecting within ``max_px``, and every point left with >= 2 such rays spanning at least
+    ``min_angle_deg``."""
+    T = len(inp.track_name)
+    X_ok = np.isfinite(X).all(axis=1)
+    sel = oriented[inp.obs_image] & X_ok[inp.obs_track] & active
+    rows = np.flatnonzero(sel)
+    ti, ii = inp.obs_track[rows], inp.obs_image[rows]
+    v = X[ti] - C[ii]
+    pc = np.einsum("nji,nj->ni", R[ii], v)
+    front = pc[:, 2] < -1e-3 * np.linalg.norm(v, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
+    front &= np.nan_to_num(err, nan=np.inf) < max_px
+    rows, ti, v = rows[front], ti[front], v[front]
+    good_t = _spread_ok(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), ti, T, min_angle_deg)
+    out = np.zeros(len(inp.obs_track), bool)
+    out[rows[good_t[ti]]] = True
+    return out
+
+
+def _image_residuals(b: Block) -> NDArray[np.float64]:
+    """``(N, 2)`` reprojection residuals (px, computed minus observed) of a block at its current values, without
+    any robust weighting."""
+    cam = b.cameras[0]
+    R = b.station_rotation[b.image_station[b.obs_image]] @ b.image_rotation[b.obs_image]
+    C = b.station_centre[b.image_station[b.obs_image]]
+    return _reproject(cam, R, C, b.point_xyz[b.obs_point]) - b.obs_pixel
+
+
+def _resect_all(inp: UavBlockInput, camera: FrameCamera, X: NDArray, R: NDArray, C: NDArray,
+                oriented: NDArray[np.bool_], active: NDArray[np.bool_], cfg: UavConfig,
+                check: dict[str, dict[str, Any]]) -> list[int]:
+    """Space resection of every unoriented image on the triangulated points ``X``; updates ``R``, ``C``,
+    ``oriented``, ``active`` (outlier observations) and ``check`` in place; returns the added images."""
+    X_ok = np.isfinite(X).all(axis=1)
+    added = []
+    for k in np.flatnonzero(~oriented):
+        m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
+        if m.sum() < cfg.pnp_min_inliers:
+            logger.debug("resection of %s: only %d triangulated points", inp.names[k], int(m.sum()))
+            continue
+        out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px, cfg.pnp_min_inliers)
+        if out is None:
+            logger.debug("resection of %s failed on %d triangulated points", inp.names[k], int(m.sum()))
+            continue
+        Rk, Ck, inl = out
+        R[k], C[k] = Rk, Ck
+        oriented[k] = True
+        rows_k = np.flatnonzero(m)
+        active[rows_k[~inl]] = False
+        added.append(int(k))
+        info = check[str(inp.names[k])]
+        if np.isfinite(inp.rotation[k]).all():
+            dev = float(_rotation_angle_deg(inp.rotation[k], Rk))
+            info["metadata_vs_resection_deg"] = dev
+            info["metadata"] = ("rejected: disagrees with tie points; oriented by resection"
+                                if dev > cfg.max_attitude_error_deg
+                                else "not in the seed; oriented by resection, metadata consistent")
+        else:
+            info["metadata"] = "no attitude; oriented by resection"
+        info["resection_inliers"] = int(inl.sum())
+    return added
+
+
+def _seed_component(inp: UavBlockInput, cfg: UavConfig, camera: FrameCamera, allowed: NDArray[np.bool_],
+                    active: NDArray[np.bool_], check: dict[str, dict[str, Any]],
+                    anchor_X: NDArray[np.float64] | None = None,
+                    ) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
+    """Orient a connected part of the block among ``allowed`` images without attitude metadata: two-view seed,
+    growth by resection in the seed's frame, then a similarity onto the already oriented block through the
+    tie points both have triangulated (``anchor_X``, ``(T, 3)``, NaN where not triangulated; at least
+    ``_MIN_COMMON`` common points, robust fit), or else onto the GNSS positions.
+
+    Returns ``R (I, 3, 3)``, ``C (I, 3)`` (NaN outside the part) and the ``(I,)`` mask of the part (all False
+    when no part of >= 3 images with non-collinear GNSS positions could be made).
+    """
+    n, T = len(inp.names), len(inp.track_name)
+    none = (np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool))
+    try:
+        seed, R, C = _two_view_seed(inp, cfg, allowed, need_gnss_base=anchor_X is None)
+    except UavAdjustError as exc:
+        logger.info("no two-view seed among the %d remaining images: %s", int(allowed.sum()), exc)
+        return none
+    part = np.zeros(n, bool)
+    part[seed] = True
+    # images outside `allowed` are marked as oriented so that resection does not touch them
+    blocked = part | ~allowed
+    act = active.copy()
+    sub_check = {k: dict(v) for k, v in check.items()}
+    while True:
+        sel = part[inp.obs_image] & act
+        X, ok = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel],
+                                   inp.obs_image[sel], inp.obs_pixel[sel], T, cfg.min_angle_deg)
+        before = blocked.copy()
+        added = _resect_all(inp, camera, X, R, C, blocked, act, cfg, sub_check)
+        part |= blocked & ~before
+        if not added:
+            break
+    idx = np.flatnonzero(part)
+    from skyrig.match.colmap_check import similarity_transform
+
+    if anchor_X is not None and len(idx) >= 2:
+        sel = part[inp.obs_image] & act
+        Xp, okp = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel],
+                                     inp.obs_image[sel], inp.obs_pixel[sel], T, cfg.min_angle_deg)
+        common = np.flatnonzero(okp & np.isfinite(anchor_X).all(axis=1) & np.isfinite(Xp).all(axis=1))
+        fit = _robust_similarity(Xp[common], anchor_X[common]) if len(common) >= _MIN_COMMON else None
+        if fit is None:
+            logger.info("part of %d images: %d tie points in common with the oriented block, no robust similarity",
+                        len(idx), len(common))
+        if fit is not None:
+            sc, Rs, ts, n_in = fit
+            C[idx] = sc * C[idx] @ Rs.T + ts
+            R[idx] = Rs @ R[idx]
+            for k in idx:
+                check[str(inp.names[k])].update(sub_check[str(inp.names[k])])
+                check[str(inp.names[k])]["seeded"] = (f"two-view seed + resection, similarity onto the oriented "
+                                                      f"block through {n_in} common tie points")
+            logger.info("two-view seed grown to %d images, tied to the oriented block through %d of %d common "
+                        "tie points (scale %.3f)", len(idx), n_in, len(common), sc)
+            return R, C, part
+    if len(idx) < 3:
+        return none
+    G = inp.gnss[idx] - inp.gnss[idx].mean(axis=0)
+    sv = np.linalg.svd(G, compute_uv=False)
+    if sv[1] < 0.05 * sv[0]:
+        logger.warning("%d images oriented from a two-view seed, but their GNSS positions are (nearly) collinear and "
+                       "no attitude metadata is usable: the rotation about the line cannot be determined", len(idx))
+        return none
+    sc, Rs, ts = similarity_transform(C[idx], inp.gnss[idx])
+    C[idx] = sc * C[idx] @ Rs.T + ts
+    R[idx] = Rs @ R[idx]
+    for k in idx:
+        check[str(inp.names[k])].update(sub_check[str(inp.names[k])])
+        check[str(inp.names[k])]["seeded"] = "two-view seed + resection, similarity onto GNSS"
+    logger.info("two-view seed grown to %d images, aligned to GNSS (scale %.3f)", len(idx), sc)
+    return R, C, part
+
+
+def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavResult:
+    """Orient a UAV block from tie points, GNSS and (checked) attitude metadata; see the module docstring.
+
+    Raises
+    ------
+    UavAdjustError
+        No seed (no agreeing images and no pair for a relative orientation), or fewer than three oriented
+        images.
+    """
+    t_start = time.perf_counter()
+    n, T = len(inp.names), len(inp.track_name)
+    camera = inp.camera
+    if not isinstance(camera.distortion, OpenCVDistortion):
+        camera = camera.with_(distortion=OpenCVDistortion())
+    active = np.ones(len(inp.obs_track), bool)
+    agree, dis = attitude_agreement(inp, cfg)
+    seed = _largest_component(agree)
+    R = np.full((n, 3, 3), np.nan)
+    C = np.full((n, 3), np.nan)
+    check: dict[str, dict[str, Any]] = {str(nm): {"metadata": "unknown"} for nm in inp.names}
+    if len(seed) >= 2:
+        R[seed] = inp.rotation[seed]
+        C[seed] = inp.gnss[seed]
+        trusted_att = seed.copy()
+        for k in seed:
+            check[str(inp.names[k])]["metadata"] = "agrees with tie points (seed)"
+        logger.info("seed: %d images whose metadata attitudes agree with their tie points", len(seed))
+    else:
+        trusted_att = np.zeros(0, np.int64)
+    oriented = np.zeros(n, bool)
+    oriented[seed] = True
+    if len(trusted_att) == 0:
+        R, C, oriented = _seed_component(inp, cfg, camera, ~oriented, active, check)
+        if oriented.sum() < 3:
+            raise UavAdjustError("no image pair could start the block (no agreeing attitude metadata, no two-view "
+                                 "relative orientation with enough GNSS base)")
+    sigma_px = max(3.0 * cfg.pixel_sigma_px, 3.0)
+    grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
+                            max_iterations=cfg.max_iterations, datum="auto")
+    X = np.full((T, 3), np.nan)
+    rounds = 0
+    while True:
+        rounds += 1
+        sel = oriented[inp.obs_image] & active
+        X, ok = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel], inp.obs_image[sel],
+                                   inp.obs_pixel[sel], T, cfg.min_angle_deg)
+        X[~ok] = np.nan
+        gate = 0.05 * max(camera.width, camera.height) if rounds == 1 else 4.0 * cfg.pnp_threshold_px
+        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
+        img_sel = np.flatnonzero(oriented)
+        block, tracks, rows = _build_block(inp, camera, R, C, X, img_sel, obs_sel, cfg, sigma_px,
+                                           np.intersect1d(trusted_att, img_sel))
+        try:
+            res = adjust(block, grow_cfg)
+        except SkyrigError as exc:
+            raise UavAdjustError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
+        R[img_sel] = res.block.station_rotation
+        C[img_sel] = res.block.station_centre
+        X[:] = np.nan
+        X[tracks] = res.block.point_xyz
+        # drop gross outliers of this round
+        r = np.nan_to_num(np.linalg.norm(_image_residuals(res.block), axis=1), nan=np.inf)
+        med = float(np.median(r)) if len(r) else 0.0
+        bad = r > max(8.0 * 1.4826 * med, 3.0 * cfg.reject_min_px)
+        active[rows[bad]] = False
+        logger.info("round %d: %d images, %d points, median residual %.2f px, %d observations removed", rounds,
+                    len(img_sel), block.n_points, med, int(bad.sum()))
+        todo = np.flatnonzero(~oriented)
+        if len(todo) == 0:
+            break
+        added = _resect_all(inp, camera, X, R, C, oriented, active, cfg, check)
+        if not added:
+            # a part of the block not connected by enough tie points: its own seed, tied in by GNSS
+            R2, C2, part = _seed_component(inp, cfg, camera, ~oriented, active, check, anchor_X=X)
+            if not part.any():
+                break
+            R[part], C[part] = R2[part], C2[part]
+            oriented |= part
+            added = [int(k) for k in np.flatnonzero(part)]
+        logger.info("added %d images (resection, or a new seed for a part not tied to the rest): %s", len(added),
+                    ", ".join(inp.names[added]))
+    if oriented.sum() < 3:
+        raise UavAdjustError(f"only {int(oriented.sum())} images could be oriented")
+    # ---- final adjustment: self-calibration, Huber, outlier removal, statistics
+    f0 = inp.camera.focal_mm
+    w_mm = camera.width * camera.pixel_size_mm
+    sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
+           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
+    names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration
+                      and not (nm == "focal_mm" and cfg.focal == "exif"))
+
+    def cal_cfg(names: tuple[str, ...]) -> AdjustConfig:
+        return AdjustConfig(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
+                            intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names),
+                            robust="huber", robust_k=cfg.robust_k, statistics=False,
+                            max_iterations=cfg.max_iterations,
+                            strip_shift="weighted" if cfg.gnss_strip_shift == "weighted" else "fixed",
+                            strip_shift_sigma_m=cfg.strip_shift_sigma_m)
+
+    final_cfg = cal_cfg(names_cal)
+    strip = detect_strips(inp.gnss) if cfg.gnss_strip_shift != "off" else None
+    img_sel = np.flatnonzero(oriented)
+    imu_imgs = np.intersect1d(trusted_att, img_sel)
+    for stage in range(2):
+        sel = oriented[inp.obs_image] & active
+        X2, ok = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel],
+                                    inp.obs_image[sel], inp.obs_pixel[sel], T, cfg.min_angle_deg)
+        keep_old = np.isfinite(X).all(axis=1)
+        X = np.where(keep_old[:, None], X, X2)
+        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, 2.0 * cfg.pnp_threshold_px)
+        # the focal prior is anchored at the EXIF value in every stage (the prior of a "weighted" group is its
+        # starting value)
+        block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
+                                           cfg.pixel_sigma_px, imu_imgs, strip)
+        res = adjust(block, final_cfg)
+        camera = res.block.cameras[0]
+        R[img_sel] = res.block.station_rotation
+        C[img_sel] = res.block.station_centre
+        X[:] = np.nan
+        X[tracks] = res.block.point_xyz
+        r = np.nan_to_num(np.linalg.norm(_image_residuals(res.block), axis=1), nan=np.inf)
+        robust_rms = float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median = sigma sqrt(ln 4)
+        lim = max(cfg.reject_k * robust_rms * np.sqrt(2.0), cfg.reject_min_px)
+        bad = r > lim
+        active[rows[bad]] = False
+        logger.info("final stage %d: sigma per axis %.3f px (robust), %d observations above %.2f px removed", stage,
+                    robust_rms, int(bad.sum()), lim)
+    # last run: plain least squares on the cleaned observations, with statistics
+    obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+    block, tracks, rows = _build_block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
+                                       cfg.pixel_sigma_px, imu_imgs, strip)
+    res = adjust(block, final_cfg.with_(robust=None, statistics=True))
+    focal_note = ("focal length fixed at the EXIF value (focal='exif')" if cfg.focal == "exif" or
+                  "focal_mm" not in cfg.self_calibration else "focal length self-calibrated")
+    focal_ratio = float("nan")
+    if "focal_mm" in names_cal:
+        # formal (a-priori) sigma of the focal length from the block's geometry and the prior, over the prior
+        sf = res.sigma_reduced().get(("intrinsics", res.block.cameras[0].name, "focal_mm"))
+        focal_ratio = float(sf) / max(res.sigma0, 1e-12) / sig["focal_mm"] if sf is not None else float("nan")
+        if cfg.focal == "auto" and not focal_ratio <= cfg.focal_determinable:
+            cam_self = res.block.cameras[0]
+            f_self = cam_self.focal_mm / cam_self.pixel_size_mm
+            names_nf = tuple(nm for nm in names_cal if nm != "focal_mm")
+            R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
+            X[:] = np.nan
+            X[tracks] = res.block.point_xyz
+            block, tracks, rows = _build_block(inp, cam_self.with_(focal_mm=f0), R, C, X, img_sel, obs_sel, cfg,
+                                               cfg.pixel_sigma_px, imu_imgs, strip)
+            res = adjust(block, cal_cfg(names_nf).with_(robust=None, statistics=True))
+            focal_note = (f"focal length not determinable by this block (posterior sigma {focal_ratio:.2f} x the EXIF "
+                          f"prior sigma; self-calibrated value {f_self:.0f} px): fixed at the EXIF value")
+        elif cfg.focal == "auto":
+            focal_note = f"focal length self-calibrated (posterior sigma {focal_ratio:.2f} x the EXIF prior sigma)"
+    logger.info(focal_note)
+    camera = res.block.cameras[0]
+    R[img_sel] = res.block.station_rotation
+    C[img_sel] = res.block.station_centre
+    Rout = np.full((n, 3, 3), np.nan)
+    Cout = np.full((n, 3), np.nan)
+    Rout[img_sel], Cout[img_sel] = R[img_sel], C[img_sel]
+    for k in range(n):
+        info = check[str(inp.names[k])]
+        if oriented[k] and np.isfinite(inp.rotation[k]).all():
+            info["metadata_vs_adjusted_deg"] = float(_rotation_angle_deg(inp.rotation[k], Rout[k]))
+        if not oriented[k]:
+            info["metadata"] = info["metadata"] if info["metadata"] != "unknown" else "image not oriented"
+    summary = _summary(inp, res, img_sel, camera, oriented, rounds, time.perf_counter() - t_start)
+    summary["attitude_pairs_compared"] = int(np.isfinite(dis).sum() // 2)
+    summary["attitude_pairs_agreeing"] = int(agree.sum() // 2)
+    summary["focal"] = focal_note
+    summary["focal_sigma_over_prior"] = focal_ratio
+    if strip is not None:
+        b = res.block
+        summary["strips"] = {int(k): [str(x) for x in inp.names[strip == k]] for k in np.unique(strip[strip >= 0])}
+        summary["strip_shift_m"] = np.asarray(b.strip_shift).tolist()
+    return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
+
+
+def _summary(inp: UavBlockInput, res: AdjustmentResult, img_sel: NDArray, camera: FrameCamera,
+             oriented: NDArray, rounds: int, wall_s: float) -> dict[str, Any]:
+    b = res.block
+    img = res.residuals["image"]
+    act = img.weight > 0
+    v = img.residual[act]
+    per_image = np.bincount(b.obs_image[act], minlength=b.n_images)
+    gr = res.residuals["gnss"].residual
+    return {
+        "images": int(len(inp.names)), "oriented": int(oriented.sum()),
+        "not_oriented": [str(x) for x in inp.names[~oriented]],
+        "tie_points": int(len(np.unique(b.obs_point[act]))), "image_observations": int(act.sum()),
+        "tie_points_per_image": {str(b.image_name[k]): int(per_image[k]) for k in range(b.n_images)},
+        "reprojection_rms_px": float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan"),
+        "reprojection_rms_xy_px": np.sqrt(np.mean(v ** 2, axis=0)).tolist() if len(v) else [],
+        "sigma0": res.sigma0, "gnss_fit_rms_enu_m": np.sqrt(np.mean(gr ** 2, axis=0)).tolist(),
+        "gnss_fit_rms_3d_m": float(np.sqrt(np.mean(np.sum(gr ** 2, axis=1)))),
+        "camera": dict(zip(camera.intrinsic_names, np.asarray(camera.intrinsics).tolist())),
+        "focal_px": camera.focal_mm / camera.pixel_size_mm,
+        "focal_px_exif": inp.camera.focal_mm / inp.camera.pixel_size_mm,
+        "growth_rounds": rounds, "wall_s": wall_s, "notes": list(inp.notes),
+    }
