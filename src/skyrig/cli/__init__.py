@@ -61,6 +61,8 @@ COMMANDS: dict[str, CommandEntry] = {
                           "Laser scanning: georeference raw scans, register and compare point clouds."),
     "transfer": CommandEntry("skyrig.cli.transfer:command",
                              "Oblique (tumbling-head) orientations from adjusted nadir orientations through the calibrated mounting."),
+    "init": CommandEntry("skyrig.cli.run:init_command", "Write a commented project.yaml for a flight folder (skyrig run runs it)."),
+    "run": CommandEntry("skyrig.cli.run:run_command", "Run the stages of a project.yaml, each into its own folder (resumable)."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }

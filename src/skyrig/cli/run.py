@@ -1,0 +1,101 @@
+"""``skyrig init FOLDER`` (a commented project.yaml from what the folder holds) and ``skyrig run [PROJECT]`` (its
+stages in order, resumable; :mod:`skyrig.pipeline.run`)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+__all__ = ["init_command", "run_command"]
+
+
+@click.command("init")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False), default=".")
+@click.option("--crs", default=None, help="Output CRS (default: from the trajectory / EO header, the control points "
+                                          "or the images' EXIF GPS).")
+@click.option("--geoid", default=None, help="Geoid grid (path or PROJ name) for orthometric output heights.")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="Project file to write (default FOLDER/project.yaml).")
+@click.option("--force", is_flag=True, help="Overwrite an existing project file.")
+def init_command(folder: str, crs: str | None, geoid: str | None, output: str | None, force: bool) -> None:
+    """Write a commented project.yaml for the flight in FOLDER (images, trajectory, events, rig, control found by reading them)."""
+    from skyrig.io._text import atomic_write
+    from skyrig.pipeline.project import detect_inputs, load_project, project_template
+
+    det = detect_inputs(folder)
+    out = Path(output) if output else Path(folder) / "project.yaml"
+    text = project_template(det, crs, geoid, base=out.absolute().parent)
+    if out.exists() and not force:
+        raise click.UsageError(f"{out} exists (--force overwrites it)")
+    with atomic_write(out) as fh:
+        fh.write(text)
+    proj = load_project(out)  # what was written must read back: a bug otherwise
+    click.echo(f"wrote {out}: {det.n_images} images in {len(det.images)} folder(s); "
+               + ", ".join(f"{k} {getattr(det, k).name}" for k in ("trajectory", "events", "rig", "eo", "control", "check")
+                           if getattr(det, k) is not None)
+               + f"; CRS {proj.crs}; stages {', '.join(s.name for s in proj.stages)}")
+    for note in det.notes:
+        click.echo(f"note: {note}")
+    click.echo(f"edit it, then: skyrig run {out}")
+
+
+@click.command("run")
+@click.argument("project", type=click.Path(exists=True), default="project.yaml")
+@click.option("--from", "from_stage", default=None, metavar="STAGE",
+              help="Rerun STAGE and every stage after it (the earlier ones must have run).")
+@click.option("--only", default=None, metavar="STAGE", help="Run only STAGE (its inputs must have been published).")
+@click.option("--force", is_flag=True, help="Rerun the selected stages even when they are up to date.")
+@click.option("--dry-run", is_flag=True, help="Say which stages would run or be skipped, and why; run nothing.")
+@click.option("--list-stages", is_flag=True, help="List the stages skyrig knows with their options; run nothing.")
+def run_command(project: str, from_stage: str | None, only: str | None, force: bool, dry_run: bool,
+                list_stages: bool) -> None:
+    """Run the stages of PROJECT (a project.yaml, or a folder holding one), each into OUTPUT/<stage>/.
+
+    A stage whose inputs and options are unchanged since its last run is skipped; a failed stage publishes
+    nothing and leaves every earlier output as it was.  Exit status: 0 ok, 1 a stage failed, 2 bad input.
+    """
+    from skyrig.pipeline.project import load_project
+    from skyrig.pipeline.run import STAGES, plan_run, run_project
+
+    if list_stages:
+        for st in STAGES.values():
+            need = ", ".join(st.requires) or "-"
+            click.echo(f"{st.name}: {st.help}\n  needs: {need}; provides: "
+                       + ", ".join(f"{k} ({v})" for k, v in st.provides.items()))
+            for name, opt in st.options.items():
+                click.echo(f"    {name} = {opt.default!r}  ({opt.kind}) {opt.help}")
+        return
+    proj = load_project(project)
+    if dry_run:
+        for name, action, why in plan_run(proj, from_stage=from_stage, only=only, force=force):
+            click.echo(f"{name:12s} {action:12s} {why}")
+        return
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    n = len(proj.stages)
+    index = {s.name: k + 1 for k, s in enumerate(proj.stages)}
+
+    def on_event(ev) -> None:  # type: ignore[no-untyped-def]
+        k = f"[{index[ev.stage]}/{n}]"
+        if ev.status == "start":
+            console.print(f"[bold]{k} {ev.stage}[/bold] running ({ev.message})")
+        elif ev.status == "done":
+            console.print(f"{k} {ev.stage} [green]done[/green] in {ev.seconds:.1f} s -> {proj.output / ev.stage}")
+        elif ev.status == "skipped":
+            console.print(f"{k} {ev.stage} skipped ({ev.message})")
+        elif ev.status == "not-selected":
+            console.print(f"{k} {ev.stage} not selected")
+        elif ev.status == "failed":
+            console.print(f"{k} {ev.stage} [red]FAILED[/red]: {ev.message}")
+
+    click.echo(f"project {proj.name} ({proj.path}): {n} stages -> {proj.output}")
+    res = run_project(proj, from_stage=from_stage, only=only, force=force, on_event=on_event)
+    if not res.ok:
+        click.echo(f"error: {res.error} (earlier outputs left as they were; rerun resumes)", err=True)
+        sys.exit(res.exit_code)
+    ran = sum(1 for s in res.stages if s["status"] == "done")
+    skipped = sum(1 for s in res.stages if s["status"] == "skipped")
+    click.echo(f"{ran} stage(s) ran, {skipped} up to date; summary in {proj.output / 'run.json'}")

@@ -1,0 +1,625 @@
+"""The project file ``project.yaml``: what a flight recorded, the output CRS, and the stages to run with their options.
+
+``skyrig init FOLDER`` writes one (commented) from what it finds; ``skyrig run project.yaml`` runs its stages
+(:mod:`skyrig.pipeline.run`).  Every path is relative to the project file's folder.  Unknown keys are errors;
+every error names the file, the line and the key path (``stages.dsm.mode``)::
+
+    format: skyrig-project        # required, with version 1
+    version: 1
+    name: my-flight
+    crs: EPSG:25832               # output CRS of every product (projected, metres; a compound CRS for orthometric heights)
+    geoid: null                   # geoid grid (path or PROJ name) for orthometric heights; null: ellipsoidal heights
+    output: output                # where each stage publishes its folder (output/<stage>/ with manifest.json)
+    inputs:
+      images: [images]            # image folder(s)
+      trajectory: trajectory.csv  # skyrig trajectory CSV or Applanix SBET
+      events: events.csv          # camera events
+      rig: rig.yaml               # rig file (cameras, lever arms, boresights)
+      eo: null                    # an EO file instead of trajectory + events (image mode)
+      cameras: []                 # camera / rig files for an EO file
+      control: gcp/ground_points.csv
+      check: gcp/check_points.csv
+      measurements: [gcp/image_measurements.csv]   # measured image positions of the control / check points
+    executor: {kind: auto, workers: null, scheduler: null}
+    stages:                       # run in this order; a stage not listed is not run
+      georef: {}
+      match: {terrain_height: 80.0}
+      block: {free: [boresight]}
+      adjust: {}
+      dsm: {heads: [nadir]}
+
+The stages and their options are those of :data:`skyrig.pipeline.run.STAGES` (``skyrig run --list-stages``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping
+
+import yaml
+
+from skyrig.errors import InputFormatError
+from skyrig.io.rig_file import _LineLoader, _Map
+
+if TYPE_CHECKING:
+    from skyrig.pipeline.run import Stage
+
+__all__ = ["PROJECT_FORMAT", "Project", "StageSpec", "ExecutorSpec", "Option", "load_project", "parse_project",
+           "Detected", "detect_inputs", "project_template"]
+
+PROJECT_FORMAT = "skyrig-project"
+
+_TOP = {"format", "version", "name", "crs", "geoid", "output", "inputs", "executor", "stages"}
+_INPUT_FILES = ("trajectory", "events", "rig", "eo", "control", "check")
+_INPUT_LISTS = ("images", "cameras", "measurements")
+_EXECUTOR = {"kind", "workers", "scheduler"}
+
+
+@dataclass(frozen=True)
+class Option:
+    """One option of a stage: default, type and help (a registry entry's ``options`` maps names to these).
+
+    ``kind``: ``"float"``, ``"int"``, ``"bool"``, ``"str"``, ``"choice"`` (one of ``choices``), ``"floats"``
+    (a list of ``n`` numbers, any length when ``n`` is None) or ``"strs"`` (a list of text).  ``None`` is
+    accepted when ``nullable`` (the default is then often None = "decided by the stage")."""
+
+    default: Any
+    kind: str
+    help: str
+    choices: tuple[str, ...] = ()
+    n: int | None = None
+    nullable: bool = False
+    positive: bool = False
+
+    def check(self, value: Any) -> Any:
+        """The value converted to its plain type; raises ``ValueError`` with the reason in words."""
+        if value is None:
+            if self.nullable:
+                return None
+            raise ValueError("must not be null")
+        k = self.kind
+        if k in ("float", "int"):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"expected a number, got {value!r}")
+            if k == "int" and int(value) != value:
+                raise ValueError(f"expected a whole number, got {value!r}")
+            if self.positive and value <= 0:
+                raise ValueError(f"must be positive, got {value!r}")
+            return int(value) if k == "int" else float(value)
+        if k == "bool":
+            if not isinstance(value, bool):
+                raise ValueError(f"expected true or false, got {value!r}")
+            return value
+        if k == "str":
+            if not isinstance(value, str) or not value.strip():
+                raise ValueError(f"expected text, got {value!r}")
+            return value
+        if k == "choice":
+            if value not in self.choices:
+                raise ValueError(f"expected one of {', '.join(self.choices)}, got {value!r}")
+            return value
+        if k == "floats":
+            if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                                  or not math.isfinite(v) for v in value):
+                raise ValueError(f"expected a list of numbers, got {value!r}")
+            if self.n is not None and len(value) != self.n:
+                raise ValueError(f"expected {self.n} numbers, got {len(value)}")
+            if self.positive and any(v <= 0 for v in value):
+                raise ValueError(f"numbers must be positive, got {value!r}")
+            return [float(v) for v in value]
+        if k == "strs":
+            if isinstance(value, str):
+                value = [value]
+            if not isinstance(value, list) or any(not isinstance(v, str) or not v.strip() for v in value):
+                raise ValueError(f"expected a list of names, got {value!r}")
+            if self.choices:
+                bad = [v for v in value if v not in self.choices]
+                if bad:
+                    raise ValueError(f"unknown {bad[0]!r}; known: {', '.join(self.choices)}")
+            return list(value)
+        raise ValueError(f"option kind {k!r} unknown")  # pragma: no cover - a registry bug
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """A stage as the project file lists it: its name, its options (defaults filled in) and the line."""
+
+    name: str
+    options: dict[str, Any]
+    line: int | None = None
+
+
+@dataclass(frozen=True)
+class ExecutorSpec:
+    """Where parallel work runs (:class:`skyrig.pipeline.executor.Executor`): ``auto`` / ``serial`` / ``local``,
+    local worker processes, or a ``dask.distributed`` scheduler address.  Not part of a stage's fingerprint:
+    every executor gives the same outputs."""
+
+    kind: str = "auto"
+    workers: int | None = None
+    scheduler: str | None = None
+
+
+@dataclass(frozen=True)
+class Project:
+    """A parsed, validated project file.  Paths are absolute; ``None`` / empty where the file gives none."""
+
+    path: Path
+    name: str
+    crs: str
+    geoid: str | None
+    output: Path
+    images: tuple[Path, ...] = ()
+    trajectory: Path | None = None
+    events: Path | None = None
+    rig: Path | None = None
+    eo: Path | None = None
+    cameras: tuple[Path, ...] = ()
+    control: Path | None = None
+    check: Path | None = None
+    measurements: tuple[Path, ...] = ()
+    executor: ExecutorSpec = ExecutorSpec()
+    stages: tuple[StageSpec, ...] = ()
+    lines: dict[str, int] = field(default_factory=dict)  # key path -> line, for error messages
+
+    @property
+    def root(self) -> Path:
+        """The folder of the project file (paths in it are relative to this)."""
+        return self.path.parent
+
+    def stage(self, name: str) -> StageSpec:
+        """The stage ``name`` as listed (``KeyError`` if it is not)."""
+        for s in self.stages:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    def error(self, message: str, key_path: str) -> InputFormatError:
+        """An error naming this project file, the line of ``key_path`` (or its nearest parent) and the key path."""
+        kp = key_path
+        while kp and kp not in self.lines:
+            kp = kp.rpartition(".")[0]
+        return InputFormatError(message, self.path, self.lines.get(kp), key_path)
+
+
+def load_project(path: str | Path, registry: Mapping[str, Stage] | None = None) -> Project:
+    """Read and validate a project file (see the module docstring).
+
+    Parameters
+    ----------
+    path
+        The ``project.yaml``.
+    registry
+        The stages that may be listed (default :data:`skyrig.pipeline.run.STAGES`).
+
+    Raises
+    ------
+    InputFormatError
+        For anything the format does not allow (unknown key, missing file, wrong option type, a stage that
+        needs an earlier stage's output that no listed stage produces), naming the file, line and key path.
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / "project.yaml"
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputFormatError("no such project file (skyrig init FOLDER writes one)", p) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFormatError(f"cannot read the project file ({exc})", p) from None
+    return parse_project(text, p, registry)
+
+
+def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = None) -> Project:
+    """:func:`load_project` on the text of a project file (``path`` names it in errors and anchors its paths)."""
+    if registry is None:
+        from skyrig.pipeline.run import STAGES
+
+        registry = STAGES
+    path = Path(path).absolute()
+    loader = _LineLoader(text)
+    loader._path = str(path)  # type: ignore[attr-defined]
+    try:
+        doc = loader.get_single_data()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", path,
+                               None if mark is None else mark.line + 1) from None
+    except yaml.YAMLError as exc:
+        raise InputFormatError(f"not valid YAML: {exc}", path) from None
+    finally:
+        loader.dispose()
+    lines: dict[str, int] = {}
+
+    def err(message: str, m: _Map | None, key_path: str, key: str | None = None) -> InputFormatError:
+        line = None
+        if m is not None:
+            line = m.key_lines.get(key, m.line) if key is not None else m.line
+        return InputFormatError(message, path, line, key_path)
+
+    def mapping(value: Any, parent: _Map | None, kp: str, key: str | None, allowed: set[str] | None,
+                required: set[str] = set()) -> _Map:
+        if value is None:
+            value = _Map()
+            value.line = parent.key_lines.get(key, parent.line) if parent is not None and key else 1
+            value.key_lines = {}
+        if not isinstance(value, _Map):
+            raise err(f"expected a mapping, got {type(value).__name__}", parent, kp, key)
+        for k, ln in value.key_lines.items():
+            lines[f"{kp}.{k}" if kp else k] = ln
+        if allowed is not None:
+            for k in value:
+                if k not in allowed:
+                    raise err(f"unknown key {k!r} (allowed: {', '.join(sorted(allowed))})", value,
+                              f"{kp}.{k}" if kp else k, k)
+        for k in sorted(required):
+            if k not in value:
+                raise err(f"missing key {k!r}", value, f"{kp}.{k}" if kp else k)
+        return value
+
+    def text_of(m: _Map, key: str, kp: str, nullable: bool = True) -> str | None:
+        v = m.get(key)
+        if v is None and nullable:
+            return None
+        if not isinstance(v, str) or not v.strip():
+            raise err(f"expected text, got {v!r}", m, kp, key)
+        return v.strip()
+
+    def file_of(m: _Map, key: str, kp: str, must_exist: bool = True, folder: bool = False) -> Path | None:
+        v = text_of(m, key, kp)
+        if v is None:
+            return None
+        q = Path(v).expanduser()
+        q = q if q.is_absolute() else path.parent / q
+        if must_exist and not (q.is_dir() if folder else q.is_file()):
+            raise err(f"no such {'folder' if folder else 'file'}: {q}", m, kp, key)
+        return q
+
+    def files_of(m: _Map, key: str, kp: str, folder: bool = False) -> tuple[Path, ...]:
+        v = m.get(key)
+        if v is None:
+            return ()
+        if isinstance(v, str):
+            v = [v]
+        if not isinstance(v, list):
+            raise err(f"expected a list of paths, got {v!r}", m, kp, key)
+        out = []
+        for i, item in enumerate(v):
+            tmp = _Map({key: item})
+            tmp.line, tmp.key_lines = m.line, {key: m.key_lines.get(key, m.line)}
+            q = file_of(tmp, key, f"{kp}[{i}]", folder=folder)
+            if q is not None:
+                out.append(q)
+        return tuple(out)
+
+    top = mapping(doc, None, "", None, _TOP, {"format", "version", "crs", "stages"})
+    if top.get("format") != PROJECT_FORMAT:
+        raise err(f"expected format {PROJECT_FORMAT!r}, got {top.get('format')!r} (is this a skyrig project file?)",
+                  top, "format", "format")
+    if top.get("version") != 1:
+        raise err(f"version {top.get('version')!r} is not supported (this skyrig reads version 1)", top, "version",
+                  "version")
+    crs = text_of(top, "crs", "crs", nullable=False)
+    geoid = text_of(top, "geoid", "geoid")
+    try:
+        from skyrig.geodesy.frame import WorldFrame
+
+        WorldFrame.map(crs, geoid)  # type: ignore[arg-type]
+    except Exception as exc:  # CRSError, pyproj errors: the reason in words
+        raise err(f"not a usable CRS / geoid: {exc}", top, "geoid" if geoid and "geoid" in str(exc).lower() else "crs",
+                  "geoid" if geoid and "geoid" in str(exc).lower() else "crs") from None
+    name = text_of(top, "name", "name") or path.parent.name
+    out_txt = text_of(top, "output", "output") or "output"
+    output = Path(out_txt).expanduser()
+    output = output if output.is_absolute() else path.parent / output
+
+    inp = mapping(top.get("inputs"), top, "inputs", "inputs", set(_INPUT_FILES) | set(_INPUT_LISTS))
+    files = {k: file_of(inp, k, f"inputs.{k}") for k in _INPUT_FILES}
+    images = files_of(inp, "images", "inputs.images", folder=True)
+    cameras = files_of(inp, "cameras", "inputs.cameras")
+    measurements = files_of(inp, "measurements", "inputs.measurements")
+
+    ex = mapping(top.get("executor"), top, "executor", "executor", _EXECUTOR)
+    kind = ex.get("kind", "auto")
+    if kind not in ("auto", "serial", "local"):
+        raise err(f"expected auto, serial or local, got {kind!r}", ex, "executor.kind", "kind")
+    workers = ex.get("workers")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise err(f"expected a positive whole number or null, got {workers!r}", ex, "executor.workers", "workers")
+    executor = ExecutorSpec(kind, workers, text_of(ex, "scheduler", "executor.scheduler"))
+
+    st = mapping(top.get("stages"), top, "stages", "stages", None)
+    if not st:
+        raise err("no stages listed (e.g. georef, match, block, adjust, dsm)", top, "stages", "stages")
+    stages = []
+    provided: dict[str, str] = {}
+    for sname, sval in st.items():
+        kp = f"stages.{sname}"
+        if sname not in registry:
+            raise err(f"unknown stage {sname!r} (known: {', '.join(registry)})", st, kp, sname)
+        stage = registry[sname]
+        opts_in = mapping(sval, st, kp, sname, set(stage.options))
+        opts: dict[str, Any] = {}
+        for oname, opt in stage.options.items():
+            if oname in opts_in:
+                try:
+                    opts[oname] = opt.check(opts_in[oname])
+                except ValueError as exc:
+                    raise err(str(exc), opts_in, f"{kp}.{oname}", oname) from None
+            else:
+                opts[oname] = opt.default
+        for need in stage.requires:
+            if not any(alt in provided for alt in need.split("|")):
+                raise err(f"stage {sname!r} needs {need.replace('|', ' or ')} from an earlier stage; list a stage "
+                          "that produces it before it", st, kp, sname)
+        for kind_ in stage.provides:
+            provided[kind_] = sname
+        stages.append(StageSpec(sname, opts, st.key_lines.get(sname)))
+    project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
+                      files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
+                      lines)
+    for spec in project.stages:
+        check = registry[spec.name].check
+        if check is not None:
+            problem = check(project, spec.options)
+            if problem is not None:
+                raise project.error(problem[1], problem[0])
+    return project
+
+
+# ------------------------------------------------------------------------------------------ skyrig init
+_SKIP_DIRS = {"truth", "scene", "output", "outputs", "match", ".cache", "reference", "__pycache__"}
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+@dataclass
+class Detected:
+    """What :func:`detect_inputs` found in a folder (paths absolute) and what it could not decide, in words."""
+
+    folder: Path
+    images: list[Path] = field(default_factory=list)
+    n_images: int = 0
+    trajectory: Path | None = None
+    events: Path | None = None
+    rig: Path | None = None
+    eo: Path | None = None
+    control: Path | None = None
+    check: Path | None = None
+    measurements: list[Path] = field(default_factory=list)
+    crs: str | None = None
+    crs_source: str | None = None
+    terrain_height: float | None = None
+    heads: list[str] = field(default_factory=list)
+    exif_gps: bool = False
+    notes: list[str] = field(default_factory=list)
+
+
+def _first_line(p: Path) -> str:
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            return fh.readline().strip()
+    except OSError:
+        return ""
+
+
+def _header_crs(p: Path) -> str | None:
+    """The ``# crs:`` of a skyrig CSV (None when absent or not a map CRS)."""
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            for _ in range(12):
+                line = fh.readline()
+                if not line.startswith("#"):
+                    break
+                key, _, val = line[1:].partition(":")
+                if key.strip() == "crs" and val.strip() and not val.strip().startswith(("local", "ecef")):
+                    return val.strip()
+    except OSError:
+        return None
+    return None
+
+
+def detect_inputs(folder: str | Path) -> Detected:
+    """Find the inputs of a flight in ``folder`` (and its sub-folders, two levels, skipping ``truth``, ``scene``,
+    ``output``...): image folders, a trajectory (skyrig CSV or SBET), camera events, a rig file, an EO file,
+    control / check points and their image measurements, by reading each candidate with skyrig's readers.
+
+    The output CRS is taken from the trajectory's or EO file's header, else the control points' CRS, else the
+    UTM zone of the images' EXIF GPS; the terrain height for guided matching from the control points."""
+    from skyrig.io.image_read import read_image_metadata
+
+    root = Path(folder).absolute()
+    d = Detected(root)
+    files: list[Path] = []
+    dirs = [root]
+    for depth in range(3):
+        nxt = []
+        for dd in dirs:
+            try:
+                entries = sorted(dd.iterdir())
+            except OSError:
+                continue
+            for e in entries:
+                if e.name.startswith(".") or e.name in _SKIP_DIRS:
+                    continue
+                if e.is_dir() and depth < 2:
+                    nxt.append(e)
+                elif e.is_file():
+                    files.append(e)
+        dirs = nxt
+    by_dir: dict[Path, int] = {}
+    for f in files:
+        if f.suffix.lower() in _IMAGE_SUFFIXES and f.parent.name not in ("gcp", "control"):
+            by_dir[f.parent] = by_dir.get(f.parent, 0) + 1
+    big = [k for k, n in by_dir.items() if n >= 2]
+    d.images = sorted(big)
+    d.n_images = sum(by_dir[k] for k in big)
+    for f in files:
+        suf, first = f.suffix.lower(), _first_line(f)
+        if suf in (".out", ".sbet") and d.trajectory is None:
+            d.trajectory = f
+        elif suf == ".csv" and first.startswith("# skyrig-trajectory") and d.trajectory is None:
+            d.trajectory = f
+        elif suf == ".csv" and first.startswith("# skyrig-events") and d.events is None:
+            d.events = f
+        elif suf == ".csv" and first.startswith("# skyrig-eo") and d.eo is None:
+            d.eo = f
+        elif suf in (".yaml", ".yml") and f.name != "project.yaml" and d.rig is None:
+            try:
+                from skyrig.io.rig_file import read_rig
+
+                rig = read_rig(f)
+                d.rig = f
+                d.heads = list(rig.heads)
+            except Exception:  # not a rig file: any reader error means "not this"
+                pass
+        elif suf == ".csv" and f.parent.name != "tie":
+            header = first.lower().replace(" ", "")
+            if header.startswith("point,image,column,row") or header.startswith("point,image,x,y"):
+                d.measurements.append(f)
+            elif header.startswith("name,x,y,z") or _header_crs(f) and "name" in header:
+                low = f.stem.lower()
+                if "check" in low and d.check is None:
+                    d.check = f
+                elif any(w in low for w in ("ground", "gcp", "control")) and d.control is None:
+                    d.control = f
+    if d.eo is not None and d.trajectory is not None:
+        d.notes.append(f"both a trajectory and an EO file ({d.eo.name}): the trajectory is used (rig mode)")
+        d.eo = None
+    for src, what in ((d.trajectory, "trajectory"), (d.eo, "EO file")):
+        if src is not None and src.suffix.lower() == ".csv" and d.crs is None:
+            c = _header_crs(src)
+            if c:
+                d.crs, d.crs_source = c, f"the {what}'s header"
+    pts = None
+    if d.control is not None:
+        try:
+            from skyrig.io.points_csv import read_points_csv
+
+            pts = read_points_csv(d.control)
+            if d.crs is None and pts.frame.kind == "map":
+                d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
+        except Exception as exc:  # reported, not fatal: init writes what it can
+            d.notes.append(f"control points {d.control.name} not readable ({exc}); left out")
+            d.control = None
+    if pts is not None and len(pts):
+        import numpy as np
+
+        d.terrain_height = round(float(np.median(pts.xyz[:, 2])), 1)
+    if d.images and d.trajectory is None and d.eo is None:
+        try:
+            first = next(f for f in sorted(d.images[0].iterdir()) if f.suffix.lower() in _IMAGE_SUFFIXES)
+            m = read_image_metadata(first)
+            d.exif_gps = bool(m.has_gps)
+            if m.has_gps and d.crs is None:
+                from skyrig.geodesy.statement import utm_frame
+
+                d.crs, d.crs_source = str(utm_frame(m.lat_deg, m.lon_deg).crs), "the UTM zone of the images' EXIF GPS"
+        except Exception as exc:
+            d.notes.append(f"no EXIF GPS read from the images ({exc})")
+    if d.measurements and d.control is None:
+        d.notes.append("image measurements found but no control points: left out")
+        d.measurements = []
+    return d
+
+
+def _yaml_value(v: Any) -> str:
+    import json
+
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_yaml_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return v if v and all(c.isalnum() or c in "-_./:+" for c in v) and not v[0].isdigit() else json.dumps(v)
+    return repr(v)
+
+
+def project_template(det: Detected, crs: str | None = None, geoid: str | None = None,
+                     registry: Mapping[str, Stage] | None = None, base: str | Path | None = None) -> str:
+    """The text of a commented ``project.yaml`` for what :func:`detect_inputs` found (every stage option listed,
+    the ones init decided set, the others commented out with their defaults).  Paths are written relative to
+    ``base``, the folder the project file goes to (default the detected folder).
+
+    Raises
+    ------
+    InputFormatError
+        When no output CRS is known (none given and none found in the inputs) or no stage can run.
+    """
+    if registry is None:
+        from skyrig.pipeline.run import STAGES
+
+        registry = STAGES
+    crs = crs or det.crs
+    if not crs:
+        raise InputFormatError("no output CRS found in the inputs (trajectory / EO header, control points, EXIF "
+                               "GPS): give one (option --crs)", det.folder)
+
+    import os
+
+    anchor = Path(base).absolute() if base is not None else det.folder
+
+    def rel(q: Path | None) -> str:
+        if q is None:
+            return "null"
+        return _yaml_value(os.path.relpath(q, anchor))
+
+    rig_mode = det.trajectory is not None and det.events is not None and det.rig is not None
+    chosen: dict[str, dict[str, Any]] = {}
+    if rig_mode:
+        chosen["georef"] = {}
+    if det.images:
+        chosen["match"] = {"terrain_height": det.terrain_height} if (rig_mode or det.eo) else {}
+    if det.images and (rig_mode or (det.eo is not None and det.rig is not None)):
+        chosen["block"] = {"free": ["boresight"]} if rig_mode and det.control is not None else {}
+        chosen["adjust"] = {}
+    elif det.images and det.exif_gps and "adjust-uav" in registry:
+        chosen["adjust-uav"] = {}
+    if det.images and chosen and (rig_mode or det.eo is not None or "adjust-uav" in chosen):
+        chosen["dsm"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
+        if not any(k in chosen for k in ("adjust", "adjust-uav")) and det.terrain_height is not None:
+            chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]
+    if not chosen:
+        raise InputFormatError("found nothing to run: no images, and no trajectory + events + rig (skyrig init "
+                               "looks for them in the folder and two levels of sub-folders)", det.folder)
+    out = [f"# skyrig project file (written by skyrig init from {det.folder}).",
+           "# Paths are relative to this file. Unknown keys are errors. Run it with: skyrig run project.yaml",
+           "# A stage reruns only when its inputs or options change (its manifest keeps a fingerprint).",
+           f"format: {PROJECT_FORMAT}", "version: 1", f"name: {_yaml_value(det.folder.name)}",
+           f"crs: {_yaml_value(crs)}" + (f"    # from {det.crs_source}" if det.crs_source and crs == det.crs else
+                                         "    # output CRS of every product (projected, metres)"),
+           f"geoid: {_yaml_value(geoid)}    # geoid grid for orthometric heights; null: ellipsoidal heights "
+           "(or those of a compound CRS)",
+           "output: output    # each stage publishes output/<stage>/ with its manifest.json; output/run.json",
+           "inputs:",
+           f"  images: {_yaml_value([rel(q).strip(chr(34)) for q in det.images])}    # {det.n_images} images",
+           f"  trajectory: {rel(det.trajectory)}    # skyrig trajectory CSV or Applanix SBET",
+           f"  events: {rel(det.events)}    # camera events CSV",
+           f"  rig: {rel(det.rig)}    # rig file" + (f" (heads: {', '.join(det.heads)})" if det.heads else ""),
+           f"  eo: {rel(det.eo)}    # an EO file instead of trajectory + events (image mode)",
+           "  cameras: []    # camera / rig files for an EO file",
+           f"  control: {rel(det.control)}    # control points CSV (CRS in its header)",
+           f"  check: {rel(det.check)}    # check points: compared after the adjustment, not used in it",
+           f"  measurements: {_yaml_value([rel(q).strip(chr(34)) for q in det.measurements])}"
+           "    # image positions of control / check points",
+           "executor:    # where parallel work runs; never changes the results",
+           "  kind: auto    # auto | serial | local (Dask worker processes)",
+           "  workers: null    # local worker processes (default: up to 4)",
+           "  scheduler: null    # address of a dask.distributed scheduler, e.g. tcp://host:8786",
+           "stages:    # run in this order; remove a stage to skip it"]
+    for note in det.notes:
+        out.insert(3, f"# note: {note}")
+    for name, set_opts in chosen.items():
+        stage = registry[name]
+        out.append(f"  {name}:    # {stage.help}")  # options all commented out: the stage with its defaults
+        for oname, opt in stage.options.items():
+            if oname in set_opts:
+                out.append(f"    {oname}: {_yaml_value(set_opts[oname])}    # {opt.help}")
+            else:
+                out.append(f"    # {oname}: {_yaml_value(opt.default)}    # {opt.help}")
+    if "match" in chosen and chosen["match"].get("terrain_height", 0) is None:
+        out.insert(3, "# note: set stages.match.terrain_height (mean terrain height, m): no control points to take it from")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,732 @@
+"""Project runs: the stages of a ``project.yaml`` (:mod:`skyrig.pipeline.project`) in order, each published into
+its own folder ``OUTPUT/<stage>/`` as a set (:func:`skyrig.io.stage.stage_folder`, ``manifest.json`` last).
+
+Resume
+------
+A stage's *fingerprint* is the SHA-256 of its options (defaults filled in), the project CRS / geoid, the content
+(SHA-256) of the project files it reads, a listing (name, size, modification time) of the image folders it reads,
+and the ``manifest.json`` of every earlier stage whose output it uses.  The fingerprint is stored in the stage's
+manifest (``options.fingerprint``).  A stage is skipped when its folder is intact (every file as the manifest
+lists it) and its fingerprint is unchanged; so a changed option reruns that stage, and - its manifest being new -
+every stage that uses its output, nothing before it.  ``force`` reruns everything selected; ``from_stage`` reruns
+that stage and those after it; ``only`` runs one stage (its inputs must have been published).  A failed or
+interrupted stage publishes nothing: its previous folder and every earlier stage's stay as they were, and the
+stages after it do not run.
+
+Adding a stage
+--------------
+A stage is one :class:`Stage` entry in :data:`STAGES` (:func:`register_stage`): its name, a one-line help, its
+options (:class:`skyrig.pipeline.project.Option`: default, type, help), what it needs from earlier stages
+(``requires`` / ``uses``: kinds such as ``"eo"``, ``"points"``, ``"dsm"``), what it publishes (``provides``: kind
+-> file name in its folder), which project files it reads (``inputs``) and the function that does the work::
+
+    def _ortho(ctx: StageContext) -> dict:
+        eo, dsm = ctx.need("eo"), ctx.need("dsm")          # files published by earlier stages
+        run_ortho(eo, dsm, ..., ctx.out)                   # write into ctx.out (the staging folder)
+        return {"tiles": 12}                               # a summary for run.json
+
+    register_stage(Stage("ortho", "True orthophoto (COG) from the DSM and the oriented images.", _ortho,
+                         options={"resolution": Option(None, "float", "cell size (m)", nullable=True)},
+                         requires=("eo", "dsm"), provides={"ortho": "ortho.tif"}, inputs=_rig_files))
+
+The function writes into ``ctx.out`` only; the runner publishes the folder and writes the manifest.  A stage may
+run a ``skyrig`` command in process (:func:`invoke_command`) with ``-o ctx.out``: the outputs are then exactly
+those of the command.  Errors: :class:`skyrig.errors.SkyrigError` (and click usage errors) are bad input (exit
+status 2), anything else a failed run (exit status 1).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import logging
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from skyrig.errors import SkyrigError
+from skyrig.pipeline.project import ExecutorSpec, Option, Project, StageSpec
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Stage", "StageContext", "StageError", "StageEvent", "RunResult", "STAGES", "register_stage",
+           "run_project", "plan_run", "stage_fingerprint", "invoke_command"]
+
+
+class StageError(SkyrigError, RuntimeError):
+    """A stage failed.  ``exit_code`` is 2 for bad input, 1 for a failed run; ``stage`` names the stage."""
+
+    def __init__(self, stage: str, message: str, exit_code: int = 1) -> None:
+        super().__init__(f"stage {stage}: {message}")
+        self.stage = stage
+        self.reason = message
+        self.exit_code = exit_code
+
+
+@dataclass
+class StageContext:
+    """What a stage function gets.
+
+    Attributes
+    ----------
+    project
+        The project.
+    spec
+        The stage as listed (``spec.options``: every option with its default filled in).
+    out
+        The staging folder: write the outputs here (published as ``folder`` when the function returns).
+    folder
+        Where the outputs will be published (``OUTPUT/<stage>``).
+    upstream
+        Kind -> path of the file published by the latest earlier stage providing it (``requires`` and the
+        ``uses`` that exist).
+    progress
+        ``progress(done, total)`` for the run's display.
+    """
+
+    project: Project
+    spec: StageSpec
+    out: Path
+    folder: Path
+    upstream: dict[str, Path]
+    progress: Callable[[int, int], None] = lambda done, total: None
+
+    @property
+    def options(self) -> dict[str, Any]:
+        return self.spec.options
+
+    @property
+    def executor(self) -> ExecutorSpec:
+        return self.project.executor
+
+    def need(self, kind: str) -> Path:
+        """The file of ``kind`` published by an earlier stage (``KeyError`` naming it when there is none)."""
+        if kind not in self.upstream:
+            raise KeyError(f"stage {self.spec.name}: no earlier stage provides {kind!r}")
+        return self.upstream[kind]
+
+    def cache(self) -> Path:
+        """A folder kept between runs for this stage's resumable work (``OUTPUT/.cache/<stage>``)."""
+        p = self.project.output / ".cache" / self.spec.name
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A registry entry: everything the runner needs to know about one stage (see the module docstring)."""
+
+    name: str
+    help: str
+    run: Callable[[StageContext], dict[str, Any] | None]
+    options: dict[str, Option] = field(default_factory=dict)
+    requires: tuple[str, ...] = ()  # kinds that must come from an earlier stage
+    uses: tuple[str, ...] = ()  # kinds used when an earlier stage provides them
+    provides: dict[str, str] = field(default_factory=dict)  # kind -> file in the stage's folder
+    inputs: Callable[[Project, dict[str, Any]], list[Path]] = lambda project, options: []  # project files read
+    check: Callable[[Project, dict[str, Any]], tuple[str, str] | None] | None = None  # (key path, problem) or None
+
+
+#: The stages ``skyrig run`` knows, in their natural order (a project lists the ones it runs, in its order).
+STAGES: dict[str, Stage] = {}
+
+
+def register_stage(stage: Stage, registry: dict[str, Stage] | None = None) -> Stage:
+    """Add ``stage`` to ``registry`` (default :data:`STAGES`); a name already taken is an error."""
+    reg = STAGES if registry is None else registry
+    if stage.name in reg:
+        raise SkyrigError(f"stage {stage.name!r} is registered twice")
+    reg[stage.name] = stage
+    return stage
+
+
+@dataclass(frozen=True)
+class StageEvent:
+    """What the runner reports as it goes: ``status`` is ``start``, ``progress``, ``done``, ``skipped``
+    (up to date), ``not-selected`` (outside --from / --only), ``failed``."""
+
+    stage: str
+    status: str
+    message: str = ""
+    done: int | None = None
+    total: int | None = None
+    seconds: float | None = None
+
+
+@dataclass
+class RunResult:
+    """The outcome of :func:`run_project`: per stage its status and seconds; ``exit_code`` 0 / 1 / 2."""
+
+    project: Project
+    stages: list[dict[str, Any]]
+    exit_code: int = 0
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.exit_code == 0
+
+
+# ------------------------------------------------------------------------------------------ fingerprints
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _rel(project: Project, p: Path) -> str:
+    try:
+        return str(Path(os.path.abspath(p)).relative_to(Path(os.path.abspath(project.root))))
+    except ValueError:
+        return str(Path(os.path.abspath(p)))
+
+
+def _folder_listing(folder: Path) -> str:
+    """SHA-256 of the names, sizes and modification times (ns) of the files in ``folder`` (not recursive)."""
+    rows = []
+    for f in sorted(folder.iterdir()):
+        if f.is_file():
+            st = f.stat()
+            rows.append(f"{f.name}\t{st.st_size}\t{st.st_mtime_ns}")
+    return _sha("\n".join(rows).encode())
+
+
+def stage_fingerprint(project: Project, stage: Stage, spec: StageSpec, upstream_folders: Mapping[str, Path]
+                      ) -> tuple[list[dict[str, Any]], dict[str, Any], str]:
+    """``(inputs, options, fingerprint)`` of a stage: the inputs as the manifest lists them, the options it
+    records, and the SHA-256 over both (paths relative to the project folder, so a moved project resumes)."""
+    from skyrig.io.stage import MANIFEST, sha256_file
+
+    inputs: list[dict[str, Any]] = []
+    for p in stage.inputs(project, spec.options):
+        p = Path(p)
+        if p.is_dir():
+            inputs.append({"path": str(p.resolve()), "listing_sha256": _folder_listing(p)})
+        elif p.is_file():
+            inputs.append({"path": str(p.resolve()), "size": p.stat().st_size, "sha256": sha256_file(p)})
+        else:
+            inputs.append({"path": str(p.resolve()), "missing": True})
+    for up_stage, folder in sorted(upstream_folders.items()):
+        m = folder / MANIFEST
+        inputs.append({"path": str(m.resolve()), "stage": up_stage, "sha256": sha256_file(m)})
+    options = {"stage_options": spec.options, "crs": project.crs, "geoid": project.geoid}
+    key = {"stage": stage.name, "options": options,
+           "inputs": [{**{k: v for k, v in i.items() if k != "path"}, "path": _rel(project, Path(i["path"]))}
+                      for i in inputs]}
+    fp = _sha(json.dumps(key, sort_keys=True, default=str).encode())
+    return inputs, dict(options, fingerprint=fp), fp
+
+
+def _upstream(project: Project, registry: Mapping[str, Stage], index: int) -> tuple[dict[str, Path], dict[str, Path]]:
+    """For the stage at ``index``: kind -> published file, and stage name -> folder, of the latest earlier
+    stages providing what it requires / uses."""
+    stage = registry[project.stages[index].name]
+    files: dict[str, Path] = {}
+    folders: dict[str, Path] = {}
+    for kind in (*stage.requires, *stage.uses):
+        for spec in reversed(project.stages[:index]):
+            prov = registry[spec.name].provides
+            if kind in prov:
+                folder = project.output / spec.name
+                files[kind] = folder / prov[kind]
+                folders[spec.name] = folder
+                break
+    return files, folders
+
+
+def _up_to_date(folder: Path, fingerprint: str) -> tuple[bool, str]:
+    from skyrig.io.stage import MANIFEST, read_manifest, verify_folder
+
+    if not (folder / MANIFEST).is_file():
+        return False, "not run yet"
+    try:
+        m = read_manifest(folder)
+    except (OSError, ValueError):
+        return False, "manifest unreadable"
+    if m.get("options", {}).get("fingerprint") != fingerprint:
+        return False, "inputs or options changed"
+    problems = verify_folder(folder)
+    if problems:
+        return False, f"outputs changed since ({problems[0]})"
+    return True, "up to date"
+
+
+# ------------------------------------------------------------------------------------------ the runner
+def _selection(project: Project, from_stage: str | None, only: str | None) -> tuple[int, int]:
+    names = [s.name for s in project.stages]
+    for what, opt in ((from_stage, "--from"), (only, "--only")):
+        if what is not None and what not in names:
+            raise SkyrigError(f"{opt} {what}: the project lists no such stage (stages: {', '.join(names)})")
+    if from_stage and only:
+        raise SkyrigError("--from and --only exclude each other")
+    if only:
+        i = names.index(only)
+        return i, i + 1
+    return (names.index(from_stage) if from_stage else 0), len(names)
+
+
+def plan_run(project: Project, *, from_stage: str | None = None, only: str | None = None, force: bool = False,
+             registry: Mapping[str, Stage] | None = None) -> list[tuple[str, str, str]]:
+    """What :func:`run_project` would do, without doing it: ``(stage, action, reason)`` with action ``run``,
+    ``skip`` or ``not-selected``.  A stage after one that will run is listed as ``run`` (its input changes)."""
+    reg = STAGES if registry is None else registry
+    lo, hi = _selection(project, from_stage, only)
+    out = []
+    rerun: set[str] = set()
+    for i, spec in enumerate(project.stages):
+        files, folders = _upstream(project, reg, i)
+        if not lo <= i < hi:
+            out.append((spec.name, "not-selected", ""))
+            continue
+        if force or from_stage or only:
+            out.append((spec.name, "run", "forced" if force else ("--only" if only else "--from")))
+            rerun.add(spec.name)
+            continue
+        if any(s in rerun for s in folders):
+            out.append((spec.name, "run", "an earlier stage it uses reruns"))
+            rerun.add(spec.name)
+            continue
+        if not all((f / "manifest.json").is_file() for f in folders.values()):
+            out.append((spec.name, "run", "not run yet"))
+            rerun.add(spec.name)
+            continue
+        _, _, fp = stage_fingerprint(project, reg[spec.name], spec, folders)
+        ok, why = _up_to_date(project.output / spec.name, fp)
+        out.append((spec.name, "skip" if ok else "run", why))
+        if not ok:
+            rerun.add(spec.name)
+    return out
+
+
+def run_project(project: Project, *, from_stage: str | None = None, only: str | None = None, force: bool = False,
+                registry: Mapping[str, Stage] | None = None,
+                on_event: Callable[[StageEvent], None] | None = None) -> RunResult:
+    """Run the project's stages (see the module docstring); never raises for a failing stage.
+
+    Parameters
+    ----------
+    project
+        From :func:`skyrig.pipeline.project.load_project`.
+    from_stage
+        Rerun this stage and every one after it; the earlier ones are not run (their outputs must exist).
+    only
+        Run only this stage (its inputs must have been published by an earlier run).
+    force
+        Rerun every selected stage even when it is up to date.
+    registry
+        The stages (default :data:`STAGES`).
+    on_event
+        Called with a :class:`StageEvent` as stages start, progress, finish, are skipped or fail.
+
+    Returns
+    -------
+    RunResult
+        Per stage ``{"stage", "status", "seconds", "reason", "summary"}``; ``exit_code`` 0 when every selected
+        stage is up to date or ran, 2 when a stage found bad input, 1 when a stage failed.  ``OUTPUT/run.json``
+        holds the same (written atomically).
+    """
+    from skyrig.io.stage import MANIFEST, stage_folder
+
+    reg = STAGES if registry is None else registry
+    emit = on_event or (lambda ev: None)
+    lo, hi = _selection(project, from_stage, only)
+    rows: list[dict[str, Any]] = []
+    result = RunResult(project, rows)
+    t_run = time.time()
+    for i, spec in enumerate(project.stages):
+        stage = reg[spec.name]
+        folder = project.output / spec.name
+        if not lo <= i < hi:
+            rows.append({"stage": spec.name, "status": "not-selected"})
+            emit(StageEvent(spec.name, "not-selected"))
+            continue
+        files, folders = _upstream(project, reg, i)
+        missing = [s for s, f in folders.items() if not (f / MANIFEST).is_file()]
+        missing += [k for k in stage.requires if k not in files]
+        if missing:
+            msg = (f"needs the output of stage {missing[0]}, which has not been published "
+                   f"(run the earlier stages first: skyrig run without --from / --only)")
+            rows.append({"stage": spec.name, "status": "failed", "reason": msg})
+            emit(StageEvent(spec.name, "failed", msg))
+            result.exit_code, result.error = 2, f"stage {spec.name}: {msg}"
+            break
+        files = {k: p for k, p in files.items() if p.exists() or k in stage.requires}
+        inputs, options, fp = stage_fingerprint(project, stage, spec, folders)
+        if not (force or from_stage or only):
+            ok, why = _up_to_date(folder, fp)
+            if ok:
+                rows.append({"stage": spec.name, "status": "skipped", "reason": why})
+                emit(StageEvent(spec.name, "skipped", why))
+                continue
+        else:
+            why = "forced" if force else ("--only" if only else "--from")
+        emit(StageEvent(spec.name, "start", why))
+        t0 = time.perf_counter()
+
+        def progress(done: int, total: int, _name: str = spec.name) -> None:
+            emit(StageEvent(_name, "progress", done=done, total=total))
+
+        try:
+            with stage_folder(folder, stage=spec.name, inputs=inputs, options=options, started=t_run) as tmp:
+                summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
+                absent = [f for f in stage.provides.values() if not (tmp / f).exists()]
+                if absent:
+                    raise StageError(spec.name, f"published no {absent[0]} (a stage bug)", 1)
+        except StageError as exc:
+            code, msg = exc.exit_code, exc.reason
+        except SkyrigError as exc:
+            code, msg = 2, str(exc)
+        except KeyboardInterrupt:
+            rows.append({"stage": spec.name, "status": "interrupted"})
+            emit(StageEvent(spec.name, "failed", "interrupted"))
+            result.exit_code, result.error = 130, f"stage {spec.name}: interrupted"
+            _write_run_json(result)
+            raise
+        except Exception as exc:  # a bug or an unforeseen failure: the stage fails, the run says so
+            logger.debug("stage %s failed", spec.name, exc_info=True)
+            code, msg = 1, f"{type(exc).__name__}: {exc}"
+        else:
+            dt = time.perf_counter() - t0
+            rows.append({"stage": spec.name, "status": "done", "reason": why, "seconds": round(dt, 3),
+                         "summary": summary})
+            emit(StageEvent(spec.name, "done", why, seconds=dt))
+            continue
+        dt = time.perf_counter() - t0
+        rows.append({"stage": spec.name, "status": "failed", "reason": msg, "seconds": round(dt, 3)})
+        emit(StageEvent(spec.name, "failed", msg, seconds=dt))
+        result.exit_code, result.error = code, f"stage {spec.name}: {msg}"
+        break
+    _write_run_json(result)
+    return result
+
+
+def _write_run_json(result: RunResult) -> None:
+    from skyrig import __version__
+
+    out = result.project.output
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = out / ".run.json.tmp"
+        tmp.write_text(json.dumps({"format": "skyrig-run", "version": 1, "software": f"skyrig {__version__}",
+                                   "project": str(result.project.path), "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                   "exit_code": result.exit_code, "error": result.error, "stages": result.stages},
+                                  indent=1, default=str) + "\n")
+        os.replace(tmp, out / "run.json")
+    except OSError as exc:  # the run's own outcome matters more than its log
+        logger.warning("could not write %s: %s", out / "run.json", exc)
+
+
+# ------------------------------------------------------------------------------------------ helpers for stages
+def invoke_command(stage: str, target: str, args: Sequence[object]) -> None:
+    """Run the click command ``"module:attribute"`` in this process with ``args``, as ``skyrig`` would.
+
+    Raises
+    ------
+    StageError
+        With exit status 2 for a usage error or bad input (:class:`SkyrigError`), else the command's own status.
+    """
+    import click
+
+    module, _, attr = target.partition(":")
+    cmd = getattr(importlib.import_module(module), attr)
+    argv = [str(a) for a in args]
+    logger.info("stage %s: skyrig %s %s", stage, cmd.name, " ".join(argv))
+    try:
+        cmd.main(args=argv, prog_name=f"skyrig {cmd.name}", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        if exc.exit_code:
+            raise StageError(stage, f"skyrig {cmd.name} exited with status {exc.exit_code}", 1) from None
+    except click.UsageError as exc:
+        raise StageError(stage, exc.format_message(), 2) from None
+    except click.ClickException as exc:
+        raise StageError(stage, exc.format_message(), exc.exit_code or 1) from None
+    except click.Abort:
+        raise KeyboardInterrupt from None
+    except SystemExit as exc:  # a command that ends with sys.exit / raise SystemExit(status)
+        if exc.code not in (None, 0):
+            raise StageError(stage, f"skyrig {cmd.name} exited with status {exc.code}",
+                             exc.code if isinstance(exc.code, int) else 1) from None
+
+
+def _scheduler_args(ex: ExecutorSpec) -> list[str]:
+    """``--executor`` / ``--workers`` / ``--scheduler`` for commands running through the Dask executor."""
+    args: list[str] = []
+    if ex.scheduler:
+        args += ["--scheduler", ex.scheduler]
+    elif ex.kind != "auto":
+        args += ["--executor", ex.kind]
+    if ex.workers:
+        args += ["--workers", ex.workers]
+    return args
+
+
+def _opt_files(*paths: Path | None) -> list[Path]:
+    return [p for p in paths if p is not None]
+
+
+def _rig_or_cameras(project: Project) -> list[Path]:
+    return [project.rig] if project.rig is not None else list(project.cameras)
+
+
+# ------------------------------------------------------------------------------------------ built-in stages
+def _georef_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return _opt_files(p.trajectory, p.events, p.rig)
+
+
+def _georef_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    missing = [k for k in ("trajectory", "events", "rig") if getattr(p, k) is None]
+    if missing:
+        return f"inputs.{missing[0]}", f"stage georef needs inputs {', '.join(missing)}"
+    return None
+
+
+def _georef(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.georef.direct import direct_georeference
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.events_csv import read_events_csv
+    from skyrig.io.rig_file import read_rig
+
+    p, o = ctx.project, ctx.options
+    assert p.trajectory is not None and p.events is not None and p.rig is not None  # checked on loading
+    if p.trajectory.suffix.lower() in (".out", ".sbet", ".bin"):
+        from skyrig.io.sbet import read_sbet
+
+        traj = read_sbet(p.trajectory, reference=o["sbet_reference"])
+    else:
+        from skyrig.io.trajectory_csv import read_trajectory_csv
+
+        traj = read_trajectory_csv(p.trajectory)
+    frame = WorldFrame.map(p.crs, p.geoid)
+    eo = direct_georeference(traj, read_rig(p.rig), read_events_csv(p.events), frame, position=o["position"])
+    write_eo_csv(eo, ctx.out / "eo.csv", unit="deg", convention=o["convention"])
+    return {"images": len(eo), "heads": len(set(eo.head)) if eo.head is not None else 1, "frame": frame.describe()}
+
+
+def _match_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return [*p.images, *_rig_or_cameras(p)]
+
+
+def _match_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    if not p.images:
+        return "inputs.images", "stage match needs inputs.images (image folders)"
+    return None
+
+
+def _match(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.cli.match import match_images
+    from skyrig.match.features import FeatureConfig
+
+    p, o = ctx.project, ctx.options
+    eo = cameras = None
+    th = o["terrain_height"]
+    if "eo" in ctx.upstream:
+        from skyrig.cli._common import load_cameras
+        from skyrig.io.eo_csv import read_eo_csv
+
+        eo = read_eo_csv(ctx.upstream["eo"])
+        cameras = load_cameras([str(c) for c in _rig_or_cameras(p)])
+        if th is None:
+            raise StageError("match", "guided matching with the georeferenced orientations needs "
+                             "stages.match.terrain_height (mean terrain height in the output heights, m)", 2)
+    fc = FeatureConfig(method=o["method"], max_size=o["max_size"], max_features=o["max_features"])  # type: ignore[arg-type]
+    key = _sha(json.dumps({"f": [o["method"], o["max_size"], o["max_features"]], "lsm": o["lsm"]}).encode())[:12]
+    cache = ctx.cache() / key  # features and matches kept between runs (MatchDatabase refuses other settings)
+    ex = p.executor
+    scheduler = "sync" if ex.kind == "serial" else "processes" if ex.kind == "local" else "threads"
+    done_total: dict[str, tuple[int, int]] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        done_total[stage] = (done, total)
+        ctx.progress(sum(d for d, _ in done_total.values()), sum(t for _, t in done_total.values()))
+
+    r = match_images(p.images, cache, fc, None, o["pairs"], eo, cameras, th, o["min_overlap"], o["neighbours"],
+                     scheduler, ex.workers or 2, o["thin"], False, progress, o["lsm"], o["max_heading_diff"])
+    for f in ("tie_points.csv", "report.json", "coverage.png"):
+        if (cache / f).exists():
+            shutil.copy2(cache / f, ctx.out / f)
+    rep = r.report
+    return {"images": len(r.names), "skipped": len(r.skipped), "pairs": rep.get("pairs_tried"),
+            "tie_points": rep.get("n_tracks"), "observations": rep.get("n_observations"), "pair_mode": r.pair_mode}
+
+
+def _block_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return _opt_files(p.trajectory, p.events, p.rig, p.eo, *p.cameras, p.control, p.check, *p.measurements)
+
+
+def _block_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    rig_mode = p.trajectory is not None and p.events is not None and p.rig is not None
+    if not rig_mode and (p.eo is None or not (p.cameras or p.rig)):
+        return "inputs", "stage block needs inputs trajectory + events + rig (rig mode) or eo + cameras (image mode)"
+    return None
+
+
+def _block(ctx: StageContext) -> dict[str, Any]:
+    p, o = ctx.project, ctx.options
+    if p.trajectory is not None and p.events is not None and p.rig is not None:
+        args: list[object] = ["--trajectory", p.trajectory, "--events", p.events, "--rig", p.rig]
+    else:
+        args = ["--eo", p.eo] + [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += ["--measurements", ctx.need("ties")] + [x for m in p.measurements for x in ("--measurements", m)]
+    if p.control is not None:
+        args += ["--control", p.control]
+    if p.check is not None:
+        args += ["--check", p.check]
+    args += ["--sigma-px", o["sigma_px"], "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
+             "--imu-sigma-deg", ",".join(map(str, o["imu_sigma_deg"])),
+             "--control-sigma", ",".join(map(str, o["control_sigma"])), "--crs", p.crs]
+    if p.geoid:
+        args += ["--geoid", p.geoid]
+    if o["free"]:
+        args += ["--free", ",".join(o["free"])]
+    invoke_command("block", "skyrig.cli.block:command", [*args, "-o", ctx.out / "block.json"])
+    return {}
+
+
+def _adjust(ctx: StageContext) -> dict[str, Any]:
+    o = ctx.options
+    args: list[object] = [ctx.need("block"), "-o", ctx.out]
+    if o["preset"]:
+        args += ["--preset", o["preset"]]
+    if o["gsd"]:
+        args += ["--gsd", o["gsd"]]
+    if o["keep_failed"]:
+        args += ["--keep-failed"]
+    invoke_command("adjust", "skyrig.cli.adjust:command", args)
+    rep = json.loads((ctx.out / "report.json").read_text())
+    sm = rep.get("summary", {})
+    return {k: sm.get(k) for k in ("sigma0", "images", "points", "iterations")}
+
+
+def _adjust_uav_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return list(p.images)
+
+
+def _adjust_uav_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    if len(p.images) != 1:
+        return "inputs.images", "stage adjust-uav needs exactly one image folder (images with EXIF GPS)"
+    return None
+
+
+def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
+    p, o = ctx.project, ctx.options
+    args: list[object] = [p.root, "--images", p.images[0], "--match", ctx.need("ties").parent, "-o", ctx.out,
+                          "--crs", p.crs, "--gnss-sigma", *o["gnss_sigma"], "--attitude-sigma", o["attitude_sigma"],
+                          "--altitude", o["altitude"], "--focal-prior", o["focal_prior"]]
+    if not o["self_calibration"]:
+        args += ["--no-self-calibration"]
+    if o["keep_failed"]:
+        args += ["--keep-failed"]
+    invoke_command("adjust-uav", "skyrig.cli.uav:command", args)
+    return {}
+
+
+def _dsm_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return [*p.images, *_rig_or_cameras(p)]
+
+
+def _dsm(ctx: StageContext) -> dict[str, Any]:
+    p, o = ctx.project, ctx.options
+    args: list[object] = ["--eo", ctx.need("eo")] + [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += [x for d in p.images for x in ("--images", d)]
+    if o["heads"]:
+        args += ["--heads", ",".join(o["heads"])]
+    args += ["--crs", p.crs] + (["--geoid", p.geoid] if p.geoid else [])
+    if o["height_range"] is not None:
+        args += ["--height-range", *o["height_range"]]
+    elif "points" in ctx.upstream:
+        args += ["--points", ctx.upstream["points"]]
+    else:
+        raise StageError("dsm", "no sparse points from an earlier stage: give stages.dsm.height_range [MIN, MAX]", 2)
+    if o["area"] is not None:
+        args += ["--area", *o["area"]]
+    if o["resolution"] is not None:
+        args += ["--resolution", o["resolution"]]
+    args += ["--mode", o["mode"], "--pairs-per-image", o["pairs_per_image"], "--min-support", o["min_support"],
+             "--tile-cells", o["tile_cells"]]
+    if o["min_depth"] is not None:
+        args += ["--min-depth", o["min_depth"]]
+    if o["fill"]:
+        args += ["--fill"]
+    if not o["cloud"]:
+        args += ["--no-cloud"]
+    invoke_command("dsm", "skyrig.cli.dsm:command", [*args, *_scheduler_args(p.executor), "-o", ctx.out])
+    s = json.loads((ctx.out / "dense.json").read_text())
+    return {"pairs": len(s["pairs"]), "cells_valid": s["cells_valid"], "cells": s["cells"],
+            "cloud_points": s["cloud_points"]}
+
+
+def _dsm_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    if not p.images:
+        return "inputs.images", "stage dsm needs inputs.images (image folders)"
+    if not _rig_or_cameras(p):
+        return "inputs.rig", "stage dsm needs the cameras: inputs.rig or inputs.cameras"
+    return None
+
+
+register_stage(Stage(
+    "georef", "Direct georeferencing: trajectory + events + rig -> eo.csv in the project CRS.", _georef,
+    options={"convention": Option("opk", "choice", "angle convention of eo.csv", ("opk", "pok", "ypr")),
+             "position": Option("cubic", "choice", "position interpolation", ("cubic", "linear")),
+             "sbet_reference": Option("imu", "choice", "point an SBET's positions refer to", ("imu", "antenna"))},
+    provides={"eo": "eo.csv"}, inputs=_georef_inputs, check=_georef_check))
+register_stage(Stage(
+    "match", "Tie points (SIFT, guided by the georeferenced orientations when an earlier stage gives them).", _match,
+    options={"terrain_height": Option(None, "float", "mean terrain height (m, output heights) for guided pairs",
+                                      nullable=True),
+             "pairs": Option("auto", "choice", "pair selection", ("auto", "guided", "gps", "exhaustive")),
+             "method": Option("pycolmap", "choice", "SIFT implementation", ("pycolmap", "opencv")),
+             "max_size": Option(1600, "int", "detect on images downscaled to this (px)", positive=True),
+             "max_features": Option(8000, "int", "features per image", positive=True),
+             "min_overlap": Option(0.1, "float", "guided pairs: footprint overlap", positive=True),
+             "neighbours": Option(8, "int", "gps pairs: nearest images", positive=True),
+             "max_heading_diff": Option(None, "float", "gps pairs: heading filter (deg)", nullable=True),
+             "thin": Option(0, "int", "tracks kept per 8x8 image cell (0 = all)"),
+             "lsm": Option(False, "bool", "refine tie points by least-squares matching")},
+    uses=("eo",), provides={"ties": "tie_points.csv"}, inputs=_match_inputs, check=_match_check))
+register_stage(Stage(
+    "block", "Block file: stations from trajectory/events/rig (or EO), tie points, control measurements, control.",
+    _block,
+    options={"sigma_px": Option(0.5, "float", "image measurement sigma (px)", positive=True),
+             "gnss_sigma": Option([0.05, 0.05, 0.08], "floats", "GNSS sigma E, N, U (m)", n=3, positive=True),
+             "imu_sigma_deg": Option([0.005, 0.005, 0.01], "floats", "IMU sigma roll, pitch, yaw (deg)", n=3,
+                                     positive=True),
+             "control_sigma": Option([0.02, 0.02, 0.02], "floats", "control point sigma X, Y, Z (m)", n=3,
+                                     positive=True),
+             "free": Option([], "strs", "system-calibration groups to estimate",
+                            ("boresight", "lever-arm", "datum-shift", "strip-shift", "intrinsics"))},
+    requires=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
+register_stage(Stage(
+    "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
+    _adjust,
+    options={"preset": Option(None, "str", "paper-004 variant (skyrig adjust --preset)", nullable=True),
+             "gsd": Option(None, "float", "GSD (m) for RMS in GSD units", nullable=True, positive=True),
+             "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment")},
+    requires=("block",), provides={"eo": "eo.csv", "points": "points.csv", "report": "report.html"}))
+register_stage(Stage(
+    "adjust-uav", "GNSS-supported adjustment of UAV images (EXIF GPS, DJI gimbal) with self-calibration.", _adjust_uav,
+    options={"gnss_sigma": Option([2.0, 2.0, 4.0], "floats", "GNSS sigma E, N, U (m)", n=3, positive=True),
+             "attitude_sigma": Option(5.0, "float", "gimbal attitude sigma (deg)", positive=True),
+             "altitude": Option("egm96", "choice", "what EXIF GPSAltitude is", ("egm96", "ellipsoidal")),
+             "focal_prior": Option(0.1, "float", "relative sigma of the EXIF focal length", positive=True),
+             "self_calibration": Option(True, "bool", "self-calibrate the camera"),
+             "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment")},
+    requires=("ties",), provides={"eo": "eo.csv", "points": "points.csv"}, inputs=_adjust_uav_inputs,
+    check=_adjust_uav_check))
+register_stage(Stage(
+    "dsm", "Dense matching: DSM (COG), dense cloud (LAZ), hillshade from the latest orientations.", _dsm,
+    options={"heads": Option([], "strs", "rig heads / image-name parts to use (e.g. [nadir]); [] = all"),
+             "height_range": Option(None, "floats", "expected surface heights [MIN, MAX] (m); default from the "
+                                    "adjusted points", n=2, nullable=True),
+             "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the project CRS", n=4, nullable=True),
+             "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
+             "mode": Option("sgbm", "choice", "OpenCV SGM mode", ("sgbm", "hh", "3way", "hh4")),
+             "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
+             "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
+             "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
+             "min_depth": Option(None, "float", "nearest searched depth (m)", nullable=True, positive=True),
+             "fill": Option(False, "bool", "interpolate small holes (flagged)"),
+             "cloud": Option(True, "bool", "write the dense point cloud")},
+    requires=("eo",), uses=("points",), provides={"dsm": "dsm.tif"}, inputs=_dsm_inputs, check=_dsm_check))
