@@ -1,8 +1,7 @@
 """Judge a building model against the simulator's analytic town, and the town's truth as building blocks.
 
-* :func:`true_buildings`: the scene's buildings (:class:`skyrig.simulate.world.Buildings`) as
-  :class:`~skyrig.dense.buildings.BuildingBlock` prisms in any frame (footprint at the terrain, eaves, gabled roof
-  planes), every vertex converted from the scene's local ENU frame by PROJ through ECEF;
+* :func:`true_buildings` (from :mod:`skyrig.simulate.judge_facades`): the scene's buildings as
+  :class:`~skyrig.dense.buildings.BuildingBlock` prisms in any frame;
 * :func:`true_facade_textures`: façade textures painted from the scene's façade rule (:meth:`Scene.facade_rgb`) at
   the texel centres of the :class:`~skyrig.dense.buildings.FacadeTexture` convention - what a perfect texturing
   would give (no shading);
@@ -20,6 +19,7 @@ from numpy.typing import NDArray
 
 from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture
 from skyrig.geodesy.frame import WorldFrame
+from skyrig.simulate.judge_facades import true_buildings
 from skyrig.simulate.world import Buildings, Scene
 
 __all__ = ["scene_frame", "true_buildings", "true_facade_textures", "judge_model", "scene_from_dict"]
@@ -41,60 +41,6 @@ def scene_from_dict(d: dict[str, Any]) -> Scene:
                  np.asarray(t["phase"], float), bl, None, texture_fine_m=float(tex.get("fine_m", 0.05)),
                  texture_coarse_m=float(tex.get("coarse_m", 40.0)),
                  window_spacing_m=float(tex.get("window_spacing_m", 3.0)), sun=np.asarray(d["sun"], float))
-
-
-def _local_blocks(scene: Scene) -> list[tuple[NDArray, float, float, list[NDArray]]]:
-    """Per building in the scene frame: footprint ``(4, 2)`` counter-clockwise, ground z, eave z, roof polygons."""
-    b = scene.buildings
-    out = []
-    for i in range(len(b)):
-        v = b.vertices(i)
-        fp = v[:4, :2][::-1]  # vertices() go clockwise: (+,+) (+,-) (-,-) (-,+) in (long, wide) axes
-        ground = float(scene.terrain_height(fp[:, 0], fp[:, 1]).min())
-        eave = float(b.eave_z[i])
-        top = np.column_stack([fp, np.full(4, eave)])
-        if b.gabled[i]:
-            a = b.azimuth_rad[i]
-            ux = np.array([np.cos(a), np.sin(a)])
-            c = np.array([b.cx[i], b.cy[i]])
-            r_plus = np.r_[c + b.hl[i] * ux, b.ridge_z[i]]
-            r_minus = np.r_[c - b.hl[i] * ux, b.ridge_z[i]]
-            # fp (ccw): 0 = (-,+), 1 = (-,-), 2 = (+,-), 3 = (+,+) in (long, wide); eaves run along the long axis
-            side_minus = np.array([top[1], top[2], r_plus, r_minus])  # wide = -hw side
-            side_plus = np.array([top[3], top[0], r_minus, r_plus])  # wide = +hw side
-            roof = [side_minus, side_plus]
-        else:
-            roof = [top]
-        out.append((fp, ground, eave, roof))
-    return out
-
-
-def true_buildings(scene: Scene, frame: WorldFrame | None = None) -> list[BuildingBlock]:
-    """The scene's buildings as blocks in ``frame`` (default: the scene's local frame), ids = building index.
-
-    The footprint is taken at the eaves (its map x, y), ``ground_z`` is the lowest terrain height at the corners,
-    every vertex converted by PROJ."""
-    loc = scene_frame(scene)
-    out = []
-    for i, (fp, ground, eave, roof) in enumerate(_local_blocks(scene)):
-        if frame is None or frame == loc:
-            out.append(BuildingBlock(i, fp, ground, eave, tuple(roof), "simulated truth"))
-            continue
-        gz = loc.points_to(np.column_stack([fp.mean(axis=0)[None], [[ground]]]), frame)[0, 2]
-        ez = loc.points_to(np.column_stack([fp.mean(axis=0)[None], [[eave]]]), frame)[0, 2]
-        fpm = loc.points_to(np.column_stack([fp, np.full(len(fp), eave)]), frame)[:, :2]
-        rm = []
-        for r in roof:
-            q = loc.points_to(r, frame)
-            q[np.abs(r[:, 2] - eave) < 1e-9, 2] = ez  # eave vertices exactly at the block's eave height
-            # footprint-corner vertices share the footprint's x, y exactly
-            for k in range(len(r)):
-                d = np.hypot(*(fp - r[k, :2]).T)
-                if d.min() < 1e-9:
-                    q[k, :2] = fpm[int(d.argmin())]
-            rm.append(q)
-        out.append(BuildingBlock(i, fpm, float(gz), float(ez), tuple(rm), "simulated truth"))
-    return out
 
 
 def true_facade_textures(scene: Scene, buildings: Sequence[BuildingBlock], frame: WorldFrame, texel_m: float = 0.1
