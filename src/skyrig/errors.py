@@ -7,7 +7,21 @@ the file, the line and the field.
 
 from __future__ import annotations
 
+import re
 from os import PathLike
+
+
+_NUMPY_REPR = re.compile(r"np\.(?:float|int|uint|complex)\d*\(([^()]*)\)|np\.(?:str_|bytes_|bool_?)\(([^()]*)\)")
+
+
+def plain_numbers(text: str) -> str:
+    """``text`` without numpy reprs: ``np.float64(1.5)`` -> ``1.5``, ``np.str_('a')`` -> ``'a'`` (messages are
+    for people; NumPy 2 writes its scalar types into every ``{value!r}``).
+
+    >>> plain_numbers("time np.float64(345600.5) after np.str_('img1')")
+    "time 345600.5 after 'img1'"
+    """
+    return _NUMPY_REPR.sub(lambda m: m.group(1) if m.group(1) is not None else m.group(2), text)
 
 
 class SkyrigError(Exception):
@@ -36,6 +50,7 @@ class InputFormatError(SkyrigError, ValueError):
         line: int | None = None,
         field: str | None = None,
     ) -> None:
+        message = plain_numbers(message)
         self.path = None if path is None else str(path)
         self.line = line
         self.field = field

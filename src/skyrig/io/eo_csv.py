@@ -72,12 +72,12 @@ def frame_from_header(crs: str, heights: str, geoid: str | None, path: PathLike,
         if frame.geoid:
             frame.projection  # noqa: B018  (validates the grid now)
         return frame
-    except ValueError as exc:
-        if isinstance(exc, InputFormatError):
-            raise
-        raise InputFormatError(str(exc), path, line, "crs") from None
-    except CRSError as exc:
+    except InputFormatError:
+        raise
+    except CRSError as exc:  # before ValueError: a CRSError is one
         raise InputFormatError(str(exc), path, line, "crs" if "grid" not in str(exc) else "geoid") from None
+    except ValueError as exc:
+        raise InputFormatError(str(exc), path, line, "crs") from None
 
 
 def _parse_header(path: PathLike, lines: list[str]) -> tuple[dict[str, tuple[int, str]], int]:

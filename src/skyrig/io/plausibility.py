@@ -192,13 +192,11 @@ def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, fie
     bad = np.flatnonzero((z < lo) | (z > hi))
     if not len(bad):
         return
-    k = int(bad[np.argmax(np.abs(z[bad]))])
+    k = int(bad[0])
     v = float(z[k])
-    hint = ""
-    for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0)):
-        if lo <= v / f <= hi and np.all((z / f >= lo) & (z / f <= hi)):
-            hint = f"; heights in {unit}? ({v / f:.3f} m)"
-            break
+    fits = [f"{unit} ({v / f:.3f} m)" for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0))
+            if np.all((z / f >= lo) & (z / f <= hi))]
+    hint = f"; heights in {' or '.join(fits)}?" if fits else ""
     raise InputFormatError(f"height {v:.10g} m is not plausible as {kind} (expected {lo:g} to {hi:g} m){hint}",
                            path, _line(lines, k), field)
 
@@ -208,9 +206,9 @@ def check_lever_arm(vector_m: ArrayLike, path: PathLike, line: int | None, field
     v = np.asarray(vector_m, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if n > LEVER_ARM_MAX_M:
-        hint = next((f"; millimetres? ({n / 1000.0:.3f} m)" for f in (1000.0,) if n / f <= LEVER_ARM_MAX_M), "")
-        if not hint and n / 100.0 <= LEVER_ARM_MAX_M:
-            hint = f"; centimetres? ({n / 100.0:.3f} m)"
+        fits = [f"{unit} ({n / f:.3f} m)" for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0))
+                if n / f <= LEVER_ARM_MAX_M]
+        hint = f"; {' or '.join(fits)}?" if fits else ""
         raise InputFormatError(f"lever arm of {n:.6g} m is not plausible on an aircraft (at most "
                                f"{LEVER_ARM_MAX_M:g} m){hint}", path, line, field)
     if n > LEVER_ARM_WARN_M:

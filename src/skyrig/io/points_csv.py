@@ -141,6 +141,15 @@ def read_measurements_csv_lines(path: PathLike) -> tuple[ImageMeasurements, np.n
     _, ln, cols = _table(path, ["point", "image", "column", "row"],
                          ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z"])
     px = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in ("column", "row")] for i in range(len(ln))])
+    seen: dict[tuple[str, str], int] = {}
+    for p_, im, line in zip(cols["point"], cols["image"], ln):
+        for v, c in ((p_, "point"), (im, "image")):
+            if not v:
+                raise InputFormatError(f"empty {c} name", path, line, c)
+        if (p_, im) in seen:
+            raise InputFormatError(f"point {p_!r} is measured twice in image {im!r} (first on line {seen[p_, im]})",
+                                   path, line, "point")
+        seen[p_, im] = line
     m = ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
     return m, np.array(ln, dtype=np.int64)
 
