@@ -53,6 +53,7 @@ COMMANDS: dict[str, CommandEntry] = {
                                "GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."),
     "dsm": CommandEntry("skyrig.cli.dsm:command",
                         "Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images"),
+    "facades": CommandEntry("skyrig.cli.facades:command", "Façade textures and a textured 3D model (GLB, OBJ, viewer) of a DSM's buildings."),
     "plan": CommandEntry("skyrig.cli.plan:command",
                          "Plan a flight for a rig over an area; write stations, footprints and strips."),
     "simulate": CommandEntry("skyrig.cli.simulate:command",

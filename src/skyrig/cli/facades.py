@@ -1,0 +1,79 @@
+"""``skyrig facades``: building blocks, façade textures and a textured 3D model (GLB, OBJ, HTML viewer)."""
+
+from __future__ import annotations
+
+import click
+
+from skyrig.cli._common import eo_options
+
+
+@click.command("facades")
+@click.option("--dsm", "dsm_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="DSM (GeoTIFF / COG, e.g. skyrig dsm's dsm.tif) in a projected CRS: buildings, occlusions, output CRS.")
+@eo_options
+@click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
+              help="Image folder or image file; repeat for several. Only images with an orientation are used.")
+@click.option("--heads", default=None, help="Use only these rig heads / name parts (comma list, e.g. 'fwd,bwd,left,right').")
+@click.option("--footprints", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Building footprints (GeoPackage polygons, any CRS); default: extracted from the DSM.")
+@click.option("--ortho", "ortho_path", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="RGB orthophoto (GeoTIFF / COG) to texture the roofs with; default: a flat roof colour.")
+@click.option("--texel", type=float, default=None,
+              help="Façade texel size in metres (default: the best image's footprint on each façade).")
+@click.option("--max-images", type=int, default=3, show_default=True, help="Images blended into one façade at most.")
+@click.option("--texture-format", type=click.Choice(["png", "jpeg"]), default="png", show_default=True,
+              help="Format of the textures inside model.glb.")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
+def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, footprints,
+            ortho_path, texel, max_images, texture_format, output) -> None:
+    """Façade textures and a textured 3D model of the buildings of a DSM.
+
+    Buildings come from the DSM (or --footprints, heights from the DSM); every façade is textured from the
+    oriented images that see it best (occlusions checked against the DSM); the model is written as binary glTF
+    (model.glb, local ENU frame, y-up, its geographic origin recorded), OBJ + MTL + PNG, and a viewer page
+    (viewer.html, opens from the file system), with buildings.gpkg and facades.json.
+    """
+    import numpy as np
+
+    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.pipeline.dense import find_images
+    from skyrig.pipeline.facades import NoBuildingsError, run_facades
+
+    if texel is not None and not texel > 0:
+        raise click.BadParameter("must be a positive size in metres", param_hint="--texel")
+    if max_images < 1:
+        raise click.BadParameter("must be at least 1", param_hint="--max-images")
+    eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
+    if heads:
+        want = [h.strip() for h in heads.split(",") if h.strip()]
+        sel = np.array([(eo.head is not None and str(eo.head[i]) in want) or any(w in str(n) for w in want)
+                        for i, n in enumerate(eo.image)])
+        if not sel.any():
+            raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
+        eo = eo.subset(sel)
+    cameras = load_cameras(camera_paths)
+    paths = find_images(eo, images)
+    options = {"heads": heads, "footprints": footprints, "ortho": ortho_path, "texel": texel,
+               "max_images": max_images, "texture_format": texture_format}
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        task = bar.add_task("façades", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        try:
+            res = run_facades(eo, cameras, paths, dsm_path, output, footprints=footprints, ortho=ortho_path,
+                              texel_m=texel, max_images=max_images, image_format=texture_format,
+                              inputs=[dsm_path, eo_path, *camera_paths] + [p for p in (footprints, ortho_path) if p],
+                              options=options, progress=progress)
+        except NoBuildingsError as exc:
+            click.echo(f"error: {exc}", err=True)
+            raise SystemExit(1) from None
+    s = res.summary
+    o = s["origin"]
+    click.echo(f"{s['buildings']} buildings, {s['facades_seen']} of {s['facades']} façades textured "
+               f"(median coverage {100 * (s['coverage_median'] or 0):.1f} %, texel {s['texel_median_m'] or 0:.3f} m), "
+               f"{s['triangles']} triangles -> {res.outdir} (model origin {o['lat_deg']:.7f} {o['lon_deg']:.7f} "
+               f"{o['h_m']:.2f} m; {s['vertical_reference']})")

@@ -1,0 +1,298 @@
+"""The façades / 3D model stage over files: a DSM, oriented images (and optionally footprints and an orthophoto)
+in, building blocks, façade textures and a textured 3D model out.
+
+``run_facades`` reads the DSM (:func:`skyrig.io.dsm_cog.read_dsm_cog`), takes the buildings from given footprints
+(GeoPackage polygons, reprojected to the DSM's CRS; heights from the DSM:
+:func:`skyrig.dense.buildings.buildings_from_footprints`) or extracts them from the DSM
+(:func:`skyrig.dense.buildings.extract_buildings`), textures every façade from the images that see it best
+(:func:`skyrig.dense.facades.texture_facades`, occlusion against the DSM), builds the model
+(:func:`skyrig.dense.model.build_model`; roofs textured from ``--ortho`` when given) and publishes the folder as
+a set (:func:`skyrig.io.stage.stage_folder`, manifest last):
+
+=====================  =================================================================================
+``model.glb``          binary glTF 2.0, local ENU frame (y-up), origin and CRS in ``asset.extras`` (+ side-car
+                       ``model.glb.json``)
+``model.obj``          the same as OBJ + ``model.mtl`` + ``model_textures/*.png``
+``facades/*.png``      each façade's rectified texture (RGBA, alpha 0 where no image saw the texel), named
+                       ``b<building>_f<edge>.png``
+``buildings.gpkg``     layer ``buildings``: footprints with ground / eave / ridge heights, in the DSM's CRS
+                       (its vertical reference as a compound CRS); layer ``roofs``: roof polygons (3D)
+``viewer.html``        a static viewer with the model inlined (opens from the file system)
+``facades.json``       per façade: size, texel, images used (best first), coverage; the frame statement
+=====================  =================================================================================
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.buildings import BuildingBlock, FacadeTexture
+from skyrig.dense.grid import DsmGrid
+from skyrig.dense.model import Model3D, OrthoRaster
+from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.geodesy.frame import WorldFrame
+from skyrig.georef.eo import ExteriorOrientations
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["FacadesOutputs", "NoBuildingsError", "read_footprints_gpkg", "read_ortho_raster", "run_facades"]
+
+
+class NoBuildingsError(SkyrigError):
+    """The stage ran but found nothing to model (no building in the DSM / footprints): a failed result."""
+
+
+@dataclass
+class FacadesOutputs:
+    """Where :func:`run_facades` put things, and its counts."""
+
+    outdir: Path
+    glb: Path
+    viewer: Path
+    buildings: list[BuildingBlock]
+    textures: list[FacadeTexture]
+    model: Model3D
+    summary: dict
+
+
+def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None = None) -> list[np.ndarray]:
+    """Footprint polygons ``(K, 2)`` (exterior rings, no closing vertex) of a GeoPackage / any OGR vector file,
+    converted to ``frame``'s horizontal CRS.
+
+    Raises
+    ------
+    InputFormatError
+        Unreadable file, no CRS, a layer without polygons, an empty or invalid polygon (named by feature number).
+    """
+    import pyproj
+    import shapely
+    from pyogrio.errors import DataSourceError, DataLayerError
+    from pyogrio.raw import read
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFormatError("file not found", p, field="footprints")
+    try:
+        meta, _, geoms, _ = read(str(p), layer=layer, read_geometry=True)
+    except (DataSourceError, DataLayerError, OSError) as exc:
+        raise InputFormatError(f"cannot read the footprints: {exc}", p) from None
+    if not meta.get("crs"):
+        raise InputFormatError("the footprint layer states no CRS", p, field="crs")
+    if geoms is None or len(geoms) == 0:
+        raise InputFormatError("no footprint polygons in the layer", p)
+    src = pyproj.CRS.from_user_input(meta["crs"])
+    if frame.kind != "map":
+        raise SkyrigError(f"footprints need a DSM in a map CRS, not a {frame.kind} frame")
+    dst = pyproj.CRS.from_user_input(frame.crs)
+    tr = None if src.equals(dst, ignore_axis_order=True) else pyproj.Transformer.from_crs(src, dst, always_xy=True)
+    out = []
+    for k, wkb in enumerate(geoms, start=1):
+        g = shapely.from_wkb(wkb) if wkb is not None else None
+        if g is None or g.is_empty:
+            raise InputFormatError("empty geometry", p, line=k, field="geometry")
+        polys = list(g.geoms) if g.geom_type == "MultiPolygon" else [g]
+        for poly in polys:
+            if poly.geom_type != "Polygon":
+                raise InputFormatError(f"a {poly.geom_type}, not a polygon", p, line=k, field="geometry")
+            if not poly.is_valid:
+                raise InputFormatError(f"invalid polygon ({shapely.is_valid_reason(poly)})", p, line=k, field="geometry")
+            xy = np.asarray(poly.exterior.coords, float)[:-1, :2]
+            if tr is not None:
+                xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
+            out.append(xy)
+    return out
+
+
+def read_ortho_raster(path: str | Path, frame: WorldFrame | None = None) -> OrthoRaster:
+    """An RGB orthophoto (GeoTIFF / COG, bands 1-3, uint8; its mask or alpha band gives the valid cells).
+
+    ``frame``: the frame to use when the raster's horizontal CRS is the same (e.g. the DSM's, so no conversion is
+    needed); otherwise the raster's own CRS (heights are not used).
+
+    Raises
+    ------
+    InputFormatError
+        Missing or unreadable file, fewer than 3 bands, not 8-bit, not north-up, no CRS.
+    """
+    import pyproj
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFormatError("file not found", p, field="ortho")
+    try:
+        with rasterio.open(p) as ds:
+            if ds.count < 3:
+                raise InputFormatError(f"an RGB orthophoto needs 3 bands, the raster has {ds.count}", p)
+            if ds.dtypes[0] != "uint8":
+                raise InputFormatError(f"expected 8-bit RGB, the raster is {ds.dtypes[0]}", p)
+            if ds.crs is None:
+                raise InputFormatError("raster has no CRS", p, field="crs")
+            t = ds.transform
+            if abs(t.b) > 0 or abs(t.d) > 0 or not np.isclose(-t.e, t.a, rtol=1e-9, atol=0):
+                raise InputFormatError(f"not a north-up grid with square cells (transform {tuple(t)[:6]})", p)
+            rgb = np.moveaxis(ds.read([1, 2, 3]), 0, -1)
+            valid = ds.dataset_mask() > 0
+            crs = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+    except RasterioIOError as exc:
+        raise InputFormatError(f"cannot read raster: {exc}", p) from None
+    h = crs.sub_crs_list[0] if crs.is_compound else (crs.to_2d() if len(crs.axis_info) == 3 else crs)
+    if frame is not None and frame.kind == "map" and pyproj.CRS.from_user_input(frame.crs).equals(h, ignore_axis_order=True):
+        f = frame
+    else:
+        code = h.to_epsg(min_confidence=100)
+        f = WorldFrame.map(f"EPSG:{code}" if code else h.to_wkt())
+    return OrthoRaster(np.ascontiguousarray(rgb), float(t.c), float(t.f), float(t.a), f, valid)
+
+
+def _write_png(path: Path, rgb: np.ndarray, alpha: np.ndarray | None = None) -> None:
+    import cv2
+
+    img = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    if alpha is not None:
+        img = np.dstack([img, np.where(alpha, 255, 0).astype(np.uint8)])
+    if not cv2.imwrite(str(path), img):
+        raise SkyrigError(f"cannot write {path}")
+
+
+def _buildings_gpkg(path: Path, buildings: Sequence[BuildingBlock], frame: WorldFrame) -> None:
+    import shapely
+
+    from skyrig.geodesy.statement import file_crs
+    from skyrig.io.gpkg import write_gpkg
+
+    polys = [shapely.Polygon(np.asarray(b.footprint, float)) for b in buildings]
+    ridge = [max([float(np.max(np.asarray(r)[:, 2])) for r in b.roof] + [b.eave_z]) for b in buildings]
+    fields = {"id": np.array([b.id for b in buildings], np.int64),
+              "ground_z": np.array([b.ground_z for b in buildings]),
+              "eave_z": np.array([b.eave_z for b in buildings]),
+              "ridge_z": np.array(ridge),
+              "height_m": np.array([r - b.ground_z for r, b in zip(ridge, buildings)]),
+              "roof_planes": np.array([max(len(b.roof), 1) for b in buildings], np.int64),
+              "source": np.array([str(b.source) for b in buildings])}
+    roof_geoms, roof_id, roof_k = [], [], []
+    for b in buildings:
+        for k, r in enumerate(b.roof):
+            roof_geoms.append(shapely.Polygon(np.asarray(r, float)))
+            roof_id.append(b.id)
+            roof_k.append(k)
+    layers = {"buildings": (polys, fields)}
+    if roof_geoms:
+        layers["roofs"] = (roof_geoms, {"building": np.array(roof_id, np.int64), "plane": np.array(roof_k, np.int64)})
+    fc = file_crs(frame)
+    write_gpkg(path, layers, fc.full.to_wkt())
+
+
+def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str],
+                dsm: DsmGrid | str | Path, outdir: str | Path, *, footprints: str | Path | None = None,
+                ortho: OrthoRaster | str | Path | None = None, texel_m: float | None = None, max_images: int = 3,
+                image_format: str = "png", inputs: Sequence[str] = (), options: dict | None = None,
+                progress: Callable[[int, int], None] | None = None) -> FacadesOutputs:
+    """Building blocks, façade textures and a textured 3D model into ``outdir`` (module docstring).
+
+    Parameters
+    ----------
+    eo, cameras, image_paths
+        Oriented images (any frame), their cameras, and one file per ``eo`` row.
+    dsm
+        The DSM (a :class:`DsmGrid` or a COG path) in a projected map CRS: buildings, occlusions, output CRS.
+    outdir
+        Output folder (published as a set).
+    footprints
+        A GeoPackage of footprint polygons (any CRS); default: buildings extracted from the DSM.
+    ortho
+        An RGB orthophoto (path or :class:`OrthoRaster`) to texture the roofs; default: a flat colour.
+    texel_m
+        Façade texel size in the DSM's metres (default: the best image's footprint, per façade).
+    max_images
+        Images blended into one façade at most.
+    image_format
+        ``"png"`` or ``"jpeg"`` for the textures inside the GLB.
+
+    Raises
+    ------
+    NoBuildingsError
+        No building in the DSM / footprints (a failed result).
+    InputFormatError, SkyrigError
+        Bad inputs (named).
+    """
+    import time
+
+    from skyrig.dense.buildings import buildings_from_footprints, extract_buildings
+    from skyrig.dense.facades import texture_facades
+    from skyrig.dense.model import build_model
+    from skyrig.io.dsm_cog import read_dsm_cog
+    from skyrig.io.gltf import write_glb, write_obj
+    from skyrig.io.stage import describe_inputs, stage_folder
+    from skyrig.pipeline.dense import ImageFiles
+    from skyrig.report.viewer import write_viewer
+
+    t0 = time.time()
+    grid = read_dsm_cog(dsm) if not isinstance(dsm, DsmGrid) else dsm
+    if grid.frame.kind != "map":
+        raise SkyrigError(f"the DSM must be in a projected map CRS, not a {grid.frame.kind} frame")
+    if texel_m is not None and not texel_m > 0:
+        raise SkyrigError(f"texel size must be positive, got {texel_m} (option: texel)")
+    if len(image_paths) != len(eo):
+        raise SkyrigError(f"{len(image_paths)} image files for {len(eo)} orientations")
+    missing = sorted({str(c) for c in eo.camera} - set(cameras))
+    if missing:
+        raise SkyrigError(f"no camera for {', '.join(missing[:5])} (option: camera)")
+    orthoraster = read_ortho_raster(ortho, grid.frame) if isinstance(ortho, (str, Path)) else ortho
+    if footprints is not None:
+        fps = read_footprints_gpkg(footprints, grid.frame)
+        buildings = buildings_from_footprints(fps, grid, source=Path(footprints).name)
+    else:
+        buildings = extract_buildings(grid)
+    if not buildings:
+        raise NoBuildingsError("no buildings found" + (" among the footprints" if footprints else
+                                                        " in the DSM (nothing higher than 2.5 m above the ground over 20 m2)"))
+    t_build = time.time() - t0
+    logger.info("facades: %d buildings, %d façades", len(buildings), sum(len(b.footprint) for b in buildings))
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    textures = texture_facades(buildings, eo, cameras, loader, grid, texel_m=texel_m, max_images=max_images,
+                               progress=progress)
+    t_tex = time.time() - t0 - t_build
+    seen = [t for t in textures if np.any(t.valid)]
+    model = build_model(buildings, seen, grid.frame, roof_rgb_source=orthoraster,
+                        vertical_reference=grid.vertical_reference)
+    per_facade = []
+    for t in textures:
+        f = t.facade
+        per_facade.append({"building": int(f.building), "edge": int(f.index), "file": f"facades/b{f.building}_f{f.index}.png",
+                           "width_m": round(f.width_m, 3), "height_m": round(f.height_m, 3),
+                           "texel_m": round(float(t.texel_m), 4), "size_px": [int(t.rgb.shape[1]), int(t.rgb.shape[0])],
+                           "images": list(t.images), "coverage": round(float(np.mean(t.valid)), 4),
+                           "stats": json.loads(json.dumps(t.stats, default=str))})
+    cov = np.array([p["coverage"] for p in per_facade]) if per_facade else np.zeros(0)
+    summary = {
+        "frame": grid.frame.to_text(), "vertical_reference": grid.vertical_reference,
+        "buildings": len(buildings), "facades": len(textures), "facades_seen": len(seen),
+        "coverage_median": float(np.median(cov)) if len(cov) else None,
+        "texel_median_m": float(np.median([p["texel_m"] for p in per_facade])) if per_facade else None,
+        "roofs": "orthophoto" if orthoraster is not None else "flat colour",
+        "source": str(footprints) if footprints else "extracted from the DSM",
+        "triangles": model.n_triangles, "seconds": {"buildings": round(t_build, 2), "textures": round(t_tex, 2)},
+        "facade_list": per_facade,
+    }
+    out = Path(outdir)
+    with stage_folder(out, stage="facades", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:
+        side = write_glb(tmp / "model.glb", model, image_format=image_format)
+        write_obj(tmp / "model.obj", model)
+        (tmp / "facades").mkdir()
+        for t in textures:
+            _write_png(tmp / "facades" / f"b{t.facade.building}_f{t.facade.index}.png", t.rgb, t.valid)
+        _buildings_gpkg(tmp / "buildings.gpkg", buildings, grid.frame)
+        write_viewer(tmp / "viewer.html", tmp / "model.glb", title=f"skyrig: {len(buildings)} buildings")
+        summary["origin"] = side["origin"]
+        summary["glb_bytes"] = (tmp / "model.glb").stat().st_size
+        (tmp / "facades.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return FacadesOutputs(out, out / "model.glb", out / "viewer.html", list(buildings), list(textures), model, summary)
