@@ -81,3 +81,241 @@ def cloud_to_surface(cloud: DenseCloud, scene: Scene) -> NDArray[np.float64]:
     local = WorldFrame.local(*scene.origin)
     L = local.from_ecef(cloud.frame.to_ecef(cloud.xyz))
     return L[:, 2] - scene.surface_height(L[:, 0], L[:, 1])
+
+
+# ------------------------------------------------------------------------------------------ orthophotos
+def true_surface_rgb(scene: Scene, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Colour ``(N, 3)`` in [0, 1] of the visible top surface seen from straight above at local ``x, y``: the
+    ground or roof texture times the renderer's Lambertian shading (so a perfect orthophoto equals it up to image
+    noise)."""
+    b = scene.buildings
+    _, bidx = b.top_height(x, y)
+    rgb = scene.ground_rgb(x, y)
+    gx, gy = scene.terrain_gradient(x, y)
+    n = np.stack([-np.asarray(gx, float), -np.asarray(gy, float), np.ones_like(x)], 1)
+    on = bidx >= 0
+    if np.any(on):
+        i = bidx[on]
+        rgb[on] = scene.roof_rgb(i, x[on], y[on])
+        a = b.azimuth_rad[i]
+        uyx, uyy = -np.sin(a), np.cos(a)
+        v = -(x[on] - b.cx[i]) * np.sin(a) + (y[on] - b.cy[i]) * np.cos(a)
+        rise = b.ridge_z[i] - b.eave_z[i]
+        s = np.sign(v)
+        n[on] = np.stack([s * uyx * rise, s * uyy * rise, b.hw[i]], 1)
+        flat = rise <= 1e-9
+        n[np.flatnonzero(on)[flat]] = [0.0, 0.0, 1.0]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    lam = np.clip(n @ scene.sun, 0.0, 1.0)
+    return np.clip(rgb * (0.45 + 0.6 * lam)[:, None], 0.0, 1.0)
+
+
+def _shift(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, float, float]:
+    """Translation (dx, dy) in cells that moves ``b`` onto ``a`` (phase correlation, Hanning window), response."""
+    import cv2
+
+    win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_64F)
+    (dx, dy), resp = cv2.phaseCorrelate(np.ascontiguousarray(b, np.float64), np.ascontiguousarray(a, np.float64), win)
+    return float(dx), float(dy), float(resp)
+
+
+def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArray, grid: Any, frame: WorldFrame,
+                scene: Scene, gsd_m: float, *, eo_local: Any = None, cameras: Any = None, surface: Any = None,
+                noise_dn: float = 1.0,
+                tile: int = 128, corner_win: int = 24, seam_band: int = 3,
+                seam_gap: int = 4) -> dict[str, Any]:
+    """Compare an orthomosaic with the scene's true top-surface colours.
+
+    Parameters
+    ----------
+    rgb, valid, source, grid, frame
+        The mosaic (``source``: image index per cell, -1 none) on a :class:`~skyrig.dense.grid.GridSpec` in a map
+        frame; cells are converted rigorously to the scene's local frame.
+    scene
+        The simulated world.
+    gsd_m
+        Ground sample distance the offsets are expressed in.
+    eo_local, cameras
+        TRUE orientations in the scene's local frame and the cameras: with them, cells hidden from their best image
+        (least off-nadir image that has the cell in its frame) are found by casting rays in the scene, and the
+        share of them that got their right colour from another image is reported.
+    surface
+        ``(rows, cols)`` bool, optional: cells where the mosaic has a surface height (the DSM's extent); hidden cells
+        outside it are not counted.
+    noise_dn
+        The images' noise (digital numbers): the yardstick of the seam colour step.
+    seam_band, seam_gap
+        The colour step across a seamline compares the residuals (mosaic - truth) of two bands ``seam_band`` cells
+        wide, ``seam_gap`` cells away on either side (beyond the blend), averaged per pair of images.
+
+    Returns
+    -------
+    dict
+        ``tiles`` (phase-correlation offset per tile of ``tile`` cells: ``n``, ``rms_gsd``, ``max_gsd``),
+        ``roof_corners`` (offsets of windows around the true roof corners: ``n``, ``rms_gsd``, ``max_gsd``),
+        ``occluded`` (``n``, ``filled``, ``correct``), ``seams`` (``pairs``, ``step_max_dn``, ``step_rms_dn``,
+        ``noise_dn``), ``colour`` (median absolute difference in DN over valid cells).
+    """
+    from scipy import ndimage
+
+    local = WorldFrame.local(*scene.origin)
+    H, W = valid.shape
+    xx, yy = grid.cell_centres()
+    z0 = float(np.mean(scene.terrain_range))
+    # map -> local at the true surface height: two passes (the map vertical leans slightly from the local one)
+    P = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, z0)], 1)
+    L = local.from_ecef(frame.to_ecef(P))
+    for _ in range(2):
+        zt = scene.surface_height(L[:, 0], L[:, 1])
+        h_map = frame.from_ecef(local.to_ecef(np.stack([L[:, 0], L[:, 1], zt], 1)))[:, 2]
+        L = local.from_ecef(frame.to_ecef(np.stack([xx.ravel(), yy.ravel(), h_map], 1)))
+    truth = (true_surface_rgb(scene, L[:, 0], L[:, 1]) * 255.0).reshape(H, W, 3)
+    img = rgb.astype(np.float64)
+    out: dict[str, Any] = {"gsd_m": gsd_m, "cell_m": grid.cell_m}
+    diff = np.abs(img - truth).mean(axis=2)
+    out["colour"] = {"median_abs_dn": float(np.median(diff[valid])) if valid.any() else float("nan")}
+    g_img, g_tru = img.mean(axis=2), truth.mean(axis=2)
+    scale = grid.cell_m / gsd_m
+    # 1. per-tile offsets
+    offs = []
+    for r in range(0, H - tile + 1, tile):
+        for c in range(0, W - tile + 1, tile):
+            if valid[r:r + tile, c:c + tile].mean() < 0.98:
+                continue
+            dx, dy, resp = _shift(g_img[r:r + tile, c:c + tile], g_tru[r:r + tile, c:c + tile])
+            if resp > 0.05:
+                offs.append(np.hypot(dx, dy) * scale)
+    o = np.array(offs)
+    out["tiles"] = {"n": len(o), "rms_gsd": float(np.sqrt(np.mean(o ** 2))) if len(o) else float("nan"),
+                    "max_gsd": float(o.max()) if len(o) else float("nan")}
+    # 2. roof corners
+    b = scene.buildings
+    corners = []
+    for i in range(len(b)):
+        v = b.vertices(i)[4:8]  # footprint corners at the eaves
+        corners.append(v)
+    cz = np.concatenate(corners) if corners else np.zeros((0, 3))
+    coffs = []
+    if len(cz):
+        cm = frame.from_ecef(local.to_ecef(cz))
+        rr, cc = grid.cell_of(cm[:, 0], cm[:, 1])
+        h2 = corner_win // 2
+        for r, c in zip(rr, cc):
+            if r - h2 < 0 or c - h2 < 0 or r + h2 > H or c + h2 > W:
+                continue
+            sl = (slice(r - h2, r + h2), slice(c - h2, c + h2))
+            if not valid[sl].all() or g_tru[sl].std() < 5.0:
+                continue
+            dx, dy, resp = _shift(g_img[sl], g_tru[sl])
+            coffs.append(np.hypot(dx, dy) * scale)
+    co = np.array(coffs)
+    out["roof_corners"] = {"n": len(co), "rms_gsd": float(np.sqrt(np.mean(co ** 2))) if len(co) else float("nan"),
+                           "max_gsd": float(co.max()) if len(co) else float("nan"),
+                           "within_1gsd": float(np.mean(co <= 1.0)) if len(co) else float("nan")}
+    # 3. cells hidden from their best image
+    if eo_local is not None and cameras is not None:
+        from skyrig.simulate.render import cast_rays
+
+        sub = (slice(None, None, 2), slice(None, None, 2))
+        Lg = L.reshape(H, W, 3)[sub].reshape(-1, 3)
+        Lg = np.stack([Lg[:, 0], Lg[:, 1], scene.surface_height(Lg[:, 0], Lg[:, 1])], 1)
+        best_tan = np.full(len(Lg), np.inf)
+        best = np.full(len(Lg), -1)
+        for k in range(len(eo_local)):
+            cam = cameras[str(eo_local.camera[k])]
+            rel = Lg - eo_local.centre[k]
+            pc = rel @ eo_local.rotation[k]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                uv = cam.project_pixels(pc)
+                tan = np.hypot(rel[:, 0], rel[:, 1]) / np.maximum(-rel[:, 2], 1e-9)
+            inside = (pc[:, 2] < 0) & cam.in_image(uv) & (rel[:, 2] < 0)
+            better = inside & (tan < best_tan)
+            best_tan[better] = tan[better]
+            best[better] = k
+        def sees(k: int, sel: NDArray[np.intp]) -> NDArray[np.bool_]:
+            o_ = eo_local.centre[k]
+            d = Lg[sel] - o_
+            dist = np.linalg.norm(d, axis=1)
+            return cast_rays(scene, o_, d / dist[:, None]).t >= dist - 0.05
+
+        hidden = np.zeros(len(Lg), bool)
+        for k in np.unique(best[best >= 0]):
+            sel = np.flatnonzero(best == k)
+            hidden[sel] = ~sees(int(k), sel)
+        # ... and seen by another image (only those can be filled)
+        other = np.zeros(len(Lg), bool)
+        hid = np.flatnonzero(hidden)
+        for k in range(len(eo_local)):
+            cam = cameras[str(eo_local.camera[k])]
+            cand = hid[(best[hid] != k) & ~other[hid]]
+            if len(cand) == 0:
+                continue
+            pc = (Lg[cand] - eo_local.centre[k]) @ eo_local.rotation[k]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                inside = (pc[:, 2] < 0) & cam.in_image(cam.project_pixels(pc))
+            if inside.any():
+                c2 = cand[inside]
+                other[c2] = sees(k, c2)
+        hidden &= other
+        if surface is not None:
+            hidden &= np.asarray(surface, bool)[sub].ravel()
+        vsub = valid[sub].ravel()
+        dsub = diff[sub].ravel()
+        n_h = int(hidden.sum())
+        out["occluded"] = {"n": n_h, "filled": float(np.mean(vsub[hidden])) if n_h else float("nan"),
+                           "correct": float(np.mean(vsub[hidden] & (dsub[hidden] < 12.0 + 3 * noise_dn)))
+                           if n_h else float("nan")}
+    # 4. colour step across seamlines (ground cells, residual against the truth on both sides)
+    res = img - truth
+    _, bidx = b.top_height(L[:, 0], L[:, 1])
+    ground = ~ndimage.binary_dilation((bidx >= 0).reshape(H, W), iterations=seam_band + seam_gap + 2)
+    src = np.where(valid, source, -1)
+    steps = []
+    pairs: dict[tuple[int, int], list[NDArray]] = {}
+    for axis in (0, 1):
+        a = src[:-1, :] if axis == 0 else src[:, :-1]
+        bb = src[1:, :] if axis == 0 else src[:, 1:]
+        m = (a >= 0) & (bb >= 0) & (a != bb)
+        m &= (ground[:-1, :] & ground[1:, :]) if axis == 0 else (ground[:, :-1] & ground[:, 1:])
+        rr, cc = np.nonzero(m)
+        for r, c in zip(rr, cc):
+            g0, g1 = seam_gap, seam_gap + seam_band  # bands beyond the blend on either side
+            if axis == 0:
+                if r - g1 + 1 < 0 or r + 1 + g1 > H:
+                    continue
+                lo, hi = (slice(r - g1 + 1, r - g0 + 1), c), (slice(r + 1 + g0, r + 1 + g1), c)
+            else:
+                if c - g1 + 1 < 0 or c + 1 + g1 > W:
+                    continue
+                lo, hi = (r, slice(c - g1 + 1, c - g0 + 1)), (r, slice(c + 1 + g0, c + 1 + g1))
+            if not (valid[lo].all() and valid[hi].all()):
+                continue
+            key = (int(a[r, c]), int(bb[r, c]))
+            if key[0] > key[1]:
+                key, lo, hi = (key[1], key[0]), hi, lo
+            pairs.setdefault(key, []).append(res[hi].mean(axis=0) - res[lo].mean(axis=0))
+    for key, v in pairs.items():
+        if len(v) >= 30:
+            steps.append(np.abs(np.mean(v, axis=0)).max())
+    s = np.array(steps)
+    out["seams"] = {"pairs": len(s), "step_max_dn": float(s.max()) if len(s) else float("nan"),
+                    "step_rms_dn": float(np.sqrt(np.mean(s ** 2))) if len(s) else float("nan"), "noise_dn": noise_dn}
+    return out
+
+
+def true_dsm(scene: Scene, grid: Any, frame: WorldFrame) -> DsmGrid:
+    """The scene's true surface sampled at the cell centres of a map grid (heights in ``frame``'s reference)."""
+    from skyrig.dense.surface import vertical_reference
+
+    local = WorldFrame.local(*scene.origin)
+    xx, yy = grid.cell_centres()
+    z0 = float(np.mean(scene.terrain_range))
+    L = local.from_ecef(frame.to_ecef(np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, z0)], 1)))
+    for _ in range(3):
+        zt = scene.surface_height(L[:, 0], L[:, 1])
+        h_map = frame.from_ecef(local.to_ecef(np.stack([L[:, 0], L[:, 1], zt], 1)))[:, 2]
+        L = local.from_ecef(frame.to_ecef(np.stack([xx.ravel(), yy.ravel(), h_map], 1)))
+    h = h_map.reshape(xx.shape).astype(np.float32)
+    shp = xx.shape
+    return DsmGrid(grid, frame, h, np.full(shp, 9, np.int16), np.zeros(shp, np.float32), np.zeros(shp, np.float32),
+                   np.zeros(shp, bool), vertical_reference(frame), {"truth": True})

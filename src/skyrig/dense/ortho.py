@@ -1,0 +1,805 @@
+"""True orthophotos and orthomosaics: backward projection of oriented images onto a DSM, with occlusion.
+
+Every output cell is a point of the surface (map ``x, y`` and the DSM's height there).  It is projected into the
+images with their full camera model; an image gives the cell its colour only where it **sees** the cell: the DSM,
+drawn as a triangle surface into a depth buffer of that image (:mod:`skyrig.dense._ortho_kernels`), must not hide
+it.  So a roof stands on its own footprint (no leaning buildings) and ground hidden behind a building in one image
+takes its colour from another one.
+
+The mosaic is planned on the DSM's grid (:func:`plan_ortho`), then produced tile by tile (:func:`run_ortho_tile`,
+any number of workers; :func:`assemble_ortho` puts the tiles together):
+
+1. **views** (one per image, on the DSM grid): the depth buffer, the visible cells, and a cost per visible cell:
+   ``tan(off-nadir angle) + gsd_weight * max(0, gsd / gsd_ref - 1)`` (lean of what the DSM misses, and
+   resolution), and colours at a sparse lattice for the radiometric balance;
+2. **best view and seamlines**: each ground cell takes the visible image of least cost; each **elevated object**
+   (connected cells more than ``elevated_m`` above the ground estimate, grown by ``seam_margin_m``) takes one image
+   as a whole - the one of least mean cost that sees all of it - so seamlines run on the ground around buildings and
+   trees, never through them;
+3. **radiometric balance**: one gain per image and channel from the mean colours of every overlapping pair on
+   visible ground (least squares, pulled to 1 as OpenCV's ``GainCompensator`` does);
+4. **tiles** at the output resolution: heights bilinear from the DSM, the depth buffer of each contributing image
+   redrawn around the tile, colours by ``cv2.remap`` (bilinear), blended with feathered weights (box-filtered
+   region masks, ``feather_m`` wide, times visibility); cells no labelled image sees at full resolution take the
+   best other image that sees them.
+
+Layer 2c: arrays and orientations in, arrays out; the files are :mod:`skyrig.pipeline.ortho`'s job.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Mapping, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.grid import DsmGrid, GridSpec
+from skyrig.errors import SkyrigError
+from skyrig.geodesy.frame import WorldFrame, local_frame_for
+from skyrig.georef.eo import ExteriorOrientations
+
+logger = logging.getLogger(__name__)
+
+
+class ImageLoader(Protocol):
+    def __call__(self, i: int) -> NDArray[np.uint8]: ...
+
+
+@dataclass(frozen=True)
+class OrthoConfig:
+    """Options of the orthomosaic.
+
+    Attributes
+    ----------
+    cell_m
+        Output cell size (metres); None: the images' median ground sample distance.
+    tile_cells
+        Tile size in output cells.
+    max_off_nadir_deg
+        Cells seen more obliquely than this from an image do not take that image (60 deg: nadir mosaics; raise it
+        for mosaics of oblique heads).
+    gsd_weight
+        Weight of the resolution term of the cost.
+    elevated_m
+        Height above the ground estimate that makes a cell part of an elevated object (buildings, trees).
+    ground_window_m
+        Size of the window of the ground estimate (larger than the largest building).
+    seam_margin_m
+        Elevated objects are grown by this much before they are given one image (seamlines keep this distance).
+    feather_m
+        Width of the blend across seamlines; None: 6 output cells.
+    occlusion_tol_cells
+        Depth tolerance of the visibility test in DSM cells (times ``1 + tan`` of the off-nadir angle).
+    balance
+        Radiometric balance between images (per-image, per-channel gains).
+    balance_sigma_gain
+        Prior standard deviation of a gain around 1.
+    balance_sigma_noise
+        Standard deviation of the mean colour difference of an overlap (digital numbers).
+    """
+
+    cell_m: float | None = None
+    tile_cells: int = 2048
+    max_off_nadir_deg: float = 60.0
+    gsd_weight: float = 0.5
+    elevated_m: float = 2.0
+    ground_window_m: float = 60.0
+    seam_margin_m: float | None = None
+    feather_m: float | None = None
+    occlusion_tol_cells: float = 1.5
+    balance: bool = True
+    balance_sigma_gain: float = 0.1
+    balance_sigma_noise: float = 10.0
+
+
+@dataclass(frozen=True)
+class View:
+    """What one image contributes on the DSM grid (``window`` rows/cols of the DSM grid)."""
+
+    image: int
+    window: tuple[int, int, int, int]
+    cost: NDArray[np.float32]  # inf where not visible / too oblique / outside
+    samples: NDArray[np.uint8]  # (h', w', 3) colours at the balance lattice of the window
+    sample_ok: NDArray[np.bool_]
+    step: int = 1  # balance lattice: every step-th DSM cell of the window
+
+
+@dataclass(frozen=True)
+class OrthoPlan:
+    """Everything :func:`run_ortho_tile` needs (no pixels).
+
+    Attributes
+    ----------
+    eo
+        Orientations in the working local frame.
+    cameras
+        Camera name -> camera.
+    dsm
+        The DSM (map frame); ``height`` here is hole-filled, NaN only outside the surface.
+    to_local
+        Map frame -> working local frame (polynomial checked against PROJ, see ``FrameMap``).
+    grid
+        The output grid (map frame).
+    label
+        ``(rows, cols)`` int32 on the DSM grid: the image each DSM cell takes (-1: none sees it).
+    elevated
+        ``(rows, cols)`` bool on the DSM grid: elevated objects (grown by the seam margin).
+    windows
+        Per image, its DSM-grid window ``(row0, col0, height, width)`` (zero size when unused).
+    gains
+        ``(n_images, 3)`` gains applied to the images' colours.
+    tiles
+        ``(row0, col0, height, width)`` windows of the output grid.
+    gsd_m
+        Reference ground sample distance of the images (metres).
+    config
+        The options.
+    stats
+        Counts of the planning.
+    """
+
+    eo: ExteriorOrientations
+    cameras: Mapping[str, FrameCamera]
+    dsm: DsmGrid
+    to_local: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+    grid: GridSpec
+    label: NDArray[np.int32]
+    elevated: NDArray[np.bool_]
+    windows: tuple[tuple[int, int, int, int], ...]
+    gains: NDArray[np.float64]
+    tiles: tuple[tuple[int, int, int, int], ...]
+    gsd_m: float
+    config: OrthoConfig
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def zrange(self) -> tuple[float, float]:
+        h = self.dsm.height
+        return float(np.nanmin(h)), float(np.nanmax(h))
+
+
+@dataclass
+class OrthoTile:
+    """One output tile: colours, validity, surface (cells with a DSM height), source image per cell (-1 none)."""
+
+    window: tuple[int, int, int, int]
+    rgb: NDArray[np.uint8]
+    valid: NDArray[np.bool_]
+    surface: NDArray[np.bool_]
+    source: NDArray[np.int16]
+    fallback_cells: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Orthomosaic:
+    """An orthomosaic in a map frame.
+
+    Attributes
+    ----------
+    grid, frame
+        Where the cells are (``frame``: the DSM's map frame).
+    rgb
+        ``(rows, cols, 3)`` uint8.
+    valid
+        ``(rows, cols)`` bool: cells with a colour.
+    surface
+        ``(rows, cols)`` bool: cells with a DSM height (a cell of the surface no image sees is ``surface & ~valid``).
+    source
+        ``(rows, cols)`` int16 index into ``images`` of the image that gives most of the cell's colour (-1 none).
+    images
+        Image names.
+    label
+        The seamline regions on the DSM grid (``dsm_grid``): the image of each region (-1 none).
+    dsm_grid
+        The DSM grid of ``label``.
+    gains
+        ``(n_images, 3)`` radiometric gains applied.
+    stats
+        Counts and timings.
+    """
+
+    grid: GridSpec
+    frame: WorldFrame
+    rgb: NDArray[np.uint8]
+    valid: NDArray[np.bool_]
+    surface: NDArray[np.bool_]
+    source: NDArray[np.int16]
+    images: tuple[str, ...]
+    label: NDArray[np.int32]
+    dsm_grid: GridSpec
+    gains: NDArray[np.float64]
+    vertical_reference: str = ""
+    stats: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------------------------- geometry
+def _project(plan_eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i: int, p_local: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Pixels (col, row), depth along the viewing axis and tan(off-nadir angle) of local points ``(N, 3)``."""
+    cam = cameras[str(plan_eo.camera[i])]
+    c = plan_eo.centre[i]
+    rel = p_local - c
+    pc = rel @ plan_eo.rotation[i]
+    depth = -pc[:, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv = cam.project_pixels(pc)
+        up = -rel[:, 2]  # camera above the point: (C - P)_z > 0
+        horiz = np.hypot(rel[:, 0], rel[:, 1])
+        tan = np.where(up > 0, horiz / up, np.inf)
+    bad = ~(depth > 0)
+    uv[bad] = np.nan
+    return uv[:, 0], uv[:, 1], depth, tan
+
+
+def _zbuffer_for(u: NDArray, v: NDArray, d: NDArray, cam: FrameCamera, pad: int = 2
+                 ) -> tuple[NDArray[np.float32], int, int]:
+    """Depth buffer of a projected lattice ``(H, W)`` over the image part it covers."""
+    from skyrig.dense._ortho_kernels import zbuffer
+
+    ok = np.isfinite(u) & np.isfinite(v) & (d > 0)
+    if not ok.any():
+        return np.full((1, 1), np.inf, np.float32), 0, 0
+    u0 = int(max(np.floor(np.nanmin(u[ok])) - pad, 0))
+    v0 = int(max(np.floor(np.nanmin(v[ok])) - pad, 0))
+    u1 = int(min(np.ceil(np.nanmax(u[ok])) + pad, cam.width - 1))
+    v1 = int(min(np.ceil(np.nanmax(v[ok])) + pad, cam.height - 1))
+    if u1 < u0 or v1 < v0:
+        return np.full((1, 1), np.inf, np.float32), 0, 0
+    zb = np.full((v1 - v0 + 1, u1 - u0 + 1), np.inf, np.float32)
+    max_px = 0.25 * max(cam.width, cam.height)
+    zbuffer(np.ascontiguousarray(u), np.ascontiguousarray(v), np.ascontiguousarray(d, np.float64), zb, u0, v0,
+            max_px)
+    return zb, u0, v0
+
+
+def _visible(u: NDArray, v: NDArray, d: NDArray, tol: NDArray, zb: NDArray[np.float32], u0: int, v0: int
+             ) -> NDArray[np.bool_]:
+    from skyrig.dense._ortho_kernels import visible
+
+    shape = u.shape
+    out = np.zeros(u.size, np.bool_)
+    visible(np.ascontiguousarray(u, np.float64).ravel(), np.ascontiguousarray(v, np.float64).ravel(),
+            np.ascontiguousarray(d, np.float64).ravel(), np.ascontiguousarray(tol, np.float64).ravel(), zb, u0, v0,
+            out)
+    return out.reshape(shape)
+
+
+def fill_surface(dsm: DsmGrid) -> NDArray[np.float64]:
+    """DSM heights with every hole inside the measured area filled (inpainting); NaN only outside it."""
+    from scipy import ndimage
+
+    from skyrig.dense.surface import fill_holes
+
+    h = np.asarray(dsm.height, np.float32)
+    ok = np.isfinite(h)
+    if not ok.any():
+        raise SkyrigError("the DSM has no valid height: nothing to orthorectify onto")
+    if ok.all():
+        return h.astype(np.float64)
+    inside = ndimage.binary_fill_holes(ndimage.binary_closing(ok, iterations=3, border_value=0)) | ok
+    filled, _ = fill_holes(h, max(h.shape))
+    return np.where(inside, filled, np.nan).astype(np.float64)
+
+
+def ground_estimate(height: NDArray[np.float64], cell_m: float, window_m: float) -> NDArray[np.float64]:
+    """Ground under the surface: a grey opening (minimum then maximum filter) of the DSM over ``window_m``,
+    smoothed over the same window; NaN where the DSM has none."""
+    import cv2
+
+    k = max(3, int(round(window_m / cell_m)) | 1)
+    ok = np.isfinite(height)
+    hi = float(np.nanmax(height))
+    h = np.where(ok, height, hi).astype(np.float32)
+    se = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    opened = cv2.dilate(cv2.erode(h, se), se)
+    ground = cv2.blur(opened, (k, k))
+    return np.where(ok, np.minimum(ground, height), np.nan)
+
+
+def _footprint_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i: int, dsm_grid: GridSpec,
+                      to_map: Callable, z_lo: float, z_hi: float, max_tan: float) -> tuple[int, int, int, int]:
+    """DSM-grid window that image ``i`` can see between two local heights, within the off-nadir limit."""
+    cam = cameras[str(eo.camera[i])]
+    n = 9
+    cc, rr = np.meshgrid(np.linspace(-0.5, cam.width - 0.5, n), np.linspace(-0.5, cam.height - 0.5, n))
+    rays = cam.rays_from_pixels(np.stack([cc.ravel(), rr.ravel()], 1)) @ eo.rotation[i].T
+    c = eo.centre[i]
+    pts = []
+    for z in (z_lo, z_hi):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (z - c[2]) / rays[:, 2]
+        ok = (t > 0) & (rays[:, 2] < 0)
+        p = c + rays[ok] * t[ok, None]
+        if len(p) == 0:
+            continue
+        tan = np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) / np.maximum(c[2] - z, 1e-9)
+        # the off-nadir limit clips the footprint to a disc around the nadir point
+        lim = max_tan * max(c[2] - z, 0.0)
+        far = tan > max_tan
+        if far.any():
+            dxy = p[far, :2] - c[:2]
+            p[far, :2] = c[:2] + dxy * (lim / np.linalg.norm(dxy, axis=1))[:, None]
+        pts.append(p)
+    if not pts:
+        return (0, 0, 0, 0)
+    m = to_map(np.concatenate(pts))
+    r_a, c_a = dsm_grid.cell_of(np.array([m[:, 0].min(), m[:, 0].max()]), np.array([m[:, 1].max(), m[:, 1].min()]))
+    r0, r1 = max(int(r_a[0]) - 2, 0), min(int(r_a[1]) + 3, dsm_grid.height)
+    c0, c1 = max(int(c_a[0]) - 2, 0), min(int(c_a[1]) + 3, dsm_grid.width)
+    if r1 <= r0 or c1 <= c0:
+        return (0, 0, 0, 0)
+    return (r0, c0, r1 - r0, c1 - c0)
+
+
+def _window_local(plan_like: "OrthoPlan | _Base", r0: int, c0: int, h: int, w: int) -> NDArray[np.float64]:
+    """Local coordinates ``(h, w, 3)`` of DSM cells of a window."""
+    g = plan_like.dsm.grid.window(r0, c0, h, w)
+    xx, yy = g.cell_centres()
+    zz = plan_like.dsm.height[r0:r0 + h, c0:c0 + w]
+    p = np.stack([xx.ravel(), yy.ravel(), np.nan_to_num(zz.ravel(), nan=np.nanmean(zz) if np.isfinite(zz).any()
+                                                                 else 0.0)], 1)
+    out = plan_like.to_local(p).reshape(h, w, 3)
+    out[~np.isfinite(zz)] = np.nan
+    return out
+
+
+@dataclass(frozen=True)
+class _Base:
+    eo: ExteriorOrientations
+    cameras: Mapping[str, FrameCamera]
+    dsm: DsmGrid
+    to_local: Callable
+    windows: tuple[tuple[int, int, int, int], ...]
+    max_tan: float
+    gsd_m: float
+    config: OrthoConfig
+    step: int
+    elevated: NDArray[np.bool_]
+
+
+def compute_view(base: _Base, i: int, loader: ImageLoader) -> View:
+    """The view of image ``i`` on the DSM grid: visibility, cost, balance samples."""
+    import cv2
+
+    r0, c0, h, w = base.windows[i]
+    empty = View(i, (r0, c0, 0, 0), np.zeros((0, 0), np.float32), np.zeros((0, 0, 3), np.uint8),
+                 np.zeros((0, 0), bool), base.step)
+    if h < 2 or w < 2:
+        return empty
+    cam = base.cameras[str(base.eo.camera[i])]
+    p = _window_local(base, r0, c0, h, w).reshape(-1, 3)
+    u, v, d, tan = _project(base.eo, base.cameras, i, p)
+    u, v, d, tan = (a.reshape(h, w) for a in (u, v, d, tan))
+    zb, zu0, zv0 = _zbuffer_for(u, v, d, cam)
+    tol = base.config.occlusion_tol_cells * base.dsm.grid.cell_m * (1.0 + np.minimum(tan, 10.0))
+    vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & (tan <= base.max_tan)
+    if not vis.any():
+        return empty
+    gsd = d / cam.focal_px * np.sqrt(1.0 + tan ** 2)
+    cost = (tan + base.config.gsd_weight * np.maximum(gsd / base.gsd_m - 1.0, 0.0)).astype(np.float32)
+    cost[~vis] = np.inf
+    s = base.step  # the balance lattice: DSM rows and columns that are multiples of s
+    a, b = (-r0) % s, (-c0) % s
+    us, vs = u[a::s, b::s].astype(np.float32), v[a::s, b::s].astype(np.float32)
+    ok = vis[a::s, b::s] & ~base.elevated[r0 + a:r0 + h:s, c0 + b:c0 + w:s]
+    img = loader(i)
+    smp = cv2.remap(img, np.nan_to_num(us, nan=-10), np.nan_to_num(vs, nan=-10), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT)
+    if smp.ndim == 2:
+        smp = np.repeat(smp[..., None], 3, axis=2)
+    return View(i, (r0, c0, h, w), cost, smp, ok, s)
+
+
+class _ViewJob:
+    def __init__(self, base: _Base, loader: ImageLoader) -> None:
+        self.base, self.loader = base, loader
+
+    def __call__(self, i: int) -> View:
+        return compute_view(self.base, i, self.loader)
+
+
+# ----------------------------------------------------------------------------------------------- planning
+def solve_gains(views: list[View], n_images: int, sigma_gain: float, sigma_noise: float,
+                min_cells: int = 20) -> tuple[NDArray[np.float64], int]:
+    """Per-image, per-channel gains from the mean colours of every overlapping pair on visible ground.
+
+    Minimises ``sum_ij n_ij (g_i m_ij - g_j m_ji)^2 / sigma_noise^2 + sum_i n_i (g_i - 1)^2 / sigma_gain^2``
+    (``m_ij``: mean colour of image i over the cells both see).  Returns the gains and the number of pairs used."""
+    gains = np.ones((n_images, 3))
+    A = np.zeros((3, n_images, n_images))
+    b = np.zeros((3, n_images))
+    npairs = 0
+    vs = [v for v in views if v.samples.size and v.sample_ok.any()]
+    for a in range(len(vs)):
+        va = vs[a]
+        for bb in range(a + 1, len(vs)):
+            vb = vs[bb]
+            com = _common_samples(va, vb)
+            if com is None:
+                continue
+            ca, cb = com
+            n = len(ca)
+            if n < min_cells:
+                continue
+            ma, mb = ca.mean(axis=0), cb.mean(axis=0)
+            i, j = va.image, vb.image
+            for k in range(3):
+                w = n / sigma_noise ** 2
+                A[k, i, i] += w * ma[k] ** 2
+                A[k, j, j] += w * mb[k] ** 2
+                A[k, i, j] -= w * ma[k] * mb[k]
+                A[k, j, i] -= w * ma[k] * mb[k]
+            npairs += 1
+    if npairs == 0:
+        return gains, 0
+    for v in vs:
+        n = float(v.sample_ok.sum())
+        for k in range(3):
+            A[k, v.image, v.image] += n / sigma_gain ** 2
+            b[k, v.image] += n / sigma_gain ** 2
+    used = sorted({v.image for v in vs})
+    for k in range(3):
+        sub = np.ix_(used, used)
+        gains[used, k] = np.linalg.solve(A[k][sub], b[k, used])
+    return gains, npairs
+
+
+def _common_samples(va: View, vb: View) -> tuple[NDArray, NDArray] | None:
+    """Colours of two views at the DSM cells both see that lie on both views' balance lattices."""
+    ra, ca_, ha, wa = va.window
+    rb, cb_, hb, wb = vb.window
+    r0, r1 = max(ra, rb), min(ra + ha, rb + hb)
+    c0, c1 = max(ca_, cb_), min(ca_ + wa, cb_ + wb)
+    if r1 <= r0 or c1 <= c0:
+        return None
+    s = va.step
+    rows = np.arange(r0 + (-r0) % s, r1, s)
+    cols = np.arange(c0 + (-c0) % s, c1, s)
+    if len(rows) == 0 or len(cols) == 0:
+        return None
+    ia, ja = np.ix_((rows - ra - (-ra) % s) // s, (cols - ca_ - (-ca_) % s) // s)
+    ib, jb = np.ix_((rows - rb - (-rb) % s) // s, (cols - cb_ - (-cb_) % s) // s)
+    ok = va.sample_ok[ia, ja] & vb.sample_ok[ib, jb]
+    if not ok.any():
+        return None
+    return va.samples[ia, ja][ok].astype(np.float64), vb.samples[ib, jb][ok].astype(np.float64)
+
+
+def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm: DsmGrid, loader: ImageLoader, *,
+               area: tuple[float, float, float, float] | None = None, config: OrthoConfig = OrthoConfig(),
+               map_fn: Callable | None = None) -> OrthoPlan:
+    """Plan an orthomosaic: views of every image on the DSM grid, best-view regions, seamlines, gains, tiles.
+
+    Parameters
+    ----------
+    eo
+        Orientations (any frame).
+    cameras
+        Camera name -> camera.
+    dsm
+        The surface, in a map frame (its CRS and height reference are the mosaic's).
+    loader
+        ``loader(i)`` -> image of ``eo`` row ``i`` (uint8 RGB or grey).
+    area
+        ``(xmin, ymin, xmax, ymax)`` in the DSM's CRS; None: the DSM's extent.
+    config
+        Options.
+    map_fn
+        ``map_fn(func, items)`` to run the per-image views (e.g. an executor's map); None: builtin map.
+
+    Raises
+    ------
+    SkyrigError
+        On a DSM that is not in a map frame, an empty area, no image that sees the area, or too many cells.
+    """
+    from scipy import ndimage
+
+    from skyrig.dense.surface import FrameMap
+
+    t0 = time.perf_counter()
+    if dsm.frame.kind != "map":
+        raise SkyrigError("the orthophoto needs a DSM in a map frame (a projected CRS)")
+    if len(eo) == 0:
+        raise SkyrigError("no oriented image")
+    missing = sorted(set(eo.camera.tolist()) - set(cameras))
+    if missing:
+        raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
+    height = fill_surface(dsm)
+    dsm_f = DsmGrid(dsm.grid, dsm.frame, height.astype(np.float32), dsm.support, dsm.spread, dsm.sigma, dsm.filled,
+                    dsm.vertical_reference, dsm.metadata)
+    zlo, zhi = float(np.nanmin(height)), float(np.nanmax(height))
+    xb0, yb0, xb1, yb1 = dsm.grid.bounds
+    ctr = np.array([[0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.5 * (zlo + zhi)]])
+    local = local_frame_for(dsm.frame.to_ecef(ctr))
+    box_map = (xb0, yb0, zlo - 1.0, xb1, yb1, zhi + 1.0)
+    to_local = FrameMap(dsm.frame, local, box_map)
+    to_map = FrameMap(local, dsm.frame, _local_box(dsm.frame, local, box_map))
+    eo_l = eo.to_frame(local)
+    zl = to_local(np.array([[ctr[0, 0], ctr[0, 1], zlo], [ctr[0, 0], ctr[0, 1], zhi]]))[:, 2]
+    if np.any(eo_l.centre[:, 2] <= zl[1]):
+        below = [str(n) for n in eo_l.image[eo_l.centre[:, 2] <= zl[1]]][:5]
+        raise SkyrigError(f"projection centres below the top of the DSM ({', '.join(below)}): the orientations and "
+                          "the DSM do not share a height reference (check their CRS / geoid)")
+    # reference GSD: steep views at the mid height
+    gs = []
+    for i in range(len(eo_l)):
+        cam = cameras[str(eo_l.camera[i])]
+        axis = -eo_l.rotation[i][:, 2]
+        if axis[2] < -np.cos(np.radians(20)):
+            gs.append((eo_l.centre[i, 2] - 0.5 * (zl[0] + zl[1])) / abs(axis[2]) / cam.focal_px)
+    if not gs:
+        gs = [np.linalg.norm(eo_l.centre[i] - to_local(ctr)[0]) / cameras[str(eo_l.camera[i])].focal_px
+              for i in range(len(eo_l))]
+    gsd_m = float(np.median(gs))
+    max_tan = float(np.tan(np.radians(config.max_off_nadir_deg)))
+    windows = tuple(_footprint_window(eo_l, cameras, i, dsm.grid, to_map, zl[0], zl[1], max_tan)
+                    for i in range(len(eo_l)))
+    # elevated objects
+    ground = ground_estimate(height, dsm.grid.cell_m, config.ground_window_m)
+    with np.errstate(invalid="ignore"):
+        elev0 = (height - ground) > config.elevated_m
+    margin = config.seam_margin_m if config.seam_margin_m is not None else 2.0 * dsm.grid.cell_m
+    grow = max(1, int(round(margin / dsm.grid.cell_m)))
+    elevated = ndimage.binary_dilation(elev0, iterations=grow) & np.isfinite(height)
+    comp, ncomp = ndimage.label(elevated)
+    ncells = int(np.isfinite(height).sum())
+    step = max(1, int(np.ceil(np.sqrt(ncells / 250_000.0))))
+    base = _Base(eo_l, dict(cameras), dsm_f, to_local, windows, max_tan, gsd_m, config, step, elevated)
+    fn = map_fn or (lambda f, items: list(map(f, items)))
+    views: list[View] = list(fn(_ViewJob(base, loader), list(range(len(eo_l)))))
+    # best view per ground cell, one image per elevated object
+    H, W = dsm.grid.shape
+    best = np.full((H, W), np.inf, np.float32)
+    label = np.full((H, W), -1, np.int32)
+    comp_cost = np.zeros((len(eo_l), ncomp + 1))
+    comp_seen = np.zeros((len(eo_l), ncomp + 1), np.int64)
+    core = np.where(elev0 & elevated, comp, 0)  # the object itself, without the margin around it
+    comp_size = np.bincount(core.ravel(), minlength=ncomp + 1)
+    for v in views:
+        r0, c0, h, w = v.window
+        if h == 0 or w == 0:
+            continue
+        sl = (slice(r0, r0 + h), slice(c0, c0 + w))
+        better = v.cost < best[sl]
+        best[sl] = np.where(better, v.cost, best[sl])
+        label[sl] = np.where(better, v.image, label[sl])
+        if ncomp:
+            cc = core[sl]
+            seen = np.isfinite(v.cost) & (cc > 0)
+            comp_cost[v.image] = np.bincount(cc[seen], weights=v.cost[seen], minlength=ncomp + 1)
+            comp_seen[v.image] = np.bincount(cc[seen], minlength=ncomp + 1)
+    objects_whole = 0
+    if ncomp:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_cost = comp_cost / comp_seen
+        full = comp_seen >= (comp_size[None, :] * 0.99)
+        score = np.where(full, mean_cost, np.inf)
+        # objects no image sees whole: the image that sees most of it
+        partial = np.where(comp_seen > 0, -comp_seen + mean_cost * 1e-6, np.inf)
+        choice = np.where(np.isfinite(score).any(axis=0), np.argmin(score, axis=0), np.argmin(partial, axis=0))
+        objects_whole = int(np.isfinite(score[:, 1:]).any(axis=0).sum())
+        # a cell of an object takes the object's image only where that image sees it
+        img_of = choice[comp]
+        sees = np.zeros((H, W), bool)
+        for v in views:
+            r0, c0, h, w = v.window
+            if h == 0 or w == 0:
+                continue
+            sl = (slice(r0, r0 + h), slice(c0, c0 + w))
+            sees[sl] |= (img_of[sl] == v.image) & np.isfinite(v.cost) & (comp[sl] > 0)
+        label = np.where(sees, img_of, label).astype(np.int32)
+    gains = np.ones((len(eo_l), 3))
+    npairs = 0
+    if config.balance:
+        gains, npairs = solve_gains(views, len(eo_l), config.balance_sigma_gain, config.balance_sigma_noise)
+    # output grid
+    if area is None:
+        ax0, ay0, ax1, ay1 = dsm.grid.bounds
+    else:
+        ax0, ay0, ax1, ay1 = (float(a) for a in area)
+        if not (ax1 > ax0 and ay1 > ay0):
+            raise SkyrigError(f"empty area {area} (option: area)")
+    cell = float(config.cell_m) if config.cell_m else gsd_m
+    if not (cell > 0 and np.isfinite(cell)):
+        raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")
+    x0 = np.floor(ax0 / cell) * cell
+    y0 = np.ceil(ay1 / cell) * cell
+    Wo = int(np.ceil((ax1 - x0) / cell))
+    Ho = int(np.ceil((y0 - ay0) / cell))
+    if Wo * Ho > 2e9:
+        raise SkyrigError(f"a {cell:g} m grid over the area has {Wo * Ho:.3g} cells (option: resolution)")
+    grid = GridSpec(float(x0), float(y0), cell, Wo, Ho)
+    t = config.tile_cells
+    tiles = tuple((r0, c0, min(t, Ho - r0), min(t, Wo - c0)) for r0 in range(0, Ho, t) for c0 in range(0, Wo, t))
+    seen_any = np.isfinite(best)
+    if not seen_any.any():
+        raise SkyrigError("no image sees the DSM (check that the orientations and the DSM are of the same place, "
+                          "CRS and height reference)")
+    stats = {"images": len(eo_l), "images_used": int(len(np.unique(label[label >= 0]))),
+             "objects": int(ncomp), "objects_one_image": objects_whole, "balance_pairs": npairs,
+             "dsm_cells_seen": int(seen_any.sum()), "dsm_cells": ncells, "plan_seconds": time.perf_counter() - t0,
+             "gsd_m": gsd_m, "cell_m": cell}
+    return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, elevated, windows, gains, tiles, gsd_m, config,
+                     stats)
+
+
+def _local_box(frame: WorldFrame, local: WorldFrame, box_map: tuple[float, ...]) -> tuple[float, ...]:
+    x0, y0, z0, x1, y1, z1 = box_map
+    c = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)])
+    cl = local.from_ecef(frame.to_ecef(c))
+    lo, hi = cl.min(axis=0) - 1.0, cl.max(axis=0) + 1.0
+    return (*lo, *hi)
+
+
+# ----------------------------------------------------------------------------------------------- tiles
+def _bilinear_dsm(dsm: DsmGrid, xx: NDArray, yy: NDArray) -> NDArray[np.float64]:
+    import cv2
+
+    g = dsm.grid
+    mx = ((xx - g.x0) / g.cell_m - 0.5).astype(np.float32)
+    my = ((g.y0 - yy) / g.cell_m - 0.5).astype(np.float32)
+    h = np.asarray(dsm.height, np.float32)
+    out = cv2.remap(h, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    # cv2 propagates NaN from any of the 4 neighbours; nearest where bilinear is NaN but the cell itself is valid
+    near = cv2.remap(h, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    return np.where(np.isfinite(out), out, near).astype(np.float64)
+
+
+def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
+    """Orthorectify and blend one output tile (``plan.tiles[k]``)."""
+    import cv2
+
+    t0 = time.perf_counter()
+    r0, c0, h, w = plan.tiles[k]
+    cfg = plan.config
+    fe_m = cfg.feather_m if cfg.feather_m is not None else 6.0 * plan.grid.cell_m
+    fr = max(1, int(round(0.5 * fe_m / plan.grid.cell_m)))
+    pad = 2 * fr + 1
+    R0, C0 = r0 - pad, c0 - pad
+    Hh, Ww = h + 2 * pad, w + 2 * pad
+    g = plan.grid.window(R0, C0, Hh, Ww)
+    xx, yy = g.cell_centres()
+    zz = _bilinear_dsm(plan.dsm, xx, yy)
+    okz = np.isfinite(zz)
+    rgb_out = np.zeros((h, w, 3), np.uint8)
+    valid_out = np.zeros((h, w), bool)
+    src_out = np.full((h, w), -1, np.int16)
+    if not okz.any():
+        return OrthoTile((r0, c0, h, w), rgb_out, valid_out, valid_out.copy(), src_out, 0, time.perf_counter() - t0)
+    p = plan.to_local(np.stack([xx.ravel(), yy.ravel(), np.where(okz, zz, 0.0).ravel()], 1))
+    # labels at the output cells (nearest DSM cell)
+    dg = plan.dsm.grid
+    lr, lc = dg.cell_of(xx, yy)
+    inside = (lr >= 0) & (lr < dg.height) & (lc >= 0) & (lc < dg.width)
+    lab = np.full((Hh, Ww), -1, np.int32)
+    lab[inside] = plan.label[lr[inside], lc[inside]]
+    lab[~okz] = -1
+    # DSM window for the depth buffers: the tile grown by how far the surface's relief can hide along a ray
+    zlo, zhi = plan.zrange
+    reach = (zhi - zlo) * min(plan.stats.get("max_tan", np.tan(np.radians(cfg.max_off_nadir_deg))), 4.0) + 2 * dg.cell_m
+    xb0, yb0, xb1, yb1 = g.bounds
+    ra, ca = dg.cell_of(np.array([xb0 - reach, xb1 + reach]), np.array([yb1 + reach, yb0 - reach]))
+    dr0, dr1 = max(int(ra[0]), 0), min(int(ra[1]) + 2, dg.height)
+    dc0, dc1 = max(int(ca[0]), 0), min(int(ca[1]) + 2, dg.width)
+    dsm_local = _window_local(plan, dr0, dc0, dr1 - dr0, dc1 - dc0) if (dr1 > dr0 and dc1 > dc0) else None
+
+    acc = np.zeros((Hh, Ww, 3), np.float64)
+    wsum = np.zeros((Hh, Ww), np.float64)
+    wmax = np.zeros((Hh, Ww), np.float64)
+    src = np.full((Hh, Ww), -1, np.int16)
+    box = cv2.blur
+    done: set[int] = set()
+
+    def add(i: int, weight_region: NDArray[np.float64] | None) -> NDArray[np.bool_] | None:
+        cam = plan.cameras[str(plan.eo.camera[i])]
+        u, v, d, tan = _project(plan.eo, plan.cameras, i, p)
+        u, v, d, tan = (a.reshape(Hh, Ww) for a in (u, v, d, tan))
+        if dsm_local is None:
+            return None
+        du, dv, dd, _ = _project(plan.eo, plan.cameras, i, dsm_local.reshape(-1, 3))
+        shp = dsm_local.shape[:2]
+        zb, zu0, zv0 = _zbuffer_for(du.reshape(shp), dv.reshape(shp), dd.reshape(shp), cam)
+        tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
+        vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz
+        vis &= tan <= np.tan(np.radians(cfg.max_off_nadir_deg))
+        if not vis.any():
+            return vis
+        img = loader(i)
+        col = cv2.remap(img, np.where(vis, u, -10).astype(np.float32), np.where(vis, v, -10).astype(np.float32),
+                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        if col.ndim == 2:
+            col = np.repeat(col[..., None], 3, axis=2)
+        col *= plan.gains[i][None, None, :]
+        if weight_region is None:  # fallback image: full weight where nothing else gives colour
+            wgt = np.where(vis & (wsum <= 0), 1e-6, 0.0)
+        else:
+            wgt = weight_region * vis
+        acc[...] += col * wgt[..., None]
+        wsum[...] += wgt
+        better = wgt > wmax
+        src[better] = i
+        wmax[...] = np.maximum(wmax, wgt)
+        return vis
+
+    labelled = [int(i) for i in np.unique(lab) if i >= 0]
+    k_size = (2 * fr + 1, 2 * fr + 1)
+    for i in labelled:
+        region = (lab == i).astype(np.float32)
+        feather = box(box(region, k_size, borderType=cv2.BORDER_REPLICATE), k_size, borderType=cv2.BORDER_REPLICATE)
+        add(i, feather.astype(np.float64) + 1e-9 * region)
+        done.add(i)
+    # fallback: cells with a surface that no labelled image sees at full resolution
+    need = okz & (wsum <= 0)
+    fallback = int(need[pad:pad + h, pad:pad + w].sum())
+    if need.any():
+        cands = []
+        xc, yc = xx[need], yy[need]
+        rr, cc_ = dg.cell_of(xc, yc)
+        for i, (wr0, wc0, wh, ww) in enumerate(plan.windows):
+            if i in done or wh == 0:
+                continue
+            hit = (rr >= wr0) & (rr < wr0 + wh) & (cc_ >= wc0) & (cc_ < wc0 + ww)
+            if hit.any():
+                cam = plan.cameras[str(plan.eo.camera[i])]
+                d = np.linalg.norm(plan.eo.centre[i] - p.reshape(Hh, Ww, 3)[need].mean(axis=0)) / cam.focal_px
+                cands.append((d, i))
+        for _, i in sorted(cands):
+            add(i, None)
+            if not (okz & (wsum <= 0)).any():
+                break
+    ok = wsum > 0
+    out = np.zeros((Hh, Ww, 3), np.float64)
+    out[ok] = acc[ok] / wsum[ok, None]
+    sl = (slice(pad, pad + h), slice(pad, pad + w))
+    rgb_out = np.clip(out[sl] + 0.5, 0, 255).astype(np.uint8)
+    valid_out = ok[sl]
+    src_out = np.where(valid_out, src[sl], -1).astype(np.int16)
+    return OrthoTile((r0, c0, h, w), rgb_out, valid_out, okz[sl], src_out, fallback, time.perf_counter() - t0)
+
+
+class _OrthoTileJob:
+    def __init__(self, plan: OrthoPlan, loader: ImageLoader) -> None:
+        self.plan, self.loader = plan, loader
+
+    def __call__(self, k: int) -> OrthoTile:
+        return run_ortho_tile(self.plan, k, self.loader)
+
+
+def assemble_ortho(plan: OrthoPlan, tiles: Iterable[OrthoTile]) -> Orthomosaic:
+    """Put the tiles together."""
+    H, W = plan.grid.shape
+    rgb = np.zeros((H, W, 3), np.uint8)
+    valid = np.zeros((H, W), bool)
+    surface = np.zeros((H, W), bool)
+    source = np.full((H, W), -1, np.int16)
+    secs = 0.0
+    fallback = 0
+    for t in tiles:
+        r0, c0, h, w = t.window
+        rgb[r0:r0 + h, c0:c0 + w] = t.rgb
+        valid[r0:r0 + h, c0:c0 + w] = t.valid
+        surface[r0:r0 + h, c0:c0 + w] = t.surface
+        source[r0:r0 + h, c0:c0 + w] = t.source
+        secs += t.seconds
+        fallback += t.fallback_cells
+    stats = dict(plan.stats)
+    stats.update({"tiles": len(plan.tiles), "tile_seconds": secs, "fallback_cells": fallback,
+                  "cells_valid": int(valid.sum()), "cells_surface": int(surface.sum()), "cells": int(valid.size),
+                  "gain_min": float(plan.gains.min()), "gain_max": float(plan.gains.max())})
+    return Orthomosaic(plan.grid, plan.dsm.frame, rgb, valid, surface, source, tuple(str(n) for n in plan.eo.image),
+                       plan.label, plan.dsm.grid, plan.gains, plan.dsm.vertical_reference, stats)
+
+
+def orthomosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm: DsmGrid, loader: ImageLoader, *,
+                area: tuple[float, float, float, float] | None = None, config: OrthoConfig = OrthoConfig(),
+                map_fn: Callable | None = None) -> Orthomosaic:
+    """:func:`plan_ortho`, :func:`run_ortho_tile` for every tile through ``map_fn`` (default builtin map),
+    :func:`assemble_ortho`."""
+    plan = plan_ortho(eo, cameras, dsm, loader, area=area, config=config, map_fn=map_fn)
+    fn = map_fn or (lambda f, items: list(map(f, items)))
+    return assemble_ortho(plan, fn(_OrthoTileJob(plan, loader), list(range(len(plan.tiles)))))
