@@ -322,11 +322,16 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
     ground = ground_estimate(dsm, cfg.max_building_m).astype(np.float64)
     hf = _fill_nearest(h).astype(np.float64)
     ndsm = hf - ground
-    mask = (ndsm > cfg.min_height_m).astype(np.uint8)
+    # measured cells only (a hole next to a wall is as likely ground as roof); small gaps closed, holes filled
+    mask = ((ndsm > cfg.min_height_m) & meas).astype(np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    # holes far from any measurement are not buildings: keep cells within 2 cells of a measurement
-    near = ndimage.binary_dilation(meas, iterations=2)
-    mask &= near.astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    mask = ndimage.binary_fill_holes(mask).astype(np.uint8)
+    # voids connected to the DSM's border are outside the surveyed area: a building touching one is cut
+    vlab, _ = ndimage.label(~meas)
+    edge_ids = np.unique(np.r_[vlab[0], vlab[-1], vlab[:, 0], vlab[:, -1]])
+    outside = np.isin(vlab, edge_ids[edge_ids > 0])
+    outside_near = ndimage.binary_dilation(outside, iterations=2)
     lab, n = ndimage.label(mask, structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
     any_bld = ndimage.binary_dilation(mask.astype(bool), iterations=1)
     ring_px = max(1, int(np.ceil(cfg.ring_m / cell)))
@@ -344,6 +349,8 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
         if comp[0].any() or comp[-1].any() or comp[:, 0].any() or comp[:, -1].any():
             if r0 == 0 or c0 == 0 or r1 == lab.shape[0] or c1 == lab.shape[1]:
                 continue  # cut by the DSM's edge: its footprint is not known
+        if (comp & outside_near[r0:r1, c0:c1]).any():
+            continue  # cut by the edge of the surveyed area
         hw = h[r0:r1, c0:c1]
         mw = meas[r0:r1, c0:c1]
         foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg)

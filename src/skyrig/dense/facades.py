@@ -8,7 +8,8 @@ colour from the image that sees it best:
 * candidates face the plane (angle between its outward normal and the direction to the camera below
   ``max_angle_deg``) and see part of it inside the image;
 * per texel, visibility along the ray to each camera is checked against the DSM (a march in half-cell steps,
-  a numba kernel): a texel hidden behind another building in one image takes its colour from another.  A
+  a numba kernel, each step against the highest of the 4 cells around it, so that obstacles are never
+  thinner than in the DSM): a texel hidden behind another building in one image takes its colour from another.  A
   wall is vertical, so the DSM cells of its own roof edge lie right above it: the march starts
   ``self_margin_m`` away from the plane (measured along its normal), beyond the eave's mixed cells;
 * the best visible image per texel has the smallest texel footprint (``distance / (focal_px cos(incidence))``,
@@ -105,9 +106,8 @@ def _visible(dsm, x0, y0, cell, pts, cam, t0, step, zmax, tol):  # pragma: no co
                 break  # left the DSM: nothing known blocks it
             j = min(int(u), cols - 2)
             k = min(int(v), rows - 2)
-            fu, fv = u - j, v - k
-            h = (dsm[k, j] * (1 - fu) + dsm[k, j + 1] * fu) * (1 - fv) + \
-                (dsm[k + 1, j] * (1 - fu) + dsm[k + 1, j + 1] * fu) * fv
+            # the highest of the 4 cells around: a bilinear surface would shave up to a cell off every roof edge
+            h = max(max(dsm[k, j], dsm[k, j + 1]), max(dsm[k + 1, j], dsm[k + 1, j + 1]))
             if h > z + tol:
                 ok = False
                 break
