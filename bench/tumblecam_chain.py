@@ -1,0 +1,317 @@
+"""Paper 000's TumbleCam chain end to end (issue 11, deliverable 4) and its Fig. 9 circle mosaic.
+
+    .venv/bin/python bench/tumblecam_chain.py [--cache DIR] [--step 22.5] [--png /tmp/h/fig9.png] [--skip-chain]
+
+1. ``skyrig simulate tumblecam`` (CI size, seed 1, rendered images) -> ``skyrig georef`` / ``match`` / ``block`` /
+   ``adjust`` of the **nadir images only** (``bench/dense_acceptance.py``'s ``adjusted_block``, cached in DIR);
+2. a *calibrated rig*: the recorded (nominal) rig plus a boresight curve calibrated as in paper 000's laboratory
+   (5 full circles at the 72 positions, each measured with the repeatability of paper 000 Tab. 2, mean curve);
+3. ``skyrig transfer`` of the adjusted nadir orientations to the oblique images, with the curve and ``--no-curve``;
+   the transferred orientations against the simulator's truth (angles / centres RMS) and the image-space error of
+   scene points (ray-cast from the true orientation through a pixel grid of every oblique image, projected with the
+   transferred orientation, px);
+4. Fig. 9: the laboratory circle -- the sensor head held still at a station of the flight, one full circle of the
+   tumbling camera (``--step`` deg apart) plus the nadir image rendered with the TRUE rig, projected onto the
+   horizontal plane at the scene's mean terrain height with orientations transferred from one (noisy, adjustment-
+   size) nadir orientation, with the calibrated curve and without it; the seam offsets by phase correlation next to
+   the offsets predicted from the orientation errors alone (geometry);
+5. the façade textures of the town from the transferred oblique orientations (engineer A's ``texture_facades`` on
+   the scene's DSM and true buildings) judged by ``judge_facades`` (window corners in texels), when those land.
+
+Figures are printed and written to ``DIR/tumblecam_chain.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SKYRIG = str(Path(sys.executable).with_name("skyrig"))
+
+#: paper 000 Tab. 2: mean repeatability (2 sigma) of roll, pitch, yaw over the 72 positions, degrees
+TAB2_MEAN_2SIGMA_DEG = (8.6e-3, 7.8e-3, 35.9e-3)
+
+
+def _dense_acceptance() -> Any:
+    spec = importlib.util.spec_from_file_location("dense_acceptance", ROOT / "bench" / "dense_acceptance.py")
+    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(mod)  # type: ignore[union-attr]
+    return mod
+
+
+# --------------------------------------------------------------------------------------------- calibration
+def lab_calibrated_curve(true_curve: Any, rng: np.random.Generator, circles: int = 5,
+                         sigma_deg: tuple[float, float, float] | None = None) -> Any:
+    """The boresight curve as paper 000's laboratory calibration would find it: ``circles`` full circles at the true
+    curve's positions, each position measured with 1-sigma noise ``sigma_deg`` (default: Tab. 2's mean / 2), averaged
+    (:meth:`BoresightCurve.from_circles`)."""
+    from skyrig.rig.boresight_curve import BoresightCurve
+
+    sig = np.radians(np.asarray(sigma_deg if sigma_deg is not None else np.asarray(TAB2_MEAN_2SIGMA_DEG) / 2.0))
+    meas = true_curve.corrections_rad[None] + rng.normal(0.0, 1.0, (circles, true_curve.beta_rad.size, 3)) * sig
+    return BoresightCurve.from_circles(true_curve.beta_rad, meas)
+
+
+def calibrated_rig(rig: Any, curve: Any) -> Any:
+    """``rig`` with ``curve`` on its actuated head(s)."""
+    return replace(rig, name=rig.name + "-calibrated",
+                   heads={n: (h.with_(curve=curve) if h.is_actuated else h) for n, h in rig.heads.items()})
+
+
+# --------------------------------------------------------------------------------------------- Fig. 9
+@dataclass
+class Circle:
+    """One full circle of the tumbling camera from a still sensor head (the laboratory set-up of Fig. 9)."""
+
+    images: list[np.ndarray]  # obliques in beta order, then the nadir image
+    eo_true: Any  # ExteriorOrientations (local frame): obliques, then nadir
+    nadir_eo: Any  # the nadir orientation (noisy) once per oblique exposure, images named like the events' nadir
+    events: Any  # CameraEvents: per beta one nadir + one oblique exposure at the same time
+    camera: Any  # the oblique camera the images were rendered with
+    nadir_camera: Any
+    plane_height_m: float
+    station_xy: np.ndarray
+
+
+def hover_circle(survey: Any, step_deg: float = 22.5, station: int = 0, seed: int = 7,
+                 nadir_sigma: tuple[float, float] = (1e-4, 0.05), noise_dn: float = 1.0,
+                 width: int | None = None) -> Circle:
+    """Render one circle of the tumbling head (true rig) from the true body pose of flight station ``station``,
+    held still, and a nadir orientation with adjustment-size errors (``nadir_sigma``: rad per axis, m per axis);
+    ``width``: render with the cameras' field of view on a sensor this many pixels wide (faster, coarser)."""
+    from skyrig.georef.eo import ExteriorOrientations
+    from skyrig.geometry.pose import Pose
+    from skyrig.geometry.rotations import matrix_from_rotvec
+    from skyrig.simulate.render import render_image
+    from skyrig.simulate.scenarios import ci_camera
+    from skyrig.trajectory.events import CameraEvents
+
+    rng = np.random.default_rng(seed)
+    fb = survey.plan.frame_from_body()[station]
+    pos = survey.plan.position[station]
+    ob, nd = survey.rig_true.head("oblique"), survey.rig_true.head("nadir")
+    betas = np.radians(np.arange(0.0, 360.0 - 1e-9, step_deg))
+    k = betas.size
+    r_ob = fb @ ob.body_from_camera(betas).rotation
+    c_ob = np.broadcast_to(pos + fb @ ob.lever_arm_m, (k, 3))
+    r_nd = fb @ nd.body_from_camera().rotation
+    c_nd = pos + fb @ nd.lever_arm_m
+    names = np.array([f"c{int(round(np.degrees(b) * 10)):04d}_oblique.png" for b in betas])
+    nnames = np.array([n.replace("oblique", "nadir") for n in names])
+    eo_true = ExteriorOrientations(np.r_[names, ["still_nadir.png"]], np.r_[[ob.camera.name] * k, [nd.camera.name]],
+                                   np.r_[c_ob, c_nd[None]], np.r_[r_ob, r_nd[None]], survey.frame)
+    r_adj = r_nd @ matrix_from_rotvec(rng.normal(0.0, nadir_sigma[0], 3))
+    c_adj = c_nd + rng.normal(0.0, nadir_sigma[1], 3)
+    nadir_eo = ExteriorOrientations(nnames, nd.camera.name, np.broadcast_to(c_adj, (k, 3)),
+                                    np.broadcast_to(r_adj, (k, 3, 3)), survey.frame)
+    t = 1000.0 + np.arange(k, dtype=np.float64)
+    events = CameraEvents.create(np.r_[t, t], np.r_[["nadir"] * k, ["oblique"] * k], np.r_[nnames, names],
+                                 np.r_[np.full(k, np.nan), betas], np.r_[np.arange(k), np.arange(k)])
+    cam_o = ob.camera if width is None else ci_camera(ob.camera, width)
+    cam_n = nd.camera if width is None else ci_camera(nd.camera, width)
+    images = [render_image(survey.scene, cam_o, Pose(r_ob[i], c_ob[i], "world", "camera"), noise_dn=noise_dn,
+                           seed=i) for i in range(k)]
+    images.append(render_image(survey.scene, cam_n, Pose(r_nd, c_nd, "world", "camera"), noise_dn=noise_dn, seed=k))
+    return Circle(images, eo_true, nadir_eo, events, cam_o, cam_n, float(survey.scene.base_height_m), pos[:2].copy())
+
+
+def circle_orientations(circle: Circle, rig: Any, curve: Any) -> Any:
+    """Obliques transferred from the circle's nadir orientation (``curve``: 'rig' or None), then the nadir image."""
+    from skyrig.georef.eo import ExteriorOrientations
+    from skyrig.georef.transfer import transfer_orientations
+
+    tr = transfer_orientations(circle.nadir_eo, rig, circle.events, curve=curve)
+    n = circle.nadir_eo
+    return ExteriorOrientations(np.r_[tr.image, ["still_nadir.png"]], np.r_[tr.camera, n.camera[:1]],
+                                np.r_[tr.centre, n.centre[:1]], np.r_[tr.rotation, n.rotation[:1]], tr.frame)
+
+
+def predicted_shifts(mosaic: Any, seams: list[Any], eo_used: Any, eo_true: Any) -> list[np.ndarray]:
+    """Seam shifts ``(d_col, d_row)`` predicted from the orientations alone at every correlation window.
+
+    For a common projection centre C: the content that image *a* puts at plane point X lies along the true ray
+    ``R_a,true R_a,used^T (X - C)``; image *b* puts it where its used orientation sends that true direction:
+    ``C + R_b,used R_b,true^T R_a,true R_a,used^T (X - C)`` meets the plane.  Independent of the images and of the
+    scene relief (valid only for images with one projection centre).
+    """
+    plane, grid = mosaic.grid.plane, mosaic.grid
+    out = []
+    for s in seams:
+        a, b = s.a, s.b
+        c = eo_used.centre[a]
+        d_ab = eo_used.rotation[b] @ eo_true.rotation[b].T @ eo_true.rotation[a] @ eo_used.rotation[a].T
+        x = plane.to_world(grid.uv(s.centres[:, 0], s.centres[:, 1]))
+        rc2 = grid.cell_of(plane.intersect(c, (x - c) @ d_ab.T))
+        out.append(np.c_[rc2[:, 1] - s.centres[:, 1], rc2[:, 0] - s.centres[:, 0]])
+    return out
+
+
+def fig9(circle: Circle, rig: Any, curve: Any, cell_m: float | None = None, window_px: int = 64) -> dict[str, Any]:
+    """The circle mosaic and its seam offsets with orientations transferred with (``'rig'``) or without (None)
+    the curve, or with the true orientations (``'truth'``)."""
+    from skyrig.dense.plane_mosaic import Plane, plane_mosaic, seam_offsets
+
+    eo = circle.eo_true if curve == "truth" else circle_orientations(circle, rig, curve)
+    plane = Plane.horizontal(circle.plane_height_m, circle.station_xy)
+    cams = {str(eo.camera[0]): circle.camera, str(eo.camera[-1]): circle.nadir_camera}
+    t0 = time.perf_counter()
+    m = plane_mosaic(circle.images, eo, cams, plane, cell_m=cell_m)
+    t1 = time.perf_counter()
+    seams = seam_offsets(m, window_px=window_px)
+    t2 = time.perf_counter()
+    pred = predicted_shifts(m, seams, eo, circle.eo_true)
+    rows = []
+    for s, p in zip(seams, pred):
+        if not len(s.shift_px):
+            continue
+        rows.append({"a": str(m.images[s.a]), "b": str(m.images[s.b]), "windows": int(len(s.shift_px)),
+                     "measured_px": s.median_shift_px.tolist(), "offset_px": s.offset_px,
+                     "predicted_px": np.median(p, axis=0).tolist(),
+                     "predicted_offset_px": float(np.linalg.norm(np.median(p, axis=0))),
+                     "nadir_seam": bool("nadir" in str(m.images[s.a]) or "nadir" in str(m.images[s.b]))})
+    off = np.array([r["offset_px"] for r in rows])
+    return {"mosaic": m, "seams": rows, "cell_m": m.grid.cell_m, "shape": list(m.source.shape),
+            "max_offset_px": float(off.max()) if off.size else float("nan"),
+            "median_offset_px": float(np.median(off)) if off.size else float("nan"),
+            "rms_offset_px": float(np.sqrt(np.mean(off ** 2))) if off.size else float("nan"),
+            "mosaic_s": t1 - t0, "seams_s": t2 - t1}
+
+
+# --------------------------------------------------------------------------------------------- chain
+def image_space_errors(eo: Any, eo_true: Any, scene: Any, rig_true: Any, frame: Any, grid: int = 9
+                       ) -> dict[str, float]:
+    """Pixel error of scene points (ray-cast through a ``grid`` x ``grid`` pixel lattice of each image with its true
+    orientation) projected with the orientation ``eo`` (any frame; compared in the scene frame)."""
+    from skyrig.geometry.pose import Pose
+    from skyrig.simulate.render import ray_hits_at_pixels
+
+    e = eo.to_frame(frame)
+    t = eo_true.to_frame(frame)
+    idx = t.index()
+    errs = []
+    for i, name in enumerate(e.image):
+        k = idx[str(name)]
+        cam = rig_true.head(str(t.head[k]) if t.head is not None else "oblique").camera
+        u = np.linspace(0.05, 0.95, grid)
+        px = np.stack(np.meshgrid(u * (cam.width - 1), u * (cam.height - 1)), -1).reshape(-1, 2)
+        hits = ray_hits_at_pixels(scene, cam, Pose(t.rotation[k], t.centre[k], "world", "camera"), px)
+        ok = np.isfinite(hits.t)
+        pts = t.centre[k] + hits.t[ok, None] * (cam.rays_from_pixels(px[ok]) @ t.rotation[k].T)
+        est = cam.world_to_pixel(Pose(e.rotation[i], e.centre[i], "world", "camera"), pts)
+        errs.append(np.linalg.norm(est - px[ok], axis=1))
+    d = np.concatenate(errs)
+    return {"rms_px": float(np.sqrt(np.mean(d ** 2))), "max_px": float(d.max()), "n": int(d.size)}
+
+
+def skyrig(*args: Any) -> None:
+    import subprocess
+
+    print("$ skyrig " + " ".join(map(str, args)), flush=True)
+    r = subprocess.run([SKYRIG, *map(str, args)], capture_output=True, text=True)
+    print("  " + (r.stdout + r.stderr).strip().replace("\n", "\n  "), flush=True)
+    if r.returncode:
+        raise RuntimeError(f"skyrig {args[0]} failed with exit {r.returncode}")
+
+
+def chain(cache: Path, rng: np.random.Generator) -> dict[str, Any]:
+    """Steps 1-3: nadir-only adjustment of the simulated tumblecam flight, transfer, errors vs truth."""
+    from skyrig.georef.transfer import orientation_differences
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.io.rig_file import read_rig, write_rig
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    da = _dense_acceptance()
+    t0 = time.perf_counter()
+    b = da.adjusted_block("tumblecam", cache, nadir=True)
+    t_adj = time.perf_counter() - t0
+    p = b["project"]
+    sv = build_survey(scenario_spec("tumblecam", "ci", 1))
+    curve = lab_calibrated_curve(sv.tumble_curve, rng)
+    rig_path = cache / "tumblecam" / "output" / "rig_calibrated.yaml"
+    write_rig(calibrated_rig(read_rig(p / "rig.yaml"), curve), rig_path)
+    res: dict[str, Any] = {"adjust_s": t_adj, "adjust": da.orientation_errors(b["adjust"] / "eo.csv",
+                                                                              p / "truth" / "eo_map.csv")}
+    truth = read_eo_csv(p / "truth" / "eo_map.csv")
+    for label, extra in (("curve", []), ("no_curve", ["--no-curve"])):
+        out = cache / "tumblecam" / "output" / f"eo_obliques_{label}.csv"
+        t1 = time.perf_counter()
+        skyrig("transfer", "--eo", b["adjust"] / "eo.csv", "--rig", rig_path, "--events", p / "events.csv", *extra,
+               "-o", out)
+        eo = read_eo_csv(out)
+        d = orientation_differences(eo, truth)
+        res[label] = {"transfer_s": time.perf_counter() - t1, "images": len(eo),
+                      "angle_rms_deg": float(np.degrees(np.sqrt(np.mean(d["angle_rad"] ** 2)))),
+                      "centre_rms_m": float(np.sqrt(np.mean(np.sum(d["centre_m"] ** 2, axis=1)))),
+                      "image_space": image_space_errors(eo, truth, sv.scene, sv.rig_true, sv.frame)}
+    nadir = read_eo_csv(b["adjust"] / "eo.csv")
+    res["nadir_image_space"] = image_space_errors(nadir, truth, sv.scene, sv.rig_true, sv.frame)
+    res["rig"] = str(rig_path)
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "skyrig-tumblecam-chain")
+    ap.add_argument("--step", type=float, default=22.5, help="actuator step of the Fig. 9 circle (deg)")
+    ap.add_argument("--png", type=Path, default=None, help="write the Fig. 9 mosaic (with the curve) here")
+    ap.add_argument("--skip-chain", action="store_true", help="only the Fig. 9 circle")
+    ap.add_argument("--seed", type=int, default=7)
+    a = ap.parse_args(argv)
+    a.cache.mkdir(parents=True, exist_ok=True)
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    rng = np.random.default_rng(a.seed)
+    out: dict[str, Any] = {}
+    if not a.skip_chain:
+        out["chain"] = chain(a.cache, rng)
+        c = out["chain"]
+        print(f"\n== nadir-only adjustment ({c['adjust_s']:.0f} s incl. cache): nadir vs truth "
+              f"{100 * c['adjust']['centre_rms_m']:.1f} cm / {c['adjust']['rotation_rms_deg']:.4f} deg RMS, "
+              f"image space {c['nadir_image_space']['rms_px']:.2f} px RMS")
+        for k in ("curve", "no_curve"):
+            r = c[k]
+            print(f"   transferred obliques, {k:8s}: {r['images']} images, {100 * r['centre_rms_m']:.1f} cm / "
+                  f"{r['angle_rms_deg']:.4f} deg RMS; image space {r['image_space']['rms_px']:.2f} px RMS, "
+                  f"max {r['image_space']['max_px']:.2f} px ({r['transfer_s']:.1f} s)")
+    sv = build_survey(scenario_spec("tumblecam", "ci", 1))
+    rig_cal = calibrated_rig(sv.rig_recorded, lab_calibrated_curve(sv.tumble_curve, np.random.default_rng(a.seed)))
+    t0 = time.perf_counter()
+    circle = hover_circle(sv, a.step, seed=a.seed)
+    t_render = time.perf_counter() - t0
+    out["fig9"] = {"step_deg": a.step, "images": len(circle.images), "render_s": t_render}
+    print(f"\n== Fig. 9: {len(circle.images) - 1} oblique images {a.step:g} deg apart + the nadir image, still head at "
+          f"station 0, plane z = {circle.plane_height_m:.1f} m (rendered in {t_render:.1f} s)")
+    for label, cv in (("curve", "rig"), ("no_curve", None), ("truth", "truth")):
+        f = fig9(circle, rig_cal, cv)
+        m = f.pop("mosaic")
+        out["fig9"][label] = f
+        print(f"   {label:8s}: {f['shape'][1]} x {f['shape'][0]} cells of {100 * f['cell_m']:.1f} cm, "
+              f"{len(f['seams'])} seams; offsets median {f['median_offset_px']:.2f} px, RMS {f['rms_offset_px']:.2f}, "
+              f"max {f['max_offset_px']:.2f} px (predicted max "
+              f"{max(s['predicted_offset_px'] for s in f['seams']):.2f} px); mosaic {f['mosaic_s']:.1f} s, "
+              f"seams {f['seams_s']:.1f} s")
+        if label == "curve" and a.png is not None:
+            import cv2
+
+            a.png.parent.mkdir(parents=True, exist_ok=True)
+            tmp = a.png.with_name(f".{a.png.name}.partial.png")
+            cv2.imwrite(str(tmp), m.rgb[:, :, ::-1])
+            os.replace(tmp, a.png)
+            print(f"   mosaic -> {a.png}")
+    (a.cache / "tumblecam_chain.json").write_text(json.dumps(out, indent=1, default=float))
+    print(f"\nfigures -> {a.cache / 'tumblecam_chain.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
