@@ -194,3 +194,94 @@ def eo_options(f: Callable) -> Callable:
     for o in reversed(opts):
         f = o(f)
     return f
+
+
+# ----------------------------------------------------------------------------------------- one CLI vocabulary
+def parse_sigmas(text: str, n: int, option: str, names: str = "") -> tuple[float, ...]:
+    """Standard deviations in the one sigma syntax: ``"0.05"`` (all axes) or ``n`` comma-separated numbers
+    (``"0.05,0.05,0.08"``), each finite and >= 0; a clear :class:`click.BadParameter` naming ``option`` else.
+
+    >>> parse_sigmas("2", 3, "--gnss-sigma")
+    (2.0, 2.0, 2.0)
+    >>> parse_sigmas("2, 2,4", 3, "--gnss-sigma")
+    (2.0, 2.0, 4.0)
+    """
+    import math
+
+    parts = [p.strip() for p in str(text).split(",")]
+    what = f" ({names})" if names else ""
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not one number or {n} comma-separated numbers{what}",
+                                 param_hint=option) from None
+    if len(vals) == 1:
+        vals = vals * n
+    if len(vals) != n:
+        raise click.BadParameter(f"{text!r}: expected one number or {n} comma-separated numbers{what}, got "
+                                 f"{len(vals)}", param_hint=option)
+    if not all(math.isfinite(v) and v >= 0 for v in vals):
+        raise click.BadParameter(f"{text!r}: standard deviations must be finite and >= 0", param_hint=option)
+    return vals
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def with_old_spellings(renamed: Mapping[str, str] | None = None,
+                       spaced: Mapping[str, int] | None = None) -> type[click.Command]:
+    """A click command class that still accepts a command's old option spellings and warns that they are
+    deprecated (``warning: ... is deprecated; use ...`` on standard error), so that one vocabulary can be
+    documented without breaking scripts.
+
+    Parameters
+    ----------
+    renamed
+        ``{old: new}`` option names (``{"--out": "--output"}``); ``--old=value`` works too.  The option may keep
+        declaring the old name (hidden from nobody: click's messages then name the spelling the user typed).
+    spaced
+        ``{option: n}`` for options that now take comma text but once took ``n`` separate numbers
+        (``--gnss-sigma 2 2 4`` becomes ``--gnss-sigma 2,2,4``).
+
+    The spellings the user typed are kept in ``ctx.meta["skyrig.old_spellings"]`` (old -> new).
+    """
+    renamed = dict(renamed or {})
+    spaced = dict(spaced or {})
+
+    class _Command(click.Command):
+        def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+            out: list[str] = []
+            used: dict[str, str] = {}
+            declared = {o for p in self.params for o in (*getattr(p, "opts", ()), *getattr(p, "secondary_opts", ()))}
+            i = 0
+            while i < len(args):
+                tok = args[i]
+                if tok == "--":
+                    out.extend(args[i:])
+                    break
+                name, eq, value = tok.partition("=")
+                if name in renamed:
+                    used[name] = renamed[name]
+                    if name not in declared:  # an old name the option no longer declares: spelt the new way
+                        tok = renamed[name] + eq + value
+                    name = renamed[name]
+                n = spaced.get(name)
+                if n and not eq and i + n < len(args) and all(_is_number(a) for a in args[i + 1:i + 1 + n]) \
+                        and n > 1 and "," not in args[i + 1]:
+                    used[f"{name} {' '.join(['N'] * n)}"] = f"{name} " + ",".join(["N"] * n)
+                    out.extend([tok, ",".join(args[i + 1:i + 1 + n])])
+                    i += 1 + n
+                    continue
+                out.append(tok)
+                i += 1
+            for old, new in used.items():
+                click.echo(f"warning: {old} is deprecated; use {new}", err=True)
+            ctx.meta["skyrig.old_spellings"] = used
+            return super().parse_args(ctx, out)
+
+    return _Command

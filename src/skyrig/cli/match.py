@@ -299,11 +299,45 @@ def match_images(
                           {"features": t1 - t0, "matching": t2 - t1, "tracks_report": t3 - t2, "total": t3 - t0})
 
 
-@click.command("match")
+def _match_cmd_class() -> type[click.Command]:
+    from skyrig.cli._common import with_old_spellings
+
+    return with_old_spellings({"--out": "--output"})
+
+
+MATCH_RESULTS = ("tie_points.csv", "report.json", "coverage.png")
+
+
+def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
+    """Write ``out/manifest.json`` (last, atomically): inputs, options, version and the checksums of the results
+    (:data:`MATCH_RESULTS` and their side-cars); the resumable store (``features/``, ``matches/``) is named but not
+    listed file by file.  A run removes the manifest first, so a folder without one is an unfinished run."""
+    import json
+    import time
+
+    from skyrig import __version__
+    from skyrig.io._text import atomic_write
+    from skyrig.io.stage import MANIFEST, describe_inputs, sha256_file
+
+    files = []
+    for f in sorted(out.iterdir()):
+        if f.is_file() and f.name != MANIFEST and (f.name in MATCH_RESULTS or f.name.startswith("tie_points.")):
+            files.append({"path": f.name, "size": f.stat().st_size, "sha256": sha256_file(f)})
+    manifest = {"format": "skyrig-manifest", "version": 1, "stage": "match", "software": f"skyrig {__version__}",
+                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "inputs": describe_inputs(list(inputs)),
+                "options": options, "files": files,
+                "store": {"features/": "resumable feature store", "matches/": "resumable match store"}}
+    with atomic_write(out / MANIFEST) as fh:
+        fh.write(json.dumps(manifest, indent=1, default=str) + "\n")
+    return out / MANIFEST
+
+
+@click.command("match", cls=_match_cmd_class())
 @click.argument("project", type=click.Path(file_okay=False))
 @click.option("--images", "image_dirs", multiple=True, type=click.Path(exists=True, file_okay=False),
               help="Image folder(s) (default PROJECT/images or PROJECT); repeat for one folder per head.")
-@click.option("-o", "--out", type=click.Path(file_okay=False), help="Output folder (default PROJECT/match).")
+@click.option("-o", "--output", "--out", "out", type=click.Path(file_okay=False),
+              help="Output folder (default PROJECT/match); manifest.json written last (--out: deprecated spelling).")
 @click.option("--pairs", "pair_mode", type=click.Choice(["auto", "guided", "gps", "exhaustive"]), default="auto",
               show_default=True)
 @click.option("--method", type=click.Choice(["pycolmap", "opencv"]), default="pycolmap", show_default=True,
@@ -339,6 +373,11 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
 
         eo = load_eo(eo_path, None, None, None, None)
         cameras = load_cameras(camera_paths)
+    out_dir = Path(out) if out else proj / "match"
+    from skyrig.io.stage import MANIFEST
+
+    if (out_dir / MANIFEST).is_file():  # this run's results replace the last: until its manifest, none
+        (out_dir / MANIFEST).unlink()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
         ids: dict[str, object] = {}
 
@@ -348,7 +387,7 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
             bar.update(ids[stage], completed=done)  # type: ignore[arg-type]
 
         try:
-            r = match_images(folders, out or proj / "match",
+            r = match_images(folders, out_dir,
                              FeatureConfig(method=method, max_size=max_size, max_features=max_features),  # type: ignore[arg-type]
                              None, pair_mode, eo, cameras, terrain_height, min_overlap, neighbours, scheduler,
                              workers, thin_per_cell, overwrite, progress, lsm, max_heading_diff)
@@ -360,3 +399,11 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
                f"mean multiplicity {rep['mean_multiplicity']:.2f}")
     if rep["images_without_ties"]:
         click.echo(f"images without tie points: {', '.join(rep['images_without_ties'])}")
+    from skyrig.io.image_read import list_images
+
+    inputs = [Path(x) for f in folders for x in list_images(f)] + [Path(p) for p in (eo_path, *camera_paths) if p]
+    options = {"project": str(proj), "images": [str(f) for f in folders], "output": str(out_dir), "pairs": pair_mode,
+               "method": method, "max_size": max_size, "max_features": max_features, "min_overlap": min_overlap,
+               "neighbours": neighbours, "max_heading_diff": max_heading_diff, "eo": eo_path,
+               "camera": list(camera_paths), "terrain_height": terrain_height, "thin": thin_per_cell, "lsm": lsm}
+    write_match_manifest(out_dir, inputs, options)

@@ -9,8 +9,11 @@ side-cars, :mod:`skyrig.io.adjust_outputs`), ``report.json``, ``report.html`` an
 
 A run whose adjustment cannot be trusted (no convergence, sigma0 not finite, no redundancy, or any other failure
 the adjustment states) exits with status 1 (a failed run; 2 is a wrong command line or input, docs/cli.md) and the reason; its outputs are then not published (a previous run's
-files stay as they were) unless ``--keep-failed`` is given. Outputs are written to a staging folder next to the
-output folder and moved into place only when the run is kept.
+files stay as they were) unless ``--keep-failed`` is given. The output folder is published as a set
+(:func:`skyrig.io.stage.stage_folder`: written in a staging folder next to it, ``manifest.json`` with inputs,
+options, version and checksums written last, then swapped into place), so a killed run never leaves a folder
+mixing two runs.  Option spellings: ``-o/--output`` (``--out`` deprecated), ``--gnss-sigma E,N,U`` (three
+separate numbers deprecated), as every command (docs/cli.md).
 """
 
 from __future__ import annotations
@@ -19,25 +22,33 @@ import json
 import logging
 import math
 import os
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import click
 
+from skyrig.cli._common import parse_sigmas, with_old_spellings
+
 __all__ = ["command"]
 
 
-@click.command("adjust-uav")
+class _NotPublished(Exception):
+    """A failed run without --keep-failed: the staging folder is dropped, the previous outputs stay."""
+
+
+@click.command("adjust-uav", cls=with_old_spellings({"--out": "--output"}, {"--gnss-sigma": 3}))
 @click.argument("project", type=click.Path(exists=True, file_okay=False))
 @click.option("--images", "image_dir", type=click.Path(exists=True, file_okay=False),
               help="Image folder (default PROJECT/images or PROJECT).")
 @click.option("--match", "match_dir", type=click.Path(exists=True, file_okay=False),
               help="Output folder of `skyrig match` (default PROJECT/match).")
-@click.option("-o", "--out", type=click.Path(file_okay=False), help="Output folder (default PROJECT/adjust-uav).")
-@click.option("--gnss-sigma", nargs=3, type=float, default=(2.0, 2.0, 4.0), show_default=True,
-              help="GNSS sigma east north up (m); consumer GPS: metres.")
+@click.option("-o", "--output", "--out", "out", type=click.Path(file_okay=False),
+              help="Output folder (default PROJECT/adjust-uav), published as a set with manifest.json last "
+                   "(--out: deprecated spelling).")
+@click.option("--gnss-sigma", default="2,2,4", show_default=True,
+              help="GNSS sigma east,north,up (m; one value for all axes); consumer GPS: metres. The old form of "
+                   "three separate numbers is deprecated.")
 @click.option("--attitude-sigma", type=float, default=5.0, show_default=True,
               help="Sigma of verified gimbal attitudes (deg); 0 = attitudes not observed.")
 @click.option("--altitude", type=click.Choice(["egm96", "ellipsoidal"]), default="egm96", show_default=True,
@@ -60,7 +71,7 @@ __all__ = ["command"]
 @click.option("--keep-failed", is_flag=True,
               help="Write the outputs even when the adjustment failed (the exit status is still 1).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
-            gnss_sigma: tuple[float, float, float], attitude_sigma: float, altitude: str, geoid: str | None,
+            gnss_sigma: str, attitude_sigma: float, altitude: str, geoid: str | None,
             focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
             pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool) -> None:
     """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."""
@@ -72,7 +83,9 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     if not (match / "tie_points.csv").is_file():
         raise click.UsageError(f"no tie points at {match / 'tie_points.csv'}: run `skyrig match` first")
     outdir = Path(out) if out else proj / "adjust-uav"
-    kw: dict = dict(gnss_sigma_m=tuple(gnss_sigma), attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
+    old = click.get_current_context().meta.get("skyrig.old_spellings", {})
+    out_option = ("-o/--out" if "--out" in old else "-o/--output") if out else None
+    kw: dict = dict(gnss_sigma_m=parse_sigmas(gnss_sigma, 3, "--gnss-sigma", "east,north,up"), attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
                     geoid=geoid, focal_prior_rel=focal_prior)
     if no_self_calibration:
         kw["self_calibration"] = ()
@@ -93,22 +106,34 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
             project_frame(crs)
         except CRSError as e:
             raise click.BadParameter(str(e), param_hint="--crs") from None
-    staging = _staging_dir(outdir, "-o/--out" if out else None)
-    try:
-        res, rep = adjust_uav(images, match, staging, cfg, outdir / "pycolmap" if compare_pycolmap else None,
-                              pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs)
-        if (staging / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
-            from skyrig.io.image_read import list_images
-            from skyrig.report import report_data_from_uav, write_report
+    from skyrig.errors import OutputPathError
+    from skyrig.io.image_read import list_images
+    from skyrig.io.stage import describe_inputs, stage_folder
 
-            write_report(staging / "report.html", report_data_from_uav(
-                res, rep, inputs=[match / "tie_points.csv", *list_images(images)], options=rep["uav"]["config"]))
-        failures = failure_reasons(res.adjustment)
-        _echo_summary(rep, outdir)
-        if not failures or keep_failed:
-            _publish(staging, outdir)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    _staging_dir(outdir, out_option, probe=True)
+    inputs = [match / "tie_points.csv", *list_images(images)] + ([Path(config_path)] if config_path else [])
+    options = {"project": str(proj), "images": str(images), "match": str(match), "output": str(outdir),
+               "gnss_sigma_m": list(kw["gnss_sigma_m"]), "attitude_sigma_deg": attitude_sigma, "altitude": altitude,
+               "geoid": geoid, "focal_prior": focal_prior, "self_calibration": not no_self_calibration,
+               "compare_pycolmap": compare_pycolmap, "crs": crs, "config": config_path, "keep_failed": keep_failed}
+    failures: list[str] = []
+    try:
+        with stage_folder(outdir, stage="adjust-uav", inputs=describe_inputs(inputs), options=options) as staging:
+            res, rep = adjust_uav(images, match, staging, cfg, staging / "pycolmap" if compare_pycolmap else None,
+                                  pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs)
+            if (staging / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
+                from skyrig.report import report_data_from_uav, write_report
+
+                write_report(staging / "report.html", report_data_from_uav(
+                    res, rep, inputs=[match / "tie_points.csv", *list_images(images)], options=rep["uav"]["config"]))
+            failures = failure_reasons(res.adjustment)
+            _echo_summary(rep, outdir)
+            if failures and not keep_failed:
+                raise _NotPublished
+    except _NotPublished:
+        pass
+    except OutputPathError as exc:
+        raise (exc.with_option(out_option) if out_option and exc.option is None else exc) from None
     if failures:
         kept = (f"outputs kept in {outdir} (--keep-failed)" if keep_failed
                 else "no outputs written (--keep-failed writes them anyway)")
@@ -137,29 +162,22 @@ def failure_reasons(adj: Any) -> list[str]:
     return out
 
 
-def _staging_dir(outdir: Path, option: str | None) -> Path:
-    """An empty folder next to ``outdir`` (same file system, so that publishing is a rename)."""
+def _staging_dir(outdir: Path, option: str | None, probe: bool = False) -> Path:
+    """An empty folder next to ``outdir`` (same file system, so that publishing is a rename); with ``probe`` only
+    check that one can be made (errors name ``option``) and return ``outdir``."""
     from skyrig.io._text import OutputPathError, check_output_dir
 
     try:
         check_output_dir(outdir, create=False)
         check_output_dir(outdir.parent)
+        if probe:
+            return outdir
         return Path(tempfile.mkdtemp(prefix=f".{outdir.name}.staging-", dir=outdir.parent))
     except OutputPathError as exc:
         raise (exc.with_option(option) if option else exc) from None
     except OSError as exc:
         err = OutputPathError(f"cannot write next to it ({exc.strerror or exc})", outdir)
         raise (err.with_option(option) if option else err) from None
-
-
-def _publish(staging: Path, outdir: Path) -> None:
-    """Move every entry of ``staging`` into ``outdir`` (replacing entries of the same name)."""
-    outdir.mkdir(parents=True, exist_ok=True)
-    for entry in sorted(staging.iterdir()):
-        target = outdir / entry.name
-        if target.is_dir() and not target.is_symlink():
-            shutil.rmtree(target)
-        os.replace(entry, target)
 
 
 def _echo_summary(rep: dict[str, Any], outdir: Path) -> None:
