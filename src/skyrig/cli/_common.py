@@ -181,6 +181,18 @@ def check_measurements(m: ImageMeasurements, lines: np.ndarray, path: str, eo: E
             f"{str(m.image[k])!r} ({cam.width} x {cam.height} px){more}", path, int(lines[k]), field)
 
 
+def check_cameras(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], eo_path: str) -> None:
+    """Refuse an EO whose camera names no ``--camera`` file defines, naming the EO file, the first image and the
+    cameras known."""
+    missing = [i for i, c in enumerate(eo.camera) if str(c) not in cameras]
+    if missing:
+        k = missing[0]
+        names = sorted({str(eo.camera[i]) for i in missing})
+        raise InputFormatError(
+            f"camera {names[0]!r} of image {str(eo.image[k])!r} is not defined by any --camera file (known: "
+            f"{', '.join(sorted(cameras))}; {len(missing)} image(s) without a camera)", eo_path, None, "camera")
+
+
 def eo_options(f: Callable) -> Callable:
     """Options describing how to read an EO file."""
     opts = [

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from skyrig.cli._common import eo_options, load_cameras, load_eo, load_measurements, load_points
+from skyrig.cli._common import check_cameras, eo_options, load_cameras, load_eo, load_measurements, load_points
 from skyrig.georef.ground import world_to_image
 from skyrig.georef.observations import ImageMeasurements
 from skyrig.io.points_csv import write_measurements_csv
@@ -44,6 +44,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     if images:
         eo = eo.subset(np.isin(eo.image, list(images)))
     cams = load_cameras(camera_paths)
+    check_cameras(eo, cams, eo_path)
     # the points file's own frame (header or side-car) wins; the EO's CRS only stands in for a file that states none
     pts = load_points(points_path, points_crs, points_heights, points_geoid,
                       default_crs=eo_crs or (eo.frame.crs if eo.frame.kind == "map" else None))
