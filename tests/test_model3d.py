@@ -436,3 +436,47 @@ def test_viewer_in_headless_chromium(glb, tmp_path):
     bg = np.array([0xEE, 0xE6, 0xDD])  # BGR of the page background
     differs = np.abs(shot.astype(int) - bg).sum(axis=2) > 24
     assert differs.mean() > 0.05, "the screenshot is (almost) blank"
+
+
+def test_glb_round_trip_with_orthometric_heights(egm96_grid, tmp_path):
+    """Blocks with EGM96 heights: GLB vertices back through the recorded origin (ellipsoidal) and a PROJ pipeline
+    written here (UTM inverse, vgridshift with the grid, geocentric) land on the blocks' corners within 1 mm; the
+    side-car states the orthometric reference and a compound CRS."""
+    scene = make_scene(3, (-80.0, -80.0, 80.0, 80.0), n_buildings=2)
+    frame = WorldFrame.map(CRS, str(egm96_grid))
+    blocks = true_buildings(scene, frame)
+    model = build_model(blocks, [], frame)
+    side = write_glb(tmp_path / "o.glb", model)
+    assert "orthometric" in side["vertical_reference"] and pyproj.CRS.from_wkt(side["source_crs_wkt"]).is_compound
+    gltf, binary = read_glb(tmp_path / "o.glb")
+    pipe = pyproj.Transformer.from_pipeline(
+        f"+proj=pipeline +step +inv +proj=utm +zone=32 +ellps=GRS80 +step +proj=vgridshift +grids={egm96_grid} "
+        "+multiplier=1 +step +proj=cart +ellps=WGS84")
+    o = side["origin"]
+    t = _transformer("EPSG:4979", "EPSG:4978")
+    oe = np.array(t.transform(o["lon_deg"], o["lat_deg"], o["h_m"]))
+    for bid, name, kind, pos, *_ in _primitives(gltf, binary):
+        b = blocks[bid]
+        fp = np.asarray(b.footprint)
+        corners = np.vstack([np.column_stack([fp, np.full(len(fp), b.ground_z)]),
+                             np.column_stack([fp, np.full(len(fp), b.eave_z)])] + [np.asarray(r) for r in b.roof])
+        enu = np.column_stack([pos[:, 0], -pos[:, 2], pos[:, 1]])
+        ecef = oe + enu @ _enu_rotation(o["lat_deg"], o["lon_deg"]).T
+        back = np.column_stack(pipe.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2], direction="INVERSE"))
+        d = np.linalg.norm(back[:, None] - corners[None], axis=2).min(axis=1)
+        assert d.max() < 1e-3, f"building {bid} {name}: {d.max() * 1000:.2f} mm"
+    # the origin's ellipsoidal height is its orthometric height plus the EGM96 undulation (about +43 m here)
+    assert 35.0 < o["h_m"] - side["origin_in_source_frame"][2] < 50.0
+
+
+def test_large_textures_are_reduced_in_the_glb(town, tmp_path):
+    scene, frame, blocks, textures = town
+    t = textures[0]
+    big = FacadeTexture(t.facade, np.repeat(np.repeat(t.rgb, 8, axis=0), 8, axis=1),
+                        np.ones((t.rgb.shape[0] * 8, t.rgb.shape[1] * 8), bool), t.texel_m / 8)
+    model = build_model(blocks, [big], frame)
+    write_glb(tmp_path / "big.glb", model, max_texture_px=512)
+    gltf, binary = read_glb(tmp_path / "big.glb")
+    img = _texture(gltf, binary, [m for m in gltf["materials"] if "baseColorTexture" in m["pbrMetallicRoughness"]][0])
+    assert max(img.shape[:2]) == 512 < 8 * max(t.rgb.shape[:2])
+    assert glb_problems(tmp_path / "big.glb") == []

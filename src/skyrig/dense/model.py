@@ -32,7 +32,7 @@ cropped orthophoto (its CRS) divided by the crop's size.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -265,7 +265,10 @@ def _fill_invalid(tex: FacadeTexture) -> NDArray[np.uint8]:
 
 
 # ------------------------------------------------------------------------------------------ parts
-def _wall_part(f: Facade, tex: FacadeTexture | None, to_local, eave_z: float) -> MeshPart:
+_ToLocal = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+
+
+def _wall_part(f: Facade, tex: FacadeTexture | None, to_local: _ToLocal, eave_z: float) -> MeshPart:
     c = np.asarray(f.corners, dtype=np.float64)
     pos = to_local(c)
     tris = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
@@ -285,7 +288,7 @@ def _wall_part(f: Facade, tex: FacadeTexture | None, to_local, eave_z: float) ->
                     (1.0, 1.0, 1.0), (f.building, f.index))
 
 
-def _gable_parts(b: BuildingBlock, to_local, colours: dict[int, tuple[float, float, float]]) -> list[MeshPart]:
+def _gable_parts(b: BuildingBlock, to_local: _ToLocal, colours: dict[int, tuple[float, float, float]]) -> list[MeshPart]:
     """Wall pieces above the eaves (gable ends): for each footprint edge, the roof vertices above ``eave_z`` that
     lie in the edge's vertical plane close the wall up to the roof."""
     if not b.roof:
@@ -326,7 +329,7 @@ def _gable_parts(b: BuildingBlock, to_local, colours: dict[int, tuple[float, flo
     return out
 
 
-def _roof_part(b: BuildingBlock, to_local, ortho: OrthoRaster | None, roof_rgb: tuple[float, float, float],
+def _roof_part(b: BuildingBlock, to_local: _ToLocal, ortho: OrthoRaster | None, roof_rgb: tuple[float, float, float],
                source_frame: WorldFrame) -> MeshPart:
     polys = [np.asarray(r, float) for r in b.roof] if b.roof else [
         np.column_stack([np.asarray(b.footprint, float), np.full(len(b.footprint), b.eave_z)])]

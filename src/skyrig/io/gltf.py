@@ -59,10 +59,14 @@ def enu_from_gltf(p: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.asarray(p, float) @ _GLTF_FROM_ENU
 
 
-def _encode_image(img: NDArray[np.uint8], fmt: str, jpeg_quality: int) -> tuple[bytes, str]:
+def _encode_image(img: NDArray[np.uint8], fmt: str, jpeg_quality: int, max_px: int | None = None) -> tuple[bytes, str]:
     import cv2
 
     bgr = cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), cv2.COLOR_RGB2BGR)
+    h, w = bgr.shape[:2]
+    if max_px is not None and max(h, w) > max_px:  # UVs are relative: a smaller image covers the same surface
+        f = max_px / max(h, w)
+        bgr = cv2.resize(bgr, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
     if fmt == "png":
         ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 6])
         mime = "image/png"
@@ -101,7 +105,7 @@ def model_sidecar(model: Any) -> dict[str, Any]:
     }
 
 
-def _build_glb(model: Any, image_format: str, jpeg_quality: int) -> bytes:
+def _build_glb(model: Any, image_format: str, jpeg_quality: int, max_texture_px: int | None) -> bytes:
     from skyrig import __version__
 
     chunks: list[bytes] = []
@@ -149,7 +153,7 @@ def _build_glb(model: Any, image_format: str, jpeg_quality: int) -> bytes:
                                    "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}}
             if part.image is not None and part.uv is not None:
                 attrs["TEXCOORD_0"] = add_accessor(part.uv.astype(np.float32), _FLOAT, "VEC2", _ARRAY_BUFFER, False)
-                data, mime = _encode_image(part.image, image_format, jpeg_quality)
+                data, mime = _encode_image(part.image, image_format, jpeg_quality, max_texture_px)
                 images.append({"bufferView": add_view(data, None), "mimeType": mime,
                                "name": f"b{bm.building} {part.name}"})
                 textures.append({"sampler": 0, "source": len(images) - 1})
@@ -192,7 +196,7 @@ def _build_glb(model: Any, image_format: str, jpeg_quality: int) -> bytes:
 
 
 def write_glb(path: PathLike, model: Any, *, image_format: str = "png", jpeg_quality: int = 90,
-              sidecar: bool = True) -> dict[str, Any]:
+              max_texture_px: int | None = 4096, sidecar: bool = True) -> dict[str, Any]:
     """Write a :class:`~skyrig.dense.model.Model3D` as a GLB file (temporary file, then renamed) and its side-car
     JSON ``<path>.json`` (the origin statement, :func:`model_sidecar`).
 
@@ -206,6 +210,9 @@ def write_glb(path: PathLike, model: Any, *, image_format: str = "png", jpeg_qua
         ``"png"`` (lossless) or ``"jpeg"`` for the embedded textures.
     jpeg_quality
         JPEG quality 1-100.
+    max_texture_px
+        Textures larger than this on a side are reduced to it (area average) inside the GLB: WebGL
+        implementations guarantee 4096 px only (None: keep every texture whole).
     sidecar
         Also write ``<path>.json``.
 
@@ -214,7 +221,7 @@ def write_glb(path: PathLike, model: Any, *, image_format: str = "png", jpeg_qua
     dict
         The side-car content (also recorded in the GLB's ``asset.extras.skyrig`` and scene ``extras``).
     """
-    data = _build_glb(model, image_format, jpeg_quality)
+    data = _build_glb(model, image_format, jpeg_quality, max_texture_px)
     p = Path(path)
     fd, tmp = output_temp(p, ".glb")
     try:
@@ -300,11 +307,11 @@ def glb_problems(path: PathLike) -> list[str]:
     """
     p = Path(path)
     out: list[str] = []
-    raw = p.read_bytes()
     try:
         gltf, binary = read_glb(p)
     except InputFormatError as exc:
         return [str(exc)]
+    raw = p.read_bytes()
     clen = struct.unpack_from("<I", raw, 12)[0]
     if clen % 4:
         out.append(f"JSON chunk length {clen} is not a multiple of 4")
