@@ -480,3 +480,28 @@ def test_large_textures_are_reduced_in_the_glb(town, tmp_path):
     img = _texture(gltf, binary, [m for m in gltf["materials"] if "baseColorTexture" in m["pbrMetallicRoughness"]][0])
     assert max(img.shape[:2]) == 512 < 8 * max(t.rgb.shape[:2])
     assert glb_problems(tmp_path / "big.glb") == []
+
+
+def test_viewer_without_inlined_model_loads_model_glb_over_http(glb, tmp_path):
+    """``write_viewer(path, None)``: the page fetches ``model.glb`` next to it (served here by http.server)."""
+    import functools
+    import http.server
+    import threading
+
+    from skyrig.report.viewer import chromium_check, find_chromium, write_viewer
+
+    if find_chromium() is None:
+        pytest.skip("no Chromium / Chrome installed: the viewer page is not checked")
+    shutil.copy(glb[1], tmp_path / "model.glb")
+    write_viewer(tmp_path / "index.html", None)
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
+    handler.log_message = lambda *a, **k: None
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    th = threading.Thread(target=srv.serve_forever, daemon=True)
+    th.start()
+    try:
+        state = chromium_check(f"http://127.0.0.1:{srv.server_address[1]}/index.html", timeout_s=120)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert state.get("loaded") == "1" and int(state["triangles"]) == glb[0].n_triangles, state

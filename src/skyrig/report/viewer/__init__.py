@@ -81,7 +81,8 @@ def find_chromium() -> str | None:
 
 def chromium_check(html_path: PathLike, *, screenshot: PathLike | None = None, chromium: str | None = None,
                    timeout_s: float = 90.0, window: tuple[int, int] = (900, 650)) -> dict:
-    """Open a viewer page in headless Chromium (software WebGL) and wait until it reports the model drawn.
+    """Open a viewer page (a file, or an ``http(s)://`` URL) in headless Chromium (software WebGL) and wait until it
+    reports the model drawn.
 
     Talks to the browser over the DevTools protocol on a pipe (``--remote-debugging-pipe``): navigates to the
     page, polls ``document.body.dataset`` until ``loaded == "1"`` or ``error`` is set, then optionally saves a PNG
@@ -107,7 +108,7 @@ def chromium_check(html_path: PathLike, *, screenshot: PathLike | None = None, c
     exe = chromium or find_chromium()
     if not exe:
         raise FileNotFoundError("no Chromium / Chrome executable found")
-    url = Path(html_path).resolve().as_uri()
+    url = str(html_path) if str(html_path).startswith(("http://", "https://")) else Path(html_path).resolve().as_uri()
     r_cmd, w_cmd = os.pipe()  # we write commands -> browser fd 3
     r_out, w_out = os.pipe()  # browser fd 4 -> we read
     import tempfile
