@@ -159,6 +159,9 @@ class ExtractionConfig:
         fraction of the flat roof's, with planes sloping by at least ``min_slope_deg``.
     min_slope_deg
         Least slope of a roof plane that is not flat.
+    max_outside
+        A building is left out as cut by the edge of the surveyed area when more than this fraction of the
+        2-cell ring around it is void connected to the DSM's border.
     """
 
     min_height_m: float = 2.5
@@ -170,6 +173,7 @@ class ExtractionConfig:
     edge_cells: int = 2
     gable_gain: float = 0.5
     min_slope_deg: float = 5.0
+    max_outside: float = 0.25
 
 
 def _fill_nearest(h: NDArray) -> NDArray[np.float32]:
@@ -324,14 +328,13 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
     ndsm = hf - ground
     # measured cells only (a hole next to a wall is as likely ground as roof); small gaps closed, holes filled
     mask = ((ndsm > cfg.min_height_m) & meas).astype(np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     mask = ndimage.binary_fill_holes(mask).astype(np.uint8)
     # voids connected to the DSM's border are outside the surveyed area: a building touching one is cut
     vlab, _ = ndimage.label(~meas)
     edge_ids = np.unique(np.r_[vlab[0], vlab[-1], vlab[:, 0], vlab[:, -1]])
     outside = np.isin(vlab, edge_ids[edge_ids > 0])
-    outside_near = ndimage.binary_dilation(outside, iterations=2)
     lab, n = ndimage.label(mask, structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
     any_bld = ndimage.binary_dilation(mask.astype(bool), iterations=1)
     ring_px = max(1, int(np.ceil(cfg.ring_m / cell)))
@@ -349,16 +352,30 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
         if comp[0].any() or comp[-1].any() or comp[:, 0].any() or comp[:, -1].any():
             if r0 == 0 or c0 == 0 or r1 == lab.shape[0] or c1 == lab.shape[1]:
                 continue  # cut by the DSM's edge: its footprint is not known
-        if (comp & outside_near[r0:r1, c0:c1]).any():
+        edge_ring = ndimage.binary_dilation(comp, iterations=2) & ~comp
+        if (edge_ring & outside[r0:r1, c0:c1]).sum() > cfg.max_outside * edge_ring.sum():
             continue  # cut by the edge of the surveyed area
         hw = h[r0:r1, c0:c1]
         mw = meas[r0:r1, c0:c1]
-        foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg)
         ring = ndimage.binary_dilation(comp, iterations=ring_px) & ~any_bld[r0:r1, c0:c1] & mw
         if ring.sum() >= 5:
             gz = float(np.percentile(hw[ring], 10))
         else:
             gz = float(np.median(ground[r0:r1, c0:c1][comp]))
+        # the walls at half the eave height: a matched DSM ramps from ground to roof over a few cells, and the
+        # half-height crossing of a symmetric ramp is the wall (on an exact DSM the threshold changes nothing)
+        low = float(np.percentile(hw[comp & mw], 10)) if (comp & mw).sum() >= 10 else None
+        if low is not None and low - gz > 2 * cfg.min_height_m:
+            half = (ndimage.binary_dilation(comp, iterations=2) & mw & (hw > gz + 0.5 * (low - gz))).astype(np.uint8)
+            half = cv2.morphologyEx(half, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+            half = cv2.morphologyEx(half, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+            hl_, nh = ndimage.label(ndimage.binary_fill_holes(half), structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
+            if nh:
+                sizes = np.bincount(hl_.ravel())[1:]
+                big = hl_ == (1 + int(np.argmax(sizes)))
+                if big.sum() >= 0.5 * comp.sum():
+                    comp = big
+        foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg)
         inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
         if inner.sum() < 6:
             inner = comp & mw

@@ -1,0 +1,158 @@
+"""Building extraction from a DSM (skyrig.dense.buildings) and footprints from a GeoPackage
+(skyrig.io.footprints_gpkg) against the simulator's true buildings.
+
+The DSM is the scene's analytic surface rasterised here in the map CRS EPSG:25832 (ellipsoidal heights) at
+0.3 m; the truth is the scene's building parameters (corner vertices converted to the map CRS through ECEF by
+PROJ).  A building cell is one whose centre lies inside the footprint, so corners must come back within one
+cell; heights of flat roofs and of the ground are sampled exactly, so they must come back within a few cm
+(gable eaves and ridges from plane fits on cell centres: within a quarter of a cell's height change).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from skyrig.dense.buildings import buildings_from_footprints, extract_buildings
+from skyrig.dense.grid import GridSpec
+from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.georef.eo import WorldFrame
+from skyrig.simulate.judge_facades import scene_dsm
+from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+CRS = WorldFrame.map("EPSG:25832")
+CELL = 0.3
+
+
+@pytest.fixture(scope="module")
+def town():
+    s = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    local = s.frame
+    c = CRS.from_ecef(local.to_ecef(np.array([[-140.0, 110.0, 80.0], [140.0, -110.0, 80.0]])))
+    x0, y0 = np.floor(c[0, 0] / CELL) * CELL, np.ceil(c[0, 1] / CELL) * CELL
+    grid = GridSpec(x0, y0, CELL, int((c[1, 0] - x0) / CELL), int((y0 - c[1, 1]) / CELL))
+    dsm = scene_dsm(s.scene, grid, CRS)
+    bl = s.scene.buildings
+    truth = []
+    for i in range(len(bl)):
+        v = bl.vertices(i)
+        corners = CRS.from_ecef(local.to_ecef(v[4:8]))  # footprint corners at the eaves
+        ground = float(s.scene.terrain_height(v[:4, 0], v[:4, 1]).min())
+        zz = CRS.from_ecef(local.to_ecef(np.array([[bl.cx[i], bl.cy[i], ground], [bl.cx[i], bl.cy[i], bl.eave_z[i]],
+                                                   [bl.cx[i], bl.cy[i], bl.ridge_z[i]]])))[:, 2]
+        truth.append(dict(corners=corners[:, :2], ground=zz[0], eave=zz[1], ridge=zz[2], gabled=bool(bl.gabled[i]),
+                          terrain=s.scene.terrain_height(v[:4, 0], v[:4, 1])))
+    return s, dsm, truth
+
+
+def _match(blocks, truth):
+    out = []
+    for t in truth:
+        c = t["corners"].mean(axis=0)
+        d = [np.linalg.norm(np.asarray(b.footprint).mean(axis=0) - c) for b in blocks]
+        k = int(np.argmin(d))
+        out.append((blocks[k] if d[k] < 2.0 else None, t))
+    return out
+
+
+def test_extracted_buildings_match_the_scene(town):
+    s, dsm, truth = town
+    blocks = extract_buildings(dsm, min_height_m=2.5, min_area_m2=20.0)
+    assert len(blocks) == len(truth)
+    for b, t in _match(blocks, truth):
+        assert b is not None
+        fp = np.asarray(b.footprint)
+        assert len(fp) == 4  # rectangles
+        x, y = fp[:, 0], fp[:, 1]
+        assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # counter-clockwise
+        err = [np.min(np.linalg.norm(fp - p, axis=1)) for p in t["corners"]]
+        assert max(err) <= CELL, (err, b)
+        # the ground: 10th percentile of the ring; the terrain's relief under the footprint bounds it
+        assert t["terrain"].min() - 0.1 <= b.ground_z <= t["terrain"].max() + 0.1
+        assert (len(b.roof) == 2) == t["gabled"]
+        if t["gabled"]:
+            # eaves / ridge from two planes fitted on cell centres: the plane slope times a quarter cell
+            slope = (t["ridge"] - t["eave"]) / (0.5 * min(np.linalg.norm(t["corners"][1] - t["corners"][0]),
+                                                          np.linalg.norm(t["corners"][2] - t["corners"][1])))
+            tol = 0.05 + slope * CELL
+            assert abs(b.eave_z - t["eave"]) <= tol
+            ridge = max(float(r[:, 2].max()) for r in b.roof)
+            assert abs(ridge - t["ridge"]) <= tol
+        else:
+            assert abs(b.eave_z - t["eave"]) <= 0.02
+        for f in b.facades():
+            assert np.allclose(f.corners[0, :2], f.corners[3, :2]) and f.height_m > 0
+            # the outward normal points away from the footprint's centre
+            assert (f.corners[0, :2] - fp.mean(axis=0)) @ f.normal[:2] > 0
+
+
+def test_extraction_in_a_local_frame_and_refusals(town):
+    s, _, _ = town
+    bl = s.scene.buildings
+    i = int(np.argmax(bl.hl * bl.hw))
+    g = GridSpec(float(bl.cx[i]) - 30, float(bl.cy[i]) + 30, 0.25, 240, 240)
+    dsm = scene_dsm(s.scene, g)  # local ENU frame of the scene
+    blocks = extract_buildings(dsm)
+    assert len(blocks) >= 1
+    b = min(blocks, key=lambda b: np.linalg.norm(np.asarray(b.footprint).mean(axis=0) - [bl.cx[i], bl.cy[i]]))
+    v = bl.vertices(i)[:4, :2]
+    assert max(np.min(np.linalg.norm(np.asarray(b.footprint) - p, axis=1)) for p in v) <= 0.25
+    with pytest.raises(SkyrigError, match="positive"):
+        extract_buildings(dsm, min_height_m=-1.0)
+    with pytest.raises(SkyrigError, match="no measured cell"):
+        extract_buildings(replace(dsm, height=np.full(dsm.grid.shape, np.nan, np.float32)))
+    # holes in the DSM (NaN) next to the walls: buildings still come out, and from measured cells only
+    h = dsm.height.copy()
+    rng = np.random.default_rng(0)
+    h[rng.uniform(size=h.shape) < 0.2] = np.nan
+    holed = extract_buildings(replace(dsm, height=h))
+    b2 = min(holed, key=lambda b: np.linalg.norm(np.asarray(b.footprint).mean(axis=0) - [bl.cx[i], bl.cy[i]]))
+    assert max(np.min(np.linalg.norm(np.asarray(b2.footprint) - p, axis=1)) for p in v) <= 0.5
+
+
+def test_footprints_from_a_geopackage_in_another_crs(town, tmp_path):
+    import shapely
+
+    from skyrig.io.footprints_gpkg import read_footprints
+    from skyrig.io.gpkg import write_gpkg
+
+    s, dsm, truth = town
+    local = s.frame
+    geo = WorldFrame.map("EPSG:4326")
+    polys = []
+    bl = s.scene.buildings
+    for i in range(len(bl)):
+        v = bl.vertices(i)[4:8]
+        ll = geo.from_ecef(local.to_ecef(v))  # lon, lat (x, y order of skyrig's geographic frames)
+        polys.append(shapely.Polygon(ll[:, :2]))
+    path = tmp_path / "footprints.gpkg"
+    write_gpkg(path, {"buildings": (polys, {"name": np.array([f"b{i}" for i in range(len(bl))])})}, "EPSG:4326")
+    fps, labels = read_footprints(path, CRS)
+    assert len(fps) == len(bl) and labels[0].startswith("buildings:")
+    for fp, t in zip(fps, truth):
+        assert np.abs(fp - t["corners"]).max() < 0.01  # reprojected by PROJ (the eaves' height: < 1 cm)
+    blocks = buildings_from_footprints(fps, dsm, source=str(path))
+    for b, t in zip(blocks, truth):
+        x, y = b.footprint[:, 0], b.footprint[:, 1]
+        assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0
+        assert t["terrain"].min() - 0.1 <= b.ground_z <= t["terrain"].max() + 0.1
+        if not t["gabled"]:
+            assert abs(b.eave_z - t["eave"]) <= 0.02
+        else:  # a flat roof at the median roof height, between eaves and ridge
+            assert t["eave"] < b.eave_z < t["ridge"]
+    # refused in words: another CRS without reprojection, no CRS, no such layer, a footprint outside the DSM
+    with pytest.raises(InputFormatError, match="reproject"):
+        read_footprints(path, CRS, reproject=False)
+    nocrs = tmp_path / "nocrs.gpkg"
+    write_gpkg(nocrs, {"b": (polys, {"name": np.array(["x"] * len(polys))})}, None)
+    with pytest.raises(InputFormatError, match="no CRS"):
+        read_footprints(nocrs, CRS)
+    with pytest.raises(InputFormatError, match="no layer"):
+        read_footprints(path, CRS, layer="roads")
+    with pytest.raises(InputFormatError, match="no such"):
+        read_footprints(tmp_path / "missing.gpkg", CRS)
+    far = [fps[0] + 5000.0]
+    with pytest.raises(SkyrigError, match="outside the DSM"):
+        buildings_from_footprints(far, dsm)
