@@ -364,8 +364,7 @@ def test_judge_model_against_known_offsets(town):
     r0 = judge_model(blocks, frame, scene)
     assert r0["found"] == len(blocks) and r0["missed"] == 0 and r0["extra"] == 0
     assert r0["corner_rms_m"] < 1e-3 and abs(r0["eave_bias_m"]) < 1e-3 and r0["ridge_rms_m"] < 1e-3
-    # the offset in the scene's local frame: 0.6 m east, i.e. 0.6 m east of the map's grid rotated by convergence;
-    # compare in the scene frame: move each block in the scene frame and convert
+    # blocks moved 0.6 m east and raised 1.5 m in the scene's own frame: every corner is 0.6 m from its true place
     loc = WorldFrame.local(*scene.origin)
     moved = []
     for b in true_buildings(scene):
@@ -373,7 +372,7 @@ def test_judge_model_against_known_offsets(town):
         roof = tuple(np.asarray(r) + np.array([0.6, 0.0, 1.5]) for r in b.roof)
         moved.append(BuildingBlock(b.id, fp, b.ground_z, b.eave_z + 1.5, roof))
     r1 = judge_model(moved, loc, scene)
-    assert abs(r1["corner_rms_m"] - 0.6) < 1e-9 or r1["corner_vertex_rms_m"] == pytest.approx(0.6, abs=1e-9)
+    assert 0.0 < r1["corner_rms_m"] <= 0.6 + 1e-9  # distance to the moved outline: at most the shift
     assert r1["corner_vertex_rms_m"] == pytest.approx(0.6, abs=1e-9)
     assert r1["eave_bias_m"] == pytest.approx(1.5, abs=1e-9) and r1["ridge_rms_m"] == pytest.approx(1.5, abs=1e-9)
 

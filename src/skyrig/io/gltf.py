@@ -24,7 +24,7 @@ import json
 import os
 import struct
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,9 @@ from numpy.typing import NDArray
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.io._text import PathLike, atomic_write, output_temp, publish
+
+if TYPE_CHECKING:
+    from skyrig.dense.model import Model3D
 
 __all__ = ["write_glb", "read_glb", "glb_problems", "accessor_array", "write_obj", "model_points_to_frame",
            "enu_from_gltf", "gltf_from_enu", "model_sidecar", "GLB_MAGIC"]
@@ -80,7 +83,7 @@ def _encode_image(img: NDArray[np.uint8], fmt: str, jpeg_quality: int, max_px: i
     return buf.tobytes(), mime
 
 
-def model_sidecar(model: Any) -> dict[str, Any]:
+def model_sidecar(model: Model3D) -> dict[str, Any]:
     """The geographic statement of a :class:`~skyrig.dense.model.Model3D` (side-car JSON and glTF extras)."""
     from skyrig.geodesy.statement import crs_statement
 
@@ -105,7 +108,7 @@ def model_sidecar(model: Any) -> dict[str, Any]:
     }
 
 
-def _build_glb(model: Any, image_format: str, jpeg_quality: int, max_texture_px: int | None) -> bytes:
+def _build_glb(model: Model3D, image_format: str, jpeg_quality: int, max_texture_px: int | None) -> bytes:
     from skyrig import __version__
 
     chunks: list[bytes] = []
@@ -195,7 +198,7 @@ def _build_glb(model: Any, image_format: str, jpeg_quality: int, max_texture_px:
                      struct.pack("<II", len(binary), _CHUNK_BIN), binary])
 
 
-def write_glb(path: PathLike, model: Any, *, image_format: str = "png", jpeg_quality: int = 90,
+def write_glb(path: PathLike, model: Model3D, *, image_format: str = "png", jpeg_quality: int = 90,
               max_texture_px: int | None = 4096, sidecar: bool = True) -> dict[str, Any]:
     """Write a :class:`~skyrig.dense.model.Model3D` as a GLB file (temporary file, then renamed) and its side-car
     JSON ``<path>.json`` (the origin statement, :func:`model_sidecar`).
@@ -389,7 +392,7 @@ def model_points_to_frame(points_gltf: NDArray[np.float64], gltf: dict[str, Any]
 
 
 # ------------------------------------------------------------------------------------------ OBJ
-def write_obj(path: PathLike, model: Any, *, texture_dir: str | None = None) -> list[Path]:
+def write_obj(path: PathLike, model: Model3D, *, texture_dir: str | None = None) -> list[Path]:
     """Write a model as Wavefront OBJ + MTL + PNG textures (same y-up local axes as the GLB, stated in the header).
 
     ``path`` is the ``.obj`` file; the material library is ``<stem>.mtl`` next to it and the textures go to

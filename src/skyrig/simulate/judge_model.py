@@ -22,7 +22,7 @@ from skyrig.geodesy.frame import WorldFrame
 from skyrig.simulate.judge_facades import true_buildings
 from skyrig.simulate.world import Buildings, Scene
 
-__all__ = ["scene_frame", "true_buildings", "true_facade_textures", "judge_model", "scene_from_dict"]
+__all__ = ["scene_frame", "true_buildings", "true_facade_textures", "facade_rule_at", "judge_model", "scene_from_dict"]
 
 
 def scene_frame(scene: Scene) -> WorldFrame:
