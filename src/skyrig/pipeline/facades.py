@@ -64,7 +64,8 @@ class FacadesOutputs:
 
 def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None = None) -> list[np.ndarray]:
     """Footprint polygons ``(K, 2)`` (exterior rings, no closing vertex) of a GeoPackage / any OGR vector file,
-    converted to ``frame``'s horizontal CRS.
+    converted to ``frame``'s horizontal CRS (multi-polygons give one footprint per part; inner rings are left out,
+    with a warning).
 
     Raises
     ------
@@ -103,6 +104,9 @@ def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None 
                 raise InputFormatError(f"a {poly.geom_type}, not a polygon", p, line=k, field="geometry")
             if not poly.is_valid:
                 raise InputFormatError(f"invalid polygon ({shapely.is_valid_reason(poly)})", p, line=k, field="geometry")
+            if len(poly.interiors):
+                logger.warning("%s feature %d: %d inner ring(s) (courtyards) left out: the building is modelled as "
+                               "its outer footprint", p, k, len(poly.interiors))
             xy = np.asarray(poly.exterior.coords, float)[:-1, :2]
             if tr is not None:
                 xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
