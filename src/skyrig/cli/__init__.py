@@ -53,6 +53,8 @@ COMMANDS: dict[str, CommandEntry] = {
                                "GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."),
     "dsm": CommandEntry("skyrig.cli.dsm:command",
                         "Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images"),
+    "ortho": CommandEntry("skyrig.cli.ortho:command",
+                          "True orthomosaic (COG) of oriented images on a DSM: occlusion, seamlines, balance, blend."),
     "facades": CommandEntry("skyrig.cli.facades:command", "Façade textures and a textured 3D model (GLB, OBJ, viewer) of a DSM's buildings."),
     "plan": CommandEntry("skyrig.cli.plan:command",
                          "Plan a flight for a rig over an area; write stations, footprints and strips."),

@@ -72,6 +72,8 @@ class OrthoConfig:
         Elevated objects are grown by this much before they are given one image (seamlines keep this distance).
     feather_m
         Width of the blend across seamlines; None: 6 output cells.
+    min_region_m
+        Regions of one image smaller than this squared (m^2) are merged into a neighbour (no speckled seamlines).
     occlusion_tol_cells
         Depth tolerance of the visibility test in DSM cells (times ``1 + tan`` of the off-nadir angle).
     balance
@@ -90,6 +92,7 @@ class OrthoConfig:
     ground_window_m: float = 60.0
     seam_margin_m: float | None = None
     feather_m: float | None = None
+    min_region_m: float = 2.0
     occlusion_tol_cells: float = 1.5
     balance: bool = True
     balance_sigma_gain: float = 0.1
@@ -164,7 +167,8 @@ class OrthoPlan:
 
 @dataclass
 class OrthoTile:
-    """One output tile: colours, validity, surface (cells with a DSM height), source image per cell (-1 none)."""
+    """One output tile: colours, validity, surface (cells with a DSM height), source image per cell (-1 no surface,
+    -2 seen by no image)."""
 
     window: tuple[int, int, int, int]
     rgb: NDArray[np.uint8]
@@ -190,7 +194,8 @@ class Orthomosaic:
     surface
         ``(rows, cols)`` bool: cells with a DSM height (a cell of the surface no image sees is ``surface & ~valid``).
     source
-        ``(rows, cols)`` int16 index into ``images`` of the image that gives most of the cell's colour (-1 none).
+        ``(rows, cols)`` int16 index into ``images`` of the image that gives most of the cell's colour; -1 no
+        surface (outside the DSM), -2 a surface no image sees.
     images
         Image names.
     label
@@ -593,6 +598,8 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
             sl = (slice(r0, r0 + h), slice(c0, c0 + w))
             sees[sl] |= (img_of[sl] == v.image) & np.isfinite(v.cost) & (comp[sl] > 0)
         label = np.where(sees, img_of, label).astype(np.int32)
+    min_region = max(4, int(round((config.min_region_m / dsm.grid.cell_m) ** 2)))
+    label, merged = clean_regions(label, min_region)
     gains = np.ones((len(eo_l), 3))
     npairs = 0
     if config.balance:
@@ -621,11 +628,48 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
         raise SkyrigError("no image sees the DSM (check that the orientations and the DSM are of the same place, "
                           "CRS and height reference)")
     stats = {"images": len(eo_l), "images_used": int(len(np.unique(label[label >= 0]))),
-             "objects": int(ncomp), "objects_one_image": objects_whole, "balance_pairs": npairs,
+             "objects": int(ncomp), "objects_one_image": objects_whole,
+             "small_regions_merged": merged, "balance_pairs": npairs,
              "dsm_cells_seen": int(seen_any.sum()), "dsm_cells": ncells, "plan_seconds": time.perf_counter() - t0,
              "gsd_m": gsd_m, "cell_m": cell}
     return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, elevated, windows, gains, tiles, gsd_m, config,
                      stats)
+
+
+def clean_regions(label: NDArray[np.int32], min_cells: int) -> tuple[NDArray[np.int32], int]:
+    """Merge regions (4-connected cells of one image) smaller than ``min_cells`` into the neighbouring image that
+    borders them most, so that seamlines are few and long rather than speckle.  Returns the labels and the number of
+    regions merged.  Cells the new image does not see take another image in the tiles (their fallback)."""
+    from scipy import ndimage
+
+    out = label.copy()
+    merged = 0
+    for _ in range(3):
+        changed = 0
+        for k in np.unique(out[out >= 0]):
+            comp, n = ndimage.label(out == k)
+            if n == 0:
+                continue
+            sizes = np.bincount(comp.ravel())
+            small = np.flatnonzero(sizes[1:] < min_cells) + 1
+            if len(small) == 0:
+                continue
+            objs = ndimage.find_objects(comp)
+            for c in small:
+                sl = objs[c - 1]
+                sl = tuple(slice(max(a.start - 1, 0), a.stop + 1) for a in sl)
+                m = comp[sl] == c
+                ring = ndimage.binary_dilation(m) & ~m
+                nb = out[sl][ring]
+                nb = nb[(nb >= 0) & (nb != k)]
+                if len(nb) == 0:
+                    continue
+                out[sl][m] = np.bincount(nb).argmax()
+                changed += 1
+        merged += changed
+        if not changed:
+            break
+    return out, merged
 
 
 def _local_box(frame: WorldFrame, local: WorldFrame, box_map: tuple[float, ...]) -> tuple[float, ...]:
@@ -715,10 +759,13 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         if col.ndim == 2:
             col = np.repeat(col[..., None], 3, axis=2)
         col *= plan.gains[i][None, None, :]
-        if weight_region is None:  # fallback image: full weight where nothing else gives colour
-            wgt = np.where(vis & (wsum <= 0), 1e-6, 0.0)
+        # a small weight wherever the image sees the cell, leaning to steep views: cells that no labelled image
+        # sees at full resolution take their colour from the images that do
+        pref = 1e-6 / (1.0 + np.minimum(tan, 10.0)) ** 4
+        if weight_region is None:  # an image not labelled in this tile: only where nothing else gives colour
+            wgt = np.where(vis & (wsum <= 0), pref, 0.0)
         else:
-            wgt = weight_region * vis
+            wgt = (weight_region + pref) * vis
         acc[...] += col * wgt[..., None]
         wsum[...] += wgt
         better = wgt > wmax
@@ -731,7 +778,7 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     for i in labelled:
         region = (lab == i).astype(np.float32)
         feather = box(box(region, k_size, borderType=cv2.BORDER_REPLICATE), k_size, borderType=cv2.BORDER_REPLICATE)
-        add(i, feather.astype(np.float64) + 1e-9 * region)
+        add(i, feather.astype(np.float64))
         done.add(i)
     # fallback: cells with a surface that no labelled image sees at full resolution
     need = okz & (wsum <= 0)
@@ -758,7 +805,7 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     sl = (slice(pad, pad + h), slice(pad, pad + w))
     rgb_out = np.clip(out[sl] + 0.5, 0, 255).astype(np.uint8)
     valid_out = ok[sl]
-    src_out = np.where(valid_out, src[sl], -1).astype(np.int16)
+    src_out = np.where(valid_out, src[sl], np.where(okz[sl], -2, -1)).astype(np.int16)
     return OrthoTile((r0, c0, h, w), rgb_out, valid_out, okz[sl], src_out, fallback, time.perf_counter() - t0)
 
 

@@ -129,7 +129,7 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
     Parameters
     ----------
     rgb, valid, source, grid, frame
-        The mosaic (``source``: image index per cell, -1 none) on a :class:`~skyrig.dense.grid.GridSpec` in a map
+        The mosaic (``source``: image index per cell, -1 no surface, -2 a surface no image sees) on a :class:`~skyrig.dense.grid.GridSpec` in a map
         frame; cells are converted rigorously to the scene's local frame.
     scene
         The simulated world.
@@ -141,7 +141,7 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
         share of them that got their right colour from another image is reported.
     surface
         ``(rows, cols)`` bool, optional: cells where the mosaic has a surface height (the DSM's extent); hidden cells
-        outside it are not counted.
+        outside it are not counted.  Default: ``source != -1``.
     noise_dn
         The images' noise (digital numbers): the yardstick of the seam colour step.
     seam_band, seam_gap
@@ -160,6 +160,8 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
 
     local = WorldFrame.local(*scene.origin)
     H, W = valid.shape
+    if surface is None:
+        surface = np.asarray(source) != -1
     xx, yy = grid.cell_centres()
     z0 = float(np.mean(scene.terrain_range))
     # map -> local at the true surface height: two passes (the map vertical leans slightly from the local one)
