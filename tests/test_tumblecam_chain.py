@@ -155,6 +155,11 @@ def test_transfer_across_a_time_offset(survey):
                               np.r_[ev.exposure_id, [999]])
     with pytest.raises(TransferError, match="late_oblique.png"):
         transfer_orientations(nad, survey.rig_true, ev2)
+    # with the trajectory the last exposure's correction is held over the 0.4 s: exact for the true trajectory
+    late = transfer_orientations(nad, survey.rig_true, ev2, trajectory=survey.trajectory_true)
+    truth2 = direct_georeference(survey.trajectory_true, survey.rig_true, ev2, frame)
+    d = orientation_differences(late, truth2)
+    assert np.max(d["angle_rad"]) < 1e-9 and np.max(np.abs(d["centre_m"])) < 1e-5
 
 
 def test_transfer_refuses_bad_input(survey):
@@ -248,3 +253,27 @@ def test_fig9_seams_with_and_without_the_curve(survey, bench):
     # without: several times larger, and over a pixel somewhere (the scenario's curve reaches ~0.15 deg)
     assert res["no_curve"]["max_offset_px"] > 1.0
     assert res["no_curve"]["median_offset_px"] > 3 * res["curve"]["median_offset_px"]
+
+
+# ----------------------------------------------------------------------------------------------- the whole chain
+@pytest.mark.slow
+def test_chain_simulate_adjust_nadir_transfer(tmp_path_factory, bench):
+    """skyrig simulate tumblecam -> georef / match / block / adjust of the nadir images only -> skyrig transfer to the
+    obliques (calibrated curve / --no-curve) against the simulator's truth.  The obliques inherit the nadir's
+    adjusted errors plus the curve's calibration noise: their image-space error stays within the prediction from
+    those (focal length x angle, focal length x centre error / flying height); without the curve it is several
+    times larger."""
+    cache = tmp_path_factory.mktemp("tumblecam-chain")
+    r = bench.chain(cache, np.random.default_rng(7), "tumblecam")
+    sv = build_survey(scenario_spec("tumblecam", "ci", 1))
+    cam = sv.rig_true.head("oblique").camera
+    nadir_rot = np.radians(r["adjust"]["rotation_rms_deg"])
+    sig_curve = np.linalg.norm(np.radians(np.asarray(bench.TAB2_MEAN_2SIGMA_DEG) / 2 / np.sqrt(5)))
+    # orientation: the nadir's rotation error and the calibration noise, nothing else (3 sigma of the latter)
+    assert r["curve"]["angle_rms_deg"] <= np.degrees(np.hypot(nadir_rot, 3 * sig_curve))
+    assert abs(r["curve"]["centre_rms_m"] - r["adjust"]["centre_rms_m"]) < 1e-3  # zero lever arms
+    pred_px = np.hypot(cam.focal_px * np.hypot(nadir_rot, sig_curve),
+                       cam.focal_px * r["adjust"]["centre_rms_m"] / sv.spec.flights[0].flying_height_m)
+    assert r["curve"]["image_space"]["rms_px"] <= 1.5 * np.sqrt(2) * pred_px
+    assert r["no_curve"]["image_space"]["rms_px"] > 2 * r["curve"]["image_space"]["rms_px"]
+    assert r["no_curve"]["angle_rms_deg"] > 3 * r["curve"]["angle_rms_deg"]
