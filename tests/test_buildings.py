@@ -3,8 +3,9 @@
 
 The DSM is the scene's analytic surface rasterised here in the map CRS EPSG:25832 (ellipsoidal heights) at
 0.3 m; the truth is the scene's building parameters (corner vertices converted to the map CRS through ECEF by
-PROJ).  A building cell is one whose centre lies inside the footprint, so corners must come back within one
-cell; heights of flat roofs and of the ground are sampled exactly, so they must come back within a few cm
+PROJ).  A building cell is one whose centre lies inside the footprint, so a wall lies somewhere between the last
+cell centre inside and the first outside: sides placed on the median of their rasterised staircase must come
+back within half a cell (corners too); heights of flat roofs and of the ground are sampled exactly, so they must come back within a few cm
 (gable eaves and ridges from plane fits on cell centres: within a quarter of a cell's height change).
 """
 
@@ -24,6 +25,9 @@ from skyrig.simulate.scenarios import build_survey, scenario_spec
 
 CRS = WorldFrame.map("EPSG:25832")
 CELL = 0.3
+
+
+pytestmark = pytest.mark.filterwarnings("ignore:'crs' was not provided")  # the GeoPackage without a CRS, on purpose
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +72,7 @@ def test_extracted_buildings_match_the_scene(town):
         x, y = fp[:, 0], fp[:, 1]
         assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # counter-clockwise
         err = [np.min(np.linalg.norm(fp - p, axis=1)) for p in t["corners"]]
-        assert max(err) <= CELL, (err, b)
+        assert max(err) <= 0.5 * CELL, (err, b)
         # the ground: 10th percentile of the ring; the terrain's relief under the footprint bounds it
         assert t["terrain"].min() - 0.1 <= b.ground_z <= t["terrain"].max() + 0.1
         assert (len(b.roof) == 2) == t["gabled"]

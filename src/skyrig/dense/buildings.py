@@ -262,6 +262,17 @@ def _footprint_from_mask(mask: NDArray[np.bool_], grid: GridSpec, r0: int, c0: i
         ax_w = np.array([np.cos(t), np.sin(t)])  # along the 'w' side in (col, row)
         ax_h = np.array([-np.sin(t), np.cos(t)])
         ctr = np.array([ux, uy])
+        # the enclosing rectangle touches the outermost steps of a turned wall's staircase: place each side at
+        # the median of its own boundary points instead (a staircase is centred on the line it rasterises)
+        a = (cc - ctr) @ ax_w
+        b = (cc - ctr) @ ax_h
+        sides = []
+        for coord, other, half, ohalf in ((a, b, w / 2, h / 2), (-a, b, w / 2, h / 2), (b, a, h / 2, w / 2),
+                                          (-b, a, h / 2, w / 2)):
+            sel = (coord > half - 1.5) & (np.abs(other) < ohalf - 1.5)
+            sides.append(float(np.median(coord[sel])) + 1.0 / (2 * up) if sel.sum() >= 3 else half)
+        w, h = sides[0] + sides[1], sides[2] + sides[3]
+        ctr = ctr + 0.5 * (sides[0] - sides[1]) * ax_w + 0.5 * (sides[2] - sides[3]) * ax_h
         pts = np.array([ctr + sx * w / 2 * ax_w + sy * h / 2 * ax_h for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
         xy = _cells_to_xy(grid, pts[:, 0] + c0, pts[:, 1] + r0)
         cxy = _cells_to_xy(grid, np.array([ctr[0] + c0]), np.array([ctr[1] + r0]))[0]

@@ -1,0 +1,156 @@
+"""Façade textures and building extraction on the simulated MIDAS town (issue 11, deliverable 3).
+
+Usage::
+
+    .venv/bin/python bench/facades.py [--project /tmp/skyrig-acc/midas-dsm] [--json FILE]
+
+The project is a ``skyrig simulate midas-dsm --size ci`` folder with ``images/``, ``truth/eo.csv``, the adjusted
+``output/adjust/eo.csv`` and the DSM matched from them ``output/dsm_adjusted/dsm.tif`` (as
+``bench/dense_acceptance.py midas`` leaves it).  The truth is the scene of the same scenario rebuilt in memory
+(``build_survey(scenario_spec("midas-dsm", "ci", 1))``): its buildings and its façade rule.
+
+Cases (each: extraction figures, then texturing judged by :func:`skyrig.simulate.judge_facades.judge_facades`
+over the façades textured from at least one oblique image):
+
+``true``      true orientations (local ENU frame) + the analytic DSM rasterised in EPSG:25832 at the matched
+              DSM's cell size, with the true buildings and with the buildings extracted from that DSM;
+``adjusted``  adjusted orientations (EPSG:25832) + the matched DSM, with the true buildings and with the buildings
+              extracted from the matched DSM.
+
+Speed: texels per second of :func:`skyrig.dense.facades.texture_facades` (occlusion march, per-texel best image,
+feathering) next to a plain ``cv2.warpPerspective`` of each façade's first image onto the same texel grid (a
+homography from the four corners: no distortion, no occlusion, one image), in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _fmt(d: dict) -> str:
+    return ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
+
+
+def extraction_figures(scene, blocks, frame) -> dict:
+    from skyrig.simulate.judge_facades import judge_extraction
+
+    ex = judge_extraction(scene, blocks, frame)
+    ce = ex["corner_err_m"]
+    return {"extracted": ex["extracted"], "matched": ex["matched"], "true": ex["true"],
+            "rectangles": int(sum(len(b.footprint) == 4 for b in blocks)),
+            "corner_median_m": float(np.median(ce)) if len(ce) else float("nan"),
+            "corner_p90_m": float(np.percentile(ce, 90)) if len(ce) else float("nan"),
+            "corner_max_m": float(ce.max()) if len(ce) else float("nan"),
+            "ground_median_m": float(np.median(ex["ground_err_m"])) if len(ce) else float("nan"),
+            "eave_median_m": float(np.median(ex["eave_err_m"])) if len(ce) else float("nan"),
+            "eave_max_abs_m": float(np.abs(ex["eave_err_m"]).max()) if len(ce) else float("nan"),
+            "roof_type_right": int(ex["gabled_right"].sum())}
+
+
+def warp_baseline(textures, eo, cameras, loader, frame) -> tuple[float, int]:
+    """Seconds and texels of a plain homography warp of each textured façade's first image."""
+    import cv2
+
+    from skyrig.georef.eo import local_frame_for
+
+    t_all, n = 0.0, 0
+    pts = np.concatenate([t.facade.corners for t in textures])
+    local = local_frame_for(frame.to_ecef(pts.mean(axis=0)[None]))
+    eo_l = eo.to_frame(local)
+    idx = {str(x): i for i, x in enumerate(eo.image)}
+    for t in textures:
+        if not t.images:
+            continue
+        k = idx[t.images[0]]
+        img = loader(k)
+        t0 = time.perf_counter()
+        H, W = t.valid.shape
+        c = t.facade.corners
+        cl = local.from_ecef(frame.to_ecef(c))
+        cam = cameras[str(eo_l.camera[k])]
+        px = cam.project_pixels((cl - eo_l.centre[k]) @ eo_l.rotation[k]).astype(np.float32)
+        w_m, h_m = W * t.texel_m, H * t.texel_m
+        tx = np.float32([[0, H], [W, H], [W, 0], [0, 0]]) * np.float32([t.facade.width_m / w_m, t.facade.height_m / h_m])
+        hm = cv2.getPerspectiveTransform(px, tx)
+        cv2.warpPerspective(img, hm, (W, H), flags=cv2.INTER_LINEAR)
+        t_all += time.perf_counter() - t0
+        n += H * W
+    return t_all, n
+
+
+def run(project: Path) -> dict:
+    from skyrig.dense.buildings import extract_buildings
+    from skyrig.dense.facades import texture_facades
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.dsm_cog import read_dsm_cog
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.io.rig_file import read_rig
+    from skyrig.pipeline.dense import ImageFiles
+    from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    survey = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    scene = survey.scene
+    rig = read_rig(project / "rig.yaml")
+    cams = {h.camera.name: h.camera for h in rig.heads.values()}
+    dsm_m = read_dsm_cog(project / "output" / "dsm_adjusted" / "dsm.tif")
+    eo_adj = read_eo_csv(project / "output" / "adjust" / "eo.csv")
+    eo_true = read_eo_csv(project / "truth" / "eo.csv")
+    frame = dsm_m.frame
+    t0 = time.perf_counter()
+    dsm_a = scene_dsm(scene, dsm_m.grid, frame)
+    print(f"analytic DSM on the matched DSM's grid {dsm_m.grid.shape} ({time.perf_counter() - t0:.1f} s)", flush=True)
+    out: dict = {}
+    for case, eo, dsm in (("true", eo_true, dsm_a), ("adjusted", eo_adj, dsm_m)):
+        loader = ImageFiles([str(project / "images" / n) for n in eo.image],
+                            [(cams[c].width, cams[c].height) for c in eo.camera])
+        oblique = {str(n) for n in eo.image if "nadir" not in str(n)}
+        t0 = time.perf_counter()
+        extracted = extract_buildings(dsm)
+        te = time.perf_counter() - t0
+        ex = extraction_figures(scene, extracted, frame)
+        ex["seconds"] = te
+        print(f"[{case}] extraction: {_fmt(ex)}", flush=True)
+        out[case] = {"extraction": ex}
+        for label, blocks in (("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted)):
+            t0 = time.perf_counter()
+            tex = texture_facades(blocks, eo, cams, loader, dsm)
+            tt = time.perf_counter() - t0
+            _, summ = judge_facades(scene, tex, frame, oblique)
+            texels = int(sum(t.valid.size for t in tex if t.images))
+            summ["seconds"] = tt
+            summ["texels"] = texels
+            summ["occluded_filled_fraction"] = summ["occluded_filled"] / max(summ["occluded_in_best"], 1)
+            if case == "true" and label == "true_buildings":
+                tw, nw = warp_baseline(tex, eo, cams, loader, frame)
+                summ["warp_seconds"] = tw
+                summ["texels_per_s"] = texels / tt
+                summ["warp_texels_per_s"] = nw / max(tw, 1e-9)
+            print(f"[{case}] {label}: {_fmt(summ)}", flush=True)
+            out[case][label] = summ
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--project", default="/tmp/skyrig-acc/midas-dsm", type=Path)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", "output/dsm_adjusted/dsm.tif", "rig.yaml"):
+        if not (a.project / need).exists():
+            print(f"{a.project / need} is missing: run bench/dense_acceptance.py midas first", file=sys.stderr)
+            return 2
+    res = run(a.project)
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
