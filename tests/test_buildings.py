@@ -160,3 +160,46 @@ def test_footprints_from_a_geopackage_in_another_crs(town, tmp_path):
     far = [fps[0] + 5000.0]
     with pytest.raises(SkyrigError, match="outside the DSM"):
         buildings_from_footprints(far, dsm)
+
+
+@pytest.mark.slow
+def test_chain_on_a_matched_dsm(town):
+    """Nadir images rendered from the true orientations -> ``dense_surface`` -> extraction -> façade textures.
+
+    The matched DSM's building edges are blurred / fattened by the matcher (on the midas-dsm block about 0.3 m
+    median, see ``bench/facades.py``), so the tolerances here are the matched DSM's: corners within 3 cells
+    (median), eaves within 0.3 m (median); textures of the extracted walls, whose texels are about a cell, within
+    3 texels (median window corner)."""
+    from skyrig.dense.facades import texture_facades
+    from skyrig.dense.pairs import PairConfig
+    from skyrig.dense.surface import DenseConfig, dense_surface
+    from skyrig.geometry.pose import Pose
+    from skyrig.simulate.judge_facades import judge_extraction, judge_facades
+    from skyrig.simulate.render import render_image
+
+    s, _, _ = town
+    eo = s.eo_true
+    cams = {str(eo.camera[k]): s.rig_true.head(str(eo.head[k])).camera for k in range(len(eo))}
+    cache: dict[int, np.ndarray] = {}
+
+    def loader(i):
+        if i not in cache:
+            cache[i] = render_image(s.scene, cams[str(eo.camera[i])], Pose(eo.rotation[i], eo.centre[i], "world", "camera"),
+                                    noise_dn=1.0, seed=i)
+        return cache[i]
+
+    nadir = np.flatnonzero(eo.head == "nadir")
+    c = CRS.from_ecef(s.frame.to_ecef(np.array([[-60.0, -80.0, 80.0], [60.0, 70.0, 80.0]])))
+    dsm, _, _ = dense_surface(eo.subset(nadir), cams, lambda i: loader(int(nadir[i])), CRS, (70.0, 110.0),
+                              area=(c[0, 0], c[0, 1], c[1, 0], c[1, 1]),
+                              config=DenseConfig(cloud=False, block_px=384, pairs=PairConfig(pairs_per_image=2)))
+    blocks = extract_buildings(dsm)
+    ex = judge_extraction(s.scene, blocks, CRS)
+    assert ex["matched"] == len(blocks) >= 5
+    assert np.median(ex["corner_err_m"]) <= 3 * dsm.grid.cell_m
+    assert abs(np.median(ex["eave_err_m"])) <= 0.3
+    tex = texture_facades(blocks, eo, cams, loader, dsm)
+    _, summ = judge_facades(s.scene, tex, CRS)
+    # the walls stand where the matched DSM put them: texture offsets follow the corner errors (texel ~ cell)
+    assert summ["windows_found"] >= 5, summ
+    assert summ["corner_err_median_px"] <= 3.0, summ
