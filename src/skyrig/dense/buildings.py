@@ -2,6 +2,17 @@
 
 Coordinates are in the frame of the DSM they came from (``frame``: a map CRS with its height reference, or a
 local ENU frame), metres.  Polygons are counter-clockwise seen from above, without a repeated closing vertex.
+
+Making buildings:
+
+* :func:`extract_buildings` ``(dsm) -> list[BuildingBlock]``: from a DSM alone (ground estimate, normalised DSM,
+  connected components, regularised footprints, ground / eave heights, flat or gabled roof planes);
+* :func:`buildings_from_footprints` ``(footprints, dsm)``: given footprints (e.g. read from a GeoPackage by
+  :func:`skyrig.io.footprints_gpkg.read_footprints`, which checks and reprojects the layer's CRS), heights
+  from the DSM.
+
+Texturing them: :func:`skyrig.dense.facades.texture_facades`.  Judges against a simulated scene:
+:mod:`skyrig.simulate.judge_facades`.  Figures: ``bench/facades.py``.
 """
 
 from __future__ import annotations
