@@ -187,3 +187,26 @@ def test_bad_inputs_are_refused(midas):
     tiny = BuildingBlock(0, np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), 10.0, 10.0)
     with pytest.raises(SkyrigError, match="degenerate"):
         texture_facades([tiny], eo, cams, loader, dsm)
+
+
+def test_a_flat_roof_textured_as_a_plane_matches_the_scenes_roof(midas):
+    import cv2
+
+    s, eo, cams, dsm, blocks, _, loader = midas
+    local = s.frame
+    flat = [b for b in blocks if len(b.roof) == 1]
+    assert flat
+    b = flat[0]
+    roof = b.roof[0]  # counter-clockwise from above: corners bottom-start, bottom-end, top-end, top-start; normal up
+    res = texture_plane(roof, eo, cams, loader, dsm)
+    assert res.valid.mean() > 0.95 and res.images
+    H, W = res.valid.shape
+    u = (roof[1] - roof[0]) / np.linalg.norm(roof[1] - roof[0])
+    v = (roof[3] - roof[0]) / np.linalg.norm(roof[3] - roof[0])
+    jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    P = roof[3] + (jj.reshape(-1, 1) * res.texel_m) * u - (ii.reshape(-1, 1) * res.texel_m) * v
+    pl = local.from_ecef(CRS.to_ecef(P))
+    truth = s.scene.roof_rgb(np.full(len(pl), b.id), pl[:, 0], pl[:, 1]).mean(axis=1).reshape(H, W)
+    got = res.rgb.astype(float).mean(axis=2) / 255.0
+    (dx, dy), resp = cv2.phaseCorrelate(truth, got, cv2.createHanningWindow((W, H), cv2.CV_64F))
+    assert resp > 0.1 and np.hypot(dx, dy) <= 1.0, (dx, dy, resp)
