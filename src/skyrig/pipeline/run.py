@@ -516,7 +516,7 @@ def _match_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
 
 
 def _match(ctx: StageContext) -> dict[str, Any]:
-    from skyrig.cli.match import match_images
+    from skyrig.pipeline.match import match_images
     from skyrig.match.features import FeatureConfig
 
     p, o = ctx.project, ctx.options
@@ -535,7 +535,7 @@ def _match(ctx: StageContext) -> dict[str, Any]:
     key = _sha(json.dumps({"f": [o["method"], o["max_size"], o["max_features"]], "lsm": o["lsm"]}).encode())[:12]
     cache = ctx.cache() / key  # features and matches kept between runs (MatchDatabase refuses other settings)
     ex = p.executor
-    scheduler = "sync" if ex.kind == "serial" else "processes" if ex.kind == "local" else "threads"
+    scheduler = ex.scheduler or ("sync" if ex.kind == "serial" else "processes" if ex.kind == "local" else "threads")
     done_total: dict[str, tuple[int, int]] = {}
 
     def progress(stage: str, done: int, total: int) -> None:
@@ -613,7 +613,8 @@ def _adjust_uav_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
 def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
     p, o = ctx.project, ctx.options
     args: list[object] = [p.root, "--images", p.images[0], "--match", ctx.need("ties").parent, "-o", ctx.out,
-                          "--crs", p.crs, "--gnss-sigma", *o["gnss_sigma"], "--attitude-sigma", o["attitude_sigma"],
+                          "--crs", p.crs, "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
+                          "--attitude-sigma", o["attitude_sigma"],
                           "--altitude", o["altitude"], "--focal-prior", o["focal_prior"]]
     if not o["self_calibration"]:
         args += ["--no-self-calibration"]
