@@ -334,6 +334,8 @@ BAD: list[Bad] = [
     Bad("events-beta-rad-declared", "events", rep(rep(EVENTS, "angles: deg", "angles: rad"), "-35.0", "-350.0"), 6,
         "beta", "declared 'angles: rad'"),
     Bad("events-exposure-text", "events", rep(EVENTS, ",,2\n", ",,two\n"), 7, "exposure", "'two' is not an integer"),
+    Bad("events-exposure-huge", "events", rep(EVENTS, ",,2\n", ",,99999999999999999999999\n"), 7, "exposure",
+        "too large"),  # found by the fuzz (was an OverflowError traceback)
     Bad("events-empty-head", "events", rep(EVENTS, ",nadir,,2", ",,,2"), 7, "head", "empty head name"),
     Bad("events-time-text", "events", rep(EVENTS, "345601.600000", "12:00:01.6"), 7, "time", "is not a number"),
     Bad("events-short-row", "events", rep(EVENTS, ",,2\n", ",2\n"), 7, None, "expected 5 values, found 4"),
@@ -387,6 +389,8 @@ BAD: list[Bad] = [
     Bad("cam-colon-not-equals", "cam", rep(CAM, "focal = 4000", "focal: 4000"), 4, None, "expected 'key = value'"),
     Bad("cam-focal-text", "cam", rep(CAM, "focal = 4000", "focal = 4000px"), 4, "focal", "'4000px' is not a number"),
     Bad("cam-empty", "cam", "", None, "name", "missing key"),
+    Bad("cam-focal-zero", "cam", rep(CAM, "focal = 4000", "focal = 000"), 4, "focal", "must be positive"),  # fuzz find
+    Bad("cam-width-fraction", "cam", rep(CAM, "width = 4000", "width = 4000.5"), 5, "width", "whole number of pixels"),
     # ---- ODM
     Bad("gcp-empty", "gcp", "", 1, "projection", "the first line must name the projection"),
     Bad("gcp-no-projection-line", "gcp", GCP.split("\n", 1)[1], 1, "projection", "unknown coordinate reference system"),

@@ -120,6 +120,9 @@ def read_events_csv(path: PathLike) -> CameraEvents:
                 exposure[k] = int(cell)
             except ValueError:
                 raise InputFormatError(f"exposure id {cell!r} is not an integer", path, no, "exposure") from None
+            except OverflowError:
+                raise InputFormatError(f"exposure id {cell!r} is too large (at most {2**63 - 1})", path, no,
+                                       "exposure") from None
     if tsys == "gps-week-sow":
         time = week * SECONDS_PER_WEEK + time
         tsys = "gps"

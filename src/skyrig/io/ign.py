@@ -126,9 +126,19 @@ def read_ign_camera(path: PathLike, pixel_size_mm: float = 0.001) -> FrameCamera
         if k not in values:
             raise InputFormatError("missing key", path, None, k)
     num = {k: _num(path, values[k][0], k, values[k][1]) for k in ("ppax", "ppay", "focal", "width", "height")}
-    return FrameCamera.from_pixels(
-        values["name"][1], int(num["width"]), int(num["height"]), num["focal"], num["ppax"], num["ppay"], pixel_size_mm
-    )
+    for k in ("focal", "width", "height"):
+        if num[k] <= 0:
+            raise InputFormatError(f"must be positive, got {values[k][1]!r}", path, values[k][0], k)
+    for k in ("width", "height"):
+        if num[k] != int(num[k]) or num[k] > 10**6:
+            raise InputFormatError(f"must be a whole number of pixels (at most 1000000), got {values[k][1]!r}", path,
+                                   values[k][0], k)
+    try:
+        return FrameCamera.from_pixels(
+            values["name"][1], int(num["width"]), int(num["height"]), num["focal"], num["ppax"], num["ppay"],
+            pixel_size_mm)
+    except ValueError as exc:  # any other value the camera model refuses
+        raise InputFormatError(str(exc), path) from None
 
 
 def read_ign_measurements(path: PathLike) -> ImageMeasurements:
