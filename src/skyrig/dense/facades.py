@@ -211,17 +211,24 @@ def _candidates(ctx: _Context, corners: NDArray, n_dsm: NDArray, cfg: TextureCon
     n_l = ctx.to_local(corners[:1] + n_dsm) - ctx.to_local(corners[:1])
     n_l = n_l[0] / np.linalg.norm(n_l[0])
     cmax = np.cos(np.radians(cfg.max_angle_deg))
+    # all images at once: directions, incidence and distance (N images x 49 points)
+    d = ctx.eo_l.centre[:, None, :] - P_l[None]
+    dist = np.linalg.norm(d, axis=2)
+    cosi = (d @ n_l) / dist
+    facing = np.flatnonzero((np.median(cosi, axis=1) >= cmax) & (cosi >= cmax).any(axis=1))
     out = []
-    for k in range(len(ctx.eo_l)):
-        px, fp, cosi = _footprint_per_image(ctx, P_l, n_l, k)
-        cam = ctx.cameras[str(ctx.eo_l.camera[k])]
-        inside = cam.in_image(px, -cfg.edge_margin_px) & (cosi >= cmax)
-        if inside.sum() == 0:
-            continue
-        cen = np.median(cosi)
-        if cen < cmax:
-            continue
-        out.append((k, float(np.median(fp[inside])), float(inside.mean())))
+    names = ctx.eo_l.camera[facing]
+    for name in np.unique(names):
+        idx = facing[names == name]
+        cam = ctx.cameras[str(name)]
+        pc = np.einsum("kpj,kji->kpi", -d[idx], ctx.eo_l.rotation[idx])  # camera-frame points
+        px = cam.project_pixels(pc.reshape(-1, 3)).reshape(len(idx), -1, 2)
+        inside = cam.in_image(px, -cfg.edge_margin_px) & (cosi[idx] >= cmax)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fp = dist[idx] / (cam.focal_px * cosi[idx])
+        for m, k in enumerate(idx):
+            if inside[m].any():
+                out.append((int(k), float(np.median(fp[m][inside[m]])), float(inside[m].mean())))
     out.sort(key=lambda t: t[1])
     return [(k, f) for k, f, _ in out]
 
