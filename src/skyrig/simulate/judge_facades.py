@@ -373,24 +373,27 @@ def judge_facade(scene: Scene, texture: FacadeTexture, frame: WorldFrame, search
 
 def judge_facades(scene: Scene, textures: list[FacadeTexture], frame: WorldFrame, oblique: set[str] | None = None
                   ) -> tuple[list[FacadeJudgement], dict]:
-    """Judge every texture; the summary counts façades "seen" (any valid texel on a true wall and at least one
-    window located; with ``oblique`` given, only textures whose images include one of those image names).
+    """Judge every texture; the summary counts façades "seen" (at least 16 valid texels on a true wall and at
+    least one resolvable window of the rule in the valid part; with ``oblique`` given, only textures whose
+    images include one of those image names).
 
     Summary keys: ``facades``, ``seen``, ``offset_median_px``, ``offset_max_px`` (phase correlation, seen façades),
-    ``within_1px`` (fraction of seen façades whose windows are all within 1 texel and offset <= 1 texel),
+    ``within_1px`` (fraction of seen façades with every window found, the median window-corner error and the
+    phase-correlation offset within 1 texel),
     ``windows``, ``windows_found``, ``windows_within_1px``, ``corner_err_median_px``, ``corner_err_max_px``,
     ``occluded_in_best``, ``occluded_filled`` (texel counts from the textures' stats)."""
     out = [judge_facade(scene, t, frame) for t in textures]
     seen = []
     for t, j in zip(textures, out):
-        if j.true_building < 0 or not np.isfinite(j.offset_px[0]) or j.windows_found == 0:
+        if j.true_building < 0 or not np.isfinite(j.offset_px[0]) or j.windows == 0:
             continue
         if oblique is not None and not (set(t.images) & oblique):
             continue
         seen.append(j)
     off = np.array([j.offset_norm_px for j in seen]) if seen else np.zeros(0)
     errs = np.concatenate([j.corner_err_px for j in seen]) if seen else np.zeros(0)
-    good = [j for j in seen if j.windows_within_1px == j.windows_found and j.offset_norm_px <= 1.0]
+    good = [j for j in seen if j.windows_found == j.windows and j.offset_norm_px <= 1.0
+            and float(np.median(j.corner_err_px)) <= 1.0]
     summ = {"facades": len(textures), "seen": len(seen),
             "offset_median_px": float(np.median(off)) if len(off) else float("nan"),
             "offset_max_px": float(off.max()) if len(off) else float("nan"),
