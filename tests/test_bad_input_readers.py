@@ -381,6 +381,9 @@ BAD: list[Bad] = [
     Bad("app-heights-mm", "app", APP.replace("54.960", "54960.0").replace("52.630", "52630.0"), 1, "Z",
         "heights in millimetres (54.960 m)"),
     Bad("app-type-text", "app", rep(APP, '" 13 ', '" GCP '), 1, "type", "'GCP' is not a number"),
+    Bad("app-type-huge", "app", rep(APP, '" 13 ', '" 999999999999999999999999999999 '), 1, "type",
+        "not a small whole number"),  # found by the fuzz (was an OverflowError traceback)
+    Bad("app-type-fraction", "app", rep(APP, '" 13 ', '" 1.5 '), 1, "type", "not a small whole number"),
     Bad("imes-nan", "imes", rep(IMES, "1032.3", "nan"), 2, "row", "not a finite number"),
     Bad("imes-three-fields", "imes", rep(IMES, " 1032.3", ""), 2, None, "expected 4 fields"),
     Bad("wmes-heights-mm", "app", WMES.replace("54.960", "54960.0").replace("52.630", "52630.0"), 1, "Z",

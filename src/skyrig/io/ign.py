@@ -186,7 +186,10 @@ def read_ign_ground_points(path: PathLike, frame: WorldFrame) -> GroundPoints:
             raise InputFormatError(f"expected {width} fields ({layout}, as on line {rows[0][0]}), found {len(f)}"
                                    + _truncated(path, line, rows), path, line)
         if width == 5:
-            kinds.append(int(_num(path, line, "type", f[1])))
+            t = _num(path, line, "type", f[1])
+            if t != int(t) or abs(t) > 2**31:
+                raise InputFormatError(f"point type {f[1]!r} is not a small whole number", path, line, "type")
+            kinds.append(int(t))
             f = [f[0]] + f[2:]
         name = _name(f[0])
         if name in seen:
