@@ -274,8 +274,12 @@ def _visible(u: NDArray, v: NDArray, d: NDArray, tol: NDArray, zb: NDArray[np.fl
     return out.reshape(shape)
 
 
-def fill_surface(dsm: DsmGrid) -> NDArray[np.float64]:
-    """DSM heights with every hole inside the measured area filled (inpainting); NaN only outside it."""
+def fill_surface(dsm: DsmGrid, step_m: float = 2.0) -> NDArray[np.float64]:
+    """DSM heights with every hole inside the measured area filled; NaN only outside it.
+
+    A hole whose rim spans more than ``step_m`` of height (it touches a building and the ground: typically ground that
+    one image of each stereo pair could not see) is filled at the low part of its rim (20th percentile), so it is not
+    a ramp from the eaves that would hide the ground next to the building; other holes are inpainted smoothly."""
     from scipy import ndimage
 
     from skyrig.dense.surface import fill_holes
@@ -288,7 +292,22 @@ def fill_surface(dsm: DsmGrid) -> NDArray[np.float64]:
         return h.astype(np.float64)
     inside = ndimage.binary_fill_holes(ndimage.binary_closing(ok, iterations=3, border_value=0)) | ok
     filled, _ = fill_holes(h, max(h.shape))
-    return np.where(inside, filled, np.nan).astype(np.float64)
+    out = np.where(inside, filled, np.nan).astype(np.float64)
+    holes, n = ndimage.label(inside & ~ok)
+    if n:
+        objs = ndimage.find_objects(holes)
+        for k, sl in enumerate(objs, start=1):
+            sl = tuple(slice(max(a.start - 1, 0), a.stop + 1) for a in sl)
+            m = holes[sl] == k
+            rim = ndimage.binary_dilation(m) & ~m & ok[sl]
+            if not rim.any():
+                continue
+            zr = h[sl][rim]
+            lo, hi = np.percentile(zr, [20, 90])
+            if hi - lo > step_m:
+                sub = out[sl]
+                sub[m] = lo
+    return out
 
 
 def ground_estimate(height: NDArray[np.float64], cell_m: float, window_m: float) -> NDArray[np.float64]:
@@ -413,7 +432,7 @@ def solve_gains(views: list[View], n_images: int, sigma_gain: float, sigma_noise
                 min_cells: int = 20) -> tuple[NDArray[np.float64], int]:
     """Per-image, per-channel gains from the mean colours of every overlapping pair on visible ground.
 
-    Minimises ``sum_ij n_ij (g_i m_ij - g_j m_ji)^2 / sigma_noise^2 + sum_i n_i (g_i - 1)^2 / sigma_gain^2``
+    Minimises ``sum_ij n_ij (g_i m_ij - g_j m_ji)^2 / sigma_noise^2 + sum_i 0.01 n_i (g_i - 1)^2 / sigma_gain^2``
     (``m_ij``: mean colour of image i over the cells both see).  Returns the gains and the number of pairs used."""
     gains = np.ones((n_images, 3))
     A = np.zeros((3, n_images, n_images))
@@ -443,7 +462,8 @@ def solve_gains(views: list[View], n_images: int, sigma_gain: float, sigma_noise
     if npairs == 0:
         return gains, 0
     for v in vs:
-        n = float(v.sample_ok.sum())
+        # the prior only holds the overall brightness (the gauge) and images with few overlaps: 1 % of the cells
+        n = 0.01 * float(v.sample_ok.sum())
         for k in range(3):
             A[k, v.image, v.image] += n / sigma_gain ** 2
             b[k, v.image] += n / sigma_gain ** 2

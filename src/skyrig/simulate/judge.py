@@ -119,10 +119,29 @@ def _shift(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, float
     return float(dx), float(dy), float(resp)
 
 
+def _masked_match(search: NDArray[np.float64], templ: NDArray[np.float64], mask: NDArray[np.bool_]
+                  ) -> tuple[float, float]:
+    """Sub-cell shift (dx, dy) of ``templ`` (where ``mask``) inside ``search`` relative to its centred position."""
+    import cv2
+
+    res = cv2.matchTemplate(search.astype(np.float32), templ.astype(np.float32), cv2.TM_SQDIFF,
+                            mask=mask.astype(np.float32))
+    y, x = np.unravel_index(np.argmin(res), res.shape)
+
+    def vertex(a: float, b: float, c: float) -> float:
+        den = a - 2 * b + c
+        return 0.0 if den <= 0 else 0.5 * (a - c) / den
+
+    fx = vertex(res[y, x - 1], res[y, x], res[y, x + 1]) if 0 < x < res.shape[1] - 1 else 0.0
+    fy = vertex(res[y - 1, x], res[y, x], res[y + 1, x]) if 0 < y < res.shape[0] - 1 else 0.0
+    cy, cx = (res.shape[0] - 1) / 2.0, (res.shape[1] - 1) / 2.0
+    return float(x + fx - cx), float(y + fy - cy)
+
+
 def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArray, grid: Any, frame: WorldFrame,
                 scene: Scene, gsd_m: float, *, eo_local: Any = None, cameras: Any = None, surface: Any = None,
                 noise_dn: float = 1.0,
-                tile: int = 128, corner_win: int = 24, seam_band: int = 3,
+                tile: int = 128, corner_win: int = 24, corner_search: int = 12, seam_band: int = 3,
                 seam_gap: int = 4) -> dict[str, Any]:
     """Compare an orthomosaic with the scene's true top-surface colours.
 
@@ -152,7 +171,8 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
     -------
     dict
         ``tiles`` (phase-correlation offset per tile of ``tile`` cells: ``n``, ``rms_gsd``, ``max_gsd``),
-        ``roof_corners`` (offsets of windows around the true roof corners: ``n``, ``rms_gsd``, ``max_gsd``),
+        ``roof_corners`` (offset of the roof's texture near each true roof corner, found by masked template
+        matching: ``n``, ``rms_gsd``, ``max_gsd``, ``within_1gsd``, ``worst`` (offset, building)),
         ``occluded`` (``n``, ``filled``, ``correct``), ``seams`` (``pairs``, ``step_max_dn``, ``step_rms_dn``,
         ``noise_dn``), ``colour`` (median absolute difference in DN over valid cells).
     """
@@ -190,30 +210,36 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
     o = np.array(offs)
     out["tiles"] = {"n": len(o), "rms_gsd": float(np.sqrt(np.mean(o ** 2))) if len(o) else float("nan"),
                     "max_gsd": float(o.max()) if len(o) else float("nan")}
-    # 2. roof corners
+    # 2. roof corners: the roof's own texture near each corner (the rest masked out) found in the mosaic by masked
+    #    template matching over +-search cells; a leaning roof (a classic ortho) moves by its height x tan(view angle)
     b = scene.buildings
-    corners = []
+    _, bidx_all = b.top_height(L[:, 0], L[:, 1])
+    bidx_all = bidx_all.reshape(H, W)
+    coffs: list[float] = []
+    worst: list[tuple[float, int]] = []
+    h2, R = corner_win // 2, corner_search
     for i in range(len(b)):
-        v = b.vertices(i)[4:8]  # footprint corners at the eaves
-        corners.append(v)
-    cz = np.concatenate(corners) if corners else np.zeros((0, 3))
-    coffs = []
-    if len(cz):
-        cm = frame.from_ecef(local.to_ecef(cz))
+        own = ndimage.binary_erosion(bidx_all == i, iterations=1)
+        cm = frame.from_ecef(local.to_ecef(b.vertices(i)[4:8]))
         rr, cc = grid.cell_of(cm[:, 0], cm[:, 1])
-        h2 = corner_win // 2
         for r, c in zip(rr, cc):
-            if r - h2 < 0 or c - h2 < 0 or r + h2 > H or c + h2 > W:
+            if r - h2 - R < 0 or c - h2 - R < 0 or r + h2 + R > H or c + h2 + R > W:
                 continue
-            sl = (slice(r - h2, r + h2), slice(c - h2, c + h2))
-            if not valid[sl].all() or g_tru[sl].std() < 5.0:
+            win = (slice(r - h2, r + h2), slice(c - h2, c + h2))
+            big = (slice(r - h2 - R, r + h2 + R), slice(c - h2 - R, c + h2 + R))
+            m = own[win]
+            if m.sum() < 30 or valid[big].mean() < 0.97 or not valid[win][m].all() or g_tru[win][m].std() < 3.0:
                 continue
-            dx, dy, resp = _shift(g_img[sl], g_tru[sl])
-            coffs.append(np.hypot(dx, dy) * scale)
+            srch = np.where(valid[big], g_img[big], g_tru[win][m].mean())
+            dx, dy = _masked_match(srch, g_tru[win], m)
+            d = float(np.hypot(dx, dy) * scale)
+            coffs.append(d)
+            worst.append((round(d, 2), i))
     co = np.array(coffs)
     out["roof_corners"] = {"n": len(co), "rms_gsd": float(np.sqrt(np.mean(co ** 2))) if len(co) else float("nan"),
                            "max_gsd": float(co.max()) if len(co) else float("nan"),
-                           "within_1gsd": float(np.mean(co <= 1.0)) if len(co) else float("nan")}
+                           "within_1gsd": float(np.mean(co <= 1.0)) if len(co) else float("nan"),
+                           "worst": sorted(worst, reverse=True)[:5]}
     # 3. cells hidden from their best image
     if eo_local is not None and cameras is not None:
         from skyrig.simulate.render import cast_rays
@@ -269,8 +295,7 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
                            if n_h else float("nan")}
     # 4. colour step across seamlines (ground cells, residual against the truth on both sides)
     res = img - truth
-    _, bidx = b.top_height(L[:, 0], L[:, 1])
-    ground = ~ndimage.binary_dilation((bidx >= 0).reshape(H, W), iterations=seam_band + seam_gap + 2)
+    ground = ~ndimage.binary_dilation(bidx_all >= 0, iterations=seam_band + seam_gap + 2)
     src = np.where(valid, source, -1)
     steps = []
     pairs: dict[tuple[int, int], list[NDArray]] = {}
