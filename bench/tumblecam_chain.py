@@ -261,58 +261,68 @@ def chain(cache: Path, rng: np.random.Generator, scenario: str = "tumblecam") ->
     return res
 
 
-def facades(project: Path, eo_paths: dict[str, Path], rig_path: Path, margin_m: float = 20.0,
-            cell_m: float = 0.3, scenario: str = "tumblecam") -> dict[str, Any]:
-    """Step 5: façade textures of the town from the oblique images and the given orientations (engineer A's
-    ``texture_facades`` on the scene's analytic DSM and true buildings, both in the project CRS), judged against the
-    scene's façade rule (``judge_facades``: whole-façade offset and window corners, texels)."""
+def town_facades(survey: Any, eo: Any, cams: dict[str, Any], loader: Any, margin_m: float = 20.0,
+                 cell_m: float = 0.3) -> dict[str, Any]:
+    """Façade textures of the buildings the images ``eo`` see (engineer A's ``texture_facades`` on the scene's analytic
+    DSM and true buildings, both in ``eo``'s frame), judged against the scene's façade rule (``judge_facades``:
+    whole-façade offset and window corners, in texels).  ``loader(i)``: RGB image of ``eo`` row ``i``."""
     from skyrig.dense.facades import texture_facades
     from skyrig.dense.grid import GridSpec
+    from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings
+
+    crs = eo.frame
+    # the buildings whose walls the images see: footprints on the terrain plane, + margin
+    ground = float(survey.scene.base_height_m)
+    loc = eo.to_frame(survey.frame)
+    pts = []
+    for k in range(len(loc)):
+        cam = cams[str(loc.camera[k])]
+        d = cam.rays_from_pixels(cam.corner_pixels()) @ loc.rotation[k].T
+        s = (ground - loc.centre[k, 2]) / d[:, 2]
+        pts.append(loc.centre[k, :2] + s[:, None] * d[:, :2])
+    p = np.concatenate(pts)
+    lo, hi = p.min(axis=0) - margin_m, p.max(axis=0) + margin_m
+    bl = survey.scene.buildings
+    keep = set(np.flatnonzero((bl.cx > lo[0]) & (bl.cx < hi[0]) & (bl.cy > lo[1]) & (bl.cy < hi[1])).tolist())
+    c = crs.from_ecef(survey.frame.to_ecef(np.array([[lo[0], hi[1], ground], [hi[0], lo[1], ground]])))
+    x0, y0 = np.floor(c[0, 0] / cell_m) * cell_m, np.ceil(c[0, 1] / cell_m) * cell_m
+    grid = GridSpec(float(x0), float(y0), cell_m, int(np.ceil((c[1, 0] - x0) / cell_m)),
+                    int(np.ceil((y0 - c[1, 1]) / cell_m)))
+    t0 = time.perf_counter()
+    dsm = scene_dsm(survey.scene, grid, crs)
+    blocks = [b for b in true_buildings(survey.scene, crs) if b.id in keep]
+    tex = texture_facades(blocks, eo, cams, loader, dsm)
+    judged, summ = judge_facades(survey.scene, tex, crs, {str(n) for n in eo.image})
+    summ["texture_s"] = time.perf_counter() - t0
+    summ["buildings"] = len(blocks)
+    summ["judged"] = judged
+    return summ
+
+
+def facades(project: Path, eo_paths: dict[str, Path], rig_path: Path, margin_m: float = 20.0,
+            cell_m: float = 0.3, scenario: str = "tumblecam") -> dict[str, Any]:
+    """Step 5: façade textures of the town from a simulated project's oblique images with the orientations of each
+    EO file (:func:`town_facades`)."""
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.image_read import read_image
     from skyrig.io.rig_file import read_rig
-    from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings
     from skyrig.simulate.scenarios import build_survey, scenario_spec
 
     sv = build_survey(scenario_spec(scenario, "ci", 1))
-    rig = read_rig(rig_path)
-    cams = {h.camera.name: h.camera for h in rig}
+    cams = {h.camera.name: h.camera for h in read_rig(rig_path)}
     out: dict[str, Any] = {}
     for label, path in eo_paths.items():
         eo = read_eo_csv(path)
         eo = eo.subset(np.array(["oblique" in str(n) for n in eo.image]))
-        crs = eo.frame
-        # the buildings whose walls the obliques see: footprints on the terrain plane, + margin
-        ground = float(sv.scene.base_height_m)
-        loc = eo.to_frame(sv.frame)
-        pts = []
-        for k in range(len(loc)):
-            cam = cams[str(loc.camera[k])]
-            d = cam.rays_from_pixels(cam.corner_pixels()) @ loc.rotation[k].T
-            s = (ground - loc.centre[k, 2]) / d[:, 2]
-            pts.append(loc.centre[k, :2] + s[:, None] * d[:, :2])
-        p = np.concatenate(pts)
-        lo, hi = p.min(axis=0) - margin_m, p.max(axis=0) + margin_m
-        bl = sv.scene.buildings
-        keep = set(np.flatnonzero((bl.cx > lo[0]) & (bl.cx < hi[0]) & (bl.cy > lo[1]) & (bl.cy < hi[1])).tolist())
-        c = crs.from_ecef(sv.frame.to_ecef(np.array([[lo[0], hi[1], ground], [hi[0], lo[1], ground]])))
-        x0, y0 = np.floor(c[0, 0] / cell_m) * cell_m, np.ceil(c[0, 1] / cell_m) * cell_m
-        grid = GridSpec(float(x0), float(y0), cell_m, int(np.ceil((c[1, 0] - x0) / cell_m)),
-                        int(np.ceil((y0 - c[1, 1]) / cell_m)))
-        t0 = time.perf_counter()
-        dsm = scene_dsm(sv.scene, grid, crs)
-        blocks = [b for b in true_buildings(sv.scene, crs) if b.id in keep]
-        images = {}
+        images: dict[int, np.ndarray] = {}
 
         def loader(i: int, eo: Any = eo, images: dict = images) -> np.ndarray:
             if i not in images:
                 images[i] = read_image(project / "images" / str(eo.image[i]), gray=False)
             return images[i]
 
-        tex = texture_facades(blocks, eo, cams, loader, dsm)
-        judged, summ = judge_facades(sv.scene, tex, crs, {str(n) for n in eo.image})
-        summ["texture_s"] = time.perf_counter() - t0
-        summ["buildings"] = len(blocks)
+        summ = town_facades(sv, eo, cams, loader, margin_m, cell_m)
+        summ.pop("judged")
         out[label] = summ
     return out
 
