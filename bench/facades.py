@@ -13,9 +13,10 @@ Cases (each: extraction figures, then texturing judged by :func:`skyrig.simulate
 over the façades textured from at least one oblique image):
 
 ``true``      true orientations (local ENU frame) + the analytic DSM rasterised in EPSG:25832 at the matched
-              DSM's cell size, with the true buildings and with the buildings extracted from that DSM;
-``adjusted``  adjusted orientations (EPSG:25832) + the matched DSM, with the true buildings and with the buildings
-              extracted from the matched DSM.
+              DSM's cell size, with the true buildings, the buildings extracted from that DSM, and those after
+              :func:`skyrig.dense.facades.refine_walls`;
+``adjusted``  adjusted orientations (EPSG:25832) + the matched DSM, with the true buildings, the buildings
+              extracted from the matched DSM, and those after ``refine_walls``.
 
 Speed: texels per second of :func:`skyrig.dense.facades.texture_facades` (occlusion march, per-texel best image,
 feathering) next to a plain ``cv2.warpPerspective`` of each façade's first image onto the same texel grid (a
@@ -86,7 +87,7 @@ def warp_baseline(textures, eo, cameras, loader, frame) -> tuple[float, int]:
 
 def run(project: Path) -> dict:
     from skyrig.dense.buildings import extract_buildings
-    from skyrig.dense.facades import texture_facades
+    from skyrig.dense.facades import refine_walls, texture_facades
     from skyrig.georef.eo import WorldFrame
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.eo_csv import read_eo_csv
@@ -118,7 +119,14 @@ def run(project: Path) -> dict:
         ex["seconds"] = te
         print(f"[{case}] extraction: {_fmt(ex)}", flush=True)
         out[case] = {"extraction": ex}
-        for label, blocks in (("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted)):
+        t0 = time.perf_counter()
+        refined = refine_walls(extracted, eo, cams, loader, dsm)
+        rx = extraction_figures(scene, refined, frame)
+        rx["seconds"] = time.perf_counter() - t0
+        print(f"[{case}] extraction + refine_walls: {_fmt(rx)}", flush=True)
+        out[case]["refined"] = rx
+        for label, blocks in (("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted),
+                              ("refined_buildings", refined)):
             t0 = time.perf_counter()
             tex = texture_facades(blocks, eo, cams, loader, dsm)
             tt = time.perf_counter() - t0

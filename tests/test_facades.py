@@ -211,3 +211,26 @@ def test_a_flat_roof_textured_as_a_plane_matches_the_scenes_roof(midas):
     got = res.rgb.astype(float).mean(axis=2) / 255.0
     (dx, dy), resp = cv2.phaseCorrelate(truth, got, cv2.createHanningWindow((W, H), cv2.CV_64F))
     assert resp > 0.1 and np.hypot(dx, dy) <= 1.0, (dx, dy, resp)
+
+
+def test_refine_walls_moves_displaced_walls_back_onto_the_roof_outline(midas):
+    from skyrig.dense.facades import _moved, refine_walls
+
+    s, eo, cams, dsm, blocks, _, loader = midas
+    rng = np.random.default_rng(4)
+    moved, shifts = [], []
+    for b in blocks[:3]:
+        d = rng.choice([-0.5, -0.3, 0.3, 0.5], size=len(b.footprint))
+        moved.append(_moved(b, d))
+        shifts.append(d)
+    back = refine_walls(moved, eo, cams, loader, dsm)
+    gsd = 0.28  # nadir GSD of the midas-dsm block at the roofs (the images that see the roofs best)
+    errs = []
+    for b, r in zip(blocks[:3], back):
+        for f_true, f_new in zip(b.facades(), r.facades()):
+            # signed distance of the refined wall's middle from the true wall, along the true outward normal
+            errs.append((f_new.corners[:2, :2].mean(axis=0) - f_true.corners[:2, :2].mean(axis=0)) @ f_true.normal[:2])
+    errs = np.abs(errs)
+    before = np.abs(np.concatenate(shifts))
+    assert np.median(errs) <= 0.5 * gsd and errs.max() <= gsd, (errs, before)
+    assert np.median(errs) < 0.5 * np.median(before)
