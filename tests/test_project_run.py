@@ -346,21 +346,46 @@ def test_option_change_reruns_from_that_stage_and_failure_keeps_outputs(sim_proj
 
 
 @pytest.mark.slow
-def test_killed_stage_leaves_the_previous_outputs(sim_project: Path) -> None:
+def test_killed_stage_and_local_cluster(sim_project: Path) -> None:
+    """SIGKILL during matching leaves every published folder as it was; then the same stages on a LocalCluster
+    of 2 worker processes (resuming the killed run's feature store) give the serial run's outputs bit for bit."""
+    import shutil
+
+    from skyrig.io.dsm_cog import read_dsm_cog
+
     out = sim_project.parent / "output"
-    before = {s: read_manifest(out / s) for s in ("georef", "match", "block")}
+    stages = ("georef", "match", "block", "adjust", "dsm")
+    before = {s: read_manifest(out / s) for s in stages}
+    ties_serial = (out / "match" / "tie_points.csv").read_bytes()
+    dsm_serial = read_dsm_cog(out / "dsm" / "dsm.tif").height
+    shutil.rmtree(out / ".cache" / "match")  # the feature store: matching starts from nothing
     proc = subprocess.Popen([*SKYRIG, "run", str(sim_project), "--only", "match", "--force"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.time() + 120
         while time.time() < deadline and not any(".match.partial-" in p.name for p in out.iterdir()):
             time.sleep(0.2)
-        time.sleep(3.0)  # matching under way
+        time.sleep(3.0)  # features under way
         assert proc.poll() is None, "the match stage ended before it could be killed"
         os.killpg(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(timeout=60)
     for s, m in before.items():
         assert read_manifest(out / s) == m and verify_folder(out / s) == [], s
-    plan = dict((n, a) for n, a, _ in plan_run(load_project(sim_project)))
-    assert plan["match"] == "skip" and plan["dsm"] == "skip", plan
+    plan = {n: a for n, a, _ in plan_run(load_project(sim_project))}
+    assert plan == {s: "skip" for s in stages}, plan
+    text = sim_project.read_text()
+    try:
+        sim_project.write_text(text.replace("  kind: serial ", "  kind: local ").replace("  workers: null ",
+                                                                                           "  workers: 2 "))
+        for st in ("match", "dsm"):
+            res = subprocess.run([*SKYRIG, "run", str(sim_project), "--only", st, "--force"], capture_output=True,
+                                 text=True, timeout=900)
+            assert res.returncode == 0, res.stderr[-3000:]
+        assert not [p for p in out.iterdir() if ".partial-" in p.name]  # the killed run's staging went
+        assert (out / "match" / "tie_points.csv").read_bytes() == ties_serial
+        np.testing.assert_array_equal(read_dsm_cog(out / "dsm" / "dsm.tif").height, dsm_serial)
+        # the executor is not part of a stage's fingerprint
+        assert read_manifest(out / "dsm")["options"]["fingerprint"] == before["dsm"]["options"]["fingerprint"]
+    finally:
+        sim_project.write_text(text)
