@@ -413,3 +413,32 @@ def test_table_size():
     spec.loader.exec_module(mod)  # type: ignore[union-attr]
     n = len(mod.BAD) + len(mod.WARN) + len(mod.GOOD) + len(CASES) + 4 + 6 + 4
     assert n >= 150
+
+
+def test_lidar_georef_geographic_crs_keeps_millimetres(tmp_path):
+    """`skyrig lidar georef --crs EPSG:4326` wrote LAS with a 0.001 scale on degrees (points up to 68 m off, exit
+    0); now the degree axes get 1e-8 deg.  Checked against the same pulses written in ECEF, converted by PROJ."""
+    import laspy
+
+    raw = ("# skyrig-raw-scan 1\n# angles: deg\n# time: gps-sow\ntime,range,alpha,intensity\n"
+           "345601.508350,12.418,-134.875,1893\n345601.508368,12.402,-134.625,1901\n345602.2,30.0,-100.0,10\n")
+    write(tmp_path, "scan.csv", raw)
+    write(tmp_path, "traj.csv", TRAJ)
+    for crs, name in (("EPSG:4326", "geo.las"), ("ecef", "ecef.las")):
+        r = run("lidar", "georef", "--scan", tmp_path / "scan.csv", "--trajectory", tmp_path / "traj.csv", "--crs", crs,
+                "-o", tmp_path / name)
+        assert r.code == 0, r.out
+    g, e = laspy.read(tmp_path / "geo.las"), laspy.read(tmp_path / "ecef.las")
+    lon, lat, h = pyproj.Transformer.from_crs(4978, 4979, always_xy=True).transform(
+        np.asarray(e.x), np.asarray(e.y), np.asarray(e.z))
+    assert np.abs(np.asarray(g.x) - lon).max() < 2e-8 and np.abs(np.asarray(g.y) - lat).max() < 2e-8
+    assert np.abs(np.asarray(g.z) - h).max() < 0.002
+
+
+def test_las_writer_refuses_a_coarse_scale_on_degrees(tmp_path):
+    from skyrig.errors import InputFormatError
+    from skyrig.io.laz import write_las
+
+    with pytest.raises(InputFormatError) as ei:
+        write_las(tmp_path / "x.las", np.array([[9.0, 48.3, 300.0]]), "EPSG:4326", scale=0.001)
+    assert "x.las" in str(ei.value) and "111 m on the ground" in str(ei.value)

@@ -122,7 +122,7 @@ def write_las(
     intensity: ArrayLike | None = None,
     scan_angle_deg: ArrayLike | None = None,
     extra: dict[str, ArrayLike] | None = None,
-    scale: float | ArrayLike = 0.001,
+    scale: float | ArrayLike | None = None,
     rgb: ArrayLike | None = None,
     extra_types: dict[str, DTypeLike] | None = None,
     metadata: dict[str, str] | None = None,
@@ -144,6 +144,9 @@ def write_las(
         Extra dimensions ``{name: (N,)}``, stored as float64 unless ``extra_types`` names a type.
     scale
         Coordinate resolution in CRS units, one value or ``(sx, sy, sz)`` (offsets are chosen from the data).
+        Default: 1 mm, that is 0.001 in metre axes and 1e-8 deg (1.1 mm or less on the ground) in the degree axes
+        of a geographic CRS.  A horizontal scale coarser than 1e-6 deg (0.11 m) on a geographic CRS is refused
+        (it would move points by up to half of it without a word).
     rgb
         ``(N, 3)`` colours: uint8 (scaled to LAS's 16 bits by 257, so 255 -> 65535) or uint16 (as is);
         selects point format 7.
@@ -167,9 +170,16 @@ def write_las(
         raise InputFormatError(f"points must be a finite (N, 3) array, got {pts.shape}", field="xyz")
     n = len(pts)
     c = resolve_crs(crs)
+    geographic = bool((c.sub_crs_list[0] if c.is_compound else c).is_geographic)
+    if scale is None:
+        scale = (1e-8, 1e-8, 0.001) if geographic else 0.001
     scales = np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,)).copy()
     if not np.all(np.isfinite(scales) & (scales > 0)):
         raise InputFormatError(f"scale must be positive, got {scale!r}", field="scale")
+    if geographic and np.any(scales[:2] > 1e-6):
+        raise InputFormatError(f"scale {float(scales[:2].max()):g} deg on a geographic CRS is up to "
+                               f"{float(scales[:2].max()) * 111_320.0:.3g} m on the ground; use 1e-8 (about 1 mm)",
+                               path, None, "scale")
     colours = None
     if rgb is not None:
         colours = np.asarray(rgb)
