@@ -423,7 +423,17 @@ BAD: list[Bad] = [
     Bad("raw-nan-alpha", "raw", rep(RAW, "-134.625", "nan"), 6, "alpha", "finite"),
 ]
 
+# a block in radians (strips both ways: kappa about 0 and pi) whose header says degrees
+EO_RAD = EO.split("img1")[0] + "".join(
+    f"img{k}.tif,camera,{500000.0 + 300 * (k % 3)},{5350000.0 + 400 * (k // 3)},1200.0,{0.002 * k:.3f},-0.004,"
+    f"{0.01 if k // 3 % 2 == 0 else 3.13}\n" for k in range(6))
+TRAJ_RAD = TRAJ.split("345600.000")[0] + "".join(
+    f"{345600.0 + k:.3f},48.30000,{9.0 + 0.0008 * k:.5f},1200.0,0.01,-0.02,{1.57 if k < 3 else -1.57}\n"
+    for k in range(6))
+
 WARN: list[Warn] = [
+    Warn("eo-radians-declared-degrees", "eo", EO_RAD, "radians meant?"),
+    Warn("traj-radians-declared-degrees", "traj", TRAJ_RAD, "radians meant?"),
     Warn("eo-utm-declared-lambert93", "eo", rep(EO, "EPSG:25832", "EPSG:2154"),
          "outside the area of use of RGF93 v1 / Lambert-93"),
     Warn("pts-gauss-krueger-without-zone-prefix", "pts", rep(PTS, "EPSG:25832", "EPSG:31467"), "is the CRS right?"),
@@ -437,6 +447,8 @@ def _close(a, b, tol=1e-9) -> bool:
 
 
 GOOD: list[Good] = [
+    Good("eo-degrees-steady-one-heading", "eo", EO_RAD.replace(",3.13\n", ",0.5\n"), lambda e: len(e) == 6),
+    Good("eo-radians-declared-rad", "eo", rep(EO_RAD, "angles: deg", "angles: rad"), lambda e: len(e) == 6),
     Good("eo-windows-line-ends", "eo", EO.replace("\n", "\r\n"), lambda e: _close(e.centre[1], [500500, 5350000, 1200])),
     Good("eo-bom", "eo", "\ufeff" + EO, lambda e: e.image.tolist() == ["img1.tif", "img2.tif", "img3.tif"]),
     Good("eo-bom-crlf", "eo", ("\ufeff" + EO).replace("\n", "\r\n"), lambda e: len(e) == 3),

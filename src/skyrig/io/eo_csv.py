@@ -175,9 +175,12 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
             raise InputFormatError(f"duplicate image {n!r} (first on line {seen[n]})", path, ln, "image")
         seen[n] = ln
     centre = np.stack([values["x"], values["y"], values["z"]], axis=1)
-    from skyrig.io.plausibility import check_coordinates
+    from skyrig.io.plausibility import check_angle_unit, check_coordinates
 
     check_coordinates(centre, frame, path, line_no, "camera")
+    a = _ANGLES[conv]
+    tilt_cols, head_col = (a[1:], a[0]) if conv == "ypr" else (a[:2], a[2])
+    check_angle_unit(np.stack([values[c] for c in tilt_cols], axis=1), values[head_col], unit, path, "/".join(a))
     if conv == "ypr":
         rot = rotation_from_ypr(frame, centre, values["yaw"], values["pitch"], values["roll"], unit=unit)
     else:

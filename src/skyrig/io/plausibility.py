@@ -250,3 +250,21 @@ def check_same_frame(stated: WorldFrame, given: WorldFrame, path: PathLike, line
     if not same:
         raise InputFormatError(f"the file states {stated.describe()}, but {option} says {given.describe()}; "
                                f"leave {option} out or fix the file", path, line, "crs")
+
+
+def check_angle_unit(tilts: ArrayLike, heading: ArrayLike, unit: str, path: PathLike, fields: str) -> None:
+    """Warn when attitudes declared in degrees (or gon) look like radians.
+
+    ``tilts``: ``(N, 2)`` roll/pitch or omega/phi; ``heading``: ``(N,)`` yaw or kappa, in the declared ``unit``.
+    The signature of radians read as degrees: every tilt below 0.2 (a platform steadier than 0.2 deg over a whole
+    flight), headings all within one turn in radians (|h| <= 2 pi) and spread over more than 2.5 (strips flown
+    both ways differ by pi).  Values larger than one turn in the declared unit are refused by the readers already
+    (:func:`skyrig.geometry.angles.check_plausible`).
+    """
+    t = np.abs(np.asarray(tilts, dtype=np.float64))
+    h = np.asarray(heading, dtype=np.float64).ravel()
+    if unit == "rad" or h.size < 5 or not np.all(np.isfinite(t)) or not np.all(np.isfinite(h)):
+        return
+    if t.max() < 0.2 and np.abs(h).max() <= 2.0 * np.pi + 1e-9 and np.ptp(h) > 2.5:
+        warn(f"{path}: every {fields} value would be a plausible attitude in radians (tilts below 0.2, headings "
+             f"within +-2 pi spread over {np.ptp(h):.2f}), but the file declares {unit}; radians meant?")

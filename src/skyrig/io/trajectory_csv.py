@@ -328,7 +328,9 @@ def read_trajectory_csv(path: PathLike) -> Trajectory:
     _check_increasing(path, hdr, time_s)
 
     from skyrig.geodesy.frame import WorldFrame
-    from skyrig.io.plausibility import check_coordinates
+    from skyrig.io.plausibility import check_angle_unit, check_coordinates
+
+    check_angle_unit(np.stack([col("roll"), col("pitch")], axis=1), col("yaw"), unit, path, "roll/pitch/yaw")
 
     p_cols = [col(c) for c in ((["lon", "lat", "h"]) if crs.is_geographic else pos_cols)]
     check_coordinates(np.stack(p_cols, axis=1), WorldFrame.ecef() if crs.is_geocentric else WorldFrame.map(crs_text),
