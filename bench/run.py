@@ -1,0 +1,124 @@
+"""Time and peak memory of every stage of a simulated project run (``skyrig init`` + ``skyrig run``).
+
+    .venv/bin/python bench/run.py                                  # midas-demo (CI size, 20 images)
+    .venv/bin/python bench/run.py --scenario midas-demo --scenario midas --executor local --workers 2
+    .venv/bin/python bench/run.py --scenario tumblecam --max-features 3000 --json figures.json
+
+For each scenario: ``skyrig simulate SCENARIO --size ci`` (timed) into ``--workdir``, ``skyrig init`` on it, the
+executor and the matcher's feature count set in the project file, then each stage in its own child process
+(``run_project(only=STAGE, force=True)``, in the project's order, so that one stage's peak memory does not hide
+the next): wall time and the child's peak resident memory (``ru_maxrss`` of itself, and of its own children for
+Dask worker processes).  Then a whole ``skyrig run`` that must skip every stage (the resume cost: fingerprints,
+manifest checks).  Scenarios beyond CI size (the issue's 500 exposures / 2,500 images) need ``--size full``
+projects that take hours to render on a small machine; ``--size`` is passed to ``skyrig simulate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CHILD = r"""
+import json, resource, sys, time
+from skyrig.pipeline.project import load_project
+from skyrig.pipeline.run import run_project
+t0 = time.perf_counter()
+proj = load_project(sys.argv[1])
+t1 = time.perf_counter()
+res = run_project(proj, only=sys.argv[2], force=True)
+t2 = time.perf_counter()
+me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+row = next(r for r in res.stages if r["stage"] == sys.argv[2])
+print("BENCH " + json.dumps({"exit": res.exit_code, "error": res.error, "load_s": t1 - t0, "stage_s": row.get("seconds"),
+                             "wall_s": t2 - t0, "peak_mib": me, "children_peak_mib": kids,
+                             "summary": row.get("summary")}))
+"""
+
+
+def _skyrig() -> str:
+    return str(Path(sys.executable).parent / "skyrig")
+
+
+def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
+                   keep: bool) -> dict:
+    folder = workdir / f"{name}-{size}"
+    out: dict = {"scenario": name, "size": size, "stages": []}
+    if not (folder / "truth" / "truth.json").is_file():
+        t0 = time.perf_counter()
+        subprocess.run([_skyrig(), "simulate", name, str(folder), "--size", size], check=True,
+                       stdout=subprocess.DEVNULL)
+        out["simulate_s"] = time.perf_counter() - t0
+    proj = folder / "project.yaml"
+    subprocess.run([_skyrig(), "init", str(folder), "--force"], check=True, stdout=subprocess.DEVNULL)
+    text = proj.read_text().replace("  kind: auto ", f"  kind: {executor} ")
+    if workers:
+        text = text.replace("  workers: null ", f"  workers: {workers} ")
+    text = text.replace("    # max_features: 8000 ", f"    max_features: {max_features} ")
+    proj.write_text(text)
+    truth = json.loads((folder / "truth" / "truth.json").read_text())
+    out["images"] = truth.get("statistics", {}).get("images")
+    out["megapixels"] = truth.get("statistics", {}).get("megapixels")
+    from skyrig.pipeline.project import load_project
+
+    stages = [s.name for s in load_project(proj).stages]
+    for st in stages:
+        r = subprocess.run([sys.executable, "-c", CHILD, str(proj), st], capture_output=True, text=True)
+        line = next((ln for ln in r.stdout.splitlines() if ln.startswith("BENCH ")), None)
+        if line is None:
+            out["stages"].append({"stage": st, "exit": r.returncode, "error": r.stderr[-500:]})
+            break
+        row = {"stage": st, **json.loads(line[6:])}
+        out["stages"].append(row)
+        print(f"  {name:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  peak {row['peak_mib']:7.0f} MiB"
+              f"  (workers {row['children_peak_mib']:6.0f} MiB)  exit {row['exit']}", flush=True)
+        if row["exit"]:
+            break
+    t0 = time.perf_counter()
+    r = subprocess.run([_skyrig(), "run", str(proj)], capture_output=True, text=True)
+    out["resume_all_skipped_s"] = time.perf_counter() - t0
+    out["resume_skipped"] = r.stderr.count("skipped (up to date)")
+    print(f"  {name:12s} resume run: {out['resume_all_skipped_s']:.1f} s, {out['resume_skipped']} of {len(stages)} "
+          "stages skipped", flush=True)
+    if not keep:
+        import shutil
+
+        shutil.rmtree(folder / "output", ignore_errors=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", action="append", help="skyrig simulate scenario (repeatable; default midas-demo)")
+    ap.add_argument("--size", default="ci", choices=["ci", "full"])
+    ap.add_argument("--workdir", default="/tmp/skyrig-bench-run", help="where projects are simulated (kept: reruns "
+                    "reuse them)")
+    ap.add_argument("--executor", default="serial", choices=["serial", "local", "auto"])
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--max-features", type=int, default=3000)
+    ap.add_argument("--keep", action="store_true", help="keep the run outputs")
+    ap.add_argument("--json", default=None, help="write the figures here")
+    a = ap.parse_args()
+    work = Path(a.workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in a.scenario or ["midas-demo"]:
+        print(f"{name} ({a.size}), executor {a.executor}", flush=True)
+        rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep))
+    print("\nscenario      images     MP  " + "  ".join(f"{s['stage']:>10s}" for s in rows[0]["stages"])
+          + "   total s  resume s")
+    for r in rows:
+        tot = sum(s.get("stage_s") or 0 for s in r["stages"])
+        print(f"{r['scenario']:12s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
+              + "  ".join(f"{s.get('stage_s') or 0:10.1f}" for s in r["stages"])
+              + f"  {tot:8.1f}  {r['resume_all_skipped_s']:8.1f}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(rows, indent=1, default=str) + "\n")
+
+
+if __name__ == "__main__":
+    main()
