@@ -513,17 +513,20 @@ def _sample(img: NDArray, px: NDArray) -> NDArray[np.float64]:
 
 def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
                  loader: ImageLoader, dsm: DsmGrid, *, search_m: float = 1.0, step_m: float = 0.05,
-                 band_m: float | None = None, n_images: int = 3) -> list[BuildingBlock]:
+                 band_m: float | None = None, n_images: int = 3, min_gain: float = 1.1) -> list[BuildingBlock]:
     """Move every wall of DSM-extracted buildings to the roof outline seen in the images.
 
     A matched DSM blurs and shifts roof edges by a fraction of a metre (on the midas-dsm block the outlines sit
     0.17 m south of the truth); the images show the outline sharply.  For each footprint edge the roof's edge
     line (at the roof's height there) is moved along the wall's normal by offsets within ``+-search_m``; at
-    each offset the mean colour of a band ``band_m`` wide just inside is compared with the band just outside,
-    in the ``n_images`` images with the finest view of the roof (mostly nadir).  The offset of the largest
-    colour step (parabolic sub-step) becomes the wall's; corners are the intersections of consecutive moved
-    edge lines; roof polygons follow (corners to corners, points on an edge with the edge).  An edge whose
-    best step lies at the end of the search range, or is not at least twice the median step, stays.
+    each offset the mean colours of a band ``band_m`` wide just inside and of one just outside are compared with
+    the roof's own colour (a band ``search_m`` further inside), in the ``n_images`` images with the finest view
+    of the roof (mostly nadir): the score is how much more the outside band differs from the roof than the
+    inside band does (so a wall-to-ground step beyond the eaves does not count).  The best offset (parabolic
+    sub-step) becomes the wall's; corners are the intersections of consecutive moved
+    edge lines; roof polygons follow (corners to corners, points on an edge with the edge).  An edge stays
+    where it is when its best score lies at the end of the search range, is not positive, or is not
+    ``min_gain`` times the score at the edge's own place (an edge already on the outline stays).
 
     Returns new :class:`BuildingBlock` objects (``source`` unchanged; ``metadata``-free), in the same order.
     """
@@ -567,14 +570,23 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
                         Pl = ctx.to_local(P)
                         px = cam.project_pixels((Pl - ctx.eo_l.centre[k]) @ ctx.eo_l.rotation[k])
                         rows.append(px)
+                    # the roof's own colour: a band inside the edge, beyond the search range
+                    q_ref = edge - (search_m + band) * n
+                    rows.append(cam.project_pixels((ctx.to_local(np.column_stack([q_ref, z])) - ctx.eo_l.centre[k])
+                                                   @ ctx.eo_l.rotation[k]))
                     px_all = np.concatenate(rows)
-                    col = _sample(img, px_all).reshape(len(offs), 2, len(edge), -1)
+                    smp = _sample(img, px_all)
+                    col = smp[:-len(edge)].reshape(len(offs), 2, len(edge), -1)
                     with np.errstate(invalid="ignore"), warnings.catch_warnings():
                         warnings.simplefilter("ignore", RuntimeWarning)  # offsets outside the image: NaN, no step
-                        diff = np.nanmean(col[:, 0] - col[:, 1], axis=1)  # (offsets, channels)
-                    score += np.nan_to_num(np.linalg.norm(diff, axis=1))
+                        ref = np.nanmean(smp[-len(edge):], axis=0)
+                        m_in = np.nanmean(col[:, 0], axis=1)  # (offsets, channels)
+                        m_out = np.nanmean(col[:, 1], axis=1)
+                    # the roof's edge: roof-coloured inside, not outside (a wall-to-ground step further out is not it)
+                    score += np.nan_to_num(np.linalg.norm(m_out - ref, axis=1) - np.linalg.norm(m_in - ref, axis=1))
                 j = int(np.argmax(score))
-                if 0 < j < len(offs) - 1 and score[j] >= 2.0 * np.median(score):
+                j0 = int(np.argmin(np.abs(offs)))
+                if 0 < j < len(offs) - 1 and score[j] > 0 and score[j] >= min_gain * max(score[j0], 0.0):
                     y0, y1, y2 = score[j - 1], score[j], score[j + 1]
                     den = y0 - 2 * y1 + y2
                     sub = 0.5 * (y0 - y2) / den if den < 0 else 0.0
