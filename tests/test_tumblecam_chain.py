@@ -319,3 +319,43 @@ def test_facades_from_transferred_orientations(bench):
     assert c["windows_within_1px"] >= 0.95 * c["windows_found"], c
     assert c["offset_max_px"] <= 1.0, c
     assert n["windows_within_1px"] < 0.8 * n["windows_found"] or n["offset_max_px"] > 1.0, n
+
+
+# ----------------------------------------------------------------------------------------------- plane mosaic units
+def test_plane_and_seam_cells():
+    from skyrig.dense.plane_mosaic import Plane, PlaneGrid, seam_cells
+    from skyrig.errors import GeometryError
+
+    p = Plane.horizontal(80.0, (10.0, -5.0))
+    uv = p.intersect(np.array([10.0, -5.0, 280.0]), np.array([[0.0, 0.0, -1.0], [1.0, 0.0, -1.0], [0.0, 0.0, 1.0]]))
+    assert np.allclose(uv[:2], [[0.0, 0.0], [200.0, 0.0]]) and np.all(np.isnan(uv[2]))  # upward ray: never
+    assert np.allclose(p.to_world(np.array([3.0, 4.0])), [13.0, -1.0, 80.0])
+    g = PlaneGrid(p, -1.0, 2.0, 0.5, (8, 8))
+    assert np.allclose(g.cell_of(g.uv(3.0, 5.0)), [3.0, 5.0])
+    with pytest.raises(GeometryError):
+        Plane(np.zeros(3), np.array([1.0, 0, 0]), np.array([1.0, 1.0, 0]) / np.sqrt(2))
+    src = np.full((4, 5), -1, np.int16)
+    src[:, :2], src[:, 2:] = 0, 1
+    src[0, 4] = 2
+    cells = seam_cells(src)
+    assert set(cells) == {(0, 1), (1, 2)}
+    assert len(cells[(0, 1)]) == 8  # 4 rows x both sides of the seam
+    assert {tuple(c) for c in cells[(1, 2)]} == {(0, 3), (0, 4), (1, 4)}
+
+
+def test_plane_mosaic_refuses_bad_input(survey):
+    from skyrig.dense.plane_mosaic import Plane, plane_mosaic
+    from skyrig.errors import SkyrigError
+
+    ob = _obliques(survey.eo_true).subset([0])
+    cam = survey.rig_true.head("oblique").camera
+    plane = Plane.horizontal(80.0)
+    with pytest.raises(SkyrigError, match="Cartesian"):
+        plane_mosaic([np.zeros((cam.height, cam.width, 3), np.uint8)], ob.to_frame(WorldFrame.map("EPSG:25832")),
+                     cam, plane)
+    with pytest.raises(SkyrigError, match="640 x 480"):
+        plane_mosaic([np.zeros((10, 10, 3), np.uint8)], ob, cam, plane, cell_m=1.0)
+    with pytest.raises(SkyrigError, match="no camera"):
+        plane_mosaic([np.zeros((cam.height, cam.width, 3), np.uint8)], ob, {"other": cam}, plane, cell_m=1.0)
+    with pytest.raises(SkyrigError, match="cells"):
+        plane_mosaic([np.zeros((cam.height, cam.width, 3), np.uint8)], ob, cam, plane, cell_m=0.001)

@@ -18,7 +18,10 @@ across the seams.  This module does the same and measures it:
 
 Images taken from one projection centre (the tumbling camera of a hovering or laboratory sensor head) agree on
 any plane whatever the relief; images from different centres (a circle flown along a strip) also show the relief
-displacement of everything off the plane.
+displacement of everything off the plane.  A seam shows the *difference* of its two images' orientation errors: an
+error common to all images (the nadir orientation they were transferred from) moves the whole mosaic and no seam,
+and a smooth boresight curve differs little between close actuator positions (on the simulated TumbleCam: without
+the curve, seams 22.5 deg apart reach 2.9 px, seams 5 deg apart 0.4 px).
 
 Frames: the plane and the grid live in the orientations' world frame, which must be Cartesian (a local ENU frame
 or ECEF; use :meth:`~skyrig.georef.eo.ExteriorOrientations.to_frame` with
