@@ -73,6 +73,22 @@ def test_transfer_from_true_nadir_reproduces_the_true_obliques(survey):
     assert np.min(expect) > np.radians(0.01)  # the scenario's curve is not negligible
 
 
+def test_transfer_through_lever_arms_and_boresights():
+    """A rig with lever arms and boresight misalignments on every head (the MIDAS scenario's true rig): the other
+    heads' orientations follow from the true nadir orientations exactly (the transfer also serves fixed heads)."""
+    sv = build_survey(scenario_spec("midas", "ci", 1))
+    eo = sv.eo_true
+    assert np.any(np.abs(sv.rig_true.head("nadir").lever_arm_m) > 0)
+    others = [h for h in sv.rig_true.head_names if h != "nadir"]
+    tr = transfer_orientations(_nadir(eo), sv.rig_true, sv.events_true, heads=others)
+    d = orientation_differences(tr, eo)
+    assert len(tr) == int(np.sum(eo.head != "nadir"))
+    assert np.max(d["angle_rad"]) < 1e-12 and np.max(np.abs(d["centre_m"])) < 1e-6
+    # with the recorded rig (no boresights) the error is the boresight difference: nadir's and the head's
+    rec = transfer_orientations(_nadir(eo), sv.rig_recorded, sv.events_true, heads=others)
+    assert np.degrees(np.max(orientation_differences(rec, eo)["angle_rad"])) > 0.005
+
+
 def _rotvec(r):
     from skyrig.geometry.rotations import rotvec_from_matrix
 
