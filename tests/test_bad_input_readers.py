@@ -535,6 +535,23 @@ def test_baselines_are_good(tmp_path):
             _reader(kind)(_write(tmp_path, kind, text))
 
 
+def test_skyrig_points_output_with_an_outlier_is_read_with_a_warning(tmp_path):
+    """Adjusted points skyrig wrote (side-car) may hold a wild tie point: warned, not refused; a unit error (every
+    height) still is."""
+    from skyrig.io.points_csv import read_points_csv, write_points_csv
+    from skyrig.georef.observations import GroundPoints
+
+    xyz = np.array([[500100.0, 5350050.0, 310.0], [500600.0, 5349950.0, 25000.0], [500900.0, 5350020.0, 298.25]])
+    write_points_csv(tmp_path / "points.csv", GroundPoints(np.array(["t1", "t2", "t3"]), xyz, UTM))
+    with pytest.warns(PlausibilityWarning, match="1 of 3 heights not plausible"):
+        g = read_points_csv(tmp_path / "points.csv")
+    assert np.array_equal(g.xyz, xyz)
+    xyz[1, 2] = 305.5
+    write_points_csv(tmp_path / "points.csv", GroundPoints(np.array(["t1", "t2", "t3"]), xyz * [1, 1, 1000], UTM))
+    with pytest.raises(InputFormatError, match=r"millimetres \(310.000 m\)"):
+        read_points_csv(tmp_path / "points.csv")
+
+
 def test_binary_readers_name_the_file(tmp_path):
     """SBET and BAL: a truncated or text file is a clear error naming the file (record / line)."""
     from skyrig.io.bal import read_bal

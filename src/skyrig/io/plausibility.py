@@ -104,7 +104,8 @@ def _inside(lon: NDArray, lat: NDArray, box: tuple[float, float, float, float, s
 
 
 def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: Sequence[int] | NDArray | None = None,
-                      what: str = "ground", fields: tuple[str, str, str] = ("x", "y", "z")) -> None:
+                      what: str = "ground", fields: tuple[str, str, str] = ("x", "y", "z"),
+                      lenient: bool = False) -> None:
     """Refuse or warn about positions that cannot be in ``frame`` as stated (module docstring).
 
     Parameters
@@ -120,6 +121,9 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
         ``"camera"`` (projection centres, trajectories: up to :data:`CAMERA_MAX_M`).
     fields
         Names of the three columns in the file, for the messages.
+    lenient
+        For results skyrig wrote itself (adjusted tie points may hold a wild intersection): implausible heights
+        are refused only when every one is (a unit error), a few are warned about.
 
     Raises
     ------
@@ -140,7 +144,7 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
                 f"these are not geocentric coordinates in metres (latitude, longitude, height? then state that CRS)",
                 path, _line(lines, k), fields[0])
         return
-    _check_heights(p[:, 2], path, lines, what, fields[2])
+    _check_heights(p[:, 2], path, lines, what, fields[2], lenient)
     box = area_of_use(frame)
     try:
         geographic = frame.projection.crs.is_geographic
@@ -182,7 +186,7 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
     warn(f"{path}: {pos} outside the area of use of {where}{at}: {ll}; is the CRS right?")
 
 
-def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, field: str) -> None:
+def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, field: str, lenient: bool = False) -> None:
     if what == "ground":
         lo, hi = GROUND_MIN_M, GROUND_MAX_M
         kind = "a ground height"
@@ -194,6 +198,10 @@ def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, fie
         return
     k = int(bad[0])
     v = float(z[k])
+    if lenient and len(bad) < len(z):
+        at = "" if lines is None else f", first on line {_line(lines, k)}"
+        warn(f"{path}: {len(bad)} of {len(z)} heights not plausible ({v:.10g} m{at}); outliers?")
+        return
     fits = [f"{unit} ({v / f:.3f} m)" for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0))
             if np.all((z / f >= lo) & (z / f <= hi))]
     hint = f"; heights in {' or '.join(fits)}?" if fits else ""

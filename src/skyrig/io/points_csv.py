@@ -127,7 +127,7 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
         if n in seen:
             raise InputFormatError(f"point {n!r} appears twice (first on line {seen[n]})", path, line, "name")
         seen[n] = line
-    check_coordinates(xyz, use, path, ln, "ground")
+    check_coordinates(xyz, use, path, ln, "ground", lenient=stated_path != path)  # side-car: skyrig's own output
     return GroundPoints(np.array(cols["name"]), xyz, use)
 
 
