@@ -248,13 +248,15 @@ def _cells_to_xy(grid: GridSpec, col: NDArray, row: NDArray) -> NDArray[np.float
                             grid.y0 - (np.asarray(row) + 0.5) * grid.cell_m])
 
 
-def _footprint_from_mask(mask: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int, cfg: ExtractionConfig
-                         ) -> tuple[NDArray[np.float64], bool, tuple | None]:
+def _footprint_from_mask(mask: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int, cfg: ExtractionConfig,
+                         measured: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float64], bool, tuple | None]:
     """Footprint polygon (frame x, y; CCW) of one component given as a mask window at (r0, c0).
 
-    The mask is upsampled 4 x so that boundary pixel centres lie 1/8 cell inside the cells' outer edges; the
-    rectangle is then grown by that 1/8 cell.  Returns the polygon, whether it is a rectangle, and the
-    rectangle ``(centre (2,), axis_long (2,), half_long, half_short)`` in frame units (None for polygons)."""
+    The mask is upsampled 4 x so that boundary pixel centres lie 1/8 cell inside the cells' outer edges.  The
+    minimum-area rectangle is taken when the component fills ``rect_fit`` of it, counting only ``measured``
+    cells of the rectangle (a DSM hole does not contradict a rectangle); its sides are then placed on the
+    median of their boundary points.  Returns the polygon, whether it is a rectangle, and the rectangle
+    ``(centre (2,), axis_long (2,), half_long, half_short)`` in frame units (None for polygons)."""
     import cv2
 
     up = 4
@@ -267,6 +269,13 @@ def _footprint_from_mask(mask: NDArray[np.bool_], grid: GridSpec, r0: int, c0: i
     w, h = w + grow, h + grow
     area_cells = float(mask.sum())
     fit = area_cells / max(w * h, 1e-9)
+    if measured is not None and fit < cfg.rect_fit:
+        box = cv2.boxPoints(((ux, uy), (w, h), ang))
+        inside = np.zeros(mask.shape, np.uint8)
+        cv2.fillPoly(inside, [np.round(box * 16).astype(np.int32)], 1, shift=4)
+        inside = inside.astype(bool)
+        known = inside & (measured | mask)
+        fit = float((mask & inside).sum()) / max(float(known.sum()), 1.0)
     cell = grid.cell_m
     if fit >= cfg.rect_fit:
         t = np.radians(ang)
@@ -397,7 +406,7 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
                 big = hl_ == (1 + int(np.argmax(sizes)))
                 if big.sum() >= 0.5 * comp.sum():
                     comp = big
-        foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg)
+        foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg, mw)
         inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
         if inner.sum() < 6:
             inner = comp & mw
