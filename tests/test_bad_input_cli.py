@@ -164,6 +164,14 @@ def _rep(text: str, old: str, new: str) -> str:
     return text.replace(old, new)
 
 
+def _png() -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", (np.random.default_rng(0).random((40, 60)) * 255).astype(np.uint8))
+    return buf.tobytes()
+
+
+_PNG = _png()
 W2I = ["world-to-image", "--eo", "{p}/eo.csv", "--camera", "{p}/rig.yaml"]
 GEO = ["georef", "--trajectory", "{p}/traj.csv", "--events", "{p}/events.csv", "--rig", "{p}/rig.yaml"]
 CASES = [
@@ -264,6 +272,17 @@ CASES = [
     ("i2w-measurement-unknown-image", ["image-to-world", "--eo", "{p}/eo.csv", "--camera", "{p}/rig.yaml",
                                        "--measurements", "{t}/m.csv", "--height", "300", "-o", "{t}/g.csv"],
      {"m.csv": "point,image,column,row\ng1,img9.tif,100,200\n"}, 2, ["m.csv", "line 2", "'img9.tif' has no exterior"]),
+    ("match-no-images", ["match", "{t}"], {"notes.txt": "no images here\n"}, 2, ["no readable images"]),
+    ("match-duplicate-image-names", ["match", "{t}", "--images", "{t}/a", "--images", "{t}/b"],
+     {"a/im0.png": _PNG, "b/im0.png": _PNG}, 2, ["duplicate image name 'im0.png'", "unique across folders"]),
+    ("match-eo-without-camera", ["match", "{t}", "--eo", "{p}/eo.csv"], {"images/im0.png": _PNG}, 2,
+     ["no camera given (--camera)"]),
+    ("match-png-that-is-text", ["match", "{t}"], {"images/im0.png": "not an image\n"}, 2, ["no readable images"]),
+    ("dsm-images-not-found", ["dsm", "--eo", "{p}/eo.csv", "--camera", "{p}/rig.yaml", "--images", "{t}/imgs",
+                              "--height-range", "200", "400", "-o", "{t}/dsm"], {"imgs/other.tif": _PNG}, 2,
+     ["img1.tif", "not found"]),
+    ("dsm-no-height-range", ["dsm", "--eo", "{p}/eo.csv", "--camera", "{p}/rig.yaml", "--images", "{t}", "-o",
+                             "{t}/dsm"], {}, 2, ["--height-range"]),
     ("simulate-unknown-scenario", ["simulate", "midsa", "{t}/sim"], {}, 2, ["midsa"]),
     ("unknown-command", ["georeference"], {}, 2, ["No such command"]),
 ]
