@@ -185,7 +185,11 @@ def test_bad_inputs_are_refused(midas):
     with pytest.raises(SkyrigError, match="projected"):
         texture_facades(blocks[:1], eo, cams, loader, geo)
     assert texture_facades([], eo, cams, loader, dsm) == []
-    tiny = BuildingBlock(0, np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), 10.0, 10.0)
+    local_blocks = true_buildings(s.scene)[:1]  # the scene's local frame, not the DSM's map CRS
+    with pytest.raises(SkyrigError, match="DSM's frame"):
+        texture_facades(local_blocks, eo, cams, loader, dsm)
+    x0, y0 = dsm.grid.x0 + 10.0, dsm.grid.y0 - 10.0
+    tiny = BuildingBlock(0, np.array([[x0, y0], [x0 + 1.0, y0], [x0 + 1.0, y0 + 1.0]]), 90.0, 90.0)
     with pytest.raises(SkyrigError, match="degenerate"):
         texture_facades([tiny], eo, cams, loader, dsm)
 

@@ -457,6 +457,13 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     if not facades:
         return []
     pts = np.concatenate([f.corners for f in facades])
+    xmin, ymin, xmax, ymax = dsm.grid.bounds
+    pad = 0.5 * max(xmax - xmin, ymax - ymin)
+    far = (pts[:, 0] < xmin - pad) | (pts[:, 0] > xmax + pad) | (pts[:, 1] < ymin - pad) | (pts[:, 1] > ymax + pad)
+    if far.any():
+        f = facades[int(np.flatnonzero(far)[0]) // 4]
+        raise SkyrigError(f"building {f.building} lies far outside the DSM ({f.corners[0, :2]} vs DSM bounds "
+                          f"{dsm.grid.bounds}): buildings must be in the DSM's frame ({dsm.frame.to_text()})")
     ctx = texturing_context(eo, cameras, loader, dsm, pts)
     out = []
     for i, f in enumerate(facades):
