@@ -98,6 +98,22 @@ def _parse_header(path: PathLike, lines: list[str]) -> tuple[dict[str, tuple[int
     return meta, len(lines)
 
 
+_HEADER_KEYS = ("crs", "heights", "geoid", "angles", "convention", "frame", "rotation", "time")
+
+
+def _check_keys(meta: dict[str, tuple[int, str]], path: PathLike) -> None:
+    """Refuse a header key that is a misspelling of a known one (``# angels: deg``, ``# hieghts: orthometric``):
+    passed over, it would leave the file read with a default."""
+    import difflib
+
+    for key, (line, _) in meta.items():
+        if key in _HEADER_KEYS or key.startswith("_") or not key.replace("_", "").replace("-", "").isalpha():
+            continue
+        near = difflib.get_close_matches(key, _HEADER_KEYS, n=1, cutoff=0.7)
+        if near:
+            raise InputFormatError(f"unknown header key {key!r} (did you mean {near[0]!r}?)", path, line or None, key)
+
+
 def read_eo_csv(path: PathLike) -> ExteriorOrientations:
     """Read a ``skyrig-eo`` CSV file."""
     text = read_text(path)
@@ -118,6 +134,9 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
         path_hdr = where
     else:
         path_hdr = path
+    if "height" in meta and "heights" not in meta:  # the trajectory format's spelling, accepted here too
+        meta["heights"] = meta.pop("height")
+    _check_keys(meta, path_hdr)
     magic = meta.get("_magic", (1, ""))[1].split()
     if len(magic) != 2 or magic[0] != MAGIC:
         raise InputFormatError(f"first line must be '# {MAGIC} {VERSION}'", path_hdr, 1)
