@@ -246,6 +246,12 @@ def test_init_and_run_georef_on_the_demo_flight(tmp_path: Path) -> None:
     assert rotation_angle_deg(eo.rotation[rows], rots).max() < 1.0 / 3600
     r = runner.invoke(main, ["run", str(tmp_path / "flight")])
     assert r.exit_code == 0 and "skipped (up to date)" in r.output
+    r = runner.invoke(main, ["run", str(tmp_path / "flight"), "--dry-run"])
+    assert r.exit_code == 0 and r.output.split()[:3] == ["georef", "skip", "up"], r.output
+    r = runner.invoke(main, ["run", "--list-stages"])
+    assert r.exit_code == 0 and all(f"{s}:" in r.output for s in ("georef", "match", "block", "adjust", "dsm"))
+    r = runner.invoke(main, ["run", str(tmp_path / "flight"), "--only", "dsm"])
+    assert r.exit_code == 2 and "no such stage" in r.output
     r = runner.invoke(main, ["init", str(tmp_path / "flight")])
     assert r.exit_code == 2 and "--force" in r.output
 

@@ -42,7 +42,7 @@ def init_command(folder: str, crs: str | None, geoid: str | None, output: str | 
 
 
 @click.command("run")
-@click.argument("project", type=click.Path(exists=True), default="project.yaml")
+@click.argument("project", type=click.Path(), default="project.yaml")
 @click.option("--from", "from_stage", default=None, metavar="STAGE",
               help="Rerun STAGE and every stage after it (the earlier ones must have run).")
 @click.option("--only", default=None, metavar="STAGE", help="Run only STAGE (its inputs must have been published).")

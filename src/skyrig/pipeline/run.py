@@ -535,7 +535,9 @@ def _match(ctx: StageContext) -> dict[str, Any]:
     key = _sha(json.dumps({"f": [o["method"], o["max_size"], o["max_features"]], "lsm": o["lsm"]}).encode())[:12]
     cache = ctx.cache() / key  # features and matches kept between runs (MatchDatabase refuses other settings)
     ex = p.executor
-    scheduler = ex.scheduler or ("sync" if ex.kind == "serial" else "processes" if ex.kind == "local" else "threads")
+    # serial, local processes or a cluster: the same tie points (pipeline.match seeds every pair); not Dask's
+    # thread pool, whose threads share the C library's rand and make the matches depend on their order
+    scheduler = ex.scheduler or ("sync" if ex.kind == "serial" else "processes")
     done_total: dict[str, tuple[int, int]] = {}
 
     def progress(stage: str, done: int, total: int) -> None:
