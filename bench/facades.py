@@ -88,7 +88,6 @@ def warp_baseline(textures, eo, cameras, loader, frame) -> tuple[float, int]:
 def run(project: Path) -> dict:
     from skyrig.dense.buildings import extract_buildings
     from skyrig.dense.facades import refine_walls, texture_facades
-    from skyrig.georef.eo import WorldFrame
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.rig_file import read_rig

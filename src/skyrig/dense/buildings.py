@@ -366,7 +366,7 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
     vlab, _ = ndimage.label(~meas)
     edge_ids = np.unique(np.r_[vlab[0], vlab[-1], vlab[:, 0], vlab[:, -1]])
     outside = np.isin(vlab, edge_ids[edge_ids > 0])
-    lab, n = ndimage.label(mask, structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
+    lab, _ = ndimage.label(mask, structure=[[0, 1, 0], [1, 1, 1], [0, 1, 0]])
     any_bld = ndimage.binary_dilation(mask.astype(bool), iterations=1)
     ring_px = max(1, int(np.ceil(cfg.ring_m / cell)))
     out: list[BuildingBlock] = []

@@ -31,7 +31,6 @@ CRS).
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import dataclass
 from typing import Callable, Mapping, NamedTuple, Sequence
@@ -44,9 +43,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture
 from skyrig.dense.grid import DsmGrid
 from skyrig.errors import SkyrigError
-from skyrig.georef.eo import ExteriorOrientations, WorldFrame, local_frame_for
-
-logger = logging.getLogger(__name__)
+from skyrig.georef.eo import ExteriorOrientations, local_frame_for
 
 ImageLoader = Callable[[int], NDArray[np.uint8]]
 
@@ -352,7 +349,7 @@ def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: 
             if not used:  # the best image is blind here: count its occluded texels
                 stats["occluded_in_best"] += int(seen.sum())
                 used.append(k)
-                fps.append(np.where(seen, fp, np.inf))
+                fps.append(np.full(N, np.inf))
                 vis_l.append(vis)
                 maps.append((px, seen))
             continue
@@ -366,9 +363,6 @@ def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: 
     F = np.stack(fps)  # (M, N)
     best = np.argmin(F, axis=0)
     valid = np.isfinite(F.min(axis=0)) & inside_plane
-    first_seen = maps[0][1] & ~vis_l[0]
-    stats["occluded_filled"] = int((first_seen & valid).sum())
-    stats["valid"] = int(valid.sum())
     # blend: per image, its share of the labels smoothed over the feather width, where the image sees the texel
     acc = np.zeros((H, W, 3), np.float64)
     wsum = np.zeros((H, W), np.float64)
@@ -389,6 +383,9 @@ def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: 
         acc += col * wk[..., None]
         wsum += wk
     ok = valid.reshape(H, W) & (wsum > 1e-6)
+    first_seen = maps[0][1] & ~vis_l[0]  # inside the best image, hidden there
+    stats["occluded_filled"] = int((first_seen & ok.reshape(-1)).sum())
+    stats["valid"] = int(ok.sum())
     rgb[ok] = np.clip(acc[ok] / wsum[ok, None] + 0.5, 0, 255).astype(np.uint8)
     order = np.argsort(-counts, kind="stable")
     keep = [m for m in order if counts[m] > 0]

@@ -23,7 +23,6 @@ from numpy.typing import NDArray
 
 from skyrig.dense.buildings import BuildingBlock, FacadeTexture
 from skyrig.dense.grid import DsmGrid, GridSpec
-from skyrig.errors import SkyrigError
 from skyrig.georef.eo import WorldFrame
 from skyrig.simulate.world import Scene
 
@@ -100,12 +99,7 @@ def true_buildings(scene: Scene, frame: WorldFrame | None = None) -> list[Buildi
         fpm = _convert(loc, frame, np.column_stack([fp, np.full(4, ez)]))
         zz = _convert(loc, frame, np.array([[c[0], c[1], gz], [c[0], c[1], ez]]))[:, 2]
         roofs = [_convert(loc, frame, r) for r in roofs]
-        if frame != loc:
-            ez_m = zz[1]
-            roofs = [np.column_stack([r[:, :2], r[:, 2]]) for r in roofs]
-        else:
-            ez_m = ez
-        out.append(BuildingBlock(i, fpm[:, :2], float(zz[0]), float(ez_m), tuple(roofs), "scene"))
+        out.append(BuildingBlock(i, fpm[:, :2], float(zz[0]), float(zz[1]), tuple(roofs), "scene"))
     return out
 
 
