@@ -238,3 +238,17 @@ def test_refine_walls_moves_displaced_walls_back_onto_the_roof_outline(midas):
     before = np.abs(np.concatenate(shifts))
     assert np.median(errs) <= 0.5 * gsd and errs.max() <= gsd, (errs, before)
     assert np.median(errs) < 0.5 * np.median(before)
+
+
+def test_the_judge_sees_a_texture_shifted_by_two_texels(midas):
+    from skyrig.simulate.judge_facades import judge_facade
+
+    s, eo, _, _, _, tex, _ = midas
+    oblique = {str(n) for n, h in zip(eo.image, eo.head) if h != "nadir"}
+    t = max((t for t in tex if set(t.images) & oblique), key=lambda t: t.valid.sum())
+    good = judge_facade(s.scene, t, CRS)
+    assert good.windows_found >= 3 and good.offset_norm_px <= 1.0
+    shifted = replace(t, rgb=np.roll(t.rgb, 2, axis=1))
+    bad = judge_facade(s.scene, shifted, CRS)
+    assert abs(bad.offset_px[0] - good.offset_px[0] - 2.0) < 0.5, (good, bad)
+    assert bad.windows_within_1px == 0
