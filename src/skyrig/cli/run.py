@@ -32,10 +32,11 @@ def init_command(folder: str, crs: str | None, geoid: str | None, output: str | 
     with atomic_write(out) as fh:
         fh.write(text)
     proj = load_project(out)  # what was written must read back: a bug otherwise
+    found = [f"{k} {getattr(det, k).name}" for k in ("trajectory", "events", "rig", "eo", "control", "check")
+             if getattr(det, k) is not None]
     click.echo(f"wrote {out}: {det.n_images} images in {len(det.images)} folder(s); "
-               + ", ".join(f"{k} {getattr(det, k).name}" for k in ("trajectory", "events", "rig", "eo", "control", "check")
-                           if getattr(det, k) is not None)
-               + f"; CRS {proj.crs}; stages {', '.join(s.name for s in proj.stages)}")
+               + (", ".join(found) + "; " if found else "")
+               + f"CRS {proj.crs}; stages {', '.join(s.name for s in proj.stages)}")
     for note in det.notes:
         click.echo(f"note: {note}")
     click.echo(f"edit it, then: skyrig run {out}")

@@ -565,7 +565,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
     def rel(q: Path | None) -> str:
         if q is None:
             return "null"
-        return _yaml_value(os.path.relpath(q, anchor))
+        r = os.path.relpath(q, anchor)
+        return _yaml_value(str(q) if r.startswith(os.pardir + os.sep + os.pardir) else r)  # far away: absolute
 
     rig_mode = det.trajectory is not None and det.events is not None and det.rig is not None
     chosen: dict[str, dict[str, Any]] = {}
