@@ -86,6 +86,11 @@ def test_extracted_buildings_match_the_scene(town):
             assert abs(ridge - t["ridge"]) <= tol
         else:
             assert abs(b.eave_z - t["eave"]) <= 0.02
+        gables = b.gable_ends()
+        assert len(gables) == (2 if t["gabled"] else 0)
+        for _, tri in gables:  # apex at the ridge, above the middle of a short wall
+            assert abs(tri[2, 2] - t["ridge"]) <= 0.1
+            assert np.linalg.norm(tri[2, :2] - 0.5 * (tri[0, :2] + tri[1, :2])) < 0.1
         for f in b.facades():
             assert np.allclose(f.corners[0, :2], f.corners[3, :2]) and f.height_m > 0
             # the outward normal points away from the footprint's centre

@@ -100,6 +100,31 @@ class BuildingBlock:
         return out
 
 
+    def gable_ends(self) -> list[tuple[int, NDArray[np.float64]]]:
+        """The wall triangles above the eaves at the ends of a pitched roof: ``(edge index, (3, 3) corners)``.
+
+        A roof vertex higher than ``eave_z`` that lies on footprint edge ``i`` (in plan, within 1 cm) closes the
+        gap between wall ``i``'s top (``eave_z``) and the roof: the triangle start-eave, end-eave, that vertex.
+        Such a triangle can be textured with :func:`skyrig.dense.facades.texture_plane` over its bounding
+        rectangle (wall ``i``'s corners at ``eave_z`` and at the vertex's height)."""
+        fp = np.asarray(self.footprint, float)
+        out = []
+        for i in range(len(fp)):
+            a, b = fp[i], fp[(i + 1) % len(fp)]
+            e = b - a
+            ln2 = float(e @ e)
+            for poly in self.roof:
+                for v in np.asarray(poly, float):
+                    if v[2] <= self.eave_z + 1e-3:
+                        continue
+                    t = float((v[:2] - a) @ e) / max(ln2, 1e-12)
+                    if 0.0 < t < 1.0 and np.linalg.norm(a + t * e - v[:2]) < 0.01:
+                        tri = np.array([[a[0], a[1], self.eave_z], [b[0], b[1], self.eave_z], v])
+                        if not any(j == i and np.allclose(tr[2], v) for j, tr in out):
+                            out.append((i, tri))
+        return out
+
+
 @dataclass(frozen=True)
 class FacadeTexture:
     """A rectified texture of one façade.
