@@ -759,20 +759,45 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     box = cv2.blur
     done: set[int] = set()
 
-    def add(i: int, weight_region: NDArray[np.float64] | None) -> NDArray[np.bool_] | None:
-        cam = plan.cameras[str(plan.eo.camera[i])]
-        u, v, d, tan = _project(plan.eo, plan.cameras, i, p)
-        u, v, d, tan = (a.reshape(Hh, Ww) for a in (u, v, d, tan))
-        if dsm_local is None:
+    xcol, yrow = xx[0, :], yy[:, 0]
+    p3 = p.reshape(Hh, Ww, 3)
+
+    def footprint(i: int) -> tuple[slice, slice] | None:
+        """The part of the padded tile inside image i's DSM window (what it can see)."""
+        wr0, wc0, wh, ww = plan.windows[i]
+        if wh == 0 or ww == 0:
             return None
-        du, dv, dd, _ = _project(plan.eo, plan.cameras, i, dsm_local.reshape(-1, 3))
-        shp = dsm_local.shape[:2]
+        xa, xb = dg.x0 + wc0 * dg.cell_m, dg.x0 + (wc0 + ww) * dg.cell_m
+        ya, yb = dg.y0 - (wr0 + wh) * dg.cell_m, dg.y0 - wr0 * dg.cell_m
+        cols = np.flatnonzero((xcol >= xa) & (xcol <= xb))
+        rows = np.flatnonzero((yrow >= ya) & (yrow <= yb))
+        if len(cols) == 0 or len(rows) == 0:
+            return None
+        return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+
+    def add(i: int, weight_region: NDArray[np.float64] | None) -> None:
+        sl_i = footprint(i)
+        if sl_i is None or dsm_local is None:
+            return
+        cam = plan.cameras[str(plan.eo.camera[i])]
+        hh_, ww_ = sl_i[0].stop - sl_i[0].start, sl_i[1].stop - sl_i[1].start
+        u, v, d, tan = _project(plan.eo, plan.cameras, i, p3[sl_i].reshape(-1, 3))
+        u, v, d, tan = (a.reshape(hh_, ww_) for a in (u, v, d, tan))
+        # depth buffer from the DSM cells of the tile's reach that the image can see
+        wr0, wc0, wh, ww = plan.windows[i]
+        zr0, zr1 = max(dr0, wr0) - dr0, min(dr1, wr0 + wh) - dr0
+        zc0, zc1 = max(dc0, wc0) - dc0, min(dc1, wc0 + ww) - dc0
+        if zr1 - zr0 < 2 or zc1 - zc0 < 2:
+            return
+        dl = dsm_local[zr0:zr1, zc0:zc1]
+        du, dv, dd, _ = _project(plan.eo, plan.cameras, i, dl.reshape(-1, 3))
+        shp = dl.shape[:2]
         zb, zu0, zv0 = _zbuffer_for(du.reshape(shp), dv.reshape(shp), dd.reshape(shp), cam)
         tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
-        vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz
+        vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz[sl_i]
         vis &= tan <= np.tan(np.radians(cfg.max_off_nadir_deg))
         if not vis.any():
-            return vis
+            return
         img = loader(i)
         col = cv2.remap(img, np.where(vis, u, -10).astype(np.float32), np.where(vis, v, -10).astype(np.float32),
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
@@ -783,15 +808,14 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         # sees at full resolution take their colour from the images that do
         pref = 1e-6 / (1.0 + np.minimum(tan, 10.0)) ** 4
         if weight_region is None:  # an image not labelled in this tile: only where nothing else gives colour
-            wgt = np.where(vis & (wsum <= 0), pref, 0.0)
+            wgt = np.where(vis & (wsum[sl_i] <= 0), pref, 0.0)
         else:
-            wgt = (weight_region + pref) * vis
-        acc[...] += col * wgt[..., None]
-        wsum[...] += wgt
-        better = wgt > wmax
-        src[better] = i
-        wmax[...] = np.maximum(wmax, wgt)
-        return vis
+            wgt = (weight_region[sl_i] + pref) * vis
+        acc[sl_i] += col * wgt[..., None]
+        wsum[sl_i] += wgt
+        better = wgt > wmax[sl_i]
+        src[sl_i][better] = i
+        wmax[sl_i] = np.maximum(wmax[sl_i], wgt)
 
     labelled = [int(i) for i in np.unique(lab) if i >= 0]
     k_size = (2 * fr + 1, 2 * fr + 1)
