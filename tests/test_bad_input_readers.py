@@ -577,3 +577,58 @@ def test_binary_readers_name_the_file(tmp_path):
 def test_case_names_are_unique():
     names = [c.name for c in BAD] + [c.name for c in WARN] + [c.name for c in GOOD]
     assert len(names) == len(set(names))
+
+
+def _dem_file(path: Path, heights: np.ndarray, crs: str | None = "EPSG:25832", nodata: float | None = None) -> Path:
+    import rasterio
+    from affine import Affine
+
+    prof = dict(driver="GTiff", width=heights.shape[1], height=heights.shape[0], count=1, dtype="float32",
+                transform=Affine(10.0, 0.0, 500000.0, 0.0, -10.0, 5350200.0))
+    if crs:
+        prof["crs"] = crs
+    if nodata is not None:
+        prof["nodata"] = nodata
+    with rasterio.open(path, "w", **prof) as ds:
+        ds.write(heights.astype(np.float32), 1)
+    return path
+
+
+_H = 300.0 + np.add.outer(np.arange(20.0), np.arange(30.0)) * 0.25  # a tilted plane, 20 x 30 cells
+
+
+@pytest.mark.parametrize("name, heights, kw, crs, words, field", [
+    ("dem-band-2", _H, {"band": 2}, "EPSG:25832", "band 2 does not exist (the raster has 1)", "band"),
+    ("dem-no-crs", _H, {}, None, "raster has no CRS", "crs"),
+    ("dem-other-crs-given", _H, {"crs": "EPSG:2154"}, "EPSG:25832", "not in the CRS given (EPSG:2154)", "crs"),
+    ("dem-heights-cm", _H * 100, {}, "EPSG:25832", "centimetres", "height"),
+    ("dem-heights-mm", _H * 1000, {}, "EPSG:25832", "millimetres", "height"),
+], ids=lambda v: v if isinstance(v, str) and v.startswith("dem-") else "")
+def test_bad_dem(tmp_path, name, heights, kw, crs, words, field):
+    from skyrig.io.dem import read_dem
+
+    p = _dem_file(tmp_path / "dem.tif", heights, crs)
+    with pytest.raises(InputFormatError) as ei:
+        read_dem(p, **kw)
+    assert ei.value.path == str(p) and ei.value.field == field and words in str(ei.value), str(ei.value)
+
+
+def test_dem_undeclared_nodata_left_out_with_a_warning(tmp_path):
+    from skyrig.io.dem import read_dem
+
+    h = _H.copy()
+    h[:3, :4] = -9999.0
+    with pytest.warns(PlausibilityWarning, match="12 cells hold -9999"):
+        dem = read_dem(_dem_file(tmp_path / "dem.tif", h))
+    assert np.isnan(dem.heights[:3, :4]).all() and np.allclose(dem.heights[3:], _H[3:].astype(np.float32))
+
+
+def test_dem_declared_nodata_and_same_crs_read_silently(tmp_path):
+    from skyrig.io.dem import read_dem
+
+    h = _H.copy()
+    h[0, 0] = -9999.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PlausibilityWarning)
+        dem = read_dem(_dem_file(tmp_path / "dem.tif", h, nodata=-9999.0), crs="EPSG:25832")
+    assert np.isnan(dem.heights[0, 0]) and dem.heights[5, 7] == np.float32(_H[5, 7])
