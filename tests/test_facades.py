@@ -252,3 +252,23 @@ def test_the_judge_sees_a_texture_shifted_by_two_texels(midas):
     bad = judge_facade(s.scene, shifted, CRS)
     assert abs(bad.offset_px[0] - good.offset_px[0] - 2.0) < 0.5, (good, bad)
     assert bad.windows_within_1px == 0
+
+
+def test_orthometric_dsm_gives_the_same_textures(midas):
+    """The DSM in EPSG:25832 with EGM96 heights (geoid ~40 m here): buildings, occlusion and texturing in that frame;
+    the texels must land on the same wall places (skips without the geoid grid)."""
+    from skyrig.pipeline.simulate import find_geoid
+
+    geoid = find_geoid()
+    if geoid is None:
+        pytest.skip("no EGM96 grid (../shared/data/geoid/egm96_15.gtx or $SKYRIG_GEOID)")
+    s, eo, cams, dsm, blocks, tex, loader = midas
+    ortho = WorldFrame.map("EPSG:25832", geoid)
+    dsm_o = scene_dsm(s.scene, dsm.grid, ortho)
+    assert 30.0 < float(np.nanmean(dsm.height - dsm_o.height)) < 50.0  # the geoid undulation near Hannover
+    ids = {t.facade.building for t in tex if t.images}
+    blocks_o = [b for b in true_buildings(s.scene, ortho) if b.id in ids][:2]
+    tex_o = texture_facades(blocks_o, eo, cams, loader, dsm_o)
+    oblique = {str(n) for n, h in zip(eo.image, eo.head) if h != "nadir"}
+    judged, summ = judge_facades(s.scene, tex_o, ortho, oblique)
+    assert summ["seen"] >= 1 and summ["within_1px"] == 1.0, summ
