@@ -112,7 +112,7 @@ def test_fuzz_bytes_never_crash_a_reader(tmp_path):
     check()
 
 
-@pytest.mark.parametrize("command", ["world-to-image", "georef"])
+@pytest.mark.parametrize("command", ["world-to-image", "georef", "image-to-world", "convert"])
 def test_command_fuzz_exit_status(tmp_path, command):
     """The main commands on damaged inputs: exit 0/1/2, never a traceback."""
     from click.testing import CliRunner
@@ -122,22 +122,27 @@ def test_command_fuzz_exit_status(tmp_path, command):
     sys.path.insert(0, str(Path(__file__).parent))
     import test_bad_input_cli as cli
 
-    files = {"eo.csv": cli.EO, "gcp.csv": cli.PTS, "rig.yaml": cli.RIG, "traj.csv": cli.TRAJ, "events.csv": cli.EVENTS}
-    targets = ["eo.csv", "gcp.csv", "rig.yaml"] if command == "world-to-image" else ["traj.csv", "events.csv", "rig.yaml"]
+    files = {"eo.csv": cli.EO, "gcp.csv": cli.PTS, "rig.yaml": cli.RIG, "traj.csv": cli.TRAJ, "events.csv": cli.EVENTS,
+             "mes.csv": "point,image,column,row\ng1,img1.tif,2100.5,1400.25\ng1,img2.tif,1500.0,1420.0\n"
+                        "g2,img2.tif,2000.0,1600.0\ng2,img3.tif,1300.0,1610.0\n"}
+    targets = {"world-to-image": ["eo.csv", "gcp.csv", "rig.yaml"], "georef": ["traj.csv", "events.csv", "rig.yaml"],
+               "image-to-world": ["eo.csv", "mes.csv", "rig.yaml"], "convert": ["eo.csv"]}[command]
     for name, text in files.items():
         (tmp_path / name).write_text(text)
 
-    @settings(max_examples=6, deadline=None, derandomize=True)
+    @settings(max_examples=6 if len(targets) > 1 else 4, deadline=None, derandomize=True)
     @given(which=st.sampled_from(targets), data=st.data())
     def check(which: str, data: st.DataObject) -> None:
         for name, text in files.items():
             (tmp_path / name).write_bytes(text.encode())
         (tmp_path / which).write_bytes(data.draw(damaged(files[which])).encode())
-        if command == "world-to-image":
-            args = ["world-to-image", "--eo", "eo.csv", "--camera", "rig.yaml", "--points", "gcp.csv", "-o", "o.csv"]
-        else:
-            args = ["georef", "--trajectory", "traj.csv", "--events", "events.csv", "--rig", "rig.yaml", "--crs",
-                    "EPSG:25832", "-o", "o.csv"]
+        args = {"world-to-image": ["world-to-image", "--eo", "eo.csv", "--camera", "rig.yaml", "--points", "gcp.csv",
+                                   "-o", "o.csv"],
+                "georef": ["georef", "--trajectory", "traj.csv", "--events", "events.csv", "--rig", "rig.yaml", "--crs",
+                           "EPSG:25832", "-o", "o.csv"],
+                "image-to-world": ["image-to-world", "--eo", "eo.csv", "--camera", "rig.yaml", "--measurements",
+                                   "mes.csv", "--intersect", "-o", "o.csv"],
+                "convert": ["convert", "eo.csv", "o.csv", "--to-crs", "EPSG:4326", "--to-angles", "gon"]}[command]
         args = [str(tmp_path / a) if a.endswith((".csv", ".yaml")) else a for a in args]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
