@@ -31,7 +31,8 @@ def _positions(names: np.ndarray, wanted: np.ndarray) -> np.ndarray:
 @click.command("world-to-image")
 @eo_options
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Ground points (IGN .app or _world.mes, ODM gcp_list.txt, or CSV name,x,y,z).")
-@click.option("--points-crs", default=None, help="CRS of the points (default: the EO CRS).")
+@click.option("--points-crs", default=None, help="CRS of the points when the file does not state one (a skyrig CSV's header or side-car wins and must "
+                   "agree with this; default: the EO CRS).")
 @click.option("--points-heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal", show_default=True, help="Height reference of the point file.")
 @click.option("--points-geoid", default=None, help="Geoid grid when the point heights are orthometric.")
 @click.option("--measurements", "mes_path", default=None, type=click.Path(exists=True, dir_okay=False), help="Only project the measured (point, image) pairs of this file and report residuals.")
