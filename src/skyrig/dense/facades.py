@@ -530,7 +530,9 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
     sub-step) becomes the wall's; corners are the intersections of consecutive moved
     edge lines; roof polygons follow (corners to corners, points on an edge with the edge).  An edge stays
     where it is when its best score lies at the end of the search range, is not positive, or is not
-    ``min_gain`` times the score at the edge's own place (an edge already on the outline stays).
+    ``min_gain`` times the score at the edge's own place (an edge already on the outline stays), or when most
+    images' own best offsets are not within 2 steps of it (what lies beyond the eaves, wall or ground, differs
+    between views; the outline does not).
 
     Returns new :class:`BuildingBlock` objects (``source`` unchanged; ``metadata``-free), in the same order.
     """
@@ -563,6 +565,7 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
                 edge = a + s[:, None] * t
                 z = _roof_height(b, edge - 0.5 * band * n)
                 score = np.zeros(len(offs))
+                peaks: list[int] = []
                 for k, _ in cand:
                     img = ctx.images(k)
                     cam = ctx.cameras[str(ctx.eo_l.camera[k])]
@@ -587,10 +590,14 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
                         m_in = np.nanmean(col[:, 0], axis=1)  # (offsets, channels)
                         m_out = np.nanmean(col[:, 1], axis=1)
                     # the roof's edge: roof-coloured inside, not outside (a wall-to-ground step further out is not it)
-                    score += np.nan_to_num(np.linalg.norm(m_out - ref, axis=1) - np.linalg.norm(m_in - ref, axis=1))
+                    sk = np.nan_to_num(np.linalg.norm(m_out - ref, axis=1) - np.linalg.norm(m_in - ref, axis=1))
+                    score += sk
+                    peaks.append(int(np.argmax(sk)))
                 j = int(np.argmax(score))
                 j0 = int(np.argmin(np.abs(offs)))
-                if 0 < j < len(offs) - 1 and score[j] > 0 and score[j] >= min_gain * max(score[j0], 0.0):
+                # the images must agree: what lies beyond the eaves differs between views, the outline does not
+                agree = sum(abs(p - j) <= 2 for p in peaks) > 0.5 * len(peaks)
+                if 0 < j < len(offs) - 1 and score[j] > 0 and score[j] >= min_gain * max(score[j0], 0.0) and agree:
                     y0, y1, y2 = score[j - 1], score[j], score[j + 1]
                     den = y0 - 2 * y1 + y2
                     sub = 0.5 * (y0 - y2) / den if den < 0 else 0.0
