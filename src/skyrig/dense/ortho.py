@@ -311,17 +311,32 @@ def fill_surface(dsm: DsmGrid, step_m: float = 2.0) -> NDArray[np.float64]:
 
 
 def ground_estimate(height: NDArray[np.float64], cell_m: float, window_m: float) -> NDArray[np.float64]:
-    """Ground under the surface: a grey opening (minimum then maximum filter) of the DSM over ``window_m``,
-    smoothed over the same window; NaN where the DSM has none."""
+    """Ground under the surface: a grey opening (minimum then maximum filter, a disc of ``window_m``) of the DSM,
+    smoothed over the same window; NaN where the DSM has none.  Computed on the DSM reduced by block minima to at
+    most ~31 cells per window (the ground is smooth at that scale) and interpolated back."""
     import cv2
 
-    k = max(3, int(round(window_m / cell_m)) | 1)
     ok = np.isfinite(height)
     hi = float(np.nanmax(height))
     h = np.where(ok, height, hi).astype(np.float32)
+    f = max(1, int(np.ceil(window_m / cell_m / 31.0)))
+    H, W = h.shape
+    if f > 1:
+        Hp, Wp = -(-H // f) * f, -(-W // f) * f
+        hp = np.pad(h, ((0, Hp - H), (0, Wp - W)), mode="edge")
+        small = hp.reshape(Hp // f, f, Wp // f, f).min(axis=(1, 3))
+    else:
+        small = h
+    k = max(3, int(round(window_m / (cell_m * f))) | 1)
     se = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
-    opened = cv2.dilate(cv2.erode(h, se), se)
+    opened = cv2.dilate(cv2.erode(small, se), se)
     ground = cv2.blur(opened, (k, k))
+    if f > 1:
+        # cell centres of the small grid sit at (f - 1) / 2 of the fine grid
+        ys = (np.arange(H) - (f - 1) / 2.0) / f
+        xs = (np.arange(W) - (f - 1) / 2.0) / f
+        mx, my = np.meshgrid(xs.astype(np.float32), ys.astype(np.float32))
+        ground = cv2.remap(ground, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return np.where(ok, np.minimum(ground, height), np.nan)
 
 
