@@ -3,13 +3,17 @@
     .venv/bin/python bench/run.py                                  # midas-demo (CI size, 20 images)
     .venv/bin/python bench/run.py --scenario midas-demo --scenario midas --executor local --workers 2
     .venv/bin/python bench/run.py --scenario tumblecam --max-features 3000 --json figures.json
+    .venv/bin/python bench/run.py --grow 1 2          # the midas-dsm 80/60 surface block, area x1, x2
 
 For each scenario: ``skyrig simulate SCENARIO --size ci`` (timed) into ``--workdir``, ``skyrig init`` on it, the
 executor and the matcher's feature count set in the project file, then each stage in its own child process
 (``run_project(only=STAGE, force=True)``, in the project's order, so that one stage's peak memory does not hide
-the next): wall time and the child's peak resident memory (``ru_maxrss`` of itself, and of its own children for
-Dask worker processes).  Then a whole ``skyrig run`` that must skip every stage (the resume cost: fingerprints,
-manifest checks).  Scenarios beyond CI size (the issue's 500 exposures / 2,500 images) need ``--size full``
+the next): wall time and the child's peak resident memory (``VmHWM``, which exec resets - unlike ``ru_maxrss``,
+which a child inherits from the process that forked it - and ``ru_maxrss`` of its own children for Dask worker
+processes).  Then a whole ``skyrig run`` that must skip every stage (the resume cost: fingerprints,
+manifest checks).  ``--grow K ...`` flies the ``midas-dsm`` surface block (CI: 3 strips over 100 m x 100 m,
+60 images) over a K times wider and longer area with 3 K strips (about K^2 x 60 images), one project per K.
+Scenarios beyond CI size (the issue's 500 exposures / 2,500 images) need ``--size full``
 projects that take hours to render on a small machine; ``--size`` is passed to ``skyrig simulate``.
 """
 
@@ -31,7 +35,7 @@ proj = load_project(sys.argv[1])
 t1 = time.perf_counter()
 res = run_project(proj, only=sys.argv[2], force=True)
 t2 = time.perf_counter()
-me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+me = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")) / 1024  # reset at exec
 kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
 row = next(r for r in res.stages if r["stage"] == sys.argv[2])
 print("BENCH " + json.dumps({"exit": res.exit_code, "error": res.error, "load_s": t1 - t0, "stage_s": row.get("seconds"),
@@ -44,14 +48,31 @@ def _skyrig() -> str:
     return str(Path(sys.executable).parent / "skyrig")
 
 
+def _simulate_grown(folder: Path, k: int) -> None:
+    """The ``midas-dsm`` surface block over a ``k`` times wider and longer area with ``3 k`` strips."""
+    from dataclasses import replace
+
+    from skyrig.pipeline.simulate import write_project
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    spec = scenario_spec("midas-dsm", "ci", 1)
+    f = spec.flights[0]
+    half = 50.0 * k
+    spec = replace(spec, name=f"midas-dsm-x{k}", flights=(replace(f, n_strips=3 * k, area=(-half, -half, half, half)),))
+    write_project(build_survey(spec), folder)
+
+
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
-                   keep: bool) -> dict:
-    folder = workdir / f"{name}-{size}"
-    out: dict = {"scenario": name, "size": size, "stages": []}
+                   keep: bool, grow: int | None = None) -> dict:
+    folder = workdir / (f"{name}-x{grow}" if grow is not None else f"{name}-{size}")
+    out: dict = {"scenario": name if grow is None else f"{name}-x{grow}", "size": size, "stages": []}
     if not (folder / "truth" / "truth.json").is_file():
         t0 = time.perf_counter()
-        subprocess.run([_skyrig(), "simulate", name, str(folder), "--size", size], check=True,
-                       stdout=subprocess.DEVNULL)
+        if grow is not None:
+            _simulate_grown(folder, grow)
+        else:
+            subprocess.run([_skyrig(), "simulate", name, str(folder), "--size", size], check=True,
+                           stdout=subprocess.DEVNULL)
         out["simulate_s"] = time.perf_counter() - t0
     proj = folder / "project.yaml"
     subprocess.run([_skyrig(), "init", str(folder), "--force"], check=True, stdout=subprocess.DEVNULL)
@@ -74,7 +95,7 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
             break
         row = {"stage": st, **json.loads(line[6:])}
         out["stages"].append(row)
-        print(f"  {name:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  peak {row['peak_mib']:7.0f} MiB"
+        print(f"  {out['scenario']:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  peak {row['peak_mib']:7.0f} MiB"
               f"  (workers {row['children_peak_mib']:6.0f} MiB)  exit {row['exit']}", flush=True)
         if row["exit"]:
             break
@@ -82,7 +103,7 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     r = subprocess.run([_skyrig(), "run", str(proj)], capture_output=True, text=True)
     out["resume_all_skipped_s"] = time.perf_counter() - t0
     out["resume_skipped"] = r.stderr.count("skipped (up to date)")
-    print(f"  {name:12s} resume run: {out['resume_all_skipped_s']:.1f} s, {out['resume_skipped']} of {len(stages)} "
+    print(f"  {out['scenario']:12s} resume run: {out['resume_all_skipped_s']:.1f} s, {out['resume_skipped']} of {len(stages)} "
           "stages skipped", flush=True)
     if not keep:
         import shutil
@@ -95,6 +116,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", action="append", help="skyrig simulate scenario (repeatable; default midas-demo)")
     ap.add_argument("--size", default="ci", choices=["ci", "full"])
+    ap.add_argument("--grow", type=int, nargs="+", default=None,
+                    help="midas-dsm surface block over K x the CI area (3 K strips), one run per K")
     ap.add_argument("--workdir", default="/tmp/skyrig-bench-run", help="where projects are simulated (kept: reruns "
                     "reuse them)")
     ap.add_argument("--executor", default="serial", choices=["serial", "local", "auto"])
@@ -106,7 +129,11 @@ def main() -> None:
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name in a.scenario or ["midas-demo"]:
+    if a.grow:
+        for k in a.grow:
+            print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
+            rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k))
+    for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
         rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep))
     print("\nscenario      images     MP  " + "  ".join(f"{s['stage']:>10s}" for s in rows[0]["stages"])
