@@ -490,7 +490,8 @@ def _georef(ctx: StageContext) -> dict[str, Any]:
     from skyrig.io.rig_file import read_rig
 
     p, o = ctx.project, ctx.options
-    assert p.trajectory is not None and p.events is not None and p.rig is not None  # checked on loading
+    if p.trajectory is None or p.events is None or p.rig is None:  # checked on loading; a registry bug otherwise
+        raise StageError("georef", "needs inputs trajectory, events and rig", 2)
     if p.trajectory.suffix.lower() in (".out", ".sbet", ".bin"):
         from skyrig.io.sbet import read_sbet
 
