@@ -28,6 +28,19 @@ def _positions(names: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     return order[np.searchsorted(names[order], wanted)]
 
 
+def _nothing_seen(pts, eo, points_path: str) -> None:
+    """No point falls in any image: say how far the points are from the projection centres (a CRS or axis-order
+    mistake puts them kilometres away) instead of writing an empty file with exit 0."""
+    from skyrig.errors import InputFormatError
+
+    try:
+        d = np.linalg.norm(pts.frame.to_ecef(pts.xyz).mean(axis=0) - eo.frame.to_ecef(eo.centre).mean(axis=0))
+        far = f"; the points' centre is {d / 1000.0:.3g} km from the projection centres' (CRS or axis order?)"
+    except Exception:  # noqa: BLE001 - the distance is only a hint
+        far = ""
+    raise InputFormatError(f"none of the {len(pts)} points falls in any of the {len(eo)} images{far}", points_path)
+
+
 @click.command("world-to-image")
 @eo_options
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Ground points (IGN .app or _world.mes, ODM gcp_list.txt, or CSV name,x,y,z).")
@@ -68,6 +81,8 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         for name in np.unique(pair_cam):
             sel = pair_cam == name
             inside[sel] = cams[name].in_image(px[sel])
+    if not mes_path and len(pts) and len(eo) and not inside.any():
+        _nothing_seen(pts, eo, points_path)
     out = ImageMeasurements(pairs_p[inside], pairs_i[inside], px[inside])
     header = [f"skyrig world-to-image; EO {eo_path}; points {points_path}; frame {pts.frame.describe()}",
               "pixels: column right, row down, origin at the centre of the top-left pixel"]
