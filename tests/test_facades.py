@@ -275,3 +275,26 @@ def test_orthometric_dsm_gives_the_same_textures(midas):
     oblique = {str(n) for n, h in zip(eo.image, eo.head) if h != "nadir"}
     judged, summ = judge_facades(s.scene, tex_o, ortho, oblique)
     assert summ["seen"] >= 1 and summ["within_1px"] == 1.0, summ
+
+
+def test_lens_distortion_is_honoured(midas):
+    """Images rendered through cameras with strong radial-tangential distortion (several pixels at the image
+    edges): textures through the same camera model stay within 1 texel, those through a distortion-free model of
+    the same cameras do not."""
+    from skyrig.camera.opencv import OpenCVDistortion
+
+    s, eo, cams, dsm, blocks, tex, _ = midas
+    dist = OpenCVDistortion(k1=-0.25, k2=0.08, p1=0.002, p2=-0.0015)
+    dcams = {n: c.with_(distortion=dist) for n, c in cams.items()}
+    edge = dcams["midas-right-50mm"]
+    corner = np.array([[0.0, 0.0]])
+    shift = np.abs(edge.project_pixels(cams["midas-right-50mm"].rays_from_pixels(corner)) - corner).max()
+    assert shift > 10.0  # pixels of distortion at the image corner
+    loader = LazyImages(s.scene, eo, dcams)
+    ids = [t.facade.building for t in tex if t.images and t.facade.building in {b.id for b in blocks}]
+    sel = [b for b in blocks if b.id in set(ids[:4])][:2]
+    oblique = {str(n) for n, h in zip(eo.image, eo.head) if h != "nadir"}
+    good = judge_facades(s.scene, texture_facades(sel, eo, dcams, loader, dsm), CRS, oblique)[1]
+    plain = judge_facades(s.scene, texture_facades(sel, eo, cams, loader, dsm), CRS, oblique)[1]
+    assert good["seen"] >= 2 and good["within_1px"] == 1.0, good
+    assert plain["within_1px"] < 1.0 or plain["corner_err_median_px"] > 1.5 * good["corner_err_median_px"], plain
