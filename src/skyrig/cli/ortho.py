@@ -51,7 +51,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     import numpy as np
 
     from skyrig.cli._common import load_cameras, load_eo
-    from skyrig.dense.ortho import OrthoConfig
+    from skyrig.dense.ortho import EmptyMosaicError, OrthoConfig
     from skyrig.pipeline.dense import find_images
     from skyrig.pipeline.ortho import load_dsm_for, run_ortho
 
@@ -95,11 +95,15 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         def progress(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        res = run_ortho(eo_all, cameras, paths, dsm, output, area=tuple(area) if area else None, config=cfg,
-                        main_rows=np.arange(len(main)),
-                        head_sets={h: [pos[int(r)] for r in rows] for h, rows in sets.items()} or None,
-                        executor=executor, workers=workers, scheduler=scheduler,
-                        inputs=[eo_path, *camera_paths, dsm_path], options=options, progress=progress)
+        try:
+            res = run_ortho(eo_all, cameras, paths, dsm, output, area=tuple(area) if area else None, config=cfg,
+                            main_rows=np.arange(len(main)),
+                            head_sets={h: [pos[int(r)] for r in rows] for h, rows in sets.items()} or None,
+                            executor=executor, workers=workers, scheduler=scheduler,
+                            inputs=[eo_path, *camera_paths, dsm_path], options=options, progress=progress)
+        except EmptyMosaicError as exc:
+            click.echo(f"error: {exc}", err=True)
+            raise SystemExit(1) from None
     s = res.summary
     g = s["grid"]
     click.echo(f"orthomosaic {g['width']} x {g['height']} cells ({g['cell_m']:.3f} m) from {len(s['images_used'])} "

@@ -45,6 +45,10 @@ from skyrig.georef.eo import ExteriorOrientations
 logger = logging.getLogger(__name__)
 
 
+class EmptyMosaicError(SkyrigError):
+    """The stage ran but no image sees the surface (a failed result, not a bad input)."""
+
+
 class ImageLoader(Protocol):
     def __call__(self, i: int) -> NDArray[np.uint8]: ...
 
@@ -660,8 +664,8 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     tiles = tuple((r0, c0, min(t, Ho - r0), min(t, Wo - c0)) for r0 in range(0, Ho, t) for c0 in range(0, Wo, t))
     seen_any = np.isfinite(best)
     if not seen_any.any():
-        raise SkyrigError("no image sees the DSM (check that the orientations and the DSM are of the same place, "
-                          "CRS and height reference)")
+        raise EmptyMosaicError("no image sees the DSM (check that the orientations and the DSM are of the same place, "
+                               "CRS and height reference)")
     stats = {"images": len(eo_l), "images_used": int(len(np.unique(label[label >= 0]))),
              "objects": int(ncomp), "objects_one_image": objects_whole,
              "small_regions_merged": merged, "balance_pairs": npairs,

@@ -20,7 +20,7 @@ import numpy as np
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense.grid import DsmGrid, GridSpec
-from skyrig.dense.ortho import OrthoConfig, Orthomosaic, _OrthoTileJob, _ViewJob, assemble_ortho, plan_ortho
+from skyrig.dense.ortho import EmptyMosaicError, OrthoConfig, Orthomosaic, _OrthoTileJob, assemble_ortho, plan_ortho
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.pipeline.dense import ImageFiles
@@ -161,7 +161,7 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
                 except SkyrigError as exc:
                     logger.warning("no mosaic of head %s: %s", h, exc)
     if not mosaic.valid.any():
-        raise SkyrigError("the orthomosaic is empty: no image sees the DSM's surface")
+        raise EmptyMosaicError("the orthomosaic is empty: no image sees the DSM's surface")
     summary = _summary(mosaic)
     summary["config"] = json.loads(json.dumps(asdict(config), default=str))
     summary["executor"] = kind
