@@ -298,3 +298,33 @@ def test_lens_distortion_is_honoured(midas):
     plain = judge_facades(s.scene, texture_facades(sel, eo, cams, loader, dsm), CRS, oblique)[1]
     assert good["seen"] >= 2 and good["within_1px"] == 1.0, good
     assert plain["within_1px"] < 1.0 or plain["corner_err_median_px"] > 1.5 * good["corner_err_median_px"], plain
+
+
+def test_roof_textures_match_the_scenes_roofs(midas):
+    import cv2
+
+    from skyrig.dense.facades import texture_roofs
+
+    s, eo, cams, dsm, blocks, _, loader = midas
+    local = s.frame
+    roofs = texture_roofs(blocks[:3], eo, cams, loader, dsm)
+    assert len(roofs) == sum(len(b.roof) for b in blocks[:3])
+    checked = 0
+    for r in roofs:
+        t = r.texture
+        if t.valid.mean() < 0.9:
+            continue
+        H, W = t.valid.shape
+        q = r.corners
+        u = (q[1] - q[0]) / np.linalg.norm(q[1] - q[0])
+        v = (q[3] - q[0]) / np.linalg.norm(q[3] - q[0])
+        assert np.cross(u, v)[2] > 0.5  # the roof's texture faces up
+        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        P = q[3] + (jj.reshape(-1, 1) * t.texel_m) * u - (ii.reshape(-1, 1) * t.texel_m) * v
+        pl = local.from_ecef(CRS.to_ecef(P))
+        truth = s.scene.roof_rgb(np.full(len(pl), r.building), pl[:, 0], pl[:, 1]).mean(axis=1).reshape(H, W)
+        got = t.rgb.astype(float).mean(axis=2) / 255.0
+        (dx, dy), resp = cv2.phaseCorrelate(truth, got, cv2.createHanningWindow((W, H), cv2.CV_64F))
+        assert resp > 0.1 and np.hypot(dx, dy) <= 1.0, (r.building, r.index, dx, dy, resp)
+        checked += 1
+    assert checked >= 2

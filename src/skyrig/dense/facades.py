@@ -16,6 +16,9 @@ colour from the image that sees it best:
   i.e. the highest resolution and most frontal view); image boundaries are feathered over ``feather_texels``;
 * the texel size defaults to the best image's footprint on the plane (median over the plane).
 
+Roofs: :func:`texture_roofs` textures every roof polygon the same way (normal up), over its bounding rectangle
+(:func:`roof_rectangle`).
+
 Walls of buildings extracted from a matched DSM can first be moved onto the roof outlines the images show
 (:func:`refine_walls`): a matched DSM's roof edges are blurred and shifted by a fraction of a metre, a
 texture on a wall in the wrong place is shifted by about as much.
@@ -645,3 +648,67 @@ def _moved(b: BuildingBlock, delta: NDArray) -> BuildingBlock:
                     break
         roofs.append(p)
     return replace(b, footprint=new, roof=tuple(roofs))
+
+
+class RoofTexture(NamedTuple):
+    """The texture of one roof polygon: ``corners`` ``(4, 3)`` of the textured rectangle (bottom-start,
+    bottom-end, top-end, top-start as :func:`texture_plane`), the polygon's texels in ``texture.valid``."""
+
+    building: int
+    index: int
+    corners: NDArray[np.float64]
+    texture: PlaneTexture
+
+
+def roof_rectangle(polygon: NDArray) -> NDArray[np.float64]:
+    """``(4, 3)`` corners of the rectangle (in the polygon's plane) that bounds a planar roof polygon ``(K, 3)``:
+    the polygon itself when it is a counter-clockwise quadrilateral, else its minimum-area rectangle in plan with
+    heights from the polygon's plane; counter-clockwise from above, so the texture's normal points up."""
+    import cv2
+
+    p = np.asarray(polygon, float)
+    A = np.column_stack([p[:, 0], p[:, 1], np.ones(len(p))])
+    coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
+    if len(p) == 4:
+        q = p
+    else:
+        c0 = p[:, :2].mean(axis=0)
+        box = cv2.boxPoints(cv2.minAreaRect((p[:, :2] - c0).astype(np.float32))).astype(np.float64) + c0
+        q = np.column_stack([box, box @ coef[:2] + coef[2]])
+    x, y = q[:, 0], q[:, 1]
+    if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0:
+        q = q[::-1].copy()
+    return q
+
+
+def texture_roofs(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
+                  loader: ImageLoader, dsm: DsmGrid, *, texel_m: float | None = None, max_images: int = 3,
+                  config: TextureConfig | None = None) -> list[RoofTexture]:
+    """Occlusion-aware textures of every roof polygon of ``buildings`` (as :func:`texture_facades` for walls).
+
+    Each polygon is textured over :func:`roof_rectangle` with :func:`texture_plane` (normal up, out of the roof);
+    texels outside the polygon (in plan) are marked invalid."""
+    import cv2
+    from dataclasses import replace
+
+    cfg = replace(config or TextureConfig(), texel_m=texel_m, max_images=int(max_images))
+    polys = [(b.id, i, np.asarray(r, float)) for b in buildings for i, r in enumerate(b.roof)]
+    if not polys:
+        return []
+    ctx = texturing_context(eo, cameras, loader, dsm, np.concatenate([p for _, _, p in polys]))
+    out = []
+    for bid, i, poly in polys:
+        q = roof_rectangle(poly)
+        rgb, valid, texel, names, src, stats = _texture_plane(q, ctx, cfg, None)
+        H, W = valid.shape
+        u, v, _, _, _ = _plane_axes(q)
+        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        P = q[3] + (jj.reshape(-1, 1) * texel) * u - (ii.reshape(-1, 1) * texel) * v
+        c0 = poly[:, :2].mean(axis=0)
+        cont = (poly[:, :2] - c0).astype(np.float32).reshape(-1, 1, 2)
+        inside = np.array([cv2.pointPolygonTest(cont, (float(a), float(b)), False) >= 0
+                           for a, b in (P[:, :2] - c0)]).reshape(H, W)
+        valid = valid & inside
+        src = np.where(valid, src, -1).astype(np.int16)
+        out.append(RoofTexture(bid, i, q, PlaneTexture(rgb, valid, texel, names, src, stats)))
+    return out
