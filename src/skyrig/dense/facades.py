@@ -702,13 +702,12 @@ def texture_roofs(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, 
         rgb, valid, texel, names, src, stats = _texture_plane(q, ctx, cfg, None)
         H, W = valid.shape
         u, v, _, _, _ = _plane_axes(q)
-        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
-        P = q[3] + (jj.reshape(-1, 1) * texel) * u - (ii.reshape(-1, 1) * texel) * v
-        c0 = poly[:, :2].mean(axis=0)
-        cont = (poly[:, :2] - c0).astype(np.float32).reshape(-1, 1, 2)
-        inside = np.array([cv2.pointPolygonTest(cont, (float(a), float(b)), False) >= 0
-                           for a, b in (P[:, :2] - c0)]).reshape(H, W)
-        valid = valid & inside
+        # the polygon in texel coordinates (texel centres at integers), rasterised
+        col = ((poly - q[3]) @ u) / texel - 0.5
+        row = ((q[3] - poly) @ v) / texel - 0.5
+        inside = np.zeros((H, W), np.uint8)
+        cv2.fillPoly(inside, [np.round(np.column_stack([col, row]) * 16).astype(np.int32)], 1, shift=4)
+        valid = valid & inside.astype(bool)
         src = np.where(valid, src, -1).astype(np.int16)
         out.append(RoofTexture(bid, i, q, PlaneTexture(rgb, valid, texel, names, src, stats)))
     return out
