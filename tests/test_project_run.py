@@ -146,6 +146,19 @@ def test_failed_or_interrupted_stage_leaves_earlier_outputs(tmp_path: Path) -> N
     assert r.ok and calls.ran == ["b"] and (tmp_path / "output" / "b" / "b.txt").read_text().endswith("word=z")
 
 
+def test_failed_stage_that_keeps_its_outputs(tmp_path: Path) -> None:
+    """A stage that returns {"failed": ...} (keep_failed) is published, the run stops with status 1."""
+    calls = Calls()
+    reg = _toy_registry(calls)
+    a = reg.pop("a")
+    register_stage(Stage("a", a.help, lambda ctx: {**(a.run(ctx) or {}), "failed": "did not converge"}, a.options,
+                         provides=a.provides, inputs=a.inputs), reg)
+    _toy_project(tmp_path)
+    r = _run(tmp_path, calls, reg)
+    assert r.exit_code == 1 and "did not converge" in (r.error or "") and calls.ran == ["a"]
+    assert verify_folder(tmp_path / "output" / "a") == [] and not (tmp_path / "output" / "b").exists()
+
+
 def test_only_needs_published_inputs(tmp_path: Path) -> None:
     calls = Calls()
     reg = _toy_registry(calls)

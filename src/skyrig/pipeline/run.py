@@ -389,10 +389,12 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
             code, msg = 1, f"{type(exc).__name__}: {exc}"
         else:
             dt = time.perf_counter() - t0
-            rows.append({"stage": spec.name, "status": "done", "reason": why, "seconds": round(dt, 3),
-                         "summary": summary})
-            emit(StageEvent(spec.name, "done", why, seconds=dt))
-            continue
+            if not summary.get("failed"):
+                rows.append({"stage": spec.name, "status": "done", "reason": why, "seconds": round(dt, 3),
+                             "summary": summary})
+                emit(StageEvent(spec.name, "done", why, seconds=dt))
+                continue
+            code, msg = 1, f"{summary['failed']} (outputs published: keep_failed)"
         dt = time.perf_counter() - t0
         rows.append({"stage": spec.name, "status": "failed", "reason": msg, "seconds": round(dt, 3)})
         emit(StageEvent(spec.name, "failed", msg, seconds=dt))
@@ -448,6 +450,18 @@ def invoke_command(stage: str, target: str, args: Sequence[object]) -> None:
         if exc.code not in (None, 0):
             raise StageError(stage, f"skyrig {cmd.name} exited with status {exc.code}",
                              exc.code if isinstance(exc.code, int) else 1) from None
+
+
+def _invoke_keeping(ctx: StageContext, target: str, args: Sequence[object]) -> dict[str, Any]:
+    """:func:`invoke_command`; with the stage option ``keep_failed`` a failed run (status 1) whose outputs the
+    command wrote anyway returns ``{"failed": reason}``: the runner publishes them and still stops with status 1."""
+    try:
+        invoke_command(ctx.spec.name, target, args)
+    except StageError as exc:
+        if ctx.options.get("keep_failed") and exc.exit_code == 1 and any(ctx.out.iterdir()):
+            return {"failed": exc.reason}
+        raise
+    return {}
 
 
 def _scheduler_args(ex: ExecutorSpec) -> list[str]:
@@ -597,10 +611,10 @@ def _adjust(ctx: StageContext) -> dict[str, Any]:
         args += ["--gsd", o["gsd"]]
     if o["keep_failed"]:
         args += ["--keep-failed"]
-    invoke_command("adjust", "skyrig.cli.adjust:command", args)
+    failed = _invoke_keeping(ctx, "skyrig.cli.adjust:command", args)
     rep = json.loads((ctx.out / "report.json").read_text())
     sm = rep.get("summary", {})
-    return {k: sm.get(k) for k in ("sigma0", "images", "points", "iterations")}
+    return {**{k: sm.get(k) for k in ("sigma0", "images", "points", "iterations")}, **failed}
 
 
 def _adjust_uav_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
@@ -623,8 +637,7 @@ def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
         args += ["--no-self-calibration"]
     if o["keep_failed"]:
         args += ["--keep-failed"]
-    invoke_command("adjust-uav", "skyrig.cli.uav:command", args)
-    return {}
+    return _invoke_keeping(ctx, "skyrig.cli.uav:command", args)
 
 
 def _dsm_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
