@@ -23,9 +23,11 @@ from skyrig.cli._common import eo_options
 @click.option("--max-images", type=int, default=3, show_default=True, help="Images blended into one façade at most.")
 @click.option("--texture-format", type=click.Choice(["png", "jpeg"]), default="png", show_default=True,
               help="Format of the textures inside model.glb.")
+@click.option("--no-refine", is_flag=True,
+              help="Keep the walls where the DSM puts them (default: moved onto the roof outline seen in the images).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, footprints,
-            ortho_path, texel, max_images, texture_format, output) -> None:
+            ortho_path, texel, max_images, texture_format, no_refine, output) -> None:
     """Façade textures and a textured 3D model of the buildings of a DSM.
 
     Buildings come from the DSM (or --footprints, heights from the DSM); every façade is textured from the
@@ -54,7 +56,7 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
     cameras = load_cameras(camera_paths)
     paths = find_images(eo, images)
     options = {"heads": heads, "footprints": footprints, "ortho": ortho_path, "texel": texel,
-               "max_images": max_images, "texture_format": texture_format}
+               "max_images": max_images, "texture_format": texture_format, "refine": not no_refine}
     from rich.progress import Progress
 
     with Progress(transient=True) as bar:
@@ -66,7 +68,7 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
         try:
             res = run_facades(eo, cameras, paths, dsm_path, output, footprints=footprints, ortho=ortho_path,
                               texel_m=texel, max_images=max_images, image_format=texture_format,
-                              inputs=[dsm_path, eo_path, *camera_paths] + [p for p in (footprints, ortho_path) if p],
+                              refine=not no_refine, inputs=[dsm_path, eo_path, *camera_paths] + [p for p in (footprints, ortho_path) if p],
                               options=options, progress=progress)
         except NoBuildingsError as exc:
             click.echo(f"error: {exc}", err=True)

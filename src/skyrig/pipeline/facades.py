@@ -198,7 +198,7 @@ def _buildings_gpkg(path: Path, buildings: Sequence[BuildingBlock], frame: World
 def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str],
                 dsm: DsmGrid | str | Path, outdir: str | Path, *, footprints: str | Path | None = None,
                 ortho: OrthoRaster | str | Path | None = None, texel_m: float | None = None, max_images: int = 3,
-                image_format: str = "png", inputs: Sequence[str] = (), options: dict | None = None,
+                image_format: str = "png", refine: bool = True, inputs: Sequence[str] = (), options: dict | None = None,
                 progress: Callable[[int, int], None] | None = None) -> FacadesOutputs:
     """Building blocks, façade textures and a textured 3D model into ``outdir`` (module docstring).
 
@@ -212,6 +212,9 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         Output folder (published as a set).
     footprints
         A GeoPackage of footprint polygons (any CRS); default: buildings extracted from the DSM.
+    refine
+        Move the walls of DSM-extracted buildings onto the roof outline seen in the images
+        (:func:`skyrig.dense.facades.refine_walls`); footprints given as a file are kept as they are.
     ortho
         An RGB orthophoto (path or :class:`OrthoRaster`) to texture the roofs; default: a flat colour.
     texel_m
@@ -231,7 +234,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     import time
 
     from skyrig.dense.buildings import buildings_from_footprints, extract_buildings
-    from skyrig.dense.facades import texture_facades
+    from skyrig.dense.facades import refine_walls, texture_facades
     from skyrig.dense.model import build_model
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.gltf import write_glb, write_obj
@@ -259,9 +262,12 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     if not buildings:
         raise NoBuildingsError("no buildings found" + (" among the footprints" if footprints else
                                                         " in the DSM (nothing higher than 2.5 m above the ground over 20 m2)"))
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    if footprints is None and refine:
+        # walls extracted from a matched DSM sit a fraction of a metre off; the images show the roof outline sharply
+        buildings = refine_walls(buildings, eo, cameras, loader, grid)
     t_build = time.time() - t0
     logger.info("facades: %d buildings, %d façades", len(buildings), sum(len(b.footprint) for b in buildings))
-    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     textures = texture_facades(buildings, eo, cameras, loader, grid, texel_m=texel_m, max_images=max_images,
                                progress=progress)
     t_tex = time.time() - t0 - t_build
