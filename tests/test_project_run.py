@@ -157,6 +157,9 @@ def test_failed_stage_that_keeps_its_outputs(tmp_path: Path) -> None:
     r = _run(tmp_path, calls, reg)
     assert r.exit_code == 1 and "did not converge" in (r.error or "") and calls.ran == ["a"]
     assert verify_folder(tmp_path / "output" / "a") == [] and not (tmp_path / "output" / "b").exists()
+    assert (tmp_path / "output" / "a" / "FAILED.txt").is_file()
+    r = _run(tmp_path, calls, reg)  # a failed stage is never up to date
+    assert r.exit_code == 1 and calls.ran == ["a"]
 
 
 def test_only_needs_published_inputs(tmp_path: Path) -> None:

@@ -131,6 +131,9 @@ class Stage:
     check: Callable[[Project, dict[str, Any]], tuple[str, str] | None] | None = None  # (key path, problem) or None
 
 
+#: Marker file in a stage folder published although the stage failed (``keep_failed``).
+FAILED = "FAILED.txt"
+
 #: The stages ``skyrig run`` knows, in their natural order (a project lists the ones it runs, in its order).
 STAGES: dict[str, Stage] = {}
 
@@ -247,6 +250,8 @@ def _up_to_date(folder: Path, fingerprint: str) -> tuple[bool, str]:
         return False, "manifest unreadable"
     if m.get("options", {}).get("fingerprint") != fingerprint:
         return False, "inputs or options changed"
+    if (folder / FAILED).is_file():
+        return False, "its last run failed (outputs kept)"
     problems = verify_folder(folder)
     if problems:
         return False, f"outputs changed since ({problems[0]})"
@@ -371,6 +376,8 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         try:
             with stage_folder(folder, stage=spec.name, inputs=inputs, options=options, started=t_run) as tmp:
                 summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
+                if summary.get("failed"):  # published as kept, never taken as up to date
+                    (tmp / FAILED).write_text(f"stage {spec.name} failed: {summary['failed']}\n")
                 absent = [f for f in stage.provides.values() if not (tmp / f).exists()]
                 if absent:
                     raise StageError(spec.name, f"published no {absent[0]} (a stage bug)", 1)
