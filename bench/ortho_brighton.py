@@ -1,0 +1,416 @@
+"""Issue 11 real-image acceptance: brighton DJI block, orthomosaic from skyrig's orientations vs pycolmap's.
+
+Both mosaics are made by the same code (``skyrig ortho``) on the same DSM (``dsm_small/dsm.tif`` of the
+earlier session) and the same camera (``camera_small.yaml``); only the exterior orientations differ:
+
+(a) skyrig ``adjust-uav`` (``adjust-uav-keep/eo.csv``);
+(b) pycolmap (COLMAP 3.x): SIFT, exhaustive matching, incremental mapping of the same 800 x 450 images with the
+    camera FIXED to ``camera_small.yaml`` (COLMAP ``FULL_OPENCV``), georeferenced by a similarity transform
+    (``pycolmap.estimate_sim3d``) of its projection centres onto the EXIF GPS positions converted to the frame of
+    skyrig's eo.csv (EXIF altitude as EGM96 height, as skyrig's run took it; h = H + N).
+
+The offset between the mosaics is measured per tile (phase correlation of grey tiles where both are valid), in
+the images' ground sample distance (focal length and median height above the DSM) and in cells.  pycolmap is
+georeferenced only through GPS (metres absolute), so a constant shift between the mosaics is the datum
+difference; the relative geometry is the offsets after removing the median shift.
+
+Run::
+
+    .venv/bin/python bench/ortho_brighton.py            # cache in /tmp/h/F (pycolmap ~1 min, each mosaic ~3 min)
+    .venv/bin/python bench/ortho_brighton.py --cache DIR --figures docs/figures
+
+Prints the figures and writes ``DIR/result.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data" / "brighton-uav"
+PREV = Path(os.environ.get("SKYRIG_BRIGHTON_ACC", "/tmp/skyrig-acc/brighton"))
+CACHE = Path("/tmp/h/F")
+
+
+# ---------------------------------------------------------------------------------------------- inputs
+def inputs(prev: Path = PREV) -> dict[str, Path]:
+    """Paths of the earlier session's products this bench builds on (raises FileNotFoundError naming the missing)."""
+    p = {"images": prev / "small", "camera": prev / "camera_small.yaml", "eo": prev / "adjust-uav-keep" / "eo.csv",
+         "dsm": prev / "dsm_small" / "dsm.tif"}
+    p["gps_images"] = DATA  # the downscaled copies carry no EXIF: GPS from the originals (same names)
+    missing = [str(v) for v in p.values() if not v.exists()]
+    if missing:
+        raise FileNotFoundError("missing inputs: " + ", ".join(missing))
+    return p
+
+
+def gps_positions(image_dir: Path, names: list[str], frame: Any, geoid: str | None = None) -> NDArray[np.float64]:
+    """EXIF GPS positions of ``names`` in ``frame`` (a :class:`skyrig.geodesy.frame.WorldFrame`), ``(N, 3)`` metres.
+
+    EXIF ``GPSAltitude`` is taken as an EGM96 orthometric height (``h = H + N``), as ``skyrig adjust-uav`` did for
+    the orientations compared with (``report.json``: ``altitude: egm96``).
+    """
+    from skyrig.geodesy.crs import Geoid, geodetic_to_ecef
+    from skyrig.io.image_read import read_image_metadata
+    from skyrig.pipeline.simulate import find_geoid
+
+    metas = [read_image_metadata(image_dir / n) for n in names]
+    lat = np.array([m.lat_deg for m in metas], float)
+    lon = np.array([m.lon_deg for m in metas], float)
+    alt = np.array([m.alt_m for m in metas], float)
+    grid = geoid or find_geoid() or "us_nga_egm96_15.tif"
+    h = alt + Geoid(grid).undulation(lat, lon)
+    return np.asarray(frame.from_ecef(geodetic_to_ecef(lat, lon, h)), dtype=np.float64)
+
+
+def colmap_full_opencv(cam: Any) -> tuple[int, int, list[float]]:
+    """A skyrig :class:`FrameCamera` with ``opencv`` (or no) distortion as COLMAP ``FULL_OPENCV`` parameters.
+
+    COLMAP's pixel origin is the corner of the top-left pixel (skyrig: its centre, +0.5); skyrig's principal point
+    is in mm, y up, from the image centre.  The distortion coefficients are OpenCV's (normalised, y down) in both.
+    """
+    f = cam.focal_mm / cam.pixel_size_mm
+    cx = (cam.width - 1) / 2.0 + cam.ppx_mm / cam.pixel_size_mm + 0.5
+    cy = (cam.height - 1) / 2.0 - cam.ppy_mm / cam.pixel_size_mm + 0.5
+    d = cam.distortion
+    if getattr(d, "name", "none") not in ("none", "opencv"):
+        raise ValueError(f"camera {cam.name!r}: distortion {d.name!r} has no COLMAP FULL_OPENCV equivalent")
+    k = [float(getattr(d, n, 0.0)) for n in ("k1", "k2", "p1", "p2", "k3")]
+    return cam.width, cam.height, [f, f, cx, cy, *k, 0.0, 0.0, 0.0]
+
+
+# ---------------------------------------------------------------------------------------------- pycolmap
+def reconstruct(image_dir: Path, names: list[str], cam: Any, work: Path) -> Any:
+    """pycolmap SIFT + exhaustive matching + incremental mapping with the camera fixed; the largest model.
+
+    Cached: a model already in ``work/sparse/model`` is loaded.
+    """
+    import pycolmap
+
+    model_dir = work / "sparse" / "model"
+    if (model_dir / "images.bin").exists():
+        return pycolmap.Reconstruction(model_dir)
+    try:
+        pycolmap.logging.minloglevel = 2  # type: ignore[attr-defined]
+    except Exception:  # noqa: BLE001
+        pass
+    work.mkdir(parents=True, exist_ok=True)
+    db = work / "database.db"
+    if db.exists():
+        db.unlink()
+    w, h, params = colmap_full_opencv(cam)
+    ro = pycolmap.ImageReaderOptions()
+    ro.camera_model = "FULL_OPENCV"
+    ro.camera_params = ",".join(f"{v:.12g}" for v in params)
+    eo = pycolmap.FeatureExtractionOptions()
+    eo.use_gpu = False
+    eo.num_threads = 2
+    eo.max_image_size = max(w, h)
+    pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=ro, extraction_options=eo, device=pycolmap.Device.cpu)
+    mo = pycolmap.FeatureMatchingOptions()
+    mo.use_gpu = False
+    mo.num_threads = 2
+    pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = 2
+    opts.random_seed = 0
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    out = work / "sparse"
+    out.mkdir(exist_ok=True)
+    recs = pycolmap.incremental_mapping(db, image_dir, out, options=opts)
+    if not recs:
+        raise RuntimeError("pycolmap reconstructed nothing")
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    model_dir.mkdir(parents=True, exist_ok=True)
+    rec.write(model_dir)
+    return rec
+
+
+def colmap_poses(rec: Any) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Per registered image: projection centre and ``world_from_camera`` rotation in skyrig's camera axes.
+
+    COLMAP stores ``cam_from_world`` with the camera looking along +z, y down; skyrig's camera frame is x right,
+    y up, z backwards (looking along -z): ``skyrig_cam = diag(1, -1, -1) colmap_cam``.
+    """
+    flip = np.diag([1.0, -1.0, -1.0])
+    out = {}
+    for img in rec.images.values():
+        if not img.has_pose:
+            continue
+        cfw = img.cam_from_world() if callable(img.cam_from_world) else img.cam_from_world
+        R_cw = np.asarray(cfw.rotation.matrix(), dtype=np.float64)
+        t = np.asarray(cfw.translation, dtype=np.float64)
+        out[img.name] = (-R_cw.T @ t, R_cw.T @ flip)
+    return out
+
+
+def georeference(poses: dict[str, tuple[NDArray, NDArray]], gps: dict[str, NDArray], frame: Any,
+                 camera_name: str) -> tuple[Any, dict[str, Any]]:
+    """Similarity (``pycolmap.estimate_sim3d``) of COLMAP's centres onto the GPS positions; skyrig EO in ``frame``.
+
+    Returns the :class:`ExteriorOrientations` and a summary (scale, GPS residual RMS per axis, skyrig's
+    own Umeyama fit as a cross-check of the transform).
+    """
+    import pycolmap
+
+    from skyrig.georef.eo import ExteriorOrientations
+    from skyrig.match.colmap_check import similarity_transform
+
+    names = sorted(n for n in poses if n in gps)
+    if len(names) < 3:
+        raise RuntimeError(f"only {len(names)} images both registered and with GPS")
+    C = np.array([poses[n][0] for n in names])
+    G = np.array([gps[n] for n in names])
+    o = G.mean(0)  # work relative to the GPS mean: UTM coordinates in float64 but well conditioned
+    sim = pycolmap.estimate_sim3d(C, G - o)
+    if sim is None:
+        raise RuntimeError("pycolmap.estimate_sim3d failed")
+    s = float(sim.scale)
+    Rs = np.asarray(sim.rotation.matrix(), dtype=np.float64)
+    ts = np.asarray(sim.translation, dtype=np.float64) + o
+    s2, R2, t2 = similarity_transform(C, G - o)
+    centres = s * C @ Rs.T + ts
+    rot = np.array([Rs @ poses[n][1] for n in names])
+    res = centres - G
+    eo = ExteriorOrientations(np.array(names), camera_name, centres, rot, frame)
+    info = {"images": len(names), "scale": s, "rotation": Rs.tolist(), "translation": ts.tolist(), "gps_residual_rms_m": np.sqrt(np.mean(res**2, axis=0)).tolist(),
+            "umeyama_check": {"scale_diff": abs(s2 - s), "rotation_diff_deg": float(np.degrees(np.arccos(
+                np.clip((np.trace(R2.T @ Rs) - 1) / 2, -1, 1)))),
+                "translation_diff_m": float(np.linalg.norm(t2 + o - ts))}}
+    return eo, info
+
+
+def reprojection_check(rec: Any, eo: Any, info: dict[str, Any], cam: Any) -> dict[str, float]:
+    """COLMAP's 3D points, moved by the georeferencing similarity, projected with skyrig's camera model into the
+    written skyrig orientations, against COLMAP's own keypoint observations (pixels, skyrig origin = COLMAP - 0.5).
+
+    An independent check of the conversion (axes, rotation direction, pixel origin, distortion): a sign or axis
+    error gives tens to hundreds of pixels, a right one COLMAP's reprojection error.
+    """
+    s = float(info["scale"])
+    Rs = np.asarray(info["rotation"])
+    ts = np.asarray(info["translation"])
+    idx = {n: k for k, n in enumerate(eo.image)}
+    res = []
+    for img in rec.images.values():
+        if not img.has_pose or img.name not in idx:
+            continue
+        obs = [(p2.xy, rec.points3D[p2.point3D_id].xyz) for p2 in img.points2D if p2.has_point3D()]
+        if not obs:
+            continue
+        xy = np.array([o[0] for o in obs], dtype=np.float64) - 0.5
+        X = s * np.array([o[1] for o in obs], dtype=np.float64) @ Rs.T + ts
+        px = cam.world_to_pixel(eo.subset([idx[img.name]]).pose(), X)
+        res.append(np.asarray(px) - xy)
+    r = np.concatenate(res)
+    return {"observations": int(len(r)), "rms_px": float(np.sqrt(np.mean(r**2))),
+            "max_px": float(np.abs(r).max())}
+
+
+# ---------------------------------------------------------------------------------------------- mosaics
+def run_ortho(eo_csv: Path, inp: dict[str, Path], out: Path, resolution: float = 0.1) -> Path:
+    """``skyrig ortho`` (the CLI, same options for both mosaics); cached when ``out/ortho.tif`` exists."""
+    tif = out / "ortho.tif"
+    if tif.exists():
+        return tif
+    cmd = [str(ROOT / ".venv" / "bin" / "skyrig"), "ortho", "--eo", str(eo_csv), "--camera", str(inp["camera"]),
+           "--images", str(inp["images"]), "--dsm", str(inp["dsm"]), "--resolution", str(resolution),
+           "-o", str(out)]
+    exe = Path(cmd[0])
+    if not exe.exists():
+        cmd = [sys.executable, "-m", "skyrig.cli", *cmd[1:]]
+    subprocess.run(cmd, check=True)
+    return tif
+
+
+def read_mosaic(path: Path) -> tuple[NDArray[np.float64], NDArray[np.bool_], Any, str]:
+    """Grey values, valid mask, affine transform and CRS of an RGB orthomosaic GeoTIFF."""
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        rgb = ds.read().astype(np.float64)
+        mask = ds.dataset_mask() > 0
+        return rgb.mean(axis=0), mask, ds.transform, ds.crs.to_string()
+
+
+def tile_offsets(a: NDArray[np.float64], va: NDArray[np.bool_], b: NDArray[np.float64], vb: NDArray[np.bool_],
+                 tile: int = 256, min_valid: float = 0.9, min_response: float = 0.05,
+                 max_shift: float | None = None) -> NDArray[np.float64]:
+    """Shift (dx, dy) in cells that moves ``b`` onto ``a`` per tile of ``tile`` cells (phase correlation with a
+    Hanning window) where at least ``min_valid`` of the tile is valid in both; ``(K, 5)``: col0, row0, dx, dy,
+    response.  Tiles whose correlation response is below ``min_response`` or whose shift exceeds ``max_shift``
+    (default tile / 4) are dropped (no reliable peak)."""
+    import cv2
+
+    max_shift = tile / 4 if max_shift is None else max_shift
+    win = cv2.createHanningWindow((tile, tile), cv2.CV_64F)
+    both = va & vb
+    H, W = a.shape
+    rows = []
+    for r0 in range(0, H - tile + 1, tile // 2):
+        for c0 in range(0, W - tile + 1, tile // 2):
+            m = both[r0:r0 + tile, c0:c0 + tile]
+            if m.mean() < min_valid:
+                continue
+            ta = a[r0:r0 + tile, c0:c0 + tile].copy()
+            tb = b[r0:r0 + tile, c0:c0 + tile].copy()
+            mu_a, mu_b = ta[m].mean(), tb[m].mean()
+            ta[~m], tb[~m] = mu_a, mu_b
+            if ta.std() < 2.0 or tb.std() < 2.0:  # texture-free
+                continue
+            (dx, dy), resp = cv2.phaseCorrelate(np.ascontiguousarray(tb), np.ascontiguousarray(ta), win)
+            if resp < min_response or np.hypot(dx, dy) > max_shift:
+                continue
+            rows.append((c0, r0, dx, dy, resp))
+    return np.array(rows, dtype=np.float64).reshape(-1, 5)
+
+
+def offset_stats(d: NDArray[np.float64], unit: float) -> dict[str, float]:
+    """Median / RMS / max of the length of the ``(K, 2)`` shifts ``d`` (cells) times ``unit``."""
+    L = np.hypot(d[:, 0], d[:, 1]) * unit
+    return {"n": int(len(L)), "median": float(np.median(L)), "rms": float(np.sqrt(np.mean(L**2))),
+            "max": float(L.max())}
+
+
+def image_gsd_m(eo_csv: Path, camera_yaml: Path, dsm_tif: Path) -> float:
+    """Ground sample distance of the nadir images: pixel / focal x median (camera height - median DSM height)."""
+    import rasterio
+
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.io.rig_file import read_rig
+
+    eo = read_eo_csv(eo_csv)
+    cam = next(iter(read_rig(camera_yaml).heads.values())).camera
+    with rasterio.open(dsm_tif) as ds:
+        z = ds.read(1, masked=True)
+    ground = float(np.ma.median(z.compressed())) if z.count() else float("nan")
+    return float(cam.pixel_size_mm / cam.focal_mm * np.median(eo.centre[:, 2] - ground))
+
+
+def preview(tif: Path, jpg: Path, max_side: int = 900, max_bytes: int = 150_000) -> int:
+    """A small JPEG preview of an RGB mosaic (no-data white), written via temp-and-rename; its size in bytes."""
+    import cv2
+    import rasterio
+
+    with rasterio.open(tif) as ds:
+        f = max(ds.width, ds.height) / max_side
+        h, w = max(1, int(round(ds.height / f))), max(1, int(round(ds.width / f)))
+        rgb = ds.read(out_shape=(3, h, w), resampling=rasterio.enums.Resampling.average)
+        mask = ds.dataset_mask(out_shape=(h, w)) > 0
+    img = np.transpose(rgb, (1, 2, 0))[:, :, ::-1].copy()
+    img[~mask] = 255
+    jpg.parent.mkdir(parents=True, exist_ok=True)
+    for q in (85, 75, 65, 55, 45):
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, q])
+        if ok and len(buf) <= max_bytes:
+            break
+    tmp = jpg.with_suffix(".tmp.jpg")
+    tmp.write_bytes(buf.tobytes())
+    os.replace(tmp, jpg)
+    return len(buf)
+
+
+# ---------------------------------------------------------------------------------------------- main
+def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None, tile: int = 256) -> dict[str, Any]:
+    """The whole acceptance: pycolmap model, georeferenced EO, both mosaics, offsets (see the module docstring)."""
+    from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
+    from skyrig.io.rig_file import read_rig
+
+    inp = inputs(prev)
+    cache.mkdir(parents=True, exist_ok=True)
+    eo_sky = read_eo_csv(inp["eo"])
+    cam = next(iter(read_rig(inp["camera"]).heads.values())).camera
+    names = sorted(p.name for p in inp["images"].iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
+    rec = reconstruct(inp["images"], names, cam, cache / "pycolmap")
+    poses = colmap_poses(rec)
+    G = gps_positions(inp["gps_images"], names, eo_sky.frame)
+    eo_col, geo = georeference(poses, dict(zip(names, G)), eo_sky.frame, str(eo_sky.camera[0]))
+    reproj = reprojection_check(rec, eo_col, geo, cam)
+    eo_csv_col = cache / "eo_pycolmap.csv"
+    write_eo_csv(eo_col, eo_csv_col)
+    # centres of both orientation sets (same frame): the datum difference, before / after a similarity
+    idx = {n: k for k, n in enumerate(eo_sky.image)}
+    common = [n for n in eo_col.image if n in idx]
+    A = np.array([eo_sky.centre[idx[n]] for n in common])
+    Bc = np.array([eo_col.centre[k] for k, n in enumerate(eo_col.image) if n in idx])
+    dC = Bc - A
+    tif_a = run_ortho(inp["eo"], inp, cache / "ortho_skyrig")
+    tif_b = run_ortho(eo_csv_col, inp, cache / "ortho_pycolmap")
+    ga, va, Ta, crs_a = read_mosaic(tif_a)
+    gb, vb, Tb, crs_b = read_mosaic(tif_b)
+    if ga.shape != gb.shape or tuple(Ta) != tuple(Tb) or crs_a != crs_b:
+        raise RuntimeError(f"the two mosaics are on different grids: {ga.shape} {Ta} vs {gb.shape} {Tb}")
+    cell = float(Ta.a)
+    gsd = image_gsd_m(inp["eo"], inp["camera"], inp["dsm"])
+    off = tile_offsets(ga, va, gb, vb, tile=tile)
+    if len(off) == 0:
+        raise RuntimeError("no tile valid in both mosaics with a correlation peak")
+    d = off[:, 2:4]
+    med = np.median(d, axis=0)
+    rel = d - med
+    result: dict[str, Any] = {
+        "images": len(names), "pycolmap_registered": len(poses), "pycolmap_points": int(len(rec.points3D)),
+        "georeference": geo, "reprojection_skyrig_camera": reproj,
+        "centre_diff_pycolmap_minus_skyrig_m": {"mean": dC.mean(0).tolist(),
+                                                "rms": np.sqrt(np.mean(dC**2, axis=0)).tolist()},
+        "cell_m": cell, "image_gsd_m": gsd, "tile_cells": tile, "tiles": int(len(off)),
+        "valid_cells": {"skyrig": int(va.sum()), "pycolmap": int(vb.sum()), "both": int((va & vb).sum())},
+        "median_shift_cells": med.tolist(),
+        "median_shift_m": [float(med[0] * cell), float(-med[1] * cell)],  # east, north (rows grow southwards)
+        "raw_gsd": offset_stats(d, cell / gsd), "relative_gsd": offset_stats(rel, cell / gsd),
+        "raw_cells": offset_stats(d, 1.0), "relative_cells": offset_stats(rel, 1.0),
+        "mosaics": {"skyrig": str(tif_a), "pycolmap": str(tif_b)}, "eo_pycolmap": str(eo_csv_col),
+    }
+    if figures is not None:
+        result["previews_bytes"] = {
+            "skyrig": preview(tif_a, figures / "brighton_ortho_skyrig.jpg"),
+            "pycolmap": preview(tif_b, figures / "brighton_ortho_pycolmap.jpg")}
+    tmp = cache / "result.json.tmp"
+    tmp.write_text(json.dumps(result, indent=1))
+    os.replace(tmp, cache / "result.json")
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--prev", type=Path, default=PREV, help="folder of the earlier session's brighton products")
+    ap.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures")
+    ap.add_argument("--tile", type=int, default=256)
+    ap.add_argument("--fresh", action="store_true", help="drop the cached pycolmap model and mosaics first")
+    a = ap.parse_args()
+    if a.fresh:
+        for sub in ("pycolmap", "ortho_skyrig", "ortho_pycolmap"):
+            shutil.rmtree(a.cache / sub, ignore_errors=True)
+    r = compare(a.cache, a.prev, a.figures, a.tile)
+    g = r["georeference"]
+    print(f"pycolmap: {r['pycolmap_registered']}/{r['images']} images, {r['pycolmap_points']} points; "
+          f"sim3 scale {g['scale']:.4f}, GPS residual RMS E/N/U {np.round(g['gps_residual_rms_m'], 2).tolist()} m")
+    print(f"COLMAP points through the written EO and skyrig's camera: {r['reprojection_skyrig_camera']}")
+    c = r["centre_diff_pycolmap_minus_skyrig_m"]
+    print(f"centres pycolmap - skyrig: mean {np.round(c['mean'], 2).tolist()} m, RMS {np.round(c['rms'], 2).tolist()} m")
+    print(f"mosaic cell {r['cell_m']} m, image GSD {r['image_gsd_m']:.4f} m, {r['tiles']} tiles of {r['tile_cells']} "
+          f"cells (half-overlapping) valid in both")
+    print(f"median shift (datum): {np.round(r['median_shift_m'], 3).tolist()} m (E, N)")
+    for k in ("raw_gsd", "relative_gsd"):
+        s = r[k]
+        print(f"{k:13s} median {s['median']:.3f}  RMS {s['rms']:.3f}  max {s['max']:.3f} GSD")
+    if "previews_bytes" in r:
+        print(f"previews: {r['previews_bytes']}")
+
+
+if __name__ == "__main__":
+    main()
