@@ -130,3 +130,139 @@ def camera_command(points_path, meas_path, stations_path, rig_path, head, name, 
                f"{cal.residual_rms_px[0]:.3f} / {cal.residual_rms_px[1]:.3f} px")
     click.echo(names)
     click.echo(f"-> {output}, {report_path}")
+
+
+def _read_positions(path: str) -> tuple[list[str], list[str], list[float]]:
+    """The positions CSV of ``calibrate tumbling-head``: ``image,circle,beta_deg`` (one row per tumbling image)."""
+    import csv
+
+    import numpy as np
+
+    from skyrig.errors import InputFormatError
+
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    body = [(i + 1, r) for i, r in enumerate(rows) if r and not r[0].lstrip().startswith("#")]
+    if not body:
+        raise InputFormatError("no column header row", path)
+    hline, header = body[0]
+    header = [h.strip() for h in header]
+    for col in ("image", "circle", "beta_deg"):
+        if col not in header:
+            raise InputFormatError("missing column", path, hline, col)
+    ix = {c: header.index(c) for c in ("image", "circle", "beta_deg")}
+    names, circles, betas = [], [], []
+    seen: set[str] = set()
+    for line, r in body[1:]:
+        if len(r) != len(header):
+            raise InputFormatError(f"{len(r)} fields, the header has {len(header)}", path, line)
+        name = r[ix["image"]].strip()
+        if not name:
+            raise InputFormatError("empty image name", path, line, "image")
+        if name in seen:
+            raise InputFormatError(f"image {name!r} listed twice", path, line, "image")
+        seen.add(name)
+        try:
+            b = float(r[ix["beta_deg"]])
+        except ValueError:
+            raise InputFormatError(f"not a number: {r[ix['beta_deg']]!r}", path, line, "beta_deg") from None
+        if not np.isfinite(b):
+            raise InputFormatError("not a finite angle", path, line, "beta_deg")
+        names.append(name)
+        circles.append(r[ix["circle"]].strip())
+        betas.append(b)
+    if not names:
+        raise InputFormatError("no rows", path)
+    return names, circles, betas
+
+
+@command.command("tumbling-head")
+@click.option("--images", "images_dir", required=True, type=click.Path(exists=True, file_okay=False),
+              help="Folder of the laboratory images (tumbling camera and the reference camera's image).")
+@click.option("--rig", "rig_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Rig file with the tumbling (actuated) head and the static reference camera as a fixed head; "
+                   "the tumbling head's curve, if any, is ignored (the recipe measures it).")
+@click.option("--positions", "positions_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="CSV image,circle,beta_deg: every tumbling image, its circle and its actuator angle (degrees).")
+@click.option("--reference-image", default="reference.png", show_default=True,
+              help="The reference camera's image in --images (one: the camera does not move).")
+@click.option("--head", default=None, help="The tumbling head of --rig (default: the only actuated one).")
+@click.option("--reference-head", default="reference", show_default=True, help="The reference camera's head.")
+@click.option("--plane-distance-m", type=float, required=True,
+              help="Distance of the textured plane below the sensor head origin along body z (metres).")
+@click.option("--window-px", type=int, default=64, show_default=True, help="Correlation window (plane cells).")
+@click.option("--lattice", type=int, default=7, show_default=True,
+              help="Windows tried on a lattice x lattice grid over each image's footprint.")
+@click.option("--flight", default="", help="Provenance: laboratory session.")
+@click.option("--date", default="", help="Provenance: date of the images (ISO 8601).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="JSON report (default: the output with suffix .json); an HTML table is written next to it.")
+def tumbling_head_command(images_dir, rig_path, positions_path, reference_image, head, reference_head,
+                          plane_distance_m, window_px, lattice, flight, date, output, report_path) -> None:
+    """Laboratory calibration of a tumbling head (paper 000): boresight curve, repeatability (Tab. 2)."""
+    import html
+
+    import numpy as np
+
+    from skyrig import __version__
+    from skyrig.calibrate.tumbling import LabSetup, calibrate_tumbling_head
+    from skyrig.errors import SkyrigError
+    from skyrig.io._text import atomic_write
+    from skyrig.io.image_read import read_image
+    from skyrig.io.rig_file import read_calibrated_rig, write_rig
+
+    rig, rig_cal = read_calibrated_rig(rig_path)
+    if head is None:
+        act = [h.name for h in rig if h.is_actuated]
+        if len(act) != 1:
+            raise click.UsageError(f"--rig has {len(act)} actuated heads ({', '.join(act) or 'none'}); name one with --head")
+        head = act[0]
+    try:
+        setup = LabSetup(rig, head, reference_head, plane_distance_m)
+    except SkyrigError as exc:
+        raise click.BadParameter(str(exc)) from None
+    names, circles, betas = _read_positions(positions_path)
+    folder = Path(images_dir)
+    ref = read_image(folder / reference_image, gray=False)
+
+    def load(name: str) -> np.ndarray:
+        return read_image(folder / name, gray=False)
+
+    cal = calibrate_tumbling_head(setup, load, names, circles, np.radians(betas), ref, window_px=window_px,
+                                  lattice=lattice)
+    out_cal = cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal)
+    write_rig(cal.calibrated_rig(), output, out_cal)
+    report = cal.to_dict()
+    report["inputs"] = {"images": str(images_dir), "rig": str(rig_path), "positions": str(positions_path),
+                        "reference_image": reference_image}
+    report["output"] = str(output)
+    report_path = report_path or str(Path(output).with_suffix(".json"))
+    with atomic_write(report_path) as fh:
+        json.dump(report, fh, indent=2)
+        fh.write("\n")
+    t2 = report["table2_2sigma"]
+    rows = "".join(f"<tr><td>{a}</td><td>{v['mean_std_mdeg']:.1f}/1000 deg</td><td>{v['max_std_mdeg']:.1f}/1000 deg "
+                   f"at beta {v['beta_at_max_deg']:.1f} deg ({html.escape(v['image_at_max'])})</td></tr>"
+                   for a, v in t2.items())
+    curve = "".join(f"<tr><td>{c['beta_deg']:.2f}</td>" + "".join(
+        f"<td>{c[a + '_mdeg']:.2f} &plusmn; {c[a + '_std_mdeg']:.2f}</td>" for a in ("droll", "dpitch", "dyaw"))
+        + "</tr>" for c in report["curve"])
+    page = (f"<!doctype html><meta charset='utf-8'><title>tumbling-head calibration</title>"
+            f"<h1>Tumbling head {html.escape(head)}: laboratory calibration</h1>"
+            f"<p>{cal.beta_rad.size} actuator positions x {len(cal.circles)} circles against reference camera "
+            f"{html.escape(reference_head)}, plane {plane_distance_m:g} m below the sensor head.</p>"
+            "<h2>Repeat accuracies (paper 000 Tab. 2 style)</h2><table border=1><tr><th>axis</th>"
+            "<th>mean standard deviation (2&sigma;)</th><th>max standard deviation (2&sigma;)</th></tr>"
+            f"{rows}</table><h2>Mean correction curve (1/1000 deg, &plusmn; 1&sigma; repeatability)</h2>"
+            "<table border=1><tr><th>beta (deg)</th><th>droll</th><th>dpitch</th><th>dyaw</th></tr>"
+            f"{curve}</table>")
+    html_path = Path(report_path).with_suffix(".html")
+    with atomic_write(html_path) as fh:
+        fh.write(page)
+    click.echo(f"tumbling head {head!r}: {cal.beta_rad.size} positions x {len(cal.circles)} circles, "
+               f"{int(cal.windows.min())}-{int(cal.windows.max())} windows per image")
+    click.echo("repeat accuracies (2 sigma, 1/1000 deg): " + "; ".join(
+        f"{a} mean {v['mean_std_mdeg']:.1f} max {v['max_std_mdeg']:.1f} at beta {v['beta_at_max_deg']:.1f}"
+        for a, v in t2.items()))
+    click.echo(f"-> {output}, {report_path}, {html_path}")
