@@ -73,6 +73,11 @@ def test_curve_within_predicted_precision(lab_run):
     stat = pooled * dof / one ** 2
     print("repeatability pooled (mdeg)", 1000 * np.degrees(np.sqrt(pooled)), "predicted", 1000 * np.degrees(one))
     assert np.all(stat > chi2.ppf(0.0005, dof)) and np.all(stat < chi2.ppf(0.9995, dof))
+    # the mechanism's repeat error (measurement variance removed) against the injected one: the pooled variance
+    # has a standard error of one^2 sqrt(2 / dof)
+    mech = np.radians(np.array([rep["table2_2sigma"][a]["mechanism_std_mdeg"] for a in AXES]) / 2000)
+    print("mechanism repeatability (mdeg)", 1000 * np.degrees(mech), "injected", 1000 * np.degrees(lab.repeat_sigma_rad))
+    assert np.all(np.abs(mech ** 2 - lab.repeat_sigma_rad ** 2) < 4 * one ** 2 * np.sqrt(2 / dof))
     # the actuator block: values = mean curve in degrees, sigma = standard errors
     blk = cal.heads["oblique"].actuator
     assert blk is not None and len(blk.parameters) == 24
