@@ -253,16 +253,17 @@ def read_mosaic(path: Path) -> tuple[NDArray[np.float64], NDArray[np.bool_], Any
 
 def tile_offsets(a: NDArray[np.float64], va: NDArray[np.bool_], b: NDArray[np.float64], vb: NDArray[np.bool_],
                  tile: int = 192, search: int = 32, min_valid: float = 0.4, min_std: float = 3.0,
-                 seed: int = 0) -> NDArray[np.float64]:
+                 min_overlap: float = 0.6) -> NDArray[np.float64]:
     """Shift (dx, dy) in cells that moves ``b`` onto ``a``, per tile of ``tile`` cells (half-overlapping).
 
-    The DSM of this block is sparse, so the mosaics have holes whose outline is the same in both: phase
-    correlation of filled tiles would lock onto that common outline (a bias towards zero shift).  Instead, each
-    tile of ``b`` is a template masked to the cells valid in both, searched over +-``search`` cells of ``a`` by
-    ``cv2.matchTemplate`` (squared differences over the template's valid cells), sub-cell by a parabola through
-    the minimum; ``a``'s holes are filled with noise of its own grey statistics so they attract nothing.  Tiles
-    with less than ``min_valid`` of valid cells, grey std below ``min_std`` (no texture) or the minimum on the
-    border of the search window (no reliable match) are dropped.
+    The DSM of this block is sparse, so the mosaics have holes whose outline is nearly the same in both: phase
+    correlation of filled tiles locks onto that common outline, and so does a masked template match that counts
+    holes of ``a`` as mismatches (a bias towards zero shift).  Here each tile of ``b`` is searched over
+    +-``search`` cells of ``a`` by the MEAN squared grey difference over the cells valid in both at each trial
+    shift (sums of products by ``cv2.matchTemplate``), trial shifts overlapping less than ``min_overlap`` of the
+    template's valid cells excluded; sub-cell by a parabola through the minimum.  Tiles with less than
+    ``min_valid`` valid cells, grey std below ``min_std`` (no texture) or the minimum on the border of the
+    search window (no reliable match) are dropped.
 
     Returns
     -------
@@ -270,31 +271,40 @@ def tile_offsets(a: NDArray[np.float64], va: NDArray[np.bool_], b: NDArray[np.fl
     """
     import cv2
 
-    rng = np.random.default_rng(seed)
-    af = a.copy()
-    af[~va] = rng.normal(a[va].mean(), a[va].std(), int((~va).sum()))
+    f32 = np.float32
+    A = np.where(va, a, 0.0)
+    Ma = va.astype(f32)
     both = va & vb
     H, W = a.shape
     rows = []
+
+    def ccorr(img: NDArray, tpl: NDArray) -> NDArray:
+        return cv2.matchTemplate(np.ascontiguousarray(img, f32), np.ascontiguousarray(tpl, f32), cv2.TM_CCORR)
+
+    def vertex(p: float, q: float, r: float) -> float:
+        den = p - 2.0 * q + r
+        return 0.0 if den <= 0 else 0.5 * (p - r) / den
+
     for r0 in range(search, H - tile - search + 1, tile // 2):
         for c0 in range(search, W - tile - search + 1, tile // 2):
-            m = both[r0:r0 + tile, c0:c0 + tile]
-            if m.mean() < min_valid:
+            mt = vb[r0:r0 + tile, c0:c0 + tile]
+            if both[r0:r0 + tile, c0:c0 + tile].mean() < min_valid:
                 continue
-            t = b[r0:r0 + tile, c0:c0 + tile]
-            if t[m].std() < min_std:
+            t = np.where(mt, b[r0:r0 + tile, c0:c0 + tile], 0.0)
+            if t[mt].std() < min_std:
                 continue
-            srch = af[r0 - search:r0 + tile + search, c0 - search:c0 + tile + search]
-            res = cv2.matchTemplate(srch.astype(np.float32), np.where(m, t, 0).astype(np.float32), cv2.TM_SQDIFF,
-                                    mask=m.astype(np.float32))
+            win = (slice(r0 - search, r0 + tile + search), slice(c0 - search, c0 + tile + search))
+            sA, sM = A[win], Ma[win]
+            m = mt.astype(f32)
+            n = ccorr(sM, m)
+            ssd = ccorr(sM, t * t) - 2.0 * ccorr(sA, t) + ccorr(sA * sA, m)
+            res = np.where(n >= min_overlap * m.sum(), ssd / np.maximum(n, 1.0), np.inf)
             y, x = np.unravel_index(int(np.argmin(res)), res.shape)
             if not (0 < x < res.shape[1] - 1 and 0 < y < res.shape[0] - 1):
                 continue
-
-            def vertex(p: float, q: float, r: float) -> float:
-                den = p - 2.0 * q + r
-                return 0.0 if den <= 0 else 0.5 * (p - r) / den
-
+            nb = res[y - 1:y + 2, x - 1:x + 2]
+            if not np.all(np.isfinite(nb)):
+                continue
             fx = vertex(res[y, x - 1], res[y, x], res[y, x + 1])
             fy = vertex(res[y - 1, x], res[y, x], res[y + 1, x])
             rows.append((c0, r0, x + fx - search, y + fy - search))
@@ -386,6 +396,49 @@ def mosaic_offsets(tif_a: Path, tif_b: Path, gsd: float, tile: int = 192) -> dic
             "offsets_cells": off.tolist()}
 
 
+def predicted_offsets(off: NDArray[np.float64], tile: int, mosaic_b: Path, dsm_tif: Path, eo_a: Any,
+                      geo_b: dict[str, Any], geo_a: dict[str, Any]) -> NDArray[np.float64]:
+    """Offsets (dx, dy cells, moving ``b`` onto ``a``) the datum difference of two georeferencings of one model
+    predicts per tile, from geometry alone (no image content).
+
+    ``b``'s mosaic colours ground point P (tile centre, DSM height) from the image pixel at which its EO sees P;
+    with ``a``'s EO that pixel looks along the ray from the image's centre through ``T^-1(P)`` (T maps ``a``'s
+    frame to ``b``'s through the common model: ``geo_a``, ``geo_b`` are the two similarities from the COLMAP
+    frame), which meets the tile's DSM height at H: ``a``'s mosaic shows that content at H.  The source image
+    is the one giving most of the tile's cells in ``b``'s mosaic (``ortho_source.tif``, ``ortho.json``).
+    """
+    import rasterio
+
+    sa, Ra, ta = float(geo_a["scale"]), np.asarray(geo_a["rotation"]), np.asarray(geo_a["translation"])
+    sb, Rb, tb = float(geo_b["scale"]), np.asarray(geo_b["rotation"]), np.asarray(geo_b["translation"])
+    names = json.loads((mosaic_b.parent / "ortho.json").read_text())["images"]
+    idx = {n: k for k, n in enumerate(eo_a.image)}
+    with rasterio.open(mosaic_b.parent / "ortho_source.tif") as ds:
+        src, T = ds.read(1), ds.transform
+    with rasterio.open(dsm_tif) as ds:
+        dsm, Td, nod = ds.read(1).astype(np.float64), ds.transform, ds.nodata
+    if nod is not None:
+        dsm[dsm == nod] = np.nan
+    out = []
+    for c0, r0, _, _ in off:
+        c0, r0 = int(c0), int(r0)
+        s_tile = src[r0:r0 + tile, c0:c0 + tile]
+        k = np.bincount(s_tile[s_tile >= 0].ravel()).argmax()
+        rr, cc = np.mgrid[r0:r0 + tile:4, c0:c0 + tile:4]
+        xs, ys = rasterio.transform.xy(T, rr.ravel(), cc.ravel())
+        dr, dc = rasterio.transform.rowcol(Td, xs, ys)
+        dr, dc = np.asarray(dr), np.asarray(dc)
+        ok = (dr >= 0) & (dr < dsm.shape[0]) & (dc >= 0) & (dc < dsm.shape[1])
+        z = float(np.nanmedian(dsm[dr[ok], dc[ok]]))
+        x, y = rasterio.transform.xy(T, r0 + tile / 2 - 0.5, c0 + tile / 2 - 0.5)
+        P = np.array([x, y, z])
+        Q = sa * Ra @ (Rb.T @ (P - tb) / sb) + ta
+        C = eo_a.centre[idx[names[k]]]
+        Hh = C + (z - C[2]) / (Q[2] - C[2]) * (Q - C)
+        out.append(((Hh[0] - x) / T.a, -(Hh[1] - y) / T.a))
+    return np.array(out, dtype=np.float64).reshape(-1, 2)
+
+
 def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None, tile: int = 192) -> dict[str, Any]:
     """The whole acceptance: pycolmap model, its EO in skyrig's frame two ways, the mosaics, offsets.
 
@@ -422,6 +475,14 @@ def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None,
                        "orientation_minus_skyrig": _orientation_diff(eo_col, eo_sky),
                        "mosaic": mosaic_offsets(tif_a, tif_b, gsd, tile), "eo": str(eo_csv_col)}
         result["mosaics"][f"pycolmap_{key}"] = str(tif_b)
+    # the GPS variant's offsets, predicted from the two datums alone (is the tilt the whole story?)
+    geo_g = georeference(poses, targets["gps"], eo_sky.frame, "x")[1]
+    geo_s = georeference(poses, targets["aligned"], eo_sky.frame, "x")[1]
+    mg = result["gps"]["mosaic"]
+    offg = np.asarray(mg["offsets_cells"])
+    pred = predicted_offsets(offg, tile, Path(result["mosaics"]["pycolmap_gps"]), inp["dsm"], eo_sky, geo_g, geo_s)
+    mg["predicted_from_datum"] = {"residual_gsd": offset_stats(offg[:, 2:4] - pred, mg["cell_m"] / gsd),
+                                  "predicted_gsd": offset_stats(pred, mg["cell_m"] / gsd)}
     result["acceptance"] = {"figure": "aligned.mosaic.raw_gsd.rms",
                             "value": result["aligned"]["mosaic"]["raw_gsd"]["rms"], "limit": 1.0}
     if figures is not None:
@@ -464,6 +525,10 @@ def main() -> None:
         for k in ("raw_gsd", "relative_gsd"):
             s = m[k]
             print(f"  {k:13s} median {s['median']:.3f}  RMS {s['rms']:.3f}  max {s['max']:.3f} GSD")
+    pr = r["gps"]["mosaic"]["predicted_from_datum"]
+    print(f"[gps] offsets predicted from the datum difference alone (shift + tilt through the DSM): predicted RMS "
+          f"{pr['predicted_gsd']['rms']:.3f} GSD; measured - predicted: median {pr['residual_gsd']['median']:.3f} "
+          f"RMS {pr['residual_gsd']['rms']:.3f} max {pr['residual_gsd']['max']:.3f} GSD")
     acc = r["acceptance"]
     print(f"acceptance ({acc['figure']}): {acc['value']:.3f} GSD <= {acc['limit']}: {acc['value'] <= acc['limit']}")
     if "previews_bytes" in r:

@@ -30,20 +30,26 @@ def _bench():
     return mod
 
 
-def test_tile_offsets_recover_a_known_shift_across_common_holes():
+@pytest.mark.parametrize("holes_kind", ["blobs", "speckle"])
+def test_tile_offsets_recover_a_known_shift_across_common_holes(holes_kind):
     # the measuring instrument itself, on a synthetic texture: b is a moved by a known sub-cell shift, both with
-    # the SAME holes (as two mosaics on one sparse DSM); the masked matching must find the shift, not the holes
+    # the SAME holes (as two mosaics on one sparse DSM: large gaps, or speckle where the DSM is fragmented); the
+    # matching must find the shift, not the common hole pattern (which sits at zero shift)
     import cv2
 
     ob = _bench()
     rng = np.random.default_rng(3)
-    a = cv2.GaussianBlur(rng.uniform(0, 255, (700, 700)), (0, 0), 2.0) * 4.0
+    n = 700
+    a = cv2.GaussianBlur(rng.uniform(0, 255, (n, n)), (0, 0), 2.0) * 4.0
     dx, dy = 2.3, -1.6  # b(p) = a(p - d): b is a moved by d, so the shift that moves b onto a is -d
-    b = cv2.warpAffine(a, np.array([[1.0, 0, dx], [0, 1.0, dy]]), (700, 700), flags=cv2.INTER_CUBIC)
-    holes = np.zeros((700, 700), bool)
-    for r, c, rad in rng.uniform([0, 0, 20], [700, 700, 90], (25, 3)):
-        yy, xx = np.ogrid[:700, :700]
-        holes |= (yy - r) ** 2 + (xx - c) ** 2 < rad**2
+    b = cv2.warpAffine(a, np.array([[1.0, 0, dx], [0, 1.0, dy]]), (n, n), flags=cv2.INTER_CUBIC)
+    if holes_kind == "blobs":
+        holes = np.zeros((n, n), bool)
+        yy, xx = np.ogrid[:n, :n]
+        for r, c, rad in rng.uniform([0, 0, 20], [n, n, 90], (25, 3)):
+            holes |= (yy - r) ** 2 + (xx - c) ** 2 < rad**2
+    else:
+        holes = cv2.GaussianBlur(rng.normal(size=(n, n)), (0, 0), 1.5) > 0.08  # ~40 % in small clusters
     valid = ~holes
     a[holes], b[holes] = 0.0, 0.0
     off = ob.tile_offsets(a, valid, b, valid, tile=128, search=16)
