@@ -312,7 +312,7 @@ def test_run_to_dsm_against_the_scene(sim_project: Path) -> None:
     from skyrig.simulate.scenarios import build_survey, scenario_spec
 
     out = sim_project.parent / "output"
-    for s in ("georef", "match", "block", "adjust", "dsm"):
+    for s in ("georef", "match", "block", "adjust", "dsm", "ortho"):
         assert verify_folder(out / s) == [], s
     with rasterio.open(out / "dsm" / "dsm.tif") as ds:
         assert ds.crs.to_epsg() == 25832
@@ -347,7 +347,8 @@ def test_option_change_reruns_from_that_stage_and_failure_keeps_outputs(sim_proj
     out = sim_project.parent / "output"
     created = {s: read_manifest(out / s)["created"] for s in ("georef", "match", "block", "adjust", "dsm")}
     res = subprocess.run([*SKYRIG, "run", str(sim_project)], capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0 and res.stderr.count("skipped (up to date)") == 5, res.stderr
+    # georef, match, block, adjust, dsm, ortho
+    assert res.returncode == 0 and res.stderr.count("skipped (up to date)") == 6, res.stderr
     text = sim_project.read_text()
     time.sleep(1.1)  # manifests carry the second
     sim_project.write_text(text.replace("    # pairs_per_image: 6 ", "    pairs_per_image: 4 "))

@@ -584,6 +584,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
         chosen["dsm"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
         if not any(k in chosen for k in ("adjust", "adjust-uav")) and det.terrain_height is not None:
             chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]
+        if "ortho" in registry:
+            chosen["ortho"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
     if not chosen:
         raise InputFormatError("found nothing to run: no images, and no trajectory + events + rig (skyrig init "
                                "looks for them in the folder and two levels of sub-folders)", det.folder)
@@ -622,6 +624,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
                 out.append(f"    {oname}: {_yaml_value(set_opts[oname])}    # {opt.help}")
             else:
                 out.append(f"    # {oname}: {_yaml_value(opt.default)}    # {opt.help}")
+    if "dsm" in chosen and "facades" in registry and set(det.heads) - {"nadir"}:
+        out.append(f"  # facades: {{}}    # uncomment: {registry['facades'].help}")
     if "match" in chosen and chosen["match"].get("terrain_height", 0) is None:
         out.insert(3, "# note: set stages.match.terrain_height (mean terrain height, m): no control points to take it from")
     return "\n".join(out) + "\n"

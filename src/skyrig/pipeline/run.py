@@ -754,3 +754,82 @@ register_stage(Stage(
              "fill": Option(False, "bool", "interpolate small holes (flagged)"),
              "cloud": Option(True, "bool", "write the dense point cloud")},
     requires=("eo",), uses=("points",), provides={"dsm": "dsm.tif"}, inputs=_dsm_inputs, check=_dsm_check))
+
+
+def _ortho(ctx: StageContext) -> dict[str, Any]:
+    p, o = ctx.project, ctx.options
+    args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
+    args += [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += [x for d in p.images for x in ("--images", d)]
+    if o["heads"]:
+        args += ["--heads", ",".join(o["heads"])]
+    if o["head_mosaics"]:
+        args += ["--head-mosaics", ",".join(o["head_mosaics"])]
+    if o["area"] is not None:
+        args += ["--area", *o["area"]]
+    if o["resolution"] is not None:
+        args += ["--resolution", o["resolution"]]
+    if o["feather"] is not None:
+        args += ["--feather", o["feather"]]
+    if not o["balance"]:
+        args += ["--no-balance"]
+    args += ["--max-off-nadir", o["max_off_nadir"], "--tile-cells", o["tile_cells"]]
+    invoke_command("ortho", "skyrig.cli.ortho:command", [*args, *_scheduler_args(p.executor), "-o", ctx.out])
+    s = json.loads((ctx.out / "ortho.json").read_text())
+    return {"cells_valid": s["cells_valid"], "cells": s["cells"], "images_used": len(s["images_used"]),
+            "seamlines": s["seamlines"]}
+
+
+def _facades(ctx: StageContext) -> dict[str, Any]:
+    p, o = ctx.project, ctx.options
+    args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
+    args += [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += [x for d in p.images for x in ("--images", d)]
+    if "ortho" in ctx.upstream:
+        args += ["--ortho", ctx.upstream["ortho"]]
+    if o["heads"]:
+        args += ["--heads", ",".join(o["heads"])]
+    if o["footprints"]:
+        args += ["--footprints", o["footprints"]]
+    if o["texel"] is not None:
+        args += ["--texel", o["texel"]]
+    if not o["refine"]:
+        args += ["--no-refine"]
+    args += ["--max-images", o["max_images"]]
+    invoke_command("facades", "skyrig.cli.facades:command", [*args, "-o", ctx.out])
+    s = json.loads((ctx.out / "facades.json").read_text())
+    return {"buildings": s["buildings"], "facades": s["facades"], "facades_seen": s["facades_seen"]}
+
+
+def _images_rig_check(name: str) -> Callable[[Project, dict[str, Any]], tuple[str, str] | None]:
+    def check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+        if not p.images:
+            return "inputs.images", f"stage {name} needs inputs.images (image folders)"
+        if not _rig_or_cameras(p):
+            return "inputs.rig", f"stage {name} needs the cameras: inputs.rig or inputs.cameras"
+        return None
+    return check
+
+
+register_stage(Stage(
+    "ortho", "True orthomosaic (COG, source layer, seamlines) of the oriented images on the DSM.", _ortho,
+    options={"heads": Option([], "strs", "rig heads / image-name parts of the main mosaic (e.g. [nadir]); [] = all"),
+             "head_mosaics": Option([], "strs", "also one mosaic per head (e.g. [forward, backward, left, right])"),
+             "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the DSM's CRS", n=4, nullable=True),
+             "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
+             "max_off_nadir": Option(60.0, "float", "steepest view angle a cell takes (deg)", positive=True),
+             "feather": Option(None, "float", "blend width across seamlines (m)", nullable=True, positive=True),
+             "balance": Option(True, "bool", "radiometric balance between images"),
+             "tile_cells": Option(2048, "int", "tile side in cells", positive=True)},
+    requires=("eo", "dsm"), provides={"ortho": "ortho.tif"}, inputs=_dsm_inputs, check=_images_rig_check("ortho")))
+register_stage(Stage(
+    "facades", "Buildings, façade textures and a textured 3D model (GLB, OBJ, viewer) from the DSM and the images.",
+    _facades,
+    options={"heads": Option([], "strs", "rig heads / image-name parts to texture from; [] = all"),
+             "footprints": Option(None, "str", "GeoPackage of building footprints (default: from the DSM)",
+                                  nullable=True),
+             "texel": Option(None, "float", "façade texel size (m)", nullable=True, positive=True),
+             "max_images": Option(3, "int", "images blended into one façade at most", positive=True),
+             "refine": Option(True, "bool", "move DSM-extracted walls onto the roof outline seen in the images")},
+    requires=("eo", "dsm"), uses=("ortho",), provides={"model": "model.glb"}, inputs=_dsm_inputs,
+    check=_images_rig_check("facades")))
