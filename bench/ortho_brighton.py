@@ -164,10 +164,11 @@ def colmap_poses(rec: Any) -> dict[str, tuple[NDArray[np.float64], NDArray[np.fl
 
 def georeference(poses: dict[str, tuple[NDArray, NDArray]], gps: dict[str, NDArray], frame: Any,
                  camera_name: str) -> tuple[Any, dict[str, Any]]:
-    """Similarity (``pycolmap.estimate_sim3d``) of COLMAP's centres onto the GPS positions; skyrig EO in ``frame``.
+    """Similarity (``pycolmap.estimate_sim3d``) of COLMAP's centres onto target positions per image name (GPS,
+    or another orientation set's centres, in ``frame``); the model's orientations as a skyrig EO in ``frame``.
 
-    Returns the :class:`ExteriorOrientations` and a summary (scale, GPS residual RMS per axis, skyrig's
-    own Umeyama fit as a cross-check of the transform).
+    Returns the :class:`ExteriorOrientations` and a summary (scale, rotation and translation of the similarity,
+    residual RMS per axis at the targets, skyrig's own Umeyama fit as a cross-check of the transform).
     """
     import pycolmap
 
@@ -191,7 +192,8 @@ def georeference(poses: dict[str, tuple[NDArray, NDArray]], gps: dict[str, NDArr
     rot = np.array([Rs @ poses[n][1] for n in names])
     res = centres - G
     eo = ExteriorOrientations(np.array(names), camera_name, centres, rot, frame)
-    info = {"images": len(names), "scale": s, "rotation": Rs.tolist(), "translation": ts.tolist(), "target_residual_rms_m": np.sqrt(np.mean(res**2, axis=0)).tolist(),
+    info = {"images": len(names), "scale": s, "rotation": Rs.tolist(), "translation": ts.tolist(),
+            "target_residual_rms_m": np.sqrt(np.mean(res**2, axis=0)).tolist(),
             "umeyama_check": {"scale_diff": abs(s2 - s), "rotation_diff_deg": float(np.degrees(np.arccos(
                 np.clip((np.trace(R2.T @ Rs) - 1) / 2, -1, 1)))),
                 "translation_diff_m": float(np.linalg.norm(t2 + o - ts))}}
