@@ -58,24 +58,27 @@ def make_texture(size_m: float, cell_m: float, seed: int) -> tuple[np.ndarray, n
     return np.clip(t, 0, 255).astype(np.uint8), np.array([-size_m / 2, size_m / 2])
 
 
-def render_plane(lab: Lab, camera: Any, rotation: np.ndarray, centre: np.ndarray, noise_dn: float, seed: int
-                 ) -> np.ndarray:
-    """Exact image of the textured plane: every pixel centre's ray meets the plane, texture bilinear."""
+def render_plane(lab: Lab, camera: Any, rotation: np.ndarray, centre: np.ndarray, noise_dn: float, seed: int,
+                 supersample: int = 1) -> np.ndarray:
+    """Exact image of the textured plane: the rays of ``supersample`` x ``supersample`` points per pixel meet the
+    plane, texture bilinear, averaged over the pixel (its area, as a sensor integrates)."""
     plane = lab.setup.plane
-    u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
+    ss = int(supersample)
+    u, v = np.meshgrid((np.arange(camera.width * ss) + 0.5) / ss - 0.5, (np.arange(camera.height * ss) + 0.5) / ss - 0.5)
     rays = camera.rays_from_pixels(np.c_[u.ravel(), v.ravel()]) @ rotation.T
     uv = plane.intersect(centre, rays)
     mx = ((uv[:, 0] - lab.texture_origin[0]) / lab.texture_cell_m).reshape(u.shape).astype(np.float32)
     my = ((lab.texture_origin[1] - uv[:, 1]) / lab.texture_cell_m).reshape(u.shape).astype(np.float32)
     g = cv2.remap(lab.texture, np.nan_to_num(mx, nan=-1), np.nan_to_num(my, nan=-1), cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
+    g = g.reshape(camera.height, ss, camera.width, ss).mean(axis=(1, 3))
     g += np.random.default_rng(seed).normal(0, noise_dn, g.shape)
     g = np.clip(np.round(g), 0, 255).astype(np.uint8)
     return np.repeat(g[:, :, None], 3, axis=2)
 
 
 def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_m: float = 3.0, seed: int = 1,
-              repeat_sigma_deg: tuple[float, float, float] | None = None) -> Lab:
+              repeat_sigma_deg: tuple[float, float, float] | None = None, ref_factor: int = 4) -> Lab:
     from skyrig.calibrate.tumbling import LabSetup
     from skyrig.camera.frame import FrameCamera
     from skyrig.rig.boresight_curve import BoresightCurve
@@ -88,7 +91,7 @@ def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_
     base = macs_tumblecam()
     heads = [h.with_(camera=ci_camera(h.camera, width)) for h in base]
     # the reference: a wide static camera on the sensor head frame, covering every oblique footprint
-    ref_w = 4 * width
+    ref_w = ref_factor * width
     ref = FrameCamera("lab-reference", ref_w, ref_w, 0.005, 0.005 * ref_w / 2 / np.tan(np.radians(56.0)))
     heads.append(Head("reference", ref, np.array([0.0, 0.15, 0.0])))
     rig = Rig("macs-tumblecam-lab", heads, description="MACS-TumbleCam + static reference camera (laboratory)")
@@ -108,7 +111,7 @@ def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_
     return Lab(setup, rig_true, true_curve, beta, true, rep, tex, 0.003, origin, names, circ, betas)
 
 
-def render_lab(lab: Lab, noise_dn: float = 1.0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def render_lab(lab: Lab, noise_dn: float = 1.0, supersample: int = 1) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Tumbling images by name (true orientation: nominal + the circle's true correction) and the reference image."""
     cam = lab.setup.rig.head(lab.setup.head).camera
     out = {}
@@ -116,9 +119,10 @@ def render_lab(lab: Lab, noise_dn: float = 1.0) -> tuple[dict[str, np.ndarray], 
     for i, (n, b) in enumerate(zip(lab.names, lab.betas)):
         c, k = divmod(i, k_pos)
         r, ctr = lab.setup.tumbling_orientation(b, lab.true_rad[c, k])
-        out[n] = render_plane(lab, cam, r, ctr, noise_dn, seed=i)
+        out[n] = render_plane(lab, cam, r, ctr, noise_dn, seed=i, supersample=supersample)
     rr, rc = lab.setup.reference_orientation()
-    ref = render_plane(lab, lab.setup.rig.head(lab.setup.reference_head).camera, rr, rc, noise_dn, seed=10_000)
+    ref = render_plane(lab, lab.setup.rig.head(lab.setup.reference_head).camera, rr, rc, noise_dn, seed=10_000,
+                       supersample=supersample)
     return out, ref
 
 
