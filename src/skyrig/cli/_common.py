@@ -193,6 +193,26 @@ def check_cameras(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], 
             f"{', '.join(sorted(cameras))}; {len(missing)} image(s) without a camera)", eo_path, None, "camera")
 
 
+def head_rows(eo: ExteriorOrientations, spec: str) -> tuple[list[str], list[np.ndarray]]:
+    """For a comma list of rig heads / image-name parts: the names and, per name, the rows of ``eo`` that match
+    (the image's head is the name, or its file name contains it)."""
+    want = [h.strip() for h in spec.split(",") if h.strip()]
+    return want, [np.flatnonzero([(eo.head is not None and str(eo.head[i]) == w) or w in str(n)
+                                  for i, n in enumerate(eo.image)]) for w in want]
+
+
+def select_heads(eo: ExteriorOrientations, spec: str | None, option: str = "--heads") -> ExteriorOrientations:
+    """The orientations of the images of some rig heads (``spec``: comma list, see :func:`head_rows`); all when
+    ``spec`` is empty.  A spec that matches no image is a usage error naming ``option``."""
+    if not spec:
+        return eo
+    _, rows = head_rows(eo, spec)
+    sel = np.unique(np.concatenate(rows)) if rows else np.zeros(0, int)
+    if len(sel) == 0:
+        raise click.UsageError(f"{option} {spec}: no image of the EO file matches")
+    return eo.subset(sel)
+
+
 def eo_options(f: Callable) -> Callable:
     """Options describing how to read an EO file."""
     opts = [

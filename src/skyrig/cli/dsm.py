@@ -46,21 +46,13 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     """
     from dataclasses import replace
 
-    import numpy as np
-
-    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli._common import load_cameras, load_eo, select_heads
     from skyrig.dense.surface import DenseConfig
     from skyrig.georef.eo import WorldFrame
     from skyrig.pipeline.dense import find_images, height_range_from_points, run_dsm
 
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
-    if heads:
-        want = [h.strip() for h in heads.split(",") if h.strip()]
-        sel = np.array([(eo.head is not None and str(eo.head[i]) in want) or any(w in str(n) for w in want)
-                        for i, n in enumerate(eo.image)])
-        if not sel.any():
-            raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
-        eo = eo.subset(sel)
+    eo = select_heads(eo, heads)
     cameras = load_cameras(camera_paths)
     if crs:
         out_frame = WorldFrame.map(crs, geoid)

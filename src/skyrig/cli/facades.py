@@ -35,9 +35,7 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
     (model.glb, local ENU frame, y-up, its geographic origin recorded), OBJ + MTL + PNG, and a viewer page
     (viewer.html, opens from the file system), with buildings.gpkg and facades.json.
     """
-    import numpy as np
-
-    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli._common import load_cameras, load_eo, select_heads
     from skyrig.pipeline.dense import find_images
     from skyrig.pipeline.facades import NoBuildingsError, run_facades
 
@@ -46,13 +44,7 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
     if max_images < 1:
         raise click.BadParameter("must be at least 1", param_hint="--max-images")
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
-    if heads:
-        want = [h.strip() for h in heads.split(",") if h.strip()]
-        sel = np.array([(eo.head is not None and str(eo.head[i]) in want) or any(w in str(n) for w in want)
-                        for i, n in enumerate(eo.image)])
-        if not sel.any():
-            raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
-        eo = eo.subset(sel)
+    eo = select_heads(eo, heads)
     cameras = load_cameras(camera_paths)
     paths = find_images(eo, images)
     options = {"heads": heads, "footprints": footprints, "ortho": ortho_path, "texel": texel,

@@ -8,14 +8,6 @@ import click
 from skyrig.cli._common import eo_options
 
 
-def _select(eo, spec: str):  # type: ignore[no-untyped-def]
-    import numpy as np
-
-    want = [h.strip() for h in spec.split(",") if h.strip()]
-    return want, [np.flatnonzero([(eo.head is not None and str(eo.head[i]) == w) or w in str(n)
-                                  for i, n in enumerate(eo.image)]) for w in want]
-
-
 @click.command("ortho")
 @eo_options
 @click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
@@ -50,7 +42,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     """
     import numpy as np
 
-    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli._common import head_rows, load_cameras, load_eo
     from skyrig.dense.ortho import EmptyMosaicError, OrthoConfig
     from skyrig.pipeline.dense import find_images
     from skyrig.pipeline.ortho import load_dsm_for, run_ortho
@@ -58,13 +50,13 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
     main = np.arange(len(eo))
     if heads:
-        _, rows = _select(eo, heads)
+        _, rows = head_rows(eo, heads)
         main = np.unique(np.concatenate(rows))
         if len(main) == 0:
             raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
     sets: dict[str, np.ndarray] = {}
     if head_mosaics:
-        names, rows = _select(eo, head_mosaics)
+        names, rows = head_rows(eo, head_mosaics)
         empty = [n for n, r in zip(names, rows) if len(r) == 0]
         if empty:
             raise click.UsageError(f"--head-mosaics: no image matches {', '.join(empty)}")

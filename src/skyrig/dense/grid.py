@@ -62,6 +62,18 @@ class GridSpec:
         row = np.floor((self.y0 - np.asarray(y)) / self.cell_m).astype(np.int64)
         return row, col
 
+    @classmethod
+    def covering(cls, xmin: float, ymin: float, xmax: float, ymax: float, cell_m: float) -> "GridSpec":
+        """The grid of ``cell_m`` cells aligned on multiples of the cell size that covers an area."""
+        x0 = float(np.floor(xmin / cell_m) * cell_m)
+        y0 = float(np.ceil(ymax / cell_m) * cell_m)
+        return cls(x0, y0, float(cell_m), int(np.ceil((xmax - x0) / cell_m)), int(np.ceil((y0 - ymin) / cell_m)))
+
+    def tiles(self, size: int) -> tuple[tuple[int, int, int, int], ...]:
+        """``(row0, col0, height, width)`` windows of at most ``size`` cells a side covering the grid."""
+        return tuple((r0, c0, min(size, self.height - r0), min(size, self.width - c0))
+                     for r0 in range(0, self.height, size) for c0 in range(0, self.width, size))
+
     def window(self, row0: int, col0: int, height: int, width: int) -> "GridSpec":
         """The sub-grid starting at (row0, col0)."""
         return GridSpec(self.x0 + col0 * self.cell_m, self.y0 - row0 * self.cell_m, self.cell_m, int(width), int(height))

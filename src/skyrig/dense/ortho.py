@@ -653,15 +653,10 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     cell = float(config.cell_m) if config.cell_m else gsd_m
     if not (cell > 0 and np.isfinite(cell)):
         raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")
-    x0 = np.floor(ax0 / cell) * cell
-    y0 = np.ceil(ay1 / cell) * cell
-    Wo = int(np.ceil((ax1 - x0) / cell))
-    Ho = int(np.ceil((y0 - ay0) / cell))
-    if Wo * Ho > 2e9:
-        raise SkyrigError(f"a {cell:g} m grid over the area has {Wo * Ho:.3g} cells (option: resolution)")
-    grid = GridSpec(float(x0), float(y0), cell, Wo, Ho)
-    t = config.tile_cells
-    tiles = tuple((r0, c0, min(t, Ho - r0), min(t, Wo - c0)) for r0 in range(0, Ho, t) for c0 in range(0, Wo, t))
+    grid = GridSpec.covering(ax0, ay0, ax1, ay1, cell)
+    if grid.width * grid.height > 2e9:
+        raise SkyrigError(f"a {cell:g} m grid over the area has {grid.width * grid.height:.3g} cells (option: resolution)")
+    tiles = grid.tiles(config.tile_cells)
     seen_any = np.isfinite(best)
     if not seen_any.any():
         raise EmptyMosaicError("no image sees the DSM (check that the orientations and the DSM are of the same place, "

@@ -319,14 +319,11 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     cell = float(config.cell_m) if config.cell_m else gsd_m
     if not (cell > 0 and np.isfinite(cell)):
         raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")
-    x0 = np.floor(xmin / cell) * cell
-    y0 = np.ceil(ymax / cell) * cell
-    W = int(np.ceil((xmax - x0) / cell))
-    H = int(np.ceil((y0 - ymin) / cell))
+    grid = GridSpec.covering(xmin, ymin, xmax, ymax, cell)
+    H, W = grid.shape
     if W * H > config.max_cells:
         raise SkyrigError(f"a {cell:g} m grid over {xmax - xmin:.0f} x {ymax - ymin:.0f} m has {W * H:.3g} cells, more "
                           f"than the limit {config.max_cells:.3g} (option: resolution, or max_cells)")
-    grid = GridSpec(float(x0), float(y0), cell, W, H)
     corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (zmin, zmax)]
                        + [[0.5 * (xmin + xmax), 0.5 * (ymin + ymax), z] for z in (zmin, zmax)])
     cl = _map_to_local(out_frame, local, corners)
@@ -362,8 +359,7 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     if not kept:
         raise SkyrigError("no stereo pair: the images do not overlap with a usable base and viewing direction "
                           f"({len(eo)} images; options: pairs.min_overlap, pairs.intersection_deg)")
-    t = config.tile_cells
-    tiles = tuple((r0, c0, min(t, H - r0), min(t, W - c0)) for r0 in range(0, H, t) for c0 in range(0, W, t))
+    tiles = grid.tiles(config.tile_cells)
     return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
                      tuple(bounds), tiles, config, FrameMap(local, out_frame, box))
 
