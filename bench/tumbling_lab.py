@@ -172,7 +172,8 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
     err = cal.mean_rad - lab.true_curve(cal.beta_rad)
     fit_sig = np.sqrt(np.mean(cal.sigma_rad ** 2, axis=(0, 1)))  # per-image fit precision (3,)
     pred = np.sqrt(lab.repeat_sigma_rad ** 2 + fit_sig ** 2)  # predicted std of one circle's measurement
-    se = pred / np.sqrt(c)
+    se_indep = pred / np.sqrt(c)  # if the comparison's error changed from circle to circle
+    se = np.sqrt(lab.repeat_sigma_rad ** 2 / c + fit_sig ** 2)  # it repeats (same texture): the recipe's model
     norm = err / se
     rep = np.sqrt(np.mean(cal.std_rad ** 2, axis=0))  # pooled per-position std
     out: dict[str, Any] = {"positions": int(cal.beta_rad.size), "circles": c}
@@ -181,6 +182,9 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
                   "curve_err_max_mdeg": 1000 * float(np.degrees(np.abs(err[:, i]).max())),
                   "curve_amp_mdeg": 1000 * float(np.degrees(np.abs(lab.true_curve(cal.beta_rad)[:, i]).max())),
                   "predicted_se_mdeg": 1000 * float(np.degrees(se[i])),
+                  "se_if_independent_mdeg": 1000 * float(np.degrees(se_indep[i])),
+                  "recipe_se_median_mdeg": 1000 * float(np.degrees(np.median(cal.standard_error_rad[:, i]))),
+                  "mechanism_lower_bound_mdeg": 1000 * float(np.degrees(cal.mechanism_std_rad()[i])),
                   "max_normalised": float(np.abs(norm[:, i]).max()),
                   "within_2sigma": float(np.mean(np.abs(norm[:, i]) <= 2)),
                   "fit_sigma_mdeg": 1000 * float(np.degrees(fit_sig[i])),

@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -105,9 +105,8 @@ class LabSetup:
     @property
     def nominal_head(self) -> ActuatedHead:
         """The tumbling head without any correction curve (eqs 1-3 of paper 000)."""
-        h = self.rig.head(self.head)
-        assert isinstance(h, ActuatedHead)
-        return h.with_(curve=None)  # type: ignore[return-value]
+        h = cast(ActuatedHead, self.rig.head(self.head))  # checked on construction
+        return cast(ActuatedHead, h.with_(curve=None))
 
     def tumbling_orientation(self, beta_rad: ArrayLike, correction_rad: ArrayLike | None = None
                              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
