@@ -237,6 +237,7 @@ def _check_fig9(circ, rig, bench, min_seams: int, tol_px: float, window_px: int 
     return res
 
 
+@pytest.mark.slow
 def test_fig9_small_circle(survey, bench):
     """A 400-pixel rendering of a 30 deg circle: the measured seam offsets agree with the
     offsets predicted from the orientation errors alone, with and without the curve (to 0.45 px: the phase
