@@ -277,6 +277,7 @@ def test_orthometric_dsm_gives_the_same_textures(midas):
     assert summ["seen"] >= 1 and summ["within_1px"] == 1.0, summ
 
 
+@pytest.mark.slow
 def test_lens_distortion_is_honoured(midas):
     """Images rendered through cameras with strong radial-tangential distortion (several pixels at the image
     edges): textures through the same camera model stay within 1 texel, those through a distortion-free model of

@@ -481,6 +481,7 @@ def test_large_textures_are_reduced_in_the_glb(town, tmp_path):
     assert glb_problems(tmp_path / "big.glb") == []
 
 
+@pytest.mark.slow
 def test_viewer_without_inlined_model_loads_model_glb_over_http(glb, tmp_path):
     """``write_viewer(path, None)``: the page fetches ``model.glb`` next to it (served here by http.server)."""
     import functools
