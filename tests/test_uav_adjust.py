@@ -108,6 +108,21 @@ def test_sim_every_image_oriented_and_flipped_yaw_detected(sim):
             assert info["metadata_vs_adjusted_deg"] < 12.0, (name, info)
 
 
+def test_self_calibrated_camera_written_as_a_rig_file_the_dense_commands_read(sim, tmp_path):
+    """adjust-uav's camera.yaml: the self-calibrated camera, named as the EO file's camera column, read back by the
+    loader of skyrig dsm / ortho / facades with the same projection (a self-calibration 5 % from the EXIF focal)."""
+    from skyrig.cli._common import load_cameras
+    from skyrig.pipeline.uav import _write_camera
+
+    inp, truth, res = sim
+    cams = load_cameras([str(_write_camera(tmp_path / "camera.yaml", res))])
+    assert res.camera.name in cams  # (also under the head name)
+    back = cams[res.camera.name]
+    pts = np.array([[0.5, -0.3, -2.0], [-1.0, 0.6, -3.0], [0.1, 0.1, -1.0]])
+    assert np.allclose(back.project_pixels(pts), res.camera.project_pixels(pts), atol=1e-6)
+    assert abs(back.focal_mm / truth["camera"].focal_mm - 1.0) < 0.01  # the start value was 5 % off
+
+
 def test_sim_accuracy_within_predicted_precision(sim):
     inp, truth, res = sim
     adj = res.adjustment

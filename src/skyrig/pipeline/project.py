@@ -579,8 +579,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
         chosen["adjust"] = {}
     elif det.images and det.exif_gps and "adjust-uav" in registry:
         chosen["adjust-uav"] = {}
-    # the dense stage needs camera files: a rig (adjust-uav does not publish its self-calibrated camera yet)
-    if det.images and chosen and det.rig is not None and (rig_mode or det.eo is not None):
+    # the dense stage needs camera files: a rig, or the self-calibrated camera adjust-uav publishes (camera.yaml)
+    if det.images and chosen and ((det.rig is not None and (rig_mode or det.eo is not None)) or "adjust-uav" in chosen):
         chosen["dsm"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
         if not any(k in chosen for k in ("adjust", "adjust-uav")) and det.terrain_height is not None:
             chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]

@@ -491,6 +491,22 @@ def _rig_or_cameras(project: Project) -> list[Path]:
     return [project.rig] if project.rig is not None else list(project.cameras)
 
 
+def _stage_cameras(ctx: StageContext) -> list[Path]:
+    """The cameras of a product stage: a self-calibrated camera published by an earlier stage (adjust-uav's
+    camera.yaml) before the project's rig / camera files."""
+    return [ctx.upstream["cameras"]] if "cameras" in ctx.upstream else _rig_or_cameras(ctx.project)
+
+
+def _product_check(name: str) -> Callable[[Project, dict[str, Any]], tuple[str, str] | None]:
+    def check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+        if not p.images:
+            return "inputs.images", f"stage {name} needs inputs.images (image folders)"
+        if not _rig_or_cameras(p) and not any(s.name == "adjust-uav" for s in p.stages):
+            return "inputs.rig", f"stage {name} needs the cameras: inputs.rig, inputs.cameras or an adjust-uav stage"
+        return None
+    return check
+
+
 # ------------------------------------------------------------------------------------------ built-in stages
 def _georef_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
     return _opt_files(p.trajectory, p.events, p.rig)
@@ -653,7 +669,7 @@ def _dsm_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
 
 def _dsm(ctx: StageContext) -> dict[str, Any]:
     p, o = ctx.project, ctx.options
-    args: list[object] = ["--eo", ctx.need("eo")] + [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args: list[object] = ["--eo", ctx.need("eo")] + [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
     args += [x for d in p.images for x in ("--images", d)]
     if o["heads"]:
         args += ["--heads", ",".join(o["heads"])]
@@ -680,14 +696,6 @@ def _dsm(ctx: StageContext) -> dict[str, Any]:
     s = json.loads((ctx.out / "dense.json").read_text())
     return {"pairs": len(s["pairs"]), "cells_valid": s["cells_valid"], "cells": s["cells"],
             "cloud_points": s["cloud_points"]}
-
-
-def _dsm_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
-    if not p.images:
-        return "inputs.images", "stage dsm needs inputs.images (image folders)"
-    if not _rig_or_cameras(p):
-        return "inputs.rig", "stage dsm needs the cameras: inputs.rig or inputs.cameras"
-    return None
 
 
 register_stage(Stage(
@@ -737,7 +745,8 @@ register_stage(Stage(
              "focal_prior": Option(0.1, "float", "relative sigma of the EXIF focal length", positive=True),
              "self_calibration": Option(True, "bool", "self-calibrate the camera"),
              "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment")},
-    requires=("ties",), provides={"eo": "eo.csv", "points": "points.csv"}, inputs=_adjust_uav_inputs,
+    requires=("ties",), provides={"eo": "eo.csv", "points": "points.csv", "cameras": "camera.yaml"},
+    inputs=_adjust_uav_inputs,
     check=_adjust_uav_check))
 register_stage(Stage(
     "dsm", "Dense matching: DSM (COG), dense cloud (LAZ), hillshade from the latest orientations.", _dsm,
@@ -753,13 +762,14 @@ register_stage(Stage(
              "min_depth": Option(None, "float", "nearest searched depth (m)", nullable=True, positive=True),
              "fill": Option(False, "bool", "interpolate small holes (flagged)"),
              "cloud": Option(True, "bool", "write the dense point cloud")},
-    requires=("eo",), uses=("points",), provides={"dsm": "dsm.tif"}, inputs=_dsm_inputs, check=_dsm_check))
+    requires=("eo",), uses=("points", "cameras"), provides={"dsm": "dsm.tif"}, inputs=_dsm_inputs,
+    check=_product_check("dsm")))
 
 
 def _ortho(ctx: StageContext) -> dict[str, Any]:
     p, o = ctx.project, ctx.options
     args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
-    args += [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
     args += [x for d in p.images for x in ("--images", d)]
     if o["heads"]:
         args += ["--heads", ",".join(o["heads"])]
@@ -783,7 +793,7 @@ def _ortho(ctx: StageContext) -> dict[str, Any]:
 def _facades(ctx: StageContext) -> dict[str, Any]:
     p, o = ctx.project, ctx.options
     args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
-    args += [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
+    args += [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
     args += [x for d in p.images for x in ("--images", d)]
     if "ortho" in ctx.upstream:
         args += ["--ortho", ctx.upstream["ortho"]]
@@ -801,16 +811,6 @@ def _facades(ctx: StageContext) -> dict[str, Any]:
     return {"buildings": s["buildings"], "facades": s["facades"], "facades_seen": s["facades_seen"]}
 
 
-def _images_rig_check(name: str) -> Callable[[Project, dict[str, Any]], tuple[str, str] | None]:
-    def check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
-        if not p.images:
-            return "inputs.images", f"stage {name} needs inputs.images (image folders)"
-        if not _rig_or_cameras(p):
-            return "inputs.rig", f"stage {name} needs the cameras: inputs.rig or inputs.cameras"
-        return None
-    return check
-
-
 register_stage(Stage(
     "ortho", "True orthomosaic (COG, source layer, seamlines) of the oriented images on the DSM.", _ortho,
     options={"heads": Option([], "strs", "rig heads / image-name parts of the main mosaic (e.g. [nadir]); [] = all"),
@@ -821,7 +821,8 @@ register_stage(Stage(
              "feather": Option(None, "float", "blend width across seamlines (m)", nullable=True, positive=True),
              "balance": Option(True, "bool", "radiometric balance between images"),
              "tile_cells": Option(2048, "int", "tile side in cells", positive=True)},
-    requires=("eo", "dsm"), provides={"ortho": "ortho.tif"}, inputs=_dsm_inputs, check=_images_rig_check("ortho")))
+    requires=("eo", "dsm"), uses=("cameras",), provides={"ortho": "ortho.tif"}, inputs=_dsm_inputs,
+    check=_product_check("ortho")))
 register_stage(Stage(
     "facades", "Buildings, façade textures and a textured 3D model (GLB, OBJ, viewer) from the DSM and the images.",
     _facades,
@@ -831,5 +832,5 @@ register_stage(Stage(
              "texel": Option(None, "float", "façade texel size (m)", nullable=True, positive=True),
              "max_images": Option(3, "int", "images blended into one façade at most", positive=True),
              "refine": Option(True, "bool", "move DSM-extracted walls onto the roof outline seen in the images")},
-    requires=("eo", "dsm"), uses=("ortho",), provides={"model": "model.glb"}, inputs=_dsm_inputs,
-    check=_images_rig_check("facades")))
+    requires=("eo", "dsm"), uses=("ortho", "cameras"), provides={"model": "model.glb"}, inputs=_dsm_inputs,
+    check=_product_check("facades")))

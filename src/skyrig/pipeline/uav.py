@@ -229,7 +229,8 @@ def uav_project_frame(inp: UavBlockInput, crs: str | None = None) -> Any:
 def _write_outputs(out: Path, res: UavResult, report: dict[str, Any], inp: UavBlockInput,
                    project: Any = None) -> dict[str, Path]:
     """``eo.csv``, ``points.csv`` (tie points with sigmas) and ``adjusted.gpkg`` in the project frame (default
-    :func:`uav_project_frame`), ``report.json``, ``report.html`` and residual plots in ``out``."""
+    :func:`uav_project_frame`), ``report.json``, ``report.html``, residual plots and ``camera.yaml`` (the
+    self-calibrated camera as a rig file) in ``out``."""
     from skyrig.georef.eo import ExteriorOrientations
     from skyrig.io.adjust_outputs import write_adjusted_tables
     from skyrig.io.report_html import write_report
@@ -243,4 +244,18 @@ def _write_outputs(out: Path, res: UavResult, report: dict[str, Any], inp: UavBl
                                   inp.frame)
         paths.update(write_adjusted_tables(out, res.adjustment, inp.frame, project, eo_local=eo))
     paths.update(write_report(out, res.adjustment, report, title="skyrig UAV GNSS-supported adjustment"))
+    paths["camera"] = _write_camera(out / "camera.yaml", res)
     return paths
+
+
+def _write_camera(path: Path, res: UavResult) -> Path:
+    """The self-calibrated camera as a one-head rig file (what ``skyrig dsm`` / ``ortho`` / ``facades`` take with
+    ``--camera``); its name is the EO file's camera column."""
+    from skyrig.io.rig_file import write_rig
+    from skyrig.rig.rig import Head, Rig
+
+    conv = getattr(getattr(res.adjustment, "info", None), "converged", None)
+    how = "self-calibrated by skyrig adjust-uav" + ("" if conv in (None, True) else " (NOT converged)")
+    write_rig(Rig(f"{res.camera.name}-adjust-uav", {"camera": Head("camera", res.camera)},
+                  description=f"{res.camera.name} {how}"), path)
+    return path
