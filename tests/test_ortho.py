@@ -149,6 +149,8 @@ def test_files_cog_source_seamlines_manifest_and_reprojected_dsm(scene_block, tm
         s = src.read(1)
         assert set(np.unique(s[s >= 0])) <= set(range(len(names)))
     assert set(read_gpkg_layers(out.seamlines)) == {"regions", "seamlines"}
+    page = (tmp_path / "o" / "report.html").read_text()
+    assert "orthomosaic written" in page and "Radiometric gains" in page and "data:image/png;base64" in page
     # the DSM asked for in the neighbouring UTM zone: reprojected; a roof corner lands where PROJ puts it
     import pyproj
 

@@ -122,6 +122,40 @@ def _summary(m: Orthomosaic) -> dict:
             "stats": m.stats}
 
 
+def _write_report(path: Path, preview: Path, summary: dict, mosaic: Orthomosaic, inputs: list[str],
+                  options: dict) -> None:
+    """``report.html``: the preview, the mosaic's figures and the per-image gains (self-contained page)."""
+    from datetime import datetime, timezone
+
+    from skyrig import __version__
+    from skyrig.report import ReportData, make_section
+    from skyrig.report.adjustment import input_files
+    from skyrig.report.model import Column, Table
+
+    g = summary["grid"]
+    st = summary["stats"]
+    rows = [["grid", f"{g['width']} x {g['height']} cells of {g['cell_m']:.4f} m"],
+            ["CRS and heights", f"{mosaic.frame.crs}; {summary['vertical_reference']}"],
+            ["cells with a colour", f"{summary['cells_valid']} of {summary['cells_surface']} cells of the surface"],
+            ["surface seen by no image", str(summary["surface_without_colour"])],
+            ["images used", f"{len(summary['images_used'])} of {len(summary['images'])}"],
+            ["elevated objects given one image", f"{st.get('objects_one_image')} of {st.get('objects')}"],
+            ["seamline pieces", str(summary.get("seamlines"))],
+            ["image pairs balanced", str(st.get("balance_pairs"))]]
+    figures = Table("ortho-figures", "The mosaic", [Column("item"), Column("value")], rows)
+    gains = Table("ortho-gains", "Radiometric gains (applied to each image's red, green, blue)",
+                  [Column("image"), Column("red", decimals=4), Column("green", decimals=4), Column("blue", decimals=4)],
+                  [[n, *v] for n, v in summary["gains"].items() if n in set(summary["images_used"])])
+    data = ReportData(title="skyrig orthomosaic", software=f"skyrig {__version__}",
+                      created=datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
+                      inputs=input_files(inputs), options=dict(options), accepted="orthomosaic written")
+    data.add(make_section("ortho", preview, caption="True orthomosaic (transparent: no image sees the surface).",
+                          tables=[figures, gains]))
+    from skyrig.report import write_report
+
+    write_report(path, data)
+
+
 def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str], dsm: DsmGrid,
               outdir: str | Path, *, area: tuple[float, float, float, float] | None = None,
               config: OrthoConfig = OrthoConfig(), main_rows: Sequence[int] | None = None, head_sets: Mapping[str, Sequence[int]] | None = None,
@@ -130,7 +164,7 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
               inputs: Sequence[str] = (), options: dict | None = None,
               progress: Callable[[int, int], None] | None = None) -> OrthoOutputs:
     """Orthomosaic of oriented images on a DSM into ``outdir`` (``ortho.tif``, ``ortho_source.tif``,
-    ``seamlines.gpkg``, ``ortho_preview.png``, ``ortho.json``, ``manifest.json``; with ``head_sets`` (name ->
+    ``seamlines.gpkg``, ``ortho_preview.png``, ``ortho.json``, ``report.html``, ``manifest.json``; with ``head_sets`` (name ->
     rows of ``eo``) also ``heads/ortho_<name>.tif`` + previews, e.g. one mosaic per oblique viewing direction)."""
     from skyrig.io.ortho_cog import write_ortho_cog, write_preview_png, write_seamlines_gpkg, write_source_cog
     from skyrig.io.stage import describe_inputs, stage_folder
@@ -177,5 +211,6 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
             write_ortho_cog(tmp / "heads" / f"ortho_{safe}.tif", m)
             write_preview_png(tmp / "heads" / f"ortho_{safe}_preview.png", m)
         (tmp / "ortho.json").write_text(json.dumps(summary, indent=1, default=str) + "\n")
+        _write_report(tmp / "report.html", tmp / "ortho_preview.png", summary, mosaic, list(inputs), options or {})
     return OrthoOutputs(out, out / "ortho.tif", out / "ortho_source.tif", out / "seamlines.gpkg",
                         out / "ortho_preview.png", summary, mosaic)

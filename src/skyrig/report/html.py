@@ -131,7 +131,7 @@ def build_report(data: ReportData) -> str:
     """The HTML text of ``data`` (pure: no file is read or written)."""
     failed = bool(data.failures)
     status = ("<span class='status failed'>FAILED - not to be trusted</span>" if failed
-              else "<span class='status'>adjustment accepted</span>")
+              else f"<span class='status'>{_e(data.accepted)}</span>")
     top = []
     if data.failures:
         top.append("<div class='box error' id='failures'><h3>The result must not be trusted</h3><ul>"

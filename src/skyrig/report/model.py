@@ -118,6 +118,8 @@ class ReportData:
         Remarks in words (shown at the top, boxed).
     sections
         The sections, kept sorted by ``order``.
+    accepted
+        The status shown for a run without failures (e.g. ``"orthomosaic written"``).
     """
 
     title: str
@@ -128,6 +130,7 @@ class ReportData:
     failures: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     sections: list[Section] = field(default_factory=list)
+    accepted: str = "adjustment accepted"
 
     def add(self, section: Section) -> "ReportData":
         """Insert ``section`` at its place (replacing a section with the same key); returns self."""
