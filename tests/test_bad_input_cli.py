@@ -36,25 +36,7 @@ img3.tif,camera,500600.0,5350000.0,1200.0,0.1,-0.2,90.0
 """
 PTS_ROWS = [("g1", 500100.0, 5350050.0, 310.0), ("g2", 500300.0, 5349950.0, 305.5), ("g3", 500450.0, 5350020.0, 298.25)]
 PTS = "# crs: EPSG:25832\n# heights: ellipsoidal\nname,x,y,z\n" + "".join(f"{n},{x},{y},{z}\n" for n, x, y, z in PTS_ROWS)
-RIG = """format: skyrig-rig
-version: 1
-name: uav-single
-antenna_lever_arm_m: [0.0, 0.0, -0.1]
-heads:
-- name: camera
-  camera:
-    name: dji-fc300s
-    width_px: 4000
-    height_px: 3000
-    pixel_size_um: 1.5425
-    focal_mm: 3.61
-    ppx_mm: 0.0
-    ppy_mm: 0.0
-    distortion: null
-  lever_arm_m: [0.05, 0.0, 0.1]
-  mounting_rpy_deg: [0.0, 0.0, 90.0]
-  boresight_opk_deg: [0.0, 0.0, 0.0]
-"""
+from test_bad_input_readers import RIG  # noqa: E402 - the same one-camera UAV rig file
 TRAJ = ("# skyrig-trajectory 1\n# crs: EPSG:4979\n# angles: deg\n# time: gps-sow\ntime,lat,lon,h,roll,pitch,yaw\n"
         + "".join(f"{345600.0 + k:.3f},48.30000,{9.0 + 0.0008 * k:.5f},{1200.0 + 0.1 * k:.1f},0.5,-1.2,90.0\n"
                   for k in range(6)))

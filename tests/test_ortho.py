@@ -151,19 +151,30 @@ def test_files_cog_source_seamlines_manifest_and_reprojected_dsm(scene_block, tm
     assert set(read_gpkg_layers(out.seamlines)) == {"regions", "seamlines"}
     page = (tmp_path / "o" / "report.html").read_text()
     assert "orthomosaic written" in page and "Radiometric gains" in page and "data:image/png;base64" in page
-    # the DSM asked for in the neighbouring UTM zone: reprojected; a roof corner lands where PROJ puts it
+    # the DSM asked for in the neighbouring UTM zone: reprojected; the zone-33 mosaic sampled where PROJ puts the
+    # zone-32 mosaic's cell centres shows the same colours, and sampled 1 m off it does not
     import pyproj
 
     rep = load_dsm_for(tmp_path / "dsm.tif", "EPSG:25833")
     assert rep.frame.crs == "EPSG:25833"
+    m32 = out.mosaic
     m33 = orthomosaic(eo, cams, rep, _Images(images))
-    b = survey.scene.buildings
-    local = WorldFrame.local(*survey.scene.origin)
-    corner = b.vertices(int(np.argmax(b.eave_z - b.base_z)))[4]
-    p32 = WorldFrame.map(CRS, None).from_ecef(local.to_ecef(corner[None]))[0]
-    x33, y33 = pyproj.Transformer.from_crs(CRS, "EPSG:25833", always_xy=True).transform(p32[0], p32[1])
-    r, c = m33.grid.cell_of(np.array([x33]), np.array([y33]))
-    assert 0 <= r[0] < m33.grid.height and 0 <= c[0] < m33.grid.width
+    xx, yy = m32.grid.cell_centres()
+    sel = m32.valid[::4, ::4]
+    x33, y33 = pyproj.Transformer.from_crs(CRS, "EPSG:25833", always_xy=True).transform(xx[::4, ::4][sel],
+                                                                                       yy[::4, ::4][sel])
+
+    def colour_diff(dx_m: float) -> float:
+        r, c = m33.grid.cell_of(np.asarray(x33) + dx_m, np.asarray(y33))
+        ok = (r >= 0) & (r < m33.grid.height) & (c >= 0) & (c < m33.grid.width)
+        ok[ok] &= m33.valid[r[ok], c[ok]]
+        assert ok.mean() > 0.8
+        a = m33.rgb[r[ok], c[ok]].astype(float)
+        b = m32.rgb[::4, ::4][sel][ok].astype(float)
+        return float(np.median(np.abs(a - b).mean(axis=1)))
+
+    same, off = colour_diff(0.0), colour_diff(1.0)
+    assert same < 0.5 * off, (same, off)
 
 
 @pytest.mark.slow

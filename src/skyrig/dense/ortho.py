@@ -102,6 +102,11 @@ class OrthoConfig:
     balance_sigma_gain: float = 0.1
     balance_sigma_noise: float = 10.0
 
+    @property
+    def max_tan(self) -> float:
+        """tan of ``max_off_nadir_deg``."""
+        return float(np.tan(np.radians(self.max_off_nadir_deg)))
+
 
 @dataclass(frozen=True)
 class View:
@@ -133,8 +138,6 @@ class OrthoPlan:
         The output grid (map frame).
     label
         ``(rows, cols)`` int32 on the DSM grid: the image each DSM cell takes (-1: none sees it).
-    elevated
-        ``(rows, cols)`` bool on the DSM grid: elevated objects (grown by the seam margin).
     windows
         Per image, its DSM-grid window ``(row0, col0, height, width)`` (zero size when unused).
     gains
@@ -155,7 +158,6 @@ class OrthoPlan:
     to_local: Callable[[NDArray[np.float64]], NDArray[np.float64]]
     grid: GridSpec
     label: NDArray[np.int32]
-    elevated: NDArray[np.bool_]
     windows: tuple[tuple[int, int, int, int], ...]
     gains: NDArray[np.float64]
     tiles: tuple[tuple[int, int, int, int], ...]
@@ -398,7 +400,6 @@ class _Base:
     dsm: DsmGrid
     to_local: Callable
     windows: tuple[tuple[int, int, int, int], ...]
-    max_tan: float
     gsd_m: float
     config: OrthoConfig
     step: int
@@ -420,7 +421,7 @@ def compute_view(base: _Base, i: int, loader: ImageLoader) -> View:
     u, v, d, tan = (a.reshape(h, w) for a in (u, v, d, tan))
     zb, zu0, zv0 = _zbuffer_for(u, v, d, cam)
     tol = base.config.occlusion_tol_cells * base.dsm.grid.cell_m * (1.0 + np.minimum(tan, 10.0))
-    vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & (tan <= base.max_tan)
+    vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & (tan <= base.config.max_tan)
     if not vis.any():
         return empty
     gsd = d / cam.focal_px * np.sqrt(1.0 + tan ** 2)
@@ -580,7 +581,7 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
         gs = [np.linalg.norm(eo_l.centre[i] - to_local(ctr)[0]) / cameras[str(eo_l.camera[i])].focal_px
               for i in range(len(eo_l))]
     gsd_m = float(np.median(gs))
-    max_tan = float(np.tan(np.radians(config.max_off_nadir_deg)))
+    max_tan = config.max_tan
     windows = tuple(_footprint_window(eo_l, cameras, i, dsm.grid, to_map, zl[0], zl[1], max_tan)
                     for i in range(len(eo_l)))
     # elevated objects
@@ -593,7 +594,7 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     comp, ncomp = ndimage.label(elevated)
     ncells = int(np.isfinite(height).sum())
     step = max(1, int(np.ceil(np.sqrt(ncells / 250_000.0))))
-    base = _Base(eo_l, dict(cameras), dsm_f, to_local, windows, max_tan, gsd_m, config, step, elevated)
+    base = _Base(eo_l, dict(cameras), dsm_f, to_local, windows, gsd_m, config, step, elevated)
     fn = map_fn or (lambda f, items: list(map(f, items)))
     views: list[View] = list(fn(_ViewJob(base, loader), list(range(len(eo_l)))))
     # best view per ground cell, one image per elevated object
@@ -666,7 +667,7 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
              "small_regions_merged": merged, "balance_pairs": npairs,
              "dsm_cells_seen": int(seen_any.sum()), "dsm_cells": ncells, "plan_seconds": time.perf_counter() - t0,
              "gsd_m": gsd_m, "cell_m": cell}
-    return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, elevated, windows, gains, tiles, gsd_m, config,
+    return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, windows, gains, tiles, gsd_m, config,
                      stats)
 
 
@@ -759,7 +760,7 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     lab[~okz] = -1
     # DSM window for the depth buffers: the tile grown by how far the surface's relief can hide along a ray
     zlo, zhi = plan.zrange
-    reach = (zhi - zlo) * min(plan.stats.get("max_tan", np.tan(np.radians(cfg.max_off_nadir_deg))), 4.0) + 2 * dg.cell_m
+    reach = (zhi - zlo) * min(cfg.max_tan, 4.0) + 2 * dg.cell_m
     xb0, yb0, xb1, yb1 = g.bounds
     ra, ca = dg.cell_of(np.array([xb0 - reach, xb1 + reach]), np.array([yb1 + reach, yb0 - reach]))
     dr0, dr1 = max(int(ra[0]), 0), min(int(ra[1]) + 2, dg.height)
@@ -809,7 +810,7 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         zb, zu0, zv0 = _zbuffer_for(du.reshape(shp), dv.reshape(shp), dd.reshape(shp), cam)
         tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
         vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz[sl_i]
-        vis &= tan <= np.tan(np.radians(cfg.max_off_nadir_deg))
+        vis &= tan <= cfg.max_tan
         if not vis.any():
             return
         img = loader(i)
