@@ -340,6 +340,28 @@ def test_stage_outputs_equal_the_individual_commands(sim_project: Path, tmp_path
     assert r.exit_code == 0, r.output
     for f in ("eo.csv", "points.csv", "ground_control.csv"):
         assert (tmp_path / "adjust" / f).read_bytes() == (out / "adjust" / f).read_bytes(), f
+    # the product stages call the commands' library functions: same surface and mosaic as the commands
+    from skyrig.io.dsm_cog import read_dsm_cog
+    from skyrig.io.ortho_cog import read_ortho_cog
+
+    proj = load_project(sim_project)
+    o = next(s.options for s in proj.stages if s.name == "dsm")
+    common = ["--eo", str(out / "adjust" / "eo.csv"), "--camera", str(proj.rig),
+              *[x for d in proj.images for x in ("--images", str(d))], "--executor", "serial"]
+    heads = ["--heads", ",".join(o["heads"])] if o["heads"] else []
+    r = CliRunner().invoke(main, ["dsm", *common, *heads, "--crs", proj.crs, "--points",
+                                  str(out / "adjust" / "points.csv"), "-o", str(tmp_path / "dsm")])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(read_dsm_cog(tmp_path / "dsm" / "dsm.tif").height,
+                                  read_dsm_cog(out / "dsm" / "dsm.tif").height)
+    o = next(s.options for s in proj.stages if s.name == "ortho")
+    heads = ["--heads", ",".join(o["heads"])] if o["heads"] else []
+    r = CliRunner().invoke(main, ["ortho", *common, *heads, "--dsm", str(out / "dsm" / "dsm.tif"),
+                                  "-o", str(tmp_path / "ortho")])
+    assert r.exit_code == 0, r.output
+    a, b = read_ortho_cog(tmp_path / "ortho" / "ortho.tif"), read_ortho_cog(out / "ortho" / "ortho.tif")
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
 
 
 @pytest.mark.slow

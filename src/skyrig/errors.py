@@ -115,6 +115,16 @@ class OutputPathError(SkyrigError, OSError):
         return self._text()
 
 
+class OptionError(SkyrigError, ValueError):
+    """An option's value is unusable (a command-line option or a project-file stage option): ``option`` names it as
+    the caller spells it (``--heads``, ``stages.dsm.heads``)."""
+
+    def __init__(self, option: str, reason: str) -> None:
+        self.option = option
+        self.reason = plain_numbers(reason)
+        super().__init__(f"{option}: {self.reason}")
+
+
 class PlausibilityWarning(UserWarning):
     """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
     lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""

@@ -44,56 +44,18 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     Pairs are chosen from the orientations, rectified exactly (distortion included), matched by OpenCV's
     semi-global matcher, triangulated and fused over all pairs; heights no second pair confirms are left out.
     """
-    from dataclasses import replace
-
-    from skyrig.cli._common import load_cameras, load_eo, select_heads
-    from skyrig.dense.surface import DenseConfig
-    from skyrig.georef.eo import WorldFrame
-    from skyrig.pipeline.dense import find_images, height_range_from_points, run_dsm
+    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli.progress import tile_progress
+    from skyrig.pipeline.products import make_dsm
 
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
-    eo = select_heads(eo, heads)
     cameras = load_cameras(camera_paths)
-    if crs:
-        out_frame = WorldFrame.map(crs, geoid)
-    elif eo.frame.kind == "map":
-        out_frame = WorldFrame.map(eo.frame.crs, geoid if geoid else eo.frame.geoid)
-    else:
-        raise click.UsageError(f"the EO file is in a {eo.frame.kind} frame: give the output CRS with --crs")
-    if height_range is None:
-        if points_path is None:
-            raise click.UsageError("give the expected surface heights (--height-range MIN MAX) or sparse points "
-                                   "to derive them from (--points)")
-        from skyrig.io.points_csv import read_points_csv
-
-        pts = read_points_csv(points_path)
-        xyz = out_frame.from_ecef(pts.frame.to_ecef(pts.xyz))
-        height_range = height_range_from_points(xyz[:, 2])
-        click.echo(f"height range from {len(pts)} points: {height_range[0]:.2f} .. {height_range[1]:.2f} m")
-    if resolution is not None and not resolution > 0:
-        raise click.BadParameter("must be a positive cell size in metres", param_hint="--resolution")
-    if min_support < 1:
-        raise click.BadParameter("must be at least 1", param_hint="--min-support")
-    paths = find_images(eo, images)
-    base = DenseConfig()
-    cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
-                      sgm=replace(base.sgm, mode=mode), fusion=replace(base.fusion, min_support=min_support),
-                      fill_holes=fill, cloud=not no_cloud, tile_cells=tile_cells, min_depth_m=min_depth)
-    options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": list(height_range), "area": area,
-               "resolution": resolution, "mode": mode, "pairs_per_image": pairs_per_image, "min_support": min_support,
-               "fill": fill, "cloud": not no_cloud, "tile_cells": tile_cells, "heads": heads, "min_depth": min_depth}
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task("dense tiles", total=None)
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        res = run_dsm(eo, cameras, paths, out_frame, tuple(height_range), output, area=tuple(area) if area else None,
-                      config=cfg, executor=executor, workers=workers, scheduler=scheduler,
-                      inputs=[eo_path, *camera_paths] + ([points_path] if points_path else []), options=options,
-                      progress=progress)
+    with tile_progress("dense tiles") as progress:
+        res = make_dsm(eo, cameras, images, output, crs=crs, geoid=geoid, height_range=height_range,
+                       points=points_path, heads=heads, area=area, resolution=resolution, mode=mode,
+                       pairs_per_image=pairs_per_image, min_support=min_support, fill=fill, cloud=not no_cloud,
+                       min_depth=min_depth, tile_cells=tile_cells, executor=executor, workers=workers,
+                       scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, echo=click.echo)
     s = res.summary
     click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "
                f"cells ({res.stats.cell_m:.3f} m), {s['cloud_points']} cloud points -> {res.outdir} "

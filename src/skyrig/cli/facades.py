@@ -35,33 +35,18 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
     (model.glb, local ENU frame, y-up, its geographic origin recorded), OBJ + MTL + PNG, and a viewer page
     (viewer.html, opens from the file system), with buildings.gpkg and facades.json.
     """
-    from skyrig.cli._common import load_cameras, load_eo, select_heads
-    from skyrig.pipeline.dense import find_images
-    from skyrig.pipeline.facades import NoBuildingsError, run_facades
+    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli.progress import tile_progress
+    from skyrig.pipeline.facades import NoBuildingsError
+    from skyrig.pipeline.products import make_facades
 
-    if texel is not None and not texel > 0:
-        raise click.BadParameter("must be a positive size in metres", param_hint="--texel")
-    if max_images < 1:
-        raise click.BadParameter("must be at least 1", param_hint="--max-images")
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
-    eo = select_heads(eo, heads)
     cameras = load_cameras(camera_paths)
-    paths = find_images(eo, images)
-    options = {"heads": heads, "footprints": footprints, "ortho": ortho_path, "texel": texel,
-               "max_images": max_images, "texture_format": texture_format, "refine": not no_refine}
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task("façades", total=None)
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
+    with tile_progress("façades") as progress:
         try:
-            res = run_facades(eo, cameras, paths, dsm_path, output, footprints=footprints, ortho=ortho_path,
-                              texel_m=texel, max_images=max_images, image_format=texture_format,
-                              refine=not no_refine, inputs=[dsm_path, eo_path, *camera_paths] + [p for p in (footprints, ortho_path) if p],
-                              options=options, progress=progress)
+            res = make_facades(eo, cameras, images, dsm_path, output, heads=heads, footprints=footprints,
+                               ortho=ortho_path, texel=texel, max_images=max_images, texture_format=texture_format,
+                               refine=not no_refine, inputs=[eo_path, *camera_paths], progress=progress)
         except NoBuildingsError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None

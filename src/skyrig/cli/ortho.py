@@ -40,59 +40,19 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     Occlusion is tested along each ray against the DSM, so buildings stand upright and ground hidden in one image
     comes from another; seamlines run around elevated objects; images are balanced and blended.
     """
-    import numpy as np
-
-    from skyrig.cli._common import head_rows, load_cameras, load_eo
-    from skyrig.dense.ortho import EmptyMosaicError, OrthoConfig
-    from skyrig.pipeline.dense import find_images
-    from skyrig.pipeline.ortho import load_dsm_for, run_ortho
+    from skyrig.cli._common import load_cameras, load_eo
+    from skyrig.cli.progress import tile_progress
+    from skyrig.dense.ortho import EmptyMosaicError
+    from skyrig.pipeline.products import make_ortho
 
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
-    main = np.arange(len(eo))
-    if heads:
-        _, rows = head_rows(eo, heads)
-        main = np.unique(np.concatenate(rows))
-        if len(main) == 0:
-            raise click.UsageError(f"--heads {heads}: no image of the EO file matches")
-    sets: dict[str, np.ndarray] = {}
-    if head_mosaics:
-        names, rows = head_rows(eo, head_mosaics)
-        empty = [n for n, r in zip(names, rows) if len(r) == 0]
-        if empty:
-            raise click.UsageError(f"--head-mosaics: no image matches {', '.join(empty)}")
-        sets = dict(zip(names, rows))
-    for name, val in (("--resolution", resolution), ("--feather", feather)):
-        if val is not None and not val > 0:
-            raise click.BadParameter("must be positive (metres)", param_hint=name)
-    if not 0 < max_off_nadir < 89:
-        raise click.BadParameter("must be between 0 and 89 degrees", param_hint="--max-off-nadir")
-    # one orientation list: the main mosaic's images first, then those only the head mosaics use
-    used = np.unique(np.concatenate([main, *sets.values()])) if sets else main
-    order = np.concatenate([main, np.setdiff1d(used, main)])
-    pos = {int(r): k for k, r in enumerate(order)}
-    eo_all = eo.subset(order)
     cameras = load_cameras(camera_paths)
-    dsm = load_dsm_for(dsm_path, crs)
-    paths = find_images(eo_all, images)
-    cfg = OrthoConfig(cell_m=resolution, max_off_nadir_deg=max_off_nadir, feather_m=feather, balance=not no_balance,
-                      tile_cells=tile_cells)
-    options = {"dsm": dsm_path, "crs": dsm.frame.crs, "heads": heads, "head_mosaics": head_mosaics, "area": area,
-               "resolution": resolution, "max_off_nadir": max_off_nadir, "feather": feather, "balance": not no_balance,
-               "tile_cells": tile_cells}
-    from rich.progress import Progress
-
-    with Progress(transient=True) as bar:
-        task = bar.add_task("ortho tiles", total=None)
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
+    with tile_progress("ortho tiles") as progress:
         try:
-            res = run_ortho(eo_all, cameras, paths, dsm, output, area=tuple(area) if area else None, config=cfg,
-                            main_rows=np.arange(len(main)),
-                            head_sets={h: [pos[int(r)] for r in rows] for h, rows in sets.items()} or None,
-                            executor=executor, workers=workers, scheduler=scheduler,
-                            inputs=[eo_path, *camera_paths, dsm_path], options=options, progress=progress)
+            res = make_ortho(eo, cameras, images, dsm_path, output, heads=heads, head_mosaics=head_mosaics, crs=crs,
+                             area=area, resolution=resolution, max_off_nadir=max_off_nadir, feather=feather,
+                             balance=not no_balance, tile_cells=tile_cells, executor=executor, workers=workers,
+                             scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress)
         except EmptyMosaicError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None

@@ -74,26 +74,39 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
             click.echo(f"{name:12s} {action:12s} {why}")
         return
     from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     console = Console(stderr=True)
     n = len(proj.stages)
     index = {s.name: k + 1 for k, s in enumerate(proj.stages)}
+    # one display: a line per stage event, and a live bar for the stage that is running (its tiles, pairs ...)
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                   console=console, transient=True)
+    tasks: dict[str, object] = {}
 
     def on_event(ev) -> None:  # type: ignore[no-untyped-def]
         k = f"[{index[ev.stage]}/{n}]"
+        out = bar.console
         if ev.status == "start":
-            console.print(f"[bold]{k} {ev.stage}[/bold] running ({ev.message})")
-        elif ev.status == "done":
-            console.print(f"{k} {ev.stage} [green]done[/green] in {ev.seconds:.1f} s -> {proj.output / ev.stage}")
+            out.print(f"[bold]{k} {ev.stage}[/bold] running ({ev.message})")
+            tasks[ev.stage] = bar.add_task(f"{k} {ev.stage}", total=None)
+        elif ev.status == "progress":
+            if ev.stage in tasks:
+                bar.update(tasks[ev.stage], completed=ev.done, total=ev.total or None)  # type: ignore[arg-type]
+        elif ev.status in ("done", "failed") and ev.stage in tasks:
+            bar.remove_task(tasks.pop(ev.stage))  # type: ignore[arg-type]
+        if ev.status == "done":
+            out.print(f"{k} {ev.stage} [green]done[/green] in {ev.seconds:.1f} s -> {proj.output / ev.stage}")
         elif ev.status == "skipped":
-            console.print(f"{k} {ev.stage} skipped ({ev.message})")
+            out.print(f"{k} {ev.stage} skipped ({ev.message})")
         elif ev.status == "not-selected":
-            console.print(f"{k} {ev.stage} not selected")
+            out.print(f"{k} {ev.stage} not selected")
         elif ev.status == "failed":
-            console.print(f"{k} {ev.stage} [red]FAILED[/red]: {ev.message}")
+            out.print(f"{k} {ev.stage} [red]FAILED[/red]: {ev.message}")
 
     click.echo(f"project {proj.name} ({proj.path}): {n} stages -> {proj.output}")
-    res = run_project(proj, from_stage=from_stage, only=only, force=force, on_event=on_event)
+    with bar:
+        res = run_project(proj, from_stage=from_stage, only=only, force=force, on_event=on_event)
     if not res.ok:
         click.echo(f"error: {res.error} (earlier outputs left as they were; rerun resumes)", err=True)
         sys.exit(res.exit_code)

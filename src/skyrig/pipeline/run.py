@@ -29,9 +29,10 @@ options (:class:`skyrig.pipeline.project.Option`: default, type, help), what it 
                          options={"resolution": Option(None, "float", "cell size (m)", nullable=True)},
                          requires=("eo", "dsm"), provides={"ortho": "ortho.tif"}, inputs=_rig_files))
 
-The function writes into ``ctx.out`` only; the runner publishes the folder and writes the manifest.  A stage may
-run a ``skyrig`` command in process (:func:`invoke_command`) with ``-o ctx.out``: the outputs are then exactly
-those of the command.  Errors: :class:`skyrig.errors.SkyrigError` (and click usage errors) are bad input (exit
+The function writes into ``ctx.out`` only; the runner publishes the folder and writes the manifest.  The product
+stages call the library functions the commands call (:mod:`skyrig.pipeline.products`), so their outputs are the
+commands'; block, adjust and adjust-uav still run their command in process (:func:`invoke_command`) with
+``-o ctx.out``.  Errors: :class:`skyrig.errors.SkyrigError` (and click usage errors) are bad input (exit
 status 2), anything else a failed run (exit status 1).
 """
 
@@ -471,18 +472,6 @@ def _invoke_keeping(ctx: StageContext, target: str, args: Sequence[object]) -> d
     return {}
 
 
-def _scheduler_args(ex: ExecutorSpec) -> list[str]:
-    """``--executor`` / ``--workers`` / ``--scheduler`` for commands running through the Dask executor."""
-    args: list[str] = []
-    if ex.scheduler:
-        args += ["--scheduler", ex.scheduler]
-    elif ex.kind != "auto":
-        args += ["--executor", ex.kind]
-    if ex.workers:
-        args += ["--workers", ex.workers]
-    return args
-
-
 def _opt_files(*paths: Path | None) -> list[Path]:
     return [p for p in paths if p is not None]
 
@@ -667,33 +656,45 @@ def _dsm_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
     return [*p.images, *_rig_or_cameras(p)]
 
 
+def _stage_eo_cameras(ctx: StageContext) -> tuple[Any, dict[str, Any], list[Path]]:
+    """The latest orientations (eo.csv of an earlier stage) and the stage's cameras, with the files they came from."""
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.pipeline.inputs import load_cameras
+
+    cams = _stage_cameras(ctx)
+    eo_path = ctx.need("eo")
+    return read_eo_csv(eo_path), load_cameras(cams, f"inputs of stage {ctx.spec.name}"), [eo_path, *cams]
+
+
+def _executor_kw(ex: ExecutorSpec) -> dict[str, Any]:
+    """``executor`` / ``workers`` / ``scheduler`` of the product functions from the project's executor."""
+    if ex.scheduler:
+        return {"executor": "scheduler", "workers": ex.workers, "scheduler": ex.scheduler}
+    return {"executor": ex.kind, "workers": ex.workers, "scheduler": None}
+
+
+def _spelling(stage: str) -> Callable[[str], str]:
+    """How a project file names a stage option (``stages.dsm.resolution``)."""
+    return lambda name: f"stages.{stage}.{name}"
+
+
 def _dsm(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.products import make_dsm
+
     p, o = ctx.project, ctx.options
-    args: list[object] = ["--eo", ctx.need("eo")] + [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
-    args += [x for d in p.images for x in ("--images", d)]
-    if o["heads"]:
-        args += ["--heads", ",".join(o["heads"])]
-    args += ["--crs", p.crs] + (["--geoid", p.geoid] if p.geoid else [])
-    if o["height_range"] is not None:
-        args += ["--height-range", *o["height_range"]]
-    elif "points" in ctx.upstream:
-        args += ["--points", ctx.upstream["points"]]
-    else:
-        raise StageError("dsm", "no sparse points from an earlier stage: give stages.dsm.height_range [MIN, MAX]", 2)
-    if o["area"] is not None:
-        args += ["--area", *o["area"]]
-    if o["resolution"] is not None:
-        args += ["--resolution", o["resolution"]]
-    args += ["--mode", o["mode"], "--pairs-per-image", o["pairs_per_image"], "--min-support", o["min_support"],
-             "--tile-cells", o["tile_cells"]]
-    if o["min_depth"] is not None:
-        args += ["--min-depth", o["min_depth"]]
-    if o["fill"]:
-        args += ["--fill"]
-    if not o["cloud"]:
-        args += ["--no-cloud"]
-    invoke_command("dsm", "skyrig.cli.dsm:command", [*args, *_scheduler_args(p.executor), "-o", ctx.out])
-    s = json.loads((ctx.out / "dense.json").read_text())
+    eo, cameras, files = _stage_eo_cameras(ctx)
+    points = None
+    if o["height_range"] is None:
+        if "points" not in ctx.upstream:
+            raise StageError("dsm", "no sparse points from an earlier stage: give stages.dsm.height_range [MIN, MAX]", 2)
+        points = ctx.upstream["points"]
+    res = make_dsm(eo, cameras, p.images, ctx.out, crs=p.crs, geoid=p.geoid, height_range=o["height_range"],
+                   points=points, heads=o["heads"], area=o["area"], resolution=o["resolution"], mode=o["mode"],
+                   pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
+                   cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"],
+                   **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
+                   echo=lambda line: logger.info("stage dsm: %s", line), spell=_spelling("dsm"))
+    s = res.summary
     return {"pairs": len(s["pairs"]), "cells_valid": s["cells_valid"], "cells": s["cells"],
             "cloud_points": s["cloud_points"]}
 
@@ -767,47 +768,30 @@ register_stage(Stage(
 
 
 def _ortho(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.products import make_ortho
+
     p, o = ctx.project, ctx.options
-    args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
-    args += [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
-    args += [x for d in p.images for x in ("--images", d)]
-    if o["heads"]:
-        args += ["--heads", ",".join(o["heads"])]
-    if o["head_mosaics"]:
-        args += ["--head-mosaics", ",".join(o["head_mosaics"])]
-    if o["area"] is not None:
-        args += ["--area", *o["area"]]
-    if o["resolution"] is not None:
-        args += ["--resolution", o["resolution"]]
-    if o["feather"] is not None:
-        args += ["--feather", o["feather"]]
-    if not o["balance"]:
-        args += ["--no-balance"]
-    args += ["--max-off-nadir", o["max_off_nadir"], "--tile-cells", o["tile_cells"]]
-    invoke_command("ortho", "skyrig.cli.ortho:command", [*args, *_scheduler_args(p.executor), "-o", ctx.out])
-    s = json.loads((ctx.out / "ortho.json").read_text())
+    eo, cameras, files = _stage_eo_cameras(ctx)
+    res = make_ortho(eo, cameras, p.images, ctx.need("dsm"), ctx.out, heads=o["heads"],
+                     head_mosaics=o["head_mosaics"], area=o["area"], resolution=o["resolution"],
+                     max_off_nadir=o["max_off_nadir"], feather=o["feather"], balance=o["balance"],
+                     tile_cells=o["tile_cells"], **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
+                     spell=_spelling("ortho"))
+    s = res.summary
     return {"cells_valid": s["cells_valid"], "cells": s["cells"], "images_used": len(s["images_used"]),
             "seamlines": s["seamlines"]}
 
 
 def _facades(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.products import make_facades
+
     p, o = ctx.project, ctx.options
-    args: list[object] = ["--eo", ctx.need("eo"), "--dsm", ctx.need("dsm")]
-    args += [x for c in _stage_cameras(ctx) for x in ("--camera", c)]
-    args += [x for d in p.images for x in ("--images", d)]
-    if "ortho" in ctx.upstream:
-        args += ["--ortho", ctx.upstream["ortho"]]
-    if o["heads"]:
-        args += ["--heads", ",".join(o["heads"])]
-    if o["footprints"]:
-        args += ["--footprints", o["footprints"]]
-    if o["texel"] is not None:
-        args += ["--texel", o["texel"]]
-    if not o["refine"]:
-        args += ["--no-refine"]
-    args += ["--max-images", o["max_images"]]
-    invoke_command("facades", "skyrig.cli.facades:command", [*args, "-o", ctx.out])
-    s = json.loads((ctx.out / "facades.json").read_text())
+    eo, cameras, files = _stage_eo_cameras(ctx)
+    res = make_facades(eo, cameras, p.images, ctx.need("dsm"), ctx.out, heads=o["heads"],
+                       footprints=o["footprints"], ortho=ctx.upstream.get("ortho"), texel=o["texel"],
+                       max_images=o["max_images"], refine=o["refine"], inputs=files, progress=ctx.progress,
+                       spell=_spelling("facades"))
+    s = res.summary
     return {"buildings": s["buildings"], "facades": s["facades"], "facades_seen": s["facades_seen"]}
 
 
