@@ -29,6 +29,7 @@ from skyrig.adjust.stats import (
     selected_from_dense,
     correlation_warnings,
     covariance,
+    point_datum_covariance,
     critical_value,
     describe_null_space,
     row_cofactors,
@@ -316,6 +317,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     model = Model(block, cfg)
     state = State.from_block(block)
     free = cfg.datum == "free"
+    if cfg.inner_constraints == "points":
+        _datum_point_mask(block, model, cfg)  # unknown names / too few points: ValueError before any work
     rejected: list[Rejection] = []
     # points that start behind one of their cameras give no Jacobian there: left out with their rays
     model = _drop_lost_points(block, model, state, rejected)
@@ -351,6 +354,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             total_info.converged = info.converged
             total_info.message = info.message
         model = _drop_lost_points(block, model, state, rejected)
+        if free and cfg.inner_constraints == "points":
+            state = _to_point_datum(block, model, state, _datum_point_mask(block, model, cfg))
         if huber is not None:  # freeze the final Huber weights for the statistics
             f = model.evaluate(state, jacobians=False)[0]
             root = np.sqrt((f.r ** 2).sum(axis=1))
@@ -482,6 +487,54 @@ def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redund
     return out
 
 
+def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[np.bool_]:
+    """``(P,)`` the estimated points that carry the inner constraints (``cfg.datum_points``, or all).
+    Unknown names and fewer than 3 usable points raise ``ValueError`` naming them."""
+    lay = model.layout
+    est = lay.point >= 0
+    if lay.has_rpoint:
+        est = est | (lay.rpoint >= 0).all(axis=1)  # type: ignore[union-attr]
+    if not cfg.datum_points:
+        mask = est.copy()
+    else:
+        idx = {str(n): k for k, n in enumerate(block.point_name)}
+        bad = [n for n in cfg.datum_points if n not in idx]
+        if bad:
+            raise ValueError(f"datum_points names unknown points {bad[:5]}")
+        mask = np.zeros(block.n_points, bool)
+        mask[[idx[n] for n in cfg.datum_points]] = True
+        gone = [str(block.point_name[k]) for k in np.flatnonzero(mask & ~est)]
+        if gone:
+            logger.warning("datum points not estimated (fixed or left out of the adjustment): %s", gone[:5])
+        mask &= est
+    if mask.sum() < 3:
+        raise ValueError(f"inner constraints on points need at least 3 estimated datum points, got {int(mask.sum())}")
+    X = model.block.point_xyz[mask]
+    if np.linalg.matrix_rank(X - X.mean(axis=0), tol=1e-9 * max(1.0, float(np.abs(X).max()))) < 2:
+        raise ValueError("the datum points lie on one line: inner constraints on them leave a rotation about that "
+                         "line undetermined")
+    return mask
+
+
+def _to_point_datum(block: Block, model: Model, state: State, mask: NDArray[np.bool_]) -> State:
+    """The adjusted block moved by the similarity (without scale when distances fix it) that brings its
+    datum points closest to their starting coordinates (least squares): the nonlinear form of inner
+    constraints on those points (at the optimum ``B^T (X - X0) = 0``)."""
+    X, X0 = state.X[mask], block.point_xyz[mask]
+    mx, m0 = X.mean(axis=0), X0.mean(axis=0)
+    A, A0 = X - mx, X0 - m0
+    U, sv, Vt = np.linalg.svd(A0.T @ A)  # rotation R maximising sum (R a) . a0
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = 1.0 if model.layout.has_rpoint else float((sv * np.diag(D)).sum() / (A**2).sum())
+    t = m0 - s * R @ mx
+    out = state.copy()
+    out.C = s * state.C @ R.T + t
+    out.R = R[None] @ state.R
+    out.X = s * state.X @ R.T + t
+    return out
+
+
 def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[Rejection]) -> Model:
     """After rejecting an image observation of point ``p``: if ``p`` is left with fewer than two active
     rays (from at least two stations) and is not active control, its other observations cannot be checked either (a two-ray point's
@@ -555,7 +608,9 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     if cfg.statistics and lay.n_c <= cfg.max_statistics_parameters:
         try:
             cov = covariance(N, lay, state, free)
-        except SingularError as e:
+            if free and cfg.inner_constraints == "points":
+                cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))
+        except (SingularError, ValueError) as e:
             warnings.append(f"covariance not available: {e}")
         if cov is not None:
             warnings.extend(correlation_warnings(cov, lay))

@@ -439,6 +439,15 @@ class AdjustConfig:
         the station poses (minimum norm of the pose corrections; 7-parameter similarity), or
         ``"none"``: no datum at all, the Levenberg-Marquardt damping picks one solution among the
         equivalent ones (as Ceres does for BAL problems); no rank check, no covariance.
+    inner_constraints
+        With ``datum="free"``: ``"poses"`` (default; minimum norm of the station pose corrections) or
+        ``"points"``: inner constraints on the object points, as close-range programs define the datum -
+        the adjusted points keep the centroid, orientation (and, without a scale bar, the scale) of their
+        starting coordinates (a Helmert fit of the adjusted onto the starting points, applied to the whole
+        block), and the covariance is that of minimum trace over the datum points (an S-transformation).
+    datum_points
+        Names of the datum points for ``inner_constraints="points"`` (at least 3, not on one line);
+        empty = every estimated point.
     max_iterations
         Levenberg-Marquardt iterations.
     function_tolerance, parameter_tolerance, gradient_tolerance
@@ -505,6 +514,8 @@ class AdjustConfig:
     strip_drift: Mode = "fixed"
     strip_drift_sigma_m_s: float = 0.01
     datum: Literal["auto", "free", "none"] = "auto"
+    inner_constraints: Literal["poses", "points"] = "poses"
+    datum_points: tuple[str, ...] = ()
     max_iterations: int = 50
     function_tolerance: float = 1e-6
     parameter_tolerance: float = 1e-8
@@ -537,6 +548,15 @@ class AdjustConfig:
             raise ValueError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
         if self.datum not in ("auto", "free", "none"):
             raise ValueError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
+        if self.inner_constraints not in ("poses", "points"):
+            raise ValueError(f"AdjustConfig.inner_constraints must be 'poses' or 'points', got "
+                             f"{self.inner_constraints!r}")
+        if self.inner_constraints == "points" and self.datum != "free":
+            raise ValueError("AdjustConfig.inner_constraints='points' needs datum='free' (inner constraints define "
+                             f"a free network's datum), got datum={self.datum!r}")
+        if self.datum_points and self.inner_constraints != "points":
+            raise ValueError("AdjustConfig.datum_points is given but inner_constraints is not 'points' (the datum "
+                             "points are only used by inner constraints on points)")
         if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
             raise ValueError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
                              f"{self.snooping_max_group_share!r}")
@@ -558,7 +578,7 @@ class AdjustConfig:
             d["intrinsic_names"] = tuple(d["intrinsic_names"])
         if "actuator_sigma" in d:
             d["actuator_sigma"] = tuple(float(v) for v in d["actuator_sigma"])
-        for key in ("statistics_images", "statistics_points"):
+        for key in ("statistics_images", "statistics_points", "datum_points"):
             if key in d:
                 d[key] = tuple(str(v) for v in d[key])
         if "intrinsic_sigma" in d:

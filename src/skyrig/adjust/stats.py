@@ -14,6 +14,12 @@ the unknowns::
 ``Q_cp = -Q_cc W V^-1``, ``Q_pp = V^-1 + V^-1 W^T Q_cc W V^-1`` (only the 3x3 diagonal point blocks).
 For a free network ``S^-1`` is replaced by the Moore-Penrose inverse ``S^+`` (inner constraints on the
 station poses: minimum trace), computed in the Jacobi-scaled space and projected (:func:`_pinv_inner`).
+
+A datum by inner constraints on object points (all, or a chosen set ``E``: minimum trace of their
+covariance, as close-range programs define it) is the S-transformation of that cofactor matrix
+(:func:`point_datum_covariance`): with ``G`` the similarity motions of *all* unknowns (poses, points)
+and ``B`` its rows of the datum points (zero elsewhere), ``Q_E = S_E Q S_E^T``,
+``S_E = I - G (B^T G)^-1 B^T``; any generalised inverse ``Q`` of ``N`` gives the same ``Q_E``.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constrai
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
            "correlation_warnings", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
-           "chosen_unknowns"]
+           "chosen_unknowns", "similarity_basis", "point_datum_covariance"]
 
 
 def critical_value(alpha: float) -> float:
@@ -144,6 +150,127 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                         WtM[:, a, b] = np.asarray(Wk[:, a::3].multiply(Mk[:, b::3]).sum(axis=0)).reshape(-1)
                 Qpp[s0:s1] = Vinv[s0:s1] + Vinv[s0:s1] @ WtM @ Vinv[s0:s1]
     return Covariance(Q, Qpp, Vinv, M)
+
+
+def similarity_basis(state: State, layout: Layout, scale: bool
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Similarity motions of every estimated pose and point: ``(Gc (n_c, d), Gp (n_p, 3, d))``.
+
+    Columns: translation along X, Y, Z, rotation about X, Y, Z (about the centroid of the estimated
+    points, or of the poses without points) and, with ``scale``, a scale change; each column of unit norm
+    over ``Gc`` and ``Gp`` together.  A world rotation ``w`` moves a position ``x`` by ``w x (x - c0)``
+    and a right-perturbed camera rotation by ``R^T w``.
+    """
+    d = 7 if scale else 6
+    Gc = np.zeros((layout.n_c, d))
+    Gp = np.zeros((layout.n_p, 3, d))
+    pts = np.flatnonzero(layout.point >= 0)
+    red = np.flatnonzero((layout.rpoint >= 0).all(axis=1)) if layout.has_rpoint else np.zeros(0, np.int64)  # type: ignore[union-attr]
+    pose_on = np.flatnonzero((layout.pose >= 0).all(axis=1))
+    allp = np.concatenate([pts, red])
+    c0 = state.X[allp].mean(axis=0) if allp.size else (state.C[pose_on].mean(axis=0) if pose_on.size
+                                                        else np.zeros(3))
+    E = np.eye(3)
+
+    def motions(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``(m, 3, d)`` moves of positions ``x (m, 3)``."""
+        dx = x - c0
+        out = np.zeros((len(x), 3, d))
+        out[:, :, :3] = E[None]
+        for a in range(3):
+            out[:, :, 3 + a] = np.cross(E[a], dx)
+        if scale:
+            out[:, :, 6] = dx
+        return out
+
+    if pose_on.size:
+        pc = layout.pose[pose_on]
+        mc = motions(state.C[pose_on])
+        for a in range(3):
+            Gc[pc[:, a]] = mc[:, a]
+            Gc[pc[:, 3 + a], 3:6] = state.R[pose_on][:, :, a]  # (R^T e_b)_a = R[b, a]
+    if red.size:
+        mr = motions(state.X[red])
+        rc = layout.rpoint[red]  # type: ignore[index]
+        for a in range(3):
+            Gc[rc[:, a]] = mr[:, a]
+    if pts.size:
+        Gp[layout.point[pts]] = motions(state.X[pts])
+    nrm = np.sqrt((Gc**2).sum(axis=0) + (Gp**2).sum(axis=(0, 1)))
+    nrm[nrm == 0] = 1.0
+    return Gc / nrm, Gp / nrm
+
+
+def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: State,
+                           datum_points: NDArray[np.bool_]) -> Covariance:
+    """The cofactors of a free network re-expressed in the datum of inner constraints on the object
+    points ``datum_points`` (``(P,)`` mask over the block's points; estimated ones only count).
+
+    S-transformation (module docstring) of the full cofactor matrix that ``cov`` represents
+    (``Q_cc``, ``Q_cp = -Q_cc W V^-1``, ``Q_pp = V^-1 + V^-1 W^T Q_cc W V^-1``), evaluated in blocks: the
+    returned :class:`Covariance` keeps that representation (``M`` is ``-Q_cp V`` per point, so that the
+    cross terms read back as before).  Raises ``ValueError`` when the chosen points do not fix the
+    datum (fewer than 3, or all on one line).
+    """
+    scale = not layout.has_rpoint
+    Gc, Gp = similarity_basis(state, layout, scale)
+    d = Gc.shape[1]
+    n_c, n_p = layout.n_c, layout.n_p
+    chosen = np.asarray(datum_points, bool)
+    sel_p = np.zeros(n_p, bool)
+    on = layout.point >= 0
+    sel_p[layout.point[on & chosen]] = True
+    Bc = np.zeros_like(Gc)
+    n_red = 0
+    if layout.has_rpoint:
+        red = (layout.rpoint >= 0).all(axis=1) & chosen  # type: ignore[union-attr]
+        rc = layout.rpoint[red].reshape(-1)  # type: ignore[index]
+        Bc[rc] = Gc[rc]
+        n_red = int(red.sum())
+    Bp = Gp * sel_p[:, None, None]
+    if int(sel_p.sum()) + n_red < 3:
+        raise ValueError(f"inner constraints on {int(sel_p.sum()) + n_red} estimated point(s) cannot fix the datum "
+                         "(at least 3 points, not on one line)")
+    Q = cov.Qcc
+    Vinv = cov.Vinv
+    if n_p:
+        W = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]  # (n_c, 3 n_p)
+        Y = np.einsum("pab,pbd->pad", Vinv, Bp).reshape(3 * n_p, d)  # V^-1 B_p
+        F = Bc.T - np.asarray(W @ Y).T  # (d, n_c): B_c^T - B_p^T V^-1 W^T
+    else:
+        W = None
+        F = Bc.T.copy()
+    BQc = F @ Q  # (d, n_c) = (B^T Q) reduced columns
+    BtG = Bc.T @ Gc + np.einsum("pad,pae->de", Bp, Gp)
+    BQB = BQc @ Bc
+    if n_p:
+        FM = np.asarray((W.T @ BQc.T)).T.reshape(d, n_p, 3).transpose(1, 0, 2)  # type: ignore[union-attr]  # (n_p, d, 3)
+        BQp = np.einsum("pda,pab->pdb", np.swapaxes(Bp, 1, 2) - FM, Vinv)  # (B^T Q) point columns
+        BQB = BQB + np.einsum("pda,pae->de", BQp, Bp)
+    sv = np.linalg.svd(BtG, compute_uv=False)
+    if not sv[-1] > 1e-8 * sv[0]:
+        raise ValueError("the chosen datum points do not fix the datum (on one line, or too few): inner "
+                         "constraints on them leave a rotation undetermined")
+    K = np.linalg.inv(BtG)
+    TQc = K @ BQc  # (d, n_c)
+    Z = K @ BQB @ K.T
+    GcZ = Gc @ Z
+    A = Gc @ TQc
+    Qcc = Q - A - A.T + GcZ @ Gc.T
+    Qcc = 0.5 * (Qcc + Qcc.T)
+    Qpp = cov.Qpp
+    M = cov.M
+    if n_p:
+        TQp = np.einsum("de,pea->pda", K, BQp)  # (n_p, d, 3)
+        GT = Gp @ TQp  # (n_p, 3, 3)
+        Qpp = cov.Qpp - GT - np.swapaxes(GT, 1, 2) + Gp @ Z @ np.swapaxes(Gp, 1, 2)
+        Qpp = 0.5 * (Qpp + np.swapaxes(Qpp, 1, 2))
+        if M is not None:
+            # Q'_cp = Q_cp - Gc TQp - TQc^T Gp^T + Gc Z Gp^T, and M' = -Q'_cp V
+            D = (np.einsum("cd,pda->cpa", Gc, TQp) + np.einsum("dc,pad->cpa", TQc, Gp)
+                 - np.einsum("cd,pad->cpa", GcZ, Gp))
+            M = M + np.einsum("cpa,pab->cpb", D, N.V).reshape(n_c, 3 * n_p)
+    return Covariance(Qcc, Qpp, Vinv, M)
 
 
 @dataclass
