@@ -1,5 +1,9 @@
 """``skyrig calibrate RECIPE``: the papers' calibration recipes (:mod:`skyrig.calibrate`).
 
+``skyrig calibrate uncalibrated-gnss-imu``: the system calibration of a flight delivered with uncalibrated
+GNSS/IMU data (paper 003, :mod:`skyrig.calibrate.gnss_imu`); writes the calibrated rig file, the corrected
+trajectory and EO, and a JSON + HTML report with the paper's tables (printed too).
+
 ``skyrig calibrate camera``: test-field (cage) calibration of one camera (paper 004, section 2.5) from the
 target coordinates (points CSV ``name,x,y,z``, metres in the test field's Cartesian frame) and the image
 measurements (measurements CSV ``point,image,column,row``), with fixed stations (a points CSV of the
@@ -266,3 +270,130 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
         f"{a} mean {v['mean_std_mdeg']:.1f} max {v['max_std_mdeg']:.1f} at beta {v['beta_at_max_deg']:.1f}"
         for a, v in t2.items()))
     click.echo(f"-> {output}, {report_path}, {html_path}")
+
+
+@command.command("uncalibrated-gnss-imu")
+@click.option("--trajectory", "trajectory_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Recorded GNSS antenna positions + IMU attitudes (skyrig trajectory CSV), uncalibrated.")
+@click.option("--events", "events_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Camera events CSV.")
+@click.option("--rig", "rig_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The nominal rig file (antenna lever arm as recorded, no boresight).")
+@click.option("--measurements", "meas_paths", required=True, multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Image measurements CSV point,image,column,row (tie and ground points; repeatable).")
+@click.option("--control", "control_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Ground control points CSV (CRS and geoid in its header): control of the reference sub-block "
+                   "and check points of the evaluation.")
+@click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="More ground points (same kind of file): check points of the evaluation only.")
+@click.option("--reference-strips", default=None,
+              help="Strips of the reference sub-block, 1-based in time order, comma-separated (default: the two "
+                   "central strips).")
+@click.option("--head", default=None, help="The camera head (default: the only one).")
+@click.option("--image-sigma-um", type=float, default=5.0, show_default=True,
+              help="Sigma of an image coordinate (micrometres).")
+@click.option("--gnss-sigma", default="0.3", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
+@click.option("--imu-sigma-gon", default="0.0089,0.0089,0.0167", show_default=True,
+              help="IMU sigma roll,pitch,yaw (grads; one or three values).")
+@click.option("--control-sigma", default="0.6", show_default=True, help="Control point sigma X,Y,Z (metres).")
+@click.option("--flight", default="", help="Provenance: flight / data set.")
+@click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
+@click.option("--crs", "out_crs", default=None,
+              help="CRS of the corrected EO file (default: the control points' frame, the national system).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
+@click.option("--corrected-trajectory", "traj_out", type=click.Path(dir_okay=False), default=None,
+              help="Corrected GNSS/IMU trajectory CSV (datum shift removed; default OUTPUT_trajectory.csv).")
+@click.option("--corrected-eo", "eo_out", type=click.Path(dir_okay=False), default=None,
+              help="Corrected EO CSV of every image (direct georeferencing with the calibrated rig and the "
+                   "corrected trajectory; default OUTPUT_eo.csv).")
+def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path,
+                                  reference_strips, head, image_sigma_um, gnss_sigma, imu_sigma_gon, control_sigma,
+                                  flight, date, out_crs, output, report_path, traj_out, eo_out) -> None:
+    """GNSS/IMU system calibration of a flight delivered uncalibrated (paper 003): antenna offset from per-strip
+    shifts, two-step reference orientation, boresight misalignment and datum shift, corrected GNSS/IMU and EO,
+    evaluation (spatial intersection, ISO, check points, y-parallax); prints Tables 2 and 4-8."""
+    import numpy as np
+
+    from skyrig import __version__
+    from skyrig.calibrate.gnss_imu import (CalibrationFailed, FlightData, calibrate_uncalibrated_gnss_imu,
+                                           format_tables, report_html)
+    from skyrig.cli._common import parse_sigmas
+    from skyrig.errors import SkyrigError
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.georef.observations import GroundPoints, ImageMeasurements
+    from skyrig.io._text import atomic_write
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.events_csv import read_events_csv
+    from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+    from skyrig.io.rig_file import read_calibrated_rig, write_rig
+    from skyrig.io.trajectory_csv import write_trajectory_csv
+    from skyrig.io.trajectory_csv import read_trajectory_csv
+
+    def triple(text: str, option: str) -> tuple[float, float, float]:
+        v = parse_sigmas(text, 3, option, "x,y,z", positive=True)
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    rig, rig_cal = read_calibrated_rig(rig_path)
+    traj = read_trajectory_csv(trajectory_path)
+    events = read_events_csv(events_path)
+    ms = [read_measurements_csv(p) for p in meas_paths]
+    meas = ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
+                             np.concatenate([m.pixel for m in ms]))
+    ctrl = read_points_csv(control_path, option="--control")
+    names, xyz = [ctrl.name], [ctrl.xyz]
+    if check_path is not None:
+        chk = read_points_csv(check_path, option="--check")
+        names.append(chk.name)
+        xyz.append(ctrl.frame.from_ecef(chk.frame.to_ecef(chk.xyz)))
+    ground = GroundPoints(np.concatenate(names), np.concatenate(xyz), ctrl.frame)
+    dup = [n for n, c in zip(*np.unique(ground.name, return_counts=True)) if c > 1]
+    if dup:
+        raise click.BadParameter(f"ground point {dup[0]!r} is in --control and --check", param_hint="--check")
+    ref = None
+    if reference_strips:
+        try:
+            ref = [int(s) - 1 for s in reference_strips.split(",") if s.strip()]
+        except ValueError:
+            raise click.BadParameter(f"strip numbers separated by commas, not {reference_strips!r}",
+                                     param_hint="--reference-strips") from None
+    data = FlightData(traj, events, rig, meas, ground, tuple(str(n) for n in ctrl.name))
+    try:
+        cal = calibrate_uncalibrated_gnss_imu(
+            data, reference_strips=ref, head=head, image_sigma_um=image_sigma_um,
+            gnss_sigma_m=triple(gnss_sigma, "--gnss-sigma"), imu_sigma_gon=triple(imu_sigma_gon, "--imu-sigma-gon"),
+            control_sigma_m=triple(control_sigma, "--control-sigma"))
+    except CalibrationFailed as exc:
+        raise click.ClickException(f"calibration failed: {exc}") from None
+    except SkyrigError as exc:
+        raise click.ClickException(str(exc)) from None
+    report = cal.to_dict()
+    report["inputs"] = {"trajectory": str(trajectory_path), "events": str(events_path), "rig": str(rig_path),
+                        "measurements": [str(p) for p in meas_paths], "control": str(control_path),
+                        "check": check_path}
+    stem = Path(output)
+    traj_out = traj_out or str(stem.with_name(stem.stem + "_trajectory.csv"))
+    eo_out = eo_out or str(stem.with_name(stem.stem + "_eo.csv"))
+    report_path = report_path or str(stem.with_suffix(".json"))
+    html_path = str(Path(report_path).with_suffix(".html"))
+    report["outputs"] = {"rig": str(output), "trajectory": traj_out, "eo": eo_out, "report": report_path,
+                         "html": html_path}
+    out_frame = WorldFrame.map(out_crs) if out_crs else ctrl.frame
+    write_rig(cal.rig, output, cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal))
+    write_trajectory_csv(traj_out, cal.trajectory_corrected)
+    write_eo_csv(cal.eo_corrected.to_frame(out_frame), eo_out)
+    with atomic_write(report_path) as fh:
+        json.dump(report, fh, indent=2, default=float)
+        fh.write("\n")
+    with atomic_write(html_path) as fh:
+        fh.write(report_html(report))
+    click.echo(format_tables(report))
+    r = report["result"]
+    b, sb = r["boresight_misalignment_gon"], r["boresight_sigma_gon"]
+    d, sd = r["datum_shift_m"], r["datum_shift_sigma_m"]
+    a, sa = r["antenna_offset_m"], r["antenna_offset_sigma_m"]
+    click.echo("boresight misalignment [gon]: " + ", ".join(f"{k} {b[k]:.5f} ± {sb[k]:.5f}" for k in b))
+    click.echo("datum shift (GNSS minus control) [m]: " + ", ".join(f"{k} {d[k]:.3f} ± {sd[k]:.3f}" for k in d))
+    click.echo("antenna offset [m]: " + ", ".join(f"{k} {a[k]:.3f} ± {sa[k]:.3f}" for k in a))
+    click.echo(f"-> {output}, {traj_out}, {eo_out}, {report_path}, {html_path}")
