@@ -69,6 +69,12 @@ class SgmConfig:
         (angle between the surface normal and the ray to the camera) are dropped: next to a depth edge the
         matcher smooths the jump into a steep ramp whose points float off the surface; a real surface seen
         that obliquely cannot be matched reliably either.  90 disables.
+    fill_occlusions
+        Give every pixel left without a match the disparity of the farther of its nearest matched neighbours
+        on the same row (left and right): the background, which is what a pixel seen by one camera only
+        (occlusion) shows, and what the foreground erosion (``edge_erode_px``) took off.  A dense disparity map
+        for benchmarks over all pixels (Middlebury "all"); the DSM leaves it off (its holes are filled, and
+        flagged, in object space).  Rows are filled within a matched crop (tile plus margin).
     """
 
     mode: str = "sgbm"
@@ -88,6 +94,7 @@ class SgmConfig:
     edge_erode_px: int = 0
     max_incidence_deg: float = 75.0
     lr_check: str = "full"
+    fill_occlusions: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -196,7 +203,10 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
         rok = np.take_along_axis(valid_right, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
         d[~rok] = np.nan
     d += shift
-    return erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+    if cfg.fill_occlusions:
+        d = fill_background(d, valid_left)
+    return d
 
 
 def _match_tile(left: NDArray, right: NDArray, cfg: SgmConfig, shift: int, n: int, r0: int, r1: int, c0: int,
@@ -250,6 +260,32 @@ def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> N
         fg = ndimage.binary_dilation(fg, iterations=erode_px - 1)
     out = d.copy()
     out[fg & np.isfinite(d)] = np.nan
+    return out
+
+
+def fill_background(d: NDArray[np.float32], valid: NDArray[np.bool_] | None = None) -> NDArray[np.float32]:
+    """Fill NaN pixels along each row with the smaller (farther) of the nearest finite disparities to their left
+    and right (one side only where the other has none); pixels outside ``valid`` stay NaN.
+
+    An occluded pixel sees the background next to a foreground edge, so the farther neighbour is the
+    estimate (the standard scanline occlusion fill)."""
+    H, W = d.shape
+    ok = np.isfinite(d)
+    if ok.all() or not ok.any():
+        return d
+    col = np.broadcast_to(np.arange(W), (H, W))
+    li = np.maximum.accumulate(np.where(ok, col, -1), axis=1)
+    ri = np.minimum.accumulate(np.where(ok, col, W)[:, ::-1], axis=1)[:, ::-1]
+    lv = np.take_along_axis(d, np.clip(li, 0, W - 1), axis=1)
+    rv = np.take_along_axis(d, np.clip(ri, 0, W - 1), axis=1)
+    lv[li < 0] = np.inf
+    rv[ri >= W] = np.inf
+    f = np.minimum(lv, rv)
+    hole = ~ok & np.isfinite(f)
+    if valid is not None:
+        hole &= valid
+    out = d.copy()
+    out[hole] = f[hole]
     return out
 
 
