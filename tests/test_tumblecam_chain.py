@@ -8,6 +8,7 @@ with its boresight curve, not through ``skyrig.georef``), its rendered images, a
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -376,3 +377,80 @@ def test_plane_mosaic_refuses_bad_input(survey):
         plane_mosaic([np.zeros((cam.height, cam.width, 3), np.uint8)], ob, {"other": cam}, plane, cell_m=1.0)
     with pytest.raises(SkyrigError, match="cells"):
         plane_mosaic([np.zeros((cam.height, cam.width, 3), np.uint8)], ob, cam, plane, cell_m=0.001)
+
+
+@pytest.mark.slow
+def test_cli_plane_mosaic(survey, bench, tmp_path):
+    """``skyrig plane-mosaic`` (Fig. 9 from files): the seam offsets it writes for obliques transferred without the
+    boresight curve agree with the offsets predicted from the orientation errors alone (bench.predicted_shifts, no
+    image involved), and --max-offset turns them into a failed check (exit 1, outputs kept)."""
+    import cv2
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.rig_file import write_rig
+
+    circ = bench.hover_circle(survey, step_deg=30.0, seed=5, width=400)
+    rig = bench.calibrated_rig(survey.rig_recorded, bench.lab_calibrated_curve(survey.tumble_curve,
+                                                                             np.random.default_rng(5)))
+    eo = bench.circle_orientations(circ, rig, None)
+    img_dir = tmp_path / "images"
+    img_dir.mkdir()
+    for name, img in zip(eo.image, circ.images):
+        assert cv2.imwrite(str(img_dir / str(name)), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    write_eo_csv(eo, tmp_path / "eo.csv", unit="deg", convention="opk")
+    small = replace(rig, heads={"oblique": rig.head("oblique").with_(camera=circ.camera),
+                                "nadir": rig.head("nadir").with_(camera=circ.nadir_camera)})
+    write_rig(small, tmp_path / "rig.yaml")
+    args = ["plane-mosaic", "--eo", str(tmp_path / "eo.csv"), "--camera", str(tmp_path / "rig.yaml"), "--images",
+            str(img_dir), "--height", str(circ.plane_height_m), "--window", "48", "-o", str(tmp_path / "pm")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    s = json.loads((tmp_path / "pm" / "plane_mosaic.json").read_text())
+    assert s["seams_measured"] >= 12 and s["covered"] > 0.5
+    ref = bench.fig9(circ, rig, None, window_px=48)  # the library on the same orientations, with predictions
+    pred = {(r_["a"], r_["b"]): r_["predicted_offset_px"] * ref["cell_m"] for r_ in ref["seams"]}
+    rows = (tmp_path / "pm" / "seams.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    checked = 0
+    for line in rows[1:]:
+        row = dict(zip(head, line.split(",")))
+        key = (row["a"], row["b"])
+        if key in pred:
+            checked += 1
+            assert abs(float(row["offset_m"]) - pred[key]) < 0.45 * ref["cell_m"], (row, pred[key])
+    assert checked >= 10
+    worst = max(float(dict(zip(head, line.split(",")))["offset_px"]) for line in rows[1:])
+    assert worst > 1.0  # without the curve the seams jump (2-3 px at 30 deg steps)
+    r = CliRunner().invoke(main, [*args[:-1], str(tmp_path / "pm2"), "--max-offset", "1.0"])
+    assert r.exit_code == 1 and "exceeds --max-offset" in r.output
+    assert (tmp_path / "pm2" / "manifest.json").exists()
+
+
+def test_plane_mosaic_plane_options():
+    """The plane: exactly one of a height or a point + normal; a façade normal given in a map CRS stays horizontal
+    in the local frame (carried through ECEF, so the grid convergence of UTM does not tilt it); bad values name
+    the option."""
+    from skyrig.errors import OptionError
+    from skyrig.pipeline.products import plane_in_local_frame
+
+    frame = WorldFrame.map("EPSG:25832")
+    eo = ExteriorOrientations(np.array(["a.png"]), np.array(["cam"]), np.array([[700000.0, 5500000.0, 400.0]]),
+                              np.eye(3)[None], frame)
+    local, pl = plane_in_local_frame(eo, height=100.0)
+    assert np.allclose(pl.normal, [0, 0, 1]) and np.allclose(local.to_ecef(np.zeros((1, 3))),
+                                                              frame.to_ecef(np.array([[700000.0, 5500000.0, 100.0]])))
+    # a wall facing grid north at 700 km easting (2 deg off the central meridian: convergence ~1.6 deg)
+    local, pl = plane_in_local_frame(eo, plane=[700000.0, 5500000.0, 100.0, 0.0, 1.0, 0.0])
+    assert abs(pl.normal[2]) < 1e-6 and abs(pl.v_axis @ [0, 0, 1] - 1) < 1e-6
+    from pyproj import Transformer
+
+    lon0, lat0 = Transformer.from_crs(25832, 4326, always_xy=True).transform(700000.0, 5500000.0)
+    lon1, lat1 = Transformer.from_crs(25832, 4326, always_xy=True).transform(700000.0, 5500010.0)
+    az = np.degrees(np.arctan2((lon1 - lon0) * np.cos(np.radians(lat0)), lat1 - lat0))  # grid north's azimuth
+    assert abs(np.degrees(np.arctan2(pl.normal[0], pl.normal[1])) - az) < 0.01
+    for kw, opt in (({}, "--height"), ({"height": 1.0, "plane": [0] * 6}, "--height"),
+                    ({"plane": [1, 2, 3, 0, 0, 0]}, "--plane")):
+        with pytest.raises(OptionError, match=opt):
+            plane_in_local_frame(eo, **kw)

@@ -24,7 +24,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.errors import OptionError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 
-__all__ = ["make_dsm", "make_ortho", "make_facades", "cli_spelling"]
+__all__ = ["make_dsm", "make_ortho", "make_facades", "make_plane_mosaic", "plane_in_local_frame", "cli_spelling"]
 
 Progress = Callable[[int, int], None] | None
 Echo = Callable[[str], None]
@@ -194,6 +194,133 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
     return run_facades(eo, cameras, paths, str(dsm), outdir, footprints=footprints, ortho=ortho, texel_m=texel,
                        max_images=max_images, image_format=texture_format, refine=refine,
                        inputs=[str(dsm), *map(str, inputs), *extra], options=options, progress=progress)
+
+
+def plane_in_local_frame(eo: ExteriorOrientations, height: float | None = None,
+                         plane: Sequence[float] | None = None, spell: Callable[[str], str] = cli_spelling) -> tuple[Any, Any]:
+    """A mosaic plane given in the orientations' frame, as ``(local ENU frame, Plane in it)``.
+
+    ``height``: the horizontal plane at this height (the EO's heights), under the mean projection centre; in the
+    local frame it is the plane tangent to the ellipsoid there (off by d^2 / 2R from the level surface: 8 cm at
+    1 km).  ``plane``: ``X Y Z NX NY NZ``, a point of the plane and its normal, both in the EO's frame (for a map CRS
+    the normal's components are easting, northing, up; they are carried through ECEF, so meridian convergence and
+    the projection's scale do not turn it).  The plane's axes: ``u`` east and ``v`` north for a (near) horizontal
+    plane, else ``u`` horizontal along the plane and ``v`` up the plane, seen from the side the normal points to.
+    """
+    from skyrig.dense.plane_mosaic import Plane
+    from skyrig.geodesy.frame import WorldFrame as Frame
+    from skyrig.geodesy.crs import ecef_to_geodetic
+
+    if (height is None) == (plane is None):
+        raise OptionError(spell("height"), f"give the plane either as a height or as {spell('plane')} X Y Z NX NY NZ")
+    if plane is not None:
+        vals = np.asarray(plane, dtype=np.float64).reshape(-1)
+        if vals.shape != (6,) or not np.all(np.isfinite(vals)) or np.linalg.norm(vals[3:]) == 0:
+            raise OptionError(spell("plane"), "expected X Y Z NX NY NZ: a point and a non-zero normal")
+        point, normal = vals[:3], vals[3:] / np.linalg.norm(vals[3:])
+    else:
+        if not np.isfinite(height):
+            raise OptionError(spell("height"), f"must be a finite height in metres, got {height}")
+        point = np.r_[eo.centre[:, :2].mean(axis=0), float(height)]
+        normal = None
+    p_ecef = eo.frame.to_ecef(point[None])[0]
+    lat, lon, h = ecef_to_geodetic(p_ecef[None])
+    local = Frame.local(float(lat[0]), float(lon[0]), float(h[0]))
+    if normal is None:
+        n = np.array([0.0, 0.0, 1.0])
+    else:
+        step = 10.0
+        tip = local.from_ecef(eo.frame.to_ecef((point + step * normal)[None]))[0]
+        base = local.from_ecef(p_ecef[None])[0]
+        n = (tip - base) / np.linalg.norm(tip - base)
+    up = np.array([0.0, 0.0, 1.0])
+    if abs(n @ up) > 0.99:
+        return local, Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    u = np.cross(up, n)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    return local, Plane(np.zeros(3), u, v / np.linalg.norm(v))
+
+
+def make_plane_mosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
+                      images: Sequence[str | PathLike[str]], outdir: str | Path, *, height: float | None = None,
+                      plane: Sequence[float] | None = None, heads: str | Sequence[str] | None = None,
+                      resolution: float | None = None, window: int = 64, max_cells: int = 16_000_000,
+                      inputs: Sequence[str | PathLike[str]] = (), spell: Callable[[str], str] = cli_spelling) -> dict:
+    """The images projected onto one plane from their orientations alone, and the feature offsets across every
+    seam (paper 000, Fig. 9; :mod:`skyrig.dense.plane_mosaic`), into ``outdir``: ``mosaic.png`` (RGBA, transparent
+    where no image sees the plane), ``seams.csv`` (one row per seam: images, windows, median shift in mosaic
+    pixels and metres), ``plane_mosaic.json`` (plane, grid, per-image GSD, seam statistics), ``manifest.json``.
+
+    A seam's offset is the difference of its two images' orientation errors projected on the plane (plus the
+    relief off the plane for images from different centres): the check of a tumbling head's boresight curve.
+    Returns the summary written to ``plane_mosaic.json``.
+    """
+    import json
+
+    import cv2
+
+    from skyrig.dense.plane_mosaic import plane_mosaic, seam_offsets
+    from skyrig.io.stage import describe_inputs, stage_folder
+    from skyrig.pipeline.dense import ImageFiles, find_images
+    from skyrig.pipeline.inputs import select_heads
+
+    eo = select_heads(eo, heads, spell("heads"))
+    _positive(resolution, "resolution", spell)
+    if window < 8:
+        raise OptionError(spell("window"), f"must be at least 8 mosaic pixels, got {window}")
+    local, pl = plane_in_local_frame(eo, height, plane, spell)
+    eo_local = eo.to_frame(local)
+    paths = find_images(eo, [str(p) for p in images])
+    for k, c in enumerate(eo.camera):
+        if str(c) not in cameras:
+            raise OptionError(spell("camera"), f"image {str(eo.image[k])!r}: no camera {str(c)!r} among "
+                                               f"{', '.join(sorted(cameras))}")
+    loader = ImageFiles(paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    index = {str(n): k for k, n in enumerate(eo.image)}
+    m = plane_mosaic(lambda name: loader(index[name]), eo_local, cameras, pl, cell_m=resolution, max_cells=max_cells)
+    seams = seam_offsets(m, window_px=window)
+    cell = m.grid.cell_m
+    rows = []
+    for sm in seams:
+        if not len(sm.shift_px):
+            continue
+        d = sm.median_shift_px
+        rows.append({"a": str(m.images[sm.a]), "b": str(m.images[sm.b]), "windows": int(len(sm.shift_px)),
+                     "seam_cells": int(sm.seam_cells), "shift_col_px": float(d[0]), "shift_row_px": float(d[1]),
+                     "offset_px": sm.offset_px, "offset_m": sm.offset_px * cell,
+                     "response": float(np.median(sm.response))})
+    off = np.array([r["offset_px"] for r in rows])
+    covered = m.source >= 0
+    summary = {
+        "frame": eo.frame.to_text(), "plane_frame": local.to_text(),
+        "plane": {"point": [float(x) for x in (plane[:3] if plane is not None else
+                                              [*eo.centre[:, :2].mean(axis=0), height])],
+                  "normal_local": pl.normal.tolist(), "u_local": pl.u_axis.tolist(), "v_local": pl.v_axis.tolist()},
+        "grid": {"u0": m.grid.u0, "v0": m.grid.v0, "cell_m": cell, "rows": int(m.grid.shape[0]),
+                 "cols": int(m.grid.shape[1])},
+        "images": [{"image": str(n), "gsd_m": float(g), "cells": int(np.sum(m.source == k))}
+                   for k, (n, g) in enumerate(zip(m.images, m.gsd_m))],
+        "covered": float(covered.mean()),
+        "seams": len(seams), "seams_measured": len(rows), "window_px": int(window),
+        "max_offset_px": float(off.max()) if off.size else None,
+        "median_offset_px": float(np.median(off)) if off.size else None,
+        "rms_offset_px": float(np.sqrt(np.mean(off ** 2))) if off.size else None,
+    }
+    options = {"height": height, "plane": None if plane is None else [float(x) for x in plane],
+               "heads": _text(heads), "resolution": resolution, "window": int(window)}
+    with stage_folder(Path(outdir), stage="plane-mosaic", inputs=describe_inputs([*map(str, inputs)]),
+                      options=options) as tmp:
+        rgba = np.dstack([m.rgb[..., ::-1], np.where(covered, 255, 0).astype(np.uint8)])
+        if not cv2.imwrite(str(tmp / "mosaic.png"), rgba):
+            raise OSError(f"cannot write {tmp / 'mosaic.png'}")
+        cols = ["a", "b", "windows", "seam_cells", "shift_col_px", "shift_row_px", "offset_px", "offset_m", "response"]
+        with open(tmp / "seams.csv", "w") as fh:
+            fh.write(",".join(cols) + "\n")
+            for r in rows:
+                fh.write(",".join(f"{r[c]:.4f}" if isinstance(r[c], float) else str(r[c]) for c in cols) + "\n")
+        (tmp / "plane_mosaic.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return summary
 
 
 def _text(spec: str | Sequence[str] | None) -> str | None:
