@@ -148,7 +148,7 @@ def test_compiled_bal_rows_equal_the_numpy_path(monkeypatch, tmp_path, cfg):
         assert np.all(np.abs(a - c).max(axis=(0, 1)) <= 1e-12 * np.where(scale > 0, scale, 1.0))
 
 
-@pytest.mark.parametrize("method", ["splu", "dense"])
+@pytest.mark.parametrize("method", ["splu", "dense", "cholmod"])
 def test_datum_defect_is_reported_by_the_sparse_solver(method):
     # no control, no GNSS, no IMU: the block floats (7 similarity motions); S is singular
     from skyrig.adjust.solver import SingularError, assemble, schur_matrix, solve_reduced

@@ -55,15 +55,22 @@ from skyrig.errors import SkyrigError
 
 logger = logging.getLogger(__name__)
 
-try:  # optional fast sparse Cholesky (CHOLMOD)
+try:  # CHOLMOD on the reference BLAS (kept selectable: ``method="cholespy"``)
     import cholespy as _cholespy
 except ImportError:  # pragma: no cover - depends on the environment
     _cholespy = None
 
+from skyrig.adjust import linalg as _linalg
+
+#: the reduced solver of :func:`solve_reduced` when called with ``method="auto"`` (the statistics):
+#: ``"auto"`` (dense up to 400 unknowns, CHOLMOD through cvxopt above, SuperLU without cvxopt) or a
+#: method name
+REDUCED_SOLVER = "auto"
+
 __all__ = ["Normal", "SolveInfo", "SchurEngine", "assemble", "solve_reduced", "levenberg_marquardt", "SingularError",
            "inner_constraint_basis", "HAVE_CHOLMOD", "HAVE_NUMBA"]
 
-HAVE_CHOLMOD = _cholespy is not None
+HAVE_CHOLMOD = _linalg.HAVE_CVXOPT_CHOLMOD
 
 
 def _blas_single_thread():  # type: ignore[no-untyped-def]
@@ -337,7 +344,9 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
     Ss = sp.csr_matrix(S.multiply(s[:, None]).multiply(s[None, :]))
     b = rhs * (s if rhs.ndim == 1 else s[:, None])
     if method == "auto":
-        method = "dense" if (G is not None or n <= 400) else "splu"
+        method = REDUCED_SOLVER
+    if method == "auto":
+        method = "dense" if (G is not None or n <= 400) else ("cholmod" if _linalg.HAVE_CVXOPT_CHOLMOD else "splu")
     try:
         if method == "dense":
             A = Ss.toarray()
@@ -348,14 +357,19 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
             with _blas_single_thread():
                 c = scipy.linalg.cho_factor(A, lower=True, check_finite=False)
                 x = scipy.linalg.cho_solve(c, b, check_finite=False)
-        elif method == "cholmod":
+        elif method == "cholespy":
             coo = Ss.tocoo()
             solver = _cholespy.CholeskySolverD(n, coo.row.astype(np.int32), coo.col.astype(np.int32),  # type: ignore[union-attr]
                                                coo.data, _cholespy.MatrixType.COO)  # type: ignore[union-attr]
             x = np.zeros_like(b)
             solver.solve(np.ascontiguousarray(b), x)
+        elif method == "cholmod" and _linalg.HAVE_CVXOPT_CHOLMOD:
+            Ss.sort_indices()
+            x = _linalg.ReducedSolver(Ss.indptr, Ss.indices, "cholmod").solve(Ss.data, b)
         else:
             x = _splu_spd(Ss.indptr, Ss.indices, Ss.data, n, b)
+    except _linalg.NotPositiveDefinite as e:
+        raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
     except (np.linalg.LinAlgError, ValueError, RuntimeError) as e:
         raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
     if not np.all(np.isfinite(x)):
@@ -635,10 +649,15 @@ class SchurEngine:
                  diag_min: float = 1e-6, dense_limit: int = 1500, linear_solver: str = "auto") -> None:
         if _K is None:  # pragma: no cover
             raise RuntimeError("SchurEngine needs numba")
-        if linear_solver not in ("auto", "dense", "splu", "cholmod"):
-            raise ValueError(f"linear_solver must be auto, dense, splu or cholmod, got {linear_solver!r}")
+        if linear_solver not in ("auto", "dense", "splu", "cholmod", "cholespy", "pcg"):
+            raise ValueError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
+        self._rs: _linalg.ReducedSolver | None = None
+        #: PCG's relative residual (Ceres's eta)
+        self.eta = 0.1
         self.layout, self.diag_min, self.dense_limit = layout, diag_min, dense_limit
-        #: "auto" (dense Cholesky up to ``dense_limit`` unknowns, SuperLU above), "dense", "splu", "cholmod"
+        #: "auto" (dense Cholesky up to ``dense_limit`` unknowns, above :func:`skyrig.adjust.linalg.choose`:
+        #: CHOLMOD, SuperLU without cvxopt, PCG when the factor would not fit), "dense", "splu", "cholmod",
+        #: "cholespy", "pcg"
         self.linear_solver = linear_solver
         n_c, n_p = layout.n_c, layout.n_p
         self.n_c, self.n_p = n_c, n_p
@@ -807,7 +826,13 @@ class SchurEngine:
                 np.zeros((self.n_u, 0))
             Wp = self.Wp if len(self.Wp) else np.zeros((0, self.k, 3))
             _K["back_substitute"](self.pt_ptr, self.upt, Wp, np.ascontiguousarray(dcu), Vinv, self.gp, dp)
-        return dc, dp, _predicted_decrease(lam, self.diagU, self.V, self.gc, self.gp, dc, dp, self.diag_min)
+        pred = _predicted_decrease(lam, self.diagU, self.V, self.gc, self.gp, dc, dp, self.diag_min)
+        if self._rs is not None and self._rs.method == "pcg" and n_c:
+            # inexact: (A + lam D) d = -g + e, e = (S dc - rhs, 0) (dp is exact given dc); the model
+            # decrease is the exact-step formula less 0.5 d.e
+            Sm = sp.csr_matrix((S, self.indices, self.indptr), shape=(n_c, n_c))
+            pred -= 0.5 * float(dc @ (Sm @ dc - rhs))
+        return dc, dp, pred
 
     def _solve_csr(self, data: NDArray[np.float64], rhs: NDArray[np.float64],
                    G: NDArray[np.float64] | None) -> NDArray[np.float64]:
@@ -819,8 +844,8 @@ class SchurEngine:
         vals = data * s[self.rows] * s[self.indices]
         b = rhs * s
         method = self.linear_solver
-        if method == "auto":
-            method = "dense" if (G is not None or n <= self.dense_limit) else "splu"
+        if method == "auto" and (G is not None or n <= self.dense_limit):
+            method = "dense"
         try:
             if method == "dense" or G is not None:
                 A = np.zeros((n, n))
@@ -832,13 +857,12 @@ class SchurEngine:
                 with _blas_single_thread():
                     c = scipy.linalg.cho_factor(A, lower=True, check_finite=False)
                     x = scipy.linalg.cho_solve(c, b, check_finite=False)
-            elif method == "cholmod" and HAVE_CHOLMOD:
-                solver = _cholespy.CholeskySolverD(n, self.indptr32, self.indices32, vals,  # type: ignore[union-attr]
-                                                   _cholespy.MatrixType.CSR)  # type: ignore[union-attr]
-                x = np.zeros_like(b)
-                solver.solve(np.ascontiguousarray(b), x)
             else:
-                x = _splu_spd(self.indptr, self.indices, vals, n, b)
+                if self._rs is None:
+                    self._rs = _linalg.ReducedSolver(self.indptr, self.indices, method, dense_limit=self.dense_limit)
+                x = self._rs.solve(vals, b, eta=self.eta)
+        except _linalg.NotPositiveDefinite as e:
+            raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
         except (np.linalg.LinAlgError, ValueError, RuntimeError) as e:
             raise SingularError(f"the reduced normal matrix is not positive definite ({e})") from e
         if not np.all(np.isfinite(x)):
@@ -863,6 +887,8 @@ class SolveInfo:
     history: list[tuple[int, float, float]] = field(default_factory=list)
     unsuccessful: int = 0
     engine: str = ""
+    #: the reduced system's solver and why it was chosen (:mod:`skyrig.adjust.linalg`)
+    linear_solver: str = ""
 
 
 def _predicted_decrease(lam: float, diag_u: NDArray[np.float64], V: NDArray[np.float64], gc: NDArray[np.float64],
@@ -1013,5 +1039,8 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     else:
         info.message = "maximum number of iterations reached"
     info.final_cost = cost
+    rs = getattr(eng, "_rs", None)
+    info.linear_solver = f"{rs.method} ({rs.reason})" if rs is not None else \
+        ("dense" if engine == "numba" else "solve_reduced")
     info.wall_s = time.perf_counter() - t0
     return state, info
