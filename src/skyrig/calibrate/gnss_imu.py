@@ -596,9 +596,8 @@ def calibrate_uncalibrated_gnss_imu(
     comb_b = _without(blk_c, imu=True)
     r_comb = _run(comb_b, AdjustConfig(strip_shift="free", statistics=False, **sc_kw), "combined adjustment (whole block, GNSS positions)")
     # spatial intersection: corrected direct orientation fixed
-    inter_b = _without(blk_c, gnss=True, imu=True)
-    inter_b = replace(inter_b, control_check=np.ones(len(inter_b.control_point), bool))
-    r_si = _run(inter_b, AdjustConfig(poses="fixed", statistics=False), "spatial intersection (corrected GNSS/IMU)")
+    # (the block's points are the least-squares forward intersection with the corrected EO: its starting values)
+    si_pts, si_sigma0 = _spatial_intersection(blk_c)
     # integrated sensor orientation: image coordinates + corrected GNSS/IMU, no control
     iso_b = replace(blk_c, control_check=np.ones(len(blk_c.control_point), bool))
     r_iso = _run(iso_b, AdjustConfig(statistics=False), "integrated sensor orientation")
@@ -606,11 +605,12 @@ def calibrate_uncalibrated_gnss_imu(
     gidx = {str(nm): k for k, nm in enumerate(data.ground.name)}
     comb_pts = {str(nm): r_comb.block.point_xyz[k] for k, nm in enumerate(r_comb.block.point_name) if str(nm) not in gidx}
     t5 = {}
-    for label, res, s0 in (("spatial_intersection", r_si, r_si.sigma0), ("integrated_sensor_orientation", r_iso, r_iso.sigma0)):
-        pts = {str(nm): res.block.point_xyz[k] for k, nm in enumerate(res.block.point_name)}
+    iso_pts = {str(nm): r_iso.block.point_xyz[k] for k, nm in enumerate(r_iso.block.point_name)}
+    for label, pts, s0 in (("spatial_intersection", si_pts, si_sigma0),
+                           ("integrated_sensor_orientation", iso_pts, r_iso.sigma0)):
         dg = np.array([pts[nm] - ground_local[gidx[nm]] for nm in pts if nm in gidx])
         dc = np.array([pts[nm] - comb_pts[nm] for nm in pts if nm in comb_pts])
-        t5[label] = {"sigma0_um": _image_sigma_um(res.block, s0),
+        t5[label] = {"sigma0_um": _image_sigma_um(blk_c, s0),
                      "ground_points": {"n": len(dg), "rms_m": _rms(dg).tolist()},
                      "combined_adjustment_points": {"n": len(dc), "rms_m": _rms(dc).tolist()}}
     tables["table5_check_points"] = t5
@@ -655,6 +655,22 @@ def calibrate_uncalibrated_gnss_imu(
                   "reference_images": float(n)})
     return GnssImuCalibration(rig, rig_cal, head, frame, national, b_mean, bore_cov, x_mean, datum_cov, offset,
                               offset_cov, traj_c, eo_c, eo_iso, tables, gsd, block0.n_images, tuple(ref_sorted), stats)
+
+
+def _spatial_intersection(block: Block) -> tuple[dict[str, NDArray[np.float64]], float]:
+    """Points of the block (its starting values: the least-squares forward intersection with its orientations,
+    :func:`skyrig.georef.ground.forward_intersection`) and the sigma0 of their image residuals with the
+    orientations fixed (redundancy ``2 n_obs - 3 n_points``)."""
+    from skyrig.adjust.model import Model, State
+
+    b = _without(block, gnss=True, imu=True, control=True)
+    f = next(f for f in Model(b, AdjustConfig(poses="fixed")).evaluate(State.from_block(b), jacobians=False)
+             if f.name == "image")
+    red = 2 * b.n_observations - 3 * b.n_points
+    if red <= 0:
+        raise CalibrationFailed("spatial intersection: no redundancy")
+    s0 = float(np.sqrt(np.sum(np.square(f.r)) / red))
+    return {str(nm): b.point_xyz[k] for k, nm in enumerate(b.point_name)}, s0
 
 
 def _t3_row(label: str, r_a_like: AdjustmentResult, block: Block) -> dict[str, Any]:
