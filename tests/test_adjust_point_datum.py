@@ -135,7 +135,8 @@ def runs():  # type: ignore[no-untyped-def]
     """The 24-image block adjusted in three datums: pose inner constraints, all points, 12 chosen points."""
     b = close_range_block(24)
     names = tuple(str(n) for n in b.point_name[::10])
-    cfgs = {"poses": {}, "all": {"inner_constraints": "points"},
+    cfgs = {"poses": {}, "all": {"inner_constraints": "points", "statistics_points": names[:3] + ("t1",),
+                                 "statistics_images": ("img0",)},
             "chosen": {"inner_constraints": "points", "datum_points": names}}
     return b, names, {k: adjust(b, AdjustConfig(datum="free", intrinsics="free", **kw)) for k, kw in cfgs.items()}
 
@@ -184,6 +185,52 @@ def test_point_datum_errors_against_the_truth_are_consistent_with_the_sigmas(run
     chi2 = np.einsum("pa,pab,pb->p", e, np.linalg.inv(res.point_covariance()), e)
     # 120 points x 3 dof, minus the 6 fitted motions: mean about 2.95, a few percent scatter
     assert 2.4 < chi2.mean() < 3.6, chi2.mean()
+
+
+def test_covariance_of_chosen_unknowns_is_exported_in_the_point_datum(runs, tmp_path):  # type: ignore[no-untyped-def]
+    import json
+
+    from skyrig.adjust.report import adjustment_report
+    from skyrig.io.report_html import write_report_json
+
+    b, names, r = runs
+    res = r["all"]
+    write_report_json(tmp_path / "report.json", adjustment_report(res))
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert "inner constraints on all estimated object points" in rep["summary"]["datum"]
+    cov = rep["covariance"]
+    assert cov["datum"] == rep["summary"]["datum"]
+    # against the bordered dense reference of the full normal matrix, scaled by sigma0^2
+    lay = res.layout
+    N = dense_full_normal(res)
+    Qref = bordered_reference(N, point_columns(lay, np.ones(b.n_points, bool)), 6) * res.sigma0**2
+    want = names[:3] + ("t1",)
+    assert [p["point"] for p in cov["points"]] == sorted(want, key=lambda n: int(n[1:]))
+    pidx = {str(n): k for k, n in enumerate(b.point_name)}
+    one = np.eye(b.n_points, dtype=bool)
+    for p in cov["points"]:
+        c = point_columns(lay, one[pidx[p["point"]]])
+        ref = Qref[np.ix_(c, c)]
+        assert np.allclose(p["covariance"], ref, rtol=1e-6, atol=1e-6 * np.sqrt(np.outer(np.diag(ref), np.diag(ref))).max())
+        assert np.allclose(p["xyz"], res.block.point_xyz[pidx[p["point"]]])
+    # every calibration unknown and the chosen image's pose; sigmas and correlations from the reference
+    lab = [(u["group"], u["owner"], u["component"]) for u in cov["unknowns"]]
+    assert sum(g == "intrinsics" for g, _, _ in lab) == len(b.cameras[0].intrinsic_names)
+    assert sum(g == "pose" for g, _, _ in lab) == 6 and all(o == "st0" for g, o, _ in lab if g == "pose")
+    cols = np.array([lay.labels.index(t) for t in lab])
+    sref = np.sqrt(np.diag(Qref)[cols])
+    assert np.allclose([u["sigma"] for u in cov["unknowns"]], sref, rtol=1e-6)
+    Rref = Qref[np.ix_(cols, cols)] / np.outer(sref, sref)
+    assert np.abs(np.array(cov["correlation"]) - Rref).max() < 1e-6
+    intr = {c: u["value"] for (g, _, c), u in zip(lab, cov["unknowns"]) if g == "intrinsics"}
+    cam = res.block.cameras[0]
+    assert intr == pytest.approx(dict(zip(cam.intrinsic_names, np.asarray(cam.intrinsics).tolist())))
+    # cross covariance of the chosen unknowns with the chosen points
+    X = np.array(cov["cross_covariance"])
+    for j, p in enumerate(cov["points"]):
+        c = point_columns(lay, one[pidx[p["point"]]])
+        ref = Qref[np.ix_(cols, c)]
+        assert np.abs(X[:, j] - ref).max() < 1e-6 * np.outer(sref, np.sqrt(np.diag(Qref)[c])).max()
 
 
 def test_datum_point_errors_are_named():

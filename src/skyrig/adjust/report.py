@@ -20,6 +20,9 @@
     adjusted_m, residual_m, sigma_m, normalised, redundancy, used}`` (residual = adjusted - observed;
     normalised: Baarda's w, redundancy: the redundancy number; NaN when statistics were skipped) and
     a ``stats`` row (n, RMS residual, max |w|).
+``covariance``
+    the a-posteriori covariance of the chosen unknowns (:func:`covariance_table`): every reduced unknown that
+    is not a station pose plus ``statistics_images`` / ``statistics_points``, in the datum stated.
 ``rejected``, ``warnings``
     data snooping rejections and near-singularities in words.
 """
@@ -32,8 +35,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult
+from skyrig.adjust.model import pad_actuator
 
-__all__ = ["adjustment_report", "point_table", "distance_table"]
+__all__ = ["adjustment_report", "point_table", "distance_table", "covariance_table", "datum_words"]
 
 
 def _rms(a: NDArray[np.float64]) -> list[float]:
@@ -76,6 +80,81 @@ def distance_table(result: AdjustmentResult) -> dict[str, Any]:
                  max_abs_normalised=float(np.nanmax(np.abs(w[used]))) if used.any() and np.isfinite(w[used]).any()
                  else float("nan"))
     return dict(rows=rows, stats=stats)
+
+
+def datum_words(result: AdjustmentResult) -> str:
+    """The datum of ``result``'s adjusted values and covariance, in words."""
+    cfg = result.config
+    if cfg.datum == "free" and cfg.inner_constraints == "points":
+        which = (f"{len(cfg.datum_points)} chosen points" if cfg.datum_points else "all estimated object points")
+        return (f"inner constraints on {which} (free network: their centroid, orientation"
+                + ("" if result.block.n_distances else " and scale")
+                + " are those of their starting coordinates; minimum trace of their covariance)")
+    if cfg.datum == "free":
+        return "inner constraints on the station poses (free network: minimum norm of the pose corrections)"
+    if cfg.datum == "none":
+        return "none (no covariance)"
+    return "observations (control points and/or GNSS positions)"
+
+
+def covariance_table(result: AdjustmentResult, max_unknowns: int = 2000) -> dict[str, Any] | None:
+    """The a-posteriori covariance of the chosen unknowns of ``result`` as JSON-ready data (None without
+    statistics).
+
+    ``unknowns``: ``[{group, owner, component, value, sigma}]`` (units of the parameter: m, rad, the
+    camera's intrinsic units); ``correlation``: their correlation matrix (rows in that order; left out above
+    ``max_unknowns``); ``points``: ``[{point, xyz, sigma, covariance}]`` (m, m²) for the chosen points;
+    ``cross_covariance``: ``(unknowns, points, 3)`` covariances between the two (left out above
+    ``max_unknowns``).  ``sigma0`` scales the cofactors (``covariance = sigma0² Q``); ``datum`` says in which
+    datum they hold.
+    """
+    sel = result.selected
+    if sel is None:
+        return None
+    s0 = float(result.sigma0)
+    b = result.block
+    Q = sel.Qcc
+    sd = np.sqrt(np.clip(np.diag(Q), 0, None))
+    value = _reduced_values(result, sel.columns)
+    out: dict[str, Any] = dict(datum=datum_words(result), sigma0=s0, method=sel.method, unknowns=[
+        dict(group=g, owner=o, component=c, value=v, sigma=s0 * float(d))
+        for (g, o, c), v, d in zip(sel.labels, value, sd)])
+    if len(Q) <= max_unknowns:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            R = np.where(np.outer(sd, sd) > 0, Q / np.outer(sd, sd), 0.0)
+        out["correlation"] = np.round(R, 12).tolist()
+    out["points"] = [dict(point=str(b.point_name[k]), xyz=b.point_xyz[k].tolist(),
+                          sigma=(s0 * np.sqrt(np.clip(np.diag(q), 0, None))).tolist(), covariance=(s0**2 * q).tolist())
+                     for k, q in zip(sel.points, sel.Qpp)]
+    if len(sel.points) and len(Q) <= max_unknowns:
+        out["cross_covariance"] = (s0**2 * sel.Qcp).tolist()
+    return out
+
+
+def _reduced_values(result: AdjustmentResult, columns: NDArray[np.int64]) -> list[float]:
+    """Adjusted values of reduced columns (NaN where the layout does not say)."""
+    lay, b = result.layout, result.block
+    val = np.full(lay.n_c, np.nan)
+
+    def put(cols: NDArray[np.int64], v: NDArray[np.float64]) -> None:
+        cols, v = np.asarray(cols).reshape(-1), np.asarray(v, float).reshape(-1)
+        on = cols >= 0
+        val[cols[on]] = v[on]
+
+    put(lay.pose[:, :3], b.station_centre)
+    for k, cam in enumerate(b.cameras):
+        if k < len(lay.intr):
+            put(lay.intr[k], np.asarray(cam.intrinsics))
+    put(lay.bore, b.head_boresight)
+    put(lay.lever, b.lever_arm)
+    put(lay.shift, b.datum_shift)
+    put(lay.sshift, b.strip_shift)
+    put(lay.sdrift, b.strip_drift)
+    if lay.has_rpoint:
+        put(lay.rpoint, b.point_xyz)  # type: ignore[arg-type]
+    if lay.act is not None and b.actuator_correction is not None:
+        put(lay.act, pad_actuator(b.actuator_correction, lay.act.shape[0], lay.act.shape[1]))
+    return val[columns].tolist()
 
 
 def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
@@ -160,6 +239,10 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
     out["images"] = cams
     if b0.n_distances:
         out["distances"] = distance_table(result)
+    cov = covariance_table(result, max_unknowns=500)
+    if cov is not None:
+        out["covariance"] = cov
+    out["summary"]["datum"] = datum_words(result)
     out["rejected"] = [dict(group=r.group, index=r.index, label=r.label, normalised_residual=r.normalised_residual)
                        for r in result.rejected]
     out["warnings"] = list(result.warnings)
