@@ -195,3 +195,46 @@ def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 __all__ = ["build_demo_project", "demo_flight", "demo_rig", "demo_check_points", "independent_eo",
            "rotation_angle_deg", "matrix_from_opk"]
+
+
+def tumble_circle_demo(outdir: str | Path, step_deg: float = 30.0, width: int = 400, seed: int = 5) -> dict:
+    """Files for the demo's Fig. 9 check (paper 000): one circle of a tumbling camera from a still sensor head
+    (the simulated TumbleCam, :mod:`skyrig.simulate.tumble_circle`), rendered at ``width`` pixels, the oblique
+    orientations transferred from one noisy nadir orientation with a lab-calibrated boresight curve
+    (``eo_curve.csv``) and without it (``eo_no_curve.csv``), the rig file of the rendered cameras, the images; plus
+    the library's own mosaic of each with the seam offsets predicted from the orientation errors alone.
+
+    Returns ``{"images", "rig", "eo": {"curve": path, "no_curve": path}, "plane_height_m", "predicted":
+    {label: {(a, b): offset in metres}}, "cell_m": {label: m}}``.
+    """
+    import cv2
+
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.rig_file import write_rig
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+    from skyrig.simulate.tumble_circle import (calibrated_rig, circle_orientations, fig9, hover_circle,
+                                               lab_calibrated_curve)
+
+    out = Path(outdir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    survey = build_survey(scenario_spec("tumblecam", "ci", 1))
+    circ = hover_circle(survey, step_deg=step_deg, seed=seed, width=width)
+    rig = calibrated_rig(survey.rig_recorded, lab_calibrated_curve(survey.tumble_curve, np.random.default_rng(seed)))
+    res: dict = {"images": out / "images", "rig": out / "rig.yaml", "eo": {}, "predicted": {}, "cell_m": {},
+                 "plane_height_m": circ.plane_height_m}
+    for label, curve in (("curve", "rig"), ("no_curve", None)):
+        eo = circle_orientations(circ, rig, curve)
+        write_eo_csv(eo, out / f"eo_{label}.csv", unit="deg", convention="opk")
+        res["eo"][label] = out / f"eo_{label}.csv"
+        f = fig9(circ, rig, curve, window_px=48)
+        res["predicted"][label] = {(s["a"], s["b"]): s["predicted_offset_px"] * f["cell_m"] for s in f["seams"]}
+        res["cell_m"][label] = f["cell_m"]
+    for name, img in zip(eo.image, circ.images):
+        if not cv2.imwrite(str(out / "images" / str(name)), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"cannot write {out / 'images' / str(name)}")
+    heads = {"oblique": rig.head("oblique").with_(camera=circ.camera),
+             "nadir": rig.head("nadir").with_(camera=circ.nadir_camera)}
+    from dataclasses import replace
+
+    write_rig(replace(rig, heads=heads), out / "rig.yaml")
+    return res
