@@ -237,6 +237,7 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
                                   TOL["parameter_tolerance"], TOL["gradient_tolerance"], engine=engine)
     return dict(initial_cost=c0, final_cost=info.final_cost, iterations=info.iterations + info.unsuccessful,
                 successful=info.iterations, solve_s=time.perf_counter() - t1, termination=info.message,
+                linear_solver=info.linear_solver.split(" ")[0], linear_solver_reason=info.linear_solver,
                 engine=info.engine, threads=(1 if block.n_observations < SERIAL_BELOW else numba.get_num_threads())
                 if info.engine == "numba" else 1)
 
@@ -262,16 +263,20 @@ def load(path: str, keep_behind: bool) -> tuple[Block, int, int]:
 def child(solver: str, path: str, keep_behind: bool, threads: int, engine: str) -> dict:
     """One solver on one problem, in this (fresh) process; its figures with the peak resident memory."""
     block, _, _ = load(path, keep_behind)
-    if solver == "skyrig":  # load the numba kernels (from numba's disk cache) before the timed run
-        levenberg_marquardt(Model(block, AdjustConfig(intrinsics="free", datum="none")), State.from_block(block), 1,
+    if solver == "skyrig":  # load the numba kernels (from numba's disk cache) before the timed run, on a
+        # small block (so that the warm-up's memory is not counted in the solver's peak)
+        with tempfile.TemporaryDirectory() as d:
+            generate(Path(d) / "warm.txt", 16, 800)
+            small = read_bal(str(Path(d) / "warm.txt"))
+        levenberg_marquardt(Model(small, AdjustConfig(intrinsics="free", datum="none")), State.from_block(small), 1,
                             engine=engine)
+        del small
     else:
         import pycolmap  # noqa: F401  (its import is not the solver's memory)
     base = _mib("VmRSS")
     if solver == "skyrig":
         r = run_skyrig(block, engine)
         r["final_bal_cost"] = r["final_cost"]
-        r["linear_solver"] = r["engine"]
     else:
         r = run_ceres(block, threads, solver.split("-", 1)[1])
     r.update(base_mib=base, peak_mib=_mib("VmHWM"))

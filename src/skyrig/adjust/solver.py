@@ -939,15 +939,20 @@ def levenberg_marquardt(
     callback: Callable[[int, float, float], None] | None = None,
     initial_radius: float = 1e4,
     engine: str = "auto",
+    linear_solver: str | None = None,
 ) -> tuple[State, SolveInfo]:
     """Minimise ``0.5 * sum(rho(|r|^2))`` over the model's unknowns starting from ``state``.
 
     Trust-region Levenberg-Marquardt as Ceres's: ``(A + D / radius) d = -g`` with ``D = diag(A)``
-    clipped below at 1e-6, radius grown by ``1 / max(1/3, 1 - (2 rho - 1)^3)`` after a successful step
-    and divided by a doubling factor after a rejected one.  Stops as Ceres does: relative cost decrease
-    below ``function_tolerance``, relative step below ``parameter_tolerance``, or max gradient below
-    ``gradient_tolerance``.  ``engine``: ``"numba"`` (:class:`SchurEngine`), ``"scipy"`` (the sparse
-    matrix reference path) or ``"auto"`` (numba when installed).
+    clipped below at 1e-6, a step accepted when its gain ratio exceeds ``MIN_RELATIVE_DECREASE`` (1e-3),
+    radius grown by ``1 / max(1/3, 1 - (2 rho - 1)^3)`` after a successful step and divided by a doubling
+    factor after a rejected one.  Stops as Ceres does, testing every trial step before its quality:
+    relative cost change (either sign) below ``function_tolerance``, relative step below
+    ``parameter_tolerance``, or max gradient below ``gradient_tolerance``; such a final trial is kept
+    only when it lowers the cost.  ``engine``: ``"numba"`` (:class:`SchurEngine`), ``"scipy"`` (the sparse
+    matrix reference path) or ``"auto"`` (numba when installed).  ``linear_solver``: the numba engine's
+    reduced solver (``"auto"``, ``"dense"``, ``"cholmod"``, ``"splu"``, ``"pcg"``...; default
+    :data:`LINEAR_SOLVER`), dense below :data:`ENGINE_DENSE_LIMIT` unknowns when ``"auto"``.
     """
     if engine == "auto":
         engine = "numba" if HAVE_NUMBA else "scipy"
@@ -958,11 +963,20 @@ def levenberg_marquardt(
         _numba.set_num_threads(1)
     try:
         return _levenberg_marquardt(model, state, max_iterations, function_tolerance, parameter_tolerance,
-                                    gradient_tolerance, huber_k, free_datum, callback, initial_radius, engine)
+                                    gradient_tolerance, huber_k, free_datum, callback, initial_radius, engine,
+                                    linear_solver or LINEAR_SOLVER)
     finally:
         if threads is not None:
             _numba.set_num_threads(threads)
 
+
+#: the compiled engine's reduced solver (see :class:`SchurEngine`) and its dense size limit
+LINEAR_SOLVER = "auto"
+ENGINE_DENSE_LIMIT = 1500
+
+#: a trial step is accepted when its gain ratio (actual / predicted decrease) exceeds this (Ceres's
+#: ``min_relative_decrease``)
+MIN_RELATIVE_DECREASE = 1e-3
 
 #: below this many image observations the compiled kernels run on one thread
 SERIAL_BELOW = 100_000
@@ -971,14 +985,15 @@ SERIAL_BELOW = 100_000
 def _levenberg_marquardt(model: Model, state: State, max_iterations: int, function_tolerance: float,
                          parameter_tolerance: float, gradient_tolerance: float, huber_k: float | None,
                          free_datum: bool, callback: Callable[[int, float, float], None] | None,
-                         initial_radius: float, engine: str) -> tuple[State, SolveInfo]:
+                         initial_radius: float, engine: str, linear_solver: str) -> tuple[State, SolveInfo]:
     t0 = time.perf_counter()
     lay = model.layout
     info = SolveInfo()
     group = model.block.obs_image
     factors = model.evaluate(state)
     if engine == "numba":
-        eng: SchurEngine | _ScipyEngine = SchurEngine(factors, lay, group)
+        eng: SchurEngine | _ScipyEngine = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT,
+                                                      linear_solver=linear_solver)
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
@@ -994,6 +1009,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             break
         G = inner_constraint_basis(state, lay) if free_datum else None
         accepted = False
+        stop = ""
         while not accepted:
             lam = 1.0 / radius
             try:
@@ -1009,31 +1025,40 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             new_factors = model.evaluate(new, jacobians=True)
             new_cost = factor_cost(new_factors, huber_k)
             rho = (cost - new_cost) / pred if pred > 0 else -1.0
-            if np.isfinite(new_cost) and rho > 0:
+            # Ceres's order: the candidate's step size and cost change are tested before its quality, so
+            # that a rejected step which changes the cost by less than the tolerance ends the solve
+            # instead of shrinking the trust region for further trials
+            step_norm = np.sqrt((dc * dc).sum() + (dp * dp).sum())
+            x_norm = np.sqrt((state.C * state.C).sum() + (state.X * state.X).sum())
+            if step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
+                stop = "parameter tolerance reached"
+            elif np.isfinite(new_cost) and abs(cost - new_cost) <= function_tolerance * max(cost, 1e-300):
+                stop = "function tolerance reached"
+            if np.isfinite(new_cost) and (rho > MIN_RELATIVE_DECREASE or (stop and new_cost < cost)):
                 accepted = True
                 radius = radius / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 radius = min(radius, 1e16)
                 nu = 2.0
             else:
                 info.unsuccessful += 1
+                if stop:
+                    break
                 radius /= nu
                 nu *= 2.0
                 if radius < 1e-32:
                     info.message = "trust region collapsed"
                     break
-        if not accepted:
+        if accepted:
+            state, cost = new, new_cost
+            info.history.append((it, cost, 1.0 / radius))
+            info.iterations = it
+            if callback is not None:
+                callback(it, cost, 1.0 / radius)
+            logger.debug("iteration %d cost %.9e radius %.3g", it, cost, radius)
+        if stop:
+            info.converged, info.message = True, stop
             break
-        step_norm = np.sqrt((dc * dc).sum() + (dp * dp).sum())
-        x_norm = np.sqrt((state.C * state.C).sum() + (state.X * state.X).sum())
-        dcost = cost - new_cost
-        state, cost = new, new_cost
-        info.history.append((it, cost, 1.0 / radius))
-        info.iterations = it
-        if callback is not None:
-            callback(it, cost, 1.0 / radius)
-        logger.debug("iteration %d cost %.9e radius %.3g", it, cost, radius)
-        if dcost <= function_tolerance * max(cost, 1e-300) or step_norm <= parameter_tolerance * (x_norm + parameter_tolerance):
-            info.converged, info.message = True, "function tolerance reached" if dcost <= function_tolerance * cost else "parameter tolerance reached"
+        if not accepted:
             break
         cost = eng.linearize(new_factors, huber_k)
     else:
