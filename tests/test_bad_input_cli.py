@@ -394,6 +394,18 @@ def test_match_output_spelling_and_manifest(tmp_path):
     for f in m["files"]:
         assert sha256_file(out / f["path"]) == f["sha256"]
     assert len(m["inputs"]) == 3 and m["options"]["pairs"] == "exhaustive"
+    # every output is listed, the resumable store included (issue 13: the manifest omitted features/, matches/)
+    from skyrig.io.stage import verify_folder
+
+    paths = {f["path"] for f in m["files"]}
+    assert {f"features/im{k}.png.npz" for k in range(3)} <= paths and any(p.startswith("matches/") for p in paths)
+    assert verify_folder(out) == []
+    # a temporary file a killed run left in the store is not an output: the resumed run removes it
+    (out / "features" / "im0.png.npz.x1y2.tmp.npz").write_bytes(b"partial")
+    r = run("match", tmp_path, "--pairs", "exhaustive", "--method", "opencv", "--max-features", "800", "-o", out,
+            "-j", "1", "--scheduler", "sync")
+    assert r.code == 0 and "deprecated" not in r.out, r.out
+    assert verify_folder(out) == [] and not (out / "features" / "im0.png.npz.x1y2.tmp.npz").exists()
 
 
 def test_parse_sigmas_and_old_spellings_units():

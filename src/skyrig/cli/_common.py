@@ -229,9 +229,10 @@ def eo_options(f: Callable) -> Callable:
 
 
 # ----------------------------------------------------------------------------------------- one CLI vocabulary
-def parse_sigmas(text: str, n: int, option: str, names: str = "") -> tuple[float, ...]:
+def parse_sigmas(text: str, n: int, option: str, names: str = "", positive: bool = False) -> tuple[float, ...]:
     """Standard deviations in the one sigma syntax: ``"0.05"`` (all axes) or ``n`` comma-separated numbers
-    (``"0.05,0.05,0.08"``), each finite and >= 0; a clear :class:`click.BadParameter` naming ``option`` else.
+    (``"0.05,0.05,0.08"``), each finite and >= 0 (> 0 with ``positive``: a sigma that becomes a weight); a clear
+    :class:`click.BadParameter` naming ``option`` else.
 
     >>> parse_sigmas("2", 3, "--gnss-sigma")
     (2.0, 2.0, 2.0)
@@ -252,8 +253,9 @@ def parse_sigmas(text: str, n: int, option: str, names: str = "") -> tuple[float
     if len(vals) != n:
         raise click.BadParameter(f"{text!r}: expected one number or {n} comma-separated numbers{what}, got "
                                  f"{len(vals)}", param_hint=option)
-    if not all(math.isfinite(v) and v >= 0 for v in vals):
-        raise click.BadParameter(f"{text!r}: standard deviations must be finite and >= 0", param_hint=option)
+    if not all(math.isfinite(v) and (v > 0 if positive else v >= 0) for v in vals):
+        raise click.BadParameter(f"{text!r}: standard deviations must be finite and {'> 0' if positive else '>= 0'}",
+                                 param_hint=option)
     return vals
 
 
@@ -317,3 +319,21 @@ def with_old_spellings(renamed: Mapping[str, str] | None = None,
             return super().parse_args(ctx, out)
 
     return _Command
+
+
+def output_or_positional(output: str | None, positional: str | None, metavar: str, default: str | None = None) -> str:
+    """The output path of a command that used to take it as a positional argument (``convert SRC DST``,
+    ``simulate SCENARIO OUTDIR``, ``demo [OUTDIR]``): ``-o/--output`` is the one spelling (docs/cli.md); the
+    positional form still works with a ``warning: ... is deprecated`` line on standard error.  Both at once is a
+    usage error; neither gives ``default`` (a usage error naming ``-o/--output`` without one)."""
+    if positional is not None and output is not None:
+        raise click.UsageError(f"the output is given twice: -o/--output {output} and positional {metavar} "
+                               f"{positional}; give -o/--output only")
+    if positional is not None:
+        click.echo(f"warning: the positional {metavar} is deprecated; use -o/--output {positional}", err=True)
+        return positional
+    if output is not None:
+        return output
+    if default is None:
+        raise click.UsageError("missing option '-o' / '--output'")
+    return default

@@ -89,14 +89,20 @@ def write_outputs(outdir: str | Path, result: AdjustmentResult, config: Any, tit
     return out
 
 
-@click.command("adjust")
+def _adjust_cmd_class() -> type[click.Command]:
+    from skyrig.cli._common import with_old_spellings
+
+    return with_old_spellings({"--outdir": "--output"})
+
+
+@click.command("adjust", cls=_adjust_cmd_class())
 @click.argument("block_path", metavar="BLOCK", type=click.Path(exists=True, dir_okay=False))
 @click.option("--preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Paper 004 variant, merged with the block file's 'adjustment' section (groups freed there stay "
                    "free; a field the preset decides overrides the file, with a warning); default: the section alone.")
 @click.option("--gsd", type=float, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
-@click.option("-o", "--output", "--outdir", "outdir", required=True, type=click.Path(file_okay=False),
-              help="Output folder, published as a set with manifest.json (--outdir: the older spelling).")
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
+              help="Output folder, published as a set with manifest.json (--outdir: deprecated spelling).")
 @click.option("--crs", "crs", default=None,
               help="Project CRS of the outputs (e.g. EPSG:25832; a compound CRS such as EPSG:25832+5773 gives "
                    "orthometric heights through its geoid). Default: the block file's 'crs' (skyrig block: the "
@@ -171,7 +177,7 @@ def command(block_path: str, preset: str | None, gsd: float | None, outdir: str,
                f"{len(res.rejected)} rejected; "
                + (f"wrote {', '.join(str(p) for p in paths.values())}" if paths else "no outputs written"))
     for w in own:
-        click.echo(f"warning: {w}")
+        click.echo(f"warning: {w}", err=True)
     if not res.ok:
         raise click.ClickException(
             f"{block_path}: the adjustment failed: " + "; ".join(res.failures)

@@ -1,4 +1,7 @@
-"""``skyrig convert``: exterior orientations between formats, angle conventions, units and CRS."""
+"""``skyrig convert SRC -o DST``: exterior orientations between formats, angle conventions, units and CRS.
+
+``-o/--output`` names the file written, as for every single-file command (docs/cli.md); the older positional form
+``skyrig convert SRC DST`` still works and warns that it is deprecated."""
 
 from __future__ import annotations
 
@@ -30,7 +33,9 @@ WRITERS = {"skyrig-csv": _write_csv, "odm-geo": _write_geo, "ign-opk": _write_op
 
 @click.command("convert")
 @click.argument("src", type=click.Path(exists=True, dir_okay=False))
-@click.argument("dst", type=click.Path(dir_okay=False))
+@click.argument("dst", required=False, default=None, metavar="", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="EO file to write (the positional DST of older versions is deprecated).")
 @click.option("--from-format", type=click.Choice(sorted(EO_READERS)), default=None, help="Input format (default: from the name).")
 @click.option("--from-crs", default=None, help="CRS of the input when the file does not say.")
 @click.option("--from-geoid", default=None, help="Geoid grid when input heights are orthometric.")
@@ -41,9 +46,12 @@ WRITERS = {"skyrig-csv": _write_csv, "odm-geo": _write_geo, "ign-opk": _write_op
 @click.option("--to-geoid", default=None, help="Geoid grid for orthometric output heights.")
 @click.option("--to-angles", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True)
 @click.option("--to-convention", type=click.Choice(["opk", "pok", "ypr"]), default="opk", show_default=True)
-def command(src, dst, from_format, from_crs, from_geoid, from_map_z_ground, to_format, to_crs, to_heights, to_geoid,
+def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_ground, to_format, to_crs, to_heights, to_geoid,
             to_angles, to_convention) -> None:
-    """Convert an exterior-orientation file SRC into DST."""
+    """Convert an exterior-orientation file SRC into the file -o/--output."""
+    from skyrig.cli._common import output_or_positional
+
+    dst = output_or_positional(output, dst, "DST")
     eo = load_eo(src, from_format, from_crs, from_geoid, from_map_z_ground)
     if to_crs or to_heights or to_geoid:
         if to_crs and to_crs.lower() == "ecef":

@@ -1,7 +1,7 @@
 """``skyrig match PROJECT``: tie points for a folder of images, resumable and parallel (Dask).
 
 PROJECT is a folder; images are taken from ``PROJECT/images`` if it exists, else from PROJECT itself, or from
-one or more ``--images`` folders (e.g. one per rig head).  Results go to ``PROJECT/match`` (or ``--out``):
+one or more ``--images`` folders (e.g. one per rig head).  Results go to ``PROJECT/match`` (or ``-o/--output``):
 ``features/`` and ``matches/`` (resumable store), ``tie_points.csv`` (point,image,column,row; skyrig pixels),
 ``report.json`` and ``coverage.png``.  The work is :func:`skyrig.pipeline.match.match_images` (re-exported here).
 """
@@ -29,10 +29,18 @@ def _match_cmd_class() -> type[click.Command]:
 MATCH_RESULTS = ("tie_points.csv", "report.json", "coverage.png")
 
 
+def _is_stale_temp(rel: Path) -> bool:
+    """A temporary file that a killed run left: the store's ``*.tmp.npz`` / ``config.tmp``, an atomic write's
+    ``.NAME.*.tmp`` (a finished run has renamed all of its own)."""
+    return rel.name.endswith((".tmp.npz", ".tmp"))
+
+
 def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
-    """Write ``out/manifest.json`` (last, atomically): inputs, options, version and the checksums of the results
-    (:data:`MATCH_RESULTS` and their side-cars); the resumable store (``features/``, ``matches/``) is named but not
-    listed file by file.  A run removes the manifest first, so a folder without one is an unfinished run."""
+    """Write ``out/manifest.json`` (last, atomically): inputs, options, version and every output file with its
+    size and SHA-256 - the results (:data:`MATCH_RESULTS` and their side-cars) and the resumable store
+    (``config.json``, ``features/*.npz``, ``matches/*.npz``), so that :func:`skyrig.io.stage.verify_folder`
+    checks the whole folder.  Temporary files a killed earlier run left in the store are removed first.  A run
+    removes the manifest at its start, so a folder without one is an unfinished run."""
     import json
     import time
 
@@ -41,13 +49,19 @@ def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
     from skyrig.io.stage import MANIFEST, describe_inputs, sha256_file
 
     files = []
-    for f in sorted(out.iterdir()):
-        if f.is_file() and f.name != MANIFEST and (f.name in MATCH_RESULTS or f.name.startswith("tie_points.")):
-            files.append({"path": f.name, "size": f.stat().st_size, "sha256": sha256_file(f)})
+    for f in sorted(out.rglob("*")):
+        rel = f.relative_to(out)
+        if not f.is_file() or rel.as_posix() == MANIFEST:
+            continue
+        if _is_stale_temp(rel):
+            f.unlink()
+            continue
+        files.append({"path": rel.as_posix(), "size": f.stat().st_size, "sha256": sha256_file(f)})
     manifest = {"format": "skyrig-manifest", "version": 1, "stage": "match", "software": f"skyrig {__version__}",
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "inputs": describe_inputs(list(inputs)),
                 "options": options, "files": files,
-                "store": {"features/": "resumable feature store", "matches/": "resumable match store"}}
+                "store": {"config.json": "settings of the stored results", "features/": "resumable feature store",
+                          "matches/": "resumable match store"}}
     with atomic_write(out / MANIFEST) as fh:
         fh.write(json.dumps(manifest, indent=1, default=str) + "\n")
     return out / MANIFEST
