@@ -70,11 +70,34 @@ class _NotPublished(Exception):
               help="JSON file of UavConfig options (overrides the options above).")
 @click.option("--keep-failed", is_flag=True,
               help="Write the outputs even when the adjustment failed (the exit status is still 1).")
+@click.option("--no-gps", is_flag=True,
+              help="Orient without GNSS: two-view relative orientation, resection and bundle adjustment; datum from "
+                   "--gcp, --scale-bar, else a similarity onto the EXIF GPS (not observations), else a free network. "
+                   "Implied by --gcp, --scale-bar, --camera.")
+@click.option("--gcp", "gcp_path", type=click.Path(exists=True, dir_okay=False),
+              help="Control points name,x,y,z with a '# crs:' header (their image measurements: tie points of the "
+                   "same name, or --measurements).")
+@click.option("--gcp-sigma", default="0.01", show_default=True, help="Control point sigma X,Y,Z (m; one value for all).")
+@click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False),
+              help="Check points name,x,y,z (compared, not used).")
+@click.option("--scale-bar", "scale_bar_path", type=click.Path(exists=True, dir_okay=False),
+              help="Scale bars: CSV from,to,length_m[,sigma_m] (ends named as tie points / --measurements).")
+@click.option("--measurements", "meas_paths", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Extra image measurements point,image,column,row (targets, scale-bar ends); repeatable.")
+@click.option("--camera", "camera_path", type=click.Path(exists=True, dir_okay=False),
+              help="Start camera (rig YAML with one head, or IGN camera .txt) instead of the EXIF focal length.")
+@click.option("--datum", type=click.Choice(["auto", "control", "scale-bar", "gps-similarity", "free"]), default="auto",
+              show_default=True, help="Without GNSS: what fixes the datum (auto: control, else scale bars, else "
+                                      "a similarity onto EXIF GPS, else a free network).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: str, attitude_sigma: float, altitude: str, geoid: str | None,
             focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
-            pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool) -> None:
-    """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."""
+            pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool, no_gps: bool = False,
+            gcp_path: str | None = None, gcp_sigma: str = "0.01", check_path: str | None = None,
+            scale_bar_path: str | None = None, meas_paths: tuple[str, ...] = (), camera_path: str | None = None,
+            datum: str = "auto") -> None:
+    """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`); with --no-gps
+    (or --gcp / --scale-bar / --camera) the orientation of an image set without GNSS."""
     from skyrig.pipeline.uav import UavConfig, adjust_uav
 
     proj = Path(project)
@@ -85,6 +108,14 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     outdir = Path(out) if out else proj / "adjust-uav"
     old = click.get_current_context().meta.get("skyrig.old_spellings", {})
     out_option = ("-o/--out" if "--out" in old else "-o/--output") if out else None
+    if no_gps or gcp_path or scale_bar_path or camera_path or check_path or meas_paths or datum != "auto":
+        _without_gnss(proj, images, match, outdir, out_option, dict(
+            altitude=altitude, geoid=geoid, focal_prior=focal_prior, no_self_calibration=no_self_calibration,
+            compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper,
+            crs=crs, config=config_path, keep_failed=keep_failed, gcp=gcp_path, gcp_sigma=gcp_sigma,
+            check=check_path, scale_bar=scale_bar_path, measurements=list(meas_paths), camera=camera_path,
+            datum=datum))
+        return
     kw: dict = dict(gnss_sigma_m=parse_sigmas(gnss_sigma, 3, "--gnss-sigma", "east,north,up"), attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
                     geoid=geoid, focal_prior_rel=focal_prior)
     if no_self_calibration:
@@ -138,6 +169,101 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         kept = (f"outputs kept in {outdir} (--keep-failed)" if keep_failed
                 else "no outputs written (--keep-failed writes them anyway)")
         click.echo("error: the UAV adjustment failed: " + "; ".join(failures) + f"; {kept}", err=True)
+        raise SystemExit(1)
+    click.echo(f"{rep['uav']['total_wall_s']:.1f} s; written to {outdir}")
+
+
+def _without_gnss(proj: Path, images: Path, match: Path, outdir: Path, out_option: str | None,
+                  o: dict[str, Any]) -> None:
+    """``--no-gps``: :func:`skyrig.pipeline.uav.orient_without_gnss`, published like the GNSS adjustment."""
+    from skyrig.errors import InputFormatError, OutputPathError
+    from skyrig.io.image_read import list_images
+    from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+    from skyrig.io.stage import describe_inputs, stage_folder
+    from skyrig.orient.incremental import OrientConfig, OrientError
+    from skyrig.pipeline.uav import UavConfig, orient_without_gnss, read_scale_bars
+
+    kw: dict[str, Any] = {"pixel_sigma_px": 1.0, "focal_prior_rel": o["focal_prior"],
+                          "datum": {"gps-similarity": "positions"}.get(o["datum"], o["datum"])}
+    if o["no_self_calibration"]:
+        kw["self_calibration"] = ()
+    if o["config"]:
+        from skyrig.io._text import read_text
+
+        try:
+            kw.update(json.loads(read_text(o["config"])))
+        except json.JSONDecodeError as exc:
+            raise InputFormatError(f"not JSON ({exc.msg})", o["config"], exc.lineno) from None
+    try:
+        cfg = OrientConfig.from_dict(kw, str(o["config"] or "options"))
+    except (ValueError, TypeError) as exc:
+        raise click.BadParameter(str(exc), param_hint="--config") from None
+    camera = None
+    if o["camera"]:
+        from skyrig.cli._common import load_cameras
+
+        cams = load_cameras([o["camera"]])
+        if len({id(c) for c in cams.values()}) > 1:
+            raise click.BadParameter(f"{o['camera']} holds several cameras; give a file with one", param_hint="--camera")
+        camera = next(iter(cams.values()))
+    control = read_points_csv(o["gcp"]) if o["gcp"] else None
+    check = read_points_csv(o["check"], default_frame=control.frame if control else None) if o["check"] else None
+    bars = read_scale_bars(o["scale_bar"]) if o["scale_bar"] else None
+    extra = [read_measurements_csv(p) for p in o["measurements"]]
+    gcp_sigma = parse_sigmas(o["gcp_sigma"], 3, "--gcp-sigma", "x,y,z")
+    have_images = bool(list_images(images)) if images.is_dir() else False
+    _staging_dir(outdir, out_option, probe=True)
+    inputs = [match / "tie_points.csv", *(list_images(images) if have_images else [])] + [
+        Path(p) for p in (o["gcp"], o["check"], o["scale_bar"], o["camera"], o["config"], *o["measurements"]) if p]
+    options = {"project": str(proj), "images": str(images), "match": str(match), "output": str(outdir),
+               "no_gps": True, **{k: v for k, v in o.items()}}
+    failures: list[str] = []
+    try:
+        with stage_folder(outdir, stage="adjust-uav", inputs=describe_inputs(inputs), options=options) as staging:
+            res, rep = orient_without_gnss(
+                images if have_images else None, match, staging, cfg, camera, control, gcp_sigma, check, bars, extra,
+                use_gps=True, pycolmap_workdir=staging / "pycolmap" if o["compare_pycolmap"] else None,
+                pycolmap_max_image_size=o["pycolmap_size"], pycolmap_mapper=o["pycolmap_mapper"], crs=o["crs"],
+                altitude_cfg=UavConfig(altitude=o["altitude"], geoid=o["geoid"]),
+                sources={"control": o["gcp"], "check": o["check"], "scale_bars": o["scale_bar"]})
+            if (staging / "report.html").is_file():
+                from skyrig.report import report_data_from_uav, write_report
+
+                write_report(staging / "report.html", report_data_from_uav(
+                    res, rep, inputs=inputs, options=rep["uav"]["config"],
+                    title="skyrig orientation without GNSS"))
+            failures = failure_reasons(res.adjustment)
+            s = rep["uav"]
+            click.echo(f"{s['oriented']}/{s['images']} images oriented (start pair {', '.join(s['seed']['images'])}), "
+                       f"{s['tie_points']} tie points, reprojection RMS {s['reprojection_rms_px']:.3f} px, sigma0 "
+                       f"{s['sigma0']:.3f}, datum {s['datum']['kind']}")
+            if s["not_oriented"]:
+                click.echo("not oriented: " + ", ".join(s["not_oriented"]))
+            d = s["datum"]
+            if "positions_similarity_rms_3d_m" in d:
+                click.echo(f"similarity onto the EXIF GPS: RMS {d['positions_similarity_rms_3d_m']:.2f} m, max "
+                           f"{d['positions_similarity_max_m']:.2f} m over {d['images_with_positions']} images")
+            if "scale_bar_residuals_m" in s:
+                click.echo("scale-bar residuals (m): " + ", ".join(f"{v:.4f}" for v in s["scale_bar_residuals_m"]))
+            if "control_fit_rms_xyz_m" in s:
+                click.echo("control fit RMS x, y, z (m): " + ", ".join(f"{v:.4f}" for v in s["control_fit_rms_xyz_m"]))
+            if "pycolmap" in rep and "centre_differences" in rep["pycolmap"]:
+                c = rep["pycolmap"]["centre_differences"]
+                click.echo(f"pycolmap ({rep['pycolmap']['mapper']}): {rep['pycolmap']['registered']} images; centre "
+                           f"differences after similarity RMS {c['rms_m']:.3f}, max {c['max_m']:.3f}")
+            if failures and not o["keep_failed"]:
+                raise _NotPublished
+    except _NotPublished:
+        pass
+    except OutputPathError as exc:
+        raise (exc.with_option(out_option) if out_option and exc.option is None else exc) from None
+    except OrientError as exc:  # the data could not be oriented: a failed run (1), not a wrong input (2)
+        click.echo(f"error: the orientation failed: {exc}; no outputs written", err=True)
+        raise SystemExit(1) from None
+    if failures:
+        kept = (f"outputs kept in {outdir} (--keep-failed)" if o["keep_failed"]
+                else "no outputs written (--keep-failed writes them anyway)")
+        click.echo("error: the orientation failed: " + "; ".join(failures) + f"; {kept}", err=True)
         raise SystemExit(1)
     click.echo(f"{rep['uav']['total_wall_s']:.1f} s; written to {outdir}")
 

@@ -259,3 +259,313 @@ def _write_camera(path: Path, res: UavResult) -> Path:
     write_rig(Rig(f"{res.camera.name}-adjust-uav", {"camera": Head("camera", res.camera)},
                   description=f"{res.camera.name} {how}"), path)
     return path
+
+
+# ---------------------------------------------------------------------------------------------- without GNSS
+#: an arbitrary Cartesian frame (engineering CRS) for blocks whose datum is a scale bar or a free network
+MODEL_FRAME_WKT = ('ENGCRS["skyrig model frame (arbitrary origin and orientation)",EDATUM["skyrig relative '
+                   'orientation"],CS[Cartesian,3],AXIS["x",east,LENGTHUNIT["metre",1]],AXIS["y",north,'
+                   'LENGTHUNIT["metre",1]],AXIS["z",up,LENGTHUNIT["metre",1]]]')
+
+
+def read_scale_bars(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scale bars from a CSV ``from,to,length_m[,sigma_m]`` (``#`` comment lines allowed; sigma default 1 mm).
+
+    Returns ``(D, 2)`` end names, ``(D,)`` lengths and sigmas (m).  Raises :class:`InputFormatError` naming the
+    file, line and field of a malformed row, a non-positive length or sigma, or a bar from a point to itself.
+    """
+    import csv
+    import io
+
+    from skyrig.io._text import parse_float, read_text
+
+    lines = read_text(path).splitlines()
+    start = 0
+    while start < len(lines) and (not lines[start].strip() or lines[start].lstrip().startswith("#")):
+        start += 1
+    if start >= len(lines):
+        raise InputFormatError("no column header row (expected from,to,length_m[,sigma_m])", path, len(lines))
+    rd = csv.reader(io.StringIO("\n".join(lines[start:])))
+    header = [h.strip().lower() for h in next(rd)]
+    for c in ("from", "to", "length_m"):
+        if c not in header:
+            raise InputFormatError("missing column (expected from,to,length_m[,sigma_m])", path, start + 1, c)
+    for c in header:
+        if c not in ("from", "to", "length_m", "sigma_m"):
+            raise InputFormatError(f"unknown column {c!r}", path, start + 1, c)
+    ends, length, sigma = [], [], []
+    for k, row in enumerate(rd):
+        line = start + 2 + k
+        if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue
+        if len(row) != len(header):
+            raise InputFormatError(f"expected {len(header)} fields, found {len(row)}", path, line)
+        r = {h: v.strip() for h, v in zip(header, row)}
+        if not r["from"] or not r["to"]:
+            raise InputFormatError("empty point name", path, line, "from" if not r["from"] else "to")
+        if r["from"] == r["to"]:
+            raise InputFormatError(f"scale bar from {r['from']!r} to itself", path, line, "to")
+        d = parse_float(r["length_m"], path, line, "length_m")
+        s = parse_float(r["sigma_m"], path, line, "sigma_m") if r.get("sigma_m") else 0.001
+        if not d > 0:
+            raise InputFormatError(f"length must be > 0, got {d}", path, line, "length_m")
+        if not s > 0:
+            raise InputFormatError(f"sigma must be > 0, got {s}", path, line, "sigma_m")
+        ends.append((r["from"], r["to"]))
+        length.append(d)
+        sigma.append(s)
+    if not ends:
+        raise InputFormatError("no scale bar in the file", path, len(lines))
+    return np.array(ends, dtype=str).reshape(-1, 2), np.array(length), np.array(sigma)
+
+
+
+def orient_input(images: str | Path | None, measurements: Any, camera: Any = None, control: Any = None,
+                 control_sigma_m: Sequence[float] = (0.01, 0.01, 0.01), check: Any = None,
+                 scale_bars: tuple | None = None, use_gps: bool = True, cfg: UavConfig = UavConfig(),
+                 sources: dict[str, str] | None = None) -> Any:
+    """An :class:`skyrig.orient.incremental.OrientInput` from images (EXIF: focal length, GPS), tie points
+    (:class:`~skyrig.georef.observations.ImageMeasurements`; control targets and scale-bar ends are points like any
+    other, by name), an optional camera (replaces the EXIF one), control / check points
+    (:class:`~skyrig.georef.observations.GroundPoints`) and scale bars (:func:`read_scale_bars`).
+
+    Control points in a map CRS or ECEF are used in a local ENU frame at their centroid (``inp.frame``); the EXIF GPS
+    positions (``use_gps`` and every image has one) become approximate positions in a local ENU frame (used only
+    for ``datum="positions"``: a similarity, never as observations).
+
+    Raises
+    ------
+    InputFormatError
+        No image and no camera; images of different sizes; a tie point naming an unknown image; a control point or
+        scale-bar end not measured in any image (naming the file).
+    """
+    from skyrig.io.image_read import camera_from_metadata, list_images, read_image_metadata
+    from skyrig.orient.incremental import OrientInput
+
+    src = sources or {}
+    metas = [read_image_metadata(p) for p in list_images(images)] if images is not None else []
+    meas_image = np.asarray(measurements.image, dtype=str)
+    notes: list[str] = []
+    frame = None
+    positions = None
+    if metas:
+        names = np.array([m.name for m in metas], dtype=str)
+        sizes = {(m.width, m.height) for m in metas}
+        if len(sizes) > 1:
+            raise InputFormatError(f"images of different sizes {sorted(sizes)}: one camera per block is supported",
+                                   metas[0].path)
+        if camera is None:
+            try:
+                camera = camera_from_metadata(metas[0], metas[0].model or "camera")
+            except (InputFormatError, ValueError) as exc:
+                raise InputFormatError(f"no focal length in the EXIF ({exc}); give the camera with --camera",
+                                       metas[0].path) from None
+            notes.append("camera from the EXIF of the first image (focal length; principal point at the centre)")
+        gps_ok = all(m.has_gps and m.alt_m is not None for m in metas)
+        if use_gps and gps_ok and control is None:
+            blk = metadata_block_input(metas, measurements, cfg)
+            positions, frame = blk.gnss, blk.frame
+            notes += blk.notes + ["EXIF GPS used only as approximate positions (similarity), not as observations"]
+    else:
+        if camera is None:
+            raise InputFormatError("no images (with EXIF) found and no camera given: give --camera", str(images))
+        names = np.unique(meas_image)
+        notes.append("image names from the tie points (no image files read)")
+    camera = camera.with_(distortion=OpenCVDistortion()) if not isinstance(camera.distortion, OpenCVDistortion) \
+        else camera
+    by_name = np.argsort(names, kind="stable")
+    pos = np.minimum(np.searchsorted(names[by_name], meas_image), len(names) - 1)
+    known = names[by_name][pos] == meas_image
+    if not known.all():
+        unknown = sorted(set(meas_image[~known].tolist()))
+        raise InputFormatError(f"tie points name {len(unknown)} image(s) that are not in the image folder, e.g. "
+                               f"{unknown[0]!r}", src.get("measurements"))
+    track_name, obs_track = np.unique(np.asarray(measurements.point, dtype=str), return_inverse=True)
+    tidx = {str(n): k for k, n in enumerate(track_name)}
+    kw: dict[str, Any] = {}
+    gp = [(p, False) for p in ([control] if control is not None else [])] + \
+         [(p, True) for p in ([check] if check is not None else [])]
+    if gp:
+        from skyrig.georef.eo import WorldFrame
+
+        cf = gp[0][0].frame
+        xyz_all = np.vstack([p.frame.points_to(p.xyz, cf) for p, _ in gp])
+        if cf.kind in ("map", "ecef") and not _is_engineering(cf):
+            from skyrig.geodesy.crs import ecef_to_geodetic
+
+            ecef = cf.points_to(xyz_all.mean(axis=0, keepdims=True), WorldFrame.ecef())
+            lat, lon, h = ecef_to_geodetic(ecef)
+            frame = WorldFrame.local(float(np.ravel(lat)[0]), float(np.ravel(lon)[0]), float(np.ravel(h)[0]))
+            xyz_all = cf.points_to(xyz_all, frame)
+            notes.append(f"control points ({cf.describe()}) used in a local ENU frame at their centroid")
+        else:
+            frame = cf
+        ctrack, cxyz, ccheck = [], [], []
+        row = 0
+        for p, is_check in gp:
+            for nm in p.name:
+                if str(nm) not in tidx:
+                    what = "check" if is_check else "control"
+                    raise InputFormatError(f"{what} point {str(nm)!r} is not measured in any image (no tie point / "
+                                           "measurement of that name)", src.get("check" if is_check else "control"))
+                ctrack.append(tidx[str(nm)])
+                cxyz.append(xyz_all[row])
+                ccheck.append(is_check)
+                row += 1
+        kw.update(control_track=np.array(ctrack), control_xyz=np.array(cxyz),
+                  control_sigma=np.broadcast_to(np.asarray(control_sigma_m, float), (len(ctrack), 3)),
+                  control_check=np.array(ccheck))
+    if scale_bars is not None:
+        ends, length, sigma = scale_bars
+        for a in ends.ravel():
+            if str(a) not in tidx:
+                raise InputFormatError(f"scale-bar end {str(a)!r} is not measured in any image (no tie point / "
+                                       "measurement of that name)", src.get("scale_bars"))
+        kw.update(distance_track=np.array([[tidx[str(a)], tidx[str(b)]] for a, b in ends]), distance_m=length,
+                  distance_sigma_m=sigma)
+    return OrientInput(names, camera, obs_track.astype(np.int64), by_name[pos].astype(np.int64),
+                       np.asarray(measurements.pixel, float), track_name, positions=positions, frame=frame,
+                       notes=notes, **kw)
+
+
+def _is_engineering(frame: Any) -> bool:
+    if frame is None or frame.kind != "map":
+        return False
+    import pyproj
+
+    try:
+        return bool(pyproj.CRS(frame.crs).is_engineering)
+    except Exception:  # noqa: BLE001  (a CRS PROJ reads as something else)
+        return False
+
+
+def orient_without_gnss(images: str | Path | None, match_dir: str | Path, out: str | Path | None = None,
+                        cfg: Any = None, camera: Any = None, control: Any = None,
+                        control_sigma_m: Sequence[float] = (0.01, 0.01, 0.01), check: Any = None,
+                        scale_bars: tuple | None = None, extra_measurements: Sequence[Any] = (),
+                        use_gps: bool = True, pycolmap_workdir: str | Path | None = None,
+                        pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
+                        pycolmap_mapper: str = "incremental", crs: str | None = None,
+                        altitude_cfg: UavConfig = UavConfig(), sources: dict[str, str] | None = None,
+                        ) -> tuple[UavResult, dict[str, Any]]:
+    """Project-level stage of the orientation without GNSS (:func:`skyrig.orient.incremental.orient_incremental`):
+    images + ``skyrig match`` tie points (+ target measurements, control, scale bars) -> EO, points, camera,
+    report (the same files as :func:`adjust_uav`).
+
+    The output frame: the control points' CRS (datum "control"); the ``crs`` or the UTM zone of the EXIF GPS
+    (datum "positions"); else :data:`MODEL_FRAME_WKT`, an engineering CRS in metres (scale bars) or in the units
+    of the relative orientation's base (free network).  ``pycolmap_workdir``: pycolmap's own reconstruction of the
+    same images, compared by camera centres after a similarity (``mapper`` "incremental", falling back to
+    "global" when the incremental mapper registers fewer than half of the images).
+    """
+    from skyrig.georef.observations import ImageMeasurements
+    from skyrig.io.points_csv import read_measurements_csv
+    from skyrig.orient.incremental import OrientConfig, orient_incremental
+
+    t0 = time.perf_counter()
+    cfg = cfg or OrientConfig()
+    meas = read_measurements_csv(Path(match_dir) / "tie_points.csv")
+    if extra_measurements:
+        ms = [meas, *extra_measurements]
+        meas = ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
+                                 np.vstack([m.pixel for m in ms]))
+    src = {"measurements": str(Path(match_dir) / "tie_points.csv"), **(sources or {})}
+    inp = orient_input(images, meas, camera, control, control_sigma_m, check, scale_bars, use_gps, altitude_cfg, src)
+    res = orient_incremental(inp, cfg)
+    from skyrig.adjust.report import adjustment_report
+    from skyrig.georef.eo import WorldFrame
+
+    datum = res.summary["datum"]["kind"]
+    if datum == "control":
+        project = control.frame
+        frame = inp.frame
+    elif datum == "positions":
+        frame = inp.frame
+        project = uav_project_frame(UavBlockInput(inp.names, inp.camera, inp.positions, np.zeros((0, 3, 3)), None,
+                                                  inp.obs_track, inp.obs_image, inp.obs_pixel, inp.track_name,
+                                                  inp.frame), crs)
+    else:
+        frame = project = WorldFrame.map(MODEL_FRAME_WKT)
+    report = adjustment_report(res.adjustment, frames=(frame, project) if frame is not None else None)
+    report["uav"] = dict(res.summary)
+    report["uav"]["config"] = asdict(cfg)
+    report["uav"]["attitude_check"] = res.attitude_check
+    report["uav"]["mode"] = "orientation without GNSS (relative orientation, resection, bundle adjustment)"
+    if pycolmap_workdir is not None:
+        report["pycolmap"] = compare_pycolmap(res, images, inp, pycolmap_workdir, pycolmap_max_image_size,
+                                              pycolmap_max_features, pycolmap_mapper)
+    report["uav"]["total_wall_s"] = time.perf_counter() - t0
+    if out is not None:
+        if project is not None and project.kind == "map" and _is_engineering(project):
+            # skyrig's EO / points writers need a georeferenced frame: plain tables in the model frame, then the
+            # report and camera as for any block
+            _write_model_frame_tables(Path(out), res, datum)
+            shim = UavBlockInput(inp.names, inp.camera, np.zeros((len(inp.names), 3)), np.zeros((0, 3, 3)), None,
+                                 inp.obs_track, inp.obs_image, inp.obs_pixel, inp.track_name, None)
+        else:
+            shim = UavBlockInput(inp.names, inp.camera, np.zeros((len(inp.names), 3)), np.zeros((0, 3, 3)), None,
+                                 inp.obs_track, inp.obs_image, inp.obs_pixel, inp.track_name, frame)
+        _write_outputs(Path(out), res, report, shim, project)
+    return res, report
+
+
+def _write_model_frame_tables(out: Path, res: UavResult, datum: str) -> None:
+    """``eo.csv`` (image, camera, x, y, z, omega, phi, kappa in degrees, centre sigmas) and ``points.csv`` (name,
+    x, y, z, sigmas, role) in the arbitrary frame of a block without georeference (scale bars: metres; free
+    network: the relative orientation's units), with ``#`` lines saying so; written atomically."""
+    from skyrig.geometry.rotations import opk_from_matrix
+    from skyrig.io._text import atomic_write
+
+    out.mkdir(parents=True, exist_ok=True)
+    units = "metres (scale from the scale bars)" if datum == "scale-bar" else \
+        "units of the relative orientation (start base = 1; no scale given)"
+    head = (f"# frame: skyrig model frame, arbitrary origin and orientation (datum: inner constraints), {units}\n"
+            "# rotation: world_from_camera as omega, phi, kappa (deg); camera x right, y up, z back\n")
+    adj = res.adjustment
+    b = adj.block
+    ps = adj.pose_sigma if adj.pose_sigma is not None else np.full((b.n_images, 6), np.nan)
+    o, p, k = opk_from_matrix(b.station_rotation, unit="deg")
+    with atomic_write(out / "eo.csv", newline="") as fh:
+        fh.write(head + "image,camera,x,y,z,omega,phi,kappa,sx,sy,sz\n")
+        for i in range(b.n_images):
+            c = b.station_centre[i]
+            fh.write(f"{b.image_name[i]},{res.camera.name},{c[0]:.6f},{c[1]:.6f},{c[2]:.6f},{o[i]:.8f},{p[i]:.8f},"
+                     f"{k[i]:.8f},{ps[i, 0]:.6f},{ps[i, 1]:.6f},{ps[i, 2]:.6f}\n")
+    sig = adj.point_sigma if adj.point_sigma is not None else np.full((b.n_points, 3), np.nan)
+    role = np.full(b.n_points, "tie", dtype=object)
+    if len(b.distance_point):
+        role[np.unique(b.distance_point)] = "scale-bar end"
+    with atomic_write(out / "points.csv", newline="") as fh:
+        fh.write(head.splitlines()[0] + "\nname,x,y,z,sx,sy,sz,role\n")
+        for q in range(b.n_points):
+            x = b.point_xyz[q]
+            fh.write(f"{b.point_name[q]},{x[0]:.6f},{x[1]:.6f},{x[2]:.6f},{sig[q, 0]:.6f},{sig[q, 1]:.6f},"
+                     f"{sig[q, 2]:.6f},{role[q]}\n")
+
+
+def compare_pycolmap(res: UavResult, images: str | Path | None, inp: Any, workdir: str | Path, max_image_size: int,
+                     max_features: int, mapper: str) -> dict[str, Any]:
+    """pycolmap's own pipeline on the same images; camera centres compared after a similarity (and, when the images
+    have GPS, both fitted onto it).  ``mapper`` "incremental" falls back to "global" (GLOMAP) when COLMAP's
+    incremental mapper registers fewer than half of the images (it cannot initialise on forward motion)."""
+    from skyrig.match.colmap_check import reconstruct_with_pycolmap
+
+    t1 = time.perf_counter()
+    names = [str(n) for n in inp.names]
+    focal = inp.camera.focal_mm / inp.camera.pixel_size_mm
+    out: dict[str, Any] = {"mapper": mapper}
+    _, summ = reconstruct_with_pycolmap(images, names, Path(workdir) / mapper, max_image_size=max_image_size,
+                                        max_features=max_features, mapper=mapper, focal_px=focal)
+    if mapper == "incremental" and (summ is None or len(summ.names) < 0.5 * len(names)):
+        out["incremental_registered"] = 0 if summ is None else int(len(summ.names))
+        out["mapper"] = "global (the incremental mapper registered fewer than half of the images)"
+        _, summ = reconstruct_with_pycolmap(images, names, Path(workdir) / "global", max_image_size=max_image_size,
+                                            max_features=max_features, mapper="global", focal_px=focal)
+    if summ is None:
+        out["registered"] = 0
+        return out
+    gnss = inp.positions
+    cmp = compare_with_reconstruction(res, summ.names, summ.centres, gnss)
+    out.update(registered=int(len(summ.names)), points=summ.n_points, reprojection_rms_px=summ.reprojection_rms_px,
+               wall_s=time.perf_counter() - t1, centre_differences=cmp)
+    return out

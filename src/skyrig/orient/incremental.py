@@ -1,0 +1,576 @@
+"""Incremental orientation of an image block without GNSS (layer 2b: arrays in, arrays out; no file is opened here).
+
+For terrestrial, close-range, UAV or aerial image sets whose exposures carry no usable position: the block is
+started from a relative orientation and grown image by image; its datum (position, rotation and scale) comes from
+control points, scale bars, a similarity onto approximate positions (e.g. a phone's GPS), or inner constraints.
+
+Stages (:func:`orient_incremental`)
+-----------------------------------
+1. **Two-view start.**  Image pairs ranked by common tie points; for the best-connected candidates
+   (``seed_candidates``) an essential matrix (``cv2.findEssentialMat``, RANSAC, threshold ``pnp_threshold_px``) and
+   ``cv2.recoverPose`` give the relative rotation and base direction.  A pair is scored by its inliers times
+   ``min(1, median intersection angle / seed_parallax_deg)``: many inliers, and enough parallax that the points
+   (and the next resections) are well determined; a (nearly) pure rotation or a short base scores low.  The first
+   image is the frame (OpenCV camera axes), the base has length 1.
+2. **Growth.**  Tie points seen by >= 2 oriented images are triangulated (multi-view midpoint, angle and depth
+   checks, :func:`~skyrig.orient.triangulation.triangulate_tracks`); the unoriented images with the most
+   triangulated points are resected (``cv2.solvePnPRansac`` EPnP + LM, :func:`~skyrig.orient.triangulation.resect`);
+   a bundle adjustment (:func:`skyrig.adjust.adjust`, Huber weights, inner constraints as datum, camera fixed)
+   runs while the block is small and each time it has grown by ``ba_growth`` since the last one; gross residuals
+   are removed after each.  Repeat until no image can be added.
+3. **Datum** (``datum``):
+
+   * ``"control"``: a similarity (Umeyama) of the triangulated control points onto their given coordinates (>= 3
+     points, checked), then the final adjustment with the control points as weighted observations;
+   * ``"scale-bar"``: the block is scaled by the median ratio of the given to the triangulated scale-bar lengths,
+     then adjusted with the distances as observations and inner constraints on the poses (6 datum parameters:
+     translation and rotation stay those of the relative orientation's frame);
+   * ``"positions"``: a robust similarity of the projection centres onto approximate positions (``positions``,
+     e.g. EXIF GPS), then a free-network adjustment (7 inner constraints) about that start; the positions are
+     *not* observations, so they cannot bend the block; the similarity's residuals are reported;
+   * ``"free"``: inner constraints only; scale and frame are those of the relative orientation (base = 1).
+
+4. **Final adjustment.**  Self-calibration (``self_calibration``; focal length with the EXIF prior
+   ``focal_prior_rel``), Huber weights, removal of residuals above ``reject_k`` x robust RMS (twice), then plain
+   least squares with statistics.  With ``datum="control"`` and ``"scale-bar"`` scale bars and control points
+   both enter when given.
+
+Everything is in one Cartesian frame (metres once a datum with scale is given); pixels follow skyrig's convention.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
+from skyrig.camera.frame import FrameCamera
+from skyrig.camera.opencv import OpenCVDistortion
+from skyrig.errors import SkyrigError
+from skyrig.orient.gnss_block import UavAdjustError, UavResult
+from skyrig.orient.similarity import _robust_similarity
+from skyrig.orient.triangulation import (
+    _SKYRIG_FROM_CV, _k_matrix, _reproject, _spread_ok, _track_pairs, resect, triangulate_tracks,
+)
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["OrientConfig", "OrientInput", "OrientError", "orient_incremental", "choose_seed_pair"]
+
+Datum = Literal["control", "scale-bar", "positions", "free"]
+
+
+class OrientError(UavAdjustError):
+    """The block cannot be oriented without GNSS (no start pair, datum not determinable...); the message says
+    why."""
+
+
+@dataclass(frozen=True)
+class OrientConfig:
+    """Settings of the incremental orientation without GNSS (frozen; unknown keys are an error)."""
+
+    #: "control", "scale-bar", "positions", "free" or "auto" (control if given, else scale bars, else positions,
+    #: else free)
+    datum: Literal["auto", "control", "scale-bar", "positions", "free"] = "auto"
+    #: a-priori sigma of a tie-point measurement (px)
+    pixel_sigma_px: float = 1.0
+    #: relative sigma of the EXIF / given focal length prior
+    focal_prior_rel: float = 0.1
+    #: self-calibrated intrinsics (FrameCamera + OpenCV distortion names); () keeps the camera fixed
+    self_calibration: tuple[str, ...] = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
+    #: two-view start: pairs tried (most common tie points first), minimum common points, parallax for full score
+    seed_candidates: int = 30
+    seed_min_common: int = 50
+    seed_parallax_deg: float = 4.0
+    #: resection: RANSAC threshold (px) and minimum inliers
+    pnp_threshold_px: float = 4.0
+    pnp_min_inliers: int = 20
+    #: minimum intersection angle of a triangulated tie point (deg)
+    min_angle_deg: float = 0.5
+    #: bundle adjustment during growth: always up to this many images, then each time the block grew by this share
+    ba_always_below: int = 8
+    ba_growth: float = 0.25
+    #: Huber threshold (units of the pixel sigma) and the final outlier removal (reject_k x robust RMS, >= min px)
+    robust_k: float = 2.0
+    reject_k: float = 4.0
+    reject_min_px: float = 2.0
+    max_iterations: int = 40
+    #: positions datum: minimum images with a position
+    min_positions: int = 4
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> "OrientConfig":
+        bad = sorted(set(data) - set(cls.__dataclass_fields__))
+        if bad:
+            raise ValueError(f"{source}: unknown orientation option(s) {bad}; known: {sorted(cls.__dataclass_fields__)}")
+        d = dict(data)
+        if d.get("self_calibration") is not None:
+            d["self_calibration"] = tuple(d["self_calibration"])
+        return cls(**d)
+
+
+@dataclass
+class OrientInput:
+    """What the orientation needs.
+
+    Attributes
+    ----------
+    names
+        ``(I,)`` image names.
+    camera
+        Starting camera (EXIF or given focal length; OpenCV distortion).
+    obs_track, obs_image, obs_pixel, track_name
+        Tie-point (and target) observations: ``(N,)`` track index, ``(N,)`` image index, ``(N, 2)`` pixels;
+        ``(T,)`` track names.  Control points and scale-bar ends are tracks like any other.
+    control_track, control_xyz, control_sigma, control_check
+        ``(K,)`` track index of control points, ``(K, 3)`` coordinates, ``(K, 3)`` sigma (m), ``(K,)`` True for a
+        check point (compared, not used).
+    distance_track, distance_m, distance_sigma_m
+        Scale bars: ``(D, 2)`` track indices of the ends, ``(D,)`` lengths and sigmas (m).
+    positions
+        ``(I, 3)`` approximate projection centres (NaN where none), for ``datum="positions"`` (not observations).
+    frame
+        :class:`skyrig.georef.eo.WorldFrame` of control / positions (None: an arbitrary Cartesian frame).
+    notes
+        What was assumed while reading.
+    """
+
+    names: NDArray[np.str_]
+    camera: FrameCamera
+    obs_track: NDArray[np.int64]
+    obs_image: NDArray[np.int64]
+    obs_pixel: NDArray[np.float64]
+    track_name: NDArray[np.str_]
+    control_track: NDArray[np.int64] | None = None
+    control_xyz: NDArray[np.float64] | None = None
+    control_sigma: NDArray[np.float64] | None = None
+    control_check: NDArray[np.bool_] | None = None
+    distance_track: NDArray[np.int64] | None = None
+    distance_m: NDArray[np.float64] | None = None
+    distance_sigma_m: NDArray[np.float64] | None = None
+    positions: NDArray[np.float64] | None = None
+    frame: Any = None
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.names = np.asarray(self.names, dtype=str)
+        self.track_name = np.asarray(self.track_name, dtype=str)
+        self.obs_track = np.asarray(self.obs_track, np.int64)
+        self.obs_image = np.asarray(self.obs_image, np.int64)
+        self.obs_pixel = np.asarray(self.obs_pixel, float).reshape(-1, 2)
+        k = 0 if self.control_track is None else len(self.control_track)
+        self.control_track = np.asarray(self.control_track if k else np.zeros(0), np.int64)
+        self.control_xyz = np.asarray(self.control_xyz if k else np.zeros((0, 3)), float).reshape(k, 3)
+        self.control_sigma = np.broadcast_to(np.asarray(0.01 if self.control_sigma is None else self.control_sigma,
+                                                        float), (k, 3)).copy()
+        self.control_check = (np.zeros(k, bool) if self.control_check is None
+                              else np.asarray(self.control_check, bool).reshape(k))
+        d = 0 if self.distance_track is None else len(self.distance_track)
+        self.distance_track = np.asarray(self.distance_track if d else np.zeros((0, 2)), np.int64).reshape(d, 2)
+        self.distance_m = np.asarray(self.distance_m if d else np.zeros(0), float).reshape(d)
+        self.distance_sigma_m = np.broadcast_to(np.asarray(0.001 if self.distance_sigma_m is None
+                                                           else self.distance_sigma_m, float), (d,)).copy()
+        if self.positions is not None:
+            self.positions = np.asarray(self.positions, float).reshape(len(self.names), 3)
+
+
+# ---------------------------------------------------------------------------------------------- two-view start
+def _pair_counts(inp: OrientInput) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Image pairs ``(i, j)`` (i < j) with their common-track counts, most first."""
+    n = len(inp.names)
+    order = np.lexsort((inp.obs_image, inp.obs_track))
+    im = inp.obs_image[order]
+    ra, rb = _track_pairs(inp.obs_track[order])
+    a, b = np.minimum(im[ra], im[rb]), np.maximum(im[ra], im[rb])
+    uk, first, counts = np.unique(a * n + b, return_index=True, return_counts=True)
+    rank = np.lexsort((first, -counts))
+    return uk[rank] // n, uk[rank] % n, counts[rank]
+
+
+def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera
+                     ) -> tuple[int, int, NDArray, NDArray, dict[str, Any]]:
+    """The start pair: ``(i, j, R21, t21 (unit), info)`` with ``x2 = R21 x1 + t21`` in OpenCV camera axes.
+
+    Raises
+    ------
+    OrientError
+        No pair with ``seed_min_common`` common points whose essential matrix has ``pnp_min_inliers`` inliers.
+    """
+    import cv2
+
+    K, dist = _k_matrix(camera)
+    pi, pj, cnt = _pair_counts(inp)
+    best: tuple | None = None
+    tried = []
+    for i, j, c in zip(pi.tolist(), pj.tolist(), cnt.tolist()):
+        if c < cfg.seed_min_common or len(tried) >= cfg.seed_candidates:
+            break
+        mi, mj = inp.obs_image == i, inp.obs_image == j
+        _, ci, cj = np.intersect1d(inp.obs_track[mi], inp.obs_track[mj], return_indices=True)
+        p1 = cv2.undistortPoints(inp.obs_pixel[mi][ci][:, None], K, dist)[:, 0]
+        p2 = cv2.undistortPoints(inp.obs_pixel[mj][cj][:, None], K, dist)[:, 0]
+        cv2.setRNGSeed(0)
+        E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.RANSAC, 0.999, cfg.pnp_threshold_px / K[0, 0])
+        if E is None or E.shape != (3, 3):
+            tried.append((i, j, c, 0, 0.0))
+            continue
+        nin, R21, t21, mask = cv2.recoverPose(E, p1, p2, np.eye(3), mask=mask)
+        inl = mask.ravel() > 0
+        r1 = np.column_stack([p1[inl], np.ones(int(inl.sum()))])
+        r2 = np.column_stack([p2[inl], np.ones(int(inl.sum()))]) @ R21  # R21^T x2 row-wise: ray 2 in camera-1 axes
+        cosang = np.sum(r1 * r2, axis=1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
+        angle = float(np.degrees(np.median(np.arccos(np.clip(cosang, -1, 1))))) if inl.any() else 0.0
+        score = nin * min(1.0, angle / cfg.seed_parallax_deg)
+        tried.append((i, j, c, int(nin), angle))
+        if nin >= cfg.pnp_min_inliers and (best is None or score > best[0]):
+            best = (score, i, j, R21, t21[:, 0] / np.linalg.norm(t21), int(nin), angle, c)
+    if best is None:
+        raise OrientError(f"no image pair to start from: {len(tried)} pair(s) with >= {cfg.seed_min_common} common "
+                          f"tie points, none with >= {cfg.pnp_min_inliers} essential-matrix inliers")
+    _, i, j, R21, t21, nin, angle, c = best
+    info = {"images": [str(inp.names[i]), str(inp.names[j])], "common": int(c), "inliers": nin,
+            "median_intersection_angle_deg": angle, "pairs_tried": len(tried)}
+    return i, j, R21, t21, info
+
+
+# ---------------------------------------------------------------------------------------------- blocks
+def _usable(inp: OrientInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
+            camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float, max_px: float) -> NDArray[np.bool_]:
+    """Observations that can enter an adjustment (oriented image, active, point in front and reprojecting within
+    ``max_px``, >= 2 such rays spanning ``min_angle_deg``)."""
+    T = len(inp.track_name)
+    sel = oriented[inp.obs_image] & np.isfinite(X).all(axis=1)[inp.obs_track] & active
+    rows = np.flatnonzero(sel)
+    ti, ii = inp.obs_track[rows], inp.obs_image[rows]
+    v = X[ti] - C[ii]
+    pc = np.einsum("nji,nj->ni", R[ii], v)
+    front = pc[:, 2] < -1e-6 * np.linalg.norm(v, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
+    front &= np.nan_to_num(err, nan=np.inf) < max_px
+    rows, ti, v = rows[front], ti[front], v[front]
+    good = _spread_ok(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), ti, T, min_angle_deg)
+    out = np.zeros(len(inp.obs_track), bool)
+    out[rows[good[ti]]] = True
+    return out
+
+
+def _block(inp: OrientInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDArray, img_sel: NDArray[np.int64],
+           obs_sel: NDArray[np.bool_], sigma_px: float, control: bool, distances: bool
+           ) -> tuple[Block, NDArray[np.int64], NDArray[np.int64]]:
+    """A :class:`Block` of the images ``img_sel`` and the observations ``obs_sel`` (+ control / distances whose
+    points are in it).  Returns the block, the tracks of its points and the rows of its observations."""
+    n = len(inp.names)
+    img_map = np.full(n, -1)
+    img_map[img_sel] = np.arange(len(img_sel))
+    ot, oi, op = inp.obs_track[obs_sel], inp.obs_image[obs_sel], inp.obs_pixel[obs_sel]
+    tracks, tmap = np.unique(ot, return_inverse=True)
+    pmap = np.full(len(inp.track_name), -1)
+    pmap[tracks] = np.arange(len(tracks))
+    kw: dict[str, Any] = {}
+    if control and len(inp.control_track):
+        k = np.flatnonzero(pmap[inp.control_track] >= 0)
+        kw.update(control_point=pmap[inp.control_track[k]], control_xyz=inp.control_xyz[k],
+                  control_sigma=inp.control_sigma[k], control_check=inp.control_check[k])
+    if distances and len(inp.distance_track):
+        k = np.flatnonzero((pmap[inp.distance_track] >= 0).all(axis=1))
+        kw.update(distance_point=pmap[inp.distance_track[k]], distance_m=inp.distance_m[k],
+                  distance_sigma_m=inp.distance_sigma_m[k])
+    names = inp.names[img_sel]
+    block = Block(cameras=[camera], station_name=names, station_rotation=R[img_sel], station_centre=C[img_sel],
+                  image_name=names, image_station=np.arange(len(img_sel)),
+                  image_camera=np.zeros(len(img_sel), np.int64), point_name=inp.track_name[tracks],
+                  point_xyz=X[tracks], obs_image=img_map[oi], obs_point=tmap, obs_pixel=op, obs_sigma_px=sigma_px,
+                  frame=inp.frame.describe() if inp.frame is not None else "arbitrary Cartesian frame", **kw)
+    return block, tracks, np.flatnonzero(obs_sel)
+
+
+def _residual_norm(b: Block) -> NDArray[np.float64]:
+    cam = b.cameras[0]
+    R = b.station_rotation[b.image_station[b.obs_image]] @ b.image_rotation[b.obs_image]
+    C = b.station_centre[b.image_station[b.obs_image]]
+    r = _reproject(cam, R, C, b.point_xyz[b.obs_point]) - b.obs_pixel
+    return np.nan_to_num(np.linalg.norm(r, axis=1), nan=np.inf)
+
+
+def _triangulate(inp: OrientInput, camera: FrameCamera, R: NDArray, C: NDArray, oriented: NDArray[np.bool_],
+                 active: NDArray[np.bool_], min_angle_deg: float) -> NDArray[np.float64]:
+    sel = oriented[inp.obs_image] & active
+    X, ok = triangulate_tracks(camera, np.nan_to_num(R), np.nan_to_num(C), inp.obs_track[sel], inp.obs_image[sel],
+                               inp.obs_pixel[sel], len(inp.track_name), min_angle_deg)
+    X[~ok] = np.nan
+    return X
+
+
+def _apply_similarity(s: float, Rs: NDArray, t: NDArray, R: NDArray, C: NDArray, X: NDArray) -> None:
+    """``x -> s Rs x + t`` on centres and points, ``R -> Rs R`` on rotations (in place)."""
+    C[:] = s * C @ Rs.T + t
+    X[:] = s * X @ Rs.T + t
+    R[:] = Rs @ R
+
+
+# ---------------------------------------------------------------------------------------------- main
+def _resolve_datum(inp: OrientInput, cfg: OrientConfig) -> Datum:
+    d = cfg.datum
+    has_ctrl = int((~inp.control_check).sum()) >= 3
+    has_pos = inp.positions is not None and int(np.isfinite(inp.positions).all(axis=1).sum()) >= cfg.min_positions
+    if d == "auto":
+        d = ("control" if has_ctrl else "scale-bar" if len(inp.distance_track) else "positions" if has_pos
+             else "free")
+    if d == "control" and not has_ctrl:
+        raise OrientError(f"datum 'control' needs >= 3 control points, {int((~inp.control_check).sum())} given")
+    if d == "scale-bar" and not len(inp.distance_track):
+        raise OrientError("datum 'scale-bar' needs at least one scale bar")
+    if d == "positions" and not has_pos:
+        raise OrientError(f"datum 'positions' needs >= {cfg.min_positions} images with an approximate position")
+    return d  # type: ignore[return-value]
+
+
+def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> UavResult:
+    """Orient an image block without GNSS observations (module docstring).  The result has the fields of
+    :class:`~skyrig.orient.gnss_block.UavResult` (``summary["datum"]`` says how the datum was fixed).
+
+    Raises
+    ------
+    OrientError
+        No start pair, fewer than three oriented images, or a datum that the data cannot give (control points
+        or scale bars not triangulated, control that does not fit a similarity).
+    """
+    t_start = time.perf_counter()
+    datum = _resolve_datum(inp, cfg)
+    n, T = len(inp.names), len(inp.track_name)
+    camera = inp.camera if isinstance(inp.camera.distortion, OpenCVDistortion) else inp.camera.with_(
+        distortion=OpenCVDistortion())
+    check: dict[str, dict[str, Any]] = {str(nm): {"metadata": "no position or attitude used (orientation without "
+                                                  "GNSS)"} for nm in inp.names}
+    # ---- 1. two-view start
+    i, j, R21, t21, seed_info = choose_seed_pair(inp, cfg, camera)
+    R = np.full((n, 3, 3), np.nan)
+    C = np.full((n, 3), np.nan)
+    R[i], C[i] = _SKYRIG_FROM_CV, np.zeros(3)
+    R[j], C[j] = R21.T @ _SKYRIG_FROM_CV, -R21.T @ t21
+    oriented = np.zeros(n, bool)
+    oriented[[i, j]] = True
+    check[str(inp.names[i])]["orientation"] = check[str(inp.names[j])]["orientation"] = "two-view start"
+    logger.info("start pair %s - %s: %d inliers, median intersection angle %.1f deg", *seed_info["images"],
+                seed_info["inliers"], seed_info["median_intersection_angle_deg"])
+    active = np.ones(len(inp.obs_track), bool)
+    grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
+                            max_iterations=cfg.max_iterations, datum="free")
+    sigma_grow = max(2.0 * cfg.pixel_sigma_px, 2.0)
+    X = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
+    last_ba, rounds, order = 0, 0, [int(i), int(j)]
+
+    def bundle(X: NDArray) -> NDArray:
+        img_sel = np.flatnonzero(oriented)
+        gate = 0.05 * max(camera.width, camera.height) if last_ba == 0 else 6.0 * cfg.pnp_threshold_px
+        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
+        block, tracks, rows = _block(inp, camera, R, C, X, img_sel, obs, sigma_grow, False, False)
+        try:
+            res = adjust(block, grow_cfg)
+        except SkyrigError as exc:
+            raise OrientError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
+        R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
+        Xn = np.full((T, 3), np.nan)
+        Xn[tracks] = res.block.point_xyz
+        r = _residual_norm(res.block)
+        med = float(np.median(r)) if len(r) else 0.0
+        bad = r > max(6.0 * 1.4826 * med, 3.0 * cfg.reject_min_px)
+        active[rows[bad]] = False
+        logger.info("growth: %d images, %d points, median residual %.2f px, %d observations removed", len(img_sel),
+                    block.n_points, med, int(bad.sum()))
+        return Xn
+
+    X = bundle(X)
+    last_ba = 2
+    # ---- 2. growth
+    while not oriented.all():
+        rounds += 1
+        X_tri = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
+        X = np.where(np.isfinite(X).all(axis=1)[:, None], X, X_tri)
+        X_ok = np.isfinite(X).all(axis=1)
+        counts = np.bincount(inp.obs_image[X_ok[inp.obs_track] & active], minlength=n)
+        counts[oriented] = 0
+        if counts.max() < cfg.pnp_min_inliers:
+            break
+        added = []
+        for k in np.argsort(-counts, kind="stable"):
+            if counts[k] < max(cfg.pnp_min_inliers, 0.6 * counts.max()):
+                break
+            m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
+            out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px, cfg.pnp_min_inliers)
+            if out is None:
+                continue
+            R[k], C[k], inl = out
+            rows = np.flatnonzero(m)
+            active[rows[~inl]] = False
+            oriented[k] = True
+            added.append(int(k))
+            check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
+        if not added:
+            # the best candidates failed: try every image with enough points once before giving up
+            for k in np.flatnonzero(counts >= cfg.pnp_min_inliers):
+                m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
+                out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px,
+                             cfg.pnp_min_inliers)
+                if out is not None:
+                    R[k], C[k], inl = out
+                    active[np.flatnonzero(m)[~inl]] = False
+                    oriented[k] = True
+                    added.append(int(k))
+                    check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
+                    break
+        if not added:
+            break
+        order += added
+        logger.info("round %d: resected %s", rounds, ", ".join(inp.names[added]))
+        n_or = int(oriented.sum())
+        if n_or <= cfg.ba_always_below or n_or >= (1.0 + cfg.ba_growth) * last_ba or oriented.all():
+            X = bundle(np.where(np.isfinite(X).all(axis=1)[:, None], X,
+                                _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)))
+            last_ba = n_or
+    if oriented.sum() < 3:
+        raise OrientError(f"only {int(oriented.sum())} images could be oriented")
+    X = np.where(np.isfinite(X).all(axis=1)[:, None], X,
+                 _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
+    # ---- 3. datum
+    img_sel = np.flatnonzero(oriented)
+    datum_info: dict[str, Any] = {"kind": datum}
+    if datum == "control":
+        use = ~inp.control_check
+        ct = inp.control_track[use]
+        have = np.isfinite(X[ct]).all(axis=1)
+        if have.sum() < 3:
+            raise OrientError(f"only {int(have.sum())} of the {int(use.sum())} control points are triangulated "
+                              "(measured in >= 2 oriented images): a datum needs 3")
+        from skyrig.match.colmap_check import similarity_transform
+
+        src, dst = X[ct[have]], inp.control_xyz[use][have]
+        s, Rs, t = similarity_transform(src, dst)
+        v = np.linalg.norm(s * src @ Rs.T + t - dst, axis=1)
+        spread = float(np.sqrt(np.mean(np.sum((dst - dst.mean(axis=0)) ** 2, axis=1))))
+        if spread <= 0 or np.linalg.matrix_rank(dst - dst.mean(axis=0), tol=1e-3 * spread) < 2:
+            raise OrientError("the control points are (nearly) collinear: no datum")
+        if float(np.median(v)) > 0.05 * spread:
+            raise OrientError(f"the control points do not fit the relative orientation by a similarity (median "
+                              f"residual {np.median(v):.3g} m over a spread of {spread:.3g} m): wrong coordinates "
+                              "or wrong image measurements")
+        _apply_similarity(s, Rs, t, R, C, X)
+        datum_info.update(control_points=int(have.sum()), similarity_residual_max_m=float(v.max()))
+    elif datum == "scale-bar":
+        a, b = inp.distance_track[:, 0], inp.distance_track[:, 1]
+        d_model = np.linalg.norm(X[a] - X[b], axis=1)
+        ok = np.isfinite(d_model) & (d_model > 0)
+        if not ok.any():
+            raise OrientError("no scale bar has both ends triangulated (measured in >= 2 oriented images)")
+        s = float(np.median(inp.distance_m[ok] / d_model[ok]))
+        c0 = np.nanmean(C[img_sel], axis=0)
+        _apply_similarity(s, np.eye(3), c0 - s * c0, R, C, X)
+        datum_info.update(scale_bars=int(ok.sum()), start_scale=s)
+    elif datum == "positions":
+        P = inp.positions
+        have = np.flatnonzero(oriented & np.isfinite(P).all(axis=1))  # type: ignore[union-attr]
+        fit = _robust_similarity(C[have], P[have]) if len(have) >= 12 else None  # type: ignore[index]
+        if fit is None:
+            from skyrig.match.colmap_check import similarity_transform
+
+            s, Rs, t = similarity_transform(C[have], P[have])  # type: ignore[index]
+        else:
+            s, Rs, t, _ = fit
+        G = P[have] - P[have].mean(axis=0)  # type: ignore[index]
+        sv = np.linalg.svd(G, compute_uv=False)
+        if sv[1] < 0.05 * sv[0]:
+            datum_info["warning"] = ("the approximate positions are (nearly) collinear: the rotation about their line "
+                                     "is poorly determined")
+        _apply_similarity(s, Rs, t, R, C, X)
+    # ---- 4. final adjustment
+    f0 = inp.camera.focal_mm
+    w_mm = camera.width * camera.pixel_size_mm
+    sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
+           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
+    names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
+    final_cfg = AdjustConfig(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,
+                             intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
+                             robust="huber", robust_k=cfg.robust_k, statistics=False,
+                             max_iterations=cfg.max_iterations,
+                             datum="auto" if datum == "control" else "free")
+    use_ctrl = use_dist = datum in ("control", "scale-bar")
+    lim = 2.0 * cfg.pnp_threshold_px
+    for stage in range(2):
+        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+        # the focal prior is anchored at the EXIF value in every stage (a weighted group's prior is its start)
+        block, tracks, rows = _block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs, cfg.pixel_sigma_px,
+                                     use_ctrl, use_dist)
+        res = adjust(block, final_cfg)
+        camera = res.block.cameras[0]
+        R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
+        X[:] = np.nan
+        X[tracks] = res.block.point_xyz
+        r = _residual_norm(res.block)
+        robust_rms = float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median = sigma sqrt(ln 4)
+        lim = max(cfg.reject_k * robust_rms * np.sqrt(2.0), cfg.reject_min_px)
+        bad = r > lim
+        active[rows[bad]] = False
+        logger.info("final stage %d: sigma per axis %.3f px (robust), %d observations above %.2f px removed", stage,
+                    robust_rms, int(bad.sum()), lim)
+    X = np.where(np.isfinite(X).all(axis=1)[:, None], X,
+                 _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
+    obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+    block, tracks, rows = _block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs, cfg.pixel_sigma_px,
+                                 use_ctrl, use_dist)
+    res = adjust(block, final_cfg.with_(robust=None, statistics=True))
+    camera = res.block.cameras[0]
+    R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
+    Rout = np.full((n, 3, 3), np.nan)
+    Cout = np.full((n, 3), np.nan)
+    Rout[img_sel], Cout[img_sel] = R[img_sel], C[img_sel]
+    if datum == "positions":
+        P = inp.positions
+        have = np.flatnonzero(oriented & np.isfinite(P).all(axis=1))  # type: ignore[union-attr]
+        from skyrig.match.colmap_check import similarity_transform
+
+        s, Rs, t = similarity_transform(Cout[have], P[have])  # type: ignore[index]
+        v = s * Cout[have] @ Rs.T + t - P[have]  # type: ignore[index]
+        datum_info.update(images_with_positions=int(len(have)), similarity_scale=float(s),
+                          positions_similarity_rms_3d_m=float(np.sqrt(np.mean(np.sum(v ** 2, axis=1)))),
+                          positions_similarity_rms_xyz_m=np.sqrt(np.mean(v ** 2, axis=0)).tolist(),
+                          positions_similarity_max_m=float(np.linalg.norm(v, axis=1).max()),
+                          per_image_m={str(inp.names[k]): float(np.linalg.norm(v[q])) for q, k in enumerate(have)})
+    if datum == "free":
+        datum_info["note"] = "inner constraints; frame and scale of the relative orientation (start base = 1)"
+    summary = _summary(inp, res, oriented, camera, rounds, time.perf_counter() - t_start)
+    summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order])
+    return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
+
+
+def _summary(inp: OrientInput, res: AdjustmentResult, oriented: NDArray, camera: FrameCamera, rounds: int,
+             wall_s: float) -> dict[str, Any]:
+    b = res.block
+    img = res.residuals["image"]
+    act = img.weight > 0
+    v = img.residual[act]
+    per_image = np.bincount(b.obs_image[act], minlength=b.n_images)
+    out: dict[str, Any] = {
+        "images": int(len(inp.names)), "oriented": int(oriented.sum()),
+        "not_oriented": [str(x) for x in inp.names[~oriented]],
+        "tie_points": int(len(np.unique(b.obs_point[act]))), "image_observations": int(act.sum()),
+        "tie_points_per_image": {str(b.image_name[k]): int(per_image[k]) for k in range(b.n_images)},
+        "reprojection_rms_px": float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan"),
+        "reprojection_rms_xy_px": np.sqrt(np.mean(v ** 2, axis=0)).tolist() if len(v) else [],
+        "sigma0": res.sigma0,
+        "camera": dict(zip(camera.intrinsic_names, np.asarray(camera.intrinsics).tolist())),
+        "focal_px": camera.focal_mm / camera.pixel_size_mm,
+        "focal_px_exif": inp.camera.focal_mm / inp.camera.pixel_size_mm,
+        "growth_rounds": rounds, "wall_s": wall_s, "notes": list(inp.notes),
+    }
+    if "control" in res.residuals and len(res.residuals["control"].residual):
+        cr = res.residuals["control"].residual
+        out["control_fit_rms_xyz_m"] = np.sqrt(np.mean(cr ** 2, axis=0)).tolist()
+    if "distance" in res.residuals and len(res.residuals["distance"].residual):
+        out["scale_bar_residuals_m"] = np.asarray(res.residuals["distance"].residual).ravel().tolist()
+    return out
