@@ -76,7 +76,7 @@ from skyrig.trajectory import CameraEvents, Trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GON", "FlightData", "GnssImuCalibration", "calibrate_uncalibrated_gnss_imu", "paper003_scenario",
+__all__ = ["GON", "FlightData", "flight_data_from_survey", "GnssImuCalibration", "calibrate_uncalibrated_gnss_imu", "paper003_scenario",
            "find_strips", "y_parallax_models", "report_html", "format_tables"]
 
 GON = np.pi / 200.0
@@ -111,6 +111,9 @@ class FlightData:
         Names of the ground points used as control in the reference sub-block (default: all).
     national
         The frame of the ground points (the "national system" of Tab. 8); default ``ground.frame``.
+    trajectory_frame
+        The frame the trajectory file stated (for Tab. 1 and for writing the corrected trajectory); default
+        geographic WGS84 with ellipsoidal heights.
     """
 
     trajectory: Trajectory
@@ -120,7 +123,29 @@ class FlightData:
     ground: GroundPoints
     control_names: tuple[str, ...] | None = None
     national: WorldFrame | None = None
-    sources: dict[str, str] = field(default_factory=dict)
+    trajectory_frame: WorldFrame | None = None
+
+
+def flight_data_from_survey(survey: Any) -> FlightData:
+    """The recorded flight of a simulated survey (:func:`skyrig.simulate.scenarios.build_survey`) as the recipe's
+    input, in memory: what ``skyrig simulate`` writes (control in the scenario's GCP CRS with geoid heights)."""
+    from skyrig.pipeline.simulate import find_geoid
+
+    spec = survey.spec
+    geoid = find_geoid() if spec.gcp_geoid == "auto" else spec.gcp_geoid
+    gframe = WorldFrame.map(spec.gcp_crs or spec.crs, geoid)
+    xyz = gframe.from_ecef(survey.frame.to_ecef(survey.gcp_surveyed))
+    m = survey.measurements
+    pts, imgs, pix = [m["point"]], [m["image"]], [m["pixel"]]
+    if survey.tie_points is not None:
+        t = survey.tie_points
+        pts.append(t["point"])
+        imgs.append(t["image"])
+        pix.append(t["pixel"])
+    meas = ImageMeasurements(np.concatenate(pts), np.concatenate(imgs), np.concatenate(pix))
+    return FlightData(survey.trajectory_recorded, survey.events_recorded, survey.rig_recorded, meas,
+                      GroundPoints(survey.gcp_names, xyz, gframe),
+                      tuple(str(n) for n in survey.gcp_names[~survey.gcp_is_check]), gframe, WorldFrame.map(spec.crs))
 
 
 def paper003_scenario(size: str = "full", seed: int = 1, tie_points: int | None = None,
@@ -143,7 +168,7 @@ def paper003_scenario(size: str = "full", seed: int = 1, tie_points: int | None 
         fl = replace(spec.flights[0], area=(-5000.0, -7000.0, 5000.0, 7000.0))
         spec = replace(spec, flights=(fl,), scene_extent=(-12000.0, -14000.0, 12000.0, 14000.0), n_buildings=20,
                        n_gcp=12, n_check=4)
-    n_tie = tie_points if tie_points is not None else {"full": 11000, "reduced": 3000, "ci": 1500}[size]
+    n_tie = tie_points if tie_points is not None else {"full": 11000, "reduced": 2000, "ci": 1500}[size]
     err = replace(spec.errors, tie_points=int(n_tie),
                   measurement_sigma_px=float(image_sigma_um) / (cam.pixel_size_mm * 1000.0))
     assert isinstance(spec.flights[0], FlightSpec)
@@ -251,15 +276,24 @@ def _image_sigma_um(block: Block, sigma0: float) -> float:
 
 
 def _ned_from_frame(frame: WorldFrame, centre: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-    """``ned_from_frame`` rotations at the points and the meridian convergence (rad: angle from the frame's north
-    axis to geographic north, positive clockwise seen from above)."""
+    """``ned_from_frame`` rotations at the points and the meridian convergence (rad: azimuth of the frame's north
+    axis clockwise from geographic north, PROJ's sign convention)."""
     ecef = frame.to_ecef(centre)
     lat, lon, _ = ecef_to_geodetic(ecef)
     ned_from_ecef = np.swapaxes(ecef_from_ned_rotation(lat, lon), -1, -2)
     R = ned_from_ecef @ frame.ecef_from_frame_rotation(centre)
     north_axis = R[:, :, 1]  # the frame's y (north) axis in NED
     conv = np.arctan2(north_axis[:, 1], north_axis[:, 0])  # its azimuth from geographic north
-    return R, -conv
+    return R, conv
+
+
+def _grid_convergence(frame: WorldFrame, national: WorldFrame, centre: NDArray[np.float64]) -> dict[str, float]:
+    """Min / max meridian convergence of the national map projection at the projection centres (gon): what
+    turns the national EO's kappa (grid north) into the IMU's yaw (geographic north)."""
+    if national.kind != "map":
+        return {"min": 0.0, "max": 0.0}
+    conv, _ = national.projection.factors(frame.points_to(centre, national))
+    return {"min": float(np.min(conv) / GON), "max": float(np.max(conv) / GON)}
 
 
 def _rms(a: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
@@ -573,6 +607,7 @@ def calibrate_uncalibrated_gnss_imu(
                            "X_m": rms_x[0], "Y_m": rms_x[1], "Z_m": rms_x[2]},
         "images": n,
         "meridian_convergence_gon": {"min": float(conv.min() / GON), "max": float(conv.max() / GON)},
+        "grid_convergence_national_gon": _grid_convergence(frame, national, C_ref),
         "definition": "IMU vs reference: roll, pitch, yaw of R_imu^T R_ref against geographic north at each "
                       "projection centre; X Y Z: GNSS-derived minus reference projection centre (tangential frame)",
     }
@@ -749,7 +784,7 @@ def _table1(data: FlightData, frame: WorldFrame, national: WorldFrame) -> list[d
         row["heights"] = heights or fr.heights
         return row
 
-    return [describe(WorldFrame.map("EPSG:4979"), "GNSS/IMU (trajectory)", "ellipsoidal"),
+    return [describe(data.trajectory_frame or WorldFrame.map("EPSG:4979"), "GNSS/IMU (trajectory)", "ellipsoidal"),
             describe(data.ground.frame, "ground control"),
             describe(frame, "common tangential frame (adjustments)", "ellipsoidal (Cartesian ENU)")]
 
@@ -783,8 +818,9 @@ def format_tables(result: dict[str, Any]) -> str:
         r = m[key]
         out.append(f"  {lab:<22} {r['pitch_gon']:11.5f} {r['roll_gon']:11.5f} {r['yaw_gon']:11.5f} {r['X_m']:8.3f} "
                    f"{r['Y_m']:8.3f} {r['Z_m']:8.3f}")
-    out.append(f"  meridian convergence {m['meridian_convergence_gon']['min']:.4f} .. "
-               f"{m['meridian_convergence_gon']['max']:.4f} gon")
+    gc = m.get("grid_convergence_national_gon", {"min": float("nan"), "max": float("nan")})
+    out.append(f"  meridian convergence: tangential frame {m['meridian_convergence_gon']['min']:.4f} .. "
+               f"{m['meridian_convergence_gon']['max']:.4f} gon, national grid {gc['min']:.4f} .. {gc['max']:.4f} gon")
     out.append("Tab. 5: RMS differences at check points [m] (SX SY SZ)")
     for k, r in t["table5_check_points"].items():
         out.append(f"  {k} (sigma0 {r['sigma0_um']:.2f} um): ground points ({r['ground_points']['n']}) "

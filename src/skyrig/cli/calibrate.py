@@ -272,6 +272,21 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
     click.echo(f"-> {output}, {report_path}, {html_path}")
 
 
+def _trajectory_file_frame(path: str):  # type: ignore[no-untyped-def]
+    """The CRS a skyrig trajectory CSV states in its ``# crs:`` header line (default EPSG:4979)."""
+    from skyrig.georef.eo import WorldFrame
+
+    crs = "EPSG:4979"
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if not line.startswith("#"):
+                break
+            key, _, value = line[1:].partition(":")
+            if key.strip() == "crs" and value.strip():
+                crs = value.strip()
+    return WorldFrame.map(crs)
+
+
 @command.command("uncalibrated-gnss-imu")
 @click.option("--trajectory", "trajectory_path", required=True, type=click.Path(exists=True, dir_okay=False),
               help="Recorded GNSS antenna positions + IMU attitudes (skyrig trajectory CSV), uncalibrated.")
@@ -358,7 +373,8 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
         except ValueError:
             raise click.BadParameter(f"strip numbers separated by commas, not {reference_strips!r}",
                                      param_hint="--reference-strips") from None
-    data = FlightData(traj, events, rig, meas, ground, tuple(str(n) for n in ctrl.name))
+    traj_frame = _trajectory_file_frame(trajectory_path)
+    data = FlightData(traj, events, rig, meas, ground, tuple(str(n) for n in ctrl.name), None, traj_frame)
     try:
         cal = calibrate_uncalibrated_gnss_imu(
             data, reference_strips=ref, head=head, image_sigma_um=image_sigma_um,
@@ -381,7 +397,7 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
                          "html": html_path}
     out_frame = WorldFrame.map(out_crs) if out_crs else ctrl.frame
     write_rig(cal.rig, output, cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal))
-    write_trajectory_csv(traj_out, cal.trajectory_corrected)
+    write_trajectory_csv(traj_out, cal.trajectory_corrected, crs=traj_frame.crs if traj_frame.kind == "map" else "EPSG:4979")
     write_eo_csv(cal.eo_corrected.to_frame(out_frame), eo_out)
     with atomic_write(report_path) as fh:
         json.dump(report, fh, indent=2, default=float)
