@@ -251,3 +251,18 @@ def test_point_datum_100_images():
     out = check_point_datum(b, adjust(b, AdjustConfig(datum="free", intrinsics="free", inner_constraints="points")))
     print(out)
     assert out["n_unknowns"] >= 900
+
+
+def test_free_datum_on_a_block_whose_observations_fix_the_datum_is_refused():
+    """datum='free' on a block with control and GNSS used to run 50 iterations without converging, with
+    the redundancy off by 7; now refused in words (the motions the observations fix, what to use)."""
+    from skyrig.adjust import BlockError
+    from skyrig.adjust.synthetic import synthetic_block
+
+    b, _ = synthetic_block(seed=1, n_points=80)
+    with pytest.raises(BlockError) as e:
+        adjust(b, AdjustConfig(datum="free"))
+    msg = str(e.value)
+    assert "control points" in msg and "GNSS positions" in msg and "translation along X" in msg
+    assert "datum='auto'" in msg
+    assert adjust(b, AdjustConfig()).ok  # the same block with its own datum is fine

@@ -9,13 +9,14 @@ from typing import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.block import AdjustConfig, Block, BlockError
 from skyrig.adjust.model import Factor, Layout, Model, State, pad_actuator
 from skyrig.adjust.solver import (
     SingularError,
     SolveInfo,
     assemble,
     factor_cost,
+    inner_constraint_basis,
     levenberg_marquardt,
     schur_matrix,
     solve_reduced,
@@ -250,6 +251,40 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
                     f"boresight curve of order {cfg.actuator_fourier_order} needs at least {need}"])
 
 
+def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no-untyped-def]
+    """A free network's inner constraints remove the similarity motions that no observation fixes; raise
+    :class:`BlockError` naming them when the block's observations (control, GNSS, IMU, pose priors) fix some
+    (the inner constraints would then be wrong, the redundancy off by the defect, and the covariance garbage)."""
+    from skyrig.adjust.stats import _MOTIONS
+
+    lay = model.layout
+    d = S.diagonal()
+    if not np.all(d > 0):
+        return  # unknowns without observations: named by the solver / covariance
+    G = inner_constraint_basis(state, lay)
+    on = np.flatnonzero(np.linalg.norm(G, axis=0) > 0)
+    sc = 1.0 / np.sqrt(d)
+    H = G[:, on] / sc[:, None]  # the motions in the Jacobi-scaled space (unit diagonal)
+    H /= np.linalg.norm(H, axis=0)
+    r = np.linalg.norm(sc[:, None] * np.asarray(S @ (sc[:, None] * H)), axis=0)  # |D S D h|
+    fixed = [_MOTIONS[j] for j, v in zip(on, r) if v > 1e-6]
+    if not fixed:
+        return
+    b = model.block
+    what = []
+    if (model.control_weight > 0).any():
+        what.append("control points")
+    if len(b.gnss_station):  # type: ignore[arg-type]
+        what.append("GNSS positions")
+    if len(b.imu_station):  # type: ignore[arg-type]
+        what.append("IMU attitudes")
+    if model.config.poses == "weighted":
+        what.append("pose priors (poses='weighted')")
+    raise BlockError(f"datum='free' takes the datum from inner constraints, but the block's observations "
+                     f"({', '.join(what) or 'some observations'}) already fix {', '.join(fixed)}: use datum='auto' "
+                     "(the datum from those observations), or leave them out for a free network")
+
+
 def check_datum(model: Model, state: State, free_datum: bool) -> None:
     """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular.
 
@@ -274,6 +309,7 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
                            f"{np.unique(b.image_station[b.obs_image[rows]]).size} station(s) ({imgs or 'none'})")
         raise DatumDefectError(reasons or [str(e)]) from None
     if free_datum:
+        _check_free_datum(model, state, S)
         return
     try:
         solve_reduced(S, rhs)
@@ -489,7 +525,7 @@ def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redund
 
 def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[np.bool_]:
     """``(P,)`` the estimated points that carry the inner constraints (``cfg.datum_points``, or all).
-    Unknown names and fewer than 3 usable points raise ``ValueError`` naming them."""
+    Unknown names and fewer than 3 usable points (or all on one line) raise :class:`BlockError` in words."""
     lay = model.layout
     est = lay.point >= 0
     if lay.has_rpoint:
@@ -500,7 +536,7 @@ def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[
         idx = {str(n): k for k, n in enumerate(block.point_name)}
         bad = [n for n in cfg.datum_points if n not in idx]
         if bad:
-            raise ValueError(f"datum_points names unknown points {bad[:5]}")
+            raise BlockError(f"datum_points names unknown points {bad[:5]}")
         mask = np.zeros(block.n_points, bool)
         mask[[idx[n] for n in cfg.datum_points]] = True
         gone = [str(block.point_name[k]) for k in np.flatnonzero(mask & ~est)]
@@ -508,10 +544,10 @@ def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[
             logger.warning("datum points not estimated (fixed or left out of the adjustment): %s", gone[:5])
         mask &= est
     if mask.sum() < 3:
-        raise ValueError(f"inner constraints on points need at least 3 estimated datum points, got {int(mask.sum())}")
+        raise BlockError(f"inner constraints on points need at least 3 estimated datum points, got {int(mask.sum())}")
     X = model.block.point_xyz[mask]
     if np.linalg.matrix_rank(X - X.mean(axis=0), tol=1e-9 * max(1.0, float(np.abs(X).max()))) < 2:
-        raise ValueError("the datum points lie on one line: inner constraints on them leave a rotation about that "
+        raise BlockError("the datum points lie on one line: inner constraints on them leave a rotation about that "
                          "line undetermined")
     return mask
 
