@@ -17,7 +17,7 @@ HEAVY = ("numpy", "scipy", "numba", "pyproj", "rasterio", "cv2", "pycolmap", "da
          "skyrig.georef", "skyrig.io")
 
 OLD_COMMANDS = {"georef", "world-to-image", "image-to-world", "convert", "match", "block", "adjust", "adjust-uav", "plan",
-                "simulate", "lidar", "demo"}
+                "simulate", "lidar", "demo", "rig", "events"}
 
 
 def _modules_after(args: list[str]) -> set[str]:
