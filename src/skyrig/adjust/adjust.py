@@ -442,6 +442,9 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, total_info.final_cost = res
     redundancy = n_obs - n_unk + (_datum_defect(model.layout) if free else 0)
     failures = _failures(block, model, total_info, sigma0, redundancy) + failures
+    for w in _variance_component_warnings(groups, cfg):
+        logger.warning(w)
+        warnings.append(w)
     for f in failures:
         logger.warning("adjustment failed: %s", f)
     return AdjustmentResult(
@@ -483,6 +486,25 @@ def _what_to_free(cfg: AdjustConfig, groups: list[str]) -> str:
         elif cand:
             hints.append(f"{_GROUP_WORDS.get(g, g)} observations: their sigmas or the data themselves")
     return "; ".join(hints) if hints else "check the observations' sigmas and the model"
+
+
+def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfig) -> list[str]:
+    """Words for observation groups whose residuals are significantly larger than their sigmas say
+    (chi-square test of the group's variance factor ``s^2 r ~ chi2(r)`` at ``cfg.snooping_alpha``, and
+    ``s > 1.5``): a model error that data snooping does not show as blunders (e.g. a datum shift between
+    GNSS and control spread over all control points), named with what to free."""
+    from scipy.stats import chi2
+
+    out = []
+    for g, st in groups.items():
+        if g.startswith("prior") or not (st.redundancy > 0.5) or not np.isfinite(st.sigma0):
+            continue
+        p = float(chi2.sf(st.sigma0**2 * st.redundancy, st.redundancy))
+        if p < cfg.snooping_alpha and st.sigma0 > 1.5:
+            out.append(f"the {_GROUP_WORDS.get(g, g)} observations fit {st.sigma0:.1f} times worse than their sigmas "
+                       f"say (variance factor {st.sigma0:.2f}, redundancy {st.redundancy:.1f}, chi-square test p = "
+                       f"{p:.1g}): a probable model error, or sigmas too optimistic - " + _what_to_free(cfg, [g]))
+    return out
 
 
 def _implausible_rejections(model: Model, snooped: list[Rejection], cfg: AdjustConfig) -> str | None:
