@@ -66,6 +66,15 @@ def test_events_from_a_camera_log_give_back_the_flight(tmp_path):
     rows = np.array([order[str(n)] for n in ev.image_name])
     assert np.array_equal(got.head[rows], ev.head) and np.array_equal(got.exposure_id[rows], ev.exposure_id)
     assert np.abs(got.time_s[rows] - ev.time_s).max() < 1e-6
+    # heads sharing one folder: a glob pattern per head gives the same file
+    shared = tmp_path / "all_images"
+    shared.mkdir()
+    for n in ev.image_name:
+        (shared / str(n)).write_bytes(b"")
+    globs = [a for h in np.unique(ev.head) for a in ("--images", f"{h}={shared}/*_{h}.tif")]
+    r = run.invoke(main, ["events", "--log", str(log), *globs, "--rig", str(p.rig), "-o", str(tmp_path / "ev2.csv")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "ev2.csv").read_text() == (tmp_path / "ev.csv").read_text()
     # the walkthrough's next step: georeference with them, the same orientations as from the flight's own events
     for events, out in ((p.events, "eo_a.csv"), (tmp_path / "ev.csv", "eo_b.csv")):
         r = run.invoke(main, ["georef", "--trajectory", str(p.trajectory), "--events", str(events), "--rig",

@@ -4,8 +4,8 @@
 The log is a CSV with one row per platform exposure (trigger): a ``time`` column (seconds in the ``--time``
 scale, e.g. the GNSS receiver's event marks in GPS seconds of week), optionally ``exposure`` (integer id; default
 the row number) and ``beta`` (the actuated head's angle at the trigger, in ``--angles``); other columns are
-ignored, ``#`` lines are comments.  Each ``--images HEAD=FOLDER`` folder holds that head's images; sorted by
-file name, its k-th image is the k-th trigger's, so every folder must hold exactly as many images as the log
+ignored, ``#`` lines are comments.  Each ``--images HEAD=FOLDER`` folder holds that head's images (or
+``HEAD='images/*_nadir.png'``, a glob pattern, when the heads share a folder); sorted by file name, its k-th image is the k-th trigger's, so every folder must hold exactly as many images as the log
 has rows (else an error naming the head, the folder and both counts).  With ``--rig`` the heads must be the
 rig's, and ``beta`` goes to its actuated heads (without ``--rig``: to the heads named by ``--actuated``).
 """
@@ -74,6 +74,24 @@ def _read_log(path: str, angles: str):  # type: ignore[no-untyped-def]
     return t_arr, e, np.array(beta, dtype=np.float64) * scale, np.array(ln, dtype=np.int64)
 
 
+def _images(spec: str):  # type: ignore[no-untyped-def]
+    """The image files of a folder, or of a glob pattern (``images/*_nadir.png``: heads sharing one folder), sorted
+    by name."""
+    import glob
+    from pathlib import Path
+
+    from skyrig.errors import InputFormatError
+    from skyrig.io.image_read import IMAGE_SUFFIXES, list_images
+
+    if not glob.has_magic(spec):
+        return list_images(spec)
+    found = sorted((Path(q) for q in glob.glob(spec)), key=lambda q: q.name)
+    found = [q for q in found if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES]
+    if not found:
+        raise InputFormatError("no image file matches the pattern", spec)
+    return found
+
+
 def events_from_log(log: str, folders: dict[str, str], actuated: set[str], time_system: str = "gps-sow",
                     angles: str = "deg"):  # type: ignore[no-untyped-def]
     """:class:`~skyrig.trajectory.CameraEvents` from a trigger log and one image folder per head (the k-th image
@@ -87,7 +105,7 @@ def events_from_log(log: str, folders: dict[str, str], actuated: set[str], time_
     t, expo, beta, _ = _read_log(log, angles)
     names, heads, times, betas, ids = [], [], [], [], []
     for head, folder in folders.items():
-        imgs = list_images(folder)
+        imgs = _images(folder)
         if len(imgs) != len(t):
             raise InputFormatError(f"head {head!r}: {len(imgs)} images in {folder} but {len(t)} triggers in the log; "
                                    "each folder must hold one image per trigger", log, None, "time")
@@ -113,7 +131,8 @@ def events_from_log(log: str, folders: dict[str, str], actuated: set[str], time_
 @click.option("--log", "log_path", required=True, type=click.Path(exists=True, dir_okay=False),
               help="Trigger log CSV: 'time' (+ optional 'exposure', 'beta') per exposure, in time order.")
 @click.option("--images", "image_specs", multiple=True, required=True, metavar="HEAD=FOLDER",
-              help="A head's image folder (repeat per head); its k-th image by name is the k-th trigger's.")
+              help="A head's image folder or glob pattern (repeat per head); its k-th image by name is the k-th "
+                   "trigger's.")
 @click.option("--rig", "rig_path", type=click.Path(exists=True, dir_okay=False),
               help="Rig file: the heads must be its heads; beta goes to its actuated heads.")
 @click.option("--actuated", default="", help="Without --rig: comma list of the heads that take the log's beta.")
@@ -125,6 +144,7 @@ def events_from_log(log: str, folders: dict[str, str], actuated: set[str], time_
 def command(log_path: str, image_specs: tuple[str, ...], rig_path: str | None, actuated: str, time_system: str,
             angles: str, output: str) -> None:
     """Camera events CSV from a trigger log and one image folder per rig head."""
+    import glob
     from pathlib import Path
 
     from skyrig.io.events_csv import write_events_csv
@@ -136,7 +156,7 @@ def command(log_path: str, image_specs: tuple[str, ...], rig_path: str | None, a
             raise click.BadParameter(f"{spec!r}: expected HEAD=FOLDER", param_hint="--images")
         if head.strip() in folders:
             raise click.BadParameter(f"head {head.strip()!r} given twice", param_hint="--images")
-        if not Path(folder).is_dir():
+        if not Path(folder).is_dir() and not glob.has_magic(folder):
             raise click.BadParameter(f"{folder}: no such folder", param_hint="--images")
         folders[head.strip()] = folder
     act = {h.strip() for h in actuated.split(",") if h.strip()}
