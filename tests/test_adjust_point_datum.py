@@ -147,6 +147,20 @@ def test_inner_constraints_on_all_points_equal_the_bordered_dense_inverse(runs):
     assert out["n_unknowns"] > 500
 
 
+def test_pose_datum_cross_cofactors_equal_the_bordered_dense_inverse(runs):  # type: ignore[no-untyped-def]
+    """datum='free' with inner constraints on the poses: the Moore-Penrose inverse of the reduced normal matrix
+    (poses, calibration, scale-bar end points) - i.e. the constraints on the reduced columns of the full normal
+    matrix; every cofactor skyrig forms (reduced, reduced x point, point blocks) against the bordered inverse."""
+    b, _, r = runs
+    res = r["poses"]
+    N = dense_full_normal(res)
+    Qref = bordered_reference(N, np.arange(res.layout.n_c), 6)
+    Q = skyrig_full_cofactors(res)
+    sd = np.sqrt(np.diag(Qref))
+    known = np.isfinite(Q)
+    assert (np.abs(Q - Qref)[known] / np.outer(sd, sd)[known]).max() < 1e-6
+
+
 def test_inner_constraints_on_chosen_points_and_minimum_trace(runs):  # type: ignore[no-untyped-def]
     b, names, r = runs
     check_point_datum(b, r["chosen"], names)
