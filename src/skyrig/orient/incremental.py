@@ -568,6 +568,9 @@ def _summary(inp: OrientInput, res: AdjustmentResult, oriented: NDArray, camera:
         "focal_px_exif": inp.camera.focal_mm / inp.camera.pixel_size_mm,
         "growth_rounds": rounds, "wall_s": wall_s, "notes": list(inp.notes),
     }
+    ps = res.pose_sigma
+    if ps is not None:  # predicted sigma of the projection centres (m, frame axes), per image
+        out["centre_sigma_m"] = {str(b.image_name[k]): ps[b.image_station[k], :3].tolist() for k in range(b.n_images)}
     if "control" in res.residuals and len(res.residuals["control"].residual):
         cr = res.residuals["control"].residual
         out["control_fit_rms_xyz_m"] = np.sqrt(np.mean(cr ** 2, axis=0)).tolist()

@@ -1,0 +1,159 @@
+"""Orientation without GNSS (skyrig.orient.incremental, ``skyrig adjust-uav --no-gps``).
+
+Simulated close-range set (:func:`skyrig.simulate.closerange.facade_set`): a façade with relief, 12 convergent
+images in two rows (some rolled 90 deg), 0.5 px measurement noise, 1 % gross mismatches, a start camera with the focal
+length 4 % off, no principal point offset and no distortion (the true camera has both).  The truth of the seeded
+simulation is the independent answer; tolerances are the adjustment's own predicted precision (4 sigma) after the
+datum (a rigid motion for the scale-bar datum, whose scale is estimated; nothing for control points).
+
+Real set (slow): the 29 OpenSfM lund phone images without their GPS, oriented from the CLI, then compared with the
+EXIF GPS after a similarity and with pycolmap's own reconstruction of the same images in the same run.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyrig.camera.opencv import OpenCVDistortion
+from skyrig.match.colmap_check import similarity_transform
+from skyrig.orient.incremental import OrientConfig, OrientInput, orient_incremental
+from skyrig.simulate.closerange import facade_set
+
+SIGMA_PX = 0.5
+BAR_SIGMA_M = 0.0005
+
+
+def _set():
+    return facade_set(seed=2, n_points=300, n_per_row=6, width_px=1000, sigma_px=SIGMA_PX)
+
+
+def _start_camera(s):
+    return s.camera.with_(focal_mm=s.camera.focal_mm * 1.04, ppx_mm=0.0, ppy_mm=0.0, distortion=OpenCVDistortion())
+
+
+@pytest.fixture(scope="module")
+def scale_bar_run():
+    s = _set()
+    rng = np.random.default_rng(7)
+    idx = {n: k for k, n in enumerate(s.point_name)}
+    inp = OrientInput(s.names, _start_camera(s), s.obs_point, s.obs_image, s.obs_pixel, s.point_name,
+                      distance_track=np.array([[idx[a], idx[b]] for a, b in s.bars]),
+                      distance_m=s.bar_length + rng.normal(0, BAR_SIGMA_M, len(s.bars)), distance_sigma_m=BAR_SIGMA_M)
+    return s, orient_incremental(inp, OrientConfig(pixel_sigma_px=SIGMA_PX))
+
+
+def test_scale_bar_set_oriented_within_predicted_precision(scale_bar_run):
+    s, res = scale_bar_run
+    assert res.oriented.all()
+    assert res.summary["datum"]["kind"] == "scale-bar"
+    # gross mismatches removed: reprojection RMS at the noise level (per axis 0.5 px -> 0.5 * sqrt(2) per point)
+    assert res.summary["reprojection_rms_px"] < 1.15 * SIGMA_PX
+    adj = res.adjustment
+    assert adj.info.converged
+    # rigid motion only (rotation + translation): the scale is what the scale bars must give
+    _, Rr, _ = similarity_transform(res.centre, s.C)
+    c0t, c0e = s.C.mean(axis=0), res.centre.mean(axis=0)
+    d = (res.centre - c0e) @ Rr.T + c0t - s.C
+    ps = adj.pose_sigma[:, :3]
+    assert np.all(np.linalg.norm(d, axis=1) < 4 * np.linalg.norm(ps, axis=1)), \
+        (np.linalg.norm(d, axis=1) / np.linalg.norm(ps, axis=1)).max()
+    # scale: distance between the two farthest cameras against its predicted sigma
+    D = np.linalg.norm(res.centre[:, None] - res.centre[None], axis=2)
+    i, j = np.unravel_index(np.argmax(D), D.shape)
+    cols = np.r_[adj.layout.pose[i, :3], adj.layout.pose[j, :3]]
+    Q = adj.covariance.Qcc[np.ix_(cols, cols)] * adj.sigma0 ** 2
+    u = (res.centre[i] - res.centre[j]) / D[i, j]
+    sd = float(np.sqrt(np.r_[u, -u] @ Q @ np.r_[u, -u]))
+    true = float(np.linalg.norm(s.C[i] - s.C[j]))
+    assert abs(D[i, j] - true) < 4 * sd, (D[i, j] - true, sd)
+    assert sd < 0.01 * true  # the scale bars determine the scale (to better than 1 %)
+    # self-calibration recovered the camera
+    sr = adj.sigma_reduced()
+    name = res.camera.name
+    assert abs(res.camera.focal_mm - s.camera.focal_mm) < 4 * sr[("intrinsics", name, "focal_mm")] * adj.sigma0
+    assert abs(res.camera.distortion.k1 - s.camera.distortion.k1) < 4 * sr[("intrinsics", name, "k1")] * adj.sigma0
+
+
+def test_seed_pair_has_parallax(scale_bar_run):
+    _, res = scale_bar_run
+    seed = res.summary["seed"]
+    assert seed["median_intersection_angle_deg"] > 4.0
+    assert seed["inliers"] >= 100
+
+
+def _write_project(tmp_path, s, n_control=6):
+    from skyrig.georef.observations import ImageMeasurements
+    from skyrig.io.points_csv import write_measurements_csv
+    from skyrig.io.rig_file import write_rig
+    from skyrig.rig.rig import Head, Rig
+
+    proj = tmp_path / "facade"
+    (proj / "match").mkdir(parents=True)
+    write_measurements_csv(proj / "match" / "tie_points.csv",
+                           ImageMeasurements(s.point_name[s.obs_point], s.names[s.obs_image], s.obs_pixel))
+    write_rig(Rig("start", {"camera": Head("camera", _start_camera(s))}), proj / "camera.yaml")
+    idx = {n: k for k, n in enumerate(s.point_name)}
+    rows = "".join(f"{n},{s.X[idx[n]][0]:.4f},{s.X[idx[n]][1]:.4f},{s.X[idx[n]][2]:.4f}\n" for n in s.target_names)
+    lines = rows.splitlines(keepends=True)
+    head = "# crs: local 48.85 2.35 35.0\nname,x,y,z\n"
+    (proj / "gcp.csv").write_text(head + "".join(lines[:n_control]))
+    (proj / "check.csv").write_text(head + "".join(lines[n_control:]))
+    (proj / "bars.csv").write_text("from,to,length_m,sigma_m\n" + "".join(
+        f"{a},{b},{v:.4f},{BAR_SIGMA_M}\n" for (a, b), v in zip(s.bars, s.bar_length)))
+    return proj
+
+
+def test_cli_control_points_end_to_end(tmp_path):
+    """``skyrig adjust-uav --no-gps --gcp --check --camera``: outputs in the control points' frame, centres and
+    check points against the truth within the predicted precision."""
+    from skyrig.cli import main
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.io.points_csv import read_points_csv
+
+    s = _set()
+    proj = _write_project(tmp_path, s)
+    r = CliRunner().invoke(main, ["adjust-uav", str(proj), "--no-gps", "--camera", str(proj / "camera.yaml"),
+                                  "--gcp", str(proj / "gcp.csv"), "--gcp-sigma", "0.002",
+                                  "--check", str(proj / "check.csv")])
+    assert r.exit_code == 0, r.output
+    out = proj / "adjust-uav"
+    for f in ("eo.csv", "points.csv", "report.json", "report.html", "camera.yaml", "manifest.json"):
+        assert (out / f).is_file(), f
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["uav"]["datum"]["kind"] == "control"
+    eo = read_eo_csv(out / "eo.csv")
+    k = [list(s.names).index(n) for n in eo.image]
+    # the EO is in the control points' frame (local ENU at the given origin): compare with the truth directly
+    sig = np.array([rep["uav"]["centre_sigma_m"][str(n)] for n in eo.image])
+    d = eo.centre - s.C[k]
+    assert np.all(np.linalg.norm(d, axis=1) < 4 * np.linalg.norm(sig, axis=1)), \
+        (np.linalg.norm(d, axis=1) / np.linalg.norm(sig, axis=1)).max()
+    pts = read_points_csv(out / "points.csv")
+    idx = {n: q for q, n in enumerate(pts.name)}
+    checks = [n for n in s.target_names[6:] if n in idx]
+    assert len(checks) >= 3
+    tidx = {n: q for q, n in enumerate(s.point_name)}
+    import csv
+
+    with open(out / "points.csv") as fh:
+        rows = {r["name"]: r for r in csv.DictReader(fh)}
+    for n in checks:
+        dv = pts.xyz[idx[n]] - s.X[tidx[n]]
+        sv = np.array([float(rows[n][c]) for c in ("sx", "sy", "sz")])
+        assert np.linalg.norm(dv) < 4 * np.linalg.norm(sv), (n, dv, sv)
+
+
+def test_cli_bad_scale_bar_file_names_line_and_field(tmp_path):
+    from skyrig.cli import main
+
+    s = _set()
+    proj = _write_project(tmp_path, s)
+    (proj / "bars.csv").write_text("from,to,length_m\nbar1a,bar1b,2.0\nbar2a,bar2b,-1\n")
+    r = CliRunner().invoke(main, ["adjust-uav", str(proj), "--camera", str(proj / "camera.yaml"),
+                                  "--scale-bar", str(proj / "bars.csv")])
+    assert r.exit_code == 2, r.output
+    assert "bars.csv" in r.output and "line 3" in r.output and "length_m" in r.output, r.output
