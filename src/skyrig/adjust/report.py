@@ -87,9 +87,9 @@ def datum_words(result: AdjustmentResult) -> str:
     cfg = result.config
     if cfg.datum == "free" and cfg.inner_constraints == "points":
         which = (f"{len(cfg.datum_points)} chosen points" if cfg.datum_points else "all estimated object points")
-        return (f"inner constraints on {which} (free network: their centroid, orientation"
-                + ("" if result.block.n_distances else " and scale")
-                + " are those of their starting coordinates; minimum trace of their covariance)")
+        kept = "centroid and orientation" if result.block.n_distances else "centroid, orientation and scale"
+        return (f"inner constraints on {which} (free network: their {kept} are those of their starting "
+                "coordinates; minimum trace of their covariance)")
     if cfg.datum == "free":
         return "inner constraints on the station poses (free network: minimum norm of the pose corrections)"
     if cfg.datum == "none":
