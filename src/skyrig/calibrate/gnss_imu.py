@@ -53,14 +53,14 @@ from __future__ import annotations
 
 import html
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult, adjust
-from skyrig.adjust.block import AdjustConfig, Block, BlockError
+from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.frames import eo_from_block
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
@@ -70,7 +70,7 @@ from skyrig.geodesy.local import ecef_from_ned_rotation
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
-from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix, rpy_from_matrix
+from skyrig.geometry.rotations import matrix_from_rpy, rotvec_from_matrix, rpy_from_matrix
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
@@ -158,7 +158,7 @@ def paper003_scenario(size: str = "full", seed: int = 1, tie_points: int | None 
     the simulated camera).  ``size``: ``"full"`` (4 strips x 55 km, about 110 images), ``"reduced"`` (4 strips x
     14 km, the same camera and height: a test block) or ``"ci"`` (the scenario's CI size).
     """
-    from skyrig.simulate.scenarios import FlightSpec, scenario_spec
+    from skyrig.simulate.scenarios import scenario_spec
 
     if size not in ("full", "reduced", "ci"):
         raise SkyrigError(f"size must be 'full', 'reduced' or 'ci', not {size!r}")
@@ -171,7 +171,6 @@ def paper003_scenario(size: str = "full", seed: int = 1, tie_points: int | None 
     n_tie = tie_points if tie_points is not None else {"full": 11000, "reduced": 2000, "ci": 1500}[size]
     err = replace(spec.errors, tie_points=int(n_tie),
                   measurement_sigma_px=float(image_sigma_um) / (cam.pixel_size_mm * 1000.0))
-    assert isinstance(spec.flights[0], FlightSpec)
     return replace(spec, errors=err)
 
 
@@ -366,6 +365,7 @@ class GnssImuCalibration:
     trajectory_corrected: Trajectory
     eo_corrected: ExteriorOrientations
     eo_iso: ExteriorOrientations
+    eo_reference: ExteriorOrientations
     tables: dict[str, Any]
     gsd_m: float
     n_images: int
@@ -509,7 +509,7 @@ def calibrate_uncalibrated_gnss_imu(
     tables["table2_strip_shifts"] = {"rows": t2, "sigma0_um": _image_sigma_um(sub_g, r_a.sigma0),
                                      "definition": "GNSS antenna minus adjusted (tangential frame E, N, U)"}
     # antenna offset from the shifts: s_k = D + A_k (dx, dy)
-    rows, A = [], []
+    A = []
     for k, s in enumerate(ref_sorted):
         Rk = r_a.block.station_rotation[r_a.block.station_strip == k].mean(axis=0)
         for ax in range(3):
@@ -573,8 +573,12 @@ def calibrate_uncalibrated_gnss_imu(
     names = st.station_name
     full_idx = {str(n): k for k, n in enumerate(blk1.station_name)}
     rows_full = np.array([full_idx[str(n)] for n in names])
-    R_imu = blk1.imu_rotation[np.searchsorted(blk1.imu_station, rows_full)]  # world_from_body recorded
-    assert np.array_equal(blk1.imu_station[np.searchsorted(blk1.imu_station, rows_full)], rows_full)
+    imu_row = {int(k): j for j, k in enumerate(blk1.imu_station)}
+    gnss_row = {int(k): j for j, k in enumerate(blk1.gnss_station)}
+    missing = [str(names[j]) for j, k in enumerate(rows_full) if int(k) not in imu_row or int(k) not in gnss_row]
+    if missing:
+        raise CalibrationFailed(f"no GNSS/IMU record for {missing[0]} ({len(missing)} reference stations)")
+    R_imu = blk1.imu_rotation[[imu_row[int(k)] for k in rows_full]]  # world_from_body recorded
     R_ref_body = st.station_rotation  # world_from_body of the reference (nominal mounting, zero boresight)
     C_ref = st.station_centre + np.einsum("nij,nj->ni", st.station_rotation,
                                           st.image_offset[np.searchsorted(st.image_station, np.arange(st.n_stations))])
@@ -583,7 +587,7 @@ def calibrate_uncalibrated_gnss_imu(
     ned_ref = ned @ R_ref_body
     rel = np.swapaxes(ned_imu, 1, 2) @ ned_ref  # R_rpy(b) = R_imu^T R_ref (body axes)
     d_rpy = np.column_stack(rpy_from_matrix(rel, unit="rad"))
-    g = blk1.gnss_xyz[np.searchsorted(blk1.gnss_station, rows_full)]
+    g = blk1.gnss_xyz[[gnss_row[int(k)] for k in rows_full]]
     C_gnss = g - np.einsum("nij,j->ni", R_imu, rig1.antenna_lever_arm_m)
     d_xyz = C_gnss - C_ref
     b_mean = d_rpy.mean(axis=0)
@@ -689,7 +693,7 @@ def calibrate_uncalibrated_gnss_imu(
                   "sigma0_iso_um": t5["integrated_sensor_orientation"]["sigma0_um"],
                   "reference_images": float(n)})
     return GnssImuCalibration(rig, rig_cal, head, frame, national, b_mean, bore_cov, x_mean, datum_cov, offset,
-                              offset_cov, traj_c, eo_c, eo_iso, tables, gsd, block0.n_images, tuple(ref_sorted), stats)
+                              offset_cov, traj_c, eo_c, eo_iso, ref_eo, tables, gsd, block0.n_images, tuple(ref_sorted), stats)
 
 
 def _spatial_intersection(block: Block) -> tuple[dict[str, NDArray[np.float64]], float]:
