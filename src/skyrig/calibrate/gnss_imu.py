@@ -397,10 +397,11 @@ class GnssImuCalibration:
         return RigCalibration(heads, ant, prov)
 
     def to_dict(self) -> dict[str, Any]:
+        """The JSON report: the result with sigmas, statistics and the paper's tables (plain numbers)."""
         sb = np.sqrt(np.diag(self.boresight_cov_rad2))
         sd = np.sqrt(np.diag(self.datum_shift_cov_m2))
         sa = np.sqrt(np.diag(self.antenna_offset_cov_m2))
-        return {
+        return _plain({
             "recipe": "uncalibrated-gnss-imu", "paper": "003 (Redweik & Jacobsen)",
             "frame": self.frame.describe(), "national_frame": self.national.describe(),
             "images": self.n_images, "gsd_m": self.gsd_m, "reference_strips": [s + 1 for s in self.reference_strips],
@@ -417,7 +418,20 @@ class GnssImuCalibration:
             },
             "statistics": dict(self.statistics),
             "tables": self.tables,
-        }
+        })
+
+
+def _plain(v: Any) -> Any:
+    """Numpy scalars and arrays (nested in dicts / lists) as plain Python numbers and lists (for JSON)."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
 
 
 # ------------------------------------------------------------------------------------------------ the recipe
@@ -849,10 +863,19 @@ def report_html(result: dict[str, Any]) -> str:
     esc = html.escape
     text = format_tables(result)
     res = result["result"]
-    rows = "".join(f"<tr><td>{esc(k)}</td><td>{esc(str(np.round(v, 6).tolist() if isinstance(v, list) else v))}</td></tr>"
-                   for k, v in res.items())
+    items = [(f"boresight misalignment {k} [gon]", res["boresight_misalignment_gon"][k], res["boresight_sigma_gon"][k], 5)
+             for k in ("roll", "pitch", "yaw")]
+    items += [(f"datum shift {k} (GNSS minus control) [m]", res["datum_shift_m"][k], res["datum_shift_sigma_m"][k], 3)
+              for k in "XYZ"]
+    items += [(f"antenna offset {k} [m]", res["antenna_offset_m"][k], res["antenna_offset_sigma_m"][k], 3)
+              for k in ("dx", "dy")]
+    rows = "".join(f"<tr><td>{esc(n)}</td><td>{v:.{d}f}</td><td>&plusmn; {s:.{d}f}</td></tr>" for n, v, s, d in items)
+    rows += (f"<tr><td>calibrated antenna lever arm [m]</td><td colspan=2>"
+             f"{esc(str(np.round(res['antenna_lever_arm_m'], 3).tolist()))}</td></tr>"
+             f"<tr><td>calibrated head boresight omega, phi, kappa [deg]</td><td colspan=2>"
+             f"{esc(str(np.round(res['head_boresight_opk_deg'], 6).tolist()))}</td></tr>")
     return ("<!doctype html><meta charset='utf-8'><title>uncalibrated-gnss-imu calibration</title>"
             "<h1>GNSS/IMU system calibration (paper 003 recipe)</h1>"
             f"<p>{result['images']} images, GSD {result['gsd_m']:.3f} m, reference strips "
             f"{esc(str(result['reference_strips']))}, frame {esc(result['frame'])}</p>"
-            f"<h2>Result</h2><table border=1>{rows}</table><h2>Tables</h2><pre>{esc(text)}</pre>")
+            f"<h2>Result</h2><table border=1><tr><th>quantity</th><th>value</th><th>sigma</th></tr>{rows}</table><h2>Tables</h2><pre>{esc(text)}</pre>")
