@@ -57,7 +57,7 @@ class _PeakRss:
         self.peak = max(self.peak, _rss())
 
 
-def one(n_exposures: int, points_per_exposure: int, seed: int) -> dict:
+def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = "free") -> dict:
     """Generate and adjust one block; a dict of figures."""
     from skyrig.adjust import AdjustConfig, adjust
     from skyrig.adjust.synthetic import synthetic_block
@@ -79,13 +79,13 @@ def one(n_exposures: int, points_per_exposure: int, seed: int) -> dict:
     base = _rss()
     t1 = time.perf_counter()
     with _PeakRss() as mem:
-        res = adjust(block, AdjustConfig(statistics=False, max_iterations=50))
+        res = adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=boresight))
     t_adj = time.perf_counter() - t1
     err = np.sqrt(np.mean((res.block.station_centre - truth.station_centre) ** 2))
     return dict(exposures=block.n_stations, images=block.n_images, points=block.n_points,
                 observations=block.n_observations, generate_s=t_gen, adjust_s=t_adj, warmup_s=t_warm,
                 iterations=res.info.iterations, unsuccessful=res.info.unsuccessful, lm_s=res.info.wall_s,
-                engine=res.info.engine, converged=bool(res.info.converged),
+                engine=res.info.engine, converged=bool(res.info.converged), linear_solver=res.info.linear_solver,
                 sigma0=res.sigma0, centre_rmse_m=float(err), adjust_peak_mib=(mem.peak - base) / 2**20,
                 process_peak_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
@@ -95,18 +95,19 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 200, 500, 1000, 2000])
     ap.add_argument("--points-per-exposure", type=int, default=40)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--boresight", default="free", help="boresight mode of the adjustment (free, fixed, weighted)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(one(a.one, a.points_per_exposure, a.seed)))
+        print(json.dumps(one(a.one, a.points_per_exposure, a.seed, a.boresight)))
         return
     rows = []
     hdr = (f"{'exposures':>9} {'images':>7} {'points':>8} {'obs':>9} {'gen s':>7} {'adjust s':>9} {'LM s':>7} "
            f"{'iter':>5} {'s/iter':>7} {'adj MiB':>8} {'proc MiB':>9} {'sigma0':>7} {'exp(t)':>7} {'exp(mem)':>8} "
-           f"{'warm s':>7}")
+           f"{'warm s':>7}  linear solver")
     import numba
 
-    print(f"MIDAS penta rig, {a.points_per_exposure} points per exposure, seed {a.seed}, "
+    print(f"MIDAS penta rig, GNSS/IMU, boresights {a.boresight}, {a.points_per_exposure} points per exposure, seed {a.seed}, "
           f"os.cpu_count() = {os.cpu_count()}, numba threads = {numba.get_num_threads()}")
     print("adjust s: the whole adjust() call (datum check, Levenberg-Marquardt, statistics); LM s: the "
           "Levenberg-Marquardt loop alone; iter: successful + unsuccessful steps; each size runs in a fresh "
@@ -132,7 +133,7 @@ def main() -> None:
               f"{r['adjust_s']:9.2f} {r['lm_s']:7.2f} {r['iterations'] + r['unsuccessful']:5d} "
               f"{r['adjust_s'] / max(r['iterations'] + r['unsuccessful'], 1):7.2f} "
               f"{r['adjust_peak_mib']:8.0f} {r['process_peak_mib']:9.0f} {r['sigma0']:7.3f} {ex_t:7.2f} {ex_m:8.2f} "
-              f"{r['warmup_s']:7.2f}",
+              f"{r['warmup_s']:7.2f}  {r['linear_solver']}",
               flush=True)
     if len(rows) >= 2:
         x = np.log([r["exposures"] for r in rows])

@@ -223,7 +223,7 @@ def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layou
         Wobs = np.empty((n, k, 3))
         Ub3 = Ub.reshape(n_img, k, k)
         _K["unit_normals"](uptr, uo, np.ascontiguousarray(f.jc), jp0, np.ascontiguousarray(f.r),
-                           np.ascontiguousarray(sw * sw), pt, Ub3, gb, Wobs)
+                           np.ascontiguousarray(sw * sw), pt, Ub3, gb, Wobs, np.arange(n, dtype=np.int64))
     for s0 in range(0, n if Wobs is None else 0, chunk):
         sl = slice(s0, s0 + chunk)
         jtj = np.einsum("nda,ndb->nab", jc[sl], jc[sl]).reshape(-1, k * k)
@@ -460,7 +460,8 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                     V[p, a, b] += wo * s
 
     @njit(cache=True, nogil=True, parallel=True)
-    def unit_normals(unit_ptr, unit_obs, jc, jp, r, w, pt, Uu, gu, W):  # pragma: no cover - compiled
+    def unit_normals(unit_ptr, unit_obs, jc, jp, r, w, pt, Uu, gu, W, wpos):  # pragma: no cover - compiled
+        # W[wpos[o]]: the k x 3 block of row o (W kept once, in the order the Schur product reads it)
         d = jc.shape[1]
         k = jc.shape[2]
         n_u = len(unit_ptr) - 1
@@ -483,7 +484,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                             s = 0.0
                             for e in range(d):
                                 s += jc[o, e, a] * jp[o, e, b]
-                            W[o, a, b] = wo * s
+                            W[wpos[o], a, b] = wo * s
             for a in range(k):
                 for b in range(a):
                     Uu[u, a, b] = Uu[u, b, a]
@@ -519,11 +520,12 @@ def _make_kernels():  # type: ignore[no-untyped-def]
         return bad
 
     @njit(cache=True, nogil=True, parallel=True)
-    def schur(unit_ptr, unit_obs, obs_unit, pt, pt_ptr, upt, W, Wp, Vinv, gp, row_ptr, col_idx,
+    def schur(unit_ptr, unit_obs, obs_unit, pt, pt_ptr, upt, wpos, Wp, Vinv, gp, row_ptr, col_idx,
               out, rhs_u, n_chunks):  # pragma: no cover - compiled
-        # Wp, upt: W blocks and units of the rows in point order (pt_obs), read sequentially per point
+        # Wp, upt: W blocks and units of the rows in point order (pt_obs), read sequentially per point;
+        # wpos: the position of a row in that order
         n_u = len(unit_ptr) - 1
-        k = W.shape[1]
+        k = Wp.shape[1]
         # each chunk (thread) takes every n_chunks-th unit row (balance) and keeps a dense column -> slot
         # map of the row it works on
         for c in prange(n_chunks):
@@ -539,9 +541,10 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                     p = pt[a]
                     if p < 0:
                         continue
+                    wa = wpos[a]
                     for i in range(k):
                         for cc in range(3):
-                            T[i, cc] = W[a, i, 0] * Vinv[p, 0, cc] + W[a, i, 1] * Vinv[p, 1, cc] + W[a, i, 2] * Vinv[p, 2, cc]
+                            T[i, cc] = Wp[wa, i, 0] * Vinv[p, 0, cc] + Wp[wa, i, 1] * Vinv[p, 1, cc] + Wp[wa, i, 2] * Vinv[p, 2, cc]
                         rhs_u[u, i] += T[i, 0] * gp[p, 0] + T[i, 1] * gp[p, 1] + T[i, 2] * gp[p, 2]
                     for jj in range(pt_ptr[p], pt_ptr[p + 1]):
                         ub = upt[jj]
@@ -687,6 +690,8 @@ class SchurEngine:
         self.unit_ptr[1:] = np.cumsum(np.bincount(self.obs_unit, minlength=n_u)) if has_jc else 0
         self.unit_obs = uorder
         self.upt = self.obs_unit[self.pt_obs]  # unit of each row in point order
+        self.wpos = np.full(n_obs, -1, np.int64)  # position of each row in point order (its W block)
+        self.wpos[self.pt_obs] = np.arange(len(self.pt_obs))
         # ---- unit-pair block pattern (upper triangle incl. diagonal)
         if has_jc:
             self.row_ptr, self.col_idx = _K["pair_pattern"](self.unit_ptr, self.unit_obs, self.pt, self.pt_ptr,
@@ -747,7 +752,8 @@ class SchurEngine:
         gc = np.zeros(n_c)
         V = np.zeros((n_p, 3, 3))
         gp = np.zeros((n_p, 3))
-        self.W = self.Wp = np.zeros((0, k, 3))
+        if not hasattr(self, "Wp"):
+            self.Wp = np.zeros((0, k, 3))
         oth = dict(self.others)
         for i, f in enumerate(factors):
             sw, c = _robust(f, huber_k)
@@ -764,11 +770,10 @@ class SchurEngine:
                 jc = np.ascontiguousarray(f.jc)
                 Uu = np.zeros((self.n_u, k, k))
                 gu = np.zeros((self.n_u, k))
-                W = np.empty((len(f), k, 3))
+                if self.Wp.shape != (len(self.pt_obs), k, 3):  # kept between linearisations: written in full
+                    self.Wp = np.empty((len(self.pt_obs), k, 3))  # point order: the Schur product reads them so
                 _K["unit_normals"](self.unit_ptr, self.unit_obs, jc, jp if jp is not None else np.zeros((len(f), r.shape[1], 3)),
-                                   r, w, self.pt, Uu, gu, W)
-                self.W = W
-                self.Wp = W[self.pt_obs]  # point order: the Schur product reads them point by point
+                                   r, w, self.pt, Uu, gu, self.Wp, self.wpos)
                 m = self.map_a[self._diag_entries]
                 v = m >= 0
                 U0 += np.bincount(m[v], weights=Uu.reshape(-1)[v], minlength=self.nnz)
@@ -804,10 +809,10 @@ class SchurEngine:
         S = self.U0.copy()
         S[self.diagpos] += lam * np.clip(self.diagU, self.diag_min, None)
         rhs = -self.gc.copy()
-        if k and n_p and len(self.W):
+        if k and n_p and len(self.Wp):
             blocks = np.zeros((len(self.col_idx), k, k))
             rhs_u = np.zeros((self.n_u, k))
-            _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.upt, self.W, self.Wp,
+            _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.upt, self.wpos, self.Wp,
                         Vinv, self.gp, self.row_ptr, self.col_idx, blocks, rhs_u, 8 * _numba.get_num_threads())
             _K["scatter"](blocks.reshape(-1), self.map_a, self.map_b, S)
             cv = self.ucols >= 0
@@ -1000,6 +1005,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
         raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
     cost = eng.linearize(factors, huber_k)
+    factors = None  # type: ignore[assignment]  # the engine keeps what it needs: the Jacobians go
     info.initial_cost = cost
     radius = initial_radius
     nu = 2.0
@@ -1022,6 +1028,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
                 continue
             new = lay.apply(state, dc, dp)
             # the Jacobians at the candidate are needed anyway when it is accepted (most steps)
+            new_factors = None  # a rejected candidate's Jacobians go before the next are computed
             new_factors = model.evaluate(new, jacobians=True)
             new_cost = factor_cost(new_factors, huber_k)
             rho = (cost - new_cost) / pred if pred > 0 else -1.0
@@ -1061,6 +1068,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
         if not accepted:
             break
         cost = eng.linearize(new_factors, huber_k)
+        new_factors = None
     else:
         info.message = "maximum number of iterations reached"
     info.final_cost = cost
