@@ -157,3 +157,26 @@ def test_cli_bad_scale_bar_file_names_line_and_field(tmp_path):
                                   "--scale-bar", str(proj / "bars.csv")])
     assert r.exit_code == 2, r.output
     assert "bars.csv" in r.output and "line 3" in r.output and "length_m" in r.output, r.output
+
+
+def test_positions_datum_places_the_block_without_bending_it():
+    """Approximate positions (GPS-like, 1 m noise) place the block by a similarity only: the orientation stays as
+    good as the images make it (centres after a similarity onto the truth within 4 predicted sigma), and the
+    similarity's residuals are the position noise (not absorbed by the block)."""
+    s = _set()
+    rng = np.random.default_rng(11)
+    noisy = s.C + rng.normal(0, 1.0, s.C.shape)
+    inp = OrientInput(s.names, _start_camera(s), s.obs_point, s.obs_image, s.obs_pixel, s.point_name,
+                      positions=noisy)
+    res = orient_incremental(inp, OrientConfig(pixel_sigma_px=SIGMA_PX))
+    d = res.summary["datum"]
+    assert d["kind"] == "positions"
+    # 12 images, 7 similarity parameters: E[RMS^2] = 3 (12 - 7/3) / 12 sigma^2 -> about 1.55 m for sigma 1 m
+    assert 0.8 < d["positions_similarity_rms_3d_m"] < 2.4, d
+    sc, Rs, ts = similarity_transform(res.centre, s.C)
+    dd = sc * res.centre @ Rs.T + ts - s.C
+    ps = res.adjustment.pose_sigma[:, :3] * sc
+    assert np.all(np.linalg.norm(dd, axis=1) < 4 * np.linalg.norm(ps, axis=1)), \
+        (np.linalg.norm(dd, axis=1) / np.linalg.norm(ps, axis=1)).max()
+    # and the block is near the truth's frame (within the noise of a 12-point similarity)
+    assert np.sqrt(np.mean(np.sum((res.centre - s.C) ** 2, axis=1))) < 2.0

@@ -14,6 +14,18 @@ files stay as they were) unless ``--keep-failed`` is given. The output folder is
 options, version and checksums written last, then swapped into place), so a killed run never leaves a folder
 mixing two runs.  Option spellings: ``-o/--output`` (``--out`` deprecated), ``--gnss-sigma E,N,U`` (three
 separate numbers deprecated), as every command (docs/cli.md).
+
+Without GNSS (``--no-gps``; implied by ``--gcp``, ``--check``, ``--scale-bar``, ``--camera``, ``--measurements`` and
+``--datum``): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
+two-view relative orientation, resection and bundle adjustment (:func:`skyrig.orient.incremental.orient_incremental`
+through :func:`skyrig.pipeline.uav.orient_without_gnss`).  The datum (``--datum``, default ``auto``): control points
+(``--gcp`` ``name,x,y,z`` with a ``# crs:`` header; their image measurements are tie points of the same name or
+``--measurements`` files), scale bars (``--scale-bar`` CSV ``from,to,length_m[,sigma_m]``), a similarity onto the
+images' EXIF GPS (``gps-similarity``: the GPS places the finished block, it is not an observation), or a free network
+(inner constraints, scale of the start base).  ``--camera`` (rig YAML / IGN .txt) replaces the EXIF camera, and
+without image files the image names come from the tie points.  Same outputs as with GNSS; with a scale-bar or free
+datum ``eo.csv`` / ``points.csv`` are plain tables in an arbitrary frame (``#`` lines say so) and there is no
+``adjusted.gpkg``.  A set that cannot be oriented (no start pair, control not measured...) exits 1.
 """
 
 from __future__ import annotations
