@@ -408,6 +408,58 @@ def test_match_output_spelling_and_manifest(tmp_path):
     assert verify_folder(out) == [] and not (out / "features" / "im0.png.npz.x1y2.tmp.npz").exists()
 
 
+RIG_400 = """format: skyrig-rig
+version: 1
+name: test
+antenna_lever_arm_m: [0, 0, 0]
+heads:
+- name: cam
+  camera: {name: cam, width_px: 400, height_px: 400, pixel_size_um: 10.0, focal_mm: 4.0, ppx_mm: 0.0, ppy_mm: 0.0,
+           distortion: null}
+  lever_arm_m: [0, 0, 0]
+  mounting_rpy_deg: [0, 0, 0]
+  boresight_opk_deg: [0, 0, 0]
+"""
+
+
+def test_match_eo_without_terrain_height_for_exhaustive_pairs(tmp_path):
+    """Issue 13: `match --eo` assumed aerial images - it refused to run without --terrain-height even for exhaustive
+    pairs.  Three crops 120 px apart of one texture = a nadir camera (400 px focal) 100 m above a plane, moved 30 m
+    east per image: exhaustive pairs with these orientations give ties that intersect on the plane (z = 0) with
+    ~0 px residuals; guided pairs without a terrain height are a clear error (exit 2)."""
+    import cv2
+
+    from skyrig.cli._common import load_cameras
+    from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+    from skyrig.georef.ground import forward_intersection
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.io.points_csv import read_measurements_csv
+
+    rng = np.random.default_rng(1)
+    big = cv2.GaussianBlur((rng.random((420, 700)) * 255).astype(np.uint8), (0, 0), 2)
+    big = cv2.normalize(big, None, 0, 255, cv2.NORM_MINMAX)
+    (tmp_path / "images").mkdir()
+    for k, x in enumerate([0, 120, 240]):
+        cv2.imwrite(str(tmp_path / "images" / f"im{k}.png"), big[10:410, x:x + 400])
+    eo = ExteriorOrientations(np.array([f"im{k}.png" for k in range(3)]), np.array(["cam"] * 3),
+                              np.array([[500000.0 + 30 * k, 5800000.0, 100.0] for k in range(3)]),
+                              np.broadcast_to(np.eye(3), (3, 3, 3)).copy(), WorldFrame.map("EPSG:25832"))
+    write_eo_csv(eo, tmp_path / "eo.csv")
+    write(tmp_path, "rig.yaml", RIG_400)
+    common = ["--eo", tmp_path / "eo.csv", "--camera", tmp_path / "rig.yaml", "--method", "opencv", "--max-features",
+              "800", "-j", "1", "--scheduler", "sync"]
+    r = run("match", tmp_path, "--pairs", "guided", *common, "-o", tmp_path / "g")
+    assert r.code == 2 and "terrain height" in r.out and "--terrain-height" in r.out, r.out
+    no_traceback(r)
+    r = run("match", tmp_path, "--pairs", "exhaustive", *common, "-o", tmp_path / "m")
+    assert r.code == 0, r.out
+    t = read_measurements_csv(tmp_path / "m" / "tie_points.csv")
+    res = forward_intersection(eo, load_cameras([str(tmp_path / "rig.yaml")]), t.point, t.image, t.pixel, eo.frame)
+    rad = np.hypot(res.residual_px[:, 0], res.residual_px[:, 1])
+    assert len(res.point) > 100 and np.nanmedian(rad) < 0.05
+    assert abs(np.nanmedian(res.xyz[:, 2])) < 0.05  # the plane the crops show, 100 m below the cameras
+
+
 def test_parse_sigmas_and_old_spellings_units():
     import click
 

@@ -199,8 +199,8 @@ def _approximate_orientations(
         if cameras is None:
             raise InputFormatError("orientations given without cameras", field="camera")
         cams = [cameras[str(c)] for c in eo.camera]
-        if terrain_height is None:
-            raise InputFormatError("orientations given without a terrain height (guided pairs need it)", field="terrain-height")
+        # no terrain height: fine for exhaustive pairs (the orientations still guide the matching); guided pairs
+        # and the rectification of obliques need one (match_images says so when they are asked for)
     elif metas and all(m.has_gps for m in metas):
         mo = orientations_from_metadata(metas)
         heading = mo.heading_deg
@@ -275,6 +275,9 @@ def match_images(
     if mode == "auto":
         mode = "guided" if eo is not None and terrain_height is not None else (
             "gps" if all(m.has_gps for m in metas) else "exhaustive")
+        if eo_given is not None and terrain_height is None:
+            logger.warning("orientations given without a terrain height: %s pairs (--terrain-height gives guided "
+                           "pairs from the image footprints)", mode)
     if mode == "guided":
         if eo is None or terrain_height is None:
             raise InputFormatError("guided pairs need orientations (GPS + gimbal attitudes or --eo) and a terrain "
