@@ -56,6 +56,8 @@ COMMANDS: dict[str, CommandEntry] = {
     "ortho": CommandEntry("skyrig.cli.ortho:command",
                           "True orthomosaic (COG) of oriented images on a DSM: occlusion, seamlines, balance, blend."),
     "facades": CommandEntry("skyrig.cli.facades:command", "Façade textures and a textured 3D model (GLB, OBJ, viewer) of a DSM's buildings."),
+    "plane-mosaic": CommandEntry("skyrig.cli.plane_mosaic:command",
+                                 "Oriented images projected onto one plane and the offsets across its seams (Fig. 9 check)."),
     "rig": CommandEntry("skyrig.cli.rig:command",
                         "Write a rig file from a preset of a published system (midas, dlr-3k, ...) to edit."),
     "events": CommandEntry("skyrig.cli.events:command",
