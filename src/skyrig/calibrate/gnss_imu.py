@@ -18,9 +18,10 @@ unknown, and with poorly defined ground control in another projection with geoid
    full covariance.  ``dz`` cannot be separated from the Z shift (it goes into the datum shift).  The whole flight's
    antenna lever arm is corrected by ``(dx, dy, 0)``.
 4. **Reference orientation** (5.3, Tab. 3), two steps: (a) combined AT of the sub-block: GNSS (offset corrected),
-   control, strip shifts and self-calibration (principal distance and principal point); (b) its object points
-   (with their sigma) as control of a conventional AT without GNSS (calibration fixed at (a)).  The orientations
-   of (b) are the reference.
+   control, strip shifts and self-calibration (principal distance and principal point as *weighted* unknowns with
+   a laboratory calibration's sigma: free, they are not separable from the strip shifts of a two-strip block, see
+   ``SELF_CALIBRATION``); (b) its object points (with their sigma) as control of a conventional AT without GNSS
+   (calibration fixed at (a)).  The orientations of (b) are the reference.
 5. **Boresight misalignment and datum shift** (5.4, Tab. 4): per image the IMU attitude and the reference attitude
    (through the nominal mounting) are both expressed against *geographic* north at the projection centre (the
    tangential frame's north differs from the meridian there by the meridian convergence, computed per projection
