@@ -280,6 +280,8 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
         what.append("IMU attitudes")
     if model.config.poses == "weighted":
         what.append("pose priors (poses='weighted')")
+    if model.config.points == "fixed":
+        what.append("fixed object points (points='fixed')")
     raise BlockError(f"datum='free' takes the datum from inner constraints, but the block's observations "
                      f"({', '.join(what) or 'some observations'}) already fix {', '.join(fixed)}: use datum='auto' "
                      "(the datum from those observations), or leave them out for a free network")
