@@ -180,3 +180,43 @@ def test_positions_datum_places_the_block_without_bending_it():
         (np.linalg.norm(dd, axis=1) / np.linalg.norm(ps, axis=1)).max()
     # and the block is near the truth's frame (within the noise of a 12-point similarity)
     assert np.sqrt(np.mean(np.sum((res.centre - s.C) ** 2, axis=1))) < 2.0
+
+
+# ---------------------------------------------------------------------------------------------- real data
+@pytest.mark.slow
+def test_lund_without_gps_from_the_cli_against_gps_and_pycolmap(tmp_path):
+    """The 29 lund phone images: tie points from exhaustive pairs (nothing of the GPS used), oriented from the CLI
+    without GNSS; the EXIF GPS only places the block by a similarity.  Checks: every image oriented, the similarity's
+    residuals at the level of a phone's GPS (metres), and pycolmap's own reconstruction of the same images in the
+    same run agreeing with ours after a similarity far better than the GPS does.  Full-size figures:
+    ``bench/orient_lund.py``."""
+    from conftest import shared_path
+
+    pytest.importorskip("pycolmap")
+    from skyrig.cli import main
+    from skyrig.match.features import FeatureConfig
+    from skyrig.match.matching import MatchConfig
+    from skyrig.pipeline.match import match_images
+
+    src = shared_path("opensfm", "lund", "images")
+    size = 640
+    match_images([src], tmp_path / "match", FeatureConfig(method="pycolmap", max_size=size, max_features=2000),
+                 MatchConfig(matcher="bruteforce"), pair_mode="exhaustive")
+    r = CliRunner().invoke(main, ["adjust-uav", str(tmp_path), "--images", str(src), "--match", str(tmp_path / "match"),
+                                  "--no-gps", "--datum", "gps-similarity", "--compare-pycolmap", "--pycolmap-size",
+                                  str(size), "-o", str(tmp_path / "orient")])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((tmp_path / "orient" / "report.json").read_text())
+    s = rep["uav"]
+    assert s["oriented"] == 29, s["not_oriented"]
+    d = s["datum"]
+    # a phone's GPS: a few metres; a wrongly oriented image or a bent block would be tens of metres off
+    assert d["positions_similarity_rms_3d_m"] < LUND_GPS_RMS_MAX_M, d
+    pc = rep["pycolmap"]
+    assert pc["registered"] >= 25, pc
+    c = pc["centre_differences"]
+    # two reconstructions of the same images agree far better than either agrees with the GPS
+    assert c["rms_m"] < 0.25 * d["positions_similarity_rms_3d_m"], (c, d["positions_similarity_rms_3d_m"])
+
+
+LUND_GPS_RMS_MAX_M = 8.0

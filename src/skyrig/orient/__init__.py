@@ -14,14 +14,21 @@ gnss_block
     :class:`UavConfig`, :class:`UavBlockInput`, :class:`UavResult`, :func:`attitude_agreement`,
     :func:`adjust_uav_block` (seed from trusted attitudes or a two-view relative orientation, growth,
     self-calibrating final adjustment).
+incremental
+    :class:`OrientConfig`, :class:`OrientInput`, :func:`orient_incremental`: orientation without GNSS (two-view
+    start chosen by inliers and parallax, resection, periodic bundle adjustment; datum from control points, scale
+    bars, a similarity onto approximate positions, or inner constraints) for terrestrial, close-range, UAV and
+    aerial sets.
 """
 
 from skyrig.orient.gnss_block import (
     UavAdjustError, UavBlockInput, UavConfig, UavResult, adjust_uav_block, attitude_agreement,
 )
+from skyrig.orient.incremental import OrientConfig, OrientError, OrientInput, choose_seed_pair, orient_incremental
 from skyrig.orient.similarity import compare_with_reconstruction, robust_similarity
 from skyrig.orient.strips import detect_strips
 from skyrig.orient.triangulation import resect, triangulate_tracks
 
 __all__ = ["UavAdjustError", "UavBlockInput", "UavConfig", "UavResult", "adjust_uav_block", "attitude_agreement",
-           "compare_with_reconstruction", "robust_similarity", "detect_strips", "resect", "triangulate_tracks"]
+           "compare_with_reconstruction", "robust_similarity", "detect_strips", "resect", "triangulate_tracks",
+           "OrientConfig", "OrientError", "OrientInput", "choose_seed_pair", "orient_incremental"]

@@ -43,6 +43,11 @@ the top-left pixel).
 The algorithms (layer 2b, arrays in / out) live in :mod:`skyrig.orient`; this module is the file-level wrapper
 (image metadata and ``skyrig match`` tie points in, EO / points / report files out) and keeps every name it had
 importable from here.
+
+Without GNSS (``skyrig adjust-uav --no-gps``): :func:`orient_without_gnss` reads the same inputs plus control points,
+scale bars (:func:`read_scale_bars`), extra target measurements and an optional camera (:func:`orient_input`), runs
+:func:`skyrig.orient.incremental.orient_incremental` and writes the same outputs (in an arbitrary engineering frame,
+:data:`MODEL_FRAME_WKT`, when the datum is a scale bar or a free network).
 """
 
 from __future__ import annotations
