@@ -440,7 +440,9 @@ class AdjustConfig:
         ``"none"``: no datum at all, the Levenberg-Marquardt damping picks one solution among the
         equivalent ones (as Ceres does for BAL problems); no rank check, no covariance.
     inner_constraints
-        With ``datum="free"``: ``"poses"`` (default; minimum norm of the station pose corrections) or
+        With ``datum="free"``: ``"poses"`` (default; minimum norm of the station pose corrections and of the
+        scale-bar end points, which are estimated with them: the Moore-Penrose inverse of the reduced normal
+        matrix) or
         ``"points"``: inner constraints on the object points, as close-range programs define the datum -
         the adjusted points keep the centroid, orientation (and, without a scale bar, the scale) of their
         starting coordinates (a Helmert fit of the adjusted onto the starting points, applied to the whole
