@@ -182,6 +182,20 @@ def test_positions_datum_places_the_block_without_bending_it():
     assert np.sqrt(np.mean(np.sum((res.centre - s.C) ** 2, axis=1))) < 2.0
 
 
+def test_free_network_is_the_truth_up_to_a_similarity():
+    """No control, no scale bar, no positions: inner constraints; the block equals the truth up to a similarity,
+    within 4 predicted sigma (scaled by the similarity's scale)."""
+    s = _set()
+    inp = OrientInput(s.names, _start_camera(s), s.obs_point, s.obs_image, s.obs_pixel, s.point_name)
+    res = orient_incremental(inp, OrientConfig(pixel_sigma_px=SIGMA_PX))
+    assert res.summary["datum"]["kind"] == "free" and res.oriented.all()
+    sc, Rs, ts = similarity_transform(res.centre, s.C)
+    d = sc * res.centre @ Rs.T + ts - s.C
+    ps = res.adjustment.pose_sigma[:, :3] * sc
+    assert np.all(np.linalg.norm(d, axis=1) < 4 * np.linalg.norm(ps, axis=1)), \
+        (np.linalg.norm(d, axis=1) / np.linalg.norm(ps, axis=1)).max()
+
+
 # ---------------------------------------------------------------------------------------------- real data
 @pytest.mark.slow
 def test_lund_without_gps_from_the_cli_against_gps_and_pycolmap(tmp_path):

@@ -360,8 +360,10 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     logger.info("start pair %s - %s: %d inliers, median intersection angle %.1f deg", *seed_info["images"],
                 seed_info["inliers"], seed_info["median_intersection_angle_deg"])
     active = np.ones(len(inp.obs_track), bool)
+    # growth adjustments only need to be close (the final one converges): looser tolerances than the default
     grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
-                            max_iterations=cfg.max_iterations, datum="free")
+                            max_iterations=cfg.max_iterations, datum="free", function_tolerance=1e-4,
+                            parameter_tolerance=1e-6)
     sigma_grow = max(2.0 * cfg.pixel_sigma_px, 2.0)
     X = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
     last_ba, rounds, order = 0, 0, [int(i), int(j)]
