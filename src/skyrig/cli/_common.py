@@ -32,16 +32,18 @@ def project_frame_option(crs: str | None, geoid: str | None) -> WorldFrame | Non
         raise click.BadParameter(str(e), param_hint="--crs") from None
 
 
-def map_frame(crs: str | None, geoid: str | None, what: str) -> WorldFrame:
+def map_frame(crs: str | None, geoid: str | None, what: str, option: str = "--crs") -> WorldFrame:
+    """The map frame of a file that states none, from the command-line ``option`` (named in the message)."""
     if not crs:
-        raise click.UsageError(f"{what} needs --crs (the file does not say which CRS it is in)")
+        raise click.UsageError(f"{what} needs {option} (the file does not say which CRS it is in)")
     return WorldFrame.map(crs, geoid)
 
 
-def _eo_ign(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+def _eo_ign(path: str, crs: str | None, geoid: str | None, z_ground: float | None,
+            option: str = "--eo-crs") -> ExteriorOrientations:
     from skyrig.io.ign import read_ign_opk
 
-    eo = read_ign_opk(path, map_frame(crs, geoid, "an IGN OPK file"))
+    eo = read_ign_opk(path, map_frame(crs, geoid, "an IGN OPK file", option))
     return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
 
 
@@ -80,10 +82,15 @@ def guess_eo_format(path: str) -> str:
     return "skyrig-csv"
 
 
-def load_eo(path: str, fmt: str | None, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
+def load_eo(path: str, fmt: str | None, crs: str | None, geoid: str | None, z_ground: float | None,
+            crs_option: str = "--eo-crs") -> ExteriorOrientations:
+    """An EO file in any format of :data:`EO_READERS`; ``crs_option`` is the option that gives the CRS of a file
+    that states none (named in the message when it is missing: ``--eo-crs``, ``convert --from-crs``)."""
     fmt = fmt or guess_eo_format(path)
     if fmt not in EO_READERS:
         raise click.UsageError(f"unknown EO format {fmt!r}; known: {', '.join(EO_READERS)}")
+    if EO_READERS[fmt] is _eo_ign:
+        return _eo_ign(path, crs, geoid, z_ground, crs_option)
     return EO_READERS[fmt](path, crs, geoid, z_ground)
 
 
@@ -124,7 +131,7 @@ def load_points(path: str, crs: str | None, heights: str, geoid: str | None, def
         from skyrig.io.ign import read_ign_ground_points
 
         use = frame or default
-        return read_ign_ground_points(path, use if use else map_frame(crs, None, "an IGN point file"))
+        return read_ign_ground_points(path, use if use else map_frame(crs, None, "an IGN point file", option))
     if name.startswith("gcp_list"):
         from skyrig.io.odm import read_gcp_list
 

@@ -52,7 +52,7 @@ def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_grou
     from skyrig.cli._common import output_or_positional
 
     dst = output_or_positional(output, dst, "DST")
-    eo = load_eo(src, from_format, from_crs, from_geoid, from_map_z_ground)
+    eo = load_eo(src, from_format, from_crs, from_geoid, from_map_z_ground, crs_option="--from-crs")
     if to_crs or to_heights or to_geoid:
         if to_crs and to_crs.lower() == "ecef":
             frame = WorldFrame.ecef()

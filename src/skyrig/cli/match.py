@@ -83,7 +83,15 @@ def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
 @click.option("--neighbours", type=int, default=8, show_default=True, help="GPS pairs: nearest images.")
 @click.option("--max-heading-diff", type=float, default=None,
               help="GPS pairs: drop pairs whose EXIF/XMP headings differ more (degrees; default: no filter).")
-@click.option("--eo", "eo_path", type=click.Path(exists=True, dir_okay=False), help="Approximate EO file.")
+@click.option("--eo", "eo_path", type=click.Path(exists=True, dir_okay=False),
+              help="Approximate EO file (skyrig EO CSV, IGN .OPK, ODM geo.txt).")
+@click.option("--eo-format", type=click.Choice(["ign-opk", "odm-geo", "skyrig-csv"]), default=None,
+              help="EO file format (default: from the file name).")
+@click.option("--eo-crs", default=None, help="CRS of the EO file when it does not say (e.g. EPSG:2154 for IGN .OPK).")
+@click.option("--eo-geoid", default=None, help="Geoid grid (path or PROJ name) when EO heights are orthometric.")
+@click.option("--eo-map-z-ground", type=float, default=None,
+              help="Undo the linear alteration of projection-centre heights (map-coordinate adjustment) with this "
+                   "mean ground height (m).")
 @click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--terrain-height", type=float, help="Mean terrain height in the EO frame (guided pairs).")
 @click.option("--thin", "thin_per_cell", type=int, default=0, show_default=True,
@@ -96,7 +104,9 @@ def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
 @click.option("--overwrite", is_flag=True, help="Discard stored features and matches.")
 @click.option("--lsm", is_flag=True, help="Refine tie points by least-squares matching (full resolution).")
 def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mode: str, method: str, max_size: int,
-            max_features: int, min_overlap: float, neighbours: int, max_heading_diff: float | None, eo_path: str | None, camera_paths: tuple[str, ...],
+            max_features: int, min_overlap: float, neighbours: int, max_heading_diff: float | None, eo_path: str | None,
+            eo_format: str | None, eo_crs: str | None, eo_geoid: str | None, eo_map_z_ground: float | None,
+            camera_paths: tuple[str, ...],
             terrain_height: float | None, thin_per_cell: int, scheduler: str, workers: int, overwrite: bool,
             lsm: bool) -> None:
     """Tie points for the images of PROJECT (resumable: rerun to continue an interrupted run)."""
@@ -108,7 +118,7 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
     if eo_path:
         from skyrig.cli._common import load_cameras, load_eo
 
-        eo = load_eo(eo_path, None, None, None, None)
+        eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
         cameras = load_cameras(camera_paths)
     out_dir = Path(out) if out else proj / "match"
     from skyrig.io.stage import MANIFEST
