@@ -518,11 +518,19 @@ def calibrate_uncalibrated_gnss_imu(
     shifts = r_a.block.strip_shift
     ref_sorted = sorted(ref)
     t2 = []
+    ba = r_a.block
+    d_img = ba.gnss_xyz - (ba.station_centre[ba.gnss_station]
+                           + np.einsum("nij,j->ni", ba.station_rotation[ba.gnss_station], ba.lever_arm))
     for k, s in enumerate(ref_sorted):
         sig = np.sqrt(np.diag(cov_s[3 * k:3 * k + 3, 3 * k:3 * k + 3]))
-        t2.append({"strip": s + 1, "heading_deg": headings[s], "shift_m": shifts[k].tolist(), "sigma_m": sig.tolist()})
+        dk = d_img[ba.station_strip[ba.gnss_station] == k]
+        t2.append({"strip": s + 1, "heading_deg": headings[s], "shift_m": shifts[k].tolist(), "sigma_m": sig.tolist(),
+                   "scatter_m": dk.std(axis=0, ddof=1).tolist() if len(dk) > 1 else [float("nan")] * 3,
+                   "images": int(len(dk))})
     tables["table2_strip_shifts"] = {"rows": t2, "sigma0_um": _image_sigma_um(sub_g, r_a.sigma0),
-                                     "definition": "GNSS antenna minus adjusted (tangential frame E, N, U)"}
+                                     "definition": "GNSS antenna minus adjusted (tangential frame E, N, U): the strip's shift "
+                                                   "unknown with its sigma (SX SY SZ), and the standard deviation of "
+                                                   "the per-image differences in the strip"}
     # antenna offset from the shifts: s_k = D + A_k (dx, dy)
     A = []
     for k, s in enumerate(ref_sorted):
@@ -817,10 +825,12 @@ def format_tables(result: dict[str, Any]) -> str:
     for r in t["table1_frames"]:
         out.append("  " + "; ".join(f"{k}: {v}" for k, v in r.items()))
     out.append("Tab. 2: shift in projection centres (GNSS minus bundle adjustment, mean per strip) [m]")
-    out.append(f"  {'strip':>6} {'head':>6} {'X':>8} {'Y':>8} {'Z':>8} {'SX':>7} {'SY':>7} {'SZ':>7}")
+    out.append(f"  {'strip':>6} {'head':>6} {'X':>8} {'Y':>8} {'Z':>8} {'SX':>7} {'SY':>7} {'SZ':>7}   std of the "
+               "per-image differences X Y Z")
     for r in t["table2_strip_shifts"]["rows"]:
         out.append(f"  {r['strip']:>6} {r['heading_deg']:6.0f} " + " ".join(f"{v:8.3f}" for v in r["shift_m"]) + " "
-                   + " ".join(f"{v:7.3f}" for v in r["sigma_m"]))
+                   + " ".join(f"{v:7.3f}" for v in r["sigma_m"]) + "   "
+                   + " ".join(f"{v:6.3f}" for v in r["scatter_m"]))
     a = t["antenna_offset"]
     out.append(f"  antenna offset (flight-direction dependent part): dx {a['dx_m']:.3f} +- {a['sigma_m'][0]:.3f} m, "
                f"dy {a['dy_m']:.3f} +- {a['sigma_m'][1]:.3f} m")
