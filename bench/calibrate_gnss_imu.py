@@ -67,10 +67,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="full", choices=("full", "reduced"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--out", default=None, help="write all results as JSON")
+    ap.add_argument("--write", default=None, metavar="DIR",
+                    help="only write the first seed's flight as a project folder (skyrig simulate's layout, no images) "
+                         "for the CLI: skyrig calibrate uncalibrated-gnss-imu --trajectory DIR/trajectory.csv --events "
+                         "DIR/events.csv --rig DIR/rig.yaml --measurements DIR/gcp/image_measurements.csv --measurements "
+                         "DIR/tie/image_measurements.csv --control DIR/gcp/ground_points.csv --check "
+                         "DIR/gcp/check_points.csv -o OUT/cal.yaml")
     ap.add_argument("--matched-sigmas", action="store_true",
                     help="a-priori GNSS / IMU / control sigmas = the simulated ones (default: the paper's a-priori "
                          "values, GNSS 0.3 m, which are larger than the simulated 0.1 m: conservative sigmas)")
     a = ap.parse_args(argv)
+    if a.write:
+        from skyrig.calibrate.gnss_imu import paper003_scenario
+        from skyrig.pipeline.simulate import write_project
+        from skyrig.simulate.scenarios import build_survey
+
+        info = write_project(build_survey(paper003_scenario(a.size, a.seeds[0])), a.write, images=False)
+        print(f"wrote {info.outdir} ({info.n_images} images)")
+        return 0
     rows = []
     ok = True
     for seed in a.seeds:
