@@ -90,8 +90,8 @@ class OrientConfig:
     #: resection: RANSAC threshold (px) and minimum inliers
     pnp_threshold_px: float = 4.0
     pnp_min_inliers: int = 20
-    #: minimum intersection angle of a triangulated tie point (deg)
-    min_angle_deg: float = 0.5
+    #: minimum intersection angle of a triangulated tie point (deg); small enough for forward motion (a walk)
+    min_angle_deg: float = 0.3
     #: bundle adjustment during growth: always up to this many images, then each time the block grew by this share
     ba_always_below: int = 8
     ba_growth: float = 0.25
@@ -192,9 +192,10 @@ def _pair_counts(inp: OrientInput) -> tuple[NDArray[np.int64], NDArray[np.int64]
     return uk[rank] // n, uk[rank] % n, counts[rank]
 
 
-def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera
-                     ) -> tuple[int, int, NDArray, NDArray, dict[str, Any]]:
-    """The start pair: ``(i, j, R21, t21 (unit), info)`` with ``x2 = R21 x1 + t21`` in OpenCV camera axes.
+def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera,
+                     allowed: NDArray[np.bool_] | None = None) -> tuple[int, int, NDArray, NDArray, dict[str, Any]]:
+    """The start pair: ``(i, j, R21, t21 (unit), info)`` with ``x2 = R21 x1 + t21`` in OpenCV camera axes; both
+    images among ``allowed`` when given.
 
     Raises
     ------
@@ -210,6 +211,8 @@ def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera
     for i, j, c in zip(pi.tolist(), pj.tolist(), cnt.tolist()):
         if c < cfg.seed_min_common or len(tried) >= cfg.seed_candidates:
             break
+        if allowed is not None and not (allowed[i] and allowed[j]):
+            continue
         mi, mj = inp.obs_image == i, inp.obs_image == j
         _, ci, cj = np.intersect1d(inp.obs_track[mi], inp.obs_track[mj], return_indices=True)
         p1 = cv2.undistortPoints(inp.obs_pixel[mi][ci][:, None], K, dist)[:, 0]
@@ -314,6 +317,75 @@ def _apply_similarity(s: float, Rs: NDArray, t: NDArray, R: NDArray, C: NDArray,
     R[:] = Rs @ R
 
 
+def _resect_round(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X: NDArray, R: NDArray, C: NDArray,
+                  oriented: NDArray[np.bool_], active: NDArray[np.bool_], allowed: NDArray[np.bool_],
+                  check: dict[str, dict[str, Any]]) -> list[int]:
+    """Resect the ``allowed`` unoriented images with the most triangulated points (all with >= 60 % of the best
+    count; if none of them works, every other candidate once); updates the arrays in place, returns the added."""
+    n = len(inp.names)
+    X_ok = np.isfinite(X).all(axis=1)
+    counts = np.bincount(inp.obs_image[X_ok[inp.obs_track] & active], minlength=n)
+    counts[oriented | ~allowed] = 0
+    if counts.max(initial=0) < cfg.pnp_min_inliers:
+        return []
+    added: list[int] = []
+    for k in np.argsort(-counts, kind="stable"):
+        if counts[k] < cfg.pnp_min_inliers or (added and counts[k] < 0.6 * counts.max()):
+            break
+        m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
+        out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px, cfg.pnp_min_inliers)
+        if out is None:
+            continue
+        R[k], C[k], inl = out
+        active[np.flatnonzero(m)[~inl]] = False
+        oriented[k] = True
+        added.append(int(k))
+        check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
+    return added
+
+
+def _seed_part(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X_main: NDArray,
+               oriented: NDArray[np.bool_], active: NDArray[np.bool_], check: dict[str, dict[str, Any]]
+               ) -> tuple[NDArray, NDArray, NDArray[np.bool_], NDArray[np.bool_]] | None:
+    """A part of the block the growth could not reach: its own two-view start among the unoriented images, grown by
+    resection in its own frame, then put into the block's frame by a robust similarity through the tie points both
+    have triangulated (>= 12 in common).  Returns ``(R, C, part mask, active)`` or None."""
+    n = len(inp.names)
+    allowed = ~oriented
+    try:
+        i, j, R21, t21, info = choose_seed_pair(inp, cfg, camera, allowed)
+    except OrientError:
+        return None
+    R = np.full((n, 3, 3), np.nan)
+    C = np.full((n, 3), np.nan)
+    R[i], C[i] = _SKYRIG_FROM_CV, np.zeros(3)
+    R[j], C[j] = R21.T @ _SKYRIG_FROM_CV, -R21.T @ t21
+    part = np.zeros(n, bool)
+    part[[i, j]] = True
+    act = active.copy()
+    sub = {k: dict(v) for k, v in check.items()}
+    while True:
+        Xp = _triangulate(inp, camera, R, C, part, act, cfg.min_angle_deg)
+        if not _resect_round(inp, cfg, camera, Xp, R, C, part, act, allowed, sub):
+            break
+    Xp = _triangulate(inp, camera, R, C, part, act, cfg.min_angle_deg)
+    common = np.flatnonzero(np.isfinite(Xp).all(axis=1) & np.isfinite(X_main).all(axis=1))
+    fit = _robust_similarity(Xp[common], X_main[common]) if len(common) >= 12 else None
+    if fit is None:
+        logger.info("a part of %d images from %s - %s: %d tie points in common with the block, no similarity",
+                    int(part.sum()), *info["images"], len(common))
+        return None
+    s, Rs, t, n_in = fit
+    _apply_similarity(s, Rs, t, R, C, Xp)
+    for k in np.flatnonzero(part):
+        check[str(inp.names[k])].update(sub[str(inp.names[k])])
+        check[str(inp.names[k])]["part"] = (f"own two-view start {info['images'][0]} - {info['images'][1]}, tied to "
+                                            f"the block through {n_in} common tie points")
+    logger.info("a part of %d images (start %s - %s) tied to the block through %d of %d common tie points",
+                int(part.sum()), *info["images"], n_in, len(common))
+    return R, C, part, act
+
+
 # ---------------------------------------------------------------------------------------------- main
 def _resolve_datum(inp: OrientInput, cfg: OrientConfig) -> Datum:
     d = cfg.datum
@@ -368,15 +440,29 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     X = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
     last_ba, rounds, order = 0, 0, [int(i), int(j)]
 
+    # focal length and radial distortion are self-calibrated during growth from the 3rd image on (an EXIF focal
+    # length can be off by a third: lund's phone 995 px in the EXIF, about 730 px by skyrig and pycolmap alike),
+    # so that resection and triangulation work with a camera close to the true one
+    f0 = inp.camera.focal_mm
+    grow_cal = tuple(nm for nm in ("focal_mm", "k1") if nm in cfg.self_calibration)
+    grow_sig = {"focal_mm": cfg.focal_prior_rel * f0, "k1": 1.0}
+
     def bundle(X: NDArray) -> NDArray:
+        nonlocal camera
         img_sel = np.flatnonzero(oriented)
         gate = 0.05 * max(camera.width, camera.height) if last_ba == 0 else 6.0 * cfg.pnp_threshold_px
         obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
+        cal = grow_cal if len(img_sel) >= 3 else ()
+        # (the prior of a weighted intrinsic is its start value in skyrig.adjust: during growth the prior follows the
+        # current estimate; the final adjustment anchors the focal length at the EXIF value again)
         block, tracks, rows = _block(inp, camera, R, C, X, img_sel, obs, sigma_grow, False, False)
+        gcfg = grow_cfg.with_(intrinsics="weighted", intrinsic_names=cal,
+                              intrinsic_sigma=tuple((k, grow_sig[k]) for k in cal)) if cal else grow_cfg
         try:
-            res = adjust(block, grow_cfg)
+            res = adjust(block, gcfg)
         except SkyrigError as exc:
             raise OrientError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
+        camera = res.block.cameras[0]
         R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
         Xn = np.full((T, 3), np.nan)
         Xn[tracks] = res.block.point_xyz
@@ -391,48 +477,27 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     X = bundle(X)
     last_ba = 2
     # ---- 2. growth
+    parts = 0
     while not oriented.all():
         rounds += 1
         X_tri = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
         X = np.where(np.isfinite(X).all(axis=1)[:, None], X, X_tri)
-        X_ok = np.isfinite(X).all(axis=1)
-        counts = np.bincount(inp.obs_image[X_ok[inp.obs_track] & active], minlength=n)
-        counts[oriented] = 0
-        if counts.max() < cfg.pnp_min_inliers:
-            break
-        added = []
-        for k in np.argsort(-counts, kind="stable"):
-            if counts[k] < max(cfg.pnp_min_inliers, 0.6 * counts.max()):
+        added = _resect_round(inp, cfg, camera, X, R, C, oriented, active, np.ones(n, bool), check)
+        if not added:
+            # a part the tie points do not reach through triangulated points: its own start, tied in by common points
+            got = _seed_part(inp, cfg, camera, X, oriented, active, check)
+            if got is None:
                 break
-            m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
-            out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px, cfg.pnp_min_inliers)
-            if out is None:
-                continue
-            R[k], C[k], inl = out
-            rows = np.flatnonzero(m)
-            active[rows[~inl]] = False
-            oriented[k] = True
-            added.append(int(k))
-            check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
-        if not added:
-            # the best candidates failed: try every image with enough points once before giving up
-            for k in np.flatnonzero(counts >= cfg.pnp_min_inliers):
-                m = (inp.obs_image == k) & X_ok[inp.obs_track] & active
-                out = resect(camera, X[inp.obs_track[m]], inp.obs_pixel[m], cfg.pnp_threshold_px,
-                             cfg.pnp_min_inliers)
-                if out is not None:
-                    R[k], C[k], inl = out
-                    active[np.flatnonzero(m)[~inl]] = False
-                    oriented[k] = True
-                    added.append(int(k))
-                    check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
-                    break
-        if not added:
-            break
+            Rp, Cp, part, act = got
+            active[:] = act
+            R[part], C[part] = Rp[part], Cp[part]
+            oriented |= part
+            added = [int(k) for k in np.flatnonzero(part)]
+            parts += 1
         order += added
-        logger.info("round %d: resected %s", rounds, ", ".join(inp.names[added]))
+        logger.info("round %d: oriented %s", rounds, ", ".join(inp.names[added]))
         n_or = int(oriented.sum())
-        if n_or <= cfg.ba_always_below or n_or >= (1.0 + cfg.ba_growth) * last_ba or oriented.all():
+        if n_or <= cfg.ba_always_below or n_or >= (1.0 + cfg.ba_growth) * last_ba or oriented.all() or len(added) > 1:
             X = bundle(np.where(np.isfinite(X).all(axis=1)[:, None], X,
                                 _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)))
             last_ba = n_or
@@ -491,7 +556,6 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
                                      "is poorly determined")
         _apply_similarity(s, Rs, t, R, C, X)
     # ---- 4. final adjustment
-    f0 = inp.camera.focal_mm
     w_mm = camera.width * camera.pixel_size_mm
     sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
@@ -546,7 +610,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     if datum == "free":
         datum_info["note"] = "inner constraints; frame and scale of the relative orientation (start base = 1)"
     summary = _summary(inp, res, oriented, camera, rounds, time.perf_counter() - t_start)
-    summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order])
+    summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order],
+                   parts_tied_in=parts)
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
