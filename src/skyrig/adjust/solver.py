@@ -17,13 +17,14 @@ boresights...).
 Linear solver
 -------------
 ``S`` (Jacobi-scaled) is factored densely (LAPACK Cholesky) up to a few hundred (``solve_reduced``) or
-1500 (:class:`SchurEngine`) unknowns and with SuperLU above (``scipy.sparse.linalg.splu`` in symmetric
-mode: minimum degree ordering on ``A + A^T``, diagonal pivots, every pivot checked positive), whose
-supernodal kernels run on scipy's OpenBLAS.  CHOLMOD through ``cholespy`` stays selectable
-(``method="cholmod"``) but its wheel ships the reference BLAS and is 2x (BAL, 9,000 unknowns) to 10x
-(penta rig, 6,000 unknowns of a denser ``S``) slower.  A free network (``datum="free"``) adds inner
-constraints on the station poses (``S + a G G^T``, G the 7 similarity motions of the poses) and always
-uses the dense path.
+1500 (:class:`SchurEngine`) unknowns; above, :mod:`skyrig.adjust.linalg` chooses (reason logged and kept
+in ``SolveInfo.linear_solver``): supernodal CHOLMOD through cvxopt with a METIS nested-dissection order
+of the per-camera/station graph and the symbolic analysis done once per adjustment; SuperLU
+(``scipy.sparse.linalg.splu``, symmetric mode, every pivot checked positive) when cvxopt is missing;
+preconditioned conjugate gradients (Schur-Jacobi) when the predicted factor exceeds the memory or flop
+limits.  CHOLMOD through ``cholespy`` (reference BLAS, 2x to 10x slower) stays selectable
+(``method="cholespy"``).  A free network (``datum="free"``) adds inner constraints on the station poses
+(``S + a G G^T``, G the 7 similarity motions of the poses) and always uses the dense path.
 
 Compiled engine
 ---------------
