@@ -420,7 +420,11 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
             gz = float(np.median(ground[r0:r1, c0:c1][comp]))
         # the walls at half the eave height: a matched DSM ramps from ground to roof over a few cells, and the
         # half-height crossing of a symmetric ramp is the wall (on an exact DSM the threshold changes nothing)
-        low = float(np.percentile(hw[comp & mw], 10)) if (comp & mw).sum() >= 10 else None
+        # the eaves from the cells away from the ramp (the ramp's own cells would pull the level down and the
+        # walls outwards)
+        core = ndimage.binary_erosion(comp, iterations=3) & mw
+        core = core if core.sum() >= 10 else comp & mw
+        low = float(np.percentile(hw[core], 10)) if core.sum() >= 10 else None
         if low is not None and low - gz > 2 * cfg.min_height_m:
             half = (ndimage.binary_dilation(comp, iterations=2) & mw & (hw > gz + 0.5 * (low - gz))).astype(np.uint8)
             half = cv2.morphologyEx(half, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))

@@ -86,6 +86,15 @@ class OrthoConfig:
         Prior standard deviation of a gain around 1.
     balance_sigma_noise
         Standard deviation of the mean colour difference of an overlap (digital numbers).
+    square_buildings
+        Square the buildings' edges in the surface the images are projected on (:func:`square_buildings`): a
+        matched DSM rounds roof edges off, so that roof cells next to the eaves project onto the wall and the ground
+        beyond it, and the ground next to the wall onto the roof (roofs lean and fray).  Buildings are extracted
+        from the DSM (:func:`skyrig.dense.buildings.extract_buildings`); each footprint takes its roof planes and
+        the elevated cells in a band of ``square_band_m`` around it the ground, where the roof planes explain the
+        DSM inside the footprint (median absolute residual <= ``square_max_residual_m``; trees are left alone).
+    square_band_m, square_max_residual_m
+        See ``square_buildings``.
     """
 
     cell_m: float | None = None
@@ -101,6 +110,9 @@ class OrthoConfig:
     balance: bool = True
     balance_sigma_gain: float = 0.1
     balance_sigma_noise: float = 10.0
+    square_buildings: bool = True
+    square_band_m: float = 2.5
+    square_max_residual_m: float = 0.5
 
     @property
     def max_tan(self) -> float:
@@ -314,6 +326,88 @@ def fill_surface(dsm: DsmGrid, step_m: float = 2.0) -> NDArray[np.float64]:
                 sub = out[sl]
                 sub[m] = lo
     return out
+
+
+def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float = 2.5, max_residual_m: float = 0.5,
+                     ground: NDArray[np.float64] | None = None, blocks: list | None = None
+                     ) -> tuple[NDArray[np.float64], dict[str, int]]:
+    """The surface ``height`` (on ``dsm``'s grid, holes filled) with square building edges.
+
+    A matched DSM rounds roof edges off over a few cells (the matching windows straddle the eaves): cells just inside
+    a roof are too low and project, in an image looking across the eaves, onto the wall or the ground beyond it; the
+    ground cells just outside are too high and take the roof's colour.  The orthophoto then shows the roof shrunk on
+    one side and spilled on the other (lean).  Here every building block (``blocks``, default
+    :func:`skyrig.dense.buildings.extract_buildings` of ``dsm`` - footprints from the half-height crossing of the
+    ramp, roof planes fitted away from the edges - also blocks cut by the DSM's border) whose roof planes explain
+    the DSM inside its footprint (median absolute residual <= ``max_residual_m``; a tree crown is not a plane and is
+    left as matched) is drawn into the surface: the footprint's cells take the roof planes (a gable: the lower
+    envelope of its two planes), and the cells in a band of ``band_m`` around the footprint that are higher than
+    1 m (or 30 % of the eave height, if less) above the ground take the ground (``ground``, default the block's
+    ground height).
+
+    Returns the new heights and counts ``{"buildings": blocks drawn, "cells": cells changed by more than 1 cm}``.
+    """
+    import cv2
+    from scipy import ndimage
+
+    from skyrig.dense.buildings import ExtractionConfig, extract_buildings
+
+    h0 = np.asarray(height, np.float64)
+    if blocks is None:
+        blocks = extract_buildings(DsmGrid(dsm.grid, dsm.frame, np.asarray(dsm.height, np.float32), dsm.support,
+                                           dsm.spread, dsm.sigma, dsm.filled, dsm.vertical_reference, dsm.metadata),
+                                   config=ExtractionConfig(max_outside=1.0))
+    g = dsm.grid
+    H, W = h0.shape
+    h = h0.copy()
+    meas = np.isfinite(np.asarray(dsm.height))
+    masks = []
+    k = 5  # cells whose centre is inside the footprint: filled at 5 x 5 sub-cells, the middle one read
+    for b in blocks:
+        fp = np.asarray(b.footprint, float)
+        cf, rf = (fp[:, 0] - g.x0) / g.cell_m, (g.y0 - fp[:, 1]) / g.cell_m
+        r0, c0 = max(int(np.floor(rf.min())) - 1, 0), max(int(np.floor(cf.min())) - 1, 0)
+        r1, c1 = min(int(np.ceil(rf.max())) + 1, H), min(int(np.ceil(cf.max())) + 1, W)
+        m = np.zeros((H, W), bool)
+        if r1 > r0 and c1 > c0:
+            fine = np.zeros(((r1 - r0) * k, (c1 - c0) * k), np.uint8)
+            pts = np.c_[(cf - c0) * k - 0.5, (rf - r0) * k - 0.5]
+            cv2.fillPoly(fine, [np.round(pts * 256).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=8)
+            m[r0:r1, c0:c1] = fine[k // 2::k, k // 2::k].astype(bool)
+        masks.append(m & np.isfinite(h0))
+    inside_any = np.any(masks, axis=0) if masks else np.zeros((H, W), bool)
+    band = max(1, int(round(band_m / g.cell_m)))
+    drawn = 0
+    for b, m in zip(blocks, masks):
+        rows, cols = np.nonzero(m)
+        if len(rows) < 9:
+            continue
+        r0, r1 = max(rows.min() - band - 1, 0), min(rows.max() + band + 2, H)
+        c0, c1 = max(cols.min() - band - 1, 0), min(cols.max() + band + 2, W)
+        sl = (slice(r0, r1), slice(c0, c1))
+        xx = g.x0 + (np.arange(c0, c1) + 0.5) * g.cell_m
+        yy = g.y0 - (np.arange(r0, r1) + 0.5) * g.cell_m
+        X, Y = np.meshgrid(xx, yy)
+        roof = np.full(X.shape, np.inf)
+        for poly in b.roof:
+            P = np.asarray(poly, float)
+            coef, *_ = np.linalg.lstsq(np.c_[P[:, 0], P[:, 1], np.ones(len(P))], P[:, 2], rcond=None)
+            roof = np.minimum(roof, coef[0] * X + coef[1] * Y + coef[2])
+        ms = m[sl]
+        core = ndimage.binary_erosion(ms, iterations=2) & meas[sl]
+        if core.sum() < 6 or not np.all(np.isfinite(roof[ms])):
+            continue
+        if float(np.median(np.abs(h0[sl][core] - roof[core]))) > max_residual_m:
+            continue  # not a roof of planes (vegetation, a complex roof): keep the matched surface
+        hs = h[sl]
+        hs[ms] = roof[ms]
+        ring = ndimage.binary_dilation(ms, iterations=band) & ~ms & ~inside_any[sl] & np.isfinite(hs)
+        gz = ground[sl] if ground is not None else np.full(ms.shape, b.ground_z)
+        spill = ring & (hs > gz + min(1.0, 0.3 * (b.eave_z - b.ground_z)))
+        hs[spill] = gz[spill]
+        drawn += 1
+    changed = int(np.sum(np.abs(np.nan_to_num(h - h0)) > 0.01))
+    return h, {"buildings": drawn, "cells": changed}
 
 
 def ground_estimate(height: NDArray[np.float64], cell_m: float, window_m: float) -> NDArray[np.float64]:
@@ -555,6 +649,11 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     if missing:
         raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
     height = fill_surface(dsm)
+    squared = {"buildings": 0, "cells": 0}
+    if config.square_buildings:
+        height, squared = square_buildings(height, dsm, band_m=config.square_band_m,
+                                           max_residual_m=config.square_max_residual_m,
+                                           ground=ground_estimate(height, dsm.grid.cell_m, config.ground_window_m))
     dsm_f = DsmGrid(dsm.grid, dsm.frame, height.astype(np.float32), dsm.support, dsm.spread, dsm.sigma, dsm.filled,
                     dsm.vertical_reference, dsm.metadata)
     zlo, zhi = float(np.nanmin(height)), float(np.nanmax(height))
@@ -666,7 +765,8 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
              "objects": int(ncomp), "objects_one_image": objects_whole,
              "small_regions_merged": merged, "balance_pairs": npairs,
              "dsm_cells_seen": int(seen_any.sum()), "dsm_cells": ncells, "plan_seconds": time.perf_counter() - t0,
-             "gsd_m": gsd_m, "cell_m": cell}
+             "gsd_m": gsd_m, "cell_m": cell, "buildings_squared": squared["buildings"],
+             "cells_squared": squared["cells"]}
     return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, windows, gains, tiles, gsd_m, config,
                      stats)
 
