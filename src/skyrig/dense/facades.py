@@ -520,7 +520,8 @@ def _sample(img: NDArray, px: NDArray) -> NDArray[np.float64]:
 
 def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
                  loader: ImageLoader, dsm: DsmGrid, *, search_m: float = 1.0, step_m: float = 0.05,
-                 band_m: float | None = None, n_images: int = 3, min_gain: float = 1.1) -> list[BuildingBlock]:
+                 band_m: float | None = None, n_images: int = 3, min_gain: float = 1.1,
+                 max_view_deg: float = 30.0) -> list[BuildingBlock]:
     """Move every wall of DSM-extracted buildings to the roof outline seen in the images.
 
     A matched DSM blurs and shifts roof edges by a fraction of a metre (on the midas-dsm block the outlines sit
@@ -528,7 +529,9 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
     line (at the roof's height there) is moved along the wall's normal by offsets within ``+-search_m``; at
     each offset the mean colours of a band ``band_m`` wide just inside and of one just outside are compared with
     the roof's own colour (a band ``search_m`` further inside), in the ``n_images`` images with the finest view
-    of the roof (mostly nadir): the score is how much more the outside band differs from the roof than the
+    of the roof among those that see it within ``max_view_deg`` of the vertical (nadir images; any view up to 60 deg
+    when none does - the obliques of a penta rig have the finer ground resolution, but their outline moves one for
+    one with an error of the eave height): the score is how much more the outside band differs from the roof than the
     inside band does (so a wall-to-ground step beyond the eaves does not count).  The best offset (parabolic
     sub-step) becomes the wall's; corners are the intersections of consecutive moved
     edge lines; roof polygons follow (corners to corners, points on an edge with the edge).  An edge stays
@@ -553,8 +556,14 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
         nv = len(fp)
         # images with the finest view of the roof's top
         c = np.r_[fp.mean(axis=0), float(_roof_height(b, fp.mean(axis=0)[None])[0])]
-        cand = _candidates(ctx, np.array([c + [-0.5, -0.5, 0], c + [0.5, -0.5, 0], c + [0.5, 0.5, 0], c + [-0.5, 0.5, 0]]),
-                           np.array([0.0, 0.0, 1.0]), TextureConfig(max_angle_deg=60.0))[:n_images]
+        # steep views first: an error of the eave height moves the outline by that error times the tangent of the
+        # view's angle (a 45 deg oblique: one for one), and beyond the eaves a steep view sees ground, not the wall
+        sq = np.array([c + [-0.5, -0.5, 0], c + [0.5, -0.5, 0], c + [0.5, 0.5, 0], c + [-0.5, 0.5, 0]])
+        cand = []
+        for max_angle in (max_view_deg, 60.0):
+            cand = _candidates(ctx, sq, np.array([0.0, 0.0, 1.0]), TextureConfig(max_angle_deg=max_angle))[:n_images]
+            if cand:
+                break
         delta = np.zeros(nv)
         if cand:
             for i in range(nv):
