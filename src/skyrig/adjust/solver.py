@@ -623,8 +623,28 @@ def _make_kernels():  # type: ignore[no-untyped-def]
             row_ptr[u + 1] = n
         return row_ptr, cols[:n].copy()
 
+    @njit(cache=True, nogil=True, parallel=True)
+    def csr_positions(indptr, indices, r, c, out):  # pragma: no cover - compiled
+        # position of entry (r[e], c[e]) in a CSR pattern with sorted rows; -1 where r or c is negative
+        for e in prange(len(r)):
+            i = r[e]
+            j = c[e]
+            if i < 0 or j < 0:
+                out[e] = -1
+                continue
+            lo = indptr[i]
+            hi = indptr[i + 1]
+            while lo < hi:
+                mid = (lo + hi) >> 1
+                if indices[mid] < j:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            out[e] = lo
+
     return dict(point_normals=point_normals, unit_normals=unit_normals, damped_inverse=damped_inverse,
-                schur=schur, scatter=scatter, back_substitute=back_substitute, pair_pattern=pair_pattern)
+                schur=schur, scatter=scatter, back_substitute=back_substitute, pair_pattern=pair_pattern,
+                csr_positions=csr_positions)
 
 
 _K = _make_kernels()
@@ -728,9 +748,9 @@ class SchurEngine:
         self.nnz = len(self.keys)
 
         def pos(r_: NDArray[np.int64], c_: NDArray[np.int64]) -> NDArray[np.int64]:
-            v = (r_ >= 0) & (c_ >= 0)
-            out = np.full(len(r_), -1, np.int64)
-            out[v] = np.searchsorted(self.keys, r_[v] * n_c + c_[v])
+            # a binary search within each entry's CSR row (short rows, in cache) instead of over all keys
+            out = np.empty(len(r_), np.int64)
+            _K["csr_positions"](self.indptr, self.indices, np.ascontiguousarray(r_), np.ascontiguousarray(c_), out)
             return out
 
         self.map_a = pos(ga, gb)
