@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 env: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/skyrig demo demo-output
+	$(BIN)/skyrig demo -o demo-output
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 -m 'not slow' tests

@@ -615,7 +615,7 @@ def case_bridge(cache: Path, pillar_pass: bool = True, pairs_per_image: int = 3)
     # the laser cloud of uav-bridge-lidar, georeferenced by the commands its scanner.json records
     lp = cache / "uav-bridge-lidar"
     if not (lp / "scanner.json").exists():
-        skyrig("simulate", "uav-bridge-lidar", lp, "--size", "ci", "--seed", 1)
+        skyrig("simulate", "uav-bridge-lidar", "-o", lp, "--size", "ci", "--seed", 1)
     (lp / "output").mkdir(exist_ok=True)
     for baro in (False, True):
         key = "laser_baro" if baro else "laser_gnss"

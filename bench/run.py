@@ -71,7 +71,7 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
         if grow is not None:
             _simulate_grown(folder, grow)
         else:
-            subprocess.run([_skyrig(), "simulate", name, str(folder), "--size", size], check=True,
+            subprocess.run([_skyrig(), "simulate", name, "-o", str(folder), "--size", size], check=True,
                            stdout=subprocess.DEVNULL)
         out["simulate_s"] = time.perf_counter() - t0
     proj = folder / "project.yaml"

@@ -288,7 +288,7 @@ def sim_project(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     root = tmp_path_factory.mktemp("project-run")
     folder = root / "flight"
-    r = CliRunner().invoke(main, ["simulate", "midas-demo", str(folder), "--size", "ci", "--workers", "1"])
+    r = CliRunner().invoke(main, ["simulate", "midas-demo", "-o", str(folder), "--size", "ci", "--workers", "1"])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(main, ["init", str(folder)])
     assert r.exit_code == 0, r.output
