@@ -54,3 +54,34 @@ def test_block_and_adjust_on_a_tumbling_head_rig(tumble) -> None:  # type: ignor
     adj = tumble / "adj" / "adjusted.json"
     assert (adj.parent / json.loads(adj.read_text())["rig"]).resolve() == (sim / "rig.yaml").resolve()
     assert read_block(adj).block.n_images == bf.block.n_images
+
+
+def test_block_frees_the_actuator_and_its_curve(tumble) -> None:  # type: ignore[no-untyped-def]
+    """``--free actuator,actuator-curve --fourier-order 3`` (paper 000's in-flight alternative to the lab curve) and
+    ``--datum free-points --datum-points`` reach the block file's adjustment section as AdjustConfig reads it; the
+    options are refused in words where they cannot apply (the recovery itself: tests/test_adjust_actuated.py)."""
+    sim = tumble / "sim"
+    base = ["block", "--trajectory", str(sim / "trajectory.csv"), "--events", str(sim / "events.csv"), "--rig",
+            str(sim / "rig.yaml"), "--measurements", str(sim / "gcp" / "image_measurements.csv"), "--control",
+            str(sim / "gcp" / "ground_points.csv")]
+    out = tumble / "blk2" / "block.json"
+    r = CliRunner().invoke(main, [*base, "--free", "actuator,actuator-curve,boresight", "--fourier-order", "3",
+                                  "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    cfg = read_block(out).config
+    assert (cfg.actuator, cfg.actuator_curve, cfg.actuator_fourier_order, cfg.boresight) == ("free", "free", 3, "free")
+    r = CliRunner().invoke(main, [*base, "--free", "actuator-curve", "-o", str(out)])
+    assert r.exit_code == 0 and read_block(out).config.actuator_fourier_order == 2, r.output  # the default order
+    names = [ln.split(",")[0] for ln in (sim / "gcp" / "ground_points.csv").read_text().splitlines()
+             if ln and ln[0] != "#"][1:4]
+    free_net = base[:-2]  # no control: the datum from inner constraints on three of the points
+    r = CliRunner().invoke(main, [*free_net, "--start-values-only", "--datum", "free-points", "--datum-points",
+                                  ",".join(names), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    cfg = read_block(out).config
+    assert (cfg.datum, cfg.inner_constraints, cfg.datum_points) == ("free", "points", tuple(names))
+    for extra, needle in ((["--fourier-order", "2"], "--fourier-order goes with --free actuator-curve"),
+                          (["--free", "actuator-curve", "--fourier-order", "0"], "--fourier-order"),
+                          (["--datum-points", "a,b,c"], "--datum-points goes with --datum free-points")):
+        r = CliRunner().invoke(main, [*base, *extra, "-o", str(tumble / "blk3" / "block.json")])
+        assert r.exit_code == 2 and needle in r.output, (extra, r.output)

@@ -11,8 +11,11 @@ Two ways in:
   ``--eo-crs``, ``--eo-geoid``, ``--eo-map-z-ground`` as for ``world-to-image``).
 
 ``--start-values-only``: the trajectory / EO gives the starting values only (no GNSS/IMU observations); the
-datum then comes from the control points or ``--datum free``.  ``--datum`` (``auto``, ``free``, ``none``) is
-recorded in the block file's adjustment section (:class:`skyrig.adjust.AdjustConfig`).
+datum then comes from the control points or ``--datum free``.  ``--datum`` (``auto``, ``free``: inner constraints
+on the station poses, ``free-points``: on object points - all or ``--datum-points`` - as close-range programs
+define it, ``none``) is recorded in the block file's adjustment section (:class:`skyrig.adjust.AdjustConfig`).
+A rig with a tumbling head: ``--free actuator`` estimates the actuator's offset and scale, ``--free actuator-curve``
+a Fourier boresight curve of order ``--fourier-order`` (paper 000's in-flight alternative to the laboratory curve).
 
 Measurements (``--measurements``, repeatable: skyrig CSV, IGN .mes, ODM gcp_list.txt) in pixels; ground points
 (``--control``, ``--check``: skyrig points CSV, IGN .app / _world.mes, ODM gcp_list.txt) in the CRS their file
@@ -34,7 +37,8 @@ import numpy as np
 __all__ = ["command"]
 
 _GROUPS = {"boresight": "boresight", "lever-arm": "lever_arm", "datum-shift": "datum_shift",
-           "strip-shift": "strip_shift", "intrinsics": "intrinsics"}
+           "strip-shift": "strip_shift", "intrinsics": "intrinsics", "actuator": "actuator",
+           "actuator-curve": "actuator_curve"}
 
 
 def _block_cmd_class() -> type[click.Command]:
@@ -93,10 +97,16 @@ def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
 @click.option("--control-sigma", default="0.02", show_default=True,
               help="Control point sigma X,Y,Z (m; one value for all axes).")
 @click.option("--free", "free", default="", help=f"Comma-separated groups to estimate: {', '.join(_GROUPS)}.")
-@click.option("--datum", type=click.Choice(["auto", "free", "none"]), default="auto", show_default=True,
+@click.option("--fourier-order", type=int, default=None,
+              help="Order of the Fourier boresight curve of actuated heads estimated with --free actuator-curve "
+                   "(default 2; paper 000's in-flight alternative to the laboratory curve).")
+@click.option("--datum", type=click.Choice(["auto", "free", "free-points", "none"]), default="auto", show_default=True,
               help="auto: from the control and/or GNSS the block has; free: inner constraints on the station poses "
-                   "(7-parameter similarity, minimum norm); none: no datum (the damping picks one solution; no "
-                   "covariance).")
+                   "(7-parameter similarity, minimum norm); free-points: inner constraints on object points (all, or "
+                   "--datum-points), as close-range programs define the datum; none: no datum (the damping picks one "
+                   "solution; no covariance).")
+@click.option("--datum-points", default=None,
+              help="With --datum free-points: comma list of the point names that define the datum (default: all).")
 @click.option("--crs", "crs", default=None,
               help="Project CRS the adjusted results are written in (recorded in the block file); a compound CRS "
                    "(e.g. EPSG:25832+5773) gives orthometric heights through the geoid PROJ ties to it. Default: the "
@@ -108,7 +118,8 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
             eo_map_z_ground: float | None, start_values_only: bool, camera_paths: tuple[str, ...],
             meas_paths: tuple[str, ...], control_path: str | None, check_path: str | None, points_crs: str | None,
             points_heights: str, points_geoid: str | None, sigma_px: float, gnss_sigma: str, imu_sigma_deg: str,
-            control_sigma: str, free: str, datum: str, crs: str | None, geoid: str | None, output: str) -> None:
+            control_sigma: str, free: str, fourier_order: int | None, datum: str, datum_points: str | None,
+            crs: str | None, geoid: str | None, output: str) -> None:
     """Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."""
     from skyrig.adjust import AdjustConfig
     from skyrig.cli._common import load_eo, load_measurements, load_points
@@ -136,6 +147,12 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
     unknown = [g for g in groups if g not in _GROUPS]
     if unknown:
         raise click.BadParameter(f"--free: unknown group {unknown[0]!r}; known: {', '.join(_GROUPS)}")
+    if fourier_order is not None and "actuator-curve" not in groups:
+        raise click.UsageError("--fourier-order goes with --free actuator-curve")
+    if fourier_order is not None and not 1 <= fourier_order <= 12:
+        raise click.BadParameter("must be a whole number from 1 to 12", param_hint="--fourier-order")
+    if datum_points is not None and datum != "free-points":
+        raise click.UsageError("--datum-points goes with --datum free-points")
     ms = [load_measurements(p) for p in meas_paths]
     eo = None
     if rig_mode:
@@ -191,6 +208,8 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
                                          check_points=checks, sigma_px=sigma_px)
         exposure = None
     n_control = int(np.sum(~block.control_check))
+    if {"actuator", "actuator-curve"} & set(groups) and not any(a is not None for a in block.head_actuated):
+        raise click.UsageError("--free actuator / actuator-curve: the rig has no actuated (tumbling) head")
     if datum == "auto" and not len(block.gnss_station) and n_control == 0:
         raise click.UsageError("the block has no datum: no GNSS observations (--start-values-only) and no control "
                                "point measured in its images; give --control or --datum free")
@@ -198,8 +217,14 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
     # the GNSS datum shift is free by default when control can separate it from a block translation;
     # --free datum-shift frees it in any case (one keyword each: the groups override the default)
     modes: dict[str, object] = {"datum_shift": "free" if len(block.gnss_station) and len(block.control_point)
-                                else "fixed", "snooping": True, "datum": datum}
+                                else "fixed", "snooping": True, "datum": "free" if datum == "free-points" else datum}
     modes.update({_GROUPS[g]: "free" for g in groups})
+    if "actuator-curve" in groups:
+        modes["actuator_fourier_order"] = fourier_order or 2
+    if datum == "free-points":
+        modes["inner_constraints"] = "points"
+        if datum_points:
+            modes["datum_points"] = tuple(p.strip() for p in datum_points.split(",") if p.strip())
     cfg = AdjustConfig(**modes)  # type: ignore[arg-type]
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     if project is None and control is not None and control.frame.kind == "map":

@@ -729,7 +729,8 @@ register_stage(Stage(
              "control_sigma": Option([0.02, 0.02, 0.02], "floats", "control point sigma X, Y, Z (m)", n=3,
                                      positive=True),
              "free": Option([], "strs", "system-calibration groups to estimate",
-                            ("boresight", "lever-arm", "datum-shift", "strip-shift", "intrinsics"))},
+                            ("boresight", "lever-arm", "datum-shift", "strip-shift", "intrinsics", "actuator",
+                             "actuator-curve"))},
     requires=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
