@@ -413,3 +413,89 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
     click.echo("datum shift (GNSS minus control) [m]: " + ", ".join(f"{k} {d[k]:.3f} ± {sd[k]:.3f}" for k in d))
     click.echo("antenna offset [m]: " + ", ".join(f"{k} {a[k]:.3f} ± {sa[k]:.3f}" for k in a))
     click.echo(f"-> {output}, {traj_out}, {eo_out}, {report_path}, {html_path}")
+
+
+@command.command("calqc")
+@click.option("--trajectory", "trajectory_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Recorded GNSS antenna positions + IMU attitudes of the boresight flight (skyrig trajectory CSV).")
+@click.option("--events", "events_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Camera events CSV (every head's images).")
+@click.option("--rig", "rig_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The nominal rig file (lever arms as measured, laboratory interior orientation).")
+@click.option("--measurements", "meas_paths", required=True, multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Image measurements CSV point,image,column,row (tie and ground points; repeatable).")
+@click.option("--control", "control_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Ground control points CSV (CRS in its header): control in steps 1-3, check points in step 4.")
+@click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Check points CSV (never control).")
+@click.option("--image-sigma-um", type=float, default=4.0, show_default=True,
+              help="Sigma of an image coordinate (micrometres; paper 004: 4 um).")
+@click.option("--gnss-sigma", default="0.05", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
+@click.option("--imu-sigma-deg", default="0.003,0.003,0.006", show_default=True,
+              help="IMU sigma roll,pitch,yaw (degrees; one or three values).")
+@click.option("--control-sigma", default="0.05", show_default=True, help="Control point sigma X,Y,Z (metres).")
+@click.option("--no-grid", is_flag=True, help="Skip the correction grid.")
+@click.option("--no-variants", is_flag=True, help="Skip the three adjustment variants (and Tab. 11).")
+@click.option("--flight", default="", help="Provenance: flight / data set.")
+@click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
+def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
+                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, no_variants, flight, date, output,
+                  report_path) -> None:
+    """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
+    three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
+    import numpy as np
+
+    from skyrig import __version__
+    from skyrig.calibrate.calqc import CalqcData, CalqcFailed, calibrate_calqc, format_tables, report_html
+    from skyrig.cli._common import parse_sigmas
+    from skyrig.errors import SkyrigError
+    from skyrig.georef.observations import GroundPoints, ImageMeasurements
+    from skyrig.io._text import atomic_write
+    from skyrig.io.events_csv import read_events_csv
+    from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+    from skyrig.io.rig_file import read_calibrated_rig, write_rig
+    from skyrig.io.trajectory_csv import read_trajectory_csv
+
+    def triple(text: str, option: str) -> tuple[float, float, float]:
+        v = parse_sigmas(text, 3, option, "x,y,z", positive=True)
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    rig, rig_cal = read_calibrated_rig(rig_path)
+    ms = [read_measurements_csv(p) for p in meas_paths]
+    meas = ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
+                             np.concatenate([m.pixel for m in ms]))
+    ctrl = read_points_csv(control_path, option="--control")
+    names, xyz, check = [ctrl.name], [ctrl.xyz], ()
+    if check_path is not None:
+        chk = read_points_csv(check_path, option="--check")
+        names.append(chk.name)
+        xyz.append(ctrl.frame.from_ecef(chk.frame.to_ecef(chk.xyz)))
+        check = tuple(str(n) for n in chk.name)
+    ground = GroundPoints(np.concatenate(names), np.concatenate(xyz), ctrl.frame)
+    data = CalqcData(read_trajectory_csv(trajectory_path), read_events_csv(events_path), rig, meas, ground, check)
+    try:
+        cal = calibrate_calqc(data, image_sigma_um=image_sigma_um, gnss_sigma_m=triple(gnss_sigma, "--gnss-sigma"),
+                              imu_sigma_deg=triple(imu_sigma_deg, "--imu-sigma-deg"),
+                              control_sigma_m=triple(control_sigma, "--control-sigma"), grid=not no_grid,
+                              variants=not no_variants)
+    except CalqcFailed as exc:
+        raise click.ClickException(f"calibration failed: {exc}") from None
+    except SkyrigError as exc:
+        raise click.ClickException(str(exc)) from None
+    report = cal.to_dict()
+    report["inputs"] = {"trajectory": str(trajectory_path), "events": str(events_path), "rig": str(rig_path),
+                        "measurements": [str(p) for p in meas_paths], "control": str(control_path), "check": check_path}
+    report_path = report_path or str(Path(output).with_suffix(".json"))
+    html_path = str(Path(report_path).with_suffix(".html"))
+    report["outputs"] = {"rig": str(output), "report": report_path, "html": html_path}
+    write_rig(cal.rig, output, cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal))
+    with atomic_write(report_path) as fh:
+        json.dump(report, fh, indent=2, default=float)
+        fh.write("\n")
+    with atomic_write(html_path) as fh:
+        fh.write(report_html(report))
+    click.echo(format_tables(report))
+    click.echo(f"-> {output}, {report_path}, {html_path}")

@@ -1,0 +1,921 @@
+"""The ``calqc`` recipe: boresight, datum shift and interior orientation of a multi-head rig from a boresight
+flight, then the three adjustment variants and a correction grid (paper 004, Madani: MIDAS penta camera,
+sections 2.3, 3 and Tab. 11).
+
+The paper calibrated with Applanix CalQC in four steps (2.3); :func:`calibrate_calqc` runs them as bundle
+adjustments of the whole flight (every head, every flying height; one station per exposure, GNSS and IMU as
+weighted observations, heads' boresights free in every step):
+
+====  ============================  ===========================  =================  =================
+step  interior orientation (IO)     GNSS datum (block) shift     ground points      blunder detection
+====  ============================  ===========================  =================  =================
+1     unlocked (free)               none (fixed at zero)         full control       on
+2     locked at step 1              estimated                    full control       on
+3     unlocked, started at step 1   locked at step 2             full control       on
+4     locked at step 3              locked at step 2             all check points   off
+====  ============================  ===========================  =================  =================
+
+The IO is the principal distance and principal point of every head's camera (``f, x_p, y_p``; the paper's
+PPAC).  Step 3 is the joint estimate of IO and boresights: its values and covariance are what the calibrated rig
+file receives (each head's boresight and IO with sigma and correlations, provenance with the steps' statistics);
+step 4 shows how the corrected GNSS/IMU orientations (the paper's POSEO) fit the ground.
+
+**Separability.**  After every step the correlations of the calibration unknowns (boresights, IO, datum shift)
+are examined; a pair above ``separability_limit`` (default 0.95) is named, in words, with the flight that would
+separate it, and the flight is described (flying heights, strip directions: :func:`flight_geometry`).  A
+boresight and a GNSS datum shift displace the ground alike when every strip is flown in one direction at one
+height (the boresight's displacement turns with the aircraft and grows with the height, the shift does neither);
+a principal distance and a vertical shift when there is one height; a principal point and a boresight always
+nearly (only the field-angle terms of the image and relief tell them apart): paper 004 had strips in one
+direction and separated the boresight thanks to its two GSDs.
+
+**Variants and Tab. 11.**  With the calibrated rig and the GNSS positions corrected by the datum shift (the
+paper's POSEO), each flying height's block is adjusted in the three variants of :mod:`skyrig.adjust.presets`
+(``ba-eo-control``, ``dg-control``, ``refine-eo-check``); Tab. 11 lists per variant and block: GSD, sigma0 in
+micrometres, RMS at control and check points, RMS of the photo positions (GNSS residuals) and attitudes (IMU
+residuals), and the GPS block shift.  The column "refine" is the lowest block again after the correction grid.
+
+**Correction grid by least-squares collocation** (:class:`CorrectionGrid`, :func:`collocation_grid`).  The
+image residuals of the lowest block's ``ba-eo-control`` adjustment are, per camera, observations ``l = s + n`` of
+a smooth systematic image deformation ``s`` (signal) plus white noise ``n``.  The empirical covariance of the
+residuals (pairs binned by distance on the image) is fitted by a Gaussian ``C(d) = C0 exp(-(d/L)^2)``; its value
+at zero distance above ``C0`` is the noise variance (the nugget).  The signal is predicted at the nodes of a grid
+over the image format, ``s(g) = c_g^T (C + D)^-1 l``, with its error variance ``C0 - c_g^T (C + D)^-1 c_g`` -
+from all residuals within reach, however sparse (a grid cell without residuals still gets a prediction and a
+sigma, unlike a mean per cell).  The grid is interpolated bilinearly, subtracted from the image coordinates and
+the block is re-adjusted; sigma0 and the check-point RMS before and after are reported.
+
+:func:`midas_calqc_scenario` simulates the boresight flight (``skyrig.simulate`` scenario ``midas``: 2,000 ft and
+4,000 ft, strips in alternating directions) with IO errors, a GNSS datum shift and optionally a smooth image
+deformation injected; ``directions="one"`` keeps the strips of one direction only.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.adjust import AdjustmentResult, DatumDefectError, adjust
+from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.presets import PRESETS, apply_preset
+from skyrig.adjust.rig_block import block_from_trajectory
+from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
+from skyrig.errors import SkyrigError
+from skyrig.georef.eo import WorldFrame
+from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.geometry.rotations import rotvec_from_matrix
+from skyrig.rig.rig import Rig
+from skyrig.trajectory import CameraEvents, Trajectory
+
+log = logging.getLogger(__name__)
+
+__all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "CorrectionGrid", "calibrate_calqc",
+           "collocation_grid", "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
+           "format_tables", "report_html", "separability"]
+
+#: the interior orientation CalQC unlocks: principal distance and principal point (PPAC)
+IO_PARAMETERS = ("focal_mm", "ppx_mm", "ppy_mm")
+VARIANTS = ("ba-eo-control", "dg-control", "refine-eo-check")
+
+
+class CalqcFailed(SkyrigError):
+    """A step of the recipe did not converge or its result cannot be trusted."""
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+@dataclass(frozen=True)
+class CalqcData:
+    """The boresight flight as recorded: trajectory (GNSS antenna + IMU), events, nominal rig, image
+    measurements (tie and ground points, pixels) and ground points (any frame); ``check_names`` are the ground
+    points kept as check points in every step but the last (where all are)."""
+
+    trajectory: Trajectory
+    events: CameraEvents
+    rig: Rig
+    measurements: ImageMeasurements
+    ground: GroundPoints
+    check_names: tuple[str, ...] = ()
+
+    def subset_images(self, keep: Callable[[NDArray[np.str_]], NDArray[np.bool_]] | Sequence[str]) -> "CalqcData":
+        """The data restricted to some images (a set of names, or a predicate on the events' image names)."""
+        names = np.asarray(self.events.image_name).astype(str)
+        mask = keep(names) if callable(keep) else np.isin(names, np.asarray(list(keep), dtype=str))
+        ev = self.events.subset(np.flatnonzero(mask))
+        m = np.isin(self.measurements.image, names[mask])
+        meas = ImageMeasurements(self.measurements.point[m], self.measurements.image[m], self.measurements.pixel[m])
+        return replace(self, events=ev, measurements=meas)
+
+
+def calqc_data_from_survey(survey: Any) -> CalqcData:
+    """A simulated survey (:func:`skyrig.simulate.scenarios.build_survey`) as the recipe's input (in memory)."""
+    m = survey.measurements
+    pts, imgs, pix = [m["point"]], [m["image"]], [m["pixel"]]
+    if survey.tie_points is not None:
+        t = survey.tie_points
+        pts.append(t["point"])
+        imgs.append(t["image"])
+        pix.append(t["pixel"])
+    meas = ImageMeasurements(np.concatenate(pts), np.concatenate(imgs), np.concatenate(pix))
+    ground = GroundPoints(survey.gcp_names, survey.gcp_surveyed, survey.frame)
+    return CalqcData(survey.trajectory_recorded, survey.events_recorded, survey.rig_recorded, meas, ground,
+                     tuple(str(n) for n in survey.gcp_names[survey.gcp_is_check]))
+
+
+@dataclass(frozen=True)
+class ScenarioTruth:
+    """What :func:`midas_calqc_scenario` injected (for tests and benches)."""
+
+    boresight_rotvec_rad: dict[str, NDArray[np.float64]]  # per head, camera frame (the adjustment's correction)
+    intrinsics: dict[str, dict[str, float]]  # per head: focal_mm, ppx_mm, ppy_mm of the true camera
+    datum_shift_m: NDArray[np.float64]  # GNSS minus control, local ENU
+    deformation: Callable[[NDArray[np.float64], str], NDArray[np.float64]] | None  # (pixel, head) -> d pixel
+    frame: WorldFrame
+    survey: Any = None
+
+
+def wave_deformation(amplitude_px: float, width: int, height: int) -> Callable[[NDArray[np.float64]], NDArray]:
+    """A smooth image deformation without mean, linear or radial part (not absorbed by the IO or the
+    orientation): ``dx = a sin(2 pi u) cos(pi v)``, ``dy = a cos(pi u) sin(2 pi v)`` with ``u, v`` in [-1, 1]."""
+
+    def d(pix: NDArray[np.float64]) -> NDArray[np.float64]:
+        u = 2.0 * pix[:, 0] / (width - 1) - 1.0
+        v = 2.0 * pix[:, 1] / (height - 1) - 1.0
+        return amplitude_px * np.column_stack([np.sin(2 * np.pi * u) * np.cos(np.pi * v),
+                                               np.cos(np.pi * u) * np.sin(2 * np.pi * v)])
+    return d
+
+
+def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str = "both", tie_points: int | None = None,
+                         io_error: Mapping[str, tuple[float, float, float]] | None = None,
+                         datum_shift_m: tuple[float, float, float] = (0.25, -0.15, 0.2),
+                         deformation_px: float = 0.0, deformation_heads: Sequence[str] = ("nadir",),
+                         camera_width_px: int | None = None,
+                         image_noise_um: float = 3.84) -> tuple[CalqcData, ScenarioTruth]:
+    """The simulated MIDAS boresight flight (scenario ``midas``: strips at 2,000 ft and 4,000 ft, alternating
+    directions; the scenario's head boresights and lever arms) with IO errors and a GNSS datum shift injected.
+
+    ``size``: ``"full"`` (paper's cameras, 6 + 3 strips over 2.4 km) or ``"reduced"`` (a test block: 3 + 2
+    strips over 1 km, cameras of ``camera_width_px`` (default 1200) pixels with the same field of view).
+    ``directions="one"``: only the strips flown in the first strip's direction are kept.  ``io_error``: per head
+    ``(d focal, d ppx, d ppy)`` mm, true minus recorded (default: a few micrometres per head).
+    ``image_noise_um``: simulated image noise (paper 004's estimated sigma: 3.8 um).  ``deformation_px``: amplitude of a smooth image deformation (:func:`wave_deformation`) of the
+    ``deformation_heads`` (0: none).  The IO errors and the deformation are applied to the simulated image
+    measurements exactly (pixel -> ray with the recorded camera -> pixel with the true camera, plus the field).
+    """
+    from skyrig.simulate.scenarios import FlightSpec, build_survey, ci_camera, scenario_spec
+
+    if size not in ("full", "reduced"):
+        raise SkyrigError(f"size must be 'full' or 'reduced', not {size!r}")
+    if directions not in ("both", "one"):
+        raise SkyrigError(f"directions must be 'both' or 'one', not {directions!r}")
+    spec = scenario_spec("midas", "full", seed)
+    if size == "reduced":
+        w = int(camera_width_px or 1200)
+        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, w)) for n, h in spec.rig.heads.items()})
+        fls = (FlightSpec(609.6, 3, (-500, -500, 500, 500), speed_mps=60.0, forward_overlap=0.6),
+               FlightSpec(1219.2, 2, (-500, -500, 500, 500), direction_deg=180.0, speed_mps=60.0))
+        spec = replace(spec, rig=rig, flights=fls, scene_extent=(-2500, -2500, 2500, 2500), n_buildings=40,
+                       n_gcp=12, n_check=4)
+    elif camera_width_px:
+        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, int(camera_width_px)))
+                                       for n, h in spec.rig.heads.items()})
+        spec = replace(spec, rig=rig)
+    cam_px_um = {n: h.camera.pixel_size_mm * 1000.0 for n, h in spec.rig.heads.items()}
+    n_tie = tie_points if tie_points is not None else (3000 if size == "full" else 1500)
+    err = replace(spec.errors, tie_points=int(n_tie), datum_shift_m=tuple(float(v) for v in datum_shift_m),
+                  gcp_sigma_m=(0.02, 0.02, 0.03), measurement_sigma_px=float(image_noise_um / cam_px_um["nadir"]))
+    spec = replace(spec, errors=err)
+    survey = build_survey(spec)
+    if io_error is None:
+        io_error = {"nadir": (0.012, 0.006, -0.008), "forward": (-0.015, 0.01, 0.005), "backward": (0.01, -0.006, 0.012),
+                    "left": (0.008, 0.009, -0.007), "right": (-0.01, -0.008, 0.006)}
+    rig_rec = survey.rig_recorded
+    true_cams = {}
+    for h in rig_rec:
+        d = io_error.get(h.name, (0.0, 0.0, 0.0))
+        c = h.camera
+        true_cams[h.name] = c.with_(focal_mm=c.focal_mm + d[0], ppx_mm=c.ppx_mm + d[1], ppy_mm=c.ppy_mm + d[2])
+    head_of = {str(n): str(h) for n, h in zip(survey.events_true.image_name, survey.events_true.head)}
+    defs = {}
+    for hn in deformation_heads:
+        if deformation_px > 0:
+            c = rig_rec.head(hn).camera
+            defs[hn] = wave_deformation(deformation_px, c.width, c.height)
+
+    def distort(obs: dict[str, Any]) -> dict[str, Any]:
+        img = np.asarray(obs["image"]).astype(str)
+        heads = np.array([head_of[i] for i in img])
+        pt = np.asarray(obs["pixel_true"], float)
+        noise = np.asarray(obs["pixel"], float) - pt
+        new = pt.copy()
+        for h in rig_rec:
+            sel = heads == h.name
+            if not sel.any():
+                continue
+            rays = h.camera.rays_from_pixels(pt[sel])  # the recorded camera made pixel_true
+            new[sel] = true_cams[h.name].project_pixels(rays)
+            if h.name in defs:
+                new[sel] += defs[h.name](new[sel])
+        return {**obs, "pixel_true": new, "pixel": new + noise}
+
+    survey = replace(survey, measurements=distort(survey.measurements),
+                     tie_points=None if survey.tie_points is None else distort(survey.tie_points))
+    data = calqc_data_from_survey(survey)
+    if directions == "one":
+        st_dir = {}
+        for i in range(len(survey.plan)):
+            st_dir[i + 1] = float(np.cos(survey.plan.heading_rad[i] - survey.plan.heading_rad[0])) > 0
+        keep = {str(n) for n, x in zip(survey.events_recorded.image_name, survey.events_recorded.exposure_id)
+                if st_dir[int(x)]}
+        data = data.subset_images(sorted(keep))
+    bore = {}
+    for h in rig_rec:
+        bt = survey.rig_true.head(h.name).boresight
+        bore[h.name] = rotvec_from_matrix(h.boresight.T @ bt)
+    intr = {n: {"focal_mm": c.focal_mm, "ppx_mm": c.ppx_mm, "ppy_mm": c.ppy_mm} for n, c in true_cams.items()}
+    dfun = None
+    if defs:
+        def dfun(pix: NDArray[np.float64], head: str) -> NDArray[np.float64]:
+            return defs[head](pix) if head in defs else np.zeros_like(pix)
+    return data, ScenarioTruth(bore, intr, np.asarray(datum_shift_m, float), dfun, survey.frame, survey)
+
+
+# ------------------------------------------------------------------------------------------------ collocation
+def _gauss(d: NDArray[np.float64], c0: float, L: float) -> NDArray[np.float64]:
+    return c0 * np.exp(-np.square(d / L))
+
+
+@dataclass(frozen=True)
+class CovarianceFit:
+    """The fitted covariance function of a residual field: ``C(d) = c0 exp(-(d/L)^2)`` (signal, px^2 per
+    component, ``L`` px) plus a nugget (white-noise variance, px^2); and the empirical bins it was fitted to."""
+
+    c0: float
+    length_px: float
+    nugget: float
+    bins_px: NDArray[np.float64]
+    empirical: NDArray[np.float64]
+    pairs: NDArray[np.int64]
+    variance: float
+
+    def __call__(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
+        return _gauss(d, self.c0, self.length_px)
+
+
+def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance: float, n_bins: int = 16,
+                   max_points: int = 2500, seed: int = 0) -> CovarianceFit:
+    """Empirical covariance of a 2-vector field ``v`` at positions ``xy`` (mean removed; both components pooled),
+    in ``n_bins`` distance bins up to ``max_distance``, fitted by a Gaussian plus a nugget (weighted by the
+    number of pairs per bin).  Above ``max_points`` positions a random subset estimates it."""
+    from scipy.optimize import curve_fit
+    from scipy.spatial import cKDTree
+
+    xy = np.asarray(xy, float)
+    v = np.asarray(v, float) - np.mean(v, axis=0)
+    if len(xy) > max_points:
+        sel = np.random.default_rng(seed).choice(len(xy), max_points, replace=False)
+        xy, v = xy[sel], v[sel]
+    var = float(np.mean(np.sum(v * v, axis=1)) / 2.0)
+    edges = np.linspace(0.0, max_distance, n_bins + 1)
+    pairs = cKDTree(xy).query_pairs(max_distance, output_type="ndarray")
+    emp = np.full(n_bins, np.nan)
+    cnt = np.zeros(n_bins, np.int64)
+    if len(pairs):
+        d = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
+        prod = np.sum(v[pairs[:, 0]] * v[pairs[:, 1]], axis=1) / 2.0
+        k = np.clip(np.searchsorted(edges, d, side="right") - 1, 0, n_bins - 1)
+        cnt = np.bincount(k, minlength=n_bins)
+        s = np.bincount(k, weights=prod, minlength=n_bins)
+        emp = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    ok = cnt >= 10
+    c0, L = 0.0, max_distance / 4.0
+    if ok.sum() >= 3 and np.nanmax(emp[ok]) > 0:
+        try:
+            p, _ = curve_fit(_gauss, centres[ok], emp[ok], p0=(max(float(emp[ok][0]), 1e-12), max_distance / 4.0),
+                             sigma=1.0 / np.sqrt(cnt[ok]), bounds=([0.0, edges[1] * 0.5], [max(var, 1e-12),
+                                                                                          4.0 * max_distance]))
+            c0, L = float(p[0]), float(p[1])
+        except (RuntimeError, ValueError):  # pragma: no cover - no signal to fit
+            c0 = 0.0
+    nugget = max(var - c0, 1e-6 * max(var, 1e-12))
+    return CovarianceFit(c0, L, nugget, centres, emp, cnt, var)
+
+
+@dataclass(frozen=True)
+class CorrectionGrid:
+    """A correction grid of one camera: nodes over the image format (pixels) with the predicted systematic
+    image error (``(ny, nx, 2)`` px, observed minus true) and its sigma (``(ny, nx)`` px per component).
+    :meth:`correct` subtracts the bilinearly interpolated grid from pixel coordinates."""
+
+    camera: str
+    x_px: NDArray[np.float64]
+    y_px: NDArray[np.float64]
+    value_px: NDArray[np.float64]
+    sigma_px: NDArray[np.float64]
+    covariance: CovarianceFit
+    n_residuals: int
+
+    def at(self, pix: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The grid interpolated at ``(N, 2)`` pixels (bilinear; clamped at the format's edges)."""
+        from scipy.interpolate import RegularGridInterpolator
+
+        p = np.column_stack([np.clip(pix[:, 1], self.y_px[0], self.y_px[-1]),
+                             np.clip(pix[:, 0], self.x_px[0], self.x_px[-1])])
+        out = np.empty((len(pix), 2))
+        for c in range(2):
+            out[:, c] = RegularGridInterpolator((self.y_px, self.x_px), self.value_px[:, :, c])(p)
+        return out
+
+    def correct(self, pix: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(pix, float) - self.at(np.asarray(pix, float))
+
+    def to_dict(self) -> dict[str, Any]:
+        cf = self.covariance
+        return {"camera": self.camera, "nodes_x_px": self.x_px.tolist(), "nodes_y_px": self.y_px.tolist(),
+                "correction_px": self.value_px.tolist(), "sigma_px": self.sigma_px.tolist(),
+                "residuals": self.n_residuals,
+                "covariance": {"function": "gaussian c0 exp(-(d/L)^2) + nugget", "c0_px2": cf.c0,
+                               "length_px": cf.length_px, "nugget_px2": cf.nugget, "variance_px2": cf.variance,
+                               "bins_px": cf.bins_px.tolist(),
+                               "empirical_px2": [None if not np.isfinite(e) else float(e) for e in cf.empirical],
+                               "pairs": cf.pairs.tolist()},
+                "max_correction_px": float(np.max(np.linalg.norm(self.value_px, axis=2))),
+                "mean_sigma_px": float(np.mean(self.sigma_px))}
+
+
+def collocation_grid(camera: str, width: int, height: int, pix: NDArray[np.float64], error: NDArray[np.float64],
+                     nodes_x: int = 13, nodes_y: int | None = None, neighbours: int = 800,
+                     cov: CovarianceFit | None = None) -> CorrectionGrid:
+    """Least-squares collocation of a residual field onto a grid (module docstring).
+
+    ``pix`` ``(N, 2)`` image positions, ``error`` ``(N, 2)`` observed systematic error samples (e.g. observed
+    minus computed image coordinates, px).  Each node is predicted from its ``neighbours`` nearest samples
+    (all when fewer).  The mean of ``error`` is the trend (added back).  ``cov``: a given covariance function
+    (default: fitted, :func:`fit_covariance`, up to half the format's diagonal)."""
+    from scipy.linalg import cho_factor, cho_solve
+    from scipy.spatial import cKDTree
+
+    pix = np.asarray(pix, float)
+    error = np.asarray(error, float)
+    if len(pix) < 10:
+        raise SkyrigError(f"camera {camera!r}: {len(pix)} residuals, too few for a correction grid")
+    diag = float(np.hypot(width, height))
+    if cov is None:
+        cov = fit_covariance(pix, error, 0.5 * diag)
+    mean = error.mean(axis=0)
+    l = error - mean
+    ny = nodes_y or max(2, int(round(nodes_x * height / width)))
+    xs = np.linspace(0.0, width - 1.0, nodes_x)
+    ys = np.linspace(0.0, height - 1.0, ny)
+    gx, gy = np.meshgrid(xs, ys)
+    nodes = np.column_stack([gx.ravel(), gy.ravel()])
+    val = np.zeros((len(nodes), 2))
+    var = np.full(len(nodes), cov.c0)
+    if cov.c0 > 0:
+        k = min(int(neighbours), len(pix))
+        tree = cKDTree(pix)
+        if k == len(pix):
+            groups = [(np.arange(len(nodes)), np.arange(len(pix)))]
+        else:
+            _, nn = tree.query(nodes, k=k)
+            groups = [(np.array([j]), nn[j]) for j in range(len(nodes))]
+        for node_idx, near in groups:
+            P = pix[near]
+            D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+            K = cov(D) + cov.nugget * np.eye(len(near))
+            cf = cho_factor(K)
+            c = cov(np.linalg.norm(nodes[node_idx][:, None, :] - P[None, :, :], axis=2))  # (m, k)
+            val[node_idx] = c @ cho_solve(cf, l[near])
+            var[node_idx] = cov.c0 - np.sum(c * cho_solve(cf, c.T).T, axis=1)
+    val += mean
+    return CorrectionGrid(camera, xs, ys, val.reshape(ny, nodes_x, 2),
+                          np.sqrt(np.clip(var, 0.0, None)).reshape(ny, nodes_x), cov, len(pix))
+
+
+def grid_from_result(res: AdjustmentResult, **kw: Any) -> dict[str, CorrectionGrid]:
+    """Per camera, the collocation grid of an adjustment's image residuals (observed minus computed)."""
+    b = res.block
+    gr = res.residuals["image"]
+    use = (gr.weight > 0) if gr.weight.ndim == 1 else (gr.weight > 0).all(axis=-1)
+    out = {}
+    cam_of_obs = b.image_camera[b.obs_image]
+    for ci, cam in enumerate(b.cameras):
+        sel = use & (cam_of_obs == ci)
+        if sel.sum() < 10:
+            continue
+        out[cam.name] = collocation_grid(cam.name, cam.width, cam.height, b.obs_pixel[sel],
+                                         -np.asarray(gr.residual)[sel], **kw)
+    return out
+
+
+def apply_grids(block: Block, grids: Mapping[str, CorrectionGrid]) -> Block:
+    """The block with each camera's image coordinates corrected by its grid."""
+    px = block.obs_pixel.copy()
+    cam_of_obs = block.image_camera[block.obs_image]
+    for ci, cam in enumerate(block.cameras):
+        g = grids.get(cam.name)
+        sel = cam_of_obs == ci
+        if g is not None and sel.any():
+            px[sel] = g.correct(px[sel])
+    return replace(block, obs_pixel=px)
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+def _run(block: Block, cfg: AdjustConfig, what: str) -> AdjustmentResult:
+    try:
+        res = adjust(block, cfg)
+    except DatumDefectError as exc:
+        raise CalqcFailed(f"{what}: the unknowns are not determined by this flight: {exc}") from None
+    if not res.ok:
+        raise CalqcFailed(f"{what}: " + "; ".join(res.failures))
+    log.info("%s: sigma0 %.3f, redundancy %d, %d rejected", what, res.sigma0, res.redundancy, len(res.rejected))
+    return res
+
+
+def _rms(a: NDArray[np.float64]) -> list[float]:
+    a = np.asarray(a, float)
+    return np.sqrt(np.mean(np.square(a), axis=0)).tolist() if a.size else [float("nan")] * 3
+
+
+def _sigma_um(block: Block, sigma0: float) -> float:
+    cams = block.cameras
+    px_um = float(np.median([c.pixel_size_mm for c in cams])) * 1000.0
+    return float(sigma0 * np.median(block.obs_sigma_px) * px_um)
+
+
+def _cal_labels(res: AdjustmentResult) -> tuple[list[tuple[str, str, str]], NDArray[np.float64]]:
+    """Labels and a-posteriori covariance of the calibration unknowns (boresight, intrinsics, datum shift)."""
+    sel = res.selected
+    if sel is None:
+        raise CalqcFailed("no covariance of the calibration unknowns was computed")
+    idx = [k for k, lab in enumerate(sel.labels) if lab[0] in ("boresight", "intrinsics", "datum_shift", "lever_arm")]
+    return [tuple(sel.labels[k]) for k in idx], res.sigma0**2 * sel.Qcc[np.ix_(idx, idx)]
+
+
+def flight_geometry(block: Block, height_gap: float = 0.25) -> dict[str, Any]:
+    """Flying heights (clusters of station heights above the points' median) and strip directions (headings
+    of the stations' body x axis, folded to 0..180 to find opposite pairs) of a rig block."""
+    z = block.station_centre[:, 2] - float(np.median(block.point_xyz[:, 2]))
+    order = np.argsort(z)
+    zs = z[order]
+    cut = np.flatnonzero(np.diff(zs) > height_gap * np.maximum(zs[:-1], 1.0))
+    level = np.zeros(len(z), np.int64)
+    level[order] = np.searchsorted(cut, np.arange(len(z)), side="left")
+    heights = [float(np.median(z[level == k])) for k in range(level.max() + 1)]
+    x = block.station_rotation[:, :, 0]
+    head = np.degrees(np.arctan2(x[:, 0], x[:, 1])) % 360.0
+    # group headings into 30-degree sectors
+    sectors = sorted({int(((h + 15.0) % 360.0) // 30.0) for h in head})
+    dirs = [float(s * 30.0) for s in sectors]
+    opposite = any(((a + 180.0) % 360.0) in dirs for a in dirs)
+    return {"heights_m": heights, "station_level": level, "headings_deg": dirs, "opposite_directions": bool(opposite),
+            "heading_per_station_deg": head}
+
+
+def _words(lab: tuple[str, str, str]) -> str:
+    g, o, c = lab
+    if g == "boresight":
+        return f"boresight {o} {c}"
+    if g == "intrinsics":
+        return {"focal_mm": f"principal distance of {o}", "ppx_mm": f"principal point x of {o}",
+                "ppy_mm": f"principal point y of {o}"}.get(c, f"{c} of {o}")
+    if g == "datum_shift":
+        return f"GNSS datum shift {c}"
+    return f"{g} {o} {c}"
+
+
+def _separating_flight(a: tuple[str, str, str], b: tuple[str, str, str], geom: Mapping[str, Any]) -> str:
+    kinds = {a[0], b[0]}
+    comps = {a[2], b[2]}
+    n_h = len(geom["heights_m"])
+    opp = geom["opposite_directions"]
+    if kinds == {"boresight", "datum_shift"} or kinds == {"lever_arm", "datum_shift"}:
+        want = []
+        if not opp:
+            want.append("strips flown in the opposite direction (a boresight or lever arm turns with the aircraft, "
+                        "a datum shift does not)")
+        if n_h < 2 and "lever_arm" not in kinds:
+            want.append("a second flying height (the ground displacement of a boresight grows with the height, that "
+                        "of a datum shift does not)")
+        return " or ".join(want) or "more ground control across the block"
+    if kinds == {"intrinsics", "datum_shift"} and "focal_mm" in comps:
+        return ("a second flying height (a principal-distance error scales the heights, a vertical shift does not)"
+                if n_h < 2 else "more relief or ground control at other heights")
+    if kinds == {"intrinsics", "boresight"} or kinds == {"intrinsics"}:
+        return ("no flight pattern separates them fully (both turn with the camera); strips in the opposite direction "
+                "at a second height, relief and points across the whole image format help; or lock the principal "
+                "point at a laboratory (cage) calibration")
+    if kinds == {"boresight"}:
+        return "strips in the opposite direction and cross strips"
+    return "strips in the opposite direction at a second flying height"
+
+
+def separability(res: AdjustmentResult, geom: Mapping[str, Any], limit: float = 0.95) -> list[dict[str, Any]]:
+    """Pairs of calibration unknowns correlated beyond ``limit`` (|r|), each named in words with the flight
+    that would separate it (see the module docstring)."""
+    labels, cov = _cal_labels(res)
+    s = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        R = cov / np.outer(s, s)
+    out = []
+    for i in range(len(labels)):
+        for j in range(i + 1, len(labels)):
+            r = float(R[i, j])
+            if np.isfinite(r) and abs(r) >= limit:
+                a, b = labels[i], labels[j]
+                out.append({"unknowns": [list(a), list(b)], "correlation": r,
+                            "text": f"{_words(a)} and {_words(b)} are inseparable in this flight (correlation {r:+.3f})",
+                            "separating_flight": _separating_flight(a, b, geom)})
+    out.sort(key=lambda e: -abs(e["correlation"]))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ result
+@dataclass
+class CalqcCalibration:
+    """The recipe's result (module docstring); :meth:`to_dict` is the JSON report."""
+
+    rig_in: Rig
+    rig: Rig
+    frame: WorldFrame
+    boresight: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]  # head -> rotvec (rad, camera), cov
+    interior: dict[str, tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64]]]  # head -> names, vals, cov
+    datum_shift_m: NDArray[np.float64]
+    datum_shift_cov_m2: NDArray[np.float64]
+    steps: list[dict[str, Any]]
+    table11: dict[str, Any]
+    grids: dict[str, CorrectionGrid]
+    grid_effect: dict[str, Any]
+    inseparable: list[dict[str, Any]]
+    geometry: dict[str, Any]
+    statistics: dict[str, float] = field(default_factory=dict)
+
+    def rig_calibration(self, flight: str = "", date: str = "", software: str = "",
+                        previous: RigCalibration | None = None) -> RigCalibration:
+        """Each head's boresight (omega, phi, kappa about the camera axes, deg) and IO block with provenance."""
+        prov = Provenance("calqc", flight, date, software, dict(self.statistics),
+                          notes=("paper 004 recipe (CalQC four steps); boresight and interior orientation from step 3 "
+                                 "(IO unlocked, datum shift locked at step 2, full control); GNSS datum shift (GNSS "
+                                 f"minus control, local ENU) {np.round(self.datum_shift_m, 3).tolist()} m is not part "
+                                 "of the rig"))
+        heads = dict(previous.heads) if previous is not None else {}
+        for h in self.rig.head_names:
+            old = heads.get(h, HeadCalibration())
+            bore = io = None
+            if h in self.boresight:
+                _, cov = self.boresight[h]
+                bore = CovarianceBlock.from_covariance(("omega", "phi", "kappa"), cov * (180.0 / np.pi) ** 2)
+            if h in self.interior:
+                names, vals, cov = self.interior[h]
+                io = CovarianceBlock.from_covariance(names, cov)
+            heads[h] = HeadCalibration(old.lever_arm_m, bore or old.boresight_opk_deg, io or old.interior,
+                                       old.actuator, prov)
+        return RigCalibration(heads, previous.antenna_lever_arm_m if previous is not None else None, prov)
+
+    def to_dict(self) -> dict[str, Any]:
+        res = {"boresight": {}, "interior_orientation": {}}
+        for h, (v, cov) in self.boresight.items():
+            res["boresight"][h] = {"rotvec_mdeg": (np.degrees(v) * 1000).tolist(),
+                                   "sigma_mdeg": (np.degrees(np.sqrt(np.diag(cov))) * 1000).tolist(),
+                                   "axes": "camera x, y, z (rotation vector of the correction)",
+                                   "opk_deg": list(self.rig.head(h).boresight_opk(unit="deg"))}
+        for h, (names, v, cov) in self.interior.items():
+            res["interior_orientation"][h] = {n: {"value_mm": float(x), "sigma_mm": float(np.sqrt(cov[k, k])),
+                                                  "start_mm": float(dict(zip(self.rig_in.head(h).camera.intrinsic_names,
+                                                                             self.rig_in.head(h).camera.intrinsics))[n])}
+                                              for k, (n, x) in enumerate(zip(names, v))}
+        res["datum_shift_m"] = self.datum_shift_m.tolist()
+        res["datum_shift_sigma_m"] = np.sqrt(np.diag(self.datum_shift_cov_m2)).tolist()
+        geom = {k: v for k, v in self.geometry.items() if k not in ("station_level", "heading_per_station_deg")}
+        return _plain({"recipe": "calqc", "paper": "004 (Madani, MIDAS)", "frame": self.frame.describe(),
+                       "flight": geom, "result": res, "steps": self.steps, "inseparable": self.inseparable,
+                       "table11": self.table11, "correction_grid": {k: g.to_dict() for k, g in self.grids.items()},
+                       "correction_grid_effect": self.grid_effect, "statistics": self.statistics})
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
+
+
+# ------------------------------------------------------------------------------------------------ the recipe
+def _step_row(step: str, res: AdjustmentResult, block: Block, cfg: AdjustConfig) -> dict[str, Any]:
+    b = res.block
+    ctrl = ~b.control_check
+    d = b.point_xyz[b.control_point] - b.control_xyz
+    row = {"step": step, "io": cfg.intrinsics, "datum_shift": cfg.datum_shift, "control": int(ctrl.sum()),
+           "check": int((~ctrl).sum()), "blunder_detection": bool(cfg.snooping), "sigma0": res.sigma0,
+           "sigma_um": _sigma_um(block, res.sigma0), "redundancy": res.redundancy, "rejected": len(res.rejected),
+           "rms_control_m": _rms(d[ctrl]), "rms_check_m": _rms(d[~ctrl]),
+           "datum_shift_m": b.datum_shift.tolist()}
+    return row
+
+
+def _variant_column(res: AdjustmentResult, block: Block, gsd_m: float, variant: str) -> dict[str, Any]:
+    b = res.block
+    ctrl = ~b.control_check
+    d = b.point_xyz[b.control_point] - b.control_xyz
+    col: dict[str, Any] = {"gsd_cm": 100.0 * gsd_m, "sigma_um": _sigma_um(block, res.sigma0), "sigma0": res.sigma0,
+                           "rms_control_m": _rms(d[ctrl]) if ctrl.any() else None,
+                           "rms_check_m": _rms(d[~ctrl]) if (~ctrl).any() else None,
+                           "images": int(block.n_images), "control": int(ctrl.sum()), "check": int((~ctrl).sum())}
+    g = res.residuals.get("gnss")
+    m = res.residuals.get("imu")
+    fixed_poses = res.config.poses == "fixed"
+    col["rms_photo_position_m"] = None if fixed_poses or g is None else _rms(np.asarray(g.residual))
+    col["rms_photo_attitude_deg"] = None if fixed_poses or m is None else np.degrees(_rms(np.asarray(m.residual))).tolist()
+    col["gps_block_shift_m"] = b.datum_shift.tolist() if res.config.datum_shift != "fixed" else None
+    return col
+
+
+def calibrate_calqc(
+    data: CalqcData,
+    *,
+    image_sigma_um: float = 4.0,
+    gnss_sigma_m: tuple[float, float, float] = (0.05, 0.05, 0.05),
+    imu_sigma_deg: tuple[float, float, float] = (0.003, 0.003, 0.006),
+    control_sigma_m: tuple[float, float, float] = (0.05, 0.05, 0.05),
+    io_parameters: Sequence[str] = IO_PARAMETERS,
+    separability_limit: float = 0.95,
+    max_cycles: int = 10,
+    grid_nodes: int = 13,
+    grid: bool = True,
+    variants: bool = True,
+) -> CalqcCalibration:
+    """Run the paper-004 recipe (module docstring) on a boresight flight.
+
+    ``image_sigma_um``: a-priori sigma of an image coordinate (paper 004: 4 um, 0.6 px of 6.4 um).  The
+    GNSS, IMU and control sigmas are those of the data (paper: 5 cm, and 0.05 deg for its IMU attitudes).
+    Raises :class:`CalqcFailed` when a step fails; an inseparable pair of unknowns is not a failure of the step
+    (it is reported in ``inseparable``) unless the normal equations are singular."""
+    rig = data.rig
+    sig_px = float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0)
+    imu_sig = tuple(float(np.radians(v)) for v in imu_sigma_deg)
+    all_names = tuple(str(n) for n in data.ground.name)
+
+    def build(d: CalqcData, r: Rig, check: Sequence[str], frame: WorldFrame | None) -> tuple[Block, WorldFrame]:
+        return block_from_trajectory(d.trajectory, r, d.events, d.measurements, d.ground, gnss_sigma_m=gnss_sigma_m,
+                                     imu_sigma_rad=imu_sig, control_sigma_m=control_sigma_m,
+                                     check_points=tuple(check), sigma_px=sig_px, frame=frame)
+
+    block0, frame = build(data, rig, data.check_names, None)
+    geom = flight_geometry(block0)
+    io_names = tuple(io_parameters)
+    cal_common = dict(boresight="free", statistics=True)
+    steps: list[dict[str, Any]] = []
+    inseparable: list[dict[str, Any]] = []
+
+    def record(step: str, res: AdjustmentResult, blk: Block, cfg: AdjustConfig) -> None:
+        steps.append(_step_row(step, res, blk, cfg))
+        for e in separability(res, geom, separability_limit):
+            e = {**e, "step": step}
+            if not any(x["text"] == e["text"] for x in inseparable):
+                inseparable.append(e)
+
+    # step 1: IO unlocked, no datum shift, full control, blunder detection
+    cfg1 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True, **cal_common)
+    r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift)")
+    record("1", r1, block0, cfg1)
+    # steps 2 and 3, repeated until the datum shift and the IO stop changing (a stepwise recipe converges
+    # to the joint solution only by repetition: step 1 absorbs the datum shift into the IO)
+    cams, bs = list(r1.block.cameras), r1.block.head_boresight.copy()
+    prev_io = np.concatenate([c.intrinsics for c in cams])
+    prev_d = np.zeros(3)
+    for cycle in range(max_cycles):
+        tag = "" if cycle == 0 else f" (repeat {cycle})"
+        b2 = replace(block0, cameras=cams, head_boresight=bs)
+        cfg2 = AdjustConfig(datum_shift="free", snooping=True, **cal_common)
+        r2 = _run(b2, cfg2, "step 2 (IO locked, datum shift)" + tag)
+        record("2" + tag, r2, b2, cfg2)
+        b3 = replace(block0, cameras=cams, head_boresight=r2.block.head_boresight.copy(),
+                     datum_shift=r2.block.datum_shift.copy())
+        cfg3 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True,
+                            **cal_common)
+        r3 = _run(b3, cfg3, "step 3 (IO unlocked, datum shift locked)" + tag)
+        record("3" + tag, r3, b3, cfg3)
+        cams, bs = list(r3.block.cameras), r3.block.head_boresight.copy()
+        io = np.concatenate([c.intrinsics for c in cams])
+        l3, c3 = _cal_labels(r3)
+        l2, c2 = _cal_labels(r2)
+        s_io = np.sqrt(np.diag(c3)[[k for k, lab in enumerate(l3) if lab[0] == "intrinsics"]])
+        s_d = np.sqrt(np.diag(c2)[[l2.index(("datum_shift", "gnss", a)) for a in "XYZ"]])
+        free_io = np.concatenate([[n in io_names for n in c.intrinsic_names] for c in cams])
+        change = max(float(np.max(np.abs(io - prev_io)[free_io] / s_io)) if s_io.size else 0.0,
+                     float(np.max(np.abs(r2.block.datum_shift - prev_d) / s_d)))
+        prev_io, prev_d = io, r2.block.datum_shift.copy()
+        log.info("calqc cycle %d: largest change %.2f sigma", cycle + 1, change)
+        if change < 0.05:
+            break
+    cycles = cycle + 1
+    # the joint covariance of IO, boresights and datum shift at the converged values (no blunder detection: the
+    # observations are those of the last step 3)
+    bj = replace(block0, cameras=cams, head_boresight=bs, datum_shift=r2.block.datum_shift.copy())
+    rej = [r.index for r in r3.rejected if r.group == "image"]
+    if rej:
+        w = np.ones(bj.n_observations, bool)
+        w[rej] = False
+        bj = _drop_obs(bj, w)
+    cfgj = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="free", **cal_common)
+    rj = _run(bj, cfgj, "joint covariance (IO, boresights, datum shift)")
+    record("joint", rj, bj, cfgj)
+    # step 4: IO locked (step 3), datum locked (step 2), every ground point a check point, no blunder detection
+    b4 = replace(block0, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
+                 datum_shift=rj.block.datum_shift.copy(), control_check=np.ones(len(block0.control_point), bool))
+    cfg4 = AdjustConfig(datum_shift="fixed", snooping=False, **cal_common)
+    r4 = _run(b4, cfg4, "step 4 (IO and datum locked, check points, no blunder detection)")
+    record("4", r4, b4, cfg4)
+
+    # calibration values and covariance: the joint adjustment at the converged steps 2-3
+    labels, cov = _cal_labels(rj)
+    pos = {lab: k for k, lab in enumerate(labels)}
+    bore: dict[str, tuple[NDArray, NDArray]] = {}
+    for hi, h in enumerate(rj.block.head_name):
+        ix = [pos.get(("boresight", str(h), c)) for c in ("rx", "ry", "rz")]
+        if any(i is None for i in ix):
+            continue
+        bore[str(h)] = (rj.block.head_boresight[hi].copy(), cov[np.ix_(ix, ix)])
+    interior: dict[str, tuple[tuple[str, ...], NDArray, NDArray]] = {}
+    cam_by_name = {c.name: c for c in rj.block.cameras}
+    for h in rig:
+        c = cam_by_name.get(h.camera.name)
+        if c is None:
+            continue
+        ix = [pos.get(("intrinsics", c.name, n)) for n in io_names]
+        if any(i is None for i in ix):
+            continue
+        vals = np.array([dict(zip(c.intrinsic_names, c.intrinsics))[n] for n in io_names])
+        interior[h.name] = (io_names, vals, cov[np.ix_(ix, ix)])
+    dix = [labels.index(("datum_shift", "gnss", a)) for a in "XYZ"]
+    datum = rj.block.datum_shift.copy()
+    datum_cov = cov[np.ix_(dix, dix)]
+
+    # the calibrated rig
+    heads = []
+    for h in rig:
+        new = h
+        if h.name in bore:
+            from skyrig.geometry.rotations import matrix_from_rotvec
+
+            new = new.with_(boresight=h.boresight @ matrix_from_rotvec(bore[h.name][0]))
+        if h.name in interior:
+            names, vals, _ = interior[h.name]
+            new = new.with_(camera=new.camera.with_(**dict(zip(names, vals.tolist()))))
+        heads.append(new)
+    rig_cal = Rig(rig.name, heads, rig.antenna_lever_arm_m,
+                  (rig.description + " | " if rig.description else "") + "calibrated by skyrig calibrate calqc")
+
+    stats = {"images": float(block0.n_images), "stations": float(block0.n_stations),
+             "observations": float(block0.n_observations), "sigma0_step3": float(r3.sigma0),
+             "sigma_um_step3": _sigma_um(b3, r3.sigma0), "redundancy_step3": float(r3.redundancy),
+             "sigma_um_step4": _sigma_um(b4, r4.sigma0), "cycles_steps_2_3": float(cycles),
+             "sigma0_joint": float(rj.sigma0), "flying_heights": float(len(geom["heights_m"])),
+             "opposite_directions": float(geom["opposite_directions"])}
+
+    # the three variants per flying height (Tab. 11), correction grid on the lowest block
+    table11: dict[str, Any] = {"variants": {}, "blocks": []}
+    grids: dict[str, CorrectionGrid] = {}
+    effect: dict[str, Any] = {}
+    if variants:
+        blk_c, _ = build(data, rig_cal, data.check_names, frame)
+        blk_c = _poseo(blk_c, datum)
+        level = flight_geometry(blk_c)["station_level"]
+        blocks = []
+        for lev, hgt in enumerate(geom["heights_m"]):
+            keep = level == lev
+            if keep.sum() < 2:
+                continue
+            names = set(blk_c.image_name[keep[blk_c.image_station]].tolist())
+            sub = data.subset_images(sorted(names))
+            bl, _ = build(sub, rig_cal, data.check_names, frame)
+            bl = _poseo(bl, datum)
+            nadir_cam = rig_cal.head(rig_cal.head_names[0]).camera
+            blocks.append((f"{hgt:.0f} m", bl, float(nadir_cam.gsd(hgt))))
+        run_blocks = list(blocks)
+        if grid and blocks:
+            name0, bl0, gsd0 = blocks[0]
+            base_cfg = AdjustConfig(snooping=True, statistics=True)
+            bb, cfg = apply_preset(bl0, "ba-eo-control", base_cfg)
+            before = _run(bb, cfg, f"ba-eo-control {name0}")
+            grids = grid_from_result(before, nodes_x=grid_nodes)
+            bl_g = apply_grids(bl0, grids)
+            after = _run(apply_grids(bb, grids), cfg, f"ba-eo-control {name0} with correction grid")
+            for lab, r in (("before", before), ("after", after)):
+                b = r.block
+                dd = b.point_xyz[b.control_point] - b.control_xyz
+                effect[lab] = {"sigma0": r.sigma0, "sigma_um": _sigma_um(bl0, r.sigma0),
+                               "rms_check_m": _rms(dd[b.control_check]), "rms_control_m": _rms(dd[~b.control_check])}
+            effect["block"] = name0
+            run_blocks.insert(1, (f"{name0} refined (grid)", bl_g, gsd0))
+        table11["blocks"] = [n for n, _, _ in run_blocks]
+        for v in VARIANTS:
+            cols = {}
+            for name, bl, gsd in run_blocks:
+                base_cfg = AdjustConfig(snooping=True, statistics=True)
+                bb, cfg = apply_preset(bl, v, base_cfg)
+                if v == "dg-control":
+                    cfg = cfg.with_(snooping=False)
+                r = _run(bb, cfg, f"{v} {name}")
+                cols[name] = _variant_column(r, bb, gsd, v)
+            table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}
+    return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, steps, table11, grids, effect,
+                            inseparable, geom, stats)
+
+
+def _drop_obs(block: Block, keep: NDArray[np.bool_]) -> Block:
+    """The block without the image observations not in ``keep``."""
+    kw: dict[str, Any] = dict(obs_image=block.obs_image[keep], obs_point=block.obs_point[keep],
+                              obs_pixel=block.obs_pixel[keep], obs_sigma_px=block.obs_sigma_px[keep])
+    if block.obs_cov_px2 is not None:
+        kw["obs_cov_px2"] = block.obs_cov_px2[keep]
+    return replace(block, **kw)
+
+
+def _poseo(block: Block, datum: NDArray[np.float64]) -> Block:
+    """The block with the GNSS positions (and the stations' starting centres) freed of the datum shift."""
+    return replace(block, gnss_xyz=block.gnss_xyz - datum, station_centre=block.station_centre - datum)
+
+
+# ------------------------------------------------------------------------------------------------ reports
+def _f(v: Any, fmt: str) -> str:
+    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
+
+
+def format_tables(report: Mapping[str, Any]) -> str:
+    """The steps, the calibration, the separability and Tab. 11 as plain text (what the CLI prints)."""
+    out = []
+    fl = report["flight"]
+    out.append(f"flight: heights {[round(h) for h in fl['heights_m']]} m above ground, headings "
+               f"{fl['headings_deg']} deg, opposite directions: {'yes' if fl['opposite_directions'] else 'no'}")
+    out.append("CalQC steps  IO        datum   ctrl check snoop  sigma[um] rejected  RMS control XYZ [m]   RMS check XYZ [m]")
+    for s in report["steps"]:
+        out.append(f"  {s['step']:<10} {s['io']:<9} {s['datum_shift']:<7} {s['control']:>4} {s['check']:>5} "
+                   f"{'on' if s['blunder_detection'] else 'off':>5} {s['sigma_um']:10.2f} {s['rejected']:>8}  "
+                   + " ".join(_f(x, "6.3f") for x in s["rms_control_m"]) + "  "
+                   + " ".join(_f(x, "6.3f") for x in s["rms_check_m"]))
+    r = report["result"]
+    out.append("boresight corrections (rotation vector about the camera axes, 1/1000 deg, +- sigma):")
+    for h, b in r["boresight"].items():
+        out.append(f"  {h:<10} " + "  ".join(f"{v:8.2f} +- {s:5.2f}" for v, s in zip(b["rotvec_mdeg"], b["sigma_mdeg"])))
+    out.append("interior orientation [mm] (start -> adjusted +- sigma):")
+    for h, io in r["interior_orientation"].items():
+        out.append(f"  {h:<10} " + "  ".join(f"{n} {e['start_mm']:.4f} -> {e['value_mm']:.4f} +- {e['sigma_mm']:.4f}"
+                                             for n, e in io.items()))
+    out.append("GNSS datum shift (GNSS minus control) [m]: " + ", ".join(
+        f"{a} {v:.3f} +- {s:.3f}" for a, v, s in zip("XYZ", r["datum_shift_m"], r["datum_shift_sigma_m"])))
+    if report["inseparable"]:
+        out.append("INSEPARABLE in this flight:")
+        for e in report["inseparable"]:
+            out.append(f"  step {e['step']}: {e['text']}; would be separated by {e['separating_flight']}")
+    else:
+        out.append(f"all calibration unknowns separable (no correlation above the limit)")
+    t = report["table11"]
+    if t.get("variants"):
+        blocks = t["blocks"]
+        out.append("Tab. 11: bundle adjustment results")
+        for v, vd in t["variants"].items():
+            out.append(f"  {vd['title']}")
+            out.append("    " + f"{'':<22}" + "".join(f"{b:>24}" for b in blocks))
+            cols = [vd["columns"][b] for b in blocks]
+            out.append("    " + f"{'GSD (cm)':<22}" + "".join(f"{_f(c['gsd_cm'], '.1f'):>24}" for c in cols))
+            out.append("    " + f"{'Sigma (um)':<22}" + "".join(f"{_f(c['sigma_um'], '.2f'):>24}" for c in cols))
+            for key, lab, fmt in (("rms_control_m", "RMS Control {} (m)", ".3f"), ("rms_check_m", "RMS Check {} (m)", ".3f"),
+                                  ("rms_photo_position_m", "RMS Photo Pos. {} (m)", ".3f"),
+                                  ("rms_photo_attitude_deg", "RMS Photo Att. {} (d)", ".4f"),
+                                  ("gps_block_shift_m", "GPS Block Shift {} (m)", ".3f")):
+                for k, a in enumerate("XYZ"):
+                    out.append("    " + f"{lab.format(a):<22}" + "".join(
+                        f"{_f(None if c[key] is None else c[key][k], fmt):>24}" for c in cols))
+    ge = report.get("correction_grid_effect") or {}
+    if ge:
+        out.append(f"correction grid (least-squares collocation) on block {ge['block']}:")
+        for k, g in report["correction_grid"].items():
+            cv = g["covariance"]
+            out.append(f"  {k}: {g['residuals']} residuals, signal {np.sqrt(cv['c0_px2']):.3f} px, correlation length "
+                       f"{cv['length_px']:.0f} px, noise {np.sqrt(cv['nugget_px2']):.3f} px, max correction "
+                       f"{g['max_correction_px']:.3f} px (mean sigma {g['mean_sigma_px']:.3f} px)")
+        for lab in ("before", "after"):
+            e = ge[lab]
+            out.append(f"  {lab:<6}: sigma {e['sigma_um']:.3f} um, RMS check XYZ " + " ".join(_f(x, ".3f") for x in e["rms_check_m"]))
+    return "\n".join(out)
+
+
+def report_html(report: Mapping[str, Any]) -> str:
+    """A self-contained HTML page with the tables."""
+    return ("<!doctype html><meta charset='utf-8'><title>calqc calibration</title>"
+            "<h1>System calibration of a multi-head rig (paper 004 CalQC recipe)</h1>"
+            f"<p>frame {html.escape(str(report['frame']))}</p><pre>{html.escape(format_tables(report))}</pre>")
