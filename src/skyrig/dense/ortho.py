@@ -93,6 +93,10 @@ class OrthoConfig:
         from the DSM (:func:`skyrig.dense.buildings.extract_buildings`); each footprint takes its roof planes and
         the elevated cells in a band of ``square_band_m`` around it the ground, where the roof planes explain the
         DSM inside the footprint (median absolute residual <= ``square_max_residual_m``; trees are left alone).
+    square_refine
+        Before the buildings are drawn, move their walls onto the roof outline seen in the images
+        (:func:`skyrig.dense.facades.refine_walls`, steep views): the DSM's footprints are off by a few tenths of a
+        metre, the images show the outline sharply.
     square_band_m, square_max_residual_m
         See ``square_buildings``.
     """
@@ -111,6 +115,7 @@ class OrthoConfig:
     balance_sigma_gain: float = 0.1
     balance_sigma_noise: float = 10.0
     square_buildings: bool = True
+    square_refine: bool = True
     square_band_m: float = 2.5
     square_max_residual_m: float = 0.5
 
@@ -651,7 +656,14 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     height = fill_surface(dsm)
     squared = {"buildings": 0, "cells": 0}
     if config.square_buildings:
-        height, squared = square_buildings(height, dsm, band_m=config.square_band_m,
+        from skyrig.dense.buildings import ExtractionConfig, extract_buildings
+
+        blocks = extract_buildings(dsm, config=ExtractionConfig(max_outside=1.0))
+        if config.square_refine and blocks:
+            from skyrig.dense.facades import refine_walls
+
+            blocks = refine_walls(blocks, eo, cameras, loader, dsm)
+        height, squared = square_buildings(height, dsm, blocks=blocks, band_m=config.square_band_m,
                                            max_residual_m=config.square_max_residual_m,
                                            ground=ground_estimate(height, dsm.grid.cell_m, config.ground_window_m))
     dsm_f = DsmGrid(dsm.grid, dsm.frame, height.astype(np.float32), dsm.support, dsm.spread, dsm.sigma, dsm.filled,
