@@ -242,3 +242,31 @@ def test_lund_without_gps_from_the_cli_against_gps_and_pycolmap(tmp_path):
 
 
 LUND_GPS_RMS_MAX_M = 8.0
+
+
+def test_cli_scale_bar_writes_model_frame_tables(tmp_path):
+    """``--scale-bar`` without control: plain EO / points tables in the arbitrary model frame (saying so), in metres:
+    camera-to-camera distances as the truth's within 4 predicted sigma (sigma of a distance <= |sigma_i| + |sigma_j|)."""
+    import csv
+
+    from skyrig.cli import main
+
+    s = _set()
+    proj = _write_project(tmp_path, s)
+    r = CliRunner().invoke(main, ["adjust-uav", str(proj), "--camera", str(proj / "camera.yaml"),
+                                  "--scale-bar", str(proj / "bars.csv"), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "out"
+    for f in ("eo.csv", "points.csv", "report.json", "camera.yaml", "manifest.json"):
+        assert (out / f).is_file(), f
+    text = (out / "eo.csv").read_text()
+    assert text.startswith("# frame: skyrig model frame") and "scale bars" in text.splitlines()[0]
+    rows = list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
+    k = [list(s.names).index(r["image"]) for r in rows]
+    C = np.array([[float(r[c]) for c in "xyz"] for r in rows])
+    sig = np.array([[float(r[c]) for c in ("sx", "sy", "sz")] for r in rows])
+    D = np.linalg.norm(C[:, None] - C[None], axis=2)
+    Dt = np.linalg.norm(s.C[k][:, None] - s.C[k][None], axis=2)
+    sd = np.linalg.norm(sig, axis=1)
+    tol = 4 * (sd[:, None] + sd[None])
+    assert np.all(np.abs(D - Dt) < tol + 1e-9), np.max(np.abs(D - Dt) / (tol + 1e-9))
