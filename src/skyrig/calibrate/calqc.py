@@ -267,11 +267,11 @@ class CovarianceFit:
         return _gauss(d, self.c0, self.length_px)
 
 
-def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance: float, n_bins: int = 16,
+def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance: float, n_bins: int = 24,
                    max_points: int = 2500, seed: int = 0) -> CovarianceFit:
     """Empirical covariance of a 2-vector field ``v`` at positions ``xy`` (mean removed; both components pooled),
     in ``n_bins`` distance bins up to ``max_distance``, fitted by a Gaussian plus a nugget (weighted by the
-    number of pairs per bin).  Above ``max_points`` positions a random subset estimates it."""
+    number of pairs per bin; bins up to the first zero crossing of the empirical covariance).  Above ``max_points`` positions a random subset estimates it."""
     from scipy.optimize import curve_fit
     from scipy.spatial import cKDTree
 
@@ -294,6 +294,9 @@ def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance
         emp = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
     centres = 0.5 * (edges[:-1] + edges[1:])
     ok = cnt >= 10
+    nonpos = np.flatnonzero(ok & ~(emp > 0))
+    if nonpos.size:  # fit up to the first zero crossing (an oscillating field is not Gaussian beyond it)
+        ok &= np.arange(n_bins) < max(int(nonpos[0]), 3)
     c0, L = 0.0, max_distance / 4.0
     if ok.sum() >= 3 and np.nanmax(emp[ok]) > 0:
         try:
@@ -350,7 +353,7 @@ class CorrectionGrid:
 
 
 def collocation_grid(camera: str, width: int, height: int, pix: NDArray[np.float64], error: NDArray[np.float64],
-                     nodes_x: int = 13, nodes_y: int | None = None, neighbours: int = 800,
+                     nodes_x: int = 13, nodes_y: int | None = None, neighbours: int = 1500,
                      cov: CovarianceFit | None = None) -> CorrectionGrid:
     """Least-squares collocation of a residual field onto a grid (module docstring).
 
@@ -379,12 +382,18 @@ def collocation_grid(camera: str, width: int, height: int, pix: NDArray[np.float
     var = np.full(len(nodes), cov.c0)
     if cov.c0 > 0:
         k = min(int(neighbours), len(pix))
-        tree = cKDTree(pix)
         if k == len(pix):
             groups = [(np.arange(len(nodes)), np.arange(len(pix)))]
-        else:
-            _, nn = tree.query(nodes, k=k)
-            groups = [(np.array([j]), nn[j]) for j in range(len(nodes))]
+        else:  # tiles of about 3 x 3 nodes, each from the k samples nearest to its centre
+            tree = cKDTree(pix)
+            tx = np.arange(nodes_x) // 3
+            ty = np.arange(ny) // 3
+            tile = (ty[:, None] * (tx.max() + 1) + tx[None, :]).ravel()
+            groups = []
+            for t in np.unique(tile):
+                idx = np.flatnonzero(tile == t)
+                _, near = tree.query(nodes[idx].mean(axis=0), k=k)
+                groups.append((idx, np.asarray(near)))
         for node_idx, near in groups:
             P = pix[near]
             D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)

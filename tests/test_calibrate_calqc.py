@@ -1,0 +1,100 @@
+"""``skyrig calibrate calqc`` (paper 004): the correction grid by least-squares collocation against a known
+field, with dense and with sparse residuals; the recipe on a small simulated MIDAS flight (slow)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skyrig.calibrate.calqc import collocation_grid, fit_covariance, wave_deformation
+
+W, H = 1200, 800
+
+
+def _field(pix: np.ndarray) -> np.ndarray:
+    return wave_deformation(0.5, W, H)(pix)
+
+
+def _samples(n: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    pix = rng.uniform([0, 0], [W - 1, H - 1], (n, 2))
+    return pix, _field(pix) + rng.normal(0, noise, (n, 2))
+
+
+def _nodes(g) -> np.ndarray:  # type: ignore[no-untyped-def]
+    gx, gy = np.meshgrid(g.x_px, g.y_px)
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def test_collocation_grid_recovers_a_smooth_field_within_its_sigma() -> None:
+    pix, obs = _samples(1500, 0.1, 1)
+    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13)
+    truth = _field(_nodes(g)).reshape(g.value_px.shape)
+    # the fitted covariance: signal variance near that of the field, nugget near the noise variance
+    assert g.covariance.nugget == pytest.approx(0.01, rel=0.3)
+    assert np.sqrt(g.covariance.c0) == pytest.approx(float(np.sqrt(np.mean(truth ** 2))), rel=0.5)
+    e = (g.value_px - truth) / g.sigma_px[:, :, None]
+    assert np.sqrt(np.mean(e ** 2)) < 2.0 and np.abs(e).max() < 5.0
+    assert np.sqrt(np.mean((g.value_px - truth) ** 2)) < 0.2 * np.sqrt(np.mean(truth ** 2))
+    # applied: corrected coordinates lose the field
+    corr = g.correct(pix + _field(pix)) - pix
+    assert np.sqrt(np.mean(corr ** 2)) < 0.25 * np.sqrt(np.mean(_field(pix) ** 2))
+
+
+def test_collocation_grid_works_with_sparse_residuals_where_a_cell_mean_cannot() -> None:
+    pix, obs = _samples(70, 0.05, 2)
+    cov = fit_covariance(*_samples(1000, 0.05, 3), max_distance=0.5 * np.hypot(W, H))  # the field's covariance
+    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13, cov=cov)
+    nodes = _nodes(g)
+    # a mean per grid cell: most cells have no residual at all
+    cx = np.clip(np.round(pix[:, 0] / (g.x_px[1] - g.x_px[0])).astype(int), 0, len(g.x_px) - 1)
+    cy = np.clip(np.round(pix[:, 1] / (g.y_px[1] - g.y_px[0])).astype(int), 0, len(g.y_px) - 1)
+    occupied = np.zeros(g.sigma_px.shape, bool)
+    occupied[cy, cx] = True
+    assert occupied.mean() < 0.6
+    # collocation predicts every node, empty cells included, within its sigma
+    truth = _field(nodes).reshape(g.value_px.shape)
+    assert np.all(np.isfinite(g.value_px)) and np.all(g.sigma_px > 0)
+    e = (g.value_px - truth) / g.sigma_px[:, :, None]
+    assert np.sqrt(np.mean(e ** 2)) < 2.0
+    empty = ~occupied
+    assert np.sqrt(np.mean((g.value_px[empty] - truth[empty]) ** 2)) < 0.75 * np.sqrt(np.mean(truth ** 2))
+    # sparse data: larger predicted sigma than with dense data
+    dense = collocation_grid("cam", W, H, *_samples(1000, 0.05, 4), nodes_x=13, cov=cov)
+    assert g.sigma_px.mean() > dense.sigma_px.mean()
+
+
+def test_collocation_grid_without_signal_is_flat() -> None:
+    rng = np.random.default_rng(5)
+    pix = rng.uniform([0, 0], [W - 1, H - 1], (800, 2))
+    g = collocation_grid("cam", W, H, pix, rng.normal(0, 0.1, (800, 2)), nodes_x=9)
+    assert np.abs(g.value_px).max() < 0.05
+
+
+def test_calqc_cli_missing_input_exits_nonzero(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from click.testing import CliRunner
+
+    from skyrig.cli.calibrate import command
+
+    r = CliRunner().invoke(command, ["calqc", "--trajectory", str(tmp_path / "none.csv"), "--events", "x", "--rig", "y",
+                                     "--measurements", "z", "--control", "c", "-o", str(tmp_path / "rig.yaml")])
+    assert r.exit_code == 2 and "none.csv" in r.output
+
+
+@pytest.mark.slow
+def test_calqc_recovers_boresight_io_and_datum_within_2_sigma() -> None:
+    from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario
+
+    data, truth = midas_calqc_scenario("reduced", 3, tie_points=800, camera_width_px=600)
+    cal = calibrate_calqc(data, variants=False, grid=False)
+    z = []
+    for h, (v, cov) in cal.boresight.items():
+        z.append((v - truth.boresight_rotvec_rad[h]) / np.sqrt(np.diag(cov)))
+    for h, (names, v, cov) in cal.interior.items():
+        z.append((v - np.array([truth.intrinsics[h][n] for n in names])) / np.sqrt(np.diag(cov)))
+    z.append((cal.datum_shift_m - truth.datum_shift_m) / np.sqrt(np.diag(cal.datum_shift_cov_m2)))
+    z = np.concatenate(z)
+    # 33 normalised errors: N(0,1) -> RMS near 1, a few may exceed 2
+    assert np.sqrt(np.mean(z ** 2)) < 1.6
+    assert (np.abs(z) > 2.0).sum() <= 4 and np.abs(z).max() < 3.5
+    assert cal.geometry["opposite_directions"] and len(cal.geometry["heights_m"]) == 2
