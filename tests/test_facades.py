@@ -243,6 +243,33 @@ def test_refine_walls_moves_displaced_walls_back_onto_the_roof_outline(midas):
     assert back_ok.mean() >= 0.8 and np.median(errs) <= 0.5 * gsd, (errs, before)
 
 
+
+@pytest.mark.slow
+def test_refine_walls_uses_steep_views_so_a_wrong_eave_height_does_not_move_the_walls(midas):
+    """A DSM's eave height is off by tenths of a metre; in a 45 deg oblique the roof outline drawn at the wrong
+    height moves one for one, in a nadir view by the tangent of a few degrees only."""
+    from dataclasses import replace
+
+    from skyrig.dense.facades import refine_walls
+
+    s, eo, cams, dsm, blocks, _, loader = midas
+    dz = 0.8
+    high = [replace(b, eave_z=b.eave_z + dz, roof=tuple(np.asarray(r) + [0.0, 0.0, dz] for r in b.roof))
+            for b in blocks[:3]]
+
+    def wall_errors(refined):
+        return np.abs([(f_new.corners[:2, :2].mean(axis=0) - f_true.corners[:2, :2].mean(axis=0)) @ f_true.normal[:2]
+                       for b, r in zip(blocks[:3], refined) for f_true, f_new in zip(b.facades(), r.facades())])
+
+    steep = wall_errors(refine_walls(high, eo, cams, loader, dsm))
+    any_view = wall_errors(refine_walls(high, eo, cams, loader, dsm, max_view_deg=60.0))
+    # the nadir images see these roofs within ~25 deg of the vertical: the outline moves by at most dz tan(25 deg)
+    assert steep.max() <= dz * np.tan(np.radians(25.0)) + 0.05, steep
+    # with the obliques (finer GSD, chosen first) walls go astray by most of dz, or stay where they were when the
+    # views disagree
+    assert (any_view > 0.4).sum() >= 2 and not (steep > 0.4).any(), (any_view, steep)
+
+
 def test_the_judge_sees_a_texture_shifted_by_two_texels(midas):
     from skyrig.simulate.judge_facades import judge_facade
 
