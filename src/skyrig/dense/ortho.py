@@ -333,6 +333,15 @@ def fill_surface(dsm: DsmGrid, step_m: float = 2.0) -> NDArray[np.float64]:
     return out
 
 
+def eo_steep_axis(eo: ExteriorOrientations, dsm: DsmGrid) -> NDArray[np.float64]:
+    """Vertical component of every image's viewing axis in a local frame at the DSM's centre (-1: straight down)."""
+    xb0, yb0, xb1, yb1 = dsm.grid.bounds
+    h = np.asarray(dsm.height, np.float64)
+    z = float(np.nanmedian(h)) if np.isfinite(h).any() else 0.0
+    local = local_frame_for(dsm.frame.to_ecef(np.array([[0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), z]])))
+    return -eo.to_frame(local).rotation[:, 2, 2]
+
+
 def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float = 2.5, max_residual_m: float = 0.5,
                      ground: NDArray[np.float64] | None = None, blocks: list | None = None
                      ) -> tuple[NDArray[np.float64], dict[str, int]]:
@@ -659,10 +668,12 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
         from skyrig.dense.buildings import ExtractionConfig, extract_buildings
 
         blocks = extract_buildings(dsm, config=ExtractionConfig(max_outside=1.0))
-        if config.square_refine and blocks:
+        # the outline in steep views only (an oblique's outline moves one for one with an error of the eave height)
+        steep = np.flatnonzero(-eo_steep_axis(eo, dsm) > np.cos(np.radians(30.0)))
+        if config.square_refine and blocks and len(steep):
             from skyrig.dense.facades import refine_walls
 
-            blocks = refine_walls(blocks, eo, cameras, loader, dsm)
+            blocks = refine_walls(blocks, eo.subset(steep), cameras, lambda k: loader(int(steep[k])), dsm)
         height, squared = square_buildings(height, dsm, blocks=blocks, band_m=config.square_band_m,
                                            max_residual_m=config.square_max_residual_m,
                                            ground=ground_estimate(height, dsm.grid.cell_m, config.ground_window_m))
