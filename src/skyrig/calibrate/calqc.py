@@ -16,9 +16,14 @@ step  interior orientation (IO)     GNSS datum (block) shift     ground points  
 ====  ============================  ===========================  =================  =================
 
 The IO is the principal distance and principal point of every head's camera (``f, x_p, y_p``; the paper's
-PPAC).  Step 3 is the joint estimate of IO and boresights: its values and covariance are what the calibrated rig
-file receives (each head's boresight and IO with sigma and correlations, provenance with the steps' statistics);
-step 4 shows how the corrected GNSS/IMU orientations (the paper's POSEO) fit the ground.
+PPAC).  Done once, the steps stop short of the joint solution: step 1 puts the datum shift into the IO (a
+principal-distance error and a vertical shift both move the heights), step 2 then fits a datum shift to that IO.
+So steps 2 and 3 are repeated (``max_cycles``) until neither the datum shift nor the IO changes by more than
+0.05 of its sigma (in the simulated MIDAS flight 3-6 cycles); a last adjustment with IO, boresights and datum shift
+free together, started at the converged values, gives their joint covariance (a step's own covariance, with the
+other group locked, would be too optimistic).  Those values and that covariance are what the calibrated rig file
+receives (each head's boresight and IO with sigma and correlations, provenance with the statistics); step 4, with
+all of them locked, shows how the corrected GNSS/IMU orientations (the paper's POSEO) fit the check points.
 
 **Separability.**  After every step the correlations of the calibration unknowns (boresights, IO, datum shift)
 are examined; a pair above ``separability_limit`` (default 0.95) is named, in words, with the flight that would
@@ -155,13 +160,14 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
                          datum_shift_m: tuple[float, float, float] = (0.25, -0.15, 0.2),
                          deformation_px: float = 0.0, deformation_heads: Sequence[str] = ("nadir",),
                          camera_width_px: int | None = None,
-                         image_noise_um: float = 3.84) -> tuple[CalqcData, ScenarioTruth]:
+                         image_noise_um: float = 3.84, heights: str = "both") -> tuple[CalqcData, ScenarioTruth]:
     """The simulated MIDAS boresight flight (scenario ``midas``: strips at 2,000 ft and 4,000 ft, alternating
     directions; the scenario's head boresights and lever arms) with IO errors and a GNSS datum shift injected.
 
     ``size``: ``"full"`` (paper's cameras, 6 + 3 strips over 2.4 km) or ``"reduced"`` (a test block: 3 + 2
     strips over 1 km, cameras of ``camera_width_px`` (default 1200) pixels with the same field of view).
-    ``directions="one"``: only the strips flown in the first strip's direction are kept.  ``io_error``: per head
+    ``directions="one"``: only the strips flown in the first strip's direction are kept; ``heights="low"``: only
+    the lower flight.  ``io_error``: per head
     ``(d focal, d ppx, d ppy)`` mm, true minus recorded (default: a few micrometres per head).
     ``image_noise_um``: simulated image noise (paper 004's estimated sigma: 3.8 um).  ``deformation_px``: amplitude of a smooth image deformation (:func:`wave_deformation`) of the
     ``deformation_heads`` (0: none).  The IO errors and the deformation are applied to the simulated image
@@ -171,6 +177,8 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
 
     if size not in ("full", "reduced"):
         raise SkyrigError(f"size must be 'full' or 'reduced', not {size!r}")
+    if heights not in ("both", "low"):
+        raise SkyrigError(f"heights must be 'both' or 'low', not {heights!r}")
     if directions not in ("both", "one"):
         raise SkyrigError(f"directions must be 'both' or 'one', not {directions!r}")
     spec = scenario_spec("midas", "full", seed)
@@ -226,22 +234,26 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
     survey = replace(survey, measurements=distort(survey.measurements),
                      tie_points=None if survey.tie_points is None else distort(survey.tie_points))
     data = calqc_data_from_survey(survey)
-    if directions == "one":
-        st_dir = {}
+    if directions == "one" or heights == "low":
+        n_low = spec.flights[0].n_strips
+        st_keep = {}
         for i in range(len(survey.plan)):
-            st_dir[i + 1] = float(np.cos(survey.plan.heading_rad[i] - survey.plan.heading_rad[0])) > 0
+            same = float(np.cos(survey.plan.heading_rad[i] - survey.plan.heading_rad[0])) > 0
+            low = int(survey.plan.strip[i]) < n_low
+            st_keep[i + 1] = (same or directions == "both") and (low or heights == "both")
         keep = {str(n) for n, x in zip(survey.events_recorded.image_name, survey.events_recorded.exposure_id)
-                if st_dir[int(x)]}
+                if st_keep[int(x)]}
         data = data.subset_images(sorted(keep))
     bore = {}
     for h in rig_rec:
         bt = survey.rig_true.head(h.name).boresight
         bore[h.name] = rotvec_from_matrix(h.boresight.T @ bt)
     intr = {n: {"focal_mm": c.focal_mm, "ppx_mm": c.ppx_mm, "ppy_mm": c.ppy_mm} for n, c in true_cams.items()}
-    dfun = None
+    dfun: Callable[[NDArray[np.float64], str], NDArray[np.float64]] | None = None
     if defs:
-        def dfun(pix: NDArray[np.float64], head: str) -> NDArray[np.float64]:
+        def _dfun(pix: NDArray[np.float64], head: str) -> NDArray[np.float64]:
             return defs[head](pix) if head in defs else np.zeros_like(pix)
+        dfun = _dfun
     return data, ScenarioTruth(bore, intr, np.asarray(datum_shift_m, float), dfun, survey.frame, survey)
 
 
@@ -569,8 +581,9 @@ class CalqcCalibration:
                         previous: RigCalibration | None = None) -> RigCalibration:
         """Each head's boresight (omega, phi, kappa about the camera axes, deg) and IO block with provenance."""
         prov = Provenance("calqc", flight, date, software, dict(self.statistics),
-                          notes=("paper 004 recipe (CalQC four steps); boresight and interior orientation from step 3 "
-                                 "(IO unlocked, datum shift locked at step 2, full control); GNSS datum shift (GNSS "
+                          notes=("paper 004 recipe (CalQC four steps, steps 2-3 repeated to convergence); boresight and "
+                                 "interior orientation with their joint covariance (IO, boresights and datum shift "
+                                 "free together at the converged values); GNSS datum shift (GNSS "
                                  f"minus control, local ENU) {np.round(self.datum_shift_m, 3).tolist()} m is not part "
                                  "of the rig"))
         heads = dict(previous.heads) if previous is not None else {}
@@ -675,7 +688,6 @@ def calibrate_calqc(
     rig = data.rig
     sig_px = float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0)
     imu_sig = tuple(float(np.radians(v)) for v in imu_sigma_deg)
-    all_names = tuple(str(n) for n in data.ground.name)
 
     def build(d: CalqcData, r: Rig, check: Sequence[str], frame: WorldFrame | None) -> tuple[Block, WorldFrame]:
         return block_from_trajectory(d.trajectory, r, d.events, d.measurements, d.ground, gnss_sigma_m=gnss_sigma_m,
@@ -891,7 +903,7 @@ def format_tables(report: Mapping[str, Any]) -> str:
         for e in report["inseparable"]:
             out.append(f"  step {e['step']}: {e['text']}; would be separated by {e['separating_flight']}")
     else:
-        out.append(f"all calibration unknowns separable (no correlation above the limit)")
+        out.append("all calibration unknowns separable (no correlation above the limit)")
     t = report["table11"]
     if t.get("variants"):
         blocks = t["blocks"]
