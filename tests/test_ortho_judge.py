@@ -21,13 +21,13 @@ CRS = "EPSG:25832"
 
 @pytest.fixture(scope="module")
 def truth_mosaic():
-    """The scene's true top-surface colours on a UTM grid around four buildings (the perfect orthophoto)."""
+    """The scene's true top-surface colours on a UTM grid around two buildings (the perfect orthophoto)."""
     survey = build_survey(scenario_spec("midas-dsm", "ci", 1))
     scene = survey.scene
     b = scene.buildings
     frame = WorldFrame.map(CRS, None)
     local = WorldFrame.local(*scene.origin)
-    sel = np.argsort(np.hypot(b.cx - np.median(b.cx), b.cy - np.median(b.cy)))[:4]
+    sel = np.argsort(np.hypot(b.cx - np.median(b.cx), b.cy - np.median(b.cy)))[:2]
     v = np.concatenate([b.vertices(int(i)) for i in sel])
     m = frame.from_ecef(local.to_ecef(v))
     cell = 0.285
@@ -47,16 +47,17 @@ def test_roof_outline_measure_is_zero_on_the_truth_and_reports_a_shift(truth_mos
 
     scene, grid, frame, rgb, sel = truth_mosaic
     valid = np.ones(rgb.shape[:2], bool)
-    rec = [r for r in roof_outline_offsets(rgb, valid, grid, frame, scene) if r["building"] in sel]
+    rec = roof_outline_offsets(rgb, valid, grid, frame, scene, buildings=sorted(sel))
     ok = [r for r in rec if r["status"] == "ok"]
-    assert len(ok) >= 12, [r["status"] for r in rec]
+    assert len(ok) >= 6, [r["status"] for r in rec]
     d = np.array([r["offset_m"] for r in ok]) / grid.cell_m
     # the truth itself: only the sub-sampling of the profiles (1/5 cell) and the assumed blur remain
     assert np.abs(d).max() <= 0.35, d
     # the mosaic moved by (+1.4, -0.8) cells (east, north in cells: +1.4 columns, -0.8 rows)
     M = np.float32([[1, 0, 1.4], [0, 1, -0.8]])
     moved = cv2.warpAffine(rgb, M, (rgb.shape[1], rgb.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    rec2 = {(r["building"], r["corner"]): r for r in roof_outline_offsets(moved, valid, grid, frame, scene)}
+    rec2 = {(r["building"], r["corner"]): r
+            for r in roof_outline_offsets(moved, valid, grid, frame, scene, buildings=sorted(sel))}
     d2 = np.array([rec2[(r["building"], r["corner"])]["offset_m"] for r in ok]) / grid.cell_m
     # the UTM grid is turned against the local east-north axes by the meridian convergence (< 1.5 deg here)
     assert np.median(d2[:, 0]) == pytest.approx(1.4, abs=0.15)

@@ -112,7 +112,7 @@ def true_surface_rgb(scene: Scene, x: NDArray[np.float64], y: NDArray[np.float64
 
 def roof_outline_offsets(img: NDArray, valid: NDArray[np.bool_], grid: Any, frame: WorldFrame, scene: Scene, *,
                          search_cells: float = 8.0, reach_cells: float = 8.0, min_contrast_dn: float = 8.0,
-                         sub: int = 5, blur_cells: float = 0.6) -> list[dict[str, Any]]:
+                         sub: int = 5, blur_cells: float = 0.6, buildings: Any = None) -> list[dict[str, Any]]:
     """Where each true roof corner lies in an orthophoto, located by the roof outline's edges.
 
     For every eave corner of every scene building, the two roof sides that meet there are located in the mosaic:
@@ -126,6 +126,8 @@ def roof_outline_offsets(img: NDArray, valid: NDArray[np.bool_], grid: Any, fram
 
     Colour is used, not grey: roofs of the same brightness as the ground around them still differ in hue.  A
     side whose truth shows less than ``min_contrast_dn`` colour difference across it is not judged.
+
+    ``buildings``: indices of the scene buildings to judge (default all).
 
     Returns one dict per corner: ``building``, ``corner``, ``status`` (``ok``, ``no data`` - a side's outside or
     inside not seen, ``low contrast``, ``at search limit``), and when located ``d_sides_m`` (outward offsets of the
@@ -201,7 +203,7 @@ def roof_outline_offsets(img: NDArray, valid: NDArray[np.bool_], grid: Any, fram
                 f = 0.5 * (cost[j - 1] - cost[j + 1]) / den
         return ("ok" if 0 < j < len(cost) - 1 else "at search limit", (j - nS + f) * ds, contrast)
 
-    for i in range(len(b)):
+    for i in (range(len(b)) if buildings is None else [int(k) for k in buildings]):
         V = b.vertices(i)[4:8, :2]
         ctr_b = np.array([b.cx[i], b.cy[i]])
         sides = []
