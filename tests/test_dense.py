@@ -8,6 +8,8 @@ bad input must be a clear error that leaves no output behind.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import json
 
 import numpy as np
@@ -212,6 +214,52 @@ def test_fusion_rules_against_hand_computation():
     assert abs(SP[0, 0] - 1.4826 * np.median(np.abs(v - fused))) < 1e-5
     assert np.isnan(H[0, 1]) and N[0, 1] == 0  # no second pair confirms it
     assert np.isnan(H[0, 2])  # two pairs 6 m apart: neither is confirmed
+
+
+def test_neighbour_confirmation_against_hand_computation():
+    from skyrig.dense.fusion import confirm_by_neighbours
+
+    g = GridSpec(0.0, 10.0, 1.0, 6, 1)
+    # cells 0,1: confirmed by pairs 0+1 at 5.0; cell 2: pair 0 alone at 5.1 (a neighbour 1 cell away agrees);
+    # cell 3: pair 2 alone at 9.0 (no confirmed neighbour at that height); cell 4: pairs 0 and 1 disagree
+    # (split, no candidate); cell 5: pair 3 alone at 5.05, its nearest confirmed cell 4 cells away
+    x = np.array([0.5, 0.5, 1.5, 1.5, 2.5, 3.5, 4.5, 4.5, 5.5])
+    y = np.full(9, 9.5)
+    h = np.array([5.0, 5.0, 5.0, 5.0, 5.1, 9.0, 5.0, 8.0, 5.05])
+    pair = np.array([0, 1, 0, 1, 0, 2, 0, 1, 3])
+    sig = np.full(9, 0.05)
+    cfg = FusionConfig(min_support=2, k_sigma=3.0, min_tol_cells=0.2, neighbour_cells=2)
+    H, N, SP, S, CH, CS, CN = fuse_grid(g, pair, x, y, h, sig, cfg, candidates=True)
+    assert np.isfinite(H[0, :2]).all() and np.isnan(H[0, 2:]).all()
+    assert CH[0, 2] == np.float32(5.1) and CN[0, 2] == 1 and abs(CS[0, 2] - 0.05) < 1e-7
+    assert CH[0, 3] == np.float32(9.0) and np.isnan(CH[0, 4]) and CH[0, 5] == np.float32(5.05)
+    kept = confirm_by_neighbours(H, N, S, CH, CS, CN, g.cell_m, cfg)
+    # |5.1 - 5.0| = 0.1 <= max(3 * sqrt(0.05^2 + (0.05/sqrt 2)^2) = 0.18, 0.2): kept, with its own pair count
+    assert kept.tolist() == [[False, False, True, False, False, False]]
+    assert H[0, 2] == np.float32(5.1) and N[0, 2] == 1 and np.isnan(SP[0, 2])
+    assert np.isnan(H[0, 3]) and np.isnan(H[0, 5])  # 9 m: no neighbour agrees; 5.05: none within 2 cells
+    # the confirmation uses only cells of the pair vote, never a cell it kept itself (no chains)
+    H2, N2, SP2, S2, CH2, CS2, CN2 = fuse_grid(g, pair, x, y, h, sig, replace(cfg, neighbour_cells=0), candidates=True)
+    assert not confirm_by_neighbours(H2, N2, S2, CH2, CS2, CN2, g.cell_m, replace(cfg, neighbour_cells=0)).any()
+
+
+def test_foreground_erosion_along_rows_and_background_fill():
+    from skyrig.dense.sgm import erode_foreground, fill_background
+
+    d = np.full((5, 10), 10.0, np.float32)
+    d[1:4, 4:7] = 20.0  # a foreground square
+    e = erode_foreground(d, 2.0, 2, 0)
+    # along the rows the square loses 2 px from each side (3 px wide: all of it), across the rows nothing
+    assert np.isnan(e[1:4, 4:7]).all() and np.isfinite(e[[0, 4]]).all() and np.isfinite(e[:, :4]).all()
+    e = erode_foreground(d, 2.0, 1, 0)
+    assert np.isnan(e[1:4, [4, 6]]).all() and (e[1:4, 5] == 20.0).all()
+    e = erode_foreground(d, 2.0, 0, 1)  # across only: the top and bottom rows of the square
+    assert np.isnan(e[[1, 3], 4:7]).all() and (e[2, 4:7] == 20.0).all()
+    # fill: the farther (smaller) of the nearest matched row neighbours
+    f = np.array([[np.nan, 5.0, np.nan, np.nan, 9.0, np.nan]], np.float32)
+    assert fill_background(f).tolist() == [[5.0, 5.0, 5.0, 5.0, 9.0, 9.0]]
+    valid = np.array([[True, True, False, True, True, True]])
+    assert np.isnan(fill_background(f, valid)[0, 2])
 
 
 def test_dsm_of_the_synthetic_block(dense_result, block):

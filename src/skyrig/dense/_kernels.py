@@ -54,8 +54,11 @@ def _sort1(a, idx):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support, min_ratio,
-                    out_h, out_n, out_sp, out_s):  # pragma: no cover - compiled
-    """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays."""
+                    out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn):  # pragma: no cover - compiled
+    """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays.
+
+    ``out_ch``, ``out_cs``, ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``,
+    their precision-weighted mean, its sigma and their number (a candidate for the neighbour confirmation)."""
     ncells = start.shape[0] - 1
     for c in range(ncells):
         a, b = start[c], start[c + 1]
@@ -107,6 +110,10 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
                 wsum += w
                 hsum += w * ph[q]
         if nsup < min_support or nsup < min_ratio * np_:
+            if nsup == np_:
+                out_ch[c] = hsum / wsum
+                out_cs[c] = 1.0 / np.sqrt(wsum)
+                out_cn[c] = min(nsup, 32767)
             continue
         fused = hsum / wsum
         dev = np.empty(nsup)

@@ -9,7 +9,13 @@ Grid fusion (:func:`fuse_grid`), for every cell:
 3. the cell is kept when at least ``min_support`` pairs support it (a height that no second pair confirms
    is rejected); its height is the precision-weighted mean of the supporting heights, its ``sigma`` the
    propagated precision of that mean, its ``spread`` 1.4826 x the median absolute deviation of the
-   supporting heights (NaN with one supporting pair).
+   supporting heights (NaN with one supporting pair);
+4. neighbour confirmation (:func:`confirm_by_neighbours`, on the assembled grid): a cell that fails step 3
+   only for want of pairs (all its pairs agree, but fewer than ``min_support`` see it) is kept when a cell
+   kept in step 3 within ``neighbour_cells`` has the same height within the same tolerance - the second
+   pair confirms the surface next to the cell.  Next to building edges most views are occluded or their
+   matches eroded, so a roof rim or the ground at a wall is often seen by one pair only, while the roof or
+   ground it continues is confirmed a cell or two away.
 
 Cloud fusion (:func:`fuse_cloud`): points of all pairs are binned in voxels (grid cells x height slices); a voxel
 becomes one point when ``min_support`` distinct pairs have points in it: precision-weighted mean position,
@@ -46,18 +52,21 @@ class FusionConfig:
         Least share of the pairs with a height in the cell that must support it (a cell where the pairs split
         into camps - typical next to a wall, where some views see the roof and others the ground - is left
         empty rather than guessed).
+    neighbour_cells
+        Radius (cells, square window) of the neighbour confirmation of cells with too few pairs; 0 disables.
     """
 
     min_support: int = 2
     k_sigma: float = 3.0
     min_tol_cells: float = 1.0
     min_support_ratio: float = 0.5
+    neighbour_cells: int = 2
 
 
 def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y: NDArray[np.float64],
-              h: NDArray[np.float64], sigma: NDArray[np.float64], cfg: FusionConfig = FusionConfig()
-              ) -> tuple[NDArray[np.float32], NDArray[np.int16], NDArray[np.float32], NDArray[np.float32]]:
-    """Fuse points of several stereo pairs into a grid.
+              h: NDArray[np.float64], sigma: NDArray[np.float64], cfg: FusionConfig = FusionConfig(),
+              candidates: bool = False) -> tuple[NDArray[np.float32], ...]:
+    """Fuse points of several stereo pairs into a grid (steps 1-3 of the module docstring).
 
     Parameters
     ----------
@@ -72,10 +81,16 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
     cfg
         Fusion options.
 
+    candidates
+        Also return the candidates for :func:`confirm_by_neighbours`.
+
     Returns
     -------
     height, support, spread, sigma
         ``grid.shape`` arrays as :class:`skyrig.dense.grid.DsmGrid` holds them.
+    cand_height, cand_sigma, cand_support
+        With ``candidates``: for cells whose pairs all agree but are fewer than ``min_support``, their
+        precision-weighted mean height, its sigma and the number of pairs (NaN / 0 elsewhere).
     """
     from skyrig.dense._kernels import counting_order, fuse_grid_cells
 
@@ -84,6 +99,9 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
     out_n = np.zeros(H * W, np.int16)
     out_sp = np.full(H * W, np.nan, np.float32)
     out_s = np.full(H * W, np.nan, np.float32)
+    out_ch = np.full(H * W, np.nan, np.float32)
+    out_cs = np.full(H * W, np.nan, np.float32)
+    out_cn = np.zeros(H * W, np.int16)
     row, col = grid.cell_of(x, y)
     ok = (row >= 0) & (row < H) & (col >= 0) & (col < W) & np.isfinite(h) & (sigma > 0)
     if ok.any():
@@ -91,9 +109,48 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
         order, start = counting_order(cell, H * W)
         fuse_grid_cells(order, start, np.asarray(pair, np.int64)[ok], np.asarray(h, np.float64)[ok],
                         np.asarray(sigma, np.float64)[ok], float(cfg.k_sigma), float(cfg.min_tol_cells * grid.cell_m),
-                        int(cfg.min_support), float(cfg.min_support_ratio), out_h, out_n, out_sp, out_s)
+                        int(cfg.min_support), float(cfg.min_support_ratio), out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
     shape = grid.shape
-    return out_h.reshape(shape), out_n.reshape(shape), out_sp.reshape(shape), out_s.reshape(shape)
+    out = (out_h.reshape(shape), out_n.reshape(shape), out_sp.reshape(shape), out_s.reshape(shape))
+    if candidates:
+        out += (out_ch.reshape(shape), out_cs.reshape(shape), out_cn.reshape(shape))
+    return out
+
+
+def confirm_by_neighbours(height: NDArray[np.float32], support: NDArray[np.int16], sigma: NDArray[np.float32],
+                          cand_height: NDArray[np.float32], cand_sigma: NDArray[np.float32],
+                          cand_support: NDArray[np.int16], cell_m: float, cfg: FusionConfig = FusionConfig()
+                          ) -> NDArray[np.bool_]:
+    """Step 4 of the module docstring, in place on ``height``, ``support`` and ``sigma`` (whole grids): a
+    candidate cell takes its candidate height when a cell fused in steps 1-3 within ``cfg.neighbour_cells``
+    (square window) agrees within ``max(k_sigma * sqrt(s_c^2 + s_n^2), min_tol_cells * cell_m)``.  Only cells
+    of steps 1-3 confirm (no chains), so the result depends on the layers alone, not on any tiling.
+
+    Returns the mask of the cells kept this way (their ``spread`` stays NaN, their ``support`` is their own
+    number of pairs, below ``min_support``)."""
+    r = int(cfg.neighbour_cells)
+    cand = np.isfinite(cand_height) & ~np.isfinite(height)
+    if r <= 0 or not cand.any():
+        return np.zeros(height.shape, bool)
+    H, W = height.shape
+    ok = np.zeros(height.shape, bool)
+    hp = np.pad(height, r, constant_values=np.nan)
+    sp = np.pad(sigma, r, constant_values=np.nan)
+    ch, cs = cand_height.astype(np.float64), cand_sigma.astype(np.float64)
+    min_tol = cfg.min_tol_cells * cell_m
+    with np.errstate(invalid="ignore"):
+        for dr in range(-r, r + 1):
+            for dc in range(-r, r + 1):
+                if dr == 0 and dc == 0:
+                    continue
+                nh = hp[r + dr:r + dr + H, r + dc:r + dc + W].astype(np.float64)
+                ns = sp[r + dr:r + dr + H, r + dc:r + dc + W].astype(np.float64)
+                tol = np.maximum(cfg.k_sigma * np.sqrt(cs * cs + ns * ns), min_tol)
+                ok |= cand & (np.abs(ch - nh) <= tol)
+    height[ok] = cand_height[ok]
+    sigma[ok] = cand_sigma[ok]
+    support[ok] = cand_support[ok]
+    return ok
 
 
 def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: NDArray[np.float64],

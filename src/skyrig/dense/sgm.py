@@ -60,6 +60,18 @@ class SgmConfig:
         Against "foreground fattening" (area matching spreads the nearer surface over the farther one next to
         a depth edge): at disparity jumps above ``edge_jump_px`` the nearer side loses ``edge_erode_px``
         pixels (0 disables).
+    edge_erode_across_px
+        Erosion at disparity jumps across the epipolar lines (between rows), None: ``edge_erode_px`` (then the
+        nearer side loses a diamond of ``edge_erode_px``).  Occlusions and the derivative pre-filter spread the
+        foreground along the rows only, so jumps between rows fatten less: given, every jump between columns
+        erodes ``edge_erode_px`` pixels along its row and every jump between rows ``edge_erode_across_px`` along
+        its column.
+    ramp_px, ramp_across_px, ramp_rel
+        Against the matcher's ramps: next to a depth edge SGM often spreads the jump over a few pixels in
+        steps smaller than ``edge_jump_px`` (points of intermediate height, off both surfaces).  A pixel whose
+        disparity exceeds the smallest one within ``ramp_px`` columns and ``ramp_across_px`` rows by more than
+        ``ramp_rel`` times its disparity (a relative depth step: ``dZ / Z = dd / d``) is dropped: the foreground
+        rim and the ramp, the surface farther away stays.  ``ramp_px`` 0 disables.
     lr_check
         ``"full"``: a second matching from the right image (the mirrored pair) must confirm every disparity
         within ``lr_max_diff`` (occlusions and fattening next to depth edges fail); ``"opencv"``: only
@@ -92,6 +104,10 @@ class SgmConfig:
     disparity_sigma_px: float = 0.3
     edge_jump_px: float = 2.0
     edge_erode_px: int = 0
+    edge_erode_across_px: int | None = None
+    ramp_px: int = 0
+    ramp_across_px: int = 0
+    ramp_rel: float = 0.01
     max_incidence_deg: float = 75.0
     lr_check: str = "full"
     fill_occlusions: bool = False
@@ -203,7 +219,9 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
         rok = np.take_along_axis(valid_right, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
         d[~rok] = np.nan
     d += shift
-    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px)
+    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px)
+    if cfg.ramp_px > 0:
+        d = drop_ramps(d, cfg.ramp_px, cfg.ramp_across_px, cfg.ramp_rel)
     if cfg.fill_occlusions:
         d = fill_background(d, valid_left)
     return d
@@ -235,7 +253,8 @@ def _crop_cols(img: NDArray, b0: int, b1: int) -> NDArray:
     return np.ascontiguousarray(out)
 
 
-def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> NDArray[np.float32]:
+def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int, across_px: int | None = None
+                     ) -> NDArray[np.float32]:
     """Remove ``erode_px`` pixels of the nearer surface at every disparity jump larger than ``jump_px``
     between two matched neighbours (along rows and columns).
 
@@ -243,6 +262,8 @@ def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> N
     nearer surface over the farther one by about a pixel or two next to a depth edge ("foreground
     fattening"); this puts the edge back where the images have it, at the price of a thin band at edges that
     other pairs may fill."""
+    if across_px is not None:
+        return _erode_foreground_rows_cols(d, jump_px, erode_px, across_px)
     if erode_px <= 0:
         return d
     fg = np.zeros(d.shape, bool)
@@ -260,6 +281,52 @@ def erode_foreground(d: NDArray[np.float32], jump_px: float, erode_px: int) -> N
         fg = ndimage.binary_dilation(fg, iterations=erode_px - 1)
     out = d.copy()
     out[fg & np.isfinite(d)] = np.nan
+    return out
+
+
+def _erode_foreground_rows_cols(d: NDArray[np.float32], jump_px: float, along_px: int, across_px: int
+                                ) -> NDArray[np.float32]:
+    """:func:`erode_foreground` with ``along_px`` pixels along the rows at jumps between columns and ``across_px``
+    along the columns at jumps between rows (into the nearer side only)."""
+    dd = np.where(np.isfinite(d), d, -np.inf)
+    fg = np.zeros(d.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for axis, n in ((1, along_px), (0, across_px)):
+            if n <= 0:
+                continue
+            step = np.diff(dd, axis=axis)
+            lo = np.zeros(d.shape, bool)  # nearer side starts here (its first pixel along the axis)
+            hi = np.zeros(d.shape, bool)  # nearer side ends here (its last pixel)
+            if axis == 1:
+                lo[:, 1:] = step > jump_px
+                hi[:, :-1] = step < -jump_px
+            else:
+                lo[1:, :] = step > jump_px
+                hi[:-1, :] = step < -jump_px
+            fg |= lo | hi
+            for k in range(1, n):  # grow into the nearer side only
+                if axis == 1:
+                    fg[:, k:] |= lo[:, :-k]
+                    fg[:, :-k] |= hi[:, k:]
+                else:
+                    fg[k:, :] |= lo[:-k, :]
+                    fg[:-k, :] |= hi[k:, :]
+    out = d.copy()
+    out[fg & np.isfinite(d)] = np.nan
+    return out
+
+
+def drop_ramps(d: NDArray[np.float32], along_px: int, across_px: int, rel: float) -> NDArray[np.float32]:
+    """NaN where ``d`` exceeds the smallest finite disparity within ``along_px`` columns and ``across_px`` rows by
+    more than ``rel * d`` (see ``SgmConfig.ramp_px``)."""
+    from scipy import ndimage
+
+    dd = np.where(np.isfinite(d), d, np.inf).astype(np.float32)
+    lo = ndimage.minimum_filter(dd, size=(2 * across_px + 1, 2 * along_px + 1), mode="nearest")
+    with np.errstate(invalid="ignore"):
+        bad = np.isfinite(d) & (d - lo > rel * np.abs(d))
+    out = d.copy()
+    out[bad] = np.nan
     return out
 
 

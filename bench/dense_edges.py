@@ -1,0 +1,141 @@
+"""Where the DSM loses the cells next to building edges (issue 10: >= 80 % of the cells within 2 GSD of building
+outlines).
+
+Usage::
+
+    .venv/bin/python bench/dense_edges.py [--cache /tmp/skyrig-acc] [--sgm "{'edge_erode_px': 0}"]
+        [--fusion "{'neighbour_cells': 0}"]
+
+Data: the simulated ``midas-dsm`` project of ``bench/dense_acceptance.py`` (its cache; run that bench's ``midas``
+case once first), nadir images, TRUE orientations (the dense stage alone), the height range of the
+acceptance run.  The chain runs as :func:`skyrig.dense.surface.run_tile` does (match every block, triangulate),
+keeping the points of every pair, then fuses them with the options given, neighbour confirmation included.
+
+Each cell of the planned area within 2 GSD of a building outline (the scene's truth, which skyrig never sees) is
+put in one class: valid and within 5 GSD of the truth; valid but off by more; empty with no pair's point in it
+(lost in the matcher: left-right check, foreground erosion, speckle filter, occlusion); empty with points of one
+pair only (the fusion wants ``min_support`` pairs); empty with two or more pairs (they disagree: the
+``min_support_ratio`` rule).  The same for the flat cells, and per cell-pair: the share of pairs whose median
+height in an edge cell is within 5 GSD of the truth, too high, too low.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cache", default="/tmp/skyrig-acc")
+    ap.add_argument("--sgm", default="{}", help="SgmConfig overrides (Python dict literal)")
+    ap.add_argument("--fusion", default="{}", help="FusionConfig overrides (Python dict literal)")
+    a = ap.parse_args(argv)
+    from scipy import ndimage
+
+    from skyrig.cli._common import load_cameras, load_eo, select_heads
+    from skyrig.dense.fusion import confirm_by_neighbours, fuse_grid
+    from skyrig.dense.stereo import block_points, match_block
+    from skyrig.dense.surface import DenseConfig, plan_dense
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.pipeline.dense import ImageFiles, find_images
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    p = Path(a.cache) / "midas-dsm"
+    acc = p / "output" / "dsm_adjusted" / "dense.json"
+    if not acc.exists():
+        raise SystemExit(f"{acc} missing: run `bench/dense_acceptance.py midas --cache {a.cache}` first")
+    hr = tuple(json.loads(acc.read_text())["height_range"])
+    eo = select_heads(load_eo(str(p / "truth" / "eo_map.csv"), None, None, None, None), "nadir")
+    cams = load_cameras([str(p / "truth" / "rig.yaml")])
+    paths = find_images(eo, [str(p / "images")])
+    frame = WorldFrame.map(eo.frame.crs, eo.frame.geoid)
+    base = DenseConfig()
+    cfg = replace(base, sgm=replace(base.sgm, **ast.literal_eval(a.sgm)),
+                  fusion=replace(base.fusion, **ast.literal_eval(a.fusion)), cloud=False)
+    plan = plan_dense(eo, cams, frame, hr, None, cfg)
+    loader = ImageFiles(paths, [(cams[str(c)].width, cams[str(c)].height) for c in plan.eo.camera])
+    t = time.perf_counter()
+    images: dict[int, np.ndarray] = {}
+    pid_l, xyz_l, sig_l = [], [], []
+    for k, (pair, rect, blocks) in enumerate(zip(plan.pairs, plan.rects, plan.blocks)):
+        for i in (pair.left, pair.right):
+            if i not in images:
+                images[i] = loader(i)
+        for blk in blocks:
+            disp, colour, _ = match_block(rect, images[pair.left], images[pair.right], blk, cfg.sgm)
+            pp = block_points(rect, blk, disp, colour, cfg.sgm)
+            pid_l.append(np.full(len(pp), k))
+            xyz_l.append(plan.to_map(pp.xyz))
+            sig_l.append(pp.sigma_h.astype(np.float64))
+    pid, xyz, sig = np.concatenate(pid_l), np.concatenate(xyz_l), np.concatenate(sig_l)
+    print(f"{len(plan.pairs)} pairs matched and triangulated in {time.perf_counter() - t:.0f} s, {len(pid)} points; "
+          f"sgm {a.sgm} fusion {a.fusion}")
+    g = plan.grid
+    H, W = g.shape
+    h, n, sp, s, ch, cs, cn = fuse_grid(g, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, cfg.fusion, candidates=True)
+    voted = np.isfinite(h)
+    kept = confirm_by_neighbours(h, n, s, ch, cs, cn, g.cell_m, cfg.fusion)
+
+    # truth: the scene's surface and building outlines at the cell centres (local frame of the scene)
+    sv = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    sc = sv.scene
+    local = WorldFrame.local(*sc.origin)
+    xx, yy = g.cell_centres()
+    zz = np.where(np.isfinite(h), h, np.nanmedian(h))
+    L = local.from_ecef(frame.to_ecef(np.stack([xx.ravel(), yy.ravel(), zz.ravel()], 1)))
+    lx, ly = L[:, 0].reshape(H, W), L[:, 1].reshape(H, W)
+    ar = sv.spec.flights[0].area
+    inside = (lx >= ar[0]) & (lx <= ar[2]) & (ly >= ar[1]) & (ly <= ar[3])
+    on = (sc.buildings.top_height(lx.ravel(), ly.ravel())[1] >= 0).reshape(H, W)
+    edge = np.where(on, ndimage.distance_transform_edt(on), ndimage.distance_transform_edt(~on)) * g.cell_m <= 2 * plan.gsd_m
+    err = (L[:, 2] - sc.surface_height(L[:, 0], L[:, 1])).reshape(H, W)
+    err[~np.isfinite(h)] = np.nan
+    tol = 5 * plan.gsd_m
+
+    # per (cell, pair): median height of the pair's points in the cell, judged against the truth
+    r, c = g.cell_of(xyz[:, 0], xyz[:, 1])
+    m = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    cell = r[m] * W + c[m]
+    key = cell * (int(pid.max()) + 1) + pid[m]
+    order = np.lexsort((xyz[m, 2], key))
+    key_s, h_s = key[order], xyz[m, 2][order]
+    uk, st, cnt = np.unique(key_s, return_index=True, return_counts=True)
+    med = 0.5 * (h_s[st + (cnt - 1) // 2] + h_s[st + cnt // 2])
+    ucell = uk // (int(pid.max()) + 1)
+    tl = sc.surface_height(L[:, 0], L[:, 1])
+    truth_map = frame.from_ecef(local.to_ecef(np.stack([L[:, 0], L[:, 1], tl], 1)))[:, 2]  # true height, map frame
+    e_cp = med - truth_map[ucell]
+    npairs = np.bincount(ucell, minlength=H * W).reshape(H, W)
+    print(f"{'class':12s} {'cells':>7s} {'valid':>6s} {'good':>6s} {'>5GSD':>6s} {'by nbr':>6s} {'0 pairs':>7s} "
+          f"{'1 pair':>6s} {'split':>6s}  pairs/cell good/high/low of cell-pairs")
+    for name, mask in (("flat", inside & ~edge), ("edge", inside & edge), ("edge roof", inside & edge & on),
+                       ("edge ground", inside & edge & ~on)):
+        N = int(mask.sum())
+        v = mask & np.isfinite(h)
+        inv = mask & ~np.isfinite(h)
+        sel = mask.ravel()[ucell]
+        ee = e_cp[sel]
+        print(f"{name:12s} {N:7d} {100 * v.sum() / N:5.1f}% {100 * (v & (np.abs(err) <= tol)).sum() / N:5.1f}% "
+              f"{100 * (v & (np.abs(err) > tol)).sum() / N:5.1f}% {100 * (mask & kept).sum() / N:5.1f}% "
+              f"{100 * (inv & (npairs == 0)).sum() / N:6.1f}% {100 * (inv & (npairs == 1)).sum() / N:5.1f}% "
+              f"{100 * (inv & (npairs >= 2)).sum() / N:5.1f}%  {sel.sum() / N:5.2f} "
+              f"{np.mean(np.abs(ee) <= tol):.2f}/{np.mean(ee > tol):.2f}/{np.mean(ee < -tol):.2f}")
+    e_all = err[inside & np.isfinite(h)]
+    e_edge = err[inside & edge & np.isfinite(h)]
+    e_flat = err[inside & ~edge & np.isfinite(h)]
+    nm = 1.4826 * np.median(np.abs(e_flat - np.median(e_flat)))
+    print(f"flat NMAD {nm / plan.gsd_m:.3f} GSD, bias {np.median(e_flat) / plan.gsd_m:+.3f} GSD; edge RMSE "
+          f"{np.sqrt(np.mean(e_edge ** 2)) / plan.gsd_m:.1f} GSD; cells off by > 5 GSD: {100 * np.mean(np.abs(e_all) > tol):.2f} % "
+          f"of valid cells in the area (pair vote alone: {int(voted[inside].sum())} cells, neighbour confirmation "
+          f"+{int(kept[inside].sum())})")
+
+
+if __name__ == "__main__":
+    main()
