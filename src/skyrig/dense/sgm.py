@@ -66,12 +66,6 @@ class SgmConfig:
         foreground along the rows only, so jumps between rows fatten less: given, every jump between columns
         erodes ``edge_erode_px`` pixels along its row and every jump between rows ``edge_erode_across_px`` along
         its column.
-    ramp_px, ramp_across_px, ramp_rel
-        Against the matcher's ramps: next to a depth edge SGM often spreads the jump over a few pixels in
-        steps smaller than ``edge_jump_px`` (points of intermediate height, off both surfaces).  A pixel whose
-        disparity exceeds the smallest one within ``ramp_px`` columns and ``ramp_across_px`` rows by more than
-        ``ramp_rel`` times its disparity (a relative depth step: ``dZ / Z = dd / d``) is dropped: the foreground
-        rim and the ramp, the surface farther away stays.  ``ramp_px`` 0 disables.
     lr_check
         ``"full"``: a second matching from the right image (the mirrored pair) must confirm every disparity
         within ``lr_max_diff`` (occlusions and fattening next to depth edges fail); ``"opencv"``: only
@@ -105,9 +99,6 @@ class SgmConfig:
     edge_jump_px: float = 2.0
     edge_erode_px: int = 0
     edge_erode_across_px: int | None = None
-    ramp_px: int = 0
-    ramp_across_px: int = 0
-    ramp_rel: float = 0.01
     max_incidence_deg: float = 75.0
     lr_check: str = "full"
     fill_occlusions: bool = False
@@ -220,8 +211,6 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
         d[~rok] = np.nan
     d += shift
     d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px)
-    if cfg.ramp_px > 0:
-        d = drop_ramps(d, cfg.ramp_px, cfg.ramp_across_px, cfg.ramp_rel)
     if cfg.fill_occlusions:
         d = fill_background(d, valid_left)
     return d
@@ -313,20 +302,6 @@ def _erode_foreground_rows_cols(d: NDArray[np.float32], jump_px: float, along_px
                     fg[:-k, :] |= hi[k:, :]
     out = d.copy()
     out[fg & np.isfinite(d)] = np.nan
-    return out
-
-
-def drop_ramps(d: NDArray[np.float32], along_px: int, across_px: int, rel: float) -> NDArray[np.float32]:
-    """NaN where ``d`` exceeds the smallest finite disparity within ``along_px`` columns and ``across_px`` rows by
-    more than ``rel * d`` (see ``SgmConfig.ramp_px``)."""
-    from scipy import ndimage
-
-    dd = np.where(np.isfinite(d), d, np.inf).astype(np.float32)
-    lo = ndimage.minimum_filter(dd, size=(2 * across_px + 1, 2 * along_px + 1), mode="nearest")
-    with np.errstate(invalid="ignore"):
-        bad = np.isfinite(d) & (d - lo > rel * np.abs(d))
-    out = d.copy()
-    out[bad] = np.nan
     return out
 
 
