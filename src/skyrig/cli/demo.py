@@ -214,11 +214,15 @@ def command(outdir: str | None, output: str | None) -> None:
                      eo_local=tl, cameras=cams, noise_dn=noise)
     t_, rc_, oc_, sm_ = jo["tiles"], jo["roof_corners"], jo["occluded"], jo["seams"]
     click.echo(f"{og['width']} x {og['height']} cells of {og['cell_m'] * 100:.1f} cm; offset per tile (phase "
-               f"correlation, n={t_['n']}) {t_['rms_gsd']:.2f} GSD RMS; roof corners (n={rc_['n']}) {rc_['rms_gsd']:.2f} "
-               f"GSD RMS, {rc_['within_1gsd'] * 100:.0f} % within 1 GSD; cells hidden from their best image and seen by "
+               f"correlation, n={t_['n']}) {t_['rms_gsd']:.2f} GSD RMS; roof corners (n={rc_['n']} judged of "
+               f"{rc_.get('corners', rc_['n'])}; not judged: "
+               + (", ".join(f"{v} {k}" for k, v in rc_.get("not_judged", {}).items() if v) or "none")
+               + f") {rc_['rms_gsd']:.2f} GSD RMS, {rc_['within_1gsd'] * 100:.0f} % within 1 GSD; cells hidden from "
+               f"their best image and seen by "
                f"another (n={oc_['n']}): {oc_['filled'] * 100:.1f} % filled; colour step across seamlines "
                f"{sm_['step_max_dn']:.2f} DN max ({sm_['pairs']} image pairs; image noise {noise:.1f} DN)")
-    if not (t_["rms_gsd"] <= 0.5 and oc_["filled"] >= 0.95 and sm_["step_max_dn"] <= noise):
+    if not (t_["rms_gsd"] <= 0.5 and oc_["filled"] >= 0.95 and sm_["step_max_dn"] <= noise
+            and rc_["n"] >= 20 and rc_["within_1gsd"] >= 0.9):
         raise click.ClickException("demo checks FAILED (orthomosaic)")
 
     # --- buildings, façade textures from the obliques and the textured 3D model ---------------------------

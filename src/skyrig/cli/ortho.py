@@ -26,6 +26,9 @@ from skyrig.cli._common import eo_options
               help="Cells seen more obliquely than this (degrees) do not take that image.")
 @click.option("--feather", type=float, default=None, help="Blend width across seamlines in metres (default 6 cells).")
 @click.option("--no-balance", is_flag=True, help="No radiometric balance between images.")
+@click.option("--no-square", is_flag=True,
+              help="Project onto the DSM as matched (default: buildings extracted from it get square edges, their "
+                   "walls on the roof outline seen in steep images, so roofs do not lean onto the ground).")
 @click.option("--tile-cells", type=int, default=2048, show_default=True, help="Tile side in cells (unit of parallel work).")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where views and tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
@@ -33,7 +36,7 @@ from skyrig.cli._common import eo_options
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, dsm_path, heads, head_mosaics,
-            crs, area, resolution, max_off_nadir, feather, no_balance, tile_cells, executor, workers, scheduler,
+            crs, area, resolution, max_off_nadir, feather, no_balance, no_square, tile_cells, executor, workers, scheduler,
             output) -> None:
     """True orthomosaic: every cell of the DSM's surface coloured by the best image that sees it.
 
@@ -51,7 +54,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
         try:
             res = make_ortho(eo, cameras, images, dsm_path, output, heads=heads, head_mosaics=head_mosaics, crs=crs,
                              area=area, resolution=resolution, max_off_nadir=max_off_nadir, feather=feather,
-                             balance=not no_balance, tile_cells=tile_cells, executor=executor, workers=workers,
+                             balance=not no_balance, square=not no_square, tile_cells=tile_cells, executor=executor, workers=workers,
                              scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress)
         except EmptyMosaicError as exc:
             click.echo(f"error: {exc}", err=True)

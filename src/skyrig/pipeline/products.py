@@ -118,11 +118,14 @@ def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], ima
                dsm: str | PathLike[str], outdir: str | Path, *, heads: str | Sequence[str] | None = None,
                head_mosaics: str | Sequence[str] | None = None, crs: str | None = None,
                area: Sequence[float] | None = None, resolution: float | None = None, max_off_nadir: float = 60.0,
-               feather: float | None = None, balance: bool = True, tile_cells: int = 2048, executor: str = "auto",
+               feather: float | None = None, balance: bool = True, square: bool = True, tile_cells: int = 2048,
+               executor: str = "auto",
                workers: int | None = None, scheduler: str | None = None, inputs: Sequence[str | PathLike[str]] = (),
                progress: Progress = None, spell: Callable[[str], str] = cli_spelling) -> Any:
     """True orthomosaic of oriented images on a DSM into ``outdir`` (:func:`skyrig.pipeline.ortho.run_ortho`):
     the main mosaic from the images of ``heads`` (all by default), and one mosaic per name in ``head_mosaics``.
+    ``square``: buildings extracted from the DSM get square edges in the surface the images are projected on, their
+    walls first moved onto the roof outline seen in steep images (:func:`skyrig.dense.ortho.square_buildings`).
 
     Raises :class:`skyrig.dense.ortho.EmptyMosaicError` (a failed run) when no cell can be coloured."""
     from skyrig.dense.ortho import OrthoConfig
@@ -156,10 +159,11 @@ def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], ima
     grid = load_dsm_for(dsm, crs)
     paths = find_images(eo_all, [str(p) for p in images])
     cfg = OrthoConfig(cell_m=resolution, max_off_nadir_deg=max_off_nadir, feather_m=feather, balance=balance,
-                      tile_cells=tile_cells)
+                      tile_cells=tile_cells, square_buildings=square, square_refine=square)
     options = {"dsm": str(dsm), "crs": grid.frame.crs, "heads": _text(heads), "head_mosaics": _text(head_mosaics),
                "area": None if area is None else [float(a) for a in area], "resolution": resolution,
-               "max_off_nadir": max_off_nadir, "feather": feather, "balance": balance, "tile_cells": tile_cells}
+               "max_off_nadir": max_off_nadir, "feather": feather, "balance": balance, "square": square,
+               "tile_cells": tile_cells}
     return run_ortho(eo_all, cameras, paths, grid, outdir, area=tuple(area) if area else None, config=cfg,
                      main_rows=np.arange(len(main)),
                      head_sets={h: [pos[int(r)] for r in rows] for h, rows in sets.items()} or None,

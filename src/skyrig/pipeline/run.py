@@ -775,7 +775,7 @@ def _ortho(ctx: StageContext) -> dict[str, Any]:
     eo, cameras, files = _stage_eo_cameras(ctx)
     res = make_ortho(eo, cameras, p.images, ctx.need("dsm"), ctx.out, heads=o["heads"],
                      head_mosaics=o["head_mosaics"], area=o["area"], resolution=o["resolution"],
-                     max_off_nadir=o["max_off_nadir"], feather=o["feather"], balance=o["balance"],
+                     max_off_nadir=o["max_off_nadir"], feather=o["feather"], balance=o["balance"], square=o["square"],
                      tile_cells=o["tile_cells"], **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
                      spell=_spelling("ortho"))
     s = res.summary
@@ -805,6 +805,7 @@ register_stage(Stage(
              "max_off_nadir": Option(60.0, "float", "steepest view angle a cell takes (deg)", positive=True),
              "feather": Option(None, "float", "blend width across seamlines (m)", nullable=True, positive=True),
              "balance": Option(True, "bool", "radiometric balance between images"),
+             "square": Option(True, "bool", "square the buildings' edges in the surface (no leaning roofs)"),
              "tile_cells": Option(2048, "int", "tile side in cells", positive=True)},
     requires=("eo", "dsm"), uses=("cameras",), provides={"ortho": "ortho.tif"}, inputs=_dsm_inputs,
     check=_product_check("ortho")))
