@@ -45,12 +45,14 @@ def test_midas_nadir_dsm_from_adjusted_orientations(bench) -> None:
     assert 0.5 < res["adjust"]["sigma0"] < 1.5
     r = res["adjusted"]
     _issue_thresholds(r)
-    # measured: flat NMAD 0.16 GSD, bias -0.01 GSD, completeness 98.8 %, outliers 0.3 % of valid cells
+    # measured: flat NMAD 0.16 GSD, bias -0.01 GSD, completeness 99.5 %, outliers 0.57 % of valid cells
     assert r["flat"]["nmad_gsd"] <= 0.25 and r["flat"]["completeness"] >= 0.97
-    # ISSUE THRESHOLD NOT MET: cells within 2 GSD of building edges, completeness >= 80 %.  Achieved 60.5 %
-    # (adjusted orientations) and 59.2 % (true orientations: a dense-stage property, not the orientations'),
-    # RMSE 3.8 m = 13 GSD, 15 % of the valid edge cells off by > 5 GSD.  Held at what is achieved:
-    assert r["edge"]["completeness"] >= 0.55, r["edge"]
+    # ISSUE THRESHOLD NOT MET: cells within 2 GSD of building edges, completeness >= 80 %.  Achieved 75.3 %
+    # (adjusted and true orientations alike: a dense-stage property, not the orientations'; 60.5 % before the
+    # neighbour confirmation and the along-the-rows erosion), RMSE 4.2 m = 14 GSD, 19 % of the valid edge cells
+    # off by > 5 GSD (bench/dense_edges.py: next to walls many pairs put the roof height 1-4 px beyond the
+    # outline; the ground side of the band is where the cells are lost or wrong).  Held at what is achieved:
+    assert r["edge"]["completeness"] >= 0.72, r["edge"]
     # the adjusted orientations cost (almost) nothing against the truth
     assert r["flat"]["nmad_gsd"] <= res["truth"]["flat"]["nmad_gsd"] + 0.05
 
@@ -60,8 +62,9 @@ def test_tumblecam_nadir_dsm_from_adjusted_orientations(bench) -> None:
     assert 0.5 < res["adjust"]["sigma0"] < 1.5
     r = res["adjusted"]
     _issue_thresholds(r)
-    # measured: flat NMAD 0.30 GSD, bias -0.01 GSD, completeness 100.0 %, outliers 0.3 % of valid cells;
-    # edge cells completeness 83.4 % (RMSE 3.0 m = 20 GSD, reported, no threshold)
+    # measured: flat NMAD 0.29 GSD, bias -0.02 GSD, completeness 100.0 %, outliers 0.26 % of valid cells;
+    # edge cells completeness 82.3 % (83.4 % before the along-the-rows erosion and the neighbour confirmation;
+    # RMSE 2.9 m = 19 GSD, reported, no threshold)
     assert r["edge"]["completeness"] >= 0.80, r["edge"]
     assert r["flat"]["nmad_gsd"] <= res["truth"]["flat"]["nmad_gsd"] + 0.05
 
