@@ -17,7 +17,7 @@ from skyrig.errors import InputFormatError, OutputPathError
 PathLike = str | os.PathLike[str]
 
 __all__ = ["OutputPathError", "PathLike", "atomic_write", "check_output_dir", "output_temp", "parse_float", "publish",
-           "read_text"]  # OutputPathError lives in skyrig.errors; re-exported here where it was first defined
+           "read_text", "retire_side_cars"]  # OutputPathError lives in skyrig.errors; re-exported here where it was first defined
 
 
 def read_text(path: PathLike) -> str:
@@ -117,8 +117,36 @@ def _umask() -> int:
     return mask
 
 
+def retire_side_cars(path: PathLike) -> None:
+    """Remove the side-cars (``NAME.csv.json``, ``NAME.prj``, ``NAME.csvt``) of the table ``NAME.csv`` when its
+    ``NAME.csv.json`` is a skyrig table statement: called just before a new table replaces ``path``, so that a run
+    killed before it writes the new side-cars never leaves the new table described by the previous ones."""
+    p = Path(path)
+    if p.suffix.lower() != ".csv":
+        return
+    side = [p.with_name(p.name + ".json"), p.with_suffix(".prj"), p.with_suffix(".csvt")]
+    try:
+        head = side[0].read_bytes()[:4096] if side[0].is_file() else b""
+    except OSError:
+        return
+    if b'"skyrig-table"' not in head:
+        return  # no skyrig side-car: a .prj / .csvt next to a foreign CSV is not skyrig's to remove
+    for s in side:
+        try:
+            s.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            raise OutputPathError(f"cannot remove the previous side-car '{s.name}' ({exc.strerror or exc})", p) from None
+
+
 def publish(tmp: PathLike, path: PathLike) -> None:
-    """Rename a complete temporary file onto ``path`` (see :func:`output_temp`)."""
+    """Rename a complete temporary file onto ``path`` (see :func:`output_temp`).
+
+    A table ``NAME.csv`` loses its skyrig side-cars first (:func:`retire_side_cars`); the writer writes the new
+    ones after it (:func:`skyrig.io.table_meta.write_table_meta`).
+    """
+    retire_side_cars(path)
     try:
         os.replace(tmp, path)
     except OSError as exc:

@@ -29,9 +29,11 @@ whenever the block uses no 1.1 feature.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +111,43 @@ class BlockFile:
         self.adjustment_keys = adjustment_keys
         self.frame = frame
         self.crs = crs
+
+
+def writing_marker(path: PathLike) -> Path:
+    """The marker ``.NAME.writing`` that :func:`write_block` puts next to the manifest ``NAME`` while it writes the
+    tables and removes once the manifest is in place: present, a write was interrupted."""
+    p = Path(path)
+    return p.with_name(f".{p.name}.writing")
+
+
+def _verify_table(path: Path, kind: str, manifest: Path, want: Any) -> None:
+    """Check a table against the size / SHA-256 the manifest's ``checksums`` records for it.
+
+    A mismatch while the manifest's :func:`writing_marker` is there (a ``write_block`` interrupted between the
+    tables and the manifest: new tables next to the previous manifest) is an error; without the marker the
+    table was edited after the manifest was written, which is allowed, with a warning naming both files.
+    """
+    if not isinstance(want, dict) or not isinstance(want.get("sha256"), str) or not isinstance(want.get("size"), int):
+        raise InputFormatError(f"checksums.{kind} must be {{\"size\": <bytes>, \"sha256\": <hex>}}", manifest, None,
+                               f"checksums.{kind}")
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputFormatError(f"{kind} table named by {manifest.name} not found", path) from None
+    except OSError as exc:
+        raise InputFormatError(f"cannot be read ({exc.strerror or exc})", path) from None
+    size, sha = len(data), hashlib.sha256(data).hexdigest()
+    if size != want["size"] or sha != want["sha256"]:
+        what = (f"{size} bytes, {manifest.name} records {want['size']}" if size != want["size"]
+                else f"SHA-256 {sha[:12]}..., {manifest.name} records {want['sha256'][:12]}...")
+        if writing_marker(manifest).exists():
+            raise InputFormatError(
+                f"the {kind} table does not match the checksum in '{manifest}' ({what}) and "
+                f"{writing_marker(manifest).name} is there: a write of the block was interrupted between its tables "
+                f"and {manifest.name} (written last), so table and manifest come from different runs; write the block "
+                f"again", path, None, f"checksums.{kind}")
+        warnings.warn(f"{path}: the {kind} table differs from the checksum in '{manifest}' ({what}): edited since "
+                      f"{manifest.name} was written; read as it is", stacklevel=3)
 
 
 class _Table:
@@ -279,7 +318,7 @@ def read_block(path: PathLike) -> BlockFile:
         raise InputFormatError(f"unsupported version {ver!r} (this skyrig reads {', '.join(map(str, READ_VERSIONS))})",
                                p, None, "version")
     known = {"format", "version", "frame", "crs", "cameras", "heads", "lever_arm_m", "tables", "adjustment", "rig",
-             "actuator_correction"}
+             "actuator_correction", "checksums"}
     bad = sorted(set(man) - known)
     if bad:
         raise InputFormatError(f"unknown manifest key(s) {bad}", p, None, bad[0])
@@ -294,6 +333,19 @@ def read_block(path: PathLike) -> BlockFile:
     if not cams:
         raise InputFormatError("no cameras", p, None, "cameras")
     cam_idx = {c.name: k for k, c in enumerate(cams)}
+    if writing_marker(p).exists() and "checksums" not in man:
+        raise InputFormatError(f"{writing_marker(p).name} is there: a write of the block was interrupted (its tables "
+                               f"may be newer than {p.name}, which has no checksums to check them); write the block "
+                               f"again", p)
+    sums = man.get("checksums") or {}
+    if not isinstance(sums, dict):
+        raise InputFormatError("'checksums' must be a mapping {table: {size, sha256}}", p, None, "checksums")
+    bad = sorted(set(sums) - set(tables))
+    if bad:
+        raise InputFormatError(f"checksums of table(s) {bad} that 'tables' does not name", p, None, "checksums")
+    for k, v in tables.items():
+        if k in sums:
+            _verify_table(p.parent / v, k, p, sums[k])
     T = {k: _Table(p.parent / v, k) for k, v in tables.items()}
 
     st = T["stations"]
@@ -453,14 +505,19 @@ def read_block(path: PathLike) -> BlockFile:
     return BlockFile(block, cfg, p, frozenset(section), frame, crs)
 
 
-def _write_csv(path: Path, header: list[str], cols: list[Any]) -> None:
+def _write_csv(path: Path, header: list[str], cols: list[Any]) -> dict[str, Any]:
+    """Write one table (atomically); returns its ``{"size", "sha256"}`` for the manifest's ``checksums``."""
     n = len(cols[0]) if cols else 0
-    with atomic_write(path, newline="") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(header)
-        for i in range(n):
-            w.writerow([c[i] if isinstance(c[i], str) else repr(float(c[i])) if isinstance(c[i], (float, np.floating))
-                        else str(c[i]) for c in cols])
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for i in range(n):
+        w.writerow([c[i] if isinstance(c[i], str) else repr(float(c[i])) if isinstance(c[i], (float, np.floating))
+                    else str(c[i]) for c in cols])
+    data = buf.getvalue().encode("utf-8")
+    with atomic_write(path, "wb") as fh:
+        fh.write(data)
+    return {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
 
 
 def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None, rig_file: str | None = None,
@@ -474,6 +531,10 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
     ``rig_file``: for a block with actuated heads, the rig file (path relative to the manifest) that
     defines them; written as the manifest key ``rig`` with the images' ``beta_deg`` and the adjusted
     ``actuator_correction``.  Required when the block has actuated heads.
+
+    Published as a set: the marker :func:`writing_marker` first, then the tables, then the manifest with each
+    table's size and SHA-256 (key ``checksums``), then the marker goes.  A write killed before the manifest
+    leaves new tables next to the previous manifest with the marker: :func:`read_block` refuses them.
     """
     p = Path(path)
     stem = p.stem
@@ -481,9 +542,13 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         if not isinstance(c, FrameCamera):
             raise ValueError("write_block supports FrameCamera cameras (use skyrig.io.bal for BAL blocks)")
     tables = {k: f"{stem}_{k}.csv" for k in ("stations", "images", "points", "observations")}
+    sums: dict[str, dict[str, Any]] = {}  # size and SHA-256 of each table, in the manifest (written last)
+    marker = writing_marker(p)
+    with atomic_write(marker) as fh:  # until the manifest is in place: a kill in between is detectable
+        fh.write(f"write_block of {p.name} in progress (pid {os.getpid()})\n")
     o, ph, k = opk_from_matrix(block.station_rotation, unit="deg")
     C = block.station_centre
-    _write_csv(p.parent / tables["stations"], list(COLUMNS["stations"][0]) + ["time_s", "strip"],
+    sums["stations"] = _write_csv(p.parent / tables["stations"], list(COLUMNS["stations"][0]) + ["time_s", "strip"],
                [block.station_name.tolist(), C[:, 0], C[:, 1], C[:, 2], o, ph, k, block.station_time,
                 block.station_strip.tolist()])  # type: ignore[union-attr]
     mo, mp, mk = opk_from_matrix(block.image_rotation, unit="deg")
@@ -493,15 +558,15 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         raise ValueError("write_block: the block has actuated heads; give rig_file (the rig defining them)")
     extra_h, extra_c = ([], []) if not any(actuated) else (
         ["beta_deg"], [["" if not np.isfinite(v) else repr(float(v)) for v in np.degrees(block.image_beta_rad)]])
-    _write_csv(p.parent / tables["images"], ["name", "station", "camera", "head", "mount_omega_deg",
+    sums["images"] = _write_csv(p.parent / tables["images"], ["name", "station", "camera", "head", "mount_omega_deg",
                                              "mount_phi_deg", "mount_kappa_deg", "offset_x_m", "offset_y_m",
                                              "offset_z_m"] + extra_h,
                [block.image_name.tolist(), block.station_name[block.image_station].tolist(),
                 [block.cameras[c].name for c in block.image_camera], block.head_name[block.image_head].tolist(),  # type: ignore[index]
                 mo, mp, mk, off[:, 0], off[:, 1], off[:, 2]] + extra_c)  # type: ignore[index]
     X = block.point_xyz
-    _write_csv(p.parent / tables["points"], list(COLUMNS["points"][0]), [block.point_name.tolist(), X[:, 0], X[:, 1],
-                                                                         X[:, 2]])
+    sums["points"] = _write_csv(p.parent / tables["points"], list(COLUMNS["points"][0]),
+                                [block.point_name.tolist(), X[:, 0], X[:, 1], X[:, 2]])
     px, sg = block.obs_pixel, block.obs_sigma_px
     version: float = 1
 
@@ -514,21 +579,21 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         return list(names), [cov[:, a, b] for a, b in zip(*iu)]
 
     h, c = cov_cols(block.obs_cov_px2, _COV2)
-    _write_csv(p.parent / tables["observations"], ["point", "image", "col_px", "row_px", "sigma_col_px", "sigma_row_px"]
-               + h, [block.point_name[block.obs_point].tolist(), block.image_name[block.obs_image].tolist(), px[:, 0],
+    sums["observations"] = _write_csv(p.parent / tables["observations"],
+                                      ["point", "image", "col_px", "row_px", "sigma_col_px", "sigma_row_px"] + h, [block.point_name[block.obs_point].tolist(), block.image_name[block.obs_image].tolist(), px[:, 0],
                      px[:, 1], sg[:, 0], sg[:, 1]] + c)  # type: ignore[index]
     if len(block.control_point):  # type: ignore[arg-type]
         tables["control"] = f"{stem}_control.csv"
         cx, cs = block.control_xyz, block.control_sigma
         h, c = cov_cols(block.control_cov_m2, _COV3)
-        _write_csv(p.parent / tables["control"], list(COLUMNS["control"][0]) + ["role"] + h,
+        sums["control"] = _write_csv(p.parent / tables["control"], list(COLUMNS["control"][0]) + ["role"] + h,
                    [block.point_name[block.control_point].tolist(), cx[:, 0], cx[:, 1], cx[:, 2], cs[:, 0],  # type: ignore[index]
                     cs[:, 1], cs[:, 2], ["check" if k else "control" for k in block.control_check]] + c)  # type: ignore[union-attr, index]
     if len(block.gnss_station):  # type: ignore[arg-type]
         tables["gnss"] = f"{stem}_gnss.csv"
         g, gs = block.gnss_xyz, block.gnss_sigma
         h, c = cov_cols(block.gnss_cov_m2, _COV3)
-        _write_csv(p.parent / tables["gnss"], list(COLUMNS["gnss"][0]) + h,
+        sums["gnss"] = _write_csv(p.parent / tables["gnss"], list(COLUMNS["gnss"][0]) + h,
                    [block.station_name[block.gnss_station].tolist(), g[:, 0], g[:, 1], g[:, 2], gs[:, 0], gs[:, 1],  # type: ignore[index]
                     gs[:, 2]] + c)  # type: ignore[index]
     if len(block.imu_station):  # type: ignore[arg-type]
@@ -537,13 +602,13 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         s = np.degrees(block.imu_sigma_rad)
         ucov = getattr(block, "imu_cov_rad2", None)
         h, c = cov_cols(None if ucov is None else ucov * np.degrees(1.0) ** 2, _COVR)
-        _write_csv(p.parent / tables["imu"], list(COLUMNS["imu"][0]) + h,
+        sums["imu"] = _write_csv(p.parent / tables["imu"], list(COLUMNS["imu"][0]) + h,
                    [block.station_name[block.imu_station].tolist(), io_, ip, ik, s[:, 0], s[:, 1], s[:, 2]] + c)  # type: ignore[index]
     if block.n_distances:
         version = VERSION
         tables["distances"] = f"{stem}_distances.csv"
         dp = block.distance_point
-        _write_csv(p.parent / tables["distances"], list(COLUMNS["distances"][0]),
+        sums["distances"] = _write_csv(p.parent / tables["distances"], list(COLUMNS["distances"][0]),
                    [block.point_name[dp[:, 0]].tolist(), block.point_name[dp[:, 1]].tolist(),  # type: ignore[index]
                     block.distance_m, block.distance_sigma_m])
     cams = []
@@ -560,7 +625,7 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
         frame_text = block.frame
     man: dict[str, Any] = {"format": FORMAT, "version": version, "frame": frame_text, "cameras": cams,
                            "heads": block.head_name.tolist(), "lever_arm_m": block.lever_arm.tolist(),  # type: ignore[union-attr]
-                           "tables": tables}
+                           "tables": tables, "checksums": sums}
     if any(actuated):
         man["version"] = VERSION
         man["rig"] = str(rig_file)
@@ -574,3 +639,4 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
     with atomic_write(p) as fh:
         json.dump(man, fh, indent=1)
         fh.write("\n")
+    marker.unlink(missing_ok=True)
