@@ -133,20 +133,25 @@ def confirm_by_neighbours(height: NDArray[np.float32], support: NDArray[np.int16
     if r <= 0 or not cand.any():
         return np.zeros(height.shape, bool)
     H, W = height.shape
-    ok = np.zeros(height.shape, bool)
-    hp = np.pad(height, r, constant_values=np.nan)
-    sp = np.pad(sigma, r, constant_values=np.nan)
-    ch, cs = cand_height.astype(np.float64), cand_sigma.astype(np.float64)
+    rr, cc = np.nonzero(cand)  # only the candidates are tested (a few per cent of the grid)
+    ch = cand_height[rr, cc].astype(np.float64)
+    cs2 = cand_sigma[rr, cc].astype(np.float64) ** 2
+    hit = np.zeros(rr.size, bool)
     min_tol = cfg.min_tol_cells * cell_m
     with np.errstate(invalid="ignore"):
         for dr in range(-r, r + 1):
             for dc in range(-r, r + 1):
                 if dr == 0 and dc == 0:
                     continue
-                nh = hp[r + dr:r + dr + H, r + dc:r + dc + W].astype(np.float64)
-                ns = sp[r + dr:r + dr + H, r + dc:r + dc + W].astype(np.float64)
-                tol = np.maximum(cfg.k_sigma * np.sqrt(cs * cs + ns * ns), min_tol)
-                ok |= cand & (np.abs(ch - nh) <= tol)
+                nr, nc = rr + dr, cc + dc
+                inside = (nr >= 0) & (nr < H) & (nc >= 0) & (nc < W)
+                nri, nci = np.clip(nr, 0, H - 1), np.clip(nc, 0, W - 1)
+                nh = height[nri, nci].astype(np.float64)
+                ns = sigma[nri, nci].astype(np.float64)
+                tol = np.maximum(cfg.k_sigma * np.sqrt(cs2 + ns * ns), min_tol)
+                hit |= inside & (np.abs(ch - nh) <= tol)
+    ok = np.zeros(height.shape, bool)
+    ok[rr[hit], cc[hit]] = True
     height[ok] = cand_height[ok]
     sigma[ok] = cand_sigma[ok]
     support[ok] = cand_support[ok]
