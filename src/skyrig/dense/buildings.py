@@ -40,11 +40,14 @@ class Facade:
     corners
         ``(4, 3)``: bottom-start, bottom-end, top-end, top-start.  Seen from outside, start is on the left, so the
         outward normal is ``(end - start) x up`` normalised.
+    on_border
+        The edge lies on the border of the DSM (a building cut by it): not a real wall, it gets no texture.
     """
 
     building: int
     index: int
     corners: NDArray[np.float64]
+    on_border: bool = False
 
     @property
     def normal(self) -> NDArray[np.float64]:
@@ -80,6 +83,11 @@ class BuildingBlock:
         Roof polygons, each ``(K, 3)``, counter-clockwise seen from above (one for a flat roof, two for a gable ...).
     source
         ``"dsm"`` (extracted) or the file the footprint came from.
+    clipped
+        The building is cut by the border of the DSM (the grid's edge or the void around the surveyed area): the
+        footprint is its part inside the DSM.
+    border_edges
+        Footprint edges (numbers as :meth:`facades`) that lie on that border: not walls of the building.
     """
 
     id: int
@@ -88,6 +96,8 @@ class BuildingBlock:
     eave_z: float
     roof: tuple[NDArray[np.float64], ...] = ()
     source: str = "dsm"
+    clipped: bool = False
+    border_edges: tuple[int, ...] = ()
 
     def facades(self) -> list[Facade]:
         """The walls, one per footprint edge."""
@@ -96,7 +106,8 @@ class BuildingBlock:
         for i in range(len(fp)):
             a, b = fp[i], fp[(i + 1) % len(fp)]
             out.append(Facade(self.id, i, np.array([[a[0], a[1], self.ground_z], [b[0], b[1], self.ground_z],
-                                                    [b[0], b[1], self.eave_z], [a[0], a[1], self.eave_z]])))
+                                                    [b[0], b[1], self.eave_z], [a[0], a[1], self.eave_z]]),
+                              i in self.border_edges))
         return out
 
 
@@ -197,7 +208,17 @@ class ExtractionConfig:
         Least slope of a roof plane that is not flat.
     max_outside
         A building is left out as cut by the edge of the surveyed area when more than this fraction of the
-        2-cell ring around it is void connected to the DSM's border.
+        2-cell ring around it is void connected to the DSM's border (unless ``clip_border``).
+    clip_border
+        Keep the buildings cut by the DSM's border (its grid edge, or more than ``max_outside`` of void connected
+        to the border around them) with their footprint clipped there: ``clipped=True`` and the footprint edges
+        that run along the border (more than half of the points ``border_probe_m`` outside the edge lie beyond the
+        grid or beyond the surveyed area, see ``survey_gap_m``) listed in ``border_edges``.  Off: such buildings are left out.
+    border_probe_m
+        See ``clip_border`` (None: 1.5 cells).
+    survey_gap_m
+        For ``border_edges``, the surveyed area is the measured cells closed by a disc of this diameter: the void
+        strips a matched DSM leaves along walls (occluded ground, eroded depth edges) are not its border.
     """
 
     min_height_m: float = 2.5
@@ -210,6 +231,9 @@ class ExtractionConfig:
     gable_gain: float = 0.5
     min_slope_deg: float = 5.0
     max_outside: float = 0.25
+    clip_border: bool = False
+    border_probe_m: float | None = None
+    survey_gap_m: float = 4.0
 
 
 def _fill_nearest(h: NDArray) -> NDArray[np.float32]:
@@ -395,6 +419,7 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
     any_bld = ndimage.binary_dilation(mask.astype(bool), iterations=1)
     ring_px = max(1, int(np.ceil(cfg.ring_m / cell)))
     out: list[BuildingBlock] = []
+    beyond = None
     for k, sl in enumerate(ndimage.find_objects(lab), start=1):
         if sl is None:
             continue
@@ -405,12 +430,17 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
         r0, r1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, lab.shape[0])
         c0, c1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, lab.shape[1])
         comp = lab[r0:r1, c0:c1] == k
+        cut = False
         if comp[0].any() or comp[-1].any() or comp[:, 0].any() or comp[:, -1].any():
             if r0 == 0 or c0 == 0 or r1 == lab.shape[0] or c1 == lab.shape[1]:
-                continue  # cut by the DSM's edge: its footprint is not known
+                if not cfg.clip_border:
+                    continue  # cut by the DSM's edge: its footprint is not known
+                cut = True
         edge_ring = ndimage.binary_dilation(comp, iterations=2) & ~comp
         if (edge_ring & outside[r0:r1, c0:c1]).sum() > cfg.max_outside * edge_ring.sum():
-            continue  # cut by the edge of the surveyed area
+            if not cfg.clip_border:
+                continue  # cut by the edge of the surveyed area
+            cut = True
         hw = h[r0:r1, c0:c1]
         mw = meas[r0:r1, c0:c1]
         ring = ndimage.binary_dilation(comp, iterations=ring_px) & ~any_bld[r0:r1, c0:c1] & mw
@@ -453,8 +483,55 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
                 eave, roof = got
         if eave - gz < 0.5 * cfg.min_height_m:
             continue
-        out.append(BuildingBlock(len(out), foot, gz, float(eave), roof, "dsm"))
+        border: tuple[int, ...] = ()
+        if cfg.clip_border:
+            if beyond is None:
+                beyond = _beyond_survey(meas, cell, cfg.survey_gap_m)
+            border = _border_edges(foot, grid, beyond, cfg.border_probe_m or 1.5 * cell)
+            cut = cut or bool(border)
+        out.append(BuildingBlock(len(out), foot, gz, float(eave), roof, "dsm", cut, border))
     return out
+
+
+def _beyond_survey(meas: NDArray[np.bool_], cell_m: float, gap_m: float) -> NDArray[np.bool_]:
+    """Cells beyond the surveyed area: void connected to the grid's edge once the measured area is closed by a
+    disc of diameter ``gap_m`` (the strips of void a matched DSM leaves along walls - occluded ground, eroded depth
+    edges - are not the survey's border)."""
+    import cv2
+    from scipy import ndimage
+
+    k = max(3, int(round(gap_m / cell_m)) | 1)
+    se = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    pad = k
+    m = np.pad(meas.astype(np.uint8), pad, constant_values=0)
+    closed = cv2.morphologyEx(m, cv2.MORPH_CLOSE, se)[pad:-pad, pad:-pad].astype(bool) | meas
+    vlab, _ = ndimage.label(~closed)
+    ids = np.unique(np.r_[vlab[0], vlab[-1], vlab[:, 0], vlab[:, -1]])
+    return np.isin(vlab, ids[ids > 0])
+
+
+def _border_edges(foot: NDArray, grid: GridSpec, outside: NDArray[np.bool_], probe_m: float) -> tuple[int, ...]:
+    """Footprint edges that run along the DSM's border: more than half of the points ``probe_m`` outside the edge
+    (every 1/2 cell along its middle 80 %) lie beyond the grid or in void connected to the grid's edge."""
+    fp = np.asarray(foot, float)
+    out = []
+    for i in range(len(fp)):
+        a, b = fp[i], fp[(i + 1) % len(fp)]
+        d = b - a
+        L = float(np.linalg.norm(d))
+        if L <= 0:
+            continue
+        n = np.array([d[1], -d[0]]) / L
+        s = np.linspace(0.1, 0.9, max(int(2 * L / grid.cell_m), 3))
+        q = a + s[:, None] * d + probe_m * n
+        col = np.floor((q[:, 0] - grid.x0) / grid.cell_m).astype(int)
+        row = np.floor((grid.y0 - q[:, 1]) / grid.cell_m).astype(int)
+        off = (col < 0) | (row < 0) | (col >= grid.width) | (row >= grid.height)
+        beyond = off.copy()
+        beyond[~off] = outside[row[~off], col[~off]]
+        if beyond.mean() > 0.5:
+            out.append(i)
+    return tuple(out)
 
 
 def _gable(xy: NDArray, z: NDArray, rect: tuple, flat_spread: float, cfg: ExtractionConfig

@@ -441,7 +441,8 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     Returns
     -------
     One :class:`FacadeTexture` per façade (``valid`` all False where no image sees it), in the order of
-    ``buildings`` and their footprint edges; ``stats`` holds the counts of :func:`texture_plane`.
+    ``buildings`` and their footprint edges, leaving out the edges on the DSM's border of clipped buildings
+    (:attr:`~skyrig.dense.buildings.Facade.on_border`); ``stats`` holds the counts of :func:`texture_plane`.
 
     Raises
     ------
@@ -453,7 +454,8 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     cfg = replace(config or TextureConfig(), texel_m=texel_m, max_images=int(max_images))
     if cfg.max_images < 1:
         raise SkyrigError(f"max_images must be at least 1, got {max_images} (option: max_images)")
-    facades: list[Facade] = [f for b in buildings for f in b.facades()]
+    # the edges of a building cut by the DSM's border that run along that border are not walls: no texture
+    facades: list[Facade] = [f for b in buildings for f in b.facades() if not f.on_border]
     if not facades:
         return []
     pts = np.concatenate([f.corners for f in facades])
@@ -567,6 +569,8 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
         delta = np.zeros(nv)
         if cand:
             for i in range(nv):
+                if i in b.border_edges:
+                    continue  # the DSM's border, not a roof outline
                 a, e = fp[i], fp[(i + 1) % nv]
                 L = float(np.linalg.norm(e - a))
                 if L < 4 * band:

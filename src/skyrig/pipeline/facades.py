@@ -181,7 +181,9 @@ def _buildings_gpkg(path: Path, buildings: Sequence[BuildingBlock], frame: World
               "ridge_z": np.array(ridge),
               "height_m": np.array([r - b.ground_z for r, b in zip(ridge, buildings)]),
               "roof_planes": np.array([max(len(b.roof), 1) for b in buildings], np.int64),
-              "source": np.array([str(b.source) for b in buildings])}
+              "source": np.array([str(b.source) for b in buildings]),
+              "clipped": np.array([int(b.clipped) for b in buildings], np.int64),
+              "border_edges": np.array([",".join(str(i) for i in b.border_edges) for b in buildings])}
     roof_geoms, roof_id, roof_k = [], [], []
     for b in buildings:
         for k, r in enumerate(b.roof):
@@ -233,7 +235,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     """
     import time
 
-    from skyrig.dense.buildings import buildings_from_footprints, extract_buildings
+    from skyrig.dense.buildings import ExtractionConfig, buildings_from_footprints, extract_buildings
     from skyrig.dense.facades import refine_walls, texture_facades
     from skyrig.dense.model import build_model
     from skyrig.io.dsm_cog import read_dsm_cog
@@ -258,7 +260,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         fps = read_footprints_gpkg(footprints, grid.frame)
         buildings = buildings_from_footprints(fps, grid, source=Path(footprints).name)
     else:
-        buildings = extract_buildings(grid)
+        # buildings cut by the DSM's border too (clipped there; their edges on the border get no texture)
+        buildings = extract_buildings(grid, config=ExtractionConfig(clip_border=True))
     if not buildings:
         raise NoBuildingsError("no buildings found" + (" among the footprints" if footprints else
                                                         " in the DSM (nothing higher than 2.5 m above the ground over 20 m2)"))
@@ -275,9 +278,10 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     model = build_model(buildings, seen, grid.frame, roof_rgb_source=orthoraster,
                         vertical_reference=grid.vertical_reference)
     per_facade = []
+    clipped = {b.id for b in buildings if b.clipped}
     for t in textures:
         f = t.facade
-        per_facade.append({"building": int(f.building), "edge": int(f.index), "file": f"facades/b{f.building}_f{f.index}.png",
+        per_facade.append({"building": int(f.building), "edge": int(f.index), "clipped": f.building in clipped, "file": f"facades/b{f.building}_f{f.index}.png",
                            "width_m": round(f.width_m, 3), "height_m": round(f.height_m, 3),
                            "texel_m": round(float(t.texel_m), 4), "size_px": [int(t.rgb.shape[1]), int(t.rgb.shape[0])],
                            "images": list(t.images), "coverage": round(float(np.mean(t.valid)), 4),
@@ -285,7 +289,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     cov = np.array([p["coverage"] for p in per_facade]) if per_facade else np.zeros(0)
     summary = {
         "frame": grid.frame.to_text(), "vertical_reference": grid.vertical_reference,
-        "buildings": len(buildings), "facades": len(textures), "facades_seen": len(seen),
+        "buildings": len(buildings), "buildings_clipped": len(clipped),
+        "border_edges": sum(len(b.border_edges) for b in buildings), "facades": len(textures), "facades_seen": len(seen),
         "coverage_median": float(np.median(cov)) if len(cov) else None,
         "texel_median_m": float(np.median([p["texel_m"] for p in per_facade])) if per_facade else None,
         "roofs": "orthophoto" if orthoraster is not None else "flat colour",

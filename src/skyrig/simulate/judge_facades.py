@@ -365,7 +365,112 @@ def judge_facade(scene: Scene, texture: FacadeTexture, frame: WorldFrame, search
                            np.array(errs))
 
 
-def judge_facades(scene: Scene, textures: list[FacadeTexture], frame: WorldFrame, oblique: set[str] | None = None
+def walls_seen(scene: Scene, eo, cameras, images: set[str] | None = None, *, max_incidence_deg: float = 60.0,
+               min_fraction: float = 0.5, step_m: float = 1.0, march_m: float = 0.25) -> set[tuple[int, int]]:
+    """The scene's walls ``(building, face)`` (faces numbered as :meth:`~skyrig.simulate.world.Buildings.planes`)
+    that at least one image of ``images`` (default: all of ``eo``) sees, from the scene's analytic truth alone.
+
+    A wall is seen by an image when at least ``min_fraction`` of the points of a ``step_m`` grid over it (above
+    the terrain, below the eaves) lie in front of the camera, inside its frame, at an incidence of at most
+    ``max_incidence_deg`` (angle between the wall's normal and the direction to the projection centre), and are
+    not hidden: no point of the ray towards the camera, marched every ``march_m`` up to the scene's top, lies
+    under the scene's surface (roofs, terrain; 5 cm tolerance).  ``eo`` in any frame (converted to the scene's
+    local frame), ``cameras`` camera name -> camera."""
+    loc = _local(scene)
+    eo_l = eo.to_frame(loc)
+    names = [str(n) for n in eo_l.image]
+    use = [k for k, n in enumerate(names) if images is None or n in images]
+    bl = scene.buildings
+    cos_max = np.cos(np.radians(max_incidence_deg))
+    top = scene.top + 1.0
+    out: set[tuple[int, int]] = set()
+    for i in range(len(bl)):
+        for f in range(4):
+            w = _wall_line(scene, i, f)
+            if w is None:
+                continue
+            mid, along, n2, half = w
+            s = np.arange(-half + 0.5 * step_m, half, step_m)
+            zt = scene.terrain_height(mid[0] + s * along[0], mid[1] + s * along[1])
+            zs = np.arange(float(zt.min()) + 0.25 * step_m, float(bl.eave_z[i]), step_m)
+            S, Z = np.meshgrid(s, zs)
+            P = np.column_stack([mid[0] + S.ravel() * along[0], mid[1] + S.ravel() * along[1], Z.ravel()])
+            P = P[P[:, 2] > scene.terrain_height(P[:, 0], P[:, 1])]
+            if len(P) < 3:
+                continue
+            P = P + np.r_[0.05 * n2, 0.0]  # just outside the wall
+            for k in use:
+                C = eo_l.centre[k]
+                d = C - P
+                dist = np.linalg.norm(d, axis=1)
+                if np.median((d[:, :2] @ n2) / dist) < cos_max:
+                    continue
+                cam = cameras[str(eo_l.camera[k])]
+                pc = (P - C) @ eo_l.rotation[k]
+                front = pc[:, 2] < 0
+                px = np.full((len(P), 2), np.nan)
+                px[front] = cam.project_pixels(pc[front])
+                ok = front & ((d[:, :2] @ n2) / dist >= cos_max) & (px[:, 0] >= 0) & (px[:, 1] >= 0) \
+                    & (px[:, 0] < cam.width) & (px[:, 1] < cam.height)
+                if ok.sum() < min_fraction * len(P):
+                    continue
+                u = d[ok] / dist[ok, None]
+                t_top = np.where(u[:, 2] > 1e-6, (top - P[ok, 2]) / np.maximum(u[:, 2], 1e-6), dist[ok])
+                t_end = np.minimum(t_top, dist[ok])
+                steps = np.arange(march_m, float(t_end.max()) + march_m, march_m)
+                Q = P[ok, None, :] + steps[None, :, None] * u[:, None, :]
+                live = steps[None, :] <= t_end[:, None]
+                zq = scene.surface_height(Q[..., 0].ravel(), Q[..., 1].ravel()).reshape(live.shape)
+                hidden = np.any(live & (zq > Q[..., 2] + 0.05), axis=1)
+                if (~hidden).sum() >= min_fraction * len(P):
+                    out.add((i, f))
+                    break
+    return out
+
+
+def _wall_line(scene: Scene, i: int, f: int) -> tuple[NDArray, NDArray, NDArray, float] | None:
+    """Wall ``f`` of building ``i`` in plan (local frame): its middle, along and outward unit vectors, half length
+    (None for a face that is not a wall)."""
+    bl = scene.buildings
+    nrm, off, _ = bl.planes(i)
+    n = np.asarray(nrm[f], float)
+    if abs(n[2]) > 0.1:
+        return None
+    c = np.array([bl.cx[i], bl.cy[i]])
+    n2 = n[:2] / np.linalg.norm(n[:2])
+    mid = c + n2 * (off[f] - n[:2] @ c) / max(float(n[:2] @ n2), 1e-9)
+    return mid, np.array([-n2[1], n2[0]]), n2, float(bl.hw[i] if f < 2 else bl.hl[i])
+
+
+def walls_in_dsm(scene: Scene, walls: set[tuple[int, int]], dsm: DsmGrid, *, inset_m: float = 1.0,
+                 min_fraction: float = 0.5) -> set[tuple[int, int]]:
+    """The walls of ``walls`` whose roof edge the DSM measured: at least ``min_fraction`` of the points ``inset_m``
+    inside the wall (every 0.5 m along it, at the eaves) fall on measured (finite) DSM cells.  The others lie
+    outside the DSM (beyond the surveyed area), where no building can be extracted from it."""
+    loc = _local(scene)
+    g = dsm.grid
+    meas = np.isfinite(np.asarray(dsm.height))
+    out = set()
+    for i, f in walls:
+        w = _wall_line(scene, i, f)
+        if w is None:
+            continue
+        mid, along, n2, half = w
+        s = np.arange(-half + 0.25, half, 0.5)
+        xy = mid + s[:, None] * along - inset_m * n2
+        P = _convert(loc, dsm.frame, np.column_stack([xy, np.full(len(xy), scene.buildings.eave_z[i])]))
+        col = np.floor((P[:, 0] - g.x0) / g.cell_m).astype(int)
+        row = np.floor((g.y0 - P[:, 1]) / g.cell_m).astype(int)
+        ing = (col >= 0) & (row >= 0) & (col < g.width) & (row < g.height)
+        ok = np.zeros(len(P), bool)
+        ok[ing] = meas[row[ing], col[ing]]
+        if ok.mean() >= min_fraction:
+            out.add((i, f))
+    return out
+
+
+def judge_facades(scene: Scene, textures: list[FacadeTexture], frame: WorldFrame, oblique: set[str] | None = None,
+                  walls: set[tuple[int, int]] | None = None, dsm: DsmGrid | None = None
                   ) -> tuple[list[FacadeJudgement], dict]:
     """Judge every texture; the summary counts façades "seen" (at least 16 valid texels on a true wall and at
     least one resolvable window of the rule in the valid part; with ``oblique`` given, only textures whose
@@ -375,7 +480,14 @@ def judge_facades(scene: Scene, textures: list[FacadeTexture], frame: WorldFrame
     ``within_1px`` (fraction of seen façades with every window found, the median window-corner error and the
     phase-correlation offset within 1 texel),
     ``windows``, ``windows_found``, ``windows_within_1px``, ``corner_err_median_px``, ``corner_err_max_px``,
-    ``occluded_in_best``, ``occluded_filled`` (texel counts from the textures' stats)."""
+    ``occluded_in_best``, ``occluded_filled`` (texel counts from the textures' stats).
+
+    With ``walls`` (the scene's walls seen by an oblique, :func:`walls_seen`), the figure over every such wall,
+    textured or not: ``walls_seen``, ``walls_textured`` (with a seen texture matched to it), ``walls_within_1px``
+    (with a matched texture that passes as ``within_1px`` counts it) and ``walls_within_1px_fraction`` (of
+    ``walls_seen``); ``walls_missed`` lists the seen walls without a passing texture.  With ``dsm`` too, the
+    same over the seen walls whose roof edge the DSM measured (:func:`walls_in_dsm`): ``walls_seen_in_dsm``,
+    ``walls_textured_in_dsm``, ``walls_within_1px_in_dsm``."""
     out = [judge_facade(scene, t, frame) for t in textures]
     seen = []
     for t, j in zip(textures, out):
@@ -398,4 +510,15 @@ def judge_facades(scene: Scene, textures: list[FacadeTexture], frame: WorldFrame
             "corner_err_max_px": float(errs.max()) if len(errs) else float("nan"),
             "occluded_in_best": int(sum(t.stats.get("occluded_in_best", 0) for t in textures)),
             "occluded_filled": int(sum(t.stats.get("occluded_filled", 0) for t in textures))}
+    if walls is not None:
+        tex_w = {(j.true_building, j.true_face) for j in seen}
+        good_w = {(j.true_building, j.true_face) for j in good}
+        summ.update({"walls_seen": len(walls), "walls_textured": len(walls & tex_w),
+                     "walls_within_1px": len(walls & good_w),
+                     "walls_within_1px_fraction": len(walls & good_w) / len(walls) if walls else float("nan"),
+                     "walls_missed": sorted(walls - good_w)})
+        if dsm is not None:
+            wd = walls_in_dsm(scene, walls, dsm)
+            summ.update({"walls_seen_in_dsm": len(wd), "walls_textured_in_dsm": len(wd & tex_w),
+                         "walls_within_1px_in_dsm": len(wd & good_w)})
     return out, summ
