@@ -42,7 +42,8 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
     Pairs are chosen from the orientations, rectified exactly (distortion included), matched by OpenCV's
-    semi-global matcher, triangulated and fused over all pairs; heights no second pair confirms are left out.
+    semi-global matcher, triangulated and fused over all pairs; a height no second pair (or a confirmed
+    neighbour cell within 2 cells at the same height) confirms is left out.
     """
     from skyrig.cli._common import load_cameras, load_eo
     from skyrig.cli.progress import tile_progress
