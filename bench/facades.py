@@ -2,11 +2,12 @@
 
 Usage::
 
-    .venv/bin/python bench/facades.py [--project /tmp/skyrig-acc/midas-dsm] [--json FILE]
+    .venv/bin/python bench/facades.py [--project /tmp/skyrig-acc/midas-dsm] [--json FILE] [--no-clip]
 
 The project is a ``skyrig simulate midas-dsm --size ci`` folder with ``images/``, ``truth/eo.csv``, the adjusted
 ``output/adjust/eo.csv`` and the DSM matched from them ``output/dsm_adjusted/dsm.tif`` (as
-``bench/dense_acceptance.py midas`` leaves it).  The truth is the scene of the same scenario rebuilt in memory
+``bench/dense_acceptance.py midas`` leaves it), or the ``simulated`` folder of ``skyrig demo -o DIR`` (the same
+scenario; its DSM in ``output/dsm/dsm.tif``).  The truth is the scene of the same scenario rebuilt in memory
 (``build_survey(scenario_spec("midas-dsm", "ci", 1))``): its buildings and its façade rule.
 
 Cases (each: extraction figures, then texturing judged by :func:`skyrig.simulate.judge_facades.judge_facades`
@@ -17,6 +18,13 @@ over the façades textured from at least one oblique image):
               :func:`skyrig.dense.facades.refine_walls`;
 ``adjusted``  adjusted orientations (EPSG:25832) + the matched DSM, with the true buildings, the buildings
               extracted from the matched DSM, and those after ``refine_walls``.
+
+Buildings cut by the DSM's border are extracted too (``ExtractionConfig(clip_border=True)``, as ``skyrig facades``
+does; their edges on the border get no texture).  Every case also reports the figure over all the scene's walls an
+oblique sees (:func:`skyrig.simulate.judge_facades.walls_seen`, <= 60 deg incidence, from the truth):
+``walls_seen``, ``walls_textured``, ``walls_within_1px`` and the same over the seen walls whose roof edge the DSM
+measured (``*_in_dsm``; the others lie beyond the surveyed area).  ``--no-clip`` extracts as before (cut buildings
+left out), for comparison.
 
 Speed: texels per second of :func:`skyrig.dense.facades.texture_facades` (occlusion march, per-texel best image,
 feathering) next to a plain ``cv2.warpPerspective`` of each façade's first image onto the same texel grid (a
@@ -45,6 +53,7 @@ def extraction_figures(scene, blocks, frame) -> dict:
     ce = ex["corner_err_m"]
     return {"extracted": ex["extracted"], "matched": ex["matched"], "true": ex["true"],
             "rectangles": int(sum(len(b.footprint) == 4 for b in blocks)),
+            "clipped": int(sum(bool(getattr(b, "clipped", False)) for b in blocks)),
             "corner_median_m": float(np.median(ce)) if len(ce) else float("nan"),
             "corner_p90_m": float(np.percentile(ce, 90)) if len(ce) else float("nan"),
             "corner_max_m": float(ce.max()) if len(ce) else float("nan"),
@@ -85,21 +94,27 @@ def warp_baseline(textures, eo, cameras, loader, frame) -> tuple[float, int]:
     return t_all, n
 
 
-def run(project: Path) -> dict:
-    from skyrig.dense.buildings import extract_buildings
+def _dsm_path(project: Path) -> Path:
+    """The matched DSM: ``output/dsm_adjusted`` (bench/dense_acceptance.py) or ``output/dsm`` (``skyrig demo``)."""
+    p = project / "output" / "dsm_adjusted" / "dsm.tif"
+    return p if p.exists() else project / "output" / "dsm" / "dsm.tif"
+
+
+def run(project: Path, clip: bool = True) -> dict:
+    from skyrig.dense.buildings import ExtractionConfig, extract_buildings
     from skyrig.dense.facades import refine_walls, texture_facades
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.rig_file import read_rig
     from skyrig.pipeline.dense import ImageFiles
-    from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings
+    from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings, walls_seen
     from skyrig.simulate.scenarios import build_survey, scenario_spec
 
     survey = build_survey(scenario_spec("midas-dsm", "ci", 1))
     scene = survey.scene
     rig = read_rig(project / "rig.yaml")
     cams = {h.camera.name: h.camera for h in rig.heads.values()}
-    dsm_m = read_dsm_cog(project / "output" / "dsm_adjusted" / "dsm.tif")
+    dsm_m = read_dsm_cog(_dsm_path(project))
     eo_adj = read_eo_csv(project / "output" / "adjust" / "eo.csv")
     eo_true = read_eo_csv(project / "truth" / "eo.csv")
     frame = dsm_m.frame
@@ -111,8 +126,9 @@ def run(project: Path) -> dict:
         loader = ImageFiles([str(project / "images" / n) for n in eo.image],
                             [(cams[c].width, cams[c].height) for c in eo.camera])
         oblique = {str(n) for n in eo.image if "nadir" not in str(n)}
+        walls = walls_seen(scene, eo, cams, oblique)
         t0 = time.perf_counter()
-        extracted = extract_buildings(dsm)
+        extracted = extract_buildings(dsm, config=ExtractionConfig(clip_border=clip))
         te = time.perf_counter() - t0
         ex = extraction_figures(scene, extracted, frame)
         ex["seconds"] = te
@@ -129,7 +145,7 @@ def run(project: Path) -> dict:
             t0 = time.perf_counter()
             tex = texture_facades(blocks, eo, cams, loader, dsm)
             tt = time.perf_counter() - t0
-            _, summ = judge_facades(scene, tex, frame, oblique)
+            _, summ = judge_facades(scene, tex, frame, oblique, walls=walls, dsm=dsm)
             texels = int(sum(t.valid.size for t in tex if t.images))
             summ["seconds"] = tt
             summ["texels"] = texels
@@ -148,12 +164,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--project", default="/tmp/skyrig-acc/midas-dsm", type=Path)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--no-clip", action="store_true", help="leave out the buildings cut by the DSM's border")
     a = ap.parse_args(argv)
-    for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", "output/dsm_adjusted/dsm.tif", "rig.yaml"):
+    for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", str(_dsm_path(a.project).relative_to(a.project)),
+                 "rig.yaml"):
         if not (a.project / need).exists():
             print(f"{a.project / need} is missing: run bench/dense_acceptance.py midas first", file=sys.stderr)
             return 2
-    res = run(a.project)
+    res = run(a.project, clip=not a.no_clip)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))
     return 0

@@ -208,3 +208,73 @@ def test_chain_on_a_matched_dsm(town):
     # the walls stand where the matched DSM put them: texture offsets follow the corner errors (texel ~ cell)
     assert summ["windows_found"] >= 5, summ
     assert summ["corner_err_median_px"] <= 3.0, summ
+
+
+def _cut_town(dsm, angle_deg: float, offset_m: float):
+    """The DSM with every cell on one side of a line through the town void (beyond the surveyed area, connected to
+    the grid's edge); returns the DSM and the line's point and normal (void where (p - p0) . n < 0)."""
+    g = dsm.grid
+    xx, yy = g.cell_centres()
+    p0 = np.array([g.x0 + 0.5 * g.width * g.cell_m, g.y0 - 0.5 * g.height * g.cell_m])
+    t = np.radians(angle_deg)
+    n = np.array([np.cos(t), np.sin(t)])
+    p0 = p0 + offset_m * n
+    h = np.asarray(dsm.height, np.float32).copy()
+    h[(xx - p0[0]) * n[0] + (yy - p0[1]) * n[1] < 0] = np.nan
+    return replace(dsm, height=h), p0, n
+
+
+@pytest.mark.parametrize("angle_deg, offset_m", [(90.0, -20.0), (30.0, 10.0)])
+def test_buildings_cut_by_the_border_are_clipped(town, angle_deg, offset_m):
+    """Buildings cut by the border of the surveyed area (a straight edge of void through the town, axis-parallel
+    and oblique): with ``clip_border`` kept, flagged ``clipped``, their edges on the border
+    listed in ``border_edges`` (within two cells of the cut line), and their real walls inside the DSM in place (the
+    uncut walls' accuracy: within half a cell of the true wall line, 2 deg)."""
+    import shapely
+
+    from skyrig.dense.buildings import ExtractionConfig
+
+    _, dsm, truth = town
+    cut, p0, n = _cut_town(dsm, angle_deg, offset_m)
+    plain = extract_buildings(cut)
+    clipped = extract_buildings(cut, config=ExtractionConfig(clip_border=True))
+    assert not any(b.clipped or b.border_edges for b in plain)
+    half = shapely.Polygon(np.array([p0 - 1e4 * np.array([-n[1], n[0]]), p0 + 1e4 * np.array([-n[1], n[0]])])
+                           .tolist() + [(p0 + 1e4 * np.array([-n[1], n[0]]) + 1e4 * n).tolist(),
+                                        (p0 - 1e4 * np.array([-n[1], n[0]]) + 1e4 * n).tolist()])
+    judged = 0
+    for t in truth:
+        poly = shapely.Polygon(t["corners"])
+        part = poly.intersection(half)
+        frac = part.area / poly.area
+        if not 0.3 < frac < 0.95 or part.area < 40:
+            continue
+        c = np.array(part.centroid.coords[0])
+        d = [np.linalg.norm(np.array(shapely.Polygon(b.footprint).centroid.coords[0]) - c) for b in clipped]
+        assert d and min(d) < 2.0, f"a building cut by the border ({frac:.0%} inside) was not extracted"
+        b = clipped[int(np.argmin(d))]
+        assert b.clipped and b.border_edges
+        fp = np.asarray(b.footprint)
+        for i in b.border_edges:
+            for q in (fp[i], fp[(i + 1) % len(fp)]):
+                # the border is known to a cell (rasterised void), its polygon simplified by up to one more
+                assert abs((q - p0) @ n) < 2 * CELL + 0.05, "a border edge off the cut line"
+        walls = [i for i in range(len(fp)) if i not in b.border_edges]
+        tc = t["corners"]
+        for k in range(4):
+            a, e = tc[k], tc[(k + 1) % 4]
+            seg = shapely.LineString([a, e]).intersection(half)
+            if seg.is_empty or seg.length < 3.0:
+                continue
+            m = np.array(seg.interpolate(0.5, normalized=True).coords[0])
+            u = (e - a) / np.linalg.norm(e - a)
+            best = np.inf
+            for i in walls:
+                v = fp[(i + 1) % len(fp)] - fp[i]
+                v = v / np.linalg.norm(v)
+                if abs(u[0] * v[1] - u[1] * v[0]) > np.sin(np.radians(2.0)):
+                    continue
+                best = min(best, abs((m - fp[i]) @ np.array([-v[1], v[0]])))
+            assert best <= 0.5 * CELL + 0.05, f"real wall {k} of a clipped building {best:.2f} m off"
+            judged += 1
+    assert judged >= 2

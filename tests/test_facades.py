@@ -356,3 +356,57 @@ def test_roof_textures_match_the_scenes_roofs(midas):
         assert resp > 0.1 and np.hypot(dx, dy) <= 1.0, (r.building, r.index, dx, dy, resp)
         checked += 1
     assert checked >= 2
+
+
+def test_a_building_clipped_at_the_dsm_border_textures_its_real_walls_only(midas):
+    """A building cut by the DSM's border (its true footprint clipped by a line through it; the edge on the line
+    listed in ``border_edges``): that edge gets no texture and is not moved by refine_walls; the real walls' pieces
+    inside are textured and match the façade rule within 1 texel as whole walls do.  ``judge_facades`` with
+    ``walls`` (:func:`walls_seen`, from the scene truth alone) counts the seen walls, textured or not."""
+    from dataclasses import replace as dc_replace
+
+    import shapely
+
+    from skyrig.dense.buildings import BuildingBlock
+    from skyrig.dense.facades import refine_walls
+    from skyrig.simulate.judge_facades import walls_seen
+
+    s, eo, cams, dsm, blocks, tex, loader = midas
+    oblique = {str(n) for n, h in zip(eo.image, eo.head) if h != "nadir"}
+    judged, _ = judge_facades(s.scene, tex, CRS, oblique)
+    good = {(j.true_building, j.true_face) for j, t in zip(judged, tex)
+            if j.windows and set(t.images) & oblique and j.offset_norm_px <= 1.0}
+    # the building with the most walls passing: cut through its middle, across its longest wall
+    b = max(blocks, key=lambda q: sum((q.id, f) in good for f in range(4)))
+    fp = np.asarray(b.footprint)
+    e = [np.linalg.norm(fp[(i + 1) % 4] - fp[i]) for i in range(4)]
+    i0 = int(np.argmax(e))
+    d = (fp[(i0 + 1) % 4] - fp[i0]) / e[i0]
+    mid = fp.mean(axis=0)
+    half = shapely.Polygon([mid - 100 * d + 100 * np.array([-d[1], d[0]]), mid - 100 * d - 100 * np.array([-d[1], d[0]]),
+                            mid + 0.2 * e[i0] * d - 100 * np.array([-d[1], d[0]]),
+                            mid + 0.2 * e[i0] * d + 100 * np.array([-d[1], d[0]])])
+    cut = np.asarray(shapely.orient_polygons(shapely.Polygon(fp).intersection(half)).exterior.coords)[:-1]
+    on_line = [i for i in range(len(cut)) if abs((cut[i] - mid) @ d - 0.2 * e[i0]) < 1e-6
+               and abs((cut[(i + 1) % len(cut)] - mid) @ d - 0.2 * e[i0]) < 1e-6]
+    assert len(on_line) == 1
+    roof = (np.column_stack([cut, np.full(len(cut), b.eave_z)]),)
+    cb = BuildingBlock(b.id, cut, b.ground_z, b.eave_z, roof, "dsm", True, tuple(on_line))
+    t2 = texture_facades([cb], eo, cams, loader, dsm)
+    assert len(t2) == len(cut) - 1 and all(t.facade.index != on_line[0] for t in t2)
+    j2, summ = judge_facades(s.scene, t2, CRS, oblique, walls=walls_seen(s.scene, eo, cams, oblique))
+    seen2 = [j for j, t in zip(j2, t2) if j.windows and set(t.images) & oblique]
+    assert seen2, "no real wall of the clipped building is judged"
+    for j in seen2:
+        assert j.offset_norm_px <= 1.0 and np.median(j.corner_err_px) <= 1.0, j
+    assert summ["walls_seen"] >= summ["walls_textured"] >= 1
+    # the walls whose textures from the rendered obliques (any view up to texture_facades' 75 deg) pass are the
+    # ones the truth says an oblique sees at up to 75 deg (independent paths: renderer + DSM occlusion march vs
+    # the analytic scene); a texture is judged on a part of a wall, so a quarter of it in one view is enough here
+    ws = walls_seen(s.scene, eo, cams, oblique, max_incidence_deg=75.0, min_fraction=0.25)
+    assert len(good & ws) >= 0.9 * len(good), (sorted(good - ws), len(good))
+    # refine_walls: the border edge stays on the border line
+    moved = refine_walls([dc_replace(cb)], eo, cams, loader, dsm)[0]
+    k = on_line[0]
+    for q in (moved.footprint[k], moved.footprint[(k + 1) % len(cut)]):
+        assert abs((np.asarray(q) - mid) @ d - 0.2 * e[i0]) < 1e-6

@@ -466,6 +466,21 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
                 if big.sum() >= 0.5 * comp.sum():
                     comp = big
         foot, is_rect, rect = _footprint_from_mask(comp, grid, r0, c0, cfg, mw)
+        if cfg.clip_border:
+            if beyond is None:
+                beyond = _beyond_survey(meas, cell, cfg.survey_gap_m)
+            bw = np.pad(beyond, 3, constant_values=True)[r0:r1 + 6, c0:c1 + 6]
+            if (ndimage.binary_dilation(np.pad(comp, 3), iterations=3) & bw).any():
+                # cut by the border: a rectangle reaching beyond it is clipped there; a polygon is replaced by the
+                # rectangle of its real walls, clipped (a wall merely next to the border stays as it is)
+                got_c = None if is_rect else _clipped_rectangle(comp, grid, r0, c0, beyond, cfg, mw)
+                if got_c is not None:
+                    foot, rect = got_c
+                    is_rect = False
+                elif _beyond_fraction(foot, grid, beyond) > 0.03:
+                    clipped_fp = _clip_to_survey(foot, comp, grid, r0, c0, beyond)
+                    if clipped_fp is not None:
+                        foot, is_rect = clipped_fp, False
         inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
         if inner.sum() < 6:
             inner = comp & mw
@@ -477,10 +492,12 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
         zf = float(np.median(z))
         flat_spread = float(1.4826 * np.median(np.abs(z - zf)))
         eave, roof = zf, (np.column_stack([foot, np.full(len(foot), zf)]),)
-        if is_rect and rect is not None and len(z) >= 12:
+        if rect is not None and len(z) >= 12:
             got = _gable(xy, z, rect, flat_spread, cfg)
             if got is not None:
                 eave, roof = got
+                if not is_rect:  # a clipped rectangle: the roof planes clipped with the footprint
+                    roof = _clip_roofs(roof, foot)
         if eave - gz < 0.5 * cfg.min_height_m:
             continue
         border: tuple[int, ...] = ()
@@ -491,6 +508,162 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
             cut = cut or bool(border)
         out.append(BuildingBlock(len(out), foot, gz, float(eave), roof, "dsm", cut, border))
     return out
+
+
+def _clipped_rectangle(comp: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int, beyond: NDArray[np.bool_],
+                       cfg: ExtractionConfig, measured: NDArray[np.bool_]) -> tuple[NDArray[np.float64], tuple] | None:
+    """Footprint of a component cut by the DSM's border: the rectangle of its real walls, clipped at the border.
+
+    The contour points away from the border (``beyond`` and the grid's outside, dilated by 2 cells) are the real
+    walls: their dominant direction (length-weighted mean of 4 x the direction of the contour's straight runs)
+    orients the rectangle, each side lies on the median of its real points (a side without any lies beyond the
+    border); the rectangle is then intersected with the surveyed area (the window's cells not ``beyond``, inside
+    the grid).  Returns the polygon (frame x, y; CCW) and the unclipped rectangle as :func:`_footprint_from_mask`,
+    or None when the component does not fill ``rect_fit`` of the clipped rectangle or has too few real points."""
+    import cv2
+    from scipy import ndimage
+
+    up, p = 4, 3
+    H, W = comp.shape
+    bp = np.pad(beyond, p, constant_values=True)[r0:r0 + H + 2 * p, c0:c0 + W + 2 * p]
+    near = ndimage.binary_dilation(bp, iterations=2)
+    big = cv2.resize(comp.astype(np.uint8), (W * up, H * up), interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    cont = max(contours, key=cv2.contourArea)[:, 0, :].astype(np.float64)
+    cc = (cont + 0.5) / up - 0.5
+    ic = np.clip(np.round(cc).astype(int) + p, 0, [W + 2 * p - 1, H + 2 * p - 1])
+    real = ~near[ic[:, 1], ic[:, 0]]
+    if real.sum() < 12:
+        return None
+    # dominant direction from the straight runs of the real contour
+    apx = cv2.approxPolyDP(cont.astype(np.int32).reshape(-1, 1, 2), float(up), True)[:, 0, :].astype(np.float64)
+    ac = (apx + 0.5) / up - 0.5
+    seg = np.roll(ac, -1, axis=0) - ac
+    mids = ac + 0.5 * seg
+    im = np.clip(np.round(mids).astype(int) + p, 0, [W + 2 * p - 1, H + 2 * p - 1])
+    keep = ~near[im[:, 1], im[:, 0]]
+    ln = np.linalg.norm(seg, axis=1)
+    if not keep.any() or ln[keep].sum() < 6:
+        return None
+    th = np.arctan2(seg[keep, 1], seg[keep, 0])
+    t = 0.25 * np.arctan2(np.sum(ln[keep] * np.sin(4 * th)), np.sum(ln[keep] * np.cos(4 * th)))
+    ax_w = np.array([np.cos(t), np.sin(t)])
+    ax_h = np.array([-np.sin(t), np.cos(t)])
+    a, b = cc @ ax_w, cc @ ax_h
+    lim = []
+    for coord, other, sign in ((a, b, 1), (a, b, -1), (b, a, 1), (b, a, -1)):
+        x = sign * coord
+        sel = real & (x > x.max() - 1.5) & (other > other.min() + 1.5) & (other < other.max() - 1.5)
+        lim.append(sign * (float(np.median(x[sel])) + 1.0 / (2 * up)) if sel.sum() >= 3 else sign * (x.max() + 3.0))
+    a1, a0, b1, b0 = lim
+    if not (a1 - a0 > 1 and b1 - b0 > 1):
+        return None
+    pts = np.array([sa * ax_w + sb * ax_h for sa, sb in ((a0, b0), (a1, b0), (a1, b1), (a0, b1))])
+    xy = _clip_cells(pts, comp, bp, p)
+    if xy is None:
+        return None
+    # fill: the component's cells against the clipped rectangle's measured cells
+    inside = np.zeros(comp.shape, np.uint8)
+    cv2.fillPoly(inside, [np.round(xy * 16).astype(np.int32)], 1, shift=4)
+    inside = inside.astype(bool)
+    fit = float((comp & inside).sum()) / max(float((inside & (measured | comp)).sum()), 1.0)
+    if fit < cfg.rect_fit:
+        return None
+    foot = _ccw(_cells_to_xy(grid, xy[:, 0] + c0, xy[:, 1] + r0))
+    w, h = a1 - a0, b1 - b0
+    cw = 0.5 * (a0 + a1) * ax_w + 0.5 * (b0 + b1) * ax_h
+    cxy = _cells_to_xy(grid, np.array([cw[0] + c0]), np.array([cw[1] + r0]))[0]
+    long_ax = ax_w if w >= h else ax_h
+    la = np.array([long_ax[0], -long_ax[1]])
+    cell = grid.cell_m
+    return foot, (cxy, la / np.linalg.norm(la), 0.5 * max(w, h) * cell, 0.5 * min(w, h) * cell)
+
+
+def _clip_cells(pts: NDArray, comp: NDArray[np.bool_], bp: NDArray[np.bool_], p: int) -> NDArray[np.float64] | None:
+    """Polygon ``pts`` (window cell units, centres at integers) intersected with the surveyed area of the window
+    (``bp``: beyond-the-survey mask padded by ``p``; the piece holding the component's centre)."""
+    import cv2
+    import shapely
+
+    up = 4
+    Hp, Wp = bp.shape
+    surv = cv2.resize((~bp).astype(np.uint8), (Wp * up, Hp * up), interpolation=cv2.INTER_NEAREST)
+    sc, _ = cv2.findContours(surv, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    rr, cc_ = np.nonzero(comp)
+    ctr = shapely.Point(float(cc_.mean()), float(rr.mean()))
+    best = None
+    for s_ in sc:
+        if len(s_) < 4:
+            continue
+        q = cv2.approxPolyDP(s_, float(up), True)[:, 0, :].astype(np.float64)  # the staircase of an oblique border
+        if len(q) < 3:
+            continue
+        # pixel centres of the upsampled boundary lie 1/8 cell inside the cells' outer edges
+        poly = shapely.Polygon((q + 0.5) / up - 0.5 - p).buffer(1.0 / (2 * up), join_style="mitre")
+        if poly.contains(ctr) or poly.distance(ctr) < 1.0:
+            best = poly
+            break
+    if best is None:
+        return None
+    clip = shapely.Polygon(np.asarray(pts, float)).buffer(0).intersection(best)
+    if clip.geom_type == "MultiPolygon":
+        clip = max(clip.geoms, key=lambda g: g.area)
+    if clip.geom_type != "Polygon" or clip.is_empty or clip.area < 4:
+        return None
+    return np.asarray(shapely.simplify(clip, 0.05).exterior.coords, float)[:-1]
+
+
+def _beyond_fraction(foot: NDArray, grid: GridSpec, beyond: NDArray[np.bool_]) -> float:
+    """Fraction of a footprint's area (sampled every 1/2 cell) beyond the grid or the surveyed area."""
+    fp = np.asarray(foot, float)
+    lo, hi = fp.min(axis=0), fp.max(axis=0)
+    step = 0.5 * grid.cell_m
+    X, Y = np.meshgrid(np.arange(lo[0], hi[0], step) + 0.25 * step, np.arange(lo[1], hi[1], step) + 0.25 * step)
+    import shapely
+
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    pts = pts[shapely.contains_xy(shapely.Polygon(fp), pts[:, 0], pts[:, 1])]
+    if not len(pts):
+        return 0.0
+    col = np.floor((pts[:, 0] - grid.x0) / grid.cell_m).astype(int)
+    row = np.floor((grid.y0 - pts[:, 1]) / grid.cell_m).astype(int)
+    off = (col < 0) | (row < 0) | (col >= grid.width) | (row >= grid.height)
+    b = off.copy()
+    b[~off] = beyond[row[~off], col[~off]]
+    return float(b.mean())
+
+
+def _clip_to_survey(foot: NDArray, comp: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int,
+                    beyond: NDArray[np.bool_]) -> NDArray[np.float64] | None:
+    """A footprint (frame x, y) clipped at the border of the surveyed area around its component."""
+    p = 3
+    H, W = comp.shape
+    bp = np.pad(beyond, p, constant_values=True)[r0:r0 + H + 2 * p, c0:c0 + W + 2 * p]
+    fp = np.asarray(foot, float)
+    pts = np.column_stack([(fp[:, 0] - grid.x0) / grid.cell_m - 0.5 - c0, (grid.y0 - fp[:, 1]) / grid.cell_m - 0.5 - r0])
+    xy = _clip_cells(pts, comp, bp, p)
+    return None if xy is None else _ccw(_cells_to_xy(grid, xy[:, 0] + c0, xy[:, 1] + r0))
+
+
+def _clip_roofs(roof: tuple[NDArray, ...], foot: NDArray) -> tuple[NDArray[np.float64], ...]:
+    """Roof polygons (planes) cut to a footprint in plan; heights from each polygon's plane."""
+    import shapely
+
+    fp = shapely.Polygon(np.asarray(foot, float))
+    out = []
+    for poly in roof:
+        P = np.asarray(poly, float)
+        coef, *_ = np.linalg.lstsq(np.c_[P[:, :2], np.ones(len(P))], P[:, 2], rcond=None)
+        g = shapely.Polygon(P[:, :2]).intersection(fp)
+        parts = list(g.geoms) if hasattr(g, "geoms") else [g]
+        for part in parts:
+            if part.geom_type != "Polygon" or part.area < 0.5:
+                continue
+            xy = np.asarray(part.exterior.coords, float)[:-1]
+            out.append(_ccw3(np.c_[xy, xy @ coef[:2] + coef[2]]))
+    return tuple(out) if out else (np.column_stack([foot, np.full(len(foot), float(np.max(roof[0][:, 2])))]),)
 
 
 def _beyond_survey(meas: NDArray[np.bool_], cell_m: float, gap_m: float) -> NDArray[np.bool_]:
