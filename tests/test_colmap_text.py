@@ -131,7 +131,7 @@ def test_block_adjusts_to_zero_residuals(scene):
     "fname, old, new, needle",
     [
         ("cameras.txt", "1 SIMPLE_PINHOLE", "1 OPENCV_FISHEYE", "MODEL"),
-        ("cameras.txt", "2 PINHOLE 1280 960 1100 1100", "2 PINHOLE 1280 960 1100 1101", "field 'fy'"),
+        ("cameras.txt", "2 PINHOLE 1280 960 1100 1100", "2 PINHOLE 1280 960 1100 -1100", "field 'fy'"),  # fx != fy: read
         ("cameras.txt", "1 SIMPLE_PINHOLE 1280 960 1200", "1 SIMPLE_PINHOLE 1280 960 abc", "field 'f'"),
         ("images.txt", "img00.jpg", "img00.jpg", None),
     ],

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from skyrig.adjust.block import AdjustConfig, Block, BlockError
+from skyrig.camera.aspect import camera_from_fx_fy, fx_fy_px
 from skyrig.camera.distortion import distortion_from_dict
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import CRSError, InputFormatError
@@ -276,15 +277,27 @@ def _camera(d: dict, path: Path, k: int) -> FrameCamera:
     extra = set(d) - set(need) - {"distortion", "pixel_size_mm"}
     if extra:
         raise InputFormatError(f"unknown camera key(s) {sorted(extra)}", path, None, field)
+    focal = d["focal_px"]
+    if isinstance(focal, list):  # [fx, fy]: fx != fy is the Brown affinity b1 (skyrig.camera.aspect)
+        if len(focal) != 2:
+            raise InputFormatError(f"focal_px must be a number or [fx, fy], got {focal!r}", path, None,
+                                   f"{field}.focal_px")
+        fxy = focal
+    else:
+        fxy = [focal, focal]
     try:
         dist = distortion_from_dict(d["distortion"]) if "distortion" in d else None
-        vals = [float(d[key]) for key in need[1:]] + [float(d.get("pixel_size_mm", 0.001))]
+        vals = [float(d[key]) for key in need[1:] if key != "focal_px"] + [float(d.get("pixel_size_mm", 0.001))]
+        fx, fy = (float(v) for v in fxy)
     except (TypeError, ValueError) as e:
         raise InputFormatError(str(e), path, None, field) from None
-    if not all(np.isfinite(vals)):
+    if not all(np.isfinite(vals + [fx, fy])):
         raise InputFormatError("non-finite camera value", path, None, field)
-    return FrameCamera.from_pixels(str(d["name"]), int(vals[0]), int(vals[1]), vals[2], vals[3], vals[4],
-                                   pixel_size_mm=vals[5], distortion=dist)
+    try:
+        return camera_from_fx_fy(str(d["name"]), int(vals[0]), int(vals[1]), fx, fy, vals[2], vals[3],
+                                 pixel_size_mm=vals[4], distortion=dist)
+    except ValueError as e:
+        raise InputFormatError(str(e), path, None, f"{field}.focal_px") from None
 
 
 def read_block(path: PathLike) -> BlockFile:
@@ -614,9 +627,11 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
     cams = []
     for c in block.cameras:
         col, row = c.principal_point_px
-        d: dict[str, Any] = dict(name=c.name, width=c.width, height=c.height, focal_px=c.focal_px, pp_col=col,
-                                 pp_row=row, pixel_size_mm=c.pixel_size_mm)
-        if c.distortion.n_params:
+        fxy = fx_fy_px(c)  # a camera entered with fx != fy is written the same way
+        d: dict[str, Any] = dict(name=c.name, width=c.width, height=c.height,
+                                 focal_px=c.focal_px if fxy is None else list(fxy), pp_col=col, pp_row=row,
+                                 pixel_size_mm=c.pixel_size_mm)
+        if c.distortion.n_params and fxy is None:
             d["distortion"] = c.distortion.to_dict()
         cams.append(d)
     try:

@@ -19,8 +19,11 @@ Conventions mapped onto skyrig's (``docs/frames.md``)
 * **Pixels.** COLMAP's pixel origin is the top-left *corner* of the image (the centre of the top-left
   pixel is ``(0.5, 0.5)``); skyrig's is the centre of the top-left pixel.  Every pixel coordinate
   (principal point, measurements) has 0.5 subtracted.
-* **Cameras.** A :class:`~skyrig.camera.frame.FrameCamera` (square pixels: ``fx`` must equal ``fy``)
-  with the distortion from the registry (:func:`~skyrig.camera.distortion.distortion_from_dict`).
+* **Cameras.** A :class:`~skyrig.camera.frame.FrameCamera` with the distortion from the registry
+  (:func:`~skyrig.camera.distortion.distortion_from_dict`).  ``fx != fy`` becomes the Brown affinity
+  ``b1 = fy / fx - 1`` with principal distance ``fy`` (:mod:`skyrig.camera.aspect`; exact), for ``PINHOLE`` and
+  for ``OPENCV`` / ``FULL_OPENCV`` with all coefficients zero; with non-zero OpenCV coefficients it is refused
+  (skyrig's OpenCV model has one focal length), naming the line.
   COLMAP's normalised coordinates and distortion formulas are OpenCV's, so the coefficients pass
   through unchanged:
 
@@ -50,7 +53,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import Block
-from skyrig.camera.distortion import distortion_from_dict
+from skyrig.camera.aspect import camera_from_fx_fy
+from skyrig.camera.distortion import NoDistortion, distortion_from_dict
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError
 from skyrig.geometry.pose import Pose
@@ -151,18 +155,23 @@ def read_colmap_cameras(path: str | PathLike[str], pixel_size_mm: float = 0.001)
         fy = prm["f"] if "f" in prm else prm["fy"]
         if fx <= 0:
             raise InputFormatError(f"focal length must be positive, got {fx}", p, ln, "f" if "f" in prm else "fx")
-        if abs(fx - fy) > 1e-9 * abs(fx):
-            raise InputFormatError(f"fx = {fx} and fy = {fy} differ: skyrig's FrameCamera has square pixels "
-                                   "(one focal length)", p, ln, "fy")
+        if fy <= 0:
+            raise InputFormatError(f"focal length must be positive, got {fy}", p, ln, "fy")
         dist = {"model": dist_model, **{k: v for k, v in prm.items() if k not in ("f", "fx", "fy", "cx", "cy")}}
         try:
             d = distortion_from_dict(dist)
         except InputFormatError as e:
             raise InputFormatError(e.reason, p, ln, e.field) from None
+        if fx != fy and d.n_params and not np.any(d.params):
+            d = NoDistortion()  # an OPENCV camera with zero coefficients is a PINHOLE one
+        try:  # fx != fy: the Brown affinity b1 (skyrig.camera.aspect), exact for a pinhole
+            cam = camera_from_fx_fy(f"colmap-{cid}", w, h, fx, fy, prm["cx"] - _HALF, prm["cy"] - _HALF,
+                                    pixel_size_mm=pixel_size_mm, distortion=d)
+        except ValueError as e:
+            raise InputFormatError(f"{model}: {e}", p, ln, "fy") from None
         if cid in cams:
             raise InputFormatError(f"camera {cid} is defined twice", p, ln, "CAMERA_ID")
-        cams[cid] = FrameCamera.from_pixels(f"colmap-{cid}", w, h, fx, prm["cx"] - _HALF, prm["cy"] - _HALF,
-                                            pixel_size_mm=pixel_size_mm, distortion=d)
+        cams[cid] = cam
     return cams
 
 

@@ -29,6 +29,7 @@ from skyrig.calibrate.rig_calibration import (
     Provenance,
     RigCalibration,
 )
+from skyrig.camera.aspect import fx_fy_px, with_fx_fy
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError, SkyrigError
@@ -318,13 +319,23 @@ def _read_camera(ctx: _Ctx, value: Any, parent: _Map, kp: str) -> FrameCamera:
             line = d.key_lines.get(sub, d.line) if sub else d.line
             field = f"{kp}.distortion.{sub}" if sub else f"{kp}.distortion"
             raise InputFormatError(f"bad distortion: {msg}", ctx.path, line, field) from None
+    if isinstance(m["focal_mm"], list):  # [fx, fy] (mm): fx != fy is the Brown affinity b1 (skyrig.camera.aspect)
+        fxy = ctx.numbers(m, "focal_mm", f"{kp}.focal_mm", (2,))
+        if not np.all(fxy > 0):
+            raise ctx.error(f"must be positive, got {fxy.tolist()}", m, f"{kp}.focal_mm", "focal_mm")
+        try:
+            focal, distortion = with_fx_fy(float(fxy[0]), float(fxy[1]), distortion)
+        except ValueError as exc:
+            raise ctx.error(str(exc), m, f"{kp}.focal_mm", "focal_mm") from None
+    else:
+        focal = ctx.number(m, "focal_mm", f"{kp}.focal_mm", positive=True)
     try:
         return FrameCamera(
             ctx.text(m, "name", f"{kp}.name"),
             ctx.integer(m, "width_px", f"{kp}.width_px"),
             ctx.integer(m, "height_px", f"{kp}.height_px"),
             ctx.number(m, "pixel_size_um", f"{kp}.pixel_size_um", positive=True) / 1000.0,
-            ctx.number(m, "focal_mm", f"{kp}.focal_mm", positive=True),
+            focal,
             ctx.number(m, "ppx_mm", f"{kp}.ppx_mm") if "ppx_mm" in m else 0.0,
             ctx.number(m, "ppy_mm", f"{kp}.ppy_mm") if "ppy_mm" in m else 0.0,
             distortion,
@@ -545,7 +556,11 @@ def _camera_dict(cam: FrameCamera) -> dict[str, Any]:
         "ppy_mm": float(cam.ppy_mm),
     }
     d = cam.distortion
-    if d is None or isinstance(d, NoDistortion):
+    fxy = fx_fy_px(cam)  # a camera entered with fx != fy is written the same way
+    if fxy is not None:
+        out["focal_mm"] = [float(fxy[0]) * float(cam.pixel_size_mm), float(fxy[1]) * float(cam.pixel_size_mm)]
+        out["distortion"] = None
+    elif d is None or isinstance(d, NoDistortion):
         out["distortion"] = None
     elif hasattr(d, "to_dict"):
         registry = _distortion_registry()
