@@ -208,7 +208,7 @@ def adjusted_block(scenario: str, cache: Path, nadir: bool) -> dict[str, Path]:
         skyrig("block", "--trajectory", p / "trajectory.csv", "--events", events, "--rig", rig,
                "--measurements", match / "tie_points.csv", "--measurements", gcp_image,
                "--control", p / "gcp" / "ground_points.csv", "--check", p / "gcp" / "check_points.csv",
-               "--sigma-px", "0.3", "--gnss-sigma", gn, "--imu-sigma-deg", imu, "--control-sigma", "0.01",
+               "--image-sigma-px", "0.3", "--gnss-sigma", gn, "--imu-sigma-deg", imu, "--control-sigma", "0.01",
                "--free", "boresight", "-o", blk)
     adj = out / "adjust"
     if not (adj / "eo.csv").exists():

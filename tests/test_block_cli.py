@@ -47,7 +47,7 @@ def test_block_and_adjust_give_back_direct_georeferencing(tmp_path) -> None:  # 
     p, eo, meas = _project(tmp_path)
     run = CliRunner()
     r = run.invoke(main, ["block", "--trajectory", str(p.trajectory), "--events", str(p.events), "--rig", str(p.rig),
-                          "--measurements", str(meas), "--control", str(p.check_points), "--sigma-px", "0.5",
+                          "--measurements", str(meas), "--control", str(p.check_points), "--image-sigma-px", "0.5",
                           "-o", str(tmp_path / "blk" / "block.json")])
     assert r.exit_code == 0, r.output
     ev = read_events_csv(p.events)

@@ -177,3 +177,20 @@ def test_docs_cli_states_the_output_option(cmd):
     text = (Path(__file__).resolve().parents[1] / "docs" / "cli.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith(f"| `{cmd}` |"))
     assert row.split("|")[3].strip().startswith("`-o/--output`"), row
+
+
+@pytest.mark.parametrize("cmd,old,new", [("block", "--sigma-px", "--image-sigma-px"),
+                                         ("adjust-uav", "--gcp", "--control"),
+                                         ("adjust-uav", "--gcp-sigma", "--control-sigma")])
+def test_one_spelling_per_option_old_ones_warn(cmd, old, new, tmp_path):
+    """One spelling per option across commands (block and adjust-uav: --control/--control-sigma, calibrate and block:
+    --image-sigma-px): the old spellings still parse, with a deprecation warning naming the new one."""
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+
+    r = CliRunner().invoke(main, [cmd, old, "0.5", "-o", str(tmp_path / "x")])
+    assert f"warning: {old} is deprecated; use {new}" in r.output, r.output
+    assert f"no such option: {old}" not in r.output.lower()
+    r = CliRunner().invoke(main, [cmd, "--help"])
+    assert new in r.output and f"{old} " not in r.output

@@ -108,7 +108,7 @@ def _write_project(tmp_path, s, n_control=6):
 
 
 def test_cli_control_points_end_to_end(tmp_path):
-    """``skyrig adjust-uav --no-gps --gcp --check --camera``: outputs in the control points' frame, centres and
+    """``skyrig adjust-uav --no-gps --control --check --camera``: outputs in the control points' frame, centres and
     check points against the truth within the predicted precision."""
     from skyrig.cli import main
     from skyrig.io.eo_csv import read_eo_csv
@@ -117,7 +117,7 @@ def test_cli_control_points_end_to_end(tmp_path):
     s = _set()
     proj = _write_project(tmp_path, s)
     r = CliRunner().invoke(main, ["adjust-uav", str(proj), "--no-gps", "--camera", str(proj / "camera.yaml"),
-                                  "--gcp", str(proj / "gcp.csv"), "--gcp-sigma", "0.002",
+                                  "--control", str(proj / "gcp.csv"), "--control-sigma", "0.002",
                                   "--check", str(proj / "check.csv")])
     assert r.exit_code == 0, r.output
     out = proj / "adjust-uav"

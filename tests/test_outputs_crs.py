@@ -87,7 +87,7 @@ def midas(tmp_path_factory):
         "--rig", str(sim / "rig.yaml"), "--measurements", str(sim / "tie" / "image_measurements.csv"),
         "--measurements", str(sim / "gcp" / "image_measurements.csv"),
         "--control", str(sim / "gcp" / "ground_points.csv"), "--check", str(sim / "gcp" / "check_points.csv"),
-        "--sigma-px", "0.3", "--gnss-sigma", "0.03,0.03,0.05", "--imu-sigma-deg", "0.003,0.003,0.006",
+        "--image-sigma-px", "0.3", "--gnss-sigma", "0.03,0.03,0.05", "--imu-sigma-deg", "0.003,0.003,0.006",
         "--control-sigma", "0.01", "-o", str(blk)])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(main, ["adjust", str(blk), "-o", str(out / "adjust")])

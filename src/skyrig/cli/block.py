@@ -45,7 +45,8 @@ def _block_cmd_class() -> type[click.Command]:
     from skyrig.cli._common import with_old_spellings
 
     # the sigma options read as in adjust-uav: comma text; three separate numbers accepted with a warning
-    return with_old_spellings(spaced={"--gnss-sigma": 3, "--imu-sigma-deg": 3, "--control-sigma": 3})
+    return with_old_spellings(renamed={"--sigma-px": "--image-sigma-px"},
+                              spaced={"--gnss-sigma": 3, "--imu-sigma-deg": 3, "--control-sigma": 3})
 
 
 def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
@@ -88,7 +89,7 @@ def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
 @click.option("--points-heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal",
               show_default=True, help="Height reference of point files that do not state theirs.")
 @click.option("--points-geoid", default=None, help="Geoid grid when the point heights are orthometric.")
-@click.option("--sigma-px", type=float, default=0.5, show_default=True, help="Image measurement sigma (pixels).")
+@click.option("--image-sigma-px", "sigma_px", type=float, default=0.5, show_default=True, help="Image measurement sigma (pixels).")
 @click.option("--gnss-sigma", default="0.05,0.05,0.08", show_default=True,
               help="GNSS sigma east,north,up (m; one value for all axes).")
 @click.option("--imu-sigma-deg", default="0.005,0.005,0.01", show_default=True,
@@ -136,7 +137,7 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
     if not rig_mode and reference is not None:
         raise click.UsageError("--reference goes with --trajectory (rig mode)")
     if not np.isfinite(sigma_px) or sigma_px <= 0:
-        raise click.BadParameter(f"must be positive, not {sigma_px}", param_hint="--sigma-px")
+        raise click.BadParameter(f"must be positive, not {sigma_px}", param_hint="--image-sigma-px")
     gs = _sigmas(gnss_sigma, "--gnss-sigma", "east,north,up")
     imu = tuple(np.radians(_sigmas(imu_sigma_deg, "--imu-sigma-deg", "roll,pitch,yaw")))
     cs = _sigmas(control_sigma, "--control-sigma", "X,Y,Z")

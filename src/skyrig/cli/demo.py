@@ -138,7 +138,7 @@ def command(outdir: str | None, output: str | None) -> None:
           "--rig", str(sim_dir / "rig.yaml"), "--measurements", str(sim_dir / "match" / "tie_points.csv"),
           "--measurements", str(sim_dir / "gcp" / "image_measurements.csv"),
           "--control", str(sim_dir / "gcp" / "ground_points.csv"), "--check", str(sim_dir / "gcp" / "check_points.csv"),
-          "--sigma-px", "0.3", "--gnss-sigma", "0.03,0.03,0.05", "--imu-sigma-deg", "0.003,0.003,0.006",
+          "--image-sigma-px", "0.3", "--gnss-sigma", "0.03,0.03,0.05", "--imu-sigma-deg", "0.003,0.003,0.006",
           "--control-sigma", "0.01", "--free", "boresight", "-o", str(blk)])
     adj_dir = sim_dir / "output" / "adjust"
     _run(["adjust", str(blk), "-o", str(adj_dir)])
@@ -230,7 +230,7 @@ def command(outdir: str | None, output: str | None) -> None:
                "viewer), judged against the scene ===")
     from skyrig.pipeline.dense import find_images
     from skyrig.pipeline.facades import run_facades
-    from skyrig.simulate.judge_facades import judge_facades
+    from skyrig.simulate.judge_facades import judge_facades, walls_seen
     from skyrig.simulate.judge_model import judge_model
 
     eo_all = read_eo_csv(adj_dir / "eo.csv")
@@ -240,12 +240,18 @@ def command(outdir: str | None, output: str | None) -> None:
     frame_m = WorldFrame.from_text(fac.summary["frame"])
     jm = judge_model(fac.buildings, frame_m, survey.scene, match_radius_m=5.0)
     obl = {str(n) for n in eo_all.image if "nadir" not in str(n)}
-    _, jf = judge_facades(survey.scene, fac.textures, frame_m, oblique=obl)
+    dsm_m = read_dsm_cog(dsm_dir / "dsm.tif")
+    seen_w = walls_seen(survey.scene, eo_all, cams, obl)  # every wall an oblique sees, from the truth alone
+    _, jf = judge_facades(survey.scene, fac.textures, frame_m, oblique=obl, walls=seen_w, dsm=dsm_m)
     click.echo(f"{len(fac.buildings)} buildings ({jm.get('found')} of the scene's found; footprint corners "
                f"{jm.get('corner_rms_m', float('nan')):.2f} m RMS, eaves {jm.get('eave_bias_m', float('nan')):+.2f} m); "
                f"{jf['facades']} façade textures, {jf['seen']} seen by an oblique: offset vs the façade rule median "
                f"{jf['offset_median_px']:.2f} texel, {jf['within_1px'] * 100:.0f} % with every window within 1 texel; "
                f"model {fac.glb} ({fac.glb.stat().st_size / 1e3:.0f} kB), viewer {fac.viewer}")
+    click.echo(f"walls an oblique sees (scene truth): {jf['walls_seen']}, textured {jf['walls_textured']}, every "
+               f"window within 1 texel {jf['walls_within_1px']}; of them inside the measured DSM "
+               f"{jf.get('walls_seen_in_dsm', '-')}: textured {jf.get('walls_textured_in_dsm', '-')}, within 1 texel "
+               f"{jf.get('walls_within_1px_in_dsm', '-')} (walls beyond the DSM need a larger DSM or --footprints)")
     if not (jf["seen"] > 0 and jf["offset_median_px"] <= 1.0):
         raise click.ClickException("demo checks FAILED (façade textures)")
 

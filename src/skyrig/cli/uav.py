@@ -15,11 +15,11 @@ options, version and checksums written last, then swapped into place), so a kill
 mixing two runs.  Option spellings: ``-o/--output`` (``--out`` deprecated), ``--gnss-sigma E,N,U`` (three
 separate numbers deprecated), as every command (docs/cli.md).
 
-Without GNSS (``--no-gps``; implied by ``--gcp``, ``--check``, ``--scale-bar``, ``--camera``, ``--measurements`` and
+Without GNSS (``--no-gps``; implied by ``--control``, ``--check``, ``--scale-bar``, ``--camera``, ``--measurements`` and
 ``--datum``): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
 two-view relative orientation, resection and bundle adjustment (:func:`skyrig.orient.incremental.orient_incremental`
 through :func:`skyrig.pipeline.uav.orient_without_gnss`).  The datum (``--datum``, default ``auto``): control points
-(``--gcp`` ``name,x,y,z`` with a ``# crs:`` header; their image measurements are tie points of the same name or
+(``--control`` ``name,x,y,z`` with a ``# crs:`` header; their image measurements are tie points of the same name or
 ``--measurements`` files), scale bars (``--scale-bar`` CSV ``from,to,length_m[,sigma_m]``), a similarity onto the
 images' EXIF GPS (``gps-similarity``: the GPS places the finished block, it is not an observation), or a free network
 (inner constraints, scale of the start base).  ``--camera`` (rig YAML / IGN .txt) replaces the EXIF camera, and
@@ -33,7 +33,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -49,7 +48,8 @@ class _NotPublished(Exception):
     """A failed run without --keep-failed: the staging folder is dropped, the previous outputs stay."""
 
 
-@click.command("adjust-uav", cls=with_old_spellings({"--out": "--output"}, {"--gnss-sigma": 3}))
+@click.command("adjust-uav", cls=with_old_spellings({"--out": "--output", "--gcp": "--control",
+                                                    "--gcp-sigma": "--control-sigma"}, {"--gnss-sigma": 3}))
 @click.argument("project", type=click.Path(exists=True, file_okay=False))
 @click.option("--images", "image_dir", type=click.Path(exists=True, file_okay=False),
               help="Image folder (default PROJECT/images or PROJECT).")
@@ -84,12 +84,13 @@ class _NotPublished(Exception):
               help="Write the outputs even when the adjustment failed (the exit status is still 1).")
 @click.option("--no-gps", is_flag=True,
               help="Orient without GNSS: two-view relative orientation, resection and bundle adjustment; datum from "
-                   "--gcp, --scale-bar, else a similarity onto the EXIF GPS (not observations), else a free network. "
-                   "Implied by --gcp, --scale-bar, --camera.")
-@click.option("--gcp", "gcp_path", type=click.Path(exists=True, dir_okay=False),
+                   "--control, --scale-bar, else a similarity onto the EXIF GPS (not observations), else a free network. "
+                   "Implied by --control, --scale-bar, --camera.")
+@click.option("--control", "gcp_path", type=click.Path(exists=True, dir_okay=False),
               help="Control points name,x,y,z with a '# crs:' header (their image measurements: tie points of the "
                    "same name, or --measurements).")
-@click.option("--gcp-sigma", default="0.01", show_default=True, help="Control point sigma X,Y,Z (m; one value for all).")
+@click.option("--control-sigma", "gcp_sigma", default="0.01", show_default=True,
+              help="Control point sigma X,Y,Z (m; one value for all).")
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False),
               help="Check points name,x,y,z (compared, not used).")
 @click.option("--scale-bar", "scale_bar_path", type=click.Path(exists=True, dir_okay=False),
@@ -109,7 +110,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
             scale_bar_path: str | None = None, meas_paths: tuple[str, ...] = (), camera_path: str | None = None,
             datum: str = "auto") -> None:
     """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`); with --no-gps
-    (or --gcp / --scale-bar / --camera) the orientation of an image set without GNSS."""
+    (or --control / --scale-bar / --camera) the orientation of an image set without GNSS."""
     from skyrig.pipeline.uav import UavConfig, adjust_uav
 
     proj = Path(project)
@@ -222,7 +223,7 @@ def _without_gnss(proj: Path, images: Path, match: Path, outdir: Path, out_optio
     check = read_points_csv(o["check"], default_frame=control.frame if control else None) if o["check"] else None
     bars = read_scale_bars(o["scale_bar"]) if o["scale_bar"] else None
     extra = [read_measurements_csv(p) for p in o["measurements"]]
-    gcp_sigma = parse_sigmas(o["gcp_sigma"], 3, "--gcp-sigma", "x,y,z")
+    gcp_sigma = parse_sigmas(o["gcp_sigma"], 3, "--control-sigma", "x,y,z")
     have_images = bool(list_images(images)) if images.is_dir() else False
     _staging_dir(outdir, out_option, probe=True)
     inputs = [match / "tie_points.csv", *(list_images(images) if have_images else [])] + [

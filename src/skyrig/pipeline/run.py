@@ -603,7 +603,7 @@ def _block(ctx: StageContext) -> dict[str, Any]:
         args += ["--control", p.control]
     if p.check is not None:
         args += ["--check", p.check]
-    args += ["--sigma-px", o["sigma_px"], "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
+    args += ["--image-sigma-px", o["sigma_px"], "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
              "--imu-sigma-deg", ",".join(map(str, o["imu_sigma_deg"])),
              "--control-sigma", ",".join(map(str, o["control_sigma"])), "--crs", p.crs]
     if p.geoid:
