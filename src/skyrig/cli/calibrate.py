@@ -308,8 +308,10 @@ def _trajectory_file_frame(path: str):  # type: ignore[no-untyped-def]
 @click.option("--image-sigma-um", type=float, default=5.0, show_default=True,
               help="Sigma of an image coordinate (micrometres).")
 @click.option("--gnss-sigma", default="0.3", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
-@click.option("--imu-sigma-gon", default="0.0089,0.0089,0.0167", show_default=True,
-              help="IMU sigma roll,pitch,yaw (grads; one or three values).")
+@click.option("--imu-sigma-deg", default="0.00801,0.00801,0.01503", show_default=True,
+              help="IMU sigma roll,pitch,yaw (degrees; one or three values; paper 003: 0.0089 / 0.0167 gon).")
+@click.option("--imu-sigma-gon", default=None, hidden=True,
+              help="Deprecated: the IMU sigma in grads (use --imu-sigma-deg).")
 @click.option("--control-sigma", default="0.6", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--flight", default="", help="Provenance: flight / data set.")
 @click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
@@ -324,7 +326,7 @@ def _trajectory_file_frame(path: str):  # type: ignore[no-untyped-def]
               help="Corrected EO CSV of every image (direct georeferencing with the calibrated rig and the "
                    "corrected trajectory; default OUTPUT_eo.csv).")
 def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path,
-                                  reference_strips, head, image_sigma_um, gnss_sigma, imu_sigma_gon, control_sigma,
+                                  reference_strips, head, image_sigma_um, gnss_sigma, imu_sigma_deg, imu_sigma_gon, control_sigma,
                                   flight, date, out_crs, output, report_path, traj_out, eo_out) -> None:
     """GNSS/IMU system calibration of a flight delivered uncalibrated (paper 003): antenna offset from per-strip
     shifts, two-step reference orientation, boresight misalignment and datum shift, corrected GNSS/IMU and EO,
@@ -350,6 +352,12 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
         v = parse_sigmas(text, 3, option, "x,y,z", positive=True)
         return (float(v[0]), float(v[1]), float(v[2]))
 
+    if imu_sigma_gon is not None:  # the old spelling (the paper's unit): still read, with a warning
+        click.echo("warning: --imu-sigma-gon is deprecated; use --imu-sigma-deg (1 gon = 0.9 deg)", err=True)
+        imu_gon = triple(imu_sigma_gon, "--imu-sigma-gon")
+    else:
+        deg = triple(imu_sigma_deg, "--imu-sigma-deg")
+        imu_gon = (deg[0] / 0.9, deg[1] / 0.9, deg[2] / 0.9)
     rig, rig_cal = read_calibrated_rig(rig_path)
     traj = read_trajectory_csv(trajectory_path)
     events = read_events_csv(events_path)
@@ -378,7 +386,7 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
     try:
         cal = calibrate_uncalibrated_gnss_imu(
             data, reference_strips=ref, head=head, image_sigma_um=image_sigma_um,
-            gnss_sigma_m=triple(gnss_sigma, "--gnss-sigma"), imu_sigma_gon=triple(imu_sigma_gon, "--imu-sigma-gon"),
+            gnss_sigma_m=triple(gnss_sigma, "--gnss-sigma"), imu_sigma_gon=imu_gon,
             control_sigma_m=triple(control_sigma, "--control-sigma"))
     except CalibrationFailed as exc:
         raise click.ClickException(f"calibration failed: {exc}") from None
