@@ -275,7 +275,7 @@ CASES = [
     ("match-duplicate-image-names", ["match", "{t}", "--images", "{t}/a", "--images", "{t}/b"],
      {"a/im0.png": _PNG, "b/im0.png": _PNG}, 2, ["duplicate image name 'im0.png'", "unique across folders"]),
     ("match-eo-without-camera", ["match", "{t}", "--eo", "{p}/eo.csv"], {"images/im0.png": _PNG}, 2,
-     ["no camera given (--camera)"]),
+     ["--camera: no camera given"]),
     ("match-png-that-is-text", ["match", "{t}"], {"images/im0.png": "not an image\n"}, 2, ["no readable images"]),
     ("dsm-images-not-found", ["dsm", "--eo", "{p}/eo.csv", "--camera", "{p}/rig.yaml", "--images", "{t}/imgs",
                               "--height-range", "200", "400", "-o", "{t}/dsm"], {"imgs/other.tif": _PNG}, 2,

@@ -95,24 +95,10 @@ def load_eo(path: str, fmt: str | None, crs: str | None, geoid: str | None, z_gr
 
 
 def load_cameras(paths: Sequence[str]) -> dict[str, FrameCamera]:
-    """Cameras from IGN camera .txt files and/or skyrig rig files (YAML)."""
-    out: dict[str, FrameCamera] = {}
-    for p in paths:
-        if p.lower().endswith((".yaml", ".yml")):
-            from skyrig.io.rig_file import read_rig
+    """Cameras from IGN camera .txt files and/or skyrig rig files (YAML): :func:`skyrig.pipeline.inputs.load_cameras`."""
+    from skyrig.pipeline.inputs import load_cameras as _load
 
-            rig = read_rig(p)
-            for name, head in rig.heads.items():
-                out[name] = head.camera
-                out[head.camera.name] = head.camera
-        else:
-            from skyrig.io.ign import read_ign_camera
-
-            cam = read_ign_camera(p)
-            out[cam.name] = cam
-    if not out:
-        raise click.UsageError("no camera given (--camera)")
-    return out
+    return _load(paths, "--camera")
 
 
 def load_points(path: str, crs: str | None, heights: str, geoid: str | None, default_crs: str | None = None,
@@ -201,23 +187,18 @@ def check_cameras(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], 
 
 
 def head_rows(eo: ExteriorOrientations, spec: str) -> tuple[list[str], list[np.ndarray]]:
-    """For a comma list of rig heads / image-name parts: the names and, per name, the rows of ``eo`` that match
-    (the image's head is the name, or its file name contains it)."""
-    want = [h.strip() for h in spec.split(",") if h.strip()]
-    return want, [np.flatnonzero([(eo.head is not None and str(eo.head[i]) == w) or w in str(n)
-                                  for i, n in enumerate(eo.image)]) for w in want]
+    """The rows of ``eo`` per rig head / image-name part of a comma list: :func:`skyrig.pipeline.inputs.head_rows`."""
+    from skyrig.pipeline.inputs import head_rows as _rows
+
+    return _rows(eo, spec)
 
 
 def select_heads(eo: ExteriorOrientations, spec: str | None, option: str = "--heads") -> ExteriorOrientations:
-    """The orientations of the images of some rig heads (``spec``: comma list, see :func:`head_rows`); all when
-    ``spec`` is empty.  A spec that matches no image is a usage error naming ``option``."""
-    if not spec:
-        return eo
-    _, rows = head_rows(eo, spec)
-    sel = np.unique(np.concatenate(rows)) if rows else np.zeros(0, int)
-    if len(sel) == 0:
-        raise click.UsageError(f"{option} {spec}: no image of the EO file matches")
-    return eo.subset(sel)
+    """The orientations of some rig heads (all when ``spec`` is empty); no match is an error naming ``option``:
+    :func:`skyrig.pipeline.inputs.select_heads`."""
+    from skyrig.pipeline.inputs import select_heads as _select
+
+    return _select(eo, spec, option)
 
 
 def eo_options(f: Callable) -> Callable:
