@@ -65,6 +65,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig._plain import plain
 from skyrig.adjust.adjust import AdjustmentResult, DatumDefectError, adjust
 from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.presets import PRESETS, apply_preset
@@ -622,17 +623,7 @@ class CalqcCalibration:
 
 
 def _plain(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _plain(v.tolist())
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    return v
+    return plain(v, nan_as_none=True)
 
 
 # ------------------------------------------------------------------------------------------------ the recipe

@@ -60,6 +60,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig._plain import plain
 from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.frames import eo_from_block
@@ -422,17 +423,7 @@ class GnssImuCalibration:
         })
 
 
-def _plain(v: Any) -> Any:
-    """Numpy scalars and arrays (nested in dicts / lists) as plain Python numbers and lists (for JSON)."""
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _plain(v.tolist())
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
+_plain = plain
 
 
 # ------------------------------------------------------------------------------------------------ the recipe

@@ -12,8 +12,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-import numpy as np
-
+from skyrig._plain import plain
 from skyrig.errors import InputFormatError
 from skyrig.io._text import PathLike, atomic_write, read_text
 
@@ -21,16 +20,7 @@ MAGIC = "skyrig-sim-truth"
 VERSION = 1
 
 
-def _plain(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _plain(v.tolist())
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return v.item()
-    return v
+_plain = plain
 
 
 def write_truth(path: PathLike, truth: dict[str, Any]) -> None:
