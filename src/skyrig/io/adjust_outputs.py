@@ -46,6 +46,31 @@ def sigmas_to(cov: NDArray[np.float64] | None, xyz: NDArray[np.float64], frame: 
     return np.sqrt(np.clip(np.diagonal(c, axis1=1, axis2=2), 0, None))
 
 
+def _determined_points(result: Any, role: np.ndarray) -> np.ndarray:
+    """Mask of the points the adjustment determined: control / check points, and tie points with at least two image
+    observations that data snooping did not reject.  A tie point left with fewer (its rays rejected as blunders)
+    keeps stale coordinates the adjustment never checked: it is left out of points.csv and adjusted.gpkg (kept, with
+    its observations, in the full solver tables), with a warning naming how many and the first."""
+    b = result.block
+    n = b.n_points
+    active = np.ones(len(b.obs_point), bool)
+    rej = [int(r.index) for r in getattr(result, "rejected", []) if r.group == "image"]
+    if rej:
+        active[np.asarray(rej, dtype=np.int64)] = False
+    rays = np.bincount(np.asarray(b.obs_point, dtype=np.int64)[active], minlength=n)[:n]
+    keep = (rays >= 2) | (role != "tie")
+    if not keep.all():
+        import warnings
+
+        from skyrig.errors import PlausibilityWarning
+
+        first = str(b.point_name[np.flatnonzero(~keep)[0]])
+        warnings.warn(f"{int((~keep).sum())} tie point(s) kept fewer than two image observations after data "
+                      f"snooping (first: {first}); left out of points.csv and adjusted.gpkg", PlausibilityWarning,
+                      stacklevel=3)
+    return keep
+
+
 def write_adjusted_tables(outdir: PathLike, result: Any, frame: WorldFrame, project: WorldFrame,
                           eo_local: Any | None = None, gpkg: bool = True) -> dict[str, Path]:
     """Write the tables of the module docstring for an :class:`~skyrig.adjust.AdjustmentResult` whose block is in
@@ -71,8 +96,9 @@ def write_adjusted_tables(outdir: PathLike, result: Any, frame: WorldFrame, proj
     role[cp[~chk]] = "control"
     role[cp[chk]] = "check"
     role = role.astype(str)
-    write_points_csv(d / "points.csv", GroundPoints(b.point_name, xyz, project),
-                     {"sx": sig[:, 0], "sy": sig[:, 1], "sz": sig[:, 2], "role": role})
+    keep = _determined_points(result, role)
+    write_points_csv(d / "points.csv", GroundPoints(b.point_name[keep], xyz[keep], project),
+                     {"sx": sig[keep, 0], "sy": sig[keep, 1], "sz": sig[keep, 2], "role": role[keep]})
     out["points"] = d / "points.csv"
     given = frame.points_to(b0.control_xyz, project) if len(cp) else np.zeros((0, 3))
     v = xyz[cp] - given
@@ -90,8 +116,8 @@ def write_adjusted_tables(outdir: PathLike, result: Any, frame: WorldFrame, proj
 
         o, p, k = opk_from_matrix(eo.rotation, unit="deg")
         layers: dict[str, Any] = {
-            "points": (shapely.points(xyz), {"name": b.point_name.astype(str), "role": role, "sx_m": sig[:, 0],
-                                             "sy_m": sig[:, 1], "sz_m": sig[:, 2]}),
+            "points": (shapely.points(xyz[keep]), {"name": b.point_name[keep].astype(str), "role": role[keep],
+                                                   "sx_m": sig[keep, 0], "sy_m": sig[keep, 1], "sz_m": sig[keep, 2]}),
             "projection_centres": (shapely.points(eo.centre), {"image": eo.image, "camera": eo.camera,
                                                                "omega_deg": o, "phi_deg": p, "kappa_deg": k}),
         }
