@@ -25,6 +25,7 @@ def _subset(src, dst, names):
     return dst
 
 
+@pytest.mark.slow  # 60 s: make test stays within its budget; make test-all runs it
 def test_brighton_strip_oriented_by_skyrig_matches(tmp_path):
     from skyrig.cli.match import match_images
     from skyrig.match.colmap_check import compare_centres, reconstruct_from_matches, reconstruct_with_pycolmap

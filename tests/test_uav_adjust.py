@@ -178,6 +178,7 @@ def brighton(tmp_path_factory):
     return res, rep, size, tmp
 
 
+@pytest.mark.slow  # the brighton fixture takes 80 s: make test-all runs it
 def test_brighton_every_image_oriented_with_ties(brighton):
     res, rep, size, _ = brighton
     s = rep["uav"]
@@ -188,6 +189,7 @@ def test_brighton_every_image_oriented_with_ties(brighton):
     assert rejected == [f"DJI_00{k}.JPG" for k in range(24, 30)], rejected
 
 
+@pytest.mark.slow  # the brighton fixture takes 80 s: make test-all runs it
 def test_brighton_reprojection_and_gnss_fit(brighton):
     res, rep, size, _ = brighton
     s = rep["uav"]
@@ -198,6 +200,7 @@ def test_brighton_reprojection_and_gnss_fit(brighton):
     assert np.all(np.array(s["gnss_fit_rms_enu_m"]) < np.array([2.0, 2.0, 4.0])), s["gnss_fit_rms_enu_m"]
 
 
+@pytest.mark.slow  # the brighton fixture takes 80 s: make test-all runs it
 def test_brighton_centres_agree_with_pycolmap(brighton):
     res, rep, size, _ = brighton
     pc = rep["pycolmap"]
