@@ -341,9 +341,9 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
     return block, tracks, np.flatnonzero(obs_sel)
 
 
-def _usable_obs(inp: UavBlockInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
+def _usable_obs(inp: Any, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
                 camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float,
-                max_px: float = np.inf) -> NDArray[np.bool_]:
+                max_px: float = np.inf, front_tol: float = 1e-3) -> NDArray[np.bool_]:
     """Observations that can enter an adjustment: oriented image, active, point finite and in front of the
     camera, reprojecting within ``max_px``, and every point left with >= 2 such rays spanning at least
     ``min_angle_deg``."""
@@ -354,7 +354,7 @@ def _usable_obs(inp: UavBlockInput, oriented: NDArray[np.bool_], X: NDArray, act
     ti, ii = inp.obs_track[rows], inp.obs_image[rows]
     v = X[ti] - C[ii]
     pc = np.einsum("nji,nj->ni", R[ii], v)
-    front = pc[:, 2] < -1e-3 * np.linalg.norm(v, axis=1)
+    front = pc[:, 2] < -front_tol * np.linalg.norm(v, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
     front &= np.nan_to_num(err, nan=np.inf) < max_px

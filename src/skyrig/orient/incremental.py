@@ -52,10 +52,10 @@ from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import SkyrigError
-from skyrig.orient.gnss_block import UavAdjustError, UavResult
+from skyrig.orient.gnss_block import UavAdjustError, UavResult, _usable_obs
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
-    _SKYRIG_FROM_CV, _k_matrix, _reproject, _spread_ok, _track_pairs, resect, triangulate_tracks,
+    _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,
 )
 
 logger = logging.getLogger(__name__)
@@ -244,23 +244,9 @@ def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera,
 # ---------------------------------------------------------------------------------------------- blocks
 def _usable(inp: OrientInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
             camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float, max_px: float) -> NDArray[np.bool_]:
-    """Observations that can enter an adjustment (oriented image, active, point in front and reprojecting within
-    ``max_px``, >= 2 such rays spanning ``min_angle_deg``)."""
-    T = len(inp.track_name)
-    sel = oriented[inp.obs_image] & np.isfinite(X).all(axis=1)[inp.obs_track] & active
-    rows = np.flatnonzero(sel)
-    ti, ii = inp.obs_track[rows], inp.obs_image[rows]
-    v = X[ti] - C[ii]
-    pc = np.einsum("nji,nj->ni", R[ii], v)
-    front = pc[:, 2] < -1e-6 * np.linalg.norm(v, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
-    front &= np.nan_to_num(err, nan=np.inf) < max_px
-    rows, ti, v = rows[front], ti[front], v[front]
-    good = _spread_ok(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), ti, T, min_angle_deg)
-    out = np.zeros(len(inp.obs_track), bool)
-    out[rows[good[ti]]] = True
-    return out
+    """Observations that can enter an adjustment (:func:`skyrig.orient.gnss_block._usable_obs`; a point counts as
+    in front of a camera from 1e-6 of its distance on: close-range rays may graze the image plane)."""
+    return _usable_obs(inp, oriented, X, active, camera, R, C, min_angle_deg, max_px, front_tol=1e-6)
 
 
 def _block(inp: OrientInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDArray, img_sel: NDArray[np.int64],
