@@ -119,14 +119,7 @@ class CalqcData:
 
 def calqc_data_from_survey(survey: Any) -> CalqcData:
     """A simulated survey (:func:`skyrig.simulate.scenarios.build_survey`) as the recipe's input (in memory)."""
-    m = survey.measurements
-    pts, imgs, pix = [m["point"]], [m["image"]], [m["pixel"]]
-    if survey.tie_points is not None:
-        t = survey.tie_points
-        pts.append(t["point"])
-        imgs.append(t["image"])
-        pix.append(t["pixel"])
-    meas = ImageMeasurements(np.concatenate(pts), np.concatenate(imgs), np.concatenate(pix))
+    meas = survey.image_measurements()
     ground = GroundPoints(survey.gcp_names, survey.gcp_surveyed, survey.frame)
     return CalqcData(survey.trajectory_recorded, survey.events_recorded, survey.rig_recorded, meas, ground,
                      tuple(str(n) for n in survey.gcp_names[survey.gcp_is_check]))

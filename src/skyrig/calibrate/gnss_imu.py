@@ -137,14 +137,7 @@ def flight_data_from_survey(survey: Any) -> FlightData:
     geoid = find_geoid() if spec.gcp_geoid == "auto" else spec.gcp_geoid
     gframe = WorldFrame.map(spec.gcp_crs or spec.crs, geoid)
     xyz = gframe.from_ecef(survey.frame.to_ecef(survey.gcp_surveyed))
-    m = survey.measurements
-    pts, imgs, pix = [m["point"]], [m["image"]], [m["pixel"]]
-    if survey.tie_points is not None:
-        t = survey.tie_points
-        pts.append(t["point"])
-        imgs.append(t["image"])
-        pix.append(t["pixel"])
-    meas = ImageMeasurements(np.concatenate(pts), np.concatenate(imgs), np.concatenate(pix))
+    meas = survey.image_measurements()
     return FlightData(survey.trajectory_recorded, survey.events_recorded, survey.rig_recorded, meas,
                       GroundPoints(survey.gcp_names, xyz, gframe),
                       tuple(str(n) for n in survey.gcp_names[~survey.gcp_is_check]), gframe, WorldFrame.map(spec.crs))

@@ -277,6 +277,16 @@ class Survey:
     tumble_curve: BoresightCurve | None = None
     tie_points: dict[str, Any] | None = None
 
+    def image_measurements(self) -> Any:
+        """The control-point measurements and (when simulated) the tie points as one
+        :class:`~skyrig.georef.observations.ImageMeasurements`."""
+        from skyrig.georef.observations import ImageMeasurements
+
+        parts = [self.measurements] + ([self.tie_points] if self.tie_points is not None else [])
+        return ImageMeasurements(np.concatenate([p["point"] for p in parts]),
+                                 np.concatenate([p["image"] for p in parts]),
+                                 np.concatenate([p["pixel"] for p in parts]))
+
 
 def _true_rig(spec: ScenarioSpec, rng: np.random.Generator) -> tuple[Rig, BoresightCurve | None]:
     err = spec.errors
