@@ -411,17 +411,18 @@ def test_cli_plane_mosaic(survey, bench, tmp_path):
     assert s["seams_measured"] >= 12 and s["covered"] > 0.5
     ref = bench.fig9(circ, rig, None, window_px=48)  # the library on the same orientations, with predictions
     pred = {(r_["a"], r_["b"]): r_["predicted_offset_px"] * ref["cell_m"] for r_ in ref["seams"]}
-    rows = (tmp_path / "pm" / "seams.csv").read_text().splitlines()
-    head = rows[0].split(",")
+    import csv
+
+    with open(tmp_path / "pm" / "seams.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
     checked = 0
-    for line in rows[1:]:
-        row = dict(zip(head, line.split(",")))
+    for row in rows:
         key = (row["a"], row["b"])
         if key in pred:
             checked += 1
             assert abs(float(row["offset_m"]) - pred[key]) < 0.45 * ref["cell_m"], (row, pred[key])
     assert checked >= 10
-    worst = max(float(dict(zip(head, line.split(",")))["offset_px"]) for line in rows[1:])
+    worst = max(float(row["offset_px"]) for row in rows)
     assert worst > 1.0  # without the curve the seams jump (2-3 px at 30 deg steps)
     r = CliRunner().invoke(main, [*args[:-1], str(tmp_path / "pm2"), "--max-offset", "1.0"])
     assert r.exit_code == 1 and "exceeds --max-offset" in r.output

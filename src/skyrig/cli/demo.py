@@ -282,6 +282,7 @@ def _tumble_circle_step(folder: Path) -> None:
     """Paper 000 Fig. 9: a TumbleCam circle projected onto one plane by ``skyrig plane-mosaic`` from orientations
     transferred with and without the lab-calibrated boresight curve; each seam's offset against the offset the
     orientation errors predict (geometry alone), the curve's seams within 1 px and the others measurably larger."""
+    import csv
     import json
 
     from skyrig.pipeline.demo import tumble_circle_demo
@@ -294,9 +295,8 @@ def _tumble_circle_step(folder: Path) -> None:
         _run(["plane-mosaic", "--eo", str(d["eo"][label]), "--camera", str(d["rig"]), "--images", str(d["images"]),
               "--height", str(d["plane_height_m"]), "--window", "48", "-o", str(folder / f"mosaic_{label}")])
         s = json.loads((folder / f"mosaic_{label}" / "plane_mosaic.json").read_text())
-        lines = (folder / f"mosaic_{label}" / "seams.csv").read_text().splitlines()
-        head = lines[0].split(",")
-        rows = [dict(zip(head, ln.split(","))) for ln in lines[1:]]
+        with open(folder / f"mosaic_{label}" / "seams.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
         cell = s["grid"]["cell_m"]
         dev = [abs(float(r["offset_m"]) - d["predicted"][label][(r["a"], r["b"])]) / cell for r in rows
                if (r["a"], r["b"]) in d["predicted"][label]]

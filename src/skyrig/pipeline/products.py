@@ -260,6 +260,7 @@ def make_plane_mosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamer
     relief off the plane for images from different centres): the check of a tumbling head's boresight curve.
     Returns the summary written to ``plane_mosaic.json``.
     """
+    import csv
     import json
 
     import cv2
@@ -319,10 +320,10 @@ def make_plane_mosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamer
         if not cv2.imwrite(str(tmp / "mosaic.png"), rgba):
             raise OSError(f"cannot write {tmp / 'mosaic.png'}")
         cols = ["a", "b", "windows", "seam_cells", "shift_col_px", "shift_row_px", "offset_px", "offset_m", "response"]
-        with open(tmp / "seams.csv", "w") as fh:
-            fh.write(",".join(cols) + "\n")
-            for r in rows:
-                fh.write(",".join(f"{r[c]:.4f}" if isinstance(r[c], float) else str(r[c]) for c in cols) + "\n")
+        with open(tmp / "seams.csv", "w", newline="") as fh:  # csv quotes image names holding commas
+            w = csv.writer(fh)
+            w.writerow(cols)
+            w.writerows([f"{r[c]:.4f}" if isinstance(r[c], float) else r[c] for c in cols] for r in rows)
         (tmp / "plane_mosaic.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
 
