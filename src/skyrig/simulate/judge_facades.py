@@ -308,7 +308,7 @@ def judge_facade(scene: Scene, texture: FacadeTexture, frame: WorldFrame, search
     H, W = texture.valid.shape
     ok = texture.valid & on
     cov = float(ok.sum() / max(on.sum(), 1))
-    if b < 0 or ok.sum() < 16:
+    if b < 0 or ok.sum() < 16 or min(H, W) < 8:  # a sliver (e.g. a clipped wall): no offset can be measured
         return FacadeJudgement(f.building, f.index, b, face, cov, (np.nan, np.nan), 0, 0, 0)
     grey_t = texture.rgb.astype(np.float64).mean(axis=2) / 255.0
     grey_r = truth.mean(axis=2)
