@@ -203,8 +203,7 @@ def _block_from_state(block: Block, model: Model, s: State) -> Block:
 
 
 def _weights(model: Model) -> dict[str, NDArray[np.float64]]:
-    return {"image": model.obs_weight, "control": model.control_weight, "gnss": model.gnss_weight,
-            "imu": model.imu_weight, "distance": model.distance_weight}
+    return model.weights
 
 
 def _label(block: Block, group: str, i: int) -> str:
@@ -617,8 +616,7 @@ def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[
 def _with_points(block: Block, model: Model, point_active: NDArray[np.bool_]) -> Model:
     """``model`` rebuilt for another set of active points, keeping its (snooping / Huber) weights."""
     new = Model(block, model.config, point_active)
-    new.obs_weight, new.control_weight, new.gnss_weight, new.imu_weight, new.distance_weight = (
-        model.obs_weight, model.control_weight, model.gnss_weight, model.imu_weight, model.distance_weight)
+    new.weights = model.weights
     return new
 
 

@@ -35,17 +35,14 @@ from typing import Literal, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig.adjust.factors import observation_type
+from skyrig.adjust.factors.base import BlockError
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import SkyrigError
 
 Mode = Literal["fixed", "free", "weighted"]
 MODES = ("fixed", "free", "weighted")
 
 __all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]
-
-
-class BlockError(SkyrigError, ValueError):
-    """A block is inconsistent (an observation naming an unknown image, a NaN, a point seen once...)."""
 
 
 @dataclass(frozen=True)
@@ -251,13 +248,7 @@ class Block:
         self.control_sigma = np.broadcast_to(np.asarray(self.control_sigma, dtype=np.float64), (k, 3)).copy()
         self.control_check = (np.zeros(k, bool) if self.control_check is None
                               else np.asarray(self.control_check, dtype=bool).reshape(k))
-        if self.gnss_station is None:
-            self.gnss_station = np.zeros(0, np.int64)
-            self.gnss_xyz = np.zeros((0, 3))
-        g = len(np.asarray(self.gnss_station).reshape(-1))
-        self.gnss_station = _arr(self.gnss_station, (), np.int64, g)
-        self.gnss_xyz = _arr(self.gnss_xyz, (3,), n=g)
-        self.gnss_sigma = np.broadcast_to(np.asarray(self.gnss_sigma, dtype=np.float64), (g, 3)).copy()
+        observation_type("gnss").normalise(self)  # type: ignore[union-attr]
         if self.imu_station is None:
             self.imu_station = np.zeros(0, np.int64)
             self.imu_rotation = np.zeros((0, 3, 3))
@@ -267,7 +258,6 @@ class Block:
         self.imu_sigma_rad = np.broadcast_to(np.asarray(self.imu_sigma_rad, dtype=np.float64), (m, 3)).copy()
         for cov_name, sig_name, count, d in (("obs_cov_px2", "obs_sigma_px", n, 2), ("control_cov_m2", "control_sigma",
                                                                                      k, 3),
-                                             ("gnss_cov_m2", "gnss_sigma", g, 3),
                                              ("imu_cov_rad2", "imu_sigma_rad", m, 3)):
             cv = getattr(self, cov_name)
             if cv is None:
@@ -356,15 +346,15 @@ class Block:
         rng("obs_image", self.obs_image, self.n_images, "image")
         rng("obs_point", self.obs_point, self.n_points, "point")
         rng("control_point", self.control_point, self.n_points, "point")  # type: ignore[arg-type]
-        rng("gnss_station", self.gnss_station, self.n_stations, "station")  # type: ignore[arg-type]
         rng("imu_station", self.imu_station, self.n_stations, "station")  # type: ignore[arg-type]
         for name in ("station_rotation", "station_centre", "point_xyz", "obs_pixel", "obs_sigma_px", "control_xyz",
-                     "control_sigma", "gnss_xyz", "gnss_sigma", "imu_rotation", "imu_sigma_rad", "image_rotation",
+                     "control_sigma", "imu_rotation", "imu_sigma_rad", "image_rotation",
                      "image_offset"):
             finite(name, getattr(self, name))
-        for name in ("obs_sigma_px", "control_sigma", "gnss_sigma", "imu_sigma_rad", "distance_sigma_m"):
+        for name in ("obs_sigma_px", "control_sigma", "imu_sigma_rad", "distance_sigma_m"):
             positive(name, getattr(self, name))
-        for name in ("obs_cov_px2", "control_cov_m2", "gnss_cov_m2", "imu_cov_rad2"):
+        observation_type("gnss").validate(self)  # type: ignore[union-attr]
+        for name in ("obs_cov_px2", "control_cov_m2", "imu_cov_rad2"):
             cv = getattr(self, name)
             if cv is None or not len(cv):
                 continue

@@ -34,25 +34,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, BalCamera, Block
+from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors.base import Factor, whitening_matrices
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.jacobians import project_camera_with_jacobians
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix, skew
 
-__all__ = ["Layout", "State", "Factor", "Model", "bal_project"]
-
-
-def whitening_matrices(cov: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(n, d, d)`` upper Cholesky factors ``U`` of the inverse covariances, ``Σ^-1 = U^T U``.
-
-    Parameters
-    ----------
-    cov
-        ``(n, d, d)`` symmetric positive definite covariances (observation units squared).
-    """
-    if len(cov) == 0:
-        return np.zeros(cov.shape)
-    L = np.linalg.cholesky(np.linalg.inv(cov))
-    return np.swapaxes(L, 1, 2).copy()
+__all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
 
 def _expmap(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -278,49 +266,6 @@ class Layout:
         return out
 
 
-@dataclass
-class Factor:
-    """Whitened residuals and Jacobians of one observation group (see module docstring).
-
-    Attributes
-    ----------
-    name
-        ``"image"``, ``"control"``, ``"gnss"``, ``"imu"`` or ``"prior:<group>"``.
-    r
-        ``(n, d)`` whitened residuals (computed minus observed, over sigma).
-    jc, cols
-        ``(n, d, k)`` Jacobian w.r.t. reduced columns ``cols (n, k)`` (-1 = none); None if k = 0.
-    point, jp
-        ``(n,)`` free-point index (-1 = none) and ``(n, d, 3)`` Jacobian; None if no point.
-    sigma
-        ``(n, d)`` a-priori sigma (for un-whitening).
-    weight
-        ``(n,)`` extra weight (robust reweighting; 0 = rejected).
-    whiten
-        ``(n, d, d)`` whitening matrices of rows with a full covariance (residual = ``whiten @ v``), or
-        None when the rows are whitened by ``sigma`` alone.
-    """
-
-    name: str
-    r: NDArray[np.float64]
-    sigma: NDArray[np.float64]
-    jc: NDArray[np.float64] | None = None
-    cols: NDArray[np.int64] | None = None
-    point: NDArray[np.int64] | None = None
-    jp: NDArray[np.float64] | None = None
-    weight: NDArray[np.float64] | None = None
-    whiten: NDArray[np.float64] | None = None
-
-    def unwhitened(self) -> NDArray[np.float64]:
-        """``(n, d)`` residuals in observation units (computed minus observed)."""
-        if self.whiten is not None:
-            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]
-        return self.r * self.sigma
-
-    def __len__(self) -> int:
-        return len(self.r)
-
-
 class Model:
     """Evaluates all factors of a block for a given :class:`State`.
 
@@ -337,17 +282,24 @@ class Model:
         self.point_active = np.ones(block.n_points, bool) if point_active is None else np.asarray(point_active, bool)
         self.layout = Layout.build(block, config, self.point_active)
         self.initial = State.from_block(block)
-        #: per image observation weight (robust reweighting, 0 = rejected by data snooping)
-        self.obs_weight = np.ones(block.n_observations)
-        self.control_weight = np.ones(len(block.control_point))  # type: ignore[arg-type]
-        self.control_weight[block.control_check] = 0.0
-        self.gnss_weight = np.ones(len(block.gnss_station))  # type: ignore[arg-type]
-        self.imu_weight = np.ones(len(block.imu_station))  # type: ignore[arg-type]
-        self.distance_weight = np.ones(block.n_distances)
+        #: the registered observation types (:mod:`skyrig.adjust.factors`), in evaluation order
+        self.types = observation_types()
+        #: per observation type the weight of each row (robust reweighting; 0 = rejected by data snooping
+        #: or not used, e.g. a check point), keyed by group name
+        self.weights: dict[str, NDArray[np.float64]] = {}
+        self.weights["image"] = np.ones(block.n_observations)
+        self.weights["control"] = np.ones(len(block.control_point))  # type: ignore[arg-type]
+        self.weights["control"][block.control_check] = 0.0
+        self.weights["imu"] = np.ones(len(block.imu_station))  # type: ignore[arg-type]
+        self.weights["distance"] = np.ones(block.n_distances)
+        for t in self.types:
+            if t.name not in self.weights:
+                w = t.initial_weight(block)
+                if w is not None:
+                    self.weights[t.name] = w
         b = block
         self._obs_W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         self._ctrl_W = None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
-        self._gnss_W = None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
         self._imu_W = None if b.imu_cov_rad2 is None else whitening_matrices(b.imu_cov_rad2)
         lay = self.layout
         self._red_cols = self._red_rows = self._red_idx = None
@@ -396,6 +348,19 @@ class Model:
             self._img2act = np.full(b.n_images, -1, np.int64)
             self._img2act[self._act_images] = np.arange(self._act_images.size)
 
+        #: per observation type its per-model constants (whitening matrices, index tables...)
+        self.cache: dict[str, object] = {t.name: t.prepare(self) for t in self.types if t.name == "gnss"}
+
+    # ------------------------------------------------------------------ weights (by group name)
+    obs_weight = property(lambda self: self.weights["image"], lambda self, v: self.weights.__setitem__("image", v),
+                          doc="``(N,)`` weight of each image observation")
+    control_weight = property(lambda self: self.weights["control"],
+                              lambda self, v: self.weights.__setitem__("control", v))
+    gnss_weight = property(lambda self: self.weights["gnss"], lambda self, v: self.weights.__setitem__("gnss", v))
+    imu_weight = property(lambda self: self.weights["imu"], lambda self, v: self.weights.__setitem__("imu", v))
+    distance_weight = property(lambda self: self.weights["distance"],
+                               lambda self, v: self.weights.__setitem__("distance", v))
+
     def varying_rows(self, f: "Factor") -> NDArray[np.bool_]:
         """``(n,)`` True for the rows of factor ``f`` (of this model) that depend on at least one unknown.
 
@@ -410,6 +375,9 @@ class Model:
             return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)
 
         name = f.name
+        t = observation_type(name)
+        if t is not None and name == "gnss":
+            return t.varying(self, f)
         rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
         pt = (lay.point >= 0) | (rp >= 0).any(axis=1)
         if name == "image":
@@ -509,8 +477,9 @@ class Model:
         b = self.block
         if len(b.control_point):  # type: ignore[arg-type]
             out.append(self._control(s, jacobians))
-        if len(b.gnss_station):  # type: ignore[arg-type]
-            out.append(self._gnss(s, jacobians))
+        t = observation_type("gnss")
+        if t.present(self):  # type: ignore[union-attr]
+            out.extend(t.evaluate(self, s, jacobians))  # type: ignore[union-attr]
         if len(b.imu_station):  # type: ignore[arg-type]
             out.append(self._imu(s, jacobians))
         if b.n_distances:
@@ -709,39 +678,6 @@ class Model:
         if jac and lay.has_rpoint:
             f.jc = J
             f.cols = lay.rpoint[p]  # type: ignore[index]
-        return f
-
-    def _gnss(self, s: State, jac: bool) -> Factor:
-        b, lay = self.block, self.layout
-        st = b.gnss_station
-        R = s.R[st]
-        strip = b.station_strip[st]
-        has = strip >= 0
-        sk = np.where(has, strip, 0)
-        dt = np.where(has, b.station_time[st] - (b.strip_t0[sk] if b.n_strips else 0.0), 0.0)  # type: ignore[index]
-        pred = s.C[st] + np.einsum("nij,j->ni", R, s.lever) + s.shift
-        if b.n_strips:
-            pred = pred + has[:, None] * (s.sshift[sk] + s.sdrift[sk] * dt[:, None])
-        sig = b.gnss_sigma
-        Wm = self._gnss_W
-        if Wm is None:
-            r = (pred - b.gnss_xyz) / sig  # type: ignore[operator]
-        else:
-            r = np.einsum("nij,nj->ni", Wm, pred - b.gnss_xyz)
-        f = Factor("gnss", r, sig, weight=self.gnss_weight, whiten=Wm)  # type: ignore[arg-type]
-        if not jac:
-            return f
-        n = len(st)  # type: ignore[arg-type]
-        isig = (1.0 / sig)[:, :, None]  # type: ignore[operator]
-        eye = np.broadcast_to(np.eye(3), (n, 3, 3))
-        blocks = [np.concatenate([eye, -(R @ skew(s.lever))], axis=2), R, eye]
-        cols = [lay.pose[st], np.broadcast_to(lay.lever, (n, 3)), np.broadcast_to(lay.shift, (n, 3))]
-        if b.n_strips:
-            neg = np.full(3, -1, np.int64)
-            blocks += [eye, eye * dt[:, None, None]]
-            cols += [np.where(has[:, None], lay.sshift[sk], neg), np.where(has[:, None], lay.sdrift[sk], neg)]
-        f.jc = np.concatenate(blocks, axis=2) * isig if Wm is None else Wm @ np.concatenate(blocks, axis=2)
-        f.cols = np.concatenate(cols, axis=1)
         return f
 
     def _distance(self, s: State, jac: bool) -> Factor:

@@ -1,0 +1,286 @@
+"""What every observation type of the adjustment provides (DESIGN.md convention 5).
+
+An observation type is one module of :mod:`skyrig.adjust.factors` holding one instance of a subclass of
+:class:`ObservationType`, registered with :func:`skyrig.adjust.factors.register`.  It owns
+
+* its **data**: where its rows live in a :class:`~skyrig.adjust.block.Block` (the block's own fields for
+  the built-in types, kept for the public API; ``block.observations[name]`` for any other type), how they
+  are normalised when the block is built (:meth:`normalise`) and checked (:meth:`validate`);
+* its **residual and Jacobian**: :meth:`evaluate` returns whitened :class:`Factor` rows (computed minus
+  observed, over sigma or whitened by a full covariance) with the Jacobian with respect to the reduced
+  columns of :class:`~skyrig.adjust.model.Layout` and, for rows that touch one eliminated object point,
+  with respect to that point;
+* its **group name** (:attr:`name`: the key of ``AdjustmentResult.residuals`` / ``groups`` and of
+  ``Rejection.group``), its **sigma / covariance** (:meth:`get_sigma`, :meth:`get_cov` and their setters,
+  used by variance component estimation, with :attr:`vce_split`),
+* its **report labels**: :attr:`words` (in sentences), :attr:`components` and :attr:`units` (columns of a
+  residual table), :meth:`label` (one row in words), :attr:`hints` (which parameter groups to free when
+  the group misfits).
+
+The adjustment (:class:`~skyrig.adjust.model.Model`, :func:`~skyrig.adjust.adjust`, the statistics, data
+snooping and variance components) only loops over the registered types: adding an observation type is
+adding a module that registers one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.model import Model, State
+
+from skyrig.errors import SkyrigError
+
+__all__ = ["ObservationType", "Factor", "BlockError", "any_on", "whitening_matrices", "check_index", "check_finite",
+           "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
+
+
+class BlockError(SkyrigError, ValueError):
+    """A block is inconsistent (an observation naming an unknown image, a NaN, a point seen once...)."""
+
+
+def rows_of(x: Any, shape_tail: tuple[int, ...], dtype: Any = np.float64, n: int | None = None) -> NDArray:
+    """``x`` as an array ``(n,) + shape_tail`` (n from ``x`` when not given)."""
+    a = np.asarray(x, dtype=dtype)
+    if n is None:
+        n = a.shape[0] if a.ndim else 0
+    return a.reshape((n,) + tuple(shape_tail))
+
+
+def sigma_rows(sigma: Any, n: int, d: int | None) -> NDArray[np.float64]:
+    """A scalar or per-row sigma broadcast to ``(n, d)`` (``(n,)`` when ``d`` is None), a copy."""
+    shape = (n,) if d is None else (n, d)
+    return np.broadcast_to(np.asarray(sigma, dtype=np.float64), shape).copy()
+
+
+def covariance_rows(block: Any, cov_field: str, sigma_field: str, n: int, d: int) -> None:
+    """Check the optional full covariance ``(n, d, d)`` of a block field; when given, the per-axis sigma
+    field becomes ``sqrt(diag)`` (for reports)."""
+    cv = getattr(block, cov_field)
+    if cv is None:
+        return
+    cv = np.asarray(cv, dtype=np.float64)
+    if cv.shape != (n, d, d):
+        raise BlockError(f"{cov_field} must have shape ({n}, {d}, {d}), got {cv.shape}")
+    setattr(block, cov_field, cv.copy())
+    with np.errstate(invalid="ignore"):
+        setattr(block, sigma_field, np.sqrt(np.diagonal(cv, axis1=1, axis2=2)).copy())
+
+
+def check_index(name: str, idx: NDArray, n: int, what: str) -> None:
+    """Every ``idx`` in ``[0, n)``, else :class:`BlockError` naming the first bad entry."""
+    bad = np.flatnonzero((idx < 0) | (idx >= n))
+    if bad.size:
+        raise BlockError(f"{name}[{bad[0]}] = {idx[bad[0]]} names an unknown {what} (have {n})")
+
+
+def check_finite(name: str, a: NDArray) -> None:
+    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []
+    if len(bad):
+        raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
+
+
+def check_positive(name: str, a: NDArray) -> None:
+    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []
+    if len(bad):
+        raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
+
+
+def check_covariance(name: str, cv: NDArray | None) -> None:
+    """A full covariance per row ``(n, d, d)`` must be finite, symmetric and positive definite."""
+    if cv is None or not len(cv):
+        return
+    check_finite(name, cv)
+    asym = np.abs(cv - np.swapaxes(cv, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cv).max(axis=(1, 2))
+    bad = np.flatnonzero(asym | ~(np.linalg.eigvalsh(0.5 * (cv + np.swapaxes(cv, 1, 2)))[:, 0] > 0))
+    if bad.size:
+        raise BlockError(f"{name}[{bad[0]}] is not a symmetric positive definite covariance: {cv[bad[0]].tolist()}")
+
+
+def whitening_matrices(cov: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, d, d)`` upper Cholesky factors ``U`` of the inverse covariances, ``Σ^-1 = U^T U``.
+
+    Parameters
+    ----------
+    cov
+        ``(n, d, d)`` symmetric positive definite covariances (observation units squared).
+    """
+    if len(cov) == 0:
+        return np.zeros(cov.shape)
+    L = np.linalg.cholesky(np.linalg.inv(cov))
+    return np.swapaxes(L, 1, 2).copy()
+
+
+@dataclass
+class Factor:
+    """Whitened residuals and Jacobians of one observation group (see :mod:`skyrig.adjust.model`).
+
+    Attributes
+    ----------
+    name
+        The group name of the observation type (``"image"``, ``"control"``, ``"gnss"``, ``"imu"``,
+        ``"distance"``, ``"prior:<group>"``...).
+    r
+        ``(n, d)`` whitened residuals (computed minus observed, over sigma).
+    jc, cols
+        ``(n, d, k)`` Jacobian w.r.t. reduced columns ``cols (n, k)`` (-1 = none); None if k = 0.
+    point, jp
+        ``(n,)`` free-point index (-1 = none) and ``(n, d, 3)`` Jacobian; None if no point.
+    sigma
+        ``(n, d)`` a-priori sigma (for un-whitening).
+    weight
+        ``(n,)`` extra weight (robust reweighting; 0 = rejected).
+    whiten
+        ``(n, d, d)`` whitening matrices of rows with a full covariance (residual = ``whiten @ v``), or
+        None when the rows are whitened by ``sigma`` alone.
+    """
+
+    name: str
+    r: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    jc: NDArray[np.float64] | None = None
+    cols: NDArray[np.int64] | None = None
+    point: NDArray[np.int64] | None = None
+    jp: NDArray[np.float64] | None = None
+    weight: NDArray[np.float64] | None = None
+    whiten: NDArray[np.float64] | None = None
+
+    def unwhitened(self) -> NDArray[np.float64]:
+        """``(n, d)`` residuals in observation units (computed minus observed)."""
+        if self.whiten is not None:
+            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]
+        return self.r * self.sigma
+
+    def __len__(self) -> int:
+        return len(self.r)
+
+
+def any_on(cols: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """``(n,)`` True for the rows of a column table ``(n, ...)`` with at least one estimated column (>= 0)."""
+    c = np.asarray(cols)
+    return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)
+
+
+class ObservationType:
+    """One observation type (see the module docstring); subclasses set the class attributes and override
+    :meth:`count`, :meth:`evaluate`, :meth:`varying` and :meth:`label` at least."""
+
+    #: group name: ``Factor.name`` of its rows (a type emitting several factors names them ``name:<part>``)
+    name: ClassVar[str] = ""
+    #: the group in words, in sentences ("GNSS observations ...")
+    words: ClassVar[str] = ""
+    #: report labels of the components of one row and their unit
+    components: ClassVar[tuple[str, ...]] = ()
+    units: ClassVar[str] = ""
+    #: evaluation order (the order of the factors; the image factor comes first)
+    order: ClassVar[float] = 50.0
+    #: the group's residuals are tested by data snooping and rejected rows get weight 0
+    snooped: ClassVar[bool] = True
+    #: data snooping may reject at most ``snooping_max_group_share`` of this group (an implausible share
+    #: means a model error, see :func:`skyrig.adjust.adjust`)
+    share_checked: ClassVar[bool] = True
+    #: ``(config parameter group, what it models in words)``: what to free when this group misfits
+    hints: ClassVar[tuple[tuple[str, str], ...]] = ()
+    #: words for the datum this group fixes (a free network with such rows is an error); "" = none
+    datum_words: ClassVar[str] = ""
+    #: default axis sets of variance component estimation, None = not estimated for this group
+    vce_split: ClassVar[tuple[tuple[int, ...], ...] | None] = None
+    #: names of the block fields holding the group's sigma ``(n, d)`` and optional covariance ``(n, d, d)``
+    #: (built-in types); other types keep them in their data object (attributes ``sigma`` / ``cov``)
+    sigma_field: ClassVar[str | None] = None
+    cov_field: ClassVar[str | None] = None
+
+    # ------------------------------------------------------------------ data
+    def data(self, block: "Block") -> Any:
+        """The type's data object in ``block.observations`` (None when absent)."""
+        return block.observations.get(self.name)
+
+    def count(self, block: "Block") -> int:
+        """Number of rows of this type in ``block``."""
+        d = self.data(block)
+        return 0 if d is None else len(d)
+
+    def tested_count(self, block: "Block") -> int:
+        """Rows that take part in the adjustment (for the share of rejections)."""
+        return self.count(block)
+
+    def normalise(self, block: "Block") -> None:
+        """Bring the type's data in ``block`` to canonical arrays (called by ``Block.__post_init__``)."""
+        d = self.data(block)
+        if d is not None and hasattr(d, "normalise"):
+            d.normalise(block)
+
+    def validate(self, block: "Block") -> None:
+        """Raise :class:`~skyrig.adjust.block.BlockError` naming the first inconsistency of this type's data."""
+        d = self.data(block)
+        if d is not None and hasattr(d, "validate"):
+            d.validate(block)
+
+    def copy_data(self, data: Any) -> Any:
+        """A deep copy of a data object (``Block.copy``)."""
+        import copy
+
+        return copy.deepcopy(data)
+
+    def controlled_points(self, block: "Block") -> NDArray[np.bool_] | None:
+        """``(P,)`` points this type determines without rays (control), None = none."""
+        return None
+
+    # ------------------------------------------------------------------ sigma / covariance
+    def get_sigma(self, block: "Block") -> NDArray[np.float64]:
+        if self.sigma_field is not None:
+            return getattr(block, self.sigma_field)
+        return self.data(block).sigma
+
+    def set_sigma(self, block: "Block", value: NDArray[np.float64]) -> None:
+        if self.sigma_field is not None:
+            setattr(block, self.sigma_field, value)
+        else:
+            self.data(block).sigma = value
+
+    def get_cov(self, block: "Block") -> NDArray[np.float64] | None:
+        if self.cov_field is not None:
+            return getattr(block, self.cov_field)
+        return getattr(self.data(block), "cov", None)
+
+    def set_cov(self, block: "Block", value: NDArray[np.float64] | None) -> None:
+        if self.cov_field is not None:
+            setattr(block, self.cov_field, value)
+        else:
+            self.data(block).cov = value
+
+    # ------------------------------------------------------------------ model
+    def initial_weight(self, block: "Block") -> NDArray[np.float64] | None:
+        """``(n,)`` starting weights (1; 0 for rows not used, e.g. check points); None: no weights."""
+        return np.ones(self.count(block))
+
+    def prepare(self, model: "Model") -> Any:
+        """Per-model constants (whitening matrices, index tables), kept in ``model.cache[name]``."""
+        return None
+
+    def present(self, model: "Model") -> bool:
+        """True when :meth:`evaluate` gives rows for ``model``."""
+        return self.count(model.block) > 0
+
+    def evaluate(self, model: "Model", state: "State", jac: bool) -> list["Factor"]:
+        """Whitened residuals (and Jacobians when ``jac``) of the type's rows at ``state``."""
+        raise NotImplementedError
+
+    def varying(self, model: "Model", factor: "Factor") -> NDArray[np.bool_]:
+        """``(n,)`` rows of ``factor`` that depend on at least one unknown (the others are constants of
+        the adjustment, not observations)."""
+        return np.ones(len(factor), bool)
+
+    def fixes_datum(self, model: "Model") -> bool:
+        """True when the group's rows fix (part of) the datum (see :attr:`datum_words`)."""
+        return bool(self.datum_words) and self.count(model.block) > 0
+
+    # ------------------------------------------------------------------ reports
+    def label(self, block: "Block", i: int) -> str:
+        """Row ``i`` in words."""
+        return f"{self.name}[{i}]"

@@ -1,0 +1,123 @@
+"""GNSS antenna positions of the stations (papers 003 and 004).
+
+Data (``Block`` fields): ``gnss_station (G,)``, ``gnss_xyz (G, 3)`` m, ``gnss_sigma (G, 3)`` m per axis and
+optional ``gnss_cov_m2 (G, 3, 3)`` m².  Residual (computed minus observed)::
+
+    C_station + R_station @ lever_arm + datum_shift + strip_shift[s] + strip_drift[s] * (t - t0[s]) - xyz
+
+with the Jacobian with respect to the station pose (centre, rotation on the right), the lever arm, the
+datum shift and the strip's shift and drift (each estimated or fixed by the configuration).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.factors import register
+from skyrig.adjust.factors.base import (
+    Factor,
+    ObservationType,
+    any_on,
+    check_covariance,
+    check_finite,
+    check_index,
+    check_positive,
+    covariance_rows,
+    rows_of,
+    sigma_rows,
+    whitening_matrices,
+)
+from skyrig.geometry.rotations import skew
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.model import Model, State
+
+
+class Gnss(ObservationType):
+    name = "gnss"
+    words = "GNSS"
+    components = ("X", "Y", "Z")
+    units = "m"
+    order = 20.0
+    hints = (("lever_arm", "a wrong GNSS lever arm"), ("datum_shift", "a GNSS datum shift"),
+             ("strip_shift", "per-strip GNSS shifts"))
+    datum_words = "GNSS positions"
+    vce_split = ((0, 1), (2,))
+    sigma_field = "gnss_sigma"
+    cov_field = "gnss_cov_m2"
+
+    def count(self, block: "Block") -> int:
+        return len(block.gnss_station)  # type: ignore[arg-type]
+
+    def normalise(self, block: "Block") -> None:
+        if block.gnss_station is None:
+            block.gnss_station = np.zeros(0, np.int64)
+            block.gnss_xyz = np.zeros((0, 3))
+        g = len(np.asarray(block.gnss_station).reshape(-1))
+        block.gnss_station = rows_of(block.gnss_station, (), np.int64, g)
+        block.gnss_xyz = rows_of(block.gnss_xyz, (3,), n=g)
+        block.gnss_sigma = sigma_rows(block.gnss_sigma, g, 3)
+        covariance_rows(block, "gnss_cov_m2", "gnss_sigma", g, 3)
+
+    def validate(self, block: "Block") -> None:
+        check_index("gnss_station", block.gnss_station, block.n_stations, "station")  # type: ignore[arg-type]
+        check_finite("gnss_xyz", block.gnss_xyz)  # type: ignore[arg-type]
+        check_finite("gnss_sigma", block.gnss_sigma)  # type: ignore[arg-type]
+        check_positive("gnss_sigma", block.gnss_sigma)  # type: ignore[arg-type]
+        check_covariance("gnss_cov_m2", block.gnss_cov_m2)
+
+    def prepare(self, model: "Model") -> NDArray[np.float64] | None:
+        b = model.block
+        return None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
+
+    def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
+        b, lay = model.block, model.layout
+        st = b.gnss_station
+        R = s.R[st]
+        strip = b.station_strip[st]  # type: ignore[index]
+        has = strip >= 0
+        sk = np.where(has, strip, 0)
+        dt = np.where(has, b.station_time[st] - (b.strip_t0[sk] if b.n_strips else 0.0), 0.0)  # type: ignore[index]
+        pred = s.C[st] + np.einsum("nij,j->ni", R, s.lever) + s.shift
+        if b.n_strips:
+            pred = pred + has[:, None] * (s.sshift[sk] + s.sdrift[sk] * dt[:, None])
+        sig = b.gnss_sigma
+        Wm = model.cache[self.name]
+        if Wm is None:
+            r = (pred - b.gnss_xyz) / sig  # type: ignore[operator]
+        else:
+            r = np.einsum("nij,nj->ni", Wm, pred - b.gnss_xyz)
+        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)  # type: ignore[arg-type]
+        if not jac:
+            return [f]
+        n = len(st)  # type: ignore[arg-type]
+        isig = (1.0 / sig)[:, :, None]  # type: ignore[operator]
+        eye = np.broadcast_to(np.eye(3), (n, 3, 3))
+        blocks = [np.concatenate([eye, -(R @ skew(s.lever))], axis=2), R, eye]
+        cols = [lay.pose[st], np.broadcast_to(lay.lever, (n, 3)), np.broadcast_to(lay.shift, (n, 3))]
+        if b.n_strips:
+            neg = np.full(3, -1, np.int64)
+            blocks += [eye, eye * dt[:, None, None]]
+            cols += [np.where(has[:, None], lay.sshift[sk], neg), np.where(has[:, None], lay.sdrift[sk], neg)]
+        f.jc = np.concatenate(blocks, axis=2) * isig if Wm is None else Wm @ np.concatenate(blocks, axis=2)
+        f.cols = np.concatenate(cols, axis=1)
+        return [f]
+
+    def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
+        b, lay = model.block, model.layout
+        st = b.gnss_station
+        on = any_on(lay.pose)[st] | bool((lay.lever >= 0).any() or (lay.shift >= 0).any())
+        if b.n_strips:
+            strip = b.station_strip[st]  # type: ignore[index]
+            on |= (strip >= 0) & (any_on(lay.sshift) | any_on(lay.sdrift))[np.where(strip >= 0, strip, 0)]
+        return on
+
+    def label(self, block: "Block", i: int) -> str:
+        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"  # type: ignore[index]
+
+
+GNSS = register(Gnss())
