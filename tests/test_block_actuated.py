@@ -80,8 +80,8 @@ def test_block_frees_the_actuator_and_its_curve(tumble) -> None:  # type: ignore
     assert r.exit_code == 0, r.output
     cfg = read_block(out).config
     assert (cfg.datum, cfg.inner_constraints, cfg.datum_points) == ("free", "points", tuple(names))
-    for extra, needle in ((["--fourier-order", "2"], "--fourier-order goes with --free actuator-curve"),
+    for extra, needle in ((["--fourier-order", "2"], "--fourier-order: goes with --free actuator-curve"),
                           (["--free", "actuator-curve", "--fourier-order", "0"], "--fourier-order"),
-                          (["--datum-points", "a,b,c"], "--datum-points goes with --datum free-points")):
+                          (["--datum-points", "a,b,c"], "--datum-points: goes with --datum free-points")):
         r = CliRunner().invoke(main, [*base, *extra, "-o", str(tumble / "blk3" / "block.json")])
         assert r.exit_code == 2 and needle in r.output, (extra, r.output)

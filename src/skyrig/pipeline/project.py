@@ -20,6 +20,8 @@ every error names the file, the line and the key path (``stages.dsm.mode``)::
       control: gcp/ground_points.csv
       check: gcp/check_points.csv
       measurements: [gcp/image_measurements.csv]   # measured image positions of the control / check points
+      scale_bars: null            # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav without GNSS)
+      ties: null                  # tie points measured elsewhere (point,image,column,row) instead of a match stage
     executor: {kind: auto, workers: null, scheduler: null}
     stages:                       # run in this order; a stage not listed is not run
       georef: {}
@@ -27,6 +29,11 @@ every error names the file, the line and the key path (``stages.dsm.mode``)::
       block: {free: [boresight]}
       adjust: {}
       dsm: {heads: [nadir]}
+
+A terrestrial / close-range set without GNSS (``skyrig adjust-uav --no-gps``): ``stages: {match: {}, adjust-uav:
+{no_gps: true, datum: scale-bar}}`` with ``inputs.cameras`` (the start camera), ``inputs.scale_bars`` or
+``inputs.control`` (+ ``check``, ``measurements``); ``inputs.ties`` replaces the match stage when the tie points
+come from elsewhere.
 
 The stages and their options are those of :data:`skyrig.pipeline.run.STAGES` (``skyrig run --list-stages``).
 """
@@ -52,7 +59,7 @@ __all__ = ["PROJECT_FORMAT", "Project", "StageSpec", "ExecutorSpec", "Option", "
 PROJECT_FORMAT = "skyrig-project"
 
 _TOP = {"format", "version", "name", "crs", "geoid", "output", "inputs", "executor", "stages"}
-_INPUT_FILES = ("trajectory", "events", "rig", "eo", "control", "check")
+_INPUT_FILES = ("trajectory", "events", "rig", "eo", "control", "check", "scale_bars", "ties")
 _INPUT_LISTS = ("images", "cameras", "measurements")
 _EXECUTOR = {"kind", "workers", "scheduler"}
 
@@ -163,6 +170,8 @@ class Project:
     executor: ExecutorSpec = ExecutorSpec()
     stages: tuple[StageSpec, ...] = ()
     lines: dict[str, int] = field(default_factory=dict)  # key path -> line, for error messages
+    scale_bars: Path | None = None  # scale bars CSV from,to,length_m[,sigma_m] (orientation without GNSS)
+    ties: Path | None = None  # tie points measured elsewhere (point,image,column,row) instead of a match stage
 
     @property
     def root(self) -> Path:
@@ -359,7 +368,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         stages.append(StageSpec(sname, opts, st.key_lines.get(sname)))
     project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
-                      lines)
+                      lines, files["scale_bars"], files["ties"])
     for spec in project.stages:
         check = registry[spec.name].check
         if check is not None:
@@ -609,6 +618,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
            f"  check: {rel(det.check)}    # check points: compared after the adjustment, not used in it",
            f"  measurements: {_yaml_value([rel(q).strip(chr(34)) for q in det.measurements])}"
            "    # image positions of control / check points",
+           "  scale_bars: null    # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav with no_gps)",
+           "  ties: null    # tie points measured elsewhere (point,image,column,row) instead of a match stage",
            "executor:    # where parallel work runs; never changes the results",
            "  kind: auto    # auto | serial | local (Dask worker processes)",
            "  workers: null    # local worker processes (default: up to 4)",

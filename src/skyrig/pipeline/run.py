@@ -29,17 +29,18 @@ options (:class:`skyrig.pipeline.project.Option`: default, type, help), what it 
                          options={"resolution": Option(None, "float", "cell size (m)", nullable=True)},
                          requires=("eo", "dsm"), provides={"ortho": "ortho.tif"}, inputs=_rig_files))
 
-The function writes into ``ctx.out`` only; the runner publishes the folder and writes the manifest.  The product
-stages call the library functions the commands call (:mod:`skyrig.pipeline.products`), so their outputs are the
-commands'; block, adjust and adjust-uav still run their command in process (:func:`invoke_command`) with
-``-o ctx.out``.  Errors: :class:`skyrig.errors.SkyrigError` (and click usage errors) are bad input (exit
-status 2), anything else a failed run (exit status 1).
+The function writes into ``ctx.out`` only; the runner publishes the folder and writes the manifest.  Every stage
+calls the library function the command of the same name calls - :mod:`skyrig.pipeline.orientation` (``make_block``,
+``make_adjustment``, ``make_uav_orientation``) and :mod:`skyrig.pipeline.products` (``make_dsm``, ``make_ortho``,
+``make_facades``) - so its outputs are the command's, and nothing here imports :mod:`skyrig.cli`.  Errors:
+:class:`skyrig.errors.SkyrigError` is bad input (exit status 2), :class:`StageError` says its status, anything else
+is a failed run (exit status 1).  A failed adjustment (``adjust``, ``adjust-uav``) is a failed run; with the
+stage option ``keep_failed`` its outputs are published with ``FAILED.txt``.
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import logging
 import os
@@ -47,7 +48,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping
 
 from skyrig.errors import SkyrigError
 from skyrig.pipeline.project import ExecutorSpec, Option, Project, StageSpec
@@ -55,7 +56,7 @@ from skyrig.pipeline.project import ExecutorSpec, Option, Project, StageSpec
 logger = logging.getLogger(__name__)
 
 __all__ = ["Stage", "StageContext", "StageError", "StageEvent", "RunResult", "STAGES", "register_stage",
-           "run_project", "plan_run", "stage_fingerprint", "invoke_command"]
+           "run_project", "plan_run", "stage_fingerprint"]
 
 
 class StageError(SkyrigError, RuntimeError):
@@ -429,49 +430,6 @@ def _write_run_json(result: RunResult) -> None:
 
 
 # ------------------------------------------------------------------------------------------ helpers for stages
-def invoke_command(stage: str, target: str, args: Sequence[object]) -> None:
-    """Run the click command ``"module:attribute"`` in this process with ``args``, as ``skyrig`` would.
-
-    Raises
-    ------
-    StageError
-        With exit status 2 for a usage error or bad input (:class:`SkyrigError`), else the command's own status.
-    """
-    import click
-
-    module, _, attr = target.partition(":")
-    cmd = getattr(importlib.import_module(module), attr)
-    argv = [str(a) for a in args]
-    logger.info("stage %s: skyrig %s %s", stage, cmd.name, " ".join(argv))
-    try:
-        cmd.main(args=argv, prog_name=f"skyrig {cmd.name}", standalone_mode=False)
-    except click.exceptions.Exit as exc:
-        if exc.exit_code:
-            raise StageError(stage, f"skyrig {cmd.name} exited with status {exc.exit_code}", 1) from None
-    except click.UsageError as exc:
-        raise StageError(stage, exc.format_message(), 2) from None
-    except click.ClickException as exc:
-        raise StageError(stage, exc.format_message(), exc.exit_code or 1) from None
-    except click.Abort:
-        raise KeyboardInterrupt from None
-    except SystemExit as exc:  # a command that ends with sys.exit / raise SystemExit(status)
-        if exc.code not in (None, 0):
-            raise StageError(stage, f"skyrig {cmd.name} exited with status {exc.code}",
-                             exc.code if isinstance(exc.code, int) else 1) from None
-
-
-def _invoke_keeping(ctx: StageContext, target: str, args: Sequence[object]) -> dict[str, Any]:
-    """:func:`invoke_command`; with the stage option ``keep_failed`` a failed run (status 1) whose outputs the
-    command wrote anyway returns ``{"failed": reason}``: the runner publishes them and still stops with status 1."""
-    try:
-        invoke_command(ctx.spec.name, target, args)
-    except StageError as exc:
-        if ctx.options.get("keep_failed") and exc.exit_code == 1 and any(ctx.out.iterdir()):
-            return {"failed": exc.reason}
-        raise
-    return {}
-
-
 def _opt_files(*paths: Path | None) -> list[Path]:
     return [p for p in paths if p is not None]
 
@@ -550,11 +508,11 @@ def _match(ctx: StageContext) -> dict[str, Any]:
     eo = cameras = None
     th = o["terrain_height"]
     if "eo" in ctx.upstream:
-        from skyrig.cli._common import load_cameras
         from skyrig.io.eo_csv import read_eo_csv
+        from skyrig.pipeline.inputs import load_cameras
 
         eo = read_eo_csv(ctx.upstream["eo"])
-        cameras = load_cameras([str(c) for c in _rig_or_cameras(p)])
+        cameras = load_cameras([str(c) for c in _rig_or_cameras(p)], "inputs.rig")
         if th is None:
             raise StageError("match", "guided matching with the georeferenced orientations needs "
                              "stages.match.terrain_height (mean terrain height in the output heights, m)", 2)
@@ -589,67 +547,124 @@ def _block_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
     rig_mode = p.trajectory is not None and p.events is not None and p.rig is not None
     if not rig_mode and (p.eo is None or not (p.cameras or p.rig)):
         return "inputs", "stage block needs inputs trajectory + events + rig (rig mode) or eo + cameras (image mode)"
+    if o["datum_points"] is not None and o["datum"] != "free-points":
+        return "stages.block.datum_points", "goes with stages.block.datum: free-points"
+    if o["fourier_order"] is not None and "actuator-curve" not in o["free"]:
+        return "stages.block.fourier_order", "goes with stages.block.free: [actuator-curve]"
     return None
 
 
+#: How a project names the inputs of the orientation functions (the rest are stage options).
+_INPUT_NAMES = {"trajectory": "inputs.trajectory", "events": "inputs.events", "rig": "inputs.rig",
+                "eo": "inputs.eo", "camera": "inputs.cameras", "control": "inputs.control", "check": "inputs.check",
+                "measurements": "inputs.measurements", "points_crs": "the control file's '# crs:' header",
+                "crs": "crs", "geoid": "geoid", "images": "inputs.images", "match": "the match stage / inputs.ties",
+                "scale_bars": "inputs.scale_bars"}
+
+
+def _project_spelling(stage: str) -> Callable[[str], str]:
+    """How a project file names what an orientation function calls ``name``: an input or ``stages.<stage>.name``."""
+    return lambda name: _INPUT_NAMES.get(name, f"stages.{stage}.{name}")
+
+
 def _block(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.orientation import make_block
+
     p, o = ctx.project, ctx.options
-    if p.trajectory is not None and p.events is not None and p.rig is not None:
-        args: list[object] = ["--trajectory", p.trajectory, "--events", p.events, "--rig", p.rig]
-    else:
-        args = ["--eo", p.eo] + [x for c in _rig_or_cameras(p) for x in ("--camera", c)]
-    args += ["--measurements", ctx.need("ties")] + [x for m in p.measurements for x in ("--measurements", m)]
-    if p.control is not None:
-        args += ["--control", p.control]
-    if p.check is not None:
-        args += ["--check", p.check]
-    args += ["--image-sigma-px", o["sigma_px"], "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
-             "--imu-sigma-deg", ",".join(map(str, o["imu_sigma_deg"])),
-             "--control-sigma", ",".join(map(str, o["control_sigma"])), "--crs", p.crs]
-    if p.geoid:
-        args += ["--geoid", p.geoid]
-    if o["free"]:
-        args += ["--free", ",".join(o["free"])]
-    invoke_command("block", "skyrig.cli.block:command", [*args, "-o", ctx.out / "block.json"])
-    return {}
+    rig_mode = p.trajectory is not None and p.events is not None and p.rig is not None
+    mode: dict[str, Any] = ({"trajectory": p.trajectory, "events": p.events, "rig": p.rig} if rig_mode
+                            else {"eo": p.eo, "cameras": _rig_or_cameras(p)})
+    res = make_block(ctx.out / "block.json", [ctx.need("ties"), *p.measurements], **mode, control=p.control,
+                     check=p.check, sigma_px=o["sigma_px"], gnss_sigma=o["gnss_sigma"],
+                     imu_sigma_deg=o["imu_sigma_deg"], control_sigma=o["control_sigma"], free=o["free"],
+                     start_values_only=o["start_values_only"], datum=o["datum"], datum_points=o["datum_points"],
+                     fourier_order=o["fourier_order"], crs=p.crs, geoid=p.geoid, spell=_project_spelling("block"))
+    return res.summary()
 
 
 def _adjust(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.orientation import make_adjustment
+
     o = ctx.options
-    args: list[object] = [ctx.need("block"), "-o", ctx.out]
-    if o["preset"]:
-        args += ["--preset", o["preset"]]
-    if o["gsd"]:
-        args += ["--gsd", o["gsd"]]
-    if o["keep_failed"]:
-        args += ["--keep-failed"]
-    failed = _invoke_keeping(ctx, "skyrig.cli.adjust:command", args)
-    rep = json.loads((ctx.out / "report.json").read_text())
-    sm = rep.get("summary", {})
-    return {**{k: sm.get(k) for k in ("sigma0", "images", "points", "iterations")}, **failed}
+    res = make_adjustment(ctx.need("block"), ctx.out, preset=o["preset"], gsd=o["gsd"], keep_failed=o["keep_failed"],
+                          callback=lambda stage, it, cost: logger.debug("stage adjust: %s iteration %d cost %.6g",
+                                                                         stage, it, cost),
+                          spell=_project_spelling("adjust"))
+    for line in [*res.notices, *res.warnings]:
+        logger.warning("stage adjust: %s", line)
+    return _failed_or_summary("adjust", res.summary(), res.failures, bool(res.paths))
+
+
+def _failed_or_summary(stage: str, summary: dict[str, Any], failures: list[str], written: bool) -> dict[str, Any]:
+    """A stage's summary, or for a failed adjustment ``{"failed": reason}`` when its outputs were written
+    (``keep_failed``: the runner publishes them and still stops with status 1), else a :class:`StageError`."""
+    if not failures:
+        return summary
+    reason = "the adjustment failed: " + "; ".join(failures)
+    if written:
+        return {**summary, "failed": reason}
+    raise StageError(stage, reason + f" (nothing published; stages.{stage}.keep_failed publishes the outputs)", 1)
+
+
+def _uav_camera(p: Project) -> Path | None:
+    return p.cameras[0] if p.cameras else p.rig
 
 
 def _adjust_uav_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
-    return list(p.images)
+    files = [*p.images, *_opt_files(p.ties)]
+    if o["no_gps"]:
+        files += _opt_files(p.control, p.check, p.scale_bars, _uav_camera(p), *p.measurements)
+    return files
 
 
 def _adjust_uav_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
-    if len(p.images) != 1:
-        return "inputs.images", "stage adjust-uav needs exactly one image folder (images with EXIF GPS)"
+    names = [s.name for s in p.stages]
+    before = names[:names.index("adjust-uav")] if "adjust-uav" in names else names
+    matched = "match" in before
+    if p.ties is not None and matched:
+        return "inputs.ties", "give the tie points either by a match stage or by inputs.ties, not both"
+    if p.ties is None and not matched:
+        return "stages.adjust-uav", "stage adjust-uav needs tie points: a match stage before it, or inputs.ties"
+    if not o["no_gps"]:
+        if len(p.images) != 1:
+            return "inputs.images", "stage adjust-uav needs exactly one image folder (images with EXIF GPS)"
+        if o["datum"] != "auto":
+            return "stages.adjust-uav.datum", "a datum is chosen only without GNSS: set stages.adjust-uav.no_gps: true"
+        if p.scale_bars is not None:
+            return "inputs.scale_bars", "scale bars are used only without GNSS: set stages.adjust-uav.no_gps: true"
+        return None
+    if len(p.images) > 1:
+        return "inputs.images", "stage adjust-uav orients one image folder"
+    if not p.images and _uav_camera(p) is None:
+        return "inputs.cameras", "stage adjust-uav without images needs the start camera (inputs.cameras)"
+    if len(p.cameras) > 1:
+        return "inputs.cameras", "stage adjust-uav takes one start camera file"
     return None
 
 
 def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.orient.incremental import OrientError
+    from skyrig.pipeline.orientation import make_uav_orientation
+
     p, o = ctx.project, ctx.options
-    args: list[object] = [p.root, "--images", p.images[0], "--match", ctx.need("ties").parent, "-o", ctx.out,
-                          "--crs", p.crs, "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
-                          "--attitude-sigma", o["attitude_sigma"],
-                          "--altitude", o["altitude"], "--focal-prior", o["focal_prior"]]
-    if not o["self_calibration"]:
-        args += ["--no-self-calibration"]
-    if o["keep_failed"]:
-        args += ["--keep-failed"]
-    return _invoke_keeping(ctx, "skyrig.cli.uav:command", args)
+    ties = ctx.upstream.get("ties") or p.ties  # an earlier match stage's, or the project's inputs.ties
+    if ties is None:  # checked on loading; a registry bug otherwise
+        raise StageError("adjust-uav", "no tie points (a match stage or inputs.ties)", 2)
+    kw: dict[str, Any] = {}
+    if o["no_gps"]:
+        kw = dict(control=p.control, control_sigma=o["control_sigma"], check=p.check, scale_bars=p.scale_bars,
+                  measurements=p.measurements, camera=_uav_camera(p), datum=o["datum"])
+    try:
+        res = make_uav_orientation(p.images[0] if p.images else None, ties, ctx.out, no_gps=o["no_gps"],
+                                   gnss_sigma=o["gnss_sigma"], attitude_sigma=o["attitude_sigma"],
+                                   altitude=o["altitude"], focal_prior=o["focal_prior"],
+                                   self_calibration=o["self_calibration"], crs=p.crs,
+                                   compare_pycolmap=o["compare_pycolmap"], pycolmap_size=o["pycolmap_size"],
+                                   pycolmap_mapper=o["pycolmap_mapper"], spell=_project_spelling("adjust-uav"), **kw)
+    except OrientError as exc:  # the set could not be oriented: a failed run, not bad input
+        raise StageError("adjust-uav", f"the orientation failed: {exc}", 1) from None
+    # the outputs are in ctx.out either way: published with FAILED.txt when keep_failed, else dropped
+    return _failed_or_summary("adjust-uav", res.summary(), res.failures, o["keep_failed"])
 
 
 def _dsm_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
@@ -730,7 +745,15 @@ register_stage(Stage(
                                      positive=True),
              "free": Option([], "strs", "system-calibration groups to estimate",
                             ("boresight", "lever-arm", "datum-shift", "strip-shift", "intrinsics", "actuator",
-                             "actuator-curve"))},
+                             "actuator-curve")),
+             "fourier_order": Option(None, "int", "order of the Fourier boresight curve with free: "
+                                     "[actuator-curve] (default 2)", nullable=True, positive=True),
+             "start_values_only": Option(False, "bool", "trajectory / EO as starting values only, not GNSS/IMU "
+                                         "observations (datum from control or datum: free)"),
+             "datum": Option("auto", "choice", "auto: control and/or GNSS; free: inner constraints on the stations; "
+                             "free-points: on object points; none", ("auto", "free", "free-points", "none")),
+             "datum_points": Option(None, "strs", "with datum: free-points, the points defining it (default all)",
+                                    nullable=True)},
     requires=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
@@ -740,14 +763,27 @@ register_stage(Stage(
              "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment")},
     requires=("block",), provides={"eo": "eo.csv", "points": "points.csv", "report": "report.html"}))
 register_stage(Stage(
-    "adjust-uav", "GNSS-supported adjustment of UAV images (EXIF GPS, DJI gimbal) with self-calibration.", _adjust_uav,
+    "adjust-uav", "GNSS-supported adjustment of UAV images (EXIF GPS, DJI gimbal) with self-calibration; with "
+    "no_gps the orientation of a set without GNSS (terrestrial, close range) from a two-view start.", _adjust_uav,
     options={"gnss_sigma": Option([2.0, 2.0, 4.0], "floats", "GNSS sigma E, N, U (m)", n=3, positive=True),
              "attitude_sigma": Option(5.0, "float", "gimbal attitude sigma (deg)", positive=True),
              "altitude": Option("egm96", "choice", "what EXIF GPSAltitude is", ("egm96", "ellipsoidal")),
              "focal_prior": Option(0.1, "float", "relative sigma of the EXIF focal length", positive=True),
              "self_calibration": Option(True, "bool", "self-calibrate the camera"),
-             "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment")},
-    requires=("ties",), provides={"eo": "eo.csv", "points": "points.csv", "cameras": "camera.yaml"},
+             "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment"),
+             "no_gps": Option(False, "bool", "orient without GNSS (two-view start, resection, bundle adjustment): "
+                              "start camera from inputs.cameras or EXIF, datum from inputs.control / scale_bars"),
+             "datum": Option("auto", "choice", "with no_gps: what fixes the datum (auto: control, else scale bars, "
+                             "else a similarity onto EXIF GPS, else a free network)",
+                             ("auto", "control", "scale-bar", "gps-similarity", "free")),
+             "control_sigma": Option([0.01, 0.01, 0.01], "floats", "with no_gps: control point sigma X, Y, Z (m)",
+                                     n=3),
+             "compare_pycolmap": Option(False, "bool", "also run pycolmap's own reconstruction and compare centres"),
+             "pycolmap_size": Option(1600, "int", "pycolmap comparison: SIFT on images downscaled to this (px)",
+                                     positive=True),
+             "pycolmap_mapper": Option("incremental", "choice", "pycolmap comparison: mapper",
+                                       ("incremental", "global"))},
+    uses=("ties",), provides={"eo": "eo.csv", "points": "points.csv", "cameras": "camera.yaml"},
     inputs=_adjust_uav_inputs,
     check=_adjust_uav_check))
 register_stage(Stage(

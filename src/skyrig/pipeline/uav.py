@@ -80,6 +80,12 @@ __all__ = ["UavConfig", "UavBlockInput", "UavResult", "metadata_block_input", "a
 
 
 # ---------------------------------------------------------------------------------------------- I/O side
+def _ties_file(match: str | Path) -> Path:
+    """The tie points: ``match`` itself, or ``match/tie_points.csv`` when it is a folder (``skyrig match``'s)."""
+    p = Path(match)
+    return p / "tie_points.csv" if p.is_dir() else p
+
+
 def _geoid_grid(cfg: UavConfig) -> str:
     if cfg.geoid:
         return cfg.geoid
@@ -163,7 +169,7 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     images
         Folder of the images (EXIF GPS, DJI XMP).
     match_dir
-        Output folder of ``skyrig match`` (``tie_points.csv``).
+        Output folder of ``skyrig match`` (``tie_points.csv``), or a tie-point file.
     out
         If given: ``eo.csv``, ``points.csv`` and ``adjusted.gpkg`` in the project CRS
         (:mod:`skyrig.io.adjust_outputs`), ``report.json``, ``report.html`` and residual plots are written there.
@@ -184,7 +190,7 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     from skyrig.io.points_csv import read_measurements_csv
 
     t0 = time.perf_counter()
-    meas = read_measurements_csv(Path(match_dir) / "tie_points.csv")
+    meas = read_measurements_csv(_ties_file(match_dir))
     metas = [read_image_metadata(p) for p in list_images(images)]  # images without tie points: "not oriented"
     inp = metadata_block_input(metas, meas, cfg)
     res = adjust_uav_block(inp, cfg)
@@ -469,12 +475,12 @@ def orient_without_gnss(images: str | Path | None, match_dir: str | Path, out: s
 
     t0 = time.perf_counter()
     cfg = cfg or OrientConfig()
-    meas = read_measurements_csv(Path(match_dir) / "tie_points.csv")
+    meas = read_measurements_csv(_ties_file(match_dir))
     if extra_measurements:
         ms = [meas, *extra_measurements]
         meas = ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
                                  np.vstack([m.pixel for m in ms]))
-    src = {"measurements": str(Path(match_dir) / "tie_points.csv"), **(sources or {})}
+    src = {"measurements": str(_ties_file(match_dir)), **(sources or {})}
     inp = orient_input(images, meas, camera, control, control_sigma_m, check, scale_bars, use_gps, altitude_cfg, src)
     res = orient_incremental(inp, cfg)
     from skyrig.adjust.report import adjustment_report
