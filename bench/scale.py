@@ -4,7 +4,8 @@
     .venv/bin/python bench/scale.py --sizes 100 400 --points-per-exposure 30
 
 Each size runs in its own child process (so that the peak memory of one size does not hide the next):
-a seeded :func:`skyrig.adjust.synthetic.synthetic_block` with the MIDAS rig (5 heads: nadir + 4 obliques
+a seeded block of ``bench/scale_sim.py`` (the simulation model of
+:func:`skyrig.adjust.synthetic.synthetic_block`, generated in linear time) with the MIDAS rig (5 heads: nadir + 4 obliques
 at 45 deg), roughly square blocks (strips ~ sqrt(exposures / 4)), ``--points-per-exposure`` object
 points scattered over the area, GNSS and IMU observations and a few control points; then
 ``adjust(block, AdjustConfig(statistics=False))``.  Reported per size: block size, generation time,
@@ -57,11 +58,20 @@ class _PeakRss:
         self.peak = max(self.peak, _rss())
 
 
+def block_shape(n_exposures: int) -> tuple[int, int]:
+    """``(strips, exposures per strip)`` of a roughly square block of about ``n_exposures``."""
+    n_strips = max(2, int(round(np.sqrt(n_exposures / 4.0))))
+    return n_strips, int(np.ceil(n_exposures / n_strips))
+
+
 def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = "free") -> dict:
     """Generate and adjust one block; a dict of figures."""
     from skyrig.adjust import AdjustConfig, adjust
     from skyrig.adjust.synthetic import synthetic_block
     from skyrig.rig.presets import midas
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from scale_sim import penta_block
 
     # load the compiled (numba, cached on disk) kernels once on a tiny block: a one-off per process
     tw = time.perf_counter()
@@ -69,19 +79,17 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
                                n_control=9)
     adjust(small, AdjustConfig(statistics=False, max_iterations=2))
     t_warm = time.perf_counter() - tw
-    n_strips = max(2, int(round(np.sqrt(n_exposures / 4.0))))
-    n_per_strip = int(np.ceil(n_exposures / n_strips))
+    n_strips, n_per_strip = block_shape(n_exposures)
     t0 = time.perf_counter()
-    block, truth = synthetic_block(seed=seed, n_strips=n_strips, n_per_strip=n_per_strip,
-                                   n_points=points_per_exposure * n_strips * n_per_strip, rig=midas(),
-                                   height_m=500.0, n_control=9)
+    block, true_centre = penta_block(seed, n_strips, n_per_strip, points_per_exposure * n_strips * n_per_strip,
+                                     midas(), height_m=500.0, n_control=9)
     t_gen = time.perf_counter() - t0
     base = _rss()
     t1 = time.perf_counter()
     with _PeakRss() as mem:
         res = adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=boresight))
     t_adj = time.perf_counter() - t1
-    err = np.sqrt(np.mean((res.block.station_centre - truth.station_centre) ** 2))
+    err = np.sqrt(np.mean((res.block.station_centre - true_centre) ** 2))
     return dict(exposures=block.n_stations, images=block.n_images, points=block.n_points,
                 observations=block.n_observations, generate_s=t_gen, adjust_s=t_adj, warmup_s=t_warm,
                 iterations=res.info.iterations, unsuccessful=res.info.unsuccessful, lm_s=res.info.wall_s,
