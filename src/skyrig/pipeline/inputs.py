@@ -89,9 +89,10 @@ def project_frame_of(crs: str | None, geoid: str | None, crs_option: str = "--cr
         raise OptionError(crs_option, str(e)) from None
 
 
-def _map_frame(crs: str | None, geoid: str | None, what: str, option: str) -> WorldFrame:
+def _map_frame(crs: str | None, geoid: str | None, what: str, option: str, path: str) -> WorldFrame:
+    """The map frame of a file that states none, from the caller's ``option`` (named in the message)."""
     if not crs:
-        raise OptionError(option, f"{what} needs it (the file does not say which CRS it is in)")
+        raise InputFormatError(f"{what} needs {option} (the file does not say which CRS it is in)", path)
     return WorldFrame.map(crs, geoid)
 
 
@@ -99,7 +100,7 @@ def _eo_ign(path: str, crs: str | None, geoid: str | None, z_ground: float | Non
             option: str) -> ExteriorOrientations:
     from skyrig.io.ign import read_ign_opk
 
-    eo = read_ign_opk(path, _map_frame(crs, geoid, "an IGN OPK file", option))
+    eo = read_ign_opk(path, _map_frame(crs, geoid, "an IGN OPK file", option, path))
     return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
 
 
@@ -170,7 +171,7 @@ def load_points(path: str | PathLike[str], crs: str | None = None, heights: str 
         from skyrig.io.ign import read_ign_ground_points
 
         use = frame or default
-        return read_ign_ground_points(path, use if use else _map_frame(crs, None, "an IGN point file", option))
+        return read_ign_ground_points(path, use if use else _map_frame(crs, None, "an IGN point file", option, path))
     if name.startswith("gcp_list"):
         from skyrig.io.odm import read_gcp_list
 

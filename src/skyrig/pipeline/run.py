@@ -540,13 +540,23 @@ def _match(ctx: StageContext) -> dict[str, Any]:
 
 
 def _block_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
-    return _opt_files(p.trajectory, p.events, p.rig, p.eo, *p.cameras, p.control, p.check, *p.measurements)
+    return _opt_files(p.trajectory, p.events, p.rig, p.eo, *p.cameras, p.control, p.check, *p.measurements, p.ties)
+
+
+def _matched_before(p: Project, stage: str) -> bool:
+    names = [s.name for s in p.stages]
+    return "match" in (names[:names.index(stage)] if stage in names else names)
 
 
 def _block_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
     rig_mode = p.trajectory is not None and p.events is not None and p.rig is not None
     if not rig_mode and (p.eo is None or not (p.cameras or p.rig)):
         return "inputs", "stage block needs inputs trajectory + events + rig (rig mode) or eo + cameras (image mode)"
+    if p.ties is not None and _matched_before(p, "block"):
+        return "inputs.ties", "give the tie points either by a match stage or by inputs.ties, not both"
+    if p.ties is None and not p.measurements and not _matched_before(p, "block"):
+        return "stages.block", "stage block needs image measurements: a match stage before it, inputs.ties or " \
+                               "inputs.measurements"
     if o["datum_points"] is not None and o["datum"] != "free-points":
         return "stages.block.datum_points", "goes with stages.block.datum: free-points"
     if o["fourier_order"] is not None and "actuator-curve" not in o["free"]:
@@ -574,7 +584,8 @@ def _block(ctx: StageContext) -> dict[str, Any]:
     rig_mode = p.trajectory is not None and p.events is not None and p.rig is not None
     mode: dict[str, Any] = ({"trajectory": p.trajectory, "events": p.events, "rig": p.rig} if rig_mode
                             else {"eo": p.eo, "cameras": _rig_or_cameras(p)})
-    res = make_block(ctx.out / "block.json", [ctx.need("ties"), *p.measurements], **mode, control=p.control,
+    ties = ctx.upstream.get("ties") or p.ties  # an earlier match stage's, or the project's inputs.ties
+    res = make_block(ctx.out / "block.json", [*_opt_files(ties), *p.measurements], **mode, control=p.control,
                      check=p.check, sigma_px=o["sigma_px"], gnss_sigma=o["gnss_sigma"],
                      imu_sigma_deg=o["imu_sigma_deg"], control_sigma=o["control_sigma"], free=o["free"],
                      start_values_only=o["start_values_only"], datum=o["datum"], datum_points=o["datum_points"],
@@ -618,20 +629,18 @@ def _adjust_uav_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
 
 
 def _adjust_uav_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
-    names = [s.name for s in p.stages]
-    before = names[:names.index("adjust-uav")] if "adjust-uav" in names else names
-    matched = "match" in before
+    matched = _matched_before(p, "adjust-uav")
     if p.ties is not None and matched:
         return "inputs.ties", "give the tie points either by a match stage or by inputs.ties, not both"
     if p.ties is None and not matched:
         return "stages.adjust-uav", "stage adjust-uav needs tie points: a match stage before it, or inputs.ties"
     if not o["no_gps"]:
-        if len(p.images) != 1:
-            return "inputs.images", "stage adjust-uav needs exactly one image folder (images with EXIF GPS)"
         if o["datum"] != "auto":
             return "stages.adjust-uav.datum", "a datum is chosen only without GNSS: set stages.adjust-uav.no_gps: true"
         if p.scale_bars is not None:
             return "inputs.scale_bars", "scale bars are used only without GNSS: set stages.adjust-uav.no_gps: true"
+        if len(p.images) != 1:
+            return "inputs.images", "stage adjust-uav needs exactly one image folder (images with EXIF GPS)"
         return None
     if len(p.images) > 1:
         return "inputs.images", "stage adjust-uav orients one image folder"
@@ -754,7 +763,7 @@ register_stage(Stage(
                              "free-points: on object points; none", ("auto", "free", "free-points", "none")),
              "datum_points": Option(None, "strs", "with datum: free-points, the points defining it (default all)",
                                     nullable=True)},
-    requires=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
+    uses=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
     _adjust,
