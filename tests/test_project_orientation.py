@@ -247,3 +247,57 @@ def test_block_and_adjust_stages_equal_the_commands_and_resume(tmp_path: Path) -
     assert r.exit_code == 0, r.output
     later = {s: read_manifest(out / s)["created"] for s in stages}
     assert [s for s in stages if later[s] != now[s]] == ["block", "adjust"]
+
+
+# ------------------------------------------------------------------------------------------ real data
+@pytest.mark.slow
+def test_lund_without_gps_through_skyrig_run(tmp_path: Path) -> None:
+    """The 29 lund phone images through ``skyrig run``: a match stage (exhaustive pairs, nothing of the GPS used)
+    and ``adjust-uav: {no_gps: true, datum: gps-similarity, compare_pycolmap: true}``; the EXIF GPS only places
+    the block.  The checks of the command's own test (tests/test_orient_incremental.py): images oriented, the
+    similarity's residuals at a phone GPS's level, pycolmap's reconstruction in the same run agreeing with ours
+    within the predicted precision and far better than the GPS."""
+    from conftest import shared_path
+
+    pytest.importorskip("pycolmap")
+    src = shared_path("opensfm", "lund", "images")
+    p = tmp_path / "project.yaml"
+    p.write_text("format: skyrig-project\nversion: 1\nname: lund\ncrs: EPSG:32633\n"
+                 f"inputs: {{images: [{src}]}}\nexecutor: {{kind: serial}}\n"
+                 "stages:\n  match: {pairs: exhaustive, max_size: 1024, max_features: 4000}\n"
+                 "  adjust-uav: {no_gps: true, datum: gps-similarity, compare_pycolmap: true, pycolmap_size: 1024}\n")
+    r = CliRunner().invoke(main, ["run", str(p)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "output" / "adjust-uav"
+    assert verify_folder(out) == []
+    rep = json.loads((out / "report.json").read_text())
+    s = rep["uav"]
+    assert s["oriented"] >= 20, s["not_oriented"]
+    d = s["datum"]
+    assert d["kind"] == "positions" and d["positions_similarity_rms_3d_m"] < 8.0, d
+    pc = rep["pycolmap"]
+    c = pc["centre_differences"]
+    assert pc["registered"] >= 15 and c["common"] >= 15, pc
+    sig = np.array(list(s["centre_sigma_m"].values()))
+    tol = 3.0 * np.sqrt(2.0) * float(np.sqrt(np.mean(np.sum(sig ** 2, axis=1))))
+    assert c["rms_m"] < tol, (c["rms_m"], tol)
+    assert c["rms_m"] < 0.25 * d["positions_similarity_rms_3d_m"], (c, d["positions_similarity_rms_3d_m"])
+    print(f"lund via skyrig run: {s['oriented']}/{s['images']} oriented, GPS similarity RMS "
+          f"{d['positions_similarity_rms_3d_m']:.2f} m, pycolmap ({pc.get('mapper')}) {pc['registered']} registered, "
+          f"centre RMS {c['rms_m']:.3f} m (tolerance {tol:.3f} m)")
+
+
+def test_init_chooses_the_orientation_without_gnss_for_images_without_gps(tmp_path: Path) -> None:
+    """``skyrig init`` on a folder of images without EXIF GPS (and no trajectory / EO): match + adjust-uav with
+    no_gps, no DSM (no georeference to put it in)."""
+    import cv2
+
+    (tmp_path / "images").mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / "images" / f"img{k}.png"), rng.integers(0, 255, (48, 64), dtype=np.uint8))
+    r = CliRunner().invoke(main, ["init", str(tmp_path), "--crs", "EPSG:25832"])
+    assert r.exit_code == 0, r.output
+    proj = load_project(tmp_path / "project.yaml")
+    assert [s.name for s in proj.stages] == ["match", "adjust-uav"]
+    assert proj.stage("adjust-uav").options["no_gps"] is True

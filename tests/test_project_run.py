@@ -336,6 +336,26 @@ def test_stage_outputs_equal_the_individual_commands(sim_project: Path, tmp_path
                                   "-o", str(tmp_path / "eo.csv")])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "eo.csv").read_bytes() == (out / "georef" / "eo.csv").read_bytes()
+    # block: the command with the project's inputs and the stage's options -> the same block
+    from skyrig.io.block_file import read_block
+
+    proj = load_project(sim_project)
+    o = proj.stage("block").options
+    args = ["block", "--trajectory", str(proj.trajectory), "--events", str(proj.events), "--rig", str(proj.rig),
+            "--measurements", str(out / "match" / "tie_points.csv"),
+            *[x for m in proj.measurements for x in ("--measurements", str(m))],
+            *(["--control", str(proj.control)] if proj.control else []),
+            *(["--check", str(proj.check)] if proj.check else []),
+            "--image-sigma-px", str(o["sigma_px"]), "--gnss-sigma", ",".join(map(str, o["gnss_sigma"])),
+            "--imu-sigma-deg", ",".join(map(str, o["imu_sigma_deg"])),
+            "--control-sigma", ",".join(map(str, o["control_sigma"])), "--crs", proj.crs,
+            *(["--free", ",".join(o["free"])] if o["free"] else []), "-o", str(tmp_path / "block" / "block.json")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    a, b = read_block(tmp_path / "block" / "block.json"), read_block(out / "block" / "block.json")
+    assert a.config == b.config and a.crs == b.crs
+    for name in ("station_centre", "station_rotation", "obs_pixel", "obs_image", "obs_point", "point_xyz"):
+        np.testing.assert_array_equal(getattr(a.block, name), getattr(b.block, name), err_msg=name)
     r = CliRunner().invoke(main, ["adjust", str(out / "block" / "block.json"), "-o", str(tmp_path / "adjust")])
     assert r.exit_code == 0, r.output
     for f in ("eo.csv", "points.csv", "ground_control.csv"):

@@ -588,8 +588,11 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
         chosen["adjust"] = {}
     elif det.images and det.exif_gps and "adjust-uav" in registry:
         chosen["adjust-uav"] = {}
+    elif det.images and det.eo is None and "adjust-uav" in registry:  # no GNSS at all: a terrestrial set
+        chosen["adjust-uav"] = {"no_gps": True}
     # the dense stage needs camera files: a rig, or the self-calibrated camera adjust-uav publishes (camera.yaml)
-    if det.images and chosen and ((det.rig is not None and (rig_mode or det.eo is not None)) or "adjust-uav" in chosen):
+    if det.images and chosen and ((det.rig is not None and (rig_mode or det.eo is not None))
+                               or ("adjust-uav" in chosen and det.exif_gps)):
         chosen["dsm"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
         if not any(k in chosen for k in ("adjust", "adjust-uav")) and det.terrain_height is not None:
             chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]
