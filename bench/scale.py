@@ -36,16 +36,30 @@ def _rss() -> int:
         return int(fh.read().split()[1]) * PAGE
 
 
-class _PeakRss:
-    """Sample the resident set size in a thread; ``peak`` in bytes."""
+def _mem_available() -> int:
+    with open("/proc/meminfo") as fh:
+        for line in fh:
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    return 0
 
-    def __init__(self, period: float = 0.005) -> None:
-        self.period, self.peak, self._stop = period, _rss(), threading.Event()
+
+class _PeakRss:
+    """Sample the resident set size in a thread; ``peak`` in bytes.  Above ``limit`` bytes the process
+    exits at once (status 3): a guard for the shared machine, not a measurement."""
+
+    def __init__(self, period: float = 0.005, limit: float | None = None) -> None:
+        self.period, self.peak, self._stop, self.limit = period, _rss(), threading.Event(), limit
         self._t = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
         while not self._stop.is_set():
             self.peak = max(self.peak, _rss())
+            if self.limit is not None and self.peak > self.limit:
+                sys.stderr.write(f"resident memory {self.peak / 2**30:.1f} GiB above the guard "
+                                 f"{self.limit / 2**30:.1f} GiB: stopped\n")
+                sys.stderr.flush()
+                os._exit(3)
             time.sleep(self.period)
 
     def __enter__(self) -> "_PeakRss":
@@ -64,7 +78,8 @@ def block_shape(n_exposures: int) -> tuple[int, int]:
     return n_strips, int(np.ceil(n_exposures / n_strips))
 
 
-def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = "free") -> dict:
+def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = "free",
+        max_gib: float | None = None) -> dict:
     """Generate and adjust one block; a dict of figures."""
     from skyrig.adjust import AdjustConfig, adjust
     from skyrig.adjust.synthetic import synthetic_block
@@ -86,12 +101,16 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
     t_gen = time.perf_counter() - t0
     base = _rss()
     t1 = time.perf_counter()
-    with _PeakRss() as mem:
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    with _PeakRss(limit=None if max_gib is None else max_gib * 2**30) as mem:
         res = adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=boresight))
     t_adj = time.perf_counter() - t1
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     err = np.sqrt(np.mean((res.block.station_centre - true_centre) ** 2))
     return dict(exposures=block.n_stations, images=block.n_images, points=block.n_points,
-                observations=block.n_observations, generate_s=t_gen, adjust_s=t_adj, warmup_s=t_warm,
+                observations=block.n_observations, generate_s=t_gen, adjust_s=t_adj, adjust_cpu_s=cpu,
+                warmup_s=t_warm, load=os.getloadavg()[0],
                 iterations=res.info.iterations, unsuccessful=res.info.unsuccessful, lm_s=res.info.wall_s,
                 engine=res.info.engine, converged=bool(res.info.converged), linear_solver=res.info.linear_solver,
                 sigma0=res.sigma0, centre_rmse_m=float(err), adjust_peak_mib=(mem.peak - base) / 2**20,
@@ -104,15 +123,19 @@ def main() -> None:
     ap.add_argument("--points-per-exposure", type=int, default=40)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--boresight", default="free", help="boresight mode of the adjustment (free, fixed, weighted)")
+    ap.add_argument("--max-gib", type=float, default=20.0,
+                    help="guard for a shared machine: a size whose projected adjustment peak (from the previous "
+                         "sizes) exceeds this or 90 %% of the available memory is not run, and a run whose resident "
+                         "memory exceeds it is stopped (default 20)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(one(a.one, a.points_per_exposure, a.seed, a.boresight)))
+        print(json.dumps(one(a.one, a.points_per_exposure, a.seed, a.boresight, a.max_gib)))
         return
     rows = []
-    hdr = (f"{'exposures':>9} {'images':>7} {'points':>8} {'obs':>9} {'gen s':>7} {'adjust s':>9} {'LM s':>7} "
+    hdr = (f"{'exposures':>9} {'images':>7} {'points':>8} {'obs':>9} {'gen s':>7} {'adjust s':>9} {'cpu s':>7} {'LM s':>7} "
            f"{'iter':>5} {'s/iter':>7} {'adj MiB':>8} {'proc MiB':>9} {'sigma0':>7} {'exp(t)':>7} {'exp(mem)':>8} "
-           f"{'warm s':>7}  linear solver")
+           f"{'warm s':>7} {'load':>5} {'conv':>4} {'C rmse':>7}  linear solver")
     import numba
 
     print(f"MIDAS penta rig, GNSS/IMU, boresights {a.boresight}, {a.points_per_exposure} points per exposure, seed {a.seed}, "
@@ -120,11 +143,25 @@ def main() -> None:
     print("adjust s: the whole adjust() call (datum check, Levenberg-Marquardt, statistics); LM s: the "
           "Levenberg-Marquardt loop alone; iter: successful + unsuccessful steps; each size runs in a fresh "
           "process after a warm-up adjustment of a 6-exposure block (loads the numba kernels from their cache; "
-          "warm s)")
+          "warm s); cpu s: user + system CPU seconds of adjust() (all threads: on a loaded shared machine "
+          "the wall time depends on the others' load, printed as the 1-minute load average); C rmse: station "
+          "centres against the truth (m)")
     print(hdr, flush=True)
     for n in a.sizes:
+        if rows:  # project this size's peak from the previous ones (exponent >= 1) before running it
+            e = 1.1
+            if len(rows) >= 2:
+                e = max(1.0, np.log(rows[-1]["adjust_peak_mib"] / rows[-2]["adjust_peak_mib"])
+                        / np.log(rows[-1]["exposures"] / rows[-2]["exposures"]))
+            proj = (rows[-1]["process_peak_mib"] * (n / rows[-1]["exposures"]) ** e) / 1024
+            avail = _mem_available() / 2**30
+            if proj > a.max_gib or proj > 0.9 * avail:
+                print(f"size {n} not run: projected peak {proj:.1f} GiB (exponent {e:.2f}) above the guard "
+                      f"{a.max_gib:.0f} GiB or 90 % of the {avail:.1f} GiB available")
+                break
         out = subprocess.run([sys.executable, __file__, "--one", str(n), "--points-per-exposure",
-                              str(a.points_per_exposure), "--seed", str(a.seed)],
+                              str(a.points_per_exposure), "--seed", str(a.seed), "--boresight", a.boresight,
+                              "--max-gib", str(a.max_gib)],
                              capture_output=True, text=True)
         if out.returncode:
             print(f"size {n} failed:\n{out.stderr[-2000:]}")
@@ -138,18 +175,21 @@ def main() -> None:
             ex_m = np.log(max(r["adjust_peak_mib"], 1e-3) / max(p["adjust_peak_mib"], 1e-3)) / lx
         rows.append(r)
         print(f"{r['exposures']:9d} {r['images']:7d} {r['points']:8d} {r['observations']:9d} {r['generate_s']:7.1f} "
-              f"{r['adjust_s']:9.2f} {r['lm_s']:7.2f} {r['iterations'] + r['unsuccessful']:5d} "
+              f"{r['adjust_s']:9.2f} {r['adjust_cpu_s']:7.1f} {r['lm_s']:7.2f} {r['iterations'] + r['unsuccessful']:5d} "
               f"{r['adjust_s'] / max(r['iterations'] + r['unsuccessful'], 1):7.2f} "
               f"{r['adjust_peak_mib']:8.0f} {r['process_peak_mib']:9.0f} {r['sigma0']:7.3f} {ex_t:7.2f} {ex_m:8.2f} "
-              f"{r['warmup_s']:7.2f}  {r['linear_solver']}",
+              f"{r['warmup_s']:7.2f} {r['load']:5.1f} {'yes' if r['converged'] else 'NO':>4} "
+              f"{r['centre_rmse_m']:7.3f}  {r['linear_solver']}",
               flush=True)
     if len(rows) >= 2:
         x = np.log([r["exposures"] for r in rows])
         bt = np.polyfit(x, np.log([r["adjust_s"] for r in rows]), 1)[0]
         bi = np.polyfit(x, np.log([r["adjust_s"] / max(r["iterations"] + r["unsuccessful"], 1) for r in rows]), 1)[0]
         bm = np.polyfit(x, np.log([max(r["adjust_peak_mib"], 1e-3) for r in rows]), 1)[0]
+        bc = np.polyfit(x, np.log([r["adjust_cpu_s"] for r in rows]), 1)[0]
         print(f"growth exponent over {rows[0]['exposures']}..{rows[-1]['exposures']} exposures (least squares on "
-              f"log-log): time {bt:.2f}, time per iteration {bi:.2f}, adjustment peak memory {bm:.2f}")
+              f"log-log): wall time {bt:.2f}, wall time per iteration {bi:.2f}, CPU time {bc:.2f}, adjustment "
+              f"peak memory {bm:.2f}")
 
 
 if __name__ == "__main__":

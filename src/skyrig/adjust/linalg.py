@@ -58,7 +58,7 @@ HAVE_CVXOPT_CHOLMOD = _cholmod is not None
 HAVE_METIS = _pymetis is not None
 
 __all__ = ["ReducedSolver", "Symbolic", "choose", "symbolic_fill", "supervariables", "nested_dissection",
-           "HAVE_CVXOPT_CHOLMOD", "HAVE_METIS", "NotPositiveDefinite"]
+           "schur_pattern", "scatter_unit_pairs", "HAVE_CVXOPT_CHOLMOD", "HAVE_METIS", "NotPositiveDefinite"]
 
 #: below this many unknowns: dense Cholesky
 DENSE_LIMIT = 1500
@@ -330,6 +330,173 @@ class ReducedSolver:
             rz = rz_new
         self.pcg_iterations.append(it)
         return x
+
+
+# ---------------------------------------------------------------------------- pattern of S, lean
+# The reduced matrix S of the Schur engine (skyrig.adjust.solver.SchurEngine) is the sum of k x k blocks
+# of unit pairs (a unit: a set of reduced columns shared by image rows, ``ucols[u]``, -1 padded), of the
+# blocks of the other factors' column sets, and the diagonal.  Building its CSR pattern by listing every
+# block entry (pairs x k^2 keys, twice with the mirrors, then sorting) and keeping an int64 map per entry
+# costs ~20 bytes per entry (~2 kB per image observation for a penta rig with free boresights, 28 GiB at
+# 10,000 exposures); here the pattern is built row by row with a marker array (memory: the pattern) and
+# the unit-pair blocks are scattered by a binary search in their CSR row instead of a stored map.
+
+try:
+    import numba as _numba
+except ImportError:  # pragma: no cover - numba is a dependency
+    _numba = None
+
+
+def _make_pattern_kernels():  # type: ignore[no-untyped-def]
+    if _numba is None:  # pragma: no cover
+        return None
+    njit = _numba.njit
+
+    @njit(cache=True, nogil=True)
+    def row_sets(n_c, ucols, adj_ptr, adj, cu_ptr, cu, groups, cg_ptr, cg, fill, indptr, indices):  # pragma: no cover
+        # fill=False: count the entries of each row into indptr[r + 1]; fill=True: write them (sorted)
+        mark = np.full(n_c, -1, np.int64)
+        k = ucols.shape[1]
+        kg = groups.shape[1]
+        for r in range(n_c):
+            n = 0
+            base = indptr[r] if fill else 0
+            mark[r] = r
+            if fill:
+                indices[base] = r
+            n += 1
+            for ii in range(cu_ptr[r], cu_ptr[r + 1]):
+                u = cu[ii]
+                for jj in range(adj_ptr[u], adj_ptr[u + 1]):
+                    v = adj[jj]
+                    for j in range(k):
+                        c = ucols[v, j]
+                        if c >= 0 and mark[c] != r:
+                            mark[c] = r
+                            if fill:
+                                indices[base + n] = c
+                            n += 1
+            for ii in range(cg_ptr[r], cg_ptr[r + 1]):
+                g = cg[ii]
+                for j in range(kg):
+                    c = groups[g, j]
+                    if c >= 0 and mark[c] != r:
+                        mark[c] = r
+                        if fill:
+                            indices[base + n] = c
+                        n += 1
+            if fill:
+                indices[base:base + n] = np.sort(indices[base:base + n])
+            else:
+                indptr[r + 1] = n
+
+    @njit(cache=True, nogil=True)
+    def _find(indptr, indices, i, j):  # pragma: no cover - compiled
+        lo = indptr[i]
+        hi = indptr[i + 1]
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if indices[mid] < j:
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo
+
+    @njit(cache=True, nogil=True)
+    def _add_row(indptr, indices, r, cols, vals, dst):  # pragma: no cover - compiled
+        # dst[(r, cols[j])] += vals[j]; the columns of a unit mostly run consecutively, so the next entry
+        # is tried before a binary search
+        p = -1
+        end = indptr[r + 1]
+        for j in range(len(cols)):
+            c = cols[j]
+            if c < 0:
+                continue
+            if p >= 0 and p + 1 < end and indices[p + 1] == c:
+                p += 1
+            else:
+                p = _find(indptr, indices, r, c)
+            dst[p] += vals[j]
+
+    @njit(cache=True, nogil=True)
+    def scatter_pairs(blocks, row_ptr, col_idx, ucols, indptr, indices, dst):  # pragma: no cover - compiled
+        n_u = len(row_ptr) - 1
+        k = ucols.shape[1]
+        col = np.empty(k)
+        for u in range(n_u):
+            for q in range(row_ptr[u], row_ptr[u + 1]):
+                v = col_idx[q]
+                for i in range(k):
+                    r = ucols[u, i]
+                    if r >= 0:
+                        _add_row(indptr, indices, r, ucols[v], blocks[q, i], dst)
+                if v != u:  # the mirror block: row ucols[v, j] gets column j of the block
+                    for j in range(k):
+                        r = ucols[v, j]
+                        if r >= 0:
+                            for i in range(k):
+                                col[i] = blocks[q, i, j]
+                            _add_row(indptr, indices, r, ucols[u], col, dst)
+
+    return dict(row_sets=row_sets, scatter_pairs=scatter_pairs)
+
+
+_PK = _make_pattern_kernels()
+
+
+def _csr_of_lists(owner: NDArray[np.int64], item: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """CSR (ptr, items) of ``item`` grouped by ``owner`` in ``range(n)`` (stable)."""
+    o = np.argsort(owner, kind="stable")
+    ptr = np.zeros(n + 1, np.int64)
+    ptr[1:] = np.cumsum(np.bincount(owner, minlength=n))
+    return ptr, np.ascontiguousarray(item[o], np.int64)
+
+
+def schur_pattern(n_c: int, ucols: NDArray[np.int64], row_ptr: NDArray[np.int64], col_idx: NDArray[np.int64],
+                  other_cols: list[NDArray[np.int64]] = ()) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """CSR pattern ``(indptr, indices)`` (sorted rows, full symmetric, diagonal included) of the reduced
+    matrix: the ``k x k`` blocks ``ucols[u] x ucols[v]`` of the unit pairs (``row_ptr``/``col_idx``: the
+    upper block pattern, ``v >= u``) and their mirrors, the blocks ``cols x cols`` of every row of the
+    other factors' column sets ``other_cols`` (each ``(m, kf)``), and the diagonal; negative columns are
+    left out.  The same set of entries as sorting all block keys, in memory of the order of the pattern."""
+    ucols = np.ascontiguousarray(ucols, np.int64).reshape(len(row_ptr) - 1, -1)
+    n_u, k = ucols.shape
+    ua = np.repeat(np.arange(n_u, dtype=np.int64), np.diff(row_ptr))
+    ub = np.asarray(col_idx, np.int64)
+    off = ua != ub
+    adj_ptr, adj = _csr_of_lists(np.concatenate([ua, ub[off]]), np.concatenate([ub, ua[off]]), n_u)
+    del ua, ub, off
+    cu_u = np.repeat(np.arange(n_u, dtype=np.int64), k)
+    cu_c = ucols.reshape(-1)
+    v = cu_c >= 0
+    cu_ptr, cu = _csr_of_lists(cu_c[v], cu_u[v], n_c)
+    kg = max([c.shape[1] for c in other_cols if c.ndim == 2 and len(c)] + [1])
+    groups = np.full((sum(len(c) for c in other_cols), kg), -1, np.int64)
+    g0 = 0
+    for c in other_cols:
+        if len(c):
+            groups[g0:g0 + len(c), :c.shape[1]] = c
+            g0 += len(c)
+    gi = np.repeat(np.arange(len(groups), dtype=np.int64), kg)
+    gc = groups.reshape(-1)
+    v = gc >= 0
+    cg_ptr, cg = _csr_of_lists(gc[v], gi[v], n_c)
+    indptr = np.zeros(n_c + 1, np.int64)
+    _PK["row_sets"](n_c, ucols, adj_ptr, adj, cu_ptr, cu, groups, cg_ptr, cg, False, indptr, np.zeros(0, np.int64))
+    indptr = np.cumsum(indptr)
+    indices = np.empty(int(indptr[-1]), np.int64)
+    _PK["row_sets"](n_c, ucols, adj_ptr, adj, cu_ptr, cu, groups, cg_ptr, cg, True, indptr, indices)
+    return indptr, indices
+
+
+def scatter_unit_pairs(blocks: NDArray[np.float64], row_ptr: NDArray[np.int64], col_idx: NDArray[np.int64],
+                       ucols: NDArray[np.int64], indptr: NDArray[np.int64], indices: NDArray[np.int64],
+                       dst: NDArray[np.float64]) -> None:
+    """``dst`` (CSR values of the pattern ``indptr``/``indices``) ``+=`` the unit-pair blocks
+    ``blocks[q]`` ``(k, k)`` at ``ucols[u] x ucols[col_idx[q]]`` and their mirrors (``u != v``), found by
+    a binary search in the CSR row (no stored per-entry map)."""
+    _PK["scatter_pairs"](np.ascontiguousarray(blocks).reshape(len(col_idx), ucols.shape[1], ucols.shape[1]),
+                         row_ptr, col_idx, np.ascontiguousarray(ucols, np.int64), indptr, indices, dst)
 
 
 def choose(rs: ReducedSolver, method: str, dense_limit: int, memory_limit: float | None,
