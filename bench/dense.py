@@ -119,15 +119,22 @@ def setup(cache: Path, n: int, workers: int | None = None):  # type: ignore[no-u
 def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None):  # type: ignore[no-untyped-def]
     from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
 
+    from skyrig.dense import _phases
+
     cfg = DenseConfig() if tile_cells is None else DenseConfig(tile_cells=tile_cells)
+    _phases.reset()
+    c0 = time.process_time()
     t0 = time.perf_counter()
-    plan = plan_dense(eo, cameras, out_frame, hr, None, cfg)
+    with _phases.phase("plan"):
+        plan = plan_dense(eo, cameras, out_frame, hr, None, cfg)
     t1 = time.perf_counter()
     results = [run_tile(plan, k, loader) for k in range(len(plan.tiles))]
     t2 = time.perf_counter()
-    dsm, cloud, stats = assemble(plan, results)
+    with _phases.phase("assemble"):
+        dsm, cloud, stats = assemble(plan, results)
     t3 = time.perf_counter()
-    return plan, dsm, cloud, stats, {"plan_s": t1 - t0, "tiles_s": t2 - t1, "assemble_s": t3 - t2, "chain_s": t3 - t0}
+    return plan, dsm, cloud, stats, {"plan_s": t1 - t0, "tiles_s": t2 - t1, "assemble_s": t3 - t2, "chain_s": t3 - t0,
+                                     "chain_cpu_s": time.process_time() - c0, "phases": _phases.totals()}
 
 
 def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
@@ -140,7 +147,8 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
     mode = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
             "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}[cfg.mode]
     bs2 = cfg.block_size ** 2
-    secs, mp, valid = 0.0, 0.0, 0
+    secs, cpu, mp, valid = 0.0, 0.0, 0.0, 0
+    secs_ov, cpu_ov, mp_ov = 0.0, 0.0, 0.0
     images: dict[int, np.ndarray] = {}
     for pair, rect, blocks in zip(plan.pairs, plan.rects, plan.blocks):
         for i in (pair.left, pair.right):
@@ -160,17 +168,32 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
                                   P1=cfg.p1 * bs2, P2=cfg.p2 * bs2, disp12MaxDiff=cfg.lr_max_diff,
                                   preFilterCap=cfg.pre_filter_cap, uniquenessRatio=cfg.uniqueness,
                                   speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range, mode=mode)
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         d16 = m.compute(lg, rg)
         secs += time.perf_counter() - t
+        cpu += time.process_time() - c
         mp += (u1 - u0) * (v1 - v0) / 1e6
         valid += int((d16[:, n:] >= 0).sum())
-    return {"raw_s": secs, "pair_mp": mp, "raw_valid": valid}
+        # the same, on the columns only whose search window reaches the right image (what the chain matches)
+        a = max(u0, int(rect.bounds[1][0]) + shift)
+        b = min(u1, int(rect.bounds[1][1]) + shift + n - 1)
+        if b > a:
+            lo, ro = np.ascontiguousarray(lg[:, a - u0:b - u0 + n]), np.ascontiguousarray(rg[:, a - u0:b - u0 + n])
+            t, c = time.perf_counter(), time.process_time()
+            m.compute(lo, ro)
+            secs_ov += time.perf_counter() - t
+            cpu_ov += time.process_time() - c
+            mp_ov += (b - a) * (v1 - v0) / 1e6
+    return {"raw_s": secs, "raw_cpu_s": cpu, "pair_mp": mp, "raw_valid": valid, "raw_ov_s": secs_ov,
+            "raw_ov_cpu_s": cpu_ov, "overlap_mp": mp_ov}
 
 
-def worker(cache: Path, n: int, tile_cells: int | None) -> dict:
+def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1) -> dict:
     """One size, in this (fresh) process: chain, then raw; peak memory of each phase."""
+    import cv2
+
     eo, cameras, loader, out_frame, hr = setup(cache, n)
+    cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -207,11 +230,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--tile-cells", type=int, default=None,
                     help="DenseConfig.tile_cells (default: its default, one tile for these blocks); smaller tiles "
                          "show memory bounded by the tile (blocks reaching several tiles are matched again)")
+    ap.add_argument("--cv-threads", type=int, default=1,
+                    help="cv2.setNumThreads for both the chain and raw (default 1: per-core throughput; the machine "
+                         "may be shared)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     if a.worker is not None:
-        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells)))
+        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads)))
         return
     if a.profile is not None:
         profile(cache, a.profile)
@@ -223,10 +249,11 @@ def main(argv: list[str] | None = None) -> None:
     ensure_block(cache, a.workers)
     import cv2
 
-    print(f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} cores; cache {cache}")
+    print(f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, cv2.setNumThreads({a.cv_threads}) in chain "
+          f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
     rows = []
     for n in sizes:
-        cmd = [sys.executable, __file__, "--worker", str(n), "--cache", str(cache)]
+        cmd = [sys.executable, __file__, "--worker", str(n), "--cache", str(cache), "--cv-threads", str(a.cv_threads)]
         if a.tile_cells is not None:
             cmd += ["--tile-cells", str(a.tile_cells)]
         p = subprocess.run(cmd, capture_output=True, text=True)
@@ -253,9 +280,21 @@ def main(argv: list[str] | None = None) -> None:
         print(f"growth {a0['n']} -> {a1['n']} images (x{k:g}): chain time x{a1['chain_s'] / a0['chain_s']:.2f}, "
               f"pairs x{a1['pairs'] / max(a0['pairs'], 1):.2f}, peak RSS x{a1['rss_chain_mb'] / a0['rss_chain_mb']:.2f} "
               f"(+MB over the process after imports x{(a1['rss_chain_mb'] - a1['rss0_mb']) / max(a0['rss_chain_mb'] - a0['rss0_mb'], 1):.2f})")
+    print("\nCPU seconds (this process; robust on a shared machine) and the chain's phases (CPU s):")
+    names = sorted({k for r in rows for k in r["phases"]}, key=lambda k: -sum(r["phases"].get(k, (0, 0))[1] for r in rows))
+    print(f"{'images':>6} {'chain':>7} {'raw':>6} {'ratio':>5} {'raw ov':>6} {'ratio ov':>8}  " + " ".join(f"{k:>11}" for k in names))
+    for r in rows:
+        print(f"{r['n']:>6} {r['chain_cpu_s']:>7.2f} {r['raw_cpu_s']:>6.2f} {r['raw_cpu_s'] / r['chain_cpu_s']:>5.2f} "
+              f"{r['raw_ov_cpu_s']:>6.2f} {r['raw_ov_cpu_s'] / r['chain_cpu_s']:>8.2f}  "
+              + " ".join(f"{r['phases'].get(k, (0, 0))[1]:>11.2f}" for k in names))
     tot_c = sum(r["chain_s"] for r in rows)
     tot_r = sum(r["raw_s"] for r in rows)
-    print(f"overall: chain / raw SGBM throughput ratio {tot_r / tot_c:.2f} (goal >= 0.6)")
+    cpu_c = sum(r["chain_cpu_s"] for r in rows)
+    cpu_r = sum(r["raw_cpu_s"] for r in rows)
+    cpu_o = sum(r["raw_ov_cpu_s"] for r in rows)
+    print(f"overall: chain / raw SGBM throughput ratio {tot_r / tot_c:.2f} wall, {cpu_r / cpu_c:.2f} CPU (goal >= 0.6); "
+          f"against raw SGBM on the overlap columns only ({sum(r['overlap_mp'] for r in rows) / sum(r['pair_mp'] for r in rows):.0%} "
+          f"of the pixels): {cpu_o / cpu_c:.2f} CPU")
 
 
 if __name__ == "__main__":

@@ -17,16 +17,41 @@ def counting_order(cell, ncells):  # pragma: no cover - compiled
     n = cell.shape[0]
     start = np.zeros(ncells + 1, np.int64)
     for i in range(n):
-        start[cell[i] + 1] += 1
+        if cell[i] >= 0:
+            start[cell[i] + 1] += 1
     for c in range(ncells):
         start[c + 1] += start[c]
     pos = start[:-1].copy()
-    order = np.empty(n, np.int64)
+    order = np.empty(start[ncells], np.int64)
     for i in range(n):
         c = cell[i]
-        order[pos[c]] = i
-        pos[c] += 1
+        if c >= 0:
+            order[pos[c]] = i
+            pos[c] += 1
     return order, start
+
+
+@numba.njit(cache=True)
+def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m):  # pragma: no cover - compiled
+    """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
+    with a non-finite coordinate or a sigma not > 0; with ``voxel_z_m > 0`` also each point's height slice
+    ``floor(z / voxel_z_m)`` (else an empty array)."""
+    n = x.shape[0]
+    cell = np.empty(n, np.int64)
+    kz = np.empty(n if voxel_z_m > 0 else 0, np.int64)
+    for i in range(n):
+        cell[i] = -1
+        xi, yi, zi = x[i], y[i], z[i]
+        if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi) and sigma[i] > 0):
+            continue
+        col = np.floor((xi - x0) / cell_m)
+        row = np.floor((y0 - yi) / cell_m)
+        if col < 0 or col >= W or row < 0 or row >= H:
+            continue
+        cell[i] = int(row) * W + int(col)
+        if voxel_z_m > 0:
+            kz[i] = int(np.floor(zi / voxel_z_m))
+    return cell, kz
 
 
 @numba.njit(cache=True)
@@ -131,10 +156,11 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
 
 
 @numba.njit(cache=True)
-def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, min_support,
+def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, rot, min_support,
                 o_xyz, o_rgb, o_n, o_sup, o_sig):  # pragma: no cover - compiled
     """Voxel fusion: inside each column cell, points grouped by vertical voxel index ``kz``; a voxel with
-    points of at least ``min_support`` distinct pairs becomes one point.  Returns the number written."""
+    points of at least ``min_support`` distinct pairs becomes one point.  Normals are rotated by ``rot``
+    (``(3, 3)``, in float64, rounded to float32) before they are averaged.  Returns the number written."""
     ncells = start.shape[0] - 1
     out = 0
     for c in range(ncells):
@@ -176,9 +202,10 @@ def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, min_support,
                     r1 += rgb[p, 1]
                     r2 += rgb[p, 2]
                     if normal[p, 0] == normal[p, 0]:  # not NaN
-                        n0 += normal[p, 0]
-                        n1 += normal[p, 1]
-                        n2 += normal[p, 2]
+                        a0, a1, a2 = np.float64(normal[p, 0]), np.float64(normal[p, 1]), np.float64(normal[p, 2])
+                        n0 += np.float32(rot[0, 0] * a0 + rot[0, 1] * a1 + rot[0, 2] * a2)
+                        n1 += np.float32(rot[1, 0] * a0 + rot[1, 1] * a1 + rot[1, 2] * a2)
+                        n2 += np.float32(rot[2, 0] * a0 + rot[2, 1] * a1 + rot[2, 2] * a2)
                 cnt = j - i
                 o_xyz[out, 0] = sx / wsum
                 o_xyz[out, 1] = sy / wsum
@@ -289,4 +316,79 @@ def poly_map(xyz, c0, s, coef, offset):  # pragma: no cover - compiled
             for j in range(14):
                 acc += coef[j, k] * t[j]
             out[i, k] = acc
+    return out
+
+
+@numba.njit(cache=True)
+def lattice_maps(lat, step, width, height, cam_w, cam_h):  # pragma: no cover - compiled
+    """``cv2.remap`` maps of a rectified crop from the exact mapping on a lattice every ``step`` pixels (see
+    :meth:`skyrig.dense.rectify.Rectification.maps`): bilinear in float64 (along u first), -1e6 where the
+    lattice is NaN, rounded to float32; and the mask of map positions inside the ``cam_w x cam_h`` image."""
+    nv, nu = lat.shape[0], lat.shape[1]
+    mx = np.empty((height, width), np.float32)
+    my = np.empty((height, width), np.float32)
+    inside = np.empty((height, width), np.bool_)
+    iu = np.empty(width, np.int64)
+    fu = np.empty(width)
+    for c in range(width):
+        cu = c / step
+        k = min(int(cu), nu - 2)
+        iu[c] = k
+        fu[c] = cu - k
+    for r in range(height):
+        cv = r / step
+        iv = min(int(cv), nv - 2)
+        fv = cv - iv
+        for c in range(width):
+            k = iu[c]
+            f = fu[c]
+            g = 1 - f
+            ax = lat[iv, k, 0] * g + lat[iv, k + 1, 0] * f
+            bx = lat[iv + 1, k, 0] * g + lat[iv + 1, k + 1, 0] * f
+            px = ax * (1 - fv) + bx * fv
+            ay = lat[iv, k, 1] * g + lat[iv, k + 1, 1] * f
+            by = lat[iv + 1, k, 1] * g + lat[iv + 1, k + 1, 1] * f
+            py = ay * (1 - fv) + by * fv
+            if not np.isfinite(px) or not np.isfinite(py):  # behind the camera (the lattice is NaN in pairs)
+                px = -1e6 if not np.isfinite(px) else px
+                py = -1e6 if not np.isfinite(py) else py
+            x = np.float32(px)
+            y = np.float32(py)
+            mx[r, c] = x
+            my[r, c] = y
+            inside[r, c] = x >= 0 and x <= cam_w - 1 and y >= 0 and y <= cam_h - 1
+    return mx, my, inside
+
+
+@numba.njit(cache=True)
+def check_disparities(d16, e16, valid_left, valid_right, tol, shift, full):  # pragma: no cover - compiled
+    """Disparities of a matched crop (see :func:`skyrig.dense.sgm.match_crop`), float32, NaN = invalid.
+
+    ``d16``: OpenCV's fixed-point left disparities of the crop's first ``d16.shape[1]`` columns (< 0:
+    none); ``e16``: those of the right-based pass over the whole crop, already flipped back (``full``), whose
+    value at the right pixel a left pixel matched (nearest) must agree within ``tol`` pixels; the left pixel
+    and that right pixel must carry image content (``valid_left``, ``valid_right``).  ``shift`` is added back."""
+    H, W = valid_left.shape
+    Wd = d16.shape[1]
+    out = np.empty((H, W), np.float32)
+    out[:] = np.nan
+    for r in range(H):
+        for c in range(Wd):
+            q = d16[r, c]
+            if q < 0:
+                continue
+            d = np.float32(q) * np.float32(0.0625)
+            jr = np.float32(c) - d
+            if jr < 0:
+                continue
+            ji = int(np.rint(jr))
+            if ji > W - 1:
+                ji = W - 1
+            if full:
+                e = e16[r, ji]
+                if e < 0 or not abs(np.float32(e) * np.float32(0.0625) - d) <= tol:
+                    continue
+            if not valid_left[r, c] or not valid_right[r, ji]:
+                continue
+            out[r, c] = d + np.float32(shift)
     return out

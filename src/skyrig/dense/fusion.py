@@ -92,7 +92,7 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
         With ``candidates``: for cells whose pairs all agree but are fewer than ``min_support``, their
         precision-weighted mean height, its sigma and the number of pairs (NaN / 0 elsewhere).
     """
-    from skyrig.dense._kernels import counting_order, fuse_grid_cells
+    from skyrig.dense._kernels import counting_order, fuse_grid_cells, grid_cells
 
     H, W = grid.shape
     out_h = np.full(H * W, np.nan, np.float32)
@@ -102,14 +102,14 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
     out_ch = np.full(H * W, np.nan, np.float32)
     out_cs = np.full(H * W, np.nan, np.float32)
     out_cn = np.zeros(H * W, np.int16)
-    row, col = grid.cell_of(x, y)
-    ok = (row >= 0) & (row < H) & (col >= 0) & (col < W) & np.isfinite(h) & (sigma > 0)
-    if ok.any():
-        cell = (row[ok] * W + col[ok]).astype(np.int64)
+    x, y, h = (np.asarray(v, np.float64) for v in (x, y, h))
+    sigma = np.asarray(sigma, np.float64)
+    if len(x):
+        cell, _ = grid_cells(x, y, h, sigma, float(grid.x0), float(grid.y0), float(grid.cell_m), H, W, 0.0)
         order, start = counting_order(cell, H * W)
-        fuse_grid_cells(order, start, np.asarray(pair, np.int64)[ok], np.asarray(h, np.float64)[ok],
-                        np.asarray(sigma, np.float64)[ok], float(cfg.k_sigma), float(cfg.min_tol_cells * grid.cell_m),
-                        int(cfg.min_support), float(cfg.min_support_ratio), out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
+        fuse_grid_cells(order, start, np.asarray(pair, np.int64), h, sigma, float(cfg.k_sigma),
+                        float(cfg.min_tol_cells * grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
+                        out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
     shape = grid.shape
     out = (out_h.reshape(shape), out_n.reshape(shape), out_sp.reshape(shape), out_s.reshape(shape))
     if candidates:
@@ -160,22 +160,26 @@ def confirm_by_neighbours(height: NDArray[np.float32], support: NDArray[np.int16
 
 def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: NDArray[np.float64],
                sigma: NDArray[np.float64], rgb: NDArray[np.uint8], normal: NDArray[np.float32],
-               cfg: FusionConfig = FusionConfig()
+               cfg: FusionConfig = FusionConfig(), normal_rotation: NDArray[np.float64] | None = None
                ) -> tuple[NDArray[np.float64], NDArray[np.uint8], NDArray[np.float32], NDArray[np.int16], NDArray[np.float32]]:
     """Fuse points of several pairs in voxels: the cells of ``grid`` x height slices of ``voxel_z_m``
-    (slices counted from height 0).  Points outside the grid are ignored.
+    (slices counted from height 0).  Points outside the grid are ignored.  ``normal_rotation`` (3, 3), if
+    given, rotates the normals before they are averaged.
 
     Returns
     -------
     xyz, rgb, normal, support, sigma
         One row per kept voxel, ordered by cell, then height.
     """
-    from skyrig.dense._kernels import counting_order, fuse_voxels
+    from skyrig.dense._kernels import counting_order, fuse_voxels, grid_cells
 
     H, W = grid.shape
-    row, col = grid.cell_of(xyz[:, 0], xyz[:, 1]) if len(xyz) else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    ok = (row >= 0) & (row < H) & (col >= 0) & (col < W) & np.all(np.isfinite(xyz), axis=1)
-    n = int(ok.sum())
+    p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
+    sig = np.asarray(sigma, np.float64)
+    cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], np.ones(len(p)), float(grid.x0), float(grid.y0),
+                          float(grid.cell_m), H, W, float(voxel_z_m))
+    order, start = counting_order(cell, H * W)
+    n = len(order)
     o_xyz = np.empty((n, 3))
     o_rgb = np.empty((n, 3), np.uint8)
     o_n = np.empty((n, 3), np.float32)
@@ -183,11 +187,7 @@ def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: N
     o_sig = np.empty(n, np.float32)
     if n == 0:
         return o_xyz, o_rgb, o_n, o_sup, o_sig
-    cell = (row[ok] * W + col[ok]).astype(np.int64)
-    p = np.ascontiguousarray(xyz[ok], np.float64)
-    kz = np.floor(p[:, 2] / voxel_z_m).astype(np.int64)
-    order, start = counting_order(cell, H * W)
-    k = fuse_voxels(order, start, kz, np.asarray(pair, np.int64)[ok], p, np.asarray(sigma, np.float64)[ok],
-                    np.ascontiguousarray(rgb[ok]), np.ascontiguousarray(normal[ok], np.float32), int(cfg.min_support),
-                    o_xyz, o_rgb, o_n, o_sup, o_sig)
+    rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
+    k = fuse_voxels(order, start, kz, np.asarray(pair, np.int64), p, sig, np.ascontiguousarray(rgb, np.uint8),
+                    np.ascontiguousarray(normal, np.float32), rot, int(cfg.min_support), o_xyz, o_rgb, o_n, o_sup, o_sig)
     return o_xyz[:k], o_rgb[:k], o_n[:k], o_sup[:k], o_sig[:k]

@@ -194,25 +194,31 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
     foreground at depth edges.  Returns ``(H, W)`` float32 disparities, NaN = invalid; the first ``n`` columns
     (and with the full check the last ``n``) are always invalid.
     """
+    from skyrig.dense._kernels import check_disparities
+    from skyrig.dense._phases import phase
+
     channels = 1 if left.ndim == 2 else left.shape[2]
     matcher = _matcher(cfg, n, channels)
-    d16 = matcher.compute(left, right)
-    d = d16.astype(np.float32) / 16.0
-    d[d16 < 0] = np.nan
-    if cfg.lr_check == "full":
-        d = left_right_check(d, matcher, left, right, cfg.lr_max_diff)
-    if valid_left is not None:
-        d[~valid_left] = np.nan
-    if valid_right is not None:  # the right pixel each left pixel matched must carry image content
-        w = d.shape[1]
-        cols = np.arange(w)[None, :] - d
-        ci = np.clip(np.round(np.nan_to_num(cols, nan=-1)).astype(np.int64), 0, w - 1)
-        rok = np.take_along_axis(valid_right, ci, axis=1) & np.isfinite(cols) & (cols >= 0)
-        d[~rok] = np.nan
-    d += shift
-    d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px)
-    if cfg.fill_occlusions:
-        d = fill_background(d, valid_left)
+    H, W = left.shape[:2]
+    full = cfg.lr_check == "full"
+    extra = crop_extra_right(n, cfg) if W - crop_extra_right(n, cfg) > n else 0
+    with phase("sgm left"):  # the last n columns (full check) only serve the right-based pass: skipped here
+        d16 = matcher.compute(np.ascontiguousarray(left[:, :W - extra]), np.ascontiguousarray(right[:, :W - extra]))
+    if full:
+        with phase("sgm right"):  # the same matcher on the mirrored pair
+            e16 = np.ascontiguousarray(matcher.compute(np.ascontiguousarray(right[:, ::-1]),
+                                                       np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
+    else:
+        e16 = np.zeros((1, 1), np.int16)
+    with phase("lr check"):
+        vl = np.ones((H, W), bool) if valid_left is None else np.ascontiguousarray(valid_left, bool)
+        vr = np.ones((H, W), bool) if valid_right is None else np.ascontiguousarray(valid_right, bool)
+        d = check_disparities(np.ascontiguousarray(d16, np.int16), e16, vl, vr, np.float32(max(cfg.lr_max_diff, 0.5)),
+                              int(shift), full)
+    with phase("filters"):
+        d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px)
+        if cfg.fill_occlusions:
+            d = fill_background(d, valid_left)
     return d
 
 

@@ -93,12 +93,20 @@ def block_window(rect: Rectification, u0: int, u1: int, v0: int, v1: int,
 
 def pair_blocks(rect: Rectification, box: tuple[float, float, float, float, float, float], block_px: int = 768,
                 min_depth_m: float = 0.0) -> list[Block]:
-    """Fixed blocks covering the left image on the rectified plane (rows both images share)."""
+    """Fixed blocks covering the left image on the rectified plane (rows both images share): the fewest blocks
+    of at most ``block_px`` a side, of equal size (within a pixel) along each axis (no sliver of a block that
+    would cost a whole crop of context and search width)."""
     u0, u1, v0, v1 = (int(x) for x in rect.bounds[0])
+
+    def cuts(lo: int, hi: int) -> list[int]:
+        k = max(1, -(-(hi - lo) // block_px))
+        return [lo + ((hi - lo) * i) // k for i in range(k + 1)]
+
     out = []
-    for a in range(v0, v1, block_px):
-        for b in range(u0, u1, block_px):
-            bb = (b, min(u1, b + block_px), a, min(v1, a + block_px))
+    vc, uc = cuts(v0, v1), cuts(u0, u1)
+    for a, a1 in zip(vc[:-1], vc[1:]):
+        for b, b1 in zip(uc[:-1], uc[1:]):
+            bb = (b, b1, a, a1)
             w = block_window(rect, *bb, box, min_depth_m=min_depth_m)
             if w is not None:
                 out.append(Block(*bb, *w))
@@ -115,28 +123,62 @@ def block_ground_bounds(rect: Rectification, blk: Block, samples: int = 5) -> ND
     return np.array([pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max()])
 
 
+def block_crop(rect: Rectification, blk: Block, cfg: SgmConfig) -> tuple[int, int, int, int, int, int, int, int] | None:
+    """Where a block is matched: ``(shift, n, a, b, cu0, cu1, cv0, cv1)`` (None: nothing of the block can match).
+
+    ``[a, b)`` are the block's columns whose search window reaches the right image (no other left pixel can
+    get a match); ``[cu0, cu1) x [cv0, cv1)`` the crop that is matched: ``cfg.margin_px`` of context around the
+    block where both images carry content (none beyond the pair's rectified bounds: only zeros lie there), the
+    search width left of it (OpenCV leaves the first ``n`` columns without result) and, for the full left-right
+    check, right of it (:func:`skyrig.dense.sgm.crop_extra_right`).  A function of the block and the pair only,
+    so the result of a block never depends on the tiling."""
+    shift, n = disparity_window(blk.d_min, blk.d_max, cfg)
+    m = cfg.margin_px
+    lu0, lu1, v0, v1 = (int(x) for x in rect.bounds[0])
+    ru0, ru1 = int(rect.bounds[1][0]), int(rect.bounds[1][1])
+    lo = max(lu0, ru0 + shift)  # left columns whose window reaches a right column with content
+    hi = min(lu1, ru1 + shift + n - 1)
+    a, b = max(blk.u0, lo), min(blk.u1, hi)
+    if b <= a:
+        return None
+    cu0 = a - min(m, a - lo) - n
+    cu1 = b + min(m, max(hi - b, 0)) + crop_extra_right(n, cfg)
+    cv0, cv1 = max(blk.v0 - m, v0), min(blk.v1 + m, v1)
+    return shift, n, a, b, cu0, cu1, cv0, cv1
+
+
 def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk: Block, cfg: SgmConfig
                 ) -> tuple[NDArray[np.float32], NDArray, NDArray[np.bool_]]:
     """Disparities ``(v1-v0, u1-u0)`` of a block (NaN invalid), its left colour crop and validity.
 
-    The crop carries ``cfg.margin_px`` of context on every side and the search width on the left; the right
-    crop is shifted by the window's start so OpenCV searches ``0..n``.
+    The crop (:func:`block_crop`) carries context where both images have content and the search width; the
+    right crop is shifted by the window's start so OpenCV searches ``0..n``.  Columns of the block no right
+    pixel can match stay NaN (colour 0, not valid).
     """
     import cv2
 
-    shift, n = disparity_window(blk.d_min, blk.d_max, cfg)
-    m = cfg.margin_px
-    cu0 = blk.u0 - m - n
-    w = (blk.u1 + m + crop_extra_right(n, cfg)) - cu0
-    cv0 = blk.v0 - m
-    h = (blk.v1 + m) - cv0
-    lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
-    rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
-    lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
-    rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
+    from skyrig.dense._phases import phase
+
+    bh, bw = blk.v1 - blk.v0, blk.u1 - blk.u0
+    ch = left_img.shape[2:] if left_img.ndim == 3 else ()
+    disp = np.full((bh, bw), np.nan, np.float32)
+    colour = np.zeros((bh, bw) + ch, left_img.dtype)
+    valid = np.zeros((bh, bw), bool)
+    crop = block_crop(rect, blk, cfg)
+    if crop is None:
+        return disp, colour, valid
+    shift, n, a, b, cu0, cu1, cv0, cv1 = crop
+    w, h = cu1 - cu0, cv1 - cv0
+    with phase("rectify"):
+        lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
+        rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
+        lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
+        rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
     d = match_crop(lg, rg, shift, n, cfg, lvalid, rvalid)
-    sl = (slice(m, m + blk.v1 - blk.v0), slice(m + n, m + n + blk.u1 - blk.u0))
-    return d[sl], lc[sl], lvalid[sl]
+    src = (slice(blk.v0 - cv0, blk.v1 - cv0), slice(a - cu0, b - cu0))
+    dst = (slice(None), slice(a - blk.u0, b - blk.u0))
+    disp[dst], colour[dst], valid[dst] = d[src], lc[src], lvalid[src]
+    return disp, colour, valid
 
 
 def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig
@@ -148,7 +190,14 @@ def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], col
     along the grid (central differences), ``n = dp/dv x dp/du``; world = ``C_left + R p``.
     """
     from skyrig.dense._kernels import triangulate_block
+    from skyrig.dense._phases import phase
 
+    with phase("triangulate"):
+        return _block_points(rect, blk, disp, colour, cfg, triangulate_block)
+
+
+def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig,
+                  triangulate_block) -> PairPoints:  # type: ignore[no-untyped-def]
     cos_lim = float(np.cos(np.radians(cfg.max_incidence_deg)))
     d = np.nan_to_num(np.ascontiguousarray(disp, np.float32), nan=-1.0)
     rr, cc, xyz, normal, sigma_h, sigma_3d, ang = triangulate_block(

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
+from skyrig.dense._phases import phase
 from skyrig.dense.fusion import FusionConfig, confirm_by_neighbours, fuse_cloud, fuse_grid
 from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
 from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
@@ -388,7 +389,8 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
 
     def image(i: int) -> NDArray:
         if i not in images:
-            images[i] = loader(i)
+            with phase("read"):
+                images[i] = loader(i)
         return images[i]
 
     pts: list[tuple[int, PairPoints, NDArray]] = []
@@ -403,30 +405,35 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
             pp = block_points(rect, blk, disp, colour, plan.config.sgm)
             if len(pp) == 0:
                 continue
-            xyz_m = plan.to_map(pp.xyz)
-            inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
-            if inside.any():
-                sel = np.flatnonzero(inside)
-                pts.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
-                                            pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
-    if pts:
-        pid = np.concatenate([np.full(len(p[1]), p[0], np.int64) for p in pts])
-        xyz = np.concatenate([p[2] for p in pts])
-        sig = np.concatenate([p[1].sigma_h for p in pts]).astype(np.float64)
-    else:
-        pid, xyz, sig = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
-    hgt, sup, spr, sg, ch, cs, cn = fuse_grid(tg, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, plan.config.fusion,
-                                              candidates=True)
+            with phase("to map"):
+                xyz_m = plan.to_map(pp.xyz)
+                inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
+                if inside.all():
+                    pts.append((pid, pp, xyz_m))
+                elif inside.any():
+                    sel = np.flatnonzero(inside)
+                    pts.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
+                                                pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
+    with phase("fuse grid"):
+        if pts:
+            pid = np.concatenate([np.full(len(p[1]), p[0], np.int64) for p in pts])
+            xyz = np.concatenate([p[2] for p in pts])
+            sig = np.concatenate([p[1].sigma_h for p in pts]).astype(np.float64)
+        else:
+            pid, xyz, sig = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
+        hgt, sup, spr, sg, ch, cs, cn = fuse_grid(tg, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, plan.config.fusion,
+                                                  candidates=True)
     cloud = None
     if plan.config.cloud and pts:
-        rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
-        nrm = np.concatenate([p[1].normal for p in pts]).astype(np.float64) @ rot.T
-        vox = plan.config.cloud_voxel_m or plan.grid.cell_m
-        vg = tg if vox == plan.grid.cell_m else GridSpec(tg.x0, tg.y0, vox, int(np.ceil(w * tg.cell_m / vox)),
-                                                        int(np.ceil(h * tg.cell_m / vox)))
-        cloud = fuse_cloud(vg, vox, pid, xyz,
-                           np.concatenate([p[1].sigma_3d for p in pts]).astype(np.float64),
-                           np.concatenate([p[1].rgb for p in pts]), nrm.astype(np.float32), plan.config.fusion)
+        with phase("fuse cloud"):
+            rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
+            nrm = np.concatenate([p[1].normal for p in pts])
+            vox = plan.config.cloud_voxel_m or plan.grid.cell_m
+            vg = tg if vox == plan.grid.cell_m else GridSpec(tg.x0, tg.y0, vox, int(np.ceil(w * tg.cell_m / vox)),
+                                                            int(np.ceil(h * tg.cell_m / vox)))
+            cloud = fuse_cloud(vg, vox, pid, xyz,
+                               np.concatenate([p[1].sigma_3d for p in pts]).astype(np.float64),
+                               np.concatenate([p[1].rgb for p in pts]), nrm, plan.config.fusion, rot)
     return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud, len(xyz), nblocks, mpx, time.perf_counter() - t0,
                       ch, cs, cn)
 
