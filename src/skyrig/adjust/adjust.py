@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block, BlockError
+from skyrig.adjust.factors import observation_type, observation_types
 from skyrig.adjust.model import Factor, Layout, Model, State, pad_actuator
 from skyrig.adjust.solver import (
     SingularError,
@@ -207,18 +208,8 @@ def _weights(model: Model) -> dict[str, NDArray[np.float64]]:
 
 
 def _label(block: Block, group: str, i: int) -> str:
-    if group == "image":
-        return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
-    if group == "control":
-        return f"control point {block.point_name[block.control_point[i]]}"  # type: ignore[index]
-    if group == "gnss":
-        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"  # type: ignore[index]
-    if group == "imu":
-        return f"IMU attitude of station {block.station_name[block.imu_station[i]]}"  # type: ignore[index]
-    if group == "distance":
-        a, b = block.distance_point[i]  # type: ignore[index]
-        return f"distance {block.point_name[a]} - {block.point_name[b]}"
-    return f"{group}[{i}]"
+    t = observation_type(group)
+    return t.label(block, i) if t is not None else f"{group}[{i}]"
 
 
 def _datum_defect(layout: Layout) -> int:
@@ -269,14 +260,7 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
     fixed = [_MOTIONS[j] for j, v in zip(on, r) if v > 1e-6]
     if not fixed:
         return
-    b = model.block
-    what = []
-    if (model.control_weight > 0).any():
-        what.append("control points")
-    if len(b.gnss_station):  # type: ignore[arg-type]
-        what.append("GNSS positions")
-    if len(b.imu_station):  # type: ignore[arg-type]
-        what.append("IMU attitudes")
+    what = [t.datum_words for t in observation_types() if t.datum_words and t.fixes_datum(model)]
     if model.config.poses == "weighted":
         what.append("pose priors (poses='weighted')")
     if model.config.points == "fixed":
@@ -369,7 +353,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             logger.warning(w)
     if cfg.datum != "none":
         check_datum(model, state, free)
-    huber = cfg.robust_k if cfg.robust == "huber" else None
+    opt = cfg.solver_options  # the optimiser's part of the configuration
+    huber = opt.robust_k if opt.robust == "huber" else None
     crit = critical_value(cfg.snooping_alpha)
     n_start = len(rejected)
     failures: list[str] = []
@@ -379,8 +364,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     while True:
         cb = None if callback is None else (lambda i, c, lam, _s=stage: callback(_s, i, c))
         state, info = levenberg_marquardt(
-            model, state, cfg.max_iterations, cfg.function_tolerance, cfg.parameter_tolerance,
-            cfg.gradient_tolerance, huber, free, cb)
+            model, state, opt.max_iterations, opt.function_tolerance, opt.parameter_tolerance,
+            opt.gradient_tolerance, huber, free, cb)
         if first:
             total_info = info
             first = False
@@ -409,7 +394,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         # data snooping: the largest normalised residual among active observations
         best = (0.0, "", -1)
         for g, gr in res[1].items():
-            if gr.normalised is None or g.startswith("prior"):
+            if gr.normalised is None or not _tested(g):
                 continue
             act = (gr.weight > 0) & ~gr.constant
             if not act.any():
@@ -421,12 +406,12 @@ def adjust(block: Block, config: AdjustConfig | None = None,
                 best = (float(w[i]), g, i)
         if cfg.snooping_familywise:
             n_tests = sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in res[1].items()
-                          if gr.normalised is not None and not g.startswith("prior"))
+                          if gr.normalised is not None and _tested(g))
             crit = critical_value(cfg.snooping_alpha / max(n_tests, 1))
         if best[0] <= crit:
             break
         if len(snooped) >= cfg.max_rejections:
-            counts = ", ".join(f"{n} {_GROUP_WORDS.get(g, g)}" for g, n in _counts(snooped).items())
+            counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
             failures.append(
                 f"data snooping stopped at its cap of {cfg.max_rejections} rejections ({counts}) with observations "
                 f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
@@ -453,7 +438,16 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         residuals, rejected, cov, start_warnings + warnings, model.layout, cfg, selected=selected, failures=failures)
 
 
-_GROUP_WORDS = {"image": "image", "gnss": "GNSS", "imu": "IMU", "control": "control-point", "distance": "distance"}
+def _tested(group: str) -> bool:
+    """True for a group of observations proper (tested by data snooping), False for priors."""
+    t = observation_type(group)
+    return t is None or t.snooped
+
+
+def _words(group: str) -> str:
+    """An observation group in words (its type's ``words``)."""
+    t = observation_type(group)
+    return t.words if t is not None and t.words else group
 
 
 def _counts(rejected: list[Rejection]) -> dict[str, int]:
@@ -467,25 +461,15 @@ def _what_to_free(cfg: AdjustConfig, groups: list[str]) -> str:
     """Words: which unmodelled effects would make these observation groups disagree, and what to free."""
     hints = []
     for g in groups:
-        if g == "imu":
-            cand = [("boresight", "an uncalibrated boresight misalignment")]
-        elif g == "gnss":
-            cand = [("lever_arm", "a wrong GNSS lever arm"), ("datum_shift", "a GNSS datum shift"),
-                    ("strip_shift", "per-strip GNSS shifts")]
-        elif g == "control":
-            cand = [("datum_shift", "a datum difference between GNSS and control (or control in another CRS / "
-                                    "height reference)")]
-        elif g == "image":
-            cand = [("intrinsics", "an uncalibrated interior orientation"), ("boresight", "a boresight misalignment")]
-        else:
-            cand = []
+        t = observation_type(g)
+        cand = list(t.hints) if t is not None else []
         fix = [(k, why) for k, why in cand if getattr(cfg, k) == "fixed"]
         if fix:
-            hints.append(f"{_GROUP_WORDS.get(g, g)} observations: probably " + " or ".join(w for _, w in fix)
+            hints.append(f"{_words(g)} observations: probably " + " or ".join(w for _, w in fix)
                          + " (free " + ", ".join(repr(k) for k, _ in fix) + ", e.g. skyrig block --free "
                          + ",".join(k.replace("_", "-") for k, _ in fix) + ")")
         elif cand:
-            hints.append(f"{_GROUP_WORDS.get(g, g)} observations: their sigmas or the data themselves")
+            hints.append(f"{_words(g)} observations: their sigmas or the data themselves")
     return "; ".join(hints) if hints else "check the observations' sigmas and the model"
 
 
@@ -498,11 +482,11 @@ def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfi
 
     out = []
     for g, st in groups.items():
-        if g.startswith("prior") or not (st.redundancy > 0.5) or not np.isfinite(st.sigma0):
+        if not _tested(g) or not (st.redundancy > 0.5) or not np.isfinite(st.sigma0):
             continue
         p = float(chi2.sf(st.sigma0**2 * st.redundancy, st.redundancy))
         if p < cfg.snooping_alpha and st.sigma0 > 1.5:
-            out.append(f"the {_GROUP_WORDS.get(g, g)} observations fit {st.sigma0:.1f} times worse than their sigmas "
+            out.append(f"the {_words(g)} observations fit {st.sigma0:.1f} times worse than their sigmas "
                        f"say (variance factor {st.sigma0:.2f}, redundancy {st.redundancy:.1f}, chi-square test p = "
                        f"{p:.1g}): a probable model error, or sigmas too optimistic - " + _what_to_free(cfg, [g]))
     return out
@@ -511,13 +495,12 @@ def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfi
 def _implausible_rejections(model: Model, snooped: list[Rejection], cfg: AdjustConfig) -> str | None:
     """Words when data snooping has rejected more of a GNSS / IMU / control / distance group than blunders
     explain (more than ``cfg.snooping_max_group_share`` of its observations, at least 3)."""
-    n_all = {"gnss": int(len(model.block.gnss_station)), "imu": int(len(model.block.imu_station)),  # type: ignore[arg-type]
-             "control": int((~model.block.control_check).sum()), "distance": int(model.block.n_distances)}
+    n_all = {t.name: t.tested_count(model.block) for t in observation_types() if t.share_checked and t.snooped}
     for g, k in _counts(snooped).items():
         n = n_all.get(g, 0)
         if n and k >= 3 and k > cfg.snooping_max_group_share * n:
-            others = ", ".join(f"{m} {_GROUP_WORDS.get(h, h)}" for h, m in _counts(snooped).items() if h != g)
-            return (f"data snooping rejected {k} of {n} {_GROUP_WORDS[g]} observations ({100.0 * k / n:.0f} %, more "
+            others = ", ".join(f"{m} {_words(h)}" for h, m in _counts(snooped).items() if h != g)
+            return (f"data snooping rejected {k} of {n} {_words(g)} observations ({100.0 * k / n:.0f} %, more "
                     f"than the {100 * cfg.snooping_max_group_share:.0f} % that blunders explain"
                     + (f"; also {others}" if others else "") + "): the functional model is probably wrong - "
                     + _what_to_free(cfg, [g]) + "; snooping stopped")
@@ -710,7 +693,7 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
         act = (w > 0) & ~const
         r_g = float(rr.sum()) if rr is not None else float("nan")
         vtpv = float((f.r[act] ** 2 * w[act, None]).sum())
-        if not f.name.startswith("prior"):
+        if _tested(f.name):
             data_cost += 0.5 * vtpv
         rms = np.sqrt(np.mean(v[act] ** 2, axis=0)).tolist() if act.any() else [float("nan")] * f.r.shape[1]
         groups[f.name] = GroupStats(f.name, int(act.sum()), int(act.sum() * f.r.shape[1]), r_g,

@@ -21,28 +21,38 @@ small boresight correction ``b`` (a rotation vector, camera frame) may be estima
 GNSS antenna positions observe ``C_station + R_station @ lever_arm + datum_shift + strip_shift[s]
 + strip_drift[s] * (t - t0[s])``; IMU attitudes observe ``R_station``.
 
+Observation groups
+------------------
+A :class:`Block` is the geometry (stations, images, heads, cameras, points and the calibration values)
+plus observation groups.  Each group belongs to one observation type of :mod:`skyrig.adjust.factors`
+(one module each: image, control, GNSS, IMU, distance, ...), which normalises, checks, evaluates and
+labels its rows; the block only loops over the registered types.  The built-in types keep their rows in
+the block's own fields (``obs_*``, ``control_*``, ``gnss_*``, ``imu_*``, ``distance_*``: the public API),
+any other type in ``observations[name]``.
+
 Parameter groups
 ----------------
-Each group of :class:`AdjustConfig` is ``"fixed"``, ``"free"`` or ``"weighted"`` (free with a prior
-equal to the starting value and the sigma given in the config).
+Each group of :class:`AdjustConfig` (its :class:`~skyrig.adjust.config.ParameterModes`) is ``"fixed"``,
+``"free"`` or ``"weighted"`` (free with a prior equal to the starting value and the sigma given in the
+config); solver, data snooping and statistics options are the config's other parts
+(:mod:`skyrig.adjust.config`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Literal, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.adjust.factors import observation_type
-from skyrig.adjust.factors.base import BlockError
+from skyrig.adjust.config import MODES, AdjustConfig, Mode
+from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors.base import BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
 
-Mode = Literal["fixed", "free", "weighted"]
-MODES = ("fixed", "free", "weighted")
 
-__all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]
+__all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
 
 
 @dataclass(frozen=True)
@@ -145,6 +155,10 @@ class Block:
 
         (paper 000 eqs 1-2, :meth:`ActuatedHead.tilt_angles` with its calibrated curve), followed by the
         head's boresight correction ``expmap(head_boresight)`` like any head.
+    observations
+        Rows of observation types other than the built-in ones, ``{group name: data object}`` (the data
+        object is the type's own, see :class:`~skyrig.adjust.factors.base.ObservationType`); a name no
+        registered type owns is a :class:`BlockError`.
     actuator_correction
         ``(H, 2 + 6 N)`` correction of each actuated head: ``[offset_rad, scale]`` then, for ``n = 1..N``,
         the Fourier coefficients ``[c_roll, c_pitch, c_yaw, s_roll, s_pitch, s_yaw]`` (rad); default zeros.
@@ -196,6 +210,7 @@ class Block:
     head_actuated: list | None = None
     actuator_correction: NDArray[np.float64] | None = None
     imu_cov_rad2: NDArray[np.float64] | None = None
+    observations: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
@@ -232,42 +247,8 @@ class Block:
         self.point_name = np.asarray(self.point_name, dtype=str).reshape(-1)
         p = len(self.point_name)
         self.point_xyz = _arr(self.point_xyz, (3,), n=p)
-        self.obs_image = np.asarray(self.obs_image, dtype=np.int64).reshape(-1)
-        n = len(self.obs_image)
-        self.obs_point = _arr(self.obs_point, (), np.int64, n)
-        self.obs_pixel = _arr(self.obs_pixel, (2,), n=n)
-        self.obs_sigma_px = np.broadcast_to(np.asarray(self.obs_sigma_px, dtype=np.float64), (n, 2)).copy()
         self.lever_arm = np.asarray(self.lever_arm, dtype=np.float64).reshape(3)
         self.datum_shift = np.asarray(self.datum_shift, dtype=np.float64).reshape(3)
-        if self.control_point is None:
-            self.control_point = np.zeros(0, np.int64)
-            self.control_xyz = np.zeros((0, 3))
-        k = len(np.asarray(self.control_point).reshape(-1))
-        self.control_point = _arr(self.control_point, (), np.int64, k)
-        self.control_xyz = _arr(self.control_xyz, (3,), n=k)
-        self.control_sigma = np.broadcast_to(np.asarray(self.control_sigma, dtype=np.float64), (k, 3)).copy()
-        self.control_check = (np.zeros(k, bool) if self.control_check is None
-                              else np.asarray(self.control_check, dtype=bool).reshape(k))
-        observation_type("gnss").normalise(self)  # type: ignore[union-attr]
-        if self.imu_station is None:
-            self.imu_station = np.zeros(0, np.int64)
-            self.imu_rotation = np.zeros((0, 3, 3))
-        m = len(np.asarray(self.imu_station).reshape(-1))
-        self.imu_station = _arr(self.imu_station, (), np.int64, m)
-        self.imu_rotation = _arr(self.imu_rotation, (3, 3), n=m)
-        self.imu_sigma_rad = np.broadcast_to(np.asarray(self.imu_sigma_rad, dtype=np.float64), (m, 3)).copy()
-        for cov_name, sig_name, count, d in (("obs_cov_px2", "obs_sigma_px", n, 2), ("control_cov_m2", "control_sigma",
-                                                                                     k, 3),
-                                             ("imu_cov_rad2", "imu_sigma_rad", m, 3)):
-            cv = getattr(self, cov_name)
-            if cv is None:
-                continue
-            cv = np.asarray(cv, dtype=np.float64)
-            if cv.shape != (count, d, d):
-                raise BlockError(f"{cov_name} must have shape ({count}, {d}, {d}), got {cv.shape}")
-            setattr(self, cov_name, cv.copy())
-            with np.errstate(invalid="ignore"):
-                setattr(self, sig_name, np.sqrt(np.diagonal(cv, axis1=1, axis2=2)).copy())
         h = len(self.head_name)
         if self.head_actuated is None:
             self.head_actuated = [None] * h
@@ -280,13 +261,14 @@ class Block:
         if ac.ndim != 2 or ac.shape[0] != h or ac.shape[1] < 2 or (ac.shape[1] - 2) % 6:
             raise BlockError(f"actuator_correction must have shape ({h}, 2 + 6 N), got {ac.shape}")
         self.actuator_correction = ac.copy()
-        if self.distance_point is None:
-            self.distance_point = np.zeros((0, 2), np.int64)
-            self.distance_m = np.zeros(0)
-        nd = len(np.asarray(self.distance_point).reshape(-1, 2))
-        self.distance_point = _arr(self.distance_point, (2,), np.int64, nd)
-        self.distance_m = _arr(self.distance_m, (), n=nd)
-        self.distance_sigma_m = np.broadcast_to(np.asarray(self.distance_sigma_m, dtype=np.float64), (nd,)).copy()
+        # the observation groups: each type brings its rows to canonical arrays
+        self.observations = dict(self.observations)
+        unknown = sorted(set(self.observations) - {t.name for t in observation_types()})
+        if unknown:
+            raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
+                             "(skyrig.adjust.factors.register) before building the block")
+        for t in observation_types():
+            t.normalise(self)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -319,264 +301,39 @@ class Block:
         for f in self.__dataclass_fields__:
             v = getattr(self, f)
             kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
+        kw["observations"] = {k: observation_type(k).copy_data(v)  # type: ignore[union-attr]
+                              for k, v in self.observations.items()}
         return Block(**kw)
 
     # ------------------------------------------------------------------ checks
     def validate(self) -> None:
-        """Raise :class:`BlockError` naming the first inconsistency found (indices, NaN, sigma, rays)."""
-
-        def rng(name: str, idx: NDArray, n: int, what: str) -> None:
-            bad = np.flatnonzero((idx < 0) | (idx >= n))
-            if bad.size:
-                raise BlockError(f"{name}[{bad[0]}] = {idx[bad[0]]} names an unknown {what} (have {n})")
-
-        def finite(name: str, a: NDArray) -> None:
-            bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []
-            if len(bad):
-                raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
-
-        def positive(name: str, a: NDArray) -> None:
-            bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []
-            if len(bad):
-                raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
-
-        rng("image_station", self.image_station, self.n_stations, "station")
-        rng("image_camera", self.image_camera, len(self.cameras), "camera")
-        rng("image_head", self.image_head, len(self.head_name), "head")  # type: ignore[arg-type]
-        rng("obs_image", self.obs_image, self.n_images, "image")
-        rng("obs_point", self.obs_point, self.n_points, "point")
-        rng("control_point", self.control_point, self.n_points, "point")  # type: ignore[arg-type]
-        rng("imu_station", self.imu_station, self.n_stations, "station")  # type: ignore[arg-type]
-        for name in ("station_rotation", "station_centre", "point_xyz", "obs_pixel", "obs_sigma_px", "control_xyz",
-                     "control_sigma", "imu_rotation", "imu_sigma_rad", "image_rotation",
-                     "image_offset"):
-            finite(name, getattr(self, name))
-        for name in ("obs_sigma_px", "control_sigma", "imu_sigma_rad", "distance_sigma_m"):
-            positive(name, getattr(self, name))
-        observation_type("gnss").validate(self)  # type: ignore[union-attr]
-        for name in ("obs_cov_px2", "control_cov_m2", "imu_cov_rad2"):
-            cv = getattr(self, name)
-            if cv is None or not len(cv):
-                continue
-            finite(name, cv)
-            asym = np.abs(cv - np.swapaxes(cv, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cv).max(axis=(1, 2))
-            bad = np.flatnonzero(asym | ~(np.linalg.eigvalsh(0.5 * (cv + np.swapaxes(cv, 1, 2)))[:, 0] > 0))
-            if bad.size:
-                raise BlockError(f"{name}[{bad[0]}] is not a symmetric positive definite covariance: "
-                                 f"{cv[bad[0]].tolist()}")
+        """Raise :class:`BlockError` naming the first inconsistency found (indices, NaN, sigma, rays): the
+        geometry here, then each observation type's rows (:meth:`ObservationType.validate`)."""
+        check_index("image_station", self.image_station, self.n_stations, "station")
+        check_index("image_camera", self.image_camera, len(self.cameras), "camera")
+        check_index("image_head", self.image_head, len(self.head_name), "head")  # type: ignore[arg-type]
+        for name in ("station_rotation", "station_centre", "point_xyz", "image_rotation", "image_offset"):
+            check_finite(name, getattr(self, name))
+        types = observation_types()
+        for t in types:
+            t.validate(self)
         act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)  # type: ignore[index]
         bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))  # type: ignore[arg-type]
         if bad.size:
             raise BlockError(f"image {str(self.image_name[bad[0]])!r} belongs to the actuated head "
                              f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
-        finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
-        rng("distance_point", self.distance_point.reshape(-1), self.n_points, "point")  # type: ignore[union-attr]
-        finite("distance_m", self.distance_m)  # type: ignore[arg-type]
-        bad = np.flatnonzero(~(self.distance_m > 0))  # type: ignore[operator]
-        if bad.size:
-            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {self.distance_m[bad[0]]}")  # type: ignore[index]
-        bad = np.flatnonzero(self.distance_point[:, 0] == self.distance_point[:, 1])  # type: ignore[index]
-        if bad.size:
-            raise BlockError(f"distance {bad[0]} joins point {str(self.point_name[self.distance_point[bad[0], 0]])!r} "  # type: ignore[index]
-                             "to itself")
+        check_finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
         det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
         bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
         if bad.size:
             raise BlockError(f"station_rotation[{bad[0]}] is not a rotation (det {det[bad[0]]:.6f})")
         # every point needs two rays or control
-        rays = np.bincount(self.obs_point, minlength=self.n_points)
         ctrl = np.zeros(self.n_points, bool)
-        ctrl[self.control_point[~self.control_check]] = True  # type: ignore[index]
-        bad = np.flatnonzero((rays < 2) & ~ctrl)
-        if bad.size:
-            raise BlockError(
-                f"point {str(self.point_name[bad[0]])!r} is seen in {rays[bad[0]]} image(s) and is not control: "
-                f"it cannot be determined ({bad.size} such points); remove it or add observations"
-            )
-        pair = self.obs_image * max(self.n_points, 1) + self.obs_point
-        u, c = np.unique(pair, return_counts=True)
-        if (c > 1).any():
-            k = u[c > 1][0]
-            raise BlockError(f"point {str(self.point_name[k % self.n_points])!r} is measured more than once in image "
-                             f"{str(self.image_name[k // self.n_points])!r}")
-
-
-@dataclass(frozen=True)
-class AdjustConfig:
-    """How to adjust a block (frozen; unknown keys in a config file are an error).
-
-    Attributes
-    ----------
-    poses
-        Station poses: ``"free"`` (default), ``"fixed"`` or ``"weighted"`` (prior = starting value).
-    pose_sigma_m, pose_sigma_rad
-        Prior sigma of weighted poses (centre metres, rotation radians).
-    points
-        Object points: ``"free"`` (default) or ``"fixed"``.
-    intrinsics
-        ``"fixed"`` (default), ``"free"`` or ``"weighted"``: interior orientation / additional parameters.
-    intrinsic_names
-        Which intrinsics take part when not fixed (names of the camera's ``intrinsic_names``);
-        None = all.  Others stay fixed.
-    intrinsic_sigma
-        Prior sigma per intrinsic name for ``"weighted"`` (units of the parameter).
-    lever_arm, boresight, datum_shift, strip_shift, strip_drift
-        Mode of these groups (default fixed).
-    lever_arm_sigma_m, boresight_sigma_rad, datum_shift_sigma_m, strip_shift_sigma_m, strip_drift_sigma_m_s
-        Prior sigma for ``"weighted"``.
-    datum
-        ``"auto"`` (control and/or GNSS, whatever the block has), or ``"free"``: inner constraints on
-        the station poses (minimum norm of the pose corrections; 7-parameter similarity), or
-        ``"none"``: no datum at all, the Levenberg-Marquardt damping picks one solution among the
-        equivalent ones (as Ceres does for BAL problems); no rank check, no covariance.
-    inner_constraints
-        With ``datum="free"``: ``"poses"`` (default; minimum norm of the station pose corrections and of the
-        scale-bar end points, which are estimated with them: the Moore-Penrose inverse of the reduced normal
-        matrix) or
-        ``"points"``: inner constraints on the object points, as close-range programs define the datum -
-        the adjusted points keep the centroid, orientation (and, without a scale bar, the scale) of their
-        starting coordinates (a Helmert fit of the adjusted onto the starting points, applied to the whole
-        block), and the covariance is that of minimum trace over the datum points (an S-transformation).
-    datum_points
-        Names of the datum points for ``inner_constraints="points"`` (at least 3, not on one line);
-        empty = every estimated point.
-    max_iterations
-        Levenberg-Marquardt iterations.
-    function_tolerance, parameter_tolerance, gradient_tolerance
-        Stop when the relative cost decrease, the relative step or the max gradient fall below these
-        (Ceres's definitions).
-    robust
-        ``None`` or ``"huber"``: robust reweighting of image observations (Huber's weights).
-    robust_k
-        Huber threshold in units of the observation's sigma.
-    snooping
-        Run Baarda's data snooping: repeatedly reject the observation with the largest normalised
-        residual above the critical value and re-adjust.
-    snooping_alpha
-        Significance level (two-sided), default 0.001.  With ``snooping_familywise`` (default) it is the
-        probability of *any* false rejection in the block: each of the n tests uses ``alpha / n``
-        (Bonferroni; n = 10,000 gives a critical value of 5.3); otherwise it is Baarda's per-test alpha0
-        (0.001 -> 3.29, which rejects about one good observation per thousand tests).
-    snooping_familywise
-        See ``snooping_alpha``.
-    max_rejections
-        Cap on rejected observations.  Reaching it with observations still above the critical value is
-        a failure of the adjustment (``AdjustmentResult.failures``): so many blunders mean a wrong model.
-    snooping_max_group_share
-        Largest share of a GNSS, IMU, control or distance group that data snooping may reject (at least
-        3 observations): beyond it snooping stops and the result fails with a probable model error
-        (uncalibrated boresight, lever arm, datum shift...) named in words.
-    statistics
-        Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
-        reduced system; skipped above ``max_statistics_parameters``).
-    max_statistics_parameters
-        Size limit of the reduced system for full statistics.  Above it, only the covariance of chosen
-        unknowns is computed (sparse solves with the factorised reduced system): every reduced unknown
-        that is not a station pose (calibration, lever arm, boresight, shifts, actuator corrections,
-        end points of distances) plus ``statistics_images`` and ``statistics_points``.
-    statistics_images
-        Image (or station) names whose pose covariance is wanted at any block size.
-    statistics_points
-        Point names whose covariance is wanted at any block size.
-    actuator, actuator_sigma
-        Mode of the actuator-angle correction of actuated heads (``offset`` rad and ``scale``: ``beta' =
-        (1 + scale) beta + offset``) and its prior sigma ``(offset_rad, scale)`` for ``"weighted"``.
-        Needs beta to vary over the head's images (a constant beta is reported as a datum defect).
-    actuator_curve, actuator_fourier_order, actuator_curve_sigma_rad
-        Mode, order N and prior sigma (rad) of the Fourier series of the periodic boresight curve
-        (roll, pitch, yaw corrections, orders 1..N; the constant term is the head's boresight).  The
-        first order in roll/pitch is the same motion as the actuator offset: estimate one of them.
-    """
-
-    poses: Mode = "free"
-    pose_sigma_m: float = 1.0
-    pose_sigma_rad: float = 1e-3
-    points: Literal["free", "fixed"] = "free"
-    intrinsics: Mode = "fixed"
-    intrinsic_names: tuple[str, ...] | None = None
-    intrinsic_sigma: tuple[tuple[str, float], ...] = ()
-    lever_arm: Mode = "fixed"
-    lever_arm_sigma_m: float = 0.1
-    boresight: Mode = "fixed"
-    boresight_sigma_rad: float = 0.01
-    datum_shift: Mode = "fixed"
-    datum_shift_sigma_m: float = 1.0
-    strip_shift: Mode = "fixed"
-    strip_shift_sigma_m: float = 1.0
-    strip_drift: Mode = "fixed"
-    strip_drift_sigma_m_s: float = 0.01
-    datum: Literal["auto", "free", "none"] = "auto"
-    inner_constraints: Literal["poses", "points"] = "poses"
-    datum_points: tuple[str, ...] = ()
-    max_iterations: int = 50
-    function_tolerance: float = 1e-6
-    parameter_tolerance: float = 1e-8
-    gradient_tolerance: float = 1e-10
-    robust: Literal["huber"] | None = None
-    robust_k: float = 2.5
-    snooping: bool = False
-    snooping_alpha: float = 0.001
-    snooping_familywise: bool = True
-    max_rejections: int = 100
-    snooping_max_group_share: float = 0.1
-    statistics: bool = True
-    max_statistics_parameters: int = 6000
-    statistics_images: tuple[str, ...] = ()
-    statistics_points: tuple[str, ...] = ()
-    actuator: Mode = "fixed"
-    actuator_sigma: tuple[float, float] = (1e-3, 1e-3)
-    actuator_curve: Mode = "fixed"
-    actuator_fourier_order: int = 0
-    actuator_curve_sigma_rad: float = 1e-3
-
-    def __post_init__(self) -> None:
-        if int(self.actuator_fourier_order) < 0:
-            raise ValueError(f"AdjustConfig.actuator_fourier_order must be >= 0, got {self.actuator_fourier_order}")
-        for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift",
-                     "actuator", "actuator_curve"):
-            if getattr(self, name) not in MODES:
-                raise ValueError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
-        if self.points not in ("free", "fixed"):
-            raise ValueError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
-        if self.datum not in ("auto", "free", "none"):
-            raise ValueError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
-        if self.inner_constraints not in ("poses", "points"):
-            raise ValueError(f"AdjustConfig.inner_constraints must be 'poses' or 'points', got "
-                             f"{self.inner_constraints!r}")
-        if self.inner_constraints == "points" and self.datum != "free":
-            raise ValueError("AdjustConfig.inner_constraints='points' needs datum='free' (inner constraints define "
-                             f"a free network's datum), got datum={self.datum!r}")
-        if self.datum_points and self.inner_constraints != "points":
-            raise ValueError("AdjustConfig.datum_points is given but inner_constraints is not 'points' (the datum "
-                             "points are only used by inner constraints on points)")
-        if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
-            raise ValueError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
-                             f"{self.snooping_max_group_share!r}")
-        if self.robust not in (None, "huber"):
-            raise ValueError(f"AdjustConfig.robust must be None or 'huber', got {self.robust!r}")
-
-    def with_(self, **changes: object) -> "AdjustConfig":
-        return replace(self, **changes)  # type: ignore[arg-type]
-
-    @classmethod
-    def from_dict(cls, data: dict, source: str = "config") -> "AdjustConfig":
-        """Build from a mapping; unknown keys raise ``ValueError`` naming them."""
-        known = set(cls.__dataclass_fields__)
-        bad = sorted(set(data) - known)
-        if bad:
-            raise ValueError(f"{source}: unknown adjustment option(s) {bad}; known: {sorted(known)}")
-        d = dict(data)
-        if "intrinsic_names" in d and d["intrinsic_names"] is not None:
-            d["intrinsic_names"] = tuple(d["intrinsic_names"])
-        if "actuator_sigma" in d:
-            d["actuator_sigma"] = tuple(float(v) for v in d["actuator_sigma"])
-        for key in ("statistics_images", "statistics_points", "datum_points"):
-            if key in d:
-                d[key] = tuple(str(v) for v in d[key])
-        if "intrinsic_sigma" in d:
-            v = d["intrinsic_sigma"]
-            d["intrinsic_sigma"] = tuple(sorted(v.items())) if isinstance(v, dict) else tuple(map(tuple, v))
-        return cls(**d)
+        for t in types:
+            c = t.controlled_points(self)
+            if c is not None:
+                ctrl |= c
+        observation_type("image").validate_rays(self, ctrl)  # type: ignore[union-attr]
 
 
 def sequence_index(names: Sequence[str]) -> dict[str, int]:

@@ -157,6 +157,16 @@ def _reduced_values(result: AdjustmentResult, columns: NDArray[np.int64]) -> lis
     return val[columns].tolist()
 
 
+def _group_labels(group: str) -> dict[str, Any]:
+    """The report labels of an observation group from its type (:mod:`skyrig.adjust.factors`)."""
+    from skyrig.adjust.factors import observation_type
+
+    t = observation_type(group)
+    if t is None:
+        return {}
+    return dict(words=t.words, components=list(t.components), units=t.units)
+
+
 def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
                       limits_m: tuple[float, float, float] | None = None,
                       check_xyz: NDArray[np.float64] | None = None,
@@ -184,7 +194,8 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
                         converged=info.converged, message=info.message, wall_s=info.wall_s,
                         initial_cost=info.initial_cost, final_cost=info.final_cost, images=b.n_images,
                         stations=b.n_stations, points=b.n_points, image_observations=b.n_observations),
-        "groups": {g: dict(n=s.n_rows, redundancy=s.redundancy, variance_factor=s.sigma0, rms=s.rms)
+        "groups": {g: dict(n=s.n_rows, redundancy=s.redundancy, variance_factor=s.sigma0, rms=s.rms,
+                           **_group_labels(g))
                    for g, s in result.groups.items()},
     }
     given = b0.control_xyz if check_xyz is None else np.asarray(check_xyz, float)

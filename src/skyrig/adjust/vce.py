@@ -38,23 +38,19 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.factors import observation_type, observation_types
 from skyrig.adjust.model import whitening_matrices
 
 __all__ = ["VarianceComponents", "estimate_variance_components", "DEFAULT_SPLIT"]
 
-#: block attribute holding each group's sigma
-_SIGMA_ATTR = {"image": "obs_sigma_px", "control": "control_sigma", "gnss": "gnss_sigma", "imu": "imu_sigma_rad"}
-#: block attribute holding each group's optional full covariance
-_COV_ATTR = {"image": "obs_cov_px2", "control": "control_cov_m2", "gnss": "gnss_cov_m2", "imu": "imu_cov_rad2"}
+def _vce_types() -> dict:
+    """The observation types whose variance components can be estimated (those with a ``vce_split``)."""
+    return {t.name: t for t in observation_types() if t.vce_split is not None}
 
-#: default axis sets: one component for image x/y, horizontal vs vertical for GNSS and control,
-#: one for the three IMU angles
-DEFAULT_SPLIT: Mapping[str, tuple[tuple[int, ...], ...]] = {
-    "image": ((0, 1),),
-    "control": ((0, 1), (2,)),
-    "gnss": ((0, 1), (2,)),
-    "imu": ((0, 1, 2),),
-}
+
+#: default axis sets (each type's ``vce_split``): one component for image x/y, horizontal vs vertical for
+#: GNSS and control, one for the three IMU angles
+DEFAULT_SPLIT: Mapping[str, tuple[tuple[int, ...], ...]] = {n: t.vce_split for n, t in _vce_types().items()}
 
 
 @dataclass
@@ -112,10 +108,11 @@ def _components(block: Block, split: Mapping[str, Sequence[Sequence[int]]]
     out: dict[str, list[list[int]]] = {}
     notes: list[str] = []
     for g, sets in split.items():
-        if g not in _SIGMA_ATTR:
-            raise ValueError(f"unknown observation group {g!r} in split; known: {sorted(_SIGMA_ATTR)}")
+        types = _vce_types()
+        if g not in types:
+            raise ValueError(f"unknown observation group {g!r} in split; known: {sorted(types)}")
         sets_l = [sorted(int(a) for a in axes) for axes in sets]
-        cov = getattr(block, _COV_ATTR[g])
+        cov = types[g].get_cov(block)
         if cov is not None and len(sets_l) > 1 and not _separable(cov, sets_l):
             d = cov.shape[1]
             notes.append(f"{g}: the full covariances correlate axes of different components "
@@ -172,8 +169,9 @@ def estimate_variance_components(
             gr = res.residuals.get(g)
             if gr is None or gr.redundancy is None or len(gr.residual) == 0:
                 continue
-            sig = getattr(b, _SIGMA_ATTR[g])
-            cov = getattr(b, _COV_ATTR[g])
+            t = observation_type(g)
+            sig = t.get_sigma(b)  # type: ignore[union-attr]
+            cov = t.get_cov(b)  # type: ignore[union-attr]
             act = gr.weight > 0
             if cov is None:
                 z = gr.residual / sig
@@ -193,10 +191,10 @@ def estimate_variance_components(
                 new[:, ax] = sig[:, ax] * s
                 if new_cov is not None:
                     new_cov[:, np.array(ax)[:, None], np.array(ax)[None, :]] *= s * s
-            setattr(b, _SIGMA_ATTR[g], new)
+            t.set_sigma(b, new)  # type: ignore[union-attr]
             if new_cov is not None:
-                setattr(b, _COV_ATTR[g], new_cov)
-                setattr(b, _SIGMA_ATTR[g], np.sqrt(np.diagonal(new_cov, axis1=1, axis2=2)).copy())
+                t.set_cov(b, new_cov)  # type: ignore[union-attr]
+                t.set_sigma(b, np.sqrt(np.diagonal(new_cov, axis1=1, axis2=2)).copy())  # type: ignore[union-attr]
         history.append(factors)
         if callback is not None:
             callback(it, factors)
@@ -209,7 +207,7 @@ def estimate_variance_components(
         raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
     sigma = {}
     for g, sets in comps.items():
-        sig = getattr(b, _SIGMA_ATTR[g])
+        sig = observation_type(g).get_sigma(b)  # type: ignore[union-attr]
         if len(sig):
             for ax in sets:
                 sigma[f"{g}{ax}"] = float(sig[0, ax[0]])

@@ -35,7 +35,7 @@ _REGISTRY: dict[str, ObservationType] = {}
 _SORTED: list[ObservationType] = []
 #: the built-in types, imported on first use of the registry (their modules import the block and the
 #: model, which import this package: loading them lazily keeps the imports one-way)
-BUILTIN = ("gnss",)
+BUILTIN = ("image", "control", "gnss", "imu", "distance", "prior", "calibration")
 _loaded = False
 
 

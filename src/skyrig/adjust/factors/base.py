@@ -186,6 +186,9 @@ class ObservationType:
     share_checked: ClassVar[bool] = True
     #: ``(config parameter group, what it models in words)``: what to free when this group misfits
     hints: ClassVar[tuple[tuple[str, str], ...]] = ()
+    #: parameter groups (``ParameterModes`` names) that only this kind of observation determines: they are
+    #: estimated only when a block has rows of a type naming them (the GNSS lever arm, datum and strip shifts)
+    parameters: ClassVar[tuple[str, ...]] = ()
     #: words for the datum this group fixes (a free network with such rows is an error); "" = none
     datum_words: ClassVar[str] = ""
     #: default axis sets of variance component estimation, None = not estimated for this group
@@ -235,7 +238,8 @@ class ObservationType:
     def get_sigma(self, block: "Block") -> NDArray[np.float64]:
         if self.sigma_field is not None:
             return getattr(block, self.sigma_field)
-        return self.data(block).sigma
+        d = self.data(block)
+        return np.zeros((0, len(self.components))) if d is None else d.sigma
 
     def set_sigma(self, block: "Block", value: NDArray[np.float64]) -> None:
         if self.sigma_field is not None:
@@ -246,7 +250,8 @@ class ObservationType:
     def get_cov(self, block: "Block") -> NDArray[np.float64] | None:
         if self.cov_field is not None:
             return getattr(block, self.cov_field)
-        return getattr(self.data(block), "cov", None)
+        d = self.data(block)
+        return None if d is None else getattr(d, "cov", None)
 
     def set_cov(self, block: "Block", value: NDArray[np.float64] | None) -> None:
         if self.cov_field is not None:

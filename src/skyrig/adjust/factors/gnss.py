@@ -45,6 +45,7 @@ class Gnss(ObservationType):
     order = 20.0
     hints = (("lever_arm", "a wrong GNSS lever arm"), ("datum_shift", "a GNSS datum shift"),
              ("strip_shift", "per-strip GNSS shifts"))
+    parameters = ("lever_arm", "datum_shift", "strip_shift", "strip_drift")
     datum_words = "GNSS positions"
     vce_split = ((0, 1), (2,))
     sigma_field = "gnss_sigma"

@@ -1,0 +1,118 @@
+"""Ground coordinates of control points (and check points, compared but not used).
+
+Data (``Block`` fields): ``control_point (K,)`` point indices, ``control_xyz (K, 3)`` m, ``control_sigma
+(K, 3)`` m per axis, ``control_check (K,)`` True for a check point (weight 0) and optional
+``control_cov_m2 (K, 3, 3)`` m².  Residual ``X[point] - xyz`` with the identity Jacobian on the point
+(eliminated, or among the reduced columns for the end points of distances).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.factors import register
+from skyrig.adjust.factors.base import (
+    Factor,
+    ObservationType,
+    check_covariance,
+    check_finite,
+    check_index,
+    check_positive,
+    covariance_rows,
+    rows_of,
+    sigma_rows,
+    whitening_matrices,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.model import Model, State
+
+
+class Control(ObservationType):
+    name = "control"
+    words = "control-point"
+    components = ("X", "Y", "Z")
+    units = "m"
+    order = 10.0
+    hints = (("datum_shift", "a datum difference between GNSS and control (or control in another CRS / "
+                             "height reference)"),)
+    datum_words = "control points"
+    vce_split = ((0, 1), (2,))
+    sigma_field = "control_sigma"
+    cov_field = "control_cov_m2"
+
+    def count(self, block: "Block") -> int:
+        return len(block.control_point)  # type: ignore[arg-type]
+
+    def tested_count(self, block: "Block") -> int:
+        return int((~block.control_check).sum())  # type: ignore[operator]
+
+    def normalise(self, block: "Block") -> None:
+        if block.control_point is None:
+            block.control_point = np.zeros(0, np.int64)
+            block.control_xyz = np.zeros((0, 3))
+        k = len(np.asarray(block.control_point).reshape(-1))
+        block.control_point = rows_of(block.control_point, (), np.int64, k)
+        block.control_xyz = rows_of(block.control_xyz, (3,), n=k)
+        block.control_sigma = sigma_rows(block.control_sigma, k, 3)
+        block.control_check = (np.zeros(k, bool) if block.control_check is None
+                               else np.asarray(block.control_check, dtype=bool).reshape(k))
+        covariance_rows(block, "control_cov_m2", "control_sigma", k, 3)
+
+    def validate(self, block: "Block") -> None:
+        check_index("control_point", block.control_point, block.n_points, "point")  # type: ignore[arg-type]
+        check_finite("control_xyz", block.control_xyz)  # type: ignore[arg-type]
+        check_finite("control_sigma", block.control_sigma)  # type: ignore[arg-type]
+        check_positive("control_sigma", block.control_sigma)  # type: ignore[arg-type]
+        check_covariance("control_cov_m2", block.control_cov_m2)
+
+    def controlled_points(self, block: "Block") -> NDArray[np.bool_]:
+        out = np.zeros(block.n_points, bool)
+        out[block.control_point[~block.control_check]] = True  # type: ignore[index, operator]
+        return out
+
+    def initial_weight(self, block: "Block") -> NDArray[np.float64]:
+        w = np.ones(self.count(block))
+        w[block.control_check] = 0.0
+        return w
+
+    def fixes_datum(self, model: "Model") -> bool:
+        return bool((model.weights[self.name] > 0).any())
+
+    def prepare(self, model: "Model") -> NDArray[np.float64] | None:
+        b = model.block
+        return None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
+
+    def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
+        b, lay = model.block, model.layout
+        p = b.control_point
+        sig = b.control_sigma
+        Wm = model.cache[self.name]
+        if Wm is None:
+            r = (s.X[p] - b.control_xyz) / sig  # type: ignore[operator]
+            J = np.zeros((len(p), 3, 3))  # type: ignore[arg-type]
+            J[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig  # type: ignore[operator]
+        else:
+            r = np.einsum("nij,nj->ni", Wm, s.X[p] - b.control_xyz)  # type: ignore[index]
+            J = Wm
+        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)  # type: ignore[arg-type]
+        if jac and lay.n_p:
+            f.point = lay.point[p]
+            f.jp = J
+        if jac and lay.has_rpoint:
+            f.jc = J
+            f.cols = lay.rpoint[p]  # type: ignore[index]
+        return [f]
+
+    def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
+        return model.estimated_points()[model.block.control_point]
+
+    def label(self, block: "Block", i: int) -> str:
+        return f"control point {block.point_name[block.control_point[i]]}"  # type: ignore[index]
+
+
+CONTROL = register(Control())

@@ -1,0 +1,91 @@
+"""Distances between two object points (scale bars, paper 004's close-range test field).
+
+Data (``Block`` fields): ``distance_point (D, 2)`` point indices, ``distance_m (D,)`` observed distances
+and ``distance_sigma_m (D,)`` m.  Residual ``|X_a - X_b| - d``, one row each.  A distance couples two
+points, which the Schur elimination of points cannot: its end points are estimated among the reduced
+unknowns (``Layout.rpoint``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.factors import register
+from skyrig.adjust.factors.base import (
+    BlockError,
+    Factor,
+    ObservationType,
+    check_finite,
+    check_index,
+    check_positive,
+    rows_of,
+    sigma_rows,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.model import Model, State
+
+
+class Distance(ObservationType):
+    name = "distance"
+    words = "distance"
+    components = ("d",)
+    units = "m"
+    order = 40.0
+    sigma_field = "distance_sigma_m"
+
+    def count(self, block: "Block") -> int:
+        return block.n_distances
+
+    def normalise(self, block: "Block") -> None:
+        if block.distance_point is None:
+            block.distance_point = np.zeros((0, 2), np.int64)
+            block.distance_m = np.zeros(0)
+        nd = len(np.asarray(block.distance_point).reshape(-1, 2))
+        block.distance_point = rows_of(block.distance_point, (2,), np.int64, nd)
+        block.distance_m = rows_of(block.distance_m, (), n=nd)
+        block.distance_sigma_m = sigma_rows(block.distance_sigma_m, nd, None)
+
+    def validate(self, block: "Block") -> None:
+        check_positive("distance_sigma_m", block.distance_sigma_m)  # type: ignore[arg-type]
+        check_index("distance_point", block.distance_point.reshape(-1), block.n_points, "point")  # type: ignore[union-attr]
+        check_finite("distance_m", block.distance_m)  # type: ignore[arg-type]
+        bad = np.flatnonzero(~(block.distance_m > 0))  # type: ignore[operator]
+        if bad.size:
+            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {block.distance_m[bad[0]]}")  # type: ignore[index]
+        bad = np.flatnonzero(block.distance_point[:, 0] == block.distance_point[:, 1])  # type: ignore[index]
+        if bad.size:
+            raise BlockError(f"distance {bad[0]} joins point "
+                             f"{str(block.point_name[block.distance_point[bad[0], 0]])!r} to itself")  # type: ignore[index]
+
+    def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
+        b, lay = model.block, model.layout
+        a, c = b.distance_point[:, 0], b.distance_point[:, 1]  # type: ignore[index]
+        dx = s.X[a] - s.X[c]
+        L = np.linalg.norm(dx, axis=1)
+        sig = b.distance_sigma_m[:, None]  # type: ignore[index]
+        f = Factor(self.name, ((L - b.distance_m) / sig[:, 0])[:, None], sig,  # type: ignore[operator]
+                   weight=model.weights[self.name])
+        if not jac:
+            return [f]
+        u = dx / np.where(L > 0, L, 1.0)[:, None]
+        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
+        f.jc = (np.concatenate([u, -u], axis=1) / sig)[:, None, :]
+        f.cols = np.concatenate([rp[a], rp[c]], axis=1)
+        return [f]
+
+    def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
+        lay, b = model.layout, model.block
+        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
+        return (rp >= 0).any(axis=1)[b.distance_point].any(axis=1)
+
+    def label(self, block: "Block", i: int) -> str:
+        a, b = block.distance_point[i]  # type: ignore[index]
+        return f"distance {block.point_name[a]} - {block.point_name[b]}"
+
+
+DISTANCE = register(Distance())

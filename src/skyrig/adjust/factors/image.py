@@ -1,0 +1,388 @@
+"""Image coordinates of object points: the collinearity observations of the bundle.
+
+Data (``Block`` fields): ``obs_image (N,)``, ``obs_point (N,)``, ``obs_pixel (N, 2)`` px (column, row),
+``obs_sigma_px (N, 2)`` px and optional ``obs_cov_px2 (N, 2, 2)`` px².  Residual: the projection of the
+point through the image's camera (``world_from_camera = R_station @ station_from_camera @
+expmap(boresight)``, the mounting of an actuated head from its actuator angle, see
+:meth:`skyrig.adjust.model.Model.camera_poses`) minus the measurement, with the Jacobian with respect to
+the station pose, the head's boresight, the camera's intrinsics, the actuator corrections, the end points
+of distances estimated in the reduced part, and the (eliminated) point.
+
+Two paths give the same values: numpy over the rows of each frame camera (the compiled chain rule of
+:mod:`skyrig.adjust._image_kernels` when numba is there), and one compiled pass for blocks of BAL
+cameras only.  The kernels are looked up in :mod:`skyrig.adjust.model` at call time (a test switches
+them off there to compare with the numpy path).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.factors import register
+from skyrig.adjust.factors.base import (
+    BlockError,
+    Factor,
+    ObservationType,
+    any_on,
+    check_covariance,
+    check_finite,
+    check_index,
+    check_positive,
+    covariance_rows,
+    rows_of,
+    sigma_rows,
+    whitening_matrices,
+)
+from skyrig.camera.frame import FrameCamera
+from skyrig.camera.jacobians import project_camera_with_jacobians
+from skyrig.geometry.rotations import matrix_from_rotvec, skew
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.model import Model, State
+
+_expmap = matrix_from_rotvec
+
+
+def bal_project(
+    points_camera: NDArray[np.float64], intr: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """BAL camera model, vectorised with one intrinsic vector per point.
+
+    Parameters
+    ----------
+    points_camera
+        ``(N, 3)`` camera-frame points (camera looks along -z).
+    intr
+        ``(N, 3)`` ``(f, k1, k2)`` per point.
+
+    Returns
+    -------
+    uv
+        ``(N, 2)`` image coordinates, pixels from the centre, x right, y up.
+    d_pc, d_intr
+        ``(N, 2, 3)`` and ``(N, 2, 3)`` Jacobians.
+    """
+    pc = points_camera
+    f, k1, k2 = intr[:, 0], intr[:, 1], intr[:, 2]
+    iz = -1.0 / pc[:, 2]
+    p = pc[:, :2] * iz[:, None]
+    r2 = (p * p).sum(axis=1)
+    rad = 1.0 + r2 * (k1 + k2 * r2)
+    uv = (f * rad)[:, None] * p
+    n = len(pc)
+    # d uv / d p = f (rad I + p (d rad / d p)^T), d rad / d p = 2 p (k1 + 2 k2 r2)
+    drad = 2.0 * (k1 + 2.0 * k2 * r2)
+    duv_dp = (f * rad)[:, None, None] * np.eye(2)[None] + (f * drad)[:, None, None] * p[:, :, None] * p[:, None, :]
+    dp_dpc = np.zeros((n, 2, 3))
+    dp_dpc[:, 0, 0] = iz
+    dp_dpc[:, 1, 1] = iz
+    dp_dpc[:, :, 2] = p * iz[:, None]  # p = -P/z  =>  dp/dz = P/z² = -p/z = p * iz
+    d_pc = duv_dp @ dp_dpc
+    d_intr = np.empty((n, 2, 3))
+    d_intr[:, :, 0] = rad[:, None] * p
+    d_intr[:, :, 1] = (f * r2)[:, None] * p
+    d_intr[:, :, 2] = (f * r2 * r2)[:, None] * p
+    return uv, d_pc, d_intr
+
+
+@dataclass
+class ImageCache:
+    """Per-model constants of the image rows."""
+
+    #: ``(N, 2, 2)`` whitening matrices of full covariances, or None
+    W: NDArray[np.float64] | None
+    #: reduced columns of the end points of distances seen in each row's image (``(N, 3 m)``), the rows
+    #: that observe such a point, and the slot of each of those rows; None without such points
+    red_cols: NDArray[np.int64] | None
+    red_rows: NDArray[np.int64] | None
+    red_idx: NDArray[np.int64] | None
+    #: ``(C,)`` True for BAL cameras
+    bal: NDArray[np.bool_]
+    #: camera of each row, the rows of each frame camera, the rows of BAL cameras
+    obs_cam: NDArray[np.int64]
+    frame_groups: list
+    bal_rows: NDArray[np.int64]
+    #: columns of the compiled BAL path's rows (fixed for the model: set on first use)
+    bal_cols: NDArray[np.int64] | None = None
+
+
+class Image(ObservationType):
+    name = "image"
+    words = "image"
+    components = ("x", "y")
+    units = "px"
+    order = 0.0
+    share_checked = False  # many image blunders are data snooping's normal work (its cap applies)
+    hints = (("intrinsics", "an uncalibrated interior orientation"), ("boresight", "a boresight misalignment"))
+    vce_split = ((0, 1),)
+    sigma_field = "obs_sigma_px"
+    cov_field = "obs_cov_px2"
+
+    def count(self, block: "Block") -> int:
+        return block.n_observations
+
+    def normalise(self, block: "Block") -> None:
+        block.obs_image = np.asarray(block.obs_image, dtype=np.int64).reshape(-1)
+        n = len(block.obs_image)
+        block.obs_point = rows_of(block.obs_point, (), np.int64, n)
+        block.obs_pixel = rows_of(block.obs_pixel, (2,), n=n)
+        block.obs_sigma_px = sigma_rows(block.obs_sigma_px, n, 2)
+        covariance_rows(block, "obs_cov_px2", "obs_sigma_px", n, 2)
+
+    def validate(self, block: "Block") -> None:
+        check_index("obs_image", block.obs_image, block.n_images, "image")
+        check_index("obs_point", block.obs_point, block.n_points, "point")
+        check_finite("obs_pixel", block.obs_pixel)
+        check_finite("obs_sigma_px", block.obs_sigma_px)  # type: ignore[arg-type]
+        check_positive("obs_sigma_px", block.obs_sigma_px)  # type: ignore[arg-type]
+        check_covariance("obs_cov_px2", block.obs_cov_px2)
+
+    def validate_rays(self, block: "Block", controlled: NDArray[np.bool_]) -> None:
+        """Every point needs two rays or control; no point measured twice in one image."""
+        rays = np.bincount(block.obs_point, minlength=block.n_points)
+        bad = np.flatnonzero((rays < 2) & ~controlled)
+        if bad.size:
+            raise BlockError(
+                f"point {str(block.point_name[bad[0]])!r} is seen in {rays[bad[0]]} image(s) and is not control: "
+                f"it cannot be determined ({bad.size} such points); remove it or add observations"
+            )
+        pair = block.obs_image * max(block.n_points, 1) + block.obs_point
+        u, c = np.unique(pair, return_counts=True)
+        if (c > 1).any():
+            k = u[c > 1][0]
+            raise BlockError(f"point {str(block.point_name[k % block.n_points])!r} is measured more than once in "
+                             f"image {str(block.image_name[k // block.n_points])!r}")
+
+    def prepare(self, model: "Model") -> ImageCache:
+        from skyrig.adjust.block import BalCamera
+
+        b, lay = model.block, model.layout
+        W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
+        red_cols = red_rows = red_idx = None
+        if lay.has_rpoint:
+            rp = lay.rpoint[b.obs_point]  # type: ignore[index]
+            rows = np.flatnonzero(rp[:, 0] >= 0)
+            rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
+            img = b.obs_image[rows]
+            first = np.searchsorted(img, img, side="left")
+            rank = np.arange(len(rows)) - first
+            m = int(rank.max()) + 1 if rows.size else 0
+            img_cols = np.full((b.n_images, 3 * m), -1, np.int64)
+            for c in range(3):
+                img_cols[img, 3 * rank + c] = rp[rows, c]
+            red_cols = img_cols[b.obs_image]
+            red_rows = rows
+            red_idx = 3 * rank[:, None] + np.arange(3)[None, :]
+        bal = np.array([isinstance(c, BalCamera) for c in b.cameras], bool)
+        obs_cam = b.image_camera[b.obs_image]
+        groups = [(c, np.flatnonzero(obs_cam == c)) for c in range(len(b.cameras)) if not bal[c]]
+        groups = [(c, idx) for c, idx in groups if idx.size]
+        return ImageCache(W, red_cols, red_rows, red_idx, bal, obs_cam, groups, np.flatnonzero(bal[obs_cam]))
+
+    def present(self, model: "Model") -> bool:
+        return True  # always the first factor (possibly empty)
+
+    def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
+        return [self.evaluate_one(model, s, jac)]
+
+    def evaluate_one(self, model: "Model", s: "State", jac: bool) -> Factor:
+        """The image factor (its rows carry ``bad``: True where the point is behind or in the camera plane)."""
+        kernels = sys.modules["skyrig.adjust.model"]
+        bal_kernel, chain_kernel = kernels._BAL_KERNEL, kernels._CHAIN_KERNEL  # type: ignore[attr-defined]
+        ic: ImageCache = model.cache[self.name]  # type: ignore[assignment]
+        if (bal_kernel is not None and ic.bal.size and ic.bal.all() and model.block.n_observations
+                and ic.W is None and ic.red_cols is None):
+            return self._bal(model, s, jac, bal_kernel)
+        return self._numpy(model, s, jac, chain_kernel)
+
+    def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
+        b, lay = model.block, model.layout
+        img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]  # type: ignore[index]
+               | (model._icols >= 0).any(axis=1)[b.image_camera])
+        if lay.act is not None:
+            img |= any_on(lay.act)[b.image_head]  # type: ignore[index]
+        return img[b.obs_image] | model.estimated_points()[b.obs_point]
+
+    def label(self, block: "Block", i: int) -> str:
+        return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
+
+    def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:  # type: ignore[no-untyped-def]
+        """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
+        b, lay = model.block, model.layout
+        ic = model.cache[self.name]
+        n = b.n_observations
+        Rc, Cc, M = model.camera_poses(s)
+        oi = b.obs_image
+        X = s.X[b.obs_point]
+        Ro = Rc[oi]
+        pc = np.einsum("nji,nj->ni", Ro, X - Cc[oi])
+        pred = np.empty((n, 2))
+        d_pc = np.empty((n, 2, 3)) if jac else None
+        mmax = model._icols.shape[1]
+        d_in = np.zeros((n, 2, mmax)) if (jac and model._intr_on) else None
+        cams = model.cameras(s)
+        for c, idx in ic.frame_groups:
+            cam: FrameCamera = cams[c]
+            px, dpc, din = project_camera_with_jacobians(cam, pc[idx])
+            pred[idx] = px
+            if jac:
+                d_pc[idx] = dpc  # type: ignore[index]
+                if d_in is not None:
+                    d_in[idx, :, : din.shape[2]] = din
+        if ic.bal_rows.size:
+            idx = ic.bal_rows
+            intr = np.array([v for v in s.intr])[ic.obs_cam[idx]] if len(s.intr) else np.zeros((0, 3))
+            uv, dpc, din = bal_project(pc[idx], intr)
+            pred[idx] = uv
+            if jac:
+                d_pc[idx] = dpc  # type: ignore[index]
+                if d_in is not None:
+                    d_in[idx, :, :3] = din
+        sig = b.obs_sigma_px
+        w = model.weights["image"]
+        Wm = ic.W
+        if Wm is None:
+            r = (pred - b.obs_pixel) / sig
+        else:
+            r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
+        bad = ~np.isfinite(r).all(axis=1)
+        if bad.any():
+            r[bad] = 0.0  # behind the camera: reported by the solver
+        f = Factor(self.name, r, sig, weight=w, whiten=Wm)
+        f.bad = bad  # type: ignore[attr-defined]
+        if not jac:
+            return f
+        isig = (1.0 / sig)[:, :, None]
+
+        def wh(J: NDArray[np.float64]) -> NDArray[np.float64]:
+            return J * isig if Wm is None else Wm @ J
+
+        dpc = wh(d_pc)  # type: ignore[arg-type]
+        dpc[bad] = 0.0
+        if d_in is not None:
+            d_in[bad] = 0.0  # (a point in the camera plane: NaN derivatives would poison the normals)
+        chain = None
+        if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
+            chain = (np.empty((n, 2, 3)), np.empty((n, 2, 6)), np.empty((n, 2, 3)))
+            off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+            chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
+                          np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
+                          bool(np.any(off_i)), *chain)
+            jX = chain[0]
+        else:
+            RoT = np.swapaxes(Ro, 1, 2)
+            jX = dpc @ RoT
+        blocks = []
+        colblocks = []
+        st = b.image_station[oi]
+        if (lay.pose >= 0).any() and chain is not None:
+            jth_cam, jpose = chain[2], chain[1]
+            blocks.append(jpose)
+            colblocks.append(lay.pose[st])
+            if model._bore_on:
+                blocks.append(jth_cam)
+                colblocks.append(lay.bore[b.image_head[oi]])
+        elif (lay.pose >= 0).any():
+            jth_cam = dpc @ skew(pc)
+            Mo = M[oi]
+            jpose = np.empty((n, 2, 6))
+            jpose[:, :, :3] = -jX
+            off = b.image_offset[oi]
+            jth = jth_cam @ np.swapaxes(Mo, 1, 2)
+            if np.any(b.image_offset):
+                jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
+            jpose[:, :, 3:] = jth
+            blocks.append(jpose)
+            colblocks.append(lay.pose[st])
+            if model._bore_on:
+                blocks.append(jth_cam)
+                colblocks.append(lay.bore[b.image_head[oi]])
+        elif model._bore_on:
+            blocks.append(dpc @ skew(pc) if chain is None else chain[2])
+            colblocks.append(lay.bore[b.image_head[oi]])
+        if d_in is not None:
+            blocks.append(wh(d_in))
+            colblocks.append(model._icols[ic.obs_cam])
+        if model._act_on:
+            _, D = model.actuated_mounts(s, True)
+            ia = model._img2act[oi]
+            rows = np.flatnonzero(ia >= 0)
+            ext = np.zeros((n, 2, model._act_width))
+            Rb = _expmap(s.bore[b.image_head[oi[rows]]])
+            ext[rows] = (dpc[rows] @ skew(pc[rows])) @ np.swapaxes(Rb, 1, 2) @ D[ia[rows]]  # type: ignore[index]
+            cols = np.full((n, model._act_width), -1, np.int64)
+            cols[rows] = model.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
+            blocks.append(ext)
+            colblocks.append(cols)
+        if ic.red_cols is not None and ic.red_cols.shape[1]:
+            ext = np.zeros((n, 2, ic.red_cols.shape[1]))
+            rows = ic.red_rows
+            ext[rows[:, None, None], np.arange(2)[None, :, None], ic.red_idx[:, None, :]] = jX[rows]  # type: ignore[index]
+            blocks.append(ext)
+            colblocks.append(ic.red_cols)
+        if blocks:
+            f.jc = np.concatenate(blocks, axis=2)
+            f.cols = np.concatenate(colblocks, axis=1)
+        if lay.n_p:
+            f.point = lay.point[b.obs_point]
+            f.jp = jX
+        return f
+
+    def _bal(self, model: "Model", s: "State", jac: bool, bal_kernel) -> Factor:  # type: ignore[no-untyped-def]
+        """:meth:`_numpy` for blocks of BAL cameras only, through the compiled kernel (same values)."""
+        b, lay = model.block, model.layout
+        ic = model.cache[self.name]
+        n = b.n_observations
+        Rc, Cc, M = model.camera_poses(s)
+        intr = np.ascontiguousarray(np.array(s.intr, dtype=np.float64)[b.image_camera])
+        pose_on = bool((lay.pose >= 0).any())
+        widths = []
+        if pose_on:
+            widths.append(6)
+        if model._bore_on:
+            widths.append(3)
+        if model._intr_on:
+            widths.append(model._icols.shape[1])
+        offs = np.concatenate([[0], np.cumsum(widths)]).astype(np.int64)
+        k = int(offs[-1]) if jac else 0
+        o_pose = int(offs[0]) if pose_on else -1
+        o_bore = int(offs[int(pose_on)]) if model._bore_on else -1
+        o_intr = int(offs[int(pose_on) + int(model._bore_on)]) if model._intr_on else -1
+        r = np.empty((n, 2))
+        bad = np.empty(n, np.bool_)
+        jc = np.empty((n if jac else 0, 2, k))  # the kernel writes every column
+        jp = np.empty((n if jac else 0, 2, 3))
+        off = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+        bal_kernel(b.obs_image, b.obs_point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
+                    np.ascontiguousarray(M), np.ascontiguousarray(s.R), off, bool(np.any(off)),
+                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(b.obs_pixel, dtype=np.float64),
+                    np.ascontiguousarray(b.obs_sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
+        f = Factor(self.name, r, b.obs_sigma_px, weight=model.weights["image"])
+        f.bad = bad  # type: ignore[attr-defined]
+        if not jac:
+            return f
+        if k:
+            f.jc = jc
+            if ic.bal_cols is None:
+                colblocks = []
+                if pose_on:
+                    colblocks.append(lay.pose[b.image_station[b.obs_image]])
+                if model._bore_on:
+                    colblocks.append(lay.bore[b.image_head[b.obs_image]])
+                if model._intr_on:
+                    colblocks.append(model._icols[ic.obs_cam])
+                ic.bal_cols = np.concatenate(colblocks, axis=1)
+            f.cols = ic.bal_cols
+        if lay.n_p:
+            f.point = lay.point[b.obs_point]
+            f.jp = jp
+        return f
+
+
+IMAGE = register(Image())
