@@ -63,7 +63,8 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
     if list_stages:
         for st in STAGES.values():
             need = ", ".join(st.requires) or "-"
-            click.echo(f"{st.name}: {st.help}\n  needs: {need}; provides: "
+            uses = f"; uses: {', '.join(st.uses)} (when an earlier stage gives it)" if st.uses else ""
+            click.echo(f"{st.name}: {st.help}\n  needs: {need}{uses}; provides: "
                        + ", ".join(f"{k} ({v})" for k, v in st.provides.items()))
             for name, opt in st.options.items():
                 click.echo(f"    {name} = {opt.default!r}  ({opt.kind}) {opt.help}")
