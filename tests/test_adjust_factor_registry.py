@@ -163,3 +163,29 @@ def test_config_is_the_union_of_its_parts():
     assert cfg.reliability_options.snooping and not cfg.statistics_options.statistics
     with pytest.raises(ValueError, match="snooping_max_group_share"):
         AdjustConfig(snooping_max_group_share=0.0)
+
+
+def test_a_row_coupling_cameras_and_an_eliminated_point_is_refused(height_type):
+    # the solver couples cameras and eliminated points through the image rows only: a new type whose rows
+    # touch both would be silently mis-solved, so the model refuses it in words
+    from skyrig.adjust.model import Model, State
+
+    class Coupled(LevelledHeight):
+        name = "coupled"
+
+        def evaluate(self, model, s, jac):
+            (f,) = LevelledHeight.evaluate(self, model, s, jac)
+            if jac:
+                st = model.layout.pose[0]
+                f.jc, f.cols = np.zeros((len(f), 1, 6)), np.broadcast_to(st, (len(f), 6))
+            return [f]
+
+    t = register(Coupled())
+    try:
+        b, _, pts, z = _block_with_heights()
+        b = dataclasses.replace(b, observations={"coupled": HeightData(pts, z)})
+        m = Model(b, AdjustConfig())
+        with pytest.raises(ValueError, match="touches both reduced columns and an eliminated point"):
+            m.evaluate(State.from_block(b))
+    finally:
+        unregister(t.name)

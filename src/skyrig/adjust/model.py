@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
 from skyrig.adjust.factors.base import Factor, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
@@ -387,12 +387,31 @@ class Model:
         observation type present, in the registry's order (the image factor first)."""
         out: list[Factor] = []
         for t in self.types:
-            out.extend(t.evaluate(self, s, jacobians))
+            fs = t.evaluate(self, s, jacobians)
+            if jacobians and t.name not in _BUILTIN_NAMES:
+                _check_rows(t.name, fs)
+            out.extend(fs)
         return out
 
     def _image(self, s: State, jac: bool) -> Factor:
         """The image factor alone (:class:`skyrig.adjust.factors.image.Image`)."""
         return observation_type("image").evaluate_one(self, s, jac)  # type: ignore[union-attr]
+
+
+_BUILTIN_NAMES = frozenset(BUILTIN)  # the built-in types (their modules are named after them)
+
+
+def _check_rows(name: str, factors: list[Factor]) -> None:
+    """A row of a (non-built-in) observation type may touch reduced columns or one eliminated point, not both:
+    the solver builds the point-camera coupling from the image rows only (use the reduced part for such
+    points, as distances do, ``Layout.rpoint``)."""
+    for f in factors:
+        if f.point is None or f.cols is None or f.jc is None or not len(f):
+            continue
+        both = (f.point >= 0) & (f.cols >= 0).reshape(len(f), -1).any(axis=1)
+        if both.any():
+            raise ValueError(f"observation type {name!r}: row {int(np.flatnonzero(both)[0])} of factor {f.name!r} "
+                             "touches both reduced columns and an eliminated point; only image rows may")
 
 
 # ---------------------------------------------------------------------------------------------------

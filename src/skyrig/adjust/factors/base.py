@@ -273,7 +273,11 @@ class ObservationType:
         return self.count(model.block) > 0
 
     def evaluate(self, model: "Model", state: "State", jac: bool) -> list["Factor"]:
-        """Whitened residuals (and Jacobians when ``jac``) of the type's rows at ``state``."""
+        """Whitened residuals (and Jacobians when ``jac``) of the type's rows at ``state``.
+
+        A row touches reduced columns (``cols``/``jc``) or one eliminated point (``point``/``jp``), not
+        both: only the image rows couple cameras and eliminated points (the Schur structure is built from
+        them); a point that such a row needs is estimated in the reduced part (``Layout.rpoint``)."""
         raise NotImplementedError
 
     def varying(self, model: "Model", factor: "Factor") -> NDArray[np.bool_]:
