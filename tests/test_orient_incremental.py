@@ -272,3 +272,39 @@ def test_cli_scale_bar_writes_model_frame_tables(tmp_path):
     sd = np.linalg.norm(sig, axis=1)
     tol = 4 * (sd[:, None] + sd[None])
     assert np.all(np.abs(D - Dt) < tol + 1e-9), np.max(np.abs(D - Dt) / (tol + 1e-9))
+
+
+def _weakly_tied(s, k: int, o: int, keep: int = 8, pair: int = 70, seed: int = 3):
+    """The set with image ``k`` tied to the block as a walk turning a corner: of the tracks ``k`` shares with ``o``,
+    ``keep`` stay as they are and ``pair`` are kept only in ``k`` and ``o`` (two-view tracks, which no oriented image
+    but ``o`` sees); ``k``'s other observations are dropped.  ``k`` has too few triangulated points for a resection
+    but enough tie points with ``o`` for a relative orientation (fewer than the best pairs: not a start pair)."""
+    rng = np.random.default_rng(seed)
+    tk = np.unique(s.obs_point[s.obs_image == k])
+    to = np.unique(s.obs_point[s.obs_image == o])
+    both = rng.permutation(np.intersect1d(tk, to))
+    stay, weak = both[:keep], both[keep:keep + pair]
+    drop = (np.isin(s.obs_point, weak) & ~np.isin(s.obs_image, [k, o])) | (
+        (s.obs_image == k) & ~np.isin(s.obs_point, np.r_[stay, weak]))
+    m = ~drop
+    return s.obs_point[m], s.obs_image[m], s.obs_pixel[m]
+
+
+def test_weakly_tied_image_oriented_by_relative_orientation():
+    """An image sharing only 8 triangulated points with the block (fewer than a resection needs) but many tie points
+    with one oriented image is oriented through the relative orientation of that pair (rotation and base direction
+    from the essential matrix, base length from the 8 points); the block is the truth up to a similarity within 4
+    predicted sigma, that image included."""
+    s = _set()
+    k, o = 11, 10  # last image of the upper row and its neighbour
+    ot, oi, op = _weakly_tied(s, k, o)
+    inp = OrientInput(s.names, _start_camera(s), ot, oi, op, s.point_name)
+    res = orient_incremental(inp, OrientConfig(pixel_sigma_px=SIGMA_PX))
+    assert res.oriented.all()
+    assert res.summary["relative_tie_ins"] >= 1
+    assert "relative orientation" in res.attitude_check[str(s.names[k])]["orientation"], res.attitude_check
+    sc, Rs, ts = similarity_transform(res.centre, s.C)
+    d = sc * res.centre @ Rs.T + ts - s.C
+    ps = res.adjustment.pose_sigma[:, :3] * sc
+    z = np.linalg.norm(d, axis=1) / np.linalg.norm(ps, axis=1)
+    assert np.all(z < 4), z.max()

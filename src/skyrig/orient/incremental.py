@@ -330,6 +330,107 @@ def _resect_round(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X: N
     return added
 
 
+def _relative_pose(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, o: int, k: int,
+                   active: NDArray[np.bool_]) -> tuple[NDArray, NDArray, NDArray, NDArray, int] | None:
+    """Essential matrix between an oriented image ``o`` and image ``k`` on their common active tracks:
+    ``(R_ko, t_ko (unit), inlier tracks, their pixels in k, inliers)`` with ``x_k = R_ko x_o + t_ko`` in OpenCV
+    camera axes, or None (too few inliers)."""
+    import cv2
+
+    K, dist = _k_matrix(camera)
+    mo, mk = (inp.obs_image == o) & active, (inp.obs_image == k) & active
+    common, co, ck = np.intersect1d(inp.obs_track[mo], inp.obs_track[mk], return_indices=True)
+    if len(common) < cfg.pnp_min_inliers:
+        return None
+    po = cv2.undistortPoints(inp.obs_pixel[mo][co][:, None], K, dist)[:, 0]
+    pk = cv2.undistortPoints(inp.obs_pixel[mk][ck][:, None], K, dist)[:, 0]
+    cv2.setRNGSeed(0)
+    E, mask = cv2.findEssentialMat(po, pk, np.eye(3), cv2.RANSAC, 0.999, cfg.pnp_threshold_px / K[0, 0])
+    if E is None or E.shape != (3, 3):
+        return None
+    nin, R_ko, t_ko, mask = cv2.recoverPose(E, po, pk, np.eye(3), mask=mask)
+    if nin < cfg.pnp_min_inliers:
+        return None
+    inl = mask.ravel() > 0
+    return R_ko, t_ko[:, 0] / np.linalg.norm(t_ko), common[inl], inp.obs_pixel[mk][ck][inl], int(nin)
+
+
+def _resect_relative(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X: NDArray, R: NDArray, C: NDArray,
+                     oriented: NDArray[np.bool_], active: NDArray[np.bool_], check: dict[str, dict[str, Any]]
+                     ) -> list[int]:
+    """Orient an image that sees too few triangulated points for a resection but shares many tie points with an
+    oriented image (a walk turning a corner: the new view's points are seen by one oriented image only).
+
+    The relative orientation of the pair (essential matrix, RANSAC) gives the new image's rotation and the direction
+    of the base from the oriented image; only the base length is left, one unknown, taken as the median over the
+    triangulated points the new image sees (each gives it from the condition that its ray passes through the point,
+    >= 5 points, checked by their reprojection: >= 60 % within ``pnp_threshold_px``).  The pose is then refined with
+    the points of the pair triangulated in the block's frame.  Returns the added image (at most one per call)."""
+    n = len(inp.names)
+    X_ok = np.isfinite(X).all(axis=1)
+    act_or = active & oriented[inp.obs_image]
+    # common active tracks between each unoriented image and each oriented one
+    tr_or = np.zeros((len(inp.track_name), n), bool)
+    tr_or[inp.obs_track[act_or], inp.obs_image[act_or]] = True
+    cand: list[tuple[int, int, int]] = []
+    for k in np.flatnonzero(~oriented):
+        mk = (inp.obs_image == k) & active
+        cnt = tr_or[inp.obs_track[mk]].sum(axis=0)
+        for o in np.argsort(-cnt)[:3]:
+            if oriented[o] and cnt[o] >= cfg.seed_min_common:
+                cand.append((int(cnt[o]), int(k), int(o)))
+    for _, k, o in sorted(cand, reverse=True):
+        rel = _relative_pose(inp, cfg, camera, o, k, active)
+        if rel is None:
+            continue
+        R_ko, t_ko, tracks_in, px_in, nin = rel
+        Fo = R[o] @ _SKYRIG_FROM_CV  # world_from_camera in OpenCV axes of image o
+        Rk = Fo @ R_ko.T @ _SKYRIG_FROM_CV  # world_from_camera (skyrig axes) of image k
+        b = Fo @ (-R_ko.T @ t_ko)  # unit base direction o -> k in the world
+        mk = (inp.obs_image == k) & active & X_ok[inp.obs_track]
+        if mk.sum() < 5:
+            continue
+        Xk, pk = X[inp.obs_track[mk]], inp.obs_pixel[mk]
+        d = camera.rays_from_pixels(pk) @ Rk.T
+        bd = np.cross(b, d)
+        den = np.sum(bd * bd, axis=1)
+        ok = den > 1e-12 * np.max(den)
+        s_i = np.sum(np.cross(Xk - C[o], d) * bd, axis=1)[ok] / den[ok]
+        if len(s_i) < 5:
+            continue
+        s = float(np.median(s_i))
+        if not s > 0:
+            continue
+        Ck = C[o] + s * b
+        px = _reproject(camera, np.broadcast_to(Rk, (len(Xk), 3, 3)), np.broadcast_to(Ck, (len(Xk), 3)), Xk)
+        good = np.nan_to_num(np.linalg.norm(px - pk, axis=1), nan=np.inf) < cfg.pnp_threshold_px
+        if good.sum() < max(5, 0.6 * len(Xk)):
+            logger.info("relative tie-in of %s from %s: base length from %d points, only %d reproject within %.1f px",
+                        inp.names[k], inp.names[o], len(Xk), int(good.sum()), cfg.pnp_threshold_px)
+            continue
+        # refine: the pair's inlier tracks triangulated with the new pose, plus the block's points, by resection
+        Rt, Ct = R.copy(), C.copy()
+        Rt[k], Ct[k] = Rk, Ck
+        pair = np.zeros(n, bool)
+        pair[[o, k]] = True
+        Xp = _triangulate(inp, camera, Rt, Ct, pair, active, cfg.min_angle_deg)
+        Xr = np.where(X_ok[:, None], X, Xp)
+        m_all = (inp.obs_image == k) & active & np.isfinite(Xr).all(axis=1)[inp.obs_track]
+        out = resect(camera, Xr[inp.obs_track[m_all]], inp.obs_pixel[m_all], cfg.pnp_threshold_px,
+                     cfg.pnp_min_inliers)
+        if out is not None and np.linalg.norm(out[1] - Ck) < 0.5 * s:
+            Rk, Ck = out[0], out[1]
+        R[k], C[k] = Rk, Ck
+        oriented[k] = True
+        check[str(inp.names[k])]["orientation"] = (
+            f"relative orientation to {inp.names[o]} ({nin} essential-matrix inliers), base length from "
+            f"{int(good.sum())} of {len(Xk)} triangulated points")
+        logger.info("relative tie-in of %s from %s: %d inliers, base %.3g from %d of %d points", inp.names[k],
+                    inp.names[o], nin, s, int(good.sum()), len(Xk))
+        return [k]
+    return []
+
+
 def _seed_part(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X_main: NDArray,
                oriented: NDArray[np.bool_], active: NDArray[np.bool_], check: dict[str, dict[str, Any]]
                ) -> tuple[NDArray, NDArray, NDArray[np.bool_], NDArray[np.bool_]] | None:
@@ -463,12 +564,17 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     X = bundle(X)
     last_ba = 2
     # ---- 2. growth
-    parts = 0
+    parts = relative = 0
     while not oriented.all():
         rounds += 1
         X_tri = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
         X = np.where(np.isfinite(X).all(axis=1)[:, None], X, X_tri)
         added = _resect_round(inp, cfg, camera, X, R, C, oriented, active, np.ones(n, bool), check)
+        if not added:
+            # an image sharing many tie points with one oriented image but few triangulated points: relative
+            # orientation to that image, the base length from the points it sees
+            added = _resect_relative(inp, cfg, camera, X, R, C, oriented, active, check)
+            relative += len(added)
         if not added:
             # a part the tie points do not reach through triangulated points: its own start, tied in by common points
             got = _seed_part(inp, cfg, camera, X, oriented, active, check)
@@ -597,7 +703,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         datum_info["note"] = "inner constraints; frame and scale of the relative orientation (start base = 1)"
     summary = _summary(inp, res, oriented, camera, rounds, time.perf_counter() - t_start)
     summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order],
-                   parts_tied_in=parts)
+                   parts_tied_in=parts, relative_tie_ins=relative)
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
