@@ -79,14 +79,18 @@ def block_shape(n_exposures: int) -> tuple[int, int]:
 
 
 def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = "free",
-        max_gib: float | None = None) -> dict:
+        max_gib: float | None = None, linear_solver: str = "auto") -> dict:
     """Generate and adjust one block; a dict of figures."""
     from skyrig.adjust import AdjustConfig, adjust
     from skyrig.adjust.synthetic import synthetic_block
     from skyrig.rig.presets import midas
 
+    import skyrig.adjust.solver as solver
+
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from scale_sim import penta_block
+
+    solver.LINEAR_SOLVER = linear_solver  # the reduced system's solver (auto: skyrig.adjust.linalg.choose)
 
     # load the compiled (numba, cached on disk) kernels once on a tiny block: a one-off per process
     tw = time.perf_counter()
@@ -102,7 +106,9 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
     base = _rss()
     t1 = time.perf_counter()
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
-    with _PeakRss(limit=None if max_gib is None else max_gib * 2**30) as mem:
+    # the guard: --max-gib, or less when the machine has less available now (others' jobs)
+    limit = None if max_gib is None else min(max_gib * 2**30, _rss() + 0.92 * _mem_available())
+    with _PeakRss(limit=limit) as mem:
         res = adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=boresight))
     t_adj = time.perf_counter() - t1
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
@@ -127,10 +133,11 @@ def main() -> None:
                     help="guard for a shared machine: a size whose projected adjustment peak (from the previous "
                          "sizes) exceeds this or 90 %% of the available memory is not run, and a run whose resident "
                          "memory exceeds it is stopped (default 20)")
+    ap.add_argument("--linear-solver", default="auto", help="reduced system: auto (default), cholmod, pcg, splu, dense")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(one(a.one, a.points_per_exposure, a.seed, a.boresight, a.max_gib)))
+        print(json.dumps(one(a.one, a.points_per_exposure, a.seed, a.boresight, a.max_gib, a.linear_solver)))
         return
     rows = []
     hdr = (f"{'exposures':>9} {'images':>7} {'points':>8} {'obs':>9} {'gen s':>7} {'adjust s':>9} {'cpu s':>7} {'LM s':>7} "
@@ -138,7 +145,8 @@ def main() -> None:
            f"{'warm s':>7} {'load':>5} {'conv':>4} {'C rmse':>7}  linear solver")
     import numba
 
-    print(f"MIDAS penta rig, GNSS/IMU, boresights {a.boresight}, {a.points_per_exposure} points per exposure, seed {a.seed}, "
+    print(f"MIDAS penta rig, GNSS/IMU, boresights {a.boresight}, linear solver {a.linear_solver}, "
+          f"{a.points_per_exposure} points per exposure, seed {a.seed}, "
           f"os.cpu_count() = {os.cpu_count()}, numba threads = {numba.get_num_threads()}")
     print("adjust s: the whole adjust() call (datum check, Levenberg-Marquardt, statistics); LM s: the "
           "Levenberg-Marquardt loop alone; iter: successful + unsuccessful steps; each size runs in a fresh "
@@ -153,7 +161,9 @@ def main() -> None:
             if len(rows) >= 2:
                 e = max(1.0, np.log(rows[-1]["adjust_peak_mib"] / rows[-2]["adjust_peak_mib"])
                         / np.log(rows[-1]["exposures"] / rows[-2]["exposures"]))
-            proj = (rows[-1]["process_peak_mib"] * (n / rows[-1]["exposures"]) ** e) / 1024
+            q = n / rows[-1]["exposures"]  # the adjustment's rise with the exponent, the rest (block) linearly
+            proj = (rows[-1]["adjust_peak_mib"] * q ** e
+                    + (rows[-1]["process_peak_mib"] - rows[-1]["adjust_peak_mib"]) * q) / 1024
             avail = _mem_available() / 2**30
             if proj > a.max_gib or proj > 0.9 * avail:
                 print(f"size {n} not run: projected peak {proj:.1f} GiB (exponent {e:.2f}) above the guard "
@@ -161,7 +171,7 @@ def main() -> None:
                 break
         out = subprocess.run([sys.executable, __file__, "--one", str(n), "--points-per-exposure",
                               str(a.points_per_exposure), "--seed", str(a.seed), "--boresight", a.boresight,
-                              "--max-gib", str(a.max_gib)],
+                              "--max-gib", str(a.max_gib), "--linear-solver", a.linear_solver],
                              capture_output=True, text=True)
         if out.returncode:
             print(f"size {n} failed:\n{out.stderr[-2000:]}")

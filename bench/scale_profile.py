@@ -3,7 +3,7 @@
     nice .venv/bin/python bench/scale_profile.py --exposures 500
 
 The functions of the adjustment are wrapped from outside (nothing in ``skyrig.adjust`` changes): per phase,
-the number of calls, the wall time, the resident memory on entry (relative to the start of ``adjust()``)
+the number of calls, the wall time, the resident memory on entry (relative to the start of ``adjust()``), the process CPU time (all threads)
 and the largest rise of the resident set above that entry (sampled every 2 ms).  Phases nest: the time of
 ``check_datum`` includes its ``assemble`` and ``schur_matrix``; ``lm`` includes ``evaluate``, ``engine_init``,
 ``linearize``, ``reduced_system`` and ``factor+solve``.  Before the adjustment it reports what the
@@ -68,7 +68,7 @@ def main() -> None:
     A.adjust(small, AdjustConfig(statistics=False, max_iterations=2))
 
     smp = _Sampler()
-    stats: dict[str, list[float]] = defaultdict(lambda: [0, 0.0, 0.0, 0.0])  # calls, s, entry rss, max rise
+    stats: dict[str, list[float]] = defaultdict(lambda: [0, 0.0, 0.0, 0.0, 0.0])  # calls, s, entry, rise, cpu s
     base = [0]
 
     def wrap(owner, name: str, label: str) -> None:
@@ -79,10 +79,12 @@ def main() -> None:
             fr = [float(_rss()), float(_rss())]
             smp.active.append(fr)
             t = time.perf_counter()
+            c = time.process_time()
             try:
                 return f(*args, **kw)
             finally:
                 dt = time.perf_counter() - t
+                dc = time.process_time() - c
                 smp.active = [x for x in smp.active if x is not fr]
                 fr[1] = max(fr[1], _rss())
                 s = stats[label]
@@ -91,6 +93,7 @@ def main() -> None:
                 s[0] += 1
                 s[1] += dt
                 s[3] = max(s[3], (fr[1] - fr[0]) / 2**20)
+                s[4] += dc
 
         setattr(owner, name, g)
 
@@ -130,19 +133,22 @@ def main() -> None:
     print("largest block arrays: " + ", ".join(f"{k} {n / 2**20:.0f} MiB {dt}{list(sh)}" for n, k, dt, sh in big))
     base[0] = _rss()
     t1 = time.perf_counter()
+    c1 = time.process_time()
     fr = [float(base[0]), float(base[0])]
     smp.active.append(fr)
     res = A.adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=a.boresight))
     smp.active = [x for x in smp.active if x is not fr]
     t_adj = time.perf_counter() - t1
     nobs = block.n_observations
-    print(f"adjust(): {t_adj:.1f} s, {res.info.iterations} + {res.info.unsuccessful} iterations, "
+    print(f"adjust(): {t_adj:.1f} s wall, {time.process_time() - c1:.1f} s CPU (all threads; load average "
+          f"{os.getloadavg()[0]:.1f}), {res.info.iterations} + {res.info.unsuccessful} iterations, "
           f"solver {res.info.linear_solver}; peak rise {(fr[1] - base[0]) / 2**20:.0f} MiB "
           f"({(fr[1] - base[0]) / nobs:.0f} B per image observation); process peak "
           f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
-    print(f"{'phase':46s} {'calls':>5s} {'s':>8s} {'entry MiB':>10s} {'rise MiB':>9s} {'rise B/obs':>10s}")
-    for k, (n, s, e, rise) in stats.items():
-        print(f"{k:46s} {int(n):5d} {s:8.2f} {e:10.0f} {rise:9.0f} {rise * 2**20 / nobs:10.0f}")
+    print(f"{'phase':46s} {'calls':>5s} {'wall s':>8s} {'cpu s':>8s} {'entry MiB':>10s} {'rise MiB':>9s} "
+          f"{'rise B/obs':>10s}")
+    for k, (n, s, e, rise, c) in stats.items():
+        print(f"{k:46s} {int(n):5d} {s:8.2f} {c:8.2f} {e:10.0f} {rise:9.0f} {rise * 2**20 / nobs:10.0f}")
 
 
 if __name__ == "__main__":
