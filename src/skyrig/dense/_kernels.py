@@ -83,34 +83,59 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
     """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays.
 
     ``out_ch``, ``out_cs``, ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``,
-    their precision-weighted mean, its sigma and their number (a candidate for the neighbour confirmation)."""
+    their precision-weighted mean, its sigma and their number (a candidate for the neighbour confirmation).
+
+    A cell's points are gathered into scratch arrays (allocated once) and sorted there by (pair, height),
+    stably (ties keep the input order)."""
     ncells = start.shape[0] - 1
+    maxm = 0
+    for c in range(ncells):
+        maxm = max(maxm, start[c + 1] - start[c])
+    lp = np.empty(maxm, np.int64)
+    lh = np.empty(maxm)
+    ls = np.empty(maxm)
+    ph = np.empty(maxm)
+    ps = np.empty(maxm)
+    pi = np.empty(maxm, np.int64)
+    dev = np.empty(maxm)
     for c in range(ncells):
         a, b = start[c], start[c + 1]
         m = b - a
         if m == 0:
             continue
-        idx = order[a:b].copy()
-        _sort2(pair, h, idx)
+        for t in range(m):  # gather, insertion-sorted by (pair, h)
+            q = order[a + t]
+            kp, kh, ks = pair[q], h[q], sigma[q]
+            j = t
+            while j > 0 and (lp[j - 1] > kp or (lp[j - 1] == kp and lh[j - 1] > kh)):
+                lp[j] = lp[j - 1]
+                lh[j] = lh[j - 1]
+                ls[j] = ls[j - 1]
+                j -= 1
+            lp[j] = kp
+            lh[j] = kh
+            ls[j] = ks
         # one height per pair: median of its points (sigma of the median point(s))
-        ph = np.empty(m)
-        ps = np.empty(m)
         k = 0
         i = 0
         while i < m:
             j = i
-            while j < m and pair[idx[j]] == pair[idx[i]]:
+            while j < m and lp[j] == lp[i]:
                 j += 1
             cnt = j - i
             lo = i + (cnt - 1) // 2
             hi = i + cnt // 2
-            ph[k] = 0.5 * (h[idx[lo]] + h[idx[hi]])
-            ps[k] = 0.5 * (sigma[idx[lo]] + sigma[idx[hi]])
+            ph[k] = 0.5 * (lh[lo] + lh[hi])
+            ps[k] = 0.5 * (ls[lo] + ls[hi])
             k += 1
             i = j
         np_ = k
-        pi = np.arange(np_)
-        _sort1(ph, pi)
+        for q in range(np_):  # pi: pair heights' order (stable insertion sort by ph)
+            t = q
+            while t > 0 and ph[pi[t - 1]] > ph[q]:
+                pi[t] = pi[t - 1]
+                t -= 1
+            pi[t] = q
         # precision-weighted median
         tot = 0.0
         for q in range(np_):
@@ -141,14 +166,17 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
                 out_cn[c] = min(nsup, 32767)
             continue
         fused = hsum / wsum
-        dev = np.empty(nsup)
         t = 0
         for q in range(np_):
             tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
             if abs(ph[q] - med) <= tol:
-                dev[t] = abs(ph[q] - fused)
+                v = abs(ph[q] - fused)
+                r = t
+                while r > 0 and dev[r - 1] > v:
+                    dev[r] = dev[r - 1]
+                    r -= 1
+                dev[r] = v
                 t += 1
-        dev.sort()
         out_h[c] = fused
         out_n[c] = min(nsup, 32767)
         out_s[c] = 1.0 / np.sqrt(wsum)
@@ -162,13 +190,18 @@ def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, rot, min_suppor
     points of at least ``min_support`` distinct pairs becomes one point.  Normals are rotated by ``rot``
     (``(3, 3)``, in float64, rounded to float32) before they are averaged.  Returns the number written."""
     ncells = start.shape[0] - 1
+    maxm = 0
+    for c in range(ncells):
+        maxm = max(maxm, start[c + 1] - start[c])
+    buf = np.empty(maxm, np.int64)
     out = 0
     for c in range(ncells):
         a, b = start[c], start[c + 1]
         m = b - a
         if m == 0:
             continue
-        idx = order[a:b].copy()
+        idx = buf[:m]
+        idx[:] = order[a:b]
         _sort2(kz, pair, idx)
         i = 0
         while i < m:

@@ -171,9 +171,10 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
     w, h = cu1 - cu0, cv1 - cv0
     with phase("rectify"):
         lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
-        rc, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
         lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
-        rg = cv2.cvtColor(rc, cv2.COLOR_RGB2GRAY) if rc.ndim == 3 else rc
+        # the right image is only matched, never coloured from: grey first, one channel resampled
+        rg, rvalid = rect.remap(1, cv2.cvtColor(right_img, cv2.COLOR_RGB2GRAY) if right_img.ndim == 3 else right_img,
+                                cu0 - shift, cv0, w, h)
     d = match_crop(lg, rg, shift, n, cfg, lvalid, rvalid)
     src = (slice(blk.v0 - cv0, blk.v1 - cv0), slice(a - cu0, b - cu0))
     dst = (slice(None), slice(a - blk.u0, b - blk.u0))
