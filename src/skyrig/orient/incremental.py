@@ -17,7 +17,12 @@ Stages (:func:`orient_incremental`)
    triangulated points are resected (``cv2.solvePnPRansac`` EPnP + LM, :func:`~skyrig.orient.triangulation.resect`);
    a bundle adjustment (:func:`skyrig.adjust.adjust`, Huber weights, inner constraints as datum, camera fixed)
    runs while the block is small and each time it has grown by ``ba_growth`` since the last one; gross residuals
-   are removed after each.  Repeat until no image can be added.
+   are removed after each.  An image with too few triangulated points for a resection but many tie points with
+   one oriented image (a walk turning a corner: its points are seen by that image only) is tied in by the pair's
+   relative orientation: rotation and base direction from the essential matrix, the base length from the
+   triangulated points it does see (median, checked by reprojection), refined by resection.  A part of the block
+   that neither reaches gets its own two-view start and is tied in by a robust similarity through common points.
+   Repeat until no image can be added.
 3. **Datum** (``datum``):
 
    * ``"control"``: a similarity (Umeyama) of the triangulated control points onto their given coordinates (>= 3

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from skyrig.camera.frame import FrameCamera
 from skyrig.orient.triangulation import _SKYRIG_FROM_CV
 
-__all__ = ["PeerOrientation", "pycolmap_from_tracks"]
+__all__ = ["PeerOrientation", "compare_on_same_tracks", "pycolmap_from_tracks"]
 
 
 @dataclass
@@ -194,3 +194,25 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
                     "refine": "focal length, principal point, distortion"},
     }
     return PeerOrientation(nm, R, C, float(0.5 * (pp[0] + pp[1])), summary)
+
+
+def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int = 0) -> dict[str, Any]:
+    """pycolmap on the tie points an orientation used (:func:`pycolmap_from_tracks` with ``inp``'s names, start
+    camera and observations, an :class:`~skyrig.orient.incremental.OrientInput`), compared with ``result`` (a
+    :class:`~skyrig.orient.gnss_block.UavResult`) by camera centres after a similarity
+    (:func:`skyrig.orient.similarity.compare_with_reconstruction`; with ``inp.positions`` also both fitted onto
+    them).  The dict has the keys of the image-based comparison (``registered``, ``points``, ``wall_s``,
+    ``centre_differences``) so that reports read alike; for a CLI without images (a simulated or measured set of
+    image coordinates only)."""
+    from skyrig.orient.similarity import compare_with_reconstruction
+
+    peer = pycolmap_from_tracks(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, workdir, seed)
+    out: dict[str, Any] = {"mapper": "incremental, on skyrig's tie points (same measurements)"}
+    if peer is None:
+        return dict(out, registered=0)
+    out.update(registered=int(len(peer.names)), points=peer.summary["points"],
+               mean_reprojection_error_px=peer.summary["mean_reprojection_error_px"], focal_px=peer.focal_px,
+               wall_s=peer.summary["wall_s"])
+    if len(peer.names) >= 3:
+        out["centre_differences"] = compare_with_reconstruction(result, peer.names, peer.C, inp.positions)
+    return out
