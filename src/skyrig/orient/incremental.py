@@ -185,10 +185,12 @@ class OrientInput:
 
 
 # ---------------------------------------------------------------------------------------------- two-view start
-def _pair_counts(inp: OrientInput) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Image pairs ``(i, j)`` (i < j) with their common-track counts, most first."""
+def _pair_counts(inp: OrientInput, use: NDArray[np.bool_] | None = None
+                 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Image pairs ``(i, j)`` (i < j) with their common-track counts (observations ``use`` only), most first."""
     n = len(inp.names)
-    order = np.lexsort((inp.obs_image, inp.obs_track))
+    rows = np.arange(len(inp.obs_track)) if use is None else np.flatnonzero(use)
+    order = rows[np.lexsort((inp.obs_image[rows], inp.obs_track[rows]))]
     im = inp.obs_image[order]
     ra, rb = _track_pairs(inp.obs_track[order])
     a, b = np.minimum(im[ra], im[rb]), np.maximum(im[ra], im[rb])
@@ -373,18 +375,17 @@ def _resect_relative(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X
     the points of the pair triangulated in the block's frame.  Returns the added image (at most one per call)."""
     n = len(inp.names)
     X_ok = np.isfinite(X).all(axis=1)
-    act_or = active & oriented[inp.obs_image]
-    # common active tracks between each unoriented image and each oriented one
-    tr_or = np.zeros((len(inp.track_name), n), bool)
-    tr_or[inp.obs_track[act_or], inp.obs_image[act_or]] = True
-    cand: list[tuple[int, int, int]] = []
-    for k in np.flatnonzero(~oriented):
-        mk = (inp.obs_image == k) & active
-        cnt = tr_or[inp.obs_track[mk]].sum(axis=0)
-        for o in np.argsort(-cnt)[:3]:
-            if oriented[o] and cnt[o] >= cfg.seed_min_common:
-                cand.append((int(cnt[o]), int(k), int(o)))
-    for _, k, o in sorted(cand, reverse=True):
+    # pairs of an unoriented and an oriented image by common active tracks (most first), the 3 best per image
+    pi, pj, cnt = _pair_counts(inp, active)
+    one = (oriented[pi] != oriented[pj]) & (cnt >= cfg.seed_min_common)
+    ks, os_ = np.where(oriented[pi], pj, pi)[one], np.where(oriented[pi], pi, pj)[one]
+    cand: list[tuple[int, int]] = []
+    per: dict[int, int] = {}
+    for k, o in zip(ks.tolist(), os_.tolist()):
+        if per.get(k, 0) < 3:
+            per[k] = per.get(k, 0) + 1
+            cand.append((k, o))
+    for k, o in cand:
         rel = _relative_pose(inp, cfg, camera, o, k, active)
         if rel is None:
             continue
