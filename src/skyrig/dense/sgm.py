@@ -13,7 +13,7 @@ left-right consistency (``disp12MaxDiff``), speckle filtering of small disconnec
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import logging
 
 import numpy as np
@@ -75,6 +75,8 @@ class SgmConfig:
         (angle between the surface normal and the ray to the camera) are dropped: next to a depth edge the
         matcher smooths the jump into a steep ramp whose points float off the surface; a real surface seen
         that obliquely cannot be matched reliably either.  90 disables.
+    lr_mode
+        Matcher mode of the right-based pass of the full left-right check (None: ``mode``).
     fill_occlusions
         Give every pixel left without a match the disparity of the farther of its nearest matched neighbours
         on the same row (left and right): the background, which is what a pixel seen by one camera only
@@ -102,12 +104,15 @@ class SgmConfig:
     max_incidence_deg: float = 75.0
     lr_check: str = "full"
     fill_occlusions: bool = False
+    lr_mode: str | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise SkyrigError(f"SGM mode must be one of {', '.join(MODES)}, not {self.mode!r} (option: mode)")
         if self.block_size % 2 != 1 or not 1 <= self.block_size <= 11:
             raise SkyrigError(f"SGM block size must be odd and 1..11, not {self.block_size} (option: block_size)")
+        if self.lr_mode is not None and self.lr_mode not in MODES:
+            raise SkyrigError(f"lr_mode must be one of {', '.join(MODES)} or None, not {self.lr_mode!r} (option: lr_mode)")
         if self.lr_check not in ("full", "opencv"):
             raise SkyrigError(f"lr_check must be 'full' or 'opencv', not {self.lr_check!r} (option: lr_check)")
         if self.tile_px < 64 or self.margin_px < 0:
@@ -206,7 +211,8 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
         d16 = matcher.compute(np.ascontiguousarray(left[:, :W - extra]), np.ascontiguousarray(right[:, :W - extra]))
     if full:
         with phase("sgm right"):  # the same matcher on the mirrored pair
-            e16 = np.ascontiguousarray(matcher.compute(np.ascontiguousarray(right[:, ::-1]),
+            rm = matcher if cfg.lr_mode in (None, cfg.mode) else _matcher(replace(cfg, mode=cfg.lr_mode), n, channels)
+            e16 = np.ascontiguousarray(rm.compute(np.ascontiguousarray(right[:, ::-1]),
                                                        np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
     else:
         e16 = np.zeros((1, 1), np.int16)
