@@ -52,7 +52,7 @@ def _facade(tmp_path: Path):  # type: ignore[no-untyped-def]
     (proj / "project.yaml").write_text(
         "format: skyrig-project\nversion: 1\nname: facade\ncrs: EPSG:25832\n"
         "inputs:\n  ties: tie_points.csv\n  cameras: [camera.yaml]\n  scale_bars: bars.csv\n"
-        f"stages:\n  adjust-uav: {{no_gps: true, datum: scale-bar}}\n")
+        "stages:\n  adjust-uav: {no_gps: true, datum: scale-bar}\n")
     return s, proj
 
 
@@ -250,22 +250,21 @@ def test_block_and_adjust_stages_equal_the_commands_and_resume(tmp_path: Path) -
 
 
 # ------------------------------------------------------------------------------------------ real data
-@pytest.mark.slow
+@pytest.mark.slow  # exhaustive matching of 29 images at 1024 px: ~30 min on the shared 2-core machine
 def test_lund_without_gps_through_skyrig_run(tmp_path: Path) -> None:
     """The 29 lund phone images through ``skyrig run``: a match stage (exhaustive pairs, nothing of the GPS used)
-    and ``adjust-uav: {no_gps: true, datum: gps-similarity, compare_pycolmap: true}``; the EXIF GPS only places
-    the block.  The checks of the command's own test (tests/test_orient_incremental.py): images oriented, the
-    similarity's residuals at a phone GPS's level, pycolmap's reconstruction in the same run agreeing with ours
-    within the predicted precision and far better than the GPS."""
+    and ``adjust-uav: {no_gps: true, datum: gps-similarity}``; the EXIF GPS only places the block.  The checks of
+    the command's own test (tests/test_orient_incremental.py, which also compares with pycolmap in the same run):
+    images oriented, the similarity's residuals at a phone GPS's level (metres; a wrongly oriented image or a bent
+    block would be tens of metres off), and our centres' predicted precision far below that."""
     from conftest import shared_path
 
-    pytest.importorskip("pycolmap")
     src = shared_path("opensfm", "lund", "images")
     p = tmp_path / "project.yaml"
     p.write_text("format: skyrig-project\nversion: 1\nname: lund\ncrs: EPSG:32633\n"
                  f"inputs: {{images: [{src}]}}\nexecutor: {{kind: serial}}\n"
                  "stages:\n  match: {pairs: exhaustive, max_size: 1024, max_features: 4000}\n"
-                 "  adjust-uav: {no_gps: true, datum: gps-similarity, compare_pycolmap: true, pycolmap_size: 1024}\n")
+                 "  adjust-uav: {no_gps: true, datum: gps-similarity}\n")
     r = CliRunner().invoke(main, ["run", str(p)])
     assert r.exit_code == 0, r.output
     out = tmp_path / "output" / "adjust-uav"
@@ -275,16 +274,8 @@ def test_lund_without_gps_through_skyrig_run(tmp_path: Path) -> None:
     assert s["oriented"] >= 20, s["not_oriented"]
     d = s["datum"]
     assert d["kind"] == "positions" and d["positions_similarity_rms_3d_m"] < 8.0, d
-    pc = rep["pycolmap"]
-    c = pc["centre_differences"]
-    assert pc["registered"] >= 15 and c["common"] >= 15, pc
     sig = np.array(list(s["centre_sigma_m"].values()))
-    tol = 3.0 * np.sqrt(2.0) * float(np.sqrt(np.mean(np.sum(sig ** 2, axis=1))))
-    assert c["rms_m"] < tol, (c["rms_m"], tol)
-    assert c["rms_m"] < 0.25 * d["positions_similarity_rms_3d_m"], (c, d["positions_similarity_rms_3d_m"])
-    print(f"lund via skyrig run: {s['oriented']}/{s['images']} oriented, GPS similarity RMS "
-          f"{d['positions_similarity_rms_3d_m']:.2f} m, pycolmap ({pc.get('mapper')}) {pc['registered']} registered, "
-          f"centre RMS {c['rms_m']:.3f} m (tolerance {tol:.3f} m)")
+    assert float(np.sqrt(np.mean(np.sum(sig ** 2, axis=1)))) < 0.25 * d["positions_similarity_rms_3d_m"], d
 
 
 def test_init_chooses_the_orientation_without_gnss_for_images_without_gps(tmp_path: Path) -> None:
@@ -301,3 +292,27 @@ def test_init_chooses_the_orientation_without_gnss_for_images_without_gps(tmp_pa
     proj = load_project(tmp_path / "project.yaml")
     assert [s.name for s in proj.stages] == ["match", "adjust-uav"]
     assert proj.stage("adjust-uav").options["no_gps"] is True
+
+
+@pytest.mark.slow
+def test_brighton_gnss_stage_equals_the_command(tmp_path: Path) -> None:
+    """The 18 brighton DJI images with their EXIF GPS through ``skyrig run`` (match + adjust-uav, CI image size):
+    the adjust-uav stage writes the files ``skyrig adjust-uav`` writes on the same tie points, byte for byte, and
+    orients every image (the command's own accuracy checks: tests/test_uav_adjust.py)."""
+    from conftest import shared_path
+
+    src = shared_path("brighton-uav")
+    p = tmp_path / "project.yaml"
+    p.write_text("format: skyrig-project\nversion: 1\nname: brighton\ncrs: EPSG:32630\n"
+                 f"inputs: {{images: [{src}]}}\nexecutor: {{kind: serial}}\n"
+                 "stages:\n  match: {max_size: 640, max_features: 1500}\n  adjust-uav: {}\n")
+    r = CliRunner().invoke(main, ["run", str(p)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "output"
+    rep = json.loads((out / "adjust-uav" / "report.json").read_text())
+    assert rep["uav"]["oriented"] == rep["uav"]["images"] == 18, rep["uav"]["not_oriented"]
+    r = CliRunner().invoke(main, ["adjust-uav", str(tmp_path), "--images", str(src), "--match", str(out / "match"),
+                                  "--crs", "EPSG:32630", "-o", str(tmp_path / "cmd")])
+    assert r.exit_code == 0, r.output
+    for f in ("eo.csv", "points.csv", "camera.yaml"):
+        assert (tmp_path / "cmd" / f).read_bytes() == (out / "adjust-uav" / f).read_bytes(), f
