@@ -70,7 +70,9 @@ def _pairs_of_tracks(obs_track: NDArray, obs_image: NDArray) -> dict[tuple[int, 
 
 def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray, obs_image: NDArray,
                          obs_pixel: NDArray, workdir: str | Path, seed: int = 0, min_matches: int = 15,
-                         init_min_tri_angle_deg: float = 4.0) -> PeerOrientation | None:
+                         init_min_tri_angle_deg: float = 4.0, camera_model: str = "OPENCV",
+                         refine_principal_point: bool = True, refine_extra_params: bool = True,
+                         mapper_options: dict[str, Any] | None = None) -> PeerOrientation | None:
     """Orient the images with pycolmap's incremental mapper from the given tracks (module docstring).
 
     Parameters
@@ -84,6 +86,16 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
         Folder for the database, placeholder images and COLMAP's model (created; its database is replaced).
     min_matches
         Pairs with fewer common tracks are not written.
+    camera_model, refine_principal_point
+        COLMAP's camera: ``"OPENCV"`` (fx, fy, cx, cy, k1, k2, p1, p2; for a calibrated-lens model like the
+        simulation's) or ``"SIMPLE_RADIAL"`` (f, cx, cy, k; COLMAP's default, for a phone whose EXIF focal length is
+        far off: a free fx, fy, principal point and four distortion terms then diverge on the first pair);
+        principal point refined or kept (COLMAP's default keeps it).
+    refine_extra_params
+        Distortion refined by COLMAP's bundle adjustment (its default); False keeps the start's.
+    mapper_options
+        Attributes of ``IncrementalPipelineOptions.mapper`` to change from COLMAP's defaults (e.g.
+        ``{"abs_pose_min_num_inliers": 15}``), recorded in the summary.
 
     Returns
     -------
@@ -122,8 +134,14 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
         par = np.asarray(par, float)
         dist[:min(4, len(par))] = par[:4]
     opts = pycolmap.ImageReaderOptions()
-    opts.camera_model = "OPENCV"
-    opts.camera_params = ",".join(f"{v:.10g}" for v in (f, f, cx, cy, *dist))
+    opts.camera_model = camera_model
+    if camera_model == "OPENCV":
+        start = (f, f, cx, cy, *dist)
+    elif camera_model == "SIMPLE_RADIAL":
+        start = (f, cx, cy, dist[0])
+    else:
+        raise ValueError(f"camera_model {camera_model!r}: OPENCV or SIMPLE_RADIAL")
+    opts.camera_params = ",".join(f"{v:.10g}" for v in start)
     pycolmap.Database.open(db_path).close()
     pycolmap.import_images(db_path, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=files,
                            options=opts)
@@ -167,9 +185,15 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
     mo.random_seed = seed
     mo.num_threads = 2
     mo.mapper.init_min_tri_angle = init_min_tri_angle_deg
+    # as skyrig.match.colmap_check's image-based run: COLMAP's default (0.95) refuses the start pairs of a walk
+    mo.mapper.init_max_forward_motion = 0.995
     mo.ba_refine_focal_length = True
-    mo.ba_refine_principal_point = True
-    mo.ba_refine_extra_params = True
+    mo.ba_refine_principal_point = bool(refine_principal_point)
+    mo.ba_refine_extra_params = bool(refine_extra_params)
+    for key, val in (mapper_options or {}).items():
+        if not hasattr(mo.mapper, key):
+            raise ValueError(f"mapper_options: COLMAP's mapper has no option {key!r}")
+        setattr(mo.mapper, key, val)
     recs = pycolmap.incremental_mapping(db_path, img_dir, out, options=mo)
     if not recs:
         return None
@@ -188,15 +212,18 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
     summary = {
         "registered": int(len(reg)), "models": sorted((int(r.num_reg_images()) for r in recs.values()), reverse=True),
         "points": int(rec.num_points3D()), "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
-        "pairs_written": n_pairs, "pairs_verified": n_verified, "camera_model": "OPENCV",
+        "pairs_written": n_pairs, "pairs_verified": n_verified, "camera_model": camera_model,
         "camera_params": pp.tolist(), "wall_s": time.perf_counter() - t0,
         "options": {"init_min_tri_angle_deg": init_min_tri_angle_deg, "seed": seed,
-                    "refine": "focal length, principal point, distortion"},
+                    "refine": "focal length" + (", principal point" if refine_principal_point else "")
+                              + (", distortion" if refine_extra_params else ""),
+                    "mapper": dict(mapper_options or {})},
     }
-    return PeerOrientation(nm, R, C, float(0.5 * (pp[0] + pp[1])), summary)
+    return PeerOrientation(nm, R, C, float(0.5 * (pp[0] + pp[1]) if camera_model == "OPENCV" else pp[0]), summary)
 
 
-def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int = 0) -> dict[str, Any]:
+def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int = 0, camera_model: str = "OPENCV",
+                           refine_principal_point: bool = True) -> dict[str, Any]:
     """pycolmap on the tie points an orientation used (:func:`pycolmap_from_tracks` with ``inp``'s names, start
     camera and observations, an :class:`~skyrig.orient.incremental.OrientInput`), compared with ``result`` (a
     :class:`~skyrig.orient.gnss_block.UavResult`) by camera centres after a similarity
@@ -206,8 +233,10 @@ def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int
     image coordinates only)."""
     from skyrig.orient.similarity import compare_with_reconstruction
 
-    peer = pycolmap_from_tracks(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, workdir, seed)
-    out: dict[str, Any] = {"mapper": "incremental, on skyrig's tie points (same measurements)"}
+    peer = pycolmap_from_tracks(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, workdir, seed,
+                                camera_model=camera_model, refine_principal_point=refine_principal_point)
+    out: dict[str, Any] = {"mapper": "incremental, on skyrig's tie points (same measurements)",
+                           "camera_model": camera_model}
     if peer is None:
         return dict(out, registered=0)
     out.update(registered=int(len(peer.names)), points=peer.summary["points"],
