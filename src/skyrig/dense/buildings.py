@@ -18,6 +18,7 @@ Texturing them: :func:`skyrig.dense.facades.texture_facades`.  Judges against a 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -751,6 +752,90 @@ def _gable(xy: NDArray, z: NDArray, rect: tuple, flat_spread: float, cfg: Extrac
 def _ccw3(p: NDArray) -> NDArray[np.float64]:
     x, y = p[:, 0], p[:, 1]
     return p if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0 else p[::-1].copy()
+
+
+def extend_dsm(dsm: DsmGrid, others: Sequence[DsmGrid], *, gap_m: float = 4.0) -> DsmGrid:
+    """A DSM extended beyond its surveyed area by other DSMs of the same frame, for building extraction.
+
+    A DSM matched from the nadir images covers their stereo overlap; the obliques of a penta rig see a wide ring
+    around it, and a DSM matched from pairs of obliques of one viewing direction (``skyrig dsm --heads left`` ...)
+    reaches there.  The result has ``dsm``'s cell size and grid alignment and covers every DSM's extent; a cell
+    keeps ``dsm``'s values where ``dsm`` surveyed it (its holes - occluded ground, eroded depth edges - stay holes:
+    the other DSMs, seen from one side, smear walls over them) and takes, beyond ``dsm``'s surveyed area (void
+    connected to its border once the measured cells are closed by a disc of ``gap_m``), the median of the other
+    DSMs' heights at the cell centre (nearest cell; their ``support`` summed, ``sigma`` and ``spread`` the
+    largest).  ``metadata["extended_by"]`` counts the cells taken from the others.
+
+    Raises
+    ------
+    SkyrigError
+        A DSM in another frame.
+    """
+    others = list(others)
+    if not others:
+        return dsm
+    for k, o in enumerate(others):
+        if o.frame != dsm.frame:
+            raise SkyrigError(f"DSM {k + 1} to extend with is in {o.frame.to_text()}, the DSM in {dsm.frame.to_text()}")
+    g = dsm.grid
+    b = [g.bounds] + [o.grid.bounds for o in others]
+    xmin, ymin = min(v[0] for v in b), min(v[1] for v in b)
+    xmax, ymax = max(v[2] for v in b), max(v[3] for v in b)
+    c0 = int(np.floor((xmin - g.x0) / g.cell_m + 1e-9))
+    r0 = int(np.floor((g.y0 - ymax) / g.cell_m + 1e-9))
+    c1 = int(np.ceil((xmax - g.x0) / g.cell_m - 1e-9))
+    r1 = int(np.ceil((g.y0 - ymin) / g.cell_m - 1e-9))
+    ng = GridSpec(g.x0 + c0 * g.cell_m, g.y0 - r0 * g.cell_m, g.cell_m, c1 - c0, r1 - r0)
+    H, W = ng.shape
+
+    def place(a: NDArray, fill) -> NDArray:
+        out = np.full((H, W), fill, dtype=a.dtype)
+        out[-r0:-r0 + g.height, -c0:-c0 + g.width] = a
+        return out
+
+    height = place(np.asarray(dsm.height, np.float32), np.float32(np.nan))
+    support = place(np.asarray(dsm.support, np.int16), np.int16(0))
+    spread = place(np.asarray(dsm.spread, np.float32), np.float32(np.nan))
+    sigma = place(np.asarray(dsm.sigma, np.float32), np.float32(np.nan))
+    filled = place(np.asarray(dsm.filled, bool), False)
+    inside = place(np.ones(g.shape, bool), False)
+    meas = np.isfinite(height)
+    beyond = _beyond_survey(meas, g.cell_m, gap_m) | ~inside
+    # the surveyed area's own voids (holes inside it) stay holes; the other DSMs fill what lies beyond it
+    rr, cc = np.nonzero(beyond)
+    x = ng.x0 + (cc + 0.5) * ng.cell_m
+    y = ng.y0 - (rr + 0.5) * ng.cell_m
+    stack_h, stack_s, stack_sd, stack_sp = [], [], [], []
+    for o in others:
+        orow, ocol = o.grid.cell_of(x, y)
+        ok = (orow >= 0) & (ocol >= 0) & (orow < o.grid.height) & (ocol < o.grid.width)
+        hh = np.full(len(x), np.nan, np.float32)
+        hh[ok] = np.asarray(o.height)[orow[ok], ocol[ok]]
+        ss = np.zeros(len(x), np.int16)
+        ss[ok] = np.asarray(o.support)[orow[ok], ocol[ok]]
+        sd = np.full(len(x), np.nan, np.float32)
+        sd[ok] = np.asarray(o.sigma)[orow[ok], ocol[ok]]
+        sp = np.full(len(x), np.nan, np.float32)
+        sp[ok] = np.asarray(o.spread)[orow[ok], ocol[ok]]
+        stack_h.append(hh)
+        stack_s.append(np.where(np.isfinite(hh), ss, 0))
+        stack_sd.append(sd)
+        stack_sp.append(sp)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # cells no other DSM measured: NaN
+        med = np.nanmedian(np.stack(stack_h), axis=0)
+        sd_max = np.nanmax(np.stack(stack_sd), axis=0)
+        sp_max = np.nanmax(np.stack(stack_sp), axis=0)
+    got = np.isfinite(med)
+    height[rr[got], cc[got]] = med[got]
+    support[rr[got], cc[got]] = np.sum(np.stack(stack_s), axis=0)[got]
+    sigma[rr[got], cc[got]] = sd_max[got]
+    spread[rr[got], cc[got]] = sp_max[got]
+    meta = dict(dsm.metadata)
+    meta["extended_by"] = {"dsms": len(others), "cells": int(got.sum())}
+    return DsmGrid(ng, dsm.frame, height, support, spread, sigma, filled, dsm.vertical_reference, meta)
 
 
 def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source: str = "footprints",

@@ -511,9 +511,13 @@ def _sample(img: NDArray, px: NDArray) -> NDArray[np.float64]:
     """Bilinear colours ``(N, C)`` at pixels ``(N, 2)`` (NaN outside)."""
     import cv2
 
-    m = px.astype(np.float32).reshape(1, -1, 2)
+    n = len(px)
+    w = min(max(n, 1), 4096)  # cv2.remap takes maps of fewer than 32767 columns: a block of rows
+    m = np.zeros(((n + w - 1) // w * w, 2), np.float32)
+    m[:n] = px
+    m = m.reshape(-1, w, 2)
     out = cv2.remap(img, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=(-1, -1, -1)).reshape(len(px), -1).astype(np.float64)
+                    borderValue=(-1, -1, -1)).reshape(m.shape[0] * w, -1)[:n].astype(np.float64)
     h, w = img.shape[:2]
     ok = (px[:, 0] >= 0) & (px[:, 1] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] <= h - 1)
     out[~ok] = np.nan
@@ -660,6 +664,331 @@ def _moved(b: BuildingBlock, delta: NDArray) -> BuildingBlock:
                     p[r, :2] = new[i] + t * (new[(i + 1) % nv] - new[i])
                     break
         roofs.append(p)
+    return replace(b, footprint=new, roof=tuple(roofs))
+
+
+def _ground_plane(dsm: DsmGrid, footprint: NDArray, fallback: float, ring_m: tuple[float, float] = (2.0, 10.0)
+                  ) -> Callable[[NDArray], NDArray]:
+    """The ground around a building: a plane fitted robustly (Tukey weights, started on the cells within 0.5 m of
+    the lower third) to the DSM cells between ``ring_m[0]`` and ``ring_m[1]`` from the footprint (a matched DSM
+    smears walls over the cells right next to them; other buildings and anything else standing there are
+    outliers).  Terrain is smooth over a building's size; the plane interpolates across the building.  Returns
+    ``f(xy (N, 2)) -> heights``; a constant ``fallback`` where too few cells are measured."""
+    import shapely
+
+    g = dsm.grid
+    fp = np.asarray(footprint, float)
+    poly = shapely.Polygon(fp)
+    lo, hi = fp.min(axis=0) - ring_m[1], fp.max(axis=0) + ring_m[1]
+    c0 = max(int(np.floor((lo[0] - g.x0) / g.cell_m)), 0)
+    c1 = min(int(np.ceil((hi[0] - g.x0) / g.cell_m)) + 1, g.width)
+    r0 = max(int(np.floor((g.y0 - hi[1]) / g.cell_m)), 0)
+    r1 = min(int(np.ceil((g.y0 - lo[1]) / g.cell_m)) + 1, g.height)
+    const = lambda xy: np.full(len(np.asarray(xy).reshape(-1, 2)), float(fallback))  # noqa: E731
+    if c1 <= c0 or r1 <= r0:
+        return const
+    cc, rr = np.meshgrid(np.arange(c0, c1), np.arange(r0, r1))
+    x = g.x0 + (cc.ravel() + 0.5) * g.cell_m
+    y = g.y0 - (rr.ravel() + 0.5) * g.cell_m
+    z = np.asarray(dsm.height, float)[r0:r1, c0:c1].ravel()
+    dist = shapely.distance(poly, shapely.points(x, y))
+    m = np.isfinite(z) & (dist >= ring_m[0]) & (dist <= ring_m[1]) & (np.abs(z - fallback) < 3.0)
+    if m.sum() < 30:
+        return const
+    ctr = fp.mean(axis=0)
+    x, y, z = x[m] - ctr[0], y[m] - ctr[1], z[m]
+    start = float(np.percentile(z, 33))
+    w = (np.abs(z - start) < 0.5).astype(float)
+    A = np.column_stack([np.ones_like(x), x, y])
+    coef = np.array([start, 0.0, 0.0])
+    for _ in range(8):
+        if w.sum() < 15:
+            return const
+        sw = np.sqrt(w)
+        coef, *_ = np.linalg.lstsq(A * sw[:, None], z * sw, rcond=None)
+        r = z - A @ coef
+        sc = max(1.4826 * float(np.median(np.abs(r[w > 0]))), 0.03)
+        u = r / (4.685 * sc)
+        w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    cf = coef.copy()
+    return lambda xy: cf[0] + (np.asarray(xy, float).reshape(-1, 2) - ctr) @ cf[1:]
+
+
+def _foot_profile_peaks(col: NDArray, vis: NDArray, z: NDArray, zg: NDArray, search: NDArray, band: int,
+                        min_step: float) -> tuple[NDArray, NDArray]:
+    """Heights of the ground-to-wall step per chunk of a rectified strip.
+
+    ``col`` ``(R, J, 3)``: colours of the strip, rows at heights ``z`` (ascending), chunk ``j`` below its ground
+    height ``zg[j]`` showing the ground in front of the wall; ``vis`` ``(J,)``: chunks whose foot the image sees.
+    The ground's colour is taken at the bottom of the strip (below the search range ``zg +- search``); the step is
+    where a band of ``band`` rows above differs most from it and a band below least (parabolic sub-row).  Returns
+    the heights (NaN where no step of at least ``min_step`` (colour units) is found) and the step strengths."""
+    R, J, _ = col.shape
+    dz = float(z[1] - z[0])
+    zs = np.full(J, np.nan)
+    st = np.zeros(J)
+    for j in range(J):
+        if not vis[j]:
+            continue
+        lo = int(np.searchsorted(z, zg[j] - search[j]))
+        hi = int(np.searchsorted(z, zg[j] + search[j]))
+        if lo < 2 * band + 1 or hi > R - band - 1 or hi - lo < 3:
+            continue
+        c = col[:, j]
+        if not np.isfinite(c[: lo + band]).all():
+            continue
+        ref = np.nanmean(c[max(lo - 2 * band, 0): lo - band], axis=0)
+        d = np.linalg.norm(c - ref, axis=1)
+        cs = np.r_[0.0, np.cumsum(np.nan_to_num(d))]
+        k = np.arange(lo, hi)
+        above = (cs[k + band] - cs[k]) / band
+        below = (cs[k] - cs[k - band]) / band
+        sc = above - below
+        if not np.isfinite(sc).all():
+            continue
+        m = int(np.argmax(sc))
+        if sc[m] < min_step or m == 0 or m == len(sc) - 1:
+            continue
+        y0, y1, y2 = sc[m - 1], sc[m], sc[m + 1]
+        den = y0 - 2 * y1 + y2
+        sub = float(np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5)) if den < 0 else 0.0
+        zs[j] = z[k[m]] + (sub - 0.5) * dz  # the step lies between rows k - 1 and k
+        st[j] = float(sc[m])
+    return zs, st
+
+
+def refine_wall_feet(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations,
+                     cameras: Mapping[str, FrameCamera], loader: ImageLoader, dsm: DsmGrid, *,
+                     search_m: float = 1.5, chunk_m: float = 1.0, step_m: float | None = None,
+                     band_m: float | None = None, n_images: int = 4, max_angle_deg: float = 75.0,
+                     min_step: float = 12.0, agree_m: float = 0.25, min_chunks: int = 3,
+                     max_turn_deg: float = 12.0, max_scatter_m: float = 0.2) -> list[BuildingBlock]:
+    """Move every wall onto its foot as the images that see the wall show it.
+
+    A wall placed ``d`` in front of its true place (along its outward normal) shows, in an image whose ray leaves
+    the wall with components ``r_n`` (outward) and ``r_z`` (up), the true wall's foot at height
+    ``z_ground + d r_z / r_n`` of the misplaced wall: in a 45 deg oblique one for one.  The texture of such a wall
+    is shifted by as much, so the foot - the line where the wall's colour meets the ground's, sharp in the obliques
+    that texture it - is where the wall belongs (the eave height, often off by tenths of a metre in a matched DSM,
+    does not enter; the ground height in front of the wall is robust: flat, many cells).
+
+    For each wall (footprint edge not on the DSM's border, at least ``2 chunk_m`` long) the ``n_images`` images
+    with the finest view of it (incidence within ``max_angle_deg``, as the texturing's) are rectified on the wall's plane extended
+    below the ground (where the plane shows the ground in front of the wall) in chunks ``chunk_m`` wide, rows
+    ``step_m`` apart (default: a fifth of the image's footprint); per chunk whose foot the image sees (a ray
+    march over the DSM) the step from the ground's colour to anything else (wall, window) is located within
+    ``+-search_m r_z / r_n`` of the ground height (:func:`_ground_plane`: a plane through the DSM's ground cells
+    around the building) and turned into an offset ``d``.  A line ``d(s)`` along the wall (offsets at both ends:
+    a wall turned by the DSM's staircase is turned back) is fitted robustly to all images' chunks; the wall
+    moves by ``-d(s)`` when at least ``min_chunks`` chunks in total from at least two images, most images agree
+    within ``agree_m`` (what the images see beyond the foot differs, the foot does not), the chunks scatter about
+    the line by at most ``max_scatter_m`` (robust spread: steep views of a wall's foot are noisy), the move stays
+    within ``search_m`` and turns the wall by at most ``max_turn_deg`` (a footprint of a clipped building or of an
+    oblique DSM can be turned by several degrees); the corners are the intersections of consecutive moved edge lines, roof
+    polygons follow (:func:`_moved_lines`).  ``min_step``: least colour step (0-255 units) between the ground and
+    the wall.
+
+    The ground in front of the wall must differ in colour from the wall (a wall on a pavement of its own colour
+    keeps its place); in real images, a cast shadow at the foot is part of the ground side.
+
+    Returns new :class:`BuildingBlock` objects in the same order (unchanged where no wall moved)."""
+    if not (search_m > 0 and chunk_m > 0):
+        raise SkyrigError(f"search_m and chunk_m must be positive, got {search_m}, {chunk_m}")
+    if not buildings:
+        return []
+    pts = np.concatenate([np.column_stack([b.footprint, np.full(len(b.footprint), b.ground_z)]) for b in buildings]
+                         + [np.column_stack([b.footprint, np.full(len(b.footprint), b.eave_z)]) for b in buildings])
+    ctx = texturing_context(eo, cameras, loader, dsm, pts)
+    out = []
+    for b in buildings:
+        fp = np.asarray(b.footprint, float)
+        nv = len(fp)
+        d0 = np.zeros(nv)
+        d1 = np.zeros(nv)
+        ground = _ground_plane(dsm, fp, b.ground_z)
+        for i, f in enumerate(b.facades()):
+            if f.on_border:
+                continue
+            L = f.width_m
+            if L < 2 * chunk_m:
+                continue
+            a = fp[i]
+            t = (fp[(i + 1) % nv] - a) / L
+            n2 = np.array([t[1], -t[0]])
+            nch = max(int(L / chunk_m), 2)
+            edges = np.linspace(0.05 * L, 0.95 * L, nch + 1)
+            samples: list[tuple[float, float, float, int]] = []  # (s, d, weight, image)
+            for k, fpm in _candidates(ctx, f.corners, f.normal, TextureConfig(max_angle_deg=max_angle_deg))[:n_images]:
+                samples += _foot_samples(ctx, k, fpm, a, t, n2, edges, ground, chunk_m, search_m, step_m, band_m,
+                                         min_step)
+            got = _foot_line(samples, L, search_m, agree_m, min_chunks, max_turn_deg, max_scatter_m)
+            if got is None:
+                continue
+            e0, e1 = got
+            d0[i], d1[i] = -e0, -e1
+        out.append(_moved_valid(b, d0, d1, 2 * search_m))
+    return out
+
+
+def _moved_valid(b: BuildingBlock, d0: NDArray, d1: NDArray, max_corner_m: float) -> BuildingBlock:
+    """:func:`_moved_lines`, keeping the footprint a simple polygon whose corners move by at most ``max_corner_m``
+    (the moved lines of short, nearly parallel edges of a polygon can meet far away): when the whole move breaks
+    that, the edges' moves are added one at a time (largest first) and those that break it are left out."""
+    import shapely
+
+    def ok(m: BuildingBlock) -> bool:
+        fp0, fp1 = np.asarray(b.footprint, float), np.asarray(m.footprint, float)
+        poly = shapely.Polygon(fp1)
+        return bool(poly.is_valid and poly.area > 0 and np.all(np.linalg.norm(fp1 - fp0, axis=1) <= max_corner_m))
+
+    moved = _moved_lines(b, d0, d1)
+    if ok(moved):
+        return moved
+    e0, e1 = np.zeros_like(d0), np.zeros_like(d1)
+    for i in np.argsort(-np.maximum(np.abs(d0), np.abs(d1))):
+        if d0[i] == 0 and d1[i] == 0:
+            continue
+        t0, t1 = e0.copy(), e1.copy()
+        t0[i], t1[i] = d0[i], d1[i]
+        if ok(_moved_lines(b, t0, t1)):
+            e0, e1 = t0, t1
+    return _moved_lines(b, e0, e1)
+
+
+def _foot_samples(ctx: _Context, k: int, fpm: float, a: NDArray, t: NDArray, n2: NDArray, edges: NDArray,
+                  ground: Callable[[NDArray], NDArray], chunk_m: float, search_m: float, step_m: float | None,
+                  band_m: float | None, min_step: float) -> list[tuple[float, float, float, int]]:
+    """Image ``k``'s view of a wall's foot (start ``a``, direction ``t``, outward ``n2``; chunks between ``edges``
+    along it): per chunk whose foot the image sees and shows, ``(s, d, step strength, k)`` with ``d`` the wall's
+    offset in front of its foot (see :func:`refine_wall_feet`)."""
+    g = ctx.dsm.grid
+    cam = ctx.cameras[str(ctx.eo_l.camera[k])]
+    C = ctx.centres_dsm[k]
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    nch = len(centres)
+    zg = ground(a + centres[:, None] * t)
+    # ray geometry at the chunks' feet: height change per metre of wall offset
+    foot = np.column_stack([a + centres[:, None] * t, zg])
+    r = C[None] - foot
+    r /= np.linalg.norm(r, axis=1, keepdims=True)
+    rn = r[:, :2] @ n2
+    if np.any(rn <= 0.05):
+        return []
+    ratio = r[:, 2] / rn
+    dz = step_m if step_m is not None else 0.2 * fpm
+    band = max(int(round((band_m if band_m is not None else 2.5 * fpm) / dz)), 2)
+    search = search_m * ratio
+    zlo = float(np.min(zg - search)) - 3 * band * dz
+    zhi = float(np.max(zg + search)) + 2 * band * dz
+    z = np.arange(zlo, zhi, dz)
+    cols = np.linspace(0, 1, max(int(chunk_m / dz), 3), endpoint=False)
+    ss = (edges[:-1, None] + cols[None] * (edges[1:] - edges[:-1])[:, None]).ravel()  # (J * Q)
+    Z, S = np.meshgrid(z, ss, indexing="ij")
+    P = np.column_stack([a[0] + S.ravel() * t[0], a[1] + S.ravel() * t[1], Z.ravel()])
+    px = cam.project_pixels((ctx.to_local(P) - ctx.eo_l.centre[k]) @ ctx.eo_l.rotation[k])
+    smp = _sample(ctx.images(k), px).reshape(len(z), nch, -1, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        col = np.nanmean(smp, axis=2)
+    # the foot must be seen: the rays through the chunks' feet, marched over the DSM from beyond the search range
+    # (a wall placed inside its building has its own roof over its foot)
+    q = foot + ((search_m + 0.3) / rn)[:, None] * r
+    vis = _visible(ctx.dsm_filled, g.x0, g.y0, g.cell_m, np.ascontiguousarray(q), np.ascontiguousarray(C),
+                   np.full(len(q), 0.5 * g.cell_m), 0.5 * g.cell_m, ctx.zmax, 0.3)
+    zs, st = _foot_profile_peaks(col, vis, z, zg, search, band, min_step)
+    return [(float(centres[j]), float((zs[j] - zg[j]) / ratio[j]), float(st[j]), k)
+            for j in np.flatnonzero(np.isfinite(zs))]
+
+
+def _foot_line(samples: list[tuple[float, float, float, int]], L: float, search_m: float, agree_m: float,
+               min_chunks: int, max_turn_deg: float, max_scatter_m: float) -> tuple[float, float] | None:
+    """The wall's offsets ``(start, end)`` in front of its foot from all images' chunks (a robust line), or None
+    when the images do not settle it (see :func:`refine_wall_feet`)."""
+    if len(samples) < min_chunks:
+        return None
+    sm = np.array(samples)
+    line = _robust_line(sm[:, 0] / L, sm[:, 1], sm[:, 2])
+    if line is None:
+        return None
+    res = sm[:, 1] - (line[0] + line[1] * sm[:, 0] / L)
+    imgs = np.unique(sm[:, 3])
+    agree = [np.median(np.abs(res[sm[:, 3] == k])) <= agree_m for k in imgs]
+    if len(imgs) < 2 or sum(agree) <= 0.5 * len(imgs) or np.sum(np.abs(res) <= agree_m) < min_chunks:
+        return None
+    if 1.4826 * float(np.median(np.abs(res))) > max_scatter_m:
+        return None
+    e0, e1 = line[0], line[0] + line[1]
+    if max(abs(e0), abs(e1)) > search_m or abs(e1 - e0) > L * np.tan(np.radians(max_turn_deg)):
+        return None
+    return float(e0), float(e1)
+
+
+def _robust_line(x: NDArray, y: NDArray, w: NDArray, iters: int = 6) -> tuple[float, float] | None:
+    """``y = c0 + c1 x`` by iteratively reweighted least squares (Tukey weights times ``w``); a constant when ``x``
+    spans less than half the range."""
+    x, y, w = (np.asarray(v, float) for v in (x, y, w))
+    if len(x) < 2:
+        return None
+    line = float(np.ptp(x)) >= 0.5 and len(x) >= 4
+    A = np.column_stack([np.ones_like(x), x]) if line else np.ones((len(x), 1))
+    wt = w.copy()
+    c = np.zeros(A.shape[1])
+    for _ in range(iters):
+        sw = np.sqrt(wt)
+        c, *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
+        r = y - A @ c
+        s = max(1.4826 * float(np.median(np.abs(r))), 0.02)
+        u = r / (4.685 * s)
+        wt = w * np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+        if (wt > 0).sum() < A.shape[1] + 1:
+            return None
+    return (float(c[0]), float(c[1]) if line else 0.0)
+
+
+def _moved_lines(b: BuildingBlock, d0: NDArray, d1: NDArray) -> BuildingBlock:
+    """The building with footprint edge ``i`` moved along its outward normal by ``d0[i]`` at its start and
+    ``d1[i]`` at its end (a shift and a turn); corners are the intersections of consecutive moved edge lines and
+    roof vertices follow (corners to corners, points on an edge to the same place along the moved edge)."""
+    from dataclasses import replace
+
+    fp = np.asarray(b.footprint, float)
+    nv = len(fp)
+    if not (np.any(d0) or np.any(d1)):
+        return b
+    starts, ends = [], []
+    for i in range(nv):
+        a, e = fp[i], fp[(i + 1) % nv]
+        d = e - a
+        nrm = np.array([d[1], -d[0]]) / np.linalg.norm(d)
+        starts.append(a + d0[i] * nrm)
+        ends.append(e + d1[i] * nrm)
+    new = fp.copy()
+    for i in range(nv):
+        j = (i - 1) % nv  # edge j ends at vertex i, edge i starts there
+        p, r = starts[j], ends[j] - starts[j]
+        q, s = starts[i], ends[i] - starts[i]
+        den = r[0] * s[1] - r[1] * s[0]
+        if abs(den) < 1e-9 * np.linalg.norm(r) * np.linalg.norm(s):  # collinear: the mean of both moved ends
+            new[i] = 0.5 * (ends[j] + starts[i])
+        else:
+            tt = ((q[0] - p[0]) * s[1] - (q[1] - p[1]) * s[0]) / den
+            new[i] = p + tt * r
+    roofs = []
+    for poly in b.roof:
+        pr = np.asarray(poly, float).copy()
+        for m in range(len(pr)):
+            xy = pr[m, :2]
+            hit = np.flatnonzero(np.linalg.norm(fp - xy, axis=1) < 1e-3)
+            if len(hit):
+                pr[m, :2] = new[hit[0]]
+                continue
+            for i in range(nv):
+                a, e = fp[i], fp[(i + 1) % nv]
+                tt = ((xy - a) @ (e - a)) / max((e - a) @ (e - a), 1e-12)
+                if 0 <= tt <= 1 and np.linalg.norm(a + tt * (e - a) - xy) < 1e-3:
+                    pr[m, :2] = new[i] + tt * (new[(i + 1) % nv] - new[i])
+                    break
+        roofs.append(pr)
     return replace(b, footprint=new, roof=tuple(roofs))
 
 

@@ -199,9 +199,10 @@ def _buildings_gpkg(path: Path, buildings: Sequence[BuildingBlock], frame: World
 
 def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str],
                 dsm: DsmGrid | str | Path, outdir: str | Path, *, footprints: str | Path | None = None,
+                extend_dsms: Sequence[DsmGrid | str | Path] = (),
                 ortho: OrthoRaster | str | Path | None = None, texel_m: float | None = None, max_images: int = 3,
-                image_format: str = "png", refine: bool = True, inputs: Sequence[str] = (), options: dict | None = None,
-                progress: Callable[[int, int], None] | None = None) -> FacadesOutputs:
+                image_format: str = "png", refine: bool = True, feet: bool = True, inputs: Sequence[str] = (),
+                options: dict | None = None, progress: Callable[[int, int], None] | None = None) -> FacadesOutputs:
     """Building blocks, façade textures and a textured 3D model into ``outdir`` (module docstring).
 
     Parameters
@@ -214,9 +215,17 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         Output folder (published as a set).
     footprints
         A GeoPackage of footprint polygons (any CRS); default: buildings extracted from the DSM.
+    extend_dsms
+        DSMs (grids or COG paths, the DSM's frame) that reach beyond the DSM's surveyed area, e.g. matched from
+        pairs of oblique images of one viewing direction each (``skyrig dsm --heads left``): the DSM is extended
+        with them (:func:`skyrig.dense.buildings.extend_dsm`) for the buildings and the occlusions, so that the
+        buildings the obliques see beyond the nadir images' stereo coverage get walls and textures.
     refine
         Move the walls of DSM-extracted buildings onto the roof outline seen in the images
         (:func:`skyrig.dense.facades.refine_walls`); footprints given as a file are kept as they are.
+    feet
+        Then move each wall onto its foot as the images that texture it show it
+        (:func:`skyrig.dense.facades.refine_wall_feet`; DSM-extracted buildings, with ``refine``).
     ortho
         An RGB orthophoto (path or :class:`OrthoRaster`) to texture the roofs; default: a flat colour.
     texel_m
@@ -235,8 +244,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     """
     import time
 
-    from skyrig.dense.buildings import ExtractionConfig, buildings_from_footprints, extract_buildings
-    from skyrig.dense.facades import refine_walls, texture_facades
+    from skyrig.dense.buildings import ExtractionConfig, buildings_from_footprints, extend_dsm, extract_buildings
+    from skyrig.dense.facades import refine_wall_feet, refine_walls, texture_facades
     from skyrig.dense.model import build_model
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.gltf import write_glb, write_obj
@@ -248,6 +257,12 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     grid = read_dsm_cog(dsm) if not isinstance(dsm, DsmGrid) else dsm
     if grid.frame.kind != "map":
         raise SkyrigError(f"the DSM must be in a projected map CRS, not a {grid.frame.kind} frame")
+    extended_cells = 0
+    if extend_dsms:
+        more = [read_dsm_cog(d) if not isinstance(d, DsmGrid) else d for d in extend_dsms]
+        grid = extend_dsm(grid, more)
+        extended_cells = int(grid.metadata.get("extended_by", {}).get("cells", 0))
+        logger.info("facades: DSM extended by %d cells of %d other DSM(s)", extended_cells, len(more))
     if texel_m is not None and not texel_m > 0:
         raise SkyrigError(f"texel size must be positive, got {texel_m} (option: texel)")
     if len(image_paths) != len(eo):
@@ -269,6 +284,9 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     if footprints is None and refine:
         # walls extracted from a matched DSM sit a fraction of a metre off; the images show the roof outline sharply
         buildings = refine_walls(buildings, eo, cameras, loader, grid)
+        if feet:
+            # a texture is shifted by the wall's offset times the view's r_z / r_n: the foot decides (1 cm matters)
+            buildings = refine_wall_feet(buildings, eo, cameras, loader, grid)
     t_build = time.time() - t0
     logger.info("facades: %d buildings, %d façades", len(buildings), sum(len(b.footprint) for b in buildings))
     textures = texture_facades(buildings, eo, cameras, loader, grid, texel_m=texel_m, max_images=max_images,
@@ -295,6 +313,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         "texel_median_m": float(np.median([p["texel_m"] for p in per_facade])) if per_facade else None,
         "roofs": "orthophoto" if orthoraster is not None else "flat colour",
         "source": str(footprints) if footprints else "extracted from the DSM",
+        "dsm_extended_cells": extended_cells,
         "triangles": model.n_triangles, "seconds": {"buildings": round(t_build, 2), "textures": round(t_tex, 2)},
         "facade_list": per_facade,
     }

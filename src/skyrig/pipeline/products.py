@@ -175,10 +175,15 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
                  dsm: str | PathLike[str], outdir: str | Path, *, heads: str | Sequence[str] | None = None,
                  footprints: str | PathLike[str] | None = None, ortho: str | PathLike[str] | None = None,
                  texel: float | None = None, max_images: int = 3, texture_format: str = "png", refine: bool = True,
+                 extend_dsm: Sequence[str | PathLike[str]] = (), feet: bool = True,
                  inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
                  spell: Callable[[str], str] = cli_spelling) -> Any:
     """Buildings, façade textures and a textured 3D model into ``outdir``
     (:func:`skyrig.pipeline.facades.run_facades`).
+
+    ``extend_dsm``: DSMs beyond the DSM's surveyed area (e.g. ``skyrig dsm --heads left`` and ``--heads right``:
+    the obliques' own stereo coverage) for the buildings the obliques see there; ``feet``: walls moved onto their
+    foot as the obliques show it (after ``refine``).
 
     Raises :class:`skyrig.pipeline.facades.NoBuildingsError` (a failed run) when the DSM holds no building."""
     from skyrig.pipeline.dense import find_images
@@ -191,12 +196,17 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
         raise OptionError(spell("texture_format"), f"unknown format {texture_format!r} (png, jpeg)")
     eo = select_heads(eo, heads, spell("heads"))
     paths = find_images(eo, [str(p) for p in images])
-    extra = [str(p) for p in (footprints, ortho) if p]
+    for p in extend_dsm:
+        if not Path(p).is_file():
+            raise OptionError(spell("extend_dsm"), f"file not found: {p}")
+    extra = [str(p) for p in (footprints, ortho, *extend_dsm) if p]
     options = {"heads": _text(heads), "footprints": None if footprints is None else str(footprints),
                "ortho": None if ortho is None else str(ortho), "texel": texel, "max_images": max_images,
-               "texture_format": texture_format, "refine": refine}
+               "texture_format": texture_format, "refine": refine, "extend_dsm": [str(p) for p in extend_dsm],
+               "feet": feet}
     return run_facades(eo, cameras, paths, str(dsm), outdir, footprints=footprints, ortho=ortho, texel_m=texel,
-                       max_images=max_images, image_format=texture_format, refine=refine,
+                       max_images=max_images, image_format=texture_format, refine=refine, feet=feet,
+                       extend_dsms=[str(p) for p in extend_dsm],
                        inputs=[str(dsm), *map(str, inputs), *extra], options=options, progress=progress)
 
 
