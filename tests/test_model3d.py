@@ -337,6 +337,34 @@ def test_concave_footprint_and_triangulation(tmp_path):
         triangulate_polygon(np.array([[0, 0], [1, 1], [2, 2.0]]))
 
 
+def test_clipped_building_border_edges_are_cut_faces_not_walls(tmp_path):
+    """A building cut by the DSM's border (BuildingBlock.border_edges): its edges on the border are where the known
+    part ends; the model draws them as untextured "cut" faces in their own colour, never as textured walls."""
+    from skyrig.dense.model import CUT_RGB, DEFAULT_WALL_RGB
+
+    frame = WorldFrame.map(CRS)
+    fp = np.array([[0, 0], [20, 0], [20, 10], [0, 10.0]]) + np.array([550000.0, 5800000.0])
+    # gabled along x: the gable triangles stand on edges 1 (east, on the border) and 3 (west)
+    a, b = fp[0] + [0, 5.0], fp[1] + [0, 5.0]
+    roofs = (np.array([[*fp[0], 70.0], [*fp[1], 70.0], [*b, 74.0], [*a, 74.0]]),
+             np.array([[*a, 74.0], [*b, 74.0], [*fp[2], 70.0], [*fp[3], 70.0]]))
+    blk = BuildingBlock(0, fp, 60.0, 70.0, roofs, "dsm", clipped=True, border_edges=(1,))
+    tex = FacadeTexture(blk.facades()[0], np.full((10, 20, 3), 200, np.uint8), np.ones((10, 20), bool), 1.0, ("x",))
+    model = build_model([blk], [tex], frame, roof_rgb_source=(0.2, 0.2, 0.2))
+    parts = {p.name: p for p in model.meshes[0].parts}
+    assert parts["cut 1"].kind == "cut" and parts["cut 1"].image is None and parts["cut 1"].color == CUT_RGB
+    assert parts["cut gable 1"].kind == "cut" and parts["cut gable 1"].color == CUT_RGB
+    assert parts["gable 3"].kind == "gable" and parts["gable 3"].color == DEFAULT_WALL_RGB
+    assert parts["wall 0"].kind == "wall" and parts["wall 0"].image is not None
+    assert sum(p.kind == "wall" for p in parts.values()) == 3
+    write_glb(tmp_path / "cut.glb", model)
+    assert glb_problems(tmp_path / "cut.glb") == []
+    # a texture made for a border edge is refused in words
+    bad = FacadeTexture(blk.facades()[1], np.zeros((10, 10, 3), np.uint8), np.ones((10, 10), bool), 1.0, ("x",))
+    with pytest.raises(SkyrigError, match="border"):
+        build_model([blk], [bad], frame)
+
+
 def test_bad_inputs(town, glb, tmp_path):
     scene, frame, blocks, textures = town
     path = glb[1]

@@ -47,6 +47,7 @@ __all__ = ["OrthoRaster", "MeshPart", "BuildingMesh", "Model3D", "build_model", 
 
 DEFAULT_ROOF_RGB = (0.34, 0.11, 0.07)  # flat roof colour (linear RGB in [0, 1], glTF baseColorFactor) without orthophoto
 DEFAULT_WALL_RGB = (0.60, 0.57, 0.50)  # flat wall colour (linear RGB) for a façade without texture
+CUT_RGB = (0.80, 0.80, 0.80)  # flat colour (linear RGB) of a clipped building's cut faces (on the DSM's border)
 
 
 def srgb_to_linear(c: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -90,7 +91,9 @@ class MeshPart:
     name
         ``"wall 3"``, ``"gable 1"``, ``"roof"`` ...
     kind
-        ``"wall"``, ``"gable"`` or ``"roof"``.
+        ``"wall"``, ``"gable"``, ``"roof"``, or ``"cut"`` for the faces of a clipped building on the DSM's border
+        (:attr:`~skyrig.dense.buildings.BuildingBlock.border_edges`: where the known part of the building ends, not
+        a wall; untextured, :data:`CUT_RGB`).
     positions
         ``(N, 3)`` float64 local ENU metres.
     normals
@@ -272,6 +275,15 @@ def _wall_part(f: Facade, tex: FacadeTexture | None, to_local: _ToLocal, eave_z:
     c = np.asarray(f.corners, dtype=np.float64)
     pos = to_local(c)
     tris = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+    if f.on_border:
+        # a clipped building's edge on the DSM's border is where the known part ends, not a wall: a cut face,
+        # untextured, in its own colour (kind "cut")
+        if tex is not None:
+            raise SkyrigError(f"façade texture {f.building}/{f.index}: that edge lies on the DSM's border (a cut, "
+                              "not a wall)")
+        nrm = _flat_normal(pos, tris)
+        return MeshPart(f"cut {f.index}", "cut", pos, np.tile(nrm, (4, 1)), tris, None, None, CUT_RGB,
+                        (f.building, f.index))
     if tex is None:
         nrm = _flat_normal(pos, tris)
         return MeshPart(f"wall {f.index}", "wall", pos, np.tile(nrm, (4, 1)), tris, None, None, DEFAULT_WALL_RGB,
@@ -324,8 +336,10 @@ def _gable_parts(b: BuildingBlock, to_local: _ToLocal, colours: dict[int, tuple[
         tris = triangulate_polygon(ring_sz)  # counter-clockwise in (s, z) = seen from outside
         pos = to_local(ring)
         nrm3 = _flat_normal(pos, tris)
-        out.append(MeshPart(f"gable {i}", "gable", pos, np.tile(nrm3, (len(pos), 1)), tris, None, None,
-                            colours.get(i, DEFAULT_WALL_RGB), (b.id, i)))
+        cut = i in b.border_edges
+        out.append(MeshPart(f"cut gable {i}" if cut else f"gable {i}", "cut" if cut else "gable", pos,
+                            np.tile(nrm3, (len(pos), 1)), tris, None, None,
+                            CUT_RGB if cut else colours.get(i, DEFAULT_WALL_RGB), (b.id, i)))
     return out
 
 
