@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -22,6 +22,16 @@ Per size, in a fresh subprocess (so ``ru_maxrss`` is that size's peak):
   image shifted by the window start), grey, with the same disparity window (the union of the pair's block
   windows, via the same multiple-of-16 rounding) and the same block size / penalties / filters as
   ``SgmConfig``.  Rectification and image reading are *not* timed for raw (they are for the chain).
+
+Both run with the same ``cv2.setNumThreads`` (``--cv-threads``, default 1; OpenCV's MODE_SGBM is single-threaded
+anyway, the setting reaches remap and colour conversion), and both are timed in wall and in CPU seconds of the
+process (the CPU figures hold on a shared machine; the wall ones do not).  A second raw reference runs
+StereoSGBM on the columns only whose search window reaches the right image (``raw ov``: what the chain itself
+matches, about 2/3 of the pixels of these pairs); the ratio against it is printed as well.
+
+The chain's time is split by phase (:mod:`skyrig.dense._phases`: read, rectify, sgm left, sgm right (the
+right-based pass of the full left-right check), lr check, filters, triangulate, to map, fuse grid, fuse cloud,
+plan, assemble; CPU seconds).
 
 Megapixels are the pairs' rectified left pixels (each pair once), the same count for both; MP/s = that count /
 seconds, and ``ratio = MP/s chain / MP/s raw`` (issue 10 goal: >= 0.6).  ``matched MP`` is what the chain
