@@ -72,6 +72,28 @@ def test_collocation_grid_without_signal_is_flat() -> None:
     assert np.abs(g.value_px).max() < 0.05
 
 
+def test_grid_without_calibration_part_keeps_the_wave_and_drops_io_like_fields() -> None:
+    """A grid holding the wave plus what a principal-point shift, a principal-distance error and a kappa rotation
+    make: removing the calibration-like part leaves the wave (which has little of it on the uniform nodes)."""
+    from skyrig.calibrate.calqc import without_calibration_part
+
+    pix, obs = _samples(1500, 0.1, 1)
+    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13)
+    nodes = _nodes(g)
+    c = np.array([(W - 1) / 2, (H - 1) / 2])
+    d = nodes - c
+    extra = np.array([0.2, -0.15]) + 3e-4 * d + 2e-4 * np.column_stack([-d[:, 1], d[:, 0]])
+    g2 = without_calibration_part(type(g)(g.camera, g.x_px, g.y_px, g.value_px + extra.reshape(g.value_px.shape),
+                                          g.sigma_px, g.covariance, g.n_residuals))
+    np.testing.assert_allclose(g2.value_px, without_calibration_part(g).value_px, atol=1e-9)
+    truth = _field(nodes).reshape(g.value_px.shape)
+    assert np.sqrt(np.mean((g2.value_px - truth) ** 2)) < 0.25 * np.sqrt(np.mean(truth ** 2))
+    # the wave itself has almost none of it on the nodes (none on a continuous format)
+    wave_only = type(g)(g.camera, g.x_px, g.y_px, truth, g.sigma_px, g.covariance, g.n_residuals)
+    change = without_calibration_part(wave_only).value_px - truth
+    assert np.sqrt(np.mean(change ** 2)) < 0.1 * np.sqrt(np.mean(truth ** 2))
+
+
 def test_calqc_cli_missing_input_exits_nonzero(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from click.testing import CliRunner
 

@@ -41,14 +41,24 @@ micrometres, RMS at control and check points, RMS of the photo positions (GNSS r
 residuals), and the GPS block shift.  The column "refine" is the lowest block again after the correction grid.
 
 **Correction grid by least-squares collocation** (:class:`CorrectionGrid`, :func:`collocation_grid`).  The
-image residuals of the lowest block's ``ba-eo-control`` adjustment are, per camera, observations ``l = s + n`` of
-a smooth systematic image deformation ``s`` (signal) plus white noise ``n``.  The empirical covariance of the
+image residuals of the joint adjustment of the whole flight are, per camera, observations ``l = s + n`` of a
+smooth systematic image deformation ``s`` (signal) plus white noise ``n``.  The empirical covariance of the
 residuals (pairs binned by distance on the image) is fitted by a Gaussian ``C(d) = C0 exp(-(d/L)^2)``; its value
 at zero distance above ``C0`` is the noise variance (the nugget).  The signal is predicted at the nodes of a grid
 over the image format, ``s(g) = c_g^T (C + D)^-1 l``, with its error variance ``C0 - c_g^T (C + D)^-1 c_g`` -
 from all residuals within reach, however sparse (a grid cell without residuals still gets a prediction and a
-sigma, unlike a mean per cell).  The grid is interpolated bilinearly, subtracted from the image coordinates and
-the block is re-adjusted; sigma0 and the check-point RMS before and after are reported.
+sigma, unlike a mean per cell).  The grid is interpolated bilinearly and subtracted from the image coordinates.
+
+The grid and the calibration are estimated together: estimated once after the IO, a grid would leave the IO with
+the share of the deformation it absorbed (the residuals it is made from no longer hold that share), and the grid
+would miss it (on the simulated flight with a 0.3 px wave on the nadir camera: the nadir IO 6 sigma off, the grid
+1.4 of its sigma off the truth).  So the grid is freed of the fields the calibration unknowns make (shifts,
+radial scale and rotation over the format: :func:`without_calibration_part`), the joint adjustment (IO,
+boresights, datum shift) is repeated on the coordinates it corrects, and a new grid is made from those residuals
+plus the grid (the whole deformation), until the IO changes by less than 0.1 sigma (``max_grid_cycles``).  The
+calibration values, their covariance and step 4 are those of the corrected coordinates (the grid is taken as
+known: its own uncertainty is not propagated).  Tab. 11's "refine" column is the lowest block again with the
+grid; sigma0 and the check-point RMS before and after are reported.
 
 :func:`midas_calqc_scenario` simulates the boresight flight (``skyrig.simulate`` scenario ``midas``: 2,000 ft and
 4,000 ft, strips in alternating directions) with IO errors, a GNSS datum shift and optionally a smooth image
@@ -82,7 +92,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "CorrectionGrid", "calibrate_calqc",
            "collocation_grid", "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
-           "format_tables", "report_html", "separability"]
+           "format_tables", "report_html", "separability", "without_calibration_part"]
 
 #: the interior orientation CalQC unlocks: principal distance and principal point (PPAC)
 IO_PARAMETERS = ("focal_mm", "ppx_mm", "ppy_mm")
@@ -413,8 +423,38 @@ def collocation_grid(camera: str, width: int, height: int, pix: NDArray[np.float
                           np.sqrt(np.clip(var, 0.0, None)).reshape(ny, nodes_x), cov, len(pix))
 
 
-def grid_from_result(res: AdjustmentResult, **kw: Any) -> dict[str, CorrectionGrid]:
-    """Per camera, the collocation grid of an adjustment's image residuals (observed minus computed)."""
+def without_calibration_part(g: CorrectionGrid) -> CorrectionGrid:
+    """The grid less its least-squares fit, over the nodes (uniform over the format), of the fields the
+    calibration's own unknowns make: a shift in x and in y (principal point; boresight omega / phi), a radial
+    scale about the format's centre (principal distance) and a rotation about it (boresight kappa).
+
+    The grid and those unknowns see the image residuals alike; without this a grid estimated from the residuals of
+    an adjustment whose IO (or boresight) has absorbed part of a deformation keeps that part out of the grid for
+    good, and the IO keeps its bias.  With it the grid holds only what the IO and the boresights cannot, and an
+    IO estimated from coordinates corrected by the grid is free of the deformation's share (for a deformation
+    without those parts on the format, e.g. :func:`wave_deformation`)."""
+    gx, gy = np.meshgrid(g.x_px, g.y_px)
+    cx, cy = 0.5 * (g.x_px[0] + g.x_px[-1]), 0.5 * (g.y_px[0] + g.y_px[-1])
+    scale = max(float(np.hypot(cx, cy)), 1.0)  # one scale for x and y: the radial and rotation fields are isotropic
+    x = (gx.ravel() - cx) / scale
+    y = (gy.ravel() - cy) / scale
+    n = x.size
+    one, zero = np.ones(n), np.zeros(n)
+    basis = np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x]])
+    v = np.r_[g.value_px[:, :, 0].ravel(), g.value_px[:, :, 1].ravel()]
+    coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
+    r = v - basis @ coef
+    val = np.stack([r[:n].reshape(gx.shape), r[n:].reshape(gx.shape)], axis=-1)
+    return replace(g, value_px=val)
+
+
+def grid_from_result(res: AdjustmentResult, base: Mapping[str, CorrectionGrid] | None = None,
+                     calibration_free: bool = False, **kw: Any) -> dict[str, CorrectionGrid]:
+    """Per camera, the collocation grid of an adjustment's image residuals (observed minus computed).
+
+    ``base``: grids the adjustment's coordinates were already corrected by; their values at the observations are
+    added back, so the result is the whole deformation, not an increment (its sigma then describes the whole).
+    ``calibration_free``: remove the part the calibration unknowns make (:func:`without_calibration_part`)."""
     b = res.block
     gr = res.residuals["image"]
     use = (gr.weight > 0) if gr.weight.ndim == 1 else (gr.weight > 0).all(axis=-1)
@@ -424,8 +464,11 @@ def grid_from_result(res: AdjustmentResult, **kw: Any) -> dict[str, CorrectionGr
         sel = use & (cam_of_obs == ci)
         if sel.sum() < 10:
             continue
-        out[cam.name] = collocation_grid(cam.name, cam.width, cam.height, b.obs_pixel[sel],
-                                         -np.asarray(gr.residual)[sel], **kw)
+        err = -np.asarray(gr.residual)[sel]
+        if base is not None and cam.name in base:
+            err = err + base[cam.name].at(b.obs_pixel[sel])
+        g = collocation_grid(cam.name, cam.width, cam.height, b.obs_pixel[sel], err, **kw)
+        out[cam.name] = without_calibration_part(g) if calibration_free else g
     return out
 
 
@@ -662,6 +705,7 @@ def calibrate_calqc(
     grid_nodes: int = 13,
     grid: bool = True,
     variants: bool = True,
+    max_grid_cycles: int = 4,
 ) -> CalqcCalibration:
     """Run the paper-004 recipe (module docstring) on a boresight flight.
 
@@ -738,6 +782,37 @@ def calibrate_calqc(
     cfgj = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="free", **cal_common)
     rj = _run(bj, cfgj, "joint covariance (IO, boresights, datum shift)")
     record("joint", rj, bj, cfgj)
+    # the correction grid and the calibration together: the grid from the joint adjustment's residuals (the whole
+    # flight, every camera; without the part the IO and boresights make), the joint adjustment again on the
+    # coordinates the grid corrects, until the IO stops changing (module docstring)
+    grids: dict[str, CorrectionGrid] = {}
+    grid_cycles = 0
+    grid_change = 0.0
+    if grid:
+        def io_sigma(r: AdjustmentResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            lab, cv = _cal_labels(r)
+            ix = [k for k, q in enumerate(lab) if q[0] == "intrinsics"]
+            vals = np.concatenate([[dict(zip(c.intrinsic_names, c.intrinsics))[n] for n in io_names]
+                                   for c in r.block.cameras])
+            return vals, np.sqrt(np.diag(cv)[ix])
+
+        for grid_cycles in range(1, max_grid_cycles + 1):
+            grids = grid_from_result(rj, base=grids, calibration_free=True, nodes_x=grid_nodes)
+            bg = apply_grids(replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
+                                     datum_shift=rj.block.datum_shift.copy()), grids)
+            io_before, _ = io_sigma(rj)
+            rj = _run(bg, cfgj, f"joint (IO, boresights, datum shift) with the correction grid, cycle {grid_cycles}")
+            record(f"joint + grid {grid_cycles}", rj, bg, cfgj)
+            io_after, s_io = io_sigma(rj)
+            change = float(np.max(np.abs(io_after - io_before) / s_io)) if s_io.size else 0.0
+            log.info("calqc grid cycle %d: largest IO change %.2f sigma", grid_cycles, change)
+            grid_change = change
+            if change < 0.1:
+                break
+        if grid_change >= 0.1:
+            log.warning("calqc: the correction grid and the IO still moved %.2f sigma in the last of %d cycles; the "
+                        "IO may keep part of the image deformation (raise max_grid_cycles)", grid_change, grid_cycles)
+        block0 = apply_grids(block0, grids)
     # step 4: IO locked (step 3), datum locked (step 2), every ground point a check point, no blunder detection
     b4 = replace(block0, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
                  datum_shift=rj.block.datum_shift.copy(), control_check=np.ones(len(block0.control_point), bool))
@@ -789,11 +864,11 @@ def calibrate_calqc(
              "sigma_um_step3": _sigma_um(b3, r3.sigma0), "redundancy_step3": float(r3.redundancy),
              "sigma_um_step4": _sigma_um(b4, r4.sigma0), "cycles_steps_2_3": float(cycles),
              "sigma0_joint": float(rj.sigma0), "flying_heights": float(len(geom["heights_m"])),
-             "opposite_directions": float(geom["opposite_directions"])}
+             "opposite_directions": float(geom["opposite_directions"]), "grid_cycles": float(grid_cycles),
+             "grid_last_io_change_sigma": float(grid_change)}
 
     # the three variants per flying height (Tab. 11), correction grid on the lowest block
     table11: dict[str, Any] = {"variants": {}, "blocks": []}
-    grids: dict[str, CorrectionGrid] = {}
     effect: dict[str, Any] = {}
     if variants:
         blk_c, _ = build(data, rig_cal, data.check_names, frame)
@@ -816,7 +891,6 @@ def calibrate_calqc(
             base_cfg = AdjustConfig(snooping=True, statistics=True)
             bb, cfg = apply_preset(bl0, "ba-eo-control", base_cfg)
             before = _run(bb, cfg, f"ba-eo-control {name0}")
-            grids = grid_from_result(before, nodes_x=grid_nodes)
             bl_g = apply_grids(bl0, grids)
             after = _run(apply_grids(bb, grids), cfg, f"ba-eo-control {name0} with correction grid")
             for lab, r in (("before", before), ("after", after)):
@@ -907,7 +981,8 @@ def format_tables(report: Mapping[str, Any]) -> str:
                         f"{_f(None if c[key] is None else c[key][k], fmt):>24}" for c in cols))
     ge = report.get("correction_grid_effect") or {}
     if ge:
-        out.append(f"correction grid (least-squares collocation) on block {ge['block']}:")
+        out.append("correction grid (least-squares collocation of the whole flight's residuals, estimated with the IO; "
+                   f"its effect on block {ge['block']}):")
         for k, g in report["correction_grid"].items():
             cv = g["covariance"]
             out.append(f"  {k}: {g['residuals']} residuals, signal {np.sqrt(cv['c0_px2']):.3f} px, correlation length "
