@@ -3,6 +3,7 @@
 Usage::
 
     .venv/bin/python bench/facades.py [--project /tmp/skyrig-acc/midas-dsm] [--json FILE] [--no-clip]
+                                      [--extend DSM [--extend DSM ...]]
 
 The project is a ``skyrig simulate midas-dsm --size ci`` folder with ``images/``, ``truth/eo.csv``, the adjusted
 ``output/adjust/eo.csv`` and the DSM matched from them ``output/dsm_adjusted/dsm.tif`` (as
@@ -14,10 +15,15 @@ Cases (each: extraction figures, then texturing judged by :func:`skyrig.simulate
 over the façades textured from at least one oblique image):
 
 ``true``      true orientations (local ENU frame) + the analytic DSM rasterised in EPSG:25832 at the matched
-              DSM's cell size, with the true buildings, the buildings extracted from that DSM, and those after
-              :func:`skyrig.dense.facades.refine_walls`;
+              DSM's cell size, with the true buildings, the buildings extracted from that DSM, those after
+              :func:`skyrig.dense.facades.refine_walls`, and those after
+              :func:`skyrig.dense.facades.refine_wall_feet` too (``feet_buildings``: what ``skyrig facades`` does);
 ``adjusted``  adjusted orientations (EPSG:25832) + the matched DSM, with the true buildings, the buildings
-              extracted from the matched DSM, and those after ``refine_walls``.
+              extracted from the matched DSM, those after ``refine_walls`` and after ``refine_wall_feet``.
+
+``--extend DSM`` (repeatable; e.g. the DSMs ``skyrig dsm --heads left`` / ``--heads right`` match from the
+obliques of one viewing direction): the matched DSM is extended beyond its surveyed area with them
+(:func:`skyrig.dense.buildings.extend_dsm`, as ``skyrig facades --extend-dsm``) in both cases.
 
 Buildings cut by the DSM's border are extracted too (``ExtractionConfig(clip_border=True)``, as ``skyrig facades``
 does; their edges on the border get no texture).  Every case also reports the figure over all the scene's walls an
@@ -100,9 +106,9 @@ def _dsm_path(project: Path) -> Path:
     return p if p.exists() else project / "output" / "dsm" / "dsm.tif"
 
 
-def run(project: Path, clip: bool = True) -> dict:
-    from skyrig.dense.buildings import ExtractionConfig, extract_buildings
-    from skyrig.dense.facades import refine_walls, texture_facades
+def run(project: Path, clip: bool = True, extend: list[Path] | None = None) -> dict:
+    from skyrig.dense.buildings import ExtractionConfig, extend_dsm, extract_buildings
+    from skyrig.dense.facades import refine_wall_feet, refine_walls, texture_facades
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.rig_file import read_rig
@@ -115,6 +121,12 @@ def run(project: Path, clip: bool = True) -> dict:
     rig = read_rig(project / "rig.yaml")
     cams = {h.camera.name: h.camera for h in rig.heads.values()}
     dsm_m = read_dsm_cog(_dsm_path(project))
+    walls_dsm = dsm_m  # "in the DSM" figures: the nadir DSM's surveyed area
+    if extend:
+        t0 = time.perf_counter()
+        dsm_m = extend_dsm(dsm_m, [read_dsm_cog(p) for p in extend])
+        print(f"DSM extended by {dsm_m.metadata['extended_by']['cells']} cells of {len(extend)} DSM(s) "
+              f"({time.perf_counter() - t0:.1f} s)", flush=True)
     eo_adj = read_eo_csv(project / "output" / "adjust" / "eo.csv")
     eo_true = read_eo_csv(project / "truth" / "eo.csv")
     frame = dsm_m.frame
@@ -140,12 +152,18 @@ def run(project: Path, clip: bool = True) -> dict:
         rx["seconds"] = time.perf_counter() - t0
         print(f"[{case}] extraction + refine_walls: {_fmt(rx)}", flush=True)
         out[case]["refined"] = rx
+        t0 = time.perf_counter()
+        feet = refine_wall_feet(refined, eo, cams, loader, dsm)
+        fx = extraction_figures(scene, feet, frame)
+        fx["seconds"] = time.perf_counter() - t0
+        print(f"[{case}] extraction + refine_walls + refine_wall_feet: {_fmt(fx)}", flush=True)
+        out[case]["feet"] = fx
         for label, blocks in (("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted),
-                              ("refined_buildings", refined)):
+                              ("refined_buildings", refined), ("feet_buildings", feet)):
             t0 = time.perf_counter()
             tex = texture_facades(blocks, eo, cams, loader, dsm)
             tt = time.perf_counter() - t0
-            _, summ = judge_facades(scene, tex, frame, oblique, walls=walls, dsm=dsm)
+            _, summ = judge_facades(scene, tex, frame, oblique, walls=walls, dsm=walls_dsm)
             texels = int(sum(t.valid.size for t in tex if t.images))
             summ["seconds"] = tt
             summ["texels"] = texels
@@ -165,13 +183,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--project", default="/tmp/skyrig-acc/midas-dsm", type=Path)
     ap.add_argument("--json", type=Path)
     ap.add_argument("--no-clip", action="store_true", help="leave out the buildings cut by the DSM's border")
+    ap.add_argument("--extend", type=Path, action="append", default=[],
+                    help="a DSM beyond the matched DSM's surveyed area (e.g. from one direction's obliques); repeat")
     a = ap.parse_args(argv)
     for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", str(_dsm_path(a.project).relative_to(a.project)),
                  "rig.yaml"):
         if not (a.project / need).exists():
             print(f"{a.project / need} is missing: run bench/dense_acceptance.py midas first", file=sys.stderr)
             return 2
-    res = run(a.project, clip=not a.no_clip)
+    for p in a.extend:
+        if not p.is_file():
+            print(f"{p} is missing", file=sys.stderr)
+            return 2
+    res = run(a.project, clip=not a.no_clip, extend=a.extend)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))
     return 0
