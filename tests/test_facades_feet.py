@@ -46,11 +46,11 @@ def _offsets(b_ref, b_new):
 
 def test_moved_lines_shift_and_turn_each_edge():
     sq = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 6.0], [0.0, 6.0]])
-    b = true_like = replace(_block(sq), roof=(np.column_stack([sq, np.full(4, 10.0)]),))
+    b = replace(_block(sq), roof=(np.column_stack([sq, np.full(4, 10.0)]),))
     d0 = np.array([0.5, 0.0, -0.3, 0.2])
     d1 = np.array([0.5, 0.4, -0.3, 0.2])
     m = _moved_lines(b, d0, d1)
-    off = _offsets(true_like, m)
+    off = _offsets(b, m)
     # each moved edge's line passes through the ends of the original edge moved by d0 / d1 along the outward normal
     assert np.allclose(off[:, 0], d0, atol=1e-9) and np.allclose(off[:, 1], d1, atol=1e-9), off
     # the roof follows the footprint
@@ -114,7 +114,6 @@ def test_displaced_walls_come_back_onto_their_foot_and_their_textures_pass(east_
 def test_extend_dsm_fills_beyond_the_surveyed_area_only():
     s = build_survey(scenario_spec("midas-dsm", "ci", 1))
     local = s.frame
-    bl = s.scene.buildings
     big = scene_dsm(s.scene, _grid_around(CRS, local, (60.0, -30.0), (140.0, 30.0), 0.3), CRS)
     # the 'nadir' DSM: the western half, with an inner hole (occluded ground it did not measure)
     g = big.grid

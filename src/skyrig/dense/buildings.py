@@ -821,14 +821,15 @@ def extend_dsm(dsm: DsmGrid, others: Sequence[DsmGrid], *, gap_m: float = 4.0) -
         stack_s.append(np.where(np.isfinite(hh), ss, 0))
         stack_sd.append(sd)
         stack_sp.append(sp)
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # cells no other DSM measured: NaN
-        med = np.nanmedian(np.stack(stack_h), axis=0)
-        sd_max = np.nanmax(np.stack(stack_sd), axis=0)
-        sp_max = np.nanmax(np.stack(stack_sp), axis=0)
-    got = np.isfinite(med)
+    # median over the DSMs that measured the cell: sorted, NaN last (a few DSMs: no per-cell Python loop)
+    hs = np.sort(np.stack(stack_h), axis=0)
+    nv = np.isfinite(hs).sum(axis=0)
+    got = nv > 0
+    cols = np.arange(hs.shape[1])
+    lo_i, hi_i = np.maximum((nv - 1) // 2, 0), np.maximum(nv // 2, 0)
+    med = 0.5 * (hs[lo_i, cols] + hs[hi_i, cols])
+    sd_max = np.fmax.reduce(np.stack(stack_sd), axis=0)
+    sp_max = np.fmax.reduce(np.stack(stack_sp), axis=0)
     height[rr[got], cc[got]] = med[got]
     support[rr[got], cc[got]] = np.sum(np.stack(stack_s), axis=0)[got]
     sigma[rr[got], cc[got]] = sd_max[got]
