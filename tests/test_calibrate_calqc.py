@@ -73,8 +73,8 @@ def test_collocation_grid_without_signal_is_flat() -> None:
 
 
 def test_grid_without_calibration_part_keeps_the_wave_and_drops_io_like_fields() -> None:
-    """A grid holding the wave plus what a principal-point shift, a principal-distance error and a kappa rotation
-    make: removing the calibration-like part leaves the wave (which has little of it on the uniform nodes)."""
+    """A grid holding the wave plus what a principal-point shift, a principal-distance error, a kappa rotation and
+    tilts make: removing the calibration-like part leaves the wave (which has little of it on the uniform nodes)."""
     from skyrig.calibrate.calqc import without_calibration_part
 
     pix, obs = _samples(1500, 0.1, 1)
@@ -82,7 +82,9 @@ def test_grid_without_calibration_part_keeps_the_wave_and_drops_io_like_fields()
     nodes = _nodes(g)
     c = np.array([(W - 1) / 2, (H - 1) / 2])
     d = nodes - c
-    extra = np.array([0.2, -0.15]) + 3e-4 * d + 2e-4 * np.column_stack([-d[:, 1], d[:, 0]])
+    x, y = d[:, 0] / 500, d[:, 1] / 500
+    extra = (np.array([0.2, -0.15]) + 3e-4 * d + 2e-4 * np.column_stack([-d[:, 1], d[:, 0]])
+             + 0.1 * np.column_stack([x * x, x * y]) - 0.07 * np.column_stack([x * y, y * y]))
     g2 = without_calibration_part(type(g)(g.camera, g.x_px, g.y_px, g.value_px + extra.reshape(g.value_px.shape),
                                           g.sigma_px, g.covariance, g.n_residuals))
     np.testing.assert_allclose(g2.value_px, without_calibration_part(g).value_px, atol=1e-9)

@@ -53,7 +53,7 @@ The grid and the calibration are estimated together: estimated once after the IO
 the share of the deformation it absorbed (the residuals it is made from no longer hold that share), and the grid
 would miss it (on the simulated flight with a 0.3 px wave on the nadir camera: the nadir IO 6 sigma off, the grid
 1.4 of its sigma off the truth).  So the grid is freed of the fields the calibration unknowns make (shifts,
-radial scale and rotation over the format: :func:`without_calibration_part`), the joint adjustment (IO,
+radial scale, rotation and the projective terms of tilts over the format: :func:`without_calibration_part`), the joint adjustment (IO,
 boresights, datum shift) is repeated on the coordinates it corrects, and a new grid is made from those residuals
 plus the grid (the whole deformation), until the IO changes by less than 0.1 sigma (``max_grid_cycles``).  The
 calibration values, their covariance and step 4 are those of the corrected coordinates (the grid is taken as
@@ -426,7 +426,8 @@ def collocation_grid(camera: str, width: int, height: int, pix: NDArray[np.float
 def without_calibration_part(g: CorrectionGrid) -> CorrectionGrid:
     """The grid less its least-squares fit, over the nodes (uniform over the format), of the fields the
     calibration's own unknowns make: a shift in x and in y (principal point; boresight omega / phi), a radial
-    scale about the format's centre (principal distance) and a rotation about it (boresight kappa).
+    scale about the format's centre (principal distance), a rotation about it (boresight kappa) and the projective
+    terms of a rotation about the image axes (boresight omega / phi beside the principal point).
 
     The grid and those unknowns see the image residuals alike; without this a grid estimated from the residuals of
     an adjustment whose IO (or boresight) has absorbed part of a deformation keeps that part out of the grid for
@@ -440,7 +441,10 @@ def without_calibration_part(g: CorrectionGrid) -> CorrectionGrid:
     y = (gy.ravel() - cy) / scale
     n = x.size
     one, zero = np.ones(n), np.zeros(n)
-    basis = np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x]])
+    # shifts (principal point), radial scale (principal distance), rotation (kappa), and the projective terms of a
+    # rotation about the image x and y axes (boresight omega, phi: dx, dy = (f + x^2/f, xy/f) and (xy/f, f + y^2/f))
+    basis = np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x],
+                             np.r_[x * x, x * y], np.r_[x * y, y * y]])
     v = np.r_[g.value_px[:, :, 0].ravel(), g.value_px[:, :, 1].ravel()]
     coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
     r = v - basis @ coef
