@@ -25,9 +25,14 @@ from skyrig.cli._common import eo_options
               help="Format of the textures inside model.glb.")
 @click.option("--no-refine", is_flag=True,
               help="Keep the walls where the DSM puts them (default: moved onto the roof outline seen in the images).")
+@click.option("--no-feet", is_flag=True,
+              help="Do not move walls onto their foot as the obliques show it (default: moved, after the roof outline).")
+@click.option("--extend-dsm", "extend_dsm", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="DSM used beyond --dsm's surveyed area only (repeatable; e.g. `skyrig dsm --heads left` / `right`: "
+                   "the obliques' own stereo coverage) for the buildings the obliques see there.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, footprints,
-            ortho_path, texel, max_images, texture_format, no_refine, output) -> None:
+            ortho_path, texel, max_images, texture_format, no_refine, no_feet, extend_dsm, output) -> None:
     """Façade textures and a textured 3D model of the buildings of a DSM.
 
     Buildings come from the DSM (or --footprints, heights from the DSM); every façade is textured from the
@@ -46,7 +51,8 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
         try:
             res = make_facades(eo, cameras, images, dsm_path, output, heads=heads, footprints=footprints,
                                ortho=ortho_path, texel=texel, max_images=max_images, texture_format=texture_format,
-                               refine=not no_refine, inputs=[eo_path, *camera_paths], progress=progress)
+                               refine=not no_refine, feet=not no_feet, extend_dsm=extend_dsm,
+                               inputs=[eo_path, *camera_paths], progress=progress)
         except NoBuildingsError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None
