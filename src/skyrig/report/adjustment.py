@@ -194,13 +194,19 @@ def summary_section(result: Any, rep: dict[str, Any]) -> Section:
                    [Column("group"), Column("n"), Column("redundancy", decimals=1),
                     Column("variance factor", decimals=3), Column("RMS residual per component", decimals=4),
                     Column("unit")],
-                   [[g, st.n_rows, st.redundancy, st.sigma0, st.rms, _GROUP_UNITS.get(g.split(":")[0], "")]
+                   [[g, st.n_rows, st.redundancy, st.sigma0, st.rms, _group_units(g)]
                     for g, st in result.groups.items()],
                    "Variance factor: a-posteriori sigma of the group (1 when the a-priori sigmas fit).")
     return Section("summary", "Summary", [t11, stats, groups])
 
 
-_GROUP_UNITS = {"image": "px", "gnss": "m", "control": "m", "imu": "rad", "distance": "m"}
+def _group_units(group: str) -> str:
+    """The unit of a group's residuals, from its observation type (``skyrig.adjust.factors``: a new type's
+    module states it; nothing here to edit)."""
+    from skyrig.adjust.factors import observation_type
+
+    t = observation_type(group)
+    return t.units if t is not None else ""
 
 
 def _boresight_rows(result: Any) -> list[list[Any]]:
