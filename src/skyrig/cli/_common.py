@@ -1,12 +1,15 @@
-"""Loaders shared by subcommands: EO files, cameras and ground points in any supported format.
+"""What the subcommands share: the readers of EO files, cameras, ground points and image measurements, the checks of
+measurements against their images, the EO options, and one CLI vocabulary (sigmas, old spellings, ``-o``).
 
-Formats are chosen through registries keyed by name (``--eo-format``), or guessed from the file name.
+The readers are :mod:`skyrig.pipeline.inputs` (one implementation for the commands and the project runner); this
+module re-exports them under the names the commands import and only adds what is command-line wording.  Their errors
+are :class:`skyrig.errors.SkyrigError` naming the file, line and field, or the option as the command line spells it
+(``--eo-crs``, ``--points-crs``, ``convert --from-crs``); the ``skyrig`` group prints them as ``error: ...`` and exits 2.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Callable, Mapping
 
 import click
 import numpy as np
@@ -14,139 +17,20 @@ import numpy as np
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
-from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.georef.observations import ImageMeasurements
+from skyrig.pipeline.inputs import EO_FORMATS as EO_READERS
+from skyrig.pipeline.inputs import (head_rows, load_cameras, load_eo, load_measurements, load_measurements_lines,
+                                    load_points, project_frame_of, select_heads)
+
+__all__ = ["EO_READERS", "load_eo", "load_cameras", "load_points", "load_measurements", "load_measurements_lines",
+           "head_rows", "select_heads", "project_frame_option", "check_measurements", "check_cameras", "eo_options",
+           "parse_sigmas", "with_old_spellings", "output_or_positional"]
 
 
 def project_frame_option(crs: str | None, geoid: str | None) -> WorldFrame | None:
-    """The project frame from ``--crs`` / ``--geoid`` (a compound CRS brings its geoid); None without ``--crs``."""
-    if crs is None:
-        if geoid is not None:
-            raise click.UsageError("--geoid goes with --crs")
-        return None
-    from skyrig.errors import CRSError
-    from skyrig.geodesy.statement import project_frame
-
-    try:
-        return project_frame(crs, geoid)
-    except CRSError as e:
-        raise click.BadParameter(str(e), param_hint="--crs") from None
-
-
-def map_frame(crs: str | None, geoid: str | None, what: str, option: str = "--crs") -> WorldFrame:
-    """The map frame of a file that states none, from the command-line ``option`` (named in the message)."""
-    if not crs:
-        raise click.UsageError(f"{what} needs {option} (the file does not say which CRS it is in)")
-    return WorldFrame.map(crs, geoid)
-
-
-def _eo_ign(path: str, crs: str | None, geoid: str | None, z_ground: float | None,
-            option: str = "--eo-crs") -> ExteriorOrientations:
-    from skyrig.io.ign import read_ign_opk
-
-    eo = read_ign_opk(path, map_frame(crs, geoid, "an IGN OPK file", option))
-    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
-
-
-def _eo_csv(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
-    from skyrig.io.eo_csv import read_eo_csv
-
-    eo = read_eo_csv(path)
-    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
-
-
-def _eo_geo_txt(path: str, crs: str | None, geoid: str | None, z_ground: float | None) -> ExteriorOrientations:
-    import numpy as np
-
-    from skyrig.io.odm import read_geo_txt, rotation_from_gimbal_ypr
-
-    g = read_geo_txt(path, geoid)
-    if g.ypr_deg is None:
-        raise InputFormatError("geo.txt has no camera angles; it cannot give exterior orientations", path)
-    rot = rotation_from_gimbal_ypr(g.frame, g.xyz, g.ypr_deg)
-    return ExteriorOrientations(g.image, np.full(len(g.image), "camera"), g.xyz, rot, g.frame)
-
-
-EO_READERS: dict[str, Callable[..., ExteriorOrientations]] = {
-    "skyrig-csv": _eo_csv,
-    "ign-opk": _eo_ign,
-    "odm-geo": _eo_geo_txt,
-}
-
-
-def guess_eo_format(path: str) -> str:
-    name = Path(path).name.lower()
-    if name.endswith(".opk"):
-        return "ign-opk"
-    if name.startswith("geo") and name.endswith(".txt"):
-        return "odm-geo"
-    return "skyrig-csv"
-
-
-def load_eo(path: str, fmt: str | None, crs: str | None, geoid: str | None, z_ground: float | None,
-            crs_option: str = "--eo-crs") -> ExteriorOrientations:
-    """An EO file in any format of :data:`EO_READERS`; ``crs_option`` is the option that gives the CRS of a file
-    that states none (named in the message when it is missing: ``--eo-crs``, ``convert --from-crs``)."""
-    fmt = fmt or guess_eo_format(path)
-    if fmt not in EO_READERS:
-        raise click.UsageError(f"unknown EO format {fmt!r}; known: {', '.join(EO_READERS)}")
-    if EO_READERS[fmt] is _eo_ign:
-        return _eo_ign(path, crs, geoid, z_ground, crs_option)
-    return EO_READERS[fmt](path, crs, geoid, z_ground)
-
-
-def load_cameras(paths: Sequence[str]) -> dict[str, FrameCamera]:
-    """Cameras from IGN camera .txt files and/or skyrig rig files (YAML): :func:`skyrig.pipeline.inputs.load_cameras`."""
-    from skyrig.pipeline.inputs import load_cameras as _load
-
-    return _load(paths, "--camera")
-
-
-def load_points(path: str, crs: str | None, heights: str, geoid: str | None, default_crs: str | None = None,
-                option: str = "--points-crs") -> GroundPoints:
-    """Ground points from IGN .app / _world.mes, ODM gcp_list.txt, or a skyrig points CSV.
-
-    ``crs`` (with ``heights`` / ``geoid``) is the frame given on the command line by ``option``: a skyrig CSV that
-    states its own frame must agree with it.  ``default_crs`` (ellipsoidal heights unless ``heights`` says
-    orthometric) is used only for a file that states no frame (e.g. the EO's CRS); the file's statement wins.
-    """
-    name = Path(path).name.lower()
-    g = geoid if heights == "orthometric" else None
-    frame = None if crs is None else WorldFrame.map(crs, g)
-    default = None if default_crs is None else WorldFrame.map(default_crs, g)
-    if name.endswith((".app", ".mes")):
-        from skyrig.io.ign import read_ign_ground_points
-
-        use = frame or default
-        return read_ign_ground_points(path, use if use else map_frame(crs, None, "an IGN point file", option))
-    if name.startswith("gcp_list"):
-        from skyrig.io.odm import read_gcp_list
-
-        return read_gcp_list(path, g)[0]
-    from skyrig.io.points_csv import read_points_csv
-
-    return read_points_csv(path, frame, default, option)
-
-
-def load_measurements(path: str) -> ImageMeasurements:
-    """Image measurements from a skyrig CSV, an IGN .mes or an ODM gcp_list.txt."""
-    return load_measurements_lines(path)[0]
-
-
-def load_measurements_lines(path: str) -> tuple[ImageMeasurements, np.ndarray]:
-    """:func:`load_measurements` and the ``(N,)`` 1-based line of each measurement in its file."""
-    name = Path(path).name.lower()
-    if name.endswith(".mes"):
-        from skyrig.io.ign import read_ign_measurements_lines
-
-        return read_ign_measurements_lines(path)
-    if name.startswith("gcp_list"):
-        from skyrig.io.odm import read_gcp_list_lines
-
-        _, m, lines = read_gcp_list_lines(path)
-        return m, lines
-    from skyrig.io.points_csv import read_measurements_csv_lines
-
-    return read_measurements_csv_lines(path)
+    """The project frame from ``--crs`` / ``--geoid`` (a compound CRS brings its geoid); None without ``--crs``:
+    :func:`skyrig.pipeline.inputs.project_frame_of` with the command-line spellings."""
+    return project_frame_of(crs, geoid, "--crs", "--geoid")
 
 
 def check_measurements(m: ImageMeasurements, lines: np.ndarray, path: str, eo: ExteriorOrientations,
@@ -184,21 +68,6 @@ def check_cameras(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], 
         raise InputFormatError(
             f"camera {names[0]!r} of image {str(eo.image[k])!r} is not defined by any --camera file (known: "
             f"{', '.join(sorted(cameras))}; {len(missing)} image(s) without a camera)", eo_path, None, "camera")
-
-
-def head_rows(eo: ExteriorOrientations, spec: str) -> tuple[list[str], list[np.ndarray]]:
-    """The rows of ``eo`` per rig head / image-name part of a comma list: :func:`skyrig.pipeline.inputs.head_rows`."""
-    from skyrig.pipeline.inputs import head_rows as _rows
-
-    return _rows(eo, spec)
-
-
-def select_heads(eo: ExteriorOrientations, spec: str | None, option: str = "--heads") -> ExteriorOrientations:
-    """The orientations of some rig heads (all when ``spec`` is empty); no match is an error naming ``option``:
-    :func:`skyrig.pipeline.inputs.select_heads`."""
-    from skyrig.pipeline.inputs import select_heads as _select
-
-    return _select(eo, spec, option)
 
 
 def eo_options(f: Callable) -> Callable:
