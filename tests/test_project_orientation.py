@@ -29,7 +29,7 @@ BAR_SIGMA_M = 0.0005
 
 
 # ------------------------------------------------------------------------------------------ no GNSS: a façade
-def _facade(tmp_path: Path):  # type: ignore[no-untyped-def]
+def _facade(tmp_path: Path, n_points: int = 300, n_per_row: int = 6):  # type: ignore[no-untyped-def]
     """A façade project without GNSS: tie points measured elsewhere (inputs.ties), a start camera 4 % off in
     focal length without principal point / distortion (inputs.cameras), two scale bars (inputs.scale_bars)."""
     from skyrig.camera.opencv import OpenCVDistortion
@@ -39,7 +39,7 @@ def _facade(tmp_path: Path):  # type: ignore[no-untyped-def]
     from skyrig.rig.rig import Head, Rig
     from skyrig.simulate.closerange import facade_set
 
-    s = facade_set(seed=2, n_points=300, n_per_row=6, width_px=1000, sigma_px=SIGMA_PX)
+    s = facade_set(seed=2, n_points=n_points, n_per_row=n_per_row, width_px=1000, sigma_px=SIGMA_PX)
     proj = tmp_path / "facade"
     proj.mkdir()
     write_measurements_csv(proj / "tie_points.csv",
@@ -67,12 +67,17 @@ def test_facade_without_gnss_through_skyrig_run(tmp_path: Path) -> None:
     within 4 predicted sigma (the scale from the scale bars); the same files as ``skyrig adjust-uav --no-gps``
     with the same inputs; a rerun skips it, a changed option of the stage reruns it."""
     s, proj = _facade(tmp_path)
+    (proj / "project.yaml").write_text((proj / "project.yaml").read_text().replace(
+        "{no_gps: true,", "{no_gps: true, compare_pycolmap: true,"))
     r = CliRunner().invoke(main, ["run", str(proj / "project.yaml")])
     assert r.exit_code == 0, r.output
     out = proj / "output" / "adjust-uav"
     assert verify_folder(out) == []
     rep = json.loads((out / "report.json").read_text())
     assert rep["uav"]["datum"]["kind"] == "scale-bar" and rep["uav"]["oriented"] == len(s.names)
+    # the stage's pycolmap comparison: no image files, so on the same tie points (pycolmap_input null -> tracks)
+    assert rep["pycolmap"]["input"] == "tracks" and rep["pycolmap"]["registered"] == len(s.names), rep["pycolmap"]
+    assert rep["pycolmap"]["centre_differences"]["normalised_max"] < 1.0, rep["pycolmap"]["centre_differences"]
     rows = _table(out / "eo.csv")
     k = [list(s.names).index(row["image"]) for row in rows]
     C = np.array([[float(row[c]) for c in "xyz"] for row in rows])
@@ -141,7 +146,8 @@ def test_project_options_of_the_orientation_without_gnss_are_checked(tmp_path: P
     cases = [("{no_gps: true, scale_bar: x.csv}", "stages.adjust-uav.scale_bar"),
              ("{datum: scale-bar}", "stages.adjust-uav.datum"),
              ("{}", "inputs.scale_bars"),
-             ("{no_gps: true, datum: sideways}", "stages.adjust-uav.datum")]
+             ("{no_gps: true, datum: sideways}", "stages.adjust-uav.datum"),
+             ("{no_gps: true, compare_pycolmap: true, pycolmap_input: pixels}", "stages.adjust-uav.pycolmap_input")]
     for opts, key in cases:
         p.write_text(base.replace("{no_gps: true, datum: scale-bar}", opts))
         with pytest.raises(InputFormatError) as e:
@@ -150,6 +156,39 @@ def test_project_options_of_the_orientation_without_gnss_are_checked(tmp_path: P
     p.write_text(base.replace("  ties: tie_points.csv\n", ""))
     with pytest.raises(InputFormatError, match="tie points"):
         load_project(p)
+
+
+def test_adjust_uav_compares_with_pycolmap_on_the_same_tie_points(tmp_path: Path) -> None:
+    """``skyrig adjust-uav --no-gps --compare-pycolmap`` on the façade without image files: pycolmap's mapper on the
+    same tie points (``--pycolmap-input`` defaults to tracks without images), every image registered; skyrig - pycolmap
+    centres after a similarity within the predicted precision: each image's difference below 1 predicted sigma
+    (|d| / |sigma|, sigma from eo.csv's sx, sy, sz; the two programs solve the same measurements, so their difference
+    is well below the noise both share), and not zero (two programs, not one result copied).  The report's sigma
+    figures agree with eo.csv's.  ``images`` asked for without images is an error naming the option."""
+    pytest.importorskip("pycolmap")
+    s, proj = _facade(tmp_path, n_points=150, n_per_row=5)
+    (proj / "match").mkdir()
+    (proj / "match" / "tie_points.csv").write_bytes((proj / "tie_points.csv").read_bytes())
+    args = ["adjust-uav", str(proj), "--no-gps", "--datum", "scale-bar", "--camera", str(proj / "camera.yaml"),
+            "--scale-bar", str(proj / "bars.csv"), "--compare-pycolmap", "-o", str(tmp_path / "out")]
+    r = CliRunner().invoke(main, [*args, "--pycolmap-input", "images"])
+    assert r.exit_code == 2 and "--pycolmap-input" in r.output and "tracks" in r.output, r.output
+    assert not (tmp_path / "out").exists()
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "out"
+    p = json.loads((out / "report.json").read_text())["pycolmap"]
+    assert p["input"] == "tracks" and p["registered"] == len(s.names), p
+    c = p["centre_differences"]
+    assert c["common"] == len(s.names)
+    sig = {row["image"]: float(np.linalg.norm([float(row[k]) for k in ("sx", "sy", "sz")]))
+           for row in _table(out / "eo.csv")}
+    z = np.array([c["per_image_m"][n] / sig[n] for n in sig])
+    assert 0 < z.max() < 1.0, z
+    assert np.isclose(c["normalised_max"], z.max(), rtol=1e-3) and np.isclose(
+        c["normalised_rms"], np.sqrt(np.mean(z ** 2)), rtol=1e-3), c
+    assert "predicted sigma" in r.output
+    assert read_manifest(out)["options"]["pycolmap_input"] == "tracks"
 
 
 def test_orientation_stages_call_no_command() -> None:

@@ -72,7 +72,12 @@ class _NotPublished(Exception):
               help="Relative sigma of the EXIF focal length prior.")
 @click.option("--no-self-calibration", is_flag=True, help="Keep the EXIF camera fixed.")
 @click.option("--compare-pycolmap", is_flag=True,
-              help="Also run pycolmap's own pipeline on the images and compare camera centres.")
+              help="Also orient with pycolmap and compare camera centres after a similarity (RMS, max, in units of "
+                   "skyrig's predicted sigma; report.json key pycolmap).")
+@click.option("--pycolmap-input", type=click.Choice(["images", "tracks"]), default=None,
+              help="pycolmap comparison on: images (its own SIFT, matching and mapper) or tracks (its mapper on "
+                   "skyrig's tie points, the same measurements; for sets without image files). Default: images when "
+                   "there are image files, else tracks.")
 @click.option("--pycolmap-size", type=int, default=1600, show_default=True,
               help="pycolmap comparison: SIFT on images downscaled to this.")
 @click.option("--pycolmap-mapper", type=click.Choice(["incremental", "global"]), default="incremental",
@@ -106,8 +111,8 @@ class _NotPublished(Exception):
                                       "a similarity onto EXIF GPS, else a free network).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: str, attitude_sigma: float, altitude: str, geoid: str | None,
-            focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_size: int,
-            pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool, no_gps: bool = False,
+            focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_input: str | None,
+            pycolmap_size: int, pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool, no_gps: bool = False,
             gcp_path: str | None = None, gcp_sigma: str = "0.01", check_path: str | None = None,
             scale_bar_path: str | None = None, meas_paths: tuple[str, ...] = (), camera_path: str | None = None,
             datum: str = "auto") -> None:
@@ -153,7 +158,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
                 attitude_sigma=attitude_sigma, altitude=altitude, geoid=geoid, focal_prior=focal_prior,
                 self_calibration=not no_self_calibration, config=config, config_source=config_path, crs=crs,
                 compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper,
-                control=gcp_path, control_sigma=cs, check=check_path, scale_bars=scale_bar_path,
+                pycolmap_input=pycolmap_input, control=gcp_path, control_sigma=cs, check=check_path, scale_bars=scale_bar_path,
                 measurements=meas_paths, camera=camera_path, datum=datum, spell=_spell)
             options.update(res.options, keep_failed=keep_failed)
             for line in res.summary_lines():

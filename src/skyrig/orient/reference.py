@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from skyrig.camera.frame import FrameCamera
 from skyrig.orient.triangulation import _SKYRIG_FROM_CV
 
-__all__ = ["PeerOrientation", "compare_on_same_tracks", "pycolmap_from_tracks"]
+__all__ = ["PeerOrientation", "compare_on_same_tracks", "pycolmap_from_tracks", "centre_differences_in_sigma"]
 
 
 @dataclass
@@ -222,20 +222,50 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
     return PeerOrientation(nm, R, C, float(0.5 * (pp[0] + pp[1]) if camera_model == "OPENCV" else pp[0]), summary)
 
 
+def centre_differences_in_sigma(result: Any, cmp: dict[str, Any]) -> dict[str, Any]:
+    """``cmp`` (:func:`skyrig.orient.similarity.compare_with_reconstruction`: per image the length of the centre
+    difference after the similarity, in ``result``'s frame and units) with the differences in units of ``result``'s
+    predicted sigma added: per image ``|d| / |sigma|`` (``sigma``: the adjustment's predicted standard deviations of
+    the projection centre, x, y, z), ``normalised_rms`` and ``normalised_max`` over the common images, and
+    ``sigma_rms_m`` (RMS of ``|sigma|``).  Unchanged when the adjustment has no covariance.
+
+    The similarity absorbs the datum (translation, rotation, scale), so a difference between two estimates of the same
+    measurements is expected well below 1 sigma; one of several sigma says the two programs reached different
+    geometries (a local minimum, a wrong camera model)."""
+    adj = getattr(result, "adjustment", None)
+    ps = None if adj is None else adj.pose_sigma
+    per = cmp.get("per_image_m")
+    if ps is None or not per:
+        return cmp
+    b = adj.block
+    sig = {str(b.image_name[k]): float(np.linalg.norm(ps[b.image_station[k], :3])) for k in range(b.n_images)}
+    names = [n for n in per if n in sig and np.isfinite(sig[n]) and sig[n] > 0]
+    if not names:
+        return cmp
+    z = np.array([per[n] / sig[n] for n in names])
+    s = np.array([sig[n] for n in names])
+    return dict(cmp, normalised_rms=float(np.sqrt(np.mean(z ** 2))), normalised_max=float(z.max()),
+                sigma_rms_m=float(np.sqrt(np.mean(s ** 2))),
+                per_image_sigma={n: float(v) for n, v in zip(names, z)})
+
+
 def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int = 0, camera_model: str = "OPENCV",
                            refine_principal_point: bool = True) -> dict[str, Any]:
     """pycolmap on the tie points an orientation used (:func:`pycolmap_from_tracks` with ``inp``'s names, start
-    camera and observations, an :class:`~skyrig.orient.incremental.OrientInput`), compared with ``result`` (a
+    camera and observations: an :class:`~skyrig.orient.incremental.OrientInput` or a
+    :class:`~skyrig.orient.gnss_block.UavBlockInput`), compared with ``result`` (a
     :class:`~skyrig.orient.gnss_block.UavResult`) by camera centres after a similarity
-    (:func:`skyrig.orient.similarity.compare_with_reconstruction`; with ``inp.positions`` also both fitted onto
-    them).  The dict has the keys of the image-based comparison (``registered``, ``points``, ``wall_s``,
-    ``centre_differences``) so that reports read alike; for a CLI without images (a simulated or measured set of
-    image coordinates only)."""
+    (:func:`skyrig.orient.similarity.compare_with_reconstruction`; with ``inp``'s approximate positions or GNSS also
+    both fitted onto them), the differences also in units of ``result``'s predicted sigma
+    (:func:`centre_differences_in_sigma`).  The dict has the keys of the image-based comparison (``registered``,
+    ``points``, ``wall_s``, ``centre_differences``) so that reports read alike, and ``input: "tracks"``; for a set
+    without image files (a simulated or measured set of image coordinates only: ``skyrig adjust-uav
+    --compare-pycolmap --pycolmap-input tracks``), or to compare the orientation alone, without the matching."""
     from skyrig.orient.similarity import compare_with_reconstruction
 
     peer = pycolmap_from_tracks(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, workdir, seed,
                                 camera_model=camera_model, refine_principal_point=refine_principal_point)
-    out: dict[str, Any] = {"mapper": "incremental, on skyrig's tie points (same measurements)",
+    out: dict[str, Any] = {"input": "tracks", "mapper": "incremental, on skyrig's tie points (same measurements)",
                            "camera_model": camera_model}
     if peer is None:
         return dict(out, registered=0)
@@ -243,5 +273,9 @@ def compare_on_same_tracks(result: Any, inp: Any, workdir: str | Path, seed: int
                mean_reprojection_error_px=peer.summary["mean_reprojection_error_px"], focal_px=peer.focal_px,
                wall_s=peer.summary["wall_s"])
     if len(peer.names) >= 3:
-        out["centre_differences"] = compare_with_reconstruction(result, peer.names, peer.C, inp.positions)
+        positions = getattr(inp, "positions", None)
+        if positions is None:
+            positions = getattr(inp, "gnss", None)
+        out["centre_differences"] = centre_differences_in_sigma(
+            result, compare_with_reconstruction(result, peer.names, peer.C, positions))
     return out

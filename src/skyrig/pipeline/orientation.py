@@ -595,10 +595,7 @@ class UavOutcome:
                 out.append("scale-bar residuals (m): " + ", ".join(f"{v:.4f}" for v in s["scale_bar_residuals_m"]))
             if "control_fit_rms_xyz_m" in s:
                 out.append("control fit RMS x, y, z (m): " + ", ".join(f"{v:.4f}" for v in s["control_fit_rms_xyz_m"]))
-            if "pycolmap" in rep and "centre_differences" in rep["pycolmap"]:
-                c = rep["pycolmap"]["centre_differences"]
-                out.append(f"pycolmap ({rep['pycolmap']['mapper']}): {rep['pycolmap']['registered']} images; centre "
-                           f"differences after similarity RMS {c['rms_m']:.3f}, max {c['max_m']:.3f}")
+            out.extend(_pycolmap_lines(rep))
             return out
         out.append(f"{s['oriented']}/{s['images']} images oriented, {s['tie_points']} tie points, "
                    f"reprojection RMS {s['reprojection_rms_px']:.3f} px, sigma0 {s['sigma0']:.3f}, "
@@ -609,11 +606,7 @@ class UavOutcome:
         for k, v in bad.items():
             dev = v.get("metadata_vs_adjusted_deg", float("nan"))
             out.append(f"{k}: metadata attitude rejected (differs by {dev:.1f} deg from the adjusted one)")
-        if "pycolmap" in rep and "centre_differences" in rep["pycolmap"]:
-            c = rep["pycolmap"]["centre_differences"]
-            out.append(f"pycolmap: {rep['pycolmap']['registered']} images, reprojection RMS "
-                       f"{rep['pycolmap']['reprojection_rms_px']:.3f} px; centre differences after similarity "
-                       f"RMS {c['rms_m']:.3f} m, max {c['max_m']:.3f} m")
+        out.extend(_pycolmap_lines(rep))
         return out
 
     def summary(self) -> dict[str, Any]:
@@ -623,6 +616,28 @@ class UavOutcome:
         if self.without_gnss:
             out["datum"] = s["datum"]["kind"]
         return out
+
+
+def _pycolmap_lines(rep: Mapping[str, Any]) -> list[str]:
+    """What ``skyrig adjust-uav --compare-pycolmap`` prints about the comparison (report key ``pycolmap``)."""
+    p = rep.get("pycolmap")
+    if p is None:
+        return []
+    what = ("incremental mapper on skyrig's tie points" if p.get("input") == "tracks"
+            else f"on the images, mapper: {p.get('mapper', '?')}")
+    n = rep["uav"].get("images", "?")
+    if "centre_differences" not in p:
+        return [f"pycolmap ({what}): {p.get('registered', 0)} images registered; no comparison"]
+    c = p["centre_differences"]
+    err = p.get("reprojection_rms_px")
+    err_text = (f"reprojection RMS {err:.3f} px" if err is not None else
+                f"mean reprojection error {p.get('mean_reprojection_error_px', float('nan')):.3f} px")
+    line = (f"pycolmap ({what}): {p['registered']}/{n} images, {err_text}; skyrig - pycolmap "
+            f"centres after a similarity: RMS {c['rms_m']:.4g}, max {c['max_m']:.4g} over {c['common']} images")
+    if "normalised_rms" in c:
+        line += (f" = RMS {c['normalised_rms']:.2f}, max {c['normalised_max']:.2f} predicted sigma (sigma RMS "
+                 f"{c['sigma_rms_m']:.4g})")
+    return [line]
 
 
 def _ties_file(ties: PathArg) -> Path:
@@ -636,7 +651,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
                          self_calibration: bool = True, config: Mapping[str, Any] | None = None,
                          config_source: str | None = None, crs: str | None = None, compare_pycolmap: bool = False,
                          pycolmap_size: int = 1600, pycolmap_mapper: str = "incremental",
-                         control: PathArg | None = None, control_sigma: Sequence[float] = (0.01,) * 3,
+                         pycolmap_input: str | None = None, control: PathArg | None = None, control_sigma: Sequence[float] = (0.01,) * 3,
                          check: PathArg | None = None, scale_bars: PathArg | None = None,
                          measurements: Sequence[PathArg] = (), camera: PathArg | None = None, datum: str = "auto",
                          spell: Spell = cli_spelling) -> UavOutcome:
@@ -656,8 +671,12 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     ``images`` may then be None (names from the tie points).
 
     ``config``: options of :class:`skyrig.pipeline.uav.UavConfig` / :class:`skyrig.orient.incremental.OrientConfig`
-    overriding the above (``config_source`` names their file in errors); ``compare_pycolmap``: pycolmap's own
-    reconstruction of the same images in ``outdir/pycolmap``, compared by camera centres.
+    overriding the above (``config_source`` names their file in errors); ``compare_pycolmap``: pycolmap's
+    reconstruction in ``outdir/pycolmap``, compared by camera centres after a similarity (RMS, max, and in units of
+    skyrig's predicted sigma: report key ``pycolmap``), from ``pycolmap_input`` "images" (its own SIFT, matching and
+    mapper on the image files) or "tracks" (its mapper on skyrig's tie points: the same measurements,
+    :func:`skyrig.orient.reference.compare_on_same_tracks`; for sets without image files); None: "images" when
+    ``images`` holds image files, else "tracks".
 
     Raises
     ------
@@ -679,6 +698,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         raise OptionError(spell("altitude"), f"expected egm96 or ellipsoidal, got {altitude!r}")
     if pycolmap_mapper not in ("incremental", "global"):
         raise OptionError(spell("pycolmap_mapper"), f"expected incremental or global, got {pycolmap_mapper!r}")
+    pycolmap_input = _pycolmap_input(images, pycolmap_input, compare_pycolmap, spell)
     if not (math.isfinite(focal_prior) and focal_prior > 0):
         raise OptionError(spell("focal_prior"), f"must be positive, got {focal_prior}")
     if crs is not None:
@@ -693,7 +713,8 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid, focal_prior=focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
                              compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size,
-                             pycolmap_mapper=pycolmap_mapper, control=control, control_sigma=control_sigma,
+                             pycolmap_mapper=pycolmap_mapper, pycolmap_input=pycolmap_input, control=control,
+                             control_sigma=control_sigma,
                              check=check, scale_bars=scale_bars, measurements=measurements, camera=camera,
                              datum=datum, spell=spell)
     if images is None:
@@ -712,7 +733,8 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     imgs = Path(images)
     inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else [])
     res, rep = adjust_uav(imgs, tie_file, out, cfg, out / "pycolmap" if compare_pycolmap else None,
-                          pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs)
+                          pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs,
+                          pycolmap_input=pycolmap_input)
     if (out / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
         from skyrig.report import report_data_from_uav, write_report
 
@@ -721,17 +743,33 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     options = {"images": str(imgs), "ties": str(tie_file), "gnss_sigma_m": list(kw["gnss_sigma_m"]),
                "attitude_sigma_deg": attitude_sigma, "altitude": altitude, "geoid": geoid,
                "focal_prior": focal_prior, "self_calibration": self_calibration,
-               "compare_pycolmap": compare_pycolmap, "crs": crs, "config": config_source}
+               "compare_pycolmap": compare_pycolmap, "pycolmap_input": pycolmap_input if compare_pycolmap else None,
+               "crs": crs, "config": config_source}
     outcome = UavOutcome(res, rep, failure_reasons(res.adjustment), False, options, inputs)
     for line in outcome.summary_lines():
         logger.info("%s", line)
     return outcome
 
 
+def _pycolmap_input(images: PathArg | None, choice: str | None, compare: bool, spell: Spell) -> str:
+    """What pycolmap's comparison runs on: ``choice`` (``images`` / ``tracks``), None = images when ``images``
+    holds image files, else tracks; images asked for where there are none is an error naming the option."""
+    from skyrig.io.image_read import list_images
+
+    if choice not in (None, "images", "tracks"):
+        raise OptionError(spell("pycolmap_input"), f"expected images or tracks, got {choice!r}")
+    have = images is not None and Path(images).is_dir() and bool(list_images(Path(images)))
+    if choice == "images" and compare and not have:
+        where = "no image folder" if images is None else f"no image files in {images}"
+        raise OptionError(spell("pycolmap_input"), f"images: {where}; give the images or use tracks (pycolmap on "
+                                                   "skyrig's tie points)")
+    return choice or ("images" if have else "tracks")
+
+
 def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude: str, geoid: str | None,
                   focal_prior: float, self_calibration: bool, config: Mapping[str, Any] | None,
                   config_source: str | None, crs: str | None, compare_pycolmap: bool, pycolmap_size: int,
-                  pycolmap_mapper: str, control: PathArg | None, control_sigma: Sequence[float],
+                  pycolmap_mapper: str, pycolmap_input: str, control: PathArg | None, control_sigma: Sequence[float],
                   check: PathArg | None, scale_bars: PathArg | None, measurements: Sequence[PathArg],
                   camera: PathArg | None, datum: str, spell: Spell) -> UavOutcome:
     from skyrig.io.image_read import list_images
@@ -773,7 +811,8 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
         imgs if have_images else None, tie_file, out, cfg, cam, ctrl, cs, chk, bars, extra,
         use_gps=True, pycolmap_workdir=out / "pycolmap" if compare_pycolmap else None,
         pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs,
-        altitude_cfg=UavConfig(altitude=altitude, geoid=geoid), sources=sources)  # type: ignore[arg-type]
+        altitude_cfg=UavConfig(altitude=altitude, geoid=geoid), sources=sources,  # type: ignore[arg-type]
+        pycolmap_input=pycolmap_input)
     if (out / "report.html").is_file():
         from skyrig.report import report_data_from_uav, write_report
 
@@ -782,7 +821,8 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
     options = {"images": None if imgs is None else str(imgs), "ties": str(tie_file), "no_gps": True,
                "altitude": altitude, "geoid": geoid, "focal_prior": focal_prior,
                "self_calibration": self_calibration, "compare_pycolmap": compare_pycolmap,
-               "pycolmap_size": pycolmap_size, "pycolmap_mapper": pycolmap_mapper, "crs": crs,
+               "pycolmap_size": pycolmap_size, "pycolmap_mapper": pycolmap_mapper,
+               "pycolmap_input": pycolmap_input if compare_pycolmap else None, "crs": crs,
                "config": config_source, "control": sources["control"], "control_sigma": list(cs),
                "check": sources["check"], "scale_bars": sources["scale_bars"],
                "measurements": [str(p) for p in measurements], "camera": None if camera is None else str(camera),

@@ -669,7 +669,8 @@ def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
                                    altitude=o["altitude"], focal_prior=o["focal_prior"],
                                    self_calibration=o["self_calibration"], crs=p.crs,
                                    compare_pycolmap=o["compare_pycolmap"], pycolmap_size=o["pycolmap_size"],
-                                   pycolmap_mapper=o["pycolmap_mapper"], spell=_project_spelling("adjust-uav"), **kw)
+                                   pycolmap_mapper=o["pycolmap_mapper"], pycolmap_input=o["pycolmap_input"],
+                                   spell=_project_spelling("adjust-uav"), **kw)
     except OrientError as exc:  # the set could not be oriented: a failed run, not bad input
         raise StageError("adjust-uav", f"the orientation failed: {exc}", 1) from None
     # the outputs are in ctx.out either way: published with FAILED.txt when keep_failed, else dropped
@@ -791,7 +792,10 @@ register_stage(Stage(
              "pycolmap_size": Option(1600, "int", "pycolmap comparison: SIFT on images downscaled to this (px)",
                                      positive=True),
              "pycolmap_mapper": Option("incremental", "choice", "pycolmap comparison: mapper",
-                                       ("incremental", "global"))},
+                                       ("incremental", "global")),
+             "pycolmap_input": Option(None, "choice", "pycolmap comparison on images (its own matching) or tracks "
+                                      "(skyrig's tie points); null: images when there are image files, else tracks",
+                                      ("images", "tracks"), nullable=True)},
     uses=("ties",), provides={"eo": "eo.csv", "points": "points.csv", "cameras": "camera.yaml"},
     inputs=_adjust_uav_inputs,
     check=_adjust_uav_check))

@@ -161,7 +161,8 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
 def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None = None,
                cfg: UavConfig = UavConfig(), pycolmap_workdir: str | Path | None = None,
                pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
-               pycolmap_mapper: str = "incremental", crs: str | None = None) -> tuple[UavResult, dict[str, Any]]:
+               pycolmap_mapper: str = "incremental", crs: str | None = None,
+               pycolmap_input: str = "images") -> tuple[UavResult, dict[str, Any]]:
     """Project-level stage: images + ``skyrig match`` output -> adjusted EO, camera and report.
 
     Parameters
@@ -180,7 +181,9 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
         If given, pycolmap's own pipeline (SIFT, exhaustive matching, incremental mapping) runs there on the
         same images and its camera centres / reprojection RMS are compared (needs ``pycolmap``), with SIFT on
         images downscaled to ``pycolmap_max_image_size`` and at most ``pycolmap_max_features`` per image, and
-        ``pycolmap_mapper`` "incremental" (COLMAP) or "global" (GLOMAP; forward-moving sequences such as lund).
+        ``pycolmap_mapper`` "incremental" (COLMAP) or "global" (GLOMAP; forward-moving sequences such as lund);
+        ``pycolmap_input`` "tracks": pycolmap's mapper on skyrig's own tie points instead
+        (:func:`skyrig.orient.reference.compare_on_same_tracks`).
 
     Returns
     -------
@@ -201,8 +204,13 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     report["uav"] = dict(res.summary)
     report["uav"]["config"] = asdict(cfg)
     report["uav"]["attitude_check"] = res.attitude_check
-    if pycolmap_workdir is not None:
+    if pycolmap_workdir is not None and pycolmap_input == "tracks":
+        from skyrig.orient.reference import compare_on_same_tracks
+
+        report["pycolmap"] = compare_on_same_tracks(res, inp, pycolmap_workdir)
+    elif pycolmap_workdir is not None:
         from skyrig.match.colmap_check import reconstruct_with_pycolmap
+        from skyrig.orient.reference import centre_differences_in_sigma
 
         t1 = time.perf_counter()
         _, summ = reconstruct_with_pycolmap(images, [str(n) for n in inp.names], pycolmap_workdir,
@@ -212,8 +220,9 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
         if summ is None:
             report["pycolmap"] = {"registered": 0}
         else:
-            cmp = compare_with_reconstruction(res, summ.names, summ.centres, inp.gnss)
-            report["pycolmap"] = {"registered": int(len(summ.names)), "points": summ.n_points,
+            cmp = centre_differences_in_sigma(res, compare_with_reconstruction(res, summ.names, summ.centres,
+                                                                               inp.gnss))
+            report["pycolmap"] = {"input": "images", "registered": int(len(summ.names)), "points": summ.n_points,
                                   "reprojection_rms_px": summ.reprojection_rms_px, "wall_s": time.perf_counter() - t1,
                                   "centre_differences": cmp}
     report["uav"]["total_wall_s"] = time.perf_counter() - t0
@@ -458,7 +467,7 @@ def orient_without_gnss(images: str | Path | None, match_dir: str | Path, out: s
                         pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
                         pycolmap_mapper: str = "incremental", crs: str | None = None,
                         altitude_cfg: UavConfig = UavConfig(), sources: dict[str, str] | None = None,
-                        ) -> tuple[UavResult, dict[str, Any]]:
+                        pycolmap_input: str = "images") -> tuple[UavResult, dict[str, Any]]:
     """Project-level stage of the orientation without GNSS (:func:`skyrig.orient.incremental.orient_incremental`):
     images + ``skyrig match`` tie points (+ target measurements, control, scale bars) -> EO, points, camera,
     report (the same files as :func:`adjust_uav`).
@@ -467,7 +476,9 @@ def orient_without_gnss(images: str | Path | None, match_dir: str | Path, out: s
     (datum "positions"); else :data:`MODEL_FRAME_WKT`, an engineering CRS in metres (scale bars) or in the units
     of the relative orientation's base (free network).  ``pycolmap_workdir``: pycolmap's own reconstruction of the
     same images, compared by camera centres after a similarity (``mapper`` "incremental", falling back to
-    "global" when the incremental mapper registers fewer than half of the images).
+    "global" when the incremental mapper registers fewer than half of the images); with ``pycolmap_input``
+    "tracks" (or no ``images``) pycolmap's mapper on the same tie points instead
+    (:func:`skyrig.orient.reference.compare_on_same_tracks`).
     """
     from skyrig.georef.observations import ImageMeasurements
     from skyrig.io.points_csv import read_measurements_csv
@@ -502,7 +513,11 @@ def orient_without_gnss(images: str | Path | None, match_dir: str | Path, out: s
     report["uav"]["config"] = asdict(cfg)
     report["uav"]["attitude_check"] = res.attitude_check
     report["uav"]["mode"] = "orientation without GNSS (relative orientation, resection, bundle adjustment)"
-    if pycolmap_workdir is not None:
+    if pycolmap_workdir is not None and (pycolmap_input == "tracks" or images is None):
+        from skyrig.orient.reference import compare_on_same_tracks
+
+        report["pycolmap"] = compare_on_same_tracks(res, inp, pycolmap_workdir)
+    elif pycolmap_workdir is not None:
         report["pycolmap"] = compare_pycolmap(res, images, inp, pycolmap_workdir, pycolmap_max_image_size,
                                               pycolmap_max_features, pycolmap_mapper)
     report["uav"]["total_wall_s"] = time.perf_counter() - t0
@@ -576,7 +591,9 @@ def compare_pycolmap(res: UavResult, images: str | Path | None, inp: Any, workdi
         out["registered"] = 0
         return out
     gnss = inp.positions
-    cmp = compare_with_reconstruction(res, summ.names, summ.centres, gnss)
-    out.update(registered=int(len(summ.names)), points=summ.n_points, reprojection_rms_px=summ.reprojection_rms_px,
+    from skyrig.orient.reference import centre_differences_in_sigma
+
+    cmp = centre_differences_in_sigma(res, compare_with_reconstruction(res, summ.names, summ.centres, gnss))
+    out.update(input="images", registered=int(len(summ.names)), points=summ.n_points, reprojection_rms_px=summ.reprojection_rms_px,
                wall_s=time.perf_counter() - t1, centre_differences=cmp)
     return out
