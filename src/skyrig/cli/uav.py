@@ -27,6 +27,11 @@ without image files the image names come from the tie points.  Same outputs as w
 datum ``eo.csv`` / ``points.csv`` are plain tables in an arbitrary frame (``#`` lines say so) and there is no
 ``adjusted.gpkg``.  A set that cannot be oriented (no start pair, control not measured...) exits 1.
 
+``--compare-pycolmap``: pycolmap orients the set too, on the image files (``--pycolmap-input images``: its own SIFT,
+matching and mapper) or on skyrig's tie points (``tracks``: the same measurements; the default without image files),
+and ``report.json``'s ``pycolmap`` holds skyrig - pycolmap centres after a similarity (RMS, max, and in units of
+skyrig's predicted sigma); docs/cli.md.
+
 A thin shim: the work is :func:`skyrig.pipeline.orientation.make_uav_orientation` (which the project's
 ``adjust-uav`` stage calls); this module parses the options and publishes the folder as a set.
 """
