@@ -65,6 +65,18 @@ def _describe(item: object, limit: int = 120) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def _quiet_dask_logs() -> None:
+    """Keep dask.distributed's start-up chatter (scheduler address, nannies, the dashboard hint) out of a run
+    unless the user asked for info-level logs: its loggers are set to INFO by its own config and propagate to the
+    CLI's handler, so without this every tiled stage prints some twenty lines of cluster housekeeping."""
+    if logging.getLogger().getEffectiveLevel() <= logging.INFO:
+        return
+    for name in ("distributed", "bokeh", "tornado"):
+        lg = logging.getLogger(name)
+        if lg.level < logging.WARNING:
+            lg.setLevel(logging.WARNING)
+
+
 class Executor:
     """Run independent tasks serially, on local worker processes, or on a ``dask.distributed`` cluster.
 
@@ -118,6 +130,7 @@ class Executor:
             from dask.distributed import Client, LocalCluster
         except ImportError as exc:  # pragma: no cover - distributed is a dependency
             raise SkyrigError(f"dask.distributed is not installed ({exc}); use kind='serial'") from None
+        _quiet_dask_logs()
         if self.kind == "local":
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                          memory_limit=self.memory_limit, dashboard_address=None)
