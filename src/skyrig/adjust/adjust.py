@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block, BlockError
@@ -270,6 +271,26 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
                      "(the datum from those observations), or leave them out for a free network")
 
 
+def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
+    """``(S (CSR), rhs)`` of the undamped reduced system at ``state``: the compiled Schur engine (no scipy
+    BSR products), else / on a singular point block the reference path (whose error names the points)."""
+    from skyrig.adjust import solver as _solver
+
+    factors = model.evaluate(state)
+    lay = model.layout
+    if _solver.HAVE_NUMBA:
+        eng = _solver.SchurEngine(factors, lay, model.block.obs_image)
+        eng.linearize(factors)
+        try:
+            vals, rhs, _ = eng.reduced_system(0.0)
+            return sp.csr_matrix((vals, eng.indices, eng.indptr), shape=(lay.n_c, lay.n_c)), rhs
+        except SingularError:
+            pass
+        del eng
+    S, rhs, _ = schur_matrix(assemble(factors, lay, model.block.obs_image), 0.0)
+    return S, rhs
+
+
 def check_datum(model: Model, state: State, free_datum: bool) -> None:
     """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular.
 
@@ -280,9 +301,8 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
     lay = model.layout
     if lay.n_c == 0:
         return
-    N = assemble(model.evaluate(state), lay, model.block.obs_image)
     try:
-        S, rhs, _ = schur_matrix(N, 0.0)
+        S, rhs = _reduced_at(model, state)
     except SingularError as e:
         b = model.block
         pts = np.flatnonzero(lay.point >= 0)[getattr(e, "points", np.zeros(0, np.int64))]

@@ -459,7 +459,9 @@ def schur_pattern(n_c: int, ucols: NDArray[np.int64], row_ptr: NDArray[np.int64]
     upper block pattern, ``v >= u``) and their mirrors, the blocks ``cols x cols`` of every row of the
     other factors' column sets ``other_cols`` (each ``(m, kf)``), and the diagonal; negative columns are
     left out.  The same set of entries as sorting all block keys, in memory of the order of the pattern."""
-    ucols = np.ascontiguousarray(ucols, np.int64).reshape(len(row_ptr) - 1, -1)
+    ucols = np.ascontiguousarray(ucols, np.int64)
+    if ucols.ndim != 2:
+        ucols = ucols.reshape(len(row_ptr) - 1, -1)
     n_u, k = ucols.shape
     ua = np.repeat(np.arange(n_u, dtype=np.int64), np.diff(row_ptr))
     ub = np.asarray(col_idx, np.int64)

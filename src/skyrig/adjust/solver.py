@@ -723,29 +723,13 @@ class SchurEngine:
         else:
             self.row_ptr, self.col_idx = np.zeros(n_u + 1, np.int64), np.zeros(0, np.int64)
             self.diag_slot, ua, ub = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
-        # ---- global pattern of S: unit blocks (and mirrors), other factors, the diagonal
-        ga = np.broadcast_to(ucols[ua][:, :, None], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
-        gb = np.broadcast_to(ucols[ub][:, None, :], (len(ua), k, k)).reshape(-1) if has_jc else np.zeros(0, np.int64)
-        mirror = np.repeat(ua != ub, k * k) if has_jc else np.zeros(0, bool)
-        src_r = [ga, gb[mirror]]
-        src_c = [gb, ga[mirror]]
-        oth_rc = []
-        for i, f in enumerate(factors):
-            if i == self._img_index or f.jc is None or f.cols is None or f.cols.shape[1] == 0:
-                continue
-            kf = f.cols.shape[1]
-            r_ = np.broadcast_to(f.cols[:, :, None], (len(f), kf, kf)).reshape(-1)
-            c_ = np.broadcast_to(f.cols[:, None, :], (len(f), kf, kf)).reshape(-1)
-            oth_rc.append((i, r_, c_))
-            src_r.append(r_)
-            src_c.append(c_)
-        diag = np.arange(n_c, dtype=np.int64)
-        src_r.append(diag)
-        src_c.append(diag)
-        allr, allc = np.concatenate(src_r), np.concatenate(src_c)
-        ok = (allr >= 0) & (allc >= 0)
-        self.keys, self.indptr, self.indices = _csr_pattern(allr[ok] * n_c + allc[ok], n_c)
-        self.nnz = len(self.keys)
+        # ---- global pattern of S: unit blocks (and mirrors), other factors, the diagonal (built row by
+        # row, no per-entry keys or maps: skyrig.adjust.linalg.schur_pattern)
+        oth_cols = [(i, f.cols) for i, f in enumerate(factors)
+                    if i != self._img_index and f.jc is not None and f.cols is not None and f.cols.shape[1] > 0]
+        self.indptr, self.indices = _linalg.schur_pattern(n_c, ucols if has_jc else np.zeros((0, 0), np.int64),
+                                                          self.row_ptr, self.col_idx, [c for _, c in oth_cols])
+        self.nnz = len(self.indices)
 
         def pos(r_: NDArray[np.int64], c_: NDArray[np.int64]) -> NDArray[np.int64]:
             # a binary search within each entry's CSR row (short rows, in cache) instead of over all keys
@@ -753,16 +737,18 @@ class SchurEngine:
             _K["csr_positions"](self.indptr, self.indices, np.ascontiguousarray(r_), np.ascontiguousarray(c_), out)
             return out
 
-        self.map_a = pos(ga, gb)
-        self.map_b = np.full(len(ga), -1, np.int64)
-        self.map_b[mirror] = pos(gb[mirror], ga[mirror])
-        self.others: list[tuple[int, NDArray[np.int64]]] = [(i, pos(r_, c_)) for i, r_, c_ in oth_rc]
+        self.others: list[tuple[int, NDArray[np.int64]]] = []
+        for i, c in oth_cols:
+            kf = c.shape[1]
+            self.others.append((i, pos(np.broadcast_to(c[:, :, None], (len(c), kf, kf)).reshape(-1),
+                                       np.broadcast_to(c[:, None, :], (len(c), kf, kf)).reshape(-1))))
+        diag = np.arange(n_c, dtype=np.int64)
         self.diagpos = pos(diag, diag)
         self.rows = np.repeat(np.arange(n_c, dtype=np.int64), np.diff(self.indptr))
-        self.indptr32 = self.indptr.astype(np.int32)
-        self.indices32 = self.indices.astype(np.int32)
-        # the diagonal block slot's entries within map_a (for U of the image factor)
-        self._diag_entries = (self.diag_slot[:, None] * (k * k) + np.arange(k * k)[None, :]).reshape(-1)
+        # the entries of each unit's diagonal block (for U of the image factor)
+        self._diag_map = pos(np.broadcast_to(ucols[:, :, None], (n_u, k, k)).reshape(-1),
+                             np.broadcast_to(ucols[:, None, :], (n_u, k, k)).reshape(-1)) if has_jc \
+            else np.zeros(0, np.int64)
 
     # ------------------------------------------------------------------ per linearisation
     def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
@@ -795,7 +781,7 @@ class SchurEngine:
                     self.Wp = np.empty((len(self.pt_obs), k, 3))  # point order: the Schur product reads them so
                 _K["unit_normals"](self.unit_ptr, self.unit_obs, jc, jp if jp is not None else np.zeros((len(f), r.shape[1], 3)),
                                    r, w, self.pt, Uu, gu, self.Wp, self.wpos)
-                m = self.map_a[self._diag_entries]
+                m = self._diag_map
                 v = m >= 0
                 U0 += np.bincount(m[v], weights=Uu.reshape(-1)[v], minlength=self.nnz)
                 cv = self.ucols >= 0
@@ -835,7 +821,7 @@ class SchurEngine:
             rhs_u = np.zeros((self.n_u, k))
             _K["schur"](self.unit_ptr, self.unit_obs, self.obs_unit, self.pt, self.pt_ptr, self.upt, self.wpos, self.Wp,
                         Vinv, self.gp, self.row_ptr, self.col_idx, blocks, rhs_u, 8 * _numba.get_num_threads())
-            _K["scatter"](blocks.reshape(-1), self.map_a, self.map_b, S)
+            _linalg.scatter_unit_pairs(blocks, self.row_ptr, self.col_idx, self.ucols, self.indptr, self.indices, S)
             cv = self.ucols >= 0
             rhs += np.bincount(self.ucols[cv], weights=rhs_u[cv], minlength=self.n_c)
         return S, rhs, Vinv
