@@ -79,14 +79,15 @@ def _sort1(a, idx):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support, min_ratio,
-                    out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn):  # pragma: no cover - compiled
+                    out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, max_range=0.0):  # pragma: no cover - compiled
     """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays.
 
     ``out_ch``, ``out_cs``, ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``,
     their precision-weighted mean, its sigma and their number (a candidate for the neighbour confirmation).
 
     A cell's points are gathered into scratch arrays (allocated once) and sorted there by (pair, height),
-    stably (ties keep the input order)."""
+    stably (ties keep the input order).  With ``max_range > 0`` a pair whose own heights in the cell span more
+    than ``max_range`` gives the cell no height (it sees a wall or a depth edge inside the cell)."""
     ncells = start.shape[0] - 1
     maxm = 0
     for c in range(ncells):
@@ -123,6 +124,9 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
             while j < m and lp[j] == lp[i]:
                 j += 1
             cnt = j - i
+            if max_range > 0 and lh[j - 1] - lh[i] > max_range:
+                i = j
+                continue
             lo = i + (cnt - 1) // 2
             hi = i + cnt // 2
             ph[k] = 0.5 * (lh[lo] + lh[hi])
@@ -130,6 +134,8 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
             k += 1
             i = j
         np_ = k
+        if np_ == 0:
+            continue
         for q in range(np_):  # pi: pair heights' order (stable insertion sort by ph)
             t = q
             while t > 0 and ph[pi[t - 1]] > ph[q]:

@@ -3,7 +3,8 @@
 Grid fusion (:func:`fuse_grid`), for every cell:
 
 1. each stereo pair contributes one height: the median of its points in the cell (with their predicted
-   height precision ``sigma``);
+   height precision ``sigma``) - unless its points in the cell span more than ``max_pair_range_cells`` cells
+   of height: then the pair sees a wall or a depth edge inside the cell and contributes nothing;
 2. the pairs' heights are combined robustly: the precision-weighted median ``m``; a pair *supports* the
    cell when ``|h - m| <= max(k * sqrt(sigma^2 + sigma_m^2), min_tol)``;
 3. the cell is kept when at least ``min_support`` pairs support it (a height that no second pair confirms
@@ -54,6 +55,15 @@ class FusionConfig:
         empty rather than guessed).
     neighbour_cells
         Radius (cells, square window) of the neighbour confirmation of cells with too few pairs; 0 disables.
+    max_pair_range_cells
+        A pair whose own points in a cell span more height than this many cell sizes gives the cell no height
+        (0 disables).  Next to a building, the wall pixels of a view (matched correctly) all project onto the
+        outline, with every height from the ground to the eaves, into the cells the outline crosses, and the
+        pair's median is a height of neither the roof nor the ground.  On midas-dsm (true orientations, bench/
+        dense_edges.py --points) 69 % of the points more than 5 GSD too high in ground cells next to a building
+        are such wall points, and 90 % of the points more than 5 GSD too low in roof cells at the outline; with
+        5 cells the cells within 2 GSD of a building outline go from 75.2 to 77.4 % valid (61.3 to 64.7 % within
+        5 GSD of the truth), cells off by more than 5 GSD from 0.53 to 0.49 %, flat cells unchanged.
     """
 
     min_support: int = 2
@@ -61,6 +71,7 @@ class FusionConfig:
     min_tol_cells: float = 1.0
     min_support_ratio: float = 0.5
     neighbour_cells: int = 2
+    max_pair_range_cells: float = 5.0
 
 
 def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y: NDArray[np.float64],
@@ -109,7 +120,8 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
         order, start = counting_order(cell, H * W)
         fuse_grid_cells(order, start, np.asarray(pair, np.int64), h, sigma, float(cfg.k_sigma),
                         float(cfg.min_tol_cells * grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
-                        out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
+                        out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
+                        float(cfg.max_pair_range_cells * grid.cell_m))
     shape = grid.shape
     out = (out_h.reshape(shape), out_n.reshape(shape), out_sp.reshape(shape), out_s.reshape(shape))
     if candidates:
