@@ -43,12 +43,19 @@ class Facade:
         outward normal is ``(end - start) x up`` normalised.
     on_border
         The edge lies on the border of the DSM (a building cut by it): not a real wall, it gets no texture.
+    outline
+        ``(K, 2)`` the wall's shape inside the rectangle ``corners`` as ``(s, z)`` points (``s`` the distance from the
+        start corner along the wall, ``z`` the height), counter-clockwise seen from outside; None: the whole
+        rectangle.  A wall under a gable end (:meth:`BuildingBlock.facades` with ``to_roof``) reaches up to the
+        roof line: its rectangle up to the apex, its outline the ground line, the eave corners and the roof's
+        vertices above the edge.
     """
 
     building: int
     index: int
     corners: NDArray[np.float64]
     on_border: bool = False
+    outline: NDArray[np.float64] | None = None
 
     @property
     def normal(self) -> NDArray[np.float64]:
@@ -100,15 +107,35 @@ class BuildingBlock:
     clipped: bool = False
     border_edges: tuple[int, ...] = ()
 
-    def facades(self) -> list[Facade]:
-        """The walls, one per footprint edge."""
+    def facades(self, to_roof: bool = False) -> list[Facade]:
+        """The walls, one per footprint edge, from ``ground_z`` to ``eave_z``.
+
+        ``to_roof``: a wall under a gable end (roof vertices above ``eave_z`` on its edge, :meth:`gable_ends`)
+        reaches up to the roof line instead: its ``corners`` up to the highest of those vertices and its
+        :attr:`Facade.outline` the wall polygon (ground line, eave corners, roof vertices), so that one texture
+        covers the whole wall of a gabled house's end."""
         out = []
         fp = np.asarray(self.footprint, float)
+        high: dict[int, list[tuple[float, float]]] = {}
+        if to_roof:
+            for i, tri in self.gable_ends():
+                a, e = fp[i], fp[(i + 1) % len(fp)]
+                s = float(np.linalg.norm(tri[2, :2] - a))
+                if 0.0 < s < float(np.linalg.norm(e - a)):
+                    high.setdefault(i, []).append((s, float(tri[2, 2])))
         for i in range(len(fp)):
             a, b = fp[i], fp[(i + 1) % len(fp)]
+            top = self.eave_z
+            outline = None
+            if i in high:
+                pts = sorted(set(high[i]), key=lambda q: -q[0])  # from the end back to the start
+                top = max(z for _, z in pts)
+                L = float(np.linalg.norm(b - a))
+                outline = np.array([[0.0, self.ground_z], [L, self.ground_z], [L, self.eave_z], *pts,
+                                    [0.0, self.eave_z]])
             out.append(Facade(self.id, i, np.array([[a[0], a[1], self.ground_z], [b[0], b[1], self.ground_z],
-                                                    [b[0], b[1], self.eave_z], [a[0], a[1], self.eave_z]]),
-                              i in self.border_edges))
+                                                    [b[0], b[1], top], [a[0], a[1], top]]),
+                              i in self.border_edges, outline))
         return out
 
 
@@ -146,10 +173,11 @@ class FacadeTexture:
     facade
         The wall.
     rgb
-        ``(H, W, 3)`` uint8; row 0 at the top (``eave_z``), column 0 at the start edge (``corners[0]``), texel centres at
-        ``(j + 0.5) * texel_m`` along the wall and ``eave_z - (i + 0.5) * texel_m`` in height.
+        ``(H, W, 3)`` uint8; row 0 at the top (``eave_z``, or the apex of a wall with an
+        :attr:`~Facade.outline`: ``facade.corners[3, 2]``), column 0 at the start edge (``corners[0]``), texel
+        centres at ``(j + 0.5) * texel_m`` along the wall and ``top - (i + 0.5) * texel_m`` in height.
     valid
-        ``(H, W)`` bool: texels that got a colour from an image that sees them.
+        ``(H, W)`` bool: texels that got a colour from an image that sees them (inside the wall's outline).
     texel_m
         Texel size in metres.
     images
@@ -550,6 +578,9 @@ def _clipped_rectangle(comp: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int
         return None
     th = np.arctan2(seg[keep, 1], seg[keep, 0])
     t = 0.25 * np.arctan2(np.sum(ln[keep] * np.sin(4 * th)), np.sum(ln[keep] * np.cos(4 * th)))
+    # refined on the real contour points themselves: the turn that stacks them most tightly on lines along both
+    # axes (the straight runs' directions follow the staircase of a turned wall and its cut ends by degrees)
+    t = _sharpest_axes(cc[real], t)
     ax_w = np.array([np.cos(t), np.sin(t)])
     ax_h = np.array([-np.sin(t), np.cos(t)])
     a, b = cc @ ax_w, cc @ ax_h
@@ -580,6 +611,28 @@ def _clipped_rectangle(comp: NDArray[np.bool_], grid: GridSpec, r0: int, c0: int
     la = np.array([long_ax[0], -long_ax[1]])
     cell = grid.cell_m
     return foot, (cxy, la / np.linalg.norm(la), 0.5 * max(w, h) * cell, 0.5 * min(w, h) * cell)
+
+
+def _sharpest_axes(pts: NDArray, t0: float, span_deg: float = 15.0, step_deg: float = 0.25, bin_cells: float = 1.0
+                   ) -> float:
+    """The direction (radians, within ``span_deg`` of ``t0``) of the axes along which the boundary points ``pts``
+    ``(N, 2)`` (cell units) of a rectangle's walls are most concentrated: the sum of squared counts of their
+    coordinates along both axes in bins of ``bin_cells`` (two bin phases), largest when every wall's points fall
+    on one line (a rectangle's sides, each a tight peak; a bin of one cell holds the whole staircase of a turned
+    wall, a narrower one would favour the axis-parallel runs of its steps); ties keep the angle nearest ``t0``."""
+    best, best_t = -1.0, t0
+    for dt in np.radians(np.arange(-span_deg, span_deg + 1e-9, step_deg)):
+        t = t0 + dt
+        sc = 0.0
+        for ax in (np.array([np.cos(t), np.sin(t)]), np.array([-np.sin(t), np.cos(t)])):
+            x = pts @ ax
+            x = (x - x.min()) / bin_cells
+            for off in (0.0, 0.5):
+                h = np.bincount(np.floor(x + off).astype(np.int64)).astype(np.float64)
+                sc += float(h @ h)
+        if sc > best + 1e-9 or (abs(sc - best) <= 1e-9 and abs(dt) < abs(best_t - t0)):
+            best, best_t = sc, t
+    return float(best_t)
 
 
 def _clip_cells(pts: NDArray, comp: NDArray[np.bool_], bp: NDArray[np.bool_], p: int) -> NDArray[np.float64] | None:

@@ -76,6 +76,10 @@ class TextureConfig:
         texels falsely hidden in their best image, 5 cells 40).
     edge_margin_px
         Image pixels this close to the image border do not count as seen.
+    to_roof
+        :func:`texture_facades`: the wall under a gable end is textured up to the roof line (one texture over
+        the wall and its gable triangle, :meth:`BuildingBlock.facades` with ``to_roof``); off: every wall up to
+        the eaves only.
     """
 
     texel_m: float | None = None
@@ -86,6 +90,7 @@ class TextureConfig:
     occlusion_tol_m: float = 0.3
     self_margin_m: float | None = None
     edge_margin_px: float = 1.0
+    to_roof: bool = True
 
 
 @njit(cache=True, nogil=True)
@@ -253,7 +258,7 @@ def texture_plane(corners: NDArray, eo: ExteriorOrientations | None = None,
                   cameras: Mapping[str, FrameCamera] | None = None, loader: ImageLoader | None = None,
                   dsm: DsmGrid | None = None, *, texel_m: float | None = None, max_images: int = 3,
                   normal: NDArray | None = None, config: TextureConfig | None = None,
-                  context: "_Context | None" = None) -> PlaneTexture:
+                  context: "_Context | None" = None, outline: NDArray | None = None) -> PlaneTexture:
     """Occlusion-aware texture of one planar rectangle of the DSM's frame (a wall, a roof plane ...).
 
     Parameters
@@ -273,6 +278,12 @@ def texture_plane(corners: NDArray, eo: ExteriorOrientations | None = None,
         The other options.
     context
         From :func:`texturing_context`, to share orientations, DSM and image cache between planes.
+    outline
+        ``(K, 2)`` polygon inside the rectangle as ``(s, z)``: ``s`` the distance from ``corners[0]`` along ``u``,
+        ``z = corners[0, 2] + `` the distance along ``v`` (the height, for a wall); texels whose centre lies outside
+        get no colour (:attr:`~skyrig.dense.buildings.Facade.outline`), nor do those within one texel of a sloped
+        edge of it (a gable's roof line: such a texel's footprint in the images straddles the roof).  None: the
+        whole rectangle.
 
     Returns
     -------
@@ -288,10 +299,11 @@ def texture_plane(corners: NDArray, eo: ExteriorOrientations | None = None,
         if eo is None or cameras is None or loader is None or dsm is None:
             raise SkyrigError("texture_plane needs eo, cameras, loader and dsm, or a context")
         context = texturing_context(eo, cameras, loader, dsm, np.asarray(corners, float).reshape(4, 3))
-    return PlaneTexture(*_texture_plane(np.asarray(corners, float), context, cfg, normal))
+    return PlaneTexture(*_texture_plane(np.asarray(corners, float), context, cfg, normal, outline))
 
 
-def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: NDArray | None
+def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: NDArray | None,
+                   outline: NDArray | None = None
                    ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], float, tuple[str, ...], NDArray[np.int16], dict]:
     import cv2
 
@@ -315,6 +327,21 @@ def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: 
     jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
     P = corners[3] + (jj.reshape(-1, 1) * texel) * u - (ii.reshape(-1, 1) * texel) * v
     inside_plane = ((jj * texel <= w + 1e-9) & (ii * texel <= h + 1e-9)).reshape(-1)
+    if outline is not None:
+        import shapely
+
+        ol = np.asarray(outline, float).reshape(-1, 2)
+        if len(ol) < 3:
+            raise SkyrigError(f"a plane's outline needs at least 3 points, got {len(ol)}")
+        poly = shapely.Polygon(ol).buffer(1e-6)
+        # sloped edges (a gable's roof lines): a texel within one texel of one straddles the roof in the images
+        d = np.roll(ol, -1, axis=0) - ol
+        sloped = [shapely.LineString([ol[k], ol[k] + d[k]]) for k in range(len(ol))
+                  if abs(d[k, 0]) > 1e-6 and abs(d[k, 1]) > 1e-6]
+        if sloped:
+            poly = poly.difference(shapely.MultiLineString(sloped).buffer(texel))
+        inside_plane &= shapely.contains_xy(poly, (jj * texel).reshape(-1),
+                                            (corners[0, 2] + h - ii * texel).reshape(-1))
     rgb = np.zeros((H, W, 3), np.uint8)
     stats = {"texels": int(inside_plane.sum()), "valid": 0, "occluded_in_best": 0, "occluded_filled": 0,
              "candidates": len(cand)}
@@ -442,7 +469,9 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     -------
     One :class:`FacadeTexture` per façade (``valid`` all False where no image sees it), in the order of
     ``buildings`` and their footprint edges, leaving out the edges on the DSM's border of clipped buildings
-    (:attr:`~skyrig.dense.buildings.Facade.on_border`); ``stats`` holds the counts of :func:`texture_plane`.
+    (:attr:`~skyrig.dense.buildings.Facade.on_border`); ``stats`` holds the counts of :func:`texture_plane`.  With
+    ``to_roof`` (default) the façade of a wall under a gable end reaches up to the roof line
+    (:attr:`~skyrig.dense.buildings.Facade.outline`; texels above the roof line are not ``valid``).
 
     Raises
     ------
@@ -454,8 +483,9 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     cfg = replace(config or TextureConfig(), texel_m=texel_m, max_images=int(max_images))
     if cfg.max_images < 1:
         raise SkyrigError(f"max_images must be at least 1, got {max_images} (option: max_images)")
-    # the edges of a building cut by the DSM's border that run along that border are not walls: no texture
-    facades: list[Facade] = [f for b in buildings for f in b.facades() if not f.on_border]
+    # the edges of a building cut by the DSM's border that run along that border are not walls: no texture;
+    # a gable end's wall up to the roof line (one texture over the wall and its gable triangle)
+    facades: list[Facade] = [f for b in buildings for f in b.facades(to_roof=cfg.to_roof) if not f.on_border]
     if not facades:
         return []
     pts = np.concatenate([f.corners for f in facades])
@@ -469,11 +499,39 @@ def texture_facades(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations
     ctx = texturing_context(eo, cameras, loader, dsm, pts)
     out = []
     for i, f in enumerate(facades):
-        rgb, valid, texel, names, src, stats = _texture_plane(f.corners, ctx, cfg, f.normal)
+        cf = cfg
+        if f.outline is not None:
+            f, cf = _to_roof_on_eave_grid(f, ctx, cfg)
+        rgb, valid, texel, names, src, stats = _texture_plane(f.corners, ctx, cf, f.normal, f.outline)
         out.append(FacadeTexture(f, rgb, valid, texel, names, src, stats))
         if progress is not None:
             progress(i + 1, len(facades))
     return out
+
+
+def _to_roof_on_eave_grid(f: Facade, ctx: _Context, cfg: TextureConfig) -> tuple[Facade, TextureConfig]:
+    """A wall up to the roof line textured on the texel grid of the wall up to the eaves: the texel size that wall
+    gets and its rectangle's top raised above the apex to the eaves plus a whole number of texels, so that the
+    texels below the eaves are those of the plain wall (the gable adds rows, it does not move the wall's)."""
+    from dataclasses import replace
+
+    ol = np.asarray(f.outline, float)
+    L = f.width_m
+    ends = (np.abs(ol[:, 0]) < 1e-6) | (np.abs(ol[:, 0] - L) < 1e-6)
+    eave = float(ol[ends, 1].max())
+    c = np.array(f.corners, float)
+    if not eave < c[3, 2] - 1e-6:
+        return f, cfg
+    c_eave = c.copy()
+    c_eave[2:, 2] = eave
+    texel = cfg.texel_m
+    if texel is None:
+        cand = _candidates(ctx, c_eave, f.normal, cfg)
+        if not cand:
+            return f, cfg
+        texel = cand[0][1]
+    c[2:, 2] = eave + np.ceil((c[3, 2] - eave) / texel - 1e-6) * texel
+    return replace(f, corners=c), replace(cfg, texel_m=float(texel))
 
 
 # ------------------------------------------------------------------------------------------ wall refinement

@@ -25,7 +25,9 @@ down; pixel ``(row i, column j)`` covers ``[j, j + 1] / W`` x ``[i, i + 1] / H``
 (:class:`FacadeTexture` convention: row 0 at ``eave_z``, column 0 at the start corner, texel size ``texel_m``) a
 wall point at distance ``s`` from the start corner along the wall and height ``z`` gets
 ``u = s / (W texel_m)``, ``v = (eave_z - z) / (H texel_m)``, so its texel centre ``(j + 0.5, i + 0.5) texel_m``
-maps to pixel ``(i, j)``'s centre.  For a roof textured from an orthophoto, ``uv`` is the vertex' position in the
+maps to pixel ``(i, j)``'s centre.  A texture whose façade reaches up to the roof line (a gable end's wall,
+:attr:`Facade.outline`) has row 0 at its apex (``corners[3, 2]`` for ``eave_z``) and is drawn over the whole wall
+polygon: the gable triangle is then part of the textured wall, not a separate flat-coloured piece.  For a roof textured from an orthophoto, ``uv`` is the vertex' position in the
 cropped orthophoto (its CRS) divided by the crop's size.
 """
 
@@ -293,16 +295,31 @@ def _wall_part(f: Facade, tex: FacadeTexture | None, to_local: _ToLocal, eave_z:
         raise SkyrigError(f"façade {f.building}/{f.index}: empty texture or texel size {tex.texel_m}")
     d = (c[1] - c[0])[:2]
     length = float(np.linalg.norm(d))
-    s = (c[:, :2] - c[0, :2]) @ (d / length)  # along-wall distance of each corner (0, L, L, 0)
-    uv = np.column_stack([s / (w * tex.texel_m), (eave_z - c[:, 2]) / (h * tex.texel_m)])
+    t = d / length
+    top = eave_z
+    ol = tex.facade.outline
+    if ol is not None:
+        # the wall up to the roof line (a gable end): the outline polygon, row 0 of the texture at its apex
+        ol = np.asarray(ol, float)
+        top = float(tex.facade.corners[3, 2])
+        ring = np.column_stack([c[0, 0] + ol[:, 0] * t[0], c[0, 1] + ol[:, 0] * t[1], ol[:, 1]])
+        tris = triangulate_polygon(ol)  # counter-clockwise in (s, z) = seen from outside
+        pos = to_local(ring)
+        s, z = ol[:, 0], ol[:, 1]
+    else:
+        s = (c[:, :2] - c[0, :2]) @ t  # along-wall distance of each corner (0, L, L, 0)
+        z = c[:, 2]
+    uv = np.column_stack([s / (w * tex.texel_m), (top - z) / (h * tex.texel_m)])
     nrm = _flat_normal(pos, tris)
-    return MeshPart(f"wall {f.index}", "wall", pos, np.tile(nrm, (4, 1)), tris, uv, _fill_invalid(tex),
+    return MeshPart(f"wall {f.index}", "wall", pos, np.tile(nrm, (len(pos), 1)), tris, uv, _fill_invalid(tex),
                     (1.0, 1.0, 1.0), (f.building, f.index))
 
 
-def _gable_parts(b: BuildingBlock, to_local: _ToLocal, colours: dict[int, tuple[float, float, float]]) -> list[MeshPart]:
-    """Wall pieces above the eaves (gable ends): for each footprint edge, the roof vertices above ``eave_z`` that
-    lie in the edge's vertical plane close the wall up to the roof."""
+def _gable_parts(b: BuildingBlock, to_local: _ToLocal, colours: dict[int, tuple[float, float, float]],
+                 skip: frozenset[int] = frozenset()) -> list[MeshPart]:
+    """Wall pieces above the eaves (gable ends): for each footprint edge (but those in ``skip``: walls already
+    drawn up to the roof line), the roof vertices above ``eave_z`` that lie in the edge's vertical plane close the
+    wall up to the roof."""
     if not b.roof:
         return []
     roof_pts = np.vstack([np.asarray(r, float) for r in b.roof])
@@ -312,6 +329,8 @@ def _gable_parts(b: BuildingBlock, to_local: _ToLocal, colours: dict[int, tuple[
     out = []
     fp = np.asarray(b.footprint, float)
     for i in range(len(fp)):
+        if i in skip:
+            continue
         a, e = fp[i], fp[(i + 1) % len(fp)]
         d = e - a
         length = float(np.linalg.norm(d))
@@ -446,15 +465,31 @@ def build_model(buildings: Sequence[BuildingBlock], textures: Sequence[FacadeTex
     for b in buildings:
         parts: list[MeshPart] = []
         wall_colour: dict[int, tuple[float, float, float]] = {}
+        to_roof: set[int] = set()
+        roof_walls = {g.index: g for g in b.facades(to_roof=True) if g.outline is not None}
         for f in b.facades():
             tex = by_facade.get((b.id, f.index))
-            if tex is not None and (len(tex.facade.corners) != 4 or not np.allclose(tex.facade.corners, f.corners, atol=1e-6)):
-                raise SkyrigError(f"façade texture {b.id}/{f.index} was made for another wall (corners differ)")
+            if tex is not None:
+                # a texture of the wall to the eaves, or of the wall up to the roof line (a gable end's: its
+                # rectangle's top at or above the apex, its outline the wall's)
+                tc = np.asarray(tex.facade.corners, float)
+                if tex.facade.outline is None:
+                    same = tc.shape == (4, 3) and np.allclose(tc, f.corners, atol=1e-6)
+                else:
+                    ref = roof_walls.get(f.index)
+                    same = (ref is not None and tc.shape == (4, 3) and np.allclose(tc[:2], f.corners[:2], atol=1e-6)
+                            and np.allclose(tc[2:, :2], f.corners[2:, :2], atol=1e-6)
+                            and tc[3, 2] >= ref.corners[3, 2] - 1e-6
+                            and np.shape(tex.facade.outline) == np.shape(ref.outline)
+                            and np.allclose(tex.facade.outline, ref.outline, atol=1e-6))
+                    to_roof.add(f.index)
+                if not same:
+                    raise SkyrigError(f"façade texture {b.id}/{f.index} was made for another wall (corners differ)")
             part = _wall_part(f, tex, to_local, b.eave_z)
             parts.append(part)
             wall_colour[f.index] = (tuple(float(v) for v in srgb_to_linear(part.image.reshape(-1, 3).mean(axis=0) / 255.0))
                                     if part.image is not None else DEFAULT_WALL_RGB)
-        parts.extend(_gable_parts(b, to_local, wall_colour))
+        parts.extend(_gable_parts(b, to_local, wall_colour, frozenset(to_roof)))
         parts.append(_roof_part(b, to_local, ortho, roof_rgb, frame))
         meshes.append(BuildingMesh(int(b.id), tuple(parts), b.source))
     origin_src = loc.points_to(np.zeros((1, 3)), frame)[0]

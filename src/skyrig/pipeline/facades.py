@@ -157,6 +157,11 @@ def read_ortho_raster(path: str | Path, frame: WorldFrame | None = None) -> Orth
     return OrthoRaster(np.ascontiguousarray(rgb), float(t.c), float(t.f), float(t.a), f, valid)
 
 
+def _coverage(t: FacadeTexture) -> float:
+    """Fraction of a façade's texels (those inside its outline: a gable end's wall up to its roof line) coloured."""
+    return round(float(np.sum(t.valid)) / max(int(t.stats.get("texels", t.valid.size)), 1), 4)
+
+
 def _write_png(path: Path, rgb: np.ndarray, alpha: np.ndarray | None = None) -> None:
     import cv2
 
@@ -302,7 +307,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         per_facade.append({"building": int(f.building), "edge": int(f.index), "clipped": f.building in clipped, "file": f"facades/b{f.building}_f{f.index}.png",
                            "width_m": round(f.width_m, 3), "height_m": round(f.height_m, 3),
                            "texel_m": round(float(t.texel_m), 4), "size_px": [int(t.rgb.shape[1]), int(t.rgb.shape[0])],
-                           "images": list(t.images), "coverage": round(float(np.mean(t.valid)), 4),
+                           "images": list(t.images), "coverage": _coverage(t),
                            "stats": json.loads(json.dumps(t.stats, default=str))})
     cov = np.array([p["coverage"] for p in per_facade]) if per_facade else np.zeros(0)
     summary = {

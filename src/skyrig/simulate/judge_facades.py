@@ -207,7 +207,7 @@ def rule_texture(scene: Scene, texture: FacadeTexture, frame: WorldFrame, supers
     wall, where the rule gives its colour (times the renderer's Lambertian shading of that wall).
 
     Returns ``rgb (H, W, 3)`` float in [0, 1], ``on_wall (H, W)`` (texel centre inside the true wall, above the
-    terrain), the ``(H, W, 2)`` rule coordinates ``(u, z)`` of the texel centres, the building and the face
+    terrain; a gabled house's end wall reaches up to its roof line), the ``(H, W, 2)`` rule coordinates ``(u, z)`` of the texel centres, the building and the face
     (-1, -1 if none)."""
     f = texture.facade
     H, W = texture.valid.shape
@@ -241,7 +241,10 @@ def rule_texture(scene: Scene, texture: FacadeTexture, frame: WorldFrame, supers
 
     _, Pp, ur = at(0.0, 0.0)
     s_ = (Pp - np.array([bl.cx[b], bl.cy[b], 0.0])) @ along
-    on = (np.abs(s_) <= half) & (Pp[:, 2] >= scene.terrain_height(Pp[:, 0], Pp[:, 1])) & (Pp[:, 2] <= bl.eave_z[b])
+    top = np.full(len(Pp), bl.eave_z[b])
+    if bl.gabled[b] and face < 2:  # a gable end (ridge along the building's axis): the wall reaches the roof line
+        top = top + (bl.ridge_z[b] - bl.eave_z[b]) * np.clip(1.0 - np.abs(s_) / half, 0.0, 1.0)
+    on = (np.abs(s_) <= half) & (Pp[:, 2] >= scene.terrain_height(Pp[:, 0], Pp[:, 1])) & (Pp[:, 2] <= top)
     uz = np.stack([ur, Pp[:, 2]], -1).reshape(H, W, 2)
     k = max(int(supersample), 1)
     offs = (np.arange(k) + 0.5) / k - 0.5
