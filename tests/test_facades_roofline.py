@@ -40,7 +40,7 @@ def survey():
     return build_survey(scenario_spec("midas-dsm", "ci", 1))
 
 
-def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey):
+def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey, tmp_path):
     """The end wall of a gabled house seen by an oblique: one texture up to the roof line whose texels above the
     eaves lie on the true wall (none above the true roof line), whose rows below the eaves are those of the wall
     textured to the eaves only, and whose windows - more of them judgeable than on the wall cut at the eaves - are
@@ -96,6 +96,11 @@ def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey):
     assert len(wall.positions) == len(t.facade.outline) == 5 and wall.image is not None
     assert wall.uv.min() >= -1e-9 and wall.uv.max() <= 1 + 1e-9
     assert f"gable {t.facade.index}" not in parts
+    from skyrig.io.gltf import glb_problems, write_glb, write_obj
+
+    write_glb(tmp_path / "m.glb", model)
+    write_obj(tmp_path / "m.obj", model)
+    assert glb_problems(tmp_path / "m.glb") == []
 
 
 def test_clipped_buildings_keep_the_direction_of_their_real_walls(survey):
