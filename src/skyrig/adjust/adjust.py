@@ -317,14 +317,15 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
         _check_free_datum(model, state, S)
         return
     try:
-        solve_reduced(S, rhs)
         d = S.diagonal()
-        if np.all(d > 0):
-            r = np.random.default_rng(0).standard_normal(lay.n_c) / np.sqrt(d)
-            x = solve_reduced(S, S @ r)
-            err = np.linalg.norm((x - r) * np.sqrt(d)) / np.linalg.norm(r * np.sqrt(d))
-            if not err < 1e-5:
-                raise SingularError(f"numerically singular (round trip error {err:.1e})")
+        if not np.all(d > 0):
+            solve_reduced(S, rhs)  # raises (names the unknowns without observations)
+        # one factorisation: the round trip S x = S r (the right-hand side itself is not needed here)
+        r = np.random.default_rng(0).standard_normal(lay.n_c) / np.sqrt(d)
+        x = solve_reduced(S, S @ r)
+        err = np.linalg.norm((x - r) * np.sqrt(d)) / np.linalg.norm(r * np.sqrt(d))
+        if not err < 1e-5:
+            raise SingularError(f"numerically singular (round trip error {err:.1e})")
     except SingularError as e:
         reasons = describe_null_space(model, state)
         raise DatumDefectError(reasons or [f"the reduced normal matrix is {e}"]) from None

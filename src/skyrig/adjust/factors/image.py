@@ -110,6 +110,25 @@ class ImageCache:
     bal_rows: NDArray[np.int64]
     #: columns of the compiled BAL path's rows (fixed for the model: set on first use)
     bal_cols: NDArray[np.int64] | None = None
+    #: columns of the numpy path's rows and the point of each row (fixed for the model: set on first use,
+    #: shared by the factors of every state)
+    frame_cols: NDArray[np.int64] | None = None
+    frame_point: NDArray[np.int64] | None = None
+
+
+#: rows per chunk of the camera-frame points (no (N, 3, 3) gather of the rotations)
+_CHUNK = 1 << 16
+
+
+def _camera_frame(Rc: NDArray[np.float64], Cc: NDArray[np.float64], X: NDArray[np.float64],
+                  oi: NDArray[np.int64], op: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``pc[o] = Rc[oi[o]]^T (X[op[o]] - Cc[oi[o]])`` in chunks of rows."""
+    n = len(oi)
+    pc = np.empty((n, 3))
+    for a in range(0, n, _CHUNK):
+        o = oi[a:a + _CHUNK]
+        pc[a:a + _CHUNK] = np.einsum("nji,nj->ni", Rc[o], X[op[a:a + _CHUNK]] - Cc[o])
+    return pc
 
 
 class Image(ObservationType):
@@ -219,22 +238,23 @@ class Image(ObservationType):
         n = b.n_observations
         Rc, Cc, M = model.camera_poses(s)
         oi = b.obs_image
-        X = s.X[b.obs_point]
-        Ro = Rc[oi]
-        pc = np.einsum("nji,nj->ni", Ro, X - Cc[oi])
+        pc = _camera_frame(Rc, Cc, s.X, oi, b.obs_point)
         pred = np.empty((n, 2))
         d_pc = np.empty((n, 2, 3)) if jac else None
         mmax = model._icols.shape[1]
         d_in = np.zeros((n, 2, mmax)) if (jac and model._intr_on) else None
         cams = model.cameras(s)
-        for c, idx in ic.frame_groups:
+        for c, rows in ic.frame_groups:
             cam: FrameCamera = cams[c]
-            px, dpc, din = project_camera_with_jacobians(cam, pc[idx])
-            pred[idx] = px
-            if jac:
-                d_pc[idx] = dpc  # type: ignore[index]
-                if d_in is not None:
-                    d_in[idx, :, : din.shape[2]] = din
+            for a in range(0, len(rows), _CHUNK):  # in chunks: the projection's temporaries stay small
+                idx = rows[a:a + _CHUNK]
+                px, dpc, din = project_camera_with_jacobians(cam, pc[idx])
+                pred[idx] = px
+                if jac:
+                    d_pc[idx] = dpc  # type: ignore[index]
+                    if d_in is not None:
+                        d_in[idx, :, : din.shape[2]] = din
+                del px, dpc, din
         if ic.bal_rows.size:
             idx = ic.bal_rows
             intr = np.array([v for v in s.intr])[ic.obs_cam[idx]] if len(s.intr) else np.zeros((0, 3))
@@ -259,78 +279,105 @@ class Image(ObservationType):
         if not jac:
             return f
         isig = (1.0 / sig)[:, :, None]
-
-        def wh(J: NDArray[np.float64]) -> NDArray[np.float64]:
-            return J * isig if Wm is None else Wm @ J
-
-        dpc = wh(d_pc)  # type: ignore[arg-type]
-        dpc[bad] = 0.0
+        if Wm is None:  # whitened in place (same values as J * isig)
+            d_pc *= isig  # type: ignore[operator]
+            dpc = d_pc
+        else:
+            dpc = Wm @ d_pc
+        del d_pc
+        dpc[bad] = 0.0  # type: ignore[index]
         if d_in is not None:
             d_in[bad] = 0.0  # (a point in the camera plane: NaN derivatives would poison the normals)
-        chain = None
+        st = b.image_station[oi]
+        pose_on = bool((lay.pose >= 0).any())
+        bore_on = bool(model._bore_on)
+        # the Jacobian's column blocks, written into one preallocated (N, 2, k) array (no concatenation)
+        widths = []
+        if pose_on:
+            widths.append(("pose", 6))
+        if bore_on:
+            widths.append(("bore", 3))
+        if d_in is not None:
+            widths.append(("intr", d_in.shape[2]))
+        if model._act_on:
+            widths.append(("act", model._act_width))
+        red = ic.red_cols is not None and ic.red_cols.shape[1] > 0
+        if red:
+            widths.append(("red", ic.red_cols.shape[1]))  # type: ignore[union-attr]
+        offs: dict[str, slice] = {}
+        o0 = 0
+        for name, wdt in widths:
+            offs[name] = slice(o0, o0 + wdt)
+            o0 += wdt
+        jc = np.empty((n, dpc.shape[1], o0)) if o0 else None
         if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
-            chain = (np.empty((n, 2, 3)), np.empty((n, 2, 6)), np.empty((n, 2, 3)))
+            jX = np.empty((n, 2, 3))
+            jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))  # type: ignore[index]
+            jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))  # type: ignore[index]
             off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
             chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
-                          np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
-                          bool(np.any(off_i)), *chain)
-            jX = chain[0]
+                         np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
+                         bool(np.any(off_i)), jX, jpose, jthc)
         else:
-            RoT = np.swapaxes(Ro, 1, 2)
-            jX = dpc @ RoT
-        blocks = []
-        colblocks = []
-        st = b.image_station[oi]
-        if (lay.pose >= 0).any() and chain is not None:
-            jth_cam, jpose = chain[2], chain[1]
-            blocks.append(jpose)
-            colblocks.append(lay.pose[st])
-            if model._bore_on:
-                blocks.append(jth_cam)
-                colblocks.append(lay.bore[b.image_head[oi]])
-        elif (lay.pose >= 0).any():
-            jth_cam = dpc @ skew(pc)
-            Mo = M[oi]
-            jpose = np.empty((n, 2, 6))
-            jpose[:, :, :3] = -jX
-            off = b.image_offset[oi]
-            jth = jth_cam @ np.swapaxes(Mo, 1, 2)
-            if np.any(b.image_offset):
-                jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
-            jpose[:, :, 3:] = jth
-            blocks.append(jpose)
-            colblocks.append(lay.pose[st])
-            if model._bore_on:
-                blocks.append(jth_cam)
-                colblocks.append(lay.bore[b.image_head[oi]])
-        elif model._bore_on:
-            blocks.append(dpc @ skew(pc) if chain is None else chain[2])
-            colblocks.append(lay.bore[b.image_head[oi]])
+            Ro = Rc[oi]
+            jX = dpc @ np.swapaxes(Ro, 1, 2)
+            del Ro
+            if pose_on:
+                jth_cam = dpc @ skew(pc)
+                jpose = jc[:, :, offs["pose"]]  # type: ignore[index]
+                jpose[:, :, :3] = -jX
+                off = b.image_offset[oi]
+                jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
+                if np.any(b.image_offset):
+                    jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
+                jpose[:, :, 3:] = jth
+                if bore_on:
+                    jc[:, :, offs["bore"]] = jth_cam  # type: ignore[index]
+            elif bore_on:
+                jc[:, :, offs["bore"]] = dpc @ skew(pc)  # type: ignore[index]
         if d_in is not None:
-            blocks.append(wh(d_in))
-            colblocks.append(model._icols[ic.obs_cam])
+            if Wm is None:
+                np.multiply(d_in, isig, out=jc[:, :, offs["intr"]])  # type: ignore[index]
+            else:
+                jc[:, :, offs["intr"]] = Wm @ d_in  # type: ignore[index]
+            del d_in
         if model._act_on:
             _, D = model.actuated_mounts(s, True)
             ia = model._img2act[oi]
             rows = np.flatnonzero(ia >= 0)
-            ext = np.zeros((n, 2, model._act_width))
+            ext = jc[:, :, offs["act"]]  # type: ignore[index]
+            ext[...] = 0.0
             Rb = _expmap(s.bore[b.image_head[oi[rows]]])
             ext[rows] = (dpc[rows] @ skew(pc[rows])) @ np.swapaxes(Rb, 1, 2) @ D[ia[rows]]  # type: ignore[index]
-            cols = np.full((n, model._act_width), -1, np.int64)
-            cols[rows] = model.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
-            blocks.append(ext)
-            colblocks.append(cols)
-        if ic.red_cols is not None and ic.red_cols.shape[1]:
-            ext = np.zeros((n, 2, ic.red_cols.shape[1]))
+        if red:
+            ext = jc[:, :, offs["red"]]  # type: ignore[index]
+            ext[...] = 0.0
             rows = ic.red_rows
             ext[rows[:, None, None], np.arange(2)[None, :, None], ic.red_idx[:, None, :]] = jX[rows]  # type: ignore[index]
-            blocks.append(ext)
-            colblocks.append(ic.red_cols)
-        if blocks:
-            f.jc = np.concatenate(blocks, axis=2)
-            f.cols = np.concatenate(colblocks, axis=1)
+        if jc is not None:
+            f.jc = jc
+            if ic.frame_cols is None:  # the columns depend on the layout only
+                colblocks = []
+                if pose_on:
+                    colblocks.append(lay.pose[st])
+                if bore_on:
+                    colblocks.append(lay.bore[b.image_head[oi]])
+                if "intr" in offs:
+                    colblocks.append(model._icols[ic.obs_cam])
+                if model._act_on:
+                    cols = np.full((n, model._act_width), -1, np.int64)
+                    ia = model._img2act[oi]
+                    rows = np.flatnonzero(ia >= 0)
+                    cols[rows] = model.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
+                    colblocks.append(cols)
+                if red:
+                    colblocks.append(ic.red_cols)
+                ic.frame_cols = np.concatenate(colblocks, axis=1)
+            f.cols = ic.frame_cols
         if lay.n_p:
-            f.point = lay.point[b.obs_point]
+            if ic.frame_point is None:
+                ic.frame_point = lay.point[b.obs_point]
+            f.point = ic.frame_point
             f.jp = jX
         return f
 
