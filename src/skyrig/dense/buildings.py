@@ -500,9 +500,11 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
                 beyond = _beyond_survey(meas, cell, cfg.survey_gap_m)
             bw = np.pad(beyond, 3, constant_values=True)[r0:r1 + 6, c0:c1 + 6]
             if (ndimage.binary_dilation(np.pad(comp, 3), iterations=3) & bw).any():
-                # cut by the border: a rectangle reaching beyond it is clipped there; a polygon is replaced by the
-                # rectangle of its real walls, clipped (a wall merely next to the border stays as it is)
-                got_c = None if is_rect else _clipped_rectangle(comp, grid, r0, c0, beyond, cfg, mw)
+                # cut by the border: a polygon, or a rectangle reaching beyond it, is replaced by the rectangle of
+                # its real walls (oriented by them alone: the cut is no wall), clipped there; failing that a
+                # rectangle reaching beyond is clipped as it is (a wall merely next to the border stays as it is)
+                cut_rect = is_rect and _beyond_fraction(foot, grid, beyond) > 0.03
+                got_c = _clipped_rectangle(comp, grid, r0, c0, beyond, cfg, mw) if cut_rect or not is_rect else None
                 if got_c is not None:
                     foot, rect = got_c
                     is_rect = False
