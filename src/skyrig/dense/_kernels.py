@@ -431,3 +431,87 @@ def check_disparities(d16, e16, valid_left, valid_right, tol, shift, full):  # p
                 continue
             out[r, c] = d + np.float32(shift)
     return out
+
+
+@numba.njit(cache=True)
+def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
+    """|z component| of the unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (closed-form
+    eigenvalue, the eigenvector as the longest cross product of two rows of ``A - lambda I``); NaN if undefined."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
+    if p2 <= 0.0:
+        return np.nan
+    p = np.sqrt(p2 / 6.0)
+    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    r = min(1.0, max(-1.0, r))
+    lam = q + 2.0 * p * np.cos(np.arccos(r) / 3.0 + 2.0 * np.pi / 3.0)
+    r0 = (a00 - lam, a01, a02)
+    r1 = (a01, a11 - lam, a12)
+    r2 = (a02, a12, a22 - lam)
+    best = -1.0
+    vz = np.nan
+    for s in range(3):
+        u = r0 if s < 2 else r1
+        w = r1 if s == 0 else r2
+        cx = u[1] * w[2] - u[2] * w[1]
+        cy = u[2] * w[0] - u[0] * w[2]
+        cz = u[0] * w[1] - u[1] * w[0]
+        nn = cx * cx + cy * cy + cz * cz
+        if nn > best:
+            best = nn
+            vz = abs(cz) / np.sqrt(nn) if nn > 0 else np.nan
+    return vz
+
+
+@numba.njit(cache=True)
+def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count):  # pragma: no cover - compiled
+    """For the pixels ``(rows, cols)`` of a block's disparities: the |vertical component| of the normal of the
+    best-fitting plane (smallest principal axis) through the world points of the matched pixels in the
+    ``(2 half + 1)^2`` window around each (NaN with fewer than ``min_count`` of them).  World frame of ``R``
+    (``world_from_rect``), z up; the points relative to the left centre."""
+    H, W = disp.shape
+    fb = f * B
+    X = np.empty((H, W))
+    Y = np.empty((H, W))
+    Z = np.empty((H, W))
+    ok = np.zeros((H, W), np.bool_)
+    for r in range(H):
+        for c in range(W):
+            d = disp[r, c]
+            if d > 0:
+                D = fb / d
+                px, py, pz = (u0 + c) * D / f, -(v0 + r) * D / f, -D
+                X[r, c] = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz
+                Y[r, c] = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz
+                Z[r, c] = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
+                ok[r, c] = True
+    out = np.empty(rows.shape[0])
+    for k in range(rows.shape[0]):
+        r0, c0 = rows[k], cols[k]
+        n = 0
+        x0, y0, z0 = X[r0, c0], Y[r0, c0], Z[r0, c0]
+        sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+        for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
+            for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
+                if ok[r, c]:
+                    x, y, z = X[r, c] - x0, Y[r, c] - y0, Z[r, c] - z0
+                    n += 1
+                    sx += x
+                    sy += y
+                    sz += z
+                    sxx += x * x
+                    sxy += x * y
+                    sxz += x * z
+                    syy += y * y
+                    syz += y * z
+                    szz += z * z
+        if n < min_count:
+            out[k] = np.nan
+            continue
+        mx, my, mz = sx / n, sy / n, sz / n
+        out[k] = _smallest_eigvec_z(sxx / n - mx * mx, sxy / n - mx * my, sxz / n - mx * mz, syy / n - my * my,
+                                    syz / n - my * mz, szz / n - mz * mz)
+    return out
