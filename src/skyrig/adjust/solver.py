@@ -221,10 +221,12 @@ def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layou
         uptr[1:] = np.cumsum(np.bincount(group, minlength=n_img))
         pt = np.ascontiguousarray(f.point, np.int64) if (f.point is not None and n_p) else np.full(n, -1, np.int64)
         jp0 = np.ascontiguousarray(f.jp) if (f.jp is not None and n_p) else np.zeros((n, d, 3))
-        Wobs = np.empty((n, k, 3))
+        Wt = np.empty((n, 3, k))  # the kernel writes W transposed (its Schur layout)
         Ub3 = Ub.reshape(n_img, k, k)
         _K["unit_normals"](uptr, uo, np.ascontiguousarray(f.jc), jp0, np.ascontiguousarray(f.r),
-                           np.ascontiguousarray(sw * sw), pt, Ub3, gb, Wobs, np.arange(n, dtype=np.int64))
+                           np.ascontiguousarray(sw * sw), pt, Ub3, gb, Wt, np.arange(n, dtype=np.int64))
+        Wobs = np.ascontiguousarray(np.swapaxes(Wt, 1, 2))
+        del Wt
     for s0 in range(0, n if Wobs is None else 0, chunk):
         sl = slice(s0, s0 + chunk)
         jtj = np.einsum("nda,ndb->nab", jc[sl], jc[sl]).reshape(-1, k * k)
@@ -462,7 +464,8 @@ def _make_kernels():  # type: ignore[no-untyped-def]
 
     @njit(cache=True, nogil=True, parallel=True)
     def unit_normals(unit_ptr, unit_obs, jc, jp, r, w, pt, Uu, gu, W, wpos):  # pragma: no cover - compiled
-        # W[wpos[o]]: the k x 3 block of row o (W kept once, in the order the Schur product reads it)
+        # W[wpos[o]]: the k x 3 block of row o, stored transposed (3, k) so that the Schur product's inner
+        # loop runs over contiguous memory (W kept once, in the order the Schur product reads it)
         d = jc.shape[1]
         k = jc.shape[2]
         n_u = len(unit_ptr) - 1
@@ -485,7 +488,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                             s = 0.0
                             for e in range(d):
                                 s += jc[o, e, a] * jp[o, e, b]
-                            W[wpos[o], a, b] = wo * s
+                            W[wpos[o], b, a] = wo * s
             for a in range(k):
                 for b in range(a):
                     Uu[u, a, b] = Uu[u, b, a]
@@ -526,7 +529,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
         # Wp, upt: W blocks and units of the rows in point order (pt_obs), read sequentially per point;
         # wpos: the position of a row in that order
         n_u = len(unit_ptr) - 1
-        k = Wp.shape[1]
+        k = Wp.shape[2]
         # each chunk (thread) takes every n_chunks-th unit row (balance) and keeps a dense column -> slot
         # map of the row it works on
         for c in prange(n_chunks):
@@ -545,7 +548,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                     wa = wpos[a]
                     for i in range(k):
                         for cc in range(3):
-                            T[i, cc] = Wp[wa, i, 0] * Vinv[p, 0, cc] + Wp[wa, i, 1] * Vinv[p, 1, cc] + Wp[wa, i, 2] * Vinv[p, 2, cc]
+                            T[i, cc] = Wp[wa, 0, i] * Vinv[p, 0, cc] + Wp[wa, 1, i] * Vinv[p, 1, cc] + Wp[wa, 2, i] * Vinv[p, 2, cc]
                         rhs_u[u, i] += T[i, 0] * gp[p, 0] + T[i, 1] * gp[p, 1] + T[i, 2] * gp[p, 2]
                     for jj in range(pt_ptr[p], pt_ptr[p + 1]):
                         ub = upt[jj]
@@ -557,7 +560,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                             t1 = T[i, 1]
                             t2 = T[i, 2]
                             for j in range(k):
-                                out[q, i, j] -= t0 * Wp[jj, j, 0] + t1 * Wp[jj, j, 1] + t2 * Wp[jj, j, 2]
+                                out[q, i, j] -= t0 * Wp[jj, 0, j] + t1 * Wp[jj, 1, j] + t2 * Wp[jj, 2, j]
                 for q in range(r0, r1):
                     slot[col_idx[q]] = -1
 
@@ -574,7 +577,7 @@ def _make_kernels():  # type: ignore[no-untyped-def]
     @njit(cache=True, nogil=True, parallel=True)
     def back_substitute(pt_ptr, upt, Wp, dcu, Vinv, gp, dp):  # pragma: no cover - compiled
         n_p = len(pt_ptr) - 1
-        k = Wp.shape[1]
+        k = Wp.shape[2]
         for p in prange(n_p):
             t0 = gp[p, 0]
             t1 = gp[p, 1]
@@ -583,9 +586,9 @@ def _make_kernels():  # type: ignore[no-untyped-def]
                 u = upt[jj]
                 for i in range(k):
                     x = dcu[u, i]
-                    t0 += Wp[jj, i, 0] * x
-                    t1 += Wp[jj, i, 1] * x
-                    t2 += Wp[jj, i, 2] * x
+                    t0 += Wp[jj, 0, i] * x
+                    t1 += Wp[jj, 1, i] * x
+                    t2 += Wp[jj, 2, i] * x
             for c in range(3):
                 dp[p, c] = -(Vinv[p, c, 0] * t0 + Vinv[p, c, 1] * t1 + Vinv[p, c, 2] * t2)
 
@@ -760,7 +763,7 @@ class SchurEngine:
         V = np.zeros((n_p, 3, 3))
         gp = np.zeros((n_p, 3))
         if not hasattr(self, "Wp"):
-            self.Wp = np.zeros((0, k, 3))
+            self.Wp = np.zeros((0, 3, k))
         oth = dict(self.others)
         for i, f in enumerate(factors):
             sw, c = _robust(f, huber_k)
@@ -777,8 +780,8 @@ class SchurEngine:
                 jc = np.ascontiguousarray(f.jc)
                 Uu = np.zeros((self.n_u, k, k))
                 gu = np.zeros((self.n_u, k))
-                if self.Wp.shape != (len(self.pt_obs), k, 3):  # kept between linearisations: written in full
-                    self.Wp = np.empty((len(self.pt_obs), k, 3))  # point order: the Schur product reads them so
+                if self.Wp.shape != (len(self.pt_obs), 3, k):  # kept between linearisations: written in full
+                    self.Wp = np.empty((len(self.pt_obs), 3, k))  # point order: the Schur product reads them so
                 _K["unit_normals"](self.unit_ptr, self.unit_obs, jc, jp if jp is not None else np.zeros((len(f), r.shape[1], 3)),
                                    r, w, self.pt, Uu, gu, self.Wp, self.wpos)
                 m = self._diag_map
@@ -836,7 +839,7 @@ class SchurEngine:
         if n_p:
             dcu = np.where(self.ucols >= 0, np.concatenate([dc, [0.0]])[self.ucols], 0.0) if self.k else \
                 np.zeros((self.n_u, 0))
-            Wp = self.Wp if len(self.Wp) else np.zeros((0, self.k, 3))
+            Wp = self.Wp if len(self.Wp) else np.zeros((0, 3, self.k))
             _K["back_substitute"](self.pt_ptr, self.upt, Wp, np.ascontiguousarray(dcu), Vinv, self.gp, dp)
         pred = _predicted_decrease(lam, self.diagU, self.V, self.gc, self.gp, dc, dp, self.diag_min)
         if self._rs is not None and self._rs.method == "pcg" and n_c:
