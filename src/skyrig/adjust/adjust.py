@@ -272,8 +272,9 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
 
 
 def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
-    """``(S (CSR), rhs)`` of the undamped reduced system at ``state``: the compiled Schur engine (no scipy
-    BSR products), else / on a singular point block the reference path (whose error names the points)."""
+    """``(S (CSR), rhs, engine)`` of the undamped reduced system at ``state``: the compiled Schur engine (no
+    scipy BSR products; returned, linearised at ``state``, for the solver to start from), else / on a
+    singular point block the reference path (whose error names the points; engine None)."""
     from skyrig.adjust import solver as _solver
 
     factors = model.evaluate(state)
@@ -283,16 +284,19 @@ def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
         eng.linearize(factors)
         try:
             vals, rhs, _ = eng.reduced_system(0.0)
-            return sp.csr_matrix((vals, eng.indices, eng.indptr), shape=(lay.n_c, lay.n_c)), rhs
+            return sp.csr_matrix((vals, eng.indices, eng.indptr), shape=(lay.n_c, lay.n_c)), rhs, eng
         except SingularError:
             pass
         del eng
     S, rhs, _ = schur_matrix(assemble(factors, lay, model.block.obs_image), 0.0)
-    return S, rhs
+    return S, rhs, None
 
 
-def check_datum(model: Model, state: State, free_datum: bool) -> None:
+def check_datum(model: Model, state: State, free_datum: bool):  # type: ignore[no-untyped-def]
     """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular.
+
+    Returns the compiled Schur engine linearised at ``state`` (without robust weights), for
+    :func:`~skyrig.adjust.solver.levenberg_marquardt` to start from (``engine_at_start``), or None.
 
     A Cholesky factorisation can succeed on an exactly singular matrix by round-off; so the factor is
     also checked on a random vector: ``S x = S r`` must give back ``x = r`` (a null space direction
@@ -300,9 +304,9 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
     """
     lay = model.layout
     if lay.n_c == 0:
-        return
+        return None
     try:
-        S, rhs = _reduced_at(model, state)
+        S, rhs, eng = _reduced_at(model, state)
     except SingularError as e:
         b = model.block
         pts = np.flatnonzero(lay.point >= 0)[getattr(e, "points", np.zeros(0, np.int64))]
@@ -315,7 +319,7 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
         raise DatumDefectError(reasons or [str(e)]) from None
     if free_datum:
         _check_free_datum(model, state, S)
-        return
+        return eng
     try:
         d = S.diagonal()
         if not np.all(d > 0):
@@ -327,8 +331,10 @@ def check_datum(model: Model, state: State, free_datum: bool) -> None:
         if not err < 1e-5:
             raise SingularError(f"numerically singular (round trip error {err:.1e})")
     except SingularError as e:
+        eng = None
         reasons = describe_null_space(model, state)
         raise DatumDefectError(reasons or [f"the reduced normal matrix is {e}"]) from None
+    return eng
 
 
 def adjust(block: Block, config: AdjustConfig | None = None,
@@ -372,8 +378,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
                               + "; ".join(r.label for r in rejected[:5]) + (" ..." if len(rejected) > 5 else ""))
         for w in start_warnings:
             logger.warning(w)
-    if cfg.datum != "none":
-        check_datum(model, state, free)
+    # the datum check's engine, linearised at the start: the solver's first linearisation
+    eng0 = check_datum(model, state, free) if cfg.datum != "none" else None
     opt = cfg.solver_options  # the optimiser's part of the configuration
     huber = opt.robust_k if opt.robust == "huber" else None
     crit = critical_value(cfg.snooping_alpha)
@@ -386,7 +392,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         cb = None if callback is None else (lambda i, c, lam, _s=stage: callback(_s, i, c))
         state, info = levenberg_marquardt(
             model, state, opt.max_iterations, opt.function_tolerance, opt.parameter_tolerance,
-            opt.gradient_tolerance, huber, free, cb)
+            opt.gradient_tolerance, huber, free, cb, engine_at_start=eng0)
+        eng0 = None
         if first:
             total_info = info
             first = False

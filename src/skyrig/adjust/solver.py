@@ -676,8 +676,7 @@ class SchurEngine:
                  diag_min: float = 1e-6, dense_limit: int = 1500, linear_solver: str = "auto") -> None:
         if _K is None:  # pragma: no cover
             raise RuntimeError("SchurEngine needs numba")
-        if linear_solver not in ("auto", "dense", "splu", "cholmod", "cholespy", "pcg"):
-            raise ValueError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
+        self._check_solver(linear_solver)
         self._rs: _linalg.ReducedSolver | None = None
         #: PCG's relative residual (Ceres's eta)
         self.eta = 0.1
@@ -752,6 +751,11 @@ class SchurEngine:
         self._diag_map = pos(np.broadcast_to(ucols[:, :, None], (n_u, k, k)).reshape(-1),
                              np.broadcast_to(ucols[:, None, :], (n_u, k, k)).reshape(-1)) if has_jc \
             else np.zeros(0, np.int64)
+
+    @staticmethod
+    def _check_solver(linear_solver: str) -> None:
+        if linear_solver not in ("auto", "dense", "splu", "cholmod", "cholespy", "pcg"):
+            raise ValueError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
 
     # ------------------------------------------------------------------ per linearisation
     def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
@@ -955,6 +959,7 @@ def levenberg_marquardt(
     initial_radius: float = 1e4,
     engine: str = "auto",
     linear_solver: str | None = None,
+    engine_at_start: "SchurEngine | None" = None,
 ) -> tuple[State, SolveInfo]:
     """Minimise ``0.5 * sum(rho(|r|^2))`` over the model's unknowns starting from ``state``.
 
@@ -968,6 +973,9 @@ def levenberg_marquardt(
     matrix reference path) or ``"auto"`` (numba when installed).  ``linear_solver``: the numba engine's
     reduced solver (``"auto"``, ``"dense"``, ``"cholmod"``, ``"splu"``, ``"pcg"``...; default
     :data:`LINEAR_SOLVER`), dense below :data:`ENGINE_DENSE_LIMIT` unknowns when ``"auto"``.
+    ``engine_at_start``: a :class:`SchurEngine` of this model already linearised at ``state`` without
+    robust weights (:func:`skyrig.adjust.adjust.check_datum`'s); used instead of a first evaluation and
+    linearisation when the numba engine runs without ``huber_k`` (same values).
     """
     if engine == "auto":
         engine = "numba" if HAVE_NUMBA else "scipy"
@@ -979,7 +987,7 @@ def levenberg_marquardt(
     try:
         return _levenberg_marquardt(model, state, max_iterations, function_tolerance, parameter_tolerance,
                                     gradient_tolerance, huber_k, free_datum, callback, initial_radius, engine,
-                                    linear_solver or LINEAR_SOLVER)
+                                    linear_solver or LINEAR_SOLVER, engine_at_start)
     finally:
         if threads is not None:
             _numba.set_num_threads(threads)
@@ -1000,21 +1008,27 @@ SERIAL_BELOW = 100_000
 def _levenberg_marquardt(model: Model, state: State, max_iterations: int, function_tolerance: float,
                          parameter_tolerance: float, gradient_tolerance: float, huber_k: float | None,
                          free_datum: bool, callback: Callable[[int, float, float], None] | None,
-                         initial_radius: float, engine: str, linear_solver: str) -> tuple[State, SolveInfo]:
+                         initial_radius: float, engine: str, linear_solver: str,
+                         engine_at_start: "SchurEngine | None" = None) -> tuple[State, SolveInfo]:
     t0 = time.perf_counter()
     lay = model.layout
     info = SolveInfo()
     group = model.block.obs_image
-    factors = model.evaluate(state)
-    if engine == "numba":
-        eng: SchurEngine | _ScipyEngine = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT,
-                                                      linear_solver=linear_solver)
+    prepared = engine_at_start if (engine == "numba" and huber_k is None and engine_at_start is not None
+                                   and engine_at_start.layout is lay) else None
+    factors = model.evaluate(state) if prepared is None else None
+    if prepared is not None:
+        SchurEngine._check_solver(linear_solver)
+        eng: SchurEngine | _ScipyEngine = prepared
+        prepared.dense_limit, prepared.linear_solver = ENGINE_DENSE_LIMIT, linear_solver
+    elif engine == "numba":
+        eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
         raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
-    cost = eng.linearize(factors, huber_k)
+    cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost
     factors = None  # type: ignore[assignment]  # the engine keeps what it needs: the Jacobians go
     info.initial_cost = cost
     radius = initial_radius
