@@ -32,7 +32,8 @@ CELL = 0.3
 def _grid(local, lo, hi, cell=CELL):
     c = CRS.from_ecef(local.to_ecef(np.array([[lo[0], hi[1], 80.0], [hi[0], lo[1], 80.0]])))
     x0, y0 = np.floor(c[0, 0] / cell) * cell, np.ceil(c[0, 1] / cell) * cell
-    return GridSpec(float(x0), float(y0), cell, int(np.ceil((c[1, 0] - x0) / cell)), int(np.ceil((y0 - c[1, 1]) / cell)))
+    return GridSpec(float(x0), float(y0), cell, int(np.ceil((c[1, 0] - x0) / cell)),
+                    int(np.ceil((y0 - c[1, 1]) / cell)))
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +65,8 @@ def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey, tmp_path):
 
     def load(k):
         if k not in cache:
-            cache[k] = render_image(s.scene, cams[str(eo.camera[k])], Pose(eo.rotation[k], eo.centre[k], "world", "camera"),
-                                    noise_dn=1.0, seed=k)
+            cache[k] = render_image(s.scene, cams[str(eo.camera[k])],
+                                    Pose(eo.rotation[k], eo.centre[k], "world", "camera"), noise_dn=1.0, seed=k)
         return cache[k]
 
     tex = texture_facades(block, eo, cams, load, dsm)
@@ -113,7 +114,8 @@ def test_clipped_buildings_keep_the_direction_of_their_real_walls(survey):
     rng = np.random.default_rng(5)
     errs, offs = [], []
     for i in range(len(bl)):
-        grid = _grid(s.frame, np.array([bl.cx[i] - 30.0, bl.cy[i] - 30.0]), np.array([bl.cx[i] + 30.0, bl.cy[i] + 30.0]))
+        c = np.array([bl.cx[i], bl.cy[i]])
+        grid = _grid(s.frame, c - 30.0, c + 30.0)
         dsm = scene_dsm(s.scene, grid, CRS)
         v = CRS.from_ecef(s.frame.to_ecef(bl.vertices(i)[4:8]))[:, :2]
         ctr = v.mean(axis=0)

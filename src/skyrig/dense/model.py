@@ -26,9 +26,10 @@ down; pixel ``(row i, column j)`` covers ``[j, j + 1] / W`` x ``[i, i + 1] / H``
 wall point at distance ``s`` from the start corner along the wall and height ``z`` gets
 ``u = s / (W texel_m)``, ``v = (eave_z - z) / (H texel_m)``, so its texel centre ``(j + 0.5, i + 0.5) texel_m``
 maps to pixel ``(i, j)``'s centre.  A texture whose façade reaches up to the roof line (a gable end's wall,
-:attr:`Facade.outline`) has row 0 at its apex (``corners[3, 2]`` for ``eave_z``) and is drawn over the whole wall
-polygon: the gable triangle is then part of the textured wall, not a separate flat-coloured piece.  For a roof textured from an orthophoto, ``uv`` is the vertex' position in the
-cropped orthophoto (its CRS) divided by the crop's size.
+:attr:`Facade.outline`) has row 0 at the top of its rectangle (``corners[3, 2]`` for ``eave_z``) and is drawn over
+the whole wall polygon: the gable triangle is then part of the textured wall, not a separate flat-coloured piece.
+For a roof textured from an orthophoto, ``uv`` is the vertex' position in the cropped orthophoto (its CRS) divided
+by the crop's size.
 """
 
 from __future__ import annotations
