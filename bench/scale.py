@@ -134,6 +134,10 @@ def main() -> None:
                          "sizes) exceeds this or 90 %% of the available memory is not run, and a run whose resident "
                          "memory exceeds it is stopped (default 20)")
     ap.add_argument("--linear-solver", default="auto", help="reduced system: auto (default), cholmod, pcg, splu, dense")
+    ap.add_argument("--history", default=os.path.join(os.environ.get("TMPDIR", "/tmp"), "skyrig_bench_scale.json"),
+                    help="JSON file of the sizes measured so far (same points per exposure, seed, boresight mode and "
+                         "linear solver); each run adds its rows, and a run of one size (e.g. --sizes 10000) prints "
+                         "its growth exponents against the recorded smaller sizes (default %(default)s; '' = none)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
@@ -191,6 +195,17 @@ def main() -> None:
               f"{r['warmup_s']:7.2f} {r['load']:5.1f} {'yes' if r['converged'] else 'NO':>4} "
               f"{r['centre_rmse_m']:7.3f}  {r['linear_solver']}",
               flush=True)
+    key = [a.points_per_exposure, a.seed, a.boresight, a.linear_solver]
+    hist = _history(a.history, key, rows)
+    fit = rows
+    if len(rows) < 2 and hist:  # one size: against the recorded other sizes (latest run of each)
+        fit = sorted([h for h in hist if h["exposures"] not in {r["exposures"] for r in rows}] + rows,
+                     key=lambda r: r["exposures"])
+        if len(fit) >= 2:
+            print("growth exponents with the sizes recorded in " + a.history + ": " + ", ".join(
+                f"{r['exposures']} ({r['adjust_s']:.1f} s wall, {r['adjust_cpu_s']:.1f} s CPU, "
+                f"{r['adjust_peak_mib']:.0f} MiB, load {r['load']:.1f})" for r in fit))
+    rows = fit
     if len(rows) >= 2:
         x = np.log([r["exposures"] for r in rows])
         bt = np.polyfit(x, np.log([r["adjust_s"] for r in rows]), 1)[0]
@@ -200,6 +215,28 @@ def main() -> None:
         print(f"growth exponent over {rows[0]['exposures']}..{rows[-1]['exposures']} exposures (least squares on "
               f"log-log): wall time {bt:.2f}, wall time per iteration {bi:.2f}, CPU time {bc:.2f}, adjustment "
               f"peak memory {bm:.2f}")
+
+
+def _history(path: str, key: list, rows: list[dict]) -> list[dict]:
+    """The recorded rows of ``key`` (latest per size) before this run; this run's rows added to the file
+    (written to a temporary file and renamed)."""
+    if not path:
+        return []
+    try:
+        with open(path) as fh:
+            runs = json.load(fh)
+    except (OSError, ValueError):
+        runs = []
+    before: dict[int, dict] = {}
+    for run in runs:
+        if run.get("key") == key:
+            before[run["row"]["exposures"]] = run["row"]
+    runs += [{"key": key, "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "row": r} for r in rows]
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(runs, fh)
+    os.replace(tmp, path)
+    return sorted(before.values(), key=lambda r: r["exposures"])
 
 
 if __name__ == "__main__":
