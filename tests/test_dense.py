@@ -216,6 +216,41 @@ def test_fusion_rules_against_hand_computation():
     assert np.isnan(H[0, 2])  # two pairs 6 m apart: neither is confirmed
 
 
+def test_a_pair_seeing_a_wall_in_a_cell_gives_it_no_height():
+    # one cell: pairs 0 and 1 see the ground at 2 m; the points of pairs 2, 3 and 4 run up a wall (2 .. 9 m, as the
+    # wall pixels of a view all project onto the outline): their medians (5.5, 5, 6) are neither roof nor ground.
+    # With the range rule (5 cells of 1 m) they are left out and the ground pairs decide alone.
+    g = GridSpec(0.0, 10.0, 1.0, 1, 1)
+    h = np.array([2.0, 2.02, 2.0, 4.0, 7.0, 9.0, 2.0, 5.0, 8.0, 3.0, 6.0, 9.0])
+    pair = np.array([0, 1, 2, 2, 2, 2, 3, 3, 3, 4, 4, 4])
+    x, y, sig = np.full(12, 0.5), np.full(12, 9.5), np.full(12, 0.05)
+    cfg = FusionConfig(min_support=2, k_sigma=3.0, min_tol_cells=0.2)
+    H, N, SP, S = fuse_grid(g, pair, x, y, h, sig, cfg)
+    assert N[0, 0] == 2 and abs(H[0, 0] - 2.01) < 1e-5
+    # without it the weighted median is a wall's (5 m), which no second pair confirms: the cell stays empty
+    H0, N0, _, _ = fuse_grid(g, pair, x, y, h, sig, replace(cfg, max_pair_range_cells=0))
+    assert np.isnan(H0[0, 0])
+
+
+def test_points_on_a_wall_are_found_by_their_neighbourhood_plane():
+    from skyrig.dense._kernels import steep_points
+
+    # rectified left camera looking straight down (world_from_rect = I: depth D is -z), f 1000 px, base 1 m;
+    # ground at depth 100 m, a building beyond x = 5 m with its roof at depth 90 m: pixels u < 50 see the ground,
+    # 50 <= u <= 55.6 the wall x = 5 m (depth 5 f / u), u > 55.6 the roof; disparity f B / D
+    f, B = 1000.0, 1.0
+    u = np.arange(30, 80, dtype=float)
+    D = np.where(u < 50, 100.0, np.where(u <= 5 * f / 90, 5 * f / np.maximum(u, 1), 90.0))
+    disp = np.repeat((f * B / D)[None, :], 21, axis=0).astype(np.float32)
+    rr, cc = np.nonzero(disp > 0)
+    nz = steep_points(disp, rr, cc, 30.0, -10.0, f, B, np.eye(3), 3, 12)
+    uu = 30 + cc
+    wall = (uu >= 51) & (uu <= 54) & (rr >= 3) & (rr <= 17)  # inside the wall, away from the window's clipping
+    far = ((uu <= 45) | (uu >= 61)) & (uu >= 33) & (uu <= 76)  # ground and roof 4+ px from the wall
+    assert (nz[wall] < 0.3).all()
+    assert (nz[far] > 0.99).all()
+
+
 def test_neighbour_confirmation_against_hand_computation():
     from skyrig.dense.fusion import confirm_by_neighbours
 
