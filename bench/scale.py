@@ -205,6 +205,15 @@ def main() -> None:
             print("growth exponents with the sizes recorded in " + a.history + ": " + ", ".join(
                 f"{r['exposures']} ({r['adjust_s']:.1f} s wall, {r['adjust_cpu_s']:.1f} s CPU, "
                 f"{r['adjust_peak_mib']:.0f} MiB, load {r['load']:.1f})" for r in fit))
+            for r in rows:  # against the next smaller recorded size
+                prev = [h for h in fit if h["exposures"] < r["exposures"]]
+                if prev:
+                    p = prev[-1]
+                    lx = np.log(r["exposures"] / p["exposures"])
+                    print(f"exponents {p['exposures']} -> {r['exposures']} exposures: wall time "
+                          f"{np.log(r['adjust_s'] / p['adjust_s']) / lx:.2f}, CPU time "
+                          f"{np.log(r['adjust_cpu_s'] / p['adjust_cpu_s']) / lx:.2f}, adjustment peak memory "
+                          f"{np.log(max(r['adjust_peak_mib'], 1e-3) / max(p['adjust_peak_mib'], 1e-3)) / lx:.2f}")
     rows = fit
     if len(rows) >= 2:
         x = np.log([r["exposures"] for r in rows])
