@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
 
     # per (cell, pair): median height of the pair's points in the cell, judged against the truth
     r, c = g.cell_of(xyz[:, 0], xyz[:, 1])
-    m = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    m = (r >= 0) & (r < H) & (c >= 0) & (c < W) & np.isfinite(sig)  # points with a DSM height (walls have none)
     cell = r[m] * W + c[m]
     key = cell * (int(pid.max()) + 1) + pid[m]
     order = np.lexsort((xyz[m, 2], key))
@@ -149,10 +149,14 @@ def main(argv: list[str] | None = None) -> None:
         kind, derr = np.concatenate(kind_l), np.concatenate(derr_l)
         rr, cc = g.cell_of(xyz[:, 0], xyz[:, 1])
         ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        near = ok & (inside & edge)[np.clip(rr, 0, H - 1), np.clip(cc, 0, W - 1)]
+        print("points in edge cells left out of the DSM as wall points (SgmConfig.wall_max_nz): " + ", ".join(
+            f"{kn} {np.mean(~np.isfinite(sig[near & (kind == kk)])):.2f}" for kk, kn in ((1, "terrain"), (2, "roof"), (3, "wall"))))
+        ok &= np.isfinite(sig)
         rr, cc = np.clip(rr, 0, H - 1), np.clip(cc, 0, W - 1)
         e_p = xyz[:, 2] - truth_map.reshape(H, W)[rr, cc]
         names = {1: "terrain", 2: "roof", 3: "wall"}
-        print("points in edge cells by the surface their pixel shows (share; in brackets: share of those matched "
+        print("points with a DSM height in edge cells by the surface their pixel shows (share; in brackets: share of those matched "
               "within 1 px of the true disparity)")
         for name, mask in (("edge ground", inside & edge & ~on), ("edge roof", inside & edge & on)):
             sel = ok & mask[rr, cc]

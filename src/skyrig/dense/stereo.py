@@ -211,7 +211,7 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
 
         half = cfg.wall_window_px // 2
         nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
-                          np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 4))
+                          np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2))
         sigma_h = np.where(nz < cfg.wall_max_nz, np.float32(np.nan), sigma_h).astype(np.float32)
     rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
     return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb.astype(np.uint8), normal)
