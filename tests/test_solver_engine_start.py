@@ -68,3 +68,33 @@ def test_engine_at_start_is_not_used_with_robust_weights():
     s2, i2 = levenberg_marquardt(model, State.from_block(b), huber_k=1.5)
     assert i1.initial_cost == i2.initial_cost and i1.final_cost == i2.final_cost
     np.testing.assert_array_equal(s1.X, s2.X)
+
+
+@pytest.fixture
+def sparse_engine(monkeypatch):
+    """The engine's sparse direct path on a small block (its dense limit lowered below the block's size)."""
+    import skyrig.adjust.solver as S
+
+    monkeypatch.setattr(S, "ENGINE_DENSE_LIMIT", 40)
+    return S
+
+
+def test_datum_check_on_the_engine_solver_then_the_same_solve(sparse_engine):
+    b, model = _rig_model(AdjustConfig(boresight="free"))
+    state = State.from_block(b)
+    eng = A.check_datum(model, state, False)
+    assert eng._rs is not None and eng._rs.method in ("cholmod", "splu")  # the round trip ran on it
+    s1, i1 = levenberg_marquardt(model, state, engine_at_start=eng)
+    s2, i2 = levenberg_marquardt(model, State.from_block(b))
+    assert i1.linear_solver == i2.linear_solver
+    assert i1.iterations == i2.iterations and i1.final_cost == pytest.approx(i2.final_cost, rel=1e-12)
+    np.testing.assert_allclose(s1.X, s2.X, rtol=0, atol=1e-9)
+
+
+def test_datum_defect_found_by_the_engine_solver(sparse_engine):
+    # no control, no GNSS, no IMU: the block floats (7 similarity motions)
+    b, _ = synthetic_block(seed=2, n_strips=2, n_per_strip=5, n_points=200, n_control=0, gnss_sigma_m=None,
+                           imu_sigma_rad=None)
+    model = Model(b, AdjustConfig(datum="none"))
+    with pytest.raises(A.DatumDefectError):
+        A.check_datum(model, State.from_block(b), False)

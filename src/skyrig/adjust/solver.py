@@ -1020,6 +1020,8 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     if prepared is not None:
         SchurEngine._check_solver(linear_solver)
         eng: SchurEngine | _ScipyEngine = prepared
+        if (prepared.dense_limit, prepared.linear_solver) != (ENGINE_DENSE_LIMIT, linear_solver):
+            prepared._rs = None  # (a reduced solver the datum check set up for other settings)
         prepared.dense_limit, prepared.linear_solver = ENGINE_DENSE_LIMIT, linear_solver
     elif engine == "numba":
         eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)
