@@ -46,8 +46,8 @@ class PairPoints:
         ``(M, 3)`` world points (the orientations' Cartesian frame, metres).
     sigma_h
         ``(M,)`` predicted precision of the point's height (m, 1 sigma, from ``disparity_sigma_px``); NaN for a
-        point on a wall (``SgmConfig.wall_max_nz``), which has no height for a DSM (the grid fusion leaves it
-        out, the cloud keeps it).
+        point on a wall or an isolated match (``SgmConfig.wall_max_nz``), which gives no height to a DSM (the
+        grid fusion leaves it out, the cloud keeps it).
     sigma_3d
         ``(M,)`` predicted precision along the left ray (m).
     angle_deg
@@ -212,6 +212,6 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
         half = cfg.wall_window_px // 2
         nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
                           np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2))
-        sigma_h = np.where(nz < cfg.wall_max_nz, np.float32(np.nan), sigma_h).astype(np.float32)
+        sigma_h = np.where(~(nz >= cfg.wall_max_nz), np.float32(np.nan), sigma_h).astype(np.float32)  # NaN: sparse
     rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
     return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb.astype(np.uint8), normal)
