@@ -467,11 +467,13 @@ def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True)
-def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count):  # pragma: no cover - compiled
+def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=0.0):  # pragma: no cover
     """For the pixels ``(rows, cols)`` of a block's disparities: the |vertical component| of the normal of the
     best-fitting plane (smallest principal axis) through the world points of the matched pixels in the
     ``(2 half + 1)^2`` window around each (NaN with fewer than ``min_count`` of them).  World frame of ``R``
-    (``world_from_rect``), z up; the points relative to the left centre."""
+    (``world_from_rect``), z up; the points relative to the left centre.  A window whose pixels are all matched
+    with disparities within ``flat_range`` of each other is not fitted and reported as 1 (the caller's bound
+    below which no window can be as steep as it tests for)."""
     H, W = disp.shape
     fb = f * B
     X = np.empty((H, W))
@@ -491,6 +493,20 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count):  # pragma:
     out = np.empty(rows.shape[0])
     for k in range(rows.shape[0]):
         r0, c0 = rows[k], cols[k]
+        if flat_range > 0 and half <= r0 < H - half and half <= c0 < W - half:
+            lo = np.inf
+            hi = -np.inf
+            full = True
+            for r in range(r0 - half, r0 + half + 1):
+                for c in range(c0 - half, c0 + half + 1):
+                    d = disp[r, c]
+                    if not d > 0:
+                        full = False
+                    lo = min(lo, d)
+                    hi = max(hi, d)
+            if full and hi - lo <= flat_range:
+                out[k] = 1.0
+                continue
         n = 0
         x0, y0, z0 = X[r0, c0], Y[r0, c0], Z[r0, c0]
         sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0

@@ -210,8 +210,13 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
         from skyrig.dense._kernels import steep_points
 
         half = cfg.wall_window_px // 2
+        # windows whose disparities differ by less than this are not fitted: across 2 half pixels of a window
+        # seen straight down (ground sample D / f) a height change D dd / d is a slope of f dd / (2 half d);
+        # half the disparity change of the steepest slope tested, at the block's largest disparity
+        slope = np.sqrt(1.0 - cfg.wall_max_nz ** 2) / cfg.wall_max_nz
+        flat = 0.5 * slope * 2 * half * max(blk.d_max, 1e-6) / float(rect.focal_px)
         nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
-                          np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2))
+                          np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2), flat)
         sigma_h = np.where(~(nz >= cfg.wall_max_nz), np.float32(np.nan), sigma_h).astype(np.float32)  # NaN: sparse
     rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
     return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb.astype(np.uint8), normal)
