@@ -48,28 +48,46 @@ def _skyrig() -> str:
     return str(Path(sys.executable).parent / "skyrig")
 
 
-def _simulate_grown(folder: Path, k: int) -> None:
-    """The ``midas-dsm`` surface block over a ``k`` times wider and longer area with ``3 k`` strips."""
+def _simulate_grown(folder: Path, k: int, image_scale: float = 1.0) -> None:
+    """The ``midas-dsm`` surface block over a ``k`` times wider and longer area with ``3 k`` strips.
+
+    ``image_scale`` F scales every head's sensor (width and height in pixels) by F with the same field of view
+    (the pixel pitch grows by 1/F, the focal length in mm stays, so the focal length in pixels scales by F): the
+    footprints, the flight plan and the block geometry stay the same and the GSD grows by 1/F.  The scene
+    (1 km x 1 km at CI size) is widened, at the same building density, where the block and its oblique
+    footprints would leave it (K >= 4)."""
     from dataclasses import replace
 
     from skyrig.pipeline.simulate import write_project
-    from skyrig.simulate.scenarios import build_survey, scenario_spec
+    from skyrig.simulate.scenarios import build_survey, ci_camera, scenario_spec
 
     spec = scenario_spec("midas-dsm", "ci", 1)
     f = spec.flights[0]
     half = 50.0 * k
+    ext = max(500.0, half + 300.0)
     spec = replace(spec, name=f"midas-dsm-x{k}", flights=(replace(f, n_strips=3 * k, area=(-half, -half, half, half)),))
+    if ext > 500.0:
+        spec = replace(spec, scene_extent=(-ext, -ext, ext, ext),
+                       n_buildings=int(round(spec.n_buildings * (ext / 500.0) ** 2)))
+    if image_scale != 1.0:
+        if not 0.05 <= image_scale <= 1.0:
+            raise SystemExit(f"--image-scale must lie in [0.05, 1], not {image_scale}")
+        heads = {n: h.with_(camera=ci_camera(h.camera, int(round(h.camera.width * image_scale))))
+                 for n, h in spec.rig.heads.items()}
+        spec = replace(spec, rig=replace(spec.rig, heads=heads))
     write_project(build_survey(spec), folder)
 
 
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
-                   keep: bool, grow: int | None = None) -> dict:
-    folder = workdir / (f"{name}-x{grow}" if grow is not None else f"{name}-{size}")
-    out: dict = {"scenario": name if grow is None else f"{name}-x{grow}", "size": size, "stages": []}
+                   keep: bool, grow: int | None = None, image_scale: float = 1.0) -> dict:
+    tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
+    folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
+    out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
+                 "image_scale": image_scale}
     if not (folder / "truth" / "truth.json").is_file():
         t0 = time.perf_counter()
         if grow is not None:
-            _simulate_grown(folder, grow)
+            _simulate_grown(folder, grow, image_scale)
         else:
             subprocess.run([_skyrig(), "simulate", name, "-o", str(folder), "--size", size], check=True,
                            stdout=subprocess.DEVNULL)
@@ -112,12 +130,49 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     return out
 
 
+def _growth(rows: list[dict], ks: list[int], k_to: int) -> dict:
+    """Per stage, the exponent b of time ~ images^b and peak memory ~ images^b (log-log least squares over
+    the sizes whose stage ran), and the projection to ``k_to`` from the largest size with that exponent
+    (images at ``k_to`` from the images per K^2 of the largest size)."""
+    import numpy as np
+
+    n = np.array([float(r["images"] or 0) for r in rows])
+    n_to = n[-1] * (k_to / ks[-1]) ** 2
+    out: dict = {"k_to": k_to, "images_projected": int(round(n_to)), "stages": {}}
+
+    def fit(x: np.ndarray, y: np.ndarray) -> float:
+        ok = (x > 0) & (y > 0)
+        if ok.sum() < 2:
+            return float("nan")
+        return float(np.polyfit(np.log(x[ok]), np.log(y[ok]), 1)[0])
+
+    names = [s["stage"] for s in rows[0]["stages"]]
+    for st in names:
+        t = np.array([next((s.get("stage_s") or 0 for s in r["stages"] if s["stage"] == st), 0.0) for r in rows])
+        m = np.array([next((max(s.get("peak_mib") or 0, s.get("children_peak_mib") or 0)
+                            for s in r["stages"] if s["stage"] == st), 0.0) for r in rows])
+        bt, bm = fit(n, t), fit(n, m)
+        out["stages"][st] = {"b_time": bt, "b_mem": bm, "projected_s": float(t[-1] * (n_to / n[-1]) ** bt),
+                             "projected_mib": float(m[-1] * (n_to / n[-1]) ** bm)}
+    tt = np.array([sum(s.get("stage_s") or 0 for s in r["stages"]) for r in rows])
+    bt = fit(n, tt)
+    out["total"] = {"b_time": bt, "projected_s": float(tt[-1] * (n_to / n[-1]) ** bt),
+                    "projected_sum_of_stages_s": float(sum(g["projected_s"] for g in out["stages"].values()
+                                                           if np.isfinite(g["projected_s"])))}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", action="append", help="skyrig simulate scenario (repeatable; default midas-demo)")
     ap.add_argument("--size", default="ci", choices=["ci", "full"])
     ap.add_argument("--grow", type=int, nargs="+", default=None,
                     help="midas-dsm surface block over K x the CI area (3 K strips), one run per K")
+    ap.add_argument("--image-scale", type=float, default=1.0,
+                    help="with --grow: every head's sensor width/height in pixels x F at the same field of view "
+                    "(GSD / F, same footprints and block geometry), e.g. 0.25 for fast grown blocks")
+    ap.add_argument("--project-to", type=int, default=7,
+                    help="with --grow over >= 2 sizes: project each stage's time and peak memory to this K")
     ap.add_argument("--workdir", default="/tmp/skyrig-bench-run", help="where projects are simulated (kept: reruns "
                     "reuse them)")
     ap.add_argument("--executor", default="serial", choices=["serial", "local", "auto"])
@@ -132,7 +187,8 @@ def main() -> None:
     if a.grow:
         for k in a.grow:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
-            rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k))
+            rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k,
+                                       a.image_scale))
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
         rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep))
@@ -143,6 +199,20 @@ def main() -> None:
         print(f"{r['scenario']:12s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
               + "  ".join(f"{s.get('stage_s') or 0:10.1f}" for s in r["stages"])
               + f"  {tot:8.1f}  {r['resume_all_skipped_s']:8.1f}")
+    print("\npeak MiB     images     MP  " + "  ".join(f"{s['stage']:>10s}" for s in rows[0]["stages"]))
+    for r in rows:
+        print(f"{r['scenario']:12s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
+              + "  ".join(f"{max(s.get('peak_mib') or 0, s.get('children_peak_mib') or 0):10.0f}" for s in r["stages"]))
+    if a.grow and len(a.grow) >= 2:
+        growth = _growth(rows, [r for r in a.grow], a.project_to)
+        print(f"\ngrowth: t ~ images^b (least squares over the {len(rows)} sizes); projection to K={a.project_to} "
+              f"(~{growth['images_projected']} images) from the largest size")
+        print(f"{'stage':10s} {'b time':>7s} {'b mem':>7s} {'proj s':>9s} {'proj MiB':>9s}")
+        for st, g in growth["stages"].items():
+            print(f"{st:10s} {g['b_time']:7.2f} {g['b_mem']:7.2f} {g['projected_s']:9.0f} {g['projected_mib']:9.0f}")
+        tot = growth["total"]
+        print(f"{'total':10s} {tot['b_time']:7.2f} {'':7s} {tot['projected_s']:9.0f}")
+        rows.append({"growth": growth})
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1, default=str) + "\n")
 
