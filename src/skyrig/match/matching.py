@@ -322,11 +322,15 @@ def verify(
         # skyrig camera frame looks along -z with y up: flip y and z to get OpenCV's (x right, y down, z fwd)
         n1 = np.column_stack([r1[:, 0] / -r1[:, 2], -r1[:, 1] / -r1[:, 2]])
         n2 = np.column_stack([r2[:, 0] / -r2[:, 2], -r2[:, 1] / -r2[:, 2]])
-        E, mask = cv2.findEssentialMat(n1, n2, np.eye(3), method=cv2.USAC_MAGSAC, prob=config.confidence,
-                                       threshold=thr / camera1.focal_px, maxIters=config.max_iterations)
-        F = None  # the essential path does not give F in pixels
-    else:
-        F, mask = cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, thr, config.confidence, config.max_iterations)
+    try:  # OpenCV's USAC asserts (cv2.error) on some degenerate sets instead of returning no model
+        if config.verification == "essential":
+            E, mask = cv2.findEssentialMat(n1, n2, np.eye(3), method=cv2.USAC_MAGSAC, prob=config.confidence,
+                                           threshold=thr / camera1.focal_px, maxIters=config.max_iterations)
+            F = None  # the essential path does not give F in pixels
+        else:
+            F, mask = cv2.findFundamentalMat(p1, p2, cv2.USAC_MAGSAC, thr, config.confidence, config.max_iterations)
+    except cv2.error as e:
+        return PairMatches(empty, nan, n, guided, f"verification found no model ({str(e).strip().splitlines()[-1]})")
     if mask is None:
         return PairMatches(empty, nan, n, guided, "verification found no model")
     inl = mask.reshape(-1).astype(bool)
