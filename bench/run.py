@@ -83,7 +83,7 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
     folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
     out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
-                 "image_scale": image_scale}
+                 "image_scale": image_scale, "grow": grow}
     if not (folder / "truth" / "truth.json").is_file():
         t0 = time.perf_counter()
         if grow is not None:
@@ -180,42 +180,75 @@ def main() -> None:
     ap.add_argument("--max-features", type=int, default=3000)
     ap.add_argument("--keep", action="store_true", help="keep the run outputs")
     ap.add_argument("--json", default=None, help="write the figures here")
+    ap.add_argument("--report", default=None, metavar="JSON",
+                    help="only print the tables (and growth) of figures written by an earlier --json run")
     a = ap.parse_args()
+    if a.report:
+        rows = [r for r in json.loads(Path(a.report).read_text()) if "stages" in r]
+        _print_tables(rows, a.project_to)
+        return
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows: list[dict] = []
+
+    def save() -> None:  # after every size, so that a cut-off run keeps its figures
+        if a.json:
+            tmp = Path(a.json + ".tmp")
+            tmp.write_text(json.dumps(rows, indent=1, default=str) + "\n")
+            tmp.replace(a.json)
+
     if a.grow:
         for k in a.grow:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
             rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k,
                                        a.image_scale))
+            save()
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
         rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep))
-    print("\nscenario      images     MP  " + "  ".join(f"{s['stage']:>10s}" for s in rows[0]["stages"])
-          + "   total s  resume s")
+        save()
+    growth = _print_tables(rows, a.project_to)
+    if growth is not None:
+        rows.append({"growth": growth})
+    save()
+
+
+def _print_tables(rows: list[dict], k_to: int) -> dict | None:
+    """The time and peak-memory tables; with >= 2 grown sizes, the growth exponents and projection to ``k_to``."""
+    names = max((r["stages"] for r in rows), key=len)
+    names = [s["stage"] for s in names]
+
+    def cell(r: dict, st: str, key) -> float | None:
+        s = next((s for s in r["stages"] if s["stage"] == st), None)
+        return None if s is None or s.get("exit") else key(s)
+
+    def fmt(v: float | None, spec: str) -> str:
+        return f"{'-':>10s}" if v is None else format(v, spec)
+
+    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s")
     for r in rows:
         tot = sum(s.get("stage_s") or 0 for s in r["stages"])
-        print(f"{r['scenario']:12s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
-              + "  ".join(f"{s.get('stage_s') or 0:10.1f}" for s in r["stages"])
-              + f"  {tot:8.1f}  {r['resume_all_skipped_s']:8.1f}")
-    print("\npeak MiB     images     MP  " + "  ".join(f"{s['stage']:>10s}" for s in rows[0]["stages"]))
+        print(f"{r['scenario']:14s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
+              + "  ".join(fmt(cell(r, st, lambda s: s.get("stage_s") or 0.0), "10.1f") for st in names)
+              + f"  {tot:8.1f}  {r.get('resume_all_skipped_s', 0.0):8.1f}")
+    print("\npeak MiB       images     MP  " + "  ".join(f"{st:>10s}" for st in names))
     for r in rows:
-        print(f"{r['scenario']:12s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
-              + "  ".join(f"{max(s.get('peak_mib') or 0, s.get('children_peak_mib') or 0):10.0f}" for s in r["stages"]))
-    if a.grow and len(a.grow) >= 2:
-        growth = _growth(rows, [r for r in a.grow], a.project_to)
-        print(f"\ngrowth: t ~ images^b (least squares over the {len(rows)} sizes); projection to K={a.project_to} "
-              f"(~{growth['images_projected']} images) from the largest size")
-        print(f"{'stage':10s} {'b time':>7s} {'b mem':>7s} {'proj s':>9s} {'proj MiB':>9s}")
-        for st, g in growth["stages"].items():
-            print(f"{st:10s} {g['b_time']:7.2f} {g['b_mem']:7.2f} {g['projected_s']:9.0f} {g['projected_mib']:9.0f}")
-        tot = growth["total"]
-        print(f"{'total':10s} {tot['b_time']:7.2f} {'':7s} {tot['projected_s']:9.0f}")
-        rows.append({"growth": growth})
-    if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=1, default=str) + "\n")
-
+        print(f"{r['scenario']:14s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
+              + "  ".join(fmt(cell(r, st, lambda s: max(s.get("peak_mib") or 0, s.get("children_peak_mib") or 0)),
+                              "10.0f") for st in names))
+    grown = [r for r in rows if r.get("grow") is not None and all(not s.get("exit") for s in r["stages"])]
+    if len(grown) < 2:
+        return None
+    growth = _growth(grown, [r["grow"] for r in grown], k_to)
+    print(f"\ngrowth: t ~ images^b (log-log least squares over {len(grown)} complete sizes); projection to K={k_to} "
+          f"(~{growth['images_projected']} images) from the largest size")
+    print(f"{'stage':10s} {'b time':>7s} {'b mem':>7s} {'proj s':>9s} {'proj MiB':>9s}")
+    for st, g in growth["stages"].items():
+        print(f"{st:10s} {g['b_time']:7.2f} {g['b_mem']:7.2f} {g['projected_s']:9.0f} {g['projected_mib']:9.0f}")
+    tot = growth["total"]
+    print(f"{'total':10s} {tot['b_time']:7.2f} {'':7s} {tot['projected_s']:9.0f}  (sum of the stages' projections "
+          f"{tot['projected_sum_of_stages_s']:.0f} s)")
+    return growth
 
 if __name__ == "__main__":
     main()
