@@ -225,12 +225,13 @@ def _print_tables(rows: list[dict], k_to: int) -> dict | None:
     def fmt(v: float | None, spec: str) -> str:
         return f"{'-':>10s}" if v is None else format(v, spec)
 
-    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s")
+    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s  match pairs")
     for r in rows:
         tot = sum(s.get("stage_s") or 0 for s in r["stages"])
+        pairs = next(((s.get("summary") or {}).get("pairs") for s in r["stages"] if s["stage"] == "match"), None)
         print(f"{r['scenario']:14s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
               + "  ".join(fmt(cell(r, st, lambda s: s.get("stage_s") or 0.0), "10.1f") for st in names)
-              + f"  {tot:8.1f}  {r.get('resume_all_skipped_s', 0.0):8.1f}")
+              + f"  {tot:8.1f}  {r.get('resume_all_skipped_s', 0.0):8.1f}  {pairs if pairs is not None else '-':>11}")
     print("\npeak MiB       images     MP  " + "  ".join(f"{st:>10s}" for st in names))
     for r in rows:
         print(f"{r['scenario']:14s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
