@@ -686,8 +686,6 @@ def refine_walls(buildings: Sequence[BuildingBlock], eo: ExteriorOrientations, c
 
 def _moved(b: BuildingBlock, delta: NDArray) -> BuildingBlock:
     """The building with footprint edge ``i`` moved by ``delta[i]`` along its outward normal."""
-    from dataclasses import replace
-
     fp = np.asarray(b.footprint, float)
     nv = len(fp)
     if not np.any(delta):
@@ -706,22 +704,31 @@ def _moved(b: BuildingBlock, delta: NDArray) -> BuildingBlock:
             new[i] = fp[i] + delta[i] * ni
         else:
             new[i] = np.linalg.solve(A, [nj @ pj, ni @ pi])
+    return _with_footprint(b, fp, new)
+
+
+def _with_footprint(b: BuildingBlock, fp: NDArray, new: NDArray) -> BuildingBlock:
+    """``b`` with its footprint vertices ``fp`` moved to ``new`` and its roof polygons carried along: a roof vertex
+    on a footprint vertex moves with it, one on a footprint edge keeps its fraction along the moved edge."""
+    from dataclasses import replace
+
+    nv = len(fp)
     roofs = []
     for poly in b.roof:
-        p = np.asarray(poly, float).copy()
-        for r in range(len(p)):
-            xy = p[r, :2]
+        pr = np.asarray(poly, float).copy()
+        for m in range(len(pr)):
+            xy = pr[m, :2]
             hit = np.flatnonzero(np.linalg.norm(fp - xy, axis=1) < 1e-3)
             if len(hit):
-                p[r, :2] = new[hit[0]]
+                pr[m, :2] = new[hit[0]]
                 continue
             for i in range(nv):
                 a, e = fp[i], fp[(i + 1) % nv]
-                t = ((xy - a) @ (e - a)) / max((e - a) @ (e - a), 1e-12)
-                if 0 <= t <= 1 and np.linalg.norm(a + t * (e - a) - xy) < 1e-3:
-                    p[r, :2] = new[i] + t * (new[(i + 1) % nv] - new[i])
+                tt = ((xy - a) @ (e - a)) / max((e - a) @ (e - a), 1e-12)
+                if 0 <= tt <= 1 and np.linalg.norm(a + tt * (e - a) - xy) < 1e-3:
+                    pr[m, :2] = new[i] + tt * (new[(i + 1) % nv] - new[i])
                     break
-        roofs.append(p)
+        roofs.append(pr)
     return replace(b, footprint=new, roof=tuple(roofs))
 
 
@@ -1008,8 +1015,6 @@ def _moved_lines(b: BuildingBlock, d0: NDArray, d1: NDArray) -> BuildingBlock:
     """The building with footprint edge ``i`` moved along its outward normal by ``d0[i]`` at its start and
     ``d1[i]`` at its end (a shift and a turn); corners are the intersections of consecutive moved edge lines and
     roof vertices follow (corners to corners, points on an edge to the same place along the moved edge)."""
-    from dataclasses import replace
-
     fp = np.asarray(b.footprint, float)
     nv = len(fp)
     if not (np.any(d0) or np.any(d1)):
@@ -1032,23 +1037,7 @@ def _moved_lines(b: BuildingBlock, d0: NDArray, d1: NDArray) -> BuildingBlock:
         else:
             tt = ((q[0] - p[0]) * s[1] - (q[1] - p[1]) * s[0]) / den
             new[i] = p + tt * r
-    roofs = []
-    for poly in b.roof:
-        pr = np.asarray(poly, float).copy()
-        for m in range(len(pr)):
-            xy = pr[m, :2]
-            hit = np.flatnonzero(np.linalg.norm(fp - xy, axis=1) < 1e-3)
-            if len(hit):
-                pr[m, :2] = new[hit[0]]
-                continue
-            for i in range(nv):
-                a, e = fp[i], fp[(i + 1) % nv]
-                tt = ((xy - a) @ (e - a)) / max((e - a) @ (e - a), 1e-12)
-                if 0 <= tt <= 1 and np.linalg.norm(a + tt * (e - a) - xy) < 1e-3:
-                    pr[m, :2] = new[i] + tt * (new[(i + 1) % nv] - new[i])
-                    break
-        roofs.append(pr)
-    return replace(b, footprint=new, roof=tuple(roofs))
+    return _with_footprint(b, fp, new)
 
 
 class RoofTexture(NamedTuple):
