@@ -80,6 +80,9 @@ def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
 @click.option("--max-size", type=int, default=1600, show_default=True, help="Detect on images downscaled to this.")
 @click.option("--max-features", type=int, default=8000, show_default=True)
 @click.option("--min-overlap", type=float, default=0.1, show_default=True, help="Guided pairs: footprint overlap.")
+@click.option("--max-pairs-per-image", type=click.IntRange(min=0), default=12, show_default=True,
+              help="Guided pairs: per-image budget (strongest overlaps; the block kept connected with its head and "
+                   "strip links); 0 = every overlapping pair.")
 @click.option("--neighbours", type=int, default=8, show_default=True, help="GPS pairs: nearest images.")
 @click.option("--max-heading-diff", type=float, default=None,
               help="GPS pairs: drop pairs whose EXIF/XMP headings differ more (degrees; default: no filter).")
@@ -108,7 +111,7 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
             eo_format: str | None, eo_crs: str | None, eo_geoid: str | None, eo_map_z_ground: float | None,
             camera_paths: tuple[str, ...],
             terrain_height: float | None, thin_per_cell: int, scheduler: str, workers: int, overwrite: bool,
-            lsm: bool) -> None:
+            lsm: bool, max_pairs_per_image: int) -> None:
     """Tie points for the images of PROJECT (resumable: rerun to continue an interrupted run)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -137,7 +140,8 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
             r = match_images(folders, out_dir,
                              FeatureConfig(method=method, max_size=max_size, max_features=max_features),  # type: ignore[arg-type]
                              None, pair_mode, eo, cameras, terrain_height, min_overlap, neighbours, scheduler,
-                             workers, thin_per_cell, overwrite, progress, lsm, max_heading_diff)
+                             workers, thin_per_cell, overwrite, progress, lsm, max_heading_diff,
+                             max_pairs_per_image=max_pairs_per_image)
         except SkyrigError:
             raise
     rep = r.report
@@ -151,6 +155,6 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
     inputs = [Path(x) for f in folders for x in list_images(f)] + [Path(p) for p in (eo_path, *camera_paths) if p]
     options = {"project": str(proj), "images": [str(f) for f in folders], "output": str(out_dir), "pairs": pair_mode,
                "method": method, "max_size": max_size, "max_features": max_features, "min_overlap": min_overlap,
-               "neighbours": neighbours, "max_heading_diff": max_heading_diff, "eo": eo_path,
+               "max_pairs_per_image": max_pairs_per_image, "neighbours": neighbours, "max_heading_diff": max_heading_diff, "eo": eo_path,
                "camera": list(camera_paths), "terrain_height": terrain_height, "thin": thin_per_cell, "lsm": lsm}
     write_match_manifest(out_dir, inputs, options)

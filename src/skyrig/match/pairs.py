@@ -8,6 +8,10 @@
 * :func:`gps_pairs` — fallback when only EXIF exists: k nearest projection centres (plus an optional radius),
   dropping pairs whose viewing headings differ too much.
 * :func:`exhaustive_pairs` — every pair, the reference.
+* :func:`budget_pairs` — a per-image pair budget for wide blocks (the strongest-overlap pairs of each image,
+  the graph kept connected and every kind of link - other head, other strip - kept where one exists), so that
+  the number of pairs grows linearly with the block, not with the footprint reach of its obliques.
+* :func:`image_strips` — flight strips of the images (event times), for ``budget_pairs``' cross-strip links.
 
 Pairs are ``(P, 2)`` int arrays with ``i < j``, sorted.
 """
@@ -18,6 +22,8 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from skyrig.camera.frame import FrameCamera, intersect_rays_with_surface
@@ -199,3 +205,134 @@ def footprint_pairs(
     ov = np.array([max(seen(a, b), seen(b, a)) for a, b in cand_a]) if len(cand_a) else np.zeros(0)
     keep = ov >= min_overlap
     return cand_a[keep], ov[keep]
+
+
+def image_strips(eo: ExteriorOrientations) -> NDArray[np.int64]:
+    """Flight strip of every image (``-1``: unknown), for :func:`budget_pairs`.
+
+    Strips come from :func:`skyrig.orient.strips.detect_strips` on the exposures in time order (one position
+    per exposure, the mean of its images' centres; the exposures are ``eo.exposure``, else the images that share
+    an event time).  Without event times every image gets ``-1``.
+    """
+    n = len(eo)
+    strip = np.full(n, -1, np.int64)
+    if eo.time_s is None:
+        return strip
+    t = np.asarray(eo.time_s, float)
+    ok = np.isfinite(t)
+    if ok.sum() < 3:
+        return strip
+    from skyrig.orient.strips import detect_strips
+
+    key = np.asarray(eo.exposure)[ok] if eo.exposure is not None else t[ok]
+    _, ex = np.unique(key, return_inverse=True)
+    m = int(ex.max()) + 1
+    cnt = np.bincount(ex, minlength=m)
+    tex = np.bincount(ex, weights=t[ok], minlength=m) / cnt
+    cen = np.stack([np.bincount(ex, weights=eo.centre[ok, d], minlength=m) for d in range(3)], 1) / cnt[:, None]
+    order = np.argsort(tex, kind="stable")
+    lab = np.empty(m, np.int64)
+    lab[order] = detect_strips(cen[order])
+    strip[ok] = lab[ex]
+    return strip
+
+
+def budget_pairs(
+    pairs: NDArray, overlap: NDArray, n_images: int, max_per_image: int | None,
+    camera: NDArray | None = None, strip: NDArray | None = None,
+) -> NDArray[np.bool_]:
+    """Which of the candidate pairs to match under a per-image budget (``True`` = keep).
+
+    Wide blocks of oblique rigs give every image tens of overlapping images (a 45 deg oblique sees the ground
+    of several strips), so matching every overlapping pair grows faster than the block.  Like the neighbour
+    limits of production tools, each image keeps a bounded number of pairs, chosen so that the block stays
+    one rigid, connected network:
+
+    1. a maximum spanning tree (forest, where the candidates already fall apart) over the overlaps: every
+       image stays connected to the block by its strongest links;
+    2. for each image a pair to every *kind* of partner (its strongest, or the strongest whose partner still
+       has budget, so that no image becomes everybody's link): the partner's camera (rig head) and whether it
+       lies on the same strip, on a strip numbered lower or on one numbered higher (``strip``,
+       :func:`image_strips`).  So nadir <-> oblique links, same-direction obliques of the next exposures and
+       of the neighbouring strips, and links across the strips on both sides are kept wherever one exists;
+    3. the remaining pairs by decreasing overlap, as long as both images have fewer than ``max_per_image``
+       pairs.
+
+    Steps 1 and 2 do not look at the budget, so an image can take part in more pairs than ``max_per_image``
+    (a few: its link kinds, at most 3 x the cameras, and the images that chose it as their strongest link of
+    a kind; neither grows with the block).
+
+    Parameters
+    ----------
+    pairs, overlap
+        ``(P, 2)`` candidate pairs and ``(P,)`` their overlap (e.g. from :func:`footprint_pairs`).
+    n_images
+        Number of images (the pairs' indices are rows ``0 .. n_images - 1``).
+    max_per_image
+        The budget; ``None`` or ``0`` keeps every pair.
+    camera, strip
+        ``(n_images,)`` camera (head) label and flight strip (``-1`` unknown) of every image (default: one
+        camera, strips unknown).
+
+    Returns
+    -------
+    ``(P,)`` boolean mask of the kept pairs.
+    """
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    ov = np.asarray(overlap, dtype=np.float64).reshape(-1)
+    if len(ov) != len(p):
+        raise ValueError(f"budget_pairs: {len(p)} pairs but {len(ov)} overlaps")
+    if not max_per_image or len(p) == 0:
+        return np.ones(len(p), bool)
+    if max_per_image < 1:
+        raise ValueError(f"max_per_image must be >= 1 (or 0 / None for all pairs), not {max_per_image}")
+    n = int(n_images)
+    keep = np.zeros(len(p), bool)
+    # 1. maximum spanning forest: minimum spanning tree of weights 2 - overlap (> 0, so that no edge vanishes)
+    w = coo_matrix((2.0 - ov, (p[:, 0], p[:, 1])), shape=(n, n)).tocsr()
+    t = minimum_spanning_tree(w).tocoo()
+    if t.nnz:
+        a, b = np.minimum(t.row, t.col), np.maximum(t.row, t.col)
+        index = {(int(i), int(j)): k for k, (i, j) in enumerate(p)}
+        keep[[index[(int(i), int(j))] for i, j in zip(a, b)]] = True
+    # 2. each image's best pair per partner class; directed rows (image, partner class, overlap, pair)
+    cam = np.zeros(n, np.int64) if camera is None else np.unique(np.asarray(camera).astype(str).reshape(n),
+                                                                  return_inverse=True)[1].astype(np.int64)
+    st = np.full(n, -1, np.int64) if strip is None else np.asarray(strip, np.int64).reshape(n)
+    img = np.concatenate([p[:, 0], p[:, 1]])
+    par = np.concatenate([p[:, 1], p[:, 0]])
+    side = np.where((st[img] < 0) | (st[par] < 0), 0, np.sign(st[par] - st[img]))
+    other = 3 * cam[par] + side + 1
+    pid = np.tile(np.arange(len(p)), 2)
+    o2 = np.tile(ov, 2)
+    order = np.lexsort((pid, -o2, other, img))  # per (image, class): strongest first, ties by pair order
+    img, par, other, pid, o2 = img[order], par[order], other[order], pid[order], o2[order]
+    start = np.flatnonzero(np.r_[True, (img[1:] != img[:-1]) | (other[1:] != other[:-1])])
+    stop = np.r_[start[1:], len(order)]
+    deg = np.bincount(p[keep].ravel(), minlength=n)
+    for g in np.lexsort((start, -o2[start])):  # the groups with the strongest links first
+        a, b = start[g], stop[g]
+        if keep[pid[a:b]].any():
+            continue
+        # the strongest link of the kind whose partner still has budget (no hubs), else the strongest
+        free = np.flatnonzero(deg[par[a:b]] < max_per_image)
+        k = pid[a + (free[0] if len(free) else 0)]
+        keep[k] = True
+        deg[p[k]] += 1
+    # 3. fill the budget by decreasing overlap
+    for k in np.lexsort((np.arange(len(p)), -ov)):
+        if keep[k]:
+            continue
+        i, j = p[k]
+        if deg[i] < max_per_image and deg[j] < max_per_image:
+            keep[k] = True
+            deg[i] += 1
+            deg[j] += 1
+    return keep
+
+
+def pair_graph_components(pairs: NDArray, n_images: int) -> int:
+    """Number of connected components of the pair graph over ``n_images`` images (1 = one block)."""
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    g = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n_images, n_images))
+    return int(connected_components(g, directed=False)[0])

@@ -8,6 +8,10 @@ one or more ``--images`` folders (e.g. one per rig head).  Results go to ``PROJE
 
 Pairs: ``guided`` (footprints from the images' own GPS + DJI gimbal attitudes, or ``--eo`` + ``--camera``),
 ``gps`` (nearest centres + heading), ``exhaustive``; ``auto`` picks guided when attitudes exist, else gps.
+Guided pairs are kept to a per-image budget (``max_pairs_per_image``, default :data:`MAX_PAIRS_PER_IMAGE`;
+0 / None = every overlapping pair) by :func:`skyrig.match.pairs.budget_pairs`: the strongest overlaps of each
+image, a spanning tree that keeps the block connected, and every image's links to the other heads and to the
+strips on both sides, so that the pairs grow linearly with the block.
 """
 
 from __future__ import annotations
@@ -31,11 +35,16 @@ from skyrig.io.image_read import (
 from skyrig.io.match_db import MatchDatabase
 from skyrig.match.features import FeatureConfig, extract_features
 from skyrig.match.matching import MatchConfig, PairMatches, match_pair
-from skyrig.match.pairs import exhaustive_pairs, footprint_pairs, gps_pairs
+from skyrig.match.pairs import budget_pairs, exhaustive_pairs, footprint_pairs, gps_pairs, image_strips
 from skyrig.match.report import coverage_image, tie_point_report
 from skyrig.match.tracks import Tracks, build_tracks, thin_tracks, tracks_to_measurements
 
 logger = logging.getLogger(__name__)
+
+#: Default per-image pair budget of guided matching (:func:`skyrig.match.pairs.budget_pairs`).  On the grown
+#: simulated MIDAS blocks (bench/run.py --grow; min_overlap 0.1) every overlapping pair gives 15 / 45 / 70 pairs
+#: per image at 60 / 240 / 540 images; with 12, 10 / 13 / 13 (the kept head and strip links add a few above 12).
+MAX_PAIRS_PER_IMAGE = 12
 
 
 @dataclass
@@ -224,10 +233,12 @@ def match_images(
     min_overlap: float = 0.1, gps_neighbours: int = 8, scheduler: str = "threads", workers: int = 2,
     thin_per_cell: int = 0, overwrite: bool = False, progress: Callable[[str, int, int], None] | None = None,
     lsm: bool = False, max_heading_diff_deg: float | None = None,
+    max_pairs_per_image: int | None = MAX_PAIRS_PER_IMAGE,
 ) -> MatchRunResult:
     """Feature extraction, pair selection, guided matching, tracks, tie-point file and report for a block.
 
     Parameters are as the CLI options.  ``progress(stage, done, total)`` is called as work completes.
+    ``max_pairs_per_image``: per-image budget of guided pairs (module docstring; 0 / None = all).
     """
     import time
 
@@ -272,6 +283,10 @@ def match_images(
                                                                           terrain_given)
     poses: list = [None] * len(metas)
     mode = pair_mode
+    n_candidates = None
+    if max_pairs_per_image is not None and max_pairs_per_image < 0:
+        raise InputFormatError(f"max_pairs_per_image must be >= 0 (0 = every pair), not {max_pairs_per_image}",
+                               field="max_pairs_per_image")
     if mode == "auto":
         mode = "guided" if eo is not None and terrain_height is not None else (
             "gps" if all(m.has_gps for m in metas) else "exhaustive")
@@ -282,7 +297,10 @@ def match_images(
         if eo is None or terrain_height is None:
             raise InputFormatError("guided pairs need orientations (GPS + gimbal attitudes or --eo) and a terrain "
                                    "height (--terrain-height or DJI RelativeAltitude)")
-        pairs, _ = footprint_pairs(eo, cameras or {}, terrain_height, min_overlap=min_overlap)
+        pairs, overlap = footprint_pairs(eo, cameras or {}, terrain_height, min_overlap=min_overlap)
+        n_candidates = len(pairs)
+        if max_pairs_per_image:
+            pairs = pairs[budget_pairs(pairs, overlap, len(eo), max_pairs_per_image, eo.camera, image_strips(eo))]
         poses = [eo.pose()[k] for k in range(len(eo))]
     elif mode == "gps":
         if not all(m.has_gps for m in metas):
@@ -297,7 +315,8 @@ def match_images(
             poses = [eo.pose()[k] for k in range(len(eo))]
     else:
         raise InputFormatError(f"unknown pair mode {pair_mode!r} (auto, guided, gps, exhaustive)", field="pairs")
-    logger.info("%d images, %d pairs (%s)", len(names), len(pairs), mode)
+    logger.info("%d images, %d pairs (%s)%s", len(names), len(pairs), mode,
+                "" if n_candidates is None else f" of {n_candidates} overlapping, budget {max_pairs_per_image}")
     if not all(p is not None for p in poses):
         cams = [None] * len(metas)
         poses = [None] * len(metas)
@@ -323,6 +342,9 @@ def match_images(
     if lsm:
         report["lsm_refined_fraction"] = float(ok.mean()) if thinned.n_tracks else 0.0
     report["pair_mode"] = mode
+    if n_candidates is not None:
+        report["pairs_overlapping"] = n_candidates
+        report["max_pairs_per_image"] = max_pairs_per_image or 0
     report["skipped_images"] = skipped
     report["n_tracks_before_thinning"] = tracks.n_tracks
 

@@ -530,7 +530,8 @@ def _match(ctx: StageContext) -> dict[str, Any]:
         ctx.progress(sum(d for d, _ in done_total.values()), sum(t for _, t in done_total.values()))
 
     r = match_images(p.images, cache, fc, None, o["pairs"], eo, cameras, th, o["min_overlap"], o["neighbours"],
-                     scheduler, ex.workers or 2, o["thin"], False, progress, o["lsm"], o["max_heading_diff"])
+                     scheduler, ex.workers or 2, o["thin"], False, progress, o["lsm"], o["max_heading_diff"],
+                     max_pairs_per_image=o["max_pairs_per_image"])
     for f in ("tie_points.csv", "report.json", "coverage.png"):
         if (cache / f).exists():
             shutil.copy2(cache / f, ctx.out / f)
@@ -739,6 +740,8 @@ register_stage(Stage(
              "max_size": Option(1600, "int", "detect on images downscaled to this (px)", positive=True),
              "max_features": Option(8000, "int", "features per image", positive=True),
              "min_overlap": Option(0.1, "float", "guided pairs: footprint overlap", positive=True),
+             "max_pairs_per_image": Option(12, "int", "guided pairs: per-image budget (strongest overlaps, "
+                                           "connected, head and strip links kept); 0 or null = all", nullable=True),
              "neighbours": Option(8, "int", "gps pairs: nearest images", positive=True),
              "max_heading_diff": Option(None, "float", "gps pairs: heading filter (deg)", nullable=True),
              "thin": Option(0, "int", "tracks kept per 8x8 image cell (0 = all)"),
