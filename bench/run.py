@@ -79,7 +79,8 @@ def _simulate_grown(folder: Path, k: int, image_scale: float = 1.0) -> None:
 
 
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
-                   keep: bool, grow: int | None = None, image_scale: float = 1.0) -> dict:
+                   keep: bool, grow: int | None = None, image_scale: float = 1.0,
+                   max_pairs_per_image: int | None = None) -> dict:
     tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
     folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
     out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
@@ -98,6 +99,9 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     if workers:
         text = text.replace("  workers: null ", f"  workers: {workers} ")
     text = text.replace("    # max_features: 8000 ", f"    max_features: {max_features} ")
+    if max_pairs_per_image is not None:
+        text = text.replace("    # max_pairs_per_image: 12 ", f"    max_pairs_per_image: {max_pairs_per_image} ")
+    out["max_pairs_per_image"] = max_pairs_per_image
     proj.write_text(text)
     truth = json.loads((folder / "truth" / "truth.json").read_text())
     out["images"] = truth.get("statistics", {}).get("images")
@@ -178,6 +182,9 @@ def main() -> None:
     ap.add_argument("--executor", default="serial", choices=["serial", "local", "auto"])
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--max-features", type=int, default=3000)
+    ap.add_argument("--max-pairs-per-image", type=int, default=None,
+                    help="stages.match.max_pairs_per_image (guided pairs' per-image budget; 0 = every overlapping "
+                    "pair; default: the stage's default)")
     ap.add_argument("--keep", action="store_true", help="keep the run outputs")
     ap.add_argument("--json", default=None, help="write the figures here")
     ap.add_argument("--report", default=None, metavar="JSON",
@@ -201,11 +208,12 @@ def main() -> None:
         for k in a.grow:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
             rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k,
-                                       a.image_scale))
+                                       a.image_scale, a.max_pairs_per_image))
             save()
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
-        rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep))
+        rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep,
+                                   max_pairs_per_image=a.max_pairs_per_image))
         save()
     growth = _print_tables(rows, a.project_to)
     if growth is not None:
@@ -225,10 +233,13 @@ def _print_tables(rows: list[dict], k_to: int) -> dict | None:
     def fmt(v: float | None, spec: str) -> str:
         return f"{'-':>10s}" if v is None else format(v, spec)
 
-    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s  match pairs")
+    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s  match pairs (kept/overlapping)")
     for r in rows:
         tot = sum(s.get("stage_s") or 0 for s in r["stages"])
-        pairs = next(((s.get("summary") or {}).get("pairs") for s in r["stages"] if s["stage"] == "match"), None)
+        summ = next(((s.get("summary") or {}) for s in r["stages"] if s["stage"] == "match"), {})
+        pairs = summ.get("pairs")
+        if pairs is not None and summ.get("pairs_overlapping") is not None:
+            pairs = f"{pairs}/{summ['pairs_overlapping']}"
         print(f"{r['scenario']:14s} {r['images'] or 0:7d} {r['megapixels'] or 0:6.1f}  "
               + "  ".join(fmt(cell(r, st, lambda s: s.get("stage_s") or 0.0), "10.1f") for st in names)
               + f"  {tot:8.1f}  {r.get('resume_all_skipped_s', 0.0):8.1f}  {pairs if pairs is not None else '-':>11}")

@@ -197,12 +197,23 @@ def footprint_pairs(
     cosang = np.einsum("ij,ij->i", axis[cand_a[:, 0]], axis[cand_a[:, 1]])
     cand_a = cand_a[cosang >= np.cos(np.radians(max_view_angle_deg))]
 
-    def seen(a: int, b: int) -> float:
+    # overlap = max(share of a's ground samples that b sees, share of b's that a sees); projected per image b,
+    # all of its candidates' samples at once
+    m = len(cand_a)
+    src = np.concatenate([cand_a[:, 0], cand_a[:, 1]])
+    dst = np.concatenate([cand_a[:, 1], cand_a[:, 0]])
+    frac = np.zeros(2 * m)
+    order = np.argsort(dst, kind="stable")
+    cuts = np.flatnonzero(np.r_[True, dst[order][1:] != dst[order][:-1], True])
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        rows = order[lo:hi]
+        b = int(dst[rows[0]])
         cam = cameras[str(eo.camera[b])]
-        px = cam.world_to_pixel(pose[b], samples[a])
-        return float(np.mean(cam.in_image(px)))
-
-    ov = np.array([max(seen(a, b), seen(b, a)) for a, b in cand_a]) if len(cand_a) else np.zeros(0)
+        counts = np.array([len(samples[a]) for a in src[rows]])
+        pts = np.concatenate([samples[a] for a in src[rows]])
+        inside = cam.in_image(cam.world_to_pixel(pose[b], pts)).astype(np.float64)
+        frac[rows] = np.add.reduceat(inside, np.r_[0, np.cumsum(counts)[:-1]]) / counts
+    ov = np.maximum(frac[:m], frac[m:])
     keep = ov >= min_overlap
     return cand_a[keep], ov[keep]
 

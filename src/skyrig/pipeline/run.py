@@ -537,6 +537,7 @@ def _match(ctx: StageContext) -> dict[str, Any]:
             shutil.copy2(cache / f, ctx.out / f)
     rep = r.report
     return {"images": len(r.names), "skipped": len(r.skipped), "pairs": rep.get("pairs_tried"),
+            "pairs_overlapping": rep.get("pairs_overlapping"),
             "tie_points": rep.get("n_tracks"), "observations": rep.get("n_observations"), "pair_mode": r.pair_mode}
 
 
