@@ -32,6 +32,15 @@ oblique sees (:func:`skyrig.simulate.judge_facades.walls_seen`, <= 60 deg incide
 measured (``*_in_dsm``; the others lie beyond the surveyed area).  ``--no-clip`` extracts as before (cut buildings
 left out), for comparison.
 
+``--footprints FILE`` (a GeoPackage with ``eave_m`` / ``ridge_m`` above the ground, as
+:func:`skyrig.simulate.footprints.write_scene_footprints` writes; ``--write-footprints FILE`` writes one from the
+scene first: every building, heights perturbed by a seeded normal error of ``--height-sigma`` metres (default
+0.3), plan by ``--plan-sigma`` (default 0)): two more sets per case, ``complete`` (the ``feet_buildings``
+completed by the footprints no extracted building overlaps, as ``skyrig facades --footprint-mode complete``;
+occlusions against the DSM with the footprint buildings burnt in where it has no heights) and ``footprints``
+(every footprint a building, heights from the DSM where it measured the roof, else from the attributes; as
+``--footprint-mode replace``).  ``--cases`` / ``--sets`` restrict what runs (comma lists).
+
 Speed: texels per second of :func:`skyrig.dense.facades.texture_facades` (occlusion march, per-texel best image,
 feathering) next to a plain ``cv2.warpPerspective`` of each façade's first image onto the same texel grid (a
 homography from the four corners: no distortion, no occlusion, one image), in the same run.
@@ -106,7 +115,27 @@ def _dsm_path(project: Path) -> Path:
     return p if p.exists() else project / "output" / "dsm" / "dsm.tif"
 
 
-def run(project: Path, clip: bool = True, extend: list[Path] | None = None) -> dict:
+SETS = ("true_buildings", "extracted_buildings", "refined_buildings", "feet_buildings", "complete", "footprints")
+
+
+def footprint_sets(feet, footprints: Path, dsm):
+    """``complete`` and ``footprints`` building sets (see the module docstring) and the occlusion surface of each."""
+    from skyrig.dense.buildings import FootprintHeights, buildings_from_footprints, surface_with_buildings
+    from skyrig.pipeline.facades import _complete, read_footprint_layer
+
+    fl = read_footprint_layer(footprints, dsm.frame, None, ["eave_m", "ridge_m"], max_height_m=500.0)
+    hts = FootprintHeights(fl.heights["eave_m"], fl.heights["ridge_m"], "ground", f"{footprints.name} eave_m / ridge_m",
+                           tuple(fl.labels))
+    given = buildings_from_footprints(fl.rings, dsm, source=footprints.name, heights=hts)
+    out = {}
+    for label, blocks in (("complete", _complete(feet, given)), ("footprints", given)):
+        surf = surface_with_buildings(dsm, [b for b in blocks if "; heights: " in str(b.source)])
+        out[label] = (blocks, surf, sum("; heights: " in str(b.source) for b in blocks))
+    return out
+
+
+def run(project: Path, clip: bool = True, extend: list[Path] | None = None, cases: tuple[str, ...] = ("true", "adjusted"),
+        sets: tuple[str, ...] = SETS, footprints: Path | None = None) -> dict:
     from skyrig.dense.buildings import ExtractionConfig, extend_dsm, extract_buildings
     from skyrig.dense.facades import refine_wall_feet, refine_walls, texture_facades
     from skyrig.io.dsm_cog import read_dsm_cog
@@ -135,6 +164,8 @@ def run(project: Path, clip: bool = True, extend: list[Path] | None = None) -> d
     print(f"analytic DSM on the matched DSM's grid {dsm_m.grid.shape} ({time.perf_counter() - t0:.1f} s)", flush=True)
     out: dict = {}
     for case, eo, dsm in (("true", eo_true, dsm_a), ("adjusted", eo_adj, dsm_m)):
+        if case not in cases:
+            continue
         loader = ImageFiles([str(project / "images" / n) for n in eo.image],
                             [(cams[c].width, cams[c].height) for c in eo.camera])
         oblique = {str(n) for n in eo.image if "nadir" not in str(n)}
@@ -158,10 +189,19 @@ def run(project: Path, clip: bool = True, extend: list[Path] | None = None) -> d
         fx["seconds"] = time.perf_counter() - t0
         print(f"[{case}] extraction + refine_walls + refine_wall_feet: {_fmt(fx)}", flush=True)
         out[case]["feet"] = fx
-        for label, blocks in (("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted),
-                              ("refined_buildings", refined), ("feet_buildings", feet)):
+        todo = [(label, blocks, dsm) for label, blocks in (
+            ("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted),
+            ("refined_buildings", refined), ("feet_buildings", feet)) if label in sets]
+        if footprints is not None and {"complete", "footprints"} & set(sets):
+            for label, (blocks, surf, n_att) in footprint_sets(feet, footprints, dsm).items():
+                if label in sets:
+                    print(f"[{case}] {label}: {len(blocks)} buildings, {n_att} with heights from the attributes, "
+                          f"{surf.metadata.get('buildings_burnt', {}).get('cells', 0)} occlusion cells burnt in",
+                          flush=True)
+                    todo.append((label, blocks, surf))
+        for label, blocks, surf in todo:
             t0 = time.perf_counter()
-            tex = texture_facades(blocks, eo, cams, loader, dsm)
+            tex = texture_facades(blocks, eo, cams, loader, surf)
             tt = time.perf_counter() - t0
             _, summ = judge_facades(scene, tex, frame, oblique, walls=walls, dsm=walls_dsm)
             texels = int(sum(t.valid.size for t in tex if t.images))
@@ -185,6 +225,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-clip", action="store_true", help="leave out the buildings cut by the DSM's border")
     ap.add_argument("--extend", type=Path, action="append", default=[],
                     help="a DSM beyond the matched DSM's surveyed area (e.g. from one direction's obliques); repeat")
+    ap.add_argument("--cases", default="true,adjusted", help="comma list of cases: true, adjusted")
+    ap.add_argument("--sets", default=",".join(SETS), help="comma list of building sets: " + ", ".join(SETS))
+    ap.add_argument("--footprints", type=Path, help="footprints GeoPackage (eave_m, ridge_m above the ground)")
+    ap.add_argument("--write-footprints", type=Path,
+                    help="write the scene's footprints (every building, perturbed heights) here first and use them")
+    ap.add_argument("--height-sigma", type=float, default=0.3, help="--write-footprints: height error (m, seeded)")
+    ap.add_argument("--plan-sigma", type=float, default=0.0, help="--write-footprints: plan error per building (m)")
+    ap.add_argument("--seed", type=int, default=0, help="--write-footprints: seed of the errors")
     a = ap.parse_args(argv)
     for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", str(_dsm_path(a.project).relative_to(a.project)),
                  "rig.yaml"):
@@ -195,7 +243,21 @@ def main(argv: list[str] | None = None) -> int:
         if not p.is_file():
             print(f"{p} is missing", file=sys.stderr)
             return 2
-    res = run(a.project, clip=not a.no_clip, extend=a.extend)
+    fp = a.footprints
+    if a.write_footprints is not None:
+        from skyrig.io.dsm_cog import read_dsm_cog
+        from skyrig.simulate.footprints import write_scene_footprints
+        from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+        crs = read_dsm_cog(_dsm_path(a.project)).frame.crs
+        w = write_scene_footprints(a.write_footprints, build_survey(scenario_spec("midas-dsm", "ci", 1)).scene, crs,
+                                   height_sigma_m=a.height_sigma, plan_sigma_m=a.plan_sigma, seed=a.seed)
+        print(f"wrote {len(w['ids'])} footprints to {a.write_footprints} ({crs}; height errors RMS "
+              f"{np.sqrt(np.mean(w['height_error_m'] ** 2)):.3f} m, plan errors RMS "
+              f"{np.sqrt(np.mean(np.sum(w['plan_error_m'] ** 2, axis=1))):.3f} m)", flush=True)
+        fp = a.write_footprints
+    res = run(a.project, clip=not a.no_clip, extend=a.extend, cases=tuple(a.cases.split(",")),
+              sets=tuple(a.sets.split(",")), footprints=fp)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))
     return 0

@@ -16,6 +16,21 @@ from skyrig.cli._common import eo_options
 @click.option("--heads", default=None, help="Use only these rig heads / name parts (comma list, e.g. 'fwd,bwd,left,right').")
 @click.option("--footprints", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Building footprints (GeoPackage polygons, any CRS); default: extracted from the DSM.")
+@click.option("--footprint-layer", default=None,
+              help="Layer of --footprints (default: 'buildings', else the only polygon layer).")
+@click.option("--footprint-eave", default=None, metavar="FIELD",
+              help="Attribute of --footprints with each building's eave height in metres (see --footprint-heights), "
+                   "used where the DSM has no heights (a cadastre's building beyond the DSM's coverage).")
+@click.option("--footprint-ridge", default=None, metavar="FIELD",
+              help="Attribute with the ridge height (same reference): a rectangle with a ridge gets a gabled roof, "
+                   "ridge along its longer sides.")
+@click.option("--footprint-heights", type=click.Choice(["above-ground", "absolute"]), default="above-ground",
+              show_default=True,
+              help="Reference of the footprint heights: above the ground at the footprint, or absolute in the DSM's "
+                   "vertical reference.")
+@click.option("--footprint-mode", type=click.Choice(["replace", "complete"]), default="replace", show_default=True,
+              help="replace: the footprints are the buildings; complete: buildings extracted from the DSM, completed "
+                   "by the footprints no extracted building overlaps (and replacing ones the DSM's border cut).")
 @click.option("--ortho", "ortho_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="RGB orthophoto (GeoTIFF / COG) to texture the roofs with; default: a flat roof colour.")
 @click.option("--texel", type=float, default=None,
@@ -32,10 +47,12 @@ from skyrig.cli._common import eo_options
                    "the obliques' own stereo coverage) for the buildings the obliques see there.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, footprints,
+            footprint_layer, footprint_eave, footprint_ridge, footprint_heights, footprint_mode,
             ortho_path, texel, max_images, texture_format, no_refine, no_feet, extend_dsm, output) -> None:
     """Façade textures and a textured 3D model of the buildings of a DSM.
 
-    Buildings come from the DSM (or --footprints, heights from the DSM); every façade is textured from the
+    Buildings come from the DSM (or --footprints: heights from the DSM, or from --footprint-eave where the DSM
+    has none; --footprint-mode complete adds them to the DSM's buildings); every façade is textured from the
     oriented images that see it best (occlusions checked against the DSM); the model is written as binary glTF
     (model.glb, local ENU frame, y-up, its geographic origin recorded), OBJ + MTL + PNG, and a viewer page
     (viewer.html, opens from the file system), with buildings.gpkg and facades.json.
@@ -52,7 +69,10 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
             res = make_facades(eo, cameras, images, dsm_path, output, heads=heads, footprints=footprints,
                                ortho=ortho_path, texel=texel, max_images=max_images, texture_format=texture_format,
                                refine=not no_refine, feet=not no_feet, extend_dsm=extend_dsm,
-                               inputs=[eo_path, *camera_paths], progress=progress)
+                               inputs=[eo_path, *camera_paths], progress=progress,
+                               footprint_layer=footprint_layer, footprint_eave=footprint_eave,
+                               footprint_ridge=footprint_ridge, footprint_heights=footprint_heights,
+                               footprint_mode=footprint_mode)
         except NoBuildingsError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None

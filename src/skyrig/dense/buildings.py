@@ -7,9 +7,11 @@ Making buildings:
 
 * :func:`extract_buildings` ``(dsm) -> list[BuildingBlock]``: from a DSM alone (ground estimate, normalised DSM,
   connected components, regularised footprints, ground / eave heights, flat or gabled roof planes);
-* :func:`buildings_from_footprints` ``(footprints, dsm)``: given footprints (e.g. read from a GeoPackage by
-  :func:`skyrig.io.footprints_gpkg.read_footprints`, which checks and reprojects the layer's CRS), heights
-  from the DSM.
+* :func:`buildings_from_footprints` ``(footprints, dsm, heights=)``: given footprints (e.g. read from a GeoPackage
+  by :func:`skyrig.pipeline.facades.read_footprint_layer`, which checks and reprojects the layer's CRS and reads
+  a height attribute), heights from the DSM where it measured the roof, else from the given heights
+  (:class:`FootprintHeights`: a cadastre's buildings beyond the DSM's coverage);
+* :func:`surface_with_buildings`: the DSM as an occlusion surface holding those buildings too.
 
 Texturing them: :func:`skyrig.dense.facades.texture_facades`.  Judges against a simulated scene:
 :mod:`skyrig.simulate.judge_facades`.  Figures: ``bench/facades.py``.
@@ -159,7 +161,7 @@ class BuildingBlock:
                     t = float((v[:2] - a) @ e) / max(ln2, 1e-12)
                     if 0.0 < t < 1.0 and np.linalg.norm(a + t * e - v[:2]) < 0.01:
                         tri = np.array([[a[0], a[1], self.eave_z], [b[0], b[1], self.eave_z], v])
-                        if not any(j == i and np.allclose(tr[2], v) for j, tr in out):
+                        if not any(j == i and np.allclose(tr[2], v, rtol=0.0, atol=1e-6) for j, tr in out):
                             out.append((i, tri))
         return out
 
@@ -894,17 +896,92 @@ def extend_dsm(dsm: DsmGrid, others: Sequence[DsmGrid], *, gap_m: float = 4.0) -
     return DsmGrid(ng, dsm.frame, height, support, spread, sigma, filled, dsm.vertical_reference, meta)
 
 
-def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source: str = "footprints",
-                              config: ExtractionConfig | None = None) -> list[BuildingBlock]:
-    """Building blocks from given footprints (in the DSM's frame), heights from the DSM.
+@dataclass(frozen=True)
+class FootprintHeights:
+    """Heights given with footprints (e.g. a cadastre's attributes), used for the footprints inside which the DSM
+    has no heights (beyond its surveyed area): :func:`buildings_from_footprints`.
 
-    Ground height: 10th percentile of the DSM in a ring of ``ring_m`` around the footprint; eave height: the
-    median of the DSM cells inside the footprint eroded by ``edge_cells`` (a flat roof).
+    Attributes
+    ----------
+    eave_m
+        ``(N,)`` eave height per footprint in metres (where the walls meet the roof; a flat roof's height); NaN:
+        none given for that footprint.
+    ridge_m
+        ``(N,)`` ridge heights (same reference) or None.  A rectangular footprint whose ridge is at least
+        ``min_pitch_m`` above its eaves gets a gabled roof with the ridge along its longer sides (the common
+        house; its gable ends' walls are textured up to the roof line); otherwise a flat roof at the eaves.
+    reference
+        ``"ground"``: heights above the ground at the footprint (the 10th percentile of the DSM's heights in a ring
+        around it; beyond the DSM's measured cells, its ground estimate (:func:`ground_estimate`) at the nearest
+        measured cell, at most ``max_ground_m`` away); ``"absolute"``: heights in the DSM's own vertical
+        reference (:attr:`DsmGrid.vertical_reference`).
+    source
+        What the heights are, in words (e.g. ``"footprints.gpkg field eave_m"``), for messages and
+        :attr:`BuildingBlock.source`.
+    labels
+        A name per footprint for messages (e.g. ``"buildings:12"``, layer and feature id); default its number.
+    max_ground_m
+        See ``reference``.
+    min_pitch_m
+        See ``ridge_m``.
+    """
+
+    eave_m: NDArray[np.float64]
+    ridge_m: NDArray[np.float64] | None = None
+    reference: str = "ground"
+    source: str = "footprint heights"
+    labels: tuple[str, ...] | None = None
+    max_ground_m: float = 150.0
+    min_pitch_m: float = 0.5
+
+    def label(self, k: int) -> str:
+        return self.labels[k] if self.labels is not None and k < len(self.labels) else f"footprint {k}"
+
+
+#: Plausible eave heights above the ground (metres) of a building given with its footprint.
+EAVE_RANGE_M = (1.0, 500.0)
+
+
+def _gabled_rectangle(foot: NDArray, eave: float, ridge: float) -> tuple[NDArray[np.float64], ...] | None:
+    """Two roof planes over a (near) rectangular counter-clockwise footprint, ridge along its longer sides at
+    mid-width; None when the footprint is not a rectangle (corner angles within 3 deg of 90)."""
+    if len(foot) != 4:
+        return None
+    e = np.roll(foot, -1, axis=0) - foot
+    ln = np.linalg.norm(e, axis=1)
+    if ln.min() <= 0:
+        return None
+    u = e / ln[:, None]
+    if np.max(np.abs(np.sum(u * np.roll(u, -1, axis=0), axis=1))) > np.sin(np.radians(3.0)):
+        return None
+    k = 0 if ln[0] + ln[2] >= ln[1] + ln[3] else 1  # edges k and k + 2 are the long (eave) sides
+    a, b, c, d = (foot[(k + j) % 4] for j in range(4))  # a -> b a long side, c -> d the other
+    m1, m2 = 0.5 * (a + d), 0.5 * (b + c)  # the ridge ends: middles of the gable ends
+    p = lambda xy, z: np.r_[xy, z]  # noqa: E731
+    side1 = _ccw3(np.array([p(a, eave), p(b, eave), p(m2, ridge), p(m1, ridge)]))
+    side2 = _ccw3(np.array([p(m1, ridge), p(m2, ridge), p(c, eave), p(d, eave)]))
+    return side1, side2
+
+
+def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source: str = "footprints",
+                              config: ExtractionConfig | None = None, heights: FootprintHeights | None = None,
+                              min_measured: float = 0.5) -> list[BuildingBlock]:
+    """Building blocks from given footprints (in the DSM's frame), heights from the DSM where it has them, else
+    from ``heights``.
+
+    DSM heights (at least ``min_measured`` of the cells inside the footprint eroded by ``edge_cells`` measured):
+    ground = 10th percentile of the DSM in a ring of ``ring_m`` around the footprint, eaves = the median of those
+    inner cells (a flat roof).  Otherwise the footprint's heights come from ``heights`` (a cadastre's attributes,
+    :class:`FootprintHeights`); its footprint may then lie partly or wholly beyond the DSM's grid.  ``source`` of
+    the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given heights.
 
     Raises
     ------
     SkyrigError
-        On a footprint with fewer than 3 vertices, one outside the DSM, or without measured cells inside.
+        On a footprint with fewer than 3 vertices; one without enough measured cells and no given height for it
+        (named; "outside the DSM" when it lies beyond the grid); a given height that is not finite, or an eave
+        height above the ground outside :data:`EAVE_RANGE_M`, or a ridge below the eaves; a footprint whose
+        ground would be read further than ``heights.max_ground_m`` from the DSM's measured cells.
     """
     import cv2
     from scipy import ndimage
@@ -912,35 +989,186 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
     cfg = config or ExtractionConfig()
     g = dsm.grid
     h = np.asarray(dsm.height, np.float64)
+    meas_all = np.isfinite(h)
+    if heights is not None:
+        if heights.reference not in ("ground", "absolute"):
+            raise SkyrigError(f"footprint heights: reference must be 'ground' or 'absolute', not {heights.reference!r}")
+        if len(np.asarray(heights.eave_m).reshape(-1)) != len(footprints):
+            raise SkyrigError(f"footprint heights: {len(np.asarray(heights.eave_m).reshape(-1))} eave heights for "
+                              f"{len(footprints)} footprints")
+    ground_cache: dict = {}
+
+    def far_ground(xy: NDArray, label: str) -> float:
+        """The DSM's ground estimate at the measured cell nearest to ``xy`` (frame x, y)."""
+        if not ground_cache:
+            if not meas_all.any():
+                raise SkyrigError("the DSM has no measured cell: no ground height for footprints beyond it")
+            ground_cache["g"] = ground_estimate(dsm)
+            ground_cache["idx"] = ndimage.distance_transform_edt(~meas_all, return_distances=False,
+                                                                  return_indices=True)
+        cc = int(np.clip(np.floor((xy[0] - g.x0) / g.cell_m), 0, g.width - 1))
+        rr = int(np.clip(np.floor((g.y0 - xy[1]) / g.cell_m), 0, g.height - 1))
+        ir, ic = ground_cache["idx"][0][rr, cc], ground_cache["idx"][1][rr, cc]
+        x = g.x0 + (ic + 0.5) * g.cell_m
+        y = g.y0 - (ir + 0.5) * g.cell_m
+        dist = float(np.hypot(x - xy[0], y - xy[1]))
+        if dist > heights.max_ground_m:
+            raise SkyrigError(f"{label} ({source}): the nearest DSM cell with a ground height is {dist:.0f} m away "
+                              f"(more than {heights.max_ground_m:.0f} m): give its heights in the DSM's vertical "
+                              f"reference ({dsm.vertical_reference}) instead of above the ground")
+        return float(ground_cache["g"][ir, ic])
+
     out = []
     for k, fp in enumerate(footprints):
+        label = heights.label(k) if heights is not None else f"footprint {k}"
         fp = np.asarray(fp, float)[:, :2]
-        if len(fp) > 3 and np.allclose(fp[0], fp[-1]):
+        if len(fp) > 3 and np.allclose(fp[0], fp[-1], rtol=0.0, atol=1e-6):
             fp = fp[:-1]
         if len(fp) < 3:
-            raise SkyrigError(f"footprint {k}: fewer than 3 vertices")
+            raise SkyrigError(f"{label} ({source}): fewer than 3 vertices")
         col = (fp[:, 0] - g.x0) / g.cell_m - 0.5
         row = (g.y0 - fp[:, 1]) / g.cell_m - 0.5
-        if col.min() < 0 or row.min() < 0 or col.max() > g.width - 1 or row.max() > g.height - 1:
-            raise SkyrigError(f"footprint {k} ({source}) lies (partly) outside the DSM {g.bounds}")
         ring_px = max(1, int(np.ceil(cfg.ring_m / g.cell_m)))
         pad = ring_px + 2
-        r0, c0 = max(int(row.min()) - pad, 0), max(int(col.min()) - pad, 0)
-        r1, c1 = min(int(row.max()) + pad + 2, g.height), min(int(col.max()) + pad + 2, g.width)
+        # the footprint's window, possibly reaching beyond the grid (cells there are unmeasured)
+        r0, c0 = int(np.floor(row.min())) - pad, int(np.floor(col.min())) - pad
+        r1, c1 = int(np.ceil(row.max())) + pad + 2, int(np.ceil(col.max())) + pad + 2
         m = np.zeros((r1 - r0, c1 - c0), np.uint8)
         pts = np.round(np.column_stack([col - c0, row - r0]) * 16).astype(np.int32)
         cv2.fillPoly(m, [pts], 1, shift=4)
         comp = m.astype(bool)
-        hw = h[r0:r1, c0:c1]
+        hw = np.full(comp.shape, np.nan)
+        rs, re_ = max(r0, 0), min(r1, g.height)
+        cs, ce = max(c0, 0), min(c1, g.width)
+        if rs < re_ and cs < ce:
+            hw[rs - r0:re_ - r0, cs - c0:ce - c0] = h[rs:re_, cs:ce]
         mw = np.isfinite(hw)
-        inner = ndimage.binary_erosion(comp, iterations=cfg.edge_cells) & mw
-        if inner.sum() < 3:
-            inner = comp & mw
-        if inner.sum() == 0:
-            raise SkyrigError(f"footprint {k} ({source}): the DSM has no measured cell inside it")
+        inner_all = ndimage.binary_erosion(comp, iterations=cfg.edge_cells)
+        if inner_all.sum() < 3:
+            inner_all = comp
+        measured = float((inner_all & mw).sum()) / max(int(inner_all.sum()), 1)
         ring = ndimage.binary_dilation(comp, iterations=ring_px) & ~ndimage.binary_dilation(comp) & mw
-        eave = float(np.median(hw[inner]))
-        gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else float(np.nanmin(hw))
         foot = _ccw(fp)
-        out.append(BuildingBlock(k, foot, gz, eave, (np.column_stack([foot, np.full(len(foot), eave)]),), source))
+        given = None
+        if heights is not None:
+            given = float(np.asarray(heights.eave_m, float).reshape(-1)[k])
+            if np.isnan(given):
+                given = None
+        outside = not (0 <= col.min() and 0 <= row.min() and col.max() <= g.width - 1 and row.max() <= g.height - 1)
+        if given is None and outside:
+            raise SkyrigError(f"{label} ({source}) lies (partly) outside the DSM {g.bounds} and no height was "
+                              "given for it (a height attribute of the footprints)")
+        if measured >= min_measured or (given is None and (comp & mw).any()):
+            # the DSM measured the roof (without a given height: any measured cell inside will do)
+            inner = inner_all & mw
+            if inner.sum() < 3:
+                inner = comp & mw
+            eave = float(np.median(hw[inner]))
+            gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else float(np.nanmin(hw))
+            out.append(BuildingBlock(k, foot, gz, eave, (np.column_stack([foot, np.full(len(foot), eave)]),), source))
+            continue
+        if given is None:
+            raise SkyrigError(f"{label} ({source}): the DSM has no measured cell inside it and no height was given "
+                              "for it (a height attribute of the footprints)")
+        ridge_given = None
+        if heights.ridge_m is not None:
+            rv = float(np.asarray(heights.ridge_m, float).reshape(-1)[k])
+            ridge_given = None if np.isnan(rv) else rv
+        if not np.isfinite(given) or (ridge_given is not None and not np.isfinite(ridge_given)):
+            raise SkyrigError(f"{label} ({heights.source}): height {given} is not a number")
+        if heights.reference == "ground":
+            if ring.sum() >= max(3, 0.5 * (ndimage.binary_dilation(comp, iterations=ring_px) & ~ndimage.binary_dilation(comp)).sum()):
+                gz = float(np.percentile(hw[ring], 10))
+            else:
+                gz = far_ground(foot.mean(axis=0), label)
+            eave, ridge = gz + given, (None if ridge_given is None else gz + ridge_given)
+        else:
+            gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else far_ground(foot.mean(axis=0), label)
+            eave, ridge = given, ridge_given
+        lo, hi = EAVE_RANGE_M
+        if not lo <= eave - gz <= hi:
+            raise SkyrigError(f"{label} ({heights.source}): eave height {eave - gz:.2f} m above the ground (at "
+                              f"{gz:.2f} m, {dsm.vertical_reference}) is implausible (expected {lo:g} to {hi:g} m; "
+                              "heights in metres, reference " + ("above the ground)" if heights.reference == "ground"
+                                                                else "the DSM's vertical reference)"))
+        if ridge is not None and ridge < eave - 0.01:
+            raise SkyrigError(f"{label} ({heights.source}): ridge height {ridge - gz:.2f} m is below the eaves "
+                              f"({eave - gz:.2f} m above the ground)")
+        roof = None
+        if ridge is not None and ridge - eave >= heights.min_pitch_m:
+            roof = _gabled_rectangle(foot, eave, ridge)
+        if roof is None:
+            roof = (np.column_stack([foot, np.full(len(foot), eave)]),)
+        out.append(BuildingBlock(k, foot, gz, eave, roof, f"{source}; heights: {heights.source}"))
     return out
+
+
+def surface_with_buildings(dsm: DsmGrid, buildings: Sequence[BuildingBlock], *, margin_m: float = 10.0) -> DsmGrid:
+    """The DSM as an occlusion surface that also holds buildings it did not measure (e.g. given as footprints with
+    heights beyond its surveyed area).
+
+    The grid grows (same cell size and alignment) to cover every building plus ``margin_m``.  The cells the DSM
+    has not measured (its holes and the new cells) take its ground estimate (:func:`ground_estimate`, flagged
+    ``filled``), then in every such cell inside a building's footprint the building's roof height is burnt in (its
+    roof polygons; the eaves without).  Measured cells are left as they are.  ``metadata["buildings_burnt"]``
+    counts the burnt cells.  Unchanged (the same object) when nothing is to be burnt.
+    """
+    import cv2
+
+    if not buildings:
+        return dsm
+    g = dsm.grid
+    allp = np.concatenate([np.asarray(b.footprint, float) for b in buildings])
+    xmin, ymin = min(g.bounds[0], allp[:, 0].min() - margin_m), min(g.bounds[1], allp[:, 1].min() - margin_m)
+    xmax, ymax = max(g.bounds[2], allp[:, 0].max() + margin_m), max(g.bounds[3], allp[:, 1].max() + margin_m)
+    c0 = int(np.floor((xmin - g.x0) / g.cell_m + 1e-9))
+    r0 = int(np.floor((g.y0 - ymax) / g.cell_m + 1e-9))
+    c1 = max(int(np.ceil((xmax - g.x0) / g.cell_m - 1e-9)), g.width)
+    r1 = max(int(np.ceil((g.y0 - ymin) / g.cell_m - 1e-9)), g.height)
+    c0, r0 = min(c0, 0), min(r0, 0)
+    ng = GridSpec(g.x0 + c0 * g.cell_m, g.y0 - r0 * g.cell_m, g.cell_m, c1 - c0, r1 - r0)
+    H, W = ng.shape
+
+    def place(a: NDArray, fill) -> NDArray:
+        o = np.full((H, W), fill, dtype=a.dtype)
+        o[-r0:-r0 + g.height, -c0:-c0 + g.width] = a
+        return o
+
+    height = place(np.asarray(dsm.height, np.float32), np.float32(np.nan))
+    free = ~np.isfinite(height)
+    filled = place(np.asarray(dsm.filled, bool), False)
+    if free.any():
+        # the unmeasured cells get the ground first (from the measured cells: texturing would fill holes from the
+        # nearest measured cell, and a burnt roof would then spread over the void around it)
+        ground = ground_estimate(DsmGrid(ng, dsm.frame, height, np.zeros((H, W), np.int16), height, height, filled,
+                                         dsm.vertical_reference, {}))
+        height = np.where(free, ground, height).astype(np.float32)
+        filled = filled | free
+    burnt = 0
+    for b in buildings:
+        fp = np.asarray(b.footprint, float)
+        col = (fp[:, 0] - ng.x0) / ng.cell_m - 0.5
+        row = (ng.y0 - fp[:, 1]) / ng.cell_m - 0.5
+        ra, ca = max(int(np.floor(row.min())) - 1, 0), max(int(np.floor(col.min())) - 1, 0)
+        rb, cb = min(int(np.ceil(row.max())) + 2, H), min(int(np.ceil(col.max())) + 2, W)
+        if ra >= rb or ca >= cb:
+            continue
+        m = np.zeros((rb - ra, cb - ca), np.uint8)
+        cv2.fillPoly(m, [np.round(np.column_stack([col - ca, row - ra]) * 16).astype(np.int32)], 1, shift=4)
+        sel = m.astype(bool) & free[ra:rb, ca:cb]
+        if not sel.any():
+            continue
+        rr, cc = np.nonzero(sel)
+        xy = np.column_stack([ng.x0 + (cc + ca + 0.5) * ng.cell_m, ng.y0 - (rr + ra + 0.5) * ng.cell_m])
+        from skyrig.dense.facades import _roof_height  # noqa: PLC0415 - facades imports this module
+
+        height[rr + ra, cc + ca] = _roof_height(b, xy).astype(np.float32)
+        burnt += len(rr)
+    if burnt == 0 and (H, W) == g.shape:
+        return dsm
+    meta = dict(dsm.metadata)
+    meta["buildings_burnt"] = {"cells": burnt}
+    return DsmGrid(ng, dsm.frame, height, place(np.asarray(dsm.support, np.int16), np.int16(0)),
+                   place(np.asarray(dsm.spread, np.float32), np.float32(np.nan)),
+                   place(np.asarray(dsm.sigma, np.float32), np.float32(np.nan)),
+                   filled, dsm.vertical_reference, meta)

@@ -475,14 +475,14 @@ def build_model(buildings: Sequence[BuildingBlock], textures: Sequence[FacadeTex
                 # rectangle's top at or above the apex, its outline the wall's)
                 tc = np.asarray(tex.facade.corners, float)
                 if tex.facade.outline is None:
-                    same = tc.shape == (4, 3) and np.allclose(tc, f.corners, atol=1e-6)
+                    same = tc.shape == (4, 3) and np.allclose(tc, f.corners, rtol=0.0, atol=1e-6)
                 else:
                     ref = roof_walls.get(f.index)
-                    same = (ref is not None and tc.shape == (4, 3) and np.allclose(tc[:2], f.corners[:2], atol=1e-6)
-                            and np.allclose(tc[2:, :2], f.corners[2:, :2], atol=1e-6)
+                    same = (ref is not None and tc.shape == (4, 3) and np.allclose(tc[:2], f.corners[:2], rtol=0.0, atol=1e-6)
+                            and np.allclose(tc[2:, :2], f.corners[2:, :2], rtol=0.0, atol=1e-6)
                             and tc[3, 2] >= ref.corners[3, 2] - 1e-6
                             and np.shape(tex.facade.outline) == np.shape(ref.outline)
-                            and np.allclose(tex.facade.outline, ref.outline, atol=1e-6))
+                            and np.allclose(tex.facade.outline, ref.outline, rtol=0.0, atol=1e-6))
                     to_roof.add(f.index)
                 if not same:
                     raise SkyrigError(f"façade texture {b.id}/{f.index} was made for another wall (corners differ)")

@@ -42,7 +42,8 @@ from skyrig.georef.eo import ExteriorOrientations
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FacadesOutputs", "NoBuildingsError", "read_footprints_gpkg", "read_ortho_raster", "run_facades"]
+__all__ = ["FacadesOutputs", "FootprintLayer", "NoBuildingsError", "read_footprint_layer", "read_footprints_gpkg",
+           "read_ortho_raster", "run_facades"]
 
 
 class NoBuildingsError(SkyrigError):
@@ -62,56 +63,140 @@ class FacadesOutputs:
     summary: dict
 
 
-def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None = None) -> list[np.ndarray]:
-    """Footprint polygons ``(K, 2)`` (exterior rings, no closing vertex) of a GeoPackage / any OGR vector file,
-    converted to ``frame``'s horizontal CRS (multi-polygons give one footprint per part; inner rings are left out,
-    with a warning).
+@dataclass
+class FootprintLayer:
+    """Footprints read from a vector file by :func:`read_footprint_layer`.
+
+    Attributes
+    ----------
+    rings
+        ``(K, 2)`` exterior rings (no closing vertex) in the target frame, one per polygon part.
+    labels
+        ``"<layer>:<feature id>[.<part>]"`` per ring.
+    heights
+        Per ring the values of the height fields asked for (``{field: (N,) float}``; NaN: none given).
+    path, layer
+        Where they came from.
+    """
+
+    rings: list[np.ndarray]
+    labels: list[str]
+    heights: dict[str, np.ndarray]
+    path: Path
+    layer: str
+
+
+def read_footprint_layer(path: str | Path, frame: WorldFrame, layer: str | None = None,
+                         height_fields: Sequence[str] = (), *, max_height_m: float | None = None
+                         ) -> FootprintLayer:
+    """Footprint polygons of a GeoPackage (any OGR vector file) layer in ``frame``'s horizontal CRS, with the values
+    of ``height_fields`` (metres) per footprint.
+
+    ``layer`` None: the layer named ``buildings`` if there is one, else the only polygon layer.  Multi-polygons
+    give one footprint per part (with the feature's heights); inner rings (courtyards) are left out with a
+    warning.  A height field's value must be a finite number of metres; with ``max_height_m`` its absolute value
+    at most that (a height given in centimetres or millimetres is refused).  A feature without a value (NULL) has
+    NaN: its height must then come from the DSM.
 
     Raises
     ------
     InputFormatError
-        Unreadable file, no CRS, a layer without polygons, an empty or invalid polygon (named by feature number).
+        Unreadable file, no such layer / several polygon layers, no CRS, no polygons, an empty or invalid polygon
+        (named by feature id), a missing height field (the fields there are listed), a height that is not a number
+        or implausible (feature id and field named).
     """
+    import pyogrio
     import pyproj
     import shapely
-    from pyogrio.errors import DataSourceError, DataLayerError
+    from pyogrio.errors import DataLayerError, DataSourceError
     from pyogrio.raw import read
 
     p = Path(path)
     if not p.is_file():
         raise InputFormatError("file not found", p, field="footprints")
     try:
-        meta, _, geoms, _ = read(str(p), layer=layer, read_geometry=True)
+        layers = [(str(n), str(t)) for n, t in pyogrio.list_layers(str(p))]
     except (DataSourceError, DataLayerError, OSError) as exc:
         raise InputFormatError(f"cannot read the footprints: {exc}", p) from None
+    names = [n for n, _ in layers]
+    if layer is None:
+        poly = [n for n, t in layers if "polygon" in t.lower()]
+        if "buildings" in names:
+            layer = "buildings"
+        elif len(poly) == 1:
+            layer = poly[0]
+        else:
+            raise InputFormatError(f"{len(poly)} polygon layers ({', '.join(poly) or 'none'}): name the footprint "
+                                   "layer", p, field="layer")
+    elif layer not in names:
+        raise InputFormatError(f"no layer {layer!r} (layers: {', '.join(names)})", p, field="layer")
+    try:
+        meta, fids, geoms, data = read(str(p), layer=layer, read_geometry=True, return_fids=True)
+    except (DataSourceError, DataLayerError, OSError) as exc:
+        raise InputFormatError(f"cannot read layer {layer!r}: {exc}", p, field="layer") from None
+    where = f"layer {layer!r}"
     if not meta.get("crs"):
-        raise InputFormatError("the footprint layer states no CRS", p, field="crs")
+        raise InputFormatError(f"{where} states no CRS: its coordinates cannot be placed (assign one, e.g. ogr2ogr "
+                               "-a_srs EPSG:xxxx)", p, field="crs")
     if geoms is None or len(geoms) == 0:
-        raise InputFormatError("no footprint polygons in the layer", p)
+        raise InputFormatError(f"no footprint polygons in {where}", p, field="layer")
+    fields = [str(f) for f in meta.get("fields", [])]
+    values: dict[str, np.ndarray] = {}
+    for name in height_fields:
+        if name not in fields:
+            raise InputFormatError(f"{where} has no field {name!r} (fields: {', '.join(fields) or 'none'})", p,
+                                   field=name)
+        col = data[fields.index(name)]
+        vals = np.full(len(col), np.nan)
+        for k, v in enumerate(col):
+            if v is None or (isinstance(v, float) and np.isnan(v)):
+                continue  # NULL: no height given for this feature
+            try:
+                vals[k] = float(v)
+            except (TypeError, ValueError):
+                raise InputFormatError(f"{where} feature {fids[k]}: {name} = {v!r} is not a number of metres", p,
+                                       line=int(fids[k]), field=name) from None
+            if not np.isfinite(vals[k]) or (max_height_m is not None and abs(vals[k]) > max_height_m):
+                raise InputFormatError(f"{where} feature {fids[k]}: {name} = {v!r} is not a plausible height in metres"
+                                       + (f" (at most {max_height_m:g})" if max_height_m is not None else ""), p,
+                                       line=int(fids[k]), field=name)
+        values[name] = vals
     src = pyproj.CRS.from_user_input(meta["crs"])
     if frame.kind != "map":
         raise SkyrigError(f"footprints need a DSM in a map CRS, not a {frame.kind} frame")
     dst = pyproj.CRS.from_user_input(frame.crs)
-    tr = None if src.equals(dst, ignore_axis_order=True) else pyproj.Transformer.from_crs(src, dst, always_xy=True)
-    out = []
-    for k, wkb in enumerate(geoms, start=1):
+    h_src = src.sub_crs_list[0] if src.is_compound else src
+    tr = None if h_src.equals(dst, ignore_axis_order=True) else pyproj.Transformer.from_crs(h_src, dst, always_xy=True)
+    rings, labels, per = [], [], []
+    for k, wkb in enumerate(geoms):
+        fid = int(fids[k])
         g = shapely.from_wkb(wkb) if wkb is not None else None
         if g is None or g.is_empty:
-            raise InputFormatError("empty geometry", p, line=k, field="geometry")
+            raise InputFormatError(f"{where} feature {fid}: empty geometry", p, line=fid, field="geometry")
         polys = list(g.geoms) if g.geom_type == "MultiPolygon" else [g]
-        for poly in polys:
+        for q, poly in enumerate(polys):
             if poly.geom_type != "Polygon":
-                raise InputFormatError(f"a {poly.geom_type}, not a polygon", p, line=k, field="geometry")
+                raise InputFormatError(f"{where} feature {fid}: a {poly.geom_type}, not a polygon", p, line=fid,
+                                       field="geometry")
             if not poly.is_valid:
-                raise InputFormatError(f"invalid polygon ({shapely.is_valid_reason(poly)})", p, line=k, field="geometry")
+                raise InputFormatError(f"{where} feature {fid}: invalid polygon ({shapely.is_valid_reason(poly)})",
+                                       p, line=fid, field="geometry")
             if len(poly.interiors):
-                logger.warning("%s feature %d: %d inner ring(s) (courtyards) left out: the building is modelled as "
-                               "its outer footprint", p, k, len(poly.interiors))
+                logger.warning("%s %s feature %d: %d inner ring(s) (courtyards) left out: the building is modelled as "
+                               "its outer footprint", p, where, fid, len(poly.interiors))
             xy = np.asarray(poly.exterior.coords, float)[:-1, :2]
             if tr is not None:
                 xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
-            out.append(xy)
-    return out
+            rings.append(xy)
+            labels.append(f"{layer}:{fid}" + (f".{q}" if len(polys) > 1 else ""))
+            per.append(k)
+    idx = np.asarray(per, int)
+    return FootprintLayer(rings, labels, {n: v[idx] for n, v in values.items()}, p, layer)
+
+
+def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None = None) -> list[np.ndarray]:
+    """Footprint polygons ``(K, 2)`` of a GeoPackage layer in ``frame`` (:func:`read_footprint_layer`'s rings)."""
+    return read_footprint_layer(path, frame, layer).rings
 
 
 def read_ortho_raster(path: str | Path, frame: WorldFrame | None = None) -> OrthoRaster:
@@ -202,12 +287,41 @@ def _buildings_gpkg(path: Path, buildings: Sequence[BuildingBlock], frame: World
     write_gpkg(path, layers, fc.full.to_wkt())
 
 
+def _complete(extracted: list[BuildingBlock], given: list[BuildingBlock], min_overlap: float = 0.2
+              ) -> list[BuildingBlock]:
+    """Buildings extracted from the DSM completed by given footprints: a footprint is added when no extracted
+    building overlaps it by more than ``min_overlap`` of either's area; an extracted building that the DSM's border
+    cut (``clipped``) and that a footprint overlaps so is replaced by the footprint.  Ids: the extracted ones
+    keep theirs, the footprints' follow."""
+    import shapely
+    from dataclasses import replace as _replace
+
+    if not given:
+        return list(extracted)
+    ex_p = [shapely.Polygon(np.asarray(b.footprint, float)) for b in extracted]
+    drop: set[int] = set()
+    add = []
+    for b in given:
+        gp = shapely.Polygon(np.asarray(b.footprint, float))
+        over = [i for i, q in enumerate(ex_p)
+                if gp.intersection(q).area > min_overlap * min(gp.area, q.area)]
+        if not over:
+            add.append(b)
+        elif all(extracted[i].clipped for i in over):
+            drop.update(over)
+            add.append(b)
+    nxt = max([b.id for b in extracted] + [-1]) + 1
+    return [b for i, b in enumerate(extracted) if i not in drop] + [_replace(b, id=nxt + k) for k, b in enumerate(add)]
+
+
 def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_paths: Sequence[str],
                 dsm: DsmGrid | str | Path, outdir: str | Path, *, footprints: str | Path | None = None,
                 extend_dsms: Sequence[DsmGrid | str | Path] = (),
                 ortho: OrthoRaster | str | Path | None = None, texel_m: float | None = None, max_images: int = 3,
                 image_format: str = "png", refine: bool = True, feet: bool = True, inputs: Sequence[str] = (),
-                options: dict | None = None, progress: Callable[[int, int], None] | None = None) -> FacadesOutputs:
+                options: dict | None = None, progress: Callable[[int, int], None] | None = None,
+                footprint_layer: str | None = None, eave_field: str | None = None, ridge_field: str | None = None,
+                height_reference: str = "ground", footprint_mode: str = "replace") -> FacadesOutputs:
     """Building blocks, façade textures and a textured 3D model into ``outdir`` (module docstring).
 
     Parameters
@@ -219,7 +333,22 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     outdir
         Output folder (published as a set).
     footprints
-        A GeoPackage of footprint polygons (any CRS); default: buildings extracted from the DSM.
+        A GeoPackage of footprint polygons (any CRS); default: buildings extracted from the DSM.  A footprint's
+        heights come from the DSM where it measured the roof (half of the cells inside), else from the layer's
+        ``eave_field`` (and ``ridge_field``): a cadastre's building beyond the DSM's coverage still gets its walls,
+        textured from the obliques; the occlusion surface holds it too
+        (:func:`skyrig.dense.buildings.surface_with_buildings`).
+    footprint_layer
+        The layer (default: ``buildings``, else the only polygon layer).
+    eave_field, ridge_field
+        Attributes with each footprint's eave (and ridge) height in metres (:class:`FootprintHeights`); NULL: none.
+    height_reference
+        ``"ground"``: the heights are above the ground at the footprint; ``"absolute"``: in the DSM's vertical
+        reference (``vertical_reference`` in facades.json).
+    footprint_mode
+        ``"replace"``: the footprints are the buildings (none extracted from the DSM); ``"complete"``: buildings
+        are extracted from the DSM (and refined) and completed by the footprints that no extracted building
+        overlaps; a footprint also replaces the extracted buildings it overlaps that the DSM's border cut.
     extend_dsms
         DSMs (grids or COG paths, the DSM's frame) that reach beyond the DSM's surveyed area, e.g. matched from
         pairs of oblique images of one viewing direction each (``skyrig dsm --heads left``): the DSM is extended
@@ -249,7 +378,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     """
     import time
 
-    from skyrig.dense.buildings import ExtractionConfig, buildings_from_footprints, extend_dsm, extract_buildings
+    from skyrig.dense.buildings import (EAVE_RANGE_M, ExtractionConfig, FootprintHeights, buildings_from_footprints,
+                                        extend_dsm, extract_buildings, surface_with_buildings)
     from skyrig.dense.facades import refine_wall_feet, refine_walls, texture_facades
     from skyrig.dense.model import build_model
     from skyrig.io.dsm_cog import read_dsm_cog
@@ -276,22 +406,47 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     if missing:
         raise SkyrigError(f"no camera for {', '.join(missing[:5])} (option: camera)")
     orthoraster = read_ortho_raster(ortho, grid.frame) if isinstance(ortho, (str, Path)) else ortho
+    if footprint_mode not in ("replace", "complete"):
+        raise SkyrigError(f"footprint mode must be 'replace' or 'complete', not {footprint_mode!r} (option: footprint_mode)")
+    if footprints is None and (eave_field or ridge_field):
+        raise SkyrigError("footprint height fields given without footprints (option: footprints)")
+    if ridge_field and not eave_field:
+        raise SkyrigError("a ridge height field needs an eave height field too (option: eave_field)")
+    given: list[BuildingBlock] = []
+    n_given_heights = 0
     if footprints is not None:
-        fps = read_footprints_gpkg(footprints, grid.frame)
-        buildings = buildings_from_footprints(fps, grid, source=Path(footprints).name)
-    else:
+        fl = read_footprint_layer(footprints, grid.frame, footprint_layer,
+                                  [f for f in (eave_field, ridge_field) if f], max_height_m=None
+                                  if height_reference == "absolute" else EAVE_RANGE_M[1])
+        hts = None
+        if eave_field:
+            name = f"{Path(footprints).name} layer {fl.layer}"
+            hts = FootprintHeights(fl.heights[eave_field], fl.heights.get(ridge_field) if ridge_field else None,
+                                   height_reference, f"{name} field {eave_field}"
+                                   + (f" / {ridge_field}" if ridge_field else "")
+                                   + (" above the ground" if height_reference == "ground" else
+                                      f" ({grid.vertical_reference})"),
+                                   tuple(f"{Path(footprints).name} {lab}" for lab in fl.labels))
+        given = buildings_from_footprints(fl.rings, grid, source=Path(footprints).name, heights=hts)
+        n_given_heights = sum("; heights: " in str(b.source) for b in given)
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    if footprints is None or footprint_mode == "complete":
         # buildings cut by the DSM's border too (clipped there; their edges on the border get no texture)
         buildings = extract_buildings(grid, config=ExtractionConfig(clip_border=True))
+        if buildings and refine:
+            # walls extracted from a matched DSM sit a fraction of a metre off; the images show the roof outline
+            buildings = refine_walls(buildings, eo, cameras, loader, grid)
+            if feet:
+                # a texture is shifted by the wall's offset times the view's r_z / r_n: the foot decides
+                buildings = refine_wall_feet(buildings, eo, cameras, loader, grid)
+        buildings = _complete(buildings, given)
+    else:
+        buildings = given
     if not buildings:
         raise NoBuildingsError("no buildings found" + (" among the footprints" if footprints else
                                                         " in the DSM (nothing higher than 2.5 m above the ground over 20 m2)"))
-    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
-    if footprints is None and refine:
-        # walls extracted from a matched DSM sit a fraction of a metre off; the images show the roof outline sharply
-        buildings = refine_walls(buildings, eo, cameras, loader, grid)
-        if feet:
-            # a texture is shifted by the wall's offset times the view's r_z / r_n: the foot decides (1 cm matters)
-            buildings = refine_wall_feet(buildings, eo, cameras, loader, grid)
+    # the occlusion surface holds the buildings the DSM did not measure (footprints with given heights)
+    grid = surface_with_buildings(grid, [b for b in buildings if "; heights: " in str(b.source)])
     t_build = time.time() - t0
     logger.info("facades: %d buildings, %d façades", len(buildings), sum(len(b.footprint) for b in buildings))
     textures = texture_facades(buildings, eo, cameras, loader, grid, texel_m=texel_m, max_images=max_images,
@@ -317,7 +472,14 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         "coverage_median": float(np.median(cov)) if len(cov) else None,
         "texel_median_m": float(np.median([p["texel_m"] for p in per_facade])) if per_facade else None,
         "roofs": "orthophoto" if orthoraster is not None else "flat colour",
-        "source": str(footprints) if footprints else "extracted from the DSM",
+        "source": (str(footprints) if footprint_mode == "replace" else f"extracted from the DSM, completed by {footprints}")
+        if footprints else "extracted from the DSM",
+        "footprints": None if footprints is None else {
+            "file": str(footprints), "mode": footprint_mode, "given": len(given),
+            "used": sum(str(b.source).startswith(Path(footprints).name) for b in buildings),
+            "heights_from_attributes": n_given_heights, "eave_field": eave_field, "ridge_field": ridge_field,
+            "height_reference": height_reference if eave_field else None,
+            "occlusion_cells_burnt": int(grid.metadata.get("buildings_burnt", {}).get("cells", 0))},
         "dsm_extended_cells": extended_cells,
         "triangles": model.n_triangles, "seconds": {"buildings": round(t_build, 2), "textures": round(t_tex, 2)},
         "facade_list": per_facade,

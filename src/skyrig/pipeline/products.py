@@ -177,19 +177,35 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
                  texel: float | None = None, max_images: int = 3, texture_format: str = "png", refine: bool = True,
                  extend_dsm: Sequence[str | PathLike[str]] = (), feet: bool = True,
                  inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
-                 spell: Callable[[str], str] = cli_spelling) -> Any:
+                 spell: Callable[[str], str] = cli_spelling, footprint_layer: str | None = None,
+                 footprint_eave: str | None = None, footprint_ridge: str | None = None,
+                 footprint_heights: str = "above-ground", footprint_mode: str = "replace") -> Any:
     """Buildings, façade textures and a textured 3D model into ``outdir``
     (:func:`skyrig.pipeline.facades.run_facades`).
 
     ``extend_dsm``: DSMs beyond the DSM's surveyed area (e.g. ``skyrig dsm --heads left`` and ``--heads right``:
     the obliques' own stereo coverage) for the buildings the obliques see there; ``feet``: walls moved onto their
-    foot as the obliques show it (after ``refine``).
+    foot as the obliques show it (after ``refine``).  ``footprint_eave`` / ``footprint_ridge``: attributes of the
+    footprints with their eave / ridge heights in metres (``footprint_heights``: ``above-ground`` or ``absolute``,
+    the DSM's vertical reference), used where the DSM has no heights; ``footprint_mode``: ``replace`` (the
+    footprints are the buildings) or ``complete`` (the DSM's buildings completed by the footprints it misses).
 
     Raises :class:`skyrig.pipeline.facades.NoBuildingsError` (a failed run) when the DSM holds no building."""
     from skyrig.pipeline.dense import find_images
     from skyrig.pipeline.facades import run_facades
     from skyrig.pipeline.inputs import select_heads
 
+    if footprint_heights not in ("above-ground", "absolute"):
+        raise OptionError(spell("footprint_heights"), f"unknown reference {footprint_heights!r} (above-ground, absolute)")
+    if footprint_mode not in ("replace", "complete"):
+        raise OptionError(spell("footprint_mode"), f"unknown mode {footprint_mode!r} (replace, complete)")
+    if footprints is None:
+        for name, val in (("footprint_layer", footprint_layer), ("footprint_eave", footprint_eave),
+                          ("footprint_ridge", footprint_ridge)):
+            if val:
+                raise OptionError(spell(name), f"needs {spell('footprints')}")
+    if footprint_ridge and not footprint_eave:
+        raise OptionError(spell("footprint_ridge"), f"needs {spell('footprint_eave')} too")
     _positive(texel, "texel", spell)
     _positive(max_images, "max_images", spell, "at least 1", 1)
     if texture_format not in ("png", "jpeg"):
@@ -204,10 +220,17 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
                "ortho": None if ortho is None else str(ortho), "texel": texel, "max_images": max_images,
                "texture_format": texture_format, "refine": refine, "extend_dsm": [str(p) for p in extend_dsm],
                "feet": feet}
+    if footprints is not None:
+        options.update({"footprint_layer": footprint_layer, "footprint_eave": footprint_eave,
+                        "footprint_ridge": footprint_ridge, "footprint_heights": footprint_heights,
+                        "footprint_mode": footprint_mode})
     return run_facades(eo, cameras, paths, str(dsm), outdir, footprints=footprints, ortho=ortho, texel_m=texel,
                        max_images=max_images, image_format=texture_format, refine=refine, feet=feet,
                        extend_dsms=[str(p) for p in extend_dsm],
-                       inputs=[str(dsm), *map(str, inputs), *extra], options=options, progress=progress)
+                       inputs=[str(dsm), *map(str, inputs), *extra], options=options, progress=progress,
+                       footprint_layer=footprint_layer, eave_field=footprint_eave, ridge_field=footprint_ridge,
+                       height_reference="ground" if footprint_heights == "above-ground" else "absolute",
+                       footprint_mode=footprint_mode)
 
 
 def plane_in_local_frame(eo: ExteriorOrientations, height: float | None = None,
