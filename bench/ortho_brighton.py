@@ -19,10 +19,18 @@ orientations over skyrig's DSM is not a constant shift of the mosaic (the height
 the block and moves cells by height error x tan(view angle)), so removing the median shift does not remove it.
 The acceptance figure is the ``aligned`` mosaic's raw offset: the relative geometry of the two orientation sets.
 
+``--chain DIR`` makes those inputs with the current tree instead of taking an earlier session's (each step cached
+in DIR, rerun when its output is missing): ``skyrig match`` (``--match-size`` / ``--match-features``) and
+``skyrig adjust-uav`` on the full-size images (project CRS: the UTM zone of the EXIF GPS; it must converge: a failed adjustment stops the bench), the images
+downscaled by ``--image-scale`` (area averaging) with the adjusted camera scaled to them (same focal length and
+principal point in mm, pixels ``1 / scale`` larger; OpenCV distortion coefficients are normalised, so they
+stay), then ``skyrig dsm`` on the downscaled images with adjust-uav's tie points for the height range.
+
 Run::
 
     .venv/bin/python bench/ortho_brighton.py            # cache in /tmp/h/F (pycolmap ~1 min, each mosaic ~3 min)
     .venv/bin/python bench/ortho_brighton.py --cache DIR --figures docs/figures
+    nice .venv/bin/python bench/ortho_brighton.py --chain /tmp/brighton --cache /tmp/brighton/F --figures DIR --png
 
 Prints the figures and writes ``DIR/result.json``.
 """
@@ -57,6 +65,62 @@ def inputs(prev: Path = PREV) -> dict[str, Path]:
     if missing:
         raise FileNotFoundError("missing inputs: " + ", ".join(missing))
     return p
+
+
+def _skyrig(*args: str) -> None:
+    exe = ROOT / ".venv" / "bin" / "skyrig"
+    cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-m", "skyrig.cli", *args]
+    print("$ skyrig " + " ".join(args), flush=True)
+    subprocess.run(cmd, check=True)
+
+
+def chain(work: Path, data: Path = DATA, image_scale: float = 0.2, match_size: int = 640,
+          match_features: int = 1500, crs: str | None = None) -> dict[str, Path]:
+    """The bench's inputs made with the current tree in ``work`` (module docstring): match -> adjust-uav ->
+    downscaled images + camera -> dsm.  Each step is skipped when its output exists.  Returns the paths
+    :func:`inputs` returns."""
+    import cv2
+    import yaml
+
+    work.mkdir(parents=True, exist_ok=True)
+    if not (work / "match" / "manifest.json").exists():
+        _skyrig("match", str(work), "--images", str(data), "--max-size", str(match_size), "--max-features",
+                str(match_features), "-o", str(work / "match"))
+    adj = work / "adjust-uav"
+    if not (adj / "eo.csv").exists():
+        _skyrig("adjust-uav", str(work), "--images", str(data), "--match", str(work / "match"),
+                *(("--crs", crs) if crs else ()), "-o", str(adj))  # default: the UTM zone of the images' GNSS
+    small = work / f"images_{image_scale:g}"
+    names = sorted(p.name for p in data.iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
+    if not all((small / n).exists() for n in names):
+        small.mkdir(exist_ok=True)
+        for n in names:
+            img = cv2.imread(str(data / n), cv2.IMREAD_COLOR)
+            h, w = img.shape[:2]
+            out = cv2.resize(img, (int(round(w * image_scale)), int(round(h * image_scale))), interpolation=cv2.INTER_AREA)
+            tmp = small / f".{n}.tmp.jpg"
+            cv2.imwrite(str(tmp), out, [cv2.IMWRITE_JPEG_QUALITY, 95])
+            os.replace(tmp, small / n)
+    cam_small = work / f"camera_{image_scale:g}.yaml"
+    if not cam_small.exists():
+        rig = yaml.safe_load((adj / "camera.yaml").read_text())
+        for head in rig["heads"]:
+            c = head["camera"]
+            w, h = int(c["width_px"]), int(c["height_px"])
+            ws, hs = int(round(w * image_scale)), int(round(h * image_scale))
+            if abs(ws / w - hs / h) > 1e-9:
+                raise RuntimeError(f"image scale {image_scale} gives {ws} x {hs} pixels: not the same factor on both axes")
+            c["width_px"], c["height_px"] = ws, hs
+            c["pixel_size_um"] = float(c["pixel_size_um"]) * w / ws
+        rig["description"] = f"{rig.get('description', '')}; images downscaled by {image_scale:g} ({ws} x {hs})"
+        tmp = cam_small.with_suffix(".tmp")
+        tmp.write_text(yaml.safe_dump(rig, sort_keys=False))
+        os.replace(tmp, cam_small)
+    dsm = work / f"dsm_{image_scale:g}"
+    if not (dsm / "dsm.tif").exists():
+        _skyrig("dsm", "--eo", str(adj / "eo.csv"), "--camera", str(cam_small), "--images", str(small),
+                "--points", str(adj / "points.csv"), "--executor", "serial", "--no-cloud", "-o", str(dsm))
+    return {"images": small, "camera": cam_small, "eo": adj / "eo.csv", "dsm": dsm / "dsm.tif", "gps_images": data}
 
 
 def gps_positions(image_dir: Path, names: list[str], frame: Any, geoid: str | None = None) -> NDArray[np.float64]:
@@ -352,14 +416,40 @@ def preview(tif: Path, jpg: Path, max_side: int = 900, max_bytes: int = 150_000)
     img = np.transpose(rgb, (1, 2, 0))[:, :, ::-1].copy()
     img[~mask] = 255
     jpg.parent.mkdir(parents=True, exist_ok=True)
-    for q in (85, 75, 65, 55, 45):
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, q])
-        if ok and len(buf) <= max_bytes:
-            break
-    tmp = jpg.with_suffix(".tmp.jpg")
+    if jpg.suffix.lower() == ".png":  # lossless, sized by max_side only
+        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    else:
+        for q in (85, 75, 65, 55, 45):
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, q])
+            if ok and len(buf) <= max_bytes:
+                break
+    tmp = jpg.with_suffix(".tmp" + jpg.suffix)
     tmp.write_bytes(buf.tobytes())
     os.replace(tmp, jpg)
     return len(buf)
+
+
+def dsm_coverage(dsm_tif: Path, mosaic_tif: Path) -> dict[str, float]:
+    """Share of the mosaic's footprint (its valid cells' bounding box) where the DSM has a height, and of the
+    DSM's own grid."""
+    import rasterio
+    from rasterio.warp import Resampling, reproject
+
+    with rasterio.open(mosaic_tif) as m:
+        mask = m.dataset_mask() > 0
+        T, crs, shape = m.transform, m.crs, mask.shape
+    with rasterio.open(dsm_tif) as d:
+        z = d.read(1).astype(np.float32)
+        if d.nodata is not None:
+            z[z == d.nodata] = np.nan
+        own = float(np.isfinite(z).mean())
+        out = np.full(shape, np.nan, np.float32)
+        reproject(z, out, src_transform=d.transform, src_crs=d.crs, dst_transform=T, dst_crs=crs,
+                  src_nodata=np.nan, dst_nodata=np.nan, resampling=Resampling.nearest)
+    rr, cc = np.nonzero(mask)
+    box = (slice(rr.min(), rr.max() + 1), slice(cc.min(), cc.max() + 1))
+    return {"mosaic_cells_with_dsm": float(np.isfinite(out[mask]).mean()),
+            "mosaic_box_with_dsm": float(np.isfinite(out[box]).mean()), "dsm_grid_measured": own}
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -441,7 +531,8 @@ def predicted_offsets(off: NDArray[np.float64], tile: int, mosaic_b: Path, dsm_t
     return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 
-def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None, tile: int = 192) -> dict[str, Any]:
+def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None, tile: int = 192,
+            inp: dict[str, Path] | None = None, png: bool = False) -> dict[str, Any]:
     """The whole acceptance: pycolmap model, its EO in skyrig's frame two ways, the mosaics, offsets.
 
     ``gps``: pycolmap's model georeferenced to the EXIF GPS positions (its own datum).  ``aligned``: the same model
@@ -451,7 +542,7 @@ def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None,
     from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
     from skyrig.io.rig_file import read_rig
 
-    inp = inputs(prev)
+    inp = inp or inputs(prev)
     cache.mkdir(parents=True, exist_ok=True)
     eo_sky = read_eo_csv(inp["eo"])
     cam = next(iter(read_rig(inp["camera"]).heads.values())).camera
@@ -487,10 +578,13 @@ def compare(cache: Path = CACHE, prev: Path = PREV, figures: Path | None = None,
                                   "predicted_gsd": offset_stats(pred, mg["cell_m"] / gsd)}
     result["acceptance"] = {"figure": "aligned.mosaic.raw_gsd.rms",
                             "value": result["aligned"]["mosaic"]["raw_gsd"]["rms"], "limit": 1.0}
+    result["inputs"] = {k: str(v) for k, v in inp.items()}
+    result["dsm_coverage"] = dsm_coverage(inp["dsm"], tif_a)
     if figures is not None:
+        ext = "png" if png else "jpg"
         result["previews_bytes"] = {
-            "skyrig": preview(tif_a, figures / "brighton_ortho_skyrig.jpg"),
-            "pycolmap": preview(Path(result["mosaics"]["pycolmap_gps"]), figures / "brighton_ortho_pycolmap.jpg")}
+            "skyrig": preview(tif_a, figures / f"brighton_ortho_skyrig.{ext}"),
+            "pycolmap": preview(Path(result["mosaics"]["pycolmap_aligned"]), figures / f"brighton_ortho_pycolmap.{ext}")}
     tmp = cache / "result.json.tmp"
     tmp.write_text(json.dumps(result, indent=1))
     os.replace(tmp, cache / "result.json")
@@ -504,11 +598,20 @@ def main() -> None:
     ap.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures")
     ap.add_argument("--tile", type=int, default=192)
     ap.add_argument("--fresh", action="store_true", help="drop the cached pycolmap model and mosaics first")
+    ap.add_argument("--chain", type=Path, help="make the inputs with the current tree in this folder (module docstring)")
+    ap.add_argument("--image-scale", type=float, default=0.2, help="--chain: image (and camera) scale of dsm / ortho")
+    ap.add_argument("--match-size", type=int, default=640, help="--chain: skyrig match --max-size")
+    ap.add_argument("--match-features", type=int, default=1500, help="--chain: skyrig match --max-features")
+    ap.add_argument("--png", action="store_true", help="previews as PNG (default JPEG)")
     a = ap.parse_args()
     if a.fresh:
         for sub in ("pycolmap", "ortho_skyrig", "ortho_pycolmap_gps", "ortho_pycolmap_aligned"):
             shutil.rmtree(a.cache / sub, ignore_errors=True)
-    r = compare(a.cache, a.prev, a.figures, a.tile)
+    inp = chain(a.chain, image_scale=a.image_scale, match_size=a.match_size,
+                match_features=a.match_features) if a.chain else None
+    r = compare(a.cache, a.prev, a.figures, a.tile, inp=inp, png=a.png)
+    print(f"DSM coverage: {100 * r['dsm_coverage']['mosaic_box_with_dsm']:.1f} % of the mosaic's box, "
+          f"{100 * r['dsm_coverage']['mosaic_cells_with_dsm']:.1f} % of its coloured cells")
     print(f"pycolmap: {r['pycolmap_registered']}/{r['images']} images, {r['pycolmap_points']} points, mean "
           f"reprojection {r['pycolmap_reprojection_px']:.3f} px (camera fixed to skyrig's)")
     print(f"image GSD {r['image_gsd_m']:.4f} m; offsets per tile of {r['tile_cells']} cells (half-overlapping, "

@@ -147,10 +147,14 @@ def test_footprints_from_a_geopackage_in_another_crs(town, tmp_path):
         x, y = b.footprint[:, 0], b.footprint[:, 1]
         assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0
         assert t["terrain"].min() - 0.1 <= b.ground_z <= t["terrain"].max() + 0.1
+        assert (len(b.roof) == 2) == t["gabled"]
         if not t["gabled"]:
             assert abs(b.eave_z - t["eave"]) <= 0.02
-        else:  # a flat roof at the median roof height, between eaves and ridge
-            assert t["eave"] < b.eave_z < t["ridge"]
+        else:  # the gabled roof extraction fits: two planes on cell centres, the slope times a quarter cell
+            slope = (t["ridge"] - t["eave"]) / (0.5 * min(np.linalg.norm(t["corners"][1] - t["corners"][0]),
+                                                          np.linalg.norm(t["corners"][2] - t["corners"][1])))
+            assert abs(b.eave_z - t["eave"]) <= 0.05 + slope * CELL
+            assert abs(max(float(r[:, 2].max()) for r in b.roof) - t["ridge"]) <= 0.05 + slope * CELL
     # refused in words: another CRS without reprojection, no CRS, no such layer, a footprint outside the DSM
     with pytest.raises(InputFormatError, match="reproject"):
         read_footprints(path, CRS, reproject=False)

@@ -911,10 +911,11 @@ class FootprintHeights:
         ``min_pitch_m`` above its eaves gets a gabled roof with the ridge along its longer sides (the common
         house; its gable ends' walls are textured up to the roof line); otherwise a flat roof at the eaves.
     reference
-        ``"ground"``: heights above the ground at the footprint (the 10th percentile of the DSM's heights in a ring
-        around it; beyond the DSM's measured cells, its ground estimate (:func:`ground_estimate`) at the nearest
-        measured cell, at most ``max_ground_m`` away); ``"absolute"``: heights in the DSM's own vertical
-        reference (:attr:`DsmGrid.vertical_reference`).
+        ``"ground"``: heights above the ground at the footprint (the 10th percentile of the DSM's measured heights
+        in a ring of ``ring_m`` around it, as for a footprint with DSM heights; without 3 measured cells there, the
+        DSM's ground estimate (:func:`ground_estimate`) at its measured cell nearest to the footprint, at most
+        ``max_ground_m`` away); ``"absolute"``: heights in the DSM's own vertical reference
+        (:attr:`DsmGrid.vertical_reference`).
     source
         What the heights are, in words (e.g. ``"footprints.gpkg field eave_m"``), for messages and
         :attr:`BuildingBlock.source`.
@@ -940,6 +941,23 @@ class FootprintHeights:
 
 #: Plausible eave heights above the ground (metres) of a building given with its footprint.
 EAVE_RANGE_M = (1.0, 500.0)
+
+
+def _rectangle_of(foot: NDArray, tol_deg: float = 3.0) -> tuple | None:
+    """``(centre, long axis unit vector, half length, half width)`` of a footprint that is a rectangle (4 vertices,
+    corner angles within ``tol_deg`` of 90), else None."""
+    foot = np.asarray(foot, float)
+    if len(foot) != 4:
+        return None
+    e = np.roll(foot, -1, axis=0) - foot
+    ln = np.linalg.norm(e, axis=1)
+    if ln.min() <= 0:
+        return None
+    u = e / ln[:, None]
+    if np.max(np.abs(np.sum(u * np.roll(u, -1, axis=0), axis=1))) > np.sin(np.radians(tol_deg)):
+        return None
+    k = 0 if ln[0] + ln[2] >= ln[1] + ln[3] else 1
+    return foot.mean(axis=0), u[k], 0.25 * (ln[k] + ln[k + 2]), 0.25 * (ln[1 - k] + ln[3 - k])
 
 
 def _gabled_rectangle(foot: NDArray, eave: float, ridge: float) -> tuple[NDArray[np.float64], ...] | None:
@@ -971,7 +989,8 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
 
     DSM heights (at least ``min_measured`` of the cells inside the footprint eroded by ``edge_cells`` measured):
     ground = 10th percentile of the DSM in a ring of ``ring_m`` around the footprint, eaves = the median of those
-    inner cells (a flat roof).  Otherwise the footprint's heights come from ``heights`` (a cadastre's attributes,
+    inner cells (a flat roof), or for a rectangle whose cells two roof planes explain much better than one level
+    the gabled roof :func:`extract_buildings` would fit.  Otherwise the footprint's heights come from ``heights`` (a cadastre's attributes,
     :class:`FootprintHeights`); its footprint may then lie partly or wholly beyond the DSM's grid.  ``source`` of
     the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given heights.
 
@@ -1063,9 +1082,19 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
             inner = inner_all & mw
             if inner.sum() < 3:
                 inner = comp & mw
-            eave = float(np.median(hw[inner]))
+            z = hw[inner]
+            eave = float(np.median(z))
             gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else float(np.nanmin(hw))
-            out.append(BuildingBlock(k, foot, gz, eave, (np.column_stack([foot, np.full(len(foot), eave)]),), source))
+            roof = (np.column_stack([foot, np.full(len(foot), eave)]),)
+            rect = _rectangle_of(foot)
+            if rect is not None and len(z) >= 12:
+                # a gabled roof where two planes explain the roof cells much better than one level (as extracted)
+                rr, cc = np.nonzero(inner)
+                xy = _cells_to_xy(g, cc + c0, rr + r0)
+                got = _gable(xy, z, rect, float(1.4826 * np.median(np.abs(z - eave))), cfg)
+                if got is not None:
+                    eave, roof = got
+            out.append(BuildingBlock(k, foot, gz, float(eave), roof, source))
             continue
         if given is None:
             raise SkyrigError(f"{label} ({source}): the DSM has no measured cell inside it and no height was given "
@@ -1076,14 +1105,11 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
             ridge_given = None if np.isnan(rv) else rv
         if not np.isfinite(given) or (ridge_given is not None and not np.isfinite(ridge_given)):
             raise SkyrigError(f"{label} ({heights.source}): height {given} is not a number")
+        # the ground as for DSM heights (the ring's measured cells), else the DSM's ground at its nearest measured cell
+        gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else far_ground(foot.mean(axis=0), label)
         if heights.reference == "ground":
-            if ring.sum() >= max(3, 0.5 * (ndimage.binary_dilation(comp, iterations=ring_px) & ~ndimage.binary_dilation(comp)).sum()):
-                gz = float(np.percentile(hw[ring], 10))
-            else:
-                gz = far_ground(foot.mean(axis=0), label)
             eave, ridge = gz + given, (None if ridge_given is None else gz + ridge_given)
         else:
-            gz = float(np.percentile(hw[ring], 10)) if ring.sum() >= 3 else far_ground(foot.mean(axis=0), label)
             eave, ridge = given, ridge_given
         lo, hi = EAVE_RANGE_M
         if not lo <= eave - gz <= hi:
