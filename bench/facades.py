@@ -39,7 +39,9 @@ scene first: every building, heights perturbed by a seeded normal error of ``--h
 completed by the footprints no extracted building overlaps, as ``skyrig facades --footprint-mode complete``;
 occlusions against the DSM with the footprint buildings burnt in where it has no heights) and ``footprints``
 (every footprint a building, heights from the DSM where it measured the roof, else from the attributes; as
-``--footprint-mode replace``).  ``--cases`` / ``--sets`` restrict what runs (comma lists).
+``--footprint-mode replace``); ``complete_feet`` / ``footprints_feet``: the same with the footprints' walls moved
+onto their feet as the obliques show them (``refine_wall_feet``, as ``--refine-footprints``).  ``--cases`` /
+``--sets`` restrict what runs (comma lists).
 
 Speed: texels per second of :func:`skyrig.dense.facades.texture_facades` (occlusion march, per-texel best image,
 feathering) next to a plain ``cv2.warpPerspective`` of each façade's first image onto the same texel grid (a
@@ -115,20 +117,30 @@ def _dsm_path(project: Path) -> Path:
     return p if p.exists() else project / "output" / "dsm" / "dsm.tif"
 
 
-SETS = ("true_buildings", "extracted_buildings", "refined_buildings", "feet_buildings", "complete", "footprints")
+SETS = ("true_buildings", "extracted_buildings", "refined_buildings", "feet_buildings", "complete", "footprints",
+        "complete_feet", "footprints_feet")
+FOOTPRINT_SETS = {"complete", "footprints", "complete_feet", "footprints_feet"}
 
 
-def footprint_sets(feet, footprints: Path, dsm):
-    """``complete`` and ``footprints`` building sets (see the module docstring) and the occlusion surface of each."""
+def footprint_sets(feet, footprints: Path, dsm, refine=None):
+    """``complete`` and ``footprints`` building sets (see the module docstring) and the occlusion surface of each;
+    with ``refine`` (``(eo, cameras, loader)``) also ``complete_feet`` and ``footprints_feet``: the footprints'
+    walls moved onto their feet as the obliques show them (:func:`skyrig.dense.facades.refine_wall_feet`, on the
+    DSM with the footprint buildings burnt in)."""
     from skyrig.dense.buildings import FootprintHeights, buildings_from_footprints, surface_with_buildings
+    from skyrig.dense.facades import refine_wall_feet
     from skyrig.pipeline.facades import _complete, read_footprint_layer
 
     fl = read_footprint_layer(footprints, dsm.frame, None, ["eave_m", "ridge_m"], max_height_m=500.0)
     hts = FootprintHeights(fl.heights["eave_m"], fl.heights["ridge_m"], "ground", f"{footprints.name} eave_m / ridge_m",
                            tuple(fl.labels))
     given = buildings_from_footprints(fl.rings, dsm, source=footprints.name, heights=hts)
+    todo = [("complete", _complete(feet, given)), ("footprints", given)]
+    if refine is not None:
+        moved = refine_wall_feet(given, *refine, surface_with_buildings(dsm, [b for b in given if "; heights: " in str(b.source)]))
+        todo += [("complete_feet", _complete(feet, moved)), ("footprints_feet", moved)]
     out = {}
-    for label, blocks in (("complete", _complete(feet, given)), ("footprints", given)):
+    for label, blocks in todo:
         surf = surface_with_buildings(dsm, [b for b in blocks if "; heights: " in str(b.source)])
         out[label] = (blocks, surf, sum("; heights: " in str(b.source) for b in blocks))
     return out
@@ -192,8 +204,9 @@ def run(project: Path, clip: bool = True, extend: list[Path] | None = None, case
         todo = [(label, blocks, dsm) for label, blocks in (
             ("true_buildings", true_buildings(scene, frame)), ("extracted_buildings", extracted),
             ("refined_buildings", refined), ("feet_buildings", feet)) if label in sets]
-        if footprints is not None and {"complete", "footprints"} & set(sets):
-            for label, (blocks, surf, n_att) in footprint_sets(feet, footprints, dsm).items():
+        if footprints is not None and FOOTPRINT_SETS & set(sets):
+            rf = (eo, cams, loader) if {"complete_feet", "footprints_feet"} & set(sets) else None
+            for label, (blocks, surf, n_att) in footprint_sets(feet, footprints, dsm, rf).items():
                 if label in sets:
                     print(f"[{case}] {label}: {len(blocks)} buildings, {n_att} with heights from the attributes, "
                           f"{surf.metadata.get('buildings_burnt', {}).get('cells', 0)} occlusion cells burnt in",

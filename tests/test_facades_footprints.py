@@ -16,6 +16,7 @@ textures from the obliques, judged against the simulator's truth.
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -35,6 +36,7 @@ from skyrig.simulate.scenarios import build_survey, scenario_spec
 from skyrig.simulate.world import Buildings, make_scene
 
 from test_facades import LazyImages, _grid_around  # noqa: E402 - the façade tests' renderer and grid helper
+from test_facades_cli import project as cli_project  # noqa: E402,F401 - the one-house scene, as a fixture
 
 CRS = WorldFrame.map("EPSG:25832")
 
@@ -217,3 +219,45 @@ def test_facades_options_need_footprints():
         make_facades(None, {}, [], "dsm.tif", "out", footprints="x.gpkg", footprint_ridge="ridge_m")
     with pytest.raises(OptionError, match="--footprint-mode"):
         make_facades(None, {}, [], "dsm.tif", "out", footprints="x.gpkg", footprint_mode="merge")
+
+
+def test_cli_textures_a_house_the_dsm_missed_from_its_footprint(cli_project, tmp_path):
+    """``skyrig facades --footprints --footprint-eave --footprint-ridge`` on the one-house scene of
+    tests/test_facades_cli.py whose DSM lost the house (its cells are holes): the house comes from the footprint
+    with the attribute's heights, its four walls are textured; without a height attribute the run is refused."""
+    import shapely
+    from click.testing import CliRunner
+    from pyogrio.raw import read
+
+    from skyrig.cli import main
+    from skyrig.io.dsm_cog import write_dsm_cog
+
+    root, scene, frame, dsm = cli_project
+    xx, yy = dsm.grid.cell_centres()
+    loc = WorldFrame.local(*scene.origin)
+    pts = loc.from_ecef(frame.to_ecef(np.column_stack([xx.ravel(), yy.ravel(), np.asarray(dsm.height).ravel()])))
+    _, idx = scene.buildings.top_height(pts[:, 0], pts[:, 1])
+    holed = replace(dsm, height=np.where((idx >= 0).reshape(xx.shape), np.nan, dsm.height).astype(np.float32))
+    write_dsm_cog(tmp_path / "dsm_holed.tif", holed)
+    fp = tmp_path / "cadastre.gpkg"
+    w = write_scene_footprints(fp, scene, "EPSG:4326", height_sigma_m=0.3, seed=7)
+    args = ["facades", "--dsm", str(tmp_path / "dsm_holed.tif"), "--eo", str(root / "eo.csv"), "--camera",
+            str(root / "rig.yaml"), "--images", str(root / "images"), "--footprints", str(fp)]
+    bad = CliRunner().invoke(main, [*args, "-o", str(tmp_path / "bad")])
+    assert bad.exit_code != 0 and "cadastre.gpkg buildings:1" in bad.output and "no height was given" in bad.output
+    assert not (tmp_path / "bad").exists()
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, [*args, "--footprint-eave", "eave_m", "--footprint-ridge", "ridge_m", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "4 of 4 façades textured" in res.output and "1 with heights from eave_m" in res.output
+    meta, _, geoms, fields = read(str(out / "buildings.gpkg"), layer="buildings")
+    cols = dict(zip(meta["fields"], fields))
+    assert cols["eave_z"][0] - cols["ground_z"][0] == pytest.approx(w["eave_m"][0], abs=1e-6)
+    assert cols["ridge_z"][0] - cols["ground_z"][0] == pytest.approx(w["ridge_m"][0], abs=1e-6)
+    assert "heights" in cols["source"][0]
+    truth = true_buildings(scene, frame)[0]
+    poly = np.asarray(shapely.from_wkb(geoms[0]).exterior.coords)[:-1, :2]
+    assert len(poly) == 4 and np.linalg.norm(poly[:, None] - truth.footprint[None], axis=2).min(axis=1).max() < 0.01
+    info = json.loads((out / "facades.json").read_text())
+    assert info["footprints"]["heights_from_attributes"] == 1 and info["footprints"]["occlusion_cells_burnt"] > 0
+    assert all(f["coverage"] > 0.9 for f in info["facade_list"]), info["facade_list"]

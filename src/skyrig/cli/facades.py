@@ -31,6 +31,9 @@ from skyrig.cli._common import eo_options
 @click.option("--footprint-mode", type=click.Choice(["replace", "complete"]), default="replace", show_default=True,
               help="replace: the footprints are the buildings; complete: buildings extracted from the DSM, completed "
                    "by the footprints no extracted building overlaps (and replacing ones the DSM's border cut).")
+@click.option("--refine-footprints", is_flag=True,
+              help="Move the footprints' walls onto their feet as the obliques show them (a cadastre's outline is "
+                   "decimetres off; default: kept as given).")
 @click.option("--ortho", "ortho_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="RGB orthophoto (GeoTIFF / COG) to texture the roofs with; default: a flat roof colour.")
 @click.option("--texel", type=float, default=None,
@@ -47,7 +50,7 @@ from skyrig.cli._common import eo_options
                    "the obliques' own stereo coverage) for the buildings the obliques see there.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, footprints,
-            footprint_layer, footprint_eave, footprint_ridge, footprint_heights, footprint_mode,
+            footprint_layer, footprint_eave, footprint_ridge, footprint_heights, footprint_mode, refine_footprints,
             ortho_path, texel, max_images, texture_format, no_refine, no_feet, extend_dsm, output) -> None:
     """Façade textures and a textured 3D model of the buildings of a DSM.
 
@@ -72,12 +75,16 @@ def command(dsm_path, eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, cam
                                inputs=[eo_path, *camera_paths], progress=progress,
                                footprint_layer=footprint_layer, footprint_eave=footprint_eave,
                                footprint_ridge=footprint_ridge, footprint_heights=footprint_heights,
-                               footprint_mode=footprint_mode)
+                               footprint_mode=footprint_mode, refine_footprints=refine_footprints)
         except NoBuildingsError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None
     s = res.summary
     o = s["origin"]
+    if s.get("footprints"):
+        f = s["footprints"]
+        click.echo(f"footprints ({f['mode']}): {f['used']} of {f['given']} used, {f['heights_from_attributes']} with "
+                   f"heights from {f['eave_field']} ({f['height_reference']}), the others from the DSM")
     click.echo(f"{s['buildings']} buildings, {s['facades_seen']} of {s['facades']} façades textured "
                f"(median coverage {100 * (s['coverage_median'] or 0):.1f} %, texel {s['texel_median_m'] or 0:.3f} m), "
                f"{s['triangles']} triangles -> {res.outdir} (model origin {o['lat_deg']:.7f} {o['lon_deg']:.7f} "

@@ -983,7 +983,7 @@ def _gabled_rectangle(foot: NDArray, eave: float, ridge: float) -> tuple[NDArray
 
 def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source: str = "footprints",
                               config: ExtractionConfig | None = None, heights: FootprintHeights | None = None,
-                              min_measured: float = 0.5) -> list[BuildingBlock]:
+                              min_measured: float = 0.5, labels: Sequence[str] | None = None) -> list[BuildingBlock]:
     """Building blocks from given footprints (in the DSM's frame), heights from the DSM where it has them, else
     from ``heights``.
 
@@ -992,13 +992,14 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
     inner cells (a flat roof), or for a rectangle whose cells two roof planes explain much better than one level
     the gabled roof :func:`extract_buildings` would fit.  Otherwise the footprint's heights come from ``heights`` (a cadastre's attributes,
     :class:`FootprintHeights`); its footprint may then lie partly or wholly beyond the DSM's grid.  ``source`` of
-    the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given heights.
+    the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given heights.  ``labels``: a
+    name per footprint for messages (default: ``heights.labels``, else its number).
 
     Raises
     ------
     SkyrigError
-        On a footprint with fewer than 3 vertices; one without enough measured cells and no given height for it
-        (named; "outside the DSM" when it lies beyond the grid); a given height that is not finite, or an eave
+        On a footprint with fewer than 3 vertices; one with less than ``min_measured`` of its cells measured and
+        no given height for it (named; "outside the DSM" when it lies beyond the grid); a given height that is not finite, or an eave
         height above the ground outside :data:`EAVE_RANGE_M`, or a ridge below the eaves; a footprint whose
         ground would be read further than ``heights.max_ground_m`` from the DSM's measured cells.
     """
@@ -1039,7 +1040,8 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
 
     out = []
     for k, fp in enumerate(footprints):
-        label = heights.label(k) if heights is not None else f"footprint {k}"
+        label = (labels[k] if labels is not None and k < len(labels) else
+                 heights.label(k) if heights is not None else f"footprint {k}")
         fp = np.asarray(fp, float)[:, :2]
         if len(fp) > 3 and np.allclose(fp[0], fp[-1], rtol=0.0, atol=1e-6):
             fp = fp[:-1]
@@ -1077,8 +1079,8 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
         if given is None and outside:
             raise SkyrigError(f"{label} ({source}) lies (partly) outside the DSM {g.bounds} and no height was "
                               "given for it (a height attribute of the footprints)")
-        if measured >= min_measured or (given is None and (comp & mw).any()):
-            # the DSM measured the roof (without a given height: any measured cell inside will do)
+        if measured >= min_measured:
+            # the DSM measured the roof
             inner = inner_all & mw
             if inner.sum() < 3:
                 inner = comp & mw
@@ -1097,8 +1099,10 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
             out.append(BuildingBlock(k, foot, gz, float(eave), roof, source))
             continue
         if given is None:
-            raise SkyrigError(f"{label} ({source}): the DSM has no measured cell inside it and no height was given "
-                              "for it (a height attribute of the footprints)")
+            what = ("has no measured cell inside it" if measured == 0 else
+                    f"measured {100 * measured:.0f} % of the cells inside it (less than {100 * min_measured:.0f} %)")
+            raise SkyrigError(f"{label} ({source}): the DSM {what}, and no height was given for it (a height attribute "
+                              "of the footprints)")
         ridge_given = None
         if heights.ridge_m is not None:
             rv = float(np.asarray(heights.ridge_m, float).reshape(-1)[k])

@@ -321,7 +321,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
                 image_format: str = "png", refine: bool = True, feet: bool = True, inputs: Sequence[str] = (),
                 options: dict | None = None, progress: Callable[[int, int], None] | None = None,
                 footprint_layer: str | None = None, eave_field: str | None = None, ridge_field: str | None = None,
-                height_reference: str = "ground", footprint_mode: str = "replace") -> FacadesOutputs:
+                height_reference: str = "ground", footprint_mode: str = "replace",
+                refine_footprints: bool = False) -> FacadesOutputs:
     """Building blocks, façade textures and a textured 3D model into ``outdir`` (module docstring).
 
     Parameters
@@ -349,6 +350,10 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         ``"replace"``: the footprints are the buildings (none extracted from the DSM); ``"complete"``: buildings
         are extracted from the DSM (and refined) and completed by the footprints that no extracted building
         overlaps; a footprint also replaces the extracted buildings it overlaps that the DSM's border cut.
+    refine_footprints
+        Move the footprints' walls onto their feet as the obliques show them too
+        (:func:`skyrig.dense.facades.refine_wall_feet`; a cadastre's outline is a few decimetres off, and a wall
+        0.2 m off shifts its texture by about as much in a 45 deg oblique).
     extend_dsms
         DSMs (grids or COG paths, the DSM's frame) that reach beyond the DSM's surveyed area, e.g. matched from
         pairs of oblique images of one viewing direction each (``skyrig dsm --heads left``): the DSM is extended
@@ -414,6 +419,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         raise SkyrigError("a ridge height field needs an eave height field too (option: eave_field)")
     given: list[BuildingBlock] = []
     n_given_heights = 0
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     if footprints is not None:
         fl = read_footprint_layer(footprints, grid.frame, footprint_layer,
                                   [f for f in (eave_field, ridge_field) if f], max_height_m=None
@@ -427,9 +433,12 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
                                    + (" above the ground" if height_reference == "ground" else
                                       f" ({grid.vertical_reference})"),
                                    tuple(f"{Path(footprints).name} {lab}" for lab in fl.labels))
-        given = buildings_from_footprints(fl.rings, grid, source=Path(footprints).name, heights=hts)
+        given = buildings_from_footprints(fl.rings, grid, source=Path(footprints).name, heights=hts,
+                                          labels=[f"{Path(footprints).name} {lab}" for lab in fl.labels])
         n_given_heights = sum("; heights: " in str(b.source) for b in given)
-    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+        if refine_footprints and given:
+            given = refine_wall_feet(given, eo, cameras, loader, surface_with_buildings(
+                grid, [b for b in given if "; heights: " in str(b.source)]))
     if footprints is None or footprint_mode == "complete":
         # buildings cut by the DSM's border too (clipped there; their edges on the border get no texture)
         buildings = extract_buildings(grid, config=ExtractionConfig(clip_border=True))
@@ -478,6 +487,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
             "file": str(footprints), "mode": footprint_mode, "given": len(given),
             "used": sum(str(b.source).startswith(Path(footprints).name) for b in buildings),
             "heights_from_attributes": n_given_heights, "eave_field": eave_field, "ridge_field": ridge_field,
+            "refined": bool(refine_footprints),
             "height_reference": height_reference if eave_field else None,
             "occlusion_cells_burnt": int(grid.metadata.get("buildings_burnt", {}).get("cells", 0))},
         "dsm_extended_cells": extended_cells,

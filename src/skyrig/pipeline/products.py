@@ -179,7 +179,8 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
                  inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
                  spell: Callable[[str], str] = cli_spelling, footprint_layer: str | None = None,
                  footprint_eave: str | None = None, footprint_ridge: str | None = None,
-                 footprint_heights: str = "above-ground", footprint_mode: str = "replace") -> Any:
+                 footprint_heights: str = "above-ground", footprint_mode: str = "replace",
+                 refine_footprints: bool = False) -> Any:
     """Buildings, façade textures and a textured 3D model into ``outdir``
     (:func:`skyrig.pipeline.facades.run_facades`).
 
@@ -188,7 +189,8 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
     foot as the obliques show it (after ``refine``).  ``footprint_eave`` / ``footprint_ridge``: attributes of the
     footprints with their eave / ridge heights in metres (``footprint_heights``: ``above-ground`` or ``absolute``,
     the DSM's vertical reference), used where the DSM has no heights; ``footprint_mode``: ``replace`` (the
-    footprints are the buildings) or ``complete`` (the DSM's buildings completed by the footprints it misses).
+    footprints are the buildings) or ``complete`` (the DSM's buildings completed by the footprints it misses);
+    ``refine_footprints``: their walls moved onto their feet as the obliques show them.
 
     Raises :class:`skyrig.pipeline.facades.NoBuildingsError` (a failed run) when the DSM holds no building."""
     from skyrig.pipeline.dense import find_images
@@ -201,7 +203,7 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
         raise OptionError(spell("footprint_mode"), f"unknown mode {footprint_mode!r} (replace, complete)")
     if footprints is None:
         for name, val in (("footprint_layer", footprint_layer), ("footprint_eave", footprint_eave),
-                          ("footprint_ridge", footprint_ridge)):
+                          ("footprint_ridge", footprint_ridge), ("refine_footprints", refine_footprints)):
             if val:
                 raise OptionError(spell(name), f"needs {spell('footprints')}")
     if footprint_ridge and not footprint_eave:
@@ -223,14 +225,14 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
     if footprints is not None:
         options.update({"footprint_layer": footprint_layer, "footprint_eave": footprint_eave,
                         "footprint_ridge": footprint_ridge, "footprint_heights": footprint_heights,
-                        "footprint_mode": footprint_mode})
+                        "footprint_mode": footprint_mode, "refine_footprints": refine_footprints})
     return run_facades(eo, cameras, paths, str(dsm), outdir, footprints=footprints, ortho=ortho, texel_m=texel,
                        max_images=max_images, image_format=texture_format, refine=refine, feet=feet,
                        extend_dsms=[str(p) for p in extend_dsm],
                        inputs=[str(dsm), *map(str, inputs), *extra], options=options, progress=progress,
                        footprint_layer=footprint_layer, eave_field=footprint_eave, ridge_field=footprint_ridge,
                        height_reference="ground" if footprint_heights == "above-ground" else "absolute",
-                       footprint_mode=footprint_mode)
+                       footprint_mode=footprint_mode, refine_footprints=refine_footprints)
 
 
 def plane_in_local_frame(eo: ExteriorOrientations, height: float | None = None,
