@@ -28,8 +28,14 @@ def _nodes(g) -> np.ndarray:  # type: ignore[no-untyped-def]
 
 def test_collocation_grid_recovers_a_smooth_field_within_its_sigma() -> None:
     pix, obs = _samples(1500, 0.1, 1)
-    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13)
+    g = collocation_grid("cam", W, H, pix, obs)  # nodes fine enough for the fitted correlation length
     truth = _field(_nodes(g)).reshape(g.value_px.shape)
+    # the node spacing: the true field interpolated bilinearly from its values at the chosen nodes loses little of it
+    # (the 13-node grid of earlier versions lost a fifth: interpolation shrinks a wave between its nodes)
+    exact = type(g)(g.camera, g.x_px, g.y_px, truth, g.sigma_px, g.covariance, g.n_residuals)
+    rng = np.random.default_rng(9)
+    p = rng.uniform([0, 0], [W - 1, H - 1], (5000, 2))
+    assert np.sqrt(np.mean((exact.at(p) - _field(p)) ** 2)) < 0.1 * np.sqrt(np.mean(_field(p) ** 2))
     # the fitted covariance: signal variance near that of the field, nugget near the noise variance
     assert g.covariance.nugget == pytest.approx(0.01, rel=0.3)
     assert np.sqrt(g.covariance.c0) == pytest.approx(float(np.sqrt(np.mean(truth ** 2))), rel=0.5)
@@ -44,7 +50,7 @@ def test_collocation_grid_recovers_a_smooth_field_within_its_sigma() -> None:
 def test_collocation_grid_works_with_sparse_residuals_where_a_cell_mean_cannot() -> None:
     pix, obs = _samples(70, 0.05, 2)
     cov = fit_covariance(*_samples(1500, 0.05, 3), max_distance=0.5 * np.hypot(W, H))  # the field's covariance
-    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13, cov=cov)
+    g = collocation_grid("cam", W, H, pix, obs, cov=cov)
     nodes = _nodes(g)
     # a mean per grid cell: most cells have no residual at all
     cx = np.clip(np.round(pix[:, 0] / (g.x_px[1] - g.x_px[0])).astype(int), 0, len(g.x_px) - 1)
@@ -61,7 +67,7 @@ def test_collocation_grid_works_with_sparse_residuals_where_a_cell_mean_cannot()
     empty = ~occupied
     assert np.sqrt(np.mean((g.value_px[empty] - truth[empty]) ** 2)) < 0.75 * np.sqrt(np.mean(truth ** 2))
     # sparse data: larger predicted sigma than with dense data
-    dense = collocation_grid("cam", W, H, *_samples(1000, 0.05, 4), nodes_x=13, cov=cov)
+    dense = collocation_grid("cam", W, H, *_samples(1000, 0.05, 4), nodes_x=len(g.x_px), cov=cov)
     assert g.sigma_px.mean() > dense.sigma_px.mean()
 
 
@@ -78,7 +84,7 @@ def test_grid_without_calibration_part_keeps_the_wave_and_drops_io_like_fields()
     from skyrig.calibrate.calqc import without_calibration_part
 
     pix, obs = _samples(1500, 0.1, 1)
-    g = collocation_grid("cam", W, H, pix, obs, nodes_x=13)
+    g = collocation_grid("cam", W, H, pix, obs)
     nodes = _nodes(g)
     c = np.array([(W - 1) / 2, (H - 1) / 2])
     d = nodes - c
