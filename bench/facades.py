@@ -137,7 +137,8 @@ def footprint_sets(feet, footprints: Path, dsm, refine=None):
     given = buildings_from_footprints(fl.rings, dsm, source=footprints.name, heights=hts)
     todo = [("complete", _complete(feet, given)), ("footprints", given)]
     if refine is not None:
-        moved = refine_wall_feet(given, *refine, surface_with_buildings(dsm, [b for b in given if "; heights: " in str(b.source)]))
+        burnt = surface_with_buildings(dsm, [b for b in given if "; heights: " in str(b.source)])
+        moved = refine_wall_feet(given, *refine, burnt)
         todo += [("complete_feet", _complete(feet, moved)), ("footprints_feet", moved)]
     out = {}
     for label, blocks in todo:

@@ -49,9 +49,14 @@ def _look_at(c: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def project(tmp_path_factory):
+    return make_project(tmp_path_factory.mktemp("facades"))
+
+
+def make_project(root: Path):
+    """The one-house scene in ``root``: rig.yaml, images/ (four obliques), eo.csv, dsm.tif; returns
+    ``(root, scene, frame, dsm)``."""
     import cv2
 
-    root = tmp_path_factory.mktemp("facades")
     scene = make_scene(11, (-60.0, -60.0, 60.0, 60.0), n_buildings=1, building_size_m=(10.0, 16.0))
     bl = scene.buildings
     loc = WorldFrame.local(*scene.origin)

@@ -36,9 +36,14 @@ from skyrig.simulate.scenarios import build_survey, scenario_spec
 from skyrig.simulate.world import Buildings, make_scene
 
 from test_facades import LazyImages, _grid_around  # noqa: E402 - the façade tests' renderer and grid helper
-from test_facades_cli import project as cli_project  # noqa: E402,F401 - the one-house scene, as a fixture
+from test_facades_cli import make_project  # noqa: E402 - the one-house scene of the CLI tests
 
 CRS = WorldFrame.map("EPSG:25832")
+
+
+@pytest.fixture(scope="module")
+def cli_project(tmp_path_factory):
+    return make_project(tmp_path_factory.mktemp("facades_footprints"))
 
 
 @pytest.fixture(scope="module")
@@ -247,7 +252,8 @@ def test_cli_textures_a_house_the_dsm_missed_from_its_footprint(cli_project, tmp
     assert bad.exit_code != 0 and "cadastre.gpkg buildings:1" in bad.output and "no height was given" in bad.output
     assert not (tmp_path / "bad").exists()
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, [*args, "--footprint-eave", "eave_m", "--footprint-ridge", "ridge_m", "-o", str(out)])
+    res = CliRunner().invoke(main, [*args, "--footprint-eave", "eave_m", "--footprint-ridge", "ridge_m",
+                                    "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert "4 of 4 façades textured" in res.output and "1 with heights from eave_m" in res.output
     meta, _, geoms, fields = read(str(out / "buildings.gpkg"), layer="buildings")

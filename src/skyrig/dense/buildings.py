@@ -990,18 +990,18 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
     DSM heights (at least ``min_measured`` of the cells inside the footprint eroded by ``edge_cells`` measured):
     ground = 10th percentile of the DSM in a ring of ``ring_m`` around the footprint, eaves = the median of those
     inner cells (a flat roof), or for a rectangle whose cells two roof planes explain much better than one level
-    the gabled roof :func:`extract_buildings` would fit.  Otherwise the footprint's heights come from ``heights`` (a cadastre's attributes,
-    :class:`FootprintHeights`); its footprint may then lie partly or wholly beyond the DSM's grid.  ``source`` of
-    the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given heights.  ``labels``: a
-    name per footprint for messages (default: ``heights.labels``, else its number).
+    the gabled roof :func:`extract_buildings` would fit.  Otherwise the footprint's heights come from ``heights``
+    (a cadastre's attributes, :class:`FootprintHeights`); its footprint may then lie partly or wholly beyond the
+    DSM's grid.  ``source`` of the blocks: ``source``, with ``"; heights: <heights.source>"`` for those with given
+    heights.  ``labels``: a name per footprint for messages (default: ``heights.labels``, else its number).
 
     Raises
     ------
     SkyrigError
         On a footprint with fewer than 3 vertices; one with less than ``min_measured`` of its cells measured and
-        no given height for it (named; "outside the DSM" when it lies beyond the grid); a given height that is not finite, or an eave
-        height above the ground outside :data:`EAVE_RANGE_M`, or a ridge below the eaves; a footprint whose
-        ground would be read further than ``heights.max_ground_m`` from the DSM's measured cells.
+        no given height for it (named; "outside the DSM" when it lies beyond the grid); a given height that is
+        not finite, or an eave height above the ground outside :data:`EAVE_RANGE_M`, or a ridge below the eaves;
+        a footprint whose ground would be read further than ``heights.max_ground_m`` from the DSM's measured cells.
     """
     import cv2
     from scipy import ndimage

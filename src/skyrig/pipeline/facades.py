@@ -412,7 +412,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         raise SkyrigError(f"no camera for {', '.join(missing[:5])} (option: camera)")
     orthoraster = read_ortho_raster(ortho, grid.frame) if isinstance(ortho, (str, Path)) else ortho
     if footprint_mode not in ("replace", "complete"):
-        raise SkyrigError(f"footprint mode must be 'replace' or 'complete', not {footprint_mode!r} (option: footprint_mode)")
+        raise SkyrigError(f"footprint mode must be 'replace' or 'complete', not {footprint_mode!r} "
+                          "(option: footprint_mode)")
     if footprints is None and (eave_field or ridge_field):
         raise SkyrigError("footprint height fields given without footprints (option: footprints)")
     if ridge_field and not eave_field:

@@ -198,7 +198,8 @@ def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], i
     from skyrig.pipeline.inputs import select_heads
 
     if footprint_heights not in ("above-ground", "absolute"):
-        raise OptionError(spell("footprint_heights"), f"unknown reference {footprint_heights!r} (above-ground, absolute)")
+        raise OptionError(spell("footprint_heights"),
+                          f"unknown reference {footprint_heights!r} (above-ground, absolute)")
     if footprint_mode not in ("replace", "complete"):
         raise OptionError(spell("footprint_mode"), f"unknown mode {footprint_mode!r} (replace, complete)")
     if footprints is None:

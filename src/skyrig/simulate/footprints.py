@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.simulate.world import Scene
