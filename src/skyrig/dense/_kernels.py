@@ -1,8 +1,11 @@
-"""Compiled per-cell fusion kernels (numba): a counting sort by cell, then small sorts inside each cell.
+"""Compiled kernels of the dense chain (numba).
 
-The rules are those documented in :mod:`skyrig.dense.fusion`; these kernels only make them O(N) in the number
-of points instead of several global sorts.  Every result of a cell depends only on that cell's points (in
-their input order for ties), so a cell gets the same value in any tiling.
+Fusion: a counting sort by cell that copies each point's data into its cell's contiguous rows
+(:func:`count_cells`, :func:`scatter_points`), then small sorts inside each cell (:func:`fuse_sorted`: the grid
+and the voxel cloud of a cell from one read of its points).  The rules are those documented in
+:mod:`skyrig.dense.fusion`; these kernels only make them O(N) in the number of points instead of several global
+sorts.  Every result of a cell depends only on that cell's points (in their input order for ties), so a cell gets
+the same value in any tiling.
 """
 
 from __future__ import annotations
@@ -12,37 +15,62 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def counting_order(cell, ncells):  # pragma: no cover - compiled
-    """Stable order of points by cell index (0..ncells-1), and each cell's start offset ``(ncells + 1,)``."""
-    n = cell.shape[0]
-    start = np.zeros(ncells + 1, np.int64)
-    for i in range(n):
+def count_cells(cell, counts):  # pragma: no cover - compiled
+    """Add each point's cell (0..ncells-1; < 0: none) to ``counts[cell + 1]`` (``(ncells + 1,)``; its cumulative
+    sum is then every cell's start offset)."""
+    for i in range(cell.shape[0]):
         if cell[i] >= 0:
-            start[cell[i] + 1] += 1
-    for c in range(ncells):
-        start[c + 1] += start[c]
-    pos = start[:-1].copy()
-    order = np.empty(start[ncells], np.int64)
-    for i in range(n):
+            counts[cell[i] + 1] += 1
+
+
+@numba.njit(cache=True)
+def scatter_points(cell, pos, pair, pair_const, xyz, sigma_h, kz, sigma_3d, rgb, normal,
+                   o_pair, o_xyz, o_sh, o_kz, o_s3, o_rgb, o_n):  # pragma: no cover - compiled
+    """Counting sort, second pass: copy each point with a cell to row ``pos[cell]`` of the output arrays and
+    advance ``pos[cell]`` (stable: a cell keeps its points in input order, over several calls too).  ``pair``
+    (or ``pair_const`` when it is empty); ``kz``, ``sigma_3d``, ``rgb``, ``normal`` are copied when not empty.
+    Reads are sequential; each cell's points end up contiguous for :func:`fuse_sorted`."""
+    has_pair = pair.shape[0] > 0
+    has_kz = kz.shape[0] > 0
+    has_cloud = sigma_3d.shape[0] > 0
+    for i in range(cell.shape[0]):
         c = cell[i]
-        if c >= 0:
-            order[pos[c]] = i
-            pos[c] += 1
-    return order, start
+        if c < 0:
+            continue
+        j = pos[c]
+        pos[c] = j + 1
+        o_pair[j] = pair[i] if has_pair else pair_const
+        o_xyz[j, 0] = xyz[i, 0]
+        o_xyz[j, 1] = xyz[i, 1]
+        o_xyz[j, 2] = xyz[i, 2]
+        o_sh[j] = sigma_h[i]
+        if has_kz:
+            o_kz[j] = kz[i]
+        if has_cloud:
+            o_s3[j] = sigma_3d[i]
+            o_rgb[j, 0] = rgb[i, 0]
+            o_rgb[j, 1] = rgb[i, 1]
+            o_rgb[j, 2] = rgb[i, 2]
+            o_n[j, 0] = normal[i, 0]
+            o_n[j, 1] = normal[i, 1]
+            o_n[j, 2] = normal[i, 2]
 
 
 @numba.njit(cache=True)
 def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m):  # pragma: no cover - compiled
     """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
-    with a non-finite coordinate or a sigma not > 0; with ``voxel_z_m > 0`` also each point's height slice
+    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``); with ``voxel_z_m > 0`` also each point's height slice
     ``floor(z / voxel_z_m)`` (else an empty array)."""
     n = x.shape[0]
+    test_sigma = sigma.shape[0] > 0
     cell = np.empty(n, np.int64)
     kz = np.empty(n if voxel_z_m > 0 else 0, np.int64)
     for i in range(n):
         cell[i] = -1
         xi, yi, zi = x[i], y[i], z[i]
-        if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi) and sigma[i] > 0):
+        if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi)):
+            continue
+        if test_sigma and not sigma[i] > 0:
             continue
         col = np.floor((xi - x0) / cell_m)
         row = np.floor((y0 - yi) / cell_m)
@@ -55,39 +83,23 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m):  # pragma: no c
 
 
 @numba.njit(cache=True)
-def _sort2(a, b, idx):  # pragma: no cover - compiled
-    """Insertion sort of ``idx`` by (a, b) (small arrays, stable)."""
-    for i in range(1, idx.shape[0]):
-        j = i
-        t = idx[i]
-        while j > 0 and (a[idx[j - 1]] > a[t] or (a[idx[j - 1]] == a[t] and b[idx[j - 1]] > b[t])):
-            idx[j] = idx[j - 1]
-            j -= 1
-        idx[j] = t
+def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support, min_ratio,
+                max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
+                o_xyz, o_rgb, o_n, o_sup, o_sig):  # pragma: no cover - compiled
+    """Grid and/or voxel fusion of points sorted by cell (cell ``c``'s points are rows ``start[c]:start[c+1]``,
+    in input order; :func:`scatter_points`).
 
+    Grid (``do_grid``, see :func:`skyrig.dense.fusion.fuse_grid`): the points with ``sigma_h > 0``, heights
+    ``xyz[:, 2]``, gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with
+    ``max_range > 0`` a pair whose own heights in the cell span more than ``max_range`` gives the cell no height (it
+    sees a wall or a depth edge inside the cell).  Writes the flat ``out_*`` arrays; ``out_ch``, ``out_cs``,
+    ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``, their precision-weighted mean,
+    its sigma and their number (a candidate for the neighbour confirmation).
 
-@numba.njit(cache=True)
-def _sort1(a, idx):  # pragma: no cover - compiled
-    for i in range(1, idx.shape[0]):
-        j = i
-        t = idx[i]
-        while j > 0 and a[idx[j - 1]] > a[t]:
-            idx[j] = idx[j - 1]
-            j -= 1
-        idx[j] = t
-
-
-@numba.njit(cache=True)
-def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support, min_ratio,
-                    out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, max_range=0.0):  # pragma: no cover - compiled
-    """Grid fusion of every cell (see :func:`skyrig.dense.fusion.fuse_grid`); writes the flat output arrays.
-
-    ``out_ch``, ``out_cs``, ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``,
-    their precision-weighted mean, its sigma and their number (a candidate for the neighbour confirmation).
-
-    A cell's points are gathered into scratch arrays (allocated once) and sorted there by (pair, height),
-    stably (ties keep the input order).  With ``max_range > 0`` a pair whose own heights in the cell span more
-    than ``max_range`` gives the cell no height (it sees a wall or a depth edge inside the cell)."""
+    Cloud (``do_cloud``, see :func:`skyrig.dense.fusion.fuse_cloud`): every point of a cell grouped by its vertical
+    voxel index ``kz``; a voxel with points of at least ``min_support`` distinct pairs becomes one point
+    (precision ``sigma_3d``); normals are rotated by ``rot`` (``(3, 3)``, in float64, rounded to float32) before they
+    are averaged.  Writes ``o_*`` row by row and returns the number of rows written."""
     ncells = start.shape[0] - 1
     maxm = 0
     for c in range(ncells):
@@ -97,174 +109,207 @@ def fuse_grid_cells(order, start, pair, h, sigma, k_sigma, min_tol, min_support,
     ls = np.empty(maxm)
     ph = np.empty(maxm)
     ps = np.empty(maxm)
+    pw = np.empty(maxm)
     pi = np.empty(maxm, np.int64)
     dev = np.empty(maxm)
-    for c in range(ncells):
-        a, b = start[c], start[c + 1]
-        m = b - a
-        if m == 0:
-            continue
-        for t in range(m):  # gather, insertion-sorted by (pair, h)
-            q = order[a + t]
-            kp, kh, ks = pair[q], h[q], sigma[q]
-            j = t
-            while j > 0 and (lp[j - 1] > kp or (lp[j - 1] == kp and lh[j - 1] > kh)):
-                lp[j] = lp[j - 1]
-                lh[j] = lh[j - 1]
-                ls[j] = ls[j - 1]
-                j -= 1
-            lp[j] = kp
-            lh[j] = kh
-            ls[j] = ks
-        # one height per pair: median of its points (sigma of the median point(s))
-        k = 0
-        i = 0
-        while i < m:
-            j = i
-            while j < m and lp[j] == lp[i]:
-                j += 1
-            cnt = j - i
-            if max_range > 0 and lh[j - 1] - lh[i] > max_range:
-                i = j
-                continue
-            lo = i + (cnt - 1) // 2
-            hi = i + cnt // 2
-            ph[k] = 0.5 * (lh[lo] + lh[hi])
-            ps[k] = 0.5 * (ls[lo] + ls[hi])
-            k += 1
-            i = j
-        np_ = k
-        if np_ == 0:
-            continue
-        for q in range(np_):  # pi: pair heights' order (stable insertion sort by ph)
-            t = q
-            while t > 0 and ph[pi[t - 1]] > ph[q]:
-                pi[t] = pi[t - 1]
-                t -= 1
-            pi[t] = q
-        # precision-weighted median
-        tot = 0.0
-        for q in range(np_):
-            tot += 1.0 / (ps[q] * ps[q])
-        acc = 0.0
-        med_i = pi[np_ - 1]
-        for q in range(np_):
-            acc += 1.0 / (ps[pi[q]] * ps[pi[q]])
-            if acc >= 0.5 * tot * (1 - 1e-12):
-                med_i = pi[q]
-                break
-        med = ph[med_i]
-        smed = ps[med_i]
-        nsup = 0
-        wsum = 0.0
-        hsum = 0.0
-        for q in range(np_):
-            tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
-            if abs(ph[q] - med) <= tol:
-                w = 1.0 / (ps[q] * ps[q])
-                nsup += 1
-                wsum += w
-                hsum += w * ph[q]
-        if nsup < min_support or nsup < min_ratio * np_:
-            if nsup == np_:
-                out_ch[c] = hsum / wsum
-                out_cs[c] = 1.0 / np.sqrt(wsum)
-                out_cn[c] = min(nsup, 32767)
-            continue
-        fused = hsum / wsum
-        t = 0
-        for q in range(np_):
-            tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
-            if abs(ph[q] - med) <= tol:
-                v = abs(ph[q] - fused)
-                r = t
-                while r > 0 and dev[r - 1] > v:
-                    dev[r] = dev[r - 1]
-                    r -= 1
-                dev[r] = v
-                t += 1
-        out_h[c] = fused
-        out_n[c] = min(nsup, 32767)
-        out_s[c] = 1.0 / np.sqrt(wsum)
-        out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
-
-
-@numba.njit(cache=True)
-def fuse_voxels(order, start, kz, pair, xyz, sigma, rgb, normal, rot, min_support,
-                o_xyz, o_rgb, o_n, o_sup, o_sig):  # pragma: no cover - compiled
-    """Voxel fusion: inside each column cell, points grouped by vertical voxel index ``kz``; a voxel with
-    points of at least ``min_support`` distinct pairs becomes one point.  Normals are rotated by ``rot``
-    (``(3, 3)``, in float64, rounded to float32) before they are averaged.  Returns the number written."""
-    ncells = start.shape[0] - 1
-    maxm = 0
-    for c in range(ncells):
-        maxm = max(maxm, start[c + 1] - start[c])
-    buf = np.empty(maxm, np.int64)
+    lk = np.empty(maxm, np.int64)
+    lpr = np.empty(maxm, np.int64)
+    li = np.empty(maxm, np.int64)
     out = 0
     for c in range(ncells):
         a, b = start[c], start[c + 1]
-        m = b - a
-        if m == 0:
+        if a == b:
             continue
-        idx = buf[:m]
-        idx[:] = order[a:b]
-        _sort2(kz, pair, idx)
-        i = 0
-        while i < m:
-            j = i
-            while j < m and kz[idx[j]] == kz[idx[i]]:
-                j += 1
-            npairs = 0
-            for q in range(i, j):
-                if q == i or pair[idx[q]] != pair[idx[q - 1]]:
-                    npairs += 1
-            if npairs >= min_support:
-                wsum = 0.0
-                sx = 0.0
-                sy = 0.0
-                sz = 0.0
-                r0 = 0.0
-                r1 = 0.0
-                r2 = 0.0
-                n0 = 0.0
-                n1 = 0.0
-                n2 = 0.0
-                for q in range(i, j):
-                    p = idx[q]
-                    s = max(sigma[p], 1e-9)
-                    w = 1.0 / (s * s)
-                    wsum += w
-                    sx += w * xyz[p, 0]
-                    sy += w * xyz[p, 1]
-                    sz += w * xyz[p, 2]
-                    r0 += rgb[p, 0]
-                    r1 += rgb[p, 1]
-                    r2 += rgb[p, 2]
-                    if normal[p, 0] == normal[p, 0]:  # not NaN
-                        a0, a1, a2 = np.float64(normal[p, 0]), np.float64(normal[p, 1]), np.float64(normal[p, 2])
-                        n0 += np.float32(rot[0, 0] * a0 + rot[0, 1] * a1 + rot[0, 2] * a2)
-                        n1 += np.float32(rot[1, 0] * a0 + rot[1, 1] * a1 + rot[1, 2] * a2)
-                        n2 += np.float32(rot[2, 0] * a0 + rot[2, 1] * a1 + rot[2, 2] * a2)
-                cnt = j - i
-                o_xyz[out, 0] = sx / wsum
-                o_xyz[out, 1] = sy / wsum
-                o_xyz[out, 2] = sz / wsum
-                o_rgb[out, 0] = np.uint8(min(255.0, r0 / cnt + 0.5))
-                o_rgb[out, 1] = np.uint8(min(255.0, r1 / cnt + 0.5))
-                o_rgb[out, 2] = np.uint8(min(255.0, r2 / cnt + 0.5))
-                nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-                if nn > 0:
-                    o_n[out, 0] = n0 / nn
-                    o_n[out, 1] = n1 / nn
-                    o_n[out, 2] = n2 / nn
-                else:
-                    o_n[out, 0] = np.nan
-                    o_n[out, 1] = np.nan
-                    o_n[out, 2] = np.nan
-                o_sup[out] = min(npairs, 32767)
-                o_sig[out] = 1.0 / np.sqrt(wsum)
-                out += 1
+        if do_grid:
+            m = 0
+            for q in range(a, b):
+                sh = np.float64(sigma_h[q])
+                if sh > 0:
+                    m = _insert_point(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
+            if m:
+                _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
+                           out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
+        if do_cloud:
+            mv = 0
+            for q in range(a, b):
+                mv = _insert_voxel(lk, lpr, li, mv, kz[q], pair[q], q)
+            out = _voxel_cell(lk, lpr, li, mv, xyz, sigma_3d, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n, o_sup,
+                              o_sig, out)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _insert_point(lp, lh, ls, m, kp, kh, ks):  # pragma: no cover - compiled
+    """Insert a point into a cell's first ``m`` scratch entries sorted by (pair, height), after its equals
+    (stable); returns ``m + 1``."""
+    j = m
+    while j > 0 and (lp[j - 1] > kp or (lp[j - 1] == kp and lh[j - 1] > kh)):
+        lp[j] = lp[j - 1]
+        lh[j] = lh[j - 1]
+        ls[j] = ls[j - 1]
+        j -= 1
+    lp[j] = kp
+    lh[j] = kh
+    ls[j] = ks
+    return m + 1
+
+
+@numba.njit(cache=True, inline="always")
+def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
+               out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn):  # pragma: no cover - compiled
+    """Fusion of one cell from its ``m`` points sorted by (pair, height) in ``lp, lh, ls`` (steps 1-3 of
+    :mod:`skyrig.dense.fusion`); ``ph, ps, pw, pi, dev``: scratch."""
+    # one height per pair: median of its points (sigma of the median point(s))
+    k = 0
+    i = 0
+    while i < m:
+        j = i
+        while j < m and lp[j] == lp[i]:
+            j += 1
+        cnt = j - i
+        if max_range > 0 and lh[j - 1] - lh[i] > max_range:
             i = j
+            continue
+        lo = i + (cnt - 1) // 2
+        hi = i + cnt // 2
+        ph[k] = 0.5 * (lh[lo] + lh[hi])
+        ps[k] = 0.5 * (ls[lo] + ls[hi])
+        pw[k] = 1.0 / (ps[k] * ps[k])
+        k += 1
+        i = j
+    np_ = k
+    if np_ == 0:
+        return
+    for q in range(np_):  # pi: pair heights' order (stable insertion sort by ph)
+        t = q
+        while t > 0 and ph[pi[t - 1]] > ph[q]:
+            pi[t] = pi[t - 1]
+            t -= 1
+        pi[t] = q
+    # precision-weighted median
+    tot = 0.0
+    for q in range(np_):
+        tot += pw[q]
+    acc = 0.0
+    med_i = pi[np_ - 1]
+    for q in range(np_):
+        acc += pw[pi[q]]
+        if acc >= 0.5 * tot * (1 - 1e-12):
+            med_i = pi[q]
+            break
+    med = ph[med_i]
+    smed = ps[med_i]
+    nsup = 0
+    wsum = 0.0
+    hsum = 0.0
+    for q in range(np_):  # pi from here on: 1 where the pair supports the median
+        tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
+        pi[q] = 0
+        if abs(ph[q] - med) <= tol:
+            pi[q] = 1
+            nsup += 1
+            wsum += pw[q]
+            hsum += pw[q] * ph[q]
+    if nsup < min_support or nsup < min_ratio * np_:
+        if nsup == np_:
+            out_ch[c] = hsum / wsum
+            out_cs[c] = 1.0 / np.sqrt(wsum)
+            out_cn[c] = min(nsup, 32767)
+        return
+    fused = hsum / wsum
+    t = 0
+    for q in range(np_):
+        if pi[q]:
+            v = abs(ph[q] - fused)
+            r = t
+            while r > 0 and dev[r - 1] > v:
+                dev[r] = dev[r - 1]
+                r -= 1
+            dev[r] = v
+            t += 1
+    out_h[c] = fused
+    out_n[c] = min(nsup, 32767)
+    out_s[c] = 1.0 / np.sqrt(wsum)
+    out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
+
+
+@numba.njit(cache=True, inline="always")
+def _insert_voxel(lk, lpr, li, m, kk, kp, q):  # pragma: no cover - compiled
+    """Insert point ``q`` into a cell's first ``m`` scratch entries sorted by (height slice, pair), after its
+    equals (stable); returns ``m + 1``."""
+    j = m
+    while j > 0 and (lk[j - 1] > kk or (lk[j - 1] == kk and lpr[j - 1] > kp)):
+        lk[j] = lk[j - 1]
+        lpr[j] = lpr[j - 1]
+        li[j] = li[j - 1]
+        j -= 1
+    lk[j] = kk
+    lpr[j] = kp
+    li[j] = q
+    return m + 1
+
+
+@numba.njit(cache=True, inline="always")
+def _voxel_cell(lk, lpr, li, m, xyz, sigma, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n, o_sup, o_sig,
+                out):  # pragma: no cover - compiled
+    """The voxels of one cell from its ``m`` points sorted by (height slice, pair) (``lk, lpr``; ``li``: the
+    points' indices); writes from row ``out`` on and returns the next free row."""
+    i = 0
+    while i < m:
+        j = i
+        while j < m and lk[j] == lk[i]:
+            j += 1
+        npairs = 0
+        for q in range(i, j):
+            if q == i or lpr[q] != lpr[q - 1]:
+                npairs += 1
+        if npairs >= min_support:
+            wsum = 0.0
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            r0 = 0.0
+            r1 = 0.0
+            r2 = 0.0
+            n0 = 0.0
+            n1 = 0.0
+            n2 = 0.0
+            for q in range(i, j):
+                p = li[q]
+                s = max(np.float64(sigma[p]), 1e-9)
+                w = 1.0 / (s * s)
+                wsum += w
+                sx += w * xyz[p, 0]
+                sy += w * xyz[p, 1]
+                sz += w * xyz[p, 2]
+                r0 += rgb[p, 0]
+                r1 += rgb[p, 1]
+                r2 += rgb[p, 2]
+                if normal[p, 0] == normal[p, 0]:  # not NaN
+                    a0, a1, a2 = np.float64(normal[p, 0]), np.float64(normal[p, 1]), np.float64(normal[p, 2])
+                    n0 += np.float32(rot[0, 0] * a0 + rot[0, 1] * a1 + rot[0, 2] * a2)
+                    n1 += np.float32(rot[1, 0] * a0 + rot[1, 1] * a1 + rot[1, 2] * a2)
+                    n2 += np.float32(rot[2, 0] * a0 + rot[2, 1] * a1 + rot[2, 2] * a2)
+            cnt = j - i
+            o_xyz[out, 0] = sx / wsum
+            o_xyz[out, 1] = sy / wsum
+            o_xyz[out, 2] = sz / wsum
+            o_rgb[out, 0] = np.uint8(min(255.0, r0 / cnt + 0.5))
+            o_rgb[out, 1] = np.uint8(min(255.0, r1 / cnt + 0.5))
+            o_rgb[out, 2] = np.uint8(min(255.0, r2 / cnt + 0.5))
+            nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if nn > 0:
+                o_n[out, 0] = n0 / nn
+                o_n[out, 1] = n1 / nn
+                o_n[out, 2] = n2 / nn
+            else:
+                o_n[out, 0] = np.nan
+                o_n[out, 1] = np.nan
+                o_n[out, 2] = np.nan
+            o_sup[out] = min(npairs, 32767)
+            o_sig[out] = 1.0 / np.sqrt(wsum)
+            out += 1
+        i = j
     return out
 
 

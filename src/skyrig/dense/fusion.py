@@ -88,7 +88,7 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
     x, y, h
         ``(M,)`` map coordinates and heights (metres).
     sigma
-        ``(M,)`` predicted height precision of each point (metres, > 0).
+        ``(M,)`` predicted height precision of each point (metres, > 0; others are left out).
     cfg
         Fusion options.
 
@@ -103,30 +103,90 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
         With ``candidates``: for cells whose pairs all agree but are fewer than ``min_support``, their
         precision-weighted mean height, its sigma and the number of pairs (NaN / 0 elsewhere).
     """
-    from skyrig.dense._kernels import counting_order, fuse_grid_cells, grid_cells
+    srt = CellSorter(grid, 0.0, cloud=False)
+    xyz = np.stack([np.asarray(v, np.float64) for v in (x, y, h)], axis=1).reshape(-1, 3)
+    srt.add(np.asarray(pair, np.int64), xyz, np.asarray(sigma, np.float64), test_sigma=True)
+    layers, _ = srt.fuse(cfg, grid_layers=True)
+    return layers if candidates else layers[:4]
 
-    H, W = grid.shape
-    out_h = np.full(H * W, np.nan, np.float32)
-    out_n = np.zeros(H * W, np.int16)
-    out_sp = np.full(H * W, np.nan, np.float32)
-    out_s = np.full(H * W, np.nan, np.float32)
-    out_ch = np.full(H * W, np.nan, np.float32)
-    out_cs = np.full(H * W, np.nan, np.float32)
-    out_cn = np.zeros(H * W, np.int16)
-    x, y, h = (np.asarray(v, np.float64) for v in (x, y, h))
-    sigma = np.asarray(sigma, np.float64)
-    if len(x):
-        cell, _ = grid_cells(x, y, h, sigma, float(grid.x0), float(grid.y0), float(grid.cell_m), H, W, 0.0)
-        order, start = counting_order(cell, H * W)
-        fuse_grid_cells(order, start, np.asarray(pair, np.int64), h, sigma, float(cfg.k_sigma),
-                        float(cfg.min_tol_cells * grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
-                        out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
-                        float(cfg.max_pair_range_cells * grid.cell_m))
-    shape = grid.shape
-    out = (out_h.reshape(shape), out_n.reshape(shape), out_sp.reshape(shape), out_s.reshape(shape))
-    if candidates:
-        out += (out_ch.reshape(shape), out_cs.reshape(shape), out_cn.reshape(shape))
-    return out
+
+class CellSorter:
+    """Points of several batches (e.g. blocks of stereo pairs) sorted by the cell of a grid they fall in, for
+    :meth:`fuse`: a counting sort over all batches (stable: a cell keeps its points in the order they were
+    added), each point's data copied once into the cell's contiguous rows.
+
+    ``voxel_z_m`` > 0 also gives each point its vertical voxel index ``floor(z / voxel_z_m)``; ``cloud`` keeps
+    what cloud fusion needs (``sigma_3d``, colour, normal)."""
+
+    def __init__(self, grid: GridSpec, voxel_z_m: float, cloud: bool) -> None:
+        self.grid, self.voxel_z_m, self.cloud = grid, float(voxel_z_m), cloud
+        H, W = grid.shape
+        self.counts = np.zeros(H * W + 1, np.int64)
+        self.batches: list[tuple] = []
+
+    def add(self, pair: int | NDArray[np.int64], xyz: NDArray[np.float64], sigma_h: NDArray,
+            sigma_3d: NDArray | None = None, rgb: NDArray[np.uint8] | None = None,
+            normal: NDArray[np.float32] | None = None, test_sigma: bool = False) -> None:
+        """A batch of points: pair id (one for the batch, or per point), ``(M, 3)`` map coordinates, height precision
+        (``test_sigma``: points whose ``sigma_h`` is not > 0 are left out here already), and for a cloud the 3-D
+        precision, colour and normal."""
+        from skyrig.dense._kernels import count_cells, grid_cells
+
+        g = self.grid
+        H, W = g.shape
+        p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
+        cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
+                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m)
+        count_cells(cell, self.counts)
+        if isinstance(pair, (int, np.integer)):
+            pa, pc = np.zeros(0, np.int64), int(pair)
+        else:
+            pa, pc = np.ascontiguousarray(pair, np.int64), 0
+        if self.cloud:
+            cl = (np.ascontiguousarray(sigma_3d), np.ascontiguousarray(rgb, np.uint8),
+                  np.ascontiguousarray(normal, np.float32))
+        else:
+            cl = (np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
+        self.batches.append((cell, kz, pa, pc, p, np.ascontiguousarray(sigma_h)) + cl)
+
+    def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
+             ) -> tuple[tuple[NDArray, ...] | None, tuple[NDArray, ...] | None]:
+        """Grid fusion (with ``grid_layers``: ``(height, support, spread, sigma, cand_height, cand_sigma,
+        cand_support)``, see :func:`fuse_grid`) and, for a cloud, voxel fusion (``(xyz, rgb, normal, support,
+        sigma)``, see :func:`fuse_cloud`) of the points added, in one pass over the cells."""
+        from skyrig.dense._kernels import fuse_sorted, scatter_points
+
+        H, W = self.grid.shape
+        start = np.cumsum(self.counts)
+        n = int(start[-1])
+        pair = np.empty(n, np.int64)
+        xyz = np.empty((n, 3))
+        sh = np.empty(n, self.batches[0][5].dtype if self.batches else np.float64)
+        kz = np.empty(n if self.voxel_z_m > 0 else 0, np.int64)
+        if self.cloud:
+            s3 = np.empty(n, self.batches[0][6].dtype if self.batches else np.float32)
+            rgb, nrm = np.empty((n, 3), np.uint8), np.empty((n, 3), np.float32)
+        else:
+            s3, rgb, nrm = np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32)
+        pos = start[:-1].copy()
+        for cell, kzb, pa, pc, p, sg, s3b, rgbb, nb in self.batches:
+            scatter_points(cell, pos, pa, pc, p, sg.astype(sh.dtype, copy=False), kzb, s3b.astype(s3.dtype, copy=False),
+                           rgbb, nb, pair, xyz, sh, kz, s3, rgb, nrm)
+        self.batches = []
+        m = H * W
+        out = [np.full(m, np.nan, np.float32), np.zeros(m, np.int16), np.full(m, np.nan, np.float32),
+               np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32),
+               np.zeros(m, np.int16)] if grid_layers else [np.zeros(0, np.float32)] * 7
+        nc = n if self.cloud else 0
+        co = (np.empty((nc, 3)), np.empty((nc, 3), np.uint8), np.empty((nc, 3), np.float32), np.empty(nc, np.int16),
+              np.empty(nc, np.float32))
+        rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
+        k = fuse_sorted(start, pair, xyz, sh, kz, s3, rgb, nrm, rot, float(cfg.k_sigma),
+                        float(cfg.min_tol_cells * self.grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
+                        float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers, self.cloud, *out, *co)
+        layers = tuple(a.reshape(self.grid.shape) for a in out) if grid_layers else None
+        cloud = tuple(a[:k] for a in co) if self.cloud else None
+        return layers, cloud
 
 
 def confirm_by_neighbours(height: NDArray[np.float32], support: NDArray[np.int16], sigma: NDArray[np.float32],
@@ -183,23 +243,8 @@ def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: N
     xyz, rgb, normal, support, sigma
         One row per kept voxel, ordered by cell, then height.
     """
-    from skyrig.dense._kernels import counting_order, fuse_voxels, grid_cells
-
-    H, W = grid.shape
-    p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
-    sig = np.asarray(sigma, np.float64)
-    cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], np.ones(len(p)), float(grid.x0), float(grid.y0),
-                          float(grid.cell_m), H, W, float(voxel_z_m))
-    order, start = counting_order(cell, H * W)
-    n = len(order)
-    o_xyz = np.empty((n, 3))
-    o_rgb = np.empty((n, 3), np.uint8)
-    o_n = np.empty((n, 3), np.float32)
-    o_sup = np.empty(n, np.int16)
-    o_sig = np.empty(n, np.float32)
-    if n == 0:
-        return o_xyz, o_rgb, o_n, o_sup, o_sig
-    rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
-    k = fuse_voxels(order, start, kz, np.asarray(pair, np.int64), p, sig, np.ascontiguousarray(rgb, np.uint8),
-                    np.ascontiguousarray(normal, np.float32), rot, int(cfg.min_support), o_xyz, o_rgb, o_n, o_sup, o_sig)
-    return o_xyz[:k], o_rgb[:k], o_n[:k], o_sup[:k], o_sig[:k]
+    srt = CellSorter(grid, voxel_z_m, cloud=True)
+    srt.add(np.asarray(pair, np.int64), xyz, np.zeros(len(xyz)), np.asarray(sigma, np.float64), rgb, normal)
+    _, cloud = srt.fuse(cfg, grid_layers=False, normal_rotation=normal_rotation)
+    assert cloud is not None
+    return cloud  # type: ignore[return-value]

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense._phases import phase
-from skyrig.dense.fusion import FusionConfig, confirm_by_neighbours, fuse_cloud, fuse_grid
+from skyrig.dense.fusion import CellSorter, FusionConfig, confirm_by_neighbours, fuse_cloud
 from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
 from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
 from skyrig.dense.rectify import Rectification, rectify_pair
@@ -401,8 +401,11 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                 images[i] = loader(i)
         return images[i]
 
-    pts: list[tuple[int, PairPoints, NDArray]] = []
-    nblocks, mpx = 0, 0.0
+    vox = plan.config.cloud_voxel_m or plan.grid.cell_m
+    with_cloud = plan.config.cloud and vox == plan.grid.cell_m  # the cloud's voxels on the grid's cells: one sort
+    srt = CellSorter(tg, vox if with_cloud else 0.0, cloud=with_cloud)
+    extra: list[tuple[int, PairPoints, NDArray]] = []  # a cloud on its own voxel grid
+    npts, nblocks, mpx = 0, 0, 0.0
     for pid, (pair, rect, bl, bb) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, plan.block_bounds)):
         hit = (bb[:, 0] <= xb1) & (bb[:, 2] >= xb0) & (bb[:, 1] <= yb1) & (bb[:, 3] >= yb0)
         for bi in np.flatnonzero(hit):
@@ -416,34 +419,31 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
             with phase("to map"):
                 xyz_m = plan.to_map(pp.xyz)
                 inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
-                if inside.all():
-                    pts.append((pid, pp, xyz_m))
-                elif inside.any():
+                if not inside.any():
+                    continue
+                if not inside.all():
                     sel = np.flatnonzero(inside)
-                    pts.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
-                                                pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
-    with phase("fuse grid"):
-        if pts:
-            pid = np.concatenate([np.full(len(p[1]), p[0], np.int64) for p in pts])
-            xyz = np.concatenate([p[2] for p in pts])
-            sig = np.concatenate([p[1].sigma_h for p in pts]).astype(np.float64)
-        else:
-            pid, xyz, sig = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
-        hgt, sup, spr, sg, ch, cs, cn = fuse_grid(tg, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, plan.config.fusion,
-                                                  candidates=True)
-    cloud = None
-    if plan.config.cloud and pts:
+                    pp = PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel], pp.rgb[sel],
+                                    pp.normal[sel])
+                    xyz_m = xyz_m[sel]
+            with phase("fuse"):
+                srt.add(pid, xyz_m, pp.sigma_h, pp.sigma_3d, pp.rgb, pp.normal)
+            npts += len(xyz_m)
+            if plan.config.cloud and not with_cloud:
+                extra.append((pid, pp, xyz_m))
+    rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
+    with phase("fuse"):
+        (hgt, sup, spr, sg, ch, cs, cn), cloud = srt.fuse(plan.config.fusion, True, rot)
+    if extra:
         with phase("fuse cloud"):
-            rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
-            nrm = np.concatenate([p[1].normal for p in pts])
-            vox = plan.config.cloud_voxel_m or plan.grid.cell_m
-            vg = tg if vox == plan.grid.cell_m else GridSpec(tg.x0, tg.y0, vox, int(np.ceil(w * tg.cell_m / vox)),
-                                                            int(np.ceil(h * tg.cell_m / vox)))
-            cloud = fuse_cloud(vg, vox, pid, xyz,
-                               np.concatenate([p[1].sigma_3d for p in pts]).astype(np.float64),
-                               np.concatenate([p[1].rgb for p in pts]), nrm, plan.config.fusion, rot)
-    return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud, len(xyz), nblocks, mpx, time.perf_counter() - t0,
-                      ch, cs, cn)
+            vg = GridSpec(tg.x0, tg.y0, vox, int(np.ceil(w * tg.cell_m / vox)), int(np.ceil(h * tg.cell_m / vox)))
+            cloud = fuse_cloud(vg, vox, np.concatenate([np.full(len(p[1]), p[0], np.int64) for p in extra]),
+                               np.concatenate([p[2] for p in extra]),
+                               np.concatenate([p[1].sigma_3d for p in extra]).astype(np.float64),
+                               np.concatenate([p[1].rgb for p in extra]), np.concatenate([p[1].normal for p in extra]),
+                               plan.config.fusion, rot)
+    return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud if plan.config.cloud and npts else None, npts, nblocks,
+                      mpx, time.perf_counter() - t0, ch, cs, cn)
 
 
 def fill_holes(height: NDArray[np.float32], max_cells: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
