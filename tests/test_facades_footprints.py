@@ -181,7 +181,7 @@ def test_bad_footprint_heights_are_refused_in_words(tmp_path):
     # a missing value (NULL / NaN) for a footprint beyond the DSM: named
     hts = FootprintHeights(np.array([6.0, np.nan, 7.0]), None, "ground", "fp.gpkg field eave",
                            ("fp:1", "fp:2", "fp:3"))
-    with pytest.raises(SkyrigError, match="fp:2 .* no height was given"):
+    with pytest.raises(SkyrigError, match=r"fp:2 .* no height was given for it \(fp.gpkg field eave: empty\)"):
         buildings_from_footprints(sq, dsm, heights=hts)
     # implausible above the ground (0.2 m), and a ridge under the eaves
     with pytest.raises(SkyrigError, match=r"fp:2 .*0\.20 m above the ground .* implausible"):

@@ -1076,9 +1076,11 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
             if np.isnan(given):
                 given = None
         outside = not (0 <= col.min() and 0 <= row.min() and col.max() <= g.width - 1 and row.max() <= g.height - 1)
+        none_given = (f"({heights.source}: empty)" if heights is not None else
+                      "(a height attribute of the footprints)")
         if given is None and outside:
             raise SkyrigError(f"{label} ({source}) lies (partly) outside the DSM {g.bounds} and no height was "
-                              "given for it (a height attribute of the footprints)")
+                              f"given for it {none_given}")
         if measured >= min_measured:
             # the DSM measured the roof
             inner = inner_all & mw
@@ -1101,8 +1103,7 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
         if given is None:
             what = ("has no measured cell inside it" if measured == 0 else
                     f"measured {100 * measured:.0f} % of the cells inside it (less than {100 * min_measured:.0f} %)")
-            raise SkyrigError(f"{label} ({source}): the DSM {what}, and no height was given for it (a height attribute "
-                              "of the footprints)")
+            raise SkyrigError(f"{label} ({source}): the DSM {what}, and no height was given for it {none_given}")
         ridge_given = None
         if heights.ridge_m is not None:
             rv = float(np.asarray(heights.ridge_m, float).reshape(-1)[k])
