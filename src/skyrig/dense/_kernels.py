@@ -57,14 +57,17 @@ def scatter_points(cell, pos, pair, pair_const, xyz, sigma_h, kz, sigma_3d, rgb,
 
 
 @numba.njit(cache=True)
-def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m):  # pragma: no cover - compiled
+def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0):  # pragma: no cover - compiled
     """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
-    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``); with ``voxel_z_m > 0`` also each point's height slice
-    ``floor(z / voxel_z_m)`` (else an empty array)."""
+    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``); with ``voxel_z_m > 0``
+    also each point's height slice ``floor(z / voxel_z_m)`` (else an empty array).  ``tile > 0``: the index in
+    ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort by it keeps nearby
+    cells' points near each other in memory."""
     n = x.shape[0]
     test_sigma = sigma.shape[0] > 0
     cell = np.empty(n, np.int64)
     kz = np.empty(n if voxel_z_m > 0 else 0, np.int64)
+    ntc = (W + tile - 1) // tile if tile > 0 else 0
     for i in range(n):
         cell[i] = -1
         xi, yi, zi = x[i], y[i], z[i]
@@ -76,18 +79,37 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m):  # pragma: no c
         row = np.floor((y0 - yi) / cell_m)
         if col < 0 or col >= W or row < 0 or row >= H:
             continue
-        cell[i] = int(row) * W + int(col)
+        r, c = int(row), int(col)
+        if tile > 0:
+            cell[i] = ((r // tile) * ntc + c // tile) * tile * tile + (r % tile) * tile + c % tile
+        else:
+            cell[i] = r * W + c
         if voxel_z_m > 0:
             kz[i] = int(np.floor(zi / voxel_z_m))
     return cell, kz
 
 
+@numba.njit(cache=True, inline="always")
+def tiled_cell(key, W, tile):  # pragma: no cover - compiled
+    """The flat cell index ``row * W + col`` of a :func:`grid_cells` index in ``tile x tile`` blocks (-1: a
+    block's padding beyond the grid's last column)."""
+    if tile <= 0:
+        return key
+    ntc = (W + tile - 1) // tile
+    b = key // (tile * tile)
+    k = key % (tile * tile)
+    r = (b // ntc) * tile + k // tile
+    c = (b % ntc) * tile + k % tile
+    return r * W + c if c < W else -1
+
+
 @numba.njit(cache=True)
 def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support, min_ratio,
                 max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
-                o_xyz, o_rgb, o_n, o_sup, o_sig):  # pragma: no cover - compiled
+                o_xyz, o_rgb, o_n, o_sup, o_sig, W=0, tile=0):  # pragma: no cover - compiled
     """Grid and/or voxel fusion of points sorted by cell (cell ``c``'s points are rows ``start[c]:start[c+1]``,
-    in input order; :func:`scatter_points`).
+    in input order; :func:`scatter_points`; with ``tile > 0`` ``c`` is an index in blocks of cells of a grid ``W``
+    cells wide, see :func:`grid_cells`).
 
     Grid (``do_grid``, see :func:`skyrig.dense.fusion.fuse_grid`): the points with ``sigma_h > 0``, heights
     ``xyz[:, 2]``, gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with
@@ -120,6 +142,7 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
         a, b = start[c], start[c + 1]
         if a == b:
             continue
+        cg = tiled_cell(c, W, tile)
         if do_grid:
             m = 0
             for q in range(a, b):
@@ -127,7 +150,7 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
                 if sh > 0:
                     m = _insert_point(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
             if m:
-                _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
+                _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                            out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
         if do_cloud:
             mv = 0

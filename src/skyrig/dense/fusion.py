@@ -118,10 +118,15 @@ class CellSorter:
     ``voxel_z_m`` > 0 also gives each point its vertical voxel index ``floor(z / voxel_z_m)``; ``cloud`` keeps
     what cloud fusion needs (``sigma_3d``, colour, normal)."""
 
+    #: cells are sorted in blocks of TILE x TILE (a block's points lie together in memory: scattering the points of
+    #: a stereo pair, whose pixels run across the grid in any direction, then writes near where it last wrote)
+    TILE = 16
+
     def __init__(self, grid: GridSpec, voxel_z_m: float, cloud: bool) -> None:
         self.grid, self.voxel_z_m, self.cloud = grid, float(voxel_z_m), cloud
         H, W = grid.shape
-        self.counts = np.zeros(H * W + 1, np.int64)
+        t = self.TILE
+        self.counts = np.zeros(-(-H // t) * -(-W // t) * t * t + 1, np.int64)
         self.batches: list[tuple] = []
 
     def add(self, pair: int | NDArray[np.int64], xyz: NDArray[np.float64], sigma_h: NDArray,
@@ -136,7 +141,7 @@ class CellSorter:
         H, W = g.shape
         p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
         cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
-                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m)
+                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m, self.TILE)
         count_cells(cell, self.counts)
         if isinstance(pair, (int, np.integer)):
             pa, pc = np.zeros(0, np.int64), int(pair)
@@ -153,7 +158,8 @@ class CellSorter:
              ) -> tuple[tuple[NDArray, ...] | None, tuple[NDArray, ...] | None]:
         """Grid fusion (with ``grid_layers``: ``(height, support, spread, sigma, cand_height, cand_sigma,
         cand_support)``, see :func:`fuse_grid`) and, for a cloud, voxel fusion (``(xyz, rgb, normal, support,
-        sigma)``, see :func:`fuse_cloud`) of the points added, in one pass over the cells."""
+        sigma)``, see :func:`fuse_cloud`; rows ordered by blocks of cells, then cell, then height) of the points
+        added, in one pass over the cells."""
         from skyrig.dense._kernels import fuse_sorted, scatter_points
 
         H, W = self.grid.shape
@@ -183,7 +189,8 @@ class CellSorter:
         rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
         k = fuse_sorted(start, pair, xyz, sh, kz, s3, rgb, nrm, rot, float(cfg.k_sigma),
                         float(cfg.min_tol_cells * self.grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
-                        float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers, self.cloud, *out, *co)
+                        float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers, self.cloud, *out, *co, W,
+                        self.TILE)
         layers = tuple(a.reshape(self.grid.shape) for a in out) if grid_layers else None
         cloud = tuple(a[:k] for a in co) if self.cloud else None
         return layers, cloud
@@ -241,7 +248,7 @@ def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: N
     Returns
     -------
     xyz, rgb, normal, support, sigma
-        One row per kept voxel, ordered by cell, then height.
+        One row per kept voxel, ordered by blocks of 16 x 16 cells, then cell, then height.
     """
     srt = CellSorter(grid, voxel_z_m, cloud=True)
     srt.add(np.asarray(pair, np.int64), xyz, np.zeros(len(xyz)), np.asarray(sigma, np.float64), rgb, normal)
