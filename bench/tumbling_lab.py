@@ -175,6 +175,7 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
     err = cal.mean_rad - lab.true_curve(cal.beta_rad)
     err_img = cal.corrections_rad - lab.true_rad  # every image's measurement error
     rep_part = err_img.mean(axis=0)  # the part that repeats over the circles (+ varying / sqrt(C))
+    rep_draw = (lab.true_rad - lab.true_curve(cal.beta_rad)[None]).mean(axis=0)  # injected repeat errors, circle mean
     vary = np.sqrt(np.sum((err_img - rep_part) ** 2, axis=(0, 1)) / (k * (c - 1)))
     fit_sig = np.sqrt(cal.measurement_variance_rad2)
     se = cal.standard_error_rad  # (K, 3) the recipe's
@@ -204,6 +205,12 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
                   "realised_repeat_mdeg": md(realised[i]),
                   "mechanism_repeat_mdeg": md(mech[i]),
                   "mechanism_repeat_se_mdeg": md(mech_se[i]),
+                  # the mean curve's error split: the mechanism's repeat errors drawn for this lab (their mean over
+                  # the circles; the recipe cannot tell them from the curve) and the image comparison's error
+                  "curve_err_from_repeat_draw_rms_mdeg": md(np.sqrt(np.mean(rep_draw[:, i] ** 2))),
+                  "curve_err_from_measurement_rms_mdeg": md(np.sqrt(np.mean(rep_part[:, i] ** 2))),
+                  "repeat_draw_mean_over_positions_mdeg": md(rep_draw[:, i].mean()),
+                  "repeat_draw_mean_expected_sd_mdeg": md(lab.repeat_sigma_rad[i] / np.sqrt(c * k)),
                   "mechanism_over_injected": float(mech[i] / lab.repeat_sigma_rad[i]),
                   "mechanism_over_realised": float(mech[i] / realised[i])}
     out["z_all_ks_pvalue_vs_N01"] = float(kstest(z.ravel(), "norm").pvalue)
