@@ -17,10 +17,13 @@ import numpy as np
 @numba.njit(cache=True)
 def count_cells(cell, counts):  # pragma: no cover - compiled
     """Add each point's cell (0..ncells-1; < 0: none) to ``counts[cell + 1]`` (``(ncells + 1,)``; its cumulative
-    sum is then every cell's start offset)."""
+    sum is then every cell's start offset); returns the number of points with a cell."""
+    k = 0
     for i in range(cell.shape[0]):
         if cell[i] >= 0:
             counts[cell[i] + 1] += 1
+            k += 1
+    return k
 
 
 @numba.njit(cache=True)
@@ -57,14 +60,16 @@ def scatter_points(cell, pos, pair, pair_const, xyz, sigma_h, kz, sigma_3d, rgb,
 
 
 @numba.njit(cache=True)
-def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0):  # pragma: no cover - compiled
+def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0, bounds=np.zeros(0)):  # pragma: no cover
     """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
     with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``); with ``voxel_z_m > 0``
     also each point's height slice ``floor(z / voxel_z_m)`` (else an empty array).  ``tile > 0``: the index in
     ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort by it keeps nearby
-    cells' points near each other in memory."""
+    cells' points near each other in memory.  ``bounds`` ``(xmin, ymin, xmax, ymax)``, if given: only points with
+    ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell."""
     n = x.shape[0]
     test_sigma = sigma.shape[0] > 0
+    test_bounds = bounds.shape[0] == 4
     cell = np.empty(n, np.int64)
     kz = np.empty(n if voxel_z_m > 0 else 0, np.int64)
     ntc = (W + tile - 1) // tile if tile > 0 else 0
@@ -74,6 +79,8 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0):  # prag
         if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi)):
             continue
         if test_sigma and not sigma[i] > 0:
+            continue
+        if test_bounds and not (xi >= bounds[0] and xi < bounds[2] and yi > bounds[1] and yi <= bounds[3]):
             continue
         col = np.floor((xi - x0) / cell_m)
         row = np.floor((y0 - yi) / cell_m)
@@ -345,10 +352,12 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: n
     H, W = disp.shape
     fb = f * B
     nmax = 0
+    Dg = np.empty((H, W))  # depth of every matched pixel (one division each; neighbours reuse it)
     for r in range(H):
         for c in range(W):
             if disp[r, c] > 0:
                 nmax += 1
+                Dg[r, c] = fb / disp[r, c]
     rows = np.empty(nmax, np.int64)
     cols = np.empty(nmax, np.int64)
     xyz = np.empty((nmax, 3))
@@ -362,13 +371,13 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: n
             d = disp[r, c]
             if not d > 0:
                 continue
-            D = fb / d
+            D = Dg[r, c]
             du = np.nan
             if 0 < c < W - 1 and disp[r, c - 1] > 0 and disp[r, c + 1] > 0:
-                du = 0.5 * (fb / disp[r, c + 1] - fb / disp[r, c - 1])
+                du = 0.5 * (Dg[r, c + 1] - Dg[r, c - 1])
             dv = np.nan
             if 0 < r < H - 1 and disp[r - 1, c] > 0 and disp[r + 1, c] > 0:
-                dv = 0.5 * (fb / disp[r + 1, c] - fb / disp[r - 1, c])
+                dv = 0.5 * (Dg[r + 1, c] - Dg[r - 1, c])
             u = u0 + c
             v = v0 + r
             px = u * D / f
@@ -544,20 +553,6 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=
     below which no window can be as steep as it tests for)."""
     H, W = disp.shape
     fb = f * B
-    X = np.empty((H, W))
-    Y = np.empty((H, W))
-    Z = np.empty((H, W))
-    ok = np.zeros((H, W), np.bool_)
-    for r in range(H):
-        for c in range(W):
-            d = disp[r, c]
-            if d > 0:
-                D = fb / d
-                px, py, pz = (u0 + c) * D / f, -(v0 + r) * D / f, -D
-                X[r, c] = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz
-                Y[r, c] = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz
-                Z[r, c] = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
-                ok[r, c] = True
     out = np.empty(rows.shape[0])
     for k in range(rows.shape[0]):
         r0, c0 = rows[k], cols[k]
@@ -576,12 +571,13 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=
                 out[k] = 1.0
                 continue
         n = 0
-        x0, y0, z0 = X[r0, c0], Y[r0, c0], Z[r0, c0]
+        x0, y0, z0 = _world_offset(disp[r0, c0], r0, c0, u0, v0, f, fb, R)
         sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
         for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
             for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
-                if ok[r, c]:
-                    x, y, z = X[r, c] - x0, Y[r, c] - y0, Z[r, c] - z0
+                if disp[r, c] > 0:
+                    xw, yw, zw = _world_offset(disp[r, c], r, c, u0, v0, f, fb, R)
+                    x, y, z = xw - x0, yw - y0, zw - z0
                     n += 1
                     sx += x
                     sy += y
@@ -599,3 +595,12 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=
         out[k] = _smallest_eigvec_z(sxx / n - mx * mx, sxy / n - mx * my, sxz / n - mx * mz, syy / n - my * my,
                                     syz / n - my * mz, szz / n - mz * mz)
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _world_offset(d, r, c, u0, v0, f, fb, R):  # pragma: no cover - compiled
+    """World offset from the left centre ``R p`` of the rectified pixel ``(r, c)`` of a block with disparity ``d``."""
+    D = fb / d
+    px, py, pz = (u0 + c) * D / f, -(v0 + r) * D / f, -D
+    return (R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz, R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz,
+            R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz)

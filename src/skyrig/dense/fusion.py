@@ -131,18 +131,21 @@ class CellSorter:
 
     def add(self, pair: int | NDArray[np.int64], xyz: NDArray[np.float64], sigma_h: NDArray,
             sigma_3d: NDArray | None = None, rgb: NDArray[np.uint8] | None = None,
-            normal: NDArray[np.float32] | None = None, test_sigma: bool = False) -> None:
+            normal: NDArray[np.float32] | None = None, test_sigma: bool = False,
+            bounds: tuple[float, float, float, float] | None = None) -> int:
         """A batch of points: pair id (one for the batch, or per point), ``(M, 3)`` map coordinates, height precision
         (``test_sigma``: points whose ``sigma_h`` is not > 0 are left out here already), and for a cloud the 3-D
-        precision, colour and normal."""
+        precision, colour and normal.  ``bounds`` ``(xmin, ymin, xmax, ymax)``: only points with ``xmin <= x < xmax``
+        and ``ymin < y <= ymax`` are taken (a ground tile's).  Returns the number of points taken."""
         from skyrig.dense._kernels import count_cells, grid_cells
 
         g = self.grid
         H, W = g.shape
         p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
         cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
-                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m, self.TILE)
-        count_cells(cell, self.counts)
+                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m, self.TILE,
+                              np.zeros(0) if bounds is None else np.array(bounds, np.float64))
+        k = count_cells(cell, self.counts)
         if isinstance(pair, (int, np.integer)):
             pa, pc = np.zeros(0, np.int64), int(pair)
         else:
@@ -153,6 +156,7 @@ class CellSorter:
         else:
             cl = (np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
         self.batches.append((cell, kz, pa, pc, p, np.ascontiguousarray(sigma_h)) + cl)
+        return int(k)
 
     def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
              ) -> tuple[tuple[NDArray, ...] | None, tuple[NDArray, ...] | None]:

@@ -418,19 +418,14 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                 continue
             with phase("to map"):
                 xyz_m = plan.to_map(pp.xyz)
-                inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
-                if not inside.any():
-                    continue
-                if not inside.all():
-                    sel = np.flatnonzero(inside)
-                    pp = PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel], pp.rgb[sel],
-                                    pp.normal[sel])
-                    xyz_m = xyz_m[sel]
-            with phase("fuse"):
-                srt.add(pid, xyz_m, pp.sigma_h, pp.sigma_3d, pp.rgb, pp.normal)
-            npts += len(xyz_m)
+            with phase("fuse"):  # the points inside the tile (x0 <= x < x1, y0 < y <= y1)
+                npts += srt.add(pid, xyz_m, pp.sigma_h, pp.sigma_3d, pp.rgb, pp.normal, bounds=(xb0, yb0, xb1, yb1))
             if plan.config.cloud and not with_cloud:
-                extra.append((pid, pp, xyz_m))
+                inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
+                if inside.any():
+                    sel = np.flatnonzero(inside)
+                    extra.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
+                                                  pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
     rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
     with phase("fuse"):
         (hgt, sup, spr, sg, ch, cs, cn), cloud = srt.fuse(plan.config.fusion, True, rot)
