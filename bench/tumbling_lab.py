@@ -213,6 +213,16 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
                   "repeat_draw_mean_expected_sd_mdeg": md(lab.repeat_sigma_rad[i] / np.sqrt(c * k)),
                   "mechanism_over_injected": float(mech[i] / lab.repeat_sigma_rad[i]),
                   "mechanism_over_realised": float(mech[i] / realised[i])}
+    # a check of the per-position sigma that needs no truth: the mean curve is smooth, so a Fourier series of an order
+    # above the curve's fits it to its noise; the weighted residuals' variance factor (chi-square / dof) is then
+    # about 1 when the per-position sigma is right, below 1 when it is conservative
+    for order in (o for o in (4, 6) if 2 * o + 1 < k):
+        A = np.column_stack([np.ones(k)] + [f(j * cal.beta_rad) for j in range(1, order + 1) for f in (np.cos, np.sin)])
+        for i, a in enumerate(AXES):
+            w = 1.0 / se[:, i] ** 2
+            x = np.linalg.solve(A.T @ (A * w[:, None]), A.T @ (w * cal.mean_rad[:, i]))
+            r = cal.mean_rad[:, i] - A @ x
+            out[a][f"fourier{order}_variance_factor"] = float(np.sum(w * r ** 2) / (k - A.shape[1]))
     out["z_all_ks_pvalue_vs_N01"] = float(kstest(z.ravel(), "norm").pvalue)
     out["image_points_uncalibrated"] = image_point_errors(lab, lab.setup.rig)
     out["image_points_calibrated"] = image_point_errors(lab, cal.calibrated_rig())
