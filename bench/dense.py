@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -13,7 +13,9 @@ exposures (area 100 x 400 m) so that 4..64-image blocks are rectangular sub-bloc
 once (~1 min on 2 cores) into ``--cache`` and reused; orientations are the true ones (``survey.eo_true``,
 local frame), the output frame EPSG:25832, the height range the scene's ``terrain_range[0] .. top`` (+-2 m).
 
-Per size, in a fresh subprocess (so ``ru_maxrss`` is that size's peak):
+Per size, in a fresh subprocess (so ``ru_maxrss`` is that size's peak), after the chain's one-time start-up
+(numba loading its compiled kernels from the cache, LLVM set-up: the chain run once on a 10 x 10 m area,
+reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
 
 * **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
   image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`;
@@ -147,6 +149,19 @@ def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None)
                                      "chain_cpu_s": time.process_time() - c0, "phases": _phases.totals()}
 
 
+def warm_up(eo, cameras, loader, out_frame, hr) -> dict:  # type: ignore[no-untyped-def]
+    """The chain's one-time start-up in a fresh process (numba loading its compiled kernels from the cache, LLVM
+    set-up, first OpenCV calls), paid once per process whatever the block: the whole chain on a 10 x 10 m area
+    in the block's middle with 64-pixel blocks (every kernel runs once, on the same types as the timed run)."""
+    from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
+
+    c0, t0 = time.process_time(), time.perf_counter()
+    m = eo.to_frame(out_frame).centre[:, :2].mean(axis=0)
+    plan = plan_dense(eo, cameras, out_frame, hr, (m[0] - 5, m[1] - 5, m[0] + 5, m[1] + 5), DenseConfig(block_px=64))
+    assemble(plan, [run_tile(plan, k, loader) for k in range(len(plan.tiles))])
+    return {"startup_s": time.perf_counter() - t0, "startup_cpu_s": time.process_time() - c0}
+
+
 def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
     """Raw StereoSGBM on each planned pair's whole rectified overlap (only ``compute`` is timed)."""
     import cv2
@@ -198,12 +213,13 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
             "raw_ov_cpu_s": cpu_ov, "overlap_mp": mp_ov}
 
 
-def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1) -> dict:
-    """One size, in this (fresh) process: chain, then raw; peak memory of each phase."""
+def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, cold: bool = False) -> dict:
+    """One size, in this (fresh) process: start-up (unless ``cold``), chain, then raw; peak memory of each phase."""
     import cv2
 
     eo, cameras, loader, out_frame, hr = setup(cache, n)
     cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
+    start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -211,7 +227,7 @@ def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1) -> 
     h = dsm.height
     return {"n": n, "pairs": stats.pairs, "tiles": stats.tiles, "blocks": stats.blocks, "points": stats.points,
             "matched_mp": stats.megapixels, "cells": int(h.size), "valid_cells": float(np.isfinite(h).mean()),
-            "rss0_mb": rss0 / 1024, "rss_chain_mb": rss_chain / 1024, **t, **raw}
+            "rss0_mb": rss0 / 1024, "rss_chain_mb": rss_chain / 1024, **t, **raw, **start}
 
 
 def profile(cache: Path, n: int, top: int = 25) -> None:
@@ -243,11 +259,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cv-threads", type=int, default=1,
                     help="cv2.setNumThreads for both the chain and raw (default 1: per-core throughput; the machine "
                          "may be shared)")
+    ap.add_argument("--cold", action="store_true",
+                    help="time the chain from a cold process (its one-time start-up - numba loading the compiled "
+                         "kernels, LLVM set-up - inside the chain's time); default: the start-up is run first on a "
+                         "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per process)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     if a.worker is not None:
-        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads)))
+        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold)))
         return
     if a.profile is not None:
         profile(cache, a.profile)
@@ -259,11 +279,14 @@ def main(argv: list[str] | None = None) -> None:
     ensure_block(cache, a.workers)
     import cv2
 
-    print(f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, cv2.setNumThreads({a.cv_threads}) in chain "
+    print(f"{'cold start (start-up in the chain)' if a.cold else 'start-up timed apart (column start s)'}; "
+          f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, cv2.setNumThreads({a.cv_threads}) in chain "
           f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
     rows = []
     for n in sizes:
         cmd = [sys.executable, __file__, "--worker", str(n), "--cache", str(cache), "--cv-threads", str(a.cv_threads)]
+        if a.cold:
+            cmd.append("--cold")
         if a.tile_cells is not None:
             cmd += ["--tile-cells", str(a.tile_cells)]
         p = subprocess.run(cmd, capture_output=True, text=True)
@@ -274,7 +297,7 @@ def main(argv: list[str] | None = None) -> None:
         rows.append(json.loads(line[0][7:]))
     hdr = (f"{'images':>6} {'pairs':>5} {'blocks':>6} {'pair MP':>7} {'matched MP':>10} {'chain s':>7} "
            f"{'(plan/tiles/asm)':>18} {'raw s':>6} {'chain MP/s':>10} {'raw MP/s':>8} {'ratio':>5} "
-           f"{'tiles':>5} {'s/image':>7} {'peak MB':>7} {'+MB':>5} {'valid %':>7}")
+           f"{'tiles':>5} {'s/image':>7} {'peak MB':>7} {'+MB':>5} {'valid %':>7} {'start s':>7}")
     print(hdr)
     for r in rows:
         mps_c = r["pair_mp"] / r["chain_s"]
@@ -283,7 +306,7 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['chain_s']:>7.2f} {r['plan_s']:>5.2f}/{r['tiles_s']:>5.2f}/{r['assemble_s']:>5.2f} "
               f"{r['raw_s']:>6.2f} {mps_c:>10.2f} {mps_r:>8.2f} {mps_c / mps_r:>5.2f} "
               f"{r['tiles']:>5} {r['chain_s'] / r['n']:>7.3f} {r['rss_chain_mb']:>7.0f} {r['rss_chain_mb'] - r['rss0_mb']:>5.0f} "
-              f"{100 * r['valid_cells']:>7.1f}")
+              f"{100 * r['valid_cells']:>7.1f} {r['startup_s']:>7.2f}")
     if len(rows) >= 2:
         a0, a1 = rows[0], rows[-1]
         k = a1["n"] / a0["n"]

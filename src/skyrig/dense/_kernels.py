@@ -451,20 +451,28 @@ def lattice_maps(lat, step, width, height, cam_w, cam_h):  # pragma: no cover - 
         k = min(int(cu), nu - 2)
         iu[c] = k
         fu[c] = cu - k
+    ax = np.empty(width)  # the lattice rows above and below, interpolated along u (once per lattice row)
+    bx = np.empty(width)
+    ay = np.empty(width)
+    by = np.empty(width)
+    last = -1
     for r in range(height):
         cv = r / step
         iv = min(int(cv), nv - 2)
         fv = cv - iv
+        if iv != last:
+            for c in range(width):
+                k = iu[c]
+                f = fu[c]
+                g = 1 - f
+                ax[c] = lat[iv, k, 0] * g + lat[iv, k + 1, 0] * f
+                bx[c] = lat[iv + 1, k, 0] * g + lat[iv + 1, k + 1, 0] * f
+                ay[c] = lat[iv, k, 1] * g + lat[iv, k + 1, 1] * f
+                by[c] = lat[iv + 1, k, 1] * g + lat[iv + 1, k + 1, 1] * f
+            last = iv
         for c in range(width):
-            k = iu[c]
-            f = fu[c]
-            g = 1 - f
-            ax = lat[iv, k, 0] * g + lat[iv, k + 1, 0] * f
-            bx = lat[iv + 1, k, 0] * g + lat[iv + 1, k + 1, 0] * f
-            px = ax * (1 - fv) + bx * fv
-            ay = lat[iv, k, 1] * g + lat[iv, k + 1, 1] * f
-            by = lat[iv + 1, k, 1] * g + lat[iv + 1, k + 1, 1] * f
-            py = ay * (1 - fv) + by * fv
+            px = ax[c] * (1 - fv) + bx[c] * fv
+            py = ay[c] * (1 - fv) + by[c] * fv
             if not np.isfinite(px) or not np.isfinite(py):  # behind the camera (the lattice is NaN in pairs)
                 px = -1e6 if not np.isfinite(px) else px
                 py = -1e6 if not np.isfinite(py) else py
