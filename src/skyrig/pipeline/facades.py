@@ -2,8 +2,9 @@
 in, building blocks, façade textures and a textured 3D model out.
 
 ``run_facades`` reads the DSM (:func:`skyrig.io.dsm_cog.read_dsm_cog`), takes the buildings from given footprints
-(GeoPackage polygons, reprojected to the DSM's CRS; heights from the DSM:
-:func:`skyrig.dense.buildings.buildings_from_footprints`) or extracts them from the DSM
+(GeoPackage polygons, reprojected to the DSM's CRS: :func:`read_footprint_layer`; heights from the DSM where it
+measured the roof, else from a height attribute: :func:`skyrig.dense.buildings.buildings_from_footprints`; the
+footprints alone, or completing the DSM's buildings) or extracts them from the DSM
 (:func:`skyrig.dense.buildings.extract_buildings`), textures every façade from the images that see it best
 (:func:`skyrig.dense.facades.texture_facades`, occlusion against the DSM), builds the model
 (:func:`skyrig.dense.model.build_model`; roofs textured from ``--ortho`` when given) and publishes the folder as
@@ -18,7 +19,9 @@ a set (:func:`skyrig.io.stage.stage_folder`, manifest last):
 ``buildings.gpkg``     layer ``buildings``: footprints with ground / eave / ridge heights, in the DSM's CRS
                        (its vertical reference as a compound CRS); layer ``roofs``: roof polygons (3D)
 ``viewer.html``        a static viewer with the model inlined (opens from the file system)
-``facades.json``       per façade: size, texel, images used (best first), coverage; the frame statement
+``facades.json``       per façade: size, texel, images used (best first), coverage; the frame statement; with
+                       footprints, ``footprints``: file, mode, footprints given / used, buildings with heights
+                       from the attributes, occlusion cells burnt in
 =====================  =================================================================================
 """
 
@@ -419,7 +422,6 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     if ridge_field and not eave_field:
         raise SkyrigError("a ridge height field needs an eave height field too (option: eave_field)")
     given: list[BuildingBlock] = []
-    n_given_heights = 0
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     if footprints is not None:
         fl = read_footprint_layer(footprints, grid.frame, footprint_layer,
@@ -436,7 +438,6 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
                                    tuple(f"{Path(footprints).name} {lab}" for lab in fl.labels))
         given = buildings_from_footprints(fl.rings, grid, source=Path(footprints).name, heights=hts,
                                           labels=[f"{Path(footprints).name} {lab}" for lab in fl.labels])
-        n_given_heights = sum("; heights: " in str(b.source) for b in given)
         if refine_footprints and given:
             given = refine_wall_feet(given, eo, cameras, loader, surface_with_buildings(
                 grid, [b for b in given if "; heights: " in str(b.source)]))
@@ -487,7 +488,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
         "footprints": None if footprints is None else {
             "file": str(footprints), "mode": footprint_mode, "given": len(given),
             "used": sum(str(b.source).startswith(Path(footprints).name) for b in buildings),
-            "heights_from_attributes": n_given_heights, "eave_field": eave_field, "ridge_field": ridge_field,
+            "heights_from_attributes": sum("; heights: " in str(b.source) for b in buildings),
+            "eave_field": eave_field, "ridge_field": ridge_field,
             "refined": bool(refine_footprints),
             "height_reference": height_reference if eave_field else None,
             "occlusion_cells_burnt": int(grid.metadata.get("buildings_burnt", {}).get("cells", 0))},
