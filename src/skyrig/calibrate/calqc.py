@@ -392,14 +392,16 @@ def grid_nodes_for(cov: CovarianceFit, width: int, height: int, max_fraction: fl
     """The number of grid nodes across the format (``nodes_x``) such that bilinear interpolation between the
     nodes loses at most ``max_fraction`` of the signal's variance at the worst point (a cell centre), by the fitted
     covariance (:func:`bilinear_interpolation_variance`): a grid too coarse for the signal's correlation length
-    cannot hold it, and what it cannot hold stays in the coordinates (and in whatever unknowns it resembles).  No
-    signal: 13 nodes."""
+    cannot hold it, and what it cannot hold stays in the coordinates (and in whatever unknowns it resembles).  A
+    loss below ``max_fraction`` of one coordinate's noise variance (the nugget) is accepted too: a weak signal (or a
+    covariance fitted to noise) needs no fine grid.  No signal: 13 nodes."""
     if not cov.c0 > 0:
         return 13
+    tol = max_fraction * max(cov.c0, cov.nugget)
     for n in range(max(int(min_nodes), 2), int(max_nodes) + 1):
         ny = max(2, int(round(n * height / width)))
         hx, hy = (width - 1.0) / (n - 1), (height - 1.0) / (ny - 1)
-        if bilinear_interpolation_variance(cov, hx, hy) <= max_fraction * cov.c0:
+        if bilinear_interpolation_variance(cov, hx, hy) <= tol:
             return n
     return int(max_nodes)
 
