@@ -1033,9 +1033,9 @@ def buildings_from_footprints(footprints: list[NDArray], dsm: DsmGrid, *, source
         y = g.y0 - (ir + 0.5) * g.cell_m
         dist = float(np.hypot(x - xy[0], y - xy[1]))
         if dist > heights.max_ground_m:
-            raise SkyrigError(f"{label} ({source}): the nearest DSM cell with a ground height is {dist:.0f} m away "
-                              f"(more than {heights.max_ground_m:.0f} m): give its heights in the DSM's vertical "
-                              f"reference ({dsm.vertical_reference}) instead of above the ground")
+            raise SkyrigError(f"{label} ({source}): no ground height for its walls: the nearest DSM cell with a ground "
+                              f"height is {dist:.0f} m away (more than {heights.max_ground_m:.0f} m); the DSM must "
+                              "reach within that distance of the footprints")
         return float(ground_cache["g"][ir, ic])
 
     out = []
