@@ -5,7 +5,9 @@
 * a block matched on its tight crop (:func:`skyrig.dense.stereo.block_crop`: only the columns that can reach the
   right image, context only where both images carry content) against the same block matched on a wide crop
   (context and search width on every side, zeros beyond the images), on the ray-cast scene of ``test_dense``;
-* blocks of a pair: the fewest of at most ``block_px``, equal within a pixel, tiling the rectified bounds.
+* blocks of a pair: the fewest of at most ``block_px``, equal within a pixel, tiling the rectified bounds;
+* a ground tile's grid and cloud fused from one sort of its blocks' points (:class:`skyrig.dense.fusion.CellSorter`)
+  against :func:`skyrig.dense.fusion.fuse_grid` and the voxel rule in plain Python.
 """
 
 from __future__ import annotations
@@ -54,6 +56,58 @@ def test_compiled_check_equals_numpy_rules(full):
     want = _reference_check(d16, e16, vl, vr, 1.0, 5, full)
     assert np.isfinite(want).sum() > 500
     assert np.array_equal(got, want, equal_nan=True)
+
+
+def _voxels_plain(x0, y0, cell, H, W, pair, xyz, sigma, rgb, min_support):
+    """The voxel rule of skyrig.dense.fusion in plain Python: points grouped by (cell, floor(z / cell)); a group
+    with points of >= min_support pairs -> precision-weighted mean position, mean colour, number of pairs."""
+    groups: dict = {}
+    for i, (x, y, z) in enumerate(xyz):
+        col, row = np.floor((x - x0) / cell), np.floor((y0 - y) / cell)
+        if 0 <= col < W and 0 <= row < H:
+            groups.setdefault((int(row), int(col), int(np.floor(z / cell))), []).append(i)
+    out = []
+    for idx in groups.values():
+        if len(set(pair[idx])) >= min_support:
+            w = 1.0 / np.maximum(sigma[idx].astype(np.float64), 1e-9) ** 2
+            out.append([*(w[:, None] * xyz[idx]).sum(axis=0) / w.sum(), *np.floor(rgb[idx].mean(axis=0) + 0.5),
+                        len(set(pair[idx]))])
+    return np.array(sorted(map(tuple, out)))
+
+
+def test_grid_and_cloud_in_one_sort_equal_the_rules():
+    """CellSorter (the ground tile's fusion: blocks added one by one, the tile's bounds, points without a height
+    precision in the cloud only) against fuse_grid (tested by hand elsewhere) and the voxel rule in plain Python."""
+    from skyrig.dense.fusion import CellSorter, FusionConfig, fuse_grid
+    from skyrig.dense.grid import GridSpec
+
+    rng = np.random.default_rng(3)
+    g = GridSpec(100.0, 200.0, 0.5, 37, 23)  # not a multiple of the sorter's 16-cell blocks
+    n = 6000
+    pair = rng.integers(0, 5, n)
+    pair.sort()  # blocks arrive pair by pair
+    xyz = np.stack([rng.uniform(99.0, 120.0, n), rng.uniform(187.0, 201.0, n),
+                    rng.choice([10.0, 10.3, 14.0], n) + rng.normal(0, 0.05, n)], axis=1)
+    sh = rng.uniform(0.02, 0.1, n).astype(np.float32)
+    sh[rng.random(n) < 0.1] = np.nan  # wall points: cloud only
+    s3 = rng.uniform(0.02, 0.1, n).astype(np.float32)
+    rgb = rng.integers(0, 256, (n, 3)).astype(np.uint8)
+    nrm = rng.normal(size=(n, 3)).astype(np.float32)
+    cfg = FusionConfig()
+    srt = CellSorter(g, g.cell_m, cloud=True)
+    for p in range(5):
+        k = pair == p
+        srt.add(p, xyz[k], sh[k], s3[k], rgb[k], nrm[k], bounds=g.bounds)
+    layers, cloud = srt.fuse(cfg)
+    want = fuse_grid(g, pair, xyz[:, 0], xyz[:, 1], xyz[:, 2], sh.astype(np.float64), cfg, candidates=True)
+    assert np.isfinite(want[0]).sum() > 100
+    for a, b in zip(layers, want):
+        assert np.array_equal(a, b, equal_nan=True)
+    got = np.array(sorted(map(tuple, np.concatenate([cloud[0], cloud[1].astype(np.float64),
+                                                     cloud[3][:, None].astype(np.float64)], axis=1))))
+    ref = _voxels_plain(g.x0, g.y0, g.cell_m, g.height, g.width, pair, xyz, s3, rgb, cfg.min_support)
+    assert len(got) == len(ref) > 100
+    assert np.allclose(got, ref, rtol=0, atol=1e-9)
 
 
 @pytest.fixture(scope="module")
