@@ -262,7 +262,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cold", action="store_true",
                     help="time the chain from a cold process (its one-time start-up - numba loading the compiled "
                          "kernels, LLVM set-up - inside the chain's time); default: the start-up is run first on a "
-                         "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per process)")
+                         "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per "
+                         "process)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     cache = Path(a.cache)
@@ -280,7 +281,8 @@ def main(argv: list[str] | None = None) -> None:
     import cv2
 
     print(f"{'cold start (start-up in the chain)' if a.cold else 'start-up timed apart (column start s)'}; "
-          f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, cv2.setNumThreads({a.cv_threads}) in chain "
+          f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, "
+          f"cv2.setNumThreads({a.cv_threads}) in chain "
           f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
     rows = []
     for n in sizes:
