@@ -112,8 +112,11 @@ def _rays_local(
     eo_l = eo.to_frame(local)
     origin = eo_l.centre[rows]
     direction = np.empty((len(rows), 3))
-    for r in np.unique(rows):
-        sel = rows == r
+    order = np.argsort(rows, kind="stable")  # the rows of each image by slicing, not a mask per image
+    cuts = np.flatnonzero(np.r_[True, rows[order][1:] != rows[order][:-1], True]) if len(rows) else np.zeros(1, int)
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        sel = order[lo:hi]
+        r = rows[sel[0]]
         cam = _camera_for(cameras, str(eo_l.camera[r]))
         direction[sel] = cam.rays_from_pixels(pixels[sel]) @ eo_l.rotation[r].T
     return origin, direction
