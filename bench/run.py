@@ -233,7 +233,8 @@ def _print_tables(rows: list[dict], k_to: int) -> dict | None:
     def fmt(v: float | None, spec: str) -> str:
         return f"{'-':>10s}" if v is None else format(v, spec)
 
-    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names) + "   total s  resume s  match pairs (kept/overlapping)")
+    print("\nseconds        images     MP  " + "  ".join(f"{st:>10s}" for st in names)
+          + "   total s  resume s  match pairs (kept/overlapping)")
     for r in rows:
         tot = sum(s.get("stage_s") or 0 for s in r["stages"])
         summ = next(((s.get("summary") or {}) for s in r["stages"] if s["stage"] == "match"), {})

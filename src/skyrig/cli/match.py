@@ -155,6 +155,7 @@ def command(project: str, image_dirs: tuple[str, ...], out: str | None, pair_mod
     inputs = [Path(x) for f in folders for x in list_images(f)] + [Path(p) for p in (eo_path, *camera_paths) if p]
     options = {"project": str(proj), "images": [str(f) for f in folders], "output": str(out_dir), "pairs": pair_mode,
                "method": method, "max_size": max_size, "max_features": max_features, "min_overlap": min_overlap,
-               "max_pairs_per_image": max_pairs_per_image, "neighbours": neighbours, "max_heading_diff": max_heading_diff, "eo": eo_path,
+               "max_pairs_per_image": max_pairs_per_image, "neighbours": neighbours,
+               "max_heading_diff": max_heading_diff, "eo": eo_path,
                "camera": list(camera_paths), "terrain_height": terrain_height, "thin": thin_per_cell, "lsm": lsm}
     write_match_manifest(out_dir, inputs, options)
