@@ -95,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
             for h, part in io_like_part(truth, data.rig, grids).items():
                 s_io = np.sqrt(np.diag(cal.interior[h][2])) if h in cal.interior else np.full(3, np.nan)
                 print(f"injected deformation of {h}: its part like the IO over {where}: "
-                      + ", ".join(f"{n} {1000 * x:+.4f} um ({x / s:+.3f} sigma)" for (n, x), s in zip(part.items(), s_io)))
+                      + ", ".join(f"{n} {1000 * x:+.4f} um ({x / s:+.3f} sigma)"
+                                  for (n, x), s in zip(part.items(), s_io)))
     z["datum shift"] = ((cal.datum_shift_m - truth.datum_shift_m) / np.sqrt(np.diag(cal.datum_shift_cov_m2))).tolist()
     print("normalised errors (estimate - truth) / sigma:")
     for k, v in z.items():
