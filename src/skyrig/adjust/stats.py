@@ -36,7 +36,7 @@ from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constrai
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
            "correlation_warnings", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
-           "chosen_unknowns", "similarity_basis", "point_datum_covariance"]
+           "chosen_unknowns", "similarity_basis", "point_datum_covariance", "PointPatternM"]
 
 
 def critical_value(alpha: float) -> float:
@@ -55,7 +55,10 @@ class Covariance:
     Qpp
         ``(n_p, 3, 3)`` cofactor blocks of the free points.
     M
-        ``(n_c, 3 n_p)`` ``Q_cc W`` (for the point/reduced cross terms), or None when too large.
+        ``Q_cc W`` for the point/reduced cross terms: the dense ``(n_c, 3 n_p)`` array when it fits
+        ``max_dense_products``, else a :class:`PointPatternM` holding it on the sparsity pattern of ``W``
+        (the reduced columns each point's observations touch: all that redundancy numbers and normalised
+        residuals need), or None.
     Vinv
         ``(n_p, 3, 3)`` inverse point blocks of the normal matrix.
     """
@@ -64,6 +67,90 @@ class Covariance:
     Qpp: NDArray[np.float64]
     Vinv: NDArray[np.float64]
     M: NDArray[np.float64] | None = None
+
+
+class PointPatternM:
+    """``M = Q_cc W`` on the block pattern of ``W``: for each point ``p`` the rows ``R_p`` (reduced columns with a
+    structural entry in ``W``'s columns of ``p``) and ``M[R_p, 3p:3p+3]``.
+
+    Since ``W[:, p]`` is zero outside ``R_p``, ``M[R_p, p] = Q_cc[R_p, R_p] W[R_p, p]`` exactly: memory and work
+    grow with ``sum |R_p|^2`` instead of ``n_c x 3 n_p`` (the dense product that made statistics above a few
+    thousand images skip the image observations' normalised residuals).  The pattern is structural (block
+    entries that happen to be zero included), so every column an observation of ``p`` has lies in ``R_p``.
+    """
+
+    def __init__(self, n_c: int, indptr: NDArray[np.int64], rows: NDArray[np.int64], wvals: NDArray[np.float64],
+                 vals: NDArray[np.float64]) -> None:
+        self.n_c, self.indptr, self.rows, self.wvals, self.vals = n_c, indptr, rows, wvals, vals
+        self.entry_point = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+        self._keys = self.entry_point * (n_c + 1) + rows  # ascending: points ascending, rows sorted per point
+
+    def gather(self, cols: NDArray[np.int64], point: NDArray[np.int64]) -> NDArray[np.float64]:
+        """``(n, k, 3)`` ``M[cols[i, j], 3 point[i] : 3 point[i] + 3]`` for columns of the points' own
+        observations (on the pattern by construction); ``cols`` entries ``>= n_c`` give 0."""
+        n_c = self.n_c
+        keys = point[:, None] * (n_c + 1) + np.minimum(cols, n_c)
+        pos = np.clip(np.searchsorted(self._keys, keys), 0, max(len(self._keys) - 1, 0))
+        found = (self._keys[pos] == keys) if len(self._keys) else np.zeros(keys.shape, bool)
+        if np.any(~found & (cols < n_c)):
+            raise AssertionError("a cross cofactor off the observations' pattern was asked for")
+        return np.where(found[:, :, None], self.vals[pos], 0.0)
+
+
+def _point_pattern(N: Normal, n_c: int, n_p: int
+                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """Per point the reduced columns its observations touch (the *structural* block pattern of
+    ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
+    there ``(nnz, 3)``."""
+    Wb = N.Wb.tocoo()  # type: ignore[union-attr]  # every stored block entry, zeros included
+    Pc = abs(N.P).tocsc()  # type: ignore[union-attr]  # (unit columns, n_c)
+    ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
+    S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
+    key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
+    Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr()).tocoo()  # type: ignore[union-attr]
+    key_w = (Wfull.col // 3).astype(np.int64) * (n_c + 1) + Wfull.row
+    wv = np.zeros((len(key_s), 3))
+    pos = np.searchsorted(key_s, key_w)
+    if len(key_w) and not np.all(key_s[np.minimum(pos, len(key_s) - 1)] == key_w):
+        raise AssertionError("W has entries outside its structural pattern")
+    np.add.at(wv, (pos, Wfull.col % 3), Wfull.data)
+    indptr = np.zeros(n_p + 1, np.int64)
+    np.cumsum(np.bincount(key_s // (n_c + 1), minlength=n_p), out=indptr[1:])
+    return indptr, (key_s % (n_c + 1)).astype(np.int64), wv
+
+
+def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
+                      wv: NDArray[np.float64], max_elements: int = 20_000_000
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``M[R_p, p] = Q[R_p, R_p] W[R_p, p]`` for every point ``(nnz, 3)`` and ``W_p^T M_p`` ``(n_p, 3, 3)``, in
+    chunks of points of similar pattern size (padded gathers of at most ``max_elements`` doubles)."""
+    n_c = Q.shape[0]
+    n_p = len(indptr) - 1
+    Qe = np.zeros((n_c + 1, n_c + 1))
+    Qe[:n_c, :n_c] = Q
+    m = np.diff(indptr)
+    order = np.argsort(m, kind="stable")
+    vals = np.zeros_like(wv)
+    WtM = np.zeros((n_p, 3, 3))
+    s0 = 0
+    while s0 < n_p:
+        mmax = int(max(m[order[s0]], 1))
+        s1 = min(n_p, s0 + max(1, max_elements // (mmax * mmax)))
+        mend = int(max(m[order[s1 - 1]], 1))  # sizes ascend: the chunk's last point is its largest
+        if mend * mend * (s1 - s0) > max_elements:
+            s1 = min(n_p, s0 + max(1, max_elements // (mend * mend)))
+        ps = order[s0:s1]
+        mmax = int(max(m[ps].max(), 1))
+        idx = indptr[ps][:, None] + np.arange(mmax)[None, :]
+        ok = np.arange(mmax)[None, :] < m[ps][:, None]
+        idx_c = np.where(ok, idx, 0)
+        R = np.where(ok, rows[idx_c] if len(rows) else 0, n_c)
+        Wp = np.where(ok[:, :, None], wv[idx_c] if len(wv) else 0.0, 0.0)
+        Mp = Qe[R[:, :, None], R[:, None, :]] @ Wp  # (k, m, 3)
+        vals[idx_c[ok]] = Mp[ok]
+        WtM[ps] = np.swapaxes(Wp, 1, 2) @ Mp
+        s0 = s1
+    return vals, WtM
 
 
 def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -138,17 +225,11 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                 for b in range(3):
                     WtM[:, a, b] = np.asarray(Wc[:, a::3].multiply(M[:, b::3]).sum(axis=0)).reshape(-1)
             Qpp = Vinv + Vinv @ WtM @ Vinv
-        else:  # chunks of points, without keeping M
-            Wc = Wfull.tocsc()
-            for s0 in range(0, n_p, max(1, max_dense_products // (3 * Q.shape[0]))):
-                s1 = min(n_p, s0 + max(1, max_dense_products // (3 * Q.shape[0])))
-                Wk = Wc[:, 3 * s0: 3 * s1]
-                Mk = np.asarray(Wk.T @ Q).T
-                WtM = np.zeros((s1 - s0, 3, 3))
-                for a in range(3):
-                    for b in range(3):
-                        WtM[:, a, b] = np.asarray(Wk[:, a::3].multiply(Mk[:, b::3]).sum(axis=0)).reshape(-1)
-                Qpp[s0:s1] = Vinv[s0:s1] + Vinv[s0:s1] @ WtM @ Vinv[s0:s1]
+        else:  # M on W's block pattern only (what the image observations' cofactors need)
+            indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p)
+            vals, WtM = _pattern_products(Q, indptr, rows, wv)
+            Qpp = Vinv + Vinv @ WtM @ Vinv
+            M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)
     return Covariance(Q, Qpp, Vinv, M)
 
 
@@ -265,7 +346,12 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
         GT = Gp @ TQp  # (n_p, 3, 3)
         Qpp = cov.Qpp - GT - np.swapaxes(GT, 1, 2) + Gp @ Z @ np.swapaxes(Gp, 1, 2)
         Qpp = 0.5 * (Qpp + np.swapaxes(Qpp, 1, 2))
-        if M is not None:
+        if isinstance(M, PointPatternM):  # the same update on the pattern's entries (point e_p, row e_c)
+            e_p, e_c = M.entry_point, M.rows
+            D = (np.einsum("ed,eda->ea", Gc[e_c], TQp[e_p]) + np.einsum("de,ead->ea", TQc[:, e_c], Gp[e_p])
+                 - np.einsum("ed,ead->ea", GcZ[e_c], Gp[e_p]))
+            M = PointPatternM(n_c, M.indptr, M.rows, M.wvals, M.vals + np.einsum("ea,eab->eb", D, N.V[e_p]))
+        elif M is not None:
             # Q'_cp = Q_cp - Gc TQp - TQc^T Gp^T + Gc Z Gp^T, and M' = -Q'_cp V
             D = (np.einsum("cd,pda->cpa", Gc, TQp) + np.einsum("dc,pad->cpa", TQc, Gp)
                  - np.einsum("cd,pad->cpa", GcZ, Gp))
@@ -346,7 +432,7 @@ def selected_from_dense(cov: Covariance, layout: Layout, columns: NDArray[np.int
     pi = layout.point[points]
     Qcp = np.zeros((len(columns), len(points), 3))
     if len(points):
-        if cov.M is None:
+        if cov.M is None or isinstance(cov.M, PointPatternM):  # cross terms off the pattern are not kept
             return None
         cols3 = 3 * pi[:, None] + np.arange(3)[None, :]
         QcW = cov.M[columns][:, cols3]  # (m, k, 3)
@@ -414,10 +500,14 @@ def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
         if f.jc is not None and f.cols is not None and f.cols.shape[1]:
             if cov.M is None:
                 return None
-            Me = np.vstack([cov.M, np.zeros((1, cov.M.shape[1]))])
             c = np.where(f.cols >= 0, f.cols, n_c)
-            cols3 = 3 * p[:, None] + np.arange(3)[None, :]
-            QcW = Me[c[:, :, None], cols3[:, None, :]]  # (n, k, 3) = (Q_cc W)[cols, point]
+            if isinstance(cov.M, PointPatternM):
+                QcW = np.zeros((n, c.shape[1], 3))
+                QcW[has] = cov.M.gather(c[has], p[has])
+            else:
+                Me = np.vstack([cov.M, np.zeros((1, cov.M.shape[1]))])
+                cols3 = 3 * p[:, None] + np.arange(3)[None, :]
+                QcW = Me[c[:, :, None], cols3[:, None, :]]  # (n, k, 3) = (Q_cc W)[cols, point]
             Qcp = -QcW @ cov.Vinv[p]
             H += 2.0 * np.einsum("ndk,nka,nda->nd", f.jc, Qcp, jp)
     return H
