@@ -836,15 +836,28 @@ def _ortho(ctx: StageContext) -> dict[str, Any]:
             "seamlines": s["seamlines"]}
 
 
+def _footprints_path(p: Project, o: dict[str, Any]) -> Path | None:
+    """The facades stage's ``footprints`` (relative to the project file's folder)."""
+    return None if o["footprints"] is None else (p.path.parent / o["footprints"]).resolve()
+
+
+def _facades_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    fp = _footprints_path(p, o)
+    return [*_dsm_inputs(p, o), *([fp] if fp is not None else [])]
+
+
 def _facades(ctx: StageContext) -> dict[str, Any]:
     from skyrig.pipeline.products import make_facades
 
     p, o = ctx.project, ctx.options
     eo, cameras, files = _stage_eo_cameras(ctx)
     res = make_facades(eo, cameras, p.images, ctx.need("dsm"), ctx.out, heads=o["heads"],
-                       footprints=o["footprints"], ortho=ctx.upstream.get("ortho"), texel=o["texel"],
+                       footprints=_footprints_path(p, o), ortho=ctx.upstream.get("ortho"), texel=o["texel"],
                        max_images=o["max_images"], refine=o["refine"], inputs=files, progress=ctx.progress,
-                       spell=_spelling("facades"))
+                       spell=_spelling("facades"), footprint_layer=o["footprint_layer"],
+                       footprint_eave=o["footprint_eave"], footprint_ridge=o["footprint_ridge"],
+                       footprint_heights=o["footprint_heights"], footprint_mode=o["footprint_mode"],
+                       refine_footprints=o["refine_footprints"])
     s = res.summary
     return {"buildings": s["buildings"], "facades": s["facades"], "facades_seen": s["facades_seen"]}
 
@@ -866,10 +879,23 @@ register_stage(Stage(
     "facades", "Buildings, façade textures and a textured 3D model (GLB, OBJ, viewer) from the DSM and the images.",
     _facades,
     options={"heads": Option([], "strs", "rig heads / image-name parts to texture from; [] = all"),
-             "footprints": Option(None, "str", "GeoPackage of building footprints (default: from the DSM)",
+             "footprints": Option(None, "str", "GeoPackage of building footprints, relative to the project "
+                                  "file (default: from the DSM)",
                                   nullable=True),
+             "footprint_layer": Option(None, "str", "layer of footprints (default: 'buildings', else the only "
+                                       "polygon layer)", nullable=True),
+             "footprint_eave": Option(None, "str", "attribute of footprints: eave height (m) where the DSM has none",
+                                      nullable=True),
+             "footprint_ridge": Option(None, "str", "attribute of footprints: ridge height (m)", nullable=True),
+             "footprint_heights": Option("above-ground", "choice", "reference of the footprint heights",
+                                         choices=("above-ground", "absolute")),
+             "footprint_mode": Option("replace", "choice", "replace: the footprints are the buildings; complete: "
+                                      "the DSM's buildings completed by the footprints they miss",
+                                      choices=("replace", "complete")),
+             "refine_footprints": Option(False, "bool", "move the footprints' walls onto their feet as the "
+                                         "obliques show them"),
              "texel": Option(None, "float", "façade texel size (m)", nullable=True, positive=True),
              "max_images": Option(3, "int", "images blended into one façade at most", positive=True),
              "refine": Option(True, "bool", "move DSM-extracted walls onto the roof outline seen in the images")},
-    requires=("eo", "dsm"), uses=("ortho", "cameras"), provides={"model": "model.glb"}, inputs=_dsm_inputs,
+    requires=("eo", "dsm"), uses=("ortho", "cameras"), provides={"model": "model.glb"}, inputs=_facades_inputs,
     check=_product_check("facades")))
