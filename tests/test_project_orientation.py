@@ -342,7 +342,7 @@ def test_brighton_gnss_stage_equals_the_command(tmp_path: Path) -> None:
 
     src = shared_path("brighton-uav")
     p = tmp_path / "project.yaml"
-    p.write_text("format: skyrig-project\nversion: 1\nname: brighton\ncrs: EPSG:32630\n"
+    p.write_text("format: skyrig-project\nversion: 1\nname: brighton\ncrs: EPSG:32615\n"
                  f"inputs: {{images: [{src}]}}\nexecutor: {{kind: serial}}\n"
                  "stages:\n  match: {max_size: 640, max_features: 1500}\n  adjust-uav: {}\n")
     r = CliRunner().invoke(main, ["run", str(p)])
@@ -351,7 +351,7 @@ def test_brighton_gnss_stage_equals_the_command(tmp_path: Path) -> None:
     rep = json.loads((out / "adjust-uav" / "report.json").read_text())
     assert rep["uav"]["oriented"] == rep["uav"]["images"] == 18, rep["uav"]["not_oriented"]
     r = CliRunner().invoke(main, ["adjust-uav", str(tmp_path), "--images", str(src), "--match", str(out / "match"),
-                                  "--crs", "EPSG:32630", "-o", str(tmp_path / "cmd")])
+                                  "--crs", "EPSG:32615", "-o", str(tmp_path / "cmd")])
     assert r.exit_code == 0, r.output
     for f in ("eo.csv", "points.csv", "camera.yaml"):
         assert (tmp_path / "cmd" / f).read_bytes() == (out / "adjust-uav" / f).read_bytes(), f
