@@ -220,8 +220,12 @@ def command(outdir: str | None, output: str | None) -> None:
                + f") {rc_['rms_gsd']:.2f} GSD RMS, {rc_['within_1gsd'] * 100:.0f} % within 1 GSD; cells hidden from "
                f"their best image and seen by "
                f"another (n={oc_['n']}): {oc_['filled'] * 100:.1f} % filled; colour step across seamlines "
-               f"{sm_['step_max_dn']:.2f} DN max ({sm_['pairs']} image pairs; image noise {noise:.1f} DN)")
-    if not (t_["rms_gsd"] <= 0.5 and oc_["filled"] >= 0.95 and sm_["step_max_dn"] <= noise
+               f"{sm_['step_max_dn']:.2f} DN max, {sm_['step_rms_dn']:.2f} DN RMS ({sm_['pairs']} image pairs; image "
+               f"noise {noise:.1f} DN; largest step less 2 standard errors of its seam samples "
+               f"{sm_['step_lower_max_dn']:.2f} DN)")
+    # a seam's step is the mean of its samples: judged by what they show at 2 standard errors, and on average
+    if not (t_["rms_gsd"] <= 0.5 and oc_["filled"] >= 0.95 and sm_["step_lower_max_dn"] <= noise
+            and sm_["step_rms_dn"] <= noise
             and rc_["n"] >= 20 and rc_["within_1gsd"] >= 0.85):
         raise click.ClickException("demo checks FAILED (orthomosaic)")
 
@@ -263,6 +267,26 @@ def command(outdir: str | None, output: str | None) -> None:
                f"oblique DSMs)")
     if not (jf["seen"] > 0 and jf["offset_median_px"] <= 1.0 and jf["walls_within_1px"] >= 0.75 * jf["walls_seen"]):
         raise click.ClickException("demo checks FAILED (façade textures)")
+
+    # buildings the DSMs miss (or cut at their border) from a cadastre: the scene's footprints with the errors of a
+    # real cadastre (0.15 m in plan, 0.3 m in height, seeded), completing the DSM's buildings; walls moved onto
+    # their feet as the obliques show them
+    from skyrig.simulate.footprints import write_scene_footprints
+
+    cadastre = sim_dir / "cadastre.gpkg"
+    write_scene_footprints(cadastre, survey.scene, dsm_m.frame.crs, height_sigma_m=0.3, plan_sigma_m=0.15, seed=0)
+    fac_c = run_facades(eo_all, cams, find_images(eo_all, [str(sim_dir / "images")]), dsm_m,
+                        sim_dir / "output" / "facades_cadastre", ortho=ortho_dir / "ortho.tif", extend_dsms=ext,
+                        footprints=cadastre, eave_field="eave_m", ridge_field="ridge_m", footprint_mode="complete",
+                        refine_footprints=True,
+                        inputs=[str(adj_dir / "eo.csv"), str(dsm_dir / "dsm.tif"), *ext, str(cadastre)])
+    _, jc = judge_facades(survey.scene, fac_c.textures, WorldFrame.from_text(fac_c.summary["frame"]), oblique=obl,
+                          walls=seen_w, dsm=dsm_m)
+    click.echo(f"with a cadastre ({cadastre.name}: footprints 0.15 m / heights 0.3 m RMS off; footprints used "
+               f"{fac_c.summary.get('footprints')}): walls seen {jc['walls_seen']}, textured {jc['walls_textured']}, "
+               f"every window within 1 texel {jc['walls_within_1px']}")
+    if not (jc["walls_within_1px"] >= 0.85 * jc["walls_seen"] and jc["walls_within_1px"] >= jf["walls_within_1px"]):
+        raise click.ClickException("demo checks FAILED (façade textures with a cadastre)")
 
     _tumble_circle_step(Path(outdir) / "tumble_circle")
 

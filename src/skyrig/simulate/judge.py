@@ -297,7 +297,8 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
         (offset, building, corner)), ``roof_corners_template`` (the earlier measure: the roof's texture near each
         corner found by masked template matching; unreliable on roofs of low texture contrast, kept for comparison),
         ``occluded`` (``n``, ``filled``, ``correct``), ``seams`` (``pairs``, ``step_max_dn``, ``step_rms_dn``,
-        ``noise_dn``), ``colour`` (median absolute difference in DN over valid cells).
+        ``noise_dn``, ``step_lower_max_dn``: the largest per-pair step less twice its standard error over the seam's
+        samples - a step the samples show to be at least that large), ``colour`` (median absolute difference in DN over valid cells).
     """
     from scipy import ndimage
 
@@ -459,12 +460,17 @@ def judge_ortho(rgb: NDArray[np.uint8], valid: NDArray[np.bool_], source: NDArra
             if key[0] > key[1]:
                 key, lo, hi = (key[1], key[0]), hi, lo
             pairs.setdefault(key, []).append(res[hi].mean(axis=0) - res[lo].mean(axis=0))
+    lows = []  # per pair: the step less twice its standard error (what the samples rule out as too small)
     for key, v in pairs.items():
         if len(v) >= 30:
-            steps.append(np.abs(np.mean(v, axis=0)).max())
+            va = np.asarray(v)
+            m, se = np.abs(va.mean(axis=0)), va.std(axis=0, ddof=1) / np.sqrt(len(va))
+            steps.append(m.max())
+            lows.append(float(np.max(m - 2.0 * se)))
     s = np.array(steps)
     out["seams"] = {"pairs": len(s), "step_max_dn": float(s.max()) if len(s) else float("nan"),
-                    "step_rms_dn": float(np.sqrt(np.mean(s ** 2))) if len(s) else float("nan"), "noise_dn": noise_dn}
+                    "step_rms_dn": float(np.sqrt(np.mean(s ** 2))) if len(s) else float("nan"), "noise_dn": noise_dn,
+                    "step_lower_max_dn": float(max(lows)) if lows else float("nan")}
     return out
 
 
