@@ -48,23 +48,7 @@ def run_seed(size: str, seed: int, matched: bool = False) -> dict:
     sig = np.r_[np.sqrt(np.diag(cal.boresight_cov_rad2)) / GON, np.sqrt(np.diag(cal.datum_shift_cov_m2)),
                 np.sqrt(np.diag(cal.antenna_offset_cov_m2))]
     truth = np.r_[np.array(err.boresight_rpy_rad["camera"]) / GON, err.datum_shift_m, err.antenna_lever_error_m[:2]]
-    t = cal.tables
-    y8 = t["table8_y_parallax"]
-    iso = t["table5_check_points"]["integrated_sensor_orientation"]
-    return {
-        "seed": seed, "size": size, "images": cal.n_images, "gsd_m": cal.gsd_m,
-        "estimate": dict(zip(NAMES, est.tolist())), "sigma": dict(zip(NAMES, sig.tolist())),
-        "truth": dict(zip(NAMES, truth.tolist())), "z": dict(zip(NAMES, ((est - truth) / sig).tolist())),
-        "iso_y_parallax": {k.split("/")[0]: {"max_rms_um": v["max_rms_um"], "over_20um": v["over_20um"],
-                                             "over_10um": v["over_10um"], "models": v["models"]}
-                           for k, v in y8.items() if k.endswith("integrated_sensor_orientation")},
-        "direct_y_parallax": {k.split("/")[0]: {"max_rms_um": v["max_rms_um"], "over_20um": v["over_20um"]}
-                              for k, v in y8.items() if k.endswith("corrected_gnss_imu")},
-        "check_rms_gsd": {"ground_points": (np.array(iso["ground_points"]["rms_m"]) / cal.gsd_m).tolist(),
-                          "combined_points": (np.array(iso["combined_adjustment_points"]["rms_m"]) / cal.gsd_m).tolist()},
-        "tables": {k: v for k, v in t.items() if k != "y_parallax_models"},
-        "simulate_s": t1 - t0, "recipe_s": t2 - t1,
-    }
+    return _figures(seed, size, cal.n_images, cal.gsd_m, est, sig, truth, cal.tables, t1 - t0, t2 - t1)
 
 
 def run_seed_cli(size: str, seed: int) -> dict:
@@ -104,12 +88,17 @@ def run_seed_cli(size: str, seed: int) -> dict:
     sig = np.r_[[r["boresight_sigma_gon"][k] for k in ("roll", "pitch", "yaw")],
                 [r["datum_shift_sigma_m"][k] for k in "XYZ"], [r["antenna_offset_sigma_m"][k] for k in ("dx", "dy")]]
     truth = np.r_[np.array(err.boresight_rpy_rad["camera"]) / GON, err.datum_shift_m, err.antenna_lever_error_m[:2]]
-    t = report["tables"]
+    return _figures(seed, size, int(len(survey.events_recorded.image_name)), float(report["gsd_m"]), est, sig, truth,
+                    report["tables"], t1 - t0, t2 - t1)
+
+
+def _figures(seed: int, size: str, n_images: int, gsd: float, est: np.ndarray, sig: np.ndarray, truth: np.ndarray,
+             t: dict, simulate_s: float, recipe_s: float) -> dict:
+    """One seed's figures from the estimates, their sigmas, the truth and the recipe's tables."""
     y8 = t["table8_y_parallax"]
     iso = t["table5_check_points"]["integrated_sensor_orientation"]
-    gsd = float(report["gsd_m"])
     return {
-        "seed": seed, "size": size, "images": int(len(survey.events_recorded.image_name)), "gsd_m": gsd,
+        "seed": seed, "size": size, "images": n_images, "gsd_m": gsd,
         "estimate": dict(zip(NAMES, est.tolist())), "sigma": dict(zip(NAMES, sig.tolist())),
         "truth": dict(zip(NAMES, truth.tolist())), "z": dict(zip(NAMES, ((est - truth) / sig).tolist())),
         "iso_y_parallax": {k.split("/")[0]: {"max_rms_um": v["max_rms_um"], "over_20um": v["over_20um"],
@@ -120,7 +109,7 @@ def run_seed_cli(size: str, seed: int) -> dict:
         "check_rms_gsd": {"ground_points": (np.array(iso["ground_points"]["rms_m"]) / gsd).tolist(),
                           "combined_points": (np.array(iso["combined_adjustment_points"]["rms_m"]) / gsd).tolist()},
         "tables": {k: v for k, v in t.items() if k != "y_parallax_models"},
-        "simulate_s": t1 - t0, "recipe_s": t2 - t1,
+        "simulate_s": simulate_s, "recipe_s": recipe_s,
     }
 
 
