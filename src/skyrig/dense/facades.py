@@ -991,13 +991,24 @@ def _foot_line(samples: list[tuple[float, float, float, int]], L: float, search_
 
 def _robust_line(x: NDArray, y: NDArray, w: NDArray, iters: int = 6) -> tuple[float, float] | None:
     """``y = c0 + c1 x`` by iteratively reweighted least squares (Tukey weights times ``w``); a constant when ``x``
-    spans less than half the range."""
+    spans less than half the range.  The first weights are Tukey's about the weighted median of ``y`` (scale: the
+    median absolute deviation), not a least-squares start: a third of the samples off to one side (a window's sill
+    taken for the foot in the chunks under a window column) pulls a least-squares start so far that the
+    reweighting settles between the two groups."""
     x, y, w = (np.asarray(v, float) for v in (x, y, w))
     if len(x) < 2:
         return None
     line = float(np.ptp(x)) >= 0.5 and len(x) >= 4
     A = np.column_stack([np.ones_like(x), x]) if line else np.ones((len(x), 1))
-    wt = w.copy()
+    o = np.argsort(y)
+    cw = np.cumsum(w[o])
+    med = float(y[o][min(int(np.searchsorted(cw, 0.5 * cw[-1])), len(y) - 1)]) if cw[-1] > 0 else float(np.median(y))
+    r = y - med
+    s = max(1.4826 * float(np.median(np.abs(r))), 0.02)
+    u = r / (4.685 * s)
+    wt = w * np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    if (wt > 0).sum() < A.shape[1] + 1:
+        return None
     c = np.zeros(A.shape[1])
     for _ in range(iters):
         sw = np.sqrt(wt)
