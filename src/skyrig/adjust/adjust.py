@@ -461,12 +461,23 @@ def adjust(block: Block, config: AdjustConfig | None = None,
                 "so many blunders mean the functional model is probably wrong - " + _what_to_free(
                     cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
             break
-        g, i = best[1], best[2]
-        _weights(model)[g][i] = 0.0
-        rejected.append(Rejection(g, i, _label(block, g, i), best[0]))
-        logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, best[0])
-        if g == "image":
-            model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
+        picks = [(best[0], best[1], best[2])]
+        # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
+        # above the critical value (its spill into the images of its station would look like blunders there)
+        others_above = any(
+            gr.normalised is not None and _tested(g) and g != "image"
+            and (np.abs(gr.normalised).max(axis=1)[(gr.weight > 0) & ~gr.constant] > crit).any()
+            for g, gr in res[1].items())
+        if best[1] == "image" and cfg.snooping_per_round > 1 and not others_above:
+            room = min(cfg.snooping_per_round, cfg.max_rejections - len(snooped)) - 1
+            picks += [(w, "image", j) for w, j in
+                      _further_image_rejections(block, res[1]["image"], best[2], crit, room)]
+        for w_, g, i in picks:
+            _weights(model)[g][i] = 0.0
+            rejected.append(Rejection(g, i, _label(block, g, i), w_))
+            logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, w_)
+            if g == "image":
+                model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
         stage = f"snooping {len(rejected)}"
     cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, total_info.final_cost = res
     redundancy = n_obs - n_unk + (_datum_defect(model.layout) if free else 0)
@@ -491,6 +502,32 @@ def _words(group: str) -> str:
     """An observation group in words (its type's ``words``)."""
     t = observation_type(group)
     return t.words if t is not None and t.words else group
+
+
+def _further_image_rejections(block: Block, gr, first: int, crit: float, room: int) -> list[tuple[float, int]]:
+    """Image observations to reject beside ``first`` in one snooping round (``room`` at most): those above
+    ``crit`` that are the largest normalised residual of their point and of their image among the
+    observations above it, and share neither with a larger one (``first`` included).  Largest first."""
+    if room <= 0:
+        return []
+    act = (gr.weight > 0) & ~gr.constant
+    w = np.abs(gr.normalised).max(axis=1)
+    w[~act] = 0.0
+    cand = np.flatnonzero(w > crit)
+    cand = cand[np.argsort(-w[cand], kind="stable")]
+    images: set[int] = set()
+    points: set[int] = set()
+    out: list[tuple[float, int]] = []
+    for j in (first, *[int(c) for c in cand if c != first]):
+        im, pt = int(block.obs_image[j]), int(block.obs_point[j])
+        free = im not in images and pt not in points
+        images.add(im)  # a larger residual touched them: what follows there may be its spill
+        points.add(pt)
+        if free and j != first:
+            out.append((float(w[j]), j))
+            if len(out) >= room:
+                break
+    return out
 
 
 def _counts(rejected: list[Rejection]) -> dict[str, int]:

@@ -103,8 +103,11 @@ class ReliabilityOptions:
     snooping_familywise: bool = True  # alpha for the whole block (Bonferroni) instead of per test
     max_rejections: int = 100  # cap on rejected observations (reaching it is a failure)
     snooping_max_group_share: float = 0.1  # largest share of a GNSS / IMU / control / distance group
+    snooping_per_round: int = 1  # image observations rejected per round at most (non-adjacent local maxima)
 
     def __post_init__(self) -> None:
+        if int(self.snooping_per_round) < 1:
+            raise ValueError(f"AdjustConfig.snooping_per_round must be >= 1, got {self.snooping_per_round!r}")
         if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
             raise ValueError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
                              f"{self.snooping_max_group_share!r}")
@@ -196,6 +199,14 @@ class AdjustConfig:
         Largest share of a GNSS, IMU, control or distance group that data snooping may reject (at least
         3 observations): beyond it snooping stops and the result fails with a probable model error
         (uncalibrated boresight, lever arm, datum shift...) named in words.
+    snooping_per_round
+        Image observations rejected in one round at most (default 1: Baarda's one at a time).  Above 1,
+        the round rejects the largest normalised residual and then every further image observation above
+        the critical value that is the largest of its point and of its image among those above it and
+        shares neither with a larger one (a blunder's residual spills into its point's other rays and
+        weakly into its image; observations apart from it are tested as before).  Large blocks need one
+        statistics pass per round, so this cuts their snooping time by the ratio.  While a GNSS / IMU /
+        control / distance observation is above the critical value, rounds reject one observation.
     statistics
         Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
         reduced system; skipped above ``max_statistics_parameters``).
@@ -249,6 +260,7 @@ class AdjustConfig:
     snooping_familywise: bool = True
     max_rejections: int = 100
     snooping_max_group_share: float = 0.1
+    snooping_per_round: int = 1
     statistics: bool = True
     max_statistics_parameters: int = 6000
     statistics_images: tuple[str, ...] = ()

@@ -120,7 +120,7 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
                imu_sigma_deg: Sequence[float] = (0.005, 0.005, 0.01), control_sigma: Sequence[float] = (0.02,) * 3,
                free: Sequence[str] = (), fourier_order: int | None = None, datum: str = "auto",
                datum_points: Sequence[str] | None = None, crs: str | None = None, geoid: str | None = None,
-               spell: Spell = cli_spelling) -> BlockOutcome:
+               snooping_per_round: int = 10, spell: Spell = cli_spelling) -> BlockOutcome:
     """Assemble a block file (docs/formats/block.md) and write it (atomically) to ``output``.
 
     Rig mode (``trajectory`` + ``events`` + ``rig``): one station per platform exposure
@@ -131,6 +131,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     ``imu_sigma_deg`` roll, pitch, yaw (deg), ``control_sigma`` X, Y, Z (m); one value stands for all three.
     ``free``: system-calibration groups (:data:`BLOCK_GROUPS`); ``datum``: auto / free / free-points / none;
     ``crs`` / ``geoid``: the project CRS recorded in the file (default the control points' map CRS, else the EO's).
+    ``snooping_per_round``: image observations data snooping may reject per round (``AdjustConfig``; 1 = Baarda's
+    one at a time).
 
     Raises
     ------
@@ -167,6 +169,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
         raise OptionError(spell("free"), f"unknown group {unknown[0]!r}; known: {', '.join(BLOCK_GROUPS)}")
     if fourier_order is not None and "actuator-curve" not in groups:
         raise OptionError(spell("fourier_order"), f"goes with {spell('free')} actuator-curve")
+    if not 1 <= int(snooping_per_round) <= 1000:
+        raise OptionError(spell("snooping_per_round"), f"must be a whole number from 1 to 1000, got {snooping_per_round}")
     if fourier_order is not None and not 1 <= fourier_order <= 12:
         raise OptionError(spell("fourier_order"), "must be a whole number from 1 to 12")
     if datum not in ("auto", "free", "free-points", "none"):
@@ -239,7 +243,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     # the GNSS datum shift is free by default when control can separate it from a block translation;
     # free datum-shift frees it in any case (one keyword each: the groups override the default)
     modes: dict[str, object] = {"datum_shift": "free" if len(block.gnss_station) and len(block.control_point)
-                                else "fixed", "snooping": True, "datum": "free" if datum == "free-points" else datum}
+                                else "fixed", "snooping": True, "snooping_per_round": int(snooping_per_round),
+                                "datum": "free" if datum == "free-points" else datum}
     modes.update({BLOCK_GROUPS[g]: "free" for g in groups})
     if "actuator-curve" in groups:
         modes["actuator_fourier_order"] = fourier_order or 2

@@ -591,7 +591,8 @@ def _block(ctx: StageContext) -> dict[str, Any]:
                      check=p.check, sigma_px=o["sigma_px"], gnss_sigma=o["gnss_sigma"],
                      imu_sigma_deg=o["imu_sigma_deg"], control_sigma=o["control_sigma"], free=o["free"],
                      start_values_only=o["start_values_only"], datum=o["datum"], datum_points=o["datum_points"],
-                     fourier_order=o["fourier_order"], crs=p.crs, geoid=p.geoid, spell=_project_spelling("block"))
+                     fourier_order=o["fourier_order"], crs=p.crs, geoid=p.geoid,
+                     snooping_per_round=o["snooping_per_round"], spell=_project_spelling("block"))
     return res.summary()
 
 
@@ -767,7 +768,9 @@ register_stage(Stage(
              "datum": Option("auto", "choice", "auto: control and/or GNSS; free: inner constraints on the stations; "
                              "free-points: on object points; none", ("auto", "free", "free-points", "none")),
              "datum_points": Option(None, "strs", "with datum: free-points, the points defining it (default all)",
-                                    nullable=True)},
+                                    nullable=True),
+             "snooping_per_round": Option(10, "int", "image observations data snooping rejects per round at most "
+                                          "(non-adjacent; 1: one at a time)", positive=True)},
     uses=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
