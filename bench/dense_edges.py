@@ -46,6 +46,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cache", default="/tmp/skyrig-acc")
     ap.add_argument("--sgm", default="{}", help="SgmConfig overrides (Python dict literal)")
     ap.add_argument("--fusion", default="{}", help="FusionConfig overrides (Python dict literal)")
+    ap.add_argument("--pairs", default="{}", help="PairConfig overrides (Python dict literal)")
+    ap.add_argument("--eo", default="truth", choices=("truth", "adjusted"),
+                    help="orientations: the truth (default) or skyrig adjust's eo.csv of the acceptance run")
     ap.add_argument("--points", action="store_true", help="classify the points in edge cells by the surface their "
                     "pixel truly shows (ray cast into the scene) and their disparity error")
     a = ap.parse_args(argv)
@@ -64,13 +67,15 @@ def main(argv: list[str] | None = None) -> None:
     if not acc.exists():
         raise SystemExit(f"{acc} missing: run `bench/dense_acceptance.py midas --cache {a.cache}` first")
     hr = tuple(json.loads(acc.read_text())["height_range"])
-    eo = select_heads(load_eo(str(p / "truth" / "eo_map.csv"), None, None, None, None), "nadir")
+    eo_file = p / "truth" / "eo_map.csv" if a.eo == "truth" else p / "output" / "adjust" / "eo.csv"
+    eo = select_heads(load_eo(str(eo_file), None, None, None, None), "nadir")
     cams = load_cameras([str(p / "truth" / "rig.yaml")])
     paths = find_images(eo, [str(p / "images")])
     frame = WorldFrame.map(eo.frame.crs, eo.frame.geoid)
     base = DenseConfig()
     cfg = replace(base, sgm=replace(base.sgm, **ast.literal_eval(a.sgm)),
-                  fusion=replace(base.fusion, **ast.literal_eval(a.fusion)), cloud=False)
+                  fusion=replace(base.fusion, **ast.literal_eval(a.fusion)),
+                  pairs=replace(base.pairs, **ast.literal_eval(a.pairs)), cloud=False)
     plan = plan_dense(eo, cams, frame, hr, None, cfg)
     loader = ImageFiles(paths, [(cams[str(c)].width, cams[str(c)].height) for c in plan.eo.camera])
     t = time.perf_counter()
@@ -100,9 +105,10 @@ def main(argv: list[str] | None = None) -> None:
           f"sgm {a.sgm} fusion {a.fusion}")
     g = plan.grid
     H, W = g.shape
-    h, n, sp, s, ch, cs, cn = fuse_grid(g, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, cfg.fusion, candidates=True)
+    h, n, sp, s, ch, cs, cn, ch2, cs2, cn2 = fuse_grid(g, pid, xyz[:, 0], xyz[:, 1], xyz[:, 2], sig, cfg.fusion,
+                                                       candidates=True)
     voted = np.isfinite(h)
-    kept = confirm_by_neighbours(h, n, s, ch, cs, cn, g.cell_m, cfg.fusion)
+    kept = confirm_by_neighbours(h, n, s, ch, cs, cn, g.cell_m, cfg.fusion, ch2, cs2, cn2)
 
     # truth: the scene's surface and building outlines at the cell centres (local frame of the scene)
     xx, yy = g.cell_centres()

@@ -257,25 +257,55 @@ def test_neighbour_confirmation_against_hand_computation():
     g = GridSpec(0.0, 10.0, 1.0, 6, 1)
     # cells 0,1: confirmed by pairs 0+1 at 5.0; cell 2: pair 0 alone at 5.1 (a neighbour 1 cell away agrees);
     # cell 3: pair 2 alone at 9.0 (no confirmed neighbour at that height); cell 4: pairs 0 and 1 disagree
-    # (split, no candidate); cell 5: pair 3 alone at 5.05, its nearest confirmed cell 4 cells away
+    # (two camps: no one-camp candidate); cell 5: pair 3 alone at 5.05, its nearest confirmed cell 4 cells away
     x = np.array([0.5, 0.5, 1.5, 1.5, 2.5, 3.5, 4.5, 4.5, 5.5])
     y = np.full(9, 9.5)
     h = np.array([5.0, 5.0, 5.0, 5.0, 5.1, 9.0, 5.0, 8.0, 5.05])
     pair = np.array([0, 1, 0, 1, 0, 2, 0, 1, 3])
     sig = np.full(9, 0.05)
     cfg = FusionConfig(min_support=2, k_sigma=3.0, min_tol_cells=0.2, neighbour_cells=2)
-    H, N, SP, S, CH, CS, CN = fuse_grid(g, pair, x, y, h, sig, cfg, candidates=True)
+    H, N, SP, S, CH, CS, CN, CH2, CS2, CN2 = fuse_grid(g, pair, x, y, h, sig, cfg, candidates=True)
     assert np.isfinite(H[0, :2]).all() and np.isnan(H[0, 2:]).all()
     assert CH[0, 2] == np.float32(5.1) and CN[0, 2] == 1 and abs(CS[0, 2] - 0.05) < 1e-7
-    assert CH[0, 3] == np.float32(9.0) and np.isnan(CH[0, 4]) and CH[0, 5] == np.float32(5.05)
-    kept = confirm_by_neighbours(H, N, S, CH, CS, CN, g.cell_m, cfg)
+    assert CH[0, 3] == np.float32(9.0) and CH[0, 5] == np.float32(5.05)
+    assert CH[0, 4] == np.float32(5.0) and CH2[0, 4] == np.float32(8.0) and np.isnan(CH2[0, [0, 1, 2, 3, 5]]).all()
+    kept = confirm_by_neighbours(H, N, S, CH, CS, CN, g.cell_m, cfg)  # without the upper camps: no step 5
     # |5.1 - 5.0| = 0.1 <= max(3 * sqrt(0.05^2 + (0.05/sqrt 2)^2) = 0.18, 0.2): kept, with its own pair count
     assert kept.tolist() == [[False, False, True, False, False, False]]
     assert H[0, 2] == np.float32(5.1) and N[0, 2] == 1 and np.isnan(SP[0, 2])
     assert np.isnan(H[0, 3]) and np.isnan(H[0, 5])  # 9 m: no neighbour agrees; 5.05: none within 2 cells
     # the confirmation uses only cells of the pair vote, never a cell it kept itself (no chains)
-    H2, N2, SP2, S2, CH2, CS2, CN2 = fuse_grid(g, pair, x, y, h, sig, replace(cfg, neighbour_cells=0), candidates=True)
+    H2, N2, SP2, S2, CH2, CS2, CN2 = fuse_grid(g, pair, x, y, h, sig, replace(cfg, neighbour_cells=0), candidates=True)[:7]
     assert not confirm_by_neighbours(H2, N2, S2, CH2, CS2, CN2, g.cell_m, replace(cfg, neighbour_cells=0)).any()
+
+
+def test_two_camp_cells_against_hand_computation():
+    """Step 5 of skyrig.dense.fusion: a cell whose pairs split into two camps takes the camp that clearly more cells
+    of the pair vote around it continue; a tie, a third height or no such neighbour leaves it empty."""
+    from skyrig.dense.fusion import confirm_by_neighbours
+
+    g = GridSpec(0.0, 10.0, 1.0, 9, 1)
+    cells = {0: [5.0, 5.0], 1: [5.0, 9.0], 2: [9.0, 9.0], 4: [5.0, 5.0], 5: [5.02, 9.0], 6: [5.0, 7.0, 9.0],
+             7: [5.0, 9.05], 8: [9.0, 9.0]}  # cell -> height of pair 0, 1 (, 2); cell 3 has no point
+    x = np.concatenate([np.full(len(v), c + 0.5) for c, v in cells.items()])
+    h = np.concatenate([v for v in cells.values()])
+    pair = np.concatenate([np.arange(len(v)) for v in cells.values()])
+    sig = np.full(len(h), 0.05)
+    cfg = FusionConfig(min_support=2, k_sigma=3.0, min_tol_cells=0.2, neighbour_cells=2)
+    H, N, SP, S, CH, CS, CN, CH2, CS2, CN2 = fuse_grid(g, pair, x, np.full(len(h), 9.5), h, sig, cfg, candidates=True)
+    assert np.isfinite(H[0, [0, 2, 4, 8]]).all() and np.isnan(H[0, [1, 3, 5, 6, 7]]).all()
+    # two camps in cells 1, 5, 7 (lower in CH, upper in CH2); cell 6's 7 m agrees with neither 5 nor 9 m: none
+    assert np.isfinite(CH2[0, [1, 5, 7]]).all() and np.isnan(CH[0, 6]) and np.isnan(CH2[0, 6])
+    assert (CN[0, [1, 5, 7]] == 1).all() and (CN2[0, [1, 5, 7]] == 1).all()
+    with_off = [a.copy() for a in (H, N, S)]
+    assert not confirm_by_neighbours(*with_off, CH, CS, CN, g.cell_m, replace(cfg, split_by_neighbours=False),
+                                     CH2, CS2, CN2).any()
+    kept = confirm_by_neighbours(H, N, S, CH, CS, CN, g.cell_m, cfg, CH2, CS2, CN2)
+    # cell 1: cell 0 (5 m) and cell 2 (9 m) one cell away, cell 3 empty: a tie, empty; cell 5: cell 4 at 5 m
+    # continues the lower camp, cell 6 is no cell of the vote: 5.02 m; cell 7: cell 8 continues the upper: 9.05 m
+    assert kept.tolist() == [[False, False, False, False, False, True, False, True, False]]
+    assert H[0, 5] == np.float32(5.02) and H[0, 7] == np.float32(9.05) and N[0, 5] == 1 and N[0, 7] == 1
+    assert np.isnan(H[0, [1, 3, 6]]).all() and np.isnan(SP[0, [5, 7]]).all()
 
 
 def test_foreground_erosion_along_rows_and_background_fill():

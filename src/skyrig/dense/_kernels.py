@@ -113,7 +113,8 @@ def tiled_cell(key, W, tile):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support, min_ratio,
                 max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
-                o_xyz, o_rgb, o_n, o_sup, o_sig, W=0, tile=0):  # pragma: no cover - compiled
+                o_xyz, o_rgb, o_n, o_sup, o_sig, W=0, tile=0, out_ch2=np.zeros(0, np.float32),
+                out_cs2=np.zeros(0, np.float32), out_cn2=np.zeros(0, np.int16)):  # pragma: no cover - compiled
     """Grid and/or voxel fusion of points sorted by cell (cell ``c``'s points are rows ``start[c]:start[c+1]``,
     in input order; :func:`scatter_points`; with ``tile > 0`` ``c`` is an index in blocks of cells of a grid ``W``
     cells wide, see :func:`grid_cells`).
@@ -123,7 +124,9 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
     ``max_range > 0`` a pair whose own heights in the cell span more than ``max_range`` gives the cell no height (it
     sees a wall or a depth edge inside the cell).  Writes the flat ``out_*`` arrays; ``out_ch``, ``out_cs``,
     ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``, their precision-weighted mean,
-    its sigma and their number (a candidate for the neighbour confirmation).
+    its sigma and their number (a candidate for the neighbour confirmation); for a cell rejected because its pairs
+    split into exactly two camps (every pair agrees with the lowest or with the highest pair height, none with
+    both), the lower camp there and the upper one in ``out_ch2``, ``out_cs2``, ``out_cn2`` (when given: size > 0).
 
     Cloud (``do_cloud``, see :func:`skyrig.dense.fusion.fuse_cloud`): every point of a cell grouped by its vertical
     voxel index ``kz``; a voxel with points of at least ``min_support`` distinct pairs becomes one point
@@ -158,7 +161,7 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
                     m = _insert_point(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
             if m:
                 _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
-                           out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn)
+                           out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
         if do_cloud:
             mv = 0
             for q in range(a, b):
@@ -186,7 +189,7 @@ def _insert_point(lp, lh, ls, m, kp, kh, ks):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, inline="always")
 def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
-               out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn):  # pragma: no cover - compiled
+               out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2):  # pragma: no cover
     """Fusion of one cell from its ``m`` points sorted by (pair, height) in ``lp, lh, ls`` (steps 1-3 of
     :mod:`skyrig.dense.fusion`); ``ph, ps, pw, pi, dev``: scratch."""
     # one height per pair: median of its points (sigma of the median point(s))
@@ -245,6 +248,8 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
             out_ch[c] = hsum / wsum
             out_cs[c] = 1.0 / np.sqrt(wsum)
             out_cn[c] = min(nsup, 32767)
+        elif out_ch2.shape[0] > 0:
+            _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
         return
     fused = hsum / wsum
     t = 0
@@ -261,6 +266,47 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     out_n[c] = min(nsup, 32767)
     out_s[c] = 1.0 / np.sqrt(wsum)
     out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
+
+
+@numba.njit(cache=True, inline="always")
+def _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, out_ch2, out_cs2,
+                 out_cn2):  # pragma: no cover - compiled
+    """A rejected cell whose ``np_`` pair heights form exactly two camps: every pair agrees (the support tolerance)
+    with the lowest pair height or with the highest one, and none with both.  Writes the lower camp's
+    precision-weighted mean, its sigma and count to ``out_c*`` and the upper camp's to ``out_c*2``; nothing
+    otherwise (a third height in between, e.g. of a wall, or camps that overlap)."""
+    il = 0
+    iu = 0
+    for q in range(1, np_):
+        if ph[q] < ph[il]:
+            il = q
+        if ph[q] > ph[iu]:
+            iu = q
+    nl = 0
+    nu = 0
+    wl = 0.0
+    hl = 0.0
+    wu = 0.0
+    hu = 0.0
+    for q in range(np_):
+        a = abs(ph[q] - ph[il]) <= max(k_sigma * np.sqrt(ps[q] * ps[q] + ps[il] * ps[il]), min_tol)
+        b = abs(ph[q] - ph[iu]) <= max(k_sigma * np.sqrt(ps[q] * ps[q] + ps[iu] * ps[iu]), min_tol)
+        if a == b:
+            return
+        if a:
+            nl += 1
+            wl += pw[q]
+            hl += pw[q] * ph[q]
+        else:
+            nu += 1
+            wu += pw[q]
+            hu += pw[q] * ph[q]
+    out_ch[c] = hl / wl
+    out_cs[c] = 1.0 / np.sqrt(wl)
+    out_cn[c] = min(nl, 32767)
+    out_ch2[c] = hu / wu
+    out_cs2[c] = 1.0 / np.sqrt(wu)
+    out_cn2[c] = min(nu, 32767)
 
 
 @numba.njit(cache=True, inline="always")
