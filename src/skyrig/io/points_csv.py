@@ -9,7 +9,9 @@ origin at the centre of the top-left pixel.
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import gc
 import io
 
 import numpy as np
@@ -26,7 +28,25 @@ POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz
                 "given_z", "vx", "vy", "vz"]
 
 
+@contextlib.contextmanager
+def _no_cyclic_gc():  # type: ignore[no-untyped-def]
+    """Millions of row lists and name tuples hold no cycles; the cyclic collector would rescan them again and
+    again while they are built (4x the parse time at 1.5 million rows)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tuple[dict, list[int], dict[str, list[str]]]:
+    with _no_cyclic_gc():
+        return _table_body(path, required, optional)
+
+
+def _table_body(path: PathLike, required: list[str], optional: list[str]) -> tuple[dict, list[int], dict[str, list[str]]]:
     lines = read_text(path).splitlines()
     meta: dict[str, tuple[int, str]] = {}
     start = 0
@@ -38,7 +58,10 @@ def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tup
         start += 1
     if start >= len(lines):
         raise InputFormatError("no column header row", path, len(lines))
-    rd = csv.reader(io.StringIO("\n".join(lines[start:])))
+    body_text = "\n".join(lines[start:])
+    spaced = any(ch in body_text for ch in " \t\r\f\v")  # fields to strip (most files have none)
+    rd = csv.reader(io.StringIO(body_text))
+    del lines, body_text
     header = [h.strip().lower() for h in next(rd)]
     for c in required:
         if c not in header:
@@ -46,17 +69,41 @@ def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tup
     for c in header:
         if c not in required and c not in optional:
             raise InputFormatError(f"unknown column {c!r}", path, start + 1, c)
-    cols: dict[str, list[str]] = {c: [] for c in header}
-    line_no = []
-    for k, row in enumerate(rd):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise InputFormatError(f"expected {len(header)} fields, found {len(row)}", path, start + 2 + k)
-        for c, v in zip(header, row):
-            cols[c].append(v.strip())
-        line_no.append(start + 2 + k)
+    rows = list(rd)
+    n = len(header)
+    lens = np.fromiter(map(len, rows), np.int64, len(rows))
+    k_ok = np.flatnonzero(lens > 0)  # csv gives [] for an empty line
+    bad = k_ok[lens[k_ok] != n]
+    if bad.size:
+        raise InputFormatError(f"expected {n} fields, found {lens[bad[0]]}", path, start + 2 + int(bad[0]))
+    if k_ok.size < len(rows):
+        rows = [rows[k] for k in k_ok]
+    cols: dict[str, list[str]] = ({c: [v.strip() for v in vals] if spaced else list(vals)
+                                   for c, vals in zip(header, zip(*rows))} if rows else {c: [] for c in header})
+    n_rows = len(rows)
+    del rows
+    blank = np.ones(n_rows, bool)  # rows of empty fields only (",,,") are left out like empty lines
+    for vals in cols.values():
+        blank &= np.fromiter(map(len, vals), np.int64, len(vals)) == 0
+    if blank.any():
+        keep = np.flatnonzero(~blank)
+        cols = {c: [vals[k] for k in keep] for c, vals in cols.items()}
+        k_ok = k_ok[keep]
+    line_no = (k_ok + start + 2).tolist()
     return meta, line_no, cols
+
+
+def _floats(values: list[str], path: PathLike, lines: list[int], field: str) -> np.ndarray:
+    """A column of finite floats (one numpy conversion), or the first bad value's error naming its line."""
+    try:
+        a = np.array(values, dtype=np.float64)
+    except ValueError:
+        a = None
+    if a is not None and (a.size == 0 or np.isfinite(a).all()):
+        return a
+    for v, line in zip(values, lines):  # find the first offender for the message
+        parse_float(v, path, line, field)
+    raise AssertionError("unreachable: a column numpy refused but every value parsed")  # pragma: no cover
 
 
 _HEADER_KEYS = ("crs", "heights", "height", "geoid")
@@ -119,7 +166,7 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     use = stated or frame or default_frame
     if use is None:
         raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1, "crs")
-    xyz = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in "xyz"] for i in range(len(ln))]).reshape(-1, 3)
+    xyz = np.stack([_floats(cols[c], path, ln, c) for c in "xyz"], axis=1).reshape(-1, 3)
     seen: dict[str, int] = {}
     for n, line in zip(cols["name"], ln):
         if not n:
@@ -140,18 +187,26 @@ def read_measurements_csv_lines(path: PathLike) -> tuple[ImageMeasurements, np.n
     """:func:`read_measurements_csv` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
     _, ln, cols = _table(path, ["point", "image", "column", "row"],
                          ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z"])
-    px = np.array([[parse_float(cols[c][i], path, ln[i], c) for c in ("column", "row")] for i in range(len(ln))])
-    seen: dict[tuple[str, str], int] = {}
-    for p_, im, line in zip(cols["point"], cols["image"], ln):
-        for v, c in ((p_, "point"), (im, "image")):
-            if not v:
-                raise InputFormatError(f"empty {c} name", path, line, c)
-        if (p_, im) in seen:
-            raise InputFormatError(f"point {p_!r} is measured twice in image {im!r} (first on line {seen[p_, im]})",
-                                   path, line, "point")
-        seen[p_, im] = line
+    px = np.stack([_floats(cols[c], path, ln, c) for c in ("column", "row")], axis=1)
+    with _no_cyclic_gc():
+        _check_pairs(cols, ln, path)
     m = ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
     return m, np.array(ln, dtype=np.int64)
+
+
+def _check_pairs(cols: dict[str, list[str]], ln: list[int], path: PathLike) -> None:
+    """No empty point / image name, no point measured twice in one image (the message names the line)."""
+    for c in ("point", "image"):
+        empty = np.fromiter(map(len, cols[c]), np.int64, len(ln)) == 0
+        if empty.any():
+            raise InputFormatError(f"empty {c} name", path, ln[int(np.argmax(empty))], c)
+    if len(dict.fromkeys(zip(cols["point"], cols["image"]))) < len(ln):  # a pair twice: find it for the message
+        seen: dict[tuple[str, str], int] = {}
+        for p_, im, line in zip(cols["point"], cols["image"], ln):
+            if (p_, im) in seen:
+                raise InputFormatError(f"point {p_!r} is measured twice in image {im!r} (first on line "
+                                       f"{seen[p_, im]})", path, line, "point")
+            seen[p_, im] = line
 
 
 def write_measurements_csv(
