@@ -14,7 +14,8 @@ colour from the image that sees it best:
   ``self_margin_m`` away from the plane (measured along its normal), beyond the eave's mixed cells;
 * the best visible image per texel has the smallest texel footprint (``distance / (focal_px cos(incidence))``,
   i.e. the highest resolution and most frontal view); image boundaries are feathered over ``feather_texels``;
-* the texel size defaults to the best image's footprint on the plane (median over the plane).
+* the texel size defaults to the best image's own resolution on the plane (a texel of the area of its pixels'
+  footprint there, ``distance / (focal_px sqrt(cos incidence))``, median over the plane: :func:`_native_texel`).
 
 Roofs: :func:`texture_roofs` textures every roof polygon the same way (normal up), over its bounding rectangle
 (:func:`roof_rectangle`).
@@ -58,7 +59,8 @@ class TextureConfig:
     Attributes
     ----------
     texel_m
-        Texel size (frame metres); None: the best image's texel footprint on the plane.
+        Texel size (frame metres); None: the best image's own resolution on the plane (:func:`_native_texel`:
+        a texel of the area of its pixels' footprint there, median over the plane).
     max_images
         Images that contribute at most (more are tried, up to ``max_candidates``, only while texels remain that
         no chosen image sees).
@@ -243,6 +245,33 @@ def _candidates(ctx: _Context, corners: NDArray, n_dsm: NDArray, cfg: TextureCon
     return [(k, f) for k, f, _ in out]
 
 
+def _native_texel(ctx: _Context, corners: NDArray, k: int, fallback: float, cfg: TextureConfig) -> float:
+    """The texel of image ``k``'s own resolution on a plane: the square of the same area as a pixel's footprint
+    there, ``distance / (focal_px sqrt(cos i))`` (median over the points :func:`_candidates` uses that lie in
+    the image), so that the texture has as many texels as the image has pixels on the plane.
+
+    A pixel's footprint on a plane seen at incidence ``i`` is ``distance / focal_px`` across the incidence and
+    ``1 / cos(i)`` times that along it (the footprint :func:`_candidates` ranks images by).  Square texels of the
+    longer side (the default before) drop what the image resolves along the shorter one: a 45 deg oblique's view
+    of a wall carries its horizontal detail at 0.7 of such a texel, and windows 1.2 m wide, 3.4 image pixels
+    across, came out under 3 texels of 0.41 m.  ``fallback`` where no point is inside."""
+    u, v, _, w, h = _plane_axes(corners)
+    s = np.linspace(0.02, 0.98, 7)
+    ss, tt = np.meshgrid(s * w, s * h)
+    P_l = ctx.to_local(corners[0] + ss.reshape(-1, 1) * u + tt.reshape(-1, 1) * v)
+    cam = ctx.cameras[str(ctx.eo_l.camera[k])]
+    d = P_l - ctx.eo_l.centre[k]
+    pc = d @ ctx.eo_l.rotation[k]
+    inside = (pc[:, 2] < 0) & cam.in_image(cam.project_pixels(pc), -cfg.edge_margin_px)
+    if not inside.any():
+        return float(fallback)
+    n_l = ctx.to_local(corners[:1] + np.cross(u, v)) - ctx.to_local(corners[:1])
+    n_l = n_l[0] / np.linalg.norm(n_l[0])
+    dist = np.linalg.norm(d[inside], axis=1)
+    cosi = np.clip(-(d[inside] @ n_l) / dist, 0.05, 1.0)
+    return float(np.median(dist / (cam.focal_px * np.sqrt(cosi))))
+
+
 class PlaneTexture(NamedTuple):
     """The texture of one plane (see :func:`texture_plane`)."""
 
@@ -317,7 +346,7 @@ def _texture_plane(corners: NDArray, ctx: _Context, cfg: TextureConfig, normal: 
         if not (texel > 0 and np.isfinite(texel)):
             raise SkyrigError(f"texel size must be positive, got {cfg.texel_m} (option: texel_m)")
     elif cand:
-        texel = cand[0][1]
+        texel = _native_texel(ctx, corners, cand[0][0], cand[0][1], cfg)
     else:
         texel = max(w, h) / 64.0
     W = max(1, int(np.ceil(w / texel - 1e-6)))
@@ -529,7 +558,7 @@ def _to_roof_on_eave_grid(f: Facade, ctx: _Context, cfg: TextureConfig) -> tuple
         cand = _candidates(ctx, c_eave, f.normal, cfg)
         if not cand:
             return f, cfg
-        texel = cand[0][1]
+        texel = _native_texel(ctx, c_eave, cand[0][0], cand[0][1], cfg)
     c[2:, 2] = eave + np.ceil((c[3, 2] - eave) / texel - 1e-6) * texel
     return replace(f, corners=c), replace(cfg, texel_m=float(texel))
 
@@ -735,7 +764,7 @@ def _with_footprint(b: BuildingBlock, fp: NDArray, new: NDArray) -> BuildingBloc
 def _ground_plane(dsm: DsmGrid, footprint: NDArray, fallback: float, ring_m: tuple[float, float] = (2.0, 10.0)
                   ) -> Callable[[NDArray], NDArray]:
     """The ground around a building: a plane fitted robustly (Tukey weights, started on the cells within 0.5 m of
-    the lower third) to the DSM cells between ``ring_m[0]`` and ``ring_m[1]`` from the footprint (a matched DSM
+    the lower third) to the DSM's measured (not ``filled``) cells between ``ring_m[0]`` and ``ring_m[1]`` from the footprint (a matched DSM
     smears walls over the cells right next to them; other buildings and anything else standing there are
     outliers).  Terrain is smooth over a building's size; the plane interpolates across the building.  Returns
     ``f(xy (N, 2)) -> heights``; a constant ``fallback`` where too few cells are measured."""
@@ -758,6 +787,12 @@ def _ground_plane(dsm: DsmGrid, footprint: NDArray, fallback: float, ring_m: tup
     z = np.asarray(dsm.height, float)[r0:r1, c0:c1].ravel()
     dist = shapely.distance(poly, shapely.points(x, y))
     m = np.isfinite(z) & (dist >= ring_m[0]) & (dist <= ring_m[1]) & (np.abs(z - fallback) < 3.0)
+    # measured cells only: an occlusion surface's filled cells (the DSM's ground estimate around a building
+    # given beyond the surveyed area, :func:`skyrig.dense.buildings.surface_with_buildings`) are an
+    # extrapolation, tenths of a metre off; they serve only where too few cells were measured
+    meas = m & ~np.asarray(dsm.filled, bool)[r0:r1, c0:c1].ravel()
+    if meas.sum() >= 30:
+        m = meas
     if m.sum() < 30:
         return const
     ctr = fp.mean(axis=0)

@@ -371,7 +371,8 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     ortho
         An RGB orthophoto (path or :class:`OrthoRaster`) to texture the roofs; default: a flat colour.
     texel_m
-        Façade texel size in the DSM's metres (default: the best image's footprint, per façade).
+        Façade texel size in the DSM's metres (default, per façade: the best image's own resolution there, a
+        texel of its pixels' footprint area).
     max_images
         Images blended into one façade at most.
     image_format
