@@ -46,7 +46,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.errors import CRSError, InputFormatError
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
-from skyrig.io._text import atomic_write, parse_float, read_text
+from skyrig.io._text import atomic_write, float_column, no_cyclic_gc, parse_float, read_text
 
 __all__ = ["read_block", "write_block", "FORMAT", "VERSION", "BlockFile"]
 
@@ -153,11 +153,20 @@ def _verify_table(path: Path, kind: str, manifest: Path, want: Any) -> None:
 
 class _Table:
     def __init__(self, path: Path, kind: str) -> None:
+        with no_cyclic_gc():
+            self._read(path, kind)
+
+    def _read(self, path: Path, kind: str) -> None:
         self.path = path
         text = read_text(path)
+        spaced = any(ch in text for ch in " \t\r\f\v")  # fields to strip (skyrig's own tables have none)
         rows = list(csv.reader(io.StringIO(text)))
-        lines = [(i + 1, r) for i, r in enumerate(rows) if r and any(c.strip() for c in r)
+        del text
+        lines = [(i + 1, r) for i, r in enumerate(rows) if r and (not spaced or any(c.strip() for c in r))
                  and not r[0].lstrip().startswith("#")]
+        if not spaced:  # rows of empty fields only (",,,") are blank lines too
+            lines = [(i, r) for i, r in lines if any(r)]
+        del rows
         if not lines:
             raise InputFormatError("empty table (no header)", path, 1)
         hl, header = lines[0]
@@ -181,36 +190,33 @@ class _Table:
             if r not in header and not (have_cov and r in _SIGMA3 + _SIGMAR):
                 raise InputFormatError(f"missing required column {r!r}", path, hl, r)
         self.col = {h: k for k, h in enumerate(header)}
-        self.lines = []
-        self.rows = []
-        for ln, r in lines[1:]:
+        body = lines[1:]
+        for ln, r in body:
             if len(r) != len(header):
                 raise InputFormatError(f"{len(r)} fields, header has {len(header)}", path, ln)
-            self.lines.append(ln)
-            self.rows.append([c.strip() for c in r])
+        self.lines = [ln for ln, _ in body]
+        cols = list(zip(*(r for _, r in body))) if body else [() for _ in header]
+        self.cols = [[c.strip() for c in col] if spaced else list(col) for col in cols]
+        self.n = len(body)
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return self.n
 
     def has(self, name: str) -> bool:
         return name in self.col
 
     def text(self, name: str, default: str = "") -> list[str]:
         if name not in self.col:
-            return [default] * len(self.rows)
-        k = self.col[name]
-        out = []
-        for ln, r in zip(self.lines, self.rows):
-            if r[k] == "":
-                raise InputFormatError("empty value", self.path, ln, name)
-            out.append(r[k])
+            return [default] * self.n
+        out = self.cols[self.col[name]]
+        if "" in out:
+            raise InputFormatError("empty value", self.path, self.lines[out.index("")], name)
         return out
 
     def num(self, name: str, default: float | None = None, positive: bool = False) -> np.ndarray:
         if name not in self.col:
-            return np.full(len(self.rows), np.nan if default is None else default)
-        k = self.col[name]
-        v = np.array([parse_float(r[k], self.path, ln, name) for ln, r in zip(self.lines, self.rows)], float)
+            return np.full(self.n, np.nan if default is None else default)
+        v = float_column(self.cols[self.col[name]], self.path, self.lines, name)
         if positive:
             bad = np.flatnonzero(~(v > 0))
             if bad.size:
@@ -233,9 +239,17 @@ class _Table:
             return None
         d = 2 if names is _COV2 else 3
         iu = np.triu_indices(d)
-        out = np.zeros((len(self.rows), d, d))
+        out = np.zeros((self.n, d, d))
         for nm, a, b in zip(names, *iu):
             out[:, a, b] = out[:, b, a] = self.num(nm)
+        # one batched factorisation; the row loop below only runs to name the first offender
+        try:
+            ok = len(out) == 0 or bool(np.isfinite(np.linalg.cholesky(out)).all())
+        except np.linalg.LinAlgError:
+            ok = False
+        unit = names[0][names[0].rindex("_"):]
+        if ok and (len(out) == 0 or np.diagonal(out, axis1=1, axis2=2).max() <= _VARIANCE_LIMITS[unit]):
+            return out
         for j in range(len(out)):
             diag_name = names[0] if not out[j, 0, 0] > 0 else names[-1]
             try:
@@ -251,15 +265,17 @@ class _Table:
         return out
 
     def ref(self, name: str, index: dict[str, int], what: str) -> np.ndarray:
-        out = np.empty(len(self.rows), np.int64)
-        for j, (ln, v) in enumerate(zip(self.lines, self.text(name))):
-            if v not in index:
-                raise InputFormatError(f"unknown {what} {v!r}", self.path, ln, name)
-            out[j] = index[v]
+        vals = self.text(name)
+        out = np.fromiter((index.get(v, -1) for v in vals), np.int64, self.n)
+        if (out < 0).any():
+            j = int(np.argmax(out < 0))
+            raise InputFormatError(f"unknown {what} {vals[j]!r}", self.path, self.lines[j], name)
         return out
 
     def unique_names(self, name: str) -> list[str]:
         vals = self.text(name)
+        if len(set(vals)) == len(vals):
+            return vals
         seen: dict[str, int] = {}
         for ln, v in zip(self.lines, vals):
             if v in seen:
@@ -396,10 +412,9 @@ def read_block(path: PathLike) -> BlockFile:
         kw["head_actuated"] = [act.get(h) for h in heads]
         beta = np.full(len(im), np.nan)
         if im.has("beta_deg"):  # empty (or nan) for images of fixed heads
-            kb = im.col["beta_deg"]
-            for j, (ln, r) in enumerate(zip(im.lines, im.rows)):
-                if r[kb].strip().lower() not in ("", "nan"):
-                    beta[j] = np.radians(parse_float(r[kb], im.path, ln, "beta_deg"))
+            for j, (ln, v) in enumerate(zip(im.lines, im.cols[im.col["beta_deg"]])):
+                if v.strip().lower() not in ("", "nan"):
+                    beta[j] = np.radians(parse_float(v, im.path, ln, "beta_deg"))
         for j, hn in enumerate(head_names):
             if hn in act and not np.isfinite(beta[j]):
                 raise InputFormatError(f"image of the actuated head {hn!r} needs its actuator angle", im.path,
@@ -518,15 +533,22 @@ def read_block(path: PathLike) -> BlockFile:
     return BlockFile(block, cfg, p, frozenset(section), frame, crs)
 
 
+def _cells(col: Any) -> list[str]:
+    """A column's cells as text: strings as they are, floats as ``repr`` (shortest round trip), the rest ``str``."""
+    if isinstance(col, np.ndarray) and col.dtype.kind == "f":
+        return [repr(x) for x in col.astype(np.float64).tolist()]
+    if isinstance(col, np.ndarray) and col.dtype.kind in "iub":
+        return [str(x) for x in col.tolist()]
+    return [c if isinstance(c, str) else repr(float(c)) if isinstance(c, (float, np.floating)) else str(c) for c in col]
+
+
 def _write_csv(path: Path, header: list[str], cols: list[Any]) -> dict[str, Any]:
     """Write one table (atomically); returns its ``{"size", "sha256"}`` for the manifest's ``checksums``."""
-    n = len(cols[0]) if cols else 0
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
-    for i in range(n):
-        w.writerow([c[i] if isinstance(c[i], str) else repr(float(c[i])) if isinstance(c[i], (float, np.floating))
-                    else str(c[i]) for c in cols])
+    with no_cyclic_gc():
+        w.writerows(zip(*(_cells(c) for c in cols)))
     data = buf.getvalue().encode("utf-8")
     with atomic_write(path, "wb") as fh:
         fh.write(data)

@@ -9,9 +9,7 @@ origin at the centre of the top-left pixel.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import gc
 import io
 
 import numpy as np
@@ -19,7 +17,7 @@ import numpy as np
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
-from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
+from skyrig.io._text import PathLike, atomic_write, float_column, no_cyclic_gc, read_text
 from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta, write_table_meta
 
 
@@ -28,21 +26,8 @@ POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz
                 "given_z", "vx", "vy", "vz"]
 
 
-@contextlib.contextmanager
-def _no_cyclic_gc():  # type: ignore[no-untyped-def]
-    """Millions of row lists and name tuples hold no cycles; the cyclic collector would rescan them again and
-    again while they are built (4x the parse time at 1.5 million rows)."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
-
-
 def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tuple[dict, list[int], dict[str, list[str]]]:
-    with _no_cyclic_gc():
+    with no_cyclic_gc():
         return _table_body(path, required, optional)
 
 
@@ -91,19 +76,6 @@ def _table_body(path: PathLike, required: list[str], optional: list[str]) -> tup
         k_ok = k_ok[keep]
     line_no = (k_ok + start + 2).tolist()
     return meta, line_no, cols
-
-
-def _floats(values: list[str], path: PathLike, lines: list[int], field: str) -> np.ndarray:
-    """A column of finite floats (one numpy conversion), or the first bad value's error naming its line."""
-    try:
-        a = np.array(values, dtype=np.float64)
-    except ValueError:
-        a = None
-    if a is not None and (a.size == 0 or np.isfinite(a).all()):
-        return a
-    for v, line in zip(values, lines):  # find the first offender for the message
-        parse_float(v, path, line, field)
-    raise AssertionError("unreachable: a column numpy refused but every value parsed")  # pragma: no cover
 
 
 _HEADER_KEYS = ("crs", "heights", "height", "geoid")
@@ -166,7 +138,7 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     use = stated or frame or default_frame
     if use is None:
         raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1, "crs")
-    xyz = np.stack([_floats(cols[c], path, ln, c) for c in "xyz"], axis=1).reshape(-1, 3)
+    xyz = np.stack([float_column(cols[c], path, ln, c) for c in "xyz"], axis=1).reshape(-1, 3)
     seen: dict[str, int] = {}
     for n, line in zip(cols["name"], ln):
         if not n:
@@ -187,8 +159,8 @@ def read_measurements_csv_lines(path: PathLike) -> tuple[ImageMeasurements, np.n
     """:func:`read_measurements_csv` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
     _, ln, cols = _table(path, ["point", "image", "column", "row"],
                          ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z"])
-    px = np.stack([_floats(cols[c], path, ln, c) for c in ("column", "row")], axis=1)
-    with _no_cyclic_gc():
+    px = np.stack([float_column(cols[c], path, ln, c) for c in ("column", "row")], axis=1)
+    with no_cyclic_gc():
         _check_pairs(cols, ln, path)
     m = ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
     return m, np.array(ln, dtype=np.int64)
