@@ -14,6 +14,8 @@ and prints what the recipe says is inseparable.
     nice .venv/bin/python bench/calqc.py --size reduced --deformation-px 0.3 --no-variants --grid   (the same, no Tab. 11)
     nice .venv/bin/python bench/calqc.py --size reduced --deformation-px 0.3 --no-variants   (IO without the grid)
     nice .venv/bin/python bench/calqc.py --size full            (paper's cameras; long)
+    nice .venv/bin/python bench/calqc.py --size reduced --noise-free --deformation-px 0.3 --no-variants --grid
+        (the wave's deterministic effect on the IO, in a-priori sigma: what the grid / IO cycles leave)
 """
 
 from __future__ import annotations
@@ -71,13 +73,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--deformation-px", type=float, default=0.0)
     ap.add_argument("--no-variants", action="store_true", help="no Tab. 11 variants (and no grid unless --grid)")
     ap.add_argument("--grid", action="store_true", help="the correction grid even with --no-variants")
+    ap.add_argument("--noise-free", action="store_true",
+                    help="no image, GNSS, IMU or control noise: what is left is the model's (or a deformation's) "
+                         "deterministic effect; errors printed in units of the a-priori sigma (sigma0 is ~0 here)")
+    ap.add_argument("--grid-cycles", type=int, default=4, help="most grid / IO cycles (calibrate_calqc max_grid_cycles)")
+    ap.add_argument("--grid-uncertainty", type=int, default=0, metavar="PAIRS",
+                    help="propagate the correction grid's posterior into the calibration covariance (antithetic pairs)")
+    ap.add_argument("--no-design", action="store_true", help="without the design study of the inseparable unknowns")
     ap.add_argument("--json", default=None, help="write the figures here")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
+    quiet = dict(gnss_noise_m=(0, 0, 0), imu_noise_rad=(0, 0, 0), gcp_sigma_m=(0, 0, 0)) if a.noise_free else None
     data, truth = midas_calqc_scenario(a.size, a.seed, directions=a.directions, heights=a.heights, tie_points=a.tie_points,
-                                       deformation_px=a.deformation_px)
+                                       deformation_px=a.deformation_px, error_overrides=quiet,
+                                       image_noise_um=0.0 if a.noise_free else 3.84)
     t1 = time.perf_counter()
-    cal = calibrate_calqc(data, variants=not a.no_variants, grid=a.grid or not a.no_variants)
+    cal = calibrate_calqc(data, variants=not a.no_variants, grid=a.grid or not a.no_variants,
+                          max_grid_cycles=a.grid_cycles, grid_uncertainty_draws=a.grid_uncertainty,
+                          design=not a.no_design)
     t2 = time.perf_counter()
     rep = cal.to_dict()
     print(format_tables(rep))
@@ -98,6 +111,10 @@ def main(argv: list[str] | None = None) -> int:
                       + ", ".join(f"{n} {1000 * x:+.4f} um ({x / s:+.3f} sigma)"
                                   for (n, x), s in zip(part.items(), s_io)))
     z["datum shift"] = ((cal.datum_shift_m - truth.datum_shift_m) / np.sqrt(np.diag(cal.datum_shift_cov_m2))).tolist()
+    if a.noise_free:  # sigma0 ~ 0: in units of the a-priori sigma (the covariance without the variance factor)
+        s0 = cal.statistics["sigma0_joint"]
+        z = {k: (np.asarray(v) * s0).tolist() for k, v in z.items()}
+        print(f"noise-free: sigma0 {s0:.4f}; errors in units of the a-priori sigma")
     print("normalised errors (estimate - truth) / sigma:")
     for k, v in z.items():
         print(f"  {k:<18} " + " ".join(f"{x:+6.2f}" for x in v))

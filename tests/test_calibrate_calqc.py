@@ -139,3 +139,17 @@ def test_calqc_recovers_boresight_io_and_datum_within_2_sigma(tmp_path) -> None:
         assert rig.head(h).camera.focal_mm == pytest.approx(v[0], abs=1e-9)
         assert rc.heads[h].interior.sigma_of("focal_mm") == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-6)
         assert rc.heads[h].boresight_opk_deg is not None
+
+
+def test_collocation_grid_posterior_draws_have_the_node_sigmas() -> None:
+    # the grid's posterior factor (for propagating its uncertainty) against the node sigmas computed separately
+    # (cho_solve of the posterior), and draws from it against both
+    pix, err = _samples(1500, 0.1, 7)
+    g = collocation_grid("c", 600, 400, pix, err)
+    F = g.posterior_factor
+    assert F is not None
+    np.testing.assert_allclose(np.sqrt(np.sum(F * F, axis=1)).reshape(g.sigma_px.shape), g.sigma_px, rtol=1e-8)
+    rng = np.random.default_rng(3)
+    d = np.stack([g.sample(rng) for _ in range(400)])
+    emp = d.std(axis=0).mean(axis=-1)
+    assert np.median(np.abs(emp / g.sigma_px - 1.0)) < 0.08
