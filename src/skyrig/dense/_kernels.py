@@ -608,20 +608,29 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=
     H, W = disp.shape
     fb = f * B
     out = np.empty(rows.shape[0])
+    # the window's extremes from its columns' (2 half + 1)-pixel extremes, each column's computed once per row it
+    # is needed in (the pixels come row by row): 2 half + 1 reads a pixel instead of (2 half + 1)^2
+    cmin = np.empty(W, disp.dtype)
+    cmax = np.empty(W, disp.dtype)
+    crow = np.full(W, -1, np.int64)
     for k in range(rows.shape[0]):
         r0, c0 = rows[k], cols[k]
         if flat_range > 0 and half <= r0 < H - half and half <= c0 < W - half:
             lo = np.inf
             hi = -np.inf
-            full = True
-            for r in range(r0 - half, r0 + half + 1):
-                for c in range(c0 - half, c0 + half + 1):
-                    d = disp[r, c]
-                    if not d > 0:
-                        full = False
-                    lo = min(lo, d)
-                    hi = max(hi, d)
-            if full and hi - lo <= flat_range:
+            for c in range(c0 - half, c0 + half + 1):
+                if crow[c] != r0:
+                    a = disp[r0 - half, c]
+                    b = a
+                    for r in range(r0 - half + 1, r0 + half + 1):
+                        a = min(a, disp[r, c])
+                        b = max(b, disp[r, c])
+                    cmin[c] = a
+                    cmax[c] = b
+                    crow[c] = r0
+                lo = min(lo, np.float64(cmin[c]))
+                hi = max(hi, np.float64(cmax[c]))
+            if lo > 0 and hi - lo <= flat_range:  # every pixel matched (> 0), all within flat_range
                 out[k] = 1.0
                 continue
         n = 0

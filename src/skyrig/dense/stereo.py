@@ -217,6 +217,11 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
         flat = 0.5 * slope * 2 * half * max(blk.d_max, 1e-6) / float(rect.focal_px)
         nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
                           np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2), flat)
-        sigma_h = np.where(~(nz >= cfg.wall_max_nz), np.float32(np.nan), sigma_h).astype(np.float32)  # NaN: sparse
-    rgb = colour[rr, cc] if colour.ndim == 3 else np.repeat(colour[rr, cc][:, None], 3, axis=1)
-    return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb.astype(np.uint8), normal)
+        sigma_h[~(nz >= cfg.wall_max_nz)] = np.float32(np.nan)  # NaN: steep or sparse (a fresh array: in place)
+    flat = rr * colour.shape[1] + cc  # one gather from the flattened crop instead of a 2-index one
+    if colour.ndim == 3:
+        rgb = colour.reshape(-1, colour.shape[2])[flat]
+    else:
+        rgb = np.repeat(colour.reshape(-1)[flat][:, None], 3, axis=1)
+    return PairPoints(xyz, sigma_h.astype(np.float32, copy=False), sigma_3d, ang, rgb.astype(np.uint8, copy=False),
+                      normal)
