@@ -447,6 +447,12 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
               help="IMU sigma roll,pitch,yaw (degrees; one or three values).")
 @click.option("--control-sigma", default="0.05", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--no-grid", is_flag=True, help="Skip the correction grid.")
+@click.option("--grid-uncertainty", "grid_pairs", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Propagate the correction grid's posterior into the calibration covariance with this many "
+                   "antithetic Monte-Carlo pairs (each two adjustments of the whole flight; 0: the grid taken as known).")
+@click.option("--no-design-study", is_flag=True,
+              help="Skip the design study (which unknowns this flight cannot separate, per head, and the flight that "
+                   "would: virtual opposite-direction / cross-strip / second-height flights).")
 @click.option("--no-variants", is_flag=True, help="Skip the three adjustment variants (and Tab. 11).")
 @click.option("--flight", default="", help="Provenance: flight / data set.")
 @click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
@@ -454,8 +460,8 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
 def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
-                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, no_variants, flight, date, output,
-                  report_path) -> None:
+                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_pairs, no_design_study, no_variants, flight,
+                  date, output, report_path) -> None:
     """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
     three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
     import numpy as np
@@ -492,7 +498,8 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
         cal = calibrate_calqc(data, image_sigma_um=image_sigma_um, gnss_sigma_m=triple(gnss_sigma, "--gnss-sigma"),
                               imu_sigma_deg=triple(imu_sigma_deg, "--imu-sigma-deg"),
                               control_sigma_m=triple(control_sigma, "--control-sigma"), grid=not no_grid,
-                              variants=not no_variants)
+                              variants=not no_variants, grid_uncertainty_draws=grid_pairs,
+                              design=not no_design_study)
     except CalqcFailed as exc:
         raise click.ClickException(f"calibration failed: {exc}") from None
     except SkyrigError as exc:
