@@ -34,6 +34,20 @@ a principal distance and a vertical shift when there is one height; a principal 
 nearly (only the field-angle terms of the image and relief tell them apart): paper 004 had strips in one
 direction and separated the boresight thanks to its two GSDs.
 
+**Design study** (:func:`design_study`, in the report per head as ``inseparable_by_head``).  Pairs miss groups (a
+principal point may be stood in for by a boresight and a datum shift together), and a correlation says nothing about
+which flight would help.  So, from the joint adjustment's covariance, each calibration unknown's multiple correlation
+with all the others; and for each flight this one lacks (the opposite direction, cross strips, a second height) the
+same block with that flight added virtually (:func:`virtual_flight`: every station again, turned or raised, its
+images observing every object point they see, exactly) and its covariance.  An unknown is named with the flight that
+shrinks its sigma most beyond what the added observations alone would (by at least 1.25), or that brings its
+multiple correlation below the limit; one whose multiple correlation stays above the limit with every flight tried
+is named as inseparable by any flight (a principal point with the boresight about the other image axis: a
+laboratory calibration or a lock separates them).  Simulated MIDAS flight, one direction (1 height pair, 600 px):
+the datum shift X / Y (multiple correlation 0.79) named with the opposite direction, predicted 0.14 and sigma 19.9
+mm; the flight really flown both ways gives 0.13 and 20.3 mm; forward / backward principal distance sigma gain
+predicted 1.73 / 1.80, real 1.68 / 1.73 (tests/test_calibrate_calqc_design.py).
+
 **Variants and Tab. 11.**  With the calibrated rig and the GNSS positions corrected by the datum shift (the
 paper's POSEO), each flying height's block is adjusted in the three variants of :mod:`skyrig.adjust.presets`
 (``ba-eo-control``, ``dg-control``, ``refine-eo-check``); Tab. 11 lists per variant and block: GSD, sigma0 in
