@@ -43,7 +43,7 @@ images observing every object point they see, exactly) and its covariance.  An u
 shrinks its sigma most beyond what the added observations alone would (by at least 1.25), or that brings its
 multiple correlation below the limit; one whose multiple correlation stays above the limit with every flight tried
 is named as inseparable by any flight (a principal point with the boresight about the other image axis: a
-laboratory calibration or a lock separates them).  Simulated MIDAS flight, one direction (1 height pair, 600 px):
+laboratory calibration or a lock separates them).  Simulated MIDAS flight, one direction, both heights, 600 px:
 the datum shift X / Y (multiple correlation 0.79) named with the opposite direction, predicted 0.14 and sigma 19.9
 mm; the flight really flown both ways gives 0.13 and 20.3 mm; forward / backward principal distance sigma gain
 predicted 1.73 / 1.80, real 1.68 / 1.73 (tests/test_calibrate_calqc_design.py).
