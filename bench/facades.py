@@ -148,9 +148,9 @@ def footprint_sets(feet, footprints: Path, dsm, refine=None):
 
 
 def run(project: Path, clip: bool = True, extend: list[Path] | None = None, cases: tuple[str, ...] = ("true", "adjusted"),
-        sets: tuple[str, ...] = SETS, footprints: Path | None = None) -> dict:
+        sets: tuple[str, ...] = SETS, footprints: Path | None = None, texel_rule: str = "footprint") -> dict:
     from skyrig.dense.buildings import ExtractionConfig, extend_dsm, extract_buildings
-    from skyrig.dense.facades import refine_wall_feet, refine_walls, texture_facades
+    from skyrig.dense.facades import TextureConfig, refine_wall_feet, refine_walls, texture_facades
     from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.rig_file import read_rig
@@ -215,7 +215,7 @@ def run(project: Path, clip: bool = True, extend: list[Path] | None = None, case
                     todo.append((label, blocks, surf))
         for label, blocks, surf in todo:
             t0 = time.perf_counter()
-            tex = texture_facades(blocks, eo, cams, loader, surf)
+            tex = texture_facades(blocks, eo, cams, loader, surf, config=TextureConfig(texel_rule=texel_rule))
             tt = time.perf_counter() - t0
             _, summ = judge_facades(scene, tex, frame, oblique, walls=walls, dsm=walls_dsm)
             texels = int(sum(t.valid.size for t in tex if t.images))
@@ -247,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height-sigma", type=float, default=0.3, help="--write-footprints: height error (m, seeded)")
     ap.add_argument("--plan-sigma", type=float, default=0.0, help="--write-footprints: plan error per building (m)")
     ap.add_argument("--seed", type=int, default=0, help="--write-footprints: seed of the errors")
+    ap.add_argument("--texel-rule", default="footprint", choices=("footprint", "pixel_area"),
+                    help="default texel size from the best image (skyrig.dense.facades.TextureConfig.texel_rule)")
     a = ap.parse_args(argv)
     for need in ("images", "truth/eo.csv", "output/adjust/eo.csv", str(_dsm_path(a.project).relative_to(a.project)),
                  "rig.yaml"):
@@ -271,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{np.sqrt(np.mean(np.sum(w['plan_error_m'] ** 2, axis=1))):.3f} m)", flush=True)
         fp = a.write_footprints
     res = run(a.project, clip=not a.no_clip, extend=a.extend, cases=tuple(a.cases.split(",")),
-              sets=tuple(a.sets.split(",")), footprints=fp)
+              sets=tuple(a.sets.split(",")), footprints=fp, texel_rule=a.texel_rule)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))
     return 0

@@ -267,3 +267,24 @@ def test_cli_textures_a_house_the_dsm_missed_from_its_footprint(cli_project, tmp
     info = json.loads((out / "facades.json").read_text())
     assert info["footprints"]["heights_from_attributes"] == 1 and info["footprints"]["occlusion_cells_burnt"] > 0
     assert all(f["coverage"] > 0.9 for f in info["facade_list"]), info["facade_list"]
+
+
+def test_project_refuses_a_missing_footprints_file_at_load(tmp_path):
+    """``skyrig run``'s project file: a facades stage whose ``footprints`` file is missing is refused when the
+    project is loaded (before any stage runs), naming the project file, the line and the option."""
+    from skyrig.pipeline.project import load_project
+
+    for name in ("trajectory.csv", "events.csv", "rig.yaml"):
+        (tmp_path / name).touch()
+    (tmp_path / "images").mkdir()
+    text = ("format: skyrig-project\nversion: 1\ncrs: EPSG:25832\ninputs:\n  trajectory: trajectory.csv\n"
+            "  events: events.csv\n  rig: rig.yaml\n  images: [images]\nstages:\n  georef: {}\n  dsm: {}\n"
+            "  facades: {footprints: cadastre.gpkg, footprint_eave: eave_m}\n")
+    p = tmp_path / "project.yaml"
+    p.write_text(text)
+    with pytest.raises(InputFormatError) as e:
+        load_project(p)
+    assert e.value.field == "stages.facades.footprints" and e.value.line == 12, str(e.value)
+    assert str(p) in str(e.value) and "no such file" in str(e.value) and "cadastre.gpkg" in str(e.value)
+    (tmp_path / "cadastre.gpkg").touch()  # present: the file itself is read when the stage runs
+    assert [s.name for s in load_project(p).stages] == ["georef", "dsm", "facades"]

@@ -44,7 +44,7 @@ def survey():
 def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey, tmp_path):
     """The end wall of a gabled house seen by an oblique: one texture up to the roof line whose texels above the
     eaves lie on the true wall (none above the true roof line), whose rows below the eaves are those of the wall
-    textured to the eaves only, and whose windows - at least those judgeable on the wall cut at the eaves - are
+    textured to the eaves only, and whose windows - at least those judged on the wall cut at the eaves - are
     all within 1 texel of the façade rule; the 3D model draws that wall as one textured pentagon."""
     from skyrig.dense.model import build_model
 
@@ -88,8 +88,8 @@ def test_a_gable_end_wall_is_textured_up_to_its_roof_line(survey, tmp_path):
     # the gable triangle is covered (a one-texel band along the roof lines is left out: it straddles the roof)
     assert t.valid[above].sum() >= 0.6 * on[above].sum() > 0
     assert np.array_equal(t.rgb[k + 1:], p.rgb[1:]) and np.array_equal(t.valid[k + 1:], p.valid[1:])
-    # every window judgeable on the wall cut at the eaves is judgeable here too (with the texel of the image's own
-    # resolution the top row under the eaves already is; at the coarser footprint texel the gable added it)
+    # every window judged on the wall cut at the eaves is judged here too (the judge needs one texel of wall around
+    # a window, so the top row under the eaves is judged on both)
     assert j.windows >= jp.windows > 0, (j, jp)
     assert j.windows_found == j.windows and j.windows_within_1px == j.windows, j
     assert np.max(j.corner_err_px) <= 1.0 and j.offset_norm_px <= 1.0, j

@@ -2,7 +2,7 @@
 in, building blocks, façade textures and a textured 3D model out.
 
 ``run_facades`` reads the DSM (:func:`skyrig.io.dsm_cog.read_dsm_cog`), takes the buildings from given footprints
-(GeoPackage polygons, reprojected to the DSM's CRS: :func:`read_footprint_layer`; heights from the DSM where it
+(GeoPackage polygons, reprojected to the DSM's CRS: :func:`skyrig.io.footprints_gpkg.read_footprint_layer`; heights from the DSM where it
 measured the roof, else from a height attribute: :func:`skyrig.dense.buildings.buildings_from_footprints`; the
 footprints alone, or completing the DSM's buildings) or extracts them from the DSM
 (:func:`skyrig.dense.buildings.extract_buildings`), textures every façade from the images that see it best
@@ -42,6 +42,7 @@ from skyrig.dense.model import Model3D, OrthoRaster
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.georef.eo import ExteriorOrientations
+from skyrig.io.footprints_gpkg import FootprintLayer, read_footprint_layer
 
 logger = logging.getLogger(__name__)
 
@@ -64,137 +65,6 @@ class FacadesOutputs:
     textures: list[FacadeTexture]
     model: Model3D
     summary: dict
-
-
-@dataclass
-class FootprintLayer:
-    """Footprints read from a vector file by :func:`read_footprint_layer`.
-
-    Attributes
-    ----------
-    rings
-        ``(K, 2)`` exterior rings (no closing vertex) in the target frame, one per polygon part.
-    labels
-        ``"<layer>:<feature id>[.<part>]"`` per ring.
-    heights
-        Per ring the values of the height fields asked for (``{field: (N,) float}``; NaN: none given).
-    path, layer
-        Where they came from.
-    """
-
-    rings: list[np.ndarray]
-    labels: list[str]
-    heights: dict[str, np.ndarray]
-    path: Path
-    layer: str
-
-
-def read_footprint_layer(path: str | Path, frame: WorldFrame, layer: str | None = None,
-                         height_fields: Sequence[str] = (), *, max_height_m: float | None = None
-                         ) -> FootprintLayer:
-    """Footprint polygons of a GeoPackage (any OGR vector file) layer in ``frame``'s horizontal CRS, with the values
-    of ``height_fields`` (metres) per footprint.
-
-    ``layer`` None: the layer named ``buildings`` if there is one, else the only polygon layer.  Multi-polygons
-    give one footprint per part (with the feature's heights); inner rings (courtyards) are left out with a
-    warning.  A height field's value must be a finite number of metres; with ``max_height_m`` its absolute value
-    at most that (a height given in centimetres or millimetres is refused).  A feature without a value (NULL) has
-    NaN: its height must then come from the DSM.
-
-    Raises
-    ------
-    InputFormatError
-        Unreadable file, no such layer / several polygon layers, no CRS, no polygons, an empty or invalid polygon
-        (named by feature id), a missing height field (the fields there are listed), a height that is not a number
-        or implausible (feature id and field named).
-    """
-    import pyogrio
-    import pyproj
-    import shapely
-    from pyogrio.errors import DataLayerError, DataSourceError
-    from pyogrio.raw import read
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputFormatError("file not found", p, field="footprints")
-    try:
-        layers = [(str(n), str(t)) for n, t in pyogrio.list_layers(str(p))]
-    except (DataSourceError, DataLayerError, OSError) as exc:
-        raise InputFormatError(f"cannot read the footprints: {exc}", p) from None
-    names = [n for n, _ in layers]
-    if layer is None:
-        poly = [n for n, t in layers if "polygon" in t.lower()]
-        if "buildings" in names:
-            layer = "buildings"
-        elif len(poly) == 1:
-            layer = poly[0]
-        else:
-            raise InputFormatError(f"{len(poly)} polygon layers ({', '.join(poly) or 'none'}): name the footprint "
-                                   "layer", p, field="layer")
-    elif layer not in names:
-        raise InputFormatError(f"no layer {layer!r} (layers: {', '.join(names)})", p, field="layer")
-    try:
-        meta, fids, geoms, data = read(str(p), layer=layer, read_geometry=True, return_fids=True)
-    except (DataSourceError, DataLayerError, OSError) as exc:
-        raise InputFormatError(f"cannot read layer {layer!r}: {exc}", p, field="layer") from None
-    where = f"layer {layer!r}"
-    if not meta.get("crs"):
-        raise InputFormatError(f"{where} states no CRS: its coordinates cannot be placed (assign one, e.g. ogr2ogr "
-                               "-a_srs EPSG:xxxx)", p, field="crs")
-    if geoms is None or len(geoms) == 0:
-        raise InputFormatError(f"no footprint polygons in {where}", p, field="layer")
-    fields = [str(f) for f in meta.get("fields", [])]
-    values: dict[str, np.ndarray] = {}
-    for name in height_fields:
-        if name not in fields:
-            raise InputFormatError(f"{where} has no field {name!r} (fields: {', '.join(fields) or 'none'})", p,
-                                   field=name)
-        col = data[fields.index(name)]
-        vals = np.full(len(col), np.nan)
-        for k, v in enumerate(col):
-            if v is None or (isinstance(v, float) and np.isnan(v)):
-                continue  # NULL: no height given for this feature
-            try:
-                vals[k] = float(v)
-            except (TypeError, ValueError):
-                raise InputFormatError(f"{where} feature {fids[k]}: {name} = {v!r} is not a number of metres", p,
-                                       line=int(fids[k]), field=name) from None
-            if not np.isfinite(vals[k]) or (max_height_m is not None and abs(vals[k]) > max_height_m):
-                raise InputFormatError(f"{where} feature {fids[k]}: {name} = {v!r} is not a plausible height in metres"
-                                       + (f" (at most {max_height_m:g})" if max_height_m is not None else ""), p,
-                                       line=int(fids[k]), field=name)
-        values[name] = vals
-    src = pyproj.CRS.from_user_input(meta["crs"])
-    if frame.kind != "map":
-        raise SkyrigError(f"footprints need a DSM in a map CRS, not a {frame.kind} frame")
-    dst = pyproj.CRS.from_user_input(frame.crs)
-    h_src = src.sub_crs_list[0] if src.is_compound else src
-    tr = None if h_src.equals(dst, ignore_axis_order=True) else pyproj.Transformer.from_crs(h_src, dst, always_xy=True)
-    rings, labels, per = [], [], []
-    for k, wkb in enumerate(geoms):
-        fid = int(fids[k])
-        g = shapely.from_wkb(wkb) if wkb is not None else None
-        if g is None or g.is_empty:
-            raise InputFormatError(f"{where} feature {fid}: empty geometry", p, line=fid, field="geometry")
-        polys = list(g.geoms) if g.geom_type == "MultiPolygon" else [g]
-        for q, poly in enumerate(polys):
-            if poly.geom_type != "Polygon":
-                raise InputFormatError(f"{where} feature {fid}: a {poly.geom_type}, not a polygon", p, line=fid,
-                                       field="geometry")
-            if not poly.is_valid:
-                raise InputFormatError(f"{where} feature {fid}: invalid polygon ({shapely.is_valid_reason(poly)})",
-                                       p, line=fid, field="geometry")
-            if len(poly.interiors):
-                logger.warning("%s %s feature %d: %d inner ring(s) (courtyards) left out: the building is modelled as "
-                               "its outer footprint", p, where, fid, len(poly.interiors))
-            xy = np.asarray(poly.exterior.coords, float)[:-1, :2]
-            if tr is not None:
-                xy = np.column_stack(tr.transform(xy[:, 0], xy[:, 1]))
-            rings.append(xy)
-            labels.append(f"{layer}:{fid}" + (f".{q}" if len(polys) > 1 else ""))
-            per.append(k)
-    idx = np.asarray(per, int)
-    return FootprintLayer(rings, labels, {n: v[idx] for n, v in values.items()}, p, layer)
 
 
 def read_footprints_gpkg(path: str | Path, frame: WorldFrame, layer: str | None = None) -> list[np.ndarray]:
@@ -371,8 +241,7 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     ortho
         An RGB orthophoto (path or :class:`OrthoRaster`) to texture the roofs; default: a flat colour.
     texel_m
-        Façade texel size in the DSM's metres (default, per façade: the best image's own resolution there, a
-        texel of its pixels' footprint area).
+        Façade texel size in the DSM's metres (default: the best image's footprint, per façade).
     max_images
         Images blended into one façade at most.
     image_format

@@ -370,6 +370,10 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
                       lines, files["scale_bars"], files["ties"])
     for spec in project.stages:
+        fp = spec.options.get("footprints")
+        if isinstance(fp, str) and not (path.parent / Path(fp).expanduser()).is_file():
+            raise project.error(f"no such file: {path.parent / Path(fp).expanduser()} (option footprints of stage "
+                                f"{spec.name!r}; relative to the project file's folder)", f"stages.{spec.name}.footprints")
         check = registry[spec.name].check
         if check is not None:
             problem = check(project, spec.options)
