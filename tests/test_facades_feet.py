@@ -146,3 +146,67 @@ def test_extend_dsm_fills_beyond_the_surveyed_area_only():
     assert len(both) > len(only_west)
     with pytest.raises(SkyrigError, match="EPSG:25833"):
         extend_dsm(west, [replace(fine, frame=WorldFrame.map("EPSG:25833"))])
+
+
+def test_extend_dsm_brings_a_biased_dsm_onto_the_dsm_heights():
+    """A DSM of another head carries its own height bias (a constant and a tilt): beyond the surveyed area the
+    extended DSM has the scene's heights (the offset plane fitted over the overlap removed), not the bias."""
+    s = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    big = scene_dsm(s.scene, _grid_around(CRS, s.frame, (60.0, -30.0), (140.0, 30.0), 0.3), CRS)
+    g = big.grid
+    half = g.width // 2
+    inner = GridSpec(g.x0, g.y0, g.cell_m, half, g.height)
+    west = DsmGrid(inner, CRS, np.asarray(big.height)[:, :half].copy(), np.full(inner.shape, 2, np.int16),
+                   np.full(inner.shape, np.nan, np.float32), np.full(inner.shape, 0.05, np.float32),
+                   np.zeros(inner.shape, bool), "ellipsoidal")
+    xx, yy = g.cell_centres()
+    bias = 0.25 + 0.002 * (xx - xx.mean()) - 0.001 * (yy - yy.mean())  # 0.25 m, 2 / 1 mm per m
+    other = replace(big, height=(np.asarray(big.height) + bias).astype(np.float32))
+    r0 = int(round((g.y0 - g.y0) / g.cell_m))
+    for align, limit in ((False, None), (True, 0.02)):
+        ext = extend_dsm(west, [other], align=align)
+        c0 = int(round((g.x0 - ext.grid.x0) / g.cell_m))
+        east = np.asarray(ext.height)[r0 + 5:r0 + g.height - 5, c0 + half + 5:c0 + g.width - 5]
+        d = east - np.asarray(big.height)[5:-5, half + 5:-5]
+        if limit is None:  # as the other DSM has it
+            assert abs(np.median(d) - np.median(bias[5:-5, half + 5:-5])) < 0.01
+            assert ext.metadata["extended_by"]["offsets_m"] == [None]
+        else:
+            assert abs(np.median(d)) < limit and np.percentile(np.abs(d), 95) < 0.05, np.percentile(d, [5, 50, 95])
+            assert abs(ext.metadata["extended_by"]["offsets_m"][0] - 0.25) < 0.1
+
+
+def test_foot_line_fit_ignores_window_sills_taken_for_the_foot():
+    """A third of the chunks (those under a window column) find the window's sill ~1.2 m above the foot: the
+    robust line through the offsets starts from their median, so the foot's offset comes back."""
+    from skyrig.dense.facades import _foot_line, _robust_line
+
+    rng = np.random.default_rng(3)
+    s = np.arange(0.5, 14.0, 1.0)
+    d = -0.25 + rng.normal(0, 0.03, len(s))
+    sill = np.arange(len(s)) % 3 == 1
+    d[sill] += 1.2
+    samples = [(float(a), float(b), 20.0, k % 2) for k, (a, b) in enumerate(zip(s, d))]
+    line = _robust_line(s / 14.0, d, np.full(len(s), 20.0))
+    assert line is not None and abs(line[0] + 0.25) < 0.05 and abs(line[1]) < 0.08, line
+    got = _foot_line(samples, 14.0, 1.5, 0.25, 3, 12.0, 0.2)
+    assert got is not None and abs(got[0] + 0.25) < 0.05 and abs(got[1] + 0.25) < 0.05, got
+
+
+def test_ground_plane_uses_measured_cells_not_filled_ones():
+    """Around a building given beyond the surveyed area, the occlusion surface's filled cells (the DSM's ground
+    estimate, here 0.5 m low) must not pull the ground under its walls: the measured cells give it."""
+    from skyrig.dense.facades import _ground_plane
+
+    g = GridSpec(0.0, 60.0, 0.3, 200, 200)
+    xx, yy = g.cell_centres()
+    truth = 50.0 + 0.01 * xx - 0.02 * yy
+    h = truth.copy()
+    filled = (xx > 30.0)  # the half beyond the survey: extrapolated, 0.5 m low
+    h[filled] -= 0.5
+    dsm = DsmGrid(g, CRS, h.astype(np.float32), np.ones(g.shape, np.int16), np.zeros(g.shape, np.float32),
+                  np.zeros(g.shape, np.float32), filled, "ellipsoidal")
+    fp = np.array([[25.0, 25.0], [37.0, 25.0], [37.0, 33.0], [25.0, 33.0]])
+    f = _ground_plane(dsm, fp, 50.0)
+    probe = np.array([[37.0, 29.0], [25.0, 29.0], [31.0, 25.0]])
+    assert np.allclose(f(probe), 50.0 + 0.01 * probe[:, 0] - 0.02 * probe[:, 1], atol=0.02), f(probe)
