@@ -265,7 +265,10 @@ def command(outdir: str | None, output: str | None) -> None:
                f"{jf.get('walls_seen_in_dsm', '-')}: textured {jf.get('walls_textured_in_dsm', '-')}, within 1 texel "
                f"{jf.get('walls_within_1px_in_dsm', '-')} (the nadir DSM; beyond it the buildings come from the left / right "
                f"oblique DSMs)")
-    if not (jf["seen"] > 0 and jf["offset_median_px"] <= 1.0 and jf["walls_within_1px"] >= 0.75 * jf["walls_seen"]):
+    # every seen wall whose building the nadir DSM measured within 1 texel; beyond it (roofs the DSMs did not
+    # measure) at least three in four
+    if not (jf["seen"] > 0 and jf["offset_median_px"] <= 1.0 and jf["walls_within_1px"] >= 0.75 * jf["walls_seen"]
+            and jf.get("walls_within_1px_in_dsm", 0) == jf.get("walls_seen_in_dsm", -1)):
         raise click.ClickException("demo checks FAILED (façade textures)")
 
     # buildings the DSMs miss (or cut at their border) from a cadastre: the scene's footprints with the errors of a
@@ -285,7 +288,8 @@ def command(outdir: str | None, output: str | None) -> None:
     click.echo(f"with a cadastre ({cadastre.name}: footprints 0.15 m / heights 0.3 m RMS off; footprints used "
                f"{fac_c.summary.get('footprints')}): walls seen {jc['walls_seen']}, textured {jc['walls_textured']}, "
                f"every window within 1 texel {jc['walls_within_1px']}")
-    if not (jc["walls_within_1px"] >= 0.85 * jc["walls_seen"] and jc["walls_within_1px"] >= jf["walls_within_1px"]):
+    # with the cadastre every wall an oblique sees has every window within 1 texel (issue 11's acceptance line)
+    if not (jc["walls_seen"] > 0 and jc["walls_within_1px"] == jc["walls_seen"]):
         raise click.ClickException("demo checks FAILED (façade textures with a cadastre)")
 
     _tumble_circle_step(Path(outdir) / "tumble_circle")
