@@ -996,6 +996,7 @@ class CalqcCalibration:
     geometry: dict[str, Any]
     statistics: dict[str, float] = field(default_factory=dict)
     design: dict[str, Any] = field(default_factory=dict)  # :func:`design_study` of the joint adjustment
+    notes: list[str] = field(default_factory=list)  # what the recipe did differently from the plain steps, and why
 
     def rig_calibration(self, flight: str = "", date: str = "", software: str = "",
                         previous: RigCalibration | None = None) -> RigCalibration:
@@ -1037,7 +1038,7 @@ class CalqcCalibration:
         geom = {k: v for k, v in self.geometry.items() if k not in ("station_level", "heading_per_station_deg")}
         return _plain({"recipe": "calqc", "paper": "004 (Madani, MIDAS)", "frame": self.frame.describe(),
                        "flight": geom, "result": res, "steps": self.steps, "inseparable": self.inseparable,
-                       "inseparable_by_head": self.design,
+                       "inseparable_by_head": self.design, "notes": list(self.notes),
                        "table11": self.table11, "correction_grid": {k: g.to_dict() for k, g in self.grids.items()},
                        "correction_grid_effect": self.grid_effect, "statistics": self.statistics})
 
@@ -1114,6 +1115,7 @@ def calibrate_calqc(
     cal_common = dict(boresight="free", statistics=True)
     steps: list[dict[str, Any]] = []
     inseparable: list[dict[str, Any]] = []
+    notes: list[str] = []
 
     def record(step: str, res: AdjustmentResult, blk: Block, cfg: AdjustConfig) -> None:
         steps.append(_step_row(step, res, blk, cfg))
@@ -1124,7 +1126,20 @@ def calibrate_calqc(
 
     # step 1: IO unlocked, no datum shift, full control, blunder detection
     cfg1 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True, **cal_common)
-    r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift)")
+    try:
+        r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift)")
+    except CalqcFailed as exc:
+        # step 1 has no datum shift by design: with precise control and a GNSS datum shift, data snooping rightly
+        # calls the control-point misfit a model error and stops.  Step 1 only gives the IO its start (its
+        # rejections are not carried on; steps 2-3 estimate the shift with their own snooping), so it is run again
+        # without blunder detection and the stop is kept in the report.
+        if "snooping stopped" not in str(exc):
+            raise
+        log.warning("calqc step 1: %s; step 1 repeated without blunder detection (step 2 estimates the datum shift)",
+                    exc)
+        notes.append(f"step 1: {exc}; repeated without blunder detection (the datum shift is step 2's)")
+        cfg1 = cfg1.with_(snooping=False)
+        r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift, no blunder detection)")
     record("1", r1, block0, cfg1)
     # steps 2 and 3, repeated until the datum shift and the IO stop changing (a stepwise recipe converges
     # to the joint solution only by repetition: step 1 absorbs the datum shift into the IO)
@@ -1270,6 +1285,7 @@ def calibrate_calqc(
              "opposite_directions": float(geom["opposite_directions"]), "grid_cycles": float(grid_cycles),
              "grid_last_io_change_sigma": float(grid_change), **grid_stats}
 
+
     # the three variants per flying height (Tab. 11), correction grid on the lowest block
     table11: dict[str, Any] = {"variants": {}, "blocks": []}
     effect: dict[str, Any] = {}
@@ -1315,7 +1331,7 @@ def calibrate_calqc(
                 cols[name] = _variant_column(r, bb, gsd, v)
             table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}
     return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, steps, table11, grids, effect,
-                            inseparable, geom, stats, design_res)
+                            inseparable, geom, stats, design_res, notes)
 
 
 def _drop_obs(block: Block, keep: NDArray[np.bool_]) -> Block:
@@ -1349,6 +1365,8 @@ def format_tables(report: Mapping[str, Any]) -> str:
                    f"{'on' if s['blunder_detection'] else 'off':>5} {s['sigma_um']:10.2f} {s['rejected']:>8}  "
                    + " ".join(_f(x, "6.3f") for x in s["rms_control_m"]) + "  "
                    + " ".join(_f(x, "6.3f") for x in s["rms_check_m"]))
+    for n in report.get("notes") or []:
+        out.append(f"  note: {n}")
     r = report["result"]
     out.append("boresight corrections (rotation vector about the camera axes, 1/1000 deg, +- sigma):")
     for h, b in r["boresight"].items():
