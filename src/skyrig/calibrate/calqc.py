@@ -89,10 +89,12 @@ slowly along it.  Measured noise-free (bench/calqc.py --noise-free, 0.3 px wave 
 in a-priori sigma): without the grid forward / backward principal distance -4.69 / -2.97, nadir principal point x
 -5.94; after the 4 grid cycles -0.59 / -0.62 / -0.58; after 15 cycles -0.25 / -0.28 / -0.09 but the nadir, left and
 right principal distances drift to +0.34 / +0.35 / +0.26 (Anderson mixing of the cycles gave the same path).  That
-deterministic remainder is the forward / backward focal bias of the seeded runs with the wave (20 seeds: means -0.57
-/ -0.52); without a deformation there is none (20 seeds with the grid: forward / backward focal means +0.05 / -0.06;
-noise-free full-size and reduced flights return every unknown exactly).  Separating it needs the grid's nodes as
-unknowns of the adjustment with their collocation prior (not done).
+deterministic remainder is the forward / backward focal bias of the seeded runs with the wave (20 seeds, 1200 px,
+the recipe's default sigmas: means -0.57 / -0.52; with the a-priori sigmas equal to the simulated noise, which pin
+the common focal / vertical-shift mode better: -0.22 / -0.28); without a deformation there is none (20 seeds with the
+grid, 1200 px: forward / backward focal means -0.14 / -0.11, with the simulated sigmas -0.02 / -0.10; noise-free
+full-size and reduced flights return every unknown exactly, bench/calqc_seeds.py).  Separating it needs the grid's
+nodes as unknowns of the adjustment with their collocation prior (not done).
 
 :func:`midas_calqc_scenario` simulates the boresight flight (``skyrig.simulate`` scenario ``midas``: 2,000 ft and
 4,000 ft, strips in alternating directions) with IO errors, a GNSS datum shift and optionally a smooth image
