@@ -837,17 +837,27 @@ def _offset_plane(dsm: DsmGrid, other: DsmGrid, min_cells: int = 500) -> NDArray
     sc = max(1.4826 * float(np.median(np.abs(z - med))), 0.02)
     u = (z - med) / (4.685 * sc)
     w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
-    coef = np.array([med, 0.0, 0.0])
-    for _ in range(8):
-        if (w > 0).sum() < min_cells // 2:
+    coef = tukey_irls(A, z, w, min_weight=min_cells // 2, sigma_floor=0.02, count_nonzero=True)
+    return None if coef is None else np.r_[coef, xm, ym]
+
+
+def tukey_irls(A: np.ndarray, z: np.ndarray, w: np.ndarray, *, min_weight: float, sigma_floor: float,
+               count_nonzero: bool = False, iterations: int = 8) -> np.ndarray | None:
+    """Robust linear fit ``A coef ~ z`` by iteratively reweighted least squares with Tukey's biweight (c = 4.685
+    robust sigmas, the sigma from the median absolute residual of the weighted observations, at least
+    ``sigma_floor``), from the start weights ``w``; None when the weights' sum (or, with ``count_nonzero``, the
+    number of non-zero weights) falls below ``min_weight``."""
+    coef = None
+    for _ in range(iterations):
+        if ((w > 0).sum() if count_nonzero else w.sum()) < min_weight:
             return None
         sw = np.sqrt(w)
         coef, *_ = np.linalg.lstsq(A * sw[:, None], z * sw, rcond=None)
         res = z - A @ coef
-        sc = max(1.4826 * float(np.median(np.abs(res[w > 0]))), 0.02)
+        sc = max(1.4826 * float(np.median(np.abs(res[w > 0]))), sigma_floor)
         u = res / (4.685 * sc)
         w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
-    return np.r_[coef, xm, ym]
+    return coef
 
 
 def extend_dsm(dsm: DsmGrid, others: Sequence[DsmGrid], *, gap_m: float = 4.0, align: bool = True) -> DsmGrid:

@@ -44,7 +44,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture
+from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture, tukey_irls
 from skyrig.dense.grid import DsmGrid
 from skyrig.errors import SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, local_frame_for
@@ -814,16 +814,9 @@ def _ground_plane(dsm: DsmGrid, footprint: NDArray, fallback: float, ring_m: tup
     start = float(np.percentile(z, 33))
     w = (np.abs(z - start) < 0.5).astype(float)
     A = np.column_stack([np.ones_like(x), x, y])
-    coef = np.array([start, 0.0, 0.0])
-    for _ in range(8):
-        if w.sum() < 15:
-            return const
-        sw = np.sqrt(w)
-        coef, *_ = np.linalg.lstsq(A * sw[:, None], z * sw, rcond=None)
-        r = z - A @ coef
-        sc = max(1.4826 * float(np.median(np.abs(r[w > 0]))), 0.03)
-        u = r / (4.685 * sc)
-        w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    coef = tukey_irls(A, z, w, min_weight=15, sigma_floor=0.03)
+    if coef is None:
+        return const
     cf = coef.copy()
     return lambda xy: cf[0] + (np.asarray(xy, float).reshape(-1, 2) - ctr) @ cf[1:]
 
