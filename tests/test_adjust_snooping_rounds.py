@@ -77,3 +77,12 @@ def test_a_gnss_blunder_is_rejected_alone_and_the_result_equals_baardas(blundere
     assert ("gnss", j) in got
     assert sorted(i for g, i in got if g == "image") == sorted(bad.tolist())
     assert rounds < len(got)
+
+
+def test_block_refuses_a_snooping_round_size_below_one_naming_the_option(tmp_path):
+    from skyrig.errors import OptionError
+    from skyrig.pipeline.orientation import make_block
+
+    with pytest.raises(OptionError, match="--snooping-per-round"):
+        make_block(tmp_path / "b.json", [tmp_path / "m.csv"], eo=tmp_path / "eo.csv", cameras=[tmp_path / "c.yaml"],
+                   snooping_per_round=0)
