@@ -158,32 +158,33 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
             for q in range(a, b):
                 sh = np.float64(sigma_h[q])
                 if sh > 0:
-                    m = _insert_point(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
+                    m = _insert_sorted(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
             if m:
                 _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                            out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
         if do_cloud:
             mv = 0
             for q in range(a, b):
-                mv = _insert_voxel(lk, lpr, li, mv, kz[q], pair[q], q)
+                mv = _insert_sorted(lk, lpr, li, mv, kz[q], pair[q], q)
             out = _voxel_cell(lk, lpr, li, mv, xyz, sigma_3d, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n, o_sup,
                               o_sig, out)
     return out
 
 
 @numba.njit(cache=True, inline="always")
-def _insert_point(lp, lh, ls, m, kp, kh, ks):  # pragma: no cover - compiled
-    """Insert a point into a cell's first ``m`` scratch entries sorted by (pair, height), after its equals
-    (stable); returns ``m + 1``."""
+def _insert_sorted(k1, k2, v, m, a, b, c):  # pragma: no cover - compiled
+    """Insert the entry ``(a, b, c)`` into the first ``m`` entries of the scratch arrays ``k1, k2, v`` kept sorted
+    by ``(k1, k2)``, after its equals (stable); returns ``m + 1``.  A cell's points by (pair, height) for the grid,
+    by (height slice, pair) for the voxels."""
     j = m
-    while j > 0 and (lp[j - 1] > kp or (lp[j - 1] == kp and lh[j - 1] > kh)):
-        lp[j] = lp[j - 1]
-        lh[j] = lh[j - 1]
-        ls[j] = ls[j - 1]
+    while j > 0 and (k1[j - 1] > a or (k1[j - 1] == a and k2[j - 1] > b)):
+        k1[j] = k1[j - 1]
+        k2[j] = k2[j - 1]
+        v[j] = v[j - 1]
         j -= 1
-    lp[j] = kp
-    lh[j] = kh
-    ls[j] = ks
+    k1[j] = a
+    k2[j] = b
+    v[j] = c
     return m + 1
 
 
@@ -307,22 +308,6 @@ def _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, o
     out_ch2[c] = hu / wu
     out_cs2[c] = 1.0 / np.sqrt(wu)
     out_cn2[c] = min(nu, 32767)
-
-
-@numba.njit(cache=True, inline="always")
-def _insert_voxel(lk, lpr, li, m, kk, kp, q):  # pragma: no cover - compiled
-    """Insert point ``q`` into a cell's first ``m`` scratch entries sorted by (height slice, pair), after its
-    equals (stable); returns ``m + 1``."""
-    j = m
-    while j > 0 and (lk[j - 1] > kk or (lk[j - 1] == kk and lpr[j - 1] > kp)):
-        lk[j] = lk[j - 1]
-        lpr[j] = lpr[j - 1]
-        li[j] = li[j - 1]
-        j -= 1
-    lk[j] = kk
-    lpr[j] = kp
-    li[j] = q
-    return m + 1
 
 
 @numba.njit(cache=True, inline="always")
