@@ -783,7 +783,7 @@ def virtual_flight(block: Block, kind: str, margin_px: float = -2.0) -> Block:
     station has GNSS and IMU observations like the flown ones (same sigmas).  Its covariance is the design's: what
     the calibration unknowns' precision and correlations would be had that flight been flown too
     (:func:`design_study`)."""
-    from skyrig.geometry.rotations import matrix_from_rotvec
+    from skyrig.adjust.model import Model, State
 
     if kind not in CANDIDATE_FLIGHTS:
         raise SkyrigError(f"virtual flight {kind!r}: expected one of {sorted(CANDIDATE_FLIGHTS)}")
@@ -796,11 +796,10 @@ def virtual_flight(block: Block, kind: str, margin_px: float = -2.0) -> Block:
         C[:, 2] = g + 2.0 * (C[:, 2] - g)
     else:
         R = np.einsum("ij,sjk->sik", _rot_z(np.pi if kind == "opposite-direction" else 0.5 * np.pi), R)
-    # the new images: one per flown image, on the new station
-    st = b.image_station
-    M = b.image_rotation @ np.stack([matrix_from_rotvec(v) for v in b.head_boresight])[b.image_head]
-    Rw = R[st] @ M
-    Cw = C[st] + np.einsum("nij,nj->ni", R[st], b.image_offset)
+    # the new images: one per flown image, on the new station (the adjustment's own image poses of the moved stations)
+    moved = State.from_block(b)
+    moved.R, moved.C = R, C
+    Rw, Cw, _ = Model(b, AdjustConfig()).camera_poses(moved)
     sig = np.asarray(b.obs_sigma_px, float)
     sig_cam = {}
     for ci in range(len(b.cameras)):
