@@ -68,7 +68,8 @@ _EXECUTOR = {"kind", "workers", "scheduler"}
 class Option:
     """One option of a stage: default, type and help (a registry entry's ``options`` maps names to these).
 
-    ``kind``: ``"float"``, ``"int"``, ``"bool"``, ``"str"``, ``"choice"`` (one of ``choices``), ``"floats"``
+    ``kind``: ``"float"``, ``"int"``, ``"bool"``, ``"str"``, ``"file"`` (a path relative to the project file's
+    folder; the file must exist when the project is loaded), ``"choice"`` (one of ``choices``), ``"floats"``
     (a list of ``n`` numbers, any length when ``n`` is None) or ``"strs"`` (a list of text).  ``None`` is
     accepted when ``nullable`` (the default is then often None = "decided by the stage")."""
 
@@ -99,7 +100,7 @@ class Option:
             if not isinstance(value, bool):
                 raise ValueError(f"expected true or false, got {value!r}")
             return value
-        if k == "str":
+        if k in ("str", "file"):
             if not isinstance(value, str) or not value.strip():
                 raise ValueError(f"expected text, got {value!r}")
             return value
@@ -355,6 +356,10 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
             if oname in opts_in:
                 try:
                     opts[oname] = opt.check(opts_in[oname])
+                    if opt.kind == "file" and opts[oname] is not None:
+                        f = path.parent / Path(opts[oname]).expanduser()
+                        if not f.is_file():
+                            raise ValueError(f"no such file: {f} (relative to the project file's folder)")
                 except ValueError as exc:
                     raise err(str(exc), opts_in, f"{kp}.{oname}", oname) from None
             else:
@@ -370,10 +375,6 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
                       lines, files["scale_bars"], files["ties"])
     for spec in project.stages:
-        fp = spec.options.get("footprints")
-        if isinstance(fp, str) and not (path.parent / Path(fp).expanduser()).is_file():
-            raise project.error(f"no such file: {path.parent / Path(fp).expanduser()} (option footprints of stage "
-                                f"{spec.name!r}; relative to the project file's folder)", f"stages.{spec.name}.footprints")
         check = registry[spec.name].check
         if check is not None:
             problem = check(project, spec.options)

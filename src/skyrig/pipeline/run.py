@@ -882,7 +882,7 @@ register_stage(Stage(
     "facades", "Buildings, façade textures and a textured 3D model (GLB, OBJ, viewer) from the DSM and the images.",
     _facades,
     options={"heads": Option([], "strs", "rig heads / image-name parts to texture from; [] = all"),
-             "footprints": Option(None, "str", "GeoPackage of building footprints, relative to the project "
+             "footprints": Option(None, "file", "GeoPackage of building footprints, relative to the project "
                                   "file (default: from the DSM)",
                                   nullable=True),
              "footprint_layer": Option(None, "str", "layer of footprints (default: 'buildings', else the only "
