@@ -1,7 +1,7 @@
 """Compiled kernels of the dense chain (numba).
 
-Fusion: a counting sort by cell that copies each point's data into its cell's contiguous rows
-(:func:`count_cells`, :func:`scatter_points`), then small sorts inside each cell (:func:`fuse_sorted`: the grid
+Fusion: a counting sort by cell of the points' indices (:func:`grid_cells` counts, :func:`scatter_index` places),
+then small sorts inside each cell (:func:`fuse_sorted`: the grid
 and the voxel cloud of a cell from one read of its points).  The rules are those documented in
 :mod:`skyrig.dense.fusion`; these kernels only make them O(N) in the number of points instead of several global
 sorts.  Every result of a cell depends only on that cell's points (in their input order for ties), so a cell gets
@@ -15,64 +15,37 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def count_cells(cell, counts):  # pragma: no cover - compiled
-    """Add each point's cell (0..ncells-1; < 0: none) to ``counts[cell + 1]`` (``(ncells + 1,)``; its cumulative
-    sum is then every cell's start offset); returns the number of points with a cell."""
-    k = 0
-    for i in range(cell.shape[0]):
-        if cell[i] >= 0:
-            counts[cell[i] + 1] += 1
-            k += 1
-    return k
-
-
-@numba.njit(cache=True)
-def scatter_points(cell, pos, pair, pair_const, xyz, sigma_h, kz, sigma_3d, rgb, normal,
-                   o_pair, o_xyz, o_sh, o_kz, o_s3, o_rgb, o_n):  # pragma: no cover - compiled
-    """Counting sort, second pass: copy each point with a cell to row ``pos[cell]`` of the output arrays and
-    advance ``pos[cell]`` (stable: a cell keeps its points in input order, over several calls too).  ``pair``
-    (or ``pair_const`` when it is empty); ``kz``, ``sigma_3d``, ``rgb``, ``normal`` are copied when not empty.
-    Reads are sequential; each cell's points end up contiguous for :func:`fuse_sorted`."""
-    has_pair = pair.shape[0] > 0
-    has_kz = kz.shape[0] > 0
-    has_cloud = sigma_3d.shape[0] > 0
+def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
+    """Counting sort, second pass: write each point's index ``base + i`` (its row in the batches concatenated) to
+    row ``pos[cell]`` of ``order`` and advance ``pos[cell]`` (stable: a cell keeps its points in input order, over
+    several calls too).  Only the index moves (one small write per point; the points' data stay where they are and
+    :func:`fuse_sorted` reads them through ``order``): copying every field of a point to its cell's rows wrote to as
+    many scattered places as there are fields."""
     for i in range(cell.shape[0]):
         c = cell[i]
         if c < 0:
             continue
         j = pos[c]
         pos[c] = j + 1
-        o_pair[j] = pair[i] if has_pair else pair_const
-        o_xyz[j, 0] = xyz[i, 0]
-        o_xyz[j, 1] = xyz[i, 1]
-        o_xyz[j, 2] = xyz[i, 2]
-        o_sh[j] = sigma_h[i]
-        if has_kz:
-            o_kz[j] = kz[i]
-        if has_cloud:
-            o_s3[j] = sigma_3d[i]
-            o_rgb[j, 0] = rgb[i, 0]
-            o_rgb[j, 1] = rgb[i, 1]
-            o_rgb[j, 2] = rgb[i, 2]
-            o_n[j, 0] = normal[i, 0]
-            o_n[j, 1] = normal[i, 1]
-            o_n[j, 2] = normal[i, 2]
+        order[j] = base + i
 
 
 @numba.njit(cache=True)
-def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0, bounds=np.zeros(0)):  # pragma: no cover
+def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile=0, bounds=np.zeros(0),
+               counts=np.zeros(0, np.int64)):  # pragma: no cover - compiled
     """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
-    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``); with ``voxel_z_m > 0``
-    also each point's height slice ``floor(z / voxel_z_m)`` (else an empty array).  ``tile > 0``: the index in
+    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``).  ``tile > 0``: the index in
     ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort by it keeps nearby
     cells' points near each other in memory.  ``bounds`` ``(xmin, ymin, xmax, ymax)``, if given: only points with
-    ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell."""
+    ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell.  ``counts`` (``(ncells + 1,)``), if given: ``counts[cell + 1]`` is
+    incremented for each point with a cell (its cumulative sum is then every cell's start offset).  Returns the cells and the number of points with a cell."""
     n = x.shape[0]
     test_sigma = sigma.shape[0] > 0
     test_bounds = bounds.shape[0] == 4
+    do_count = counts.shape[0] > 0
     cell = np.empty(n, np.int64)
-    kz = np.empty(n if voxel_z_m > 0 else 0, np.int64)
     ntc = (W + tile - 1) // tile if tile > 0 else 0
+    k = 0
     for i in range(n):
         cell[i] = -1
         xi, yi, zi = x[i], y[i], z[i]
@@ -88,12 +61,14 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, voxel_z_m, tile=0, bounds=n
             continue
         r, c = int(row), int(col)
         if tile > 0:
-            cell[i] = ((r // tile) * ntc + c // tile) * tile * tile + (r % tile) * tile + c % tile
+            q = ((r // tile) * ntc + c // tile) * tile * tile + (r % tile) * tile + c % tile
         else:
-            cell[i] = r * W + c
-        if voxel_z_m > 0:
-            kz[i] = int(np.floor(zi / voxel_z_m))
-    return cell, kz
+            q = r * W + c
+        cell[i] = q
+        k += 1
+        if do_count:
+            counts[q + 1] += 1
+    return cell, k
 
 
 @numba.njit(cache=True, inline="always")
@@ -111,13 +86,13 @@ def tiled_cell(key, W, tile):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support, min_ratio,
-                max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
+def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support,
+                min_ratio, max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
                 o_xyz, o_rgb, o_n, o_sup, o_sig, W=0, tile=0, out_ch2=np.zeros(0, np.float32),
                 out_cs2=np.zeros(0, np.float32), out_cn2=np.zeros(0, np.int16)):  # pragma: no cover - compiled
-    """Grid and/or voxel fusion of points sorted by cell (cell ``c``'s points are rows ``start[c]:start[c+1]``,
-    in input order; :func:`scatter_points`; with ``tile > 0`` ``c`` is an index in blocks of cells of a grid ``W``
-    cells wide, see :func:`grid_cells`).
+    """Grid and/or voxel fusion of points sorted by cell: cell ``c``'s points are ``order[start[c]:start[c+1]]``
+    (rows of the point arrays ``pair, xyz, ...``, in input order; :func:`scatter_index`); with ``tile > 0`` ``c`` is
+    an index in blocks of cells of a grid ``W`` cells wide, see :func:`grid_cells`.
 
     Grid (``do_grid``, see :func:`skyrig.dense.fusion.fuse_grid`): the points with ``sigma_h > 0``, heights
     ``xyz[:, 2]``, gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with
@@ -129,9 +104,9 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
     both), the lower camp there and the upper one in ``out_ch2``, ``out_cs2``, ``out_cn2`` (when given: size > 0).
 
     Cloud (``do_cloud``, see :func:`skyrig.dense.fusion.fuse_cloud`): every point of a cell grouped by its vertical
-    voxel index ``kz``; a voxel with points of at least ``min_support`` distinct pairs becomes one point
-    (precision ``sigma_3d``); normals are rotated by ``rot`` (``(3, 3)``, in float64, rounded to float32) before they
-    are averaged.  Writes ``o_*`` row by row and returns the number of rows written."""
+    voxel index ``floor(z / voxel_z_m)``; a voxel with points of at least ``min_support`` distinct pairs becomes one
+    point (precision ``sigma_3d``); normals are rotated by ``rot`` (``(3, 3)``, in float64, rounded to float32)
+    before they are averaged.  Writes ``o_*`` row by row and returns the number of rows written."""
     ncells = start.shape[0] - 1
     maxm = 0
     for c in range(ncells):
@@ -156,16 +131,18 @@ def fuse_sorted(start, pair, xyz, sigma_h, kz, sigma_3d, rgb, normal, rot, k_sig
         if do_grid:
             m = 0
             for q in range(a, b):
-                sh = np.float64(sigma_h[q])
+                i = order[q]
+                sh = np.float64(sigma_h[i])
                 if sh > 0:
-                    m = _insert_sorted(lp, lh, ls, m, pair[q], xyz[q, 2], sh)
+                    m = _insert_sorted(lp, lh, ls, m, pair[i], xyz[i, 2], sh)
             if m:
                 _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                            out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
         if do_cloud:
             mv = 0
             for q in range(a, b):
-                mv = _insert_sorted(lk, lpr, li, mv, kz[q], pair[q], q)
+                i = order[q]
+                mv = _insert_sorted(lk, lpr, li, mv, int(np.floor(xyz[i, 2] / voxel_z_m)), pair[i], i)
             out = _voxel_cell(lk, lpr, li, mv, xyz, sigma_3d, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n, o_sup,
                               o_sig, out)
     return out

@@ -130,13 +130,13 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
 class CellSorter:
     """Points of several batches (e.g. blocks of stereo pairs) sorted by the cell of a grid they fall in, for
     :meth:`fuse`: a counting sort over all batches (stable: a cell keeps its points in the order they were
-    added), each point's data copied once into the cell's contiguous rows.
+    added) of the points' indices only; the fusion reads each cell's points through them.
 
-    ``voxel_z_m`` > 0 also gives each point its vertical voxel index ``floor(z / voxel_z_m)``; ``cloud`` keeps
+    ``voxel_z_m`` > 0 also bins each point vertically by ``floor(z / voxel_z_m)`` for the cloud; ``cloud`` keeps
     what cloud fusion needs (``sigma_3d``, colour, normal)."""
 
-    #: cells are sorted in blocks of TILE x TILE (a block's points lie together in memory: scattering the points of
-    #: a stereo pair, whose pixels run across the grid in any direction, then writes near where it last wrote)
+    #: cells are sorted in blocks of TILE x TILE (a block's points lie together in the sorted order: the fusion,
+    #: which reads each cell's points where the batches left them, then reads near where it last read)
     TILE = 16
 
     def __init__(self, grid: GridSpec, voxel_z_m: float, cloud: bool) -> None:
@@ -154,25 +154,17 @@ class CellSorter:
         (``test_sigma``: points whose ``sigma_h`` is not > 0 are left out here already), and for a cloud the 3-D
         precision, colour and normal.  ``bounds`` ``(xmin, ymin, xmax, ymax)``: only points with ``xmin <= x < xmax``
         and ``ymin < y <= ymax`` are taken (a ground tile's).  Returns the number of points taken."""
-        from skyrig.dense._kernels import count_cells, grid_cells
+        from skyrig.dense._kernels import grid_cells
 
         g = self.grid
         H, W = g.shape
         p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
-        cell, kz = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
-                              float(g.y0), float(g.cell_m), H, W, self.voxel_z_m, self.TILE,
-                              np.zeros(0) if bounds is None else np.array(bounds, np.float64))
-        k = count_cells(cell, self.counts)
-        if isinstance(pair, (int, np.integer)):
-            pa, pc = np.zeros(0, np.int64), int(pair)
-        else:
-            pa, pc = np.ascontiguousarray(pair, np.int64), 0
-        if self.cloud:
-            cl = (np.ascontiguousarray(sigma_3d), np.ascontiguousarray(rgb, np.uint8),
-                  np.ascontiguousarray(normal, np.float32))
-        else:
-            cl = (np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
-        self.batches.append((cell, kz, pa, pc, p, np.ascontiguousarray(sigma_h)) + cl)
+        cell, k = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
+                             float(g.y0), float(g.cell_m), H, W, self.TILE,
+                             np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts)
+        pa = np.asarray(pair, np.int64) if not isinstance(pair, (int, np.integer)) else int(pair)
+        cl = (sigma_3d, rgb, normal) if self.cloud else (None, None, None)
+        self.batches.append((cell, pa, p, np.asarray(sigma_h)) + cl)
         return int(k)
 
     def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
@@ -181,25 +173,36 @@ class CellSorter:
         cand_support, cand2_height, cand2_sigma, cand2_support)``, see :func:`fuse_grid`) and, for a cloud, voxel fusion (``(xyz, rgb, normal, support,
         sigma)``, see :func:`fuse_cloud`; rows ordered by blocks of cells, then cell, then height) of the points
         added, in one pass over the cells."""
-        from skyrig.dense._kernels import fuse_sorted, scatter_points
+        from skyrig.dense._kernels import fuse_sorted, scatter_index
 
         H, W = self.grid.shape
         start = np.cumsum(self.counts)
         n = int(start[-1])
-        pair = np.empty(n, np.int64)
-        xyz = np.empty((n, 3))
-        sh = np.empty(n, self.batches[0][5].dtype if self.batches else np.float64)
-        kz = np.empty(n if self.voxel_z_m > 0 else 0, np.int64)
+        bt = self.batches
+        self.batches = []
+        lens = [len(b[0]) for b in bt]
+        total = sum(lens)
+        order = np.empty(n, np.int32 if total < 2 ** 31 else np.int64)
+        pos = start[:-1].copy()
+        base = 0
+        for b, m in zip(bt, lens):
+            scatter_index(b[0], pos, base, order)
+            base += m
+
+        def cat(k: int, shape: tuple, dtype) -> NDArray:  # type: ignore[no-untyped-def]
+            return np.concatenate([np.asarray(b[k], dtype).reshape((-1,) + shape) for b in bt]) if bt else \
+                np.zeros((0,) + shape, dtype)
+
+        pair = np.concatenate([np.full(m, b[1], np.int64) if isinstance(b[1], int) else b[1] for b, m in zip(bt, lens)]) \
+            if bt else np.zeros(0, np.int64)
+        xyz = cat(2, (3,), np.float64)
+        sh = cat(3, (), bt[0][3].dtype if bt else np.float64)
         if self.cloud:
-            s3 = np.empty(n, self.batches[0][6].dtype if self.batches else np.float32)
-            rgb, nrm = np.empty((n, 3), np.uint8), np.empty((n, 3), np.float32)
+            s3 = cat(4, (), bt[0][4].dtype if bt else np.float32)
+            rgb, nrm = cat(5, (3,), np.uint8), cat(6, (3,), np.float32)
         else:
             s3, rgb, nrm = np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32)
-        pos = start[:-1].copy()
-        for cell, kzb, pa, pc, p, sg, s3b, rgbb, nb in self.batches:
-            scatter_points(cell, pos, pa, pc, p, sg.astype(sh.dtype, copy=False), kzb, s3b.astype(s3.dtype, copy=False),
-                           rgbb, nb, pair, xyz, sh, kz, s3, rgb, nrm)
-        self.batches = []
+        del bt
         m = H * W
         out = [np.full(m, np.nan, np.float32), np.zeros(m, np.int16), np.full(m, np.nan, np.float32),
                np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32),
@@ -209,10 +212,10 @@ class CellSorter:
         co = (np.empty((nc, 3)), np.empty((nc, 3), np.uint8), np.empty((nc, 3), np.float32), np.empty(nc, np.int16),
               np.empty(nc, np.float32))
         rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
-        k = fuse_sorted(start, pair, xyz, sh, kz, s3, rgb, nrm, rot, float(cfg.k_sigma),
-                        float(cfg.min_tol_cells * self.grid.cell_m), int(cfg.min_support), float(cfg.min_support_ratio),
-                        float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers, self.cloud, *out[:7], *co, W,
-                        self.TILE, *out[7:])
+        k = fuse_sorted(start, order, pair, xyz, sh, self.voxel_z_m if self.voxel_z_m > 0 else 1.0, s3, rgb, nrm, rot,
+                        float(cfg.k_sigma), float(cfg.min_tol_cells * self.grid.cell_m), int(cfg.min_support),
+                        float(cfg.min_support_ratio), float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers,
+                        self.cloud, *out[:7], *co, W, self.TILE, *out[7:])
         layers = tuple(a.reshape(self.grid.shape) for a in out) if grid_layers else None
         cloud = tuple(a[:k] for a in co) if self.cloud else None
         return layers, cloud
