@@ -196,6 +196,8 @@ def _block_from_state(block: Block, model: Model, s: State) -> Block:
     out.strip_shift = s.sshift.copy()
     out.strip_drift = s.sdrift.copy()
     out.point_xyz = s.X.copy()
+    if s.grid is not None and out.observations.get("image_grid") is not None:  # estimated correction grids
+        out.observations["image_grid"] = out.observations["image_grid"].with_values(s.grid)
     if model.layout.act is not None:
         out.actuator_correction = pad_actuator(s.act, len(block.head_name), model.layout.act.shape[1])  # type: ignore[arg-type]
     if model._act_images.size:  # nominal mounting at the adjusted beta correction (without the boresight)

@@ -55,12 +55,13 @@ class ParameterModes:
     actuator_curve: Mode = "fixed"  # Fourier correction curve of actuated heads
     actuator_fourier_order: int = 0  # order N of that curve
     actuator_curve_sigma_rad: float = 1e-3
+    image_grid: Mode = "fixed"  # node values of the correction grids in observations["image_grid"]
 
     def __post_init__(self) -> None:
         if int(self.actuator_fourier_order) < 0:
             raise ValueError(f"AdjustConfig.actuator_fourier_order must be >= 0, got {self.actuator_fourier_order}")
         for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift",
-                     "actuator", "actuator_curve"):
+                     "actuator", "actuator_curve", "image_grid"):
             if getattr(self, name) not in MODES:
                 raise ValueError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
         if self.points not in ("free", "fixed"):
@@ -227,6 +228,10 @@ class AdjustConfig:
         Mode, order N and prior sigma (rad) of the Fourier series of the periodic boresight curve
         (roll, pitch, yaw corrections, orders 1..N; the constant term is the head's boresight).  The
         first order in roll/pitch is the same motion as the actuator offset: estimate one of them.
+    image_grid
+        Mode of the node values of the block's correction grids (``observations["image_grid"]``,
+        :mod:`skyrig.adjust.factors.image_grid`): ``"fixed"`` (default: applied as known corrections),
+        ``"weighted"`` (unknowns with each grid's collocation prior ``cov_px2``) or ``"free"`` (no prior).
     """
 
     poses: Mode = "free"
@@ -270,6 +275,7 @@ class AdjustConfig:
     actuator_curve: Mode = "fixed"
     actuator_fourier_order: int = 0
     actuator_curve_sigma_rad: float = 1e-3
+    image_grid: Mode = "fixed"
 
     def __post_init__(self) -> None:
         for cls in PARTS.values():  # each part checks its own fields

@@ -46,6 +46,12 @@ from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotve
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
 
+def _grids_of(b: Block):  # type: ignore[no-untyped-def]
+    from skyrig.adjust.factors.image_grid import grids_of
+
+    return grids_of(b)
+
+
 def _expmap(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return matrix_from_rotvec(v)
 
@@ -69,18 +75,25 @@ class State:
     X: NDArray[np.float64]
     #: ``(H, 2 + 6 N)`` actuator corrections of actuated heads (see ``Block.actuator_correction``)
     act: NDArray[np.float64] | None = None
+    #: node values of the correction grids, flat (:meth:`skyrig.adjust.factors.image_grid.ImageGrids.values`);
+    #: None without grids
+    grid: NDArray[np.float64] | None = None
 
     @classmethod
     def from_block(cls, b: Block) -> "State":
+        from skyrig.adjust.factors.image_grid import grids_of
+
+        g = grids_of(b)
         return cls(b.station_rotation.copy(), b.station_centre.copy(), [c.intrinsics.copy() for c in b.cameras],
                    b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
                    b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
-                   None if b.actuator_correction is None else b.actuator_correction.copy())
+                   None if b.actuator_correction is None else b.actuator_correction.copy(),
+                   None if g is None else g.values())
 
     def copy(self) -> "State":
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
                      self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
-                     None if self.act is None else self.act.copy())
+                     None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy())
 
 
 def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
@@ -117,6 +130,8 @@ class Layout:
     rpoint: NDArray[np.int64] | None = None
     #: ``(H, 2 + 6 N)`` columns of the actuator corrections of actuated heads (-1: fixed / not actuated)
     act: NDArray[np.int64] | None = None
+    #: columns of the correction grids' node values (flat, as ``State.grid``); None when not estimated
+    grid: NDArray[np.int64] | None = None
 
     @classmethod
     def build(cls, b: Block, cfg: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> "Layout":
@@ -176,6 +191,21 @@ class Layout:
                     act_cols[h, j] = n
                     labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))  # type: ignore[index]
                     n += 1
+        grid_cols = None
+        grids = _grids_of(b)
+        if grids is not None and cfg.image_grid != "fixed":
+            parts = []
+            for g in grids.grids:
+                used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()
+                ny, nx = len(g.y_px), len(g.x_px)
+                names = [f"{ax}{iy}_{ix}" for iy in range(ny) for ix in range(nx) for ax in "xy"]
+                cols = np.full(2 * nx * ny, -1, np.int64)
+                if used:
+                    cols = np.arange(n, n + cols.size, dtype=np.int64)
+                    n += cols.size
+                    labels.extend(("image_grid", g.camera, nm) for nm in names)
+                parts.append(cols)
+            grid_cols = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         act = np.ones(b.n_points, bool) if point_active is None else np.asarray(point_active, bool).copy()
         rpoint = None
         if cfg.points != "fixed" and b.n_distances:
@@ -191,7 +221,7 @@ class Layout:
         else:
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
         return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels,
-                   rpoint, act_cols)
+                   rpoint, act_cols, grid_cols)
 
     @property
     def has_rpoint(self) -> bool:
@@ -219,6 +249,8 @@ class Layout:
         out.sdrift = s.sdrift + step(self.sdrift)
         if self.act is not None and (self.act >= 0).any():
             out.act = pad_actuator(s.act, self.act.shape[0], self.act.shape[1]) + step(self.act)
+        if self.grid is not None and s.grid is not None:
+            out.grid = s.grid + step(self.grid)
         if self.n_p or self.has_rpoint:
             out.X = s.X.copy()
         if self.n_p:

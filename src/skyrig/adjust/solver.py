@@ -200,6 +200,9 @@ def _units(cols: NDArray[np.int64], group: NDArray[np.int64]) -> tuple[NDArray[n
     n_img = int(group.max()) + 1 if len(group) else 0
     gcols = np.full((n_img, cols.shape[1]), -1, np.int64)
     gcols[group] = cols
+    if not np.array_equal(gcols[group], cols):  # rows of one image differ (per-row columns: correction-grid
+        ucols, row_unit = np.unique(cols, axis=0, return_inverse=True)  # nodes): a unit per distinct column set
+        return ucols, row_unit.reshape(-1).astype(np.int64)
     ucols, img_unit = np.unique(gcols, axis=0, return_inverse=True)
     return ucols, img_unit.reshape(-1)[group].astype(np.int64)
 

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.factors import register
+from skyrig.adjust.factors.image_grid import bilinear_weights, grids_of
 from skyrig.adjust.factors.base import (
     BlockError,
     Factor,
@@ -114,6 +115,11 @@ class ImageCache:
     #: shared by the factors of every state)
     frame_cols: NDArray[np.int64] | None = None
     frame_point: NDArray[np.int64] | None = None
+    #: correction grids (:mod:`skyrig.adjust.factors.image_grid`): per row the positions in ``State.grid`` of
+    #: the x values of its cell's 4 nodes (y = x + 1; -1: the camera has no grid) and their bilinear weights at
+    #: the measured pixel; None without grids
+    grid_idx: NDArray[np.int64] | None = None
+    grid_w: NDArray[np.float64] | None = None
 
 
 #: rows per chunk of the camera-frame points (no (N, 3, 3) gather of the rotations)
@@ -202,7 +208,21 @@ class Image(ObservationType):
         obs_cam = b.image_camera[b.obs_image]
         groups = [(c, np.flatnonzero(obs_cam == c)) for c in range(len(b.cameras)) if not bal[c]]
         groups = [(c, idx) for c, idx in groups if idx.size]
-        return ImageCache(W, red_cols, red_rows, red_idx, bal, obs_cam, groups, np.flatnonzero(bal[obs_cam]))
+        gi = gw = None
+        grids = grids_of(b)
+        if grids is not None:
+            gi = np.full((b.n_observations, 4), -1, np.int64)
+            gw = np.zeros((b.n_observations, 4))
+            off = grids.offsets()
+            cam_idx = {c.name: j for j, c in enumerate(b.cameras)}
+            for k, g in enumerate(grids.grids):
+                rows = np.flatnonzero(obs_cam == cam_idx[g.camera])
+                if rows.size:
+                    idx, w = bilinear_weights(g.x_px, g.y_px, b.obs_pixel[rows])
+                    gi[rows] = off[k] + 2 * idx
+                    gw[rows] = w
+        return ImageCache(W, red_cols, red_rows, red_idx, bal, obs_cam, groups, np.flatnonzero(bal[obs_cam]),
+                          grid_idx=gi, grid_w=gw)
 
     def present(self, model: "Model") -> bool:
         return True  # always the first factor (possibly empty)
@@ -216,7 +236,7 @@ class Image(ObservationType):
         bal_kernel, chain_kernel = kernels._BAL_KERNEL, kernels._CHAIN_KERNEL  # type: ignore[attr-defined]
         ic: ImageCache = model.cache[self.name]  # type: ignore[assignment]
         if (bal_kernel is not None and ic.bal.size and ic.bal.all() and model.block.n_observations
-                and ic.W is None and ic.red_cols is None):
+                and ic.W is None and ic.red_cols is None and ic.grid_idx is None):
             return self._bal(model, s, jac, bal_kernel)
         return self._numpy(model, s, jac, chain_kernel)
 
@@ -226,7 +246,13 @@ class Image(ObservationType):
                | (model._icols >= 0).any(axis=1)[b.image_camera])
         if lay.act is not None:
             img |= any_on(lay.act)[b.image_head]  # type: ignore[index]
-        return img[b.obs_image] | model.estimated_points()[b.obs_point]
+        out = img[b.obs_image] | model.estimated_points()[b.obs_point]
+        ic = model.cache[self.name]
+        if lay.grid is not None and ic.grid_idx is not None:  # type: ignore[attr-defined]
+            gi = ic.grid_idx  # type: ignore[attr-defined]
+            on = np.where(gi >= 0, lay.grid[np.maximum(gi, 0)] >= 0, False).any(axis=1)
+            out = out | on
+        return out
 
     def label(self, block: "Block", i: int) -> str:
         return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
@@ -264,6 +290,15 @@ class Image(ObservationType):
                 d_pc[idx] = dpc  # type: ignore[index]
                 if d_in is not None:
                     d_in[idx, :, :3] = din
+        grid_on = ic.grid_idx is not None and s.grid is not None
+        if grid_on:  # the correction grids at the measured pixels (observed = projected + grid)
+            gi, gw = ic.grid_idx, ic.grid_w
+            has = gi >= 0
+            gx = s.grid[np.maximum(gi, 0)] * has  # type: ignore[index]
+            gy = s.grid[np.maximum(gi, 0) + 1] * has  # type: ignore[index]
+            pred[:, 0] += (gw * gx).sum(axis=1)
+            pred[:, 1] += (gw * gy).sum(axis=1)
+        grid_cols_on = grid_on and lay.grid is not None
         sig = b.obs_sigma_px
         w = model.weights["image"]
         Wm = ic.W
@@ -304,6 +339,8 @@ class Image(ObservationType):
         red = ic.red_cols is not None and ic.red_cols.shape[1] > 0
         if red:
             widths.append(("red", ic.red_cols.shape[1]))  # type: ignore[union-attr]
+        if grid_cols_on:
+            widths.append(("grid", 8))
         offs: dict[str, slice] = {}
         o0 = 0
         for name, wdt in widths:
@@ -354,6 +391,15 @@ class Image(ObservationType):
             ext[...] = 0.0
             rows = ic.red_rows
             ext[rows[:, None, None], np.arange(2)[None, :, None], ic.red_idx[:, None, :]] = jX[rows]  # type: ignore[index]
+        if grid_cols_on:  # d computed / d node values: the bilinear weights (x rows on x nodes, y on y)
+            jg = np.zeros((n, 2, 8))
+            jg[:, 0, :4] = ic.grid_w
+            jg[:, 1, 4:] = ic.grid_w
+            if Wm is None:
+                jc[:, :, offs["grid"]] = jg * isig  # type: ignore[index]
+            else:
+                jc[:, :, offs["grid"]] = Wm @ jg  # type: ignore[index]
+            jc[bad, :, offs["grid"]] = 0.0  # type: ignore[index]
         if jc is not None:
             f.jc = jc
             if ic.frame_cols is None:  # the columns depend on the layout only
@@ -372,6 +418,12 @@ class Image(ObservationType):
                     colblocks.append(cols)
                 if red:
                     colblocks.append(ic.red_cols)
+                if grid_cols_on:
+                    gi = ic.grid_idx
+                    has = gi >= 0
+                    gc = np.where(has, lay.grid[np.maximum(gi, 0)], -1)  # type: ignore[index]
+                    gcy = np.where(has, lay.grid[np.maximum(gi, 0) + 1], -1)  # type: ignore[index]
+                    colblocks.append(np.concatenate([gc, gcy], axis=1))
                 ic.frame_cols = np.concatenate(colblocks, axis=1)
             f.cols = ic.frame_cols
         if lay.n_p:
