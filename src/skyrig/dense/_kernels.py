@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
     """Counting sort, second pass: write each point's index ``base + i`` (its row in the batches concatenated) to
     row ``pos[cell]`` of ``order`` and advance ``pos[cell]`` (stable: a cell keeps its points in input order, over
@@ -30,7 +30,7 @@ def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
         order[j] = base + i
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile=0, bounds=np.zeros(0),
                counts=np.zeros(0, np.int64)):  # pragma: no cover - compiled
     """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
@@ -71,7 +71,7 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile=0, bounds=np.zeros(0),
     return cell, k
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def tiled_cell(key, W, tile):  # pragma: no cover - compiled
     """The flat cell index ``row * W + col`` of a :func:`grid_cells` index in ``tile x tile`` blocks (-1: a
     block's padding beyond the grid's last column)."""
@@ -85,7 +85,7 @@ def tiled_cell(key, W, tile):  # pragma: no cover - compiled
     return r * W + c if c < W else -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, normal, rot, k_sigma, min_tol, min_support,
                 min_ratio, max_range, do_grid, do_cloud, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn,
                 o_xyz, o_rgb, o_n, o_sup, o_sig, W=0, tile=0, out_ch2=np.zeros(0, np.float32),
@@ -148,7 +148,7 @@ def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, norm
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _insert_sorted(k1, k2, v, m, a, b, c):  # pragma: no cover - compiled
     """Insert the entry ``(a, b, c)`` into the first ``m`` entries of the scratch arrays ``k1, k2, v`` kept sorted
     by ``(k1, k2)``, after its equals (stable); returns ``m + 1``.  A cell's points by (pair, height) for the grid,
@@ -165,7 +165,7 @@ def _insert_sorted(k1, k2, v, m, a, b, c):  # pragma: no cover - compiled
     return m + 1
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2):  # pragma: no cover
     """Fusion of one cell from its ``m`` points sorted by (pair, height) in ``lp, lh, ls`` (steps 1-3 of
@@ -246,7 +246,7 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, out_ch2, out_cs2,
                  out_cn2):  # pragma: no cover - compiled
     """A rejected cell whose ``np_`` pair heights form exactly two camps: every pair agrees (the support tolerance)
@@ -287,7 +287,7 @@ def _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, o
     out_cn2[c] = min(nu, 32767)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _voxel_cell(lk, lpr, li, m, xyz, sigma, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n, o_sup, o_sig,
                 out):  # pragma: no cover - compiled
     """The voxels of one cell from its ``m`` points sorted by (height slice, pair) (``lk, lpr``; ``li``: the
@@ -351,7 +351,7 @@ def _voxel_cell(lk, lpr, li, m, xyz, sigma, rgb, normal, rot, min_support, o_xyz
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: no cover - compiled
     """Points of every matched pixel of a rectified block (see :func:`skyrig.dense.stereo.block_points`).
 
@@ -425,7 +425,7 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: n
     return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], ang[:k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def poly_map(xyz, c0, s, coef, offset):  # pragma: no cover - compiled
     """The polynomial of :class:`skyrig.dense.surface.FrameMap` (terms as ``FrameMap._terms``)."""
     n = xyz.shape[0]
@@ -443,7 +443,7 @@ def poly_map(xyz, c0, s, coef, offset):  # pragma: no cover - compiled
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def lattice_maps(lat, step, width, height, cam_w, cam_h):  # pragma: no cover - compiled
     """``cv2.remap`` maps of a rectified crop from the exact mapping on a lattice every ``step`` pixels (see
     :meth:`skyrig.dense.rectify.Rectification.maps`): bilinear in float64 (along u first), -1e6 where the
@@ -492,7 +492,7 @@ def lattice_maps(lat, step, width, height, cam_w, cam_h):  # pragma: no cover - 
     return mx, my, inside
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def check_disparities(d16, e16, valid_left, valid_right, tol, shift, full):  # pragma: no cover - compiled
     """Disparities of a matched crop (see :func:`skyrig.dense.sgm.match_crop`), float32, NaN = invalid.
 
@@ -526,7 +526,7 @@ def check_disparities(d16, e16, valid_left, valid_right, tol, shift, full):  # p
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
     """|z component| of the unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (closed-form
     eigenvalue, the eigenvector as the longest cross product of two rows of ``A - lambda I``); NaN if undefined."""
@@ -559,7 +559,7 @@ def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - comp
     return vz
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=0.0):  # pragma: no cover
     """For the pixels ``(rows, cols)`` of a block's disparities: the |vertical component| of the normal of the
     best-fitting plane (smallest principal axis) through the world points of the matched pixels in the
@@ -622,7 +622,7 @@ def steep_points(disp, rows, cols, u0, v0, f, B, R, half, min_count, flat_range=
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _world_offset(d, r, c, u0, v0, f, fb, R):  # pragma: no cover - compiled
     """World offset from the left centre ``R p`` of the rectified pixel ``(r, c)`` of a block with disparity ``d``."""
     D = fb / d
