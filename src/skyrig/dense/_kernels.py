@@ -629,3 +629,50 @@ def _world_offset(d, r, c, u0, v0, f, fb, R):  # pragma: no cover - compiled
     px, py, pz = (u0 + c) * D / f, -(v0 + r) * D / f, -D
     return (R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz, R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz,
             R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def confirm_cells(rr, cc, sp, height, sigma, cand_h, cand_s, cand2_h, cand2_s, r, k_sigma, min_tol,
+                  two):  # pragma: no cover - compiled
+    """Steps 4 and 5 of :mod:`skyrig.dense.fusion` (:func:`skyrig.dense.fusion.confirm_by_neighbours`) for the
+    candidate cells ``(rr, cc)`` (``sp``: two-camp cells, decided only with ``two``) of whole grids, read only.
+    Returns ``(hit, upper)``: the candidates kept, and among them those that take the upper camp.  The same float64
+    arithmetic as the vectorised rule it replaces (the grids' float32 values widened, squared sigmas)."""
+    H, W = height.shape
+    n = rr.shape[0]
+    hit = np.zeros(n, np.bool_)
+    upper = np.zeros(n, np.bool_)
+    for k in range(n):
+        r0, c0 = rr[k], cc[k]
+        split = sp[k]
+        ch = np.float64(cand_h[r0, c0])
+        cs2 = np.float64(cand_s[r0, c0]) ** 2
+        uh = np.nan
+        us2 = np.nan
+        if split:
+            uh = np.float64(cand2_h[r0, c0])
+            us2 = np.float64(cand2_s[r0, c0]) ** 2
+        undecided = split
+        for ring in range(1, r + 1):
+            n_lo = 0
+            n_hi = 0
+            for dr in range(-ring, ring + 1):
+                for dc in range(-ring, ring + 1):
+                    if max(abs(dr), abs(dc)) != ring:
+                        continue
+                    nr, nc = r0 + dr, c0 + dc
+                    if nr < 0 or nr >= H or nc < 0 or nc >= W:
+                        continue
+                    nh = np.float64(height[nr, nc])
+                    ns2 = np.float64(sigma[nr, nc]) ** 2
+                    lo = abs(ch - nh) <= max(k_sigma * np.sqrt(cs2 + ns2), min_tol)
+                    if lo and not split:
+                        hit[k] = True
+                    if two:
+                        n_lo += lo
+                        n_hi += abs(uh - nh) <= max(k_sigma * np.sqrt(us2 + ns2), min_tol)
+            if two and undecided and n_lo != n_hi and (n_lo >= 2 * n_hi or n_hi >= 2 * n_lo):
+                hit[k] = True
+                upper[k] = n_hi > n_lo
+                undecided = False
+    return hit, upper

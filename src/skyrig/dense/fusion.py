@@ -251,42 +251,14 @@ def confirm_by_neighbours(height: NDArray[np.float32], support: NDArray[np.int16
         cand &= ~split  # a two-camp cell's lower camp is no one-camp candidate
         if not cand.any():
             return np.zeros(height.shape, bool)
-    H, W = height.shape
+    from skyrig.dense._kernels import confirm_cells
+
     rr, cc = np.nonzero(cand)  # only the candidates are tested (a few per cent of the grid)
     sp = split[rr, cc] if two else np.zeros(rr.size, bool)
-    ch = cand_height[rr, cc].astype(np.float64)
-    cs2 = cand_sigma[rr, cc].astype(np.float64) ** 2
-    hit = np.zeros(rr.size, bool)
-    if two:
-        assert cand2_height is not None and cand2_sigma is not None
-        uh = np.where(sp, cand2_height[rr, cc], np.nan).astype(np.float64)
-        us2 = np.where(sp, cand2_sigma[rr, cc], np.nan).astype(np.float64) ** 2
-        upper = np.zeros(rr.size, bool)  # split cells: the upper camp decided
-        undecided = sp.copy()
-    min_tol = cfg.min_tol_cells * cell_m
-    with np.errstate(invalid="ignore"):
-        for ring in range(1, r + 1):
-            n_lo = np.zeros(rr.size, np.int64)
-            n_hi = np.zeros(rr.size, np.int64)
-            for dr in range(-ring, ring + 1):
-                for dc in range(-ring, ring + 1):
-                    if max(abs(dr), abs(dc)) != ring:
-                        continue
-                    nr, nc = rr + dr, cc + dc
-                    inside = (nr >= 0) & (nr < H) & (nc >= 0) & (nc < W)
-                    nri, nci = np.clip(nr, 0, H - 1), np.clip(nc, 0, W - 1)
-                    nh = height[nri, nci].astype(np.float64)
-                    ns2 = sigma[nri, nci].astype(np.float64) ** 2
-                    lo = inside & (np.abs(ch - nh) <= np.maximum(cfg.k_sigma * np.sqrt(cs2 + ns2), min_tol))
-                    hit |= lo & ~sp
-                    if two:
-                        n_lo += lo
-                        n_hi += inside & (np.abs(uh - nh) <= np.maximum(cfg.k_sigma * np.sqrt(us2 + ns2), min_tol))
-            if two:  # a clear majority: at least twice as many cells of the ring continue the winning camp
-                dec = undecided & (n_lo != n_hi) & ((n_lo >= 2 * n_hi) | (n_hi >= 2 * n_lo))
-                hit |= dec
-                upper |= dec & (n_hi > n_lo)
-                undecided &= ~dec
+    c2h = cand2_height if two else cand_height
+    c2s = cand2_sigma if two else cand_sigma
+    hit, upper = confirm_cells(rr, cc, sp, height, sigma, cand_height, cand_sigma, c2h, c2s, r, float(cfg.k_sigma),
+                               float(cfg.min_tol_cells * cell_m), two)
     ok = np.zeros(height.shape, bool)
     ok[rr[hit], cc[hit]] = True
     height[ok] = cand_height[ok]
