@@ -352,11 +352,12 @@ def _voxel_cell(lk, lpr, li, m, xyz, sigma, rgb, normal, rot, min_support, o_xyz
 
 
 @numba.njit(cache=True, error_model="numpy")
-def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: no cover - compiled
+def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # pragma: no cover - compiled
     """Points of every matched pixel of a rectified block (see :func:`skyrig.dense.stereo.block_points`).
 
-    Returns ``rows, cols, xyz (N, 3), normal (N, 3) float32, sigma_h, sigma_3d, angle_deg`` for the pixels
-    kept (positive disparity, surface not seen more grazing than ``acos(cos_lim)``)."""
+    ``colour``: the block's left colour crop ``(H, W, C)`` (one channel: grey, given to all three).  Returns
+    ``rows, cols, xyz (N, 3), normal (N, 3) float32, sigma_h, sigma_3d, angle_deg, rgb (N, 3) uint8`` for the
+    pixels kept (positive disparity, surface not seen more grazing than ``acos(cos_lim)``)."""
     H, W = disp.shape
     fb = f * B
     nmax = 0
@@ -373,6 +374,8 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: n
     sh = np.empty(nmax, np.float32)
     s3 = np.empty(nmax, np.float32)
     ang = np.empty(nmax, np.float32)
+    rgb = np.empty((nmax, 3), np.uint8)
+    nch = colour.shape[2]
     k = 0
     for r in range(H):
         for c in range(W):
@@ -421,8 +424,10 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim):  # pragma: n
             ca = (px * qx + py * py + pz * pz) / (rng * qn)
             ca = min(1.0, max(-1.0, ca))
             ang[k] = np.degrees(np.arccos(ca))
+            for i in range(3):
+                rgb[k, i] = colour[r, c, min(i, nch - 1)]
             k += 1
-    return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], ang[:k]
+    return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], ang[:k], rgb[:k]
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -203,9 +203,11 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
                   triangulate_block) -> PairPoints:  # type: ignore[no-untyped-def]
     cos_lim = float(np.cos(np.radians(cfg.max_incidence_deg)))
     d = np.nan_to_num(np.ascontiguousarray(disp, np.float32), nan=-1.0)
-    rr, cc, xyz, normal, sigma_h, sigma_3d, ang = triangulate_block(
+    col = np.ascontiguousarray(colour, np.uint8)
+    rr, cc, xyz, normal, sigma_h, sigma_3d, ang, rgb = triangulate_block(
         d, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m), np.ascontiguousarray(rect.rotation),
-        np.ascontiguousarray(rect.centres[0]), float(cfg.disparity_sigma_px), cos_lim)
+        np.ascontiguousarray(rect.centres[0]), float(cfg.disparity_sigma_px), cos_lim,
+        col if col.ndim == 3 else col[:, :, None])
     if cfg.wall_max_nz > 0 and len(rr):
         from skyrig.dense._kernels import steep_points
 
@@ -218,10 +220,4 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
         nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
                           np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2), flat)
         sigma_h[~(nz >= cfg.wall_max_nz)] = np.float32(np.nan)  # NaN: steep or sparse (a fresh array: in place)
-    flat = rr * colour.shape[1] + cc  # one gather from the flattened crop instead of a 2-index one
-    if colour.ndim == 3:
-        rgb = colour.reshape(-1, colour.shape[2])[flat]
-    else:
-        rgb = np.repeat(colour.reshape(-1)[flat][:, None], 3, axis=1)
-    return PairPoints(xyz, sigma_h.astype(np.float32, copy=False), sigma_3d, ang, rgb.astype(np.uint8, copy=False),
-                      normal)
+    return PairPoints(xyz, sigma_h, sigma_3d, ang, rgb, normal)
