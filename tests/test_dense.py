@@ -327,6 +327,49 @@ def test_foreground_erosion_along_rows_and_background_fill():
     assert np.isnan(fill_background(f, valid)[0, 2])
 
 
+def _occlusion_pair(seed: int = 3, H: int = 160, W: int = 320, db: int = 8, df: int = 24):
+    """A seeded rectified pair with known truth: a textured background plane at disparity ``db`` and a textured
+    rectangle in front of it at ``df``; returns left, right, true disparities and the occluded left pixels (the
+    ``df - db`` background columns left of the rectangle, which the right camera cannot see)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    bg = cv2.GaussianBlur(rng.uniform(0, 255, (H, W + 64)).astype(np.float32), (0, 0), 1.0)
+    fg = cv2.GaussianBlur(rng.uniform(0, 255, (H, W + 64)).astype(np.float32), (0, 0), 1.0)
+    r0, r1, a, b = 40, 120, 140, 220
+    rows = np.arange(H)[:, None]
+    cols = np.arange(W)[None, :]
+    in_front = (rows >= r0) & (rows < r1) & (cols >= a) & (cols < b)  # left image
+    left = np.where(in_front, fg[:, :W], bg[:, :W])
+    right_fg = (rows >= r0) & (rows < r1) & (cols + df >= a) & (cols + df < b)  # right pixel x sees x + d on the left
+    right = np.where(right_fg, fg[:, np.clip(cols[0] + df, 0, W + 63)], bg[:, cols[0] + db])
+    truth = np.where(in_front, df, db).astype(np.float32)
+    occluded = (rows >= r0) & (rows < r1) & (cols >= a - (df - db)) & (cols < a)
+    return left.astype(np.uint8), right.astype(np.uint8), truth, occluded
+
+
+@pytest.mark.parametrize("lr_check", ["opencv", "full"])
+def test_left_right_check_rejects_occluded_pixels(lr_check):
+    """Either left-right check (OpenCV's internal one on the same cost volume, or the full second matching from the
+    right image) leaves the occluded pixels of a seeded pair without a match, keeps the visible ones, and they are
+    right; with the check switched off (a tolerance wider than the search: OpenCV takes 0 and negative values as 1)
+    the matcher gives the occluded pixels disparities.  Uniqueness and speckle filters are off: the check alone."""
+    from skyrig.dense.sgm import match_rectified
+
+    left, right, truth, occluded = _occlusion_pair()
+    visible = ~occluded
+    visible[:, :40] = False  # the first columns have no right pixel within the search window
+    base = SgmConfig(uniqueness=0, speckle_window=0, lr_check=lr_check)
+    d = match_rectified(left, right, 0.0, 31.0, base)
+    off = match_rectified(left, right, 0.0, 31.0, replace(base, lr_max_diff=10_000))
+    ok, ok_off = np.isfinite(d), np.isfinite(off)
+    assert ok_off[occluded].mean() > 0.95  # without the check nearly every occluded pixel gets a (wrong) match
+    assert ok[occluded].mean() < 0.15, f"{lr_check}: {100 * ok[occluded].mean():.1f} % of occluded pixels kept"
+    assert ok[visible].mean() > 0.98
+    with np.errstate(invalid="ignore"):
+        assert (np.abs(d - truth) <= 1.0)[visible & ok].mean() > 0.99
+
+
 def test_dsm_of_the_synthetic_block(dense_result, block):
     dsm, cloud, stats = dense_result
     assert dsm.frame.crs == CRS and "ellipsoidal" in dsm.vertical_reference

@@ -65,6 +65,14 @@ class DenseConfig:
         whose pairs split into two camps (ground and roof rim) takes the camp its fused neighbours clearly continue
         (``FusionConfig.split_by_neighbours``): edge cells 80.0 -> 83.0 % on midas-dsm, 91.3 -> 93.4 % on
         tumblecam-dsm, outliers 0.42 -> 0.45 % and 0.27 -> 0.28 %, edge RMSE 14.0 -> 14.4 and 21.6 -> 21.9 GSD.
+        The left-right check is OpenCV's internal one (``SgmConfig.lr_check="opencv"``: the right image's
+        disparities from the left matching's own cost volume) instead of a second, right-based matching
+        (``"full"``), which cost as much time as the left matching (``bench/dense.py``, 16 images: 1.9 of 8.1 CPU s).
+        The price, ``bench/dense_acceptance.py midas tumblecam`` (adjusted orientations), full -> opencv: edge
+        completeness 83.0 -> 82.0 % (midas-dsm) and 93.4 -> 91.6 % (tumblecam-dsm), cells off by more than 5 GSD
+        0.45 -> 0.63 % and 0.28 -> 0.34 % of the valid cells, edge RMSE 14.4 -> 15.9 and 21.9 -> 23.7 GSD; flat
+        cells unchanged (NMAD 0.165 -> 0.164 and 0.295 -> 0.295 GSD, completeness 99.7 and 100 %).  ``"full"``
+        remains for the best edges.
     block_px
         Side of a rectified block matched in one SGM run (bounds memory: about
         ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
@@ -88,7 +96,8 @@ class DenseConfig:
 
     cell_m: float | None = None
     pairs: PairConfig = field(default_factory=PairConfig)
-    sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way"))
+    sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
+                                                             lr_check="opencv"))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
