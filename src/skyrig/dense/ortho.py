@@ -99,6 +99,11 @@ class OrthoConfig:
         metre, the images show the outline sharply.
     square_band_m, square_max_residual_m
         See ``square_buildings``.
+    square_sharp
+        Put the squared buildings' edges where their outlines are, not where the DSM's cells put them: the output
+        cells near an outline take the roof planes inside it and the ground outside (:func:`sharp_heights`), and
+        the depth buffers draw the walls on the outline (:func:`snap_lattice`).  Without it, a roof edge in the
+        mosaic moves to and fro by up to a DSM cell along the wall.
     """
 
     cell_m: float | None = None
@@ -118,6 +123,7 @@ class OrthoConfig:
     square_refine: bool = True
     square_band_m: float = 2.5
     square_max_residual_m: float = 0.5
+    square_sharp: bool = True
 
     @property
     def max_tan(self) -> float:
@@ -167,6 +173,9 @@ class OrthoPlan:
         The options.
     stats
         Counts of the planning.
+    sharp, outside
+        The buildings drawn into ``dsm`` by :func:`square_buildings` and the surface without them (their footprints'
+        cells at the ground): the tiles' heights near their outlines come from these (:func:`sharp_heights`).
     """
 
     eo: ExteriorOrientations
@@ -181,11 +190,127 @@ class OrthoPlan:
     gsd_m: float
     config: OrthoConfig
     stats: dict = field(default_factory=dict)
+    sharp: tuple[SharpBuilding, ...] = ()
+    outside: DsmGrid | None = None
 
     @property
     def zrange(self) -> tuple[float, float]:
         h = self.dsm.height
         return float(np.nanmin(h)), float(np.nanmax(h))
+
+
+@dataclass(frozen=True)
+class SharpBuilding:
+    """A building drawn into the surface by :func:`square_buildings`: its outline ``(N, 2)`` (map x, y) and roof
+    planes ``(P, 3)`` (``z = a x + b y + c``; the roof is their lower envelope)."""
+
+    outline: NDArray[np.float64]
+    planes: NDArray[np.float64]
+
+
+def _inside_polygon(x: NDArray, y: NDArray, poly: NDArray) -> NDArray[np.bool_]:
+    """Even-odd test of points against a closed polygon ``(N, 2)``."""
+    inside = np.zeros(x.shape, bool)
+    xa, ya = poly[:, 0], poly[:, 1]
+    xb, yb = np.roll(xa, -1), np.roll(ya, -1)
+    for x1, y1, x2, y2 in zip(xa, ya, xb, yb):
+        if y1 == y2:
+            continue
+        cross = (y1 > y) != (y2 > y)
+        inside ^= cross & (x < (x2 - x1) * (y - y1) / (y2 - y1) + x1)
+    return inside
+
+
+def _polygon_nearest(x: NDArray, y: NDArray, poly: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Distance of points from a closed polygon's outline and the nearest outline point (x, y)."""
+    d = np.full(x.shape, np.inf)
+    nx, ny = np.array(x, float, copy=True), np.array(y, float, copy=True)
+    for p, q in zip(poly, np.roll(poly, -1, axis=0)):
+        e = q - p
+        ee = float(e @ e)
+        t = np.clip(((x - p[0]) * e[0] + (y - p[1]) * e[1]) / max(ee, 1e-12), 0.0, 1.0)
+        fx, fy = p[0] + t * e[0], p[1] + t * e[1]
+        de = np.hypot(x - fx, y - fy)
+        closer = de < d
+        d = np.where(closer, de, d)
+        nx, ny = np.where(closer, fx, nx), np.where(closer, fy, ny)
+    return d, nx, ny
+
+
+def _polygon_distance(x: NDArray, y: NDArray, poly: NDArray) -> NDArray[np.float64]:
+    """Distance of points from a closed polygon's outline."""
+    return _polygon_nearest(x, y, poly)[0]
+
+
+def snap_lattice(xx: NDArray[np.float64], yy: NDArray[np.float64], buildings: Iterable[SharpBuilding],
+                 reach_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Positions of DSM lattice points (cell centres ``xx, yy``, map) for a depth buffer with the drawn buildings'
+    walls where their outlines are: the points within ``reach_m`` of an outline (inside or out) move onto it,
+    keeping their heights.  Drawn between cell centres, a wall slants across a cell and hides the ground just
+    outside the true wall from the images that look at it."""
+    X, Y = np.array(xx, float, copy=True), np.array(yy, float, copy=True)
+    if X.size == 0:
+        return X, Y
+    xlo, xhi, ylo, yhi = float(X.min()), float(X.max()), float(Y.min()), float(Y.max())
+    best = np.full(X.shape, np.inf)
+    for b in buildings:
+        P = b.outline
+        if (P[:, 0].max() + reach_m < xlo or P[:, 0].min() - reach_m > xhi or P[:, 1].max() + reach_m < ylo
+                or P[:, 1].min() - reach_m > yhi):
+            continue
+        box = ((xx >= P[:, 0].min() - reach_m) & (xx <= P[:, 0].max() + reach_m)
+               & (yy >= P[:, 1].min() - reach_m) & (yy <= P[:, 1].max() + reach_m))
+        idx = np.nonzero(box)
+        d, nx, ny = _polygon_nearest(xx[idx], yy[idx], P)
+        mv = (d <= reach_m) & (d < best[idx])
+        r_, c_ = idx[0][mv], idx[1][mv]
+        X[r_, c_], Y[r_, c_], best[r_, c_] = nx[mv], ny[mv], d[mv]
+    return X, Y
+
+
+def sharp_heights(xx: NDArray[np.float64], yy: NDArray[np.float64], zz: NDArray[np.float64],
+                  buildings: Iterable[SharpBuilding], outside: DsmGrid, band_m: float) -> NDArray[np.float64]:
+    """Heights ``zz`` at map points ``xx, yy`` (from the squared surface, bilinear) with the drawn buildings' edges
+    put where their outlines are, not where the DSM's cells put them.
+
+    Interpolating a surface with a wall in it spreads the wall over a cell: points just inside the roof get a
+    height part way down the wall and points just outside part way up, so that an image looking across the eaves
+    shows wall there and the roof's edge in the orthophoto moves by up to a DSM cell, to and fro along the edge as
+    the cells fall.  Within ``band_m`` of a building's outline, a point inside it takes the roof planes' height at
+    the point, a point outside it the surface ``outside`` (the squared surface with the footprints' cells set to
+    the ground) there."""
+    out = np.array(zz, np.float64, copy=True)
+    if xx.size == 0:
+        return out
+    xlo, xhi, ylo, yhi = float(xx.min()), float(xx.max()), float(yy.min()), float(yy.max())
+    ins_any = np.zeros(xx.shape, bool)
+    z_out = None
+    for b in buildings:
+        P = b.outline
+        if (P[:, 0].max() + band_m < xlo or P[:, 0].min() - band_m > xhi or P[:, 1].max() + band_m < ylo
+                or P[:, 1].min() - band_m > yhi):
+            continue
+        box = ((xx >= P[:, 0].min() - band_m) & (xx <= P[:, 0].max() + band_m)
+               & (yy >= P[:, 1].min() - band_m) & (yy <= P[:, 1].max() + band_m))
+        idx = np.nonzero(box)
+        x, y = xx[idx], yy[idx]
+        near = _polygon_distance(x, y, P) <= band_m
+        if not near.any():
+            continue
+        ins = _inside_polygon(x, y, P) & near
+        roof = np.min(b.planes[:, 0][None] * x[:, None] + b.planes[:, 1][None] * y[:, None] + b.planes[:, 2][None],
+                      axis=1)
+        if z_out is None:
+            z_out = _bilinear_dsm(outside, xx, yy)
+        sel = near & ~ins
+        if sel.any():  # outside this building, unless inside another one (drawn before or after)
+            r_, c_ = idx[0][sel], idx[1][sel]
+            free = ~ins_any[r_, c_]
+            out[r_[free], c_[free]] = z_out[r_[free], c_[free]]
+        if ins.any():
+            out[idx[0][ins], idx[1][ins]] = roof[ins]
+            ins_any[idx[0][ins], idx[1][ins]] = True
+    return out
 
 
 @dataclass
@@ -343,8 +468,8 @@ def eo_steep_axis(eo: ExteriorOrientations, dsm: DsmGrid) -> NDArray[np.float64]
 
 
 def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float = 2.5, max_residual_m: float = 0.5,
-                     ground: NDArray[np.float64] | None = None, blocks: list | None = None
-                     ) -> tuple[NDArray[np.float64], dict[str, int]]:
+                     ground: NDArray[np.float64] | None = None, blocks: list | None = None,
+                     drawn_out: list | None = None) -> tuple[NDArray[np.float64], dict[str, int]]:
     """The surface ``height`` (on ``dsm``'s grid, holes filled) with square building edges.
 
     A matched DSM rounds roof edges off over a few cells (the matching windows straddle the eaves): cells just inside
@@ -360,6 +485,8 @@ def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float
     ground height).
 
     Returns the new heights and counts ``{"buildings": blocks drawn, "cells": cells changed by more than 1 cm}``.
+    ``drawn_out``: a list that gets one :class:`SharpBuilding` per drawn block (its exact outline and roof planes,
+    for :func:`sharp_heights`) and, last, the DSM-grid mask of the drawn footprints' cells.
     """
     import cv2
     from scipy import ndimage
@@ -392,6 +519,7 @@ def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float
     inside_any = np.any(masks, axis=0) if masks else np.zeros((H, W), bool)
     band = max(1, int(round(band_m / g.cell_m)))
     drawn = 0
+    drawn_mask = np.zeros((H, W), bool)
     for b, m in zip(blocks, masks):
         rows, cols = np.nonzero(m)
         if len(rows) < 9:
@@ -403,10 +531,12 @@ def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float
         yy = g.y0 - (np.arange(r0, r1) + 0.5) * g.cell_m
         X, Y = np.meshgrid(xx, yy)
         roof = np.full(X.shape, np.inf)
+        planes = []
         for poly in b.roof:
             P = np.asarray(poly, float)
             coef, *_ = np.linalg.lstsq(np.c_[P[:, 0], P[:, 1], np.ones(len(P))], P[:, 2], rcond=None)
             roof = np.minimum(roof, coef[0] * X + coef[1] * Y + coef[2])
+            planes.append(coef)
         ms = m[sl]
         core = ndimage.binary_erosion(ms, iterations=2) & meas[sl]
         if core.sum() < 6 or not np.all(np.isfinite(roof[ms])):
@@ -420,6 +550,11 @@ def square_buildings(height: NDArray[np.float64], dsm: DsmGrid, *, band_m: float
         spill = ring & (hs > gz + min(1.0, 0.3 * (b.eave_z - b.ground_z)))
         hs[spill] = gz[spill]
         drawn += 1
+        drawn_mask[sl] |= ms
+        if drawn_out is not None:
+            drawn_out.append(SharpBuilding(np.asarray(b.footprint, float)[:, :2], np.asarray(planes, float)))
+    if drawn_out is not None:
+        drawn_out.append(drawn_mask)
     changed = int(np.sum(np.abs(np.nan_to_num(h - h0)) > 0.01))
     return h, {"buildings": drawn, "cells": changed}
 
@@ -489,10 +624,14 @@ def _footprint_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamer
     return (r0, c0, r1 - r0, c1 - c0)
 
 
-def _window_local(plan_like: "OrthoPlan | _Base", r0: int, c0: int, h: int, w: int) -> NDArray[np.float64]:
-    """Local coordinates ``(h, w, 3)`` of DSM cells of a window."""
+def _window_local(plan_like: "OrthoPlan | _Base", r0: int, c0: int, h: int, w: int,
+                  sharp: tuple[SharpBuilding, ...] = ()) -> NDArray[np.float64]:
+    """Local coordinates ``(h, w, 3)`` of DSM cells of a window (the lattice points near the outlines of
+    ``sharp`` buildings moved onto them, :func:`snap_lattice`)."""
     g = plan_like.dsm.grid.window(r0, c0, h, w)
     xx, yy = g.cell_centres()
+    if sharp:
+        xx, yy = snap_lattice(xx, yy, sharp, g.cell_m)
     zz = plan_like.dsm.height[r0:r0 + h, c0:c0 + w]
     p = np.stack([xx.ravel(), yy.ravel(), np.nan_to_num(zz.ravel(), nan=np.nanmean(zz) if np.isfinite(zz).any()
                                                                  else 0.0)], 1)
@@ -625,7 +764,7 @@ def _common_samples(va: View, vb: View) -> tuple[NDArray, NDArray] | None:
 
 def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm: DsmGrid, loader: ImageLoader, *,
                area: tuple[float, float, float, float] | None = None, config: OrthoConfig = OrthoConfig(),
-               map_fn: Callable | None = None) -> OrthoPlan:
+               map_fn: Callable | None = None, buildings: list | None = None) -> OrthoPlan:
     """Plan an orthomosaic: views of every image on the DSM grid, best-view regions, seamlines, gains, tiles.
 
     Parameters
@@ -644,6 +783,9 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
         Options.
     map_fn
         ``map_fn(func, items)`` to run the per-image views (e.g. an executor's map); None: builtin map.
+    buildings
+        With ``config.square_buildings``: the building blocks (:class:`skyrig.dense.buildings.BuildingBlock`, in the
+        DSM's frame) to square, instead of those extracted from the DSM.
 
     Raises
     ------
@@ -664,19 +806,28 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
         raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
     height = fill_surface(dsm)
     squared = {"buildings": 0, "cells": 0}
+    drawn: list = []
+    outside = None
     if config.square_buildings:
         from skyrig.dense.buildings import ExtractionConfig, extract_buildings
 
-        blocks = extract_buildings(dsm, config=ExtractionConfig(max_outside=1.0))
+        blocks = (list(buildings) if buildings is not None
+                  else extract_buildings(dsm, config=ExtractionConfig(max_outside=1.0)))
         # the outline in steep views only (an oblique's outline moves one for one with an error of the eave height)
         steep = np.flatnonzero(-eo_steep_axis(eo, dsm) > np.cos(np.radians(30.0)))
         if config.square_refine and blocks and len(steep):
             from skyrig.dense.facades import refine_walls
 
             blocks = refine_walls(blocks, eo.subset(steep), cameras, lambda k: loader(int(steep[k])), dsm)
+        gr = ground_estimate(height, dsm.grid.cell_m, config.ground_window_m)
         height, squared = square_buildings(height, dsm, blocks=blocks, band_m=config.square_band_m,
-                                           max_residual_m=config.square_max_residual_m,
-                                           ground=ground_estimate(height, dsm.grid.cell_m, config.ground_window_m))
+                                           max_residual_m=config.square_max_residual_m, ground=gr, drawn_out=drawn)
+        if squared["buildings"] and config.square_sharp:
+            foot = drawn.pop()
+            outside = DsmGrid(dsm.grid, dsm.frame, np.where(foot, gr, height).astype(np.float32), dsm.support,
+                              dsm.spread, dsm.sigma, dsm.filled, dsm.vertical_reference, dsm.metadata)
+        else:
+            drawn = []
     dsm_f = DsmGrid(dsm.grid, dsm.frame, height.astype(np.float32), dsm.support, dsm.spread, dsm.sigma, dsm.filled,
                     dsm.vertical_reference, dsm.metadata)
     zlo, zhi = float(np.nanmin(height)), float(np.nanmax(height))
@@ -791,7 +942,7 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
              "gsd_m": gsd_m, "cell_m": cell, "buildings_squared": squared["buildings"],
              "cells_squared": squared["cells"]}
     return OrthoPlan(eo_l, dict(cameras), dsm_f, to_local, grid, label, windows, gains, tiles, gsd_m, config,
-                     stats)
+                     stats, tuple(drawn), outside)
 
 
 def clean_regions(label: NDArray[np.int32], min_cells: int) -> tuple[NDArray[np.int32], int]:
@@ -867,6 +1018,9 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     g = plan.grid.window(R0, C0, Hh, Ww)
     xx, yy = g.cell_centres()
     zz = _bilinear_dsm(plan.dsm, xx, yy)
+    if plan.sharp and plan.outside is not None:
+        zz = np.where(np.isfinite(zz), sharp_heights(xx, yy, zz, plan.sharp, plan.outside,
+                                                     2.0 * plan.dsm.grid.cell_m), zz)
     okz = np.isfinite(zz)
     rgb_out = np.zeros((h, w, 3), np.uint8)
     valid_out = np.zeros((h, w), bool)
@@ -888,7 +1042,8 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     ra, ca = dg.cell_of(np.array([xb0 - reach, xb1 + reach]), np.array([yb1 + reach, yb0 - reach]))
     dr0, dr1 = max(int(ra[0]), 0), min(int(ra[1]) + 2, dg.height)
     dc0, dc1 = max(int(ca[0]), 0), min(int(ca[1]) + 2, dg.width)
-    dsm_local = _window_local(plan, dr0, dc0, dr1 - dr0, dc1 - dc0) if (dr1 > dr0 and dc1 > dc0) else None
+    dsm_local = (_window_local(plan, dr0, dc0, dr1 - dr0, dc1 - dc0, plan.sharp if plan.outside is not None else ())
+                 if (dr1 > dr0 and dc1 > dc0) else None)
 
     acc = np.zeros((Hh, Ww, 3), np.float64)
     wsum = np.zeros((Hh, Ww), np.float64)
@@ -1026,9 +1181,9 @@ def assemble_ortho(plan: OrthoPlan, tiles: Iterable[OrthoTile]) -> Orthomosaic:
 
 def orthomosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm: DsmGrid, loader: ImageLoader, *,
                 area: tuple[float, float, float, float] | None = None, config: OrthoConfig = OrthoConfig(),
-                map_fn: Callable | None = None) -> Orthomosaic:
+                map_fn: Callable | None = None, buildings: list | None = None) -> Orthomosaic:
     """:func:`plan_ortho`, :func:`run_ortho_tile` for every tile through ``map_fn`` (default builtin map),
     :func:`assemble_ortho`."""
-    plan = plan_ortho(eo, cameras, dsm, loader, area=area, config=config, map_fn=map_fn)
+    plan = plan_ortho(eo, cameras, dsm, loader, area=area, config=config, map_fn=map_fn, buildings=buildings)
     fn = map_fn or (lambda f, items: list(map(f, items)))
     return assemble_ortho(plan, fn(_OrthoTileJob(plan, loader), list(range(len(plan.tiles)))))
