@@ -16,7 +16,7 @@ import numpy as np
 
 @numba.njit(cache=True, error_model="numpy")
 def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
-    """Counting sort, second pass: write each point's index ``base + i`` (its row in the batches concatenated) to
+    """Counting sort, second pass: write each point's index ``base + i`` (its row in the point arrays) to
     row ``pos[cell]`` of ``order`` and advance ``pos[cell]`` (stable: a cell keeps its points in input order, over
     several calls too).  Only the index moves (one small write per point; the points' data stay where they are and
     :func:`fuse_sorted` reads them through ``order``): copying every field of a point to its cell's rows wrote to as
@@ -31,19 +31,18 @@ def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, error_model="numpy")
-def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile=0, bounds=np.zeros(0),
-               counts=np.zeros(0, np.int64)):  # pragma: no cover - compiled
-    """Flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points outside the grid,
-    with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``).  ``tile > 0``: the index in
-    ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort by it keeps nearby
-    cells' points near each other in memory.  ``bounds`` ``(xmin, ymin, xmax, ymax)``, if given: only points with
-    ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell.  ``counts`` (``(ncells + 1,)``), if given: ``counts[cell + 1]`` is
-    incremented for each point with a cell (its cumulative sum is then every cell's start offset).  Returns the cells and the number of points with a cell."""
+def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile, bounds, counts, cell):  # pragma: no cover - compiled
+    """Write to ``cell`` the flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points
+    outside the grid, with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``).
+    ``tile > 0``: the index in ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort
+    by it keeps nearby cells' points near each other in memory.  ``bounds`` ``(xmin, ymin, xmax, ymax)``, if not
+    empty: only points with ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell.  ``counts``
+    (``(ncells + 1,)``), if not empty: ``counts[cell + 1]`` is incremented for each point with a cell (its cumulative
+    sum is then every cell's start offset).  Returns the number of points with a cell."""
     n = x.shape[0]
     test_sigma = sigma.shape[0] > 0
     test_bounds = bounds.shape[0] == 4
     do_count = counts.shape[0] > 0
-    cell = np.empty(n, np.int64)
     ntc = (W + tile - 1) // tile if tile > 0 else 0
     k = 0
     for i in range(n):
@@ -68,7 +67,7 @@ def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile=0, bounds=np.zeros(0),
         k += 1
         if do_count:
             counts[q + 1] += 1
-    return cell, k
+    return k
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")

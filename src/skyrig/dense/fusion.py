@@ -120,7 +120,7 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
     cand2_height, cand2_sigma, cand2_support
         With ``candidates``: the upper camp of a two-camp cell (NaN / 0 elsewhere).
     """
-    srt = CellSorter(grid, 0.0, cloud=False)
+    srt = CellSorter(grid, 0.0, cloud=False, capacity=len(x))
     xyz = np.stack([np.asarray(v, np.float64) for v in (x, y, h)], axis=1).reshape(-1, 3)
     srt.add(np.asarray(pair, np.int64), xyz, np.asarray(sigma, np.float64), test_sigma=True)
     layers, _ = srt.fuse(cfg, grid_layers=True)
@@ -129,8 +129,10 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
 
 class CellSorter:
     """Points of several batches (e.g. blocks of stereo pairs) sorted by the cell of a grid they fall in, for
-    :meth:`fuse`: a counting sort over all batches (stable: a cell keeps its points in the order they were
-    added) of the points' indices only; the fusion reads each cell's points through them.
+    :meth:`fuse`: each batch is copied once into arrays of all the points (grown as needed; ``capacity``: the
+    expected number of points, memory is only touched where points are written), a counting sort over all of them
+    (stable: a cell keeps its points in the order they were added) orders their indices only, and the fusion reads
+    each cell's points through them.
 
     ``voxel_z_m`` > 0 also bins each point vertically by ``floor(z / voxel_z_m)`` for the cloud; ``cloud`` keeps
     what cloud fusion needs (``sigma_3d``, colour, normal)."""
@@ -139,12 +141,30 @@ class CellSorter:
     #: which reads each cell's points where the batches left them, then reads near where it last read)
     TILE = 16
 
-    def __init__(self, grid: GridSpec, voxel_z_m: float, cloud: bool) -> None:
+    def __init__(self, grid: GridSpec, voxel_z_m: float, cloud: bool, capacity: int = 0) -> None:
         self.grid, self.voxel_z_m, self.cloud = grid, float(voxel_z_m), cloud
         H, W = grid.shape
         t = self.TILE
         self.counts = np.zeros(-(-H // t) * -(-W // t) * t * t + 1, np.int64)
-        self.batches: list[tuple] = []
+        self.n = 0
+        self.capacity = max(int(capacity), 0)
+        self.arrays: dict[str, NDArray] = {}
+
+    def _reserve(self, m: int, sigma_h: NDArray, sigma_3d: NDArray | None) -> None:
+        """Room for ``m`` more points (the arrays' dtypes: the first batch's precisions)."""
+        need = self.n + m
+        if self.arrays and need <= len(self.arrays["cell"]):
+            return
+        cap = max(need, self.capacity, 2 * len(self.arrays["cell"]) if self.arrays else 0)
+        spec = {"cell": ((), np.int64), "pair": ((), np.int32), "xyz": ((3,), np.float64),
+                "sh": ((), self.arrays["sh"].dtype if self.arrays else np.asarray(sigma_h).dtype)}
+        if self.cloud:
+            spec.update({"s3": ((), self.arrays["s3"].dtype if self.arrays else np.asarray(sigma_3d).dtype),
+                         "rgb": ((3,), np.uint8), "nrm": ((3,), np.float32)})
+        new = {k: np.empty((cap,) + sh, dt) for k, (sh, dt) in spec.items()}
+        for k, a in self.arrays.items():
+            new[k][:self.n] = a[:self.n]
+        self.arrays = new
 
     def add(self, pair: int | NDArray[np.int64], xyz: NDArray[np.float64], sigma_h: NDArray,
             sigma_3d: NDArray | None = None, rgb: NDArray[np.uint8] | None = None,
@@ -158,13 +178,20 @@ class CellSorter:
 
         g = self.grid
         H, W = g.shape
-        p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
-        cell, k = grid_cells(p[:, 0], p[:, 1], p[:, 2], sigma_h if test_sigma else np.zeros(0), float(g.x0),
-                             float(g.y0), float(g.cell_m), H, W, self.TILE,
-                             np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts)
-        pa = np.asarray(pair, np.int64) if not isinstance(pair, (int, np.integer)) else int(pair)
-        cl = (sigma_3d, rgb, normal) if self.cloud else (None, None, None)
-        self.batches.append((cell, pa, p, np.asarray(sigma_h)) + cl)
+        p = np.asarray(xyz, np.float64).reshape(-1, 3)
+        m = len(p)
+        self._reserve(m, sigma_h, sigma_3d)
+        a, sl = self.arrays, slice(self.n, self.n + m)
+        a["xyz"][sl] = p
+        a["sh"][sl] = sigma_h
+        a["pair"][sl] = pair
+        if self.cloud:
+            a["s3"][sl], a["rgb"][sl], a["nrm"][sl] = sigma_3d, rgb, normal
+        q = a["xyz"][sl]
+        k = grid_cells(q[:, 0], q[:, 1], q[:, 2], a["sh"][sl] if test_sigma else np.zeros(0), float(g.x0),
+                       float(g.y0), float(g.cell_m), H, W, self.TILE,
+                       np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts, a["cell"][sl])
+        self.n += m
         return int(k)
 
     def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
@@ -178,31 +205,15 @@ class CellSorter:
         H, W = self.grid.shape
         start = np.cumsum(self.counts)
         n = int(start[-1])
-        bt = self.batches
-        self.batches = []
-        lens = [len(b[0]) for b in bt]
-        total = sum(lens)
-        order = np.empty(n, np.int32 if total < 2 ** 31 else np.int64)
-        pos = start[:-1].copy()
-        base = 0
-        for b, m in zip(bt, lens):
-            scatter_index(b[0], pos, base, order)
-            base += m
-
-        def cat(k: int, shape: tuple, dtype) -> NDArray:  # type: ignore[no-untyped-def]
-            return np.concatenate([np.asarray(b[k], dtype).reshape((-1,) + shape) for b in bt]) if bt else \
-                np.zeros((0,) + shape, dtype)
-
-        pair = np.concatenate([np.full(m, b[1], np.int64) if isinstance(b[1], int) else b[1] for b, m in zip(bt, lens)]) \
-            if bt else np.zeros(0, np.int64)
-        xyz = cat(2, (3,), np.float64)
-        sh = cat(3, (), bt[0][3].dtype if bt else np.float64)
+        self._reserve(0, np.zeros(0), np.zeros(0, np.float32))
+        a = {k: v[:self.n] for k, v in self.arrays.items()}
+        self.arrays, self.n = {}, 0
+        order = np.empty(n, np.int32 if len(a["cell"]) < 2 ** 31 else np.int64)
+        scatter_index(a["cell"], start[:-1].copy(), 0, order)
         if self.cloud:
-            s3 = cat(4, (), bt[0][4].dtype if bt else np.float32)
-            rgb, nrm = cat(5, (3,), np.uint8), cat(6, (3,), np.float32)
+            s3, rgb, nrm = a["s3"], a["rgb"], a["nrm"]
         else:
             s3, rgb, nrm = np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32)
-        del bt
         m = H * W
         out = [np.full(m, np.nan, np.float32), np.zeros(m, np.int16), np.full(m, np.nan, np.float32),
                np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32), np.full(m, np.nan, np.float32),
@@ -212,10 +223,11 @@ class CellSorter:
         co = (np.empty((nc, 3)), np.empty((nc, 3), np.uint8), np.empty((nc, 3), np.float32), np.empty(nc, np.int16),
               np.empty(nc, np.float32))
         rot = np.eye(3) if normal_rotation is None else np.ascontiguousarray(normal_rotation, np.float64)
-        k = fuse_sorted(start, order, pair, xyz, sh, self.voxel_z_m if self.voxel_z_m > 0 else 1.0, s3, rgb, nrm, rot,
-                        float(cfg.k_sigma), float(cfg.min_tol_cells * self.grid.cell_m), int(cfg.min_support),
-                        float(cfg.min_support_ratio), float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers,
-                        self.cloud, *out[:7], *co, W, self.TILE, *out[7:])
+        k = fuse_sorted(start, order, a["pair"], a["xyz"], a["sh"], self.voxel_z_m if self.voxel_z_m > 0 else 1.0, s3,
+                        rgb, nrm, rot, float(cfg.k_sigma), float(cfg.min_tol_cells * self.grid.cell_m),
+                        int(cfg.min_support), float(cfg.min_support_ratio),
+                        float(cfg.max_pair_range_cells * self.grid.cell_m), grid_layers, self.cloud, *out[:7], *co, W,
+                        self.TILE, *out[7:])
         layers = tuple(a.reshape(self.grid.shape) for a in out) if grid_layers else None
         cloud = tuple(a[:k] for a in co) if self.cloud else None
         return layers, cloud
@@ -286,7 +298,7 @@ def fuse_cloud(grid: GridSpec, voxel_z_m: float, pair: NDArray[np.int64], xyz: N
     xyz, rgb, normal, support, sigma
         One row per kept voxel, ordered by blocks of 16 x 16 cells, then cell, then height.
     """
-    srt = CellSorter(grid, voxel_z_m, cloud=True)
+    srt = CellSorter(grid, voxel_z_m, cloud=True, capacity=len(xyz))
     srt.add(np.asarray(pair, np.int64), xyz, np.zeros(len(xyz)), np.asarray(sigma, np.float64), rgb, normal)
     _, cloud = srt.fuse(cfg, grid_layers=False, normal_rotation=normal_rotation)
     assert cloud is not None

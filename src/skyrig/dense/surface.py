@@ -418,12 +418,15 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
 
     vox = plan.config.cloud_voxel_m or plan.grid.cell_m
     with_cloud = plan.config.cloud and vox == plan.grid.cell_m  # the cloud's voxels on the grid's cells: one sort
-    srt = CellSorter(tg, vox if with_cloud else 0.0, cloud=with_cloud)
+    hits = [np.flatnonzero((bb[:, 0] <= xb1) & (bb[:, 2] >= xb0) & (bb[:, 1] <= yb1) & (bb[:, 3] >= yb0))
+            for bb in plan.block_bounds]
+    # at most one point per block pixel: the sorter's arrays are reserved once (memory is touched only where written)
+    cap = sum((bl[bi].v1 - bl[bi].v0) * (bl[bi].u1 - bl[bi].u0) for bl, hit in zip(plan.blocks, hits) for bi in hit)
+    srt = CellSorter(tg, vox if with_cloud else 0.0, cloud=with_cloud, capacity=cap)
     extra: list[tuple[int, PairPoints, NDArray]] = []  # a cloud on its own voxel grid
     npts, nblocks, mpx = 0, 0, 0.0
-    for pid, (pair, rect, bl, bb) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, plan.block_bounds)):
-        hit = (bb[:, 0] <= xb1) & (bb[:, 2] >= xb0) & (bb[:, 1] <= yb1) & (bb[:, 3] >= yb0)
-        for bi in np.flatnonzero(hit):
+    for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
+        for bi in hit:
             blk = bl[bi]
             disp, colour, _ = match_block(rect, image(pair.left), image(pair.right), blk, plan.config.sgm)
             nblocks += 1
