@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grid-cycles", type=int, default=4, help="most grid / IO cycles (calibrate_calqc max_grid_cycles)")
     ap.add_argument("--grid-uncertainty", type=int, default=0, metavar="PAIRS",
                     help="propagate the correction grid's posterior into the calibration covariance (antithetic pairs)")
+    ap.add_argument("--grid-method", choices=("joint", "cycles"), default="joint",
+                    help="grid node values as unknowns of the adjustment (joint) or grids from residuals (cycles)")
     ap.add_argument("--no-design", action="store_true", help="without the design study of the inseparable unknowns")
     ap.add_argument("--json", default=None, help="write the figures here")
     a = ap.parse_args(argv)
@@ -90,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     t1 = time.perf_counter()
     cal = calibrate_calqc(data, variants=not a.no_variants, grid=a.grid or not a.no_variants,
                           max_grid_cycles=a.grid_cycles, grid_uncertainty_draws=a.grid_uncertainty,
-                          design=not a.no_design)
+                          design=not a.no_design, grid_method=a.grid_method)
     t2 = time.perf_counter()
     rep = cal.to_dict()
     print(format_tables(rep))

@@ -35,13 +35,14 @@ def simulated_sigmas(truth) -> dict[str, object]:  # type: ignore[no-untyped-def
             "image_sigma_um": float(e.measurement_sigma_px * px_um)}
 
 
-def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sigmas: str = "recipe") -> dict[str, float]:
+def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sigmas: str = "recipe",
+        grid_method: str = "joint") -> dict[str, float]:
     from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario
 
     data, truth = midas_calqc_scenario("reduced", seed, tie_points=ties, camera_width_px=width,
                                        deformation_px=deformation_px)
     kw = simulated_sigmas(truth) if sigmas == "simulated" else {}
-    cal = calibrate_calqc(data, variants=False, grid=grid, design=False, **kw)
+    cal = calibrate_calqc(data, variants=False, grid=grid, design=False, grid_method=grid_method, **kw)
     z: dict[str, float] = {}
     for h, (v, cov) in cal.boresight.items():
         for a, x in zip(("rx", "ry", "rz"), (v - truth.boresight_rotvec_rad[h]) / np.sqrt(np.diag(cov))):
@@ -72,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grid", action="store_true", help="with the correction grid (iterated with the IO)")
     ap.add_argument("--sigmas", choices=("recipe", "simulated"), default="recipe",
                     help="a-priori sigmas: the recipe's defaults, or the noise the simulation drew")
+    ap.add_argument("--grid-method", choices=("joint", "cycles"), default="joint",
+                    help="grid node values as unknowns of the adjustment (joint) or grids from residuals (cycles)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     from skyrig.calibrate.calqc import CalqcFailed
@@ -82,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     for s in range(a.first_seed, a.first_seed + a.seeds):
         t = time.perf_counter()
         try:
-            rows.append(one(s, a.camera_width, a.tie_points, a.deformation_px, a.grid, a.sigmas))
+            rows.append(one(s, a.camera_width, a.tie_points, a.deformation_px, a.grid, a.sigmas, a.grid_method))
         except CalqcFailed as exc:  # counted and reported, not dropped silently
             failed.append({"seed": s, "error": str(exc)})
             print(f"seed {s}: FAILED: {exc}", flush=True)

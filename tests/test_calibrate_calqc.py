@@ -153,3 +153,44 @@ def test_collocation_grid_posterior_draws_have_the_node_sigmas() -> None:
     d = np.stack([g.sample(rng) for _ in range(400)])
     emp = d.std(axis=0).mean(axis=-1)
     assert np.median(np.abs(emp / g.sigma_px - 1.0)) < 0.08
+
+
+def test_collocation_prior_is_the_fitted_covariance_at_the_nodes() -> None:
+    from skyrig.calibrate.calqc import collocation_prior, grid_nodes_for
+
+    pix, obs = _samples(1500, 0.1, 11)
+    cov = fit_covariance(pix, obs, 0.5 * np.hypot(W, H))
+    spec = collocation_prior("cam", W, H, cov)
+    assert len(spec.x_px) == grid_nodes_for(cov, W, H)
+    gx, gy = np.meshgrid(spec.x_px, spec.y_px)
+    nodes = np.column_stack([gx.ravel(), gy.ravel()])
+    i, j = 0, len(nodes) // 2 + 1
+    # independent: the Gaussian covariance function written out, plus 1 % of c0 on the diagonal
+    assert spec.cov_px2[i, j] == pytest.approx(cov.c0 * np.exp(-(np.linalg.norm(nodes[i] - nodes[j]) / cov.length_px) ** 2))
+    assert spec.cov_px2[i, i] == pytest.approx(1.01 * cov.c0)
+    assert np.linalg.eigvalsh(spec.cov_px2)[0] > 0 and not spec.value_px.any()
+
+
+@pytest.mark.slow
+def test_calqc_joint_grid_returns_the_oblique_principal_distances_noise_free() -> None:
+    """Noise-free flight with a 0.3 px wave on the nadir camera: the residual-grid cycles leave the obliques'
+    principal distances with the share of the wave they absorbed through the tie points (1200 px: -0.59 / -0.62
+    a-priori sigma, module docstring); the grid nodes as unknowns of the adjustment return them (errors in a-priori
+    sigma: sigma / sigma0)."""
+    from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario
+
+    quiet = dict(gnss_noise_m=(0, 0, 0), imu_noise_rad=(0, 0, 0), gcp_sigma_m=(0, 0, 0))
+    data, truth = midas_calqc_scenario("reduced", 1, tie_points=800, camera_width_px=600, deformation_px=0.3,
+                                       error_overrides=quiet, image_noise_um=0.0)
+
+    def focal_z(cal):  # type: ignore[no-untyped-def]
+        s0 = cal.statistics["sigma0_joint"]
+        out = {}
+        for h, (names, v, cov) in cal.interior.items():
+            k = list(names).index("focal_mm")
+            out[h] = (v[k] - truth.intrinsics[h]["focal_mm"]) / (np.sqrt(cov[k, k]) / s0)
+        return out
+
+    joint = focal_z(calibrate_calqc(data, variants=False, grid=True, design=False))
+    for h in ("forward", "backward"):
+        assert abs(joint[h]) < 0.2, (h, joint)

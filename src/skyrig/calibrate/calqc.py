@@ -67,35 +67,34 @@ length needs (:func:`grid_nodes_for`: bilinear interpolation loses at most 1 % o
 fixed 13-node grid lost a fifth of a wave of two periods across the format, and with it the nadir principal
 point 1.5 sigma).  The grid is interpolated bilinearly and subtracted from the image coordinates.
 
-The grid and the calibration are estimated together: estimated once after the IO, a grid would leave the IO with the
-share of the deformation it absorbed (the residuals it is made from no longer hold that share), and the grid would
-miss it (on the simulated flight with a 0.3 px wave on the nadir camera: the nadir IO 6 sigma off, the grid 1.4 of
-its sigma off the truth; estimated together as below, with nodes dense enough: nadir IO within 2.2 sigma, the grid
-0.98 of its sigma off the truth, bench/calqc.py).  So the grid is freed of the fields the calibration unknowns make
-(shifts, radial scale, rotation and the projective terms of tilts over the format:
-:func:`without_calibration_part`), the joint adjustment (IO, boresights, datum shift) is repeated on the coordinates
-it corrects, and a new grid is made from those residuals plus the grid (the whole deformation), until the IO changes
-by less than 0.1 sigma (``max_grid_cycles``).  The calibration values, their covariance and step 4 are those of the
-corrected coordinates.  By default the grid is taken as known; ``grid_uncertainty_draws`` propagates its
-posterior (the node values' full collocation covariance, :meth:`CorrectionGrid.sample`) into the calibration
-covariance by antithetic Monte-Carlo pairs (:func:`grid_uncertainty`; simulated 0.3 px nadir wave, 1200 px cameras,
-seed 1, 4 pairs: sigmas up by at most 9.7 %, median 1.3 %; full-size flight without a deformation, 2 pairs: at most
-1.0 %, median 0.04 %).  Tab. 11's "refine" column is the lowest block again
-with the grid; sigma0 and the check-point RMS before and after are reported.
+The grid and the calibration are estimated together, by default **in one adjustment**
+(``grid_method="joint"``, :func:`joint_grid_adjustment`): the node values of every camera's grid are unknowns of
+the joint adjustment (IO, boresights, datum shift), added bilinearly to the projection of each observation
+(:mod:`skyrig.adjust.factors.image_grid`), with the collocation prior as an observation - zero mean, the node
+covariance from the covariance function fitted to the joint adjustment's residuals (:func:`collocation_prior`,
+nodes by :func:`grid_nodes_for`).  The prior keeps the grid from taking what the IO and the boresights explain at no
+cost, and the data put a deformation where it belongs even when other unknowns could absorb it in part: a smooth
+field on the nadir images moves the tie points, and the obliques' principal distances follow - a share that never
+appears in the nadir residuals, so no grid made from residuals can return it.  The covariance function is refitted
+to the whole deformation (residuals plus estimated grid) and the adjustment repeated while it moves by more than
+10 % (``max_grid_cycles``).  The adjustment's covariance holds the grid's uncertainty.  Measured noise-free
+(bench/calqc.py --size reduced --noise-free --deformation-px 0.3 --no-variants --grid --no-design, errors in
+a-priori sigma): forward / backward principal distance -0.02 / -0.03 (the residual-grid cycles below: -0.59 /
+-0.62), every boresight within 0.13, the nadir principal distance +0.52 (the wave's IO-like part on the grid's
+nodes); with noise, seed 1: 32 of 33 within 2 sigma, the nadir grid 0.028 px RMS off the injected wave.
 
-**What the grid cannot give back.**  A deformation of one head that the flight's other unknowns can absorb in part
-(a smooth field on the nadir images moves the tie points, and the obliques' principal distances follow) is not
-wholly in that head's residuals, so no grid made from residuals recovers that part, and the cycles above converge
-slowly along it.  Measured noise-free (bench/calqc.py --noise-free, 0.3 px wave on the nadir, 1200 px cameras, errors
-in a-priori sigma): without the grid forward / backward principal distance -4.69 / -2.97, nadir principal point x
--5.94; after the 4 grid cycles -0.59 / -0.62 / -0.58; after 15 cycles -0.25 / -0.28 / -0.09 but the nadir, left and
-right principal distances drift to +0.34 / +0.35 / +0.26 (Anderson mixing of the cycles gave the same path).  That
-deterministic remainder is the forward / backward focal bias of the seeded runs with the wave (20 seeds, 1200 px,
-the recipe's default sigmas: means -0.57 / -0.52; with the a-priori sigmas equal to the simulated noise, which pin
-the common focal / vertical-shift mode better: -0.22 / -0.28); without a deformation there is none (20 seeds with the
-grid, 1200 px: forward / backward focal means -0.14 / -0.11, with the simulated sigmas -0.02 / -0.10; noise-free
-full-size and reduced flights return every unknown exactly, bench/calqc_seeds.py).  Separating it needs the grid's
-nodes as unknowns of the adjustment with their collocation prior (not done).
+``grid_method="cycles"`` is the earlier scheme: the grid by collocation of the residuals, freed of the fields the
+calibration unknowns make (shifts, radial scale, rotation and the projective terms of tilts over the format:
+:func:`without_calibration_part`), the joint adjustment repeated on the coordinates it corrects, and a new grid from
+those residuals plus the grid, until the IO changes by less than 0.1 sigma (``max_grid_cycles``);
+``grid_uncertainty_draws`` propagates the grid's posterior (:meth:`CorrectionGrid.sample`) into the calibration
+covariance by antithetic Monte-Carlo pairs (:func:`grid_uncertainty`; 0.3 px nadir wave, 1200 px cameras, seed 1,
+4 pairs: sigmas up by at most 9.7 %, median 1.3 %).  It converges slowly along the share the obliques absorb:
+noise-free forward / backward principal distance -4.69 / -2.97 a-priori sigma without a grid, -0.59 / -0.62 after 4
+cycles, -0.25 / -0.28 after 15 while the nadir, left and right principal distances drift to +0.34 / +0.35 / +0.26.
+Either way the calibration values, their covariance and step 4 are those of the corrected coordinates; Tab. 11's
+"refine" column is the lowest block again with the grid; sigma0 and the check-point RMS before and after are
+reported.
 
 :func:`midas_calqc_scenario` simulates the boresight flight (``skyrig.simulate`` scenario ``midas``: 2,000 ft and
 4,000 ft, strips in alternating directions) with IO errors, a GNSS datum shift and optionally a smooth image
@@ -115,6 +114,7 @@ from numpy.typing import NDArray
 from skyrig._plain import plain
 from skyrig.adjust.adjust import AdjustmentResult, DatumDefectError, adjust
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.factors.image_grid import GridSpec
 from skyrig.adjust.presets import PRESETS, apply_preset
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
@@ -130,7 +130,7 @@ log = logging.getLogger(__name__)
 __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "CorrectionGrid", "calibrate_calqc",
            "collocation_grid", "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
            "format_tables", "report_html", "separability", "without_calibration_part", "calibration_part",
-           "grid_nodes_for"]
+           "grid_nodes_for", "collocation_prior", "joint_grid_adjustment"]
 
 #: the interior orientation CalQC unlocks: principal distance and principal point (PPAC)
 IO_PARAMETERS = ("focal_mm", "ppx_mm", "ppy_mm")
@@ -453,16 +453,13 @@ def _bilinear_design(xs: NDArray[np.float64], ys: NDArray[np.float64], pix: NDAr
     x; positions clamped to the format)."""
     from scipy.sparse import csr_matrix
 
+    from skyrig.adjust.factors.image_grid import bilinear_weights
+
+    idx, w = bilinear_weights(xs, ys, pix)
     nx, ny = len(xs), len(ys)
-    x = np.clip(pix[:, 0], xs[0], xs[-1])
-    y = np.clip(pix[:, 1], ys[0], ys[-1])
-    i = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, nx - 2)
-    j = np.clip(np.searchsorted(ys, y, side="right") - 1, 0, ny - 2)
-    tx = (x - xs[i]) / (xs[i + 1] - xs[i])
-    ty = (y - ys[j]) / (ys[j + 1] - ys[j])
     rows = np.repeat(np.arange(len(pix)), 4)
-    cols = np.column_stack([j * nx + i, j * nx + i + 1, (j + 1) * nx + i, (j + 1) * nx + i + 1]).ravel()
-    w = np.column_stack([(1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty]).ravel()
+    cols = idx.ravel()
+    w = w.ravel()
     return csr_matrix((w, (rows, cols)), shape=(len(pix), nx * ny))
 
 
@@ -637,6 +634,115 @@ def grid_uncertainty(block: Block, res: AdjustmentResult, grids: Mapping[str, Co
         dv = 0.5 * (pair[0] - pair[1])
         acc += np.outer(dv, dv)
     return acc / max(int(draws), 1)
+
+
+def collocation_prior(camera: str, width: int, height: int, cov: CovarianceFit, nodes_x: int | None = None,
+                      max_fraction: float = 0.01) -> GridSpec:
+    """The correction grid of a camera as unknowns of the adjustment: its nodes (``nodes_x`` across, default
+    :func:`grid_nodes_for`, the spacing least-squares collocation would use) and the collocation prior of the node
+    values (zero mean; covariance ``C(d)`` of the fitted function at the node distances, plus ``max_fraction`` of
+    ``c0`` on the diagonal: what bilinear interpolation between nodes of that spacing loses at most, which also keeps
+    the prior's inverse bounded), for :mod:`skyrig.adjust.factors.image_grid`."""
+    nx = int(nodes_x) if nodes_x else grid_nodes_for(cov, width, height, max_fraction)
+    ny = max(2, int(round(nx * height / width)))
+    xs = np.linspace(0.0, width - 1.0, nx)
+    ys = np.linspace(0.0, height - 1.0, ny)
+    gx, gy = np.meshgrid(xs, ys)
+    nodes = np.column_stack([gx.ravel(), gy.ravel()])
+    C = cov(np.linalg.norm(nodes[:, None, :] - nodes[None, :, :], axis=2))
+    C = C + max_fraction * cov.c0 * np.eye(len(nodes))
+    return GridSpec(camera, xs, ys, np.zeros((ny, nx, 2)), C)
+
+
+def _grid_residuals(res: AdjustmentResult) -> dict[int, tuple[NDArray[np.bool_], NDArray[np.float64]]]:
+    """Per camera index, the rows used and the whole systematic error at them (observed minus computed, plus the
+    correction grid the adjustment already estimated or applied there)."""
+    b = res.block
+    gr = res.residuals["image"]
+    use = (gr.weight > 0) if gr.weight.ndim == 1 else (gr.weight > 0).all(axis=-1)
+    err = -np.asarray(gr.residual, float)
+    grids = b.observations.get("image_grid")
+    cam_of_obs = b.image_camera[b.obs_image]
+    names = [c.name for c in b.cameras]
+    if grids is not None:
+        for g in grids.grids:
+            ci = names.index(g.camera)
+            sel = cam_of_obs == ci
+            err[sel] += CorrectionGrid(g.camera, g.x_px, g.y_px, g.value_px, np.zeros(g.value_px.shape[:2]),
+                                       None, 0).at(b.obs_pixel[sel])  # type: ignore[arg-type]
+    return {ci: (use & (cam_of_obs == ci), err) for ci in range(len(b.cameras))}
+
+
+def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig, nodes_x: int | None = None,
+                          max_cycles: int = 3, what: str = "joint (IO, boresights, datum shift) with correction grids"
+                          ) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], int]:
+    """The correction grids estimated *in* the adjustment, together with the calibration (module docstring).
+
+    ``block``: the block at the values of ``res`` (an adjustment without grids, e.g. the joint one); ``cfg`` its
+    configuration.  Per camera, the residuals of ``res`` give the covariance function (:func:`fit_covariance`) and
+    from it the nodes and the collocation prior (:func:`collocation_prior`); the block is adjusted with the node
+    values as unknowns (``image_grid="weighted"``).  The covariance function is fitted again to the whole
+    deformation (the new residuals plus the estimated grid) and the adjustment repeated while its signal variance or
+    correlation length moves by more than 10 % (``max_cycles`` adjustments at most).  Returns the adjustment (its
+    covariance holds the grids' uncertainty), the grids (values and posterior sigma from it) and the cycles run."""
+    from skyrig.adjust.factors.image_grid import ImageGrids
+
+    cfg_g = cfg.with_(image_grid="weighted")
+    b0 = block
+    fits: dict[str, CovarianceFit] = {}
+    r, cycles = res, 0
+    for cycles in range(1, int(max_cycles) + 1):
+        rb = r.block
+        specs = []
+        new_fits = {}
+        prev = rb.observations.get("image_grid")
+        prev_by = {g.camera: g for g in prev.grids} if prev is not None else {}
+        for ci, (sel, err) in _grid_residuals(r).items():
+            cam = rb.cameras[ci]
+            if sel.sum() < 10:
+                continue
+            cf = fit_covariance(rb.obs_pixel[sel], err[sel], 0.5 * float(np.hypot(cam.width, cam.height)))
+            if not cf.c0 > 0:
+                continue
+            new_fits[cam.name] = cf
+            spec = collocation_prior(cam.name, cam.width, cam.height, cf, nodes_x)
+            old = prev_by.get(cam.name)
+            if old is not None and old.value_px.shape == spec.value_px.shape:
+                spec.value_px = old.value_px.copy()  # the same nodes: start from the last estimate
+            specs.append(spec)
+        if not specs:
+            return r, {}, cycles - 1
+        moved = (not fits or set(fits) != set(new_fits) or any(
+            abs(new_fits[k].c0 / fits[k].c0 - 1) > 0.1 or abs(new_fits[k].length_px / fits[k].length_px - 1) > 0.1
+            for k in new_fits))
+        if not moved:
+            cycles -= 1
+            break
+        fits = new_fits
+        bg = replace(b0, cameras=list(rb.cameras), head_boresight=rb.head_boresight.copy(),
+                     datum_shift=rb.datum_shift.copy(), lever_arm=rb.lever_arm.copy(),
+                     observations={**b0.observations, "image_grid": ImageGrids(specs)})
+        r = _run(bg, cfg_g, f"{what}, cycle {cycles}")
+        for k, cf in fits.items():
+            log.info("calqc grid %s: c0 %.4f px^2, L %.0f px, nugget %.4f px^2", k, cf.c0, cf.length_px, cf.nugget)
+    grids: dict[str, CorrectionGrid] = {}
+    est = r.block.observations.get("image_grid")
+    if est is not None and r.covariance is not None:
+        lab = r.layout.labels
+        pos = {q: j for j, q in enumerate(lab)}
+        Q = r.covariance.Qcc * r.sigma0 ** 2
+        for g in est.grids:
+            ny, nx = g.value_px.shape[:2]
+            ix = [pos[("image_grid", g.camera, f"x{iy}_{jx}")] for iy in range(ny) for jx in range(nx)]
+            Qx = Q[np.ix_(ix, ix)]
+            lam, V = np.linalg.eigh(0.5 * (Qx + Qx.T))
+            factor = V * np.sqrt(np.clip(lam, 0.0, None))
+            grids[g.camera] = CorrectionGrid(g.camera, g.x_px, g.y_px, g.value_px.copy(),
+                                             np.sqrt(np.clip(np.diag(Qx), 0.0, None)).reshape(ny, nx),
+                                             fits[g.camera], int(np.sum(r.block.image_camera[r.block.obs_image]
+                                                                        == [c.name for c in r.block.cameras]
+                                                                        .index(g.camera))), factor)
+    return r, grids, cycles
 
 
 def apply_grids(block: Block, grids: Mapping[str, CorrectionGrid]) -> Block:
@@ -1095,13 +1201,21 @@ def calibrate_calqc(
     max_grid_cycles: int = 4,
     grid_uncertainty_draws: int = 0,
     design: bool = True,
+    grid_method: str = "joint",
 ) -> CalqcCalibration:
     """Run the paper-004 recipe (module docstring) on a boresight flight.
 
     ``image_sigma_um``: a-priori sigma of an image coordinate (paper 004: 4 um, 0.6 px of 6.4 um).  The
     GNSS, IMU and control sigmas are those of the data (paper: 5 cm, and 0.05 deg for its IMU attitudes).
     Raises :class:`CalqcFailed` when a step fails; an inseparable pair of unknowns is not a failure of the step
-    (it is reported in ``inseparable``) unless the normal equations are singular."""
+    (it is reported in ``inseparable``) unless the normal equations are singular.
+
+    ``grid_method``: ``"joint"`` (default) estimates the correction grids' node values in the adjustment with their
+    collocation prior (:func:`joint_grid_adjustment`; its covariance holds the grids' uncertainty, so
+    ``grid_uncertainty_draws`` is not needed and ignored); ``"cycles"`` the earlier scheme, grids by collocation of
+    the residuals alternating with the joint adjustment (``max_grid_cycles``)."""
+    if grid_method not in ("joint", "cycles"):
+        raise ValueError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
     rig = data.rig
     sig_px = float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0)
     imu_sig = tuple(float(np.radians(v)) for v in imu_sigma_deg)
@@ -1202,7 +1316,20 @@ def calibrate_calqc(
                                    for c in r.block.cameras])
             return vals, np.sqrt(np.diag(cv)[ix])
 
-        for grid_cycles in range(1, max_grid_cycles + 1):
+        if grid_method == "joint":
+            io_before, s_before = io_sigma(rj)
+            bjg = replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
+                          datum_shift=rj.block.datum_shift.copy())
+            rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=grid_nodes,
+                                                           max_cycles=max_grid_cycles)
+            record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
+            io_after, _ = io_sigma(rj)
+            # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
+            grid_change = float(np.max(np.abs(io_after - io_before) / s_before)) if s_before.size else 0.0
+            if grid_uncertainty_draws > 0:
+                notes.append("grid_uncertainty_draws ignored: the joint adjustment's covariance holds the grids' "
+                             "uncertainty")
+        for grid_cycles in (range(1, max_grid_cycles + 1) if grid_method == "cycles" else ()):
             grids = grid_from_result(rj, base=grids, calibration_free=True, nodes_x=grid_nodes)
             bg = apply_grids(replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
                                      datum_shift=rj.block.datum_shift.copy()), grids)
@@ -1215,10 +1342,10 @@ def calibrate_calqc(
             grid_change = change
             if change < 0.1:
                 break
-        if grid_change >= 0.1:
+        if grid_method == "cycles" and grid_change >= 0.1:
             log.warning("calqc: the correction grid and the IO still moved %.2f sigma in the last of %d cycles; the "
                         "IO may keep part of the image deformation (raise max_grid_cycles)", grid_change, grid_cycles)
-        if grid_uncertainty_draws > 0 and grids:
+        if grid_method == "cycles" and grid_uncertainty_draws > 0 and grids:
             grid_cov = grid_uncertainty(replace(bj, cameras=list(rj.block.cameras),
                                                 head_boresight=rj.block.head_boresight.copy(),
                                                 datum_shift=rj.block.datum_shift.copy()), rj, grids, cfgj,
@@ -1285,6 +1412,7 @@ def calibrate_calqc(
              "sigma_um_step4": _sigma_um(b4, r4.sigma0), "cycles_steps_2_3": float(cycles),
              "sigma0_joint": float(rj.sigma0), "flying_heights": float(len(geom["heights_m"])),
              "opposite_directions": float(geom["opposite_directions"]), "grid_cycles": float(grid_cycles),
+             "grid_unknowns_in_adjustment": float(bool(grid) and grid_method == "joint"),
              "grid_last_io_change_sigma": float(grid_change), **grid_stats}
 
 
