@@ -737,11 +737,13 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
             Qx = Q[np.ix_(ix, ix)]
             lam, V = np.linalg.eigh(0.5 * (Qx + Qx.T))
             factor = V * np.sqrt(np.clip(lam, 0.0, None))
+            ci = [c.name for c in r.block.cameras].index(g.camera)
+            n_obs = int(np.sum(r.block.image_camera[r.block.obs_image] == ci))
+            # the posterior sigma and factor of the x values (the prior is the same for y; their posteriors differ
+            # only by the observations' geometry)
             grids[g.camera] = CorrectionGrid(g.camera, g.x_px, g.y_px, g.value_px.copy(),
                                              np.sqrt(np.clip(np.diag(Qx), 0.0, None)).reshape(ny, nx),
-                                             fits[g.camera], int(np.sum(r.block.image_camera[r.block.obs_image]
-                                                                        == [c.name for c in r.block.cameras]
-                                                                        .index(g.camera))), factor)
+                                             fits[g.camera], n_obs, factor)
     return r, grids, cycles
 
 

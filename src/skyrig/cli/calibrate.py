@@ -447,9 +447,14 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
               help="IMU sigma roll,pitch,yaw (degrees; one or three values).")
 @click.option("--control-sigma", default="0.05", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--no-grid", is_flag=True, help="Skip the correction grid.")
+@click.option("--grid-method", type=click.Choice(["joint", "cycles"]), default="joint", show_default=True,
+              help="joint: the grid's node values are unknowns of the joint adjustment with their collocation prior "
+                   "(its covariance holds the grid's uncertainty); cycles: grids by collocation of the residuals "
+                   "alternating with the adjustment.")
 @click.option("--grid-uncertainty", "grid_pairs", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Propagate the correction grid's posterior into the calibration covariance with this many "
-                   "antithetic Monte-Carlo pairs (each two adjustments of the whole flight; 0: the grid taken as known).")
+              help="With --grid-method cycles: propagate the correction grid's posterior into the calibration "
+                   "covariance with this many antithetic Monte-Carlo pairs (each two adjustments of the whole flight; "
+                   "0: the grid taken as known).")
 @click.option("--no-design-study", is_flag=True,
               help="Skip the design study (which unknowns this flight cannot separate, per head, and the flight that "
                    "would: virtual opposite-direction / cross-strip / second-height flights).")
@@ -460,10 +465,14 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
 def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
-                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_pairs, no_design_study, no_variants, flight,
+                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_method, grid_pairs, no_design_study,
+                  no_variants, flight,
                   date, output, report_path) -> None:
     """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
     three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
+    if grid_pairs and grid_method == "joint":
+        raise click.UsageError("--grid-uncertainty needs --grid-method cycles (the joint adjustment's covariance "
+                               "already holds the grid's uncertainty)")
     import numpy as np
 
     from skyrig import __version__
@@ -499,7 +508,7 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
                               imu_sigma_deg=triple(imu_sigma_deg, "--imu-sigma-deg"),
                               control_sigma_m=triple(control_sigma, "--control-sigma"), grid=not no_grid,
                               variants=not no_variants, grid_uncertainty_draws=grid_pairs,
-                              design=not no_design_study)
+                              design=not no_design_study, grid_method=grid_method)
     except CalqcFailed as exc:
         raise click.ClickException(f"calibration failed: {exc}") from None
     except SkyrigError as exc:
