@@ -1,6 +1,6 @@
 """Compiled kernels of the dense chain (numba).
 
-Fusion: a counting sort by cell of the points' indices (:func:`grid_cells` counts, :func:`scatter_index` places),
+Fusion: a counting sort by cell of the points' indices (:func:`take_points` counts, :func:`scatter_index` places),
 then small sorts inside each cell (:func:`fuse_sorted`: the grid
 and the voxel cloud of a cell from one read of its points).  The rules are those documented in
 :mod:`skyrig.dense.fusion`; these kernels only make them O(N) in the number of points instead of several global
@@ -30,49 +30,67 @@ def scatter_index(cell, pos, base, order):  # pragma: no cover - compiled
         order[j] = base + i
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _cell_of(xi, yi, zi, si, test_bounds, bounds, x0, y0, cell_m, H, W, tile, ntc):  # pragma: no cover - compiled
+    """The flat cell index ``row * W + col`` of a point (``GridSpec.cell_of``), -1 for a point outside the grid,
+    with a non-finite coordinate or a sigma ``si`` not > 0, or (``test_bounds``) outside ``bounds``
+    ``(xmin, ymin, xmax, ymax)`` (``xmin <= x < xmax`` and ``ymin < y <= ymax`` are inside).  ``tile > 0``: the index
+    in ``tile x tile`` blocks of cells instead (:func:`tiled_cell`; ``ntc`` blocks along a row), so that a counting
+    sort by it keeps nearby cells' points near each other in memory."""
+    if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi)):
+        return -1
+    if not si > 0:
+        return -1
+    if test_bounds and not (xi >= bounds[0] and xi < bounds[2] and yi > bounds[1] and yi <= bounds[3]):
+        return -1
+    col = np.floor((xi - x0) / cell_m)
+    row = np.floor((y0 - yi) / cell_m)
+    if col < 0 or col >= W or row < 0 or row >= H:
+        return -1
+    r, c = int(row), int(col)
+    if tile > 0:
+        return ((r // tile) * ntc + c // tile) * tile * tile + (r % tile) * tile + c % tile
+    return r * W + c
+
+
 @numba.njit(cache=True, error_model="numpy")
-def grid_cells(x, y, z, sigma, x0, y0, cell_m, H, W, tile, bounds, counts, cell):  # pragma: no cover - compiled
-    """Write to ``cell`` the flat cell index ``row * W + col`` of each point (``GridSpec.cell_of``), -1 for points
-    outside the grid, with a non-finite coordinate or a sigma not > 0 (no test with an empty ``sigma``).
-    ``tile > 0``: the index in ``tile x tile`` blocks of cells instead (:func:`tiled_cell`), so that a counting sort
-    by it keeps nearby cells' points near each other in memory.  ``bounds`` ``(xmin, ymin, xmax, ymax)``, if not
-    empty: only points with ``xmin <= x < xmax`` and ``ymin < y <= ymax`` get a cell.  ``counts``
-    (``(ncells + 1,)``), if not empty: ``counts[cell + 1]`` is incremented for each point with a cell (its cumulative
-    sum is then every cell's start offset).  Returns the number of points with a cell."""
-    n = x.shape[0]
-    test_sigma = sigma.shape[0] > 0
+def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_sh, o_pair, o_s3, o_rgb, o_n, o_cell,
+                at, test_sigma, x0, y0, cell_m, H, W, tile, bounds, counts):  # pragma: no cover - compiled
+    """Copy a batch of points into rows ``at..`` of the point arrays ``o_*`` (``pair``, or ``pair_const`` when it is
+    empty; the cloud's ``sigma_3d``, ``rgb``, ``normal`` when ``o_s3`` is not empty) and give each its cell in
+    ``o_cell`` (:func:`_cell_of`; ``test_sigma``: ``sigma_h`` must be > 0; ``bounds``: if not empty), counted in
+    ``counts[cell + 1]`` (its cumulative sum is then every cell's start offset): one pass over the batch.  Returns the
+    number of points with a cell."""
+    n = xyz.shape[0]
+    has_pair = pair.shape[0] > 0
+    cloud = o_s3.shape[0] > 0
     test_bounds = bounds.shape[0] == 4
-    do_count = counts.shape[0] > 0
     ntc = (W + tile - 1) // tile if tile > 0 else 0
     k = 0
     for i in range(n):
-        cell[i] = -1
-        xi, yi, zi = x[i], y[i], z[i]
-        if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi)):
-            continue
-        if test_sigma and not sigma[i] > 0:
-            continue
-        if test_bounds and not (xi >= bounds[0] and xi < bounds[2] and yi > bounds[1] and yi <= bounds[3]):
-            continue
-        col = np.floor((xi - x0) / cell_m)
-        row = np.floor((y0 - yi) / cell_m)
-        if col < 0 or col >= W or row < 0 or row >= H:
-            continue
-        r, c = int(row), int(col)
-        if tile > 0:
-            q = ((r // tile) * ntc + c // tile) * tile * tile + (r % tile) * tile + c % tile
-        else:
-            q = r * W + c
-        cell[i] = q
-        k += 1
-        if do_count:
+        j = at + i
+        xi, yi, zi = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        o_xyz[j, 0] = xi
+        o_xyz[j, 1] = yi
+        o_xyz[j, 2] = zi
+        o_sh[j] = sigma_h[i]
+        o_pair[j] = pair[i] if has_pair else pair_const
+        if cloud:
+            o_s3[j] = sigma_3d[i]
+            for t in range(3):
+                o_rgb[j, t] = rgb[i, t]
+                o_n[j, t] = normal[i, t]
+        q = _cell_of(xi, yi, zi, sigma_h[i] if test_sigma else 1.0, test_bounds, bounds, x0, y0, cell_m, H, W, tile, ntc)
+        o_cell[j] = q
+        if q >= 0:
+            k += 1
             counts[q + 1] += 1
     return k
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def tiled_cell(key, W, tile):  # pragma: no cover - compiled
-    """The flat cell index ``row * W + col`` of a :func:`grid_cells` index in ``tile x tile`` blocks (-1: a
+    """The flat cell index ``row * W + col`` of a :func:`_cell_of` index in ``tile x tile`` blocks (-1: a
     block's padding beyond the grid's last column)."""
     if tile <= 0:
         return key
@@ -91,7 +109,7 @@ def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, norm
                 out_cs2=np.zeros(0, np.float32), out_cn2=np.zeros(0, np.int16)):  # pragma: no cover - compiled
     """Grid and/or voxel fusion of points sorted by cell: cell ``c``'s points are ``order[start[c]:start[c+1]]``
     (rows of the point arrays ``pair, xyz, ...``, in input order; :func:`scatter_index`); with ``tile > 0`` ``c`` is
-    an index in blocks of cells of a grid ``W`` cells wide, see :func:`grid_cells`.
+    an index in blocks of cells of a grid ``W`` cells wide, see :func:`_cell_of`.
 
     Grid (``do_grid``, see :func:`skyrig.dense.fusion.fuse_grid`): the points with ``sigma_h > 0``, heights
     ``xyz[:, 2]``, gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with

@@ -156,7 +156,7 @@ class CellSorter:
         if self.arrays and need <= len(self.arrays["cell"]):
             return
         cap = max(need, self.capacity, 2 * len(self.arrays["cell"]) if self.arrays else 0)
-        spec = {"cell": ((), np.int64), "pair": ((), np.int32), "xyz": ((3,), np.float64),
+        spec = {"cell": ((), np.int64), "pair": ((), np.int64), "xyz": ((3,), np.float64),
                 "sh": ((), self.arrays["sh"].dtype if self.arrays else np.asarray(sigma_h).dtype)}
         if self.cloud:
             spec.update({"s3": ((), self.arrays["s3"].dtype if self.arrays else np.asarray(sigma_3d).dtype),
@@ -174,23 +174,28 @@ class CellSorter:
         (``test_sigma``: points whose ``sigma_h`` is not > 0 are left out here already), and for a cloud the 3-D
         precision, colour and normal.  ``bounds`` ``(xmin, ymin, xmax, ymax)``: only points with ``xmin <= x < xmax``
         and ``ymin < y <= ymax`` are taken (a ground tile's).  Returns the number of points taken."""
-        from skyrig.dense._kernels import grid_cells
+        from skyrig.dense._kernels import take_points
 
         g = self.grid
         H, W = g.shape
-        p = np.asarray(xyz, np.float64).reshape(-1, 3)
+        p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
         m = len(p)
         self._reserve(m, sigma_h, sigma_3d)
-        a, sl = self.arrays, slice(self.n, self.n + m)
-        a["xyz"][sl] = p
-        a["sh"][sl] = sigma_h
-        a["pair"][sl] = pair
+        a = self.arrays
+        if isinstance(pair, (int, np.integer)):
+            pa, pc = np.zeros(0, np.int64), int(pair)
+        else:
+            pa, pc = np.ascontiguousarray(pair, np.int64), 0
         if self.cloud:
-            a["s3"][sl], a["rgb"][sl], a["nrm"][sl] = sigma_3d, rgb, normal
-        q = a["xyz"][sl]
-        k = grid_cells(q[:, 0], q[:, 1], q[:, 2], a["sh"][sl] if test_sigma else np.zeros(0), float(g.x0),
-                       float(g.y0), float(g.cell_m), H, W, self.TILE,
-                       np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts, a["cell"][sl])
+            cl = (np.ascontiguousarray(sigma_3d, a["s3"].dtype), np.ascontiguousarray(rgb, np.uint8),
+                  np.ascontiguousarray(normal, np.float32), a["s3"], a["rgb"], a["nrm"])
+        else:
+            cl = (np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32),
+                  np.zeros(0, np.float32), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
+        k = take_points(p, np.ascontiguousarray(sigma_h, a["sh"].dtype) if not test_sigma else
+                        np.ascontiguousarray(sigma_h), pa, pc, cl[0], cl[1], cl[2], a["xyz"], a["sh"], a["pair"], cl[3],
+                        cl[4], cl[5], a["cell"], self.n, test_sigma, float(g.x0), float(g.y0), float(g.cell_m), H, W,
+                        self.TILE, np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts)
         self.n += m
         return int(k)
 
