@@ -298,43 +298,26 @@ def test_chain_simulate_adjust_nadir_transfer(tmp_path_factory, bench):
 
 
 @pytest.mark.slow
-def test_facades_from_transferred_orientations(bench):
-    """Issue 11: "the TumbleCam textures from transferred orientations reach the same" (window corners within 1 texel
-    of the simulator's façade rule).  The tumblecam-dsm flight's oblique images (rendered with the TRUE rig on first
-    use), orientations transferred from nadir orientations with adjustment-size errors (0.006 deg, 5 cm: what skyrig
-    adjust reaches on this block) through the lab-calibrated rig; without the curve the windows move off."""
-    from skyrig.geometry.pose import Pose
-    from skyrig.simulate.render import render_image
-
-    sv = build_survey(scenario_spec("tumblecam-dsm", "ci", 1))
-    rng = np.random.default_rng(21)
-    eo = sv.eo_true
-    nad = _nadir(eo)
-    noisy = replace(nad, rotation=nad.rotation @ matrix_from_rotvec(rng.normal(0, 1e-4, (len(nad), 3))),
-                    centre=nad.centre + rng.normal(0, 0.05, (len(nad), 3)))
-    rig = bench.calibrated_rig(sv.rig_recorded, bench.lab_calibrated_curve(sv.tumble_curve, rng))
-    cams = {h.camera.name: h.camera for h in sv.rig_true}
-    true_ob = _obliques(eo)
-    idx = true_ob.index()
-    cache: dict[str, np.ndarray] = {}
-
-    def loader_for(e):
-        def load(i):
-            k = idx[str(e.image[i])]
-            if k not in cache:
-                cache[k] = render_image(sv.scene, cams[str(true_ob.camera[k])],
-                                        Pose(true_ob.rotation[k], true_ob.centre[k], "world", "camera"), noise_dn=1.0, seed=k)
-            return cache[k]
-        return load
-
-    res = {}
-    for lab, cv in (("curve", "rig"), ("no_curve", None)):
-        tr = transfer_orientations(noisy, rig, sv.events_true, curve=cv)
-        res[lab] = bench.town_facades(sv, tr, cams, loader_for(tr))
+def test_facades_from_transferred_orientations(tmp_path_factory, bench):
+    """Issue 11: "the TumbleCam textures from transferred orientations reach the same" (every window corner within
+    1 texel of the simulator's façade rule, as from the true orientations).  The real chain on the tumblecam-dsm
+    flight (80/60 block of 4 x 6 exposures): skyrig simulate -> georef / match / block / adjust of the nadir images
+    only -> skyrig transfer to the obliques through the lab-calibrated rig (bench/tumblecam_chain.py) -> façade
+    textures from the simulated oblique images.  On this tree the adjusted nadir orientations are off the truth by
+    (1.6, 1.4, 4.6) cm and (66, 61, 43) urad RMS per axis (the height mostly a common 4.6 cm); earlier this test
+    drew 5 cm and 100 urad per axis instead, sqrt(3) times what the adjustment reaches, and one window corner
+    came out at 1.07 texel.  Without the curve the windows move off."""
+    cache = tmp_path_factory.mktemp("tumblecam-dsm-chain")
+    r = bench.chain(cache, np.random.default_rng(7), "tumblecam-dsm")
+    p = cache / "tumblecam-dsm"
+    res = bench.facades(p, {"curve": p / "output" / "eo_obliques_curve.csv",
+                            "no_curve": p / "output" / "eo_obliques_no_curve.csv"}, Path(r["rig"]),
+                        scenario="tumblecam-dsm")
     c, n = res["curve"], res["no_curve"]
+    # the adjustment is what the chain is about: its nadir errors stay at adjustment size (a few cm, ~0.01 deg)
+    assert r["adjust"]["centre_rms_m"] < 0.15 and r["adjust"]["rotation_rms_deg"] < 0.02, r["adjust"]
     assert c["seen"] >= 5 and c["windows_found"] >= 0.9 * c["windows"] > 0, c
-    # the judge locates window edges to ~0.25 texel (1 sigma): a few of the 4-corner maxima may pass 1 texel
-    assert c["windows_within_1px"] >= 0.95 * c["windows_found"], c
+    assert c["windows_within_1px"] == c["windows_found"], c
     assert c["offset_max_px"] <= 1.0, c
     assert n["windows_within_1px"] < 0.8 * n["windows_found"] or n["offset_max_px"] > 1.0, n
 
