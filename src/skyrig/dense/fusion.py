@@ -149,6 +149,7 @@ class CellSorter:
         self.n = 0
         self.capacity = max(int(capacity), 0)
         self.arrays: dict[str, NDArray] = {}
+        self.wide_pairs = False
 
     def _reserve(self, m: int, sigma_h: NDArray, sigma_3d: NDArray | None) -> None:
         """Room for ``m`` more points (the arrays' dtypes: the first batch's precisions)."""
@@ -156,7 +157,9 @@ class CellSorter:
         if self.arrays and need <= len(self.arrays["cell"]):
             return
         cap = max(need, self.capacity, 2 * len(self.arrays["cell"]) if self.arrays else 0)
-        spec = {"cell": ((), np.int64), "pair": ((), np.int64), "xyz": ((3,), np.float64),
+        # cells and pair ids in 32 bits where they fit (every byte per point is memory the tile touches once)
+        spec = {"cell": ((), np.int32 if len(self.counts) < 2 ** 31 else np.int64),
+                "pair": ((), np.int64 if self.wide_pairs else np.int32), "xyz": ((3,), np.float64),
                 "sh": ((), self.arrays["sh"].dtype if self.arrays else np.asarray(sigma_h).dtype)}
         if self.cloud:
             spec.update({"s3": ((), self.arrays["s3"].dtype if self.arrays else np.asarray(sigma_3d).dtype),
@@ -180,12 +183,14 @@ class CellSorter:
         H, W = g.shape
         p = np.ascontiguousarray(xyz, np.float64).reshape(-1, 3)
         m = len(p)
+        pa = np.zeros(0, np.int64) if isinstance(pair, (int, np.integer)) else np.ascontiguousarray(pair, np.int64)
+        pc = int(pair) if isinstance(pair, (int, np.integer)) else 0
+        if not self.wide_pairs and (pc >= 2 ** 31 or (len(pa) and (pa.max() >= 2 ** 31 or pa.min() < -2 ** 31))):
+            self.wide_pairs = True
+            if self.arrays:
+                self.arrays["pair"] = self.arrays["pair"].astype(np.int64)
         self._reserve(m, sigma_h, sigma_3d)
         a = self.arrays
-        if isinstance(pair, (int, np.integer)):
-            pa, pc = np.zeros(0, np.int64), int(pair)
-        else:
-            pa, pc = np.ascontiguousarray(pair, np.int64), 0
         if self.cloud:
             cl = (np.ascontiguousarray(sigma_3d, a["s3"].dtype), np.ascontiguousarray(rgb, np.uint8),
                   np.ascontiguousarray(normal, np.float32), a["s3"], a["rgb"], a["nrm"])
