@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check full]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -18,7 +18,9 @@ Per size, in a fresh subprocess (so ``ru_maxrss`` is that size's peak), after th
 reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
 
 * **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
-  image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`;
+  image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`
+  (``--lr-check full``: with the second, right-based matching of ``SgmConfig.lr_check="full"`` instead of the
+  default, OpenCV's internal check);
 * **raw**: for every pair the plan selected, ``cv2.StereoSGBM_create(...).compute`` once on the pair's
   whole rectified overlap (the left image's rectified bounds plus the search width on the left, the right
   image shifted by the window start), grey, with the same disparity window (the union of the pair's block
@@ -128,12 +130,15 @@ def setup(cache: Path, n: int, workers: int | None = None):  # type: ignore[no-u
     return eo, cameras, loader, WorldFrame.map(survey.spec.crs), hr
 
 
-def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None):  # type: ignore[no-untyped-def]
+def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,  # type: ignore[no-untyped-def]
+              lr_check: str | None = None):
     from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
 
     from skyrig.dense import _phases
 
     cfg = DenseConfig() if tile_cells is None else DenseConfig(tile_cells=tile_cells)
+    if lr_check is not None:
+        cfg = replace(cfg, sgm=replace(cfg.sgm, lr_check=lr_check))
     _phases.reset()
     c0 = time.process_time()
     t0 = time.perf_counter()
@@ -213,7 +218,8 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
             "raw_ov_cpu_s": cpu_ov, "overlap_mp": mp_ov}
 
 
-def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, cold: bool = False) -> dict:
+def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, cold: bool = False,
+           lr_check: str | None = None) -> dict:
     """One size, in this (fresh) process: start-up (unless ``cold``), chain, then raw; peak memory of each phase."""
     import cv2
 
@@ -221,7 +227,7 @@ def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, col
     cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
     start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells)
+    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     raw = run_raw(plan, loader)
     h = dsm.height
@@ -264,11 +270,14 @@ def main(argv: list[str] | None = None) -> None:
                          "kernels, LLVM set-up - inside the chain's time); default: the start-up is run first on a "
                          "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per "
                          "process)")
+    ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
+                    help="SgmConfig.lr_check of the chain (default: DenseConfig's, OpenCV's internal check); raw "
+                         "StereoSGBM always runs OpenCV's internal check (disp12MaxDiff)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     if a.worker is not None:
-        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold)))
+        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold, a.lr_check)))
         return
     if a.profile is not None:
         profile(cache, a.profile)
@@ -281,7 +290,7 @@ def main(argv: list[str] | None = None) -> None:
     import cv2
 
     print(f"{'cold start (start-up in the chain)' if a.cold else 'start-up timed apart (column start s)'}; "
-          f"tile_cells {a.tile_cells or 'default'}; OpenCV {cv2.__version__}, "
+          f"tile_cells {a.tile_cells or 'default'}; lr_check {a.lr_check or 'default'}; OpenCV {cv2.__version__}, "
           f"cv2.setNumThreads({a.cv_threads}) in chain "
           f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
     rows = []
@@ -291,6 +300,8 @@ def main(argv: list[str] | None = None) -> None:
             cmd.append("--cold")
         if a.tile_cells is not None:
             cmd += ["--tile-cells", str(a.tile_cells)]
+        if a.lr_check is not None:
+            cmd += ["--lr-check", a.lr_check]
         p = subprocess.run(cmd, capture_output=True, text=True)
         line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
         if p.returncode != 0 or not line:
