@@ -56,20 +56,24 @@ def _cell_of(xi, yi, zi, si, test_bounds, bounds, x0, y0, cell_m, H, W, tile, nt
 @numba.njit(cache=True, error_model="numpy")
 def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_sh, o_pair, o_s3, o_rgb, o_n, o_cell,
                 at, test_sigma, x0, y0, cell_m, H, W, tile, bounds, counts):  # pragma: no cover - compiled
-    """Copy a batch of points into rows ``at..`` of the point arrays ``o_*`` (``pair``, or ``pair_const`` when it is
-    empty; the cloud's ``sigma_3d``, ``rgb``, ``normal`` when ``o_s3`` is not empty) and give each its cell in
-    ``o_cell`` (:func:`_cell_of`; ``test_sigma``: ``sigma_h`` must be > 0; ``bounds``: if not empty), counted in
-    ``counts[cell + 1]`` (its cumulative sum is then every cell's start offset): one pass over the batch.  Returns the
-    number of points with a cell."""
+    """Copy the points of a batch that have a cell (:func:`_cell_of`; ``test_sigma``: ``sigma_h`` must be > 0;
+    ``bounds``: if not empty), in their order, into rows ``at..`` of the point arrays ``o_*`` (``pair``, or
+    ``pair_const`` when it is empty; the cloud's ``sigma_3d``, ``rgb``, ``normal`` when ``o_s3`` is not empty), their
+    cells into ``o_cell``, counted in ``counts[cell + 1]`` (its cumulative sum is then every cell's start offset):
+    one pass over the batch.  Returns the number of points taken."""
     n = xyz.shape[0]
     has_pair = pair.shape[0] > 0
     cloud = o_s3.shape[0] > 0
     test_bounds = bounds.shape[0] == 4
     ntc = (W + tile - 1) // tile if tile > 0 else 0
-    k = 0
+    j = at
     for i in range(n):
-        j = at + i
         xi, yi, zi = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        q = _cell_of(xi, yi, zi, sigma_h[i] if test_sigma else 1.0, test_bounds, bounds, x0, y0, cell_m, H, W, tile, ntc)
+        if q < 0:
+            continue
+        o_cell[j] = q
+        counts[q + 1] += 1
         o_xyz[j, 0] = xi
         o_xyz[j, 1] = yi
         o_xyz[j, 2] = zi
@@ -80,12 +84,8 @@ def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_
             for t in range(3):
                 o_rgb[j, t] = rgb[i, t]
                 o_n[j, t] = normal[i, t]
-        q = _cell_of(xi, yi, zi, sigma_h[i] if test_sigma else 1.0, test_bounds, bounds, x0, y0, cell_m, H, W, tile, ntc)
-        o_cell[j] = q
-        if q >= 0:
-            k += 1
-            counts[q + 1] += 1
-    return k
+        j += 1
+    return j - at
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")

@@ -129,8 +129,9 @@ def fuse_grid(grid: GridSpec, pair: NDArray[np.int64], x: NDArray[np.float64], y
 
 class CellSorter:
     """Points of several batches (e.g. blocks of stereo pairs) sorted by the cell of a grid they fall in, for
-    :meth:`fuse`: each batch is copied once into arrays of all the points (grown as needed; ``capacity``: the
-    expected number of points, memory is only touched where points are written), a counting sort over all of them
+    :meth:`fuse`: the points of each batch that fall in a cell are copied once into arrays of all the points (grown
+    as needed; ``capacity``: the expected number of points, memory is only touched where points are written), a
+    counting sort over all of them
     (stable: a cell keeps its points in the order they were added) orders their indices only, and the fusion reads
     each cell's points through them.
 
@@ -201,7 +202,7 @@ class CellSorter:
                         np.ascontiguousarray(sigma_h), pa, pc, cl[0], cl[1], cl[2], a["xyz"], a["sh"], a["pair"], cl[3],
                         cl[4], cl[5], a["cell"], self.n, test_sigma, float(g.x0), float(g.y0), float(g.cell_m), H, W,
                         self.TILE, np.zeros(0) if bounds is None else np.array(bounds, np.float64), self.counts)
-        self.n += m
+        self.n += int(k)  # only the points with a cell are kept
         return int(k)
 
     def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
