@@ -76,20 +76,38 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grid-method", choices=("joint", "cycles"), default="joint",
                     help="grid node values as unknowns of the adjustment (joint) or grids from residuals (cycles)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--rows", default=None, help="append each seed's normalised errors to this file as a JSON line "
+                                                 "(a long run can be summarised while it goes: --from-rows)")
+    ap.add_argument("--from-rows", default=None, help="summarise the seeds of a --rows file instead of running")
     a = ap.parse_args(argv)
     from skyrig.calibrate.calqc import CalqcFailed
 
     rows: list[dict[str, float]] = []
     failed: list[dict[str, object]] = []
     t0 = time.perf_counter()
-    for s in range(a.first_seed, a.first_seed + a.seeds):
+    if a.from_rows:
+        with open(a.from_rows) as fh:
+            for line in fh:
+                rec = json.loads(line)
+                if "error" in rec:
+                    failed.append(rec)
+                else:
+                    rows.append(rec["z"])
+        print(f"{len(rows)} seeds from {a.from_rows}")
+    for s in range(a.first_seed, a.first_seed + a.seeds) if not a.from_rows else ():
         t = time.perf_counter()
         try:
             rows.append(one(s, a.camera_width, a.tie_points, a.deformation_px, a.grid, a.sigmas, a.grid_method))
         except CalqcFailed as exc:  # counted and reported, not dropped silently
             failed.append({"seed": s, "error": str(exc)})
             print(f"seed {s}: FAILED: {exc}", flush=True)
+            if a.rows:
+                with open(a.rows, "a") as fh:
+                    fh.write(json.dumps(failed[-1]) + "\n")
             continue
+        if a.rows:
+            with open(a.rows, "a") as fh:
+                fh.write(json.dumps({"seed": s, "z": rows[-1]}) + "\n")
         print(f"seed {s}: max |z| {max(abs(x) for x in rows[-1].values()):.2f} ({time.perf_counter() - t:.0f} s)",
               flush=True)
     if not rows:
