@@ -247,6 +247,14 @@ class ExtractionConfig:
         grid or beyond the surveyed area, see ``survey_gap_m``) listed in ``border_edges``.  Off: such buildings are left out.
     border_probe_m
         See ``clip_border`` (None: 1.5 cells).
+    ridge_gable
+        A roof that is neither one level nor a rectangle's gable (a polygon footprint), and any roof next to the
+        edge of the surveyed area (measured in part only: the rectangle is that of the measured part, whose middle
+        need not be the ridge), gets two planes with a ridge in any direction and position where
+        :func:`fit_ridge_gable` accepts them (its model-selection rule; the DSM's noise is the median of its
+        ``sigma`` on the roof cells, at least ``noise_m``).  The roof polygons: the footprint cut along the ridge.
+    noise_m
+        See ``ridge_gable``.
     survey_gap_m
         For ``border_edges``, the surveyed area is the measured cells closed by a disc of this diameter: the void
         strips a matched DSM leaves along walls (occluded ground, eroded depth edges) are not its border.
@@ -265,6 +273,8 @@ class ExtractionConfig:
     clip_border: bool = False
     border_probe_m: float | None = None
     survey_gap_m: float = 4.0
+    ridge_gable: bool = True
+    noise_m: float = 0.05
 
 
 def _fill_nearest(h: NDArray) -> NDArray[np.float32]:
@@ -468,6 +478,8 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
                     continue  # cut by the DSM's edge: its footprint is not known
                 cut = True
         edge_ring = ndimage.binary_dilation(comp, iterations=2) & ~comp
+        # next to the edge of the surveyed area (or the grid's): its roof may be measured in part only
+        at_border = cut or bool((edge_ring & outside[r0:r1, c0:c1]).any())
         if (edge_ring & outside[r0:r1, c0:c1]).sum() > cfg.max_outside * edge_ring.sum():
             if not cfg.clip_border:
                 continue  # cut by the edge of the surveyed area
@@ -525,12 +537,31 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
         zf = float(np.median(z))
         flat_spread = float(1.4826 * np.median(np.abs(z - zf)))
         eave, roof = zf, (np.column_stack([foot, np.full(len(foot), zf)]),)
+        got = None
         if rect is not None and len(z) >= 12:
             got = _gable(xy, z, rect, flat_spread, cfg)
             if got is not None:
                 eave, roof = got
                 if not is_rect:  # a clipped rectangle: the roof planes clipped with the footprint
                     roof = _clip_roofs(roof, foot)
+        if cfg.ridge_gable and (got is None or at_border):
+            # not a rectangle's gable (a polygon), or a roof measured in part only (at the survey's border the
+            # rectangle is that of the measured part, and its middle need not be the ridge): a ridge anywhere, if
+            # the DSM's heights choose it (fit_ridge_gable's rule; the noise: the DSM's predicted precision on
+            # these cells)
+            sg = np.asarray(dsm.sigma, np.float64)[r0:r1, c0:c1][inner] if dsm.sigma is not None else None
+            noise = float(np.nanmedian(sg)) if sg is not None and np.isfinite(sg).any() else cfg.noise_m
+            noise = max(noise, cfg.noise_m)
+            # heights within the noise of one level are a flat roof (a gable's slopes spread them more): not tried
+            fit = (fit_ridge_gable(xy, z, cell_m=cell, noise_m=noise, gain=cfg.gable_gain,
+                                   min_slope_deg=cfg.min_slope_deg) if flat_spread > noise else None)
+            # at the border, a rectangle's gable is replaced only by a ridge that fits better: the two models have
+            # as many parameters (two planes each; the rectangle's fixes the ridge at its middle, the ridge fit
+            # ties the planes to a shared ridge), so the smaller robust spread (about the roof drawn) chooses
+            if fit is not None and fit.accepted and (got is None or fit.spread < _roof_spread(roof, xy, z)):
+                ridged = _ridge_roof(fit, foot)
+                if ridged is not None:
+                    eave, roof = ridged
         if eave - gz < 0.5 * cfg.min_height_m:
             continue
         border: tuple[int, ...] = ()
@@ -804,6 +835,215 @@ def _gable(xy: NDArray, z: NDArray, rect: tuple, flat_spread: float, cfg: Extrac
     pos = _ccw3(np.array([c3(-1, 0, ridge), c3(1, 0, ridge), c3(1, 1, eave), c3(-1, 1, eave)]))
     neg = _ccw3(np.array([c3(-1, -1, eave), c3(1, -1, eave), c3(1, 0, ridge), c3(-1, 0, ridge)]))
     return float(eave), (pos, neg)
+
+
+@dataclass(frozen=True)
+class RidgeGable:
+    """Two roof planes sharing a ridge line (:func:`fit_ridge_gable`), in the plan frame of the fitted points.
+
+    With ``t = direction`` along the ridge and ``n = (-t_y, t_x)`` across it, a point ``p`` has ``u = (p - origin) . n``
+    and ``v = (p - origin) . t``; the roof is ``ridge_z + ridge_slope v + slopes[0] u`` where ``u < 0`` and
+    ``ridge_z + ridge_slope v + slopes[1] u`` where ``u > 0`` (a gable: ``slopes[0] > 0 > slopes[1]``, the lower
+    envelope of the two planes).
+
+    Attributes
+    ----------
+    origin, direction
+        A point of the ridge (plan) and the unit vector along it.
+    ridge_z, ridge_slope
+        The ridge's height at ``origin`` and its rise per metre along ``direction``.
+    slopes
+        Rise per metre along ``n`` of the plane on the ``u < 0`` side and on the ``u > 0`` side.
+    spread, spread_flat, spread_plane
+        Robust spread (1.4826 x median absolute residual) of the roof heights about the two planes, about their
+        median (one level) and about one robustly fitted plane.
+    noise_m
+        The DSM noise the fit was judged against.
+    cells
+        Measured cells on either side (``u < 0``, ``u > 0``) within 3 spreads of their plane.
+    widths
+        Extent across the ridge (metres) of those cells on either side.
+    accepted
+        Whether the model-selection rule of :func:`fit_ridge_gable` chose the two planes.
+    """
+
+    origin: NDArray[np.float64]
+    direction: NDArray[np.float64]
+    ridge_z: float
+    ridge_slope: float
+    slopes: tuple[float, float]
+    spread: float
+    spread_flat: float
+    spread_plane: float
+    noise_m: float
+    cells: tuple[int, int]
+    widths: tuple[float, float]
+    accepted: bool
+
+    @property
+    def normal(self) -> NDArray[np.float64]:
+        return np.array([-self.direction[1], self.direction[0]])
+
+    def planes(self) -> NDArray[np.float64]:
+        """``(2, 3)`` coefficients ``(a, b, c)`` of ``z = a x + b y + c`` of the ``u < 0`` and ``u > 0`` planes."""
+        t, n, o = np.asarray(self.direction, float), self.normal, np.asarray(self.origin, float)
+        out = []
+        for s in self.slopes:
+            g = self.ridge_slope * t + s * n
+            out.append([g[0], g[1], self.ridge_z - float(g @ o)])
+        return np.array(out)
+
+    def height(self, xy: NDArray) -> NDArray[np.float64]:
+        """The roof height at plan points ``(N, 2)``."""
+        u = (np.asarray(xy, float) - self.origin) @ self.normal
+        v = (np.asarray(xy, float) - self.origin) @ self.direction
+        return self.ridge_z + self.ridge_slope * v + np.where(u < 0, self.slopes[0], self.slopes[1]) * u
+
+
+def fit_ridge_gable(xy: NDArray, z: NDArray, *, cell_m: float, noise_m: float, gain: float = 0.5,
+                    min_slope_deg: float = 5.0, min_side_cells: int = 20, min_side_width_m: float = 1.0,
+                    max_noise_ratio: float = 3.0, step_deg: float = 2.0) -> RidgeGable | None:
+    """Two roof planes with a shared ridge fitted to measured roof heights, wherever the ridge runs and whatever
+    part of the roof was measured (a house cut by the survey's border, a strip across its ridge).
+
+    The fit: for ridge directions every ``step_deg`` and ridge positions every cell across the measured points
+    (leaving ``min_side_cells`` on either side), the linear least-squares fit of ``z = c + g v + a_lo min(u, 0) +
+    a_hi max(u, 0)`` (``u`` across the ridge from that position, ``v`` along it; up to 800 points) scored by the
+    median absolute residual; from the best, a robust fit of all six parameters (direction, position, ``c, g,
+    a_lo, a_hi``; :func:`scipy.optimize.least_squares`, soft-L1 loss at the scale ``noise_m``).
+
+    Model selection - the two planes are ``accepted`` only when all of these hold:
+
+    * both planes slope down away from the ridge by at least ``min_slope_deg`` (a gable, not a step or a valley);
+    * each side has at least ``min_side_cells`` measured cells within 3 spreads of its plane, spread over at least
+      ``min_side_width_m`` across the ridge (each plane's slope is measured, not extrapolated from a sliver);
+    * the two planes' robust spread is at most ``gain`` times that of the better of one level and one fitted plane
+      (two more parameters must explain much more than noise: the existing flat-versus-gable rule of
+      :func:`extract_buildings`);
+    * and at most ``max_noise_ratio`` times the DSM's noise ``noise_m`` (the surface *is* the two planes, to the
+      DSM's precision: a tree crown or a complex roof is better fitted by two planes than by one without being a
+      gable).
+
+    Returns the fit (``accepted`` says whether it passed), or None with too few points to try."""
+    from scipy.optimize import least_squares
+
+    P = np.asarray(xy, float)
+    z = np.asarray(z, float)
+    ok = np.isfinite(z) & np.all(np.isfinite(P), axis=1)
+    P, z = P[ok], z[ok]
+    if len(z) < 2 * min_side_cells + 4:
+        return None
+    noise = max(float(noise_m), 0.01)
+    m = np.median(P, axis=0)
+    Q = P - m
+    zf = float(np.median(z))
+    s_flat = float(1.4826 * np.median(np.abs(z - zf)))
+    _, s_plane = _robust_plane(Q[:, 0], Q[:, 1], z)
+    sub = np.arange(0, len(z), max(1, len(z) // 800))
+    Qs, zs = Q[sub], z[sub]
+    k_side = max(1, int(round(min_side_cells * len(sub) / len(z))))
+    best = (np.inf, None)
+    for th in np.radians(np.arange(0.0, 180.0, step_deg)):
+        t = np.array([np.cos(th), np.sin(th)])
+        n = np.array([-t[1], t[0]])
+        u, v = Qs @ n, Qs @ t
+        us = np.sort(u)
+        if len(us) <= 2 * k_side:
+            continue
+        u0s = np.arange(us[k_side], us[-k_side - 1], cell_m)
+        if not len(u0s):
+            continue
+        d = u[None, :] - u0s[:, None]
+        A = np.stack([np.ones_like(d), np.broadcast_to(v, d.shape), np.minimum(d, 0), np.maximum(d, 0)], axis=2)
+        AtA = np.einsum("kni,knj->kij", A, A) + 1e-9 * np.eye(4)
+        coef = np.linalg.solve(AtA, np.einsum("kni,n->ki", A, zs)[..., None])[..., 0]
+        r = zs[None, :] - np.einsum("kni,ki->kn", A, coef)
+        score = np.median(np.abs(r), axis=1)
+        j = int(np.argmin(score))
+        if score[j] < best[0]:
+            best = (float(score[j]), (th, float(u0s[j]), *coef[j]))
+    if best[1] is None:
+        return None
+
+    def resid(p):
+        th, u0, c, g, alo, ahi = p
+        t = np.array([np.cos(th), np.sin(th)])
+        n = np.array([-t[1], t[0]])
+        d = Q @ n - u0
+        return z - (c + g * (Q @ t) + alo * np.minimum(d, 0) + ahi * np.maximum(d, 0))
+
+    sol = least_squares(resid, np.array(best[1], float), loss="soft_l1", f_scale=noise, x_scale="jac")
+    # then with a loss that all but ignores cells far off the planes (a matched DSM rounds the ridge off and
+    # lowers the cells next to it: they would pull the ridge down and flatten both planes)
+    r = resid(sol.x)
+    s1 = max(float(1.4826 * np.median(np.abs(r))), 0.25 * noise)
+    sol = least_squares(resid, sol.x, loss="cauchy", f_scale=s1, x_scale="jac")
+    th, u0, c, g, alo, ahi = sol.x
+    r = resid(sol.x)
+    spread = float(1.4826 * np.median(np.abs(r)))
+    t = np.array([np.cos(th), np.sin(th)])
+    n = np.array([-t[1], t[0]])
+    d = Q @ n - u0
+    good = np.abs(r) <= 3 * max(spread, 1e-6)
+    cells, widths = [], []
+    for side in (d < 0, d > 0):
+        s = side & good
+        cells.append(int(s.sum()))
+        widths.append(float(np.ptp(d[s])) if s.any() else 0.0)
+    tmin = np.tan(np.radians(min_slope_deg))
+    accepted = bool(alo >= tmin and ahi <= -tmin and min(cells) >= min_side_cells
+                    and min(widths) >= min_side_width_m and spread <= gain * min(s_flat, s_plane)
+                    and spread <= max_noise_ratio * noise)
+    return RidgeGable(m + u0 * n, t, float(c), float(g), (float(alo), float(ahi)), spread, s_flat, float(s_plane),
+                      noise, (cells[0], cells[1]), (widths[0], widths[1]), accepted)
+
+
+def _roof_spread(roof: tuple[NDArray, ...], xy: NDArray, z: NDArray) -> float:
+    """Robust spread (1.4826 x median absolute residual) of heights ``z`` at ``xy`` about a roof's planes (their
+    lower envelope)."""
+    env = np.full(len(z), np.inf)
+    for poly in roof:
+        P = np.asarray(poly, float)
+        coef, *_ = np.linalg.lstsq(np.c_[P[:, :2], np.ones(len(P))], P[:, 2], rcond=None)
+        env = np.minimum(env, xy @ coef[:2] + coef[2])
+    return float(1.4826 * np.median(np.abs(z - env)))
+
+
+def _ridge_roof(fit: RidgeGable, foot: NDArray) -> tuple[float, tuple[NDArray[np.float64], ...]] | None:
+    """Eave height and roof polygons of a ridge-gable fit over a footprint: the footprint cut along the ridge, each
+    part at its plane's heights; the eaves are the planes' heights at the footprint's farthest points across the
+    ridge on either side (at the footprint's middle along it), averaged.  None when the ridge misses the footprint
+    or is not above the eaves."""
+    import shapely
+
+    fp = np.asarray(foot, float)
+    poly = shapely.Polygon(fp)
+    if not poly.is_valid:
+        poly = poly.buffer(0)
+    t, n, o = np.asarray(fit.direction, float), fit.normal, np.asarray(fit.origin, float)
+    u, v = (fp - o) @ n, (fp - o) @ t
+    if not (u.min() < 0 < u.max()):
+        return None
+    big = 2.0 * float(np.ptp(u) + np.ptp(v)) + 10.0
+    vm = 0.5 * (v.min() + v.max())
+    planes = fit.planes()
+    out = []
+    for k, sgn in enumerate((-1.0, 1.0)):
+        half = shapely.Polygon([o + (vm - big) * t, o + (vm + big) * t, o + (vm + big) * t + sgn * big * n,
+                                o + (vm - big) * t + sgn * big * n])
+        g = poly.intersection(half)
+        for part in (list(g.geoms) if hasattr(g, "geoms") else [g]):
+            if part.geom_type != "Polygon" or part.area < 0.5:
+                continue
+            xy = np.asarray(part.exterior.coords, float)[:-1]
+            out.append(_ccw3(np.c_[xy, xy @ planes[k, :2] + planes[k, 2]]))
+    if not out:
+        return None
+    mid = o + vm * t
+    eave = 0.5 * (float(fit.height((mid + u.min() * n)[None])[0]) + float(fit.height((mid + u.max() * n)[None])[0]))
+    if float(fit.height(mid[None])[0]) <= eave:
+        return None
+    return eave, tuple(out)
 
 
 def _ccw3(p: NDArray) -> NDArray[np.float64]:
