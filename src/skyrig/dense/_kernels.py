@@ -69,7 +69,8 @@ def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_
     j = at
     for i in range(n):
         xi, yi, zi = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        q = _cell_of(xi, yi, zi, sigma_h[i] if test_sigma else 1.0, test_bounds, bounds, x0, y0, cell_m, H, W, tile, ntc)
+        q = _cell_of(xi, yi, zi, sigma_h[i] if test_sigma else 1.0, test_bounds, bounds, x0, y0, cell_m, H, W, tile,
+                     ntc)
         if q < 0:
             continue
         o_cell[j] = q
