@@ -522,3 +522,37 @@ def test_cli_bad_input_is_a_clear_error_and_writes_nothing(project, tmp_path, ca
     assert "Traceback" not in r.output
     assert not out.exists()
     assert not [f for f in tmp_path.iterdir() if f.name.startswith(".out.partial")]
+
+
+def test_cli_lr_check_option_reaches_the_matcher(project, tmp_path, monkeypatch):
+    """``skyrig dsm --lr-check full`` runs the second, right-based matching (two SGBM passes per block; OpenCV's
+    internal check: one), records the choice in the manifest, and an unknown value is refused naming the option."""
+    from skyrig.dense import sgm
+
+    calls: list[str] = []
+    real = sgm._matcher
+
+    class Counting:
+        def __init__(self, m, lr):
+            self.m, self.lr = m, lr
+
+        def compute(self, a, b):
+            calls.append(self.lr)
+            return self.m.compute(a, b)
+
+    monkeypatch.setattr(sgm, "_matcher", lambda cfg, n, ch: Counting(real(cfg, n, ch), cfg.lr_check))
+    c = _to_map(np.array([-6.0, 6.0]), np.array([-5.0, 5.0]), np.array([50.0, 50.0]))
+    area = [str(v) for v in (c[0, 0], c[0, 1], c[1, 0], c[1, 1])]
+    counts = {}
+    for lr in ("opencv", "full"):
+        calls.clear()
+        out = tmp_path / lr
+        r = _dsm(project, out, "--height-range", "40", "75", "--pairs-per-image", "2", "--no-cloud", "--area", *area,
+                 "--lr-check", lr)
+        assert r.exit_code == 0, r.output
+        assert set(calls) == {lr} and calls
+        counts[lr] = len(calls)
+        assert json.loads((out / "manifest.json").read_text())["options"]["lr_check"] == lr
+    assert counts["full"] == 2 * counts["opencv"]
+    r = _dsm(project, tmp_path / "bad", "--height-range", "40", "75", "--lr-check", "both")
+    assert r.exit_code != 0 and "--lr-check" in r.output and not (tmp_path / "bad").exists()

@@ -58,13 +58,15 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              fill: bool = False, cloud: bool = True, min_depth: float | None = None, tile_cells: int = 2048,
              executor: str = "auto", workers: int | None = None, scheduler: str | None = None,
              inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
-             echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling) -> Any:
+             echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
+             lr_check: str | None = None) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
     ``crs`` / ``geoid``: output CRS and geoid (default: the EO's map CRS and geoid).  ``height_range``: expected
     surface heights in the output heights; without it, derived from sparse ``points`` (e.g. an adjustment's
-    points.csv).  ``heads``: only these rig heads / image-name parts.
+    points.csv).  ``heads``: only these rig heads / image-name parts.  ``lr_check``: the matcher's left-right
+    check, ``"opencv"`` or ``"full"`` (:class:`skyrig.dense.sgm.SgmConfig`; default: :class:`DenseConfig`'s).
     """
     from dataclasses import replace
 
@@ -98,16 +100,21 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     _positive(tile_cells, "tile_cells", spell, "at least 64 cells", 64)
     if mode not in ("sgbm", "hh", "3way", "hh4"):
         raise OptionError(spell("mode"), f"unknown mode {mode!r} (sgbm, hh, 3way, hh4)")
+    if lr_check is not None and lr_check not in ("opencv", "full"):
+        raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (opencv, full)")
     paths = find_images(eo, [str(p) for p in images])
     base = DenseConfig()
+    lr_check = base.sgm.lr_check if lr_check is None else lr_check
     cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
-                      sgm=replace(base.sgm, mode=mode), fusion=replace(base.fusion, min_support=min_support),
+                      sgm=replace(base.sgm, mode=mode, lr_check=lr_check),
+                      fusion=replace(base.fusion, min_support=min_support),
                       fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth)
     heads_text = heads if heads is None or isinstance(heads, str) else ",".join(heads)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": [float(h) for h in height_range],
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
-               "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth}
+               "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
+               "lr_check": lr_check}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,
                    scheduler=scheduler, inputs=[str(i) for i in inputs] + ([str(points)] if points else []),
