@@ -199,21 +199,22 @@ def select_pairs(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera],
         cand = cand[np.lexsort((cand[:, 1], cand[:, 0]))]
     out: list[StereoPair] = []
     lo_i, hi_i = np.radians(config.intersection_deg)
+    seen = {int(a): pts[a][ok[a]] for a in np.unique(cand)}  # each image's view samples
+    inside: dict[tuple[int, int], NDArray[np.bool_]] = {}  # (a, b): a's samples that b sees
+    ends = np.concatenate([cand, cand[:, ::-1]]) if len(cand) else np.zeros((0, 2), np.int64)
+    for b in np.unique(ends[:, 1]):  # one projection into each image of all its candidates' samples
+        srcs = [int(a) for a in ends[ends[:, 1] == b, 0]]
+        cam = cameras[str(eo.camera[b])]
+        pc = (np.concatenate([seen[a] for a in srcs]) - eo.centre[b]) @ eo.rotation[b]
+        ins = cam.in_image(cam.project_pixels(pc)) & (pc[:, 2] < 0)
+        cut = np.cumsum([len(seen[a]) for a in srcs])[:-1]
+        inside.update(((a, int(b)), part) for a, part in zip(srcs, np.split(ins, cut)))
     for i, j in cand:
-        shares = []
-        common = []
-        for a, b in ((i, j), (j, i)):
-            p = pts[a][ok[a]]
-            cam = cameras[str(eo.camera[b])]
-            pc = (p - eo.centre[b]) @ eo.rotation[b]
-            pix = cam.project_pixels(pc)
-            inside = cam.in_image(pix) & (pc[:, 2] < 0)
-            shares.append(inside.mean())
-            common.append(p[inside])
-        overlap = float(min(shares))
+        i, j = int(i), int(j)
+        overlap = float(min(inside[(i, j)].mean(), inside[(j, i)].mean()))
         if overlap < config.min_overlap:
             continue
-        centre = np.concatenate(common).mean(axis=0)
+        centre = np.concatenate([seen[i][inside[(i, j)]], seen[j][inside[(j, i)]]]).mean(axis=0)
         ri, rj = centre - eo.centre[i], centre - eo.centre[j]
         cosang = ri @ rj / (np.linalg.norm(ri) * np.linalg.norm(rj))
         ang = float(np.arccos(np.clip(cosang, -1, 1)))
