@@ -376,20 +376,22 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
         bl = pair_blocks(r, box, config.block_px, min_depth)
         if not bl:
             continue
-        bb = []
+        corners_l = []  # the blocks' ground corners, taken to the map all at once below
         for b in bl:
             lb = block_ground_bounds(r, b)
-            q = np.array([[lb[0], lb[1], z_plane], [lb[2], lb[1], z_plane], [lb[0], lb[3], z_plane],
-                          [lb[2], lb[3], z_plane]])
-            m = _local_to_map(local, out_frame, q)
-            bb.append([m[:, 0].min() - pad, m[:, 1].min() - pad, m[:, 0].max() + pad, m[:, 1].max() + pad])
+            corners_l.append([[lb[0], lb[1], z_plane], [lb[2], lb[1], z_plane], [lb[0], lb[3], z_plane],
+                              [lb[2], lb[3], z_plane]])
         kept.append(p)
         rects.append(r)
         blocks.append(tuple(bl))
-        bounds.append(np.array(bb))
+        bounds.append(np.array(corners_l, np.float64))
     if not kept:
         raise SkyrigError("no stereo pair: the images do not overlap with a usable base and viewing direction "
                           f"({len(eo)} images; options: pairs.min_overlap, pairs.intersection_deg)")
+    cut = np.cumsum([len(q) for q in bounds])[:-1]
+    m = _local_to_map(local, out_frame, np.concatenate(bounds).reshape(-1, 3)).reshape(-1, 4, 3)
+    bounds = [np.column_stack([m[:, :, 0].min(axis=1) - pad, m[:, :, 1].min(axis=1) - pad,
+                               m[:, :, 0].max(axis=1) + pad, m[:, :, 1].max(axis=1) + pad]) for m in np.split(m, cut)]
     tiles = grid.tiles(config.tile_cells)
     return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
                      tuple(bounds), tiles, config, FrameMap(local, out_frame, box))
