@@ -6,7 +6,8 @@ local ENU frame), metres.  Polygons are counter-clockwise seen from above, witho
 Making buildings:
 
 * :func:`extract_buildings` ``(dsm) -> list[BuildingBlock]``: from a DSM alone (ground estimate, normalised DSM,
-  connected components, regularised footprints, ground / eave heights, flat or gabled roof planes);
+  connected components, regularised footprints, ground / eave heights, flat or gabled roof planes - a gable's
+  ridge fitted wherever it runs when the roof was measured in part only, :func:`fit_ridge_gable`);
 * :func:`buildings_from_footprints` ``(footprints, dsm, heights=)``: given footprints (e.g. read from a GeoPackage
   by :func:`skyrig.pipeline.facades.read_footprint_layer`, which checks and reprojects the layer's CRS and reads
   a height attribute), heights from the DSM where it measured the roof, else from the given heights
@@ -408,7 +409,10 @@ def extract_buildings(dsm: DsmGrid, *, min_height_m: float = 2.5, min_area_m2: f
     ground height (10th percentile of the DSM in a ring of ``ring_m`` around it, other buildings left out)
     and the roof: robust plane fits on the roof cells (the footprint eroded by ``edge_cells``) choose
     between a flat roof (eaves at the median roof height) and, for rectangles, a gabled roof with its ridge
-    along either axis (two planes; eave and ridge heights from the planes at the walls and at the ridge).
+    along either axis (two planes; eave and ridge heights from the planes at the walls and at the ridge);
+    where that finds no gable (a polygon footprint) or the building lies at the edge of the surveyed area (its
+    roof measured in part only), two planes with a ridge anywhere (:func:`fit_ridge_gable`, accepted by its
+    model-selection rule; ``ExtractionConfig.ridge_gable``).
 
     Parameters
     ----------
@@ -955,9 +959,9 @@ def fit_ridge_gable(xy: NDArray, z: NDArray, *, cell_m: float, noise_m: float, g
             continue
         d = u[None, :] - u0s[:, None]
         A = np.stack([np.ones_like(d), np.broadcast_to(v, d.shape), np.minimum(d, 0), np.maximum(d, 0)], axis=2)
-        AtA = np.einsum("kni,knj->kij", A, A) + 1e-9 * np.eye(4)
-        coef = np.linalg.solve(AtA, np.einsum("kni,n->ki", A, zs)[..., None])[..., 0]
-        r = zs[None, :] - np.einsum("kni,ki->kn", A, coef)
+        At = A.transpose(0, 2, 1)
+        coef = np.linalg.solve(At @ A + 1e-9 * np.eye(4), (At @ zs)[..., None])[..., 0]
+        r = zs[None, :] - (A @ coef[..., None])[..., 0]
         score = np.median(np.abs(r), axis=1)
         j = int(np.argmin(score))
         if score[j] < best[0]:
