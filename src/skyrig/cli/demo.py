@@ -226,7 +226,7 @@ def command(outdir: str | None, output: str | None) -> None:
     # a seam's step is the mean of its samples: judged by what they show at 2 standard errors, and on average
     if not (t_["rms_gsd"] <= 0.5 and oc_["filled"] >= 0.95 and sm_["step_lower_max_dn"] <= noise
             and sm_["step_rms_dn"] <= noise
-            and rc_["n"] >= 20 and rc_["within_1gsd"] >= 0.85):
+            and rc_["n"] >= 20 and rc_["within_1gsd"] >= 0.95 and rc_["rms_gsd"] <= 0.5):
         raise click.ClickException("demo checks FAILED (orthomosaic)")
 
     # --- buildings, façade textures from the obliques and the textured 3D model ---------------------------

@@ -718,7 +718,7 @@ def _dsm(ctx: StageContext) -> dict[str, Any]:
         points = ctx.upstream["points"]
     res = make_dsm(eo, cameras, p.images, ctx.out, crs=p.crs, geoid=p.geoid, height_range=o["height_range"],
                    points=points, heads=o["heads"], area=o["area"], resolution=o["resolution"], mode=o["mode"],
-                   pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
+                   lr_check=o["lr_check"], pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
                    cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"],
                    **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
                    echo=lambda line: logger.info("stage dsm: %s", line), spell=_spelling("dsm"))
@@ -814,6 +814,8 @@ register_stage(Stage(
              "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the project CRS", n=4, nullable=True),
              "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
              "mode": Option("sgbm", "choice", "OpenCV SGM mode", ("sgbm", "hh", "3way", "hh4")),
+             "lr_check": Option("opencv", "choice", "left-right check: OpenCV's own on the same costs, or a second, "
+                                "mirrored matching (about twice the matching time)", ("opencv", "full")),
              "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
