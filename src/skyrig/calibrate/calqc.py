@@ -674,8 +674,8 @@ def _grid_residuals(res: AdjustmentResult) -> dict[int, tuple[NDArray[np.bool_],
 
 
 def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig, nodes_x: int | None = None,
-                          max_cycles: int = 3, what: str = "joint (IO, boresights, datum shift) with correction grids"
-                          ) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], int]:
+                          max_cycles: int = 3, what: str = "joint (IO, boresights, datum shift) with correction grids",
+                          min_signal_fraction: float = 0.05) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], int]:
     """The correction grids estimated *in* the adjustment, together with the calibration (module docstring).
 
     ``block``: the block at the values of ``res`` (an adjustment without grids, e.g. the joint one); ``cfg`` its
@@ -684,7 +684,15 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
     values as unknowns (``image_grid="weighted"``).  The covariance function is fitted again to the whole
     deformation (the new residuals plus the estimated grid) and the adjustment repeated while its signal variance or
     correlation length moves by more than 10 % (``max_cycles`` adjustments at most).  Returns the adjustment (its
-    covariance holds the grids' uncertainty), the grids (values and posterior sigma from it) and the cycles run."""
+    covariance holds the grids' uncertainty), the grids (values and posterior sigma from it) and the cycles run.
+
+    ``min_signal_fraction``: a camera whose fitted signal variance is below this fraction of its noise variance gets
+    no grid.  A covariance fitted to noise can show a weak signal with a correlation length of a few pixels, and
+    :func:`grid_nodes_for` then asks for thousands of nodes (simulated MIDAS flight, 1200 px, seed 2: a 52 x 35 grid
+    for a forward-camera "signal" of 1.4 % of the noise variance with a 15 px correlation length), which costs time
+    and changes nothing: without those grids the recipe ran 77 s instead of 695 s, the nadir grid and the IO the same
+    to 0.06 sigma).  Default 5 % (a signal RMS under 0.22 of the noise sigma); 0 gives every camera with a fitted
+    signal its grid."""
     from skyrig.adjust.factors.image_grid import ImageGrids
 
     cfg_g = cfg.with_(image_grid="weighted")
@@ -702,7 +710,7 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
             if sel.sum() < 10:
                 continue
             cf = fit_covariance(rb.obs_pixel[sel], err[sel], 0.5 * float(np.hypot(cam.width, cam.height)))
-            if not cf.c0 > 0:
+            if not cf.c0 > 0 or cf.c0 < min_signal_fraction * cf.nugget:
                 continue
             new_fits[cam.name] = cf
             spec = collocation_prior(cam.name, cam.width, cam.height, cf, nodes_x)
@@ -1204,6 +1212,7 @@ def calibrate_calqc(
     grid_uncertainty_draws: int = 0,
     design: bool = True,
     grid_method: str = "joint",
+    grid_min_signal_fraction: float = 0.05,
 ) -> CalqcCalibration:
     """Run the paper-004 recipe (module docstring) on a boresight flight.
 
@@ -1215,7 +1224,8 @@ def calibrate_calqc(
     ``grid_method``: ``"joint"`` (default) estimates the correction grids' node values in the adjustment with their
     collocation prior (:func:`joint_grid_adjustment`; its covariance holds the grids' uncertainty, so
     ``grid_uncertainty_draws`` is not needed and ignored); ``"cycles"`` the earlier scheme, grids by collocation of
-    the residuals alternating with the joint adjustment (``max_grid_cycles``)."""
+    the residuals alternating with the joint adjustment (``max_grid_cycles``).  ``grid_min_signal_fraction``: see
+    :func:`joint_grid_adjustment`."""
     if grid_method not in ("joint", "cycles"):
         raise ValueError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
     rig = data.rig
@@ -1323,7 +1333,8 @@ def calibrate_calqc(
             bjg = replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
                           datum_shift=rj.block.datum_shift.copy())
             rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=grid_nodes,
-                                                           max_cycles=max_grid_cycles)
+                                                           max_cycles=max_grid_cycles,
+                                                           min_signal_fraction=grid_min_signal_fraction)
             record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
             io_after, _ = io_sigma(rj)
             # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
