@@ -21,7 +21,9 @@ any number of workers; :func:`assemble_ortho` puts the tiles together):
 4. **tiles** at the output resolution: heights bilinear from the DSM, the depth buffer of each contributing image
    redrawn around the tile, colours by ``cv2.remap`` (bilinear), blended with feathered weights (box-filtered
    region masks, ``feather_m`` wide, times visibility); cells no labelled image sees at full resolution take the
-   best other image that sees them.
+   best other image that sees them; cells that the depth buffers hide from every image but lie within a pixel of an
+   occluding edge (rays grazing an eave) are settled by marching their rays through the surface
+   (``occlusion_slack_px``).
 
 Layer 2c: arrays and orientations in, arrays out; the files are :mod:`skyrig.pipeline.ortho`'s job.
 """
@@ -80,6 +82,14 @@ class OrthoConfig:
         Regions of one image smaller than this squared (m^2) are merged into a neighbour (no speckled seamlines).
     occlusion_tol_cells
         Depth tolerance of the visibility test in DSM cells (times ``1 + tan`` of the off-nadir angle).
+    occlusion_slack_px
+        Last resort for cells that no image sees: the depth buffer is drawn at the images' pixel centres and a cell
+        is tested at the pixel nearest its projection, so a cell within a pixel of an occluding edge (a ray grazing
+        an eave, or the foot of a wall) is decided by where the pixel centres fall rather than by the surface.  Such
+        cells, hidden from every image by the buffer, are tested again in the images whose buffer lets them through
+        when taken as its largest depth within this many pixels: the ray from the cell to the image is marched
+        through the surface itself (:func:`_rays_clear`, the squared buildings' walls on their outlines) and the
+        image gives the cell its colour where nothing stands above the ray.  0: no last resort.
     balance
         Radiometric balance between images (per-image, per-channel gains).
     balance_sigma_gain
@@ -116,6 +126,7 @@ class OrthoConfig:
     feather_m: float | None = None
     min_region_m: float = 2.0
     occlusion_tol_cells: float = 1.5
+    occlusion_slack_px: int = 1
     balance: bool = True
     balance_sigma_gain: float = 0.1
     balance_sigma_noise: float = 10.0
@@ -325,6 +336,7 @@ class OrthoTile:
     source: NDArray[np.int16]
     fallback_cells: int
     seconds: float
+    slack_cells: int = 0  # cells coloured only by the last resort (:attr:`OrthoConfig.occlusion_slack_px`)
 
 
 @dataclass(frozen=True)
@@ -1003,6 +1015,63 @@ def _bilinear_dsm(dsm: DsmGrid, xx: NDArray, yy: NDArray) -> NDArray[np.float64]
     return np.where(np.isfinite(out), out, near).astype(np.float64)
 
 
+def _map_to_local_jacobian(plan: OrthoPlan, g: GridSpec) -> NDArray[np.float64]:
+    """d(local)/d(map) at the middle of grid ``g`` (map -> local is affine to far below a millimetre over a tile's
+    rays)."""
+    xb0, yb0, xb1, yb1 = g.bounds
+    zlo, zhi = plan.zrange
+    m0 = np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.5 * (zlo + zhi)])
+    pts = plan.to_local(np.vstack([m0, m0 + np.eye(3)]))
+    return (pts[1:] - pts[0]).T
+
+
+def _rays_clear(plan: OrthoPlan, x: NDArray, y: NDArray, z: NDArray, p_local: NDArray, centre: NDArray,
+                jac: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Whether the straight rays from surface points (map ``x, y, z``; local ``p_local``) to a projection centre
+    (local) pass above the surface: the surface (the DSM as the tiles sample it, with the squared buildings' walls on
+    their outlines, :func:`sharp_heights`) is sampled along each ray every tenth of a DSM cell, from a fifth of a
+    cell away up to the top of the DSM, and must stay below the ray (tolerance a tenth of a cell)."""
+    dg = plan.dsm.grid
+    zhi = plan.zrange[1]
+    d_map = np.linalg.solve(jac, (centre[None, :] - p_local).T).T  # ray directions in the map frame
+    horiz = np.hypot(d_map[:, 0], d_map[:, 1])
+    rise = d_map[:, 2] / np.maximum(horiz, 1e-12)  # metres up per metre across
+    out = rise > 0
+    step = 0.1 * dg.cell_m
+    tol = 0.1 * dg.cell_m
+    length = np.where(out, np.clip((zhi + tol - z) / np.where(rise > 0, rise, 1.0), 0.0, None), 0.0)
+    ux, uy = d_map[:, 0] / np.maximum(horiz, 1e-12), d_map[:, 1] / np.maximum(horiz, 1e-12)
+    # every ray's samples at once (the rays are short: they leave the DSM's top after (zhi - z) / rise)
+    s0 = 0.2 * dg.cell_m
+    nstep = np.where(out, np.ceil(np.maximum(length - s0, 0.0) / step).astype(np.int64) + 1, 0)
+    # rays in chunks of at most ~1M samples (bounded memory)
+    csum = np.cumsum(nstep)
+    lo = 0
+    while lo < len(x):
+        hi = int(np.searchsorted(csum, csum[lo] - nstep[lo] + 1_000_000, side="right"))
+        hi = max(hi, lo + 1)
+        idx = np.arange(lo, hi)
+        lo = hi
+        ray = np.repeat(idx, nstep[idx])
+        if len(ray) == 0:
+            continue
+        first = np.cumsum(nstep[idx]) - nstep[idx]
+        dist = s0 + step * (np.arange(len(ray)) - np.repeat(first, nstep[idx]))
+        xs, ys, zr = x[ray] + ux[ray] * dist, y[ray] + uy[ray] * dist, z[ray] + rise[ray] * dist
+        n = len(ray)
+        w = 256 if n > 256 else n  # 2-D blocks for cv2.remap (at most 32767 columns)
+        padn = (-n) % w
+        xb = np.concatenate([xs, np.repeat(xs[-1:], padn)]).reshape(-1, w)
+        yb = np.concatenate([ys, np.repeat(ys[-1:], padn)]).reshape(-1, w)
+        zs = _bilinear_dsm(plan.dsm, xb, yb)
+        if plan.sharp and plan.outside is not None:
+            zs = sharp_heights(xb, yb, zs, plan.sharp, plan.outside, 2.0 * dg.cell_m)
+        zs = zs.ravel()[:n]
+        hit = np.isfinite(zs) & (zs > zr + tol)
+        out[np.unique(ray[hit])] = False
+    return out
+
+
 def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     """Orthorectify and blend one output tile (``plan.tiles[k]``)."""
     import cv2
@@ -1068,7 +1137,7 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
             return None
         return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
-    def add(i: int, weight_region: NDArray[np.float64] | None) -> None:
+    def add(i: int, weight_region: NDArray[np.float64] | None, slack: int = 0) -> None:
         sl_i = footprint(i)
         if sl_i is None or dsm_local is None:
             return
@@ -1076,6 +1145,9 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         hh_, ww_ = sl_i[0].stop - sl_i[0].start, sl_i[1].stop - sl_i[1].start
         u, v, d, tan = _project(plan.eo, plan.cameras, i, p3[sl_i].reshape(-1, 3))
         u, v, d, tan = (a.reshape(hh_, ww_) for a in (u, v, d, tan))
+        if slack > 0 and not (cam.in_image(np.stack([u, v], -1)) & okz[sl_i] & (tan <= cfg.max_tan)
+                              & (wsum[sl_i] <= 0)).any():
+            return  # no uncoloured cell in this image's frame
         # depth buffer from the DSM cells of the tile's reach that the image can see
         wr0, wc0, wh, ww = plan.windows[i]
         zr0, zr1 = max(dr0, wr0) - dr0, min(dr1, wr0 + wh) - dr0
@@ -1086,9 +1158,19 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         du, dv, dd, _ = _project(plan.eo, plan.cameras, i, dl.reshape(-1, 3))
         shp = dl.shape[:2]
         zb, zu0, zv0 = _zbuffer_for(du.reshape(shp), dv.reshape(shp), dd.reshape(shp), cam)
+        if slack > 0:  # the farthest surface within `slack` pixels: a cell next to an occluding edge passes
+            from scipy import ndimage
+
+            zb = ndimage.maximum_filter(zb, size=2 * slack + 1, mode="nearest")
         tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
         vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz[sl_i]
         vis &= tan <= cfg.max_tan
+        if slack > 0:  # confirm by marching each ray through the surface at the cell's exact position
+            vis &= wsum[sl_i] <= 0
+            if vis.any():
+                pts = p3[sl_i][vis]
+                vis[vis] = _rays_clear(plan, xx[sl_i][vis], yy[sl_i][vis], zz[sl_i][vis], pts, plan.eo.centre[i],
+                                       jac)
         if not vis.any():
             return
         img = loader(i)
@@ -1136,6 +1218,27 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
             add(i, None)
             if not (okz & (wsum <= 0)).any():
                 break
+    # last resort: cells within a pixel of an occluding edge in every image (see occlusion_slack_px), steep views first
+    need = okz & (wsum <= 0)
+    slack_cells = 0
+    if cfg.occlusion_slack_px > 0 and need.any():
+        jac = _map_to_local_jacobian(plan, g)
+        before = need[pad:pad + h, pad:pad + w].sum()
+        xc, yc = xx[need], yy[need]
+        rr, cc_ = dg.cell_of(xc, yc)
+        pm = p.reshape(Hh, Ww, 3)[need].mean(axis=0)
+        cands = []
+        for i, (wr0, wc0, wh, ww) in enumerate(plan.windows):
+            if wh == 0:
+                continue
+            if ((rr >= wr0) & (rr < wr0 + wh) & (cc_ >= wc0) & (cc_ < wc0 + ww)).any():
+                rel = pm - plan.eo.centre[i]
+                cands.append((float(np.hypot(rel[0], rel[1]) / max(-rel[2], 1e-9)), i))
+        for _, i in sorted(cands):
+            add(i, None, slack=cfg.occlusion_slack_px)
+            if not (okz & (wsum <= 0)).any():
+                break
+        slack_cells = int(before - (okz & (wsum <= 0))[pad:pad + h, pad:pad + w].sum())
     ok = wsum > 0
     out = np.zeros((Hh, Ww, 3), np.float64)
     out[ok] = acc[ok] / wsum[ok, None]
@@ -1143,7 +1246,8 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     rgb_out = np.clip(out[sl] + 0.5, 0, 255).astype(np.uint8)
     valid_out = ok[sl]
     src_out = np.where(valid_out, src[sl], np.where(okz[sl], -2, -1)).astype(np.int16)
-    return OrthoTile((r0, c0, h, w), rgb_out, valid_out, okz[sl], src_out, fallback, time.perf_counter() - t0)
+    return OrthoTile((r0, c0, h, w), rgb_out, valid_out, okz[sl], src_out, fallback, time.perf_counter() - t0,
+                     slack_cells)
 
 
 class _OrthoTileJob:
@@ -1162,7 +1266,7 @@ def assemble_ortho(plan: OrthoPlan, tiles: Iterable[OrthoTile]) -> Orthomosaic:
     surface = np.zeros((H, W), bool)
     source = np.full((H, W), -1, np.int16)
     secs = 0.0
-    fallback = 0
+    fallback = slack = 0
     for t in tiles:
         r0, c0, h, w = t.window
         rgb[r0:r0 + h, c0:c0 + w] = t.rgb
@@ -1171,8 +1275,10 @@ def assemble_ortho(plan: OrthoPlan, tiles: Iterable[OrthoTile]) -> Orthomosaic:
         source[r0:r0 + h, c0:c0 + w] = t.source
         secs += t.seconds
         fallback += t.fallback_cells
+        slack += t.slack_cells
     stats = dict(plan.stats)
     stats.update({"tiles": len(plan.tiles), "tile_seconds": secs, "fallback_cells": fallback,
+                  "edge_slack_cells": slack,
                   "cells_valid": int(valid.sum()), "cells_surface": int(surface.sum()), "cells": int(valid.size),
                   "gain_min": float(plan.gains.min()), "gain_max": float(plan.gains.max())})
     return Orthomosaic(plan.grid, plan.dsm.frame, rgb, valid, surface, source, tuple(str(n) for n in plan.eo.image),
