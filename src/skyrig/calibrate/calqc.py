@@ -1335,7 +1335,8 @@ def calibrate_calqc(
             rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=grid_nodes,
                                                            max_cycles=max_grid_cycles,
                                                            min_signal_fraction=grid_min_signal_fraction)
-            record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
+            if grids:  # (no camera with a signal worth a grid: the joint adjustment stands)
+                record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
             io_after, _ = io_sigma(rj)
             # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
             grid_change = float(np.max(np.abs(io_after - io_before) / s_before)) if s_before.size else 0.0
