@@ -1072,6 +1072,21 @@ def _rays_clear(plan: OrthoPlan, x: NDArray, y: NDArray, z: NDArray, p_local: ND
     return out
 
 
+def _remap_points(img: NDArray[np.uint8], u: NDArray, v: NDArray) -> NDArray[np.float64]:
+    """Bilinear colours ``(n, 3)`` of an image at pixel positions ``u, v`` (1-D)."""
+    import cv2
+
+    n = len(u)
+    w = 256 if n > 256 else max(n, 1)
+    padn = (-n) % w
+    ub = np.concatenate([u, np.zeros(padn)]).reshape(-1, w).astype(np.float32)
+    vb = np.concatenate([v, np.zeros(padn)]).reshape(-1, w).astype(np.float32)
+    col = cv2.remap(img, ub, vb, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    if col.ndim == 2:
+        col = col[..., None].repeat(3, axis=2)
+    return col.reshape(-1, 3)[:n]
+
+
 def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
     """Orthorectify and blend one output tile (``plan.tiles[k]``)."""
     import cv2
@@ -1137,7 +1152,9 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
             return None
         return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
-    def add(i: int, weight_region: NDArray[np.float64] | None, slack: int = 0) -> None:
+    edges: dict[int, tuple[NDArray, NDArray, NDArray, NDArray]] = {}
+
+    def add(i: int, weight_region: NDArray[np.float64] | None) -> None:
         sl_i = footprint(i)
         if sl_i is None or dsm_local is None:
             return
@@ -1145,9 +1162,6 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         hh_, ww_ = sl_i[0].stop - sl_i[0].start, sl_i[1].stop - sl_i[1].start
         u, v, d, tan = _project(plan.eo, plan.cameras, i, p3[sl_i].reshape(-1, 3))
         u, v, d, tan = (a.reshape(hh_, ww_) for a in (u, v, d, tan))
-        if slack > 0 and not (cam.in_image(np.stack([u, v], -1)) & okz[sl_i] & (tan <= cfg.max_tan)
-                              & (wsum[sl_i] <= 0)).any():
-            return  # no uncoloured cell in this image's frame
         # depth buffer from the DSM cells of the tile's reach that the image can see
         wr0, wc0, wh, ww = plan.windows[i]
         zr0, zr1 = max(dr0, wr0) - dr0, min(dr1, wr0 + wh) - dr0
@@ -1158,19 +1172,19 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
         du, dv, dd, _ = _project(plan.eo, plan.cameras, i, dl.reshape(-1, 3))
         shp = dl.shape[:2]
         zb, zu0, zv0 = _zbuffer_for(du.reshape(shp), dv.reshape(shp), dd.reshape(shp), cam)
-        if slack > 0:  # the farthest surface within `slack` pixels: a cell next to an occluding edge passes
+        tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
+        frame_ok = cam.in_image(np.stack([u, v], -1)) & okz[sl_i] & (tan <= cfg.max_tan)
+        vis = _visible(u, v, d, tol, zb, zu0, zv0) & frame_ok
+        if cfg.occlusion_slack_px > 0:
+            # cells hidden only at the buffer's resolution: visible against the farthest surface within
+            # occlusion_slack_px pixels (kept for the last resort below)
             from scipy import ndimage
 
-            zb = ndimage.maximum_filter(zb, size=2 * slack + 1, mode="nearest")
-        tol = cfg.occlusion_tol_cells * dg.cell_m * (1.0 + np.minimum(tan, 10.0))
-        vis = _visible(u, v, d, tol, zb, zu0, zv0) & cam.in_image(np.stack([u, v], -1)) & okz[sl_i]
-        vis &= tan <= cfg.max_tan
-        if slack > 0:  # confirm by marching each ray through the surface at the cell's exact position
-            vis &= wsum[sl_i] <= 0
-            if vis.any():
-                pts = p3[sl_i][vis]
-                vis[vis] = _rays_clear(plan, xx[sl_i][vis], yy[sl_i][vis], zz[sl_i][vis], pts, plan.eo.centre[i],
-                                       jac)
+            zbm = ndimage.maximum_filter(zb, size=2 * cfg.occlusion_slack_px + 1, mode="nearest")
+            edge = _visible(u, v, d, tol, zbm, zu0, zv0) & frame_ok & ~vis
+            if edge.any():
+                er, ec = np.nonzero(edge)
+                edges[i] = ((er + sl_i[0].start) * Ww + ec + sl_i[1].start, u[edge], v[edge], tan[edge])
         if not vis.any():
             return
         img = loader(i)
@@ -1218,27 +1232,32 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
             add(i, None)
             if not (okz & (wsum <= 0)).any():
                 break
-    # last resort: cells within a pixel of an occluding edge in every image (see occlusion_slack_px), steep views first
+    # last resort: cells within a pixel of an occluding edge in every image (see occlusion_slack_px): their rays
+    # marched through the surface, steep views first
     need = okz & (wsum <= 0)
     slack_cells = 0
-    if cfg.occlusion_slack_px > 0 and need.any():
+    if edges and need.any():
         jac = _map_to_local_jacobian(plan, g)
-        before = need[pad:pad + h, pad:pad + w].sum()
-        xc, yc = xx[need], yy[need]
-        rr, cc_ = dg.cell_of(xc, yc)
-        pm = p.reshape(Hh, Ww, 3)[need].mean(axis=0)
-        cands = []
-        for i, (wr0, wc0, wh, ww) in enumerate(plan.windows):
-            if wh == 0:
+        flat_need = need.ravel()
+        order = sorted(edges, key=lambda i: float(np.median(edges[i][3])))
+        got = np.zeros(Hh * Ww, bool)
+        for i in order:
+            idx, ue, ve, te = edges[i]
+            keep = flat_need[idx] & ~got[idx]
+            if not keep.any():
                 continue
-            if ((rr >= wr0) & (rr < wr0 + wh) & (cc_ >= wc0) & (cc_ < wc0 + ww)).any():
-                rel = pm - plan.eo.centre[i]
-                cands.append((float(np.hypot(rel[0], rel[1]) / max(-rel[2], 1e-9)), i))
-        for _, i in sorted(cands):
-            add(i, None, slack=cfg.occlusion_slack_px)
-            if not (okz & (wsum <= 0)).any():
-                break
-        slack_cells = int(before - (okz & (wsum <= 0))[pad:pad + h, pad:pad + w].sum())
+            idx, ue, ve, te = idx[keep], ue[keep], ve[keep], te[keep]
+            r_, c_ = np.divmod(idx, Ww)
+            clear = _rays_clear(plan, xx[r_, c_], yy[r_, c_], zz[r_, c_], p3[r_, c_], plan.eo.centre[i], jac)
+            if not clear.any():
+                continue
+            idx, ue, ve, r_, c_ = idx[clear], ue[clear], ve[clear], r_[clear], c_[clear]
+            col = _remap_points(loader(i), ue, ve) * plan.gains[i][None, :]
+            acc[r_, c_] = col * 1e-9  # the weight of a last resort (any other image's weight wins)
+            wsum[r_, c_] = 1e-9
+            src[r_, c_] = i
+            got[idx] = True
+        slack_cells = int((got.reshape(Hh, Ww) & need)[pad:pad + h, pad:pad + w].sum())
     ok = wsum > 0
     out = np.zeros((Hh, Ww, 3), np.float64)
     out[ok] = acc[ok] / wsum[ok, None]
