@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check full]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check opencv]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -19,8 +19,8 @@ reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
 
 * **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
   image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`
-  (``--lr-check full``: with the second, right-based matching of ``SgmConfig.lr_check="full"`` instead of the
-  default, OpenCV's internal check);
+  (its left-right check is the second, right-based matching, ``SgmConfig.lr_check="full"``; ``--lr-check opencv``
+  measures OpenCV's internal check instead);
 * **raw**: for every pair the plan selected, ``cv2.StereoSGBM_create(...).compute`` once on the pair's
   whole rectified overlap (the left image's rectified bounds plus the search width on the left, the right
   image shifted by the window start), grey, with the same disparity window (the union of the pair's block

@@ -23,9 +23,9 @@ from skyrig.cli._common import eo_options
 @click.option("--resolution", type=float, default=None, help="Cell size in metres (default: 1 GSD).")
 @click.option("--mode", type=click.Choice(["sgbm", "hh", "3way", "hh4"]), default="sgbm", show_default=True,
               help="OpenCV semi-global matching mode.")
-@click.option("--lr-check", type=click.Choice(["opencv", "full"]), default=None,
-              help="Left-right check: OpenCV's internal one (default, half the matching time) or 'full' (a second "
-                   "matching from the right image; a little more complete and fewer outliers at edges).")
+@click.option("--lr-check", type=click.Choice(["full", "opencv"]), default=None,
+              help="Left-right check: 'full' (default: a second matching from the right image) or 'opencv' "
+                   "(OpenCV's internal one: half the matching time, rounder building edges, a few more outliers).")
 @click.option("--pairs-per-image", type=int, default=6, show_default=True, help="Stereo pairs an image takes part in.")
 @click.option("--min-support", type=int, default=2, show_default=True,
               help="Stereo pairs that must agree on a cell's height.")

@@ -65,14 +65,16 @@ class DenseConfig:
         whose pairs split into two camps (ground and roof rim) takes the camp its fused neighbours clearly continue
         (``FusionConfig.split_by_neighbours``): edge cells 80.0 -> 83.0 % on midas-dsm, 91.3 -> 93.4 % on
         tumblecam-dsm, outliers 0.42 -> 0.45 % and 0.27 -> 0.28 %, edge RMSE 14.0 -> 14.4 and 21.6 -> 21.9 GSD.
-        The left-right check is OpenCV's internal one (``SgmConfig.lr_check="opencv"``: the right image's
-        disparities from the left matching's own cost volume) instead of a second, right-based matching
-        (``"full"``), which cost as much time as the left matching (``bench/dense.py``, 16 images: 1.9 of 8.1 CPU s).
-        The price, ``bench/dense_acceptance.py midas tumblecam`` (adjusted orientations), full -> opencv: edge
-        completeness 83.0 -> 82.0 % (midas-dsm) and 93.4 -> 91.6 % (tumblecam-dsm), cells off by more than 5 GSD
-        0.45 -> 0.63 % and 0.28 -> 0.34 % of the valid cells, edge RMSE 14.4 -> 15.9 and 21.9 -> 23.7 GSD; flat
-        cells unchanged (NMAD 0.165 -> 0.164 and 0.295 -> 0.295 GSD, completeness 99.7 and 100 %).  ``"full"``
-        remains for the best edges.
+        The left-right check is a second, right-based matching (``SgmConfig.lr_check="full"``).  OpenCV's internal
+        check (``"opencv"``: the right image's disparities from the left matching's own cost volume) saves that
+        second matching, which costs as much time as the left one (``bench/dense.py``, 16 images: 1.9 of 8.1 CPU s;
+        whole-chain throughput ratio to raw StereoSGBM 0.35 -> 0.47).  Its price, ``bench/dense_acceptance.py
+        midas tumblecam`` (adjusted orientations), full -> opencv: edge completeness 83.0 -> 82.0 % (midas-dsm) and
+        93.4 -> 91.6 % (tumblecam-dsm), cells off by more than 5 GSD 0.45 -> 0.63 % and 0.28 -> 0.34 %, edge RMSE
+        14.4 -> 15.9 and 21.9 -> 23.7 GSD; flat cells unchanged.  The rounder building edges also move squared
+        buildings: on ``make demo``'s town the orthomosaic's roof corners go from 100 % within 1 GSD (0.28 GSD
+        RMS) to 96.5 % (0.70 GSD RMS, one corner 4.2 GSD off), so ``"full"`` is the default for products and
+        ``"opencv"`` (``skyrig dsm --lr-check opencv``) the option when a DSM is wanted fast.
     block_px
         Side of a rectified block matched in one SGM run (bounds memory: about
         ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
@@ -97,7 +99,7 @@ class DenseConfig:
     cell_m: float | None = None
     pairs: PairConfig = field(default_factory=PairConfig)
     sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
-                                                             lr_check="opencv"))
+                                                             lr_check="full"))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
