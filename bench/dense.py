@@ -271,7 +271,7 @@ def main(argv: list[str] | None = None) -> None:
                          "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per "
                          "process)")
     ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
-                    help="SgmConfig.lr_check of the chain (default: DenseConfig's, OpenCV's internal check); raw "
+                    help="SgmConfig.lr_check of the chain (default: DenseConfig's, the full check); raw "
                          "StereoSGBM always runs OpenCV's internal check (disp12MaxDiff)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
