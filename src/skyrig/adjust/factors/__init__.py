@@ -15,6 +15,8 @@ module         observation
 ``prior``      priors on the station poses (``poses="weighted"``)
 ``calibration`` priors on the calibration unknowns (interior orientation, boresight, lever arm, datum
                and strip shifts, actuator offset / scale and correction curve) when ``"weighted"``
+``image_grid`` the collocation prior of a camera's correction-grid node values (``image_grid="weighted"``;
+               the grid's bilinear value is added to the projected pixel in ``image``)
 =============  =========================================================================================
 
 Adding an observation type is adding a module: subclass ``ObservationType``, keep the rows in a data
