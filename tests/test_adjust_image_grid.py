@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from _dense_reference import dense_system
+
 from skyrig.adjust import AdjustConfig
 from skyrig.adjust.adjust import adjust
 from skyrig.adjust.block import BlockError
@@ -50,24 +52,7 @@ def _scenario(seed=3, grid_seed=5):
 
 
 def _dense(factors, layout):
-    n_c, n_p = layout.n_c, layout.n_p
-    n = n_c + 3 * n_p
-    Js, rs = [], []
-    for f in factors:
-        m, d = f.r.shape
-        J = np.zeros((m, d, n))
-        if f.jc is not None and f.cols is not None:
-            for c in range(f.cols.shape[1]):
-                on = f.cols[:, c] >= 0
-                J[np.flatnonzero(on), :, f.cols[on, c]] += f.jc[on, :, c]
-        if f.jp is not None and f.point is not None:
-            on = f.point >= 0
-            for a in range(3):
-                J[np.flatnonzero(on), :, n_c + 3 * f.point[on] + a] += f.jp[on, :, a]
-        w = np.sqrt(f.weight) if f.weight is not None else np.ones(m)
-        Js.append((J * w[:, None, None]).reshape(m * d, n))
-        rs.append((f.r * w[:, None]).reshape(-1))
-    return np.concatenate(Js), np.concatenate(rs)
+    return dense_system(factors, layout)
 
 
 CFG = AdjustConfig(intrinsics="free", intrinsic_names=IO, boresight="free", image_grid="weighted")

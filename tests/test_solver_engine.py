@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _dense_reference import dense_system
+
 from skyrig.adjust import AdjustConfig
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import HAVE_NUMBA, SchurEngine, _robust, _ScipyEngine, levenberg_marquardt
@@ -23,25 +25,8 @@ pytestmark = pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed")
 
 
 def _dense_step(factors, layout, lam, huber_k=None, diag_min=1e-6):
-    n_c, n_p = layout.n_c, layout.n_p
-    n = n_c + 3 * n_p
-    rows_j, rows_r = [], []
-    for f in factors:
-        sw, _ = _robust(f, huber_k)
-        m, d = f.r.shape
-        J = np.zeros((m, d, n))
-        if f.jc is not None and f.cols is not None:
-            for c in range(f.cols.shape[1]):
-                on = f.cols[:, c] >= 0
-                J[np.flatnonzero(on), :, f.cols[on, c]] += f.jc[on, :, c]
-        if f.jp is not None and f.point is not None:
-            on = f.point >= 0
-            for a in range(3):
-                J[np.flatnonzero(on), :, n_c + 3 * f.point[on] + a] += f.jp[on, :, a]
-        rows_j.append((J * sw[:, None, None]).reshape(m * d, n))
-        rows_r.append((f.r * sw[:, None]).reshape(-1))
-    J = np.concatenate(rows_j)
-    r = np.concatenate(rows_r)
+    n_c = layout.n_c
+    J, r = dense_system(factors, layout, lambda f: _robust(f, huber_k)[0])
     A = J.T @ J
     g = J.T @ r
     D = np.clip(np.diag(A), diag_min, None)
