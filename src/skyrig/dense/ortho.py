@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Mapping, Protocol
+from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -262,21 +262,28 @@ def snap_lattice(xx: NDArray[np.float64], yy: NDArray[np.float64], buildings: It
     X, Y = np.array(xx, float, copy=True), np.array(yy, float, copy=True)
     if X.size == 0:
         return X, Y
-    xlo, xhi, ylo, yhi = float(X.min()), float(X.max()), float(Y.min()), float(Y.max())
     best = np.full(X.shape, np.inf)
-    for b in buildings:
-        P = b.outline
-        if (P[:, 0].max() + reach_m < xlo or P[:, 0].min() - reach_m > xhi or P[:, 1].max() + reach_m < ylo
-                or P[:, 1].min() - reach_m > yhi):
-            continue
-        box = ((xx >= P[:, 0].min() - reach_m) & (xx <= P[:, 0].max() + reach_m)
-               & (yy >= P[:, 1].min() - reach_m) & (yy <= P[:, 1].max() + reach_m))
-        idx = np.nonzero(box)
+    for _, P, idx in _outlines_near(buildings, xx, yy, reach_m):
         d, nx, ny = _polygon_nearest(xx[idx], yy[idx], P)
         mv = (d <= reach_m) & (d < best[idx])
         r_, c_ = idx[0][mv], idx[1][mv]
         X[r_, c_], Y[r_, c_], best[r_, c_] = nx[mv], ny[mv], d[mv]
     return X, Y
+
+
+def _outlines_near(buildings: Iterable[Any], xx: NDArray[np.float64], yy: NDArray[np.float64],
+                   margin_m: float) -> Iterator[tuple[Any, NDArray[np.float64], tuple[NDArray[np.intp], ...]]]:
+    """``(building, outline, idx)`` for each building whose outline's box, grown by ``margin_m``, meets the points
+    ``xx, yy`` (non-empty), ``idx`` (``np.nonzero``) the points inside that grown box."""
+    xlo, xhi, ylo, yhi = float(xx.min()), float(xx.max()), float(yy.min()), float(yy.max())
+    for b in buildings:
+        P = b.outline
+        if (P[:, 0].max() + margin_m < xlo or P[:, 0].min() - margin_m > xhi or P[:, 1].max() + margin_m < ylo
+                or P[:, 1].min() - margin_m > yhi):
+            continue
+        box = ((xx >= P[:, 0].min() - margin_m) & (xx <= P[:, 0].max() + margin_m)
+               & (yy >= P[:, 1].min() - margin_m) & (yy <= P[:, 1].max() + margin_m))
+        yield b, P, np.nonzero(box)
 
 
 def sharp_heights(xx: NDArray[np.float64], yy: NDArray[np.float64], zz: NDArray[np.float64],
@@ -293,17 +300,9 @@ def sharp_heights(xx: NDArray[np.float64], yy: NDArray[np.float64], zz: NDArray[
     out = np.array(zz, np.float64, copy=True)
     if xx.size == 0:
         return out
-    xlo, xhi, ylo, yhi = float(xx.min()), float(xx.max()), float(yy.min()), float(yy.max())
     ins_any = np.zeros(xx.shape, bool)
     z_out = None
-    for b in buildings:
-        P = b.outline
-        if (P[:, 0].max() + band_m < xlo or P[:, 0].min() - band_m > xhi or P[:, 1].max() + band_m < ylo
-                or P[:, 1].min() - band_m > yhi):
-            continue
-        box = ((xx >= P[:, 0].min() - band_m) & (xx <= P[:, 0].max() + band_m)
-               & (yy >= P[:, 1].min() - band_m) & (yy <= P[:, 1].max() + band_m))
-        idx = np.nonzero(box)
+    for b, P, idx in _outlines_near(buildings, xx, yy, band_m):
         x, y = xx[idx], yy[idx]
         near = _polygon_distance(x, y, P) <= band_m
         if not near.any():
