@@ -81,9 +81,7 @@ class State:
 
     @classmethod
     def from_block(cls, b: Block) -> "State":
-        from skyrig.adjust.factors.image_grid import grids_of
-
-        g = grids_of(b)
+        g = _grids_of(b)
         return cls(b.station_rotation.copy(), b.station_centre.copy(), [c.intrinsics.copy() for c in b.cameras],
                    b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
                    b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
