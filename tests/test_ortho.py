@@ -286,3 +286,22 @@ def test_cli_usage_errors_exit_2(tmp_path):
                                   "--dsm", "x", "-o", str(tmp_path / "o")])
     assert r.exit_code == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_polygon_helpers_equal_shapely():
+    """The ortho's hand-written point-in-polygon and nearest-outline-point (vectorised numpy, ~10x faster than
+    shapely on the ray-marching hot path) against shapely's (GEOS) answers on a concave polygon."""
+    import shapely
+
+    from skyrig.dense.ortho import _inside_polygon, _polygon_nearest
+
+    rng = np.random.default_rng(3)
+    poly = np.array([[0.0, 0.0], [10.0, 1.0], [11.0, 8.0], [5.0, 4.0], [3.0, 9.0], [-1.0, 5.0]])  # concave at (5, 4)
+    x, y = rng.uniform(-3, 14, 20000), rng.uniform(-3, 12, 20000)
+    P = shapely.Polygon(poly)
+    assert np.array_equal(_inside_polygon(x, y, poly), shapely.contains_xy(P, x, y))
+    d, nx, ny = _polygon_nearest(x, y, poly)
+    pts = shapely.points(x, y)
+    assert np.allclose(d, shapely.distance(P.exterior, pts), rtol=0, atol=1e-9)
+    q = shapely.get_coordinates(shapely.line_interpolate_point(P.exterior, shapely.line_locate_point(P.exterior, pts)))
+    assert np.allclose(np.column_stack([nx, ny]), q, rtol=0, atol=1e-9)
