@@ -1,6 +1,7 @@
 """Paper 000's laboratory set-up simulated, and ``skyrig calibrate tumbling-head`` judged against its truth.
 
-    .venv/bin/python bench/tumbling_lab.py [--positions 72] [--circles 5] [--width 640] [--window-px 32] [--seed 1] [--out FILE.json]
+    .venv/bin/python bench/tumbling_lab.py [--positions 72] [--circles 5] [--width 640] [--window-px 32] [--seed 1]
+        [--seeds 1-12] [--cache DIR] [--out FILE.json]
 
 The MACS-TumbleCam rig (``skyrig.rig.presets.macs_tumblecam``, cameras scaled to ``--width`` px) plus a static wide
 reference camera on the sensor head, held still ``--distance`` m above a textured plane (multi-scale random texture,
@@ -224,37 +225,172 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
             r = cal.mean_rad[:, i] - A @ x
             out[a][f"fourier{order}_variance_factor"] = float(np.sum(w * r ** 2) / (k - A.shape[1]))
     out["z_all_ks_pvalue_vs_N01"] = float(kstest(z.ravel(), "norm").pvalue)
+    out["curve_statement"] = judge_statement(lab, cal)
     out["image_points_uncalibrated"] = image_point_errors(lab, lab.setup.rig)
     out["image_points_calibrated"] = image_point_errors(lab, cal.calibrated_rig())
     out["image_points_true_curve"] = image_point_errors(lab, lab.rig_true)
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    from skyrig.calibrate.tumbling import calibrate_tumbling_head
+def judge_statement(lab: Lab, cal: Any, level: float = 0.95) -> dict[str, Any]:
+    """The two statements of the curve (:meth:`TumblingCalibration.curve_statement`) against the true curve: per
+    position (the lookup in the rig file) and as a Fourier series with its covariance; for each the positions beyond
+    2 sigma, the largest |z| against the simultaneous band at ``level``, and (series) the terms' z against the true
+    curve's own terms."""
+    from skyrig.calibrate.tumbling import fourier_design, sidak_z
 
+    k = cal.beta_rad.size
+    truth = lab.true_curve(cal.beta_rad)
+    z_l = (cal.mean_rad - truth) / cal.standard_error_rad
+    c_l = sidak_z(3 * k, level)
+    out: dict[str, Any] = {"level": level, "lookup": {
+        "beyond_2sigma": np.sum(np.abs(z_l) > 2, axis=0).tolist(), "max_abs_z": float(np.abs(z_l).max()),
+        "simultaneous_z": c_l, "every_within_2sigma": bool(np.all(np.abs(z_l) <= 2)),
+        "within_simultaneous": bool(np.all(np.abs(z_l) <= c_l)),
+        "p_every_within_2sigma_if_exact": float(0.9544997361036416 ** (3 * k))}}
+    if k >= 4:
+        f = cal.fourier_curve()
+        z_f = (f(cal.beta_rad) - truth) / f.sigma_rad(cal.beta_rad)
+        draws = f.max_abs_z_draws(cal.beta_rad)
+        c_f = float(np.quantile(draws, level))
+        # the true curve's terms at the same order (the positions are samples of the true curve, a 3-harmonic
+        # series: exact for order >= 3)
+        a = fourier_design(cal.beta_rad, f.order)
+        t_coef = np.linalg.lstsq(a, truth, rcond=None)[0]
+        z_c = (f.coefficients_rad - t_coef) / np.sqrt(np.diagonal(f.covariance_rad2, axis1=1, axis2=2)).T
+        out["fourier"] = {"order": f.order, "variance_factor": f.variance_factor.tolist(),
+                          "beyond_2sigma": np.sum(np.abs(z_f) > 2, axis=0).tolist(),
+                          "max_abs_z": np.abs(z_f).max(axis=0).tolist(), "simultaneous_z": c_f,
+                          "every_within_2sigma": bool(np.all(np.abs(z_f) <= 2)),
+                          "within_simultaneous": bool(np.all(np.abs(z_f) <= c_f)),
+                          "p_every_within_2sigma": float(np.mean(draws <= 2.0)),
+                          "terms_z": z_c.tolist(),
+                          "value_sigma_median_mdeg": (1000 * np.degrees(np.median(f.sigma_rad(cal.beta_rad), axis=0))
+                                                      ).tolist(),
+                          "err_rms_mdeg": (1000 * np.degrees(np.sqrt(np.mean((f(cal.beta_rad) - truth) ** 2, axis=0)))
+                                           ).tolist()}
+    return out
+
+
+def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int,
+             cache: Path | None = None) -> tuple[Lab, Any, float, float]:
+    """Build the lab of ``seed``, render and calibrate it (or load the measurements from ``cache``/seedS_KxC_W.npz,
+    written on the first run); the calibration, render and calibration seconds."""
+    from skyrig.calibrate.tumbling import TumblingCalibration, calibrate_tumbling_head
+    from skyrig.rig.boresight_curve import BoresightCurve
+
+    t0 = time.perf_counter()
+    lab = build_lab(positions, circles, width, seed=seed)
+    f = None if cache is None else cache / f"seed{seed}_{positions}x{circles}_{width}_w{window_px}.npz"
+    if f is not None and f.is_file():
+        d = np.load(f)
+        if not np.array_equal(d["true_rad"], lab.true_rad):
+            raise SystemExit(f"{f}: cached for another lab (true corrections differ); remove it")
+        k = lab.beta_rad.size
+        cal = TumblingCalibration(lab.beta_rad, np.array([f"{c + 1}" for c in range(circles)]), d["corr"], d["sig"],
+                                  np.asarray(lab.names).reshape(circles, k), d["win"],
+                                  BoresightCurve.from_circles(lab.beta_rad, d["corr"]), lab.setup)
+        return lab, cal, 0.0, 0.0
+    imgs, ref = render_lab(lab)
+    t1 = time.perf_counter()
+    cal = calibrate_tumbling_head(lab.setup, imgs.__getitem__, lab.names, lab.circles, lab.betas, ref,
+                                  window_px=window_px)
+    t2 = time.perf_counter()
+    if f is not None:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        tmp = f.with_suffix(".tmp.npz")
+        np.savez(tmp, true_rad=lab.true_rad, corr=cal.corrections_rad, sig=cal.sigma_rad, win=cal.windows)
+        tmp.replace(f)
+    return lab, cal, t1 - t0, t2 - t1
+
+
+def _seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Over the seeds: how often every position is within 2 sigma and within the simultaneous band, per statement;
+    the pooled z of the series' terms; Tab. 2's repeatability and the image-point error."""
+    from scipy.stats import kstest
+
+    from skyrig.rig.boresight_curve import AXES
+
+    n = len(results)
+    out: dict[str, Any] = {"seeds": [r["seed"] for r in results]}
+    for m in ("lookup", "fourier"):
+        rs = [r["curve_statement"][m] for r in results if m in r["curve_statement"]]
+        if not rs:
+            continue
+        out[m] = {"every_within_2sigma": f"{sum(r['every_within_2sigma'] for r in rs)}/{n}",
+                  "within_simultaneous": f"{sum(r['within_simultaneous'] for r in rs)}/{n}",
+                  "beyond_2sigma_per_seed": [r["beyond_2sigma"] for r in rs],
+                  "max_abs_z_per_seed": [r["max_abs_z"] for r in rs],
+                  "simultaneous_z": [r["simultaneous_z"] for r in rs]}
+        if m == "fourier":
+            z = np.concatenate([np.ravel(r["terms_z"]) for r in rs])
+            out[m] |= {"orders": [r["order"] for r in rs], "terms_z_rms": float(np.sqrt(np.mean(z ** 2))),
+                       "terms_z_mean": float(np.mean(z)), "terms": int(z.size),
+                       "terms_z_ks_pvalue": float(kstest(z, "norm").pvalue),
+                       "p_every_within_2sigma_model": [r["p_every_within_2sigma"] for r in rs]}
+        else:
+            out[m]["p_every_within_2sigma_if_exact"] = rs[0]["p_every_within_2sigma_if_exact"]
+    out["table2"] = {a: {"mean_std_2sigma_over_injected_2sigma": [
+                             r["table2_2sigma"][a]["mean_std_mdeg"] / (2 * r[a]["injected_repeat_mdeg"])
+                             for r in results],
+                         "mechanism_over_injected": [r[a]["mechanism_over_injected"] for r in results]}
+                     for a in AXES}
+    out["image_points_calibrated_max_px"] = [r["image_points_calibrated"]["max_px"] for r in results]
+    out["image_points_calibrated_rms_px"] = [r["image_points_calibrated"]["rms_px"] for r in results]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--positions", type=int, default=72)
     ap.add_argument("--circles", type=int, default=5)
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--window-px", type=int, default=32)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seeds", default=None, help="several labs, e.g. 1-12 or 1,3,5: each judged, then a summary")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="keep each lab's measurements here (seedS_KxC_W_wP.npz) and reuse them on the next run")
     ap.add_argument("--out", type=Path, default=None, help="write the figures (JSON) here")
     a = ap.parse_args(argv)
-    t0 = time.perf_counter()
-    lab = build_lab(a.positions, a.circles, a.width, seed=a.seed)
-    imgs, ref = render_lab(lab)
-    t1 = time.perf_counter()
-    cal = calibrate_tumbling_head(lab.setup, imgs.__getitem__, lab.names, lab.circles, lab.betas, ref,
-                                  window_px=a.window_px)
-    t2 = time.perf_counter()
-    res = judge(lab, cal)
-    res["render_s"], res["calibrate_s"] = t1 - t0, t2 - t1
-    res["table2_2sigma"] = cal.table2(2.0)
-    res["args"] = vars(a) | {"out": str(a.out)}
-    print(json.dumps(res, indent=1))
+    seeds = _seeds(a.seeds) if a.seeds else [a.seed]
+    results = []
+    for seed in seeds:
+        lab, cal, t_render, t_cal = run_seed(a.positions, a.circles, a.width, a.window_px, seed, a.cache)
+        res = judge(lab, cal)
+        res["seed"] = seed
+        res["render_s"], res["calibrate_s"] = t_render, t_cal
+        res["table2_2sigma"] = cal.table2(2.0)
+        results.append(res)
+        if len(seeds) == 1:
+            print(json.dumps(res, indent=1))
+        else:
+            st = res["curve_statement"]
+            mech = [round(res[x]["mechanism_over_injected"], 3) for x in ("droll", "dpitch", "dyaw")]
+            print(f"seed {seed}: lookup beyond 2 sigma {st['lookup']['beyond_2sigma']} max |z| "
+                  f"{st['lookup']['max_abs_z']:.2f} (simultaneous {st['lookup']['simultaneous_z']:.2f}); fourier "
+                  f"order {st['fourier']['order']} beyond {st['fourier']['beyond_2sigma']} max |z| "
+                  f"{max(st['fourier']['max_abs_z']):.2f} (simultaneous {st['fourier']['simultaneous_z']:.2f}); "
+                  f"mechanism/injected {mech}"
+                  f"; image points max {res['image_points_calibrated']['max_px']:.3f} px", flush=True)
+    out: dict[str, Any] = {"args": vars(a) | {"out": str(a.out), "cache": str(a.cache)}}
+    if len(seeds) == 1:
+        out |= results[0]
+    else:
+        out["summary"] = summary(results)
+        out["per_seed"] = results
+        print(json.dumps(out["summary"], indent=1))
     if a.out is not None:
-        a.out.write_text(json.dumps(res, indent=1))
+        tmp = a.out.with_suffix(a.out.suffix + ".tmp")
+        tmp.write_text(json.dumps(out, indent=1))
+        tmp.replace(a.out)
     return 0
 
 

@@ -172,3 +172,46 @@ def test_circles_must_hold_the_same_positions(lab_files):
     names, circles, betas = lab.names[:-1], lab.circles[:-1], lab.betas[:-1]
     with pytest.raises(SkyrigError, match="same actuator positions"):
         calibrate_tumbling_head(lab.setup, lambda n: None, names, circles, betas, None)
+
+
+def test_curve_statements_cover_as_stated():
+    """The two statements of a curve (``TumblingCalibration.curve_statement``), checked by simulation without images:
+    a 72-position curve like the lab's (three harmonics) plus Gaussian errors with the per-position sigmas stated
+    (uneven, of the recipe's size), 300 draws.  The Fourier series' terms against the true terms are chi-square
+    with 21 x 300 degrees of freedom; its simultaneous 95 % band and its "every value within 2 sigma" probability
+    (both from its covariance), and Sidak's band for the independent per-position values, hold as often as stated
+    (binomial 99.9 % bounds); the order chosen is the true one but for the selection test's false alarms."""
+    from scipy.stats import binom
+
+    from skyrig.calibrate.tumbling import fit_fourier_curve, fourier_design, sidak_z
+    from skyrig.simulate.errors import tumble_curve_samples
+
+    rng = np.random.default_rng(12)
+    beta, truth = tumble_curve_samples(np.radians([0.05, 0.05, 0.1]), rng)
+    k = beta.size
+    sig = np.radians(np.array([3.0, 3.0, 10.0]) / 1000) * (1.0 + 0.5 * np.sin(beta))[:, None] ** np.array([1, -1, 1])
+    t_coef = np.linalg.lstsq(fourier_design(beta, 3), truth, rcond=None)[0]
+    n = 300
+    ref = fit_fourier_curve(beta, truth, sig, order=3)  # the covariance depends on the sigmas only
+    draws = ref.max_abs_z_draws(beta)
+    c_f, p2 = float(np.quantile(draws, 0.95)), float(np.mean(draws <= 2.0))
+    c_l = sidak_z(3 * k, 0.95)
+    orders, d2, in_band, in_2, in_sidak = [], 0.0, 0, 0, 0
+    for _ in range(n):
+        y = truth + rng.normal(0.0, 1.0, truth.shape) * sig
+        f = fit_fourier_curve(beta, y, sig)
+        orders.append(f.order)
+        f = fit_fourier_curve(beta, y, sig, order=3)
+        d = f.coefficients_rad - t_coef
+        d2 += sum(float(d[:, i] @ np.linalg.solve(f.covariance_rad2[i], d[:, i])) for i in range(3))
+        z = np.abs(f(beta) - truth) / f.sigma_rad(beta)
+        in_band += bool(np.all(z <= c_f))
+        in_2 += bool(np.all(z <= 2.0))
+        in_sidak += bool(np.all(np.abs(y - truth) / sig <= c_l))
+    print("order != 3:", sum(o != 3 for o in orders), "chi2/dof", d2 / (21 * n), "band", in_band, "c", c_f,
+          "all within 2 sigma", in_2, "model p", p2, "sidak", in_sidak, c_l)
+    assert sum(o != 3 for o in orders) <= binom.ppf(0.9999, n, 9e-3)  # 9 harmonics above 3, each a 1e-3 test
+    assert chi2.ppf(0.0005, 21 * n) < d2 < chi2.ppf(0.9995, 21 * n)
+    for hits, p in ((in_band, 0.95), (in_2, p2), (in_sidak, 0.95)):
+        assert binom.ppf(0.0005, n, p - 0.005) <= hits <= binom.ppf(0.9995, n, min(p + 0.005, 1.0))
+    assert c_f < c_l  # the series' values are correlated: its simultaneous band is narrower than Sidak's

@@ -57,8 +57,8 @@ from skyrig.rig.rig import ActuatedHead, Rig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "measure_position_offset",
-           "calibrate_tumbling_head", "ENU_FROM_BODY"]
+__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FourierCurve", "measure_position_offset",
+           "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design", "sidak_z", "ENU_FROM_BODY"]
 
 #: lab frame (east, north, up) from body (x forward = north, y right = east, z down)
 ENU_FROM_BODY = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -432,6 +432,156 @@ def measure_position_offset(
                           float(np.sqrt(np.mean(obs[use] ** 2))) / gain, q, gain)
 
 
+# --------------------------------------------------------------------------------------------- curve statements
+def sidak_z(m: int, level: float = 0.95) -> float:
+    """The ``|z|`` bound that ``m`` independent N(0, 1) draws all stay within with probability ``level`` (Sidak):
+    ``Phi^-1((1 + level^(1/m)) / 2)``.  For correlated Gaussian draws it is a conservative bound (Sidak's
+    inequality): all of them stay within it with probability at least ``level``."""
+    from scipy.stats import norm
+
+    if m < 1 or not 0.0 < level < 1.0:
+        raise SkyrigError(f"sidak_z: needs m >= 1 draws and a level in (0, 1), got m={m}, level={level}")
+    return float(norm.ppf(0.5 + 0.5 * level ** (1.0 / m)))
+
+
+def fourier_design(beta_rad: ArrayLike, order: int) -> NDArray[np.float64]:
+    """``(n, 2 order + 1)`` design of a Fourier series in the actuator angle: ``1, cos b, sin b, ..., cos Nb,
+    sin Nb``."""
+    b = np.asarray(beta_rad, dtype=np.float64).reshape(-1)
+    cols = [np.ones_like(b)]
+    for j in range(1, int(order) + 1):
+        cols += [np.cos(j * b), np.sin(j * b)]
+    return np.column_stack(cols)
+
+
+@dataclass(frozen=True)
+class FourierCurve:
+    """A boresight curve stated as a Fourier series in the actuator angle, with the covariance of its terms.
+
+    The series is fitted by weighted least squares to the per-position mean curve (weights ``1 / sigma_k^2``,
+    :attr:`TumblingCalibration.standard_error_rad`, positions independent), so its covariance is
+    ``(A^T W A)^-1`` per axis, **not** scaled by the fit's variance factor: the per-position sigma is an upper bound
+    (see :attr:`TumblingCalibration.standard_error_rad`), and a variance factor below 1 says so without telling
+    which part of the error repeats.  The axes are fitted separately (the per-position correlations between axes
+    are not estimated).
+
+    Attributes
+    ----------
+    order
+        Highest harmonic ``N``.
+    coefficients_rad
+        ``(2 N + 1, 3)`` terms ``[a_0, a_1, b_1, ..., a_N, b_N]`` per axis (radians): ``a_0 + sum_j a_j cos(j beta)
+        + b_j sin(j beta)``.
+    covariance_rad2
+        ``(3, 2 N + 1, 2 N + 1)`` their covariance per axis (radians^2).
+    variance_factor
+        ``(3,)`` weighted residual square sum / ``dof`` (a diagnostic; 1 if the series holds the curve and the
+        per-position sigma is right, below 1 where the sigma is conservative, above 1 where the series misses
+        harmonics).
+    dof
+        Redundancy of the fit (positions - terms).
+    harmonic_chi2
+        ``(N,)`` per harmonic the chi-square (6 degrees of freedom: cos and sin of three axes) of its terms against
+        zero, from the fit at the order the selection started from; NaN where not computed.
+    """
+
+    order: int
+    coefficients_rad: NDArray[np.float64]
+    covariance_rad2: NDArray[np.float64]
+    variance_factor: NDArray[np.float64]
+    dof: int
+    harmonic_chi2: NDArray[np.float64]
+
+    def __call__(self, beta_rad: ArrayLike) -> NDArray[np.float64]:
+        """``(n, 3)`` the series at ``beta_rad`` (radians)."""
+        return fourier_design(beta_rad, self.order) @ self.coefficients_rad
+
+    def value_covariance(self, beta_rad: ArrayLike) -> NDArray[np.float64]:
+        """``(3, n, n)`` covariance of the series' values at ``beta_rad`` per axis (radians^2)."""
+        a = fourier_design(beta_rad, self.order)
+        return np.einsum("ik,akl,jl->aij", a, self.covariance_rad2, a)
+
+    def sigma_rad(self, beta_rad: ArrayLike) -> NDArray[np.float64]:
+        """``(n, 3)`` standard deviations of the series' values at ``beta_rad`` (radians)."""
+        a = fourier_design(beta_rad, self.order)
+        return np.sqrt(np.einsum("ik,akl,il->ia", a, self.covariance_rad2, a))
+
+    def max_abs_z_draws(self, beta_rad: ArrayLike, draws: int = 20000, seed: int = 0) -> NDArray[np.float64]:
+        """``(draws,)`` the largest ``|error / sigma|`` over the positions ``beta_rad`` and the three axes, for errors
+        drawn from the terms' covariance (fixed ``seed``: reproducible)."""
+        a = fourier_design(beta_rad, self.order)
+        sig = self.sigma_rad(beta_rad)
+        rng = np.random.default_rng(seed)
+        out = np.zeros(int(draws))
+        for i in range(3):
+            chol = np.linalg.cholesky(self.covariance_rad2[i])
+            x = rng.standard_normal((int(draws), a.shape[1])) @ chol.T
+            out = np.maximum(out, np.abs(x @ a.T / sig[:, i]).max(axis=1))
+        return out
+
+    def simultaneous_z(self, beta_rad: ArrayLike, level: float = 0.95, draws: int = 20000, seed: int = 0) -> float:
+        """The ``|z|`` half-width of the simultaneous band: the series' errors at every position ``beta_rad`` and on
+        every axis stay within ``z sigma`` with probability ``level`` (the ``level`` quantile of
+        :meth:`max_abs_z_draws`; the values are correlated, so it is below :func:`sidak_z`)."""
+        return float(np.quantile(self.max_abs_z_draws(beta_rad, draws, seed), level))
+
+    def probability_all_within(self, beta_rad: ArrayLike, k_sigma: float = 2.0, draws: int = 20000,
+                               seed: int = 0) -> float:
+        """Probability (under the terms' covariance) that the errors at every position and on every axis are within
+        ``k_sigma`` of their own sigma."""
+        return float(np.mean(self.max_abs_z_draws(beta_rad, draws, seed) <= k_sigma))
+
+
+def fit_fourier_curve(beta_rad: ArrayLike, values_rad: ArrayLike, sigma_rad: ArrayLike, order: int | None = None,
+                      alpha: float = 1e-3, max_order: int | None = None) -> FourierCurve:
+    """Weighted least-squares Fourier series of a per-position curve (:class:`FourierCurve`).
+
+    ``order`` None: chosen from the data: the series is fitted at ``max_order`` (default ``min(12, (K - 2) // 4)``
+    for ``K`` positions, at least 1) and the order is the highest harmonic whose six terms (cos, sin of the three
+    axes) differ from zero by a chi-square test at ``alpha`` (at least 1).  A curve with a harmonic above
+    ``max_order``, or one too weak to pass the test, is biased in the series; the variance factor shows the former.
+    """
+    from scipy.stats import chi2
+
+    b = np.asarray(beta_rad, dtype=np.float64).reshape(-1)
+    y = np.asarray(values_rad, dtype=np.float64).reshape(b.size, 3)
+    s = np.asarray(sigma_rad, dtype=np.float64).reshape(b.size, 3)
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise SkyrigError("Fourier curve: the values and their sigmas must be finite, the sigmas > 0")
+    k = b.size
+
+    def fit(n: int) -> FourierCurve:
+        a = fourier_design(b, n)
+        coef = np.empty((a.shape[1], 3))
+        cov = np.empty((3, a.shape[1], a.shape[1]))
+        vf = np.empty(3)
+        for i in range(3):
+            w = 1.0 / s[:, i] ** 2
+            n_mat = a.T @ (a * w[:, None])
+            cov[i] = np.linalg.inv(n_mat)
+            coef[:, i] = cov[i] @ (a.T @ (w * y[:, i]))
+            r = y[:, i] - a @ coef[:, i]
+            vf[i] = float(np.sum(w * r ** 2) / (k - a.shape[1])) if k > a.shape[1] else float("nan")
+        hc = np.full(n, np.nan)
+        for j in range(1, n + 1):
+            sl = slice(2 * j - 1, 2 * j + 1)
+            hc[j - 1] = sum(float(coef[sl, i] @ np.linalg.solve(cov[i][sl, sl], coef[sl, i])) for i in range(3))
+        return FourierCurve(n, coef, cov, vf, k - a.shape[1], hc)
+
+    if order is not None:
+        if int(order) < 0 or 2 * int(order) + 1 > k:
+            raise SkyrigError(f"Fourier curve: order {order} needs {2 * int(order) + 1} positions, the curve has {k}")
+        return fit(int(order))
+    top = max(1, min(12, (k - 2) // 4)) if max_order is None else int(max_order)
+    if 2 * top + 1 > k:
+        raise SkyrigError(f"Fourier curve: order {top} needs {2 * top + 1} positions, the curve has {k}")
+    full = fit(top)
+    sig = np.flatnonzero(full.harmonic_chi2 > chi2.ppf(1.0 - alpha, 6))
+    chosen = fit(int(sig.max()) + 1 if sig.size else 1)
+    return FourierCurve(chosen.order, chosen.coefficients_rad, chosen.covariance_rad2, chosen.variance_factor,
+                        chosen.dof, full.harmonic_chi2)
+
+
 @dataclass
 class TumblingCalibration:
     """Result of :func:`calibrate_tumbling_head`.
@@ -526,6 +676,46 @@ class TumblingCalibration:
         :meth:`mechanism_repeatability_rad`)."""
         return self.mechanism_repeatability_rad()[0]
 
+    def fourier_curve(self, order: int | None = None, alpha: float = 1e-3) -> FourierCurve:
+        """The mean curve stated as a Fourier series in the actuator angle with the covariance of its terms
+        (:func:`fit_fourier_curve` on :attr:`mean_rad` weighted by :attr:`standard_error_rad`; ``order`` None: the
+        highest harmonic that differs from zero at ``alpha``)."""
+        return fit_fourier_curve(self.beta_rad, self.mean_rad, self.standard_error_rad, order, alpha)
+
+    def curve_statement(self, level: float = 0.95, order: int | None = None) -> dict[str, Any]:
+        """How far the estimated curve may be from the mechanism's, stated two ways (JSON-ready, 1/1000 deg).
+
+        ``lookup``: the per-position means (paper 000's table, written into the rig file) with their standard
+        errors, positions independent: the simultaneous band over the ``3 K`` values is Sidak's ``|z|`` bound
+        (:func:`sidak_z`), and "every value within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact
+        (higher, as they are upper bounds).  ``fourier``: the series of :meth:`fourier_curve` with its terms'
+        sigma, its values' sigma at the positions, the simultaneous band from its covariance (the values are
+        correlated) and the probability of "every value within 2 sigma" under that covariance."""
+        from scipy.stats import norm
+
+        k = int(self.beta_rad.size)
+        md = 1000.0 * 180.0 / np.pi
+        p2 = float((2.0 * norm.cdf(2.0) - 1.0) ** (3 * k))
+        out: dict[str, Any] = {"level": level, "lookup": {
+            "values": 3 * k, "simultaneous_z": sidak_z(3 * k, level), "p_every_value_within_2sigma": p2,
+            "sigma_mdeg": {a: (md * self.standard_error_rad[:, i]).tolist() for i, a in enumerate(AXES)}}}
+        if k >= 4:  # a series of order 1 with a redundancy
+            f = self.fourier_curve(order)
+            sd = np.sqrt(np.diagonal(f.covariance_rad2, axis1=1, axis2=2))
+            draws = f.max_abs_z_draws(self.beta_rad)
+            names = ["a0"] + [f"{t}{j}" for j in range(1, f.order + 1) for t in ("a", "b")]
+            out["fourier"] = {
+                "order": f.order, "dof": f.dof, "terms": names,
+                "coefficients_mdeg": {a: (md * f.coefficients_rad[:, i]).tolist() for i, a in enumerate(AXES)},
+                "coefficient_sigma_mdeg": {a: (md * sd[i]).tolist() for i, a in enumerate(AXES)},
+                "variance_factor": dict(zip(AXES, f.variance_factor.tolist())),
+                "harmonic_chi2_6dof": f.harmonic_chi2.tolist(),
+                "values_mdeg": {a: (md * f(self.beta_rad)[:, i]).tolist() for i, a in enumerate(AXES)},
+                "values_sigma_mdeg": {a: (md * f.sigma_rad(self.beta_rad)[:, i]).tolist() for i, a in enumerate(AXES)},
+                "simultaneous_z": float(np.quantile(draws, level)),
+                "p_every_value_within_2sigma": float(np.mean(draws <= 2.0))}
+        return out
+
     def table2(self, k_sigma: float = 2.0) -> dict[str, dict[str, Any]]:
         """Paper 000 Tab. 2: per axis the mean and the max of the per-position standard deviation (``k_sigma``
         scaled, degrees and 1/1000 deg), the position (beta, deg) and the image of the max (the image of that
@@ -596,9 +786,12 @@ class TumblingCalibration:
             "plane_distance_m": self.setup.plane_distance_m,
             "positions": int(self.beta_rad.size), "circles": [str(c) for c in self.circles],
             "table2_2sigma": self.table2(2.0),
+            "curve_statement": self.curve_statement(),
             "curve": [{"beta_deg": float(np.degrees(b)),
                        **{f"{a}_mdeg": 1000 * float(np.degrees(self.mean_rad[k, i])) for i, a in enumerate(AXES)},
-                       **{f"{a}_std_mdeg": 1000 * float(np.degrees(self.std_rad[k, i])) for i, a in enumerate(AXES)}}
+                       **{f"{a}_std_mdeg": 1000 * float(np.degrees(self.std_rad[k, i])) for i, a in enumerate(AXES)},
+                       **{f"{a}_se_mdeg": 1000 * float(np.degrees(self.standard_error_rad[k, i]))
+                          for i, a in enumerate(AXES)}}
                       for k, b in enumerate(self.beta_rad)],
             "measurements": [{"image": str(self.images[c, k]), "circle": str(self.circles[c]),
                               "beta_deg": float(np.degrees(self.beta_rad[k])), "windows": int(self.windows[c, k]),
