@@ -74,6 +74,17 @@ def test_curve_within_predicted_precision(lab_run):
     rms_z = np.sqrt(np.mean(z_img ** 2, axis=(0, 1)))
     print("per-image error / stated sigma, RMS per axis", rms_z)
     assert np.all(rms_z > np.sqrt(chi2.ppf(0.0005, 24) / 24)) and np.all(rms_z < np.sqrt(chi2.ppf(0.9995, 24) / 24))
+    # the same with the stated correlations between the axes (the tilt across the view and the yaw, |r| ~ 0.95 in
+    # one image): Mahalanobis square sum over the 24 images, chi-square with 72 degrees of freedom; with those
+    # correlations wrong (e.g. absent in truth) it would be several times larger
+    pairs = ((0, 1), (0, 2), (1, 2))
+    r_img = np.array([[m[f"r_{AXES[i]}_{AXES[j]}"] for i, j in pairs] for m in rep["measurements"]]).reshape(3, 8, 3)
+    corr = np.broadcast_to(np.eye(3), (3, 8, 3, 3)).copy()
+    for p_, (i, j) in enumerate(pairs):
+        corr[..., i, j] = corr[..., j, i] = r_img[..., p_]
+    d2 = float(np.einsum("cki,ckij,ckj->", z_img, np.linalg.inv(corr), z_img))
+    print("per-image Mahalanobis square sum", d2, "of 72 dof; largest |r|", np.abs(r_img).max())
+    assert chi2.ppf(0.0005, 72) < d2 < chi2.ppf(0.9995, 72)
     # the mean curve against the true curve in units of the standard errors written into the rig file
     blk = cal.heads["oblique"].actuator
     assert blk is not None and len(blk.parameters) == 24
@@ -83,6 +94,14 @@ def test_curve_within_predicted_precision(lab_run):
     print("curve error (mdeg) rms", 1000 * np.degrees(np.sqrt(np.mean(err ** 2, axis=0))), "stated SE median",
           1000 * np.degrees(np.median(se, axis=0)), "max |z|", np.abs(z).max(axis=0))
     assert np.all(np.abs(z) < np.sqrt(chi2.ppf(1 - 0.01 / 24, 1)))  # 24 draws, 1 % family-wise
+    # with the rig file's correlations (block diagonal, 3 x 3 per position): the stated covariance is an upper
+    # bound (the comparison error's circle-to-circle part is counted twice), so only the upper chi-square bound
+    cov = np.radians(1.0) ** 2 * blk.sigma[:, None] * blk.correlation * blk.sigma[None]
+    assert np.all(cov[np.abs(np.subtract.outer(np.arange(24) // 3, np.arange(24) // 3)) > 0] == 0)
+    e = err.reshape(-1)
+    d2 = float(e @ np.linalg.solve(cov, e))
+    print("mean curve Mahalanobis square", d2, "of 24 dof")
+    assert d2 < chi2.ppf(0.999, 24)
     # the stated SE is not so loose that it hides the curve: the curve (amplitude 50-130 mdeg) is > 8 SE
     amp = np.abs(lab.true_curve(curve.beta_rad)).max(axis=0)
     assert np.all(amp > 8 * np.median(se, axis=0))

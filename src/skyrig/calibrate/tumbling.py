@@ -30,6 +30,12 @@ Sequence (:func:`calibrate_tumbling_head`)
    (the scatter over the circles less the fits' measurement variance, with its standard error), and a calibrated
    rig: the rig with the curve on the tumbling head, the curve's standard errors as the head's ``actuator`` block,
    and provenance.
+5. The curve's statement (:meth:`TumblingCalibration.curve_statement`, in the JSON report): the per-position
+   values (the paper's lookup, the rig file's curve) with their standard errors and Sidak's simultaneous band over
+   the ``3 K`` values, and the same curve as a Fourier series in beta (:class:`FourierCurve`, the order by a
+   chi-square test per harmonic) with its terms' covariance, its simultaneous band and the probability, under that
+   covariance, that every value is within 2 sigma.  With 216 values "every position within 2 sigma" is not what a
+   right sigma promises (0.9545^216 = 4e-5 for exact independent sigmas); the simultaneous band is.
 
 Frames and units: the lab frame is a local Cartesian frame (ENU axes, metres) with the sensor head at its origin,
 body x along north, y east, z down; the plane is ``z = -plane_distance_m`` (the floor seen straight below the head).
@@ -604,6 +610,9 @@ class TumblingCalibration:
         The mean curve with the per-position repeatability (``std_rad``, ``count``).
     setup
         The lab set-up.
+    covariance_rad2
+        ``(C, K, 3, 3)`` each image's fit covariance (radians^2; the tilt across the view and the yaw are strongly
+        correlated in one image), or None: uncorrelated with ``sigma_rad``.
     """
 
     beta_rad: NDArray[np.float64]
@@ -614,6 +623,7 @@ class TumblingCalibration:
     windows: NDArray[np.int64]
     curve: BoresightCurve
     setup: LabSetup
+    covariance_rad2: NDArray[np.float64] | None = None
 
     @property
     def mean_rad(self) -> NDArray[np.float64]:
@@ -649,6 +659,24 @@ class TumblingCalibration:
         full."""
         c = self.corrections_rad.shape[0]
         return np.sqrt(self.pooled_std_rad[None] ** 2 / c + np.mean(self.sigma_rad ** 2, axis=0))
+
+    @property
+    def fit_covariance_rad2(self) -> NDArray[np.float64]:
+        """``(C, K, 3, 3)`` each image's fit covariance (:attr:`covariance_rad2`, or diagonal from
+        :attr:`sigma_rad`)."""
+        if self.covariance_rad2 is not None:
+            return self.covariance_rad2
+        return self.sigma_rad[..., :, None] * np.eye(3) * self.sigma_rad[..., None, :]
+
+    @property
+    def mean_covariance_rad2(self) -> NDArray[np.float64]:
+        """``(K, 3, 3)`` covariance of the mean curve per position, the matrix form of :attr:`standard_error_rad`:
+        the scatter over the circles pooled over the positions (``K (C - 1)`` degrees of freedom) over ``C`` plus
+        the position's mean fit covariance.  Its diagonal is ``standard_error_rad^2``; positions uncorrelated."""
+        c = self.corrections_rad.shape[0]
+        dev = self.corrections_rad - self.mean_rad[None]
+        scatter = np.einsum("cki,ckj->ij", dev, dev) / (dev.shape[1] * (c - 1))
+        return scatter[None] / c + self.fit_covariance_rad2.mean(axis=0)
 
     def mechanism_repeatability_rad(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(std, se)``, each ``(3,)`` radians, 1 sigma: the mechanism's own repeatability with the measurement
@@ -758,7 +786,13 @@ class TumblingCalibration:
         names = [f"{a}_deg@{np.degrees(b):.4f}" for b in self.beta_rad for a in AXES]
         values = np.degrees(self.mean_rad).reshape(-1)
         sig = np.degrees(self.standard_error_rad).reshape(-1)
-        block = CovarianceBlock(tuple(names), np.nan_to_num(sig), np.eye(len(names)), values)
+        cov = self.mean_covariance_rad2
+        sd = np.sqrt(np.einsum("kii->ki", cov))
+        corr = np.zeros((len(names), len(names)))
+        for k in range(self.beta_rad.size):  # block diagonal: the three axes of a position are correlated
+            corr[3 * k:3 * k + 3, 3 * k:3 * k + 3] = np.clip(cov[k] / np.outer(sd[k], sd[k]), -1.0, 1.0)
+        corr[np.diag_indices_from(corr)] = 1.0
+        block = CovarianceBlock(tuple(names), np.nan_to_num(sig), np.nan_to_num(corr), values)
         rep = self.table2(1.0)
         stats = {"positions": int(self.beta_rad.size), "circles": int(self.corrections_rad.shape[0]),
                  "images": int(self.images.size), "windows_min": int(self.windows.min()),
@@ -780,6 +814,8 @@ class TumblingCalibration:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready report: Tab. 2, the mean curve with its repeatability, every measurement."""
+        fc = self.fit_covariance_rad2
+        mc = self.mean_covariance_rad2
         return {
             "recipe": "tumbling-head",
             "head": self.setup.head, "reference_head": self.setup.reference_head,
@@ -791,14 +827,19 @@ class TumblingCalibration:
                        **{f"{a}_mdeg": 1000 * float(np.degrees(self.mean_rad[k, i])) for i, a in enumerate(AXES)},
                        **{f"{a}_std_mdeg": 1000 * float(np.degrees(self.std_rad[k, i])) for i, a in enumerate(AXES)},
                        **{f"{a}_se_mdeg": 1000 * float(np.degrees(self.standard_error_rad[k, i]))
-                          for i, a in enumerate(AXES)}}
+                          for i, a in enumerate(AXES)},
+                       **{f"r_{AXES[i]}_{AXES[j]}": float(mc[k, i, j] / np.sqrt(mc[k, i, i] * mc[k, j, j]))
+                          for i, j in ((0, 1), (0, 2), (1, 2))}}
                       for k, b in enumerate(self.beta_rad)],
             "measurements": [{"image": str(self.images[c, k]), "circle": str(self.circles[c]),
                               "beta_deg": float(np.degrees(self.beta_rad[k])), "windows": int(self.windows[c, k]),
                               **{f"{a}_mdeg": 1000 * float(np.degrees(self.corrections_rad[c, k, i]))
                                  for i, a in enumerate(AXES)},
                               **{f"{a}_sigma_mdeg": 1000 * float(np.degrees(self.sigma_rad[c, k, i]))
-                                 for i, a in enumerate(AXES)}}
+                                 for i, a in enumerate(AXES)},
+                              **{f"r_{AXES[i]}_{AXES[j]}":
+                                 float(fc[c, k, i, j] / np.sqrt(fc[c, k, i, i] * fc[c, k, j, j]))
+                                 for i, j in ((0, 1), (0, 2), (1, 2))}}
                              for c in range(len(self.circles)) for k in range(self.beta_rad.size)],
         }
 
@@ -853,6 +894,7 @@ def calibrate_tumbling_head(
     k_pos = pos.size
     meas = np.full((len(labels), k_pos, 3), np.nan)
     sig = np.full((len(labels), k_pos, 3), np.nan)
+    cov = np.full((len(labels), k_pos, 3, 3), np.nan)
     nam = np.empty((len(labels), k_pos), dtype=object)
     win = np.zeros((len(labels), k_pos), np.int64)
     for lab in labels:  # check every circle before measuring anything
@@ -868,6 +910,7 @@ def calibrate_tumbling_head(
                                           name=str(names[j]), window_px=window_px)
             meas[ci, k] = off.correction_rad
             sig[ci, k] = off.sigma_rad
+            cov[ci, k] = off.covariance_rad2
             nam[ci, k] = str(names[j])
             win[ci, k] = off.windows
             log.info("%s circle %s beta %.2f deg: droll %.2f dpitch %.2f dyaw %.2f mdeg (%d windows, fit RMS %.3f px)",
@@ -875,4 +918,5 @@ def calibrate_tumbling_head(
                      off.residual_rms_px)
     b = np.radians(pos)
     curve = BoresightCurve.from_circles(b, meas, interpolation)  # type: ignore[arg-type]
-    return TumblingCalibration(b, np.asarray(labels, dtype=str), meas, sig, nam.astype(str), win, curve, setup)
+    return TumblingCalibration(b, np.asarray(labels, dtype=str), meas, sig, nam.astype(str), win, curve, setup,
+                               cov)
