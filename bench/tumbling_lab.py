@@ -363,6 +363,8 @@ def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from skyrig.errors import SkyrigError
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--positions", type=int, default=72)
     ap.add_argument("--circles", type=int, default=5)
@@ -376,8 +378,14 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     seeds = _seeds(a.seeds) if a.seeds else [a.seed]
     results = []
+    failed = []
     for seed in seeds:
-        lab, cal, t_render, t_cal = run_seed(a.positions, a.circles, a.width, a.window_px, seed, a.cache)
+        try:
+            lab, cal, t_render, t_cal = run_seed(a.positions, a.circles, a.width, a.window_px, seed, a.cache)
+        except SkyrigError as exc:  # a recipe failure is a result too: counted, named, and the run exits 1
+            print(f"seed {seed}: FAILED: {exc}", flush=True)
+            failed.append({"seed": seed, "error": str(exc)})
+            continue
         res = judge(lab, cal)
         res["seed"] = seed
         res["render_s"], res["calibrate_s"] = t_render, t_cal
@@ -395,10 +403,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"mechanism/injected {mech}"
                   f"; image points (written rig file) max {res['image_points_written_rig']['max_px']:.3f} px",
                   flush=True)
-    out: dict[str, Any] = {"args": vars(a) | {"out": str(a.out), "cache": str(a.cache)}}
-    if len(seeds) == 1:
+    out: dict[str, Any] = {"args": vars(a) | {"out": str(a.out), "cache": str(a.cache)}, "failed": failed}
+    if len(seeds) == 1 and results:
         out |= results[0]
-    else:
+    elif results:
         out["summary"] = summary(results)
         out["per_seed"] = results
         print(json.dumps(out["summary"], indent=1))
@@ -406,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
         tmp = a.out.with_suffix(a.out.suffix + ".tmp")
         tmp.write_text(json.dumps(out, indent=1))
         tmp.replace(a.out)
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
