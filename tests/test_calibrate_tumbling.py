@@ -234,3 +234,26 @@ def test_curve_statements_cover_as_stated():
     for hits, p in ((in_band, 0.95), (in_2, p2), (in_sidak, 0.95)):
         assert binom.ppf(0.0005, n, p - 0.005) <= hits <= binom.ppf(0.9995, n, min(p + 0.005, 1.0))
     assert c_f < c_l  # the series' values are correlated: its simultaneous band is narrower than Sidak's
+
+
+def test_reference_sampling_kernel():
+    """The reference is sampled by Keys' cubic convolution: with a = -0.75 it equals OpenCV's INTER_CUBIC (up to
+    cv2's 1/32 px tables), and with a = -0.5 (the recipe's) a grey-value ramp is reproduced exactly at any sub-pixel
+    position, which a = -0.75 misplaces by up to 0.047 px."""
+    import cv2
+
+    from skyrig.calibrate.tumbling import _cubic_sample, _cubic_sample_kernel
+
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.normal(128, 40, (64, 80)).astype(np.float32), (0, 0), 1.5)
+    x = rng.uniform(2, 76, (30, 40)).astype(np.float32)
+    y = rng.uniform(2, 60, (30, 40)).astype(np.float32)
+    ref = cv2.remap(img, x, y, cv2.INTER_CUBIC)
+    ours = _cubic_sample_kernel(img, x, y, -0.75).reshape(x.shape)
+    grad = np.abs(np.gradient(img)).max()
+    assert np.abs(ours - ref).max() < grad / 32  # within one table step of cv2's quantised position
+    ramp = (np.arange(80, dtype=np.float32)[None] * 1.5 + 0.25 * np.arange(64, dtype=np.float32)[:, None])
+    want = 1.5 * x + 0.25 * y
+    assert np.abs(_cubic_sample(ramp, x, y) - want).max() < 1e-3
+    off = np.abs(_cubic_sample_kernel(ramp, x, y, -0.75).reshape(x.shape) - want).max() / 1.5
+    assert 0.03 < off < 0.06  # a = -0.75 misplaces the ramp (px)
