@@ -195,7 +195,12 @@ class CellSorter:
             spec.update({"s3": ((), self.arrays["s3"].dtype if self.arrays else np.asarray(sigma_3d).dtype),
                          "rgb": ((3,), np.uint8), "nrm": ((3,), np.float32)})
         with _small_pages():
-            new = {k: np.empty((cap,) + sh, dt) for k, (sh, dt) in spec.items()}
+            # one record per point for the fields the fusion reads (a cell's points are gathered at random from the
+            # batches: one record is one or two cache lines where separate arrays were one each per field); the
+            # cells stay apart (only the counting sort reads them, in order)
+            rec = np.empty(cap, np.dtype([(k, dt, sh) for k, (sh, dt) in spec.items() if k != "cell"]))
+            new = {k: rec[k] for k in spec if k != "cell"}
+            new["cell"] = np.empty(cap, spec["cell"][1])
         for k, a in self.arrays.items():
             new[k][:self.n] = a[:self.n]
         self.arrays = new
