@@ -207,7 +207,8 @@ def _pixel_truth(rect, blk, disp, sgm, frame, scene_frame, scene):  # type: igno
     d = np.nan_to_num(np.ascontiguousarray(disp, np.float32), nan=-1.0)
     rr, cc = triangulate_block(d, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
                                np.ascontiguousarray(rect.rotation), np.ascontiguousarray(rect.centres[0]),
-                               float(sgm.disparity_sigma_px), float(np.cos(np.radians(sgm.max_incidence_deg))))[:2]
+                               float(sgm.disparity_sigma_px), float(np.cos(np.radians(sgm.max_incidence_deg))),
+                               np.zeros(d.shape + (1,), np.uint8))[:2]
     if len(rr) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
     C = rect.centres[0]

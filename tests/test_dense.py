@@ -370,6 +370,37 @@ def test_left_right_check_rejects_occluded_pixels(lr_check):
         assert (np.abs(d - truth) <= 1.0)[visible & ok].mean() > 0.99
 
 
+def test_points_carry_their_intersection_angle_and_precision(block):
+    """Every triangulated pixel: the world point lies on its left pixel's ray at the depth ``f B / d``, and its
+    intersection angle (computed on demand from the world point and the pair's centres) equals the angle of the
+    normal case in the rectified frame, ``acos(p . (p - B e_x) / (|p| |p - B e_x|))`` with
+    ``p = (u D / f, -v D / f, -D)``."""
+    from skyrig.dense.stereo import Block, block_points
+
+    eo, cams, _ = block
+    i, j = list(eo.image).index("s1_e1.png"), list(eo.image).index("s1_e2.png")
+    rect = rectify_pair(cams["cam"], eo.rotation[i], eo.centre[i], cams["cam"], eo.rotation[j], eo.centre[j])
+    u0, u1, v0, v1 = (int(x) for x in rect.bounds[0])
+    u0, v0 = u0 + 20, v0 + 20
+    blk = Block(u0, u0 + 40, v0, v0 + 30, 1.0, 400.0)
+    rng = np.random.default_rng(5)
+    disp = (rect.focal_px * rect.base_m / (HEIGHT + rng.uniform(-5, 5))) * np.ones((30, 40), np.float32)
+    disp[rng.random(disp.shape) < 0.2] = np.nan
+    pp = block_points(rect, blk, disp, np.zeros((30, 40, 3), np.uint8), SgmConfig(wall_max_nz=0))
+    assert len(pp) == np.isfinite(disp).sum()  # a plane seen straight: every matched pixel is a point
+    rr, cc = np.nonzero(np.isfinite(disp))
+    d = disp[rr, cc].astype(np.float64)
+    D = rect.focal_px * rect.base_m / d
+    p = np.stack([(u0 + cc) * D / rect.focal_px, -(v0 + rr) * D / rect.focal_px, -D], 1)
+    assert np.allclose(pp.xyz, rect.centres[0] + p @ rect.rotation.T, atol=1e-9)
+    q = p - np.array([rect.base_m, 0.0, 0.0])
+    ang = np.degrees(np.arccos(np.sum(p * q, 1) / (np.linalg.norm(p, axis=1) * np.linalg.norm(q, axis=1))))
+    assert np.allclose(pp.angle_deg, ang, atol=1e-4)
+    assert pp.sigma_h.dtype == np.float32 and np.all(pp.sigma_h > 0)
+    sub = pp.subset(np.arange(3))
+    assert np.array_equal(sub.angle_deg, pp.angle_deg[:3])
+
+
 def test_dsm_of_the_synthetic_block(dense_result, block):
     dsm, cloud, stats = dense_result
     assert dsm.frame.crs == CRS and "ellipsoidal" in dsm.vertical_reference

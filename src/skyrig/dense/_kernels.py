@@ -374,8 +374,9 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
     """Points of every matched pixel of a rectified block (see :func:`skyrig.dense.stereo.block_points`).
 
     ``colour``: the block's left colour crop ``(H, W, C)`` (one channel: grey, given to all three).  Returns
-    ``rows, cols, xyz (N, 3), normal (N, 3) float32, sigma_h, sigma_3d, angle_deg, rgb (N, 3) uint8`` for the
-    pixels kept (positive disparity, surface not seen more grazing than ``acos(cos_lim)``)."""
+    ``rows, cols, xyz (N, 3), normal (N, 3) float32, sigma_h, sigma_3d, rgb (N, 3) uint8`` for the pixels kept
+    (positive disparity, surface not seen more grazing than ``acos(cos_lim)``); the intersection angle is
+    :attr:`skyrig.dense.stereo.PairPoints.angle_deg`, on demand."""
     H, W = disp.shape
     fb = f * B
     nmax = 0
@@ -391,7 +392,6 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
     nrm = np.empty((nmax, 3), np.float32)
     sh = np.empty(nmax, np.float32)
     s3 = np.empty(nmax, np.float32)
-    ang = np.empty(nmax, np.float32)
     rgb = np.empty((nmax, 3), np.uint8)
     nch = colour.shape[2]
     k = 0
@@ -437,15 +437,10 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
             wz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
             s3[k] = rng / d * sigma_px
             sh[k] = abs(wz) / d * sigma_px
-            qx = px - B
-            qn = np.sqrt(qx * qx + py * py + pz * pz)
-            ca = (px * qx + py * py + pz * pz) / (rng * qn)
-            ca = min(1.0, max(-1.0, ca))
-            ang[k] = np.degrees(np.arccos(ca))
             for i in range(3):
                 rgb[k, i] = colour[r, c, min(i, nch - 1)]
             k += 1
-    return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], ang[:k], rgb[:k]
+    return rows[:k], cols[:k], xyz[:k], nrm[:k], sh[:k], s3[:k], rgb[:k]
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -446,8 +446,7 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                 inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
                 if inside.any():
                     sel = np.flatnonzero(inside)
-                    extra.append((pid, PairPoints(pp.xyz[sel], pp.sigma_h[sel], pp.sigma_3d[sel], pp.angle_deg[sel],
-                                                  pp.rgb[sel], pp.normal[sel]), xyz_m[sel]))
+                    extra.append((pid, pp.subset(sel), xyz_m[sel]))
     rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
     with phase("fuse"):
         (hgt, sup, spr, sg, ch, cs, cn, ch2, cs2, cn2), cloud = srt.fuse(plan.config.fusion, True, rot)
