@@ -216,6 +216,35 @@ def test_brighton_centres_agree_with_pycolmap(brighton):
     assert c["max_m"] < 2 * tol, (c["max_m"], tol)
 
 
+@pytest.mark.slow  # the brighton fixture takes 80 s: make test-all runs it
+def test_brighton_focal_with_pycolmaps_camera_model_agrees_with_pycolmap(brighton):
+    # COLMAP's SIMPLE_RADIAL camera (focal, k1; principal point at the image centre), refined by its own bundle
+    # adjustment on its own SIFT / exhaustive matches of the same 640-px images, against skyrig's self-calibration
+    # restricted to the same two unknowns.  The two estimates come from different tie points, so their difference
+    # has about sqrt(2) x skyrig's predicted sigma (~55 px at 640 px; at 1,600 px skyrig 2,769 vs COLMAP 2,781 px);
+    # the EXIF value (2,222 px, from the 6.5 mm sensor width) is ~25 % off for these 16:9 images and fails it.
+    from skyrig.pipeline.uav import adjust_uav
+
+    res, rep, size, tmp = brighton
+    cams = rep["pycolmap"]["cameras"]
+    assert len(cams) == 1 and cams[0]["model"] == "SIMPLE_RADIAL", cams
+    f_colmap, k_colmap = cams[0]["params"][0], cams[0]["params"][3]
+    from conftest import shared_path
+
+    r2, _ = adjust_uav(shared_path("brighton-uav"), tmp / "match", None,
+                       UavConfig(self_calibration=("focal_mm", "k1")))
+    assert r2.adjustment.ok, r2.adjustment.failures
+    cam = r2.camera
+    f_px = cam.focal_mm / cam.pixel_size_mm
+    s_f = r2.adjustment.sigma_reduced()[("intrinsics", cam.name, "focal_mm")] / cam.pixel_size_mm
+    tol = 3.0 * np.sqrt(2.0) * s_f
+    assert abs(f_px - f_colmap) < tol, (f_px, f_colmap, s_f)
+    exif = res.summary["focal_px_exif"]
+    assert abs(exif - f_colmap) > tol, (exif, f_colmap, tol)  # the comparison can tell the EXIF focal from it
+    # COLMAP's k (r^2 in normalised coordinates) is OpenCV's k1
+    assert np.sign(cam.distortion.k1) == np.sign(k_colmap), (cam.distortion.k1, k_colmap)
+
+
 def test_detect_strips_finds_the_simulated_flight_lines():
     # the simulated flight: 3 strips x 7 images, alternate directions, GNSS noise 0.5 m; truth by construction
     inp, truth = _sim_block(n_points=50)

@@ -354,8 +354,23 @@ def check_datum(model: Model, state: State, free_datum: bool):  # type: ignore[n
     return eng
 
 
+def _start_state(block: Block, start: Block) -> State:
+    """The unknowns of ``start`` as a :class:`State` for ``block`` (ValueError when they do not correspond)."""
+    a, b = State.from_block(block), State.from_block(start)
+    for name in ("R", "C", "bore", "lever", "shift", "sshift", "sdrift", "X", "act", "grid"):
+        u, v = getattr(a, name), getattr(b, name)
+        if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
+            raise ValueError(f"start: its {name} unknowns do not correspond to the block's "
+                             f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
+    if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
+        raise ValueError("start: its cameras' intrinsics do not correspond to the block's")
+    if not all(np.isfinite(v).all() for v in (b.R, b.C, b.X, *b.intr)):
+        raise ValueError("start: non-finite starting values")
+    return b
+
+
 def adjust(block: Block, config: AdjustConfig | None = None,
-           callback: Callable[[str, int, float], None] | None = None) -> AdjustmentResult:
+           callback: Callable[[str, int, float], None] | None = None, start: Block | None = None) -> AdjustmentResult:
     """Adjust a block.
 
     Parameters
@@ -366,6 +381,11 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         How; default :class:`AdjustConfig()`.
     callback
         ``callback(stage, iteration, cost)`` after each iteration (progress display).
+    start
+        Optional: a block with the same stations, cameras, heads, strips and points (its observations are not
+        used) whose unknowns are the starting values instead of ``block``'s.  ``block``'s own values stay the
+        centres of the ``"weighted"`` priors: a self-calibration restarted from its last estimate keeps its
+        prior at the nominal camera instead of walking back from it.
 
     Returns
     -------
@@ -380,7 +400,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     block.validate()
     _check_actuated(block, cfg)
     model = Model(block, cfg)
-    state = State.from_block(block)
+    state = State.from_block(block) if start is None else _start_state(block, start)
     free = cfg.datum == "free"
     if cfg.inner_constraints == "points":
         _datum_point_mask(block, model, cfg)  # unknown names / too few points: ValueError before any work

@@ -184,7 +184,9 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         kept = (f"outputs kept in {outdir} (--keep-failed)" if keep_failed
                 else "no outputs written (--keep-failed writes them anyway)")
         what = "orientation" if without else "UAV adjustment"
-        click.echo(f"error: the {what} failed: " + "; ".join(failures) + f"; {kept}", err=True)
+        hint = ("; a slow but steady solve may need more iterations: max_iterations in a --config JSON file"
+                if any("maximum number of iterations" in f for f in failures) else "")
+        click.echo(f"error: the {what} failed: " + "; ".join(failures) + f"{hint}; {kept}", err=True)
         raise SystemExit(1)
     if res is not None:
         click.echo(f"{res.report['uav']['total_wall_s']:.1f} s; written to {outdir}")

@@ -51,6 +51,10 @@ class ReconstructionSummary:
     obs_per_image: NDArray[np.int64]
     #: Registered images of every reconstructed component (largest first); the rest describes the largest.
     components: tuple[int, ...] = ()
+    #: COLMAP's cameras of the largest component as refined by its bundle adjustment: one dict per camera with
+    #: ``model`` (e.g. ``"SIMPLE_RADIAL"``), ``width``, ``height`` and ``params`` (COLMAP's order, pixels; for
+    #: SIMPLE_RADIAL ``f, cx, cy, k``)
+    cameras: tuple[dict, ...] = ()
 
 
 def _quiet() -> None:
@@ -82,10 +86,13 @@ def summarise(rec: object) -> ReconstructionSummary:
             res.append(proj - xy)
     r = np.concatenate(res) if res else np.zeros((0, 2))
     npts = len(rec.points3D)  # type: ignore[attr-defined]
+    cams = tuple({"model": str(getattr(c.model, "name", c.model)), "width": int(c.width), "height": int(c.height),
+                  "params": [float(v) for v in np.asarray(c.params)]}
+                 for _, c in sorted(rec.cameras.items()))  # type: ignore[attr-defined]
     return ReconstructionSummary(
         np.array(names, dtype=str), np.array(centres).reshape(-1, 3), npts,
         float(np.sqrt(np.mean(r**2))) if len(r) else float("nan"),
-        float(np.sum(nobs) / max(npts, 1)), np.array(nobs, dtype=np.int64),
+        float(np.sum(nobs) / max(npts, 1)), np.array(nobs, dtype=np.int64), cameras=cams,
     )
 
 

@@ -224,7 +224,7 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
                                                                                inp.gnss))
             report["pycolmap"] = {"input": "images", "registered": int(len(summ.names)), "points": summ.n_points,
                                   "reprojection_rms_px": summ.reprojection_rms_px, "wall_s": time.perf_counter() - t1,
-                                  "centre_differences": cmp}
+                                  "cameras": list(summ.cameras), "centre_differences": cmp}
     report["uav"]["total_wall_s"] = time.perf_counter() - t0
     if out is not None:
         _write_outputs(Path(out), res, report, inp, project)
