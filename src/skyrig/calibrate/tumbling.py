@@ -227,10 +227,9 @@ def _cubic_sample(image: NDArray[np.float32], x: NDArray[np.float32], y: NDArray
 
     ``cv2.remap``'s ``INTER_CUBIC`` uses ``a = -0.75``: a ramp sampled at fractional position ``t`` comes out at
     ``t + e(t)`` with ``|e|`` up to 0.047 px and ``de/dt`` from +0.5 to -0.4 over the pixel, so the warped reference
-    did not move uniformly with the trial rotation, and the iteration to zero shift could circle between two
-    estimates about 2 mdeg apart without converging (72 x 5 lab at 320 px: seed 4 image c1_b3450, seed 5 c3_b1600;
-    the same with the kernel evaluated exactly, so not cv2's 1/32 px tables); with ``a = -0.5`` both converge in
-    4 iterations."""
+    did not move uniformly with the trial rotation.  (It was first taken for the cause of the iteration circling
+    between two estimates 2 mdeg apart on the 72 x 5 lab; it is not the only one: with ``a = -0.5`` other images
+    circled, from the phase correlation's roughness near zero shift; see :func:`measure_position_offset`.)"""
     xs = np.ascontiguousarray(x, np.float32)
     return _cubic_sample_kernel(np.ascontiguousarray(image, dtype=np.float32), xs,
                                 np.ascontiguousarray(y, np.float32), -0.5).reshape(xs.shape)
@@ -312,7 +311,7 @@ def measure_position_offset(
     min_windows: int = 6,
     min_texture: float = 2.0,
     min_response: float = 0.05,
-    iterations: int = 8,
+    iterations: int = 12,
     reject_k: float = 4.0,
 ) -> PositionOffset:
     """The correction ``(droll, dpitch, dyaw)`` of one tumbling image against the reference camera's image.
@@ -322,9 +321,13 @@ def measure_position_offset(
     compared with the warped reference by phase correlation (``cv2.phaseCorrelate``, Hann window), and the
     correction is updated by least squares from the window shifts (the pixel motion of the window centres' plane
     points per radian of each angle), until the shifts vanish (Gauss-Newton; at convergence the correlation is
-    evaluated at near-zero shift, where its sub-pixel bias vanishes).  Windows whose shift residual exceeds
-    ``reject_k`` robust sigmas are dropped once.  The covariance is ``sigma0^2 (J^T J)^-1`` from the final window
-    residuals (pixels); the windows do not overlap, so their errors are close to independent.
+    evaluated at near-zero shift, where its sub-pixel bias vanishes).  Near zero shift the correlation's sub-pixel
+    answer is rough at a few 1/1000 px (its spectrum is whitened, so noise-level frequencies weigh as much as the
+    texture's), and a full step could undo the previous one for ever (on the 72 x 5 lab at 320 px about one image in
+    400 circled between two estimates 0.4-2 mdeg apart, 0.2-0.4 of their sigma); once an update undoes the previous
+    one the steps are halved from there on, so the estimate settles inside that roughness.  Windows whose shift
+    residual exceeds ``reject_k`` robust sigmas are dropped once.  The covariance is ``sigma0^2 (J^T J)^-1`` from
+    the final window residuals (pixels); the windows do not overlap, so their errors are close to independent.
 
     Parameters
     ----------
@@ -429,6 +432,7 @@ def measure_position_offset(
     converged = False
     step = np.zeros(3)
     use = keep
+    damping, last_move = 1.0, None
     for it in range(int(iterations)):
         use = keep & np.all(np.isfinite(obs), axis=1)
         if use.sum() < min_windows:
@@ -442,14 +446,26 @@ def measure_position_offset(
                 keep[np.flatnonzero(use)[bad]] = False
                 use = keep & np.all(np.isfinite(obs), axis=1)
                 step, res = solve(obs, jac, gain, use)
+        moved = jac[use].reshape(-1, 3) @ step  # the full update's window motion (px)
+        # the full update in units of the estimate's own standard deviation (sigma0^2 (g^2 J^T J)^-1)
+        step_sigmas = float(np.sqrt(gain ** 2 * (moved @ moved) * max(res.size - 3, 1) / max(res @ res, 1e-300)))
+        full = jac.reshape(-1, 3) @ step
+        if last_move is not None and full @ last_move < -0.5 * np.linalg.norm(full) * np.linalg.norm(last_move):
+            # the update undoes the last one: near zero shift the phase correlation's sub-pixel answer is rough at
+            # a few 1/1000 px (its whitened spectrum), which a full Gauss-Newton step turns into a cycle between
+            # two estimates; halve the steps from here on, so that the estimate settles inside that roughness
+            damping *= 0.5
+        last_move = full
+        step = damping * step
+        moved = damping * moved
         d = d + step
-        moved = jac[use].reshape(-1, 3) @ step
-        log.debug("%s: iteration %d, step %s mdeg, gain %.3f, %d windows, largest window move %.4f px", name, it,
-                  np.round(1000 * np.degrees(step), 4), gain, int(use.sum()), float(np.max(np.abs(moved))))
+        log.debug("%s: iteration %d, step %s mdeg (damping %.3g), gain %.3f, %d windows, largest window move "
+                  "%.4f px, full update %.3f sigma", name, it, np.round(1000 * np.degrees(step), 4), damping, gain,
+                  int(use.sum()), float(np.max(np.abs(moved))), step_sigmas)
         prev = obs
         obs = compare(d)
         jac = jacobian(d)
-        if np.max(np.abs(moved)) < 1e-3:  # the update moved no window by 1/1000 px
+        if np.max(np.abs(moved)) < 1e-3:  # the (damped) update moved no window by 1/1000 px
             converged = True
             break
         both = use & np.all(np.isfinite(obs), axis=1)
