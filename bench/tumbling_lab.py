@@ -78,6 +78,33 @@ def render_plane(lab: Lab, camera: Any, rotation: np.ndarray, centre: np.ndarray
     return np.repeat(g[:, :, None], 3, axis=2)
 
 
+def lab_draws(positions: int, circles: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lab's random draws: the true curve's 72 samples (positions, corrections) and the repeat errors in units of
+    their sigma, ``(circles, positions, 3)`` independent N(0, 1)."""
+    from skyrig.simulate.errors import tumble_curve_samples
+
+    rng = np.random.default_rng(seed)
+    b72, c72 = tumble_curve_samples(CURVE_AMP_RAD, rng)
+    return b72, c72, rng.normal(0.0, 1.0, (circles, positions, 3))
+
+
+def draw_check(positions: int, circles: int, seeds: int) -> dict[str, Any]:
+    """Are the drawn repeat errors what they should be?  Over labs 1..``seeds``: the mean of each lab's
+    ``circles x positions`` draws per axis, in units of its expected sd (N(0, 1) if they are independent), its spread
+    over the labs, how often it is as far out as lab 1's worst axis (lab 1 counted), and the draws' lag-1 correlation between circles and between
+    positions."""
+    m, rc, rp = [], [], []
+    for s in range(1, seeds + 1):
+        z = lab_draws(positions, circles, s)[2]
+        m.append(z.mean(axis=(0, 1)) * np.sqrt(circles * positions))
+        rc.append(np.mean(z[1:] * z[:-1]))
+        rp.append(np.mean(z[:, 1:] * z[:, :-1]))
+    m = np.array(m)
+    return {"labs": seeds, "lab1_mean_z": m[0].tolist(), "mean_z_sd_over_labs": m.std(axis=0).tolist(),
+            "share_at_or_beyond_lab1_worst": np.mean(np.abs(m) >= np.abs(m[0]).max(), axis=0).tolist(),
+            "lag1_corr_between_circles": float(np.mean(rc)), "lag1_corr_between_positions": float(np.mean(rp))}
+
+
 def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_m: float = 3.0, seed: int = 1,
               repeat_sigma_deg: tuple[float, float, float] | None = None, ref_factor: int = 4) -> Lab:
     from skyrig.calibrate.tumbling import LabSetup
@@ -85,10 +112,8 @@ def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_
     from skyrig.rig.boresight_curve import BoresightCurve
     from skyrig.rig.presets import macs_tumblecam
     from skyrig.rig.rig import Head, Rig
-    from skyrig.simulate.errors import tumble_curve_samples
     from skyrig.simulate.scenarios import ci_camera
 
-    rng = np.random.default_rng(seed)
     base = macs_tumblecam()
     heads = [h.with_(camera=ci_camera(h.camera, width)) for h in base]
     # the reference: a wide static camera on the sensor head frame, covering every oblique footprint
@@ -97,12 +122,12 @@ def build_lab(positions: int = 12, circles: int = 3, width: int = 480, distance_
     heads.append(Head("reference", ref, np.array([0.0, 0.15, 0.0])))
     rig = Rig("macs-tumblecam-lab", heads, description="MACS-TumbleCam + static reference camera (laboratory)")
     # the true curve (72 positions, smooth) and per-circle repeat errors
-    b72, c72 = tumble_curve_samples(CURVE_AMP_RAD, rng)
+    b72, c72, draws = lab_draws(positions, circles, seed)
     true_curve = BoresightCurve(b72, c72)
     beta = np.arange(positions) * 2 * np.pi / positions
     rep = np.radians(np.asarray(repeat_sigma_deg if repeat_sigma_deg is not None
                                 else np.asarray(TAB2_MEAN_2SIGMA_DEG) / 2.0))
-    true = true_curve(beta)[None] + rng.normal(0.0, 1.0, (circles, positions, 3)) * rep
+    true = true_curve(beta)[None] + draws * rep
     rig_true = replace(rig, heads={n: (h.with_(curve=true_curve) if h.is_actuated else h) for n, h in rig.heads.items()})
     setup = LabSetup(rig, "oblique", "reference", distance_m)
     tex, origin = make_texture(2 * distance_m * np.tan(np.radians(60.0)) + 0.5, 0.003, seed + 100)
@@ -375,7 +400,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=None,
                     help="keep each lab's measurements here (seedS_KxC_W_wP.npz) and reuse them on the next run")
     ap.add_argument("--out", type=Path, default=None, help="write the figures (JSON) here")
+    ap.add_argument("--draw-check", type=int, default=0, metavar="N",
+                    help="only check the simulated repeat errors over labs 1..N (no images) and exit")
     a = ap.parse_args(argv)
+    if a.draw_check:
+        print(json.dumps(draw_check(a.positions, a.circles, a.draw_check), indent=1))
+        return 0
     seeds = _seeds(a.seeds) if a.seeds else [a.seed]
     results = []
     failed = []
