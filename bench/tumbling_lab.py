@@ -91,8 +91,8 @@ def lab_draws(positions: int, circles: int, seed: int) -> tuple[np.ndarray, np.n
 def draw_check(positions: int, circles: int, seeds: int) -> dict[str, Any]:
     """Are the drawn repeat errors what they should be?  Over labs 1..``seeds``: the mean of each lab's
     ``circles x positions`` draws per axis, in units of its expected sd (N(0, 1) if they are independent), its spread
-    over the labs, how often it is as far out as lab 1's worst axis (lab 1 counted), and the draws' lag-1 correlation between circles and between
-    positions."""
+    over the labs, how often it is as far out as lab 1's worst axis (lab 1 counted), and the draws' lag-1
+    correlation between circles and between positions."""
     m, rc, rp = [], [], []
     for s in range(1, seeds + 1):
         z = lab_draws(positions, circles, s)[2]
