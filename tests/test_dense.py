@@ -23,6 +23,7 @@ from skyrig.dense.rectify import rectify_pair
 from skyrig.dense.sgm import SgmConfig, disparity_window
 from skyrig.dense.stereo import block_window, pair_blocks
 from skyrig.dense.surface import DenseConfig, dense_surface
+from skyrig.errors import SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 
 CRS = "EPSG:25832"
@@ -320,6 +321,15 @@ def test_foreground_erosion_along_rows_and_background_fill():
     assert np.isnan(e[1:4, [4, 6]]).all() and (e[1:4, 5] == 20.0).all()
     e = erode_foreground(d, 2.0, 0, 1)  # across only: the top and bottom rows of the square
     assert np.isnan(e[[1, 3], 4:7]).all() and (e[2, 4:7] == 20.0).all()
+    # left ends of nearer surfaces: a 10 px wide foreground bar loses 4 px at its left end and 2 at its right end
+    w = np.full((3, 20), 10.0, np.float32)
+    w[:, 5:15] = 20.0
+    e = erode_foreground(w, 2.0, 2, 0, left_px=4)
+    assert np.isnan(e[:, 5:9]).all() and np.isnan(e[:, 13:15]).all() and (e[:, 9:13] == 20.0).all()
+    assert (e[:, :5] == 10.0).all() and (e[:, 15:] == 10.0).all()
+    assert np.array_equal(erode_foreground(w, 2.0, 2, 0, left_px=2), erode_foreground(w, 2.0, 2, 0), equal_nan=True)
+    with pytest.raises(SkyrigError, match="across"):
+        SgmConfig(edge_erode_left_px=4)
     # fill: the farther (smaller) of the nearest matched row neighbours
     f = np.array([[np.nan, 5.0, np.nan, np.nan, 9.0, np.nan]], np.float32)
     assert fill_background(f).tolist() == [[5.0, 5.0, 5.0, 5.0, 9.0, 9.0]]
