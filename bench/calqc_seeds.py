@@ -21,6 +21,7 @@ import sys
 import time
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 from scipy.stats import kstest
 
 
@@ -36,31 +37,43 @@ def simulated_sigmas(truth) -> dict[str, object]:  # type: ignore[no-untyped-def
 
 
 def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sigmas: str = "recipe",
-        grid_method: str = "joint") -> dict[str, float]:
-    from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario
+        grid_method: str = "joint", deformation: str = "wave", deformation_length: float = 0.2,
+        deformation_heads: tuple[str, ...] = ("nadir",)) -> tuple[dict[str, float], dict[str, object]]:
+    from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario, normalised_errors
 
     data, truth = midas_calqc_scenario("reduced", seed, tie_points=ties, camera_width_px=width,
-                                       deformation_px=deformation_px)
+                                       deformation_px=deformation_px, deformation=deformation,
+                                       deformation_length=deformation_length, deformation_heads=deformation_heads)
     kw = simulated_sigmas(truth) if sigmas == "simulated" else {}
     cal = calibrate_calqc(data, variants=False, grid=grid, design=False, grid_method=grid_method, **kw)
-    z: dict[str, float] = {}
-    for h, (v, cov) in cal.boresight.items():
-        for a, x in zip(("rx", "ry", "rz"), (v - truth.boresight_rotvec_rad[h]) / np.sqrt(np.diag(cov))):
-            z[f"boresight {h} {a}"] = float(x)
-    for h, (names, v, cov) in cal.interior.items():
-        tv = np.array([truth.intrinsics[h][n] for n in names])
-        for n, x in zip(names, (v - tv) / np.sqrt(np.diag(cov))):
-            z[f"IO {h} {n}"] = float(x)
-    for a, x in zip("XYZ", (cal.datum_shift_m - truth.datum_shift_m) / np.sqrt(np.diag(cal.datum_shift_cov_m2))):
-        z[f"datum shift {a}"] = float(x)
-    return z
+    # per parameter z, and the errors whitened by the joint covariance of all calibration unknowns: for honest sigmas
+    # and correlations these are independent N(0, 1) values (the pooled per-parameter z's are correlated within a
+    # seed, so their pooled KS p overstates the evidence either way); their sum of squares is chi-square with that
+    # many degrees of freedom
+    z, w = normalised_errors(cal, truth)
+    # the covariance function calqc fitted per camera (to compare with the simulated field's) and the variance factor
+    info: dict[str, object] = {"sigma0_joint": cal.statistics.get("sigma0_joint"),
+                               "grid_cycles": cal.statistics.get("grid_cycles"), "whitened": w.tolist(),
+                               "mahalanobis2": float(w @ w)}
+    for cam, g in cal.grids.items():
+        cf = g.covariance
+        info[cam] = {"c0_px2": cf.c0, "length_px": cf.length_px, "nugget_px2": cf.nugget,
+                     "nodes": [len(g.x_px), len(g.y_px)]}
+    return z, info
 
 
 def summary(v: np.ndarray) -> dict[str, float]:
+    """Mean, std, share within 2 sigma, KS p against N(0, 1), and the chi-square of the z's (sum of squares, n
+    degrees of freedom for N(0, 1)) with its two-sided p-value."""
+    from scipy.stats import chi2
+
     v = np.asarray(v, float)
+    q = float(np.sum(v * v))
+    p_hi = float(chi2.sf(q, v.size))
     return {"n": int(v.size), "mean": float(v.mean()), "std": float(v.std(ddof=1)),
             "within_2sigma": float(np.mean(np.abs(v) <= 2)), "max_abs": float(np.abs(v).max()),
-            "ks_pvalue": float(kstest(v, "norm").pvalue)}
+            "ks_pvalue": float(kstest(v, "norm").pvalue), "chi2": q, "chi2_over_n": q / v.size,
+            "chi2_pvalue_two_sided": float(min(1.0, 2 * min(p_hi, 1 - p_hi)))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,6 +83,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--camera-width", type=int, default=600)
     ap.add_argument("--tie-points", type=int, default=800)
     ap.add_argument("--deformation-px", type=float, default=0.0)
+    ap.add_argument("--deformation", choices=("wave", "random"), default="wave",
+                    help="the same fixed wave in every seed, or a new Gaussian random field per seed and head")
+    ap.add_argument("--deformation-length", type=float, default=0.2,
+                    help="random field: correlation length as a fraction of the camera width")
+    ap.add_argument("--deformation-heads", default="nadir", help="comma-separated heads the deformation is put on")
     ap.add_argument("--grid", action="store_true", help="with the correction grid (iterated with the IO)")
     ap.add_argument("--sigmas", choices=("recipe", "simulated"), default="recipe",
                     help="a-priori sigmas: the recipe's defaults, or the noise the simulation drew")
@@ -83,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     from skyrig.calibrate.calqc import CalqcFailed
 
     rows: list[dict[str, float]] = []
+    infos: list[dict[str, object]] = []
     failed: list[dict[str, object]] = []
     t0 = time.perf_counter()
     if a.from_rows:
@@ -93,11 +112,15 @@ def main(argv: list[str] | None = None) -> int:
                     failed.append(rec)
                 else:
                     rows.append(rec["z"])
+                    infos.append(rec.get("info", {}))
         print(f"{len(rows)} seeds from {a.from_rows}")
     for s in range(a.first_seed, a.first_seed + a.seeds) if not a.from_rows else ():
         t = time.perf_counter()
         try:
-            rows.append(one(s, a.camera_width, a.tie_points, a.deformation_px, a.grid, a.sigmas, a.grid_method))
+            zs, info = one(s, a.camera_width, a.tie_points, a.deformation_px, a.grid, a.sigmas, a.grid_method,
+                           a.deformation, a.deformation_length, tuple(a.deformation_heads.split(",")))
+            rows.append(zs)
+            infos.append(info)
         except CalqcFailed as exc:  # counted and reported, not dropped silently
             failed.append({"seed": s, "error": str(exc)})
             print(f"seed {s}: FAILED: {exc}", flush=True)
@@ -107,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         if a.rows:
             with open(a.rows, "a") as fh:
-                fh.write(json.dumps({"seed": s, "z": rows[-1]}) + "\n")
+                fh.write(json.dumps({"seed": s, "z": rows[-1], "info": info}) + "\n")
         print(f"seed {s}: max |z| {max(abs(x) for x in rows[-1].values()):.2f} ({time.perf_counter() - t:.0f} s)",
               flush=True)
     if not rows:
@@ -124,6 +147,30 @@ def main(argv: list[str] | None = None) -> int:
     for kind in ("focal_mm", "ppx_mm", "ppy_mm"):
         sel = [i for i, k in enumerate(keys) if k.endswith(kind)]
         out["kinds"][f"IO {kind}"] = summary(m[:, sel].ravel())
+    for head in sorted({k.split()[1] for k in keys if k.split()[0] in ("boresight", "IO")}):
+        sel = [i for i, k in enumerate(keys) if k.split()[0] in ("boresight", "IO") and k.split()[1] == head]
+        out["kinds"][f"head {head}"] = summary(m[:, sel].ravel())
+    if all("whitened" in i for i in infos):
+        wv = np.concatenate([np.asarray(i["whitened"]) for i in infos])
+        out["whitened"] = summary(wv)  # independent under the hypothesis: its KS and chi-square p are exact
+        out["whitened"]["chi2_pvalue_upper"] = float(chi2_dist.sf(out["whitened"]["chi2"], wv.size))
+    # per parameter over the seeds (independent draws): KS p of each, and the smallest with a Sidak correction
+    ks = {k: float(kstest(m[:, i], "norm").pvalue) for i, k in enumerate(keys)}
+    kmin = min(ks, key=ks.get)
+    out["per_parameter_ks"] = {"smallest": kmin, "p": ks[kmin],
+                               "p_sidak": float(1.0 - (1.0 - ks[kmin]) ** len(keys)), "all": ks}
+    # "within 2 sigma" per seed both ways: all n within 2 sigma (probability 0.954^n for N(0, 1)) and every |z|
+    # within the family-wise (Sidak, 95 %) bound for n parameters
+    from skyrig.calibrate.calqc import within_sigma_summary
+
+    per_seed = [within_sigma_summary(r) for r in m]
+    out["per_seed_within_2sigma"] = {
+        "parameters": int(m.shape[1]), "seeds_all_within_2sigma": int(sum(j["within_k"] == j["n"] for j in per_seed)),
+        "expected_share_all_within_2sigma": per_seed[0]["probability_all_within_k"],
+        "family_wise_bound": per_seed[0]["family_wise_bound"],
+        "seeds_within_family_wise_bound": int(sum(j["within_family_wise_bound"] for j in per_seed)),
+        "expected_share_within_family_wise_bound": 0.95, "seeds": int(m.shape[0]),
+        "within_2sigma_count_per_seed": [j["within_k"] for j in per_seed]}
     # a parameter whose mean over the seeds is off by more than 3 standard errors (biased), or whose std is
     # outside the chi-square 99 % band (sigma wrong)
     from scipy.stats import chi2
@@ -132,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     lo, hi = np.sqrt(chi2.ppf([0.005, 0.995], n - 1) / (n - 1))
     out["suspect_parameters"] = [k for i, k in enumerate(keys)
                                  if abs(m[:, i].mean()) > 3 / np.sqrt(n) or not lo <= m[:, i].std(ddof=1) <= hi]
-    print(json.dumps({k: out[k] for k in ("pooled", "kinds", "suspect_parameters", "seconds", "failed")}, indent=1))
+    print(json.dumps({k: out[k] for k in ("pooled", "whitened", "kinds", "per_seed_within_2sigma", "suspect_parameters",
+                                          "seconds", "failed") if k in out}, indent=1))
+    print("per parameter KS over seeds: smallest p %.4f (%s), Sidak-corrected %.3f"
+          % (out["per_parameter_ks"]["p"], out["per_parameter_ks"]["smallest"], out["per_parameter_ks"]["p_sidak"]))
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

@@ -112,6 +112,7 @@ from __future__ import annotations
 
 import html
 import logging
+from functools import lru_cache
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Sequence
 
@@ -135,7 +136,8 @@ from skyrig.trajectory import CameraEvents, Trajectory
 log = logging.getLogger(__name__)
 
 __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "CorrectionGrid", "calibrate_calqc",
-           "collocation_grid", "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
+           "family_wise_bound", "within_sigma_summary", "normalised_errors", "random_field_deformation", "collocation_grid",
+           "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
            "format_tables", "report_html", "separability", "without_calibration_part", "calibration_part",
            "grid_nodes_for", "collocation_prior", "joint_grid_adjustment"]
 
@@ -204,10 +206,45 @@ def wave_deformation(amplitude_px: float, width: int, height: int) -> Callable[[
     return d
 
 
+@lru_cache(maxsize=4)
+def _field_factor(amplitude_px: float, length_px: float, width: int, height: int, h: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The lattice of :func:`random_field_deformation` and a square root of the field's covariance on it."""
+    xs = np.arange(-h, width - 1 + 2 * h, h)
+    ys = np.arange(-h, height - 1 + 2 * h, h)
+    gx, gy = np.meshgrid(xs, ys)
+    nodes = np.column_stack([gx.ravel(), gy.ravel()])
+    C = _gauss(np.linalg.norm(nodes[:, None, :] - nodes[None, :, :], axis=2), amplitude_px ** 2, length_px)
+    lam, V = np.linalg.eigh(C)
+    return xs, ys, V * np.sqrt(np.clip(lam, 0.0, None))
+
+
+def random_field_deformation(amplitude_px: float, length_px: float, width: int, height: int,
+                             rng: np.random.Generator, spacing_px: float | None = None
+                             ) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """A draw of a smooth random image deformation: each component an independent zero-mean Gaussian field with
+    the covariance ``amplitude^2 exp(-(d / length)^2)`` (the simulation's own; the recipe fits its covariance
+    function from the residuals and is not told this one).  Drawn exactly (eigen-decomposition of the covariance)
+    on a lattice ``spacing_px`` apart (default ``length / 6``) reaching one spacing beyond the format, and
+    interpolated bicubically in between (for that spacing the interpolation error is far below 1 % of the field)."""
+    from scipy.interpolate import RectBivariateSpline
+
+    h = float(spacing_px) if spacing_px else float(length_px) / 6.0
+    xs, ys, F = _field_factor(float(amplitude_px), float(length_px), int(width), int(height), h)
+    vals = F @ rng.standard_normal((F.shape[1], 2))
+    spl = [RectBivariateSpline(ys, xs, vals[:, c].reshape(len(ys), len(xs)), kx=3, ky=3) for c in range(2)]
+
+    def d(pix: NDArray[np.float64]) -> NDArray[np.float64]:
+        pix = np.asarray(pix, float)
+        return np.column_stack([s(pix[:, 1], pix[:, 0], grid=False) for s in spl])
+    return d
+
+
 def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str = "both", tie_points: int | None = None,
                          io_error: Mapping[str, tuple[float, float, float]] | None = None,
                          datum_shift_m: tuple[float, float, float] = (0.25, -0.15, 0.2),
                          deformation_px: float = 0.0, deformation_heads: Sequence[str] = ("nadir",),
+                         deformation: str = "wave", deformation_length: float = 0.2,
                          camera_width_px: int | None = None,
                          image_noise_um: float = 3.84, heights: str = "both",
                          error_overrides: Mapping[str, Any] | None = None) -> tuple[CalqcData, ScenarioTruth]:
@@ -220,7 +257,11 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
     the lower flight.  ``io_error``: per head
     ``(d focal, d ppx, d ppy)`` mm, true minus recorded (default: a few micrometres per head).
     ``image_noise_um``: simulated image noise (paper 004's estimated sigma: 3.8 um).  ``deformation_px``: amplitude of a smooth image deformation (:func:`wave_deformation`) of the
-    ``deformation_heads`` (0: none).  The IO errors and the deformation are applied to the simulated image
+    ``deformation_heads`` (0: none): ``deformation="wave"`` the same fixed wave in every seed
+    (:func:`wave_deformation`), ``"random"`` a new draw per seed and head of a Gaussian random field
+    (:func:`random_field_deformation`, RMS ``deformation_px`` per component, correlation length
+    ``deformation_length`` times the camera's width), so that over seeds the deformation is a random field as the
+    grid's prior assumes.  The IO errors and the deformation are applied to the simulated image
     measurements exactly (pixel -> ray with the recorded camera -> pixel with the true camera, plus the field).
     """
     from skyrig.simulate.scenarios import FlightSpec, build_survey, ci_camera, scenario_spec
@@ -261,11 +302,16 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
         c = h.camera
         true_cams[h.name] = c.with_(focal_mm=c.focal_mm + d[0], ppx_mm=c.ppx_mm + d[1], ppy_mm=c.ppy_mm + d[2])
     head_of = {str(n): str(h) for n, h in zip(survey.events_true.image_name, survey.events_true.head)}
+    if deformation not in ("wave", "random"):
+        raise SkyrigError(f"deformation must be 'wave' or 'random', not {deformation!r}")
     defs = {}
+    drng = np.random.default_rng([int(seed), 4004])  # its own stream: the other draws stay those of the seed
     for hn in deformation_heads:
         if deformation_px > 0:
             c = rig_rec.head(hn).camera
-            defs[hn] = wave_deformation(deformation_px, c.width, c.height)
+            defs[hn] = (wave_deformation(deformation_px, c.width, c.height) if deformation == "wave" else
+                        random_field_deformation(deformation_px, deformation_length * c.width, c.width, c.height,
+                                                 drng))
 
     def distort(obs: dict[str, Any]) -> dict[str, Any]:
         img = np.asarray(obs["image"]).astype(str)
@@ -331,16 +377,74 @@ class CovarianceFit:
         return _gauss(d, self.c0, self.length_px)
 
 
+def calibration_basis(pix: NDArray[np.float64], width: int, height: int) -> NDArray[np.float64]:
+    """The fields a camera's calibration unknowns make over its format, at ``pix (N, 2)``: ``(2N, 6)``, the x
+    components of the N points then their y components, in the order of :data:`CALIBRATION_FIELDS` (shifts, radial
+    scale, rotation and the two tilt terms, as :func:`without_calibration_part` removes them from a grid)."""
+    cx, cy = 0.5 * (width - 1.0), 0.5 * (height - 1.0)
+    scale = max(float(np.hypot(cx, cy)), 1.0)
+    x = (np.asarray(pix, float)[:, 0] - cx) / scale
+    y = (np.asarray(pix, float)[:, 1] - cy) / scale
+    one, zero = np.ones(len(x)), np.zeros(len(x))
+    return np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x],
+                            np.r_[x * x, x * y], np.r_[x * y, y * y]])
+
+
+class _DetrendedModel:
+    """For a unit-variance Gaussian field of correlation length ``L``, observed at ``xy`` and freed of its
+    calibration part by least squares there (:func:`calibration_basis`): the expected empirical covariance in the
+    distance bins ``edges`` (both components pooled as :func:`fit_covariance` pools them) and at zero distance
+    (:meth:`__call__`).  The geometry is set up once; each length costs a few ``(m, m)`` products."""
+
+    def __init__(self, xy: NDArray[np.float64], width: int, height: int, edges: NDArray[np.float64]) -> None:
+        m = len(xy)
+        Q, _ = np.linalg.qr(calibration_basis(xy, width, height))
+        self.Qx, self.Qy = Q[:m], Q[m:]
+        self.iu = np.triu_indices(m, 1)
+        self.D = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2)
+        k = np.searchsorted(edges, self.D[self.iu], side="right") - 1
+        self.inb = (k >= 0) & (k < len(edges) - 1)
+        self.k = k[self.inb]
+        self.nb = len(edges) - 1
+        self.cnt = np.maximum(np.bincount(self.k, minlength=self.nb), 1)
+
+    def __call__(self, L: float) -> tuple[NDArray[np.float64], float]:
+        Qx, Qy = self.Qx, self.Qy
+        C = _gauss(self.D, 1.0, float(L))
+        CQx, CQy = C @ Qx, C @ Qy
+        M = Qx.T @ CQx + Qy.T @ CQy
+        # (I - P) blockdiag(C, C) (I - P), P = Q Q^T: the mean of its x-x and y-y blocks
+        A = C - (Qx @ CQx.T + Qy @ CQy.T) + 0.5 * (Qx @ M @ Qx.T + Qy @ M @ Qy.T)  # (symmetric: QC^T = CQ^T)
+        a = A[self.iu][self.inb]
+        return np.bincount(self.k, weights=a, minlength=self.nb) / self.cnt, float(np.mean(np.diag(A)))
+
+
 def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance: float, n_bins: int = 24,
-                   max_points: int = 2500, seed: int = 0) -> CovarianceFit:
+                   max_points: int = 2500, seed: int = 0, detrend_format: tuple[int, int] | None = None,
+                   model_points: int = 300) -> CovarianceFit:
     """Empirical covariance of a 2-vector field ``v`` at positions ``xy`` (mean removed; both components pooled),
     in ``n_bins`` distance bins up to ``max_distance``, fitted by a Gaussian plus a nugget (weighted by the
-    number of pairs per bin; bins up to the first zero crossing of the empirical covariance).  Above ``max_points`` positions a random subset estimates it."""
-    from scipy.optimize import curve_fit
+    number of pairs per bin; bins up to the first zero crossing of the empirical covariance).  Above ``max_points``
+    positions a random subset estimates it.
+
+    ``detrend_format=(width, height)``: the field is a residual field from which the calibration unknowns took
+    their part (shifts, radial scale, rotation, tilts over that format), so it is freed of exactly that part by
+    least squares, and the Gaussian is fitted to what such a detrended field's empirical covariance is expected
+    to be (:class:`_DetrendedModel` on ``model_points`` of the positions), in every bin, its negative lobe
+    included.  Without it a field's long-wavelength part, the part that goes into the IO and boresight, is missing
+    from the residuals, and the fit returns too small a signal variance and correlation length (simulated MIDAS
+    flight, 600 px, Gaussian nadir field of 0.05 px and 120 px: 0.0016-0.0022 px^2 and 81-120 px instead of 0.0025
+    and 120), which makes the grid's prior, and with it the IO and boresight sigmas, too optimistic."""
+    from scipy.optimize import curve_fit, minimize_scalar
     from scipy.spatial import cKDTree
 
     xy = np.asarray(xy, float)
     v = np.asarray(v, float) - np.mean(v, axis=0)
+    if detrend_format is not None:
+        B = calibration_basis(xy, *detrend_format)
+        vv = np.r_[v[:, 0], v[:, 1]]
+        vv = vv - B @ np.linalg.lstsq(B, vv, rcond=None)[0]
+        v = np.column_stack([vv[:len(xy)], vv[len(xy):]])
     if len(xy) > max_points:
         sel = np.random.default_rng(seed).choice(len(xy), max_points, replace=False)
         xy, v = xy[sel], v[sel]
@@ -358,6 +462,29 @@ def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance
         emp = np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
     centres = 0.5 * (edges[:-1] + edges[1:])
     ok = cnt >= 10
+    if detrend_format is not None:
+        sub = np.random.default_rng(seed + 1).choice(len(xy), min(len(xy), int(model_points)), replace=False)
+        lo, hi = np.log(edges[1] * 0.5), np.log(2.0 * max_distance)
+        wgt = np.where(ok, cnt, 0).astype(float)
+        e0 = np.where(ok, emp, 0.0)
+
+        model = _DetrendedModel(xy[sub], detrend_format[0], detrend_format[1], edges)
+
+        def best(logL: float) -> tuple[float, float, float]:
+            mk, z0 = model(float(np.exp(logL)))
+            den = float(np.sum(wgt * mk * mk))
+            c = float(np.clip(np.sum(wgt * e0 * mk) / den, 0.0, var / max(z0, 1e-9))) if den > 0 else 0.0
+            return float(np.sum(wgt * (e0 - c * mk) ** 2)), c, z0
+
+        grid_l = np.linspace(lo, hi, 25)
+        costs = [best(g)[0] for g in grid_l]
+        j = int(np.argmin(costs))
+        r = minimize_scalar(lambda g: best(g)[0], bounds=(grid_l[max(j - 1, 0)], grid_l[min(j + 1, 24)]),
+                            method="bounded", options={"xatol": 1e-3})
+        _, c0, z0 = best(float(r.x))
+        L = float(np.exp(r.x))
+        nugget = max(var - c0 * z0, 1e-6 * max(var, 1e-12))
+        return CovarianceFit(c0, L, nugget, centres, emp, cnt, var)
     nonpos = np.flatnonzero(ok & ~(emp > 0))
     if nonpos.size:  # fit up to the first zero crossing (an oscillating field is not Gaussian beyond it)
         ok &= np.arange(n_bins) < max(int(nonpos[0]), 3)
@@ -699,7 +826,11 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
     for a forward-camera "signal" of 1.4 % of the noise variance with a 15 px correlation length), which costs time
     and changes nothing: without those grids the recipe ran 77 s instead of 695 s, the nadir grid and the IO the same
     to 0.06 sigma).  Default 5 % (a signal RMS under 0.22 of the noise sigma); 0 gives every camera with a fitted
-    signal its grid."""
+    signal its grid.  A camera whose fitted correlation length is under the width of the first distance bin gets
+    no grid either: the fit then rests on that one bin's excess over the nugget (simulated MIDAS flight, 600 px,
+    random nadir field, seed 2: forward camera c0 10 % of the noise, L 7.5 px = half a bin, the first bin 2 standard
+    errors above zero and the others at zero), is not resolved from noise, and would ask for the most nodes
+    (61 across)."""
     from skyrig.adjust.factors.image_grid import ImageGrids
 
     cfg_g = cfg.with_(image_grid="weighted")
@@ -716,8 +847,17 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
             cam = rb.cameras[ci]
             if sel.sum() < 10:
                 continue
-            cf = fit_covariance(rb.obs_pixel[sel], err[sel], 0.5 * float(np.hypot(cam.width, cam.height)))
+            max_d = 0.5 * float(np.hypot(cam.width, cam.height))
+            # (the residuals lack the part of the deformation the IO and boresight took: fitted as detrended)
+            cf = fit_covariance(rb.obs_pixel[sel], err[sel], max_d, detrend_format=(cam.width, cam.height))
             if not cf.c0 > 0 or cf.c0 < min_signal_fraction * cf.nugget:
+                continue
+            if cf.length_px < max_d / len(cf.bins_px):
+                # a correlation length under the first distance bin: only that bin's excess over the nugget carries
+                # the "signal" (the fit sits at its lower bound), which is not resolved and is as likely noise
+                log.info("calqc grid %s: no grid (fitted correlation length %.1f px under the %.1f px distance bin; "
+                         "c0 %.2g px^2 is not resolved from the noise)", cam.name, cf.length_px,
+                         max_d / len(cf.bins_px), cf.c0)
                 continue
             new_fits[cam.name] = cf
             spec = collocation_prior(cam.name, cam.width, cam.height, cf, nodes_x)
@@ -1122,6 +1262,10 @@ class CalqcCalibration:
     statistics: dict[str, float] = field(default_factory=dict)
     design: dict[str, Any] = field(default_factory=dict)  # :func:`design_study` of the joint adjustment
     notes: list[str] = field(default_factory=list)  # what the recipe did differently from the plain steps, and why
+    # the joint covariance of every calibration unknown (boresights, IO, datum shift), labels (group, owner, name):
+    # the blocks above are its parts; a simulation whitens its errors with it (bench/calqc_seeds.py)
+    covariance_labels: list[tuple[str, str, str]] = field(default_factory=list)
+    covariance: NDArray[np.float64] | None = None
 
     def rig_calibration(self, flight: str = "", date: str = "", software: str = "",
                         previous: RigCalibration | None = None) -> RigCalibration:
@@ -1482,7 +1626,70 @@ def calibrate_calqc(
                 cols[name] = _variant_column(r, bb, gsd, v)
             table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}
     return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, steps, table11, grids, effect,
-                            inseparable, geom, stats, design_res, notes)
+                            inseparable, geom, stats, design_res, notes, list(labels), cov)
+
+
+def normalised_errors(cal: "CalqcCalibration", truth: ScenarioTruth) -> tuple[dict[str, float], NDArray[np.float64]]:
+    """A simulation's calibration errors against its truth (:func:`midas_calqc_scenario`): per parameter
+    ``(estimate - truth) / sigma`` (every head's boresight rx, ry, rz and IO, the datum shift X, Y, Z), and the same
+    errors whitened by their joint covariance (``L^-1 e`` with ``L L^T`` the covariance of all of them, in the order
+    of :attr:`CalqcCalibration.covariance_labels`): for honest sigmas and correlations the latter are independent
+    N(0, 1) values, so their pooled distribution tests the covariance itself, while the per-parameter values of
+    one run are correlated with each other."""
+    z: dict[str, float] = {}
+    for h, (v, cov) in cal.boresight.items():
+        for a, x in zip(("rx", "ry", "rz"), (v - truth.boresight_rotvec_rad[h]) / np.sqrt(np.diag(cov))):
+            z[f"boresight {h} {a}"] = float(x)
+    for h, (names, v, cov) in cal.interior.items():
+        tv = np.array([truth.intrinsics[h][n] for n in names])
+        for n, x in zip(names, (v - tv) / np.sqrt(np.diag(cov))):
+            z[f"IO {h} {n}"] = float(x)
+    for a, x in zip("XYZ", (cal.datum_shift_m - truth.datum_shift_m) / np.sqrt(np.diag(cal.datum_shift_cov_m2))):
+        z[f"datum shift {a}"] = float(x)
+    if cal.covariance is None:
+        raise ValueError("normalised_errors: the calibration carries no joint covariance")
+    e, keep = [], []
+    head_of_cam = {h.camera.name: h.name for h in cal.rig_in}
+    for k, (g, o, c) in enumerate(cal.covariance_labels):
+        if g == "boresight":
+            i = ("rx", "ry", "rz").index(c)
+            e.append(cal.boresight[o][0][i] - truth.boresight_rotvec_rad[o][i])
+        elif g == "intrinsics":
+            names, v, _ = cal.interior[head_of_cam[o]]
+            e.append(v[list(names).index(c)] - truth.intrinsics[head_of_cam[o]][c])
+        elif g == "datum_shift":
+            i = "XYZ".index(c)
+            e.append(cal.datum_shift_m[i] - truth.datum_shift_m[i])
+        else:
+            continue
+        keep.append(k)
+    cv = np.asarray(cal.covariance)[np.ix_(keep, keep)]
+    return z, np.linalg.solve(np.linalg.cholesky(cv), np.asarray(e, float))
+
+
+def family_wise_bound(n: int, level: float = 0.95) -> float:
+    """The bound on ``|z|`` that ``n`` independent N(0, 1) normalised errors all stay within with probability
+    ``level`` (Sidak: each at ``level ** (1 / n)``; 33 parameters at 95 %: 3.17)."""
+    from scipy.stats import norm
+
+    return float(norm.ppf(0.5 + 0.5 * float(level) ** (1.0 / max(int(n), 1))))
+
+
+def within_sigma_summary(z: Sequence[float] | NDArray[np.float64], k: float = 2.0,
+                         level: float = 0.95) -> dict[str, Any]:
+    """How a set of normalised errors ``(estimate - truth) / sigma`` (a simulation's, where the truth is known)
+    stands against two readings of "within ``k`` sigma": the literal count within ``k``, with the count expected of
+    N(0, 1) values and the chance that all of them are (``0.954 ** 33 = 0.21`` for 33 parameters at 2 sigma); and
+    the family-wise test, every ``|z|`` within the Sidak bound for that many parameters at ``level``
+    (:func:`family_wise_bound`)."""
+    from scipy.stats import norm
+
+    a = np.abs(np.asarray(z, float).ravel())
+    p1 = float(2.0 * norm.cdf(k) - 1.0)
+    b = family_wise_bound(a.size, level)
+    return {"n": int(a.size), "k_sigma": float(k), "within_k": int(np.sum(a <= k)), "expected_within_k": a.size * p1,
+            "probability_all_within_k": p1 ** a.size, "max_abs_z": float(a.max()) if a.size else 0.0,
+            "family_wise_level": float(level), "family_wise_bound": b, "within_family_wise_bound": bool(np.all(a <= b))}
 
 
 def _drop_obs(block: Block, keep: NDArray[np.bool_]) -> Block:
