@@ -11,6 +11,19 @@ bias or a wrong sigma shows although the pool looks fine.
     nice .venv/bin/python bench/calqc_seeds.py --seeds 20 [--camera-width 600] [--tie-points 800] [--json out.json]
         [--sigmas simulated]   (a-priori sigmas = the simulated noise: the defaults are 5 cm GNSS / control for
                                 3/3/5 cm and 2/2/3 cm drawn, so the GNSS- and control-borne sigmas come out too large)
+        [--deformation-px A --deformation random [--deformation-length 0.2] [--deformation-heads nadir]]
+                               (a new Gaussian random field per seed and head: RMS A px per component, correlation
+                                length 0.2 of the width; --deformation wave repeats one fixed wave in every seed)
+
+The test of the stated covariance (issue 12):
+
+    OPENBLAS_NUM_THREADS=1 nice .venv/bin/python bench/calqc_seeds.py --seeds 20 --camera-width 600 --tie-points 800 \
+        --deformation-px 0.05 --deformation random --grid --sigmas simulated --rows rows.jsonl --json out.json
+
+Besides the per-parameter z's it reports the errors whitened by the recipe's joint covariance of all calibration
+unknowns (independent N(0, 1) values if the covariance is right: their KS and chi-square p are exact, unlike the
+pooled z's, which are correlated within a seed), per parameter the KS p over the seeds (Sidak-corrected for their
+number), and per seed "within 2 sigma" both literally (all 33) and family-wise (every |z| within the Sidak bound).
 """
 
 from __future__ import annotations

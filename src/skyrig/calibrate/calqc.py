@@ -372,6 +372,10 @@ class CovarianceFit:
     empirical: NDArray[np.float64]
     pairs: NDArray[np.int64]
     variance: float
+    # how much better the signal explains the binned covariance than the nugget alone: the decrease of the bins'
+    # chi-square (each bin's mean product with its white-noise standard error variance / sqrt(2 pairs)); NaN where
+    # not computed (only the detrended fit does)
+    significance: float = float("nan")
 
     def __call__(self, d: NDArray[np.float64]) -> NDArray[np.float64]:
         return _gauss(d, self.c0, self.length_px)
@@ -481,10 +485,13 @@ def fit_covariance(xy: NDArray[np.float64], v: NDArray[np.float64], max_distance
         j = int(np.argmin(costs))
         r = minimize_scalar(lambda g: best(g)[0], bounds=(grid_l[max(j - 1, 0)], grid_l[min(j + 1, 24)]),
                             method="bounded", options={"xatol": 1e-3})
-        _, c0, z0 = best(float(r.x))
+        cost, c0, z0 = best(float(r.x))
         L = float(np.exp(r.x))
         nugget = max(var - c0 * z0, 1e-6 * max(var, 1e-12))
-        return CovarianceFit(c0, L, nugget, centres, emp, cnt, var)
+        # the fit's weights are the pair counts; a bin's mean product of white noise has the standard error
+        # var / sqrt(2 n) (two components), so the chi-square decrease is (sum w e^2 - cost) * 2 / var^2
+        signif = float((np.sum(wgt * e0 * e0) - cost) * 2.0 / max(var, 1e-300) ** 2)
+        return CovarianceFit(c0, L, nugget, centres, emp, cnt, var, signif)
     nonpos = np.flatnonzero(ok & ~(emp > 0))
     if nonpos.size:  # fit up to the first zero crossing (an oscillating field is not Gaussian beyond it)
         ok &= np.arange(n_bins) < max(int(nonpos[0]), 3)
@@ -809,7 +816,9 @@ def _grid_residuals(res: AdjustmentResult) -> dict[int, tuple[NDArray[np.bool_],
 
 def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig, nodes_x: int | None = None,
                           max_cycles: int = 3, what: str = "joint (IO, boresights, datum shift) with correction grids",
-                          min_signal_fraction: float = 0.05) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], int]:
+                          min_signal_fraction: float = 0.05, min_signal_chi2: float = 25.0,
+                          cameras: Sequence[str] | None = None
+                          ) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], int]:
     """The correction grids estimated *in* the adjustment, together with the calibration (module docstring).
 
     ``block``: the block at the values of ``res`` (an adjustment without grids, e.g. the joint one); ``cfg`` its
@@ -830,7 +839,10 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
     no grid either: the fit then rests on that one bin's excess over the nugget (simulated MIDAS flight, 600 px,
     random nadir field, seed 2: forward camera c0 10 % of the noise, L 7.5 px = half a bin, the first bin 2 standard
     errors above zero and the others at zero), is not resolved from noise, and would ask for the most nodes
-    (61 across)."""
+    (61 across).  Nor does a camera whose fitted signal lowers the chi-square of the binned covariance (against
+    the nugget alone, white-noise standard errors) by less than ``min_signal_chi2`` (default 25, i.e. a 5-sigma
+    signal; 400 px, seed 1: an oblique "signal" at L 12 px passed the two rules above and cost minutes).
+    ``cameras``: the camera names that may get a grid (default: every camera)."""
     from skyrig.adjust.factors.image_grid import ImageGrids
 
     cfg_g = cfg.with_(image_grid="weighted")
@@ -845,12 +857,18 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
         prev_by = {g.camera: g for g in prev.grids} if prev is not None else {}
         for ci, (sel, err) in _grid_residuals(r).items():
             cam = rb.cameras[ci]
-            if sel.sum() < 10:
+            if sel.sum() < 10 or (cameras is not None and cam.name not in cameras):
                 continue
             max_d = 0.5 * float(np.hypot(cam.width, cam.height))
             # (the residuals lack the part of the deformation the IO and boresight took: fitted as detrended)
             cf = fit_covariance(rb.obs_pixel[sel], err[sel], max_d, detrend_format=(cam.width, cam.height))
             if not cf.c0 > 0 or cf.c0 < min_signal_fraction * cf.nugget:
+                continue
+            if cf.significance < min_signal_chi2:
+                # pairs share points, so the bins are not independent; the bar is set far above noise's values
+                log.info("calqc grid %s: no grid (the fitted signal, c0 %.2g px^2, L %.0f px, lowers the binned "
+                         "covariance's chi-square by only %.1f < %.0f: not told from noise)", cam.name, cf.c0,
+                         cf.length_px, cf.significance, min_signal_chi2)
                 continue
             if cf.length_px < max_d / len(cf.bins_px):
                 # a correlation length under the first distance bin: only that bin's excess over the nugget carries
@@ -1364,6 +1382,7 @@ def calibrate_calqc(
     design: bool = True,
     grid_method: str = "joint",
     grid_min_signal_fraction: float = 0.05,
+    grid_heads: Sequence[str] | None = None,
 ) -> CalqcCalibration:
     """Run the paper-004 recipe (module docstring) on a boresight flight.
 
@@ -1376,7 +1395,8 @@ def calibrate_calqc(
     collocation prior (:func:`joint_grid_adjustment`; its covariance holds the grids' uncertainty, so
     ``grid_uncertainty_draws`` is not needed and ignored); ``"cycles"`` the earlier scheme, grids by collocation of
     the residuals alternating with the joint adjustment (``max_grid_cycles``).  ``grid_min_signal_fraction``: see
-    :func:`joint_grid_adjustment`."""
+    :func:`joint_grid_adjustment`.  ``grid_heads``: the heads that may get a grid with ``grid_method="joint"``
+    (default every head whose residuals show a signal)."""
     if grid_method not in ("joint", "cycles"):
         raise ValueError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
     rig = data.rig
@@ -1485,7 +1505,9 @@ def calibrate_calqc(
                           datum_shift=rj.block.datum_shift.copy())
             rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=grid_nodes,
                                                            max_cycles=max_grid_cycles,
-                                                           min_signal_fraction=grid_min_signal_fraction)
+                                                           min_signal_fraction=grid_min_signal_fraction,
+                                                           cameras=None if grid_heads is None else
+                                                           [rig.head(h).camera.name for h in grid_heads])
             if grids:  # (no camera with a signal worth a grid: the joint adjustment stands)
                 record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
             io_after, _ = io_sigma(rj)
