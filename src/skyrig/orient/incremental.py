@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -104,7 +104,8 @@ class OrientConfig:
     robust_k: float = 2.0
     reject_k: float = 4.0
     reject_min_px: float = 2.0
-    max_iterations: int = 40
+    #: Levenberg-Marquardt iterations per adjustment (COLMAP's bundle adjustment allows 100 as well)
+    max_iterations: int = 100
     #: positions datum: minimum images with a position
     min_positions: int = 4
 
@@ -511,6 +512,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     n, T = len(inp.names), len(inp.track_name)
     camera = inp.camera if isinstance(inp.camera.distortion, OpenCVDistortion) else inp.camera.with_(
         distortion=OpenCVDistortion())
+    nominal = camera  # the centre of the self-calibration's priors in the final adjustment
     check: dict[str, dict[str, Any]] = {str(nm): {"metadata": "no position or attitude used (orientation without "
                                                   "GNSS)"} for nm in inp.names}
     # ---- 1. two-view start
@@ -547,7 +549,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
         cal = grow_cal if len(img_sel) >= 3 else ()
         # (the prior of a weighted intrinsic is its start value in skyrig.adjust: during growth the prior follows the
-        # current estimate; the final adjustment anchors the focal length at the EXIF value again)
+        # current estimate; the final adjustment centres the priors on the EXIF camera again)
         block, tracks, rows = _block(inp, camera, R, C, X, img_sel, obs, sigma_grow, False, False)
         gcfg = grow_cfg.with_(intrinsics="weighted", intrinsic_names=cal,
                               intrinsic_sigma=tuple((k, grow_sig[k]) for k in cal)) if cal else grow_cfg
@@ -667,10 +669,11 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     lim = 2.0 * cfg.pnp_threshold_px
     for stage in range(2):
         obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
-        # the focal prior is anchored at the EXIF value in every stage (a weighted group's prior is its start)
-        block, tracks, rows = _block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs, cfg.pixel_sigma_px,
-                                     use_ctrl, use_dist)
-        res = adjust(block, final_cfg)
+        # the priors are centred on the nominal (EXIF) camera in every stage and the solve starts from the current
+        # estimate (``start=``): restarting at the EXIF focal length (lund: 995 px for about 730) walks the weakly
+        # determined focal valley again and can end on the function tolerance short of the minimum
+        block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+        res = adjust(block, final_cfg, start=replace(block, cameras=[camera]))
         camera = res.block.cameras[0]
         R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
         X[:] = np.nan
@@ -685,9 +688,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     X = np.where(np.isfinite(X).all(axis=1)[:, None], X,
                  _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
     obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
-    block, tracks, rows = _block(inp, camera.with_(focal_mm=f0), R, C, X, img_sel, obs, cfg.pixel_sigma_px,
-                                 use_ctrl, use_dist)
-    res = adjust(block, final_cfg.with_(robust=None, statistics=True))
+    block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+    res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
     camera = res.block.cameras[0]
     R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
     Rout = np.full((n, 3, 3), np.nan)
