@@ -71,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--tie-points", type=int, default=None)
     ap.add_argument("--deformation-px", type=float, default=0.0)
+    ap.add_argument("--deformation", choices=("wave", "random"), default="wave",
+                    help="the fixed wave, or a Gaussian random field drawn with the seed (RMS --deformation-px, "
+                         "correlation length 0.2 of the width)")
     ap.add_argument("--no-variants", action="store_true", help="no Tab. 11 variants (and no grid unless --grid)")
     ap.add_argument("--grid", action="store_true", help="the correction grid even with --no-variants")
     ap.add_argument("--noise-free", action="store_true",
@@ -87,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     quiet = dict(gnss_noise_m=(0, 0, 0), imu_noise_rad=(0, 0, 0), gcp_sigma_m=(0, 0, 0)) if a.noise_free else None
     data, truth = midas_calqc_scenario(a.size, a.seed, directions=a.directions, heights=a.heights, tie_points=a.tie_points,
-                                       deformation_px=a.deformation_px, error_overrides=quiet,
+                                       deformation_px=a.deformation_px, deformation=a.deformation,
+                                       error_overrides=quiet,
                                        image_noise_um=0.0 if a.noise_free else 3.84)
     t1 = time.perf_counter()
     cal = calibrate_calqc(data, variants=not a.no_variants, grid=a.grid or not a.no_variants,
