@@ -104,8 +104,7 @@ class OrientConfig:
     robust_k: float = 2.0
     reject_k: float = 4.0
     reject_min_px: float = 2.0
-    #: Levenberg-Marquardt iterations per adjustment (COLMAP's bundle adjustment allows 100 as well)
-    max_iterations: int = 100
+    max_iterations: int = 40
     #: positions datum: minimum images with a position
     min_positions: int = 4
 
