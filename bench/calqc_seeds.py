@@ -38,17 +38,6 @@ from scipy.stats import chi2 as chi2_dist
 from scipy.stats import kstest
 
 
-def simulated_sigmas(truth) -> dict[str, object]:  # type: ignore[no-untyped-def]
-    """The recipe's a-priori sigmas equal to the noise the simulation drew (GNSS E/N/U, IMU roll/pitch/yaw, control,
-    image), instead of the recipe's defaults (5 cm GNSS and control for 3/3/5 and 2/2/3 cm simulated)."""
-    e = truth.survey.spec.errors
-    px_um = truth.survey.rig_recorded.head("nadir").camera.pixel_size_mm * 1000.0
-    return {"gnss_sigma_m": tuple(float(v) for v in e.gnss_noise_m),
-            "imu_sigma_deg": tuple(float(np.degrees(v)) for v in e.imu_noise_rad),
-            "control_sigma_m": tuple(float(v) for v in e.gcp_sigma_m),
-            "image_sigma_um": float(e.measurement_sigma_px * px_um)}
-
-
 def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sigmas: str = "recipe",
         grid_method: str = "joint", deformation: str = "wave", deformation_length: float = 0.2,
         deformation_heads: tuple[str, ...] = ("nadir",)) -> tuple[dict[str, float], dict[str, object]]:
@@ -57,7 +46,7 @@ def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sig
     data, truth = midas_calqc_scenario("reduced", seed, tie_points=ties, camera_width_px=width,
                                        deformation_px=deformation_px, deformation=deformation,
                                        deformation_length=deformation_length, deformation_heads=deformation_heads)
-    kw = simulated_sigmas(truth) if sigmas == "simulated" else {}
+    kw = truth.simulated_sigmas() if sigmas == "simulated" else {}
     cal = calibrate_calqc(data, variants=False, grid=grid, design=False, grid_method=grid_method, **kw)
     # per parameter z, and the errors whitened by the joint covariance of all calibration unknowns: for honest sigmas
     # and correlations these are independent N(0, 1) values (the pooled per-parameter z's are correlated within a

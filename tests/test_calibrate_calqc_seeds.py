@@ -58,15 +58,6 @@ def test_random_field_deformation_has_the_stated_covariance() -> None:
     assert np.abs(f(q + [1.0, 0.0]) - f(q)).max() < 0.1 * a
 
 
-def _simulated_sigmas(truth) -> dict[str, object]:  # type: ignore[no-untyped-def]
-    e = truth.survey.spec.errors
-    px_um = truth.survey.rig_recorded.head("nadir").camera.pixel_size_mm * 1000.0
-    return {"gnss_sigma_m": tuple(float(v) for v in e.gnss_noise_m),
-            "imu_sigma_deg": tuple(float(np.degrees(v)) for v in e.imu_noise_rad),
-            "control_sigma_m": tuple(float(v) for v in e.gcp_sigma_m),
-            "image_sigma_um": float(e.measurement_sigma_px * px_um)}
-
-
 @pytest.mark.slow
 def test_calqc_normalised_errors_over_seeds_are_standard_normal() -> None:
     from skyrig.calibrate.calqc import calibrate_calqc, midas_calqc_scenario, normalised_errors
@@ -77,7 +68,7 @@ def test_calqc_normalised_errors_over_seeds_are_standard_normal() -> None:
                                            deformation_px=DEFORMATION_PX, deformation="random")
         # (steps 2-3 once: the values and the covariance are those of the joint adjustment with the grid, which
         # starts there and converges by itself; the repetitions only make the stepwise recipe reach it)
-        cal = calibrate_calqc(data, variants=False, grid=True, design=False, max_cycles=1, **_simulated_sigmas(truth))
+        cal = calibrate_calqc(data, variants=False, grid=True, design=False, max_cycles=1, **truth.simulated_sigmas())
         z, w = normalised_errors(cal, truth)
         zs.append(list(z.values()))
         ws.append(w)

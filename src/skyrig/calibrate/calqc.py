@@ -208,6 +208,16 @@ class ScenarioTruth:
     frame: WorldFrame
     survey: Any = None
 
+    def simulated_sigmas(self) -> dict[str, object]:
+        """The recipe's a-priori sigma options equal to the noise the simulation drew (GNSS E/N/U, IMU
+        roll/pitch/yaw, control, image) instead of the recipe's defaults."""
+        e = self.survey.spec.errors
+        px_um = self.survey.rig_recorded.head("nadir").camera.pixel_size_mm * 1000.0
+        return {"gnss_sigma_m": tuple(float(v) for v in e.gnss_noise_m),
+                "imu_sigma_deg": tuple(float(np.degrees(v)) for v in e.imu_noise_rad),
+                "control_sigma_m": tuple(float(v) for v in e.gcp_sigma_m),
+                "image_sigma_um": float(e.measurement_sigma_px * px_um)}
+
 
 def wave_deformation(amplitude_px: float, width: int, height: int) -> Callable[[NDArray[np.float64]], NDArray]:
     """A smooth image deformation without mean, linear or radial part (not absorbed by the IO or the
