@@ -168,6 +168,9 @@ def test_table2_report(lab_run):
         assert rep["curve"][int(np.argmax(std[:, i]))]["beta_deg"] == pytest.approx(t2[a]["beta_at_max_deg"])
     assert out.with_suffix(".html").is_file() and "Tab. 2" in out.with_suffix(".html").read_text()
     assert "repeat accuracies" in output
+    # the console states the curve's simultaneous band as the report has it
+    band = rep["curve_statement"]["lookup"]["simultaneous_z"]
+    assert f"within {band:.2f} sigma" in output and "simultaneous bands" in out.with_suffix(".html").read_text()
 
 
 def test_bad_positions_named(lab_files, tmp_path):

@@ -261,7 +261,8 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
             "<th>mechanism repeatability, measurement noise removed (2&sigma; &plusmn; its standard error)</th></tr>"
             f"{rows}</table><h2>Mean correction curve (1/1000 deg, &plusmn; 1&sigma; repeatability)</h2>"
             "<table border=1><tr><th>beta (deg)</th><th>droll</th><th>dpitch</th><th>dyaw</th></tr>"
-            f"{curve}</table>")
+            f"{curve}</table>"
+            f"<h2>How far the curve may be from the mechanism's</h2><p>{html.escape(_curve_statement_line(report))}</p>")
     html_path = Path(report_path).with_suffix(".html")
     with atomic_write(html_path) as fh:
         fh.write(page)
@@ -273,7 +274,25 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
     click.echo("mechanism repeatability, measurement noise removed (2 sigma, 1/1000 deg): " + "; ".join(
         f"{a} {v['mechanism_std_mdeg']:.1f} +- {v['mechanism_std_se_mdeg']:.1f} (one image's measurement sigma "
         f"{v['measurement_sigma_mdeg']:.1f})" for a, v in t2.items()))
+    click.echo(_curve_statement_line(report))
     click.echo(f"-> {output}, {report_path}, {html_path}")
+
+
+def _curve_statement_line(report: dict) -> str:
+    """The report's ``curve_statement`` in one sentence: the simultaneous bands of the lookup and the series."""
+    cs = report.get("curve_statement") or {}
+    lk = cs.get("lookup")
+    if not lk:
+        return ""
+    pct = 100 * cs["level"]
+    out = (f"curve, {pct:.0f} % simultaneous bands: lookup table {lk['values']} values within "
+           f"{lk['simultaneous_z']:.2f} sigma (every value within 2 sigma: probability "
+           f"{lk['p_every_value_within_2sigma']:.2g} with exact sigmas)")
+    f = cs.get("fourier")
+    if f:
+        out += (f"; Fourier series of order {f['order']} within {f['simultaneous_z']:.2f} sigma (every value within "
+                f"2 sigma: probability {f['p_every_value_within_2sigma']:.2f})")
+    return out
 
 
 def _trajectory_file_frame(path: str):  # type: ignore[no-untyped-def]
