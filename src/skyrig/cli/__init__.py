@@ -207,6 +207,14 @@ def _configure_logging(verbose: int, quiet: int) -> None:
     except ImportError:  # pragma: no cover
         handler = logging.StreamHandler()
     logging.basicConfig(level=level, handlers=[handler], format="%(message)s")
+    # -v / -vv are for skyrig's own messages: libraries that log their internals at INFO / DEBUG (numba's bytecode
+    # dumps run to thousands of lines per compiled kernel, exifread lists every tag) stay at warnings
+    for name in _CHATTY_LIBRARIES:
+        logging.getLogger(name).setLevel(max(level, logging.WARNING))
+
+
+#: third-party loggers kept at WARNING under -v / -vv
+_CHATTY_LIBRARIES = ("numba", "exifread", "matplotlib", "PIL", "fiona", "rasterio", "urllib3", "asyncio")
 
 
 @click.group(cls=LazyGroup, lazy_commands=COMMANDS)
