@@ -26,8 +26,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -65,15 +63,9 @@ def main() -> None:
         print("$ skyrig " + " ".join(args), flush=True)
         subprocess.run([skyrig, *args], check=True)
 
-    import rasterio
-
-    from skyrig.cli._common import load_cameras
-    from skyrig.dense.grid import GridSpec
-    from skyrig.georef.eo import WorldFrame
+    from skyrig.cli.demo import judge_ortho_folder
     from skyrig.io.dsm_cog import read_dsm_cog
-    from skyrig.io.eo_csv import read_eo_csv
-    from skyrig.io.ortho_cog import read_ortho_cog
-    from skyrig.simulate.judge import judge_dsm, judge_ortho
+    from skyrig.simulate.judge import judge_dsm
     from skyrig.simulate.scenarios import build_survey, scenario_spec
 
     survey = build_survey(scenario_spec("midas-dsm", "ci", 1))
@@ -83,16 +75,7 @@ def main() -> None:
     print(f"DSM: flat NMAD {f['nmad_gsd']:.3f} GSD, bias {f['bias_gsd']:+.3f} GSD, completeness "
           f"{f['completeness'] * 100:.2f} %; building edges completeness {e['completeness'] * 100:.2f} %, RMSE "
           f"{e['rmse_gsd']:.2f} GSD; cells off by > 5 GSD {al['outliers'] * 100:.3f} %")
-    rgb, ovalid, _, _ = read_ortho_cog(ortho_dir / "ortho.tif")
-    with rasterio.open(ortho_dir / "ortho_source.tif") as src:
-        osource = src.read(1)
-    meta = json.loads((ortho_dir / "ortho.json").read_text())
-    og = meta["grid"]
-    ogrid = GridSpec(og["x0"], og["y0"], og["cell_m"], og["width"], og["height"])
-    truth = read_eo_csv(sim / "truth" / "eo.csv")
-    truth = truth.subset(np.flatnonzero(["nadir" in str(n) for n in truth.image]))
-    jo = judge_ortho(rgb, ovalid, osource, ogrid, WorldFrame.from_text(meta["frame"]), survey.scene, og["cell_m"],
-                     eo_local=truth, cameras=load_cameras([str(sim / "rig.yaml")]), noise_dn=survey.spec.image_noise_dn)
+    jo, _ = judge_ortho_folder(ortho_dir, sim, survey)  # the demo's own judging of its orthomosaic
     rc = jo["roof_corners"]
     ok = rc["n"] >= 20 and rc["within_1gsd"] >= 0.95 and rc["rms_gsd"] <= 0.5
     print(f"ortho roof corners (n={rc['n']}): {rc['within_1gsd'] * 100:.1f} % within 1 GSD, RMS {rc['rms_gsd']:.2f} GSD "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -194,24 +195,9 @@ def command(outdir: str | None, output: str | None) -> None:
     ortho_dir = sim_dir / "output" / "ortho"
     _run(["ortho", "--eo", str(adj_dir / "eo.csv"), "--camera", str(sim_dir / "rig.yaml"), "--images",
           str(sim_dir / "images"), "--heads", "nadir", "--dsm", str(dsm_dir / "dsm.tif"), "-o", str(ortho_dir)])
-    import rasterio
-
-    from skyrig.dense.grid import GridSpec
-    from skyrig.io.ortho_cog import read_ortho_cog
-    from skyrig.simulate.judge import judge_ortho
-
-    rgb, ovalid, _, _ = read_ortho_cog(ortho_dir / "ortho.tif")
-    with rasterio.open(ortho_dir / "ortho_source.tif") as src_:
-        osource = src_.read(1)
-    ometa = json.loads((ortho_dir / "ortho.json").read_text())
-    og = ometa["grid"]
-    ogrid = GridSpec(og["x0"], og["y0"], og["cell_m"], og["width"], og["height"])
-    tl = read_eo_csv(sim_dir / "truth" / "eo.csv")
-    tl = tl.subset(np.flatnonzero(["nadir" in str(n) for n in tl.image]))
-    cams = load_cameras([str(sim_dir / "rig.yaml")])
+    jo, og = judge_ortho_folder(ortho_dir, sim_dir, survey)
     noise = survey.spec.image_noise_dn
-    jo = judge_ortho(rgb, ovalid, osource, ogrid, WorldFrame.from_text(ometa["frame"]), survey.scene, og["cell_m"],
-                     eo_local=tl, cameras=cams, noise_dn=noise)
+    cams = load_cameras([str(sim_dir / "rig.yaml")])
     t_, rc_, oc_, sm_ = jo["tiles"], jo["roof_corners"], jo["occluded"], jo["seams"]
     click.echo(f"{og['width']} x {og['height']} cells of {og['cell_m'] * 100:.1f} cm; offset per tile (phase "
                f"correlation, n={t_['n']}) {t_['rms_gsd']:.2f} GSD RMS; roof corners (n={rc_['n']} judged of "
@@ -346,3 +332,32 @@ def _tumble_circle_step(folder: Path) -> None:
             and sn["median_offset_px"] > 2 * sc["median_offset_px"]):
         raise click.ClickException("demo checks FAILED (Fig. 9 plane mosaic)")
 
+
+def judge_ortho_folder(ortho_dir: Path, sim_dir: Path, survey: Any, head: str = "nadir") -> tuple[dict, dict]:
+    """The orthomosaic of a ``skyrig ortho`` folder judged against a simulated flight's scene
+    (:func:`skyrig.simulate.judge.judge_ortho`: tile offsets, roof corners, hidden cells, seams), with the
+    flight's true orientations of ``head`` from ``sim_dir/truth/eo.csv`` and its rig file; returns the judge's
+    figures and the mosaic's grid (``ortho.json``)."""
+    import json
+
+    import rasterio
+
+    from skyrig.cli._common import load_cameras
+    from skyrig.dense.grid import GridSpec
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.io.ortho_cog import read_ortho_cog
+    from skyrig.simulate.judge import judge_ortho
+
+    rgb, ovalid, _, _ = read_ortho_cog(ortho_dir / "ortho.tif")
+    with rasterio.open(ortho_dir / "ortho_source.tif") as src_:
+        osource = src_.read(1)
+    ometa = json.loads((ortho_dir / "ortho.json").read_text())
+    og = ometa["grid"]
+    ogrid = GridSpec(og["x0"], og["y0"], og["cell_m"], og["width"], og["height"])
+    tl = read_eo_csv(sim_dir / "truth" / "eo.csv")
+    tl = tl.subset(np.flatnonzero([head in str(n) for n in tl.image]))
+    cams = load_cameras([str(sim_dir / "rig.yaml")])
+    jo = judge_ortho(rgb, ovalid, osource, ogrid, WorldFrame.from_text(ometa["frame"]), survey.scene, og["cell_m"],
+                     eo_local=tl, cameras=cams, noise_dn=survey.spec.image_noise_dn)
+    return jo, og
