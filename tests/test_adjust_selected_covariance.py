@@ -9,29 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _dense_reference import dense_system
+
 from skyrig.adjust import AdjustConfig, adjust
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.synthetic import synthetic_block
 
 
 def _dense_normal_inverse(model: Model, state: State) -> np.ndarray:
-    lay = model.layout
-    n = lay.n_c + 3 * lay.n_p
-    rows = []
-    for f in model.evaluate(state):
-        w = np.sqrt(f.weight) if f.weight is not None else np.ones(len(f))
-        nr, d = f.r.shape
-        J = np.zeros((nr, d, n))
-        if f.jc is not None and f.cols is not None:
-            for k in range(f.cols.shape[1]):
-                ok = f.cols[:, k] >= 0
-                J[np.flatnonzero(ok), :, f.cols[ok, k]] += f.jc[ok, :, k]
-        if f.jp is not None and f.point is not None:
-            ok = f.point >= 0
-            for a in range(3):
-                J[np.flatnonzero(ok), :, lay.n_c + 3 * f.point[ok] + a] += f.jp[ok, :, a]
-        rows.append((J * w[:, None, None]).reshape(-1, n))
-    J = np.vstack(rows)
+    J, _ = dense_system(model.evaluate(state), model.layout)
     return np.linalg.inv(J.T @ J)
 
 
