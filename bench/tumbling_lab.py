@@ -276,7 +276,8 @@ def judge_statement(lab: Lab, cal: Any, level: float = 0.95) -> dict[str, Any]:
     position (the lookup in the rig file) and as a Fourier series with its covariance; for each the positions beyond
     2 sigma, the largest |z| against the simultaneous band at ``level``, and (series) the terms' z against the true
     curve's own terms."""
-    from skyrig.calibrate.tumbling import fourier_design, sidak_z
+    from skyrig.adjust.stats import sidak_z
+    from skyrig.calibrate.tumbling import fourier_design
 
     k = cal.beta_rad.size
     truth = lab.true_curve(cal.beta_rad)

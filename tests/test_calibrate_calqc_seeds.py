@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, kstest, norm
 
-from skyrig.calibrate.calqc import family_wise_bound, within_sigma_summary
+from skyrig.adjust.stats import sidak_z
+from skyrig.calibrate.calqc import within_sigma_summary
 
 SEEDS = 20
 WIDTH, TIES = 400, 400  # reduced flight; the per-seed cost is mostly the adjustments' (a few seconds each)
@@ -26,7 +27,7 @@ DEFORMATION_PX = 0.05  # RMS per component of the nadir field: about 0.5 of the 
 
 def test_family_wise_bound_is_sidak_and_matches_a_simulation() -> None:
     # closed form: P(all n |z| <= b) = (2 Phi(b) - 1)^n = level
-    b = family_wise_bound(33)
+    b = sidak_z(33)
     assert (2 * norm.cdf(b) - 1) ** 33 == pytest.approx(0.95, abs=1e-9)
     assert b == pytest.approx(3.1646, abs=1e-3)
     # independent: share of 20,000 simulated sets of 33 N(0,1) values inside the bound (binomial sigma 0.0015)

@@ -205,7 +205,8 @@ def test_curve_statements_cover_as_stated():
     (binomial 99.9 % bounds); the order chosen is the true one but for the selection test's false alarms."""
     from scipy.stats import binom
 
-    from skyrig.calibrate.tumbling import fit_fourier_curve, fourier_design, sidak_z
+    from skyrig.adjust.stats import sidak_z
+    from skyrig.calibrate.tumbling import fit_fourier_curve, fourier_design
     from skyrig.simulate.errors import tumble_curve_samples
 
     rng = np.random.default_rng(12)

@@ -35,13 +35,22 @@ from skyrig.adjust.model import Factor, Layout, Model, State
 from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
-           "correlation_warnings", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
+           "correlation_warnings", "sidak_z", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
            "chosen_unknowns", "similarity_basis", "point_datum_covariance", "PointPatternM"]
 
 
 def critical_value(alpha: float) -> float:
     """Two-sided critical value of the standard normal distribution (alpha 0.001 -> 3.29)."""
     return float(norm.ppf(1.0 - alpha / 2.0))
+
+
+def sidak_z(m: int, level: float = 0.95) -> float:
+    """The ``|z|`` bound that ``m`` independent N(0, 1) draws all stay within with probability ``level`` (Sidak):
+    ``Phi^-1((1 + level^(1/m)) / 2)`` (33 values at 95 %: 3.17).  For correlated Gaussian draws it is a conservative
+    bound (Sidak's inequality): all of them stay within it with probability at least ``level``."""
+    if m < 1 or not 0.0 < level < 1.0:
+        raise ValueError(f"sidak_z: needs m >= 1 draws and a level in (0, 1), got m={m}, level={level}")
+    return float(norm.ppf(0.5 + 0.5 * float(level) ** (1.0 / int(m))))
 
 
 @dataclass

@@ -140,6 +140,7 @@ from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.factors.image_grid import GridSpec
 from skyrig.adjust.presets import PRESETS, apply_preset
 from skyrig.adjust.rig_block import block_from_trajectory
+from skyrig.adjust.stats import sidak_z
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.errors import SkyrigError
 from skyrig.georef.eo import WorldFrame
@@ -151,7 +152,7 @@ from skyrig.trajectory import CameraEvents, Trajectory
 log = logging.getLogger(__name__)
 
 __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "CorrectionGrid", "calibrate_calqc",
-           "family_wise_bound", "within_sigma_summary", "normalised_errors", "random_field_deformation", "collocation_grid",
+           "within_sigma_summary", "normalised_errors", "random_field_deformation", "collocation_grid",
            "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
            "format_tables", "report_html", "separability", "without_calibration_part", "calibration_part",
            "grid_nodes_for", "collocation_prior", "joint_grid_adjustment"]
@@ -1714,26 +1715,18 @@ def normalised_errors(cal: "CalqcCalibration", truth: ScenarioTruth) -> tuple[di
     return z, np.linalg.solve(np.linalg.cholesky(cv), np.asarray(e, float))
 
 
-def family_wise_bound(n: int, level: float = 0.95) -> float:
-    """The bound on ``|z|`` that ``n`` independent N(0, 1) normalised errors all stay within with probability
-    ``level`` (Sidak: each at ``level ** (1 / n)``; 33 parameters at 95 %: 3.17)."""
-    from scipy.stats import norm
-
-    return float(norm.ppf(0.5 + 0.5 * float(level) ** (1.0 / max(int(n), 1))))
-
-
 def within_sigma_summary(z: Sequence[float] | NDArray[np.float64], k: float = 2.0,
                          level: float = 0.95) -> dict[str, Any]:
     """How a set of normalised errors ``(estimate - truth) / sigma`` (a simulation's, where the truth is known)
     stands against two readings of "within ``k`` sigma": the literal count within ``k``, with the count expected of
     N(0, 1) values and the chance that all of them are (``0.954 ** 33 = 0.21`` for 33 parameters at 2 sigma); and
     the family-wise test, every ``|z|`` within the Sidak bound for that many parameters at ``level``
-    (:func:`family_wise_bound`)."""
+    (:func:`skyrig.adjust.stats.sidak_z`)."""
     from scipy.stats import norm
 
     a = np.abs(np.asarray(z, float).ravel())
     p1 = float(2.0 * norm.cdf(k) - 1.0)
-    b = family_wise_bound(a.size, level)
+    b = sidak_z(max(a.size, 1), level)
     return {"n": int(a.size), "k_sigma": float(k), "within_k": int(np.sum(a <= k)), "expected_within_k": a.size * p1,
             "probability_all_within_k": p1 ** a.size, "max_abs_z": float(a.max()) if a.size else 0.0,
             "family_wise_level": float(level), "family_wise_bound": b, "within_family_wise_bound": bool(np.all(a <= b))}

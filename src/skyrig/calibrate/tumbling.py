@@ -55,6 +55,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from skyrig.adjust.stats import sidak_z
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.dense.plane_mosaic import Plane
 from skyrig.errors import SkyrigError
@@ -66,7 +67,7 @@ from skyrig.rig.rig import ActuatedHead, Rig
 log = logging.getLogger(__name__)
 
 __all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FourierCurve", "measure_position_offset",
-           "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design", "sidak_z", "ENU_FROM_BODY"]
+           "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design", "ENU_FROM_BODY"]
 
 #: lab frame (east, north, up) from body (x forward = north, y right = east, z down)
 ENU_FROM_BODY = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -505,17 +506,6 @@ def measure_position_offset(
 
 
 # --------------------------------------------------------------------------------------------- curve statements
-def sidak_z(m: int, level: float = 0.95) -> float:
-    """The ``|z|`` bound that ``m`` independent N(0, 1) draws all stay within with probability ``level`` (Sidak):
-    ``Phi^-1((1 + level^(1/m)) / 2)``.  For correlated Gaussian draws it is a conservative bound (Sidak's
-    inequality): all of them stay within it with probability at least ``level``."""
-    from scipy.stats import norm
-
-    if m < 1 or not 0.0 < level < 1.0:
-        raise SkyrigError(f"sidak_z: needs m >= 1 draws and a level in (0, 1), got m={m}, level={level}")
-    return float(norm.ppf(0.5 + 0.5 * level ** (1.0 / m)))
-
-
 def fourier_design(beta_rad: ArrayLike, order: int) -> NDArray[np.float64]:
     """``(n, 2 order + 1)`` design of a Fourier series in the actuator angle: ``1, cos b, sin b, ..., cos Nb,
     sin Nb``."""
@@ -594,7 +584,7 @@ class FourierCurve:
     def simultaneous_z(self, beta_rad: ArrayLike, level: float = 0.95, draws: int = 20000, seed: int = 0) -> float:
         """The ``|z|`` half-width of the simultaneous band: the series' errors at every position ``beta_rad`` and on
         every axis stay within ``z sigma`` with probability ``level`` (the ``level`` quantile of
-        :meth:`max_abs_z_draws`; the values are correlated, so it is below :func:`sidak_z`)."""
+        :meth:`max_abs_z_draws`; the values are correlated, so it is below :func:`skyrig.adjust.stats.sidak_z`)."""
         return float(np.quantile(self.max_abs_z_draws(beta_rad, draws, seed), level))
 
     def probability_all_within(self, beta_rad: ArrayLike, k_sigma: float = 2.0, draws: int = 20000,
@@ -781,7 +771,7 @@ class TumblingCalibration:
 
         ``lookup``: the per-position means (paper 000's table, written into the rig file) with their standard
         errors, positions independent: the simultaneous band over the ``3 K`` values is Sidak's ``|z|`` bound
-        (:func:`sidak_z`), and "every value within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact
+        (:func:`skyrig.adjust.stats.sidak_z`), and "every value within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact
         (higher, as they are upper bounds).  ``fourier``: the series of :meth:`fourier_curve` with its terms'
         sigma, its values' sigma at the positions, the simultaneous band from its covariance (the values are
         correlated) and the probability of "every value within 2 sigma" under that covariance."""
