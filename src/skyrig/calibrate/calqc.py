@@ -413,8 +413,13 @@ def calibration_basis(pix: NDArray[np.float64], width: int, height: int) -> NDAr
     scale, rotation and the two tilt terms, as :func:`without_calibration_part` removes them from a grid)."""
     cx, cy = 0.5 * (width - 1.0), 0.5 * (height - 1.0)
     scale = max(float(np.hypot(cx, cy)), 1.0)
-    x = (np.asarray(pix, float)[:, 0] - cx) / scale
-    y = (np.asarray(pix, float)[:, 1] - cy) / scale
+    return _calibration_fields((np.asarray(pix, float)[:, 0] - cx) / scale, (np.asarray(pix, float)[:, 1] - cy) / scale)
+
+
+def _calibration_fields(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(2N, 6)`` the calibration fields at centred, scaled coordinates ``x, y (N,)``: shifts (principal point),
+    radial scale (principal distance), rotation (kappa), and the projective terms of a rotation about the image x and
+    y axes (boresight omega, phi: dx, dy = (f + x^2/f, xy/f) and (xy/f, f + y^2/f)); x components then y."""
     one, zero = np.ones(len(x)), np.zeros(len(x))
     return np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x],
                             np.r_[x * x, x * y], np.r_[x * y, y * y]])
@@ -713,14 +718,7 @@ def _calibration_fit(g: CorrectionGrid) -> tuple[NDArray[np.float64], NDArray[np
     gx, gy = np.meshgrid(g.x_px, g.y_px)
     cx, cy = 0.5 * (g.x_px[0] + g.x_px[-1]), 0.5 * (g.y_px[0] + g.y_px[-1])
     scale = max(float(np.hypot(cx, cy)), 1.0)  # one scale for x and y: the radial and rotation fields are isotropic
-    x = (gx.ravel() - cx) / scale
-    y = (gy.ravel() - cy) / scale
-    n = x.size
-    one, zero = np.ones(n), np.zeros(n)
-    # shifts (principal point), radial scale (principal distance), rotation (kappa), and the projective terms of a
-    # rotation about the image x and y axes (boresight omega, phi: dx, dy = (f + x^2/f, xy/f) and (xy/f, f + y^2/f))
-    basis = np.column_stack([np.r_[one, zero], np.r_[zero, one], np.r_[x, y], np.r_[-y, x],
-                             np.r_[x * x, x * y], np.r_[x * y, y * y]])
+    basis = _calibration_fields((gx.ravel() - cx) / scale, (gy.ravel() - cy) / scale)
     v = np.r_[g.value_px[:, :, 0].ravel(), g.value_px[:, :, 1].ravel()]
     coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
     return coef, basis
