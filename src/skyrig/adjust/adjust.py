@@ -354,9 +354,10 @@ def check_datum(model: Model, state: State, free_datum: bool):  # type: ignore[n
     return eng
 
 
-def _start_state(block: Block, start: Block) -> State:
-    """The unknowns of ``start`` as a :class:`State` for ``block`` (ValueError when they do not correspond)."""
-    a, b = State.from_block(block), State.from_block(start)
+def _start_state(initial: State, start: Block) -> State:
+    """The unknowns of ``start`` as a :class:`State` in place of the block's own ``initial`` ones (ValueError when
+    they do not correspond)."""
+    a, b = initial, State.from_block(start)
     for name in ("R", "C", "bore", "lever", "shift", "sshift", "sdrift", "X", "act", "grid"):
         u, v = getattr(a, name), getattr(b, name)
         if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
@@ -400,7 +401,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     block.validate()
     _check_actuated(block, cfg)
     model = Model(block, cfg)
-    state = State.from_block(block) if start is None else _start_state(block, start)
+    state = model.initial.copy() if start is None else _start_state(model.initial, start)
     free = cfg.datum == "free"
     if cfg.inner_constraints == "points":
         _datum_point_mask(block, model, cfg)  # unknown names / too few points: ValueError before any work
