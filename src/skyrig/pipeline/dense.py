@@ -27,23 +27,119 @@ logger = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 
-class ImageFiles:
-    """Picklable image loader for the tiles: ``loader(i)`` reads image ``i`` as RGB uint8 and checks its size."""
+#: percentiles of the pooled samples that map to 0 and 255 when 16-bit images are scaled to 8 bit
+LEVEL_PERCENTILES = (0.1, 99.9)
 
-    def __init__(self, paths: Sequence[str], sizes: Sequence[tuple[int, int]]) -> None:
+
+def sixteen_bit_levels(paths: Sequence[str], max_images: int = 12, samples_per_image: int = 65536
+                       ) -> tuple[float, float] | None:
+    """The grey levels that 16-bit images are scaled by to 8 bit (``lo -> 0``, ``hi -> 255``), one pair for the
+    whole block, or None when no image is 16 bit.
+
+    Aerial cameras often deliver 12 or 14 bits in 16-bit TIFFs; OpenCV's own conversion (a shift by 8 bits) turns
+    them nearly black, and SGM, the orthomosaic and the textures would run on a few grey levels.  One linear scale
+    for all images and channels keeps their radiometry comparable (a per-image stretch would give every image its
+    own gain: seams in the mosaic, and a cost offset between the images of a stereo pair).  ``lo``, ``hi``: the
+    :data:`LEVEL_PERCENTILES` of the pooled samples (every channel) of up to ``max_images`` 16-bit images taken
+    evenly through the block, each sampled on a regular grid of about ``samples_per_image`` pixels.  The images'
+    sample types are read from their headers (rasterio / GDAL); JPEGs are 8 bit.
+
+    Raises
+    ------
+    InputFormatError
+        An image whose header cannot be read, a sample type other than 8 or 16 bit unsigned, or 16-bit images
+        without contrast (``hi <= lo``).
+    """
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():  # camera images carry no georeference
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        return _sixteen_bit_levels(paths, max_images, samples_per_image)
+
+
+def _sixteen_bit_levels(paths: Sequence[str], max_images: int, samples_per_image: int) -> tuple[float, float] | None:
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.errors import RasterioIOError
+
+    wide: list[str] = []
+    for p in paths:
+        if Path(p).suffix.lower() in (".jpg", ".jpeg"):
+            continue
+        try:
+            with rasterio.open(p) as ds:
+                dt = ds.dtypes[0]
+        except RasterioIOError as exc:
+            raise InputFormatError(f"cannot read the image header: {exc}", p) from None
+        if dt == "uint16":
+            wide.append(str(p))
+        elif dt != "uint8":
+            raise InputFormatError(f"unsupported sample type {dt} (8 or 16 bit unsigned expected)", p)
+    if not wide:
+        return None
+    pick = [wide[int(k)] for k in np.unique(np.linspace(0, len(wide) - 1, min(max_images, len(wide))).round())]
+    pooled = []
+    for p in pick:
+        with rasterio.open(p) as ds:
+            step = max(1, int(np.sqrt(ds.width * ds.height / samples_per_image)))
+            bands = list(range(1, min(ds.count, 3) + 1))
+            a = ds.read(bands, out_shape=(len(bands), max(1, ds.height // step), max(1, ds.width // step)),
+                        resampling=Resampling.nearest)
+        pooled.append(a.reshape(-1))
+    lo, hi = np.percentile(np.concatenate(pooled), LEVEL_PERCENTILES)
+    if not hi > lo:
+        raise InputFormatError(f"16-bit images without contrast (levels {lo:.0f} .. {hi:.0f} in {len(pick)} "
+                               "sampled images)", pick[0])
+    logger.info("16-bit images (%d of %d): scaled to 8 bit by the levels %.0f .. %.0f (the %g / %g %% percentiles "
+                "of %d images)", len(wide), len(paths), lo, hi, *LEVEL_PERCENTILES, len(pick))
+    return float(lo), float(hi)
+
+
+class ImageFiles:
+    """Picklable image loader for the tiles: ``loader(i)`` reads image ``i`` as RGB uint8 and checks its size.
+
+    16-bit images (TIFF, PNG) are scaled to 8 bit by one pair of levels for the whole loader
+    (:func:`sixteen_bit_levels`, worked out once when the loader is made, unless ``levels`` is given), never by
+    OpenCV's shift by 8 bits; :attr:`levels` is None when every image is 8 bit.  :meth:`subset` keeps the levels."""
+
+    def __init__(self, paths: Sequence[str], sizes: Sequence[tuple[int, int]],
+                 levels: tuple[float, float] | None | str = "auto") -> None:
         self.paths = [str(p) for p in paths]
         self.sizes = [tuple(s) for s in sizes]
+        if len(self.paths) != len(self.sizes):
+            raise SkyrigError(f"{len(self.paths)} image files for {len(self.sizes)} image sizes")
+        if isinstance(levels, str):
+            if levels != "auto":
+                raise SkyrigError(f"levels must be 'auto', None or (lo, hi), not {levels!r}")
+            levels = sixteen_bit_levels(self.paths)
+        self.levels = None if levels is None else (float(levels[0]), float(levels[1]))
+
+    def subset(self, rows: Sequence[int]) -> "ImageFiles":
+        """The loader of images ``rows`` (in that order), with this loader's levels."""
+        return ImageFiles([self.paths[i] for i in rows], [self.sizes[i] for i in rows], self.levels)
 
     def __call__(self, i: int) -> np.ndarray:
         import cv2
 
-        img = cv2.imread(self.paths[i], cv2.IMREAD_COLOR)
+        img = cv2.imread(self.paths[i], cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
         if img is None:
             raise InputFormatError("cannot read the image (missing, truncated or not an image)", self.paths[i])
         h, w = img.shape[:2]
         if (w, h) != self.sizes[i]:
             raise InputFormatError(f"image is {w} x {h} px but its camera is {self.sizes[i][0]} x {self.sizes[i][1]} "
-                                   "px (wrong camera, or a resized copy)", self.paths[i])
+                                   "px (wrong camera, a resized copy, or an EXIF orientation tag that rotates it)",
+                                   self.paths[i])
+        if img.dtype == np.uint16:
+            if self.levels is None:
+                raise InputFormatError("16-bit image in a block whose levels were worked out as all 8 bit (the file "
+                                       "changed since?)", self.paths[i])
+            lo, hi = self.levels
+            img = np.clip((img.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo)) + 0.5, 0, 255
+                          ).astype(np.uint8)
+        elif img.dtype != np.uint8:
+            raise InputFormatError(f"unsupported sample type {img.dtype} (8 or 16 bit expected)", self.paths[i])
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 

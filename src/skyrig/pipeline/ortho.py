@@ -180,7 +180,7 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
             mosaic = _mosaic(eo, cameras, loader, dsm, area, config, ex, progress)
         else:
             mr = np.asarray(main_rows, int)
-            mosaic = _mosaic(eo.subset(mr), cameras, ImageFiles([image_paths[i] for i in mr], [loader.sizes[i] for i in mr]),
+            mosaic = _mosaic(eo.subset(mr), cameras, loader.subset(mr),
                              dsm, area, config, ex, progress)
         if head_sets:
             hc = head_config or replace(config, max_off_nadir_deg=max(config.max_off_nadir_deg, 80.0))
@@ -189,7 +189,7 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
                 if len(rows) == 0:
                     raise SkyrigError(f"no image of head {h!r} (option: head-mosaics)")
                 sub = eo.subset(rows)
-                sub_loader = ImageFiles([image_paths[i] for i in rows], [loader.sizes[i] for i in rows])
+                sub_loader = loader.subset(rows)
                 try:
                     heads[str(h)] = _mosaic(sub, cameras, sub_loader, dsm, area, hc, ex, None)
                 except SkyrigError as exc:
