@@ -40,7 +40,7 @@ def sixteen_bit_levels(paths: Sequence[str], max_images: int = 12, samples_per_i
     them nearly black, and SGM, the orthomosaic and the textures would run on a few grey levels.  One linear scale
     for all images and channels keeps their radiometry comparable (a per-image stretch would give every image its
     own gain: seams in the mosaic, and a cost offset between the images of a stereo pair).  ``lo``, ``hi``: the
-    :data:`LEVEL_PERCENTILES` of the pooled samples (every channel) of up to ``max_images`` 16-bit images taken
+    :data:`LEVEL_PERCENTILES` (rounded down / up to whole numbers) of the pooled samples (every channel) of up to ``max_images`` 16-bit images taken
     evenly through the block, each sampled on a regular grid of about ``samples_per_image`` pixels.  The images'
     sample types are read from their headers (rasterio / GDAL); JPEGs are 8 bit.
 
@@ -89,6 +89,7 @@ def _sixteen_bit_levels(paths: Sequence[str], max_images: int, samples_per_image
                         resampling=Resampling.nearest)
         pooled.append(a.reshape(-1))
     lo, hi = np.percentile(np.concatenate(pooled), LEVEL_PERCENTILES)
+    lo, hi = np.floor(lo), np.ceil(hi)
     if not hi > lo:
         raise InputFormatError(f"16-bit images without contrast (levels {lo:.0f} .. {hi:.0f} in {len(pick)} "
                                "sampled images)", pick[0])
@@ -135,9 +136,8 @@ class ImageFiles:
             if self.levels is None:
                 raise InputFormatError("16-bit image in a block whose levels were worked out as all 8 bit (the file "
                                        "changed since?)", self.paths[i])
-            lo, hi = self.levels
-            img = np.clip((img.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo)) + 0.5, 0, 255
-                          ).astype(np.uint8)
+            lo, hi = self.levels  # whole numbers: the subtraction is exact in 16 bits (saturating at 0)
+            img = cv2.convertScaleAbs(cv2.subtract(img, (lo, lo, lo, 0.0)), alpha=255.0 / (hi - lo))
         elif img.dtype != np.uint8:
             raise InputFormatError(f"unsupported sample type {img.dtype} (8 or 16 bit expected)", self.paths[i])
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
