@@ -623,6 +623,8 @@ def test_cli_on_12_bit_images_gives_the_8_bit_blocks_surface(project, tmp_path):
         r = _dsm(p, tmp_path / name, "--height-range", "40", "75", "--pairs-per-image", "3", "--no-cloud", "--area",
                  *area)
         assert r.exit_code == 0, r.output
+        levels = json.loads((tmp_path / name / "dense.json").read_text())["image_levels_16bit"]
+        assert (levels is None) == (name == "8")
         with rasterio.open(tmp_path / name / "dsm.tif") as ds:
             heights[name] = ds.read(1, masked=True).filled(np.nan)
             loc = np.array([[0.5 * (BOX[0] + BOX[2]), 0.5 * (BOX[1] + BOX[3])], [-20.0, -15.0]])

@@ -251,6 +251,7 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
         "stats": asdict(stats),
         "config": json.loads(json.dumps(asdict(config), default=str)),
         "executor": kind,
+        "image_levels_16bit": None if loader.levels is None else list(loader.levels),
     }
     out = Path(outdir)
     with stage_folder(out, stage="dsm", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:

@@ -199,6 +199,7 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
     summary = _summary(mosaic)
     summary["config"] = json.loads(json.dumps(asdict(config), default=str))
     summary["executor"] = kind
+    summary["image_levels_16bit"] = None if loader.levels is None else list(loader.levels)
     summary["heads"] = {h: _summary(m) for h, m in heads.items()}
     out = Path(outdir)
     with stage_folder(out, stage="ortho", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:
