@@ -169,7 +169,8 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
 
     The crop (:func:`block_crop`) carries context where both images have content and the search width; the
     right crop is shifted by the window's start so OpenCV searches ``0..n``.  Columns of the block no right
-    pixel can match stay NaN (colour 0, not valid).
+    pixel can match stay NaN (colour 0, not valid).  ``right_img`` may be grey already (it is only matched, never
+    coloured from: a pair's blocks then share one conversion).
     """
     import cv2
 

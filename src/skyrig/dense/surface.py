@@ -408,17 +408,29 @@ def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np
 
 def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     """Match, triangulate and fuse one ground tile (``plan.tiles[k]``)."""
+    import cv2
+
     t0 = time.perf_counter()
     r0, c0, h, w = plan.tiles[k]
     tg = plan.grid.window(r0, c0, h, w)
     xb0, yb0, xb1, yb1 = tg.bounds
     images: dict[int, NDArray] = {}
+    greys: dict[int, NDArray] = {}
 
     def image(i: int) -> NDArray:
         if i not in images:
             with phase("read"):
                 images[i] = loader(i)
         return images[i]
+
+    def grey(i: int) -> NDArray:
+        """The image in grey, converted once per tile (a right image is only matched; a pair has a block every
+        ``block_px`` pixels, each would convert the whole image again)."""
+        if i not in greys:
+            im = image(i)
+            with phase("rectify"):
+                greys[i] = cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im
+        return greys[i]
 
     vox = plan.config.cloud_voxel_m or plan.grid.cell_m
     with_cloud = plan.config.cloud and vox == plan.grid.cell_m  # the cloud's voxels on the grid's cells: one sort
@@ -432,7 +444,7 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
         for bi in hit:
             blk = bl[bi]
-            disp, colour, _ = match_block(rect, image(pair.left), image(pair.right), blk, plan.config.sgm)
+            disp, colour, _ = match_block(rect, image(pair.left), grey(pair.right), blk, plan.config.sgm)
             nblocks += 1
             mpx += disp.size / 1e6
             pp = block_points(rect, blk, disp, colour, plan.config.sgm)
