@@ -86,3 +86,43 @@ def test_eight_bit_blocks_have_no_levels_and_bad_sample_types_are_refused(tmp_pa
     with pytest.raises(InputFormatError) as e:
         ImageFiles([str(bad)], [(400, 300)])
     assert "bad.tif" in str(e.value)
+
+
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
+@pytest.mark.parametrize("kind", ["rgb8", "rgb16", "grey16", "rgb8_deflate", "rgba8"])
+def test_windows_hold_the_whole_images_values(tmp_path: Path, kind: str) -> None:
+    """ImageFiles.windowed_image (large TIFFs read window by window by the dense chain, through GDAL) returns the
+    pixels the whole-image read (OpenCV) has there, bit for bit, in RGB and in grey."""
+    import cv2
+    import rasterio
+
+    v = _texture(5)
+    paths = []
+    for k in range(2):
+        p = tmp_path / f"w{k}.tif"
+        if kind == "rgb16":
+            _write12(p, np.roll(v, 11 * k, axis=1))
+        elif kind == "grey16":
+            assert cv2.imwrite(str(p), (16 * np.roll(v, 11 * k, axis=1).astype(np.uint16) + 40))
+        else:
+            rgb = np.stack([v, np.roll(v, 5, axis=1), 255 - v], axis=2)
+            bands = np.moveaxis(rgb, -1, 0)
+            if kind == "rgba8":
+                bands = np.concatenate([bands, np.full((1,) + v.shape, 255, np.uint8)])
+            with rasterio.open(p, "w", driver="GTiff", width=v.shape[1], height=v.shape[0], count=len(bands),
+                               dtype="uint8", compress="deflate" if kind == "rgb8_deflate" else None,
+                               photometric="RGB") as ds:
+                ds.write(bands)
+        paths.append(str(p))
+    whole = ImageFiles(paths, [(400, 300)] * 2)
+    win = ImageFiles(paths, [(400, 300)] * 2, window_min_pixels=0)
+    assert win.levels == whole.levels and ImageFiles.WINDOW_MIN_PIXELS > 400 * 300
+    assert whole.windowed_image(0) is None  # below the size where windows pay
+    for i in range(2):
+        full = whole(i)
+        g = cv2.cvtColor(full, cv2.COLOR_RGB2GRAY)
+        wr, wg = win.windowed_image(i), win.windowed_image(i, grey=True)
+        assert (wr.width, wr.height, wr.channels, wg.channels) == (400, 300, 3, 1)
+        for c0, r0, c1, r1 in ((0, 0, 400, 300), (17, 33, 250, 120), (399, 299, 400, 300)):
+            assert np.array_equal(wr.read(c0, r0, c1, r1), full[r0:r1, c0:c1])
+            assert np.array_equal(wg.read(c0, r0, c1, r1), g[r0:r1, c0:c1])

@@ -20,12 +20,26 @@ included) and is kept: :meth:`Rectification.to_original` gives it for any rectif
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import GeometryError
+
+
+@dataclass(frozen=True)
+class WindowedImage:
+    """An original image read window by window (a large TIFF: a block needs a small part of it).
+
+    ``read(c0, r0, c1, r1)`` returns the pixels ``[r0:r1, c0:c1]`` (inside the image; uint8, ``(h, w)`` grey or
+    ``(h, w, channels)``), the same values the whole image would have there."""
+
+    width: int
+    height: int
+    channels: int
+    read: Callable[[int, int, int, int], NDArray[np.uint8]]
 
 
 @dataclass(frozen=True)
@@ -112,12 +126,28 @@ class Rectification:
         cam = self.cameras[side]
         return lattice_maps(lat, int(step), int(width), int(height), float(cam.width), float(cam.height))
 
-    def remap(self, side: int, image: NDArray, u0: float, v0: float, width: int, height: int
+    def remap(self, side: int, image: "NDArray | WindowedImage", u0: float, v0: float, width: int, height: int
               ) -> tuple[NDArray, NDArray[np.bool_]]:
-        """The rectified crop of an original image (bilinear) and its validity mask (inside the original)."""
+        """The rectified crop of an original image (bilinear) and its validity mask (inside the original).
+
+        ``image``: the whole image, or a :class:`WindowedImage` of which only the window the crop's pixels
+        sample is read (their positions' bounding box, widened by the interpolation's reach and clipped to the
+        image).  Both give the same crop bit for bit: the maps are shifted by the window's whole-pixel origin,
+        which float32 does exactly, and pixels outside the window are outside the image."""
         import cv2
 
         mx, my, inside = self._lattice_maps(side, u0, v0, width, height, 4)
+        if isinstance(image, WindowedImage):
+            touch = (mx > -2) & (mx < image.width + 1) & (my > -2) & (my < image.height + 1)
+            if not touch.any():
+                shape = (height, width) + ((image.channels,) if image.channels > 1 else ())
+                return np.zeros(shape, np.uint8), inside
+            c0 = max(0, int(np.floor(mx[touch].min())) - 2)
+            c1 = min(image.width, int(np.floor(mx[touch].max())) + 3)
+            r0 = max(0, int(np.floor(my[touch].min())) - 2)
+            r1 = min(image.height, int(np.floor(my[touch].max())) + 3)
+            win = image.read(c0, r0, c1, r1)
+            mx, my, image = mx - np.float32(c0), my - np.float32(r0), win
         out = cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return out, inside
 

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.dense.pairs import ray_box_interval
-from skyrig.dense.rectify import Rectification
+from skyrig.dense.rectify import Rectification, WindowedImage
 from skyrig.dense.sgm import SgmConfig, crop_extra_right, disparity_window, match_crop
 
 #: image loader: image row index -> uint8 array (H, W, 3) RGB or (H, W) grey, as the camera sees it
@@ -163,23 +163,29 @@ def block_crop(rect: Rectification, blk: Block, cfg: SgmConfig) -> tuple[int, in
     return shift, n, a, b, cu0, cu1, cv0, cv1
 
 
-def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk: Block, cfg: SgmConfig
-                ) -> tuple[NDArray[np.float32], NDArray, NDArray[np.bool_]]:
+def match_block(rect: Rectification, left_img: NDArray | WindowedImage, right_img: NDArray | WindowedImage,
+                blk: Block, cfg: SgmConfig) -> tuple[NDArray[np.float32], NDArray, NDArray[np.bool_]]:
     """Disparities ``(v1-v0, u1-u0)`` of a block (NaN invalid), its left colour crop and validity.
 
     The crop (:func:`block_crop`) carries context where both images have content and the search width; the
     right crop is shifted by the window's start so OpenCV searches ``0..n``.  Columns of the block no right
     pixel can match stay NaN (colour 0, not valid).  ``right_img`` may be grey already (it is only matched, never
-    coloured from: a pair's blocks then share one conversion).
+    coloured from: a pair's blocks then share one conversion).  Either image may be a
+    :class:`~skyrig.dense.rectify.WindowedImage` (only the window the block's crop samples is read); a right one
+    that is RGB is then resampled in colour and converted afterwards, which is not bit-identical to the grey path
+    (give it grey).
     """
     import cv2
 
     from skyrig.dense._phases import phase
 
     bh, bw = blk.v1 - blk.v0, blk.u1 - blk.u0
-    ch = left_img.shape[2:] if left_img.ndim == 3 else ()
+    if isinstance(left_img, WindowedImage):
+        ch: tuple[int, ...] = (left_img.channels,) if left_img.channels > 1 else ()
+    else:
+        ch = left_img.shape[2:] if left_img.ndim == 3 else ()
     disp = np.full((bh, bw), np.nan, np.float32)
-    colour = np.zeros((bh, bw) + ch, left_img.dtype)
+    colour = np.zeros((bh, bw) + ch, np.uint8)
     valid = np.zeros((bh, bw), bool)
     crop = block_crop(rect, blk, cfg)
     if crop is None:
@@ -190,8 +196,12 @@ def match_block(rect: Rectification, left_img: NDArray, right_img: NDArray, blk:
         lc, lvalid = rect.remap(0, left_img, cu0, cv0, w, h)
         lg = cv2.cvtColor(lc, cv2.COLOR_RGB2GRAY) if lc.ndim == 3 else lc
         # the right image is only matched, never coloured from: grey first, one channel resampled
-        rg, rvalid = rect.remap(1, cv2.cvtColor(right_img, cv2.COLOR_RGB2GRAY) if right_img.ndim == 3 else right_img,
-                                cu0 - shift, cv0, w, h)
+        if isinstance(right_img, WindowedImage):
+            rg, rvalid = rect.remap(1, right_img, cu0 - shift, cv0, w, h)
+            rg = cv2.cvtColor(rg, cv2.COLOR_RGB2GRAY) if rg.ndim == 3 else rg
+        else:
+            rg, rvalid = rect.remap(1, cv2.cvtColor(right_img, cv2.COLOR_RGB2GRAY) if right_img.ndim == 3 else right_img,
+                                    cu0 - shift, cv0, w, h)
     d = match_crop(lg, rg, shift, n, cfg, lvalid, rvalid)
     src = (slice(blk.v0 - cv0, blk.v1 - cv0), slice(a - cu0, b - cu0))
     dst = (slice(None), slice(a - blk.u0, b - blk.u0))

@@ -29,7 +29,7 @@ from skyrig.dense._phases import phase
 from skyrig.dense.fusion import CellSorter, FusionConfig, confirm_by_neighbours, fuse_cloud
 from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
 from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
-from skyrig.dense.rectify import Rectification, rectify_pair
+from skyrig.dense.rectify import Rectification, WindowedImage, rectify_pair
 from skyrig.dense.sgm import SgmConfig
 from skyrig.dense.stereo import Block, ImageLoader, PairPoints, block_ground_bounds, block_points, match_block, pair_blocks
 from skyrig.errors import GeometryError, SkyrigError
@@ -407,7 +407,11 @@ def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np
 
 
 def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
-    """Match, triangulate and fuse one ground tile (``plan.tiles[k]``)."""
+    """Match, triangulate and fuse one ground tile (``plan.tiles[k]``).
+
+    ``loader(i)`` gives image ``i`` whole; a loader with a ``windowed_image(i, grey)`` method that returns a
+    :class:`~skyrig.dense.rectify.WindowedImage` (not None) has that image read window by window instead (only what
+    each block samples: memory bounded by the block, not by the image)."""
     import cv2
 
     t0 = time.perf_counter()
@@ -432,6 +436,17 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                 greys[i] = cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im
         return greys[i]
 
+    windowed = getattr(loader, "windowed_image", None)  # a loader that reads large images window by window
+    windows: dict[tuple[int, bool], WindowedImage | None] = {}
+
+    def source(i: int, in_grey: bool) -> NDArray | WindowedImage:
+        if (i, in_grey) not in windows:
+            windows[i, in_grey] = windowed(i, in_grey) if windowed is not None else None
+        wi = windows[i, in_grey]
+        if wi is not None:
+            return wi
+        return grey(i) if in_grey else image(i)
+
     vox = plan.config.cloud_voxel_m or plan.grid.cell_m
     with_cloud = plan.config.cloud and vox == plan.grid.cell_m  # the cloud's voxels on the grid's cells: one sort
     hits = [np.flatnonzero((bb[:, 0] <= xb1) & (bb[:, 2] >= xb0) & (bb[:, 1] <= yb1) & (bb[:, 3] >= yb0))
@@ -444,7 +459,8 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
         for bi in hit:
             blk = bl[bi]
-            disp, colour, _ = match_block(rect, image(pair.left), grey(pair.right), blk, plan.config.sgm)
+            disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), blk,
+                                          plan.config.sgm)
             nblocks += 1
             mpx += disp.size / 1e6
             pp = block_points(rect, blk, disp, colour, plan.config.sgm)

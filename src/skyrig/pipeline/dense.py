@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import json
 import logging
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -21,6 +23,9 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.dense.surface import DenseConfig, DenseStats, _TileJob, assemble, plan_dense
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+
+if TYPE_CHECKING:
+    from skyrig.dense.rectify import WindowedImage
 
 logger = logging.getLogger(__name__)
 
@@ -50,13 +55,20 @@ def sixteen_bit_levels(paths: Sequence[str], max_images: int = 12, samples_per_i
         An image whose header cannot be read, a sample type other than 8 or 16 bit unsigned, or 16-bit images
         without contrast (``hi <= lo``).
     """
+    with _no_georef_warning():  # camera images carry no georeference
+        return _sixteen_bit_levels(paths, max_images, samples_per_image)
+
+
+@contextmanager
+def _no_georef_warning() -> Iterator[None]:
+    """rasterio's warning that a file has no georeference, silenced (camera images have none)."""
     import warnings
 
     from rasterio.errors import NotGeoreferencedWarning
 
-    with warnings.catch_warnings():  # camera images carry no georeference
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        return _sixteen_bit_levels(paths, max_images, samples_per_image)
+        yield
 
 
 def _sixteen_bit_levels(paths: Sequence[str], max_images: int, samples_per_image: int) -> tuple[float, float] | None:
@@ -105,10 +117,14 @@ class ImageFiles:
     (:func:`sixteen_bit_levels`, worked out once when the loader is made, unless ``levels`` is given), never by
     OpenCV's shift by 8 bits; :attr:`levels` is None when every image is 8 bit.  :meth:`subset` keeps the levels."""
 
+    #: TIFFs of at least this many pixels are read window by window by the dense chain (:meth:`windowed_image`)
+    WINDOW_MIN_PIXELS = 60_000_000
+
     def __init__(self, paths: Sequence[str], sizes: Sequence[tuple[int, int]],
-                 levels: tuple[float, float] | None | str = "auto") -> None:
+                 levels: tuple[float, float] | None | str = "auto", window_min_pixels: int | None = None) -> None:
         self.paths = [str(p) for p in paths]
         self.sizes = [tuple(s) for s in sizes]
+        self.window_min_pixels = self.WINDOW_MIN_PIXELS if window_min_pixels is None else int(window_min_pixels)
         if len(self.paths) != len(self.sizes):
             raise SkyrigError(f"{len(self.paths)} image files for {len(self.sizes)} image sizes")
         if isinstance(levels, str):
@@ -119,7 +135,67 @@ class ImageFiles:
 
     def subset(self, rows: Sequence[int]) -> "ImageFiles":
         """The loader of images ``rows`` (in that order), with this loader's levels."""
-        return ImageFiles([self.paths[i] for i in rows], [self.sizes[i] for i in rows], self.levels)
+        return ImageFiles([self.paths[i] for i in rows], [self.sizes[i] for i in rows], self.levels,
+                          self.window_min_pixels)
+
+    def windowed_image(self, i: int, grey: bool = False) -> WindowedImage | None:
+        """Image ``i`` to be read window by window (RGB, or grey with ``grey``), or None when it is read whole: a
+        TIFF of at least ``window_min_pixels`` pixels (a large-format aerial frame: 100-450 MP, 0.3-1.4 GB in RGB
+        each, of which a block of the dense chain samples a few megapixels) that is not palette-coded.  The windows
+        hold the values the whole image has there (the same levels; tested bit for bit on uncompressed and deflate
+        TIFFs; GDAL decodes them instead of OpenCV)."""
+        from skyrig.dense.rectify import WindowedImage
+
+        w, h = self.sizes[i]
+        if w * h < self.window_min_pixels or Path(self.paths[i]).suffix.lower() not in (".tif", ".tiff"):
+            return None
+        info = self._window_info(i)
+        if info is None:
+            return None
+        return WindowedImage(w, h, 1 if grey else 3, partial(self._read_window, i, grey, info))
+
+    def _window_info(self, i: int) -> tuple[list[int], str] | None:
+        """Bands to read (RGB or grey) and the sample type, None when the file is not read in windows."""
+        import rasterio
+        from rasterio.enums import ColorInterp
+
+        p = self.paths[i]
+        with _no_georef_warning(), rasterio.open(p) as ds:
+            if (ds.width, ds.height) != self.sizes[i]:
+                raise InputFormatError(f"image is {ds.width} x {ds.height} px but its camera is {self.sizes[i][0]} x "
+                                       f"{self.sizes[i][1]} px (wrong camera, or a resized copy)", p)
+            if ds.colorinterp and ds.colorinterp[0] == ColorInterp.palette:
+                return None
+            return ([1, 2, 3] if ds.count >= 3 else [1]), ds.dtypes[0]
+
+    def _read_window(self, i: int, grey: bool, info: tuple[list[int], str], c0: int, r0: int, c1: int, r1: int
+                     ) -> np.ndarray:
+        import cv2
+        import rasterio
+        from rasterio.windows import Window
+
+        bands, _ = info
+        with _no_georef_warning(), rasterio.open(self.paths[i]) as ds:
+            a = ds.read(bands, window=Window(c0, r0, c1 - c0, r1 - r0))
+        img = np.ascontiguousarray(np.moveaxis(a, 0, -1) if len(bands) == 3 else a[0])
+        img = self._to_8bit(img, i)
+        if grey:
+            return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+        return img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+
+    def _to_8bit(self, img: np.ndarray, i: int) -> np.ndarray:
+        """An 8 or 16-bit image (any channels) in 8 bit: 16 bit scaled by the block's levels."""
+        import cv2
+
+        if img.dtype == np.uint16:
+            if self.levels is None:
+                raise InputFormatError("16-bit image in a block whose levels were worked out as all 8 bit (the file "
+                                       "changed since?)", self.paths[i])
+            lo, hi = self.levels  # whole numbers: the subtraction is exact in 16 bits (saturating at 0)
+            return cv2.convertScaleAbs(cv2.subtract(img, (lo, lo, lo, 0.0)), alpha=255.0 / (hi - lo))
+        if img.dtype != np.uint8:
+            raise InputFormatError(f"unsupported sample type {img.dtype} (8 or 16 bit expected)", self.paths[i])
+        return img
 
     def __call__(self, i: int) -> np.ndarray:
         import cv2
@@ -132,15 +208,7 @@ class ImageFiles:
             raise InputFormatError(f"image is {w} x {h} px but its camera is {self.sizes[i][0]} x {self.sizes[i][1]} "
                                    "px (wrong camera, a resized copy, or an EXIF orientation tag that rotates it)",
                                    self.paths[i])
-        if img.dtype == np.uint16:
-            if self.levels is None:
-                raise InputFormatError("16-bit image in a block whose levels were worked out as all 8 bit (the file "
-                                       "changed since?)", self.paths[i])
-            lo, hi = self.levels  # whole numbers: the subtraction is exact in 16 bits (saturating at 0)
-            img = cv2.convertScaleAbs(cv2.subtract(img, (lo, lo, lo, 0.0)), alpha=255.0 / (hi - lo))
-        elif img.dtype != np.uint8:
-            raise InputFormatError(f"unsupported sample type {img.dtype} (8 or 16 bit expected)", self.paths[i])
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return cv2.cvtColor(self._to_8bit(img, i), cv2.COLOR_BGR2RGB)
 
 
 def find_images(eo: ExteriorOrientations, images: Sequence[str]) -> list[str]:
