@@ -10,6 +10,10 @@ the tumblecam scenario's amplitudes) and, per circle and position, a repeat erro
 repeatability (2 sigma -> 1 sigma).  Images are rendered exactly (every pixel's ray meets the plane, texture
 sampled bilinearly, 1 DN noise).  The recipe is run with the nominal rig (no curve) and the recovered curve is
 compared with the true one; oblique image points are projected with the calibrated and the uncalibrated rig.
+With ``--seeds`` the summary pools the labs' normalised errors, (estimate - truth) / stated sigma, of the lookup
+values and of the Fourier terms (plain, whitened with the stated covariance, and for the lookup against the old upper
+bound), per axis and all axes: mean, std, RMS and the Kolmogorov-Smirnov p against N(0, 1); and how many labs have
+every value within the stated simultaneous band.
 """
 
 from __future__ import annotations
@@ -216,6 +220,9 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
     rep_part = err_img.mean(axis=0)  # the part that repeats over the circles (+ varying / sqrt(C))
     rep_draw = (lab.true_rad - lab.true_curve(cal.beta_rad)[None]).mean(axis=0)  # injected repeat errors, circle mean
     vary = np.sqrt(np.sum((err_img - rep_part) ** 2, axis=(0, 1)) / (k * (c - 1)))
+    # the realised repeating share of the fit variance: the circle-mean comparison error's variance less the
+    # varying part's over C, over the mean fit variance (what TumblingCalibration.repeat_share estimates)
+    share = (np.mean(rep_part ** 2, axis=0) - vary ** 2 / c) / cal.measurement_variance_rad2
     fit_sig = np.sqrt(cal.measurement_variance_rad2)
     se = cal.standard_error_rad  # (K, 3) the recipe's
     z = err / se
@@ -251,7 +258,9 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
                   "repeat_draw_mean_over_positions_mdeg": md(rep_draw[:, i].mean()),
                   "repeat_draw_mean_expected_sd_mdeg": md(lab.repeat_sigma_rad[i] / np.sqrt(c * k)),
                   "mechanism_over_injected": float(mech[i] / lab.repeat_sigma_rad[i]),
-                  "mechanism_over_realised": float(mech[i] / realised[i])}
+                  "mechanism_over_realised": float(mech[i] / realised[i]),
+                  "repeat_share_realised": float(share[i]), "repeat_share_estimated": float(cal.repeat_share.share[i]),
+                  "repeat_share_se": float(cal.repeat_share.share_se[i])}
     # a check of the per-position sigma that needs no truth: the mean curve is smooth, so a Fourier series of an order
     # above the curve's fits it to its noise; the weighted residuals' variance factor (chi-square / dof) is then
     # about 1 when the per-position sigma is right, below 1 when it is conservative
@@ -280,13 +289,22 @@ def judge_statement(lab: Lab, cal: Any, level: float = 0.95) -> dict[str, Any]:
 
     truth = lab.true_curve(cal.beta_rad)
     st = cal.curve_statement(level)  # the bands as the recipe states them
-    z_l = (cal.mean_rad - truth) / cal.standard_error_rad
+    err = cal.mean_rad - truth
+    z_l = err / cal.standard_error_rad
     c_l = st["lookup"]["simultaneous_z"]
+    # whitened with the stated 3 x 3 covariance of each position (the axes of a position are correlated)
+    chol = np.linalg.cholesky(cal.mean_covariance_rad2)
+    w_l = np.linalg.solve(chol, err[..., None])[..., 0]
+    z_b = err / cal.standard_error_bound_rad
     out: dict[str, Any] = {"level": level, "lookup": {
         "beyond_2sigma": np.sum(np.abs(z_l) > 2, axis=0).tolist(), "max_abs_z": float(np.abs(z_l).max()),
         "simultaneous_z": c_l, "every_within_2sigma": bool(np.all(np.abs(z_l) <= 2)),
         "within_simultaneous": bool(np.all(np.abs(z_l) <= c_l)),
-        "p_every_within_2sigma_if_exact": st["lookup"]["p_every_value_within_2sigma"]}}
+        "p_every_within_2sigma_if_exact": st["lookup"]["p_every_value_within_2sigma"],
+        "repeat_share": cal.repeat_share.share.tolist(), "repeat_share_se": cal.repeat_share.share_se.tolist(),
+        "repeat_share_order": cal.repeat_share.order, "sigma_dof_median": st["lookup"]["sigma_dof_median"],
+        "z": z_l.tolist(), "z_whitened": w_l.tolist(), "z_bound": z_b.tolist(),
+        "within_simultaneous_bound": bool(np.all(np.abs(z_b) <= c_l))}}
     if "fourier" in st:
         f = cal.fourier_curve()
         z_f = (f(cal.beta_rad) - truth) / f.sigma_rad(cal.beta_rad)
@@ -296,13 +314,15 @@ def judge_statement(lab: Lab, cal: Any, level: float = 0.95) -> dict[str, Any]:
         a = fourier_design(cal.beta_rad, f.order)
         t_coef = np.linalg.lstsq(a, truth, rcond=None)[0]
         z_c = (f.coefficients_rad - t_coef) / np.sqrt(np.diagonal(f.covariance_rad2, axis1=1, axis2=2)).T
+        w_c = np.stack([np.linalg.solve(np.linalg.cholesky(f.covariance_rad2[i]), f.coefficients_rad[:, i]
+                                        - t_coef[:, i]) for i in range(3)], axis=1)  # per axis N(0, I)
         out["fourier"] = {"order": f.order, "variance_factor": f.variance_factor.tolist(),
                           "beyond_2sigma": np.sum(np.abs(z_f) > 2, axis=0).tolist(),
                           "max_abs_z": np.abs(z_f).max(axis=0).tolist(), "simultaneous_z": c_f,
                           "every_within_2sigma": bool(np.all(np.abs(z_f) <= 2)),
                           "within_simultaneous": bool(np.all(np.abs(z_f) <= c_f)),
                           "p_every_within_2sigma": st["fourier"]["p_every_value_within_2sigma"],
-                          "terms_z": z_c.tolist(),
+                          "terms_z": z_c.tolist(), "terms_z_whitened": w_c.tolist(),
                           "value_sigma_median_mdeg": (1000 * np.degrees(np.median(f.sigma_rad(cal.beta_rad), axis=0))
                                                       ).tolist(),
                           "err_rms_mdeg": (1000 * np.degrees(np.sqrt(np.mean((f(cal.beta_rad) - truth) ** 2, axis=0)))
@@ -327,7 +347,8 @@ def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int
         k = lab.beta_rad.size
         cal = TumblingCalibration(lab.beta_rad, np.array([f"{c + 1}" for c in range(circles)]), d["corr"], d["sig"],
                                   np.asarray(lab.names).reshape(circles, k), d["win"],
-                                  BoresightCurve.from_circles(lab.beta_rad, d["corr"]), lab.setup)
+                                  BoresightCurve.from_circles(lab.beta_rad, d["corr"]), lab.setup,
+                                  d["cov"] if "cov" in d.files else None)
         return lab, cal, 0.0, 0.0
     imgs, ref = render_lab(lab)
     t1 = time.perf_counter()
@@ -337,7 +358,8 @@ def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
         tmp = f.with_suffix(".tmp.npz")
-        np.savez(tmp, true_rad=lab.true_rad, corr=cal.corrections_rad, sig=cal.sigma_rad, win=cal.windows)
+        np.savez(tmp, true_rad=lab.true_rad, corr=cal.corrections_rad, sig=cal.sigma_rad, win=cal.windows,
+                 cov=cal.fit_covariance_rad2)
         tmp.replace(f)
     return lab, cal, t1 - t0, t2 - t1
 
@@ -350,9 +372,28 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
+def z_stats(z: Any) -> dict[str, Any]:
+    """Count, mean, std, RMS and the Kolmogorov-Smirnov p-value against N(0, 1) of normalised errors."""
+    from scipy.stats import kstest
+
+    z = np.asarray(z, dtype=np.float64).ravel()
+    return {"n": int(z.size), "mean": float(z.mean()), "std": float(z.std()), "rms": float(np.sqrt(np.mean(z ** 2))),
+            "ks_p": float(kstest(z, "norm").pvalue)}
+
+
+def z_table(zs: list[Any]) -> dict[str, Any]:
+    """:func:`z_stats` pooled over the labs' ``(n, 3)`` normalised errors, per axis and all axes."""
+    from skyrig.rig.boresight_curve import AXES
+
+    z = np.concatenate([np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in zs])
+    return {"pooled": z_stats(z), **{a: z_stats(z[:, i]) for i, a in enumerate(AXES)}}
+
+
 def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Over the seeds: how often every position is within 2 sigma and within the simultaneous band, per statement;
-    the pooled z of the series' terms; Tab. 2's repeatability and the image-point error."""
+    the normalised errors of the lookup values and the series' terms (per axis and pooled; plain, whitened with the
+    stated covariance, and for the lookup against the old upper bound) with their KS p-values; Tab. 2's
+    repeatability and the image-point error."""
     from scipy.stats import kstest
 
     from skyrig.rig.boresight_curve import AXES
@@ -368,7 +409,17 @@ def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
                   "beyond_2sigma_per_seed": [r["beyond_2sigma"] for r in rs],
                   "max_abs_z_per_seed": [r["max_abs_z"] for r in rs],
                   "simultaneous_z": [r["simultaneous_z"] for r in rs]}
+        if m == "lookup":
+            out[m] |= {"within_simultaneous_bound": f"{sum(r['within_simultaneous_bound'] for r in rs)}/{n}",
+                       "z": z_table([r["z"] for r in rs]), "z_whitened": z_table([r["z_whitened"] for r in rs]),
+                       "z_bound": z_table([r["z_bound"] for r in rs]),
+                       "repeat_share_per_seed": [r["repeat_share"] for r in rs],
+                       "repeat_share_mean": np.mean([r["repeat_share"] for r in rs], axis=0).tolist(),
+                       "repeat_share_sd": np.std([r["repeat_share"] for r in rs], axis=0).tolist(),
+                       "repeat_share_se_mean": np.nanmean([r["repeat_share_se"] for r in rs], axis=0).tolist()}
         if m == "fourier":
+            out[m] |= {"terms_z_table": z_table([r["terms_z"] for r in rs]),
+                       "terms_z_whitened": z_table([r["terms_z_whitened"] for r in rs])}
             z = np.concatenate([np.ravel(r["terms_z"]) for r in rs])
             out[m] |= {"orders": [r["order"] for r in rs], "terms_z_rms": float(np.sqrt(np.mean(z ** 2))),
                        "terms_z_mean": float(np.mean(z)), "terms": int(z.size),
@@ -381,6 +432,9 @@ def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
                              for r in results],
                          "mechanism_over_injected": [r[a]["mechanism_over_injected"] for r in results]}
                      for a in AXES}
+    out["repeat_share_realised_mean"] = [float(np.mean([r[a]["repeat_share_realised"] for r in results])) for a in AXES]
+    out["repeat_share_estimated_mean"] = [float(np.mean([r[a]["repeat_share_estimated"] for r in results]))
+                                          for a in AXES]
     out["image_points_written_rig_max_px"] = [r["image_points_written_rig"]["max_px"] for r in results]
     out["image_points_written_rig_rms_px"] = [r["image_points_written_rig"]["rms_px"] for r in results]
     return out
@@ -429,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{st['lookup']['max_abs_z']:.2f} (simultaneous {st['lookup']['simultaneous_z']:.2f}); fourier "
                   f"order {st['fourier']['order']} beyond {st['fourier']['beyond_2sigma']} max |z| "
                   f"{max(st['fourier']['max_abs_z']):.2f} (simultaneous {st['fourier']['simultaneous_z']:.2f}); "
-                  f"mechanism/injected {mech}"
+                  f"repeat share {[round(x, 2) for x in st['lookup']['repeat_share']]}; mechanism/injected {mech}"
                   f"; image points (written rig file) max {res['image_points_written_rig']['max_px']:.3f} px",
                   flush=True)
     out: dict[str, Any] = {"args": vars(a) | {"out": str(a.out), "cache": str(a.cache)}, "failed": failed}

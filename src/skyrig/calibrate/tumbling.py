@@ -30,7 +30,11 @@ Sequence (:func:`calibrate_tumbling_head`)
    (:meth:`~skyrig.rig.boresight_curve.BoresightCurve.from_circles`), Tab. 2 with the mechanism's repeatability
    (the scatter over the circles less the fits' measurement variance, with its standard error), and a calibrated
    rig: the rig with the curve on the tumbling head, the curve's standard errors as the head's ``actuator`` block,
-   and provenance.
+   and provenance.  The standard error of the mean at a position is ``pooled^2 / C`` (the circle-to-circle
+   scatter) plus the part of the comparison's error that repeats in every circle, ``lambda`` times the position's
+   fit variance, with ``lambda`` estimated by REML from the mean curve's residuals about a Fourier series
+   (:attr:`TumblingCalibration.repeat_share`); ``lambda = 1`` is the upper bound
+   (:attr:`TumblingCalibration.standard_error_bound_rad`).
 5. The curve's statement (:meth:`TumblingCalibration.curve_statement`, in the JSON report): the per-position
    values (the paper's lookup, the rig file's curve) with their standard errors and Sidak's simultaneous band over
    the ``3 K`` values, and the same curve as a Fourier series in beta (:class:`FourierCurve`, the order by a
@@ -48,6 +52,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, cast
 
 import cv2
@@ -66,8 +71,9 @@ from skyrig.rig.rig import ActuatedHead, Rig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FourierCurve", "measure_position_offset",
-           "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design", "ENU_FROM_BODY"]
+__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FourierCurve", "RepeatShare",
+           "measure_position_offset", "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design",
+           "estimate_repeat_share", "default_max_order", "ENU_FROM_BODY"]
 
 #: lab frame (east, north, up) from body (x forward = north, y right = east, z down)
 ENU_FROM_BODY = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -522,10 +528,13 @@ class FourierCurve:
 
     The series is fitted by weighted least squares to the per-position mean curve (weights ``1 / sigma_k^2``,
     :attr:`TumblingCalibration.standard_error_rad`, positions independent), so its covariance is
-    ``(A^T W A)^-1`` per axis, **not** scaled by the fit's variance factor: the per-position sigma is an upper bound
-    (see :attr:`TumblingCalibration.standard_error_rad`), and a variance factor below 1 says so without telling
-    which part of the error repeats.  The axes are fitted separately (the per-position correlations between axes
-    are not estimated).
+    ``(A^T W A)^-1`` per axis, **not** scaled by the fit's variance factor: the per-position sigma already holds
+    the variance estimated from these residuals (the repeating comparison error's share,
+    :attr:`TumblingCalibration.repeat_share`, by REML at the order stated), so the variance factor is about 1 by
+    construction there and scaling by it would count the residuals twice.  The sigmas are estimates, so a term's
+    ``error / sigma`` is about Student-t with the degrees of freedom of :attr:`TumblingCalibration.standard_error_dof`
+    (about the series' ``dof`` where the repeating part dominates); the bands below take the sigmas as exact.  The
+    axes are fitted separately (the per-position correlations between axes are not used).
 
     Attributes
     ----------
@@ -537,9 +546,9 @@ class FourierCurve:
     covariance_rad2
         ``(3, 2 N + 1, 2 N + 1)`` their covariance per axis (radians^2).
     variance_factor
-        ``(3,)`` weighted residual square sum / ``dof`` (a diagnostic; 1 if the series holds the curve and the
-        per-position sigma is right, below 1 where the sigma is conservative, above 1 where the series misses
-        harmonics).
+        ``(3,)`` weighted residual square sum / ``dof`` (a diagnostic; about 1 if the series holds the curve and the
+        per-position sigma is right, below 1 where the sigma is conservative (a share held at 1, the bound), above 1
+        where the series misses harmonics).
     dof
         Redundancy of the fit (positions - terms).
     harmonic_chi2
@@ -634,7 +643,7 @@ def fit_fourier_curve(beta_rad: ArrayLike, values_rad: ArrayLike, sigma_rad: Arr
         if int(order) < 0 or 2 * int(order) + 1 > k:
             raise SkyrigError(f"Fourier curve: order {order} needs {2 * int(order) + 1} positions, the curve has {k}")
         return fit(int(order))
-    top = max(1, min(12, (k - 2) // 4)) if max_order is None else int(max_order)
+    top = default_max_order(k) if max_order is None else int(max_order)
     if 2 * top + 1 > k:
         raise SkyrigError(f"Fourier curve: order {top} needs {2 * top + 1} positions, the curve has {k}")
     full = fit(top)
@@ -642,6 +651,95 @@ def fit_fourier_curve(beta_rad: ArrayLike, values_rad: ArrayLike, sigma_rad: Arr
     chosen = fit(int(sig.max()) + 1 if sig.size else 1)
     return FourierCurve(chosen.order, chosen.coefficients_rad, chosen.covariance_rad2, chosen.variance_factor,
                         chosen.dof, full.harmonic_chi2)
+
+
+def default_max_order(positions: int) -> int:
+    """The order a Fourier curve of ``positions`` values is first fitted at (the selection's start, and the series the
+    repeating error's share is first estimated with): ``min(12, (K - 2) // 4)``, at least 1."""
+    return max(1, min(12, (int(positions) - 2) // 4))
+
+
+@dataclass(frozen=True)
+class RepeatShare:
+    """The repeating part of the image comparison's error, as a share of the fits' variance, per axis
+    (:func:`estimate_repeat_share`).
+
+    Attributes
+    ----------
+    share
+        ``(3,)`` ``lambda``: the repeating error's variance at a position is ``lambda`` times the position's mean fit
+        variance; in ``[0, 1]`` (1: the fit variance is all repeating, the upper bound; 0: none repeats).
+    share_se
+        ``(3,)`` its standard error (REML Fisher information, ``sqrt(2 / tr(P F P F))``).
+    order
+        Order of the Fourier series whose residuals estimated it.
+    dof
+        Redundancy of that series (positions - terms).
+    """
+
+    share: NDArray[np.float64]
+    share_se: NDArray[np.float64]
+    order: int
+    dof: int
+
+
+def estimate_repeat_share(beta_rad: ArrayLike, values_rad: ArrayLike, scatter_var_rad2: ArrayLike,
+                          fit_var_rad2: ArrayLike, order: int) -> RepeatShare:
+    """Restricted maximum likelihood (REML) estimate of the share ``lambda`` in the per-position variance model
+    ``var_k = s + lambda f_k`` of a curve's values, from the residuals of a Fourier series of ``order`` that holds
+    the curve.
+
+    ``values_rad`` ``(K, 3)``: the per-position values (the mean curve); ``scatter_var_rad2`` ``(3,)`` or ``(K, 3)``:
+    the known part ``s`` (the circle-to-circle scatter over ``C``); ``fit_var_rad2`` ``(K, 3)``: ``f_k`` (the mean
+    fit variance of the position's images).  Per axis the REML log-likelihood
+    ``-1/2 (sum log var_k + log det(A^T W A) + y^T P y)``, ``W = diag(1 / var_k)``, ``P = W - W A (A^T W A)^-1 A^T W``,
+    is maximised over ``lambda in [0, 1]`` (bounded Brent); its standard error is ``sqrt(2 / tr(P F P F))`` at the
+    estimate (``F = diag(f_k)``).  The REML estimate accounts for the ``2 order + 1`` terms the series takes from the
+    residuals (the plain ``max(vf s^2 - s, 0) / f`` would not, and would not weight the positions).  A series that
+    misses a harmonic of the curve puts it into the residuals and the share leans high (towards the bound); a share
+    at 1 says the residuals are as large as the bound allows or larger.
+    """
+    from scipy.optimize import minimize_scalar
+
+    b = np.asarray(beta_rad, dtype=np.float64).reshape(-1)
+    k = b.size
+    y = np.asarray(values_rad, dtype=np.float64).reshape(k, 3)
+    s = np.broadcast_to(np.asarray(scatter_var_rad2, dtype=np.float64), (k, 3))
+    f = np.asarray(fit_var_rad2, dtype=np.float64).reshape(k, 3)
+    a = fourier_design(b, order)
+    if k <= a.shape[1]:
+        raise SkyrigError(f"repeat share: a series of order {order} needs more than {a.shape[1]} positions, got {k}")
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(s)) and np.all(s >= 0) and np.all(np.isfinite(f))
+            and np.all(f > 0)):
+        raise SkyrigError("repeat share: values and variances must be finite, the fit variances > 0")
+    share, se = np.empty(3), np.empty(3)
+    for i in range(3):
+        yi, si, fi = y[:, i], s[:, i], f[:, i]
+        floor = 1e-12 * float(np.mean(fi))
+
+        def p_matrix(lam: float, si: NDArray[np.float64] = si, fi: NDArray[np.float64] = fi,
+                     floor: float = floor) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+            v = np.maximum(si + lam * fi, floor)
+            w = 1.0 / v
+            aw = a * w[:, None]
+            n_mat = a.T @ aw
+            pm = np.diag(w) - aw @ np.linalg.solve(n_mat, aw.T)
+            return pm, v, float(np.linalg.slogdet(n_mat)[1])
+
+        def neg_loglik(lam: float, yi: NDArray[np.float64] = yi) -> float:
+            pm, v, logdet_n = p_matrix(lam)
+            return 0.5 * (float(np.sum(np.log(v))) + logdet_n + float(yi @ pm @ yi))
+
+        res = minimize_scalar(neg_loglik, bounds=(0.0, 1.0), method="bounded", options={"xatol": 1e-9})
+        lam = float(res.x)
+        for end in (0.0, 1.0):  # Brent stops xatol short of a bound: the bound itself if it is as likely
+            if neg_loglik(end) <= neg_loglik(lam):
+                lam = end
+        pm = p_matrix(lam)[0]
+        pf = pm * fi[None, :]
+        share[i] = lam
+        se[i] = float(np.sqrt(2.0 / max(float(np.sum(pf * pf.T)), 1e-300)))
+    return RepeatShare(share, se, int(order), int(k - a.shape[1]))
 
 
 @dataclass
@@ -703,18 +801,78 @@ class TumblingCalibration:
         window shifts, :func:`measure_position_offset`)."""
         return np.mean(self.sigma_rad ** 2, axis=(0, 1))
 
+    @cached_property
+    def repeat_share(self) -> RepeatShare:
+        """The repeating part of the image comparison's error as a share ``lambda`` of the fit variance, per axis
+        (:func:`estimate_repeat_share` on the mean curve).
+
+        The mean curve's error at position ``k`` is the circle mean of the mechanism's repeat errors and of the part
+        of the comparison's error that changes from circle to circle (image noise, the sampling phase), variance
+        ``pooled^2 / C``, plus the part that repeats (the same texture is compared at a position in every circle),
+        which does not average out: ``rep_k^2``, independent between positions.  Its shape follows the position's
+        fit variance (the repeating part of the window shifts goes through the same ``(J^T J)^-1``):
+        ``rep_k^2 = lambda f_k`` with ``0 <= lambda <= 1`` (all of a fit's error at most repeats).  A smooth series
+        that holds the curve leaves residuals with variance ``pooled^2 / C + lambda f_k``; ``lambda`` is their REML
+        estimate, ``pooled^2`` taken as known (``K (C - 1)`` degrees of freedom).  The series: first the default
+        highest order (:func:`default_max_order`), then the order :func:`fit_fourier_curve` selects (``alpha = 1e-3``)
+        with the sigmas of that share, re-estimated until the order repeats (the final share is estimated with the
+        series :meth:`fourier_curve` states).  Fewer than 4 positions: no redundancy, ``lambda = 1`` (the bound),
+        ``order`` and ``dof`` 0."""
+        c, k = self.corrections_rad.shape[:2]
+        s = self.pooled_std_rad ** 2 / c
+        f = np.mean(self.sigma_rad ** 2, axis=0)
+        if k < 4:
+            return RepeatShare(np.ones(3), np.full(3, np.nan), 0, 0)
+        order = default_max_order(k)
+        rs = estimate_repeat_share(self.beta_rad, self.mean_rad, s, f, order)
+        for _ in range(5):
+            n = fit_fourier_curve(self.beta_rad, self.mean_rad, np.sqrt(s + rs.share * f), None, 1e-3).order
+            if n == order:
+                break
+            order = n
+            rs = estimate_repeat_share(self.beta_rad, self.mean_rad, s, f, order)
+        return rs
+
     @property
     def standard_error_rad(self) -> NDArray[np.float64]:
-        """``(K, 3)`` standard error of the mean curve: ``sqrt(pooled^2 / C + fit_k^2)``, ``pooled`` the
+        """``(K, 3)`` standard error of the mean curve: ``sqrt(pooled^2 / C + lambda fit_k^2)``, ``pooled`` the
         repeatability pooled over the positions (one position's own std has only ``C - 1`` degrees of freedom, too
-        few to weight it), ``fit_k^2`` the mean fit variance of the position's images.
+        few to weight it), ``fit_k^2`` the mean fit variance of the position's images and ``lambda`` the share of
+        it that repeats from circle to circle (:attr:`repeat_share`, estimated from the mean curve's residuals about
+        a Fourier series).
 
-        An upper bound: the scatter over the circles holds the part of the image comparison's error that changes
-        from circle to circle (image noise, the sampling phase); the part that repeats (the same texture is
-        compared at a position in every circle) does not average out and is bounded by the fit variance, added in
-        full."""
+        An estimate, not a bound: the scatter over the circles holds the mechanism's repeat error and the part of
+        the comparison's error that changes from circle to circle; the repeating part is added once, as estimated.
+        Both variance parts are estimated, so ``(mean - truth) / standard_error`` is about Student-t with
+        :attr:`standard_error_dof` degrees of freedom (near N(0, 1) at 30 or more).  The upper bound the recipe
+        stated before (the fit variance added in full, ``lambda = 1``) is :attr:`standard_error_bound_rad`."""
+        c = self.corrections_rad.shape[0]
+        lam = self.repeat_share.share
+        return np.sqrt(self.pooled_std_rad[None] ** 2 / c + lam[None] * np.mean(self.sigma_rad ** 2, axis=0))
+
+    @property
+    def standard_error_bound_rad(self) -> NDArray[np.float64]:
+        """``(K, 3)`` an upper bound of the mean curve's standard error: ``sqrt(pooled^2 / C + fit_k^2)``, the fit
+        variance added in full as the bound of the repeating comparison error (``lambda = 1`` in
+        :attr:`standard_error_rad`; it counts the part of the comparison's error that changes from circle to circle
+        twice: once in ``pooled`` and again in the fit variance)."""
         c = self.corrections_rad.shape[0]
         return np.sqrt(self.pooled_std_rad[None] ** 2 / c + np.mean(self.sigma_rad ** 2, axis=0))
+
+    @property
+    def standard_error_dof(self) -> NDArray[np.float64]:
+        """``(K, 3)`` Satterthwaite's degrees of freedom of :attr:`standard_error_rad`'s variance
+        ``v_k = s + lambda f_k``: ``2 v_k^2 / (2 s^2 / (K (C - 1)) + f_k^2 se(lambda)^2)``, ``s = pooled^2 / C`` a
+        chi-square with ``K (C - 1)`` degrees of freedom and ``se(lambda)`` :attr:`repeat_share`'s standard error
+        (the share is estimated from the series' ``dof`` residuals, so this is about ``dof`` where the repeating
+        part dominates and about ``K (C - 1)`` where the scatter does)."""
+        c, k = self.corrections_rad.shape[:2]
+        s = self.pooled_std_rad[None] ** 2 / c
+        f = np.mean(self.sigma_rad ** 2, axis=0)
+        rs = self.repeat_share
+        v = s + rs.share[None] * f
+        var_v = 2 * s ** 2 / (k * (c - 1)) + f ** 2 * np.nan_to_num(rs.share_se)[None] ** 2
+        return 2 * v ** 2 / np.maximum(var_v, 1e-300)
 
     @property
     def fit_covariance_rad2(self) -> NDArray[np.float64]:
@@ -728,11 +886,13 @@ class TumblingCalibration:
     def mean_covariance_rad2(self) -> NDArray[np.float64]:
         """``(K, 3, 3)`` covariance of the mean curve per position, the matrix form of :attr:`standard_error_rad`:
         the scatter over the circles pooled over the positions (``K (C - 1)`` degrees of freedom) over ``C`` plus
-        the position's mean fit covariance.  Its diagonal is ``standard_error_rad^2``; positions uncorrelated."""
+        the repeating part, the position's mean fit covariance scaled by ``sqrt(lambda_i lambda_j)``
+        (:attr:`repeat_share`).  Its diagonal is ``standard_error_rad^2``; positions uncorrelated."""
         c = self.corrections_rad.shape[0]
         dev = self.corrections_rad - self.mean_rad[None]
         scatter = np.einsum("cki,ckj->ij", dev, dev) / (dev.shape[1] * (c - 1))
-        return scatter[None] / c + self.fit_covariance_rad2.mean(axis=0)
+        root = np.sqrt(self.repeat_share.share)
+        return scatter[None] / c + self.fit_covariance_rad2.mean(axis=0) * np.outer(root, root)[None]
 
     def mechanism_repeatability_rad(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(std, se)``, each ``(3,)`` radians, 1 sigma: the mechanism's own repeatability with the measurement
@@ -742,7 +902,10 @@ class TumblingCalibration:
 
         The scatter over the circles holds the mechanism's repeat error and the part of the comparison's error
         that changes from circle to circle; ``m`` also holds the part that repeats, so the estimate leans low by at
-        most that part (on the simulated lab it is about a third of ``m``).  Where ``pooled^2 <= m`` the std is 0
+        most that part, ``lambda m`` with ``lambda`` the share of :attr:`repeat_share` (on the simulated 72 x 5 lab
+        at 320 px the realised share averages 0.16-0.21 per axis over 24 labs; the estimate is not used here: it
+        averages 0.19-0.24 and scatters by 0.13-0.27 between labs, as much as the bias it would
+        remove).  Where ``pooled^2 <= m`` the std is 0
         and ``se`` is the one-sided bound ``sqrt(2 sd(pooled^2))``."""
         c, k = self.corrections_rad.shape[:2]
         dof = k * (c - 1)
@@ -763,26 +926,39 @@ class TumblingCalibration:
     def fourier_curve(self, order: int | None = None, alpha: float = 1e-3) -> FourierCurve:
         """The mean curve stated as a Fourier series in the actuator angle with the covariance of its terms
         (:func:`fit_fourier_curve` on :attr:`mean_rad` weighted by :attr:`standard_error_rad`; ``order`` None: the
-        highest harmonic that differs from zero at ``alpha``)."""
+        highest harmonic that differs from zero at ``alpha``; at the default ``alpha`` this is the order
+        :attr:`repeat_share` was estimated with)."""
         return fit_fourier_curve(self.beta_rad, self.mean_rad, self.standard_error_rad, order, alpha)
 
     def curve_statement(self, level: float = 0.95, order: int | None = None) -> dict[str, Any]:
         """How far the estimated curve may be from the mechanism's, stated two ways (JSON-ready, 1/1000 deg).
 
         ``lookup``: the per-position means (paper 000's table, written into the rig file) with their standard
-        errors, positions independent: the simultaneous band over the ``3 K`` values is Sidak's ``|z|`` bound
-        (:func:`skyrig.adjust.stats.sidak_z`), and "every value within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact
-        (higher, as they are upper bounds).  ``fourier``: the series of :meth:`fourier_curve` with its terms'
-        sigma, its values' sigma at the positions, the simultaneous band from its covariance (the values are
-        correlated) and the probability of "every value within 2 sigma" under that covariance."""
+        errors (:attr:`standard_error_rad`: estimates, not bounds), positions independent: the simultaneous band
+        over the ``3 K`` values is Sidak's ``|z|`` bound (:func:`skyrig.adjust.stats.sidak_z`), and "every value
+        within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact; also the repeating comparison
+        error's share of the fit variance (:attr:`repeat_share`, with its standard error, the series order and
+        redundancy it was estimated with), the sigmas' median degrees of freedom per axis
+        (:attr:`standard_error_dof`) and the upper bound of the sigmas (:attr:`standard_error_bound_rad`).
+        ``fourier``: the series of :meth:`fourier_curve` with its terms' sigma, its values' sigma at the
+        positions, the simultaneous band from its covariance (the values are correlated) and the probability of
+        "every value within 2 sigma" under that covariance."""
         from scipy.stats import norm
 
         k = int(self.beta_rad.size)
         md = 1000.0 * 180.0 / np.pi
         p2 = float((2.0 * norm.cdf(2.0) - 1.0) ** (3 * k))
+        rs = self.repeat_share
+        dof = np.median(self.standard_error_dof, axis=0)
         out: dict[str, Any] = {"level": level, "lookup": {
             "values": 3 * k, "simultaneous_z": sidak_z(3 * k, level), "p_every_value_within_2sigma": p2,
-            "sigma_mdeg": {a: (md * self.standard_error_rad[:, i]).tolist() for i, a in enumerate(AXES)}}}
+            "sigma_mdeg": {a: (md * self.standard_error_rad[:, i]).tolist() for i, a in enumerate(AXES)},
+            "sigma_model": "sqrt(pooled^2 / C + repeat_share * fit^2)",
+            "repeat_share": dict(zip(AXES, rs.share.tolist())),
+            "repeat_share_se": dict(zip(AXES, rs.share_se.tolist())),
+            "repeat_share_order": rs.order, "repeat_share_dof": rs.dof,
+            "sigma_dof_median": dict(zip(AXES, dof.tolist())),
+            "sigma_bound_mdeg": {a: (md * self.standard_error_bound_rad[:, i]).tolist() for i, a in enumerate(AXES)}}}
         if k >= 4:  # a series of order 1 with a redundancy
             f = self.fourier_curve(order)
             sd = np.sqrt(np.diagonal(f.covariance_rad2, axis1=1, axis2=2))
@@ -837,8 +1013,9 @@ class TumblingCalibration:
     def rig_calibration(self, flight: str = "", date: str = "", software: str = "",
                         previous: RigCalibration | None = None) -> RigCalibration:
         """The calibration section: the tumbling head's ``actuator`` block (values: the mean curve, degrees;
-        sigma: its standard errors :attr:`standard_error_rad`; uncorrelated) and provenance; other heads kept from
-        ``previous``."""
+        sigma: its standard errors :attr:`standard_error_rad`; correlations: the three axes of a position from
+        :attr:`mean_covariance_rad2`, positions uncorrelated) and provenance (with the repeating comparison error's
+        share :attr:`repeat_share` per axis); other heads kept from ``previous``."""
         names = [f"{a}_deg@{np.degrees(b):.4f}" for b in self.beta_rad for a in AXES]
         values = np.degrees(self.mean_rad).reshape(-1)
         sig = np.degrees(self.standard_error_rad).reshape(-1)
@@ -857,7 +1034,9 @@ class TumblingCalibration:
                  **{f"{a}_fit_sigma_median_deg": float(np.degrees(np.median(self.sigma_rad[..., i])))
                     for i, a in enumerate(AXES)},
                  **{f"{a}_mechanism_std_deg": rep[a]["mechanism_std_deg"] for a in AXES},
-                 **{f"{a}_mechanism_std_se_deg": rep[a]["mechanism_std_se_mdeg"] / 1000 for a in AXES}}
+                 **{f"{a}_mechanism_std_se_deg": rep[a]["mechanism_std_se_mdeg"] / 1000 for a in AXES},
+                 **{f"{a}_repeat_share": float(self.repeat_share.share[i]) for i, a in enumerate(AXES)},
+                 **{f"{a}_repeat_share_se": float(self.repeat_share.share_se[i]) for i, a in enumerate(AXES)}}
         prov = Provenance("tumbling-head", flight, date, software, stats,
                           "laboratory calibration (paper 000, 3.4): tumbling images against a static reference camera "
                           "through a common plane, phase correlation of windows, small-rotation least squares per "
@@ -872,6 +1051,7 @@ class TumblingCalibration:
         """JSON-ready report: Tab. 2, the mean curve with its repeatability, every measurement."""
         fc = self.fit_covariance_rad2
         mc = self.mean_covariance_rad2
+        se, se_bound = self.standard_error_rad, self.standard_error_bound_rad
         return {
             "recipe": "tumbling-head",
             "head": self.setup.head, "reference_head": self.setup.reference_head,
@@ -882,8 +1062,8 @@ class TumblingCalibration:
             "curve": [{"beta_deg": float(np.degrees(b)),
                        **{f"{a}_mdeg": 1000 * float(np.degrees(self.mean_rad[k, i])) for i, a in enumerate(AXES)},
                        **{f"{a}_std_mdeg": 1000 * float(np.degrees(self.std_rad[k, i])) for i, a in enumerate(AXES)},
-                       **{f"{a}_se_mdeg": 1000 * float(np.degrees(self.standard_error_rad[k, i]))
-                          for i, a in enumerate(AXES)},
+                       **{f"{a}_se_mdeg": 1000 * float(np.degrees(se[k, i])) for i, a in enumerate(AXES)},
+                       **{f"{a}_se_bound_mdeg": 1000 * float(np.degrees(se_bound[k, i])) for i, a in enumerate(AXES)},
                        **{f"r_{AXES[i]}_{AXES[j]}": float(mc[k, i, j] / np.sqrt(mc[k, i, i] * mc[k, j, j]))
                           for i, j in ((0, 1), (0, 2), (1, 2))}}
                       for k, b in enumerate(self.beta_rad)],

@@ -288,6 +288,12 @@ def _curve_statement_line(report: dict) -> str:
     out = (f"curve, {pct:.0f} % simultaneous bands: lookup table {lk['values']} values within "
            f"{lk['simultaneous_z']:.2f} sigma (every value within 2 sigma: probability "
            f"{lk['p_every_value_within_2sigma']:.2g} with exact sigmas)")
+    share = lk.get("repeat_share")
+    if share:  # the per-position sigma's model: circle scatter / C + the repeating share of the fit variance
+        se = lk.get("repeat_share_se") or {}
+        out += (f"; per-position sigma = sqrt(pooled^2/C + share x fit^2), the comparison error's repeating share "
+                + ", ".join(f"{a} {v:.2f} +- {se.get(a, float('nan')):.2f}" for a, v in share.items())
+                + f" (REML, series of order {lk.get('repeat_share_order')}, {lk.get('repeat_share_dof')} dof)")
     f = cs.get("fourier")
     if f:
         out += (f"; Fourier series of order {f['order']} within {f['simultaneous_z']:.2f} sigma (every value within "
