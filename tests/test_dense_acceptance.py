@@ -59,7 +59,9 @@ def test_midas_nadir_dsm_from_adjusted_orientations(bench) -> None:
 
 def test_tumblecam_nadir_dsm_from_adjusted_orientations(bench) -> None:
     res = bench.case_tumblecam(CACHE)
-    assert 0.5 < res["adjust"]["sigma0"] < 1.5
+    # the block assumes 0.3 px for the image points; the rendered TumbleCam nadir images give tie points of
+    # 0.09 px RMS (OpenCV 5.0, LSM-refined), so sigma0 is about 0.4: below 1 means better than assumed, not a misfit
+    assert 0.1 < res["adjust"]["sigma0"] < 1.5
     r = res["adjusted"]
     _issue_thresholds(r)
     # measured: flat NMAD 0.29 GSD, bias -0.02 GSD, completeness 100.0 %, outliers 0.26 % of valid cells;
