@@ -305,3 +305,38 @@ def test_polygon_helpers_equal_shapely():
     assert np.allclose(d, shapely.distance(P.exterior, pts), rtol=0, atol=1e-9)
     q = shapely.get_coordinates(shapely.line_interpolate_point(P.exterior, shapely.line_locate_point(P.exterior, pts)))
     assert np.allclose(np.column_stack([nx, ny]), q, rtol=0, atol=1e-9)
+
+
+def test_images_read_in_windows_give_the_same_mosaic_bit_for_bit(scene_block, mosaic):
+    """A loader that reads large images window by window (``windowed_image``, as ``ImageFiles`` does for big
+    TIFFs): the tiles sample only windows of the images (they read no image whole; the plan's views and wall
+    refinement still do, once per image) and the mosaic equals the whole-image one bit for bit."""
+    import traceback
+
+    from skyrig.dense.rectify import WindowedImage
+
+    survey, eo, cams, images, dsm = scene_block
+
+    class Windowed(_Images):
+        whole_in_tiles = 0
+        windows: list = []
+
+        def __call__(self, i):
+            Windowed.whole_in_tiles += any(f.name == "run_ortho_tile" for f in traceback.extract_stack())
+            return super().__call__(i)
+
+        def windowed_image(self, i, grey=False):
+            img = self.images[i]
+
+            def read(c0, r0, c1, r1):
+                Windowed.windows.append((c1 - c0) * (r1 - r0))
+                return img[r0:r1, c0:c1].copy()
+
+            return WindowedImage(img.shape[1], img.shape[0], 3, read)
+
+    m = orthomosaic(eo, cams, dsm, Windowed(images), config=OrthoConfig(tile_cells=128))
+    ref = orthomosaic(eo, cams, dsm, _Images(images), config=OrthoConfig(tile_cells=128))
+    assert Windowed.windows and max(Windowed.windows) < images[0].shape[0] * images[0].shape[1]
+    assert Windowed.whole_in_tiles == 0
+    assert np.array_equal(m.rgb, ref.rgb) and np.array_equal(m.valid, ref.valid)
+    assert np.array_equal(m.source, ref.source)

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense.grid import DsmGrid, GridSpec
+from skyrig.dense.rectify import WindowedImage, sampled_window
 from skyrig.errors import SkyrigError
 from skyrig.geodesy.frame import WorldFrame, local_frame_for
 from skyrig.georef.eo import ExteriorOrientations
@@ -1071,15 +1072,16 @@ def _rays_clear(plan: OrthoPlan, x: NDArray, y: NDArray, z: NDArray, p_local: ND
     return out
 
 
-def _remap_points(img: NDArray[np.uint8], u: NDArray, v: NDArray) -> NDArray[np.float64]:
-    """Bilinear colours ``(n, 3)`` of an image at pixel positions ``u, v`` (1-D)."""
+def _remap_points(img: NDArray[np.uint8], u: NDArray, v: NDArray, c0: int = 0, r0: int = 0) -> NDArray[np.float64]:
+    """Bilinear colours ``(n, 3)`` of an image at pixel positions ``u, v`` (1-D); ``img`` may be a window of the
+    image with its origin at ``(c0, r0)`` (:func:`skyrig.dense.rectify.sampled_window`)."""
     import cv2
 
     n = len(u)
     w = 256 if n > 256 else max(n, 1)
     padn = (-n) % w
-    ub = np.concatenate([u, np.zeros(padn)]).reshape(-1, w).astype(np.float32)
-    vb = np.concatenate([v, np.zeros(padn)]).reshape(-1, w).astype(np.float32)
+    ub = np.concatenate([u, np.zeros(padn)]).reshape(-1, w).astype(np.float32) - np.float32(c0)
+    vb = np.concatenate([v, np.zeros(padn)]).reshape(-1, w).astype(np.float32) - np.float32(r0)
     col = cv2.remap(img, ub, vb, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
     if col.ndim == 2:
         col = col[..., None].repeat(3, axis=2)
@@ -1137,6 +1139,11 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
 
     xcol, yrow = xx[0, :], yy[:, 0]
     p3 = p.reshape(Hh, Ww, 3)
+    windowed = getattr(loader, "windowed_image", None)  # large images read window by window (ImageFiles)
+
+    def source(i: int) -> NDArray | WindowedImage:
+        wi = windowed(i) if windowed is not None else None
+        return loader(i) if wi is None else wi
 
     def footprint(i: int) -> tuple[slice, slice] | None:
         """The part of the padded tile inside image i's DSM window (what it can see)."""
@@ -1186,8 +1193,11 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
                 edges[i] = ((er + sl_i[0].start) * Ww + ec + sl_i[1].start, u[edge], v[edge], tan[edge])
         if not vis.any():
             return
-        img = loader(i)
-        col = cv2.remap(img, np.where(vis, u, -10).astype(np.float32), np.where(vis, v, -10).astype(np.float32),
+        img, wc0, wr0 = sampled_window(source(i), np.where(vis, u, np.nan), np.where(vis, v, np.nan))
+        # float32 first, then the window's origin (exact): the whole image's samples bit for bit where vis (the
+        # other cells get no weight)
+        col = cv2.remap(img, np.where(vis, u, -10).astype(np.float32) - np.float32(wc0),
+                        np.where(vis, v, -10).astype(np.float32) - np.float32(wr0),
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
         if col.ndim == 2:
             col = np.repeat(col[..., None], 3, axis=2)
@@ -1251,7 +1261,8 @@ def run_ortho_tile(plan: OrthoPlan, k: int, loader: ImageLoader) -> OrthoTile:
             if not clear.any():
                 continue
             idx, ue, ve, r_, c_ = idx[clear], ue[clear], ve[clear], r_[clear], c_[clear]
-            col = _remap_points(loader(i), ue, ve) * plan.gains[i][None, :]
+            img, wc0, wr0 = sampled_window(source(i), ue, ve)
+            col = _remap_points(img, ue, ve, wc0, wr0) * plan.gains[i][None, :]
             acc[r_, c_] = col * 1e-9  # the weight of a last resort (any other image's weight wins)
             wsum[r_, c_] = 1e-9
             src[r_, c_] = i

@@ -42,6 +42,29 @@ class WindowedImage:
     read: Callable[[int, int, int, int], NDArray[np.uint8]]
 
 
+def sampled_window(image: NDArray | WindowedImage, u: NDArray, v: NDArray
+                   ) -> tuple[NDArray, int, int]:
+    """The part of ``image`` that bilinear sampling (``cv2.remap``, ``INTER_LINEAR``) at the positions ``u, v``
+    (pixels; non-finite ones ignored) reads, and its origin ``(c0, r0)``: an array is returned whole with origin
+    ``(0, 0)``; of a :class:`WindowedImage` only the positions' bounding box is read, widened by the interpolation's
+    reach and clipped to the image (with ``BORDER_REPLICATE`` too: positions outside the image read its edge, which
+    the clipped box holds).  Sampling the window at ``float32(u) - c0``, ``float32(v) - r0`` (exact in float32) gives
+    the whole image's values bit for bit; an empty selection reads a 1 x 1 window."""
+    if not isinstance(image, WindowedImage):
+        return image, 0, 0
+    uu, vv = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    ok = np.isfinite(uu) & np.isfinite(vv)
+    if not ok.any():
+        return image.read(0, 0, 1, 1), 0, 0
+    cu = np.clip(uu[ok], -2.0, image.width + 1.0)
+    cv_ = np.clip(vv[ok], -2.0, image.height + 1.0)
+    c0 = min(max(0, int(np.floor(cu.min())) - 2), image.width - 1)
+    c1 = max(min(image.width, int(np.floor(cu.max())) + 3), c0 + 1)
+    r0 = min(max(0, int(np.floor(cv_.min())) - 2), image.height - 1)
+    r1 = max(min(image.height, int(np.floor(cv_.max())) + 3), r0 + 1)
+    return image.read(c0, r0, c1, r1), c0, r0
+
+
 @dataclass(frozen=True)
 class Rectification:
     """Rectified geometry of one stereo pair.
