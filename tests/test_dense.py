@@ -524,7 +524,7 @@ def test_cli_writes_cog_and_laz_that_gdal_and_laspy_read(project, tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing_image", "unoriented_image", "geographic_crs", "huge_grid", "no_overlap",
-                                  "no_height_range", "bad_height_range"])
+                                  "no_height_range", "bad_height_range", "negative_window"])
 def test_cli_bad_input_is_a_clear_error_and_writes_nothing(project, tmp_path, case):
     import shutil
 
@@ -555,6 +555,9 @@ def test_cli_bad_input_is_a_clear_error_and_writes_nothing(project, tmp_path, ca
     elif case == "no_height_range":
         extra = []
         want = "--height-range"
+    elif case == "negative_window":
+        extra += ["--window-min-mp", "-1"]
+        want = "--window-min-mp"
     else:
         extra = ["--height-range", "40000", "75000"]
         want = "height range"

@@ -189,6 +189,7 @@ def command(outdir: str | None, output: str | None) -> None:
                f"{a['outliers'] * 100:.2f} %; cloud: {len(dz)} points, median |dz| {np.median(np.abs(dz)) * 100:.1f} cm")
     if not (f["nmad_gsd"] <= 1.0 and abs(f["bias_gsd"]) <= 0.2 and f["completeness"] >= 0.95 and a["outliers"] <= 0.01):
         raise click.ClickException("demo checks FAILED (dense matching)")
+    _sixteen_bit_step(sim_dir, adj_dir, dsm_dir, survey, gsd)
     # --- true orthomosaic on the matched DSM, judged against the scene's true top-surface colours ---------
     click.echo("\n=== true orthomosaic of the nadir images on the matched DSM (COG + source layer + seamlines), "
                "judged against the scene ===")
@@ -299,6 +300,74 @@ def command(outdir: str | None, output: str | None) -> None:
     if abs(hb["estimated"] - hb["injected"]) > 0.2 or fig["corrected"]["c2c_rms_m"] > fig["gnss_heights"]["c2c_rms_m"]:
         raise click.ClickException("demo checks FAILED (lidar)")
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")
+
+
+def _sixteen_bit_step(sim_dir: Path, adj_dir: Path, dsm_dir: Path, survey: Any, gsd: float) -> None:
+    """The nadir images as 12-bit data in 16-bit TIFFs (16 x the 8-bit value + 40, as large-format cameras deliver
+    them), read window by window (``--window-min-mp 0``): a DSM of the block's middle, judged against the scene and
+    against the 8-bit DSM of the same cells."""
+    import json
+    from dataclasses import replace
+
+    import cv2
+
+    from skyrig.io.dsm_cog import read_dsm_cog
+    from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
+    from skyrig.pipeline.dense import find_images
+    from skyrig.pipeline.inputs import select_heads
+    from skyrig.simulate.judge import judge_dsm
+
+    click.echo("\n=== the nadir images as 12-bit TIFFs, read window by window: DSM of the block's middle, judged "
+               "against the scene and the 8-bit DSM ===")
+    eo = select_heads(read_eo_csv(adj_dir / "eo.csv"), "nadir")
+    folder = sim_dir / "images_12bit"
+    folder.mkdir(exist_ok=True)
+    names = []
+    for path in find_images(eo, [str(sim_dir / "images")]):
+        v = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+        name = Path(path).stem + ".tif"
+        if not cv2.imwrite(str(folder / name), 16 * v.astype(np.uint16) + 40):
+            raise click.ClickException(f"could not write {folder / name}")
+        names.append(name)
+    eo16 = sim_dir / "output" / "eo_12bit.csv"
+    write_eo_csv(replace(eo, image=np.array(names)), eo16)
+    # the middle 40 % of the planned block, in the DSM's CRS
+    x0, y0, x1, y1 = survey.spec.flights[0].area
+    cx, cy, hx, hy = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.2 * (x1 - x0), 0.2 * (y1 - y0)
+    box = (cx - hx, cy - hy, cx + hx, cy + hy)
+    dsm8 = read_dsm_cog(dsm_dir / "dsm.tif")
+    from skyrig.geodesy.frame import WorldFrame
+
+    local = WorldFrame.local(*survey.scene.origin)
+    corners = np.array([[box[0], box[1], 0.0], [box[2], box[1], 0.0], [box[0], box[3], 0.0], [box[2], box[3], 0.0]])
+    m = dsm8.frame.from_ecef(local.to_ecef(corners))
+    area = [float(m[:, 0].min()), float(m[:, 1].min()), float(m[:, 0].max()), float(m[:, 1].max())]
+    out = sim_dir / "output" / "dsm_12bit"
+    _run(["dsm", "--eo", str(eo16), "--camera", str(sim_dir / "rig.yaml"), "--images", str(folder),
+          "--points", str(adj_dir / "points.csv"), "--area", *(f"{a:.3f}" for a in area), "--window-min-mp", "0",
+          "--no-cloud", "-o", str(out)])
+    dsm16 = read_dsm_cog(out / "dsm.tif")
+    levels = json.loads((out / "dense.json").read_text())["image_levels_16bit"]
+    j = judge_dsm(dsm16, survey.scene, gsd, box)
+    f, a = j["flat"], j["all"]
+    # the 8-bit DSM's cell under each cell centre of the 12-bit one
+    g8 = dsm8.grid
+    xx, yy = dsm16.grid.cell_centres()
+    rr = np.floor((g8.y0 - yy) / g8.cell_m).astype(int)
+    cc = np.floor((xx - g8.x0) / g8.cell_m).astype(int)
+    inside = (rr >= 0) & (rr < g8.height) & (cc >= 0) & (cc < g8.width)
+    h8 = np.full(dsm16.height.shape, np.nan)
+    h8[inside] = dsm8.height[rr[inside], cc[inside]]
+    both = np.isfinite(h8) & np.isfinite(dsm16.height)
+    d = np.abs(dsm16.height[both] - h8[both]) / gsd
+    click.echo(f"levels {levels[0]:.0f} .. {levels[1]:.0f} -> 0 .. 255; flat cells: NMAD {f['nmad_gsd']:.2f} GSD, bias "
+               f"{f['bias_gsd']:+.2f} GSD, completeness {f['completeness'] * 100:.1f} %; cells off by > 5 GSD "
+               f"{a['outliers'] * 100:.2f} %; against the 8-bit DSM: {both.sum()} common cells, median |dz| "
+               f"{np.median(d):.3f} GSD, valid {np.isfinite(dsm16.height).mean() * 100:.1f} % vs "
+               f"{np.isfinite(h8).mean() * 100:.1f} %")
+    if not (f["nmad_gsd"] <= 1.0 and abs(f["bias_gsd"]) <= 0.2 and f["completeness"] >= 0.95 and a["outliers"] <= 0.01
+            and np.median(d) <= 0.1 and abs(np.isfinite(dsm16.height).mean() - np.isfinite(h8).mean()) <= 0.02):
+        raise click.ClickException("demo checks FAILED (12-bit images)")
 
 
 def _tumble_circle_step(folder: Path) -> None:

@@ -34,14 +34,17 @@ from skyrig.cli._common import eo_options
 @click.option("--min-depth", type=float, default=None,
               help="Nearest depth searched from a camera in metres (default: a quarter of its distance to the scene).")
 @click.option("--tile-cells", type=int, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
+@click.option("--window-min-mp", type=float, default=60.0, show_default=True,
+              help="TIFF images of at least this many megapixels are read window by window (only what each block "
+                   "needs: memory bounded by the block, not the image); 0 reads every TIFF so.")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
 @click.option("--workers", type=int, default=None, help="Local worker processes.")
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
-            points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, executor,
-            workers, scheduler, output) -> None:
+            points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, window_min_mp,
+            executor, workers, scheduler, output) -> None:
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
     Pairs are chosen from the orientations, rectified exactly (distortion included), matched by OpenCV's
@@ -60,7 +63,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
                        pairs_per_image=pairs_per_image, min_support=min_support, fill=fill, cloud=not no_cloud,
                        min_depth=min_depth, tile_cells=tile_cells, executor=executor, workers=workers,
                        scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, echo=click.echo,
-                       lr_check=lr_check)
+                       lr_check=lr_check, window_min_mp=window_min_mp)
     s = res.summary
     click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "
                f"cells ({res.stats.cell_m:.3f} m), {s['cloud_points']} cloud points -> {res.outdir} "

@@ -277,18 +277,20 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
             area: tuple[float, float, float, float] | None = None, config: DenseConfig = DenseConfig(),
             executor: str = "auto", workers: int | None = None, scheduler: str | None = None,
             inputs: Sequence[str] = (), options: dict | None = None,
-            progress: Callable[[int, int], None] | None = None) -> DsmOutputs:
+            progress: Callable[[int, int], None] | None = None, window_min_pixels: int | None = None) -> DsmOutputs:
     """Dense matching of oriented images into ``outdir`` (``dsm.tif``, ``cloud.laz``, ``dsm_hillshade.png``,
     ``dense.json``, ``manifest.json``).
 
     ``executor``: ``"serial"``, ``"local"`` (Dask worker processes), ``"scheduler"`` (with ``scheduler``), or
-    ``"auto"`` (serial for one tile, local processes otherwise)."""
+    ``"auto"`` (serial for one tile, local processes otherwise).  ``window_min_pixels``: TIFFs of at least this many
+    pixels are read window by window (:meth:`ImageFiles.windowed_image`; None: its default)."""
     from skyrig.io.dense_laz import write_dense_cloud
     from skyrig.io.dsm_cog import write_dsm_cog, write_hillshade_png
     from skyrig.io.stage import describe_inputs, stage_folder
     from skyrig.pipeline.executor import Executor
 
-    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
+    loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera],
+                        window_min_pixels=window_min_pixels)
     plan = plan_dense(eo, cameras, out_frame, height_range, area, config)
     logger.info("dense: %d pairs, %d tiles of %d x %d cells (%.3f m), GSD %.3f m", len(plan.pairs), len(plan.tiles),
                 plan.grid.width, plan.grid.height, plan.grid.cell_m, plan.gsd_m)

@@ -59,7 +59,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              executor: str = "auto", workers: int | None = None, scheduler: str | None = None,
              inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
              echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
-             lr_check: str | None = None) -> Any:
+             lr_check: str | None = None, window_min_mp: float | None = None) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
@@ -67,6 +67,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     surface heights in the output heights; without it, derived from sparse ``points`` (e.g. an adjustment's
     points.csv).  ``heads``: only these rig heads / image-name parts.  ``lr_check``: the matcher's left-right
     check, ``"opencv"`` or ``"full"`` (:class:`skyrig.dense.sgm.SgmConfig`; default: :class:`DenseConfig`'s).
+    ``window_min_mp``: TIFFs of at least this many megapixels are read window by window (default:
+    :attr:`skyrig.pipeline.dense.ImageFiles.WINDOW_MIN_PIXELS`).
     """
     from dataclasses import replace
 
@@ -102,6 +104,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
         raise OptionError(spell("mode"), f"unknown mode {mode!r} (sgbm, hh, 3way, hh4)")
     if lr_check is not None and lr_check not in ("opencv", "full"):
         raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (opencv, full)")
+    if window_min_mp is not None and not window_min_mp >= 0:
+        raise OptionError(spell("window_min_mp"), f"must be >= 0 megapixels, got {window_min_mp}")
     paths = find_images(eo, [str(p) for p in images])
     base = DenseConfig()
     lr_check = base.sgm.lr_check if lr_check is None else lr_check
@@ -114,11 +118,12 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
                "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
-               "lr_check": lr_check}
+               "lr_check": lr_check, "window_min_mp": window_min_mp}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,
                    scheduler=scheduler, inputs=[str(i) for i in inputs] + ([str(points)] if points else []),
-                   options=options, progress=progress)
+                   options=options, progress=progress,
+                   window_min_pixels=None if window_min_mp is None else int(round(window_min_mp * 1e6)))
 
 
 def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], images: Sequence[str | PathLike[str]],
