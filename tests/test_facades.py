@@ -410,3 +410,27 @@ def test_a_building_clipped_at_the_dsm_border_textures_its_real_walls_only(midas
     k = on_line[0]
     for q in (moved.footprint[k], moved.footprint[(k + 1) % len(cut)]):
         assert abs((np.asarray(q) - mid) @ d - 0.2 * e[i0]) < 1e-6
+
+
+def test_image_cache_is_bounded_in_count_and_bytes():
+    """The façade texturing's image cache keeps at most ``keep`` images and ``max_bytes`` bytes, newest first
+    (large-format frames: sixteen whole images would not fit in memory)."""
+    from skyrig.dense.facades import _Images
+
+    reads: list[int] = []
+
+    def loader(i):
+        reads.append(i)
+        return np.full((100, 100, 3), i, np.uint8)  # 30,000 bytes
+
+    imgs = _Images(loader, keep=16, max_bytes=100_000)  # room for three
+    for i in (0, 1, 2, 3, 1, 0):
+        assert int(imgs(i)[0, 0, 0]) == i
+    assert reads == [0, 1, 2, 3, 0]  # 1 was still cached (1, 2, 3), 0 had been dropped for 3
+    assert len(imgs.cache) == 3 and sum(a.nbytes for a in imgs.cache.values()) <= 100_000
+    big = _Images(lambda i: np.zeros((400, 400, 3), np.uint8), keep=16, max_bytes=100_000)
+    assert big(5).shape == (400, 400, 3) and list(big.cache) == [5]  # the newest is kept even when alone too big
+    few = _Images(loader, keep=2, max_bytes=10 ** 9)
+    for i in range(5):
+        few(i)
+    assert list(few.cache) == [3, 4]

@@ -136,18 +136,20 @@ def _visible(dsm, x0, y0, cell, pts, cam, t0, step, zmax, tol):  # pragma: no co
 
 
 class _Images:
-    """Loads images on demand and keeps the last few."""
+    """Loads images on demand and keeps the last ones read, at most ``keep`` images and ``max_bytes`` bytes (the
+    newest always: large-format frames are 0.3-1.4 GB each in RGB, sixteen of them would not fit)."""
 
-    def __init__(self, loader: ImageLoader, keep: int = 16) -> None:
-        self.loader, self.keep, self.cache = loader, keep, {}
+    def __init__(self, loader: ImageLoader, keep: int = 16, max_bytes: int = 2 << 30) -> None:
+        self.loader, self.keep, self.max_bytes, self.cache = loader, keep, max_bytes, {}
 
     def __call__(self, i: int) -> NDArray[np.uint8]:
         if i not in self.cache:
-            if len(self.cache) >= self.keep:
-                self.cache.pop(next(iter(self.cache)))
             img = np.asarray(self.loader(i))
             if img.ndim == 2:
                 img = np.repeat(img[..., None], 3, axis=2)
+            while self.cache and (len(self.cache) >= self.keep
+                                  or sum(a.nbytes for a in self.cache.values()) + img.nbytes > self.max_bytes):
+                self.cache.pop(next(iter(self.cache)))
             self.cache[i] = img
         return self.cache[i]
 
