@@ -8,10 +8,7 @@ file, the mechanism repeatability's standard error), checked against the truth w
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,20 +20,15 @@ from skyrig.errors import SkyrigError
 from skyrig.io.rig_file import read_calibrated_rig
 from skyrig.rig.boresight_curve import AXES
 
-ROOT = Path(__file__).resolve().parents[1]
+from _tumbling_lab import tumbling_lab
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("tumbling_lab", ROOT / "bench" / "tumbling_lab.py")
-    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules.setdefault("tumbling_lab", mod)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
+
 
 
 @pytest.fixture(scope="module")
 def lab_run(tmp_path_factory):
-    tl = _bench()
+    tl = tumbling_lab()
     lab = tl.build_lab(positions=8, circles=3, width=320, distance_m=3.0, seed=1)
     images, ref = tl.render_lab(lab)
     d = tmp_path_factory.mktemp("tumbling_lab")
@@ -52,7 +44,7 @@ def lab_run(tmp_path_factory):
 @pytest.fixture(scope="module")
 def lab_files(tmp_path_factory):
     """The lab's rig and positions files without rendering (for the input checks)."""
-    tl = _bench()
+    tl = tumbling_lab()
     lab = tl.build_lab(positions=8, circles=3, width=320, distance_m=3.0, seed=1)
     d = tmp_path_factory.mktemp("tumbling_files")
     return lab, tl.write_lab(lab, {}, np.zeros((4, 4, 3), np.uint8), d)
@@ -133,7 +125,7 @@ def test_position_offset_single_image():
     (4 sigma), and a textureless image is refused naming it."""
     from skyrig.calibrate.tumbling import measure_position_offset
 
-    tl = _bench()
+    tl = tumbling_lab()
     lab = tl.build_lab(positions=4, circles=2, width=256, distance_m=2.0, seed=3)
     rr, rc = lab.setup.reference_orientation()
     ref = tl.render_plane(lab, lab.setup.rig.head("reference").camera, rr, rc, 1.0, seed=99)

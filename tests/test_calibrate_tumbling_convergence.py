@@ -10,28 +10,20 @@ half a sigma of the estimate; the result must agree with the simulator's truth w
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
-ROOT = Path(__file__).resolve().parents[1]
+from _tumbling_lab import tumbling_lab
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("tumbling_lab", ROOT / "bench" / "tumbling_lab.py")
-    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules.setdefault("tumbling_lab", mod)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
+
 
 
 def test_rough_correlation_converges_within_stated_sigma():
     from skyrig.calibrate.tumbling import measure_position_offset
 
-    tl = _bench()
+    tl = tumbling_lab()
     lab = tl.build_lab(positions=72, circles=5, width=640, distance_m=3.0, seed=1)
     name = "c1_b0750_oblique.png"
     i = lab.names.index(name)

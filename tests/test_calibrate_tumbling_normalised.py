@@ -21,24 +21,16 @@ per lab taken for Student-t errors with ``nu`` degrees of freedom (below 0.95).
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.stats import binom, kstest, norm, t
 
-ROOT = Path(__file__).resolve().parents[1]
+from _tumbling_lab import tumbling_lab
+
 LABS, POSITIONS, CIRCLES, WIDTH, WINDOW_PX = 20, 24, 3, 256, 32
 
 
-def _bench():
-    spec = importlib.util.spec_from_file_location("tumbling_lab", ROOT / "bench" / "tumbling_lab.py")
-    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules.setdefault("tumbling_lab", mod)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
 
 
 def _mean_square_band(m: int, nus: np.ndarray, level: float = 0.99) -> tuple[float, float]:
@@ -54,7 +46,7 @@ def test_normalised_errors_over_seeded_labs():
     from skyrig.adjust.stats import sidak_z
     from skyrig.calibrate.tumbling import fourier_design
 
-    tl = _bench()
+    tl = tumbling_lab()
     z_l, z_b, z_f, nus, shares, in_band = [], [], [], [], [], 0
     c_l = sidak_z(3 * POSITIONS, 0.95)
     for seed in range(1, LABS + 1):
