@@ -45,9 +45,10 @@ def sixteen_bit_levels(paths: Sequence[str], max_images: int = 12, samples_per_i
     them nearly black, and SGM, the orthomosaic and the textures would run on a few grey levels.  One linear scale
     for all images and channels keeps their radiometry comparable (a per-image stretch would give every image its
     own gain: seams in the mosaic, and a cost offset between the images of a stereo pair).  ``lo``, ``hi``: the
-    :data:`LEVEL_PERCENTILES` (rounded down / up to whole numbers) of the pooled samples (every channel) of up to ``max_images`` 16-bit images taken
-    evenly through the block, each sampled on a regular grid of about ``samples_per_image`` pixels.  The images'
-    sample types are read from their headers (rasterio / GDAL); JPEGs are 8 bit.
+    :data:`LEVEL_PERCENTILES` (rounded down / up to whole numbers) of the pooled samples (every channel) of up to
+    ``max_images`` 16-bit images taken evenly through the block, each sampled on a regular grid of about
+    ``samples_per_image`` pixels.  The images' sample types are read from their headers (rasterio / GDAL); JPEGs are
+    8 bit.
 
     Raises
     ------
