@@ -42,18 +42,22 @@ class WindowedImage:
     read: Callable[[int, int, int, int], NDArray[np.uint8]]
 
 
-def sampled_window(image: NDArray | WindowedImage, u: NDArray, v: NDArray
+def sampled_window(image: NDArray | WindowedImage, u: NDArray, v: NDArray, replicate: bool = True
                    ) -> tuple[NDArray, int, int]:
     """The part of ``image`` that bilinear sampling (``cv2.remap``, ``INTER_LINEAR``) at the positions ``u, v``
     (pixels; non-finite ones ignored) reads, and its origin ``(c0, r0)``: an array is returned whole with origin
     ``(0, 0)``; of a :class:`WindowedImage` only the positions' bounding box is read, widened by the interpolation's
-    reach and clipped to the image (with ``BORDER_REPLICATE`` too: positions outside the image read its edge, which
-    the clipped box holds).  Sampling the window at ``float32(u) - c0``, ``float32(v) - r0`` (exact in float32) gives
-    the whole image's values bit for bit; an empty selection reads a 1 x 1 window."""
+    reach and clipped to the image.  ``replicate`` (``BORDER_REPLICATE``): positions outside the image read its edge,
+    which the clipped box holds; False (``BORDER_CONSTANT``): positions more than a pixel outside read nothing and
+    are left out of the box (e.g. rays behind the camera).  Sampling the window at ``float32(u) - c0``,
+    ``float32(v) - r0`` (exact in float32) gives the whole image's values bit for bit; an empty selection reads a
+    1 x 1 window."""
     if not isinstance(image, WindowedImage):
         return image, 0, 0
     uu, vv = np.asarray(u, np.float64), np.asarray(v, np.float64)
     ok = np.isfinite(uu) & np.isfinite(vv)
+    if not replicate:
+        ok &= (uu > -2) & (uu < image.width + 1) & (vv > -2) & (vv < image.height + 1)
     if not ok.any():
         return image.read(0, 0, 1, 1), 0, 0
     cu = np.clip(uu[ok], -2.0, image.width + 1.0)
@@ -161,16 +165,8 @@ class Rectification:
 
         mx, my, inside = self._lattice_maps(side, u0, v0, width, height, 4)
         if isinstance(image, WindowedImage):
-            touch = (mx > -2) & (mx < image.width + 1) & (my > -2) & (my < image.height + 1)
-            if not touch.any():
-                shape = (height, width) + ((image.channels,) if image.channels > 1 else ())
-                return np.zeros(shape, np.uint8), inside
-            c0 = max(0, int(np.floor(mx[touch].min())) - 2)
-            c1 = min(image.width, int(np.floor(mx[touch].max())) + 3)
-            r0 = max(0, int(np.floor(my[touch].min())) - 2)
-            r1 = min(image.height, int(np.floor(my[touch].max())) + 3)
-            win = image.read(c0, r0, c1, r1)
-            mx, my, image = mx - np.float32(c0), my - np.float32(r0), win
+            image, c0, r0 = sampled_window(image, mx, my, replicate=False)
+            mx, my = mx - np.float32(c0), my - np.float32(r0)
         out = cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return out, inside
 
