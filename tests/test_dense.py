@@ -670,9 +670,9 @@ def test_large_tiffs_read_in_windows_give_the_same_surface_bit_for_bit(block, tm
             self.whole += 1
             return super().__call__(i)
 
-        def _read_window(self, i, grey, info, c0, r0, c1, r1):
+        def _read_window(self, i, grey, bands, c0, r0, c1, r1):
             self.windows.append((c1 - c0) * (r1 - r0))
-            return super()._read_window(i, grey, info, c0, r0, c1, r1)
+            return super()._read_window(i, grey, bands, c0, r0, c1, r1)
 
     loader = Counting(paths, sizes, window_min_pixels=0)
     win = dense_surface(eo, cams, loader, WorldFrame.map(CRS), (40.0, 75.0), area, cfg)

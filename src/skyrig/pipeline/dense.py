@@ -150,32 +150,34 @@ class ImageFiles:
         w, h = self.sizes[i]
         if w * h < self.window_min_pixels or Path(self.paths[i]).suffix.lower() not in (".tif", ".tiff"):
             return None
-        info = self._window_info(i)
-        if info is None:
+        bands = self._window_bands(i)
+        if bands is None:
             return None
-        return WindowedImage(w, h, 1 if grey else 3, partial(self._read_window, i, grey, info))
+        return WindowedImage(w, h, 1 if grey else 3, partial(self._read_window, i, grey, bands))
 
-    def _window_info(self, i: int) -> tuple[list[int], str] | None:
-        """Bands to read (RGB or grey) and the sample type, None when the file is not read in windows."""
+    def _size_error(self, i: int, w: int, h: int) -> InputFormatError:
+        return InputFormatError(f"image is {w} x {h} px but its camera is {self.sizes[i][0]} x {self.sizes[i][1]} px "
+                                "(wrong camera, a resized copy, or an EXIF orientation tag that rotates it)",
+                                self.paths[i])
+
+    def _window_bands(self, i: int) -> list[int] | None:
+        """Bands to read (RGB or grey), None when the file is not read in windows (palette-coded)."""
         import rasterio
         from rasterio.enums import ColorInterp
 
         p = self.paths[i]
         with _no_georef_warning(), rasterio.open(p) as ds:
             if (ds.width, ds.height) != self.sizes[i]:
-                raise InputFormatError(f"image is {ds.width} x {ds.height} px but its camera is {self.sizes[i][0]} x "
-                                       f"{self.sizes[i][1]} px (wrong camera, or a resized copy)", p)
+                raise self._size_error(i, ds.width, ds.height)
             if ds.colorinterp and ds.colorinterp[0] == ColorInterp.palette:
                 return None
-            return ([1, 2, 3] if ds.count >= 3 else [1]), ds.dtypes[0]
+            return [1, 2, 3] if ds.count >= 3 else [1]
 
-    def _read_window(self, i: int, grey: bool, info: tuple[list[int], str], c0: int, r0: int, c1: int, r1: int
-                     ) -> np.ndarray:
+    def _read_window(self, i: int, grey: bool, bands: list[int], c0: int, r0: int, c1: int, r1: int) -> np.ndarray:
         import cv2
         import rasterio
         from rasterio.windows import Window
 
-        bands, _ = info
         with _no_georef_warning(), rasterio.open(self.paths[i]) as ds:
             a = ds.read(bands, window=Window(c0, r0, c1 - c0, r1 - r0))
         img = np.ascontiguousarray(np.moveaxis(a, 0, -1) if len(bands) == 3 else a[0])
@@ -206,9 +208,7 @@ class ImageFiles:
             raise InputFormatError("cannot read the image (missing, truncated or not an image)", self.paths[i])
         h, w = img.shape[:2]
         if (w, h) != self.sizes[i]:
-            raise InputFormatError(f"image is {w} x {h} px but its camera is {self.sizes[i][0]} x {self.sizes[i][1]} "
-                                   "px (wrong camera, a resized copy, or an EXIF orientation tag that rotates it)",
-                                   self.paths[i])
+            raise self._size_error(i, w, h)
         return cv2.cvtColor(self._to_8bit(img, i), cv2.COLOR_BGR2RGB)
 
 
