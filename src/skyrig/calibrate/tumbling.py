@@ -34,7 +34,9 @@ Sequence (:func:`calibrate_tumbling_head`)
    scatter) plus the part of the comparison's error that repeats in every circle, ``lambda`` times the position's
    fit variance, with ``lambda`` estimated by REML from the mean curve's residuals about a Fourier series
    (:attr:`TumblingCalibration.repeat_share`); ``lambda = 1`` is the upper bound
-   (:attr:`TumblingCalibration.standard_error_bound_rad`).
+   (:attr:`TumblingCalibration.standard_error_bound_rad`).  An image whose measurement fails (step 2-3 raise) is
+   left out with a warning and recorded (:attr:`TumblingCalibration.failed`); the statistics use the ``C_k`` circles
+   measured at each position; more than 10 % failed images, or a position with fewer than 2 circles, stop the recipe.
 5. The curve's statement (:meth:`TumblingCalibration.curve_statement`, in the JSON report): the per-position
    values (the paper's lookup, the rig file's curve) with their standard errors and Sidak's simultaneous band over
    the ``3 K`` values, and the same curve as a Fourier series in beta (:class:`FourierCurve`, the order by a
@@ -71,7 +73,7 @@ from skyrig.rig.rig import ActuatedHead, Rig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FourierCurve", "RepeatShare",
+__all__ = ["LabSetup", "PositionOffset", "TumblingCalibration", "FailedImage", "FourierCurve", "RepeatShare",
            "measure_position_offset", "calibrate_tumbling_head", "fit_fourier_curve", "fourier_design",
            "estimate_repeat_share", "default_max_order", "ENU_FROM_BODY"]
 
@@ -761,9 +763,39 @@ def estimate_repeat_share(beta_rad: ArrayLike, values_rad: ArrayLike, scatter_va
     return RepeatShare(share, se, int(order), int(k - a.shape[1]))
 
 
+@dataclass(frozen=True)
+class FailedImage:
+    """A tumbling image the recipe left out (:func:`measure_position_offset` raised for it).
+
+    Attributes
+    ----------
+    name, circle
+        The image and its circle label.
+    beta_rad
+        Its actuator angle (radians).
+    reason
+        The error message.
+    """
+
+    name: str
+    circle: str
+    beta_rad: float
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: image, circle, beta_deg, reason."""
+        return {"image": self.name, "circle": self.circle, "beta_deg": float(np.degrees(self.beta_rad)),
+                "reason": self.reason}
+
+
 @dataclass
 class TumblingCalibration:
     """Result of :func:`calibrate_tumbling_head`.
+
+    An image the recipe could not measure (:attr:`failed`) is NaN in :attr:`corrections_rad`, :attr:`sigma_rad`
+    and :attr:`covariance_rad2` and 0 in :attr:`windows`; every statistic uses the ``C_k`` circles measured at
+    position ``k`` (:attr:`counts`): the mean and std of the position over its ``C_k`` values, the pooled scatter
+    with ``N - K`` degrees of freedom (``N`` images measured), the mean's scatter part ``pooled^2 / C_k``.
 
     Attributes
     ----------
@@ -776,9 +808,9 @@ class TumblingCalibration:
     sigma_rad
         ``(C, K, 3)`` their standard deviations from each image's fit (radians).
     images
-        ``(C, K)`` image names.
+        ``(C, K)`` image names (also of the images left out).
     windows
-        ``(C, K)`` correlation windows used per image.
+        ``(C, K)`` correlation windows used per image (0: left out).
     curve
         The mean curve with the per-position repeatability (``std_rad``, ``count``).
     setup
@@ -786,6 +818,8 @@ class TumblingCalibration:
     covariance_rad2
         ``(C, K, 3, 3)`` each image's fit covariance (radians^2; the tilt across the view and the yaw are strongly
         correlated in one image), or None: uncorrelated with ``sigma_rad``.
+    failed
+        The images left out, with the reasons (:class:`FailedImage`).
     """
 
     beta_rad: NDArray[np.float64]
@@ -797,28 +831,57 @@ class TumblingCalibration:
     curve: BoresightCurve
     setup: LabSetup
     covariance_rad2: NDArray[np.float64] | None = None
+    failed: tuple[FailedImage, ...] = ()
+
+    @property
+    def measured(self) -> NDArray[np.bool_]:
+        """``(C, K)`` whether the image was measured (not left out: its corrections are finite)."""
+        return np.all(np.isfinite(self.corrections_rad), axis=-1)
+
+    @property
+    def counts(self) -> NDArray[np.int64]:
+        """``(K,)`` ``C_k``: the circles measured at each position."""
+        return self.measured.sum(axis=0).astype(np.int64)
+
+    @property
+    def scatter_dof(self) -> int:
+        """Degrees of freedom of the pooled scatter :attr:`pooled_std_rad`: ``sum_k (C_k - 1) = N - K``
+        (``K (C - 1)`` when every image was measured)."""
+        return int(np.sum(self.counts - 1))
+
+    def _position_mean(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Mean over the circles measured at each position of a ``(C, K, ...)`` per-image array."""
+        m = self.measured.reshape(self.measured.shape + (1,) * (x.ndim - 2))
+        return np.where(m, x, 0.0).sum(axis=0) / self.counts.reshape((-1,) + (1,) * (x.ndim - 2))
 
     @property
     def mean_rad(self) -> NDArray[np.float64]:
-        """``(K, 3)`` mean correction per position, in ``beta_rad`` order."""
-        return self.corrections_rad.mean(axis=0)
+        """``(K, 3)`` mean correction per position (over its ``C_k`` circles), in ``beta_rad`` order."""
+        return self._position_mean(self.corrections_rad)
 
     @property
     def std_rad(self) -> NDArray[np.float64]:
-        """``(K, 3)`` repeatability per position (sample std about the mean curve, ``ddof=1``)."""
-        return self.corrections_rad.std(axis=0, ddof=1)
+        """``(K, 3)`` repeatability per position (sample std of its ``C_k`` values about their mean, ``ddof=1``)."""
+        dev = np.where(self.measured[..., None], self.corrections_rad - self.mean_rad[None], 0.0)
+        return np.sqrt(np.sum(dev ** 2, axis=0) / (self.counts[:, None] - 1))
 
     @property
     def pooled_std_rad(self) -> NDArray[np.float64]:
-        """``(3,)`` the repeatability pooled over the positions: ``sqrt(mean_k std_k^2)`` (``K (C - 1)`` degrees of
-        freedom)."""
-        return np.sqrt(np.mean(self.std_rad ** 2, axis=0))
+        """``(3,)`` the repeatability pooled over the positions: ``sqrt(sum_k (C_k - 1) std_k^2 / (N - K))``
+        (:attr:`scatter_dof` degrees of freedom; ``sqrt(mean_k std_k^2)`` when every image was measured)."""
+        w = (self.counts - 1)[:, None]
+        return np.sqrt(np.sum(w * self.std_rad ** 2, axis=0) / self.scatter_dof)
+
+    @property
+    def fit_variance_rad2(self) -> NDArray[np.float64]:
+        """``(K, 3)`` ``fit_k^2``: the mean fit variance of the images measured at each position."""
+        return self._position_mean(self.sigma_rad ** 2)
 
     @property
     def measurement_variance_rad2(self) -> NDArray[np.float64]:
         """``(3,)`` the mean variance of one image's angular offset from its fit (``sigma0^2 (J^T J)^-1`` of the
-        window shifts, :func:`measure_position_offset`)."""
-        return np.mean(self.sigma_rad ** 2, axis=(0, 1))
+        window shifts, :func:`measure_position_offset`), over the measured images."""
+        return np.mean(self.sigma_rad[self.measured] ** 2, axis=0)
 
     @cached_property
     def repeat_share(self) -> RepeatShare:
@@ -836,10 +899,10 @@ class TumblingCalibration:
         highest order (:func:`default_max_order`), then the order :func:`fit_fourier_curve` selects (``alpha = 1e-3``)
         with the sigmas of that share, re-estimated until the order repeats (the final share is estimated with the
         series :meth:`fourier_curve` states).  Fewer than 4 positions: no redundancy, ``lambda = 1`` (the bound),
-        ``order`` and ``dof`` 0."""
-        c, k = self.corrections_rad.shape[:2]
-        s = self.pooled_std_rad ** 2 / c
-        f = np.mean(self.sigma_rad ** 2, axis=0)
+        ``order`` and ``dof`` 0.  With images left out the scatter part is ``pooled^2 / C_k`` per position."""
+        k = self.corrections_rad.shape[1]
+        s = self.pooled_std_rad[None] ** 2 / self.counts[:, None]
+        f = self.fit_variance_rad2
         if k < 4:
             return RepeatShare(np.ones(3), np.full(3, np.nan), 0, 0)
         order = default_max_order(k)
@@ -864,19 +927,19 @@ class TumblingCalibration:
         the comparison's error that changes from circle to circle; the repeating part is added once, as estimated.
         Both variance parts are estimated, so ``(mean - truth) / standard_error`` is about Student-t with
         :attr:`standard_error_dof` degrees of freedom (near N(0, 1) at 30 or more).  The upper bound the recipe
-        stated before (the fit variance added in full, ``lambda = 1``) is :attr:`standard_error_bound_rad`."""
-        c = self.corrections_rad.shape[0]
+        stated before (the fit variance added in full, ``lambda = 1``) is :attr:`standard_error_bound_rad`.  With
+        images left out, ``C`` is the position's ``C_k`` (:attr:`counts`) and ``fit_k^2`` the mean over its measured
+        images."""
         lam = self.repeat_share.share
-        return np.sqrt(self.pooled_std_rad[None] ** 2 / c + lam[None] * np.mean(self.sigma_rad ** 2, axis=0))
+        return np.sqrt(self.pooled_std_rad[None] ** 2 / self.counts[:, None] + lam[None] * self.fit_variance_rad2)
 
     @property
     def standard_error_bound_rad(self) -> NDArray[np.float64]:
         """``(K, 3)`` an upper bound of the mean curve's standard error: ``sqrt(pooled^2 / C + fit_k^2)``, the fit
         variance added in full as the bound of the repeating comparison error (``lambda = 1`` in
         :attr:`standard_error_rad`; it counts the part of the comparison's error that changes from circle to circle
-        twice: once in ``pooled`` and again in the fit variance)."""
-        c = self.corrections_rad.shape[0]
-        return np.sqrt(self.pooled_std_rad[None] ** 2 / c + np.mean(self.sigma_rad ** 2, axis=0))
+        twice: once in ``pooled`` and again in the fit variance); ``C_k`` circles where images were left out."""
+        return np.sqrt(self.pooled_std_rad[None] ** 2 / self.counts[:, None] + self.fit_variance_rad2)
 
     @property
     def standard_error_dof(self) -> NDArray[np.float64]:
@@ -884,13 +947,13 @@ class TumblingCalibration:
         ``v_k = s + lambda f_k``: ``2 v_k^2 / (2 s^2 / (K (C - 1)) + f_k^2 se(lambda)^2)``, ``s = pooled^2 / C`` a
         chi-square with ``K (C - 1)`` degrees of freedom and ``se(lambda)`` :attr:`repeat_share`'s standard error
         (the share is estimated from the series' ``dof`` residuals, so this is about ``dof`` where the repeating
-        part dominates and about ``K (C - 1)`` where the scatter does)."""
-        c, k = self.corrections_rad.shape[:2]
-        s = self.pooled_std_rad[None] ** 2 / c
-        f = np.mean(self.sigma_rad ** 2, axis=0)
+        part dominates and about ``K (C - 1)`` where the scatter does; with images left out ``s = pooled^2 / C_k``
+        and :attr:`scatter_dof` = ``N - K`` in place of ``K (C - 1)``)."""
+        s = self.pooled_std_rad[None] ** 2 / self.counts[:, None]
+        f = self.fit_variance_rad2
         rs = self.repeat_share
         v = s + rs.share[None] * f
-        var_v = 2 * s ** 2 / (k * (c - 1)) + f ** 2 * np.nan_to_num(rs.share_se)[None] ** 2
+        var_v = 2 * s ** 2 / self.scatter_dof + f ** 2 * np.nan_to_num(rs.share_se)[None] ** 2
         return 2 * v ** 2 / np.maximum(var_v, 1e-300)
 
     @property
@@ -906,12 +969,14 @@ class TumblingCalibration:
         """``(K, 3, 3)`` covariance of the mean curve per position, the matrix form of :attr:`standard_error_rad`:
         the scatter over the circles pooled over the positions (``K (C - 1)`` degrees of freedom) over ``C`` plus
         the repeating part, the position's mean fit covariance scaled by ``sqrt(lambda_i lambda_j)``
-        (:attr:`repeat_share`).  Its diagonal is ``standard_error_rad^2``; positions uncorrelated."""
-        c = self.corrections_rad.shape[0]
-        dev = self.corrections_rad - self.mean_rad[None]
-        scatter = np.einsum("cki,ckj->ij", dev, dev) / (dev.shape[1] * (c - 1))
+        (:attr:`repeat_share`).  Its diagonal is ``standard_error_rad^2``; positions uncorrelated.  With images
+        left out: the scatter over ``N - K`` degrees of freedom, over ``C_k``, and the mean fit covariance of the
+        position's measured images."""
+        dev = np.where(self.measured[..., None], self.corrections_rad - self.mean_rad[None], 0.0)
+        scatter = np.einsum("cki,ckj->ij", dev, dev) / self.scatter_dof
         root = np.sqrt(self.repeat_share.share)
-        return scatter[None] / c + self.fit_covariance_rad2.mean(axis=0) * np.outer(root, root)[None]
+        return (scatter[None] / self.counts[:, None, None]
+                + self._position_mean(self.fit_covariance_rad2) * np.outer(root, root)[None])
 
     def mechanism_repeatability_rad(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(std, se)``, each ``(3,)`` radians, 1 sigma: the mechanism's own repeatability with the measurement
@@ -925,12 +990,12 @@ class TumblingCalibration:
         at 320 px the realised share averages 0.16-0.21 per axis over 24 labs; the estimate is not used here: it
         averages 0.19-0.24 and scatters by 0.13-0.27 between labs, as much as the bias it would
         remove).  Where ``pooled^2 <= m`` the std is 0
-        and ``se`` is the one-sided bound ``sqrt(2 sd(pooled^2))``."""
-        c, k = self.corrections_rad.shape[:2]
-        dof = k * (c - 1)
+        and ``se`` is the one-sided bound ``sqrt(2 sd(pooled^2))``.  With images left out: ``N - K`` degrees of
+        freedom (:attr:`scatter_dof`) and the measured images' fits."""
+        dof = self.scatter_dof
         pooled2 = self.pooled_std_rad ** 2
         m = self.measurement_variance_rad2
-        red = max(int(np.sum(2 * self.windows - 3)), 1)
+        red = max(int(np.sum(2 * self.windows[self.measured] - 3)), 1)
         var_v = 2 * pooled2 ** 2 / dof + 2 * m ** 2 / red
         v = pooled2 - m
         std = np.sqrt(np.clip(v, 0.0, None))
@@ -958,7 +1023,8 @@ class TumblingCalibration:
         within 2 sigma" has probability ``0.9545^(3 K)`` if the sigmas are exact; also the repeating comparison
         error's share of the fit variance (:attr:`repeat_share`, with its standard error, the series order and
         redundancy it was estimated with), the sigmas' median degrees of freedom per axis
-        (:attr:`standard_error_dof`) and the upper bound of the sigmas (:attr:`standard_error_bound_rad`).
+        (:attr:`standard_error_dof`) and the upper bound of the sigmas (:attr:`standard_error_bound_rad`), the
+        circles measured per position (fewest) and the images left out (:attr:`failed`: names and reasons).
         ``fourier``: the series of :meth:`fourier_curve` with its terms' sigma, its values' sigma at the
         positions, the simultaneous band from its covariance (the values are correlated) and the probability of
         "every value within 2 sigma" under that covariance."""
@@ -972,7 +1038,9 @@ class TumblingCalibration:
         out: dict[str, Any] = {"level": level, "lookup": {
             "values": 3 * k, "simultaneous_z": sidak_z(3 * k, level), "p_every_value_within_2sigma": p2,
             "sigma_mdeg": {a: (md * self.standard_error_rad[:, i]).tolist() for i, a in enumerate(AXES)},
-            "sigma_model": "sqrt(pooled^2 / C + repeat_share * fit^2)",
+            "sigma_model": "sqrt(pooled^2 / C_k + repeat_share * fit_k^2), C_k circles measured at the position",
+            "circles_per_position_min": int(self.counts.min()), "pooled_dof": self.scatter_dof,
+            "images_left_out": [f.to_dict() for f in self.failed],
             "repeat_share": dict(zip(AXES, rs.share.tolist())),
             "repeat_share_se": dict(zip(AXES, rs.share_se.tolist())),
             "repeat_share_order": rs.order, "repeat_share_dof": rs.dof,
@@ -1000,7 +1068,7 @@ class TumblingCalibration:
         scaled, degrees and 1/1000 deg), the position (beta, deg) and the image of the max (the image of that
         position farthest from the mean curve); also the per-image measurement sigma (RMS of the fits), the pooled
         repeatability, and the mechanism's repeatability with the measurement noise removed and its standard error
-        (:meth:`mechanism_repeatability_rad`), all scaled."""
+        (:meth:`mechanism_repeatability_rad`), all scaled.  Images left out (:attr:`failed`) are not in it."""
         std = self.std_rad
         mech, mech_se = self.mechanism_repeatability_rad()
         fit = np.sqrt(self.measurement_variance_rad2)
@@ -1008,7 +1076,7 @@ class TumblingCalibration:
         out = {}
         for i, a in enumerate(AXES):
             k = int(np.argmax(std[:, i]))
-            c = int(np.argmax(np.abs(self.corrections_rad[:, k, i] - self.mean_rad[k, i])))
+            c = int(np.nanargmax(np.abs(self.corrections_rad[:, k, i] - self.mean_rad[k, i])))
             mean_deg = float(np.degrees(np.mean(std[:, i])) * k_sigma)
             max_deg = float(np.degrees(std[k, i]) * k_sigma)
             out[a] = {"mean_std_deg": mean_deg, "max_std_deg": max_deg, "mean_std_mdeg": 1000 * mean_deg,
@@ -1034,7 +1102,8 @@ class TumblingCalibration:
         """The calibration section: the tumbling head's ``actuator`` block (values: the mean curve, degrees;
         sigma: its standard errors :attr:`standard_error_rad`; correlations: the three axes of a position from
         :attr:`mean_covariance_rad2`, positions uncorrelated) and provenance (with the repeating comparison error's
-        share :attr:`repeat_share` per axis); other heads kept from ``previous``."""
+        share :attr:`repeat_share` per axis, the number of images left out and the fewest circles at a position;
+        the notes name the images left out and why); other heads kept from ``previous``."""
         names = [f"{a}_deg@{np.degrees(b):.4f}" for b in self.beta_rad for a in AXES]
         values = np.degrees(self.mean_rad).reshape(-1)
         sig = np.degrees(self.standard_error_rad).reshape(-1)
@@ -1047,19 +1116,25 @@ class TumblingCalibration:
         block = CovarianceBlock(tuple(names), np.nan_to_num(sig), np.nan_to_num(corr), values)
         rep = self.table2(1.0)
         stats = {"positions": int(self.beta_rad.size), "circles": int(self.corrections_rad.shape[0]),
-                 "images": int(self.images.size), "windows_min": int(self.windows.min()),
+                 "images": int(self.measured.sum()), "images_left_out": len(self.failed),
+                 "circles_per_position_min": int(self.counts.min()),
+                 "windows_min": int(self.windows[self.measured].min()),
                  **{f"{a}_mean_std_deg": rep[a]["mean_std_deg"] for a in AXES},
                  **{f"{a}_max_std_deg": rep[a]["max_std_deg"] for a in AXES},
-                 **{f"{a}_fit_sigma_median_deg": float(np.degrees(np.median(self.sigma_rad[..., i])))
+                 **{f"{a}_fit_sigma_median_deg": float(np.degrees(np.median(self.sigma_rad[self.measured][:, i])))
                     for i, a in enumerate(AXES)},
                  **{f"{a}_mechanism_std_deg": rep[a]["mechanism_std_deg"] for a in AXES},
                  **{f"{a}_mechanism_std_se_deg": rep[a]["mechanism_std_se_mdeg"] / 1000 for a in AXES},
                  **{f"{a}_repeat_share": float(self.repeat_share.share[i]) for i, a in enumerate(AXES)},
                  **{f"{a}_repeat_share_se": float(self.repeat_share.share_se[i]) for i, a in enumerate(AXES)}}
-        prov = Provenance("tumbling-head", flight, date, software, stats,
-                          "laboratory calibration (paper 000, 3.4): tumbling images against a static reference camera "
-                          "through a common plane, phase correlation of windows, small-rotation least squares per "
-                          "image iterated to zero shift; mean curve over circles")
+        notes = ("laboratory calibration (paper 000, 3.4): tumbling images against a static reference camera "
+                 "through a common plane, phase correlation of windows, small-rotation least squares per "
+                 "image iterated to zero shift; mean curve over circles")
+        if self.failed:
+            notes += (f"; {len(self.failed)} images left out (the curve at their positions from the other circles): "
+                      + "; ".join(f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.4f} deg): {f.reason}"
+                                  for f in self.failed))
+        prov = Provenance("tumbling-head", flight, date, software, stats, notes)
         heads = dict(previous.heads) if previous is not None else {}
         prev = heads.get(self.setup.head, HeadCalibration())
         heads[self.setup.head] = HeadCalibration(prev.lever_arm_m, prev.boresight_opk_deg, prev.interior, block, prov)
@@ -1067,7 +1142,8 @@ class TumblingCalibration:
                               prov if previous is None or previous.provenance is None else previous.provenance)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready report: Tab. 2, the mean curve with its repeatability, every measurement."""
+        """JSON-ready report: Tab. 2, the mean curve with its repeatability, every measurement, the images left
+        out (``images_left_out``: image, circle, beta_deg, reason)."""
         fc = self.fit_covariance_rad2
         mc = self.mean_covariance_rad2
         se, se_bound = self.standard_error_rad, self.standard_error_bound_rad
@@ -1076,9 +1152,11 @@ class TumblingCalibration:
             "head": self.setup.head, "reference_head": self.setup.reference_head,
             "plane_distance_m": self.setup.plane_distance_m,
             "positions": int(self.beta_rad.size), "circles": [str(c) for c in self.circles],
+            "images_measured": int(self.measured.sum()),
+            "images_left_out": [f.to_dict() for f in self.failed],
             "table2_2sigma": self.table2(2.0),
             "curve_statement": self.curve_statement(),
-            "curve": [{"beta_deg": float(np.degrees(b)),
+            "curve": [{"beta_deg": float(np.degrees(b)), "circles_measured": int(self.counts[k]),
                        **{f"{a}_mdeg": 1000 * float(np.degrees(self.mean_rad[k, i])) for i, a in enumerate(AXES)},
                        **{f"{a}_std_mdeg": 1000 * float(np.degrees(self.std_rad[k, i])) for i, a in enumerate(AXES)},
                        **{f"{a}_se_mdeg": 1000 * float(np.degrees(se[k, i])) for i, a in enumerate(AXES)},
@@ -1095,7 +1173,8 @@ class TumblingCalibration:
                               **{f"r_{AXES[i]}_{AXES[j]}":
                                  float(fc[c, k, i, j] / np.sqrt(fc[c, k, i, i] * fc[c, k, j, j]))
                                  for i, j in ((0, 1), (0, 2), (1, 2))}}
-                             for c in range(len(self.circles)) for k in range(self.beta_rad.size)],
+                             for c in range(len(self.circles)) for k in range(self.beta_rad.size)
+                             if self.measured[c, k]],
         }
 
 
@@ -1109,6 +1188,8 @@ def calibrate_tumbling_head(
     *,
     window_px: int = 32,
     interpolation: str = "cubic",
+    min_circles: int = 2,
+    max_failed_share: float = 0.10,
 ) -> TumblingCalibration:
     """Laboratory calibration of a tumbling head (paper 000, 3.4): the boresight curve and its repeat accuracy.
 
@@ -1127,10 +1208,26 @@ def calibrate_tumbling_head(
         See :func:`measure_position_offset`.
     interpolation
         Of the mean curve (``cubic`` periodic spline or ``linear``).
+    min_circles
+        Every position must keep at least this many measured circles (>= 2: the repeatability needs two).
+    max_failed_share
+        At most this share of the images may fail; more is a systematic problem (wrong rig, plane distance,
+        reference image, lighting), not a bad image, and stops the recipe.
 
     Returns
     -------
     TumblingCalibration
+
+    Raises
+    ------
+    SkyrigError
+        Inconsistent inputs; more than ``max_failed_share`` of the images failed; a position keeps fewer than
+        ``min_circles`` measured circles (the message names the positions and the images left out).
+
+    An image that :func:`measure_position_offset` (or loading it) fails for with a :class:`SkyrigError` (too few
+    textured windows, no convergence, a correlation that does not follow the probe rotation, a wrong size) is left
+    out with a WARNING naming it, its circle, its beta and the reason, and recorded in
+    :attr:`TumblingCalibration.failed`; its position's statistics use the circles measured there.
     """
     names = np.asarray(image_names, dtype=str)
     circ = np.asarray(circles, dtype=str)
@@ -1138,6 +1235,11 @@ def calibrate_tumbling_head(
     if not (names.size == circ.size == beta.size) or names.size == 0:
         raise SkyrigError("tumbling-head: image names, circles and actuator angles must be equally long and non-empty")
     labels = list(dict.fromkeys(circ.tolist()))
+    if int(min_circles) < 2:
+        raise SkyrigError(f"tumbling-head: min_circles must be at least 2 (the repeatability needs two), got "
+                          f"{min_circles}")
+    if not 0.0 <= float(max_failed_share) < 1.0:
+        raise SkyrigError(f"tumbling-head: max_failed_share must be in [0, 1), got {max_failed_share}")
     if len(labels) < 2:
         raise SkyrigError("tumbling-head: the repeatability needs at least 2 circles")
     first = beta[circ == labels[0]]
@@ -1158,11 +1260,31 @@ def calibrate_tumbling_head(
             missing = sorted(set(pos.tolist()) ^ set(keys.tolist()))
             raise SkyrigError(f"tumbling-head: circle {lab!r} does not hold the same actuator positions as circle "
                               f"{labels[0]!r} (differing: {', '.join(f'{m:g}' for m in missing[:8])} deg)")
+    rc = setup.rig.head(setup.reference_head).camera
+    ref_shape = _gray(reference_image).shape
+    if ref_shape != (rc.height, rc.width):  # one reference for every image: not a per-image failure
+        raise SkyrigError(f"reference image is {ref_shape[1]} x {ref_shape[0]} px, camera {rc.name!r} of head "
+                          f"{setup.reference_head!r} is {rc.width} x {rc.height}")
+    max_failed = int(np.floor(float(max_failed_share) * names.size + 1e-9))
+    failed: list[FailedImage] = []
     for ci, lab in enumerate(labels):
         for j in np.flatnonzero(circ == lab):
             k = int(np.searchsorted(pos, np.round(np.degrees(beta[j]) % 360.0, 6)))
-            off = measure_position_offset(setup, images(str(names[j])), float(beta[j]), reference_image,
-                                          name=str(names[j]), window_px=window_px)
+            nam[ci, k] = str(names[j])
+            try:
+                off = measure_position_offset(setup, images(str(names[j])), float(beta[j]), reference_image,
+                                              name=str(names[j]), window_px=window_px)
+            except SkyrigError as exc:
+                failed.append(FailedImage(str(names[j]), str(lab), float(beta[j]), str(exc)))
+                log.warning("%s circle %s beta %.2f deg: left out of its position's statistics: %s", names[j], lab,
+                            np.degrees(beta[j]), exc)
+                if len(failed) > max_failed:
+                    raise SkyrigError(
+                        f"tumbling-head: {len(failed)} of {names.size} images failed (at most "
+                        f"{100 * float(max_failed_share):g} % = {max_failed} may: more is a systematic problem, "
+                        "e.g. the rig's orientations, the plane distance, the reference image or the lighting, not "
+                        f"a bad image); {_failed_list(failed)}") from None
+                continue
             meas[ci, k] = off.correction_rad
             sig[ci, k] = off.sigma_rad
             cov[ci, k] = off.covariance_rad2
@@ -1172,6 +1294,27 @@ def calibrate_tumbling_head(
                      names[j], lab, np.degrees(beta[j]), *(1000 * np.degrees(off.correction_rad)), off.windows,
                      off.residual_rms_px)
     b = np.radians(pos)
-    curve = BoresightCurve.from_circles(b, meas, interpolation)  # type: ignore[arg-type]
+    ok = np.all(np.isfinite(meas), axis=-1)
+    short = np.flatnonzero(ok.sum(axis=0) < int(min_circles))
+    if short.size:
+        raise SkyrigError(
+            f"tumbling-head: {short.size} actuator positions keep fewer than {int(min_circles)} measured circles "
+            f"(beta {', '.join(f'{pos[k]:g} deg ({int(ok[:, k].sum())} of {len(labels)})' for k in short[:12])}"
+            f"{', ...' if short.size > 12 else ''}): their repeatability cannot be measured; "
+            f"{_failed_list(failed)}")
+    if failed:
+        log.warning("tumbling-head: %d of %d images left out (%s); fewest circles at a position: %d of %d",
+                    len(failed), names.size, ", ".join(f.name for f in failed), int(ok.sum(axis=0).min()),
+                    len(labels))
+    # the mean curve over the circles measured at each position (from_circles is from_samples of every circle)
+    curve = BoresightCurve.from_samples(np.tile(b, len(labels))[ok.reshape(-1)], meas[ok],
+                                        interpolation)  # type: ignore[arg-type]
     return TumblingCalibration(b, np.asarray(labels, dtype=str), meas, sig, nam.astype(str), win, curve, setup,
-                               cov)
+                               cov, tuple(failed))
+
+
+def _failed_list(failed: Sequence[FailedImage], most: int = 8) -> str:
+    """The failed images for a message: name, circle, beta and reason of the first ``most``."""
+    out = "failed: " + "; ".join(f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.3f} deg): {f.reason}"
+                                 for f in failed[:most])
+    return out + (f"; and {len(failed) - most} more" if len(failed) > most else "")

@@ -196,13 +196,19 @@ def _read_positions(path: str) -> tuple[list[str], list[str], list[float]]:
               help="Distance of the textured plane below the sensor head origin along body z (metres).")
 @click.option("--window-px", type=int, default=32, show_default=True,
               help="Side of the non-overlapping correlation windows (tumbling image pixels).")
+@click.option("--max-failed-share", type=float, default=0.10, show_default=True,
+              help="An image that cannot be measured is left out with a warning (named in the reports); more than "
+                   "this share of failed images stops the recipe (a systematic problem, not a bad image).")
+@click.option("--min-circles", type=int, default=2, show_default=True,
+              help="Every actuator position must keep at least this many measured circles (>= 2).")
 @click.option("--flight", default="", help="Provenance: laboratory session.")
 @click.option("--date", default="", help="Provenance: date of the images (ISO 8601).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML table is written next to it.")
 def tumbling_head_command(images_dir, rig_path, positions_path, reference_image, head, reference_head,
-                          plane_distance_m, window_px, flight, date, output, report_path) -> None:
+                          plane_distance_m, window_px, max_failed_share, min_circles, flight, date, output,
+                          report_path) -> None:
     """Laboratory calibration of a tumbling head (paper 000): boresight curve, repeatability (Tab. 2)."""
     import html
 
@@ -232,7 +238,8 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
     def load(name: str) -> np.ndarray:
         return read_image(folder / name, gray=False)
 
-    cal = calibrate_tumbling_head(setup, load, names, circles, np.radians(betas), ref, window_px=window_px)
+    cal = calibrate_tumbling_head(setup, load, names, circles, np.radians(betas), ref, window_px=window_px,
+                                  min_circles=min_circles, max_failed_share=max_failed_share)
     out_cal = cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal)
     write_rig(cal.calibrated_rig(), output, out_cal)
     report = cal.to_dict()
@@ -262,7 +269,12 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
             f"{rows}</table><h2>Mean correction curve (1/1000 deg, &plusmn; 1&sigma; repeatability)</h2>"
             "<table border=1><tr><th>beta (deg)</th><th>droll</th><th>dpitch</th><th>dyaw</th></tr>"
             f"{curve}</table>"
-            f"<h2>How far the curve may be from the mechanism's</h2><p>{html.escape(_curve_statement_line(report))}</p>")
+            f"<h2>How far the curve may be from the mechanism's</h2><p>{html.escape(_curve_statement_line(report))}</p>"
+            + (f"<h2>Images left out ({len(cal.failed)} of {cal.images.size})</h2><table border=1><tr><th>image</th>"
+               "<th>circle</th><th>beta (deg)</th><th>reason</th></tr>" + "".join(
+                   f"<tr><td>{html.escape(f.name)}</td><td>{html.escape(f.circle)}</td>"
+                   f"<td>{np.degrees(f.beta_rad):.2f}</td><td>{html.escape(f.reason)}</td></tr>" for f in cal.failed)
+               + "</table>" if cal.failed else ""))
     html_path = Path(report_path).with_suffix(".html")
     with atomic_write(html_path) as fh:
         fh.write(page)
@@ -275,6 +287,11 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
         f"{a} {v['mechanism_std_mdeg']:.1f} +- {v['mechanism_std_se_mdeg']:.1f} (one image's measurement sigma "
         f"{v['measurement_sigma_mdeg']:.1f})" for a, v in t2.items()))
     click.echo(_curve_statement_line(report))
+    if cal.failed:
+        click.echo(f"WARNING: {len(cal.failed)} of {cal.images.size} images left out (their positions' statistics "
+                   f"use the other circles; fewest circles at a position {int(cal.counts.min())}): " + "; ".join(
+                       f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.2f} deg): {f.reason}"
+                       for f in cal.failed))
     click.echo(f"-> {output}, {report_path}, {html_path}")
 
 
