@@ -13,7 +13,9 @@ compared with the true one; oblique image points are projected with the calibrat
 With ``--seeds`` the summary pools the labs' normalised errors, (estimate - truth) / stated sigma, of the lookup
 values and of the Fourier terms (plain, whitened with the stated covariance, and for the lookup against the old upper
 bound), per axis and all axes: mean, std, RMS and the Kolmogorov-Smirnov p against N(0, 1); and how many labs have
-every value within the stated simultaneous band.
+every value within the stated simultaneous band.  Images the recipe left out (``images_left_out``: name, circle,
+beta, reason) are listed per lab, counted per lab and by kind of failure in the summary; the judged errors use the
+images measured.
 """
 
 from __future__ import annotations
@@ -215,22 +217,27 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
     from skyrig.rig.boresight_curve import AXES
 
     c, k = lab.true_rad.shape[:2]
+    ok = cal.measured  # (C, K) images not left out
+    n_k = cal.counts[:, None]  # circles measured per position
     err = cal.mean_rad - lab.true_curve(cal.beta_rad)
-    err_img = cal.corrections_rad - lab.true_rad  # every image's measurement error
-    rep_part = err_img.mean(axis=0)  # the part that repeats over the circles (+ varying / sqrt(C))
-    rep_draw = (lab.true_rad - lab.true_curve(cal.beta_rad)[None]).mean(axis=0)  # injected repeat errors, circle mean
-    vary = np.sqrt(np.sum((err_img - rep_part) ** 2, axis=(0, 1)) / (k * (c - 1)))
+    err_img = cal.corrections_rad - lab.true_rad  # every image's measurement error (NaN: left out)
+    rep_part = np.nanmean(err_img, axis=0)  # the part that repeats over the circles (+ varying / sqrt(C_k))
+    # injected repeat errors, mean over the circles measured at each position
+    rep_draw = np.where(ok[..., None], lab.true_rad - lab.true_curve(cal.beta_rad)[None], 0.0).sum(axis=0) / n_k
+    vary = np.sqrt(np.nansum((err_img - rep_part) ** 2, axis=(0, 1)) / cal.scatter_dof)
     # the realised repeating share of the fit variance: the circle-mean comparison error's variance less the
-    # varying part's over C, over the mean fit variance (what TumblingCalibration.repeat_share estimates)
-    share = (np.mean(rep_part ** 2, axis=0) - vary ** 2 / c) / cal.measurement_variance_rad2
+    # varying part's over C_k, over the mean fit variance (what TumblingCalibration.repeat_share estimates)
+    share = np.mean(rep_part ** 2 - vary[None] ** 2 / n_k, axis=0) / cal.measurement_variance_rad2
     fit_sig = np.sqrt(cal.measurement_variance_rad2)
     se = cal.standard_error_rad  # (K, 3) the recipe's
     z = err / se
     realised = np.sqrt(np.mean(np.var(lab.true_rad, axis=0, ddof=1), axis=0))  # the injected errors' own scatter
     mech, mech_se = cal.mechanism_repeatability_rad()
     bonferroni = float(np.sqrt(chi2.ppf(1 - 0.05 / (k * 3), 1)))  # |z| bound for K x 3 draws at 5 % family-wise
-    out: dict[str, Any] = {"positions": int(k), "circles": int(c), "windows_min": int(cal.windows.min()),
-                           "windows_median": float(np.median(cal.windows)), "z_bound_familywise_5pct": bonferroni}
+    out: dict[str, Any] = {"positions": int(k), "circles": int(c), "windows_min": int(cal.windows[ok].min()),
+                           "windows_median": float(np.median(cal.windows[ok])), "z_bound_familywise_5pct": bonferroni,
+                           "images_left_out": [f.to_dict() for f in cal.failed],
+                           "circles_per_position_min": int(cal.counts.min())}
     md = lambda x: 1000 * float(np.degrees(x))  # noqa: E731
     for i, a in enumerate(AXES):
         out[a] = {"curve_err_rms_mdeg": md(np.sqrt(np.mean(err[:, i] ** 2))),
@@ -243,7 +250,7 @@ def judge(lab: Lab, cal: Any) -> dict[str, Any]:
                   "positions_beyond_2sigma": int(np.sum(np.abs(z[:, i]) > 2)),
                   "within_2x_repeatability": float(np.mean(np.abs(err[:, i]) <= 2 * cal.std_rad[:, i])),
                   "within_2x_pooled_repeatability": float(np.mean(np.abs(err[:, i]) <= 2 * cal.pooled_std_rad[i])),
-                  "image_err_rms_mdeg": md(np.sqrt(np.mean(err_img[..., i] ** 2))),
+                  "image_err_rms_mdeg": md(np.sqrt(np.nanmean(err_img[..., i] ** 2))),
                   "image_err_varying_mdeg": md(vary[i]),
                   "fit_sigma_mdeg": md(fit_sig[i]),
                   "pooled_repeat_mdeg": md(cal.pooled_std_rad[i]),
@@ -334,7 +341,7 @@ def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int
              cache: Path | None = None) -> tuple[Lab, Any, float, float]:
     """Build the lab of ``seed``, render and calibrate it (or load the measurements from ``cache``/seedS_KxC_W.npz,
     written on the first run); the calibration, render and calibration seconds."""
-    from skyrig.calibrate.tumbling import TumblingCalibration, calibrate_tumbling_head
+    from skyrig.calibrate.tumbling import FailedImage, TumblingCalibration, calibrate_tumbling_head
     from skyrig.rig.boresight_curve import BoresightCurve
 
     t0 = time.perf_counter()
@@ -345,10 +352,16 @@ def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int
         if not np.array_equal(d["true_rad"], lab.true_rad):
             raise SystemExit(f"{f}: cached for another lab (true corrections differ); remove it")
         k = lab.beta_rad.size
+        ok = np.all(np.isfinite(d["corr"]), axis=-1).reshape(-1)  # images measured (not left out)
+        failed = ()
+        if "failed_name" in d.files:
+            failed = tuple(FailedImage(str(n), str(c), float(b), str(r)) for n, c, b, r in
+                           zip(*(d[x] for x in ("failed_name", "failed_circle", "failed_beta", "failed_reason"))))
         cal = TumblingCalibration(lab.beta_rad, np.array([f"{c + 1}" for c in range(circles)]), d["corr"], d["sig"],
                                   np.asarray(lab.names).reshape(circles, k), d["win"],
-                                  BoresightCurve.from_circles(lab.beta_rad, d["corr"]), lab.setup,
-                                  d["cov"] if "cov" in d.files else None)
+                                  BoresightCurve.from_samples(np.tile(lab.beta_rad, circles)[ok],
+                                                              d["corr"].reshape(-1, 3)[ok]), lab.setup,
+                                  d["cov"] if "cov" in d.files else None, failed)
         return lab, cal, 0.0, 0.0
     imgs, ref = render_lab(lab)
     t1 = time.perf_counter()
@@ -359,7 +372,10 @@ def run_seed(positions: int, circles: int, width: int, window_px: int, seed: int
         f.parent.mkdir(parents=True, exist_ok=True)
         tmp = f.with_suffix(".tmp.npz")
         np.savez(tmp, true_rad=lab.true_rad, corr=cal.corrections_rad, sig=cal.sigma_rad, win=cal.windows,
-                 cov=cal.fit_covariance_rad2)
+                 cov=cal.fit_covariance_rad2, failed_name=np.array([f.name for f in cal.failed], dtype=str),
+                 failed_circle=np.array([f.circle for f in cal.failed], dtype=str),
+                 failed_beta=np.array([f.beta_rad for f in cal.failed], dtype=np.float64),
+                 failed_reason=np.array([f.reason for f in cal.failed], dtype=str))
         tmp.replace(f)
     return lab, cal, t1 - t0, t2 - t1
 
@@ -435,8 +451,20 @@ def summary(results: list[dict[str, Any]]) -> dict[str, Any]:
     out["repeat_share_realised_mean"] = [float(np.mean([r[a]["repeat_share_realised"] for r in results])) for a in AXES]
     out["repeat_share_estimated_mean"] = [float(np.mean([r[a]["repeat_share_estimated"] for r in results]))
                                           for a in AXES]
+    out["images_left_out_per_lab"] = [len(r["images_left_out"]) for r in results]
+    out["images_left_out_reasons"] = _reason_counts([f["reason"] for r in results for f in r["images_left_out"]])
+    out["circles_per_position_min_per_lab"] = [r["circles_per_position_min"] for r in results]
     out["image_points_written_rig_max_px"] = [r["image_points_written_rig"]["max_px"] for r in results]
     out["image_points_written_rig_rms_px"] = [r["image_points_written_rig"]["rms_px"] for r in results]
+    return out
+
+
+def _reason_counts(reasons: list[str]) -> dict[str, int]:
+    """How often each kind of failure occurred (by the message's wording)."""
+    kinds = {"gain": "does not follow a known rotation", "convergence": "did not converge",
+             "windows": "correlation windows agree", "texture": "textured windows"}
+    out = {k: sum(v in r for r in reasons) for k, v in kinds.items()}
+    out["other"] = len(reasons) - sum(out.values())
     return out
 
 
@@ -484,8 +512,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"order {st['fourier']['order']} beyond {st['fourier']['beyond_2sigma']} max |z| "
                   f"{max(st['fourier']['max_abs_z']):.2f} (simultaneous {st['fourier']['simultaneous_z']:.2f}); "
                   f"repeat share {[round(x, 2) for x in st['lookup']['repeat_share']]}; mechanism/injected {mech}"
-                  f"; image points (written rig file) max {res['image_points_written_rig']['max_px']:.3f} px",
-                  flush=True)
+                  f"; image points (written rig file) max {res['image_points_written_rig']['max_px']:.3f} px"
+                  f"; images left out {len(cal.failed)} ({', '.join(f.name for f in cal.failed)})", flush=True)
     out: dict[str, Any] = {"args": vars(a) | {"out": str(a.out), "cache": str(a.cache)}, "failed": failed}
     if len(seeds) == 1 and results:
         out |= results[0]

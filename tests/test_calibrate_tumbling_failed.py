@@ -118,6 +118,10 @@ def test_bad_images_left_out_and_named(lab_images, caplog):
     assert all(n in prov.notes for n in bad_names)
     for a, v in cal.table2(2.0).items():
         assert v["image_at_max"] not in bad_names
+    # the bench judges such a lab from the images measured
+    res = tl.judge(lab, cal)
+    assert [f["image"] for f in res["images_left_out"]] == list(bad_names) and res["circles_per_position_min"] == 2
+    assert all(np.isfinite(res[a]["image_err_varying_mdeg"]) and np.isfinite(res[a]["rms_z"]) for a in cal.table2())
 
 
 def test_cli_names_left_out_images(lab_images, tmp_path):
