@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check opencv]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check opencv] [--no-cloud]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -20,7 +20,8 @@ reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
 * **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
   image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`
   (its left-right check is the second, right-based matching, ``SgmConfig.lr_check="full"``; ``--lr-check opencv``
-  measures OpenCV's internal check instead);
+  measures OpenCV's internal check instead; ``--no-cloud`` leaves the dense cloud out, as ``skyrig dsm --no-cloud``
+  does: the DSM chain alone);
 * **raw**: for every pair the plan selected, ``cv2.StereoSGBM_create(...).compute`` once on the pair's
   whole rectified overlap (the left image's rectified bounds plus the search width on the left, the right
   image shifted by the window start), grey, with the same disparity window (the union of the pair's block
@@ -135,7 +136,7 @@ def setup(cache: Path, n: int, workers: int | None = None):  # type: ignore[no-u
 
 
 def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,  # type: ignore[no-untyped-def]
-              lr_check: str | None = None):
+              lr_check: str | None = None, with_cloud: bool = True):
     from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
 
     from skyrig.dense import _phases
@@ -143,6 +144,7 @@ def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,
     cfg = DenseConfig() if tile_cells is None else DenseConfig(tile_cells=tile_cells)
     if lr_check is not None:
         cfg = replace(cfg, sgm=replace(cfg.sgm, lr_check=lr_check))
+    cfg = replace(cfg, cloud=with_cloud)
     _phases.reset()
     c0 = time.process_time()
     t0 = time.perf_counter()
@@ -235,7 +237,7 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
 
 
 def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, cold: bool = False,
-           lr_check: str | None = None) -> dict:
+           lr_check: str | None = None, with_cloud: bool = True) -> dict:
     """One size, in this (fresh) process: start-up (unless ``cold``), chain, then raw; peak memory of each phase."""
     import cv2
 
@@ -243,7 +245,7 @@ def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, col
     cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
     start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check)
+    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check, with_cloud)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     raw = run_raw(plan, loader)
     h = dsm.height
@@ -289,11 +291,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
                     help="SgmConfig.lr_check of the chain (default: DenseConfig's, the full check); raw "
                          "StereoSGBM always runs OpenCV's internal check (disp12MaxDiff)")
+    ap.add_argument("--no-cloud", action="store_true",
+                    help="the chain without the dense point cloud (DenseConfig.cloud=False, skyrig dsm --no-cloud)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     if a.worker is not None:
-        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold, a.lr_check)))
+        print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold, a.lr_check,
+                                                 not a.no_cloud)))
         return
     if a.profile is not None:
         profile(cache, a.profile)
@@ -306,7 +311,8 @@ def main(argv: list[str] | None = None) -> None:
     import cv2
 
     print(f"{'cold start (start-up in the chain)' if a.cold else 'start-up timed apart (column start s)'}; "
-          f"tile_cells {a.tile_cells or 'default'}; lr_check {a.lr_check or 'default'}; OpenCV {cv2.__version__}, "
+          f"tile_cells {a.tile_cells or 'default'}; lr_check {a.lr_check or 'default'}; "
+          f"{'no cloud' if a.no_cloud else 'with cloud'}; OpenCV {cv2.__version__}, "
           f"cv2.setNumThreads({a.cv_threads}) in chain "
           f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
     rows = []
@@ -318,6 +324,8 @@ def main(argv: list[str] | None = None) -> None:
             cmd += ["--tile-cells", str(a.tile_cells)]
         if a.lr_check is not None:
             cmd += ["--lr-check", a.lr_check]
+        if a.no_cloud:
+            cmd.append("--no-cloud")
         p = subprocess.run(cmd, capture_output=True, text=True)
         line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
         if p.returncode != 0 or not line:

@@ -3,8 +3,13 @@
 Usage::
 
     .venv/bin/python bench/dense_acceptance.py CASE [CASE ...] [--cache /tmp/skyrig-acc] [--json FILE]
+        [--lr-check opencv] [--no-cloud]
 
     CASE: midas | tumblecam | 3k | bridge | brighton | all
+
+``--lr-check`` / ``--no-cloud`` go to the midas and tumblecam cases' ``skyrig dsm`` (their products are cached in
+folders named after them, e.g. ``dsm_adjusted-lr-check-opencv-no-cloud``): the fast DSM configuration judged by
+the same thresholds.
 
 Every case drives skyrig the way a user does (the ``skyrig`` command next to this Python, one subprocess per
 stage, each command line printed) and judges the product against an answer the product's code never sees.
@@ -62,6 +67,10 @@ SHARED = ROOT.parent / "shared" / "data"
 # remove and recompute the dense products (DSMs, clouds, comparisons) even when cached; the upstream stages
 # (simulation, match, block, adjust, laser georeferencing) stay cached.  Set by --redo-dense and by the tests.
 REDO_DENSE = False
+# extra options of the midas / tumblecam cases' ``skyrig dsm`` runs (--lr-check, --no-cloud), and the suffix of their
+# output folders (products of other options are cached apart)
+DSM_EXTRA: list[str] = []
+DSM_SUFFIX = ""
 
 
 def fresh(path: Path) -> Path:
@@ -238,15 +247,15 @@ def case_adjusted(scenario: str, cache: Path, nadir_adjust: bool) -> dict[str, A
     rep = json.loads((adj / "report.json").read_text())
     res["adjust"] = {"sigma0": rep["summary"]["sigma0"], **orientation_errors(adj / "eo.csv", p / "truth" / "eo_map.csv")}
     res["direct_georef"] = orientation_errors(b["eo_dg"], p / "truth" / "eo_map.csv")
-    d_adj = fresh(out / "dsm_adjusted")
+    d_adj = fresh(out / f"dsm_adjusted{DSM_SUFFIX}")
     if not (d_adj / "dsm.tif").exists():
         skyrig("dsm", "--eo", adj / "eo.csv", "--camera", b["rig"], "--images", b["images"], "--heads", "nadir",
-               "--points", adj / "points.csv", "-o", d_adj)
+               "--points", adj / "points.csv", *DSM_EXTRA, "-o", d_adj)
     hr = json.loads((d_adj / "dense.json").read_text())["height_range"]
-    d_tru = fresh(out / "dsm_truth")
+    d_tru = fresh(out / f"dsm_truth{DSM_SUFFIX}")
     if not (d_tru / "dsm.tif").exists():
         skyrig("dsm", "--eo", p / "truth" / "eo_map.csv", "--camera", p / "truth" / "rig.yaml", "--images", b["images"],
-               "--heads", "nadir", "--height-range", f"{hr[0]:.3f}", f"{hr[1]:.3f}", "-o", d_tru)
+               "--heads", "nadir", "--height-range", f"{hr[0]:.3f}", f"{hr[1]:.3f}", *DSM_EXTRA, "-o", d_tru)
     res["adjusted"] = judge(d_adj, scenario)
     res["truth"] = judge(d_tru, scenario)
     res["verdict"] = verdict(res["adjusted"])
@@ -647,9 +656,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("/tmp/skyrig-acc"))
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--redo-dense", action="store_true", help="recompute the dense products even when cached")
+    ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
+                    help="midas / tumblecam: skyrig dsm --lr-check (default: skyrig's default, the full check)")
+    ap.add_argument("--no-cloud", action="store_true", help="midas / tumblecam: skyrig dsm --no-cloud")
     a = ap.parse_args(argv)
-    global REDO_DENSE
+    global REDO_DENSE, DSM_EXTRA, DSM_SUFFIX
     REDO_DENSE = a.redo_dense
+    DSM_EXTRA = (["--lr-check", a.lr_check] if a.lr_check else []) + (["--no-cloud"] if a.no_cloud else [])
+    DSM_SUFFIX = "".join("-" + x.lstrip("-") for x in DSM_EXTRA)
     a.cache.mkdir(parents=True, exist_ok=True)
     cases = ["midas", "tumblecam", "3k", "bridge", "brighton"] if "all" in a.cases else a.cases
     fns = {"midas": case_midas, "tumblecam": case_tumblecam}
