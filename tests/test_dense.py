@@ -447,14 +447,17 @@ def test_tiled_equals_untiled_bit_for_bit(block):
     eo, imgs = eo.subset(keep), [imgs[i] for i in keep]
     c = _to_map(np.array([-14.0, 14.0]), np.array([-11.0, 11.0]), np.array([50.0, 50.0]))
     area = (c[0, 0], c[0, 1], c[1, 0], c[1, 1])
+    # the third run: tiled and without the cloud (the fusion then keeps only each point's height, not x and y)
     runs = [dense_surface(eo, cams, lambda i: imgs[i], WorldFrame.map(CRS), (40.0, 75.0), area=area,
-                          config=DenseConfig(tile_cells=t, block_px=256)) for t in (4096, 90)]
-    (whole, cloud_whole, s1), (tiled, cloud_tiled, s2) = runs
-    assert s1.tiles == 1 and s2.tiles >= 4
+                          config=DenseConfig(tile_cells=t, block_px=256, cloud=c))
+            for t, c in ((4096, True), (90, True), (90, False))]
+    (whole, cloud_whole, s1), (tiled, cloud_tiled, s2), (grid_only, no_cloud, _) = runs
+    assert s1.tiles == 1 and s2.tiles >= 4 and no_cloud is None
     assert np.isfinite(whole.height).mean() > 0.5
-    for a, b in ((whole.height, tiled.height), (whole.support, tiled.support), (whole.sigma, tiled.sigma),
-                 (whole.spread, tiled.spread)):
-        assert np.array_equal(a, b, equal_nan=True)
+    for other in (tiled, grid_only):
+        for a, b in ((whole.height, other.height), (whole.support, other.support), (whole.sigma, other.sigma),
+                     (whole.spread, other.spread)):
+            assert np.array_equal(a, b, equal_nan=True)
     assert len(cloud_tiled) == len(cloud_whole)
     assert np.array_equal(np.sort(cloud_whole.xyz, axis=0), np.sort(cloud_tiled.xyz, axis=0))
 

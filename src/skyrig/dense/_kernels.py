@@ -60,7 +60,8 @@ def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_
     ``bounds``: if not empty), in their order, into rows ``at..`` of the point arrays ``o_*`` (``pair``, or
     ``pair_const`` when it is empty; the cloud's ``sigma_3d``, ``rgb``, ``normal`` when ``o_s3`` is not empty), their
     cells into ``o_cell``, counted in ``counts[cell + 1]`` (its cumulative sum is then every cell's start offset):
-    one pass over the batch.  Returns the number of points taken."""
+    one pass over the batch.  ``o_xyz`` with one column takes the heights only (a grid without a cloud).  Returns
+    the number of points taken."""
     n = xyz.shape[0]
     has_pair = pair.shape[0] > 0
     cloud = o_s3.shape[0] > 0
@@ -75,9 +76,12 @@ def take_points(xyz, sigma_h, pair, pair_const, sigma_3d, rgb, normal, o_xyz, o_
             continue
         o_cell[j] = q
         counts[q + 1] += 1
-        o_xyz[j, 0] = xi
-        o_xyz[j, 1] = yi
-        o_xyz[j, 2] = zi
+        if o_xyz.shape[1] == 3:
+            o_xyz[j, 0] = xi
+            o_xyz[j, 1] = yi
+            o_xyz[j, 2] = zi
+        else:  # the grid alone reads only the height (the cell holds x, y)
+            o_xyz[j, 0] = zi
         o_sh[j] = sigma_h[i]
         o_pair[j] = pair[i] if has_pair else pair_const
         if cloud:
@@ -113,7 +117,7 @@ def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, norm
     an index in blocks of cells of a grid ``W`` cells wide, see :func:`_cell_of`.
 
     Grid (``do_grid``, see :func:`skyrig.dense.fusion.fuse_grid`): the points with ``sigma_h > 0``, heights
-    ``xyz[:, 2]``, gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with
+    ``xyz[:, -1]`` (``xyz`` may hold the heights alone, one column, when there is no cloud), gathered into scratch arrays sorted by (pair, height), stably (ties keep the input order); with
     ``max_range > 0`` a pair whose own heights in the cell span more than ``max_range`` gives the cell no height (it
     sees a wall or a depth edge inside the cell).  Writes the flat ``out_*`` arrays; ``out_ch``, ``out_cs``,
     ``out_cn``: for a cell whose pairs all agree but are fewer than ``min_support``, their precision-weighted mean,
@@ -126,6 +130,7 @@ def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, norm
     point (precision ``sigma_3d``); normals are rotated by ``rot`` (``(3, 3)``, in float64, rounded to float32)
     before they are averaged.  Writes ``o_*`` row by row and returns the number of rows written."""
     ncells = start.shape[0] - 1
+    zc = xyz.shape[1] - 1  # the height's column (0 when the grid alone keeps only the heights)
     maxm = 0
     for c in range(ncells):
         maxm = max(maxm, start[c + 1] - start[c])
@@ -152,7 +157,7 @@ def fuse_sorted(start, order, pair, xyz, sigma_h, voxel_z_m, sigma_3d, rgb, norm
                 i = order[q]
                 sh = np.float64(sigma_h[i])
                 if sh > 0:
-                    m = _insert_sorted(lp, lh, ls, m, pair[i], xyz[i, 2], sh)
+                    m = _insert_sorted(lp, lh, ls, m, pair[i], xyz[i, zc], sh)
             if m:
                 _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                            out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
