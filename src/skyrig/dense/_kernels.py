@@ -189,6 +189,18 @@ def _insert_sorted(k1, k2, v, m, a, b, c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def _rank(v, n, q):  # pragma: no cover - compiled
+    """Position of ``v[q]`` in the stable ascending order of ``v[:n]`` (ties by index): the number of values below
+    it plus its equals before it.  Comparisons without branches: for the few pairs of a cell this is faster than an
+    insertion sort, whose moves depend on the data."""
+    x = v[q]
+    r = 0
+    for p in range(n):
+        r += (v[p] < x) | ((v[p] == x) & (p < q))
+    return r
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi, dev,
                out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2):  # pragma: no cover
     """Fusion of one cell from its ``m`` points sorted by (pair, height) in ``lp, lh, ls`` (steps 1-3 of
@@ -214,12 +226,8 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     np_ = k
     if np_ == 0:
         return
-    for q in range(np_):  # pi: pair heights' order (stable insertion sort by ph)
-        t = q
-        while t > 0 and ph[pi[t - 1]] > ph[q]:
-            pi[t] = pi[t - 1]
-            t -= 1
-        pi[t] = q
+    for q in range(np_):  # pi: pair heights' order, stable (ties by pair), from each height's rank
+        pi[_rank(ph, np_, q)] = q
     # precision-weighted median
     tot = 0.0
     for q in range(np_):
@@ -237,9 +245,10 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     wsum = 0.0
     hsum = 0.0
     for q in range(np_):  # pi from here on: 1 where the pair supports the median
-        tol = max(k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed), min_tol)
         pi[q] = 0
-        if abs(ph[q] - med) <= tol:
+        dq = abs(ph[q] - med)
+        # within the least tolerance the pair supports whatever its sigma (no square root needed)
+        if dq <= min_tol or dq <= k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed):
             pi[q] = 1
             nsup += 1
             wsum += pw[q]
@@ -253,20 +262,25 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
             _split_camps(c, ph, ps, pw, np_, k_sigma, min_tol, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
         return
     fused = hsum / wsum
-    t = 0
-    for q in range(np_):
-        if pi[q]:
-            v = abs(ph[q] - fused)
-            r = t
-            while r > 0 and dev[r - 1] > v:
-                dev[r] = dev[r - 1]
-                r -= 1
-            dev[r] = v
-            t += 1
     out_h[c] = fused
     out_n[c] = min(nsup, 32767)
     out_s[c] = 1.0 / np.sqrt(wsum)
-    out_sp[c] = 1.4826 * 0.5 * (dev[(nsup - 1) // 2] + dev[nsup // 2]) if nsup >= 2 else np.nan
+    if nsup >= 2:  # the median absolute deviation: the two middle deviations picked by their ranks
+        t = 0
+        for q in range(np_):
+            if pi[q]:
+                dev[t] = abs(ph[q] - fused)
+                t += 1
+        lo_v = hi_v = 0.0
+        for q in range(nsup):
+            r = _rank(dev, nsup, q)
+            if r == (nsup - 1) // 2:
+                lo_v = dev[q]
+            if r == nsup // 2:
+                hi_v = dev[q]
+        out_sp[c] = 1.4826 * 0.5 * (lo_v + hi_v)
+    else:
+        out_sp[c] = np.nan
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
