@@ -56,7 +56,9 @@ def one(seed: int, width: int, ties: int, deformation_px: float, grid: bool, sig
     # the covariance function calqc fitted per camera (to compare with the simulated field's) and the variance factor
     info: dict[str, object] = {"sigma0_joint": cal.statistics.get("sigma0_joint"),
                                "grid_cycles": cal.statistics.get("grid_cycles"), "whitened": w.tolist(),
-                               "mahalanobis2": float(w @ w)}
+                               "mahalanobis2": float(w @ w),
+                               "grid_sigma_ratio_max": cal.statistics.get("grid_sigma_ratio_max"),
+                               "grid_sigma_ratio_median": cal.statistics.get("grid_sigma_ratio_median")}
     for cam, g in cal.grids.items():
         cf = g.covariance
         info[cam] = {"c0_px2": cf.c0, "length_px": cf.length_px, "nugget_px2": cf.nugget,

@@ -199,3 +199,30 @@ def test_calqc_joint_grid_returns_the_oblique_principal_distances_noise_free() -
     # the test has power: without the grid the wave goes into the obliques' principal distances
     plain = focal_z(calibrate_calqc(data, variants=False, grid=False, design=False))
     assert max(abs(plain["forward"]), abs(plain["backward"])) > 1.0, plain
+
+
+def test_covariance_fit_spread_is_the_spread_of_fits_to_fields_of_that_function() -> None:
+    # the truth: the sampling spread of the detrended fit, from fields drawn independently with the true function
+    # (Gaussian signal plus white noise) and fitted as joint_grid_adjustment fits them; the function under test
+    # draws its own fields from the CovarianceFit it is given (here the true one).  Both sample variances have 23
+    # degrees of freedom: their ratio inside the F distribution's 99 % interval.
+    from scipy.stats import f as f_dist
+
+    from skyrig.calibrate.calqc import CovarianceFit, covariance_fit_spread, random_field_deformation
+
+    w, h, L, a, nug = 300, 200, 60.0, 0.05, 0.0036
+    xy = np.random.default_rng(3).uniform([0, 0], [w - 1, h - 1], (600, 2))
+    rng = np.random.default_rng(4)
+    direct = []
+    for _ in range(24):
+        v = random_field_deformation(a, L, w, h, rng)(xy) + np.sqrt(nug) * rng.standard_normal((len(xy), 2))
+        cf = fit_covariance(xy, v, 0.5 * float(np.hypot(w, h)), detrend_format=(w, h))
+        direct.append([np.log(max(cf.c0, 1e-3 * a * a) / (a * a)), np.log(cf.length_px / L)])
+    direct = np.array(direct)
+    true = CovarianceFit(a * a, L, nug, np.zeros(1), np.zeros(1), np.zeros(1, np.int64), a * a + nug)
+    S = covariance_fit_spread(xy, true, w, h, draws=24, seed=5)
+    lo, hi = f_dist.ppf([0.005, 0.995], 23, 23)
+    for k in range(2):
+        ratio = S[k, k] / np.var(direct[:, k], ddof=1)
+        assert lo < ratio < hi, (k, ratio, lo, hi)
+    assert S.shape == (2, 2) and np.all(np.linalg.eigvalsh(S) >= -1e-12)
