@@ -776,46 +776,6 @@ def grid_from_result(res: AdjustmentResult, base: Mapping[str, CorrectionGrid] |
     return out
 
 
-def grid_uncertainty(block: Block, res: AdjustmentResult, grids: Mapping[str, CorrectionGrid], cfg: AdjustConfig,
-                     draws: int = 8, seed: int = 0) -> NDArray[np.float64]:
-    """The correction grids' posterior uncertainty propagated into the calibration unknowns (Monte Carlo).
-
-    ``block``: the uncorrected block at the adjusted values of ``res`` (the joint adjustment on the coordinates the
-    ``grids`` correct).  ``draws`` antithetic pairs: each grid plus and minus a draw from its posterior (the node
-    values' full posterior covariance, :meth:`CorrectionGrid.sample`, less its calibration-like part as the grid
-    itself), the joint adjustment again, and half the difference of the calibration unknowns; their mean outer
-    product is the covariance to add to the adjustment's (the ``_cal_labels`` order of ``res``)."""
-    rng = np.random.default_rng(seed)
-    labels, _ = _cal_labels(res)
-
-    def values(r: AdjustmentResult) -> NDArray[np.float64]:
-        b = r.block
-        out = []
-        for g, o, c in labels:
-            if g == "boresight":
-                out.append(b.head_boresight[list(b.head_name).index(o)]["rx ry rz".split().index(c)])
-            elif g == "intrinsics":
-                cam = next(cm for cm in b.cameras if cm.name == o)
-                out.append(dict(zip(cam.intrinsic_names, cam.intrinsics))[c])
-            elif g == "datum_shift":
-                out.append(b.datum_shift["XYZ".index(c)])
-            else:
-                out.append(b.lever_arm["XYZ".index(c)])
-        return np.array(out, float)
-
-    cfg = cfg.with_(snooping=False, statistics=False)
-    acc = np.zeros((len(labels), len(labels)))
-    for _ in range(int(draws)):
-        d = {k: without_calibration_part(replace(g, value_px=g.sample(rng))).value_px for k, g in grids.items()}
-        pair = []
-        for sign in (1.0, -1.0):
-            gk = {k: replace(g, value_px=g.value_px + sign * d[k]) for k, g in grids.items()}
-            pair.append(values(adjust(apply_grids(block, gk), cfg)))
-        dv = 0.5 * (pair[0] - pair[1])
-        acc += np.outer(dv, dv)
-    return acc / max(int(draws), 1)
-
-
 def _cal_values(r: AdjustmentResult, labels: Sequence[tuple[str, str, str]]) -> NDArray[np.float64]:
     """The values of the calibration unknowns ``labels`` (the ``_cal_labels`` order) in an adjustment's block."""
     b = r.block
@@ -831,6 +791,31 @@ def _cal_values(r: AdjustmentResult, labels: Sequence[tuple[str, str, str]]) -> 
         else:
             out.append(b.lever_arm["XYZ".index(c)])
     return np.array(out, float)
+
+
+def grid_uncertainty(block: Block, res: AdjustmentResult, grids: Mapping[str, CorrectionGrid], cfg: AdjustConfig,
+                     draws: int = 8, seed: int = 0) -> NDArray[np.float64]:
+    """The correction grids' posterior uncertainty propagated into the calibration unknowns (Monte Carlo).
+
+    ``block``: the uncorrected block at the adjusted values of ``res`` (the joint adjustment on the coordinates the
+    ``grids`` correct).  ``draws`` antithetic pairs: each grid plus and minus a draw from its posterior (the node
+    values' full posterior covariance, :meth:`CorrectionGrid.sample`, less its calibration-like part as the grid
+    itself), the joint adjustment again, and half the difference of the calibration unknowns; their mean outer
+    product is the covariance to add to the adjustment's (the ``_cal_labels`` order of ``res``)."""
+    rng = np.random.default_rng(seed)
+    labels, _ = _cal_labels(res)
+
+    cfg = cfg.with_(snooping=False, statistics=False)
+    acc = np.zeros((len(labels), len(labels)))
+    for _ in range(int(draws)):
+        d = {k: without_calibration_part(replace(g, value_px=g.sample(rng))).value_px for k, g in grids.items()}
+        pair = []
+        for sign in (1.0, -1.0):
+            gk = {k: replace(g, value_px=g.value_px + sign * d[k]) for k, g in grids.items()}
+            pair.append(_cal_values(adjust(apply_grids(block, gk), cfg), labels))
+        dv = 0.5 * (pair[0] - pair[1])
+        acc += np.outer(dv, dv)
+    return acc / max(int(draws), 1)
 
 
 def covariance_fit_spread(xy: NDArray[np.float64], cov: CovarianceFit, width: int, height: int, draws: int = 16,
