@@ -497,6 +497,11 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
               help="With --grid-method cycles: propagate the correction grid's posterior into the calibration "
                    "covariance with this many antithetic Monte-Carlo pairs (each two adjustments of the whole flight; "
                    "0: the grid taken as known).")
+@click.option("--grid-fit-draws", type=click.IntRange(min=0), default=16, show_default=True,
+              help="With --grid-method joint: the grid's covariance function (signal variance, correlation length) is "
+                   "fitted to the residuals; its sampling uncertainty (a parametric bootstrap of this many fits, and "
+                   "two more adjustments) is added to the calibration covariance (0: the fitted function taken as "
+                   "known, sigmas a few per cent optimistic).")
 @click.option("--no-design-study", is_flag=True,
               help="Skip the design study (which unknowns this flight cannot separate, per head, and the flight that "
                    "would: virtual opposite-direction / cross-strip / second-height flights).")
@@ -507,8 +512,8 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
 def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
-                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_method, grid_pairs, no_design_study,
-                  no_variants, flight,
+                  gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_method, grid_pairs, grid_fit_draws,
+                  no_design_study, no_variants, flight,
                   date, output, report_path) -> None:
     """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
     three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
@@ -550,7 +555,7 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
                               imu_sigma_deg=triple(imu_sigma_deg, "--imu-sigma-deg"),
                               control_sigma_m=triple(control_sigma, "--control-sigma"), grid=not no_grid,
                               variants=not no_variants, grid_uncertainty_draws=grid_pairs,
-                              design=not no_design_study, grid_method=grid_method)
+                              design=not no_design_study, grid_method=grid_method, grid_fit_draws=grid_fit_draws)
     except CalqcFailed as exc:
         raise click.ClickException(f"calibration failed: {exc}") from None
     except SkyrigError as exc:
