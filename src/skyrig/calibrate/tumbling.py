@@ -201,6 +201,16 @@ def _gray(img: NDArray[Any]) -> NDArray[np.float32]:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
+def _reference_gray(setup: LabSetup, reference_image: NDArray[Any]) -> NDArray[np.float32]:
+    """The reference camera's image in grey values, checked against its camera's size."""
+    ref = _gray(reference_image)
+    rc = setup.rig.head(setup.reference_head).camera
+    if ref.shape != (rc.height, rc.width):
+        raise SkyrigError(f"reference image is {ref.shape[1]} x {ref.shape[0]} px, camera {rc.name!r} of head "
+                          f"{setup.reference_head!r} is {rc.width} x {rc.height}")
+    return ref
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _keys(d: float, a: float) -> float:  # pragma: no cover - compiled
     """Keys' cubic-convolution kernel at distance ``d >= 0``."""
@@ -380,11 +390,7 @@ def measure_position_offset(
     if gray_t.shape != (cam.height, cam.width):
         raise SkyrigError(f"image {name!r} is {gray_t.shape[1]} x {gray_t.shape[0]} px, camera "
                           f"{cam.name!r} of head {setup.head!r} is {cam.width} x {cam.height}")
-    ref = _gray(reference_image)
-    rc = setup.rig.head(setup.reference_head).camera
-    if ref.shape != (rc.height, rc.width):
-        raise SkyrigError(f"reference image is {ref.shape[1]} x {ref.shape[0]} px, camera {rc.name!r} of head "
-                          f"{setup.reference_head!r} is {rc.width} x {rc.height}")
+    ref = _reference_gray(setup, reference_image)
     warp = _Warp(setup, beta_rad, ref, gray_t.shape)
     win = max(8, int(window_px))
     pad = 2
@@ -1132,8 +1138,7 @@ class TumblingCalibration:
                  "image iterated to zero shift; mean curve over circles")
         if self.failed:
             notes += (f"; {len(self.failed)} images left out (the curve at their positions from the other circles): "
-                      + "; ".join(f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.4f} deg): {f.reason}"
-                                  for f in self.failed))
+                      + _failed_list(self.failed, most=len(self.failed)))
         prov = Provenance("tumbling-head", flight, date, software, stats, notes)
         heads = dict(previous.heads) if previous is not None else {}
         prev = heads.get(self.setup.head, HeadCalibration())
@@ -1260,11 +1265,8 @@ def calibrate_tumbling_head(
             missing = sorted(set(pos.tolist()) ^ set(keys.tolist()))
             raise SkyrigError(f"tumbling-head: circle {lab!r} does not hold the same actuator positions as circle "
                               f"{labels[0]!r} (differing: {', '.join(f'{m:g}' for m in missing[:8])} deg)")
-    rc = setup.rig.head(setup.reference_head).camera
-    ref_shape = _gray(reference_image).shape
-    if ref_shape != (rc.height, rc.width):  # one reference for every image: not a per-image failure
-        raise SkyrigError(f"reference image is {ref_shape[1]} x {ref_shape[0]} px, camera {rc.name!r} of head "
-                          f"{setup.reference_head!r} is {rc.width} x {rc.height}")
+    # one reference for every image (checked and converted to grey once): its size is not a per-image failure
+    ref_gray = _reference_gray(setup, reference_image)
     max_failed = int(np.floor(float(max_failed_share) * names.size + 1e-9))
     failed: list[FailedImage] = []
     for ci, lab in enumerate(labels):
@@ -1272,7 +1274,7 @@ def calibrate_tumbling_head(
             k = int(np.searchsorted(pos, np.round(np.degrees(beta[j]) % 360.0, 6)))
             nam[ci, k] = str(names[j])
             try:
-                off = measure_position_offset(setup, images(str(names[j])), float(beta[j]), reference_image,
+                off = measure_position_offset(setup, images(str(names[j])), float(beta[j]), ref_gray,
                                               name=str(names[j]), window_px=window_px)
             except SkyrigError as exc:
                 failed.append(FailedImage(str(names[j]), str(lab), float(beta[j]), str(exc)))
@@ -1283,7 +1285,7 @@ def calibrate_tumbling_head(
                         f"tumbling-head: {len(failed)} of {names.size} images failed (at most "
                         f"{100 * float(max_failed_share):g} % = {max_failed} may: more is a systematic problem, "
                         "e.g. the rig's orientations, the plane distance, the reference image or the lighting, not "
-                        f"a bad image); {_failed_list(failed)}") from None
+                        f"a bad image); failed: {_failed_list(failed)}") from None
                 continue
             meas[ci, k] = off.correction_rad
             sig[ci, k] = off.sigma_rad
@@ -1301,7 +1303,7 @@ def calibrate_tumbling_head(
             f"tumbling-head: {short.size} actuator positions keep fewer than {int(min_circles)} measured circles "
             f"(beta {', '.join(f'{pos[k]:g} deg ({int(ok[:, k].sum())} of {len(labels)})' for k in short[:12])}"
             f"{', ...' if short.size > 12 else ''}): their repeatability cannot be measured; "
-            f"{_failed_list(failed)}")
+            f"failed: {_failed_list(failed)}")
     if failed:
         log.warning("tumbling-head: %d of %d images left out (%s); fewest circles at a position: %d of %d",
                     len(failed), names.size, ", ".join(f.name for f in failed), int(ok.sum(axis=0).min()),
@@ -1314,7 +1316,7 @@ def calibrate_tumbling_head(
 
 
 def _failed_list(failed: Sequence[FailedImage], most: int = 8) -> str:
-    """The failed images for a message: name, circle, beta and reason of the first ``most``."""
-    out = "failed: " + "; ".join(f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.3f} deg): {f.reason}"
-                                 for f in failed[:most])
+    """The failed images for a message or a note: name, circle, beta and reason of the first ``most``."""
+    out = "; ".join(f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.4f} deg): {f.reason}"
+                    for f in failed[:most])
     return out + (f"; and {len(failed) - most} more" if len(failed) > most else "")
