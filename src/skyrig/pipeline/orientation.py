@@ -652,7 +652,8 @@ def _ties_file(ties: PathArg) -> Path:
 
 def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg, *, no_gps: bool = False,
                          gnss_sigma: Sequence[float] = (2.0, 2.0, 4.0), attitude_sigma: float = 5.0,
-                         altitude: str = "egm96", geoid: str | None = None, focal_prior: float = 0.1,
+                         altitude: str = "egm96", geoid: str | None = None, focal_prior: float | None = None,
+                         free_intrinsics: str | Sequence[str] = (),
                          self_calibration: bool = True, config: Mapping[str, Any] | None = None,
                          config_source: str | None = None, crs: str | None = None, compare_pycolmap: bool = False,
                          pycolmap_size: int = 1600, pycolmap_mapper: str = "incremental",
@@ -704,8 +705,9 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     if pycolmap_mapper not in ("incremental", "global"):
         raise OptionError(spell("pycolmap_mapper"), f"expected incremental or global, got {pycolmap_mapper!r}")
     pycolmap_input = _pycolmap_input(images, pycolmap_input, compare_pycolmap, spell)
-    if not (math.isfinite(focal_prior) and focal_prior > 0):
-        raise OptionError(spell("focal_prior"), f"must be positive, got {focal_prior}")
+    if focal_prior is not None and not (math.isfinite(focal_prior) and focal_prior > 0):
+        raise OptionError(spell("focal_prior"), f"must be a positive relative sigma (e.g. 0.03), got {focal_prior}")
+    free = _intrinsic_names(free_intrinsics, spell)
     if crs is not None:
         from skyrig.errors import CRSError
         from skyrig.geodesy.statement import project_frame
@@ -715,7 +717,8 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         except CRSError as e:
             raise OptionError(spell("crs"), str(e)) from None
     if needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
-        return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid, focal_prior=focal_prior,
+        return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid,
+                             focal_prior=0.1 if focal_prior is None else focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
                              compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size,
                              pycolmap_mapper=pycolmap_mapper, pycolmap_input=pycolmap_input, control=control,
@@ -728,7 +731,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         raise OptionError(spell("attitude_sigma"), f"must be >= 0, got {attitude_sigma}")
     gs = _sigma3(gnss_sigma, "gnss_sigma", spell, "east,north,up")
     kw: dict[str, Any] = dict(gnss_sigma_m=gs, attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
-                              geoid=geoid, focal_prior_rel=focal_prior)
+                              geoid=geoid, focal_prior_rel=focal_prior, free_anyway=free)
     if not self_calibration:
         kw["self_calibration"] = ()
     kw.update(config or {})
@@ -747,13 +750,27 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             res, rep, inputs=[tie_file, *list_images(imgs)], options=rep["uav"]["config"]))
     options = {"images": str(imgs), "ties": str(tie_file), "gnss_sigma_m": list(kw["gnss_sigma_m"]),
                "attitude_sigma_deg": attitude_sigma, "altitude": altitude, "geoid": geoid,
-               "focal_prior": focal_prior, "self_calibration": self_calibration,
+               "focal_prior": focal_prior, "free_intrinsics": list(free), "self_calibration": self_calibration,
                "compare_pycolmap": compare_pycolmap, "pycolmap_input": pycolmap_input if compare_pycolmap else None,
                "crs": crs, "config": config_source}
     outcome = UavOutcome(res, rep, failure_reasons(res.adjustment), False, options, inputs)
     for line in outcome.summary_lines():
         logger.info("%s", line)
     return outcome
+
+
+_INTRINSICS = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
+
+
+def _intrinsic_names(value: str | Sequence[str], spell: Spell) -> tuple[str, ...]:
+    """``free_intrinsics`` as a tuple of known intrinsic names (comma-separated text or a list); unknown names are an
+    error naming the option."""
+    names = [x.strip() for x in value.split(",")] if isinstance(value, str) else [str(x).strip() for x in value]
+    names = [x for x in names if x]
+    bad = [x for x in names if x not in _INTRINSICS]
+    if bad:
+        raise OptionError(spell("free_intrinsics"), f"unknown intrinsic(s) {bad}; known: {', '.join(_INTRINSICS)}")
+    return tuple(names)
 
 
 def _pycolmap_input(images: PathArg | None, choice: str | None, compare: bool, spell: Spell) -> str:

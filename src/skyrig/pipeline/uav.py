@@ -107,7 +107,6 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
     """
     from skyrig.geodesy.crs import Geoid, geodetic_to_ecef
     from skyrig.georef.eo import WorldFrame
-    from skyrig.io.image_read import camera_from_metadata
     from skyrig.io.odm import rotation_from_gimbal_ypr
 
     metas = list(metas)
@@ -138,12 +137,14 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
         rot[have] = rotation_from_gimbal_ypr(frame, gnss[have], ypr)
     rel = [g[2] - m.relative_alt_m for g, m in zip(gnss, metas) if m.relative_alt_m is not None]
     ground = float(np.median(rel)) if rel else None
-    cam = camera_from_metadata(metas[0], metas[0].model or "camera")
     sizes = {(m.width, m.height) for m in metas}
     if len(sizes) > 1:
         raise InputFormatError(f"images of different sizes {sorted(sizes)}: one camera per block is supported",
                                metas[0].path)
-    cam = cam.with_(distortion=OpenCVDistortion())
+    cam, isig, prior = camera_and_prior(metas, cfg)
+    notes.append(f"camera prior: {prior.source}; focal {prior.focal_px:.1f} +- {prior.focal_sigma_px:.1f} px, "
+                 f"principal point ({prior.pp_px[0]:.1f}, {prior.pp_px[1]:.1f}) +- {prior.pp_sigma_px:.1f} px")
+    notes.extend(prior.warnings)
     names = np.array([m.name for m in metas], dtype=str)
     meas_image = np.asarray(measurements.image, dtype=str)
     by_name = np.argsort(names, kind="stable")
@@ -155,7 +156,32 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
     track_name, obs_track = np.unique(measurements.point, return_inverse=True)
     obs_image = by_name[pos].astype(np.int64)
     return UavBlockInput(names, cam, gnss, rot, ground, obs_track.astype(np.int64), obs_image,
-                         np.asarray(measurements.pixel, float), track_name, frame, notes)
+                         np.asarray(measurements.pixel, float), track_name, frame, notes, isig, prior.source)
+
+
+def camera_and_prior(metas: Sequence[Any], cfg: UavConfig = UavConfig()) -> tuple[Any, dict[str, float], Any]:
+    """The starting camera of a block's images, its intrinsics' prior sigmas (camera units) and the
+    :class:`skyrig.io.camera_prior.CameraPrior` it came from (the first image's; every image is checked to be the
+    same camera: make, model and EXIF focal length, else a warning names the first that differs)."""
+    from skyrig.io.camera_prior import camera_prior
+    from skyrig.camera.frame import FrameCamera
+
+    m0 = metas[0]
+    prior = camera_prior(m0, focal_sigma_rel=cfg.focal_prior_rel)
+    for m in metas[1:]:
+        if (m.make, m.model) != (m0.make, m0.model) or (m.focal_mm and m0.focal_mm and
+                                                        abs(m.focal_mm / m0.focal_mm - 1) > 0.005):
+            logger.warning("%s: camera %s %s, focal %s mm differs from %s (%s %s, %s mm): one camera is adjusted for "
+                           "the whole block", m.path, m.make, m.model, m.focal_mm, m0.name, m0.make, m0.model,
+                           m0.focal_mm)
+            break
+    pix = prior.pixel_size_mm or 0.001
+    dist = OpenCVDistortion(**prior.distortion) if prior.distortion else OpenCVDistortion()
+    cam = FrameCamera.from_pixels(m0.model or "camera", prior.width, prior.height, prior.focal_px, prior.pp_px[0],
+                                  prior.pp_px[1], pixel_size_mm=pix, distortion=dist)
+    isig = {"focal_mm": prior.focal_sigma_px * pix, "ppx_mm": prior.pp_sigma_px * pix,
+            "ppy_mm": prior.pp_sigma_px * pix, **prior.distortion_sigma}
+    return cam, isig, prior
 
 
 def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None = None,
