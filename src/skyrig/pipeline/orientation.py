@@ -718,7 +718,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             raise OptionError(spell("crs"), str(e)) from None
     if needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
         return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid,
-                             focal_prior=0.1 if focal_prior is None else focal_prior,
+                             focal_prior=focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
                              compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size,
                              pycolmap_mapper=pycolmap_mapper, pycolmap_input=pycolmap_input, control=control,
@@ -789,7 +789,7 @@ def _pycolmap_input(images: PathArg | None, choice: str | None, compare: bool, s
 
 
 def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude: str, geoid: str | None,
-                  focal_prior: float, self_calibration: bool, config: Mapping[str, Any] | None,
+                  focal_prior: float | None, self_calibration: bool, config: Mapping[str, Any] | None,
                   config_source: str | None, crs: str | None, compare_pycolmap: bool, pycolmap_size: int,
                   pycolmap_mapper: str, pycolmap_input: str, control: PathArg | None, control_sigma: Sequence[float],
                   check: PathArg | None, scale_bars: PathArg | None, measurements: Sequence[PathArg],
@@ -828,7 +828,7 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
     inputs = [tie_file, *(list_images(imgs) if have_images else [])] + [  # type: ignore[arg-type]
         Path(p) for p in (control, check, scale_bars, camera, config_source, *measurements) if p]
     sources = {k: (str(v) if v else None) for k, v in (("control", control), ("check", check),
-                                                       ("scale_bars", scale_bars))}
+                                                       ("scale_bars", scale_bars), ("camera", camera))}
     res, rep = orient_without_gnss(
         imgs if have_images else None, tie_file, out, cfg, cam, ctrl, cs, chk, bars, extra,
         use_gps=True, pycolmap_workdir=out / "pycolmap" if compare_pycolmap else None,

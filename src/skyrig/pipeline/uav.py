@@ -385,10 +385,11 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
         No image and no camera; images of different sizes; a tie point naming an unknown image; a control point or
         scale-bar end not measured in any image (naming the file).
     """
-    from skyrig.io.image_read import camera_from_metadata, list_images, read_image_metadata
+    from skyrig.io.image_read import list_images, read_image_metadata
     from skyrig.orient.incremental import OrientInput
 
     src = sources or {}
+    focal_rel: float | None = None
     metas = [read_image_metadata(p) for p in list_images(images)] if images is not None else []
     meas_image = np.asarray(measurements.image, dtype=str)
     notes: list[str] = []
@@ -401,12 +402,15 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
             raise InputFormatError(f"images of different sizes {sorted(sizes)}: one camera per block is supported",
                                    metas[0].path)
         if camera is None:
-            try:
-                camera = camera_from_metadata(metas[0], metas[0].model or "camera")
-            except (InputFormatError, ValueError) as exc:
-                raise InputFormatError(f"no focal length in the EXIF ({exc}); give the camera with --camera",
-                                       metas[0].path) from None
-            notes.append("camera from the EXIF of the first image (focal length; principal point at the centre)")
+            camera, _, prior = camera_and_prior(metas, UavConfig(focal_prior_rel=cfg.focal_prior_rel))
+            focal_rel = prior.focal_rel_sigma
+            notes.append(f"camera prior from the images' metadata: {prior.source}; focal {prior.focal_px:.1f} +- "
+                         f"{prior.focal_sigma_px:.1f} px")
+            notes.extend(prior.warnings)
+        elif (camera.width, camera.height) != (metas[0].width, metas[0].height):
+            raise InputFormatError(f"the given camera {camera.name!r} is {camera.width} x {camera.height} px but the "
+                                   f"images are {metas[0].width} x {metas[0].height} px: a camera of other images (or "
+                                   "of downscaled / rotated ones)", src.get("camera"), None, "width_px / height_px")
         gps_ok = all(m.has_gps and m.alt_m is not None for m in metas)
         if use_gps and gps_ok and control is None:
             blk = metadata_block_input(metas, measurements, cfg)
@@ -471,7 +475,7 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
                   distance_sigma_m=sigma)
     return OrientInput(names, camera, obs_track.astype(np.int64), by_name[pos].astype(np.int64),
                        np.asarray(measurements.pixel, float), track_name, positions=positions, frame=frame,
-                       notes=notes, **kw)
+                       notes=notes, focal_prior_rel=focal_rel, **kw)
 
 
 def _is_engineering(frame: Any) -> bool:
