@@ -32,7 +32,8 @@ PRIOR_REL = 0.10
 TILT_DEG = 0.2  # a stabilised gimbal's wobble about nadir  # the 35-mm value's prior sigma (skyrig.io.camera_prior.SIGMA_35MM)
 
 
-def _block(strips, seed: int, n_points: int = 1500, relief_m: float = 0.2):
+def _block(strips, seed: int, n_points: int = 1500, relief_m: float = 0.2, gnss_noise=(0.3, 0.3, 0.5),
+           focal_error: float = FOCAL_ERROR, truth: dict | None = None):
     """Nadir images along ``strips`` = [(axis, offset, height), ...] (axis "x" or "y"); flat ground with ``relief_m``
     of roughness; GNSS noise (0.3, 0.3, 0.5) m, 0.3 px image noise, attitudes of a stabilised gimbal (``TILT_DEG``
     about nadir), metadata attitudes with 1 deg noise."""
@@ -70,8 +71,10 @@ def _block(strips, seed: int, n_points: int = 1500, relief_m: float = 0.2):
         op.append(np.column_stack([col[k], row[k]]) + rng.normal(0, 0.3, (len(k), 2)))
     ot, oi, op = np.concatenate(ot), np.concatenate(oi), np.concatenate(op)
     keep = np.bincount(ot, minlength=n_points)[ot] >= 2
-    gnss = C + rng.normal(0, 1, C.shape) * np.array([0.3, 0.3, 0.5])
-    start = base.with_(focal_mm=base.focal_mm * FOCAL_ERROR)
+    gnss = C + rng.normal(0, 1, C.shape) * np.asarray(gnss_noise, float)
+    start = base.with_(focal_mm=base.focal_mm * focal_error)
+    if truth is not None:
+        truth.update(C=C, X=X, rng=rng)
     names = np.array([f"IMG_{k:03d}.JPG" for k in range(len(C))])
     inp = UavBlockInput(names, start, gnss, R_meta, 0.0, ot[keep], oi[keep], op[keep],
                         np.array([f"p{k}" for k in range(n_points)]), frame,

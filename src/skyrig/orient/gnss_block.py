@@ -146,6 +146,11 @@ class UavBlockInput:
         :func:`adjust_uav_block`.  The prior's values are ``camera``'s.
     prior_source
         Where the camera prior came from, in words.
+    control_track, control_xyz, control_sigma, control_check
+        Ground points measured in the images (optional): ``(K,)`` index into ``track_name``, ``(K, 3)`` coordinates
+        in the local frame (metres), ``(K, 3)`` sigmas (metres per axis: metre-class targets with a loose height
+        are fine) and ``(K,)`` True for a check point (compared afterwards, not used).  A point the block cannot
+        intersect (seen in fewer than two oriented images) is left out and reported (``summary["control_left_out"]``).
     """
 
     names: NDArray[np.str_]
@@ -161,6 +166,10 @@ class UavBlockInput:
     notes: list[str] = field(default_factory=list)
     intrinsic_sigma: dict[str, float] = field(default_factory=dict)
     prior_source: str = ""
+    control_track: NDArray[np.int64] | None = None
+    control_xyz: NDArray[np.float64] | None = None
+    control_sigma: NDArray[np.float64] | None = None
+    control_check: NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -351,6 +360,15 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
     tracks, tmap = np.unique(ot, return_inverse=True)
     names = inp.names[img_sel]
     imu = np.array([img_map[k] for k in imu_images if img_map[k] >= 0], np.int64)
+    ctl: dict[str, Any] = {}
+    if inp.control_track is not None and len(inp.control_track):
+        pos = {int(t): k for k, t in enumerate(tracks)}
+        sel = [j for j, t in enumerate(inp.control_track) if int(t) in pos]
+        if sel:
+            ctl = dict(control_point=np.array([pos[int(inp.control_track[j])] for j in sel], np.int64),
+                       control_xyz=np.asarray(inp.control_xyz, float)[sel],
+                       control_sigma=np.asarray(inp.control_sigma, float)[sel],
+                       control_check=np.asarray(inp.control_check, bool)[sel])
     block = Block(
         cameras=[camera], station_name=names, station_rotation=R[img_sel], station_centre=C[img_sel],
         image_name=names, image_station=np.arange(len(img_sel)), image_camera=np.zeros(len(img_sel), np.int64),
@@ -363,6 +381,7 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
         imu_sigma_rad=np.radians(cfg.attitude_sigma_deg or 1.0),
         frame=inp.frame.describe() if inp.frame is not None else "local ENU",
         station_strip=None if strip is None else _renumber_strips(strip[img_sel]),
+        **ctl,
     )
     return block, tracks, np.flatnonzero(obs_sel)
 
@@ -677,6 +696,18 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     summary["calibration_rule"] = (f"determined when the formal sigma <= {cfg.determinable_ratio:g} x the prior sigma and "
                                    f"the prior test |z| <= {cfg.prior_conflict_z:g}; otherwise held at the prior")
     summary["camera_prior_source"] = inp.prior_source
+    if inp.control_track is not None and len(inp.control_track):
+        used = set(res.block.point_name[res.block.control_point].tolist()) if res.block.control_point is not None \
+            else set()
+        summary["control_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
+                                         if str(inp.track_name[t]) in used and not c)
+        summary["check_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
+                                       if str(inp.track_name[t]) in used and c)
+        left = [str(inp.track_name[t]) for t in inp.control_track if str(inp.track_name[t]) not in used]
+        summary["control_left_out"] = {nm: "seen in fewer than two oriented images after outlier removal: it cannot "
+                                       "be intersected; left out" for nm in left}
+        for nm in left:
+            logger.warning("ground point %s: %s", nm, summary["control_left_out"][nm])
     if strip is not None:
         b = res.block
         summary["strips"] = {int(k): [str(x) for x in inp.names[strip == k]] for k in np.unique(strip[strip >= 0])}

@@ -557,6 +557,22 @@ def failure_reasons(adj: Any) -> list[str]:
     return out
 
 
+def _all_have_gps(images: PathArg | None) -> bool:
+    """Whether ``images`` is a folder of images that all carry an EXIF GPS position with altitude."""
+    from skyrig.io.image_read import list_images, read_image_metadata
+
+    if images is None or not Path(images).is_dir():
+        return False
+    files = list_images(Path(images))
+    if not files:
+        return False
+    for f in files:
+        m = read_image_metadata(f)
+        if not (m.has_gps and m.alt_m is not None):
+            return False
+    return True
+
+
 def needs_no_gnss(no_gps: bool = False, control: Any = None, check: Any = None, scale_bars: Any = None,
                   camera: Any = None, measurements: Sequence[Any] = (), datum: str = "auto") -> bool:
     """Whether a UAV orientation runs without GNSS: asked for, or implied by control / check points, scale bars,
@@ -716,7 +732,9 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             project_frame(crs)
         except CRSError as e:
             raise OptionError(spell("crs"), str(e)) from None
-    if needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
+    ground_with_gnss = (not no_gps and bool(control or check or list(measurements)) and not scale_bars
+                        and not camera and datum == "auto" and _all_have_gps(images))
+    if not ground_with_gnss and needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
         return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid,
                              focal_prior=focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
@@ -739,10 +757,20 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     from skyrig.pipeline.uav import adjust_uav
 
     imgs = Path(images)
-    inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else [])
+    inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else []) + [
+        Path(p) for p in (control, check, *measurements) if p]
+    gkw: dict[str, Any] = {}
+    if ground_with_gnss:  # GNSS-supported block with ground control / check points measured in the images
+        from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+
+        ctrl = read_points_csv(control) if control else None
+        gkw = dict(control=ctrl, check=read_points_csv(check, default_frame=ctrl.frame if ctrl else None)
+                   if check else None, control_sigma_m=_sigma3(control_sigma, "control_sigma", spell, "x,y,z"),
+                   extra_measurements=[read_measurements_csv(p) for p in measurements],
+                   sources={"control": str(control) if control else None, "check": str(check) if check else None})
     res, rep = adjust_uav(imgs, tie_file, out, cfg, out / "pycolmap" if compare_pycolmap else None,
                           pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs,
-                          pycolmap_input=pycolmap_input)
+                          pycolmap_input=pycolmap_input, **gkw)
     if (out / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
         from skyrig.report import report_data_from_uav, write_report
 

@@ -159,6 +159,63 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
                          np.asarray(measurements.pixel, float), track_name, frame, notes, isig, prior.source)
 
 
+def _with_extra(meas: Any, extra: Sequence[Any]) -> Any:
+    """Tie points plus extra image measurements (ground control targets) as one table."""
+    if not extra:
+        return meas
+    from skyrig.georef.observations import ImageMeasurements
+
+    ms = [meas, *extra]
+    return ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
+                             np.vstack([m.pixel for m in ms]))
+
+
+def attach_ground_points(inp: UavBlockInput, control: Any, check: Any, sigma_m: Sequence[float],
+                         sources: dict[str, str]) -> UavBlockInput:
+    """``inp`` with control / check points (GroundPoints in any frame, moved into the block's local frame by PROJ)
+    found by name among its tracks; a point measured in no image is an error naming the file."""
+    from dataclasses import replace as _replace
+
+    sig = np.asarray(sigma_m, float).reshape(-1)
+    if sig.size == 1:
+        sig = np.repeat(sig, 3)
+    if sig.size != 3 or not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+        raise InputFormatError(f"control sigma {list(sigma_m)}: three positive numbers (m) expected", None, None,
+                               "control_sigma")
+    tidx = {str(n): k for k, n in enumerate(inp.track_name)}
+    tr, xyz, chk = [], [], []
+    for pts, is_check in ((control, False), (check, True)):
+        if pts is None:
+            continue
+        local = pts.frame.points_to(pts.xyz, inp.frame)
+        for nm, x in zip(pts.name, local):
+            if str(nm) not in tidx:
+                what = "check" if is_check else "control"
+                raise InputFormatError(f"{what} point {str(nm)!r} is not measured in any image (no tie point or "
+                                       "image measurement of that name)", sources.get(what))
+            tr.append(tidx[str(nm)])
+            xyz.append(x)
+            chk.append(is_check)
+    notes = list(inp.notes) + [f"{sum(not c for c in chk)} control and {sum(chk)} check points, control sigma "
+                               f"{', '.join(f'{v:g}' for v in sig)} m (x, y, z)"]
+    return _replace(inp, control_track=np.array(tr, np.int64), control_xyz=np.array(xyz, float).reshape(-1, 3),
+                    control_sigma=np.broadcast_to(sig, (len(tr), 3)).copy(), control_check=np.array(chk, bool),
+                    notes=notes)
+
+
+def block_gsd_m(res: UavResult) -> float | None:
+    """The block's ground sampling distance (m): median over the oriented images of the height above the median
+    object point over the focal length in pixels (for check-point RMS in GSD)."""
+    b = res.adjustment.block
+    if b.n_points == 0 or len(res.block_image) == 0:
+        return None
+    zg = float(np.median(b.point_xyz[:, 2]))
+    H = np.abs(res.centre[res.block_image, 2] - zg)
+    f_px = res.camera.focal_mm / res.camera.pixel_size_mm
+    g = float(np.median(H)) / f_px
+    return g if np.isfinite(g) and g > 0 else None
+
+
 def camera_and_prior(metas: Sequence[Any], cfg: UavConfig = UavConfig()) -> tuple[Any, dict[str, float], Any]:
     """The starting camera of a block's images, its intrinsics' prior sigmas (camera units) and the
     :class:`skyrig.io.camera_prior.CameraPrior` it came from (the first image's; every image is checked to be the
@@ -188,8 +245,15 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
                cfg: UavConfig = UavConfig(), pycolmap_workdir: str | Path | None = None,
                pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
                pycolmap_mapper: str = "incremental", crs: str | None = None,
-               pycolmap_input: str = "images") -> tuple[UavResult, dict[str, Any]]:
+               pycolmap_input: str = "images", control: Any = None, check: Any = None,
+               control_sigma_m: Sequence[float] = (0.01, 0.01, 0.01), extra_measurements: Sequence[Any] = (),
+               sources: dict[str, str] | None = None) -> tuple[UavResult, dict[str, Any]]:
     """Project-level stage: images + ``skyrig match`` output -> adjusted EO, camera and report.
+
+    With ``control`` / ``check`` (:class:`~skyrig.georef.observations.GroundPoints`, measured in the images through
+    the tie points or ``extra_measurements``) the GNSS-supported block also uses control points (sigma
+    ``control_sigma_m`` per axis: metre-class targets with a loose height are fine) and reports check points in
+    metres and GSD; without check points the report says the absolute accuracy is the GNSS's.
 
     Parameters
     ----------
@@ -219,14 +283,17 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     from skyrig.io.points_csv import read_measurements_csv
 
     t0 = time.perf_counter()
-    meas = read_measurements_csv(_ties_file(match_dir))
+    meas = _with_extra(read_measurements_csv(_ties_file(match_dir)), extra_measurements)
     metas = [read_image_metadata(p) for p in list_images(images)]  # images without tie points: "not oriented"
     inp = metadata_block_input(metas, meas, cfg)
+    if control is not None or check is not None:
+        inp = attach_ground_points(inp, control, check, control_sigma_m, sources or {})
     res = adjust_uav_block(inp, cfg)
     from skyrig.adjust.report import adjustment_report
 
     project = uav_project_frame(inp, crs)
-    report = adjustment_report(res.adjustment, frames=None if project is None else (inp.frame, project))
+    report = adjustment_report(res.adjustment, gsd_m=block_gsd_m(res),
+                               frames=None if project is None else (inp.frame, project))
     report["uav"] = dict(res.summary)
     report["uav"]["config"] = asdict(cfg)
     report["uav"]["attitude_check"] = res.attitude_check

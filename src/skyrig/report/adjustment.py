@@ -676,8 +676,15 @@ def report_data_from_adjustment(result: Any, *, title: str = "skyrig adjustment"
     return data
 
 
-def absolute_accuracy_statement(u: dict[str, Any]) -> str:
-    """What a UAV block without check points can claim about its absolute accuracy, in words: the GNSS's, no more."""
+def absolute_accuracy_statement(u: dict[str, Any], check: dict[str, Any] | None = None) -> str:
+    """What a UAV block can claim about its absolute accuracy, in words: its check points' RMS (metres and GSD), or
+    without check points the GNSS's, no more."""
+    st = (check or {}).get("stats") or {}
+    if st.get("n"):
+        rms = ", ".join(f"{float(x):.3f}" for x in st["rms_m"])
+        gsd = st.get("rms_gsd")
+        return (f"Absolute accuracy from {st['n']} check points (not used in the adjustment): RMS x, y, z {rms} m"
+                + (f" ({', '.join(f'{float(x):.2f}' for x in gsd)} GSD)" if gsd else "") + ".")
     sig = (u.get("config") or {}).get("gnss_sigma_m")
     fit = u.get("gnss_fit_rms_enu_m")
     s = ("No check points: the absolute accuracy of these orientations and of every product made from them is that "
@@ -741,7 +748,7 @@ def report_data_from_uav(result: Any, rep: dict[str, Any], **kw: Any) -> ReportD
     s = extra_section("uav", "UAV block", u, "Summary of the UAV pipeline (orientation of the images from their "
                       "EXIF GPS / gimbal metadata and the tie points).")
     s.order = 45
-    s.blocks.insert(0, Note(absolute_accuracy_statement(rep.get("uav", {})), "warning"))
+    s.blocks.insert(0, Note(absolute_accuracy_statement(rep.get("uav", {}), rep.get("check")), "warning"))
     checks = rep.get("uav", {}).get("attitude_check", {})
     if checks:
         s.blocks.append(Table("attitude-check", "Gimbal attitude metadata", [
