@@ -61,3 +61,41 @@ def test_metre_class_control_and_check_points_in_the_gnss_block(caplog):
     assert rep["check"]["stats"]["n"] == 5 and len(rep["check"]["stats"]["rms_gsd"]) == 3
     gsd = block_gsd_m(res)
     assert gsd == pytest.approx(50.0 / (true_cam.focal_mm / true_cam.pixel_size_mm), rel=0.05)  # 50 m / f_px
+
+
+def test_no_gnss_block_with_metre_class_control_only():
+    """No GNSS, an uncalibrated camera (focal 5 % off), 10 targets with 1 m plan and 5 m height noise declared as
+    1.5 / 1.5 / 10 m: the block is oriented in their frame, check points (exact) land within their predicted precision,
+    and the report says the datum is as good as the targets."""
+    from skyrig.orient.incremental import OrientConfig, OrientInput, orient_incremental
+    from skyrig.report.adjustment import absolute_accuracy_statement
+    from test_uav_determinability import CROSS
+
+    truth: dict = {}
+    inp, true_cam = _block(CROSS, seed=31, focal_error=1.05, truth=truth)
+    rng = np.random.default_rng(9)
+    seen = np.bincount(inp.obs_track, minlength=len(inp.track_name))
+    X = truth["X"]
+    # targets spread over the site: the well-seen point nearest each node of a 5 x 2 grid
+    good = np.flatnonzero(seen >= 3)
+    nodes = np.array([[x, y] for x in (-50.0, -25.0, 0.0, 25.0, 50.0) for y in (-35.0, 35.0)])
+    ctrl = [int(good[np.argmin(np.linalg.norm(X[good, :2] - q, axis=1))]) for q in nodes]
+    chk = [int(t) for t in rng.choice(np.setdiff1d(np.flatnonzero(seen >= 4), ctrl), 5, replace=False)]
+    noise = rng.normal(0, 1, (10, 3)) * np.array([1.0, 1.0, 5.0])
+    oi = OrientInput(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, inp.track_name,
+                     control_track=np.array(ctrl + chk), control_xyz=np.vstack([X[ctrl] + noise, X[chk]]),
+                     control_sigma=np.vstack([np.broadcast_to(SIGMA, (10, 3)), np.full((5, 3), 0.01)]),
+                     control_check=np.r_[np.zeros(10, bool), np.ones(5, bool)])
+    res = orient_incremental(oi, OrientConfig(pixel_sigma_px=0.3))
+    assert res.oriented.all() and res.adjustment.ok
+    assert res.summary["datum"]["kind"] == "control"
+    b = res.adjustment.block
+    ps = res.adjustment.point_sigma
+    idx = {str(n): k for k, n in enumerate(b.point_name)}
+    for t in chk:
+        k = idx[str(inp.track_name[t])]
+        d = b.point_xyz[k] - X[t]
+        assert np.all(np.abs(d) < 4 * ps[k] + 0.02), (d, ps[k], res.camera.focal_mm / true_cam.focal_mm)
+    assert np.max(ps[[idx[str(inp.track_name[t])] for t in chk], 2]) > 0.5  # a metre-class datum, honestly stated
+    text = absolute_accuracy_statement(res.summary)
+    assert "control points" in text and "that of the targets" in text

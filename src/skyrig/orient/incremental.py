@@ -625,9 +625,15 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         spread = float(np.sqrt(np.mean(np.sum((dst - dst.mean(axis=0)) ** 2, axis=1))))
         if spread <= 0 or np.linalg.matrix_rank(dst - dst.mean(axis=0), tol=1e-3 * spread) < 2:
             raise OrientError("the control points are (nearly) collinear: no datum")
-        if float(np.median(v)) > 0.05 * spread:
+        # judged against the control's declared sigmas too: metre-class targets (handheld GNSS, a loose height)
+        # leave metres of residual that are no blunder when their sigmas say so
+        sig = np.broadcast_to(np.asarray(inp.control_sigma if inp.control_sigma is not None else 0.01, float),
+                              inp.control_xyz.shape)[use][have]
+        nres = np.max(np.abs(s * src @ Rs.T + t - dst) / np.maximum(sig, 1e-9), axis=1)
+        if float(np.median(v)) > 0.05 * spread and float(np.median(nres)) > 5.0:
             raise OrientError(f"the control points do not fit the relative orientation by a similarity (median "
-                              f"residual {np.median(v):.3g} m over a spread of {spread:.3g} m): wrong coordinates "
+                              f"residual {np.median(v):.3g} m over a spread of {spread:.3g} m, "
+                              f"{np.median(nres):.1f} x their declared sigmas): wrong coordinates "
                               "or wrong image measurements")
         _apply_similarity(s, Rs, t, R, C, X)
         datum_info.update(control_points=int(have.sum()), similarity_residual_max_m=float(v.max()))

@@ -680,11 +680,22 @@ def absolute_accuracy_statement(u: dict[str, Any], check: dict[str, Any] | None 
     """What a UAV block can claim about its absolute accuracy, in words: its check points' RMS (metres and GSD), or
     without check points the GNSS's, no more."""
     st = (check or {}).get("stats") or {}
+    datum = (u.get("datum") or {}).get("kind")
+    lead = ""
+    if datum == "control" or u.get("control_used"):
+        n = len(u.get("control_used") or []) or (u.get("datum") or {}).get("control_points") or ""
+        lead = (f"The datum rests on the {n} control points{'' if datum == 'control' else ' and the GNSS'}: the "
+                "absolute accuracy of these orientations is that of the targets as declared (their sigmas), no better. ")
     if st.get("n"):
         rms = ", ".join(f"{float(x):.3f}" for x in st["rms_m"])
         gsd = st.get("rms_gsd")
-        return (f"Absolute accuracy from {st['n']} check points (not used in the adjustment): RMS x, y, z {rms} m"
-                + (f" ({', '.join(f'{float(x):.2f}' for x in gsd)} GSD)" if gsd else "") + ".")
+        return lead + (f"Absolute accuracy from {st['n']} check points (not used in the adjustment): RMS x, y, z {rms} m"
+                       + (f" ({', '.join(f'{float(x):.2f}' for x in gsd)} GSD)" if gsd else "") + ".")
+    if lead:
+        return lead + "No check points: measure some to state the absolute accuracy reached."
+    if datum in ("scale-bar", "free", "positions"):
+        return ("No control and no check points: the block's frame is not an absolute one (datum: "
+                f"{datum}); its absolute accuracy is undefined.")
     sig = (u.get("config") or {}).get("gnss_sigma_m")
     fit = u.get("gnss_fit_rms_enu_m")
     s = ("No check points: the absolute accuracy of these orientations and of every product made from them is that "
