@@ -194,7 +194,13 @@ class MeasureSession:
         return ", ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v) if v else "the inputs"
 
     def _take_lock(self) -> None:
+        from skyrig.errors import OutputPathError
+
         info = {"pid": os.getpid(), "host": socket.gethostname(), "operator": self.operator, "started": _now()}
+        try:
+            self.output.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputPathError(f"cannot create the folder ({exc.strerror or exc})", self.output.parent) from None
         for _ in range(2):
             try:
                 fd = os.open(self.lockfile, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -548,7 +554,8 @@ class MeasureSession:
     def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
         """Look for a disc target around the point's prediction in every image predicted to see it (within
         ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
-        stored as ``detected`` when ``accept``."""
+        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii)
+        plus 3 px is passed over (its background is cut: measure it by hand)."""
         from skyrig.match.targets import target_centre
 
         st = self.point_state(point)
@@ -565,6 +572,10 @@ class MeasureSession:
             f = target_centre(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach)
             if not f.ok:
                 continue
+            xy = f.xy + [c0, r0]
+            edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
+            if edge < 2.5 * f.radius_px + 3.0:
+                continue  # the target's surround (2.5 radii for a disc on a square) is cut by the frame: no proposal
             prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, f"disc target, radius {f.radius_px:.1f} px")
             prop["image"] = p["image"]
             found.append(prop)
