@@ -56,6 +56,8 @@ class ImageWindows:
         self.height = int(self._ds.height)
         self.bands = int(self._ds.count)
         self.dtype = np.dtype(self._ds.dtypes[0])
+        self.driver = str(self._ds.driver)
+        self.tiled = bool(self._ds.profile.get("tiled", False))
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -85,6 +87,25 @@ class ImageWindows:
         if gray:
             return a[..., 0] if a.shape[-1] == 1 else (a @ np.array([0.299, 0.587, 0.114])).astype(np.float32)
         return a[..., 0] if a.shape[-1] == 1 else a
+
+    def tiled_copy(self, dest: PathLike) -> "ImageWindows":
+        """Write a tiled copy (GeoTIFF, 256 px blocks, JPEG-compressed for 8-bit samples, DEFLATE otherwise) to
+        ``dest``, streaming (GDAL reads the source line by line), and open it.  A JPEG or PNG can only be decoded
+        from its top: every window of it costs a decode down to the window; of the copy, only its blocks."""
+        import warnings
+
+        import rasterio.shutil
+        from rasterio.errors import NotGeoreferencedWarning
+
+        opts: dict = {"TILED": "YES", "BLOCKXSIZE": 256, "BLOCKYSIZE": 256, "NUM_THREADS": "ALL_CPUS"}
+        if self.dtype == np.uint8:
+            opts.update(COMPRESS="JPEG", JPEG_QUALITY=92, **({"PHOTOMETRIC": "YCBCR"} if self.bands == 3 else {}))
+        else:
+            opts.update(COMPRESS="DEFLATE", ZLEVEL=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            rasterio.shutil.copy(str(self.path), str(dest), driver="GTiff", **opts)
+        return ImageWindows(dest)
 
     def around(self, col: float, row: float, half: int, gray: bool = True) -> tuple[NDArray, tuple[int, int]]:
         """Full-resolution pixels within ``half`` pixels of (``col``, ``row``), clipped to the image, and the

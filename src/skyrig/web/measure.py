@@ -153,7 +153,10 @@ class MeasureSession:
         self._lock = threading.RLock()
         self._windows: dict[str, object] = {}
         self._pyramids: dict[str, object] = {}
+        self._cache: Path | None = None  # tiled copies of large JPEG / PNG files (display only), removed on close
         self._groups = [(self.cameras[str(c)], np.flatnonzero(self.eo_l.camera == c)) for c in np.unique(eo.camera)]
+        self._size = np.array([[self.cameras[str(c)].width, self.cameras[str(c)].height] for c in self.eo_l.camera],
+                              dtype=np.float64).reshape(-1, 2)  # (N, 2) width, height of every image
         s = sigmas
         self._pose_cov = np.diag([s.position_m**2] * 3 + [math.radians(s.attitude_deg) ** 2] * 3)
         self.lockfile = self.output.with_name(self.output.name + ".lock")
@@ -224,10 +227,17 @@ class MeasureSession:
     def close(self) -> None:
         """Give the lock file back and close the image files."""
         with self._lock:
+            for p in self._pyramids.values():
+                p.close()  # type: ignore[attr-defined]
             for w in self._windows.values():
                 w.close()  # type: ignore[attr-defined]
             self._windows.clear()
             self._pyramids.clear()
+            if self._cache is not None:
+                import shutil
+
+                shutil.rmtree(self._cache, ignore_errors=True)
+                self._cache = None
             if self._locked:
                 self.lockfile.unlink(missing_ok=True)
                 self._locked = False
@@ -281,20 +291,19 @@ class MeasureSession:
         return np.einsum("nij,jk,nlk->nil", jp, self._pose_cov, jp)
 
     def _quality(self, rows: NDArray, px: NDArray, xyz: NDArray) -> NDArray:
-        q = np.zeros(len(rows))
-        for k, r in enumerate(rows):
-            cam = self.cameras[str(self.eo_l.camera[r])]
-            half = 0.5 * math.hypot(cam.width, cam.height)
-            rr = math.hypot(px[k, 0] - (cam.width - 1) / 2.0, px[k, 1] - (cam.height - 1) / 2.0) / half
-            d = xyz - self.eo_l.centre[r]
-            q[k] = (1.0 - 0.5 * min(rr, 1.0)) * max(-d[2] / max(np.linalg.norm(d), 1e-9), 0.0)
-        return q
+        size = self._size[rows]
+        half = 0.5 * np.hypot(size[:, 0], size[:, 1])
+        rr = np.hypot(px[:, 0] - (size[:, 0] - 1) / 2.0, px[:, 1] - (size[:, 1] - 1) / 2.0) / half
+        d = xyz - self.eo_l.centre[rows]
+        cos_i = np.maximum(-d[:, 2] / np.maximum(np.linalg.norm(d, axis=1), 1e-9), 0.0)
+        with np.errstate(invalid="ignore"):
+            return np.nan_to_num((1.0 - 0.5 * np.minimum(rr, 1.0)) * cos_i)
 
     def _inside(self, rows: NDArray, px: NDArray) -> NDArray[np.bool_]:
-        ok = np.all(np.isfinite(px), axis=1)
-        for k, r in enumerate(rows):
-            ok[k] &= bool(ok[k]) and bool(self.cameras[str(self.eo_l.camera[r])].in_image(px[k]))
-        return ok
+        size = self._size[rows]
+        with np.errstate(invalid="ignore"):
+            return (np.all(np.isfinite(px), axis=1) & (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5)
+                    & (px[:, 0] <= size[:, 0] - 0.5) & (px[:, 1] <= size[:, 1] - 0.5))
 
     def _intersect(self, recs: list[Record]) -> dict | None:
         """Weighted intersection of a point's measurements (module docstring); None with fewer than two."""
@@ -454,7 +463,12 @@ class MeasureSession:
         with self._lock:
             p = self._pyramids.get(image)
             if p is None:
-                p = self._pyramids[image] = TilePyramid(w)
+                if self._cache is None:
+                    import tempfile
+
+                    self._cache = Path(tempfile.mkdtemp(prefix="skyrig-measure-"))
+                p = self._pyramids[image] = TilePyramid(w, copy_to=str(self._cache / f"{self.iidx[image]}.tif"))
+                p.prepare()
             return p
 
     def propose(self, point: str, image: str, column: float, row: float, method: str = "auto") -> dict:

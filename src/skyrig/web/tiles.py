@@ -6,6 +6,11 @@ Level ``L`` of ``0..max_level`` (``max_level = ceil(log2(max(width, height)))``)
 (:class:`skyrig.io.image_windows.ImageWindows`): levels at half resolution or more straight from the full
 resolution, coarser levels from one overview of the whole image (longer side at most :data:`OVERVIEW_MAX`,
 read once per image with GDAL's reduced decoding), so that a 100-MP frame is never held whole.
+
+A JPEG or PNG can only be decoded from its top, so a window near its bottom costs most of a full decode: for such
+a file of more than :data:`COPY_ABOVE_PIXELS`, :meth:`TilePyramid.prepare` writes a tiled copy into the session's
+cache folder in a background thread (streamed, a few seconds for 100 MP) and the fine levels come from it.  The
+copy is for display only; measurements are refined on the original file.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ __all__ = ["TILE", "OVERVIEW_MAX", "TilePyramid", "TileNotFound"]
 
 TILE = 256  # tile size, pixels of a level
 OVERVIEW_MAX = 2048  # longer side of the overview coarse levels come from
+COPY_ABOVE_PIXELS = 16_000_000  # JPEG / PNG files larger than this get a tiled copy for their fine levels
 
 
 class TileNotFound(LookupError):
@@ -32,8 +38,14 @@ class TileNotFound(LookupError):
 class TilePyramid:
     """The deep-zoom pyramid of one image file (module docstring); tiles as JPEG bytes, cached (LRU)."""
 
-    def __init__(self, windows: ImageWindows, cache_tiles: int = 256) -> None:
+    def __init__(self, windows: ImageWindows, cache_tiles: int = 256, copy_to: str | None = None) -> None:
         self.img = windows
+        self._copy_to = copy_to if (windows.driver in ("JPEG", "PNG") and not windows.tiled
+                                    and windows.width * windows.height > COPY_ABOVE_PIXELS) else None
+        self._fine: ImageWindows | None = None
+        self._copy_started = False
+        self._copy_done = threading.Event()
+        self._copy_error: BaseException | None = None
         self.width, self.height = windows.width, windows.height
         self.max_level = max(int(math.ceil(math.log2(max(self.width, self.height, 1)))), 0)
         self._overview: tuple[NDArray, float] | None = None
@@ -41,6 +53,36 @@ class TilePyramid:
         self._cache_n = cache_tiles
         self._lock = threading.Lock()
         self._stretch: tuple[float, float] | None = None
+
+    def prepare(self) -> None:
+        """Start writing the tiled copy of a large JPEG / PNG (module docstring) in the background, once."""
+        with self._lock:
+            if self._copy_to is None or self._copy_started:
+                return
+            self._copy_started = True
+
+        def run() -> None:
+            try:
+                self._fine = self.img.tiled_copy(self._copy_to)
+            except BaseException as exc:  # noqa: BLE001 - the fine levels then read the original
+                self._copy_error = exc
+            finally:
+                self._copy_done.set()
+
+        threading.Thread(target=run, name="skyrig-tiled-copy", daemon=True).start()
+
+    def _fine_source(self) -> ImageWindows:
+        if self._copy_to is None:
+            return self.img
+        self.prepare()
+        self._copy_done.wait()
+        return self._fine if self._fine is not None else self.img
+
+    def close(self) -> None:
+        if self._copy_started:
+            self._copy_done.wait()
+        if self._fine is not None:
+            self._fine.close()
 
     def info(self) -> dict:
         """What the page's tile source needs."""
@@ -85,7 +127,8 @@ class TilePyramid:
                    int(c0 * s_ov):max(int(math.ceil(c1 * s_ov)), int(c0 * s_ov) + 1)]
             a = cv2.resize(a, (tw, th), interpolation=cv2.INTER_AREA)
         else:
-            a = self.img.window(int(c0), int(r0), int(math.ceil(c1)) - int(c0), int(math.ceil(r1)) - int(r0), tw, th)
+            src = self._fine_source()
+            a = src.window(int(c0), int(r0), int(math.ceil(c1)) - int(c0), int(math.ceil(r1)) - int(r0), tw, th)
         return self._to_8bit(a)
 
     def tile_jpeg(self, level: int, x: int, y: int, quality: int = 90) -> bytes:
