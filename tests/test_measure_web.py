@@ -28,10 +28,21 @@ from skyrig.web.measure import MeasureSession, Sigmas
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
+    """The simulated project, made once per test session even under pytest-xdist (the workers share the base
+    temporary folder's parent; a lock file lets the first make it and the others wait for it).  Read only."""
+    import fcntl
+
     from skyrig.pipeline.simulate import simulate_scenario
 
-    out = tmp_path_factory.mktemp("measure") / "midas"
-    simulate_scenario("midas", out, "ci", seed=1, workers=1)
+    root = tmp_path_factory.getbasetemp()
+    if "PYTEST_XDIST_WORKER" in __import__("os").environ:
+        root = root.parent
+    out = root / "measure_web_midas_ci_seed1"
+    with open(root / "measure_web_midas.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (out / "done").exists():
+            simulate_scenario("midas", out, "ci", seed=1, workers=1)
+            (out / "done").write_text("ok\n")
     return out
 
 
@@ -339,13 +350,17 @@ def _browser():
     driver = shutil.which("chromedriver") or ("/usr/bin/chromedriver" if Path("/usr/bin/chromedriver").exists() else None)
     if driver is None:
         pytest.skip("no chromedriver for the installed Chromium (Debian: apt-get install chromium-driver)")
+    from selenium.common.exceptions import WebDriverException
     from selenium.webdriver.chrome.service import Service
 
     opts = webdriver.ChromeOptions()
     opts.binary_location = exe
     for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,900"):
         opts.add_argument(a)
-    return webdriver.Chrome(service=Service(driver), options=opts)
+    try:
+        return webdriver.Chrome(service=Service(driver), options=opts)
+    except WebDriverException as exc:  # e.g. a chromedriver of another Chromium version
+        pytest.skip(f"{driver} could not start {exe}: {str(exc).splitlines()[0]}")
 
 
 def test_page_in_headless_chromium(sim, tmp_path):
