@@ -412,3 +412,28 @@ def test_page_in_headless_chromium(sim, tmp_path):
         assert (prop["column"], prop["row"]) == pytest.approx((px[0], px[1]), abs=5e-4)
         assert np.hypot(*(px - t[str(p), str(i)])) < 0.3, (p, i, px, t[str(p), str(i)])
     assert (tmp_path / "measure_page.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_auto_measurements_give_the_check_rms_of_the_truth(sim, tmp_path):
+    """The block adjusted (GNSS/IMU + GCPs, skyrig block / adjust) with the automatically measured targets reaches
+    the check-point RMS of the same block with the true image positions, within 10 % (issue 32's acceptance)."""
+    from skyrig.cli import main as cli
+
+    auto = tmp_path / "auto.csv"
+    r = CliRunner().invoke(cli, ["measure", str(sim), "--auto", "-o", str(auto)])
+    assert r.exit_code == 0, r.output
+    rms = {}
+    for name, m in (("truth", sim / "truth" / "image_measurements.csv"), ("auto", auto)):
+        blk = tmp_path / f"{name}.json"
+        r = CliRunner().invoke(cli, ["block", "--trajectory", str(sim / "trajectory.csv"), "--events",
+                                     str(sim / "events.csv"), "--rig", str(sim / "rig.yaml"), "--measurements", str(m),
+                                     "--control", str(sim / "gcp" / "ground_points.csv"), "--check",
+                                     str(sim / "gcp" / "check_points.csv"), "--image-sigma-px", "0.1", "-o", str(blk)])
+        assert r.exit_code == 0, r.output
+        r = CliRunner().invoke(cli, ["adjust", str(blk), "-o", str(tmp_path / f"adj_{name}")])
+        assert r.exit_code == 0, r.output
+        rep = json.loads((tmp_path / f"adj_{name}" / "report.json").read_text())
+        assert rep["check"]["stats"]["n"] == 3
+        rms[name] = rep["check"]["stats"]["rms_xyz_m"]
+    assert abs(rms["auto"] / rms["truth"] - 1.0) <= 0.10, rms
