@@ -437,3 +437,28 @@ def test_auto_measurements_give_the_check_rms_of_the_truth(sim, tmp_path):
         assert rep["check"]["stats"]["n"] == 3
         rms[name] = rep["check"]["stats"]["rms_xyz_m"]
     assert abs(rms["auto"] / rms["truth"] - 1.0) <= 0.10, rms
+
+
+def test_adjustment_residuals_shown_with_the_points(sim, tmp_path):
+    """An adjustment's ground_control.csv (adjusted minus given, written by skyrig adjust's writer) comes with the
+    points: the page's lists carry each point's residual vector and sigmas."""
+    from skyrig.georef.observations import GroundPoints
+    from skyrig.io.points_csv import write_points_csv
+    from skyrig.web.inputs import adjustment_residuals
+
+    gcp = read_points_csv(sim / "gcp" / "ground_points.csv")
+    v = np.array([[0.01, -0.02, 0.03]] * len(gcp)) * np.arange(1, len(gcp) + 1)[:, None]
+    gc = tmp_path / "ground_control.csv"
+    write_points_csv(gc, GroundPoints(gcp.name, gcp.xyz + v, gcp.frame), {
+        "role": np.array(["control"] * len(gcp)), "given_x": gcp.xyz[:, 0], "given_y": gcp.xyz[:, 1],
+        "given_z": gcp.xyz[:, 2], "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2], "sx": np.full(len(gcp), 0.01),
+        "sy": np.full(len(gcp), 0.01), "sz": np.full(len(gcp), 0.02)})
+    res = adjustment_residuals(gc)
+    s = _session(sim, tmp_path / "m.csv", lock=False, adjustment=res)
+    rows = {p["name"]: p for p in s.points_summary()}
+    assert rows["GCP02"]["adjustment"]["v_m"] == [0.02, -0.04, 0.06]
+    assert rows["GCP02"]["adjustment"]["v3d_m"] == pytest.approx(math.sqrt(0.02**2 + 0.04**2 + 0.06**2), abs=1e-4)
+    assert rows["CHK01"]["adjustment"] is None
+    assert s.point_state("GCP01")["adjustment"]["sigma_m"] == [0.01, 0.01, 0.02]
+    with pytest.raises(InputFormatError, match="no residual columns"):
+        adjustment_residuals(sim / "gcp" / "ground_points.csv")

@@ -19,6 +19,7 @@ import click
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), help="Check points (same formats).")
 @click.option("--points-crs", default=None, help="CRS of point files that state none (default: the EO's).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Measurements CSV to continue and write (default: the project's gcp/image_measurements.csv).")
+@click.option("--adjustment", type=click.Path(exists=True, dir_okay=False), help="An adjustment's ground_control.csv: its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
 @click.option("--eo-sigma", type=float, default=0.10, show_default=True, help="Standard deviation of the projection centres (m, each axis) the prediction ellipses assume.")
 @click.option("--attitude-sigma", type=float, default=0.01, show_default=True, help="Standard deviation of the orientation angles (deg).")
 @click.option("--points-sigma", type=float, default=0.02, show_default=True, help="Standard deviation of the ground points (m, each axis).")
@@ -28,20 +29,22 @@ import click
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the page's address.")
 @click.option("--auto", is_flag=True, help="No page: detect the targets around every prediction, store them as 'detected' and exit.")
 def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_dirs, points_path, check_path, points_crs,
-            output, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, auto) -> None:
+            output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, auto) -> None:
     """Measure ground control and check points in the images of PROJECT (a project.yaml or a flight folder), or of
     --eo/--camera/--images/--points: a local page (127.0.0.1, a random token in its address) lists the points and
     the images predicted to see them, refines each click to the target's centre and saves every change to the
     measurements CSV."""
     from skyrig.cli._common import load_cameras, load_eo, load_points
-    from skyrig.web.inputs import MeasureInputs, image_files, merge_points, project_inputs
+    from skyrig.web.inputs import MeasureInputs, adjustment_residuals, image_files, merge_points, project_inputs
     from skyrig.web.measure import MeasureSession, Sigmas
 
     if project is None and not eo_path:
         raise click.UsageError("give a PROJECT or --eo with --camera, --images and --points")
     inp = project_inputs(project) if project else MeasureInputs()
     if eo_path:
-        inp.eo_path, inp.eo, inp.eo_words = Path(eo_path).absolute(), None, "--eo"
+        inp.eo_path, inp.eo, inp.eo_words, inp.adjusted_control = Path(eo_path).absolute(), None, "--eo", None
+    if adjustment:
+        inp.adjusted_control = Path(adjustment)
     inp.cameras = [Path(c) for c in camera_paths] or inp.cameras
     inp.images = [Path(d) for d in image_dirs] or inp.images
     inp.control = Path(points_path) if points_path else inp.control
@@ -65,7 +68,10 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
     sig = Sigmas(eo_sigma, attitude_sigma, points_sigma, pixel_sigma)
     session = MeasureSession(eo, cams, pts, roles, files, inp.output, sig, operator,
                              {"eo": str(inp.eo_path or inp.eo_words),
-                              "points": [str(p) for p in (inp.control, inp.check) if p]})
+                              "points": [str(p) for p in (inp.control, inp.check) if p]},
+                             adjustment=adjustment_residuals(inp.adjusted_control) if inp.adjusted_control else None)
+    if inp.adjusted_control:
+        click.echo(f"adjustment residuals: {inp.adjusted_control}")
     try:
         click.echo(f"{len(pts)} ground points ({sum(r == 'check' for r in roles.values())} check); "
                    f"{len(session.records)} measurements already in {inp.output}")

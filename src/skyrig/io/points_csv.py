@@ -150,6 +150,13 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     return GroundPoints(np.array(cols["name"]), xyz, use)
 
 
+def read_point_extras(path: PathLike) -> dict[str, list[str]]:
+    """The ``name`` column and the text of the :data:`POINT_EXTRAS` columns a points CSV has (e.g. the residuals
+    ``vx, vy, vz`` and sigmas of an adjustment's ``ground_control.csv``), by column name."""
+    _, _, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
+    return {c: cols[c] for c in ["name", *POINT_EXTRAS] if c in cols}
+
+
 def read_measurements_csv(path: PathLike) -> ImageMeasurements:
     """Read ``point,image,column,row`` (extra columns of skyrig's own output are accepted and ignored)."""
     return read_measurements_csv_lines(path)[0]

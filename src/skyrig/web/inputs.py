@@ -37,6 +37,7 @@ class MeasureInputs:
     output: Path | None = None
     crs: str | None = None
     geoid: str | None = None
+    adjusted_control: Path | None = None  # ground_control.csv of the adjustment whose orientations are used
 
 
 def project_inputs(path: str | Path) -> MeasureInputs:
@@ -51,10 +52,8 @@ def project_inputs(path: str | Path) -> MeasureInputs:
         out = MeasureInputs(cameras=list(pr.cameras) or ([pr.rig] if pr.rig else []), images=list(pr.images),
                             control=pr.control, check=pr.check, crs=pr.crs, geoid=pr.geoid)
         out.output = pr.measurements[0] if pr.measurements else pr.root / "gcp" / "image_measurements.csv"
-        for stage, words in _STAGE_EO:
-            if (pr.output / stage / "eo.csv").is_file():
-                out.eo_path, out.eo_words = pr.output / stage / "eo.csv", words
-                return out
+        if _stage_eo(out, pr.output):
+            return out
         if pr.eo is not None:
             out.eo_path, out.eo_words = pr.eo, "the project's EO file"
             return out
@@ -64,10 +63,8 @@ def project_inputs(path: str | Path) -> MeasureInputs:
         out = MeasureInputs(cameras=[d.rig] if d.rig else [], images=list(d.images), control=d.control, check=d.check,
                             crs=d.crs)
         out.output = d.measurements[0] if d.measurements else p / "gcp" / "image_measurements.csv"
-        for stage, words in _STAGE_EO:
-            if (p / "output" / stage / "eo.csv").is_file():
-                out.eo_path, out.eo_words = p / "output" / stage / "eo.csv", words
-                return out
+        if _stage_eo(out, p / "output"):
+            return out
         if d.eo is not None:
             out.eo_path, out.eo_words = d.eo, "the folder's EO file"
             return out
@@ -79,6 +76,36 @@ def project_inputs(path: str | Path) -> MeasureInputs:
                                "trajectory, events, rig and a CRS to georeference directly", p)
     out.eo = _direct(traj, events, rig, out.crs, out.geoid)
     out.eo_words = f"direct georeferencing of {traj.name}, {events.name} and {rig.name} (computed now)"
+    return out
+
+
+def _stage_eo(out: MeasureInputs, output: Path) -> bool:
+    """Take the latest stage's ``eo.csv`` (and its ``ground_control.csv``) under ``output``; False when none."""
+    for stage, words in _STAGE_EO:
+        if (output / stage / "eo.csv").is_file():
+            out.eo_path, out.eo_words = output / stage / "eo.csv", words
+            gc = output / stage / "ground_control.csv"
+            out.adjusted_control = gc if gc.is_file() else None
+            return True
+    return False
+
+
+def adjustment_residuals(path: Path) -> dict[str, dict]:
+    """``{point: {"role", "v_m": [vx, vy, vz], "v3d_m", "sigma_m": [sx, sy, sz]}}`` from an adjustment's
+    ``ground_control.csv`` (adjusted minus given, metres, along the project CRS's axes)."""
+    from skyrig.io.points_csv import read_point_extras
+
+    cols = read_point_extras(path)
+    out = {}
+    for k, name in enumerate(cols["name"]):
+        try:
+            v = [float(cols[c][k]) for c in ("vx", "vy", "vz")]
+            sig = [float(cols[c][k]) for c in ("sx", "sy", "sz")] if "sx" in cols else [float("nan")] * 3
+        except (KeyError, ValueError):
+            raise InputFormatError("no residual columns vx, vy, vz (an adjustment's ground_control.csv?)", path,
+                                   None, "vx") from None
+        out[name] = {"role": cols.get("role", ["control"] * len(cols["name"]))[k], "v_m": v,
+                     "v3d_m": float(np.linalg.norm(v)), "sigma_m": sig}
     return out
 
 

@@ -125,12 +125,15 @@ class MeasureSession:
         ``{"eo": ..., "points": [...]}`` file names for the side-car.
     lock
         Take the lock file (a second session on the same file raises :class:`SessionLockedError`).
+    adjustment
+        The control / check residuals of the adjustment whose orientations these are
+        (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
     """
 
     def __init__(self, eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], points: GroundPoints,
                  roles: Mapping[str, str], image_files: Mapping[str, str | os.PathLike], output: str | os.PathLike,
                  sigmas: Sigmas = Sigmas(), operator: str | None = None, sources: Mapping | None = None,
-                 lock: bool = True) -> None:
+                 lock: bool = True, adjustment: Mapping[str, dict] | None = None) -> None:
         self.frame_local = local_frame_for(eo.frame.to_ecef(eo.centre))
         self.eo = eo
         self.eo_l = eo.to_frame(self.frame_local)
@@ -149,6 +152,7 @@ class MeasureSession:
         self.sigmas = sigmas
         self.operator = operator or _login()
         self.sources = dict(sources or {})
+        self.adjustment = {str(k): dict(v) for k, v in (adjustment or {}).items()}
         self.records: dict[tuple[str, str], Record] = {}
         self._lock = threading.RLock()
         self._windows: dict[str, object] = {}
@@ -354,8 +358,16 @@ class MeasureSession:
                 st = self.point_state(n, with_predictions=False)
                 out.append({"name": n, "role": self.roles[n], "x": float(self.points.xyz[k, 0]),
                             "y": float(self.points.xyz[k, 1]), "z": float(self.points.xyz[k, 2]), "predicted_in": seen,
-                            "measured_in": len(st["measurements"]), "flagged": st["flagged"]})
+                            "measured_in": len(st["measurements"]), "flagged": st["flagged"],
+                            "adjustment": self._adjusted(n)})
         return out
+
+    def _adjusted(self, point: str) -> dict | None:
+        a = self.adjustment.get(point)
+        if a is None:
+            return None
+        return {"role": a.get("role"), "v_m": [_num(v, 4) for v in a["v_m"]], "v3d_m": _num(a["v3d_m"], 4),
+                "sigma_m": [_num(v, 4) for v in a.get("sigma_m", [])]}
 
     def _recs(self, point: str) -> list[Record]:
         return [r for (p, _), r in sorted(self.records.items()) if p == point]
@@ -404,7 +416,8 @@ class MeasureSession:
                 flagged |= e["flag"]
                 measurements.append(e)
             state: dict = {"point": point, "role": self.roles[point], "measurements": measurements, "flagged": flagged,
-                           "xyz": [float(v) for v in self.points.xyz[k]], "frame": self.points.frame.describe()}
+                           "xyz": [float(v) for v in self.points.xyz[k]], "frame": self.points.frame.describe(),
+                           "adjustment": self._adjusted(point)}
             if inter is not None:
                 xyz = self.points.frame.from_ecef(self.frame_local.to_ecef(inter["xyz_local"][None]))[0]
                 dl = inter["xyz_local"] - X

@@ -48,7 +48,8 @@
       const li = document.createElement("li");
       li.id = "pt-" + p.name;
       li.dataset.point = p.name;
-      li.textContent = `${p.name} (${p.role}) ${p.measured_in}/${p.predicted_in}`;
+      li.textContent = `${p.name} (${p.role}) ${p.measured_in}/${p.predicted_in}` +
+        (p.adjustment ? `  v ${p.adjustment.v3d_m} m` : "");
       if (p.flagged) li.classList.add("flag");
       if (S.point === p.name) li.classList.add("sel");
       li.addEventListener("click", () => selectPoint(p.name));
@@ -74,6 +75,11 @@
       const d = st.intersection.minus_ground_enu_m;
       info += `\nintersection of ${st.intersection.n_images} images minus ground: E ${d[0]} N ${d[1]} U ${d[2]} m` +
         ` (sigma ${st.intersection.sigma_m.join(", ")} m)`;
+    }
+    if (st.adjustment) {
+      const a = st.adjustment;
+      info += `\nadjustment (${a.role}): adjusted - given ${a.v_m.join(", ")} m (|v| ${a.v3d_m} m, sigma ` +
+        `${a.sigma_m.join(", ")} m)`;
     }
     if (st.note) info += "\n" + st.note;
     $("point-info").textContent = info;
@@ -230,5 +236,9 @@
   }
   viewer.addHandler("update-viewport", draw);
 
-  loadPoints().then(() => { body.dataset.ready = "1"; }).catch((err) => status(String(err.message || err), true));
+  loadPoints().then(async () => {
+    const next = S.points.find((p) => p.measured_in < Math.min(2, p.predicted_in));  // continue where one stopped
+    if (next) await selectPoint(next.name);
+    body.dataset.ready = "1";
+  }).catch((err) => status(String(err.message || err), true));
 })();
