@@ -385,8 +385,10 @@ def test_page_in_headless_chromium(sim, tmp_path):
             js = drv.execute_script
             wait.until(lambda d: js("return document.body.dataset.ready") == "1")
             for n, point in enumerate(("GCP01", "GCP03", "GCP05")):
+                loads = int(js("return document.body.dataset.pointLoads || '0'"))
                 drv.find_element(By.ID, f"pt-{point}").click()
-                wait.until(lambda d: js("return document.getElementById('point-title').textContent").startswith(point))
+                wait.until(lambda d: int(js("return document.body.dataset.pointLoads || '0'")) > loads
+                           and js("return document.body.dataset.point") == point)
                 drv.find_elements(By.CSS_SELECTOR, "#images li")[0].click()
                 wait.until(lambda d: js("return document.body.dataset.imageReady") == "1")
                 image = js("return document.body.dataset.image")
@@ -462,3 +464,51 @@ def test_adjustment_residuals_shown_with_the_points(sim, tmp_path):
     assert s.point_state("GCP01")["adjustment"]["sigma_m"] == [0.01, 0.01, 0.02]
     with pytest.raises(InputFormatError, match="no residual columns"):
         adjustment_residuals(sim / "gcp" / "ground_points.csv")
+
+
+def test_project_yaml_takes_the_latest_stage_orientations(sim, tmp_path):
+    """``skyrig measure project.yaml``: the orientations of the latest stage (here an adjust stage's eo.csv: the
+    truth) and the project's measurements file; without any stage output, direct georeferencing."""
+    from skyrig.cli import main as cli
+    from skyrig.io.eo_csv import write_eo_csv
+    from skyrig.pipeline.project import detect_inputs, project_template
+    from skyrig.web.inputs import project_inputs
+
+    proj = tmp_path / "flight"
+    proj.mkdir()
+    for name in ("images", "rig.yaml", "trajectory.csv", "events.csv", "gcp"):
+        (proj / name).symlink_to(sim / name)
+    (proj / "project.yaml").write_text(project_template(detect_inputs(proj), base=proj))
+    inp = project_inputs(proj / "project.yaml")
+    assert inp.eo is not None and "direct georeferencing" in inp.eo_words
+    assert inp.output == proj / "gcp" / "image_measurements.csv"
+    eo_t = read_eo_csv(sim / "truth" / "eo_map.csv")
+    (proj / "output" / "adjust").mkdir(parents=True)
+    write_eo_csv(eo_t, proj / "output" / "adjust" / "eo.csv")
+    inp = project_inputs(proj)
+    assert inp.eo_path == proj / "output" / "adjust" / "eo.csv" and inp.eo_words.startswith("adjusted")
+    out = tmp_path / "auto.csv"
+    r = CliRunner().invoke(cli, ["measure", str(proj / "project.yaml"), "--auto", "-o", str(out)])
+    assert r.exit_code == 0 and "orientations: adjusted (adjust stage)" in r.output, r.output
+    assert len(read_measurements_csv(out)) >= 0.95 * len(_truth(sim)[3])
+
+
+def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
+    """A JPEG above the size limit gets a tiled copy (written in the background) that its fine levels read: the
+    same pixels up to the copy's JPEG compression; the copy goes with the session."""
+    import cv2
+
+    import skyrig.web.tiles as tiles
+    from skyrig.io.image_windows import ImageWindows
+
+    monkeypatch.setattr(tiles, "COPY_ABOVE_PIXELS", 0)
+    img = cv2.imread(str(sim / "images" / "s01_e0001_nadir.png"))
+    jpg = tmp_path / "frame.jpg"
+    cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    pyr = tiles.TilePyramid(ImageWindows(jpg), copy_to=str(tmp_path / "copy.tif"))
+    pyr.prepare()
+    a = pyr.tile_array(pyr.max_level, 1, 0)
+    assert pyr._fine is not None and (tmp_path / "copy.tif").is_file()
+    ref = ImageWindows(jpg).window(256, 0, 256, 256)
+    assert a.shape == ref.shape and np.mean(np.abs(a.astype(int) - ref)) < 4.0  # JPEG q92, YCbCr: for display
+    pyr.close()

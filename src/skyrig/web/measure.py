@@ -484,6 +484,19 @@ class MeasureSession:
                 p.prepare()
             return p
 
+    def prefetch(self, point: str, n: int = 2) -> None:
+        """Open the ``n`` best images of a point's list (their pyramids: a large JPEG / PNG starts its tiled copy
+        in the background), so that the first full-resolution tile of an image the user will likely open is quick."""
+        try:
+            preds = self.point_state(point)["predictions"]
+        except KeyError:
+            return
+        for p in [p for p in preds if p["file"]][:n]:
+            try:
+                self.pyramid(p["image"])
+            except (InputFormatError, OSError):
+                pass  # the page reports it when the user opens the image
+
     def propose(self, point: str, image: str, column: float, row: float, method: str = "auto") -> dict:
         """Refine a click (column, row) in ``image`` to the exact position of ``point``.
 

@@ -132,6 +132,7 @@ def _make_app(server: "MeasureServer"):
             out = await self.run(session.point_state, name)
             if out is not None:
                 self.json(out)
+                asyncio.get_running_loop().run_in_executor(None, session.prefetch, name)  # not awaited
 
     class Image(Base):
         async def get(self, index: str) -> None:

@@ -31,6 +31,9 @@ OVERVIEW_MAX = 2048  # longer side of the overview coarse levels come from
 COPY_ABOVE_PIXELS = 16_000_000  # JPEG / PNG files larger than this get a tiled copy for their fine levels
 
 
+_COPY_SLOTS = threading.Semaphore(1)  # tiled copies are written one at a time (each keeps a core busy)
+
+
 class TileNotFound(LookupError):
     """A tile outside the image's pyramid."""
 
@@ -63,7 +66,8 @@ class TilePyramid:
 
         def run() -> None:
             try:
-                self._fine = self.img.tiled_copy(self._copy_to)
+                with _COPY_SLOTS:
+                    self._fine = self.img.tiled_copy(self._copy_to)
             except BaseException as exc:  # noqa: BLE001 - the fine levels then read the original
                 self._copy_error = exc
             finally:

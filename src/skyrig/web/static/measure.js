@@ -106,6 +106,8 @@
     }
     if (S.pred) S.pred = st.predictions.find((p) => p.image === S.pred.image) || S.pred;
     $("delete").disabled = !(S.pred && byImage[S.pred.image]);
+    body.dataset.point = st.point;
+    body.dataset.pointLoads = String(Number(body.dataset.pointLoads || 0) + 1);  // for tests: a refresh is complete
     draw();
   }
 
@@ -166,12 +168,12 @@
       S.pstate = await api("/api/accept", { point: S.point, image: S.pred.image, column: p.column, row: p.row,
                                             method: p.method, refined: p.refined, sigma_px: p.sigma_px });
       S.saved += 1;
-      body.dataset.saved = String(S.saved);
       S.proposal = null;
       $("accept").disabled = $("keep").disabled = true;
       status(`saved ${S.point} in ${S.pred.image}`);
       await refreshPoint();
       await loadPoints();
+      body.dataset.saved = String(S.saved);  // after the lists are rebuilt
     } catch (err) { status(String(err.message || err), true); }
   }
   $("accept").addEventListener("click", () => accept(false));
