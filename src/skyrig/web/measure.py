@@ -157,6 +157,7 @@ class MeasureSession:
         self._lock = threading.RLock()
         self._windows: dict[str, object] = {}
         self._pyramids: dict[str, object] = {}
+        self._closed = False
         self._cache: Path | None = None  # tiled copies of large JPEG / PNG files (display only), removed on close
         self._groups = [(self.cameras[str(c)], np.flatnonzero(self.eo_l.camera == c)) for c in np.unique(eo.camera)]
         self._size = np.array([[self.cameras[str(c)].width, self.cameras[str(c)].height] for c in self.eo_l.camera],
@@ -231,6 +232,7 @@ class MeasureSession:
     def close(self) -> None:
         """Give the lock file back and close the image files."""
         with self._lock:
+            self._closed = True
             for p in self._pyramids.values():
                 p.close()  # type: ignore[attr-defined]
             for w in self._windows.values():
@@ -454,6 +456,8 @@ class MeasureSession:
         if image not in self.iidx:
             raise KeyError(f"no image {image!r} in the orientations")
         with self._lock:
+            if self._closed:
+                raise InputFormatError("the measuring session is closed")
             w = self._windows.get(image)
             if w is None:
                 f = self.files.get(image)
@@ -474,6 +478,8 @@ class MeasureSession:
 
         w = self.windows(image)
         with self._lock:
+            if self._closed:
+                raise InputFormatError("the measuring session is closed")
             p = self._pyramids.get(image)
             if p is None:
                 if self._cache is None:
