@@ -125,6 +125,11 @@ class OptionError(SkyrigError, ValueError):
         super().__init__(f"{option}: {self.reason}")
 
 
+class SessionLockedError(SkyrigError, RuntimeError):
+    """A file is held by another running program (e.g. a second ``skyrig measure`` on the same measurements file):
+    the message names the lock file and its holder."""
+
+
 class PlausibilityWarning(UserWarning):
     """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
     lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""
