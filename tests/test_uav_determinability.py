@@ -20,75 +20,48 @@ import numpy as np
 import pytest
 
 from skyrig.adjust.determinability import CONTRADICTS_PRIOR, DETERMINED, NOT_DETERMINABLE, determinability
-from skyrig.camera.opencv import OpenCVDistortion
-from skyrig.georef.eo import WorldFrame
-from skyrig.io.odm import rotation_from_gimbal_ypr
-from skyrig.pipeline.uav import UavBlockInput, UavConfig, adjust_uav_block
+from skyrig.pipeline.uav import UavConfig, adjust_uav_block
 from skyrig.rig.presets import uav_single
 from skyrig.simulate.scenarios import ci_camera
+from skyrig.simulate.uav_block import CROSS, FLAT, flat_site_block
 
 FOCAL_ERROR = 1.20  # metadata focal / true focal
 PRIOR_REL = 0.10
 TILT_DEG = 0.2  # a stabilised gimbal's wobble about nadir  # the 35-mm value's prior sigma (skyrig.io.camera_prior.SIGMA_35MM)
 
 
-def _block(strips, seed: int, n_points: int = 1500, relief_m: float = 0.2, gnss_noise=(0.3, 0.3, 0.5),
-           focal_error: float = FOCAL_ERROR, truth: dict | None = None):
-    """Nadir images along ``strips`` = [(axis, offset, height), ...] (axis "x" or "y"); flat ground with ``relief_m``
-    of roughness; GNSS noise (0.3, 0.3, 0.5) m, 0.3 px image noise, attitudes of a stabilised gimbal (``TILT_DEG``
-    about nadir), metadata attitudes with 1 deg noise."""
-    rng = np.random.default_rng(seed)
+def _block(strips, seed: int, n_points: int = 1500, gnss_noise=(0.3, 0.3, 0.5), focal_error: float = FOCAL_ERROR,
+           truth: dict | None = None):
+    """The simulator's flat-site block (:func:`skyrig.simulate.uav_block.flat_site_block`) on an 800-px FC300S."""
     base = ci_camera(uav_single().heads["camera"].camera, 800)
-    pix = base.pixel_size_mm
-    true_cam = base.with_(ppx_mm=3 * pix, ppy_mm=-2 * pix, distortion=OpenCVDistortion(k1=-0.05, k2=0.02))
-    frame = WorldFrame.local(50.85, -0.15, 120.0)
-    C, ypr = [], []
-    for axis, off, h in strips:
-        for t in np.arange(-36.0, 36.1, 12.0):
-            C.append([t, off, h] if axis == "x" else [off, t, h])
-            ypr.append([90.0 if axis == "x" else 0.0, -90.0, 0.0])
-    C = np.array(C) + rng.normal(0, 0.2, (len(C), 3))
-    ypr = np.array(ypr)
-    ypr_true = ypr + rng.normal(0, TILT_DEG, ypr.shape)
-    R_true = rotation_from_gimbal_ypr(frame, C, ypr_true)
-    R_meta = rotation_from_gimbal_ypr(frame, C, ypr_true + rng.normal(0, 1.0, ypr.shape))
-    xy = rng.uniform([-70, -60], [70, 60], (n_points, 2))
-    X = np.column_stack([xy, rng.normal(0, relief_m, n_points)])
-    ot, oi, op = [], [], []
-    for i in range(len(C)):
-        pc = (X - C[i]) @ R_true[i]  # camera frame: x right, y up, z backwards (looking along -z)
-        front = pc[:, 2] < 0
-        x, y = -pc[:, 0] / pc[:, 2], -pc[:, 1] / pc[:, 2]
-        r2 = x * x + y * y
-        rad = 1 + true_cam.distortion.k1 * r2 + true_cam.distortion.k2 * r2 * r2
-        f_px = true_cam.focal_mm / pix
-        col = (true_cam.width - 1) / 2 + true_cam.ppx_mm / pix + f_px * x * rad
-        row = (true_cam.height - 1) / 2 - true_cam.ppy_mm / pix - f_px * y * rad
-        inside = front & (col > 2) & (col < true_cam.width - 3) & (row > 2) & (row < true_cam.height - 3)
-        k = np.flatnonzero(inside)
-        ot.append(k)
-        oi.append(np.full(len(k), i))
-        op.append(np.column_stack([col[k], row[k]]) + rng.normal(0, 0.3, (len(k), 2)))
-    ot, oi, op = np.concatenate(ot), np.concatenate(oi), np.concatenate(op)
-    keep = np.bincount(ot, minlength=n_points)[ot] >= 2
-    gnss = C + rng.normal(0, 1, C.shape) * np.asarray(gnss_noise, float)
-    start = base.with_(focal_mm=base.focal_mm * focal_error)
+    inp, t = flat_site_block(strips, seed, base, n_points=n_points, tilt_deg=TILT_DEG, gnss_noise_m=gnss_noise,
+                             focal_error=focal_error, prior_rel=PRIOR_REL)
     if truth is not None:
-        truth.update(C=C, X=X, rng=rng)
-    names = np.array([f"IMG_{k:03d}.JPG" for k in range(len(C))])
-    inp = UavBlockInput(names, start, gnss, R_meta, 0.0, ot[keep], oi[keep], op[keep],
-                        np.array([f"p{k}" for k in range(n_points)]), frame,
-                        intrinsic_sigma={"focal_mm": PRIOR_REL * start.focal_mm})
-    return inp, true_cam
+        truth.update(C=t.C, X=t.X, R=t.R)
+    return inp, t.camera
+
+
+def test_simulator_projection_written_out_by_hand():
+    """The simulated pixels follow the collinearity equations written here (rotation, pinhole, OpenCV radial terms,
+    principal point; skyrig camera frame x right, y up, looking along -z; rows down): the simulator's convention is
+    pinned independently of skyrig's camera code."""
+    base = ci_camera(uav_single().heads["camera"].camera, 800)
+    inp, t = flat_site_block(FLAT, 3, base, n_points=300, tilt_deg=TILT_DEG)
+    cam, pix = t.camera, t.camera.pixel_size_mm
+    pc = np.einsum("nji,nj->ni", t.R[inp.obs_image], t.X[inp.obs_track] - t.C[inp.obs_image])
+    x, y = -pc[:, 0] / pc[:, 2], -pc[:, 1] / pc[:, 2]
+    r2 = x * x + y * y
+    rad = 1 + cam.distortion.k1 * r2 + cam.distortion.k2 * r2 * r2
+    f_px = cam.focal_mm / pix
+    col = (cam.width - 1) / 2 + cam.ppx_mm / pix + f_px * x * rad
+    row = (cam.height - 1) / 2 - cam.ppy_mm / pix - f_px * y * rad
+    d = inp.obs_pixel - np.column_stack([col, row])
+    assert np.abs(d).max() < 5 * 0.3 and abs(d.std() - 0.3) < 0.03, (np.abs(d).max(), d.std())  # 0.3 px noise
 
 
 def _cfg(**kw):
     return UavConfig(gnss_sigma_m=(0.3, 0.3, 0.5), pixel_sigma_px=0.3, attitude_sigma_deg=5.0, pnp_threshold_px=4.0,
                      self_calibration=("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2"), **kw)
-
-
-FLAT = [("x", -20.0, 50.0), ("x", 0.0, 50.0), ("x", 20.0, 50.0)]
-CROSS = FLAT + [("y", -20.0, 80.0), ("y", 0.0, 80.0), ("y", 20.0, 80.0)]
 
 
 @pytest.fixture(scope="module")
