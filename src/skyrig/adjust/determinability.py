@@ -24,12 +24,15 @@ Layer 2b: arrays and adjustment results in, plain data out.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["ParameterVerdict", "determinability", "remedy", "ground_height_correlation", "DETERMINED",
+logger = logging.getLogger(__name__)
+
+__all__ = ["ParameterVerdict", "determinability", "hold_undetermined", "remedy", "ground_height_correlation", "DETERMINED",
            "NOT_DETERMINABLE", "CONTRADICTS_PRIOR"]
 
 DETERMINED = "determined"
@@ -203,3 +206,42 @@ def determinability(res: Any, camera_name: str, names: Sequence[str], prior: Map
                                     float(corr_h[k]), corrs, verdict, held=verdict != DETERMINED and not freed,
                                     freed_on_request=freed, pixel_size_mm=pixel_size_mm))
     return out
+
+
+def hold_undetermined(res: Any, nominal: Any, names_cal: tuple[str, ...], prior_sigma: Mapping[str, float],
+                      readjust: Callable[[Any, tuple[str, ...], Any], Any], *, ratio_max: float = 0.5,
+                      z_max: float = 3.0, free_anyway: Sequence[str] = ()) -> tuple[Any, list[ParameterVerdict],
+                                                                                 tuple[str, ...]]:
+    """Judge the self-calibrated intrinsics ``names_cal`` of ``res`` (one camera, priors centred on ``nominal``) and
+    hold those not determined at their prior: ``readjust(res, names_left_free, start_camera)`` re-adjusts the block
+    with only ``names_left_free`` self-calibrated, from the estimate with the held ones reset to their prior values.
+    Each held parameter is a warning in words (:meth:`ParameterVerdict.words`).  Holding one can change what the
+    others show, so the re-adjustment is judged once more.
+
+    Returns the final result, every verdict (held ones first, with the estimate that was refused) and the names left
+    free."""
+    cam_name = res.block.cameras[0].name
+    prior = dict(zip(nominal.intrinsic_names, np.asarray(nominal.intrinsics, float)))
+    pix = nominal.pixel_size_mm
+
+    def judge(r: Any, names: tuple[str, ...]) -> list[ParameterVerdict]:
+        return determinability(r, cam_name, names, prior, prior_sigma, ratio_max=ratio_max, z_max=z_max,
+                               free_anyway=free_anyway, pixel_size_mm=pix)
+
+    verdicts = judge(res, names_cal)
+    held: dict[str, ParameterVerdict] = {}
+    for _ in range(2):
+        new = [v for v in verdicts if v.held and v.name not in held]
+        if not new:
+            break
+        for v in new:
+            held[v.name] = v
+            logger.warning("self-calibration: %s", v.words())
+        names_cal = tuple(nm for nm in names_cal if nm not in held)
+        cam_est = res.block.cameras[0]
+        vals = dict(zip(cam_est.intrinsic_names, np.asarray(cam_est.intrinsics, float)))
+        vals.update({nm: prior[nm] for nm in held})
+        start_cam = cam_est.with_intrinsics(np.array([vals[nm] for nm in cam_est.intrinsic_names]))
+        res = readjust(res, names_cal, start_cam)
+        verdicts = judge(res, names_cal) if names_cal else []
+    return res, [*held.values(), *verdicts], names_cal

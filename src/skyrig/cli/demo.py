@@ -457,9 +457,9 @@ def _determinability_step() -> None:
     ok = True
     for label, strips, seed in (("flat, one height", FLAT, 11), ("cross strips, two heights", CROSS, 12)):
         inp, truth = flat_site_block(strips, seed, cam)
-        logging.getLogger("skyrig.orient.gnss_block").setLevel(logging.ERROR)  # the verdict is printed below
+        logging.getLogger("skyrig.adjust.determinability").setLevel(logging.ERROR)  # the verdict is printed below
         res = adjust_uav_block(inp, cfg)
-        logging.getLogger("skyrig.orient.gnss_block").setLevel(logging.NOTSET)
+        logging.getLogger("skyrig.adjust.determinability").setLevel(logging.NOTSET)
         v = next(x for x in res.summary["calibration"] if x["name"] == "focal_mm")
         err = res.camera.focal_mm / truth.camera.focal_mm - 1
         sf = res.adjustment.sigma_reduced().get(("intrinsics", res.camera.name, "focal_mm"))

@@ -718,45 +718,24 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
 def _hold_undetermined(inp: UavBlockInput, cfg: UavConfig, res: AdjustmentResult, nominal: FrameCamera,
                        names_cal: tuple[str, ...], sig: dict[str, float], cal_cfg: Any, state: tuple
                        ) -> tuple[AdjustmentResult, list[Any], tuple[str, ...]]:
-    """Determinability of the self-calibrated intrinsics (:func:`skyrig.adjust.determinability.determinability`);
-    those the block cannot determine or that contradict their prior are held at the prior (the block re-adjusted
-    without them, started from the estimate with them reset), each with a warning in words.  Returns the final
-    result, the verdicts (held ones included, with the estimate that was refused) and the names left free."""
-    from skyrig.adjust.determinability import determinability
+    """:func:`skyrig.adjust.determinability.hold_undetermined` on the final UAV block: a held intrinsic is re-adjusted
+    without, from the estimate with it reset to its prior."""
+    from skyrig.adjust.determinability import hold_undetermined
 
     R, C, X, img_sel, obs_sel, imu_imgs, strip = state
-    cam_name = res.block.cameras[0].name
-    prior = dict(zip(nominal.intrinsic_names, np.asarray(nominal.intrinsics, float)))
-    free_anyway = tuple(cfg.free_anyway) + (("focal_mm",) if cfg.focal == "self" else ())
-    pix = nominal.pixel_size_mm
 
-    def judge(r: AdjustmentResult, names: tuple[str, ...]) -> list[Any]:
-        return determinability(r, cam_name, names, prior, sig, ratio_max=cfg.determinable_ratio,
-                               z_max=cfg.prior_conflict_z, free_anyway=free_anyway, pixel_size_mm=pix)
-
-    verdicts = judge(res, names_cal)
-    held: dict[str, Any] = {}
-    for _ in range(2):  # holding one parameter can change what the others show: judge the re-adjustment once more
-        new = [v for v in verdicts if v.held and v.name not in held]
-        if not new:
-            break
-        for v in new:
-            held[v.name] = v
-            logger.warning("self-calibration: %s", v.words())
-        names_cal = tuple(nm for nm in names_cal if nm not in held)
-        cam_est = res.block.cameras[0]
-        vals = dict(zip(cam_est.intrinsic_names, np.asarray(cam_est.intrinsics, float)))
-        vals.update({nm: prior[nm] for nm in held})
-        start_cam = cam_est.with_intrinsics(np.array([vals[nm] for nm in cam_est.intrinsic_names]))
+    def readjust(r: AdjustmentResult, names: tuple[str, ...], start_cam: FrameCamera) -> AdjustmentResult:
         R2, C2 = R.copy(), C.copy()
-        R2[img_sel], C2[img_sel] = res.block.station_rotation, res.block.station_centre
+        R2[img_sel], C2[img_sel] = r.block.station_rotation, r.block.station_centre
         block, _, _ = _build_block(inp, nominal, R2, C2, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
                                    strip)
-        block = replace(block, point_xyz=np.array(res.block.point_xyz, float))  # same observations: same points
-        res = adjust(block, cal_cfg(names_cal).with_(robust=None, statistics=True),
-                     start=replace(block, cameras=[start_cam]))
-        verdicts = judge(res, names_cal) if names_cal else []
-    return res, [*held.values(), *verdicts], names_cal
+        block = replace(block, point_xyz=np.array(r.block.point_xyz, float))  # same observations: same points
+        return adjust(block, cal_cfg(names).with_(robust=None, statistics=True),
+                      start=replace(block, cameras=[start_cam]))
+
+    free_anyway = tuple(cfg.free_anyway) + (("focal_mm",) if cfg.focal == "self" else ())
+    return hold_undetermined(res, nominal, names_cal, sig, readjust, ratio_max=cfg.determinable_ratio,
+                             z_max=cfg.prior_conflict_z, free_anyway=free_anyway)
 
 
 def _focal_note(cfg: UavConfig, verdicts: list[Any], names_cal: tuple[str, ...]) -> str:
