@@ -35,7 +35,6 @@ Conventions (COLMAP -> skyrig)
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -52,8 +51,7 @@ from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import InputFormatError, OptionError
 from skyrig.geometry.pose import Pose
 from skyrig.geometry.rotations import matrix_from_quaternion, matrix_from_rotvec, quaternion_from_matrix
-
-logger = logging.getLogger(__name__)
+from skyrig.io._camera_fit import FIT_TOLERANCE_PX, fit_or_refuse
 
 __all__ = ["ColmapModel", "COLMAP_CAMERA_MODELS", "COLMAP_MODEL_IDS", "SKYRIG_FROM_COLMAP_CAMERA", "ImageRecord",
            "PointRecords", "camera_from_colmap", "colmap_camera", "assemble_model", "block_from_colmap",
@@ -77,8 +75,6 @@ COLMAP_MODEL_IDS: dict[str, int] = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_R
                                     "OPENCV_FISHEYE": 5, "FULL_OPENCV": 6, "FOV": 7, "SIMPLE_RADIAL_FISHEYE": 8,
                                     "RADIAL_FISHEYE": 9, "THIN_PRISM_FISHEYE": 10, "RAD_TAN_THIN_PRISM_FISHEYE": 11}
 
-#: largest RMS (px) over the frame accepted for a camera fitted to FULL_OPENCV by ``fit_cameras=True``
-FIT_TOLERANCE_PX = 0.01
 
 HALF = 0.5  # COLMAP pixel (corner origin) minus skyrig pixel (centre-of-first-pixel origin)
 
@@ -197,21 +193,6 @@ def colmap_camera(camera: FrameCamera) -> tuple[str, list[float]]:
                       "fit_cameras=True")
 
 
-def _fit_camera(camera: FrameCamera, tolerance_px: float) -> tuple[FrameCamera, Any]:
-    """``camera`` fitted to OpenCV's k1 k2 p1 p2 k3 over the frame, refused above ``tolerance_px`` RMS (the
-    rational k4..k6 add nothing for photogrammetric lenses and make the fit ill-conditioned)."""
-    from skyrig.camera.convert import convert_camera
-
-    out, rep = convert_camera(camera, OpenCVDistortion())
-    if not rep.rms_px <= tolerance_px:
-        raise OptionError("fit_tolerance_px", f"camera {camera.name!r} ({camera.distortion.name}): the OpenCV fit departs from it "
-                          f"by {rep.rms_px:.4f} px RMS ({rep.max_px:.4f} px max) over the frame, more than "
-                          f"{tolerance_px} px")
-    logger.info("camera %s (%s) written as OpenCV: fit RMS %.2e px, max %.2e px", camera.name,
-                camera.distortion.name, rep.rms_px, rep.max_px)
-    return out, rep
-
-
 # ---------------------------------------------------------------------------------------------- records
 @dataclass
 class ImageRecord:
@@ -326,7 +307,7 @@ def model_records(model: ColmapModel, fit_cameras: bool = False, fit_tolerance_p
         except OptionError:
             if not fit_cameras:
                 raise
-            fitted, model.fit_reports[cid] = _fit_camera(cam, fit_tolerance_px)
+            fitted, model.fit_reports[cid] = fit_or_refuse(cam, OpenCVDistortion(), fit_tolerance_px, "COLMAP")
             name, prm = colmap_camera(fitted)
         cams[int(cid)] = (name, int(cam.width), int(cam.height), prm)
     for nm in model.image_name:
@@ -405,14 +386,14 @@ def block_from_colmap(model: ColmapModel, sigma_px: float = 1.0, min_track_lengt
     keep_p = n_rays >= min_track_length
     new_p = np.cumsum(keep_p) - 1
     keep_o = keep_p[model.obs_point]
-    n_img = len(model.image_id)
+    n_img = len(model.image_name)
     names = model.image_name
     return Block(
         cameras=[model.cameras[c] for c in cam_ids],
         station_name=names, station_rotation=model.world_from_camera.rotation,
         station_centre=model.world_from_camera.translation, image_name=names, image_station=np.arange(n_img),
-        image_camera=np.array([cam_index[int(c)] for c in model.image_camera_id], np.int64),
-        image_head=np.array([cam_index[int(c)] for c in model.image_camera_id], np.int64),
+        image_camera=np.array([cam_index[c] for c in model.image_camera_id.tolist()], np.int64),
+        image_head=np.array([cam_index[c] for c in model.image_camera_id.tolist()], np.int64),
         head_name=np.array([f"camera{c}" for c in cam_ids]),
         point_name=model.point_id[keep_p].astype(str), point_xyz=model.point_xyz[keep_p],
         obs_image=model.obs_image[keep_o], obs_point=new_p[model.obs_point[keep_o]],
