@@ -188,6 +188,11 @@ def colmap_camera(camera: FrameCamera) -> tuple[str, list[float]]:
         if c["k2"]:
             return "RADIAL", [f, cx, cy, c["k1"], c["k2"]]
         return "SIMPLE_RADIAL", [f, cx, cy, c["k1"]]
+    from skyrig.camera.convert import exact_conversion
+
+    ex = exact_conversion(camera, "opencv_rational")  # e.g. Metashape's model without K4, B1, B2
+    if ex is not None:
+        return colmap_camera(ex)
     raise OptionError("fit_cameras", f"camera {camera.name!r}: COLMAP has no camera model for the {d.name!r} distortion; "
                       "convert it to 'opencv' or 'opencv_rational' first (skyrig convert --camera), or write with "
                       "fit_cameras=True")

@@ -64,6 +64,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.block import Block
 from skyrig.camera.aspect import camera_from_fx_fy, fx_fy_px
+from skyrig.camera.convert import exact_conversion
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
@@ -204,6 +205,8 @@ def opensfm_camera(camera: FrameCamera) -> dict[str, Any]:
     elif isinstance(d, NoDistortion) or type(d) is OpenCVDistortion:
         fx = fy = camera.focal_px / s
         c = {k: float(getattr(d, k, 0.0)) for k in ("k1", "k2", "p1", "p2", "k3")}
+    elif (ex := exact_conversion(camera, "opencv")) is not None and ex.distortion.name != d.name:
+        return opensfm_camera(ex)  # e.g. Metashape's model without K4, B1, B2
     else:
         raise OptionError("fit_cameras", f"camera {camera.name!r}: OpenSfM has no camera model for the {d.name!r} "
                           "distortion; convert it to 'opencv' first (skyrig convert --camera), or write with "
