@@ -55,7 +55,7 @@ from skyrig.io._camera_fit import FIT_TOLERANCE_PX, fit_or_refuse
 
 __all__ = ["ColmapModel", "COLMAP_CAMERA_MODELS", "COLMAP_MODEL_IDS", "SKYRIG_FROM_COLMAP_CAMERA", "ImageRecord",
            "PointRecords", "camera_from_colmap", "colmap_camera", "assemble_model", "block_from_colmap",
-           "colmap_from_block", "read_colmap", "write_colmap", "model_records", "FIT_TOLERANCE_PX"]
+           "colmap_from_block", "read_colmap", "write_colmap", "model_records", "camera_records", "FIT_TOLERANCE_PX"]
 
 #: skyrig camera frame (x right, y up, z back) from COLMAP's (x right, y down, z forward)
 SKYRIG_FROM_COLMAP_CAMERA = np.diag([1.0, -1.0, -1.0])
@@ -300,21 +300,32 @@ def assemble_model(cameras: dict[int, FrameCamera], images: list[ImageRecord], p
     )
 
 
-def model_records(model: ColmapModel, fit_cameras: bool = False, fit_tolerance_px: float = FIT_TOLERANCE_PX
-                  ) -> tuple[dict[int, tuple[str, int, int, list[float]]], list[ImageRecord], PointRecords]:
-    """The records a writer writes for ``model`` (COLMAP conventions): cameras ``{id: (model, w, h, params)}``,
-    images (their keypoints are the model's measurements, in order) and points (tracks from the
-    measurements).  ``fit_cameras``: see :func:`colmap_camera`; the fit reports go to ``model.fit_reports``."""
+def camera_records(cameras: dict[int, FrameCamera], fit_cameras: bool = False,
+                   fit_tolerance_px: float = FIT_TOLERANCE_PX, reports: dict[int, Any] | None = None
+                   ) -> dict[int, tuple[str, int, int, list[float]]]:
+    """``{camera id: (COLMAP model, width, height, params)}`` of cameras (:func:`colmap_camera`; ``fit_cameras``:
+    a camera no COLMAP model holds is replaced by its OpenCV fit, whose report goes to ``reports``)."""
     cams: dict[int, tuple[str, int, int, list[float]]] = {}
-    for cid, cam in sorted(model.cameras.items()):
+    for cid, cam in sorted(cameras.items()):
         try:
             name, prm = colmap_camera(cam)
         except OptionError:
             if not fit_cameras:
                 raise
-            fitted, model.fit_reports[cid] = fit_or_refuse(cam, OpenCVDistortion(), fit_tolerance_px, "COLMAP")
+            fitted, rep = fit_or_refuse(cam, OpenCVDistortion(), fit_tolerance_px, "COLMAP")
+            if reports is not None:
+                reports[cid] = rep
             name, prm = colmap_camera(fitted)
         cams[int(cid)] = (name, int(cam.width), int(cam.height), prm)
+    return cams
+
+
+def model_records(model: ColmapModel, fit_cameras: bool = False, fit_tolerance_px: float = FIT_TOLERANCE_PX
+                  ) -> tuple[dict[int, tuple[str, int, int, list[float]]], list[ImageRecord], PointRecords]:
+    """The records a writer writes for ``model`` (COLMAP conventions): cameras ``{id: (model, w, h, params)}``,
+    images (their keypoints are the model's measurements, in order) and points (tracks from the
+    measurements).  ``fit_cameras``: see :func:`colmap_camera`; the fit reports go to ``model.fit_reports``."""
+    cams = camera_records(model.cameras, fit_cameras, fit_tolerance_px, model.fit_reports)
     for nm in model.image_name:
         if "\n" in nm or "\r" in nm or "\0" in nm or nm != nm.strip() or not nm:
             raise OptionError("image_name", f"image name {nm!r} cannot be written to a COLMAP model (empty, a line break, a "

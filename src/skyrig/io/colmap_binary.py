@@ -35,7 +35,7 @@ from skyrig.io._text import atomic_write, check_output_dir
 from skyrig.io.colmap import (COLMAP_CAMERA_MODELS, COLMAP_MODEL_IDS, FIT_TOLERANCE_PX, ColmapModel, ImageRecord,
                               PointRecords, assemble_model, camera_from_colmap, model_records)
 
-__all__ = ["read_colmap_binary", "read_colmap_cameras_binary", "write_colmap_binary"]
+__all__ = ["read_colmap_binary", "read_colmap_cameras_binary", "write_colmap_binary", "write_camera_records_binary"]
 
 _MODEL_NAMES = {v: k for k, v in COLMAP_MODEL_IDS.items()}
 #: parameters of the models skyrig does not read (to skip them with the right size in errors)
@@ -166,6 +166,16 @@ def read_colmap_binary(folder: str | PathLike[str], pixel_size_mm: float = 0.001
     return assemble_model(cams, images, points, d / "images.bin", d / "points3D.bin")
 
 
+def write_camera_records_binary(path: str | PathLike[str], cams: dict[int, tuple[str, int, int, list[float]]]
+                                ) -> None:
+    """Write ``cameras.bin`` from :func:`skyrig.io.colmap.camera_records` (atomically)."""
+    with atomic_write(path, "wb") as fh:
+        fh.write(struct.pack("<Q", len(cams)))
+        for cid, (name, w, h, prm) in cams.items():
+            fh.write(struct.pack("<iiQQ", cid, COLMAP_MODEL_IDS[name], w, h))
+            fh.write(np.asarray(prm, "<f8").tobytes())
+
+
 def write_colmap_binary(folder: str | PathLike[str], model: ColmapModel, fit_cameras: bool = False,
                         fit_tolerance_px: float = FIT_TOLERANCE_PX) -> list[Path]:
     """Write ``model`` as ``cameras.bin``, ``images.bin``, ``points3D.bin`` in ``folder`` (created; each file
@@ -174,11 +184,7 @@ def write_colmap_binary(folder: str | PathLike[str], model: ColmapModel, fit_cam
     d = check_output_dir(folder)
     cams, images, points = model_records(model, fit_cameras, fit_tolerance_px)
     paths = [d / "cameras.bin", d / "images.bin", d / "points3D.bin"]
-    with atomic_write(paths[0], "wb") as fh:
-        fh.write(struct.pack("<Q", len(cams)))
-        for cid, (name, w, h, prm) in cams.items():
-            fh.write(struct.pack("<iiQQ", cid, COLMAP_MODEL_IDS[name], w, h))
-            fh.write(np.asarray(prm, "<f8").tobytes())
+    write_camera_records_binary(paths[0], cams)
     with atomic_write(paths[1], "wb") as fh:
         fh.write(struct.pack("<Q", len(images)))
         for im in images:

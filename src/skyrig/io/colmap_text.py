@@ -62,7 +62,7 @@ from skyrig.io.colmap import (COLMAP_CAMERA_MODELS, FIT_TOLERANCE_PX, SKYRIG_FRO
                               ImageRecord, PointRecords, assemble_model, block_from_colmap, camera_from_colmap,
                               model_records)
 
-__all__ = ["ColmapModel", "read_colmap_cameras", "read_colmap_text", "write_colmap_text", "block_from_colmap",
+__all__ = ["ColmapModel", "read_colmap_cameras", "read_colmap_text", "write_colmap_text", "write_camera_records_text", "block_from_colmap",
            "COLMAP_CAMERA_MODELS", "SKYRIG_FROM_COLMAP_CAMERA"]
 
 
@@ -191,6 +191,15 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
+def write_camera_records_text(path: str | PathLike[str], cams: dict[int, tuple[str, int, int, list[float]]]) -> None:
+    """Write ``cameras.txt`` from :func:`skyrig.io.colmap.camera_records` (atomically)."""
+    with atomic_write(path) as fh:
+        fh.write("# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+                 f"# Number of cameras: {len(cams)}\n# written by skyrig\n")
+        for cid, (name, w, h, prm) in cams.items():
+            fh.write(f"{cid} {name} {w} {h} {' '.join(_num(v) for v in prm)}\n")
+
+
 def write_colmap_text(folder: str | PathLike[str], model: ColmapModel, fit_cameras: bool = False,
                       fit_tolerance_px: float = FIT_TOLERANCE_PX) -> list[Path]:
     """Write ``model`` as ``cameras.txt``, ``images.txt``, ``points3D.txt`` in ``folder`` (created; each file
@@ -203,11 +212,7 @@ def write_colmap_text(folder: str | PathLike[str], model: ColmapModel, fit_camer
     d = check_output_dir(folder)
     cams, images, points = model_records(model, fit_cameras, fit_tolerance_px)
     paths = [d / "cameras.txt", d / "images.txt", d / "points3D.txt"]
-    with atomic_write(paths[0]) as fh:
-        fh.write("# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-                 f"# Number of cameras: {len(cams)}\n# written by skyrig\n")
-        for cid, (name, w, h, prm) in cams.items():
-            fh.write(f"{cid} {name} {w} {h} {' '.join(_num(v) for v in prm)}\n")
+    write_camera_records_text(paths[0], cams)
     with atomic_write(paths[1]) as fh:
         fh.write("# Image list with two lines of data per image:\n"
                  "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
