@@ -14,8 +14,9 @@ from skyrig.cli._common import EO_READERS, load_eo
 from skyrig.georef.eo import WorldFrame
 from skyrig.io.eo_csv import write_eo_csv
 
-MODEL_WRITERS = ("colmap", "colmap-text", "opensfm", "metashape-xml")
-CAMERA_FORMATS = ("metashape-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera", "rig")
+MODEL_WRITERS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
+CAMERA_FORMATS = ("metashape-calibration", "micmac-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera",
+                  "rig")
 
 
 def _write_csv(eo, path, unit, convention):
@@ -70,8 +71,8 @@ def _echo_fits(reports: dict, what: str) -> None:
 @click.option("--to-angles", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True)
 @click.option("--to-convention", type=click.Choice(["opk", "pok", "ypr"]), default="opk", show_default=True)
 @click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True),
-              help="Camera file (Metashape calibration .xml, OpenSfM .json, COLMAP cameras.txt/.bin, IGN .txt, rig "
-                   ".yaml). Without SRC: the camera to convert. With SRC: cameras for a model output; repeat for "
+              help="Camera file (Metashape or MicMac calibration .xml, OpenSfM .json, COLMAP cameras.txt/.bin, IGN "
+                   ".txt, rig .yaml). Without SRC: the camera to convert. With SRC: cameras for a model output; repeat for "
                    "several.")
 @click.option("--to-model", type=click.Choice(_distortion_names()), default=None,
               help="With --camera: the distortion model to convert to (exact when equivalent, else fitted over "
@@ -104,7 +105,7 @@ def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_grou
     from skyrig.pipeline.inputs import _guess_eo_format
 
     fmt = from_format or _guess_eo_format(src)
-    if fmt in ("colmap", "opensfm", "metashape-xml"):
+    if fmt in ("colmap", "opensfm", "metashape-xml", "micmac"):
         from skyrig.io.exchange import read_model_orientations
 
         eo, cameras = read_model_orientations(src, fmt, from_crs, from_geoid, "--from-crs")
@@ -163,7 +164,7 @@ def _convert_camera(paths, dst, from_format, to_format, to_model, camera_name, m
     to_format = to_format or guess_camera_format(dst)
     if to_format not in CAMERA_FORMATS or to_format == "ign-camera":
         raise click.UsageError(f"--to-format {to_format} is not a writable camera format (metashape-calibration, "
-                               "opensfm-cameras, colmap-cameras, rig)")
+                               "micmac-calibration, opensfm-cameras, colmap-cameras, rig)")
     out = {}
     for name, cam in cams.items():
         if to_model is None:

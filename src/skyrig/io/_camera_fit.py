@@ -22,12 +22,13 @@ FIT_TOLERANCE_PX = 0.01
 
 
 def fit_or_refuse(camera: FrameCamera, target: Distortion, tolerance_px: float = FIT_TOLERANCE_PX,
-                  program: str = "the format") -> tuple[FrameCamera, Any]:
+                  program: str = "the format", hold: tuple[str, ...] = ()) -> tuple[FrameCamera, Any]:
     """``(camera fitted to target's model, ConversionReport)``; :class:`OptionError` (option ``fit_tolerance_px``)
-    when the fit's RMS over the frame is above ``tolerance_px``."""
+    when the fit's RMS over the frame is above ``tolerance_px``.  ``hold``: target parameters kept at the target's
+    values (terms the program's model lacks)."""
     from skyrig.camera.convert import convert_camera
 
-    out, rep = convert_camera(camera, target)
+    out, rep = convert_camera(camera, target, hold=hold)
     if not rep.rms_px <= tolerance_px:
         raise OptionError("fit_tolerance_px", f"camera {camera.name!r} ({camera.distortion.name}): its {target.name} "
                           f"fit for {program} departs from it by {rep.rms_px:.4f} px RMS ({rep.max_px:.4f} px max) "

@@ -6,15 +6,21 @@ with expat (also standard library) and records the 1-based line of each start ta
 
 from __future__ import annotations
 
+import math
+import xml.etree.ElementTree as ET
 import xml.parsers.expat
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 from typing import Iterator
 
-from skyrig.errors import InputFormatError
+import numpy as np
+from numpy.typing import NDArray
 
-__all__ = ["XmlElement", "read_xml"]
+from skyrig.errors import InputFormatError
+from skyrig.io._text import atomic_write
+
+__all__ = ["XmlElement", "read_xml", "write_xml", "finite_float", "floats_of"]
 
 
 @dataclass
@@ -84,3 +90,31 @@ def read_xml(path: str | PathLike[str]) -> XmlElement:
     if not root:
         raise InputFormatError("no XML element", p)
     return root[0]
+
+
+def finite_float(text: str, path: Path, line: int | None, what: str) -> float:
+    """``text`` as a finite float, else an :class:`InputFormatError` naming file, line and ``what``."""
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise InputFormatError(f"{text!r} is not a number", path, line, what) from None
+    if not math.isfinite(v):
+        raise InputFormatError(f"{text!r} is not a finite number", path, line, what)
+    return v
+
+
+def floats_of(e: XmlElement, n: int, path: Path, what: str) -> NDArray[np.float64]:
+    """The ``n`` blank-separated numbers of an element's text (errors name its line and ``what``)."""
+    parts = e.text.split()
+    if len(parts) != n:
+        raise InputFormatError(f"expected {n} numbers, got {len(parts)}", path, e.line, what)
+    return np.array([finite_float(s, path, e.line, what) for s in parts])
+
+
+def write_xml(path: str | PathLike[str], root: ET.Element) -> None:
+    """Write an ElementTree (indented, UTF-8, with the XML declaration) atomically."""
+    ET.indent(root)
+    with atomic_write(path, "wb") as fh:
+        fh.write(b'<?xml version="1.0" encoding="UTF-8"?>\n')
+        fh.write(ET.tostring(root, encoding="utf-8"))
+        fh.write(b"\n")

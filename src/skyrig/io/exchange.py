@@ -34,9 +34,10 @@ __all__ = ["MODEL_FORMATS", "CAMERA_FORMATS", "read_model_orientations", "write_
            "read_camera_file", "write_camera_file", "guess_camera_format"]
 
 #: model formats (``--from-format`` / ``--to-format`` of ``skyrig convert``)
-MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml")
+MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
 #: camera file formats (``skyrig convert --camera``)
-CAMERA_FORMATS = ("metashape-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera", "rig")
+CAMERA_FORMATS = ("metashape-calibration", "micmac-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera",
+                  "rig")
 
 
 def _frame(crs: str | None, geoid: str | None, what: str, option: str, path: Path) -> WorldFrame:
@@ -84,6 +85,13 @@ def read_model_orientations(path: str | PathLike[str], fmt: str, crs: str | None
                                                              crs_option, p)
         return _eo(ch.image_name, [ch.cameras[c].name for c in ch.image_camera_id], ch.world_from_camera, frame), \
             {c.name: c for c in ch.cameras.values()}
+    if fmt == "micmac":
+        from skyrig.io.micmac import read_micmac_ori
+
+        o = read_micmac_ori(p)
+        frame = _frame(crs, geoid, "a MicMac Ori folder", crs_option, p)
+        return _eo(o.image_name, [o.cameras[c].name for c in o.image_camera_id], o.world_from_camera, frame), \
+            {c.name: c for c in o.cameras.values()}
     raise OptionError("--from-format", f"unknown model format {fmt!r}; known: {', '.join(MODEL_FORMATS)}")
 
 
@@ -137,6 +145,12 @@ def write_model_orientations(path: str | PathLike[str], fmt: str, eo: ExteriorOr
                             Pose(e.rotation, e.centre, "world", "camera"), WorldFrame.ecef(), wkt)
         write_metashape_cameras(path, ch, fit_cameras=fit_cameras, fit_tolerance_px=fit_tolerance_px)
         return ch.fit_reports
+    if fmt == "micmac":
+        from skyrig.io.micmac import MicmacOrientations, write_micmac_ori
+
+        write_micmac_ori(path, MicmacOrientations({c: cameras[c] for c in names}, eo.image, eo.camera, pose),
+                         fit_cameras=fit_cameras, fit_tolerance_px=fit_tolerance_px)
+        return {}
     raise OptionError("--to-format", f"unknown model format {fmt!r}; known: {', '.join(MODEL_FORMATS)}")
 
 
@@ -146,7 +160,11 @@ def guess_camera_format(path: str | PathLike[str]) -> str:
     ``cameras.bin`` COLMAP, ``*.yaml`` rig, other ``*.txt`` IGN."""
     n = Path(path).name.lower()
     if n.endswith(".xml"):
-        return "metashape-calibration"
+        try:
+            head = Path(path).read_bytes()[:2000]
+        except OSError:
+            head = b""
+        return "micmac-calibration" if b"<ExportAPERO" in head else "metashape-calibration"
     if n.endswith(".json"):
         return "opensfm-cameras"
     if n in ("cameras.txt", "cameras.bin"):
@@ -161,7 +179,8 @@ def read_camera_file(path: str | PathLike[str], fmt: str | None = None) -> dict[
     p = Path(path)
     fmt = fmt or guess_camera_format(p)
     readers: dict[str, Callable[[Path], dict[str, FrameCamera]]] = {
-        "metashape-calibration": _read_metashape_cal, "opensfm-cameras": _read_opensfm_cams,
+        "metashape-calibration": _read_metashape_cal, "micmac-calibration": _read_micmac_cal,
+        "opensfm-cameras": _read_opensfm_cams,
         "colmap-cameras": _read_colmap_cams, "ign-camera": _read_ign_cam, "rig": _read_rig_cams}
     if fmt not in readers:
         raise OptionError("--from-format", f"unknown camera format {fmt!r}; known: {', '.join(CAMERA_FORMATS)}")
@@ -172,6 +191,13 @@ def _read_metashape_cal(p: Path) -> dict[str, FrameCamera]:
     from skyrig.io.metashape import read_metashape_calibration
 
     c = read_metashape_calibration(p)
+    return {c.name: c}
+
+
+def _read_micmac_cal(p: Path) -> dict[str, FrameCamera]:
+    from skyrig.io.micmac import read_micmac_calibration
+
+    c = read_micmac_calibration(p)
     return {c.name: c}
 
 
@@ -220,6 +246,14 @@ def write_camera_file(path: str | PathLike[str], fmt: str, cameras: dict[str, Fr
         (name, cam), = cameras.items()
         rep = write_metashape_calibration(p, cam, fit_cameras=fit_cameras)
         return {name: rep} if rep is not None else {}
+    if fmt == "micmac-calibration":
+        from skyrig.io.micmac import write_micmac_calibration
+
+        if len(cameras) != 1:
+            raise OptionError("--camera-name", f"a MicMac calibration file holds one camera; there are "
+                              f"{len(cameras)} ({', '.join(cameras)}): choose one")
+        write_micmac_calibration(p, next(iter(cameras.values())), fit_cameras=fit_cameras)
+        return {}
     if fmt == "opensfm-cameras":
         from skyrig.io.opensfm import write_opensfm_cameras
 
@@ -248,4 +282,4 @@ def write_camera_file(path: str | PathLike[str], fmt: str, cameras: dict[str, Fr
                       description="cameras written by skyrig convert --camera"), p)
         return {}
     raise OptionError("--to-format", f"cannot write camera format {fmt!r}; writable: metashape-calibration, "
-                      "opensfm-cameras, colmap-cameras, rig")
+                      "micmac-calibration, opensfm-cameras, colmap-cameras, rig")

@@ -43,7 +43,6 @@ Conventions
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -63,7 +62,7 @@ from skyrig.georef.eo import ExteriorOrientations
 from skyrig.geometry.pose import Pose
 from skyrig.io._camera_fit import FIT_TOLERANCE_PX, fit_or_refuse
 from skyrig.io._text import atomic_write
-from skyrig.io._xml import XmlElement, read_xml
+from skyrig.io._xml import XmlElement, finite_float as _float, floats_of as _floats, read_xml, write_xml as _write_tree
 
 __all__ = ["MetashapeChunk", "read_metashape_calibration", "write_metashape_calibration", "read_metashape_cameras",
            "write_metashape_cameras", "camera_from_metashape", "metashape_calibration"]
@@ -126,23 +125,6 @@ class MetashapeChunk:
 
 
 # ---------------------------------------------------------------------------------------------- numbers
-def _float(text: str, path: Path, line: int | None, what: str) -> float:
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise InputFormatError(f"{text!r} is not a number", path, line, what) from None
-    if not math.isfinite(v):
-        raise InputFormatError(f"{text!r} is not a finite number", path, line, what)
-    return v
-
-
-def _floats(e: XmlElement, n: int, path: Path, what: str) -> NDArray[np.float64]:
-    parts = e.text.split()
-    if len(parts) != n:
-        raise InputFormatError(f"expected {n} numbers, got {len(parts)}", path, e.line, what)
-    return np.array([_float(s, path, e.line, what) for s in parts])
-
-
 def _int_attr(e: XmlElement, key: str, path: Path) -> int:
     v = e.attrib.get(key)
     try:
@@ -234,14 +216,6 @@ def _calibration_xml(parent: ET.Element | None, camera: FrameCamera, sensor_styl
     if not sensor_style:
         ET.SubElement(e, "date").text = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     return e
-
-
-def _write_tree(path: str | PathLike[str], root: ET.Element) -> None:
-    ET.indent(root)
-    with atomic_write(path, "wb") as fh:
-        fh.write(b'<?xml version="1.0" encoding="UTF-8"?>\n')
-        fh.write(ET.tostring(root, encoding="utf-8"))
-        fh.write(b"\n")
 
 
 def read_metashape_calibration(path: str | PathLike[str], name: str | None = None,

@@ -144,13 +144,14 @@ EO_FORMATS: dict[str, Callable[..., ExteriorOrientations]] = {
     "colmap": _eo_model("colmap"),  # a model folder, binary or text
     "opensfm": _eo_model("opensfm"),
     "metashape-xml": _eo_model("metashape-xml"),
+    "micmac": _eo_model("micmac"),  # an Ori-* folder
 }
 
 
 def _guess_eo_format(path: str) -> str:
     name = Path(path).name.lower()
     if Path(path).is_dir():
-        return "colmap"
+        return "micmac" if any(Path(path).glob("Orientation-*.xml")) else "colmap"
     if name.endswith(".json"):
         return "opensfm"
     if name.endswith(".xml"):
