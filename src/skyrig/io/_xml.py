@@ -6,7 +6,6 @@ with expat (also standard library) and records the 1-based line of each start ta
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 import xml.parsers.expat
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.errors import InputFormatError
-from skyrig.io._text import atomic_write
+from skyrig.io._text import atomic_write, parse_float
 
 __all__ = ["XmlElement", "read_xml", "write_xml", "finite_float", "floats_of"]
 
@@ -87,20 +86,18 @@ def read_xml(path: str | PathLike[str]) -> XmlElement:
         parser.Parse(data, True)
     except xml.parsers.expat.ExpatError as e:
         raise InputFormatError(f"not well-formed XML ({xml.parsers.expat.ErrorString(e.code)})", p, e.lineno) from None
+    except (LookupError, ValueError) as e:  # e.g. an unknown encoding in the XML declaration
+        raise InputFormatError(f"not readable XML ({e})", p, 1) from None
     if not root:
         raise InputFormatError("no XML element", p)
     return root[0]
 
 
-def finite_float(text: str, path: Path, line: int | None, what: str) -> float:
+def finite_float(text: str | None, path: Path, line: int | None, what: str) -> float:
     """``text`` as a finite float, else an :class:`InputFormatError` naming file, line and ``what``."""
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise InputFormatError(f"{text!r} is not a number", path, line, what) from None
-    if not math.isfinite(v):
-        raise InputFormatError(f"{text!r} is not a finite number", path, line, what)
-    return v
+    if text is None:
+        raise InputFormatError("missing", path, line, what)
+    return parse_float(text, path, line, what)  # type: ignore[arg-type]
 
 
 def floats_of(e: XmlElement, n: int, path: Path, what: str) -> NDArray[np.float64]:

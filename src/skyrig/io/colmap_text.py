@@ -118,7 +118,7 @@ def _read_points(pp: Path) -> PointRecords:
         pid.append(_int(f[0], pp, ln, "POINT3D_ID"))
         xyz.append([parse_float(v, pp, ln, n) for v, n in zip(f[1:4], "XYZ")])
         rgb.append([_int(v, pp, ln, n) for v, n in zip(f[4:7], "RGB")])
-        err.append(float(f[7]) if f[7].lower() != "nan" else -1.0)
+        err.append(parse_float(f[7], pp, ln, "ERROR") if f[7].lower() != "nan" else -1.0)
         tr = f[8:]
         tracks.append(np.array([[_int(a, pp, ln, "IMAGE_ID"), _int(b, pp, ln, "POINT2D_IDX")]
                                 for a, b in zip(tr[0::2], tr[1::2])], np.int64).reshape(-1, 2))
