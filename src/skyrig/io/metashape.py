@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig.adjust.block import Block
 from skyrig.camera.agisoft import AgisoftDistortion
 from skyrig.camera.convert import exact_conversion
 from skyrig.camera.frame import FrameCamera
@@ -61,11 +62,11 @@ from skyrig.geodesy.frame import WorldFrame
 from skyrig.georef.eo import ExteriorOrientations
 from skyrig.geometry.pose import Pose
 from skyrig.io._camera_fit import FIT_TOLERANCE_PX, fit_or_refuse
-from skyrig.io._text import atomic_write
 from skyrig.io._xml import XmlElement, finite_float as _float, floats_of as _floats, read_xml, write_xml as _write_tree
 
 __all__ = ["MetashapeChunk", "read_metashape_calibration", "write_metashape_calibration", "read_metashape_cameras",
-           "write_metashape_cameras", "camera_from_metashape", "metashape_calibration"]
+           "write_metashape_cameras", "camera_from_metashape", "metashape_calibration", "block_from_metashape",
+           "metashape_from_block"]
 
 F = np.diag([1.0, -1.0, -1.0])
 HALF = 0.5  # Metashape pixel (corner origin) minus skyrig pixel
@@ -425,3 +426,73 @@ def write_metashape_cameras(path: str | PathLike[str], chunk: MetashapeChunk, fi
         ET.SubElement(t, "scale", locked="true").text = "1"
     _write_tree(path, doc)
     return Path(path)
+
+
+# ---------------------------------------------------------------------------------------------- blocks
+def block_from_metashape(chunk: MetashapeChunk, sigma_px: float = 1.0, control_sigma_m: float = 0.01) -> Block:
+    """An adjustment :class:`Block` of a chunk: one station per aligned camera, the sensors, the markers as
+    points with their measurements, and the markers whose reference is enabled as control (sigma
+    ``control_sigma_m`` per axis).
+
+    The block's frame is the chunk's: ECEF for a georeferenced chunk (marker references are converted from the
+    chunk CRS, heights taken as ellipsoidal), else the chunk's own.  A marker's starting position is its
+    reference; a marker without one is triangulated from its rays (all its images must share one sensor), or
+    refused."""
+    from skyrig.orient.triangulation import triangulate_tracks
+
+    sids = list(chunk.cameras)
+    n_m = len(chunk.marker_name)
+    xyz = chunk.marker_xyz.copy()
+    has_ref = np.isfinite(xyz).all(axis=1)
+    if chunk.frame is not None and has_ref.any():
+        if not chunk.crs_wkt:
+            raise OptionError("crs_wkt", "a georeferenced chunk without <reference>: the markers' CRS is unknown")
+        xyz[has_ref] = WorldFrame.map(chunk.crs_wkt).to_ecef(xyz[has_ref])
+    cam_of = np.array([sids.index(str(c)) for c in chunk.image_camera_id], np.int64)
+    todo = np.flatnonzero(~has_ref)
+    for j in todo:
+        sel = np.flatnonzero(chunk.obs_marker == j)
+        cams = np.unique(cam_of[chunk.obs_image[sel]])
+        if sel.size < 2 or cams.size != 1:
+            raise OptionError("markers", f"marker {chunk.marker_name[j]!r} has no reference and cannot be "
+                              f"triangulated ({sel.size} measurements, {cams.size} sensors)")
+        X, ok = triangulate_tracks(chunk.cameras[sids[int(cams[0])]], chunk.world_from_camera.rotation,
+                                   chunk.world_from_camera.translation, np.zeros(sel.size, np.int64),
+                                   chunk.obs_image[sel], chunk.obs_pixel[sel], 1, min_angle_deg=0.0)
+        if not ok[0]:
+            raise OptionError("markers", f"marker {chunk.marker_name[j]!r}: its rays do not intersect")
+        xyz[j] = X[0]
+    ctrl = np.flatnonzero(has_ref & chunk.marker_enabled)
+    n_img = len(chunk.image_name)
+    return Block(
+        cameras=[chunk.cameras[s] for s in sids], station_name=chunk.image_name,
+        station_rotation=chunk.world_from_camera.rotation, station_centre=chunk.world_from_camera.translation,
+        image_name=chunk.image_name, image_station=np.arange(n_img), image_camera=cam_of, image_head=cam_of,
+        head_name=np.array([chunk.cameras[s].name for s in sids]), point_name=chunk.marker_name,
+        point_xyz=xyz.reshape(n_m, 3), obs_image=chunk.obs_image, obs_point=chunk.obs_marker,
+        obs_pixel=chunk.obs_pixel, obs_sigma_px=sigma_px,
+        control_point=ctrl if ctrl.size else None, control_xyz=xyz[ctrl] if ctrl.size else None,
+        control_sigma=control_sigma_m,
+        frame=chunk.frame.describe() if chunk.frame is not None else "Metashape chunk frame")
+
+
+def metashape_from_block(block: Block) -> MetashapeChunk:
+    """A :class:`MetashapeChunk` of ``block`` in the block's own frame (no CRS: write it as a local chunk):
+    sensors = the block's cameras, cameras = its images, markers = its points with their measurements.  A
+    marker's reference is the control coordinate (enabled) for a control point, and the point's current
+    position (disabled: not used as control, but kept) otherwise; check points are written as disabled."""
+    from skyrig.io.colmap import block_camera_poses
+
+    ref = block.point_xyz.copy()
+    enabled = np.zeros(len(block.point_name), bool)
+    if block.control_point is not None and len(block.control_point):
+        chk = (block.control_check if block.control_check is not None
+               else np.zeros(len(block.control_point), bool))
+        ref[block.control_point] = block.control_xyz
+        enabled[block.control_point] = ~np.asarray(chk, bool)
+    ids = [str(k) for k in range(len(block.cameras))]
+    return MetashapeChunk(dict(zip(ids, block.cameras)), np.asarray(block.image_name, dtype=str),
+                          np.array([ids[c] for c in block.image_camera]), block_camera_poses(block), None, None,
+                          np.asarray(block.point_name, dtype=str), ref, enabled,
+                          np.asarray(block.obs_image, np.int64), np.asarray(block.obs_point, np.int64),
+                          np.asarray(block.obs_pixel, np.float64))
