@@ -63,3 +63,37 @@ def test_same_sigma0_through_colmap_opensfm_metashape(block, tmp_path):
     for b in (b1, b2, b3):
         assert b.n_observations == block.n_observations
         assert _sigma0(b) == pytest.approx(s0, rel=1e-6)
+
+
+def test_cli_export_then_import_adjusts_the_same(block, tmp_path):
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.io.block_file import read_block, write_block
+
+    write_block(tmp_path / "block.json", block)
+    s0 = _sigma0(read_block(tmp_path / "block.json").block)
+    run = CliRunner()
+    for fmt, out in (("colmap", "model"), ("opensfm", "osfm/reconstruction.json"), ("metashape-xml", "cameras.xml")):
+        r = run.invoke(main, ["export", fmt, str(tmp_path / "block.json"), "-o", str(tmp_path / out)])
+        assert r.exit_code == 0, r.output
+        r = run.invoke(main, ["import", fmt, str(tmp_path / out), "-o", str(tmp_path / f"{fmt}.json"),
+                              "--sigma-px", "0.3"])
+        assert r.exit_code == 0, r.output
+        b = read_block(tmp_path / f"{fmt}.json").block
+        if fmt != "metashape-xml":  # COLMAP and OpenSfM models carry no control: the block's is put back
+            b = _with_control(b, block)
+        assert b.n_observations == block.n_observations
+        assert _sigma0(b) == pytest.approx(s0, rel=1e-6), fmt
+    # MicMac's images are file names in its working directory: a name with a folder part is refused
+    r = run.invoke(main, ["export", "micmac", str(tmp_path / "block.json"), "-o", str(tmp_path / "Ori-Out")])
+    assert r.exit_code != 0 and "image_name" in r.output, r.output
+    names = np.array([n.replace("/", "_") for n in block.image_name])
+    write_block(tmp_path / "block.json", replace(block, image_name=names, station_name=names))
+    # MicMac's radial model holds no OpenCV camera exactly: refused, or fitted with the residual printed
+    r = run.invoke(main, ["export", "micmac", str(tmp_path / "block.json"), "-o", str(tmp_path / "Ori-Out")])
+    assert r.exit_code != 0 and "--fit-cameras" in r.output, r.output
+    r = run.invoke(main, ["export", "micmac", str(tmp_path / "block.json"), "-o", str(tmp_path / "Ori-Out"),
+                          "--fit-cameras", "--max-residual-px", "1"])
+    assert r.exit_code == 0 and len(list((tmp_path / "Ori-Out").glob("Orientation-*.xml"))) == 10, r.output
+    assert "forward fit over the frame: RMS" in r.output

@@ -265,7 +265,7 @@ def _calibration_element(parent: ET.Element | None, camera: FrameCamera, half: f
     return e
 
 
-def _as_micmac(camera: FrameCamera, fit: bool, tolerance: float) -> FrameCamera:
+def _as_micmac(camera: FrameCamera, fit: bool, tolerance: float, reports: dict | None = None) -> FrameCamera:
     ex = exact_conversion(camera, "forward")
     cam = ex if ex is not None else camera
     try:
@@ -274,7 +274,10 @@ def _as_micmac(camera: FrameCamera, fit: bool, tolerance: float) -> FrameCamera:
     except OptionError:
         if not fit:
             raise
-    return fit_or_refuse(camera, ForwardDistortion(), tolerance, "MicMac", hold=("p1", "p2", "b1", "b2"))[0]
+    out, rep = fit_or_refuse(camera, ForwardDistortion(), tolerance, "MicMac", hold=("p1", "p2", "b1", "b2"))
+    if reports is not None:
+        reports[camera.name] = rep
+    return out
 
 
 def write_micmac_calibration(path: str | PathLike[str], camera: FrameCamera, pixel_origin: str = "corner",
@@ -286,17 +289,23 @@ def write_micmac_calibration(path: str | PathLike[str], camera: FrameCamera, pix
 
 
 def write_micmac_ori(folder: str | PathLike[str], ori: MicmacOrientations, pixel_origin: str = "corner",
-                     fit_cameras: bool = False, fit_tolerance_px: float = FIT_TOLERANCE_PX) -> list[Path]:
+                     fit_cameras: bool = False, fit_tolerance_px: float = FIT_TOLERANCE_PX,
+                     reports: dict | None = None) -> list[Path]:
     """Write an ``Ori-*`` folder: ``AutoCal-<camera>.xml`` per camera and ``Orientation-<image>.xml`` per image
-    (``FileInterne`` relative to the folder above, MicMac's working directory).  Returns the files written."""
+    (``FileInterne`` relative to the folder above, MicMac's working directory).  Returns the files written;
+    ``reports`` (a dict) receives the fit report of each camera fitted (``fit_cameras``) by camera name."""
     d = Path(folder)
     half = _shift(pixel_origin)
+    bad = [str(n) for n in ori.image_name if "/" in str(n) or "\\" in str(n) or not str(n).strip()]
+    if bad:
+        raise OptionError("image_name", f"image name {bad[0]!r}: MicMac's images are file names in its working "
+                          "directory (no folder part); rename the images")
     out = []
     cal_files = {}
     for cid, cam in ori.cameras.items():
         name = str(cid) if str(cid).endswith(".xml") else f"AutoCal-{cid}.xml"
         root = ET.Element("ExportAPERO")
-        root.append(_calibration_element(None, _as_micmac(cam, fit_cameras, fit_tolerance_px), half))
+        root.append(_calibration_element(None, _as_micmac(cam, fit_cameras, fit_tolerance_px, reports), half))
         _write_tree(d / name, root)
         cal_files[cid] = name
         out.append(d / name)
