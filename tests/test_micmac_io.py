@@ -118,17 +118,19 @@ def test_round_trip(ori, tmp_path):
     assert np.allclose(read_micmac_calibration(tmp_path / "c.xml").intrinsics, cal.intrinsics, rtol=1e-12, atol=0)
 
 
-def test_other_models_refused_or_fitted(tmp_path):
+def test_other_models_exact_refused_or_fitted(tmp_path):
+    from skyrig.camera.convert import compare_cameras
     from skyrig.camera.frame import FrameCamera
     from skyrig.camera.opencv import OpenCVDistortion
 
-    cam = FrameCamera.from_pixels("cv", 4000, 3000, 3000.0, 2010.0, 1490.0, distortion=OpenCVDistortion(k1=-0.05,
-                                                                                                       k2=0.01))
+    radial = FrameCamera.from_pixels("cv", 4000, 3000, 3000.0, 2010.0, 1490.0,
+                                     distortion=OpenCVDistortion(k1=-0.05, k2=0.01))
+    write_micmac_calibration(tmp_path / "r.xml", radial)  # OpenCV radial only: MicMac's ModRad exactly
+    assert compare_cameras(radial, read_micmac_calibration(tmp_path / "r.xml")).max_px < 1e-9
+    cam = radial.with_(distortion=OpenCVDistortion(k1=-0.05, k2=0.01, p1=5e-5))
     with pytest.raises(OptionError, match="opencv"):
         write_micmac_calibration(tmp_path / "c.xml", cam)
     write_micmac_calibration(tmp_path / "c.xml", cam, fit_cameras=True)
-    from skyrig.camera.convert import compare_cameras
-
     assert compare_cameras(cam, read_micmac_calibration(tmp_path / "c.xml")).rms_px <= 0.01
 
 
@@ -147,3 +149,22 @@ def test_bad_files_named(ori, which, old, new, needle):
     f.write_text(text.replace(old, new, 1))
     with pytest.raises(InputFormatError, match=needle):
         read_micmac_ori(ori)
+
+
+def test_micmac_to_opencv_exact_or_fitted(ori, tmp_path):
+    """MicMac's radial model about the principal point is OpenCV's k1 k2 k3 exactly (k_i = R_(2i+1) F^(2i)); about
+    its own centre (11 px away here) it has no exact OpenCV twin and the fit's residual is reported (this lens: 76 px
+    of distortion at the corners, OpenCV k1 k2 p1 p2 k3 with focal and principal point: 0.017 px RMS, 0.11 px
+    max)."""
+    from skyrig.camera.convert import compare_cameras, convert_camera, exact_conversion
+
+    cam = read_micmac_calibration(ori / "AutoCal_Foc-35000_Cam-X.xml")
+    assert exact_conversion(cam, "opencv") is None
+    rep = convert_camera(cam, "opencv")[1]
+    assert 0.005 < rep.rms_px < 0.03 and rep.max_px < 0.2
+    (tmp_path / "c.xml").write_text(_autocal().replace(f"<CDist>{CDIST[0]} {CDIST[1]}", f"<CDist>{PP[0]} {PP[1]}"))
+    centred = read_micmac_calibration(tmp_path / "c.xml")
+    cv = exact_conversion(centred, "opencv")
+    assert cv.distortion.k1 == pytest.approx(R3 * F_PX**2, rel=1e-12)
+    assert compare_cameras(centred, cv).max_px < 1e-9
+    assert compare_cameras(centred, exact_conversion(cv, "forward")).max_px < 1e-9

@@ -246,7 +246,10 @@ def exact_conversion(camera: FrameCamera, target_model: str) -> FrameCamera | No
 
     Exact pairs: a model to itself; no distortion to any model (zero coefficients); ``opencv`` <->
     ``opencv_rational`` (k4 = k5 = k6 = 0); ``opencv`` <-> ``agisoft`` with K4 = B1 = B2 = 0 (Agisoft's P1, P2
-    are OpenCV's p2, p1: :mod:`skyrig.camera.agisoft`); ``opencv_rational`` -> ``agisoft`` when k4..k6 = 0.
+    are OpenCV's p2, p1: :mod:`skyrig.camera.agisoft`); ``opencv_rational`` -> ``agisoft`` when k4..k6 = 0;
+    ``forward`` (radial only: distortion centre at the principal point, R0 = 0, K4 = P1 = P2 = B1 = B2 = 0) <->
+    ``opencv`` (p1 = p2 = 0) with ``k_i = K_i c^(2i)`` (``c`` the principal distance in mm: the forward model's
+    radius is in mm, OpenCV's normalised), e.g. a MicMac ``ModRad`` whose centre is the principal point.
     """
     from skyrig.camera.distortion import NoDistortion
 
@@ -267,6 +270,16 @@ def exact_conversion(camera: FrameCamera, target_model: str) -> FrameCamera | No
             return camera.with_(distortion=cls(**{k: v[k] for k in ("k1", "k2", "p1", "p2", "k3")}))
         if target == "agisoft":
             return camera.with_(distortion=cls(k1=v["k1"], k2=v["k2"], k3=v["k3"], p1=v["p2"], p2=v["p1"]))
+    c2 = camera.focal_mm ** 2
+    if d.name == "forward" and target in ("opencv", "opencv_rational", "agisoft"):
+        if any(v[k] for k in ("xc_mm", "yc_mm", "k4", "p1", "p2", "b1", "b2")) or d.constants_dict()["r0_mm"]:
+            return None
+        ks = {"k1": v["k1"] * c2, "k2": v["k2"] * c2**2, "k3": v["k3"] * c2**3}
+        return camera.with_(distortion=cls(**ks))
+    if target == "forward" and d.name in ("opencv", "opencv_rational", "agisoft"):
+        if any(v.get(k, 0.0) for k in ("p1", "p2", "k4", "k5", "k6", "b1", "b2")):
+            return None
+        return camera.with_(distortion=cls(k1=v["k1"] / c2, k2=v["k2"] / c2**2, k3=v["k3"] / c2**3))
     if d.name == "agisoft" and target in ("opencv", "opencv_rational"):
         if v["k4"] or v["b1"] or v["b2"]:
             return None
