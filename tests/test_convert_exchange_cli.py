@@ -14,8 +14,13 @@ from skyrig.io.eo_csv import read_eo_csv
 from skyrig.io.opensfm import read_opensfm_cameras
 
 
-@pytest.mark.parametrize("fmt, name", [("metashape-xml", "b.xml"), ("colmap", "model"), ("colmap-text", "model"),
-                                       ("opensfm", "reconstruction.json"), ("micmac", "Ori-Out")])
+SLOW = pytest.mark.slow  # the same path as the others, ~1.5 s each on the 805-image block
+
+
+@pytest.mark.parametrize("fmt, name", [("metashape-xml", "b.xml"), pytest.param("colmap", "model", marks=SLOW),
+                                       ("colmap-text", "model"),
+                                       pytest.param("opensfm", "reconstruction.json", marks=SLOW),
+                                       pytest.param("micmac", "Ori-Out", marks=SLOW)])
 def test_ign_block_through_other_programs(tmp_path, fmt, name):
     d = shared_path("ign-aerial-block")
     opk = str(d / "block805" / "23FD1305_alt_2.OPK")

@@ -37,6 +37,11 @@ def block():
                    control_check=None)
 
 
+@pytest.fixture(scope="module")
+def sigma0(block):
+    return _sigma0(block)
+
+
 def _sigma0(b):
     r = adjust(b, CONFIG)
     return r.sigma0
@@ -47,8 +52,8 @@ def _with_control(b, ref):
                    control_check=None)
 
 
-def test_same_sigma0_through_colmap_opensfm_metashape(block, tmp_path):
-    s0 = _sigma0(block)
+def test_same_sigma0_through_colmap_opensfm_metashape(block, sigma0, tmp_path):
+    s0 = sigma0
     assert 0.5 < s0 < 2.0  # the measurements' noise at their sigma (the fifth camera a little off)
     write_colmap(tmp_path / "colmap", colmap_from_block(block))
     b1 = _with_control(block_from_colmap(read_colmap(tmp_path / "colmap"), sigma_px=0.3), block)
@@ -65,14 +70,15 @@ def test_same_sigma0_through_colmap_opensfm_metashape(block, tmp_path):
         assert _sigma0(b) == pytest.approx(s0, rel=1e-6)
 
 
-def test_cli_export_then_import_adjusts_the_same(block, tmp_path):
+@pytest.mark.slow
+def test_cli_export_then_import_adjusts_the_same(block, sigma0, tmp_path):
     from click.testing import CliRunner
 
     from skyrig.cli import main
     from skyrig.io.block_file import read_block, write_block
 
     write_block(tmp_path / "block.json", block)
-    s0 = _sigma0(read_block(tmp_path / "block.json").block)
+    s0 = sigma0
     run = CliRunner()
     for fmt, out in (("colmap", "model"), ("opensfm", "osfm/reconstruction.json"), ("metashape-xml", "cameras.xml")):
         r = run.invoke(main, ["export", fmt, str(tmp_path / "block.json"), "-o", str(tmp_path / out)])
