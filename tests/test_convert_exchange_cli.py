@@ -20,7 +20,8 @@ SLOW = pytest.mark.slow  # the same path as the others, ~1.5 s each on the 805-i
 @pytest.mark.parametrize("fmt, name", [("metashape-xml", "b.xml"), pytest.param("colmap", "model", marks=SLOW),
                                        ("colmap-text", "model"),
                                        pytest.param("opensfm", "reconstruction.json", marks=SLOW),
-                                       pytest.param("micmac", "Ori-Out", marks=SLOW)])
+                                       pytest.param("micmac", "Ori-Out", marks=SLOW),
+                                       ("pix4d", "p_calibrated_camera_parameters.txt")])
 def test_ign_block_through_other_programs(tmp_path, fmt, name):
     d = shared_path("ign-aerial-block")
     opk = str(d / "block805" / "23FD1305_alt_2.OPK")
@@ -31,7 +32,7 @@ def test_ign_block_through_other_programs(tmp_path, fmt, name):
     r = run.invoke(main, ["convert", opk, "--from-crs", "EPSG:2154", "-o", str(tmp_path / name), "--to-format", fmt,
                           *cams])
     assert r.exit_code == 0, r.output
-    no_crs = fmt.startswith("colmap") or fmt == "micmac"
+    no_crs = fmt.startswith("colmap") or fmt in ("micmac", "pix4d")
     back_args = ["--from-crs", "EPSG:2154"] if no_crs else ["--to-crs", "EPSG:2154"]
     r = run.invoke(main, ["convert", str(tmp_path / name), "-o", str(tmp_path / "back.csv"), *back_args,
                           "--from-format", "colmap" if fmt.startswith("colmap") else fmt])

@@ -14,7 +14,7 @@ from skyrig.cli._common import EO_READERS, load_eo
 from skyrig.georef.eo import WorldFrame
 from skyrig.io.eo_csv import write_eo_csv
 
-MODEL_WRITERS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
+MODEL_WRITERS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac", "pix4d")
 CAMERA_FORMATS = ("metashape-calibration", "micmac-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera",
                   "rig")
 
@@ -35,7 +35,13 @@ def _write_opk(eo, path, unit, convention):
     write_ign_opk(path, eo)
 
 
-WRITERS = {"skyrig-csv": _write_csv, "odm-geo": _write_geo, "ign-opk": _write_opk}
+def _write_pix4d(eo, path, unit, convention):
+    from skyrig.io.pix4d import write_pix4d_external
+
+    write_pix4d_external(path, eo)
+
+
+WRITERS = {"skyrig-csv": _write_csv, "odm-geo": _write_geo, "ign-opk": _write_opk, "pix4d-opk": _write_pix4d}
 
 
 def _distortion_names() -> list[str]:
@@ -105,7 +111,7 @@ def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_grou
     from skyrig.pipeline.inputs import _guess_eo_format
 
     fmt = from_format or _guess_eo_format(src)
-    if fmt in ("colmap", "opensfm", "metashape-xml", "micmac"):
+    if fmt in ("colmap", "opensfm", "metashape-xml", "micmac", "pix4d"):
         from skyrig.io.exchange import read_model_orientations
 
         eo, cameras = read_model_orientations(src, fmt, from_crs, from_geoid, "--from-crs")

@@ -34,7 +34,7 @@ __all__ = ["MODEL_FORMATS", "CAMERA_FORMATS", "read_model_orientations", "write_
            "read_camera_file", "write_camera_file", "guess_camera_format"]
 
 #: model formats (``--from-format`` / ``--to-format`` of ``skyrig convert``)
-MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
+MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac", "pix4d")
 #: camera file formats (``skyrig convert --camera``)
 CAMERA_FORMATS = ("metashape-calibration", "micmac-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera",
                   "rig")
@@ -92,6 +92,16 @@ def read_model_orientations(path: str | PathLike[str], fmt: str, crs: str | None
         frame = _frame(crs, geoid, "a MicMac Ori folder", crs_option, p)
         return _eo(o.image_name, [o.cameras[c].name for c in o.image_camera_id], o.world_from_camera, frame), \
             {c.name: c for c in o.cameras.values()}
+    if fmt == "pix4d":
+        from skyrig.io.pix4d import read_pix4d_calibrated_cameras, read_pix4d_offset
+
+        suffix = "_calibrated_camera_parameters.txt"
+        off_path = p.with_name(p.name[: -len(suffix)] + "_offset.xyz") if p.name.endswith(suffix) else None
+        off = read_pix4d_offset(off_path) if off_path is not None and off_path.is_file() else np.zeros(3)
+        c = read_pix4d_calibrated_cameras(p, off)
+        frame = _frame(crs, geoid, "Pix4D's calibrated camera parameters", crs_option, p)
+        return _eo(c.image_name, [c.cameras[k].name for k in c.image_camera_id], c.world_from_camera, frame), \
+            {k.name: k for k in c.cameras.values()}
     raise OptionError("--from-format", f"unknown model format {fmt!r}; known: {', '.join(MODEL_FORMATS)}")
 
 
@@ -145,6 +155,11 @@ def write_model_orientations(path: str | PathLike[str], fmt: str, eo: ExteriorOr
                             Pose(e.rotation, e.centre, "world", "camera"), WorldFrame.ecef(), wkt)
         write_metashape_cameras(path, ch, fit_cameras=fit_cameras, fit_tolerance_px=fit_tolerance_px)
         return ch.fit_reports
+    if fmt == "pix4d":
+        from skyrig.io.pix4d import Pix4dCameras, write_pix4d_calibrated_cameras
+
+        write_pix4d_calibrated_cameras(path, Pix4dCameras({c: cameras[c] for c in names}, eo.image, eo.camera, pose))
+        return {}
     if fmt == "micmac":
         from skyrig.io.micmac import MicmacOrientations, write_micmac_ori
 

@@ -123,6 +123,14 @@ def _eo_geo_txt(path: str, crs: str | None, geoid: str | None, z_ground: float |
     return ExteriorOrientations(g.image, np.full(len(g.image), "camera"), g.xyz, rot, g.frame)
 
 
+def _eo_pix4d_opk(path: str, crs: str | None, geoid: str | None, z_ground: float | None,
+                  option: str) -> ExteriorOrientations:
+    from skyrig.io.pix4d import read_pix4d_external
+
+    eo = read_pix4d_external(path, _map_frame(crs, geoid, "a Pix4D external parameters file", option, path))
+    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
+
+
 def _eo_model(fmt: str) -> Callable[..., ExteriorOrientations]:
     """The reader of another program's model (:mod:`skyrig.io.exchange`): its orientations."""
 
@@ -145,6 +153,8 @@ EO_FORMATS: dict[str, Callable[..., ExteriorOrientations]] = {
     "opensfm": _eo_model("opensfm"),
     "metashape-xml": _eo_model("metashape-xml"),
     "micmac": _eo_model("micmac"),  # an Ori-* folder
+    "pix4d": _eo_model("pix4d"),  # ..._calibrated_camera_parameters.txt (+ ..._offset.xyz beside it)
+    "pix4d-opk": _eo_pix4d_opk,  # ..._calibrated_external_camera_parameters.txt
 }
 
 
@@ -156,6 +166,10 @@ def _guess_eo_format(path: str) -> str:
         return "opensfm"
     if name.endswith(".xml"):
         return "metashape-xml"
+    if name.endswith("_calibrated_external_camera_parameters.txt"):
+        return "pix4d-opk"
+    if name.endswith("_calibrated_camera_parameters.txt"):
+        return "pix4d"
     if name.endswith(".opk"):
         return "ign-opk"
     if name.startswith("geo") and name.endswith(".txt"):
