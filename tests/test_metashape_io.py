@@ -223,3 +223,27 @@ def test_bad_cameras_export_named(tmp_path, old, new, needle):
     with pytest.raises(InputFormatError, match=needle) as e:
         read_metashape_cameras(tmp_path / "c.xml")
     assert "c.xml" in str(e.value) and "line" in str(e.value)
+
+
+def test_reference_csv(tmp_path):
+    from skyrig.io.metashape import read_metashape_reference, write_metashape_reference
+
+    # as Metashape's reference export writes it (comment header, then label, coordinates, accuracies)
+    text = ("# Markers (3)\n#Label,X/Longitude,Y/Latitude,Z/Altitude,Accuracy_X/Y_(m),Accuracy_Z_(m)\n"
+            "GCP1,13.4012,52.5191,35.12,0.02,0.03\nGCP2,13.4021,52.5187,36.40,0.02,0.05\nGCP3,13.4030,52.5199,34.9,,\n")
+    (tmp_path / "ref.csv").write_text(text)
+    frame = WorldFrame.map("EPSG:4979")
+    ref = read_metashape_reference(tmp_path / "ref.csv", frame, columns="nxyzXZ")
+    assert list(ref.points.name) == ["GCP1", "GCP2", "GCP3"]
+    np.testing.assert_allclose(ref.points.xyz[1], [13.4021, 52.5187, 36.40])
+    np.testing.assert_allclose(ref.accuracy[:2], [[0.02, 0.02, 0.03], [0.02, 0.02, 0.05]])
+    assert np.isnan(ref.accuracy[2]).all()
+    write_metashape_reference(tmp_path / "back.csv", ref)
+    back = read_metashape_reference(tmp_path / "back.csv", frame, columns="nxyzXYZ")
+    np.testing.assert_array_equal(back.points.xyz, ref.points.xyz)
+    np.testing.assert_array_equal(np.nan_to_num(back.accuracy, nan=-1), np.nan_to_num(ref.accuracy, nan=-1))
+    with pytest.raises(InputFormatError, match=r"ref.csv, line 4: expected 6 columns"):
+        (tmp_path / "ref.csv").write_text(text.replace("52.5187", "52,5187"))
+        read_metashape_reference(tmp_path / "ref.csv", frame, columns="nxyzXZ")
+    with pytest.raises(OptionError, match="columns"):
+        read_metashape_reference(tmp_path / "back.csv", frame, columns="nxy")

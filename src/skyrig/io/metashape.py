@@ -66,7 +66,7 @@ from skyrig.io._xml import XmlElement, finite_float as _float, floats_of as _flo
 
 __all__ = ["MetashapeChunk", "read_metashape_calibration", "write_metashape_calibration", "read_metashape_cameras",
            "write_metashape_cameras", "camera_from_metashape", "metashape_calibration", "block_from_metashape",
-           "metashape_from_block"]
+           "metashape_from_block", "MetashapeReference", "read_metashape_reference", "write_metashape_reference"]
 
 F = np.diag([1.0, -1.0, -1.0])
 HALF = 0.5  # Metashape pixel (corner origin) minus skyrig pixel
@@ -496,3 +496,90 @@ def metashape_from_block(block: Block) -> MetashapeChunk:
                           np.asarray(block.point_name, dtype=str), ref, enabled,
                           np.asarray(block.obs_image, np.int64), np.asarray(block.obs_point, np.int64),
                           np.asarray(block.obs_pixel, np.float64))
+
+
+# ---------------------------------------------------------------------------------------------- reference CSV
+@dataclass
+class MetashapeReference:
+    """Reference positions of a Metashape reference CSV (cameras or markers).
+
+    Attributes
+    ----------
+    points
+        Names and coordinates (:class:`~skyrig.georef.observations.GroundPoints`, in the frame given).
+    accuracy
+        ``(N, 3)`` accuracy (sigma) per axis in metres, NaN where the file has none.
+    angles
+        ``(N, 3)`` the ``a b c`` columns as written (degrees; Metashape's yaw, pitch, roll or omega, phi, kappa
+        depending on the project's settings: not interpreted here), NaN where absent.
+    """
+
+    points: Any
+    accuracy: NDArray[np.float64]
+    angles: NDArray[np.float64]
+
+
+#: column codes of Metashape's reference import (``Chunk.importReference(columns=...)``) that are read
+REFERENCE_CODES = {"n": "label", "x": "x", "y": "y", "z": "z", "X": "accuracy x", "Y": "accuracy y",
+                   "Z": "accuracy z", "a": "a", "b": "b", "c": "c", "|": "skip"}
+
+
+def read_metashape_reference(path: str | PathLike[str], frame: WorldFrame, columns: str = "nxyz",
+                             delimiter: str = ",") -> MetashapeReference:
+    """Read a Metashape reference CSV (the camera or marker reference export, or a file made for its import):
+    lines starting with ``#`` are comments; the columns are named by ``columns`` in Metashape's own codes (``n``
+    label, ``x y z`` coordinates in ``frame`` -- longitude, latitude, height for a geographic CRS --, ``X Y Z``
+    accuracies in metres, ``a b c`` the three angles, ``|`` a column to skip); a line with another number of
+    columns is an error (a decimal comma would shift them).  A code given once for ``X``
+    only (e.g. ``nxyzXZ``: horizontal then vertical accuracy) is used for x and y."""
+    from skyrig.georef.observations import GroundPoints
+    from skyrig.io._text import parse_float, read_text
+
+    p = Path(path)
+    bad = [c for c in columns if c not in REFERENCE_CODES]
+    if bad or "n" not in columns or not {"x", "y", "z"} <= set(columns):
+        raise OptionError("columns", f"{columns!r}: needs n, x, y, z; codes: "
+                          + ", ".join(f"{k} {v}" for k, v in REFERENCE_CODES.items()))
+    names, xyz, acc, ang = [], [], [], []
+    for ln, s in enumerate(read_text(p).split("\n"), start=1):
+        if not s.strip() or s.lstrip().startswith("#"):
+            continue
+        f = [v.strip() for v in (s.split(delimiter) if delimiter.strip() else s.split())]
+        while len(f) > len(columns) and f[-1] == "":
+            f.pop()  # trailing delimiters
+        if len(f) != len(columns):
+            raise InputFormatError(f"expected {len(columns)} columns ({columns}; '|' skips one), got {len(f)}", p,
+                                   ln)
+        row = dict(zip(columns, f))
+        names.append(row["n"])
+        xyz.append([parse_float(row[c], p, ln, c) for c in "xyz"])
+        a = [parse_float(row[c], p, ln, c) if row.get(c, "") != "" else np.nan for c in "XYZ"]
+        if "Y" not in columns:
+            a[1] = a[0]
+        acc.append(a)
+        ang.append([parse_float(row[c], p, ln, c) if row.get(c, "") != "" else np.nan for c in "abc"])
+    if not names:
+        raise InputFormatError("no reference line", p)
+    return MetashapeReference(GroundPoints(np.array(names), np.array(xyz), frame), np.array(acc), np.array(ang))
+
+
+def write_metashape_reference(path: str | PathLike[str], ref: MetashapeReference) -> Path:
+    """Write a reference CSV with the columns ``nxyzXYZ`` (and ``abc`` when any angle is known), a ``#`` header
+    naming them: Metashape's Import Reference reads it with those column codes."""
+    from skyrig.io._text import atomic_write
+
+    pts = ref.points
+    with_angles = bool(np.isfinite(ref.angles).any())
+    cols = "nxyzXYZ" + ("abc" if with_angles else "")
+
+    def num(v: float) -> str:
+        return "" if not np.isfinite(v) else repr(float(v))
+
+    with atomic_write(path) as fh:
+        fh.write(f"# skyrig reference for Metashape ({pts.frame.describe()}); columns: {cols}\n")
+        fh.write("#Label,X,Y,Z,Accuracy_X_(m),Accuracy_Y_(m),Accuracy_Z_(m)" + (",a,b,c" if with_angles else "")
+                 + "\n")
+        for i in range(len(pts)):
+            vals = [*pts.xyz[i], *ref.accuracy[i]] + (list(ref.angles[i]) if with_angles else [])
+            fh.write(",".join([str(pts.name[i])] + [num(v) for v in vals]) + "\n")
+    return Path(path)
