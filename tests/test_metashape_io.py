@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skyrig.camera.agisoft import AgisoftDistortion
 from skyrig.camera.convert import compare_cameras, convert_camera, exact_conversion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import InputFormatError, OptionError
