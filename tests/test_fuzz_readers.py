@@ -175,6 +175,25 @@ def _other_readers(tmp_path: Path) -> dict[str, tuple[str, str, object]]:
         "colmap-cameras": ("cameras.txt", COLMAP_CAMERAS, read_colmap_cameras),
         "sidecar": ("pts.csv.json", (good / "pts.csv.json").read_text(), lambda p: read_points_csv(p.parent / "pts.csv")),
         "block": (block.name, block.read_text(), read_block),
+        **_exchange_readers(),
+    }
+
+
+def _exchange_readers() -> dict[str, tuple[str, str, object]]:
+    """Other programs' files (issue 33): Metashape calibration and cameras XML, OpenSfM, MicMac AutoCal."""
+    from test_exchange_fuzz import _opensfm_text
+    from test_metashape_io import _cal_xml, _cameras_xml
+    from test_micmac_io import _autocal
+
+    from skyrig.io.metashape import read_metashape_calibration, read_metashape_cameras
+    from skyrig.io.micmac import read_micmac_calibration
+    from skyrig.io.opensfm import read_opensfm
+
+    return {
+        "metashape-calibration": ("cal.xml", _cal_xml(), read_metashape_calibration),
+        "metashape-cameras": ("cameras.xml", _cameras_xml(), read_metashape_cameras),
+        "opensfm": ("reconstruction.json", _opensfm_text(), read_opensfm),
+        "micmac-calibration": ("AutoCal.xml", _autocal(), read_micmac_calibration),
     }
 
 
@@ -202,7 +221,8 @@ def _good_block(d: Path) -> Path:
     return d / "block.json"
 
 
-@pytest.mark.parametrize("kind", ["bal", "colmap-cameras", "sidecar", "block"])
+@pytest.mark.parametrize("kind", ["bal", "colmap-cameras", "sidecar", "block", "metashape-calibration",
+                                  "metashape-cameras", "opensfm", "micmac-calibration"])
 def test_other_reader_fuzz(tmp_path, kind):
     name, good, read = _other_readers(tmp_path)[kind]
     d = tmp_path / "good" if kind in ("sidecar", "block") else tmp_path

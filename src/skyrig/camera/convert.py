@@ -37,7 +37,7 @@ from skyrig.camera.jacobians import project_camera_with_jacobians
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ConversionReport", "RegionResidual", "compare_cameras", "convert_camera", "frame_grid",
+__all__ = ["ConversionReport", "RegionResidual", "compare_cameras", "convert_camera", "exact_conversion", "frame_grid",
            "DEFAULT_REGIONS"]
 
 #: ``(name, rho_from, rho_to)`` regions of the normalised radius (half diagonal = 1)
@@ -238,3 +238,50 @@ def convert_camera(
     logger.info("convert_camera %s -> %s: RMS %.4f px, max %.4f px", rep.source_model, rep.target_model, rep.rms_px,
                 rep.max_px)
     return out, rep
+
+
+def exact_conversion(camera: FrameCamera, target_model: str) -> FrameCamera | None:
+    """``camera`` with its distortion expressed *exactly* in ``target_model`` (same principal distance and point),
+    or None when the two models do not hold the same function (then fit with :func:`convert_camera`).
+
+    Exact pairs: a model to itself; no distortion to any model (zero coefficients); ``opencv`` <->
+    ``opencv_rational`` (k4 = k5 = k6 = 0); ``opencv`` <-> ``agisoft`` with K4 = B1 = B2 = 0 (Agisoft's P1, P2
+    are OpenCV's p2, p1: :mod:`skyrig.camera.agisoft`); ``opencv_rational`` -> ``agisoft`` when k4..k6 = 0;
+    ``forward`` (radial only: distortion centre at the principal point, R0 = 0, K4 = P1 = P2 = B1 = B2 = 0) <->
+    ``opencv`` (p1 = p2 = 0) with ``k_i = K_i c^(2i)`` (``c`` the principal distance in mm: the forward model's
+    radius is in mm, OpenCV's normalised), e.g. a MicMac ``ModRad`` whose centre is the principal point.
+    """
+    from skyrig.camera.distortion import NoDistortion
+
+    d = camera.distortion
+    cls = distortion_class(target_model)
+    target = cls.name
+    if d.name == target:
+        return camera
+    if isinstance(d, NoDistortion):
+        return camera.with_(distortion=cls())
+    v = d.params_dict()
+    if target == "none":
+        return camera.with_(distortion=NoDistortion()) if not np.any(d.params) else None
+    if d.name in ("opencv", "opencv_rational") and any(v.get(k, 0.0) for k in ("k4", "k5", "k6")):
+        return None
+    if d.name in ("opencv", "opencv_rational"):
+        if target in ("opencv", "opencv_rational"):
+            return camera.with_(distortion=cls(**{k: v[k] for k in ("k1", "k2", "p1", "p2", "k3")}))
+        if target == "agisoft":
+            return camera.with_(distortion=cls(k1=v["k1"], k2=v["k2"], k3=v["k3"], p1=v["p2"], p2=v["p1"]))
+    c2 = camera.focal_mm ** 2
+    if d.name == "forward" and target in ("opencv", "opencv_rational", "agisoft"):
+        if any(v[k] for k in ("xc_mm", "yc_mm", "k4", "p1", "p2", "b1", "b2")) or d.constants_dict()["r0_mm"]:
+            return None
+        ks = {"k1": v["k1"] * c2, "k2": v["k2"] * c2**2, "k3": v["k3"] * c2**3}
+        return camera.with_(distortion=cls(**ks))
+    if target == "forward" and d.name in ("opencv", "opencv_rational", "agisoft"):
+        if any(v.get(k, 0.0) for k in ("p1", "p2", "k4", "k5", "k6", "b1", "b2")):
+            return None
+        return camera.with_(distortion=cls(k1=v["k1"] / c2, k2=v["k2"] / c2**2, k3=v["k3"] / c2**3))
+    if d.name == "agisoft" and target in ("opencv", "opencv_rational"):
+        if v["k4"] or v["b1"] or v["b2"]:
+            return None
+        return camera.with_(distortion=cls(k1=v["k1"], k2=v["k2"], k3=v["k3"], p1=v["p2"], p2=v["p1"]))
+    return None

@@ -350,3 +350,4 @@ def _fields_are_params(cls: type[Distortion]) -> None:
 from skyrig.camera import brown as _brown  # noqa: E402,F401
 from skyrig.camera import opencv as _opencv  # noqa: E402,F401
 from skyrig.camera import forward as _forward  # noqa: E402,F401
+from skyrig.camera import agisoft as _agisoft  # noqa: E402,F401

@@ -123,16 +123,53 @@ def _eo_geo_txt(path: str, crs: str | None, geoid: str | None, z_ground: float |
     return ExteriorOrientations(g.image, np.full(len(g.image), "camera"), g.xyz, rot, g.frame)
 
 
+def _eo_pix4d_opk(path: str, crs: str | None, geoid: str | None, z_ground: float | None,
+                  option: str) -> ExteriorOrientations:
+    from skyrig.io.pix4d import read_pix4d_external
+
+    eo = read_pix4d_external(path, _map_frame(crs, geoid, "a Pix4D external parameters file", option, path))
+    return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
+
+
+def _eo_model(fmt: str) -> Callable[..., ExteriorOrientations]:
+    """The reader of another program's model (:mod:`skyrig.io.exchange`): its orientations."""
+
+    def read(path: str, crs: str | None, geoid: str | None, z_ground: float | None,
+             option: str) -> ExteriorOrientations:
+        from skyrig.io.exchange import read_model_orientations
+
+        eo = read_model_orientations(path, fmt, crs, geoid, option)[0]
+        return eo if z_ground is None else eo.with_map_heights_reduced(z_ground)
+
+    return read
+
+
 #: EO file formats by name (``--eo-format``): reader(path, crs, geoid, z_ground, crs_option).
 EO_FORMATS: dict[str, Callable[..., ExteriorOrientations]] = {
     "skyrig-csv": _eo_csv,
     "ign-opk": _eo_ign,
     "odm-geo": _eo_geo_txt,
+    "colmap": _eo_model("colmap"),  # a model folder, binary or text
+    "opensfm": _eo_model("opensfm"),
+    "metashape-xml": _eo_model("metashape-xml"),
+    "micmac": _eo_model("micmac"),  # an Ori-* folder
+    "pix4d": _eo_model("pix4d"),  # ..._calibrated_camera_parameters.txt (+ ..._offset.xyz beside it)
+    "pix4d-opk": _eo_pix4d_opk,  # ..._calibrated_external_camera_parameters.txt
 }
 
 
 def _guess_eo_format(path: str) -> str:
     name = Path(path).name.lower()
+    if Path(path).is_dir():
+        return "micmac" if any(Path(path).glob("Orientation-*.xml")) else "colmap"
+    if name.endswith(".json"):
+        return "opensfm"
+    if name.endswith(".xml"):
+        return "metashape-xml"
+    if name.endswith("_calibrated_external_camera_parameters.txt"):
+        return "pix4d-opk"
+    if name.endswith("_calibrated_camera_parameters.txt"):
+        return "pix4d"
     if name.endswith(".opk"):
         return "ign-opk"
     if name.startswith("geo") and name.endswith(".txt"):

@@ -1,0 +1,109 @@
+"""``skyrig import FORMAT PATH -o block.json`` and ``skyrig export FORMAT BLOCK -o OUT``: a bundle block from and to
+other programs' projects (COLMAP, OpenSfM, Metashape cameras XML; MicMac Ori folders out).
+
+``import`` writes a skyrig block file (cameras, oriented images, tie points and their measurements, control where
+the format has it) that ``skyrig adjust`` adjusts; ``export`` writes a block file (e.g. the ``adjusted.json`` of
+``skyrig adjust``) in the program's format.  Conventions: docs/formats/<format>.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml")
+EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
+
+
+@click.command("import")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(IMPORT_FORMATS))
+@click.argument("path", type=click.Path(exists=True))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (.json).")
+@click.option("--tracks", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="OpenSfM: the tracks.csv with the measurements (default: tracks.csv beside the reconstruction).")
+@click.option("--sigma-px", type=float, default=1.0, show_default=True, help="Sigma of the image measurements (px).")
+@click.option("--control-sigma-m", type=float, default=0.01, show_default=True,
+              help="Metashape: sigma of the markers' enabled references (m, per axis).")
+def import_command(fmt, path, output, tracks, sigma_px, control_sigma_m) -> None:
+    """Bring another program's project PATH in as a skyrig block file -o/--output."""
+    from skyrig.io.block_file import write_block
+
+    if not sigma_px > 0:
+        raise click.BadParameter("must be positive", param_hint="--sigma-px")
+    if fmt == "colmap":
+        from skyrig.io.colmap import block_from_colmap, read_colmap
+
+        block = block_from_colmap(read_colmap(path), sigma_px=sigma_px)
+    elif fmt == "opensfm":
+        from skyrig.io.opensfm import block_from_opensfm, read_opensfm, read_opensfm_tracks
+
+        rec = read_opensfm(path)[0]
+        tr = Path(tracks) if tracks else Path(path).parent / "tracks.csv"
+        if not tr.is_file():
+            raise click.BadParameter(f"{tr} not found: give the measurements with --tracks", param_hint="--tracks")
+        block = block_from_opensfm(read_opensfm_tracks(tr, rec), sigma_px=sigma_px)
+    else:
+        from skyrig.io.metashape import block_from_metashape, read_metashape_cameras
+
+        block = block_from_metashape(read_metashape_cameras(path), sigma_px=sigma_px, control_sigma_m=control_sigma_m)
+    block.validate()
+    write_block(output, block)
+    click.echo(f"wrote {output}: {block.n_images} images, {len(block.cameras)} camera(s), {block.n_points} points, "
+               f"{block.n_observations} measurements, {len(block.control_point)} control points ({block.frame})")
+
+
+@click.command("export")
+@click.argument("fmt", metavar="FORMAT", type=click.Choice(EXPORT_FORMATS))
+@click.argument("block_path", metavar="BLOCK", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="File or folder to write (a folder for colmap, colmap-text and micmac).")
+@click.option("--fit-cameras", is_flag=True, help="Fit a camera the format cannot hold exactly (residual printed).")
+@click.option("--max-residual-px", type=float, default=0.01, show_default=True,
+              help="Largest RMS (px) of a fitted camera over the frame.")
+def export_command(fmt, block_path, output, fit_cameras, max_residual_px) -> None:
+    """Write the block file BLOCK (e.g. skyrig adjust's adjusted.json) in another program's format."""
+    from skyrig.errors import OptionError
+    from skyrig.io.block_file import read_block
+
+    bf = read_block(block_path)
+    b = bf.block
+    reports: dict = {}
+    try:
+        if fmt in ("colmap", "colmap-text"):
+            from skyrig.io.colmap import colmap_from_block, write_colmap
+
+            m = colmap_from_block(b)
+            write_colmap(output, m, binary=fmt == "colmap", fit_cameras=fit_cameras, fit_tolerance_px=max_residual_px)
+            reports = {b.cameras[k - 1].name: r for k, r in m.fit_reports.items()}
+        elif fmt == "opensfm":
+            from skyrig.io.opensfm import opensfm_from_block, write_opensfm, write_opensfm_tracks
+
+            frame = bf.frame if bf.frame is not None and bf.frame.kind == "local" else None
+            rec = opensfm_from_block(b, frame)
+            write_opensfm(output, rec, fit_cameras=fit_cameras, fit_tolerance_px=max_residual_px)
+            write_opensfm_tracks(Path(output).parent / "tracks.csv", rec)
+            reports = rec.fit_reports
+        elif fmt == "metashape-xml":
+            from skyrig.io.metashape import metashape_from_block, write_metashape_cameras
+
+            ch = metashape_from_block(b)
+            write_metashape_cameras(output, ch, fit_cameras=fit_cameras, fit_tolerance_px=max_residual_px)
+            reports = {ch.cameras[k].name: r for k, r in ch.fit_reports.items()}
+        else:
+            from skyrig.io.colmap import block_camera_poses
+            from skyrig.io.micmac import MicmacOrientations, write_micmac_ori
+
+            ids = [c.name for c in b.cameras]
+            write_micmac_ori(output, MicmacOrientations(dict(zip(ids, b.cameras)), b.image_name,
+                                                        [ids[c] for c in b.image_camera], block_camera_poses(b)),
+                             fit_cameras=fit_cameras, fit_tolerance_px=max_residual_px, reports=reports)
+    except OptionError as e:
+        cli = {"fit_cameras": "--fit-cameras", "fit_tolerance_px": "--max-residual-px"}.get(e.option)
+        if cli is None:
+            raise
+        raise OptionError(cli, e.reason) from None
+    for name, rep in reports.items():
+        click.echo(f"camera {name!r}: written as its {rep.target_model} fit over the frame: RMS {rep.rms_px:.4f} px, "
+                   f"max {rep.max_px:.4f} px")
+    click.echo(f"wrote {b.n_images} images, {b.n_points} points and {b.n_observations} measurements as {fmt} to "
+               f"{output} (coordinates in the block's frame: {b.frame})")
