@@ -108,6 +108,12 @@ class OrientConfig:
     max_iterations: int = 40
     #: positions datum: minimum images with a position
     min_positions: int = 4
+    #: determinability of the self-calibration (:mod:`skyrig.adjust.determinability`): an intrinsic whose formal
+    #: sigma exceeds ``determinable_ratio`` x its prior sigma or whose prior test |z| exceeds ``prior_conflict_z`` is
+    #: held at its prior with a warning, unless named in ``free_anyway``
+    determinable_ratio: float = 0.5
+    prior_conflict_z: float = 3.0
+    free_anyway: tuple[str, ...] = ()
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "OrientConfig":
@@ -115,8 +121,9 @@ class OrientConfig:
         if bad:
             raise ValueError(f"{source}: unknown orientation option(s) {bad}; known: {sorted(cls.__dataclass_fields__)}")
         d = dict(data)
-        if d.get("self_calibration") is not None:
-            d["self_calibration"] = tuple(d["self_calibration"])
+        for k in ("self_calibration", "free_anyway"):
+            if d.get(k) is not None:
+                d[k] = tuple(d[k])
         return cls(**d)
 
 
@@ -698,6 +705,23 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
     block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
     res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
+    verdicts: list[Any] = []
+    if names_cal:
+        from skyrig.adjust.determinability import hold_undetermined
+
+        def readjust(r: AdjustmentResult, names: tuple[str, ...], start_cam: FrameCamera) -> AdjustmentResult:
+            R2, C2 = R.copy(), C.copy()
+            R2[img_sel], C2[img_sel] = r.block.station_rotation, r.block.station_centre
+            blk, _, _ = _block(inp, nominal, R2, C2, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+            blk = replace(blk, point_xyz=np.array(r.block.point_xyz, float))  # same observations: same points
+            c2 = final_cfg.with_(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
+                                 intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names), robust=None,
+                                 statistics=True)
+            return adjust(blk, c2, start=replace(blk, cameras=[start_cam]))
+
+        res, verdicts, names_cal = hold_undetermined(res, nominal, names_cal, sig, readjust,
+                                                     ratio_max=cfg.determinable_ratio, z_max=cfg.prior_conflict_z,
+                                                     free_anyway=cfg.free_anyway)
     camera = res.block.cameras[0]
     R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
     Rout = np.full((n, 3, 3), np.nan)
@@ -719,7 +743,10 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         datum_info["note"] = "inner constraints; frame and scale of the relative orientation (start base = 1)"
     summary = _summary(inp, res, oriented, camera, rounds, time.perf_counter() - t_start)
     summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order],
-                   parts_tied_in=parts, relative_tie_ins=relative)
+                   parts_tied_in=parts, relative_tie_ins=relative,
+                   calibration=[v.to_dict() for v in verdicts], calibration_held=[v.name for v in verdicts if v.held],
+                   calibration_rule=(f"determined when the formal sigma <= {cfg.determinable_ratio:g} x the prior sigma "
+                                     f"and the prior test |z| <= {cfg.prior_conflict_z:g}; otherwise held at the prior"))
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
