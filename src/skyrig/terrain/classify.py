@@ -1,0 +1,303 @@
+"""Ground classification of a point cloud and ASPRS classes (arrays in, arrays out).
+
+The ground filter
+-----------------
+Ground points are found by the **Cloth Simulation Filter** (CSF; W. Zhang, J. Qi, P. Wan, H. Wang, D. Xie,
+X. Wang, G. Yan, "An Easy-to-Use Airborne LiDAR Data Filtering Method Based on Cloth Simulation", Remote
+Sensing 8(6):501, 2016), through its authors' own implementation, the PyPI package ``cloth-simulation-filter``
+(module ``CSF``, Apache-2.0, C++ with a SWIG binding and manylinux wheels).  Why this one:
+
+* it installs with ``pip`` alone (a binary wheel, no system library);
+* PDAL's SMRF / PMF filters would be the other published choice, but the ``pdal`` package on PyPI is source
+  only and needs the PDAL C++ library (``pdal-config``) to build: ``pip install pdal`` fails without it, so it
+  cannot be a dependency of a pip-installed skyrig;
+* the filter is the published algorithm as its authors maintain it (also the one in CloudCompare), not a
+  re-implementation.
+
+CSF turns the cloud upside down and drops a cloth of ``cloth_resolution_m`` particles on it; points within
+``class_threshold_m`` of the settled cloth are ground.  Its parameters are in the cloud's units, so every function
+here takes coordinates in **metres** (a caller with a cloud in feet scales it first).
+
+The other classes
+-----------------
+A rule on height above the ground (HAG, from a ground surface gridded from CSF's ground points), local shape and,
+where the cloud has colours, colour (ASPRS LAS 1.4 R15 class codes):
+
+* **7 low point (noise)**: isolated points (fewer than ``noise_min_neighbours`` others within
+  ``noise_radius_m``) and points more than ``noise_below_m`` below the ground surface;
+* **6 building**: points at least ``building_min_height_m`` above the ground on a locally planar surface
+  (smallest eigenvalue of the neighbourhood covariance below ``planarity_max`` of the sum), not green, in a
+  connected patch of at least ``building_min_area_m2``; plus the points above ``wall_min_height_m`` inside
+  those patches (walls seen by oblique rays);
+* **3 / 4 / 5 low / medium / high vegetation** (HAG below 2 m / 2-5 m / above 5 m, the split of the USGS lidar
+  base specification's examples): the rest above ``vegetation_min_height_m`` when colour says green (excess green
+  ``(2G - R - B) / (R + G + B)`` above ``green_min``) or, without colours, when the neighbourhood is not planar;
+* **1 unclassified**: what no rule supports (cars, walls outside building patches, grey non-planar objects).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.errors import InputFormatError
+
+__all__ = ["GroundFilter", "ClassRules", "Classification", "csf_ground", "classify_points",
+           "ASPRS_UNCLASSIFIED", "ASPRS_GROUND", "ASPRS_LOW_VEGETATION", "ASPRS_MEDIUM_VEGETATION",
+           "ASPRS_HIGH_VEGETATION", "ASPRS_BUILDING", "ASPRS_NOISE", "ASPRS_NAMES"]
+
+log = logging.getLogger(__name__)
+
+ASPRS_UNCLASSIFIED = 1
+ASPRS_GROUND = 2
+ASPRS_LOW_VEGETATION = 3
+ASPRS_MEDIUM_VEGETATION = 4
+ASPRS_HIGH_VEGETATION = 5
+ASPRS_BUILDING = 6
+ASPRS_NOISE = 7
+#: Names of the class codes skyrig writes (ASPRS LAS 1.4 R15, table 17).
+ASPRS_NAMES = {1: "unclassified", 2: "ground", 3: "low vegetation", 4: "medium vegetation", 5: "high vegetation",
+               6: "building", 7: "low point (noise)"}
+
+
+@dataclass(frozen=True)
+class GroundFilter:
+    """Parameters of the cloth simulation filter (Zhang et al. 2016), in metres."""
+
+    cloth_resolution_m: float = 1.0  # particle spacing of the cloth; about 2-3 x the point spacing
+    class_threshold_m: float = 0.5  # points within this distance of the settled cloth are ground
+    rigidness: int = 2  # 1 steep slopes, 2 relief, 3 flat terrain (the paper's scene types)
+    iterations: int = 500  # simulation steps (the library's default)
+    time_step: float = 0.65  # the library's default
+    slope_smooth: bool = True  # post-processing of steep slopes (the library's bSloopSmooth)
+
+    def check(self) -> None:
+        for name in ("cloth_resolution_m", "class_threshold_m", "time_step"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputFormatError(f"must be a positive number, got {v!r}", field=name)
+        if self.rigidness not in (1, 2, 3):
+            raise InputFormatError(f"must be 1, 2 or 3, got {self.rigidness!r}", field="rigidness")
+        if self.iterations < 1:
+            raise InputFormatError(f"must be at least 1, got {self.iterations!r}", field="iterations")
+
+
+@dataclass(frozen=True)
+class ClassRules:
+    """Thresholds of the building / vegetation / noise rule (metres unless named otherwise)."""
+
+    noise_radius_m: float = 1.0  # neighbourhood radius of the isolated-point test
+    noise_min_neighbours: int = 2  # fewer other points than this within noise_radius_m: noise
+    noise_below_m: float = 1.0  # points this far below the ground surface: noise
+    neighbourhood_m: float = 1.5  # radius of the local shape (covariance) neighbourhood
+    planarity_max: float = 0.02  # smallest covariance eigenvalue / trace below this: planar
+    building_min_height_m: float = 2.0  # roofs are at least this high above the ground
+    building_min_area_m2: float = 12.0  # smaller planar patches are not buildings
+    wall_min_height_m: float = 0.5  # points inside a building patch above this are building (walls)
+    vegetation_min_height_m: float = 0.3  # lower non-ground points stay unclassified
+    green_min: float = 0.05  # excess-green index above this: green
+    ground_cell_m: float = 1.0  # cell of the ground surface the heights above ground are taken from
+
+
+@dataclass(frozen=True)
+class Classification:
+    """Per-point result of :func:`classify_points`.
+
+    Attributes
+    ----------
+    code
+        ``(N,)`` uint8 ASPRS class codes (see :data:`ASPRS_NAMES`).
+    hag
+        ``(N,)`` height above the ground surface, metres (NaN where no ground surface).
+    counts
+        Points per class code.
+    """
+
+    code: NDArray[np.uint8]
+    hag: NDArray[np.float64]
+    counts: dict[int, int]
+
+
+@contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Silence the C++ library's progress lines (it writes to the process's standard output, file descriptor 1)."""
+    try:
+        fd = sys.stdout.fileno() if sys.stdout is not None else 1
+    except (AttributeError, OSError, ValueError):
+        fd = 1
+    sys.stdout.flush() if sys.stdout is not None else None
+    saved = os.dup(fd)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(null)
+
+
+def csf_ground(xyz: NDArray[np.float64], params: GroundFilter = GroundFilter()) -> NDArray[np.bool_]:
+    """Ground points of a cloud by the cloth simulation filter (the ``cloth-simulation-filter`` package).
+
+    Parameters
+    ----------
+    xyz
+        ``(N, 3)`` coordinates in metres (east, north, up; any offset: the filter works on ``xyz - min``).
+    params
+        The filter's parameters.
+
+    Returns
+    -------
+    ``(N,)`` bool, True for ground.
+
+    Raises
+    ------
+    InputFormatError
+        On an empty or non-finite cloud or a bad parameter.
+    """
+    import CSF
+
+    params.check()
+    pts = np.asarray(xyz, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise InputFormatError(f"points must be a non-empty (N, 3) array, got {pts.shape}", field="xyz")
+    if not np.all(np.isfinite(pts)):
+        raise InputFormatError("points hold non-finite coordinates", field="xyz")
+    c = CSF.CSF()
+    c.params.bSloopSmooth = bool(params.slope_smooth)
+    c.params.cloth_resolution = float(params.cloth_resolution_m)
+    c.params.class_threshold = float(params.class_threshold_m)
+    c.params.rigidness = int(params.rigidness)
+    c.params.interations = int(params.iterations)  # sic: the library's spelling
+    c.params.time_step = float(params.time_step)
+    c.setPointCloud(np.ascontiguousarray(pts - pts.min(axis=0)))
+    ground, off = CSF.VecInt(), CSF.VecInt()
+    with _quiet_stdout():
+        c.do_filtering(ground, off, False)
+    out = np.zeros(len(pts), bool)
+    out[np.asarray(ground, dtype=np.int64)] = True
+    return out
+
+
+def _excess_green(rgb: NDArray) -> NDArray[np.float64]:
+    c = np.asarray(rgb, np.float64)
+    s = c.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s > 0, (2 * c[:, 1] - c[:, 0] - c[:, 2]) / s, 0.0)
+
+
+def _surface_variation(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius: float, k: int = 16
+                       ) -> NDArray[np.float64]:
+    """Smallest eigenvalue / trace of the 3D covariance of each point's ``k`` nearest neighbours within ``radius``
+    (Pauly et al. 2002's surface variation: 0 on a plane, 1/3 for isotropic scatter); NaN with fewer than 5."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(idx), np.nan)
+    if len(idx) == 0:
+        return out
+    tree = cKDTree(xyz)
+    pad = np.vstack([xyz, np.zeros((1, 3))])
+    chunk = 50000
+    for s in range(0, len(idx), chunk):
+        d, nb = tree.query(xyz[idx[s:s + chunk]], k=min(k, len(xyz)), distance_upper_bound=radius)
+        nb = np.asarray(nb).reshape(len(d), -1)
+        w = (nb < len(xyz)).astype(np.float64)
+        m = w.sum(axis=1)
+        p = pad[np.minimum(nb, len(xyz))]
+        mean = np.einsum("ij,ijk->ik", w, p) / np.maximum(m, 1)[:, None]
+        q = (p - mean[:, None, :]) * w[:, :, None]
+        cov = np.einsum("ijk,ijl->ikl", q, q) / np.maximum(m - 1, 1)[:, None, None]
+        ev = np.linalg.eigvalsh(cov)
+        tr = ev.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(tr > 0, ev[:, 0] / tr, 0.0)
+        out[s:s + chunk] = np.where(m >= 5, v, np.nan)
+    return out
+
+
+def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
+                    ground: GroundFilter = GroundFilter(), rules: ClassRules = ClassRules(),
+                    is_ground: NDArray[np.bool_] | None = None) -> Classification:
+    """ASPRS classes of a cloud: CSF ground, then the building / vegetation / noise rule (module docstring).
+
+    Parameters
+    ----------
+    xyz
+        ``(N, 3)`` coordinates in metres.
+    rgb
+        ``(N, 3)`` colours (any scale) or None; enables the colour rule for vegetation.
+    ground, rules
+        Parameters of the ground filter and of the rule.
+    is_ground
+        ``(N,)`` ground flags to use instead of running the filter (e.g. a provider's ground class).
+
+    Returns
+    -------
+    :class:`Classification`.
+    """
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    from skyrig.terrain.dtm import ground_surface, sample_surface
+
+    pts = np.asarray(xyz, np.float64)
+    n = len(pts)
+    g = csf_ground(pts, ground) if is_ground is None else np.asarray(is_ground, bool)
+    if g.shape != (n,):
+        raise InputFormatError(f"ground flags must be ({n},), got {g.shape}", field="is_ground")
+    if rgb is not None and np.shape(rgb) != (n, 3):
+        raise InputFormatError(f"colours must be ({n}, 3), got {np.shape(rgb)}", field="rgb")
+    code = np.full(n, ASPRS_UNCLASSIFIED, np.uint8)
+    if not g.any():
+        log.warning("the ground filter found no ground point; every point stays unclassified")
+        return Classification(code, np.full(n, np.nan), {ASPRS_UNCLASSIFIED: n})
+    # isolated points first (they must not bend the ground surface)
+    tree = cKDTree(pts)
+    counts = tree.query_ball_point(pts, rules.noise_radius_m, return_length=True) - 1
+    noise = counts < rules.noise_min_neighbours
+    surf = ground_surface(pts[g & ~noise], rules.ground_cell_m)
+    hag = pts[:, 2] - sample_surface(surf, pts[:, 0], pts[:, 1])
+    noise |= hag < -rules.noise_below_m
+    code[g & ~noise] = ASPRS_GROUND
+    rest = ~g & ~noise & np.isfinite(hag)
+    green = np.zeros(n, bool) if rgb is None else _excess_green(rgb) > rules.green_min
+    cand = np.flatnonzero(rest & (hag >= min(rules.vegetation_min_height_m, rules.building_min_height_m)))
+    variation = np.full(n, np.nan)
+    variation[cand] = _surface_variation(pts, cand, rules.neighbourhood_m)
+    planar = variation < rules.planarity_max
+    roof = rest & planar & ~green & (hag >= rules.building_min_height_m)
+    # building patches: connected cells of roof points, large enough
+    cell = rules.ground_cell_m
+    x0, y1 = pts[:, 0].min(), pts[:, 1].max()
+    col = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
+    row = np.floor((y1 - pts[:, 1]) / cell).astype(np.int64)
+    shape = (int(row.max()) + 1, int(col.max()) + 1)
+    roof_cells = np.zeros(shape, bool)
+    roof_cells[row[roof], col[roof]] = True
+    roof_cells = ndimage.binary_closing(roof_cells, iterations=1) | roof_cells
+    lab, nlab = ndimage.label(roof_cells)
+    if nlab:
+        area = ndimage.sum_labels(np.ones(shape), lab, index=np.arange(1, nlab + 1)) * cell * cell
+        keep = np.r_[False, area >= rules.building_min_area_m2]
+        patch = keep[lab]
+        patch = ndimage.binary_dilation(patch, iterations=1)  # walls at the patch's edge
+        in_patch = patch[row, col]
+        building = rest & in_patch & ((roof) | (hag >= rules.wall_min_height_m)) & ~green
+        code[building] = ASPRS_BUILDING
+        rest &= ~building
+    veg_ok = green if rgb is not None else (variation >= rules.planarity_max)
+    veg = rest & veg_ok & (hag >= rules.vegetation_min_height_m)
+    code[veg & (hag < 2.0)] = ASPRS_LOW_VEGETATION
+    code[veg & (hag >= 2.0) & (hag < 5.0)] = ASPRS_MEDIUM_VEGETATION
+    code[veg & (hag >= 5.0)] = ASPRS_HIGH_VEGETATION
+    code[noise] = ASPRS_NOISE
+    u, c = np.unique(code, return_counts=True)
+    return Classification(code, hag, {int(a): int(b) for a, b in zip(u, c)})
