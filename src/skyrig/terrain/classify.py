@@ -23,8 +23,9 @@ The other classes
 A rule on height above the ground (HAG, from a ground surface gridded from CSF's ground points), local shape and,
 where the cloud has colours, colour (ASPRS LAS 1.4 R15 class codes):
 
-* **7 low point (noise)**: isolated points (fewer than ``noise_min_neighbours`` others within
-  ``noise_radius_m``) and points more than ``noise_below_m`` below the ground surface;
+* **7 low point (noise)**: isolated points (the distance to their ``noise_neighbours``-th nearest neighbour more
+  than ``noise_spacing_factor`` times its median over the cloud: a test that follows the cloud's density) and
+  points more than ``noise_below_m`` below the ground surface;
 * **6 building**: points at least ``building_min_height_m`` above the ground on a locally planar surface
   (smallest eigenvalue of the neighbourhood covariance below ``planarity_max`` of the sum), not green, in a
   connected patch of at least ``building_min_area_m2``; plus the points above ``wall_min_height_m`` inside
@@ -93,8 +94,8 @@ class GroundFilter:
 class ClassRules:
     """Thresholds of the building / vegetation / noise rule (metres unless named otherwise)."""
 
-    noise_radius_m: float = 1.0  # neighbourhood radius of the isolated-point test
-    noise_min_neighbours: int = 2  # fewer other points than this within noise_radius_m: noise
+    noise_neighbours: int = 2  # isolated-point test: the distance to the k-th nearest other point ...
+    noise_spacing_factor: float = 5.0  # ... above this many times its median over the cloud: noise
     noise_below_m: float = 1.0  # points this far below the ground surface: noise
     neighbourhood_m: float = 1.5  # radius of the local shape (covariance) neighbourhood
     planarity_max: float = 0.02  # smallest covariance eigenvalue / trace below this: planar
@@ -260,9 +261,9 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
         log.warning("the ground filter found no ground point; every point stays unclassified")
         return Classification(code, np.full(n, np.nan), {ASPRS_UNCLASSIFIED: n})
     # isolated points first (they must not bend the ground surface)
-    tree = cKDTree(pts)
-    counts = tree.query_ball_point(pts, rules.noise_radius_m, return_length=True) - 1
-    noise = counts < rules.noise_min_neighbours
+    k = rules.noise_neighbours
+    dk = cKDTree(pts).query(pts, k=k + 1)[0][:, k] if n > k else np.zeros(n)
+    noise = dk > rules.noise_spacing_factor * max(float(np.median(dk)), 1e-9)
     surf = ground_surface(pts[g & ~noise], rules.ground_cell_m)
     hag = pts[:, 2] - sample_surface(surf, pts[:, 0], pts[:, 1])
     noise |= hag < -rules.noise_below_m
@@ -293,7 +294,7 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
         building = rest & in_patch & ((roof) | (hag >= rules.wall_min_height_m)) & ~green
         code[building] = ASPRS_BUILDING
         rest &= ~building
-    veg_ok = green if rgb is not None else (variation >= rules.planarity_max)
+    veg_ok = green if rgb is not None else ~planar  # scattered or too sparse for a surface
     veg = rest & veg_ok & (hag >= rules.vegetation_min_height_m)
     code[veg & (hag < 2.0)] = ASPRS_LOW_VEGETATION
     code[veg & (hag >= 2.0) & (hag < 5.0)] = ASPRS_MEDIUM_VEGETATION

@@ -23,7 +23,7 @@ from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 
-__all__ = ["DtmGrid", "DTM_SOURCE", "make_dtm", "normalised_dsm", "ground_surface", "sample_surface",
+__all__ = ["DtmGrid", "DTM_SOURCE", "make_dtm", "normalised_dsm", "ground_surface", "sample_surface", "sample_grid", "same_frame",
            "SOURCE_NONE", "SOURCE_MEASURED", "SOURCE_OPEN", "SOURCE_BUILDING", "SOURCE_VEGETATION"]
 
 SOURCE_NONE, SOURCE_MEASURED, SOURCE_OPEN, SOURCE_BUILDING, SOURCE_VEGETATION = 0, 1, 2, 3, 4
@@ -143,10 +143,14 @@ def ground_surface(ground_xyz: NDArray[np.float64], cell_m: float, grid: GridSpe
 
 def sample_surface(surf: _Surface | DtmGrid | DsmGrid, x: NDArray[np.float64], y: NDArray[np.float64]
                    ) -> NDArray[np.float64]:
-    """Bilinear interpolation of a gridded surface at map points (cell centres as nodes; NaN outside the grid or
-    next to no-data cells)."""
-    g = surf.grid
-    h = np.asarray(surf.height, np.float64)
+    """Bilinear interpolation of a gridded surface's heights at map points (:func:`sample_grid`)."""
+    return sample_grid(surf.grid, surf.height, x, y)
+
+
+def sample_grid(g: GridSpec, values: NDArray, x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Bilinear interpolation of ``(rows, cols)`` values on a grid at map points (cell centres as nodes; NaN
+    outside the grid or next to no-data cells)."""
+    h = np.asarray(values, np.float64)
     u = (np.asarray(x, np.float64) - g.x0) / g.cell_m - 0.5
     v = (g.y0 - np.asarray(y, np.float64)) / g.cell_m - 0.5
     u = np.clip(u, 0, g.width - 1)  # edge half-cells: nearest edge value
@@ -231,8 +235,15 @@ def make_dtm(xyz: NDArray[np.float64], code: NDArray[np.integer], frame: WorldFr
         out[r[ok], c[ok]] = True
         return out
 
-    under_b = covered(cls == 6) & ~measured
-    under_v = covered((cls >= 3) & (cls <= 5)) & ~measured & ~under_b
+    cov_b, cov_v = covered(cls == 6), covered((cls >= 3) & (cls <= 5))
+    any_pt = covered(cls != 7)
+    if any_pt.any():  # empty cells take what covers the nearest cell with points (a sparse roof's holes)
+        near_d, (ir, ic) = ndimage.distance_transform_edt(~any_pt, return_indices=True)
+        near = near_d * grid.cell_m <= 2.0 * grid.cell_m
+        cov_b = cov_b | (near & cov_b[ir, ic])
+        cov_v = cov_v | (near & cov_v[ir, ic])
+    under_b = cov_b & ~measured
+    under_v = cov_v & ~measured & ~under_b
     dist = ndimage.distance_transform_edt(~measured) * grid.cell_m
     gap = ~measured & ~under_b & ~under_v & (dist <= max_gap_m)
     want = under_b | under_v | gap
