@@ -27,7 +27,7 @@ from skyrig.errors import CRSError, InputFormatError
 from skyrig.io._text import PathLike, output_temp, publish
 
 __all__ = ["TerrainCloud", "read_terrain_cloud", "write_classified_cloud", "write_dtm_cog", "read_dtm_cog",
-           "write_ndsm_cog", "write_contours_gpkg", "read_volume_polygon", "DTM_BANDS"]
+           "write_ndsm_cog", "read_height_surface", "write_contours_gpkg", "read_volume_polygon", "DTM_BANDS"]
 
 #: Band order of a DTM COG.
 DTM_BANDS = ("height", "sigma", "ground_points", "source")
@@ -101,9 +101,12 @@ def read_terrain_cloud(path: PathLike, crs: str | None = None) -> TerrainCloud:
     given = resolve_crs(crs) if crs else None
     if pts.crs_wkt is not None:
         file_c = pyproj.CRS.from_wkt(pts.crs_wkt)
-        if given is not None and not (file_c == given or (file_c.is_compound and file_c.sub_crs_list[0] == given)):
+        same = given is None or file_c == given or (file_c.is_compound and file_c.sub_crs_list[0] == given)
+        completes = (given is not None and given.is_compound and len(file_c.axis_info) < 3
+                     and given.sub_crs_list[0] == file_c)  # a 2D file CRS completed with its vertical CRS
+        if not (same or completes):
             raise InputFormatError(f"the file's CRS is {file_c.name}, not the {given.name} given", path, field="crs")
-        c = file_c
+        c = given if completes else file_c
     else:
         c = given
     try:
@@ -182,6 +185,31 @@ def read_dtm_cog(path: PathLike):
         sig, gp, src = band("sigma"), band("ground_points"), band("source")
     return DtmGrid(d.grid, d.frame, d.height, sig.astype(np.float32), np.nan_to_num(gp).astype(np.int32),
                    np.nan_to_num(src).astype(np.uint8), d.vertical_reference, d.metadata)
+
+
+def read_height_surface(path: PathLike, option: str):
+    """A height raster (DSM or DTM COG, any north-up GeoTIFF with a CRS) as a
+    :class:`skyrig.dense.grid.DsmGrid`, refused when it states no vertical reference (a 2D CRS without skyrig's
+    ``VERTICAL_REFERENCE`` tag): the heights of two such surfaces could differ by a geoid undulation unseen.
+
+    Raises
+    ------
+    InputFormatError
+        As :func:`skyrig.io.dsm_cog.read_dsm_cog`, and naming ``option`` when the vertical reference is missing.
+    """
+    import rasterio
+
+    from skyrig.io.dsm_cog import read_dsm_cog
+
+    d = read_dsm_cog(path)
+    with rasterio.open(path) as ds:
+        tags = ds.tags()
+        three_d = ds.crs is not None and len(pyproj.CRS.from_wkt(ds.crs.to_wkt()).axis_info) >= 3
+    if not tags.get("VERTICAL_REFERENCE") and not three_d:
+        raise InputFormatError(f"the raster states no vertical reference (a 2D CRS and no VERTICAL_REFERENCE tag): "
+                               f"its heights cannot be placed; write it with a compound CRS (option {option})",
+                               path, field="crs")
+    return d
 
 
 def write_ndsm_cog(path: PathLike, dsm, ndsm: NDArray[np.float32]) -> None:

@@ -62,9 +62,9 @@ def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None =
     InputFormatError
         No ground class in the cloud, a cloud in a non-metre CRS, a DSM in another frame.
     """
-    from skyrig.io.dsm_cog import read_dsm_cog, write_hillshade_png
+    from skyrig.io.dsm_cog import write_hillshade_png
     from skyrig.io.stage import describe_inputs, stage_folder
-    from skyrig.io.terrain_files import read_terrain_cloud, write_dtm_cog, write_ndsm_cog
+    from skyrig.io.terrain_files import read_height_surface, read_terrain_cloud, write_dtm_cog, write_ndsm_cog
     from skyrig.terrain.classify import classify_points
     from skyrig.terrain.dtm import make_dtm, normalised_dsm, same_frame
 
@@ -81,7 +81,7 @@ def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None =
     d = None
     grid = None
     if dsm is not None:
-        d = read_dsm_cog(dsm)
+        d = read_height_surface(dsm, "--dsm")
         if not same_frame(d.frame, cloud.frame):
             raise InputFormatError(f"the DSM is in {d.frame.to_text()}, the cloud in {cloud.frame.to_text()}", dsm,
                                    field="crs")
@@ -132,11 +132,10 @@ def _json(path: Path, obj: dict) -> None:
 def contours_file(dtm_path: PathLike, out: PathLike, *, interval_m: float, index_every: int = 5,
                   smooth_cells: float = 1.0, smooth_sigmas: float = 1.0) -> dict[str, Any]:
     """Contour lines of a DTM (or any height COG) into a GeoPackage; returns a summary."""
-    from skyrig.io.dsm_cog import read_dsm_cog
-    from skyrig.io.terrain_files import write_contours_gpkg
+    from skyrig.io.terrain_files import read_height_surface, write_contours_gpkg
     from skyrig.terrain.contours import make_contours
 
-    d = read_dsm_cog(dtm_path)
+    d = read_height_surface(dtm_path, "DTM")
     sig = d.sigma if np.isfinite(d.sigma).any() else None
     try:
         c = make_contours(d.height, d.grid, interval_m, index_every=index_every, sigma=sig,
@@ -164,9 +163,8 @@ def volume_file(top: PathLike, polygon: PathLike, out: PathLike | None = None, *
     InputFormatError
         A base surface in another frame; the polygon's problems (see :func:`read_volume_polygon`).
     """
-    from skyrig.io.dsm_cog import read_dsm_cog
     from skyrig.io.points_csv import read_points_csv
-    from skyrig.io.terrain_files import read_volume_polygon
+    from skyrig.io.terrain_files import read_height_surface, read_volume_polygon
     from skyrig.terrain.dtm import same_frame, sample_grid, sample_surface
     from skyrig.terrain.volume import base_from_points, cut_fill, plane_base
 
@@ -175,11 +173,11 @@ def volume_file(top: PathLike, polygon: PathLike, out: PathLike | None = None, *
     if len(given) != 1:
         raise OptionError("--base / --base-plane / --base-points",
                           f"give exactly one base surface ({', '.join(given) or 'none'} given)")
-    t = read_dsm_cog(top)
+    t = read_height_surface(top, "--top")
     poly = read_volume_polygon(polygon, t.frame, layer)
     sb: Any = 0.0
     if base is not None:
-        b = read_dsm_cog(base)
+        b = read_height_surface(base, "--base")
         if not same_frame(b.frame, t.frame):
             raise InputFormatError(f"the base surface is in {b.frame.to_text()}, the top in {t.frame.to_text()}",
                                    base, field="crs")

@@ -1,0 +1,143 @@
+"""``skyrig terrain`` end to end on a small simulated town cloud, files read back with laspy / rasterio / pyogrio,
+and its refusals of bad input (issue 31's list): no CRS, polygon in another CRS (reprojected) or without one,
+interval 0 or larger than the relief, empty polygon, a DSM without vertical reference; never a half-written output."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from skyrig.cli import main
+
+E0, N0 = 500000.0, 5800000.0
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A LAZ of a simulated town (EPSG:25832, ellipsoidal heights) written by skyrig's dense-cloud writer, and
+    the truth (scene and classes)."""
+    from skyrig.dense.grid import DenseCloud
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.dense_laz import write_dense_cloud
+    from _terrain_scene import town_cloud
+
+    d = tmp_path_factory.mktemp("terrain_cli")
+    xyz, rgb, truth, scene = town_cloud(seed=4, size=80.0, n_trees=3)
+    n = len(xyz)
+    m = xyz + [E0, N0, 0.0]
+    write_dense_cloud(d / "cloud.laz", DenseCloud(m, rgb, np.zeros((n, 3), np.float32), np.ones(n, np.int16),
+                                                  np.full(n, 0.05, np.float32), WorldFrame.map("EPSG:25832"), ""))
+    return d, truth, scene
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_classify_dtm_contours_volume(files):
+    import laspy
+    import pyogrio
+    import rasterio
+    import shapely
+
+    from skyrig.io.dsm_cog import cog_problems
+    from skyrig.io.gpkg import write_gpkg
+    from skyrig.io.stage import verify_folder
+
+    d, truth, scene = files
+    r = run("terrain", "classify", d / "cloud.laz", "-o", d / "cls.laz")
+    assert r.exit_code == 0, r.output
+    las = laspy.read(d / "cls.laz")
+    code = np.asarray(las.classification)
+    assert np.mean(code[truth == 2] == 2) > 0.95 and np.mean(code[truth == 6] == 6) > 0.9
+    assert las.header.parse_crs() is not None and len(las.points) == len(truth)
+    r = run("terrain", "dtm", d / "cls.laz", "--resolution", "1", "-o", d / "dtm")
+    assert r.exit_code == 0, r.output
+    assert verify_folder(d / "dtm") == []
+    assert cog_problems(d / "dtm" / "dtm.tif") == []
+    with rasterio.open(d / "dtm" / "dtm.tif") as ds:
+        assert ds.descriptions == ("height", "sigma", "ground_points", "source")
+        assert ds.tags()["VERTICAL_REFERENCE"] == "ellipsoidal" and ds.tags()["SKYRIG_PRODUCT"] == "dtm"
+        h = ds.read(1)
+        t = ds.transform
+        xs, ys = np.meshgrid(t.c + (np.arange(ds.width) + 0.5) * t.a - E0, t.f + (np.arange(ds.height) + 0.5) * t.e - N0)
+    ok = h != ds.nodata
+    e = h[ok] - scene.terrain_height(xs[ok], ys[ok])
+    assert abs(np.median(e)) < 0.02 and np.sqrt(np.mean(e ** 2)) < 0.1
+    r = run("terrain", "contours", d / "dtm" / "dtm.tif", "--interval", "0.5", "-o", d / "c.gpkg")
+    assert r.exit_code == 0, r.output
+    meta, _, _, fields = pyogrio.raw.read(str(d / "c.gpkg"))
+    assert "elevation" in list(meta["fields"]) and len(fields[0]) > 3
+    # polygon in WGS84 (EPSG:4326): reprojected into the DTM's CRS; volume above a plane under the whole area
+    from pyproj import Transformer
+
+    box = np.array([[10, 10], [70, 10], [70, 70], [10, 70]], float) + [E0, N0]
+    lon, lat = Transformer.from_crs("EPSG:25832", "EPSG:4326", always_xy=True).transform(box[:, 0], box[:, 1])
+    write_gpkg(d / "area.gpkg", {"area": ([shapely.Polygon(np.column_stack([lon, lat]))], {"name": ["a"]})},
+               "EPSG:4326")
+    zb = float(scene.terrain_range[0]) - 1.0
+    r = run("terrain", "volume", "--top", d / "dtm" / "dtm.tif", "--polygon", d / "area.gpkg", "--base-plane", zb,
+            "-o", d / "v.json")
+    assert r.exit_code == 0, r.output
+    v = json.loads((d / "v.json").read_text())
+    # the truth: the terrain above the plane over the 60 x 60 m square (fine midpoint rule)
+    g = np.arange(10.05, 70, 0.1)
+    gx, gy = np.meshgrid(g, g)
+    v_true = float(np.sum(scene.terrain_height(gx, gy) - zb) * 0.01)
+    assert abs(v["net_m3"] - v_true) < max(3 * v["sigma_net_m3"], 0.002 * v_true), (v["net_m3"], v_true)
+    assert v["cut_m3"] == 0.0
+
+
+def test_bad_inputs(files, tmp_path):
+    import laspy
+    import rasterio
+    import shapely
+
+    from skyrig.io.gpkg import write_gpkg
+
+    d, _, _ = files
+    # a cloud without CRS
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    las.x, las.y, las.z = np.arange(10.0), np.arange(10.0), np.zeros(10)
+    las.write(tmp_path / "nocrs.las")
+    r = run("terrain", "classify", tmp_path / "nocrs.las", "-o", tmp_path / "out.laz")
+    assert r.exit_code == 2 and "no CRS" in r.output and "nocrs.las" in r.output
+    assert not (tmp_path / "out.laz").exists()
+    if not (d / "dtm" / "dtm.tif").exists():
+        run("terrain", "dtm", d / "cloud.laz", "--classify", "-o", d / "dtm")
+    dtm = d / "dtm" / "dtm.tif"
+    for interval, words in (("0", "positive"), ("500", "larger than the relief")):
+        r = run("terrain", "contours", dtm, "--interval", interval, "-o", tmp_path / "c.gpkg")
+        assert r.exit_code == 2 and "--interval" in r.output and words in r.output, r.output
+        assert not (tmp_path / "c.gpkg").exists()
+    # an empty polygon file (a layer of points), a polygon without CRS, a polygon far away
+    write_gpkg(tmp_path / "pts.gpkg", {"p": ([shapely.Point(E0, N0)], {"a": [1]})}, "EPSG:25832")
+    with pytest.warns(UserWarning, match="crs"):  # GDAL's own warning about the file made here without a CRS
+        write_gpkg(tmp_path / "nocrs.gpkg", {"a": ([shapely.box(E0, N0, E0 + 10, N0 + 10)], {"a": [1]})}, None)
+    write_gpkg(tmp_path / "far.gpkg", {"a": ([shapely.box(0, 0, 10, 10)], {"a": [1]})}, "EPSG:25832")
+    for poly, words in (("pts.gpkg", "polygon"), ("nocrs.gpkg", "CRS"), ("far.gpkg", "covers no cell")):
+        r = run("terrain", "volume", "--top", dtm, "--polygon", tmp_path / poly, "--base-plane", "0",
+                "-o", tmp_path / "v.json")
+        assert r.exit_code == 2 and words in r.output, r.output
+        assert not (tmp_path / "v.json").exists()
+    r = run("terrain", "volume", "--top", dtm, "--polygon", tmp_path / "far.gpkg", "-o", tmp_path / "v.json")
+    assert r.exit_code == 2 and "exactly one base" in r.output
+    # a DSM / DTM without vertical reference: a plain GeoTIFF in a 2D CRS without skyrig's tags
+    plain = tmp_path / "plain.tif"
+    with rasterio.open(dtm) as src:
+        prof = dict(driver="GTiff", width=src.width, height=src.height, count=1, dtype="float32", crs=src.crs,
+                    transform=src.transform)
+        with rasterio.open(plain, "w", **prof) as dst:
+            dst.write(src.read(1), 1)
+    r = run("terrain", "contours", plain, "--interval", "0.5", "-o", tmp_path / "c.gpkg")
+    assert r.exit_code == 2 and "vertical reference" in r.output and "plain.tif" in r.output
+    r = run("terrain", "dtm", d / "cls.laz" if (d / "cls.laz").exists() else d / "cloud.laz", "--classify",
+            "--dsm", plain, "-o", tmp_path / "dtm2")
+    assert r.exit_code == 2 and "vertical reference" in r.output and "--dsm" in r.output
+    assert not (tmp_path / "dtm2").exists()
+    # an unclassified cloud without --classify
+    r = run("terrain", "dtm", d / "cloud.laz", "-o", tmp_path / "dtm3")
+    assert r.exit_code == 2 and "classify" in r.output and not (tmp_path / "dtm3").exists()
