@@ -141,3 +141,41 @@ def test_bad_inputs(files, tmp_path):
     # an unclassified cloud without --classify
     r = run("terrain", "dtm", d / "cloud.laz", "-o", tmp_path / "dtm3")
     assert r.exit_code == 2 and "classify" in r.output and not (tmp_path / "dtm3").exists()
+
+
+def test_project_stage_dtm(files, tmp_path):
+    """The runner's ``dtm`` stage (after ``dsm``) on a dsm folder (dsm.tif + cloud.laz): classified cloud, DTM on
+    the DSM's grid, nDSM equal to the true building heights on roofs."""
+    from types import SimpleNamespace
+
+    import rasterio
+
+    from skyrig.dense.grid import DsmGrid, GridSpec
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.dsm_cog import write_dsm_cog
+    from skyrig.pipeline.run import STAGES
+
+    d, _, scene = files
+    assert list(STAGES).index("dtm") > list(STAGES).index("dsm") and STAGES["dtm"].requires == ("dsm",)
+    dsm_dir = tmp_path / "dsm"
+    dsm_dir.mkdir()
+    (dsm_dir / "cloud.laz").write_bytes((d / "cloud.laz").read_bytes())
+    g = GridSpec(E0, N0 + 80, 0.5, 160, 160)
+    xx, yy = g.cell_centres()
+    top = scene.surface_height(xx - E0, yy - N0).astype(np.float32)
+    z = np.zeros(g.shape, np.float32)
+    write_dsm_cog(dsm_dir / "dsm.tif", DsmGrid(g, WorldFrame.map("EPSG:25832"), top, np.ones(g.shape, np.int16),
+                                               z, z + 0.05, np.zeros(g.shape, bool)))
+    out = tmp_path / "stage"
+    out.mkdir()
+    opts = {k: v.default for k, v in STAGES["dtm"].options.items()}
+    ctx = SimpleNamespace(options=opts, need=lambda kind: dsm_dir / "dsm.tif", out=out)
+    s = STAGES["dtm"].run(ctx)
+    assert s["cells_by_source"]["building"] > 100
+    assert {"classified.laz", "dtm.tif", "ndsm.tif", "dtm.json", "dtm_hillshade.png"} <= {p.name for p in out.iterdir()}
+    with rasterio.open(out / "ndsm.tif") as ds:
+        nd = ds.read(1)
+    _, bidx = scene.buildings.top_height(xx - E0, yy - N0)
+    true_nd = top - scene.terrain_height(xx - E0, yy - N0)
+    roof = bidx >= 0
+    assert np.median(np.abs(nd[roof] - true_nd[roof])) < 0.1

@@ -44,7 +44,8 @@ def classify_cloud_file(src: PathLike, dst: PathLike, *, crs: str | None = None,
 
 
 def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None = None, dsm: PathLike | None = None,
-               crs: str | None = None, max_gap_m: float = 20.0, classify: bool = False) -> dict[str, Any]:
+               crs: str | None = None, max_gap_m: float = 20.0, classify: bool = False, published: bool = True
+               ) -> dict[str, Any]:
     """DTM (``dtm.tif``), hillshade (``dtm_hillshade.png``), with ``dsm`` the normalised DSM (``ndsm.tif``) on the
     DSM's grid, and ``dtm.json`` (figures), published as one folder with a manifest.
 
@@ -56,17 +57,19 @@ def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None =
         DTM cell size (metres); default the DSM's grid when ``dsm`` is given, else 1 m.
     dsm
         A DSM COG: its grid is the DTM's, and the nDSM is written.
+    published
+        Publish ``outdir`` as a stage folder with a manifest (False: write the files into the existing folder
+        ``outdir``, e.g. the project runner's staging folder).
 
     Raises
     ------
     InputFormatError
         No ground class in the cloud, a cloud in a non-metre CRS, a DSM in another frame.
     """
-    from skyrig.io.dsm_cog import write_hillshade_png
     from skyrig.io.stage import describe_inputs, stage_folder
-    from skyrig.io.terrain_files import read_height_surface, read_terrain_cloud, write_dtm_cog, write_ndsm_cog
+    from skyrig.io.terrain_files import read_height_surface, read_terrain_cloud
     from skyrig.terrain.classify import classify_points
-    from skyrig.terrain.dtm import make_dtm, normalised_dsm, same_frame
+    from skyrig.terrain.dtm import make_dtm, same_frame
 
     cloud = read_terrain_cloud(cloud_path, crs)
     if cloud.metres_per_unit != (1.0, 1.0):
@@ -105,18 +108,29 @@ def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None =
         "sigma_median_m": {k: float(np.nanmedian(dtm.sigma[src == c])) if np.any(src == c) else None
                            for c, k in ((1, "measured"), (2, "gap"), (3, "building"), (4, "vegetation"))},
     }
+    if not published:
+        _write_dtm_products(Path(outdir), dtm, d, summary)
+        return summary
     inputs = [cloud_path] + ([dsm] if dsm is not None else [])
     with stage_folder(outdir, stage="dtm", inputs=describe_inputs(inputs),
                       options={"cell_m": cell_m, "max_gap_m": max_gap_m, "classify": classify}) as tmp:
-        write_dtm_cog(tmp / "dtm.tif", dtm)
-        write_hillshade_png(tmp / "dtm_hillshade.png", dtm)
-        if d is not None:
-            nd = normalised_dsm(d, dtm)
-            write_ndsm_cog(tmp / "ndsm.tif", d, nd)
-            summary["ndsm_above_2m_cells"] = int(np.sum(nd > 2.0))
-        _json(tmp / "dtm.json", summary)
+        _write_dtm_products(tmp, dtm, d, summary)
     summary["outdir"] = str(outdir)
     return summary
+
+
+def _write_dtm_products(folder: Path, dtm: Any, dsm: Any, summary: dict[str, Any]) -> None:
+    from skyrig.io.dsm_cog import write_hillshade_png
+    from skyrig.io.terrain_files import write_dtm_cog, write_ndsm_cog
+    from skyrig.terrain.dtm import normalised_dsm
+
+    write_dtm_cog(folder / "dtm.tif", dtm)
+    write_hillshade_png(folder / "dtm_hillshade.png", dtm)
+    if dsm is not None:
+        nd = normalised_dsm(dsm, dtm)
+        write_ndsm_cog(folder / "ndsm.tif", dsm, nd)
+        summary["ndsm_above_2m_cells"] = int(np.sum(nd > 2.0))
+    _json(folder / "dtm.json", summary)
 
 
 def _json(path: Path, obj: dict) -> None:
