@@ -181,6 +181,25 @@ def test_volume_pyramid_closed_form():
     assert abs(r.area_m2 - 2500.0) < 1e-6
 
 
+def test_volume_holes_interpolated():
+    """Holes in the top surface inside the polygon (a DSM's gaps at walls): the difference is interpolated and
+    the pyramid's volume kept within 0.5 %; left out, the volume falls short by about the holes' share."""
+    import shapely
+
+    from skyrig.terrain.volume import cut_fill
+
+    g = GridSpec(-30.0, 30.0, 0.5, 120, 120)
+    xx, yy = g.cell_centres()
+    top = 6.0 * np.clip(1 - np.maximum(np.abs(xx), np.abs(yy)) / 20.0, 0, None)
+    holes = (np.abs(xx - 5) < 2) & (np.abs(yy + 3) < 1.5)
+    top[holes] = np.nan
+    r = cut_fill(top, np.zeros(g.shape), g, shapely.box(-25, -25, 25, 25))
+    v_true = 40.0 ** 2 * 6.0 / 3
+    assert r.cells_interpolated == holes.sum() and abs(r.net_m3 - v_true) / v_true < 0.005
+    r0 = cut_fill(top, np.zeros(g.shape), g, shapely.box(-25, -25, 25, 25), fill_missing=False)
+    assert r0.cells_without_data == holes.sum() and r0.net_m3 < v_true - 0.5 * np.nansum(np.where(holes, 1, 0)) * 0.25
+
+
 def test_stockpile_from_noisy_cloud_within_one_percent_and_two_sigma():
     """A conical stockpile (r 15 m, h 5 m) on flat ground sampled as a noisy cloud (sigma 0.05 m), gridded into
     a DTM: its volume above the toe (base from 12 boundary points) within 1 % of pi r^2 h / 3 and within 2 predicted

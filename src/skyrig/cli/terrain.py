@@ -109,6 +109,6 @@ def volume(top, polygon, layer, base, base_plane, base_points, correlation_lengt
                     correlation_length_m=correlation_length, sigma_sys_m=sigma_sys)
     click.echo(f"fill {r['fill_m3']:.3f} +- {r['sigma_fill_m3']:.3f} m3, cut {r['cut_m3']:.3f} +- {r['sigma_cut_m3']:.3f}"
                f" m3, net {r['net_m3']:.3f} +- {r['sigma_net_m3']:.3f} m3 over {r['area_m2']:.1f} m2 "
-               f"({r['cells_without_data']} cells without data)")
+               f"({r['cells_interpolated']} cells without a height interpolated)")
     if output is None:
         click.echo(json.dumps(r, indent=1, default=str))

@@ -35,7 +35,8 @@ def classify_cloud_file(src: PathLike, dst: PathLike, *, crs: str | None = None,
     h, v = cloud.metres_per_unit
     xyz_m = cloud.xyz * np.array([h, h, v])
     t0 = time.perf_counter()
-    cl = classify_points(xyz_m, cloud.rgb, ground=ground or GroundFilter(), rules=rules or ClassRules())
+    cl = classify_points(xyz_m, cloud.rgb, ground=ground or GroundFilter(), rules=rules or ClassRules(),
+                         sigma=cloud.sigma)
     dt = time.perf_counter() - t0
     write_classified_cloud(src, dst, cl.code)
     return {"points": len(cloud), "seconds": dt, "points_per_second": len(cloud) / max(dt, 1e-9),
@@ -77,7 +78,7 @@ def dtm_folder(cloud_path: PathLike, outdir: PathLike, *, cell_m: float | None =
                                "are written in metre CRSs; reproject the cloud first", cloud_path, field="crs")
     code = cloud.classification
     if classify:
-        code = classify_points(cloud.xyz, cloud.rgb).code
+        code = classify_points(cloud.xyz, cloud.rgb, sigma=cloud.sigma).code
     elif not np.any(code == 2):
         raise InputFormatError("no ground point (class 2): classify the cloud first (skyrig terrain classify) or "
                                "pass --classify", cloud_path, field="classification")

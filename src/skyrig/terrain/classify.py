@@ -23,13 +23,21 @@ The other classes
 A rule on height above the ground (HAG, from a ground surface gridded from CSF's ground points), local shape and,
 where the cloud has colours, colour (ASPRS LAS 1.4 R15 class codes):
 
+* **2 ground**: CSF's ground points; with point precisions (an image cloud's ``sigma``) also the points the filter
+  left off whose height above the ground surface is within ``ground_sigmas`` of their own precision (and
+  ``ground_max_off_m``) (CSF's
+  ``class_threshold_m`` is one distance for all points; an image cloud's noise varies from point to point);
+
 * **7 low point (noise)**: isolated points (the distance to their ``noise_neighbours``-th nearest neighbour more
   than ``noise_spacing_factor`` times its median over the cloud: a test that follows the cloud's density) and
   points more than ``noise_below_m`` below the ground surface;
-* **6 building**: points at least ``building_min_height_m`` above the ground on a locally planar surface
-  (smallest eigenvalue of the neighbourhood covariance below ``planarity_max`` of the sum), not green, in a
-  connected patch of at least ``building_min_area_m2``; plus the points above ``wall_min_height_m`` inside
-  those patches (walls seen by oblique rays);
+* **6 building**: the points of a *raised object* (connected cells of ``ground_cell_m`` holding points at least
+  ``building_min_height_m`` above the ground) of at least ``building_min_area_m2`` whose points are mostly
+  (``building_planar_share``) on locally planar surfaces, and, with colours, which is not mostly green and rough
+  (a tree); inside it every point above ``wall_min_height_m`` (walls, eaves) except rough green ones (a tree over
+  the roof).  Planar: the scatter off the local plane (32 nearest points within ``neighbourhood_m``) within
+  ``planarity_sigmas`` of the points' predicted precision when the cloud has one (an image cloud), else a
+  surface variation (smallest eigenvalue of the covariance / the sum) below ``planarity_max``;
 * **3 / 4 / 5 low / medium / high vegetation** (HAG below 2 m / 2-5 m / above 5 m, the split of the USGS lidar
   base specification's examples): the rest above ``vegetation_min_height_m`` when colour says green (excess green
   ``(2G - R - B) / (R + G + B)`` above ``green_min``) or, without colours, when the neighbourhood is not planar;
@@ -97,14 +105,18 @@ class ClassRules:
     noise_neighbours: int = 2  # isolated-point test: the distance to the k-th nearest other point ...
     noise_spacing_factor: float = 5.0  # ... above this many times its median over the cloud: noise
     noise_below_m: float = 1.0  # points this far below the ground surface: noise
-    neighbourhood_m: float = 1.5  # radius of the local shape (covariance) neighbourhood
-    planarity_max: float = 0.02  # smallest covariance eigenvalue / trace below this: planar
+    neighbourhood_m: float = 1.5  # radius of the local shape (covariance of the 32 nearest points) neighbourhood
+    planarity_max: float = 0.02  # without point sigmas: smallest covariance eigenvalue / trace below this: planar
+    planarity_sigmas: float = 3.0  # with point sigmas: scatter off the local plane within this many sigmas: planar
     building_min_height_m: float = 2.0  # roofs are at least this high above the ground
-    building_min_area_m2: float = 12.0  # smaller planar patches are not buildings
-    wall_min_height_m: float = 0.5  # points inside a building patch above this are building (walls)
+    building_min_area_m2: float = 12.0  # smaller raised objects are not buildings
+    building_planar_share: float = 0.5  # a raised object is a building when this share of its points is planar
+    wall_min_height_m: float = 0.5  # points inside a building object above this are building (walls)
     vegetation_min_height_m: float = 0.3  # lower non-ground points stay unclassified
     green_min: float = 0.05  # excess-green index above this: green
     ground_cell_m: float = 1.0  # cell of the ground surface the heights above ground are taken from
+    ground_sigmas: float = 3.0  # with point sigmas: non-ground points within this many sigmas of the ground ...
+    ground_max_off_m: float = 0.5  # ... and no farther than this from it: ground
 
 
 @dataclass(frozen=True)
@@ -195,18 +207,21 @@ def _excess_green(rgb: NDArray) -> NDArray[np.float64]:
         return np.where(s > 0, (2 * c[:, 1] - c[:, 0] - c[:, 2]) / s, 0.0)
 
 
-def _surface_variation(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius: float, k: int = 16
-                       ) -> NDArray[np.float64]:
-    """Smallest eigenvalue / trace of the 3D covariance of each point's ``k`` nearest neighbours within ``radius``
-    (Pauly et al. 2002's surface variation: 0 on a plane, 1/3 for isotropic scatter); NaN with fewer than 5."""
+def _local_shape(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius: float, k: int = 32
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Shape of each point's neighbourhood (its ``k`` nearest neighbours within ``radius``, 3D): the surface
+    variation (smallest eigenvalue of the covariance / its trace, Pauly et al. 2002: 0 on a plane, 1/3 for
+    isotropic scatter) and the scatter off the best-fitting plane (square root of the smallest eigenvalue,
+    metres); NaN with fewer than 5 neighbours."""
     from scipy.spatial import cKDTree
 
-    out = np.full(len(idx), np.nan)
+    var_out = np.full(len(idx), np.nan)
+    off_out = np.full(len(idx), np.nan)
     if len(idx) == 0:
-        return out
+        return var_out, off_out
     tree = cKDTree(xyz)
     pad = np.vstack([xyz, np.zeros((1, 3))])
-    chunk = 50000
+    chunk = 20000
     for s in range(0, len(idx), chunk):
         d, nb = tree.query(xyz[idx[s:s + chunk]], k=min(k, len(xyz)), distance_upper_bound=radius)
         nb = np.asarray(nb).reshape(len(d), -1)
@@ -220,12 +235,15 @@ def _surface_variation(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius:
         tr = ev.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             v = np.where(tr > 0, ev[:, 0] / tr, 0.0)
-        out[s:s + chunk] = np.where(m >= 5, v, np.nan)
-    return out
+        enough = m >= 5
+        var_out[s:s + chunk] = np.where(enough, v, np.nan)
+        off_out[s:s + chunk] = np.where(enough, np.sqrt(np.maximum(ev[:, 0], 0.0)), np.nan)
+    return var_out, off_out
 
 
 def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
                     ground: GroundFilter = GroundFilter(), rules: ClassRules = ClassRules(),
+                    sigma: NDArray[np.float64] | None = None,
                     is_ground: NDArray[np.bool_] | None = None) -> Classification:
     """ASPRS classes of a cloud: CSF ground, then the building / vegetation / noise rule (module docstring).
 
@@ -237,6 +255,10 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
         ``(N, 3)`` colours (any scale) or None; enables the colour rule for vegetation.
     ground, rules
         Parameters of the ground filter and of the rule.
+    sigma
+        ``(N,)`` predicted precision of the points (metres, e.g. a dense cloud's), or None: with it a
+        neighbourhood is planar when its scatter off the plane is within ``planarity_sigmas`` of it, without it
+        when its surface variation is below ``planarity_max``.
     is_ground
         ``(N,)`` ground flags to use instead of running the filter (e.g. a provider's ground class).
 
@@ -256,6 +278,8 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
         raise InputFormatError(f"ground flags must be ({n},), got {g.shape}", field="is_ground")
     if rgb is not None and np.shape(rgb) != (n, 3):
         raise InputFormatError(f"colours must be ({n}, 3), got {np.shape(rgb)}", field="rgb")
+    if sigma is not None and np.shape(sigma) != (n,):
+        raise InputFormatError(f"sigmas must be ({n},), got {np.shape(sigma)}", field="sigma")
     code = np.full(n, ASPRS_UNCLASSIFIED, np.uint8)
     if not g.any():
         log.warning("the ground filter found no ground point; every point stays unclassified")
@@ -267,31 +291,53 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
     surf = ground_surface(pts[g & ~noise], rules.ground_cell_m)
     hag = pts[:, 2] - sample_surface(surf, pts[:, 0], pts[:, 1])
     noise |= hag < -rules.noise_below_m
+    if sigma is not None:  # points the filter left off the ground by no more than their own noise
+        s = np.asarray(sigma, np.float64)
+        lim = np.minimum(rules.ground_sigmas * np.where(np.isfinite(s), s, 0.0), rules.ground_max_off_m)
+        g = g | (~noise & (np.abs(hag) <= lim))
     code[g & ~noise] = ASPRS_GROUND
     rest = ~g & ~noise & np.isfinite(hag)
     green = np.zeros(n, bool) if rgb is None else _excess_green(rgb) > rules.green_min
-    cand = np.flatnonzero(rest & (hag >= min(rules.vegetation_min_height_m, rules.building_min_height_m)))
+    cand = np.flatnonzero(rest & (hag >= min(rules.vegetation_min_height_m, rules.wall_min_height_m)))
     variation = np.full(n, np.nan)
-    variation[cand] = _surface_variation(pts, cand, rules.neighbourhood_m)
-    planar = variation < rules.planarity_max
-    roof = rest & planar & ~green & (hag >= rules.building_min_height_m)
-    # building patches: connected cells of roof points, large enough
+    scatter = np.full(n, np.nan)
+    variation[cand], scatter[cand] = _local_shape(pts, cand, rules.neighbourhood_m)
+    if sigma is not None:
+        s = np.asarray(sigma, np.float64)
+        planar = scatter <= rules.planarity_sigmas * np.where(np.isfinite(s) & (s > 0), s, np.nan)
+    else:
+        planar = variation < rules.planarity_max
+    shaped = np.isfinite(scatter)
+    # raised objects: connected cells of points at least building_min_height above the ground
+    high = rest & (hag >= rules.building_min_height_m)
     cell = rules.ground_cell_m
     x0, y1 = pts[:, 0].min(), pts[:, 1].max()
     col = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
     row = np.floor((y1 - pts[:, 1]) / cell).astype(np.int64)
     shape = (int(row.max()) + 1, int(col.max()) + 1)
-    roof_cells = np.zeros(shape, bool)
-    roof_cells[row[roof], col[roof]] = True
-    roof_cells = ndimage.binary_closing(roof_cells, iterations=1) | roof_cells
-    lab, nlab = ndimage.label(roof_cells)
+    occ = np.zeros(shape, bool)
+    occ[row[high], col[high]] = True
+    lab, nlab = ndimage.label(occ | ndimage.binary_closing(occ), structure=np.ones((3, 3)))
     if nlab:
-        area = ndimage.sum_labels(np.ones(shape), lab, index=np.arange(1, nlab + 1)) * cell * cell
-        keep = np.r_[False, area >= rules.building_min_area_m2]
-        patch = keep[lab]
-        patch = ndimage.binary_dilation(patch, iterations=1)  # walls at the patch's edge
-        in_patch = patch[row, col]
-        building = rest & in_patch & ((roof) | (hag >= rules.wall_min_height_m)) & ~green
+        obj = lab[row, col]
+        idx = np.arange(1, nlab + 1)
+        area = ndimage.sum_labels(np.ones(shape), lab, index=idx) * cell * cell
+        w = high & shaped
+        n_shaped = np.bincount(obj[w], minlength=nlab + 1)[1:]
+        n_planar = np.bincount(obj[w & planar], minlength=nlab + 1)[1:]
+        n_green = np.bincount(obj[high & green], minlength=nlab + 1)[1:]
+        n_high = np.bincount(obj[high], minlength=nlab + 1)[1:]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            planar_share = np.where(n_shaped > 0, n_planar / n_shaped, 0.0)
+            green_share = np.where(n_high > 0, n_green / n_high, 0.0)
+        is_b = (area >= rules.building_min_area_m2) & (planar_share >= rules.building_planar_share)
+        if rgb is not None:  # a green, rough object is a tree, whatever its size
+            is_b &= ~((green_share > 0.5) & (planar_share < 0.75))
+        b_cells = np.r_[False, is_b][lab]
+        b_cells = ndimage.binary_dilation(b_cells, iterations=1)  # walls at the object's edge
+        in_b = b_cells[row, col]
+        # inside a building: everything raised, except rough green parts (a tree over the roof)
+        building = rest & in_b & (hag >= rules.wall_min_height_m) & ~(green & ~planar & shaped)
         code[building] = ASPRS_BUILDING
         rest &= ~building
     veg_ok = green if rgb is not None else ~planar  # scattered or too sparse for a surface

@@ -1,7 +1,8 @@
 """Cut and fill volumes between two surfaces inside a polygon, with their predicted uncertainty.
 
 The surfaces are sampled on one grid (the top surface's); a cell counts when its centre lies inside the polygon
-(``shapely.contains_xy``).  With ``dz = top - base`` per cell of area ``A``: fill ``= A sum(max(dz, 0))``, cut
+(``shapely.contains_xy``); cells where a surface has no height (a DSM's hole at a wall) get the difference
+interpolated from the cells around, with the local spread of the differences as their variance.  With ``dz = top - base`` per cell of area ``A``: fill ``= A sum(max(dz, 0))``, cut
 ``= A sum(max(-dz, 0))``, net ``= fill - cut`` (positive: material above the base).
 
 Uncertainty
@@ -44,7 +45,8 @@ class VolumeResult:
     area_m2: float  # area of the cells counted (inside the polygon, both surfaces valid)
     polygon_area_m2: float
     cells: int
-    cells_without_data: int  # inside the polygon but a surface has no height there
+    cells_without_data: int  # inside the polygon, no height on a surface and not interpolated (left out)
+    cells_interpolated: int  # inside the polygon, no height on a surface: the difference interpolated
     correlation_length_m: float
     sigma_sys_m: float
 
@@ -111,7 +113,8 @@ def base_from_points(grid: GridSpec, xyz: NDArray[np.float64]) -> NDArray[np.flo
 
 def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec, polygon, *,
              sigma_top: NDArray[np.float64] | float = 0.0, sigma_base: NDArray[np.float64] | float = 0.0,
-             correlation_length_m: float | None = None, sigma_sys_m: float = 0.0) -> VolumeResult:
+             correlation_length_m: float | None = None, sigma_sys_m: float = 0.0,
+             fill_missing: bool = True) -> VolumeResult:
     """Cut and fill between ``top`` and ``base`` inside ``polygon`` (module docstring).
 
     Parameters
@@ -126,6 +129,10 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
         Length over which the height errors are correlated (default: 3 cells).
     sigma_sys_m
         Error common to the whole difference (metres).
+    fill_missing
+        Interpolate the difference into cells inside the polygon where a surface has no height (linear from the
+        valid cells around; variance: the spread of the valid differences within 7 cells); False leaves them out
+        (the volume is then of the cells with data only, ``cells_without_data`` says how many).
 
     Raises
     ------
@@ -140,7 +147,8 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
         if a.shape != grid.shape:
             raise InputFormatError(f"{name} surface {a.shape} does not match the grid {grid.shape}", field=name)
     inside = polygon_mask(polygon, grid)
-    ok = inside & np.isfinite(t) & np.isfinite(b)
+    both = np.isfinite(t) & np.isfinite(b)
+    ok = inside & both
     if not ok.any():
         raise GeometryError("no cell inside the polygon has a height on both surfaces")
     A = grid.cell_m ** 2
@@ -149,7 +157,12 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
     st = np.broadcast_to(np.asarray(sigma_top, np.float64), grid.shape)
     sb = np.broadcast_to(np.asarray(sigma_base, np.float64), grid.shape)
     var = np.nan_to_num(st) ** 2 + np.nan_to_num(sb) ** 2
-    dz = (t - b)[ok]
+    diff = np.where(both, t - b, np.nan)
+    missing = inside & ~both
+    if fill_missing and missing.any():
+        diff, var = _fill_differences(diff, var, missing, grid)
+        ok = inside & np.isfinite(diff)
+    dz = diff[ok]
     v = var[ok]
     up, down = dz > 0, dz < 0
 
@@ -160,5 +173,40 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
     fill = A * float(dz[up].sum())
     cut = -A * float(dz[down].sum())
     return VolumeResult(fill, cut, fill - cut, sig(up), sig(down), sig(np.ones(len(dz), bool)),
-                        A * float(ok.sum()), float(polygon.area), int(ok.sum()), int((inside & ~ok).sum()), L,
-                        float(sigma_sys_m))
+                        A * float(ok.sum()), float(polygon.area), int(ok.sum()), int((inside & ~ok).sum()),
+                        int((missing & ok).sum()), L, float(sigma_sys_m))
+
+
+def _fill_differences(diff: NDArray[np.float64], var: NDArray[np.float64], missing: NDArray[np.bool_],
+                      grid: GridSpec, window: int = 7) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Differences of the ``missing`` cells interpolated linearly (Delaunay of the valid cells near them, nearest
+    outside their hull), with the variance of the valid differences in a ``window`` x ``window`` cells around
+    (a gap at a wall gets the spread of roof and ground)."""
+    from scipy import ndimage
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+    valid = np.isfinite(diff)
+    near = valid & ndimage.binary_dilation(missing, iterations=window)
+    if not near.any():
+        return diff, var
+    xx, yy = grid.cell_centres()
+    P = np.column_stack([xx[near], yy[near]])
+    Q = np.column_stack([xx[missing], yy[missing]])
+    try:
+        z = LinearNDInterpolator(P, diff[near])(Q)
+    except Exception:  # too few or collinear cells
+        z = np.full(len(Q), np.nan)
+    bad = ~np.isfinite(z)
+    if bad.any():
+        z[bad] = NearestNDInterpolator(P, diff[near])(Q[bad])
+    d0 = np.where(valid, diff, 0.0)
+    w = ndimage.uniform_filter(valid.astype(np.float64), window, mode="constant")
+    m1 = ndimage.uniform_filter(d0, window, mode="constant")
+    m2 = ndimage.uniform_filter(d0 * d0, window, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        local_var = np.where(w > 0, np.maximum(m2 / w - (m1 / w) ** 2, 0.0), np.nan)
+    spread = np.nanmax(local_var[missing]) if np.isfinite(local_var[missing]).any() else 0.0
+    out, v = diff.copy(), var.copy()
+    out[missing] = z
+    v[missing] = np.where(np.isfinite(local_var[missing]), local_var[missing], spread) + np.nan_to_num(var[missing])
+    return out, v
