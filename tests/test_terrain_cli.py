@@ -179,3 +179,44 @@ def test_project_stage_dtm(files, tmp_path):
     true_nd = top - scene.terrain_height(xx - E0, yy - N0)
     roof = bidx >= 0
     assert np.median(np.abs(nd[roof] - true_nd[roof])) < 0.1
+
+
+def test_dtm_cog_orthometric_like_the_dsm(tmp_path, egm96_grid):
+    """A DTM in orthometric heights (EGM96) is stated as the DSM writer states it: the compound CRS
+    UTM 31N + EGM96 height in the GeoKeys, VERTICAL_REFERENCE / GEOID tags; read back with its frame, bands and
+    mask; the nDSM of a DSM in another frame is refused."""
+    import pyproj
+    import rasterio
+
+    from skyrig.dense.grid import DsmGrid, GridSpec
+    from skyrig.errors import InputFormatError
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.io.dsm_cog import cog_problems
+    from skyrig.io.terrain_files import read_dtm_cog, write_dtm_cog
+    from skyrig.terrain.dtm import DtmGrid, normalised_dsm
+
+    frame = WorldFrame.map("EPSG:32631", str(egm96_grid))
+    g = GridSpec(500000.0, 4300000.0, 1.0, 300, 200)
+    rng = np.random.default_rng(0)
+    h = (50 + rng.normal(0, 1, g.shape)).astype(np.float32)
+    h[0, :5] = np.nan
+    src = rng.integers(0, 5, g.shape).astype(np.uint8)
+    dtm = DtmGrid(g, frame, h, np.full(g.shape, 0.05, np.float32), rng.integers(0, 9, g.shape).astype(np.int32), src,
+                  "EGM96 height", {"k": 1})
+    out = tmp_path / "dtm.tif"
+    write_dtm_cog(out, dtm)
+    assert cog_problems(out) == []
+    with rasterio.open(out) as ds:
+        crs = pyproj.CRS(ds.crs.to_wkt())
+        tags = ds.tags()
+    assert crs == pyproj.CRS("EPSG:32631+5773")
+    assert tags["VERTICAL_REFERENCE"] == "orthometric" and tags["GEOID"] == frame.geoid
+    back = read_dtm_cog(out)
+    assert back.frame == frame and back.metadata["k"] == 1
+    np.testing.assert_array_equal(back.height, h)
+    np.testing.assert_array_equal(back.source, src)
+    np.testing.assert_array_equal(back.ground_points, dtm.ground_points)
+    z = np.zeros(g.shape, np.float32)
+    ell = DsmGrid(g, WorldFrame.map("EPSG:32631"), h, np.ones(g.shape, np.int16), z, z, np.zeros(g.shape, bool))
+    with pytest.raises(InputFormatError, match="different frames"):
+        normalised_dsm(ell, back)
