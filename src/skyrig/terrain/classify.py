@@ -145,7 +145,8 @@ def _quiet_stdout() -> Iterator[None]:
         fd = sys.stdout.fileno() if sys.stdout is not None else 1
     except (AttributeError, OSError, ValueError):
         fd = 1
-    sys.stdout.flush() if sys.stdout is not None else None
+    if sys.stdout is not None:
+        sys.stdout.flush()
     saved = os.dup(fd)
     null = os.open(os.devnull, os.O_WRONLY)
     try:
@@ -219,9 +220,19 @@ def _local_shape(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius: float
     off_out = np.full(len(idx), np.nan)
     if len(idx) == 0:
         return var_out, off_out
+    from threadpoolctl import threadpool_limits
+
     tree = cKDTree(xyz)
     pad = np.vstack([xyz, np.zeros((1, 3))])
     chunk = 20000
+    with threadpool_limits(1, user_api="blas"):  # a LAPACK call per 3x3 matrix: threads only spin
+        _shape_chunks(tree, xyz, pad, idx, radius, k, chunk, var_out, off_out)
+    return var_out, off_out
+
+
+def _shape_chunks(tree, xyz: NDArray[np.float64], pad: NDArray[np.float64], idx: NDArray[np.int64], radius: float,
+                  k: int, chunk: int, var_out: NDArray[np.float64], off_out: NDArray[np.float64]) -> None:
+    """:func:`_local_shape`'s work, ``chunk`` points at a time, into ``var_out`` / ``off_out``."""
     for s in range(0, len(idx), chunk):
         d, nb = tree.query(xyz[idx[s:s + chunk]], k=min(k, len(xyz)), distance_upper_bound=radius)
         nb = np.asarray(nb).reshape(len(d), -1)
@@ -238,7 +249,6 @@ def _local_shape(xyz: NDArray[np.float64], idx: NDArray[np.int64], radius: float
         enough = m >= 5
         var_out[s:s + chunk] = np.where(enough, v, np.nan)
         off_out[s:s + chunk] = np.where(enough, np.sqrt(np.maximum(ev[:, 0], 0.0)), np.nan)
-    return var_out, off_out
 
 
 def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
