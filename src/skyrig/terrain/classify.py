@@ -15,7 +15,8 @@ Sensing 8(6):501, 2016), through its authors' own implementation, the PyPI packa
   re-implementation.
 
 CSF turns the cloud upside down and drops a cloth of ``cloth_resolution_m`` particles on it; points within
-``class_threshold_m`` of the settled cloth are ground.  Its parameters are in the cloud's units, so every function
+``class_threshold_m`` of the settled cloth are ground.  The C++ library prints its progress to the process's
+standard output; :func:`csf_ground` silences file descriptor 1 for the call (layers 0-2 print nothing).  Its parameters are in the cloud's units, so every function
 here takes coordinates in **metres** (a caller with a cloud in feet scales it first).
 
 The other classes
@@ -24,10 +25,9 @@ A rule on height above the ground (HAG, from a ground surface gridded from CSF's
 where the cloud has colours, colour (ASPRS LAS 1.4 R15 class codes):
 
 * **2 ground**: CSF's ground points; with point precisions (an image cloud's ``sigma``) also the points the filter
-  left off whose height above the ground surface is within ``ground_sigmas`` of their own precision (and
-  ``ground_max_off_m``) (CSF's
-  ``class_threshold_m`` is one distance for all points; an image cloud's noise varies from point to point);
-
+  left off whose height above the ground surface is within ``ground_sigmas`` of their own precision and within
+  ``ground_max_off_m`` (CSF's ``class_threshold_m`` is one distance for all points; an image cloud's noise varies
+  from point to point);
 * **7 low point (noise)**: isolated points (the distance to their ``noise_neighbours``-th nearest neighbour more
   than ``noise_spacing_factor`` times its median over the cloud: a test that follows the cloud's density) and
   points more than ``noise_below_m`` below the ground surface;
@@ -38,8 +38,8 @@ where the cloud has colours, colour (ASPRS LAS 1.4 R15 class codes):
   the roof).  Planar: the scatter off the local plane (32 nearest points within ``neighbourhood_m``) within
   ``planarity_sigmas`` of the points' predicted precision when the cloud has one (an image cloud), else a
   surface variation (smallest eigenvalue of the covariance / the sum) below ``planarity_max``;
-* **3 / 4 / 5 low / medium / high vegetation** (HAG below 2 m / 2-5 m / above 5 m, the split of the USGS lidar
-  base specification's examples): the rest above ``vegetation_min_height_m`` when colour says green (excess green
+* **3 / 4 / 5 low / medium / high vegetation** (HAG below 2 m / 2-5 m / above 5 m: skyrig's split, ASPRS leaves
+  the heights to the data producer): the rest above ``vegetation_min_height_m`` when colour says green (excess green
   ``(2G - R - B) / (R + G + B)`` above ``green_min``) or, without colours, when the neighbourhood is not planar;
 * **1 unclassified**: what no rule supports (cars, walls outside building patches, grey non-planar objects).
 """
