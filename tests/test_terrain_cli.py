@@ -220,3 +220,38 @@ def test_dtm_cog_orthometric_like_the_dsm(tmp_path, egm96_grid):
     ell = DsmGrid(g, WorldFrame.map("EPSG:32631"), h, np.ones(g.shape, np.int16), z, z, np.zeros(g.shape, bool))
     with pytest.raises(InputFormatError, match="different frames"):
         normalised_dsm(ell, back)
+
+
+@pytest.mark.slow
+def test_autzen_real_laser_against_the_providers_ground(tmp_path):
+    """Real airborne laser data (autzen_trim.laz, Oregon State Plane in international feet: the filter runs in
+    metres) classified by ``skyrig terrain classify`` against the data provider's ground class.  The provider's
+    class 1 holds many points at ground level (its ground class is thinned), so type II is judged on its class-1
+    points more than 1 m above its ground (a TIN of its ground points).  Measured (bench/terrain.py): type I 6.7 %,
+    that type II 4.6 %; asked: below 10 % and 8 %, and the DTM from skyrig's class within 5 cm (NMAD) of the DTM from
+    the provider's."""
+    import laspy
+    from scipy.interpolate import LinearNDInterpolator
+
+    from conftest import shared_path
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.terrain import make_dtm
+
+    src = shared_path("autzen-lidar", "autzen_trim.laz")
+    r = run("terrain", "classify", src, "-o", tmp_path / "autzen.laz")
+    assert r.exit_code == 0, r.output
+    prov = laspy.read(src)
+    got = laspy.read(tmp_path / "autzen.laz")
+    assert got.header.parse_crs() == prov.header.parse_crs()
+    truth = np.asarray(prov.classification) == 2
+    g = np.asarray(got.classification) == 2
+    xyz = np.column_stack([prov.x, prov.y, prov.z]) * 0.3048
+    hag = xyz[:, 2] - LinearNDInterpolator(xyz[truth, :2], xyz[truth, 2])(xyz[:, :2])
+    high = ~truth & (np.nan_to_num(hag) > 1.0)
+    assert np.mean(~g[truth]) < 0.10 and np.mean(g[high]) < 0.08, (np.mean(~g[truth]), np.mean(g[high]))
+    frame = WorldFrame.map("EPSG:32610")  # any metre frame for the arrays
+    a = make_dtm(xyz, np.where(g, 2, 1), frame, cell_m=1.0)
+    b = make_dtm(xyz, np.where(truth, 2, 1), frame, grid=a.grid)
+    both = (a.source == 1) & (b.source == 1)
+    e = (a.height - b.height)[both]
+    assert 1.4826 * np.median(np.abs(e - np.median(e))) < 0.05 and abs(np.median(e)) < 0.05
