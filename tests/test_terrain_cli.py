@@ -255,3 +255,47 @@ def test_autzen_real_laser_against_the_providers_ground(tmp_path):
     both = (a.source == 1) & (b.source == 1)
     e = (a.height - b.height)[both]
     assert 1.4826 * np.median(np.abs(e - np.median(e))) < 0.05 and abs(np.median(e)) < 0.05
+
+
+def test_volume_cli_epochs_and_toe_points(tmp_path):
+    """``skyrig terrain volume`` with the two other bases: a conical stockpile (r 15 m, h 5 m) on a sloped plane as
+    epoch 1 and the same pile 1 m higher as epoch 2 on a grid shifted by a fraction of a cell (``--base``): net
+    = pi r^2 / 3; and epoch 1 above its toe (``--base-points``, 12 points on a 20 m circle): V = pi r^2 h / 3."""
+    import shapely
+
+    from skyrig.dense.grid import GridSpec
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.georef.observations import GroundPoints
+    from skyrig.io.gpkg import write_gpkg
+    from skyrig.io.points_csv import write_points_csv
+    from skyrig.io.terrain_files import write_dtm_cog
+    from skyrig.terrain.dtm import DtmGrid
+
+    frame = WorldFrame.map("EPSG:25832")
+    R = 15.0
+
+    def surface(path, h, x0, y0, n):
+        g = GridSpec(x0, y0, 0.25, n, n)
+        xx, yy = g.cell_centres()
+        z = 50 + 0.01 * (xx - E0) + h * np.clip(1 - np.hypot(xx - E0, yy - N0) / R, 0, None)
+        write_dtm_cog(path, DtmGrid(g, frame, z.astype(np.float32), np.full(g.shape, 0.02, np.float32),
+                                    np.ones(g.shape, np.int32), np.ones(g.shape, np.uint8)))
+
+    surface(tmp_path / "e1.tif", 5.0, E0 - 25, N0 + 25, 200)
+    surface(tmp_path / "e2.tif", 6.0, E0 - 25.1, N0 + 25.1, 201)
+    write_gpkg(tmp_path / "pile.gpkg", {"pile": ([shapely.Point(E0, N0).buffer(19.0, 64)], {"n": [1]})},
+               "EPSG:25832")
+    r = run("terrain", "volume", "--top", tmp_path / "e2.tif", "--base", tmp_path / "e1.tif",
+            "--polygon", tmp_path / "pile.gpkg", "-o", tmp_path / "dv.json")
+    assert r.exit_code == 0, r.output
+    dv = json.loads((tmp_path / "dv.json").read_text())
+    assert abs(dv["net_m3"] - np.pi * R * R / 3) / (np.pi * R * R / 3) < 0.005, dv["net_m3"]
+    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    toe = np.column_stack([E0 + 20 * np.cos(ang), N0 + 20 * np.sin(ang), 50 + 0.01 * 20 * np.cos(ang)])
+    write_points_csv(tmp_path / "toe.csv", GroundPoints(np.array([f"t{i}" for i in range(12)]), toe, frame))
+    r = run("terrain", "volume", "--top", tmp_path / "e1.tif", "--base-points", tmp_path / "toe.csv",
+            "--polygon", tmp_path / "pile.gpkg", "-o", tmp_path / "v.json")
+    assert r.exit_code == 0, r.output
+    v = json.loads((tmp_path / "v.json").read_text())
+    v_true = np.pi * R * R * 5.0 / 3
+    assert abs(v["net_m3"] - v_true) / v_true < 0.005 and v["cut_m3"] < 1e-6 * v_true, (v["net_m3"], v_true)
