@@ -169,7 +169,10 @@ def test_project_stage_dtm(files, tmp_path):
     out = tmp_path / "stage"
     out.mkdir()
     opts = {k: v.default for k, v in STAGES["dtm"].options.items()}
-    ctx = SimpleNamespace(options=opts, need=lambda kind: dsm_dir / "dsm.tif", out=out)
+    from skyrig.pipeline.project import ExecutorSpec
+
+    ctx = SimpleNamespace(options=opts, need=lambda kind: dsm_dir / "dsm.tif", out=out,
+                          project=SimpleNamespace(executor=ExecutorSpec()), progress=lambda done, total: None)
     s = STAGES["dtm"].run(ctx)
     assert s["cells_by_source"]["building"] > 100
     assert {"classified.laz", "dtm.tif", "ndsm.tif", "dtm.json", "dtm_hillshade.png"} <= {p.name for p in out.iterdir()}

@@ -24,16 +24,29 @@ def command() -> None:
               help="Cloth rigidness: 1 steep slopes, 2 relief, 3 flat terrain.")
 @click.option("--building-min-height", type=float, default=2.0, show_default=True,
               help="Roofs stand at least this high above the ground, metres.")
-def classify(cloud, output, crs, cloth_resolution, class_threshold, rigidness, building_min_height) -> None:
+@click.option("--tile", "tile_m", type=float, default=500.0, show_default=True,
+              help="A wider cloud is classified in tiles of this side (m), each with --buffer around it.")
+@click.option("--buffer", "buffer_m", type=float, default=50.0, show_default=True,
+              help="Buffer around each tile (m); must hold the largest building.")
+@click.option("--executor", type=click.Choice(["serial", "local"]), default="serial", show_default=True,
+              help="Where tiles run: this process or local Dask worker processes (or --scheduler).")
+@click.option("--workers", type=int, default=None, help="Local worker processes.")
+@click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
+def classify(cloud, output, crs, cloth_resolution, class_threshold, rigidness, building_min_height, tile_m, buffer_m,
+             executor, workers, scheduler) -> None:
     """Classify CLOUD: ground by the cloth simulation filter (Zhang et al. 2016), then building (6), vegetation
     (3-5, where colour or shape supports it) and noise (7) by height above ground; written as ASPRS classes."""
+    from skyrig.cli.progress import tile_progress
     from skyrig.pipeline.terrain import classify_cloud_file
     from skyrig.terrain.classify import ClassRules, GroundFilter
 
-    s = classify_cloud_file(cloud, output, crs=crs,
-                            ground=GroundFilter(cloth_resolution_m=cloth_resolution,
-                                                class_threshold_m=class_threshold, rigidness=rigidness),
-                            rules=ClassRules(building_min_height_m=building_min_height))
+    with tile_progress("classification tiles") as progress:
+        s = classify_cloud_file(cloud, output, crs=crs,
+                                ground=GroundFilter(cloth_resolution_m=cloth_resolution,
+                                                    class_threshold_m=class_threshold, rigidness=rigidness),
+                                rules=ClassRules(building_min_height_m=building_min_height), tile_m=tile_m,
+                                buffer_m=buffer_m, executor=executor, workers=workers, scheduler=scheduler,
+                                progress=progress)
     click.echo(f"{s['points']} points classified in {s['seconds']:.1f} s -> {output}")
     for k, n in s["classes"].items():
         click.echo(f"  class {k}: {n}")

@@ -918,7 +918,9 @@ def _dtm(ctx: StageContext) -> dict[str, Any]:
     if not cloud.is_file():
         raise StageError("dtm", f"the dsm stage wrote no dense cloud ({cloud}): set stages.dsm.cloud: true", 2)
     c = classify_cloud_file(cloud, ctx.out / "classified.laz",
-                            ground=GroundFilter(cloth_resolution_m=o["cloth_resolution"], rigidness=o["rigidness"]))
+                            ground=GroundFilter(cloth_resolution_m=o["cloth_resolution"], rigidness=o["rigidness"]),
+                            tile_m=o["tile"], buffer_m=o["buffer"], **_executor_kw(ctx.project.executor),
+                            progress=ctx.progress)
     s = dtm_folder(ctx.out / "classified.laz", ctx.out, dsm=dsm, cell_m=o["resolution"], max_gap_m=o["max_gap"],
                    published=False)
     return {"points": c["points"], "classes": c["classes"], "cells_by_source": s["cells_by_source"]}
@@ -931,6 +933,9 @@ register_stage(Stage(
              "resolution": Option(None, "float", "DTM cell size (m); default the DSM's", nullable=True,
                                   positive=True),
              "max_gap": Option(20.0, "float", "open gaps farther than this from ground stay without data (m)",
-                               positive=True)},
+                               positive=True),
+             "tile": Option(500.0, "float", "a wider cloud is classified in tiles of this side (m)", positive=True),
+             "buffer": Option(50.0, "float", "buffer around each tile (m); holds the largest building",
+                              positive=True)},
     requires=("dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))
 

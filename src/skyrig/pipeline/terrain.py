@@ -22,21 +22,33 @@ log = logging.getLogger(__name__)
 
 
 def classify_cloud_file(src: PathLike, dst: PathLike, *, crs: str | None = None, ground: Any = None,
-                        rules: Any = None) -> dict[str, Any]:
+                        rules: Any = None, tile_m: float = 500.0, buffer_m: float = 50.0, executor: str = "serial",
+                        workers: int | None = None, scheduler: str | None = None,
+                        progress: Any = None) -> dict[str, Any]:
     """Classify the LAS/LAZ ``src`` (CSF ground + the ASPRS rule of :mod:`skyrig.terrain.classify`) into ``dst``.
 
     Coordinates in feet (or any non-metre unit) are scaled to metres for the filter, whose parameters are metres.
+    A cloud wider than ``tile_m`` is classified in tiles with a ``buffer_m`` buffer
+    (:func:`skyrig.terrain.classify.classify_tiled`), run by the :class:`skyrig.pipeline.executor.Executor` of
+    ``executor`` (``auto``: local worker processes when there are several tiles) / ``workers`` / ``scheduler``;
+    ``progress(done, total)`` follows the tiles.
     Returns a summary: points, seconds, points per class code (and name).
     """
     from skyrig.io.terrain_files import read_terrain_cloud, write_classified_cloud
-    from skyrig.terrain.classify import ASPRS_NAMES, ClassRules, GroundFilter, classify_points
+    from skyrig.pipeline.executor import Executor
+    from skyrig.terrain.classify import ASPRS_NAMES, ClassRules, GroundFilter, classify_tiled, tile_windows
 
     cloud = read_terrain_cloud(src, crs)
     h, v = cloud.metres_per_unit
     xyz_m = cloud.xyz * np.array([h, h, v])
     t0 = time.perf_counter()
-    cl = classify_points(xyz_m, cloud.rgb, ground=ground or GroundFilter(), rules=rules or ClassRules(),
-                         sigma=cloud.sigma)
+    kind = "scheduler" if scheduler else executor
+    if kind == "auto":  # worker processes only for several tiles
+        kind = "local" if len(tile_windows(xyz_m[:, :2], tile_m, buffer_m)) > 1 else "serial"
+    with Executor(kind, workers=workers, scheduler=scheduler) as ex:
+        cl = classify_tiled(xyz_m, cloud.rgb, ground=ground or GroundFilter(), rules=rules or ClassRules(),
+                            sigma=cloud.sigma, tile_m=tile_m, buffer_m=buffer_m,
+                            map_fn=lambda f, items: ex.map(f, items, desc="classification tiles", progress=progress))
     dt = time.perf_counter() - t0
     write_classified_cloud(src, dst, cl.code)
     return {"points": len(cloud), "seconds": dt, "points_per_second": len(cloud) / max(dt, 1e-9),

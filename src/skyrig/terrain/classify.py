@@ -358,3 +358,59 @@ def classify_points(xyz: NDArray[np.float64], rgb: NDArray | None = None, *,
     code[noise] = ASPRS_NOISE
     u, c = np.unique(code, return_counts=True)
     return Classification(code, hag, {int(a): int(b) for a, b in zip(u, c)})
+
+
+def tile_windows(xy: NDArray[np.float64], tile_m: float, buffer_m: float
+                 ) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Square tiles of ``tile_m`` over the points, each with a buffer of ``buffer_m``: ``[(core, buffered)]`` index
+    arrays per non-empty tile, ``core`` a subset of ``buffered`` (every point in exactly one core)."""
+    if not (np.isfinite(tile_m) and tile_m > 0 and np.isfinite(buffer_m) and buffer_m >= 0):
+        raise InputFormatError(f"tile {tile_m!r} m must be positive and buffer {buffer_m!r} m not negative",
+                               field="tile_m")
+    p = np.asarray(xy, np.float64)
+    x0, y0 = p[:, 0].min(), p[:, 1].min()
+    ti = np.floor((p[:, 0] - x0) / tile_m).astype(np.int64)
+    tj = np.floor((p[:, 1] - y0) / tile_m).astype(np.int64)
+    out = []
+    for i, j in sorted(set(zip(ti.tolist(), tj.tolist()))):
+        core = np.flatnonzero((ti == i) & (tj == j))
+        bx0, by0 = x0 + i * tile_m - buffer_m, y0 + j * tile_m - buffer_m
+        buf = np.flatnonzero((p[:, 0] >= bx0) & (p[:, 0] < bx0 + tile_m + 2 * buffer_m)
+                             & (p[:, 1] >= by0) & (p[:, 1] < by0 + tile_m + 2 * buffer_m))
+        out.append((core, buf))
+    return out
+
+
+def classify_tiled(xyz: NDArray[np.float64], rgb: NDArray | None = None, *, sigma: NDArray[np.float64] | None = None,
+                   ground: GroundFilter = GroundFilter(), rules: ClassRules = ClassRules(), tile_m: float = 500.0,
+                   buffer_m: float = 50.0, map_fn=map) -> Classification:
+    """:func:`classify_points` tile by tile (:func:`tile_windows`): each tile's points with a buffer around them are
+    classified together and the tile keeps the classes of its own points, so the work and memory of one task are
+    bounded by the buffered tile.  The buffer must hold the largest building (a roof cut by a tile's edge could
+    look like a small object, the cloth could sag into it): 50 m by default.
+
+    ``map_fn(func, items)`` runs the tiles (the built-in ``map``, or an executor's, e.g.
+    :meth:`skyrig.pipeline.executor.Executor.map`: the function and the items are picklable).
+    """
+    pts = np.asarray(xyz, np.float64)
+    wins = tile_windows(pts[:, :2], tile_m, buffer_m)
+    if len(wins) == 1:
+        return classify_points(pts, rgb, ground=ground, rules=rules, sigma=sigma)
+    items = [(pts[b], None if rgb is None else np.asarray(rgb)[b], None if sigma is None else np.asarray(sigma)[b],
+              ground, rules) for _, b in wins]
+    results = list(map_fn(_classify_item, items))
+    code = np.full(len(pts), ASPRS_UNCLASSIFIED, np.uint8)
+    hag = np.full(len(pts), np.nan)
+    for (core, buf), (c, h) in zip(wins, results):
+        pos = np.searchsorted(buf, core)  # buf is sorted and holds core
+        code[core] = c[pos]
+        hag[core] = h[pos]
+    u, n = np.unique(code, return_counts=True)
+    return Classification(code, hag, {int(a): int(b) for a, b in zip(u, n)})
+
+
+def _classify_item(item: tuple) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+    """One tile of :func:`classify_tiled` (module level: picklable for worker processes)."""
+    xyz, rgb, sigma, ground, rules = item
+    cl = classify_points(xyz, rgb, ground=ground, rules=rules, sigma=sigma)
+    return cl.code, cl.hag
