@@ -63,7 +63,8 @@ def test_classify_dtm_contours_volume(files):
         assert ds.tags()["VERTICAL_REFERENCE"] == "ellipsoidal" and ds.tags()["SKYRIG_PRODUCT"] == "dtm"
         h = ds.read(1)
         t = ds.transform
-        xs, ys = np.meshgrid(t.c + (np.arange(ds.width) + 0.5) * t.a - E0, t.f + (np.arange(ds.height) + 0.5) * t.e - N0)
+        xs, ys = np.meshgrid(t.c + (np.arange(ds.width) + 0.5) * t.a - E0,
+                             t.f + (np.arange(ds.height) + 0.5) * t.e - N0)
     ok = h != ds.nodata
     e = h[ok] - scene.terrain_height(xs[ok], ys[ok])
     assert abs(np.median(e)) < 0.02 and np.sqrt(np.mean(e ** 2)) < 0.1

@@ -120,7 +120,8 @@ def volume(top, polygon, layer, base, base_plane, base_points, correlation_lengt
 
     r = volume_file(top, polygon, output, base=base, base_plane=base_plane, base_points=base_points, layer=layer,
                     correlation_length_m=correlation_length, sigma_sys_m=sigma_sys)
-    click.echo(f"fill {r['fill_m3']:.3f} +- {r['sigma_fill_m3']:.3f} m3, cut {r['cut_m3']:.3f} +- {r['sigma_cut_m3']:.3f}"
+    click.echo(f"fill {r['fill_m3']:.3f} +- {r['sigma_fill_m3']:.3f} m3, cut {r['cut_m3']:.3f} +- "
+               f"{r['sigma_cut_m3']:.3f}"
                f" m3, net {r['net_m3']:.3f} +- {r['sigma_net_m3']:.3f} m3 over {r['area_m2']:.1f} m2 "
                f"({r['cells_interpolated']} cells without a height interpolated)")
     if output is None:

@@ -16,8 +16,9 @@ Sensing 8(6):501, 2016), through its authors' own implementation, the PyPI packa
 
 CSF turns the cloud upside down and drops a cloth of ``cloth_resolution_m`` particles on it; points within
 ``class_threshold_m`` of the settled cloth are ground.  The C++ library prints its progress to the process's
-standard output; :func:`csf_ground` silences file descriptor 1 for the call (layers 0-2 print nothing).  Its parameters are in the cloud's units, so every function
-here takes coordinates in **metres** (a caller with a cloud in feet scales it first).
+standard output; :func:`csf_ground` silences file descriptor 1 for the call (layers 0-2 print nothing).  Its
+parameters are in the cloud's units, so every function here takes coordinates in **metres** (a caller with a cloud
+in feet scales it first).
 
 The other classes
 -----------------

@@ -23,7 +23,8 @@ from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 
-__all__ = ["DtmGrid", "DTM_SOURCE", "make_dtm", "normalised_dsm", "ground_surface", "sample_surface", "sample_grid", "same_frame",
+__all__ = ["DtmGrid", "DTM_SOURCE", "make_dtm", "normalised_dsm", "ground_surface", "sample_surface", "sample_grid",
+           "same_frame",
            "SOURCE_NONE", "SOURCE_MEASURED", "SOURCE_OPEN", "SOURCE_BUILDING", "SOURCE_VEGETATION"]
 
 SOURCE_NONE, SOURCE_MEASURED, SOURCE_OPEN, SOURCE_BUILDING, SOURCE_VEGETATION = 0, 1, 2, 3, 4

@@ -2,16 +2,17 @@
 
 The surfaces are sampled on one grid (the top surface's); a cell counts when its centre lies inside the polygon
 (``shapely.contains_xy``); cells where a surface has no height (a DSM's hole at a wall) get the difference
-interpolated from the cells around, with the local spread of the differences as their variance.  With ``dz = top - base`` per cell of area ``A``: fill ``= A sum(max(dz, 0))``, cut
-``= A sum(max(-dz, 0))``, net ``= fill - cut`` (positive: material above the base).
+interpolated from the cells around, with the local spread of the differences as their variance.  With
+``dz = top - base`` per cell of area ``A``: fill ``= A sum(max(dz, 0))``, cut ``= A sum(max(-dz, 0))``, net
+``= fill - cut`` (positive: material above the base).
 
 Uncertainty
 -----------
 The heights' errors are spatially correlated over a length ``L`` (the DSM's matching window, a few cells; for a
-DTM's interpolated cells, the size of the gap).  Following Rolstad, Haug and Denby (2009, J. Glaciology 55(192),
-"Spatially integrated geodetic glacier mass balance ... regularization"), a sum over an area of cells with errors
-correlated over ``L`` has the variance of the sum of independent cells times the number of cells one correlated
-patch holds, ``max(1, pi L^2 / (5 A))``::
+DTM's interpolated cells, the size of the gap).  Following Rolstad, Haug and Denby (2009, "Spatially integrated
+geodetic glacier mass balance and its uncertainty based on geostatistical analysis", J. Glaciology 55(192)), a sum
+over an area of cells with errors correlated over ``L`` (a spherical variogram) has the variance of the sum of
+independent cells times the number of cells one correlated patch holds, ``max(1, pi L^2 / (5 A))``::
 
     var(net) = A^2 * max(1, pi L^2 / (5 A)) * sum(sigma_top^2 + sigma_base^2) + (sigma_sys * area)^2
 
