@@ -7,7 +7,9 @@ cells around the gaps, and flagged by what covered the ground there (:data:`DTM_
 nothing (a gap in the cloud).  Such a cell's predicted precision grows with its distance ``d`` to the nearest
 measured cell as ``hypot(sigma_edge, kappa * d**2 / 2)``: the error of a straight line across a gap in a terrain of
 curvature ``kappa``, with ``kappa`` the robust spread of the measured DTM's second differences over 5 cells.
-Gaps farther than ``max_gap_m`` from any ground and not covered by a building or vegetation stay without data.
+Gaps farther than ``max_gap_m`` from any ground and not covered by a building or vegetation stay without data, and
+so do open gaps outside the triangulation (no extrapolation beyond the measured ground; under a building or a tree
+at the cloud's edge the nearest measured cell's height is taken).
 
 Heights are in the cloud's frame and vertical reference (the DTM carries the frame it was given).
 """
@@ -104,10 +106,11 @@ def _cell_stats(xyz: NDArray[np.float64], grid: GridSpec, sigma: NDArray[np.floa
     return mean.reshape(shp), sig.reshape(shp), n.reshape(shp)
 
 
-def _fill(height: NDArray[np.float64], measured: NDArray[np.bool_], want: NDArray[np.bool_], grid: GridSpec
-          ) -> NDArray[np.float64]:
+def _fill(height: NDArray[np.float64], measured: NDArray[np.bool_], want: NDArray[np.bool_], grid: GridSpec,
+          extrapolate: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Heights of the ``want`` cells linearly interpolated on a Delaunay triangulation of the measured cells next to
-    the gaps (nearest measured cell outside their hull)."""
+    the gaps; outside their hull the nearest measured cell's where ``extrapolate`` allows it (default everywhere),
+    else NaN."""
     from scipy import ndimage
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
@@ -126,6 +129,8 @@ def _fill(height: NDArray[np.float64], measured: NDArray[np.bool_], want: NDArra
     except Exception:  # degenerate support (collinear cells): nearest only
         z = np.full(len(Q), np.nan)
     bad = ~np.isfinite(z)
+    if extrapolate is not None:
+        bad &= extrapolate[want]
     if bad.any():
         z[bad] = NearestNDInterpolator(P, v)(Q[bad])
     out[want] = z
@@ -248,7 +253,9 @@ def make_dtm(xyz: NDArray[np.float64], code: NDArray[np.integer], frame: WorldFr
     dist = ndimage.distance_transform_edt(~measured) * grid.cell_m
     gap = ~measured & ~under_b & ~under_v & (dist <= max_gap_m)
     want = under_b | under_v | gap
-    height = _fill(mean, measured, want, grid)
+    height = _fill(mean, measured, want, grid, extrapolate=under_b | under_v)
+    gap &= np.isfinite(height)  # an open gap is interpolated, never extrapolated beyond the measured ground
+    want = under_b | under_v | gap
     kappa = _curvature(mean, measured, grid.cell_m)
     s_edge = float(np.nanmedian(s_meas[measured]))
     sigma_out = np.where(measured, s_meas, np.where(want, np.hypot(s_edge, 0.5 * kappa * dist ** 2), np.nan))
