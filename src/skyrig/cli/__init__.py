@@ -55,6 +55,8 @@ COMMANDS: dict[str, CommandEntry] = {
                         "Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images"),
     "ortho": CommandEntry("skyrig.cli.ortho:command",
                           "True orthomosaic (COG) of oriented images on a DSM: occlusion, seamlines, balance, blend."),
+    "terrain": CommandEntry("skyrig.cli.terrain:command",
+                            "Terrain products: ground classification, DTM + nDSM, contours, cut/fill volumes."),
     "facades": CommandEntry("skyrig.cli.facades:command", "Façade textures and a textured 3D model (GLB, OBJ, viewer) of a DSM's buildings."),
     "plane-mosaic": CommandEntry("skyrig.cli.plane_mosaic:command",
                                  "Oriented images projected onto one plane and the offsets across its seams (Fig. 9 check)."),

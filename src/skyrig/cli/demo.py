@@ -299,6 +299,7 @@ def command(outdir: str | None, output: str | None) -> None:
                f"injected {hb['injected']:.3f} deg")
     if abs(hb["estimated"] - hb["injected"]) > 0.2 or fig["corrected"]["c2c_rms_m"] > fig["gnss_heights"]["c2c_rms_m"]:
         raise click.ClickException("demo checks FAILED (lidar)")
+    _terrain_step(outdir)
     _determinability_step()
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")
 
@@ -473,3 +474,62 @@ def _determinability_step() -> None:
             ok &= (not v["held"]) and abs(z) < 3
     if not ok:
         raise click.ClickException("demo checks FAILED (self-calibration determinability)")
+
+
+def _terrain_step(outdir: str | Path) -> None:
+    """Issue 31 on the simulated town: the dense cloud classified (cloth simulation filter + ASPRS rule), the DTM on
+    the DSM's grid, contours, and a building's volume above the DTM, each judged against the scene's truth (its
+    analytic bare earth and building footprints): open-ground DTM NMAD <= 1 GSD and |bias| <= 0.3 GSD, ground class
+    error <= 5 %, building recall >= 90 %, the building's volume within 3 predicted sigmas of the scene's."""
+    import json
+
+    import laspy
+    import shapely
+
+    from skyrig.io.dense_laz import read_dense_cloud
+    from skyrig.io.gpkg import write_gpkg
+    from skyrig.io.terrain_files import read_dtm_cog
+    from skyrig.simulate.judge_terrain import building_volume_truth, footprint_polygon_map, judge_classes, judge_dtm
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    click.echo("\n=== terrain (issue 31): skyrig terrain classify / dtm / contours / volume on the simulated town, "
+               "judged against the scene's bare earth, footprints and building volumes ===")
+    sim_dir = Path(outdir) / "simulated"
+    dsm_dir, out = sim_dir / "output" / "dsm", sim_dir / "output" / "terrain"
+    survey = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    scene, area = survey.scene, survey.spec.flights[0].area
+    gsd = json.loads((dsm_dir / "dense.json").read_text())["stats"]["gsd_m"]
+    _run(["terrain", "classify", str(dsm_dir / "cloud.laz"), "-o", str(out / "classified.laz")])
+    _run(["terrain", "dtm", str(out / "classified.laz"), "--dsm", str(dsm_dir / "dsm.tif"), "-o", str(out / "dtm")])
+    _run(["terrain", "contours", str(out / "dtm" / "dtm.tif"), "--interval", "0.5", "-o", str(out / "contours.gpkg")])
+    dtm = read_dtm_cog(out / "dtm" / "dtm.tif")
+    jd = judge_dtm(dtm, scene, gsd, area)
+    cl = read_dense_cloud(out / "classified.laz")
+    code = np.asarray(laspy.read(out / "classified.laz").classification)
+    jc = judge_classes(cl.xyz, code, cl.frame, scene, gsd, area)
+    # the largest building wholly inside the block: its volume above the DTM within its footprint + 1 m
+    b = scene.buildings
+    inner = [i for i in range(len(b)) if area[0] + 5 < b.cx[i] - b.hl[i] - b.hw[i] and b.cx[i] + b.hl[i] + b.hw[i]
+             < area[2] - 5 and area[1] + 5 < b.cy[i] - b.hl[i] - b.hw[i] and b.cy[i] + b.hl[i] + b.hw[i] < area[3] - 5]
+    i = max(inner, key=lambda k: b.hl[k] * b.hw[k])
+    poly = shapely.Polygon(footprint_polygon_map(scene, i, dtm.frame, margin_m=1.0))
+    write_gpkg(out / "building.gpkg", {"building": ([poly], {"building": [i]})}, dtm.frame.crs)
+    _run(["terrain", "volume", "--top", str(dsm_dir / "dsm.tif"), "--base", str(out / "dtm" / "dtm.tif"),
+          "--polygon", str(out / "building.gpkg"), "-o", str(out / "volume.json")])
+    v = json.loads((out / "volume.json").read_text())
+    v_true = building_volume_truth(scene, i, margin_m=1.0)
+    o, u = jd["open"], jd["under_buildings"]
+    click.echo(f"DTM ({dtm.grid.cell_m:.3f} m cells) vs the true bare earth: open ground NMAD {o['nmad_gsd']:.2f} GSD, "
+               f"bias {o['bias_gsd']:+.2f} GSD, RMSE {o['rmse_m']:.3f} m (n={o['valid']}); under buildings RMSE "
+               f"{u['rmse_m']:.3f} m, bias {u['bias_m']:+.3f} m (n={u['valid']}, {jd['footprint_flagged'] * 100:.1f} % "
+               f"flagged)")
+    click.echo(f"classes vs the scene ({jc['points_judged']} points): ground class error "
+               f"{jc['ground_class_error'] * 100:.2f} % (type I {jc['ground_type1'] * 100:.2f} %, type II "
+               f"{jc['ground_type2'] * 100:.2f} %), building recall {jc['building_recall'] * 100:.1f} %, precision "
+               f"{jc['building_precision'] * 100:.1f} %")
+    dv = v["net_m3"] - v_true
+    click.echo(f"building {i}: volume above the DTM {v['net_m3']:.1f} +- {v['sigma_net_m3']:.1f} m3, scene "
+               f"{v_true:.1f} m3 ({dv / v_true * 100:+.2f} %, {dv / v['sigma_net_m3']:+.2f} sigma)")
+    if not (o["nmad_gsd"] <= 1.0 and abs(o["bias_gsd"]) <= 0.3 and jc["ground_class_error"] <= 0.05
+            and jc["building_recall"] >= 0.9 and abs(dv) <= 3 * v["sigma_net_m3"]):
+        raise click.ClickException("demo checks FAILED (terrain)")

@@ -64,6 +64,7 @@ __all__ = [
     "frame_from_file_crs",
     "vertical_crs_of_geoid",
     "write_dsm_cog",
+    "write_bands_cog",
     "read_dsm_cog",
     "write_hillshade_png",
     "hillshade",
@@ -140,14 +141,27 @@ def write_dsm_cog(path: PathLike, dsm: DsmGrid, *, overviews: bool = True, block
     InputFormatError
         On a bad block size.
     """
+    bands = {"height": dsm.height, "support": dsm.support, "spread": dsm.spread, "sigma": dsm.sigma,
+             "filled": dsm.filled}
+    write_bands_cog(path, dsm.grid, dsm.frame, [(n, bands[n], _UNITS[n]) for n in DSM_BANDS],
+                    vertical_reference=dsm.vertical_reference, metadata=dsm.metadata, overviews=overviews,
+                    blocksize=blocksize)
+
+
+def write_bands_cog(path: PathLike, grid: GridSpec, frame, bands: list[tuple[str, NDArray, str]], *,
+                    vertical_reference: str = "", metadata: dict | None = None, overviews: bool = True,
+                    blocksize: int | None = None, extra_tags: dict[str, str] | None = None) -> None:
+    """Write float32 bands ``[(description, (rows, cols) array, unit)]`` on ``grid`` as a COG in ``frame``'s CRS
+    with the vertical reference stated as the module docstring describes (the layout and tags of
+    :func:`write_dsm_cog`, which calls it); no-data :data:`DSM_NODATA` (NaN is written as it)."""
     import rasterio
     from affine import Affine
     from rasterio.crs import CRS as RioCRS
     from rasterio.io import MemoryFile
     from rasterio.shutil import copy as rio_copy
 
-    fc = file_crs(dsm.frame)
-    rows, cols = dsm.grid.shape
+    fc = file_crs(frame)
+    rows, cols = grid.shape
     if blocksize is None:
         blocksize = 256 if max(rows, cols) < 4096 else 512
     if blocksize not in (256, 512):
@@ -157,36 +171,31 @@ def write_dsm_cog(path: PathLike, dsm: DsmGrid, *, overviews: bool = True, block
         "VERTICAL_REFERENCE": fc.kind,
         "VERTICAL_CRS": fc.vertical_words,
         "CRS_3D_WKT": fc.full.to_wkt(),
-        "SKYRIG_VERTICAL_REFERENCE": dsm.vertical_reference or fc.vertical_words,
-        "SKYRIG_METADATA": json.dumps(dsm.metadata, default=str, sort_keys=True),
+        "SKYRIG_VERTICAL_REFERENCE": vertical_reference or fc.vertical_words,
+        "SKYRIG_METADATA": json.dumps(metadata or {}, default=str, sort_keys=True),
         "AREA_OR_POINT": "Area",
+        **(extra_tags or {}),
     }
     if fc.geoid:
         tags["GEOID"] = fc.geoid
-
-    def fl(a: NDArray) -> NDArray[np.float32]:
+    data = []
+    for name, a, _ in bands:
         a = np.asarray(a, np.float32)
-        return np.where(np.isfinite(a), a, np.float32(DSM_NODATA)).astype(np.float32)
-
-    bands = {
-        "height": fl(dsm.height),
-        "support": np.asarray(dsm.support, np.float32),
-        "spread": fl(dsm.spread),
-        "sigma": fl(dsm.sigma),
-        "filled": np.asarray(dsm.filled, np.float32),
-    }
-    profile = dict(driver="GTiff", width=cols, height=rows, count=len(DSM_BANDS), dtype="float32",
-                   nodata=DSM_NODATA, crs=RioCRS.from_wkt(geokeys_crs.to_wkt()), transform=Affine(*dsm.grid.transform))
+        if a.shape != (rows, cols):
+            raise InputFormatError(f"band {name!r} is {a.shape}, the grid {(rows, cols)}", path, field=name)
+        data.append(np.where(np.isfinite(a), a, np.float32(DSM_NODATA)).astype(np.float32))
+    profile = dict(driver="GTiff", width=cols, height=rows, count=len(bands), dtype="float32",
+                   nodata=DSM_NODATA, crs=RioCRS.from_wkt(geokeys_crs.to_wkt()), transform=Affine(*grid.transform))
     cog_options = dict(BLOCKSIZE=str(blocksize), COMPRESS="DEFLATE", PREDICTOR="YES", BIGTIFF="IF_SAFER",
                        OVERVIEWS="AUTO" if overviews else "NONE", OVERVIEW_RESAMPLING="NEAREST")
     with _atomic_target(path, ".tif") as tmp:
         # PAM off: everything must be inside the .tif, never in a side-car a COG copy would lose
         with rasterio.Env(GDAL_PAM_ENABLED="NO"), MemoryFile() as mem:
             with mem.open(**profile) as src:
-                for i, name in enumerate(DSM_BANDS, start=1):
-                    src.write(bands[name], i)
+                for i, ((name, _, _), a) in enumerate(zip(bands, data), start=1):
+                    src.write(a, i)
                     src.set_band_description(i, name)
-                src.units = tuple(_UNITS[n] for n in DSM_BANDS)
+                src.units = tuple(u for _, _, u in bands)
                 src.update_tags(**tags)
             with mem.open() as src:
                 rio_copy(src, tmp, driver="COG", **cog_options)

@@ -910,3 +910,37 @@ register_stage(Stage(
              "refine": Option(True, "bool", "move DSM-extracted walls onto the roof outline seen in the images")},
     requires=("eo", "dsm"), uses=("ortho", "cameras"), provides={"model": "model.glb"}, inputs=_facades_inputs,
     check=_product_check("facades")))
+
+
+def _dtm(ctx: StageContext) -> dict[str, Any]:
+    """Classify the dsm stage's dense cloud (cloth simulation filter + ASPRS rule) and grid the DTM on its grid."""
+    from skyrig.pipeline.terrain import classify_cloud_file, dtm_folder
+    from skyrig.terrain.classify import GroundFilter
+
+    o = ctx.options
+    dsm = ctx.need("dsm")
+    cloud = dsm.parent / "cloud.laz"
+    if not cloud.is_file():
+        raise StageError("dtm", f"the dsm stage wrote no dense cloud ({cloud}): set stages.dsm.cloud: true", 2)
+    c = classify_cloud_file(cloud, ctx.out / "classified.laz",
+                            ground=GroundFilter(cloth_resolution_m=o["cloth_resolution"], rigidness=o["rigidness"]),
+                            tile_m=o["tile"], buffer_m=o["buffer"], **_executor_kw(ctx.project.executor),
+                            progress=ctx.progress)
+    s = dtm_folder(ctx.out / "classified.laz", ctx.out, dsm=dsm, cell_m=o["resolution"], max_gap_m=o["max_gap"],
+                   published=False)
+    return {"points": c["points"], "classes": c["classes"], "cells_by_source": s["cells_by_source"]}
+
+
+register_stage(Stage(
+    "dtm", "Terrain: ASPRS classes of the dense cloud (classified.laz), DTM with mask, nDSM, hillshade.", _dtm,
+    options={"cloth_resolution": Option(1.0, "float", "cloth simulation filter: cloth spacing (m)", positive=True),
+             "rigidness": Option(2, "int", "cloth rigidness: 1 steep, 2 relief, 3 flat", positive=True),
+             "resolution": Option(None, "float", "DTM cell size (m); default the DSM's", nullable=True,
+                                  positive=True),
+             "max_gap": Option(20.0, "float", "open gaps farther than this from ground stay without data (m)",
+                               positive=True),
+             "tile": Option(500.0, "float", "a wider cloud is classified in tiles of this side (m)", positive=True),
+             "buffer": Option(50.0, "float", "buffer around each tile (m); holds the largest building",
+                              positive=True)},
+    requires=("dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))
+
