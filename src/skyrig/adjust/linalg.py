@@ -31,9 +31,11 @@ CPython 3.11, so neither installs with pip alone on a fresh machine.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -67,6 +69,23 @@ DENSE_LIMIT = 1500
 MEMORY_LIMIT = None
 #: a predicted factorisation above this many flops makes "auto" choose PCG (about a minute on one core)
 FLOP_LIMIT = 3e12
+
+
+def _blas_single_thread() -> contextlib.AbstractContextManager[Any]:
+    """Context: BLAS on one thread (threadpoolctl when installed).  OpenBLAS's threads busy-wait for each
+    other; on a loaded machine a small factorisation then takes 100x longer than on one thread."""
+    global _TPC
+    try:
+        if _TPC is None:
+            from threadpoolctl import ThreadpoolController
+
+            _TPC = ThreadpoolController()
+        return _TPC.limit(limits=1, user_api="blas")
+    except Exception:  # pragma: no cover - threadpoolctl missing or failing
+        return contextlib.nullcontext()
+
+
+_TPC: Any = None
 
 
 class NotPositiveDefinite(ArithmeticError):
@@ -226,8 +245,6 @@ class ReducedSolver:
         return self._splu(vals, b)
 
     def _dense(self, vals: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        from skyrig.adjust.solver import _blas_single_thread
-
         A = np.zeros((self.n, self.n))
         A[self.rows, self.indices] = vals
         try:

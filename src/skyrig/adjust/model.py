@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
-from skyrig.adjust.factors.base import Factor, whitening_matrices
+from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
 
@@ -92,15 +92,6 @@ class State:
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
                      self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
                      None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy())
-
-
-def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
-    """Actuator corrections ``(H, width)``: ``a`` cut or padded with zeros (higher Fourier orders)."""
-    out = np.zeros((n_heads, width))
-    if a is not None and a.size:
-        w = min(width, a.shape[1])
-        out[:, :w] = a[:, :w]
-    return out
 
 
 @dataclass

@@ -62,6 +62,7 @@ except ImportError:  # pragma: no cover - depends on the environment
     _cholespy = None
 
 from skyrig.adjust import linalg as _linalg
+from skyrig.adjust.linalg import _blas_single_thread
 
 #: the reduced solver of :func:`solve_reduced` when called with ``method="auto"`` (the statistics):
 #: ``"auto"`` (dense up to 400 unknowns, CHOLMOD through cvxopt above, SuperLU without cvxopt) or a
@@ -73,24 +74,6 @@ __all__ = ["Normal", "SolveInfo", "SchurEngine", "assemble", "solve_reduced", "l
 
 HAVE_CHOLMOD = _linalg.HAVE_CVXOPT_CHOLMOD
 
-
-def _blas_single_thread():  # type: ignore[no-untyped-def]
-    """Context: BLAS on one thread (threadpoolctl when installed).  OpenBLAS's threads busy-wait for each
-    other; on a loaded machine a small factorisation then takes 100x longer than on one thread."""
-    global _TPC
-    try:
-        if _TPC is None:
-            from threadpoolctl import ThreadpoolController
-
-            _TPC = ThreadpoolController()
-        return _TPC.limit(limits=1, user_api="blas")
-    except Exception:  # pragma: no cover - threadpoolctl missing or failing
-        import contextlib
-
-        return contextlib.nullcontext()
-
-
-_TPC = None
 DENSE_LIMIT = 4000
 
 

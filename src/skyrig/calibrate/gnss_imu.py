@@ -131,7 +131,7 @@ class FlightData:
 def flight_data_from_survey(survey: Any) -> FlightData:
     """The recorded flight of a simulated survey (:func:`skyrig.simulate.scenarios.build_survey`) as the recipe's
     input, in memory: what ``skyrig simulate`` writes (control in the scenario's GCP CRS with geoid heights)."""
-    from skyrig.pipeline.simulate import find_geoid
+    from skyrig.geodesy.geoid_grid import find_geoid
 
     spec = survey.spec
     geoid = find_geoid() if spec.gcp_geoid == "auto" else spec.gcp_geoid

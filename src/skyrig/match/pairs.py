@@ -221,7 +221,7 @@ def footprint_pairs(
 def image_strips(eo: ExteriorOrientations) -> NDArray[np.int64]:
     """Flight strip of every image (``-1``: unknown), for :func:`budget_pairs`.
 
-    Strips come from :func:`skyrig.orient.strips.detect_strips` on the exposures in time order (one position
+    Strips come from :func:`skyrig.trajectory.strips.detect_strips` on the exposures in time order (one position
     per exposure, the mean of its images' centres; the exposures are ``eo.exposure``, else the images that share
     an event time).  Without event times every image gets ``-1``.
     """
@@ -233,7 +233,7 @@ def image_strips(eo: ExteriorOrientations) -> NDArray[np.int64]:
     ok = np.isfinite(t)
     if ok.sum() < 3:
         return strip
-    from skyrig.orient.strips import detect_strips
+    from skyrig.trajectory.strips import detect_strips
 
     key = np.asarray(eo.exposure)[ok] if eo.exposure is not None else t[ok]
     _, ex = np.unique(key, return_inverse=True)

@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from skyrig.errors import SkyrigError
-from skyrig.pipeline.project import ExecutorSpec, Option, Project, StageSpec
+from skyrig.pipeline.spec import ExecutorSpec, Option, Project, StageSpec
 
 logger = logging.getLogger(__name__)
 

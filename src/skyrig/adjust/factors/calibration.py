@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from skyrig.adjust.factors import register
-from skyrig.adjust.factors.base import Factor
+from skyrig.adjust.factors.base import Factor, pad_actuator
 from skyrig.adjust.factors.prior import PriorType, prior_factor
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -25,8 +25,6 @@ class CalibrationPrior(PriorType):
     order = 101.0
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
-        from skyrig.adjust.model import pad_actuator
-
         cfg, lay, s0, b = model.config, model.layout, model.initial, model.block
         out: list[Factor] = []
         if cfg.intrinsics == "weighted":

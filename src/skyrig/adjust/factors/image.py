@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from skyrig.adjust.factors import register
 from skyrig.adjust.factors.image_grid import bilinear_weights, grids_of
 from skyrig.adjust.factors.base import (
+    BalCamera,
     BlockError,
     Factor,
     ObservationType,
@@ -185,8 +186,6 @@ class Image(ObservationType):
                              f"image {str(block.image_name[k // block.n_points])!r}")
 
     def prepare(self, model: "Model") -> ImageCache:
-        from skyrig.adjust.block import BalCamera
-
         b, lay = model.block, model.layout
         W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         red_cols = red_rows = red_idx = None
