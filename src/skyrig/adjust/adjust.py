@@ -37,18 +37,11 @@ from skyrig.adjust.stats import (
     describe_null_space,
     row_cofactors,
 )
+from skyrig.errors import BlockError, DatumDefectError  # noqa: F401 - DatumDefectError re-exported
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["adjust", "AdjustmentResult", "Rejection", "DatumDefectError"]
-
-
-class DatumDefectError(SingularError):
-    """The block is rank deficient; ``reasons`` says why in words."""
-
-    def __init__(self, reasons: list[str]) -> None:
-        self.reasons = reasons
-        super().__init__("; ".join(reasons) if reasons else "the normal equations are singular")
 
 
 @dataclass
@@ -361,12 +354,12 @@ def _start_state(initial: State, start: Block) -> State:
     for name in ("R", "C", "bore", "lever", "shift", "sshift", "sdrift", "X", "act", "grid"):
         u, v = getattr(a, name), getattr(b, name)
         if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
-            raise ValueError(f"start: its {name} unknowns do not correspond to the block's "
+            raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
-        raise ValueError("start: its cameras' intrinsics do not correspond to the block's")
+        raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
     if not all(np.isfinite(v).all() for v in (b.R, b.C, b.X, *b.intr)):
-        raise ValueError("start: non-finite starting values")
+        raise BlockError("start: non-finite starting values")
     return b
 
 

@@ -42,6 +42,8 @@ import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from skyrig.errors import ConfigError, NotPositiveDefinite  # noqa: F401 - NotPositiveDefinite re-exported
+
 logger = logging.getLogger(__name__)
 
 try:  # SuiteSparse CHOLMOD (supernodal, OpenBLAS) as the cvxopt wheels ship it
@@ -86,10 +88,6 @@ def _blas_single_thread() -> contextlib.AbstractContextManager[Any]:
 
 
 _TPC: Any = None
-
-
-class NotPositiveDefinite(ArithmeticError):
-    """The (scaled) reduced matrix is not numerically positive definite."""
 
 
 def _physical_memory() -> int:
@@ -193,7 +191,7 @@ class ReducedSolver:
                  dense_limit: int = DENSE_LIMIT, blocks: NDArray[np.int64] | None = None,
                  memory_limit: float | None = None, flop_limit: float | None = None) -> None:
         if method not in ("auto", "dense", "cholmod", "splu", "pcg", "cholespy"):
-            raise ValueError(f"linear solver must be auto, dense, cholmod, splu, pcg or cholespy, got {method!r}")
+            raise ConfigError(f"linear solver must be auto, dense, cholmod, splu, pcg or cholespy, got {method!r}")
         self.indptr = np.asarray(indptr, np.int64)
         self.indices = np.asarray(indices, np.int64)
         self.n = n = len(self.indptr) - 1

@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.errors import SkyrigError
+from skyrig.errors import ConfigError, SingularError, SkyrigError  # noqa: F401 - SingularError re-exported
 
 logger = logging.getLogger(__name__)
 
@@ -75,10 +75,6 @@ __all__ = ["Normal", "SolveInfo", "SchurEngine", "assemble", "solve_reduced", "l
 HAVE_CHOLMOD = _linalg.HAVE_CVXOPT_CHOLMOD
 
 DENSE_LIMIT = 4000
-
-
-class SingularError(SkyrigError, ArithmeticError):
-    """The normal equations are singular (datum defect, unobservable parameter)."""
 
 
 @dataclass
@@ -741,7 +737,7 @@ class SchurEngine:
     @staticmethod
     def _check_solver(linear_solver: str) -> None:
         if linear_solver not in ("auto", "dense", "splu", "cholmod", "cholespy", "pcg"):
-            raise ValueError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
+            raise ConfigError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
 
     # ------------------------------------------------------------------ per linearisation
     def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
@@ -1014,7 +1010,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
-        raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
+        raise ConfigError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
     cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost
     factors = None  # type: ignore[assignment]  # the engine keeps what it needs: the Jacobians go

@@ -18,6 +18,7 @@ from skyrig.adjust.block import Block
 from skyrig.camera.frame import FrameCamera
 from skyrig.geometry.rotations import matrix_from_rotvec
 from skyrig.rig.rig import Rig
+from skyrig.errors import ConfigError
 
 __all__ = ["SyntheticTruth", "synthetic_block"]
 
@@ -145,7 +146,7 @@ def synthetic_block(
     img_station = np.repeat(np.arange(S), nh)
     img_head = np.tile(np.arange(nh), S)
     if any(actuated) and beta_rad is None:
-        raise ValueError("synthetic_block: the rig has actuated heads; give beta_rad (one angle per station)")
+        raise ConfigError("synthetic_block: the rig has actuated heads; give beta_rad (one angle per station)")
     img_beta = np.full(len(img_head), np.nan)
     img_rot = np.empty((len(img_head), 3, 3))
     true_rot = np.empty((len(img_head), 3, 3))

@@ -156,7 +156,7 @@ from skyrig.adjust.presets import PRESETS, apply_preset
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.adjust.stats import sidak_z
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
-from skyrig.errors import SkyrigError
+from skyrig.errors import CalqcFailed, ConfigError, SkyrigError  # noqa: F401 - CalqcFailed re-exported
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.rotations import rotvec_from_matrix
@@ -175,10 +175,6 @@ __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "Cor
 #: the interior orientation CalQC unlocks: principal distance and principal point (PPAC)
 IO_PARAMETERS = ("focal_mm", "ppx_mm", "ppy_mm")
 VARIANTS = ("ba-eo-control", "dg-control", "refine-eo-check")
-
-
-class CalqcFailed(SkyrigError):
-    """A step of the recipe did not converge or its result cannot be trusted."""
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -1515,7 +1511,7 @@ def calibrate_calqc(
     grid, the uncertainty of the grid's fitted covariance function (``grid_fit_draws`` bootstrap fits) is propagated
     into the calibration covariance (:func:`grid_hyperparameter_covariance`); 0: the function is taken as known."""
     if grid_method not in ("joint", "cycles"):
-        raise ValueError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
+        raise ConfigError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
     rig = data.rig
     sig_px = float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0)
     imu_sig = tuple(float(np.radians(v)) for v in imu_sigma_deg)

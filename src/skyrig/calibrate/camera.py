@@ -39,7 +39,7 @@ from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.camera.distortion import Distortion, distortion_class
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import SkyrigError
+from skyrig.errors import CalibrationError, SkyrigError  # noqa: F401 - CalibrationError re-exported
 
 logger = logging.getLogger(__name__)
 
@@ -47,10 +47,6 @@ __all__ = ["CameraCalibration", "CalibrationError", "calibrate_camera", "dlt_pos
 
 #: from skyrig's camera frame (x right, y up, z back) to the computer-vision one (x right, y down, z forward)
 _CV_FROM_CAMERA = np.diag([1.0, -1.0, -1.0])
-
-
-class CalibrationError(SkyrigError, ValueError):
-    """A calibration cannot be computed or must not be trusted (the message says why)."""
 
 
 @dataclass

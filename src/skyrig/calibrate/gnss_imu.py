@@ -66,7 +66,7 @@ from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.frames import eo_from_block
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
-from skyrig.errors import SkyrigError
+from skyrig.errors import CalibrationFailed, SkyrigError  # noqa: F401 - CalibrationFailed re-exported
 from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.geodesy.local import ecef_from_ned_rotation
 from skyrig.georef.direct import direct_georeference
@@ -89,10 +89,6 @@ MGON = GON / 1000.0
 #: shift moves the two opposite strips' projection centres across the track in opposite directions (in a
 #: simulated test 1.2 m), which the strip shifts absorb, and the principal distance trades with the heights.
 SELF_CALIBRATION = (("focal_mm", 0.005), ("ppx_mm", 0.005), ("ppy_mm", 0.005))
-
-
-class CalibrationFailed(SkyrigError):
-    """An adjustment of the recipe did not converge or cannot be trusted."""
 
 
 # ------------------------------------------------------------------------------------------------ inputs

@@ -28,6 +28,7 @@ from skyrig.geometry.rotations import rpy_from_matrix
 from skyrig.rig.rig import Rig
 from skyrig.trajectory.events import CameraEvents, interpolate_events
 from skyrig.trajectory.trajectory import Trajectory
+from skyrig.errors import ConfigError
 
 
 def _per_head(rig: Rig, head: NDArray[np.str_], beta_rad: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
@@ -148,7 +149,7 @@ def inverse_georeference(
     """
     heads = np.asarray(eo.head if head is None else head, dtype=str)
     if heads.shape != (len(eo),):
-        raise ValueError("inverse georeferencing needs the head of every image (eo.head or head=)")
+        raise ConfigError("inverse georeferencing needs the head of every image (eo.head or head=)")
     beta = beta_rad if beta_rad is not None else eo.extra.get("beta_rad", np.full(len(eo), np.nan))
     beta = np.asarray(beta, dtype=np.float64)
     ecef = eo.to_frame(WorldFrame.ecef())

@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.errors import SkyrigError
+from skyrig.errors import SkyrigError, TransferError  # noqa: F401 - TransferError re-exported
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.rotations import matrix_from_quaternion, quaternion_from_matrix, slerp
 from skyrig.rig.boresight_curve import BoresightCurve
@@ -55,10 +55,6 @@ CurveChoice = BoresightCurve | Literal["rig"] | None
 
 #: How each transferred image's body pose was found (``extra["transfer_method"]`` codes).
 METHODS: tuple[str, ...] = ("simultaneous", "interpolated", "trajectory")
-
-
-class TransferError(SkyrigError, ValueError):
-    """An oblique orientation cannot be transferred (no adjusted nadir exposure near it, unknown image...)."""
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from skyrig.camera.frame import FrameCamera, intersect_rays_with_surface
-from skyrig.errors import GeometryError
+from skyrig.errors import ConfigError, GeometryError
 from skyrig.georef.eo import ExteriorOrientations
 
 HeightFunction = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
@@ -296,7 +296,7 @@ def budget_pairs(
     if not max_per_image or len(p) == 0:
         return np.ones(len(p), bool)
     if max_per_image < 1:
-        raise ValueError(f"max_per_image must be >= 1 (or 0 / None for all pairs), not {max_per_image}")
+        raise ConfigError(f"max_per_image must be >= 1 (or 0 / None for all pairs), not {max_per_image}")
     n = int(n_images)
     keep = np.zeros(len(p), bool)
     # 1. maximum spanning forest: minimum spanning tree of weights 2 - overlap (> 0, so that no edge vanishes)

@@ -15,6 +15,7 @@ import numpy as np
 from skyrig.adjust.factors import register
 from skyrig.adjust.factors.base import Factor, pad_actuator
 from skyrig.adjust.factors.prior import PriorType, prior_factor
+from skyrig.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
@@ -36,7 +37,7 @@ class CalibrationPrior(PriorType):
                 names = [n for n, o in zip(cam.intrinsic_names, on) if o]
                 missing = [n for n in names if n not in sig_of]
                 if missing:
-                    raise ValueError(f"intrinsics are 'weighted' but intrinsic_sigma lacks {missing}")
+                    raise ConfigError(f"intrinsics are 'weighted' but intrinsic_sigma lacks {missing}")
                 out.append(prior_factor(f"intrinsics:{cam.name}", (s.intr[j] - s0.intr[j])[on][None],
                                         lay.intr[j][on][None], np.array([sig_of[n] for n in names]), jac))
         for grp, cur, ini, cols, sig in (
