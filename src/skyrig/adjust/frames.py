@@ -19,6 +19,7 @@ from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.ground import forward_intersection
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.rig.camera_pose import world_from_camera
 
 __all__ = ["local_frame_at", "block_from_georef", "eo_from_block", "points_to_frame"]
 
@@ -159,9 +160,10 @@ def eo_from_block(block: Block, frame: WorldFrame, to: WorldFrame | None = None)
     """Exterior orientations of the block's images (``world_from_camera``) in ``frame``, optionally converted."""
     from skyrig.geometry.rotations import matrix_from_rotvec
 
-    Rs = block.station_rotation[block.image_station]
-    R = Rs @ block.image_rotation @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
-    C = block.station_centre[block.image_station] + np.einsum("nij,nj->ni", Rs, block.image_offset)
+    st = block.image_station
+    R, C = world_from_camera(block.station_rotation[st], block.station_centre[st], block.image_rotation,
+                             block.image_offset)
+    R = R @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
     cams = np.array([block.cameras[c].name for c in block.image_camera])
     eo = ExteriorOrientations(block.image_name, cams, C, R, frame)
     return eo if to is None else eo.to_frame(to)

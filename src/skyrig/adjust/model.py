@@ -42,6 +42,7 @@ from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
 from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
+from skyrig.rig.camera_pose import world_from_camera
 
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
@@ -399,8 +400,8 @@ class Model:
             M[self._act_images] = self.actuated_mounts(s)[0]
         if self._bore_on or np.any(s.bore):
             M = M @ _expmap(s.bore[b.image_head])
-        Rs = s.R[st]
-        return Rs @ M, s.C[st] + np.einsum("nij,nj->ni", Rs, b.image_offset), M
+        R, C = world_from_camera(s.R[st], s.C[st], M, b.image_offset)  # station = platform pose, M its mounting
+        return R, C, M
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, s: State, jacobians: bool = True) -> list[Factor]:

@@ -16,9 +16,10 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.block import Block
 from skyrig.camera.frame import FrameCamera
-from skyrig.geometry.rotations import matrix_from_rotvec
-from skyrig.rig.rig import Rig
 from skyrig.errors import ConfigError
+from skyrig.geometry.rotations import matrix_from_rotvec
+from skyrig.rig.camera_pose import antenna_from_body_origin, world_from_camera
+from skyrig.rig.rig import Rig
 
 __all__ = ["SyntheticTruth", "synthetic_block"]
 
@@ -162,8 +163,8 @@ def synthetic_block(
             true_rot[sel] = heads[h][2] if rig is None else true_objs[h].body_from_camera_rotation()  # type: ignore[union-attr]
     img_off = np.array([heads[h][3] for h in img_head])
     names = np.array([f"s{s:04d}_{heads[h][0]}" for s, h in zip(img_station, img_head)])
-    Rc = R[img_station] @ true_rot @ matrix_from_rotvec(bore[img_head])
-    Cc = C[img_station] + np.einsum("nij,nj->ni", R[img_station], img_off)
+    Rc, Cc = world_from_camera(R[img_station], C[img_station], true_rot, img_off)
+    Rc = Rc @ matrix_from_rotvec(bore[img_head])
     oi, op, px = [], [], []
     for i in range(len(names)):  # loop over images only (tens to thousands), vectorised over points
         camt = true_cams[img_head[i]]
@@ -199,7 +200,7 @@ def synthetic_block(
     if any(actuated):
         block_kw.update(image_beta_rad=img_beta, head_actuated=[h if a else None for h, a in zip(head_objs, actuated)])
     if gnss_sigma_m is not None:
-        ant = C + np.einsum("nij,j->ni", R, lever) + shift
+        ant = antenna_from_body_origin(R, C, lever) + shift
         block_kw.update(gnss_station=np.arange(S), gnss_xyz=ant + rng.normal(0, gnss_sigma_m, (S, 3)),
                         gnss_sigma=gnss_sigma_m)
     if imu_sigma_rad is not None:

@@ -73,6 +73,7 @@ from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.rotations import matrix_from_rpy, rotvec_from_matrix, rpy_from_matrix
+from skyrig.rig.camera_pose import antenna_from_body_origin, body_origin_from_antenna, world_from_camera
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
@@ -499,8 +500,8 @@ def calibrate_uncalibrated_gnss_imu(
     ref_sorted = sorted(ref)
     t2 = []
     ba = r_a.block
-    d_img = ba.gnss_xyz - (ba.station_centre[ba.gnss_station]
-                           + np.einsum("nij,j->ni", ba.station_rotation[ba.gnss_station], ba.lever_arm))
+    d_img = ba.gnss_xyz - antenna_from_body_origin(ba.station_rotation[ba.gnss_station],
+                                                   ba.station_centre[ba.gnss_station], ba.lever_arm)
     for k, s in enumerate(ref_sorted):
         sig = np.sqrt(np.diag(cov_s[3 * k:3 * k + 3, 3 * k:3 * k + 3]))
         dk = d_img[ba.station_strip[ba.gnss_station] == k]
@@ -583,15 +584,16 @@ def calibrate_uncalibrated_gnss_imu(
         raise CalibrationFailed(f"no GNSS/IMU record for {missing[0]} ({len(missing)} reference stations)")
     R_imu = blk1.imu_rotation[[imu_row[int(k)] for k in rows_full]]  # world_from_body recorded
     R_ref_body = st.station_rotation  # world_from_body of the reference (nominal mounting, zero boresight)
-    C_ref = st.station_centre + np.einsum("nij,nj->ni", st.station_rotation,
-                                          st.image_offset[np.searchsorted(st.image_station, np.arange(st.n_stations))])
+    first = np.searchsorted(st.image_station, np.arange(st.n_stations))  # the reference image of each station
+    _, C_ref = world_from_camera(st.station_rotation, st.station_centre, st.image_rotation[first],
+                                 st.image_offset[first])
     ned, conv = _ned_from_frame(frame, C_ref)
     ned_imu = ned @ R_imu
     ned_ref = ned @ R_ref_body
     rel = np.swapaxes(ned_imu, 1, 2) @ ned_ref  # R_rpy(b) = R_imu^T R_ref (body axes)
     d_rpy = np.column_stack(rpy_from_matrix(rel, unit="rad"))
     g = blk1.gnss_xyz[[gnss_row[int(k)] for k in rows_full]]
-    C_gnss = g - np.einsum("nij,j->ni", R_imu, rig1.antenna_lever_arm_m)
+    C_gnss = body_origin_from_antenna(R_imu, g, rig1.antenna_lever_arm_m)
     d_xyz = C_gnss - C_ref
     b_mean = d_rpy.mean(axis=0)
     log.debug("per station d_xyz %s\n d_rpy(mgon) %s\n strips %s", np.round(d_xyz, 3), np.round(d_rpy / MGON, 2),
