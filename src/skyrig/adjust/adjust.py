@@ -37,7 +37,7 @@ from skyrig.adjust.stats import (
     describe_null_space,
     row_cofactors,
 )
-from skyrig.errors import BlockError, DatumDefectError  # noqa: F401 - DatumDefectError re-exported
+from skyrig.errors import DatumDefectError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
 logger = logging.getLogger(__name__)
 

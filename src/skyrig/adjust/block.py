@@ -40,7 +40,7 @@ config); solver, data snooping and statistics options are the config's other par
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np

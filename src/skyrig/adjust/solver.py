@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.errors import ConfigError, SingularError, SkyrigError  # noqa: F401 - SingularError re-exported
+from skyrig.errors import ConfigError, SingularError  # noqa: F401 - SingularError re-exported
 
 logger = logging.getLogger(__name__)
 

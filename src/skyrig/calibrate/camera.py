@@ -39,7 +39,7 @@ from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.camera.distortion import Distortion, distortion_class
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import CalibrationError, SkyrigError  # noqa: F401 - CalibrationError re-exported
+from skyrig.errors import CalibrationError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
 logger = logging.getLogger(__name__)
 

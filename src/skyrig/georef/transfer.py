@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.errors import SkyrigError, TransferError  # noqa: F401 - TransferError re-exported
+from skyrig.errors import TransferError  # noqa: F401 - re-exported (defined in skyrig.errors)
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.rotations import matrix_from_quaternion, quaternion_from_matrix, slerp
 from skyrig.rig.boresight_curve import BoresightCurve

@@ -57,7 +57,7 @@ from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
-from skyrig.orient.gnss_block import UavAdjustError, UavResult, _usable_obs
+from skyrig.orient.gnss_block import UavResult, _usable_obs
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
     _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,

@@ -30,7 +30,7 @@ from functools import partial
 import numpy as np
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import SkyrigError, UnknownPresetError  # noqa: F401 - UnknownPresetError re-exported
+from skyrig.errors import UnknownPresetError  # noqa: F401 - re-exported (defined in skyrig.errors)
 from skyrig.geometry.rotations import rot_x, rot_z
 from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA, ActuatedHead, Head, Rig, oblique_mounting
 

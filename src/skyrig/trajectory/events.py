@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from skyrig.errors import EventOutOfSpanError, InputFormatError, OutOfRangeError  # noqa: F401 (re-export)
+from skyrig.errors import EventOutOfSpanError, InputFormatError  # noqa: F401 - EventOutOfSpanError re-exported
 from skyrig.trajectory.trajectory import PositionMethod, Trajectory, TrajectorySample
 
 __all__ = ["CameraEvents", "EventOutOfSpanError", "check_events_in_span", "interpolate_events"]

@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.block import Block
     from skyrig.adjust.model import Model, State
 
-from skyrig.errors import BlockError, SkyrigError  # noqa: F401 - BlockError re-exported (defined in skyrig.errors)
+from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
 __all__ = ["ObservationType", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
            "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
