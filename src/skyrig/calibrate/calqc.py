@@ -362,29 +362,109 @@ def calibrate_calqc(
     if grid_method not in ("joint", "cycles"):
         raise ConfigError(f"calibrate_calqc: grid_method must be 'joint' or 'cycles', got {grid_method!r}")
     rig = data.rig
-    sig_px = float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0)
-    imu_sig = tuple(float(np.radians(v)) for v in imu_sigma_deg)
-
-    def build(d: CalqcData, r: Rig, check: Sequence[str], frame: WorldFrame | None) -> tuple[Block, WorldFrame]:
-        return block_from_trajectory(d.trajectory, r, d.events, d.measurements, d.ground, gnss_sigma_m=gnss_sigma_m,
-                                     imu_sigma_rad=imu_sig, control_sigma_m=control_sigma_m,
-                                     check_points=tuple(check), sigma_px=sig_px, frame=frame)
-
+    build = _Builder(gnss_sigma_m, tuple(float(np.radians(v)) for v in imu_sigma_deg), control_sigma_m,
+                     float(image_sigma_um) / (rig.head(rig.head_names[0]).camera.pixel_size_mm * 1000.0))
     block0, frame = build(data, rig, data.check_names, None)
     geom = flight_geometry(block0)
     io_names = tuple(io_parameters)
-    cal_common = dict(boresight="free", statistics=True)
-    steps: list[dict[str, Any]] = []
-    inseparable: list[dict[str, Any]] = []
-    notes: list[str] = []
+    journal = _Journal(geom, separability_limit)
+    r2, r3, b3, cams, bs, cycles = _steps_1_to_3(block0, io_names, max_cycles, journal)
+    bj, cfgj, rj = _joint_adjustment(block0, cams, bs, r2, r3, io_names, journal)
+    # which unknowns this flight cannot separate, per head, and the flight that would (design study)
+    design_res = design_study(rj, geom, cfgj, separability_limit) if design else {}
+    # the correction grid and the calibration together: the grid from the joint adjustment's residuals (the whole
+    # flight, every camera; without the part the IO and boresights make), the joint adjustment again on the
+    # coordinates the grid corrects, until the IO stops changing (module docstring)
+    grids: dict[str, CorrectionGrid] = {}
+    grid_cov: NDArray[np.float64] | None = None
+    grid_cycles = 0
+    grid_change = 0.0
+    if grid:
+        if grid_method == "joint":
+            rj, grids, grid_cov, grid_cycles, grid_change = _grid_joint(
+                bj, rj, cfgj, io_names, journal, nodes_x=grid_nodes, max_cycles=max_grid_cycles,
+                min_signal_fraction=grid_min_signal_fraction,
+                cameras=None if grid_heads is None else [rig.head(h).camera.name for h in grid_heads],
+                fit_draws=grid_fit_draws, uncertainty_draws=grid_uncertainty_draws)
+        else:
+            rj, grids, grid_cov, grid_cycles, grid_change = _grid_cycles(
+                bj, rj, cfgj, io_names, journal, nodes_x=grid_nodes, max_cycles=max_grid_cycles,
+                uncertainty_draws=grid_uncertainty_draws)
+        block0 = apply_grids(block0, grids)
+    b4, r4 = _step_4(block0, rj, journal)
 
-    def record(step: str, res: AdjustmentResult, blk: Block, cfg: AdjustConfig) -> None:
-        steps.append(_step_row(step, res, blk, cfg))
-        for e in separability(res, geom, separability_limit):
+    # calibration values and covariance: the joint adjustment at the converged steps 2-3 (plus, when asked, the
+    # correction grid's posterior uncertainty propagated into them)
+    labels, cov = _cal_labels(rj)
+    grid_stats: dict[str, float] = {}
+    if grid_cov is not None:
+        cov, grid_stats = _with_grid_uncertainty(cov, grid_cov, grid_method, grid_fit_draws, grid_uncertainty_draws)
+    bore, interior, datum, datum_cov = _calibration_blocks(rj, rig, io_names, labels, cov)
+    rig_cal = _calibrated_rig(rig, bore, interior)
+
+    stats = {"images": float(block0.n_images), "stations": float(block0.n_stations),
+             "observations": float(block0.n_observations), "sigma0_step3": float(r3.sigma0),
+             "sigma_um_step3": _sigma_um(b3, r3.sigma0), "redundancy_step3": float(r3.redundancy),
+             "sigma_um_step4": _sigma_um(b4, r4.sigma0), "cycles_steps_2_3": float(cycles),
+             "sigma0_joint": float(rj.sigma0), "flying_heights": float(len(geom["heights_m"])),
+             "opposite_directions": float(geom["opposite_directions"]), "grid_cycles": float(grid_cycles),
+             "grid_unknowns_in_adjustment": float(bool(grid) and grid_method == "joint"),
+             "grid_last_io_change_sigma": float(grid_change), **grid_stats}
+
+    # the three variants per flying height (Tab. 11), correction grid on the lowest block
+    table11: dict[str, Any] = {"variants": {}, "blocks": []}
+    effect: dict[str, Any] = {}
+    if variants:
+        table11, effect = _table11(data, rig_cal, build, frame, datum, geom, grids if grid else None)
+    return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, journal.steps, table11, grids,
+                            effect, journal.inseparable, geom, stats, design_res, journal.notes, list(labels), cov)
+
+
+#: the calibration unknowns of every step: the heads' boresights free, statistics on (Model's redundancy numbers)
+_CAL_COMMON: dict[str, Any] = dict(boresight="free", statistics=True)
+
+
+@dataclass(frozen=True)
+class _Builder:
+    """Rig blocks of the flight (:func:`block_from_trajectory`) with the recipe's sigmas."""
+
+    gnss_sigma_m: tuple[float, float, float]
+    imu_sigma_rad: tuple[float, ...]
+    control_sigma_m: tuple[float, float, float]
+    sigma_px: float
+
+    def __call__(self, d: CalqcData, r: Rig, check: Sequence[str], frame: WorldFrame | None
+                 ) -> tuple[Block, WorldFrame]:
+        return block_from_trajectory(d.trajectory, r, d.events, d.measurements, d.ground,
+                                     gnss_sigma_m=self.gnss_sigma_m, imu_sigma_rad=self.imu_sigma_rad,
+                                     control_sigma_m=self.control_sigma_m, check_points=tuple(check),
+                                     sigma_px=self.sigma_px, frame=frame)
+
+
+@dataclass
+class _Journal:
+    """What the recipe reports as it goes: a row per adjustment, the pairs of unknowns it cannot separate (each
+    once, with the first step that showed it) and notes on what it did differently from the plain steps."""
+
+    geom: dict[str, Any]
+    limit: float
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    inseparable: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def record(self, step: str, res: AdjustmentResult, blk: Block, cfg: AdjustConfig) -> None:
+        self.steps.append(_step_row(step, res, blk, cfg))
+        for e in separability(res, self.geom, self.limit):
             e = {**e, "step": step}
-            if not any(x["text"] == e["text"] for x in inseparable):
-                inseparable.append(e)
+            if not any(x["text"] == e["text"] for x in self.inseparable):
+                self.inseparable.append(e)
 
+
+def _steps_1_to_3(block0: Block, io_names: tuple[str, ...], max_cycles: int, journal: _Journal
+                  ) -> tuple[AdjustmentResult, AdjustmentResult, Block, list[Any], NDArray[np.float64], int]:
+    """Step 1, then steps 2 and 3 repeated until the datum shift and the IO stop changing: the last step 2 and
+    step 3 results, step 3's block, the cameras and boresights of step 3 and the number of cycles."""
+    cal_common = _CAL_COMMON
     # step 1: IO unlocked, no datum shift, full control, blunder detection
     cfg1 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True, **cal_common)
     try:
@@ -398,10 +478,10 @@ def calibrate_calqc(
             raise
         log.warning("calqc step 1: %s; step 1 repeated without blunder detection (step 2 estimates the datum shift)",
                     exc)
-        notes.append(f"step 1: {exc}; repeated without blunder detection (the datum shift is step 2's)")
+        journal.notes.append(f"step 1: {exc}; repeated without blunder detection (the datum shift is step 2's)")
         cfg1 = cfg1.with_(snooping=False)
         r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift, no blunder detection)")
-    record("1", r1, block0, cfg1)
+    journal.record("1", r1, block0, cfg1)
     # steps 2 and 3, repeated until the datum shift and the IO stop changing (a stepwise recipe converges
     # to the joint solution only by repetition: step 1 absorbs the datum shift into the IO)
     cams, bs = list(r1.block.cameras), r1.block.head_boresight.copy()
@@ -412,13 +492,13 @@ def calibrate_calqc(
         b2 = replace(block0, cameras=cams, head_boresight=bs)
         cfg2 = AdjustConfig(datum_shift="free", snooping=True, **cal_common)
         r2 = _run(b2, cfg2, "step 2 (IO locked, datum shift)" + tag)
-        record("2" + tag, r2, b2, cfg2)
+        journal.record("2" + tag, r2, b2, cfg2)
         b3 = replace(block0, cameras=cams, head_boresight=r2.block.head_boresight.copy(),
                      datum_shift=r2.block.datum_shift.copy())
         cfg3 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True,
                             **cal_common)
         r3 = _run(b3, cfg3, "step 3 (IO unlocked, datum shift locked)" + tag)
-        record("3" + tag, r3, b3, cfg3)
+        journal.record("3" + tag, r3, b3, cfg3)
         cams, bs = list(r3.block.cameras), r3.block.head_boresight.copy()
         io = np.concatenate([c.intrinsics for c in cams])
         l3, c3 = _cal_labels(r3)
@@ -432,99 +512,128 @@ def calibrate_calqc(
         log.info("calqc cycle %d: largest change %.2f sigma", cycle + 1, change)
         if change < 0.05:
             break
-    cycles = cycle + 1
-    # the joint covariance of IO, boresights and datum shift at the converged values (no blunder detection: the
-    # observations are those of the last step 3)
+    return r2, r3, b3, cams, bs, cycle + 1
+
+
+def _joint_adjustment(block0: Block, cams: list[Any], bs: NDArray[np.float64], r2: AdjustmentResult,
+                      r3: AdjustmentResult, io_names: tuple[str, ...], journal: _Journal
+                      ) -> tuple[Block, AdjustConfig, AdjustmentResult]:
+    """The joint covariance of IO, boresights and datum shift at the converged values (no blunder detection: the
+    observations are those of the last step 3): its block, configuration and result."""
     bj = replace(block0, cameras=cams, head_boresight=bs, datum_shift=r2.block.datum_shift.copy())
     rej = [r.index for r in r3.rejected if r.group == "image"]
     if rej:
         w = np.ones(bj.n_observations, bool)
         w[rej] = False
         bj = _drop_obs(bj, w)
-    cfgj = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="free", **cal_common)
+    cfgj = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="free", **_CAL_COMMON)
     rj = _run(bj, cfgj, "joint covariance (IO, boresights, datum shift)")
-    record("joint", rj, bj, cfgj)
-    # which unknowns this flight cannot separate, per head, and the flight that would (design study)
-    design_res = design_study(rj, geom, cfgj, separability_limit) if design else {}
-    # the correction grid and the calibration together: the grid from the joint adjustment's residuals (the whole
-    # flight, every camera; without the part the IO and boresights make), the joint adjustment again on the
-    # coordinates the grid corrects, until the IO stops changing (module docstring)
+    journal.record("joint", rj, bj, cfgj)
+    return bj, cfgj, rj
+
+
+def _io_sigma(r: AdjustmentResult, io_names: tuple[str, ...]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The IO values of every camera and their sigmas in ``r``."""
+    lab, cv = _cal_labels(r)
+    ix = [k for k, q in enumerate(lab) if q[0] == "intrinsics"]
+    vals = np.concatenate([[dict(zip(c.intrinsic_names, c.intrinsics))[n] for n in io_names]
+                           for c in r.block.cameras])
+    return vals, np.sqrt(np.diag(cv)[ix])
+
+
+def _grid_joint(bj: Block, rj: AdjustmentResult, cfgj: AdjustConfig, io_names: tuple[str, ...], journal: _Journal,
+                *, nodes_x: int | None, max_cycles: int, min_signal_fraction: float, cameras: list[str] | None,
+                fit_draws: int, uncertainty_draws: int
+                ) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], NDArray[np.float64] | None, int, float]:
+    """``grid_method="joint"``: the grids' node values as unknowns of the joint adjustment
+    (:func:`joint_grid_adjustment`), the fitted covariance function's uncertainty propagated when asked.  Returns
+    the joint result, the grids, the added calibration covariance (or None), the grid cycles and how far the grid
+    moved the IO."""
+    grid_cov = None
+    io_before, s_before = _io_sigma(rj, io_names)
+    bjg = replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
+                  datum_shift=rj.block.datum_shift.copy())
+    rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=nodes_x, max_cycles=max_cycles,
+                                                   min_signal_fraction=min_signal_fraction, cameras=cameras)
+    if grids:  # (no camera with a signal worth a grid: the joint adjustment stands)
+        journal.record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
+    io_after, _ = _io_sigma(rj, io_names)
+    # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
+    grid_change = float(np.max(np.abs(io_after - io_before) / s_before)) if s_before.size else 0.0
+    if grids and fit_draws > 0:
+        grid_cov, spreads = grid_hyperparameter_covariance(rj, grids, cfgj, int(fit_draws))
+        for k, sp in spreads.items():
+            log.info("calqc grid %s: fitted covariance function's spread sd(log c0) %.2f, sd(log L) %.2f "
+                     "(%d bootstrap fits), propagated into the calibration covariance", k,
+                     np.sqrt(sp[0][0]), np.sqrt(sp[1][1]), fit_draws)
+    if uncertainty_draws > 0:
+        journal.notes.append("grid_uncertainty_draws ignored: the joint adjustment's covariance holds the grids' "
+                             "uncertainty")
+    return rj, grids, grid_cov, grid_cycles, grid_change
+
+
+def _grid_cycles(bj: Block, rj: AdjustmentResult, cfgj: AdjustConfig, io_names: tuple[str, ...], journal: _Journal,
+                 *, nodes_x: int | None, max_cycles: int, uncertainty_draws: int
+                 ) -> tuple[AdjustmentResult, dict[str, CorrectionGrid], NDArray[np.float64] | None, int, float]:
+    """``grid_method="cycles"``: grids by collocation of the residuals alternating with the joint adjustment on
+    the corrected coordinates until the IO changes by less than 0.1 sigma; the grids' posterior propagated by
+    ``uncertainty_draws`` pairs.  Returns as :func:`_grid_joint`."""
     grids: dict[str, CorrectionGrid] = {}
-    grid_cov: NDArray[np.float64] | None = None
+    grid_cov = None
     grid_cycles = 0
     grid_change = 0.0
-    if grid:
-        def io_sigma(r: AdjustmentResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            lab, cv = _cal_labels(r)
-            ix = [k for k, q in enumerate(lab) if q[0] == "intrinsics"]
-            vals = np.concatenate([[dict(zip(c.intrinsic_names, c.intrinsics))[n] for n in io_names]
-                                   for c in r.block.cameras])
-            return vals, np.sqrt(np.diag(cv)[ix])
+    for grid_cycles in range(1, max_cycles + 1):
+        grids = grid_from_result(rj, base=grids, calibration_free=True, nodes_x=nodes_x)
+        bg = apply_grids(replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
+                                 datum_shift=rj.block.datum_shift.copy()), grids)
+        io_before, _ = _io_sigma(rj, io_names)
+        rj = _run(bg, cfgj, f"joint (IO, boresights, datum shift) with the correction grid, cycle {grid_cycles}")
+        journal.record(f"joint + grid {grid_cycles}", rj, bg, cfgj)
+        io_after, s_io = _io_sigma(rj, io_names)
+        change = float(np.max(np.abs(io_after - io_before) / s_io)) if s_io.size else 0.0
+        log.info("calqc grid cycle %d: largest IO change %.2f sigma", grid_cycles, change)
+        grid_change = change
+        if change < 0.1:
+            break
+    if grid_change >= 0.1:
+        log.warning("calqc: the correction grid and the IO still moved %.2f sigma in the last of %d cycles; the "
+                    "IO may keep part of the image deformation (raise max_grid_cycles)", grid_change, grid_cycles)
+    if uncertainty_draws > 0 and grids:
+        grid_cov = grid_uncertainty(replace(bj, cameras=list(rj.block.cameras),
+                                            head_boresight=rj.block.head_boresight.copy(),
+                                            datum_shift=rj.block.datum_shift.copy()), rj, grids, cfgj,
+                                    uncertainty_draws)
+    return rj, grids, grid_cov, grid_cycles, grid_change
 
-        if grid_method == "joint":
-            io_before, s_before = io_sigma(rj)
-            bjg = replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
-                          datum_shift=rj.block.datum_shift.copy())
-            rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=grid_nodes,
-                                                           max_cycles=max_grid_cycles,
-                                                           min_signal_fraction=grid_min_signal_fraction,
-                                                           cameras=None if grid_heads is None else
-                                                           [rig.head(h).camera.name for h in grid_heads])
-            if grids:  # (no camera with a signal worth a grid: the joint adjustment stands)
-                record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
-            io_after, _ = io_sigma(rj)
-            # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
-            grid_change = float(np.max(np.abs(io_after - io_before) / s_before)) if s_before.size else 0.0
-            if grids and grid_fit_draws > 0:
-                grid_cov, spreads = grid_hyperparameter_covariance(rj, grids, cfgj, int(grid_fit_draws))
-                for k, sp in spreads.items():
-                    log.info("calqc grid %s: fitted covariance function's spread sd(log c0) %.2f, sd(log L) %.2f "
-                             "(%d bootstrap fits), propagated into the calibration covariance", k,
-                             np.sqrt(sp[0][0]), np.sqrt(sp[1][1]), grid_fit_draws)
-            if grid_uncertainty_draws > 0:
-                notes.append("grid_uncertainty_draws ignored: the joint adjustment's covariance holds the grids' "
-                             "uncertainty")
-        for grid_cycles in (range(1, max_grid_cycles + 1) if grid_method == "cycles" else ()):
-            grids = grid_from_result(rj, base=grids, calibration_free=True, nodes_x=grid_nodes)
-            bg = apply_grids(replace(bj, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
-                                     datum_shift=rj.block.datum_shift.copy()), grids)
-            io_before, _ = io_sigma(rj)
-            rj = _run(bg, cfgj, f"joint (IO, boresights, datum shift) with the correction grid, cycle {grid_cycles}")
-            record(f"joint + grid {grid_cycles}", rj, bg, cfgj)
-            io_after, s_io = io_sigma(rj)
-            change = float(np.max(np.abs(io_after - io_before) / s_io)) if s_io.size else 0.0
-            log.info("calqc grid cycle %d: largest IO change %.2f sigma", grid_cycles, change)
-            grid_change = change
-            if change < 0.1:
-                break
-        if grid_method == "cycles" and grid_change >= 0.1:
-            log.warning("calqc: the correction grid and the IO still moved %.2f sigma in the last of %d cycles; the "
-                        "IO may keep part of the image deformation (raise max_grid_cycles)", grid_change, grid_cycles)
-        if grid_method == "cycles" and grid_uncertainty_draws > 0 and grids:
-            grid_cov = grid_uncertainty(replace(bj, cameras=list(rj.block.cameras),
-                                                head_boresight=rj.block.head_boresight.copy(),
-                                                datum_shift=rj.block.datum_shift.copy()), rj, grids, cfgj,
-                                        grid_uncertainty_draws)
-        block0 = apply_grids(block0, grids)
-    # step 4: IO locked (step 3), datum locked (step 2), every ground point a check point, no blunder detection
+
+def _step_4(block0: Block, rj: AdjustmentResult, journal: _Journal) -> tuple[Block, AdjustmentResult]:
+    """Step 4: IO locked (step 3), datum locked (step 2), every ground point a check point, no blunder detection."""
     b4 = replace(block0, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
                  datum_shift=rj.block.datum_shift.copy(), control_check=np.ones(len(block0.control_point), bool))
-    cfg4 = AdjustConfig(datum_shift="fixed", snooping=False, **cal_common)
+    cfg4 = AdjustConfig(datum_shift="fixed", snooping=False, **_CAL_COMMON)
     r4 = _run(b4, cfg4, "step 4 (IO and datum locked, check points, no blunder detection)")
-    record("4", r4, b4, cfg4)
+    journal.record("4", r4, b4, cfg4)
+    return b4, r4
 
-    # calibration values and covariance: the joint adjustment at the converged steps 2-3 (plus, when asked, the
-    # correction grid's posterior uncertainty propagated into them)
-    labels, cov = _cal_labels(rj)
-    grid_stats: dict[str, float] = {}
-    if grid_cov is not None:
-        ratio = np.sqrt(np.diag(cov) + np.diag(grid_cov)) / np.sqrt(np.diag(cov))
-        grid_stats = {("grid_fit_draws" if grid_method == "joint" else "grid_uncertainty_draws"):
-                      float(grid_fit_draws if grid_method == "joint" else grid_uncertainty_draws),
-                      "grid_sigma_ratio_max": float(ratio.max()), "grid_sigma_ratio_median": float(np.median(ratio))}
-        log.info("calqc: the correction grid's uncertainty raises the calibration sigmas by up to %.1f %% "
-                 "(median %.2f %%)", 100 * (ratio.max() - 1), 100 * (np.median(ratio) - 1))
-        cov = cov + grid_cov
+
+def _with_grid_uncertainty(cov: NDArray[np.float64], grid_cov: NDArray[np.float64], grid_method: str,
+                           grid_fit_draws: int, grid_uncertainty_draws: int
+                           ) -> tuple[NDArray[np.float64], dict[str, float]]:
+    """The calibration covariance plus the correction grid's uncertainty, and how much it raised the sigmas."""
+    ratio = np.sqrt(np.diag(cov) + np.diag(grid_cov)) / np.sqrt(np.diag(cov))
+    grid_stats = {("grid_fit_draws" if grid_method == "joint" else "grid_uncertainty_draws"):
+                  float(grid_fit_draws if grid_method == "joint" else grid_uncertainty_draws),
+                  "grid_sigma_ratio_max": float(ratio.max()), "grid_sigma_ratio_median": float(np.median(ratio))}
+    log.info("calqc: the correction grid's uncertainty raises the calibration sigmas by up to %.1f %% "
+             "(median %.2f %%)", 100 * (ratio.max() - 1), 100 * (np.median(ratio) - 1))
+    return cov + grid_cov, grid_stats
+
+
+def _calibration_blocks(rj: AdjustmentResult, rig: Rig, io_names: tuple[str, ...],
+                        labels: list[tuple[str, str, str]], cov: NDArray[np.float64]
+                        ) -> tuple[dict[str, tuple[NDArray, NDArray]],
+                                   dict[str, tuple[tuple[str, ...], NDArray, NDArray]], NDArray, NDArray]:
+    """Each head's boresight and IO with their covariance blocks, and the datum shift with its covariance."""
     pos = {lab: k for k, lab in enumerate(labels)}
     bore: dict[str, tuple[NDArray, NDArray]] = {}
     for hi, h in enumerate(rj.block.head_name):
@@ -544,10 +653,12 @@ def calibrate_calqc(
         vals = np.array([dict(zip(c.intrinsic_names, c.intrinsics))[n] for n in io_names])
         interior[h.name] = (io_names, vals, cov[np.ix_(ix, ix)])
     dix = [labels.index(("datum_shift", "gnss", a)) for a in "XYZ"]
-    datum = rj.block.datum_shift.copy()
-    datum_cov = cov[np.ix_(dix, dix)]
+    return bore, interior, rj.block.datum_shift.copy(), cov[np.ix_(dix, dix)]
 
-    # the calibrated rig
+
+def _calibrated_rig(rig: Rig, bore: dict[str, tuple[NDArray, NDArray]],
+                    interior: dict[str, tuple[tuple[str, ...], NDArray, NDArray]]) -> Rig:
+    """The rig with the calibrated boresights and IO."""
     heads = []
     for h in rig:
         new = h
@@ -559,62 +670,55 @@ def calibrate_calqc(
             names, vals, _ = interior[h.name]
             new = new.with_(camera=new.camera.with_(**dict(zip(names, vals.tolist()))))
         heads.append(new)
-    rig_cal = Rig(rig.name, heads, rig.antenna_lever_arm_m,
-                  (rig.description + " | " if rig.description else "") + "calibrated by skyrig calibrate calqc")
-
-    stats = {"images": float(block0.n_images), "stations": float(block0.n_stations),
-             "observations": float(block0.n_observations), "sigma0_step3": float(r3.sigma0),
-             "sigma_um_step3": _sigma_um(b3, r3.sigma0), "redundancy_step3": float(r3.redundancy),
-             "sigma_um_step4": _sigma_um(b4, r4.sigma0), "cycles_steps_2_3": float(cycles),
-             "sigma0_joint": float(rj.sigma0), "flying_heights": float(len(geom["heights_m"])),
-             "opposite_directions": float(geom["opposite_directions"]), "grid_cycles": float(grid_cycles),
-             "grid_unknowns_in_adjustment": float(bool(grid) and grid_method == "joint"),
-             "grid_last_io_change_sigma": float(grid_change), **grid_stats}
+    return Rig(rig.name, heads, rig.antenna_lever_arm_m,
+               (rig.description + " | " if rig.description else "") + "calibrated by skyrig calibrate calqc")
 
 
-    # the three variants per flying height (Tab. 11), correction grid on the lowest block
+def _table11(data: CalqcData, rig_cal: Rig, build: _Builder, frame: WorldFrame, datum: NDArray[np.float64],
+             geom: dict[str, Any], grids: dict[str, CorrectionGrid] | None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The three variants per flying height with the calibrated rig (Tab. 11) and, with ``grids``, the lowest block
+    refined by them and the grid's effect there (sigma0, check and control RMS before and after)."""
     table11: dict[str, Any] = {"variants": {}, "blocks": []}
     effect: dict[str, Any] = {}
-    if variants:
-        blk_c, _ = build(data, rig_cal, data.check_names, frame)
-        blk_c = _poseo(blk_c, datum)
-        level = flight_geometry(blk_c)["station_level"]
-        blocks = []
-        for lev, hgt in enumerate(geom["heights_m"]):
-            keep = level == lev
-            if keep.sum() < 2:
-                continue
-            names = set(blk_c.image_name[keep[blk_c.image_station]].tolist())
-            sub = data.subset_images(sorted(names))
-            bl, _ = build(sub, rig_cal, data.check_names, frame)
-            bl = _poseo(bl, datum)
-            nadir_cam = rig_cal.head(rig_cal.head_names[0]).camera
-            blocks.append((f"{hgt:.0f} m", bl, float(nadir_cam.gsd(hgt))))
-        run_blocks = list(blocks)
-        if grid and blocks:
-            name0, bl0, gsd0 = blocks[0]
+    blk_c, _ = build(data, rig_cal, data.check_names, frame)
+    blk_c = _poseo(blk_c, datum)
+    level = flight_geometry(blk_c)["station_level"]
+    blocks = []
+    for lev, hgt in enumerate(geom["heights_m"]):
+        keep = level == lev
+        if keep.sum() < 2:
+            continue
+        names = set(blk_c.image_name[keep[blk_c.image_station]].tolist())
+        sub = data.subset_images(sorted(names))
+        bl, _ = build(sub, rig_cal, data.check_names, frame)
+        bl = _poseo(bl, datum)
+        nadir_cam = rig_cal.head(rig_cal.head_names[0]).camera
+        blocks.append((f"{hgt:.0f} m", bl, float(nadir_cam.gsd(hgt))))
+    run_blocks = list(blocks)
+    if grids is not None and blocks:
+        name0, bl0, gsd0 = blocks[0]
+        base_cfg = AdjustConfig(snooping=True, statistics=True)
+        bb, cfg = apply_preset(bl0, "ba-eo-control", base_cfg)
+        before = _run(bb, cfg, f"ba-eo-control {name0}")
+        bl_g = apply_grids(bl0, grids)
+        after = _run(apply_grids(bb, grids), cfg, f"ba-eo-control {name0} with correction grid")
+        for lab, r in (("before", before), ("after", after)):
+            b = r.block
+            dd = b.point_xyz[b.control_point] - b.control_xyz
+            effect[lab] = {"sigma0": r.sigma0, "sigma_um": _sigma_um(bl0, r.sigma0),
+                           "rms_check_m": _rms(dd[b.control_check]), "rms_control_m": _rms(dd[~b.control_check])}
+        effect["block"] = name0
+        run_blocks.insert(1, (f"{name0} refined (grid)", bl_g, gsd0))
+    table11["blocks"] = [n for n, _, _ in run_blocks]
+    for v in VARIANTS:
+        cols = {}
+        for name, bl, gsd in run_blocks:
             base_cfg = AdjustConfig(snooping=True, statistics=True)
-            bb, cfg = apply_preset(bl0, "ba-eo-control", base_cfg)
-            before = _run(bb, cfg, f"ba-eo-control {name0}")
-            bl_g = apply_grids(bl0, grids)
-            after = _run(apply_grids(bb, grids), cfg, f"ba-eo-control {name0} with correction grid")
-            for lab, r in (("before", before), ("after", after)):
-                b = r.block
-                dd = b.point_xyz[b.control_point] - b.control_xyz
-                effect[lab] = {"sigma0": r.sigma0, "sigma_um": _sigma_um(bl0, r.sigma0),
-                               "rms_check_m": _rms(dd[b.control_check]), "rms_control_m": _rms(dd[~b.control_check])}
-            effect["block"] = name0
-            run_blocks.insert(1, (f"{name0} refined (grid)", bl_g, gsd0))
-        table11["blocks"] = [n for n, _, _ in run_blocks]
-        for v in VARIANTS:
-            cols = {}
-            for name, bl, gsd in run_blocks:
-                base_cfg = AdjustConfig(snooping=True, statistics=True)
-                bb, cfg = apply_preset(bl, v, base_cfg)
-                if v == "dg-control":
-                    cfg = cfg.with_(snooping=False)
-                r = _run(bb, cfg, f"{v} {name}")
-                cols[name] = _variant_column(r, bb, gsd, v)
-            table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}
-    return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, steps, table11, grids, effect,
-                            inseparable, geom, stats, design_res, notes, list(labels), cov)
+            bb, cfg = apply_preset(bl, v, base_cfg)
+            if v == "dg-control":
+                cfg = cfg.with_(snooping=False)
+            r = _run(bb, cfg, f"{v} {name}")
+            cols[name] = _variant_column(r, bb, gsd, v)
+        table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}
+    return table11, effect
