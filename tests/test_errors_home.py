@@ -23,7 +23,7 @@ OLD_HOMES = [("skyrig.adjust.factors.base", "BlockError"), ("skyrig.adjust.block
              ("skyrig.calibrate.calqc", "CalqcFailed"), ("skyrig.dense.ortho", "EmptyMosaicError"),
              ("skyrig.io.trajectory_csv", "ImplausibleAngleError"), ("skyrig.io.table_meta", "SideCarMismatchWarning"),
              ("skyrig.pipeline.executor", "TaskError"), ("skyrig.pipeline.run", "StageError"),
-             ("skyrig.pipeline.facades", "NoBuildingsError")]
+             ("skyrig.pipeline.facades", "NoBuildingsError"), ("skyrig.web.tiles", "TileNotFound")]
 
 
 def _modules() -> list[str]:

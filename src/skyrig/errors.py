@@ -131,6 +131,11 @@ class OptionError(ConfigError):
         super().__init__(f"{option}: {self.reason}")
 
 
+class SessionLockedError(SkyrigError, RuntimeError):
+    """A file is held by another running program (e.g. a second ``skyrig measure`` on the same measurements file):
+    the message names the lock file and its holder."""
+
+
 class PlausibilityWarning(UserWarning):
     """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
     lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""
@@ -271,6 +276,11 @@ class StageError(SkyrigError, RuntimeError):
 # raised in skyrig.pipeline.facades
 class NoBuildingsError(SkyrigError):
     """The stage ran but found nothing to model (no building in the DSM / footprints): a failed result."""
+
+
+# raised in skyrig.web.tiles
+class TileNotFound(SkyrigError, LookupError):
+    """A tile outside the image's pyramid."""
 
 
 def show_warnings_in_words() -> None:

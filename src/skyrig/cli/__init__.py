@@ -72,6 +72,8 @@ COMMANDS: dict[str, CommandEntry] = {
                              "Oblique (tumbling-head) orientations from adjusted nadir orientations through the calibrated mounting."),
     "init": CommandEntry("skyrig.cli.run:init_command", "Write a commented project.yaml for a flight folder (skyrig run runs it)."),
     "run": CommandEntry("skyrig.cli.run:run_command", "Run the stages of a project.yaml, each into its own folder (resumable)."),
+    "measure": CommandEntry("skyrig.cli.measure:command",
+                            "Measure control and check points in the images in a local web page (or --auto)."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }

@@ -299,6 +299,7 @@ def command(outdir: str | None, output: str | None) -> None:
                f"injected {hb['injected']:.3f} deg")
     if abs(hb["estimated"] - hb["injected"]) > 0.2 or fig["corrected"]["c2c_rms_m"] > fig["gnss_heights"]["c2c_rms_m"]:
         raise click.ClickException("demo checks FAILED (lidar)")
+    _determinability_step()
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")
 
 
@@ -436,3 +437,39 @@ def judge_ortho_folder(ortho_dir: Path, sim_dir: Path, survey: Any, head: str = 
     jo = judge_ortho(rgb, ovalid, osource, ogrid, WorldFrame.from_text(ometa["frame"]), survey.scene, og["cell_m"],
                      eo_local=tl, cameras=cams, noise_dn=survey.spec.image_noise_dn)
     return jo, og
+
+
+def _determinability_step() -> None:
+    """Issue 28: a UAV self-calibration the block cannot determine is held at its prior, in words; one it can is
+    freed and lands within its sigma of the simulation's truth (metadata focal length 20 % off, prior sigma 10 %)."""
+    import logging
+
+    from skyrig.orient.gnss_block import UavConfig, adjust_uav_block
+    from skyrig.rig.presets import uav_single
+    from skyrig.simulate.scenarios import ci_camera
+    from skyrig.simulate.uav_block import CROSS, FLAT, flat_site_block
+
+    click.echo("\n=== UAV self-calibration: what a block can determine (flat nadir at one height vs cross strips at "
+               "50 / 80 m; metadata focal length 20 % off) ===")
+    cam = ci_camera(uav_single().heads["camera"].camera, 800)
+    cfg = UavConfig(gnss_sigma_m=(0.3, 0.3, 0.5), pixel_sigma_px=0.3, pnp_threshold_px=4.0,
+                    self_calibration=("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2"))
+    ok = True
+    for label, strips, seed in (("flat, one height", FLAT, 11), ("cross strips, two heights", CROSS, 12)):
+        inp, truth = flat_site_block(strips, seed, cam)
+        logging.getLogger("skyrig.orient.gnss_block").setLevel(logging.ERROR)  # the verdict is printed below
+        res = adjust_uav_block(inp, cfg)
+        logging.getLogger("skyrig.orient.gnss_block").setLevel(logging.NOTSET)
+        v = next(x for x in res.summary["calibration"] if x["name"] == "focal_mm")
+        err = res.camera.focal_mm / truth.camera.focal_mm - 1
+        sf = res.adjustment.sigma_reduced().get(("intrinsics", res.camera.name, "focal_mm"))
+        z = (res.camera.focal_mm - truth.camera.focal_mm) / sf if sf else float("nan")
+        click.echo(f"  {label:26s} verdict: {v['verdict']}{' (held at the prior)' if v['held'] else ''}; formal "
+                   f"sigma {v['ratio']:.2f} x the prior's; focal length {100 * err:+.1f} % from the truth"
+                   + ("" if v["held"] else f" (z = {z:+.2f} of its sigma)"))
+        if strips is FLAT:
+            ok &= v["held"] and "second altitude" in v["words"]
+        else:
+            ok &= (not v["held"]) and abs(z) < 3
+    if not ok:
+        raise click.ClickException("demo checks FAILED (self-calibration determinability)")

@@ -15,8 +15,13 @@ options, version and checksums written last, then swapped into place), so a kill
 mixing two runs.  Option spellings: ``-o/--output`` (``--out`` deprecated), ``--gnss-sigma E,N,U`` (three
 separate numbers deprecated), as every command (docs/cli.md).
 
-Without GNSS (``--no-gps``; implied by ``--control``, ``--check``, ``--scale-bar``, ``--camera``, ``--measurements`` and
-``--datum``): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
+With GNSS and ground control: when every image carries an EXIF GPS position and neither ``--no-gps``, ``--scale-bar``,
+``--camera`` nor ``--datum`` is given, ``--control`` / ``--check`` / ``--measurements`` join the GNSS-supported block
+(control with ``--control-sigma``: metre-class targets, e.g. ``1.5,1.5,10``, are weighted as such; check points are
+reported in metres and GSD; a point seen in fewer than two images is reported and left out).
+
+Without GNSS (``--no-gps``; implied by ``--scale-bar``, ``--camera``, ``--datum``, and by ``--control``, ``--check``,
+``--measurements`` when an image has no EXIF GPS): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
 two-view relative orientation, resection and bundle adjustment (:func:`skyrig.orient.incremental.orient_incremental`
 through :func:`skyrig.pipeline.uav.orient_without_gnss`).  The datum (``--datum``, default ``auto``): control points
 (``--control`` ``name,x,y,z`` with a ``# crs:`` header; their image measurements are tie points of the same name or
@@ -73,8 +78,14 @@ class _NotPublished(Exception):
 @click.option("--altitude", type=click.Choice(["egm96", "ellipsoidal"]), default="egm96", show_default=True,
               help="Reference of the EXIF GPS altitude (DJI: EGM96 above mean sea level).")
 @click.option("--geoid", help="EGM96 grid (path or PROJ name); default ../shared/data/geoid or PROJ's.")
-@click.option("--focal-prior", type=float, default=0.1, show_default=True,
-              help="Relative sigma of the EXIF focal length prior.")
+@click.option("--focal-prior", type=float, default=None,
+              help="Relative sigma of the focal length prior (e.g. 0.03). Default: the sigma of the prior's source "
+                   "(1 %% vendor XMP calibration, 3 %% EXIF focal with the sensor database, 10 %% 35-mm value, "
+                   "50 %% nothing).")
+@click.option("--free-intrinsics", default="",
+              help="Comma-separated intrinsics (focal_mm, ppx_mm, ppy_mm, k1, k2, p1, p2, k3) left free even when "
+                   "the block cannot determine them (default: held at the prior with a warning; the report states "
+                   "the choice).")
 @click.option("--no-self-calibration", is_flag=True, help="Keep the EXIF camera fixed.")
 @click.option("--compare-pycolmap", is_flag=True,
               help="Also orient with pycolmap and compare camera centres after a similarity (RMS, max, in units of "
@@ -97,7 +108,8 @@ class _NotPublished(Exception):
 @click.option("--no-gps", is_flag=True,
               help="Orient without GNSS: two-view relative orientation, resection and bundle adjustment; datum from "
                    "--control, --scale-bar, else a similarity onto the EXIF GPS (not observations), else a free network. "
-                   "Implied by --control, --scale-bar, --camera.")
+                   "Implied by --scale-bar, --camera, --datum (and by --control / --check / --measurements when an image "
+                   "has no EXIF GPS; with GPS on every image they join the GNSS-supported block).")
 @click.option("--control", "gcp_path", type=click.Path(exists=True, dir_okay=False),
               help="Control points name,x,y,z with a '# crs:' header (their image measurements: tie points of the "
                    "same name, or --measurements).")
@@ -116,7 +128,7 @@ class _NotPublished(Exception):
                                       "a similarity onto EXIF GPS, else a free network).")
 def command(project: str, image_dir: str | None, match_dir: str | None, out: str | None,
             gnss_sigma: str, attitude_sigma: float, altitude: str, geoid: str | None,
-            focal_prior: float, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_input: str | None,
+            focal_prior: float | None, free_intrinsics: str, no_self_calibration: bool, compare_pycolmap: bool, pycolmap_input: str | None,
             pycolmap_size: int, pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool, no_gps: bool = False,
             gcp_path: str | None = None, gcp_sigma: str = "0.01", check_path: str | None = None,
             scale_bar_path: str | None = None, meas_paths: tuple[str, ...] = (), camera_path: str | None = None,
@@ -160,7 +172,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
         with stage_folder(outdir, stage="adjust-uav", inputs=describe_inputs(inputs), options=options) as staging:
             res = make_uav_orientation(
                 images if (have_images or not without) else None, match, staging, no_gps=without, gnss_sigma=gs,
-                attitude_sigma=attitude_sigma, altitude=altitude, geoid=geoid, focal_prior=focal_prior,
+                attitude_sigma=attitude_sigma, altitude=altitude, geoid=geoid, focal_prior=focal_prior, free_intrinsics=free_intrinsics,
                 self_calibration=not no_self_calibration, config=config, config_source=config_path, crs=crs,
                 compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper,
                 pycolmap_input=pycolmap_input, control=gcp_path, control_sigma=cs, check=check_path, scale_bars=scale_bar_path,

@@ -61,6 +61,9 @@ class ImageMetadata:
     sensor_width_mm
         Sensor width derived from ``focal_mm`` and ``focal35_mm`` (36 mm frame width), or from the
         focal-plane resolution tags; None when unknown.
+    focal_plane_width_mm
+        Sensor width (long side) from EXIF ``FocalPlaneXResolution`` / ``FocalPlaneResolutionUnit`` alone; None when
+        absent.
     """
 
     name: str
@@ -80,6 +83,7 @@ class ImageMetadata:
     focal_mm: float | None = None
     focal35_mm: float | None = None
     sensor_width_mm: float | None = None
+    focal_plane_width_mm: float | None = None
     xmp: dict[str, str] = field(default_factory=dict, repr=False)
 
     @property
@@ -192,14 +196,15 @@ def read_image_metadata(path: PathLike) -> ImageMetadata:
 
     focal = num("FocalLength")
     f35 = num("FocalLengthIn35mmFilm")
-    sensor_w = None
+    sensor_w = fp_w = None
+    fpx, unit = num("FocalPlaneXResolution"), tags.get("FocalPlaneResolutionUnit")
+    if fpx and unit in (2, 3, 4, 5):
+        mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}[int(unit)]
+        fp_w = max(width, height) / fpx * mm_per_unit
     if focal and f35:
         sensor_w = focal * 36.0 / f35
     else:
-        fpx, unit = num("FocalPlaneXResolution"), tags.get("FocalPlaneResolutionUnit")
-        if fpx and unit in (2, 3, 4, 5):
-            mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}[int(unit)]
-            sensor_w = max(width, height) / fpx * mm_per_unit
+        sensor_w = fp_w
 
     xmp: dict[str, str] = {}
     heading = None
@@ -231,7 +236,8 @@ def read_image_metadata(path: PathLike) -> ImageMetadata:
         lat_deg=lat, lon_deg=lon, alt_m=alt,
         gimbal_ypr_deg=gimbal, flight_ypr_deg=ypr("Flight"),
         relative_alt_m=_xmp_float(xmp, "drone-dji:RelativeAltitude", p),
-        heading_deg=heading, focal_mm=focal, focal35_mm=f35, sensor_width_mm=sensor_w, xmp=xmp,
+        heading_deg=heading, focal_mm=focal, focal35_mm=f35, sensor_width_mm=sensor_w,
+        focal_plane_width_mm=fp_w, xmp=xmp,
     )
 
 

@@ -150,20 +150,39 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     return GroundPoints(np.array(cols["name"]), xyz, use)
 
 
+def read_point_extras(path: PathLike) -> dict[str, list[str]]:
+    """The ``name`` column and the text of the :data:`POINT_EXTRAS` columns a points CSV has (e.g. the residuals
+    ``vx, vy, vz`` and sigmas of an adjustment's ``ground_control.csv``), by column name."""
+    _, _, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
+    return {c: cols[c] for c in ["name", *POINT_EXTRAS] if c in cols}
+
+
 def read_measurements_csv(path: PathLike) -> ImageMeasurements:
     """Read ``point,image,column,row`` (extra columns of skyrig's own output are accepted and ignored)."""
     return read_measurements_csv_lines(path)[0]
 
 
+#: Provenance columns of a measurements file (``skyrig measure`` writes them; other readers ignore them): how the
+#: position was found, whether a sub-pixel refinement moved it, its standard deviation, who and when.
+MEASUREMENT_PROVENANCE = ["method", "refined", "sigma_px", "operator", "time_utc"]
+_MEASUREMENT_EXTRAS = ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z", *MEASUREMENT_PROVENANCE]
+
+
 def read_measurements_csv_lines(path: PathLike) -> tuple[ImageMeasurements, np.ndarray]:
     """:func:`read_measurements_csv` and the ``(N,)`` 1-based line number of each measurement (for messages)."""
-    _, ln, cols = _table(path, ["point", "image", "column", "row"],
-                         ["measured_column", "measured_row", "dcolumn", "drow", "x", "y", "z"])
+    m, ln, _ = read_measurements_table(path)
+    return m, ln
+
+
+def read_measurements_table(path: PathLike) -> tuple[ImageMeasurements, np.ndarray, dict[str, list[str]]]:
+    """:func:`read_measurements_csv_lines` and the text of the provenance columns the file has
+    (:data:`MEASUREMENT_PROVENANCE`: ``{column: (N,) values}``; a column the file lacks is left out)."""
+    _, ln, cols = _table(path, ["point", "image", "column", "row"], _MEASUREMENT_EXTRAS)
     px = np.stack([float_column(cols[c], path, ln, c) for c in ("column", "row")], axis=1)
     with no_cyclic_gc():
         _check_pairs(cols, ln, path)
     m = ImageMeasurements(np.array(cols["point"]), np.array(cols["image"]), px.reshape(-1, 2))
-    return m, np.array(ln, dtype=np.int64)
+    return m, np.array(ln, dtype=np.int64), {c: cols[c] for c in MEASUREMENT_PROVENANCE if c in cols}
 
 
 def _check_pairs(cols: dict[str, list[str]], ln: list[int], path: PathLike) -> None:
@@ -182,9 +201,15 @@ def _check_pairs(cols: dict[str, list[str]], ln: list[int], path: PathLike) -> N
 
 
 def write_measurements_csv(
-    path: PathLike, m: ImageMeasurements, measured: np.ndarray | None = None, header_lines: list[str] = ()
+    path: PathLike, m: ImageMeasurements, measured: np.ndarray | None = None, header_lines: list[str] = (),
+    provenance: dict[str, np.ndarray] | None = None,
 ) -> None:
-    """Write ``point,image,column,row`` (+ measured and residual columns when ``measured`` is given)."""
+    """Write ``point,image,column,row`` (+ measured and residual columns when ``measured`` is given, + the
+    :data:`MEASUREMENT_PROVENANCE` columns given in ``provenance``, as text, in that order)."""
+    prov = {c: [str(v) for v in provenance[c]] for c in MEASUREMENT_PROVENANCE if provenance and c in provenance}
+    unknown = set(provenance or {}) - set(MEASUREMENT_PROVENANCE)
+    if unknown:
+        raise ValueError(f"unknown provenance column(s) {sorted(unknown)} (known: {MEASUREMENT_PROVENANCE})")
     with atomic_write(path, newline="") as fh:
         for h in header_lines:
             fh.write(f"# {h}\n")
@@ -192,13 +217,14 @@ def write_measurements_csv(
         cols = ["point", "image", "column", "row"]
         if measured is not None:
             cols += ["measured_column", "measured_row", "dcolumn", "drow"]
+        cols += list(prov)
         w.writerow(cols)
         for i in range(len(m)):
             row = [m.point[i], m.image[i], "%.3f" % m.pixel[i, 0], "%.3f" % m.pixel[i, 1]]
             if measured is not None:
                 d = m.pixel[i] - measured[i]
                 row += ["%.3f" % measured[i, 0], "%.3f" % measured[i, 1], "%.3f" % d[0], "%.3f" % d[1]]
-            w.writerow(row)
+            w.writerow(row + [v[i] for v in prov.values()])
 
 
 def write_points_csv(path: PathLike, points: GroundPoints, extra: dict[str, np.ndarray] | None = None,

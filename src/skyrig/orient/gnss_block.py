@@ -49,8 +49,9 @@ class UavConfig:
     attitude_sigma_deg: float | None = 5.0
     #: a-priori sigma of a tie-point measurement (px, full resolution)
     pixel_sigma_px: float = 1.0
-    #: relative sigma of the EXIF focal length prior (0.1 = 10 %)
-    focal_prior_rel: float = 0.1
+    #: relative sigma of the focal length prior (0.1 = 10 %); None: the sigma of the prior's source
+    #: (:mod:`skyrig.io.camera_prior`: 1 % vendor calibration, 3 % EXIF focal + sensor database, 10 % 35-mm value)
+    focal_prior_rel: float | None = None
     #: self-calibrated intrinsics (FrameCamera + OpenCV distortion names)
     self_calibration: tuple[str, ...] = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
     #: two images agree when their common tie points on the ground plane differ by < this x flying height
@@ -78,20 +79,35 @@ class UavConfig:
     #: (a shift per strip with prior sigma ``strip_shift_sigma_m``; absorbs a GPS height/position offset per strip)
     gnss_strip_shift: Literal["off", "weighted"] = "off"
     strip_shift_sigma_m: float = 1.0
-    #: focal length: "self" (self-calibrated with the EXIF prior), "exif" (fixed at the EXIF value) or "auto"
-    #: (self-calibrated, but fixed at the EXIF value when the block cannot determine it: posterior sigma above
-    #: ``focal_determinable`` x the prior sigma, e.g. a flat nadir block flown at one height)
-    focal: Literal["self", "exif", "auto"] = "self"
-    focal_determinable: float = 0.5
+    #: focal length: "auto" (self-calibrated, held at its prior when the block cannot determine it or contradicts
+    #: it: :mod:`skyrig.adjust.determinability`), "self" (self-calibrated whatever the verdict: an explicit choice the
+    #: report states) or "exif" (fixed at the prior's value)
+    focal: Literal["self", "exif", "auto"] = "auto"
+    #: determinability rule for every self-calibrated parameter: determined when its formal sigma is at most
+    #: ``determinable_ratio`` x its prior sigma and the prior test |z| <= ``prior_conflict_z``; otherwise held at the
+    #: prior with a warning (unless named in ``free_anyway``)
+    determinable_ratio: float = 0.5
+    prior_conflict_z: float = 3.0
+    #: intrinsic names left free even when the block cannot determine them (the report says so)
+    free_anyway: tuple[str, ...] = ()
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "UavConfig":
-        bad = sorted(set(data) - set(cls.__dataclass_fields__))
+        d = dict(data)
+        if "focal_determinable" in d:  # the old name of determinable_ratio (one release of deprecation)
+            logger.warning("%s: option focal_determinable is deprecated; it is now determinable_ratio and applies to "
+                           "every self-calibrated parameter", source)
+            old = d.pop("focal_determinable")
+            d.setdefault("determinable_ratio", old)
+        bad = sorted(set(d) - set(cls.__dataclass_fields__))
         if bad:
             raise ValueError(f"{source}: unknown UAV adjustment option(s) {bad}; "
                              f"known: {sorted(cls.__dataclass_fields__)}")
-        d = dict(data)
-        for k in ("gnss_sigma_m", "self_calibration"):
+        fp = d.get("focal_prior_rel")
+        if fp is not None and not (isinstance(fp, (int, float)) and np.isfinite(fp) and fp > 0):
+            raise ValueError(f"{source}: focal_prior_rel must be a positive number (relative sigma, e.g. 0.03), "
+                             f"got {fp!r}")
+        for k in ("gnss_sigma_m", "self_calibration", "free_anyway"):
             if k in d and d[k] is not None:
                 d[k] = tuple(d[k])
         return cls(**d)
@@ -121,6 +137,17 @@ class UavBlockInput:
         :class:`skyrig.georef.eo.WorldFrame` of the local coordinates (or None).
     notes
         What was assumed while reading (height reference...).
+    intrinsic_sigma
+        Prior sigma of the camera's intrinsics by name (camera units: mm for focal_mm / ppx_mm / ppy_mm), from the
+        images' metadata (:func:`skyrig.io.camera_prior.camera_prior`); names left out get the defaults of
+        :func:`adjust_uav_block`.  The prior's values are ``camera``'s.
+    prior_source
+        Where the camera prior came from, in words.
+    control_track, control_xyz, control_sigma, control_check
+        Ground points measured in the images (optional): ``(K,)`` index into ``track_name``, ``(K, 3)`` coordinates
+        in the local frame (metres), ``(K, 3)`` sigmas (metres per axis: metre-class targets with a loose height
+        are fine) and ``(K,)`` True for a check point (compared afterwards, not used).  A point the block cannot
+        intersect (seen in fewer than two oriented images) is left out and reported (``summary["control_left_out"]``).
     """
 
     names: NDArray[np.str_]
@@ -134,6 +161,12 @@ class UavBlockInput:
     track_name: NDArray[np.str_]
     frame: Any = None
     notes: list[str] = field(default_factory=list)
+    intrinsic_sigma: dict[str, float] = field(default_factory=dict)
+    prior_source: str = ""
+    control_track: NDArray[np.int64] | None = None
+    control_xyz: NDArray[np.float64] | None = None
+    control_sigma: NDArray[np.float64] | None = None
+    control_check: NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -324,6 +357,15 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
     tracks, tmap = np.unique(ot, return_inverse=True)
     names = inp.names[img_sel]
     imu = np.array([img_map[k] for k in imu_images if img_map[k] >= 0], np.int64)
+    ctl: dict[str, Any] = {}
+    if inp.control_track is not None and len(inp.control_track):
+        pos = {int(t): k for k, t in enumerate(tracks)}
+        sel = [j for j, t in enumerate(inp.control_track) if int(t) in pos]
+        if sel:
+            ctl = dict(control_point=np.array([pos[int(inp.control_track[j])] for j in sel], np.int64),
+                       control_xyz=np.asarray(inp.control_xyz, float)[sel],
+                       control_sigma=np.asarray(inp.control_sigma, float)[sel],
+                       control_check=np.asarray(inp.control_check, bool)[sel])
     block = Block(
         cameras=[camera], station_name=names, station_rotation=R[img_sel], station_centre=C[img_sel],
         image_name=names, image_station=np.arange(len(img_sel)), image_camera=np.zeros(len(img_sel), np.int64),
@@ -336,6 +378,7 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
         imu_sigma_rad=np.radians(cfg.attitude_sigma_deg or 1.0),
         frame=inp.frame.describe() if inp.frame is not None else "local ENU",
         station_strip=None if strip is None else _renumber_strips(strip[img_sel]),
+        **ctl,
     )
     return block, tracks, np.flatnonzero(obs_sel)
 
@@ -574,8 +617,11 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     # that walk far from the minimum (brighton at 1,600 px: focal 2,542 instead of 3,135 px, cost 2 % higher)
     nominal = camera
     w_mm = camera.width * camera.pixel_size_mm
-    sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
+    sig = {"focal_mm": 0.1 * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
+    sig.update(inp.intrinsic_sigma)
+    if cfg.focal_prior_rel is not None:
+        sig["focal_mm"] = cfg.focal_prior_rel * f0
     names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration
                       and not (nm == "focal_mm" and cfg.focal == "exif"))
 
@@ -618,28 +664,12 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     block, tracks, rows = _build_block(inp, nominal, R, C, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
                                        strip)
     res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
-    focal_note = ("focal length fixed at the EXIF value (focal='exif')" if cfg.focal == "exif" or
-                  "focal_mm" not in cfg.self_calibration else "focal length self-calibrated")
-    focal_ratio = float("nan")
-    if "focal_mm" in names_cal:
-        # formal (a-priori) sigma of the focal length from the block's geometry and the prior, over the prior
-        sf = res.sigma_reduced().get(("intrinsics", res.block.cameras[0].name, "focal_mm"))
-        focal_ratio = float(sf) / max(res.sigma0, 1e-12) / sig["focal_mm"] if sf is not None else float("nan")
-        if cfg.focal == "auto" and not focal_ratio <= cfg.focal_determinable:
-            cam_self = res.block.cameras[0]
-            f_self = cam_self.focal_mm / cam_self.pixel_size_mm
-            names_nf = tuple(nm for nm in names_cal if nm != "focal_mm")
-            R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
-            X[:] = np.nan
-            X[tracks] = res.block.point_xyz
-            block, tracks, rows = _build_block(inp, nominal, R, C, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px,
-                                               imu_imgs, strip)
-            res = adjust(block, cal_cfg(names_nf).with_(robust=None, statistics=True),
-                         start=replace(block, cameras=[cam_self.with_(focal_mm=f0)]))
-            focal_note = (f"focal length not determinable by this block (posterior sigma {focal_ratio:.2f} x the EXIF "
-                          f"prior sigma; self-calibrated value {f_self:.0f} px): fixed at the EXIF value")
-        elif cfg.focal == "auto":
-            focal_note = f"focal length self-calibrated (posterior sigma {focal_ratio:.2f} x the EXIF prior sigma)"
+    verdicts: list[Any] = []
+    if names_cal:
+        res, verdicts, names_cal = _hold_undetermined(inp, cfg, res, nominal, names_cal, sig, cal_cfg,
+                                                      (R, C, X, img_sel, obs_sel, imu_imgs, strip))
+    focal_note = _focal_note(cfg, verdicts, names_cal)
+    focal_ratio = next((v.ratio for v in verdicts if v.name == "focal_mm"), float("nan"))
     logger.info(focal_note)
     camera = res.block.cameras[0]
     R[img_sel] = res.block.station_rotation
@@ -658,11 +688,82 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     summary["attitude_pairs_agreeing"] = int(agree.sum() // 2)
     summary["focal"] = focal_note
     summary["focal_sigma_over_prior"] = focal_ratio
+    summary["calibration"] = [v.to_dict() for v in verdicts]
+    summary["calibration_held"] = [v.name for v in verdicts if v.held]
+    summary["calibration_rule"] = (f"determined when the formal sigma <= {cfg.determinable_ratio:g} x the prior sigma and "
+                                   f"the prior test |z| <= {cfg.prior_conflict_z:g}; otherwise held at the prior")
+    summary["camera_prior_source"] = inp.prior_source
+    if inp.control_track is not None and len(inp.control_track):
+        used = set(res.block.point_name[res.block.control_point].tolist()) if res.block.control_point is not None \
+            else set()
+        summary["control_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
+                                         if str(inp.track_name[t]) in used and not c)
+        summary["check_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
+                                       if str(inp.track_name[t]) in used and c)
+        left = [str(inp.track_name[t]) for t in inp.control_track if str(inp.track_name[t]) not in used]
+        summary["control_left_out"] = {nm: "seen in fewer than two oriented images after outlier removal: it cannot "
+                                       "be intersected; left out" for nm in left}
+        for nm in left:
+            logger.warning("ground point %s: %s", nm, summary["control_left_out"][nm])
     if strip is not None:
         b = res.block
         summary["strips"] = {int(k): [str(x) for x in inp.names[strip == k]] for k in np.unique(strip[strip >= 0])}
         summary["strip_shift_m"] = np.asarray(b.strip_shift).tolist()
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
+
+
+def _hold_undetermined(inp: UavBlockInput, cfg: UavConfig, res: AdjustmentResult, nominal: FrameCamera,
+                       names_cal: tuple[str, ...], sig: dict[str, float], cal_cfg: Any, state: tuple
+                       ) -> tuple[AdjustmentResult, list[Any], tuple[str, ...]]:
+    """Determinability of the self-calibrated intrinsics (:func:`skyrig.adjust.determinability.determinability`);
+    those the block cannot determine or that contradict their prior are held at the prior (the block re-adjusted
+    without them, started from the estimate with them reset), each with a warning in words.  Returns the final
+    result, the verdicts (held ones included, with the estimate that was refused) and the names left free."""
+    from skyrig.adjust.determinability import determinability
+
+    R, C, X, img_sel, obs_sel, imu_imgs, strip = state
+    cam_name = res.block.cameras[0].name
+    prior = dict(zip(nominal.intrinsic_names, np.asarray(nominal.intrinsics, float)))
+    free_anyway = tuple(cfg.free_anyway) + (("focal_mm",) if cfg.focal == "self" else ())
+    pix = nominal.pixel_size_mm
+
+    def judge(r: AdjustmentResult, names: tuple[str, ...]) -> list[Any]:
+        return determinability(r, cam_name, names, prior, sig, ratio_max=cfg.determinable_ratio,
+                               z_max=cfg.prior_conflict_z, free_anyway=free_anyway, pixel_size_mm=pix)
+
+    verdicts = judge(res, names_cal)
+    held: dict[str, Any] = {}
+    for _ in range(2):  # holding one parameter can change what the others show: judge the re-adjustment once more
+        new = [v for v in verdicts if v.held and v.name not in held]
+        if not new:
+            break
+        for v in new:
+            held[v.name] = v
+            logger.warning("self-calibration: %s", v.words())
+        names_cal = tuple(nm for nm in names_cal if nm not in held)
+        cam_est = res.block.cameras[0]
+        vals = dict(zip(cam_est.intrinsic_names, np.asarray(cam_est.intrinsics, float)))
+        vals.update({nm: prior[nm] for nm in held})
+        start_cam = cam_est.with_intrinsics(np.array([vals[nm] for nm in cam_est.intrinsic_names]))
+        R2, C2 = R.copy(), C.copy()
+        R2[img_sel], C2[img_sel] = res.block.station_rotation, res.block.station_centre
+        block, _, _ = _build_block(inp, nominal, R2, C2, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
+                                   strip)
+        block = replace(block, point_xyz=np.array(res.block.point_xyz, float))  # same observations: same points
+        res = adjust(block, cal_cfg(names_cal).with_(robust=None, statistics=True),
+                     start=replace(block, cameras=[start_cam]))
+        verdicts = judge(res, names_cal) if names_cal else []
+    return res, [*held.values(), *verdicts], names_cal
+
+
+def _focal_note(cfg: UavConfig, verdicts: list[Any], names_cal: tuple[str, ...]) -> str:
+    """The focal length's fate in words (report summary ``focal``)."""
+    if cfg.focal == "exif" or "focal_mm" not in cfg.self_calibration:
+        return "focal length fixed at its prior value (focal='exif' or not self-calibrated)"
+    v = next((x for x in verdicts if x.name == "focal_mm"), None)
+    if v is None:
+        return "focal length self-calibrated"
+    return "focal length " + v.words()
 
 
 def _summary(inp: UavBlockInput, res: AdjustmentResult, img_sel: NDArray, camera: FrameCamera,

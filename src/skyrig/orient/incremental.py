@@ -79,8 +79,9 @@ class OrientConfig:
     datum: Literal["auto", "control", "scale-bar", "positions", "free"] = "auto"
     #: a-priori sigma of a tie-point measurement (px)
     pixel_sigma_px: float = 1.0
-    #: relative sigma of the EXIF / given focal length prior
-    focal_prior_rel: float = 0.1
+    #: relative sigma of the EXIF / given focal length prior; None: the input's (``OrientInput.focal_prior_rel``,
+    #: from the images' metadata, :mod:`skyrig.io.camera_prior`), else 0.1
+    focal_prior_rel: float | None = None
     #: self-calibrated intrinsics (FrameCamera + OpenCV distortion names); () keeps the camera fixed
     self_calibration: tuple[str, ...] = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
     #: two-view start: pairs tried (most common tie points first), minimum common points, parallax for full score
@@ -156,6 +157,7 @@ class OrientInput:
     positions: NDArray[np.float64] | None = None
     frame: Any = None
     notes: list[str] = field(default_factory=list)
+    focal_prior_rel: float | None = None
 
     def __post_init__(self) -> None:
         self.names = np.asarray(self.names, dtype=str)
@@ -534,7 +536,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     # so that resection and triangulation work with a camera close to the true one
     f0 = inp.camera.focal_mm
     grow_cal = tuple(nm for nm in ("focal_mm", "k1") if nm in cfg.self_calibration)
-    grow_sig = {"focal_mm": cfg.focal_prior_rel * f0, "k1": 1.0}
+    f_rel = next(x for x in (cfg.focal_prior_rel, inp.focal_prior_rel, 0.1) if x is not None)
+    grow_sig = {"focal_mm": f_rel * f0, "k1": 1.0}
 
     def bundle(X: NDArray) -> NDArray:
         nonlocal camera
@@ -617,9 +620,15 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         spread = float(np.sqrt(np.mean(np.sum((dst - dst.mean(axis=0)) ** 2, axis=1))))
         if spread <= 0 or np.linalg.matrix_rank(dst - dst.mean(axis=0), tol=1e-3 * spread) < 2:
             raise OrientError("the control points are (nearly) collinear: no datum")
-        if float(np.median(v)) > 0.05 * spread:
+        # judged against the control's declared sigmas too: metre-class targets (handheld GNSS, a loose height)
+        # leave metres of residual that are no blunder when their sigmas say so
+        sig = np.broadcast_to(np.asarray(inp.control_sigma if inp.control_sigma is not None else 0.01, float),
+                              inp.control_xyz.shape)[use][have]
+        nres = np.max(np.abs(s * src @ Rs.T + t - dst) / np.maximum(sig, 1e-9), axis=1)
+        if float(np.median(v)) > 0.05 * spread and float(np.median(nres)) > 5.0:
             raise OrientError(f"the control points do not fit the relative orientation by a similarity (median "
-                              f"residual {np.median(v):.3g} m over a spread of {spread:.3g} m): wrong coordinates "
+                              f"residual {np.median(v):.3g} m over a spread of {spread:.3g} m, "
+                              f"{np.median(nres):.1f} x their declared sigmas): wrong coordinates "
                               "or wrong image measurements")
         _apply_similarity(s, Rs, t, R, C, X)
         datum_info.update(control_points=int(have.sum()), similarity_residual_max_m=float(v.max()))
@@ -651,7 +660,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         _apply_similarity(s, Rs, t, R, C, X)
     # ---- 4. final adjustment
     w_mm = camera.width * camera.pixel_size_mm
-    sig = {"focal_mm": cfg.focal_prior_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
+    sig = {"focal_mm": f_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
     names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
     final_cfg = AdjustConfig(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,

@@ -557,6 +557,22 @@ def failure_reasons(adj: Any) -> list[str]:
     return out
 
 
+def _all_have_gps(images: PathArg | None) -> bool:
+    """Whether ``images`` is a folder of images that all carry an EXIF GPS position with altitude."""
+    from skyrig.io.image_read import list_images, read_image_metadata
+
+    if images is None or not Path(images).is_dir():
+        return False
+    files = list_images(Path(images))
+    if not files:
+        return False
+    for f in files:
+        m = read_image_metadata(f)
+        if not (m.has_gps and m.alt_m is not None):
+            return False
+    return True
+
+
 def needs_no_gnss(no_gps: bool = False, control: Any = None, check: Any = None, scale_bars: Any = None,
                   camera: Any = None, measurements: Sequence[Any] = (), datum: str = "auto") -> bool:
     """Whether a UAV orientation runs without GNSS: asked for, or implied by control / check points, scale bars,
@@ -652,7 +668,8 @@ def _ties_file(ties: PathArg) -> Path:
 
 def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg, *, no_gps: bool = False,
                          gnss_sigma: Sequence[float] = (2.0, 2.0, 4.0), attitude_sigma: float = 5.0,
-                         altitude: str = "egm96", geoid: str | None = None, focal_prior: float = 0.1,
+                         altitude: str = "egm96", geoid: str | None = None, focal_prior: float | None = None,
+                         free_intrinsics: str | Sequence[str] = (),
                          self_calibration: bool = True, config: Mapping[str, Any] | None = None,
                          config_source: str | None = None, crs: str | None = None, compare_pycolmap: bool = False,
                          pycolmap_size: int = 1600, pycolmap_mapper: str = "incremental",
@@ -704,8 +721,9 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     if pycolmap_mapper not in ("incremental", "global"):
         raise OptionError(spell("pycolmap_mapper"), f"expected incremental or global, got {pycolmap_mapper!r}")
     pycolmap_input = _pycolmap_input(images, pycolmap_input, compare_pycolmap, spell)
-    if not (math.isfinite(focal_prior) and focal_prior > 0):
-        raise OptionError(spell("focal_prior"), f"must be positive, got {focal_prior}")
+    if focal_prior is not None and not (math.isfinite(focal_prior) and focal_prior > 0):
+        raise OptionError(spell("focal_prior"), f"must be a positive relative sigma (e.g. 0.03), got {focal_prior}")
+    free = _intrinsic_names(free_intrinsics, spell)
     if crs is not None:
         from skyrig.errors import CRSError
         from skyrig.geodesy.statement import project_frame
@@ -714,8 +732,11 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             project_frame(crs)
         except CRSError as e:
             raise OptionError(spell("crs"), str(e)) from None
-    if needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
-        return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid, focal_prior=focal_prior,
+    ground_with_gnss = (not no_gps and bool(control or check or list(measurements)) and not scale_bars
+                        and not camera and datum == "auto" and _all_have_gps(images))
+    if not ground_with_gnss and needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
+        return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid,
+                             focal_prior=focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
                              compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size,
                              pycolmap_mapper=pycolmap_mapper, pycolmap_input=pycolmap_input, control=control,
@@ -728,7 +749,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         raise OptionError(spell("attitude_sigma"), f"must be >= 0, got {attitude_sigma}")
     gs = _sigma3(gnss_sigma, "gnss_sigma", spell, "east,north,up")
     kw: dict[str, Any] = dict(gnss_sigma_m=gs, attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
-                              geoid=geoid, focal_prior_rel=focal_prior)
+                              geoid=geoid, focal_prior_rel=focal_prior, free_anyway=free)
     if not self_calibration:
         kw["self_calibration"] = ()
     kw.update(config or {})
@@ -736,10 +757,20 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     from skyrig.pipeline.uav import adjust_uav
 
     imgs = Path(images)
-    inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else [])
+    inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else []) + [
+        Path(p) for p in (control, check, *measurements) if p]
+    gkw: dict[str, Any] = {}
+    if ground_with_gnss:  # GNSS-supported block with ground control / check points measured in the images
+        from skyrig.io.points_csv import read_measurements_csv, read_points_csv
+
+        ctrl = read_points_csv(control) if control else None
+        gkw = dict(control=ctrl, check=read_points_csv(check, default_frame=ctrl.frame if ctrl else None)
+                   if check else None, control_sigma_m=_sigma3(control_sigma, "control_sigma", spell, "x,y,z"),
+                   extra_measurements=[read_measurements_csv(p) for p in measurements],
+                   sources={"control": str(control) if control else None, "check": str(check) if check else None})
     res, rep = adjust_uav(imgs, tie_file, out, cfg, out / "pycolmap" if compare_pycolmap else None,
                           pycolmap_max_image_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper, crs=crs,
-                          pycolmap_input=pycolmap_input)
+                          pycolmap_input=pycolmap_input, **gkw)
     if (out / "report.html").is_file():  # the pipeline's plain page -> the full report (skyrig.report)
         from skyrig.report import report_data_from_uav, write_report
 
@@ -747,13 +778,27 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             res, rep, inputs=[tie_file, *list_images(imgs)], options=rep["uav"]["config"]))
     options = {"images": str(imgs), "ties": str(tie_file), "gnss_sigma_m": list(kw["gnss_sigma_m"]),
                "attitude_sigma_deg": attitude_sigma, "altitude": altitude, "geoid": geoid,
-               "focal_prior": focal_prior, "self_calibration": self_calibration,
+               "focal_prior": focal_prior, "free_intrinsics": list(free), "self_calibration": self_calibration,
                "compare_pycolmap": compare_pycolmap, "pycolmap_input": pycolmap_input if compare_pycolmap else None,
                "crs": crs, "config": config_source}
     outcome = UavOutcome(res, rep, failure_reasons(res.adjustment), False, options, inputs)
     for line in outcome.summary_lines():
         logger.info("%s", line)
     return outcome
+
+
+_INTRINSICS = ("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2", "p1", "p2", "k3")
+
+
+def _intrinsic_names(value: str | Sequence[str], spell: Spell) -> tuple[str, ...]:
+    """``free_intrinsics`` as a tuple of known intrinsic names (comma-separated text or a list); unknown names are an
+    error naming the option."""
+    names = [x.strip() for x in value.split(",")] if isinstance(value, str) else [str(x).strip() for x in value]
+    names = [x for x in names if x]
+    bad = [x for x in names if x not in _INTRINSICS]
+    if bad:
+        raise OptionError(spell("free_intrinsics"), f"unknown intrinsic(s) {bad}; known: {', '.join(_INTRINSICS)}")
+    return tuple(names)
 
 
 def _pycolmap_input(images: PathArg | None, choice: str | None, compare: bool, spell: Spell) -> str:
@@ -772,7 +817,7 @@ def _pycolmap_input(images: PathArg | None, choice: str | None, compare: bool, s
 
 
 def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude: str, geoid: str | None,
-                  focal_prior: float, self_calibration: bool, config: Mapping[str, Any] | None,
+                  focal_prior: float | None, self_calibration: bool, config: Mapping[str, Any] | None,
                   config_source: str | None, crs: str | None, compare_pycolmap: bool, pycolmap_size: int,
                   pycolmap_mapper: str, pycolmap_input: str, control: PathArg | None, control_sigma: Sequence[float],
                   check: PathArg | None, scale_bars: PathArg | None, measurements: Sequence[PathArg],
@@ -811,7 +856,7 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
     inputs = [tie_file, *(list_images(imgs) if have_images else [])] + [  # type: ignore[arg-type]
         Path(p) for p in (control, check, scale_bars, camera, config_source, *measurements) if p]
     sources = {k: (str(v) if v else None) for k, v in (("control", control), ("check", check),
-                                                       ("scale_bars", scale_bars))}
+                                                       ("scale_bars", scale_bars), ("camera", camera))}
     res, rep = orient_without_gnss(
         imgs if have_images else None, tie_file, out, cfg, cam, ctrl, cs, chk, bars, extra,
         use_gps=True, pycolmap_workdir=out / "pycolmap" if compare_pycolmap else None,

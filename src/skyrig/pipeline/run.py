@@ -660,6 +660,7 @@ def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
         res = make_uav_orientation(p.images[0] if p.images else None, ties, ctx.out, no_gps=o["no_gps"],
                                    gnss_sigma=o["gnss_sigma"], attitude_sigma=o["attitude_sigma"],
                                    altitude=o["altitude"], focal_prior=o["focal_prior"],
+                                   free_intrinsics=o.get("free_intrinsics") or (),
                                    self_calibration=o["self_calibration"], crs=p.crs,
                                    compare_pycolmap=o["compare_pycolmap"], pycolmap_size=o["pycolmap_size"],
                                    pycolmap_mapper=o["pycolmap_mapper"], pycolmap_input=o["pycolmap_input"],
@@ -775,7 +776,11 @@ register_stage(Stage(
     options={"gnss_sigma": Option([2.0, 2.0, 4.0], "floats", "GNSS sigma E, N, U (m)", n=3, positive=True),
              "attitude_sigma": Option(5.0, "float", "gimbal attitude sigma (deg)", positive=True),
              "altitude": Option("egm96", "choice", "what EXIF GPSAltitude is", ("egm96", "ellipsoidal")),
-             "focal_prior": Option(0.1, "float", "relative sigma of the EXIF focal length", positive=True),
+             "focal_prior": Option(None, "float", "relative sigma of the focal length prior (default: the sigma of its "
+                                   "source: 1 % vendor XMP, 3 % EXIF focal + sensor database, 10 % 35-mm value)",
+                                   nullable=True, positive=True),
+             "free_intrinsics": Option([], "strs", "intrinsics left free even when the block cannot determine them "
+                                       "(default: held at the prior with a warning)"),
              "self_calibration": Option(True, "bool", "self-calibrate the camera"),
              "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment"),
              "no_gps": Option(False, "bool", "orient without GNSS (two-view start, resection, bundle adjustment): "

@@ -107,7 +107,6 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
     """
     from skyrig.geodesy.crs import Geoid, geodetic_to_ecef
     from skyrig.georef.eo import WorldFrame
-    from skyrig.io.image_read import camera_from_metadata
     from skyrig.io.odm import rotation_from_gimbal_ypr
 
     metas = list(metas)
@@ -138,12 +137,14 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
         rot[have] = rotation_from_gimbal_ypr(frame, gnss[have], ypr)
     rel = [g[2] - m.relative_alt_m for g, m in zip(gnss, metas) if m.relative_alt_m is not None]
     ground = float(np.median(rel)) if rel else None
-    cam = camera_from_metadata(metas[0], metas[0].model or "camera")
     sizes = {(m.width, m.height) for m in metas}
     if len(sizes) > 1:
         raise InputFormatError(f"images of different sizes {sorted(sizes)}: one camera per block is supported",
                                metas[0].path)
-    cam = cam.with_(distortion=OpenCVDistortion())
+    cam, isig, prior = camera_and_prior(metas, cfg)
+    notes.append(f"camera prior: {prior.source}; focal {prior.focal_px:.1f} +- {prior.focal_sigma_px:.1f} px, "
+                 f"principal point ({prior.pp_px[0]:.1f}, {prior.pp_px[1]:.1f}) +- {prior.pp_sigma_px:.1f} px")
+    notes.extend(prior.warnings)
     names = np.array([m.name for m in metas], dtype=str)
     meas_image = np.asarray(measurements.image, dtype=str)
     by_name = np.argsort(names, kind="stable")
@@ -155,15 +156,104 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
     track_name, obs_track = np.unique(measurements.point, return_inverse=True)
     obs_image = by_name[pos].astype(np.int64)
     return UavBlockInput(names, cam, gnss, rot, ground, obs_track.astype(np.int64), obs_image,
-                         np.asarray(measurements.pixel, float), track_name, frame, notes)
+                         np.asarray(measurements.pixel, float), track_name, frame, notes, isig, prior.source)
+
+
+def _with_extra(meas: Any, extra: Sequence[Any]) -> Any:
+    """Tie points plus extra image measurements (ground control targets) as one table."""
+    if not extra:
+        return meas
+    from skyrig.georef.observations import ImageMeasurements
+
+    ms = [meas, *extra]
+    return ImageMeasurements(np.concatenate([m.point for m in ms]), np.concatenate([m.image for m in ms]),
+                             np.vstack([m.pixel for m in ms]))
+
+
+def attach_ground_points(inp: UavBlockInput, control: Any, check: Any, sigma_m: Sequence[float],
+                         sources: dict[str, str]) -> UavBlockInput:
+    """``inp`` with control / check points (GroundPoints in any frame, moved into the block's local frame by PROJ)
+    found by name among its tracks; a point measured in no image is an error naming the file."""
+    from dataclasses import replace as _replace
+
+    sig = np.asarray(sigma_m, float).reshape(-1)
+    if sig.size == 1:
+        sig = np.repeat(sig, 3)
+    if sig.size != 3 or not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+        raise InputFormatError(f"control sigma {list(sigma_m)}: three positive numbers (m) expected", None, None,
+                               "control_sigma")
+    tidx = {str(n): k for k, n in enumerate(inp.track_name)}
+    tr, xyz, chk = [], [], []
+    for pts, is_check in ((control, False), (check, True)):
+        if pts is None:
+            continue
+        local = pts.frame.points_to(pts.xyz, inp.frame)
+        for nm, x in zip(pts.name, local):
+            if str(nm) not in tidx:
+                what = "check" if is_check else "control"
+                raise InputFormatError(f"{what} point {str(nm)!r} is not measured in any image (no tie point or "
+                                       "image measurement of that name)", sources.get(what))
+            tr.append(tidx[str(nm)])
+            xyz.append(x)
+            chk.append(is_check)
+    notes = list(inp.notes) + [f"{sum(not c for c in chk)} control and {sum(chk)} check points, control sigma "
+                               f"{', '.join(f'{v:g}' for v in sig)} m (x, y, z)"]
+    return _replace(inp, control_track=np.array(tr, np.int64), control_xyz=np.array(xyz, float).reshape(-1, 3),
+                    control_sigma=np.broadcast_to(sig, (len(tr), 3)).copy(), control_check=np.array(chk, bool),
+                    notes=notes)
+
+
+def block_gsd_m(res: UavResult) -> float | None:
+    """The block's ground sampling distance (m): median over the oriented images of the height above the median
+    object point over the focal length in pixels (for check-point RMS in GSD)."""
+    b = res.adjustment.block
+    if b.n_points == 0 or len(res.block_image) == 0:
+        return None
+    zg = float(np.median(b.point_xyz[:, 2]))
+    H = np.abs(res.centre[res.block_image, 2] - zg)
+    f_px = res.camera.focal_mm / res.camera.pixel_size_mm
+    g = float(np.median(H)) / f_px
+    return g if np.isfinite(g) and g > 0 else None
+
+
+def camera_and_prior(metas: Sequence[Any], cfg: UavConfig = UavConfig()) -> tuple[Any, dict[str, float], Any]:
+    """The starting camera of a block's images, its intrinsics' prior sigmas (camera units) and the
+    :class:`skyrig.io.camera_prior.CameraPrior` it came from (the first image's; every image is checked to be the
+    same camera: make, model and EXIF focal length, else a warning names the first that differs)."""
+    from skyrig.io.camera_prior import camera_prior
+    from skyrig.camera.frame import FrameCamera
+
+    m0 = metas[0]
+    prior = camera_prior(m0, focal_sigma_rel=cfg.focal_prior_rel)
+    for m in metas[1:]:
+        if (m.make, m.model) != (m0.make, m0.model) or (m.focal_mm and m0.focal_mm and
+                                                        abs(m.focal_mm / m0.focal_mm - 1) > 0.005):
+            logger.warning("%s: camera %s %s, focal %s mm differs from %s (%s %s, %s mm): one camera is adjusted for "
+                           "the whole block", m.path, m.make, m.model, m.focal_mm, m0.name, m0.make, m0.model,
+                           m0.focal_mm)
+            break
+    pix = prior.pixel_size_mm or 0.001
+    dist = OpenCVDistortion(**prior.distortion) if prior.distortion else OpenCVDistortion()
+    cam = FrameCamera.from_pixels(m0.model or "camera", prior.width, prior.height, prior.focal_px, prior.pp_px[0],
+                                  prior.pp_px[1], pixel_size_mm=pix, distortion=dist)
+    isig = {"focal_mm": prior.focal_sigma_px * pix, "ppx_mm": prior.pp_sigma_px * pix,
+            "ppy_mm": prior.pp_sigma_px * pix, **prior.distortion_sigma}
+    return cam, isig, prior
 
 
 def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None = None,
                cfg: UavConfig = UavConfig(), pycolmap_workdir: str | Path | None = None,
                pycolmap_max_image_size: int = 1600, pycolmap_max_features: int = 8192,
                pycolmap_mapper: str = "incremental", crs: str | None = None,
-               pycolmap_input: str = "images") -> tuple[UavResult, dict[str, Any]]:
+               pycolmap_input: str = "images", control: Any = None, check: Any = None,
+               control_sigma_m: Sequence[float] = (0.01, 0.01, 0.01), extra_measurements: Sequence[Any] = (),
+               sources: dict[str, str] | None = None) -> tuple[UavResult, dict[str, Any]]:
     """Project-level stage: images + ``skyrig match`` output -> adjusted EO, camera and report.
+
+    With ``control`` / ``check`` (:class:`~skyrig.georef.observations.GroundPoints`, measured in the images through
+    the tie points or ``extra_measurements``) the GNSS-supported block also uses control points (sigma
+    ``control_sigma_m`` per axis: metre-class targets with a loose height are fine) and reports check points in
+    metres and GSD; without check points the report says the absolute accuracy is the GNSS's.
 
     Parameters
     ----------
@@ -193,14 +283,17 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     from skyrig.io.points_csv import read_measurements_csv
 
     t0 = time.perf_counter()
-    meas = read_measurements_csv(_ties_file(match_dir))
+    meas = _with_extra(read_measurements_csv(_ties_file(match_dir)), extra_measurements)
     metas = [read_image_metadata(p) for p in list_images(images)]  # images without tie points: "not oriented"
     inp = metadata_block_input(metas, meas, cfg)
+    if control is not None or check is not None:
+        inp = attach_ground_points(inp, control, check, control_sigma_m, sources or {})
     res = adjust_uav_block(inp, cfg)
     from skyrig.adjust.report import adjustment_report
 
     project = uav_project_frame(inp, crs)
-    report = adjustment_report(res.adjustment, frames=None if project is None else (inp.frame, project))
+    report = adjustment_report(res.adjustment, gsd_m=block_gsd_m(res),
+                               frames=None if project is None else (inp.frame, project))
     report["uav"] = dict(res.summary)
     report["uav"]["config"] = asdict(cfg)
     report["uav"]["attitude_check"] = res.attitude_check
@@ -359,10 +452,11 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
         No image and no camera; images of different sizes; a tie point naming an unknown image; a control point or
         scale-bar end not measured in any image (naming the file).
     """
-    from skyrig.io.image_read import camera_from_metadata, list_images, read_image_metadata
+    from skyrig.io.image_read import list_images, read_image_metadata
     from skyrig.orient.incremental import OrientInput
 
     src = sources or {}
+    focal_rel: float | None = None
     metas = [read_image_metadata(p) for p in list_images(images)] if images is not None else []
     meas_image = np.asarray(measurements.image, dtype=str)
     notes: list[str] = []
@@ -375,12 +469,15 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
             raise InputFormatError(f"images of different sizes {sorted(sizes)}: one camera per block is supported",
                                    metas[0].path)
         if camera is None:
-            try:
-                camera = camera_from_metadata(metas[0], metas[0].model or "camera")
-            except (InputFormatError, ValueError) as exc:
-                raise InputFormatError(f"no focal length in the EXIF ({exc}); give the camera with --camera",
-                                       metas[0].path) from None
-            notes.append("camera from the EXIF of the first image (focal length; principal point at the centre)")
+            camera, _, prior = camera_and_prior(metas, UavConfig(focal_prior_rel=cfg.focal_prior_rel))
+            focal_rel = prior.focal_rel_sigma
+            notes.append(f"camera prior from the images' metadata: {prior.source}; focal {prior.focal_px:.1f} +- "
+                         f"{prior.focal_sigma_px:.1f} px")
+            notes.extend(prior.warnings)
+        elif (camera.width, camera.height) != (metas[0].width, metas[0].height):
+            raise InputFormatError(f"the given camera {camera.name!r} is {camera.width} x {camera.height} px but the "
+                                   f"images are {metas[0].width} x {metas[0].height} px: a camera of other images (or "
+                                   "of downscaled / rotated ones)", src.get("camera"), None, "width_px / height_px")
         gps_ok = all(m.has_gps and m.alt_m is not None for m in metas)
         if use_gps and gps_ok and control is None:
             blk = metadata_block_input(metas, measurements, cfg)
@@ -445,7 +542,7 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
                   distance_sigma_m=sigma)
     return OrientInput(names, camera, obs_track.astype(np.int64), by_name[pos].astype(np.int64),
                        np.asarray(measurements.pixel, float), track_name, positions=positions, frame=frame,
-                       notes=notes, **kw)
+                       notes=notes, focal_prior_rel=focal_rel, **kw)
 
 
 def _is_engineering(frame: Any) -> bool:

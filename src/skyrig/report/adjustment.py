@@ -676,16 +676,90 @@ def report_data_from_adjustment(result: Any, *, title: str = "skyrig adjustment"
     return data
 
 
+def absolute_accuracy_statement(u: dict[str, Any], check: dict[str, Any] | None = None) -> str:
+    """What a UAV block can claim about its absolute accuracy, in words: its check points' RMS (metres and GSD), or
+    without check points the GNSS's, no more."""
+    st = (check or {}).get("stats") or {}
+    datum = (u.get("datum") or {}).get("kind")
+    lead = ""
+    if datum == "control" or u.get("control_used"):
+        n = len(u.get("control_used") or []) or (u.get("datum") or {}).get("control_points") or ""
+        lead = (f"The datum rests on the {n} control points{'' if datum == 'control' else ' and the GNSS'}: the "
+                "absolute accuracy of these orientations is that of the targets as declared (their sigmas), no better. ")
+    if st.get("n"):
+        rms = ", ".join(f"{float(x):.3f}" for x in st["rms_m"])
+        gsd = st.get("rms_gsd")
+        return lead + (f"Absolute accuracy from {st['n']} check points (not used in the adjustment): RMS x, y, z {rms} m"
+                       + (f" ({', '.join(f'{float(x):.2f}' for x in gsd)} GSD)" if gsd else "") + ".")
+    if lead:
+        return lead + "No check points: measure some to state the absolute accuracy reached."
+    if datum in ("scale-bar", "free", "positions"):
+        return ("No control and no check points: the block's frame is not an absolute one (datum: "
+                f"{datum}); its absolute accuracy is undefined.")
+    sig = (u.get("config") or {}).get("gnss_sigma_m")
+    fit = u.get("gnss_fit_rms_enu_m")
+    s = ("No check points: the absolute accuracy of these orientations and of every product made from them is that "
+         "of the GNSS positions")
+    if sig is not None:
+        s += f" (stated sigma east, north, up {', '.join(f'{float(x):g}' for x in sig)} m"
+        if fit:
+            s += f"; the adjustment fits them with RMS {', '.join(f'{float(x):.2f}' for x in fit)} m"
+        s += ")"
+    return s + (", and no better; the reprojection and point sigmas describe the block's internal (relative) "
+                "accuracy only. Measure check points to state an absolute accuracy.")
+
+
+def uav_calibration_section(u: dict[str, Any]) -> Section | None:
+    """The self-calibration's determinability (issue 28): per parameter prior, estimate, sigmas, the prior test, the
+    correlation with the ground height and with the other intrinsics above 0.7, and the verdict; held parameters and
+    parameters left free on request are said in words.  None when nothing was self-calibrated."""
+    rows = u.get("calibration") or []
+    if not rows:
+        return None
+
+    def scale(r: dict[str, Any]) -> tuple[float, str]:
+        px = r.get("pixel_size_mm")
+        if px and r["name"] == "focal_mm":
+            return 1.0 / px, "px"
+        return (1.0 / px, "px from the image centre, y up") if px and r["name"] in ("ppx_mm", "ppy_mm") else (1.0, "")
+
+    table = []
+    for r in rows:
+        k, unit = scale(r)
+        corr = ", ".join(f"{n} {c:+.2f}" for n, c in r.get("correlations", {}).items()) or "-"
+        verdict = r["verdict"] + ("; HELD at the prior" if r["held"] else "") + (
+            "; left free on request" if r.get("freed_on_request") else "")
+        table.append([r["name"] + (f" ({unit})" if unit else ""), r["prior"] * k, r["prior_sigma"] * k,
+                      r["estimate"] * k, r["sigma"] * k, r["ratio"], r["z_prior"], r["corr_ground_height"], corr,
+                      verdict])
+    blocks: list[Any] = [Table("calibration-determinability", "Self-calibration: prior, estimate and verdict", [
+        Column("parameter"), Column("prior", "", 4, "e"), Column("prior sigma", "", 3, "e"),
+        Column("estimate (refused when held)", "", 4, "e"), Column("sigma", "", 3, "e"),
+        Column("formal sigma / prior sigma", "", 2), Column("prior test z", "", 1),
+        Column("corr. with ground height", "", 2), Column("correlations > 0.7"), Column("verdict")], table,
+        note=str(u.get("calibration_rule", "")))]
+    src = u.get("camera_prior_source")
+    if src:
+        blocks.append(Note(f"Camera prior: {src}."))
+    for r in rows:
+        if r["held"] or r.get("freed_on_request"):
+            blocks.append(Note(r["words"], "warning"))
+    sec = Section("calibration-determinability", "Self-calibration: what the block determines", blocks)
+    sec.order = 44
+    return sec
+
+
 def report_data_from_uav(result: Any, rep: dict[str, Any], **kw: Any) -> ReportData:
     """The report of ``skyrig adjust-uav`` (:func:`skyrig.pipeline.uav.adjust_uav`'s result and report dict): the
     adjustment report (the camera's self-calibration in the calibration section) plus the UAV block summary and
     the metadata attitude checks."""
     kw.setdefault("title", "skyrig UAV GNSS-supported adjustment")
     data = report_data_from_adjustment(result.adjustment, rep=rep, **kw)
-    u = {k: v for k, v in rep.get("uav", {}).items() if k not in ("attitude_check", "config")}
+    u = {k: v for k, v in rep.get("uav", {}).items() if k not in ("attitude_check", "config", "calibration")}
     s = extra_section("uav", "UAV block", u, "Summary of the UAV pipeline (orientation of the images from their "
                       "EXIF GPS / gimbal metadata and the tie points).")
     s.order = 45
+    s.blocks.insert(0, Note(absolute_accuracy_statement(rep.get("uav", {}), rep.get("check")), "warning"))
     checks = rep.get("uav", {}).get("attitude_check", {})
     if checks:
         s.blocks.append(Table("attitude-check", "Gimbal attitude metadata", [
@@ -693,6 +767,9 @@ def report_data_from_uav(result: Any, rep: dict[str, Any], **kw: Any) -> ReportD
             [[k, str(v.get("metadata", "")), v.get("metadata_vs_adjusted_deg", float("nan"))]
              for k, v in checks.items()]))
     data.add(s)
+    cal = uav_calibration_section(rep.get("uav", {}))
+    if cal is not None:
+        data.add(cal)
     if "pycolmap" in rep:
         p = extra_section("pycolmap", "Comparison with pycolmap", rep["pycolmap"])
         p.order = 46

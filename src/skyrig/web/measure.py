@@ -1,0 +1,651 @@
+"""The measuring session behind ``skyrig measure``: ground points, where the orientations predict them in the
+images, sub-pixel refinement of a click, intersection of the measured rays, residuals, and the measurements file.
+
+Everything the page does is a method of :class:`MeasureSession` returning plain JSON-able data, so that it is
+tested without a browser (:mod:`skyrig.web.server` only routes requests to it).
+
+Geometry (in a local ENU frame at the block, :func:`skyrig.geodesy.frame.local_frame_for`):
+
+* **prediction** of a ground point in an image: the camera model (distortion included) through the current
+  orientation (DG or adjusted).  Its 2 x 2 covariance propagates the orientation's and the point's standard
+  deviations through the analytic Jacobians (:func:`skyrig.camera.jacobians.project_with_jacobians`):
+  ``J_pose diag(s_C^2 (3), s_att^2 (3)) J_pose^T + J_X s_X^2 J_X^T`` (:class:`Sigmas`; EO files carry no sigmas,
+  so they are stated: defaults for direct georeferencing, smaller values for adjusted orientations);
+* **view quality** (the order images are listed in): ``(1 - 0.5 r) cos(i)`` with ``r`` the distance from the
+  image centre over the half diagonal and ``i`` the angle of the ray from the vertical;
+* **intersection** once a point is measured in two or more images: weighted least squares (each measurement
+  weighted by ``(s_px^2 I + J_pose S_pose J_pose^T)^-1``, its own precision plus its orientation's), started
+  from :func:`skyrig.georef.ground.forward_intersection`; the other images are predicted again from the
+  intersected point with its covariance; each measurement's residual is standardised by its redundancy
+  (``Q_vv = Q_ll - A Q_XX A^T``, per axis) and flagged beyond 3 sigma.  A measurement is also compared with
+  the prediction from the surveyed coordinates (Mahalanobis distance with the prediction's and the
+  measurement's covariance), flagged beyond 3.
+
+The file (``point,image,column,row`` + ``method,refined,sigma_px,operator,time_utc``,
+``docs/formats/points_csv.md``) is written whole after every change (temporary file, then renamed) with its
+side-car ``NAME.csv.json`` recording the orientation and point files; a lock file ``NAME.csv.lock`` keeps a second
+session off the same file.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import getpass
+import json
+import math
+import os
+import socket
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.camera.frame import FrameCamera
+from skyrig.camera.jacobians import project_with_jacobians
+from skyrig.errors import InputFormatError, SessionLockedError
+from skyrig.georef.eo import ExteriorOrientations, local_frame_for
+from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.geometry.pose import Pose
+
+__all__ = ["Sigmas", "Record", "MeasureSession", "METHODS"]
+
+#: How a position was found: a plain click, a disc target's centre, a corner's saddle point, least-squares
+#: matching against an image measured before, a target detected automatically, or read from the file.
+METHODS = ("click", "target", "corner", "lsm", "detected")
+_HALF = 24  # refinement window half size, pixels
+
+
+@dataclass(frozen=True)
+class Sigmas:
+    """Standard deviations the predictions assume (one value per axis)."""
+
+    position_m: float = 0.10  # projection centre, metres (direct georeferencing: GNSS + lever arm)
+    attitude_deg: float = 0.01  # orientation angles, degrees (IMU + boresight)
+    point_m: float = 0.02  # surveyed ground point, metres
+    pixel: float = 0.5  # a measurement without a refinement's own sigma (a click), pixels
+
+
+@dataclass
+class Record:
+    """One measurement of a point in an image."""
+
+    point: str
+    image: str
+    xy: NDArray[np.float64]  # (2,) column, row
+    method: str
+    refined: bool
+    sigma_px: float
+    operator: str
+    time_utc: str
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _num(v: float, nd: int = 3) -> float | None:
+    """A JSON number (None for NaN / inf)."""
+    v = float(v)
+    return round(v, nd) if math.isfinite(v) else None
+
+
+def _ellipse(cov: NDArray) -> dict:
+    """1-sigma ellipse of a 2 x 2 covariance: semi-axes (px) and the major axis' angle (deg, from the column
+    axis towards the row axis)."""
+    if not np.all(np.isfinite(cov)):
+        return {"a": None, "b": None, "angle_deg": None}
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    return {"a": _num(math.sqrt(max(w[1], 0.0))), "b": _num(math.sqrt(max(w[0], 0.0))),
+            "angle_deg": _num(math.degrees(math.atan2(v[1, 1], v[0, 1])), 2)}
+
+
+class MeasureSession:
+    """A measuring session over one block (module docstring).
+
+    Parameters
+    ----------
+    eo, cameras
+        The current orientations and their cameras.
+    points
+        Ground points (control and check).
+    roles
+        ``{name: "control" | "check"}`` (points not named: control).
+    image_files
+        ``{image name: file}``; an image without a file is listed but cannot be opened.
+    output
+        The measurements CSV (read first when it exists: the session continues where the last one stopped).
+    sigmas
+        What the predictions assume (:class:`Sigmas`).
+    operator
+        Who measures (default: the login name).
+    sources
+        ``{"eo": ..., "points": [...]}`` file names for the side-car.
+    lock
+        Take the lock file (a second session on the same file raises :class:`SessionLockedError`).
+    adjustment
+        The control / check residuals of the adjustment whose orientations these are
+        (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
+    """
+
+    def __init__(self, eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], points: GroundPoints,
+                 roles: Mapping[str, str], image_files: Mapping[str, str | os.PathLike], output: str | os.PathLike,
+                 sigmas: Sigmas = Sigmas(), operator: str | None = None, sources: Mapping | None = None,
+                 lock: bool = True, adjustment: Mapping[str, dict] | None = None) -> None:
+        self.frame_local = local_frame_for(eo.frame.to_ecef(eo.centre))
+        self.eo = eo
+        self.eo_l = eo.to_frame(self.frame_local)
+        self.cameras = dict(cameras)
+        missing = sorted({str(c) for c in eo.camera} - set(self.cameras))
+        if missing:
+            raise InputFormatError(f"camera {missing[0]!r} of the orientations is not defined (known: "
+                                   f"{', '.join(sorted(self.cameras))})", field="camera")
+        self.points = points
+        self.xyz_l = self.frame_local.from_ecef(points.frame.to_ecef(points.xyz)) if len(points) else np.zeros((0, 3))
+        self.roles = {str(n): str(roles.get(str(n), "control")) for n in points.name}
+        self.pidx = points.index()
+        self.iidx = eo.index()
+        self.files = {str(k): Path(v) for k, v in image_files.items()}
+        self.output = Path(output)
+        self.sigmas = sigmas
+        self.operator = operator or _login()
+        self.sources = dict(sources or {})
+        self.adjustment = {str(k): dict(v) for k, v in (adjustment or {}).items()}
+        self.records: dict[tuple[str, str], Record] = {}
+        self._lock = threading.RLock()
+        self._windows: dict[str, object] = {}
+        self._pyramids: dict[str, object] = {}
+        self._closed = False
+        self._cache: Path | None = None  # tiled copies of large JPEG / PNG files (display only), removed on close
+        self._groups = [(self.cameras[str(c)], np.flatnonzero(self.eo_l.camera == c)) for c in np.unique(eo.camera)]
+        self._size = np.array([[self.cameras[str(c)].width, self.cameras[str(c)].height] for c in self.eo_l.camera],
+                              dtype=np.float64).reshape(-1, 2)  # (N, 2) width, height of every image
+        s = sigmas
+        self._pose_cov = np.diag([s.position_m**2] * 3 + [math.radians(s.attitude_deg) ** 2] * 3)
+        self.lockfile = self.output.with_name(self.output.name + ".lock")
+        self._locked = False
+        if self.output.exists():
+            self._load()
+        if lock:
+            self._take_lock()
+
+    # ------------------------------------------------------------------------------------------- file + lock
+    def _load(self) -> None:
+        from skyrig.io.points_csv import read_measurements_table
+
+        m, lines, prov = read_measurements_table(self.output)
+        for k in range(len(m)):
+            p, i = str(m.point[k]), str(m.image[k])
+            if p not in self.pidx:
+                raise InputFormatError(
+                    f"point {p!r} is not among the {len(self.points)} ground points ({self._src('points')}): a "
+                    f"measurements file of another project? Nothing was changed; give another --output",
+                    self.output, int(lines[k]), "point")
+            if i not in self.iidx:
+                raise InputFormatError(
+                    f"image {i!r} has no orientation in {self._src('eo')}: a measurements file of another project? "
+                    f"Nothing was changed; give another --output", self.output, int(lines[k]), "image")
+            get = (lambda c, d: prov[c][k] if c in prov and prov[c][k] != "" else d)  # noqa: E731
+            try:
+                sig = float(get("sigma_px", "nan"))
+            except ValueError:
+                raise InputFormatError(f"not a number: {prov['sigma_px'][k]!r}", self.output, int(lines[k]),
+                                       "sigma_px") from None
+            method = get("method", "file")
+            self.records[p, i] = Record(p, i, m.pixel[k].copy(), method, get("refined", "no") == "yes", sig,
+                                        get("operator", ""), get("time_utc", ""))
+
+    def _src(self, key: str) -> str:
+        v = self.sources.get(key)
+        return ", ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v) if v else "the inputs"
+
+    def _take_lock(self) -> None:
+        from skyrig.errors import OutputPathError
+
+        info = {"pid": os.getpid(), "host": socket.gethostname(), "operator": self.operator, "started": _now()}
+        try:
+            self.output.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputPathError(f"cannot create the folder ({exc.strerror or exc})", self.output.parent) from None
+        for _ in range(2):
+            try:
+                fd = os.open(self.lockfile, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                try:
+                    held = json.loads(self.lockfile.read_text(encoding="utf-8"))
+                except (OSError, ValueError):
+                    held = {}
+                if held.get("host") == info["host"] and isinstance(held.get("pid"), int) and not _alive(held["pid"]):
+                    self.lockfile.unlink(missing_ok=True)  # left by a session that died: take it over
+                    continue
+                raise SessionLockedError(
+                    f"{self.output} is being measured by another session (pid {held.get('pid', '?')} on "
+                    f"{held.get('host', '?')}, {held.get('operator', '?')}, since {held.get('started', '?')}; "
+                    f"lock file {self.lockfile}): close that one first, or delete the lock file if it is gone") from None
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(info, fh)
+            self._locked = True
+            return
+
+    def close(self) -> None:
+        """Give the lock file back and close the image files."""
+        with self._lock:
+            self._closed = True
+            for p in self._pyramids.values():
+                p.close()  # type: ignore[attr-defined]
+            for w in self._windows.values():
+                w.close()  # type: ignore[attr-defined]
+            self._windows.clear()
+            self._pyramids.clear()
+            if self._cache is not None:
+                import shutil
+
+                shutil.rmtree(self._cache, ignore_errors=True)
+                self._cache = None
+            if self._locked:
+                self.lockfile.unlink(missing_ok=True)
+                self._locked = False
+
+    def save(self) -> None:
+        """Write the measurements file and its side-car (atomically, the side-car last)."""
+        from skyrig.io.points_csv import MEASUREMENT_PROVENANCE, write_measurements_csv
+        from skyrig.io.table_meta import write_table_meta
+
+        with self._lock:
+            recs = [self.records[k] for k in sorted(self.records)]
+            m = ImageMeasurements(np.array([r.point for r in recs], dtype=str), np.array([r.image for r in recs], dtype=str),
+                                  np.array([r.xy for r in recs]).reshape(-1, 2))
+            prov = {"method": [r.method for r in recs], "refined": ["yes" if r.refined else "no" for r in recs],
+                    "sigma_px": ["" if not math.isfinite(r.sigma_px) else "%.3f" % r.sigma_px for r in recs],
+                    "operator": [r.operator for r in recs], "time_utc": [r.time_utc for r in recs]}
+            self.output.parent.mkdir(parents=True, exist_ok=True)
+            write_measurements_csv(self.output, m, header_lines=(), provenance=prov)
+            cols = {"point": {"type": "String"}, "image": {"type": "String"},
+                    "column": {"type": "Real", "unit": "pixel", "axis": "right, origin at the centre of the top-left pixel"},
+                    "row": {"type": "Real", "unit": "pixel", "axis": "down"}}
+            cols.update({c: {"type": "Real", "unit": "pixel"} if c == "sigma_px" else {"type": "String"}
+                         for c in MEASUREMENT_PROVENANCE})
+            write_table_meta(self.output, None, cols, "skyrig-measurements 1", {
+                "written_by": "skyrig measure", "orientations": self._src("eo"), "points": self._src("points"),
+                "methods": "click: as clicked; target: disc-target centre; corner: corner saddle point; lsm: "
+                           "least-squares matching to an image measured before; detected: target found automatically"})
+
+    # ------------------------------------------------------------------------------------------- geometry
+    def _project(self, xyz: NDArray, rows: NDArray | None = None) -> tuple[NDArray, NDArray, NDArray]:
+        """Pixels ``(N, 2)``, pose Jacobians ``(N, 2, 6)`` and point Jacobians ``(N, 2, 3)`` of one local point in
+        the images ``rows`` (default all)."""
+        n = len(self.eo_l)
+        rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
+        px = np.full((len(rows), 2), np.nan)
+        jp = np.full((len(rows), 2, 6), np.nan)
+        jx = np.full((len(rows), 2, 3), np.nan)
+        where = np.full(n, -1)
+        where[rows] = np.arange(len(rows))
+        for cam, sel in self._groups:
+            sel = sel[where[sel] >= 0]
+            if not len(sel):
+                continue
+            pose = Pose(self.eo_l.rotation[sel], self.eo_l.centre[sel], "world", "camera")
+            with np.errstate(invalid="ignore", divide="ignore"):
+                pix, jac = project_with_jacobians(cam, pose, np.repeat(xyz[None], len(sel), 0), want=("point", "pose"))
+            px[where[sel]], jp[where[sel]], jx[where[sel]] = pix, jac["pose"], jac["point"]
+        return px, jp, jx
+
+    def _pose_part(self, jp: NDArray) -> NDArray:
+        return np.einsum("nij,jk,nlk->nil", jp, self._pose_cov, jp)
+
+    def _quality(self, rows: NDArray, px: NDArray, xyz: NDArray) -> NDArray:
+        size = self._size[rows]
+        half = 0.5 * np.hypot(size[:, 0], size[:, 1])
+        rr = np.hypot(px[:, 0] - (size[:, 0] - 1) / 2.0, px[:, 1] - (size[:, 1] - 1) / 2.0) / half
+        d = xyz - self.eo_l.centre[rows]
+        cos_i = np.maximum(-d[:, 2] / np.maximum(np.linalg.norm(d, axis=1), 1e-9), 0.0)
+        with np.errstate(invalid="ignore"):
+            return np.nan_to_num((1.0 - 0.5 * np.minimum(rr, 1.0)) * cos_i)
+
+    def _inside(self, rows: NDArray, px: NDArray) -> NDArray[np.bool_]:
+        size = self._size[rows]
+        with np.errstate(invalid="ignore"):
+            return (np.all(np.isfinite(px), axis=1) & (px[:, 0] >= -0.5) & (px[:, 1] >= -0.5)
+                    & (px[:, 0] <= size[:, 0] - 0.5) & (px[:, 1] <= size[:, 1] - 0.5))
+
+    def _intersect(self, recs: list[Record]) -> dict | None:
+        """Weighted intersection of a point's measurements (module docstring); None with fewer than two."""
+        from skyrig.georef.ground import forward_intersection
+
+        if len(recs) < 2:
+            return None
+        rows = np.array([self.iidx[r.image] for r in recs])
+        obs = np.array([r.xy for r in recs])
+        sig = np.array([r.sigma_px if math.isfinite(r.sigma_px) and r.sigma_px > 0 else self.sigmas.pixel for r in recs])
+        fi = forward_intersection(self.eo_l, self.cameras, [recs[0].point] * len(recs), [r.image for r in recs], obs,
+                                  self.frame_local)
+        X = fi.xyz[0]
+        if not np.all(np.isfinite(X)):
+            return None
+        for _ in range(5):
+            px, jp, jx = self._project(X, rows)
+            W = np.linalg.inv(sig[:, None, None] ** 2 * np.eye(2) + self._pose_part(jp))
+            N = np.einsum("nki,nkl,nlj->ij", jx, W, jx)
+            g = np.einsum("nki,nkl,nl->i", jx, W, obs - px)
+            try:
+                dX = np.linalg.solve(N, g)
+            except np.linalg.LinAlgError:
+                return None
+            X = X + dX
+            if np.max(np.abs(dX)) < 1e-6:
+                break
+        px, jp, jx = self._project(X, rows)
+        Qxx = np.linalg.inv(N)
+        Qll = sig[:, None, None] ** 2 * np.eye(2) + self._pose_part(jp)
+        Qvv = Qll - np.einsum("nij,jk,nlk->nil", jx, Qxx, jx)
+        v = obs - px
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = v / np.sqrt(np.clip(np.stack([Qvv[:, 0, 0], Qvv[:, 1, 1]], 1), 1e-12, None))
+        red = len(recs) * 2 - 3
+        w[:] = w if red > 0 else np.nan
+        return {"xyz_local": X, "cov": Qxx, "residual": v, "standardised": w}
+
+    # ------------------------------------------------------------------------------------------- API
+    def points_summary(self) -> list[dict]:
+        """Every ground point: name, role, coordinates, how many images predict it and how many measure it."""
+        out = []
+        with self._lock:
+            for k, name in enumerate(self.points.name):
+                n = str(name)
+                px, _, _ = self._project(self.xyz_l[k])
+                seen = int(self._inside(np.arange(len(px)), px).sum())
+                st = self.point_state(n, with_predictions=False)
+                out.append({"name": n, "role": self.roles[n], "x": float(self.points.xyz[k, 0]),
+                            "y": float(self.points.xyz[k, 1]), "z": float(self.points.xyz[k, 2]), "predicted_in": seen,
+                            "measured_in": len(st["measurements"]), "flagged": st["flagged"],
+                            "adjustment": self._adjusted(n)})
+        return out
+
+    def _adjusted(self, point: str) -> dict | None:
+        a = self.adjustment.get(point)
+        if a is None:
+            return None
+        return {"role": a.get("role"), "v_m": [_num(v, 4) for v in a["v_m"]], "v3d_m": _num(a["v3d_m"], 4),
+                "sigma_m": [_num(v, 4) for v in a.get("sigma_m", [])]}
+
+    def _recs(self, point: str) -> list[Record]:
+        return [r for (p, _), r in sorted(self.records.items()) if p == point]
+
+    def point_state(self, point: str, with_predictions: bool = True) -> dict:
+        """A point's predictions (sorted by view quality), measurements with residuals, and intersection."""
+        if point not in self.pidx:
+            raise KeyError(f"no ground point {point!r}")
+        with self._lock:
+            k = self.pidx[point]
+            X = self.xyz_l[k]
+            recs = self._recs(point)
+            inter = self._intersect(recs)
+            px_g, jp_g, jx_g = self._project(X)
+            cov_g = self._pose_part(jp_g) + self.sigmas.point_m**2 * np.einsum("nij,nkj->nik", jx_g, jx_g)
+            meas_rows = {self.iidx[r.image] for r in recs}
+            if inter is not None:
+                px_i, jp_i, jx_i = self._project(inter["xyz_local"])
+                cov_i = self._pose_part(jp_i) + np.einsum("nij,jk,nlk->nil", jx_i, inter["cov"], jx_i)
+            rows = np.arange(len(self.eo_l))
+            shown = self._inside(rows, px_g) | np.isin(rows, list(meas_rows))
+            if inter is not None:
+                shown |= self._inside(rows, px_i)
+            rows = rows[shown]
+            qual = self._quality(rows, px_g[rows], X)
+            order = np.argsort(-qual, kind="stable")
+            measurements = []
+            flagged = False
+            for j, r in enumerate(recs):
+                row = self.iidx[r.image]
+                sig = r.sigma_px if math.isfinite(r.sigma_px) and r.sigma_px > 0 else self.sigmas.pixel
+                d = r.xy - px_g[row]
+                C = cov_g[row] + sig**2 * np.eye(2)
+                with np.errstate(invalid="ignore"):
+                    maha = float(np.sqrt(d @ np.linalg.solve(C, d))) if np.all(np.isfinite(d)) else float("nan")
+                e = {"image": r.image, "column": _num(r.xy[0]), "row": _num(r.xy[1]), "method": r.method,
+                     "refined": r.refined, "sigma_px": _num(r.sigma_px), "operator": r.operator, "time_utc": r.time_utc,
+                     "vs_ground": {"dcolumn": _num(d[0]), "drow": _num(d[1]), "mahalanobis": _num(maha, 2),
+                                   "flag": bool(maha > 3.0)}}
+                if inter is not None:
+                    v, w = inter["residual"][j], inter["standardised"][j]
+                    fl = bool(np.nanmax(np.abs(w), initial=0.0) > 3.0) if np.any(np.isfinite(w)) else False
+                    e["vs_intersection"] = {"dcolumn": _num(v[0]), "drow": _num(v[1]), "w_column": _num(w[0], 2),
+                                            "w_row": _num(w[1], 2), "flag": fl}
+                e["flag"] = e["vs_ground"]["flag"] or bool(e.get("vs_intersection", {}).get("flag", False))
+                flagged |= e["flag"]
+                measurements.append(e)
+            state: dict = {"point": point, "role": self.roles[point], "measurements": measurements, "flagged": flagged,
+                           "xyz": [float(v) for v in self.points.xyz[k]], "frame": self.points.frame.describe(),
+                           "adjustment": self._adjusted(point)}
+            if inter is not None:
+                xyz = self.points.frame.from_ecef(self.frame_local.to_ecef(inter["xyz_local"][None]))[0]
+                dl = inter["xyz_local"] - X
+                state["intersection"] = {"xyz": [float(v) for v in xyz], "n_images": len(recs),
+                                         "sigma_m": [_num(math.sqrt(max(inter["cov"][i, i], 0.0)), 4) for i in range(3)],
+                                         "minus_ground_enu_m": [_num(v, 4) for v in dl]}
+            if not with_predictions:
+                return state
+            preds = []
+            for j in order:
+                row = int(rows[j])
+                name = str(self.eo_l.image[row])
+                cam = self.cameras[str(self.eo_l.camera[row])]
+                f = self.files.get(name)
+                p = {"image": name, "index": row, "camera": str(self.eo_l.camera[row]), "width": cam.width,
+                     "height": cam.height, "quality": _num(qual[j]), "measured": row in meas_rows,
+                     "file": bool(f is not None and f.is_file()),
+                     "ground": {"column": _num(px_g[row, 0]), "row": _num(px_g[row, 1]), **_ellipse(cov_g[row]),
+                                "inside": bool(self._inside(np.array([row]), px_g[row:row + 1])[0])}}
+                if inter is not None:
+                    p["intersection"] = {"column": _num(px_i[row, 0]), "row": _num(px_i[row, 1]), **_ellipse(cov_i[row])}
+                preds.append(p)
+            state["predictions"] = preds
+            if not preds:
+                state["note"] = (f"{point} falls in none of the {len(self.eo_l)} images (as the orientations predict "
+                                 f"it)")
+            return state
+
+    # ------------------------------------------------------------------------------------------- pixels
+    def windows(self, image: str):
+        """The :class:`~skyrig.io.image_windows.ImageWindows` of an image (opened once)."""
+        from skyrig.io.image_windows import ImageWindows
+
+        if image not in self.iidx:
+            raise KeyError(f"no image {image!r} in the orientations")
+        with self._lock:
+            if self._closed:
+                raise InputFormatError("the measuring session is closed")
+            w = self._windows.get(image)
+            if w is None:
+                f = self.files.get(image)
+                if f is None:
+                    raise InputFormatError(f"image {image!r} is in the orientations but no image folder holds a file "
+                                           f"of that name", field="image")
+                w = ImageWindows(f)
+                cam = self.cameras[str(self.eo_l.camera[self.iidx[image]])]
+                if (w.width, w.height) != (cam.width, cam.height):
+                    raise InputFormatError(f"image is {w.width} x {w.height} px, its camera "
+                                           f"{cam.name!r} {cam.width} x {cam.height} px", f)
+                self._windows[image] = w
+            return w
+
+    def pyramid(self, image: str):
+        """The deep-zoom :class:`~skyrig.web.tiles.TilePyramid` of an image."""
+        from skyrig.web.tiles import TilePyramid
+
+        w = self.windows(image)
+        with self._lock:
+            if self._closed:
+                raise InputFormatError("the measuring session is closed")
+            p = self._pyramids.get(image)
+            if p is None:
+                if self._cache is None:
+                    import tempfile
+
+                    self._cache = Path(tempfile.mkdtemp(prefix="skyrig-measure-"))
+                p = self._pyramids[image] = TilePyramid(w, copy_to=str(self._cache / f"{self.iidx[image]}.tif"))
+                p.prepare()
+            return p
+
+    def prefetch(self, point: str, n: int = 2) -> None:
+        """Open the ``n`` best images of a point's list (their pyramids: a large JPEG / PNG starts its tiled copy
+        in the background), so that the first full-resolution tile of an image the user will likely open is quick."""
+        try:
+            preds = self.point_state(point)["predictions"]
+        except KeyError:
+            return
+        for p in [p for p in preds if p["file"]][:n]:
+            try:
+                self.pyramid(p["image"])
+            except (InputFormatError, OSError):
+                pass  # the page reports it when the user opens the image
+
+    def propose(self, point: str, image: str, column: float, row: float, method: str = "auto") -> dict:
+        """Refine a click (column, row) in ``image`` to the exact position of ``point``.
+
+        ``method``: ``"auto"`` (disc target, else least-squares matching against the best image measured before,
+        else the click), ``"target"``, ``"corner"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
+        ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
+        """
+        from skyrig.match.targets import corner_centre, target_centre
+
+        if point not in self.pidx:
+            raise KeyError(f"no ground point {point!r}")
+        if method not in ("auto", *METHODS[:4]):
+            raise ValueError(f"unknown method {method!r} (auto, {', '.join(METHODS[:4])})")
+        click = np.array([float(column), float(row)])
+        notes = []
+        if method != "click":
+            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF)
+            o = np.array([c0, r0], dtype=np.float64)
+            if method in ("auto", "target"):
+                f = target_centre(win, click - o)
+                if f.ok:
+                    return self._proposal(f.xy + o, "target", True, f.sigma_px, f"disc target, radius {f.radius_px:.1f} px")
+                notes.append(f"target: {f.note}")
+            if method == "corner":
+                f = corner_centre(win, click - o)
+                if f.ok:
+                    return self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
+                notes.append(f"corner: {f.note}")
+            if method in ("auto", "lsm"):
+                got = self._lsm(point, image, click)
+                if isinstance(got, dict):
+                    return got
+                notes.append(f"lsm: {got}")
+        return self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
+
+    @staticmethod
+    def _proposal(xy: NDArray, method: str, refined: bool, sigma: float, note: str) -> dict:
+        return {"column": _num(xy[0]), "row": _num(xy[1]), "method": method, "refined": refined,
+                "sigma_px": _num(sigma), "note": note}
+
+    def _lsm(self, point: str, image: str, click: NDArray) -> dict | str:
+        """Least-squares matching of the click against the best other image this point is measured in."""
+        from skyrig.match.lsm import lsm_refine
+
+        others = [r for r in self._recs(point) if r.image != image and self.files.get(r.image) is not None]
+        if not others:
+            return "no other image measured yet"
+        X = self.xyz_l[self.pidx[point]]
+        rows = np.array([self.iidx[r.image] for r in others] + [self.iidx[image]])
+        px, _, jx = self._project(X, rows)
+        q = self._quality(rows[:-1], px[:-1], X)
+        ref = others[int(np.argmax(q))]
+        j1, j2 = jx[int(np.argmax(q)), :, :2], jx[-1, :, :2]  # pixels per metre east / north on the ground
+        try:
+            A = j2 @ np.linalg.inv(j1)
+        except np.linalg.LinAlgError:
+            return "degenerate geometry"
+        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], _HALF)
+        w2, (c0, d0) = self.windows(image).around(click[0], click[1], _HALF)
+        res = lsm_refine(w1, w2, (ref.xy - [a0, b0])[None], (click - [c0, d0])[None], A[None], half_size=10,
+                         max_shift_px=8.0, min_correlation=0.7)
+        if not res.ok[0]:
+            return f"no convergence against {ref.image} (correlation {res.correlation[0]:.2f})"
+        return self._proposal(res.xy2[0] + [c0, d0], "lsm", True, float(max(res.sigma_px[0], 0.02)),
+                              f"least-squares matching to {ref.image}, correlation {res.correlation[0]:.2f}")
+
+    # ------------------------------------------------------------------------------------------- changes
+    def accept(self, point: str, image: str, column: float, row: float, method: str = "click", refined: bool = False,
+               sigma_px: float | None = None) -> dict:
+        """Store (or replace) the measurement of ``point`` in ``image``, save the file, and return the point's
+        new state (:meth:`point_state`)."""
+        if point not in self.pidx:
+            raise KeyError(f"no ground point {point!r}")
+        if image not in self.iidx:
+            raise KeyError(f"no image {image!r} in the orientations")
+        if method not in METHODS:
+            raise ValueError(f"unknown method {method!r} ({', '.join(METHODS)})")
+        xy = np.array([float(column), float(row)])
+        cam = self.cameras[str(self.eo_l.camera[self.iidx[image]])]
+        if not (np.all(np.isfinite(xy)) and cam.in_image(xy)):
+            raise ValueError(f"({column}, {row}) lies outside image {image!r} ({cam.width} x {cam.height} px)")
+        sig = float("nan") if sigma_px is None else float(sigma_px)
+        with self._lock:
+            self.records[point, image] = Record(point, image, xy, method, bool(refined), sig, self.operator, _now())
+            self.save()
+            return self.point_state(point)
+
+    def delete(self, point: str, image: str) -> dict:
+        """Remove the measurement of ``point`` in ``image`` (if any), save, return the point's state."""
+        with self._lock:
+            if self.records.pop((point, image), None) is not None:
+                self.save()
+            return self.point_state(point)
+
+    def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
+        """Look for a disc target around the point's prediction in every image predicted to see it (within
+        ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
+        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii)
+        plus 3 px is passed over (its background is cut: measure it by hand)."""
+        from skyrig.match.targets import target_centre
+
+        st = self.point_state(point)
+        found = []
+        for p in st["predictions"]:
+            if not p["file"] or p["measured"] or not p["ground"]["inside"]:
+                continue
+            g = p.get("intersection") or p["ground"]
+            if g["column"] is None:
+                continue
+            reach = max(6.0, search_sigma * (g["a"] or 0.0))
+            half = int(min(max(reach + 12, _HALF), 200))
+            win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
+            f = target_centre(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach)
+            if not f.ok:
+                continue
+            xy = f.xy + [c0, r0]
+            edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
+            if edge < 2.5 * f.radius_px + 3.0:
+                continue  # the target's surround (2.5 radii for a disc on a square) is cut by the frame: no proposal
+            prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, f"disc target, radius {f.radius_px:.1f} px")
+            prop["image"] = p["image"]
+            found.append(prop)
+            if accept:
+                with self._lock:
+                    self.records[point, p["image"]] = Record(point, p["image"], f.xy + [c0, r0], "detected", True,
+                                                             f.sigma_px, self.operator, _now())
+        if accept and found:
+            self.save()
+        return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _login() -> str:
+    try:
+        return getpass.getuser()
+    except (KeyError, OSError):
+        return "unknown"

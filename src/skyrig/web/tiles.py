@@ -1,0 +1,155 @@
+"""Deep-zoom tiles of an image, made on demand (OpenSeadragon's default tile source geometry).
+
+Level ``L`` of ``0..max_level`` (``max_level = ceil(log2(max(width, height)))``) is the image scaled by
+``2 ** (L - max_level)``; tile ``(x, y)`` of a level covers its pixels ``[x t, (x + 1) t) x [y t, (y + 1) t)``
+(``t`` = :data:`TILE`, clipped at the level's edge).  A tile is read from the file window by window
+(:class:`skyrig.io.image_windows.ImageWindows`): levels at half resolution or more straight from the full
+resolution, coarser levels from one overview of the whole image (longer side at most :data:`OVERVIEW_MAX`,
+read once per image with GDAL's reduced decoding), so that a 100-MP frame is never held whole.
+
+A JPEG or PNG can only be decoded from its top, so a window near its bottom costs most of a full decode: for such
+a file of more than :data:`COPY_ABOVE_PIXELS`, :meth:`TilePyramid.prepare` writes a tiled copy into the session's
+cache folder in a background thread (streamed, a few seconds for 100 MP) and the fine levels come from it.  The
+copy is for display only; measurements are refined on the original file.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.errors import TileNotFound  # noqa: F401 - re-exported (defined in skyrig.errors)
+from skyrig.io.image_windows import ImageWindows
+
+__all__ = ["TILE", "OVERVIEW_MAX", "TilePyramid", "TileNotFound"]
+
+TILE = 256  # tile size, pixels of a level
+OVERVIEW_MAX = 2048  # longer side of the overview coarse levels come from
+COPY_ABOVE_PIXELS = 16_000_000  # JPEG / PNG files larger than this get a tiled copy for their fine levels
+
+
+_COPY_SLOTS = threading.Semaphore(1)  # tiled copies are written one at a time (each keeps a core busy)
+
+
+class TilePyramid:
+    """The deep-zoom pyramid of one image file (module docstring); tiles as JPEG bytes, cached (LRU)."""
+
+    def __init__(self, windows: ImageWindows, cache_tiles: int = 256, copy_to: str | None = None) -> None:
+        self.img = windows
+        self._copy_to = copy_to if (windows.driver in ("JPEG", "PNG") and not windows.tiled
+                                    and windows.width * windows.height > COPY_ABOVE_PIXELS) else None
+        self._fine: ImageWindows | None = None
+        self._copy_started = False
+        self._copy_done = threading.Event()
+        self._copy_error: BaseException | None = None
+        self.width, self.height = windows.width, windows.height
+        self.max_level = max(int(math.ceil(math.log2(max(self.width, self.height, 1)))), 0)
+        self._overview: tuple[NDArray, float] | None = None
+        self._cache: OrderedDict[tuple[int, int, int], bytes] = OrderedDict()
+        self._cache_n = cache_tiles
+        self._lock = threading.Lock()
+        self._stretch: tuple[float, float] | None = None
+
+    def prepare(self) -> None:
+        """Start writing the tiled copy of a large JPEG / PNG (module docstring) in the background, once."""
+        with self._lock:
+            if self._copy_to is None or self._copy_started:
+                return
+            self._copy_started = True
+
+        def run() -> None:
+            try:
+                with _COPY_SLOTS:
+                    self._fine = self.img.tiled_copy(self._copy_to)
+            except BaseException as exc:  # noqa: BLE001 - the fine levels then read the original
+                self._copy_error = exc
+            finally:
+                self._copy_done.set()
+
+        threading.Thread(target=run, name="skyrig-tiled-copy", daemon=True).start()
+
+    def _fine_source(self) -> ImageWindows:
+        if self._copy_to is None:
+            return self.img
+        self.prepare()
+        self._copy_done.wait()
+        return self._fine if self._fine is not None else self.img
+
+    def close(self) -> None:
+        if self._copy_started:
+            self._copy_done.wait()
+        if self._fine is not None:
+            self._fine.close()
+
+    def info(self) -> dict:
+        """What the page's tile source needs."""
+        return {"width": self.width, "height": self.height, "tileSize": TILE, "tileOverlap": 0, "minLevel": 0,
+                "maxLevel": self.max_level}
+
+    def _overview_array(self) -> tuple[NDArray, float]:
+        if self._overview is None:
+            s = min(1.0, OVERVIEW_MAX / max(self.width, self.height))
+            ow, oh = max(1, round(self.width * s)), max(1, round(self.height * s))
+            a = self.img.window(0, 0, self.width, self.height, ow, oh)
+            self._overview = (a, ow / self.width)
+        return self._overview
+
+    def _to_8bit(self, a: NDArray) -> NDArray[np.uint8]:
+        if a.dtype == np.uint8:
+            return a
+        if self._stretch is None:  # 16 bit: one stretch per image (0.1 .. 99.9 % of the overview)
+            ov = self._overview_array()[0].astype(np.float64)
+            lo, hi = np.percentile(ov, [0.1, 99.9])
+            self._stretch = (float(lo), float(max(hi, lo + 1.0)))
+        lo, hi = self._stretch
+        return np.clip((a.astype(np.float64) - lo) * (255.0 / (hi - lo)) + 0.5, 0, 255).astype(np.uint8)
+
+    def tile_array(self, level: int, x: int, y: int) -> NDArray[np.uint8]:
+        """Pixels of tile ``(x, y)`` of ``level`` (``(h, w)`` or ``(h, w, 3)`` RGB, 8 bit)."""
+        import cv2
+
+        if not 0 <= level <= self.max_level:
+            raise TileNotFound(f"level {level} outside 0..{self.max_level}")
+        scale = 2.0 ** (level - self.max_level)
+        lw, lh = math.ceil(self.width * scale), math.ceil(self.height * scale)
+        x0, y0 = x * TILE, y * TILE
+        if x < 0 or y < 0 or x0 >= lw or y0 >= lh:
+            raise TileNotFound(f"tile {x}_{y} outside level {level} ({lw} x {lh} px)")
+        tw, th = min(TILE, lw - x0), min(TILE, lh - y0)
+        c0, r0 = x0 / scale, y0 / scale
+        c1, r1 = min((x0 + tw) / scale, self.width), min((y0 + th) / scale, self.height)
+        ov, s_ov = self._overview_array() if scale < 0.5 else (None, 0.0)
+        if ov is not None and scale <= s_ov:  # coarser than the overview: from the overview
+            a = ov[int(r0 * s_ov):max(int(math.ceil(r1 * s_ov)), int(r0 * s_ov) + 1),
+                   int(c0 * s_ov):max(int(math.ceil(c1 * s_ov)), int(c0 * s_ov) + 1)]
+            a = cv2.resize(a, (tw, th), interpolation=cv2.INTER_AREA)
+        else:
+            src = self._fine_source()
+            a = src.window(int(c0), int(r0), int(math.ceil(c1)) - int(c0), int(math.ceil(r1)) - int(r0), tw, th)
+        return self._to_8bit(a)
+
+    def tile_jpeg(self, level: int, x: int, y: int, quality: int = 90) -> bytes:
+        """Tile ``(x, y)`` of ``level`` as JPEG bytes (cached)."""
+        import cv2
+
+        key = (level, x, y)
+        with self._lock:
+            if key in self._cache:
+                self._cache.move_to_end(key)
+                return self._cache[key]
+        a = self.tile_array(level, x, y)
+        if a.ndim == 3:
+            a = a[..., ::-1]
+        ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, quality])
+        if not ok:
+            raise RuntimeError("OpenCV could not encode a tile")
+        data = buf.tobytes()
+        with self._lock:
+            self._cache[key] = data
+            while len(self._cache) > self._cache_n:
+                self._cache.popitem(last=False)
+        return data

@@ -1,0 +1,101 @@
+"""Ground control in the GNSS-supported UAV adjustment (issue 28): metre-class targets (handheld GNSS: 1 m in plan, 5 m
+in height, declared as such) are used, not refused; check points come back within their predicted precision of the
+simulation's truth and are reported in metres and GSD; a target seen in one image only is reported and left out."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from skyrig.adjust.report import adjustment_report
+from skyrig.pipeline.uav import UavConfig, adjust_uav_block, block_gsd_m
+from test_uav_determinability import FLAT, _block
+
+SIGMA = np.array([1.5, 1.5, 10.0])  # declared target sigma (m): handheld GNSS, a loose height
+
+
+def test_metre_class_control_and_check_points_in_the_gnss_block(caplog):
+    truth: dict = {}
+    inp, true_cam = _block(FLAT, seed=21, gnss_noise=(2.0, 2.0, 4.0), focal_error=1.0, truth=truth)
+    rng = np.random.default_rng(5)
+    seen = np.bincount(inp.obs_track, minlength=len(inp.track_name))
+    multi = np.flatnonzero(seen >= 3)
+    pick = rng.choice(multi, 15, replace=False)
+    ctrl, chk = pick[:10], pick[10:]
+    # a target measured in one image only: a new track with one observation (the pixel of a ground point of image 0)
+    k0 = np.flatnonzero(inp.obs_image == 0)[0]
+    inp.track_name = np.append(inp.track_name, "T1")
+    inp.obs_track = np.append(inp.obs_track, len(inp.track_name) - 1)
+    inp.obs_image = np.append(inp.obs_image, 0)
+    inp.obs_pixel = np.vstack([inp.obs_pixel, inp.obs_pixel[k0] + 5.0])
+    single = np.array([len(inp.track_name) - 1])
+    X = np.vstack([truth["X"], truth["X"][inp.obs_track[k0]]])
+    noise = rng.normal(0, 1, (len(ctrl) + len(single), 3)) * np.array([1.0, 1.0, 5.0])
+    tracks = np.concatenate([ctrl, single, chk])
+    xyz = np.vstack([X[np.concatenate([ctrl, single])] + noise, X[chk]])  # check points exact (a good survey)
+    inp.control_track = tracks.astype(np.int64)
+    inp.control_xyz = xyz
+    inp.control_sigma = np.vstack([np.broadcast_to(SIGMA, (len(ctrl) + len(single), 3)),
+                                   np.broadcast_to([0.01, 0.01, 0.02], (len(chk), 3))])
+    inp.control_check = np.r_[np.zeros(len(ctrl) + len(single), bool), np.ones(len(chk), bool)]
+    cfg = UavConfig(gnss_sigma_m=(2.0, 2.0, 4.0), pixel_sigma_px=0.3, pnp_threshold_px=4.0,
+                    self_calibration=("focal_mm", "ppx_mm", "ppy_mm", "k1", "k2"))
+    with caplog.at_level(logging.WARNING):
+        res = adjust_uav_block(inp, cfg)
+    assert res.adjustment.ok, res.adjustment.failures
+    s = res.summary
+    assert len(s["control_used"]) == 10 and len(s["check_used"]) == 5
+    assert list(s["control_left_out"]) == [str(inp.track_name[single[0]])]
+    assert any("cannot be intersected" in r.getMessage() for r in caplog.records)
+    # check points against the truth within their predicted precision (4 sigma per axis)
+    b = res.adjustment.block
+    ps = res.adjustment.point_sigma
+    name_idx = {str(n): k for k, n in enumerate(b.point_name)}
+    for t in chk:
+        k = name_idx[str(inp.track_name[t])]
+        d = b.point_xyz[k] - X[t]
+        assert np.all(np.abs(d) < 4 * ps[k] + 0.02), (d, ps[k])
+    rep = adjustment_report(res.adjustment, gsd_m=block_gsd_m(res))
+    assert rep["check"]["stats"]["n"] == 5 and len(rep["check"]["stats"]["rms_gsd"]) == 3
+    gsd = block_gsd_m(res)
+    assert gsd == pytest.approx(50.0 / (true_cam.focal_mm / true_cam.pixel_size_mm), rel=0.05)  # 50 m / f_px
+
+
+def test_no_gnss_block_with_metre_class_control_only():
+    """No GNSS, an uncalibrated camera (focal 5 % off), 10 targets with 1 m plan and 5 m height noise declared as
+    1.5 / 1.5 / 10 m: the block is oriented in their frame, check points (exact) land within their predicted precision,
+    and the report says the datum is as good as the targets."""
+    from skyrig.orient.incremental import OrientConfig, OrientInput, orient_incremental
+    from skyrig.report.adjustment import absolute_accuracy_statement
+    from test_uav_determinability import CROSS
+
+    truth: dict = {}
+    inp, true_cam = _block(CROSS, seed=31, focal_error=1.05, truth=truth)
+    rng = np.random.default_rng(9)
+    seen = np.bincount(inp.obs_track, minlength=len(inp.track_name))
+    X = truth["X"]
+    # targets spread over the site: the well-seen point nearest each node of a 5 x 2 grid
+    good = np.flatnonzero(seen >= 3)
+    nodes = np.array([[x, y] for x in (-50.0, -25.0, 0.0, 25.0, 50.0) for y in (-35.0, 35.0)])
+    ctrl = [int(good[np.argmin(np.linalg.norm(X[good, :2] - q, axis=1))]) for q in nodes]
+    chk = [int(t) for t in rng.choice(np.setdiff1d(np.flatnonzero(seen >= 4), ctrl), 5, replace=False)]
+    noise = rng.normal(0, 1, (10, 3)) * np.array([1.0, 1.0, 5.0])
+    oi = OrientInput(inp.names, inp.camera, inp.obs_track, inp.obs_image, inp.obs_pixel, inp.track_name,
+                     control_track=np.array(ctrl + chk), control_xyz=np.vstack([X[ctrl] + noise, X[chk]]),
+                     control_sigma=np.vstack([np.broadcast_to(SIGMA, (10, 3)), np.full((5, 3), 0.01)]),
+                     control_check=np.r_[np.zeros(10, bool), np.ones(5, bool)])
+    res = orient_incremental(oi, OrientConfig(pixel_sigma_px=0.3))
+    assert res.oriented.all() and res.adjustment.ok
+    assert res.summary["datum"]["kind"] == "control"
+    b = res.adjustment.block
+    ps = res.adjustment.point_sigma
+    idx = {str(n): k for k, n in enumerate(b.point_name)}
+    for t in chk:
+        k = idx[str(inp.track_name[t])]
+        d = b.point_xyz[k] - X[t]
+        assert np.all(np.abs(d) < 4 * ps[k] + 0.02), (d, ps[k], res.camera.focal_mm / true_cam.focal_mm)
+    assert np.max(ps[[idx[str(inp.track_name[t])] for t in chk], 2]) > 0.5  # a metre-class datum, honestly stated
+    text = absolute_accuracy_statement(res.summary)
+    assert "control points" in text and "that of the targets" in text
