@@ -4,7 +4,7 @@ covariance, and the share within k sigma.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,14 +12,12 @@ from numpy.typing import NDArray
 from skyrig.adjust.stats import sidak_z
 from skyrig.calibrate.calqc_simulation import ScenarioTruth
 
-if TYPE_CHECKING:  # the recipe's result (calqc imports this module)
-    from skyrig.calibrate.calqc import CalqcCalibration
-
 __all__ = ["normalised_errors", "within_sigma_summary"]
 
 
-def normalised_errors(cal: "CalqcCalibration", truth: ScenarioTruth) -> tuple[dict[str, float], NDArray[np.float64]]:
-    """A simulation's calibration errors against its truth (:func:`midas_calqc_scenario`): per parameter
+def normalised_errors(cal: Any, truth: ScenarioTruth) -> tuple[dict[str, float], NDArray[np.float64]]:
+    """A simulation's calibration errors (``cal``: a :class:`~skyrig.calibrate.calqc.CalqcCalibration`) against its
+    truth (:func:`midas_calqc_scenario`): per parameter
     ``(estimate - truth) / sigma`` (every head's boresight rx, ry, rz and IO, the datum shift X, Y, Z), and the same
     errors whitened by their joint covariance (``L^-1 e`` with ``L L^T`` the covariance of all of them, in the order
     of :attr:`CalqcCalibration.covariance_labels`): for honest sigmas and correlations the latter are independent
