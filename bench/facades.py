@@ -33,7 +33,7 @@ measured (``*_in_dsm``; the others lie beyond the surveyed area).  ``--no-clip``
 left out), for comparison.
 
 ``--footprints FILE`` (a GeoPackage with ``eave_m`` / ``ridge_m`` above the ground, as
-:func:`skyrig.simulate.footprints.write_scene_footprints` writes; ``--write-footprints FILE`` writes one from the
+:func:`skyrig.pipeline.simulate.write_scene_footprints` writes; ``--write-footprints FILE`` writes one from the
 scene first: every building, heights perturbed by a seeded normal error of ``--height-sigma`` metres (default
 0.3), plan by ``--plan-sigma`` (default 0)): two more sets per case, ``complete`` (the ``feet_buildings``
 completed by the footprints no extracted building overlaps, as ``skyrig facades --footprint-mode complete``;
@@ -262,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     fp = a.footprints
     if a.write_footprints is not None:
         from skyrig.io.dsm_cog import read_dsm_cog
-        from skyrig.simulate.footprints import write_scene_footprints
+        from skyrig.pipeline.simulate import write_scene_footprints
         from skyrig.simulate.scenarios import build_survey, scenario_spec
 
         crs = read_dsm_cog(_dsm_path(a.project)).frame.crs

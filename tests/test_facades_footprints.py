@@ -29,7 +29,7 @@ from skyrig.dense.grid import GridSpec
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.georef.eo import WorldFrame
 from skyrig.pipeline.facades import _complete, read_footprint_layer
-from skyrig.simulate.footprints import write_scene_footprints
+from skyrig.pipeline.simulate import write_scene_footprints
 from skyrig.simulate.judge_facades import judge_facades, scene_dsm, true_buildings
 from skyrig.simulate.render import WALL, cast_rays
 from skyrig.simulate.scenarios import build_survey, scenario_spec

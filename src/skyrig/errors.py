@@ -115,7 +115,13 @@ class OutputPathError(SkyrigError, OSError):
         return self._text()
 
 
-class OptionError(SkyrigError, ValueError):
+class ConfigError(SkyrigError, ValueError):
+    """A library option is unusable: a field of a configuration dataclass or an argument of a library function
+    (an unknown method name, a value out of its range, options that contradict each other); the message names
+    it and says what is accepted.  :class:`OptionError` is the same for an option as the user spells it."""
+
+
+class OptionError(ConfigError):
     """An option's value is unusable (a command-line option or a project-file stage option): ``option`` names it as
     the caller spells it (``--heads``, ``stages.dsm.heads``)."""
 
@@ -133,6 +139,148 @@ class SessionLockedError(SkyrigError, RuntimeError):
 class PlausibilityWarning(UserWarning):
     """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
     lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""
+
+
+# ------------------------------------------------------------------ the errors of the packages' modules
+# (each importable from its old module as well)
+
+
+# raised in skyrig.adjust.factors.base
+class BlockError(SkyrigError, ValueError):
+    """A block is inconsistent (an observation naming an unknown image, a NaN, a point seen once...)."""
+
+
+# raised in skyrig.adjust.solver
+class SingularError(SkyrigError, ArithmeticError):
+    """The normal equations are singular (datum defect, unobservable parameter)."""
+
+
+# raised in skyrig.adjust.adjust
+class DatumDefectError(SingularError):
+    """The block is rank deficient; ``reasons`` says why in words."""
+
+    def __init__(self, reasons: list[str]) -> None:
+        self.reasons = reasons
+        super().__init__("; ".join(reasons) if reasons else "the normal equations are singular")
+
+
+# raised in skyrig.adjust.linalg
+class NotPositiveDefinite(SkyrigError, ArithmeticError):
+    """The (scaled) reduced matrix is not numerically positive definite."""
+
+
+# raised in skyrig.rig.presets
+class UnknownPresetError(SkyrigError, KeyError):
+    """No preset of that name (a ``KeyError`` and a :class:`~skyrig.errors.SkyrigError`)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+# raised in skyrig.rig.rig
+class HeadNotFoundError(SkyrigError, KeyError):
+    """A rig has no head of the requested name (the message lists the heads it has)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+# raised in skyrig.trajectory.events
+class EventOutOfSpanError(InputFormatError, OutOfRangeError):
+    """An event lies outside the trajectory's time span (names the events file, line and ``time``).
+
+    Both an :class:`~skyrig.errors.InputFormatError` (it has ``path``, ``line``, ``field``) and an
+    :class:`~skyrig.errors.OutOfRangeError`.
+    """
+
+
+# raised in skyrig.georef.transfer
+class TransferError(SkyrigError, ValueError):
+    """An oblique orientation cannot be transferred (no adjusted nadir exposure near it, unknown image...)."""
+
+
+# raised in skyrig.orient.gnss_block
+class UavAdjustError(SkyrigError, ValueError):
+    """The UAV block cannot be oriented (no seed, too few tie points...); the message says why."""
+
+
+# raised in skyrig.orient.incremental
+class OrientError(UavAdjustError):
+    """The block cannot be oriented without GNSS (no start pair, datum not determinable...); the message says
+    why."""
+
+
+# raised in skyrig.calibrate.camera
+class CalibrationError(SkyrigError, ValueError):
+    """A calibration cannot be computed or must not be trusted (the message says why)."""
+
+
+# raised in skyrig.calibrate.gnss_imu
+class CalibrationFailed(SkyrigError):
+    """An adjustment of the recipe did not converge or cannot be trusted."""
+
+
+# raised in skyrig.calibrate.calqc
+class CalqcFailed(SkyrigError):
+    """A step of the recipe did not converge or its result cannot be trusted."""
+
+
+# raised in skyrig.dense.ortho
+class EmptyMosaicError(SkyrigError):
+    """The stage ran but no image sees the surface (a failed result, not a bad input)."""
+
+
+# raised in skyrig.io.trajectory_csv
+class ImplausibleAngleError(InputFormatError, UnitError):
+    """Angle values that cannot be in the unit the file declares (e.g. 250 declared as radians).
+
+    Both an :class:`~skyrig.errors.InputFormatError` (``path``, ``line``, ``field``) and a
+    :class:`~skyrig.errors.UnitError`.
+    """
+
+
+# issued in skyrig.io.table_meta
+class SideCarMismatchWarning(UserWarning):
+    """A table's side-car was written for another version of the table (an edit since, or another writer)."""
+
+
+# raised in skyrig.pipeline.executor
+class TaskError(SkyrigError, RuntimeError):
+    """A task failed; the message names the item (and ``desc``), the original exception is the cause.
+
+    Attributes
+    ----------
+    index
+        Position of the failing item in the list given to :meth:`Executor.map`.
+    item
+        The failing item.
+    """
+
+    def __init__(self, message: str, index: int, item: object) -> None:
+        super().__init__(message)
+        self.index = index
+        self.item = item
+
+
+# raised in skyrig.pipeline.run
+class StageError(SkyrigError, RuntimeError):
+    """A stage failed.  ``exit_code`` is 2 for bad input, 1 for a failed run; ``stage`` names the stage."""
+
+    def __init__(self, stage: str, message: str, exit_code: int = 1) -> None:
+        super().__init__(f"stage {stage}: {message}")
+        self.stage = stage
+        self.reason = message
+        self.exit_code = exit_code
+
+
+# raised in skyrig.pipeline.facades
+class NoBuildingsError(SkyrigError):
+    """The stage ran but found nothing to model (no building in the DSM / footprints): a failed result."""
+
+
+# raised in skyrig.web.tiles
+class TileNotFound(SkyrigError, LookupError):
+    """A tile outside the image's pyramid."""
 
 
 def show_warnings_in_words() -> None:

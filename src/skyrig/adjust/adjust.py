@@ -37,18 +37,11 @@ from skyrig.adjust.stats import (
     describe_null_space,
     row_cofactors,
 )
+from skyrig.errors import DatumDefectError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["adjust", "AdjustmentResult", "Rejection", "DatumDefectError"]
-
-
-class DatumDefectError(SingularError):
-    """The block is rank deficient; ``reasons`` says why in words."""
-
-    def __init__(self, reasons: list[str]) -> None:
-        self.reasons = reasons
-        super().__init__("; ".join(reasons) if reasons else "the normal equations are singular")
 
 
 @dataclass
@@ -361,13 +354,68 @@ def _start_state(initial: State, start: Block) -> State:
     for name in ("R", "C", "bore", "lever", "shift", "sshift", "sdrift", "X", "act", "grid"):
         u, v = getattr(a, name), getattr(b, name)
         if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
-            raise ValueError(f"start: its {name} unknowns do not correspond to the block's "
+            raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
-        raise ValueError("start: its cameras' intrinsics do not correspond to the block's")
+        raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
     if not all(np.isfinite(v).all() for v in (b.R, b.C, b.X, *b.intr)):
-        raise ValueError("start: non-finite starting values")
+        raise BlockError("start: non-finite starting values")
     return b
+
+
+def _left_out_at_start(block: Block, rejected: list[Rejection]) -> list[str]:
+    """The warning (logged) about points that start behind a camera and were left out with their rays."""
+    start_warnings = []
+    if rejected:
+        pts = sorted({str(block.point_name[block.obs_point[r.index]]) for r in rejected})
+        start_warnings.append(f"{len(pts)} point(s) start behind a camera and were left out of the adjustment "
+                              f"({len(rejected)} image observation(s) rejected): "
+                              + "; ".join(r.label for r in rejected[:5]) + (" ..." if len(rejected) > 5 else ""))
+        for w in start_warnings:
+            logger.warning(w)
+    return start_warnings
+
+
+def _add_round(total: SolveInfo, info: SolveInfo) -> None:
+    """Fold a later round's solver info (after a rejection) into the adjustment's total."""
+    total.iterations += info.iterations
+    total.final_cost = info.final_cost
+    total.wall_s += info.wall_s
+    total.converged = info.converged
+    total.message = info.message
+
+
+def _largest_normalised(groups: dict[str, GroupStats]) -> tuple[float, str, int]:
+    """``(|w|, group, row)`` of the largest normalised residual among the active, tested observations
+    (``(0.0, "", -1)`` when there is none)."""
+    best = (0.0, "", -1)
+    for g, gr in groups.items():
+        if gr.normalised is None or not _tested(g):
+            continue
+        act = (gr.weight > 0) & ~gr.constant
+        if not act.any():
+            continue
+        w = np.abs(gr.normalised).max(axis=1)
+        w[~act] = 0.0
+        i = int(np.argmax(w))
+        if w[i] > best[0]:
+            best = (float(w[i]), g, i)
+    return best
+
+
+def _n_tests(groups: dict[str, GroupStats]) -> int:
+    """How many residual components data snooping tests (for the family-wise level)."""
+    return sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in groups.items()
+               if gr.normalised is not None and _tested(g))
+
+
+def _others_above(groups: dict[str, GroupStats], crit: float) -> bool:
+    """Whether a tested observation of another group than the images is above the critical value (then only one
+    rejection per round: its spill into the images of its station would look like blunders there)."""
+    return any(
+        gr.normalised is not None and _tested(g) and g != "image"
+        and (np.abs(gr.normalised).max(axis=1)[(gr.weight > 0) & ~gr.constant] > crit).any()
+        for g, gr in groups.items())
 
 
 def adjust(block: Block, config: AdjustConfig | None = None,
@@ -408,14 +456,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     rejected: list[Rejection] = []
     # points that start behind one of their cameras give no Jacobian there: left out with their rays
     model = _drop_lost_points(block, model, state, rejected)
-    start_warnings = []
-    if rejected:
-        pts = sorted({str(block.point_name[block.obs_point[r.index]]) for r in rejected})
-        start_warnings.append(f"{len(pts)} point(s) start behind a camera and were left out of the adjustment "
-                              f"({len(rejected)} image observation(s) rejected): "
-                              + "; ".join(r.label for r in rejected[:5]) + (" ..." if len(rejected) > 5 else ""))
-        for w in start_warnings:
-            logger.warning(w)
+    start_warnings = _left_out_at_start(block, rejected)
     # the datum check's engine, linearised at the start: the solver's first linearisation
     eng0 = check_datum(model, state, free) if cfg.datum != "none" else None
     opt = cfg.solver_options  # the optimiser's part of the configuration
@@ -436,11 +477,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             total_info = info
             first = False
         else:
-            total_info.iterations += info.iterations
-            total_info.final_cost = info.final_cost
-            total_info.wall_s += info.wall_s
-            total_info.converged = info.converged
-            total_info.message = info.message
+            _add_round(total_info, info)
         model = _drop_lost_points(block, model, state, rejected)
         if free and cfg.inner_constraints == "points":
             state = _to_point_datum(block, model, state, _datum_point_mask(block, model, cfg))
@@ -458,22 +495,9 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             failures.append(msg)
             break
         # data snooping: the largest normalised residual among active observations
-        best = (0.0, "", -1)
-        for g, gr in res[1].items():
-            if gr.normalised is None or not _tested(g):
-                continue
-            act = (gr.weight > 0) & ~gr.constant
-            if not act.any():
-                continue
-            w = np.abs(gr.normalised).max(axis=1)
-            w[~act] = 0.0
-            i = int(np.argmax(w))
-            if w[i] > best[0]:
-                best = (float(w[i]), g, i)
+        best = _largest_normalised(res[1])
         if cfg.snooping_familywise:
-            n_tests = sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in res[1].items()
-                          if gr.normalised is not None and _tested(g))
-            crit = critical_value(cfg.snooping_alpha / max(n_tests, 1))
+            crit = critical_value(cfg.snooping_alpha / max(_n_tests(res[1]), 1))
         if best[0] <= crit:
             break
         if len(snooped) >= cfg.max_rejections:
@@ -487,11 +511,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         picks = [(best[0], best[1], best[2])]
         # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
         # above the critical value (its spill into the images of its station would look like blunders there)
-        others_above = any(
-            gr.normalised is not None and _tested(g) and g != "image"
-            and (np.abs(gr.normalised).max(axis=1)[(gr.weight > 0) & ~gr.constant] > crit).any()
-            for g, gr in res[1].items())
-        if best[1] == "image" and cfg.snooping_per_round > 1 and not others_above:
+        if best[1] == "image" and cfg.snooping_per_round > 1 and not _others_above(res[1], crit):
             room = min(cfg.snooping_per_round, cfg.max_rejections - len(snooped)) - 1
             picks += [(w, "image", j) for w, j in
                       _further_image_rejections(block, res[1]["image"], best[2], crit, room)]

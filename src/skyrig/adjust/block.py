@@ -40,7 +40,7 @@ config); solver, data snooping and statistics options are the config's other par
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -48,37 +48,11 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.config import MODES, AdjustConfig, Mode
 from skyrig.adjust.factors import observation_type, observation_types
-from skyrig.adjust.factors.base import BlockError, check_finite, check_index
+from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
 
 
 __all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
-
-
-@dataclass(frozen=True)
-class BalCamera:
-    """The camera model of the Bundle Adjustment in the Large (BAL) problems (Agarwal et al. 2010).
-
-    ``p = -P_xy / P_z`` (camera looks along -z, y up as skyrig's camera frame),
-    ``r = 1 + k1 |p|^2 + k2 |p|^4``, observation ``= f r p`` in pixels relative to the image centre
-    (x right, y up).  Intrinsics vector ``(f, k1, k2)``.
-    """
-
-    name: str
-    f: float
-    k1: float = 0.0
-    k2: float = 0.0
-
-    @property
-    def intrinsic_names(self) -> tuple[str, ...]:
-        return ("f", "k1", "k2")
-
-    @property
-    def intrinsics(self) -> NDArray[np.float64]:
-        return np.array([self.f, self.k1, self.k2])
-
-    def with_intrinsics(self, v: NDArray[np.float64]) -> "BalCamera":
-        return replace(self, f=float(v[0]), k1=float(v[1]), k2=float(v[2]))
 
 
 CameraModel = FrameCamera | BalCamera

@@ -19,6 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 from typing import Literal
 
+from skyrig.errors import ConfigError
+
 Mode = Literal["fixed", "free", "weighted"]
 MODES = ("fixed", "free", "weighted")
 
@@ -59,23 +61,23 @@ class ParameterModes:
 
     def __post_init__(self) -> None:
         if int(self.actuator_fourier_order) < 0:
-            raise ValueError(f"AdjustConfig.actuator_fourier_order must be >= 0, got {self.actuator_fourier_order}")
+            raise ConfigError(f"AdjustConfig.actuator_fourier_order must be >= 0, got {self.actuator_fourier_order}")
         for name in ("poses", "intrinsics", "lever_arm", "boresight", "datum_shift", "strip_shift", "strip_drift",
                      "actuator", "actuator_curve", "image_grid"):
             if getattr(self, name) not in MODES:
-                raise ValueError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
+                raise ConfigError(f"AdjustConfig.{name} must be one of {MODES}, got {getattr(self, name)!r}")
         if self.points not in ("free", "fixed"):
-            raise ValueError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
+            raise ConfigError(f"AdjustConfig.points must be 'free' or 'fixed', got {self.points!r}")
         if self.datum not in ("auto", "free", "none"):
-            raise ValueError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
+            raise ConfigError(f"AdjustConfig.datum must be 'auto', 'free' or 'none', got {self.datum!r}")
         if self.inner_constraints not in ("poses", "points"):
-            raise ValueError(f"AdjustConfig.inner_constraints must be 'poses' or 'points', got "
+            raise ConfigError(f"AdjustConfig.inner_constraints must be 'poses' or 'points', got "
                              f"{self.inner_constraints!r}")
         if self.inner_constraints == "points" and self.datum != "free":
-            raise ValueError("AdjustConfig.inner_constraints='points' needs datum='free' (inner constraints define "
+            raise ConfigError("AdjustConfig.inner_constraints='points' needs datum='free' (inner constraints define "
                              f"a free network's datum), got datum={self.datum!r}")
         if self.datum_points and self.inner_constraints != "points":
-            raise ValueError("AdjustConfig.datum_points is given but inner_constraints is not 'points' (the datum "
+            raise ConfigError("AdjustConfig.datum_points is given but inner_constraints is not 'points' (the datum "
                              "points are only used by inner constraints on points)")
 
 
@@ -92,7 +94,7 @@ class SolverOptions:
 
     def __post_init__(self) -> None:
         if self.robust not in (None, "huber"):
-            raise ValueError(f"AdjustConfig.robust must be None or 'huber', got {self.robust!r}")
+            raise ConfigError(f"AdjustConfig.robust must be None or 'huber', got {self.robust!r}")
 
 
 @dataclass(frozen=True)
@@ -108,9 +110,9 @@ class ReliabilityOptions:
 
     def __post_init__(self) -> None:
         if int(self.snooping_per_round) < 1:
-            raise ValueError(f"AdjustConfig.snooping_per_round must be >= 1, got {self.snooping_per_round!r}")
+            raise ConfigError(f"AdjustConfig.snooping_per_round must be >= 1, got {self.snooping_per_round!r}")
         if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
-            raise ValueError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
+            raise ConfigError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
                              f"{self.snooping_max_group_share!r}")
 
 
@@ -317,11 +319,11 @@ class AdjustConfig:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "AdjustConfig":
-        """Build from a mapping; unknown keys raise ``ValueError`` naming them."""
+        """Build from a mapping; unknown keys raise :class:`~skyrig.errors.ConfigError` naming them."""
         known = set(cls.__dataclass_fields__)
         bad = sorted(set(data) - known)
         if bad:
-            raise ValueError(f"{source}: unknown adjustment option(s) {bad}; known: {sorted(known)}")
+            raise ConfigError(f"{source}: unknown adjustment option(s) {bad}; known: {sorted(known)}")
         d = dict(data)
         if "intrinsic_names" in d and d["intrinsic_names"] is not None:
             d["intrinsic_names"] = tuple(d["intrinsic_names"])

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.camera.frame import FrameCamera
+from skyrig.errors import ConfigError, GeometryError
 
 __all__ = [
     "refraction_coefficient_bertram", "remove_refraction", "fit_radial_scale",
@@ -40,7 +41,7 @@ def refraction_coefficient_bertram(flying_height_m: float, ground_height_m: floa
     H = float(flying_height_m) / 1000.0
     h = float(ground_height_m) / 1000.0
     if not H > h:
-        raise ValueError(f"flying height {flying_height_m} m must be above the ground height {ground_height_m} m")
+        raise GeometryError(f"flying height {flying_height_m} m must be above the ground height {ground_height_m} m")
     return 2410e-6 * (H / (H * H - 6.0 * H + 250.0) - h * h / ((h * h - 6.0 * h + 250.0) * H))
 
 
@@ -139,7 +140,7 @@ def fit_image_grid(residual_px: ArrayLike, pixels: ArrayLike, width: int, height
         raise ValueError(f"{len(res)} residuals for {len(px)} pixels")
     nr, nc = int(shape[0]), int(shape[1])
     if nr < 1 or nc < 1:
-        raise ValueError(f"grid shape {shape} must be positive")
+        raise ConfigError(f"grid shape {shape} must be positive")
     ok = np.all(np.isfinite(res), axis=1) & (px[:, 0] >= 0) & (px[:, 0] < width) & (px[:, 1] >= 0) & (px[:, 1] < height)
     cell = (px[ok, 1] / height * nr).astype(int) * nc + (px[ok, 0] / width * nc).astype(int)
     count = np.bincount(cell, minlength=nr * nc)

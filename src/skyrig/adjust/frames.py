@@ -8,7 +8,7 @@ into a local ENU (tangential) frame at the block, builds the block there, and
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +19,7 @@ from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.ground import forward_intersection
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.rig.camera_pose import world_from_camera
 
 __all__ = ["local_frame_at", "block_from_georef", "eo_from_block", "points_to_frame"]
 
@@ -102,47 +103,18 @@ def block_from_georef(
         raise BlockError(f"no camera model for camera {missing[0]!r}")
     cam_idx = {c: k for k, c in enumerate(cam_names)}
     # points: tie points with enough rays, control points
-    ctrl_names = set() if control is None else set(control.name.tolist())
-    pnames, pid, counts = np.unique(measurements.point, return_inverse=True, return_counts=True)
-    keep_pt = (counts >= min_rays) | np.isin(pnames, list(ctrl_names))
-    keep_obs = keep_pt[pid]
-    m_point = measurements.point[keep_obs]
-    m_image = measurements.image[keep_obs]
-    m_pixel = measurements.pixel[keep_obs]
-    pnames = pnames[keep_pt]
+    m_point, m_image, m_pixel, pnames = _kept_measurements(measurements, control, min_rays)
     pidx = {p: k for k, p in enumerate(pnames)}
-    inter = forward_intersection(st_l, cameras, m_point, m_image, m_pixel, frame)
-    X0 = np.full((len(pnames), 3), np.nan)
-    ii = {p: k for k, p in enumerate(inter.point)}
-    for p, k in pidx.items():
-        if p in ii:
-            X0[k] = inter.xyz[ii[p]]
+    X0 = _intersected(st_l, cameras, m_point, m_image, m_pixel, frame, pidx)
     ctrl_kw: dict = {}
     if control is not None:
-        c_local = frame.from_ecef(control.frame.to_ecef(control.xyz))
-        sel = np.array([n in pidx for n in control.name])
-        cp = np.array([pidx[n] for n in control.name[sel]], dtype=np.int64)
-        ctrl_kw = dict(control_point=cp, control_xyz=c_local[sel], control_sigma=control_sigma_m,
-                       control_check=np.isin(control.name[sel], list(check_points)))
-        bad = ~np.isfinite(X0[cp]).all(axis=1)
-        X0[cp[bad]] = c_local[sel][bad]
+        ctrl_kw = _control_rows(control, frame, pidx, X0, control_sigma_m, check_points)
     if not np.isfinite(X0).all():
         k = int(np.flatnonzero(~np.isfinite(X0).all(axis=1))[0])
         raise BlockError(f"point {pnames[k]!r} could not be intersected from the starting orientations")
     img_index = {n: k for k, n in enumerate(imgs)}
     n = len(imgs)
-    kw: dict = {}
-    if gnss_sigma_m is not None:
-        if eo_pivot_m is None:
-            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre, gnss_sigma=gnss_sigma_m)
-        else:
-            if not np.isfinite(eo_pivot_m) or eo_pivot_m <= 0:
-                raise BlockError(f"eo_pivot_m must be a positive distance in metres, not {eo_pivot_m!r}")
-            lever = np.array([0.0, 0.0, -float(eo_pivot_m)])
-            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre + obs_l.rotation @ lever,
-                      gnss_sigma=gnss_sigma_m, lever_arm=lever)
-    if imu_sigma_rad is not None:
-        kw.update(imu_station=np.arange(n), imu_rotation=obs_l.rotation, imu_sigma_rad=imu_sigma_rad)
+    kw = _gnss_imu_rows(obs_l, gnss_sigma_m, imu_sigma_rad, eo_pivot_m)
     block = Block(
         cameras=[cameras[c] for c in cam_names], station_name=imgs, station_rotation=st_l.rotation,
         station_centre=st_l.centre, image_name=imgs, image_station=np.arange(n),
@@ -155,13 +127,74 @@ def block_from_georef(
     return block, frame
 
 
+def _kept_measurements(measurements: ImageMeasurements, control: GroundPoints | None, min_rays: int
+                       ) -> tuple[NDArray, NDArray, NDArray[np.float64], NDArray]:
+    """The measurements of points seen in ``min_rays`` images or more, or that are control: point, image, pixel,
+    and the kept point names (sorted)."""
+    ctrl_names = set() if control is None else set(control.name.tolist())
+    pnames, pid, counts = np.unique(measurements.point, return_inverse=True, return_counts=True)
+    keep_pt = (counts >= min_rays) | np.isin(pnames, list(ctrl_names))
+    keep_obs = keep_pt[pid]
+    return (measurements.point[keep_obs], measurements.image[keep_obs], measurements.pixel[keep_obs],
+            pnames[keep_pt])
+
+
+def _intersected(st_l: ExteriorOrientations, cameras: Mapping[str, FrameCamera], m_point: NDArray, m_image: NDArray,
+                 m_pixel: NDArray[np.float64], frame: WorldFrame, pidx: dict[Any, int]) -> NDArray[np.float64]:
+    """Starting object points ``(P, 3)``: the forward intersection with the starting orientations (NaN where a
+    point cannot be intersected)."""
+    inter = forward_intersection(st_l, cameras, m_point, m_image, m_pixel, frame)
+    X0 = np.full((len(pidx), 3), np.nan)
+    ii = {p: k for k, p in enumerate(inter.point)}
+    for p, k in pidx.items():
+        if p in ii:
+            X0[k] = inter.xyz[ii[p]]
+    return X0
+
+
+def _control_rows(control: GroundPoints, frame: WorldFrame, pidx: dict[Any, int], X0: NDArray[np.float64],
+                  control_sigma_m: float | tuple[float, float, float], check_points: tuple[str, ...]
+                  ) -> dict[str, Any]:
+    """The block's control fields for the measured ground points (in ``frame``); a control point that could not be
+    intersected starts at its surveyed position (``X0`` is updated)."""
+    c_local = frame.from_ecef(control.frame.to_ecef(control.xyz))
+    sel = np.array([n in pidx for n in control.name])
+    cp = np.array([pidx[n] for n in control.name[sel]], dtype=np.int64)
+    bad = ~np.isfinite(X0[cp]).all(axis=1)
+    X0[cp[bad]] = c_local[sel][bad]
+    return dict(control_point=cp, control_xyz=c_local[sel], control_sigma=control_sigma_m,
+                control_check=np.isin(control.name[sel], list(check_points)))
+
+
+def _gnss_imu_rows(obs_l: ExteriorOrientations, gnss_sigma_m: float | tuple[float, float, float] | None,
+                   imu_sigma_rad: float | tuple[float, float, float] | None, eo_pivot_m: float | None
+                   ) -> dict[str, Any]:
+    """The block's GNSS / IMU fields: the orientations' centres (or pivots, ``eo_pivot_m``) and rotations as
+    observations of their own stations."""
+    n = len(obs_l)
+    kw: dict[str, Any] = {}
+    if gnss_sigma_m is not None:
+        if eo_pivot_m is None:
+            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre, gnss_sigma=gnss_sigma_m)
+        else:
+            if not np.isfinite(eo_pivot_m) or eo_pivot_m <= 0:
+                raise BlockError(f"eo_pivot_m must be a positive distance in metres, not {eo_pivot_m!r}")
+            lever = np.array([0.0, 0.0, -float(eo_pivot_m)])
+            kw.update(gnss_station=np.arange(n), gnss_xyz=obs_l.centre + obs_l.rotation @ lever,
+                      gnss_sigma=gnss_sigma_m, lever_arm=lever)
+    if imu_sigma_rad is not None:
+        kw.update(imu_station=np.arange(n), imu_rotation=obs_l.rotation, imu_sigma_rad=imu_sigma_rad)
+    return kw
+
+
 def eo_from_block(block: Block, frame: WorldFrame, to: WorldFrame | None = None) -> ExteriorOrientations:
     """Exterior orientations of the block's images (``world_from_camera``) in ``frame``, optionally converted."""
     from skyrig.geometry.rotations import matrix_from_rotvec
 
-    Rs = block.station_rotation[block.image_station]
-    R = Rs @ block.image_rotation @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
-    C = block.station_centre[block.image_station] + np.einsum("nij,nj->ni", Rs, block.image_offset)
+    st = block.image_station
+    R, C = world_from_camera(block.station_rotation[st], block.station_centre[st], block.image_rotation,
+                             block.image_offset)
+    R = R @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
     cams = np.array([block.cameras[c].name for c in block.image_camera])
     eo = ExteriorOrientations(block.image_name, cams, C, R, frame)
     return eo if to is None else eo.to_frame(to)

@@ -31,14 +31,18 @@ CPython 3.11, so neither installs with pip alone on a fresh machine.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
+
+from skyrig.errors import ConfigError, NotPositiveDefinite  # noqa: F401 - NotPositiveDefinite re-exported
 
 logger = logging.getLogger(__name__)
 
@@ -69,8 +73,21 @@ MEMORY_LIMIT = None
 FLOP_LIMIT = 3e12
 
 
-class NotPositiveDefinite(ArithmeticError):
-    """The (scaled) reduced matrix is not numerically positive definite."""
+def _blas_single_thread() -> contextlib.AbstractContextManager[Any]:
+    """Context: BLAS on one thread (threadpoolctl when installed).  OpenBLAS's threads busy-wait for each
+    other; on a loaded machine a small factorisation then takes 100x longer than on one thread."""
+    global _TPC
+    try:
+        if _TPC is None:
+            from threadpoolctl import ThreadpoolController
+
+            _TPC = ThreadpoolController()
+        return _TPC.limit(limits=1, user_api="blas")
+    except Exception:  # pragma: no cover - threadpoolctl missing or failing
+        return contextlib.nullcontext()
+
+
+_TPC: Any = None
 
 
 def _physical_memory() -> int:
@@ -174,7 +191,7 @@ class ReducedSolver:
                  dense_limit: int = DENSE_LIMIT, blocks: NDArray[np.int64] | None = None,
                  memory_limit: float | None = None, flop_limit: float | None = None) -> None:
         if method not in ("auto", "dense", "cholmod", "splu", "pcg", "cholespy"):
-            raise ValueError(f"linear solver must be auto, dense, cholmod, splu, pcg or cholespy, got {method!r}")
+            raise ConfigError(f"linear solver must be auto, dense, cholmod, splu, pcg or cholespy, got {method!r}")
         self.indptr = np.asarray(indptr, np.int64)
         self.indices = np.asarray(indices, np.int64)
         self.n = n = len(self.indptr) - 1
@@ -226,8 +243,6 @@ class ReducedSolver:
         return self._splu(vals, b)
 
     def _dense(self, vals: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        from skyrig.adjust.solver import _blas_single_thread
-
         A = np.zeros((self.n, self.n))
         A[self.rows, self.indices] = vals
         try:

@@ -39,9 +39,10 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
-from skyrig.adjust.factors.base import Factor, whitening_matrices
+from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
+from skyrig.rig.camera_pose import world_from_camera
 
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
@@ -92,15 +93,6 @@ class State:
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
                      self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
                      None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy())
-
-
-def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
-    """Actuator corrections ``(H, width)``: ``a`` cut or padded with zeros (higher Fourier orders)."""
-    out = np.zeros((n_heads, width))
-    if a is not None and a.size:
-        w = min(width, a.shape[1])
-        out[:, :w] = a[:, :w]
-    return out
 
 
 @dataclass
@@ -408,8 +400,8 @@ class Model:
             M[self._act_images] = self.actuated_mounts(s)[0]
         if self._bore_on or np.any(s.bore):
             M = M @ _expmap(s.bore[b.image_head])
-        Rs = s.R[st]
-        return Rs @ M, s.C[st] + np.einsum("nij,nj->ni", Rs, b.image_offset), M
+        R, C = world_from_camera(s.R[st], s.C[st], M, b.image_offset)  # station = platform pose, M its mounting
+        return R, C, M
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, s: State, jacobians: bool = True) -> list[Factor]:

@@ -27,6 +27,7 @@ from typing import Iterable
 import numpy as np
 
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.errors import ConfigError
 
 __all__ = ["Preset", "PRESETS", "apply_preset", "merge_preset"]
 
@@ -67,7 +68,7 @@ def merge_preset(name: str, base: AdjustConfig | None = None, explicit: Iterable
     Parameters
     ----------
     name
-        A key of :data:`PRESETS` (``ValueError`` listing them otherwise).
+        A key of :data:`PRESETS` (:class:`~skyrig.errors.ConfigError` listing them otherwise).
     base
         The block file's configuration (default: :class:`AdjustConfig` defaults).
     explicit
@@ -82,7 +83,7 @@ def merge_preset(name: str, base: AdjustConfig | None = None, explicit: Iterable
         block file is silent; and one sentence per explicit field the preset overrode.
     """
     if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
+        raise ConfigError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
     p = PRESETS[name]
     base = base or AdjustConfig()
     explicit = set(explicit)
@@ -112,7 +113,8 @@ def apply_preset(block: Block, name: str, base: AdjustConfig | None = None, expl
     The configuration is :func:`merge_preset` of the preset with ``base`` (a block file's configuration,
     ``explicit`` its explicitly set fields; default: none); a GNSS datum shift is only estimated when the
     block has GNSS observations; ``overrides`` replace configuration fields.  Unknown names raise
-    ``ValueError`` listing the presets.  (:func:`merge_preset` also returns the conflicts in words.)
+    :class:`~skyrig.errors.ConfigError` listing the presets.  (:func:`merge_preset` also returns the conflicts in
+    words.)
     """
     cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))  # type: ignore[arg-type]
     p = PRESETS[name]

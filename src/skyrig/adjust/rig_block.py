@@ -23,12 +23,12 @@ from numpy.typing import NDArray
 from skyrig.adjust.block import AdjustConfig, Block, BlockError
 from skyrig.adjust.frames import block_from_georef
 from skyrig.adjust.model import Model, State
-from skyrig.georef.direct import direct_georeference
+from skyrig.georef.direct import georeference_with_platform
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
+from skyrig.rig.camera_pose import antenna_from_body_origin, head_mountings
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
-from skyrig.trajectory.events import interpolate_events
 
 __all__ = ["block_from_trajectory"]
 
@@ -85,7 +85,8 @@ def block_from_trajectory(
         Station ``k`` is exposure ``block.station_name[k]`` (``"exposure <id>"``); ``block.lever_arm`` is
         the rig's antenna lever arm; heads are the rig's heads (boresight-correction groups).
     """
-    eo = direct_georeference(trajectory, rig, events, WorldFrame.ecef(), position)
+    eo_ecef, platform = georeference_with_platform(trajectory, rig, events, position)  # the one interpolation
+    eo = eo_ecef.to_frame(WorldFrame.ecef())  # as direct_georeference returns it
     cameras = {h.camera.name: h.camera for h in rig}
     base, frame = block_from_georef(eo, cameras, measurements, control, gnss_sigma_m=None, imu_sigma_rad=None,
                                     control_sigma_m=control_sigma_m, check_points=tuple(check_points),
@@ -105,41 +106,28 @@ def block_from_trajectory(
         raise BlockError(f"exposure {int(expo[s])}: its images were taken {spread:.6f} s apart (more than "
                          f"{same_exposure_s} s), so they cannot share one platform pose; give them separate "
                          f"exposure ids in {events.source or 'the events'}")
-    # platform (IMU body) pose per station, in the local frame
-    st = interpolate_events(trajectory, ev.subset(first), position=position)  # type: ignore[arg-type]
-    ecef_from_body = st.ecef_from_body
-    origin = st.ecef
-    if st.reference == "antenna":
-        origin = origin - np.einsum("nij,j->ni", ecef_from_body, rig.antenna_lever_arm_m)
+    # platform (IMU body) pose per station, in the local frame: the pose the cameras were composed from (all
+    # images of an exposure share it, within same_exposure_s)
+    at = rows[first]
     names = np.array([f"exposure {int(e)}" for e in expo])
-    body = ExteriorOrientations(names, np.array(["body"] * len(expo)), origin, ecef_from_body,
-                                WorldFrame.ecef()).to_frame(frame)
+    body = ExteriorOrientations(names, np.array(["body"] * len(expo)), platform.imu_ecef[at],
+                                platform.ecef_from_body[at], WorldFrame.ecef()).to_frame(frame)
     # station_from_camera and lever arm of each image
     heads = rig.head_names
     head_idx = {h: k for k, h in enumerate(heads)}
-    n_img = len(base.image_name)
     image_head = np.array([head_idx[str(h)] for h in ev.head], dtype=np.int64)
-    image_rotation = np.empty((n_img, 3, 3))
-    image_offset = np.empty((n_img, 3))
     beta = np.asarray(ev.beta_rad, dtype=np.float64)
     actuated = np.array([rig.head(h).is_actuated for h in heads], bool)
+    image_rotation, image_offset, head_camera = head_mountings(rig, ev.head, beta)  # station_from_camera
     cam_names = np.array([c.name for c in base.cameras])
-    for k, h in enumerate(heads):  # one batched mounting per head
-        sel = image_head == k
-        if not sel.any():
-            continue
-        head = rig.head(h)
-        pose = head.body_from_camera(beta[sel] if actuated[k] else np.zeros(int(sel.sum())))
-        image_rotation[sel] = pose.rotation
-        image_offset[sel] = pose.translation
-        wrong = np.flatnonzero(cam_names[base.image_camera[sel]] != head.camera.name)
-        if wrong.size:  # pragma: no cover
-            i = int(np.flatnonzero(sel)[wrong[0]])
-            raise BlockError(f"image {str(base.image_name[i])!r}: camera does not match head {h!r}")
+    wrong = np.flatnonzero(cam_names[base.image_camera] != head_camera)
+    if wrong.size:  # pragma: no cover
+        i = int(wrong[0])
+        raise BlockError(f"image {str(base.image_name[i])!r}: camera does not match head {str(ev.head[i])!r}")
     kw: dict = {}
     n_st = len(expo)
     if gnss_sigma_m is not None:
-        antenna = body.centre + np.einsum("nij,j->ni", body.rotation, rig.antenna_lever_arm_m)
+        antenna = antenna_from_body_origin(body.rotation, body.centre, rig.antenna_lever_arm_m)
         kw.update(gnss_station=np.arange(n_st), gnss_xyz=antenna,
                   gnss_sigma=np.broadcast_to(np.asarray(gnss_sigma_m, dtype=np.float64), (n_st, 3)).copy())
     if imu_sigma_rad is not None:
@@ -158,7 +146,6 @@ def block_from_trajectory(
         actuator_correction=None,
         **kw,
     )
-    _check_against_georef(block, eo.to_frame(frame), rows)
     block = _drop_points(block, _single_station(block) | _gross_at_start(block, max_start_residual_px))
     return block, frame
 
@@ -216,15 +203,3 @@ def _drop_points(block: Block, drop: NDArray[np.bool_]) -> Block:
     if block.control_cov_m2 is not None:
         kw["control_cov_m2"] = block.control_cov_m2[ctrl_keep]
     return replace(block, **kw)
-
-
-def _check_against_georef(block: Block, eo_local: ExteriorOrientations, rows: NDArray[np.int64]) -> None:
-    """The rig composition must reproduce direct georeferencing (guards the mounting conventions)."""
-    R_s = block.station_rotation[block.image_station]
-    R = R_s @ block.image_rotation
-    C = block.station_centre[block.image_station] + np.einsum("nij,nj->ni", R_s, block.image_offset)
-    dc = float(np.max(np.linalg.norm(C - eo_local.centre[rows], axis=1), initial=0.0))
-    dr = float(np.max(np.abs(R - eo_local.rotation[rows]), initial=0.0))
-    if dc > 1e-6 or dr > 1e-9:
-        raise BlockError(f"rig stations do not reproduce direct georeferencing ({dc:.2e} m, {dr:.2e}); "
-                         "events of one exposure must share one time")

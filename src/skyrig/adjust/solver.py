@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.errors import SkyrigError
+from skyrig.errors import ConfigError, SingularError  # noqa: F401 - SingularError re-exported
 
 logger = logging.getLogger(__name__)
 
@@ -62,6 +62,7 @@ except ImportError:  # pragma: no cover - depends on the environment
     _cholespy = None
 
 from skyrig.adjust import linalg as _linalg
+from skyrig.adjust.linalg import _blas_single_thread
 
 #: the reduced solver of :func:`solve_reduced` when called with ``method="auto"`` (the statistics):
 #: ``"auto"`` (dense up to 400 unknowns, CHOLMOD through cvxopt above, SuperLU without cvxopt) or a
@@ -73,29 +74,7 @@ __all__ = ["Normal", "SolveInfo", "SchurEngine", "assemble", "solve_reduced", "l
 
 HAVE_CHOLMOD = _linalg.HAVE_CVXOPT_CHOLMOD
 
-
-def _blas_single_thread():  # type: ignore[no-untyped-def]
-    """Context: BLAS on one thread (threadpoolctl when installed).  OpenBLAS's threads busy-wait for each
-    other; on a loaded machine a small factorisation then takes 100x longer than on one thread."""
-    global _TPC
-    try:
-        if _TPC is None:
-            from threadpoolctl import ThreadpoolController
-
-            _TPC = ThreadpoolController()
-        return _TPC.limit(limits=1, user_api="blas")
-    except Exception:  # pragma: no cover - threadpoolctl missing or failing
-        import contextlib
-
-        return contextlib.nullcontext()
-
-
-_TPC = None
 DENSE_LIMIT = 4000
-
-
-class SingularError(SkyrigError, ArithmeticError):
-    """The normal equations are singular (datum defect, unobservable parameter)."""
 
 
 @dataclass
@@ -758,7 +737,7 @@ class SchurEngine:
     @staticmethod
     def _check_solver(linear_solver: str) -> None:
         if linear_solver not in ("auto", "dense", "splu", "cholmod", "cholespy", "pcg"):
-            raise ValueError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
+            raise ConfigError(f"linear_solver must be auto, dense, splu, cholmod, cholespy or pcg, got {linear_solver!r}")
 
     # ------------------------------------------------------------------ per linearisation
     def linearize(self, factors: list[Factor], huber_k: float | None = None) -> float:
@@ -1031,7 +1010,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
-        raise ValueError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
+        raise ConfigError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
     cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost
     factors = None  # type: ignore[assignment]  # the engine keeps what it needs: the Jacobians go

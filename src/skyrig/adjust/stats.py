@@ -33,6 +33,7 @@ from scipy.stats import norm
 
 from skyrig.adjust.model import Factor, Layout, Model, State
 from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
+from skyrig.errors import ConfigError, GeometryError
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
            "correlation_warnings", "sidak_z", "GroupStats", "SelectedCovariance", "selected_covariance", "selected_from_dense",
@@ -299,8 +300,8 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     S-transformation (module docstring) of the full cofactor matrix that ``cov`` represents
     (``Q_cc``, ``Q_cp = -Q_cc W V^-1``, ``Q_pp = V^-1 + V^-1 W^T Q_cc W V^-1``), evaluated in blocks: the
     returned :class:`Covariance` keeps that representation (``M`` is ``-Q_cp V`` per point, so that the
-    cross terms read back as before).  Raises ``ValueError`` when the chosen points do not fix the
-    datum (fewer than 3, or all on one line).
+    cross terms read back as before).  Raises :class:`~skyrig.errors.GeometryError` when the chosen points do
+    not fix the datum (fewer than 3, or all on one line).
     """
     scale = not layout.has_rpoint
     Gc, Gp = similarity_basis(state, layout, scale)
@@ -319,7 +320,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
         n_red = int(red.sum())
     Bp = Gp * sel_p[:, None, None]
     if int(sel_p.sum()) + n_red < 3:
-        raise ValueError(f"inner constraints on {int(sel_p.sum()) + n_red} estimated point(s) cannot fix the datum "
+        raise GeometryError(f"inner constraints on {int(sel_p.sum()) + n_red} estimated point(s) cannot fix the datum "
                          "(at least 3 points, not on one line)")
     Q = cov.Qcc
     Vinv = cov.Vinv
@@ -339,7 +340,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
         BQB = BQB + np.einsum("pda,pae->de", BQp, Bp)
     sv = np.linalg.svd(BtG, compute_uv=False)
     if not sv[-1] > 1e-8 * sv[0]:
-        raise ValueError("the chosen datum points do not fix the datum (on one line, or too few): inner "
+        raise GeometryError("the chosen datum points do not fix the datum (on one line, or too few): inner "
                          "constraints on them leave a rotation undetermined")
     K = np.linalg.inv(BtG)
     TQc = K @ BQc  # (d, n_c)
@@ -410,7 +411,7 @@ def chosen_unknowns(model: Model, images: tuple[str, ...] = (), points: tuple[st
     Always every reduced column that is not a station pose (calibration, lever arm, boresight, shifts,
     actuator corrections, end points of distances); plus the pose columns of the stations of
     ``images`` (image or station names) and the coordinates of ``points`` (point names).  Unknown names
-    raise ``ValueError``.
+    raise :class:`~skyrig.errors.ConfigError`.
     """
     b, lay = model.block, model.layout
     cols = [j for j, (g, _, _) in enumerate(lay.labels) if g != "pose"]
@@ -418,13 +419,13 @@ def chosen_unknowns(model: Model, images: tuple[str, ...] = (), points: tuple[st
     st_of.update({str(n): k for k, n in enumerate(b.station_name)})
     bad = [n for n in images if n not in st_of]
     if bad:
-        raise ValueError(f"statistics_images names unknown images/stations {bad[:5]}")
+        raise ConfigError(f"statistics_images names unknown images/stations {bad[:5]}")
     for n in images:
         cols.extend(int(c) for c in lay.pose[st_of[n]] if c >= 0)
     pidx = {str(n): k for k, n in enumerate(b.point_name)}
     bad = [n for n in points if n not in pidx]
     if bad:
-        raise ValueError(f"statistics_points names unknown points {bad[:5]}")
+        raise ConfigError(f"statistics_points names unknown points {bad[:5]}")
     pts = []
     for n in points:
         k = pidx[n]

@@ -10,13 +10,16 @@ and control points, each with Gaussian noise of the stated sigma.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import Block
 from skyrig.camera.frame import FrameCamera
+from skyrig.errors import ConfigError
 from skyrig.geometry.rotations import matrix_from_rotvec
+from skyrig.rig.camera_pose import antenna_from_body_origin, world_from_camera
 from skyrig.rig.rig import Rig
 
 __all__ = ["SyntheticTruth", "synthetic_block"]
@@ -119,22 +122,7 @@ def synthetic_block(
     bore = np.zeros((nh, 3)) if head_boresight is None else np.asarray(head_boresight, float).reshape(nh, 3)
     shift = np.zeros(3) if datum_shift is None else np.asarray(datum_shift, float)
 
-    # stations
-    R_list, C_list, strip, t = [], [], [], []
-    fwd = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])  # world_from_body flying +x (body y right = -y world)
-    back = np.array([[-1.0, 0, 0], [0, 1, 0], [0, 0, -1]])  # flying -x
-    for s in range(n_strips):
-        xs = (np.arange(n_per_strip) - (n_per_strip - 1) / 2) * base
-        if s % 2:
-            xs = xs[::-1]
-        for j, x in enumerate(xs):
-            C_list.append([x, (s - (n_strips - 1) / 2) * spacing, height_m])
-            small = rng.normal(0, 0.01, 3)
-            R_list.append((fwd if s % 2 == 0 else back) @ matrix_from_rotvec(small))
-            strip.append(s)
-            t.append(100.0 * s + 2.0 * j)
-    R = np.array(R_list)
-    C = np.array(C_list)
+    R, C, strip, t = _stations(rng, n_strips, n_per_strip, base, spacing, height_m)
     S = len(C)
     # points
     ext_x = (n_per_strip - 1) * base / 2 + fx / 2
@@ -145,60 +133,22 @@ def synthetic_block(
     img_station = np.repeat(np.arange(S), nh)
     img_head = np.tile(np.arange(nh), S)
     if any(actuated) and beta_rad is None:
-        raise ValueError("synthetic_block: the rig has actuated heads; give beta_rad (one angle per station)")
-    img_beta = np.full(len(img_head), np.nan)
-    img_rot = np.empty((len(img_head), 3, 3))
-    true_rot = np.empty((len(img_head), 3, 3))
-    for h in range(nh):
-        sel = img_head == h
-        if actuated[h]:
-            b_nom = np.asarray(beta_rad, float)[img_station[sel]]
-            img_beta[sel] = b_nom
-            img_rot[sel] = head_objs[h].body_from_camera_rotation(b_nom)  # type: ignore[union-attr]
-            true_rot[sel] = true_objs[h].body_from_camera_rotation((1 + beta_scale) * b_nom + beta_offset_rad)  # type: ignore[union-attr]
-        else:
-            img_rot[sel] = heads[h][2]
-            true_rot[sel] = heads[h][2] if rig is None else true_objs[h].body_from_camera_rotation()  # type: ignore[union-attr]
+        raise ConfigError("synthetic_block: the rig has actuated heads; give beta_rad (one angle per station)")
+    img_beta, img_rot, true_rot = _mountings(heads, head_objs, true_objs, actuated, img_station, img_head, beta_rad,
+                                             beta_scale, beta_offset_rad)
     img_off = np.array([heads[h][3] for h in img_head])
     names = np.array([f"s{s:04d}_{heads[h][0]}" for s, h in zip(img_station, img_head)])
-    Rc = R[img_station] @ true_rot @ matrix_from_rotvec(bore[img_head])
-    Cc = C[img_station] + np.einsum("nij,nj->ni", R[img_station], img_off)
-    oi, op, px = [], [], []
-    for i in range(len(names)):  # loop over images only (tens to thousands), vectorised over points
-        camt = true_cams[img_head[i]]
-        pc = (X - Cc[i]) @ Rc[i]
-        ok = pc[:, 2] < 0
-        pix = np.full((n_points, 2), np.nan)
-        pix[ok] = camt.project_pixels(pc[ok])
-        vis = ok & camt.in_image(pix, margin_px=5.0)
-        k = np.flatnonzero(vis)
-        oi.append(np.full(k.size, i))
-        op.append(k)
-        px.append(pix[k])
-    oi_a, op_a, px_a = np.concatenate(oi), np.concatenate(op), np.concatenate(px)
-    px_a = px_a + rng.normal(0, sigma_px, px_a.shape)
-    # keep points with >= 2 rays
-    cnt = np.bincount(op_a, minlength=n_points)
-    keep = cnt >= 2
-    new_idx = np.cumsum(keep) - 1
-    sel = keep[op_a]
-    oi_a, op_a, px_a = oi_a[sel], new_idx[op_a[sel]], px_a[sel]
-    X = X[keep]
+    Rc, Cc = world_from_camera(R[img_station], C[img_station], true_rot, img_off)
+    Rc = Rc @ matrix_from_rotvec(bore[img_head])
+    oi_a, op_a, px_a, X = _observe(rng, X, Rc, Cc, [true_cams[h] for h in img_head], sigma_px)
     P = len(X)
-    # control: points spread over the block (closest to the corners and centre)
-    ctrl = np.zeros(0, np.int64)
-    if n_control:
-        anchors = np.array([[-ext_x, -ext_y], [ext_x, ext_y], [-ext_x, ext_y], [ext_x, -ext_y], [0, 0]]) * 0.7
-        extra = rng.uniform([-ext_x, -ext_y], [ext_x, ext_y], (max(0, n_control - 5), 2)) * 0.8
-        anchors = np.vstack([anchors, extra])[:n_control]
-        d = np.linalg.norm(X[None, :, :2] - anchors[:, None, :], axis=2)
-        ctrl = np.unique(np.argmin(d, axis=1))
+    ctrl = _control_points(rng, X, n_control, ext_x, ext_y)
     ctrl_xyz = X[ctrl] + rng.normal(0, sigma_control_m, (len(ctrl), 3))
     block_kw: dict = {}
     if any(actuated):
         block_kw.update(image_beta_rad=img_beta, head_actuated=[h if a else None for h, a in zip(head_objs, actuated)])
     if gnss_sigma_m is not None:
-        ant = C + np.einsum("nij,j->ni", R, lever) + shift
+        ant = antenna_from_body_origin(R, C, lever) + shift
         block_kw.update(gnss_station=np.arange(S), gnss_xyz=ant + rng.normal(0, gnss_sigma_m, (S, 3)),
                         gnss_sigma=gnss_sigma_m)
     if imu_sigma_rad is not None:
@@ -218,3 +168,86 @@ def synthetic_block(
     )
     truth = SyntheticTruth(R, C, X, list(true_cams), lever, bore, shift)
     return block, truth
+
+
+def _stations(rng: np.random.Generator, n_strips: int, n_per_strip: int, base: float, spacing: float,
+              height_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64], list[int], list[float]]:
+    """Platform poses ``world_from_body`` and centres of strips flown alternately along +x and -x (attitudes
+    perturbed by 0.01 rad), their strip indices and times."""
+    R_list, C_list, strip, t = [], [], [], []
+    fwd = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])  # world_from_body flying +x (body y right = -y world)
+    back = np.array([[-1.0, 0, 0], [0, 1, 0], [0, 0, -1]])  # flying -x
+    for s in range(n_strips):
+        xs = (np.arange(n_per_strip) - (n_per_strip - 1) / 2) * base
+        if s % 2:
+            xs = xs[::-1]
+        for j, x in enumerate(xs):
+            C_list.append([x, (s - (n_strips - 1) / 2) * spacing, height_m])
+            small = rng.normal(0, 0.01, 3)
+            R_list.append((fwd if s % 2 == 0 else back) @ matrix_from_rotvec(small))
+            strip.append(s)
+            t.append(100.0 * s + 2.0 * j)
+    return np.array(R_list), np.array(C_list), strip, t
+
+
+def _mountings(heads: list[Any], head_objs: list[Any], true_objs: list[Any], actuated: list[bool],
+               img_station: NDArray[np.int64], img_head: NDArray[np.int64], beta_rad: NDArray[np.float64] | None,
+               beta_scale: float, beta_offset_rad: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Per image: the actuator angle (NaN for a fixed head), the block's (nominal) ``body_from_camera`` and the
+    true one the measurements are simulated with (actuator error applied)."""
+    img_beta = np.full(len(img_head), np.nan)
+    img_rot = np.empty((len(img_head), 3, 3))
+    true_rot = np.empty((len(img_head), 3, 3))
+    for h in range(len(heads)):
+        sel = img_head == h
+        if actuated[h]:
+            b_nom = np.asarray(beta_rad, float)[img_station[sel]]
+            img_beta[sel] = b_nom
+            img_rot[sel] = head_objs[h].body_from_camera_rotation(b_nom)
+            true_rot[sel] = true_objs[h].body_from_camera_rotation((1 + beta_scale) * b_nom + beta_offset_rad)
+        else:
+            img_rot[sel] = heads[h][2]
+            true_rot[sel] = heads[h][2] if head_objs[h] is None else true_objs[h].body_from_camera_rotation()
+    return img_beta, img_rot, true_rot
+
+
+def _observe(rng: np.random.Generator, X: NDArray[np.float64], Rc: NDArray[np.float64], Cc: NDArray[np.float64],
+             cams: list[FrameCamera], sigma_px: float
+             ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """The points ``X`` seen by every image (in front, 5 px inside the frame) with Gaussian pixel noise, keeping the
+    points seen at least twice: observations' image, point (renumbered) and pixel, and the kept points."""
+    n_points = len(X)
+    oi, op, px = [], [], []
+    for i in range(len(cams)):  # loop over images only (tens to thousands), vectorised over points
+        camt = cams[i]
+        pc = (X - Cc[i]) @ Rc[i]
+        ok = pc[:, 2] < 0
+        pix = np.full((n_points, 2), np.nan)
+        pix[ok] = camt.project_pixels(pc[ok])
+        vis = ok & camt.in_image(pix, margin_px=5.0)
+        k = np.flatnonzero(vis)
+        oi.append(np.full(k.size, i))
+        op.append(k)
+        px.append(pix[k])
+    oi_a, op_a, px_a = np.concatenate(oi), np.concatenate(op), np.concatenate(px)
+    px_a = px_a + rng.normal(0, sigma_px, px_a.shape)
+    # keep points with >= 2 rays
+    cnt = np.bincount(op_a, minlength=n_points)
+    keep = cnt >= 2
+    new_idx = np.cumsum(keep) - 1
+    sel = keep[op_a]
+    return oi_a[sel], new_idx[op_a[sel]], px_a[sel], X[keep]
+
+
+def _control_points(rng: np.random.Generator, X: NDArray[np.float64], n_control: int, ext_x: float,
+                    ext_y: float) -> NDArray[np.int64]:
+    """Indices of ``n_control`` points spread over the block (closest to the corners and centre, then random)."""
+    ctrl = np.zeros(0, np.int64)
+    if n_control:
+        anchors = np.array([[-ext_x, -ext_y], [ext_x, ext_y], [-ext_x, ext_y], [ext_x, -ext_y], [0, 0]]) * 0.7
+        extra = rng.uniform([-ext_x, -ext_y], [ext_x, ext_y], (max(0, n_control - 5), 2)) * 0.8
+        anchors = np.vstack([anchors, extra])[:n_control]
+        d = np.linalg.norm(X[None, :, :2] - anchors[:, None, :], axis=2)
+        ctrl = np.unique(np.argmin(d, axis=1))
+    return ctrl

@@ -40,6 +40,7 @@ from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.factors import observation_type, observation_types
 from skyrig.adjust.model import whitening_matrices
+from skyrig.errors import ConfigError
 
 __all__ = ["VarianceComponents", "estimate_variance_components", "DEFAULT_SPLIT"]
 
@@ -110,7 +111,7 @@ def _components(block: Block, split: Mapping[str, Sequence[Sequence[int]]]
     for g, sets in split.items():
         types = _vce_types()
         if g not in types:
-            raise ValueError(f"unknown observation group {g!r} in split; known: {sorted(types)}")
+            raise ConfigError(f"unknown observation group {g!r} in split; known: {sorted(types)}")
         sets_l = [sorted(int(a) for a in axes) for axes in sets]
         cov = types[g].get_cov(block)
         if cov is not None and len(sets_l) > 1 and not _separable(cov, sets_l):
@@ -154,7 +155,7 @@ def estimate_variance_components(
     """
     cfg = config or AdjustConfig()
     if not cfg.statistics:
-        raise ValueError("variance component estimation needs statistics=True (redundancy numbers)")
+        raise ConfigError("variance component estimation needs statistics=True (redundancy numbers)")
     split = DEFAULT_SPLIT if split is None else split
     b = block.copy()
     comps, notes = _components(b, split)
@@ -204,7 +205,7 @@ def estimate_variance_components(
     if not converged:  # the weights were changed after the last adjustment
         res = adjust(b, cfg)
     if res is None:
-        raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
+        raise ConfigError(f"max_iterations must be >= 1, got {max_iterations}")
     sigma = {}
     for g, sets in comps.items():
         sig = observation_type(g).get_sigma(b)  # type: ignore[union-attr]

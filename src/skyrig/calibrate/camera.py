@@ -39,7 +39,8 @@ from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.camera.distortion import Distortion, distortion_class
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import SkyrigError
+from skyrig.errors import CalibrationError  # noqa: F401 - re-exported (defined in skyrig.errors)
+from skyrig.rig.camera_pose import world_from_camera
 
 logger = logging.getLogger(__name__)
 
@@ -47,10 +48,6 @@ __all__ = ["CameraCalibration", "CalibrationError", "calibrate_camera", "dlt_pos
 
 #: from skyrig's camera frame (x right, y up, z back) to the computer-vision one (x right, y down, z forward)
 _CV_FROM_CAMERA = np.diag([1.0, -1.0, -1.0])
-
-
-class CalibrationError(SkyrigError, ValueError):
-    """A calibration cannot be computed or must not be trusted (the message says why)."""
 
 
 @dataclass
@@ -206,6 +203,82 @@ def dlt_pose(camera: FrameCamera, points_world: ArrayLike, pixels: ArrayLike
     return R.T @ _CV_FROM_CAMERA, C
 
 
+def _observations(target_names: Sequence[str], target_xyz: ArrayLike, obs_image: Sequence[str],
+                  obs_point: Sequence[str], obs_pixel: ArrayLike
+                  ) -> tuple[NDArray[np.str_], NDArray[np.float64], NDArray[np.str_], NDArray[np.str_],
+                             NDArray[np.float64], dict[str, int]]:
+    """The targets and the measurements as arrays, checked (distinct targets, equal lengths, only known targets),
+    and each target's row."""
+    names = np.asarray(target_names, dtype=str).reshape(-1)
+    xyz = np.asarray(target_xyz, dtype=np.float64).reshape(-1, 3)
+    if len(names) != len(xyz) or len(set(names.tolist())) != len(names):
+        raise CalibrationError("target names must be distinct, one per coordinate row")
+    oi = np.asarray(obs_image, dtype=str).reshape(-1)
+    op = np.asarray(obs_point, dtype=str).reshape(-1)
+    px = np.asarray(obs_pixel, dtype=np.float64).reshape(-1, 2)
+    if not (len(oi) == len(op) == len(px)):
+        raise CalibrationError("obs_image, obs_point and obs_pixel differ in length")
+    t_index = {n: k for k, n in enumerate(names.tolist())}
+    unknown = sorted(set(op.tolist()) - set(t_index))
+    if unknown:
+        raise CalibrationError(f"{len(unknown)} measured point(s) are not targets, e.g. {unknown[:5]}")
+    return names, xyz, oi, op, px, t_index
+
+
+def _start_camera(camera: FrameCamera, model: str | Distortion | None, parameters: Sequence[str] | None
+                  ) -> tuple[FrameCamera, Sequence[str]]:
+    """The starting camera with the distortion model to calibrate, and the intrinsics to estimate (checked)."""
+    if model is None:
+        cam0 = camera
+    elif isinstance(model, Distortion):
+        cam0 = camera.with_(distortion=model)
+    elif camera.distortion.name == str(model).lower():
+        cam0 = camera
+    else:
+        cam0 = camera.with_(distortion=distortion_class(str(model))())
+    if parameters is None:
+        parameters = tuple(n for n in cam0.intrinsic_names if n not in ("xc_mm", "yc_mm"))
+    bad = [n for n in parameters if n not in cam0.intrinsic_names]
+    if bad:
+        raise CalibrationError(f"{bad} are not intrinsics of a {cam0.distortion.name!r} camera "
+                               f"({', '.join(cam0.intrinsic_names)})")
+    return cam0, parameters
+
+
+def _start_poses(cam0: FrameCamera, images: list[str], xyz: NDArray[np.float64], t_index: dict[str, int],
+                 oi: NDArray[np.str_], op: NDArray[np.str_], px: NDArray[np.float64],
+                 station_centres: dict[str, ArrayLike] | None, fixed: bool
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Starting rotations and centres of the images by DLT; with ``fixed`` stations the centres given."""
+    R0 = np.empty((len(images), 3, 3))
+    C0 = np.empty((len(images), 3))
+    for i, img in enumerate(images):
+        sel = oi == img
+        try:
+            R0[i], C0[i] = dlt_pose(cam0, xyz[[t_index[p] for p in op[sel]]], px[sel])
+        except CalibrationError as exc:
+            raise CalibrationError(f"image {img!r}: {exc}") from None
+        if fixed:
+            if station_centres is None or img not in station_centres:
+                raise CalibrationError(f"stations are fixed but image {img!r} has no station centre")
+            C0[i] = np.asarray(station_centres[img], dtype=np.float64).reshape(3)
+    return R0, C0
+
+
+def _intrinsics_cofactor(res: AdjustmentResult, camera_name: str, parameters: Sequence[str]) -> NDArray[np.float64]:
+    """The cofactor block of the estimated intrinsics (symmetrised), from the full or the selected covariance."""
+    lab = res.layout.labels
+    cols = [lab.index(("intrinsics", camera_name, n)) for n in parameters]
+    if res.covariance is not None:
+        Q = res.covariance.Qcc[np.ix_(cols, cols)]
+    elif res.selected is not None:
+        sc = [res.selected.labels.index(("intrinsics", camera_name, n)) for n in parameters]
+        Q = res.selected.Qcc[np.ix_(sc, sc)]
+    else:
+        raise CalibrationError("the adjustment gave no covariance of the intrinsics: " + "; ".join(res.warnings))
+    return 0.5 * (Q + Q.T)
+
+
 def calibrate_camera(
     camera: FrameCamera,
     target_names: Sequence[str],
@@ -253,50 +326,14 @@ def calibrate_camera(
         Unknown targets or images, too few targets in an image, a missing station, an adjustment that did not
         converge or must not be trusted.
     """
-    names = np.asarray(target_names, dtype=str).reshape(-1)
-    xyz = np.asarray(target_xyz, dtype=np.float64).reshape(-1, 3)
-    if len(names) != len(xyz) or len(set(names.tolist())) != len(names):
-        raise CalibrationError("target names must be distinct, one per coordinate row")
-    oi = np.asarray(obs_image, dtype=str).reshape(-1)
-    op = np.asarray(obs_point, dtype=str).reshape(-1)
-    px = np.asarray(obs_pixel, dtype=np.float64).reshape(-1, 2)
-    if not (len(oi) == len(op) == len(px)):
-        raise CalibrationError("obs_image, obs_point and obs_pixel differ in length")
-    t_index = {n: k for k, n in enumerate(names.tolist())}
-    unknown = sorted(set(op.tolist()) - set(t_index))
-    if unknown:
-        raise CalibrationError(f"{len(unknown)} measured point(s) are not targets, e.g. {unknown[:5]}")
+    names, xyz, oi, op, px, t_index = _observations(target_names, target_xyz, obs_image, obs_point, obs_pixel)
     if stations not in ("fixed", "free"):
         raise CalibrationError(f"stations must be 'fixed' or 'free', got {stations!r}")
-    if model is None:
-        cam0 = camera
-    elif isinstance(model, Distortion):
-        cam0 = camera.with_(distortion=model)
-    elif camera.distortion.name == str(model).lower():
-        cam0 = camera
-    else:
-        cam0 = camera.with_(distortion=distortion_class(str(model))())
-    if parameters is None:
-        parameters = tuple(n for n in cam0.intrinsic_names if n not in ("xc_mm", "yc_mm"))
-    bad = [n for n in parameters if n not in cam0.intrinsic_names]
-    if bad:
-        raise CalibrationError(f"{bad} are not intrinsics of a {cam0.distortion.name!r} camera "
-                               f"({', '.join(cam0.intrinsic_names)})")
-
+    cam0, parameters = _start_camera(camera, model, parameters)
     images = list(dict.fromkeys(oi.tolist()))
     I = len(images)
-    R0 = np.empty((I, 3, 3))
-    C0 = np.empty((I, 3))
-    for i, img in enumerate(images):
-        sel = oi == img
-        try:
-            R0[i], C0[i] = dlt_pose(cam0, xyz[[t_index[p] for p in op[sel]]], px[sel])
-        except CalibrationError as exc:
-            raise CalibrationError(f"image {img!r}: {exc}") from None
-        if stations == "fixed":
-            if station_centres is None or img not in station_centres:
-                raise CalibrationError(f"stations are fixed but image {img!r} has no station centre")
-            C0[i] = np.asarray(station_centres[img], dtype=np.float64).reshape(3)
+    R0, C0 = _start_poses(cam0, images, xyz, t_index, oi, op, px, station_centres if stations == "fixed" else None,
+                          stations == "fixed")
     i_index = {n: k for k, n in enumerate(images)}
     obs_img = np.array([i_index[n] for n in oi.tolist()], np.int64)
     obs_pt = np.array([t_index[n] for n in op.tolist()], np.int64)
@@ -316,19 +353,11 @@ def calibrate_camera(
     res = adjust(block, cfg)
     if not res.ok:
         raise CalibrationError("the calibration adjustment must not be trusted: " + "; ".join(res.failures))
-    lab = res.layout.labels
-    cols = [lab.index(("intrinsics", cam0.name, n)) for n in parameters]
-    if res.covariance is not None:
-        Q = res.covariance.Qcc[np.ix_(cols, cols)]
-    elif res.selected is not None:
-        sc = [res.selected.labels.index(("intrinsics", cam0.name, n)) for n in parameters]
-        Q = res.selected.Qcc[np.ix_(sc, sc)]
-    else:
-        raise CalibrationError("the adjustment gave no covariance of the intrinsics: " + "; ".join(res.warnings))
-    Q = 0.5 * (Q + Q.T)
+    Q = _intrinsics_cofactor(res, cam0.name, parameters)
     out = res.block
     cam = out.cameras[0]
-    Rw = out.station_rotation @ out.image_rotation  # type: ignore[operator]
+    Rw, _ = world_from_camera(out.station_rotation[out.image_station], out.station_centre[out.image_station],
+                              out.image_rotation, out.image_offset)
     if fixed:
         from skyrig.geometry.rotations import matrix_from_rotvec
 

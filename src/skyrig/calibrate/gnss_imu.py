@@ -55,7 +55,7 @@ from __future__ import annotations
 import html
 import logging
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,13 +66,14 @@ from skyrig.adjust.block import AdjustConfig, Block
 from skyrig.adjust.frames import eo_from_block
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
-from skyrig.errors import SkyrigError
+from skyrig.errors import CalibrationFailed, SkyrigError  # noqa: F401 - CalibrationFailed re-exported
 from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.geodesy.local import ecef_from_ned_rotation
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.rotations import matrix_from_rpy, rotvec_from_matrix, rpy_from_matrix
+from skyrig.rig.camera_pose import antenna_from_body_origin, body_origin_from_antenna, world_from_camera
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
@@ -89,10 +90,6 @@ MGON = GON / 1000.0
 #: shift moves the two opposite strips' projection centres across the track in opposite directions (in a
 #: simulated test 1.2 m), which the strip shifts absorb, and the principal distance trades with the heights.
 SELF_CALIBRATION = (("focal_mm", 0.005), ("ppx_mm", 0.005), ("ppy_mm", 0.005))
-
-
-class CalibrationFailed(SkyrigError):
-    """An adjustment of the recipe did not converge or cannot be trusted."""
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -131,7 +128,7 @@ class FlightData:
 def flight_data_from_survey(survey: Any) -> FlightData:
     """The recorded flight of a simulated survey (:func:`skyrig.simulate.scenarios.build_survey`) as the recipe's
     input, in memory: what ``skyrig simulate`` writes (control in the scenario's GCP CRS with geoid heights)."""
-    from skyrig.pipeline.simulate import find_geoid
+    from skyrig.geodesy.geoid_grid import find_geoid
 
     spec = survey.spec
     geoid = find_geoid() if spec.gcp_geoid == "auto" else spec.gcp_geoid
@@ -470,6 +467,40 @@ def calibrate_uncalibrated_gnss_imu(
     strips = find_strips(block0.station_time, block0.station_rotation)
     block0 = replace(block0, station_strip=strips, strip_shift=None, strip_drift=None, strip_t0=None)
     n_strips = int(strips.max()) + 1
+    ref, headings = _reference_strips(block0, strips, n_strips, reference_strips)
+    stats: dict[str, float] = {"images": float(block0.n_images), "strips": float(n_strips)}
+    tables: dict[str, Any] = {}
+    tables["table1_frames"] = _table1(data, frame, national)
+    gsd = float(cam.gsd(float(np.median(block0.station_centre[:, 2] - np.median(block0.point_xyz[:, 2])))))
+    ref_sorted = sorted(ref)
+    offset, offset_cov = _step1_antenna_offset(block0, np.isin(strips, ref), ref_sorted, headings, tables)
+    rig1 = replace(rig, antenna_lever_arm_m=rig.antenna_lever_arm_m + np.r_[offset, 0.0])
+    blk1, r_b1, r_b2, ref_eo, sc_kw = _step2_reference(build, rig1, data.trajectory, frame, ref, cam,
+                                                       self_calibration, tables, stats)
+    b_mean, bore_cov, x_mean, datum_cov, n = _step3_misalignment(blk1, r_b1, r_b2, rig1, frame, national, tables)
+    # ---- step 4: corrections applied to the whole flight
+    h = rig1.head(head)
+    M = h.mounting
+    Rb = matrix_from_rpy(*b_mean, unit="rad")
+    new_bore = M.T @ Rb @ M @ h.boresight
+    rig_cal = Rig(rig.name, [hh.with_(boresight=new_bore) if hh.name == head else hh for hh in rig1],
+                  rig1.antenna_lever_arm_m, (rig.description + " | " if rig.description else "")
+                  + "calibrated by skyrig calibrate uncalibrated-gnss-imu")
+    traj_c = _shift_trajectory(data.trajectory, frame, -x_mean)
+    eo_c = direct_georeference(traj_c, rig_cal, data.events, frame)
+    blk_c, r_iso, eo_dir, eo_iso, t5 = _step5_evaluation(build, rig_cal, traj_c, frame, data, sc_kw, tables)
+    _step6_y_parallax(blk_c, eo_dir, eo_iso, r_iso, data, national, y_parallax_min_points, tables)
+    stats.update({"sigma0_spatial_intersection_um": t5["spatial_intersection"]["sigma0_um"],
+                  "sigma0_iso_um": t5["integrated_sensor_orientation"]["sigma0_um"],
+                  "reference_images": float(n)})
+    return GnssImuCalibration(rig, rig_cal, head, frame, national, b_mean, bore_cov, x_mean, datum_cov, offset,
+                              offset_cov, traj_c, eo_c, eo_iso, ref_eo, tables, gsd, block0.n_images, tuple(ref_sorted), stats)
+
+
+def _reference_strips(block0: Block, strips: NDArray[np.int64], n_strips: int,
+                      reference_strips: Sequence[int] | None) -> tuple[tuple[int, ...], dict[int, float]]:
+    """The reference sub-block's strips (default the two central ones; they must include opposite directions) and
+    every strip's heading (degrees)."""
     if reference_strips is None:
         if n_strips < 2:
             raise SkyrigError("one strip only: the recipe needs (at least) two strips flown in opposite directions")
@@ -478,7 +509,6 @@ def calibrate_uncalibrated_gnss_imu(
     ref = tuple(int(s) for s in reference_strips)
     if any(s < 0 or s >= n_strips for s in ref) or len(set(ref)) < 2:
         raise SkyrigError(f"reference strips {[s + 1 for s in ref]}: need two or more of the {n_strips} strips")
-    in_ref = np.isin(strips, ref)
     headings = {}
     for s in range(n_strips):
         x = block0.station_rotation[strips == s][:, :, 0].mean(axis=0)
@@ -488,23 +518,24 @@ def calibrate_uncalibrated_gnss_imu(
         raise SkyrigError(f"reference strips {[s + 1 for s in ref]} are all flown in one direction (headings "
                           f"{np.round(hd, 1).tolist()} deg): the antenna offset and the boresight need strips in "
                           "opposite directions")
-    stats: dict[str, float] = {"images": float(block0.n_images), "strips": float(n_strips)}
-    tables: dict[str, Any] = {}
-    tables["table1_frames"] = _table1(data, frame, national)
-    gsd = float(cam.gsd(float(np.median(block0.station_centre[:, 2] - np.median(block0.point_xyz[:, 2])))))
+    return ref, headings
 
-    # ---- step 1 (5.2, Tab. 2): GNSS-supported AT of the reference sub-block with control, shifts per strip
+
+def _step1_antenna_offset(block0: Block, in_ref: NDArray[np.bool_], ref_sorted: list[int], headings: dict[int, float],
+                          tables: dict[str, Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Step 1 (5.2, Tab. 2): GNSS-supported AT of the reference sub-block with control and a shift per strip; the
+    antenna offset (dx, dy in the body) from the shifts of strips in opposite directions, with its covariance.
+    Fills ``tables`` (Tab. 2, the antenna offset)."""
     sub = _subset_block(block0, in_ref)
     sub_g = _without(sub, imu=True)
     cfg_a = AdjustConfig(strip_shift="free", statistics_images=tuple(sub_g.station_name.tolist()))
     r_a = _run(sub_g, cfg_a, "AT(GNSS) with strip shifts")
     labels, cov_s = _selected(r_a, "strip_shift")
     shifts = r_a.block.strip_shift
-    ref_sorted = sorted(ref)
     t2 = []
     ba = r_a.block
-    d_img = ba.gnss_xyz - (ba.station_centre[ba.gnss_station]
-                           + np.einsum("nij,j->ni", ba.station_rotation[ba.gnss_station], ba.lever_arm))
+    d_img = ba.gnss_xyz - antenna_from_body_origin(ba.station_rotation[ba.gnss_station],
+                                                   ba.station_centre[ba.gnss_station], ba.lever_arm)
     for k, s in enumerate(ref_sorted):
         sig = np.sqrt(np.diag(cov_s[3 * k:3 * k + 3, 3 * k:3 * k + 3]))
         dk = d_img[ba.station_strip[ba.gnss_station] == k]
@@ -539,10 +570,18 @@ def calibrate_uncalibrated_gnss_imu(
                                 "shift_common_m": xhat[:3].tolist(), "redundancy": red,
                                 "chi2": float(v @ W @ v),
                                 "note": "dz is not separable from the Z shift; it goes into the datum shift"}
-    rig1 = replace(rig, antenna_lever_arm_m=rig.antenna_lever_arm_m + np.r_[offset, 0.0])
+    return offset, offset_cov
 
-    # ---- step 2 (5.3, Tab. 3): two-step reference orientation
-    blk1, _ = build(rig1, data.trajectory, frame)
+
+def _step2_reference(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple[Block, WorldFrame]], rig1: Rig,
+                     trajectory: Trajectory, frame: WorldFrame, ref: tuple[int, ...], cam: Any,
+                     self_calibration: Sequence[tuple[str, float]], tables: dict[str, Any], stats: dict[str, float]
+                     ) -> tuple[Block, AdjustmentResult, AdjustmentResult, ExteriorOrientations, dict[str, Any]]:
+    """Step 2 (5.3, Tab. 3): the two-step reference orientation of the reference strips with the corrected antenna
+    offset: AT(GNSS) with self-calibration and strip shifts, then an AT without GNSS on its points as control.
+    Returns the whole flight's block, both results, the reference orientations and the self-calibration options;
+    fills Tab. 3."""
+    blk1, _ = build(rig1, trajectory, frame)
     blk1 = replace(blk1, station_strip=find_strips(blk1.station_time, blk1.station_rotation), strip_shift=None,
                    strip_drift=None, strip_t0=None)
     sub1 = _without(_subset_block(blk1, np.isin(blk1.station_strip, ref)), imu=True)
@@ -574,8 +613,16 @@ def calibrate_uncalibrated_gnss_imu(
             {"parameter": l[2], "value": float(vals[l[2]]), "start": float(dict(zip(cam.intrinsic_names, cam.intrinsics))[l[2]]),
              "sigma": float(np.sqrt(cov_i[k, k])), "prior_sigma": float(dict(self_calibration)[l[2]])}
             for k, l in enumerate(lab)]
+    return blk1, r_b1, r_b2, ref_eo, sc_kw
 
-    # ---- step 3 (5.4, Tab. 4): IMU vs reference in roll / pitch / yaw, centres
+
+def _step3_misalignment(blk1: Block, r_b1: AdjustmentResult, r_b2: AdjustmentResult, rig1: Rig, frame: WorldFrame,
+                        national: WorldFrame, tables: dict[str, Any]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                                   int]:
+    """Step 3 (5.4, Tab. 4): the recorded IMU against the reference in roll / pitch / yaw, the GNSS-derived against
+    the reference projection centres: the boresight misalignment and the datum shift (means) with their
+    covariances, and the number of reference images.  Fills Tab. 4."""
     st = r_b2.block
     names = st.station_name
     full_idx = {str(n): k for k, n in enumerate(blk1.station_name)}
@@ -587,15 +634,16 @@ def calibrate_uncalibrated_gnss_imu(
         raise CalibrationFailed(f"no GNSS/IMU record for {missing[0]} ({len(missing)} reference stations)")
     R_imu = blk1.imu_rotation[[imu_row[int(k)] for k in rows_full]]  # world_from_body recorded
     R_ref_body = st.station_rotation  # world_from_body of the reference (nominal mounting, zero boresight)
-    C_ref = st.station_centre + np.einsum("nij,nj->ni", st.station_rotation,
-                                          st.image_offset[np.searchsorted(st.image_station, np.arange(st.n_stations))])
+    first = np.searchsorted(st.image_station, np.arange(st.n_stations))  # the reference image of each station
+    _, C_ref = world_from_camera(st.station_rotation, st.station_centre, st.image_rotation[first],
+                                 st.image_offset[first])
     ned, conv = _ned_from_frame(frame, C_ref)
     ned_imu = ned @ R_imu
     ned_ref = ned @ R_ref_body
     rel = np.swapaxes(ned_imu, 1, 2) @ ned_ref  # R_rpy(b) = R_imu^T R_ref (body axes)
     d_rpy = np.column_stack(rpy_from_matrix(rel, unit="rad"))
     g = blk1.gnss_xyz[[gnss_row[int(k)] for k in rows_full]]
-    C_gnss = g - np.einsum("nij,j->ni", R_imu, rig1.antenna_lever_arm_m)
+    C_gnss = body_origin_from_antenna(R_imu, g, rig1.antenna_lever_arm_m)
     d_xyz = C_gnss - C_ref
     b_mean = d_rpy.mean(axis=0)
     log.debug("per station d_xyz %s\n d_rpy(mgon) %s\n strips %s", np.round(d_xyz, 3), np.round(d_rpy / MGON, 2),
@@ -622,19 +670,17 @@ def calibrate_uncalibrated_gnss_imu(
         "definition": "IMU vs reference: roll, pitch, yaw of R_imu^T R_ref against geographic north at each "
                       "projection centre; X Y Z: GNSS-derived minus reference projection centre (tangential frame)",
     }
+    return b_mean, bore_cov, x_mean, datum_cov, n
 
-    # ---- step 4: corrections applied to the whole flight
-    h = rig1.head(head)
-    M = h.mounting
-    Rb = matrix_from_rpy(*b_mean, unit="rad")
-    new_bore = M.T @ Rb @ M @ h.boresight
-    rig_cal = Rig(rig.name, [hh.with_(boresight=new_bore) if hh.name == head else hh for hh in rig1],
-                  rig1.antenna_lever_arm_m, (rig.description + " | " if rig.description else "")
-                  + "calibrated by skyrig calibrate uncalibrated-gnss-imu")
-    traj_c = _shift_trajectory(data.trajectory, frame, -x_mean)
-    eo_c = direct_georeference(traj_c, rig_cal, data.events, frame)
 
-    # ---- step 5 (section 6, Tab. 5, 6): evaluation on the whole block
+def _step5_evaluation(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple[Block, WorldFrame]], rig_cal: Rig,
+                      traj_c: Trajectory, frame: WorldFrame, data: FlightData, sc_kw: dict[str, Any],
+                      tables: dict[str, Any]
+                      ) -> tuple[Block, AdjustmentResult, ExteriorOrientations, ExteriorOrientations, dict[str, Any]]:
+    """Step 5 (section 6, Tab. 5, 6): the corrected flight evaluated on the whole block: the combined adjustment
+    (GNSS, control, strip shifts, self-calibration, no IMU), spatial intersection with the corrected direct
+    orientation and integrated sensor orientation (no control), against the ground points and each other.
+    Returns the corrected block, the ISO result, the direct and ISO orientations and Tab. 5; fills Tab. 5, 6."""
     blk_c, _ = build(rig_cal, traj_c, frame)
     blk_c = replace(blk_c, station_strip=find_strips(blk_c.station_time, blk_c.station_rotation), strip_shift=None,
                     strip_drift=None, strip_t0=None)
@@ -669,8 +715,14 @@ def calibrate_uncalibrated_gnss_imu(
         "iso-corrected_gnss_imu": _opk_rms(eo_iso, eo_dir),
         "images": len(eo_iso),
     }
+    return blk_c, r_iso, eo_dir, eo_iso, t5
 
-    # ---- step 6 (Tab. 7, 8): y-parallax per stereo model
+
+def _step6_y_parallax(blk_c: Block, eo_dir: ExteriorOrientations, eo_iso: ExteriorOrientations,
+                      r_iso: AdjustmentResult, data: FlightData, national: WorldFrame, min_points: int,
+                      tables: dict[str, Any]) -> None:
+    """Step 6 (Tab. 7, 8): y-parallax per stereo model of the corrected direct and the ISO orientations, in the
+    tangential and the national frame.  Fills Tab. 7, 8 and the models."""
     strip_of_image = {str(nm): int(blk_c.station_strip[blk_c.image_station[k]]) for k, nm in enumerate(blk_c.image_name)}
     eo_dir_t = replace(eo_dir, time_s=blk_c.station_time[blk_c.image_station])
     eo_iso_t = replace(eo_iso, time_s=blk_c.station_time[blk_c.image_station])
@@ -682,7 +734,7 @@ def calibrate_uncalibrated_gnss_imu(
         for oname, e in (("corrected_gnss_imu", eo_dir_t), ("integrated_sensor_orientation", eo_iso_t)):
             ee = e if fr is None else e.to_frame(fr)
             mods = y_parallax_models(ee, cams if fr is None else cams_nat, data.measurements, strip_of_image,
-                                     y_parallax_min_points)
+                                     min_points)
             r = np.array([m["rms_um"] for m in mods])
             t8[f"{fname}/{oname}"] = {"models": len(mods), "over_10um": int((r > 10).sum()),
                                       "over_20um": int((r > 20).sum()), "max_rms_um": float(r.max()) if r.size else None,
@@ -696,11 +748,6 @@ def calibrate_uncalibrated_gnss_imu(
                                                     int((npts < 10).sum())]}
     tables["table8_y_parallax"] = t8
     tables["y_parallax_models"] = models_by
-    stats.update({"sigma0_spatial_intersection_um": t5["spatial_intersection"]["sigma0_um"],
-                  "sigma0_iso_um": t5["integrated_sensor_orientation"]["sigma0_um"],
-                  "reference_images": float(n)})
-    return GnssImuCalibration(rig, rig_cal, head, frame, national, b_mean, bore_cov, x_mean, datum_cov, offset,
-                              offset_cov, traj_c, eo_c, eo_iso, ref_eo, tables, gsd, block0.n_images, tuple(ref_sorted), stats)
 
 
 def _spatial_intersection(block: Block) -> tuple[dict[str, NDArray[np.float64]], float]:

@@ -22,6 +22,8 @@ from skyrig.camera.distortion import (
     distortion_models,
     register_distortion,
 )
+# The shipped models register themselves (register_distortion) when imported, here, so that the registry is
+# full whenever skyrig.camera (or any module of it) is imported; distortion.py itself imports none of them.
 from skyrig.camera.brown import BrownDistortion
 from skyrig.camera.opencv import OpenCVDistortion, OpenCVRationalDistortion
 from skyrig.camera.forward import ForwardDistortion

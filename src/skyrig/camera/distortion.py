@@ -345,9 +345,3 @@ def _fields_are_params(cls: type[Distortion]) -> None:
     if sorted(names) != sorted(cls.constant_names + cls.param_names):
         raise SkyrigError(f"{cls.__name__}: fields {names} differ from param_names {cls.param_names}")
 
-
-# Register the shipped models (import for the side effect; they import this module first).
-from skyrig.camera import brown as _brown  # noqa: E402,F401
-from skyrig.camera import opencv as _opencv  # noqa: E402,F401
-from skyrig.camera import forward as _forward  # noqa: E402,F401
-from skyrig.camera import agisoft as _agisoft  # noqa: E402,F401

@@ -261,7 +261,7 @@ def command(outdir: str | None, output: str | None) -> None:
     # buildings the DSMs miss (or cut at their border) from a cadastre: the scene's footprints with the errors of a
     # real cadastre (0.15 m in plan, 0.3 m in height, seeded), completing the DSM's buildings; walls moved onto
     # their feet as the obliques show them
-    from skyrig.simulate.footprints import write_scene_footprints
+    from skyrig.pipeline.simulate import write_scene_footprints
 
     cadastre = sim_dir / "cadastre.gpkg"
     write_scene_footprints(cadastre, survey.scene, dsm_m.frame.crs, height_sigma_m=0.3, plan_sigma_m=0.15, seed=0)

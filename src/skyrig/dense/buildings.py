@@ -1496,8 +1496,6 @@ def surface_with_buildings(dsm: DsmGrid, buildings: Sequence[BuildingBlock], *, 
             continue
         rr, cc = np.nonzero(sel)
         xy = np.column_stack([ng.x0 + (cc + ca + 0.5) * ng.cell_m, ng.y0 - (rr + ra + 0.5) * ng.cell_m])
-        from skyrig.dense.facades import _roof_height  # noqa: PLC0415 - facades imports this module
-
         height[rr + ra, cc + ca] = _roof_height(b, xy).astype(np.float32)
         burnt += len(rr)
     if burnt == 0 and (H, W) == g.shape:
@@ -1508,3 +1506,33 @@ def surface_with_buildings(dsm: DsmGrid, buildings: Sequence[BuildingBlock], *, 
                    place(np.asarray(dsm.spread, np.float32), np.float32(np.nan)),
                    place(np.asarray(dsm.sigma, np.float32), np.float32(np.nan)),
                    filled, dsm.vertical_reference, meta)
+
+
+def _roof_height(block: BuildingBlock, xy: NDArray) -> NDArray[np.float64]:
+    """Height of the roof polygons over plan points ``(N, 2)`` (the highest plane whose polygon contains the point,
+    the nearest polygon's plane otherwise; ``eave_z`` without roof polygons)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if not block.roof:
+        return np.full(len(xy), float(block.eave_z))
+    best = np.full(len(xy), -np.inf)
+    dist = np.full(len(xy), np.inf)
+    near = np.full(len(xy), float(block.eave_z))
+    for poly in block.roof:
+        p = np.asarray(poly, float)
+        A = np.column_stack([p[:, 0], p[:, 1], np.ones(len(p))])
+        coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
+        z = xy @ coef[:2] + coef[2]
+        inside = np.ones(len(xy), bool)
+        dmin = np.full(len(xy), np.inf)
+        for i in range(len(p)):
+            a, b = p[i, :2], p[(i + 1) % len(p), :2]
+            e = b - a
+            cross = e[0] * (xy[:, 1] - a[1]) - e[1] * (xy[:, 0] - a[0])
+            inside &= cross >= -1e-9  # counter-clockwise: inside is on the left of every edge
+            t = np.clip(((xy - a) @ e) / max(e @ e, 1e-12), 0, 1)
+            dmin = np.minimum(dmin, np.linalg.norm(xy - (a + t[:, None] * e), axis=1))
+        best = np.where(inside & (z > best), z, best)
+        closer = dmin < dist
+        near = np.where(closer, z, near)
+        dist = np.minimum(dist, dmin)
+    return np.where(np.isfinite(best), best, near)

@@ -44,7 +44,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture, tukey_irls
+from skyrig.dense.buildings import BuildingBlock, Facade, FacadeTexture, _roof_height, tukey_irls
 from skyrig.dense.grid import DsmGrid
 from skyrig.errors import SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, local_frame_for
@@ -580,36 +580,6 @@ def _to_roof_on_eave_grid(f: Facade, ctx: _Context, cfg: TextureConfig) -> tuple
 
 
 # ------------------------------------------------------------------------------------------ wall refinement
-def _roof_height(block: BuildingBlock, xy: NDArray) -> NDArray[np.float64]:
-    """Height of the roof polygons over plan points ``(N, 2)`` (the highest plane whose polygon contains the point,
-    the nearest polygon's plane otherwise; ``eave_z`` without roof polygons)."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    if not block.roof:
-        return np.full(len(xy), float(block.eave_z))
-    best = np.full(len(xy), -np.inf)
-    dist = np.full(len(xy), np.inf)
-    near = np.full(len(xy), float(block.eave_z))
-    for poly in block.roof:
-        p = np.asarray(poly, float)
-        A = np.column_stack([p[:, 0], p[:, 1], np.ones(len(p))])
-        coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
-        z = xy @ coef[:2] + coef[2]
-        inside = np.ones(len(xy), bool)
-        dmin = np.full(len(xy), np.inf)
-        for i in range(len(p)):
-            a, b = p[i, :2], p[(i + 1) % len(p), :2]
-            e = b - a
-            cross = e[0] * (xy[:, 1] - a[1]) - e[1] * (xy[:, 0] - a[0])
-            inside &= cross >= -1e-9  # counter-clockwise: inside is on the left of every edge
-            t = np.clip(((xy - a) @ e) / max(e @ e, 1e-12), 0, 1)
-            dmin = np.minimum(dmin, np.linalg.norm(xy - (a + t[:, None] * e), axis=1))
-        best = np.where(inside & (z > best), z, best)
-        closer = dmin < dist
-        near = np.where(closer, z, near)
-        dist = np.minimum(dist, dmin)
-    return np.where(np.isfinite(best), best, near)
-
-
 def _sample(img: NDArray, px: NDArray) -> NDArray[np.float64]:
     """Bilinear colours ``(N, C)`` at pixels ``(N, 2)`` (NaN outside)."""
     import cv2

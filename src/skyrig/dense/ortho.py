@@ -41,15 +41,11 @@ from numpy.typing import NDArray
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.dense.rectify import WindowedImage, sampled_window
-from skyrig.errors import SkyrigError
+from skyrig.errors import EmptyMosaicError, SkyrigError  # noqa: F401 - EmptyMosaicError re-exported
 from skyrig.geodesy.frame import WorldFrame, local_frame_for
 from skyrig.georef.eo import ExteriorOrientations
 
 logger = logging.getLogger(__name__)
-
-
-class EmptyMosaicError(SkyrigError):
-    """The stage ran but no image sees the surface (a failed result, not a bad input)."""
 
 
 class ImageLoader(Protocol):

@@ -122,28 +122,28 @@ class WorldFrame:
         """A frame from its three parts (as in a file header); ``heights`` defaults to ellipsoidal.
 
         A relative geoid path (one with a folder part) is taken relative to ``base`` (the folder of the file
-        that names it).  Raises :class:`CRSError` (or ValueError for a malformed local frame / heights word).
+        that names it).  Raises :class:`CRSError` (also for a malformed local frame or heights word).
         """
         text = str(crs).strip()
         low = text.lower()
         if low.startswith("local"):
             parts = text.split()
             if len(parts) != 4:
-                raise ValueError("expected 'local <lat_deg> <lon_deg> <h_m>'")
+                raise CRSError("expected 'local <lat_deg> <lon_deg> <h_m>'")
             try:
                 lat, lon, h = (float(p) for p in parts[1:])
             except ValueError:
-                raise ValueError(f"expected 'local <lat_deg> <lon_deg> <h_m>', not {text!r}") from None
+                raise CRSError(f"expected 'local <lat_deg> <lon_deg> <h_m>', not {text!r}") from None
             if not all(np.isfinite([lat, lon, h])) or abs(lat) > 90:
-                raise ValueError(f"local frame origin out of range: {text!r}")
+                raise CRSError(f"local frame origin out of range: {text!r}")
             return cls.local(lat, lon, h)
         if text.upper() in ("EPSG:4978", "ECEF"):
             return cls.ecef()
         heights = (heights or "ellipsoidal").strip().lower()
         if heights not in ("ellipsoidal", "orthometric"):
-            raise ValueError(f"heights must be 'ellipsoidal' or 'orthometric', not {heights!r}")
+            raise CRSError(f"heights must be 'ellipsoidal' or 'orthometric', not {heights!r}")
         if heights == "orthometric" and not geoid:
-            raise ValueError("orthometric heights need a geoid (grid file or PROJ grid name)")
+            raise CRSError("orthometric heights need a geoid (grid file or PROJ grid name)")
         if geoid and base is not None and not Path(geoid).is_absolute() and ("/" in geoid or "\\" in geoid):
             geoid = str((Path(base) / geoid).resolve())
         return cls.map(text, geoid if heights == "orthometric" else None)
@@ -164,7 +164,7 @@ class WorldFrame:
             key, sep, val = p.partition(":")
             key = key.strip().lower()
             if not sep or key not in ("heights", "geoid"):
-                raise ValueError(f"unknown part {p!r} in frame {s!r} (expected 'heights: ...', 'geoid: ...')")
+                raise CRSError(f"unknown part {p!r} in frame {s!r} (expected 'heights: ...', 'geoid: ...')")
             if key == "geoid":  # the geoid is last and may itself contain ';'
                 keys["geoid"] = ";".join([val] + parts[k + 1:]).strip()
                 break

@@ -21,29 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from skyrig.errors import ConfigError
 from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.geodesy.local import ecef_from_ned_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.rotations import rpy_from_matrix
+from skyrig.rig.camera_pose import antenna_from_body_origin, body_origin_from_antenna, camera_poses, head_mountings
 from skyrig.rig.rig import Rig
 from skyrig.trajectory.events import CameraEvents, interpolate_events
 from skyrig.trajectory.trajectory import Trajectory
-
-
-def _per_head(rig: Rig, head: NDArray[np.str_], beta_rad: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-    """``body_from_camera`` rotations ``(M, 3, 3)``, lever arms ``(M, 3)`` and camera names ``(M,)`` per event."""
-    m = len(head)
-    rot = np.empty((m, 3, 3))
-    lever = np.empty((m, 3))
-    cam = np.empty(m, dtype=object)
-    for name in np.unique(head):
-        sel = head == name
-        h = rig.head(str(name))
-        pose = h.body_from_camera(beta_rad[sel] if h.is_actuated else None)
-        rot[sel] = pose.rotation
-        lever[sel] = pose.translation
-        cam[sel] = h.camera.name
-    return rot, lever, cam.astype(str)
 
 
 def direct_georeference(
@@ -79,25 +65,35 @@ def direct_georeference(
     HeadNotFoundError
         An event names a head the rig does not have.
     """
+    eo, _ = georeference_with_platform(trajectory, rig, events, position)
+    return eo.to_frame(frame)
+
+
+def georeference_with_platform(trajectory: Trajectory, rig: Rig, events: CameraEvents, position: str = "cubic"
+                               ) -> tuple[ExteriorOrientations, PlatformStates]:
+    """:func:`direct_georeference` in ECEF together with the platform (IMU body) state of every event that it
+    composed the cameras from: one interpolation of the trajectory serves both (a rig block takes its stations'
+    poses from the second).  Raises as :func:`direct_georeference`."""
     s = interpolate_events(trajectory, events, position=position)  # type: ignore[arg-type]
     ecef_from_body = s.ecef_from_body
-    origin = s.ecef
     if s.reference == "antenna":
-        origin = origin - np.einsum("nij,j->ni", ecef_from_body, rig.antenna_lever_arm_m)
-    rot, lever, cam = _per_head(rig, events.head, events.beta_rad)
-    ecef_from_camera = ecef_from_body @ rot
-    centre = origin + np.einsum("nij,nj->ni", ecef_from_body, lever)
+        imu, antenna = body_origin_from_antenna(ecef_from_body, s.ecef, rig.antenna_lever_arm_m), s.ecef
+    else:
+        imu, antenna = s.ecef, antenna_from_body_origin(ecef_from_body, s.ecef, rig.antenna_lever_arm_m)
+    ecef_from_camera, centre, cam = camera_poses(rig, events.head, events.beta_rad, ecef_from_body, imu)
     eo = ExteriorOrientations(
         events.image_name, cam, centre, ecef_from_camera, WorldFrame.ecef(),
         time_s=events.time_s, head=events.head, exposure=events.exposure_id,
         extra={"beta_rad": np.asarray(events.beta_rad, dtype=np.float64)},
     )
-    return eo.to_frame(frame)
+    return eo, PlatformStates(np.asarray(events.image_name), np.asarray(events.head), imu, antenna, ecef_from_body,
+                              events.time_s)
 
 
 @dataclass(frozen=True)
 class PlatformStates:
-    """Platform (IMU body) states recovered from camera exterior orientations.
+    """Platform (IMU body) states of images: recovered from camera exterior orientations
+    (:func:`inverse_georeference`) or interpolated from the trajectory (:func:`georeference_with_platform`).
 
     Attributes
     ----------
@@ -148,12 +144,12 @@ def inverse_georeference(
     """
     heads = np.asarray(eo.head if head is None else head, dtype=str)
     if heads.shape != (len(eo),):
-        raise ValueError("inverse georeferencing needs the head of every image (eo.head or head=)")
+        raise ConfigError("inverse georeferencing needs the head of every image (eo.head or head=)")
     beta = beta_rad if beta_rad is not None else eo.extra.get("beta_rad", np.full(len(eo), np.nan))
     beta = np.asarray(beta, dtype=np.float64)
     ecef = eo.to_frame(WorldFrame.ecef())
-    rot, lever, _ = _per_head(rig, heads, beta)
-    ecef_from_body = ecef.rotation @ np.swapaxes(rot, -1, -2)
+    rot, lever, _ = head_mountings(rig, heads, beta)
+    ecef_from_body = ecef.rotation @ np.swapaxes(rot, -1, -2)  # world_from_camera of skyrig.rig.camera_pose, inverted
     imu = ecef.centre - np.einsum("nij,nj->ni", ecef_from_body, lever)
-    antenna = imu + np.einsum("nij,j->ni", ecef_from_body, rig.antenna_lever_arm_m)
+    antenna = antenna_from_body_origin(ecef_from_body, imu, rig.antenna_lever_arm_m)
     return PlatformStates(eo.image, heads, imu, antenna, ecef_from_body, eo.time_s)

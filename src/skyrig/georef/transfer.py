@@ -41,10 +41,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.errors import SkyrigError
+from skyrig.errors import TransferError  # noqa: F401 - re-exported (defined in skyrig.errors)
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.rotations import matrix_from_quaternion, quaternion_from_matrix, slerp
 from skyrig.rig.boresight_curve import BoresightCurve
+from skyrig.rig.camera_pose import body_origin_from_antenna, world_from_camera
 from skyrig.rig.rig import ActuatedHead, Rig
 from skyrig.trajectory.events import CameraEvents, check_events_in_span
 from skyrig.trajectory.trajectory import Trajectory
@@ -55,10 +56,6 @@ CurveChoice = BoresightCurve | Literal["rig"] | None
 
 #: How each transferred image's body pose was found (``extra["transfer_method"]`` codes).
 METHODS: tuple[str, ...] = ("simultaneous", "interpolated", "trajectory")
-
-
-class TransferError(SkyrigError, ValueError):
-    """An oblique orientation cannot be transferred (no adjusted nadir exposure near it, unknown image...)."""
 
 
 @dataclass(frozen=True)
@@ -288,8 +285,7 @@ def transfer_orientations(
         rot_cam[hs] = pose.rotation
         lever[hs] = pose.translation
         cams[hs] = h.camera.name
-    ecef_from_camera = rot @ rot_cam
-    centre = origin + np.einsum("nij,nj->ni", rot, lever)
+    ecef_from_camera, centre = world_from_camera(rot, origin, rot_cam, lever)
     out = ExteriorOrientations(
         ev.image_name, cams.astype(str), centre, ecef_from_camera, WorldFrame.ecef(), time_s=t, head=ev.head,
         exposure=ev.exposure_id,
@@ -318,7 +314,7 @@ def _trajectory_carried(poses: BodyPoses, trajectory: Trajectory, rig: Rig, ev: 
         r = s.ecef_from_body
         o = s.ecef
         if s.reference == "antenna":
-            o = o - np.einsum("nij,j->ni", r, rig.antenna_lever_arm_m)
+            o = body_origin_from_antenna(r, o, rig.antenna_lever_arm_m)
         return o, r
 
     o_ref, r_ref = body(ref_t[need])

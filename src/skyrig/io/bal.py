@@ -25,6 +25,7 @@ from skyrig.adjust.block import BalCamera, Block
 from skyrig.errors import InputFormatError
 from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from skyrig.io._text import output_temp, publish
+from skyrig.rig.camera_pose import world_from_camera
 
 __all__ = ["read_bal", "write_bal"]
 
@@ -80,8 +81,9 @@ def write_bal(path: str | PathLike[str], block: Block) -> None:
     """Write a block whose cameras are :class:`BalCamera` (one per image, single stations) as a BAL file."""
     if not all(isinstance(c, BalCamera) for c in block.cameras):
         raise ValueError("write_bal needs BalCamera cameras")
-    Rs = block.station_rotation[block.image_station] @ block.image_rotation
-    Cs = block.station_centre[block.image_station]
+    st = block.image_station
+    Rs, Cs = world_from_camera(block.station_rotation[st], block.station_centre[st], block.image_rotation,
+                               block.image_offset)
     R = np.swapaxes(Rs, 1, 2)
     t = -np.einsum("nij,nj->ni", R, Cs)
     intr = np.array([block.cameras[c].intrinsics for c in block.image_camera])

@@ -43,7 +43,7 @@ from skyrig.adjust.block import AdjustConfig, Block, BlockError
 from skyrig.camera.aspect import camera_from_fx_fy, fx_fy_px
 from skyrig.camera.distortion import distortion_from_dict
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import CRSError, InputFormatError
+from skyrig.errors import CRSError, ConfigError, InputFormatError
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
 from skyrig.io._text import atomic_write, float_column, no_cyclic_gc, parse_float, read_text
@@ -590,7 +590,7 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
     off = block.image_offset
     actuated = [h is not None for h in block.head_actuated]  # type: ignore[union-attr]
     if any(actuated) and rig_file is None:
-        raise ValueError("write_block: the block has actuated heads; give rig_file (the rig defining them)")
+        raise ConfigError("write_block: the block has actuated heads; give rig_file (the rig defining them)")
     extra_h, extra_c = ([], []) if not any(actuated) else (
         ["beta_deg"], [["" if not np.isfinite(v) else repr(float(v)) for v in np.degrees(block.image_beta_rad)]])
     sums["images"] = _write_csv(p.parent / tables["images"], ["name", "station", "camera", "head", "mount_omega_deg",

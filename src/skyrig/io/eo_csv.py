@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyrig.errors import CRSError, InputFormatError, UnitError
+from skyrig.errors import CRSError, ConfigError, InputFormatError, UnitError
 from skyrig.georef.attitude_frames import rotation_from_ypr, ypr_from_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.angles import check_plausible, normalize_unit
@@ -233,7 +233,7 @@ def write_eo_csv(eo: ExteriorOrientations, path: PathLike, unit: str = "deg", co
     unit = normalize_unit(unit)
     convention = convention.lower()
     if convention not in _ANGLES:
-        raise ValueError(f"convention must be opk, pok or ypr, not {convention!r}")
+        raise ConfigError(f"convention must be opk, pok or ypr, not {convention!r}")
     f = eo.frame
     if convention == "ypr":
         a = ypr_from_rotation(f, eo.centre, eo.rotation, unit=unit)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.errors import CRSError, InputFormatError
+from skyrig.errors import CRSError, ConfigError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
 from skyrig.georef.attitude_frames import frame_from_enu_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
@@ -177,7 +177,7 @@ def rotation_from_gimbal_ypr(frame: WorldFrame, centres: NDArray, ypr_deg: NDArr
 def write_geo_txt(path: PathLike, eo: ExteriorOrientations, accuracy_m: tuple[float, float] | None = None) -> None:
     """Write ``geo.txt`` from exterior orientations in a map frame (with DJI-gimbal angles)."""
     if eo.frame.kind != "map":
-        raise ValueError("geo.txt needs a map frame (CRS); convert the orientations first")
+        raise ConfigError("geo.txt needs a map frame (CRS); convert the orientations first")
     ypr = gimbal_ypr_from_eo(eo)
     geographic = eo.frame.projection.crs.is_geographic
     fmt = "%.10f" if geographic else "%.4f"

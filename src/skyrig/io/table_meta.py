@@ -40,7 +40,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
-from skyrig.errors import InputFormatError
+from skyrig.errors import InputFormatError, SideCarMismatchWarning  # noqa: F401 - SideCarMismatchWarning re-exported
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.geodesy.statement import crs_statement
 from skyrig.io._text import PathLike, atomic_write, read_text
@@ -50,10 +50,6 @@ __all__ = ["FORMAT", "SideCarMismatchWarning", "meta_path", "write_table_meta", 
 
 FORMAT = "skyrig-table"
 VERSION = 1
-
-
-class SideCarMismatchWarning(UserWarning):
-    """A table's side-car was written for another version of the table (an edit since, or another writer)."""
 
 
 def table_checksum(path: PathLike) -> tuple[int, str]:

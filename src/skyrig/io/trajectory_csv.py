@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.errors import CRSError, InputFormatError, UnitError
+from skyrig.errors import CRSError, ImplausibleAngleError, InputFormatError, UnitError  # noqa: F401 (re-export)
 from skyrig.geodesy.crs import WGS84_ECEF, Geoid, MapProjection, ecef_to_geodetic, resolve_crs, transformer
 from skyrig.geometry.angles import check_plausible, from_radians, normalize_unit
 from skyrig.io._text import atomic_write, read_text
@@ -44,14 +44,6 @@ TIME_SYSTEMS = ("gps-sow", "gps-week-sow", "gps", "utc-sod", "utc-unix")
 SECONDS_PER_WEEK = 604800.0
 
 _DIRECTIVE = re.compile(r"^([A-Za-z][A-Za-z0-9_-]*)\s*:\s*(.*)$")
-
-
-class ImplausibleAngleError(InputFormatError, UnitError):
-    """Angle values that cannot be in the unit the file declares (e.g. 250 declared as radians).
-
-    Both an :class:`~skyrig.errors.InputFormatError` (``path``, ``line``, ``field``) and a
-    :class:`~skyrig.errors.UnitError`.
-    """
 
 
 # --------------------------------------------------------------------------- shared text machinery

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from skyrig.match.features import Features
 from skyrig.match.matching import PairMatches
+from skyrig.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -145,7 +146,7 @@ def _map(db_path: Path, image_dir: str | Path, out: Path, mapper: str) -> dict:
         return pycolmap.incremental_mapping(db_path, image_dir, out, options=_mapping_options())
     if mapper == "global":
         return pycolmap.global_mapping(db_path, image_dir, out)
-    raise ValueError(f"unknown mapper {mapper!r} (incremental or global)")
+    raise ConfigError(f"unknown mapper {mapper!r} (incremental or global)")
 
 
 def reconstruct_from_matches(

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig.errors import ConfigError
+
 if TYPE_CHECKING:
     from skyrig.camera.frame import FrameCamera
     from skyrig.geometry.pose import Pose
@@ -52,13 +54,13 @@ class FeatureConfig:
 
     def __post_init__(self) -> None:
         if self.method not in ("opencv", "pycolmap"):
-            raise ValueError(f"unknown feature method {self.method!r} (opencv or pycolmap)")
+            raise ConfigError(f"unknown feature method {self.method!r} (opencv or pycolmap)")
         if self.max_size is not None and self.max_size < 32:
-            raise ValueError("max_size must be at least 32 pixels")
+            raise ConfigError("max_size must be at least 32 pixels")
         if self.max_features < 1:
-            raise ValueError("max_features must be positive")
+            raise ConfigError("max_features must be positive")
         if self.rectify not in ("off", "oblique", "always"):
-            raise ValueError(f"unknown rectify mode {self.rectify!r} (off, oblique or always)")
+            raise ConfigError(f"unknown rectify mode {self.rectify!r} (off, oblique or always)")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from skyrig.camera.frame import FrameCamera
 from skyrig.geometry.pose import Pose
 from skyrig.match.features import Features
+from skyrig.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -68,17 +69,17 @@ class MatchConfig:
 
     def __post_init__(self) -> None:
         if not 0 < self.ratio <= 1:
-            raise ValueError("ratio must be in (0, 1]")
+            raise ConfigError("ratio must be in (0, 1]")
         if self.verification not in ("fundamental", "essential"):
-            raise ValueError(f"unknown verification {self.verification!r} (fundamental or essential)")
+            raise ConfigError(f"unknown verification {self.verification!r} (fundamental or essential)")
         if self.matcher not in ("flann", "bruteforce"):
-            raise ValueError(f"unknown matcher {self.matcher!r} (flann or bruteforce)")
+            raise ConfigError(f"unknown matcher {self.matcher!r} (flann or bruteforce)")
         if self.min_inliers < 8:
-            raise ValueError("min_inliers must be at least 8")
+            raise ConfigError("min_inliers must be at least 8")
         if self.consistency_px is not None and not self.consistency_px > 0:
-            raise ValueError("consistency_px must be positive (or None to switch the check off)")
+            raise ConfigError("consistency_px must be positive (or None to switch the check off)")
         if self.consistency_neighbours < 5:
-            raise ValueError("consistency_neighbours must be at least 5")
+            raise ConfigError("consistency_neighbours must be at least 5")
 
 
 @dataclass(frozen=True)
@@ -316,7 +317,7 @@ def verify(
     thr = config.ransac_px * config.threshold_scale
     if config.verification == "essential":
         if camera1 is None or camera2 is None:
-            raise ValueError("essential-matrix verification needs both cameras")
+            raise ConfigError("essential-matrix verification needs both cameras")
         r1 = camera1.rays_from_pixels(p1)
         r2 = camera2.rays_from_pixels(p2)
         # skyrig camera frame looks along -z with y up: flip y and z to get OpenCV's (x right, y down, z fwd)

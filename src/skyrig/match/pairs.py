@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from skyrig.camera.frame import FrameCamera, intersect_rays_with_surface
-from skyrig.errors import GeometryError
+from skyrig.errors import ConfigError, GeometryError
 from skyrig.georef.eo import ExteriorOrientations
 
 HeightFunction = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
@@ -221,7 +221,7 @@ def footprint_pairs(
 def image_strips(eo: ExteriorOrientations) -> NDArray[np.int64]:
     """Flight strip of every image (``-1``: unknown), for :func:`budget_pairs`.
 
-    Strips come from :func:`skyrig.orient.strips.detect_strips` on the exposures in time order (one position
+    Strips come from :func:`skyrig.trajectory.strips.detect_strips` on the exposures in time order (one position
     per exposure, the mean of its images' centres; the exposures are ``eo.exposure``, else the images that share
     an event time).  Without event times every image gets ``-1``.
     """
@@ -233,7 +233,7 @@ def image_strips(eo: ExteriorOrientations) -> NDArray[np.int64]:
     ok = np.isfinite(t)
     if ok.sum() < 3:
         return strip
-    from skyrig.orient.strips import detect_strips
+    from skyrig.trajectory.strips import detect_strips
 
     key = np.asarray(eo.exposure)[ok] if eo.exposure is not None else t[ok]
     _, ex = np.unique(key, return_inverse=True)
@@ -296,7 +296,7 @@ def budget_pairs(
     if not max_per_image or len(p) == 0:
         return np.ones(len(p), bool)
     if max_per_image < 1:
-        raise ValueError(f"max_per_image must be >= 1 (or 0 / None for all pairs), not {max_per_image}")
+        raise ConfigError(f"max_per_image must be >= 1 (or 0 / None for all pairs), not {max_per_image}")
     n = int(n_images)
     keep = np.zeros(len(p), bool)
     # 1. maximum spanning forest: minimum spanning tree of weights 2 - overlap (> 0, so that no edge vanishes)

@@ -22,7 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
-from skyrig.errors import SkyrigError
+from skyrig.errors import SkyrigError, UavAdjustError  # noqa: F401 - UavAdjustError re-exported
 from skyrig.orient.similarity import _MIN_COMMON, _robust_similarity
 from skyrig.orient.strips import _renumber_strips, detect_strips
 from skyrig.orient.triangulation import (
@@ -33,9 +33,6 @@ from skyrig.orient.triangulation import (
 logger = logging.getLogger(__name__)
 
 __all__ = ["UavAdjustError", "UavConfig", "UavBlockInput", "UavResult", "attitude_agreement", "adjust_uav_block"]
-
-class UavAdjustError(SkyrigError, ValueError):
-    """The UAV block cannot be oriented (no seed, too few tie points...); the message says why."""
 
 
 @dataclass(frozen=True)

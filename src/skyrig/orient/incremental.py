@@ -56,8 +56,8 @@ from numpy.typing import NDArray
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
-from skyrig.errors import SkyrigError
-from skyrig.orient.gnss_block import UavAdjustError, UavResult, _usable_obs
+from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
+from skyrig.orient.gnss_block import UavResult, _usable_obs
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
     _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,
@@ -68,11 +68,6 @@ logger = logging.getLogger(__name__)
 __all__ = ["OrientConfig", "OrientInput", "OrientError", "orient_incremental", "choose_seed_pair"]
 
 Datum = Literal["control", "scale-bar", "positions", "free"]
-
-
-class OrientError(UavAdjustError):
-    """The block cannot be oriented without GNSS (no start pair, datum not determinable...); the message says
-    why."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +114,7 @@ class OrientConfig:
     def from_dict(cls, data: dict, source: str = "config") -> "OrientConfig":
         bad = sorted(set(data) - set(cls.__dataclass_fields__))
         if bad:
-            raise ValueError(f"{source}: unknown orientation option(s) {bad}; known: {sorted(cls.__dataclass_fields__)}")
+            raise ConfigError(f"{source}: unknown orientation option(s) {bad}; known: {sorted(cls.__dataclass_fields__)}")
         d = dict(data)
         for k in ("self_calibration", "free_anyway"):
             if d.get(k) is not None:

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.orient.triangulation import _SKYRIG_FROM_CV
+from skyrig.errors import ConfigError
 
 __all__ = ["PeerOrientation", "compare_on_same_tracks", "pycolmap_from_tracks", "centre_differences_in_sigma"]
 
@@ -140,7 +141,7 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
     elif camera_model == "SIMPLE_RADIAL":
         start = (f, cx, cy, dist[0])
     else:
-        raise ValueError(f"camera_model {camera_model!r}: OPENCV or SIMPLE_RADIAL")
+        raise ConfigError(f"camera_model {camera_model!r}: OPENCV or SIMPLE_RADIAL")
     opts.camera_params = ",".join(f"{v:.10g}" for v in start)
     pycolmap.Database.open(db_path).close()
     pycolmap.import_images(db_path, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=files,
@@ -192,7 +193,7 @@ def pycolmap_from_tracks(names: NDArray, camera: FrameCamera, obs_track: NDArray
     mo.ba_refine_extra_params = bool(refine_extra_params)
     for key, val in (mapper_options or {}).items():
         if not hasattr(mo.mapper, key):
-            raise ValueError(f"mapper_options: COLMAP's mapper has no option {key!r}")
+            raise ConfigError(f"mapper_options: COLMAP's mapper has no option {key!r}")
         setattr(mo.mapper, key, val)
     recs = pycolmap.incremental_mapping(db_path, img_dir, out, options=mo)
     if not recs:

@@ -134,7 +134,7 @@ def build_demo_project(outdir: str | Path) -> DemoPaths:
 def independent_eo(traj: Trajectory, events: CameraEvents, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
     """Projection centres (UTM) and grid-axis omega-phi-kappa rotations of the demo images, composed here
     explicitly (closed-form WGS84 ECEF, explicit NED/ENU matrices, PROJ only for UTM <-> geodetic and the
-    meridian convergence), independent of :mod:`skyrig.georef`."""
+    meridian convergence), independent of :mod:`skyrig.georef` and of :mod:`skyrig.rig.camera_pose` (it checks them)."""
     a, f = 6378137.0, 1 / 298.257223563
     e2 = f * (2 - f)
 

@@ -26,7 +26,7 @@ import os
 from collections.abc import Callable, Iterable
 from typing import Any, Literal, TypeVar
 
-from skyrig.errors import SkyrigError
+from skyrig.errors import SkyrigError, TaskError  # noqa: F401 - TaskError re-exported (defined in skyrig.errors)
 
 __all__ = ["Executor", "TaskError", "default_workers"]
 
@@ -35,23 +35,6 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 R = TypeVar("R")
 Kind = Literal["serial", "local", "scheduler"]
-
-
-class TaskError(SkyrigError, RuntimeError):
-    """A task failed; the message names the item (and ``desc``), the original exception is the cause.
-
-    Attributes
-    ----------
-    index
-        Position of the failing item in the list given to :meth:`Executor.map`.
-    item
-        The failing item.
-    """
-
-    def __init__(self, message: str, index: int, item: object) -> None:
-        super().__init__(message)
-        self.index = index
-        self.item = item
 
 
 def default_workers() -> int:

@@ -39,7 +39,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.dense.buildings import BuildingBlock, FacadeTexture
 from skyrig.dense.grid import DsmGrid
 from skyrig.dense.model import Model3D, OrthoRaster
-from skyrig.errors import InputFormatError, SkyrigError
+from skyrig.errors import InputFormatError, NoBuildingsError, SkyrigError  # noqa: F401 - NoBuildingsError re-exported
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.georef.eo import ExteriorOrientations
 from skyrig.io.footprints_gpkg import FootprintLayer, read_footprint_layer
@@ -48,10 +48,6 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["FacadesOutputs", "FootprintLayer", "NoBuildingsError", "read_footprint_layer", "read_footprints_gpkg",
            "read_ortho_raster", "run_facades"]
-
-
-class NoBuildingsError(SkyrigError):
-    """The stage ran but found nothing to model (no building in the DSM / footprints): a failed result."""
 
 
 @dataclass

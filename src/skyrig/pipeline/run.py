@@ -50,23 +50,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from skyrig.errors import SkyrigError
-from skyrig.pipeline.project import ExecutorSpec, Option, Project, StageSpec
+from skyrig.errors import SkyrigError, StageError  # noqa: F401 - StageError re-exported (defined in skyrig.errors)
+from skyrig.pipeline.spec import ExecutorSpec, Option, Project, StageSpec
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["Stage", "StageContext", "StageError", "StageEvent", "RunResult", "STAGES", "register_stage",
            "run_project", "plan_run", "stage_fingerprint"]
-
-
-class StageError(SkyrigError, RuntimeError):
-    """A stage failed.  ``exit_code`` is 2 for bad input, 1 for a failed run; ``stage`` names the stage."""
-
-    def __init__(self, stage: str, message: str, exit_code: int = 1) -> None:
-        super().__init__(f"stage {stage}: {message}")
-        self.stage = stage
-        self.reason = message
-        self.exit_code = exit_code
 
 
 @dataclass

@@ -48,10 +48,11 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
+from skyrig.geodesy.geoid_grid import find_geoid  # noqa: F401 - its old home; callers import it from here
 from skyrig.georef.eo import WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.pose import Pose
@@ -78,19 +79,6 @@ def _render_one(args: tuple) -> float:
     img = render_image(_SCENE, cam, Pose(rot, centre, "world", "camera"), noise_dn=noise, seed=seed)
     write_image(path, img)
     return time.perf_counter() - t
-
-
-def find_geoid() -> str | None:
-    """An EGM96 grid: ``$SKYRIG_GEOID``, ``../shared/data/geoid/egm96_15.gtx`` next to the repository, or None."""
-    env = os.environ.get("SKYRIG_GEOID")
-    if env and Path(env).exists():
-        return str(Path(env).resolve())
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        cand = parent.parent / "shared" / "data" / "geoid" / "egm96_15.gtx"
-        if cand.exists():
-            return str(cand)
-    return None
 
 
 @dataclass(frozen=True)
@@ -730,3 +718,22 @@ def load_raster_scene(dsm_path: str | Path, ortho_path: str | Path, origin: tupl
     ocell = float(to.a) if cell_m is None else cell / 2.0
     oo, _ = resample(rgb.astype(np.float32) / (255.0 if rgb.dtype == np.uint8 else 1.0), to, ocell)
     return RasterScene.from_grids(origin, zl, x0, y1, cell, oo, x0, y1, ocell, seed=seed)
+
+
+def write_scene_footprints(path: str | Path, scene: Scene, crs: str, buildings: Sequence[int] | None = None, *,
+                           height_sigma_m: float = 0.0, plan_sigma_m: float = 0.0, seed: int = 0,
+                           layer: str = "buildings") -> dict:
+    """Write :func:`skyrig.simulate.footprints.scene_footprints` in ``crs`` (a projected map CRS, e.g.
+    ``"EPSG:25832"``) as GeoPackage layer ``layer`` (temp-and-rename); returns what ``scene_footprints`` returned.
+    (Moved here from :mod:`skyrig.simulate.footprints`: writing a format is above the simulation's layer.)"""
+    import shapely
+
+    from skyrig.io.gpkg import write_gpkg
+    from skyrig.simulate.footprints import scene_footprints
+
+    fp = scene_footprints(scene, WorldFrame.map(crs), buildings, height_sigma_m=height_sigma_m,
+                          plan_sigma_m=plan_sigma_m, seed=seed)
+    polys = [shapely.Polygon(r) for r in fp["rings"]]
+    write_gpkg(path, {layer: (polys, {"id": fp["ids"], "eave_m": fp["eave_m"], "ridge_m": fp["ridge_m"],
+                                      "ground_h": fp["ground_h"]})}, crs)
+    return fp

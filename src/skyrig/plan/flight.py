@@ -27,6 +27,7 @@ from skyrig.camera.frame import footprint_on_plane, footprint_on_surface
 from skyrig.errors import GeometryError, SkyrigError
 from skyrig.geometry.pose import Pose
 from skyrig.geometry.rotations import ENU_FROM_NED, matrix_from_rpy
+from skyrig.rig.camera_pose import world_from_camera
 from skyrig.rig.rig import Head, Rig
 
 _DEG = np.pi / 180.0
@@ -128,7 +129,8 @@ class FlightPlan:
         h = rig.head(head)
         fb = self.frame_from_body()
         bc = h.body_from_camera(self.beta_rad if h.is_actuated else np.full(len(self), np.nan))
-        return Pose(fb @ bc.rotation, self.position + np.einsum("nij,nj->ni", fb, bc.translation), "world", h.frame)
+        R, C = world_from_camera(fb, self.position, bc.rotation, bc.translation)
+        return Pose(R, C, "world", h.frame)
 
 
 def head_footprint_extent(rig: Rig, head: str, flying_height_m: float) -> tuple[float, float]:

@@ -30,7 +30,7 @@ from functools import partial
 import numpy as np
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import SkyrigError
+from skyrig.errors import UnknownPresetError  # noqa: F401 - re-exported (defined in skyrig.errors)
 from skyrig.geometry.rotations import rot_x, rot_z
 from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA, ActuatedHead, Head, Rig, oblique_mounting
 
@@ -138,13 +138,6 @@ PRESETS: dict[str, Callable[[], Rig]] = {
     "macs-tumblecam": macs_tumblecam,
     "uav-single": uav_single,
 }
-
-
-class UnknownPresetError(SkyrigError, KeyError):
-    """No preset of that name (a ``KeyError`` and a :class:`~skyrig.errors.SkyrigError`)."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0]) if self.args else ""
 
 
 def preset(name: str) -> Rig:

@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import GeometryError, SkyrigError
+from skyrig.errors import GeometryError, HeadNotFoundError, SkyrigError  # noqa: F401 - HeadNotFoundError re-exported
 from skyrig.geometry.angles import to_radians
 from skyrig.geometry.pose import Pose
 from skyrig.geometry.rotations import NADIR_BODY_FROM_CAMERA, matrix_from_opk, matrix_from_rpy, opk_from_matrix, rot_y, rot_z, rpy_from_matrix
@@ -74,13 +74,6 @@ NADIR_BODY_FROM_CAMERA.setflags(write=False)  # defined in skyrig.geometry.rotat
 #: Direction of view (the optical axis, pointing away from the camera) in the camera frame.
 VIEW_DIRECTION_CAMERA: NDArray[np.float64] = np.array([0.0, 0.0, -1.0])
 VIEW_DIRECTION_CAMERA.setflags(write=False)
-
-
-class HeadNotFoundError(SkyrigError, KeyError):
-    """A rig has no head of the requested name (the message lists the heads it has)."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0]) if self.args else ""
 
 
 # ---------------------------------------------------------------------- angle helpers

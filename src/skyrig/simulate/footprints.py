@@ -1,6 +1,6 @@
 """A simulated scene's building footprints as a cadastre would give them: a GeoPackage polygon layer with heights.
 
-:func:`write_scene_footprints` writes the true footprint rectangles of a :class:`~skyrig.simulate.world.Scene`'s
+:func:`scene_footprints` gives the true footprint rectangles of a :class:`~skyrig.simulate.world.Scene`'s
 buildings, converted rigorously (through ECEF) from the scene's local frame to a map CRS, with attributes
 
 ``id``            the scene's building index;
@@ -14,12 +14,12 @@ buildings, converted rigorously (through ECEF) from the scene's local frame to a
 
 Plan positions can be perturbed too (``plan_sigma_m``: every corner moved by the same seeded shift per
 building; a cadastre's outline is a rigid survey of the walls).  The errors drawn are returned, so a judge can
-compare what the pipeline makes of them.
+compare what the pipeline makes of them.  :func:`skyrig.pipeline.simulate.write_scene_footprints` writes them as
+a GeoPackage layer (formats live in :mod:`skyrig.io`, above this layer).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.simulate.world import Scene
 
-__all__ = ["scene_footprints", "write_scene_footprints"]
+__all__ = ["scene_footprints"]
 
 
 def scene_footprints(scene: Scene, frame: WorldFrame, buildings: Sequence[int] | None = None, *,
@@ -57,20 +57,3 @@ def scene_footprints(scene: Scene, frame: WorldFrame, buildings: Sequence[int] |
         ridge.append(float(bl.ridge_z[i]) - gz + dh[k])
     return {"ids": np.array(ids, np.int64), "rings": rings, "eave_m": np.array(eave), "ridge_m": np.array(ridge),
             "ground_h": np.array(ground), "height_error_m": dh, "plan_error_m": dp}
-
-
-def write_scene_footprints(path: str | Path, scene: Scene, crs: str, buildings: Sequence[int] | None = None, *,
-                           height_sigma_m: float = 0.0, plan_sigma_m: float = 0.0, seed: int = 0,
-                           layer: str = "buildings") -> dict:
-    """Write :func:`scene_footprints` in ``crs`` (a projected map CRS, e.g. ``"EPSG:25832"``) as GeoPackage layer
-    ``layer`` (temp-and-rename); returns what :func:`scene_footprints` returned."""
-    import shapely
-
-    from skyrig.io.gpkg import write_gpkg
-
-    fp = scene_footprints(scene, WorldFrame.map(crs), buildings, height_sigma_m=height_sigma_m,
-                          plan_sigma_m=plan_sigma_m, seed=seed)
-    polys = [shapely.Polygon(r) for r in fp["rings"]]
-    write_gpkg(path, {layer: (polys, {"id": fp["ids"], "eave_m": fp["eave_m"], "ridge_m": fp["ridge_m"],
-                                      "ground_h": fp["ground_h"]})}, crs)
-    return fp

@@ -42,6 +42,7 @@ from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.geometry.rotations import matrix_from_rpy, quaternion_from_matrix, rpy_from_matrix
 from skyrig.plan.flight import FlightPlan, frame_from_body_rotation, plan_flight
 from skyrig.rig.boresight_curve import BoresightCurve
+from skyrig.rig.camera_pose import antenna_from_body_origin, camera_poses
 from skyrig.rig.rig import ActuatedHead, Head, Rig
 from skyrig.rig import presets
 from skyrig.simulate.errors import (
@@ -415,7 +416,7 @@ def build_survey(spec: ScenarioSpec) -> Survey:
     flown = replace(plan, position=pos[idx], heading_rad=heading[idx], roll_rad=roll[idx], pitch_rad=pitch[idx])
     rig_true, curve = _true_rig(spec, rng)
     rig_rec = _recorded_rig(spec)
-    ant_true = pos + np.einsum("nij,j->ni", local_from_body, rig_true.antenna_lever_arm_m)
+    ant_true = antenna_from_body_origin(local_from_body, pos, rig_true.antenna_lever_arm_m)
     traj_true = _trajectory(frame, t, ant_true, local_from_body)
     # ---- recorded trajectory
     g = gnss_errors(err, t, strip, rng)
@@ -487,17 +488,9 @@ def _trajectory_ned(frame: WorldFrame, t: NDArray, xyz_local: NDArray, ned_from_
 
 
 def _compose_eo(flown: FlightPlan, rig: Rig, events: CameraEvents, frame: WorldFrame, idx_per_event: NDArray) -> ExteriorOrientations:
-    fb = flown.frame_from_body()[idx_per_event]
-    rot = np.empty((len(events), 3, 3))
-    cen = np.empty((len(events), 3))
-    cams = np.empty(len(events), dtype=object)
-    for k in range(len(events)):
-        h = rig.head(str(events.head[k]))
-        bc = h.body_from_camera(events.beta_rad[k] if h.is_actuated else None)
-        rot[k] = fb[k] @ bc.rotation
-        cen[k] = flown.position[idx_per_event[k]] + fb[k] @ bc.translation
-        cams[k] = h.camera.name
-    return ExteriorOrientations(events.image_name, cams.astype(str), cen, rot, frame, time_s=events.time_s,
+    rot, cen, cams = camera_poses(rig, events.head, events.beta_rad, flown.frame_from_body()[idx_per_event],
+                                  flown.position[idx_per_event])
+    return ExteriorOrientations(events.image_name, cams, cen, rot, frame, time_s=events.time_s,
                                 head=events.head, exposure=events.exposure_id,
                                 extra={"beta_rad": np.asarray(events.beta_rad, dtype=np.float64)})
 

@@ -69,6 +69,7 @@ def hover_circle(survey: Any, step_deg: float = 22.5, station: int = 0, seed: in
     from skyrig.georef.eo import ExteriorOrientations
     from skyrig.geometry.pose import Pose
     from skyrig.geometry.rotations import matrix_from_rotvec
+    from skyrig.rig.camera_pose import camera_poses
     from skyrig.simulate.render import render_image
     from skyrig.simulate.scenarios import ci_camera
     from skyrig.trajectory.events import CameraEvents
@@ -79,10 +80,10 @@ def hover_circle(survey: Any, step_deg: float = 22.5, station: int = 0, seed: in
     ob, nd = survey.rig_true.head("oblique"), survey.rig_true.head("nadir")
     betas = np.radians(np.arange(0.0, 360.0 - 1e-9, step_deg))
     k = betas.size
-    r_ob = fb @ ob.body_from_camera(betas).rotation
-    c_ob = np.broadcast_to(pos + fb @ ob.lever_arm_m, (k, 3))
-    r_nd = fb @ nd.body_from_camera().rotation
-    c_nd = pos + fb @ nd.lever_arm_m
+    # the oblique head at every beta and the nadir head, all from the one held body pose
+    R, C, _ = camera_poses(survey.rig_true, np.r_[["oblique"] * k, ["nadir"]], np.r_[betas, [np.nan]],
+                           np.broadcast_to(fb, (k + 1, 3, 3)), np.broadcast_to(pos, (k + 1, 3)))
+    r_ob, c_ob, r_nd, c_nd = R[:k], C[:k], R[k], C[k]
     names = np.array([f"c{int(round(np.degrees(b) * 10)):04d}_oblique.png" for b in betas])
     nnames = np.array([n.replace("oblique", "nadir") for n in names])
     eo_true = ExteriorOrientations(np.r_[names, ["still_nadir.png"]], np.r_[[ob.camera.name] * k, [nd.camera.name]],

@@ -12,18 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from skyrig.errors import InputFormatError, OutOfRangeError
+from skyrig.errors import EventOutOfSpanError, InputFormatError  # noqa: F401 - EventOutOfSpanError re-exported
 from skyrig.trajectory.trajectory import PositionMethod, Trajectory, TrajectorySample
 
 __all__ = ["CameraEvents", "EventOutOfSpanError", "check_events_in_span", "interpolate_events"]
-
-
-class EventOutOfSpanError(InputFormatError, OutOfRangeError):
-    """An event lies outside the trajectory's time span (names the events file, line and ``time``).
-
-    Both an :class:`~skyrig.errors.InputFormatError` (it has ``path``, ``line``, ``field``) and an
-    :class:`~skyrig.errors.OutOfRangeError`.
-    """
 
 
 @dataclass(frozen=True, eq=False)

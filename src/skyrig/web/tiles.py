@@ -22,6 +22,7 @@ from collections import OrderedDict
 import numpy as np
 from numpy.typing import NDArray
 
+from skyrig.errors import TileNotFound  # noqa: F401 - re-exported (defined in skyrig.errors)
 from skyrig.io.image_windows import ImageWindows
 
 __all__ = ["TILE", "OVERVIEW_MAX", "TilePyramid", "TileNotFound"]
@@ -32,10 +33,6 @@ COPY_ABOVE_PIXELS = 16_000_000  # JPEG / PNG files larger than this get a tiled 
 
 
 _COPY_SLOTS = threading.Semaphore(1)  # tiled copies are written one at a time (each keeps a core busy)
-
-
-class TileNotFound(LookupError):
-    """A tile outside the image's pyramid."""
 
 
 class TilePyramid:

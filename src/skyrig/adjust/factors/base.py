@@ -24,7 +24,7 @@ adding a module that registers one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -34,14 +34,45 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.block import Block
     from skyrig.adjust.model import Model, State
 
-from skyrig.errors import SkyrigError
+from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
-__all__ = ["ObservationType", "Factor", "BlockError", "any_on", "whitening_matrices", "check_index", "check_finite",
+__all__ = ["ObservationType", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
            "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
 
 
-class BlockError(SkyrigError, ValueError):
-    """A block is inconsistent (an observation naming an unknown image, a NaN, a point seen once...)."""
+@dataclass(frozen=True)
+class BalCamera:
+    """The camera model of the Bundle Adjustment in the Large (BAL) problems (Agarwal et al. 2010).
+
+    ``p = -P_xy / P_z`` (camera looks along -z, y up as skyrig's camera frame),
+    ``r = 1 + k1 |p|^2 + k2 |p|^4``, observation ``= f r p`` in pixels relative to the image centre
+    (x right, y up).  Intrinsics vector ``(f, k1, k2)``.
+    """
+
+    name: str
+    f: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @property
+    def intrinsic_names(self) -> tuple[str, ...]:
+        return ("f", "k1", "k2")
+
+    @property
+    def intrinsics(self) -> NDArray[np.float64]:
+        return np.array([self.f, self.k1, self.k2])
+
+    def with_intrinsics(self, v: NDArray[np.float64]) -> "BalCamera":
+        return replace(self, f=float(v[0]), k1=float(v[1]), k2=float(v[2]))
+
+
+def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
+    """Actuator corrections ``(H, width)``: ``a`` cut or padded with zeros (higher Fourier orders)."""
+    out = np.zeros((n_heads, width))
+    if a is not None and a.size:
+        w = min(width, a.shape[1])
+        out[:, :w] = a[:, :w]
+    return out
 
 
 def rows_of(x: Any, shape_tail: tuple[int, ...], dtype: Any = np.float64, n: int | None = None) -> NDArray:

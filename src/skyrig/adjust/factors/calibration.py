@@ -13,8 +13,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from skyrig.adjust.factors import register
-from skyrig.adjust.factors.base import Factor
+from skyrig.adjust.factors.base import Factor, pad_actuator
 from skyrig.adjust.factors.prior import PriorType, prior_factor
+from skyrig.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
@@ -25,8 +26,6 @@ class CalibrationPrior(PriorType):
     order = 101.0
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
-        from skyrig.adjust.model import pad_actuator
-
         cfg, lay, s0, b = model.config, model.layout, model.initial, model.block
         out: list[Factor] = []
         if cfg.intrinsics == "weighted":
@@ -38,7 +37,7 @@ class CalibrationPrior(PriorType):
                 names = [n for n, o in zip(cam.intrinsic_names, on) if o]
                 missing = [n for n in names if n not in sig_of]
                 if missing:
-                    raise ValueError(f"intrinsics are 'weighted' but intrinsic_sigma lacks {missing}")
+                    raise ConfigError(f"intrinsics are 'weighted' but intrinsic_sigma lacks {missing}")
                 out.append(prior_factor(f"intrinsics:{cam.name}", (s.intr[j] - s0.intr[j])[on][None],
                                         lay.intr[j][on][None], np.array([sig_of[n] for n in names]), jac))
         for grp, cur, ini, cols, sig in (

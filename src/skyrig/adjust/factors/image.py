@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from skyrig.adjust.factors import register
 from skyrig.adjust.factors.image_grid import bilinear_weights, grids_of
 from skyrig.adjust.factors.base import (
+    BalCamera,
     BlockError,
     Factor,
     ObservationType,
@@ -185,8 +186,6 @@ class Image(ObservationType):
                              f"image {str(block.image_name[k // block.n_points])!r}")
 
     def prepare(self, model: "Model") -> ImageCache:
-        from skyrig.adjust.block import BalCamera
-
         b, lay = model.block, model.layout
         W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         red_cols = red_rows = red_idx = None
@@ -257,14 +256,11 @@ class Image(ObservationType):
     def label(self, block: "Block", i: int) -> str:
         return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
 
-    def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:  # type: ignore[no-untyped-def]
-        """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
-        b, lay = model.block, model.layout
-        ic = model.cache[self.name]
-        n = b.n_observations
-        Rc, Cc, M = model.camera_poses(s)
-        oi = b.obs_image
-        pc = _camera_frame(Rc, Cc, s.X, oi, b.obs_point)
+    @staticmethod
+    def _project(model: "Model", s: "State", ic: ImageCache, pc: NDArray[np.float64], n: int, jac: bool
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]:
+        """Predicted pixels ``(N, 2)`` of the camera-frame points ``pc`` and, with ``jac``, their derivatives with
+        respect to ``pc`` ``(N, 2, 3)`` and to the intrinsics ``(N, 2, m)`` (None when no intrinsics are free)."""
         pred = np.empty((n, 2))
         d_pc = np.empty((n, 2, 3)) if jac else None
         mmax = model._icols.shape[1]
@@ -276,8 +272,8 @@ class Image(ObservationType):
                 idx = rows[a:a + _CHUNK]
                 px, dpc, din = project_camera_with_jacobians(cam, pc[idx])
                 pred[idx] = px
-                if jac:
-                    d_pc[idx] = dpc  # type: ignore[index]
+                if d_pc is not None:
+                    d_pc[idx] = dpc
                     if d_in is not None:
                         d_in[idx, :, : din.shape[2]] = din
                 del px, dpc, din
@@ -286,18 +282,24 @@ class Image(ObservationType):
             intr = np.array([v for v in s.intr])[ic.obs_cam[idx]] if len(s.intr) else np.zeros((0, 3))
             uv, dpc, din = bal_project(pc[idx], intr)
             pred[idx] = uv
-            if jac:
-                d_pc[idx] = dpc  # type: ignore[index]
+            if d_pc is not None:
+                d_pc[idx] = dpc
                 if d_in is not None:
                     d_in[idx, :, :3] = din
+        return pred, d_pc, d_in
+
+    def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:  # type: ignore[no-untyped-def]
+        """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
+        b, lay = model.block, model.layout
+        ic = model.cache[self.name]
+        n = b.n_observations
+        Rc, Cc, M = model.camera_poses(s)
+        oi = b.obs_image
+        pc = _camera_frame(Rc, Cc, s.X, oi, b.obs_point)
+        pred, d_pc, d_in = self._project(model, s, ic, pc, n, jac)
         grid_on = ic.grid_idx is not None and s.grid is not None
         if grid_on:  # the correction grids at the measured pixels (observed = projected + grid)
-            gi, gw = ic.grid_idx, ic.grid_w
-            has = gi >= 0
-            gx = s.grid[np.maximum(gi, 0)] * has  # type: ignore[index]
-            gy = s.grid[np.maximum(gi, 0) + 1] * has  # type: ignore[index]
-            pred[:, 0] += (gw * gx).sum(axis=1)
-            pred[:, 1] += (gw * gy).sum(axis=1)
+            _add_grid(pred, ic.grid_idx, ic.grid_w, s.grid)  # type: ignore[arg-type]
         grid_cols_on = grid_on and lay.grid is not None
         sig = b.obs_sigma_px
         w = model.weights["image"]
@@ -485,3 +487,15 @@ class Image(ObservationType):
 
 
 IMAGE = register(Image())
+
+
+def _add_grid(pred: NDArray[np.float64], gi: NDArray[np.int64], gw: NDArray[np.float64],
+              grid: NDArray[np.float64]) -> None:
+    """Add the correction grids at the measured pixels to the predictions (observed = projected + grid):
+    ``gi`` ``(N, 4)`` the x node index of each bilinear corner (-1: none; y is the next unknown), ``gw`` its
+    weights."""
+    has = gi >= 0
+    gx = grid[np.maximum(gi, 0)] * has
+    gy = grid[np.maximum(gi, 0) + 1] * has
+    pred[:, 0] += (gw * gx).sum(axis=1)
+    pred[:, 1] += (gw * gy).sum(axis=1)

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from skyrig.adjust.factors import register
 from skyrig.adjust.factors.base import BlockError, Factor, whitening_matrices
 from skyrig.adjust.factors.prior import PriorType
+from skyrig.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.block import Block
@@ -198,7 +199,7 @@ class ImageGridPrior(PriorType):
         out = []
         for k, g in enumerate(d.grids):
             if g.cov_px2 is None:
-                raise ValueError(f"image_grid is 'weighted' but the grid of camera {g.camera!r} has no cov_px2 "
+                raise ConfigError(f"image_grid is 'weighted' but the grid of camera {g.camera!r} has no cov_px2 "
                                  "(its prior covariance)")
             m = g.n_nodes
             cols = lay.grid[off[k]:off[k + 1]].reshape(m, 2).T  # (2, m): x columns, y columns
