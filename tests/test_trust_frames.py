@@ -1,0 +1,124 @@
+"""Issue 29, frames: a compound CRS means what PROJ means by it, wherever it is given.
+
+``georef --crs EPSG:25832+5773`` wrote ellipsoidal heights (48 m off here) while the file said EGM96 heights.  The
+reference is PROJ itself: the same projection centres in ECEF (``--crs ecef``) carried to the compound CRS by a pyproj
+Transformer from the ellipsoidal WGS84 CRS (EPSG:4979), with the EGM96 grid made visible to PROJ.  A compound CRS
+whose geoid grid is not installed is refused before anything runs, naming the grid.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+from click.testing import CliRunner
+
+from skyrig.cli import main
+from test_bad_input_readers import RIG
+
+N = 24  # images (>= 20 points)
+TRAJ = ("# skyrig-trajectory 1\n# crs: EPSG:4979\n# angles: deg\n# time: gps-sow\ntime,lat,lon,h,roll,pitch,yaw\n"
+        + "".join(f"{345600.0 + k:.3f},{48.0 + 0.02 * k:.5f},{8.7 + 0.03 * k:.5f},{1200.0 + 3 * k:.1f},0.5,-1.2,90.0\n"
+                  for k in range(N + 2)))
+EVENTS = ("# skyrig-events 1\n# time: gps-sow\nimage,time,head,exposure\n"
+          + "".join(f"e{k}.jpg,{345600.5 + k:.6f},camera,{k}\n" for k in range(N)))
+
+
+@pytest.fixture
+def proj_with_egm96(egm96_grid):
+    """PROJ sees the EGM96 grid (under its old name, which PROJ's grid_alternatives accepts)."""
+    from skyrig import geodesy
+
+    old = pyproj.datadir.get_data_dir()
+    pyproj.datadir.append_data_dir(str(egm96_grid.parent))
+    clear = getattr(geodesy, "clear_caches", lambda: None)  # the grids PROJ finds are cached
+    clear()
+    yield egm96_grid
+    pyproj.datadir.set_data_dir(old)
+    clear()
+
+
+def _files(d: Path) -> list[str]:
+    for name, text in {"traj.csv": TRAJ, "events.csv": EVENTS, "rig.yaml": RIG}.items():
+        (d / name).write_text(text)
+    return ["georef", "--trajectory", str(d / "traj.csv"), "--events", str(d / "events.csv"), "--rig", str(d / "rig.yaml")]
+
+
+def _centres(path: Path) -> dict[str, np.ndarray]:
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(ln for ln in fh if not ln.startswith("#")))
+    return {r["image"]: np.array([float(r["x"]), float(r["y"]), float(r["z"])]) for r in rows}
+
+
+def _proj_answer(ecef: dict[str, np.ndarray], crs: str) -> dict[str, np.ndarray]:
+    to_geo = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    from pyproj.transformer import TransformerGroup
+
+    best = TransformerGroup("EPSG:4979", crs, always_xy=True).transformers[0]
+    assert "vgridshift" in best.to_proj4(), best.description  # PROJ's answer uses the grid (not a ballpark height)
+    t = pyproj.Transformer.from_crs("EPSG:4979", crs, always_xy=True)
+    out = {}
+    for k, p in ecef.items():
+        lon, lat, h = to_geo.transform(*p)
+        out[k] = np.array(t.transform(lon, lat, h))
+    return out
+
+
+def test_georef_compound_crs_heights_equal_proj(tmp_path, proj_with_egm96):
+    args = _files(tmp_path)
+    r = CliRunner().invoke(main, args + ["--crs", "ecef", "-o", str(tmp_path / "ecef.csv")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, args + ["--crs", "EPSG:25832+5773", "-o", str(tmp_path / "eo.csv")])
+    assert r.exit_code == 0, r.output
+    got, ref = _centres(tmp_path / "eo.csv"), _proj_answer(_centres(tmp_path / "ecef.csv"), "EPSG:25832+5773")
+    assert len(got) == N
+    d = np.array([got[k] - ref[k] for k in ref])
+    assert np.abs(d).max() < 1e-3, np.abs(d).max(0)
+    # and the file states the heights it holds
+    side = json.loads((tmp_path / "eo.csv.json").read_text())
+    assert "EGM96 height (EPSG:5773)" in side["vertical"], side["vertical"]
+
+
+def test_project_frame_compound_crs_equals_proj(proj_with_egm96):
+    """The frame of a project ``crs:`` (and of any side-car) with a vertical part: PROJ's answer at 20 points."""
+    from skyrig.geodesy import WorldFrame, project_frame
+
+    rng = np.random.default_rng(29)
+    lat, lon, h = rng.uniform(47, 55, 20), rng.uniform(6, 12, 20), rng.uniform(-50, 3000, 20)
+    t = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:25832+5773", always_xy=True)
+    ref = np.column_stack(t.transform(lon, lat, h))
+    ecef = np.column_stack(pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(lon, lat, h))
+    for frame in (project_frame("EPSG:25832+5773"), WorldFrame.map("EPSG:25832+5773"),
+                  WorldFrame.from_text("EPSG:25832+5773")):
+        assert frame.heights == "orthometric", frame
+        np.testing.assert_allclose(frame.from_ecef(ecef), ref, atol=1e-3, rtol=0)
+
+
+def test_compound_crs_with_missing_grid_is_refused_naming_it(tmp_path):
+    """EPSG:32632+3855 (EGM2008 heights) without PROJ's EGM2008 grid: refused before anything is read."""
+    from pyproj.transformer import TransformerGroup
+
+    tg = TransformerGroup("EPSG:4979", "EPSG:32632+3855", always_xy=True)
+    if tg.best_available:
+        pytest.skip("the EGM2008 grid is installed here: the refusal cannot be shown")
+    r = CliRunner().invoke(main, _files(tmp_path) + ["--crs", "EPSG:32632+3855", "-o", str(tmp_path / "eo.csv")])
+    assert r.exit_code == 2, r.output
+    assert "us_nga_egm08_25.tif" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "eo.csv").exists()
+
+
+def test_egm2008_compound_crs_equals_proj_when_the_grid_is_installed(tmp_path):
+    from pyproj.transformer import TransformerGroup
+
+    if not TransformerGroup("EPSG:4979", "EPSG:32632+3855", always_xy=True).best_available:
+        pytest.skip("PROJ's EGM2008 grid us_nga_egm08_25.tif is not installed (PROJ_DATA); see the refusal test")
+    args = _files(tmp_path)
+    assert CliRunner().invoke(main, args + ["--crs", "ecef", "-o", str(tmp_path / "ecef.csv")]).exit_code == 0
+    r = CliRunner().invoke(main, args + ["--crs", "EPSG:32632+3855", "-o", str(tmp_path / "eo.csv")])
+    assert r.exit_code == 0, r.output
+    got, ref = _centres(tmp_path / "eo.csv"), _proj_answer(_centres(tmp_path / "ecef.csv"), "EPSG:32632+3855")
+    assert max(np.abs(got[k] - ref[k]).max() for k in ref) < 1e-3
