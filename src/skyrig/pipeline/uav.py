@@ -60,6 +60,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import InputFormatError
 from skyrig.orient.gnss_block import (  # noqa: F401  (re-exported: the names this module always had)
@@ -275,7 +276,10 @@ def _write_camera(path: Path, res: UavResult) -> Path:
     from skyrig.rig.rig import Head, Rig
 
     conv = getattr(getattr(res.adjustment, "info", None), "converged", None)
-    how = "self-calibrated by skyrig adjust-uav" + ("" if conv in (None, True) else " (NOT converged)")
+    cal = res.summary.get("self_calibrated") if isinstance(getattr(res, "summary", None), dict) else None
+    how = ("as given (no self-calibration) in skyrig adjust-uav" if cal == [] else
+           "self-calibrated by skyrig adjust-uav" + (f" ({', '.join(cal)})" if cal else "")) + \
+        ("" if conv in (None, True) else " (NOT converged)")
     write_rig(Rig(f"{res.camera.name}-adjust-uav", {"camera": Head("camera", res.camera)},
                   description=f"{res.camera.name} {how}"), path)
     return path
@@ -391,8 +395,8 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
             raise InputFormatError("no images (with EXIF) found and no camera given: give --camera", str(images))
         names = np.unique(meas_image)
         notes.append("image names from the tie points (no image files read)")
-    camera = camera.with_(distortion=OpenCVDistortion()) if not isinstance(camera.distortion, OpenCVDistortion) \
-        else camera
+    if isinstance(camera.distortion, NoDistortion):  # a given model (Brown...) is kept as it is
+        camera = camera.with_(distortion=OpenCVDistortion())
     by_name = np.argsort(names, kind="stable")
     pos = np.minimum(np.searchsorted(names[by_name], meas_image), len(names) - 1)
     known = names[by_name][pos] == meas_image
