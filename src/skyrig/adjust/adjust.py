@@ -476,10 +476,14 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             crit = critical_value(cfg.snooping_alpha / max(n_tests, 1))
         if best[0] <= crit:
             break
-        if len(snooped) >= cfg.max_rejections:
+        n_obs = sum(len(gr.weight) for g, gr in res[1].items() if gr.normalised is not None and _tested(g))
+        cap = max(int(cfg.max_rejections), int(np.ceil(cfg.snooping_max_share * n_obs)))
+        if len(snooped) >= cap:
             counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
             failures.append(
-                f"data snooping stopped at its cap of {cfg.max_rejections} rejections ({counts}) with observations "
+                f"data snooping stopped at its cap of {cap} rejections (the larger of max_rejections "
+                f"{cfg.max_rejections} and snooping_max_share {cfg.snooping_max_share:g} of {n_obs} observations; "
+                f"{counts}) with observations "
                 f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
                 "so many blunders mean the functional model is probably wrong - " + _what_to_free(
                     cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
@@ -492,7 +496,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             and (np.abs(gr.normalised).max(axis=1)[(gr.weight > 0) & ~gr.constant] > crit).any()
             for g, gr in res[1].items())
         if best[1] == "image" and cfg.snooping_per_round > 1 and not others_above:
-            room = min(cfg.snooping_per_round, cfg.max_rejections - len(snooped)) - 1
+            room = min(cfg.snooping_per_round, cap - len(snooped)) - 1
             picks += [(w, "image", j) for w, j in
                       _further_image_rejections(block, res[1]["image"], best[2], crit, room)]
         for w_, g, i in picks:
