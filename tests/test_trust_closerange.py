@@ -83,3 +83,25 @@ def test_feature_downscaling_maps_rows_and_columns_each_with_its_factor(shape):
     dr = np.abs((jl + 0.5) * s[1] - 0.5 - lr[:, lr.shape[1] // 2].astype(float))
     dc = np.abs((il + 0.5) * s[0] - 0.5 - lc[lc.shape[0] // 2].astype(float))
     assert np.percentile(dr, 99) < 0.1 and np.percentile(dc, 99) < 0.1, (np.percentile(dr, 99), np.percentile(dc, 99))
+
+
+def test_las_scan_angle_is_the_angle_from_nadir():
+    """LAS ``scan_angle``: 0 at nadir, positive to the right of the aircraft, roll included (LAS 1.4).  Truth: the
+    simulated beam directions (ray casting from ``Trajectory.interpolate``) against the aircraft's right axis made
+    horizontal.  Was: the scanner's alpha (90 deg at nadir for this mount)."""
+    from test_lidar_georef import BODY_FROM_SCANNER, LEVER, LOCAL, ORIGIN, make_trajectory, simulate
+
+    from skyrig.geodesy.local import LocalTangentFrame
+    from skyrig.lidar.georef import ScannerMount, georeference_scan
+
+    traj = make_trajectory(duration=2.0)
+    mount = ScannerMount(BODY_FROM_SCANNER, LEVER)
+    scan, truth, _, dirs = simulate(traj, mount, duration=2.0)
+    pts = georeference_scan(scan, traj, mount, LOCAL)
+    tangent = LocalTangentFrame(*ORIGIN)
+    right = np.einsum("ij,nj->ni", tangent.ecef_from_local.T, traj.interpolate(scan.time_s).ecef_from_body[:, :, 1])
+    right[:, 2] = 0.0
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    expected = np.degrees(np.arctan2(np.einsum("ni,ni->n", dirs, right), -dirs[:, 2]))
+    assert np.ptp(expected) > 60  # the sweep covers both sides
+    np.testing.assert_allclose(pts.scan_angle_deg, expected, atol=0.01)
