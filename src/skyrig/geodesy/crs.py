@@ -163,6 +163,32 @@ def crs_spec(crs: pyproj.CRS) -> str:
     return f"EPSG:{code}" if code is not None else crs.to_wkt()
 
 
+def check_metric_projected(crs: Any, what: str) -> None:
+    """Refuse a CRS that is not projected with both horizontal axes in metres, for ``what`` (e.g. ``"an
+    orthomosaic"``): a geographic CRS has cells in degrees, a US-feet CRS (EPSG:6503) x/y in feet while skyrig's
+    heights, cell sizes and sigmas are metres.
+
+    >>> check_metric_projected("EPSG:25832", "a DSM")
+    >>> check_metric_projected("EPSG:4326", "a DSM")
+    Traceback (most recent call last):
+    ...
+    skyrig.errors.CRSError: WGS 84 (EPSG:4326) is a geographic CRS (degrees): a DSM needs a projected CRS in metres (e.g. the UTM zone)
+    """
+    c = horizontal_crs(resolve_crs(crs))
+    code = c.to_epsg()
+    name = f"{c.name}" + (f" (EPSG:{code})" if code else "")
+    if c.is_geographic:
+        raise CRSError(f"{name} is a geographic CRS (degrees): {what} needs a projected CRS in metres "
+                       "(e.g. the UTM zone)")
+    if not c.is_projected:
+        raise CRSError(f"{name} is not a projected CRS: {what} needs a projected CRS in metres")
+    units = {(a.unit_name or "").lower() for a in c.axis_info[:2]}
+    if units != {"metre"}:
+        raise CRSError(f"{name} has its x/y in {', '.join(sorted(units))}: {what} needs a projected CRS in metres "
+                       "(skyrig's heights, cell sizes and precisions are metres); use the metric CRS of the same "
+                       "datum and zone")
+
+
 @lru_cache(maxsize=64)
 def _compound_geoid(wkt: str) -> str:
     from pyproj.transformer import TransformerGroup
