@@ -89,3 +89,143 @@ def test_rig_head_missing_for_an_eo_camera_is_a_clear_error(proj):
     r = _run("world-to-image", "--eo", proj / "eo2.csv", "--camera", proj / "rig.yaml", "--points", proj / "gcp.csv",
              "-o", proj / "px.csv")
     assert r.exit_code == 2 and "oblique" in r.output, r.output
+
+
+# ------------------------------------------------------------------------------------------------ init
+def _jpeg(path: Path, gps: bool = True, k: int = 0) -> Path:
+    from PIL import Image
+
+    ex = Image.Exif()
+    ex[0x010F], ex[0x0110] = "DJI", "FC300S"
+    if gps:
+        ex.get_ifd(0x8825).update({1: "N", 2: (50.0, 51.0, 0.0 + k), 3: "W", 4: (0.0, 9.0, 0.0), 5: 0, 6: 40.0})
+    ex.get_ifd(0x8769).update({0x920A: 3.61, 0xA405: 20})
+    rgb = (np.random.default_rng(k).random((48, 64, 3)) * 255).astype(np.uint8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(rgb).save(path, exif=ex)
+    return path
+
+
+def _uav_folder(d: Path, n: int = 6, without_gps: tuple[int, ...] = ()) -> Path:
+    for k in range(n):
+        _jpeg(d / "images" / f"DJI_{k:04d}.JPG", gps=k not in without_gps, k=k)
+    return d
+
+
+def _init(folder: Path, *extra: str):
+    return _run("init", folder, *extra)
+
+
+def test_init_refuses_a_damaged_rig_file(tmp_path):
+    """Was: rig: null and the UAV stages, silently."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    paths = build_demo_project(tmp_path / "f")
+    _uav_folder(tmp_path / "f")
+    text = Path(paths.rig).read_text()
+    Path(paths.rig).write_text(text.replace("heads:", "heads: [", 1))  # a YAML syntax error
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 2 and Path(paths.rig).name in r.output, r.output
+    assert not (tmp_path / "f" / "project.yaml").exists()
+
+
+def test_init_refuses_two_trajectories_listing_them(tmp_path):
+    from skyrig.pipeline.demo import build_demo_project
+
+    paths = build_demo_project(tmp_path / "f")
+    second = tmp_path / "f" / "gnss" / "trajectory_2.csv"
+    second.parent.mkdir()
+    second.write_text(Path(paths.trajectory).read_text())
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 2 and "trajectory_2.csv" in r.output and Path(paths.trajectory).name in r.output, r.output
+    assert not (tmp_path / "f" / "project.yaml").exists()
+
+
+def test_init_one_image_without_gps_keeps_the_gnss_block_and_says_so(tmp_path):
+    """The first shot before a GPS fix: init kept GPS mode only if that image was not the first one read; now the
+    project stays GNSS-supported and its file names the image left out."""
+    _uav_folder(tmp_path / "f", without_gps=(0,))
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "f" / "project.yaml").read_text()
+    assert "no_gps: true" not in text and "adjust-uav:" in text, text
+    assert "DJI_0000.JPG" in text and "left out" in text, text
+    assert "DJI_0000.JPG" in r.output
+
+
+def test_uav_run_leaves_an_image_without_gps_out_with_a_warning():
+    from types import SimpleNamespace
+
+    from skyrig.georef.observations import ImageMeasurements
+    from skyrig.pipeline.uav import without_gps_left_out
+
+    metas = [SimpleNamespace(name=f"i{k}", path=f"/x/i{k}.jpg", has_gps=k != 1, alt_m=40.0) for k in range(4)]
+    meas = ImageMeasurements(np.array(["p", "p", "q"]), np.array(["i0", "i1", "i2"]), np.zeros((3, 2)))
+    with pytest.warns(UserWarning, match="i1.jpg.*no EXIF GPS.*left out"):
+        kept, m2 = without_gps_left_out(metas, meas)
+    assert [m.name for m in kept] == ["i0", "i2", "i3"] and list(m2.image) == ["i0", "i2"]
+
+
+def test_init_refuses_a_us_feet_crs(tmp_path):
+    """EPSG:6503: x/y came out in US survey feet while the side-car and init's comment said metres."""
+    _uav_folder(tmp_path / "f")
+    r = _init(tmp_path / "f", "--crs", "EPSG:6503")
+    assert r.exit_code == 2 and "EPSG:6503" in r.output and "foot" in r.output, r.output
+    assert not (tmp_path / "f" / "project.yaml").exists()
+
+
+def test_init_picks_up_ground_points_as_the_format_page_shows(tmp_path, egm96_grid):
+    import pyproj
+
+    from skyrig import geodesy
+
+    doc = (Path(__file__).parents[1] / "docs" / "formats" / "points_csv.md").read_text()
+    example = doc.split("## Ground points", 1)[1].split("```text\n", 1)[1].split("```", 1)[0]
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    (tmp_path / "f" / "gcp").mkdir()
+    (tmp_path / "f" / "gcp" / "ground_points.csv").write_text(example)
+    old = pyproj.datadir.get_data_dir()
+    pyproj.datadir.append_data_dir(str(egm96_grid.parent))
+    getattr(geodesy, "clear_caches", lambda: None)()
+    try:
+        r = _init(tmp_path / "f")
+    finally:
+        pyproj.datadir.set_data_dir(old)
+        getattr(geodesy, "clear_caches", lambda: None)()
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "f" / "project.yaml").read_text()
+    assert "control: gcp/ground_points.csv" in text, text
+
+
+def test_init_force_with_a_bad_crs_keeps_the_good_project_file(tmp_path):
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    assert _init(tmp_path / "f").exit_code == 0
+    good = (tmp_path / "f" / "project.yaml").read_text()
+    for bad in ("EPSG:4326", "EPSG:5773", "EPSG:99999"):
+        r = _init(tmp_path / "f", "--force", "--crs", bad)
+        assert r.exit_code == 2, r.output
+        assert (tmp_path / "f" / "project.yaml").read_text() == good, bad
+    assert sorted(p.name for p in (tmp_path / "f").iterdir() if "project" in p.name) == ["project.yaml"]
+
+
+def test_init_refuses_a_truncated_jpeg_naming_it(tmp_path):
+    _uav_folder(tmp_path / "f")
+    p = tmp_path / "f" / "images" / "DJI_0003.JPG"
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) * 2 // 3])
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 2 and "DJI_0003.JPG" in r.output and "truncated" in r.output, r.output
+
+
+def test_read_image_refuses_a_truncated_jpeg_naming_it(tmp_path):
+    from skyrig.io.image_read import read_image
+
+    p = _jpeg(tmp_path / "a.jpg")
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(SkyrigError, match=r"a\.jpg.*truncated"):
+        read_image(p)

@@ -196,6 +196,7 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     t0 = time.perf_counter()
     meas = read_measurements_csv(_ties_file(match_dir))
     metas = [read_image_metadata(p) for p in list_images(images)]  # images without tie points: "not oriented"
+    metas, meas = without_gps_left_out(metas, meas)
     inp = metadata_block_input(metas, meas, cfg)
     res = adjust_uav_block(inp, cfg)
     from skyrig.adjust.report import adjustment_report
@@ -601,3 +602,26 @@ def compare_pycolmap(res: UavResult, images: str | Path | None, inp: Any, workdi
     out.update(input="images", registered=int(len(summ.names)), points=summ.n_points, reprojection_rms_px=summ.reprojection_rms_px,
                wall_s=time.perf_counter() - t1, centre_differences=cmp)
     return out
+
+
+def without_gps_left_out(metas: Sequence[Any], measurements: Any) -> tuple[list[Any], Any]:
+    """Images without an EXIF GPS position (the first shots before a fix) left out of a GNSS-supported block, each
+    named in a :class:`~skyrig.errors.PlausibilityWarning`, with their tie-point measurements; all of them when no
+    image has one (then :func:`metadata_block_input` refuses, naming the first)."""
+    import warnings
+
+    from skyrig.errors import PlausibilityWarning
+    from skyrig.georef.observations import ImageMeasurements
+
+    ok = [bool(m.has_gps and m.alt_m is not None) for m in metas]
+    if all(ok) or not any(ok):
+        return list(metas), measurements
+    for m, good in zip(metas, ok):
+        if not good:
+            warnings.warn(f"{m.path}: no EXIF GPS position with altitude: left out of the GNSS-supported adjustment",
+                          PlausibilityWarning, stacklevel=2)
+    kept = [m for m, good in zip(metas, ok) if good]
+    names = np.array([m.name for m in kept], dtype=str)
+    keep = np.isin(np.asarray(measurements.image, dtype=str), names)
+    return kept, ImageMeasurements(np.asarray(measurements.point)[keep], np.asarray(measurements.image)[keep],
+                                   np.asarray(measurements.pixel)[keep])
