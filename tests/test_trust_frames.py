@@ -122,3 +122,28 @@ def test_egm2008_compound_crs_equals_proj_when_the_grid_is_installed(tmp_path):
     assert r.exit_code == 0, r.output
     got, ref = _centres(tmp_path / "eo.csv"), _proj_answer(_centres(tmp_path / "ecef.csv"), "EPSG:32632+3855")
     assert max(np.abs(got[k] - ref[k]).max() for k in ref) < 1e-3
+
+
+def test_side_car_crs_far_from_the_coordinates_is_refused_naming_both(tmp_path):
+    """An EO side-car naming Lambert-93 for UTM 32N coordinates put the block 1,400 km from France's centre (6 deg
+    south of its area of use) and ``dsm`` went on with a warning; now refused with the CRS, its area and where the
+    positions would be."""
+    from test_bad_input_cli import EO, RIG
+
+    from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
+
+    (tmp_path / "eo.csv").write_text(EO)
+    write_eo_csv(read_eo_csv(tmp_path / "eo.csv"), tmp_path / "side.csv")
+    side = json.loads((tmp_path / "side.csv.json").read_text())
+    side["frame"] = "EPSG:2154; heights: ellipsoidal"
+    side["crs_wkt"] = pyproj.CRS("EPSG:2154").to_3d().to_wkt()
+    (tmp_path / "side.csv.json").write_text(json.dumps(side))
+    (tmp_path / "rig.yaml").write_text(RIG)
+    r = CliRunner().invoke(main, ["dsm", "--eo", str(tmp_path / "side.csv"), "--camera", str(tmp_path / "rig.yaml"),
+                                  "--images", str(tmp_path), "--height-range", "200", "400", "-o", str(tmp_path / "d")])
+    assert r.exit_code == 2, r.output
+    err = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+    assert len(err) == 1, r.output
+    for words in ("side.csv", "Lambert-93 (EPSG:2154)", "latitude 41.15 to 51.56", "latitude 35.2778"):
+        assert words in err[0], (words, r.output)
+    assert not (tmp_path / "d").exists()

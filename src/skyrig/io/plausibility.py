@@ -9,7 +9,8 @@ header names.  The readers call these checks after parsing; each either
   of use when swapped, a lever arm of 100 m), or
 * warns in words (:class:`~skyrig.errors.PlausibilityWarning`, shown by the CLI as ``warning: ...``) when the
   values are unusual but possible (positions outside the area of use PROJ states for the CRS, a lever arm of
-  more than 10 m).
+  more than 10 m).  Positions that all lie more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use are
+  refused, with or without a side-car (the CRS named, with its area and where the positions would be).
 
 Limits (metres): ground points between :data:`GROUND_MIN_M` and :data:`GROUND_MAX_M` (the Dead Sea shore and
 Everest with the geoid's range added), projection centres up to :data:`CAMERA_MAX_M` (a refused value gives
@@ -44,6 +45,9 @@ LEVER_ARM_MAX_M = 50.0
 LEVER_ARM_WARN_M = 10.0
 #: Margin (deg) around a CRS's area of use within which positions pass without a warning.
 AREA_MARGIN_DEG = 2.0
+#: Distance (deg) outside a CRS's area of use beyond which positions are refused when all of them are (a CRS for
+#: another region: UTM coordinates declared Lambert-93 land 6 deg south of France, 1,400 km from its centre).
+AREA_REFUSE_DEG = 5.0
 #: Earth radius window for ECEF positions (m): the centre of the Earth to 50 km above it.
 _ECEF_RANGE_M = (6_300_000.0, 6_450_000.0)
 _SAMPLE = 2000  # positions looked at for the area of use (evenly spread over a long file)
@@ -178,12 +182,17 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
             raise InputFormatError(
                 f"({p[k, 0]:.10g}, {p[k, 1]:.10g}) lies outside the area of use of {where}, and inside it with "
                 f"{axes} swapped: are the columns {fields[0]} and {fields[1]} exchanged?", path, _line(lines, k), fields[0])
+    ll0 = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
+        f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
+    if not _inside(lon, lat, box, AREA_REFUSE_DEG).any():
+        raise InputFormatError(
+            f"({p[k, 0]:.10g}, {p[k, 1]:.10g}) is {ll0} in {where}: every position lies more than "
+            f"{AREA_REFUSE_DEG:g} deg outside that CRS's area of use; the coordinates are in another CRS than the one "
+            "stated", path, _line(lines, k), fields[0])
     n_out = int((~ok).sum()) * step
     at = "" if lines is None else f" (first on line {_line(lines, k)})"
     pos = "position" if n_out == 1 else f"about {n_out} positions" if step > 1 else f"{n_out} positions"
-    ll = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
-        f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
-    warn(f"{path}: {pos} outside the area of use of {where}{at}: {ll}; is the CRS right?")
+    warn(f"{path}: {pos} outside the area of use of {where}{at}: {ll0}; is the CRS right?")
 
 
 def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, field: str, lenient: bool = False) -> None:
