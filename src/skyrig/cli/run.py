@@ -79,6 +79,8 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from skyrig.cli import RUNNING
+
     console = Console(stderr=True)
     n = len(proj.stages)
     index = {s.name: k + 1 for k, s in enumerate(proj.stages)}
@@ -91,6 +93,7 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
         k = f"[{index[ev.stage]}/{n}]"
         out = bar.console
         if ev.status == "start":
+            RUNNING[0] = ev.stage  # named if a signal stops the run
             out.print(f"[bold]{k} {ev.stage}[/bold] running ({ev.message})")
             tasks[ev.stage] = bar.add_task(f"{k} {ev.stage}", total=None)
         elif ev.status == "progress":
