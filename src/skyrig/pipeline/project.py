@@ -45,10 +45,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-import yaml
 
 from skyrig.errors import InputFormatError, OptionError, SkyrigError
-from skyrig.io.rig_file import _LineLoader, _Map
+from skyrig.io.rig_file import _Map, load_yaml_lines
 
 if TYPE_CHECKING:
     from skyrig.pipeline.run import Stage
@@ -229,18 +228,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
 
         registry = STAGES
     path = Path(path).absolute()
-    loader = _LineLoader(text)
-    loader._path = str(path)  # type: ignore[attr-defined]
-    try:
-        doc = loader.get_single_data()
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", path,
-                               None if mark is None else mark.line + 1) from None
-    except yaml.YAMLError as exc:
-        raise InputFormatError(f"not valid YAML: {exc}", path) from None
-    finally:
-        loader.dispose()
+    doc = load_yaml_lines(text, path)
     lines: dict[str, int] = {}
 
     def err(message: str, m: _Map | None, key_path: str, key: str | None = None) -> InputFormatError:
