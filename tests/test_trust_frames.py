@@ -147,3 +147,37 @@ def test_side_car_crs_far_from_the_coordinates_is_refused_naming_both(tmp_path):
     for words in ("side.csv", "Lambert-93 (EPSG:2154)", "latitude 41.15 to 51.56", "latitude 35.2778"):
         assert words in err[0], (words, r.output)
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow  # two adjustments: 9 s
+def test_adjust_outputs_in_a_compound_crs_equal_proj(tmp_path, proj_with_egm96):
+    """``skyrig adjust --crs EPSG:25832+5773``: the adjusted centres and points are those of ``--crs EPSG:25832``
+    (ellipsoidal heights) carried by PROJ's own transformation to the compound CRS, to 1 mm; the side-cars state
+    EGM96 heights."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_fuzz_readers import _good_block
+
+    blk = _good_block(tmp_path)
+    outs = {}
+    for crs in ("EPSG:25832", "EPSG:25832+5773"):
+        out = tmp_path / crs.replace(":", "_").replace("+", "_")
+        r = CliRunner().invoke(main, ["adjust", str(blk), "--crs", crs, "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        outs[crs] = out
+    t = pyproj.Transformer.from_crs(pyproj.CRS("EPSG:25832").to_3d(), "EPSG:25832+5773", always_xy=True)
+    n = 0
+    for table, key in (("eo.csv", "image"), ("points.csv", "name")):
+        with open(outs["EPSG:25832"] / table, newline="") as fh:
+            ell = {r[key]: np.array([float(r["x"]), float(r["y"]), float(r["z"])]) for r in csv.DictReader(fh)}
+        with open(outs["EPSG:25832+5773"] / table, newline="") as fh:
+            got = {r[key]: np.array([float(r["x"]), float(r["y"]), float(r["z"])]) for r in csv.DictReader(fh)}
+        assert got.keys() == ell.keys()
+        for k, p in ell.items():
+            ref = np.array(t.transform(*p))
+            assert np.abs(got[k] - ref).max() < 1e-3, (table, k, got[k] - ref)
+            n += 1
+        side = json.loads((outs["EPSG:25832+5773"] / (table + ".json")).read_text())
+        assert "EGM96 height (EPSG:5773)" in side["vertical"], side["vertical"]
+    assert n >= 6

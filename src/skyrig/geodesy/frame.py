@@ -83,17 +83,21 @@ class WorldFrame:
     @classmethod
     def map(cls, crs: object, geoid: str | None = None) -> "WorldFrame":
         """A map frame; a compound CRS (``EPSG:25832+5773``) means what PROJ means by it: its horizontal CRS with
-        heights above the geoid grid PROJ uses for its vertical CRS (refused when that grid is not installed, or
-        when ``geoid`` names another one)."""
+        heights above the geoid grid PROJ uses for its vertical CRS (refused when that grid is not installed), or above
+        ``geoid`` when given (refused when PROJ ties that grid to another vertical CRS)."""
         c = resolve_crs(crs)  # validate early
         if c.is_compound:
-            grid = compound_geoid(c)
-            if geoid is not None and Path(str(geoid)).name != Path(grid).name:
-                raise CRSError(f"{c.name} takes its heights from geoid grid {Path(grid).name}, but the geoid "
-                               f"given is {geoid}: give one of them")
-            frame = cls("map", crs=crs_spec(horizontal_crs(c)), geoid=grid if geoid is None else str(geoid))
-            _check_against_proj(frame, c)
-            return frame
+            if geoid is None:
+                frame = cls("map", crs=crs_spec(horizontal_crs(c)), geoid=compound_geoid(c))
+                _check_against_proj(frame, c)
+                return frame
+            from skyrig.geodesy.statement import vertical_crs_of_geoid
+
+            given = vertical_crs_of_geoid(str(geoid))
+            if given is not None and not given.equals(c.sub_crs_list[1]):
+                raise CRSError(f"{c.name} states heights in {c.sub_crs_list[1].name}, but the geoid grid given "
+                               f"({Path(str(geoid)).name}) is for {given.name}: give one of them")
+            crs = crs_spec(horizontal_crs(c))
         if geoid is not None and (os.path.sep in str(geoid) or str(geoid).startswith(".")):
             geoid = str(Path(geoid).expanduser().resolve())  # a file: make the frame independent of the cwd
         return cls("map", crs=str(crs), geoid=geoid)
