@@ -244,8 +244,8 @@ BAD: list[Bad] = [
         .replace("90.0\nimg3", "90.0,2a\nimg3").replace("90.0\n", "90.0,3\n"), 8, "exposure",
         "exposure must be an integer"),
     Bad("eo-local-frame-bad", "eo", rep(EO, "EPSG:25832", "local 48.3 9.0"), 2, "crs", "expected 'local <lat_deg>"),
-    Bad("eo-latin1", "eo", rep(EO, "img1.tif", "bild_ü.tif").encode("latin-1"), None, None, "not a UTF-8 text file"),
-    Bad("eo-is-binary", "eo", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", None, None, "not a UTF-8 text file"),
+    Bad("eo-latin1", "eo", rep(EO, "img1.tif", "bild_ü.tif").encode("latin-1"), 7, None, "not a UTF-8 text file"),
+    Bad("eo-is-binary", "eo", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", 1, None, "not a UTF-8 text file"),
     # ---- points CSV
     Bad("pts-empty", "pts", "", 0, None, "no column header row"),
     Bad("pts-no-crs", "pts", PTS.split("\n", 2)[2], 1, "crs", "no '# crs:' header line"),

@@ -176,6 +176,11 @@ def check_damage(kind: str, tmp: Path, op: str, data: bytes) -> None:
         assert last and all(_prefix_of_number(a, b) for a, b in zip(r, orig[k])), (op, data, r, orig)
 
 
+def _at_last_line(text: str, insert: str) -> str:
+    k = text.rstrip("\n").rfind("\n") + 1
+    return text[:k] + insert + text[k:]
+
+
 # --------------------------------------------------------------------------------------- the tests
 @pytest.mark.parametrize("kind", KINDS)
 def test_same_meaning_same_result(tmp_path, kind):
@@ -194,6 +199,7 @@ def test_damage_is_refused_in_words_or_reads_the_original(tmp_path, kind):
     @SHORT
     @given(case=damaged(kind))
     @example(case=("nul", GOOD[kind].encode().replace(b"\n", b"\x00\n", 1)))
+    @example(case=("nul", _at_last_line(GOOD[kind], "\x00").encode()))  # found: a NUL read into a name
     @example(case=("not-utf8", b"\xff" + GOOD[kind].encode()))
     @example(case=("empty", b""))
     def check(case: tuple[str, bytes]) -> None:
