@@ -72,13 +72,19 @@ def test_ortho_on_a_geographic_dsm_is_refused(tmp_path):
         orthomosaic(eo, {}, dsm, lambda i: np.zeros((10, 10), np.uint8))
 
 
-def test_ortho_with_a_camera_missing_names_it(tmp_path):
-    """``run_ortho`` looked the cameras up before any check: a KeyError traceback."""
+@pytest.mark.parametrize("stage", ["ortho", "dsm"])
+def test_a_camera_missing_for_the_eo_is_named(tmp_path, stage):
+    """``run_ortho`` and ``run_dsm`` looked the cameras up before any check: a KeyError traceback."""
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.pipeline.dense import run_dsm
     from skyrig.pipeline.ortho import run_ortho
 
     dsm, eo = _dsm("EPSG:25832", 499900.0, 5350100.0, 10.0), _eo(tmp_path)
-    with pytest.raises(SkyrigError, match="no camera for camera"):
-        run_ortho(eo, {}, [], dsm, tmp_path / "o")
+    with pytest.raises(SkyrigError, match="image 'img1.tif': no camera 'camera' among those given"):
+        if stage == "ortho":
+            run_ortho(eo, {}, [], dsm, tmp_path / "o")
+        else:
+            run_dsm(eo, {}, [], WorldFrame.map("EPSG:25832"), (250.0, 350.0), tmp_path / "o")
     assert not (tmp_path / "o").exists()
 
 

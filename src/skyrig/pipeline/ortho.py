@@ -176,9 +176,9 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
     from skyrig.io.stage import describe_inputs, stage_folder
     from skyrig.pipeline.executor import Executor
 
-    missing = sorted(set(map(str, eo.camera)) - set(cameras))
-    if missing:  # before any camera is looked up (plan_ortho says it too, for library callers)
-        raise SkyrigError(f"no camera for {', '.join(missing)} (cameras given: {', '.join(sorted(cameras))})")
+    from skyrig.pipeline.inputs import require_cameras
+
+    require_cameras(eo, cameras)  # before any camera is looked up (plan_ortho says it too, for library callers)
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     kind = executor
     if kind == "auto":
