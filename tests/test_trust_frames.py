@@ -181,3 +181,17 @@ def test_adjust_outputs_in_a_compound_crs_equal_proj(tmp_path, proj_with_egm96):
         side = json.loads((outs["EPSG:25832+5773"] / (table + ".json")).read_text())
         assert "EGM96 height (EPSG:5773)" in side["vertical"], side["vertical"]
     assert n >= 6
+
+
+def test_navd88_compound_crs_is_refused_with_the_geoid_candidates():
+    """EPSG:6318+5703 (NAD83(2011) + NAVD88): the old lookup took the first grid of proj.db (an older geoid) without
+    saying so; PROJ's preferred transformation needs several grids, so skyrig refuses and lists the geoid grids PROJ
+    knows for it, the current GEOID18 among them."""
+    from skyrig.errors import CRSError
+    from skyrig.geodesy import WorldFrame, project_frame
+
+    for make in (WorldFrame.map, project_frame):
+        with pytest.raises(CRSError) as ei:
+            make("EPSG:6318+5703")
+        msg = str(ei.value)
+        assert "NAVD88" in msg and "us_noaa_g2018u0.tif" in msg and "--geoid" in msg, msg

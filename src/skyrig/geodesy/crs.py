@@ -208,9 +208,11 @@ def _compound_geoid(wkt: str) -> str:
                        "give the horizontal CRS and the geoid grid (--geoid / geoid:) instead")
     desc, names, available, grids = ops[0]  # PROJ's own preference
     if len(names) != 1:
+        single = list(dict.fromkeys(f"{o[1][0]} ({o[0]})" for o in ops if len(o[1]) == 1))
         raise CRSError(f"{name}: PROJ's preferred transformation {desc!r} needs the grids {', '.join(names) or 'none'}; "
                        "skyrig takes a compound CRS whose heights come from one geoid grid: give the horizontal CRS "
-                       "and the geoid grid you mean (--geoid / geoid:)")
+                       "and the geoid grid you mean (--geoid / geoid:)"
+                       + (f"; geoid grids PROJ knows for it: {'; '.join(single[:6])}" if single else ""))
     if not available:
         raise CRSError(f"{name}: the heights need PROJ's geoid grid {names[0]} ({desc}), which is not installed: put "
                        f"{names[0]} in a PROJ data folder ({pyproj.datadir.get_user_data_dir()} or $PROJ_DATA; it is "
