@@ -235,3 +235,15 @@ def test_read_image_refuses_a_truncated_jpeg_naming_it(tmp_path):
     p.write_bytes(data[: len(data) * 2 // 3])
     with pytest.raises(SkyrigError, match=r"a\.jpg.*truncated"):
         read_image(p)
+
+
+def test_lidar_lever_arm_in_millimetres_is_refused(tmp_path):
+    """``skyrig lidar georef --lever-arm 100,-20,150`` (millimetres) was taken as metres: points 180 m off."""
+    raw = ("# skyrig-raw-scan 1\n# angles: deg\n# time: gps-sow\ntime,range,alpha,intensity\n"
+           "345601.508350,12.418,-134.875,1893\n345601.508368,12.402,-134.625,1901\n")
+    (tmp_path / "scan.csv").write_text(raw)
+    (tmp_path / "traj.csv").write_text(TRAJ)
+    r = _run("lidar", "georef", "--scan", tmp_path / "scan.csv", "--trajectory", tmp_path / "traj.csv",
+             "--lever-arm", "100,-20,150", "--crs", "EPSG:25832", "-o", tmp_path / "p.las")
+    assert r.exit_code == 2 and "--lever-arm" in r.output and "millimetres (0.181 m)" in r.output, r.output
+    assert not (tmp_path / "p.las").exists()

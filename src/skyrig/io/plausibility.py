@@ -218,19 +218,29 @@ def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, fie
                            path, _line(lines, k), field)
 
 
-def check_lever_arm(vector_m: ArrayLike, path: PathLike, line: int | None, field: str) -> None:
-    """Refuse a lever arm longer than :data:`LEVER_ARM_MAX_M`, warn above :data:`LEVER_ARM_WARN_M`."""
+def lever_arm_problem(vector_m: ArrayLike) -> tuple[str, str] | None:
+    """``("refuse" | "warn", words)`` for a lever arm longer than :data:`LEVER_ARM_MAX_M` (with the unit it would
+    fit: millimetres, centimetres) or :data:`LEVER_ARM_WARN_M`; None for a plausible one."""
     v = np.asarray(vector_m, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if n > LEVER_ARM_MAX_M:
         fits = [f"{unit} ({n / f:.3f} m)" for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0))
                 if n / f <= LEVER_ARM_MAX_M]
         hint = f"; {' or '.join(fits)}?" if fits else ""
-        raise InputFormatError(f"lever arm of {n:.6g} m is not plausible on an aircraft (at most "
-                               f"{LEVER_ARM_MAX_M:g} m){hint}", path, line, field)
+        return "refuse", f"lever arm of {n:.6g} m is not plausible on an aircraft (at most {LEVER_ARM_MAX_M:g} m){hint}"
     if n > LEVER_ARM_WARN_M:
-        where = f"{path}" + (f", line {line}" if line else "") + f", field '{field}'"
-        warn(f"{where}: lever arm of {n:.6g} m is unusually long (more than {LEVER_ARM_WARN_M:g} m); metres meant?")
+        return "warn", f"lever arm of {n:.6g} m is unusually long (more than {LEVER_ARM_WARN_M:g} m); metres meant?"
+    return None
+
+
+def check_lever_arm(vector_m: ArrayLike, path: PathLike, line: int | None, field: str) -> None:
+    """Refuse a lever arm longer than :data:`LEVER_ARM_MAX_M`, warn above :data:`LEVER_ARM_WARN_M`."""
+    problem = lever_arm_problem(vector_m)
+    if problem is None:
+        return
+    if problem[0] == "refuse":
+        raise InputFormatError(problem[1], path, line, field)
+    warn(f"{path}" + (f", line {line}" if line else "") + f", field '{field}': {problem[1]}")
 
 
 def _crs_equal(a: str, b: str) -> bool:
