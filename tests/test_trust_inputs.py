@@ -247,3 +247,25 @@ def test_lidar_lever_arm_in_millimetres_is_refused(tmp_path):
              "--lever-arm", "100,-20,150", "--crs", "EPSG:25832", "-o", tmp_path / "p.las")
     assert r.exit_code == 2 and "--lever-arm" in r.output and "millimetres (0.181 m)" in r.output, r.output
     assert not (tmp_path / "p.las").exists()
+
+
+@pytest.mark.parametrize("crs_line, words", [
+    ("crs: EPSG:4326", "geographic CRS (degrees)"),
+    ("crs: EPSG:5773", "not a projected CRS"),
+    ("crs: EPSG:6503", "us survey foot"),
+    ("crs: EPSG:25832\ngeoid: no_such_grid.gtx", "no_such_grid.gtx"),
+], ids=["geographic", "vertical-only", "us-feet", "missing-geoid"])
+def test_run_dry_run_refuses_an_unusable_output_frame(tmp_path, crs_line, words):
+    """``skyrig run --dry-run`` accepted a geographic or vertical-only output CRS and a geoid grid that does not
+    exist (found only after the match stage had run)."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    assert _init(tmp_path / "f").exit_code == 0
+    p = tmp_path / "f" / "project.yaml"
+    text = p.read_text()
+    start = text.index("crs: EPSG:25832")
+    end = text.index("\n", text.index("\ngeoid:") + 1)
+    p.write_text(text[:start] + crs_line + text[end:])
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 2 and "project.yaml" in r.output and words in r.output, r.output
