@@ -269,3 +269,36 @@ def test_run_dry_run_refuses_an_unusable_output_frame(tmp_path, crs_line, words)
     p.write_text(text[:start] + crs_line + text[end:])
     r = _run("run", p, "--dry-run")
     assert r.exit_code == 2 and "project.yaml" in r.output and words in r.output, r.output
+
+
+# ------------------------------------------------------------------------------------------------ skyrig check
+def test_check_on_the_demo_project_reports_nothing(tmp_path):
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    assert _init(tmp_path / "f").exit_code == 0
+    r = _run("check", tmp_path / "f")
+    assert r.exit_code == 0 and r.output.startswith("ok: 4 input file(s) read, no problem found"), r.output
+
+
+def test_check_names_every_mistake_in_one_run(tmp_path):
+    """Three mistakes in three files: all three named (file, line, field) in a single run, exit 2."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    assert _init(tmp_path / "f").exit_code == 0
+    inp = tmp_path / "f" / "input"
+    (inp / "events.csv").write_text("# skyrig-events 1\n# time: gps-sow\nimage,time,head,exposure\n")
+    rig = (inp / "rig.yaml").read_text()
+    (inp / "rig.yaml").write_text(rig.replace("lever_arm_m: [0.12, 0.0, 0.12]", "lever_arm_m: [120, 0, 120]", 1))
+    pts = (inp / "check_points.csv").read_text().splitlines()
+    (inp / "check_points.csv").write_text("\n".join(pts[:2] + ["CP01,5799900.0000,549975.0000,58.7763"] + pts[3:])
+                                          + "\n")
+    r = _run("check", tmp_path / "f")
+    assert r.exit_code == 2, r.output
+    errors = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 3, r.output
+    text = "\n".join(errors)
+    assert "events.csv, line 3" in text and "no rows" in text, text
+    assert "rig.yaml" in text and "millimetres" in text, text
+    assert "check_points.csv" in text and "line 3" in text, text

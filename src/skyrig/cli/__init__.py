@@ -73,6 +73,8 @@ COMMANDS: dict[str, CommandEntry] = {
                              "Oblique (tumbling-head) orientations from adjusted nadir orientations through the calibrated mounting."),
     "init": CommandEntry("skyrig.cli.run:init_command", "Write a commented project.yaml for a flight folder (skyrig run runs it)."),
     "run": CommandEntry("skyrig.cli.run:run_command", "Run the stages of a project.yaml, each into its own folder (resumable)."),
+    "check": CommandEntry("skyrig.cli.check:command",
+                          "Validate a project.yaml and every input it names without running a stage; name every problem."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }

@@ -9,8 +9,9 @@ header names.  The readers call these checks after parsing; each either
   of use when swapped, a lever arm of 100 m), or
 * warns in words (:class:`~skyrig.errors.PlausibilityWarning`, shown by the CLI as ``warning: ...``) when the
   values are unusual but possible (positions outside the area of use PROJ states for the CRS, a lever arm of
-  more than 10 m).  Positions that all lie more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use are
-  refused, with or without a side-car (the CRS named, with its area and where the positions would be).
+  more than 10 m).  A position more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use is refused, with
+  or without a side-car (the CRS named, with its area and where the position would be; a row with x and y
+  swapped said so).
 
 Limits (metres): ground points between :data:`GROUND_MIN_M` and :data:`GROUND_MAX_M` (the Dead Sea shore and
 Everest with the geoid's range added), projection centres up to :data:`CAMERA_MAX_M` (a refused value gives
@@ -45,8 +46,8 @@ LEVER_ARM_MAX_M = 50.0
 LEVER_ARM_WARN_M = 10.0
 #: Margin (deg) around a CRS's area of use within which positions pass without a warning.
 AREA_MARGIN_DEG = 2.0
-#: Distance (deg) outside a CRS's area of use beyond which positions are refused when all of them are (a CRS for
-#: another region: UTM coordinates declared Lambert-93 land 6 deg south of France, 1,400 km from its centre).
+#: Distance (deg) outside a CRS's area of use beyond which a position is refused (a CRS for another region: UTM
+#: coordinates declared Lambert-93 land 6 deg south of France, 1,400 km from its centre; a row with x/y swapped).
 AREA_REFUSE_DEG = 5.0
 #: Earth radius window for ECEF positions (m): the centre of the Earth to 50 km above it.
 _ECEF_RANGE_M = (6_300_000.0, 6_450_000.0)
@@ -184,11 +185,23 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
                 f"{axes} swapped: are the columns {fields[0]} and {fields[1]} exchanged?", path, _line(lines, k), fields[0])
     ll0 = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
         f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
-    if not _inside(lon, lat, box, AREA_REFUSE_DEG).any():
+    far = ~_inside(lon, lat, box, AREA_REFUSE_DEG)
+    if far.any():
+        j = int(np.flatnonzero(far)[0])
+        f = int(idx[j])
+        llf = "no valid longitude/latitude" if not np.isfinite(lon[j]) else \
+            f"longitude {lon[j]:.4f}, latitude {lat[j]:.4f} deg"
+        if far.all():
+            why = "every position lies"
+            hint = "the coordinates are in another CRS than the one stated"
+        else:
+            why = f"{int(far.sum()) * step} of {len(p)} positions lie"
+            slon, slat = _lonlat(frame, p[f:f + 1][:, [1, 0]])
+            hint = (f"{fields[0]} and {fields[1]} swapped on this line?" if _inside(slon, slat, box, AREA_MARGIN_DEG)[0]
+                    else "a position far from the others")
         raise InputFormatError(
-            f"({p[k, 0]:.10g}, {p[k, 1]:.10g}) is {ll0} in {where}: every position lies more than "
-            f"{AREA_REFUSE_DEG:g} deg outside that CRS's area of use; the coordinates are in another CRS than the one "
-            "stated", path, _line(lines, k), fields[0])
+            f"({p[f, 0]:.10g}, {p[f, 1]:.10g}) is {llf} in {where}: {why} more than {AREA_REFUSE_DEG:g} deg "
+            f"outside that CRS's area of use; {hint}", path, _line(lines, f), fields[0])
     n_out = int((~ok).sum()) * step
     at = "" if lines is None else f" (first on line {_line(lines, k)})"
     pos = "position" if n_out == 1 else f"about {n_out} positions" if step > 1 else f"{n_out} positions"
