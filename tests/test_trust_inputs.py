@@ -302,3 +302,20 @@ def test_check_names_every_mistake_in_one_run(tmp_path):
     assert "events.csv, line 3" in text and "no rows" in text, text
     assert "rig.yaml" in text and "millimetres" in text, text
     assert "check_points.csv" in text and "line 3" in text, text
+
+
+def test_init_without_gnss_writes_a_free_network_project_without_a_crs(tmp_path):
+    """Images without GNSS and no control: init demanded --crs for a free network that ignores it; now it writes
+    crs: null with the reason, adjust-uav with no_gps, and the project loads (check and run --dry-run)."""
+    _uav_folder(tmp_path / "f", without_gps=tuple(range(6)))
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "f" / "project.yaml").read_text()
+    assert "crs: null    # none: no GNSS and no control points" in text and "no_gps: true" in text, text
+    assert "dsm:" not in text
+    assert _run("run", tmp_path / "f", "--dry-run").exit_code == 0
+    # and a stage that needs a CRS is refused with the key named
+    p = tmp_path / "f" / "project.yaml"
+    p.write_text(text + "  dsm: {}\n")
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 2 and "field 'crs'" in r.output and "'dsm' needs an output CRS" in r.output, r.output

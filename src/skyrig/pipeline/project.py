@@ -155,7 +155,7 @@ class Project:
 
     path: Path
     name: str
-    crs: str
+    crs: str | None  # None: an orientation without GNSS in its model frame (no product needs a map CRS)
     geoid: str | None
     output: Path
     images: tuple[Path, ...] = ()
@@ -299,17 +299,21 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     if top.get("version") != 1:
         raise err(f"version {top.get('version')!r} is not supported (this skyrig reads version 1)", top, "version",
                   "version")
-    crs = text_of(top, "crs", "crs", nullable=False)
+    crs = text_of(top, "crs", "crs")
     geoid = text_of(top, "geoid", "geoid")
     try:
         from skyrig.geodesy.frame import WorldFrame
 
         from skyrig.geodesy.crs import check_metric_projected
 
+        if crs is None:  # an orientation without GNSS in its model frame: checked with the stages below
+            raise _NoCrs
         frame = WorldFrame.map(crs, geoid)  # type: ignore[arg-type]
         check_metric_projected(frame.crs, "the project's output CRS")
         if frame.geoid:
             frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
+    except _NoCrs:
+        pass
     except Exception as exc:  # CRSError, pyproj errors: the reason in words
         raise err(f"not a usable CRS / geoid: {exc}", top, "geoid" if geoid and "geoid" in str(exc).lower() else "crs",
                   "geoid" if geoid and "geoid" in str(exc).lower() else "crs") from None
@@ -364,6 +368,9 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         for kind_ in stage.provides:
             provided[kind_] = sname
         stages.append(StageSpec(sname, opts, st.key_lines.get(sname)))
+        if crs is None and not (sname == "match" or (sname == "adjust-uav" and opts.get("no_gps"))):
+            raise err(f"crs: null (no output CRS) is for an orientation without GNSS in its model frame; stage "
+                      f"{sname!r} needs an output CRS: give one", top, "crs", "crs")
     project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
                       lines, files["scale_bars"], files["ties"])
@@ -379,6 +386,10 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
 # ------------------------------------------------------------------------------------------ skyrig init
 _SKIP_DIRS = {"truth", "scene", "output", "outputs", "match", ".cache", "reference", "__pycache__"}
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+class _NoCrs(Exception):
+    """``crs: null`` in a project file (allowed for a GNSS-free orientation only)."""
 
 
 @dataclass
@@ -604,15 +615,18 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
 
         registry = STAGES
     crs = crs or det.crs
-    if not crs:
+    free = (not crs and det.images and not det.exif_gps and det.trajectory is None and det.eo is None
+            and det.control is None)
+    if not crs and not free:
         raise InputFormatError("no output CRS found in the inputs (trajectory / EO header, control points, EXIF "
                                "GPS): give one (option --crs)", det.folder)
     from skyrig.geodesy.crs import check_metric_projected
     from skyrig.geodesy.frame import WorldFrame
 
     try:
-        WorldFrame.map(crs, geoid)
-        check_metric_projected(crs, "the project's output CRS")
+        if crs:
+            WorldFrame.map(crs, geoid)
+            check_metric_projected(crs, "the project's output CRS")
     except SkyrigError as exc:
         raise OptionError("--crs" if crs != det.crs else f"--crs (none given; {det.crs} from {det.crs_source})",
                           str(exc)) from None
@@ -656,7 +670,10 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
            "# A stage reruns only when its inputs or options change (its manifest keeps a fingerprint).",
            f"format: {PROJECT_FORMAT}", "version: 1", f"name: {_yaml_value(det.folder.name)}",
            f"crs: {_yaml_value(crs)}" + (f"    # from {det.crs_source}" if det.crs_source and crs == det.crs else
-                                         "    # output CRS of every product (projected, metres)"),
+                                         "    # output CRS of every product (projected, metres)" if crs else
+                                         "    # none: no GNSS and no control points in a map CRS, so the "
+                                         "orientation is in a model frame (scale bars or a free network); give "
+                                         "control points and a CRS to place it"),
            f"geoid: {_yaml_value(geoid)}    # geoid grid for orthometric heights; null: ellipsoidal heights "
            "(or those of a compound CRS)",
            "output: output    # each stage publishes output/<stage>/ with its manifest.json; output/run.json",
