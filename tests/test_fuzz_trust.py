@@ -212,10 +212,15 @@ def test_damage_is_refused_in_words_or_reads_the_original(tmp_path, kind):
 @pytest.mark.fuzz
 @pytest.mark.parametrize("kind", KINDS)
 def test_fuzz_long_profile(tmp_path, kind):
-    """``pytest -m fuzz``: the two rules with 400 examples each."""
+    """``pytest -m fuzz -s``: the two rules with up to 400 examples each; prints the counts by rule and damage."""
+    from collections import Counter
+
+    count: Counter = Counter()
+
     @LONG
     @given(text=same_meaning(kind))
     def same(text: str) -> None:
+        count["same meaning"] += 1
         p = tmp_path / base.FILE_NAME[kind]
         p.write_bytes(text.encode())
         assert records(kind, read(kind, p)) == original(kind, tmp_path), text
@@ -223,7 +228,10 @@ def test_fuzz_long_profile(tmp_path, kind):
     @LONG
     @given(case=damaged(kind))
     def damage(case: tuple[str, bytes]) -> None:
+        count[case[0]] += 1
         check_damage(kind, tmp_path, *case)
 
     same()
     damage()
+    print(f"\nfuzz {kind}: " + ", ".join(f"{k} {v}" for k, v in sorted(count.items())))
+    assert sum(v for k, v in count.items() if k != "same meaning") >= 100
