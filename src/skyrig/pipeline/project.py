@@ -45,7 +45,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-
 from skyrig.errors import InputFormatError, OptionError, SkyrigError
 from skyrig.io.rig_file import _Map, load_yaml_lines
 
@@ -299,24 +298,20 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     if top.get("version") != 1:
         raise err(f"version {top.get('version')!r} is not supported (this skyrig reads version 1)", top, "version",
                   "version")
-    crs = text_of(top, "crs", "crs")
+    crs = text_of(top, "crs", "crs")  # null: an orientation without GNSS in its model frame (checked with the stages)
     geoid = text_of(top, "geoid", "geoid")
-    try:
-        from skyrig.geodesy.frame import WorldFrame
+    if crs is not None:
+        try:
+            from skyrig.geodesy.crs import check_metric_projected
+            from skyrig.geodesy.frame import WorldFrame
 
-        from skyrig.geodesy.crs import check_metric_projected
-
-        if crs is None:  # an orientation without GNSS in its model frame: checked with the stages below
-            raise _NoCrs
-        frame = WorldFrame.map(crs, geoid)  # type: ignore[arg-type]
-        check_metric_projected(frame.crs, "the project's output CRS")
-        if frame.geoid:
-            frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
-    except _NoCrs:
-        pass
-    except Exception as exc:  # CRSError, pyproj errors: the reason in words
-        raise err(f"not a usable CRS / geoid: {exc}", top, "geoid" if geoid and "geoid" in str(exc).lower() else "crs",
-                  "geoid" if geoid and "geoid" in str(exc).lower() else "crs") from None
+            frame = WorldFrame.map(crs, geoid)
+            check_metric_projected(frame.crs, "the project's output CRS")
+            if frame.geoid:
+                frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
+        except Exception as exc:  # CRSError, pyproj errors: the reason in words
+            key = "geoid" if geoid and "geoid" in str(exc).lower() else "crs"
+            raise err(f"not a usable CRS / geoid: {exc}", top, key, key) from None
     name = text_of(top, "name", "name") or path.parent.name
     out_txt = text_of(top, "output", "output") or "output"
     output = Path(out_txt).expanduser()
@@ -386,10 +381,6 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
 # ------------------------------------------------------------------------------------------ skyrig init
 _SKIP_DIRS = {"truth", "scene", "output", "outputs", "match", ".cache", "reference", "__pycache__"}
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-
-
-class _NoCrs(Exception):
-    """``crs: null`` in a project file (allowed for a GNSS-free orientation only)."""
 
 
 @dataclass
