@@ -319,3 +319,15 @@ def test_init_without_gnss_writes_a_free_network_project_without_a_crs(tmp_path)
     p.write_text(text + "  dsm: {}\n")
     r = _run("run", p, "--dry-run")
     assert r.exit_code == 2 and "field 'crs'" in r.output and "'dsm' needs an output CRS" in r.output, r.output
+
+
+def test_init_refuses_control_points_that_do_not_read(tmp_path):
+    """Was: 'control points ... not readable; left out' and a project without control."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    (tmp_path / "f" / "gcp").mkdir()
+    (tmp_path / "f" / "gcp" / "ground_points.csv").write_text("# crs: EPSG:25832\nname,x,y,z\nG1,549700.0,abc,47.6\n")
+    r = _init(tmp_path / "f")
+    assert r.exit_code == 2 and "ground_points.csv, line 3" in r.output and "'abc'" in r.output, r.output
+    assert not (tmp_path / "f" / "project.yaml").exists()

@@ -530,16 +530,12 @@ def detect_inputs(folder: str | Path) -> Detected:
             if c:
                 d.crs, d.crs_source = c, f"the {what}'s header"
     pts = None
-    if d.control is not None:
-        try:
-            from skyrig.io.points_csv import read_points_csv
+    if d.control is not None:  # control points that do not read are refused (were left out with a note)
+        from skyrig.io.points_csv import read_points_csv
 
-            pts = read_points_csv(d.control)
-            if d.crs is None and pts.frame.kind == "map":
-                d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
-        except Exception as exc:  # reported, not fatal: init writes what it can
-            d.notes.append(f"control points {d.control.name} not readable ({exc}); left out")
-            d.control = None
+        pts = read_points_csv(d.control)
+        if d.crs is None and pts.frame.kind == "map":
+            d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
     if pts is not None and len(pts):
         import numpy as np
 
