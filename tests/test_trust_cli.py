@@ -94,3 +94,27 @@ def test_a_signal_stops_a_run_naming_the_stage(tmp_path, sig):
     assert not (tmp_path / "output" / "sleepy").exists()
     run = json.loads((tmp_path / "output" / "run.json").read_text())
     assert [s["status"] for s in run["stages"]] == ["done", "interrupted"]
+
+
+def test_a_stage_warning_is_shown_in_words_and_kept_in_run_json(tmp_path):
+    """Warnings said during a stage reach the report: ``run.json`` lists them under the stage (issue 29: warnings
+    on stderr and in the report)."""
+    (tmp_path / "in.txt").write_text("x")
+    (tmp_path / "project.yaml").write_text("format: skyrig-project\nversion: 1\ncrs: EPSG:25832\ninputs:\n"
+                                           "  control: in.txt\nstages:\n  warny: {}\n")
+    script = tmp_path / "r.py"
+    script.write_text(
+        "import warnings\n"
+        "from skyrig.errors import PlausibilityWarning\n"
+        "from skyrig.pipeline.run import Stage, register_stage\n"
+        "def warny(ctx):\n"
+        "    warnings.warn('in.txt: a lever arm of 12 m is unusually long', PlausibilityWarning)\n"
+        "    (ctx.out / 'w.txt').write_text('done')\n"
+        "register_stage(Stage('warny', 'w', warny, provides={'w': 'w.txt'}, inputs=lambda p, o: [p.control]))\n"
+        "from skyrig.cli import main\n"
+        f"main(['run', {str(tmp_path / 'project.yaml')!r}])\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=_env(), timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "warning: in.txt: a lever arm of 12 m is unusually long" in r.stderr, r.stderr
+    run = json.loads((tmp_path / "output" / "run.json").read_text())
+    assert run["stages"][0]["warnings"] == ["in.txt: a lever arm of 12 m is unusually long"], run
