@@ -9,9 +9,9 @@ header names.  The readers call these checks after parsing; each either
   of use when swapped, a lever arm of 100 m), or
 * warns in words (:class:`~skyrig.errors.PlausibilityWarning`, shown by the CLI as ``warning: ...``) when the
   values are unusual but possible (positions outside the area of use PROJ states for the CRS, a lever arm of
-  more than 10 m).  A position more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use is refused, with
-  or without a side-car (the CRS named, with its area and where the position would be; a row with x and y
-  swapped said so).
+  more than 10 m).  A ground point more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use is refused
+  (projection centres and trajectories when all of them are), with or without a side-car (the CRS named, with its
+  area and where the position would be; a row with x and y swapped said so).
 
 Limits (metres): ground points between :data:`GROUND_MIN_M` and :data:`GROUND_MAX_M` (the Dead Sea shore and
 Everest with the geoid's range added), projection centres up to :data:`CAMERA_MAX_M` (a refused value gives
@@ -186,7 +186,9 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
     ll0 = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
         f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
     far = ~_inside(lon, lat, box, AREA_REFUSE_DEG)
-    if far.any():
+    # ground points: any one far away is wrong (a row with x/y swapped); projection centres and trajectories may
+    # include a transit from a distant airfield: refused only when every position is far away
+    if far.all() or (what == "ground" and far.any()):
         j = int(np.flatnonzero(far)[0])
         f = int(idx[j])
         llf = "no valid longitude/latitude" if not np.isfinite(lon[j]) else \
