@@ -83,7 +83,7 @@ def check_project(path: str | Path) -> CheckReport:
     for folder in proj.images:
         files = _attempt(report, lambda f=folder: list_images(f))
         for f in files or []:
-            _attempt(report, lambda f=f: check_image_complete(f))
+            _attempt(report, lambda f=f: check_image_complete(f), f)
     _cross_checks(report, proj, got)
     return report
 
