@@ -292,8 +292,11 @@ def _check_against_proj(frame: WorldFrame, crs: object) -> None:
         lon = ((a.west + a.east + 360) / 2 + 180) % 360 - 180
     t = pyproj.Transformer.from_crs("EPSG:4979", c, always_xy=True)
     ref = np.array(t.transform(lon, lat, h), dtype=np.float64)
-    got = frame.projection.from_geodetic([[lat, lon, h]])[0]
-    if not np.all(np.isfinite(ref)) or np.abs(got - ref).max() > 1e-3:
+    try:
+        got = frame.projection.from_geodetic([[lat, lon, h]])[0]
+    except CRSError:  # the grid does not reach the centre of the area of use: nothing to compare there
+        return
+    if np.all(np.isfinite(ref)) and np.abs(got - ref).max() > 1e-3:
         raise CRSError(f"{c.name}: skyrig's heights through geoid {frame.geoid} differ from PROJ's transformation "
                        f"by {np.abs(got - ref).max():.3f} m at lat {lat:.3f} lon {lon:.3f}; give the horizontal CRS "
                        "and the geoid grid instead")
