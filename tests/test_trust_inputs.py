@@ -331,3 +331,25 @@ def test_init_refuses_control_points_that_do_not_read(tmp_path):
     r = _init(tmp_path / "f")
     assert r.exit_code == 2 and "ground_points.csv, line 3" in r.output and "'abc'" in r.output, r.output
     assert not (tmp_path / "f" / "project.yaml").exists()
+
+
+def test_block_refuses_a_control_measurement_with_column_and_row_swapped(tmp_path):
+    """A control point measured at (row, column) instead of (column, row): still inside the image, so it passed,
+    hundreds of pixels from where the orientation puts the point; now refused naming file, line and field."""
+    import csv
+
+    from test_fuzz_readers import _good_block
+
+    _good_block(tmp_path)  # eo.csv, rig.yaml, gcp.csv and px.csv (world-to-image of the points: the truth)
+    with open(tmp_path / "px.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    top = next(k for k, r in enumerate(rows) if r and r[0] == "point")
+    ic, ir = rows[top].index("column"), rows[top].index("row")
+    far = max(range(top + 1, len(rows)), key=lambda k: abs(float(rows[k][ic]) - float(rows[k][ir])))
+    rows[far][ic], rows[far][ir] = rows[far][ir], rows[far][ic]
+    with open(tmp_path / "px2.csv", "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    r = _run("block", "--eo", tmp_path / "eo.csv", "--camera", tmp_path / "rig.yaml", "--measurements",
+             tmp_path / "px2.csv", "--control", tmp_path / "gcp.csv", "-o", tmp_path / "b2.json")
+    assert r.exit_code == 2, r.output
+    assert f"px2.csv, line {far + 1}" in r.output and "field 'column'" in r.output and "swapped" in r.output, r.output
