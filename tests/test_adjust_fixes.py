@@ -103,7 +103,8 @@ def test_snooping_reports_an_unmodelled_boresight_as_a_model_error(boresight_blo
 
 def test_snooping_at_its_cap_is_a_failure(boresight_block):
     b, _ = boresight_block
-    res = adjust(b, AdjustConfig(snooping=True, datum_shift="free", max_rejections=6, snooping_max_group_share=1.0))
+    res = adjust(b, AdjustConfig(snooping=True, datum_shift="free", max_rejections=6, snooping_max_share=0.0,
+                                 snooping_max_group_share=1.0))
     assert len(res.rejected) == 6 and not res.ok
     msg = " ".join(res.failures)
     assert "cap of 6 rejections" in msg and "IMU" in msg and "still above the critical value" in msg

@@ -64,7 +64,7 @@ def test_good_files_still_read(tmp_path):
     (tmp_path / "a.OPK").write_text(OPK_HEAD + OPK_1 + OPK_2)
     (tmp_path / "a.mes").write_text(MES)
     (tmp_path / "a.app").write_text(APP)
-    (tmp_path / "a_world.mes").write_text('"a" 1.0 2.0 3.0\nb 4 5 6\n')
+    (tmp_path / "a_world.mes").write_text('"a" 815601.0 6283629.0 3.0\nb 815604 6283625 6\n')
     assert len(_read("opk", tmp_path / "a.OPK")) == 2
     assert len(_read("mes", tmp_path / "a.mes")) == 3
     g = _read("app", tmp_path / "a.app")

@@ -244,8 +244,8 @@ BAD: list[Bad] = [
         .replace("90.0\nimg3", "90.0,2a\nimg3").replace("90.0\n", "90.0,3\n"), 8, "exposure",
         "exposure must be an integer"),
     Bad("eo-local-frame-bad", "eo", rep(EO, "EPSG:25832", "local 48.3 9.0"), 2, "crs", "expected 'local <lat_deg>"),
-    Bad("eo-latin1", "eo", rep(EO, "img1.tif", "bild_ü.tif").encode("latin-1"), None, None, "not a UTF-8 text file"),
-    Bad("eo-is-binary", "eo", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", None, None, "not a UTF-8 text file"),
+    Bad("eo-latin1", "eo", rep(EO, "img1.tif", "bild_ü.tif").encode("latin-1"), 7, None, "not a UTF-8 text file"),
+    Bad("eo-is-binary", "eo", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", 1, None, "not a UTF-8 text file"),
     # ---- points CSV
     Bad("pts-empty", "pts", "", 0, None, "no column header row"),
     Bad("pts-no-crs", "pts", PTS.split("\n", 2)[2], 1, "crs", "no '# crs:' header line"),
@@ -426,6 +426,13 @@ BAD: list[Bad] = [
     Bad("raw-negative-range", "raw", rep(RAW, "12.402", "-12.402"), 6, "range", "range"),
     Bad("raw-time-decreasing", "raw", rep(RAW, "345600.008368", "345600.008300"), 6, "time", "time"),
     Bad("raw-nan-alpha", "raw", rep(RAW, "-134.625", "nan"), 6, "alpha", "finite"),
+    # issue 29: every position far (> 5 deg) outside the stated CRS's area of use: refused, not a warning
+    Bad("eo-utm-declared-lambert93", "eo", rep(EO, "EPSG:25832", "EPSG:2154"), 7, "x",
+        "latitude 35.2778 deg in RGF93 v1 / Lambert-93 (EPSG:2154), used for France"),
+    Bad("pts-gauss-krueger-without-zone-prefix", "pts", rep(PTS, "EPSG:25832", "EPSG:31467"), 4, "x",
+        "outside that CRS's area of use"),
+    Bad("traj-utm-declared-lambert93", "traj", rep(TRAJ_UTM, "EPSG:32632", "EPSG:2154"), 6, "x",
+        "more than 5 deg outside"),
 ]
 
 # a block in radians (strips both ways: kappa about 0 and pi) whose header says degrees
@@ -439,11 +446,10 @@ TRAJ_RAD = TRAJ.split("345600.000")[0] + "".join(
 WARN: list[Warn] = [
     Warn("eo-radians-declared-degrees", "eo", EO_RAD, "radians meant?"),
     Warn("traj-radians-declared-degrees", "traj", TRAJ_RAD, "radians meant?"),
-    Warn("eo-utm-declared-lambert93", "eo", rep(EO, "EPSG:25832", "EPSG:2154"),
-         "outside the area of use of RGF93 v1 / Lambert-93"),
-    Warn("pts-gauss-krueger-without-zone-prefix", "pts", rep(PTS, "EPSG:25832", "EPSG:31467"), "is the CRS right?"),
+    Warn("eo-lambert93-3-deg-south-of-france", "eo", rep(rep(rep(EO.replace("5350000.0", "5653367.0"), "EPSG:25832",
+                                                                "EPSG:2154"), "500000.0,", "700000.0,"), "500500.0,",
+                                                        "700500.0,"), "outside the area of use of RGF93 v1 / Lambert-93"),
     Warn("rig-lever-arm-20m", "rig", rep(RIG, "[0.05, 0.0, 0.1]", "[20.0, 0.0, 0.0]"), "lever arm of 20 m is unusually long"),
-    Warn("traj-utm-declared-lambert93", "traj", rep(TRAJ_UTM, "EPSG:32632", "EPSG:2154"), "outside the area of use"),
 ]
 
 

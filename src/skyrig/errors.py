@@ -136,6 +136,15 @@ class SessionLockedError(SkyrigError, RuntimeError):
     the message names the lock file and its holder."""
 
 
+class StopSignal(KeyboardInterrupt):
+    """SIGTERM (or another stop signal) while a command runs: raised like Ctrl-C's KeyboardInterrupt, so that
+    atomic writers and stage folders clean up the same way; ``signum`` says which signal."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        super().__init__(f"stopped by signal {self.signum}")
+
+
 class PlausibilityWarning(UserWarning):
     """Input that is possible but unusual enough to be a mistake (positions outside the CRS's area of use, a
     lever arm of more than 10 m...); see :mod:`skyrig.io.plausibility`.  The CLI prints it as ``warning: ...``."""
@@ -284,20 +293,34 @@ class TileNotFound(SkyrigError, LookupError):
 
 
 def show_warnings_in_words() -> None:
-    """Print :class:`PlausibilityWarning` (and any warning skyrig emits on purpose) as one ``warning: message``
-    line on standard error, without Python's file and source line; other warnings keep Python's format."""
+    """Print every warning as one ``warning: message`` line on standard error, without Python's file and source
+    line: :class:`PlausibilityWarning` as its words, any other with its class and the package it came from
+    (``warning: invalid value encountered in divide (RuntimeWarning, numpy)``)."""
     import sys
     import warnings
 
     previous = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
-        if isinstance(category, type) and issubclass(category, PlausibilityWarning):
-            print(f"warning: {message}", file=file or sys.stderr)
-            return
-        previous(message, category, filename, lineno, file, line)
+        words = " ".join(str(message).split())
+        if not (isinstance(category, type) and issubclass(category, PlausibilityWarning)):
+            where = _package_of(str(filename))
+            words += f" ({getattr(category, '__name__', 'warning')}{', ' + where if where else ''})"
+        try:
+            print(f"warning: {words}", file=file or sys.stderr)
+        except (OSError, ValueError):  # a closed stream: nothing to tell
+            pass
 
     if getattr(previous, "_skyrig", False):
         return
     show._skyrig = True  # type: ignore[attr-defined]
     warnings.showwarning = show
+
+
+def _package_of(filename: str) -> str:
+    """The top-level package a source file belongs to (``.../site-packages/numpy/x.py`` -> ``numpy``), or ''."""
+    parts = filename.replace("\\", "/").split("/")
+    for key in ("site-packages", "dist-packages", "src"):
+        if key in parts and parts.index(key) + 1 < len(parts) - 1:
+            return parts[parts.index(key) + 1]
+    return ""

@@ -500,10 +500,14 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             crit = critical_value(cfg.snooping_alpha / max(_n_tests(res[1]), 1))
         if best[0] <= crit:
             break
-        if len(snooped) >= cfg.max_rejections:
+        n_obs = sum(len(gr.weight) for g, gr in res[1].items() if gr.normalised is not None and _tested(g))
+        cap = max(int(cfg.max_rejections), int(np.ceil(cfg.snooping_max_share * n_obs)))
+        if len(snooped) >= cap:
             counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
             failures.append(
-                f"data snooping stopped at its cap of {cfg.max_rejections} rejections ({counts}) with observations "
+                f"data snooping stopped at its cap of {cap} rejections (the larger of max_rejections "
+                f"{cfg.max_rejections} and snooping_max_share {cfg.snooping_max_share:g} of {n_obs} observations; "
+                f"{counts}) with observations "
                 f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
                 "so many blunders mean the functional model is probably wrong - " + _what_to_free(
                     cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
@@ -512,7 +516,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
         # above the critical value (its spill into the images of its station would look like blunders there)
         if best[1] == "image" and cfg.snooping_per_round > 1 and not _others_above(res[1], crit):
-            room = min(cfg.snooping_per_round, cfg.max_rejections - len(snooped)) - 1
+            room = min(cfg.snooping_per_round, cap - len(snooped)) - 1
             picks += [(w, "image", j) for w, j in
                       _further_image_rejections(block, res[1]["image"], best[2], crit, room)]
         for w_, g, i in picks:

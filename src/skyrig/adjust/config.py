@@ -104,13 +104,16 @@ class ReliabilityOptions:
     snooping: bool = False  # reject the largest normalised residual above the critical value, re-adjust
     snooping_alpha: float = 0.001  # significance level (two-sided)
     snooping_familywise: bool = True  # alpha for the whole block (Bonferroni) instead of per test
-    max_rejections: int = 100  # cap on rejected observations (reaching it is a failure)
+    max_rejections: int = 100  # cap on rejected observations (reaching it is a failure), at least
+    snooping_max_share: float = 0.02  # ... or this share of the tested observations, whichever is larger
     snooping_max_group_share: float = 0.1  # largest share of a GNSS / IMU / control / distance group
     snooping_per_round: int = 1  # image observations rejected per round at most (non-adjacent local maxima)
 
     def __post_init__(self) -> None:
         if int(self.snooping_per_round) < 1:
             raise ConfigError(f"AdjustConfig.snooping_per_round must be >= 1, got {self.snooping_per_round!r}")
+        if not 0.0 <= float(self.snooping_max_share) <= 1.0:
+            raise ConfigError(f"AdjustConfig.snooping_max_share must be in [0, 1], got {self.snooping_max_share!r}")
         if not 0.0 < float(self.snooping_max_group_share) <= 1.0:
             raise ConfigError(f"AdjustConfig.snooping_max_group_share must be in (0, 1], got "
                              f"{self.snooping_max_group_share!r}")
@@ -195,8 +198,9 @@ class AdjustConfig:
         (0.001 -> 3.29, which rejects about one good observation per thousand tests).
     snooping_familywise
         See ``snooping_alpha``.
-    max_rejections
-        Cap on rejected observations.  Reaching it with observations still above the critical value is
+    max_rejections, snooping_max_share
+        Cap on rejected observations: the larger of ``max_rejections`` (default 100) and ``snooping_max_share``
+        (default 0.02) of the observations tested, so that a large block's cap grows with it.  Reaching it with observations still above the critical value is
         a failure of the adjustment (``AdjustmentResult.failures``): so many blunders mean a wrong model.
     snooping_max_group_share
         Largest share of a GNSS, IMU, control or distance group that data snooping may reject (at least
@@ -266,6 +270,7 @@ class AdjustConfig:
     snooping_alpha: float = 0.001
     snooping_familywise: bool = True
     max_rejections: int = 100
+    snooping_max_share: float = 0.02
     snooping_max_group_share: float = 0.1
     snooping_per_round: int = 1
     statistics: bool = True

@@ -15,6 +15,7 @@ import importlib
 import logging
 import os
 import re
+import signal
 import sys
 from typing import NamedTuple
 
@@ -24,7 +25,7 @@ os.environ.setdefault("GLOG_minloglevel", "1")
 import click
 
 from skyrig import __version__
-from skyrig.errors import SkyrigError, show_warnings_in_words
+from skyrig.errors import SkyrigError, StopSignal, show_warnings_in_words
 
 
 class CommandEntry(NamedTuple):
@@ -80,6 +81,8 @@ COMMANDS: dict[str, CommandEntry] = {
     "run": CommandEntry("skyrig.cli.run:run_command", "Run the stages of a project.yaml, each into its own folder (resumable)."),
     "measure": CommandEntry("skyrig.cli.measure:command",
                             "Measure control and check points in the images in a local web page (or --auto)."),
+    "check": CommandEntry("skyrig.cli.check:command",
+                          "Validate a project.yaml and every input it names without running a stage; name every problem."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }
@@ -144,6 +147,8 @@ class LazyGroup(click.Group):
         return super().parse_args(ctx, args)
 
     def invoke(self, ctx: click.Context):  # type: ignore[override]
+        top = ctx.parent is None
+        previous = _stop_on_sigterm() if top else None
         try:
             return super().invoke(ctx)
         except SkyrigError as exc:
@@ -153,6 +158,40 @@ class LazyGroup(click.Group):
                     exc = exc.with_option(*found)  # type: ignore[attr-defined]
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
+        except KeyboardInterrupt as exc:
+            if not top:
+                raise
+            signum = exc.signum if isinstance(exc, StopSignal) else signal.SIGINT
+            name = "SIGINT (Ctrl-C)" if signum == signal.SIGINT else signal.Signals(signum).name
+            stage = RUNNING[0]
+            what = f"stage {stage}" if stage else f"skyrig {ctx.invoked_subcommand or ''}".strip()
+            click.echo(f"stopped by {name} during {what}: it published nothing; the last complete outputs are "
+                       "intact (files and stage folders are published whole or not at all); rerun to resume",
+                       err=True)
+            sys.exit(128 + int(signum))
+        finally:
+            if top:
+                RUNNING[0] = None
+                if previous is not None:
+                    signal.signal(signal.SIGTERM, previous)
+
+
+#: The stage a command is running (``skyrig run`` sets it), for the message when a signal stops it.
+RUNNING: list[str | None] = [None]
+
+
+def _stop_on_sigterm():  # type: ignore[no-untyped-def]
+    """SIGTERM raises :class:`StopSignal` (a KeyboardInterrupt: every atomic writer and stage folder cleans up as
+    for Ctrl-C); returns the previous handler (None outside the main thread)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):  # type: ignore[no-untyped-def]
+        raise StopSignal(signum)
+
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def option_for_path(args: list[str], path: str) -> tuple[str, str] | None:

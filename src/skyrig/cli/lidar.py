@@ -22,6 +22,20 @@ def _floats(text: str, n: int, name: str) -> np.ndarray:
     return v
 
 
+def _lever_arm(text: str, option: str) -> np.ndarray:
+    """A lever arm option in metres: refused when it is only plausible in millimetres or centimetres."""
+    from skyrig.errors import OptionError
+    from skyrig.io.plausibility import lever_arm_problem, warn
+
+    v = _floats(text, 3, option)
+    problem = lever_arm_problem(v)
+    if problem is not None and problem[0] == "refuse":
+        raise OptionError(option, problem[1])
+    if problem is not None:
+        warn(f"{option}: {problem[1]}")
+    return v
+
+
 @contextmanager
 def _progress(label: str):
     """A rich progress bar fed by ``callback(done, total)``; plain text when rich is missing."""
@@ -123,8 +137,9 @@ def georef_cmd(scan_path, traj_path, reference, lever_arm, antenna_lever_arm, bo
     scan, _ = read_raw_scan_csv(scan_path)
     traj = load_trajectory(traj_path, reference)
     mnt = None if mounting is None else _floats(mounting, 9, "--mounting").reshape(3, 3)
-    mount = ScannerMount.from_angles(_floats(lever_arm, 3, "--lever-arm"), _floats(boresight, 3, "--boresight"), angles,
-                                     sequence, passive, mnt, _floats(antenna_lever_arm, 3, "--antenna-lever-arm"))
+    arms = {o: _lever_arm(t, o) for o, t in (("--lever-arm", lever_arm), ("--antenna-lever-arm", antenna_lever_arm))}
+    mount = ScannerMount.from_angles(arms["--lever-arm"], _floats(boresight, 3, "--boresight"), angles,
+                                     sequence, passive, mnt, arms["--antenna-lever-arm"])
     baro = None
     if barometric:
         try:

@@ -22,16 +22,18 @@ __all__ = ["init_command", "run_command"]
 def init_command(folder: str, crs: str | None, geoid: str | None, output: str | None, force: bool) -> None:
     """Write a commented project.yaml for the flight in FOLDER (images, trajectory, events, rig, control found by reading them)."""
     from skyrig.io._text import atomic_write
-    from skyrig.pipeline.project import detect_inputs, load_project, project_template
+    from skyrig.pipeline.project import detect_inputs, parse_project, project_template
 
-    det = detect_inputs(folder)
     out = Path(output) if output else Path(folder) / "project.yaml"
-    text = project_template(det, crs, geoid, base=out.absolute().parent)
     if out.exists() and not force:
         raise click.UsageError(f"{out} exists (--force overwrites it)")
+    det = detect_inputs(folder)
+    text = project_template(det, crs, geoid, base=out.absolute().parent)
+    # what is written must read back (a bug otherwise): checked before anything is written, so that a refused
+    # project file is never left behind and --force never replaces a good one with a bad one
+    proj = parse_project(text, out.absolute())
     with atomic_write(out) as fh:
         fh.write(text)
-    proj = load_project(out)  # what was written must read back: a bug otherwise
     found = [f"{k} {getattr(det, k).name}" for k in ("trajectory", "events", "rig", "eo", "control", "check")
              if getattr(det, k) is not None]
     click.echo(f"wrote {out}: {det.n_images} images in {len(det.images)} folder(s); "
@@ -77,6 +79,8 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from skyrig.cli import RUNNING
+
     console = Console(stderr=True)
     n = len(proj.stages)
     index = {s.name: k + 1 for k, s in enumerate(proj.stages)}
@@ -89,6 +93,7 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
         k = f"[{index[ev.stage]}/{n}]"
         out = bar.console
         if ev.status == "start":
+            RUNNING[0] = ev.stage  # named if a signal stops the run
             out.print(f"[bold]{k} {ev.stage}[/bold] running ({ev.message})")
             tasks[ev.stage] = bar.add_task(f"{k} {ev.stage}", total=None)
         elif ev.status == "progress":

@@ -42,6 +42,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.dense.rectify import WindowedImage, sampled_window
 from skyrig.errors import EmptyMosaicError, SkyrigError  # noqa: F401 - EmptyMosaicError re-exported
+from skyrig.geodesy.crs import check_metric_projected
 from skyrig.geodesy.frame import WorldFrame, local_frame_for
 from skyrig.georef.eo import ExteriorOrientations
 
@@ -807,6 +808,7 @@ def plan_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], dsm
     t0 = time.perf_counter()
     if dsm.frame.kind != "map":
         raise SkyrigError("the orthophoto needs a DSM in a map frame (a projected CRS)")
+    check_metric_projected(dsm.frame.crs, "an orthomosaic (its DSM)")
     if len(eo) == 0:
         raise SkyrigError("no oriented image")
     missing = sorted(set(eo.camera.tolist()) - set(cameras))

@@ -14,6 +14,7 @@ directory, see https://proj.org/en/stable/resource_files.html).
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -145,6 +146,97 @@ def _vgrid(grid: str, multiplier: float) -> pyproj.Transformer:
     return pyproj.Transformer.from_pipeline(
         f"+proj=pipeline +step +proj=vgridshift +grids={value} +multiplier={multiplier}"
     )
+
+
+def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
+    """The 2D horizontal part of a CRS (a compound's first member, a 3D CRS made 2D)."""
+    if crs.is_compound:
+        return crs.sub_crs_list[0]
+    if len(crs.axis_info) == 3 and not crs.is_geocentric:
+        return crs.to_2d()
+    return crs
+
+
+def crs_spec(crs: pyproj.CRS) -> str:
+    """``EPSG:n`` when PROJ identifies the CRS with full confidence, its WKT otherwise."""
+    code = crs.to_epsg(min_confidence=100)
+    return f"EPSG:{code}" if code is not None else crs.to_wkt()
+
+
+def check_metric_projected(crs: Any, what: str) -> None:
+    """Refuse a CRS that is not projected with both horizontal axes in metres, for ``what`` (e.g. ``"an
+    orthomosaic"``): a geographic CRS has cells in degrees, a US-feet CRS (EPSG:6503) x/y in feet while skyrig's
+    heights, cell sizes and sigmas are metres.
+
+    >>> check_metric_projected("EPSG:25832", "a DSM")
+    >>> check_metric_projected("EPSG:4326", "a DSM")
+    Traceback (most recent call last):
+    ...
+    skyrig.errors.CRSError: WGS 84 (EPSG:4326) is a geographic CRS (degrees): a DSM needs a projected CRS in metres (e.g. the UTM zone)
+    """
+    c = horizontal_crs(resolve_crs(crs))
+    code = c.to_epsg()
+    name = f"{c.name}" + (f" (EPSG:{code})" if code else "")
+    if c.is_geographic:
+        raise CRSError(f"{name} is a geographic CRS (degrees): {what} needs a projected CRS in metres "
+                       "(e.g. the UTM zone)")
+    if not c.is_projected:
+        raise CRSError(f"{name} is not a projected CRS: {what} needs a projected CRS in metres")
+    units = {(a.unit_name or "").lower() for a in c.axis_info[:2]}
+    if units != {"metre"}:
+        raise CRSError(f"{name} has its x/y in {', '.join(sorted(units))}: {what} needs a projected CRS in metres "
+                       "(skyrig's heights, cell sizes and precisions are metres); use the metric CRS of the same "
+                       "datum and zone")
+
+
+@lru_cache(maxsize=64)
+def _compound_geoid(wkt: str) -> str:
+    from pyproj.transformer import TransformerGroup
+
+    crs = pyproj.CRS.from_wkt(wkt)
+    name = crs.name
+    with warnings.catch_warnings():  # "best transformation is not available": said below, in words
+        warnings.simplefilter("ignore")
+        tg = TransformerGroup(WGS84_GEOGRAPHIC_3D, crs, always_xy=True)
+    ops = [(op.name, [g.short_name for g in op.grids], False, None) for op in tg.unavailable_operations]
+    for t in tg.transformers:
+        grids = [g for o in (t.operations or []) for g in o.grids]
+        ops.append((t.description, [g.short_name for g in grids], True, grids))
+    ops = [o for o in ops if "ballpark vertical" not in o[0].lower()]
+    if not ops:
+        raise CRSError(f"{name}: PROJ knows no transformation from ellipsoidal heights to its vertical CRS; "
+                       "give the horizontal CRS and the geoid grid (--geoid / geoid:) instead")
+    desc, names, available, grids = ops[0]  # PROJ's own preference
+    if len(names) != 1:
+        single = list(dict.fromkeys(f"{o[1][0]} ({o[0]})" for o in ops if len(o[1]) == 1))
+        raise CRSError(f"{name}: PROJ's preferred transformation {desc!r} needs the grids {', '.join(names) or 'none'}; "
+                       "skyrig takes a compound CRS whose heights come from one geoid grid: give the horizontal CRS "
+                       "and the geoid grid you mean (--geoid / geoid:)"
+                       + (f"; geoid grids PROJ knows for it: {'; '.join(single[:6])}" if single else ""))
+    if not available:
+        raise CRSError(f"{name}: the heights need PROJ's geoid grid {names[0]} ({desc}), which is not installed: put "
+                       f"{names[0]} in a PROJ data folder ({pyproj.datadir.get_user_data_dir()} or $PROJ_DATA; it is "
+                       f"at https://cdn.proj.org/{names[0]}) or give the horizontal CRS and a geoid grid file")
+    g = grids[0]
+    full = getattr(g, "full_name", "") or ""
+    return names[0] if not full or Path(full).name == names[0] else full
+
+
+def compound_geoid(crs: Any) -> str:
+    """The geoid grid PROJ uses for the heights of a compound CRS (horizontal + vertical), from WGS84 ellipsoidal
+    heights: PROJ's preferred transformation, which must be one vertical grid shift whose grid is installed.
+
+    Returns the grid's PROJ name (or the file PROJ found under another name).
+
+    Raises
+    ------
+    CRSError
+        When the grid is not installed (the grid named) or the transformation is not one geoid grid.
+    """
+    c = resolve_crs(crs)
+    if not c.is_compound:
+        raise CRSError(f"{c.name} is not a compound CRS")
+    return _compound_geoid(c.to_wkt())
 
 
 @dataclass(frozen=True)

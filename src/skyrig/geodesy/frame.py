@@ -42,7 +42,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.errors import CRSError
-from skyrig.geodesy.crs import Geoid, MapProjection, ecef_to_geodetic, resolve_crs
+from skyrig.geodesy.crs import (Geoid, MapProjection, compound_geoid, crs_spec, ecef_to_geodetic, horizontal_crs,
+                                resolve_crs)
 from skyrig.geodesy.local import LocalTangentFrame, ecef_from_enu_rotation, grid_from_enu_rotation
 
 __all__ = ["FrameKind", "WorldFrame", "local_frame_for"]
@@ -81,7 +82,22 @@ class WorldFrame:
 
     @classmethod
     def map(cls, crs: object, geoid: str | None = None) -> "WorldFrame":
-        resolve_crs(crs)  # validate early
+        """A map frame; a compound CRS (``EPSG:25832+5773``) means what PROJ means by it: its horizontal CRS with
+        heights above the geoid grid PROJ uses for its vertical CRS (refused when that grid is not installed), or above
+        ``geoid`` when given (refused when PROJ ties that grid to another vertical CRS)."""
+        c = resolve_crs(crs)  # validate early
+        if c.is_compound:
+            if geoid is None:
+                frame = cls("map", crs=crs_spec(horizontal_crs(c)), geoid=compound_geoid(c))
+                _check_against_proj(frame, c)
+                return frame
+            from skyrig.geodesy.statement import vertical_crs_of_geoid
+
+            given = vertical_crs_of_geoid(str(geoid))
+            if given is not None and not given.equals(c.sub_crs_list[1]):
+                raise CRSError(f"{c.name} states heights in {c.sub_crs_list[1].name}, but the geoid grid given "
+                               f"({Path(str(geoid)).name}) is for {given.name}: give one of them")
+            crs = crs_spec(horizontal_crs(c))
         if geoid is not None and (os.path.sep in str(geoid) or str(geoid).startswith(".")):
             geoid = str(Path(geoid).expanduser().resolve())  # a file: make the frame independent of the cwd
         return cls("map", crs=str(crs), geoid=geoid)
@@ -260,3 +276,27 @@ def local_frame_for(points_ecef: ArrayLike) -> WorldFrame:
     p = np.atleast_2d(np.asarray(points_ecef, dtype=np.float64))
     lat, lon, _ = ecef_to_geodetic(p.mean(axis=0, keepdims=True))
     return WorldFrame.local(float(lat[0]), float(lon[0]), 0.0)
+
+
+def _check_against_proj(frame: WorldFrame, crs: object) -> None:
+    """A compound CRS's frame against PROJ's own transformation from WGS84 ellipsoidal heights, at the centre of
+    the CRS's area of use: refused when they differ by more than 1 mm (a datum shift PROJ applies in height)."""
+    import pyproj
+
+    c = resolve_crs(crs)
+    a = c.area_of_use
+    if a is None:
+        return
+    lon, lat, h = (a.west + a.east) / 2, (a.south + a.north) / 2, 100.0
+    if a.west > a.east:  # across the antimeridian
+        lon = ((a.west + a.east + 360) / 2 + 180) % 360 - 180
+    t = pyproj.Transformer.from_crs("EPSG:4979", c, always_xy=True)
+    ref = np.array(t.transform(lon, lat, h), dtype=np.float64)
+    try:
+        got = frame.projection.from_geodetic([[lat, lon, h]])[0]
+    except CRSError:  # the grid does not reach the centre of the area of use: nothing to compare there
+        return
+    if np.all(np.isfinite(ref)) and np.abs(got - ref).max() > 1e-3:
+        raise CRSError(f"{c.name}: skyrig's heights through geoid {frame.geoid} differ from PROJ's transformation "
+                       f"by {np.abs(got - ref).max():.3f} m at lat {lat:.3f} lon {lon:.3f}; give the horizontal CRS "
+                       "and the geoid grid instead")

@@ -9,6 +9,7 @@ GeoPackage and the CSV side-cars (:mod:`skyrig.io.table_meta`).
 from __future__ import annotations
 
 import logging
+import os
 import sqlite3
 from dataclasses import dataclass
 from functools import lru_cache
@@ -19,7 +20,7 @@ import numpy as np
 import pyproj
 
 from skyrig.errors import CRSError
-from skyrig.geodesy.crs import resolve_crs
+from skyrig.geodesy.crs import crs_spec, horizontal_crs, resolve_crs
 from skyrig.geodesy.frame import WorldFrame
 
 __all__ = ["FileCRS", "crs_statement", "file_crs", "frame_from_file_crs", "vertical_crs_of_geoid", "project_frame", "utm_frame"]
@@ -58,7 +59,8 @@ class FileCRS:
 
 
 def _proj_db() -> Path:
-    return Path(pyproj.datadir.get_data_dir()) / "proj.db"
+    dirs = [Path(d) for d in pyproj.datadir.get_data_dir().split(os.pathsep) if d]  # append_data_dir adds folders
+    return next((d / "proj.db" for d in dirs if (d / "proj.db").is_file()), dirs[0] / "proj.db")
 
 
 @lru_cache(maxsize=64)
@@ -106,14 +108,6 @@ def vertical_crs_of_geoid(geoid: str) -> pyproj.CRS | None:
     return pyproj.CRS.from_authority(*code)
 
 
-def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
-    if crs.is_compound:
-        return crs.sub_crs_list[0]
-    if len(crs.axis_info) == 3:
-        return crs.to_2d()
-    return crs
-
-
 def file_crs(frame: WorldFrame) -> FileCRS:
     """The CRS statement of a ``map`` frame for a file.
 
@@ -124,7 +118,7 @@ def file_crs(frame: WorldFrame) -> FileCRS:
     """
     if frame.kind != "map" or frame.crs is None:
         raise CRSError(f"outputs are written in a map frame (a CRS), not a {frame.kind} frame")
-    h = _horizontal(resolve_crs(frame.crs))
+    h = horizontal_crs(resolve_crs(frame.crs))
     if frame.geoid is None:
         full = h.to_3d()
         ell = h.geodetic_crs.to_3d() if h.geodetic_crs is not None else None
@@ -145,11 +139,6 @@ def file_crs(frame: WorldFrame) -> FileCRS:
     return FileCRS(h, full, False, "orthometric", str(frame.geoid), f"orthometric heights, geoid grid {gname}")
 
 
-def _crs_spec(crs: pyproj.CRS) -> str:
-    code = crs.to_epsg(min_confidence=100)
-    return f"EPSG:{code}" if code is not None else crs.to_wkt()
-
-
 def frame_from_file_crs(crs: pyproj.CRS, geoid: str | None = None, kind: str | None = None) -> WorldFrame:
     """A ``map`` frame from a CRS read from a file (the inverse of :func:`file_crs`).
 
@@ -163,32 +152,19 @@ def frame_from_file_crs(crs: pyproj.CRS, geoid: str | None = None, kind: str | N
     kind
         ``"ellipsoidal"`` / ``"orthometric"`` as recorded in the file, if any.
     """
-    h = _horizontal(crs)
+    h = horizontal_crs(crs)
     if crs.is_compound or kind == "orthometric":
         if not geoid and crs.is_compound:
             v = crs.sub_crs_list[1]
             geoid = (v.to_json_dict().get("geoid_model") or {}).get("name")
             if geoid is None and v.to_epsg() is not None:
-                geoid = _grid_of_vertical(v.to_epsg())
+                return WorldFrame.map(crs)  # the grid PROJ uses for this compound CRS, checked against PROJ
         if not geoid:
             raise CRSError(f"the file states orthometric heights ({crs.name}) but no geoid grid for them")
-        return WorldFrame.map(_crs_spec(h), geoid)
+        return WorldFrame.map(crs_spec(h), geoid)
     if kind is None and len(crs.axis_info) < 3:
         log.warning("%s: the file states no vertical reference; heights taken as ellipsoidal", crs.name)
-    return WorldFrame.map(_crs_spec(h))
-
-
-@lru_cache(maxsize=64)
-def _grid_of_vertical(code: int) -> str | None:
-    con = sqlite3.connect(f"file:{_proj_db()}?mode=ro", uri=True)
-    try:
-        row = con.execute(
-            "SELECT coalesce(a.proj_grid_name, g.grid_name) FROM grid_transformation g LEFT JOIN grid_alternatives a "
-            "ON a.original_grid_name=g.grid_name WHERE g.target_crs_auth_name='EPSG' AND g.target_crs_code=? "
-            "AND g.deprecated=0 ORDER BY g.code", (str(code),)).fetchone()
-        return None if row is None else row[0]
-    finally:
-        con.close()
+    return WorldFrame.map(crs_spec(h))
 
 
 def project_frame(crs: Any, geoid: str | None = None) -> WorldFrame:
@@ -206,9 +182,9 @@ def project_frame(crs: Any, geoid: str | None = None) -> WorldFrame:
         raise CRSError(f"{c.name}: outputs need a map CRS (projected or geographic), not a geocentric one")
     if c.is_compound:
         return frame_from_file_crs(c, geoid, "orthometric")
-    spec = str(crs) if not isinstance(crs, pyproj.CRS) else _crs_spec(c)
+    spec = str(crs) if not isinstance(crs, pyproj.CRS) else crs_spec(c)
     if len(c.axis_info) == 3:
-        spec = _crs_spec(c.to_2d())
+        spec = crs_spec(c.to_2d())
     return WorldFrame.map(spec, geoid)
 
 

@@ -28,15 +28,23 @@ def read_text(path: PathLike) -> str:
     """
     p = Path(path)
     try:
-        return p.read_text(encoding="utf-8-sig")
+        data = p.read_bytes()
     except FileNotFoundError:
         raise InputFormatError("file not found", p) from None
     except IsADirectoryError:
         raise InputFormatError("is a folder, not a file", p) from None
     except PermissionError:
         raise InputFormatError("cannot be read (permission denied)", p) from None
+    try:
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise InputFormatError(f"not a UTF-8 text file ({exc.reason})", p) from None
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputFormatError(f"not a UTF-8 text file ({exc.reason}, byte {data[exc.start:exc.start + 1]!r})", p,
+                               line) from None
+    nul = text.find("\x00")
+    if nul >= 0:  # a name or number with a NUL in it would be read as another one: a damaged (or binary) file
+        raise InputFormatError("NUL byte: a damaged or binary file, not text", p, text.count("\n", 0, nul) + 1)
+    return text.replace("\r\n", "\n").replace("\r", "\n")
 
 
 def parse_float(text: str, path: PathLike, line: int, field: str) -> float:

@@ -61,6 +61,9 @@ def read_events_csv(path: PathLike) -> CameraEvents:
         For actuator angles beyond one full turn in the declared unit.
     """
     hdr = _split_file(path, "skyrig-events", _KEYS)
+    if not hdr.data:
+        raise InputFormatError("no rows after the column header: an events file needs at least one event", path,
+                               hdr.header_line, None)
     tsys = _time_system(path, hdr)
     required = ["image", "time", "head"] + (["week"] if tsys == "gps-week-sow" else [])
     _check_columns(path, hdr, required, [], optional=("beta", "exposure"))

@@ -241,6 +241,43 @@ def read_image_metadata(path: PathLike) -> ImageMetadata:
     )
 
 
+def check_image_complete(path: PathLike) -> None:
+    """Refuse a truncated or damaged JPEG by name (OpenCV decodes one with a warning that names no file and grey
+    rows where the data ends).  A JPEG that does not end with its end-of-image marker (trailing zeros allowed) is
+    decoded once to be sure: data appended after the image (motion photos) is accepted.  Other formats: nothing.
+
+    Raises
+    ------
+    InputFormatError
+        Naming the file.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in (".jpg", ".jpeg"):
+        return
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(3)
+            fh.seek(0, 2)
+            size = fh.tell()
+            fh.seek(max(0, size - 4096))
+            tail = fh.read()
+    except OSError as exc:
+        raise InputFormatError(f"cannot read the image ({exc.strerror or exc})", p) from None
+    if head[:2] != b"\xff\xd8":
+        raise InputFormatError("not a JPEG file (no start-of-image marker), or a truncated one", p)
+    if tail.rstrip(b"\x00").endswith(b"\xff\xd9"):
+        return
+    from PIL import Image, ImageFile
+
+    if getattr(ImageFile, "LOAD_TRUNCATED_IMAGES", False):
+        raise InputFormatError(f"truncated JPEG: {size} bytes without an end-of-image marker", p)
+    try:
+        with Image.open(p) as im:
+            im.load()
+    except Exception as exc:  # PIL: OSError "image file is truncated", SyntaxError, ...
+        raise InputFormatError(f"truncated or damaged JPEG ({exc})", p) from None
+
+
 def read_image(path: PathLike, gray: bool = True, max_size: int | None = None) -> NDArray:
     """Read pixels of a JPEG / TIFF / PNG image, keeping 8 or 16 bit depth.
 
@@ -262,6 +299,7 @@ def read_image(path: PathLike, gray: bool = True, max_size: int | None = None) -
     p = Path(path)
     if not p.is_file():
         raise InputFormatError("image file not found", p)
+    check_image_complete(p)
     flags = cv2.IMREAD_ANYDEPTH | (cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
     img = cv2.imread(str(p), flags)
     if img is None:

@@ -9,7 +9,9 @@ header names.  The readers call these checks after parsing; each either
   of use when swapped, a lever arm of 100 m), or
 * warns in words (:class:`~skyrig.errors.PlausibilityWarning`, shown by the CLI as ``warning: ...``) when the
   values are unusual but possible (positions outside the area of use PROJ states for the CRS, a lever arm of
-  more than 10 m).
+  more than 10 m).  A ground point more than :data:`AREA_REFUSE_DEG` outside the CRS's area of use is refused
+  (projection centres and trajectories when all of them are), with or without a side-car (the CRS named, with its
+  area and where the position would be; a row with x and y swapped said so).
 
 Limits (metres): ground points between :data:`GROUND_MIN_M` and :data:`GROUND_MAX_M` (the Dead Sea shore and
 Everest with the geoid's range added), projection centres up to :data:`CAMERA_MAX_M` (a refused value gives
@@ -44,6 +46,9 @@ LEVER_ARM_MAX_M = 50.0
 LEVER_ARM_WARN_M = 10.0
 #: Margin (deg) around a CRS's area of use within which positions pass without a warning.
 AREA_MARGIN_DEG = 2.0
+#: Distance (deg) outside a CRS's area of use beyond which a position is refused (a CRS for another region: UTM
+#: coordinates declared Lambert-93 land 6 deg south of France, 1,400 km from its centre; a row with x/y swapped).
+AREA_REFUSE_DEG = 5.0
 #: Earth radius window for ECEF positions (m): the centre of the Earth to 50 km above it.
 _ECEF_RANGE_M = (6_300_000.0, 6_450_000.0)
 _SAMPLE = 2000  # positions looked at for the area of use (evenly spread over a long file)
@@ -178,12 +183,31 @@ def check_coordinates(xyz: ArrayLike, frame: WorldFrame, path: PathLike, lines: 
             raise InputFormatError(
                 f"({p[k, 0]:.10g}, {p[k, 1]:.10g}) lies outside the area of use of {where}, and inside it with "
                 f"{axes} swapped: are the columns {fields[0]} and {fields[1]} exchanged?", path, _line(lines, k), fields[0])
+    ll0 = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
+        f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
+    far = ~_inside(lon, lat, box, AREA_REFUSE_DEG)
+    # ground points: any one far away is wrong (a row with x/y swapped); projection centres and trajectories may
+    # include a transit from a distant airfield: refused only when every position is far away
+    if far.all() or (what == "ground" and far.any()):
+        j = int(np.flatnonzero(far)[0])
+        f = int(idx[j])
+        llf = "no valid longitude/latitude" if not np.isfinite(lon[j]) else \
+            f"longitude {lon[j]:.4f}, latitude {lat[j]:.4f} deg"
+        if far.all():
+            why = "every position lies"
+            hint = "the coordinates are in another CRS than the one stated"
+        else:
+            why = f"{int(far.sum()) * step} of {len(p)} positions lie"
+            slon, slat = _lonlat(frame, p[f:f + 1][:, [1, 0]])
+            hint = (f"{fields[0]} and {fields[1]} swapped on this line?" if _inside(slon, slat, box, AREA_MARGIN_DEG)[0]
+                    else "a position far from the others")
+        raise InputFormatError(
+            f"({p[f, 0]:.10g}, {p[f, 1]:.10g}) is {llf} in {where}: {why} more than {AREA_REFUSE_DEG:g} deg "
+            f"outside that CRS's area of use; {hint}", path, _line(lines, f), fields[0])
     n_out = int((~ok).sum()) * step
     at = "" if lines is None else f" (first on line {_line(lines, k)})"
     pos = "position" if n_out == 1 else f"about {n_out} positions" if step > 1 else f"{n_out} positions"
-    ll = "no valid longitude/latitude" if not np.isfinite(lon[~ok][0]) else \
-        f"longitude {lon[~ok][0]:.4f}, latitude {lat[~ok][0]:.4f} deg"
-    warn(f"{path}: {pos} outside the area of use of {where}{at}: {ll}; is the CRS right?")
+    warn(f"{path}: {pos} outside the area of use of {where}{at}: {ll0}; is the CRS right?")
 
 
 def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, field: str, lenient: bool = False) -> None:
@@ -209,19 +233,29 @@ def _check_heights(z: NDArray[np.float64], path: PathLike, lines, what: str, fie
                            path, _line(lines, k), field)
 
 
-def check_lever_arm(vector_m: ArrayLike, path: PathLike, line: int | None, field: str) -> None:
-    """Refuse a lever arm longer than :data:`LEVER_ARM_MAX_M`, warn above :data:`LEVER_ARM_WARN_M`."""
+def lever_arm_problem(vector_m: ArrayLike) -> tuple[str, str] | None:
+    """``("refuse" | "warn", words)`` for a lever arm longer than :data:`LEVER_ARM_MAX_M` (with the unit it would
+    fit: millimetres, centimetres) or :data:`LEVER_ARM_WARN_M`; None for a plausible one."""
     v = np.asarray(vector_m, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if n > LEVER_ARM_MAX_M:
         fits = [f"{unit} ({n / f:.3f} m)" for unit, f in (("millimetres", 1000.0), ("centimetres", 100.0))
                 if n / f <= LEVER_ARM_MAX_M]
         hint = f"; {' or '.join(fits)}?" if fits else ""
-        raise InputFormatError(f"lever arm of {n:.6g} m is not plausible on an aircraft (at most "
-                               f"{LEVER_ARM_MAX_M:g} m){hint}", path, line, field)
+        return "refuse", f"lever arm of {n:.6g} m is not plausible on an aircraft (at most {LEVER_ARM_MAX_M:g} m){hint}"
     if n > LEVER_ARM_WARN_M:
-        where = f"{path}" + (f", line {line}" if line else "") + f", field '{field}'"
-        warn(f"{where}: lever arm of {n:.6g} m is unusually long (more than {LEVER_ARM_WARN_M:g} m); metres meant?")
+        return "warn", f"lever arm of {n:.6g} m is unusually long (more than {LEVER_ARM_WARN_M:g} m); metres meant?"
+    return None
+
+
+def check_lever_arm(vector_m: ArrayLike, path: PathLike, line: int | None, field: str) -> None:
+    """Refuse a lever arm longer than :data:`LEVER_ARM_MAX_M`, warn above :data:`LEVER_ARM_WARN_M`."""
+    problem = lever_arm_problem(vector_m)
+    if problem is None:
+        return
+    if problem[0] == "refuse":
+        raise InputFormatError(problem[1], path, line, field)
+    warn(f"{path}" + (f", line {line}" if line else "") + f", field '{field}': {problem[1]}")
 
 
 def _crs_equal(a: str, b: str) -> bool:

@@ -26,6 +26,14 @@ POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz
                 "given_z", "vx", "vy", "vz"]
 
 
+def _header_line(path: PathLike) -> int:
+    """The line number of a table's column header (the first line that is neither blank nor a comment)."""
+    for k, line in enumerate(read_text(path).splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            return k
+    return 1
+
+
 def _table(path: PathLike, required: list[str], optional: list[str] = ()) -> tuple[dict, list[int], dict[str, list[str]]]:
     with no_cyclic_gc():
         return _table_body(path, required, optional)
@@ -138,6 +146,9 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     use = stated or frame or default_frame
     if use is None:
         raise InputFormatError("no '# crs:' header line, no side-car with the frame and no CRS given", path, 1, "crs")
+    if not ln:
+        raise InputFormatError("no rows after the column header: a points file needs at least one point", path,
+                               _header_line(path), None)
     xyz = np.stack([float_column(cols[c], path, ln, c) for c in "xyz"], axis=1).reshape(-1, 3)
     seen: dict[str, int] = {}
     for n, line in zip(cols["name"], ln):

@@ -58,6 +58,28 @@ class _Seq(list):  # type: ignore[type-arg]
     line: int = 0
 
 
+def load_yaml_lines(text: str, path: str | os.PathLike[str]) -> Any:
+    """The YAML document of ``text`` with line numbers on its mappings (:class:`_LineLoader`); any YAML error
+    (a syntax error, a control character such as NUL) as :class:`InputFormatError` naming ``path`` and the line."""
+    loader = None
+    try:
+        loader = _LineLoader(text)  # the reader refuses control characters here already
+        loader._path = os.fspath(path)  # type: ignore[attr-defined]
+        return loader.get_single_data()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = None if mark is None else mark.line + 1
+        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", path, line) from None
+    except yaml.reader.ReaderError as exc:
+        line = text[: max(0, int(exc.position))].count("\n") + 1
+        raise InputFormatError(f"not valid YAML: character {exc.character!r} is not allowed", path, line) from None
+    except yaml.YAMLError as exc:
+        raise InputFormatError(f"not valid YAML: {exc}", path) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
 class _LineLoader(yaml.SafeLoader):
     pass
 
@@ -459,18 +481,7 @@ def read_calibrated_rig(path: str | os.PathLike[str]) -> tuple[Rig, RigCalibrati
     p = os.fspath(path)
     ctx = _Ctx(p)
     text = read_text(p)
-    loader = _LineLoader(text)
-    loader._path = p  # type: ignore[attr-defined]
-    try:
-        doc = loader.get_single_data()
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        line = None if mark is None else mark.line + 1
-        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", p, line) from None
-    except yaml.YAMLError as exc:
-        raise InputFormatError(f"not valid YAML: {exc}", p) from None
-    finally:
-        loader.dispose()
+    doc = load_yaml_lines(text, p)
     if not isinstance(doc, _Map):
         raise InputFormatError("a rig file is a YAML mapping", p, 1)
     for key in ("format", "version"):

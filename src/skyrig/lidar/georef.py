@@ -64,6 +64,7 @@ __all__ = [
     "georeference_scan",
     "invert_points",
     "rotation_from_angles",
+    "scan_angle_from_nadir_deg",
     "with_barometric_height",
     "with_yaw_correction",
 ]
@@ -433,7 +434,8 @@ class GeoreferencedPoints:
     intensity
         ``(N,)`` or None.
     scan_angle_deg
-        ``(N,)`` the pulse's angle in the scan plane (alpha) in degrees, for LAS.
+        ``(N,)`` LAS's scan angle in degrees: the beam's angle from nadir (roll included), positive to the right
+        of the aircraft; not the scanner's alpha.
     """
 
     xyz: NDArray[np.float64]
@@ -493,14 +495,33 @@ def georeference_scan(
     geo._locate(scan.time_s)  # fail before any work, naming the first bad pulse
     n = len(scan)
     xyz = np.empty((n, 3))
+    nadir = np.empty(n)
     for a in range(0, n, block):
         sl = slice(a, a + block)
         sub = scan.subset(sl)
         e = geo.ecef(sub.time_s, sub.sensor_xyz())
         xyz[sl] = frame.from_ecef(e) if frame.kind != "ecef" else e
+        nadir[sl] = scan_angle_from_nadir_deg(geo, mount, sub.time_s, e)
         if progress is not None:
             progress(min(a + block, n), n)
-    return GeoreferencedPoints(xyz, scan.time_s.copy(), frame, scan.intensity, np.degrees(scan.alpha_rad))
+    return GeoreferencedPoints(xyz, scan.time_s.copy(), frame, scan.intensity, nadir)
+
+
+def scan_angle_from_nadir_deg(geo: PulseGeoreferencer, mount: ScannerMount, time_s: NDArray[np.float64],
+                               ecef: NDArray[np.float64]) -> NDArray[np.float64]:
+    """LAS's scan angle of pulses (degrees): the beam's angle from nadir, roll included, positive to the right of
+    the aircraft (its body y axis made horizontal), 0 for a pulse without length."""
+    from skyrig.geodesy.crs import ecef_to_geodetic
+
+    p, R = geo.poses(time_s)
+    emitter = p + np.einsum("nij,j->ni", R, mount.lever_arm_m)
+    d = ecef - emitter
+    lat, lon, _ = ecef_to_geodetic(emitter)
+    la, lo = np.radians(lat), np.radians(lon)
+    up = np.column_stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+    right = R[:, :, 1] - np.einsum("ni,ni->n", R[:, :, 1], up)[:, None] * up
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    return np.degrees(np.arctan2(np.einsum("ni,ni->n", d, right), -np.einsum("ni,ni->n", d, up)))
 
 
 def invert_points(

@@ -107,17 +107,19 @@ def to_uint8(image: NDArray) -> NDArray[np.uint8]:
     return np.clip((f - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
 
 
-def downscale(image: NDArray, max_size: int | None) -> tuple[NDArray, float]:
-    """Downscale so that the longer side is at most ``max_size``; returns (image, factor full/level >= 1)."""
+def downscale(image: NDArray, max_size: int | None) -> tuple[NDArray, NDArray[np.float64]]:
+    """Downscale so that the longer side is at most ``max_size``; returns (image, factors full/level >= 1 per
+    axis ``[columns, rows]``: the two sides are rounded to whole pixels separately, so a 3000 x 2000 image becomes
+    1600 x 1067 with factors 1.875 and 1.8744)."""
     import cv2
 
     h, w = image.shape[:2]
     if max_size is None or max(h, w) <= max_size:
-        return image, 1.0
+        return image, np.ones(2)
     s = max(h, w) / max_size
     size = (max(1, round(w / s)), max(1, round(h / s)))
     out = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    return out, w / size[0]
+    return out, np.array([w / size[0], h / size[1]])
 
 
 def pyramid(image: NDArray, levels: int) -> list[NDArray]:
@@ -265,8 +267,9 @@ def extract_features(
         else:
             from dataclasses import replace as _replace
 
-            rect = _replace(full, gsd_m=full.gsd_m * s,
-                            size=(int(np.ceil(full.size[0] / s)), int(np.ceil(full.size[1] / s))))
+            sm = float(np.sqrt(s[0] * s[1]))  # the rectified grid's own scale: one factor
+            rect = _replace(full, gsd_m=full.gsd_m * sm,
+                            size=(int(np.ceil(full.size[0] / sm)), int(np.ceil(full.size[1] / sm))))
     if rect is not None:
         import cv2
 
@@ -282,8 +285,8 @@ def extract_features(
         xy_full, size_full, ang, resp, desc = xy_full[fin], size_full[fin], ang[fin], resp[fin], desc[fin]
     else:
         xy, size, ang, resp, desc, pre_normalised = _detect(level, config)
-        xy_full = (xy + 0.5) * s - 0.5
-        size_full = size * s
+        xy_full = (xy + 0.5) * s - 0.5  # per axis
+        size_full = size * float(np.sqrt(s[0] * s[1]))
     order = np.argsort(-resp, kind="stable")[: config.max_features]
     xy_full, size_full, ang, desc = xy_full[order], size_full[order], ang[order], desc[order]
     if pre_normalised:

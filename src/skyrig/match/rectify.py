@@ -138,14 +138,15 @@ def ground_rectification(
 
 def rectify_image(
     image: NDArray, camera: FrameCamera, world_from_camera: Pose, rect: GroundRectification,
-    level_scale: float = 1.0,
+    level_scale: float | NDArray[np.float64] = 1.0,
 ) -> tuple[NDArray, NDArray[np.uint8]]:
     """Warp an image (or a pyramid level of it) onto the rectified grid (bilinear).
 
     Parameters
     ----------
     image
-        ``(h, w)`` grey image: the full-resolution image downscaled by ``level_scale`` (full / level >= 1).
+        ``(h, w)`` grey image: the full-resolution image downscaled by ``level_scale`` (full / level >= 1; one
+        factor or ``[columns, rows]``).
     rect
         The grid (:func:`ground_rectification` of the full-resolution camera).
 
@@ -161,7 +162,7 @@ def rectify_image(
     W, H = rect.size
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     px = camera.world_to_pixel(world_from_camera, rect.ground(np.column_stack([u.ravel(), v.ravel()])))
-    lv = (px + 0.5) / level_scale - 0.5
+    lv = (px + 0.5) / np.asarray(level_scale, dtype=np.float64) - 0.5
     h, w = image.shape[:2]
     with np.errstate(invalid="ignore"):
         inside = (np.all(np.isfinite(lv), axis=1) & (lv[:, 0] >= 2) & (lv[:, 1] >= 2) & (lv[:, 0] <= w - 3)

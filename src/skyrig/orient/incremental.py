@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
+from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
 from skyrig.orient.gnss_block import UavResult, _usable_obs
@@ -513,8 +514,11 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     t_start = time.perf_counter()
     datum = _resolve_datum(inp, cfg)
     n, T = len(inp.names), len(inp.track_name)
-    camera = inp.camera if isinstance(inp.camera.distortion, OpenCVDistortion) else inp.camera.with_(
-        distortion=OpenCVDistortion())
+    # the given camera's own distortion model is kept (a calibrated Brown camera stays Brown); a camera without one
+    # gets OpenCV's, the one the self-calibration names refer to.  The start (essential matrix, resection) leaves out
+    # a non-OpenCV distortion (triangulation._k_matrix); every adjustment uses the full model.
+    camera = inp.camera.with_(distortion=OpenCVDistortion()) if isinstance(inp.camera.distortion, NoDistortion) \
+        else inp.camera
     nominal = camera  # the centre of the self-calibration's priors in the final adjustment
     check: dict[str, dict[str, Any]] = {str(nm): {"metadata": "no position or attitude used (orientation without "
                                                   "GNSS)"} for nm in inp.names}
@@ -542,7 +546,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     # length can be off by a third: lund's phone 995 px in the EXIF, about 730 px by skyrig and pycolmap alike),
     # so that resection and triangulation work with a camera close to the true one
     f0 = inp.camera.focal_mm
-    grow_cal = tuple(nm for nm in ("focal_mm", "k1") if nm in cfg.self_calibration)
+    grow_cal = tuple(nm for nm in ("focal_mm", "k1") if nm in cfg.self_calibration and nm in camera.intrinsic_names)
     f_rel = next(x for x in (cfg.focal_prior_rel, inp.focal_prior_rel, 0.1) if x is not None)
     grow_sig = {"focal_mm": f_rel * f0, "k1": 1.0}
 
@@ -761,6 +765,7 @@ def _summary(inp: OrientInput, res: AdjustmentResult, oriented: NDArray, camera:
         "reprojection_rms_xy_px": np.sqrt(np.mean(v ** 2, axis=0)).tolist() if len(v) else [],
         "sigma0": res.sigma0,
         "camera": dict(zip(camera.intrinsic_names, np.asarray(camera.intrinsics).tolist())),
+        "distortion_model": camera.distortion.name, "self_calibrated": list(res.config.intrinsic_names or ()) if res.config.intrinsics != "fixed" else [],
         "focal_px": camera.focal_mm / camera.pixel_size_mm,
         "focal_px_exif": inp.camera.focal_mm / inp.camera.pixel_size_mm,
         "growth_rounds": rounds, "wall_s": wall_s, "notes": list(inp.notes),

@@ -290,6 +290,9 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
     from skyrig.io.stage import describe_inputs, stage_folder
     from skyrig.pipeline.executor import Executor
 
+    from skyrig.pipeline.inputs import require_cameras
+
+    require_cameras(eo, cameras)
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera],
                         window_min_pixels=window_min_pixels)
     plan = plan_dense(eo, cameras, out_frame, height_range, area, config)

@@ -288,6 +288,9 @@ def run_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], im
     if ridge_field and not eave_field:
         raise SkyrigError("a ridge height field needs an eave height field too (option: eave_field)")
     given: list[BuildingBlock] = []
+    from skyrig.pipeline.inputs import require_cameras
+
+    require_cameras(eo, cameras)
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     if footprints is not None:
         fl = read_footprint_layer(footprints, grid.frame, footprint_layer,

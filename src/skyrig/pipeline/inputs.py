@@ -9,7 +9,7 @@ The CLI (:mod:`skyrig.cli`) and the project runner (:mod:`skyrig.pipeline.run`) 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from os import PathLike
 
 import numpy as np
@@ -46,6 +46,19 @@ def load_cameras(paths: Sequence[str | PathLike[str]], option: str = "--camera")
     if not out:
         raise OptionError(option, "no camera given")
     return out
+
+
+def require_cameras(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera] | None,
+                    option: str = "camera") -> None:
+    """Refuse orientations whose camera names ``cameras`` lacks (a rig head missing for an EO camera), naming the
+    first image, the cameras missing and those given, before any camera is looked up."""
+    have = cameras or {}
+    missing = [i for i, c in enumerate(eo.camera) if str(c) not in have]
+    if missing:
+        names = sorted({str(eo.camera[i]) for i in missing})
+        raise OptionError(option, f"image {str(eo.image[missing[0]])!r}: no camera {', '.join(map(repr, names))} "
+                                  f"among those given ({', '.join(sorted(have)) or 'none'}; {len(missing)} image(s) "
+                                  "without a camera)")
 
 
 def head_rows(eo: ExteriorOrientations, spec: str | Sequence[str]) -> tuple[list[str], list[np.ndarray]]:

@@ -207,6 +207,9 @@ def _approximate_orientations(
         eo = eo.subset(np.array([idx[n] for n in names]))
         if cameras is None:
             raise InputFormatError("orientations given without cameras", field="camera")
+        from skyrig.pipeline.inputs import require_cameras
+
+        require_cameras(eo, cameras)
         cams = [cameras[str(c)] for c in eo.camera]
         # no terrain height: fine for exhaustive pairs (the orientations still guide the matching); guided pairs
         # and the rectification of obliques need one (match_images says so when they are asked for)

@@ -110,6 +110,55 @@ class BlockOutcome:
                 "imu": len(b.imu_station), "left_out": sum(self.dropped.values())}
 
 
+def check_control_measurements(loaded: Sequence[tuple[str, Any, Any]], eo: Any, cameras: Mapping[str, Any],
+                               ctrl: Any) -> None:
+    """Image measurements of control / check points against where the start orientations put the points: a
+    measurement more than a fifth of the image off that fits within 2 % once column and row are exchanged is
+    refused (column and row swapped), naming file and line; one more than half an image off is a warning.
+
+    ``loaded``: ``(path, ImageMeasurements, lines)`` per measurement file; ``eo``: the start orientations (GNSS/IMU
+    or the EO file); ``cameras`` by the EO's camera names; ``ctrl``: the control and check points.
+    """
+    import warnings
+
+    from skyrig.errors import PlausibilityWarning
+    from skyrig.georef.ground import world_to_image
+
+    known = {str(n): k for k, n in enumerate(ctrl.name)}
+    index = eo.index()
+    for path, x, lines in loaded:
+        sel = np.flatnonzero([str(p) in known and str(i) in index and str(eo.camera[index[str(i)]]) in cameras
+                              for p, i in zip(x.point, x.image)])
+        if not len(sel):
+            continue
+        xyz = ctrl.xyz[[known[str(p)] for p in x.point[sel]]]
+        with np.errstate(invalid="ignore"):
+            pred = world_to_image(eo, cameras, x.image[sel], xyz, ctrl.frame)
+        size = np.array([max(cameras[str(eo.camera[index[str(i)]])].width,
+                             cameras[str(eo.camera[index[str(i)]])].height) for i in x.image[sel]], float)
+        meas = np.asarray(x.pixel, float)[sel]
+        d = np.linalg.norm(meas - pred, axis=1)
+        ds = np.linalg.norm(meas[:, ::-1] - pred, axis=1)
+        swapped = np.flatnonzero((d > 0.2 * size) & (ds < 0.02 * size))
+        if len(swapped):
+            j = int(swapped[0])
+            k = int(sel[j])
+            more = f" ({len(swapped)} such measurements)" if len(swapped) > 1 else ""
+            raise InputFormatError(
+                f"point {str(x.point[k])!r} in image {str(x.image[k])!r} is measured at ({meas[j, 0]:.1f}, "
+                f"{meas[j, 1]:.1f}), {d[j]:.0f} px from where the orientation puts it ({pred[j, 0]:.1f}, "
+                f"{pred[j, 1]:.1f}) and {ds[j]:.0f} px with column and row exchanged: column and row swapped?{more}",
+                path, int(lines[k]), "column")
+        far = np.flatnonzero(d > 0.5 * size)
+        if len(far):
+            j = int(far[0])
+            k = int(sel[j])
+            warnings.warn(f"{path}, line {int(lines[k])}: point {str(x.point[k])!r} in image {str(x.image[k])!r} is "
+                          f"measured {d[j]:.0f} px from where the start orientation puts it (more than half the image; "
+                          f"{len(far)} such measurement(s)); the wrong point, image or orientation?",
+                          PlausibilityWarning, stacklevel=2)
+
+
 def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: PathArg | None = None,
                reference: str | None = None, events: PathArg | None = None, rig: PathArg | None = None,
                eo: PathArg | None = None, eo_format: str | None = None, eo_crs: str | None = None,
@@ -218,17 +267,24 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     imu_s = None if start_values_only else imu
     if rig_mode:
         from skyrig.adjust.rig_block import block_from_trajectory
+        from skyrig.georef.direct import direct_georeference
         from skyrig.io.rig_file import read_rig
 
-        block, frame = block_from_trajectory(load_trajectory(trajectory, reference, spell("reference")),  # type: ignore[arg-type]
-                                             read_rig(rig), ev, m, ctrl, gnss_sigma_m=gnss,  # type: ignore[arg-type]
+        traj_, rig_ = load_trajectory(trajectory, reference, spell("reference")), read_rig(rig)  # type: ignore[arg-type]
+        if ctrl is not None:
+            check_control_measurements(loaded, direct_georeference(traj_, rig_, ev, ctrl.frame),  # type: ignore[arg-type]
+                                       {h.camera.name: h.camera for h in rig_.heads.values()}, ctrl)
+        block, frame = block_from_trajectory(traj_, rig_, ev, m, ctrl, gnss_sigma_m=gnss,  # type: ignore[arg-type]
                                              imu_sigma_rad=imu_s, control_sigma_m=cs, check_points=checks,
                                              sigma_px=sigma_px)
         exposure = {str(n): int(e) for n, e in zip(ev.image_name, ev.exposure_id)}  # type: ignore[union-attr]
     else:
         from skyrig.adjust.frames import block_from_georef
 
-        block, frame = block_from_georef(eo_, load_cameras(list(cameras), spell("camera")), m, ctrl,
+        cams_ = load_cameras(list(cameras), spell("camera"))
+        if ctrl is not None:
+            check_control_measurements(loaded, eo_, cams_, ctrl)  # type: ignore[arg-type]
+        block, frame = block_from_georef(eo_, cams_, m, ctrl,
                                          gnss_sigma_m=gnss, imu_sigma_rad=imu_s, control_sigma_m=cs,
                                          check_points=checks, sigma_px=sigma_px)
         exposure = None

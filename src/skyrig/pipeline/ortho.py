@@ -47,9 +47,14 @@ def load_dsm_for(path: str | Path, crs: str | None = None) -> DsmGrid:
         raise InputFormatError(f"cannot read the DSM ({exc})", path, field="dsm") from None
     if dsm.frame.kind != "map":
         raise InputFormatError("the DSM has no map CRS: the orthophoto cannot be placed", path, field="dsm")
+    from skyrig.geodesy.crs import check_metric_projected, resolve_crs
+
     if crs is None:
+        try:
+            check_metric_projected(dsm.frame.crs, "an orthomosaic (its DSM); give --crs to reproject it")
+        except SkyrigError as exc:
+            raise InputFormatError(str(exc), path, field="dsm") from None
         return dsm
-    from skyrig.geodesy.crs import resolve_crs
 
     src, dst = resolve_crs(dsm.frame.crs), resolve_crs(crs)
     if src.equals(dst, ignore_axis_order=True) or (src.to_2d().equals(dst.to_2d(), ignore_axis_order=True)):
@@ -65,9 +70,10 @@ def reproject_dsm(dsm: DsmGrid, crs: str) -> DsmGrid:
     from affine import Affine
     from rasterio.crs import CRS as RioCRS
 
-    from skyrig.geodesy.crs import resolve_crs
+    from skyrig.geodesy.crs import check_metric_projected, resolve_crs
     from skyrig.geodesy.statement import file_crs
 
+    check_metric_projected(crs, "an orthomosaic (--crs)")
     src_crs = RioCRS.from_wkt(file_crs(dsm.frame).horizontal.to_wkt())
     dst_crs = RioCRS.from_wkt(resolve_crs(crs).to_2d().to_wkt())
     rows, cols = dsm.grid.shape
@@ -170,6 +176,9 @@ def run_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], imag
     from skyrig.io.stage import describe_inputs, stage_folder
     from skyrig.pipeline.executor import Executor
 
+    from skyrig.pipeline.inputs import require_cameras
+
+    require_cameras(eo, cameras)  # before any camera is looked up (plan_ortho says it too, for library callers)
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     kind = executor
     if kind == "auto":

@@ -325,10 +325,9 @@ def make_plane_mosaic(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamer
     local, pl = plane_in_local_frame(eo, height, plane, spell)
     eo_local = eo.to_frame(local)
     paths = find_images(eo, [str(p) for p in images])
-    for k, c in enumerate(eo.camera):
-        if str(c) not in cameras:
-            raise OptionError(spell("camera"), f"image {str(eo.image[k])!r}: no camera {str(c)!r} among "
-                                               f"{', '.join(sorted(cameras))}")
+    from skyrig.pipeline.inputs import require_cameras
+
+    require_cameras(eo, cameras, spell("camera"))
     loader = ImageFiles(paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera])
     index = {str(n): k for k, n in enumerate(eo.image)}
     m = plane_mosaic(lambda name: loader(index[name]), eo_local, cameras, pl, cell_m=resolution, max_cells=max_cells)

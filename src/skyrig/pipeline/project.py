@@ -44,10 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-import yaml
-
-from skyrig.errors import InputFormatError
-from skyrig.io.rig_file import _LineLoader, _Map
+from skyrig.errors import InputFormatError, OptionError, SkyrigError
+from skyrig.io.rig_file import _Map, load_yaml_lines
 
 from skyrig.pipeline.spec import ExecutorSpec, Option, Project, StageSpec
 
@@ -100,18 +98,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
 
         registry = STAGES
     path = Path(path).absolute()
-    loader = _LineLoader(text)
-    loader._path = str(path)  # type: ignore[attr-defined]
-    try:
-        doc = loader.get_single_data()
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        raise InputFormatError(f"not valid YAML: {exc.problem or exc}", path,
-                               None if mark is None else mark.line + 1) from None
-    except yaml.YAMLError as exc:
-        raise InputFormatError(f"not valid YAML: {exc}", path) from None
-    finally:
-        loader.dispose()
+    doc = load_yaml_lines(text, path)
     lines: dict[str, int] = {}
 
     def err(message: str, m: _Map | None, key_path: str, key: str | None = None) -> InputFormatError:
@@ -182,15 +169,20 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     if top.get("version") != 1:
         raise err(f"version {top.get('version')!r} is not supported (this skyrig reads version 1)", top, "version",
                   "version")
-    crs = text_of(top, "crs", "crs", nullable=False)
+    crs = text_of(top, "crs", "crs")  # null: an orientation without GNSS in its model frame (checked with the stages)
     geoid = text_of(top, "geoid", "geoid")
-    try:
-        from skyrig.geodesy.frame import WorldFrame
+    if crs is not None:
+        try:
+            from skyrig.geodesy.crs import check_metric_projected
+            from skyrig.geodesy.frame import WorldFrame
 
-        WorldFrame.map(crs, geoid)  # type: ignore[arg-type]
-    except Exception as exc:  # CRSError, pyproj errors: the reason in words
-        raise err(f"not a usable CRS / geoid: {exc}", top, "geoid" if geoid and "geoid" in str(exc).lower() else "crs",
-                  "geoid" if geoid and "geoid" in str(exc).lower() else "crs") from None
+            frame = WorldFrame.map(crs, geoid)
+            check_metric_projected(frame.crs, "the project's output CRS")
+            if frame.geoid:
+                frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
+        except Exception as exc:  # CRSError, pyproj errors: the reason in words
+            key = "geoid" if geoid and "geoid" in str(exc).lower() else "crs"
+            raise err(f"not a usable CRS / geoid: {exc}", top, key, key) from None
     name = text_of(top, "name", "name") or path.parent.name
     out_txt = text_of(top, "output", "output") or "output"
     output = Path(out_txt).expanduser()
@@ -242,6 +234,9 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         for kind_ in stage.provides:
             provided[kind_] = sname
         stages.append(StageSpec(sname, opts, st.key_lines.get(sname)))
+        if crs is None and not (sname == "match" or (sname == "adjust-uav" and opts.get("no_gps"))):
+            raise err(f"crs: null (no output CRS) is for an orientation without GNSS in its model frame; stage "
+                      f"{sname!r} needs an output CRS: give one", top, "crs", "crs")
     project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
                       lines, files["scale_bars"], files["ties"])
@@ -287,6 +282,30 @@ def _first_line(p: Path) -> str:
             return fh.readline().strip()
     except OSError:
         return ""
+
+
+def _column_row(p: Path) -> str:
+    """The first line of a CSV that is neither blank nor a ``#`` comment (its column header)."""
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            for _ in range(40):
+                line = fh.readline()
+                if not line:
+                    break
+                if line.strip() and not line.lstrip().startswith("#"):
+                    return line.strip()
+    except OSError:
+        pass
+    return ""
+
+
+def _looks_like_rig(p: Path) -> bool:
+    """A YAML file that says it is a skyrig rig file, or has a top-level ``heads:`` key."""
+    try:
+        text = p.read_text(encoding="utf-8-sig", errors="replace")[:20000]
+    except OSError:
+        return False
+    return "skyrig-rig" in text or any(line.startswith("heads:") for line in text.splitlines())
 
 
 def _header_crs(p: Path) -> str | None:
@@ -340,35 +359,39 @@ def detect_inputs(folder: str | Path) -> Detected:
     big = [k for k, n in by_dir.items() if n >= 2]
     d.images = sorted(big)
     d.n_images = sum(by_dir[k] for k in big)
+    found: dict[str, list[Path]] = {"trajectory": [], "events": [], "EO file": [], "rig file": []}
     for f in files:
         suf, first = f.suffix.lower(), _first_line(f)
-        if suf in (".out", ".sbet") and d.trajectory is None:
-            d.trajectory = f
-        elif suf == ".csv" and first.startswith("# skyrig-trajectory") and d.trajectory is None:
-            d.trajectory = f
-        elif suf == ".csv" and first.startswith("# skyrig-events") and d.events is None:
-            d.events = f
-        elif suf == ".csv" and first.startswith("# skyrig-eo") and d.eo is None:
-            d.eo = f
-        elif suf in (".yaml", ".yml") and f.name != "project.yaml" and d.rig is None:
-            try:
-                from skyrig.io.rig_file import read_rig
+        if suf in (".out", ".sbet") or (suf == ".csv" and first.startswith("# skyrig-trajectory")):
+            found["trajectory"].append(f)
+        elif suf == ".csv" and first.startswith("# skyrig-events"):
+            found["events"].append(f)
+        elif suf == ".csv" and first.startswith("# skyrig-eo"):
+            found["EO file"].append(f)
+        elif suf in (".yaml", ".yml") and f.name != "project.yaml":
+            from skyrig.io.rig_file import read_rig
 
-                rig = read_rig(f)
-                d.rig = f
-                d.heads = list(rig.heads)
-            except Exception:  # not a rig file: any reader error means "not this"
-                pass
+            if _looks_like_rig(f):  # a rig file that does not read is an error, not "no rig"
+                d.heads = list(read_rig(f).heads) if not found["rig file"] else d.heads
+                found["rig file"].append(f)
         elif suf == ".csv" and f.parent.name != "tie":
-            header = first.lower().replace(" ", "")
+            header = _column_row(f).lower().replace(" ", "")
             if header.startswith("point,image,column,row") or header.startswith("point,image,x,y"):
                 d.measurements.append(f)
-            elif header.startswith("name,x,y,z") or _header_crs(f) and "name" in header:
+            elif header.startswith("name,x,y,z"):
                 low = f.stem.lower()
                 if "check" in low and d.check is None:
                     d.check = f
                 elif any(w in low for w in ("ground", "gcp", "control")) and d.control is None:
                     d.control = f
+    for what, cands in found.items():
+        if len(cands) > 1:
+            raise InputFormatError(f"{len(cands)} {what}s found: {', '.join(str(c.relative_to(root)) for c in cands)};"
+                                   " skyrig init does not choose: leave one in the folder, or write the project file's"
+                                   " inputs by hand", root)
+    first_of = {k: (v[0] if v else None) for k, v in found.items()}
+    d.trajectory, d.events, d.eo, d.rig = (first_of["trajectory"], first_of["events"], first_of["EO file"],
+                                           first_of["rig file"])
     if d.eo is not None and d.trajectory is not None:
         d.notes.append(f"both a trajectory and an EO file ({d.eo.name}): the trajectory is used (rig mode)")
         d.eo = None
@@ -378,31 +401,42 @@ def detect_inputs(folder: str | Path) -> Detected:
             if c:
                 d.crs, d.crs_source = c, f"the {what}'s header"
     pts = None
-    if d.control is not None:
-        try:
-            from skyrig.io.points_csv import read_points_csv
+    if d.control is not None:  # control points that do not read are refused (were left out with a note)
+        from skyrig.io.points_csv import read_points_csv
 
-            pts = read_points_csv(d.control)
-            if d.crs is None and pts.frame.kind == "map":
-                d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
-        except Exception as exc:  # reported, not fatal: init writes what it can
-            d.notes.append(f"control points {d.control.name} not readable ({exc}); left out")
-            d.control = None
+        pts = read_points_csv(d.control)
+        if d.crs is None and pts.frame.kind == "map":
+            d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
     if pts is not None and len(pts):
         import numpy as np
 
         d.terrain_height = round(float(np.median(pts.xyz[:, 2])), 1)
-    if d.images and d.trajectory is None and d.eo is None:
-        try:
-            first = next(f for f in sorted(d.images[0].iterdir()) if f.suffix.lower() in _IMAGE_SUFFIXES)
-            m = read_image_metadata(first)
-            d.exif_gps = bool(m.has_gps)
-            if m.has_gps and d.crs is None:
-                from skyrig.geodesy.statement import utm_frame
+    images = [f for dd in d.images for f in sorted(dd.iterdir()) if f.suffix.lower() in _IMAGE_SUFFIXES]
+    from skyrig.io.image_read import check_image_complete
 
-                d.crs, d.crs_source = str(utm_frame(m.lat_deg, m.lon_deg).crs), "the UTM zone of the images' EXIF GPS"
-        except Exception as exc:
-            d.notes.append(f"no EXIF GPS read from the images ({exc})")
+    for f in images:  # a truncated JPEG decodes with a warning that names no file: refused here, by name
+        check_image_complete(f)
+    if d.images and d.trajectory is None and d.eo is None:
+        metas = []
+        for f in images:
+            try:
+                metas.append(read_image_metadata(f))
+            except Exception as exc:
+                d.notes.append(f"no EXIF read from {f.name} ({exc})")
+        with_gps = [m for m in metas if m.has_gps and m.alt_m is not None]
+        d.exif_gps = bool(with_gps)
+        if with_gps and len(with_gps) < len(metas):
+            names = sorted(m.name for m in metas if not (m.has_gps and m.alt_m is not None))
+            d.notes.append(f"{len(names)} of {len(metas)} images have no EXIF GPS position ({', '.join(names[:10])}"
+                           f"{' ...' if len(names) > 10 else ''}): they are left out of adjust-uav (a warning names each); "
+                           "the other images keep the GNSS-supported block")
+        if with_gps and d.crs is None:
+            from skyrig.geodesy.statement import utm_frame
+
+            m = with_gps[0]
+            d.crs, d.crs_source = str(utm_frame(m.lat_deg, m.lon_deg).crs), "the UTM zone of the images' EXIF GPS"
+        elif not with_gps and metas:
+            d.notes.append("no image has an EXIF GPS position: adjust-uav without GNSS (no_gps)")
     if d.measurements and d.control is None:
         d.notes.append("image measurements found but no control points: left out")
         d.measurements = []
@@ -439,9 +473,21 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
 
         registry = STAGES
     crs = crs or det.crs
-    if not crs:
+    free = (not crs and det.images and not det.exif_gps and det.trajectory is None and det.eo is None
+            and det.control is None)
+    if not crs and not free:
         raise InputFormatError("no output CRS found in the inputs (trajectory / EO header, control points, EXIF "
                                "GPS): give one (option --crs)", det.folder)
+    from skyrig.geodesy.crs import check_metric_projected
+    from skyrig.geodesy.frame import WorldFrame
+
+    try:
+        if crs:
+            WorldFrame.map(crs, geoid)
+            check_metric_projected(crs, "the project's output CRS")
+    except SkyrigError as exc:
+        raise OptionError("--crs" if crs != det.crs else f"--crs (none given; {det.crs} from {det.crs_source})",
+                          str(exc)) from None
 
     import os
 
@@ -482,7 +528,10 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
            "# A stage reruns only when its inputs or options change (its manifest keeps a fingerprint).",
            f"format: {PROJECT_FORMAT}", "version: 1", f"name: {_yaml_value(det.folder.name)}",
            f"crs: {_yaml_value(crs)}" + (f"    # from {det.crs_source}" if det.crs_source and crs == det.crs else
-                                         "    # output CRS of every product (projected, metres)"),
+                                         "    # output CRS of every product (projected, metres)" if crs else
+                                         "    # none: no GNSS and no control points in a map CRS, so the "
+                                         "orientation is in a model frame (scale bars or a free network); give "
+                                         "control points and a CRS to place it"),
            f"geoid: {_yaml_value(geoid)}    # geoid grid for orthometric heights; null: ellipsoidal heights "
            "(or those of a compound CRS)",
            "output: output    # each stage publishes output/<stage>/ with its manifest.json; output/run.json",

@@ -46,6 +46,8 @@ import logging
 import os
 import shutil
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -365,8 +367,10 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         def progress(done: int, total: int, _name: str = spec.name) -> None:
             emit(StageEvent(_name, "progress", done=done, total=total))
 
+        said: list[str] = []  # the stage's warnings, in words, for run.json (the command line shows them as they come)
         try:
-            with stage_folder(folder, stage=spec.name, inputs=inputs, options=options, started=t_run) as tmp:
+            with _warnings_into(said), stage_folder(folder, stage=spec.name, inputs=inputs, options=options,
+                                                    started=t_run) as tmp:
                 summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
                 if summary.get("failed"):  # published as kept, never taken as up to date
                     (tmp / FAILED).write_text(f"stage {spec.name} failed: {summary['failed']}\n")
@@ -378,7 +382,7 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         except SkyrigError as exc:
             code, msg = 2, str(exc)
         except KeyboardInterrupt:
-            rows.append({"stage": spec.name, "status": "interrupted"})
+            rows.append({"stage": spec.name, "status": "interrupted", **({"warnings": said} if said else {})})
             emit(StageEvent(spec.name, "failed", "interrupted"))
             result.exit_code, result.error = 130, f"stage {spec.name}: interrupted"
             _write_run_json(result)
@@ -390,17 +394,34 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
             dt = time.perf_counter() - t0
             if not summary.get("failed"):
                 rows.append({"stage": spec.name, "status": "done", "reason": why, "seconds": round(dt, 3),
-                             "summary": summary})
+                             "summary": summary, **({"warnings": said} if said else {})})
                 emit(StageEvent(spec.name, "done", why, seconds=dt))
                 continue
             code, msg = 1, f"{summary['failed']} (outputs published: keep_failed)"
         dt = time.perf_counter() - t0
-        rows.append({"stage": spec.name, "status": "failed", "reason": msg, "seconds": round(dt, 3)})
+        rows.append({"stage": spec.name, "status": "failed", "reason": msg, "seconds": round(dt, 3),
+                     **({"warnings": said} if said else {})})
         emit(StageEvent(spec.name, "failed", msg, seconds=dt))
         result.exit_code, result.error = code, f"stage {spec.name}: {msg}"
         break
     _write_run_json(result)
     return result
+
+
+@contextmanager
+def _warnings_into(said: list[str]) -> Iterator[None]:
+    """Every warning shown while the block runs is also appended to ``said`` as one line of words."""
+    import warnings
+
+    with warnings.catch_warnings():  # restores the display afterwards
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+            said.append(" ".join(str(message).split()))
+            shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
 
 
 def _write_run_json(result: RunResult) -> None:

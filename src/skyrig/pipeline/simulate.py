@@ -382,6 +382,7 @@ def write_lidar_project(survey: Any, outdir: str | Path) -> LidarProjectInfo:
     from skyrig.io._text import atomic_write
     from skyrig.io.laz import write_las
     from skyrig.io.raw_scan_csv import write_raw_scan_csv
+    from skyrig.lidar.georef import PulseGeoreferencer, scan_angle_from_nadir_deg
     from skyrig.io.trajectory_csv import write_trajectory_csv
     from skyrig.io.truth import write_truth
 
@@ -406,7 +407,9 @@ def write_lidar_project(survey: Any, outdir: str | Path) -> LidarProjectInfo:
     _write_reference(out, survey.frame, survey.reference_xyz, spec.crs)
     n = survey.truth_normal
     write_las(out / "truth" / "points.laz", to_map(survey.truth_xyz), spec.crs, gps_time=survey.scan.time_s,
-              intensity=survey.scan.intensity, scan_angle_deg=np.degrees(survey.scan.alpha_rad), scale=1e-4,
+              intensity=survey.scan.intensity, scan_angle_deg=scan_angle_from_nadir_deg(
+                  PulseGeoreferencer(survey.trajectory_true, survey.mount_true), survey.mount_true,
+                  survey.true_time_s, survey.frame.to_ecef(survey.truth_xyz)), scale=1e-4,
               extra={"true_time": survey.true_time_s, "true_range": survey.true_range_m, "normal_e": n[:, 0],
                      "normal_n": n[:, 1], "normal_u": n[:, 2], "component": survey.truth_component.astype(float)})
     _write_json(out / "scene" / "bridge.json", {"local_frame": list(spec.origin), **survey.scene.to_dict()})

@@ -108,7 +108,7 @@ class Project:
 
     path: Path
     name: str
-    crs: str
+    crs: str | None  # None: an orientation without GNSS in its model frame (no product needs a map CRS)
     geoid: str | None
     output: Path
     images: tuple[Path, ...] = ()

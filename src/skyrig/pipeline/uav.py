@@ -60,6 +60,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import InputFormatError
 from skyrig.orient.gnss_block import (  # noqa: F401  (re-exported: the names this module always had)
@@ -285,6 +286,7 @@ def adjust_uav(images: str | Path, match_dir: str | Path, out: str | Path | None
     t0 = time.perf_counter()
     meas = _with_extra(read_measurements_csv(_ties_file(match_dir)), extra_measurements)
     metas = [read_image_metadata(p) for p in list_images(images)]  # images without tie points: "not oriented"
+    metas, meas = without_gps_left_out(metas, meas)
     inp = metadata_block_input(metas, meas, cfg)
     if control is not None or check is not None:
         inp = attach_ground_points(inp, control, check, control_sigma_m, sources or {})
@@ -368,7 +370,10 @@ def _write_camera(path: Path, res: UavResult) -> Path:
     from skyrig.rig.rig import Head, Rig
 
     conv = getattr(getattr(res.adjustment, "info", None), "converged", None)
-    how = "self-calibrated by skyrig adjust-uav" + ("" if conv in (None, True) else " (NOT converged)")
+    cal = res.summary.get("self_calibrated") if isinstance(getattr(res, "summary", None), dict) else None
+    how = ("as given (no self-calibration) in skyrig adjust-uav" if cal == [] else
+           "self-calibrated by skyrig adjust-uav" + (f" ({', '.join(cal)})" if cal else "")) + \
+        ("" if conv in (None, True) else " (NOT converged)")
     write_rig(Rig(f"{res.camera.name}-adjust-uav", {"camera": Head("camera", res.camera)},
                   description=f"{res.camera.name} {how}"), path)
     return path
@@ -488,8 +493,8 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
             raise InputFormatError("no images (with EXIF) found and no camera given: give --camera", str(images))
         names = np.unique(meas_image)
         notes.append("image names from the tie points (no image files read)")
-    camera = camera.with_(distortion=OpenCVDistortion()) if not isinstance(camera.distortion, OpenCVDistortion) \
-        else camera
+    if isinstance(camera.distortion, NoDistortion):  # a given model (Brown...) is kept as it is
+        camera = camera.with_(distortion=OpenCVDistortion())
     by_name = np.argsort(names, kind="stable")
     pos = np.minimum(np.searchsorted(names[by_name], meas_image), len(names) - 1)
     known = names[by_name][pos] == meas_image
@@ -694,3 +699,26 @@ def compare_pycolmap(res: UavResult, images: str | Path | None, inp: Any, workdi
     out.update(input="images", registered=int(len(summ.names)), points=summ.n_points, reprojection_rms_px=summ.reprojection_rms_px,
                wall_s=time.perf_counter() - t1, centre_differences=cmp)
     return out
+
+
+def without_gps_left_out(metas: Sequence[Any], measurements: Any) -> tuple[list[Any], Any]:
+    """Images without an EXIF GPS position (the first shots before a fix) left out of a GNSS-supported block, each
+    named in a :class:`~skyrig.errors.PlausibilityWarning`, with their tie-point measurements; all of them when no
+    image has one (then :func:`metadata_block_input` refuses, naming the first)."""
+    import warnings
+
+    from skyrig.errors import PlausibilityWarning
+    from skyrig.georef.observations import ImageMeasurements
+
+    ok = [bool(m.has_gps and m.alt_m is not None) for m in metas]
+    if all(ok) or not any(ok):
+        return list(metas), measurements
+    for m, good in zip(metas, ok):
+        if not good:
+            warnings.warn(f"{m.path}: no EXIF GPS position with altitude: left out of the GNSS-supported adjustment",
+                          PlausibilityWarning, stacklevel=2)
+    kept = [m for m, good in zip(metas, ok) if good]
+    names = np.array([m.name for m in kept], dtype=str)
+    keep = np.isin(np.asarray(measurements.image, dtype=str), names)
+    return kept, ImageMeasurements(np.asarray(measurements.point)[keep], np.asarray(measurements.image)[keep],
+                                   np.asarray(measurements.pixel)[keep])
