@@ -14,7 +14,8 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion, OpenCVRationalDistortion
 from skyrig.errors import InputFormatError, OptionError
 from skyrig.geometry.pose import Pose
-from skyrig.io.colmap import ColmapModel, block_from_colmap, colmap_from_block, read_colmap, write_colmap
+from skyrig.io.colmap import ColmapModel, block_from_colmap, colmap_from_block
+from skyrig.io.colmap_folder import read_colmap, write_colmap
 from skyrig.io.colmap_binary import read_colmap_binary
 from skyrig.io.colmap_text import read_colmap_text
 

@@ -16,7 +16,8 @@ import pytest
 from skyrig.adjust import AdjustConfig, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
-from skyrig.io.colmap import block_from_colmap, colmap_from_block, read_colmap, write_colmap
+from skyrig.io.colmap import block_from_colmap, colmap_from_block
+from skyrig.io.colmap_folder import read_colmap, write_colmap
 from skyrig.io.metashape import block_from_metashape, metashape_from_block, read_metashape_cameras, write_metashape_cameras
 from skyrig.io.opensfm import (block_from_opensfm, opensfm_from_block, read_opensfm, read_opensfm_tracks,
                                write_opensfm, write_opensfm_tracks)

@@ -31,7 +31,7 @@ def _opensfm_text() -> str:
 def test_colmap_binary_fuzz(tmp_path, which):
     from test_colmap_io import _model
 
-    from skyrig.io.colmap import write_colmap
+    from skyrig.io.colmap_folder import write_colmap
     from skyrig.io.colmap_binary import read_colmap_binary
 
     write_colmap(tmp_path, _model(seed=9, noise_px=0.0))

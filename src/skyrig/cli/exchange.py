@@ -31,7 +31,8 @@ def import_command(fmt, path, output, tracks, sigma_px, control_sigma_m) -> None
     if not sigma_px > 0:
         raise click.BadParameter("must be positive", param_hint="--sigma-px")
     if fmt == "colmap":
-        from skyrig.io.colmap import block_from_colmap, read_colmap
+        from skyrig.io.colmap import block_from_colmap
+        from skyrig.io.colmap_folder import read_colmap
 
         block = block_from_colmap(read_colmap(path), sigma_px=sigma_px)
     elif fmt == "opensfm":
@@ -70,7 +71,8 @@ def export_command(fmt, block_path, output, fit_cameras, max_residual_px) -> Non
     reports: dict = {}
     try:
         if fmt in ("colmap", "colmap-text"):
-            from skyrig.io.colmap import colmap_from_block, write_colmap
+            from skyrig.io.colmap import colmap_from_block
+            from skyrig.io.colmap_folder import write_colmap
 
             m = colmap_from_block(b)
             write_colmap(output, m, binary=fmt == "colmap", fit_cameras=fit_cameras, fit_tolerance_px=max_residual_px)

@@ -91,7 +91,7 @@ class WorldFrame:
                 frame = cls("map", crs=crs_spec(horizontal_crs(c)), geoid=compound_geoid(c))
                 _check_against_proj(frame, c)
                 return frame
-            from skyrig.geodesy.statement import vertical_crs_of_geoid
+            from skyrig.geodesy.geoid_db import vertical_crs_of_geoid
 
             given = vertical_crs_of_geoid(str(geoid))
             if given is not None and not given.equals(c.sub_crs_list[1]):

@@ -59,7 +59,7 @@ def read_model_orientations(path: str | PathLike[str], fmt: str, crs: str | None
     ``geoid``: the CRS of a model that states none (named ``crs_option`` when it is needed and missing)."""
     p = Path(path)
     if fmt in ("colmap", "colmap-text"):
-        from skyrig.io.colmap import read_colmap
+        from skyrig.io.colmap_folder import read_colmap
 
         m = read_colmap(p)
         cams = {c.name: c for c in m.cameras.values()}
@@ -123,7 +123,8 @@ def write_model_orientations(path: str | PathLike[str], fmt: str, eo: ExteriorOr
     names = _cameras_of(eo, cameras)
     pose = Pose(eo.rotation, eo.centre, "world", "camera")
     if fmt in ("colmap", "colmap-text"):
-        from skyrig.io.colmap import ColmapModel, write_colmap
+        from skyrig.io.colmap import ColmapModel
+        from skyrig.io.colmap_folder import write_colmap
 
         ids = {c: k + 1 for k, c in enumerate(names)}
         m = ColmapModel({ids[c]: cameras[c] for c in names}, np.arange(1, len(eo) + 1), eo.image,
