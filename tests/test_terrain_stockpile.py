@@ -130,3 +130,17 @@ def test_stockpiles_in_the_scene_and_its_renderer():
     assert np.array_equal(site.terrain_height(*far), plain.terrain_height(*far))
     with pytest.raises(SkyrigError, match="0 <= r < R"):
         Stockpiles.of([(0, 0, 5.0, 6.0, 2.0)])
+
+
+def test_scenario_spec_stockpiles_opt_in():
+    """``ScenarioSpec.stockpiles`` puts piles into a flown scenario's scene (buildings kept off them); without them
+    the scene is the scenario's usual one."""
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    spec = scenario_spec("midas-dsm", "ci", 1)
+    pile = (20.0, -20.0, 10.0, 2.0, 3.0)
+    s = build_survey(replace(spec, stockpiles=(pile,))).scene
+    assert float(s.terrain_height(20.0, -20.0) - s.natural_ground_height(20.0, -20.0)) == pytest.approx(3.0)
+    b = s.buildings
+    assert np.all(np.hypot(b.cx - 20.0, b.cy + 20.0) > 10.0 + np.hypot(b.hl, b.hw))
+    assert build_survey(spec).scene.stockpiles is None
