@@ -12,8 +12,13 @@ from skyrig.cli._common import eo_options
 @eo_options
 @click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
               help="Image folder or image file; repeat for several. Only images with an orientation are used.")
-@click.option("--dsm", "dsm_path", required=True, type=click.Path(exists=True, dir_okay=False),
+@click.option("--dsm", "dsm_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="The surface (skyrig dsm's dsm.tif or any DSM GeoTIFF with a CRS).")
+@click.option("--surface", type=click.Choice(["dsm", "dtm"]), default="dsm", show_default=True,
+              help="dsm: a true orthophoto on --dsm; dtm: a classic orthophoto on the bare earth of --dtm "
+                   "(buildings lean, as in a classic ortho).")
+@click.option("--dtm", "dtm_path", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="The DTM of --surface dtm (skyrig terrain dtm's dtm.tif or any DTM GeoTIFF with a CRS).")
 @click.option("--heads", default=None, help="Images of the main mosaic: these rig heads / name parts (comma list, "
                                             "e.g. 'nadir'); default all.")
 @click.option("--head-mosaics", default=None,
@@ -35,33 +40,42 @@ from skyrig.cli._common import eo_options
 @click.option("--workers", type=int, default=None, help="Local worker processes.")
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
-def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, dsm_path, heads, head_mosaics,
-            crs, area, resolution, max_off_nadir, feather, no_balance, no_square, tile_cells, executor, workers, scheduler,
-            output) -> None:
+def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, dsm_path, surface, dtm_path,
+            heads, head_mosaics, crs, area, resolution, max_off_nadir, feather, no_balance, no_square, tile_cells, executor,
+            workers, scheduler, output) -> None:
     """True orthomosaic: every cell of the DSM's surface coloured by the best image that sees it.
 
     Occlusion is tested along each ray against the DSM, so buildings stand upright and ground hidden in one image
-    comes from another; seamlines run around elevated objects; images are balanced and blended.
+    comes from another; seamlines run around elevated objects; images are balanced and blended.  With
+    ``--surface dtm`` the images are projected onto the DTM instead: a classic orthophoto, next to the true one.
     """
     from skyrig.cli._common import load_cameras, load_eo
     from skyrig.cli.progress import tile_progress
     from skyrig.dense.ortho import EmptyMosaicError
+    from skyrig.errors import OptionError
     from skyrig.pipeline.products import make_ortho
 
+    wanted, other = ("--dtm", "--dsm") if surface == "dtm" else ("--dsm", "--dtm")
+    path, stray = (dtm_path, dsm_path) if surface == "dtm" else (dsm_path, dtm_path)
+    if path is None:
+        raise OptionError(wanted, f"--surface {surface} needs the surface file {wanted}")
+    if stray is not None:
+        raise OptionError(other, f"{other} is not used with --surface {surface} (the surface is {wanted})")
     eo = load_eo(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground)
     cameras = load_cameras(camera_paths)
     with tile_progress("ortho tiles") as progress:
         try:
-            res = make_ortho(eo, cameras, images, dsm_path, output, heads=heads, head_mosaics=head_mosaics, crs=crs,
+            res = make_ortho(eo, cameras, images, path, output, heads=heads, head_mosaics=head_mosaics, crs=crs,
                              area=area, resolution=resolution, max_off_nadir=max_off_nadir, feather=feather,
                              balance=not no_balance, square=not no_square, tile_cells=tile_cells, executor=executor, workers=workers,
-                             scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress)
+                             scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, surface=surface)
         except EmptyMosaicError as exc:
             click.echo(f"error: {exc}", err=True)
             raise SystemExit(1) from None
     s = res.summary
     g = s["grid"]
-    click.echo(f"orthomosaic {g['width']} x {g['height']} cells ({g['cell_m']:.3f} m) from {len(s['images_used'])} "
+    kind = "classic orthophoto on the DTM" if surface == "dtm" else "orthomosaic"
+    click.echo(f"{kind} {g['width']} x {g['height']} cells ({g['cell_m']:.3f} m) from {len(s['images_used'])} "
                f"images: {s['cells_valid']} cells coloured, {s['surface_without_colour']} of the surface seen by no "
                f"image, {s['seamlines']} seamline pieces; heights: {s['vertical_reference']} -> {res.outdir}")
     for h, hs in s["heads"].items():

@@ -133,11 +133,14 @@ def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], ima
                feather: float | None = None, balance: bool = True, square: bool = True, tile_cells: int = 2048,
                executor: str = "auto",
                workers: int | None = None, scheduler: str | None = None, inputs: Sequence[str | PathLike[str]] = (),
-               progress: Progress = None, spell: Callable[[str], str] = cli_spelling) -> Any:
+               progress: Progress = None, spell: Callable[[str], str] = cli_spelling, surface: str = "dsm") -> Any:
     """True orthomosaic of oriented images on a DSM into ``outdir`` (:func:`skyrig.pipeline.ortho.run_ortho`):
     the main mosaic from the images of ``heads`` (all by default), and one mosaic per name in ``head_mosaics``.
     ``square``: buildings extracted from the DSM get square edges in the surface the images are projected on, their
     walls first moved onto the roof outline seen in steep images (:func:`skyrig.dense.ortho.square_buildings`).
+    ``surface="dtm"``: ``dsm`` is a DTM COG (``skyrig terrain dtm``'s ``dtm.tif``) and the result a classic
+    orthophoto on the bare earth (no buildings to square or to hide ground: they lean as in a classic ortho); a
+    file tagged as a DSM (``SKYRIG_PRODUCT=dsm``) is refused.
 
     Raises :class:`skyrig.dense.ortho.EmptyMosaicError` (a failed run) when no cell can be coloured."""
     from skyrig.dense.ortho import OrthoConfig
@@ -168,6 +171,11 @@ def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], ima
     order = np.concatenate([main, np.setdiff1d(used, main)])
     pos = {int(r): k for k, r in enumerate(order)}
     eo_all = eo.subset(order)
+    if surface not in ("dsm", "dtm"):
+        raise OptionError(spell("surface"), f"must be dsm or dtm, got {surface!r}")
+    if surface == "dtm":
+        _refuse_dsm_as_dtm(dsm, spell)
+        square = False  # a DTM has no buildings
     grid = load_dsm_for(dsm, crs)
     paths = find_images(eo_all, [str(p) for p in images])
     cfg = OrthoConfig(cell_m=resolution, max_off_nadir_deg=max_off_nadir, feather_m=feather, balance=balance,
@@ -175,12 +183,31 @@ def make_ortho(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], ima
     options = {"dsm": str(dsm), "crs": grid.frame.crs, "heads": _text(heads), "head_mosaics": _text(head_mosaics),
                "area": None if area is None else [float(a) for a in area], "resolution": resolution,
                "max_off_nadir": max_off_nadir, "feather": feather, "balance": balance, "square": square,
-               "tile_cells": tile_cells}
+               "tile_cells": tile_cells, "surface": surface}
     return run_ortho(eo_all, cameras, paths, grid, outdir, area=tuple(area) if area else None, config=cfg,
                      main_rows=np.arange(len(main)),
                      head_sets={h: [pos[int(r)] for r in rows] for h, rows in sets.items()} or None,
                      executor=_executor_kind(executor), workers=workers, scheduler=scheduler,
                      inputs=[*map(str, inputs), str(dsm)], options=options, progress=progress)
+
+
+def _refuse_dsm_as_dtm(path: str | PathLike[str], spell: Callable[[str], str]) -> None:
+    """A classic orthophoto needs the bare earth: a raster that skyrig wrote as a DSM (its bands) or an nDSM (its
+    tag) is refused; any other height raster is taken as the user's DTM."""
+    import rasterio
+
+    from skyrig.errors import InputFormatError
+
+    try:
+        with rasterio.open(path) as ds:
+            product = ds.tags().get("SKYRIG_PRODUCT", "")
+            if not product and "support" in ds.descriptions:  # skyrig dsm's bands (height, support, spread, ...)
+                product = "dsm"
+    except Exception as exc:  # not a raster
+        raise InputFormatError(f"cannot read the DTM ({exc})", path, field=spell("dtm")) from None
+    if product and product != "dtm":
+        raise InputFormatError(f"the file is a {product.upper()}, not a DTM: a classic orthophoto is projected onto "
+                               "the bare earth (skyrig terrain dtm)", path, field=spell("dtm"))
 
 
 def make_facades(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], images: Sequence[str | PathLike[str]],

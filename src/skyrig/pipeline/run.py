@@ -844,15 +844,25 @@ register_stage(Stage(
 
 
 def _ortho(ctx: StageContext) -> dict[str, Any]:
+    return _ortho_on(ctx, "dsm")
+
+
+def _ortho_dtm(ctx: StageContext) -> dict[str, Any]:
+    return _ortho_on(ctx, "dtm")
+
+
+def _ortho_on(ctx: StageContext, surface: str) -> dict[str, Any]:
+    """The ortho stage (a true orthomosaic on the dsm stage's DSM) or the ortho-dtm stage (a classic one on the dtm
+    stage's DTM)."""
     from skyrig.pipeline.products import make_ortho
 
     p, o = ctx.project, ctx.options
     eo, cameras, files = _stage_eo_cameras(ctx)
-    res = make_ortho(eo, cameras, p.images, ctx.need("dsm"), ctx.out, heads=o["heads"],
+    res = make_ortho(eo, cameras, p.images, ctx.need(surface), ctx.out, heads=o["heads"],
                      head_mosaics=o["head_mosaics"], area=o["area"], resolution=o["resolution"],
-                     max_off_nadir=o["max_off_nadir"], feather=o["feather"], balance=o["balance"], square=o["square"],
-                     tile_cells=o["tile_cells"], **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
-                     spell=_spelling("ortho"))
+                     max_off_nadir=o["max_off_nadir"], feather=o["feather"], balance=o["balance"],
+                     square=o.get("square", False), tile_cells=o["tile_cells"], **_executor_kw(p.executor),
+                     inputs=files, progress=ctx.progress, spell=_spelling(ctx.spec.name), surface=surface)
     s = res.summary
     return {"cells_valid": s["cells_valid"], "cells": s["cells"], "images_used": len(s["images_used"]),
             "seamlines": s["seamlines"]}
@@ -884,17 +894,19 @@ def _facades(ctx: StageContext) -> dict[str, Any]:
     return {"buildings": s["buildings"], "facades": s["facades"], "facades_seen": s["facades_seen"]}
 
 
+_ORTHO_OPTIONS = {
+    "heads": Option([], "strs", "rig heads / image-name parts of the main mosaic (e.g. [nadir]); [] = all"),
+    "head_mosaics": Option([], "strs", "also one mosaic per head (e.g. [forward, backward, left, right])"),
+    "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the DSM's CRS", n=4, nullable=True),
+    "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
+    "max_off_nadir": Option(60.0, "float", "steepest view angle a cell takes (deg)", positive=True),
+    "feather": Option(None, "float", "blend width across seamlines (m)", nullable=True, positive=True),
+    "balance": Option(True, "bool", "radiometric balance between images"),
+    "square": Option(True, "bool", "square the buildings' edges in the surface (no leaning roofs)"),
+    "tile_cells": Option(2048, "int", "tile side in cells", positive=True)}
 register_stage(Stage(
     "ortho", "True orthomosaic (COG, source layer, seamlines) of the oriented images on the DSM.", _ortho,
-    options={"heads": Option([], "strs", "rig heads / image-name parts of the main mosaic (e.g. [nadir]); [] = all"),
-             "head_mosaics": Option([], "strs", "also one mosaic per head (e.g. [forward, backward, left, right])"),
-             "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the DSM's CRS", n=4, nullable=True),
-             "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
-             "max_off_nadir": Option(60.0, "float", "steepest view angle a cell takes (deg)", positive=True),
-             "feather": Option(None, "float", "blend width across seamlines (m)", nullable=True, positive=True),
-             "balance": Option(True, "bool", "radiometric balance between images"),
-             "square": Option(True, "bool", "square the buildings' edges in the surface (no leaning roofs)"),
-             "tile_cells": Option(2048, "int", "tile side in cells", positive=True)},
+    options=_ORTHO_OPTIONS,
     requires=("eo", "dsm"), uses=("cameras",), provides={"ortho": "ortho.tif"}, inputs=_dsm_inputs,
     check=_product_check("ortho")))
 register_stage(Stage(
@@ -954,4 +966,9 @@ register_stage(Stage(
              "buffer": Option(50.0, "float", "buffer around each tile (m); holds the largest building",
                               positive=True)},
     requires=("dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))
+register_stage(Stage(
+    "ortho-dtm", "Classic orthomosaic of the oriented images on the DTM (next to the true ortho: buildings lean).",
+    _ortho_dtm, options={k: v for k, v in _ORTHO_OPTIONS.items() if k != "square"},
+    requires=("eo", "dtm"), uses=("cameras",), provides={"ortho_dtm": "ortho.tif"}, inputs=_dsm_inputs,
+    check=_product_check("ortho-dtm")))
 

@@ -65,7 +65,7 @@ class Hits:
 
 
 def _terrain_is_analytic(scene: Scene) -> bool:
-    return type(scene).terrain_height is Scene.terrain_height
+    return type(scene).terrain_height is Scene.terrain_height and scene.stockpiles is None
 
 
 def intersect_terrain(scene: Scene, origin: NDArray[np.float64], d: NDArray[np.float64],

@@ -99,6 +99,9 @@ class ScenarioSpec:
     true_antenna_lever_m: tuple[float, float, float] = (0.0, 0.0, -1.2)
     t0_s: float = 345_600.0
     scene: Scene | None = None  # a given scene (e.g. a RasterScene from a real DSM + orthophoto): see with_scene
+    # optional stockpiles (cx, cy, R, r, h) in the local frame (skyrig.simulate.world.Stockpiles); () = none, the
+    # procedural scene unchanged
+    stockpiles: tuple[tuple[float, float, float, float, float], ...] = ()
 
 
 def with_scene(spec: ScenarioSpec, scene: Scene) -> ScenarioSpec:
@@ -375,6 +378,8 @@ def build_survey(spec: ScenarioSpec) -> Survey:
     txy = _targets_xy(spec, plan, rng)
     names = np.array([f"GCP{i + 1:02d}" for i in range(spec.n_gcp)] + [f"CHK{i + 1:02d}" for i in range(spec.n_check)])
     if spec.scene is not None:
+        if spec.stockpiles:
+            raise SkyrigError("stockpiles are added to the procedural scene only, not to a given scene")
         if tuple(spec.scene.origin) != tuple(spec.origin):
             raise SkyrigError("the given scene's origin differs from the scenario's: build the spec with with_scene()")
         tz = spec.scene.terrain_height(txy[:, 0], txy[:, 1]) if len(txy) else np.zeros(0)
@@ -383,7 +388,8 @@ def build_survey(spec: ScenarioSpec) -> Survey:
         scene = make_scene(spec.seed, spec.scene_extent, spec.origin, base_height_m=spec.base_height_m,
                            n_buildings=spec.n_buildings, texture_fine_m=max(gsd * 0.6, 0.005),
                            targets=(names, txy), target_radius_m=max(6.0 * gsd, 0.05),
-                           town=_town(plan), building_size_m=(8.0, 25.0) if gsd < 0.5 else (20.0, 60.0))
+                           town=_town(plan), building_size_m=(8.0, 25.0) if gsd < 0.5 else (20.0, 60.0),
+                           stockpiles=spec.stockpiles or None)
     # ---- dense true trajectory: samples per strip + the station times, with attitude / lateral wobble
     t_all, strip_all = [], []
     for s in np.unique(plan.strip):

@@ -15,6 +15,9 @@ The truth of the scene is analytic:
   scale between ``texture_coarse_m`` and ``texture_fine_m``) on patches of land cover, plus roads;
 * **façade texture rule** :meth:`Scene.facade_rgb`: per-building wall colour, a window grid
   (``window_spacing_m``) and hashed noise, a function of (building, along-wall coordinate, height);
+* **stockpiles** (optional, :class:`Stockpiles`): truncated cones of material standing on the terrain (their
+  height is added to it: part of the bare earth a DTM shows), of analytic volume ``pi h (R^2 + R r + r^2) / 3``
+  above the natural ground;
 * **signalised targets** (GCPs): a white disc of radius ``r`` (linear edge ramp of width ``r / 2``) in a black square of half side ``2.5 r``
   painted onto the ground texture, centred on ``(x, y, terrain(x, y))``.
 
@@ -172,6 +175,76 @@ class Buildings:
 
 
 @dataclass(frozen=True)
+class Stockpiles:
+    """``K`` stockpiles: truncated cones (a cone when the top radius is 0) standing on the natural terrain (all
+    arrays ``(K,)``, metres).  The pile's height above the natural ground at horizontal distance ``d`` from its
+    centre is ``h`` within the top radius ``r``, falls linearly to 0 at the toe radius ``R`` and is 0 beyond; the
+    material above the natural ground is therefore exactly :meth:`volume` whatever the terrain under it.  Piles do
+    not overlap (:meth:`height` takes the highest)."""
+
+    cx: NDArray[np.float64]
+    cy: NDArray[np.float64]
+    radius_m: NDArray[np.float64]  # toe radius R
+    top_radius_m: NDArray[np.float64]  # radius r of the flat top (0: a cone)
+    height_m: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, piles: ArrayLike) -> "Stockpiles":
+        """From rows ``(cx, cy, R, r, h)``.
+
+        Raises
+        ------
+        SkyrigError
+            On a row that is not ``0 <= r < R``, ``h > 0``.
+        """
+        a = np.asarray(piles, dtype=np.float64).reshape(-1, 5)
+        bad = ~((a[:, 3] >= 0) & (a[:, 3] < a[:, 2]) & (a[:, 4] > 0))
+        if bad.any():
+            raise SkyrigError(f"stockpile {int(np.flatnonzero(bad)[0])} {a[bad][0].tolist()}: (cx, cy, R, r, h) "
+                              "needs 0 <= r < R and h > 0")
+        return cls(*(a[:, k].copy() for k in range(5)))
+
+    def __len__(self) -> int:
+        return int(np.asarray(self.cx).shape[0])
+
+    def volume(self) -> NDArray[np.float64]:
+        """``(K,)`` volumes above the natural ground (m^3): ``pi h (R^2 + R r + r^2) / 3``."""
+        R, r, h = self.radius_m, self.top_radius_m, self.height_m
+        return np.pi * h * (R * R + R * r + r * r) / 3.0
+
+    def _profile(self, i: int, x: NDArray[np.float64], y: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        d = np.hypot(x - self.cx[i], y - self.cy[i])
+        R, r, h = self.radius_m[i], self.top_radius_m[i], self.height_m[i]
+        return h * np.clip((R - d) / (R - r), 0.0, 1.0), d
+
+    def height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """Height of the piles above the natural ground at points (0 off every pile)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        z = np.zeros(np.broadcast(x, y).shape)
+        for i in range(len(self)):
+            z = np.maximum(z, self._profile(i, x, y)[0])
+        return z
+
+    def gradient(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(dh/dx, dh/dy)`` of :meth:`height` (0 on the flat tops and off the piles)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        shape = np.broadcast(x, y).shape
+        z, gx, gy = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        for i in range(len(self)):
+            h, d = self._profile(i, x, y)
+            flank = (d > self.top_radius_m[i]) & (d < self.radius_m[i])
+            s = -self.height_m[i] / (self.radius_m[i] - self.top_radius_m[i]) / np.maximum(d, 1e-12)
+            top = h > z
+            gx = np.where(top, np.where(flank, s * (x - self.cx[i]), 0.0), gx)
+            gy = np.where(top, np.where(flank, s * (y - self.cy[i]), 0.0), gy)
+            z = np.maximum(z, h)
+        return gx, gy
+
+
+@dataclass(frozen=True)
 class Target:
     """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local
     frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``)."""
@@ -207,6 +280,9 @@ class Scene:
         Window grid spacing on façades (metres).
     sun
         ``(3,)`` unit vector towards the sun (Lambertian shading, the same for every view).
+    stockpiles
+        Piles of material on the terrain, or None (:meth:`terrain_height` includes them,
+        :meth:`natural_ground_height` does not).
     """
 
     origin: tuple[float, float, float]
@@ -223,16 +299,25 @@ class Scene:
     texture_coarse_m: float = 40.0
     window_spacing_m: float = 3.0
     sun: NDArray[np.float64] = field(default_factory=lambda: np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82]))
+    stockpiles: Stockpiles | None = None
 
     # ------------------------------------------------------------------ terrain
     def terrain_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
-        """Terrain height ``z`` (metres, local frame) at ``x, y`` (any equal shapes)."""
+        """Terrain height ``z`` (metres, local frame) at ``x, y`` (any equal shapes): the bare earth, stockpiles
+        included."""
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
         z = np.full(np.broadcast(x, y).shape, self.base_height_m)
         for a, kx, ky, ph in zip(self.terrain_amp_m, self.terrain_kx, self.terrain_ky, self.terrain_phase):
             z = z + a * np.sin(kx * x + ky * y + ph)
+        if self.stockpiles is not None:
+            z = z + self.stockpiles.height(x, y)
         return z
+
+    def natural_ground_height(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """The terrain without the stockpiles (what was there before they were tipped)."""
+        z = self.terrain_height(x, y)
+        return z if self.stockpiles is None else z - self.stockpiles.height(x, y)
 
     def terrain_gradient(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(dz/dx, dz/dy)`` of the terrain."""
@@ -244,13 +329,19 @@ class Scene:
             c = a * np.cos(kx * x + ky * y + ph)
             gx = gx + kx * c
             gy = gy + ky * c
+        if self.stockpiles is not None:
+            px, py = self.stockpiles.gradient(x, y)
+            gx, gy = gx + px, gy + py
         return gx, gy
 
     @property
     def terrain_range(self) -> tuple[float, float]:
         """Bounds ``(zmin, zmax)`` of the terrain (conservative)."""
         s = float(np.sum(np.abs(self.terrain_amp_m)))
-        return self.base_height_m - s, self.base_height_m + s
+        top = self.base_height_m + s
+        if self.stockpiles is not None and len(self.stockpiles):
+            top += float(np.max(self.stockpiles.height_m))
+        return self.base_height_m - s, top
 
     @property
     def top(self) -> float:
@@ -374,6 +465,7 @@ def make_scene(
     texture_fine_m: float = 0.05,
     targets: tuple[ArrayLike, ArrayLike] | None = None,
     target_radius_m: float = 0.5,
+    stockpiles: ArrayLike | None = None,
 ) -> Scene:
     """A seeded scene: gentle terrain of total relief ``relief_m``, ``n_buildings`` houses in ``town``.
 
@@ -392,6 +484,9 @@ def make_scene(
     targets
         ``(names (K,), xy (K, 2))`` of signalised targets; their heights are put on the terrain; buildings
         are kept ``3 radius + 3 m`` away from them.
+    stockpiles
+        Rows ``(cx, cy, R, r, h)`` of :class:`Stockpiles` standing on the terrain; buildings are kept 3 m away from
+        their toes.  None (the default) leaves every other output of the scene unchanged.
     """
     rng = np.random.default_rng(seed)
     xmin, ymin, xmax, ymax = extent
@@ -404,8 +499,9 @@ def make_scene(
     amp = amp / amp.sum() * relief_m / 2.0
     kx, ky = 2 * np.pi / wl * np.cos(ang), 2 * np.pi / wl * np.sin(ang)
     phase = rng.uniform(0, 2 * np.pi, k)
+    piles = None if stockpiles is None else Stockpiles.of(stockpiles)
     proto = Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase,
-                  Buildings(*(np.zeros(0) for _ in range(8))), texture_fine_m=texture_fine_m)
+                  Buildings(*(np.zeros(0) for _ in range(8))), texture_fine_m=texture_fine_m, stockpiles=piles)
     if town is None:
         w, h = xmax - xmin, ymax - ymin
         town = (xmin + w / 4, ymin + h / 4, xmax - w / 4, ymax - h / 4)
@@ -426,6 +522,8 @@ def make_scene(
             continue
         if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + 3 * target_radius_m + 3.0:
             continue
+        if piles is not None and np.any(np.hypot(piles.cx - cx, piles.cy - cy) < rad + piles.radius_m + 3.0):
+            continue
         corners_x = cx + np.array([-1, 1, 1, -1]) * rad
         corners_y = cy + np.array([-1, -1, 1, 1]) * rad
         tz = proto.terrain_height(corners_x, corners_y)
@@ -443,7 +541,7 @@ def make_scene(
         z = proto.terrain_height(tg_xy[:, 0], tg_xy[:, 1])
         tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m))
     return Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase, bld, tgt, texture_fine_m=texture_fine_m,
-                 texture_coarse_m=40.0)
+                 texture_coarse_m=40.0, stockpiles=piles)
 
 
 def grid_transform(extent: tuple[float, float, float, float], cell_m: float) -> tuple[tuple[float, ...], int, int]:
