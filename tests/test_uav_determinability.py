@@ -19,7 +19,9 @@ import logging
 import numpy as np
 import pytest
 
-from skyrig.adjust.determinability import CONTRADICTS_PRIOR, DETERMINED, NOT_DETERMINABLE, determinability
+from skyrig.adjust.determinability import (
+    CONTRADICTS_PRIOR, DETERMINED, NOT_DETERMINABLE, OVERRULES_PRIOR, determinability,
+)
 from skyrig.pipeline.uav import UavConfig, adjust_uav_block
 from skyrig.rig.presets import uav_single
 from skyrig.simulate.scenarios import ci_camera
@@ -125,6 +127,12 @@ def test_verdict_rule_on_hand_made_numbers():
     # formal sigma 0.08 (ratio 0.8): not determinable, held
     (v,) = determinability(fake(1.02, 0.08**2), "c", ["focal_mm"], prior, ps)
     assert v.verdict == NOT_DETERMINABLE and v.held
-    # formal sigma 0.03 but 0.4 off: z = 4.2 > 3, contradicts its prior; left free on request
-    (v,) = determinability(fake(1.4, 0.03**2), "c", ["focal_mm"], prior, ps, free_anyway=("focal_mm",))
+    # formal sigma 0.04 (ratio 0.4, a weak geometry) but 0.4 off: z = 4.4 > 3, contradicts its prior: held, unless
+    # left free on request
+    (v,) = determinability(fake(1.4, 0.04**2), "c", ["focal_mm"], prior, ps)
+    assert v.verdict == CONTRADICTS_PRIOR and v.held and v.z_prior == pytest.approx(0.4 / np.sqrt(0.1**2 - 0.04**2))
+    (v,) = determinability(fake(1.4, 0.04**2), "c", ["focal_mm"], prior, ps, free_anyway=("focal_mm",))
     assert v.verdict == CONTRADICTS_PRIOR and not v.held and v.freed_on_request
+    # formal sigma 0.02 (ratio 0.2, a strong geometry) and 0.4 off: the block overrules its prior, kept, said so
+    (v,) = determinability(fake(1.4, 0.02**2), "c", ["focal_mm"], prior, ps)
+    assert v.verdict == OVERRULES_PRIOR and not v.held and "metadata is probably wrong" in v.words()

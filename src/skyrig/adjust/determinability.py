@@ -15,9 +15,19 @@ For each self-calibrated intrinsic of one camera, from an adjustment that estima
   block's other observations give) and with the other calibration parameters above 0.7.
 
 **Rule** (stated, configurable): a parameter is *determined* when ``formal sigma <= ratio_max x prior sigma``
-(default 0.5: the block at least halves the prior's sigma) and ``|z| <= z_max`` (default 3).  Otherwise it is *not
-determinable* (ratio) or *contradicts its prior* (z); the caller holds it at its prior and says so in words with the
-geometry that would determine it (:func:`remedy`).
+(default 0.5: the block at least halves the prior's sigma) and ``|z| <= z_max`` (default 3).  Otherwise:
+
+- ratio above ``ratio_max``: *not determinable*, held at its prior;
+- ``|z| > z_max`` with a weak geometry (ratio above ``strong_ratio``, default 0.3): *contradicts its prior*, held at its
+  prior -- a block that barely determines the parameter and still pulls it many sigmas away is following a model error
+  more likely than correcting the metadata (brighton: ratio 0.44, z +10.4, the ground then 8-10 m low);
+- ``|z| > z_max`` with a strong geometry (ratio at most ``strong_ratio``): *overrules its prior*, left free with a
+  warning that the metadata is contradicted -- a block that determines the parameter several times better than the
+  prior is believed over metadata that is often wrong (lund's phone: EXIF 35-mm value 995 px, the block 683 +- 12 px
+  with ratio 0.27, pycolmap agreeing).
+
+The caller holds the held ones at their prior and says so in words with the geometry that would determine them
+(:func:`remedy`).
 
 Layer 2b: arrays and adjustment results in, plain data out.
 """
@@ -32,12 +42,13 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ParameterVerdict", "determinability", "hold_undetermined", "remedy", "ground_height_correlation", "DETERMINED",
+__all__ = ["ParameterVerdict", "determinability", "hold_undetermined", "rule_words", "OVERRULES_PRIOR", "remedy", "ground_height_correlation", "DETERMINED",
            "NOT_DETERMINABLE", "CONTRADICTS_PRIOR"]
 
 DETERMINED = "determined"
 NOT_DETERMINABLE = "not determinable"
 CONTRADICTS_PRIOR = "contradicts its prior"
+OVERRULES_PRIOR = "overrules its prior"
 
 #: what would determine each kind of parameter, in words
 _REMEDY = {
@@ -48,6 +59,13 @@ _REMEDY = {
     "dist": ("distortion needs tie points spread to the image corners over varied depths: more overlap, cross strips, "
              "or a calibration on a test field"),
 }
+
+
+def rule_words(ratio_max: float, z_max: float, strong_ratio: float) -> str:
+    """The determinability rule in words (reports)."""
+    return (f"determined when the formal sigma <= {ratio_max:g} x the prior sigma and the prior test |z| <= {z_max:g}; "
+            f"otherwise held at the prior, unless the formal sigma is <= {strong_ratio:g} x the prior's (then it "
+            "overrules the prior, with a warning)")
 
 
 def _sentence(text: str) -> str:
@@ -94,6 +112,10 @@ class ParameterVerdict:
                 f"correlation with the ground height {self.corr_ground_height:+.2f})")
         if self.verdict == DETERMINED:
             return base + ": determined by the block"
+        if self.verdict == OVERRULES_PRIOR:
+            return base + (": overrules its prior (the block determines it several times better than the prior and "
+                           "contradicts the camera's metadata: the metadata is probably wrong; the block's value is "
+                           "kept. Check it with a calibrated camera or control points)")
         if self.freed_on_request:
             return base + f": {self.verdict}, but left free on request (explicit option); treat it with care"
         why = ("the block barely improves on the prior" if self.verdict == NOT_DETERMINABLE else
@@ -147,7 +169,7 @@ def ground_height_correlation(res: Any, labels: Sequence[tuple[str, str, str]]) 
 def determinability(res: Any, camera_name: str, names: Sequence[str], prior: Mapping[str, float],
                     prior_sigma: Mapping[str, float], *, ratio_max: float = 0.5, z_max: float = 3.0,
                     free_anyway: Sequence[str] = (), pixel_size_mm: float | None = None,
-                    corr_limit: float = 0.7) -> list[ParameterVerdict]:
+                    corr_limit: float = 0.7, strong_ratio: float = 0.3) -> list[ParameterVerdict]:
     """Verdicts of the self-calibrated intrinsics ``names`` of camera ``camera_name`` (see the module docstring).
 
     Parameters
@@ -198,20 +220,21 @@ def determinability(res: Any, camera_name: str, names: Sequence[str], prior: Map
         if not np.isfinite(ratio) or ratio > ratio_max:
             verdict = NOT_DETERMINABLE
         elif abs(z) > z_max:
-            verdict = CONTRADICTS_PRIOR
+            verdict = CONTRADICTS_PRIOR if ratio > strong_ratio else OVERRULES_PRIOR
         else:
             verdict = DETERMINED
-        freed = verdict != DETERMINED and nm in free_anyway
+        freed = verdict not in (DETERMINED, OVERRULES_PRIOR) and nm in free_anyway
         out.append(ParameterVerdict(nm, float(prior[nm]), ps, est, s0 * formal, formal, float(ratio), float(z),
-                                    float(corr_h[k]), corrs, verdict, held=verdict != DETERMINED and not freed,
+                                    float(corr_h[k]), corrs, verdict,
+                                    held=verdict not in (DETERMINED, OVERRULES_PRIOR) and not freed,
                                     freed_on_request=freed, pixel_size_mm=pixel_size_mm))
     return out
 
 
 def hold_undetermined(res: Any, nominal: Any, names_cal: tuple[str, ...], prior_sigma: Mapping[str, float],
                       readjust: Callable[[Any, tuple[str, ...], Any], Any], *, ratio_max: float = 0.5,
-                      z_max: float = 3.0, free_anyway: Sequence[str] = ()) -> tuple[Any, list[ParameterVerdict],
-                                                                                 tuple[str, ...]]:
+                      z_max: float = 3.0, free_anyway: Sequence[str] = (), strong_ratio: float = 0.3
+                      ) -> tuple[Any, list[ParameterVerdict], tuple[str, ...]]:
     """Judge the self-calibrated intrinsics ``names_cal`` of ``res`` (one camera, priors centred on ``nominal``) and
     hold those not determined at their prior: ``readjust(res, names_left_free, start_camera)`` re-adjusts the block
     with only ``names_left_free`` self-calibrated, from the estimate with the held ones reset to their prior values.
@@ -226,7 +249,7 @@ def hold_undetermined(res: Any, nominal: Any, names_cal: tuple[str, ...], prior_
 
     def judge(r: Any, names: tuple[str, ...]) -> list[ParameterVerdict]:
         return determinability(r, cam_name, names, prior, prior_sigma, ratio_max=ratio_max, z_max=z_max,
-                               free_anyway=free_anyway, pixel_size_mm=pix)
+                               free_anyway=free_anyway, pixel_size_mm=pix, strong_ratio=strong_ratio)
 
     verdicts = judge(res, names_cal)
     held: dict[str, ParameterVerdict] = {}
@@ -244,4 +267,7 @@ def hold_undetermined(res: Any, nominal: Any, names_cal: tuple[str, ...], prior_
         start_cam = cam_est.with_intrinsics(np.array([vals[nm] for nm in cam_est.intrinsic_names]))
         res = readjust(res, names_cal, start_cam)
         verdicts = judge(res, names_cal) if names_cal else []
+    for v in verdicts:
+        if v.verdict == OVERRULES_PRIOR or v.freed_on_request:
+            logger.warning("self-calibration: %s", v.words())
     return res, [*held.values(), *verdicts], names_cal

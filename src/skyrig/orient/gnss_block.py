@@ -88,6 +88,9 @@ class UavConfig:
     #: prior with a warning (unless named in ``free_anyway``)
     determinable_ratio: float = 0.5
     prior_conflict_z: float = 3.0
+    #: a parameter determined at least this well (formal sigma / prior sigma) that contradicts its prior overrules it
+    #: (kept, with a warning that the metadata is contradicted); above it, the contradiction holds it at the prior
+    overrule_ratio: float = 0.3
     #: intrinsic names left free even when the block cannot determine them (the report says so)
     free_anyway: tuple[str, ...] = ()
 
@@ -690,8 +693,9 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     summary["focal_sigma_over_prior"] = focal_ratio
     summary["calibration"] = [v.to_dict() for v in verdicts]
     summary["calibration_held"] = [v.name for v in verdicts if v.held]
-    summary["calibration_rule"] = (f"determined when the formal sigma <= {cfg.determinable_ratio:g} x the prior sigma and "
-                                   f"the prior test |z| <= {cfg.prior_conflict_z:g}; otherwise held at the prior")
+    from skyrig.adjust.determinability import rule_words
+
+    summary["calibration_rule"] = rule_words(cfg.determinable_ratio, cfg.prior_conflict_z, cfg.overrule_ratio)
     summary["camera_prior_source"] = inp.prior_source
     if inp.control_track is not None and len(inp.control_track):
         used = set(res.block.point_name[res.block.control_point].tolist()) if res.block.control_point is not None \
@@ -732,7 +736,8 @@ def _hold_undetermined(inp: UavBlockInput, cfg: UavConfig, res: AdjustmentResult
 
     free_anyway = tuple(cfg.free_anyway) + (("focal_mm",) if cfg.focal == "self" else ())
     return hold_undetermined(res, nominal, names_cal, sig, readjust, ratio_max=cfg.determinable_ratio,
-                             z_max=cfg.prior_conflict_z, free_anyway=free_anyway)
+                             z_max=cfg.prior_conflict_z, free_anyway=free_anyway,
+                             strong_ratio=cfg.overrule_ratio)
 
 
 def _focal_note(cfg: UavConfig, verdicts: list[Any], names_cal: tuple[str, ...]) -> str:

@@ -109,6 +109,9 @@ class OrientConfig:
     #: held at its prior with a warning, unless named in ``free_anyway``
     determinable_ratio: float = 0.5
     prior_conflict_z: float = 3.0
+    #: a parameter determined at least this well (formal sigma / prior sigma) that contradicts its prior overrules it
+    #: (kept, with a warning that the metadata is contradicted); above it, the contradiction holds it at the prior
+    overrule_ratio: float = 0.3
     free_anyway: tuple[str, ...] = ()
 
     @classmethod
@@ -720,7 +723,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
 
         res, verdicts, names_cal = hold_undetermined(res, nominal, names_cal, sig, readjust,
                                                      ratio_max=cfg.determinable_ratio, z_max=cfg.prior_conflict_z,
-                                                     free_anyway=cfg.free_anyway)
+                                                     free_anyway=cfg.free_anyway, strong_ratio=cfg.overrule_ratio)
     camera = res.block.cameras[0]
     R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
     Rout = np.full((n, 3, 3), np.nan)
@@ -740,12 +743,13 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
                           per_image_m={str(inp.names[k]): float(np.linalg.norm(v[q])) for q, k in enumerate(have)})
     if datum == "free":
         datum_info["note"] = "inner constraints; frame and scale of the relative orientation (start base = 1)"
+    from skyrig.adjust.determinability import rule_words
+
     summary = _summary(inp, res, oriented, camera, rounds, time.perf_counter() - t_start)
     summary.update(datum=datum_info, seed=seed_info, order=[str(inp.names[k]) for k in order],
                    parts_tied_in=parts, relative_tie_ins=relative,
                    calibration=[v.to_dict() for v in verdicts], calibration_held=[v.name for v in verdicts if v.held],
-                   calibration_rule=(f"determined when the formal sigma <= {cfg.determinable_ratio:g} x the prior sigma "
-                                     f"and the prior test |z| <= {cfg.prior_conflict_z:g}; otherwise held at the prior"))
+                   calibration_rule=rule_words(cfg.determinable_ratio, cfg.prior_conflict_z, cfg.overrule_ratio))
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
