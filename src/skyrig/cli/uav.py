@@ -15,13 +15,14 @@ options, version and checksums written last, then swapped into place), so a kill
 mixing two runs.  Option spellings: ``-o/--output`` (``--out`` deprecated), ``--gnss-sigma E,N,U`` (three
 separate numbers deprecated), as every command (docs/cli.md).
 
-With GNSS and ground control: when every image carries an EXIF GPS position and neither ``--no-gps``, ``--scale-bar``,
+With GNSS and ground control: when the images carry EXIF GPS positions (at least 3 and half of them; the others are
+left out with a warning) and neither ``--no-gps``, ``--scale-bar``,
 ``--camera`` nor ``--datum`` is given, ``--control`` / ``--check`` / ``--measurements`` join the GNSS-supported block
 (control with ``--control-sigma``: metre-class targets, e.g. ``1.5,1.5,10``, are weighted as such; check points are
 reported in metres and GSD; a point seen in fewer than two images is reported and left out).
 
 Without GNSS (``--no-gps``; implied by ``--scale-bar``, ``--camera``, ``--datum``, and by ``--control``, ``--check``,
-``--measurements`` when an image has no EXIF GPS): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
+``--measurements`` when the images have no EXIF GPS): terrestrial, close-range or any image set whose GPS is missing or not to be trusted is oriented from a
 two-view relative orientation, resection and bundle adjustment (:func:`skyrig.orient.incremental.orient_incremental`
 through :func:`skyrig.pipeline.uav.orient_without_gnss`).  The datum (``--datum``, default ``auto``): control points
 (``--control`` ``name,x,y,z`` with a ``# crs:`` header; their image measurements are tie points of the same name or
@@ -109,7 +110,7 @@ class _NotPublished(Exception):
               help="Orient without GNSS: two-view relative orientation, resection and bundle adjustment; datum from "
                    "--control, --scale-bar, else a similarity onto the EXIF GPS (not observations), else a free network. "
                    "Implied by --scale-bar, --camera, --datum (and by --control / --check / --measurements when an image "
-                   "has no EXIF GPS; with GPS on every image they join the GNSS-supported block).")
+                   "has no EXIF GPS; with GPS on the images they join the GNSS-supported block).")
 @click.option("--control", "gcp_path", type=click.Path(exists=True, dir_okay=False),
               help="Control points name,x,y,z with a '# crs:' header (their image measurements: tie points of the "
                    "same name, or --measurements).")

@@ -614,7 +614,9 @@ def failure_reasons(adj: Any) -> list[str]:
 
 
 def _all_have_gps(images: PathArg | None) -> bool:
-    """Whether ``images`` is a folder of images that all carry an EXIF GPS position with altitude."""
+    """Whether ``images`` is a folder of images that carry EXIF GPS positions with altitude: all of them, or all but
+    a few (at least 3 and half of them; the GNSS block leaves the others out with a warning,
+    :func:`skyrig.pipeline.uav.without_gps_left_out`)."""
     from skyrig.io.image_read import list_images, read_image_metadata
 
     if images is None or not Path(images).is_dir():
@@ -622,11 +624,8 @@ def _all_have_gps(images: PathArg | None) -> bool:
     files = list_images(Path(images))
     if not files:
         return False
-    for f in files:
-        m = read_image_metadata(f)
-        if not (m.has_gps and m.alt_m is not None):
-            return False
-    return True
+    n = sum(1 for f in files if (m := read_image_metadata(f)).has_gps and m.alt_m is not None)
+    return n >= 3 and 2 * n >= len(files)
 
 
 def needs_no_gnss(no_gps: bool = False, control: Any = None, check: Any = None, scale_bars: Any = None,

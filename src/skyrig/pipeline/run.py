@@ -639,6 +639,8 @@ def _adjust_uav_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
     files = [*p.images, *_opt_files(p.ties)]
     if o["no_gps"]:
         files += _opt_files(p.control, p.check, p.scale_bars, _uav_camera(p), *p.measurements)
+    elif p.control or p.check:
+        files += _opt_files(p.control, p.check, *p.measurements)
     return files
 
 
@@ -677,6 +679,8 @@ def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
     if o["no_gps"]:
         kw = dict(control=p.control, control_sigma=o["control_sigma"], check=p.check, scale_bars=p.scale_bars,
                   measurements=p.measurements, camera=_uav_camera(p), datum=o["datum"])
+    elif p.control or p.check:  # ground control / check points join the GNSS-supported block
+        kw = dict(control=p.control, control_sigma=o["control_sigma"], check=p.check, measurements=p.measurements)
     try:
         res = make_uav_orientation(p.images[0] if p.images else None, ties, ctx.out, no_gps=o["no_gps"],
                                    gnss_sigma=o["gnss_sigma"], attitude_sigma=o["attitude_sigma"],
@@ -809,8 +813,8 @@ register_stage(Stage(
              "datum": Option("auto", "choice", "with no_gps: what fixes the datum (auto: control, else scale bars, "
                              "else a similarity onto EXIF GPS, else a free network)",
                              ("auto", "control", "scale-bar", "gps-similarity", "free")),
-             "control_sigma": Option([0.01, 0.01, 0.01], "floats", "with no_gps: control point sigma X, Y, Z (m)",
-                                     n=3),
+             "control_sigma": Option([0.01, 0.01, 0.01], "floats", "control point sigma X, Y, Z (m; metre-class "
+                                     "targets: e.g. [1.5, 1.5, 10])", n=3),
              "compare_pycolmap": Option(False, "bool", "also run pycolmap's own reconstruction and compare centres"),
              "pycolmap_size": Option(1600, "int", "pycolmap comparison: SIFT on images downscaled to this (px)",
                                      positive=True),
