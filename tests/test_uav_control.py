@@ -99,3 +99,72 @@ def test_no_gnss_block_with_metre_class_control_only():
     assert sz.max() > 0.5  # a metre-class datum, honestly stated
     text = absolute_accuracy_statement(res.summary)
     assert "control points" in text and "that of the targets" in text
+
+
+def _dms(v: float) -> tuple[float, float, float]:
+    v = abs(v)
+    d = int(v)
+    m = int((v - d) * 60)
+    return float(d), float(m), (v - d - m / 60) * 3600
+
+
+def test_cli_routes_gps_images_with_control_to_the_gnss_block(tmp_path):
+    """``skyrig adjust-uav`` on image files that carry EXIF GPS (written here with Pillow), with ``--control`` /
+    ``--check`` / ``--control-sigma``: the GNSS-supported block with control (not the orientation without GNSS), the
+    report's check points within their predicted precision of the simulation's truth."""
+    from click.testing import CliRunner
+    from PIL import Image
+
+    from skyrig.cli import main
+    from skyrig.geodesy.crs import ecef_to_geodetic
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.georef.observations import ImageMeasurements
+    from skyrig.io.points_csv import write_measurements_csv
+    from test_uav_determinability import CROSS
+
+    truth: dict = {}
+    inp, true_cam = _block(CROSS, seed=41, focal_error=1.0, truth=truth)
+    pix = true_cam.pixel_size_mm
+    lat, lon, h = ecef_to_geodetic(inp.frame.points_to(inp.gnss, WorldFrame.ecef()))
+    img = tmp_path / "images"
+    img.mkdir()
+    for k, name in enumerate(inp.names):
+        ex = Image.Exif()
+        ex[0x010F], ex[0x0110] = "Test", "Cam"
+        ex[0x8769] = {0x920A: float(true_cam.focal_mm), 0xA20E: 1.0 / pix, 0xA210: 4}  # focal, px per mm
+        ex[0x8825] = {1: "N" if lat[k] >= 0 else "S", 2: _dms(lat[k]), 3: "E" if lon[k] >= 0 else "W",
+                      4: _dms(lon[k]), 5: b"\x00", 6: float(h[k])}
+        Image.new("RGB", (true_cam.width, true_cam.height)).save(img / name, exif=ex)
+    (tmp_path / "match").mkdir()
+    write_measurements_csv(tmp_path / "match" / "tie_points.csv", ImageMeasurements(
+        inp.track_name[inp.obs_track], inp.names[inp.obs_image], inp.obs_pixel))
+    X = truth["X"]
+    seen = np.bincount(inp.obs_track, minlength=len(inp.track_name))
+    good = np.flatnonzero(seen >= 4)
+    nodes = np.array([[x, y] for x in (-50.0, 0.0, 50.0) for y in (-35.0, 35.0)])
+    ctrl = [int(good[np.argmin(np.linalg.norm(X[good, :2] - q, axis=1))]) for q in nodes]
+    chk = [int(t) for t in np.random.default_rng(2).choice(np.setdiff1d(good, ctrl), 4, replace=False)]
+    head = "# crs: local 50.85 -0.15 120.0\nname,x,y,z\n"
+    noise = np.random.default_rng(3).normal(0, 1, (len(ctrl), 3)) * [1.0, 1.0, 5.0]
+    (tmp_path / "gcp.csv").write_text(head + "".join(
+        f"{inp.track_name[t]},{x:.3f},{y:.3f},{z:.3f}\n" for t, (x, y, z) in zip(ctrl, X[ctrl] + noise)))
+    (tmp_path / "chk.csv").write_text(head + "".join(
+        f"{inp.track_name[t]},{x:.4f},{y:.4f},{z:.4f}\n" for t, (x, y, z) in zip(chk, X[chk])))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["adjust-uav", str(tmp_path), "--images", str(img), "--match", str(tmp_path / "match"),
+                                  "--altitude", "ellipsoidal", "--gnss-sigma", "0.3,0.3,0.5", "--attitude-sigma", "0",
+                                  "--control", str(tmp_path / "gcp.csv"), "--control-sigma", "1.5,1.5,10",
+                                  "--check", str(tmp_path / "chk.csv"), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    import json
+
+    rep = json.loads((out / "report.json").read_text())
+    u = rep["uav"]
+    assert "datum" not in u or u["datum"].get("kind") != "control"  # the GNSS block, not the no-GNSS path
+    assert sorted(u["control_used"]) == sorted(str(inp.track_name[t]) for t in ctrl)
+    st = rep["check"]["stats"]
+    assert st["n"] == 4 and len(st["rms_gsd"]) == 3
+    # the check points against the truth: report rows (adjusted - given, in the output CRS = UTM) within a bound
+    # from the GNSS datum: 0.3 / 0.5 m per image over 42 images, a few decimetres at most
+    v = np.array([[row["VX"], row["VY"], row["VZ"]] for row in rep["check"]["rows"]])
+    assert np.all(np.abs(v) < [0.5, 0.5, 1.0]), v

@@ -149,7 +149,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     outdir = Path(out) if out else proj / "adjust-uav"
     old = click.get_current_context().meta.get("skyrig.old_spellings", {})
     out_option = ("-o/--out" if "--out" in old else "-o/--output") if out else None
-    without = needs_no_gnss(no_gps, gcp_path, check_path, scale_bar_path, camera_path, meas_paths, datum)
+    without = needs_no_gnss(no_gps, gcp_path, check_path, scale_bar_path, camera_path, meas_paths, datum, images)
     gs = parse_sigmas(gnss_sigma, 3, "--gnss-sigma", "east,north,up")
     cs = parse_sigmas(gcp_sigma, 3, "--control-sigma", "x,y,z")
     config = None

@@ -629,10 +629,24 @@ def _all_have_gps(images: PathArg | None) -> bool:
 
 
 def needs_no_gnss(no_gps: bool = False, control: Any = None, check: Any = None, scale_bars: Any = None,
-                  camera: Any = None, measurements: Sequence[Any] = (), datum: str = "auto") -> bool:
-    """Whether a UAV orientation runs without GNSS: asked for, or implied by control / check points, scale bars,
-    a start camera, extra measurements or a datum other than ``auto`` (as ``skyrig adjust-uav``)."""
-    return bool(no_gps or control or check or scale_bars or camera or list(measurements) or datum != "auto")
+                  camera: Any = None, measurements: Sequence[Any] = (), datum: str = "auto",
+                  images: PathArg | None = None) -> bool:
+    """Whether a UAV orientation runs without GNSS: asked for, or implied by scale bars, a start camera or a datum
+    other than ``auto``; control / check points and extra measurements imply it only when ``images`` do not carry
+    EXIF GPS (with GPS they join the GNSS-supported block: :func:`ground_with_gnss`)."""
+    if no_gps or scale_bars or camera or datum != "auto":
+        return True
+    if control or check or list(measurements):
+        return not ground_with_gnss(no_gps, control, check, scale_bars, camera, measurements, datum, images)
+    return False
+
+
+def ground_with_gnss(no_gps: bool, control: Any, check: Any, scale_bars: Any, camera: Any,
+                     measurements: Sequence[Any], datum: str, images: PathArg | None) -> bool:
+    """Whether control / check points (or extra measurements) join the GNSS-supported block: given, with images that
+    carry EXIF GPS (:func:`_all_have_gps`), and nothing that asks for the orientation without GNSS."""
+    return (not no_gps and bool(control or check or list(measurements)) and not scale_bars and not camera
+            and datum == "auto" and _all_have_gps(images))
 
 
 @dataclass
@@ -787,9 +801,8 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
             project_frame(crs)
         except CRSError as e:
             raise OptionError(spell("crs"), str(e)) from None
-    ground_with_gnss = (not no_gps and bool(control or check or list(measurements)) and not scale_bars
-                        and not camera and datum == "auto" and _all_have_gps(images))
-    if not ground_with_gnss and needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
+    with_ground = ground_with_gnss(no_gps, control, check, scale_bars, camera, measurements, datum, images)
+    if not with_ground and needs_no_gnss(no_gps, control, check, scale_bars, camera, measurements, datum):
         return _without_gnss(images, tie_file, out, altitude=altitude, geoid=geoid,
                              focal_prior=focal_prior,
                              self_calibration=self_calibration, config=config, config_source=config_source, crs=crs,
@@ -815,7 +828,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     inputs = [tie_file, *list_images(imgs)] + ([Path(config_source)] if config_source else []) + [
         Path(p) for p in (control, check, *measurements) if p]
     gkw: dict[str, Any] = {}
-    if ground_with_gnss:  # GNSS-supported block with ground control / check points measured in the images
+    if with_ground:  # GNSS-supported block with ground control / check points measured in the images
         from skyrig.io.points_csv import read_measurements_csv, read_points_csv
 
         ctrl = read_points_csv(control) if control else None
