@@ -621,7 +621,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     nominal = camera
     w_mm = camera.width * camera.pixel_size_mm
     sig = {"focal_mm": 0.1 * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
-           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
+           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1, "b1": 0.01, "b2": 0.01}
     sig.update(inp.intrinsic_sigma)
     if cfg.focal_prior_rel is not None:
         sig["focal_mm"] = cfg.focal_prior_rel * f0

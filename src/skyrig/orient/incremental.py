@@ -675,7 +675,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     # ---- 4. final adjustment
     w_mm = camera.width * camera.pixel_size_mm
     sig = {"focal_mm": f_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
-           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1}
+           "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1, "b1": 0.01, "b2": 0.01}
     names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
     final_cfg = AdjustConfig(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,
                              intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
