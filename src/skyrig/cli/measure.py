@@ -19,7 +19,7 @@ import click
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), help="Check points (same formats).")
 @click.option("--points-crs", default=None, help="CRS of point files that state none (default: the EO's).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Measurements CSV to continue and write (default: the project's gcp/image_measurements.csv).")
-@click.option("--adjustment", type=click.Path(exists=True, dir_okay=False), help="An adjustment's ground_control.csv: its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
+@click.option("--adjustment", type=click.Path(exists=True), help="An adjustment's ground_control.csv, or its folder (the one of its report.html): its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
 @click.option("--eo-sigma", type=float, default=0.10, show_default=True, help="Standard deviation of the projection centres (m, each axis) the prediction ellipses assume.")
 @click.option("--attitude-sigma", type=float, default=0.01, show_default=True, help="Standard deviation of the orientation angles (deg).")
 @click.option("--points-sigma", type=float, default=0.02, show_default=True, help="Standard deviation of the ground points (m, each axis).")
@@ -45,7 +45,7 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
     if eo_path:
         inp.eo_path, inp.eo, inp.eo_words, inp.adjusted_control = Path(eo_path).absolute(), None, "--eo", None
     if adjustment:
-        inp.adjusted_control = Path(adjustment)
+        inp.adjusted_control = _ground_control(Path(adjustment))
     inp.cameras = [Path(c) for c in camera_paths] or inp.cameras
     inp.images = [Path(d) for d in image_dirs] or inp.images
     inp.control = Path(points_path) if points_path else inp.control
@@ -84,6 +84,16 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
         _serve(session, port, no_browser)
     finally:
         session.close()
+
+
+def _ground_control(path: Path) -> Path:
+    """``--adjustment``: a ground_control.csv, or the adjustment folder that holds one."""
+    if path.is_dir():
+        if not (path / "ground_control.csv").is_file():
+            raise click.BadParameter(f"no ground_control.csv in the folder {path} (an adjustment's output folder "
+                                     "with control or check points?)", param_hint="--adjustment")
+        return path / "ground_control.csv"
+    return path
 
 
 def _target_kinds(text: str) -> tuple[str, ...]:
