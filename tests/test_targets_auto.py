@@ -126,3 +126,16 @@ def test_aruco_marker_centre():
     assert f.ok and "marker 17" in words
     # a marker far from the start position is not taken
     assert aruco_centre(img, truth + [45.0, 0.0], search_px=5.0) is None
+
+
+def test_target_kinds_in_words():
+    """``--targets``: a list of kinds or 'none'; an unknown kind is refused naming the option."""
+    import click
+
+    from skyrig.cli.measure import _target_kinds
+
+    assert _target_kinds("chequer, disc") == ("chequer", "disc") and _target_kinds("none") == ()
+    with pytest.raises(click.BadParameter, match="unknown target kind 'qr'"):
+        _target_kinds("disc,qr")
+    with pytest.raises(ValueError, match="unknown target kind 'qr'"):
+        detect_target(np.zeros((40, 40)), (20.0, 20.0), kinds=("qr",))
