@@ -512,3 +512,34 @@ def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
     ref = ImageWindows(jpg).window(256, 0, 256, 256)
     assert a.shape == ref.shape and np.mean(np.abs(a.astype(int) - ref)) < 4.0  # JPEG q92, YCbCr: for display
     pyr.close()
+
+
+def test_auto_refinement_takes_a_chequer_corner(sim, tmp_path):
+    """The page's 'auto' refinement goes through the target kinds of the session: a 2 x 2 chequer in the window
+    (here painted, corner at a known sub-pixel position, 8x supersampled) is proposed as a 'corner' at its
+    full-image position within 0.1 px (tests/test_targets_auto.py derives the tolerance); with only discs looked
+    for it is not."""
+    _, _, _, truth = _truth(sim)
+    s = _session(sim, tmp_path / "m.csv", lock=False)
+    corner = np.array([312.37, 213.81])
+
+    class Painted:
+        def around(self, c, r, half):
+            c0, r0 = int(round(c)) - half, int(round(r)) - half
+            n, k = 2 * half + 1, 8
+            x = (np.arange(n * k) + 0.5) / k - 0.5 + c0
+            y = (np.arange(n * k) + 0.5) / k - 0.5 + r0
+            hr = np.where((x[None, :] < corner[0]) ^ (y[:, None] < corner[1]), 200.0, 40.0)
+            win = hr.reshape(n, k, n, k).mean(axis=(1, 3))
+            import cv2
+            return cv2.GaussianBlur(win, (0, 0), 1.0) + np.random.default_rng(1).normal(0, 2.0, win.shape), (c0, r0)
+
+    s.windows = lambda image: Painted()
+    img = str(truth.image[0])
+    prop = s.propose("GCP01", img, *(corner + [2.0, -1.5]))
+    assert prop["method"] == "corner" and prop["refined"] and prop["note"] == "chequer corner", prop
+    assert math.hypot(prop["column"] - corner[0], prop["row"] - corner[1]) < 0.1, (prop, corner)
+    st = s.accept("GCP01", img, prop["column"], prop["row"], "aruco", True, 0.05)  # a marker's method is storable
+    assert [m["method"] for m in st["measurements"] if m["image"] == img] == ["aruco"], st["measurements"]
+    s.target_kinds = ("disc",)
+    assert s.propose("GCP01", img, *(corner + [2.0, -1.5]))["method"] != "corner"

@@ -396,3 +396,37 @@ def test_uav_report_self_calibration(tmp_path):
         assert abs(float(rows[nm][4]) - sig) <= 0.01 * sig
     att = {r[0]: r[1] for r in p.tables["tab-attitude-check"]}
     assert att == {k: str(v.get("metadata", "")) for k, v in res.attitude_check.items()}
+
+
+def test_control_section_names_the_measure_command(adjusted, tmp_path):
+    """The report cannot start ``skyrig measure``'s server: its control section (and the plain page of
+    ``skyrig.io.report_html``) names the command, with this report's folder as ``--adjustment``; that command
+    parses, and the folder resolves to the ground_control.csv written next to the report."""
+    import html as html_mod
+    import shlex
+
+    import click
+
+    from skyrig.adjust.report import adjustment_report
+    from skyrig.cli.measure import _ground_control, command
+    from skyrig.io.report_html import write_report as write_plain_report
+    from skyrig.report import write_adjustment_report
+
+    rep = adjustment_report(adjusted)
+    full = write_adjustment_report(tmp_path / "full", adjusted, rep, "synthetic")["html"]
+    plain = write_plain_report(tmp_path / "plain", adjusted, rep)["html"]
+    proj = tmp_path / "flight"
+    proj.mkdir()
+    for page_path in (full, plain):
+        text = html_mod.unescape(page_path.read_text())
+        m = re.search(r"skyrig measure PROJECT --adjustment (\S+)", text)
+        assert m, page_path
+        args = shlex.split(m.group(0))[2:]
+        assert Path(args[2]) == page_path.parent.absolute()
+        (page_path.parent / "ground_control.csv").write_text("name,x,y,z\n")
+        ctx = command.make_context("measure", [str(proj), *args[1:]])
+        assert ctx.params["project"] == str(proj) and Path(ctx.params["adjustment"]) == page_path.parent
+        assert _ground_control(Path(ctx.params["adjustment"])) == page_path.parent / "ground_control.csv"
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(click.BadParameter, match="no ground_control.csv in the folder"):
+        _ground_control(tmp_path / "empty")

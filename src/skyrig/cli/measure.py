@@ -19,7 +19,7 @@ import click
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), help="Check points (same formats).")
 @click.option("--points-crs", default=None, help="CRS of point files that state none (default: the EO's).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Measurements CSV to continue and write (default: the project's gcp/image_measurements.csv).")
-@click.option("--adjustment", type=click.Path(exists=True, dir_okay=False), help="An adjustment's ground_control.csv: its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
+@click.option("--adjustment", type=click.Path(exists=True), help="An adjustment's ground_control.csv, or its folder (the one of its report.html): its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
 @click.option("--eo-sigma", type=float, default=0.10, show_default=True, help="Standard deviation of the projection centres (m, each axis) the prediction ellipses assume.")
 @click.option("--attitude-sigma", type=float, default=0.01, show_default=True, help="Standard deviation of the orientation angles (deg).")
 @click.option("--points-sigma", type=float, default=0.02, show_default=True, help="Standard deviation of the ground points (m, each axis).")
@@ -27,9 +27,10 @@ import click
 @click.option("--operator", default=None, help="Who measures (default: the login name); written with every measurement.")
 @click.option("--port", type=int, default=0, show_default=True, help="Port on 127.0.0.1 (0: any free port).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the page's address.")
+@click.option("--targets", default="aruco,chequer,disc", show_default=True, help="Target kinds the refinement and --auto look for, in this order: aruco (ArUco / AprilTag markers), chequer (2 x 2 checkerboard corners), disc; 'none' for none.")
 @click.option("--auto", is_flag=True, help="No page: detect the targets around every prediction, store them as 'detected' and exit.")
 def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_dirs, points_path, check_path, points_crs,
-            output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, auto) -> None:
+            output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, targets, auto) -> None:
     """Measure ground control and check points in the images of PROJECT (a project.yaml or a flight folder), or of
     --eo/--camera/--images/--points: a local page (127.0.0.1, a random token in its address) lists the points and
     the images predicted to see them, refines each click to the target's centre and saves every change to the
@@ -44,7 +45,7 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
     if eo_path:
         inp.eo_path, inp.eo, inp.eo_words, inp.adjusted_control = Path(eo_path).absolute(), None, "--eo", None
     if adjustment:
-        inp.adjusted_control = Path(adjustment)
+        inp.adjusted_control = _ground_control(Path(adjustment))
     inp.cameras = [Path(c) for c in camera_paths] or inp.cameras
     inp.images = [Path(d) for d in image_dirs] or inp.images
     inp.control = Path(points_path) if points_path else inp.control
@@ -66,10 +67,12 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
         raise click.UsageError(f"none of the {len(eo)} images of the orientations is in "
                                f"{', '.join(map(str, inp.images))}")
     sig = Sigmas(eo_sigma, attitude_sigma, points_sigma, pixel_sigma)
+    kinds = _target_kinds(targets)
     session = MeasureSession(eo, cams, pts, roles, files, inp.output, sig, operator,
                              {"eo": str(inp.eo_path or inp.eo_words),
                               "points": [str(p) for p in (inp.control, inp.check) if p]},
-                             adjustment=adjustment_residuals(inp.adjusted_control) if inp.adjusted_control else None)
+                             adjustment=adjustment_residuals(inp.adjusted_control) if inp.adjusted_control else None,
+                             target_kinds=kinds)
     if inp.adjusted_control:
         click.echo(f"adjustment residuals: {inp.adjusted_control}")
     try:
@@ -81,6 +84,27 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
         _serve(session, port, no_browser)
     finally:
         session.close()
+
+
+def _ground_control(path: Path) -> Path:
+    """``--adjustment``: a ground_control.csv, or the adjustment folder that holds one."""
+    if path.is_dir():
+        if not (path / "ground_control.csv").is_file():
+            raise click.BadParameter(f"no ground_control.csv in the folder {path} (an adjustment's output folder "
+                                     "with control or check points?)", param_hint="--adjustment")
+        return path / "ground_control.csv"
+    return path
+
+
+def _target_kinds(text: str) -> tuple[str, ...]:
+    from skyrig.web.measure import TARGET_KINDS
+
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip() and k.strip() != "none")
+    bad = [k for k in kinds if k not in TARGET_KINDS]
+    if bad:
+        raise click.BadParameter(f"unknown target kind {bad[0]!r} (known: {', '.join(TARGET_KINDS)}, none)",
+                                 param_hint="--targets")
+    return kinds
 
 
 def _auto(session) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.io._text import atomic_write
 
-__all__ = ["write_report_json", "write_report_html", "write_residual_plot", "write_report"]
+__all__ = ["write_report_json", "write_report_html", "write_residual_plot", "write_report", "measure_command"]
 
 PathLike = str | os.PathLike[str]
 
@@ -101,9 +101,21 @@ def _table(rows: list[dict[str, Any]], cols: list[str], nd: int = 3) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def measure_command(folder: PathLike) -> str:
+    """The words and the command that open ``skyrig measure`` on the control / check points of the adjustment
+    written in ``folder`` (its ``ground_control.csv``), their residuals shown with them: a report cannot start the
+    page's server, so it names the command."""
+    import shlex
+
+    return ("Measure or re-measure these points in the images (the page shows these residuals with them): "
+            f"skyrig measure PROJECT --adjustment {shlex.quote(str(Path(folder).absolute()))} "
+            "(PROJECT: the project.yaml or flight folder, or --eo/--camera/--images/--points in its place)")
+
+
 def write_report_html(path: PathLike, report: dict[str, Any], title: str = "skyrig adjustment",
-                      plots: list[str] = ()) -> None:
-    """A self-contained HTML page of the report tables (plots referenced by relative file name)."""
+                      plots: list[str] = (), folder: PathLike | None = None) -> None:
+    """A self-contained HTML page of the report tables (plots referenced by relative file name); with control or
+    check points and ``folder`` (where ``ground_control.csv`` is), the ``skyrig measure`` command for them."""
     r = report
     parts = [f"<h1>{html.escape(title)}</h1>", "<h2>Summary</h2>",
              _table([{"item": k, "value": v} for k, v in r["summary"].items()], ["item", "value"], 4),
@@ -117,6 +129,8 @@ def write_report_html(path: PathLike, report: dict[str, Any], title: str = "skyr
                       _table(sorted(t["rows"], key=lambda x: x["VXYZ"]), ["point", "VX", "VY", "VZ", "VXYZ"]),
                       _table([t["stats"]], [k for k in ("n", "rms_m", "rms_gsd", "mean_m", "max_abs_m", "limits_m",
                                                         "within_limits") if k in t["stats"]])]
+    if folder is not None and (r["control"]["rows"] or r["check"]["rows"]):
+        parts.append(f"<p class='measure'>{html.escape(measure_command(folder))}</p>")
     o = r["orientation"]
     parts += ["<h2>Orientation vs GNSS/IMU</h2>",
               _table([{"item": k, "value": v} for k, v in o.items() if not isinstance(v, dict)], ["item", "value"], 5),
@@ -157,7 +171,7 @@ def write_report(outdir: PathLike, result: AdjustmentResult, report: dict[str, A
         write_residual_plot(d / name, result, k)
         plots.append(name)
     write_report_json(d / "report.json", report)
-    write_report_html(d / "report.html", report, title, plots)
+    write_report_html(d / "report.html", report, title, plots, folder=d)
     out = {"json": d / "report.json", "html": d / "report.html"}
     out.update({p: d / p for p in plots})
     return out

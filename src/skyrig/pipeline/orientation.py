@@ -843,7 +843,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         from skyrig.report import report_data_from_uav, write_report
 
         write_report(out / "report.html", report_data_from_uav(
-            res, rep, inputs=[tie_file, *list_images(imgs)], options=rep["uav"]["config"]))
+            res, rep, inputs=[tie_file, *list_images(imgs)], options=rep["uav"]["config"], folder=out))
     options = {"images": str(imgs), "ties": str(tie_file), "gnss_sigma_m": list(kw["gnss_sigma_m"]),
                "attitude_sigma_deg": attitude_sigma, "altitude": altitude, "geoid": geoid,
                "focal_prior": focal_prior, "free_intrinsics": list(free), "self_calibration": self_calibration,
@@ -935,7 +935,8 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
         from skyrig.report import report_data_from_uav, write_report
 
         write_report(out / "report.html", report_data_from_uav(
-            res, rep, inputs=inputs, options=rep["uav"]["config"], title="skyrig orientation without GNSS"))
+            res, rep, inputs=inputs, options=rep["uav"]["config"], title="skyrig orientation without GNSS",
+            folder=out))
     options = {"images": None if imgs is None else str(imgs), "ties": str(tie_file), "no_gps": True,
                "altitude": altitude, "geoid": geoid, "focal_prior": focal_prior,
                "self_calibration": self_calibration, "compare_pycolmap": compare_pycolmap,

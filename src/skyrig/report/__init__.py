@@ -56,5 +56,6 @@ def write_adjustment_report(outdir: str | os.PathLike[str], result: Any, rep: di
 
     d = Path(outdir)
     write_report_json(d / "report.json", rep)
+    kw.setdefault("folder", d)
     write_report(d / "report.html", report_data_from_adjustment(result, title=title, rep=rep, **kw))
     return {"json": d / "report.json", "html": d / "report.html"}

@@ -372,8 +372,10 @@ def _point_rows(t: dict[str, Any]) -> list[list[Any]]:
 
 
 @register_section("control", order=30)
-def control_section(result: Any, rep: dict[str, Any], frame: Any = None, map_frame: Any = None) -> Section:
-    """Control and check point residual tables (V = adjusted - given) and the residual map."""
+def control_section(result: Any, rep: dict[str, Any], frame: Any = None, map_frame: Any = None,
+                    folder: str | os.PathLike[str] | None = None) -> Section:
+    """Control and check point residual tables (V = adjusted - given) and the residual map; with ``folder`` (where
+    the adjustment's ``ground_control.csv`` is written) the ``skyrig measure`` command that re-measures them."""
     b, b0 = result.block, result.initial
     ax, where = _table_frame(rep, b)
     blocks: list[Any] = []
@@ -402,6 +404,10 @@ def control_section(result: Any, rep: dict[str, Any], frame: Any = None, map_fra
         blocks.append(Figure("residual-map", f"Control (triangles) and check points (circles): horizontal residual "
                              f"vectors (adjusted - given, scaled; reference arrow bottom right, map scale bar bottom left), vertical residual as "
                              f"colour; {crs_text}.", png, "residual map"))
+        if folder is not None:
+            from skyrig.io.report_html import measure_command
+
+            blocks.append(Note(measure_command(folder)))
     else:
         blocks.append(Note("No control or check points in this block."))
     return Section("control", "Control and check points", blocks)
@@ -625,7 +631,8 @@ def report_data_from_adjustment(result: Any, *, title: str = "skyrig adjustment"
                                 gsd_m: float | None = None, limits_m: tuple[float, float, float] | None = None,
                                 inputs: Iterable[str | os.PathLike[str]] | Sequence[InputFile] = (),
                                 options: dict[str, Any] | None = None, frame: Any = None, map_frame: Any = None,
-                                created: str | None = None, max_image_rows: int = 5000) -> ReportData:
+                                created: str | None = None, max_image_rows: int = 5000,
+                                folder: str | os.PathLike[str] | None = None) -> ReportData:
     """The report of one adjustment.
 
     Parameters
@@ -645,6 +652,9 @@ def report_data_from_adjustment(result: Any, *, title: str = "skyrig adjustment"
         CRS, else in the block frame.
     created
         Date of the run (ISO 8601); default now (UTC).
+    folder
+        Where the report and the adjustment's ``ground_control.csv`` are written: the control section then names
+        the ``skyrig measure`` command for its points.
     """
     from skyrig.adjust.report import adjustment_report
 
@@ -663,7 +673,7 @@ def report_data_from_adjustment(result: Any, *, title: str = "skyrig adjustment"
                       warnings=[w for w in result.warnings if not w.startswith("the adjustment FAILED")])
     data.add(make_section("summary", result, rep))
     data.add(make_section("calibration", result))
-    data.add(make_section("control", result, rep, frame, map_frame))
+    data.add(make_section("control", result, rep, frame, map_frame, folder))
     data.add(make_section("orientation", result, rep, frame, map_frame))
     data.add(make_section("cameras", result, rep))
     data.add(make_section("images", result, max_image_rows))

@@ -54,7 +54,10 @@ __all__ = ["Sigmas", "Record", "MeasureSession", "METHODS"]
 
 #: How a position was found: a plain click, a disc target's centre, a corner's saddle point, least-squares
 #: matching against an image measured before, a target detected automatically, or read from the file.
-METHODS = ("click", "target", "corner", "lsm", "detected")
+METHODS = ("click", "target", "corner", "lsm", "detected", "aruco")
+_PROPOSE = ("target", "corner", "aruco", "lsm", "click")  # refinements the page may ask for (besides "auto")
+TARGET_KINDS = ("aruco", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
+_KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco"}
 _HALF = 24  # refinement window half size, pixels
 
 
@@ -125,6 +128,9 @@ class MeasureSession:
         ``{"eo": ..., "points": [...]}`` file names for the side-car.
     lock
         Take the lock file (a second session on the same file raises :class:`SessionLockedError`).
+    target_kinds
+        The targets that ``"auto"`` refinement and :meth:`detect` look for, in this order (:data:`TARGET_KINDS`:
+        ArUco / AprilTag markers, 2 x 2 chequer corners, discs); empty: none.
     adjustment
         The control / check residuals of the adjustment whose orientations these are
         (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
@@ -133,7 +139,8 @@ class MeasureSession:
     def __init__(self, eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], points: GroundPoints,
                  roles: Mapping[str, str], image_files: Mapping[str, str | os.PathLike], output: str | os.PathLike,
                  sigmas: Sigmas = Sigmas(), operator: str | None = None, sources: Mapping | None = None,
-                 lock: bool = True, adjustment: Mapping[str, dict] | None = None) -> None:
+                 lock: bool = True, adjustment: Mapping[str, dict] | None = None,
+                 target_kinds: tuple[str, ...] = TARGET_KINDS) -> None:
         self.frame_local = local_frame_for(eo.frame.to_ecef(eo.centre))
         self.eo = eo
         self.eo_l = eo.to_frame(self.frame_local)
@@ -151,6 +158,10 @@ class MeasureSession:
         self.output = Path(output)
         self.sigmas = sigmas
         self.operator = operator or _login()
+        bad = sorted(set(target_kinds) - set(TARGET_KINDS))
+        if bad:
+            raise ValueError(f"unknown target kind {bad[0]!r} ({', '.join(TARGET_KINDS)})")
+        self.target_kinds = tuple(target_kinds)
         self.sources = dict(sources or {})
         self.adjustment = {str(k): dict(v) for k, v in (adjustment or {}).items()}
         self.records: dict[tuple[str, str], Record] = {}
@@ -506,26 +517,32 @@ class MeasureSession:
     def propose(self, point: str, image: str, column: float, row: float, method: str = "auto") -> dict:
         """Refine a click (column, row) in ``image`` to the exact position of ``point``.
 
-        ``method``: ``"auto"`` (disc target, else least-squares matching against the best image measured before,
-        else the click), ``"target"``, ``"corner"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
+        ``method``: ``"auto"`` (a target of :attr:`target_kinds` near the click, else least-squares matching
+        against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
+        point nearest the click), ``"aruco"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
         ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
         """
-        from skyrig.match.targets import corner_centre, target_centre
+        from skyrig.match.targets import corner_centre, detect_target, target_centre
 
         if point not in self.pidx:
             raise KeyError(f"no ground point {point!r}")
-        if method not in ("auto", *METHODS[:4]):
-            raise ValueError(f"unknown method {method!r} (auto, {', '.join(METHODS[:4])})")
+        if method not in ("auto", *_PROPOSE):
+            raise ValueError(f"unknown method {method!r} (auto, {', '.join(_PROPOSE)})")
         click = np.array([float(column), float(row)])
         notes = []
         if method != "click":
             win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF)
             o = np.array([c0, r0], dtype=np.float64)
-            if method in ("auto", "target"):
-                f = target_centre(win, click - o)
+            if method == "auto" and self.target_kinds:
+                f, words, kind = detect_target(win, click - o, kinds=self.target_kinds)
                 if f.ok:
-                    return self._proposal(f.xy + o, "target", True, f.sigma_px, f"disc target, radius {f.radius_px:.1f} px")
-                notes.append(f"target: {f.note}")
+                    return self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
+                notes.append(f.note)
+            if method in ("target", "aruco"):
+                f, words, _ = detect_target(win, click - o, kinds=("disc" if method == "target" else "aruco",))
+                if f.ok:
+                    return self._proposal(f.xy + o, method, True, f.sigma_px, words)
+                notes.append(f.note)
             if method == "corner":
                 f = corner_centre(win, click - o)
                 if f.ok:
@@ -598,11 +615,12 @@ class MeasureSession:
             return self.point_state(point)
 
     def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
-        """Look for a disc target around the point's prediction in every image predicted to see it (within
+        """Look for a target (:attr:`target_kinds`) around the point's prediction in every image predicted to see it (within
         ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
         stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii)
-        plus 3 px is passed over (its background is cut: measure it by hand)."""
-        from skyrig.match.targets import target_centre
+        plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
+        centre closer than 8 px."""
+        from skyrig.match.targets import detect_target
 
         st = self.point_state(point)
         found = []
@@ -615,14 +633,15 @@ class MeasureSession:
             reach = max(6.0, search_sigma * (g["a"] or 0.0))
             half = int(min(max(reach + 12, _HALF), 200))
             win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
-            f = target_centre(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach)
+            f, words, _ = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
+                                        kinds=self.target_kinds)
             if not f.ok:
                 continue
             xy = f.xy + [c0, r0]
             edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
-            if edge < 2.5 * f.radius_px + 3.0:
+            if edge < (2.5 * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
                 continue  # the target's surround (2.5 radii for a disc on a square) is cut by the frame: no proposal
-            prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, f"disc target, radius {f.radius_px:.1f} px")
+            prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, words)
             prop["image"] = p["image"]
             found.append(prop)
             if accept:
