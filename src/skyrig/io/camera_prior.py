@@ -46,7 +46,7 @@ from functools import lru_cache
 from importlib import resources
 from typing import Any
 
-from skyrig.errors import InputFormatError
+from skyrig.errors import ConfigError, InputFormatError
 
 logger = logging.getLogger(__name__)
 
@@ -224,11 +224,13 @@ def camera_prior(meta: Any, *, focal_sigma_rel: float | None = None) -> CameraPr
     Raises
     ------
     InputFormatError
-        A vendor XMP field that cannot be read, or a focal sigma that is not positive (naming it).
+        A vendor XMP field that cannot be read (naming the file and field).
+    ConfigError
+        A focal sigma that is not positive (naming ``focal_prior_rel``).
     """
     if focal_sigma_rel is not None and not (math.isfinite(focal_sigma_rel) and focal_sigma_rel > 0):
-        raise InputFormatError(f"focal prior sigma {focal_sigma_rel!r} must be a positive number (relative, e.g. "
-                               "0.03 for 3 %)", None, None, "focal_prior_rel")
+        raise ConfigError(f"focal_prior_rel: the focal prior's sigma {focal_sigma_rel!r} must be a positive number "
+                          "(relative, e.g. 0.03 for 3 %)")
     W, H = int(meta.width), int(meta.height)
     long_side = max(W, H)
     centre = ((W - 1) / 2.0, (H - 1) / 2.0)

@@ -22,7 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
-from skyrig.errors import SkyrigError, UavAdjustError  # noqa: F401 - UavAdjustError re-exported
+from skyrig.errors import ConfigError, SkyrigError, UavAdjustError  # noqa: F401 - UavAdjustError re-exported
 from skyrig.orient.similarity import _MIN_COMMON, _robust_similarity
 from skyrig.orient.strips import _renumber_strips, detect_strips
 from skyrig.orient.triangulation import (
@@ -104,11 +104,11 @@ class UavConfig:
             d.setdefault("determinable_ratio", old)
         bad = sorted(set(d) - set(cls.__dataclass_fields__))
         if bad:
-            raise ValueError(f"{source}: unknown UAV adjustment option(s) {bad}; "
+            raise ConfigError(f"{source}: unknown UAV adjustment option(s) {bad}; "
                              f"known: {sorted(cls.__dataclass_fields__)}")
         fp = d.get("focal_prior_rel")
         if fp is not None and not (isinstance(fp, (int, float)) and np.isfinite(fp) and fp > 0):
-            raise ValueError(f"{source}: focal_prior_rel must be a positive number (relative sigma, e.g. 0.03), "
+            raise ConfigError(f"{source}: focal_prior_rel must be a positive number (relative sigma, e.g. 0.03), "
                              f"got {fp!r}")
         for k in ("gnss_sigma_m", "self_calibration", "free_anyway"):
             if k in d and d[k] is not None:
