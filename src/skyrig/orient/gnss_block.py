@@ -105,11 +105,11 @@ class UavConfig:
         bad = sorted(set(d) - set(cls.__dataclass_fields__))
         if bad:
             raise ConfigError(f"{source}: unknown UAV adjustment option(s) {bad}; "
-                             f"known: {sorted(cls.__dataclass_fields__)}")
+                              f"known: {sorted(cls.__dataclass_fields__)}")
         fp = d.get("focal_prior_rel")
         if fp is not None and not (isinstance(fp, (int, float)) and np.isfinite(fp) and fp > 0):
             raise ConfigError(f"{source}: focal_prior_rel must be a positive number (relative sigma, e.g. 0.03), "
-                             f"got {fp!r}")
+                              f"got {fp!r}")
         for k in ("gnss_sigma_m", "self_calibration", "free_anyway"):
             if k in d and d[k] is not None:
                 d[k] = tuple(d[k])
