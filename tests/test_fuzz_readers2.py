@@ -14,6 +14,7 @@ and prints the counts.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import sys
 import warnings
@@ -95,10 +96,10 @@ def _rows(obj: object) -> list[tuple]:
     return [tuple(_cell(x) for c in cols for x in np.ravel(c[i])) for i in range(n)]
 
 
-def read(kind: str, path: Path) -> object:
+def read(kind: str | None, path: Path, reader=None) -> object:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return _reader(kind)(path)
+        return (reader or _reader(kind))(path)
 
 
 ORIGINAL: dict[str, list[tuple]] = {}
@@ -228,3 +229,98 @@ def test_found_cases_are_refused(tmp_path, kind, op, data):
     p.write_bytes(data)
     with pytest.raises(SkyrigError, match=p.name):
         read(kind, p)
+
+
+# --------------------------------------------------------------------------------------- block file manifest
+#: Values no manifest key can mean where another was written: wrong JSON types and magnitudes beyond any block
+#: (a plausible number in place of another, say a lever arm of -1 m, is another block, not damage).
+BAD_VALUES = [None, "x", "", 1e300, -1e300, "NaN", [], {}, True, [1, 2], {"a": 1}]
+
+
+@pytest.fixture(scope="module")
+def block_dir(tmp_path_factory):
+    from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.synthetic import synthetic_block
+    from skyrig.io.block_file import read_block, write_block
+
+    block, _ = synthetic_block(seed=1, n_strips=1, n_per_strip=3, n_points=20)
+    d = tmp_path_factory.mktemp("blk")
+    write_block(d / "block.json", block, AdjustConfig(snooping=True))
+    return d, json.loads((d / "block.json").read_text()), _block_key(read_block(d / "block.json"))
+
+
+def _block_key(bf: object) -> tuple:
+    """Everything a read block holds (every field of the Block, the adjustment configuration, the frame)."""
+    b = bf.block  # type: ignore[attr-defined]
+    out = [repr(bf.config), repr(getattr(bf, "frame", None))]  # type: ignore[attr-defined]
+    for f in dataclasses.fields(b):
+        v = getattr(b, f.name)
+        out.append(np.round(v, 9).tobytes() if isinstance(v, np.ndarray) and v.dtype.kind == "f"
+                   else (v.tobytes() if isinstance(v, np.ndarray) else repr(v)))
+    return tuple(out)
+
+
+def _paths(obj: object, prefix: tuple = ()) -> list[tuple]:
+    if isinstance(obj, dict):
+        return [prefix] * bool(prefix) + [p for k, v in obj.items() for p in _paths(v, prefix + (k,))]
+    if isinstance(obj, list):
+        return [prefix] * bool(prefix) + [p for i, v in enumerate(obj) for p in _paths(v, prefix + (i,))]
+    return [prefix]
+
+
+@st.composite
+def manifest_edit(draw: st.DrawFn, man: dict) -> tuple[tuple, object]:
+    path = draw(st.sampled_from([p for p in _paths(man) if p and p[0] not in ("checksums", "format")]))
+    return path, draw(st.sampled_from(BAD_VALUES))
+
+
+def check_manifest(block_dir, path: tuple, value: object) -> None:
+    import copy
+
+    from skyrig.io.block_file import read_block
+
+    d, man, want = block_dir
+    if (path == ("adjustment",) and value == {}) or (path == ("frame",) and isinstance(value, str)):
+        return  # valid files: the adjustment's defaults; a free-text frame description
+    man = copy.deepcopy(man)
+    node = man
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    p = d / "fuzz_block.json"
+    p.write_text(json.dumps(man))
+    try:
+        got = read(None, p, reader=read_block)
+    except SkyrigError as exc:
+        assert p.name in str(exc) or "block_" in str(exc), (path, value, str(exc))  # the manifest or a table
+        return
+    assert _block_key(got) == want, (path, value)
+
+
+def test_block_manifest_wrong_values_refused_or_same(block_dir):
+    @SHORT
+    @given(edit=manifest_edit(block_dir[1]))
+    @example(edit=(("cameras", 0, "pp_col"), -1e300))  # found: a principal point off the image was read
+    @example(edit=(("lever_arm_m",), 1e300))  # found: ValueError (reshape) instead of a refusal
+    @example(edit=(("tables", "stations"), None))  # found: TypeError (path / None)
+    @example(edit=(("frame",), None))  # found: a null frame read as the text 'None'
+    @example(edit=(("cameras", 0, "focal_px"), True))  # a boolean read as focal 1 px
+    def check(edit: tuple[tuple, object]) -> None:
+        check_manifest(block_dir, *edit)
+
+    check()
+
+
+@pytest.mark.slow
+@pytest.mark.fuzz
+def test_block_manifest_long_profile(block_dir):
+    count = Counter()
+
+    @LONG
+    @given(edit=manifest_edit(block_dir[1]))
+    def check(edit: tuple[tuple, object]) -> None:
+        count[edit[0][0]] += 1
+        check_manifest(block_dir, *edit)
+
+    check()
+    print("\nfuzz block manifest: " + ", ".join(f"{k} {v}" for k, v in sorted(count.items())))
