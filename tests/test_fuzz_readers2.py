@@ -223,6 +223,22 @@ FOUND = [
 ]
 
 
+def test_sbet_jump_between_records_is_refused(tmp_path):
+    """A record 6.4 km from its neighbours 5 ms apart (1.3e6 m/s) is damage, not flight; 200 m/s is flight."""
+    from skyrig.io.sbet import SBET_DTYPE
+
+    for dlon, ok in ((1e-3, False), (200 * 0.005 / 6.4e6 / math.cos(math.radians(48.3)), True)):
+        rec = np.frombuffer(GOOD["sbet"], dtype=SBET_DTYPE).copy()
+        rec["longitude"][2:] += dlon
+        p = tmp_path / "sbet_jump.out"
+        p.write_bytes(rec.tobytes())
+        if ok:
+            assert len(read("sbet", p).time_s) == 4
+        else:
+            with pytest.raises(SkyrigError, match="record 3 is .* m/s from the previous"):
+                read("sbet", p)
+
+
 @pytest.mark.parametrize("kind,op,data", FOUND, ids=[f"{k}-{i}" for i, (k, _, _) in enumerate(FOUND)])
 def test_found_cases_are_refused(tmp_path, kind, op, data):
     p = tmp_path / FILE_NAME[kind]
