@@ -118,3 +118,34 @@ def test_a_stage_warning_is_shown_in_words_and_kept_in_run_json(tmp_path):
     assert "warning: in.txt: a lever arm of 12 m is unusually long" in r.stderr, r.stderr
     run = json.loads((tmp_path / "output" / "run.json").read_text())
     assert run["stages"][0]["warnings"] == ["in.txt: a lever arm of 12 m is unusually long"], run
+
+
+def test_a_stage_warning_is_a_note_in_its_report_html(tmp_path):
+    """A stage that writes a report.html (adjust, adjust-uav) shows its warnings there too, once, as a warning
+    note after the page's header; a warning the page already lists is not repeated."""
+    (tmp_path / "in.txt").write_text("x")
+    (tmp_path / "project.yaml").write_text("format: skyrig-project\nversion: 1\ncrs: EPSG:25832\ninputs:\n"
+                                           "  control: in.txt\nstages:\n  paged: {}\n")
+    script = tmp_path / "r.py"
+    script.write_text(
+        "import warnings\n"
+        "from skyrig.errors import PlausibilityWarning\n"
+        "from skyrig.pipeline.run import Stage, register_stage\n"
+        "from skyrig.report.model import ReportData\n"
+        "from skyrig.report.html import write_report\n"
+        "def paged(ctx):\n"
+        "    warnings.warn('in.txt: sigma 5 <m> is large', PlausibilityWarning)\n"
+        "    warnings.warn('already on the page', PlausibilityWarning)\n"
+        "    write_report(ctx.out / 'report.html', ReportData(title='t', software='s', created='c', warnings=['already on the page']))\n"
+        "register_stage(Stage('paged', 'p', paged, provides={'r': 'report.html'}, inputs=lambda p, o: [p.control]))\n"
+        "from skyrig.cli import main\n"
+        f"main(['run', {str(tmp_path / 'project.yaml')!r}])\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=_env(), timeout=120)
+    assert r.returncode == 0, r.stderr
+    page = (tmp_path / "output" / "paged" / "report.html").read_text()
+    run = json.loads((tmp_path / "output" / "run.json").read_text())
+    assert run["stages"][0]["warnings"] == ["in.txt: sigma 5 <m> is large", "already on the page"]
+    box = page.split("id='stage-warnings'")[1].split("</div>")[0]
+    assert "in.txt: sigma 5 &lt;m&gt; is large" in box and "already on the page" not in box, box
+    assert page.count("already on the page") == 1
+    assert page.index("</header>") < page.index("stage-warnings")

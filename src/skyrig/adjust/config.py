@@ -16,6 +16,8 @@ from them.  The parts own their checks.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Literal
 
@@ -329,6 +331,23 @@ class AdjustConfig:
         bad = sorted(set(data) - known)
         if bad:
             raise ConfigError(f"{source}: unknown adjustment option(s) {bad}; known: {sorted(known)}")
+        for key, v in data.items():  # the JSON type the default has (null, a text or a list is not a number...)
+            want = cls.__dataclass_fields__[key].default
+            if want is dataclasses.MISSING or want is None:
+                continue
+            if isinstance(want, bool):
+                ok = isinstance(v, bool)
+            elif isinstance(want, (int, float)):
+                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            elif isinstance(want, str):
+                ok = isinstance(v, str)
+            elif isinstance(want, tuple):
+                ok = isinstance(v, (list, tuple, dict))
+            else:
+                ok = True
+            if not ok:
+                raise ConfigError(f"{source}: adjustment option {key!r} must be {type(want).__name__} like its "
+                                  f"default {want!r}, got {v!r}")
         d = dict(data)
         if "intrinsic_names" in d and d["intrinsic_names"] is not None:
             d["intrinsic_names"] = tuple(d["intrinsic_names"])

@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 
 import click
+
+from skyrig.cli._types import CRS_TEXT, GEOID, MAP_Z
 import numpy as np
 
 from skyrig.camera.frame import FrameCamera
@@ -75,9 +77,9 @@ def eo_options(f: Callable) -> Callable:
     opts = [
         click.option("--eo", "eo_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Exterior orientation file (skyrig EO CSV, IGN .OPK, ODM geo.txt)."),
         click.option("--eo-format", type=click.Choice(sorted(EO_READERS)), default=None, help="EO file format (default: from the file name)."),
-        click.option("--eo-crs", default=None, help="CRS of the EO file when it does not say (e.g. EPSG:2154 for IGN .OPK)."),
-        click.option("--eo-geoid", default=None, help="Geoid grid (path or PROJ name) when EO heights are orthometric."),
-        click.option("--eo-map-z-ground", type=float, default=None, help="Undo the linear alteration of projection-centre heights from an adjustment in map coordinates, with this mean ground height (m)."),
+        click.option("--eo-crs", type=CRS_TEXT, default=None, help="CRS of the EO file when it does not say (e.g. EPSG:2154 for IGN .OPK)."),
+        click.option("--eo-geoid", type=GEOID, default=None, help="Geoid grid (path or PROJ name) when EO heights are orthometric."),
+        click.option("--eo-map-z-ground", type=MAP_Z, default=None, help="Undo the linear alteration of projection-centre heights from an adjustment in map coordinates, with this mean ground height (m)."),
         click.option("--camera", "camera_paths", multiple=True, required=True, type=click.Path(exists=True, dir_okay=False), help="Camera file (IGN camera .txt or skyrig rig YAML); repeat for several."),
     ]
     for o in reversed(opts):

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import click
 
+from skyrig.cli._types import CRS_TEXT, GEOID, MAP_Z, POSITIVE
+
 from skyrig.cli._common import EO_READERS, load_eo
 from skyrig.georef.eo import WorldFrame
 from skyrig.io.eo_csv import write_eo_csv
@@ -64,16 +66,16 @@ def _echo_fits(reports: dict, what: str) -> None:
 @click.option("--from-format", type=click.Choice(sorted(EO_READERS) + list(CAMERA_FORMATS)), default=None,
               help="Input format (default: from the name; a folder is a COLMAP model). With --camera: the camera "
                    "file's format.")
-@click.option("--from-crs", default=None, help="CRS of the input when the file does not say.")
-@click.option("--from-geoid", default=None, help="Geoid grid when input heights are orthometric.")
-@click.option("--from-map-z-ground", type=float, default=None, help="Undo the linear alteration of input heights (map-coordinate adjustment) with this ground height.")
+@click.option("--from-crs", type=CRS_TEXT, default=None, help="CRS of the input when the file does not say.")
+@click.option("--from-geoid", type=GEOID, default=None, help="Geoid grid when input heights are orthometric.")
+@click.option("--from-map-z-ground", type=MAP_Z, default=None, help="Undo the linear alteration of input heights (map-coordinate adjustment) with this ground height.")
 @click.option("--to-format", type=click.Choice(sorted(WRITERS) + list(MODEL_WRITERS) + list(CAMERA_FORMATS)),
               default=None, help="Output format (default skyrig-csv; with --camera: from the output name). colmap "
               "(binary), colmap-text, opensfm, metashape-xml write a model: orientations and cameras (from the "
               "input model, or --camera files).")
-@click.option("--to-crs", default=None, help="Output CRS: EPSG code, WKT, PROJ string, 'ecef' (default: the input's).")
+@click.option("--to-crs", type=CRS_TEXT, default=None, help="Output CRS: EPSG code, WKT, PROJ string, 'ecef' (default: the input's).")
 @click.option("--to-heights", type=click.Choice(["ellipsoidal", "orthometric"]), default=None, help="Output height reference (default: the input's).")
-@click.option("--to-geoid", default=None, help="Geoid grid for orthometric output heights.")
+@click.option("--to-geoid", type=GEOID, default=None, help="Geoid grid for orthometric output heights.")
 @click.option("--to-angles", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True)
 @click.option("--to-convention", type=click.Choice(["opk", "pok", "ypr"]), default="opk", show_default=True)
 @click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True),
@@ -86,7 +88,7 @@ def _echo_fits(reports: dict, what: str) -> None:
 @click.option("--camera-name", default=None, help="With --camera: the camera of a file that holds several.")
 @click.option("--fit-cameras", is_flag=True, help="A camera the output format cannot hold exactly is fitted over "
               "the frame (refused above --max-residual-px RMS); without it such a camera is an error.")
-@click.option("--max-residual-px", type=float, default=0.01, show_default=True,
+@click.option("--max-residual-px", type=POSITIVE, default=0.01, show_default=True,
               help="Largest RMS (px) of a fitted camera over the frame.")
 def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_ground, to_format, to_crs, to_heights,
             to_geoid, to_angles, to_convention, camera_paths, to_model, camera_name, fit_cameras,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, POSITIVE, POSITIVE_INT, POSITIVE_M
+
 from skyrig.cli._common import eo_options
 
 
@@ -12,34 +14,34 @@ from skyrig.cli._common import eo_options
 @click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
               help="Image folder or image file; repeat for several. Only images with an orientation are used.")
 @click.option("--heads", default=None, help="Use only these rig heads / name parts (comma list, e.g. 'nadir').")
-@click.option("--crs", default=None, help="Output CRS (projected, metres); default: the EO file's CRS.")
-@click.option("--geoid", default=None, help="Geoid grid for orthometric output heights (default: the EO file's).")
-@click.option("--height-range", nargs=2, type=float, default=None, metavar="MIN MAX",
+@click.option("--crs", type=CRS_TEXT, default=None, help="Output CRS (projected, metres); default: the EO file's CRS.")
+@click.option("--geoid", type=GEOID, default=None, help="Geoid grid for orthometric output heights (default: the EO file's).")
+@click.option("--height-range", nargs=2, type=FINITE, default=None, metavar="MIN MAX",
               help="Expected surface heights in the output heights (m); sets the disparity search.")
 @click.option("--points", "points_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Sparse points (e.g. skyrig adjust's points.csv) to derive the height range from.")
-@click.option("--area", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
+@click.option("--area", nargs=4, type=FINITE, default=None, metavar="XMIN YMIN XMAX YMAX",
               help="Area to compute in the output CRS (default: where the images see the ground).")
-@click.option("--resolution", type=float, default=None, help="Cell size in metres (default: 1 GSD).")
+@click.option("--resolution", type=POSITIVE_M, default=None, help="Cell size in metres (default: 1 GSD).")
 @click.option("--mode", type=click.Choice(["sgbm", "hh", "3way", "hh4"]), default="sgbm", show_default=True,
               help="OpenCV semi-global matching mode.")
 @click.option("--lr-check", type=click.Choice(["full", "opencv"]), default=None,
               help="Left-right check: 'full' (default: a second matching from the right image) or 'opencv' "
                    "(OpenCV's internal one: half the matching time, rounder building edges, a few more outliers).")
-@click.option("--pairs-per-image", type=int, default=6, show_default=True, help="Stereo pairs an image takes part in.")
-@click.option("--min-support", type=int, default=2, show_default=True,
+@click.option("--pairs-per-image", type=POSITIVE_INT, default=6, show_default=True, help="Stereo pairs an image takes part in.")
+@click.option("--min-support", type=POSITIVE_INT, default=2, show_default=True,
               help="Stereo pairs that must agree on a cell's height.")
 @click.option("--fill", is_flag=True, help="Interpolate small holes (flagged in the 'filled' band).")
 @click.option("--no-cloud", is_flag=True, help="Do not write the dense point cloud.")
-@click.option("--min-depth", type=float, default=None,
+@click.option("--min-depth", type=POSITIVE_M, default=None,
               help="Nearest depth searched from a camera in metres (default: a quarter of its distance to the scene).")
-@click.option("--tile-cells", type=int, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
-@click.option("--window-min-mp", type=float, default=60.0, show_default=True,
+@click.option("--tile-cells", type=POSITIVE_INT, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
+@click.option("--window-min-mp", type=POSITIVE, default=60.0, show_default=True,
               help="TIFF images of at least this many megapixels are read window by window (only what each block "
                    "needs: memory bounded by the block, not the image); 0 reads every TIFF so.")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
-@click.option("--workers", type=int, default=None, help="Local worker processes.")
+@click.option("--workers", type=POSITIVE_INT, default=None, help="Local worker processes.")
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,

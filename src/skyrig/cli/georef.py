@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from skyrig.cli._types import CRS_TEXT, GEOID
+
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import WorldFrame
 
@@ -29,9 +31,9 @@ def load_trajectory(path: str, reference: str | None):
 @click.option("--reference", type=click.Choice(["imu", "antenna"]), default=None, help="Point the SBET positions refer to (CSV files say it in their header).")
 @click.option("--events", "events_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Camera events CSV (image, time, head, beta).")
 @click.option("--rig", "rig_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Rig file (YAML).")
-@click.option("--crs", required=True, help="Output CRS: EPSG code, WKT, PROJ string, or 'ecef'.")
+@click.option("--crs", type=CRS_TEXT, required=True, help="Output CRS: EPSG code, WKT, PROJ string, or 'ecef'.")
 @click.option("--heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal", show_default=True)
-@click.option("--geoid", default=None, help="Geoid grid (path or PROJ name) for orthometric heights.")
+@click.option("--geoid", type=GEOID, default=None, help="Geoid grid (path or PROJ name) for orthometric heights.")
 @click.option("--angles", type=click.Choice(["deg", "rad", "gon"]), default="deg", show_default=True)
 @click.option("--convention", type=click.Choice(["opk", "pok", "ypr"]), default="opk", show_default=True)
 @click.option("--position", type=click.Choice(["cubic", "linear"]), default="cubic", show_default=True, help="Position interpolation (attitude: slerp).")

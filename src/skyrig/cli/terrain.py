@@ -6,6 +6,8 @@ import json
 
 import click
 
+from skyrig.cli._types import CRS_TEXT, POSITIVE_M
+
 
 @click.group("terrain")
 def command() -> None:
@@ -15,7 +17,7 @@ def command() -> None:
 @command.command("classify")
 @click.argument("cloud", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Classified LAS/LAZ to write.")
-@click.option("--crs", default=None, help="CRS of a cloud whose file states none (e.g. EPSG:25832).")
+@click.option("--crs", type=CRS_TEXT, default=None, help="CRS of a cloud whose file states none (e.g. EPSG:25832).")
 @click.option("--cloth-resolution", type=float, default=1.0, show_default=True,
               help="Cloth particle spacing of the cloth simulation filter, metres (2-3 x the point spacing).")
 @click.option("--class-threshold", type=float, default=0.5, show_default=True,
@@ -57,9 +59,9 @@ def classify(cloud, output, crs, cloth_resolution, class_threshold, rigidness, b
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--dsm", default=None, type=click.Path(exists=True, dir_okay=False),
               help="DSM COG: the DTM takes its grid, and the normalised DSM (DSM - DTM) is written.")
-@click.option("--resolution", type=float, default=None, help="Cell size in metres (default: the DSM's, else 1).")
-@click.option("--crs", default=None, help="CRS of a cloud whose file states none.")
-@click.option("--max-gap", type=float, default=20.0, show_default=True,
+@click.option("--resolution", type=POSITIVE_M, default=None, help="Cell size in metres (default: the DSM's, else 1).")
+@click.option("--crs", type=CRS_TEXT, default=None, help="CRS of a cloud whose file states none.")
+@click.option("--max-gap", type=POSITIVE_M, default=20.0, show_default=True,
               help="Gaps in the cloud farther than this from ground (m) stay without data (gaps under buildings and "
                    "vegetation are always interpolated).")
 @click.option("--classify", is_flag=True, help="Classify the cloud first (default parameters).")

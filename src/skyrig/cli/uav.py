@@ -52,6 +52,8 @@ from typing import Any
 
 import click
 
+from skyrig.cli._types import CRS_TEXT, GEOID, POSITIVE, POSITIVE_INT
+
 from skyrig.cli._common import parse_sigmas, with_old_spellings
 
 __all__ = ["command"]
@@ -74,12 +76,12 @@ class _NotPublished(Exception):
 @click.option("--gnss-sigma", default="2,2,4", show_default=True,
               help="GNSS sigma east,north,up (m; one value for all axes); consumer GPS: metres. The old form of "
                    "three separate numbers is deprecated.")
-@click.option("--attitude-sigma", type=float, default=5.0, show_default=True,
+@click.option("--attitude-sigma", type=POSITIVE, default=5.0, show_default=True,
               help="Sigma of verified gimbal attitudes (deg); 0 = attitudes not observed.")
 @click.option("--altitude", type=click.Choice(["egm96", "ellipsoidal"]), default="egm96", show_default=True,
               help="Reference of the EXIF GPS altitude (DJI: EGM96 above mean sea level).")
-@click.option("--geoid", help="EGM96 grid (path or PROJ name); default ../shared/data/geoid or PROJ's.")
-@click.option("--focal-prior", type=float, default=None,
+@click.option("--geoid", type=GEOID, help="EGM96 grid (path or PROJ name); default ../shared/data/geoid or PROJ's.")
+@click.option("--focal-prior", type=POSITIVE, default=None,
               help="Relative sigma of the focal length prior (e.g. 0.03). Default: the sigma of the prior's source "
                    "(1 %% vendor XMP calibration, 3 %% EXIF focal with the sensor database, 10 %% 35-mm value, "
                    "50 %% nothing).")
@@ -95,11 +97,11 @@ class _NotPublished(Exception):
               help="pycolmap comparison on: images (its own SIFT, matching and mapper) or tracks (its mapper on "
                    "skyrig's tie points, the same measurements; for sets without image files). Default: images when "
                    "there are image files, else tracks.")
-@click.option("--pycolmap-size", type=int, default=1600, show_default=True,
+@click.option("--pycolmap-size", type=POSITIVE_INT, default=1600, show_default=True,
               help="pycolmap comparison: SIFT on images downscaled to this.")
 @click.option("--pycolmap-mapper", type=click.Choice(["incremental", "global"]), default="incremental",
               show_default=True, help="pycolmap comparison: COLMAP incremental or GLOMAP global mapper.")
-@click.option("--crs", "crs", default=None,
+@click.option("--crs", "crs", type=CRS_TEXT, default=None,
               help="Project CRS of the outputs (a compound CRS such as EPSG:32630+5773 gives orthometric heights "
                    "through its geoid); default: the UTM zone of the images' GNSS, ellipsoidal heights.")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False),
@@ -141,6 +143,8 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     from skyrig.orient.incremental import OrientError
     from skyrig.pipeline.orientation import make_uav_orientation, needs_no_gnss
 
+    gs = parse_sigmas(gnss_sigma, 3, "--gnss-sigma", "east,north,up")  # options first: refused before any input
+    cs = parse_sigmas(gcp_sigma, 3, "--control-sigma", "x,y,z")
     proj = Path(project)
     images = Path(image_dir) if image_dir else (proj / "images" if (proj / "images").is_dir() else proj)
     match = Path(match_dir) if match_dir else proj / "match"
@@ -150,8 +154,6 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
     old = click.get_current_context().meta.get("skyrig.old_spellings", {})
     out_option = ("-o/--out" if "--out" in old else "-o/--output") if out else None
     without = needs_no_gnss(no_gps, gcp_path, check_path, scale_bar_path, camera_path, meas_paths, datum, images)
-    gs = parse_sigmas(gnss_sigma, 3, "--gnss-sigma", "east,north,up")
-    cs = parse_sigmas(gcp_sigma, 3, "--control-sigma", "x,y,z")
     config = None
     if config_path:
         from skyrig.io._text import read_text

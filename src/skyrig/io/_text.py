@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gc
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -44,7 +45,15 @@ def read_text(path: PathLike) -> str:
     nul = text.find("\x00")
     if nul >= 0:  # a name or number with a NUL in it would be read as another one: a damaged (or binary) file
         raise InputFormatError("NUL byte: a damaged or binary file, not text", p, text.count("\n", 0, nul) + 1)
+    ctl = _CONTROL.search(text)
+    if ctl:  # a control byte in a name would make it another name (and \x0b, \x0c, \x1c-\x1e split lines)
+        raise InputFormatError(f"control character {ctl.group()!r} (byte {ctl.start() + 1}): a damaged or binary "
+                               "file, not text", p, text.count("\n", 0, ctl.start()) + 1)
     return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+#: Control characters no skyrig text file holds (tab, line feed and carriage return are allowed).
+_CONTROL = re.compile("[\x01-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
 def parse_float(text: str, path: PathLike, line: int, field: str) -> float:

@@ -284,6 +284,47 @@ class _Table:
         return vals
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _check_manifest_types(man: dict, p: Path) -> None:
+    """Each manifest key's JSON type (a null, a list or a text where a number is meant is a damaged manifest, not
+    a default), before any value is used."""
+    def need(ok: bool, key: str, what: str) -> None:
+        if not ok:
+            raise InputFormatError(f"must be {what}, got {json.dumps(man[key])[:60]}", p, None, key)
+
+    if "frame" in man:
+        need(isinstance(man["frame"], str), "frame", "a text (the block's frame)")
+    if "crs" in man:
+        need(man["crs"] is None or isinstance(man["crs"], str), "crs", "a CRS text or null")
+    if "rig" in man:
+        need(isinstance(man["rig"], str) and bool(man["rig"]), "rig", "the rig file's name")
+    if "tables" in man:
+        need(isinstance(man["tables"], dict) and all(isinstance(v, str) and v for v in man["tables"].values()),
+             "tables", "a mapping {table: file name}")
+    if "cameras" in man:
+        need(isinstance(man["cameras"], list) and all(isinstance(c, dict) for c in man["cameras"]), "cameras",
+             "a list of camera mappings")
+    if "heads" in man:
+        need(isinstance(man["heads"], list) and all(isinstance(h, str) and h for h in man["heads"]), "heads",
+             "a list of head names")
+    if "lever_arm_m" in man:
+        v = man["lever_arm_m"]
+        need(isinstance(v, list) and len(v) == 3 and all(map(_is_number, v)), "lever_arm_m",
+             "[x, y, z] in metres (3 finite numbers)")
+        from skyrig.io.plausibility import check_lever_arm
+
+        check_lever_arm(v, p, None, "lever_arm_m")
+    if "adjustment" in man:
+        need(isinstance(man["adjustment"], dict), "adjustment", "a mapping of AdjustConfig fields ({} for the defaults)")
+    if "actuator_correction" in man:
+        v = man["actuator_correction"]
+        need(isinstance(v, dict) and all(isinstance(c, list) and all(map(_is_number, c)) for c in v.values()),
+             "actuator_correction", "a mapping {head: [coefficients]}")
+
+
 def _camera(d: dict, path: Path, k: int) -> FrameCamera:
     field = f"cameras[{k}]"
     need = ("name", "width", "height", "focal_px", "pp_col", "pp_row")
@@ -293,6 +334,33 @@ def _camera(d: dict, path: Path, k: int) -> FrameCamera:
     extra = set(d) - set(need) - {"distortion", "pixel_size_mm"}
     if extra:
         raise InputFormatError(f"unknown camera key(s) {sorted(extra)}", path, None, field)
+    for key in need[1:] + ("pixel_size_mm",):
+        v = d.get(key, 0.001)
+        if not (_is_number(v) or (key == "focal_px" and isinstance(v, list) and len(v) == 2
+                                  and all(map(_is_number, v)))):
+            raise InputFormatError(f"must be a finite number{' or [fx, fy]' * (key == 'focal_px')}, got "
+                                   f"{json.dumps(v)[:60]}", path, None, f"{field}.{key}")
+    if not isinstance(d["name"], str) or not d["name"]:
+        raise InputFormatError(f"must be a name, got {json.dumps(d['name'])[:60]}", path, None, f"{field}.name")
+    for key in ("width", "height"):
+        if d[key] != int(d[key]) or not 0 < d[key] <= 10**6:
+            raise InputFormatError(f"must be a whole number of pixels (1 to 1000000), got {d[key]!r}", path, None,
+                                   f"{field}.{key}")
+    for key, size in (("pp_col", "width"), ("pp_row", "height")):  # a principal point off the image
+        if not -0.5 <= d[key] <= d[size] - 0.5:
+            raise InputFormatError(f"principal point {d[key]!r} px is outside the image ({size} {d[size]} px)", path,
+                                   None, f"{field}.{key}")
+    for f in (d["focal_px"] if isinstance(d["focal_px"], list) else [d["focal_px"]]):
+        size = max(d["width"], d["height"])  # fields of view over 174 deg or under 0.06 deg: no frame camera
+        if not size / 20 <= f <= 1000 * size:
+            raise InputFormatError(f"focal length {f!r} px is not plausible for a {d['width']} x {d['height']} px "
+                                   "image (1/20 to 1000 x its size)", path, None, f"{field}.focal_px")
+    if isinstance(d["focal_px"], list) and not 0.8 <= d["focal_px"][0] / d["focal_px"][1] <= 1.25:
+        raise InputFormatError(f"fx / fy = {d['focal_px'][0] / d['focal_px'][1]:.4g} is not plausible (pixels are "
+                               "square to within a few per cent)", path, None, f"{field}.focal_px")
+    if not 1e-4 <= d.get("pixel_size_mm", 0.001) <= 1.0:
+        raise InputFormatError(f"pixel size {d['pixel_size_mm']!r} mm is not plausible (0.1 um to 1 mm; "
+                               "micrometres given as millimetres?)", path, None, f"{field}.pixel_size_mm")
     focal = d["focal_px"]
     if isinstance(focal, list):  # [fx, fy]: fx != fy is the Brown affinity b1 (skyrig.camera.aspect)
         if len(focal) != 2:
@@ -351,6 +419,7 @@ def read_block(path: PathLike) -> BlockFile:
     bad = sorted(set(man) - known)
     if bad:
         raise InputFormatError(f"unknown manifest key(s) {bad}", p, None, bad[0])
+    _check_manifest_types(man, p)
     tables = man.get("tables") or {}
     bad = sorted(set(tables) - set(COLUMNS))
     if bad:

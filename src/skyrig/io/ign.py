@@ -133,6 +133,10 @@ def read_ign_camera(path: PathLike, pixel_size_mm: float = 0.001) -> FrameCamera
         if num[k] != int(num[k]) or num[k] > 10**6:
             raise InputFormatError(f"must be a whole number of pixels (at most 1000000), got {values[k][1]!r}", path,
                                    values[k][0], k)
+    for k, size in (("ppax", "width"), ("ppay", "height")):  # a principal point off the image: a wrong size or point
+        if not -0.5 <= num[k] <= num[size] - 0.5:
+            raise InputFormatError(f"principal point {values[k][1]!r} px is outside the image ({size} "
+                                   f"{values[size][1]} px)", path, values[k][0], k)
     try:
         return FrameCamera.from_pixels(
             values["name"][1], int(num["width"]), int(num["height"]), num["focal"], num["ppax"], num["ppay"],

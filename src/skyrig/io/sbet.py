@@ -65,6 +65,10 @@ SBET_FIELDS: tuple[str, ...] = (
     "x_angular_rate", "y_angular_rate", "z_angular_rate",
 )
 SBET_DTYPE = np.dtype([(name, "<f8") for name in SBET_FIELDS])
+#: Fastest plausible motion between two records of a survey trajectory (a jet survey aircraft flies < 300 m/s).
+MAX_SPEED_M_S = 1000.0
+#: Longest plausible time between two records of one SBET (a continuous solution, usually 200 Hz).
+MAX_GAP_S = 3600.0
 #: Bytes per record.
 SBET_RECORD_SIZE = SBET_DTYPE.itemsize  # 136
 
@@ -129,6 +133,19 @@ def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
         k = int(np.argmax(bad))
         raise InputFormatError(f"latitude {lat[k]!r} rad beyond +-pi/2 (degrees instead of radians?)", path,
                                k + 1, "latitude")
+    blank = (np.abs(rec["latitude"]) < 1e-12) & (np.abs(rec["longitude"]) < 1e-12)
+    if np.any(blank):
+        k = int(np.argmax(blank))
+        raise InputFormatError("latitude and longitude 0 (within 1e-12 rad): a blank record (an interrupted "
+                               "export?), not a position", path, k + 1, "latitude")
+    for name, limit, words in (("altitude", 1e5, "m: beyond any survey flight"),
+                               ("roll", 4 * np.pi, "rad: degrees instead of radians?"),
+                               ("pitch", 4 * np.pi, "rad: degrees instead of radians?"),
+                               ("heading", 4 * np.pi, "rad: degrees instead of radians?")):
+        bad = np.abs(rec[name]) > limit
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise InputFormatError(f"{name} {float(rec[name][k])!r} beyond +-{limit:g} {words}", path, k + 1, name)
     t = rec["time"]
     bad = np.diff(t) <= 0
     if np.any(bad):
@@ -137,6 +154,22 @@ def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
                                "time")
     if len(rec) < 2:
         raise InputFormatError("an SBET trajectory needs at least 2 records", path, 1, None)
+    gap = np.diff(t) > MAX_GAP_S
+    if np.any(gap):
+        k = int(np.argmax(gap)) + 1
+        raise InputFormatError(f"{float(t[k] - t[k - 1]):.6g} s between records {k} and {k + 1} (more than "
+                               f"{MAX_GAP_S:g} s in a continuous navigation solution): a damaged record or two "
+                               "files joined", path, k + 1, "time")
+    # consecutive records more than MAX_SPEED apart in the time between them: a record from elsewhere
+    r = 6.4e6 + rec["altitude"]
+    step = np.hypot(np.diff(rec["latitude"]) * r[1:], np.diff(rec["longitude"]) * r[1:] * np.cos(lat[1:]))
+    speed = np.hypot(step, np.diff(rec["altitude"])) / np.diff(t)
+    bad = speed > MAX_SPEED_M_S
+    if np.any(bad):
+        k = int(np.argmax(bad)) + 1
+        raise InputFormatError(f"record {k + 1} is {float(speed[k - 1]):.4g} m/s from the previous one's position "
+                               f"(more than {MAX_SPEED_M_S:g} m/s): a damaged record or a jump", path, k + 1,
+                               "latitude")
     return Trajectory.from_rpy(
         t, np.degrees(lat), np.degrees(rec["longitude"]), rec["altitude"], rec["roll"], rec["pitch"],
         rec["heading"], "rad", time_system="gps-sow", reference=reference,

@@ -372,6 +372,8 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
             with _warnings_into(said), stage_folder(folder, stage=spec.name, inputs=inputs, options=options,
                                                     started=t_run) as tmp:
                 summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
+                if said and (tmp / "report.html").is_file():  # the stage's warnings on its page too
+                    _report_warnings(tmp / "report.html", said)
                 if summary.get("failed"):  # published as kept, never taken as up to date
                     (tmp / FAILED).write_text(f"stage {spec.name} failed: {summary['failed']}\n")
                 absent = [f for f in stage.provides.values() if not (tmp / f).exists()]
@@ -406,6 +408,18 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         break
     _write_run_json(result)
     return result
+
+
+def _report_warnings(page: Path, said: list[str]) -> None:
+    """Add the stage's warnings (as in run.json) to its ``report.html`` as a warning note."""
+    from skyrig.io._text import atomic_write
+    from skyrig.report.html import add_stage_warnings
+
+    text = page.read_text(encoding="utf-8")
+    new = add_stage_warnings(text, said)
+    if new != text:
+        with atomic_write(page) as fh:
+            fh.write(new)
 
 
 @contextmanager

@@ -159,3 +159,20 @@ def write_report(path: str | os.PathLike[str], data: ReportData) -> None:
     text = build_report(data)
     with atomic_write(path) as fh:
         fh.write(text)
+
+
+def add_stage_warnings(text: str, warnings: list[str]) -> str:
+    """``text`` (a report page) with a warning box listing the stage's ``warnings`` that the page does not already
+    show, right after its header (after ``<body>`` in a page without one); unchanged when there are none."""
+    new = [w for w in dict.fromkeys(warnings) if w and _e(w) not in text]
+    if not new:
+        return text
+    box = (f"<div class='box warning' id='stage-warnings' style='border:1px solid #c80;background:#fff6e0;"
+           f"padding:0.5em 1em'><h3>Warnings while the stage ran ({len(new)})</h3><ul>"
+           + "".join(f"<li>{_e(w)}</li>" for w in new) + "</ul></div>")
+    for mark in ("</header>", "<body>"):
+        k = text.find(mark)
+        if k >= 0:
+            k += len(mark)
+            return text[:k] + box + text[k:]
+    return box + text
