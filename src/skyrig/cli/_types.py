@@ -41,6 +41,7 @@ class Number(click.ParamType):
 
 FINITE = Number()
 POSITIVE = Number(positive=True)
+NONNEGATIVE = Number(nonnegative=True)
 POSITIVE_M = Number(positive=True, unit="metres")
 POSITIVE_INT = Number(integer=True, positive=True)
 #: A ground height in metres (map-coordinate adjustments): within +-10 km of the ellipsoid.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, POSITIVE, POSITIVE_INT, POSITIVE_M
+from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, NONNEGATIVE, POSITIVE_INT, POSITIVE_M
 
 from skyrig.cli._common import eo_options
 
@@ -36,7 +36,7 @@ from skyrig.cli._common import eo_options
 @click.option("--min-depth", type=POSITIVE_M, default=None,
               help="Nearest depth searched from a camera in metres (default: a quarter of its distance to the scene).")
 @click.option("--tile-cells", type=POSITIVE_INT, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
-@click.option("--window-min-mp", type=POSITIVE, default=60.0, show_default=True,
+@click.option("--window-min-mp", type=NONNEGATIVE, default=60.0, show_default=True,
               help="TIFF images of at least this many megapixels are read window by window (only what each block "
                    "needs: memory bounded by the block, not the image); 0 reads every TIFF so.")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,

@@ -52,7 +52,7 @@ from typing import Any
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, GEOID, POSITIVE, POSITIVE_INT
+from skyrig.cli._types import CRS_TEXT, GEOID, NONNEGATIVE, POSITIVE, POSITIVE_INT
 
 from skyrig.cli._common import parse_sigmas, with_old_spellings
 
@@ -76,7 +76,7 @@ class _NotPublished(Exception):
 @click.option("--gnss-sigma", default="2,2,4", show_default=True,
               help="GNSS sigma east,north,up (m; one value for all axes); consumer GPS: metres. The old form of "
                    "three separate numbers is deprecated.")
-@click.option("--attitude-sigma", type=POSITIVE, default=5.0, show_default=True,
+@click.option("--attitude-sigma", type=NONNEGATIVE, default=5.0, show_default=True,
               help="Sigma of verified gimbal attitudes (deg); 0 = attitudes not observed.")
 @click.option("--altitude", type=click.Choice(["egm96", "ellipsoidal"]), default="egm96", show_default=True,
               help="Reference of the EXIF GPS altitude (DJI: EGM96 above mean sea level).")
