@@ -168,3 +168,16 @@ def test_cli_routes_gps_images_with_control_to_the_gnss_block(tmp_path):
     # from the GNSS datum: 0.3 / 0.5 m per image over 42 images, a few decimetres at most
     v = np.array([[row["VX"], row["VY"], row["VZ"]] for row in rep["check"]["rows"]])
     assert np.all(np.abs(v) < [0.5, 0.5, 1.0]), v
+
+
+def test_accuracy_statement_names_what_defines_the_datum():
+    """The report's words for each datum: check points win; GNSS; EXIF GPS by similarity; a free frame."""
+    from skyrig.report.adjustment import absolute_accuracy_statement
+
+    chk = {"stats": {"n": 3, "rms_m": [0.01, 0.02, 0.03], "rms_gsd": [0.5, 1.0, 1.5]}}
+    assert "3 check points" in absolute_accuracy_statement({}, chk) and "1.50 GSD" in absolute_accuracy_statement({}, chk)
+    gnss = absolute_accuracy_statement({"config": {"gnss_sigma_m": [2, 2, 4]}, "gnss_fit_rms_enu_m": [0.2, 0.5, 0.6]})
+    assert "GNSS" in gnss and "2, 2, 4 m" in gnss
+    pos = absolute_accuracy_statement({"datum": {"kind": "positions", "positions_similarity_rms_3d_m": 4.2}})
+    assert "EXIF GPS" in pos and "4.20 m" in pos
+    assert "undefined" in absolute_accuracy_statement({"datum": {"kind": "free"}})

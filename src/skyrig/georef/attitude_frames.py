@@ -47,3 +47,13 @@ def ypr_from_rotation(
     ned_from_body = ned_from_body_from_grid_from_camera(enu_from_cam, NADIR_BODY_FROM_CAMERA, 0.0)
     roll, pitch, yaw = rpy_from_matrix(ned_from_body, unit=unit)
     return yaw, pitch, roll
+
+
+def rotation_from_gimbal_ypr(frame: WorldFrame, centres: NDArray, ypr_deg: NDArray) -> NDArray[np.float64]:
+    """``frame_from_camera`` from DJI-gimbal (yaw, pitch, roll) degrees at projection centres (``ypr_deg (N, 3)``;
+    gimbal pitch -90 looks straight down).  Used by the readers of DJI metadata and ODM ``geo.txt`` and by the
+    simulator."""
+    from skyrig.geometry.rotations import ENU_FROM_NED, GIMBAL_FROM_CAMERA, matrix_from_rpy
+
+    ned_from_gimbal = matrix_from_rpy(ypr_deg[:, 2], ypr_deg[:, 1], ypr_deg[:, 0], unit="deg")
+    return frame_from_enu_rotation(frame, centres) @ (ENU_FROM_NED @ ned_from_gimbal @ GIMBAL_FROM_CAMERA)

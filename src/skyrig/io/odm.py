@@ -23,10 +23,10 @@ from numpy.typing import NDArray
 
 from skyrig.errors import CRSError, ConfigError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
-from skyrig.georef.attitude_frames import frame_from_enu_rotation
+from skyrig.georef.attitude_frames import frame_from_enu_rotation, rotation_from_gimbal_ypr  # noqa: F401 - re-exported
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
-from skyrig.geometry.rotations import ENU_FROM_NED, GIMBAL_FROM_CAMERA, matrix_from_rpy, rpy_from_matrix
+from skyrig.geometry.rotations import ENU_FROM_NED, GIMBAL_FROM_CAMERA, rpy_from_matrix
 from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
 
 
@@ -166,12 +166,6 @@ def gimbal_ypr_from_eo(eo: ExteriorOrientations) -> NDArray[np.float64]:
     ned_from_gimbal = ENU_FROM_NED @ enu_from_cam @ GIMBAL_FROM_CAMERA.T
     r, p, y = rpy_from_matrix(ned_from_gimbal, unit="deg")
     return np.stack([y, p, r], axis=1)
-
-
-def rotation_from_gimbal_ypr(frame: WorldFrame, centres: NDArray, ypr_deg: NDArray) -> NDArray[np.float64]:
-    """``frame_from_camera`` from DJI-gimbal (yaw, pitch, roll) degrees at projection centres."""
-    ned_from_gimbal = matrix_from_rpy(ypr_deg[:, 2], ypr_deg[:, 1], ypr_deg[:, 0], unit="deg")
-    return frame_from_enu_rotation(frame, centres) @ (ENU_FROM_NED @ ned_from_gimbal @ GIMBAL_FROM_CAMERA)
 
 
 def write_geo_txt(path: PathLike, eo: ExteriorOrientations, accuracy_m: tuple[float, float] | None = None) -> None:

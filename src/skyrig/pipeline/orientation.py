@@ -613,7 +613,7 @@ def failure_reasons(adj: Any) -> list[str]:
     return out
 
 
-def _all_have_gps(images: PathArg | None) -> bool:
+def _images_have_gps(images: PathArg | None) -> bool:
     """Whether ``images`` is a folder of images that carry EXIF GPS positions with altitude: all of them, or all but
     a few (at least 3 and half of them; the GNSS block leaves the others out with a warning,
     :func:`skyrig.pipeline.uav.without_gps_left_out`)."""
@@ -644,9 +644,9 @@ def needs_no_gnss(no_gps: bool = False, control: Any = None, check: Any = None, 
 def ground_with_gnss(no_gps: bool, control: Any, check: Any, scale_bars: Any, camera: Any,
                      measurements: Sequence[Any], datum: str, images: PathArg | None) -> bool:
     """Whether control / check points (or extra measurements) join the GNSS-supported block: given, with images that
-    carry EXIF GPS (:func:`_all_have_gps`), and nothing that asks for the orientation without GNSS."""
+    carry EXIF GPS (:func:`_images_have_gps`), and nothing that asks for the orientation without GNSS."""
     return (not no_gps and bool(control or check or list(measurements)) and not scale_bars and not camera
-            and datum == "auto" and _all_have_gps(images))
+            and datum == "auto" and _images_have_gps(images))
 
 
 @dataclass

@@ -703,7 +703,12 @@ def absolute_accuracy_statement(u: dict[str, Any], check: dict[str, Any] | None 
                        + (f" ({', '.join(f'{float(x):.2f}' for x in gsd)} GSD)" if gsd else "") + ".")
     if lead:
         return lead + "No check points: measure some to state the absolute accuracy reached."
-    if datum in ("scale-bar", "free", "positions"):
+    if datum == "positions":
+        rms = (u.get("datum") or {}).get("positions_similarity_rms_3d_m")
+        return ("No control and no check points: the block is placed by a similarity onto the images' EXIF GPS "
+                "positions (not observations), so its absolute accuracy is that of those positions"
+                + (f" (the similarity leaves {float(rms):.2f} m RMS)" if rms is not None else "") + ", no better.")
+    if datum in ("scale-bar", "free"):
         return ("No control and no check points: the block's frame is not an absolute one (datum: "
                 f"{datum}); its absolute accuracy is undefined.")
     sig = (u.get("config") or {}).get("gnss_sigma_m")

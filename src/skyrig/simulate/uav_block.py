@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
+from skyrig.georef.attitude_frames import rotation_from_gimbal_ypr
 from skyrig.georef.eo import WorldFrame
 from skyrig.orient.gnss_block import UavBlockInput
 
@@ -36,16 +37,6 @@ class UavBlockTruth:
     C: NDArray[np.float64]
     R: NDArray[np.float64]
     X: NDArray[np.float64]
-
-
-def _rotation_from_gimbal(frame: WorldFrame, C: NDArray, ypr_deg: NDArray) -> NDArray:
-    """``frame_from_camera`` of a gimbal at (yaw, pitch, roll) degrees (DJI's convention; as
-    :func:`skyrig.io.odm.rotation_from_gimbal_ypr`, which the block's readers use)."""
-    from skyrig.georef.attitude_frames import frame_from_enu_rotation
-    from skyrig.geometry.rotations import ENU_FROM_NED, GIMBAL_FROM_CAMERA, matrix_from_rpy
-
-    ned_from_gimbal = matrix_from_rpy(ypr_deg[:, 2], ypr_deg[:, 1], ypr_deg[:, 0], unit="deg")
-    return frame_from_enu_rotation(frame, C) @ (ENU_FROM_NED @ ned_from_gimbal @ GIMBAL_FROM_CAMERA)
 
 
 def flat_site_block(strips: Sequence[tuple[str, float, float]], seed: int, camera: FrameCamera, *,
@@ -66,8 +57,8 @@ def flat_site_block(strips: Sequence[tuple[str, float, float]], seed: int, camer
     Ca = np.array(C) + rng.normal(0, 0.2, (len(C), 3))
     ypr_a = np.array(ypr)
     ypr_true = ypr_a + rng.normal(0, tilt_deg, ypr_a.shape)
-    R_true = _rotation_from_gimbal(frame, Ca, ypr_true)
-    R_meta = _rotation_from_gimbal(frame, Ca, ypr_true + rng.normal(0, 1.0, ypr_a.shape))
+    R_true = rotation_from_gimbal_ypr(frame, Ca, ypr_true)
+    R_meta = rotation_from_gimbal_ypr(frame, Ca, ypr_true + rng.normal(0, 1.0, ypr_a.shape))
     xy = rng.uniform([-70, -60], [70, 60], (n_points, 2))
     X = np.column_stack([xy, rng.normal(0, relief_m, n_points)])
     ot, oi, op = [], [], []
