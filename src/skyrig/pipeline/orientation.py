@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import functools
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -616,15 +617,21 @@ def failure_reasons(adj: Any) -> list[str]:
 def _images_have_gps(images: PathArg | None) -> bool:
     """Whether ``images`` is a folder of images that carry EXIF GPS positions with altitude: all of them, or all but
     a few (at least 3 and half of them; the GNSS block leaves the others out with a warning,
-    :func:`skyrig.pipeline.uav.without_gps_left_out`)."""
-    from skyrig.io.image_read import list_images, read_image_metadata
-
+    :func:`skyrig.pipeline.uav.without_gps_left_out`).  The answer is kept per folder state (the CLI and the stage
+    ask the same question), so the EXIF headers are read once."""
     if images is None or not Path(images).is_dir():
         return False
+    from skyrig.io.image_read import list_images
+
     files = list_images(Path(images))
-    if not files:
-        return False
-    n = sum(1 for f in files if (m := read_image_metadata(f)).has_gps and m.alt_m is not None)
+    return bool(files) and _gps_share(tuple((str(f), f.stat().st_mtime_ns) for f in files))
+
+
+@functools.lru_cache(maxsize=8)
+def _gps_share(files: tuple[tuple[str, int], ...]) -> bool:
+    from skyrig.io.image_read import read_image_metadata
+
+    n = sum(1 for f, _ in files if (m := read_image_metadata(f)).has_gps and m.alt_m is not None)
     return n >= 3 and 2 * n >= len(files)
 
 
