@@ -71,6 +71,9 @@ class UavConfig:
     #: after the robust adjustment remove observations whose residual exceeds reject_k x robust RMS (>= reject_min_px)
     reject_k: float = 4.0
     reject_min_px: float = 2.0
+    #: hand measurements (control / check points, scale-bar ends) are never cut by the tie points' rules; one whose
+    #: residual exceeds this (px) is left out as a blunder, named in a warning
+    hand_cut_px: float = 10.0
     #: Levenberg-Marquardt iterations per adjustment.  Self-calibration of a flat single-height block follows a
     #: long curved valley of focal length / principal point / k2 (weakly determined together): brighton's 18
     #: images matched at 1,600 px need 79 iterations; COLMAP's bundle adjustment allows 100 as well
@@ -386,12 +389,47 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
     return block, tracks, np.flatnonzero(obs_sel)
 
 
+def hand_rows(inp: Any) -> NDArray[np.bool_]:
+    """``(N,)`` True for the observation rows measured by hand: image measurements of control and check points
+    and of scale-bar ends.  They are judged by their own limit (``hand_cut_px``), never by the tie points'
+    outlier rules: a click 2 px off is an ordinary hand measurement, and cutting it silently can take a control
+    point out of the block."""
+    tracks = [np.asarray(t, np.int64).ravel() for t in (getattr(inp, "control_track", None),
+                                                         getattr(inp, "distance_track", None)) if t is not None]
+    if not tracks:
+        return np.zeros(len(inp.obs_track), bool)
+    return np.isin(inp.obs_track, np.concatenate(tracks))
+
+
+def spare_hand(inp: Any, rows: NDArray[np.int64], bad: NDArray[np.bool_], r: NDArray[np.float64] | None,
+               hand: NDArray[np.bool_], limit_px: float, cut: dict[tuple[str, str], float]) -> NDArray[np.bool_]:
+    """``bad`` (per row of ``rows``) without the hand-measured rows whose residual ``r`` is within ``limit_px``
+    (all of them when ``r`` is None: a RANSAC verdict is no verdict on a hand measurement).  The hand rows still
+    cut are recorded in ``cut`` as ``{(point, image): residual px}`` for the warning."""
+    h = hand[rows] & bad
+    if r is None:
+        return bad & ~h
+    keep = h & (r <= limit_px)
+    for q in np.flatnonzero(h & ~keep):
+        o = rows[q]
+        cut[(str(inp.track_name[inp.obs_track[o]]), str(inp.names[inp.obs_image[o]]))] = float(r[q])
+    return bad & ~keep
+
+
+def hand_words(cut: dict[tuple[str, str], float], limit_px: float) -> list[str]:
+    """Warnings naming each hand measurement cut as a blunder."""
+    return [f"image measurement of {p} in {i}: residual {v:.1f} px above the {limit_px:g} px limit of hand "
+            "measurements: left out as a blunder; check the measurement" for (p, i), v in sorted(cut.items())]
+
+
 def _usable_obs(inp: Any, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
                 camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float,
-                max_px: float = np.inf, front_tol: float = 1e-3) -> NDArray[np.bool_]:
+                max_px: float = np.inf, front_tol: float = 1e-3, hand: NDArray[np.bool_] | None = None,
+                hand_max_px: float = np.inf, cut: dict[tuple[str, str], float] | None = None) -> NDArray[np.bool_]:
     """Observations that can enter an adjustment: oriented image, active, point finite and in front of the
-    camera, reprojecting within ``max_px``, and every point left with >= 2 such rays spanning at least
-    ``min_angle_deg``."""
+    camera, reprojecting within ``max_px`` (hand-measured rows ``hand``: within ``max(max_px, hand_max_px)``),
+    and every point left with >= 2 such rays spanning at least ``min_angle_deg``.  ``cut`` (the final
+    selection) records the hand rows left out by their reprojection error, for the warning."""
     T = len(inp.track_name)
     X_ok = np.isfinite(X).all(axis=1)
     sel = oriented[inp.obs_image] & X_ok[inp.obs_track] & active
@@ -402,7 +440,12 @@ def _usable_obs(inp: Any, oriented: NDArray[np.bool_], X: NDArray, active: NDArr
     front = pc[:, 2] < -front_tol * np.linalg.norm(v, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         err = np.linalg.norm(camera.project_pixels(pc) - inp.obs_pixel[rows], axis=1)
-    front &= np.nan_to_num(err, nan=np.inf) < max_px
+    lim = np.full(len(rows), max_px) if hand is None else np.where(hand[rows], max(max_px, hand_max_px), max_px)
+    err = np.nan_to_num(err, nan=np.inf)
+    if cut is not None and hand is not None:
+        for q in np.flatnonzero(front & hand[rows] & (err >= lim)):
+            cut[(str(inp.track_name[ti[q]]), str(inp.names[ii[q]]))] = float(err[q])
+    front &= err < lim
     rows, ti, v = rows[front], ti[front], v[front]
     good_t = _spread_ok(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), ti, T, min_angle_deg)
     out = np.zeros(len(inp.obs_track), bool)
@@ -439,7 +482,7 @@ def _resect_all(inp: UavBlockInput, camera: FrameCamera, X: NDArray, R: NDArray,
         R[k], C[k] = Rk, Ck
         oriented[k] = True
         rows_k = np.flatnonzero(m)
-        active[rows_k[~inl]] = False
+        active[rows_k[spare_hand(inp, rows_k, ~inl, None, hand_rows(inp), np.inf, {})]] = False
         added.append(int(k))
         info = check[str(inp.names[k])]
         if np.isfinite(inp.rotation[k]).all():
@@ -544,6 +587,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     if not isinstance(camera.distortion, OpenCVDistortion):
         camera = camera.with_(distortion=OpenCVDistortion())
     active = np.ones(len(inp.obs_track), bool)
+    hand, hand_cut = hand_rows(inp), {}  # hand measurements (control, check, scale bars) and those cut as blunders
     agree, dis = attitude_agreement(inp, cfg)
     seed = _largest_component(agree)
     R = np.full((n, 3, 3), np.nan)
@@ -577,7 +621,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
                                    inp.obs_pixel[sel], T, cfg.min_angle_deg)
         X[~ok] = np.nan
         gate = 0.05 * max(camera.width, camera.height) if rounds == 1 else 4.0 * cfg.pnp_threshold_px
-        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
+        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate, hand=hand,
+                              hand_max_px=cfg.hand_cut_px)
         img_sel = np.flatnonzero(oriented)
         block, tracks, rows = _build_block(inp, camera, R, C, X, img_sel, obs_sel, cfg, sigma_px,
                                            np.intersect1d(trusted_att, img_sel))
@@ -592,7 +637,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         # drop gross outliers of this round
         r = np.nan_to_num(np.linalg.norm(_image_residuals(res.block), axis=1), nan=np.inf)
         med = float(np.median(r)) if len(r) else 0.0
-        bad = r > max(8.0 * 1.4826 * med, 3.0 * cfg.reject_min_px)
+        bad = spare_hand(inp, rows, r > max(8.0 * 1.4826 * med, 3.0 * cfg.reject_min_px), r, hand, cfg.hand_cut_px,
+                         hand_cut)
         active[rows[bad]] = False
         logger.info("round %d: %d images, %d points, median residual %.2f px, %d observations removed", rounds,
                     len(img_sel), block.n_points, med, int(bad.sum()))
@@ -646,7 +692,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
                                     inp.obs_image[sel], inp.obs_pixel[sel], T, cfg.min_angle_deg)
         keep_old = np.isfinite(X).all(axis=1)
         X = np.where(keep_old[:, None], X, X2)
-        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, 2.0 * cfg.pnp_threshold_px)
+        obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, 2.0 * cfg.pnp_threshold_px,
+                              hand=hand, hand_max_px=cfg.hand_cut_px)
         block, tracks, rows = _build_block(inp, nominal, R, C, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px,
                                            imu_imgs, strip)
         res = adjust(block, final_cfg, start=replace(block, cameras=[camera]))
@@ -658,12 +705,13 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         r = np.nan_to_num(np.linalg.norm(_image_residuals(res.block), axis=1), nan=np.inf)
         robust_rms = float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median = sigma sqrt(ln 4)
         lim = max(cfg.reject_k * robust_rms * np.sqrt(2.0), cfg.reject_min_px)
-        bad = r > lim
+        bad = spare_hand(inp, rows, r > lim, r, hand, cfg.hand_cut_px, hand_cut)
         active[rows[bad]] = False
         logger.info("final stage %d: sigma per axis %.3f px (robust), %d observations above %.2f px removed", stage,
                     robust_rms, int(bad.sum()), lim)
     # last run: plain least squares on the cleaned observations, with statistics
-    obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+    obs_sel = _usable_obs(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim, hand=hand,
+                          hand_max_px=cfg.hand_cut_px, cut=hand_cut)
     block, tracks, rows = _build_block(inp, nominal, R, C, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
                                        strip)
     res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
@@ -697,23 +745,38 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
 
     summary["calibration_rule"] = rule_words(cfg.determinable_ratio, cfg.prior_conflict_z, cfg.overrule_ratio)
     summary["camera_prior_source"] = inp.prior_source
-    if inp.control_track is not None and len(inp.control_track):
-        used = set(res.block.point_name[res.block.control_point].tolist()) if res.block.control_point is not None \
-            else set()
-        summary["control_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
-                                         if str(inp.track_name[t]) in used and not c)
-        summary["check_used"] = sorted(str(inp.track_name[t]) for t, c in zip(inp.control_track, inp.control_check)
-                                       if str(inp.track_name[t]) in used and c)
-        left = [str(inp.track_name[t]) for t in inp.control_track if str(inp.track_name[t]) not in used]
-        summary["control_left_out"] = {nm: "seen in fewer than two oriented images after outlier removal: it cannot "
-                                       "be intersected; left out" for nm in left}
-        for nm in left:
-            logger.warning("ground point %s: %s", nm, summary["control_left_out"][nm])
+    summary.update(ground_point_summary(inp, res.block, hand_cut, cfg.hand_cut_px))
     if strip is not None:
         b = res.block
         summary["strips"] = {int(k): [str(x) for x in inp.names[strip == k]] for k in np.unique(strip[strip >= 0])}
         summary["strip_shift_m"] = np.asarray(b.strip_shift).tolist()
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
+
+
+def ground_point_summary(inp: Any, block: Block, hand_cut: dict[tuple[str, str], float],
+                         hand_cut_px: float) -> dict[str, Any]:
+    """Which control / check points the final block used, which it left out and why, and the hand measurements
+    cut as blunders; every point left out and every cut measurement is also logged as a warning (never silent)."""
+    out: dict[str, Any] = {}
+    for w in hand_words(hand_cut, hand_cut_px):
+        logger.warning("%s", w)
+    if hand_cut:
+        out["hand_measurements_cut"] = {f"{p} in {i}": v for (p, i), v in sorted(hand_cut.items())}
+    if inp.control_track is None or not len(inp.control_track):
+        return out
+    cp = block.control_point
+    used = set(block.point_name[cp].tolist()) if cp is not None else set()
+    names = [str(inp.track_name[t]) for t in inp.control_track]
+    out["control_used"] = sorted(nm for nm, c in zip(names, inp.control_check) if nm in used and not c)
+    out["check_used"] = sorted(nm for nm, c in zip(names, inp.control_check) if nm in used and c)
+    cut_pts = {p for p, _ in hand_cut}
+    out["control_left_out"] = {
+        nm: ("seen in fewer than two oriented images" + (" after its measurements above "
+             f"{hand_cut_px:g} px were cut as blunders" if nm in cut_pts else "") + ": it cannot be intersected; "
+             "left out") for nm in names if nm not in used}
+    for nm, why in out["control_left_out"].items():
+        logger.warning("ground point %s: %s", nm, why)
+    return out
 
 
 def _hold_undetermined(inp: UavBlockInput, cfg: UavConfig, res: AdjustmentResult, nominal: FrameCamera,

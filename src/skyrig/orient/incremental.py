@@ -58,7 +58,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
-from skyrig.orient.gnss_block import UavResult, _usable_obs
+from skyrig.orient.gnss_block import UavResult, _usable_obs, ground_point_summary, hand_rows, spare_hand
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
     _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,
@@ -101,6 +101,9 @@ class OrientConfig:
     robust_k: float = 2.0
     reject_k: float = 4.0
     reject_min_px: float = 2.0
+    #: hand measurements (control / check points, scale-bar ends) are never cut by the tie points' rules; one whose
+    #: residual exceeds this (px) is left out as a blunder, named in a warning
+    hand_cut_px: float = 10.0
     max_iterations: int = 40
     #: positions datum: minimum images with a position
     min_positions: int = 4
@@ -258,10 +261,13 @@ def choose_seed_pair(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera,
 
 # ---------------------------------------------------------------------------------------------- blocks
 def _usable(inp: OrientInput, oriented: NDArray[np.bool_], X: NDArray, active: NDArray[np.bool_],
-            camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float, max_px: float) -> NDArray[np.bool_]:
+            camera: FrameCamera, R: NDArray, C: NDArray, min_angle_deg: float, max_px: float,
+            hand_max_px: float = np.inf, cut: dict[tuple[str, str], float] | None = None) -> NDArray[np.bool_]:
     """Observations that can enter an adjustment (:func:`skyrig.orient.gnss_block._usable_obs`; a point counts as
-    in front of a camera from 1e-6 of its distance on: close-range rays may graze the image plane)."""
-    return _usable_obs(inp, oriented, X, active, camera, R, C, min_angle_deg, max_px, front_tol=1e-6)
+    in front of a camera from 1e-6 of its distance on: close-range rays may graze the image plane; hand
+    measurements within ``hand_max_px``)."""
+    return _usable_obs(inp, oriented, X, active, camera, R, C, min_angle_deg, max_px, front_tol=1e-6,
+                       hand=hand_rows(inp), hand_max_px=hand_max_px, cut=cut)
 
 
 def _block(inp: OrientInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDArray, img_sel: NDArray[np.int64],
@@ -338,7 +344,8 @@ def _resect_round(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X: N
         if out is None:
             continue
         R[k], C[k], inl = out
-        active[np.flatnonzero(m)[~inl]] = False
+        mk = np.flatnonzero(m)
+        active[mk[spare_hand(inp, mk, ~inl, None, hand_rows(inp), np.inf, {})]] = False
         oriented[k] = True
         added.append(int(k))
         check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
@@ -537,6 +544,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     logger.info("start pair %s - %s: %d inliers, median intersection angle %.1f deg", *seed_info["images"],
                 seed_info["inliers"], seed_info["median_intersection_angle_deg"])
     active = np.ones(len(inp.obs_track), bool)
+    hand, hand_cut = hand_rows(inp), {}  # hand measurements and those cut as blunders
     # growth adjustments only need to be close (the final one converges): looser tolerances than the default
     grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
                             max_iterations=cfg.max_iterations, datum="free", function_tolerance=1e-4,
@@ -557,7 +565,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         nonlocal camera
         img_sel = np.flatnonzero(oriented)
         gate = 0.05 * max(camera.width, camera.height) if last_ba == 0 else 6.0 * cfg.pnp_threshold_px
-        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate)
+        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, gate, cfg.hand_cut_px)
         cal = grow_cal if len(img_sel) >= 3 else ()
         # (the prior of a weighted intrinsic is its start value in skyrig.adjust: during growth the prior follows the
         # current estimate; the final adjustment centres the priors on the EXIF camera again)
@@ -574,7 +582,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         Xn[tracks] = res.block.point_xyz
         r = _residual_norm(res.block)
         med = float(np.median(r)) if len(r) else 0.0
-        bad = r > max(6.0 * 1.4826 * med, 3.0 * cfg.reject_min_px)
+        bad = spare_hand(inp, rows, r > max(6.0 * 1.4826 * med, 3.0 * cfg.reject_min_px), r, hand, cfg.hand_cut_px,
+                         hand_cut)
         active[rows[bad]] = False
         logger.info("growth: %d images, %d points, median residual %.2f px, %d observations removed", len(img_sel),
                     block.n_points, med, int(bad.sum()))
@@ -685,7 +694,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     use_ctrl = use_dist = datum in ("control", "scale-bar")
     lim = 2.0 * cfg.pnp_threshold_px
     for stage in range(2):
-        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+        obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim, cfg.hand_cut_px)
         # the priors are centred on the nominal (EXIF) camera in every stage and the solve starts from the current
         # estimate (``start=``): restarting at the EXIF focal length (lund: 995 px for about 730) walks the weakly
         # determined focal valley again and can end on the function tolerance short of the minimum
@@ -698,13 +707,13 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         r = _residual_norm(res.block)
         robust_rms = float(np.median(r)) / np.sqrt(np.log(4.0))  # Rayleigh median = sigma sqrt(ln 4)
         lim = max(cfg.reject_k * robust_rms * np.sqrt(2.0), cfg.reject_min_px)
-        bad = r > lim
+        bad = spare_hand(inp, rows, r > lim, r, hand, cfg.hand_cut_px, hand_cut)
         active[rows[bad]] = False
         logger.info("final stage %d: sigma per axis %.3f px (robust), %d observations above %.2f px removed", stage,
                     robust_rms, int(bad.sum()), lim)
     X = np.where(np.isfinite(X).all(axis=1)[:, None], X,
                  _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
-    obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim)
+    obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim, cfg.hand_cut_px, hand_cut)
     block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
     res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
     verdicts: list[Any] = []
@@ -750,6 +759,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
                    parts_tied_in=parts, relative_tie_ins=relative,
                    calibration=[v.to_dict() for v in verdicts], calibration_held=[v.name for v in verdicts if v.held],
                    calibration_rule=rule_words(cfg.determinable_ratio, cfg.prior_conflict_z, cfg.overrule_ratio))
+    summary.update(ground_point_summary(inp, res.block, hand_cut, cfg.hand_cut_px))
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 
@@ -779,7 +789,9 @@ def _summary(inp: OrientInput, res: AdjustmentResult, oriented: NDArray, camera:
         out["centre_sigma_m"] = {str(b.image_name[k]): ps[b.image_station[k], :3].tolist() for k in range(b.n_images)}
     if "control" in res.residuals and len(res.residuals["control"].residual):
         cr = res.residuals["control"].residual
-        out["control_fit_rms_xyz_m"] = np.sqrt(np.mean(cr ** 2, axis=0)).tolist()
+        chk = np.asarray(b.control_check, bool) if b.control_check is not None else np.zeros(len(cr), bool)
+        if (~chk).any():  # control rows only: the check points' differences are the check, not the fit
+            out["control_fit_rms_xyz_m"] = np.sqrt(np.mean(cr[~chk] ** 2, axis=0)).tolist()
     if "distance" in res.residuals and len(res.residuals["distance"].residual):
         out["scale_bar_residuals_m"] = np.asarray(res.residuals["distance"].residual).ravel().tolist()
     return out

@@ -692,6 +692,7 @@ class UavOutcome:
                 out.append("scale-bar residuals (m): " + ", ".join(f"{v:.4f}" for v in s["scale_bar_residuals_m"]))
             if "control_fit_rms_xyz_m" in s:
                 out.append("control fit RMS x, y, z (m): " + ", ".join(f"{v:.4f}" for v in s["control_fit_rms_xyz_m"]))
+            out.extend(_check_lines(rep))
             out.extend(_pycolmap_lines(rep))
             return out
         out.append(f"{s['oriented']}/{s['images']} images oriented, {s['tie_points']} tie points, "
@@ -703,6 +704,7 @@ class UavOutcome:
         for k, v in bad.items():
             dev = v.get("metadata_vs_adjusted_deg", float("nan"))
             out.append(f"{k}: metadata attitude rejected (differs by {dev:.1f} deg from the adjusted one)")
+        out.extend(_check_lines(rep))
         out.extend(_pycolmap_lines(rep))
         return out
 
@@ -713,6 +715,18 @@ class UavOutcome:
         if self.without_gnss:
             out["datum"] = s["datum"]["kind"]
         return out
+
+
+def _check_lines(rep: Mapping[str, Any]) -> list[str]:
+    """The check points' RMS (the absolute accuracy of the block) and the ground points left out, in words."""
+    out = []
+    st = (rep.get("check") or {}).get("stats") or {}
+    if st.get("n"):
+        out.append("check points: RMS x, y, z " + ", ".join(f"{v:.4f}" for v in st["rms_m"]) + f" m over {st['n']}"
+                   + (" (" + ", ".join(f"{v:.2f}" for v in st["rms_gsd"]) + " GSD)" if st.get("rms_gsd") else ""))
+    for nm, why in (rep.get("uav", {}).get("control_left_out") or {}).items():
+        out.append(f"ground point {nm}: {why}")
+    return out
 
 
 def _pycolmap_lines(rep: Mapping[str, Any]) -> list[str]:
