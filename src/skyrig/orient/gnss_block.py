@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal
+from typing import Any, Iterator, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -389,6 +390,31 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
     return block, tracks, np.flatnonzero(obs_sel)
 
 
+class _IntermediateFailure(logging.Filter):
+    """Demotes the adjustment's "adjustment failed" warning to INFO (see :func:`intermediate_adjustment`)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno == logging.WARNING and str(record.msg).startswith("adjustment failed"):
+            record.levelno, record.levelname = logging.INFO, "INFO"
+            record.msg = "intermediate " + str(record.msg) + " (the final adjustment decides)"
+            return logging.getLogger(record.name).isEnabledFor(logging.INFO)
+        return True
+
+
+@contextmanager
+def intermediate_adjustment() -> Iterator[None]:
+    """An adjustment of a growth round: its loose tolerances may stop it at the iteration cap, which is no failure
+    of the run (the final adjustment is judged); without this, users read "adjustment failed" in a run that
+    succeeded."""
+    lg = logging.getLogger("skyrig.adjust.adjust")
+    f = _IntermediateFailure()
+    lg.addFilter(f)
+    try:
+        yield
+    finally:
+        lg.removeFilter(f)
+
+
 def hand_rows(inp: Any) -> NDArray[np.bool_]:
     """``(N,)`` True for the observation rows measured by hand: image measurements of control and check points
     and of scale-bar ends.  They are judged by their own limit (``hand_cut_px``), never by the tie points'
@@ -627,7 +653,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
         block, tracks, rows = _build_block(inp, camera, R, C, X, img_sel, obs_sel, cfg, sigma_px,
                                            np.intersect1d(trusted_att, img_sel))
         try:
-            res = adjust(block, grow_cfg)
+            with intermediate_adjustment():
+                res = adjust(block, grow_cfg)
         except SkyrigError as exc:
             raise UavAdjustError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
         R[img_sel] = res.block.station_rotation

@@ -58,7 +58,9 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
-from skyrig.orient.gnss_block import UavResult, _usable_obs, ground_point_summary, hand_rows, spare_hand
+from skyrig.orient.gnss_block import (
+    UavResult, _usable_obs, ground_point_summary, hand_rows, intermediate_adjustment, spare_hand,
+)
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
     _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,
@@ -573,7 +575,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         gcfg = grow_cfg.with_(intrinsics="weighted", intrinsic_names=cal,
                               intrinsic_sigma=tuple((k, grow_sig[k]) for k in cal)) if cal else grow_cfg
         try:
-            res = adjust(block, gcfg)
+            with intermediate_adjustment():
+                res = adjust(block, gcfg)
         except SkyrigError as exc:
             raise OrientError(f"adjustment of the {len(img_sel)} oriented images failed: {exc}") from exc
         camera = res.block.cameras[0]
