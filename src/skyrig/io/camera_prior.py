@@ -38,6 +38,7 @@ Units: pixels of the stored image, origin at the centre of the top-left pixel (s
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -211,6 +212,14 @@ def _sensor_width(meta: Any) -> tuple[float | None, str]:
     return None, ""
 
 
+@functools.lru_cache(maxsize=512)
+def _warn_once(text: str) -> None:
+    """Log ``text`` once: a block's priors are read by more than one step of the same run (routing, the start
+    camera, the GNSS block input), and the same warning printed twice reads like two problems.  The prior's
+    ``warnings`` still carry every one of them into the report."""
+    logger.warning(text)
+
+
 def camera_prior(meta: Any, *, focal_sigma_rel: float | None = None) -> CameraPrior:
     """The camera prior of an image (:class:`skyrig.io.image_read.ImageMetadata`); see the module docstring.
 
@@ -278,7 +287,7 @@ def camera_prior(meta: Any, *, focal_sigma_rel: float | None = None) -> CameraPr
     if focal_sigma_rel is not None:
         rel = focal_sigma_rel
     for w in warnings:
-        logger.warning(w)
+        _warn_once(w)
     return CameraPrior(W, H, float(f), float(rel * f), (float(pp[0]), float(pp[1])), float(pp_sig), pixel,
                        dict(dist), dict(DISTORTION_SIGMA), source, tuple(warnings))
 
