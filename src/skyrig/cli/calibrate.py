@@ -559,10 +559,13 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
+@click.option("--poseo", "poseo_path", type=click.Path(dir_okay=False), default=None,
+              help="Corrected exterior orientations of every image (the paper's POSEO: calibrated rig, GNSS freed of "
+                   "the datum shift), an EO CSV with side-car in the control points' CRS (default OUTPUT_poseo.csv).")
 def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
                   gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_method, grid_pairs, grid_fit_draws,
                   no_design_study, no_variants, flight,
-                  date, output, report_path) -> None:
+                  date, output, report_path, poseo_path) -> None:
     """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
     three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
     if grid_pairs and grid_method == "joint":
@@ -613,12 +616,16 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
                         "measurements": [str(p) for p in meas_paths], "control": str(control_path), "check": check_path}
     report_path = report_path or str(Path(output).with_suffix(".json"))
     html_path = str(Path(report_path).with_suffix(".html"))
-    report["outputs"] = {"rig": str(output), "report": report_path, "html": html_path}
+    poseo_path = poseo_path or str(Path(output).with_name(Path(output).stem + "_poseo.csv"))
+    report["outputs"] = {"rig": str(output), "report": report_path, "html": html_path, "poseo": poseo_path}
     write_rig(cal.rig, output, cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal))
+    from skyrig.io.eo_csv import write_eo_csv
+
+    write_eo_csv(cal.poseo.to_frame(ctrl.frame), poseo_path)
     with atomic_write(report_path) as fh:
         json.dump(report, fh, indent=2, default=float)
         fh.write("\n")
     with atomic_write(html_path) as fh:
         fh.write(report_html(report))
     click.echo(format_tables(report))
-    click.echo(f"-> {output}, {report_path}, {html_path}")
+    click.echo(f"-> {output}, {report_path}, {html_path}, {poseo_path}")
