@@ -122,3 +122,35 @@ def test_oblique_mosaics_in_place_against_the_scene(paper):
     (fig,) = [f for f in res.figures if f.key == "oblique_mosaics"]
     img = cv2.imread(str(out / fig.path))
     assert img is not None and img.shape[1] > 400
+
+
+@pytest.mark.slow
+def test_cli_calqc_writes_the_poseo(tmp_path):
+    """``skyrig calibrate calqc --poseo`` on the reduced flight written as a project: the EO CSV (+ side-car) holds
+    every image, in the control points' CRS, closer to the true orientations than the injected datum shift."""
+    from click.testing import CliRunner
+
+    from skyrig.calibrate.calqc import midas_calqc_scenario
+    from skyrig.cli import main
+    from skyrig.io.eo_csv import read_eo_csv
+    from skyrig.pipeline.simulate import write_project
+
+    _, truth = midas_calqc_scenario("reduced", 1, tie_points=400, camera_width_px=400)
+    d = tmp_path / "flight"
+    write_project(truth.survey, d, images=False)
+    r = CliRunner().invoke(main, [
+        "calibrate", "calqc", "--trajectory", str(d / "trajectory.csv"), "--events", str(d / "events.csv"),
+        "--rig", str(d / "rig.yaml"), "--measurements", str(d / "gcp" / "image_measurements.csv"),
+        "--measurements", str(d / "tie" / "image_measurements.csv"), "--control", str(d / "gcp" / "ground_points.csv"),
+        "--check", str(d / "gcp" / "check_points.csv"), "--gnss-sigma", "0.03,0.03,0.05", "--no-grid",
+        "--no-design-study", "--no-variants", "-o", str(tmp_path / "cal" / "rig.yaml"),
+        "--poseo", str(tmp_path / "cal" / "poseo.csv")])
+    assert r.exit_code == 0, r.output
+    poseo = read_eo_csv(tmp_path / "cal" / "poseo.csv")
+    true = read_eo_csv(d / "truth" / "eo_map.csv")
+    assert poseo.frame.crs == true.frame.crs and (tmp_path / "cal" / "poseo.csv.json").is_file()
+    idx = {str(n): i for i, n in enumerate(true.image)}
+    k = np.array([idx[str(n)] for n in poseo.image])
+    assert len(k) == len(true)
+    dp = poseo.centre - true.centre[k]
+    assert np.sqrt(np.mean(np.sum(dp ** 2, 1))) < 0.35 * np.linalg.norm(DATUM_M)
