@@ -30,7 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from skyrig.simulate.tumbling_lab import (  # noqa: F401  (the lab moved to the library; re-exported for the tests)
+from skyrig.calibrate.tumbling_simulation import (  # noqa: F401  (the lab moved to the library; re-exported for the tests)
     CURVE_AMP_RAD,
     TAB2_MEAN_2SIGMA_DEG,
     Lab,

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 from skyrig.calibrate.tumbling_reference import reference_stability
 from skyrig.errors import ReferenceCameraMoved
-from skyrig.simulate.tumbling_lab import build_lab, render_reference_series
+from skyrig.calibrate.tumbling_simulation import build_lab, render_reference_series
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,8 @@ camera on the sensor head frame seeing every footprint; per image the angular of
 eqs 1-3 (the boresight correction), Fig. 8 (the corrections over beta, one curve per circle) and Tab. 2 (the repeat
 accuracies about the mean curve); block matching of the reference camera's images showed it did not move.
 
-Reproduced on the simulated lab (:mod:`skyrig.simulate.tumbling_lab`: the MACS-TumbleCam rig at a reduced sensor
-width, a textured plane 3 m below, a smooth true curve and per-circle repeat errors drawn with Tab. 2's mean
+Reproduced on the simulated lab (:mod:`skyrig.calibrate.tumbling_simulation`: the MACS-TumbleCam rig at a reduced
+sensor width, a textured plane 3 m below, a smooth true curve and per-circle repeat errors drawn with Tab. 2's mean
 repeatability as the truth) through the ``tumbling-head`` recipe (:mod:`skyrig.calibrate.tumbling`) and the
 reference camera's check (:mod:`skyrig.calibrate.tumbling_reference`):
 
@@ -46,7 +46,7 @@ def run(out_dir: Path, size: Size = "ci") -> PaperResult:
     from skyrig.calibrate.tumbling import calibrate_tumbling_head
     from skyrig.calibrate.tumbling_result import PAPER000_TABLE2_MDEG
     from skyrig.io._text import atomic_write
-    from skyrig.simulate.tumbling_lab import build_lab, render_lab
+    from skyrig.calibrate.tumbling_simulation import build_lab, render_lab
 
     if size not in SIZES:
         raise ValueError(f"size must be one of {', '.join(SIZES)}, not {size!r}")
@@ -83,7 +83,7 @@ def _reference_checks(lab: Any, report: dict[str, Any]) -> list[tuple[str, bool,
     """The reference camera block-matched over the session: still (accepted) and knocked (refused)."""
     from skyrig.calibrate.tumbling_reference import reference_stability
     from skyrig.errors import ReferenceCameraMoved
-    from skyrig.simulate.tumbling_lab import render_reference_series
+    from skyrig.calibrate.tumbling_simulation import render_reference_series
 
     cam = lab.setup.rig.head(lab.setup.reference_head).camera
     ifov = cam.pixel_size_mm / cam.focal_mm
@@ -165,7 +165,8 @@ def _fig8_comparisons(res: PaperResult, cal: Any, lab: Any) -> None:
     rms_z = float(np.sqrt(np.mean(z ** 2)))
     res.checks.append(("the mean curve matches the injected true curve within its stated standard errors",
                        bool(rms_z < 2.0 and np.abs(z).max() < 4.5),
-                       f"RMS of (mean - truth) / sigma over {z.size} values {rms_z:.2f}, largest {np.abs(z).max():.2f}"))
+                       f"RMS of (mean - truth) / sigma over {z.size} values {rms_z:.2f}, "
+                       f"largest {np.abs(z).max():.2f}"))
 
 
 def _fig8(path: Path, cal: Any, lab: Any) -> None:

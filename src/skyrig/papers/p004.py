@@ -72,7 +72,8 @@ PAPER_28MM_LOW: dict[str, Any] = {"gsd_m": 0.13, "sigma_um": 3.8, "rms_control_m
                                   "rms_check_m": (0.13, 0.10, 0.075), "gps_block_shift_m": (0.03, 0.04, 0.04)}
 ROWS = (("gsd_cm", "GSD", "cm", None), ("sigma_um", "sigma", "um", None),
         ("rms_control_m", "RMS control", "m", 3), ("rms_check_m", "RMS check", "m", 3),
-        ("rms_photo_position_m", "RMS photo position", "m", 3), ("rms_photo_attitude_deg", "RMS photo attitude", "deg", 3),
+        ("rms_photo_position_m", "RMS photo position", "m", 3),
+        ("rms_photo_attitude_deg", "RMS photo attitude", "deg", 3),
         ("gps_block_shift_m", "GPS block shift", "m", 3))
 #: per size: scenario size, camera width (px), tie points, correction grid, oblique heads mosaicked
 SIZES: dict[str, tuple[str, int | None, int, bool, tuple[str, ...]]] = {
@@ -98,7 +99,8 @@ def run(out_dir: Path, size: Size = "ci") -> PaperResult:
     _poseo(res, out, cal, data, truth)
     _mosaics(res, out, heads)
     res.notes.append(
-        f"simulated MIDAS boresight flight ({'reduced: 3 + 2 strips over 1 km, 400 px cameras' if size == 'ci' else 'full'}"
+        "simulated MIDAS boresight flight ("
+        + ("reduced: 3 + 2 strips over 1 km, 400 px cameras" if size == "ci" else "full") +
         "; 28 mm nadir / 50 mm obliques at 2,000 ft and 4,000 ft; the paper's Tab. 11 is of its 50 mm configuration at "
         "2,500 / 4,500 ft, real data: its numbers carry what the simulation leaves out - a datum shift the recipe "
         "removed before the variants (the POSEO), control points with 5 cm, JPEG blur, heat shimmer, systematic "
@@ -269,7 +271,8 @@ def _mosaics(res: PaperResult, out: Path, heads: tuple[str, ...]) -> None:
         fh.write(png)
     res.figures.append(Figure("oblique_mosaics", "Per-head oblique mosaics (the paper's 3D models from georeferenced "
                               "oblique imagery)", "oblique_mosaics.png",
-                              "true orthomosaics of the oblique heads over the simulated scene (transparent: no image)"))
+                              "true orthomosaics of the oblique heads over the simulated scene "
+                              "(transparent: no image)"))
 
 
 def oblique_mosaic(head: str, strip: str = "s01", margin_m: float = 25.0) -> tuple[Any, dict[str, Any]]:

@@ -3,12 +3,13 @@ plane; 5 deg motor steps, circles), rendered exactly: the input of the ``tumblin
 
 The MACS-TumbleCam rig (``skyrig.rig.presets.macs_tumblecam``, cameras scaled to ``width`` px) plus a static wide
 reference camera on the sensor head, held still ``distance_m`` above a textured plane (multi-scale random texture,
-3 mm cells).  The true tumbling mount carries a smooth boresight curve (:func:`skyrig.simulate.errors.tumble_curve_samples`,
-the tumblecam scenario's amplitudes) and, per circle and position, a repeat error drawn with paper 000 Tab. 2's mean
-repeatability (2 sigma -> 1 sigma).  Images are rendered exactly (every pixel's ray meets the plane, texture sampled
+3 mm cells).  The true tumbling mount carries a smooth boresight curve
+(:func:`skyrig.simulate.errors.tumble_curve_samples`, the tumblecam scenario's amplitudes) and, per circle and
+position, a repeat error drawn with paper 000 Tab. 2's mean repeatability (2 sigma -> 1 sigma).  Images are rendered exactly (every pixel's ray meets the plane, texture sampled
 bilinearly, 1 DN noise).  :func:`render_reference_series` renders the reference camera at every exposure of the
 session, optionally moved (a rotation from a given exposure on), for the reference camera's stability check.
-(Moved here from ``bench/tumbling_lab.py``, which re-exports it and judges the recipe.)
+(Moved here from ``bench/tumbling_lab.py``, which re-exports it and judges the recipe; it lives in ``calibrate``
+as :mod:`~skyrig.calibrate.calqc_simulation` does, since ``simulate`` sits below ``calibrate``.)
 
 Frames: the lab frame of :class:`skyrig.calibrate.tumbling.LabSetup` (ENU axes, metres); angles in radians.
 """
