@@ -121,3 +121,11 @@ def test_cli_refuses_a_moved_reference(small_lab, tmp_path):
     r = CliRunner().invoke(main, args)
     assert r.exit_code != 0 and "ReferenceCameraMoved" in r.output and names[2] in r.output, r.output
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_result_is_plain_data(paper):
+    """The command writes the tables and values as JSON: plain Python values only."""
+    import dataclasses
+
+    _, res = paper
+    json.loads(json.dumps(dataclasses.asdict(res), allow_nan=True))

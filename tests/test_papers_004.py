@@ -154,3 +154,12 @@ def test_cli_calqc_writes_the_poseo(tmp_path):
     assert len(k) == len(true)
     dp = poseo.centre - true.centre[k]
     assert np.sqrt(np.mean(np.sum(dp ** 2, 1))) < 0.35 * np.linalg.norm(DATUM_M)
+
+
+def test_result_is_plain_data(paper):
+    """The command writes the tables and values as JSON: plain Python values only."""
+    import dataclasses
+    import json
+
+    _, res = paper
+    json.loads(json.dumps(dataclasses.asdict(res), allow_nan=True))

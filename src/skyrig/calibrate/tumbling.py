@@ -47,7 +47,9 @@ Sequence (:func:`calibrate_tumbling_head`)
 Modules: :mod:`~skyrig.calibrate.tumbling_setup` (the lab set-up), :mod:`~skyrig.calibrate.tumbling_offset` (steps
 2-3), :mod:`~skyrig.calibrate.tumbling_result` (step 4: the result, Tab. 2, the report),
 :mod:`~skyrig.calibrate.tumbling_fourier` (step 5: the Fourier series, the repeating share); this module runs the
-sequence and re-exports their names.
+sequence and re-exports their names.  :mod:`~skyrig.calibrate.tumbling_reference` checks that the reference camera
+did not move over the session (the paper's block matching; ``calibrate tumbling-head --reference-series``) and
+:mod:`~skyrig.calibrate.tumbling_simulation` simulates the lab with its truth.
 
 Frames and units: the lab frame is a local Cartesian frame (ENU axes, metres) with the sensor head at its origin,
 body x along north, y east, z down; the plane is ``z = -plane_distance_m`` (the floor seen straight below the head).
