@@ -234,6 +234,12 @@ class CalqcFailed(SkyrigError):
     """A step of the recipe did not converge or its result cannot be trusted."""
 
 
+# raised in skyrig.calibrate.tumbling_reference
+class ReferenceCameraMoved(CalibrationError):
+    """The laboratory's static reference camera moved during the session: its images do not block-match in place
+    (paper 000, 3.4: the recipe compares every tumbling image with one reference image, so the camera must not move)."""
+
+
 # raised in skyrig.dense.ortho
 class EmptyMosaicError(SkyrigError):
     """The stage ran but no image sees the surface (a failed result, not a bad input)."""

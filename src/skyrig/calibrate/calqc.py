@@ -204,7 +204,7 @@ from skyrig.calibrate.calqc_report import format_tables, report_html  # noqa: F4
 from skyrig.calibrate.calqc_simulation import midas_calqc_scenario, ScenarioTruth  # noqa: F401 - re-exported
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.errors import CalqcFailed, ConfigError  # noqa: F401 - CalqcFailed re-exported
-from skyrig.georef.eo import WorldFrame
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.rig.rig import Rig
 
 log = logging.getLogger(__name__)
@@ -215,7 +215,7 @@ __all__ = ["IO_PARAMETERS", "CalqcData", "CalqcCalibration", "CalqcFailed", "Cor
            "fit_covariance", "flight_geometry", "midas_calqc_scenario", "calqc_data_from_survey",
            "format_tables", "report_html", "separability", "without_calibration_part", "calibration_part",
            "grid_nodes_for", "collocation_prior", "joint_grid_adjustment", "covariance_fit_spread",
-           "grid_hyperparameter_covariance"]
+           "grid_hyperparameter_covariance", "poseo"]
 
 
 # ------------------------------------------------------------------------------------------------ result
@@ -243,6 +243,8 @@ class CalqcCalibration:
     # the blocks above are its parts; a simulation whitens its errors with it (bench/calqc_seeds.py)
     covariance_labels: list[tuple[str, str, str]] = field(default_factory=list)
     covariance: NDArray[np.float64] | None = None
+    #: the corrected exterior orientation of every image (the paper's POSEO, :func:`poseo`), in :attr:`frame`
+    poseo: ExteriorOrientations | None = None
 
     def rig_calibration(self, flight: str = "", date: str = "", software: str = "",
                         previous: RigCalibration | None = None) -> RigCalibration:
@@ -417,7 +419,21 @@ def calibrate_calqc(
     if variants:
         table11, effect = _table11(data, rig_cal, build, frame, datum, geom, grids if grid else None)
     return CalqcCalibration(rig, rig_cal, frame, bore, interior, datum, datum_cov, journal.steps, table11, grids,
-                            effect, journal.inseparable, geom, stats, design_res, journal.notes, list(labels), cov)
+                            effect, journal.inseparable, geom, stats, design_res, journal.notes, list(labels), cov,
+                            poseo(data, rig_cal, datum, frame))
+
+
+def poseo(data: CalqcData, rig_cal: Rig, datum_shift_m: NDArray[np.float64], frame: WorldFrame
+          ) -> ExteriorOrientations:
+    """The paper's POSEO (2.3: "CalQC ... arrives at the final POSEO data"): the exterior orientation of every
+    image by direct georeferencing (:func:`~skyrig.georef.direct.direct_georeference`) of the events with the
+    calibrated rig (boresights, IO) and the GNSS/IMU trajectory freed of the estimated datum shift (GNSS minus
+    control, local ENU of ``frame``), in ``frame``."""
+    from skyrig.calibrate.gnss_imu import _shift_trajectory
+    from skyrig.georef.direct import direct_georeference
+
+    traj = _shift_trajectory(data.trajectory, frame, -np.asarray(datum_shift_m, dtype=np.float64))
+    return direct_georeference(traj, rig_cal, data.events, frame)
 
 
 #: the calibration unknowns of every step: the heads' boresights free, statistics on (Model's redundancy numbers)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -190,6 +191,11 @@ def _read_positions(path: str) -> tuple[list[str], list[str], list[float]]:
               help="CSV image,circle,beta_deg: every tumbling image, its circle and its actuator angle (degrees).")
 @click.option("--reference-image", default="reference.png", show_default=True,
               help="The reference camera's image in --images (one: the camera does not move).")
+@click.option("--reference-series", default=None,
+              help="The reference camera's images of the whole session, a pattern in --images (e.g. "
+                   "'*_reference.png'): each is block-matched against --reference-image, and the recipe refuses "
+                   "when the camera moved by more than 5 x the matching precision (paper 000: the reference must "
+                   "not move).")
 @click.option("--head", default=None, help="The tumbling head of --rig (default: the only actuated one).")
 @click.option("--reference-head", default="reference", show_default=True, help="The reference camera's head.")
 @click.option("--plane-distance-m", type=float, required=True,
@@ -206,9 +212,9 @@ def _read_positions(path: str) -> tuple[list[str], list[str], list[float]]:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML table is written next to it.")
-def tumbling_head_command(images_dir, rig_path, positions_path, reference_image, head, reference_head,
-                          plane_distance_m, window_px, max_failed_share, min_circles, flight, date, output,
-                          report_path) -> None:
+def tumbling_head_command(images_dir, rig_path, positions_path, reference_image, reference_series, head,
+                          reference_head, plane_distance_m, window_px, max_failed_share, min_circles, flight, date,
+                          output, report_path) -> None:
     """Laboratory calibration of a tumbling head (paper 000): boresight curve, repeatability (Tab. 2)."""
     import html
 
@@ -238,6 +244,7 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
     def load(name: str) -> np.ndarray:
         return read_image(folder / name, gray=False)
 
+    ref_check = _reference_check(folder, reference_image, reference_series, ref, setup) if reference_series else None
     cal = calibrate_tumbling_head(setup, load, names, circles, np.radians(betas), ref, window_px=window_px,
                                   min_circles=min_circles, max_failed_share=max_failed_share)
     out_cal = cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal)
@@ -246,15 +253,19 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
     report["inputs"] = {"images": str(images_dir), "rig": str(rig_path), "positions": str(positions_path),
                         "reference_image": reference_image}
     report["output"] = str(output)
+    if ref_check is not None:
+        report["reference_check"] = ref_check
     report_path = report_path or str(Path(output).with_suffix(".json"))
     with atomic_write(report_path) as fh:
         json.dump(report, fh, indent=2)
         fh.write("\n")
     t2 = report["table2_2sigma"]
+    p2 = report["table2_paper000_mdeg"]
     rows = "".join(f"<tr><td>{a}</td><td>{v['mean_std_mdeg']:.1f}/1000 deg</td><td>{v['max_std_mdeg']:.1f}/1000 deg "
                    f"at beta {v['beta_at_max_deg']:.1f} deg ({html.escape(v['image_at_max'])})</td>"
                    f"<td>{v['measurement_sigma_mdeg']:.1f}/1000 deg</td><td>{v['mechanism_std_mdeg']:.1f} &plusmn; "
-                   f"{v['mechanism_std_se_mdeg']:.1f}/1000 deg</td></tr>" for a, v in t2.items())
+                   f"{v['mechanism_std_se_mdeg']:.1f}/1000 deg</td><td>{p2[a]['mean_std_mdeg']:g} / "
+                   f"{p2[a]['max_std_mdeg']:g} (photo {p2[a]['photo_at_max']:03d})</td></tr>" for a, v in t2.items())
     curve = "".join(f"<tr><td>{c['beta_deg']:.2f}</td>" + "".join(
         f"<td>{c[a + '_mdeg']:.2f} &plusmn; {c[a + '_std_mdeg']:.2f}</td>" for a in ("droll", "dpitch", "dyaw"))
         + "</tr>" for c in report["curve"])
@@ -265,11 +276,14 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
             "<h2>Repeat accuracies (paper 000 Tab. 2 style)</h2><table border=1><tr><th>axis</th>"
             "<th>mean standard deviation (2&sigma;)</th><th>max standard deviation (2&sigma;)</th>"
             "<th>one image's measurement sigma (2&sigma;)</th>"
-            "<th>mechanism repeatability, measurement noise removed (2&sigma; &plusmn; its standard error)</th></tr>"
+            "<th>mechanism repeatability, measurement noise removed (2&sigma; &plusmn; its standard error)</th>"
+            "<th>paper 000 Tab. 2: mean / max (2&sigma;, 1/1000 deg; MACS-TumbleCam, 72 x 5)</th></tr>"
             f"{rows}</table><h2>Mean correction curve (1/1000 deg, &plusmn; 1&sigma; repeatability)</h2>"
             "<table border=1><tr><th>beta (deg)</th><th>droll</th><th>dpitch</th><th>dyaw</th></tr>"
             f"{curve}</table>"
             f"<h2>How far the curve may be from the mechanism's</h2><p>{html.escape(_curve_statement_line(report))}</p>"
+            + (f"<h2>Reference camera over the session</h2><p>{html.escape(_reference_line(ref_check))}</p>"
+               if ref_check else "")
             + (f"<h2>Images left out ({len(cal.failed)} of {cal.images.size})</h2><table border=1><tr><th>image</th>"
                "<th>circle</th><th>beta (deg)</th><th>reason</th></tr>" + "".join(
                    f"<tr><td>{html.escape(f.name)}</td><td>{html.escape(f.circle)}</td>"
@@ -287,12 +301,46 @@ def tumbling_head_command(images_dir, rig_path, positions_path, reference_image,
         f"{a} {v['mechanism_std_mdeg']:.1f} +- {v['mechanism_std_se_mdeg']:.1f} (one image's measurement sigma "
         f"{v['measurement_sigma_mdeg']:.1f})" for a, v in t2.items()))
     click.echo(_curve_statement_line(report))
+    if ref_check:
+        click.echo(_reference_line(ref_check))
     if cal.failed:
         click.echo(f"WARNING: {len(cal.failed)} of {cal.images.size} images left out (their positions' statistics "
                    f"use the other circles; fewest circles at a position {int(cal.counts.min())}): " + "; ".join(
                        f"{f.name} (circle {f.circle}, beta {np.degrees(f.beta_rad):.2f} deg): {f.reason}"
                        for f in cal.failed))
     click.echo(f"-> {output}, {report_path}, {html_path}")
+
+
+def _reference_check(folder: Path, reference_image: str, pattern: str, ref: Any, setup: Any) -> dict:
+    """Block matching of the reference camera's session images (``pattern`` in ``folder``) against
+    ``reference_image``; a moved camera is refused (:class:`~skyrig.errors.ReferenceCameraMoved`)."""
+    from skyrig.calibrate.tumbling_reference import reference_stability
+    from skyrig.errors import ReferenceCameraMoved, SkyrigError
+    from skyrig.io.image_read import read_image
+
+    paths = sorted(p for p in folder.glob(pattern) if p.name != reference_image)
+    if not paths:
+        raise click.BadParameter(f"no image in {folder} matches {pattern!r}", param_hint="--reference-series")
+    cam = setup.rig.head(setup.reference_head).camera
+    try:
+        check = reference_stability([ref] + [read_image(p, gray=False) for p in paths],
+                                    [reference_image] + [p.name for p in paths],
+                                    ifov_rad=cam.pixel_size_mm / cam.focal_mm)
+        check.require_static()
+    except ReferenceCameraMoved as exc:
+        raise click.ClickException(f"ReferenceCameraMoved: {exc}") from None
+    except SkyrigError as exc:
+        raise click.BadParameter(str(exc), param_hint="--reference-series") from None
+    return check.to_dict()
+
+
+def _reference_line(check: dict) -> str:
+    """The reference camera's check in one sentence."""
+    return (f"reference camera still over the session: {check['images']} images block-matched against "
+            f"{check['template']}, largest displacement {check['max_movement_px']:.4f} px "
+            f"({check['max_movement_mdeg']:.2f}/1000 deg), threshold {check['threshold_px']:.4f} px "
+            f"({check['threshold_mdeg']:.2f}/1000 deg) = {check['k_sigma']:g} x the matching precision "
+            f"{check['sigma_px']:.5f} px")
 
 
 def _curve_statement_line(report: dict) -> str:
@@ -511,10 +559,13 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: the output with suffix .json); an HTML page is written next to it.")
+@click.option("--poseo", "poseo_path", type=click.Path(dir_okay=False), default=None,
+              help="Corrected exterior orientations of every image (the paper's POSEO: calibrated rig, GNSS freed of "
+                   "the datum shift), an EO CSV with side-car in the control points' CRS (default OUTPUT_poseo.csv).")
 def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_path, check_path, image_sigma_um,
                   gnss_sigma, imu_sigma_deg, control_sigma, no_grid, grid_method, grid_pairs, grid_fit_draws,
                   no_design_study, no_variants, flight,
-                  date, output, report_path) -> None:
+                  date, output, report_path, poseo_path) -> None:
     """Boresight, datum shift and interior orientation of a multi-head rig (paper 004, CalQC's four steps), the
     three adjustment variants (Tab. 11) and a correction grid by least-squares collocation."""
     if grid_pairs and grid_method == "joint":
@@ -565,12 +616,16 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
                         "measurements": [str(p) for p in meas_paths], "control": str(control_path), "check": check_path}
     report_path = report_path or str(Path(output).with_suffix(".json"))
     html_path = str(Path(report_path).with_suffix(".html"))
-    report["outputs"] = {"rig": str(output), "report": report_path, "html": html_path}
+    poseo_path = poseo_path or str(Path(output).with_name(Path(output).stem + "_poseo.csv"))
+    report["outputs"] = {"rig": str(output), "report": report_path, "html": html_path, "poseo": poseo_path}
     write_rig(cal.rig, output, cal.rig_calibration(flight, date, f"skyrig {__version__}", rig_cal))
+    from skyrig.io.eo_csv import write_eo_csv
+
+    write_eo_csv(cal.poseo.to_frame(ctrl.frame), poseo_path)
     with atomic_write(report_path) as fh:
         json.dump(report, fh, indent=2, default=float)
         fh.write("\n")
     with atomic_write(html_path) as fh:
         fh.write(report_html(report))
     click.echo(format_tables(report))
-    click.echo(f"-> {output}, {report_path}, {html_path}")
+    click.echo(f"-> {output}, {report_path}, {html_path}, {poseo_path}")
