@@ -58,7 +58,10 @@ def test_strecha_self_calibration_and_orientation_against_ground_truth(tmp_path)
     col = real.compare_with_truth(pn, np.array(pc), np.array(pr), gt)
     logging.getLogger(__name__).info("skyrig %s pycolmap %s", sky, col)
     assert sky["centre_rms_m"] <= 1.5 * col["centre_rms_m"], (sky, col)
-    # the issue's goal is 0.05 deg; measured 0.092 (pycolmap 0.435); a Brown camera with the affinity b1 self-calibrated
-    # gives 0.084 (the ground truth's fx / fy differ by 0.17 %), so that is not the cause.  Held to what is reached.
+    # the issue's goal is 0.05 deg.  After the centres' similarity: 0.092 (pycolmap 0.44), of which 0.082 is the
+    # similarity's own rotation error (10 nearly coplanar centres, mm of centre error, common to every image);
+    # after the rotations' own best common rotation: 0.042 (pycolmap 0.18)
     assert sky["rotation_rms_deg"] < 0.12 and sky["rotation_rms_deg"] < col["rotation_rms_deg"], (sky, col)
+    assert sky["rotation_rms_own_alignment_deg"] <= 0.05, sky
+    assert sky["rotation_rms_own_alignment_deg"] < col["rotation_rms_own_alignment_deg"], (sky, col)
 
