@@ -400,8 +400,9 @@ def test_uav_report_self_calibration(tmp_path):
 
 def test_control_section_names_the_measure_command(adjusted, tmp_path):
     """The report cannot start ``skyrig measure``'s server: its control section (and the plain page of
-    ``skyrig.io.report_html``) names the command, with this report's folder as ``--adjustment``; that command
-    parses, and the folder resolves to the ground_control.csv written next to the report."""
+    ``skyrig.io.report_html``) names the command.  Out of a project it names this report's eo.csv and folder
+    (``--eo``, ``--adjustment``) and asks for the rest in words; that command parses, and the folder resolves to
+    the ground_control.csv written next to the report."""
     import html as html_mod
     import shlex
 
@@ -415,18 +416,62 @@ def test_control_section_names_the_measure_command(adjusted, tmp_path):
     rep = adjustment_report(adjusted)
     full = write_adjustment_report(tmp_path / "full", adjusted, rep, "synthetic")["html"]
     plain = write_plain_report(tmp_path / "plain", adjusted, rep)["html"]
-    proj = tmp_path / "flight"
-    proj.mkdir()
     for page_path in (full, plain):
         text = html_mod.unescape(page_path.read_text())
-        m = re.search(r"skyrig measure PROJECT --adjustment (\S+)", text)
+        assert "skyrig measure PROJECT" not in text
+        m = re.search(r"skyrig measure --eo (\S+) --adjustment (\S+)", text)
         assert m, page_path
         args = shlex.split(m.group(0))[2:]
-        assert Path(args[2]) == page_path.parent.absolute()
+        assert Path(args[1]) == page_path.parent.absolute() / "eo.csv"
+        assert Path(args[3]) == page_path.parent.absolute()
         (page_path.parent / "ground_control.csv").write_text("name,x,y,z\n")
-        ctx = command.make_context("measure", [str(proj), *args[1:]])
-        assert ctx.params["project"] == str(proj) and Path(ctx.params["adjustment"]) == page_path.parent
+        (page_path.parent / "eo.csv").write_text("")
+        ctx = command.make_context("measure", args)
+        assert Path(ctx.params["adjustment"]) == page_path.parent and Path(ctx.params["eo_path"]).name == "eo.csv"
         assert _ground_control(Path(ctx.params["adjustment"])) == page_path.parent / "ground_control.csv"
     (tmp_path / "empty").mkdir()
     with pytest.raises(click.BadParameter, match="no ground_control.csv in the folder"):
         _ground_control(tmp_path / "empty")
+
+
+@pytest.mark.parametrize("output_key", ["", "output: results\n", "output: {abs}\n"])
+def test_measure_command_names_the_project(adjusted, tmp_path, output_key):
+    """In a project run the report is written in the stage's staging folder (``OUTPUT/.adjust.partial-*``, renamed
+    to ``OUTPUT/adjust`` afterwards): the command names the real project.yaml (found by its ``output:`` key, the
+    default, a relative or an absolute one) and the published folder, never the staging one, and the measure
+    command's own parser takes it."""
+    import html as html_mod
+    import shlex
+
+    from skyrig.adjust.report import adjustment_report
+    from skyrig.cli.measure import command
+    from skyrig.report import write_adjustment_report
+
+    root = tmp_path / "my flight"
+    outdir = tmp_path / "elsewhere" if "abs" in output_key else root / ("results" if "results" in output_key
+                                                                      else "output")
+    root.mkdir()
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\n" + output_key.format(abs=outdir))
+    staging = outdir / ".adjust.partial-k3j2"
+    staging.mkdir(parents=True)
+    page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
+    text = html_mod.unescape(page.read_text())
+    if "abs" in output_key:  # not under the project's folder: the runner says which project runs the stage
+        from skyrig.io.report_html import project_stage
+
+        with project_stage(root / "project.yaml", staging, outdir / "adjust"):
+            page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
+        text = html_mod.unescape(page.read_text())
+    m = re.search(r"skyrig measure (.+?)(?:<|$)", text, re.M)
+    assert m, text[:2000]
+    args = shlex.split(m.group(1))
+    assert Path(args[0]) == root / "project.yaml" and Path(args[2]) == outdir / "adjust"
+    (outdir / "adjust").mkdir()
+    ctx = command.make_context("measure", args)
+    assert Path(ctx.params["project"]) == root / "project.yaml"
+    # a project.yaml whose output is elsewhere is not this folder's project
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\noutput: other\n")
+    if "abs" not in output_key:
+        from skyrig.io.report_html import measure_command
+
+        assert "--eo" in measure_command(staging) and str(root / "project.yaml") not in measure_command(staging)
