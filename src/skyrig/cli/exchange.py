@@ -11,6 +11,8 @@ from pathlib import Path
 
 import click
 
+from skyrig.cli._types import CONTROL_SIGMA_M, PIXEL_SIGMA_PX
+
 IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml")
 EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
 
@@ -21,8 +23,8 @@ EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (.json).")
 @click.option("--tracks", type=click.Path(exists=True, dir_okay=False), default=None,
               help="OpenSfM: the tracks.csv with the measurements (default: tracks.csv beside the reconstruction).")
-@click.option("--sigma-px", type=float, default=1.0, show_default=True, help="Sigma of the image measurements (px).")
-@click.option("--control-sigma-m", type=float, default=0.01, show_default=True,
+@click.option("--sigma-px", type=PIXEL_SIGMA_PX, default=1.0, show_default=True, help="Sigma of the image measurements (px).")
+@click.option("--control-sigma-m", type=CONTROL_SIGMA_M.each, default=0.01, show_default=True,
               help="Metashape: sigma of the markers' enabled references (m, per axis).")
 def import_command(fmt, path, output, tracks, sigma_px, control_sigma_m) -> None:
     """Bring another program's project PATH in as a skyrig block file -o/--output."""
