@@ -194,16 +194,26 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
             raise InputFormatError(f"duplicate image {n!r} (first on line {seen[n]})", path, ln, "image")
         seen[n] = ln
     centre = np.stack([values["x"], values["y"], values["z"]], axis=1)
-    from skyrig.io.plausibility import check_angle_unit, check_coordinates
+    from skyrig.io.plausibility import check_angle_unit, check_attitude_reading, check_coordinates
 
     check_coordinates(centre, frame, path, line_no, "camera")
     a = _ANGLES[conv]
     tilt_cols, head_col = (a[1:], a[0]) if conv == "ypr" else (a[:2], a[2])
     check_angle_unit(np.stack([values[c] for c in tilt_cols], axis=1), values[head_col], unit, path, "/".join(a))
-    if conv == "ypr":
-        rot = rotation_from_ypr(frame, centre, values["yaw"], values["pitch"], values["roll"], unit=unit)
-    else:
-        rot = matrix_from_opk(values["omega"], values["phi"], values["kappa"], unit=unit, sequence=conv)
+    cols3 = [values[c] for c in a]
+
+    def rotations_of(u: str, cv: str) -> np.ndarray:
+        """The file's three angle columns read in unit ``u`` and convention ``cv``."""
+        if cv == "ypr":
+            return rotation_from_ypr(frame, centre, cols3[0], cols3[1], cols3[2], unit=u)
+        return matrix_from_opk(cols3[0], cols3[1], cols3[2], unit=u, sequence=cv)
+
+    rot = rotations_of(unit, conv)
+    check_attitude_reading(rotations_of, unit, conv, centre, path, line_no, a,
+                           "declare them with the header lines '# angles: ...' and '# convention: ...' (or the "
+                           "side-car's \"angles\" and \"convention\" keys)",
+                           groups=[r[pos["camera"]].strip() for r in rows],
+                           order=values.get("time"), values=np.stack(cols3, axis=1), frame=frame)
     exposure = None
     if "exposure" in pos:
         try:
