@@ -33,7 +33,8 @@ from skyrig.io._text import PathLike
 
 __all__ = ["GROUND_MIN_M", "GROUND_MAX_M", "CAMERA_MAX_M", "LEVER_ARM_MAX_M", "LEVER_ARM_WARN_M",
            "check_coordinates", "check_lever_arm", "check_same_frame", "area_of_use", "warn",
-           "check_attitude_reading", "flight_directions", "attitude_spread", "check_heading_against_track"]
+           "check_attitude_reading", "flight_directions", "attitude_spread", "check_heading_against_track",
+           "heading_minus_track"]
 
 #: Lowest / highest plausible ground height (m, ellipsoidal or orthometric): Dead Sea -430 m, geoid -106 m.
 GROUND_MIN_M = -600.0
@@ -528,6 +529,30 @@ def _heading_spread(heading_deg: NDArray[np.float64], track_deg: NDArray[np.floa
     return max(abs((a - b + 180.0) % 360.0 - 180.0) for i, a in enumerate(meds) for b in meds[i + 1:])
 
 
+def _track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike) -> tuple[NDArray[np.bool_], NDArray]:
+    """Records moving faster than :data:`TRACK_MIN_SPEED` to the next (mask over all but the last) and their
+    track azimuth (deg from north, clockwise)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    lat, lon = np.radians(np.asarray(lat_deg, dtype=np.float64)), np.radians(np.asarray(lon_deg, dtype=np.float64))
+    dt = np.diff(t)
+    de = np.diff(np.unwrap(lon)) * 6_378_137.0 * np.cos(lat[:-1])
+    dn = np.diff(lat) * 6_356_752.0
+    with np.errstate(all="ignore"):
+        speed = np.hypot(de, dn) / dt
+    moving = np.isfinite(speed) & (speed > TRACK_MIN_SPEED) & (dt > 0)
+    return moving, np.degrees(np.arctan2(de, dn))[moving] % 360.0
+
+
+def heading_minus_track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike, heading_deg: ArrayLike
+                        ) -> tuple[NDArray[np.int_], NDArray[np.float64]] | None:
+    """``(records, heading - track)`` (deg in -180..180) of the records in motion; None with fewer than 6."""
+    moving, track = _track(time_s, lat_deg, lon_deg)
+    if moving.sum() < 6:
+        return None
+    h = np.asarray(heading_deg, dtype=np.float64)[:-1][moving]
+    return np.flatnonzero(moving), (h - track + 180.0) % 360.0 - 180.0
+
+
 def check_heading_against_track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike, roll: ArrayLike,
                                 pitch: ArrayLike, yaw: ArrayLike, unit: str, path: PathLike,
                                 lines: Sequence[int] | NDArray | None, declare: str) -> None:
@@ -539,19 +564,11 @@ def check_heading_against_track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: 
     more than 5 % of the moving records roll beyond :data:`ROLL_MAX_DEG` or pitch beyond :data:`PITCH_MAX_DEG`
     (not an aircraft's attitude: another unit, or columns exchanged?).  ``roll``, ``pitch``, ``yaw`` as read, in
     ``unit``; ``declare`` says in words how to declare the unit."""
-    t = np.asarray(time_s, dtype=np.float64)
-    lat, lon = np.radians(np.asarray(lat_deg, dtype=np.float64)), np.radians(np.asarray(lon_deg, dtype=np.float64))
-    if len(t) < 6 or unit not in _DEG_PER:
+    if len(np.asarray(time_s)) < 6 or unit not in _DEG_PER:
         return
-    dt = np.diff(t)
-    de = np.diff(np.unwrap(lon)) * 6_378_137.0 * np.cos(lat[:-1])
-    dn = np.diff(lat) * 6_356_752.0
-    with np.errstate(all="ignore"):
-        speed = np.hypot(de, dn) / dt
-    moving = np.isfinite(speed) & (speed > TRACK_MIN_SPEED) & (dt > 0)
+    moving, track = _track(time_s, lat_deg, lon_deg)
     if moving.sum() < 6:
         return
-    track = np.degrees(np.arctan2(de, dn))[moving] % 360.0
     raw = np.asarray(yaw, dtype=np.float64)[:-1][moving]
     got = _heading_spread(raw * _DEG_PER[unit], track)
     if got is not None and got > ATTITUDE_SPREAD_DEG:
