@@ -152,8 +152,9 @@ class Magnitude(Number):
 
 
 class MagnitudeList(click.ParamType):
-    """One number or comma-separated numbers (``"0.05,0.05,0.08"``: standard deviations per axis), each judged by
-    a :class:`Magnitude`; the text is returned unchanged (the command parses its count as before)."""
+    """One number or comma-separated numbers (``"0.05,0.05,0.08"``: standard deviations per axis), each finite,
+    non-negative number judged by a :class:`Magnitude`; the text is returned unchanged (the command parses it as
+    before and refuses, in its words, what is not a number, not finite, negative or the wrong count)."""
 
     name = "numbers"
 
@@ -166,8 +167,12 @@ class MagnitudeList(click.ParamType):
             return value
         text = str(value)
         for part in text.replace(";", ",").split(","):
-            if part.strip():
-                self.each.convert(part.strip(), param, ctx)
+            try:
+                v = float(part)
+            except ValueError:
+                continue  # not a number: the command's own parser says so (the sigma syntax, the count)
+            if math.isfinite(v) and v >= 0:
+                self.each.convert(v, param, ctx)
         return value
 
 

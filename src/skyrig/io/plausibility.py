@@ -442,11 +442,11 @@ def check_attitude_reading(rotations_of: Callable[[str, str], NDArray[np.float64
 
     ``declare`` says in words how to declare the unit / convention (a header key, a side-car key, an option);
     ``values``: the file's three angle columns (``(N, 3)``), to leave out a unit they cannot be in; ``frame``: the
-    centres' frame (ECEF: nothing checked, its z is not up; geographic: longitude / latitude made metres).
+    centres' frame (checked in map frames only, whose z is up; geographic: longitude / latitude made metres).
     """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3).copy()
-    if len(c) < 3 or (frame is not None and frame.kind == "ecef"):
-        return
+    if len(c) < 3 or (frame is not None and frame.kind != "map"):
+        return  # ECEF (z is not up), local and model frames (a model frame's z may point anywhere)
     if frame is not None and frame.kind == "map":
         try:
             geographic = frame.projection.crs.is_geographic
