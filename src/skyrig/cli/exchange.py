@@ -11,27 +11,47 @@ from pathlib import Path
 
 import click
 
-from skyrig.cli._types import CONTROL_SIGMA_M, CRS_TEXT, PIXEL_SIGMA_PX
+from skyrig.cli._types import CONTROL_SIGMA_M, CRS_TEXT, GEOID, PIXEL_SIGMA_PX
 
-IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml")
+IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml", "project")
 EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
 
 
 @click.command("import")
 @click.argument("fmt", metavar="FORMAT", type=click.Choice(IMPORT_FORMATS))
 @click.argument("path", type=click.Path(exists=True))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (.json).")
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="Block file to write (.json); for 'project': the skyrig project folder to write.")
+@click.option("--crs", type=CRS_TEXT, default=None,
+              help="project: the CRS of a model that states none (COLMAP; Pix4D without its _wkt.prj).")
+@click.option("--geoid", type=GEOID, default=None, help="project: geoid grid when that CRS's heights are orthometric.")
 @click.option("--tracks", type=click.Path(exists=True, dir_okay=False), default=None,
               help="OpenSfM: the tracks.csv with the measurements (default: tracks.csv beside the reconstruction).")
 @click.option("--sigma-px", type=PIXEL_SIGMA_PX, default=1.0, show_default=True, help="Sigma of the image measurements (px).")
 @click.option("--control-sigma-m", type=CONTROL_SIGMA_M.each, default=0.01, show_default=True,
               help="Metashape: sigma of the markers' enabled references (m, per axis).")
-def import_command(fmt, path, output, tracks, sigma_px, control_sigma_m) -> None:
-    """Bring another program's project PATH in as a skyrig block file -o/--output."""
+def import_command(fmt, path, output, crs, geoid, tracks, sigma_px, control_sigma_m) -> None:
+    """Bring another program's project PATH in as a skyrig block file -o/--output; FORMAT 'project': a whole
+    project folder (COLMAP, OpenSfM, Metashape cameras XML or Pix4D, told by its files) as a skyrig project folder
+    (eo.csv, cameras.yaml, points.csv, tie_points.csv, block.json, import.json)."""
     from skyrig.io.block_file import write_block
 
     if not sigma_px > 0:
         raise click.BadParameter("must be positive", param_hint="--sigma-px")
+    if fmt == "project":
+        from skyrig.io.project_import import import_project
+
+        if Path(output).is_file():
+            raise click.BadParameter(f"{output} is a file: give the project folder to write", param_hint="-o")
+        s = import_project(path, output, crs=crs, geoid=geoid, sigma_px=sigma_px)
+        click.echo(f"{s['program']} project in {path}: {s['images']} images, {len(s['cameras'])} camera(s)"
+                   + (f", {s['points']} points, {s['measurements']} measurements" if "points" in s else "")
+                   + f" ({s['frame']}); wrote {', '.join(s['written'])} to {output}")
+        if "note" in s:
+            click.echo(f"note: {s['note']}")
+        return
+    if Path(output).is_dir():
+        raise click.BadParameter(f"{output} is a folder: give the block file to write", param_hint="-o")
     if fmt == "colmap":
         from skyrig.io.colmap import block_from_colmap
         from skyrig.io.colmap_folder import read_colmap
