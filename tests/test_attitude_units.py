@@ -208,3 +208,22 @@ def test_every_flight_direction_pair_and_head_is_consistent_for_the_truth(demo):
     spread, dev = attitude_spread(eo.rotation, d, ok, eo.camera)
     assert ok.mean() > 0.9 and spread < ATTITUDE_SPREAD_DEG / 2, spread
     assert len(set(map(str, eo.camera))) == 5
+
+
+def test_pix4d_external_parameters_in_gon_are_refused(demo, tmp_path):
+    """Pix4D's file names no camera: one camera's images (the rig's nadir head) as Pix4D would hold them (a file
+    mixing a rig's heads under one name is not judged by the direction rule: a stated limit)."""
+    from skyrig.georef.eo import ExteriorOrientations
+    from skyrig.io.pix4d import read_pix4d_external, write_pix4d_external
+
+    _, _, all_eo = demo
+    k = np.flatnonzero(np.char.find(all_eo.camera.astype(str), "nadir") >= 0)
+    eo = ExteriorOrientations(all_eo.image[k], all_eo.camera[k], all_eo.centre[k], all_eo.rotation[k], all_eo.frame)
+    f = write_pix4d_external(tmp_path / "ext.txt", eo)
+    np.testing.assert_allclose(read_pix4d_external(f, eo.frame).rotation, eo.rotation, atol=1e-8)
+    lines = f.read_text().splitlines()
+    out = [lines[0]] + [" ".join(p[:4] + [f"{float(x) * 400.0 / 360.0:.9f}" for x in p[4:]])
+                        for p in (ln.split() for ln in lines[1:])]
+    (tmp_path / "gon.txt").write_text("\n".join(out) + "\n")
+    with pytest.raises(InputFormatError, match=r"gon\.txt, line \d+, field 'Kappa'.*read with angles in gon"):
+        read_pix4d_external(tmp_path / "gon.txt", eo.frame)

@@ -34,7 +34,7 @@ from skyrig.io._text import PathLike
 __all__ = ["GROUND_MIN_M", "GROUND_MAX_M", "CAMERA_MAX_M", "LEVER_ARM_MAX_M", "LEVER_ARM_WARN_M",
            "check_coordinates", "check_lever_arm", "check_same_frame", "area_of_use", "warn",
            "check_attitude_reading", "flight_directions", "attitude_spread", "check_heading_against_track",
-           "heading_minus_track"]
+           "heading_minus_track", "angle_readings"]
 
 #: Lowest / highest plausible ground height (m, ellipsoidal or orthometric): Dead Sea -430 m, geoid -106 m.
 GROUND_MIN_M = -600.0
@@ -325,6 +325,24 @@ _UNITS_TO_TRY = {"deg": ("gon",), "gon": ("deg",), "rad": ()}
 _CONVENTIONS_TO_TRY = {"opk": ("ypr",), "pok": ("ypr",), "ypr": ("opk",)}
 
 
+def angle_readings(frame: WorldFrame, centres: ArrayLike, angles: ArrayLike) -> Callable[[str, str], NDArray]:
+    """``rotations_of(unit, convention)`` for :func:`check_attitude_reading`: a file's three angle columns
+    (``(N, 3)``, in the file's order) read in ``unit`` as omega-phi-kappa (``opk`` / ``pok``) or as yaw-pitch-roll
+    of the standard nadir mount (``ypr``, :func:`skyrig.georef.attitude_frames.rotation_from_ypr`)."""
+    from skyrig.georef.attitude_frames import rotation_from_ypr
+    from skyrig.geometry.rotations import matrix_from_opk
+
+    a = np.asarray(angles, dtype=np.float64)
+    c = np.asarray(centres, dtype=np.float64)
+
+    def rotations_of(unit: str, convention: str) -> NDArray[np.float64]:
+        if convention == "ypr":
+            return rotation_from_ypr(frame, c, a[:, 0], a[:, 1], a[:, 2], unit=unit)
+        return matrix_from_opk(a[:, 0], a[:, 1], a[:, 2], unit=unit, sequence=convention)
+
+    return rotations_of
+
+
 def _rotation_angle_deg(r: NDArray[np.float64]) -> NDArray[np.float64]:
     c = (np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
@@ -441,6 +459,8 @@ def check_attitude_reading(rotations_of: Callable[[str, str], NDArray[np.float64
       at the sky), warned about otherwise.
 
     ``declare`` says in words how to declare the unit / convention (a header key, a side-car key, an option);
+    ``groups``: the camera (head) of each image; a file that names none (Pix4D's external parameters) and mixes a
+    rig's heads is not told apart by the direction rule (the heads' means blur into one);
     ``values``: the file's three angle columns (``(N, 3)``), to leave out a unit they cannot be in; ``frame``: the
     centres' frame (checked in map frames only, whose z is up; geographic: longitude / latitude made metres).
     """
