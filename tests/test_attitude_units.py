@@ -227,3 +227,33 @@ def test_pix4d_external_parameters_in_gon_are_refused(demo, tmp_path):
     (tmp_path / "gon.txt").write_text("\n".join(out) + "\n")
     with pytest.raises(InputFormatError, match=r"gon\.txt, line \d+, field 'Kappa'.*read with angles in gon"):
         read_pix4d_external(tmp_path / "gon.txt", eo.frame)
+
+
+def test_check_names_eo_images_looking_another_way_than_their_head(demo):
+    """skyrig check: the demo's EO (direct georeferencing) agrees with its rig's heads (nadir 0 deg, obliques about
+    45 deg from straight down); the nadir camera's rotations given to a forward camera's images, and the whole EO
+    read as yaw-pitch-roll in place of omega-phi-kappa, are named."""
+    from skyrig.georef.eo import ExteriorOrientations
+    from skyrig.io.plausibility import angle_readings
+    from skyrig.io.rig_file import read_rig
+    from skyrig.pipeline.check import eo_heads_problems
+    from skyrig.geometry.rotations import opk_from_matrix
+
+    _, p, eo = demo
+    rig = read_rig(p.rig)
+    assert eo_heads_problems(eo, rig, Path("eo.csv")) == []
+    cams = eo.camera.astype(str)
+    nadir, fwd = np.flatnonzero(np.char.find(cams, "nadir") >= 0), np.flatnonzero(np.char.find(cams, "forward") >= 0)
+    rot = eo.rotation.copy()
+    rot[fwd] = eo.rotation[nadir]
+    wrong = ExteriorOrientations(eo.image, eo.camera, eo.centre, rot, eo.frame)
+    problems = eo_heads_problems(wrong, rig, Path("eo.csv"))
+    import re
+
+    assert len(problems) == 1 and re.search(rf"camera '{cams[fwd[0]]}' look [0-5] deg from straight down",
+                                            problems[0]) and "mounts head 'forward' 45 deg" in problems[0], problems
+    o, ph, k = opk_from_matrix(eo.rotation, unit="deg", sequence="opk")
+    as_ypr = angle_readings(eo.frame, eo.centre, np.c_[o, ph, k])("deg", "ypr")
+    problems = eo_heads_problems(ExteriorOrientations(eo.image, eo.camera, eo.centre, as_ypr, eo.frame), rig,
+                                 Path("eo.csv"))
+    assert any("'nadir'" in x for x in problems), problems
