@@ -434,44 +434,51 @@ def test_control_section_names_the_measure_command(adjusted, tmp_path):
         _ground_control(tmp_path / "empty")
 
 
-@pytest.mark.parametrize("output_key", ["", "output: results\n", "output: {abs}\n"])
-def test_measure_command_names_the_project(adjusted, tmp_path, output_key):
-    """In a project run the report is written in the stage's staging folder (``OUTPUT/.adjust.partial-*``, renamed
-    to ``OUTPUT/adjust`` afterwards): the command names the real project.yaml (found by its ``output:`` key, the
-    default, a relative or an absolute one) and the published folder, never the staging one, and the measure
-    command's own parser takes it."""
+@pytest.mark.parametrize("output_key", ["", "output: results\n"])
+def test_measure_command_finds_the_project_of_a_stage_folder(tmp_path, output_key):
+    """A stage folder (published or staging, ``OUTPUT/.adjust.partial-*``) under the project's output (the
+    default ``output`` or a relative ``output:`` key): the command names that project.yaml and the published
+    folder, and the measure command's own parser takes it; a project.yaml whose output is elsewhere is not it."""
+    import shlex
+
+    from skyrig.cli.measure import command
+    from skyrig.io.report_html import measure_command
+
+    root = tmp_path / "my flight"
+    outdir = root / ("results" if "results" in output_key else "output")
+    root.mkdir()
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\n" + output_key)
+    staging = outdir / ".adjust.partial-k3j2"
+    staging.mkdir(parents=True)
+    for folder in (staging, outdir / "adjust"):
+        words = measure_command(folder)
+        args = shlex.split(words.split("skyrig measure ", 1)[1])
+        assert args == [str(root / "project.yaml"), "--adjustment", str(outdir / "adjust")], words
+    (outdir / "adjust").mkdir()
+    assert Path(command.make_context("measure", args).params["project"]) == root / "project.yaml"
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\noutput: other\n")
+    assert "--eo" in measure_command(staging) and str(root / "project.yaml") not in measure_command(staging)
+
+
+def test_report_written_by_a_project_stage_names_the_project(adjusted, tmp_path):
+    """In a project run the report is written in the stage's staging folder and the runner says which project
+    runs it (:func:`skyrig.io.report_html.project_stage`): the page names that project.yaml and the published
+    folder, also for an absolute ``output:`` elsewhere."""
     import html as html_mod
     import shlex
 
     from skyrig.adjust.report import adjustment_report
-    from skyrig.cli.measure import command
+    from skyrig.io.report_html import project_stage
     from skyrig.report import write_adjustment_report
 
-    root = tmp_path / "my flight"
-    outdir = tmp_path / "elsewhere" if "abs" in output_key else root / ("results" if "results" in output_key
-                                                                      else "output")
+    root, outdir = tmp_path / "my flight", tmp_path / "elsewhere"
     root.mkdir()
-    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\n" + output_key.format(abs=outdir))
+    (root / "project.yaml").write_text(f"format: skyrig-project\nversion: 1\noutput: {outdir}\n")
     staging = outdir / ".adjust.partial-k3j2"
     staging.mkdir(parents=True)
-    page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
+    with project_stage(root / "project.yaml", staging, outdir / "adjust"):
+        page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
     text = html_mod.unescape(page.read_text())
-    if "abs" in output_key:  # not under the project's folder: the runner says which project runs the stage
-        from skyrig.io.report_html import project_stage
-
-        with project_stage(root / "project.yaml", staging, outdir / "adjust"):
-            page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
-        text = html_mod.unescape(page.read_text())
     m = re.search(r"skyrig measure (.+?)(?:<|$)", text, re.M)
-    assert m, text[:2000]
-    args = shlex.split(m.group(1))
-    assert Path(args[0]) == root / "project.yaml" and Path(args[2]) == outdir / "adjust"
-    (outdir / "adjust").mkdir()
-    ctx = command.make_context("measure", args)
-    assert Path(ctx.params["project"]) == root / "project.yaml"
-    # a project.yaml whose output is elsewhere is not this folder's project
-    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\noutput: other\n")
-    if "abs" not in output_key:
-        from skyrig.io.report_html import measure_command
-
-        assert "--eo" in measure_command(staging) and str(root / "project.yaml") not in measure_command(staging)
+    assert m and "PROJECT" not in text, text[:2000]
+    assert shlex.split(m.group(1)) == [str(root / "project.yaml"), "--adjustment", str(outdir / "adjust")]
