@@ -27,7 +27,7 @@ def _eo_file(tmp_path):  # type: ignore[no-untyped-def]
     n = 4
     eo = ExteriorOrientations(np.array([f"im{k}.tif" for k in range(n)]), np.array(["cam"] * n),
                               np.column_stack([549700 + 100 * np.arange(n), np.full(n, 5799900.0), np.full(n, 800.0)]),
-                              matrix_from_rotvec(rng.normal(0, 0.02, (n, 3))) @ np.diag([1.0, -1.0, -1.0]),
+                              matrix_from_rotvec(rng.normal(0, 0.02, (n, 3))),  # nadir (looking up is refused)
                               WorldFrame.map("EPSG:25832"))
     write_eo_csv(eo, tmp_path / "eo.csv")
     return tmp_path / "eo.csv", eo

@@ -324,6 +324,10 @@ def test_run_to_dsm_against_the_scene(sim_project: Path) -> None:
     assert j["flat"]["nmad_gsd"] < 1.0 and abs(j["flat"]["bias_gsd"]) < 0.3, j["flat"]
     rep = json.loads((out / "adjust" / "report.json").read_text())
     assert 0.3 < rep["summary"]["sigma0"] < 1.5
+    import html
+
+    page = html.unescape((out / "adjust" / "report.html").read_text())  # written in the staging folder
+    assert f"skyrig measure {sim_project} --adjustment {out / 'adjust'}" in page
 
 
 @pytest.mark.slow

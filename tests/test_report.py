@@ -400,8 +400,9 @@ def test_uav_report_self_calibration(tmp_path):
 
 def test_control_section_names_the_measure_command(adjusted, tmp_path):
     """The report cannot start ``skyrig measure``'s server: its control section (and the plain page of
-    ``skyrig.io.report_html``) names the command, with this report's folder as ``--adjustment``; that command
-    parses, and the folder resolves to the ground_control.csv written next to the report."""
+    ``skyrig.io.report_html``) names the command.  Out of a project it names this report's eo.csv and folder
+    (``--eo``, ``--adjustment``) and asks for the rest in words; that command parses, and the folder resolves to
+    the ground_control.csv written next to the report."""
     import html as html_mod
     import shlex
 
@@ -415,18 +416,69 @@ def test_control_section_names_the_measure_command(adjusted, tmp_path):
     rep = adjustment_report(adjusted)
     full = write_adjustment_report(tmp_path / "full", adjusted, rep, "synthetic")["html"]
     plain = write_plain_report(tmp_path / "plain", adjusted, rep)["html"]
-    proj = tmp_path / "flight"
-    proj.mkdir()
     for page_path in (full, plain):
         text = html_mod.unescape(page_path.read_text())
-        m = re.search(r"skyrig measure PROJECT --adjustment (\S+)", text)
+        assert "skyrig measure PROJECT" not in text
+        m = re.search(r"skyrig measure --eo (\S+) --adjustment (\S+)", text)
         assert m, page_path
         args = shlex.split(m.group(0))[2:]
-        assert Path(args[2]) == page_path.parent.absolute()
+        assert Path(args[1]) == page_path.parent.absolute() / "eo.csv"
+        assert Path(args[3]) == page_path.parent.absolute()
         (page_path.parent / "ground_control.csv").write_text("name,x,y,z\n")
-        ctx = command.make_context("measure", [str(proj), *args[1:]])
-        assert ctx.params["project"] == str(proj) and Path(ctx.params["adjustment"]) == page_path.parent
+        (page_path.parent / "eo.csv").write_text("")
+        ctx = command.make_context("measure", args)
+        assert Path(ctx.params["adjustment"]) == page_path.parent and Path(ctx.params["eo_path"]).name == "eo.csv"
         assert _ground_control(Path(ctx.params["adjustment"])) == page_path.parent / "ground_control.csv"
     (tmp_path / "empty").mkdir()
     with pytest.raises(click.BadParameter, match="no ground_control.csv in the folder"):
         _ground_control(tmp_path / "empty")
+
+
+@pytest.mark.parametrize("output_key", ["", "output: results\n"])
+def test_measure_command_finds_the_project_of_a_stage_folder(tmp_path, output_key):
+    """A stage folder (published or staging, ``OUTPUT/.adjust.partial-*``) under the project's output (the
+    default ``output`` or a relative ``output:`` key): the command names that project.yaml and the published
+    folder, and the measure command's own parser takes it; a project.yaml whose output is elsewhere is not it."""
+    import shlex
+
+    from skyrig.cli.measure import command
+    from skyrig.io.report_html import measure_command
+
+    root = tmp_path / "my flight"
+    outdir = root / ("results" if "results" in output_key else "output")
+    root.mkdir()
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\n" + output_key)
+    staging = outdir / ".adjust.partial-k3j2"
+    staging.mkdir(parents=True)
+    for folder in (staging, outdir / "adjust"):
+        words = measure_command(folder)
+        args = shlex.split(words.split("skyrig measure ", 1)[1])
+        assert args == [str(root / "project.yaml"), "--adjustment", str(outdir / "adjust")], words
+    (outdir / "adjust").mkdir()
+    assert Path(command.make_context("measure", args).params["project"]) == root / "project.yaml"
+    (root / "project.yaml").write_text("format: skyrig-project\nversion: 1\noutput: other\n")
+    assert "--eo" in measure_command(staging) and str(root / "project.yaml") not in measure_command(staging)
+
+
+def test_report_written_by_a_project_stage_names_the_project(adjusted, tmp_path):
+    """In a project run the report is written in the stage's staging folder and the runner says which project
+    runs it (:func:`skyrig.io.report_html.project_stage`): the page names that project.yaml and the published
+    folder, also for an absolute ``output:`` elsewhere."""
+    import html as html_mod
+    import shlex
+
+    from skyrig.adjust.report import adjustment_report
+    from skyrig.io.report_html import project_stage
+    from skyrig.report import write_adjustment_report
+
+    root, outdir = tmp_path / "my flight", tmp_path / "elsewhere"
+    root.mkdir()
+    (root / "project.yaml").write_text(f"format: skyrig-project\nversion: 1\noutput: {outdir}\n")
+    staging = outdir / ".adjust.partial-k3j2"
+    staging.mkdir(parents=True)
+    with project_stage(root / "project.yaml", staging, outdir / "adjust"):
+        page = write_adjustment_report(staging, adjusted, adjustment_report(adjusted), "synthetic")["html"]
+    text = html_mod.unescape(page.read_text())
+    m = re.search(r"skyrig measure (.+?)(?:<|$)", text, re.M)
+    assert m and "PROJECT" not in text, text[:2000]
+    assert shlex.split(m.group(1)) == [str(root / "project.yaml"), "--adjustment", str(outdir / "adjust")]

@@ -292,7 +292,10 @@ def _synthetic_sbet(n=40):
     rec[:, 1] = np.radians(-33.9 + 1e-6 * np.arange(n))
     rec[:, 2] = np.radians(151.2 - 1e-6 * np.arange(n))
     rec[:, 3] = 600.0 + 0.01 * np.arange(n)
-    rec[:, 4:7] = rng.normal(0, 40, (n, 3))
+    # velocities of that motion (north, east, down: wander angle 0) with noise; their speed matches the positions'
+    rec[:, 4] = np.radians(1e-6) * 6_356_752.0 / 0.005 + rng.normal(0, 0.05, n)
+    rec[:, 5] = -np.radians(1e-6) * 6_378_137.0 * np.cos(np.radians(-33.9)) / 0.005 + rng.normal(0, 0.05, n)
+    rec[:, 6] = -0.01 / 0.005 + rng.normal(0, 0.05, n)
     rec[:, 7] = np.radians(rng.uniform(-10, 10, n))
     rec[:, 8] = np.radians(rng.uniform(-5, 5, n))
     rec[:, 9] = np.radians(rng.uniform(-179, 179, n))

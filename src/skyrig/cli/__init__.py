@@ -77,6 +77,8 @@ COMMANDS: dict[str, CommandEntry] = {
                            "Bring another program's project (COLMAP, OpenSfM, Metashape XML) in as a block file."),
     "export": CommandEntry("skyrig.cli.exchange:export_command",
                            "Write a block file in another program's format (COLMAP, OpenSfM, Metashape, MicMac)."),
+    "export-gcp": CommandEntry("skyrig.cli.exchange:export_gcp_command",
+                               "Write ground control / check points and their image marks as Pix4D GCP and marks files."),
     "init": CommandEntry("skyrig.cli.run:init_command", "Write a commented project.yaml for a flight folder (skyrig run runs it)."),
     "run": CommandEntry("skyrig.cli.run:run_command", "Run the stages of a project.yaml, each into its own folder (resumable)."),
     "measure": CommandEntry("skyrig.cli.measure:command",

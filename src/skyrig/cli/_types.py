@@ -95,3 +95,106 @@ class GeoidText(click.ParamType):
 
 CRS_TEXT = CrsText()
 GEOID = GeoidText()
+
+
+# ------------------------------------------------------------------------ magnitudes: a plausible number, its unit
+#: Other units a number in metres may have been written in (name, metres per unit).
+_METRE_UNITS = (("millimetres", 0.001), ("centimetres", 0.01))
+#: ... in degrees (name, degrees per unit).
+_DEGREE_UNITS = (("arc seconds", 1.0 / 3600.0), ("milligon", 0.0009))
+
+
+class Magnitude(Number):
+    """A finite number in ``unit`` checked against what it measures (issue 29: a plausible number in a wrong unit).
+
+    Outside ``refuse`` (lo, hi) it is refused while parsing; outside ``usual`` (lo, hi) a one-line warning is said
+    (:class:`~skyrig.errors.PlausibilityWarning`, ``warning: ...``).  Either way the words name the option, the
+    value with its unit, the expected range and the units among ``others`` ((name, ``unit`` per that unit)) in
+    which the number would be usual: ``--gsd 5`` -> "5 metres is not plausible as a ground sampling distance
+    (expected 0.0001 to 2 metres); centimetres (0.05 metres) or millimetres (0.005 metres)?"."""
+
+    def __init__(self, what: str, unit: str, refuse: tuple[float, float], usual: tuple[float, float] | None = None,
+                 others: tuple[tuple[str, float], ...] = (), *, nonnegative: bool = False) -> None:
+        super().__init__(unit=unit, nonnegative=nonnegative)
+        self.what, self.refuse, self.usual, self.others = what, refuse, usual or refuse, others
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201
+        v = super().convert(value, param, ctx)
+        problem = self.judge(v)
+        if problem is not None and problem[0] == "refuse":
+            self.fail(problem[1], param, ctx)
+        if problem is not None:
+            self.say(problem[1], param)
+        return v
+
+    def judge(self, v: float) -> tuple[str, str] | None:
+        """``("refuse" | "warn", words)`` for ``v``, None when it is usual (0 passes where 0 is allowed)."""
+        if v == 0 and self.nonnegative:
+            return None
+        for kind, (lo, hi) in (("refuse", self.refuse), ("warn", self.usual)):
+            if lo <= abs(v) <= hi:
+                continue
+            fits = [f"{name} ({v * f:.6g} {self.unit})" for name, f in self.others
+                    if self.usual[0] <= abs(v * f) <= self.usual[1]]
+            hint = f"; {' or '.join(fits)}?" if fits else ""
+            verb = "is not plausible" if kind == "refuse" else "is unusual"
+            return kind, (f"{v:g} {self.unit} {verb} as {self.what} (expected {lo:g} to {hi:g} {self.unit}){hint}")
+        return None
+
+    @staticmethod
+    def say(words: str, param) -> None:  # noqa: ANN001
+        import warnings
+
+        from skyrig.errors import PlausibilityWarning
+
+        name = param.opts[0] if param is not None and getattr(param, "opts", None) else "option"
+        warnings.warn(f"{name}: {words}", PlausibilityWarning, stacklevel=2)
+
+
+class MagnitudeList(click.ParamType):
+    """One number or comma-separated numbers (``"0.05,0.05,0.08"``: standard deviations per axis), each finite,
+    non-negative number judged by a :class:`Magnitude`; the text is returned unchanged (the command parses it as
+    before and refuses, in its words, what is not a number, not finite, negative or the wrong count)."""
+
+    name = "numbers"
+
+    def __init__(self, each: Magnitude) -> None:
+        self.each = each
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            self.each.convert(value, param, ctx)
+            return value
+        text = str(value)
+        for part in text.replace(";", ",").split(","):
+            try:
+                v = float(part)
+            except ValueError:
+                continue  # not a number: the command's own parser says so (the sigma syntax, the count)
+            if math.isfinite(v) and v >= 0:
+                self.each.convert(v, param, ctx)
+        return value
+
+
+#: Ground sampling distance (m): a UAV's millimetres to a high aerial camera's metre.
+GSD_M = Magnitude("a ground sampling distance", "metres", (1e-4, 2.0), (5e-4, 1.0), _METRE_UNITS)
+#: Flying height above ground (m).
+FLYING_HEIGHT_M = Magnitude("a flying height above ground", "metres", (1.0, 20_000.0), (5.0, 12_000.0),
+                            _METRE_UNITS)
+#: A terrain / plane height (m, ellipsoidal or orthometric): the Dead Sea to Everest with the geoid's range.
+GROUND_HEIGHT_M = Magnitude("a ground height", "metres", (0.0, 9_000.0), None, _METRE_UNITS, nonnegative=False)
+#: GNSS / projection-centre standard deviation (m): refused beyond 100 m, unusual beyond 10 m.
+GNSS_SIGMA_M = MagnitudeList(Magnitude("a GNSS position's standard deviation", "metres", (0.0, 100.0), (0.0, 10.0),
+                                       _METRE_UNITS, nonnegative=True))
+#: Ground control standard deviation (m): refused beyond 100 m, unusual beyond 2 m.
+CONTROL_SIGMA_M = MagnitudeList(Magnitude("a ground point's standard deviation", "metres", (0.0, 100.0), (0.0, 2.0),
+                                          _METRE_UNITS, nonnegative=True))
+#: Attitude (IMU) standard deviation (deg): refused beyond 90, unusual beyond 1 (an aerial IMU: 0.003-0.01).
+IMU_SIGMA_DEG = MagnitudeList(Magnitude("an attitude's standard deviation", "degrees", (0.0, 90.0), (0.0, 1.0),
+                                        _DEGREE_UNITS, nonnegative=True))
+#: Image measurement standard deviation (px): refused beyond 100 px, unusual beyond 10 px.
+PIXEL_SIGMA_PX = Magnitude("an image measurement's standard deviation", "pixels", (0.0, 100.0), (0.0, 10.0),
+                           nonnegative=True)
+#: Image measurement standard deviation (um on the sensor): refused beyond 1000 um, unusual outside 0.05-50 um.
+PIXEL_SIGMA_UM = Magnitude("an image measurement's standard deviation", "micrometres", (1e-3, 1000.0), (0.05, 50.0),
+                           (("millimetres", 1000.0),))

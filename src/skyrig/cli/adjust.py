@@ -24,6 +24,8 @@ from pathlib import Path
 
 import click
 
+from skyrig.cli._types import GSD_M
+
 from skyrig.adjust.presets import PRESETS
 # the library functions this command calls, importable from here as before
 from skyrig.pipeline.orientation import adjust_demo_project, default_project, write_outputs  # noqa: F401
@@ -42,7 +44,7 @@ def _adjust_cmd_class() -> type[click.Command]:
 @click.option("--preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="Paper 004 variant, merged with the block file's 'adjustment' section (groups freed there stay "
                    "free; a field the preset decides overrides the file, with a warning); default: the section alone.")
-@click.option("--gsd", type=float, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
+@click.option("--gsd", type=GSD_M, default=None, help="Ground sampling distance (m) for RMS in GSD units.")
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
               help="Output folder, published as a set with manifest.json (--outdir: deprecated spelling).")
 @click.option("--crs", "crs", default=None,

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import click
 
+from skyrig.cli._types import CONTROL_SIGMA_M, GNSS_SIGMA_M, IMU_SIGMA_DEG, PIXEL_SIGMA_PX
+
 from skyrig.pipeline.orientation import BLOCK_GROUPS as _GROUPS
 
 __all__ = ["command"]
@@ -85,13 +87,13 @@ def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
 @click.option("--points-heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal",
               show_default=True, help="Height reference of point files that do not state theirs.")
 @click.option("--points-geoid", default=None, help="Geoid grid when the point heights are orthometric.")
-@click.option("--image-sigma-px", "sigma_px", type=float, default=0.5, show_default=True, help="Image measurement sigma (pixels).")
-@click.option("--gnss-sigma", default="0.05,0.05,0.08", show_default=True,
+@click.option("--image-sigma-px", "sigma_px", type=PIXEL_SIGMA_PX, default=0.5, show_default=True, help="Image measurement sigma (pixels).")
+@click.option("--gnss-sigma", type=GNSS_SIGMA_M, default="0.05,0.05,0.08", show_default=True,
               help="GNSS sigma east,north,up (m; one value for all axes).")
-@click.option("--imu-sigma-deg", default="0.005,0.005,0.01", show_default=True,
+@click.option("--imu-sigma-deg", type=IMU_SIGMA_DEG, default="0.005,0.005,0.01", show_default=True,
               help="IMU attitude sigma roll,pitch,yaw (degrees; one value for all axes) in rig mode; about the "
                    "camera axes in image mode.")
-@click.option("--control-sigma", default="0.02", show_default=True,
+@click.option("--control-sigma", type=CONTROL_SIGMA_M, default="0.02", show_default=True,
               help="Control point sigma X,Y,Z (m; one value for all axes).")
 @click.option("--free", "free", default="", help=f"Comma-separated groups to estimate: {', '.join(_GROUPS)}.")
 @click.option("--fourier-order", type=int, default=None,

@@ -19,6 +19,8 @@ from typing import Any
 
 import click
 
+from skyrig.cli._types import CONTROL_SIGMA_M, GNSS_SIGMA_M, IMU_SIGMA_DEG, PIXEL_SIGMA_PX, PIXEL_SIGMA_UM
+
 
 @click.group("calibrate")
 def command() -> None:
@@ -49,7 +51,7 @@ def command() -> None:
 @click.option("--parameters", default=None,
               help="Comma-separated intrinsics to estimate (default: all of the model, a forward model's "
                    "distortion centre excepted).")
-@click.option("--image-sigma-px", type=float, default=0.1, show_default=True, help="Sigma of an image coordinate.")
+@click.option("--image-sigma-px", type=PIXEL_SIGMA_PX, default=0.1, show_default=True, help="Sigma of an image coordinate.")
 @click.option("--flight", default="", help="Provenance: session / data set.")
 @click.option("--date", default="", help="Provenance: date of the images (ISO 8601).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Calibrated rig file (YAML).")
@@ -399,14 +401,14 @@ def _trajectory_file_frame(path: str):  # type: ignore[no-untyped-def]
               help="Strips of the reference sub-block, 1-based in time order, comma-separated (default: the two "
                    "central strips).")
 @click.option("--head", default=None, help="The camera head (default: the only one).")
-@click.option("--image-sigma-um", type=float, default=5.0, show_default=True,
+@click.option("--image-sigma-um", type=PIXEL_SIGMA_UM, default=5.0, show_default=True,
               help="Sigma of an image coordinate (micrometres).")
-@click.option("--gnss-sigma", default="0.3", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
-@click.option("--imu-sigma-deg", default="0.00801,0.00801,0.01503", show_default=True,
+@click.option("--gnss-sigma", type=GNSS_SIGMA_M, default="0.3", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
+@click.option("--imu-sigma-deg", type=IMU_SIGMA_DEG, default="0.00801,0.00801,0.01503", show_default=True,
               help="IMU sigma roll,pitch,yaw (degrees; one or three values; paper 003: 0.0089 / 0.0167 gon).")
 @click.option("--imu-sigma-gon", default=None, hidden=True,
               help="Deprecated: the IMU sigma in grads (use --imu-sigma-deg).")
-@click.option("--control-sigma", default="0.6", show_default=True, help="Control point sigma X,Y,Z (metres).")
+@click.option("--control-sigma", type=CONTROL_SIGMA_M, default="0.6", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--flight", default="", help="Provenance: flight / data set.")
 @click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
 @click.option("--crs", "out_crs", default=None,
@@ -530,12 +532,12 @@ def uncalibrated_gnss_imu_command(trajectory_path, events_path, rig_path, meas_p
               help="Ground control points CSV (CRS in its header): control in steps 1-3, check points in step 4.")
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Check points CSV (never control).")
-@click.option("--image-sigma-um", type=float, default=4.0, show_default=True,
+@click.option("--image-sigma-um", type=PIXEL_SIGMA_UM, default=4.0, show_default=True,
               help="Sigma of an image coordinate (micrometres; paper 004: 4 um).")
-@click.option("--gnss-sigma", default="0.05", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
-@click.option("--imu-sigma-deg", default="0.003,0.003,0.006", show_default=True,
+@click.option("--gnss-sigma", type=GNSS_SIGMA_M, default="0.05", show_default=True, help="GNSS sigma E,N,U (metres; one or three values).")
+@click.option("--imu-sigma-deg", type=IMU_SIGMA_DEG, default="0.003,0.003,0.006", show_default=True,
               help="IMU sigma roll,pitch,yaw (degrees; one or three values).")
-@click.option("--control-sigma", default="0.05", show_default=True, help="Control point sigma X,Y,Z (metres).")
+@click.option("--control-sigma", type=CONTROL_SIGMA_M, default="0.05", show_default=True, help="Control point sigma X,Y,Z (metres).")
 @click.option("--no-grid", is_flag=True, help="Skip the correction grid.")
 @click.option("--grid-method", type=click.Choice(["joint", "cycles"]), default="joint", show_default=True,
               help="joint: the grid's node values are unknowns of the joint adjustment with their collocation prior "

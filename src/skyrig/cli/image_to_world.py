@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import click
+
+from skyrig.cli._types import GROUND_HEIGHT_M
 import numpy as np
 
 from skyrig.cli._common import check_measurements, eo_options, load_cameras, load_eo, load_measurements_lines
@@ -16,7 +18,7 @@ from skyrig.io.points_csv import write_points_csv
 @click.command("image-to-world")
 @eo_options
 @click.option("--measurements", "mes_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Image points: CSV point,image,column,row (or IGN .mes, ODM gcp_list.txt).")
-@click.option("--height", type=float, default=None, help="Intersect with the surface of this constant height in the output frame.")
+@click.option("--height", type=GROUND_HEIGHT_M, default=None, help="Intersect with the surface of this constant height in the output frame.")
 @click.option("--dem", "dem_path", default=None, type=click.Path(exists=True, dir_okay=False), help="Intersect with this DEM GeoTIFF.")
 @click.option("--dem-geoid", default=None, help="Geoid grid when the DEM heights are orthometric.")
 @click.option("--intersect", is_flag=True, help="Forward-intersect the rays of each point measured in two or more images.")

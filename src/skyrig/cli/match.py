@@ -12,6 +12,8 @@ from pathlib import Path
 
 import click
 
+from skyrig.cli._types import GROUND_HEIGHT_M
+
 from skyrig.errors import SkyrigError
 from skyrig.match.features import FeatureConfig
 from skyrig.pipeline.match import (  # noqa: F401  (the names this module always had)
@@ -96,7 +98,7 @@ def write_match_manifest(out: Path, inputs: list[Path], options: dict) -> Path:
               help="Undo the linear alteration of projection-centre heights (map-coordinate adjustment) with this "
                    "mean ground height (m).")
 @click.option("--camera", "camera_paths", multiple=True, type=click.Path(exists=True, dir_okay=False))
-@click.option("--terrain-height", type=float, help="Mean terrain height in the EO frame (guided pairs).")
+@click.option("--terrain-height", type=GROUND_HEIGHT_M, help="Mean terrain height in the EO frame (guided pairs).")
 @click.option("--thin", "thin_per_cell", type=int, default=0, show_default=True,
               help="Keep this many tracks per 8x8 image cell (0 = all).")
 @click.option("--scheduler", default="threads", show_default=True,

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from skyrig.cli._types import CONTROL_SIGMA_M, GNSS_SIGMA_M, IMU_SIGMA_DEG, PIXEL_SIGMA_PX
+
 
 @click.command("measure")
 @click.argument("project", required=False, type=click.Path(exists=True))
@@ -20,10 +22,10 @@ import click
 @click.option("--points-crs", default=None, help="CRS of point files that state none (default: the EO's).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Measurements CSV to continue and write (default: the project's gcp/image_measurements.csv).")
 @click.option("--adjustment", type=click.Path(exists=True), help="An adjustment's ground_control.csv, or its folder (the one of its report.html): its control / check residuals are shown with the points (default: the project's, next to the orientations used).")
-@click.option("--eo-sigma", type=float, default=0.10, show_default=True, help="Standard deviation of the projection centres (m, each axis) the prediction ellipses assume.")
-@click.option("--attitude-sigma", type=float, default=0.01, show_default=True, help="Standard deviation of the orientation angles (deg).")
-@click.option("--points-sigma", type=float, default=0.02, show_default=True, help="Standard deviation of the ground points (m, each axis).")
-@click.option("--pixel-sigma", type=float, default=0.5, show_default=True, help="Standard deviation of an unrefined click (px).")
+@click.option("--eo-sigma", type=GNSS_SIGMA_M.each, default=0.10, show_default=True, help="Standard deviation of the projection centres (m, each axis) the prediction ellipses assume.")
+@click.option("--attitude-sigma", type=IMU_SIGMA_DEG.each, default=0.01, show_default=True, help="Standard deviation of the orientation angles (deg).")
+@click.option("--points-sigma", type=CONTROL_SIGMA_M.each, default=0.02, show_default=True, help="Standard deviation of the ground points (m, each axis).")
+@click.option("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.5, show_default=True, help="Standard deviation of an unrefined click (px).")
 @click.option("--operator", default=None, help="Who measures (default: the login name); written with every measurement.")
 @click.option("--port", type=int, default=0, show_default=True, help="Port on 127.0.0.1 (0: any free port).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the page's address.")

@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 
 import click
+
+from skyrig.cli._types import FLYING_HEIGHT_M, GROUND_HEIGHT_M, GSD_M
 import numpy as np
 
 
@@ -61,9 +63,9 @@ def plot_plan(path: Path, plan, fps: dict, area: np.ndarray, title: str) -> None
 @click.option("--rig", "rig_spec", required=True, help="Rig file (YAML) or preset name (midas, dlr-3k, macs-tumblecam, uav-single).")
 @click.option("--area", "area_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Area polygon: GeoJSON or 'x y' lines, in --crs.")
 @click.option("--crs", required=True, help="CRS of the area and of the outputs (a projected CRS).")
-@click.option("--height", "flying_height", type=float, default=None, help="Flying height above ground (m).")
-@click.option("--gsd", type=float, default=None, help="Target nadir GSD (m) instead of --height.")
-@click.option("--ground-height", type=float, default=0.0, show_default=True, help="Mean ground height (m).")
+@click.option("--height", "flying_height", type=FLYING_HEIGHT_M, default=None, help="Flying height above ground (m).")
+@click.option("--gsd", type=GSD_M, default=None, help="Target nadir GSD (m) instead of --height.")
+@click.option("--ground-height", type=GROUND_HEIGHT_M, default=0.0, show_default=True, help="Mean ground height (m).")
 @click.option("--dem", "dem_path", default=None, type=click.Path(exists=True, dir_okay=False), help="DEM GeoTIFF for footprints.")
 @click.option("--forward-overlap", type=float, default=0.6, show_default=True)
 @click.option("--side-overlap", type=float, default=0.3, show_default=True)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import click
 
+from skyrig.cli._types import GROUND_HEIGHT_M
+
 from skyrig.cli._common import eo_options
 
 
@@ -13,7 +15,7 @@ from skyrig.cli._common import eo_options
 @click.option("--images", "images", multiple=True, required=True, type=click.Path(exists=True),
               help="Image folder or image file; repeat for several. Only images with an orientation are used.")
 @click.option("--heads", default=None, help="Use only these rig heads / name parts (comma list, e.g. 'tumbling,nadir').")
-@click.option("--height", type=float, default=None,
+@click.option("--height", type=GROUND_HEIGHT_M, default=None,
               help="The horizontal plane at this height (m, in the EO file's heights) under the mean projection centre.")
 @click.option("--plane", nargs=6, type=float, default=None, metavar="X Y Z NX NY NZ",
               help="Any plane: a point and its normal in the EO file's frame (e.g. a façade).")

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, POSITIVE_M
+from skyrig.cli._types import CRS_TEXT, GROUND_HEIGHT_M, POSITIVE_M
 
 
 @click.group("terrain")
@@ -108,7 +108,7 @@ def contours(dtm, output, interval, index_every, smooth_cells, smooth_sigmas) ->
 @click.option("--layer", default=None, help="Polygon layer (default: the only polygon layer).")
 @click.option("--base", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Base surface COG (e.g. an earlier epoch).")
-@click.option("--base-plane", type=float, default=None, help="Base: the horizontal plane at this height (m).")
+@click.option("--base-plane", type=GROUND_HEIGHT_M, default=None, help="Base: the horizontal plane at this height (m).")
 @click.option("--base-points", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Base: a surface through these points (name,x,y,z CSV, e.g. the toe of a stockpile).")
 @click.option("--correlation-length", type=float, default=None,

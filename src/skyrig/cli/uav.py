@@ -52,7 +52,7 @@ from typing import Any
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, GEOID, NONNEGATIVE, POSITIVE, POSITIVE_INT
+from skyrig.cli._types import CONTROL_SIGMA_M, CRS_TEXT, GEOID, GNSS_SIGMA_M, NONNEGATIVE, POSITIVE, POSITIVE_INT
 
 from skyrig.cli._common import parse_sigmas, with_old_spellings
 
@@ -73,7 +73,7 @@ class _NotPublished(Exception):
 @click.option("-o", "--output", "--out", "out", type=click.Path(file_okay=False),
               help="Output folder (default PROJECT/adjust-uav), published as a set with manifest.json last "
                    "(--out: deprecated spelling).")
-@click.option("--gnss-sigma", default="2,2,4", show_default=True,
+@click.option("--gnss-sigma", type=GNSS_SIGMA_M, default="2,2,4", show_default=True,
               help="GNSS sigma east,north,up (m; one value for all axes); consumer GPS: metres. The old form of "
                    "three separate numbers is deprecated.")
 @click.option("--attitude-sigma", type=NONNEGATIVE, default=5.0, show_default=True,
@@ -116,7 +116,7 @@ class _NotPublished(Exception):
 @click.option("--control", "gcp_path", type=click.Path(exists=True, dir_okay=False),
               help="Control points name,x,y,z with a '# crs:' header (their image measurements: tie points of the "
                    "same name, or --measurements).")
-@click.option("--control-sigma", "gcp_sigma", default="0.01", show_default=True,
+@click.option("--control-sigma", "gcp_sigma", type=CONTROL_SIGMA_M, default="0.01", show_default=True,
               help="Control point sigma X,Y,Z (m; one value for all).")
 @click.option("--check", "check_path", type=click.Path(exists=True, dir_okay=False),
               help="Check points name,x,y,z (compared, not used).")

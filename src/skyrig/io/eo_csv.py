@@ -40,10 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from skyrig.errors import CRSError, ConfigError, InputFormatError, UnitError
-from skyrig.georef.attitude_frames import rotation_from_ypr, ypr_from_rotation
+from skyrig.georef.attitude_frames import ypr_from_rotation
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.geometry.angles import check_plausible, normalize_unit
-from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
+from skyrig.geometry.rotations import opk_from_matrix
 from skyrig.io._text import PathLike, atomic_write, parse_float, read_text
 from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta, write_table_meta
 
@@ -194,16 +194,20 @@ def read_eo_csv(path: PathLike) -> ExteriorOrientations:
             raise InputFormatError(f"duplicate image {n!r} (first on line {seen[n]})", path, ln, "image")
         seen[n] = ln
     centre = np.stack([values["x"], values["y"], values["z"]], axis=1)
-    from skyrig.io.plausibility import check_angle_unit, check_coordinates
+    from skyrig.io.plausibility import angle_readings, check_angle_unit, check_attitude_reading, check_coordinates
 
     check_coordinates(centre, frame, path, line_no, "camera")
     a = _ANGLES[conv]
     tilt_cols, head_col = (a[1:], a[0]) if conv == "ypr" else (a[:2], a[2])
     check_angle_unit(np.stack([values[c] for c in tilt_cols], axis=1), values[head_col], unit, path, "/".join(a))
-    if conv == "ypr":
-        rot = rotation_from_ypr(frame, centre, values["yaw"], values["pitch"], values["roll"], unit=unit)
-    else:
-        rot = matrix_from_opk(values["omega"], values["phi"], values["kappa"], unit=unit, sequence=conv)
+    cols3 = np.stack([values[c] for c in a], axis=1)
+    rotations_of = angle_readings(frame, centre, cols3)
+    rot = rotations_of(unit, conv)
+    check_attitude_reading(rotations_of, unit, conv, centre, path, line_no, a,
+                           "declare them with the header lines '# angles: ...' and '# convention: ...' (or the "
+                           "side-car's \"angles\" and \"convention\" keys)",
+                           groups=[r[pos["camera"]].strip() for r in rows],
+                           order=values.get("time"), values=cols3, frame=frame)
     exposure = None
     if "exposure" in pos:
         try:

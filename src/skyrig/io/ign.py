@@ -29,7 +29,6 @@ from skyrig.errors import InputFormatError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.angles import check_plausible
-from skyrig.geometry.rotations import matrix_from_opk
 from skyrig.io._text import read_text
 
 PathLike = str | os.PathLike[str]
@@ -106,10 +105,17 @@ def read_ign_opk(path: PathLike, frame: WorldFrame) -> ExteriorOrientations:
         if why:
             bad = int(np.argmax(np.abs(v[:, 3 + j])))
             raise InputFormatError(why, path, rows[1 + bad][0], fld)
-    from skyrig.io.plausibility import check_coordinates
+    from skyrig.io.plausibility import angle_readings, check_attitude_reading, check_coordinates
 
-    check_coordinates(v[:, :3], frame, path, [r[0] for r in rows[1:]], "camera", ("X", "Y", "Z"))
-    rot = matrix_from_opk(v[:, 3], v[:, 4], v[:, 5], unit="deg", sequence="opk")
+    lines = [r[0] for r in rows[1:]]
+    check_coordinates(v[:, :3], frame, path, lines, "camera", ("X", "Y", "Z"))
+
+    rotations_of = angle_readings(frame, v[:, :3], v[:, 3:6])
+    check_attitude_reading(rotations_of, "deg", "opk", v[:, :3], path, lines, ("O", "P", "K"),
+                           "an IGN .OPK file holds omega, phi, kappa in degrees: convert the angles, or give the "
+                           "orientations as a skyrig EO CSV that declares them ('# angles: gon', '# convention: ypr')",
+                           groups=cams, values=v[:, 3:6], frame=frame)
+    rot = rotations_of("deg", "opk")
     return ExteriorOrientations(np.array(names), np.array(cams), v[:, :3], rot, frame)
 
 

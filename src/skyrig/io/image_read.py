@@ -242,9 +242,11 @@ def read_image_metadata(path: PathLike) -> ImageMetadata:
 
 
 def check_image_complete(path: PathLike) -> None:
-    """Refuse a truncated or damaged JPEG by name (OpenCV decodes one with a warning that names no file and grey
-    rows where the data ends).  A JPEG that does not end with its end-of-image marker (trailing zeros allowed) is
-    decoded once to be sure: data appended after the image (motion photos) is accepted.  Other formats: nothing.
+    """Refuse a truncated or damaged JPEG, PNG or TIFF by name (OpenCV decodes a JPEG with a warning that names no
+    file and grey rows where the data ends).  A JPEG that does not end with its end-of-image marker (trailing zeros
+    allowed) is decoded once to be sure: data appended after the image (motion photos) is accepted.  A PNG must
+    end with its IEND chunk; a TIFF's strips or tiles must lie within the file (their offsets and byte counts).
+    Other formats: nothing.
 
     Raises
     ------
@@ -252,7 +254,12 @@ def check_image_complete(path: PathLike) -> None:
         Naming the file.
     """
     p = Path(path)
-    if p.suffix.lower() not in (".jpg", ".jpeg"):
+    suffix = p.suffix.lower()
+    if suffix == ".png":
+        return _check_png_complete(p)
+    if suffix in (".tif", ".tiff"):
+        return _check_tiff_complete(p)
+    if suffix not in (".jpg", ".jpeg"):
         return
     try:
         with open(p, "rb") as fh:
@@ -276,6 +283,52 @@ def check_image_complete(path: PathLike) -> None:
             im.load()
     except Exception as exc:  # PIL: OSError "image file is truncated", SyntaxError, ...
         raise InputFormatError(f"truncated or damaged JPEG ({exc})", p) from None
+
+
+def _head_tail(p: Path, n: int = 16) -> tuple[bytes, bytes, int]:
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(n)
+            fh.seek(0, 2)
+            size = fh.tell()
+            fh.seek(max(0, size - n))
+            return head, fh.read(), size
+    except OSError as exc:
+        raise InputFormatError(f"cannot read the image ({exc.strerror or exc})", p) from None
+
+
+def _check_png_complete(p: Path) -> None:
+    head, tail, size = _head_tail(p)
+    if not head.startswith(b"\x89PNG\r\n\x1a\n"):
+        raise InputFormatError("not a PNG file (no PNG signature), or a damaged one", p)
+    if not tail.endswith(b"IEND\xaeB`\x82"):
+        raise InputFormatError(f"truncated PNG: {size} bytes without its closing IEND chunk", p)
+
+
+def _check_tiff_complete(p: Path) -> None:
+    head, _, size = _head_tail(p)
+    if head[:4] not in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        raise InputFormatError("not a TIFF file (no TIFF header), or a damaged one", p)
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # PIL's 'Corrupt EXIF data' of a cut file: said below in words
+            with Image.open(p) as im:
+                tags = im.tag_v2
+                offsets = tags.get(324) or tags.get(273)  # TileOffsets, StripOffsets
+                counts = tags.get(325) or tags.get(279)  # TileByteCounts, StripByteCounts
+    except Exception as exc:  # PIL: a damaged directory
+        raise InputFormatError(f"damaged TIFF ({exc})", p) from None
+    if offsets is None or counts is None:
+        return
+    offsets = [offsets] if isinstance(offsets, int) else list(offsets)
+    counts = [counts] if isinstance(counts, int) else list(counts)
+    end = max((o + c for o, c in zip(offsets, counts) if c), default=0)
+    if end > size:
+        raise InputFormatError(f"truncated TIFF: its image data reaches byte {end}, the file has {size}", p)
 
 
 def read_image(path: PathLike, gray: bool = True, max_size: int | None = None) -> NDArray:

@@ -55,7 +55,7 @@ from skyrig.errors import InputFormatError, OptionError
 from skyrig.geodesy.frame import WorldFrame
 from skyrig.georef.eo import ExteriorOrientations
 from skyrig.geometry.pose import Pose
-from skyrig.geometry.rotations import matrix_from_opk, opk_from_matrix
+from skyrig.geometry.rotations import opk_from_matrix
 from skyrig.io._text import atomic_write, parse_float, read_text
 
 __all__ = ["Pix4dCameras", "read_pix4d_external", "write_pix4d_external", "read_pix4d_offset",
@@ -98,7 +98,14 @@ def read_pix4d_external(path: str | PathLike[str], frame: WorldFrame, camera: st
         k = int(np.argmax(big))
         raise InputFormatError("an angle beyond 360: Pix4D writes degrees (another unit?)", p, rows[1 + k][0],
                                "Omega Phi Kappa")
-    rot = matrix_from_opk(v[:, 3], v[:, 4], v[:, 5], unit="deg", sequence="opk")
+    from skyrig.io.plausibility import angle_readings, check_attitude_reading
+
+    rotations_of = angle_readings(frame, v[:, :3], v[:, 3:6])
+    check_attitude_reading(rotations_of, "deg", "opk", v[:, :3], p, [ln for ln, _ in rows[1:]],
+                           ("Omega", "Phi", "Kappa"), "Pix4D's external parameters are omega, phi, kappa in "
+                           "degrees: convert the angles, or give the orientations as a skyrig EO CSV that "
+                           "declares them ('# angles: gon', '# convention: ypr')", values=v[:, 3:6], frame=frame)
+    rot = rotations_of("deg", "opk")
     return ExteriorOrientations(np.array(names), np.full(len(names), camera), v[:, :3], rot, frame)
 
 

@@ -22,7 +22,7 @@ the height it would have in mm or cm), lever arms refused above :data:`LEVER_ARM
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,7 +32,9 @@ from skyrig.geodesy.frame import WorldFrame
 from skyrig.io._text import PathLike
 
 __all__ = ["GROUND_MIN_M", "GROUND_MAX_M", "CAMERA_MAX_M", "LEVER_ARM_MAX_M", "LEVER_ARM_WARN_M",
-           "check_coordinates", "check_lever_arm", "check_same_frame", "area_of_use", "warn"]
+           "check_coordinates", "check_lever_arm", "check_same_frame", "area_of_use", "warn",
+           "check_attitude_reading", "flight_directions", "attitude_spread", "check_heading_against_track",
+           "heading_minus_track", "angle_readings"]
 
 #: Lowest / highest plausible ground height (m, ellipsoidal or orthometric): Dead Sea -430 m, geoid -106 m.
 GROUND_MIN_M = -600.0
@@ -310,3 +312,302 @@ def check_angle_unit(tilts: ArrayLike, heading: ArrayLike, unit: str, path: Path
     if t.max() < 0.2 and np.abs(h).max() <= 2.0 * np.pi + 1e-9 and np.ptp(h) > 2.5:
         warn(f"{path}: every {fields} value would be a plausible attitude in radians (tilts below 0.2, headings "
              f"within +-2 pi spread over {np.ptp(h):.2f}), but the file declares {unit}; radians meant?")
+
+
+# ------------------------------------------------------------------------ attitudes: unit and convention
+#: A reading of attitudes disagrees with the flight direction when its cameras turn, relative to the direction of
+#: travel, by more than this (deg) between strips flown in different directions (crab angles of both signs stay
+#: well within it) ...
+ATTITUDE_SPREAD_DEG = 6.0
+#: ... and another reading agrees better by this factor (its spread below ``spread / factor - 1 deg``).
+ATTITUDE_BETTER = 2.0
+_UNITS_TO_TRY = {"deg": ("gon",), "gon": ("deg",), "rad": ()}
+_CONVENTIONS_TO_TRY = {"opk": ("ypr",), "pok": ("ypr",), "ypr": ("opk",)}
+
+
+def angle_readings(frame: WorldFrame, centres: ArrayLike, angles: ArrayLike) -> Callable[[str, str], NDArray]:
+    """``rotations_of(unit, convention)`` for :func:`check_attitude_reading`: a file's three angle columns
+    (``(N, 3)``, in the file's order) read in ``unit`` as omega-phi-kappa (``opk`` / ``pok``) or as yaw-pitch-roll
+    of the standard nadir mount (``ypr``, :func:`skyrig.georef.attitude_frames.rotation_from_ypr`)."""
+    from skyrig.georef.attitude_frames import rotation_from_ypr
+    from skyrig.geometry.rotations import matrix_from_opk
+
+    a = np.asarray(angles, dtype=np.float64)
+    c = np.asarray(centres, dtype=np.float64)
+
+    def rotations_of(unit: str, convention: str) -> NDArray[np.float64]:
+        if convention == "ypr":
+            return rotation_from_ypr(frame, c, a[:, 0], a[:, 1], a[:, 2], unit=unit)
+        return matrix_from_opk(a[:, 0], a[:, 1], a[:, 2], unit=unit, sequence=convention)
+
+    return rotations_of
+
+
+def _rotation_angle_deg(r: NDArray[np.float64]) -> NDArray[np.float64]:
+    c = (np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def flight_directions(xy: ArrayLike, groups: ArrayLike | None = None, order: ArrayLike | None = None
+                      ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Direction of travel (unit ``(N, 2)`` in the frame's x/y) at each position, from the next position of the
+    same group (camera or head) in ``order`` (time; default the file's order); ``valid`` is False where there is
+    no next position in the same strip (a step under 0.5 m or a fifth of the group's median step, or over three
+    times it: a stop, a turn; a step that goes another way than both its neighbours: the move to the next strip).
+    The last position of a strip takes the direction it arrived in."""
+    p = np.asarray(xy, dtype=np.float64)[:, :2]
+    n = len(p)
+    g = np.zeros(n, dtype=int) if groups is None else np.unique(np.asarray(groups).astype(str), return_inverse=True)[1]
+    key = np.arange(n, dtype=np.float64) if order is None else np.asarray(order, dtype=np.float64)
+    out = np.full((n, 2), np.nan)
+    valid = np.zeros(n, dtype=bool)
+    for k in np.unique(g):
+        idx = np.flatnonzero(g == k)
+        idx = idx[np.argsort(key[idx], kind="stable")]
+        if len(idx) < 3:
+            continue
+        d = p[idx[1:]] - p[idx[:-1]]
+        step = np.linalg.norm(d, axis=1)
+        moving = step > 0.5
+        if not moving.any():
+            continue
+        med = float(np.median(step[moving]))
+        ok = (step > max(0.5, 0.2 * med)) & (step < 3.0 * med)
+        u = d / np.maximum(step, 1e-12)[:, None]
+        # a segment is along a strip when it goes the way of the segment before or after it (within 20 deg):
+        # the move between two strips (across, or the turn) goes another way than both
+        same = np.sum(u[1:] * u[:-1], axis=1) > np.cos(np.radians(20.0))
+        along = ok & (np.r_[False, same & ok[:-1]] | np.r_[same & ok[1:], False])
+        for j in np.flatnonzero(along):
+            out[idx[j]], valid[idx[j]] = u[j], True
+        last = along & ~np.r_[along[1:], False]
+        for j in np.flatnonzero(last):  # the strip's last position: the direction it arrived in
+            out[idx[j + 1]], valid[idx[j + 1]] = u[j], True
+    return out, valid
+
+
+def attitude_spread(rotations: ArrayLike, directions: NDArray[np.float64], valid: NDArray[np.bool_],
+                    groups: ArrayLike | None = None) -> tuple[float, NDArray[np.float64]] | None:
+    """How much the cameras turn relative to the direction of travel between strips flown in different directions.
+
+    Each camera's rotation in a frame along its flight direction (x along track, y to its left, z up); per group
+    (camera or head) and direction (45-deg sectors), their chordal mean; returned: the largest angle between two
+    directions' means in a group (deg), and each position's angle from its group's mean in the direction holding
+    most positions (NaN where not valid).  None when every group was flown one way only (then any reading of the
+    angles agrees with the direction of travel) or the positions are too few."""
+    r = np.asarray(rotations, dtype=np.float64)
+    n = len(r)
+    if valid.sum() < 6:
+        return None
+    g = np.zeros(n, dtype=int) if groups is None else np.unique(np.asarray(groups).astype(str), return_inverse=True)[1]
+    f = np.zeros((n, 3, 3))
+    dx, dy = np.nan_to_num(directions[:, 0]), np.nan_to_num(directions[:, 1])
+    f[:, 0, 0], f[:, 1, 0] = dx, dy  # world_from_flight: x along track,
+    f[:, 0, 1], f[:, 1, 1] = -dy, dx  # y to its left,
+    f[:, 2, 2] = 1.0  # z up
+    rel = np.swapaxes(f, -1, -2) @ r
+    sector = np.round(np.degrees(np.arctan2(dy, dx)) / 45.0).astype(int) % 8
+    dev = np.full(n, np.nan)
+    worst = None
+    for k in np.unique(g):
+        means = []
+        for sc in np.unique(sector[(g == k) & valid]):
+            idx = np.flatnonzero((g == k) & valid & (sector == sc))
+            if len(idx) < 2:
+                continue
+            uu, _, vt = np.linalg.svd(rel[idx].sum(axis=0))
+            means.append((len(idx), uu @ np.diag([1.0, 1.0, np.linalg.det(uu @ vt)]) @ vt))
+        if len(means) < 2:
+            continue
+        means.sort(key=lambda m: -m[0])
+        idx = np.flatnonzero((g == k) & valid)
+        dev[idx] = _rotation_angle_deg(means[0][1].T @ rel[idx])
+        pair = max(float(_rotation_angle_deg(a[1].T @ b[1])) for i, a in enumerate(means) for b in means[i + 1:])
+        worst = pair if worst is None else max(worst, pair)
+    if worst is None:
+        return None
+    return worst, dev
+
+
+def _upward(rotations: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Cameras whose optical axis (-z of the photogrammetric camera frame) points more than 30 deg above the
+    horizontal of the frame (z up)."""
+    return -rotations[:, 2, 2] > 0.5
+
+
+def check_attitude_reading(rotations_of: Callable[[str, str], NDArray[np.float64]], unit: str, convention: str,
+                           centres: ArrayLike, path: PathLike, lines: Sequence[int] | NDArray | None,
+                           fields: tuple[str, str, str], declare: str, groups: ArrayLike | None = None,
+                           order: ArrayLike | None = None, values: NDArray[np.float64] | None = None,
+                           frame: WorldFrame | None = None) -> None:
+    """Refuse attitudes read in the wrong angle unit (gon as degrees, degrees as gon) or the wrong convention
+    (omega-phi-kappa as yaw-pitch-roll and back) when another reading fits much better; warn when cameras look
+    up at the sky under every reading.
+
+    ``rotations_of(unit, convention)`` gives the ``frame_from_camera`` rotations of the file's numbers read that
+    way (frame: z up).  Two rules:
+
+    * **flight direction**: on a block flown in at least two directions, the cameras of one group (camera or head)
+      keep their orientation relative to the direction of travel (the mounting, a crab angle, a few degrees of
+      roll and pitch); read in the wrong unit, the heading of strips flown one way is off by a different amount
+      (gon read as degrees: 200 gon becomes 200 deg instead of 180) than that of the strips flown back, and read in
+      the wrong convention nothing is constant.  The declared reading is refused when its cameras turn by more
+      than :data:`ATTITUDE_SPREAD_DEG` relative to the track between directions (:func:`attitude_spread`) and
+      another reading turns :data:`ATTITUDE_BETTER` times less;
+    * **looking up**: a quarter of the cameras or more pointing 30 deg or more above the horizontal is refused when
+      another convention points every one below it (yaw-pitch-roll read as omega-phi-kappa: an omega of 180 looks
+      at the sky), warned about otherwise.
+
+    ``declare`` says in words how to declare the unit / convention (a header key, a side-car key, an option);
+    ``groups``: the camera (head) of each image; a file that names none (Pix4D's external parameters) and mixes a
+    rig's heads is not told apart by the direction rule (the heads' means blur into one);
+    ``values``: the file's three angle columns (``(N, 3)``), to leave out a unit they cannot be in; ``frame``: the
+    centres' frame (checked in map frames only, whose z is up; geographic: longitude / latitude made metres).
+    """
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3).copy()
+    if len(c) < 3 or (frame is not None and frame.kind != "map"):
+        return  # ECEF (z is not up), local and model frames (a model frame's z may point anywhere)
+    if frame is not None and frame.kind == "map":
+        try:
+            geographic = frame.projection.crs.is_geographic
+        except CRSError:
+            return
+        if geographic:
+            c[:, 0] *= 111_320.0 * np.cos(np.radians(c[:, 1]))
+            c[:, 1] *= 110_574.0
+    declared = rotations_of(unit, convention)
+    readings = [(u, convention) for u in _UNITS_TO_TRY.get(unit, ())]
+    readings += [(unit, cv) for cv in _CONVENTIONS_TO_TRY.get(convention, ())]
+    readings += [(u, cv) for u in _UNITS_TO_TRY.get(unit, ()) for cv in _CONVENTIONS_TO_TRY.get(convention, ())]
+
+    def fits(u: str, cv: str) -> NDArray[np.float64] | None:
+        if values is not None and u in ("deg", "gon"):
+            turn = 360.0 if u == "deg" else 400.0
+            if np.nanmax(np.abs(values)) > turn:
+                return None
+        try:
+            return rotations_of(u, cv)
+        except Exception:  # noqa: BLE001 - a reading that cannot be made is no alternative
+            return None
+
+    def words(u: str, cv: str) -> str:
+        return ", ".join(x for x in ((f"angles in {u}" if u != unit else ""),
+                                     (f"convention {cv}" if cv != convention else "")) if x)
+
+    directions, valid = flight_directions(c, groups, order)
+    got = attitude_spread(declared, directions, valid, groups)
+    if got is not None and got[0] > ATTITUDE_SPREAD_DEG:
+        best = None
+        for u, cv in readings:
+            r = fits(u, cv)
+            alt = None if r is None else attitude_spread(r, directions, valid, groups)
+            if alt is not None and alt[0] < got[0] / ATTITUDE_BETTER - 1.0 and (best is None or alt[0] < best[0]):
+                best = (alt[0], u, cv)
+        if best is not None:
+            k = int(np.nanargmax(got[1]))
+            raise InputFormatError(
+                f"read as {convention} in {unit}, the cameras turn by {got[0]:.1f} deg relative to the direction "
+                f"of travel between strips flown in different directions; read with {words(best[1], best[2])} "
+                f"they keep it within {best[0]:.2f} deg: "
+                f"{declare}", path, _line(lines, k), fields[2] if best[2] == convention else fields[0])
+    up = _upward(declared)
+    if up.mean() >= 0.25:
+        for u, cv in readings:
+            r = fits(u, cv)
+            if r is not None and not _upward(r).any() and cv != convention:
+                k = int(np.flatnonzero(up)[0])
+                raise InputFormatError(
+                    f"read as {convention} in {unit}, {int(up.sum())} of {len(up)} cameras look 30 deg or more "
+                    f"above the horizon; read with {words(u, cv)} none does: {declare}", path, _line(lines, k),
+                    fields[0])
+        warn(f"{path}: {int(up.sum())} of {len(up)} cameras look 30 deg or more above the horizon as read "
+             f"({convention} in {unit}); is the angle convention right? ({declare})")
+
+
+#: Moving faster than this (m/s) a platform's heading is compared with its track.
+TRACK_MIN_SPEED = 3.0
+#: Roll (deg) beyond which an aircraft's record is implausible; said when more than 5 % of the moving records have it.
+ROLL_MAX_DEG = 60.0
+#: Pitch (deg) likewise.
+PITCH_MAX_DEG = 45.0
+_DEG_PER = {"deg": 1.0, "gon": 0.9, "rad": 180.0 / np.pi}
+
+
+def _heading_spread(heading_deg: NDArray[np.float64], track_deg: NDArray[np.float64]) -> float | None:
+    """Largest difference (deg) between the median heading-minus-track of 45-deg track sectors with 3 records or
+    more; None with fewer than two such sectors."""
+    d = (heading_deg - track_deg + 180.0) % 360.0 - 180.0
+    sector = np.round(track_deg / 45.0).astype(int) % 8
+    meds = []
+    for sc in np.unique(sector):
+        dd = d[sector == sc]
+        if len(dd) >= 3:
+            ang = np.radians(dd)
+            meds.append(np.degrees(np.arctan2(np.median(np.sin(ang)), np.median(np.cos(ang)))))
+    if len(meds) < 2:
+        return None
+    return max(abs((a - b + 180.0) % 360.0 - 180.0) for i, a in enumerate(meds) for b in meds[i + 1:])
+
+
+def _track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike) -> tuple[NDArray[np.bool_], NDArray]:
+    """Records moving faster than :data:`TRACK_MIN_SPEED` to the next (mask over all but the last) and their
+    track azimuth (deg from north, clockwise)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    lat, lon = np.radians(np.asarray(lat_deg, dtype=np.float64)), np.radians(np.asarray(lon_deg, dtype=np.float64))
+    dt = np.diff(t)
+    de = np.diff(np.unwrap(lon)) * 6_378_137.0 * np.cos(lat[:-1])
+    dn = np.diff(lat) * 6_356_752.0
+    with np.errstate(all="ignore"):
+        speed = np.hypot(de, dn) / dt
+    moving = np.isfinite(speed) & (speed > TRACK_MIN_SPEED) & (dt > 0)
+    return moving, np.degrees(np.arctan2(de, dn))[moving] % 360.0
+
+
+def heading_minus_track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike, heading_deg: ArrayLike
+                        ) -> tuple[NDArray[np.int_], NDArray[np.float64]] | None:
+    """``(records, heading - track)`` (deg in -180..180) of the records in motion; None with fewer than 6."""
+    moving, track = _track(time_s, lat_deg, lon_deg)
+    if moving.sum() < 6:
+        return None
+    h = np.asarray(heading_deg, dtype=np.float64)[:-1][moving]
+    return np.flatnonzero(moving), (h - track + 180.0) % 360.0 - 180.0
+
+
+def check_heading_against_track(time_s: ArrayLike, lat_deg: ArrayLike, lon_deg: ArrayLike, roll: ArrayLike,
+                                pitch: ArrayLike, yaw: ArrayLike, unit: str, path: PathLike,
+                                lines: Sequence[int] | NDArray | None, declare: str) -> None:
+    """Refuse a trajectory's attitudes read in the wrong angle unit (gon as degrees and back): while moving, a
+    platform heads along its track up to a crab angle that stays about the same on every track direction; read in
+    the wrong unit, the heading of each direction is off by a different amount (200 gon read as 200 deg instead of
+    180).  Refused when the heading-minus-track of two track directions differ by more than
+    :data:`ATTITUDE_SPREAD_DEG` and the other unit makes that :data:`ATTITUDE_BETTER` times smaller.  Warns when
+    more than 5 % of the moving records roll beyond :data:`ROLL_MAX_DEG` or pitch beyond :data:`PITCH_MAX_DEG`
+    (not an aircraft's attitude: another unit, or columns exchanged?).  ``roll``, ``pitch``, ``yaw`` as read, in
+    ``unit``; ``declare`` says in words how to declare the unit."""
+    if len(np.asarray(time_s)) < 6 or unit not in _DEG_PER:
+        return
+    moving, track = _track(time_s, lat_deg, lon_deg)
+    if moving.sum() < 6:
+        return
+    raw = np.asarray(yaw, dtype=np.float64)[:-1][moving]
+    got = _heading_spread(raw * _DEG_PER[unit], track)
+    if got is not None and got > ATTITUDE_SPREAD_DEG:
+        for alt in _UNITS_TO_TRY.get(unit, ()):
+            if np.nanmax(np.abs(raw)) * _DEG_PER[alt] > 360.0 + 1e-9:
+                continue
+            other = _heading_spread(raw * _DEG_PER[alt], track)
+            if other is not None and other < got / ATTITUDE_BETTER - 1.0:
+                k = int(np.flatnonzero(moving)[0])
+                raise InputFormatError(
+                    f"read in {unit}, the heading minus the direction of travel differs by {got:.1f} deg between "
+                    f"the directions flown (a crab angle stays about the same); read in {alt} by {other:.2f} deg: "
+                    f"{declare}", path, _line(lines, k), "yaw")
+    r = np.abs(np.asarray(roll, dtype=np.float64)[:-1][moving]) * _DEG_PER[unit]
+    p = np.abs(np.asarray(pitch, dtype=np.float64)[:-1][moving]) * _DEG_PER[unit]
+    wild = (r > ROLL_MAX_DEG) | (p > PITCH_MAX_DEG)
+    if wild.mean() > 0.05:
+        k = int(np.flatnonzero(moving)[np.flatnonzero(wild)[0]])
+        at = "" if lines is None else f" (first on line {_line(lines, k)})"
+        warn(f"{path}: {int(wild.sum())} of {int(moving.sum())} records in flight roll beyond {ROLL_MAX_DEG:g} deg or "
+             f"pitch beyond {PITCH_MAX_DEG:g} deg as read in {unit}{at}: not an aircraft's attitude; another angle "
+             f"unit, or the roll / pitch / yaw columns exchanged? ({declare})")

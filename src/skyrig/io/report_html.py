@@ -8,6 +8,9 @@ import io
 import json
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +19,8 @@ import numpy as np
 from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.io._text import atomic_write
 
-__all__ = ["write_report_json", "write_report_html", "write_residual_plot", "write_report", "measure_command"]
+__all__ = ["write_report_json", "write_report_html", "write_residual_plot", "write_report", "measure_command",
+           "project_of_stage_folder", "project_stage"]
 
 PathLike = str | os.PathLike[str]
 
@@ -101,15 +105,78 @@ def _table(rows: list[dict[str, Any]], cols: list[str], nd: int = 3) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def measure_command(folder: PathLike) -> str:
+#: ``(project.yaml, staging folder, published folder)`` of the project stage running now (:func:`project_stage`).
+_PROJECT_STAGE: ContextVar[tuple[Path, Path, Path] | None] = ContextVar("skyrig_project_stage", default=None)
+
+
+@contextmanager
+def project_stage(project_file: PathLike, staging: PathLike, published: PathLike) -> Iterator[None]:
+    """While a project stage runs (``skyrig run``), the reports it writes in ``staging`` name ``project_file`` and
+    the ``published`` folder in their ``skyrig measure`` command (:func:`measure_command`)."""
+    token = _PROJECT_STAGE.set((Path(project_file).absolute(), Path(staging).absolute(), Path(published).absolute()))
+    try:
+        yield
+    finally:
+        _PROJECT_STAGE.reset(token)
+
+
+def _published_folder(folder: Path) -> Path:
+    """Where a stage folder is published: a staging folder ``.NAME.partial-*`` (:mod:`skyrig.io.stage`) is
+    renamed to its sibling ``NAME`` when the stage ends; any other folder is itself."""
+    name = folder.name
+    if name.startswith(".") and ".partial-" in name:
+        return folder.parent / name[1:].split(".partial-", 1)[0]
+    return folder
+
+
+def project_of_stage_folder(folder: PathLike, levels: int = 4) -> Path | None:
+    """The ``project.yaml`` whose output folder holds the stage folder ``folder`` (published or staging): the
+    first one up the folder tree (``levels`` folders) whose ``output:`` key (default ``output``) resolves to the
+    stage folder's parent; None when ``folder`` is not a project stage's."""
+    import yaml
+
+    stage = _published_folder(Path(folder).absolute())
+    out_dir = stage.parent.resolve()
+    for d in list(stage.parents)[:levels]:
+        y = d / "project.yaml"
+        if not y.is_file():
+            continue
+        try:
+            top = yaml.safe_load(y.read_text(encoding="utf-8-sig"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue
+        text = str(top.get("output") or "output") if isinstance(top, dict) else "output"
+        o = Path(text).expanduser()
+        o = o if o.is_absolute() else d / o
+        if o.resolve() == out_dir:
+            return y
+    return None
+
+
+def measure_command(folder: PathLike, project: PathLike | None = None) -> str:
     """The words and the command that open ``skyrig measure`` on the control / check points of the adjustment
     written in ``folder`` (its ``ground_control.csv``), their residuals shown with them: a report cannot start the
-    page's server, so it names the command."""
+    page's server, so it names the command.
+
+    The command names the real paths: ``project`` (default: the ``project.yaml`` whose output holds ``folder``,
+    :func:`project_of_stage_folder`, or the one of the stage running now, :func:`project_stage`) and the folder where the stage is published (a staging folder's final
+    name).  Out of a project (``skyrig adjust BLOCK -o OUT``) it names the adjusted ``eo.csv`` and leaves the
+    camera, images and points the block came from to the user, said in words."""
     import shlex
 
+    pub = _published_folder(Path(folder).absolute())
+    running = _PROJECT_STAGE.get()
+    if project is None and running is not None and running[1] == Path(folder).absolute():
+        project, pub = running[0], running[2]
+    proj = Path(project).absolute() if project is not None else project_of_stage_folder(pub)
+    adj = shlex.quote(str(pub))
+    if proj is not None:
+        return ("Measure or re-measure these points in the images (the page shows these residuals with them): "
+                f"skyrig measure {shlex.quote(str(proj))} --adjustment {adj}")
     return ("Measure or re-measure these points in the images (the page shows these residuals with them): "
-            f"skyrig measure PROJECT --adjustment {shlex.quote(str(Path(folder).absolute()))} "
-            "(PROJECT: the project.yaml or flight folder, or --eo/--camera/--images/--points in its place)")
+            f"skyrig measure --eo {shlex.quote(str(pub / 'eo.csv'))} --adjustment {adj} "
+            "--camera CAMERA --images IMAGES --points POINTS (this adjustment is not a project stage: give the "
+            "camera file, image folder and control points the block was made from)")
 
 
 def write_report_html(path: PathLike, report: dict[str, Any], title: str = "skyrig adjustment",

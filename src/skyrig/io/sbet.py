@@ -138,7 +138,8 @@ def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
         k = int(np.argmax(blank))
         raise InputFormatError("latitude and longitude 0 (within 1e-12 rad): a blank record (an interrupted "
                                "export?), not a position", path, k + 1, "latitude")
-    for name, limit, words in (("altitude", 1e5, "m: beyond any survey flight"),
+    for name, limit, words in (("longitude", 2 * np.pi, "rad: degrees instead of radians?"),
+                               ("altitude", 1e5, "m: beyond any survey flight"),
                                ("roll", 4 * np.pi, "rad: degrees instead of radians?"),
                                ("pitch", 4 * np.pi, "rad: degrees instead of radians?"),
                                ("heading", 4 * np.pi, "rad: degrees instead of radians?")):
@@ -146,7 +147,18 @@ def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
         if np.any(bad):
             k = int(np.argmax(bad))
             raise InputFormatError(f"{name} {float(rec[name][k])!r} beyond +-{limit:g} {words}", path, k + 1, name)
+    low = rec["altitude"] < MIN_ALTITUDE_M
+    if np.any(low):
+        k = int(np.argmax(low))
+        raise InputFormatError(f"altitude {float(rec['altitude'][k])!r} m below {MIN_ALTITUDE_M:g} m: deeper than any "
+                               f"land surface below the ellipsoid (feet? another field?)", path, k + 1, "altitude")
     t = rec["time"]
+    week = (t < 0) | (t > WEEK_S + MAX_GAP_S * 24)
+    if np.any(week):
+        k = int(np.argmax(week))
+        raise InputFormatError(f"time {float(t[k])!r} s is not GPS seconds of the week (0 to {WEEK_S:g} s; a run "
+                               f"past the week's end may go a day beyond): GPS seconds since 1980, or UTC seconds "
+                               f"since 1970? (convert to seconds of the week)", path, k + 1, "time")
     bad = np.diff(t) <= 0
     if np.any(bad):
         k = int(np.argmax(bad)) + 1
@@ -170,10 +182,104 @@ def read_sbet(path: PathLike, *, reference: str = "imu") -> Trajectory:
         raise InputFormatError(f"record {k + 1} is {float(speed[k - 1]):.4g} m/s from the previous one's position "
                                f"(more than {MAX_SPEED_M_S:g} m/s): a damaged record or a jump", path, k + 1,
                                "latitude")
-    return Trajectory.from_rpy(
+    _check_raw_fields(rec, path)
+    traj = Trajectory.from_rpy(
         t, np.degrees(lat), np.degrees(rec["longitude"]), rec["altitude"], rec["roll"], rec["pitch"],
         rec["heading"], "rad", time_system="gps-sow", reference=reference,
     )
+    _check_heading(rec, path)
+    return traj
+
+
+#: Lowest plausible SBET altitude (m, ellipsoidal): the Dead Sea shore with the geoid's lowest undulation, rounded.
+MIN_ALTITUDE_M = -1000.0
+#: Seconds in a GPS week.
+WEEK_S = 604800.0
+#: Largest plausible body acceleration (m/s^2, 20 g) and angular rate (rad/s, 573 deg/s) of a survey platform.
+MAX_ACCELERATION = 200.0
+MAX_ANGULAR_RATE = 10.0
+#: Units a speed may have been written in (name, m/s per unit), for the words of a refusal.
+_SPEED_UNITS = (("km/h", 1 / 3.6), ("knots", 0.514444), ("ft/s", 0.3048), ("mm/s", 0.001), ("cm/s", 0.01))
+
+
+def _check_raw_fields(rec: NDArray[np.void], path: PathLike) -> None:
+    """The fields skyrig does not turn into the trajectory, checked for their units all the same (a file whose
+    velocities are in km/h is not an Applanix SBET): horizontal speed from ``x_velocity`` / ``y_velocity`` against
+    the speed between the positions (their magnitude does not depend on the wander angle), accelerations and
+    angular rates within a survey platform's.  Fields that are all zero (not exported, or skyrig's own writer)
+    are left alone."""
+    for names, limit, words in ((("x_acceleration", "y_acceleration", "z_acceleration"), MAX_ACCELERATION,
+                                 "m/s^2 (20 g): another unit (mg, ft/s^2)?"),
+                                (("x_angular_rate", "y_angular_rate", "z_angular_rate"), MAX_ANGULAR_RATE,
+                                 "rad/s (573 deg/s): degrees per second instead of radians?")):
+        for name in names:
+            v = rec[name]
+            bad = ~np.isfinite(v) | (np.abs(v) > limit)
+            if np.any(bad):
+                k = int(np.argmax(bad))
+                raise InputFormatError(f"{name} {float(v[k])!r} beyond +-{limit:g} {words}", path, k + 1, name)
+    vx, vy = rec["x_velocity"], rec["y_velocity"]
+    if not (np.all(np.isfinite(vx)) and np.all(np.isfinite(vy))):
+        name = "x_velocity" if not np.all(np.isfinite(vx)) else "y_velocity"
+        k = int(np.argmax(~np.isfinite(rec[name])))
+        raise InputFormatError(f"{name} is not a finite number", path, k + 1, name)
+    if len(rec) < 3 or not (np.any(vx) or np.any(vy)):
+        return
+    t, lat, lon = rec["time"], rec["latitude"], rec["longitude"]
+    r = 6.4e6 + rec["altitude"]
+    ds = np.hypot(np.diff(lat) * r[1:], np.diff(np.unwrap(lon)) * r[1:] * np.cos(lat[1:]))
+    moving_speed = ds / np.diff(t)
+    given = np.hypot(vx, vy)[1:]
+    moving = moving_speed > 2.0
+    if moving.sum() >= 3:
+        ratio = float(np.median(given[moving] / moving_speed[moving]))
+        if not 0.8 <= ratio <= 1.25:
+            k = int(np.flatnonzero(moving)[0]) + 1
+            fits = [name for name, f in _SPEED_UNITS if 0.8 <= ratio * f <= 1.25]
+            hint = f"; the velocities in {' or '.join(fits)}?" if fits else ""
+            raise InputFormatError(f"the horizontal speed of x_velocity and y_velocity is {ratio:.3g} times the speed "
+                                   f"between the positions (median over {int(moving.sum())} records in motion; m/s "
+                                   f"expected){hint}", path, k + 1, "x_velocity")
+    # the velocities are in m/s (or not exported): an altitude that changes at another rate is in another unit
+    climb = np.diff(rec["altitude"]) / np.diff(t)
+    vz = np.abs(rec["z_velocity"][1:])
+    climbing = np.abs(climb) > 1.0
+    if climbing.sum() >= 3 and np.any(rec["z_velocity"]):
+        vr = float(np.median(vz[climbing] / np.abs(climb[climbing])))
+        if not 0.8 <= vr <= 1.25:
+            k = int(np.flatnonzero(climbing)[0]) + 1
+            feet = 0.8 <= vr / 0.3048 <= 1.25
+            raise InputFormatError(f"the altitude changes {1 / vr:.3g} times as fast as z_velocity says (median over "
+                                   f"{int(climbing.sum())} records climbing or descending)"
+                                   + ("; altitude in feet?" if feet else "; altitude or z_velocity in another unit?"),
+                                   path, k + 1, "altitude" if feet or moving.sum() >= 3 else "z_velocity")
+
+
+def _check_heading(rec: NDArray[np.void], path: PathLike) -> None:
+    """The platform heading against the direction of travel: a heading relative to the wander-angle frame (the
+    wander angle not added) is refused when the heading is more than 10 deg off the track (median in motion) and
+    heading plus or minus the wander angle half as far (and within 10 deg); a wander angle under about 10 deg
+    cannot be told from a crab angle (a stated limit); roll and pitch beyond an aircraft's are warned about
+    (:func:`skyrig.io.plausibility.check_heading_against_track`)."""
+    from skyrig.io.plausibility import check_heading_against_track, heading_minus_track
+
+    t, lat, lon = rec["time"], np.degrees(rec["latitude"]), np.degrees(rec["longitude"])
+    lines = np.arange(1, len(rec) + 1)
+    check_heading_against_track(t, lat, lon, rec["roll"], rec["pitch"], rec["heading"], "rad", path, lines,
+                                "an SBET holds radians")
+    got = heading_minus_track(t, lat, lon, np.degrees(rec["heading"]))
+    if got is None or np.median(np.abs(got[1])) <= 10.0 or not np.any(rec["wander"]):
+        return
+    off = float(np.median(np.abs(got[1])))
+    for sign, words in ((-1.0, "minus"), (1.0, "plus")):
+        alt = heading_minus_track(t, lat, lon, np.degrees(rec["heading"] + sign * rec["wander"]))
+        if alt is not None and np.median(np.abs(alt[1])) < min(10.0, off / 2.0 - 1.0):
+            k = int(got[0][0])
+            raise InputFormatError(
+                f"the heading differs from the direction of travel by {np.median(np.abs(got[1])):.1f} deg (median "
+                f"in motion; a crab angle stays within a few degrees); heading {words} the wander angle follows it "
+                f"within {np.median(np.abs(alt[1])):.1f} deg: a heading relative to the wander-angle frame, not the "
+                f"platform's true heading (export the true heading)", path, k + 1, "heading")
 
 
 def write_sbet(path: PathLike, trajectory: Trajectory, extra: Mapping[str, ArrayLike] | None = None) -> None:

@@ -21,6 +21,7 @@ import logging
 import os
 import re
 from dataclasses import dataclass
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -354,15 +355,28 @@ def read_trajectory_csv(path: PathLike) -> Trajectory:
         except Exception as exc:  # pyproj errors
             raise InputFormatError(f"cannot transform positions: {exc}", path, crs_line, "crs") from None
         lat, lon, h = ecef_to_geodetic(ecef)
-        return Trajectory.from_rpy(time_s, lat, lon, h, col("roll"), col("pitch"), col("yaw"), unit, **kwargs)
+        traj = Trajectory.from_rpy(time_s, lat, lon, h, col("roll"), col("pitch"), col("yaw"), unit, **kwargs)
+        _check_heading(path, hdr, traj, col, unit)
+        return traj
     try:
         projection = MapProjection(crs, geoid)
-        return Trajectory.from_map(time_s, xyz, projection, col("roll"), col("pitch"), col("yaw"), unit,
+        traj = Trajectory.from_map(time_s, xyz, projection, col("roll"), col("pitch"), col("yaw"), unit,
                                    heading_reference=heading, **kwargs)  # type: ignore[arg-type]
     except CRSError as exc:
         field = "geoid" if geoid is not None and "geoid" in str(exc) else pos_cols[0]
         line = hdr.directives["geoid"][1] if field == "geoid" else None
         raise InputFormatError(exc.args[0], path, line, field) from None
+    _check_heading(path, hdr, traj, col, unit)
+    return traj
+
+
+def _check_heading(path: PathLike, hdr: Any, traj: Trajectory, col: Any, unit: str) -> None:
+    """The yaw column against the direction of travel (:func:`skyrig.io.plausibility.check_heading_against_track`)."""
+    from skyrig.io.plausibility import check_heading_against_track
+
+    check_heading_against_track(traj.time_s, traj.lat_deg, traj.lon_deg, col("roll"), col("pitch"), col("yaw"), unit,
+                                path, [no for no, _ in hdr.data], "declare the unit with the header line "
+                                "'# angles: deg' (or gon, rad)")
 
 
 # --------------------------------------------------------------------------- writer

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from skyrig.errors import SkyrigError
 
-__all__ = ["CheckReport", "check_project"]
+__all__ = ["CheckReport", "check_project", "eo_heads_problems"]
 
 
 @dataclass
@@ -106,6 +106,52 @@ def _read_scale_bars(p: Path) -> Any:
     return read_scale_bars(p)
 
 
+#: An EO camera whose median off-nadir angle differs more than this (deg) from its rig head's mounting is named.
+HEAD_TILT_TOLERANCE_DEG = 20.0
+
+
+def _quiet_rig(path: Path) -> Any:
+    """The rig file among the camera files (None for another camera format or one that does not read: said by its
+    own reader above)."""
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        return None
+    try:
+        return _read_rig(path)
+    except (SkyrigError, OSError, ValueError):
+        return None
+
+
+def eo_heads_problems(eo: Any, rig: Any, path: Path | None) -> list[str]:
+    """Each EO camera that is a head of ``rig`` (by the head's or its camera's name) whose images look another way
+    than the head is mounted: the median angle of their optical axes from straight down differs from the head's
+    (in the body frame) by more than :data:`HEAD_TILT_TOLERANCE_DEG` -- angles read in another convention or
+    unit (omega-phi-kappa as yaw-pitch-roll), or the images of another head.  Map frames only (z up); heads with
+    an actuator are left out."""
+    import numpy as np
+
+    if eo.frame.kind != "map":
+        return []
+    heads = {}
+    for h in rig.heads.values():
+        if not h.is_actuated:
+            heads[h.name] = heads[h.camera.name] = h
+    down = np.degrees(np.arccos(np.clip(np.asarray(eo.rotation)[:, 2, 2], -1.0, 1.0)))  # optical axis -z
+    out = []
+    for cam in sorted(set(map(str, eo.camera))):
+        h = heads.get(cam)
+        if h is None:
+            continue
+        b = h.body_from_camera_rotation()
+        mount = float(np.degrees(np.arccos(np.clip(-b[2, 2], -1.0, 1.0))))  # body z is down
+        sel = np.asarray(eo.camera).astype(str) == cam
+        got = float(np.median(down[sel]))
+        if abs(got - mount) > HEAD_TILT_TOLERANCE_DEG:
+            out.append(f"{path}: the {int(sel.sum())} images of camera {cam!r} look {got:.0f} deg from straight down "
+                       f"(median); the rig {rig.name!r} mounts head {h.name!r} {mount:.0f} deg from it: angles in "
+                       f"another convention (omega-phi-kappa / yaw-pitch-roll) or unit, or another head's images?")
+    return out
+
+
 def _cross_checks(report: CheckReport, proj: Any, got: dict[str, Any]) -> None:
     """The inputs against each other (only those that were read)."""
     rig, events = got.get("rig"), got.get("events")
@@ -119,8 +165,14 @@ def _cross_checks(report: CheckReport, proj: Any, got: dict[str, Any]) -> None:
         from skyrig.pipeline.inputs import require_cameras
 
         _attempt(report, lambda: require_cameras(eo, cams, "inputs.cameras"))
+    if eo is not None:
+        rigs = [rig] if rig is not None else [r for r in (_quiet_rig(q) for q in proj.cameras) if r is not None]
+        for r in rigs:
+            report.errors += eo_heads_problems(eo, r, proj.eo)
     names = set()
     for key in ("control", "check"):
+        if getattr(proj, key) is not None and got.get(key) is None:
+            return  # a point file that did not read (said above): its names are unknown, not absent
         pts = got.get(key)
         if pts is not None:
             names |= set(map(str, pts.name))

@@ -326,6 +326,7 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         stage is up to date or ran, 2 when a stage found bad input, 1 when a stage failed.  ``OUTPUT/run.json``
         holds the same (written atomically).
     """
+    from skyrig.io.report_html import project_stage
     from skyrig.io.stage import MANIFEST, stage_folder
 
     reg = STAGES if registry is None else registry
@@ -371,7 +372,8 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
         try:
             with _warnings_into(said), stage_folder(folder, stage=spec.name, inputs=inputs, options=options,
                                                     started=t_run) as tmp:
-                summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
+                with project_stage(project.path, tmp, folder):  # its report names the project in words
+                    summary = stage.run(StageContext(project, spec, tmp, folder, files, progress)) or {}
                 if said and (tmp / "report.html").is_file():  # the stage's warnings on its page too
                     _report_warnings(tmp / "report.html", said)
                 if summary.get("failed"):  # published as kept, never taken as up to date
