@@ -17,6 +17,7 @@ DSM is checked against the scene's true surface.
 
 from __future__ import annotations
 
+import textwrap
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -40,7 +41,7 @@ STEPS: tuple[tuple[str, tuple[str, ...], float | None], ...] = (
     ("DSM: points to the grid, fusion, assembly", ("to map", "fuse", "fuse cloud", "assemble"), None),
 )
 #: image width (pixels) of the nadir camera in the timed chain: ci (field of view kept, pixels scaled) / full
-_CHAIN_WIDTH = {"ci": 1200, "full": 4992}
+_CHAIN_WIDTH = {"ci": 960, "full": 4992}
 
 
 def rig_coverage(rig: Any, height_m: float = 1000.0, samples: int = 64) -> dict[str, Any]:
@@ -149,7 +150,7 @@ def dsm_chain_shares(size: Size, seed: int = 1) -> dict[str, Any]:
 
 
 def _bar_figure(path: Path, names: list[str], shares: list[float], paper: list[float | None]) -> None:
-    fig = new_figure(8.0, 3.8)
+    fig = new_figure(8.0, 4.6)
     ax = fig.add_subplot(111)
     y = np.arange(len(names))
     ax.barh(y - 0.2, shares, height=0.4, color="#335c99", label="skyrig (CPU s share)")
@@ -160,7 +161,7 @@ def _bar_figure(path: Path, names: list[str], shares: list[float], paper: list[f
         ax.text(v + 1, k - 0.2, f"{v:.1f} %", va="center", fontsize=8)
     for k, v in py:
         ax.text(v + 1, k + 0.2, f"{v:.0f} %", va="center", fontsize=8)
-    ax.set_yticks(y, [n if len(n) < 40 else n[:38] + "..." for n in names], fontsize=8)
+    ax.set_yticks(y, [textwrap.fill(n, 32) for n in names], fontsize=7)
     ax.invert_yaxis()
     ax.set_xlim(0, 110)
     ax.set_xlabel("share of the DSM chain's processing time (%)")
