@@ -71,10 +71,10 @@ def _run_one(paper: str, folder: Path, size: Size) -> PaperOutcome:
     t0 = time.perf_counter()
     try:
         run = runner(paper)
-    except ModuleNotFoundError as exc:
-        if exc.name and module.startswith(exc.name):
+    except ImportError as exc:
+        if isinstance(exc, ModuleNotFoundError) and exc.name == module:
             return PaperOutcome(paper, title, None, f"paper {paper}: its reproduction ({module}) is not installed")
-        raise
+        return PaperOutcome(paper, title, None, f"paper {paper}: importing {module} failed: {exc}")
     try:
         res = run(folder, size)
     except Exception as exc:  # noqa: BLE001 - recorded on the page and in the exit status, the other papers still run
