@@ -178,3 +178,14 @@ def test_index_page_in_headless_chromium(out, tmp_path):
         drv.save_screenshot(str(tmp_path / "papers_index.png"))
     finally:
         drv.quit()
+
+
+@pytest.mark.slow
+def test_p002_image_cloud_beats_the_laser_cloud():
+    """--size full's image column: skyrig's dense image cloud of the bridge (minutes) against the paper's 4.9 cm and
+    the paper's finding that the image cloud is closer to the TLS reference than the laser's (31.7 cm)."""
+    from skyrig.papers.p002 import PAPER_SFM, image_cloud_vs_tls
+
+    im = image_cloud_vs_tls()
+    assert im["points"] > 10_000 and im["stats"].n_undefined <= 0.05 * im["points"]
+    assert im["stats"].rms_m <= PAPER_SFM[0] and im["stats"].p68_abs_m <= PAPER_SFM[1], im["stats"]
