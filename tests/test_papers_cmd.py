@@ -163,6 +163,10 @@ def test_missing_module_and_failed_check_are_named(tmp_path, monkeypatch):
     assert "paper 004: failed checks: the fake check" in r.output
     page = (tmp_path / "o" / "index.html").read_text()
     assert "not installed" in page and "FAIL" in page and (tmp_path / "o" / "manifest.json").exists()
+    # an earlier output is replaced as a whole
+    r = CliRunner().invoke(__import__("skyrig.cli", fromlist=["main"]).main, ["paper", "004", "--out", str(tmp_path / "o")])
+    assert r.exit_code != 0 and "failed checks: the fake check" in r.output
+    assert not (tmp_path / "o" / "000").exists() and (tmp_path / "o" / "004" / "result.json").exists()
 
 
 def test_index_page_in_headless_chromium(out, tmp_path):
@@ -189,3 +193,11 @@ def test_p002_image_cloud_beats_the_laser_cloud():
     im = image_cloud_vs_tls()
     assert im["points"] > 10_000 and im["stats"].n_undefined <= 0.05 * im["points"]
     assert im["stats"].rms_m <= PAPER_SFM[0] and im["stats"].p68_abs_m <= PAPER_SFM[1], im["stats"]
+
+
+def test_out_folder_of_other_files_is_refused(tmp_path):
+    (tmp_path / "mine.txt").write_text("keep me")
+    r = CliRunner().invoke(__import__("skyrig.cli", fromlist=["main"]).main,
+                           ["paper", "001", "--out", str(tmp_path)])
+    assert r.exit_code != 0 and "--out" in r.output and "not an earlier `skyrig paper` output" in r.output
+    assert (tmp_path / "mine.txt").read_text() == "keep me"

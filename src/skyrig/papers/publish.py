@@ -88,6 +88,22 @@ def _run_one(paper: str, folder: Path, size: Size) -> PaperOutcome:
     return PaperOutcome(paper, res.title or title, res, err, secs)
 
 
+def _check_replaceable(out: Path) -> None:
+    """The folder is replaced as a whole: refuse one that holds anything but an earlier ``skyrig paper`` output."""
+    from skyrig.errors import OutputPathError
+    from skyrig.io.stage import MANIFEST
+
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    try:
+        stage = json.loads((out / MANIFEST).read_text()).get("stage")
+    except (OSError, ValueError, AttributeError):
+        stage = None
+    if stage != "paper":
+        raise OutputPathError("holds files that are not an earlier `skyrig paper` output (it would be replaced as a "
+                              "whole): give a new or empty folder", out, "--out")
+
+
 def run_papers(papers: list[str], size: Size, out: str | Path,
                progress: Callable[[str], None] | None = None) -> list[PaperOutcome]:
     """Run ``papers`` ('000'..'004') at ``size`` into ``out/<paper>/`` and write ``out/index.html``; the folder is
@@ -99,6 +115,7 @@ def run_papers(papers: list[str], size: Size, out: str | Path,
     unknown = [p for p in papers if p not in PAPERS]
     if unknown:
         raise KeyError(f"no paper {unknown[0]!r}; known: {', '.join(PAPERS)}")
+    _check_replaceable(Path(out))
     outcomes: list[PaperOutcome] = []
     with stage_folder(out, stage="paper", options={"papers": papers, "size": size}) as tmp:
         for p in papers:
