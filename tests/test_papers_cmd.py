@@ -107,8 +107,9 @@ def test_p002_distances_against_the_true_errors(out):
     true_rms = float(np.sqrt(np.mean(along_n ** 2)))
     assert rows["RMS before ICP (m)"][col] == pytest.approx(true_rms, rel=0.15), true_rms
     assert rows["points compared"][col] + rows["points without a reference point within 2 m"][col] == len(s.scan)
-    # ICP can only reduce the misfit; 2/3 below is the 68th percentile, so below the RMS's 1.5 x for these errors
-    assert rows["RMS point accuracy (m)"][col] <= rows["RMS before ICP (m)"][col]
+    # over the 9 m pass ICP takes out most of the slowly wandering GNSS error: what is left is below the true
+    # error's component along the normals; the 68th percentile of |d| lies below 1.5 x their RMS
+    assert rows["RMS point accuracy (m)"][col] <= true_rms
     assert 0 < rows["2/3 of the points below (m)"][col] <= 1.5 * rows["RMS point accuracy (m)"][col]
 
 
