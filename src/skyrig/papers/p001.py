@@ -71,8 +71,7 @@ def rig_coverage(rig: Any, height_m: float = 1000.0, samples: int = 64) -> dict[
         a_along = np.degrees(np.arctan2(d[:, 0], d[:, 2]))
         # the principal line lying along track: the image column or row through the principal point whose
         # rays differ most in body x
-        pp = cam.image_to_pixel(np.array([[cam.ppx_mm, cam.ppy_mm]]))[0] if hasattr(cam, "image_to_pixel") else \
-            np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        pp = cam.image_to_pixel(np.array([[cam.ppx_mm, cam.ppy_mm]]))[0]
         col = np.c_[np.full(2, pp[0]), [-0.5, h - 0.5]]
         row = np.c_[[-0.5, w - 0.5], np.full(2, pp[1])]
         best = max((cam.rays_from_pixels(x) @ R.T for x in (col, row)), key=lambda r: abs(r[0, 0] - r[1, 0]))
@@ -141,8 +140,7 @@ def dsm_chain_shares(size: Size, seed: int = 1) -> dict[str, Any]:
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     phases = _phases.totals()
     # the DSM against the scene's true surface (cells measured, not filled)
-    xs, ys_ = dsm.grid.cell_centres()
-    X, Y = np.broadcast_arrays(xs[None, :] if np.ndim(xs) == 1 else xs, ys_[:, None] if np.ndim(ys_) == 1 else ys_)
+    X, Y = dsm.grid.cell_centres()
     ok = np.isfinite(dsm.height) & ~dsm.filled
     pts = np.c_[X[ok], Y[ok], dsm.height[ok].astype(np.float64)]
     loc = sv.frame.from_ecef(dsm.frame.to_ecef(pts))

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from skyrig.papers import PAPERS, runner
-from skyrig.papers.base import PaperResult, PaperTable, Size
+from skyrig.papers.base import PaperTable, Size
 from skyrig.papers.page import PaperOutcome, index_html
 
 __all__ = ["PaperOutcome", "run_papers", "write_table"]
