@@ -130,8 +130,7 @@ def dsm_chain_shares(size: Size, seed: int = 1) -> dict[str, Any]:
 
     # warm-up on a small area in the block's middle (compiled kernels loaded, first OpenCV calls): the chain's
     # one-time start-up in a process, not a step of it
-    cam0 = next(iter(cams.values()))
-    half = 40.0 * sv.spec.flights[0].flying_height_m * cam0.pixel_size_mm / cam0.focal_mm
+    half = 30.0  # metres (a smaller area leaves the pair planner's overlap samples without a pair)
     mx, my = eo.to_frame(out).centre[:, :2].mean(axis=0)
     chain((mx - half, my - half, mx + half, my + half))
     _phases.reset()
