@@ -85,6 +85,8 @@ COMMANDS: dict[str, CommandEntry] = {
                             "Measure control and check points in the images in a local web page (or --auto)."),
     "check": CommandEntry("skyrig.cli.check:command",
                           "Validate a project.yaml and every input it names without running a stage; name every problem."),
+    "paper": CommandEntry("skyrig.cli.paper:command",
+                          "Reproduce the tables and figures of the papers (000-004) into one folder with an index page."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }

@@ -302,6 +302,7 @@ def command(outdir: str | None, output: str | None) -> None:
     _terrain_step(outdir)
     _classic_ortho_step(outdir)
     _determinability_step()
+    _papers_step(outdir)
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")
 
 
@@ -556,3 +557,18 @@ def _classic_ortho_step(outdir: str | Path) -> None:
                f"off their footprints, {rc_['within_1gsd'] * 100:.0f} % within 1 GSD (buildings lean)")
     if not (t_["rms_gsd"] <= 0.5 and rc_["n"] >= 20 and rc_["rms_gsd"] > 2.0):
         raise click.ClickException("demo checks FAILED (classic ortho on the DTM)")
+
+
+def _papers_step(outdir: str | Path) -> None:
+    """Issue 36: ``skyrig paper 001 --size ci``: paper 001's field of view, GSD and swath from the 3K preset and the
+    DSM chain's time shares, next to the paper's values, into one folder with an index page (a failed check or a
+    raised error makes the command fail, and the demo with it)."""
+    import json
+
+    click.echo("\n=== the papers reproduced: skyrig paper 001 (DLR 3K) ===")
+    out = Path(outdir) / "papers"
+    _run(["paper", "001", "--size", "ci", "--out", str(out)])
+    res = json.loads((out / "001" / "result.json").read_text())
+    for c in res["comparisons"]:
+        click.echo(f"  {c['quantity']}: skyrig {c['skyrig']} {c['unit']}, paper {c['paper']}")
+    click.echo(f"  index page: {out / 'index.html'}")
