@@ -1,8 +1,8 @@
 """Layer 2: bundle block adjustment and integrated sensor orientation (papers 003 and 004)."""
 
 from skyrig.adjust.block import AdjustConfig, BalCamera, Block, BlockError
-from skyrig.adjust.config import ParameterModes, ReliabilityOptions, SolverOptions, StatisticsOptions
+from skyrig.adjust.config import ReliabilityOptions, SolverOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.adjust import AdjustmentResult, DatumDefectError, Rejection, adjust
 
 __all__ = ["AdjustConfig", "BalCamera", "Block", "BlockError", "AdjustmentResult", "DatumDefectError", "Rejection",
-           "adjust", "ParameterModes", "SolverOptions", "ReliabilityOptions", "StatisticsOptions"]
+           "adjust", "Unknowns", "SolverOptions", "ReliabilityOptions", "StatisticsOptions"]

@@ -32,7 +32,7 @@ any other type in ``observations[name]``.
 
 Parameter groups
 ----------------
-Each group of :class:`AdjustConfig` (its :class:`~skyrig.adjust.config.ParameterModes`) is ``"fixed"``,
+Each group of :class:`AdjustConfig` (its part :class:`~skyrig.adjust.config.Unknowns`) is ``"fixed"``,
 ``"free"`` or ``"weighted"`` (free with a prior equal to the starting value and the sigma given in the
 config); solver, data snooping and statistics options are the config's other parts
 (:mod:`skyrig.adjust.config`).

@@ -141,49 +141,49 @@ class Layout:
                     labels.append((group, str(o), c))
             return idx
 
-        pose = take((b.n_stations, 6), cfg.poses != "fixed", "pose", b.station_name,
+        pose = take((b.n_stations, 6), cfg.unknowns.poses != "fixed", "pose", b.station_name,
                     ("X", "Y", "Z", "rx", "ry", "rz"))
         intr = []
         for cam in b.cameras:
             names = cam.intrinsic_names
             cols = np.full(len(names), -1, np.int64)
             used = np.flatnonzero(b.image_camera == len(intr)).size > 0
-            if cfg.intrinsics != "fixed" and used:
+            if cfg.unknowns.intrinsics != "fixed" and used:
                 for j, nm in enumerate(names):
-                    if cfg.intrinsic_names is None or nm in cfg.intrinsic_names:
+                    if cfg.unknowns.intrinsic_names is None or nm in cfg.unknowns.intrinsic_names:
                         cols[j] = n
                         labels.append(("intrinsics", cam.name, nm))
                         n += 1
             intr.append(cols)
-        bore = take((len(b.head_name), 3), cfg.boresight != "fixed", "boresight", b.head_name,  # type: ignore[arg-type]
+        bore = take((len(b.head_name), 3), cfg.unknowns.boresight != "fixed", "boresight", b.head_name,  # type: ignore[arg-type]
                     ("rx", "ry", "rz"))
         # groups that only some observation type determines (GNSS: lever arm, datum and strip shifts)
         observed = {p for t in observation_types() if t.parameters and t.count(b) > 0 for p in t.parameters}
 
         def on(group: str) -> bool:
-            return getattr(cfg, group) != "fixed" and group in observed
+            return getattr(cfg.unknowns, group) != "fixed" and group in observed
 
         lever = take((3,), on("lever_arm"), "lever_arm", ["antenna"], ("x", "y", "z"))
         shift = take((3,), on("datum_shift"), "datum_shift", ["gnss"], ("X", "Y", "Z"))
         strips = [f"strip{k}" for k in range(b.n_strips)]
         sshift = take((b.n_strips, 3), on("strip_shift"), "strip_shift", strips, ("X", "Y", "Z"))
         sdrift = take((b.n_strips, 3), on("strip_drift"), "strip_drift", strips, ("X", "Y", "Z"))
-        width = 2 + 6 * int(cfg.actuator_fourier_order)
+        width = 2 + 6 * int(cfg.unknowns.actuator_fourier_order)
         act_cols = np.full((len(b.head_name), width), -1, np.int64)  # type: ignore[arg-type]
-        fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.actuator_fourier_order) + 1)
+        fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.unknowns.actuator_fourier_order) + 1)
                          for cs in ("c", "s") for ax in ("roll", "pitch", "yaw")]
         for h, head in enumerate(b.head_actuated):  # type: ignore[arg-type]
             if head is None or not np.any(b.image_head == h):
                 continue
-            for j, on, nm in ([(0, cfg.actuator != "fixed", "beta_offset"), (1, cfg.actuator != "fixed", "beta_scale")]
-                              + [(2 + q, cfg.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
+            for j, on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]
+                              + [(2 + q, cfg.unknowns.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
                 if on:
                     act_cols[h, j] = n
                     labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))  # type: ignore[index]
                     n += 1
         grid_cols = None
         grids = _grids_of(b)
-        if grids is not None and cfg.image_grid != "fixed":
+        if grids is not None and cfg.unknowns.image_grid != "fixed":
             parts = []
             for g in grids.grids:
                 used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()
@@ -198,7 +198,7 @@ class Layout:
             grid_cols = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         act = np.ones(b.n_points, bool) if point_active is None else np.asarray(point_active, bool).copy()
         rpoint = None
-        if cfg.points != "fixed" and b.n_distances:
+        if cfg.unknowns.points != "fixed" and b.n_distances:
             red = np.zeros(b.n_points, bool)
             red[np.asarray(b.distance_point).reshape(-1)] = True
             red &= act
@@ -206,7 +206,7 @@ class Layout:
                 rpoint = np.full((b.n_points, 3), -1, np.int64)
                 rpoint[red] = take((int(red.sum()), 3), True, "point", b.point_name[red], ("X", "Y", "Z"))
                 act &= ~red
-        if cfg.points == "fixed":
+        if cfg.unknowns.points == "fixed":
             point = np.full(b.n_points, -1, np.int64)
         else:
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
@@ -282,7 +282,7 @@ class Model:
         heads = b.head_actuated or [None] * len(b.head_name)  # type: ignore[arg-type]
         is_act = np.array([heads[h] is not None for h in b.image_head], bool) if b.n_images else np.zeros(0, bool)
         self._act_images = np.flatnonzero(is_act)
-        self._act_width = 2 + 6 * int(config.actuator_fourier_order)
+        self._act_width = 2 + 6 * int(config.unknowns.actuator_fourier_order)
         self._act_on = lay.act is not None and bool((lay.act >= 0).any())
         if self._act_images.size:
             from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA

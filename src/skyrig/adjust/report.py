@@ -85,14 +85,14 @@ def distance_table(result: AdjustmentResult) -> dict[str, Any]:
 def datum_words(result: AdjustmentResult) -> str:
     """The datum of ``result``'s adjusted values and covariance, in words."""
     cfg = result.config
-    if cfg.datum == "free" and cfg.inner_constraints == "points":
-        which = (f"{len(cfg.datum_points)} chosen points" if cfg.datum_points else "all estimated object points")
+    if cfg.unknowns.datum == "free" and cfg.unknowns.inner_constraints == "points":
+        which = (f"{len(cfg.unknowns.datum_points)} chosen points" if cfg.unknowns.datum_points else "all estimated object points")
         kept = "centroid and orientation" if result.block.n_distances else "centroid, orientation and scale"
         return (f"inner constraints on {which} (free network: their {kept} are those of their starting "
                 "coordinates; minimum trace of their covariance)")
-    if cfg.datum == "free":
+    if cfg.unknowns.datum == "free":
         return "inner constraints on the station poses (free network: minimum norm of the pose corrections)"
-    if cfg.datum == "none":
+    if cfg.unknowns.datum == "none":
         return "none (no covariance)"
     return "observations (control points and/or GNSS positions)"
 

@@ -154,7 +154,7 @@ def estimate_variance_components(
         ``callback(iteration, factors)`` after each adjustment.
     """
     cfg = config or AdjustConfig()
-    if not cfg.statistics:
+    if not cfg.statistics.compute:
         raise ConfigError("variance component estimation needs statistics=True (redundancy numbers)")
     split = DEFAULT_SPLIT if split is None else split
     b = block.copy()

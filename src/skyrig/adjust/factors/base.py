@@ -217,7 +217,7 @@ class ObservationType:
     share_checked: ClassVar[bool] = True
     #: ``(config parameter group, what it models in words)``: what to free when this group misfits
     hints: ClassVar[tuple[tuple[str, str], ...]] = ()
-    #: parameter groups (``ParameterModes`` names) that only this kind of observation determines: they are
+    #: parameter groups (``Unknowns`` field names) that only this kind of observation determines: they are
     #: estimated only when a block has rows of a type naming them (the GNSS lever arm, datum and strip shifts)
     parameters: ClassVar[tuple[str, ...]] = ()
     #: words for the datum this group fixes (a free network with such rows is an error); "" = none

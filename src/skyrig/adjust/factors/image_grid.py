@@ -188,12 +188,12 @@ class ImageGridPrior(PriorType):
         return block.observations.get(self.name)
 
     def present(self, model: "Model") -> bool:
-        return model.layout.grid is not None and model.config.image_grid == "weighted"
+        return model.layout.grid is not None and model.config.unknowns.image_grid == "weighted"
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         d = grids_of(model.block)
         lay = model.layout
-        if d is None or lay.grid is None or model.config.image_grid != "weighted":
+        if d is None or lay.grid is None or model.config.unknowns.image_grid != "weighted":
             return []
         off = d.offsets()
         out = []
