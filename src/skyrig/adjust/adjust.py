@@ -189,6 +189,8 @@ def _block_from_state(block: Block, model: Model, s: State) -> Block:
     out.strip_shift = s.sshift.copy()
     out.strip_drift = s.sdrift.copy()
     out.point_xyz = s.X.copy()
+    for name, v in s.groups.items():  # the parameter groups factor modules declare
+        out.parameters[name] = v.copy()
     if s.grid is not None and out.observations.get("image_grid") is not None:  # estimated correction grids
         out.observations["image_grid"] = out.observations["image_grid"].with_values(s.grid)
     if model.layout.act is not None:
@@ -356,6 +358,9 @@ def _start_state(initial: State, start: Block) -> State:
         if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
+    for name, u in a.groups.items():
+        if np.shape(u) != np.shape(b.groups.get(name)):
+            raise BlockError(f"start: its {name} unknowns do not correspond to the block's")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
         raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
     if not all(np.isfinite(v).all() for v in (b.R, b.C, b.X, *b.intr)):

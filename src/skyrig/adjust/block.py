@@ -133,6 +133,10 @@ class Block:
         Rows of observation types other than the built-in ones, ``{group name: data object}`` (the data
         object is the type's own, see :class:`~skyrig.adjust.factors.base.ObservationType`); a name no
         registered type owns is a :class:`BlockError`.
+    parameters
+        Values ``(n_owners, n_components)`` of the parameter groups that factor modules declare, by group
+        name (:class:`~skyrig.adjust.factors.base.ParameterGroup`): starting values here, adjusted values in
+        the result's block; a group absent here starts at zero.
     actuator_correction
         ``(H, 2 + 6 N)`` correction of each actuated head: ``[offset_rad, scale]`` then, for ``n = 1..N``,
         the Fourier coefficients ``[c_roll, c_pitch, c_yaw, s_roll, s_pitch, s_yaw]`` (rad); default zeros.
@@ -185,6 +189,7 @@ class Block:
     actuator_correction: NDArray[np.float64] | None = None
     imu_cov_rad2: NDArray[np.float64] | None = None
     observations: dict = field(default_factory=dict)
+    parameters: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
@@ -235,6 +240,7 @@ class Block:
         if ac.ndim != 2 or ac.shape[0] != h or ac.shape[1] < 2 or (ac.shape[1] - 2) % 6:
             raise BlockError(f"actuator_correction must have shape ({h}, 2 + 6 N), got {ac.shape}")
         self.actuator_correction = ac.copy()
+        self.parameters = {str(k): np.asarray(v, dtype=np.float64) for k, v in self.parameters.items()}
         # the observation groups: each type brings its rows to canonical arrays
         self.observations = dict(self.observations)
         unknown = sorted(set(self.observations) - {t.name for t in observation_types()})
@@ -277,6 +283,7 @@ class Block:
             kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
         kw["observations"] = {k: observation_type(k).copy_data(v)  # type: ignore[union-attr]
                               for k, v in self.observations.items()}
+        kw["parameters"] = {k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()}
         return Block(**kw)
 
     # ------------------------------------------------------------------ checks

@@ -68,6 +68,19 @@ class Unknowns:
     actuator_fourier_order: int = 0  # order N of that curve
     actuator_curve_sigma_rad: float = 1e-3
     image_grid: Mode = "fixed"  # node values of the correction grids in observations["image_grid"]
+    groups: tuple[tuple[str, Mode], ...] = ()  # (name, mode) of parameter groups declared by factor modules
+    group_sigma: tuple[tuple[str, tuple[float, ...]], ...] = ()  # (name, prior sigma per component) of those
+
+    def group_mode(self, name: str) -> Mode:
+        """The mode of a parameter group declared by a factor module (default ``"fixed"``)."""
+        return dict(self.groups).get(name, "fixed")
+
+    def group_prior_sigma(self, name: str) -> tuple[float, ...]:
+        """The prior sigma per component of a ``"weighted"`` module-declared group (ConfigError when missing)."""
+        sig = dict(self.group_sigma).get(name)
+        if sig is None:
+            raise ConfigError(f"unknowns.groups makes {name!r} weighted but unknowns.group_sigma has no sigma for it")
+        return tuple(float(v) for v in sig)
 
     def __post_init__(self) -> None:
         if int(self.actuator_fourier_order) < 0:
@@ -76,6 +89,9 @@ class Unknowns:
                      "actuator", "actuator_curve", "image_grid"):
             if getattr(self, name) not in MODES:
                 raise ConfigError(f"unknowns.{name} must be one of {MODES}, got {getattr(self, name)!r}")
+        for name, mode in self.groups:
+            if mode not in MODES:
+                raise ConfigError(f"unknowns.groups[{name!r}] must be one of {MODES}, got {mode!r}")
         if self.points not in ("free", "fixed"):
             raise ConfigError(f"unknowns.points must be 'free' or 'fixed', got {self.points!r}")
         if self.datum not in ("auto", "free", "none"):
@@ -144,7 +160,7 @@ PARTS: dict[str, type] = {"unknowns": Unknowns, "solver": SolverOptions, "reliab
 
 #: the flat keys of earlier releases (block files, ``AdjustConfig.from_flat``) -> ``(part, field)``
 FLAT_KEYS: dict[str, tuple[str, str]] = {
-    **{f.name: ("unknowns", f.name) for f in fields(Unknowns)},
+    **{f.name: ("unknowns", f.name) for f in fields(Unknowns) if f.name not in ("groups", "group_sigma")},
     **{f.name: ("solver", f.name) for f in fields(SolverOptions)},
     "snooping": ("reliability", "snooping"), "snooping_alpha": ("reliability", "alpha"),
     "snooping_familywise": ("reliability", "familywise"), "max_rejections": ("reliability", "max_rejections"),
@@ -186,6 +202,11 @@ def _file_value(part: str, key: str, v: Any) -> Any:
         return tuple(str(x) for x in v)
     if key == "intrinsic_sigma":
         return tuple(sorted(v.items())) if isinstance(v, dict) else tuple(map(tuple, v))
+    if (part, key) == ("unknowns", "groups"):
+        return tuple(sorted(v.items())) if isinstance(v, dict) else tuple(map(tuple, v))
+    if (part, key) == ("unknowns", "group_sigma"):
+        items = v.items() if isinstance(v, dict) else v
+        return tuple(sorted((str(k), tuple(float(x) for x in sig)) for k, sig in items))
     return v
 
 
@@ -193,6 +214,8 @@ def _json_value(key: str, v: Any) -> Any:
     """A field's value as JSON (tuples -> lists)."""
     if key == "intrinsic_sigma":
         return [list(x) for x in v]
+    if key in ("groups", "group_sigma"):
+        return {k: (list(x) if isinstance(x, tuple) else x) for k, x in v}
     return list(v) if isinstance(v, tuple) else v
 
 
@@ -301,6 +324,9 @@ class AdjustConfig:
             Mode, order N and prior sigma (rad) of the Fourier series of the periodic boresight curve
             (roll, pitch, yaw corrections, orders 1..N; the constant term is the head's boresight).  The
             first order in roll/pitch is the same motion as the actuator offset: estimate one of them.
+        groups, group_sigma
+            Mode and prior sigma (one per component) of the parameter groups that factor modules declare
+            (:class:`~skyrig.adjust.factors.base.ParameterGroup`), by group name; absent = ``"fixed"``.
         image_grid
             Mode of the node values of the block's correction grids (``observations["image_grid"]``,
             :mod:`skyrig.adjust.factors.image_grid`): ``"fixed"`` (default: applied as known corrections),

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
+from skyrig.adjust.factors import BUILTIN, observation_type, observation_types, parameter_groups
 from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
@@ -79,6 +79,9 @@ class State:
     #: node values of the correction grids, flat (:meth:`skyrig.adjust.factors.image_grid.ImageGrids.values`);
     #: None without grids
     grid: NDArray[np.float64] | None = None
+    #: values ``(n_owners, n_components)`` of the parameter groups factor modules declare, by name
+    #: (:class:`~skyrig.adjust.factors.base.ParameterGroup`)
+    groups: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     @classmethod
     def from_block(cls, b: Block) -> "State":
@@ -87,12 +90,13 @@ class State:
                    b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
                    b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
                    None if b.actuator_correction is None else b.actuator_correction.copy(),
-                   None if g is None else g.values())
+                   None if g is None else g.values(), {p.name: p.initial(b) for p in parameter_groups()})
 
     def copy(self) -> "State":
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
                      self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
-                     None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy())
+                     None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy(),
+                     {k: v.copy() for k, v in self.groups.items()})
 
 
 @dataclass
@@ -122,6 +126,8 @@ class Layout:
     act: NDArray[np.int64] | None = None
     #: columns of the correction grids' node values (flat, as ``State.grid``); None when not estimated
     grid: NDArray[np.int64] | None = None
+    #: columns ``(n_owners, n_components)`` of the parameter groups factor modules declare, by name (-1: fixed)
+    groups: dict[str, NDArray[np.int64]] = field(default_factory=dict)
 
     @classmethod
     def build(cls, b: Block, cfg: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> "Layout":
@@ -206,12 +212,18 @@ class Layout:
                 rpoint = np.full((b.n_points, 3), -1, np.int64)
                 rpoint[red] = take((int(red.sum()), 3), True, "point", b.point_name[red], ("X", "Y", "Z"))
                 act &= ~red
+        groups = {}
+        for pg in parameter_groups():  # after the built-in groups: their columns stay where they were
+            owners = pg.owners(b)
+            groups[pg.name] = take((len(owners), len(pg.components)),
+                                   cfg.unknowns.group_mode(pg.name) != "fixed" and pg.estimated(b), pg.name, owners,
+                                   pg.components)
         if cfg.unknowns.points == "fixed":
             point = np.full(b.n_points, -1, np.int64)
         else:
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
         return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels,
-                   rpoint, act_cols, grid_cols)
+                   rpoint, act_cols, grid_cols, groups)
 
     @property
     def has_rpoint(self) -> bool:
@@ -241,6 +253,10 @@ class Layout:
             out.act = pad_actuator(s.act, self.act.shape[0], self.act.shape[1]) + step(self.act)
         if self.grid is not None and s.grid is not None:
             out.grid = s.grid + step(self.grid)
+        for pg in parameter_groups():
+            cols = self.groups.get(pg.name)
+            if cols is not None and (cols >= 0).any():
+                out.groups[pg.name] = pg.retract(s.groups[pg.name], step(cols))
         if self.n_p or self.has_rpoint:
             out.X = s.X.copy()
         if self.n_p:

@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
-__all__ = ["ObservationType", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
+__all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
            "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
 
 
@@ -324,3 +324,52 @@ class ObservationType:
     def label(self, block: "Block", i: int) -> str:
         """Row ``i`` in words."""
         return f"{self.name}[{i}]"
+
+
+class ParameterGroup:
+    """Unknowns that an observation module declares for itself (a clock offset per station, a scanner's
+    lever arm, boresight and range offset...), so that a new kind of unknown lands in the module that
+    observes it.
+
+    A group is a table ``(n_owners, len(components))`` of values: its starting values are
+    ``block.parameters[name]`` (:meth:`initial`; zeros when the block has none), the adjusted ones are written
+    back there in the result's block; its mode (``"fixed"``, ``"free"`` or ``"weighted"``) and prior sigma
+    per component come from ``AdjustConfig.unknowns.groups`` / ``group_sigma``; its columns are
+    ``model.layout.groups[name]`` (-1 = not estimated), its current values ``state.groups[name]``, its labels
+    ``(name, owner, component)``.  Columns come after every built-in group's (the built-in layout is
+    unchanged).  A ``"weighted"`` group gets the prior ``prior:<name>`` (``(current - start) / sigma``).
+
+    Register an instance with :func:`skyrig.adjust.factors.register_group`; an observation type reads it in
+    its :meth:`ObservationType.evaluate` (values ``state.groups[name]``, Jacobian columns
+    ``model.layout.groups[name]``).
+    """
+
+    #: group name: key of ``block.parameters``, ``State.groups``, ``Layout.groups`` and of the config's modes
+    name: ClassVar[str] = ""
+    #: the names of one owner's components (columns), with their unit in the name (``dt_s``, ``x_m``)
+    components: ClassVar[tuple[str, ...]] = ()
+    #: what the group is, in words (reports, hints)
+    words: ClassVar[str] = ""
+
+    def owners(self, block: Any) -> list[str]:
+        """Names of the group's owners (rows), e.g. the station names; default: one owner named after the group."""
+        return [self.name]
+
+    def initial(self, block: Any) -> NDArray[np.float64]:
+        """``(n_owners, n_components)`` starting values: ``block.parameters[name]`` or zeros."""
+        shape = (len(self.owners(block)), len(self.components))
+        v = block.parameters.get(self.name)
+        if v is None:
+            return np.zeros(shape)
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != shape:
+            raise BlockError(f"parameters[{self.name!r}] must have shape {shape}, got {v.shape}")
+        return v.copy()
+
+    def estimated(self, block: Any) -> bool:
+        """Whether the block has what determines the group (default: always; e.g. rows of its observation type)."""
+        return True
+
+    def retract(self, value: NDArray[np.float64], step: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``value`` moved by the step ``(n_owners, n_components)`` (default additive; a rotation overrides)."""
+        return value + step

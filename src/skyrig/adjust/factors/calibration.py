@@ -2,7 +2,8 @@
 
 Interior orientation (per camera, the sigma of each intrinsic by name from ``intrinsic_sigma``), head
 boresights, the GNSS lever arm, datum shift, per-strip shift and drift, and the actuator offset / scale
-and Fourier correction curve of actuated heads: each ``(current - start) / sigma`` on the group's
+and Fourier correction curve of actuated heads, and the parameter groups factor modules declare
+(``unknowns.groups`` / ``group_sigma``): each ``(current - start) / sigma`` on the group's
 estimated columns, a factor ``prior:<group>`` (``prior:intrinsics:<camera>`` per camera).
 """
 
@@ -12,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from skyrig.adjust.factors import register
+from skyrig.adjust.factors import parameter_groups, register
 from skyrig.adjust.factors.base import Factor, pad_actuator
 from skyrig.adjust.factors.prior import PriorType, prior_factor
 from skyrig.errors import ConfigError
@@ -60,6 +61,12 @@ class CalibrationPrior(PriorType):
             if cfg.unknowns.actuator_curve == "weighted" and on.any():
                 out.append(prior_factor("actuator_curve", d[on, 2:], lay.act[on, 2:],
                                         np.array(cfg.unknowns.actuator_curve_sigma_rad), jac))
+        for pg in parameter_groups():  # the parameter groups factor modules declare
+            cols = lay.groups.get(pg.name)
+            if cfg.unknowns.group_mode(pg.name) == "weighted" and cols is not None and (cols >= 0).any():
+                sig = np.broadcast_to(np.asarray(cfg.unknowns.group_prior_sigma(pg.name), float), cols.shape[1:])
+                on = (cols >= 0).all(axis=1)
+                out.append(prior_factor(pg.name, (s.groups[pg.name] - s0.groups[pg.name])[on], cols[on], sig, jac))
         return out
 
 
