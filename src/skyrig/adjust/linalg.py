@@ -348,7 +348,7 @@ class ReducedSolver:
 
 
 # ---------------------------------------------------------------------------- pattern of S, lean
-# The reduced matrix S of the Schur engine (skyrig.adjust.solver.SchurEngine) is the sum of k x k blocks
+# The reduced matrix S of the Schur engine (skyrig.adjust.schur_engine.SchurEngine) is the sum of k x k blocks
 # of unit pairs (a unit: a set of reduced columns shared by image rows, ``ucols[u]``, -1 padded), of the
 # blocks of the other factors' column sets, and the diagonal.  Building its CSR pattern by listing every
 # block entry (pairs x k^2 keys, twice with the mirrors, then sorting) and keeping an int64 map per entry
