@@ -159,9 +159,9 @@ class AdjustmentResult:
         q = np.diagonal(self.covariance.Qpp, axis1=1, axis2=2)
         out[free] = self.sigma0 * np.sqrt(np.clip(q[self.layout.point[free]], 0, None))
         if self.layout.has_rpoint:
-            red = (self.layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
+            red = (self.layout.rpoint_cols >= 0).all(axis=1)
             qd = np.diag(self.covariance.Qcc)
-            out[red] = self.sigma0 * np.sqrt(np.clip(qd[self.layout.rpoint[red]], 0, None))  # type: ignore[index]
+            out[red] = self.sigma0 * np.sqrt(np.clip(qd[self.layout.rpoint_cols[red]], 0, None))
         return out
 
     def point_covariance(self) -> NDArray[np.float64] | None:
@@ -172,8 +172,8 @@ class AdjustmentResult:
         free = self.layout.point >= 0
         out[free] = self.sigma0**2 * self.covariance.Qpp[self.layout.point[free]]
         if self.layout.has_rpoint:
-            red = (self.layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
-            c = self.layout.rpoint[red]  # type: ignore[index]
+            red = (self.layout.rpoint_cols >= 0).all(axis=1)
+            c = self.layout.rpoint_cols[red]
             out[red] = self.sigma0**2 * self.covariance.Qcc[c[:, :, None], c[:, None, :]]
         return out
 
@@ -194,10 +194,10 @@ def _block_from_state(block: Block, model: Model, s: State) -> Block:
     if s.grid is not None and out.observations.get("image_grid") is not None:  # estimated correction grids
         out.observations["image_grid"] = out.observations["image_grid"].with_values(s.grid)
     if model.layout.act is not None:
-        out.actuator_correction = pad_actuator(s.act, len(block.head_name), model.layout.act.shape[1])  # type: ignore[arg-type]
+        out.actuator_correction = pad_actuator(s.act, len(block.head_name), model.layout.act.shape[1])
     if model._act_images.size:  # nominal mounting at the adjusted beta correction (without the boresight)
-        out.image_rotation = out.image_rotation.copy()  # type: ignore[union-attr]
-        out.image_rotation[model._act_images] = model.actuated_mounts(s)[0]  # type: ignore[index]
+        out.image_rotation = out.image_rotation.copy()
+        out.image_rotation[model._act_images] = model.actuated_mounts(s)[0]
     return out
 
 
@@ -218,7 +218,7 @@ def _datum_defect(layout: Layout) -> int:
 def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
     """Name the degenerate actuated-head cases before the rank check does so in general terms."""
     if cfg.unknowns.actuator == "free" or cfg.unknowns.actuator_curve == "free":
-        for h, head in enumerate(block.head_actuated):  # type: ignore[arg-type]
+        for h, head in enumerate(block.head_actuated):
             sel = block.image_head == h
             if head is None or not sel.any():
                 continue
@@ -227,7 +227,7 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
             spread = 1.0 - float(np.hypot(np.cos(beta).mean(), np.sin(beta).mean()))
             if spread < 1e-10:
                 raise DatumDefectError([
-                    f"the actuator angle beta of head {str(block.head_name[h])!r} is constant over its {int(sel.sum())} "  # type: ignore[index]
+                    f"the actuator angle beta of head {str(block.head_name[h])!r} is constant over its {int(sel.sum())} "
                     f"images ({np.degrees(beta[0]):.4f} deg): its mounting is one fixed rotation, so the actuator "
                     "offset/scale and the boresight curve cannot be separated from the head's boresight; "
                     "fix the 'actuator' and 'actuator_curve' groups (or fly several beta)"])
@@ -235,11 +235,11 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
             need = 2 * int(cfg.unknowns.actuator_fourier_order) + 1
             if cfg.unknowns.actuator_curve == "free" and cfg.unknowns.actuator_fourier_order and n_distinct < need:
                 raise DatumDefectError([
-                    f"head {str(block.head_name[h])!r} has images at only {n_distinct} distinct actuator angles: a Fourier "  # type: ignore[index]
+                    f"head {str(block.head_name[h])!r} has images at only {n_distinct} distinct actuator angles: a Fourier "
                     f"boresight curve of order {cfg.unknowns.actuator_fourier_order} needs at least {need}"])
 
 
-def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no-untyped-def]
+def _check_free_datum(model: Model, state: State, S) -> None:
     """A free network's inner constraints remove the similarity motions that no observation fixes; raise
     :class:`BlockError` naming them when the block's observations (control, GNSS, IMU, pose priors) fix some
     (the inner constraints would then be wrong, the redundancy off by the defect, and the covariance garbage)."""
@@ -268,7 +268,7 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
                      "(the datum from those observations), or leave them out for a free network")
 
 
-def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
+def _reduced_at(model: Model, state: State):
     """``(S (CSR), rhs, engine)`` of the undamped reduced system at ``state``: the compiled Schur engine (no
     scipy BSR products; returned, linearised at ``state``, for the solver to start from), else / on a
     singular point block the reference path (whose error names the points; engine None)."""
@@ -289,7 +289,7 @@ def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
     return S, rhs, None
 
 
-def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:
     """``S^-1 b``: above the engine's dense limit with the engine's own sparse direct solver when it is
     exact (its ordering and symbolic factorisation are then the solver's: analysed once per adjustment),
     else :func:`solve_reduced`."""
@@ -304,7 +304,7 @@ def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:  # type:
     return solve_reduced(S, b)
 
 
-def check_datum(model: Model, state: State, free_datum: bool):  # type: ignore[no-untyped-def]
+def check_datum(model: Model, state: State, free_datum: bool):
     """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular.
 
     Returns the compiled Schur engine linearised at ``state`` (without robust weights), for
@@ -359,7 +359,7 @@ def _start_state(initial: State, start: Block) -> State:
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
     for name, u in a.groups.items():
-        if np.shape(u) != np.shape(b.groups.get(name)):
+        if np.shape(u) != np.shape(b.groups.get(name)):  # type: ignore[arg-type]
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
         raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
@@ -390,7 +390,7 @@ def _add_round(total: SolveInfo, info: SolveInfo) -> None:
     total.message = info.message
 
 
-def _largest_normalised(groups: dict[str, GroupStats]) -> tuple[float, str, int]:
+def _largest_normalised(groups: dict[str, GroupResiduals]) -> tuple[float, str, int]:
     """``(|w|, group, row)`` of the largest normalised residual among the active, tested observations
     (``(0.0, "", -1)`` when there is none)."""
     best = (0.0, "", -1)
@@ -408,13 +408,13 @@ def _largest_normalised(groups: dict[str, GroupStats]) -> tuple[float, str, int]
     return best
 
 
-def _n_tests(groups: dict[str, GroupStats]) -> int:
+def _n_tests(groups: dict[str, GroupResiduals]) -> int:
     """How many residual components data snooping tests (for the family-wise level)."""
     return sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in groups.items()
                if gr.normalised is not None and _tested(g))
 
 
-def _others_above(groups: dict[str, GroupStats], crit: float) -> bool:
+def _others_above(groups: dict[str, GroupResiduals], crit: float) -> bool:
     """Whether a tested observation of another group than the images is above the critical value (then only one
     rejection per round: its spill into the images of its station would look like blunders there)."""
     return any(
@@ -537,7 +537,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     for w in _variance_component_warnings(groups, cfg):
         logger.warning(w)
         warnings.append(w)
-    for f in failures:
+    for f in failures:  # type: ignore[assignment]
         logger.warning("adjustment failed: %s", f)
     return AdjustmentResult(
         _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, redundancy, groups,
@@ -653,8 +653,8 @@ def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redund
     lay = model.layout
     free = lay.point >= 0
     if lay.has_rpoint:
-        free |= (lay.rpoint >= 0).any(axis=1)  # type: ignore[union-attr]
-    free[block.control_point[model.control_weight > 0]] = False  # type: ignore[index, operator]
+        free |= (lay.rpoint_cols >= 0).any(axis=1)
+    free[block.control_point[model.control_weight > 0]] = False
     if used.size == 1 and free[block.obs_point[model.obs_weight > 0]].any():
         out.append(f"a single image ({block.image_name[used[0]]!s}) cannot intersect object points: give more "
                    "images, or fix the points (points='fixed') for a space resection")
@@ -667,7 +667,7 @@ def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[
     lay = model.layout
     est = lay.point >= 0
     if lay.has_rpoint:
-        est = est | (lay.rpoint >= 0).all(axis=1)  # type: ignore[union-attr]
+        est = est | (lay.rpoint_cols >= 0).all(axis=1)
     if not cfg.unknowns.datum_points:
         mask = est.copy()
     else:
@@ -715,7 +715,7 @@ def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[
     normalised residuals are equal, the blunder cannot be located), so the point leaves the adjustment."""
     rows = np.flatnonzero(block.obs_point == p)
     active = rows[model.obs_weight[rows] > 0]
-    ctrl = np.flatnonzero((block.control_point == p) & (model.control_weight > 0))  # type: ignore[operator]
+    ctrl = np.flatnonzero((block.control_point == p) & (model.control_weight > 0))
     # two rays from one station (heads of one rig exposure share a projection centre) have no base
     if np.unique(block.image_station[block.obs_image[active]]).size >= 2 or ctrl.size:
         return model
@@ -740,13 +740,13 @@ def _drop_lost_points(block: Block, model: Model, state: State, rejected: list[R
     information (zero Jacobian rows) and would make the normal matrix singular: their observations are
     rejected and the points leave the adjustment (control points stay, only the bad rays go)."""
     f = model.evaluate(state, jacobians=False)[0]
-    bad = getattr(f, "bad", None)
+    bad = f.bad
     if bad is None:
         return model
     bad = bad & (model.obs_weight > 0)
     if not bad.any():
         return model
-    ctrl = set(block.control_point[model.control_weight > 0].tolist())  # type: ignore[index, operator]
+    ctrl = set(block.control_point[model.control_weight > 0].tolist())
     act = model.point_active.copy()
     for p in np.unique(block.obs_point[bad]):
         rows = np.flatnonzero(block.obs_point == p)
@@ -760,7 +760,7 @@ def _drop_lost_points(block: Block, model: Model, state: State, rejected: list[R
     return _with_points(block, model, act)
 
 
-def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):  # type: ignore[no-untyped-def]
+def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):
     lay = model.layout
     # without statistics only the cost is needed: no Jacobians, no normal equations
     factors = model.evaluate(state, jacobians=cfg.statistics.compute)
@@ -780,9 +780,9 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
         warnings.append(f"no redundancy ({n_obs} observations for {n_unk} unknowns): sigma0 is undefined")
     if cfg.statistics.compute and lay.n_c <= cfg.statistics.max_parameters:
         try:
-            cov = covariance(N, lay, state, free)
+            cov = covariance(N, lay, state, free)  # type: ignore[arg-type]
             if free and cfg.unknowns.inner_constraints == "points":
-                cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))
+                cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))  # type: ignore[arg-type]
         except (SingularError, ValueError) as e:
             warnings.append(f"covariance not available: {e}")
         if cov is not None:
@@ -801,7 +801,7 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
                             "limit needs the pseudo-inverse (use a datum by observations)")
         elif selected is None:
             try:
-                selected = selected_covariance(N, lay, cols, pts)
+                selected = selected_covariance(N, lay, cols, pts)  # type: ignore[arg-type]
                 warnings.append(f"covariance computed for {len(cols)} chosen reduced unknowns and {len(pts)} "
                                 f"chosen points by sparse solves (statistics_images / statistics_points)")
             except SingularError as e:

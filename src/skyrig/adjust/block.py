@@ -41,7 +41,7 @@ config); solver, data snooping and statistics options are the config's other par
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,8 +57,17 @@ __all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"] 
 
 CameraModel = FrameCamera | BalCamera
 
+#: default of a field that ``Block.__post_init__`` fills: a field left out (or given as None) takes its canonical
+#: value there (zeros, identity, the type's default sigma...); after construction every such field is an array
+_FILLED: Any = None
 
-def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:  # type: ignore[no-untyped-def]
+
+def _filled(default: float) -> Any:
+    """A scalar default (a sigma) that ``__post_init__`` broadcasts to the field's rows."""
+    return default
+
+
+def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:
     a = np.asarray(x, dtype=dtype)
     if n is None:
         n = a.shape[0] if a.ndim else 0
@@ -154,39 +163,39 @@ class Block:
     obs_image: NDArray[np.int64]
     obs_point: NDArray[np.int64]
     obs_pixel: NDArray[np.float64]
-    obs_sigma_px: NDArray[np.float64] | float = 1.0
-    image_rotation: NDArray[np.float64] | None = None
-    image_offset: NDArray[np.float64] | None = None
-    image_head: NDArray[np.int64] | None = None
-    head_name: NDArray[np.str_] | None = None
-    station_time: NDArray[np.float64] | None = None
-    station_strip: NDArray[np.int64] | None = None
-    control_point: NDArray[np.int64] | None = None
-    control_xyz: NDArray[np.float64] | None = None
-    control_sigma: NDArray[np.float64] | float = 0.01
-    control_check: NDArray[np.bool_] | None = None
-    gnss_station: NDArray[np.int64] | None = None
-    gnss_xyz: NDArray[np.float64] | None = None
-    gnss_sigma: NDArray[np.float64] | float = 0.05
-    imu_station: NDArray[np.int64] | None = None
-    imu_rotation: NDArray[np.float64] | None = None
-    imu_sigma_rad: NDArray[np.float64] | float = 1e-4
+    obs_sigma_px: NDArray[np.float64] = _filled(1.0)
+    image_rotation: NDArray[np.float64] = _FILLED
+    image_offset: NDArray[np.float64] = _FILLED
+    image_head: NDArray[np.int64] = _FILLED
+    head_name: NDArray[np.str_] = _FILLED
+    station_time: NDArray[np.float64] = _FILLED
+    station_strip: NDArray[np.int64] = _FILLED
+    control_point: NDArray[np.int64] = _FILLED
+    control_xyz: NDArray[np.float64] = _FILLED
+    control_sigma: NDArray[np.float64] = _filled(0.01)
+    control_check: NDArray[np.bool_] = _FILLED
+    gnss_station: NDArray[np.int64] = _FILLED
+    gnss_xyz: NDArray[np.float64] = _FILLED
+    gnss_sigma: NDArray[np.float64] = _filled(0.05)
+    imu_station: NDArray[np.int64] = _FILLED
+    imu_rotation: NDArray[np.float64] = _FILLED
+    imu_sigma_rad: NDArray[np.float64] = _filled(1e-4)
     lever_arm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    head_boresight: NDArray[np.float64] | None = None
+    head_boresight: NDArray[np.float64] = _FILLED
     datum_shift: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    strip_shift: NDArray[np.float64] | None = None
-    strip_drift: NDArray[np.float64] | None = None
-    strip_t0: NDArray[np.float64] | None = None
+    strip_shift: NDArray[np.float64] = _FILLED
+    strip_drift: NDArray[np.float64] = _FILLED
+    strip_t0: NDArray[np.float64] = _FILLED
     frame: str = "local Cartesian frame"
     obs_cov_px2: NDArray[np.float64] | None = None
     control_cov_m2: NDArray[np.float64] | None = None
     gnss_cov_m2: NDArray[np.float64] | None = None
-    distance_point: NDArray[np.int64] | None = None
-    distance_m: NDArray[np.float64] | None = None
-    distance_sigma_m: NDArray[np.float64] | float = 0.001
-    image_beta_rad: NDArray[np.float64] | None = None
-    head_actuated: list | None = None
-    actuator_correction: NDArray[np.float64] | None = None
+    distance_point: NDArray[np.int64] = _FILLED
+    distance_m: NDArray[np.float64] = _FILLED
+    distance_sigma_m: NDArray[np.float64] = _filled(0.001)
+    image_beta_rad: NDArray[np.float64] = _FILLED
+    head_actuated: list[Any] = _FILLED
+    actuator_correction: NDArray[np.float64] = _FILLED
     imu_cov_rad2: NDArray[np.float64] | None = None
     observations: dict = field(default_factory=dict)
     parameters: dict[str, NDArray[np.float64]] = field(default_factory=dict)
@@ -247,8 +256,8 @@ class Block:
         if unknown:
             raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
                              "(skyrig.adjust.factors.register) before building the block")
-        for t in observation_types():
-            t.normalise(self)
+        for t in observation_types():  # type: ignore[assignment]
+            t.normalise(self)  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -269,11 +278,11 @@ class Block:
 
     @property
     def n_distances(self) -> int:
-        return len(self.distance_point)  # type: ignore[arg-type]
+        return len(self.distance_point)
 
     @property
     def n_strips(self) -> int:
-        return len(self.strip_t0)  # type: ignore[arg-type]
+        return len(self.strip_t0)
 
     def copy(self) -> "Block":
         """A deep copy of the arrays (cameras are immutable)."""
@@ -284,7 +293,7 @@ class Block:
         kw["observations"] = {k: observation_type(k).copy_data(v)  # type: ignore[union-attr]
                               for k, v in self.observations.items()}
         kw["parameters"] = {k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()}
-        return Block(**kw)
+        return Block(**kw)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ checks
     def validate(self) -> None:
@@ -292,18 +301,18 @@ class Block:
         geometry here, then each observation type's rows (:meth:`ObservationType.validate`)."""
         check_index("image_station", self.image_station, self.n_stations, "station")
         check_index("image_camera", self.image_camera, len(self.cameras), "camera")
-        check_index("image_head", self.image_head, len(self.head_name), "head")  # type: ignore[arg-type]
+        check_index("image_head", self.image_head, len(self.head_name), "head")
         for name in ("station_rotation", "station_centre", "point_xyz", "image_rotation", "image_offset"):
             check_finite(name, getattr(self, name))
         types = observation_types()
         for t in types:
             t.validate(self)
-        act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)  # type: ignore[index]
-        bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))  # type: ignore[arg-type]
+        act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)
+        bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))
         if bad.size:
             raise BlockError(f"image {str(self.image_name[bad[0]])!r} belongs to the actuated head "
-                             f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
-        check_finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
+                             f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")
+        check_finite("actuator_correction", self.actuator_correction)
         det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
         bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
         if bad.size:

@@ -33,6 +33,7 @@ point seen in that image (zero for the other rows).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,7 +48,7 @@ from skyrig.rig.camera_pose import world_from_camera
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
 
-def _grids_of(b: Block):  # type: ignore[no-untyped-def]
+def _grids_of(b: Block):
     from skyrig.adjust.factors.image_grid import grids_of
 
     return grids_of(b)
@@ -87,8 +88,8 @@ class State:
     def from_block(cls, b: Block) -> "State":
         g = _grids_of(b)
         return cls(b.station_rotation.copy(), b.station_centre.copy(), [c.intrinsics.copy() for c in b.cameras],
-                   b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
-                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
+                   b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),
+                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),
                    None if b.actuator_correction is None else b.actuator_correction.copy(),
                    None if g is None else g.values(), {p.name: p.initial(b) for p in parameter_groups()})
 
@@ -135,7 +136,7 @@ class Layout:
         labels: list[tuple[str, str, str]] = []
         n = 0
 
-        def take(count_shape: tuple[int, ...], on: bool, group: str, owners, comps) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
+        def take(count_shape: tuple[int, ...], on: bool, group: str, owners, comps) -> NDArray[np.int64]:
             nonlocal n
             size = int(np.prod(count_shape))
             if not on or size == 0:
@@ -149,7 +150,7 @@ class Layout:
 
         pose = take((b.n_stations, 6), cfg.unknowns.poses != "fixed", "pose", b.station_name,
                     ("X", "Y", "Z", "rx", "ry", "rz"))
-        intr = []
+        intr = []  # type: ignore[var-annotated]
         for cam in b.cameras:
             names = cam.intrinsic_names
             cols = np.full(len(names), -1, np.int64)
@@ -161,7 +162,7 @@ class Layout:
                         labels.append(("intrinsics", cam.name, nm))
                         n += 1
             intr.append(cols)
-        bore = take((len(b.head_name), 3), cfg.unknowns.boresight != "fixed", "boresight", b.head_name,  # type: ignore[arg-type]
+        bore = take((len(b.head_name), 3), cfg.unknowns.boresight != "fixed", "boresight", b.head_name,
                     ("rx", "ry", "rz"))
         # groups that only some observation type determines (GNSS: lever arm, datum and strip shifts)
         observed = {p for t in observation_types() if t.parameters and t.count(b) > 0 for p in t.parameters}
@@ -175,24 +176,24 @@ class Layout:
         sshift = take((b.n_strips, 3), on("strip_shift"), "strip_shift", strips, ("X", "Y", "Z"))
         sdrift = take((b.n_strips, 3), on("strip_drift"), "strip_drift", strips, ("X", "Y", "Z"))
         width = 2 + 6 * int(cfg.unknowns.actuator_fourier_order)
-        act_cols = np.full((len(b.head_name), width), -1, np.int64)  # type: ignore[arg-type]
+        act_cols = np.full((len(b.head_name), width), -1, np.int64)
         fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.unknowns.actuator_fourier_order) + 1)
                          for cs in ("c", "s") for ax in ("roll", "pitch", "yaw")]
-        for h, head in enumerate(b.head_actuated):  # type: ignore[arg-type]
+        for h, head in enumerate(b.head_actuated):
             if head is None or not np.any(b.image_head == h):
                 continue
-            for j, on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]
+            for j, on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]  # type: ignore[assignment]
                               + [(2 + q, cfg.unknowns.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
-                if on:
+                if on:  # type: ignore[truthy-function]
                     act_cols[h, j] = n
-                    labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))  # type: ignore[index]
+                    labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))
                     n += 1
         grid_cols = None
         grids = _grids_of(b)
         if grids is not None and cfg.unknowns.image_grid != "fixed":
             parts = []
             for g in grids.grids:
-                used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()
+                used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()  # type: ignore[assignment]
                 ny, nx = len(g.y_px), len(g.x_px)
                 names = [f"{ax}{iy}_{ix}" for iy in range(ny) for ix in range(nx) for ax in "xy"]
                 cols = np.full(2 * nx * ny, -1, np.int64)
@@ -226,6 +227,11 @@ class Layout:
                    rpoint, act_cols, grid_cols, groups)
 
     @property
+    def rpoint_cols(self) -> NDArray[np.int64]:
+        """``(P, 3)`` reduced columns of the points (``rpoint``; all -1 when there are none)."""
+        return self.rpoint if self.rpoint is not None else np.full((len(self.point), 3), -1, np.int64)
+
+    @property
     def has_rpoint(self) -> bool:
         """True when some points are estimated in the reduced part (see ``rpoint``)."""
         return self.rpoint is not None and bool((self.rpoint >= 0).any())
@@ -254,7 +260,7 @@ class Layout:
         if self.grid is not None and s.grid is not None:
             out.grid = s.grid + step(self.grid)
         for pg in parameter_groups():
-            cols = self.groups.get(pg.name)
+            cols = self.groups.get(pg.name)  # type: ignore[assignment]
             if cols is not None and (cols >= 0).any():
                 out.groups[pg.name] = pg.retract(s.groups[pg.name], step(cols))
         if self.n_p or self.has_rpoint:
@@ -263,8 +269,8 @@ class Layout:
             free = self.point >= 0
             out.X[free] += dp[self.point[free]]
         if self.has_rpoint:
-            red = (self.rpoint >= 0).all(axis=1)  # type: ignore[operator]
-            out.X[red] += step(self.rpoint[red])  # type: ignore[index]
+            red = (self.rpoint_cols >= 0).all(axis=1)
+            out.X[red] += step(self.rpoint_cols[red])
         return out
 
 
@@ -295,7 +301,7 @@ class Model:
         self._intr_on = bool((icols >= 0).any())
         self._bore_on = bool((self.layout.bore >= 0).any())
         # actuated heads: images whose mounting is computed from beta
-        heads = b.head_actuated or [None] * len(b.head_name)  # type: ignore[arg-type]
+        heads = b.head_actuated or [None] * len(b.head_name)
         is_act = np.array([heads[h] is not None for h in b.image_head], bool) if b.n_images else np.zeros(0, bool)
         self._act_images = np.flatnonzero(is_act)
         self._act_width = 2 + 6 * int(config.unknowns.actuator_fourier_order)
@@ -320,7 +326,7 @@ class Model:
             if w is not None:
                 self.weights[t.name] = w
         #: per observation type its per-model constants (whitening matrices, index tables...)
-        self.cache: dict[str, object] = {t.name: t.prepare(self) for t in self.types}
+        self.cache: dict[str, Any] = {t.name: t.prepare(self) for t in self.types}
 
     # ------------------------------------------------------------------ weights (by group name)
     obs_weight = property(lambda self: self.weights["image"], lambda self, v: self.weights.__setitem__("image", v),
@@ -367,15 +373,15 @@ class Model:
         b = self.block
         ai = self._act_images
         hi = b.image_head[ai]
-        beta = b.image_beta_rad[ai]  # type: ignore[index]
-        A = pad_actuator(s.act, len(b.head_name), self._act_width)[hi]  # type: ignore[arg-type]
+        beta = b.image_beta_rad[ai]
+        A = pad_actuator(s.act, len(b.head_name), self._act_width)[hi]
         bp = (1.0 + A[:, 1]) * beta + A[:, 0]
         a = np.zeros((ai.size, 3))
         da = np.zeros((ai.size, 3))
         h = 1e-6
         for k in np.unique(hi):
             sel = hi == k
-            head = b.head_actuated[k]  # type: ignore[index]
+            head = b.head_actuated[k]
             a[sel] = head.tilt_angles(bp[sel])
             if jacobian:
                 da[sel] = (head.tilt_angles(bp[sel] + h) - head.tilt_angles(bp[sel] - h)) / (2 * h)
@@ -460,4 +466,4 @@ def _check_rows(name: str, factors: list[Factor]) -> None:
 try:
     from skyrig.adjust._image_kernels import bal_rows as _BAL_KERNEL, chain as _CHAIN_KERNEL
 except ImportError:  # pragma: no cover - depends on the environment
-    _BAL_KERNEL = _CHAIN_KERNEL = None
+    _BAL_KERNEL = _CHAIN_KERNEL = None  # type: ignore[assignment]

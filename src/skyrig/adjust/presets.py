@@ -121,9 +121,9 @@ def apply_preset(block: Block, name: str, base: AdjustConfig | None = None, expl
     :class:`~skyrig.errors.ConfigError` listing the presets.  (:func:`merge_preset` also returns the conflicts in
     words.)
     """
-    cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))  # type: ignore[arg-type]
+    cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))
     p = PRESETS[name]
     b = block.copy()
     if p.all_check:
-        b.control_check = np.ones(len(b.control_point), bool)  # type: ignore[arg-type]
+        b.control_check = np.ones(len(b.control_point), bool)
     return b, cfg

@@ -74,12 +74,12 @@ def _predicted_decrease(lam: float, diag_u: NDArray[np.float64], V: NDArray[np.f
 try:  # numba is a dependency; the scipy path above stays as the reference and the fallback
     import numba as _numba
 except ImportError:  # pragma: no cover - depends on the environment
-    _numba = None
+    _numba = None  # type: ignore[assignment]
 
 HAVE_NUMBA = _numba is not None
 
 
-def _make_kernels():  # type: ignore[no-untyped-def]
+def _make_kernels():
     if _numba is None:  # pragma: no cover
         return None
     njit, prange = _numba.njit, _numba.prange
@@ -334,7 +334,7 @@ class SchurEngine:
         # ---- units: distinct column sets of the image rows (rows of one image share their columns)
         n_obs = len(img) if img is not None else 0
         if has_jc:
-            ucols, self.obs_unit = _units(img.cols, image_group)  # type: ignore[union-attr, arg-type]
+            ucols, self.obs_unit = _units(img.cols, image_group)  # type: ignore[arg-type, union-attr]
             self.k = ucols.shape[1]
         else:
             ucols, self.obs_unit, self.k = np.zeros((0, 0), np.int64), np.zeros(n_obs, np.int64), 0

@@ -162,7 +162,7 @@ def assemble(factors: list[Factor], layout: Layout, image_group: NDArray[np.int6
 
 
 def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layout, group: NDArray[np.int64],
-                  chunk: int):  # type: ignore[no-untyped-def]
+                  chunk: int):
     n_c, n_p = layout.n_c, layout.n_p
     n, d, k = jc.shape
     # one k x k block per unit (a station when only poses are free)
@@ -214,7 +214,7 @@ def _image_blocks(f: Factor, jc: NDArray, r: NDArray, sw: NDArray, layout: Layou
     if Wobs is not None:
         blocks = Wobs[order]
     else:
-        jp = f.jp[order] * sw[order, None, None]  # jc already carries the row scale; jp must too
+        jp = f.jp[order] * sw[order, None, None]  # type: ignore[index]  # jc already carries the row scale; jp must too
         blocks = np.einsum("nda,ndb->nab", jc[order], jp)
     first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])) if len(key) else np.zeros(0, np.int64)
     if len(first) < len(key):  # one point seen twice in one unit (two heads): sum the blocks
@@ -254,7 +254,7 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
     if layout.has_rpoint:
         # points estimated in the reduced part (end points of distances) move with the block; the
         # distances fix the scale, so the scale is no null-space motion then
-        red = (layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
+        red = (layout.rpoint >= 0).all(axis=1)  # type: ignore[operator, union-attr]
         move(layout.rpoint[red], state.X[red] - c0)  # type: ignore[index]
         G[:, 6] = 0.0
     nrm = np.linalg.norm(G, axis=0)
@@ -319,8 +319,8 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
                 x = scipy.linalg.cho_solve(c, b, check_finite=False)
         elif method == "cholespy":
             coo = Ss.tocoo()
-            solver = _cholespy.CholeskySolverD(n, coo.row.astype(np.int32), coo.col.astype(np.int32),  # type: ignore[union-attr]
-                                               coo.data, _cholespy.MatrixType.COO)  # type: ignore[union-attr]
+            solver = _cholespy.CholeskySolverD(n, coo.row.astype(np.int32), coo.col.astype(np.int32),
+                                               coo.data, _cholespy.MatrixType.COO)
             x = np.zeros_like(b)
             solver.solve(np.ascontiguousarray(b), x)
         elif method == "cholmod" and _linalg.HAVE_CVXOPT_CHOLMOD:
@@ -337,7 +337,7 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
     return x * (s if x.ndim == 1 else s[:, None])
 
 
-def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):  # type: ignore[no-untyped-def]
+def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):
     """``S``, its right-hand side and the damped inverse point blocks for damping ``lam``."""
     n_p = N.V.shape[0]
     U = N.U
@@ -373,7 +373,7 @@ def back_substitute(N: Normal, Vinv: NDArray[np.float64], dc: NDArray[np.float64
     """Point steps ``(n_p, 3)`` from the reduced step."""
     t = N.gp.reshape(-1).copy()
     if N.Wb is not None and len(Vinv):
-        t += N.Wb.T @ (N.P @ dc)  # type: ignore[union-attr]
+        t += N.Wb.T @ (N.P @ dc)  # type: ignore[operator]
     return -np.einsum("pij,pj->pi", Vinv, t.reshape(-1, 3))
 
 
@@ -499,14 +499,14 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             prepared._rs = None  # (a reduced solver the datum check set up for other settings)
         prepared.dense_limit, prepared.linear_solver = ENGINE_DENSE_LIMIT, linear_solver
     elif engine == "numba":
-        eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)
+        eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)  # type: ignore[arg-type]
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
         raise ConfigError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
-    cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost
-    factors = None  # type: ignore[assignment]  # the engine keeps what it needs: the Jacobians go
+    cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost  # type: ignore[arg-type]
+    factors = None  # the engine keeps what it needs: the Jacobians go
     info.initial_cost = cost
     radius = initial_radius
     nu = 2.0
@@ -568,7 +568,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             break
         if not accepted:
             break
-        cost = eng.linearize(new_factors, huber_k)
+        cost = eng.linearize(new_factors, huber_k)  # type: ignore[arg-type]
         new_factors = None
     else:
         info.message = "maximum number of iterations reached"

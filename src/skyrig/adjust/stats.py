@@ -113,7 +113,7 @@ def _point_pattern(N: Normal, n_c: int, n_p: int
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
     there ``(nnz, 3)``."""
     Wb = N.Wb.tocoo()  # type: ignore[union-attr]  # every stored block entry, zeros included
-    Pc = abs(N.P).tocsc()  # type: ignore[union-attr]  # (unit columns, n_c)
+    Pc = abs(N.P).tocsc()  # type: ignore[arg-type]  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
     S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
     key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
@@ -239,7 +239,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
             indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p)
             vals, WtM = _pattern_products(Q, indptr, rows, wv)
             Qpp = Vinv + Vinv @ WtM @ Vinv
-            M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)
+            M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)  # type: ignore[assignment]
     return Covariance(Q, Qpp, Vinv, M)
 
 
@@ -256,7 +256,7 @@ def similarity_basis(state: State, layout: Layout, scale: bool
     Gc = np.zeros((layout.n_c, d))
     Gp = np.zeros((layout.n_p, 3, d))
     pts = np.flatnonzero(layout.point >= 0)
-    red = np.flatnonzero((layout.rpoint >= 0).all(axis=1)) if layout.has_rpoint else np.zeros(0, np.int64)  # type: ignore[union-attr]
+    red = np.flatnonzero((layout.rpoint_cols >= 0).all(axis=1)) if layout.has_rpoint else np.zeros(0, np.int64)
     pose_on = np.flatnonzero((layout.pose >= 0).all(axis=1))
     allp = np.concatenate([pts, red])
     c0 = state.X[allp].mean(axis=0) if allp.size else (state.C[pose_on].mean(axis=0) if pose_on.size
@@ -282,7 +282,7 @@ def similarity_basis(state: State, layout: Layout, scale: bool
             Gc[pc[:, 3 + a], 3:6] = state.R[pose_on][:, :, a]  # (R^T e_b)_a = R[b, a]
     if red.size:
         mr = motions(state.X[red])
-        rc = layout.rpoint[red]  # type: ignore[index]
+        rc = layout.rpoint_cols[red]
         for a in range(3):
             Gc[rc[:, a]] = mr[:, a]
     if pts.size:
@@ -314,8 +314,8 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     Bc = np.zeros_like(Gc)
     n_red = 0
     if layout.has_rpoint:
-        red = (layout.rpoint >= 0).all(axis=1) & chosen  # type: ignore[union-attr]
-        rc = layout.rpoint[red].reshape(-1)  # type: ignore[index]
+        red = (layout.rpoint_cols >= 0).all(axis=1) & chosen
+        rc = layout.rpoint_cols[red].reshape(-1)
         Bc[rc] = Gc[rc]
         n_red = int(red.sum())
     Bp = Gp * sel_p[:, None, None]
@@ -335,7 +335,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     BtG = Bc.T @ Gc + np.einsum("pad,pae->de", Bp, Gp)
     BQB = BQc @ Bc
     if n_p:
-        FM = np.asarray((W.T @ BQc.T)).T.reshape(d, n_p, 3).transpose(1, 0, 2)  # type: ignore[union-attr]  # (n_p, d, 3)
+        FM = np.asarray((W.T @ BQc.T)).T.reshape(d, n_p, 3).transpose(1, 0, 2)  # (n_p, d, 3)
         BQp = np.einsum("pda,pab->pdb", np.swapaxes(Bp, 1, 2) - FM, Vinv)  # (B^T Q) point columns
         BQB = BQB + np.einsum("pda,pae->de", BQp, Bp)
     sv = np.linalg.svd(BtG, compute_uv=False)
@@ -618,7 +618,7 @@ def correlation_warnings(cov: Covariance, layout: Layout, limit: float = 0.98, m
     # pose-pose correlations within a station are common and uninteresting; report across groups
     # and for the global groups (lever arm, boresight, shifts, intrinsics) among themselves
     glob = groups != "pose"
-    out = []
+    out = []  # type: ignore[var-annotated]
     idx = np.flatnonzero(glob)
     if idx.size == 0:
         return out

@@ -111,13 +111,13 @@ def check_index(name: str, idx: NDArray, n: int, what: str) -> None:
 
 
 def check_finite(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []
+    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []  # type: ignore[var-annotated]
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
 
 
 def check_positive(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []
+    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []  # type: ignore[var-annotated]
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
 
@@ -180,11 +180,13 @@ class Factor:
     jp: NDArray[np.float64] | None = None
     weight: NDArray[np.float64] | None = None
     whiten: NDArray[np.float64] | None = None
+    #: ``(n,)`` rows that could not be evaluated (a point behind its camera...; image rows), None = none
+    bad: NDArray[np.bool_] | None = None
 
     def unwhitened(self) -> NDArray[np.float64]:
         """``(n, d)`` residuals in observation units (computed minus observed)."""
         if self.whiten is not None:
-            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]
+            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]  # type: ignore[return-value]
         return self.r * self.sigma
 
     def __len__(self) -> int:
@@ -194,7 +196,7 @@ class Factor:
 def any_on(cols: NDArray[np.int64]) -> NDArray[np.bool_]:
     """``(n,)`` True for the rows of a column table ``(n, ...)`` with at least one estimated column (>= 0)."""
     c = np.asarray(cols)
-    return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)
+    return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)  # type: ignore[return-value]
 
 
 class ObservationType:
