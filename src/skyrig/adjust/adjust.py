@@ -359,7 +359,7 @@ def _start_state(initial: State, start: Block) -> State:
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
     for name, u in a.groups.items():
-        if np.shape(u) != np.shape(b.groups.get(name)):  # type: ignore[arg-type]
+        if name not in b.groups or np.shape(u) != np.shape(b.groups[name]):
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
         raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
@@ -537,8 +537,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     for w in _variance_component_warnings(groups, cfg):
         logger.warning(w)
         warnings.append(w)
-    for f in failures:  # type: ignore[assignment]
-        logger.warning("adjustment failed: %s", f)
+    for why in failures:
+        logger.warning("adjustment failed: %s", why)
     return AdjustmentResult(
         _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, redundancy, groups,
         residuals, rejected, cov, start_warnings + warnings, model.layout, cfg, selected=selected, failures=failures)

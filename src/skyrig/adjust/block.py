@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.config import MODES, AdjustConfig, Mode
-from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors import observation_types, require_type
 from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
 
@@ -256,8 +256,8 @@ class Block:
         if unknown:
             raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
                              "(skyrig.adjust.factors.register) before building the block")
-        for t in observation_types():  # type: ignore[assignment]
-            t.normalise(self)  # type: ignore[attr-defined]
+        for ot in observation_types():
+            ot.normalise(self)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -286,14 +286,14 @@ class Block:
 
     def copy(self) -> "Block":
         """A deep copy of the arrays (cameras are immutable)."""
-        kw = {}
+        kw: dict[str, Any] = {}
         for f in self.__dataclass_fields__:
             v = getattr(self, f)
             kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
-        kw["observations"] = {k: observation_type(k).copy_data(v)  # type: ignore[union-attr]
+        kw["observations"] = {k: require_type(k).copy_data(v)
                               for k, v in self.observations.items()}
         kw["parameters"] = {k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()}
-        return Block(**kw)  # type: ignore[arg-type]
+        return Block(**kw)
 
     # ------------------------------------------------------------------ checks
     def validate(self) -> None:
@@ -323,7 +323,7 @@ class Block:
             c = t.controlled_points(self)
             if c is not None:
                 ctrl |= c
-        observation_type("image").validate_rays(self, ctrl)  # type: ignore[union-attr]
+        require_type("image").validate_rays(self, ctrl)  # type: ignore[attr-defined]
 
 
 def sequence_index(names: Sequence[str]) -> dict[str, int]:

@@ -380,7 +380,7 @@ class AdjustConfig:
     def file_keys(data: Mapping[str, Any]) -> frozenset[str]:
         """``part.field`` of every field a configuration mapping sets (flat keys of earlier releases
         included, see :data:`FLAT_KEYS`)."""
-        out = set()  # type: ignore[var-annotated]
+        out: set[str] = set()
         for k, v in data.items():
             if k in PARTS and isinstance(v, Mapping):
                 out.update(f"{k}.{f}" for f in v)

@@ -121,7 +121,8 @@ def block_from_georef(
         image_camera=np.array([cam_idx[c] for c in obs_l.camera]), image_head=np.array([cam_idx[c] for c in obs_l.camera]),
         head_name=np.array(cam_names), point_name=pnames, point_xyz=X0,
         obs_image=np.array([img_index[i] for i in m_image], dtype=np.int64),
-        obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel, obs_sigma_px=sigma_px,  # type: ignore[arg-type]
+        obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel,
+        obs_sigma_px=np.asarray(sigma_px, dtype=np.float64),
         frame=frame.describe(), **ctrl_kw, **kw,
     )
     return block, frame

@@ -35,7 +35,7 @@ import contextlib
 import logging
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -468,7 +468,7 @@ def _csr_of_lists(owner: NDArray[np.int64], item: NDArray[np.int64], n: int) -> 
 
 
 def schur_pattern(n_c: int, ucols: NDArray[np.int64], row_ptr: NDArray[np.int64], col_idx: NDArray[np.int64],
-                  other_cols: list[NDArray[np.int64]] = ()) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # type: ignore[assignment]
+                  other_cols: Sequence[NDArray[np.int64]] = ()) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """CSR pattern ``(indptr, indices)`` (sorted rows, full symmetric, diagonal included) of the reduced
     matrix: the ``k x k`` blocks ``ucols[u] x ucols[v]`` of the unit pairs (``row_ptr``/``col_idx``: the
     upper block pattern, ``v >= u``) and their mirrors, the blocks ``cols x cols`` of every row of the

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import BUILTIN, observation_type, observation_types, parameter_groups
+from skyrig.adjust.factors import BUILTIN, observation_type, observation_types, parameter_groups, require_type
 from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
@@ -150,7 +150,7 @@ class Layout:
 
         pose = take((b.n_stations, 6), cfg.unknowns.poses != "fixed", "pose", b.station_name,
                     ("X", "Y", "Z", "rx", "ry", "rz"))
-        intr = []  # type: ignore[var-annotated]
+        intr: list[NDArray[np.int64]] = []
         for cam in b.cameras:
             names = cam.intrinsic_names
             cols = np.full(len(names), -1, np.int64)
@@ -182,9 +182,9 @@ class Layout:
         for h, head in enumerate(b.head_actuated):
             if head is None or not np.any(b.image_head == h):
                 continue
-            for j, on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]  # type: ignore[assignment]
+            for j, is_on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]
                               + [(2 + q, cfg.unknowns.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
-                if on:  # type: ignore[truthy-function]
+                if is_on:
                     act_cols[h, j] = n
                     labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))
                     n += 1
@@ -193,11 +193,11 @@ class Layout:
         if grids is not None and cfg.unknowns.image_grid != "fixed":
             parts = []
             for g in grids.grids:
-                used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()  # type: ignore[assignment]
+                grid_used = bool(np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any())
                 ny, nx = len(g.y_px), len(g.x_px)
                 names = [f"{ax}{iy}_{ix}" for iy in range(ny) for ix in range(nx) for ax in "xy"]
                 cols = np.full(2 * nx * ny, -1, np.int64)
-                if used:
+                if grid_used:
                     cols = np.arange(n, n + cols.size, dtype=np.int64)
                     n += cols.size
                     labels.extend(("image_grid", g.camera, nm) for nm in names)
@@ -260,9 +260,9 @@ class Layout:
         if self.grid is not None and s.grid is not None:
             out.grid = s.grid + step(self.grid)
         for pg in parameter_groups():
-            cols = self.groups.get(pg.name)  # type: ignore[assignment]
-            if cols is not None and (cols >= 0).any():
-                out.groups[pg.name] = pg.retract(s.groups[pg.name], step(cols))
+            gcols = self.groups.get(pg.name)
+            if gcols is not None and (gcols >= 0).any():
+                out.groups[pg.name] = pg.retract(s.groups[pg.name], step(gcols))
         if self.n_p or self.has_rpoint:
             out.X = s.X.copy()
         if self.n_p:
@@ -439,7 +439,7 @@ class Model:
 
     def _image(self, s: State, jac: bool) -> Factor:
         """The image factor alone (:class:`skyrig.adjust.factors.image.Image`)."""
-        return observation_type("image").evaluate_one(self, s, jac)  # type: ignore[union-attr]
+        return require_type("image").evaluate_one(self, s, jac)  # type: ignore[attr-defined]
 
 
 _BUILTIN_NAMES = frozenset(BUILTIN)  # the built-in types (their modules are named after them)

@@ -151,7 +151,7 @@ def _reduced_values(result: AdjustmentResult, columns: NDArray[np.int64]) -> lis
     put(lay.sshift, b.strip_shift)
     put(lay.sdrift, b.strip_drift)
     if lay.has_rpoint:
-        put(lay.rpoint, b.point_xyz)  # type: ignore[arg-type]
+        put(lay.rpoint_cols, b.point_xyz)
     if lay.act is not None and b.actuator_correction is not None:
         put(lay.act, pad_actuator(b.actuator_correction, lay.act.shape[0], lay.act.shape[1]))
     return val[columns].tolist()

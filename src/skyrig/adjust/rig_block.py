@@ -140,10 +140,8 @@ def block_from_trajectory(
         image_station=station_of_image.astype(np.int64), image_rotation=image_rotation, image_offset=image_offset,
         image_head=image_head, head_name=np.array(heads),
         lever_arm=np.asarray(rig.antenna_lever_arm_m, dtype=np.float64).copy(),
-        head_boresight=None, strip_shift=None, strip_drift=None, strip_t0=None,  # type: ignore[arg-type]
         head_actuated=[rig.head(h) if a else None for h, a in zip(heads, actuated)],
         image_beta_rad=np.where(actuated[image_head], beta, np.nan),
-        actuator_correction=None,  # type: ignore[arg-type]
         **kw,
     )
     block = _drop_points(block, _single_station(block) | _gross_at_start(block, max_start_residual_px))

@@ -437,12 +437,14 @@ class SchurEngine:
                 continue
             if i not in oth:
                 continue
-            jc = f.jc * sw[:, None, None]  # type: ignore[operator]
+            if f.jc is None or f.cols is None:  # (a row touching no reduced column: nothing to add)
+                continue
+            jc = f.jc * sw[:, None, None]
             r = r * sw[:, None]
             cols = f.cols
-            valid = cols >= 0  # type: ignore[operator]
+            valid = cols >= 0
             g = np.einsum("ndk,nd->nk", jc, r)
-            gc += np.bincount(cols[valid], weights=g[valid], minlength=n_c)  # type: ignore[index]
+            gc += np.bincount(cols[valid], weights=g[valid], minlength=n_c)
             jtj = np.einsum("nda,ndb->nab", jc, jc).reshape(-1)
             m = oth[i]
             v = m >= 0

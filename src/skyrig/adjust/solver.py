@@ -92,6 +92,20 @@ class Normal:
     Wb: sp.bsr_matrix | None
     P: sp.csr_matrix | None
 
+    @property
+    def wb(self) -> sp.bsr_matrix:
+        """``Wb`` of normal equations that have image rows (point coupling blocks)."""
+        if self.Wb is None:
+            raise ValueError("normal equations without image rows have no point coupling (Wb)")
+        return self.Wb
+
+    @property
+    def p(self) -> sp.csr_matrix:
+        """``P`` (unit columns -> reduced columns) of normal equations that have image rows."""
+        if self.P is None:
+            raise ValueError("normal equations without image rows have no unit selection (P)")
+        return self.P
+
 
 def factor_cost(factors: list[Factor], huber_k: float | None = None) -> float:
     return float(sum(_robust(f, huber_k)[1] for f in factors))
@@ -254,8 +268,8 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
     if layout.has_rpoint:
         # points estimated in the reduced part (end points of distances) move with the block; the
         # distances fix the scale, so the scale is no null-space motion then
-        red = (layout.rpoint >= 0).all(axis=1)  # type: ignore[operator, union-attr]
-        move(layout.rpoint[red], state.X[red] - c0)  # type: ignore[index]
+        red = (layout.rpoint_cols >= 0).all(axis=1)
+        move(layout.rpoint_cols[red], state.X[red] - c0)
         G[:, 6] = 0.0
     nrm = np.linalg.norm(G, axis=0)
     nrm[nrm == 0] = 1.0
@@ -363,9 +377,9 @@ def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):
     if N.Wb is not None and n_p:
         Vb = sp.bsr_matrix((Vinv, np.arange(n_p), np.arange(n_p + 1)), shape=(3 * n_p, 3 * n_p))
         WV = N.Wb @ Vb
-        T = (WV @ N.Wb.T).tocsr()
-        S = (U - N.P.T @ T @ N.P).tocsr()  # type: ignore[union-attr]
-        rhs = rhs + N.P.T @ (WV @ N.gp.reshape(-1))  # type: ignore[union-attr]
+        T = (WV @ N.wb.T).tocsr()
+        S = (U - N.p.T @ T @ N.P).tocsr()
+        rhs = rhs + N.p.T @ (WV @ N.gp.reshape(-1))
     return sp.csr_matrix(S), rhs, Vinv
 
 
@@ -373,7 +387,7 @@ def back_substitute(N: Normal, Vinv: NDArray[np.float64], dc: NDArray[np.float64
     """Point steps ``(n_p, 3)`` from the reduced step."""
     t = N.gp.reshape(-1).copy()
     if N.Wb is not None and len(Vinv):
-        t += N.Wb.T @ (N.P @ dc)  # type: ignore[operator]
+        t += N.wb.T @ (N.p @ dc)
     return -np.einsum("pij,pj->pi", Vinv, t.reshape(-1, 3))
 
 

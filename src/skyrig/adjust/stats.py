@@ -112,12 +112,12 @@ def _point_pattern(N: Normal, n_c: int, n_p: int
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
     there ``(nnz, 3)``."""
-    Wb = N.Wb.tocoo()  # type: ignore[union-attr]  # every stored block entry, zeros included
-    Pc = abs(N.P).tocsc()  # type: ignore[arg-type]  # (unit columns, n_c)
+    Wb = N.wb.tocoo()  # every stored block entry, zeros included
+    Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
     S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
     key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
-    Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr()).tocoo()  # type: ignore[union-attr]
+    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()).tocoo()
     key_w = (Wfull.col // 3).astype(np.int64) * (n_c + 1) + Wfull.row
     wv = np.zeros((len(key_s), 3))
     pos = np.searchsorted(key_s, key_w)
@@ -226,7 +226,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
     Qpp = Vinv.copy()
     M = None
     if n_p and N.Wb is not None:
-        Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]
+        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr())
         if Q.shape[0] * 3 * n_p <= max_dense_products:
             M = np.asarray(Wfull.T @ Q).T  # Q_cc W  (n_c, 3 n_p)
             Wc = Wfull.tocsc()
@@ -325,7 +325,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     Q = cov.Qcc
     Vinv = cov.Vinv
     if n_p:
-        W = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]  # (n_c, 3 n_p)
+        W = sp.csr_matrix(N.p.T @ N.wb.tocsr())  # (n_c, 3 n_p)
         Y = np.einsum("pab,pbd->pad", Vinv, Bp).reshape(3 * n_p, d)  # V^-1 B_p
         F = Bc.T - np.asarray(W @ Y).T  # (d, n_c): B_c^T - B_p^T V^-1 W^T
     else:
@@ -471,7 +471,7 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     if k:
         cols3 = (3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)
         # the (n_c, 3 k) columns of W = P^T Wb of the chosen points (sliced before the product)
-        Wk = np.asarray(N.P.T @ N.Wb.tocsc()[:, cols3].toarray())  # type: ignore[union-attr]
+        Wk = np.asarray(N.p.T @ N.wb.tocsc()[:, cols3].toarray())
         rhs[:, m:] = Wk
     X = solve_reduced(S, rhs) if n_c else rhs
     Qcc = X[columns, :m]
@@ -618,7 +618,7 @@ def correlation_warnings(cov: Covariance, layout: Layout, limit: float = 0.98, m
     # pose-pose correlations within a station are common and uninteresting; report across groups
     # and for the global groups (lever arm, boresight, shifts, intrinsics) among themselves
     glob = groups != "pose"
-    out = []  # type: ignore[var-annotated]
+    out: list[str] = []
     idx = np.flatnonzero(glob)
     if idx.size == 0:
         return out

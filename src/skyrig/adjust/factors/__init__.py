@@ -57,7 +57,7 @@ from skyrig.adjust.factors.base import (BlockError, Factor, ObservationType, Par
                                         whitening_matrices)
 
 __all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "register", "unregister", "observation_types",
-           "observation_type", "register_group", "unregister_group", "parameter_groups", "any_on", "whitening_matrices"]
+           "observation_type", "require_type", "register_group", "unregister_group", "parameter_groups", "any_on", "whitening_matrices"]
 
 _REGISTRY: dict[str, ObservationType] = {}
 _GROUPS: dict[str, ParameterGroup] = {}
@@ -130,6 +130,14 @@ def observation_types() -> list[ObservationType]:
     """The registered types in evaluation order."""
     _load_builtins()
     return _SORTED
+
+
+def require_type(group: str) -> ObservationType:
+    """The type of a group name (:func:`observation_type`); :class:`BlockError` when no type owns it."""
+    t = observation_type(group)
+    if t is None:
+        raise BlockError(f"no observation type owns the group {group!r} (registered: {sorted(_REGISTRY)})")
+    return t
 
 
 def observation_type(group: str) -> ObservationType | None:

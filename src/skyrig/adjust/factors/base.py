@@ -111,13 +111,13 @@ def check_index(name: str, idx: NDArray, n: int, what: str) -> None:
 
 
 def check_finite(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []  # type: ignore[var-annotated]
+    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else np.zeros(0, np.int64)
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
 
 
 def check_positive(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []  # type: ignore[var-annotated]
+    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else np.zeros(0, np.int64)
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
 

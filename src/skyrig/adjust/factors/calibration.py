@@ -53,20 +53,21 @@ class CalibrationPrior(PriorType):
         if lay.act is not None and (lay.act >= 0).any():
             H, W = lay.act.shape
             d = pad_actuator(s.act, H, W) - pad_actuator(s0.act, H, W)
-            on = (lay.act[:, :2] >= 0).all(axis=1)  # type: ignore[assignment]
-            if cfg.unknowns.actuator == "weighted" and on.any():
-                out.append(prior_factor("actuator", d[on, :2], lay.act[on, :2], np.array(cfg.unknowns.actuator_sigma, float),
-                                        jac))
-            on = (lay.act[:, 2:] >= 0).all(axis=1) & (W > 2)
-            if cfg.unknowns.actuator_curve == "weighted" and on.any():
-                out.append(prior_factor("actuator_curve", d[on, 2:], lay.act[on, 2:],
+            on_a = (lay.act[:, :2] >= 0).all(axis=1)
+            if cfg.unknowns.actuator == "weighted" and on_a.any():
+                out.append(prior_factor("actuator", d[on_a, :2], lay.act[on_a, :2],
+                                        np.array(cfg.unknowns.actuator_sigma, float), jac))
+            on_a = (lay.act[:, 2:] >= 0).all(axis=1) & (W > 2)
+            if cfg.unknowns.actuator_curve == "weighted" and on_a.any():
+                out.append(prior_factor("actuator_curve", d[on_a, 2:], lay.act[on_a, 2:],
                                         np.array(cfg.unknowns.actuator_curve_sigma_rad), jac))
         for pg in parameter_groups():  # the parameter groups factor modules declare
-            cols = lay.groups.get(pg.name)  # type: ignore[assignment]
-            if cfg.unknowns.group_mode(pg.name) == "weighted" and cols is not None and (cols >= 0).any():
-                sig = np.broadcast_to(np.asarray(cfg.unknowns.group_prior_sigma(pg.name), float), cols.shape[1:])  # type: ignore[assignment]
-                on = (cols >= 0).all(axis=1)  # type: ignore[assignment]
-                out.append(prior_factor(pg.name, (s.groups[pg.name] - s0.groups[pg.name])[on], cols[on], sig, jac))  # type: ignore[arg-type]
+            gcols = lay.groups.get(pg.name)
+            if cfg.unknowns.group_mode(pg.name) == "weighted" and gcols is not None and (gcols >= 0).any():
+                gsig = np.broadcast_to(np.asarray(cfg.unknowns.group_prior_sigma(pg.name), float), gcols.shape[1:])
+                g_on = (gcols >= 0).all(axis=1)
+                out.append(prior_factor(pg.name, (s.groups[pg.name] - s0.groups[pg.name])[g_on], gcols[g_on], gsig,
+                                        jac))
         return out
 
 

@@ -105,7 +105,7 @@ class Control(ObservationType):
             f.jp = J
         if jac and lay.has_rpoint:
             f.jc = J
-            f.cols = lay.rpoint[p]  # type: ignore[index]
+            f.cols = lay.rpoint_cols[p]
         return [f]
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:

@@ -80,8 +80,8 @@ class Distance(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         lay, b = model.layout, model.block
-        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
-        return (rp >= 0).any(axis=1)[b.distance_point].any(axis=1)  # type: ignore[index, return-value]
+        on: NDArray[np.bool_] = (lay.rpoint_cols >= 0).any(axis=1)[b.distance_point].any(axis=1)  # type: ignore[assignment, index]
+        return on
 
     def label(self, block: "Block", i: int) -> str:
         a, b = block.distance_point[i]

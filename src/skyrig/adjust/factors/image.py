@@ -190,7 +190,7 @@ class Image(ObservationType):
         W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         red_cols = red_rows = red_idx = None
         if lay.has_rpoint:
-            rp = lay.rpoint[b.obs_point]  # type: ignore[index]
+            rp = lay.rpoint_cols[b.obs_point]
             rows = np.flatnonzero(rp[:, 0] >= 0)
             rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
             img = b.obs_image[rows]
@@ -308,7 +308,7 @@ class Image(ObservationType):
             r = (pred - b.obs_pixel) / sig
         else:
             r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
-        bad: NDArray[np.bool_] = ~np.isfinite(r).all(axis=1)  # type: ignore[assignment]
+        bad = np.asarray(~np.isfinite(r).all(axis=1), dtype=bool)
         if bad.any():
             r[bad] = 0.0  # behind the camera: reported by the solver
         f = Factor(self.name, r, sig, weight=w, whiten=Wm)
