@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 import logging
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,11 @@ from skyrig.trajectory import CameraEvents, Trajectory
 __all__ = ["block_from_trajectory"]
 
 logger = logging.getLogger(__name__)
+
+
+#: fields of the base block that the new stations and heads make wrong: None = filled again by Block.__post_init__
+_REFILLED: dict[str, Any] = dict(head_boresight=None, strip_shift=None, strip_drift=None, strip_t0=None,
+                                 actuator_correction=None)
 
 
 def block_from_trajectory(
@@ -142,7 +147,7 @@ def block_from_trajectory(
         lever_arm=np.asarray(rig.antenna_lever_arm_m, dtype=np.float64).copy(),
         head_actuated=[rig.head(h) if a else None for h, a in zip(heads, actuated)],
         image_beta_rad=np.where(actuated[image_head], beta, np.nan),
-        **kw,
+        **kw, **_REFILLED,
     )
     block = _drop_points(block, _single_station(block) | _gross_at_start(block, max_start_residual_px))
     return block, frame
