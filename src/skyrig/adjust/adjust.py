@@ -778,11 +778,11 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     warnings: list[str] = []
     if red <= 0:
         warnings.append(f"no redundancy ({n_obs} observations for {n_unk} unknowns): sigma0 is undefined")
-    if cfg.statistics.compute and lay.n_c <= cfg.statistics.max_parameters:
+    if N is not None and lay.n_c <= cfg.statistics.max_parameters:  # (N: statistics.compute)
         try:
-            cov = covariance(N, lay, state, free)  # type: ignore[arg-type]
+            cov = covariance(N, lay, state, free)
             if free and cfg.unknowns.inner_constraints == "points":
-                cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))  # type: ignore[arg-type]
+                cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))
         except (SingularError, ValueError) as e:
             warnings.append(f"covariance not available: {e}")
         if cov is not None:
@@ -799,9 +799,9 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
         if selected is None and free:
             warnings.append("covariance of the chosen unknowns skipped: a free network above the dense size "
                             "limit needs the pseudo-inverse (use a datum by observations)")
-        elif selected is None:
+        elif selected is None and N is not None:
             try:
-                selected = selected_covariance(N, lay, cols, pts)  # type: ignore[arg-type]
+                selected = selected_covariance(N, lay, cols, pts)
                 warnings.append(f"covariance computed for {len(cols)} chosen reduced unknowns and {len(pts)} "
                                 f"chosen points by sparse solves (statistics_images / statistics_points)")
             except SingularError as e:

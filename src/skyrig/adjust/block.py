@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.config import MODES, AdjustConfig, Mode
-from skyrig.adjust.factors import observation_types, require_type
+from skyrig.adjust.factors import image_type, observation_types, require_type
 from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
 
@@ -323,7 +323,7 @@ class Block:
             c = t.controlled_points(self)
             if c is not None:
                 ctrl |= c
-        require_type("image").validate_rays(self, ctrl)  # type: ignore[attr-defined]
+        image_type().validate_rays(self, ctrl)
 
 
 def sequence_index(names: Sequence[str]) -> dict[str, int]:

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import BUILTIN, observation_type, observation_types, parameter_groups, require_type
+from skyrig.adjust.factors import BUILTIN, image_type, observation_type, observation_types, parameter_groups
 from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
@@ -225,6 +225,11 @@ class Layout:
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
         return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels,
                    rpoint, act_cols, grid_cols, groups)
+
+    @property
+    def act_cols(self) -> NDArray[np.int64]:
+        """``(H, 2 + 6 N)`` columns of the actuator corrections (``act``; all -1 when there are none)."""
+        return self.act if self.act is not None else np.full((len(self.bore), 2), -1, np.int64)
 
     @property
     def rpoint_cols(self) -> NDArray[np.int64]:
@@ -439,7 +444,7 @@ class Model:
 
     def _image(self, s: State, jac: bool) -> Factor:
         """The image factor alone (:class:`skyrig.adjust.factors.image.Image`)."""
-        return require_type("image").evaluate_one(self, s, jac)  # type: ignore[attr-defined]
+        return image_type().evaluate_one(self, s, jac)
 
 
 _BUILTIN_NAMES = frozenset(BUILTIN)  # the built-in types (their modules are named after them)

@@ -368,7 +368,7 @@ def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):
             ev = np.linalg.eigvalsh(V)
             bad = np.flatnonzero(~(ev[:, 0] > 1e-12 * np.abs(ev[:, -1]).clip(1e-300)))
             err = SingularError(f"{bad.size} object point(s) not determined by their observations")
-            err.points = bad  # type: ignore[attr-defined]  # free-point indices
+            err.points = bad  # free-point indices
             raise err from None
     else:
         Vinv = np.zeros((0, 3, 3))
@@ -505,7 +505,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
     group = model.block.obs_image
     prepared = engine_at_start if (engine == "numba" and huber_k is None and engine_at_start is not None
                                    and engine_at_start.layout is lay) else None
-    factors = model.evaluate(state) if prepared is None else None
+    factors = model.evaluate(state) if prepared is None else []
     if prepared is not None:
         SchurEngine._check_solver(linear_solver)
         eng: SchurEngine | _ScipyEngine = prepared
@@ -513,14 +513,14 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             prepared._rs = None  # (a reduced solver the datum check set up for other settings)
         prepared.dense_limit, prepared.linear_solver = ENGINE_DENSE_LIMIT, linear_solver
     elif engine == "numba":
-        eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)  # type: ignore[arg-type]
+        eng = SchurEngine(factors, lay, group, dense_limit=ENGINE_DENSE_LIMIT, linear_solver=linear_solver)
     elif engine == "scipy":
         eng = _ScipyEngine(lay, group)
     else:
         raise ConfigError(f"engine must be 'auto', 'numba' or 'scipy', got {engine!r}")
     info.engine = engine
-    cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost  # type: ignore[arg-type]
-    factors = None  # the engine keeps what it needs: the Jacobians go
+    cost = eng.linearize(factors, huber_k) if prepared is None else prepared.cost
+    del factors  # the engine keeps what it needs: the Jacobians go
     info.initial_cost = cost
     radius = initial_radius
     nu = 2.0
@@ -543,7 +543,7 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
                 continue
             new = lay.apply(state, dc, dp)
             # the Jacobians at the candidate are needed anyway when it is accepted (most steps)
-            new_factors = None  # a rejected candidate's Jacobians go before the next are computed
+            new_factors = []  # a rejected candidate's Jacobians go before the next are computed
             new_factors = model.evaluate(new, jacobians=True)
             new_cost = factor_cost(new_factors, huber_k)
             rho = (cost - new_cost) / pred if pred > 0 else -1.0
@@ -582,8 +582,8 @@ def _levenberg_marquardt(model: Model, state: State, max_iterations: int, functi
             break
         if not accepted:
             break
-        cost = eng.linearize(new_factors, huber_k)  # type: ignore[arg-type]
-        new_factors = None
+        cost = eng.linearize(new_factors, huber_k)
+        new_factors = []
     else:
         info.message = "maximum number of iterations reached"
     info.final_cost = cost

@@ -467,7 +467,7 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     pi = layout.point[points]
     rhs = np.zeros((n_c, m + 3 * k))
     rhs[columns, np.arange(m)] = 1.0
-    Wk = None
+    Wk = np.zeros((0, 0))  # (no chosen point)
     if k:
         cols3 = (3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)
         # the (n_c, 3 k) columns of W = P^T Wb of the chosen points (sliced before the product)
@@ -480,7 +480,7 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     Qcp = np.zeros((m, k, 3))
     if k:
         Y = X[:, m:].reshape(n_c, k, 3)
-        Wp = Wk.reshape(n_c, k, 3)  # type: ignore[union-attr]
+        Wp = Wk.reshape(n_c, k, 3)
         WtY = np.einsum("nka,nkb->kab", Wp, Y)
         Vi = Vinv[pi]
         Qpp = Vi + Vi @ WtY @ Vi

@@ -52,12 +52,16 @@ Examples outside the package: ``tests/test_adjust_factor_registry.py`` (a levell
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 from skyrig.adjust.factors.base import (BlockError, Factor, ObservationType, ParameterGroup, any_on,
                                         whitening_matrices)
 
 __all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "register", "unregister", "observation_types",
-           "observation_type", "require_type", "register_group", "unregister_group", "parameter_groups", "any_on", "whitening_matrices"]
+           "observation_type", "require_type", "image_type", "register_group", "unregister_group", "parameter_groups", "any_on", "whitening_matrices"]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.factors.image import Image
 
 _REGISTRY: dict[str, ObservationType] = {}
 _GROUPS: dict[str, ParameterGroup] = {}
@@ -138,6 +142,13 @@ def require_type(group: str) -> ObservationType:
     if t is None:
         raise BlockError(f"no observation type owns the group {group!r} (registered: {sorted(_REGISTRY)})")
     return t
+
+
+def image_type() -> "Image":
+    """The built-in image observation type (its own methods: rays per point, the image factor alone)."""
+    from skyrig.adjust.factors.image import IMAGE
+
+    return IMAGE  # type: ignore[return-value]
 
 
 def observation_type(group: str) -> ObservationType | None:

@@ -186,7 +186,7 @@ class Factor:
     def unwhitened(self) -> NDArray[np.float64]:
         """``(n, d)`` residuals in observation units (computed minus observed)."""
         if self.whiten is not None:
-            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]  # type: ignore[return-value]
+            return np.asarray(np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0], dtype=np.float64)
         return self.r * self.sigma
 
     def __len__(self) -> int:
@@ -196,7 +196,7 @@ class Factor:
 def any_on(cols: NDArray[np.int64]) -> NDArray[np.bool_]:
     """``(n,)`` True for the rows of a column table ``(n, ...)`` with at least one estimated column (>= 0)."""
     c = np.asarray(cols)
-    return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)  # type: ignore[return-value]
+    return np.asarray((c >= 0).reshape(len(c), -1).any(axis=1), dtype=bool) if c.size else np.zeros(len(c), bool)
 
 
 class ObservationType:

@@ -80,8 +80,8 @@ class Distance(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         lay, b = model.layout, model.block
-        on: NDArray[np.bool_] = (lay.rpoint_cols >= 0).any(axis=1)[b.distance_point].any(axis=1)  # type: ignore[assignment, index]
-        return on
+        rp_on = np.asarray((lay.rpoint_cols >= 0).any(axis=1), dtype=bool)
+        return np.asarray(rp_on[b.distance_point].any(axis=1), dtype=bool)
 
     def label(self, block: "Block", i: int) -> str:
         a, b = block.distance_point[i]

@@ -242,7 +242,7 @@ class Image(ObservationType):
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         b, lay = model.block, model.layout
         img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]
-               | (model._icols >= 0).any(axis=1)[b.image_camera])  # type: ignore[index]
+               | np.asarray((model._icols >= 0).any(axis=1), dtype=bool)[b.image_camera])
         if lay.act is not None:
             img |= any_on(lay.act)[b.image_head]
         out = img[b.obs_image] | model.estimated_points()[b.obs_point]
@@ -417,15 +417,16 @@ class Image(ObservationType):
                     cols = np.full((n, model._act_width), -1, np.int64)
                     ia = model._img2act[oi]
                     rows = np.flatnonzero(ia >= 0)
-                    cols[rows] = model.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
+                    cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
                     colblocks.append(cols)
                 if red:
                     colblocks.append(ic.red_cols)
-                if grid_cols_on:
+                lgrid = lay.grid
+                if grid_cols_on and lgrid is not None:
                     gi = ic.grid_idx
                     has = gi >= 0
-                    gc = np.where(has, lay.grid[np.maximum(gi, 0)], -1)  # type: ignore[index]
-                    gcy = np.where(has, lay.grid[np.maximum(gi, 0) + 1], -1)  # type: ignore[index]
+                    gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
+                    gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
                     colblocks.append(np.concatenate([gc, gcy], axis=1))
                 ic.frame_cols = np.concatenate(colblocks, axis=1)
             f.cols = ic.frame_cols
