@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust.block import BalCamera, Block
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import SERIAL_BELOW, factor_cost, levenberg_marquardt
@@ -96,7 +97,7 @@ def generate(path: Path, n_cam: int, n_pts: int, obs_per_point: int = 5, seed: i
 
 def bal_cost(block: Block) -> float:
     """The BAL cost ``0.5 * sum(r^2)`` of a block, all observations, skyrig's model."""
-    m = Model(block, AdjustConfig(intrinsics="free", datum="none"))
+    m = Model(block, AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none")))
     return factor_cost(m.evaluate(State.from_block(block), jacobians=False))
 
 
@@ -229,7 +230,8 @@ def run_skyrig(block: Block, engine: str = "auto") -> dict:
     """skyrig's Levenberg-Marquardt (:func:`skyrig.adjust.solver.levenberg_marquardt`) on a BAL block."""
     import numba
 
-    cfg = AdjustConfig(intrinsics="free", datum="none", statistics=False)
+    cfg = AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none"),
+                       statistics=StatisticsOptions(compute=False))
     c0 = bal_cost(block)
     t1 = time.perf_counter()
     model = Model(block, cfg)
@@ -268,7 +270,7 @@ def child(solver: str, path: str, keep_behind: bool, threads: int, engine: str) 
         with tempfile.TemporaryDirectory() as d:
             generate(Path(d) / "warm.txt", 16, 800)
             small = read_bal(str(Path(d) / "warm.txt"))
-        levenberg_marquardt(Model(small, AdjustConfig(intrinsics="free", datum="none")), State.from_block(small), 1,
+        levenberg_marquardt(Model(small, AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none"))), State.from_block(small), 1,
                             engine=engine)
         del small
     else:

@@ -36,6 +36,7 @@ from test_adjust_ign import (  # noqa: E402
 )
 
 from skyrig.adjust import AdjustConfig, adjust  # noqa: E402
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.corrections import fit_image_grid, remove_image_grid, remove_refraction  # noqa: E402
 from skyrig.adjust.vce import estimate_variance_components  # noqa: E402
 from skyrig.camera.brown import BrownDistortion  # noqa: E402
@@ -221,7 +222,7 @@ def main() -> None:
     block.station_centre = block.gnss_xyz.copy()
     block.station_rotation = block.imu_rotation.copy()
     report("H2  poses fixed at IGN's in the adjustment frame (compare with H5's intersection)", conv, world, frame,
-           adjust(block, AdjustConfig(poses="fixed")), block)
+           adjust(block, AdjustConfig(unknowns=Unknowns(poses="fixed"))), block)
 
     conv, eo, world, block, frame, _ = ign_block(DATA, 0.183, (0.043, 0.043, 0.0083), 0.0013, 0.032, pivot=False)
     report("H3a independent centre / attitude prior (its VCE weights: 4.3 cm h, 0.83 cm v, 0.0013 deg)", conv, world,
@@ -243,7 +244,8 @@ def main() -> None:
 
     conv, eo, world, block, frame, _ = ign_block(DATA)
     block.cameras = [c.with_(distortion=BrownDistortion()) for c in block.cameras]
-    res = adjust(block, AdjustConfig(intrinsics="free", intrinsic_names=("k1", "k2", "k3", "p1", "p2", "b1", "b2")))
+    res = adjust(block, AdjustConfig(unknowns=Unknowns(intrinsics="free",
+                                                       intrinsic_names=("k1", "k2", "k3", "p1", "p2", "b1", "b2"))))
     sr = res.sigma_reduced()
     cam = res.block.cameras[0]
     vals = dict(zip(cam.intrinsic_names, cam.intrinsics))

@@ -29,6 +29,7 @@ def main() -> None:
     from bal import generate, load
 
     from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.config import Unknowns
     from skyrig.adjust.linalg import ReducedSolver
     from skyrig.adjust.model import Model, State
     from skyrig.adjust.solver import SchurEngine
@@ -41,7 +42,7 @@ def main() -> None:
         p = Path(d) / "gen.txt"
         generate(p, a.cameras, 200 * a.cameras)
         block, _, _ = load(str(p), False)
-    model = Model(block, AdjustConfig(intrinsics="free", datum="none"))
+    model = Model(block, AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none")))
     f = model.evaluate(State.from_block(block))
     eng = SchurEngine(f, model.layout, block.obs_image)
     eng.linearize(f)

@@ -82,6 +82,7 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
         max_gib: float | None = None, linear_solver: str = "auto") -> dict:
     """Generate and adjust one block; a dict of figures."""
     from skyrig.adjust import AdjustConfig, adjust
+    from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
     from skyrig.adjust.synthetic import synthetic_block
     from skyrig.rig.presets import midas
 
@@ -96,7 +97,7 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
     tw = time.perf_counter()
     small, _ = synthetic_block(seed=seed, n_strips=2, n_per_strip=3, n_points=60, rig=midas(), height_m=500.0,
                                n_control=9)
-    adjust(small, AdjustConfig(statistics=False, max_iterations=2))
+    adjust(small, AdjustConfig(statistics=StatisticsOptions(compute=False), solver=SolverOptions(max_iterations=2)))
     t_warm = time.perf_counter() - tw
     n_strips, n_per_strip = block_shape(n_exposures)
     t0 = time.perf_counter()
@@ -109,7 +110,9 @@ def one(n_exposures: int, points_per_exposure: int, seed: int, boresight: str = 
     # the guard: --max-gib, or less when the machine has less available now (others' jobs)
     limit = None if max_gib is None else min(max_gib * 2**30, _rss() + 0.92 * _mem_available())
     with _PeakRss(limit=limit) as mem:
-        res = adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=boresight))
+        res = adjust(block, AdjustConfig(statistics=StatisticsOptions(compute=False),
+                                         solver=SolverOptions(max_iterations=50),
+                                         unknowns=Unknowns(boresight=boresight)))
     t_adj = time.perf_counter() - t1
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)

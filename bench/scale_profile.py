@@ -60,12 +60,14 @@ def main() -> None:
     import skyrig.adjust.model as M
     import skyrig.adjust.solver as S
     from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
     from skyrig.adjust.synthetic import synthetic_block
     from skyrig.rig.presets import midas
 
     small, _ = synthetic_block(seed=a.seed, n_strips=2, n_per_strip=3, n_points=60, rig=midas(), height_m=500.0,
                                n_control=9)
-    A.adjust(small, AdjustConfig(statistics=False, max_iterations=2))
+    A.adjust(small, AdjustConfig(statistics=StatisticsOptions(compute=False),
+                                 solver=SolverOptions(max_iterations=2)))
 
     smp = _Sampler()
     stats: dict[str, list[float]] = defaultdict(lambda: [0, 0.0, 0.0, 0.0, 0.0])  # calls, s, entry, rise, cpu s
@@ -136,7 +138,9 @@ def main() -> None:
     c1 = time.process_time()
     fr = [float(base[0]), float(base[0])]
     smp.active.append(fr)
-    res = A.adjust(block, AdjustConfig(statistics=False, max_iterations=50, boresight=a.boresight))
+    res = A.adjust(block, AdjustConfig(statistics=StatisticsOptions(compute=False),
+                                       solver=SolverOptions(max_iterations=50),
+                                       unknowns=Unknowns(boresight=a.boresight)))
     smp.active = [x for x in smp.active if x is not fr]
     t_adj = time.perf_counter() - t1
     nobs = block.n_observations

@@ -1,5 +1,5 @@
 """Data snooping on a seeded penta-rig block with injected blunders: one rejection per round (Baarda) next to
-several non-adjacent ones per round (``AdjustConfig.snooping_per_round``), in the same run.
+several non-adjacent ones per round (``AdjustConfig.reliability.per_round``), in the same run.
 
 Prints per setting the rounds, the seconds, the blunders found / missed / good observations rejected (against
 the injected truth), sigma0, and how far the two solutions are apart in units of their sigma.
@@ -27,6 +27,7 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
 
     from skyrig.adjust import AdjustConfig, adjust
+    from skyrig.adjust.config import ReliabilityOptions, Unknowns
     from skyrig.rig.presets import midas
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -50,7 +51,9 @@ def main(argv: list[str] | None = None) -> None:
     for k in a.per_round:
         stages: list[str] = []
         t = time.perf_counter()
-        r = adjust(block, AdjustConfig(boresight="free", snooping=True, snooping_per_round=k, max_rejections=10 * bad.size),
+        r = adjust(block, AdjustConfig(unknowns=Unknowns(boresight="free"),
+                                       reliability=ReliabilityOptions(snooping=True, per_round=k,
+                                                                      max_rejections=10 * bad.size)),
                    callback=lambda s, i, c: stages.append(s))
         dt = time.perf_counter() - t
         got = {x.index for x in r.rejected if x.group == "image"}

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, BlockError, DatumDefectError, adjust
+from skyrig.adjust.config import ReliabilityOptions, SolverOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.synthetic import synthetic_block
 
 
@@ -84,7 +85,7 @@ def test_data_snooping_finds_injected_blunders_without_false_rejections(block_tr
     cand = cand[np.unique(b.obs_point[cand], return_index=True)[1]]  # one blunder per point
     bad = rng.choice(cand, 5, replace=False)
     b.obs_pixel[bad] += rng.choice([-1, 1], (5, 2)) * rng.uniform(6, 10, (5, 2))  # 12-20 sigma
-    res = adjust(b, AdjustConfig(snooping=True))
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     found = sorted(r.index for r in res.rejected)
     assert found == sorted(bad.tolist())
     assert all(r.group == "image" for r in res.rejected)
@@ -96,8 +97,9 @@ def test_robust_huber_downweights_blunders(block_truth):
     rng = np.random.default_rng(12)
     bad = rng.choice(b.n_observations, 10, replace=False)
     b.obs_pixel[bad] += 40.0
-    plain = adjust(b, AdjustConfig(statistics=False))
-    robust = adjust(b, AdjustConfig(robust="huber", statistics=False))
+    plain = adjust(b, AdjustConfig(statistics=StatisticsOptions(compute=False)))
+    robust = adjust(b, AdjustConfig(solver=SolverOptions(robust="huber"),
+                                    statistics=StatisticsOptions(compute=False)))
     err = lambda r: np.sqrt(np.mean((r.block.point_xyz - truth.point_xyz) ** 2))  # noqa: E731
     assert err(robust) < 0.5 * err(plain)
     assert np.all(robust.residuals["image"].weight[bad] < 0.2)
@@ -115,7 +117,7 @@ def test_free_network_without_datum_is_reported_in_words(block_truth):
     for word in ("translation along X", "rotation about Z", "scale"):
         assert word in msg
     # inner constraints: converges, same residuals as any datum (sigma0 ~ 1), redundancy + 7
-    res = adjust(free, AdjustConfig(datum="free"))
+    res = adjust(free, AdjustConfig(unknowns=Unknowns(datum="free")))
     assert res.redundancy == res.n_observations - res.n_unknowns + 7
     assert abs(res.sigma0 - 1.0) < 4.0 / np.sqrt(2 * res.redundancy)
 
@@ -127,14 +129,14 @@ def test_lever_arm_boresight_and_datum_shift_recovered():
     b, truth = synthetic_block(seed=5, n_strips=3, n_per_strip=7, n_points=400, lever_arm=lever,
                                head_boresight=bore, datum_shift=shift, n_control=6, imu_sigma_rad=5e-5,
                                gnss_sigma_m=0.03)
-    cfg = AdjustConfig(lever_arm="free", boresight="free", datum_shift="free")
+    cfg = AdjustConfig(unknowns=Unknowns(lever_arm="free", boresight="free", datum_shift="free"))
     # lever arm z (body down) and the shift's Z act almost identically for near-level flight: the
     # adjustment must say so in words instead of returning them as if they were determined
     res = adjust(b, cfg)
     assert any("lever_arm antenna z" in w and "datum_shift gnss Z" in w for w in res.warnings), res.warnings
     b2, _ = synthetic_block(seed=5, n_strips=3, n_per_strip=7, n_points=400, lever_arm=lever,
                             head_boresight=bore, n_control=6, imu_sigma_rad=5e-5, gnss_sigma_m=0.03)
-    res2 = adjust(b2, AdjustConfig(lever_arm="free", boresight="free"))
+    res2 = adjust(b2, AdjustConfig(unknowns=Unknowns(lever_arm="free", boresight="free")))
     sig2 = res2.sigma_reduced()
     sl = np.array([sig2[("lever_arm", "antenna", c)] for c in "xyz"])
     sb = np.array([sig2[("boresight", "nadir", c)] for c in ("rx", "ry", "rz")])
@@ -150,7 +152,7 @@ def test_self_calibration_of_focal_and_principal_point():
     true = given.with_(focal_mm=given.focal_mm * 1.004, ppx_mm=given.ppx_mm + 0.02, ppy_mm=given.ppy_mm - 0.015)
     b, truth = synthetic_block(seed=6, n_strips=3, n_per_strip=7, n_points=500, camera=given, true_camera=true,
                                relief_m=80.0, n_control=6)
-    cfg = AdjustConfig(intrinsics="free", intrinsic_names=("focal_mm", "ppx_mm", "ppy_mm"))
+    cfg = AdjustConfig(unknowns=Unknowns(intrinsics="free", intrinsic_names=("focal_mm", "ppx_mm", "ppy_mm")))
     res = adjust(b, cfg)
     sig = res.sigma_reduced()
     est = res.block.cameras[0]

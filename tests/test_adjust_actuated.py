@@ -15,6 +15,7 @@ import pytest
 from scipy.stats import chi2
 
 from skyrig.adjust import AdjustConfig, DatumDefectError, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.synthetic import synthetic_block
 from skyrig.geometry.rotations import rotvec_from_matrix
@@ -50,7 +51,7 @@ def test_actuator_offset_scale_and_boresight_recovered_within_predicted_sigma():
     b, _ = _block(_beta(), beta_offset_rad=b0, beta_scale=s0, head_boresight=bore)
     h = list(b.head_name).index(HEAD)
     assert b.head_actuated[h] is not None and np.isfinite(b.image_beta_rad[b.image_head == h]).all()
-    res = adjust(b, AdjustConfig(actuator="free", boresight="free"))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(actuator="free", boresight="free")))
     assert res.info.converged
     lay = res.layout
     cols = np.r_[lay.act[h, :2], lay.bore[h]]
@@ -83,7 +84,7 @@ def test_fourier_boresight_curve_recovered_within_predicted_sigma():
     true_rig = Rig(given.name, {**heads, HEAD: true_head}, given.antenna_lever_arm_m)
     b, _ = _block(_beta(2), rig=given, true_rig=true_rig)
     h = list(b.head_name).index(HEAD)
-    res = adjust(b, AdjustConfig(actuator_curve="free", actuator_fourier_order=2))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(actuator_curve="free", actuator_fourier_order=2)))
     assert res.info.converged
     cols = res.layout.act[h, 2:]
     assert np.all(cols >= 0)
@@ -97,22 +98,23 @@ def test_fourier_boresight_curve_recovered_within_predicted_sigma():
 def test_constant_beta_is_reported_as_degenerate():
     b, _ = _block(np.full(S, np.radians(30.0)))
     with pytest.raises(DatumDefectError, match="constant") as e:
-        adjust(b, AdjustConfig(actuator="free", boresight="free"))
+        adjust(b, AdjustConfig(unknowns=Unknowns(actuator="free", boresight="free")))
     assert HEAD in str(e.value)
-    adjust(b, AdjustConfig(boresight="free"))  # with the actuator group fixed the block is fine
+    adjust(b, AdjustConfig(unknowns=Unknowns(boresight="free")))  # with the actuator group fixed the block is fine
 
 
 def test_offset_and_first_fourier_order_cannot_both_be_free():
     b, _ = _block(_beta())
     with pytest.raises(DatumDefectError, match="actuator"):
-        adjust(b, AdjustConfig(actuator="free", actuator_curve="free", actuator_fourier_order=1))
+        adjust(b, AdjustConfig(unknowns=Unknowns(actuator="free", actuator_curve="free", actuator_fourier_order=1)))
 
 
 def test_mounting_jacobian_matches_finite_differences():
     b, _ = _block(_beta())
     b.actuator_correction = np.zeros((2, 8))
     b.actuator_correction[1] = [0.01, 1e-3, 2e-4, -1e-4, 3e-4, 1e-4, 2e-4, -2e-4]
-    model = Model(b, AdjustConfig(actuator="free", actuator_curve="free", actuator_fourier_order=1))
+    model = Model(b, AdjustConfig(unknowns=Unknowns(actuator="free", actuator_curve="free",
+                                                    actuator_fourier_order=1)))
     s = State.from_block(b)
     M, D = model.actuated_mounts(s, jacobian=True)
     h = 1e-7

@@ -12,6 +12,7 @@ import pytest
 from scipy.stats import chi2
 
 from skyrig.adjust import AdjustConfig, BlockError, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import whitening_matrices
 from skyrig.adjust.synthetic import synthetic_block
 from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
@@ -59,7 +60,7 @@ def test_image_covariance_gives_independent_normalised_point_errors():
     ignored.obs_sigma_px = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
     out = {}
     for name, blk in (("used", used), ("ignored", ignored)):
-        res = adjust(blk, AdjustConfig(poses="fixed"))
+        res = adjust(blk, AdjustConfig(unknowns=Unknowns(poses="fixed")))
         e = res.block.point_xyz - tr.point_xyz
         z = np.linalg.solve(np.linalg.cholesky(res.point_covariance()), e[:, :, None])[:, :, 0]
         out[name] = (res, z.T @ z / len(z), len(z))

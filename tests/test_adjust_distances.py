@@ -12,6 +12,7 @@ import pytest
 from scipy.stats import chi2
 
 from skyrig.adjust import AdjustConfig, DatumDefectError, adjust
+from skyrig.adjust.config import ReliabilityOptions, Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.report import adjustment_report
 from skyrig.adjust.synthetic import synthetic_block
@@ -104,7 +105,7 @@ def test_free_network_scale_from_distances(scene):
     free = b.copy()
     free.gnss_station = free.imu_station = None
     free.__post_init__()
-    res = adjust(free, AdjustConfig(datum="free"))
+    res = adjust(free, AdjustConfig(unknowns=Unknowns(datum="free")))
     scale, sd = _scale_and_sigma(res, tr)
     assert abs(scale - 1.0) < 3.3 * sd, (scale, sd)
     n_unk = res.layout.n_c + 3 * res.layout.n_p
@@ -115,7 +116,7 @@ def test_blunder_in_one_distance_is_found_by_data_snooping(scene):
     _, b, _ = scene
     bad = b.copy()
     bad.distance_m[2] += 10 * SIGMA_BAR_M
-    res = adjust(bad, AdjustConfig(snooping=True))
+    res = adjust(bad, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     assert res.rejected, "the blunder was not found"
     first = res.rejected[0]
     assert (first.group, first.index) == ("distance", 2)

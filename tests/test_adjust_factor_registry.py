@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import ReliabilityOptions
 from skyrig.adjust.block import BlockError
-from skyrig.adjust.config import PARTS, ParameterModes, ReliabilityOptions, SolverOptions, StatisticsOptions
 from skyrig.adjust.factors import observation_type, observation_types, register, unregister
 from skyrig.adjust.factors.base import Factor, ObservationType, check_index, check_positive
 from skyrig.adjust.synthetic import synthetic_block
@@ -133,7 +133,7 @@ def test_data_snooping_finds_a_blunder_in_the_new_type(height_type):
     # heights as precise as the photogrammetric Z (about 0.1 m here), so that the images check them
     b, _, pts, z = _block_with_heights(seed=5, sigma=0.1, blunder=7)
     bh = dataclasses.replace(b, observations={"height": HeightData(pts, z, 0.1)})
-    r = adjust(bh, AdjustConfig(snooping=True))
+    r = adjust(bh, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     assert [x.group for x in r.rejected] == ["height"]
     assert r.rejected[0].index == 7
     assert r.rejected[0].label == f"levelled height of point {b.point_name[pts[7]]}"
@@ -146,23 +146,6 @@ def test_unknown_or_bad_groups_are_named(height_type):
     bad = dataclasses.replace(b, observations={"height": HeightData(pts, z, -1.0)})
     with pytest.raises(BlockError, match=r"observations\['height'\].sigma\[0\] must be > 0"):
         bad.validate()
-
-
-def test_config_is_the_union_of_its_parts():
-    flat = {f.name: f.default for f in dataclasses.fields(AdjustConfig)}
-    seen: dict = {}
-    for cls in PARTS.values():
-        for f in dataclasses.fields(cls):
-            assert f.name not in seen, f"{f.name} in two parts"
-            seen[f.name] = f.default
-    assert seen == flat
-    cfg = AdjustConfig.compose(ParameterModes(boresight="free"), SolverOptions(max_iterations=7),
-                               ReliabilityOptions(snooping=True), StatisticsOptions(statistics=False))
-    assert cfg == AdjustConfig(boresight="free", max_iterations=7, snooping=True, statistics=False)
-    assert cfg.parameter_modes.boresight == "free" and cfg.solver_options.max_iterations == 7
-    assert cfg.reliability_options.snooping and not cfg.statistics_options.statistics
-    with pytest.raises(ValueError, match="snooping_max_group_share"):
-        AdjustConfig(snooping_max_group_share=0.0)
 
 
 def test_a_row_coupling_cameras_and_an_eliminated_point_is_refused(height_type):

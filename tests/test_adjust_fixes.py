@@ -15,6 +15,7 @@ from click.testing import CliRunner
 from scipy.stats import chi2
 
 from skyrig.adjust import AdjustConfig, Block, BlockError, adjust
+from skyrig.adjust.config import ReliabilityOptions, SolverOptions, Unknowns
 from skyrig.adjust.presets import apply_preset, merge_preset
 from skyrig.adjust.synthetic import synthetic_block
 from skyrig.camera.frame import FrameCamera
@@ -39,40 +40,45 @@ def test_block_free_datum_shift_and_preset_keeps_the_freed_groups(tmp_path):
                           "datum-shift,lever-arm", "-o", str(blk)])
     assert r.exit_code == 0, r.output  # was: TypeError, AdjustConfig() got multiple values for 'datum_shift'
     bf = read_block(blk)
-    assert bf.config.datum_shift == "free" and bf.config.lever_arm == "free"
-    assert {"datum_shift", "lever_arm"} <= bf.adjustment_keys
+    assert bf.config.unknowns.datum_shift == "free" and bf.config.unknowns.lever_arm == "free"
+    assert {"unknowns.datum_shift", "unknowns.lever_arm"} <= bf.adjustment_keys
     # a preset merges with the section: the lever arm stays free (it used to be wiped to "fixed")
     r = run.invoke(main, ["adjust", str(blk), "--preset", "dg-control", "-o", str(tmp_path / "dg")])
     assert r.exit_code == 0, r.output
     used = read_block(tmp_path / "dg" / "adjusted.json").config
-    assert used.lever_arm == "free" and used.poses == "fixed" and used.datum_shift == "free"
+    assert used.unknowns.lever_arm == "free" and used.unknowns.poses == "fixed" and used.unknowns.datum_shift == "free"
     # an explicit conflict is stated in words (stderr and the report), naming the field and both values
     r = run.invoke(main, ["adjust", str(blk), "--preset", "refine-eo-check", "-o", str(tmp_path / "ref")])
     assert r.exit_code == 0, r.output
     text = r.output  # stdout and stderr as a terminal shows them
-    assert "preset 'refine-eo-check' sets datum_shift = 'fixed'" in text and "says 'free'" in text
+    assert "preset 'refine-eo-check' sets unknowns.datum_shift = 'fixed'" in text and "says 'free'" in text
     used = read_block(tmp_path / "ref" / "adjusted.json").config
-    assert used.lever_arm == "free" and used.datum_shift == "fixed"
+    assert used.unknowns.lever_arm == "free" and used.unknowns.datum_shift == "fixed"
     rep = json.loads((tmp_path / "ref" / "report.json").read_text())
     assert any("datum_shift" in w for w in rep["warnings"])
 
 
 def test_merge_preset_rules():
-    base = AdjustConfig(boresight="free", lever_arm="weighted", snooping=False, datum_shift="free")
-    cfg, conflicts = merge_preset("ba-eo-control", base, {"boresight", "lever_arm", "snooping", "datum_shift"})
+    base = AdjustConfig(unknowns=Unknowns(boresight="free", lever_arm="weighted", datum_shift="free"),
+                        reliability=ReliabilityOptions(snooping=False))
+    cfg, conflicts = merge_preset("ba-eo-control", base, {"unknowns.boresight", "unknowns.lever_arm",
+                                                          "reliability.snooping", "unknowns.datum_shift"})
     # the block's groups and its explicit snooping survive; the variant's fields are the preset's
-    assert (cfg.boresight, cfg.lever_arm, cfg.snooping, cfg.poses, cfg.datum_shift) == (
+    u = cfg.unknowns
+    assert (u.boresight, u.lever_arm, cfg.reliability.snooping, u.poses, u.datum_shift) == (
         "free", "weighted", False, "free", "free")
     assert conflicts == []
     cfg, conflicts = merge_preset("ba-eo-control", AdjustConfig())  # nothing explicit: the preset's defaults
-    assert cfg.snooping and cfg.datum_shift == "free"
+    assert cfg.reliability.snooping and cfg.unknowns.datum_shift == "free"
     cfg, _ = merge_preset("ba-eo-control", AdjustConfig(), has_gnss=False)
-    assert cfg.datum_shift == "fixed"
-    cfg, conflicts = merge_preset("dg-control", AdjustConfig(poses="weighted"), {"poses"})
-    assert cfg.poses == "fixed" and len(conflicts) == 1 and "poses" in conflicts[0] and "'weighted'" in conflicts[0]
+    assert cfg.unknowns.datum_shift == "fixed"
+    cfg, conflicts = merge_preset("dg-control", AdjustConfig(unknowns=Unknowns(poses="weighted")), {"unknowns.poses"})
+    assert cfg.unknowns.poses == "fixed" and len(conflicts) == 1
+    assert "unknowns.poses" in conflicts[0] and "'weighted'" in conflicts[0]
     b, _ = synthetic_block(seed=1, n_points=60)
-    _, cfg = apply_preset(b, "refine-eo-check", AdjustConfig(intrinsics="free"), {"intrinsics"})
-    assert cfg.intrinsics == "free" and cfg.datum_shift == "fixed"
+    _, cfg = apply_preset(b, "refine-eo-check", AdjustConfig(unknowns=Unknowns(intrinsics="free")),
+                          {"unknowns.intrinsics"})
+    assert cfg.unknowns.intrinsics == "free" and cfg.unknowns.datum_shift == "fixed"
 
 
 # ------------------------------------------------------------------ 3: snooping that hides a model error
@@ -85,7 +91,8 @@ def boresight_block():  # type: ignore[no-untyped-def]
 
 def test_snooping_reports_an_unmodelled_boresight_as_a_model_error(boresight_block):
     b, tr = boresight_block
-    res = adjust(b, AdjustConfig(snooping=True, datum_shift="free"))
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True),
+                                 unknowns=Unknowns(datum_shift="free")))
     assert not res.ok
     msg = " ".join(res.failures)
     n_imu = sum(r.group == "imu" for r in res.rejected)
@@ -93,7 +100,8 @@ def test_snooping_reports_an_unmodelled_boresight_as_a_model_error(boresight_blo
     assert "model is probably wrong" in msg and "boresight" in msg and "--free boresight" in msg
     assert len(res.rejected) < 10  # stopped early instead of running to the cap
     # the same block with the boresight free: no rejection, the truth within 3 sigma, a clean result
-    res = adjust(b, AdjustConfig(snooping=True, datum_shift="free", boresight="free"))
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True),
+                                 unknowns=Unknowns(datum_shift="free", boresight="free")))
     assert res.ok and not res.rejected, res.failures
     sig = res.sigma_reduced()
     est = res.block.head_boresight[0]
@@ -103,8 +111,9 @@ def test_snooping_reports_an_unmodelled_boresight_as_a_model_error(boresight_blo
 
 def test_snooping_at_its_cap_is_a_failure(boresight_block):
     b, _ = boresight_block
-    res = adjust(b, AdjustConfig(snooping=True, datum_shift="free", max_rejections=6, snooping_max_share=0.0,
-                                 snooping_max_group_share=1.0))
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True, max_rejections=6, max_share=0.0,
+                                                                max_group_share=1.0),
+                                 unknowns=Unknowns(datum_shift="free")))
     assert len(res.rejected) == 6 and not res.ok
     msg = " ".join(res.failures)
     assert "cap of 6 rejections" in msg and "IMU" in msg and "still above the critical value" in msg
@@ -131,7 +140,7 @@ def test_space_resection_with_fixed_points_has_redundancy_2n_minus_6():
     chi = 0.0
     for seed in seeds:
         b, C = _resection(seed, n)
-        res = adjust(b, AdjustConfig(points="fixed"))
+        res = adjust(b, AdjustConfig(unknowns=Unknowns(points="fixed")))
         assert res.n_unknowns == 6 and res.n_observations == 2 * n  # the control rows are constants here
         assert res.redundancy == 2 * n - 6  # was 5n - 6
         assert res.ok
@@ -146,7 +155,7 @@ def test_space_resection_with_fixed_points_has_redundancy_2n_minus_6():
 
 def test_exactly_determined_resection_fails_for_lack_of_redundancy():
     b, _ = _resection(0, 3)
-    res = adjust(b, AdjustConfig(points="fixed"))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(points="fixed")))
     assert res.redundancy == 0 and not res.ok
     assert any("no redundancy" in f for f in res.failures)
 
@@ -182,7 +191,7 @@ def test_undetermined_point_is_named_without_numpy_reprs():
 # ------------------------------------------------------------------ 7: a failed run exits non-zero
 def test_adjust_cli_exits_non_zero_on_failure_and_keep_failed_writes(tmp_path):
     b, _ = synthetic_block(seed=2, n_points=120)
-    write_block(tmp_path / "nc" / "block.json", b, AdjustConfig(max_iterations=1))
+    write_block(tmp_path / "nc" / "block.json", b, AdjustConfig(solver=SolverOptions(max_iterations=1)))
     run = CliRunner()
     r = run.invoke(main, ["adjust", str(tmp_path / "nc" / "block.json"), "-o", str(tmp_path / "out")])
     assert r.exit_code != 0
@@ -194,7 +203,7 @@ def test_adjust_cli_exits_non_zero_on_failure_and_keep_failed_writes(tmp_path):
     assert any("FAILED" in w and "did not converge" in w for w in rep["warnings"])
     # no redundancy: an exactly determined resection
     rb, _ = _resection(0, 3)
-    write_block(tmp_path / "r3" / "block.json", rb, AdjustConfig(points="fixed"))
+    write_block(tmp_path / "r3" / "block.json", rb, AdjustConfig(unknowns=Unknowns(points="fixed")))
     r = run.invoke(main, ["adjust", str(tmp_path / "r3" / "block.json"), "-o", str(tmp_path / "o3")])
     assert r.exit_code != 0 and "no redundancy" in r.output
     # a good run still exits 0

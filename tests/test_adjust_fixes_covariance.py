@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, Block, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.camera.brown import BrownDistortion
 from skyrig.camera.frame import FrameCamera
@@ -119,7 +120,7 @@ def moore_penrose(S: np.ndarray, defect: int) -> tuple[np.ndarray, np.ndarray]:
 
 def check_block(n_images: int) -> dict[str, float]:
     b = close_range_block(n_images)
-    res = adjust(b, AdjustConfig(datum="free", intrinsics="free"))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(datum="free", intrinsics="free")))
     assert res.ok, res.failures
     Q = res.covariance.Qcc
     S, Ncp, Npp = dense_normal(res)

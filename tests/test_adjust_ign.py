@@ -79,6 +79,7 @@ import pytest
 
 from conftest import shared_path
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust.corrections import fit_image_grid, fit_radial_scale, remove_image_grid, remove_refraction
 from skyrig.adjust.frames import block_from_georef, eo_from_block, points_to_frame
 from skyrig.geodesy.crs import ecef_to_geodetic
@@ -277,7 +278,7 @@ def test_ign_adjustment_frame_matches_map_frame_intersection():
     conv, eo, world, block, frame, _ = ign_block(shared_path("ign-aerial-block"), pivot=False)
     block.station_centre = block.gnss_xyz.copy()
     block.station_rotation = block.imu_rotation.copy()
-    res = adjust(block, AdjustConfig(poses="fixed", statistics=False))
+    res = adjust(block, AdjustConfig(unknowns=Unknowns(poses="fixed"), statistics=StatisticsOptions(compute=False)))
     _, cams, m, _, _ = _load(shared_path("ign-aerial-block"))[1:]
     (cam,) = block.cameras
     k = ign_refraction(eo, {cam.name: cam}, m, world)[0]
@@ -297,7 +298,7 @@ def test_ign_independent_eo_prior_moves_along_the_flat_direction():
     attitude shifts (the footprint stays): the reason for the correlated (pivot) prior."""
     conv, eo, world, block, frame, _ = ign_block(shared_path("ign-aerial-block"), SIGMA_PX, (0.043, 0.043, 0.0083),
                                                  0.0013, 0.032, pivot=False)
-    res = adjust(block, AdjustConfig(statistics=False))
+    res = adjust(block, AdjustConfig(statistics=StatisticsOptions(compute=False)))
     dC = res.block.station_centre - block.gnss_xyz
     dth = rotvec_from_matrix(np.swapaxes(block.imu_rotation, 1, 2) @ res.block.station_rotation)
     dthw = np.einsum("nij,nj->ni", block.imu_rotation, dth)  # world-frame small rotations

@@ -18,6 +18,7 @@ from scipy.stats import chi2
 from _dense_reference import dense_system
 
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.adjust import adjust
 from skyrig.adjust.block import BlockError
 from skyrig.adjust.factors.image_grid import GridSpec, ImageGrids, bilinear_weights
@@ -55,7 +56,7 @@ def _dense(factors, layout):
     return dense_system(factors, layout)
 
 
-CFG = AdjustConfig(intrinsics="free", intrinsic_names=IO, boresight="free", image_grid="weighted")
+CFG = AdjustConfig(unknowns=Unknowns(intrinsics="free", intrinsic_names=IO, boresight="free", image_grid="weighted"))
 
 
 def test_grid_jacobian_equals_finite_differences():
@@ -122,7 +123,7 @@ def test_joint_estimate_separates_grid_and_interior_orientation():
     p = chi2.sf(m2, len(gi))
     assert 0.001 < p < 0.999, (m2, len(gi))
     # the same data without the grid unknowns: the deformation goes into the IO (the test has power)
-    r0 = adjust(b, CFG.with_(image_grid="fixed"))
+    r0 = adjust(b, CFG.with_unknowns(image_grid="fixed"))
     est0 = dict(zip(r0.block.cameras[0].intrinsic_names, r0.block.cameras[0].intrinsics))
     z0 = max(abs(est0[n] - tru[n]) / r0.sigma_reduced()[("intrinsics", "cam", n)] for n in IO)
     assert z0 > 4.0
@@ -131,7 +132,7 @@ def test_joint_estimate_separates_grid_and_interior_orientation():
 def test_fixed_grid_is_applied_as_a_known_correction():
     b, true, g_true = _scenario()
     known = b.observations["image_grid"].with_values(g_true.reshape(-1))
-    r = adjust(replace(b, observations={"image_grid": known}), CFG.with_(image_grid="fixed"))
+    r = adjust(replace(b, observations={"image_grid": known}), CFG.with_unknowns(image_grid="fixed"))
     assert r.ok and 0.8 < r.sigma0 < 1.2
     assert not any(q[0] == "image_grid" for q in r.layout.labels)
 

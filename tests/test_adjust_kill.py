@@ -138,8 +138,9 @@ def test_adjust_publishes_a_manifest_and_a_failed_run_writes_nothing(tmp_path) -
     assert any(i["path"].endswith("block.json") and len(i["sha256"]) == 64 for i in m["inputs"])
     # a failing run (no iterations allowed -> no convergence) leaves the previous folder as it was
     bad = json.loads(blocks[1].read_text())
-    bad.setdefault("adjustment", {})["max_iterations"] = 1
-    bad["adjustment"].update(function_tolerance=1e-300, parameter_tolerance=1e-300, gradient_tolerance=1e-300)
+    bad.setdefault("adjustment", {}).setdefault("solver", {})["max_iterations"] = 1
+    bad["adjustment"]["solver"].update(function_tolerance=1e-300, parameter_tolerance=1e-300,
+                                       gradient_tolerance=1e-300)
     bp = blocks[1].parent / "bad.json"
     bp.write_text(json.dumps(bad))
     r = CliRunner().invoke(main, ["adjust", str(bp), "-o", str(out)])

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.synthetic import synthetic_block
 
 
@@ -22,7 +23,7 @@ def test_datum_shift_between_gnss_and_control_is_named():
     assert len(w) == 1 and w[0].startswith("the control-point observations"), res.warnings
     assert "datum difference between GNSS and control" in w[0] and "--free datum-shift" in w[0]
     # freeing what the warning names removes it and recovers the injected shift within 3 sigma
-    res = adjust(b, AdjustConfig(datum_shift="free"))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(datum_shift="free")))
     assert not any("times worse" in x for x in res.warnings)
     s = np.array([res.sigma_reduced()[("datum_shift", "gnss", c)] for c in "XYZ"])
     assert np.all(np.abs(res.block.datum_shift - tr.datum_shift) < 3 * s)

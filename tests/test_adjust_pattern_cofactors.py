@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import ReliabilityOptions, Unknowns
 from skyrig.adjust.stats import PointPatternM, covariance
 from skyrig.adjust.synthetic import synthetic_block
 
@@ -60,7 +61,8 @@ def test_pattern_cofactors_equal_the_dense_product_with_self_calibration_and_sno
     counts = np.bincount(b.obs_point, minlength=b.n_points)
     rows = np.flatnonzero(counts[b.obs_point] >= 5)[[3, 200]]  # observations of well-observed points
     b.obs_pixel[rows] += [[25.0, 0.0], [0.0, -30.0]]
-    dense, small = _both(b, AdjustConfig(intrinsics="free", snooping=True), monkeypatch)
+    dense, small = _both(b, AdjustConfig(unknowns=Unknowns(intrinsics="free"),
+                                         reliability=ReliabilityOptions(snooping=True)), monkeypatch)
     assert len(dense.rejected) >= 2
     _same_statistics(dense, small)
     # the image group has normalised residuals (not skipped) and the redundancy adds up
@@ -71,5 +73,6 @@ def test_pattern_cofactors_equal_the_dense_product_with_self_calibration_and_sno
 def test_pattern_cofactors_in_a_point_datum(monkeypatch):
     """Free network with inner constraints on the points: the S-transformed cross terms on the pattern."""
     b = close_range_block(24)
-    dense, small = _both(b, AdjustConfig(datum="free", intrinsics="free", inner_constraints="points"), monkeypatch)
+    dense, small = _both(b, AdjustConfig(unknowns=Unknowns(datum="free", intrinsics="free",
+                                                           inner_constraints="points")), monkeypatch)
     _same_statistics(dense, small)

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from test_adjust_fixes_covariance import close_range_block
 
@@ -135,10 +136,12 @@ def runs():  # type: ignore[no-untyped-def]
     """The 24-image block adjusted in three datums: pose inner constraints, all points, 12 chosen points."""
     b = close_range_block(24)
     names = tuple(str(n) for n in b.point_name[::10])
-    cfgs = {"poses": {}, "all": {"inner_constraints": "points", "statistics_points": names[:3] + ("t1",),
-                                 "statistics_images": ("img0",)},
-            "chosen": {"inner_constraints": "points", "datum_points": names}}
-    return b, names, {k: adjust(b, AdjustConfig(datum="free", intrinsics="free", **kw)) for k, kw in cfgs.items()}
+    base = AdjustConfig(unknowns=Unknowns(datum="free", intrinsics="free"))
+    cfgs = {"poses": base,
+            "all": base.with_unknowns(inner_constraints="points").with_statistics(points=names[:3] + ("t1",),
+                                                                                  images=("img0",)),
+            "chosen": base.with_unknowns(inner_constraints="points", datum_points=names)}
+    return b, names, {k: adjust(b, c) for k, c in cfgs.items()}
 
 
 def test_inner_constraints_on_all_points_equal_the_bordered_dense_inverse(runs):  # type: ignore[no-untyped-def]
@@ -250,19 +253,21 @@ def test_covariance_of_chosen_unknowns_is_exported_in_the_point_datum(runs, tmp_
 def test_datum_point_errors_are_named():
     b = close_range_block(8, n_targets=40)
     with pytest.raises(ValueError, match="unknown points"):
-        adjust(b, AdjustConfig(datum="free", inner_constraints="points", datum_points=("nope",)))
+        adjust(b, AdjustConfig(unknowns=Unknowns(datum="free", inner_constraints="points", datum_points=("nope",))))
     with pytest.raises(ValueError, match="at least 3"):
-        adjust(b, AdjustConfig(datum="free", inner_constraints="points", datum_points=("t1", "t2")))
+        adjust(b, AdjustConfig(unknowns=Unknowns(datum="free", inner_constraints="points",
+                                                 datum_points=("t1", "t2"))))
     with pytest.raises(ValueError, match="needs datum='free'"):
-        AdjustConfig(inner_constraints="points")
+        AdjustConfig(unknowns=Unknowns(inner_constraints="points"))
     with pytest.raises(ValueError, match="datum_points"):
-        AdjustConfig(datum="free", datum_points=("t1", "t2", "t3"))
+        AdjustConfig(unknowns=Unknowns(datum="free", datum_points=("t1", "t2", "t3")))
 
 
 @pytest.mark.slow
 def test_point_datum_100_images():
     b = close_range_block(100)
-    out = check_point_datum(b, adjust(b, AdjustConfig(datum="free", intrinsics="free", inner_constraints="points")))
+    out = check_point_datum(b, adjust(b, AdjustConfig(unknowns=Unknowns(datum="free", intrinsics="free",
+                                                                        inner_constraints="points"))))
     print(out)
     assert out["n_unknowns"] >= 900
 
@@ -275,7 +280,7 @@ def test_free_datum_on_a_block_whose_observations_fix_the_datum_is_refused():
 
     b, _ = synthetic_block(seed=1, n_points=80)
     with pytest.raises(BlockError) as e:
-        adjust(b, AdjustConfig(datum="free"))
+        adjust(b, AdjustConfig(unknowns=Unknowns(datum="free")))
     msg = str(e.value)
     assert "control points" in msg and "GNSS positions" in msg and "translation along X" in msg
     assert "datum='auto'" in msg

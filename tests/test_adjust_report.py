@@ -30,7 +30,8 @@ def blk():
 
 def test_control_and_check_tables(blk):
     b, truth = blk
-    b2, cfg = apply_preset(b, "ba-eo-control", snooping=False)
+    b2, cfg = apply_preset(b, "ba-eo-control")
+    cfg = cfg.with_reliability(snooping=False)
     res = adjust(b2, cfg)
     rep = adjustment_report(res, gsd_m=0.016, limits_m=(0.1, 0.1, 0.1))
     cp, chk = b.control_point, b.control_check
@@ -55,7 +56,7 @@ def test_presets(blk):
     np.testing.assert_array_equal(res.block.station_centre, b.station_centre)  # orientations held
     b_ref, cfg_ref = apply_preset(b, "refine-eo-check")
     assert b_ref.control_check.all() and not b.control_check[:-2].any()
-    assert cfg_ref.datum_shift == "fixed" and cfg_dg.poses == "fixed"
+    assert cfg_ref.unknowns.datum_shift == "fixed" and cfg_dg.unknowns.poses == "fixed"
     with pytest.raises(ValueError, match="unknown preset"):
         apply_preset(b, "nope")
 

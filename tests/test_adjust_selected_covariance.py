@@ -12,6 +12,7 @@ import pytest
 from _dense_reference import dense_system
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.synthetic import synthetic_block
 
@@ -27,13 +28,13 @@ def block():
     return b
 
 
-CFG = AdjustConfig(lever_arm="free", boresight="weighted", boresight_sigma_rad=1e-3,
-                   statistics_images=("s0003_nadir", "s0007"), statistics_points=("p3", "p40", "p77"))
+CFG = AdjustConfig(unknowns=Unknowns(lever_arm="free", boresight="weighted", boresight_sigma_rad=1e-3),
+                   statistics=StatisticsOptions(images=("s0003_nadir", "s0007"), points=("p3", "p40", "p77")))
 
 
 def test_sparse_solves_match_the_dense_inverse(block):
     dense = adjust(block, CFG)
-    sparse = adjust(block, CFG.with_(max_statistics_parameters=0))
+    sparse = adjust(block, CFG.with_statistics(max_parameters=0))
     assert dense.covariance is not None and sparse.covariance is None
     assert dense.selected.method == "dense inverse" and sparse.selected.method == "sparse solves"
     assert any("sparse solves" in w for w in sparse.warnings)
@@ -63,4 +64,4 @@ def test_sparse_solves_match_the_dense_inverse(block):
 
 def test_unknown_names_are_reported(block):
     with pytest.raises(ValueError, match="nosuchimage"):
-        adjust(block, CFG.with_(max_statistics_parameters=0, statistics_images=("nosuchimage",)))
+        adjust(block, CFG.with_statistics(max_parameters=0, images=("nosuchimage",)))

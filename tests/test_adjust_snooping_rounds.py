@@ -1,4 +1,4 @@
-"""Data snooping with several rejections per round (``AdjustConfig.snooping_per_round``).
+"""Data snooping with several rejections per round (``AdjustConfig.reliability.per_round``).
 
 Independent answer: the truth of a seeded simulation - which observations were given a blunder - and
 Baarda's one-at-a-time snooping on the same block.  Several non-adjacent rejections per round must find
@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import ReliabilityOptions
 from skyrig.adjust.synthetic import synthetic_block
 
 
@@ -33,7 +34,7 @@ def blundered():  # type: ignore[no-untyped-def]
 
 def _run(b, per_round):  # type: ignore[no-untyped-def]
     stages: list[str] = []
-    res = adjust(b, AdjustConfig(snooping=True, snooping_per_round=per_round),
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True, per_round=per_round)),
                  callback=lambda s, i, c: stages.append(s))
     return res, len(dict.fromkeys(stages))
 
@@ -57,9 +58,9 @@ def test_several_rejections_per_round_find_the_same_blunders_in_fewer_rounds(blu
 
 
 def test_one_per_round_is_the_default_and_per_round_is_checked():
-    assert AdjustConfig().snooping_per_round == 1
-    with pytest.raises(ValueError, match="snooping_per_round"):
-        AdjustConfig(snooping_per_round=0)
+    assert AdjustConfig().reliability.per_round == 1
+    with pytest.raises(ValueError, match="per_round"):
+        AdjustConfig(reliability=ReliabilityOptions(per_round=0))
 
 
 def test_a_gnss_blunder_is_rejected_alone_and_the_result_equals_baardas(blundered):

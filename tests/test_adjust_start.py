@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.synthetic import synthetic_block
 from skyrig.camera.frame import FrameCamera
 
@@ -35,15 +36,15 @@ def _focal_px(res):
 def test_start_moves_the_solve_not_the_prior():
     b, nominal = _block()
     pix = nominal.pixel_size_mm
-    free = adjust(b, AdjustConfig(intrinsics="free", intrinsic_names=("focal_mm",)))
+    free = adjust(b, AdjustConfig(unknowns=Unknowns(intrinsics="free", intrinsic_names=("focal_mm",))))
     f_d = _focal_px(free)
     q_d = (free.sigma_reduced()[("intrinsics", "cam", "focal_mm")] / free.sigma0 / pix) ** 2
     s_p = float(np.sqrt(q_d))  # px: the data's own sigma, so the prior pulls halfway
     f_0 = nominal.focal_mm / pix
     expected = (f_d / q_d + f_0 / s_p ** 2) / (1.0 / q_d + 1.0 / s_p ** 2)
     s_post = 1.0 / np.sqrt(1.0 / q_d + 1.0 / s_p ** 2)
-    cfg = AdjustConfig(intrinsics="weighted", intrinsic_names=("focal_mm",),
-                       intrinsic_sigma=(("focal_mm", s_p * pix),))
+    cfg = AdjustConfig(unknowns=Unknowns(intrinsics="weighted", intrinsic_names=("focal_mm",),
+                                         intrinsic_sigma=(("focal_mm", s_p * pix),)))
     assert abs(f_d - f_0) > 3 * s_post  # the data and the prior disagree: the check below can fail
     plain = adjust(b, cfg)
     far = nominal.with_(focal_mm=nominal.focal_mm * 1.01)  # 25 px beyond the prior centre

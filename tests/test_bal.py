@@ -8,6 +8,7 @@ import pytest
 
 from conftest import shared_path
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import factor_cost, levenberg_marquardt
 from skyrig.errors import InputFormatError
@@ -15,7 +16,7 @@ from skyrig.io.bal import read_bal, write_bal
 
 
 def _cost(block):
-    m = Model(block, AdjustConfig(intrinsics="free", datum="none"))
+    m = Model(block, AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none")))
     return m, factor_cost(m.evaluate(State.from_block(block), jacobians=False))
 
 

@@ -15,6 +15,7 @@ import pytest
 
 from conftest import shared_path
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.model import bal_project
 from skyrig.io.bal import read_bal
 
@@ -78,7 +79,9 @@ def test_ceres_and_skyrig_reach_the_same_minimum(tiny):
     assert str(s.termination_type).endswith("CONVERGENCE")
     ceres_final = bench.bal_cost(bench.from_colmap(tiny, rec, ids))
     assert ceres_final == pytest.approx(s.final_cost, rel=1e-9)  # the round trip back to BAL is exact
-    r = adjust(tiny, AdjustConfig(intrinsics="free", datum="none", statistics=False, max_iterations=100))
+    r = adjust(tiny, AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none"),
+                                  statistics=StatisticsOptions(compute=False),
+                                  solver=SolverOptions(max_iterations=100)))
     # both stop on a relative decrease below 1e-6 at the same minimum (far below the start: noise only)
     assert r.info.final_cost < 0.05 * s.initial_cost
     assert r.info.final_cost == pytest.approx(ceres_final, rel=1e-4)

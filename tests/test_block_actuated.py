@@ -69,9 +69,9 @@ def test_block_frees_the_actuator_and_its_curve(tumble) -> None:  # type: ignore
                                   "-o", str(out)])
     assert r.exit_code == 0, r.output
     cfg = read_block(out).config
-    assert (cfg.actuator, cfg.actuator_curve, cfg.actuator_fourier_order, cfg.boresight) == ("free", "free", 3, "free")
+    assert (cfg.unknowns.actuator, cfg.unknowns.actuator_curve, cfg.unknowns.actuator_fourier_order, cfg.unknowns.boresight) == ("free", "free", 3, "free")
     r = CliRunner().invoke(main, [*base, "--free", "actuator-curve", "-o", str(out)])
-    assert r.exit_code == 0 and read_block(out).config.actuator_fourier_order == 2, r.output  # the default order
+    assert r.exit_code == 0 and read_block(out).config.unknowns.actuator_fourier_order == 2, r.output  # the default order
     names = [ln.split(",")[0] for ln in (sim / "gcp" / "ground_points.csv").read_text().splitlines()
              if ln and ln[0] != "#"][1:4]
     free_net = base[:-2]  # no control: the datum from inner constraints on three of the points
@@ -79,7 +79,7 @@ def test_block_frees_the_actuator_and_its_curve(tumble) -> None:  # type: ignore
                                   ",".join(names), "-o", str(out)])
     assert r.exit_code == 0, r.output
     cfg = read_block(out).config
-    assert (cfg.datum, cfg.inner_constraints, cfg.datum_points) == ("free", "points", tuple(names))
+    assert (cfg.unknowns.datum, cfg.unknowns.inner_constraints, cfg.unknowns.datum_points) == ("free", "points", tuple(names))
     for extra, needle in ((["--fourier-order", "2"], "--fourier-order: goes with --free actuator-curve"),
                           (["--free", "actuator-curve", "--fourier-order", "0"], "--fourier-order"),
                           (["--datum-points", "a,b,c"], "--datum-points: goes with --datum free-points")):

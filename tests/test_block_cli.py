@@ -173,4 +173,4 @@ def test_block_eo_as_start_values_only_and_the_datum(tmp_path) -> None:  # type:
     assert r.exit_code == 2 and "--datum free" in r.output and not (tmp_path / "n").exists(), r.output
     r = run.invoke(main, base + ["--start-values-only", "--datum", "free", "-o", str(tmp_path / "f" / "block.json")])
     assert r.exit_code == 0, r.output
-    assert json.loads((tmp_path / "f" / "block.json").read_text())["adjustment"]["datum"] == "free"
+    assert json.loads((tmp_path / "f" / "block.json").read_text())["adjustment"]["unknowns"]["datum"] == "free"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import ReliabilityOptions
 from skyrig.adjust.synthetic import synthetic_block
 from skyrig.errors import InputFormatError
 from skyrig.io.block_file import read_block, write_block
@@ -19,7 +20,7 @@ from skyrig.io.block_file import read_block, write_block
 def written(tmp_path_factory):
     block, truth = synthetic_block(seed=1, n_strips=2, n_per_strip=5, n_points=150)
     d = tmp_path_factory.mktemp("blk")
-    write_block(d / "block.json", block, AdjustConfig(snooping=True))
+    write_block(d / "block.json", block, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     return block, d
 
 
@@ -27,7 +28,7 @@ def test_round_trip_preserves_block_and_adjustment(written):
     block, d = written
     bf = read_block(d / "block.json")
     b = bf.block
-    assert bf.config.snooping is True
+    assert bf.config.reliability.snooping is True
     assert list(b.image_name) == list(block.image_name) and b.n_observations == block.n_observations
     np.testing.assert_allclose(b.station_rotation, block.station_rotation, atol=1e-12)
     np.testing.assert_allclose(b.obs_pixel, block.obs_pixel, rtol=0, atol=1e-9)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
 from skyrig.errors import InputFormatError
 from skyrig.io.colmap_text import block_from_colmap, read_colmap_text
 
@@ -122,7 +123,8 @@ def test_block_adjusts_to_zero_residuals(scene):
     b = block_from_colmap(read_colmap_text(folder))
     b.validate()
     # exact synthetic measurements: a free-network adjustment must leave (almost) nothing
-    r = adjust(b, AdjustConfig(datum="free", statistics=False, max_iterations=5))
+    r = adjust(b, AdjustConfig(unknowns=Unknowns(datum="free"), statistics=StatisticsOptions(compute=False),
+                               solver=SolverOptions(max_iterations=5)))
     rms = np.sqrt(np.mean(r.residuals["image"].residual ** 2))
     assert rms < 1e-5
 

@@ -57,11 +57,12 @@ def test_old_names_still_importable(module: str, name: str) -> None:
 
 def test_a_bad_option_is_a_named_error() -> None:
     from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.config import Unknowns
     from skyrig.geodesy.frame import WorldFrame
     from skyrig.match.features import FeatureConfig
 
     with pytest.raises(errors.ConfigError, match="points must be 'free' or 'fixed'"):
-        AdjustConfig(points="loose")  # type: ignore[arg-type]
+        AdjustConfig(unknowns=Unknowns(points="loose"))  # type: ignore[arg-type]
     with pytest.raises(errors.ConfigError, match="max_size"):
         FeatureConfig(max_size=8)
     with pytest.raises(errors.CRSError, match="local <lat_deg>"):

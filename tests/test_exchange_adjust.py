@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.io.colmap import block_from_colmap, colmap_from_block
@@ -23,7 +24,8 @@ from skyrig.io.opensfm import (block_from_opensfm, opensfm_from_block, read_open
                                write_opensfm, write_opensfm_tracks)
 from test_colmap_io import _model
 
-CONFIG = AdjustConfig(datum="auto", statistics=False, max_iterations=20)
+CONFIG = AdjustConfig(unknowns=Unknowns(datum="auto"), statistics=StatisticsOptions(compute=False),
+                      solver=SolverOptions(max_iterations=20))
 
 
 @pytest.fixture(scope="module")

@@ -256,12 +256,13 @@ BAD_VALUES = [None, "x", "", 1e300, -1e300, "NaN", [], {}, True, [1, 2], {"a": 1
 @pytest.fixture(scope="module")
 def block_dir(tmp_path_factory):
     from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.config import ReliabilityOptions
     from skyrig.adjust.synthetic import synthetic_block
     from skyrig.io.block_file import read_block, write_block
 
     block, _ = synthetic_block(seed=1, n_strips=1, n_per_strip=3, n_points=20)
     d = tmp_path_factory.mktemp("blk")
-    write_block(d / "block.json", block, AdjustConfig(snooping=True))
+    write_block(d / "block.json", block, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     return d, json.loads((d / "block.json").read_text()), _block_key(read_block(d / "block.json"))
 
 
@@ -296,8 +297,9 @@ def check_manifest(block_dir, path: tuple, value: object) -> None:
     from skyrig.io.block_file import read_block
 
     d, man, want = block_dir
-    if (path == ("adjustment",) and value == {}) or (path == ("frame",) and isinstance(value, str)):
-        return  # valid files: the adjustment's defaults; a free-text frame description
+    if (path in (("adjustment",), ("adjustment", "reliability")) and value == {}) or (
+            path == ("frame",) and isinstance(value, str)):
+        return  # valid files: the adjustment's (or a part's) defaults; a free-text frame description
     man = copy.deepcopy(man)
     node = man
     for k in path[:-1]:

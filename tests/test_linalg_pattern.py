@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust import linalg as L
 from skyrig.adjust import solver as S
 from skyrig.adjust.model import Model, State
@@ -17,7 +18,8 @@ from skyrig.rig.presets import midas
 def test_schur_pattern_matches_a_listing_of_all_block_entries(boresight: str) -> None:
     block, _ = synthetic_block(seed=3, n_strips=3, n_per_strip=5, n_points=400, rig=midas(), height_m=500.0,
                                n_control=9)
-    model = Model(block, AdjustConfig(statistics=False, boresight=boresight))
+    model = Model(block, AdjustConfig(statistics=StatisticsOptions(compute=False),
+                                      unknowns=Unknowns(boresight=boresight)))
     factors = model.evaluate(State.from_block(block))
     eng = S.SchurEngine(factors, model.layout, block.obs_image)
     n_c, k, uc = eng.n_c, eng.k, eng.ucols

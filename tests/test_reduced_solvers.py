@@ -14,6 +14,7 @@ import scipy.sparse as sp
 
 import skyrig.adjust.solver as solver
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust import linalg
 from skyrig.adjust.synthetic import synthetic_block
 
@@ -114,8 +115,9 @@ def test_statistics_agree_with_the_previous_path(monkeypatch):
     """The adjustment and its statistics (covariance, redundancy numbers, normalised residuals, selected
     covariance by sparse solves) with CHOLMOD and with SuperLU (the previous path) agree to 1e-9."""
     block, _ = synthetic_block(seed=5, n_strips=3, n_per_strip=8, n_points=500)
-    cfg = AdjustConfig(boresight="free", statistics_images=[str(block.image_name[3])],
-                       statistics_points=[str(block.point_name[7])])
+    cfg = AdjustConfig(unknowns=Unknowns(boresight="free"),
+                       statistics=StatisticsOptions(images=[str(block.image_name[3])],
+                                                    points=[str(block.point_name[7])]))
     res = {m: _adjust_with(monkeypatch, block, cfg, m) for m in ("splu", "cholmod")}
     a, b = res["splu"], res["cholmod"]
     assert a.info.linear_solver.startswith("splu") and b.info.linear_solver.startswith("cholmod")
@@ -131,8 +133,9 @@ def test_statistics_agree_with_the_previous_path(monkeypatch):
         if ra is not None:
             np.testing.assert_allclose(rb, ra, rtol=1e-9, atol=1e-12)
     # the covariance of chosen unknowns by sparse solves (no dense inverse) with each solver
-    cfg2 = AdjustConfig(boresight="free", max_statistics_parameters=0, statistics_images=cfg.statistics_images,
-                        statistics_points=cfg.statistics_points)
+    cfg2 = AdjustConfig(unknowns=Unknowns(boresight="free"),
+                        statistics=StatisticsOptions(max_parameters=0, images=cfg.statistics.images,
+                                                     points=cfg.statistics.points))
     sel = {m: _adjust_with(monkeypatch, block, cfg2, m).selected for m in ("splu", "cholmod")}
     for m, s in sel.items():
         assert s is not None and s.method == "sparse solves", m
@@ -146,7 +149,7 @@ def test_statistics_agree_with_the_previous_path(monkeypatch):
 @needs_cholmod
 def test_pcg_adjustment_reaches_the_direct_cost(monkeypatch):
     block, _ = synthetic_block(seed=6, n_strips=3, n_per_strip=8, n_points=500)
-    cfg = AdjustConfig(statistics=False)
+    cfg = AdjustConfig(statistics=StatisticsOptions(compute=False))
     direct = _adjust_with(monkeypatch, block, cfg, "cholmod")
     inexact = _adjust_with(monkeypatch, block, cfg, "pcg")
     assert inexact.info.linear_solver.startswith("pcg")

@@ -110,8 +110,9 @@ def adjusted():
                                   distortion=BrownDistortion())
     b, truth = synthetic_block(seed=3, n_strips=2, n_per_strip=6, n_points=200, n_control=6, camera=cam)
     b.control_check[-2:] = True
-    b2, cfg = apply_preset(b, "ba-eo-control", snooping=False)
-    cfg = replace(cfg, boresight="free", intrinsics="free", intrinsic_names=("focal_mm", "ppx_mm", "ppy_mm", "k1"))
+    b2, cfg = apply_preset(b, "ba-eo-control")
+    cfg = cfg.with_reliability(snooping=False)
+    cfg = cfg.with_unknowns(boresight="free", intrinsics="free", intrinsic_names=("focal_mm", "ppx_mm", "ppy_mm", "k1"))
     res = adjust(b2, cfg)
     assert res.ok, res.failures
     return res

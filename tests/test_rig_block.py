@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.block import BlockError
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.georef.direct import direct_georeference
@@ -82,7 +83,7 @@ def test_boresights_recovered_within_predicted_sigma(block_survey) -> None:  # t
                                      check_points=checks, frame=sv.frame, sigma_px=SIGMA_PX,
                                      gnss_sigma_m=err.gnss_noise_m, imu_sigma_rad=err.imu_noise_rad,
                                      control_sigma_m=0.01)
-    res = adjust(b, AdjustConfig(boresight="free"))
+    res = adjust(b, AdjustConfig(unknowns=Unknowns(boresight="free")))
     assert 0.8 < res.sigma0 < 1.2
     sig = res.sigma_reduced()
     chi2, chi2_nominal, dof = 0.0, 0.0, 0

@@ -16,6 +16,7 @@ import pytest
 from _dense_reference import dense_system
 
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import HAVE_NUMBA, SchurEngine, _robust, _ScipyEngine, levenberg_marquardt
 from skyrig.adjust.synthetic import synthetic_block
@@ -45,10 +46,10 @@ def _rig_block(seed=11):
     "cfg, huber",
     [
         (AdjustConfig(), None),
-        (AdjustConfig(boresight="free", lever_arm="free", intrinsics="free",
-                      intrinsic_names=("focal_mm", "ppx_mm")), None),
-        (AdjustConfig(boresight="weighted", intrinsics="weighted", intrinsic_names=("focal_mm",),
-                      intrinsic_sigma=(("focal_mm", 0.01),)), 1.5),
+        (AdjustConfig(unknowns=Unknowns(boresight="free", lever_arm="free", intrinsics="free",
+                                        intrinsic_names=("focal_mm", "ppx_mm"))), None),
+        (AdjustConfig(unknowns=Unknowns(boresight="weighted", intrinsics="weighted", intrinsic_names=("focal_mm",),
+                                        intrinsic_sigma=(("focal_mm", 0.01),))), 1.5),
     ],
 )
 def test_engine_step_equals_dense_normal_equations(cfg, huber, lam):
@@ -81,14 +82,14 @@ def test_units_are_stations_when_only_poses_are_free():
     n_units = int((eng.ucols >= 0).any(axis=1).sum())  # (images without observations: one unit of no columns)
     assert n_units == len(np.unique(b.image_station[b.obs_image])) and eng.k == 6
     # with per-head boresight columns each image has its own column set
-    model = Model(b, AdjustConfig(boresight="free"))
+    model = Model(b, AdjustConfig(unknowns=Unknowns(boresight="free")))
     eng = SchurEngine(model.evaluate(State.from_block(b)), model.layout, b.obs_image)
     assert int((eng.ucols >= 0).any(axis=1).sum()) == len(np.unique(b.obs_image)) and eng.k == 9
 
 
 def test_numba_and_scipy_engines_reach_the_same_minimum():
     b, _ = _rig_block(seed=12)
-    model = Model(b, AdjustConfig(boresight="free", lever_arm="free"))
+    model = Model(b, AdjustConfig(unknowns=Unknowns(boresight="free", lever_arm="free")))
     s1, i1 = levenberg_marquardt(model, State.from_block(b), engine="numba", huber_k=2.0)
     s2, i2 = levenberg_marquardt(model, State.from_block(b), engine="scipy", huber_k=2.0)
     assert i1.converged and i2.converged
@@ -97,8 +98,8 @@ def test_numba_and_scipy_engines_reach_the_same_minimum():
     np.testing.assert_allclose(s1.bore, s2.bore, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("cfg", [AdjustConfig(intrinsics="free", datum="none"), AdjustConfig(datum="none"),
-                                 AdjustConfig(intrinsics="free", poses="fixed", datum="none")])
+@pytest.mark.parametrize("cfg", [AdjustConfig(unknowns=Unknowns(intrinsics="free", datum="none")), AdjustConfig(unknowns=Unknowns(datum="none")),
+                                 AdjustConfig(unknowns=Unknowns(intrinsics="free", poses="fixed", datum="none"))])
 def test_compiled_bal_rows_equal_the_numpy_path(monkeypatch, tmp_path, cfg):
     # the numpy path of Model._image (bal_project + chain rule, itself checked against pycolmap's projection
     # in test_bal_ceres.py) is the reference; a head offset exercises the lever term of the pose Jacobian
@@ -140,7 +141,7 @@ def test_datum_defect_is_reported_by_the_sparse_solver(method):
 
     b, _ = synthetic_block(seed=2, n_strips=2, n_per_strip=5, n_points=200, n_control=0, gnss_sigma_m=None,
                            imu_sigma_rad=None)
-    model = Model(b, AdjustConfig(datum="none"))
+    model = Model(b, AdjustConfig(unknowns=Unknowns(datum="none")))
     N = assemble(model.evaluate(State.from_block(b)), model.layout, b.obs_image)
     S, rhs, _ = schur_matrix(N, 0.0)
     with pytest.raises(SingularError):
@@ -151,8 +152,8 @@ def test_datum_defect_is_reported_by_the_sparse_solver(method):
                                rtol=1e-8, atol=1e-12)
 
 
-@pytest.mark.parametrize("cfg", [AdjustConfig(), AdjustConfig(boresight="free", intrinsics="free"),
-                                 AdjustConfig(poses="fixed", boresight="free")])
+@pytest.mark.parametrize("cfg", [AdjustConfig(), AdjustConfig(unknowns=Unknowns(boresight="free", intrinsics="free")),
+                                 AdjustConfig(unknowns=Unknowns(poses="fixed", boresight="free"))])
 def test_compiled_chain_rule_equals_the_numpy_path(monkeypatch, cfg):
     # frame cameras on a penta rig with lever arms (head offsets) and boresights: the numpy chain rule of
     # Model._image is the reference (itself checked against finite differences in test_adjust.py)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from skyrig.adjust import AdjustConfig
+from skyrig.adjust.config import Unknowns
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.solver import HAVE_NUMBA, assemble, levenberg_marquardt, schur_matrix
 from skyrig.adjust.synthetic import synthetic_block
@@ -31,7 +32,7 @@ def _rig_model(cfg: AdjustConfig, seed: int = 21):
 
 
 def test_engine_reduced_matrix_equals_the_scipy_path():
-    b, model = _rig_model(AdjustConfig(boresight="free"))
+    b, model = _rig_model(AdjustConfig(unknowns=Unknowns(boresight="free")))
     state = State.from_block(b)
     S, rhs, eng = A._reduced_at(model, state)
     assert eng is not None
@@ -43,12 +44,13 @@ def test_engine_reduced_matrix_equals_the_scipy_path():
     np.testing.assert_allclose(rhs, rhs0, rtol=0, atol=1e-9 * np.abs(rhs0).max())
 
 
-@pytest.mark.parametrize("cfg", [AdjustConfig(boresight="free"),
-                                 AdjustConfig(boresight="free", intrinsics="free", intrinsic_names=("focal_mm",))])
+@pytest.mark.parametrize("cfg", [AdjustConfig(unknowns=Unknowns(boresight="free")),
+                                 AdjustConfig(unknowns=Unknowns(boresight="free", intrinsics="free",
+                                                                intrinsic_names=("focal_mm",)))])
 def test_solver_started_from_the_datum_check_engine_is_identical(cfg):
     b, model = _rig_model(cfg)
     state = State.from_block(b)
-    free = cfg.datum == "free"
+    free = cfg.unknowns.datum == "free"
     eng = A.check_datum(model, state, free)
     assert eng is not None and eng.cost > 0
     s1, i1 = levenberg_marquardt(model, state, free_datum=free, engine_at_start=eng)
@@ -61,7 +63,7 @@ def test_solver_started_from_the_datum_check_engine_is_identical(cfg):
 
 def test_engine_at_start_is_not_used_with_robust_weights():
     """Huber reweighting changes the first linearisation: the solver must build its own."""
-    b, model = _rig_model(AdjustConfig(boresight="free"))
+    b, model = _rig_model(AdjustConfig(unknowns=Unknowns(boresight="free")))
     state = State.from_block(b)
     eng = A.check_datum(model, state, False)
     s1, i1 = levenberg_marquardt(model, state, huber_k=1.5, engine_at_start=eng)
@@ -80,7 +82,7 @@ def sparse_engine(monkeypatch):
 
 
 def test_datum_check_on_the_engine_solver_then_the_same_solve(sparse_engine):
-    b, model = _rig_model(AdjustConfig(boresight="free"))
+    b, model = _rig_model(AdjustConfig(unknowns=Unknowns(boresight="free")))
     state = State.from_block(b)
     eng = A.check_datum(model, state, False)
     assert eng._rs is not None and eng._rs.method in ("cholmod", "splu")  # the round trip ran on it
@@ -95,6 +97,6 @@ def test_datum_defect_found_by_the_engine_solver(sparse_engine):
     # no control, no GNSS, no IMU: the block floats (7 similarity motions)
     b, _ = synthetic_block(seed=2, n_strips=2, n_per_strip=5, n_points=200, n_control=0, gnss_sigma_m=None,
                            imu_sigma_rad=None)
-    model = Model(b, AdjustConfig(datum="none"))
+    model = Model(b, AdjustConfig(unknowns=Unknowns(datum="none")))
     with pytest.raises(A.DatumDefectError):
         A.check_datum(model, State.from_block(b), False)

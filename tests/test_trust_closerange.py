@@ -49,6 +49,7 @@ def test_snooping_cap_grows_with_the_block():
     """120 blunders among 8,259 image observations (1.5 %): all found (the seeded truth), no failure blamed on the
     functional model (was: an absolute cap of 100 rejections, then 'the functional model is probably wrong')."""
     from skyrig.adjust import AdjustConfig, adjust
+    from skyrig.adjust.config import ReliabilityOptions
     from skyrig.adjust.synthetic import synthetic_block
 
     b, _ = synthetic_block(seed=5, n_strips=3, n_per_strip=8, n_points=2500)
@@ -56,7 +57,7 @@ def test_snooping_cap_grows_with_the_block():
     rich = np.flatnonzero(np.bincount(b.obs_point, minlength=b.n_points) >= 5)
     bad = np.array([rng.choice(np.flatnonzero(b.obs_point == p)) for p in rng.choice(rich, 120, replace=False)])
     b.obs_pixel[bad] += rng.choice([-1, 1], (bad.size, 2)) * rng.uniform(6, 10, (bad.size, 2))  # 12-20 sigma
-    res = adjust(b, AdjustConfig(snooping=True, snooping_per_round=100))
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True, per_round=100)))
     assert not res.failures, res.failures
     assert sorted(r.index for r in res.rejected) == sorted(bad.tolist())
     # (a share of 0 keeps the absolute cap: tests/test_adjust_fixes.py::test_snooping_at_its_cap_is_a_failure)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 from os import PathLike
+from typing import Any
 
 
 _NUMPY_REPR = re.compile(r"np\.(?:float|int|uint|complex)\d*\(([^()]*)\)|np\.(?:str_|bytes_|bool_?)\(([^()]*)\)")
@@ -161,7 +162,10 @@ class BlockError(SkyrigError, ValueError):
 
 # raised in skyrig.adjust.solver
 class SingularError(SkyrigError, ArithmeticError):
-    """The normal equations are singular (datum defect, unobservable parameter)."""
+    """The normal equations are singular (datum defect, unobservable parameter); ``points``: the free-point
+    indices that are not determined, when that is the reason (else None)."""
+
+    points: Any = None
 
 
 # raised in skyrig.adjust.adjust

@@ -101,7 +101,7 @@ class AdjustmentResult:
         Column labels of the reduced unknowns.
     selected
         Covariance of the chosen unknowns (:class:`~skyrig.adjust.stats.SelectedCovariance`: every
-        non-pose reduced unknown plus ``config.statistics_images`` / ``statistics_points``), from the
+        non-pose reduced unknown plus ``config.statistics.images`` / ``statistics_points``), from the
         dense inverse when it was computed, otherwise by sparse solves (any block size).
     failures
         Why the result must not be trusted, in words (empty when it can): no convergence, sigma0 not
@@ -159,9 +159,9 @@ class AdjustmentResult:
         q = np.diagonal(self.covariance.Qpp, axis1=1, axis2=2)
         out[free] = self.sigma0 * np.sqrt(np.clip(q[self.layout.point[free]], 0, None))
         if self.layout.has_rpoint:
-            red = (self.layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
+            red = (self.layout.rpoint_cols >= 0).all(axis=1)
             qd = np.diag(self.covariance.Qcc)
-            out[red] = self.sigma0 * np.sqrt(np.clip(qd[self.layout.rpoint[red]], 0, None))  # type: ignore[index]
+            out[red] = self.sigma0 * np.sqrt(np.clip(qd[self.layout.rpoint_cols[red]], 0, None))
         return out
 
     def point_covariance(self) -> NDArray[np.float64] | None:
@@ -172,8 +172,8 @@ class AdjustmentResult:
         free = self.layout.point >= 0
         out[free] = self.sigma0**2 * self.covariance.Qpp[self.layout.point[free]]
         if self.layout.has_rpoint:
-            red = (self.layout.rpoint >= 0).all(axis=1)  # type: ignore[operator]
-            c = self.layout.rpoint[red]  # type: ignore[index]
+            red = (self.layout.rpoint_cols >= 0).all(axis=1)
+            c = self.layout.rpoint_cols[red]
             out[red] = self.sigma0**2 * self.covariance.Qcc[c[:, :, None], c[:, None, :]]
         return out
 
@@ -189,13 +189,15 @@ def _block_from_state(block: Block, model: Model, s: State) -> Block:
     out.strip_shift = s.sshift.copy()
     out.strip_drift = s.sdrift.copy()
     out.point_xyz = s.X.copy()
+    for name, v in s.groups.items():  # the parameter groups factor modules declare
+        out.parameters[name] = v.copy()
     if s.grid is not None and out.observations.get("image_grid") is not None:  # estimated correction grids
         out.observations["image_grid"] = out.observations["image_grid"].with_values(s.grid)
     if model.layout.act is not None:
-        out.actuator_correction = pad_actuator(s.act, len(block.head_name), model.layout.act.shape[1])  # type: ignore[arg-type]
+        out.actuator_correction = pad_actuator(s.act, len(block.head_name), model.layout.act.shape[1])
     if model._act_images.size:  # nominal mounting at the adjusted beta correction (without the boresight)
-        out.image_rotation = out.image_rotation.copy()  # type: ignore[union-attr]
-        out.image_rotation[model._act_images] = model.actuated_mounts(s)[0]  # type: ignore[index]
+        out.image_rotation = out.image_rotation.copy()
+        out.image_rotation[model._act_images] = model.actuated_mounts(s)[0]
     return out
 
 
@@ -215,8 +217,8 @@ def _datum_defect(layout: Layout) -> int:
 
 def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
     """Name the degenerate actuated-head cases before the rank check does so in general terms."""
-    if cfg.actuator == "free" or cfg.actuator_curve == "free":
-        for h, head in enumerate(block.head_actuated):  # type: ignore[arg-type]
+    if cfg.unknowns.actuator == "free" or cfg.unknowns.actuator_curve == "free":
+        for h, head in enumerate(block.head_actuated):
             sel = block.image_head == h
             if head is None or not sel.any():
                 continue
@@ -225,19 +227,19 @@ def _check_actuated(block: Block, cfg: AdjustConfig) -> None:
             spread = 1.0 - float(np.hypot(np.cos(beta).mean(), np.sin(beta).mean()))
             if spread < 1e-10:
                 raise DatumDefectError([
-                    f"the actuator angle beta of head {str(block.head_name[h])!r} is constant over its {int(sel.sum())} "  # type: ignore[index]
+                    f"the actuator angle beta of head {str(block.head_name[h])!r} is constant over its {int(sel.sum())} "
                     f"images ({np.degrees(beta[0]):.4f} deg): its mounting is one fixed rotation, so the actuator "
                     "offset/scale and the boresight curve cannot be separated from the head's boresight; "
                     "fix the 'actuator' and 'actuator_curve' groups (or fly several beta)"])
             n_distinct = np.unique(np.round(np.mod(beta, 2 * np.pi), 6)).size
-            need = 2 * int(cfg.actuator_fourier_order) + 1
-            if cfg.actuator_curve == "free" and cfg.actuator_fourier_order and n_distinct < need:
+            need = 2 * int(cfg.unknowns.actuator_fourier_order) + 1
+            if cfg.unknowns.actuator_curve == "free" and cfg.unknowns.actuator_fourier_order and n_distinct < need:
                 raise DatumDefectError([
-                    f"head {str(block.head_name[h])!r} has images at only {n_distinct} distinct actuator angles: a Fourier "  # type: ignore[index]
-                    f"boresight curve of order {cfg.actuator_fourier_order} needs at least {need}"])
+                    f"head {str(block.head_name[h])!r} has images at only {n_distinct} distinct actuator angles: a Fourier "
+                    f"boresight curve of order {cfg.unknowns.actuator_fourier_order} needs at least {need}"])
 
 
-def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no-untyped-def]
+def _check_free_datum(model: Model, state: State, S) -> None:
     """A free network's inner constraints remove the similarity motions that no observation fixes; raise
     :class:`BlockError` naming them when the block's observations (control, GNSS, IMU, pose priors) fix some
     (the inner constraints would then be wrong, the redundancy off by the defect, and the covariance garbage)."""
@@ -257,16 +259,16 @@ def _check_free_datum(model: Model, state: State, S) -> None:  # type: ignore[no
     if not fixed:
         return
     what = [t.datum_words for t in observation_types() if t.datum_words and t.fixes_datum(model)]
-    if model.config.poses == "weighted":
+    if model.config.unknowns.poses == "weighted":
         what.append("pose priors (poses='weighted')")
-    if model.config.points == "fixed":
+    if model.config.unknowns.points == "fixed":
         what.append("fixed object points (points='fixed')")
     raise BlockError(f"datum='free' takes the datum from inner constraints, but the block's observations "
                      f"({', '.join(what) or 'some observations'}) already fix {', '.join(fixed)}: use datum='auto' "
                      "(the datum from those observations), or leave them out for a free network")
 
 
-def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
+def _reduced_at(model: Model, state: State):
     """``(S (CSR), rhs, engine)`` of the undamped reduced system at ``state``: the compiled Schur engine (no
     scipy BSR products; returned, linearised at ``state``, for the solver to start from), else / on a
     singular point block the reference path (whose error names the points; engine None)."""
@@ -287,7 +289,7 @@ def _reduced_at(model: Model, state: State):  # type: ignore[no-untyped-def]
     return S, rhs, None
 
 
-def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:
     """``S^-1 b``: above the engine's dense limit with the engine's own sparse direct solver when it is
     exact (its ordering and symbolic factorisation are then the solver's: analysed once per adjustment),
     else :func:`solve_reduced`."""
@@ -302,7 +304,7 @@ def _round_trip(S, b: NDArray[np.float64], eng) -> NDArray[np.float64]:  # type:
     return solve_reduced(S, b)
 
 
-def check_datum(model: Model, state: State, free_datum: bool):  # type: ignore[no-untyped-def]
+def check_datum(model: Model, state: State, free_datum: bool):
     """Raise :class:`DatumDefectError` (with reasons in words) if the normal equations are singular.
 
     Returns the compiled Schur engine linearised at ``state`` (without robust weights), for
@@ -356,6 +358,9 @@ def _start_state(initial: State, start: Block) -> State:
         if (u is None) != (v is None) or (u is not None and np.shape(u) != np.shape(v)):
             raise BlockError(f"start: its {name} unknowns do not correspond to the block's "
                              f"({None if u is None else np.shape(u)} vs {None if v is None else np.shape(v)})")
+    for name, u in a.groups.items():
+        if name not in b.groups or np.shape(u) != np.shape(b.groups[name]):
+            raise BlockError(f"start: its {name} unknowns do not correspond to the block's")
     if len(a.intr) != len(b.intr) or any(np.shape(u) != np.shape(v) for u, v in zip(a.intr, b.intr)):
         raise BlockError("start: its cameras' intrinsics do not correspond to the block's")
     if not all(np.isfinite(v).all() for v in (b.R, b.C, b.X, *b.intr)):
@@ -385,7 +390,7 @@ def _add_round(total: SolveInfo, info: SolveInfo) -> None:
     total.message = info.message
 
 
-def _largest_normalised(groups: dict[str, GroupStats]) -> tuple[float, str, int]:
+def _largest_normalised(groups: dict[str, GroupResiduals]) -> tuple[float, str, int]:
     """``(|w|, group, row)`` of the largest normalised residual among the active, tested observations
     (``(0.0, "", -1)`` when there is none)."""
     best = (0.0, "", -1)
@@ -403,13 +408,13 @@ def _largest_normalised(groups: dict[str, GroupStats]) -> tuple[float, str, int]
     return best
 
 
-def _n_tests(groups: dict[str, GroupStats]) -> int:
+def _n_tests(groups: dict[str, GroupResiduals]) -> int:
     """How many residual components data snooping tests (for the family-wise level)."""
     return sum(int((gr.weight > 0).sum()) * gr.residual.shape[1] for g, gr in groups.items()
                if gr.normalised is not None and _tested(g))
 
 
-def _others_above(groups: dict[str, GroupStats], crit: float) -> bool:
+def _others_above(groups: dict[str, GroupResiduals], crit: float) -> bool:
     """Whether a tested observation of another group than the images is above the critical value (then only one
     rejection per round: its spill into the images of its station would look like blunders there)."""
     return any(
@@ -450,18 +455,18 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     _check_actuated(block, cfg)
     model = Model(block, cfg)
     state = model.initial.copy() if start is None else _start_state(model.initial, start)
-    free = cfg.datum == "free"
-    if cfg.inner_constraints == "points":
+    free = cfg.unknowns.datum == "free"
+    if cfg.unknowns.inner_constraints == "points":
         _datum_point_mask(block, model, cfg)  # unknown names / too few points: ValueError before any work
     rejected: list[Rejection] = []
     # points that start behind one of their cameras give no Jacobian there: left out with their rays
     model = _drop_lost_points(block, model, state, rejected)
     start_warnings = _left_out_at_start(block, rejected)
     # the datum check's engine, linearised at the start: the solver's first linearisation
-    eng0 = check_datum(model, state, free) if cfg.datum != "none" else None
-    opt = cfg.solver_options  # the optimiser's part of the configuration
+    eng0 = check_datum(model, state, free) if cfg.unknowns.datum != "none" else None
+    opt = cfg.solver
     huber = opt.robust_k if opt.robust == "huber" else None
-    crit = critical_value(cfg.snooping_alpha)
+    crit = critical_value(cfg.reliability.alpha)
     n_start = len(rejected)
     failures: list[str] = []
     total_info = SolveInfo()
@@ -479,15 +484,15 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         else:
             _add_round(total_info, info)
         model = _drop_lost_points(block, model, state, rejected)
-        if free and cfg.inner_constraints == "points":
+        if free and cfg.unknowns.inner_constraints == "points":
             state = _to_point_datum(block, model, state, _datum_point_mask(block, model, cfg))
         if huber is not None:  # freeze the final Huber weights for the statistics
             f = model.evaluate(state, jacobians=False)[0]
             root = np.sqrt((f.r ** 2).sum(axis=1))
             model.obs_weight = model.obs_weight * np.where(root <= huber, 1.0, huber / np.maximum(root, 1e-300))
             huber = None
-        res = _statistics(block, model, state, cfg if cfg.datum != "none" else cfg.with_(statistics=False), free)
-        if not cfg.snooping or res[0] is None:
+        res = _statistics(block, model, state, cfg if cfg.unknowns.datum != "none" else cfg.with_statistics(compute=False), free)
+        if not cfg.reliability.snooping or res[0] is None:
             break
         snooped = [r for r in rejected[n_start:] if np.isfinite(r.normalised_residual)]
         msg = _implausible_rejections(model, snooped, cfg)
@@ -496,17 +501,17 @@ def adjust(block: Block, config: AdjustConfig | None = None,
             break
         # data snooping: the largest normalised residual among active observations
         best = _largest_normalised(res[1])
-        if cfg.snooping_familywise:
-            crit = critical_value(cfg.snooping_alpha / max(_n_tests(res[1]), 1))
+        if cfg.reliability.familywise:
+            crit = critical_value(cfg.reliability.alpha / max(_n_tests(res[1]), 1))
         if best[0] <= crit:
             break
         n_obs = sum(len(gr.weight) for g, gr in res[1].items() if gr.normalised is not None and _tested(g))
-        cap = max(int(cfg.max_rejections), int(np.ceil(cfg.snooping_max_share * n_obs)))
+        cap = max(int(cfg.reliability.max_rejections), int(np.ceil(cfg.reliability.max_share * n_obs)))
         if len(snooped) >= cap:
             counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
             failures.append(
                 f"data snooping stopped at its cap of {cap} rejections (the larger of max_rejections "
-                f"{cfg.max_rejections} and snooping_max_share {cfg.snooping_max_share:g} of {n_obs} observations; "
+                f"{cfg.reliability.max_rejections} and snooping_max_share {cfg.reliability.max_share:g} of {n_obs} observations; "
                 f"{counts}) with observations "
                 f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
                 "so many blunders mean the functional model is probably wrong - " + _what_to_free(
@@ -515,8 +520,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         picks = [(best[0], best[1], best[2])]
         # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
         # above the critical value (its spill into the images of its station would look like blunders there)
-        if best[1] == "image" and cfg.snooping_per_round > 1 and not _others_above(res[1], crit):
-            room = min(cfg.snooping_per_round, cap - len(snooped)) - 1
+        if best[1] == "image" and cfg.reliability.per_round > 1 and not _others_above(res[1], crit):
+            room = min(cfg.reliability.per_round, cap - len(snooped)) - 1
             picks += [(w, "image", j) for w, j in
                       _further_image_rejections(block, res[1]["image"], best[2], crit, room)]
         for w_, g, i in picks:
@@ -532,8 +537,8 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     for w in _variance_component_warnings(groups, cfg):
         logger.warning(w)
         warnings.append(w)
-    for f in failures:
-        logger.warning("adjustment failed: %s", f)
+    for why in failures:
+        logger.warning("adjustment failed: %s", why)
     return AdjustmentResult(
         _block_from_state(block, model, state), block, total_info, sigma0, n_obs, n_unk, redundancy, groups,
         residuals, rejected, cov, start_warnings + warnings, model.layout, cfg, selected=selected, failures=failures)
@@ -590,7 +595,7 @@ def _what_to_free(cfg: AdjustConfig, groups: list[str]) -> str:
     for g in groups:
         t = observation_type(g)
         cand = list(t.hints) if t is not None else []
-        fix = [(k, why) for k, why in cand if getattr(cfg, k) == "fixed"]
+        fix = [(k, why) for k, why in cand if getattr(cfg.unknowns, k) == "fixed"]
         if fix:
             hints.append(f"{_words(g)} observations: probably " + " or ".join(w for _, w in fix)
                          + " (free " + ", ".join(repr(k) for k, _ in fix) + ", e.g. skyrig block --free "
@@ -602,7 +607,7 @@ def _what_to_free(cfg: AdjustConfig, groups: list[str]) -> str:
 
 def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfig) -> list[str]:
     """Words for observation groups whose residuals are significantly larger than their sigmas say
-    (chi-square test of the group's variance factor ``s^2 r ~ chi2(r)`` at ``cfg.snooping_alpha``, and
+    (chi-square test of the group's variance factor ``s^2 r ~ chi2(r)`` at ``cfg.reliability.alpha``, and
     ``s > 1.5``): a model error that data snooping does not show as blunders (e.g. a datum shift between
     GNSS and control spread over all control points), named with what to free."""
     from scipy.stats import chi2
@@ -612,7 +617,7 @@ def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfi
         if not _tested(g) or not (st.redundancy > 0.5) or not np.isfinite(st.sigma0):
             continue
         p = float(chi2.sf(st.sigma0**2 * st.redundancy, st.redundancy))
-        if p < cfg.snooping_alpha and st.sigma0 > 1.5:
+        if p < cfg.reliability.alpha and st.sigma0 > 1.5:
             out.append(f"the {_words(g)} observations fit {st.sigma0:.1f} times worse than their sigmas "
                        f"say (variance factor {st.sigma0:.2f}, redundancy {st.redundancy:.1f}, chi-square test p = "
                        f"{p:.1g}): a probable model error, or sigmas too optimistic - " + _what_to_free(cfg, [g]))
@@ -621,14 +626,14 @@ def _variance_component_warnings(groups: dict[str, GroupStats], cfg: AdjustConfi
 
 def _implausible_rejections(model: Model, snooped: list[Rejection], cfg: AdjustConfig) -> str | None:
     """Words when data snooping has rejected more of a GNSS / IMU / control / distance group than blunders
-    explain (more than ``cfg.snooping_max_group_share`` of its observations, at least 3)."""
+    explain (more than ``cfg.reliability.max_group_share`` of its observations, at least 3)."""
     n_all = {t.name: t.tested_count(model.block) for t in observation_types() if t.share_checked and t.snooped}
     for g, k in _counts(snooped).items():
         n = n_all.get(g, 0)
-        if n and k >= 3 and k > cfg.snooping_max_group_share * n:
+        if n and k >= 3 and k > cfg.reliability.max_group_share * n:
             others = ", ".join(f"{m} {_words(h)}" for h, m in _counts(snooped).items() if h != g)
             return (f"data snooping rejected {k} of {n} {_words(g)} observations ({100.0 * k / n:.0f} %, more "
-                    f"than the {100 * cfg.snooping_max_group_share:.0f} % that blunders explain"
+                    f"than the {100 * cfg.reliability.max_group_share:.0f} % that blunders explain"
                     + (f"; also {others}" if others else "") + "): the functional model is probably wrong - "
                     + _what_to_free(cfg, [g]) + "; snooping stopped")
     return None
@@ -648,8 +653,8 @@ def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redund
     lay = model.layout
     free = lay.point >= 0
     if lay.has_rpoint:
-        free |= (lay.rpoint >= 0).any(axis=1)  # type: ignore[union-attr]
-    free[block.control_point[model.control_weight > 0]] = False  # type: ignore[index, operator]
+        free |= (lay.rpoint_cols >= 0).any(axis=1)
+    free[block.control_point[model.control_weight > 0]] = False
     if used.size == 1 and free[block.obs_point[model.obs_weight > 0]].any():
         out.append(f"a single image ({block.image_name[used[0]]!s}) cannot intersect object points: give more "
                    "images, or fix the points (points='fixed') for a space resection")
@@ -657,21 +662,21 @@ def _failures(block: Block, model: Model, info: SolveInfo, sigma0: float, redund
 
 
 def _datum_point_mask(block: Block, model: Model, cfg: AdjustConfig) -> NDArray[np.bool_]:
-    """``(P,)`` the estimated points that carry the inner constraints (``cfg.datum_points``, or all).
+    """``(P,)`` the estimated points that carry the inner constraints (``cfg.unknowns.datum_points``, or all).
     Unknown names and fewer than 3 usable points (or all on one line) raise :class:`BlockError` in words."""
     lay = model.layout
     est = lay.point >= 0
     if lay.has_rpoint:
-        est = est | (lay.rpoint >= 0).all(axis=1)  # type: ignore[union-attr]
-    if not cfg.datum_points:
+        est = est | (lay.rpoint_cols >= 0).all(axis=1)
+    if not cfg.unknowns.datum_points:
         mask = est.copy()
     else:
         idx = {str(n): k for k, n in enumerate(block.point_name)}
-        bad = [n for n in cfg.datum_points if n not in idx]
+        bad = [n for n in cfg.unknowns.datum_points if n not in idx]
         if bad:
             raise BlockError(f"datum_points names unknown points {bad[:5]}")
         mask = np.zeros(block.n_points, bool)
-        mask[[idx[n] for n in cfg.datum_points]] = True
+        mask[[idx[n] for n in cfg.unknowns.datum_points]] = True
         gone = [str(block.point_name[k]) for k in np.flatnonzero(mask & ~est)]
         if gone:
             logger.warning("datum points not estimated (fixed or left out of the adjustment): %s", gone[:5])
@@ -710,7 +715,7 @@ def _drop_undetermined_point(block: Block, model: Model, p: int, rejected: list[
     normalised residuals are equal, the blunder cannot be located), so the point leaves the adjustment."""
     rows = np.flatnonzero(block.obs_point == p)
     active = rows[model.obs_weight[rows] > 0]
-    ctrl = np.flatnonzero((block.control_point == p) & (model.control_weight > 0))  # type: ignore[operator]
+    ctrl = np.flatnonzero((block.control_point == p) & (model.control_weight > 0))
     # two rays from one station (heads of one rig exposure share a projection centre) have no base
     if np.unique(block.image_station[block.obs_image[active]]).size >= 2 or ctrl.size:
         return model
@@ -735,13 +740,13 @@ def _drop_lost_points(block: Block, model: Model, state: State, rejected: list[R
     information (zero Jacobian rows) and would make the normal matrix singular: their observations are
     rejected and the points leave the adjustment (control points stay, only the bad rays go)."""
     f = model.evaluate(state, jacobians=False)[0]
-    bad = getattr(f, "bad", None)
+    bad = f.bad
     if bad is None:
         return model
     bad = bad & (model.obs_weight > 0)
     if not bad.any():
         return model
-    ctrl = set(block.control_point[model.control_weight > 0].tolist())  # type: ignore[index, operator]
+    ctrl = set(block.control_point[model.control_weight > 0].tolist())
     act = model.point_active.copy()
     for p in np.unique(block.obs_point[bad]):
         rows = np.flatnonzero(block.obs_point == p)
@@ -755,11 +760,11 @@ def _drop_lost_points(block: Block, model: Model, state: State, rejected: list[R
     return _with_points(block, model, act)
 
 
-def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):  # type: ignore[no-untyped-def]
+def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, free: bool):
     lay = model.layout
     # without statistics only the cost is needed: no Jacobians, no normal equations
-    factors = model.evaluate(state, jacobians=cfg.statistics)
-    N = assemble(factors, lay, block.obs_image) if cfg.statistics else None
+    factors = model.evaluate(state, jacobians=cfg.statistics.compute)
+    N = assemble(factors, lay, block.obs_image) if cfg.statistics.compute else None
     # rows that depend on no unknown (control of fixed points, GNSS/IMU of fixed poses...) are constants,
     # not observations: they count neither as observations nor in the cost behind sigma0
     varying = {f.name: model.varying_rows(f) for f in factors}
@@ -773,28 +778,28 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     warnings: list[str] = []
     if red <= 0:
         warnings.append(f"no redundancy ({n_obs} observations for {n_unk} unknowns): sigma0 is undefined")
-    if cfg.statistics and lay.n_c <= cfg.max_statistics_parameters:
+    if N is not None and lay.n_c <= cfg.statistics.max_parameters:  # (N: statistics.compute)
         try:
             cov = covariance(N, lay, state, free)
-            if free and cfg.inner_constraints == "points":
+            if free and cfg.unknowns.inner_constraints == "points":
                 cov = point_datum_covariance(cov, N, lay, state, _datum_point_mask(block, model, cfg))
         except (SingularError, ValueError) as e:
             warnings.append(f"covariance not available: {e}")
         if cov is not None:
             warnings.extend(correlation_warnings(cov, lay))
-    elif cfg.statistics:
+    elif cfg.statistics.compute:
         warnings.append(f"full covariance, redundancy numbers, normalised residuals, variance components and "
                         f"data snooping skipped: they need the dense inverse of the reduced system ({lay.n_c} "
-                        f"reduced unknowns > max_statistics_parameters = {cfg.max_statistics_parameters})")
+                        f"reduced unknowns > max_statistics_parameters = {cfg.statistics.max_parameters})")
     selected = None
-    if cfg.statistics and red > 0:
-        cols, pts = chosen_unknowns(model, cfg.statistics_images, cfg.statistics_points)
+    if cfg.statistics.compute and red > 0:
+        cols, pts = chosen_unknowns(model, cfg.statistics.images, cfg.statistics.points)
         if cov is not None:
             selected = selected_from_dense(cov, lay, cols, pts)
         if selected is None and free:
             warnings.append("covariance of the chosen unknowns skipped: a free network above the dense size "
                             "limit needs the pseudo-inverse (use a datum by observations)")
-        elif selected is None:
+        elif selected is None and N is not None:
             try:
                 selected = selected_covariance(N, lay, cols, pts)
                 warnings.append(f"covariance computed for {len(cols)} chosen reduced unknowns and {len(pts)} "

@@ -32,7 +32,7 @@ any other type in ``observations[name]``.
 
 Parameter groups
 ----------------
-Each group of :class:`AdjustConfig` (its :class:`~skyrig.adjust.config.ParameterModes`) is ``"fixed"``,
+Each group of :class:`AdjustConfig` (its part :class:`~skyrig.adjust.config.Unknowns`) is ``"fixed"``,
 ``"free"`` or ``"weighted"`` (free with a prior equal to the starting value and the sigma given in the
 config); solver, data snooping and statistics options are the config's other parts
 (:mod:`skyrig.adjust.config`).
@@ -41,13 +41,13 @@ config); solver, data snooping and statistics options are the config's other par
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.config import MODES, AdjustConfig, Mode
-from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors import image_type, observation_types, require_type
 from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
 
@@ -57,8 +57,17 @@ __all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"] 
 
 CameraModel = FrameCamera | BalCamera
 
+#: default of a field that ``Block.__post_init__`` fills: a field left out (or given as None) takes its canonical
+#: value there (zeros, identity, the type's default sigma...); after construction every such field is an array
+_FILLED: Any = None
 
-def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:  # type: ignore[no-untyped-def]
+
+def _filled(default: float) -> Any:
+    """A scalar default (a sigma) that ``__post_init__`` broadcasts to the field's rows."""
+    return default
+
+
+def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:
     a = np.asarray(x, dtype=dtype)
     if n is None:
         n = a.shape[0] if a.ndim else 0
@@ -133,6 +142,10 @@ class Block:
         Rows of observation types other than the built-in ones, ``{group name: data object}`` (the data
         object is the type's own, see :class:`~skyrig.adjust.factors.base.ObservationType`); a name no
         registered type owns is a :class:`BlockError`.
+    parameters
+        Values ``(n_owners, n_components)`` of the parameter groups that factor modules declare, by group
+        name (:class:`~skyrig.adjust.factors.base.ParameterGroup`): starting values here, adjusted values in
+        the result's block; a group absent here starts at zero.
     actuator_correction
         ``(H, 2 + 6 N)`` correction of each actuated head: ``[offset_rad, scale]`` then, for ``n = 1..N``,
         the Fourier coefficients ``[c_roll, c_pitch, c_yaw, s_roll, s_pitch, s_yaw]`` (rad); default zeros.
@@ -150,41 +163,42 @@ class Block:
     obs_image: NDArray[np.int64]
     obs_point: NDArray[np.int64]
     obs_pixel: NDArray[np.float64]
-    obs_sigma_px: NDArray[np.float64] | float = 1.0
-    image_rotation: NDArray[np.float64] | None = None
-    image_offset: NDArray[np.float64] | None = None
-    image_head: NDArray[np.int64] | None = None
-    head_name: NDArray[np.str_] | None = None
-    station_time: NDArray[np.float64] | None = None
-    station_strip: NDArray[np.int64] | None = None
-    control_point: NDArray[np.int64] | None = None
-    control_xyz: NDArray[np.float64] | None = None
-    control_sigma: NDArray[np.float64] | float = 0.01
-    control_check: NDArray[np.bool_] | None = None
-    gnss_station: NDArray[np.int64] | None = None
-    gnss_xyz: NDArray[np.float64] | None = None
-    gnss_sigma: NDArray[np.float64] | float = 0.05
-    imu_station: NDArray[np.int64] | None = None
-    imu_rotation: NDArray[np.float64] | None = None
-    imu_sigma_rad: NDArray[np.float64] | float = 1e-4
+    obs_sigma_px: NDArray[np.float64] = _filled(1.0)
+    image_rotation: NDArray[np.float64] = _FILLED
+    image_offset: NDArray[np.float64] = _FILLED
+    image_head: NDArray[np.int64] = _FILLED
+    head_name: NDArray[np.str_] = _FILLED
+    station_time: NDArray[np.float64] = _FILLED
+    station_strip: NDArray[np.int64] = _FILLED
+    control_point: NDArray[np.int64] = _FILLED
+    control_xyz: NDArray[np.float64] = _FILLED
+    control_sigma: NDArray[np.float64] = _filled(0.01)
+    control_check: NDArray[np.bool_] = _FILLED
+    gnss_station: NDArray[np.int64] = _FILLED
+    gnss_xyz: NDArray[np.float64] = _FILLED
+    gnss_sigma: NDArray[np.float64] = _filled(0.05)
+    imu_station: NDArray[np.int64] = _FILLED
+    imu_rotation: NDArray[np.float64] = _FILLED
+    imu_sigma_rad: NDArray[np.float64] = _filled(1e-4)
     lever_arm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    head_boresight: NDArray[np.float64] | None = None
+    head_boresight: NDArray[np.float64] = _FILLED
     datum_shift: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    strip_shift: NDArray[np.float64] | None = None
-    strip_drift: NDArray[np.float64] | None = None
-    strip_t0: NDArray[np.float64] | None = None
+    strip_shift: NDArray[np.float64] = _FILLED
+    strip_drift: NDArray[np.float64] = _FILLED
+    strip_t0: NDArray[np.float64] = _FILLED
     frame: str = "local Cartesian frame"
     obs_cov_px2: NDArray[np.float64] | None = None
     control_cov_m2: NDArray[np.float64] | None = None
     gnss_cov_m2: NDArray[np.float64] | None = None
-    distance_point: NDArray[np.int64] | None = None
-    distance_m: NDArray[np.float64] | None = None
-    distance_sigma_m: NDArray[np.float64] | float = 0.001
-    image_beta_rad: NDArray[np.float64] | None = None
-    head_actuated: list | None = None
-    actuator_correction: NDArray[np.float64] | None = None
+    distance_point: NDArray[np.int64] = _FILLED
+    distance_m: NDArray[np.float64] = _FILLED
+    distance_sigma_m: NDArray[np.float64] = _filled(0.001)
+    image_beta_rad: NDArray[np.float64] = _FILLED
+    head_actuated: list[Any] = _FILLED
+    actuator_correction: NDArray[np.float64] = _FILLED
     imu_cov_rad2: NDArray[np.float64] | None = None
     observations: dict = field(default_factory=dict)
+    parameters: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
@@ -235,14 +249,15 @@ class Block:
         if ac.ndim != 2 or ac.shape[0] != h or ac.shape[1] < 2 or (ac.shape[1] - 2) % 6:
             raise BlockError(f"actuator_correction must have shape ({h}, 2 + 6 N), got {ac.shape}")
         self.actuator_correction = ac.copy()
+        self.parameters = {str(k): np.asarray(v, dtype=np.float64) for k, v in self.parameters.items()}
         # the observation groups: each type brings its rows to canonical arrays
         self.observations = dict(self.observations)
         unknown = sorted(set(self.observations) - {t.name for t in observation_types()})
         if unknown:
             raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
                              "(skyrig.adjust.factors.register) before building the block")
-        for t in observation_types():
-            t.normalise(self)
+        for ot in observation_types():
+            ot.normalise(self)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -263,20 +278,21 @@ class Block:
 
     @property
     def n_distances(self) -> int:
-        return len(self.distance_point)  # type: ignore[arg-type]
+        return len(self.distance_point)
 
     @property
     def n_strips(self) -> int:
-        return len(self.strip_t0)  # type: ignore[arg-type]
+        return len(self.strip_t0)
 
     def copy(self) -> "Block":
         """A deep copy of the arrays (cameras are immutable)."""
-        kw = {}
+        kw: dict[str, Any] = {}
         for f in self.__dataclass_fields__:
             v = getattr(self, f)
             kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
-        kw["observations"] = {k: observation_type(k).copy_data(v)  # type: ignore[union-attr]
+        kw["observations"] = {k: require_type(k).copy_data(v)
                               for k, v in self.observations.items()}
+        kw["parameters"] = {k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()}
         return Block(**kw)
 
     # ------------------------------------------------------------------ checks
@@ -285,18 +301,18 @@ class Block:
         geometry here, then each observation type's rows (:meth:`ObservationType.validate`)."""
         check_index("image_station", self.image_station, self.n_stations, "station")
         check_index("image_camera", self.image_camera, len(self.cameras), "camera")
-        check_index("image_head", self.image_head, len(self.head_name), "head")  # type: ignore[arg-type]
+        check_index("image_head", self.image_head, len(self.head_name), "head")
         for name in ("station_rotation", "station_centre", "point_xyz", "image_rotation", "image_offset"):
             check_finite(name, getattr(self, name))
         types = observation_types()
         for t in types:
             t.validate(self)
-        act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)  # type: ignore[index]
-        bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))  # type: ignore[arg-type]
+        act_img = np.array([self.head_actuated[k] is not None for k in self.image_head], bool)
+        bad = np.flatnonzero(act_img & ~np.isfinite(self.image_beta_rad))
         if bad.size:
             raise BlockError(f"image {str(self.image_name[bad[0]])!r} belongs to the actuated head "
-                             f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")  # type: ignore[index]
-        check_finite("actuator_correction", self.actuator_correction)  # type: ignore[arg-type]
+                             f"{str(self.head_name[self.image_head[bad[0]]])!r} but has no actuator angle (image_beta_rad)")
+        check_finite("actuator_correction", self.actuator_correction)
         det = np.linalg.det(self.station_rotation) if self.n_stations else np.ones(0)
         bad = np.flatnonzero(np.abs(det - 1) > 1e-6)
         if bad.size:
@@ -307,7 +323,7 @@ class Block:
             c = t.controlled_points(self)
             if c is not None:
                 ctrl |= c
-        observation_type("image").validate_rays(self, ctrl)  # type: ignore[union-attr]
+        image_type().validate_rays(self, ctrl)
 
 
 def sequence_index(names: Sequence[str]) -> dict[str, int]:

@@ -148,9 +148,9 @@ def fit_image_grid(residual_px: ArrayLike, pixels: ArrayLike, width: int, height
     good = count >= min_count
     if not good.any():
         raise ValueError(f"no grid cell has {min_count} residuals ({ok.sum()} usable residuals, grid {nr}x{nc})")
-    shift[good] /= count[good, None]
+    shift[good] /= count[good, None]  # type: ignore[misc]
     shift[~good] = 0.0
-    return ImageGridCorrection(int(width), int(height), shift.reshape(nr, nc, 2), count.reshape(nr, nc))
+    return ImageGridCorrection(int(width), int(height), shift.reshape(nr, nc, 2), count.reshape(nr, nc))  # type: ignore[arg-type]
 
 
 def remove_image_grid(pixels: ArrayLike, grid: ImageGridCorrection) -> NDArray[np.float64]:

@@ -2,7 +2,7 @@
 (or contradict it)?
 
 For each self-calibrated intrinsic of one camera, from an adjustment that estimated it with a weighted prior
-(``AdjustConfig(intrinsics="weighted")``), :func:`determinability` gives:
+(``AdjustConfig(unknowns=Unknowns(intrinsics="weighted"))``), :func:`determinability` gives:
 
 - the prior (value, sigma) and the estimate with its a-posteriori sigma (``sigma0 * sqrt(q)``);
 - the *formal* sigma ``sqrt(q)`` over the prior sigma: the share of the prior's uncertainty the block leaves.  The

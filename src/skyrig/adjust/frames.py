@@ -121,7 +121,8 @@ def block_from_georef(
         image_camera=np.array([cam_idx[c] for c in obs_l.camera]), image_head=np.array([cam_idx[c] for c in obs_l.camera]),
         head_name=np.array(cam_names), point_name=pnames, point_xyz=X0,
         obs_image=np.array([img_index[i] for i in m_image], dtype=np.int64),
-        obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel, obs_sigma_px=sigma_px,
+        obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel,
+        obs_sigma_px=np.asarray(sigma_px, dtype=np.float64),
         frame=frame.describe(), **ctrl_kw, **kw,
     )
     return block, frame
@@ -194,7 +195,7 @@ def eo_from_block(block: Block, frame: WorldFrame, to: WorldFrame | None = None)
     st = block.image_station
     R, C = world_from_camera(block.station_rotation[st], block.station_centre[st], block.image_rotation,
                              block.image_offset)
-    R = R @ matrix_from_rotvec(block.head_boresight[block.image_head])  # type: ignore[index]
+    R = R @ matrix_from_rotvec(block.head_boresight[block.image_head])
     cams = np.array([block.cameras[c].name for c in block.image_camera])
     eo = ExteriorOrientations(block.image_name, cams, C, R, frame)
     return eo if to is None else eo.to_frame(to)

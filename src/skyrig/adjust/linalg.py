@@ -35,7 +35,7 @@ import contextlib
 import logging
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -56,7 +56,7 @@ except ImportError:  # pragma: no cover - depends on the environment
 try:  # METIS nested dissection
     import pymetis as _pymetis
 except ImportError:  # pragma: no cover - depends on the environment
-    _pymetis = None
+    _pymetis = None  # type: ignore[assignment]
 
 HAVE_CVXOPT_CHOLMOD = _cholmod is not None
 HAVE_METIS = _pymetis is not None
@@ -165,7 +165,7 @@ def symbolic_fill(node: NDArray[np.int64], G: sp.csr_matrix, node_order: NDArray
         parts = [nb[nb > j]]
         for c in children[j]:
             s = structs[c]
-            parts.append(s[s > j])  # type: ignore[index]
+            parts.append(s[s > j])  # type: ignore[index, operator]
             structs[c] = None
         st = np.unique(np.concatenate(parts)) if len(parts) > 1 else parts[0]
         structs[j] = st
@@ -273,7 +273,7 @@ class ReducedSolver:
             r, c = self.indices[self._upper], self.rows[self._upper]  # (row >= col): lower triangle
             self._M = _cvx_spmatrix(_cvx_matrix(np.ones(len(r))), _cvx_matrix(r), _cvx_matrix(c), (self.n, self.n))
             self._F = _cholmod.symbolic(self._M, uplo="L", p=_cvx_matrix(sym.order))
-        self._M.V = _cvx_matrix(np.ascontiguousarray(vals[self._upper]))
+        self._M.V = _cvx_matrix(np.ascontiguousarray(vals[self._upper]))  # type: ignore[attr-defined]
         try:
             _cholmod.numeric(self._M, self._F)
         except ArithmeticError as e:
@@ -348,7 +348,7 @@ class ReducedSolver:
 
 
 # ---------------------------------------------------------------------------- pattern of S, lean
-# The reduced matrix S of the Schur engine (skyrig.adjust.solver.SchurEngine) is the sum of k x k blocks
+# The reduced matrix S of the Schur engine (skyrig.adjust.schur_engine.SchurEngine) is the sum of k x k blocks
 # of unit pairs (a unit: a set of reduced columns shared by image rows, ``ucols[u]``, -1 padded), of the
 # blocks of the other factors' column sets, and the diagonal.  Building its CSR pattern by listing every
 # block entry (pairs x k^2 keys, twice with the mirrors, then sorting) and keeping an int64 map per entry
@@ -359,10 +359,10 @@ class ReducedSolver:
 try:
     import numba as _numba
 except ImportError:  # pragma: no cover - numba is a dependency
-    _numba = None
+    _numba = None  # type: ignore[assignment]
 
 
-def _make_pattern_kernels():  # type: ignore[no-untyped-def]
+def _make_pattern_kernels():
     if _numba is None:  # pragma: no cover
         return None
     njit = _numba.njit
@@ -468,7 +468,7 @@ def _csr_of_lists(owner: NDArray[np.int64], item: NDArray[np.int64], n: int) -> 
 
 
 def schur_pattern(n_c: int, ucols: NDArray[np.int64], row_ptr: NDArray[np.int64], col_idx: NDArray[np.int64],
-                  other_cols: list[NDArray[np.int64]] = ()) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+                  other_cols: Sequence[NDArray[np.int64]] = ()) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """CSR pattern ``(indptr, indices)`` (sorted rows, full symmetric, diagonal included) of the reduced
     matrix: the ``k x k`` blocks ``ucols[u] x ucols[v]`` of the unit pairs (``row_ptr``/``col_idx``: the
     upper block pattern, ``v >= u``) and their mirrors, the blocks ``cols x cols`` of every row of the

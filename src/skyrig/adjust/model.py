@@ -33,12 +33,13 @@ point seen in that image (zero for the other rows).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import BUILTIN, observation_type, observation_types
+from skyrig.adjust.factors import BUILTIN, image_type, observation_type, observation_types, parameter_groups
 from skyrig.adjust.factors.base import Factor, pad_actuator, whitening_matrices
 from skyrig.adjust.factors.image import bal_project
 from skyrig.geometry.rotations import matrix_from_rotvec, matrix_from_rpy, rotvec_from_matrix
@@ -47,7 +48,7 @@ from skyrig.rig.camera_pose import world_from_camera
 __all__ = ["Layout", "State", "Factor", "Model", "bal_project", "whitening_matrices"]
 
 
-def _grids_of(b: Block):  # type: ignore[no-untyped-def]
+def _grids_of(b: Block):
     from skyrig.adjust.factors.image_grid import grids_of
 
     return grids_of(b)
@@ -79,20 +80,24 @@ class State:
     #: node values of the correction grids, flat (:meth:`skyrig.adjust.factors.image_grid.ImageGrids.values`);
     #: None without grids
     grid: NDArray[np.float64] | None = None
+    #: values ``(n_owners, n_components)`` of the parameter groups factor modules declare, by name
+    #: (:class:`~skyrig.adjust.factors.base.ParameterGroup`)
+    groups: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     @classmethod
     def from_block(cls, b: Block) -> "State":
         g = _grids_of(b)
         return cls(b.station_rotation.copy(), b.station_centre.copy(), [c.intrinsics.copy() for c in b.cameras],
-                   b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),  # type: ignore[union-attr]
-                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),  # type: ignore[union-attr]
+                   b.head_boresight.copy(), b.lever_arm.copy(), b.datum_shift.copy(),
+                   b.strip_shift.copy(), b.strip_drift.copy(), b.point_xyz.copy(),
                    None if b.actuator_correction is None else b.actuator_correction.copy(),
-                   None if g is None else g.values())
+                   None if g is None else g.values(), {p.name: p.initial(b) for p in parameter_groups()})
 
     def copy(self) -> "State":
         return State(self.R.copy(), self.C.copy(), [v.copy() for v in self.intr], self.bore.copy(), self.lever.copy(),
                      self.shift.copy(), self.sshift.copy(), self.sdrift.copy(), self.X.copy(),
-                     None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy())
+                     None if self.act is None else self.act.copy(), None if self.grid is None else self.grid.copy(),
+                     {k: v.copy() for k, v in self.groups.items()})
 
 
 @dataclass
@@ -122,6 +127,8 @@ class Layout:
     act: NDArray[np.int64] | None = None
     #: columns of the correction grids' node values (flat, as ``State.grid``); None when not estimated
     grid: NDArray[np.int64] | None = None
+    #: columns ``(n_owners, n_components)`` of the parameter groups factor modules declare, by name (-1: fixed)
+    groups: dict[str, NDArray[np.int64]] = field(default_factory=dict)
 
     @classmethod
     def build(cls, b: Block, cfg: AdjustConfig, point_active: NDArray[np.bool_] | None = None) -> "Layout":
@@ -129,7 +136,7 @@ class Layout:
         labels: list[tuple[str, str, str]] = []
         n = 0
 
-        def take(count_shape: tuple[int, ...], on: bool, group: str, owners, comps) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
+        def take(count_shape: tuple[int, ...], on: bool, group: str, owners, comps) -> NDArray[np.int64]:
             nonlocal n
             size = int(np.prod(count_shape))
             if not on or size == 0:
@@ -141,56 +148,56 @@ class Layout:
                     labels.append((group, str(o), c))
             return idx
 
-        pose = take((b.n_stations, 6), cfg.poses != "fixed", "pose", b.station_name,
+        pose = take((b.n_stations, 6), cfg.unknowns.poses != "fixed", "pose", b.station_name,
                     ("X", "Y", "Z", "rx", "ry", "rz"))
-        intr = []
+        intr: list[NDArray[np.int64]] = []
         for cam in b.cameras:
             names = cam.intrinsic_names
             cols = np.full(len(names), -1, np.int64)
             used = np.flatnonzero(b.image_camera == len(intr)).size > 0
-            if cfg.intrinsics != "fixed" and used:
+            if cfg.unknowns.intrinsics != "fixed" and used:
                 for j, nm in enumerate(names):
-                    if cfg.intrinsic_names is None or nm in cfg.intrinsic_names:
+                    if cfg.unknowns.intrinsic_names is None or nm in cfg.unknowns.intrinsic_names:
                         cols[j] = n
                         labels.append(("intrinsics", cam.name, nm))
                         n += 1
             intr.append(cols)
-        bore = take((len(b.head_name), 3), cfg.boresight != "fixed", "boresight", b.head_name,  # type: ignore[arg-type]
+        bore = take((len(b.head_name), 3), cfg.unknowns.boresight != "fixed", "boresight", b.head_name,
                     ("rx", "ry", "rz"))
         # groups that only some observation type determines (GNSS: lever arm, datum and strip shifts)
         observed = {p for t in observation_types() if t.parameters and t.count(b) > 0 for p in t.parameters}
 
         def on(group: str) -> bool:
-            return getattr(cfg, group) != "fixed" and group in observed
+            return getattr(cfg.unknowns, group) != "fixed" and group in observed
 
         lever = take((3,), on("lever_arm"), "lever_arm", ["antenna"], ("x", "y", "z"))
         shift = take((3,), on("datum_shift"), "datum_shift", ["gnss"], ("X", "Y", "Z"))
         strips = [f"strip{k}" for k in range(b.n_strips)]
         sshift = take((b.n_strips, 3), on("strip_shift"), "strip_shift", strips, ("X", "Y", "Z"))
         sdrift = take((b.n_strips, 3), on("strip_drift"), "strip_drift", strips, ("X", "Y", "Z"))
-        width = 2 + 6 * int(cfg.actuator_fourier_order)
-        act_cols = np.full((len(b.head_name), width), -1, np.int64)  # type: ignore[arg-type]
-        fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.actuator_fourier_order) + 1)
+        width = 2 + 6 * int(cfg.unknowns.actuator_fourier_order)
+        act_cols = np.full((len(b.head_name), width), -1, np.int64)
+        fourier_names = [f"{cs}{k}_{ax}" for k in range(1, int(cfg.unknowns.actuator_fourier_order) + 1)
                          for cs in ("c", "s") for ax in ("roll", "pitch", "yaw")]
-        for h, head in enumerate(b.head_actuated):  # type: ignore[arg-type]
+        for h, head in enumerate(b.head_actuated):
             if head is None or not np.any(b.image_head == h):
                 continue
-            for j, on, nm in ([(0, cfg.actuator != "fixed", "beta_offset"), (1, cfg.actuator != "fixed", "beta_scale")]
-                              + [(2 + q, cfg.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
-                if on:
+            for j, is_on, nm in ([(0, cfg.unknowns.actuator != "fixed", "beta_offset"), (1, cfg.unknowns.actuator != "fixed", "beta_scale")]
+                              + [(2 + q, cfg.unknowns.actuator_curve != "fixed", fourier_names[q]) for q in range(width - 2)]):
+                if is_on:
                     act_cols[h, j] = n
-                    labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))  # type: ignore[index]
+                    labels.append(("actuator" if j < 2 else "actuator_curve", str(b.head_name[h]), nm))
                     n += 1
         grid_cols = None
         grids = _grids_of(b)
-        if grids is not None and cfg.image_grid != "fixed":
+        if grids is not None and cfg.unknowns.image_grid != "fixed":
             parts = []
             for g in grids.grids:
-                used = np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any()
+                grid_used = bool(np.isin(b.image_camera, [j for j, c in enumerate(b.cameras) if c.name == g.camera]).any())
                 ny, nx = len(g.y_px), len(g.x_px)
                 names = [f"{ax}{iy}_{ix}" for iy in range(ny) for ix in range(nx) for ax in "xy"]
                 cols = np.full(2 * nx * ny, -1, np.int64)
-                if used:
+                if grid_used:
                     cols = np.arange(n, n + cols.size, dtype=np.int64)
                     n += cols.size
                     labels.extend(("image_grid", g.camera, nm) for nm in names)
@@ -198,7 +205,7 @@ class Layout:
             grid_cols = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         act = np.ones(b.n_points, bool) if point_active is None else np.asarray(point_active, bool).copy()
         rpoint = None
-        if cfg.points != "fixed" and b.n_distances:
+        if cfg.unknowns.points != "fixed" and b.n_distances:
             red = np.zeros(b.n_points, bool)
             red[np.asarray(b.distance_point).reshape(-1)] = True
             red &= act
@@ -206,12 +213,28 @@ class Layout:
                 rpoint = np.full((b.n_points, 3), -1, np.int64)
                 rpoint[red] = take((int(red.sum()), 3), True, "point", b.point_name[red], ("X", "Y", "Z"))
                 act &= ~red
-        if cfg.points == "fixed":
+        groups = {}
+        for pg in parameter_groups():  # after the built-in groups: their columns stay where they were
+            owners = pg.owners(b)
+            groups[pg.name] = take((len(owners), len(pg.components)),
+                                   cfg.unknowns.group_mode(pg.name) != "fixed" and pg.estimated(b), pg.name, owners,
+                                   pg.components)
+        if cfg.unknowns.points == "fixed":
             point = np.full(b.n_points, -1, np.int64)
         else:
             point = np.where(act, np.cumsum(act) - 1, -1).astype(np.int64)
         return cls(pose, intr, bore, lever, shift, sshift, sdrift, point, n, int((point >= 0).sum()), labels,
-                   rpoint, act_cols, grid_cols)
+                   rpoint, act_cols, grid_cols, groups)
+
+    @property
+    def act_cols(self) -> NDArray[np.int64]:
+        """``(H, 2 + 6 N)`` columns of the actuator corrections (``act``; all -1 when there are none)."""
+        return self.act if self.act is not None else np.full((len(self.bore), 2), -1, np.int64)
+
+    @property
+    def rpoint_cols(self) -> NDArray[np.int64]:
+        """``(P, 3)`` reduced columns of the points (``rpoint``; all -1 when there are none)."""
+        return self.rpoint if self.rpoint is not None else np.full((len(self.point), 3), -1, np.int64)
 
     @property
     def has_rpoint(self) -> bool:
@@ -241,14 +264,18 @@ class Layout:
             out.act = pad_actuator(s.act, self.act.shape[0], self.act.shape[1]) + step(self.act)
         if self.grid is not None and s.grid is not None:
             out.grid = s.grid + step(self.grid)
+        for pg in parameter_groups():
+            gcols = self.groups.get(pg.name)
+            if gcols is not None and (gcols >= 0).any():
+                out.groups[pg.name] = pg.retract(s.groups[pg.name], step(gcols))
         if self.n_p or self.has_rpoint:
             out.X = s.X.copy()
         if self.n_p:
             free = self.point >= 0
             out.X[free] += dp[self.point[free]]
         if self.has_rpoint:
-            red = (self.rpoint >= 0).all(axis=1)  # type: ignore[operator]
-            out.X[red] += step(self.rpoint[red])  # type: ignore[index]
+            red = (self.rpoint_cols >= 0).all(axis=1)
+            out.X[red] += step(self.rpoint_cols[red])
         return out
 
 
@@ -279,10 +306,10 @@ class Model:
         self._intr_on = bool((icols >= 0).any())
         self._bore_on = bool((self.layout.bore >= 0).any())
         # actuated heads: images whose mounting is computed from beta
-        heads = b.head_actuated or [None] * len(b.head_name)  # type: ignore[arg-type]
+        heads = b.head_actuated or [None] * len(b.head_name)
         is_act = np.array([heads[h] is not None for h in b.image_head], bool) if b.n_images else np.zeros(0, bool)
         self._act_images = np.flatnonzero(is_act)
-        self._act_width = 2 + 6 * int(config.actuator_fourier_order)
+        self._act_width = 2 + 6 * int(config.unknowns.actuator_fourier_order)
         self._act_on = lay.act is not None and bool((lay.act >= 0).any())
         if self._act_images.size:
             from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA
@@ -304,7 +331,7 @@ class Model:
             if w is not None:
                 self.weights[t.name] = w
         #: per observation type its per-model constants (whitening matrices, index tables...)
-        self.cache: dict[str, object] = {t.name: t.prepare(self) for t in self.types}
+        self.cache: dict[str, Any] = {t.name: t.prepare(self) for t in self.types}
 
     # ------------------------------------------------------------------ weights (by group name)
     obs_weight = property(lambda self: self.weights["image"], lambda self, v: self.weights.__setitem__("image", v),
@@ -351,15 +378,15 @@ class Model:
         b = self.block
         ai = self._act_images
         hi = b.image_head[ai]
-        beta = b.image_beta_rad[ai]  # type: ignore[index]
-        A = pad_actuator(s.act, len(b.head_name), self._act_width)[hi]  # type: ignore[arg-type]
+        beta = b.image_beta_rad[ai]
+        A = pad_actuator(s.act, len(b.head_name), self._act_width)[hi]
         bp = (1.0 + A[:, 1]) * beta + A[:, 0]
         a = np.zeros((ai.size, 3))
         da = np.zeros((ai.size, 3))
         h = 1e-6
         for k in np.unique(hi):
             sel = hi == k
-            head = b.head_actuated[k]  # type: ignore[index]
+            head = b.head_actuated[k]
             a[sel] = head.tilt_angles(bp[sel])
             if jacobian:
                 da[sel] = (head.tilt_angles(bp[sel] + h) - head.tilt_angles(bp[sel] - h)) / (2 * h)
@@ -417,7 +444,7 @@ class Model:
 
     def _image(self, s: State, jac: bool) -> Factor:
         """The image factor alone (:class:`skyrig.adjust.factors.image.Image`)."""
-        return observation_type("image").evaluate_one(self, s, jac)  # type: ignore[union-attr]
+        return image_type().evaluate_one(self, s, jac)
 
 
 _BUILTIN_NAMES = frozenset(BUILTIN)  # the built-in types (their modules are named after them)
@@ -444,4 +471,4 @@ def _check_rows(name: str, factors: list[Factor]) -> None:
 try:
     from skyrig.adjust._image_kernels import bal_rows as _BAL_KERNEL, chain as _CHAIN_KERNEL
 except ImportError:  # pragma: no cover - depends on the environment
-    _BAL_KERNEL = _CHAIN_KERNEL = None
+    _BAL_KERNEL = _CHAIN_KERNEL = None  # type: ignore[assignment]

@@ -21,12 +21,13 @@ another value, the preset's value is used and the conflict is returned in words.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Iterable
 
 import numpy as np
 
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.config import PARTS, ReliabilityOptions, Unknowns
 from skyrig.errors import ConfigError
 
 __all__ = ["Preset", "PRESETS", "apply_preset", "merge_preset"]
@@ -41,23 +42,26 @@ class Preset:
     config: AdjustConfig
     all_check: bool = False
     datum_shift_needs_gnss: bool = True
-    #: configuration fields the variant decides (and why, for conflict messages); its other non-default
+    #: configuration fields (``part.field``) the variant decides (and why, for conflict messages); its other non-default
     #: fields are defaults that an explicit setting in the block file overrides
     decides: tuple[tuple[str, str], ...] = ()
 
 
 PRESETS: dict[str, Preset] = {
     "ba-eo-control": Preset("ba-eo-control", "Bundle Adjustment + EO + Control",
-                            AdjustConfig(poses="free", datum_shift="free", snooping=True),
-                            decides=(("poses", "the GNSS/IMU orientations are refined by the adjustment"),
-                                     ("datum_shift", "the control points determine a GNSS block shift"))),
-    "dg-control": Preset("dg-control", "Direct Geo Referencing + Control", AdjustConfig(poses="fixed"),
-                         decides=(("poses", "direct georeferencing holds the GNSS/IMU orientations"),)),
+                            AdjustConfig(unknowns=Unknowns(poses="free", datum_shift="free"),
+                                         reliability=ReliabilityOptions(snooping=True)),
+                            decides=(("unknowns.poses", "the GNSS/IMU orientations are refined by the adjustment"),
+                                     ("unknowns.datum_shift", "the control points determine a GNSS block shift"))),
+    "dg-control": Preset("dg-control", "Direct Geo Referencing + Control",
+                         AdjustConfig(unknowns=Unknowns(poses="fixed")),
+                         decides=(("unknowns.poses", "direct georeferencing holds the GNSS/IMU orientations"),)),
     "refine-eo-check": Preset("refine-eo-check", "Refine EO with Check Points",
-                              AdjustConfig(poses="free", snooping=True), all_check=True,
-                              decides=(("poses", "the GNSS/IMU orientations are refined by the adjustment"),
-                                       ("datum_shift", "every ground point is a check point, so nothing separates "
-                                        "a GNSS datum shift from a translation of the block"))),
+                              AdjustConfig(unknowns=Unknowns(poses="free"),
+                                           reliability=ReliabilityOptions(snooping=True)), all_check=True,
+                              decides=(("unknowns.poses", "the GNSS/IMU orientations are refined by the adjustment"),
+                                       ("unknowns.datum_shift", "every ground point is a check point, so nothing "
+                                        "separates a GNSS datum shift from a translation of the block"))),
 }
 
 
@@ -72,7 +76,7 @@ def merge_preset(name: str, base: AdjustConfig | None = None, explicit: Iterable
     base
         The block file's configuration (default: :class:`AdjustConfig` defaults).
     explicit
-        The fields the block file sets explicitly (``BlockFile.adjustment_keys``).
+        The fields the block file sets explicitly, as ``part.field`` (``BlockFile.adjustment_keys``).
     has_gnss
         Whether the block has GNSS observations (without them no datum shift is estimated).
 
@@ -87,40 +91,39 @@ def merge_preset(name: str, base: AdjustConfig | None = None, explicit: Iterable
     p = PRESETS[name]
     base = base or AdjustConfig()
     explicit = set(explicit)
-    pc = p.config if has_gnss or not p.datum_shift_needs_gnss else p.config.with_(datum_shift="fixed")
+    pc = p.config if has_gnss or not p.datum_shift_needs_gnss else p.config.with_unknowns(datum_shift="fixed")
     decided = dict(p.decides)
-    fields = AdjustConfig.__dataclass_fields__
-    changes: dict[str, object] = {}
+    changes: dict[str, dict[str, object]] = {part: {} for part in PARTS}
     conflicts: list[str] = []
-    for k, f in fields.items():
-        pv, bv = getattr(pc, k), getattr(base, k)
-        if k in decided:
-            if k in explicit and bv != pv:
-                conflicts.append(f"preset {name!r} sets {k} = {pv!r} although the block file's adjustment section "
-                                 f"says {bv!r}: {decided[k]} (edit the block file or choose another preset)")
-            changes[k] = pv
-        elif k not in explicit and pv != f.default:
-            changes[k] = pv
-    if not has_gnss and "datum_shift" not in explicit:
-        changes["datum_shift"] = "fixed"
-    return base.with_(**changes), conflicts
+    for part in PARTS:
+        for f in fields(getattr(pc, part)):
+            k = f"{part}.{f.name}"
+            pv, bv = getattr(getattr(pc, part), f.name), getattr(getattr(base, part), f.name)
+            if k in decided:
+                if k in explicit and bv != pv:
+                    conflicts.append(f"preset {name!r} sets {k} = {pv!r} although the block file's adjustment section "
+                                     f"says {bv!r}: {decided[k]} (edit the block file or choose another preset)")
+                changes[part][f.name] = pv
+            elif k not in explicit and pv != f.default:
+                changes[part][f.name] = pv
+    if not has_gnss and "unknowns.datum_shift" not in explicit:
+        changes["unknowns"]["datum_shift"] = "fixed"
+    return replace(base, **{part: replace(getattr(base, part), **c) for part, c in changes.items()}), conflicts
 
 
-def apply_preset(block: Block, name: str, base: AdjustConfig | None = None, explicit: Iterable[str] = (),
-                 **overrides: object) -> tuple[Block, AdjustConfig]:
+def apply_preset(block: Block, name: str, base: AdjustConfig | None = None, explicit: Iterable[str] = ()
+                 ) -> tuple[Block, AdjustConfig]:
     """A copy of ``block`` with control roles set for preset ``name`` and its configuration.
 
     The configuration is :func:`merge_preset` of the preset with ``base`` (a block file's configuration,
     ``explicit`` its explicitly set fields; default: none); a GNSS datum shift is only estimated when the
-    block has GNSS observations; ``overrides`` replace configuration fields.  Unknown names raise
+    block has GNSS observations.  Unknown names raise
     :class:`~skyrig.errors.ConfigError` listing the presets.  (:func:`merge_preset` also returns the conflicts in
     words.)
     """
-    cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))  # type: ignore[arg-type]
+    cfg, _ = merge_preset(name, base, explicit, bool(len(block.gnss_station)))
     p = PRESETS[name]
     b = block.copy()
     if p.all_check:
-        b.control_check = np.ones(len(b.control_point), bool)  # type: ignore[arg-type]
-    if overrides:
-        cfg = cfg.with_(**overrides)
+        b.control_check = np.ones(len(b.control_point), bool)
     return b, cfg

@@ -72,10 +72,10 @@ def distance_table(result: AdjustmentResult) -> dict[str, Any]:
     rr = g.redundancy[:, 0] if g is not None and g.redundancy is not None else nan
     used = g.weight > 0 if g is not None else np.ones(n, bool)
     dp = b.distance_point
-    adj = np.linalg.norm(b.point_xyz[dp[:, 0]] - b.point_xyz[dp[:, 1]], axis=1)  # type: ignore[index]
+    adj = np.linalg.norm(b.point_xyz[dp[:, 0]] - b.point_xyz[dp[:, 1]], axis=1)
     rows = [dict(point_a=str(b.point_name[i]), point_b=str(b.point_name[j]), observed_m=float(o), adjusted_m=float(a),
                  residual_m=float(x), sigma_m=float(sg), normalised=float(wi), redundancy=float(ri), used=bool(u))
-            for (i, j), o, a, x, sg, wi, ri, u in zip(dp, b.distance_m, adj, v, b.distance_sigma_m, w, rr, used)]  # type: ignore[arg-type]
+            for (i, j), o, a, x, sg, wi, ri, u in zip(dp, b.distance_m, adj, v, b.distance_sigma_m, w, rr, used)]
     stats = dict(n=int(used.sum()), rms_m=float(np.sqrt(np.mean(v[used] ** 2))) if used.any() else float("nan"),
                  max_abs_normalised=float(np.nanmax(np.abs(w[used]))) if used.any() and np.isfinite(w[used]).any()
                  else float("nan"))
@@ -85,14 +85,14 @@ def distance_table(result: AdjustmentResult) -> dict[str, Any]:
 def datum_words(result: AdjustmentResult) -> str:
     """The datum of ``result``'s adjusted values and covariance, in words."""
     cfg = result.config
-    if cfg.datum == "free" and cfg.inner_constraints == "points":
-        which = (f"{len(cfg.datum_points)} chosen points" if cfg.datum_points else "all estimated object points")
+    if cfg.unknowns.datum == "free" and cfg.unknowns.inner_constraints == "points":
+        which = (f"{len(cfg.unknowns.datum_points)} chosen points" if cfg.unknowns.datum_points else "all estimated object points")
         kept = "centroid and orientation" if result.block.n_distances else "centroid, orientation and scale"
         return (f"inner constraints on {which} (free network: their {kept} are those of their starting "
                 "coordinates; minimum trace of their covariance)")
-    if cfg.datum == "free":
+    if cfg.unknowns.datum == "free":
         return "inner constraints on the station poses (free network: minimum norm of the pose corrections)"
-    if cfg.datum == "none":
+    if cfg.unknowns.datum == "none":
         return "none (no covariance)"
     return "observations (control points and/or GNSS positions)"
 
@@ -151,7 +151,7 @@ def _reduced_values(result: AdjustmentResult, columns: NDArray[np.int64]) -> lis
     put(lay.sshift, b.strip_shift)
     put(lay.sdrift, b.strip_drift)
     if lay.has_rpoint:
-        put(lay.rpoint, b.point_xyz)  # type: ignore[arg-type]
+        put(lay.rpoint_cols, b.point_xyz)
     if lay.act is not None and b.actuator_correction is not None:
         put(lay.act, pad_actuator(b.actuator_correction, lay.act.shape[0], lay.act.shape[1]))
     return val[columns].tolist()
@@ -200,11 +200,11 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
     }
     given = b0.control_xyz if check_xyz is None else np.asarray(check_xyz, float)
     cp = b0.control_point
-    if frames is not None and len(cp):  # type: ignore[arg-type]
+    if frames is not None and len(cp):
         f, to = frames
-        v = f.points_to(b.point_xyz[cp], to) - f.points_to(given, to)  # type: ignore[index]
+        v = f.points_to(b.point_xyz[cp], to) - f.points_to(given, to)
     else:
-        v = b.point_xyz[cp] - given  # type: ignore[index]
+        v = b.point_xyz[cp] - given
     if frames is not None:
         from skyrig.geodesy.statement import crs_statement
 
@@ -213,8 +213,8 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
         out["summary"]["frame"] = to.to_text()
         out["summary"]["vertical"] = crs_statement(to)[1]
     chk = b0.control_check
-    out["control"] = point_table(b.point_name[cp[~chk]], v[~chk], gsd_m, limits_m)  # type: ignore[index]
-    out["check"] = point_table(b.point_name[cp[chk]], v[chk], gsd_m, limits_m)  # type: ignore[index]
+    out["control"] = point_table(b.point_name[cp[~chk]], v[~chk], gsd_m, limits_m)
+    out["check"] = point_table(b.point_name[cp[chk]], v[chk], gsd_m, limits_m)
     orient: dict[str, Any] = {}
     if "gnss" in result.residuals:
         r = result.residuals["gnss"].residual
@@ -227,7 +227,7 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
         r = np.degrees(result.residuals["imu"].residual)
         orient["imu_rms_deg"] = _rms(r)
         orient["imu_mean_deg"] = r.mean(axis=0).tolist()
-    orient["boresight_deg"] = {str(h): np.degrees(v).tolist() for h, v in zip(b.head_name, b.head_boresight)}  # type: ignore[arg-type]
+    orient["boresight_deg"] = {str(h): np.degrees(v).tolist() for h, v in zip(b.head_name, b.head_boresight)}
     orient["cameras"] = {c.name: dict(zip(c.intrinsic_names, np.asarray(c.intrinsics).tolist())) for c in b.cameras}
     sr = result.sigma_reduced()
     if sr:

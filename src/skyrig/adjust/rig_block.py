@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 import logging
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,11 @@ from skyrig.trajectory import CameraEvents, Trajectory
 __all__ = ["block_from_trajectory"]
 
 logger = logging.getLogger(__name__)
+
+
+#: fields of the base block that the new stations and heads make wrong: None = filled again by Block.__post_init__
+_REFILLED: dict[str, Any] = dict(head_boresight=None, strip_shift=None, strip_drift=None, strip_t0=None,
+                                 actuator_correction=None)
 
 
 def block_from_trajectory(
@@ -89,7 +94,7 @@ def block_from_trajectory(
     eo = eo_ecef.to_frame(WorldFrame.ecef())  # as direct_georeference returns it
     cameras = {h.camera.name: h.camera for h in rig}
     base, frame = block_from_georef(eo, cameras, measurements, control, gnss_sigma_m=None, imu_sigma_rad=None,
-                                    control_sigma_m=control_sigma_m, check_points=tuple(check_points),
+                                    control_sigma_m=control_sigma_m, check_points=tuple(check_points),  # type: ignore[arg-type]
                                     sigma_px=sigma_px, frame=frame, min_rays=min_rays)
     ev_index = {str(n): k for k, n in enumerate(events.image_name)}
     rows = np.array([ev_index[str(n)] for n in base.image_name], dtype=np.int64)
@@ -140,11 +145,9 @@ def block_from_trajectory(
         image_station=station_of_image.astype(np.int64), image_rotation=image_rotation, image_offset=image_offset,
         image_head=image_head, head_name=np.array(heads),
         lever_arm=np.asarray(rig.antenna_lever_arm_m, dtype=np.float64).copy(),
-        head_boresight=None, strip_shift=None, strip_drift=None, strip_t0=None,
         head_actuated=[rig.head(h) if a else None for h, a in zip(heads, actuated)],
         image_beta_rad=np.where(actuated[image_head], beta, np.nan),
-        actuator_correction=None,
-        **kw,
+        **kw, **_REFILLED,
     )
     block = _drop_points(block, _single_station(block) | _gross_at_start(block, max_start_residual_px))
     return block, frame
@@ -171,7 +174,7 @@ def _gross_at_start(block: Block, limit_px: float) -> NDArray[np.bool_]:
     f = next(f for f in Model(block, AdjustConfig()).evaluate(State.from_block(block), jacobians=False)
              if f.name == "image")
     res = np.abs(f.r) * block.obs_sigma_px
-    bad_obs = getattr(f, "bad", np.zeros(len(res), bool)) | (res.max(axis=1) > limit_px)
+    bad_obs = (np.zeros(len(res), bool) if f.bad is None else f.bad) | (res.max(axis=1) > limit_px)
     out = np.zeros(block.n_points, bool)
     out[block.obs_point[bad_obs]] = True
     return out
@@ -186,7 +189,7 @@ def _drop_points(block: Block, drop: NDArray[np.bool_]) -> Block:
         return block
     logger.info("dropped %d of %d points at the start (single exposure or gross start residual)",
                 int((~keep).sum()), block.n_points)
-    if len(block.distance_point):  # type: ignore[arg-type]
+    if len(block.distance_point):
         raise BlockError("distance observations with single-exposure points are not supported here")
     new_index = np.cumsum(keep) - 1
     obs_keep = keep[block.obs_point]

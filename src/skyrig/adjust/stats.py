@@ -112,12 +112,12 @@ def _point_pattern(N: Normal, n_c: int, n_p: int
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
     there ``(nnz, 3)``."""
-    Wb = N.Wb.tocoo()  # type: ignore[union-attr]  # every stored block entry, zeros included
-    Pc = abs(N.P).tocsc()  # type: ignore[union-attr]  # (unit columns, n_c)
+    Wb = N.wb.tocoo()  # every stored block entry, zeros included
+    Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
     S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
     key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
-    Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr()).tocoo()  # type: ignore[union-attr]
+    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()).tocoo()
     key_w = (Wfull.col // 3).astype(np.int64) * (n_c + 1) + Wfull.row
     wv = np.zeros((len(key_s), 3))
     pos = np.searchsorted(key_s, key_w)
@@ -226,7 +226,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
     Qpp = Vinv.copy()
     M = None
     if n_p and N.Wb is not None:
-        Wfull = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]
+        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr())
         if Q.shape[0] * 3 * n_p <= max_dense_products:
             M = np.asarray(Wfull.T @ Q).T  # Q_cc W  (n_c, 3 n_p)
             Wc = Wfull.tocsc()
@@ -239,7 +239,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
             indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p)
             vals, WtM = _pattern_products(Q, indptr, rows, wv)
             Qpp = Vinv + Vinv @ WtM @ Vinv
-            M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)
+            M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)  # type: ignore[assignment]
     return Covariance(Q, Qpp, Vinv, M)
 
 
@@ -256,7 +256,7 @@ def similarity_basis(state: State, layout: Layout, scale: bool
     Gc = np.zeros((layout.n_c, d))
     Gp = np.zeros((layout.n_p, 3, d))
     pts = np.flatnonzero(layout.point >= 0)
-    red = np.flatnonzero((layout.rpoint >= 0).all(axis=1)) if layout.has_rpoint else np.zeros(0, np.int64)  # type: ignore[union-attr]
+    red = np.flatnonzero((layout.rpoint_cols >= 0).all(axis=1)) if layout.has_rpoint else np.zeros(0, np.int64)
     pose_on = np.flatnonzero((layout.pose >= 0).all(axis=1))
     allp = np.concatenate([pts, red])
     c0 = state.X[allp].mean(axis=0) if allp.size else (state.C[pose_on].mean(axis=0) if pose_on.size
@@ -282,7 +282,7 @@ def similarity_basis(state: State, layout: Layout, scale: bool
             Gc[pc[:, 3 + a], 3:6] = state.R[pose_on][:, :, a]  # (R^T e_b)_a = R[b, a]
     if red.size:
         mr = motions(state.X[red])
-        rc = layout.rpoint[red]  # type: ignore[index]
+        rc = layout.rpoint_cols[red]
         for a in range(3):
             Gc[rc[:, a]] = mr[:, a]
     if pts.size:
@@ -314,8 +314,8 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     Bc = np.zeros_like(Gc)
     n_red = 0
     if layout.has_rpoint:
-        red = (layout.rpoint >= 0).all(axis=1) & chosen  # type: ignore[union-attr]
-        rc = layout.rpoint[red].reshape(-1)  # type: ignore[index]
+        red = (layout.rpoint_cols >= 0).all(axis=1) & chosen
+        rc = layout.rpoint_cols[red].reshape(-1)
         Bc[rc] = Gc[rc]
         n_red = int(red.sum())
     Bp = Gp * sel_p[:, None, None]
@@ -325,7 +325,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     Q = cov.Qcc
     Vinv = cov.Vinv
     if n_p:
-        W = sp.csr_matrix(N.P.T @ N.Wb.tocsr())  # type: ignore[union-attr]  # (n_c, 3 n_p)
+        W = sp.csr_matrix(N.p.T @ N.wb.tocsr())  # (n_c, 3 n_p)
         Y = np.einsum("pab,pbd->pad", Vinv, Bp).reshape(3 * n_p, d)  # V^-1 B_p
         F = Bc.T - np.asarray(W @ Y).T  # (d, n_c): B_c^T - B_p^T V^-1 W^T
     else:
@@ -335,7 +335,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
     BtG = Bc.T @ Gc + np.einsum("pad,pae->de", Bp, Gp)
     BQB = BQc @ Bc
     if n_p:
-        FM = np.asarray((W.T @ BQc.T)).T.reshape(d, n_p, 3).transpose(1, 0, 2)  # type: ignore[union-attr]  # (n_p, d, 3)
+        FM = np.asarray((W.T @ BQc.T)).T.reshape(d, n_p, 3).transpose(1, 0, 2)  # (n_p, d, 3)
         BQp = np.einsum("pda,pab->pdb", np.swapaxes(Bp, 1, 2) - FM, Vinv)  # (B^T Q) point columns
         BQB = BQB + np.einsum("pda,pae->de", BQp, Bp)
     sv = np.linalg.svd(BtG, compute_uv=False)
@@ -467,11 +467,11 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     pi = layout.point[points]
     rhs = np.zeros((n_c, m + 3 * k))
     rhs[columns, np.arange(m)] = 1.0
-    Wk = None
+    Wk = np.zeros((0, 0))  # (no chosen point)
     if k:
         cols3 = (3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)
         # the (n_c, 3 k) columns of W = P^T Wb of the chosen points (sliced before the product)
-        Wk = np.asarray(N.P.T @ N.Wb.tocsc()[:, cols3].toarray())  # type: ignore[union-attr]
+        Wk = np.asarray(N.p.T @ N.wb.tocsc()[:, cols3].toarray())
         rhs[:, m:] = Wk
     X = solve_reduced(S, rhs) if n_c else rhs
     Qcc = X[columns, :m]
@@ -480,7 +480,7 @@ def selected_covariance(N: Normal, layout: Layout, columns: NDArray[np.int64], p
     Qcp = np.zeros((m, k, 3))
     if k:
         Y = X[:, m:].reshape(n_c, k, 3)
-        Wp = Wk.reshape(n_c, k, 3)  # type: ignore[union-attr]
+        Wp = Wk.reshape(n_c, k, 3)
         WtY = np.einsum("nka,nkb->kab", Wp, Y)
         Vi = Vinv[pi]
         Qpp = Vi + Vi @ WtY @ Vi
@@ -618,7 +618,7 @@ def correlation_warnings(cov: Covariance, layout: Layout, limit: float = 0.98, m
     # pose-pose correlations within a station are common and uninteresting; report across groups
     # and for the global groups (lever arm, boresight, shifts, intrinsics) among themselves
     glob = groups != "pose"
-    out = []
+    out: list[str] = []
     idx = np.flatnonzero(glob)
     if idx.size == 0:
         return out

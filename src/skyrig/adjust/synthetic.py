@@ -105,7 +105,7 @@ def synthetic_block(
 
         heads = [("nadir", cam, NADIR_BODY_FROM_CAMERA, np.zeros(3))]
     else:
-        heads = [(h.name, h.camera, None if h.is_actuated else h.body_from_camera_rotation(), h.lever_arm_m)
+        heads = [(h.name, h.camera, None if h.is_actuated else h.body_from_camera_rotation(), h.lever_arm_m)  # type: ignore[misc]
                  for h in rig.heads.values()]
     head_objs = list(rig.heads.values()) if rig is not None else [None]
     true_objs = list((true_rig or rig).heads.values()) if rig is not None else [None]
@@ -163,8 +163,9 @@ def synthetic_block(
         image_name=names, image_station=img_station, image_camera=img_head, image_head=img_head,
         image_rotation=img_rot, image_offset=img_off, head_name=np.array([h[0] for h in heads]),
         point_name=np.array([f"p{k}" for k in range(P)]), point_xyz=X0, obs_image=oi_a, obs_point=op_a,
-        obs_pixel=px_a, obs_sigma_px=sigma_px, control_point=ctrl, control_xyz=ctrl_xyz,
-        control_sigma=sigma_control_m, frame="synthetic local ENU", **block_kw,
+        obs_pixel=px_a, obs_sigma_px=np.asarray(sigma_px, dtype=np.float64), control_point=ctrl,
+        control_xyz=ctrl_xyz,
+        control_sigma=np.asarray(sigma_control_m, dtype=np.float64), frame="synthetic local ENU", **block_kw,
     )
     truth = SyntheticTruth(R, C, X, list(true_cams), lever, bore, shift)
     return block, truth

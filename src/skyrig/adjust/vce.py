@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
-from skyrig.adjust.factors import observation_type, observation_types
+from skyrig.adjust.factors import observation_types, require_type
 from skyrig.adjust.model import whitening_matrices
 from skyrig.errors import ConfigError
 
@@ -154,7 +154,7 @@ def estimate_variance_components(
         ``callback(iteration, factors)`` after each adjustment.
     """
     cfg = config or AdjustConfig()
-    if not cfg.statistics:
+    if not cfg.statistics.compute:
         raise ConfigError("variance component estimation needs statistics=True (redundancy numbers)")
     split = DEFAULT_SPLIT if split is None else split
     b = block.copy()
@@ -170,9 +170,9 @@ def estimate_variance_components(
             gr = res.residuals.get(g)
             if gr is None or gr.redundancy is None or len(gr.residual) == 0:
                 continue
-            t = observation_type(g)
-            sig = t.get_sigma(b)  # type: ignore[union-attr]
-            cov = t.get_cov(b)  # type: ignore[union-attr]
+            t = require_type(g)
+            sig = t.get_sigma(b)
+            cov = t.get_cov(b)
             act = gr.weight > 0
             if cov is None:
                 z = gr.residual / sig
@@ -192,10 +192,10 @@ def estimate_variance_components(
                 new[:, ax] = sig[:, ax] * s
                 if new_cov is not None:
                     new_cov[:, np.array(ax)[:, None], np.array(ax)[None, :]] *= s * s
-            t.set_sigma(b, new)  # type: ignore[union-attr]
+            t.set_sigma(b, new)
             if new_cov is not None:
-                t.set_cov(b, new_cov)  # type: ignore[union-attr]
-                t.set_sigma(b, np.sqrt(np.diagonal(new_cov, axis1=1, axis2=2)).copy())  # type: ignore[union-attr]
+                t.set_cov(b, new_cov)
+                t.set_sigma(b, np.sqrt(np.diagonal(new_cov, axis1=1, axis2=2)).copy())
         history.append(factors)
         if callback is not None:
             callback(it, factors)
@@ -208,7 +208,7 @@ def estimate_variance_components(
         raise ConfigError(f"max_iterations must be >= 1, got {max_iterations}")
     sigma = {}
     for g, sets in comps.items():
-        sig = observation_type(g).get_sigma(b)  # type: ignore[union-attr]
+        sig = require_type(g).get_sigma(b)
         if len(sig):
             for ax in sets:
                 sigma[f"{g}{ax}"] = float(sig[0, ax[0]])

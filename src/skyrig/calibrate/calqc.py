@@ -156,6 +156,7 @@ from numpy.typing import NDArray
 from skyrig._plain import plain
 from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.config import ReliabilityOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.presets import PRESETS, apply_preset
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.calqc_common import (  # noqa: F401 - the recipe's parts, importable from here
@@ -300,8 +301,8 @@ def _step_row(step: str, res: AdjustmentResult, block: Block, cfg: AdjustConfig)
     b = res.block
     ctrl = ~b.control_check
     d = b.point_xyz[b.control_point] - b.control_xyz
-    row = {"step": step, "io": cfg.intrinsics, "datum_shift": cfg.datum_shift, "control": int(ctrl.sum()),
-           "check": int((~ctrl).sum()), "blunder_detection": bool(cfg.snooping), "sigma0": res.sigma0,
+    row = {"step": step, "io": cfg.unknowns.intrinsics, "datum_shift": cfg.unknowns.datum_shift, "control": int(ctrl.sum()),
+           "check": int((~ctrl).sum()), "blunder_detection": bool(cfg.reliability.snooping), "sigma0": res.sigma0,
            "sigma_um": _sigma_um(block, res.sigma0), "redundancy": res.redundancy, "rejected": len(res.rejected),
            "rms_control_m": _rms(d[ctrl]), "rms_check_m": _rms(d[~ctrl]),
            "datum_shift_m": b.datum_shift.tolist()}
@@ -318,10 +319,10 @@ def _variant_column(res: AdjustmentResult, block: Block, gsd_m: float, variant: 
                            "images": int(block.n_images), "control": int(ctrl.sum()), "check": int((~ctrl).sum())}
     g = res.residuals.get("gnss")
     m = res.residuals.get("imu")
-    fixed_poses = res.config.poses == "fixed"
+    fixed_poses = res.config.unknowns.poses == "fixed"
     col["rms_photo_position_m"] = None if fixed_poses or g is None else _rms(np.asarray(g.residual))
     col["rms_photo_attitude_deg"] = None if fixed_poses or m is None else np.degrees(_rms(np.asarray(m.residual))).tolist()
-    col["gps_block_shift_m"] = b.datum_shift.tolist() if res.config.datum_shift != "fixed" else None
+    col["gps_block_shift_m"] = b.datum_shift.tolist() if res.config.unknowns.datum_shift != "fixed" else None
     return col
 
 
@@ -437,7 +438,7 @@ def poseo(data: CalqcData, rig_cal: Rig, datum_shift_m: NDArray[np.float64], fra
 
 
 #: the calibration unknowns of every step: the heads' boresights free, statistics on (Model's redundancy numbers)
-_CAL_COMMON: dict[str, Any] = dict(boresight="free", statistics=True)
+_CAL_BASE = AdjustConfig(unknowns=Unknowns(boresight="free"))  # every calibration step: boresights free
 
 
 @dataclass(frozen=True)
@@ -480,9 +481,8 @@ def _steps_1_to_3(block0: Block, io_names: tuple[str, ...], max_cycles: int, jou
                   ) -> tuple[AdjustmentResult, AdjustmentResult, Block, list[Any], NDArray[np.float64], int]:
     """Step 1, then steps 2 and 3 repeated until the datum shift and the IO stop changing: the last step 2 and
     step 3 results, step 3's block, the cameras and boresights of step 3 and the number of cycles."""
-    cal_common = _CAL_COMMON
     # step 1: IO unlocked, no datum shift, full control, blunder detection
-    cfg1 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True, **cal_common)
+    cfg1 = _CAL_BASE.with_unknowns(intrinsics="free", intrinsic_names=io_names).with_reliability(snooping=True)
     try:
         r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift)")
     except CalqcFailed as exc:
@@ -495,7 +495,7 @@ def _steps_1_to_3(block0: Block, io_names: tuple[str, ...], max_cycles: int, jou
         log.warning("calqc step 1: %s; step 1 repeated without blunder detection (step 2 estimates the datum shift)",
                     exc)
         journal.notes.append(f"step 1: {exc}; repeated without blunder detection (the datum shift is step 2's)")
-        cfg1 = cfg1.with_(snooping=False)
+        cfg1 = cfg1.with_reliability(snooping=False)
         r1 = _run(block0, cfg1, "step 1 (IO unlocked, no datum shift, no blunder detection)")
     journal.record("1", r1, block0, cfg1)
     # steps 2 and 3, repeated until the datum shift and the IO stop changing (a stepwise recipe converges
@@ -506,13 +506,12 @@ def _steps_1_to_3(block0: Block, io_names: tuple[str, ...], max_cycles: int, jou
     for cycle in range(max_cycles):
         tag = "" if cycle == 0 else f" (repeat {cycle})"
         b2 = replace(block0, cameras=cams, head_boresight=bs)
-        cfg2 = AdjustConfig(datum_shift="free", snooping=True, **cal_common)
+        cfg2 = _CAL_BASE.with_unknowns(datum_shift="free").with_reliability(snooping=True)
         r2 = _run(b2, cfg2, "step 2 (IO locked, datum shift)" + tag)
         journal.record("2" + tag, r2, b2, cfg2)
         b3 = replace(block0, cameras=cams, head_boresight=r2.block.head_boresight.copy(),
                      datum_shift=r2.block.datum_shift.copy())
-        cfg3 = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="fixed", snooping=True,
-                            **cal_common)
+        cfg3 = _CAL_BASE.with_unknowns(intrinsics="free", intrinsic_names=io_names).with_reliability(snooping=True)
         r3 = _run(b3, cfg3, "step 3 (IO unlocked, datum shift locked)" + tag)
         journal.record("3" + tag, r3, b3, cfg3)
         cams, bs = list(r3.block.cameras), r3.block.head_boresight.copy()
@@ -542,7 +541,7 @@ def _joint_adjustment(block0: Block, cams: list[Any], bs: NDArray[np.float64], r
         w = np.ones(bj.n_observations, bool)
         w[rej] = False
         bj = _drop_obs(bj, w)
-    cfgj = AdjustConfig(intrinsics="free", intrinsic_names=io_names, datum_shift="free", **_CAL_COMMON)
+    cfgj = _CAL_BASE.with_unknowns(intrinsics="free", intrinsic_names=io_names, datum_shift="free")
     rj = _run(bj, cfgj, "joint covariance (IO, boresights, datum shift)")
     journal.record("joint", rj, bj, cfgj)
     return bj, cfgj, rj
@@ -572,7 +571,7 @@ def _grid_joint(bj: Block, rj: AdjustmentResult, cfgj: AdjustConfig, io_names: t
     rj, grids, grid_cycles = joint_grid_adjustment(bjg, rj, cfgj, nodes_x=nodes_x, max_cycles=max_cycles,
                                                    min_signal_fraction=min_signal_fraction, cameras=cameras)
     if grids:  # (no camera with a signal worth a grid: the joint adjustment stands)
-        journal.record("joint + grid unknowns", rj, rj.block, cfgj.with_(image_grid="weighted"))
+        journal.record("joint + grid unknowns", rj, rj.block, cfgj.with_unknowns(image_grid="weighted"))
     io_after, _ = _io_sigma(rj, io_names)
     # how far the grid moved the IO, in the IO's sigma without the grid (not a convergence measure here)
     grid_change = float(np.max(np.abs(io_after - io_before) / s_before)) if s_before.size else 0.0
@@ -626,7 +625,7 @@ def _step_4(block0: Block, rj: AdjustmentResult, journal: _Journal) -> tuple[Blo
     """Step 4: IO locked (step 3), datum locked (step 2), every ground point a check point, no blunder detection."""
     b4 = replace(block0, cameras=list(rj.block.cameras), head_boresight=rj.block.head_boresight.copy(),
                  datum_shift=rj.block.datum_shift.copy(), control_check=np.ones(len(block0.control_point), bool))
-    cfg4 = AdjustConfig(datum_shift="fixed", snooping=False, **_CAL_COMMON)
+    cfg4 = _CAL_BASE
     r4 = _run(b4, cfg4, "step 4 (IO and datum locked, check points, no blunder detection)")
     journal.record("4", r4, b4, cfg4)
     return b4, r4
@@ -714,7 +713,8 @@ def _table11(data: CalqcData, rig_cal: Rig, build: _Builder, frame: WorldFrame, 
     run_blocks = list(blocks)
     if grids is not None and blocks:
         name0, bl0, gsd0 = blocks[0]
-        base_cfg = AdjustConfig(snooping=True, statistics=True)
+        base_cfg = AdjustConfig(reliability=ReliabilityOptions(snooping=True),
+                                statistics=StatisticsOptions(compute=True))
         bb, cfg = apply_preset(bl0, "ba-eo-control", base_cfg)
         before = _run(bb, cfg, f"ba-eo-control {name0}")
         bl_g = apply_grids(bl0, grids)
@@ -730,10 +730,11 @@ def _table11(data: CalqcData, rig_cal: Rig, build: _Builder, frame: WorldFrame, 
     for v in VARIANTS:
         cols = {}
         for name, bl, gsd in run_blocks:
-            base_cfg = AdjustConfig(snooping=True, statistics=True)
+            base_cfg = AdjustConfig(reliability=ReliabilityOptions(snooping=True),
+                                    statistics=StatisticsOptions(compute=True))
             bb, cfg = apply_preset(bl, v, base_cfg)
             if v == "dg-control":
-                cfg = cfg.with_(snooping=False)
+                cfg = cfg.with_reliability(snooping=False)
             r = _run(bb, cfg, f"{v} {name}")
             cols[name] = _variant_column(r, bb, gsd, v)
         table11["variants"][v] = {"title": PRESETS[v].title, "columns": cols}

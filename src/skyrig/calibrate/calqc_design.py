@@ -254,7 +254,7 @@ def design_study(res: AdjustmentResult, geom: Mapping[str, Any], cfg: AdjustConf
     cand: dict[str, dict[str, Any]] = {}
     for k in flights:
         vb = virtual_flight(b, k)
-        vr = adjust(vb, cfg.with_(snooping=False, max_iterations=1, statistics=True))
+        vr = adjust(vb, cfg.with_reliability(snooping=False).with_solver(max_iterations=1).with_statistics(compute=True))
         lv, cv = _cal_labels(vr)
         if s0 > 0 and vr.sigma0 > 0:  # the design's cofactors at the flown flight's variance factor
             cv = cv / vr.sigma0 ** 2 * s0 ** 2

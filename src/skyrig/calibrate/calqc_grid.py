@@ -468,7 +468,7 @@ def grid_uncertainty(block: Block, res: AdjustmentResult, grids: Mapping[str, Co
     rng = np.random.default_rng(seed)
     labels, _ = _cal_labels(res)
 
-    cfg = cfg.with_(snooping=False, statistics=False)
+    cfg = cfg.with_reliability(snooping=False).with_statistics(compute=False)
     acc = np.zeros((len(labels), len(labels)))
     for _ in range(int(draws)):
         d = {k: without_calibration_part(replace(g, value_px=g.sample(rng))).value_px for k, g in grids.items()}
@@ -523,7 +523,7 @@ def grid_hyperparameter_covariance(res: AdjustmentResult, grids: Mapping[str, Co
     spreads: dict[str, list[list[float]]] = {}
     if est is None or not grids:
         return out, spreads
-    cfg_v = cfg.with_(image_grid="weighted", snooping=False, statistics=False)
+    cfg_v = cfg.with_unknowns(image_grid="weighted").with_reliability(snooping=False).with_statistics(compute=False)
     v0 = _cal_values(res, labels)
     sel_of = _grid_residuals(res)
     names = [c.name for c in res.block.cameras]
@@ -622,7 +622,7 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
     ``cameras``: the camera names that may get a grid (default: every camera)."""
     from skyrig.adjust.factors.image_grid import ImageGrids
 
-    cfg_g = cfg.with_(image_grid="weighted")
+    cfg_g = cfg.with_unknowns(image_grid="weighted")
     b0 = block
     fits: dict[str, CovarianceFit] = {}
     r, cycles = res, 0

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.adjust import AdjustConfig, Block, adjust
+from skyrig.adjust.config import SolverOptions, Unknowns
 from skyrig.adjust.adjust import AdjustmentResult
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
 from skyrig.camera.distortion import Distortion, distortion_class
@@ -347,9 +348,10 @@ def calibrate_camera(
         obs_sigma_px=float(image_sigma_px), frame="test-field frame",
     )
     # a point measured in fewer than two images is still determined (it is fixed); keep it out of the rank check
-    cfg = AdjustConfig(poses="fixed" if fixed else "free", boresight="free" if fixed else "fixed", points="fixed",
-                       intrinsics="free", intrinsic_names=tuple(parameters), datum="auto",
-                       max_iterations=max_iterations)
+    cfg = AdjustConfig(unknowns=Unknowns(poses="fixed" if fixed else "free", boresight="free" if fixed else "fixed",
+                                         points="fixed", intrinsics="free",
+                                         intrinsic_names=tuple(parameters), datum="auto"),
+                       solver=SolverOptions(max_iterations=max_iterations))
     res = adjust(block, cfg)
     if not res.ok:
         raise CalibrationError("the calibration adjustment must not be trusted: " + "; ".join(res.failures))

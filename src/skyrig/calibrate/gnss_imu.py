@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 from skyrig._plain import plain
 from skyrig.adjust.adjust import AdjustmentResult, adjust
 from skyrig.adjust.block import AdjustConfig, Block
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust.frames import eo_from_block
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.calibrate.rig_calibration import CovarianceBlock, HeadCalibration, Provenance, RigCalibration
@@ -475,7 +476,7 @@ def calibrate_uncalibrated_gnss_imu(
     ref_sorted = sorted(ref)
     offset, offset_cov = _step1_antenna_offset(block0, np.isin(strips, ref), ref_sorted, headings, tables)
     rig1 = replace(rig, antenna_lever_arm_m=rig.antenna_lever_arm_m + np.r_[offset, 0.0])
-    blk1, r_b1, r_b2, ref_eo, sc_kw = _step2_reference(build, rig1, data.trajectory, frame, ref, cam,
+    blk1, r_b1, r_b2, ref_eo, sc_unknowns = _step2_reference(build, rig1, data.trajectory, frame, ref, cam,
                                                        self_calibration, tables, stats)
     b_mean, bore_cov, x_mean, datum_cov, n = _step3_misalignment(blk1, r_b1, r_b2, rig1, frame, national, tables)
     # ---- step 4: corrections applied to the whole flight
@@ -488,7 +489,7 @@ def calibrate_uncalibrated_gnss_imu(
                   + "calibrated by skyrig calibrate uncalibrated-gnss-imu")
     traj_c = _shift_trajectory(data.trajectory, frame, -x_mean)
     eo_c = direct_georeference(traj_c, rig_cal, data.events, frame)
-    blk_c, r_iso, eo_dir, eo_iso, t5 = _step5_evaluation(build, rig_cal, traj_c, frame, data, sc_kw, tables)
+    blk_c, r_iso, eo_dir, eo_iso, t5 = _step5_evaluation(build, rig_cal, traj_c, frame, data, sc_unknowns, tables)
     _step6_y_parallax(blk_c, eo_dir, eo_iso, r_iso, data, national, y_parallax_min_points, tables)
     stats.update({"sigma0_spatial_intersection_um": t5["spatial_intersection"]["sigma0_um"],
                   "sigma0_iso_um": t5["integrated_sensor_orientation"]["sigma0_um"],
@@ -528,7 +529,8 @@ def _step1_antenna_offset(block0: Block, in_ref: NDArray[np.bool_], ref_sorted: 
     Fills ``tables`` (Tab. 2, the antenna offset)."""
     sub = _subset_block(block0, in_ref)
     sub_g = _without(sub, imu=True)
-    cfg_a = AdjustConfig(strip_shift="free", statistics_images=tuple(sub_g.station_name.tolist()))
+    cfg_a = AdjustConfig(unknowns=Unknowns(strip_shift="free"),
+                         statistics=StatisticsOptions(images=tuple(sub_g.station_name.tolist())))
     r_a = _run(sub_g, cfg_a, "AT(GNSS) with strip shifts")
     labels, cov_s = _selected(r_a, "strip_shift")
     shifts = r_a.block.strip_shift
@@ -576,7 +578,7 @@ def _step1_antenna_offset(block0: Block, in_ref: NDArray[np.bool_], ref_sorted: 
 def _step2_reference(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple[Block, WorldFrame]], rig1: Rig,
                      trajectory: Trajectory, frame: WorldFrame, ref: tuple[int, ...], cam: Any,
                      self_calibration: Sequence[tuple[str, float]], tables: dict[str, Any], stats: dict[str, float]
-                     ) -> tuple[Block, AdjustmentResult, AdjustmentResult, ExteriorOrientations, dict[str, Any]]:
+                     ) -> tuple[Block, AdjustmentResult, AdjustmentResult, ExteriorOrientations, Unknowns]:
     """Step 2 (5.3, Tab. 3): the two-step reference orientation of the reference strips with the corrected antenna
     offset: AT(GNSS) with self-calibration and strip shifts, then an AT without GNSS on its points as control.
     Returns the whole flight's block, both results, the reference orientations and the self-calibration options;
@@ -586,9 +588,10 @@ def _step2_reference(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple
                    strip_drift=None, strip_t0=None)
     sub1 = _without(_subset_block(blk1, np.isin(blk1.station_strip, ref)), imu=True)
     sc_names = tuple(n for n, _ in self_calibration)
-    sc_kw: dict[str, Any] = dict(intrinsics="weighted", intrinsic_names=sc_names,
-                                 intrinsic_sigma=tuple((n, float(v)) for n, v in self_calibration)) if sc_names else {}
-    cfg_b1 = AdjustConfig(strip_shift="free", statistics_images=tuple(sub1.station_name.tolist()), **sc_kw)
+    sc_unknowns = Unknowns(intrinsics="weighted", intrinsic_names=sc_names,
+                           intrinsic_sigma=tuple((n, float(v)) for n, v in self_calibration)) if sc_names else Unknowns()
+    cfg_b1 = AdjustConfig(unknowns=replace(sc_unknowns, strip_shift="free"),
+                          statistics=StatisticsOptions(images=tuple(sub1.station_name.tolist())))
     r_b1 = _run(sub1, cfg_b1, "reference step 1: AT(GNSS) with self-calibration and strip shifts")
     b1 = r_b1.block
     psig = r_b1.point_sigma
@@ -613,7 +616,7 @@ def _step2_reference(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple
             {"parameter": l[2], "value": float(vals[l[2]]), "start": float(dict(zip(cam.intrinsic_names, cam.intrinsics))[l[2]]),
              "sigma": float(np.sqrt(cov_i[k, k])), "prior_sigma": float(dict(self_calibration)[l[2]])}
             for k, l in enumerate(lab)]
-    return blk1, r_b1, r_b2, ref_eo, sc_kw
+    return blk1, r_b1, r_b2, ref_eo, sc_unknowns
 
 
 def _step3_misalignment(blk1: Block, r_b1: AdjustmentResult, r_b2: AdjustmentResult, rig1: Rig, frame: WorldFrame,
@@ -674,7 +677,7 @@ def _step3_misalignment(blk1: Block, r_b1: AdjustmentResult, r_b2: AdjustmentRes
 
 
 def _step5_evaluation(build: Callable[[Rig, Trajectory, WorldFrame | None], tuple[Block, WorldFrame]], rig_cal: Rig,
-                      traj_c: Trajectory, frame: WorldFrame, data: FlightData, sc_kw: dict[str, Any],
+                      traj_c: Trajectory, frame: WorldFrame, data: FlightData, sc_unknowns: Unknowns,
                       tables: dict[str, Any]
                       ) -> tuple[Block, AdjustmentResult, ExteriorOrientations, ExteriorOrientations, dict[str, Any]]:
     """Step 5 (section 6, Tab. 5, 6): the corrected flight evaluated on the whole block: the combined adjustment
@@ -686,13 +689,14 @@ def _step5_evaluation(build: Callable[[Rig, Trajectory, WorldFrame | None], tupl
                     strip_drift=None, strip_t0=None)
     # combined adjustment of the whole block: GNSS positions + control + strip shifts + self-calibration, no IMU
     comb_b = _without(blk_c, imu=True)
-    r_comb = _run(comb_b, AdjustConfig(strip_shift="free", statistics=False, **sc_kw), "combined adjustment (whole block, GNSS positions)")
+    r_comb = _run(comb_b, AdjustConfig(unknowns=replace(sc_unknowns, strip_shift="free"),
+                                               statistics=StatisticsOptions(compute=False)), "combined adjustment (whole block, GNSS positions)")
     # spatial intersection: corrected direct orientation fixed
     # (the block's points are the least-squares forward intersection with the corrected EO: its starting values)
     si_pts, si_sigma0 = _spatial_intersection(blk_c)
     # integrated sensor orientation: image coordinates + corrected GNSS/IMU, no control
     iso_b = replace(blk_c, control_check=np.ones(len(blk_c.control_point), bool))
-    r_iso = _run(iso_b, AdjustConfig(statistics=False), "integrated sensor orientation")
+    r_iso = _run(iso_b, AdjustConfig(statistics=StatisticsOptions(compute=False)), "integrated sensor orientation")
     ground_local = frame.from_ecef(data.ground.frame.to_ecef(data.ground.xyz))
     gidx = {str(nm): k for k, nm in enumerate(data.ground.name)}
     comb_pts = {str(nm): r_comb.block.point_xyz[k] for k, nm in enumerate(r_comb.block.point_name) if str(nm) not in gidx}
@@ -757,7 +761,7 @@ def _spatial_intersection(block: Block) -> tuple[dict[str, NDArray[np.float64]],
     from skyrig.adjust.model import Model, State
 
     b = _without(block, gnss=True, imu=True, control=True)
-    f = next(f for f in Model(b, AdjustConfig(poses="fixed")).evaluate(State.from_block(b), jacobians=False)
+    f = next(f for f in Model(b, AdjustConfig(unknowns=Unknowns(poses="fixed"))).evaluate(State.from_block(b), jacobians=False)
              if f.name == "image")
     red = 2 * b.n_observations - 3 * b.n_points
     if red <= 0:

@@ -12,7 +12,8 @@ See ``docs/formats/block.md`` for the full description.  In short, ``block.json`
      "tables": {"stations": "stations.csv", "images": "images.csv", "points": "points.csv",
                 "observations": "observations.csv", "control": "control.csv", "gnss": "gnss.csv",
                 "imu": "imu.csv", "distances": "distances.csv"},  (control, gnss, imu, distances optional)
-     "adjustment": {<AdjustConfig fields>}}                     (optional)
+     "adjustment": {"unknowns": {...}, "solver": {...},         (optional: AdjustConfig.to_dict; flat
+                    "reliability": {...}, "statistics": {...}}}  keys of earlier releases warn)
 
 Every table is a CSV with a header of fixed column names that carry their units (``_m``, ``_deg``,
 ``_px``, ``_s``); a column in another unit (``omega_rad``) is an error naming the expected one.  Angles
@@ -93,7 +94,7 @@ _SIGMA_LIMITS = {"_px": 1000.0, "_m": 1000.0, "_deg": 90.0}
 class BlockFile:
     """A block read from disk with its manifest (``block``, ``config``, ``path``).
 
-    ``adjustment_keys`` names the configuration fields the file's ``adjustment`` section sets explicitly
+    ``adjustment_keys`` names the configuration fields (``part.field``) the file's ``adjustment`` section sets explicitly
     (the others are defaults), so that an adjustment preset can merge with them
     (:func:`skyrig.adjust.presets.merge_preset`).
 
@@ -318,7 +319,7 @@ def _check_manifest_types(man: dict, p: Path) -> None:
 
         check_lever_arm(v, p, None, "lever_arm_m")
     if "adjustment" in man:
-        need(isinstance(man["adjustment"], dict), "adjustment", "a mapping of AdjustConfig fields ({} for the defaults)")
+        need(isinstance(man["adjustment"], dict), "adjustment", "a mapping of AdjustConfig parts ({} for the defaults)")
     if "actuator_correction" in man:
         v = man["actuator_correction"]
         need(isinstance(v, dict) and all(isinstance(c, list) and all(map(_is_number, c)) for c in v.values()),
@@ -583,7 +584,7 @@ def read_block(path: PathLike) -> BlockFile:
         raise InputFormatError(str(e), p) from None
     section = man.get("adjustment") or {}
     if not isinstance(section, dict):
-        raise InputFormatError(f"'adjustment' must be a mapping of AdjustConfig fields, not {type(section).__name__}",
+        raise InputFormatError(f"'adjustment' must be a mapping of AdjustConfig parts, not {type(section).__name__}",
                                p, None, "adjustment")
     try:
         cfg = AdjustConfig.from_dict(section, source=str(p))
@@ -599,7 +600,7 @@ def read_block(path: PathLike) -> BlockFile:
             crs = WorldFrame.from_text(str(man["crs"]), base=p.parent)
         except (CRSError, ValueError) as e:
             raise InputFormatError(f"not a frame skyrig knows ({e})", p, None, "crs") from None
-    return BlockFile(block, cfg, p, frozenset(section), frame, crs)
+    return BlockFile(block, cfg, p, AdjustConfig.file_keys(section), frame, crs)
 
 
 def _cells(col: Any) -> list[str]:
@@ -740,8 +741,7 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
     if crs is not None:
         man["crs"] = crs.to_text()
     if config is not None:
-        man["adjustment"] = {k: (list(map(list, v)) if k == "intrinsic_sigma" else v)
-                             for k, v in config.__dict__.items() if v != AdjustConfig.__dataclass_fields__[k].default}
+        man["adjustment"] = config.to_dict()
     with atomic_write(p) as fh:
         json.dump(man, fh, indent=1)
         fh.write("\n")

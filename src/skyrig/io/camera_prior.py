@@ -5,7 +5,7 @@ maintained database.
 
 The result is a :class:`CameraPrior`: the focal length and principal point in pixels of the stored image with a
 stated sigma each (and OpenCV distortion where the vendor wrote one), its source in words, and the warnings met while
-deriving it.  The adjustment takes it as weighted observations (``AdjustConfig(intrinsics="weighted")``: the
+deriving it.  The adjustment takes it as weighted observations (``Unknowns(intrinsics="weighted")`` of ``AdjustConfig``: the
 calibration prior rows of :mod:`skyrig.adjust.factors.calibration`); a calibrated camera or rig file from the user
 wins over all of it (:func:`prior_from_camera`).
 

@@ -366,7 +366,7 @@ def block_from_colmap(model: ColmapModel, sigma_px: float = 1.0, min_track_lengt
     """An adjustment :class:`~skyrig.adjust.block.Block`: one station per registered image (its pose),
     the model's cameras, its points with ``min_track_length`` or more measurements, and the
     measurements with sigma ``sigma_px``.  No datum (no control, GNSS or IMU): adjust it with
-    ``AdjustConfig(datum="free")`` or add control first."""
+    ``AdjustConfig(unknowns=Unknowns(datum="free"))`` or add control first."""
     cam_ids = sorted(model.cameras)
     cam_index = {c: i for i, c in enumerate(cam_ids)}
     n_rays = np.bincount(model.obs_point, minlength=len(model.point_id))

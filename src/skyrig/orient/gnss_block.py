@@ -21,6 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
+from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, SkyrigError, UavAdjustError  # noqa: F401 - UavAdjustError re-exported
@@ -636,8 +637,10 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
             raise UavAdjustError("no image pair could start the block (no agreeing attitude metadata, no two-view "
                                  "relative orientation with enough GNSS base)")
     sigma_px = max(3.0 * cfg.pixel_sigma_px, 3.0)
-    grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
-                            max_iterations=cfg.max_iterations, datum="auto")
+    grow_cfg = AdjustConfig(solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
+                                                 max_iterations=cfg.max_iterations),
+                            statistics=StatisticsOptions(compute=False),
+                            unknowns=Unknowns(datum="auto"))
     X = np.full((T, 3), np.nan)
     rounds = 0
     while True:
@@ -702,12 +705,14 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
                       and not (nm == "focal_mm" and cfg.focal == "exif"))
 
     def cal_cfg(names: tuple[str, ...]) -> AdjustConfig:
-        return AdjustConfig(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
-                            intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names),
-                            robust="huber", robust_k=cfg.robust_k, statistics=False,
-                            max_iterations=cfg.max_iterations,
-                            strip_shift="weighted" if cfg.gnss_strip_shift == "weighted" else "fixed",
-                            strip_shift_sigma_m=cfg.strip_shift_sigma_m)
+        return AdjustConfig(unknowns=Unknowns(intrinsics="weighted" if names else "fixed",
+                                              intrinsic_names=names or None,
+                                              intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names),
+                                              strip_shift="weighted" if cfg.gnss_strip_shift == "weighted" else "fixed",
+                                              strip_shift_sigma_m=cfg.strip_shift_sigma_m),
+                            solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
+                                                 max_iterations=cfg.max_iterations),
+                            statistics=StatisticsOptions(compute=False))
 
     final_cfg = cal_cfg(names_cal)
     strip = detect_strips(inp.gnss) if cfg.gnss_strip_shift != "off" else None
@@ -741,7 +746,7 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
                           hand_max_px=cfg.hand_cut_px, cut=hand_cut)
     block, tracks, rows = _build_block(inp, nominal, R, C, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
                                        strip)
-    res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
+    res = adjust(block, final_cfg.with_solver(robust=None).with_statistics(compute=True), start=replace(block, cameras=[camera]))
     verdicts: list[Any] = []
     if names_cal:
         res, verdicts, names_cal = _hold_undetermined(inp, cfg, res, nominal, names_cal, sig, cal_cfg,
@@ -821,7 +826,7 @@ def _hold_undetermined(inp: UavBlockInput, cfg: UavConfig, res: AdjustmentResult
         block, _, _ = _build_block(inp, nominal, R2, C2, X, img_sel, obs_sel, cfg, cfg.pixel_sigma_px, imu_imgs,
                                    strip)
         block = replace(block, point_xyz=np.array(r.block.point_xyz, float))  # same observations: same points
-        return adjust(block, cal_cfg(names).with_(robust=None, statistics=True),
+        return adjust(block, cal_cfg(names).with_solver(robust=None).with_statistics(compute=True),
                       start=replace(block, cameras=[start_cam]))
 
     free_anyway = tuple(cfg.free_anyway) + (("focal_mm",) if cfg.focal == "self" else ())

@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
+from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
@@ -548,9 +549,12 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     active = np.ones(len(inp.obs_track), bool)
     hand, hand_cut = hand_rows(inp), {}  # hand measurements and those cut as blunders
     # growth adjustments only need to be close (the final one converges): looser tolerances than the default
-    grow_cfg = AdjustConfig(robust="huber", robust_k=cfg.robust_k, statistics=False,
-                            max_iterations=cfg.max_iterations, datum="free", function_tolerance=1e-4,
-                            parameter_tolerance=1e-6)
+    grow_cfg = AdjustConfig(solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
+                                                 max_iterations=cfg.max_iterations,
+                                                 function_tolerance=1e-4,
+                                                 parameter_tolerance=1e-6),
+                            statistics=StatisticsOptions(compute=False),
+                            unknowns=Unknowns(datum="free"))
     sigma_grow = max(2.0 * cfg.pixel_sigma_px, 2.0)
     X = _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg)
     last_ba, rounds, order = 0, 0, [int(i), int(j)]
@@ -572,8 +576,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         # (the prior of a weighted intrinsic is its start value in skyrig.adjust: during growth the prior follows the
         # current estimate; the final adjustment centres the priors on the EXIF camera again)
         block, tracks, rows = _block(inp, camera, R, C, X, img_sel, obs, sigma_grow, False, False)
-        gcfg = grow_cfg.with_(intrinsics="weighted", intrinsic_names=cal,
-                              intrinsic_sigma=tuple((k, grow_sig[k]) for k in cal)) if cal else grow_cfg
+        gcfg = grow_cfg.with_unknowns(intrinsics="weighted", intrinsic_names=cal,
+                                      intrinsic_sigma=tuple((k, grow_sig[k]) for k in cal)) if cal else grow_cfg
         try:
             with intermediate_adjustment():
                 res = adjust(block, gcfg)
@@ -689,11 +693,13 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     sig = {"focal_mm": f_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1, "b1": 0.01, "b2": 0.01}
     names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
-    final_cfg = AdjustConfig(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,
-                             intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
-                             robust="huber", robust_k=cfg.robust_k, statistics=False,
-                             max_iterations=cfg.max_iterations,
-                             datum="auto" if datum == "control" else "free")
+    final_cfg = AdjustConfig(unknowns=Unknowns(intrinsics="weighted" if names_cal else "fixed",
+                                               intrinsic_names=names_cal or None,
+                                               intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
+                                               datum="auto" if datum == "control" else "free"),
+                             solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
+                                                  max_iterations=cfg.max_iterations),
+                             statistics=StatisticsOptions(compute=False))
     use_ctrl = use_dist = datum in ("control", "scale-bar")
     lim = 2.0 * cfg.pnp_threshold_px
     for stage in range(2):
@@ -718,7 +724,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
                  _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
     obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim, cfg.hand_cut_px, hand_cut)
     block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
-    res = adjust(block, final_cfg.with_(robust=None, statistics=True), start=replace(block, cameras=[camera]))
+    res = adjust(block, final_cfg.with_solver(robust=None).with_statistics(compute=True), start=replace(block, cameras=[camera]))
     verdicts: list[Any] = []
     if names_cal:
         from skyrig.adjust.determinability import hold_undetermined
@@ -728,9 +734,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
             R2[img_sel], C2[img_sel] = r.block.station_rotation, r.block.station_centre
             blk, _, _ = _block(inp, nominal, R2, C2, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
             blk = replace(blk, point_xyz=np.array(r.block.point_xyz, float))  # same observations: same points
-            c2 = final_cfg.with_(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
-                                 intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names), robust=None,
-                                 statistics=True)
+            c2 = final_cfg.with_unknowns(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
+                                         intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names)).with_solver(robust=None).with_statistics(compute=True)
             return adjust(blk, c2, start=replace(blk, cameras=[start_cam]))
 
         res, verdicts, names_cal = hold_undetermined(res, nominal, names_cal, sig, readjust,
@@ -782,7 +787,7 @@ def _summary(inp: OrientInput, res: AdjustmentResult, oriented: NDArray, camera:
         "reprojection_rms_xy_px": np.sqrt(np.mean(v ** 2, axis=0)).tolist() if len(v) else [],
         "sigma0": res.sigma0,
         "camera": dict(zip(camera.intrinsic_names, np.asarray(camera.intrinsics).tolist())),
-        "distortion_model": camera.distortion.name, "self_calibrated": list(res.config.intrinsic_names or ()) if res.config.intrinsics != "fixed" else [],
+        "distortion_model": camera.distortion.name, "self_calibrated": list(res.config.unknowns.intrinsic_names or ()) if res.config.unknowns.intrinsics != "fixed" else [],
         "focal_px": camera.focal_mm / camera.pixel_size_mm,
         "focal_px_exif": inp.camera.focal_mm / inp.camera.pixel_size_mm,
         "growth_rounds": rounds, "wall_s": wall_s, "notes": list(inp.notes),

@@ -39,7 +39,7 @@ __all__ = ["BLOCK_GROUPS", "DROP_REASONS", "BlockOutcome", "make_block", "droppe
 Spell = Callable[[str], str]
 PathArg = str | PathLike[str]
 
-#: System-calibration groups of ``--free`` / ``stages.block.free`` -> the :class:`skyrig.adjust.AdjustConfig` field.
+#: System-calibration groups of ``--free`` / ``stages.block.free`` -> the field of :class:`skyrig.adjust.config.Unknowns`.
 BLOCK_GROUPS = {"boresight": "boresight", "lever-arm": "lever_arm", "datum-shift": "datum_shift",
                 "strip-shift": "strip_shift", "intrinsics": "intrinsics", "actuator": "actuator",
                 "actuator-curve": "actuator_curve"}
@@ -181,7 +181,7 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     ``imu_sigma_deg`` roll, pitch, yaw (deg), ``control_sigma`` X, Y, Z (m); one value stands for all three.
     ``free``: system-calibration groups (:data:`BLOCK_GROUPS`); ``datum``: auto / free / free-points / none;
     ``crs`` / ``geoid``: the project CRS recorded in the file (default the control points' map CRS, else the EO's).
-    ``snooping_per_round``: image observations data snooping may reject per round (``AdjustConfig``; 1 = Baarda's
+    ``snooping_per_round``: image observations data snooping may reject per round (``AdjustConfig.reliability.per_round``; 1 = Baarda's
     one at a time).
 
     Raises
@@ -190,6 +190,7 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
         Bad option values or files (named as ``spell`` spells them).
     """
     from skyrig.adjust import AdjustConfig
+    from skyrig.adjust.config import ReliabilityOptions, Unknowns
     from skyrig.georef.observations import GroundPoints, ImageMeasurements
     from skyrig.io.block_file import write_block
     from skyrig.pipeline.inputs import (load_cameras, load_eo, load_measurements_lines, load_points, load_trajectory,
@@ -299,9 +300,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     dropped = dropped_measurements(m, block, ctrl, exposure)
     # the GNSS datum shift is free by default when control can separate it from a block translation;
     # free datum-shift frees it in any case (one keyword each: the groups override the default)
-    modes: dict[str, object] = {"datum_shift": "free" if len(block.gnss_station) and len(block.control_point)
-                                else "fixed", "snooping": True, "snooping_per_round": int(snooping_per_round),
-                                "datum": "free" if datum == "free-points" else datum}
+    modes: dict[str, Any] = {"datum_shift": "free" if len(block.gnss_station) and len(block.control_point)
+                             else "fixed", "datum": "free" if datum == "free-points" else datum}
     modes.update({BLOCK_GROUPS[g]: "free" for g in groups})
     if "actuator-curve" in groups:
         modes["actuator_fourier_order"] = fourier_order or 2
@@ -309,7 +309,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
         modes["inner_constraints"] = "points"
         if datum_points:
             modes["datum_points"] = tuple(str(p) for p in datum_points)
-    cfg = AdjustConfig(**modes)  # type: ignore[arg-type]
+    cfg = AdjustConfig(unknowns=Unknowns(**modes),
+                       reliability=ReliabilityOptions(snooping=True, per_round=int(snooping_per_round)))
     out = Path(output)
     out.parent.mkdir(parents=True, exist_ok=True)
     if project is None and ctrl is not None and ctrl.frame.kind == "map":

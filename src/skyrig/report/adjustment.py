@@ -283,7 +283,7 @@ def _actuator_rows(result: Any) -> list[list[Any]]:
         j = (["beta_offset", "beta_scale"] + [None] * (b.actuator_correction.shape[1] - 2)).index(lab[2]) \
             if lab[2] in ("beta_offset", "beta_scale") else None
         if j is None:
-            order = int(result.config.actuator_fourier_order)
+            order = int(result.config.unknowns.actuator_fourier_order)
             names = [f"{cs}{k}_{ax}" for k in range(1, order + 1) for cs in ("c", "s")
                      for ax in ("roll", "pitch", "yaw")]
             j = 2 + names.index(lab[2])

@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
-__all__ = ["ObservationType", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
+__all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
            "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
 
 
@@ -111,13 +111,13 @@ def check_index(name: str, idx: NDArray, n: int, what: str) -> None:
 
 
 def check_finite(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else []
+    bad = np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).all(axis=1)) if len(a) else np.zeros(0, np.int64)
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] is not finite: {a[bad[0]]}")
 
 
 def check_positive(name: str, a: NDArray) -> None:
-    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else []
+    bad = np.flatnonzero(~(a.reshape(len(a), -1) > 0).all(axis=1)) if len(a) else np.zeros(0, np.int64)
     if len(bad):
         raise BlockError(f"{name}[{bad[0]}] must be > 0 (a standard deviation), got {a[bad[0]]}")
 
@@ -180,11 +180,13 @@ class Factor:
     jp: NDArray[np.float64] | None = None
     weight: NDArray[np.float64] | None = None
     whiten: NDArray[np.float64] | None = None
+    #: ``(n,)`` rows that could not be evaluated (a point behind its camera...; image rows), None = none
+    bad: NDArray[np.bool_] | None = None
 
     def unwhitened(self) -> NDArray[np.float64]:
         """``(n, d)`` residuals in observation units (computed minus observed)."""
         if self.whiten is not None:
-            return np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0]
+            return np.asarray(np.linalg.solve(self.whiten, self.r[:, :, None])[:, :, 0], dtype=np.float64)
         return self.r * self.sigma
 
     def __len__(self) -> int:
@@ -194,7 +196,7 @@ class Factor:
 def any_on(cols: NDArray[np.int64]) -> NDArray[np.bool_]:
     """``(n,)`` True for the rows of a column table ``(n, ...)`` with at least one estimated column (>= 0)."""
     c = np.asarray(cols)
-    return (c >= 0).reshape(len(c), -1).any(axis=1) if c.size else np.zeros(len(c), bool)
+    return np.asarray((c >= 0).reshape(len(c), -1).any(axis=1), dtype=bool) if c.size else np.zeros(len(c), bool)
 
 
 class ObservationType:
@@ -217,7 +219,7 @@ class ObservationType:
     share_checked: ClassVar[bool] = True
     #: ``(config parameter group, what it models in words)``: what to free when this group misfits
     hints: ClassVar[tuple[tuple[str, str], ...]] = ()
-    #: parameter groups (``ParameterModes`` names) that only this kind of observation determines: they are
+    #: parameter groups (``Unknowns`` field names) that only this kind of observation determines: they are
     #: estimated only when a block has rows of a type naming them (the GNSS lever arm, datum and strip shifts)
     parameters: ClassVar[tuple[str, ...]] = ()
     #: words for the datum this group fixes (a free network with such rows is an error); "" = none
@@ -324,3 +326,52 @@ class ObservationType:
     def label(self, block: "Block", i: int) -> str:
         """Row ``i`` in words."""
         return f"{self.name}[{i}]"
+
+
+class ParameterGroup:
+    """Unknowns that an observation module declares for itself (a clock offset per station, a scanner's
+    lever arm, boresight and range offset...), so that a new kind of unknown lands in the module that
+    observes it.
+
+    A group is a table ``(n_owners, len(components))`` of values: its starting values are
+    ``block.parameters[name]`` (:meth:`initial`; zeros when the block has none), the adjusted ones are written
+    back there in the result's block; its mode (``"fixed"``, ``"free"`` or ``"weighted"``) and prior sigma
+    per component come from ``AdjustConfig.unknowns.groups`` / ``group_sigma``; its columns are
+    ``model.layout.groups[name]`` (-1 = not estimated), its current values ``state.groups[name]``, its labels
+    ``(name, owner, component)``.  Columns come after every built-in group's (the built-in layout is
+    unchanged).  A ``"weighted"`` group gets the prior ``prior:<name>`` (``(current - start) / sigma``).
+
+    Register an instance with :func:`skyrig.adjust.factors.register_group`; an observation type reads it in
+    its :meth:`ObservationType.evaluate` (values ``state.groups[name]``, Jacobian columns
+    ``model.layout.groups[name]``).
+    """
+
+    #: group name: key of ``block.parameters``, ``State.groups``, ``Layout.groups`` and of the config's modes
+    name: ClassVar[str] = ""
+    #: the names of one owner's components (columns), with their unit in the name (``dt_s``, ``x_m``)
+    components: ClassVar[tuple[str, ...]] = ()
+    #: what the group is, in words (reports, hints)
+    words: ClassVar[str] = ""
+
+    def owners(self, block: Any) -> list[str]:
+        """Names of the group's owners (rows), e.g. the station names; default: one owner named after the group."""
+        return [self.name]
+
+    def initial(self, block: Any) -> NDArray[np.float64]:
+        """``(n_owners, n_components)`` starting values: ``block.parameters[name]`` or zeros."""
+        shape = (len(self.owners(block)), len(self.components))
+        v = block.parameters.get(self.name)
+        if v is None:
+            return np.zeros(shape)
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != shape:
+            raise BlockError(f"parameters[{self.name!r}] must have shape {shape}, got {v.shape}")
+        return v.copy()
+
+    def estimated(self, block: Any) -> bool:
+        """Whether the block has what determines the group (default: always; e.g. rows of its observation type)."""
+        return True
+
+    def retract(self, value: NDArray[np.float64], step: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``value`` moved by the step ``(n_owners, n_components)`` (default additive; a rotation overrides)."""
+        return value + step

@@ -46,10 +46,10 @@ class Control(ObservationType):
     cov_field = "control_cov_m2"
 
     def count(self, block: "Block") -> int:
-        return len(block.control_point)  # type: ignore[arg-type]
+        return len(block.control_point)
 
     def tested_count(self, block: "Block") -> int:
-        return int((~block.control_check).sum())  # type: ignore[operator]
+        return int((~block.control_check).sum())
 
     def normalise(self, block: "Block") -> None:
         if block.control_point is None:
@@ -64,15 +64,15 @@ class Control(ObservationType):
         covariance_rows(block, "control_cov_m2", "control_sigma", k, 3)
 
     def validate(self, block: "Block") -> None:
-        check_index("control_point", block.control_point, block.n_points, "point")  # type: ignore[arg-type]
-        check_finite("control_xyz", block.control_xyz)  # type: ignore[arg-type]
-        check_finite("control_sigma", block.control_sigma)  # type: ignore[arg-type]
-        check_positive("control_sigma", block.control_sigma)  # type: ignore[arg-type]
+        check_index("control_point", block.control_point, block.n_points, "point")
+        check_finite("control_xyz", block.control_xyz)
+        check_finite("control_sigma", block.control_sigma)
+        check_positive("control_sigma", block.control_sigma)
         check_covariance("control_cov_m2", block.control_cov_m2)
 
     def controlled_points(self, block: "Block") -> NDArray[np.bool_]:
         out = np.zeros(block.n_points, bool)
-        out[block.control_point[~block.control_check]] = True  # type: ignore[index, operator]
+        out[block.control_point[~block.control_check]] = True
         return out
 
     def initial_weight(self, block: "Block") -> NDArray[np.float64]:
@@ -93,26 +93,26 @@ class Control(ObservationType):
         sig = b.control_sigma
         Wm = model.cache[self.name]
         if Wm is None:
-            r = (s.X[p] - b.control_xyz) / sig  # type: ignore[operator]
-            J = np.zeros((len(p), 3, 3))  # type: ignore[arg-type]
-            J[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig  # type: ignore[operator]
+            r = (s.X[p] - b.control_xyz) / sig
+            J = np.zeros((len(p), 3, 3))
+            J[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig
         else:
-            r = np.einsum("nij,nj->ni", Wm, s.X[p] - b.control_xyz)  # type: ignore[index]
+            r = np.einsum("nij,nj->ni", Wm, s.X[p] - b.control_xyz)
             J = Wm
-        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)  # type: ignore[arg-type]
+        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)
         if jac and lay.n_p:
             f.point = lay.point[p]
             f.jp = J
         if jac and lay.has_rpoint:
             f.jc = J
-            f.cols = lay.rpoint[p]  # type: ignore[index]
+            f.cols = lay.rpoint_cols[p]
         return [f]
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         return model.estimated_points()[model.block.control_point]
 
     def label(self, block: "Block", i: int) -> str:
-        return f"control point {block.point_name[block.control_point[i]]}"  # type: ignore[index]
+        return f"control point {block.point_name[block.control_point[i]]}"
 
 
 CONTROL = register(Control())

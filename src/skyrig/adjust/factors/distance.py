@@ -51,24 +51,24 @@ class Distance(ObservationType):
         block.distance_sigma_m = sigma_rows(block.distance_sigma_m, nd, None)
 
     def validate(self, block: "Block") -> None:
-        check_positive("distance_sigma_m", block.distance_sigma_m)  # type: ignore[arg-type]
-        check_index("distance_point", block.distance_point.reshape(-1), block.n_points, "point")  # type: ignore[union-attr]
-        check_finite("distance_m", block.distance_m)  # type: ignore[arg-type]
-        bad = np.flatnonzero(~(block.distance_m > 0))  # type: ignore[operator]
+        check_positive("distance_sigma_m", block.distance_sigma_m)
+        check_index("distance_point", block.distance_point.reshape(-1), block.n_points, "point")
+        check_finite("distance_m", block.distance_m)
+        bad = np.flatnonzero(~(block.distance_m > 0))
         if bad.size:
-            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {block.distance_m[bad[0]]}")  # type: ignore[index]
-        bad = np.flatnonzero(block.distance_point[:, 0] == block.distance_point[:, 1])  # type: ignore[index]
+            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {block.distance_m[bad[0]]}")
+        bad = np.flatnonzero(block.distance_point[:, 0] == block.distance_point[:, 1])
         if bad.size:
             raise BlockError(f"distance {bad[0]} joins point "
-                             f"{str(block.point_name[block.distance_point[bad[0], 0]])!r} to itself")  # type: ignore[index]
+                             f"{str(block.point_name[block.distance_point[bad[0], 0]])!r} to itself")
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
-        a, c = b.distance_point[:, 0], b.distance_point[:, 1]  # type: ignore[index]
+        a, c = b.distance_point[:, 0], b.distance_point[:, 1]
         dx = s.X[a] - s.X[c]
         L = np.linalg.norm(dx, axis=1)
-        sig = b.distance_sigma_m[:, None]  # type: ignore[index]
-        f = Factor(self.name, ((L - b.distance_m) / sig[:, 0])[:, None], sig,  # type: ignore[operator]
+        sig = b.distance_sigma_m[:, None]
+        f = Factor(self.name, ((L - b.distance_m) / sig[:, 0])[:, None], sig,
                    weight=model.weights[self.name])
         if not jac:
             return [f]
@@ -80,11 +80,11 @@ class Distance(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         lay, b = model.layout, model.block
-        rp = lay.rpoint if lay.rpoint is not None else np.full((b.n_points, 3), -1, np.int64)
-        return (rp >= 0).any(axis=1)[b.distance_point].any(axis=1)
+        rp_on = np.asarray((lay.rpoint_cols >= 0).any(axis=1), dtype=bool)
+        return np.asarray(rp_on[b.distance_point].any(axis=1), dtype=bool)
 
     def label(self, block: "Block", i: int) -> str:
-        a, b = block.distance_point[i]  # type: ignore[index]
+        a, b = block.distance_point[i]
         return f"distance {block.point_name[a]} - {block.point_name[b]}"
 
 

@@ -52,7 +52,7 @@ class Gnss(ObservationType):
     cov_field = "gnss_cov_m2"
 
     def count(self, block: "Block") -> int:
-        return len(block.gnss_station)  # type: ignore[arg-type]
+        return len(block.gnss_station)
 
     def normalise(self, block: "Block") -> None:
         if block.gnss_station is None:
@@ -65,10 +65,10 @@ class Gnss(ObservationType):
         covariance_rows(block, "gnss_cov_m2", "gnss_sigma", g, 3)
 
     def validate(self, block: "Block") -> None:
-        check_index("gnss_station", block.gnss_station, block.n_stations, "station")  # type: ignore[arg-type]
-        check_finite("gnss_xyz", block.gnss_xyz)  # type: ignore[arg-type]
-        check_finite("gnss_sigma", block.gnss_sigma)  # type: ignore[arg-type]
-        check_positive("gnss_sigma", block.gnss_sigma)  # type: ignore[arg-type]
+        check_index("gnss_station", block.gnss_station, block.n_stations, "station")
+        check_finite("gnss_xyz", block.gnss_xyz)
+        check_finite("gnss_sigma", block.gnss_sigma)
+        check_positive("gnss_sigma", block.gnss_sigma)
         check_covariance("gnss_cov_m2", block.gnss_cov_m2)
 
     def prepare(self, model: "Model") -> NDArray[np.float64] | None:
@@ -79,24 +79,24 @@ class Gnss(ObservationType):
         b, lay = model.block, model.layout
         st = b.gnss_station
         R = s.R[st]
-        strip = b.station_strip[st]  # type: ignore[index]
+        strip = b.station_strip[st]
         has = strip >= 0
         sk = np.where(has, strip, 0)
-        dt = np.where(has, b.station_time[st] - (b.strip_t0[sk] if b.n_strips else 0.0), 0.0)  # type: ignore[index]
+        dt = np.where(has, b.station_time[st] - (b.strip_t0[sk] if b.n_strips else 0.0), 0.0)
         pred = s.C[st] + np.einsum("nij,j->ni", R, s.lever) + s.shift
         if b.n_strips:
             pred = pred + has[:, None] * (s.sshift[sk] + s.sdrift[sk] * dt[:, None])
         sig = b.gnss_sigma
         Wm = model.cache[self.name]
         if Wm is None:
-            r = (pred - b.gnss_xyz) / sig  # type: ignore[operator]
+            r = (pred - b.gnss_xyz) / sig
         else:
             r = np.einsum("nij,nj->ni", Wm, pred - b.gnss_xyz)
-        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)  # type: ignore[arg-type]
+        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)
         if not jac:
             return [f]
-        n = len(st)  # type: ignore[arg-type]
-        isig = (1.0 / sig)[:, :, None]  # type: ignore[operator]
+        n = len(st)
+        isig = (1.0 / sig)[:, :, None]
         eye = np.broadcast_to(np.eye(3), (n, 3, 3))
         blocks = [np.concatenate([eye, -(R @ skew(s.lever))], axis=2), R, eye]
         cols = [lay.pose[st], np.broadcast_to(lay.lever, (n, 3)), np.broadcast_to(lay.shift, (n, 3))]
@@ -113,12 +113,12 @@ class Gnss(ObservationType):
         st = b.gnss_station
         on = any_on(lay.pose)[st] | bool((lay.lever >= 0).any() or (lay.shift >= 0).any())
         if b.n_strips:
-            strip = b.station_strip[st]  # type: ignore[index]
+            strip = b.station_strip[st]
             on |= (strip >= 0) & (any_on(lay.sshift) | any_on(lay.sdrift))[np.where(strip >= 0, strip, 0)]
         return on
 
     def label(self, block: "Block", i: int) -> str:
-        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"  # type: ignore[index]
+        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"
 
 
 GNSS = register(Gnss())

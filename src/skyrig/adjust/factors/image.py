@@ -165,8 +165,8 @@ class Image(ObservationType):
         check_index("obs_image", block.obs_image, block.n_images, "image")
         check_index("obs_point", block.obs_point, block.n_points, "point")
         check_finite("obs_pixel", block.obs_pixel)
-        check_finite("obs_sigma_px", block.obs_sigma_px)  # type: ignore[arg-type]
-        check_positive("obs_sigma_px", block.obs_sigma_px)  # type: ignore[arg-type]
+        check_finite("obs_sigma_px", block.obs_sigma_px)
+        check_positive("obs_sigma_px", block.obs_sigma_px)
         check_covariance("obs_cov_px2", block.obs_cov_px2)
 
     def validate_rays(self, block: "Block", controlled: NDArray[np.bool_]) -> None:
@@ -190,7 +190,7 @@ class Image(ObservationType):
         W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
         red_cols = red_rows = red_idx = None
         if lay.has_rpoint:
-            rp = lay.rpoint[b.obs_point]  # type: ignore[index]
+            rp = lay.rpoint_cols[b.obs_point]
             rows = np.flatnonzero(rp[:, 0] >= 0)
             rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
             img = b.obs_image[rows]
@@ -232,8 +232,8 @@ class Image(ObservationType):
     def evaluate_one(self, model: "Model", s: "State", jac: bool) -> Factor:
         """The image factor (its rows carry ``bad``: True where the point is behind or in the camera plane)."""
         kernels = sys.modules["skyrig.adjust.model"]
-        bal_kernel, chain_kernel = kernels._BAL_KERNEL, kernels._CHAIN_KERNEL  # type: ignore[attr-defined]
-        ic: ImageCache = model.cache[self.name]  # type: ignore[assignment]
+        bal_kernel, chain_kernel = kernels._BAL_KERNEL, kernels._CHAIN_KERNEL
+        ic: ImageCache = model.cache[self.name]
         if (bal_kernel is not None and ic.bal.size and ic.bal.all() and model.block.n_observations
                 and ic.W is None and ic.red_cols is None and ic.grid_idx is None):
             return self._bal(model, s, jac, bal_kernel)
@@ -241,14 +241,14 @@ class Image(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         b, lay = model.block, model.layout
-        img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]  # type: ignore[index]
-               | (model._icols >= 0).any(axis=1)[b.image_camera])
+        img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]
+               | np.asarray((model._icols >= 0).any(axis=1), dtype=bool)[b.image_camera])
         if lay.act is not None:
-            img |= any_on(lay.act)[b.image_head]  # type: ignore[index]
+            img |= any_on(lay.act)[b.image_head]
         out = img[b.obs_image] | model.estimated_points()[b.obs_point]
         ic = model.cache[self.name]
-        if lay.grid is not None and ic.grid_idx is not None:  # type: ignore[attr-defined]
-            gi = ic.grid_idx  # type: ignore[attr-defined]
+        if lay.grid is not None and ic.grid_idx is not None:
+            gi = ic.grid_idx
             on = np.where(gi >= 0, lay.grid[np.maximum(gi, 0)] >= 0, False).any(axis=1)
             out = out | on
         return out
@@ -288,7 +288,7 @@ class Image(ObservationType):
                     d_in[idx, :, :3] = din
         return pred, d_pc, d_in
 
-    def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:  # type: ignore[no-untyped-def]
+    def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:
         """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
         b, lay = model.block, model.layout
         ic = model.cache[self.name]
@@ -308,21 +308,22 @@ class Image(ObservationType):
             r = (pred - b.obs_pixel) / sig
         else:
             r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
-        bad = ~np.isfinite(r).all(axis=1)
+        bad = np.asarray(~np.isfinite(r).all(axis=1), dtype=bool)
         if bad.any():
             r[bad] = 0.0  # behind the camera: reported by the solver
         f = Factor(self.name, r, sig, weight=w, whiten=Wm)
-        f.bad = bad  # type: ignore[attr-defined]
+        f.bad = bad
         if not jac:
             return f
         isig = (1.0 / sig)[:, :, None]
+        assert d_pc is not None  # (internal: _project gives the derivatives when jac)
         if Wm is None:  # whitened in place (same values as J * isig)
-            d_pc *= isig  # type: ignore[operator]
+            d_pc *= isig
             dpc = d_pc
         else:
             dpc = Wm @ d_pc
         del d_pc
-        dpc[bad] = 0.0  # type: ignore[index]
+        dpc[bad] = 0.0
         if d_in is not None:
             d_in[bad] = 0.0  # (a point in the camera plane: NaN derivatives would poison the normals)
         st = b.image_station[oi]
@@ -340,7 +341,7 @@ class Image(ObservationType):
             widths.append(("act", model._act_width))
         red = ic.red_cols is not None and ic.red_cols.shape[1] > 0
         if red:
-            widths.append(("red", ic.red_cols.shape[1]))  # type: ignore[union-attr]
+            widths.append(("red", ic.red_cols.shape[1]))
         if grid_cols_on:
             widths.append(("grid", 8))
         offs: dict[str, slice] = {}
@@ -348,11 +349,11 @@ class Image(ObservationType):
         for name, wdt in widths:
             offs[name] = slice(o0, o0 + wdt)
             o0 += wdt
-        jc = np.empty((n, dpc.shape[1], o0)) if o0 else None
+        jc = np.empty((n, dpc.shape[1], o0))  # (no column: not attached to the factor)
         if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
             jX = np.empty((n, 2, 3))
-            jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))  # type: ignore[index]
-            jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))  # type: ignore[index]
+            jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))
+            jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))
             off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
             chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
                          np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
@@ -363,7 +364,7 @@ class Image(ObservationType):
             del Ro
             if pose_on:
                 jth_cam = dpc @ skew(pc)
-                jpose = jc[:, :, offs["pose"]]  # type: ignore[index]
+                jpose = jc[:, :, offs["pose"]]
                 jpose[:, :, :3] = -jX
                 off = b.image_offset[oi]
                 jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
@@ -371,38 +372,38 @@ class Image(ObservationType):
                     jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
                 jpose[:, :, 3:] = jth
                 if bore_on:
-                    jc[:, :, offs["bore"]] = jth_cam  # type: ignore[index]
+                    jc[:, :, offs["bore"]] = jth_cam
             elif bore_on:
-                jc[:, :, offs["bore"]] = dpc @ skew(pc)  # type: ignore[index]
+                jc[:, :, offs["bore"]] = dpc @ skew(pc)
         if d_in is not None:
             if Wm is None:
-                np.multiply(d_in, isig, out=jc[:, :, offs["intr"]])  # type: ignore[index]
+                np.multiply(d_in, isig, out=jc[:, :, offs["intr"]])
             else:
-                jc[:, :, offs["intr"]] = Wm @ d_in  # type: ignore[index]
+                jc[:, :, offs["intr"]] = Wm @ d_in
             del d_in
         if model._act_on:
             _, D = model.actuated_mounts(s, True)
             ia = model._img2act[oi]
             rows = np.flatnonzero(ia >= 0)
-            ext = jc[:, :, offs["act"]]  # type: ignore[index]
+            ext = jc[:, :, offs["act"]]
             ext[...] = 0.0
             Rb = _expmap(s.bore[b.image_head[oi[rows]]])
             ext[rows] = (dpc[rows] @ skew(pc[rows])) @ np.swapaxes(Rb, 1, 2) @ D[ia[rows]]  # type: ignore[index]
         if red:
-            ext = jc[:, :, offs["red"]]  # type: ignore[index]
+            ext = jc[:, :, offs["red"]]
             ext[...] = 0.0
             rows = ic.red_rows
-            ext[rows[:, None, None], np.arange(2)[None, :, None], ic.red_idx[:, None, :]] = jX[rows]  # type: ignore[index]
+            ext[rows[:, None, None], np.arange(2)[None, :, None], ic.red_idx[:, None, :]] = jX[rows]
         if grid_cols_on:  # d computed / d node values: the bilinear weights (x rows on x nodes, y on y)
             jg = np.zeros((n, 2, 8))
             jg[:, 0, :4] = ic.grid_w
             jg[:, 1, 4:] = ic.grid_w
             if Wm is None:
-                jc[:, :, offs["grid"]] = jg * isig  # type: ignore[index]
+                jc[:, :, offs["grid"]] = jg * isig
             else:
-                jc[:, :, offs["grid"]] = Wm @ jg  # type: ignore[index]
-            jc[bad, :, offs["grid"]] = 0.0  # type: ignore[index]
-        if jc is not None:
+                jc[:, :, offs["grid"]] = Wm @ jg
+            jc[bad, :, offs["grid"]] = 0.0
+        if o0:
             f.jc = jc
             if ic.frame_cols is None:  # the columns depend on the layout only
                 colblocks = []
@@ -416,15 +417,16 @@ class Image(ObservationType):
                     cols = np.full((n, model._act_width), -1, np.int64)
                     ia = model._img2act[oi]
                     rows = np.flatnonzero(ia >= 0)
-                    cols[rows] = model.layout.act[b.image_head[oi[rows]]]  # type: ignore[index]
+                    cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
                     colblocks.append(cols)
                 if red:
                     colblocks.append(ic.red_cols)
-                if grid_cols_on:
+                lgrid = lay.grid
+                if grid_cols_on and lgrid is not None:
                     gi = ic.grid_idx
                     has = gi >= 0
-                    gc = np.where(has, lay.grid[np.maximum(gi, 0)], -1)  # type: ignore[index]
-                    gcy = np.where(has, lay.grid[np.maximum(gi, 0) + 1], -1)  # type: ignore[index]
+                    gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
+                    gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
                     colblocks.append(np.concatenate([gc, gcy], axis=1))
                 ic.frame_cols = np.concatenate(colblocks, axis=1)
             f.cols = ic.frame_cols
@@ -435,7 +437,7 @@ class Image(ObservationType):
             f.jp = jX
         return f
 
-    def _bal(self, model: "Model", s: "State", jac: bool, bal_kernel) -> Factor:  # type: ignore[no-untyped-def]
+    def _bal(self, model: "Model", s: "State", jac: bool, bal_kernel) -> Factor:
         """:meth:`_numpy` for blocks of BAL cameras only, through the compiled kernel (same values)."""
         b, lay = model.block, model.layout
         ic = model.cache[self.name]
@@ -465,7 +467,7 @@ class Image(ObservationType):
                     np.ascontiguousarray(s.X), intr, np.ascontiguousarray(b.obs_pixel, dtype=np.float64),
                     np.ascontiguousarray(b.obs_sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
         f = Factor(self.name, r, b.obs_sigma_px, weight=model.weights["image"])
-        f.bad = bad  # type: ignore[attr-defined]
+        f.bad = bad
         if not jac:
             return f
         if k:

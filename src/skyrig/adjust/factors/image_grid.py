@@ -149,7 +149,7 @@ class ImageGrids:
             self._whiten = [None] * len(self.grids)
         if self._whiten[k] is None:
             self._whiten[k] = whitening_matrices(self.grids[k].cov_px2[None])[0]  # type: ignore[index]
-        return self._whiten[k]  # type: ignore[no-any-return]
+        return self._whiten[k]
 
     def values(self) -> NDArray[np.float64]:
         """All node values flat (grid by grid, node by node, x then y): the state vector of the grids."""
@@ -188,12 +188,12 @@ class ImageGridPrior(PriorType):
         return block.observations.get(self.name)
 
     def present(self, model: "Model") -> bool:
-        return model.layout.grid is not None and model.config.image_grid == "weighted"
+        return model.layout.grid is not None and model.config.unknowns.image_grid == "weighted"
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         d = grids_of(model.block)
         lay = model.layout
-        if d is None or lay.grid is None or model.config.image_grid != "weighted":
+        if d is None or lay.grid is None or model.config.unknowns.image_grid != "weighted":
             return []
         off = d.offsets()
         out = []
@@ -208,7 +208,7 @@ class ImageGridPrior(PriorType):
             U = d.whiten(k)
             vals = s.grid[off[k]:off[k + 1]].reshape(m, 2).T  # type: ignore[index]
             r = vals @ U.T  # (2, m): U g_c per component
-            sig = np.broadcast_to(np.sqrt(np.diag(g.cov_px2)), (2, m)).copy()  # type: ignore[arg-type]
+            sig = np.broadcast_to(np.sqrt(np.diag(g.cov_px2)), (2, m)).copy()
             Wm = np.broadcast_to(U, (2, m, m)).copy()
             f = Factor(f"prior:image_grid:{g.camera}", r, sig, weight=np.ones(2), whiten=Wm)
             if jac:

@@ -47,7 +47,7 @@ class Imu(ObservationType):
     cov_field = "imu_cov_rad2"
 
     def count(self, block: "Block") -> int:
-        return len(block.imu_station)  # type: ignore[arg-type]
+        return len(block.imu_station)
 
     def normalise(self, block: "Block") -> None:
         if block.imu_station is None:
@@ -60,10 +60,10 @@ class Imu(ObservationType):
         covariance_rows(block, "imu_cov_rad2", "imu_sigma_rad", m, 3)
 
     def validate(self, block: "Block") -> None:
-        check_index("imu_station", block.imu_station, block.n_stations, "station")  # type: ignore[arg-type]
-        check_finite("imu_rotation", block.imu_rotation)  # type: ignore[arg-type]
-        check_finite("imu_sigma_rad", block.imu_sigma_rad)  # type: ignore[arg-type]
-        check_positive("imu_sigma_rad", block.imu_sigma_rad)  # type: ignore[arg-type]
+        check_index("imu_station", block.imu_station, block.n_stations, "station")
+        check_finite("imu_rotation", block.imu_rotation)
+        check_finite("imu_sigma_rad", block.imu_sigma_rad)
+        check_positive("imu_sigma_rad", block.imu_sigma_rad)
         check_covariance("imu_cov_rad2", block.imu_cov_rad2)
 
     def prepare(self, model: "Model") -> NDArray[np.float64] | None:
@@ -73,18 +73,18 @@ class Imu(ObservationType):
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
         st = b.imu_station
-        e = rotvec_from_matrix(np.swapaxes(b.imu_rotation, 1, 2) @ s.R[st])  # type: ignore[arg-type]
+        e = rotvec_from_matrix(np.swapaxes(b.imu_rotation, 1, 2) @ s.R[st])
         sig = b.imu_sigma_rad
         Wm = model.cache[self.name]  # full 3x3 covariance about the station axes, or None
-        r = e / sig if Wm is None else np.einsum("nij,nj->ni", Wm, e)  # type: ignore[operator]
-        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)  # type: ignore[arg-type]
+        r = e / sig if Wm is None else np.einsum("nij,nj->ni", Wm, e)
+        f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)
         if not jac:
             return [f]
-        n = len(st)  # type: ignore[arg-type]
+        n = len(st)
         jinv = np.eye(3)[None] + 0.5 * skew(e)  # inverse right Jacobian of SO(3) to first order
         j = np.zeros((n, 3, 6))
         j[:, :, 3:] = jinv
-        f.jc = j / sig[:, :, None] if Wm is None else Wm @ j  # type: ignore[index]
+        f.jc = j / sig[:, :, None] if Wm is None else Wm @ j
         f.cols = lay.pose[st]
         return [f]
 
@@ -92,7 +92,7 @@ class Imu(ObservationType):
         return any_on(model.layout.pose)[model.block.imu_station]
 
     def label(self, block: "Block", i: int) -> str:
-        return f"IMU attitude of station {block.station_name[block.imu_station[i]]}"  # type: ignore[index]
+        return f"IMU attitude of station {block.station_name[block.imu_station[i]]}"
 
 
 IMU = register(Imu())

@@ -63,10 +63,10 @@ class PosePrior(PriorType):
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         cfg, lay, s0 = model.config, model.layout, model.initial
-        if cfg.poses != "weighted":
+        if cfg.unknowns.poses != "weighted":
             return []
         d = np.concatenate([s.C - s0.C, rotvec_from_matrix(np.swapaxes(s0.R, 1, 2) @ s.R)], axis=1)
-        return [prior_factor("pose", d, lay.pose, np.array([cfg.pose_sigma_m] * 3 + [cfg.pose_sigma_rad] * 3), jac)]
+        return [prior_factor("pose", d, lay.pose, np.array([cfg.unknowns.pose_sigma_m] * 3 + [cfg.unknowns.pose_sigma_rad] * 3), jac)]
 
 
 POSE_PRIOR = register(PosePrior())
