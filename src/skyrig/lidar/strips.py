@@ -395,7 +395,7 @@ def find_planar_patches(
     # each point goes to the nearest patch centre
     tree = cKDTree(centre)
     e1p, e2p = _plane_basis(normal)
-    half = options.cell_m / 2
+    half = 0.4 * options.cell_m  # inside the cell whose planarity was tested (its centroid +- 0.4 cell)
 
     def assign(pts: NDArray[np.float64]) -> NDArray[np.intp]:
         out = np.full(len(pts), -1, dtype=np.intp)
@@ -417,13 +417,41 @@ def find_planar_patches(
     okr = strip_ok[pl, st]
     rows, pl, st = rows[okr], pl[okr], st[okr]
     # points off their own strip's plane in the patch (another surface at an edge, a stray return) are left out:
-    # farther than 4 x that strip's RMS thickness (+ 5 mm)
+    # each (patch, strip) plane is fitted twice, keeping the points within 4 robust sigmas (median absolute distance)
+    # of the first fit, then within 4 RMS of the second; groups thicker than max_strip_thickness_m are dropped
+    x_r = xyz[use[rows]]
     grp = pl * k_strips + st
-    g_cnt, g_s1, g_s2 = _moments(grp, xyz[use[rows]], n_pl * k_strips, np.repeat(centre, k_strips, axis=0))
-    g_w, g_v = np.linalg.eigh(_scatter(g_cnt, g_s1, g_s2))
-    g_mean = centre[pl] + g_s1[grp] / np.maximum(g_cnt[grp], 1.0)[:, None]
-    g_thr = 4.0 * np.sqrt(np.maximum(g_w[grp, 0], 0.0)) + 0.005
-    okr = np.abs(np.einsum("ij,ij->i", xyz[use[rows]] - g_mean, g_v[grp, :, 0])) <= g_thr
+    n_grp = n_pl * k_strips
+    ref_g = np.repeat(centre, k_strips, axis=0)
+    keep = np.ones(len(rows), bool)
+    for robust in (True, False):
+        g_cnt, g_s1, g_s2 = _moments(grp[keep], x_r[keep], n_grp, ref_g)
+        g_w, g_v = np.linalg.eigh(_scatter(g_cnt, g_s1, g_s2))
+        dist = np.abs(np.einsum("ij,ij->i", x_r - centre[pl] - g_s1[grp] / np.maximum(g_cnt[grp], 1.0)[:, None],
+                                g_v[grp, :, 0]))
+        if robust:
+            o = np.lexsort((np.where(keep, dist, np.inf), grp))
+            first = np.searchsorted(grp[o], np.arange(n_grp))
+            med = dist[o[np.minimum(first + np.maximum(g_cnt.astype(np.intp) // 2, 0), len(o) - 1)]]
+            sig_g = 1.4826 * med
+        else:
+            sig_g = np.sqrt(np.maximum(g_w[:, 0], 0.0))
+        keep &= dist <= np.maximum(4.0 * sig_g[grp], 0.005)
+    g_cnt, g_s1, g_s2 = _moments(grp[keep], x_r[keep], n_grp, ref_g)
+    g_w = np.linalg.eigvalsh(_scatter(g_cnt, g_s1, g_s2))
+    g_ok = (g_cnt >= options.min_points_per_strip / 2) & (np.sqrt(np.maximum(g_w[:, 0], 0.0)) <= options.max_strip_thickness_m)
+    okr = keep & g_ok[grp]
+    # patches left with fewer than min_strips strips go
+    p_ok = g_ok.reshape(n_pl, k_strips).sum(axis=1) >= options.min_strips
+    okr &= p_ok[pl]
+    if not p_ok.any():
+        raise GeometryError("no planar patch is seen by enough strips after leaving out points off their planes")
+    new_index = np.cumsum(p_ok) - 1
+    pl = np.where(p_ok[pl], new_index[pl], -1)
+    centre, normal = centre[p_ok], normal[p_ok]
+    e1p, e2p = e1p[p_ok], e2p[p_ok]
+    tree = cKDTree(centre)
+    n_pl = int(p_ok.sum())
     rows, pl, st = rows[okr], pl[okr], st[okr]
     grp = pl * k_strips + st
     order = np.lexsort((rng.random(len(grp)), grp))
@@ -780,9 +808,9 @@ def _solve(N: NDArray, b: NDArray) -> NDArray:
 
 
 def _run(p: PlanarPatches, mount: ScannerMount, model: StripModel, x0: NDArray, free: NDArray[np.bool_],
-         iterations: int, reject_sigma: float) -> dict[str, Any]:
-    normal = p.normal.copy()
-    offset = np.zeros(p.n_planes)
+         iterations: int, reject_sigma: float, planes: tuple[NDArray, NDArray] | None = None) -> dict[str, Any]:
+    normal = p.normal.copy() if planes is None else planes[0].copy()
+    offset = np.zeros(p.n_planes) if planes is None else planes[1].copy()
     x = x0.copy()
     active = np.ones(len(p), bool)
     it = 0
@@ -806,15 +834,16 @@ def _run(p: PlanarPatches, mount: ScannerMount, model: StripModel, x0: NDArray, 
             f *= 0.5
         x, normal, offset = moved(x, normal, offset, dx, dpl, f)
         dx = f * dx
-        step = np.max(np.abs(dx) / ps)
-        logger.debug("strip adjustment iteration %d: step %.3g prior sigmas, vtpv %.6g", it, step, vtpv)
+        # the step in posterior sigmas (diagonal of N^-1; held unknowns have a unit diagonal and no step)
+        step = float(np.max(np.abs(dx) / np.sqrt(np.maximum(np.diag(np.linalg.inv(N)), 1e-300))))
+        logger.debug("strip adjustment iteration %d: step %.3g sigmas, vtpv %.6g", it, step, vtpv)
         if it >= 2 and reject_sigma > 0:
             z = np.abs(res["r"]) / res["sigma"]
             newly = active & (z > reject_sigma)
             if newly.any():
                 active &= ~newly
                 continue
-        if step < 1e-3:
+        if step < 0.01:
             break
     N, b, Npp_inv, Npg, bp, vtpv, res = _normal_equations(p, mount, x, normal, offset, model, active, free)
     return {"x": x, "N": N, "normal": normal, "offset": offset, "active": active, "vtpv": vtpv, "res": res,
@@ -876,11 +905,17 @@ def adjust_strips(
     # before: nominal parameters, planes fitted to the points (a run with everything held)
     before = _run(patches, mount, model, x0, np.zeros(u, bool), 3, 0.0)
     rms_before = float(np.sqrt(np.mean(before["res"]["r"] ** 2)))
+    # a first solve with the range scale and the lever arm held: from the nominal start these trade with the planes
+    # and the strip corrections far from the linear range, and a free start can end in a wrong (scaled) minimum
+    stage = free.copy()
+    stage[[CALIBRATION_NAMES.index(n) for n in ("range_scale", "lever_x", "lever_y", "lever_z")]] = False
+    first = _run(patches, mount, model, x0, stage, iterations, reject_sigma)
+    x0, planes0 = first["x"], (first["normal"], first["offset"])
     held: dict[str, CalibrationVerdict] = {}
     verdicts: list[CalibrationVerdict] = []
     out: dict[str, Any] = {}
     for _ in range(3):
-        out = _run(patches, mount, model, x0, free, iterations, reject_sigma)
+        out = _run(patches, mount, model, np.where(free, x0, 0.0), free, iterations, reject_sigma, planes0)
         n_obs = int(out["active"].sum()) + int(np.sum(patches.control_count)) + int(free.sum())
         redundancy = n_obs - int(free.sum()) - 3 * patches.n_planes
         s0 = float(np.sqrt(out["vtpv"] / max(redundancy, 1)))

@@ -67,6 +67,7 @@ __all__ = [
     "lidar_scenario_spec",
     "make_bridge",
     "strip_scenario_spec",
+    "strip_truth_vector",
 ]
 
 _Vec = tuple[float, float, float]
@@ -562,6 +563,26 @@ def strip_scenario_spec(size: str = "strips", seed: int = 1, errors: LidarErrors
                              body_from_scanner=tilted,
                              strip_layout=((12.0, 5.0), (12.0, 5.0), (9.0, 3.5), (9.0, 3.5), (15.0, 4.5)),
                              reference_density_per_m2=40.0, reference_ground_density_per_m2=8.0)
+
+
+def strip_truth_vector(injected: dict[str, Any], strip_epoch_s: ArrayLike) -> NDArray[np.float64]:
+    """The corrections a strip adjustment (:mod:`skyrig.lidar.strips`) should find, from a survey's ``injected``
+    values: ``(8 + 12 K,)`` in the order of :func:`skyrig.lidar.strips.strip_parameter_names`, the strip corrections
+    referred to the adjustment's strip epochs ``(K,)`` (the negatives of the injected errors)."""
+    ep = np.asarray(strip_epoch_s, dtype=np.float64)
+    strips = injected["strips"]
+    if len(strips) != len(ep):
+        raise SkyrigError(f"{len(strips)} simulated strips, {len(ep)} strip epochs")
+    cal = np.concatenate([injected["boresight_rad"], injected["lever_arm_error_m"],
+                          [injected["range_offset_m"], injected["range_scale_ppm"] * 1e-6]])
+    rows = []
+    for s_, tk in zip(strips, ep):
+        dt = tk - s_["t_mid_s"]
+        rows.append(np.concatenate([-(np.asarray(s_["position_offset_m"]) + np.asarray(s_["position_drift_mps"]) * dt),
+                                    -np.asarray(s_["position_drift_mps"]),
+                                    -(np.asarray(s_["attitude_offset_rad"]) + np.asarray(s_["attitude_drift_radps"]) * dt),
+                                    -np.asarray(s_["attitude_drift_radps"])]))
+    return np.concatenate([cal, *rows])
 
 
 # ---------------------------------------------------------------------------------------------- flight
