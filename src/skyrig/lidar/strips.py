@@ -397,7 +397,11 @@ def find_planar_patches(
     e1p, e2p = _plane_basis(normal)
     half = 0.4 * options.cell_m  # inside the cell whose planarity was tested (its centroid +- 0.4 cell)
 
-    def assign(pts: NDArray[np.float64]) -> NDArray[np.intp]:
+    def assign(pts: NDArray[np.float64], origin: NDArray[np.float64] | None = None) -> NDArray[np.intp]:
+        """Patch of each point (-1: none).  With the beams' ``origin``, the square is tested where the beam meets
+        the patch plane, not at the measured point: range noise moves a point along its beam, and selecting by the
+        noisy position would keep a biased share of the noise where a patch's square meets the edge of a strip's
+        coverage (a range-scale-like bias)."""
         out = np.full(len(pts), -1, dtype=np.intp)
         for a0 in range(0, len(pts), 1_000_000):
             q = pts[a0:a0 + 1_000_000]
@@ -405,12 +409,29 @@ def find_planar_patches(
             ok = np.isfinite(d)
             j = np.where(ok, j, 0)
             y = q - centre[j]
-            ok &= (np.abs(np.einsum("ij,ij->i", y, normal[j])) <= options.max_thickness_m) \
-                & (np.abs(np.einsum("ij,ij->i", y, e1p[j])) <= half) & (np.abs(np.einsum("ij,ij->i", y, e2p[j])) <= half)
+            nj = normal[j]
+            ok &= np.abs(np.einsum("ij,ij->i", y, nj)) <= options.max_thickness_m
+            if origin is not None:
+                o = origin[a0:a0 + 1_000_000]
+                beam = q - o
+                den = np.einsum("ij,ij->i", beam, nj)
+                good = np.abs(den) > 1e-9 * np.einsum("ij,ij->i", beam, beam)
+                f = np.where(good, np.einsum("ij,ij->i", centre[j] - o, nj) / np.where(good, den, 1.0), 1.0)
+                y = o + f[:, None] * beam - centre[j]
+                ok &= good
+            ok &= (np.abs(np.einsum("ij,ij->i", y, e1p[j])) <= half) & (np.abs(np.einsum("ij,ij->i", y, e2p[j])) <= half)
             out[a0:a0 + 1_000_000] = np.where(ok, j, -1)
         return out
 
-    pl = assign(xyz[use])
+    # the scanner's origin at every pulse (nominal mount), chunked through the georeferencing kernel
+    geo0 = PulseGeoreferencer(trajectory, mount, position)
+    t_use = scan.time_s[use]
+    origin = np.empty((len(use), 3))
+    for a0 in range(0, len(use), 1_000_000):
+        tt_ = t_use[a0:a0 + 1_000_000]
+        origin[a0:a0 + 1_000_000] = frame.from_ecef(geo0.ecef(tt_, np.zeros((len(tt_), 3))))
+    pl = assign(xyz[use], origin)
+    del origin
     rows = np.flatnonzero(pl >= 0)
     pl = pl[rows]
     st = strip_of[rows]
