@@ -34,6 +34,14 @@ so the correction to apply is ``-heading_error``), IMU white noise, GNSS white n
 wander (sum of sinusoids with periods 15 s to 60 s, paper 002's weak GNSS heights), a barometric
 height record (true ellipsoidal IMU height + bias + noise), range noise and bias, and a scanner clock
 offset (recorded pulse time = true + offset).
+
+**The strip flight** (issue 34, :func:`strip_scenario_spec`, sizes ``strips-ci`` / ``strips``): strips along both
+sides at two distances and heights joined by turns (the scanner records on the strips only; every pulse carries its
+strip id), the scan plane tilted 20 deg forward (:data:`BODY_FROM_SCANNER_TILTED`), and :data:`STRIP_ERRORS`: what a
+strip adjustment must recover -- boresight, lever arm, range offset and scale (``range_scale_ppm``), per-strip
+trajectory position/attitude offsets and drifts drawn from the stated trajectory accuracy -- and a camera boresight
+written to the truth for the joint laser + image adjustment.  :func:`strip_truth_vector` turns the truth into the
+corrections :mod:`skyrig.lidar.strips` estimates.
 """
 
 from __future__ import annotations
@@ -757,6 +765,9 @@ class LidarSurvey:
         The drawn error values (for the truth file).
     pulses_fired
         Pulses fired in all (returns and misses).
+    strip_time_s
+        ``(K, 2)`` start and end times of the strips (the straight passes; ``scan.strip_id`` indexes them, -1 on
+        turns).
     """
 
     spec: LidarScenarioSpec
