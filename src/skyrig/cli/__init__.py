@@ -70,7 +70,7 @@ COMMANDS: dict[str, CommandEntry] = {
     "simulate": CommandEntry("skyrig.cli.simulate:command",
                              "Simulate SCENARIO (tumblecam, midas, 3k, southeast, uav-bridge-lidar) into the folder -o/--output."),
     "lidar": CommandEntry("skyrig.cli.lidar:command",
-                          "Laser scanning: georeference raw scans, register and compare point clouds."),
+                          "Laser scanning: georeference raw scans, register and compare point clouds, adjust strips."),
     "transfer": CommandEntry("skyrig.cli.transfer:command",
                              "Oblique (tumbling-head) orientations from adjusted nadir orientations through the calibrated mounting."),
     "import": CommandEntry("skyrig.cli.exchange:import_command",

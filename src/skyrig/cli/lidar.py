@@ -270,3 +270,68 @@ def compare_cmd(compared, reference, method, k, max_distance, core, normal_radiu
         _write_histogram_png(hist_png, dist, f"{method}: {Path(compared).name} vs {Path(reference).name}", st)
     if stats_json:
         Path(stats_json).write_text(json.dumps(st.as_dict(), indent=2), encoding="utf-8")
+
+
+@command.command("strips")
+@click.option("--scan", "scan_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Raw scan CSV with a 'strip' column (docs/formats/raw_scan_csv.md).")
+@click.option("--trajectory", "traj_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="skyrig trajectory CSV or Applanix SBET (IMU positions).")
+@click.option("--mount", "mount_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Nominal scanner mount: a scanner.json (skyrig-scanner-mount) or a rig file with a 'scanners' section.")
+@click.option("--scanner", default=None, help="Scanner record of --mount (a rig file with several scanners).")
+@click.option("--reference", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Control: a reference cloud (.las/.laz with a CRS, e.g. a terrestrial scan) on the same surfaces.")
+@click.option("--range-sigma", type=float, default=0.02, show_default=True, help="Range noise (m).")
+@click.option("--angle-sigma-deg", type=float, default=0.0, show_default=True, help="Deflection-angle noise (deg).")
+@click.option("--roughness", type=float, default=0.002, show_default=True, help="Surface roughness of a patch (m).")
+@click.option("--control-sigma", type=float, default=0.003, show_default=True, help="Noise of a reference point (m).")
+@click.option("--position-sigma", default="0.05,0.05,0.08", show_default=True,
+              help="Trajectory position accuracy per strip, E,N,U (m): prior of the strip offsets.")
+@click.option("--position-drift-sigma", default="0.001", show_default=True, help="... of the strip drifts (m/s).")
+@click.option("--attitude-sigma-deg", default="0.03,0.03,0.08", show_default=True,
+              help="Trajectory attitude accuracy per strip about E,N,U (deg).")
+@click.option("--attitude-drift-sigma-deg", default="0.0003,0.0003,0.0008", show_default=True, help="... per second.")
+@click.option("--cell", type=float, default=1.0, show_default=True, help="Patch size (m).")
+@click.option("--min-strips", type=int, default=2, show_default=True, help="Strips that must see a patch.")
+@click.option("--estimate", default="all", show_default=True,
+              help="Calibration unknowns, comma-separated (boresight_x.., lever_x.., range_offset, range_scale) or 'all'.")
+@click.option("--name", default="lidar", show_default=True, help="Name of the scanner record written.")
+@click.option("--rig", "base_rig", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Rig file to add the scanner record to (its heads and other scanners are kept).")
+@click.option("--flight", default="", help="Provenance: flight / data set.")
+@click.option("--date", default="", help="Provenance: date of the flight (ISO 8601).")
+@click.option("--cloud", type=click.Path(dir_okay=False), default=None, help="Also write the corrected cloud (.las/.laz).")
+@click.option("--crs", default=None, help="CRS of --cloud (default: the reference's, else ECEF).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Rig file with the calibrated scanner.")
+@click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
+              help="Report JSON (default: next to --output).")
+def strips_cmd(scan_path, traj_path, mount_path, scanner, reference, range_sigma, angle_sigma_deg, roughness,
+               control_sigma, position_sigma, position_drift_sigma, attitude_sigma_deg, attitude_drift_sigma_deg, cell,
+               min_strips, estimate, name, base_rig, flight, date, cloud, crs, output, report_path) -> None:
+    """Strip adjustment: scanner boresight, lever arm, range offset/scale and per-strip trajectory corrections from
+    planar patches seen by overlapping strips (and a reference cloud) -> a calibrated scanner record + report."""
+    from skyrig.cli.lidar_strips import _triple, echo_table, run_strips
+    from skyrig.errors import OptionError
+    from skyrig.lidar.strips import CALIBRATION_NAMES
+
+    deg = float(np.radians(1.0))
+    est = CALIBRATION_NAMES if estimate.strip().lower() == "all" else tuple(e.strip() for e in estimate.split(",") if e.strip())
+    bad = [e for e in est if e not in CALIBRATION_NAMES]
+    if bad:
+        raise OptionError("--estimate", f"unknown parameters {bad}; choose from {', '.join(CALIBRATION_NAMES)}")
+    for opt, v in (("--range-sigma", range_sigma), ("--control-sigma", control_sigma), ("--cell", cell)):
+        if not (np.isfinite(v) and v > 0):
+            raise OptionError(opt, f"must be a positive number, got {v!r}")
+    opts = {"name": name, "flight": flight, "date": date, "estimate": est,
+            "model": {"range_sigma_m": range_sigma, "scan_angle_sigma_rad": angle_sigma_deg * deg,
+                      "roughness_m": roughness, "control_sigma_m": control_sigma,
+                      "strip_position_sigma_m": _triple(position_sigma, "--position-sigma"),
+                      "strip_position_drift_sigma_mps": _triple(position_drift_sigma, "--position-drift-sigma"),
+                      "strip_attitude_sigma_rad": _triple(attitude_sigma_deg, "--attitude-sigma-deg", deg),
+                      "strip_attitude_drift_sigma_radps": _triple(attitude_drift_sigma_deg, "--attitude-drift-sigma-deg",
+                                                                  deg)},
+            "patches": {"cell_m": cell, "min_strips": min_strips}}
+    out = run_strips(scan_path, traj_path, mount_path, scanner, reference, opts, output, report_path, base_rig, cloud, crs)
+    echo_table(out)
+    click.echo(f"-> {output}, {out['report']}" + (f", {cloud}" if cloud else ""))

@@ -8,8 +8,8 @@ Example::
     time,range,alpha,intensity
     345600.008350,12.418,-134.875,1893
 
-Columns ``time`` (s), ``range`` (m) and ``alpha`` are required; ``beta`` (3D scanners) and ``intensity`` are
-optional; column order is free.  Times must not decrease.  Every error names the file, the line and the field.
+Columns ``time`` (s), ``range`` (m) and ``alpha`` are required; ``beta`` (3D scanners), ``intensity`` and
+``strip`` (integer flight-line id, -1 outside any strip) are optional; column order is free.  Times must not decrease.  Every error names the file, the line and the field.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ PathLike = str | os.PathLike[str]
 MAGIC = "# skyrig-raw-scan 1"
 _DIRECTIVE = re.compile(r"^#\s*([A-Za-z][A-Za-z0-9_-]*)\s*:\s*(.*)$")
 _KNOWN = {"angles", "time"}
-_COLUMNS = ("time", "range", "alpha", "beta", "intensity")
+_COLUMNS = ("time", "range", "alpha", "beta", "intensity", "strip")
 
 
 def read_raw_scan_csv(path: PathLike) -> tuple[RawScan, dict[str, str]]:
@@ -109,7 +109,14 @@ def read_raw_scan_csv(path: PathLike) -> tuple[RawScan, dict[str, str]]:
     if neg.size:
         raise InputFormatError(f"negative range {col['range'][neg[0]]!r}", path, body[int(neg[0])][0], "range")
     beta = to_radians(col["beta"], unit) if "beta" in col else None
-    scan = RawScan(t, col["range"], to_radians(col["alpha"], unit), beta, col.get("intensity"))
+    strip = None
+    if "strip" in col:
+        frac = np.flatnonzero(col["strip"] != np.round(col["strip"]))
+        if frac.size:
+            raise InputFormatError(f"strip id {col['strip'][frac[0]]!r} is not an integer", path,
+                                   body[int(frac[0])][0], "strip")
+        strip = col["strip"].astype(np.int64)
+    scan = RawScan(t, col["range"], to_radians(col["alpha"], unit), beta, col.get("intensity"), strip)
     return scan, header
 
 
@@ -127,6 +134,10 @@ def write_raw_scan_csv(path: PathLike, scan: RawScan, unit: str = "deg", time_sy
         cols.append("intensity")
         arrs.append(scan.intensity)
         fmts.append("%.6g")
+    if scan.strip_id is not None:
+        cols.append("strip")
+        arrs.append(scan.strip_id)
+        fmts.append("%d")
     with atomic_write(path) as fh:
         fh.write(f"{MAGIC}\n# angles: {unit}\n# time: {time_system}\n{','.join(cols)}\n")
         if len(scan):

@@ -235,7 +235,7 @@ _HEAD_KEYS = {"name", "camera", "lever_arm_m", "mounting_rpy_deg", "mounting_mat
 _ACTUATOR_KEYS = {"type", "gamma_deg", "law", "boresight_curve"}
 _CURVE_KEYS = {"interpolation", "beta_deg", "droll_deg", "dpitch_deg", "dyaw_deg", "std_deg", "count"}
 _STD_KEYS = {"droll_deg", "dpitch_deg", "dyaw_deg"}
-_TOP_KEYS = {"format", "version", "name", "description", "antenna_lever_arm_m", "heads", "calibration"}
+_TOP_KEYS = {"format", "version", "name", "description", "antenna_lever_arm_m", "heads", "calibration", "scanners"}
 _BLOCK_KEYS = {"parameters", "sigma", "correlation", "values"}
 _PROV_KEYS = {"recipe", "flight", "date", "software", "statistics", "notes"}
 _HEAD_CAL_KEYS = {"lever_arm_m", "boresight_opk_deg", "interior", "actuator", "provenance"}
@@ -494,7 +494,15 @@ def read_calibrated_rig(path: str | os.PathLike[str]) -> tuple[Rig, RigCalibrati
         raise ctx.error(f"expected an integer, got {v!r}", doc, "version", "version")
     if v != VERSION:
         raise ctx.error(f"unsupported version {v} (this skyrig reads version {VERSION})", doc, "version", "version")
-    ctx.mapping(doc, None, "", None, _TOP_KEYS, {"format", "version", "name", "heads"})
+    ctx.mapping(doc, None, "", None, _TOP_KEYS, {"format", "version", "name"} | ({"heads"} if "scanners" not in doc
+                                                                                else set()))
+    if "scanners" in doc:  # laser scanner records (skyrig.io.scanner_record): checked here, read there
+        from skyrig.io.scanner_record import parse_scanners
+
+        parse_scanners(doc["scanners"], doc, p, _Map, _Seq)
+        if "heads" not in doc:
+            raise InputFormatError("this rig file holds laser scanners only (no camera 'heads'); read it with "
+                                   "skyrig.io.scanner_record.read_rig_scanners", p, doc.line, "heads")
     name = ctx.text(doc, "name", "name")
     description = doc.get("description") or ""
     if not isinstance(description, str):

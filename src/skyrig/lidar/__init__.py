@@ -5,6 +5,8 @@
 * :mod:`skyrig.lidar.register` -- coarse alignment from homologous points, ICP (Open3D, or scipy).
 * :mod:`skyrig.lidar.compare` -- cloud-to-cloud distances, M3C2 (CloudCompare / PDAL), statistics.
 * :mod:`skyrig.lidar.boresight` -- boresight / yaw-correction estimation against a reference cloud.
+* :mod:`skyrig.lidar.strips` -- strip adjustment on planar patches: scanner boresight, lever arm, range offset and
+  scale, per-strip trajectory offsets and drifts (import it from its module).
 """
 
 from skyrig.lidar.compare import (

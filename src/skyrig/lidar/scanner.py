@@ -90,6 +90,8 @@ class RawScan:
         ``(N,)`` vertical deflection, or None (2D scanner).
     intensity
         ``(N,)`` return intensities, or None.
+    strip_id
+        ``(N,)`` integer strip (flight line) of each pulse, or None (one strip); -1 for pulses outside any strip.
 
     Raises
     ------
@@ -104,6 +106,7 @@ class RawScan:
     alpha_rad: NDArray[np.float64]
     beta_rad: NDArray[np.float64] | None = None
     intensity: NDArray[np.float64] | None = None
+    strip_id: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.time_s, dtype=np.float64)
@@ -121,6 +124,18 @@ class RawScan:
             if np.any(bad):
                 raise InputFormatError(f"non-finite value at pulse {int(np.argmax(bad))}", field=name)
             object.__setattr__(self, name, a)
+        if self.strip_id is not None:
+            sid = np.asarray(self.strip_id)
+            if sid.shape != (n,):
+                raise InputFormatError(f"expected shape {(n,)}, got {sid.shape}", field="strip_id")
+            if sid.dtype.kind == "f":
+                bad = ~np.isfinite(sid) | (sid != np.round(sid))
+                if np.any(bad):
+                    raise InputFormatError(f"strip ids must be integers: pulse {int(np.argmax(bad))} has "
+                                           f"{sid[int(np.argmax(bad))]!r}", field="strip_id")
+            elif sid.dtype.kind not in "iu":
+                raise InputFormatError(f"strip ids must be integers, got dtype {sid.dtype}", field="strip_id")
+            object.__setattr__(self, "strip_id", sid.astype(np.int64))
         if np.any(self.range_m < 0):
             raise InputFormatError(f"negative range at pulse {int(np.argmax(self.range_m < 0))}", field="range_m")
         dt = np.diff(self.time_s)
@@ -141,7 +156,8 @@ class RawScan:
     def subset(self, rows: ArrayLike | slice) -> "RawScan":
         r = rows if isinstance(rows, slice) else np.asarray(rows)
         pick = (lambda v: None if v is None else v[r])  # noqa: E731
-        return RawScan(self.time_s[r], self.range_m[r], self.alpha_rad[r], pick(self.beta_rad), pick(self.intensity))
+        return RawScan(self.time_s[r], self.range_m[r], self.alpha_rad[r], pick(self.beta_rad), pick(self.intensity),
+                       pick(self.strip_id))
 
 
 @dataclass(frozen=True)

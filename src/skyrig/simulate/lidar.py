@@ -34,6 +34,14 @@ so the correction to apply is ``-heading_error``), IMU white noise, GNSS white n
 wander (sum of sinusoids with periods 15 s to 60 s, paper 002's weak GNSS heights), a barometric
 height record (true ellipsoidal IMU height + bias + noise), range noise and bias, and a scanner clock
 offset (recorded pulse time = true + offset).
+
+**The strip flight** (issue 34, :func:`strip_scenario_spec`, sizes ``strips-ci`` / ``strips``): strips along both
+sides at two distances and heights joined by turns (the scanner records on the strips only; every pulse carries its
+strip id), the scan plane tilted 20 deg forward (:data:`BODY_FROM_SCANNER_TILTED`), and :data:`STRIP_ERRORS`: what a
+strip adjustment must recover -- boresight, lever arm, range offset and scale (``range_scale_ppm``), per-strip
+trajectory position/attitude offsets and drifts drawn from the stated trajectory accuracy -- and a camera boresight
+written to the truth for the joint laser + image adjustment.  :func:`strip_truth_vector` turns the truth into the
+corrections :mod:`skyrig.lidar.strips` estimates.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ from skyrig.errors import GeometryError, SkyrigError
 from skyrig.geodesy.crs import ecef_to_geodetic
 from skyrig.georef.eo import WorldFrame
 from skyrig.geometry.rotations import (
-    ENU_FROM_NED, matrix_from_rpy, quaternion_from_matrix, rot_z, rpy_from_matrix,
+    ENU_FROM_NED, matrix_from_rpy, quaternion_from_matrix, rot_y, rot_z, rpy_from_matrix,
 )
 from skyrig.lidar.georef import ScannerMount
 from skyrig.lidar.scanner import HOKUYO_UTM_30LX_EW, RawScan, Scanner2D, sensor_from_polar
@@ -62,9 +70,12 @@ __all__ = [
     "LidarScenarioSpec",
     "LidarSurvey",
     "PAPER002_ERRORS",
+    "STRIP_ERRORS",
     "build_lidar_survey",
     "lidar_scenario_spec",
     "make_bridge",
+    "strip_scenario_spec",
+    "strip_truth_vector",
 ]
 
 _Vec = tuple[float, float, float]
@@ -72,6 +83,10 @@ _Vec = tuple[float, float, float]
 #: Scanner x (alpha = 0) along body y (right), scanner y (alpha = +90 deg) along body z (down), scanner z
 #: along body x (forward): a vertical scan plane across the flight direction.
 BODY_FROM_SCANNER_ACROSS = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+#: The scan plane tilted 20 deg forward (about body y) from :data:`BODY_FROM_SCANNER_ACROSS`, as UAV laser scanners are
+#: often mounted: faces across the flight line (pillar faces) are hit at a useful incidence, not grazing.
+BODY_FROM_SCANNER_TILTED = rot_y(np.radians(20.0)) @ BODY_FROM_SCANNER_ACROSS
 
 GROUND = -1  # component index of the ground plane in hit records
 NO_HIT = -2
@@ -388,6 +403,18 @@ class LidarErrors:
     range_sigma_m: float = 0.0  # range noise (one sigma)
     range_bias_m: float = 0.0  # recorded minus true range
     time_offset_s: float = 0.0  # recorded minus true pulse time (scanner clock)
+    range_scale_ppm: float = 0.0  # recorded = (1 + scale) x true range (+ bias + noise), parts per million
+    # per-strip trajectory errors (passes="strips"): drawn per strip from N(0, sigma) and applied as recorded = true +
+    # offset + drift x (t - strip mid time) for positions (local ENU, m) and as recorded local_from_body =
+    # expmap(offset + drift x (t - mid)) @ true for attitudes (rotation vector in the local ENU frame, rad)
+    strip_position_sigma_m: _Vec = (0.0, 0.0, 0.0)
+    strip_position_drift_sigma_mps: _Vec = (0.0, 0.0, 0.0)
+    strip_attitude_sigma_rad: _Vec = (0.0, 0.0, 0.0)
+    strip_attitude_drift_sigma_radps: _Vec = (0.0, 0.0, 0.0)
+    scan_angle_sigma_rad: float = 0.0  # white noise of the recorded deflection angle alpha
+    # the camera's boresight error (rotation vector in the camera frame) of the same system: not used by the laser
+    # simulation, written to the truth so that a joint laser + image adjustment can be judged against it
+    camera_boresight_rad: _Vec = (0.0, 0.0, 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: (list(map(float, v)) if isinstance(v := getattr(self, f.name), tuple) else float(v))
@@ -416,6 +443,18 @@ PAPER002_ERRORS = LidarErrors(
     range_sigma_m=0.03)
 
 
+#: Errors a LiDAR strip adjustment must recover (issue 34): boresight, lever arm, range offset and scale, per-strip
+#: trajectory offsets and drifts drawn from the trajectory's stated accuracy, 2 cm range noise, a camera boresight for
+#: the joint adjustment.  No GNSS wander or heading error outside the per-strip model (the model the adjustment fits).
+STRIP_ERRORS = LidarErrors(
+    boresight_rad=tuple(np.radians([0.25, -0.15, 0.30])), lever_arm_error_m=(0.03, -0.04, 0.05),
+    range_sigma_m=0.02, range_bias_m=0.04, range_scale_ppm=800.0,
+    strip_position_sigma_m=(0.03, 0.03, 0.05), strip_position_drift_sigma_mps=(0.0005, 0.0005, 0.0008),
+    strip_attitude_sigma_rad=tuple(np.radians([0.02, 0.02, 0.05])),
+    strip_attitude_drift_sigma_radps=tuple(np.radians([0.0002, 0.0002, 0.0005])),
+    camera_boresight_rad=tuple(np.radians([0.1, -0.08, 0.2])))
+
+
 # ---------------------------------------------------------------------------------------------- spec
 @dataclass(frozen=True)
 class LidarScenarioSpec:
@@ -439,8 +478,13 @@ class LidarScenarioSpec:
     bridge
         Keyword arguments of :func:`make_bridge`.
     passes
-        ``"one"`` (south side, westward, CI) or ``"there-and-back"`` (south side westward, a half circle
-        around the west abutment, north side eastward).
+        ``"one"`` (south side, westward, CI), ``"there-and-back"`` (south side westward, a half circle
+        around the west abutment, north side eastward) or ``"strips"`` (a laser strip flight: the strips of
+        ``strip_layout``, south side westward and north side eastward in turn, joined by half-circle turns
+        that change distance and height smoothly; the scanner records on the strips only, every pulse with its
+        strip id).
+    strip_layout
+        ``((distance_m, altitude_m), ...)`` per strip (``passes="strips"``).
     pass_u_m
         ``(u_start, u_end)`` of the (first) pass along the bridge axis (bridge frame, metres).
     distance_m, altitude_m, speed_mps
@@ -473,6 +517,7 @@ class LidarScenarioSpec:
     wobble_m: _Vec = (0.05, 0.05, 0.10)
     wobble_deg: _Vec = (3.0, 2.0, 4.0)
     trajectory_rate_hz: float = 200.0
+    strip_layout: tuple[tuple[float, float], ...] = ((12.0, 5.0), (12.0, 5.0), (9.0, 3.5), (9.0, 3.5))
     reference_density_per_m2: float = 250.0
     reference_ground_density_per_m2: float = 60.0
     reference_noise_m: float = 0.003
@@ -495,13 +540,57 @@ def lidar_scenario_spec(size: str = "ci", seed: int = 1, errors: LidarErrors | N
     CI size: one 20 m pass past a pillar (8.3 s, 333 scan lines, about 0.2 million returns); full size: both
     sides of the whole bridge with a turn around its west end (about 160 s, 6,400 lines, 4 million returns).
     """
-    if size not in ("ci", "full"):
-        raise SkyrigError(f"scenario size must be 'ci' or 'full', not {size!r}")
+    if size not in ("ci", "full", "strips-ci", "strips"):
+        raise SkyrigError(f"scenario size must be 'ci', 'full', 'strips-ci' or 'strips', not {size!r}")
     err = PAPER002_ERRORS if errors is None else errors
     if size == "ci":
         return LidarScenarioSpec(size="ci", seed=seed, errors=err)
+    if size in ("strips-ci", "strips"):
+        return strip_scenario_spec(size, seed, errors)
     return LidarScenarioSpec(size="full", seed=seed, errors=err, passes="there-and-back", pass_u_m=(82.0, -82.0),
                              reference_density_per_m2=200.0, reference_ground_density_per_m2=40.0)
+
+
+def strip_scenario_spec(size: str = "strips", seed: int = 1, errors: LidarErrors | None = None) -> LidarScenarioSpec:
+    """The ``uav-bridge-lidar`` strip flight (issue 34): strips along both sides of the bridge at two distances and
+    heights, joined by turns (scanner off), with :data:`STRIP_ERRORS` (default) to recover.
+
+    ``"strips"``: five 170 m strips (pass u = 85 -> -85 m; 12/5, 12/5, 9/3.5, 9/3.5, 15/4.5 m distance/height) at
+    4 m/s, about 1.1 km of flight, about 6 million returns; ``"strips-ci"``: four 22 m strips past the pillar at
+    u = 13.5 m (about 0.6 million returns).
+    """
+    err = STRIP_ERRORS if errors is None else errors
+    tilted = tuple(map(tuple, BODY_FROM_SCANNER_TILTED))
+    if size == "strips-ci":
+        return LidarScenarioSpec(size=size, seed=seed, errors=err, passes="strips", pass_u_m=(30.0, 8.0),
+                                 body_from_scanner=tilted,
+                                 speed_mps=2.4, reference_density_per_m2=120.0, reference_ground_density_per_m2=30.0)
+    if size != "strips":
+        raise SkyrigError(f"strip scenario size must be 'strips' or 'strips-ci', not {size!r}")
+    return LidarScenarioSpec(size=size, seed=seed, errors=err, passes="strips", pass_u_m=(85.0, -85.0), speed_mps=4.0,
+                             body_from_scanner=tilted,
+                             strip_layout=((12.0, 5.0), (12.0, 5.0), (9.0, 3.5), (9.0, 3.5), (15.0, 4.5)),
+                             reference_density_per_m2=40.0, reference_ground_density_per_m2=8.0)
+
+
+def strip_truth_vector(injected: dict[str, Any], strip_epoch_s: ArrayLike) -> NDArray[np.float64]:
+    """The corrections a strip adjustment (:mod:`skyrig.lidar.strips`) should find, from a survey's ``injected``
+    values: ``(8 + 12 K,)`` in the order of :func:`skyrig.lidar.strips.strip_parameter_names`, the strip corrections
+    referred to the adjustment's strip epochs ``(K,)`` (the negatives of the injected errors)."""
+    ep = np.asarray(strip_epoch_s, dtype=np.float64)
+    strips = injected["strips"]
+    if len(strips) != len(ep):
+        raise SkyrigError(f"{len(strips)} simulated strips, {len(ep)} strip epochs")
+    cal = np.concatenate([injected["boresight_rad"], injected["lever_arm_error_m"],
+                          [injected["range_offset_m"], injected["range_scale_ppm"] * 1e-6]])
+    rows = []
+    for s_, tk in zip(strips, ep):
+        dt = tk - s_["t_mid_s"]
+        rows.append(np.concatenate([-(np.asarray(s_["position_offset_m"]) + np.asarray(s_["position_drift_mps"]) * dt),
+                                    -np.asarray(s_["position_drift_mps"]),
+                                    -(np.asarray(s_["attitude_offset_rad"]) + np.asarray(s_["attitude_drift_radps"]) * dt),
+                                    -np.asarray(s_["attitude_drift_radps"])]))
+    return np.concatenate([cal, *rows])
 
 
 # ---------------------------------------------------------------------------------------------- flight
@@ -509,19 +598,42 @@ def lidar_scenario_spec(size: str = "ci", seed: int = 1, errors: LidarErrors | N
 class _Segment:
     kind: str  # "line" or "arc"
     start: NDArray[np.float64]  # line: start point (u, v); arc: centre
-    direction: NDArray[np.float64]  # line: unit direction; arc: (radius, start angle, sense +1 ccw / -1 cw)
+    direction: NDArray[np.float64]  # line: unit direction; arc: (radius, start angle, sense +1 ccw / -1 cw[, end radius])
     length: float
+    heights: tuple[float, float] | None = None  # (start, end) altitude above the ground; None: the spec's altitude
+
+
+def _arc(centre_u: float, r0: float, r1: float, a0: float, h: tuple[float, float] | None = None) -> _Segment:
+    """A clockwise half turn about ``(centre_u, 0)`` from angle ``a0``, radius ``r0`` -> ``r1`` linearly."""
+    return _Segment("arc", np.array([centre_u, 0.0]), np.array([r0, a0, -1.0, r1]), np.pi * (r0 + r1) / 2, h)
 
 
 def _path(spec: LidarScenarioSpec, scene: BridgeScene) -> list[_Segment]:
     r = scene.width_m / 2 + spec.distance_m
     u0, u1 = spec.pass_u_m
     d = np.array([np.sign(u1 - u0), 0.0])
+    if spec.passes == "strips":
+        if u1 >= u0:
+            raise SkyrigError("a strip flight starts at the east end (pass_u_m decreasing)")
+        if not spec.strip_layout:
+            raise SkyrigError("a strip flight needs at least one strip in strip_layout")
+        segs: list[_Segment] = []
+        lay = [(scene.width_m / 2 + float(dist), float(alt)) for dist, alt in spec.strip_layout]
+        for k, (rk, hk) in enumerate(lay):
+            if k:
+                rp, hp = lay[k - 1]
+                # odd strips (north side, eastward) follow a turn about the west end, even ones a turn about the east
+                segs.append(_arc(u1, rp, rk, -np.pi / 2, (hp, hk)) if k % 2 else _arc(u0, rp, rk, np.pi / 2, (hp, hk)))
+            if k % 2 == 0:
+                segs.append(_Segment("line", np.array([u0, -rk]), d, abs(u1 - u0), (hk, hk)))
+            else:
+                segs.append(_Segment("line", np.array([u1, rk]), -d, abs(u1 - u0), (hk, hk)))
+        return segs
     first = _Segment("line", np.array([u0, -r]), d, abs(u1 - u0))
     if spec.passes == "one":
         return [first]
     if spec.passes != "there-and-back":
-        raise SkyrigError(f"passes must be 'one' or 'there-and-back', not {spec.passes!r}")
+        raise SkyrigError(f"passes must be 'one', 'there-and-back' or 'strips', not {spec.passes!r}")
     if u1 >= u0:
         raise SkyrigError("a there-and-back flight starts at the east end (pass_u_m decreasing)")
     arc = _Segment("arc", np.array([u1, 0.0]), np.array([r, -np.pi / 2, -1.0]), np.pi * r)
@@ -529,25 +641,44 @@ def _path(spec: LidarScenarioSpec, scene: BridgeScene) -> list[_Segment]:
     return [first, arc, back]
 
 
-def _path_at(segments: list[_Segment], s: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Positions ``(N, 2)`` and unit tangents ``(N, 2)`` (bridge frame) at arc lengths ``s`` (extrapolated
-    along the first and last line beyond the ends)."""
+def _path_at(segments: list[_Segment], s: NDArray[np.float64], height: float = 0.0
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                        NDArray[np.intp]]:
+    """Positions ``(N, 2)``, tangents ``(N, 2)`` (d position / d s: unit except on turns that change radius;
+    bridge frame), altitudes ``(N,)`` and their derivatives d h / d s ``(N,)`` at arc lengths ``s``
+    (extrapolated along the first and last line beyond the ends), and the segment index ``(N,)``."""
     cum = np.cumsum([0.0] + [g.length for g in segments])
     k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(segments) - 1)
     pos = np.empty((len(s), 2))
     tan = np.empty((len(s), 2))
+    hgt = np.full(len(s), float(height))
+    dh = np.zeros(len(s))
     for i, g in enumerate(segments):
         m = k == i
         ds = s[m] - cum[i]
+        if g.heights is not None:
+            h0, h1 = g.heights
+            f = np.clip(ds / g.length, 0.0, 1.0)
+            hgt[m] = h0 + (h1 - h0) * f
+            dh[m] = np.where((ds >= 0) & (ds <= g.length), (h1 - h0) / g.length, 0.0)
         if g.kind == "line":
             pos[m] = g.start + ds[:, None] * g.direction
             tan[m] = g.direction
-        else:
+        elif len(g.direction) == 3:
             rad, a0, sense = g.direction
             th = a0 + sense * ds / rad
             pos[m] = g.start + rad * np.column_stack([np.cos(th), np.sin(th)])
             tan[m] = sense * np.column_stack([-np.sin(th), np.cos(th)])
-    return pos, tan
+        else:  # a turn from radius r0 to r1: angle and radius linear in s
+            r0, a0, sense, r1 = g.direction
+            f = ds / g.length
+            th = a0 + sense * np.pi * f
+            rad = r0 + (r1 - r0) * f
+            c, sn = np.cos(th), np.sin(th)
+            pos[m] = g.start + rad[:, None] * np.column_stack([c, sn])
+            dth, drad = sense * np.pi / g.length, (r1 - r0) / g.length
+            tan[m] = drad * np.column_stack([c, sn]) + (rad * dth)[:, None] * np.column_stack([-sn, c])
+    return pos, tan, hgt, dh, k
 
 
 @dataclass(frozen=True, eq=False)
@@ -558,25 +689,31 @@ class _Motion:
     local_from_bridge: NDArray[np.float64]
     t0: float
     speed: float
-    height: float
+    height: float  # altitude above the ground where a segment does not give its own
     wob_amp: NDArray[np.float64]  # (3,) E N U, m
     wob_w: NDArray[np.float64]  # (3,) rad/s
     wob_phase: NDArray[np.float64]  # (3,)
     att_amp: NDArray[np.float64]  # (3,) roll pitch yaw, rad
     att_w: NDArray[np.float64]
     att_phase: NDArray[np.float64]
+    ground_z: float = 0.0
+
+    def segment_of(self, t: ArrayLike) -> NDArray[np.intp]:
+        """``(N,)`` index of the path segment flown at times ``t``."""
+        return _path_at(self.segments, self.speed * (np.asarray(t, dtype=np.float64) - self.t0))[4]
 
     def __call__(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Positions ``(N, 3)`` and velocities ``(N, 3)`` (local ENU) and ``local_from_body`` ``(N, 3, 3)``."""
         tt = np.asarray(t, dtype=np.float64) - self.t0
-        p2, t2 = _path_at(self.segments, self.speed * tt)
+        p2, t2, hgt, dh, _ = _path_at(self.segments, self.speed * tt, self.height)
         lb = self.local_from_bridge[:2, :2]
         pos = np.empty((len(tt), 3))
         pos[:, :2] = p2 @ lb.T
-        pos[:, 2] = self.height
+        pos[:, 2] = hgt + self.ground_z
         tan = t2 @ lb.T
         vel = np.zeros((len(tt), 3))
         vel[:, :2] = self.speed * tan
+        vel[:, 2] = self.speed * dh
         arg = self.wob_w * tt[:, None] + self.wob_phase
         pos += self.wob_amp * np.sin(arg)
         vel += self.wob_amp * self.wob_w * np.cos(arg)
@@ -628,6 +765,9 @@ class LidarSurvey:
         The drawn error values (for the truth file).
     pulses_fired
         Pulses fired in all (returns and misses).
+    strip_time_s
+        ``(K, 2)`` start and end times of the strips (the straight passes; ``scan.strip_id`` indexes them, -1 on
+        turns).
     """
 
     spec: LidarScenarioSpec
@@ -649,6 +789,38 @@ class LidarSurvey:
     reference_normal: NDArray[np.float64]
     injected: dict[str, Any]
     pulses_fired: int
+    strip_time_s: NDArray[np.float64] | None = None
+
+
+def _strip_errors(err: LidarErrors, rng: np.random.Generator, spans: NDArray[np.float64]) -> list[dict[str, Any]]:
+    """Per-strip trajectory errors drawn from ``N(0, sigma)`` (see :class:`LidarErrors`), strips ``spans (K, 2)``."""
+    out = []
+    for k, (a, b) in enumerate(spans):
+        out.append({"strip": k, "t_start_s": float(a), "t_end_s": float(b), "t_mid_s": float((a + b) / 2),
+                    "position_offset_m": rng.normal(0.0, 1.0, 3) * np.asarray(err.strip_position_sigma_m),
+                    "position_drift_mps": rng.normal(0.0, 1.0, 3) * np.asarray(err.strip_position_drift_sigma_mps),
+                    "attitude_offset_rad": rng.normal(0.0, 1.0, 3) * np.asarray(err.strip_attitude_sigma_rad),
+                    "attitude_drift_radps": rng.normal(0.0, 1.0, 3) * np.asarray(err.strip_attitude_drift_sigma_radps)})
+    return out
+
+
+def _strip_error_at(strips: list[dict[str, Any]], key: str, t: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Value ``(N, 3)`` and rate ``(N, 3)`` of a per-strip error at times ``t``: ``offset + drift (t - mid)`` on each
+    strip, linear between the end of one strip and the start of the next, constant before the first and after the
+    last."""
+    kt = np.array([[s["t_start_s"], s["t_end_s"]] for s in strips]).ravel()
+    off, dr = key + ("_offset_m" if key == "position" else "_offset_rad"), key + ("_drift_mps" if key == "position"
+                                                                                   else "_drift_radps")
+    kv = np.array([[s[off] + s[dr] * (s["t_start_s"] - s["t_mid_s"]), s[off] + s[dr] * (s["t_end_s"] - s["t_mid_s"])]
+                   for s in strips]).reshape(-1, 3)
+    val = np.column_stack([np.interp(t, kt, kv[:, j]) for j in range(3)])
+    slope = np.diff(kv, axis=0) / np.maximum(np.diff(kt), 1e-12)[:, None]
+    i = np.searchsorted(kt, t, side="right") - 1
+    inside = (i >= 0) & (i < len(kt) - 1)
+    rate = np.zeros_like(val)
+    rate[inside] = slope[i[inside]]
+    return val, rate
 
 
 def _wander(rng: np.random.Generator, amp_rms: ArrayLike) -> dict[str, NDArray[np.float64]]:
@@ -684,9 +856,9 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     n_lines = int(np.floor(duration * sc.lines_per_s))
     wob_w = np.array([0.9, 0.7, 0.4])
     att_w = np.array([0.7, 0.5, 0.3])
-    motion = _Motion(segs, scene.local_from_bridge, spec.t0_s, spec.speed_mps, scene.ground_z + spec.altitude_m,
+    motion = _Motion(segs, scene.local_from_bridge, spec.t0_s, spec.speed_mps, spec.altitude_m,
                      np.asarray(spec.wobble_m, float), wob_w, rng.uniform(0, 2 * np.pi, 3),
-                     np.radians(spec.wobble_deg), att_w, rng.uniform(0, 2 * np.pi, 3))
+                     np.radians(spec.wobble_deg), att_w, rng.uniform(0, 2 * np.pi, 3), scene.ground_z)
     # ---- trajectory samples (1 s margin on both sides)
     rate = spec.trajectory_rate_hz
     k = np.arange(-int(round(rate)), int(np.ceil((n_lines / sc.lines_per_s + 1.0) * rate)) + 1)
@@ -698,10 +870,19 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     mount_true = spec.true_mount()
     mount_rec = spec.mount
     b_true = mount_true.body_from_scanner
-    out_t, out_a, out_r, out_n, out_c, out_x, out_o = [], [], [], [], [], [], []
+    # strips: the line segments of the path, numbered in flight order; the turns are -1
+    line_of_seg = np.full(len(segs), -1, dtype=np.int64)
+    line_of_seg[[i for i, g in enumerate(segs) if g.kind == "line"]] = np.arange(sum(g.kind == "line" for g in segs))
+    cum = np.cumsum([0.0] + [g.length for g in segs]) / spec.speed_mps + spec.t0_s
+    spans = np.array([[cum[i], cum[i + 1]] for i, g in enumerate(segs) if g.kind == "line"])
+    scanning_turns = spec.passes != "strips"  # a strip flight records on the strips only
+    out_t, out_a, out_r, out_n, out_c, out_x, out_o, out_s = [], [], [], [], [], [], [], []
     for l0 in range(0, n_lines, lines_per_chunk):
         starts = spec.t0_s + np.arange(l0, min(l0 + lines_per_chunk, n_lines)) / sc.lines_per_s
         t, alpha = sc.pulse_times_and_angles(starts)
+        sid = line_of_seg[motion.segment_of(t)]
+        if not scanning_turns:
+            t, alpha, sid = t[sid >= 0], alpha[sid >= 0], sid[sid >= 0]
         p, _, r = motion(t)
         o = p + r @ mount_true.lever_arm_m
         d = np.einsum("nij,nj->ni", r, sensor_from_polar(np.ones_like(alpha), alpha) @ b_true.T)
@@ -714,6 +895,7 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
         out_c.append(comp[keep])
         out_x.append(o[keep] + rng_m[keep, None] * d[keep])
         out_o.append(d[keep])
+        out_s.append(sid[keep])
     t_true = np.concatenate(out_t)
     if t_true.size == 0:
         raise GeometryError("no pulse of the simulated flight hits the bridge or the ground")
@@ -724,19 +906,33 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     truth = np.concatenate(out_x)
     n_ret = len(t_true)
     r_rec = r_true + err.range_bias_m + (rng.normal(0.0, err.range_sigma_m, n_ret) if err.range_sigma_m else 0.0)
+    if err.range_scale_ppm:
+        r_rec = r_rec + r_true * err.range_scale_ppm * 1e-6
     r_rec = np.maximum(r_rec, 0.0)
+    if err.scan_angle_sigma_rad:  # an independent stream: the other draws stay as they were
+        alpha = alpha + np.random.default_rng([spec.seed, 4]).normal(0.0, err.scan_angle_sigma_rad, n_ret)
     # intensity: reflectivity x cosine of the incidence angle, weaker with range, with a little noise
     beam = np.concatenate(out_o)
     cosi = np.abs(np.einsum("ij,ij->i", beam, normal))
     inten = 300.0 + 5000.0 * scene.reflectivity(comp) * cosi * np.sqrt(10.0 / np.maximum(r_true, 10.0))
     inten = np.clip(np.round(inten + rng.normal(0.0, 20.0, n_ret)), 0, 65535)
-    scan = RawScan(t_true + err.time_offset_s, r_rec, alpha, None, inten)
+    scan = RawScan(t_true + err.time_offset_s, r_rec, alpha, None, inten, np.concatenate(out_s))
     # ---- recorded trajectory
     tr = t_traj - spec.t0_s
     w = _wander(rng, err.gnss_wander_m)
     dw, dwv = _wander_at(w, tr)
     gnss = dw + np.asarray(err.gnss_bias_m) + rng.normal(0.0, 1.0, pos.shape) * np.asarray(err.gnss_noise_m)
+    # per-strip trajectory errors (an independent stream: the other draws stay as they were)
+    strips = _strip_errors(err, np.random.default_rng([spec.seed, 3]), spans)
+    sp, sv = _strip_error_at(strips, "position", t_traj)
+    gnss = gnss + sp
+    dwv = dwv + sv
     ned_rec = ned_true
+    if np.any([np.any(s_["attitude_offset_rad"]) or np.any(s_["attitude_drift_radps"]) for s_ in strips]):
+        from skyrig.geometry.rotations import matrix_from_rotvec
+
+        sa, _ = _strip_error_at(strips, "attitude", t_traj)
+        ned_rec = _ned_from_local_body(frame, pos, matrix_from_rotvec(sa) @ lfb)
     imu_noise = rng.normal(0.0, 1.0, (len(t_traj), 3)) * np.asarray(err.imu_noise_rad)
     if np.any(imu_noise):
         r0, p0, y0 = rpy_from_matrix(ned_true, unit="rad")
@@ -758,6 +954,12 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
         "heading_error_rad": err.heading_error_rad, "heading_correction_rad": -err.heading_error_rad,
         "mount_true": {"body_from_scanner": mount_true.body_from_scanner, "lever_arm_m": mount_true.lever_arm_m},
         "mount_recorded": {"body_from_scanner": mount_rec.body_from_scanner, "lever_arm_m": mount_rec.lever_arm_m},
+        "range_offset_m": err.range_bias_m, "range_scale_ppm": err.range_scale_ppm,
+        "camera_boresight_rad": np.asarray(err.camera_boresight_rad, float),
+        "strips": strips,
+        "strips_note": ("recorded = true + offset + drift x (t - t_mid_s): positions in the local ENU frame; attitudes "
+                        "as recorded local_from_body = expmap(offset + drift x (t - t_mid_s)) @ true; the corrections "
+                        "a strip adjustment estimates are their negatives"),
         "gnss_wander": {k_: v for k_, v in w.items()},
         "gnss_error_rms_m": np.sqrt(np.mean(gnss**2, axis=0)),
         "motion": {"wobble_phase_rad": motion.wob_phase, "wobble_rad_s": wob_w, "attitude_phase_rad": motion.att_phase,
@@ -765,4 +967,4 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     }
     return LidarSurvey(spec, scene, frame, traj_true, traj_rec, t_traj.copy(), np.asarray(baro, float), mount_true,
                        mount_rec, scan, t_true, r_true, truth, normal, comp, ref, ref_n, injected,
-                       n_lines * sc.pulses_per_line)
+                       n_lines * sc.pulses_per_line, spans)
