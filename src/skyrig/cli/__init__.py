@@ -83,6 +83,8 @@ COMMANDS: dict[str, CommandEntry] = {
                             "Measure control and check points in the images in a local web page (or --auto)."),
     "check": CommandEntry("skyrig.cli.check:command",
                           "Validate a project.yaml and every input it names without running a stage; name every problem."),
+    "live": CommandEntry("skyrig.cli.live:command",
+                         "Near-real-time DG, ortho and DSM tiles and online boresight of a flight as it is recorded."),
     "demo": CommandEntry("skyrig.cli.demo:command",
                          "Simulate a small MIDAS penta-rig flight, georeference it and check ground <-> image end to end."),
 }
