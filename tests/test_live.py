@@ -117,7 +117,7 @@ def test_bad_input_said_once_and_run_goes_on(flight, tmp_path):
     shutil.copyfile(flight / "rig.yaml", w / "rig.yaml")
     ev = _lines(flight / "events.csv")
     head = [ln for ln in ev if ln.startswith("#") or ln.startswith("image,")]
-    rows = [ln for ln in ev if ln not in head]
+    rows = [ln for ln in ev if ln not in head and ",right," not in ln]  # two heads of three: a faster test
     times = sorted({float(r.split(",")[1]) for r in rows})
     t_stop = 0.5 * (times[2] + times[3])  # the trajectory stops between the third and fourth exposure
     tr = _lines(flight / "trajectory.csv")

@@ -441,7 +441,7 @@ class LiveRun:
             self._prev = (x.exposure, x.time_s, eo.subset([k]), {str(eo.image[k]): arrays[str(eo.image[k])]})
         if self.config.window > 0:
             self._pending.append(self._cal_pool.submit(self._calibrate, eo, arrays))
-        self._pending = [f for f in self._pending if not f.done() or f.exception() is not None]
+        self._pending = [f for f in self._pending if not f.done()]
         with open(self.out / "latency.jsonl", "a", encoding="utf-8") as fh:
             fh.write(json.dumps(plain({k: v for k, v in rec.items() if k != "images"})) + "\n")
 
