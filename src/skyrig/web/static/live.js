@@ -6,25 +6,31 @@
   const map = L.map("map", { zoomControl: true, attributionControl: false });
   map.setView([0, 0], 2);
   let layers = null, fitted = false, lastDone = -1;
+  map.setMaxZoom(22);
 
-  function makeLayers(zooms) {
-    const opts = { minZoom: 0, maxZoom: zooms[zooms.length - 1] + 3, minNativeZoom: zooms[0],
-                   maxNativeZoom: zooms[zooms.length - 1], tileSize: 256, noWrap: true };
+  // Layers only once the run's zoom levels and extent are known, and never below the coarsest level written: at a
+  // world view a layer whose tiles start at zoom 12 would ask for millions of tiles.
+  function makeLayers(zooms, b) {
+    map.setMinZoom(zooms[0]);
+    map.setMaxZoom(zooms[zooms.length - 1] + 3);
+    const opts = { minZoom: zooms[0], maxZoom: zooms[zooms.length - 1] + 3, minNativeZoom: zooms[0],
+                   maxNativeZoom: zooms[zooms.length - 1], tileSize: 256, noWrap: true,
+                   bounds: [[b[1], b[0]], [b[3], b[2]]] };
     const ortho = L.tileLayer("/tiles/ortho/{z}/{x}/{y}.png" + q, opts).addTo(map);
     const dsm = L.tileLayer("/tiles/dsm/{z}/{x}/{y}.png" + q,
                             Object.assign({}, opts, { maxNativeZoom: zooms[zooms.length - 2] || zooms[0], opacity: 0.6 }));
-    L.control.layers(null, { "ortho": ortho, "DSM (height colours)": dsm }).addTo(map);
+    L.control.layers(null, { "ortho": ortho, "DSM (height colours)": dsm }, { collapsed: false }).addTo(map);
     return { ortho: ortho, dsm: dsm };
   }
 
   function fmt(v) { return v === null || v === undefined ? "" : Number(v).toFixed(2); }
 
   function show(st) {
-    if (st.zooms && !layers) layers = makeLayers(st.zooms);
-    if (st.bounds_lonlat && !fitted) {
+    if (st.zooms && st.bounds_lonlat && !fitted) {
       const b = st.bounds_lonlat;
       map.fitBounds([[b[1], b[0]], [b[3], b[2]]]);
       fitted = true;
+      layers = makeLayers(st.zooms, b);
     }
     if (layers && st.n_done !== lastDone) {   // new tiles: reload what is shown
       layers.ortho.redraw();
