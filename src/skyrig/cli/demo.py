@@ -561,8 +561,8 @@ def _classic_ortho_step(outdir: str | Path) -> None:
 
 def _live_step(outdir: str | Path) -> None:
     """Issue 35: a short 3K flight (8 exposures of the triple rig, boresights misaligned) replayed at 4 x its rate
-    into a watched folder, ``skyrig live`` on it; judged against the batch answer: the online boresight within 2 of
-    its sigma of the batch adjustment (every exposure in one adjustment) and within 5 of the injected truth (both sit up
+    into a watched folder, ``skyrig live`` on it; judged against the batch answer: the online boresight within 3 of
+    its sigma (nine angles; bench/live.py's acceptance figure of 2 sigma is for 50 exposures) of the batch adjustment (every exposure in one adjustment) and within 5 of the injected truth (both sit up
     to ~4 sigma from it on bench/live.py's 50 exposures), the live mosaic within 0.5 GSD of the batch ortho."""
     import json
 
@@ -593,5 +593,5 @@ def _live_step(outdir: str | Path) -> None:
     click.echo(f"{s['exposures_done']} exposures live; online boresight ({s['boresight_windows']} windows) - batch: "
                f"at most {worst_b:.2f} sigma, - truth: at most {worst_t:.2f} sigma; live mosaic - batch ortho: median "
                f"{off['median_offset_m'] / cell:.2f} GSD over {off['patches']} patches")
-    if not (s["exposures_done"] == 8 and worst_b <= 2.0 and worst_t <= 5.0 and off["median_offset_m"] <= 0.5 * cell):
+    if not (s["exposures_done"] == 8 and worst_b <= 3.0 and worst_t <= 5.0 and off["median_offset_m"] <= 0.5 * cell):
         raise click.ClickException("demo checks FAILED (live)")
