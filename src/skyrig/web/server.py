@@ -53,10 +53,10 @@ def _static(name: str) -> bytes:
     return (resources.files("skyrig.web") / "static" / name).read_bytes()
 
 
-def _make_app(server: "MeasureServer"):
+def base_handler(server: "MeasureServer"):
+    """The request handler every route of a skyrig page derives from: host, origin and token checks, no caching,
+    JSON replies and errors (shared by :class:`MeasureServer` and :class:`skyrig.web.live.LiveServer`)."""
     import tornado.web
-
-    session = server.session
 
     class Base(tornado.web.RequestHandler):
         def prepare(self) -> None:
@@ -103,6 +103,16 @@ def _make_app(server: "MeasureServer"):
             msg = getattr(exc, "log_message", None) or self._reason
             self.set_header("Content-Type", "application/json")
             self.finish(json.dumps({"error": msg}))
+
+    return Base
+
+
+def _make_app(server: "MeasureServer"):
+    import tornado.web
+
+    session = server.session
+
+    Base = base_handler(server)
 
     class Page(Base):
         def get(self) -> None:
@@ -236,6 +246,10 @@ class MeasureServer:
         """The page's address with its token."""
         return f"{self.base}/?token={quote(self.token)}"
 
+    def make_app(self):  # type: ignore[no-untyped-def]
+        """The tornado application served (a subclass serves its own page)."""
+        return _make_app(self)
+
     def start(self) -> "MeasureServer":
         """Bind 127.0.0.1 and serve in a background thread; returns when listening."""
         import tornado.httpserver
@@ -249,7 +263,7 @@ class MeasureServer:
             asyncio.set_event_loop(loop)
             self._loop = loop
             try:
-                srv = tornado.httpserver.HTTPServer(_make_app(self))
+                srv = tornado.httpserver.HTTPServer(self.make_app())
                 srv.add_sockets(socks)
             except BaseException as exc:  # noqa: BLE001 - handed to the caller of start()
                 self._error = exc

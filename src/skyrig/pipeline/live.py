@@ -1,0 +1,620 @@
+"""Near-real-time processing of a flight as it is recorded (``skyrig live FOLDER``; issue 35, paper 001's 3K chain).
+
+The watched folder is laid out as a flight folder (``docs/formats/simulated_project.md``) that grows::
+
+    FOLDER/rig.yaml           the rig (present from the start)
+    FOLDER/trajectory.csv     GNSS/IMU trajectory, appended as it is recorded (complete lines are read)
+    FOLDER/events.csv         camera events, appended as images are taken
+    FOLDER/images/<image>     the images, written as they come off the cameras
+    FOLDER/flight.end         (optional) written when the flight is over: the run finishes what it can and stops
+
+For every exposure (all heads of one event id, e.g. the 3K triple) as soon as its images are complete and the
+trajectory reaches past its time:
+
+1. **direct georeferencing** (:func:`skyrig.georef.direct.direct_georeference`) with the rig as calibrated online
+   so far;
+2. an **ortho tile** per image: the true-ortho code (:func:`skyrig.dense.ortho.orthomosaic`) on the image alone,
+   onto the reference surface (a plane at ``surface_height_m``), painted into the XYZ tiles of layer ``ortho``;
+3. a **DSM tile** as soon as the exposure has a stereo partner (the previous exposure of the same strip, stereo
+   head, e.g. nadir): :func:`skyrig.dense.surface.dense_surface` on the pair, coloured by height into layer ``dsm``
+   (in a worker thread: it may lag the orthos by a few exposures);
+4. the **online boresight** (:mod:`skyrig.calibrate.online_boresight`, worker thread): features of the new images,
+   guided matching against the recent exposures, and every ``window`` exposures a rig adjustment of the window
+   with the boresights free; the combination of the windows so far calibrates the rig of later exposures.
+
+Inputs are polled (``os.stat`` every ``poll_s``), not watched through inotify (``watchdog``): completion of a file
+cannot be told from file-system events anyway (a camera or a copy tool writes in pieces, network shares deliver no
+events), so an image counts as written when its size and time stay unchanged for ``settle_s`` and it decodes
+whole (a PNG ends with its IEND chunk, a JPEG with its EOI marker); polling a few hundred names is negligible next
+to the processing.
+
+Bad input is said in one line each and skipped, the run goes on: an image that never completes (still changing or
+truncated after ``image_timeout_s``), an event whose image does not come, an exposure past the end of a trajectory
+that stopped (no new samples for ``trajectory_timeout_s``).
+
+Outputs in OUT (default ``FOLDER/live``): ``tiles/<layer>/<z>/<x>/<y>.png`` (written atomically), ``latency.jsonl``
+(one JSON line per exposure: seconds from the last image written to DG, ortho tiles, DSM tiles), ``boresight.jsonl``
+(one line per window and the running estimate), ``status.json`` (for the page), ``summary.json`` at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig._plain import plain
+from skyrig.calibrate import online_boresight as ob
+from skyrig.camera.frame import FrameCamera
+from skyrig.dense.fusion import FusionConfig
+from skyrig.dense.grid import DsmGrid, GridSpec
+from skyrig.dense.ortho import OrthoConfig, orthomosaic
+from skyrig.dense.surface import DenseConfig, dense_surface
+from skyrig.errors import SkyrigError
+from skyrig.georef.direct import direct_georeference
+from skyrig.georef.eo import ExteriorOrientations, WorldFrame
+from skyrig.io import xyz_tiles
+from skyrig.io._text import atomic_write
+from skyrig.io.events_csv import read_events_csv
+from skyrig.io.images import read_image
+from skyrig.io.rig_file import read_rig
+from skyrig.io.trajectory_csv import read_trajectory_csv
+from skyrig.rig.rig import Rig
+from skyrig.trajectory import CameraEvents, Trajectory
+
+__all__ = ["LiveConfig", "LiveRun", "image_complete", "run_live"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Options of a live run (times in seconds of wall clock, heights in the output CRS's ellipsoidal heights).
+
+    ``dem_path``: a reference DEM (GeoTIFF, ellipsoidal heights of its CRS, e.g. a public 30 m DEM) the orthos are
+    projected on and the online boresight's reference heights come from, with ``surface_sigma_m``; without one
+    (and outside it) the plane at ``surface_height_m``.  ``crs``: output map CRS (projected, metres).
+    ``window``: exposures per online adjustment (0: no online boresight).  ``stereo_head``: the head whose
+    consecutive images make the DSM pairs (None: the head closest to nadir).  ``zoom_levels``: tile levels below
+    the finest (which matches the ortho cell)."""
+
+    surface_height_m: float = 0.0
+    surface_sigma_m: float = 5.0
+    dem_path: str | None = None
+    crs: str | None = None
+    cell_m: float | None = None
+    dsm: bool = True
+    dsm_height_range_m: float = 150.0
+    window: int = 8
+    stereo_head: str | None = None
+    zoom_levels: int = 4
+    poll_s: float = 0.2
+    settle_s: float = 0.3
+    image_timeout_s: float = 20.0
+    trajectory_timeout_s: float = 20.0
+    trajectory_margin_s: float = 0.3
+    idle_stop_s: float | None = None
+
+
+def image_complete(path: Path) -> tuple[bool, str]:
+    """Whether an image file is whole: a PNG ends with its IEND chunk, a JPEG with EOI, a TIFF decodes; and why
+    not."""
+    suffix = path.suffix.lower()
+    try:
+        size = path.stat().st_size
+        if size == 0:
+            return False, "empty file"
+        with open(path, "rb") as fh:
+            fh.seek(max(size - 12, 0))
+            tail = fh.read()
+    except OSError as exc:
+        return False, f"cannot be read ({exc.strerror or exc})"
+    if suffix == ".png" and not tail.endswith(b"IEND\xaeB`\x82"):
+        return False, "truncated PNG (no IEND chunk)"
+    if suffix in (".jpg", ".jpeg") and not tail.rstrip(b"\x00").endswith(b"\xff\xd9"):
+        return False, "truncated JPEG (no end-of-image marker)"
+    return True, ""
+
+
+def _complete_lines(path: Path) -> str | None:
+    """The file's text up to its last newline (a line being written is left for the next poll)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    cut = data.rfind(b"\n")
+    return None if cut < 0 else data[:cut + 1].decode("utf-8", errors="replace")
+
+
+@dataclass
+class _Image:
+    name: str
+    head: str
+    seen_wall: float
+    size: int = -1
+    mtime: float = 0.0
+    stable_since: float = 0.0
+    written_wall: float | None = None  # file's modification time once complete
+    array: NDArray | None = None
+    failed: str = ""
+
+
+@dataclass
+class _Exposure:
+    exposure: int
+    time_s: float
+    images: dict[str, _Image] = field(default_factory=dict)
+    seen_wall: float = 0.0
+    ready_wall: float | None = None
+    state: str = "waiting"  # waiting, done, skipped
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+class LiveRun:
+    """One live run over a watched folder (:meth:`poll` once, :meth:`run` until the flight ends)."""
+
+    def __init__(self, folder: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+                 config: LiveConfig = LiveConfig(), say: Callable[[str], None] | None = None) -> None:
+        self.folder = Path(folder)
+        self.out = Path(out) if out is not None else self.folder / "live"
+        self.config = config
+        self.say = say or (lambda line: logger.warning("%s", line))
+        rig_path = self.folder / "rig.yaml"
+        if not rig_path.is_file():
+            raise SkyrigError(f"{rig_path}: no rig file in the watched folder (the live run needs it from the start)")
+        self.rig_nominal: Rig = read_rig(rig_path)
+        self.rig: Rig = self.rig_nominal
+        self.cameras: dict[str, FrameCamera] = {h.camera.name: h.camera for h in self.rig_nominal}
+        self.stereo_head = config.stereo_head or self._nadir_head()
+        self.cross = [(self.stereo_head, h.name) for h in self.rig_nominal if h.name != self.stereo_head]
+        self.trajectory: Trajectory | None = None
+        self.events: CameraEvents | None = None
+        self._traj_text: str | None = None
+        self._ev_text: str | None = None
+        self._traj_changed_wall = time.time()
+        self.exposures: dict[int, _Exposure] = {}
+        if not config.crs:
+            raise SkyrigError("the live run needs an output map CRS (option: crs), e.g. EPSG:25832")
+        self.frame: WorldFrame | None = WorldFrame.map(config.crs)
+        self.dem = None
+        if config.dem_path:
+            from skyrig.io.dem import read_dem
+            self.dem = read_dem(config.dem_path)
+            if self.dem.frame.crs != self.frame.crs:
+                from skyrig.geodesy.crs import resolve_crs
+
+                if resolve_crs(self.dem.frame.crs) != resolve_crs(self.frame.crs):
+                    raise SkyrigError(f"{config.dem_path}: the reference DEM must be in the output CRS {config.crs} "
+                                      "(option: dem)")
+        self._lock = threading.Lock()
+        self._dsm_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-dsm")
+        self._cal_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-cal")
+        self._pending: list[Future] = []
+        self._prev: tuple[int, float, ExteriorOrientations, dict[str, NDArray]] | None = None
+        self._features: dict[str, Any] = {}
+        self._matches: dict[tuple[str, str], NDArray] = {}
+        self._cal_eo: list[ExteriorOrientations] = []
+        self._windows: list[ob.WindowEstimate] = []
+        self.estimate = ob.BoresightEstimate()
+        self._interval: list[float] = []
+        self._written: list[float] = []
+        self._zooms: list[int] | None = None
+        self._bounds_ll: list[float] | None = None
+        self.reported: list[str] = []
+        self._last_input_wall = time.time()
+        (self.out / "tiles").mkdir(parents=True, exist_ok=True)
+        for name in ("latency.jsonl", "boresight.jsonl"):
+            (self.out / name).unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------------------------------ inputs
+    def _nadir_head(self) -> str:
+        best, name = -2.0, ""
+        for h in self.rig_nominal:
+            z = float((h.mounting @ np.array([0.0, 0.0, -1.0]))[2])  # viewing axis (camera -z), body z points down
+            if z > best:
+                best, name = z, h.name
+        return name
+
+    def _report(self, line: str) -> None:
+        self.reported.append(line)
+        self.say(line)
+
+    def _read_table(self, name: str, current: str | None, reader: Callable[[Path], Any], min_rows: int
+                    ) -> tuple[str | None, Any]:
+        text = _complete_lines(self.folder / name)
+        if text is None or text == current:
+            return current, None
+        if sum(1 for line in text.splitlines() if line.strip() and not line.startswith("#")) < 1 + min_rows:
+            return current, None  # the column header and fewer rows than a reader takes
+        snap = self.out / "_inputs" / name
+        with atomic_write(snap, "w", newline="") as fh:
+            fh.write(text)
+        try:
+            return text, reader(snap)
+        except SkyrigError as exc:
+            line = f"{self.folder / name}: cannot be read ({exc}); waiting for more lines"
+            if line not in self.reported:
+                self._report(line)
+            return text, None
+
+    def _read_inputs(self, now: float) -> None:
+        text, traj = self._read_table("trajectory.csv", self._traj_text, read_trajectory_csv, 2)
+        if traj is not None:
+            self._traj_text, self.trajectory = text, traj
+            self._traj_changed_wall = now
+            self._last_input_wall = now
+        text, ev = self._read_table("events.csv", self._ev_text, read_events_csv, 1)
+        if ev is not None:
+            self._ev_text, self.events = text, ev
+            self._last_input_wall = now
+            for k in range(len(ev)):
+                eid, name = int(ev.exposure_id[k]), str(ev.image_name[k])
+                x = self.exposures.get(eid)
+                if x is None:
+                    x = self.exposures[eid] = _Exposure(eid, float(ev.time_s[k]), seen_wall=now)
+                if name not in x.images:
+                    x.images[name] = _Image(name, str(ev.head[k]), now)
+
+    def _check_image(self, img: _Image, now: float) -> None:
+        if img.written_wall is not None or img.failed:
+            return
+        p = self.folder / "images" / img.name
+        try:
+            st = p.stat()
+        except OSError:
+            if now - img.seen_wall > self.config.image_timeout_s:
+                img.failed = "no image"
+                self._report(f"event without an image: {img.name} (no {p} {self.config.image_timeout_s:g} s after "
+                             "its event); skipped")
+            return
+        if (st.st_size, st.st_mtime) != (img.size, img.mtime):
+            img.size, img.mtime, img.stable_since = st.st_size, st.st_mtime, now
+            self._last_input_wall = now
+        why = "size still changing"
+        if now - img.stable_since >= self.config.settle_s:
+            ok, why = image_complete(p)
+            if ok:
+                try:
+                    img.array = read_image(p)
+                    img.written_wall = st.st_mtime
+                    return
+                except SkyrigError as exc:
+                    why = str(exc)
+        if now - img.seen_wall > self.config.image_timeout_s:
+            img.failed = why
+            self._report(f"image never completed writing: {p} ({why}, {self.config.image_timeout_s:g} s after its "
+                         "event); skipped")
+
+    # ------------------------------------------------------------------------------------------ loop
+    def poll(self) -> int:
+        """Read what is new and process every exposure that is ready; returns how many were processed."""
+        now = time.time()
+        self._read_inputs(now)
+        done = 0
+        for eid in sorted(self.exposures):
+            x = self.exposures[eid]
+            if x.state != "waiting":
+                continue
+            for img in x.images.values():
+                self._check_image(img, now)
+            if any(i.written_wall is None and not i.failed for i in x.images.values()):
+                continue
+            good = [i for i in x.images.values() if i.written_wall is not None]
+            if not good:
+                x.state = "skipped"
+                continue
+            if x.ready_wall is None:
+                x.ready_wall = now
+            t_end = self.trajectory.span[1] if self.trajectory is not None else -np.inf
+            if x.time_s + self.config.trajectory_margin_s > t_end:
+                if now - max(x.ready_wall, self._traj_changed_wall) > self.config.trajectory_timeout_s:
+                    x.state = "skipped"
+                    self._report(f"trajectory stopped: exposure {eid} at t={x.time_s:.3f} s is past its end "
+                                 f"({t_end:.3f} s, no new samples for {self.config.trajectory_timeout_s:g} s); skipped")
+                continue
+            self._process(x, good)
+            done += 1
+        self._write_status()
+        return done
+
+    def run(self, stop: threading.Event | None = None, max_wall_s: float | None = None) -> dict[str, Any]:
+        """Poll until ``FOLDER/flight.end`` exists and nothing is waiting, ``stop`` is set, no input came for
+        ``idle_stop_s`` or ``max_wall_s`` passed; then :meth:`finish`."""
+        t0 = time.time()
+        while True:
+            self.poll()
+            now = time.time()
+            waiting = any(x.state == "waiting" for x in self.exposures.values())
+            if stop is not None and stop.is_set():
+                break
+            if (self.folder / "flight.end").exists() and not waiting and self._read_done():
+                break
+            if self.config.idle_stop_s is not None and now - self._last_input_wall > self.config.idle_stop_s:
+                break
+            if max_wall_s is not None and now - t0 > max_wall_s:
+                break
+            time.sleep(self.config.poll_s)
+        return self.finish()
+
+    def _read_done(self) -> bool:
+        return _complete_lines(self.folder / "events.csv") == self._ev_text
+
+    # ------------------------------------------------------------------------------------------ processing
+    def height_at(self, x: NDArray, y: NDArray) -> NDArray[np.float64]:
+        """Reference surface heights (the DEM's, the plane's outside it)."""
+        base = np.full(np.shape(x), self.config.surface_height_m, dtype=np.float64)
+        if self.dem is None:
+            return base
+        h = self.dem.sample(x, y)
+        return np.where(np.isfinite(h), h, base)
+
+    def _surface(self, bounds: tuple[float, float, float, float], cell: float) -> DsmGrid:
+        assert self.frame is not None
+        xmin, ymin, xmax, ymax = bounds
+        w, h = max(int(np.ceil((xmax - xmin) / cell)), 2), max(int(np.ceil((ymax - ymin) / cell)), 2)
+        g = GridSpec(xmin, ymax, cell, w, h)
+        xx, yy = np.meshgrid(xmin + (np.arange(w) + 0.5) * cell, ymax - (np.arange(h) + 0.5) * cell)
+        hz = self.height_at(xx, yy).astype(np.float32)
+        return DsmGrid(g, self.frame, hz, np.ones((h, w), np.int16), np.full((h, w), np.nan, np.float32),
+                       np.full((h, w), np.float32(self.config.surface_sigma_m)), np.zeros((h, w), bool),
+                       "reference DEM" if self.dem is not None else "reference plane")
+
+    def _footprint(self, eo: ExteriorOrientations, i: int) -> tuple[tuple[float, float, float, float], float]:
+        cam = self.cameras[str(eo.camera[i])]
+        w, h = cam.width, cam.height
+        px = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2],
+                       [w / 2, h / 2]], dtype=np.float64)
+        d = cam.rays_from_pixels(px) @ eo.rotation[i].T
+        c = eo.centre[i]
+        s = (self.config.surface_height_m - c[2]) / d[:, 2]
+        if np.any(~(s > 0)):
+            raise SkyrigError(f"image {eo.image[i]} does not look down onto the reference surface")
+        xy = c[:2] + s[:, None] * d[:, :2]
+        gsd = float(cam.gsd(np.linalg.norm(s[-1] * d[-1])))
+        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max())), gsd
+
+    def _tiles_setup(self, eo: ExteriorOrientations, cell: float) -> None:
+        if self._zooms is not None:
+            return
+        assert self.frame is not None
+        ll = xyz_tiles.lonlat_bounds(self.frame.crs, (eo.centre[0, 0] - 1, eo.centre[0, 1] - 1,
+                                                      eo.centre[0, 0] + 1, eo.centre[0, 1] + 1))
+        zmax = xyz_tiles.zoom_for_cell(cell, 0.5 * (ll[1] + ll[3]))
+        self._zooms = list(range(max(zmax - self.config.zoom_levels, 0), zmax + 1))
+
+    def _process(self, x: _Exposure, good: list[_Image]) -> None:
+        t_start, cpu0 = time.time(), time.thread_time()
+        assert self.events is not None and self.trajectory is not None
+        names = {i.name for i in good}
+        rows = [k for k in range(len(self.events)) if str(self.events.image_name[k]) in names]
+        ev = self.events.subset(rows)
+        with self._lock:
+            rig = self.rig
+        eo = direct_georeference(self.trajectory, rig, ev, self.frame)
+        t_dg = time.time()
+        arrays = {str(n): next(i.array for i in good if i.name == str(n)) for n in eo.image}
+        written = max(i.written_wall or 0.0 for i in good)
+        self._written.append(written)
+        cell_used = None
+        # the stereo (nadir) head painted last: on top where the heads overlap (least relief displacement)
+        for i in sorted(range(len(eo)), key=lambda k: str(eo.head[k]) == self.stereo_head):
+            bounds, gsd = self._footprint(eo, i)
+            cell = self.config.cell_m or gsd
+            if str(eo.head[i]) == self.stereo_head or cell_used is None:
+                cell_used = cell
+            self._tiles_setup(eo, self.config.cell_m or gsd)
+            surf = self._surface(bounds, max(4 * cell, 5.0))
+            img = arrays[str(eo.image[i])]
+            m = orthomosaic(eo.subset([i]), self.cameras, surf, lambda k, a=img: a, area=bounds,
+                            config=OrthoConfig(cell_m=cell, balance=False, square_buildings=False,
+                                               occlusion_slack_px=0, max_off_nadir_deg=75.0))
+            rgba = np.dstack([m.rgb, np.where(m.valid, 255, 0).astype(np.uint8)])
+            xyz_tiles.paint(self.out / "tiles", "ortho", rgba, m.grid.transform, self.frame.crs, self._zooms or [])
+            self._grow_bounds(m.grid.bounds)
+        t_ortho = time.time()
+        rec = {"exposure": x.exposure, "time_s": x.time_s, "images": sorted(names),
+               "written_wall": written, "dg_s": t_dg - written, "ortho_s": t_ortho - written,
+               "queue_s": t_start - written, "cpu_s": time.thread_time() - cpu0, "cell_m": cell_used, "dsm_s": None,
+               "dsm_exposures": None}
+        x.record = rec
+        x.state = "done"
+        # the DSM of the stereo pair (previous exposure of the same strip), in the DSM worker
+        sel = [k for k in range(len(eo)) if str(eo.head[k]) == self.stereo_head]
+        if self._prev is not None and sel:
+            self._interval.append(x.time_s - self._prev[1])
+        if self.config.dsm and sel and self._prev is not None and self._same_strip(x.time_s):
+            prev = self._prev
+            k = sel[0]
+            self._pending.append(self._dsm_pool.submit(self._dsm, x, prev, eo.subset([k]), arrays[str(eo.image[k])],
+                                                       written, cell_used or 1.0))
+        if sel:
+            k = sel[0]
+            self._prev = (x.exposure, x.time_s, eo.subset([k]), {str(eo.image[k]): arrays[str(eo.image[k])]})
+        if self.config.window > 0:
+            self._pending.append(self._cal_pool.submit(self._calibrate, eo, arrays))
+        self._pending = [f for f in self._pending if not f.done()]
+        with open(self.out / "latency.jsonl", "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(plain({k: v for k, v in rec.items() if k != "images"})) + "\n")
+
+    def _same_strip(self, t: float) -> bool:
+        if self._prev is None:
+            return False
+        gap = t - self._prev[1]
+        med = float(np.median(self._interval)) if self._interval else gap
+        return 0 < gap <= 1.5 * med
+
+    def _wall_interval(self) -> float | None:
+        """Median wall-clock time between consecutive exposures' last images (the rate they arrive at)."""
+        w = np.diff(np.sort(self._written))
+        return float(np.median(w)) if len(w) else None
+
+    def _grow_bounds(self, b: tuple[float, float, float, float]) -> None:
+        assert self.frame is not None
+        ll = list(xyz_tiles.lonlat_bounds(self.frame.crs, b))
+        if self._bounds_ll is None:
+            self._bounds_ll = ll
+        else:
+            o = self._bounds_ll
+            self._bounds_ll = [min(o[0], ll[0]), min(o[1], ll[1]), max(o[2], ll[2]), max(o[3], ll[3])]
+
+    def _dsm(self, x: _Exposure, prev: tuple, eo_new: ExteriorOrientations, img_new: NDArray, written: float,
+             cell: float) -> None:
+        assert self.frame is not None
+        try:
+            eo_old: ExteriorOrientations = prev[2]
+            img_old = next(iter(prev[3].values()))
+            eo2 = _concat(eo_old, eo_new)
+            imgs = [img_old, img_new]
+            h0 = self.config.surface_height_m
+            r = self.config.dsm_height_range_m
+            b0, _ = self._footprint(eo_old, 0)
+            b1, _ = self._footprint(eo_new, 0)
+            area = (max(b0[0], b1[0]), max(b0[1], b1[1]), min(b0[2], b1[2]), min(b0[3], b1[3]))
+            if area[0] >= area[2] or area[1] >= area[3]:
+                return
+            # one pair: every cell has at most one pair's support (the block default asks for two)
+            cfg = DenseConfig(cell_m=2 * cell, cloud=False, fusion=FusionConfig(min_support=1))
+            dsm, _, _ = dense_surface(eo2, self.cameras, lambda k: imgs[k], self.frame, (h0 - 0.2 * r, h0 + r),
+                                      area=area, config=cfg)
+            rgba = _height_colours(dsm.height, h0 - 0.2 * r, h0 + 0.5 * r)
+            xyz_tiles.paint(self.out / "tiles", "dsm", rgba, dsm.grid.transform, self.frame.crs,
+                            (self._zooms or [])[:-1] or (self._zooms or []))
+            now = time.time()
+            # in exposure intervals after the exposure's last image was written (the flight's own rate)
+            med = self._wall_interval() or float("nan")
+            done_exposures = (now - written) / med if med > 0 else None
+            x.record["dsm_s"] = now - written
+            x.record["dsm_exposures"] = done_exposures
+            x.record["dsm_cells"] = int(np.isfinite(dsm.height).sum())
+            with open(self.out / "latency.jsonl", "a", encoding="utf-8") as fh:
+                fh.write(json.dumps(plain({"exposure": x.exposure, "dsm_s": x.record["dsm_s"],
+                                           "dsm_exposures": done_exposures,
+                                           "dsm_cells": x.record["dsm_cells"]})) + "\n")
+        except Exception as exc:  # noqa: BLE001 - one pair failing must not stop the flight
+            self._report(f"DSM of exposure {x.exposure} with exposure {prev[0]} failed: {exc}")
+
+    def _calibrate(self, eo: ExteriorOrientations, arrays: dict[str, NDArray]) -> None:
+        try:
+            for n in eo.image:
+                self._features[str(n)] = ob.features_of(arrays[str(n)])
+            self._cal_eo.append(eo)
+            win = self.config.window
+            if len(self._cal_eo) < win:
+                return
+            block = self._cal_eo
+            self._cal_eo = []
+            eo_w = block[0]
+            for e in block[1:]:
+                eo_w = _concat(eo_w, e)
+            pairs = ob.window_pairs(eo_w.exposure, eo_w.head, max_lag=1, cross=self.cross)
+            m = ob.window_tie_points(eo_w, self.cameras, lambda i: self._features[str(eo_w.image[i])], pairs,
+                                     per_cell=2, prefix=f"w{len(self._windows)}_")
+            sig = self.config.surface_sigma_m
+            hp = ob.reference_heights(eo_w, self.cameras, m, self.height_at, sig)
+            assert self.events is not None and self.trajectory is not None
+            names = set(str(n) for n in eo_w.image)
+            ev = self.events.subset([k for k in range(len(self.events)) if str(self.events.image_name[k]) in names])
+            w = ob.adjust_window(self.trajectory, self.rig_nominal, ev, m, hp, height_sigma_m=sig)
+            self._windows.append(w)
+            est = ob.combine(self._windows)
+            with self._lock:
+                self.estimate = est
+                self.rig = ob.rig_with_corrections(self.rig_nominal, est.correction)
+            for n in eo_w.image:
+                self._features.pop(str(n), None)
+            line = {"window": len(self._windows), "exposures": list(w.exposures), "sigma0": w.sigma0,
+                    "points": w.n_points, "height_points": w.n_height_points, "seconds": w.seconds,
+                    "window_deg": {h: np.degrees(v) for h, v in w.correction.items()},
+                    "window_sigma_deg": {h: np.degrees(np.sqrt(np.diag(c))) for h, c in w.covariance.items()},
+                    "estimate_deg": {h: np.degrees(v) for h, v in est.correction.items()},
+                    "estimate_sigma_deg": {h: np.degrees(est.sigma(h)) for h in est.correction},
+                    "n_exposures": est.n_exposures}
+            with open(self.out / "boresight.jsonl", "a", encoding="utf-8") as fh:
+                fh.write(json.dumps(plain(line)) + "\n")
+        except Exception as exc:  # noqa: BLE001 - a failed window must not stop the flight
+            self._report(f"online boresight window failed: {exc}")
+
+    # ------------------------------------------------------------------------------------------ outputs
+    def _write_status(self) -> None:
+        ex = [x.record | {"state": x.state} if x.record else {"exposure": x.exposure, "state": x.state}
+              for x in sorted(self.exposures.values(), key=lambda e: e.exposure)]
+        with self._lock:
+            est = self.estimate
+        st = {"bounds_lonlat": self._bounds_ll, "zooms": self._zooms, "exposures": ex[-50:],
+              "n_done": sum(1 for x in self.exposures.values() if x.state == "done"),
+              "n_skipped": sum(1 for x in self.exposures.values() if x.state == "skipped"),
+              "reported": self.reported[-20:],
+              "boresight_deg": {h: np.degrees(v) for h, v in est.correction.items()},
+              "boresight_sigma_deg": {h: np.degrees(est.sigma(h)) for h in est.correction}}
+        with atomic_write(self.out / "status.json") as fh:
+            fh.write(json.dumps(plain(st)))
+
+    def finish(self) -> dict[str, Any]:
+        """Wait for the workers, write ``summary.json`` and return it."""
+        self._dsm_pool.shutdown(wait=True)
+        self._cal_pool.shutdown(wait=True)
+        self._write_status()
+        recs = [x.record for x in self.exposures.values() if x.record]
+        interval = self._wall_interval()
+
+        def stats(key: str) -> dict[str, float] | None:
+            v = np.array([r[key] for r in recs if r.get(key) is not None], dtype=float)
+            if not len(v):
+                return None
+            return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
+                    "n": int(len(v))}
+
+        est = self.estimate
+        summary = {"exposures_done": len(recs),
+                   "exposures_skipped": sum(1 for x in self.exposures.values() if x.state == "skipped"),
+                   "exposure_interval_flight_s": float(np.median(self._interval)) if self._interval else None,
+                   "exposure_interval_s": interval, "ortho_latency_s": stats("ortho_s"),
+                   "cell_m": stats("cell_m"), "dg_latency_s": stats("dg_s"), "ortho_cpu_s": stats("cpu_s"), "dsm_latency_s": stats("dsm_s"),
+                   "dsm_latency_exposures": stats("dsm_exposures"),
+                   "ortho_within_interval": (None if interval is None or not recs else
+                                             bool(all(r["ortho_s"] <= interval for r in recs))),
+                   "boresight_windows": est.n_windows, "boresight_exposures": est.n_exposures,
+                   "boresight_deg": {h: np.degrees(v) for h, v in est.correction.items()},
+                   "boresight_sigma_deg": {h: np.degrees(est.sigma(h)) for h in est.correction},
+                   "zooms": self._zooms, "bounds_lonlat": self._bounds_ll, "reported": self.reported}
+        with atomic_write(self.out / "summary.json") as fh:
+            fh.write(json.dumps(plain(summary), indent=1))
+        return summary
+
+
+def _concat(a: ExteriorOrientations, b: ExteriorOrientations) -> ExteriorOrientations:
+    from dataclasses import replace
+
+    def cat(u: Any, v: Any) -> Any:
+        return None if u is None or v is None else np.concatenate([u, v])
+
+    return replace(a, image=np.concatenate([a.image, b.image]), camera=np.concatenate([a.camera, b.camera]),
+                   centre=np.vstack([a.centre, b.centre]), rotation=np.concatenate([a.rotation, b.rotation]),
+                   time_s=cat(a.time_s, b.time_s), head=cat(a.head, b.head), exposure=cat(a.exposure, b.exposure),
+                   extra={k: np.concatenate([a.extra[k], b.extra[k]]) for k in a.extra if k in b.extra})
+
+
+def _height_colours(height: NDArray, lo: float, hi: float) -> NDArray[np.uint8]:
+    """RGBA of heights on OpenCV's 'turbo' colour map between ``lo`` and ``hi`` (alpha 0 where NaN)."""
+    import cv2
+
+    ok = np.isfinite(height)
+    v = np.clip((np.where(ok, height, lo) - lo) / (hi - lo), 0, 1)
+    rgb = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
+    return np.dstack([rgb, np.where(ok, 255, 0).astype(np.uint8)])
+
+
+def run_live(folder: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+             config: LiveConfig = LiveConfig(), stop: threading.Event | None = None,
+             max_wall_s: float | None = None, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """:class:`LiveRun` over ``folder`` until the flight ends; the summary."""
+    return LiveRun(folder, out, config, say).run(stop, max_wall_s)
