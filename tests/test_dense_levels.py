@@ -48,6 +48,8 @@ def test_auto_scale_and_levels():
     assert auto_image_scale(0.017, 0.03) == 1.0  # half scale would have 0.034 m pixels, coarser than the cell
     assert auto_image_scale(0.017, 5.0) == 0.0625
     assert auto_image_scale(0.017, 0.01) == 1.0  # finer than the images: full resolution
+    assert auto_image_scale(0.017, None, 4000) == 0.5 and auto_image_scale(0.017, None, 640) == 1.0
+    assert auto_image_scale(0.017, None, 20000) == 0.0625 and auto_image_scale(0.017, 0.017, 4000) == 1.0
     assert level_of_scale(0.125) == 3
     with pytest.raises(SkyrigError, match="image_scale"):
         level_of_scale(0.3)

@@ -42,8 +42,9 @@ from skyrig.cli._common import eo_options
 @click.option("--image-scale", type=click.Choice(["auto", "1", "0.5", "0.25", "0.125", "0.0625", "ultra", "high",
                                                   "medium", "low", "lowest"]), default="auto", show_default=True,
               help="Scale of the images dense matching sees (ODM's quality names: ultra 1, high 0.5, medium 0.25, low "
-                   "0.125, lowest 0.0625); auto: the smallest whose GSD is no larger than --resolution (full "
-                   "resolution without it). The default cell is the GSD at that scale.")
+                   "0.125, lowest 0.0625); auto: the smallest whose GSD is no larger than --resolution, without it the "
+                   "largest that keeps the images' longer side within 2048 px. The default cell is the GSD at that "
+                   "scale.")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
 @click.option("--workers", type=POSITIVE_INT, default=None, help="Local worker processes.")

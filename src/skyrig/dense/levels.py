@@ -57,10 +57,21 @@ def level_of_scale(scale: float, option: str = "image_scale") -> int:
                       f"{', '.join(QUALITY)}), not {scale!r} (option: {option})")
 
 
-def auto_image_scale(gsd_m: float, cell_m: float | None) -> float:
+#: without a DSM cell, the automatic scale keeps the images' longer side within this many pixels
+AUTO_MAX_SIDE_PX = 2048
+
+
+def auto_image_scale(gsd_m: float, cell_m: float | None, side_px: int | None = None) -> float:
     """The smallest image scale whose ground sample distance (``gsd_m / scale``) is still no larger than the DSM
-    cell (one matched pixel per cell and pair); 1 without a cell (the DSM's default cell is the images' GSD)."""
-    if cell_m is None or not gsd_m > 0:
+    cell (one matched pixel per cell and pair).  Without a cell: the largest scale at which the images' longer
+    side ``side_px`` is at most :data:`AUTO_MAX_SIDE_PX` (a 4000 x 2250 px UAV image is matched at 0.5, a 640 px
+    one at 1; as ODM matches at a reduced "quality" by default), 1 without ``side_px``."""
+    if cell_m is None:
+        if side_px is None:
+            return 1.0
+        fits = [s for s in SCALES if side_px * s <= AUTO_MAX_SIDE_PX]
+        return max(fits) if fits else SCALES[-1]
+    if not gsd_m > 0:
         return 1.0
     need = gsd_m / float(cell_m) * (1.0 - 1e-9)
     fits = [s for s in SCALES if s >= need]

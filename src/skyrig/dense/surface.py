@@ -98,8 +98,9 @@ class DenseConfig:
     image_scale
         Scale of the images the matcher sees: 1 (full resolution), 0.5, 0.25, 0.125 or 0.0625 (ODM's point-cloud
         quality levels ultra, high, medium, low, lowest; :mod:`skyrig.dense.levels`); None: from the DSM cell, the
-        smallest scale whose GSD is no larger than ``cell_m`` (:func:`skyrig.dense.levels.auto_image_scale`; full
-        resolution without ``cell_m``).  The default cell is the GSD at that scale.  A reduced scale reads every
+        smallest scale whose GSD is no larger than ``cell_m``, without ``cell_m`` the largest that keeps the images'
+        longer side within 2048 px (:func:`skyrig.dense.levels.auto_image_scale`).  The default cell is the GSD at
+        that scale.  A reduced scale reads every
         image whole (no window-by-window reading of large TIFFs).
     hierarchical
         A block whose disparity window (its rays through the scene box) is wider than
@@ -403,7 +404,8 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     xmin, ymin, xmax, ymax = (float(v) for v in area)
     if not (xmax > xmin and ymax > ymin):
         raise SkyrigError(f"empty area {area} (option: area)")
-    scale = auto_image_scale(gsd_m, config.cell_m) if config.image_scale is None else float(config.image_scale)
+    side = max(max(c.width, c.height) for c in cameras.values())
+    scale = auto_image_scale(gsd_m, config.cell_m, side) if config.image_scale is None else float(config.image_scale)
     level = level_of_scale(scale, "image_scale")
     if level:  # match on pyramid level `level`: its cameras (same rays, larger pixels)
         cameras = {name: scaled_camera(cam, level) for name, cam in cameras.items()}
@@ -506,10 +508,13 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     windowed = getattr(loader, "windowed_image", None) if plan.image_level == 0 else None
     windows: dict[tuple[int, bool], WindowedImage | None] = {}
 
-    def source(i: int, in_grey: bool) -> NDArray | WindowedImage:
+    def window_of(i: int, in_grey: bool) -> WindowedImage | None:
         if (i, in_grey) not in windows:
             windows[i, in_grey] = windowed(i, in_grey) if windowed is not None else None
-        wi = windows[i, in_grey]
+        return windows[i, in_grey]
+
+    def source(i: int, in_grey: bool) -> NDArray | WindowedImage:
+        wi = window_of(i, in_grey)
         if wi is not None:
             return wi
         return grey(i) if in_grey else image(i)
@@ -526,7 +531,7 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
         for bi in hit:
             blk = bl[bi]
-            whole = not any(isinstance(source(j, True), WindowedImage) for j in (pair.left, pair.right))
+            whole = window_of(pair.left, True) is None and window_of(pair.right, True) is None
             parts, cnt = block_parts(rect, blk, plan.config, grey if whole else None, pair.left, pair.right)
             counts = counts + cnt
             nblocks += 1

@@ -91,7 +91,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     ``window_min_mp``: TIFFs of at least this many megapixels are read window by window (default:
     :attr:`skyrig.pipeline.dense.ImageFiles.WINDOW_MIN_PIXELS`).  ``image_scale``: the scale the images are
     matched at, 1, 0.5, 0.25, 0.125, 0.0625 or ODM's names ultra, high, medium, low, lowest; ``"auto"``: from
-    ``resolution`` (:func:`skyrig.dense.levels.auto_image_scale`; full resolution without it).
+    ``resolution``, without it the largest scale that keeps the images within 2048 px
+    (:func:`skyrig.dense.levels.auto_image_scale`).
     """
     from dataclasses import replace
 

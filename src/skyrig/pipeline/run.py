@@ -856,7 +856,8 @@ register_stage(Stage(
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
              "min_depth": Option(None, "float", "nearest searched depth (m)", nullable=True, positive=True),
              "image_scale": Option("auto", "choice", "scale of the images dense matching sees, as ODM's quality: "
-                                   "ultra 1, high 0.5, medium 0.25, low 0.125, lowest 0.0625; auto: from resolution",
+                                   "ultra 1, high 0.5, medium 0.25, low 0.125, lowest 0.0625; auto: from resolution, "
+                                   "without it images of at most 2048 px",
                                    ("auto", "ultra", "high", "medium", "low", "lowest")),
              "fill": Option(False, "bool", "interpolate small holes (flagged)"),
              "cloud": Option(True, "bool", "write the dense point cloud")},
