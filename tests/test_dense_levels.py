@@ -136,3 +136,17 @@ def test_reduced_image_scale_dsm_is_on_the_truth(small_block):
     assert st.image_scale == 0.5 and st.cell_m == 0.4 and st1.image_scale == 1.0  # GSD 0.19 m: 0.38 m pixels
     assert st.megapixels < 0.3 * st1.megapixels
     assert comp_flat > comp1_flat - 0.02 and nmad < st.gsd_m and gross < 0.01
+
+
+def test_image_scale_option_words():
+    """skyrig dsm / the dsm stage: ODM's quality names and numbers, auto; anything else names the option."""
+    from skyrig.errors import OptionError
+    from skyrig.pipeline.products import _image_scale
+
+    spell = lambda name: f"stages.dsm.{name}"  # noqa: E731
+    assert _image_scale("auto", spell) is None and _image_scale(None, spell) is None
+    assert _image_scale("medium", spell) == 0.25 and _image_scale("0.125", spell) == 0.125
+    assert _image_scale(1, spell) == 1.0
+    for bad in ("0.3", "best"):
+        with pytest.raises(OptionError, match="stages.dsm.image_scale"):
+            _image_scale(bad, spell)
