@@ -19,7 +19,7 @@ Hierarchy
     coarse pixel and 2 px; disparities stuck at either end of the coarse search are no surface and left out), and
     where the surface inside the block is still deeper than the search allows the block is split in four, each
     part with the window of its own coarse disparities (:func:`refine_windows`), until the window fits or the
-    part is :data:`MIN_SPLIT_PX` small.  Only then is a window narrowed: to the one that holds the most coarse
+    part is :data:`MIN_SPLIT_PX` (48 px) small.  Only then is a window narrowed: to the one that holds the most coarse
     matches; it is counted as *trimmed* when it leaves out at most :data:`TRIM_SHARE` of them (isolated
     mismatches of the coarse level, e.g. at occlusions), as *cut* otherwise.  A part in which the coarse level
     matched (almost) nothing over the whole geometric window (fewer than :data:`MIN_COARSE_SHARE` of its pixels:
@@ -41,7 +41,7 @@ QUALITY = {"ultra": 1.0, "high": 0.5, "medium": 0.25, "low": 0.125, "lowest": 0.
 #: the image scales the dense chain matches at (pyramid levels 0 .. 4)
 SCALES = tuple(QUALITY.values())
 #: smallest side (full-level pixels) of a block part the hierarchy splits further
-MIN_SPLIT_PX = 96
+MIN_SPLIT_PX = 48
 #: a block part whose coarse level matched fewer pixels than this share is not matched
 MIN_COARSE_SHARE = 0.02
 #: a narrowed window that leaves out at most this share of its part's coarse matches is "trimmed", not "cut"
