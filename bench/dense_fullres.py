@@ -61,15 +61,17 @@ def main(argv: list[str] | None = None) -> None:
             spread = ds.read(3, masked=True).filled(np.nan)
         res[tag] = h
         s = r.stats
-        print(f"{tag:10s}: {dt:7.1f} s, {s.megapixels:7.1f} MP matched, {s.summary_line() or 'no window wider than the limit'}")
+        search = s.summary_line() or "no window wider than the limit"
+        print(f"{tag:10s}: {dt:7.1f} s, {s.megapixels:7.1f} MP matched, {search}")
         print(f"{'':10s}  completeness {np.isfinite(h).mean() * 100:.2f} % of {h.size} cells, median spread "
               f"{np.nanmedian(spread):.3f} m", flush=True)
     tags = list(res)
     for t2 in tags[1:]:
         d = res[t2] - res[tags[0]]
         d = d[np.isfinite(d)]
-        print(f"{t2} - {tags[0]}: {d.size} cells in both, median {np.median(d):+.3f} m, NMAD "
-              f"{1.4826 * np.median(np.abs(d - np.median(d))):.3f} m, |d| > 0.5 m {np.mean(np.abs(d) > 0.5) * 100:.2f} %")
+        nmad = 1.4826 * np.median(np.abs(d - np.median(d)))
+        print(f"{t2} - {tags[0]}: {d.size} cells in both, median {np.median(d):+.3f} m, NMAD {nmad:.3f} m, "
+              f"|d| > 0.5 m {np.mean(np.abs(d) > 0.5) * 100:.2f} %")
 
 
 if __name__ == "__main__":

@@ -19,8 +19,8 @@ Hierarchy
     coarse pixel and 2 px; disparities stuck at either end of the coarse search are no surface and left out), and
     where the surface inside the block is still deeper than the search allows the block is split in four, each
     part with the window of its own coarse disparities (:func:`refine_windows`), until the window fits or the
-    part is :data:`MIN_SPLIT_PX` (48 px) small.  Only then is a window narrowed: to the one that holds the most coarse
-    matches; it is counted as *trimmed* when it leaves out at most :data:`TRIM_SHARE` of them (isolated
+    part is :data:`MIN_SPLIT_PX` (48 px) small.  Only then is a window narrowed: to the one that holds the most
+    coarse matches; it is counted as *trimmed* when it leaves out at most :data:`TRIM_SHARE` of them (isolated
     mismatches of the coarse level, e.g. at occlusions), as *cut* otherwise.  A part in which the coarse level
     matched (almost) nothing over the whole geometric window (fewer than :data:`MIN_COARSE_SHARE` of its pixels:
     no overlap at the surface's disparity, or no texture at any level) is not matched, and counted.

@@ -601,8 +601,8 @@ def block_parts(rect: Rectification, blk: Block, config: DenseConfig, grey: Call
         with np.errstate(invalid="ignore"):  # stuck at either end of the search: no surface
             dc[(dc < shift + 1.5) | (dc > shift + n - 2.5)] = np.nan
     # the widest window that disparity_window does not cut: its integer ends take up to 2 px more
-    wins, n_cut, n_trim, n_blind = refine_windows(dc, f, bc.u0, bc.v0, blk.u0, blk.u1, blk.v0, blk.v1, blk.d_min, blk.d_max,
-                                          sgm.max_disparities - 3)
+    wins, n_cut, n_trim, n_blind = refine_windows(dc, f, bc.u0, bc.v0, blk.u0, blk.u1, blk.v0, blk.v1, blk.d_min,
+                                                  blk.d_max, sgm.max_disparities - 3)
     return [Block(*w) for w in wins], SearchCounts(n_cut, 1, n_blind, n_trim)
 
 
