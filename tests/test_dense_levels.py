@@ -150,3 +150,22 @@ def test_image_scale_option_words():
     for bad in ("0.3", "best"):
         with pytest.raises(OptionError, match="stages.dsm.image_scale"):
             _image_scale(bad, spell)
+
+
+def test_orientation_sigma_widens_the_predicted_disparity_sigma_in_level_pixels():
+    """0.8 full-resolution px of orientation error at image scale 0.5 is 0.4 level px, added in quadrature to the
+    matcher's 0.3 px: 0.5 px; the plan's cameras are the level's (half the focal length in pixels)."""
+    from skyrig.dense.surface import plan_dense
+    from skyrig.georef.eo import ExteriorOrientations
+    from test_dense import F_PX, H_PX, LOCAL, W_PX
+
+    cam = FrameCamera.from_pixels("cam", W_PX, H_PX, F_PX, (W_PX - 1) / 2, (H_PX - 1) / 2, pixel_size_mm=0.005)
+    eo = ExteriorOrientations(np.array(["a.png", "b.png"]), "cam", np.array([[-8.0, 0, 170], [8.0, 0, 170]]),
+                              np.stack([np.eye(3)] * 2), LOCAL)
+    for sigma, scale, want in ((0.8, 0.5, 0.5), (0.0, 0.5, 0.3), (0.4, 1.0, 0.5)):
+        plan = plan_dense(eo, {"cam": cam}, WorldFrame.map(CRS), (40.0, 75.0),
+                          config=DenseConfig(image_scale=scale, orientation_sigma_px=sigma))
+        assert plan.config.sgm.disparity_sigma_px == pytest.approx(want, abs=1e-12)
+        assert plan.cameras["cam"].focal_px == pytest.approx(F_PX * scale) and plan.image_level == level_of_scale(scale)
+    with pytest.raises(SkyrigError, match="orientation_sigma_px"):
+        plan_dense(eo, {"cam": cam}, WorldFrame.map(CRS), (40.0, 75.0), config=DenseConfig(orientation_sigma_px=-1.0))

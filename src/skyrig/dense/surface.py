@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
@@ -108,6 +108,12 @@ class DenseConfig:
         of the block or of its parts (paper 001's hierarchical matching, :func:`skyrig.dense.levels.refine_windows`);
         False: such windows are cut (near surfaces missed), as before.  Cuts and refinements are counted
         (:class:`DenseStats`) and reported in one line.  Blocks of images read window by window are not refined.
+    orientation_sigma_px
+        Relative error of the orientations as a disparity, in full-resolution pixels (e.g. ``sqrt(2)`` times an
+        adjustment's reprojection RMS), added in quadrature to the matcher's ``SgmConfig.disparity_sigma_px``
+        (pixels of the matched level) for the predicted precision the fusion tolerates (0: the matcher's alone, as
+        before).  At full resolution the matcher's 0.3 px is finer than what self-calibrated UAV orientations hold,
+        and pairs that disagree by a pixel are left out (brighton, x1 vs x0.25: docs/cli.md, issue 35).
     """
 
     cell_m: float | None = None
@@ -125,6 +131,7 @@ class DenseConfig:
     min_depth_m: float | None = None
     image_scale: float | None = 1.0
     hierarchical: bool = True
+    orientation_sigma_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -409,6 +416,12 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     level = level_of_scale(scale, "image_scale")
     if level:  # match on pyramid level `level`: its cameras (same rays, larger pixels)
         cameras = {name: scaled_camera(cam, level) for name, cam in cameras.items()}
+    if config.orientation_sigma_px:
+        if not (np.isfinite(config.orientation_sigma_px) and config.orientation_sigma_px > 0):
+            raise SkyrigError(f"orientation sigma must be a positive number of pixels, got "
+                              f"{config.orientation_sigma_px} (option: orientation_sigma_px)")
+        sd = float(np.hypot(config.sgm.disparity_sigma_px, config.orientation_sigma_px * scale))
+        config = replace(config, sgm=replace(config.sgm, disparity_sigma_px=sd), orientation_sigma_px=0.0)
     cell = float(config.cell_m) if config.cell_m else gsd_m / scale
     if not (cell > 0 and np.isfinite(cell)):
         raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")

@@ -80,7 +80,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
              echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
              lr_check: str | None = None, window_min_mp: float | None = None,
-             image_scale: float | str | None = "auto") -> Any:
+             image_scale: float | str | None = "auto", orientation_sigma_px: float | None = None) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
@@ -92,7 +92,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     :attr:`skyrig.pipeline.dense.ImageFiles.WINDOW_MIN_PIXELS`).  ``image_scale``: the scale the images are
     matched at, 1, 0.5, 0.25, 0.125, 0.0625 or ODM's names ultra, high, medium, low, lowest; ``"auto"``: from
     ``resolution``, without it the largest scale that keeps the images within 2048 px
-    (:func:`skyrig.dense.levels.auto_image_scale`).
+    (:func:`skyrig.dense.levels.auto_image_scale`).  ``orientation_sigma_px``: the orientations' relative error
+    as a disparity in full-resolution pixels, for the fusion's tolerance (:class:`DenseConfig`; None: 0).
     """
     from dataclasses import replace
 
@@ -121,6 +122,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
         raise OptionError(spell("height_range"), f"must be MIN MAX with MIN < MAX, got {list(height_range)}")
     _positive(resolution, "resolution", spell)
     _positive(min_depth, "min_depth", spell)
+    _positive(orientation_sigma_px, "orientation_sigma_px", spell, "a positive number of pixels")
     _positive(min_support, "min_support", spell, "at least 1", 1)
     _positive(pairs_per_image, "pairs_per_image", spell, "at least 1", 1)
     _positive(tile_cells, "tile_cells", spell, "at least 64 cells", 64)
@@ -137,13 +139,15 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
                       sgm=replace(base.sgm, mode=mode, lr_check=lr_check),
                       fusion=replace(base.fusion, min_support=min_support),
-                      fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth, image_scale=scale)
+                      fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth, image_scale=scale,
+                      orientation_sigma_px=orientation_sigma_px or 0.0)
     heads_text = heads if heads is None or isinstance(heads, str) else ",".join(heads)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": [float(h) for h in height_range],
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
                "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
-               "lr_check": lr_check, "window_min_mp": window_min_mp, "image_scale": image_scale}
+               "lr_check": lr_check, "window_min_mp": window_min_mp, "image_scale": image_scale,
+               "orientation_sigma_px": orientation_sigma_px}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,
                    scheduler=scheduler, inputs=[str(i) for i in inputs] + ([str(points)] if points else []),
