@@ -32,6 +32,9 @@ def main(argv: list[str] | None = None) -> None:
                              "DJI_0027.JPG"])
     ap.add_argument("--resolution", type=float, default=0.07, help="DSM cell (m), the same for every run")
     ap.add_argument("--scales", nargs="+", default=["0.25", "1"])
+    ap.add_argument("--orientation-sigma-px", type=float, default=None,
+                    help="skyrig dsm --orientation-sigma-px (e.g. 1.4 x adjust-uav's reprojection RMS)")
+    ap.add_argument("--area", type=float, nargs=4, default=None, help="XMIN YMIN XMAX YMAX (default: all)")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -54,7 +57,8 @@ def main(argv: list[str] | None = None) -> None:
         tag = f"x{scale}"
         t = time.perf_counter()
         r = make_dsm(eo, cams, files, out / tag, points=a.adjusted / "points.csv", resolution=a.resolution,
-                     image_scale=scale, executor="serial", echo=print)
+                     image_scale=scale, executor="serial", echo=print, area=a.area,
+                     orientation_sigma_px=a.orientation_sigma_px)
         dt = time.perf_counter() - t
         with rasterio.open(r.dsm) as ds:
             h = ds.read(1, masked=True).filled(np.nan)
