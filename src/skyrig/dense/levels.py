@@ -159,8 +159,8 @@ def refine_windows(coarse: NDArray[np.float32], factor: int, cu0: int, cv0: int,
                 n_trim += 1
             else:
                 n_cut += 1
-            lo_w = max(d_min, float(x[k]) - pad)
-            out.append((a, b, c, d, lo_w, lo_w + max_width))
+            lo_w = max(d_min, min(float(x[k]) - pad, d_max - max_width))  # inside the geometric window
+            out.append((a, b, c, d, lo_w, min(d_max, lo_w + max_width)))
             return
         um, vm = (a + b) // 2, (c + d) // 2
         for q in ((a, um, c, vm), (um, b, c, vm), (a, um, vm, d), (um, b, vm, d)):
