@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, NONNEGATIVE, POSITIVE_INT, POSITIVE_M
+from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, NONNEGATIVE, POSITIVE, POSITIVE_INT, POSITIVE_M
 
 from skyrig.cli._common import eo_options
 
@@ -39,6 +39,15 @@ from skyrig.cli._common import eo_options
 @click.option("--window-min-mp", type=NONNEGATIVE, default=60.0, show_default=True,
               help="TIFF images of at least this many megapixels are read window by window (only what each block "
                    "needs: memory bounded by the block, not the image); 0 reads every TIFF so.")
+@click.option("--image-scale", type=click.Choice(["auto", "1", "0.5", "0.25", "0.125", "0.0625", "ultra", "high",
+                                                  "medium", "low", "lowest"]), default="auto", show_default=True,
+              help="Scale of the images dense matching sees (ODM's quality names: ultra 1, high 0.5, medium 0.25, low "
+                   "0.125, lowest 0.0625); auto: the smallest whose GSD is no larger than --resolution, without it the "
+                   "largest that keeps the images' longer side within 2048 px. The default cell is the GSD at that "
+                   "scale.")
+@click.option("--orientation-sigma-px", type=POSITIVE, default=None,
+              help="Relative error of the orientations as a disparity in full-resolution pixels (e.g. 1.4 x the "
+                   "adjustment's reprojection RMS): widens the tolerance within which pairs must agree on a cell.")
 @click.option("--executor", type=click.Choice(["auto", "serial", "local"]), default="auto", show_default=True,
               help="Where tiles run: this process, local Dask worker processes, or (with --scheduler) a cluster.")
 @click.option("--workers", type=POSITIVE_INT, default=None, help="Local worker processes.")
@@ -46,7 +55,7 @@ from skyrig.cli._common import eo_options
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
             points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, window_min_mp,
-            executor, workers, scheduler, output) -> None:
+            image_scale, orientation_sigma_px, executor, workers, scheduler, output) -> None:
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
     Pairs are chosen from the orientations, rectified exactly (distortion included), matched by OpenCV's
@@ -65,7 +74,8 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
                        pairs_per_image=pairs_per_image, min_support=min_support, fill=fill, cloud=not no_cloud,
                        min_depth=min_depth, tile_cells=tile_cells, executor=executor, workers=workers,
                        scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, echo=click.echo,
-                       lr_check=lr_check, window_min_mp=window_min_mp)
+                       lr_check=lr_check, window_min_mp=window_min_mp, image_scale=image_scale,
+                       orientation_sigma_px=orientation_sigma_px)
     s = res.summary
     click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "
                f"cells ({res.stats.cell_m:.3f} m), {s['cloud_points']} cloud points -> {res.outdir} "

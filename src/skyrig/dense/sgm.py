@@ -187,17 +187,20 @@ def _matcher(cfg: SgmConfig, num_disp: int, channels: int):  # type: ignore[no-u
 
 
 def disparity_window(d_min: float, d_max: float, cfg: SgmConfig) -> tuple[int, int]:
-    """Integer shift and OpenCV search width (a multiple of 16) covering ``[d_min, d_max]``."""
+    """Integer shift and OpenCV search width (a multiple of 16) covering ``[d_min, d_max]``; a window wider than
+    ``cfg.max_disparities`` is cut to it (:func:`window_cut` tells; the callers count and report cuts once, the
+    dense chain avoids them by its hierarchical search, :mod:`skyrig.dense.levels`)."""
     if not (np.isfinite(d_min) and np.isfinite(d_max)) or d_max < d_min:
         raise SkyrigError(f"invalid disparity window [{d_min}, {d_max}]")
     shift = int(np.floor(d_min))
     width = int(np.ceil(d_max)) - shift + 1
     n = max(16, int(np.ceil(width / 16.0)) * 16)
-    if n > cfg.max_disparities:
-        logger.warning("disparity window %.0f px wider than max_disparities %d: cut (near surfaces may be missed)",
-                       width, cfg.max_disparities)
-        n = cfg.max_disparities
-    return shift, n
+    return shift, min(n, cfg.max_disparities)
+
+
+def window_cut(d_min: float, d_max: float, cfg: SgmConfig) -> bool:
+    """True when :func:`disparity_window` cuts ``[d_min, d_max]`` (wider than ``cfg.max_disparities``)."""
+    return int(np.ceil(d_max)) - int(np.floor(d_min)) + 1 > cfg.max_disparities
 
 
 def match_rectified(left: NDArray, right: NDArray, d_min: float, d_max: float, cfg: SgmConfig = SgmConfig(),
@@ -223,6 +226,9 @@ def match_rectified(left: NDArray, right: NDArray, d_min: float, d_max: float, c
     if left.shape != right.shape:
         raise SkyrigError(f"rectified images differ in shape: {left.shape} vs {right.shape}")
     shift, n = disparity_window(d_min, d_max, cfg)
+    if window_cut(d_min, d_max, cfg):
+        logger.warning("disparity window %.0f px wider than max_disparities %d: cut (near surfaces may be missed)",
+                       d_max - d_min, cfg.max_disparities)
     H, W = left.shape[:2]
     out = np.full((H, W), np.nan, np.float32)
     t = cfg.tile_px

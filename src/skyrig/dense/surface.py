@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
@@ -28,6 +28,7 @@ from skyrig.camera.frame import FrameCamera
 from skyrig.dense._phases import phase
 from skyrig.dense.fusion import CellSorter, FusionConfig, confirm_by_neighbours, fuse_cloud
 from skyrig.dense.grid import DenseCloud, DsmGrid, GridSpec
+from skyrig.dense.levels import auto_image_scale, level_of_scale, pyramid, scaled_camera
 from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
 from skyrig.dense.rectify import Rectification, WindowedImage, rectify_pair
 from skyrig.dense.sgm import SgmConfig
@@ -94,6 +95,25 @@ class DenseConfig:
         with the cell size).
     min_depth_m
         Nearest depth searched from a camera (None: a quarter of its distance to the scene box's centre).
+    image_scale
+        Scale of the images the matcher sees: 1 (full resolution), 0.5, 0.25, 0.125 or 0.0625 (ODM's point-cloud
+        quality levels ultra, high, medium, low, lowest; :mod:`skyrig.dense.levels`); None: from the DSM cell, the
+        smallest scale whose GSD is no larger than ``cell_m``, without ``cell_m`` the largest that keeps the images'
+        longer side within 2048 px (:func:`skyrig.dense.levels.auto_image_scale`).  The default cell is the GSD at
+        that scale.  A reduced scale reads every
+        image whole (no window-by-window reading of large TIFFs).
+    hierarchical
+        A block whose disparity window (its rays through the scene box) is wider than
+        ``SgmConfig.max_disparities`` is matched first on a coarse pyramid level, whose disparities give the window
+        of the block or of its parts (paper 001's hierarchical matching, :func:`skyrig.dense.levels.refine_windows`);
+        False: such windows are cut (near surfaces missed), as before.  Cuts and refinements are counted
+        (:class:`DenseStats`) and reported in one line.  Blocks of images read window by window are not refined.
+    orientation_sigma_px
+        Relative error of the orientations as a disparity, in full-resolution pixels (e.g. ``sqrt(2)`` times an
+        adjustment's reprojection RMS), added in quadrature to the matcher's ``SgmConfig.disparity_sigma_px``
+        (pixels of the matched level) for the predicted precision the fusion tolerates (0: the matcher's alone, as
+        before).  At full resolution the matcher's 0.3 px is finer than what self-calibrated UAV orientations hold,
+        and pairs that disagree by a pixel are left out (brighton, x1 vs x0.25: docs/cli.md, issue 35).
     """
 
     cell_m: float | None = None
@@ -109,6 +129,9 @@ class DenseConfig:
     cloud: bool = True
     cloud_voxel_m: float | None = None
     min_depth_m: float | None = None
+    image_scale: float | None = 1.0
+    hierarchical: bool = True
+    orientation_sigma_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -137,6 +160,11 @@ class DensePlan:
         ``(row0, col0, height, width)`` windows of the grid.
     config
         The options.
+    to_map
+        Local frame -> output map frame.
+    image_level
+        Pyramid level the images are matched at (``DenseConfig.image_scale`` = ``0.5 ** image_level``); ``cameras``
+        and ``rects`` are that level's, ``gsd_m`` is the full images'.
     """
 
     eo: ExteriorOrientations
@@ -152,6 +180,7 @@ class DensePlan:
     tiles: tuple[tuple[int, int, int, int], ...]
     config: DenseConfig
     to_map: "FrameMap"
+    image_level: int = 0
 
     @property
     def local_frame(self) -> WorldFrame:
@@ -178,6 +207,39 @@ class TileResult:
     cand2_height: NDArray[np.float32] | None = None
     cand2_sigma: NDArray[np.float32] | None = None
     cand2_support: NDArray[np.int16] | None = None
+    search: "SearchCounts" = field(default_factory=lambda: SearchCounts())
+
+
+@dataclass(frozen=True)
+class SearchCounts:
+    """What the disparity search did, in block matchings (a block is matched once per ground tile that needs it).
+
+    ``cut``: windows wider than the matcher's limit narrowed, leaving out near surfaces (without the hierarchy:
+    every such block; with it: parts whose narrowed window leaves out more than 1 % of their coarse matches);
+    ``refined``: blocks whose windows came from the coarse level (:func:`block_parts`); ``unmatched``: blocks or
+    parts left out because the coarse level found no surface in them; ``trimmed``: parts whose window was narrowed
+    leaving out at most 1 % of their coarse matches (isolated coarse mismatches)."""
+
+    cut: int = 0
+    refined: int = 0
+    unmatched: int = 0
+    trimmed: int = 0
+
+    def __add__(self, other: "SearchCounts") -> "SearchCounts":
+        return SearchCounts(self.cut + other.cut, self.refined + other.refined, self.unmatched + other.unmatched,
+                            self.trimmed + other.trimmed)
+
+    def summary_line(self, blocks: int) -> str:
+        """One line on the disparity search (empty when no window was wider than the matcher's limit)."""
+        if not (self.cut or self.refined):
+            return ""
+        text = (f"disparity search: {self.refined} of {blocks} block matchings refined on a coarse level "
+                f"(hierarchical matching), {self.unmatched} blocks or parts without a coarse match left out, "
+                f"{self.trimmed} windows trimmed to 99 % of their coarse matches")
+        if self.cut:
+            return text + (f"; {self.cut} windows wider than the matcher's limit cut (near surfaces may be missing "
+                           "there: a narrower height range, or a smaller image scale)")
+        return text + "; no window cut"
 
 
 def vertical_reference(frame: WorldFrame) -> str:
@@ -349,7 +411,18 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     xmin, ymin, xmax, ymax = (float(v) for v in area)
     if not (xmax > xmin and ymax > ymin):
         raise SkyrigError(f"empty area {area} (option: area)")
-    cell = float(config.cell_m) if config.cell_m else gsd_m
+    side = max(max(c.width, c.height) for c in cameras.values())
+    scale = auto_image_scale(gsd_m, config.cell_m, side) if config.image_scale is None else float(config.image_scale)
+    level = level_of_scale(scale, "image_scale")
+    if level:  # match on pyramid level `level`: its cameras (same rays, larger pixels)
+        cameras = {name: scaled_camera(cam, level) for name, cam in cameras.items()}
+    if config.orientation_sigma_px:
+        if not (np.isfinite(config.orientation_sigma_px) and config.orientation_sigma_px > 0):
+            raise SkyrigError(f"orientation sigma must be a positive number of pixels, got "
+                              f"{config.orientation_sigma_px} (option: orientation_sigma_px)")
+        sd = float(np.hypot(config.sgm.disparity_sigma_px, config.orientation_sigma_px * scale))
+        config = replace(config, sgm=replace(config.sgm, disparity_sigma_px=sd), orientation_sigma_px=0.0)
+    cell = float(config.cell_m) if config.cell_m else gsd_m / scale
     if not (cell > 0 and np.isfinite(cell)):
         raise SkyrigError(f"cell size must be positive, got {config.cell_m} (option: resolution)")
     grid = GridSpec.covering(xmin, ymin, xmax, ymax, cell)
@@ -396,7 +469,7 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
                                m[:, :, 0].max(axis=1) + pad, m[:, :, 1].max(axis=1) + pad]) for m in np.split(m, cut)]
     tiles = grid.tiles(config.tile_cells)
     return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
-                     tuple(bounds), tiles, config, FrameMap(local, out_frame, box))
+                     tuple(bounds), tiles, config, FrameMap(local, out_frame, box), level)
 
 
 def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -419,30 +492,42 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     tg = plan.grid.window(r0, c0, h, w)
     xb0, yb0, xb1, yb1 = tg.bounds
     images: dict[int, NDArray] = {}
-    greys: dict[int, NDArray] = {}
+    greys: dict[tuple[int, int], NDArray] = {}
 
     def image(i: int) -> NDArray:
         if i not in images:
             with phase("read"):
                 images[i] = loader(i)
+            if plan.image_level:
+                with phase("pyramid"):
+                    images[i] = pyramid(images[i], plan.image_level)
         return images[i]
 
-    def grey(i: int) -> NDArray:
+    def grey(i: int, up: int = 0) -> NDArray:
         """The image in grey, converted once per tile (a right image is only matched; a pair has a block every
-        ``block_px`` pixels, each would convert the whole image again)."""
-        if i not in greys:
-            im = image(i)
-            with phase("rectify"):
-                greys[i] = cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im
-        return greys[i]
+        ``block_px`` pixels, each would convert the whole image again); ``up`` pyramid levels above the plan's
+        (the hierarchy's coarse levels)."""
+        if (i, up) not in greys:
+            if up:
+                with phase("pyramid"):
+                    greys[i, up] = pyramid(grey(i, up - 1), 1)
+            else:
+                im = image(i)
+                with phase("rectify"):
+                    greys[i, 0] = cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im
+        return greys[i, up]
 
-    windowed = getattr(loader, "windowed_image", None)  # a loader that reads large images window by window
+    # a loader that reads large images window by window (at full scale only)
+    windowed = getattr(loader, "windowed_image", None) if plan.image_level == 0 else None
     windows: dict[tuple[int, bool], WindowedImage | None] = {}
 
-    def source(i: int, in_grey: bool) -> NDArray | WindowedImage:
+    def window_of(i: int, in_grey: bool) -> WindowedImage | None:
         if (i, in_grey) not in windows:
             windows[i, in_grey] = windowed(i, in_grey) if windowed is not None else None
-        wi = windows[i, in_grey]
+        return windows[i, in_grey]
+
+    def source(i: int, in_grey: bool) -> NDArray | WindowedImage:
+        wi = window_of(i, in_grey)
         if wi is not None:
             return wi
         return grey(i) if in_grey else image(i)
@@ -455,26 +540,20 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     cap = sum((bl[bi].v1 - bl[bi].v0) * (bl[bi].u1 - bl[bi].u0) for bl, hit in zip(plan.blocks, hits) for bi in hit)
     srt = CellSorter(tg, vox if with_cloud else 0.0, cloud=with_cloud, capacity=cap)
     extra: list[tuple[int, PairPoints, NDArray]] = []  # a cloud on its own voxel grid
-    npts, nblocks, mpx = 0, 0, 0.0
+    npts, nblocks, mpx, counts = 0, 0, 0.0, SearchCounts()
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
         for bi in hit:
             blk = bl[bi]
-            disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), blk,
-                                          plan.config.sgm)
+            whole = window_of(pair.left, True) is None and window_of(pair.right, True) is None
+            parts, cnt = block_parts(rect, blk, plan.config, grey if whole else None, pair.left, pair.right)
+            counts = counts + cnt
             nblocks += 1
-            mpx += disp.size / 1e6
-            pp = block_points(rect, blk, disp, colour, plan.config.sgm)
-            if len(pp) == 0:
-                continue
-            with phase("to map"):
-                xyz_m = plan.to_map(pp.xyz)
-            with phase("fuse"):  # the points inside the tile (x0 <= x < x1, y0 < y <= y1)
-                npts += srt.add(pid, xyz_m, pp.sigma_h, pp.sigma_3d, pp.rgb, pp.normal, bounds=(xb0, yb0, xb1, yb1))
-            if plan.config.cloud and not with_cloud:
-                inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
-                if inside.any():
-                    sel = np.flatnonzero(inside)
-                    extra.append((pid, pp.subset(sel), xyz_m[sel]))
+            for part in parts:
+                disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), part,
+                                              plan.config.sgm)
+                mpx += disp.size / 1e6
+                npts += _add_points(plan, srt, extra, pid, block_points(rect, part, disp, colour, plan.config.sgm),
+                                    with_cloud, (xb0, yb0, xb1, yb1))
     rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
     with phase("fuse"):
         (hgt, sup, spr, sg, ch, cs, cn, ch2, cs2, cn2), cloud = srt.fuse(plan.config.fusion, True, rot)
@@ -487,7 +566,57 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                                np.concatenate([p[1].rgb for p in extra]), np.concatenate([p[1].normal for p in extra]),
                                plan.config.fusion, rot)
     return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud if plan.config.cloud and npts else None, npts, nblocks,
-                      mpx, time.perf_counter() - t0, ch, cs, cn, ch2, cs2, cn2)
+                      mpx, time.perf_counter() - t0, ch, cs, cn, ch2, cs2, cn2, counts)
+
+
+def _add_points(plan: DensePlan, srt: CellSorter, extra: list, pid: int, pp: PairPoints, with_cloud: bool,
+                bounds: tuple[float, float, float, float]) -> int:
+    """A block's points into the tile's sorter (those inside the tile: x0 <= x < x1, y0 < y <= y1), and into
+    ``extra`` for a cloud on its own voxel grid; returns the points added."""
+    if len(pp) == 0:
+        return 0
+    xb0, yb0, xb1, yb1 = bounds
+    with phase("to map"):
+        xyz_m = plan.to_map(pp.xyz)
+    with phase("fuse"):
+        n = srt.add(pid, xyz_m, pp.sigma_h, pp.sigma_3d, pp.rgb, pp.normal, bounds=bounds)
+    if plan.config.cloud and not with_cloud:
+        inside = (xyz_m[:, 0] >= xb0) & (xyz_m[:, 0] < xb1) & (xyz_m[:, 1] > yb0) & (xyz_m[:, 1] <= yb1)
+        if inside.any():
+            sel = np.flatnonzero(inside)
+            extra.append((pid, pp.subset(sel), xyz_m[sel]))
+    return n
+
+
+def block_parts(rect: Rectification, blk: Block, config: DenseConfig, grey: Callable[[int, int], NDArray] | None,
+                left: int, right: int) -> tuple[list[Block], "SearchCounts"]:
+    """The block, or its parts, with the disparity windows they are matched with, and what the search did.
+
+    A window that fits ``SgmConfig.max_disparities`` is the block's own.  A wider one, with
+    ``config.hierarchical`` and ``grey(image, levels_up)`` given, is refined on a coarse pyramid level
+    (:mod:`skyrig.dense.levels`): the block matched there with its geometric window, the parts' windows from the
+    coarse disparities.  A function of the pair and the block only (the same in any tiling)."""
+    from skyrig.dense.levels import coarse_level, coarse_rectification, refine_windows
+    from skyrig.dense.sgm import disparity_window, window_cut
+
+    sgm = config.sgm
+    if not window_cut(blk.d_min, blk.d_max, sgm):
+        return [blk], SearchCounts()
+    if not config.hierarchical or grey is None:
+        return [blk], SearchCounts(cut=1)
+    up = coarse_level(blk.d_max - blk.d_min, sgm.max_disparities)
+    f = 2 ** up
+    rc = coarse_rectification(rect, up)
+    bc = Block(blk.u0 // f, -(-blk.u1 // f), blk.v0 // f, -(-blk.v1 // f), blk.d_min / f, blk.d_max / f)
+    with phase("coarse"):
+        dc, _, _ = match_block(rc, grey(left, up), grey(right, up), bc, sgm)
+        shift, n = disparity_window(bc.d_min, bc.d_max, sgm)
+        with np.errstate(invalid="ignore"):  # stuck at either end of the search: no surface
+            dc[(dc < shift + 1.5) | (dc > shift + n - 2.5)] = np.nan
+    # the widest window that disparity_window does not cut: its integer ends take up to 2 px more
+    wins, n_cut, n_trim, n_blind = refine_windows(dc, f, bc.u0, bc.v0, blk.u0, blk.u1, blk.v0, blk.v1, blk.d_min,
+                                                  blk.d_max, sgm.max_disparities - 3)
+    return [Block(*w) for w in wins], SearchCounts(n_cut, 1, n_blind, n_trim)
 
 
 def fill_holes(height: NDArray[np.float32], max_cells: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
@@ -512,7 +641,11 @@ def fill_holes(height: NDArray[np.float32], max_cells: int) -> tuple[NDArray[np.
 
 @dataclass
 class DenseStats:
-    """Counts and timings of a dense run."""
+    """Counts and timings of a dense run.
+
+    ``search``: what the disparity search did (:class:`SearchCounts`); ``image_scale``: the scale the images were
+    matched at.
+    A block is matched once per ground tile that needs it, so these count block matchings, as ``blocks`` does."""
 
     pairs: int
     tiles: int
@@ -522,6 +655,12 @@ class DenseStats:
     seconds: float
     gsd_m: float
     cell_m: float
+    image_scale: float = 1.0
+    search: SearchCounts = field(default_factory=SearchCounts)
+
+    def summary_line(self) -> str:
+        """One line on the disparity search (empty when no window was wider than the matcher's limit)."""
+        return self.search.summary_line(self.blocks)
 
 
 def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, DenseCloud | None, DenseStats]:
@@ -539,6 +678,7 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
     cand2_n = np.zeros((H, W), np.int16)
     clouds = []
     nb = npt = 0
+    search = SearchCounts()
     mpx = secs = 0.0
     ntiles = 0
     for r in results:
@@ -552,6 +692,7 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
         if r.cloud is not None:
             clouds.append(r.cloud)
         nb += r.blocks
+        search = search + r.search
         npt += r.points
         mpx += r.megapixels
         secs += r.seconds
@@ -573,7 +714,11 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
             cat = [np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32), np.zeros(0, np.int16),
                    np.zeros(0, np.float32)]
         cloud = DenseCloud(cat[0], cat[1], cat[2], cat[3], cat[4], plan.out_frame, vref)
-    return dsm, cloud, DenseStats(len(plan.pairs), ntiles, nb, npt, mpx, secs, plan.gsd_m, plan.grid.cell_m)
+    stats = DenseStats(len(plan.pairs), ntiles, nb, npt, mpx, secs, plan.gsd_m, plan.grid.cell_m,
+                       0.5 ** plan.image_level, search)
+    if stats.summary_line():
+        (logger.warning if search.cut else logger.info)("dense: %s", stats.summary_line())
+    return dsm, cloud, stats
 
 
 def dense_surface(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], loader: ImageLoader,

@@ -296,8 +296,9 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
     loader = ImageFiles(image_paths, [(cameras[str(c)].width, cameras[str(c)].height) for c in eo.camera],
                         window_min_pixels=window_min_pixels)
     plan = plan_dense(eo, cameras, out_frame, height_range, area, config)
-    logger.info("dense: %d pairs, %d tiles of %d x %d cells (%.3f m), GSD %.3f m", len(plan.pairs), len(plan.tiles),
-                plan.grid.width, plan.grid.height, plan.grid.cell_m, plan.gsd_m)
+    logger.info("dense: %d pairs, %d tiles of %d x %d cells (%.3f m), GSD %.3f m, images matched at scale %g",
+                len(plan.pairs), len(plan.tiles), plan.grid.width, plan.grid.height, plan.grid.cell_m, plan.gsd_m,
+                0.5 ** plan.image_level)
     kind = executor
     if kind == "auto":
         kind = "scheduler" if scheduler else ("serial" if len(plan.tiles) == 1 else "local")

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import OptionError
+from skyrig.errors import OptionError, SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 
 __all__ = ["make_dsm", "make_ortho", "make_facades", "make_plane_mosaic", "plane_in_local_frame", "cli_spelling"]
@@ -50,6 +50,26 @@ def _executor_kind(executor: str) -> str:
     return executor
 
 
+def _image_scale(value: float | str | None, spell: Callable[[str], str]) -> float | None:
+    """The dense chain's image scale (None: auto) from a number or ODM's quality name."""
+    from skyrig.dense.levels import QUALITY, level_of_scale
+
+    if value is None or value == "auto":
+        return None
+    if isinstance(value, str) and value in QUALITY:
+        return QUALITY[value]
+    try:
+        scale = float(value)
+    except (TypeError, ValueError):
+        raise OptionError(spell("image_scale"), f"must be auto, a scale 1 / 0.5 / 0.25 / 0.125 / 0.0625 or one of "
+                                                f"{', '.join(QUALITY)}, not {value!r}") from None
+    try:
+        level_of_scale(scale)
+    except SkyrigError as exc:
+        raise OptionError(spell("image_scale"), str(exc)) from None
+    return scale
+
+
 def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], images: Sequence[str | PathLike[str]],
              outdir: str | Path, *, crs: str | None = None, geoid: str | None = None,
              height_range: Sequence[float] | None = None, points: str | PathLike[str] | None = None,
@@ -59,7 +79,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              executor: str = "auto", workers: int | None = None, scheduler: str | None = None,
              inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
              echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
-             lr_check: str | None = None, window_min_mp: float | None = None) -> Any:
+             lr_check: str | None = None, window_min_mp: float | None = None,
+             image_scale: float | str | None = "auto", orientation_sigma_px: float | None = None) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
@@ -68,7 +89,11 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     points.csv).  ``heads``: only these rig heads / image-name parts.  ``lr_check``: the matcher's left-right
     check, ``"opencv"`` or ``"full"`` (:class:`skyrig.dense.sgm.SgmConfig`; default: :class:`DenseConfig`'s).
     ``window_min_mp``: TIFFs of at least this many megapixels are read window by window (default:
-    :attr:`skyrig.pipeline.dense.ImageFiles.WINDOW_MIN_PIXELS`).
+    :attr:`skyrig.pipeline.dense.ImageFiles.WINDOW_MIN_PIXELS`).  ``image_scale``: the scale the images are
+    matched at, 1, 0.5, 0.25, 0.125, 0.0625 or ODM's names ultra, high, medium, low, lowest; ``"auto"``: from
+    ``resolution``, without it the largest scale that keeps the images within 2048 px
+    (:func:`skyrig.dense.levels.auto_image_scale`).  ``orientation_sigma_px``: the orientations' relative error
+    as a disparity in full-resolution pixels, for the fusion's tolerance (:class:`DenseConfig`; None: 0).
     """
     from dataclasses import replace
 
@@ -97,6 +122,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
         raise OptionError(spell("height_range"), f"must be MIN MAX with MIN < MAX, got {list(height_range)}")
     _positive(resolution, "resolution", spell)
     _positive(min_depth, "min_depth", spell)
+    _positive(orientation_sigma_px, "orientation_sigma_px", spell, "a positive number of pixels")
     _positive(min_support, "min_support", spell, "at least 1", 1)
     _positive(pairs_per_image, "pairs_per_image", spell, "at least 1", 1)
     _positive(tile_cells, "tile_cells", spell, "at least 64 cells", 64)
@@ -106,19 +132,22 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
         raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (opencv, full)")
     if window_min_mp is not None and not window_min_mp >= 0:
         raise OptionError(spell("window_min_mp"), f"must be >= 0 megapixels, got {window_min_mp}")
+    scale = _image_scale(image_scale, spell)
     paths = find_images(eo, [str(p) for p in images])
     base = DenseConfig()
     lr_check = base.sgm.lr_check if lr_check is None else lr_check
     cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
                       sgm=replace(base.sgm, mode=mode, lr_check=lr_check),
                       fusion=replace(base.fusion, min_support=min_support),
-                      fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth)
+                      fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth, image_scale=scale,
+                      orientation_sigma_px=orientation_sigma_px or 0.0)
     heads_text = heads if heads is None or isinstance(heads, str) else ",".join(heads)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": [float(h) for h in height_range],
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
                "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
-               "lr_check": lr_check, "window_min_mp": window_min_mp}
+               "lr_check": lr_check, "window_min_mp": window_min_mp, "image_scale": image_scale,
+               "orientation_sigma_px": orientation_sigma_px}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,
                    scheduler=scheduler, inputs=[str(i) for i in inputs] + ([str(points)] if points else []),

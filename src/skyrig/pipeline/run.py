@@ -751,7 +751,8 @@ def _dsm(ctx: StageContext) -> dict[str, Any]:
     res = make_dsm(eo, cameras, p.images, ctx.out, crs=p.crs, geoid=p.geoid, height_range=o["height_range"],
                    points=points, heads=o["heads"], area=o["area"], resolution=o["resolution"], mode=o["mode"],
                    lr_check=o["lr_check"], pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
-                   cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"],
+                   cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"], image_scale=o["image_scale"],
+                   orientation_sigma_px=o["orientation_sigma_px"],
                    **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
                    echo=lambda line: logger.info("stage dsm: %s", line), spell=_spelling("dsm"))
     s = res.summary
@@ -857,6 +858,12 @@ register_stage(Stage(
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
              "min_depth": Option(None, "float", "nearest searched depth (m)", nullable=True, positive=True),
+             "image_scale": Option("auto", "choice", "scale of the images dense matching sees, as ODM's quality: "
+                                   "ultra 1, high 0.5, medium 0.25, low 0.125, lowest 0.0625; auto: from resolution, "
+                                   "without it images of at most 2048 px",
+                                   ("auto", "ultra", "high", "medium", "low", "lowest")),
+             "orientation_sigma_px": Option(None, "float", "orientations' relative error as a disparity (full-"
+                                            "resolution px) in the fusion's tolerance", nullable=True, positive=True),
              "fill": Option(False, "bool", "interpolate small holes (flagged)"),
              "cloud": Option(True, "bool", "write the dense point cloud")},
     requires=("eo",), uses=("points", "cameras"), provides={"dsm": "dsm.tif"}, inputs=_dsm_inputs,
