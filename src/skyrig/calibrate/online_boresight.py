@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import adjust
 from skyrig.adjust.block import AdjustConfig
+from skyrig.adjust.config import StatisticsOptions, Unknowns
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import SkyrigError
@@ -154,7 +155,8 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     block, _ = block_from_trajectory(trajectory, rig, events, measurements, ctrl if ctrl is not None and len(ctrl)
                                      else None, gnss_sigma_m=tuple(gnss_sigma_m), imu_sigma_rad=tuple(imu_sigma_rad),
                                      control_sigma_m=csig, sigma_px=sigma_px, check_points=tuple(check_points))
-    res = adjust(block, AdjustConfig(boresight="free", statistics=True))
+    res = adjust(block, AdjustConfig(unknowns=Unknowns(boresight="free"),
+                                     statistics=StatisticsOptions(compute=True)))
     sel = res.selected
     if sel is None:
         raise SkyrigError("the window adjustment gave no covariance of the boresight corrections")

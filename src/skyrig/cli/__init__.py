@@ -87,7 +87,6 @@ COMMANDS: dict[str, CommandEntry] = {
                           "Validate a project.yaml and every input it names without running a stage; name every problem."),
     "paper": CommandEntry("skyrig.cli.paper:command",
                           "Reproduce the tables and figures of the papers (000-004) into one folder with an index page."),
-
     "live": CommandEntry("skyrig.cli.live:command",
                          "Near-real-time DG, ortho and DSM tiles and online boresight of a flight as it is recorded."),
     "demo": CommandEntry("skyrig.cli.demo:command",

@@ -303,7 +303,6 @@ def command(outdir: str | None, output: str | None) -> None:
     _classic_ortho_step(outdir)
     _determinability_step()
     _papers_step(outdir)
-
     _live_step(outdir)
     click.echo(f"\ndemo checks passed (total {time.perf_counter() - t0:.1f} s)")
 
@@ -574,6 +573,7 @@ def _papers_step(outdir: str | Path) -> None:
     for c in res["comparisons"]:
         click.echo(f"  {c['quantity']}: skyrig {c['skyrig']} {c['unit']}, paper {c['paper']}")
     click.echo(f"  index page: {out / 'index.html'}")
+
 
 def _live_step(outdir: str | Path) -> None:
     """Issue 35: a short 3K flight (8 exposures of the triple rig, boresights misaligned) replayed at 4 x its rate

@@ -116,7 +116,7 @@ def scanner_from_record(rec: Any, path: PathLike, lines: dict[str, int], key_pat
 def read_rig_scanners(path: PathLike) -> dict[str, dict[str, Any]]:
     """The ``scanners`` section of a rig file: ``{name: {"mount": ScannerMount, "range_offset_m": ..., ...}}``
     (empty when the file has none).  Checks every record (names, keys, rotation, lever arm, numbers)."""
-    from skyrig.io.rig_file import _Map, _Seq, load_yaml_lines
+    from skyrig.io._yaml_lines import _Map, _Seq, load_yaml_lines
 
     p = os.fspath(path)
     doc = load_yaml_lines(read_text(p), p)
