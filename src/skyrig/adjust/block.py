@@ -26,9 +26,10 @@ Observation groups
 A :class:`Block` is the geometry (stations, images, heads, cameras, points and the calibration values)
 plus observation groups.  Each group belongs to one observation type of :mod:`skyrig.adjust.factors`
 (one module each: image, control, GNSS, IMU, distance, ...), which normalises, checks, evaluates and
-labels its rows; the block only loops over the registered types.  The built-in types keep their rows in
-the block's own fields (``obs_*``, ``control_*``, ``gnss_*``, ``imu_*``, ``distance_*``: the public API),
-any other type in ``observations[name]``.
+labels its rows; the block only loops over the registered types.  Every type keeps its rows in
+``observations[name]``, an object of the type's own data class (``ImageRows``, ``GnssRows``... for the
+built-in ones); the block's flat keywords and attributes of the built-in types (``obs_*``, ``control_*``,
+``gnss_*``, ``imu_*``, ``distance_*``: the public API) read and write those rows.
 
 Parameter groups
 ----------------
@@ -50,9 +51,10 @@ from skyrig.adjust.config import MODES, AdjustConfig, Mode
 from skyrig.adjust.factors import image_type, observation_types, require_type
 from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
+from skyrig.geodesy.frame import WorldFrame
 
 
-__all__ = ["BalCamera", "Block", "Stations", "Images", "Heads", "Points", "Systematics", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
+__all__ = ["BalCamera", "Block", "BlockFrame", "Stations", "Images", "Heads", "Points", "Systematics", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
 
 
 CameraModel = FrameCamera | BalCamera
@@ -122,6 +124,40 @@ class Systematics:
     strip_shift: NDArray[np.float64]
     strip_drift: NDArray[np.float64]
     strip_t0: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BlockFrame:
+    """The block's one Cartesian world frame: its words (``text``: reports, files; ``str(frame)``) and, when the
+    block was built in a frame skyrig knows, that :class:`~skyrig.geodesy.frame.WorldFrame` (``world``).
+
+    A block takes a ``BlockFrame``, a ``WorldFrame`` (text: its :meth:`~WorldFrame.describe`) or a text (a
+    description skyrig may read back with :meth:`world_frame`, or free words such as "COLMAP model frame")."""
+
+    text: str
+    world: WorldFrame | None = None
+
+    @classmethod
+    def of(cls, frame: "BlockFrame | WorldFrame | str") -> "BlockFrame":
+        if isinstance(frame, BlockFrame):
+            return frame
+        if isinstance(frame, WorldFrame):
+            return cls(frame.describe(), frame)
+        return cls(str(frame))
+
+    def __str__(self) -> str:
+        return self.text
+
+    def world_frame(self) -> WorldFrame | None:
+        """``world`` when given, else the frame read from ``text`` (None for free words)."""
+        if self.world is not None:
+            return self.world
+        from skyrig.errors import CRSError
+
+        try:
+            return WorldFrame.from_text(self.text or "")
+        except (CRSError, ValueError):
+            return None
 
 
 #: ``part -> (class, {Block keyword: attribute})``: where each flat keyword of the block lives
@@ -216,7 +252,7 @@ class Block:
     strip_t0
         ``(T,)`` reference time of each strip's drift (s).
     frame
-        Description of the world frame (for reports), e.g. ``WorldFrame.describe()``.
+        The world frame (:class:`BlockFrame`; given as one, as a ``WorldFrame`` or as its description).
     obs_cov_px2, control_cov_m2, gnss_cov_m2, imu_cov_rad2
         Optional full covariance per observation: ``(N, 2, 2)`` px² (column, row), ``(K, 3, 3)`` and
         ``(G, 3, 3)`` m² (X, Y, Z), ``(M, 3, 3)`` rad² of the IMU attitude error as a rotation vector
@@ -266,7 +302,7 @@ class Block:
     systematics: Systematics
     observations: dict[str, Any]
     parameters: dict[str, NDArray[np.float64]]
-    frame: str
+    frame: BlockFrame
 
     station_name = _In[NDArray[np.str_]]("stations", "name")
     station_rotation = _In[NDArray[np.float64]]("stations", "rotation")
@@ -316,7 +352,7 @@ class Block:
     def __init__(self, cameras: list[Any], stations: Stations | None = None, images: Images | None = None,
                  heads: Heads | None = None, points: Points | None = None, systematics: Systematics | None = None,
                  observations: dict[str, Any] | None = None, parameters: dict[str, Any] | None = None,
-                 frame: str = "local Cartesian frame", **flat: Any) -> None:
+                 frame: BlockFrame | WorldFrame | str = "local Cartesian frame", **flat: Any) -> None:
         given: dict[str, Any] = dict(stations=stations, images=images, heads=heads, points=points,
                                      systematics=systematics)
         self.cameras = cameras
@@ -351,7 +387,7 @@ class Block:
         if flat:
             raise TypeError(f"Block() got unexpected keyword argument(s) {sorted(flat)}")
         self.parameters = dict(parameters or {})
-        self.frame = frame
+        self.frame = BlockFrame.of(frame)
         self.__post_init__()
 
     def __post_init__(self) -> None:

@@ -3,9 +3,10 @@
 An observation type is one module of :mod:`skyrig.adjust.factors` holding one instance of a subclass of
 :class:`ObservationType`, registered with :func:`skyrig.adjust.factors.register`.  It owns
 
-* its **data**: where its rows live in a :class:`~skyrig.adjust.block.Block` (the block's own fields for
-  the built-in types, kept for the public API; ``block.observations[name]`` for any other type), how they
-  are normalised when the block is built (:meth:`normalise`) and checked (:meth:`validate`);
+* its **data**: a data class of its module whose rows live in ``block.observations[name]`` of a
+  :class:`~skyrig.adjust.block.Block` (the built-in types also take the block's flat keywords, ``gnss_xyz=``...,
+  through :attr:`rows` / :attr:`keywords`), how they are normalised when the block is built
+  (:meth:`normalise`) and checked (:meth:`validate`);
 * its **residual and Jacobian**: :meth:`evaluate` returns whitened :class:`Factor` rows (computed minus
   observed, over sigma or whitened by a full covariance) with the Jacobian with respect to the reduced
   columns of :class:`~skyrig.adjust.model.Layout` and, for rows that touch one eliminated object point,
