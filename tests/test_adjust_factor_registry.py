@@ -103,7 +103,7 @@ def test_builtin_types_are_registered_in_order():
 
 def test_a_new_observation_type_is_one_module(height_type):
     b, truth, pts, z = _block_with_heights()
-    bh = dataclasses.replace(b, observations={"height": HeightData(pts, z, 0.005)})
+    bh = dataclasses.replace(b, observations={**b.observations, "height": HeightData(pts, z, 0.005)})
     # the same heights as control points whose plan coordinates carry no weight (sigma 1e4 m)
     k = len(pts)
     bc = dataclasses.replace(
@@ -132,7 +132,7 @@ def test_a_new_observation_type_is_one_module(height_type):
 def test_data_snooping_finds_a_blunder_in_the_new_type(height_type):
     # heights as precise as the photogrammetric Z (about 0.1 m here), so that the images check them
     b, _, pts, z = _block_with_heights(seed=5, sigma=0.1, blunder=7)
-    bh = dataclasses.replace(b, observations={"height": HeightData(pts, z, 0.1)})
+    bh = dataclasses.replace(b, observations={**b.observations, "height": HeightData(pts, z, 0.1)})
     r = adjust(bh, AdjustConfig(reliability=ReliabilityOptions(snooping=True)))
     assert [x.group for x in r.rejected] == ["height"]
     assert r.rejected[0].index == 7
@@ -142,8 +142,8 @@ def test_data_snooping_finds_a_blunder_in_the_new_type(height_type):
 def test_unknown_or_bad_groups_are_named(height_type):
     b, _, pts, z = _block_with_heights()
     with pytest.raises(BlockError, match="unknown observation type"):
-        dataclasses.replace(b, observations={"levelling": HeightData(pts, z)})
-    bad = dataclasses.replace(b, observations={"height": HeightData(pts, z, -1.0)})
+        dataclasses.replace(b, observations={**b.observations, "levelling": HeightData(pts, z)})
+    bad = dataclasses.replace(b, observations={**b.observations, "height": HeightData(pts, z, -1.0)})
     with pytest.raises(BlockError, match=r"observations\['height'\].sigma\[0\] must be > 0"):
         bad.validate()
 
@@ -166,7 +166,7 @@ def test_a_row_coupling_cameras_and_an_eliminated_point_is_refused(height_type):
     t = register(Coupled())
     try:
         b, _, pts, z = _block_with_heights()
-        b = dataclasses.replace(b, observations={"coupled": HeightData(pts, z)})
+        b = dataclasses.replace(b, observations={**b.observations, "coupled": HeightData(pts, z)})
         m = Model(b, AdjustConfig())
         with pytest.raises(ValueError, match="touches both reduced columns and an eliminated point"):
             m.evaluate(State.from_block(b))

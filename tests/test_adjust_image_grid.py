@@ -49,7 +49,7 @@ def _scenario(seed=3, grid_seed=5):
     idx, w = bilinear_weights(xs, ys, b.obs_pixel)
     d = np.stack([(w * g_true[idx, 0]).sum(1), (w * g_true[idx, 1]).sum(1)], axis=1)
     grids = ImageGrids([GridSpec("cam", xs, ys, np.zeros((len(ys), len(xs), 2)), C)])
-    return replace(b, obs_pixel=b.obs_pixel + d, observations={"image_grid": grids}), true, g_true
+    return replace(b, obs_pixel=b.obs_pixel + d, observations={**b.observations, "image_grid": grids}), true, g_true
 
 
 def _dense(factors, layout):
@@ -132,7 +132,7 @@ def test_joint_estimate_separates_grid_and_interior_orientation():
 def test_fixed_grid_is_applied_as_a_known_correction():
     b, true, g_true = _scenario()
     known = b.observations["image_grid"].with_values(g_true.reshape(-1))
-    r = adjust(replace(b, observations={"image_grid": known}), CFG.with_unknowns(image_grid="fixed"))
+    r = adjust(replace(b, observations={**b.observations, "image_grid": known}), CFG.with_unknowns(image_grid="fixed"))
     assert r.ok and 0.8 < r.sigma0 < 1.2
     assert not any(q[0] == "image_grid" for q in r.layout.labels)
 
@@ -141,4 +141,4 @@ def test_grid_of_an_unknown_camera_is_refused():
     b, _, _ = _scenario()
     g = b.observations["image_grid"].grids[0]
     with pytest.raises(BlockError, match="no camera of that name"):
-        replace(b, observations={"image_grid": ImageGrids([replace(g, camera="other")])}).validate()
+        replace(b, observations={**b.observations, "image_grid": ImageGrids([replace(g, camera="other")])}).validate()

@@ -96,7 +96,7 @@ def _block(seed=6):
     rng = np.random.default_rng(seed)
     h = truth.station_centre[:, 2] + OFFSET_M + rng.normal(0.0, SIGMA_M, b.n_stations)
     st = np.arange(b.n_stations)
-    return dataclasses.replace(b, observations={"baro": BaroData(st, h, np.full(b.n_stations, SIGMA_M))}), truth
+    return dataclasses.replace(b, observations={**b.observations, "baro": BaroData(st, h, np.full(b.n_stations, SIGMA_M))}), truth
 
 
 def test_an_observation_type_with_its_own_unknowns_is_one_file(baro):

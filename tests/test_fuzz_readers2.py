@@ -270,10 +270,20 @@ def _block_key(bf: object) -> tuple:
     """Everything a read block holds (every field of the Block, the adjustment configuration, the frame)."""
     b = bf.block  # type: ignore[attr-defined]
     out = [repr(bf.config), repr(getattr(bf, "frame", None))]  # type: ignore[attr-defined]
-    for f in dataclasses.fields(b):
-        v = getattr(b, f.name)
-        out.append(np.round(v, 9).tobytes() if isinstance(v, np.ndarray) and v.dtype.kind == "f"
-                   else (v.tobytes() if isinstance(v, np.ndarray) else repr(v)))
+
+    def walk(v: object) -> None:  # the block's parts and each observation type's rows, down to their arrays
+        if dataclasses.is_dataclass(v) and not isinstance(v, type) and not type(v).__module__.startswith("skyrig.camera"):
+            for f in dataclasses.fields(v):
+                walk(getattr(v, f.name))
+        elif isinstance(v, dict):
+            for k in sorted(v):
+                out.append(repr(k))
+                walk(v[k])
+        else:
+            out.append(np.round(v, 9).tobytes() if isinstance(v, np.ndarray) and v.dtype.kind == "f"
+                       else (v.tobytes() if isinstance(v, np.ndarray) else repr(v)))
+
+    walk(b)
     return tuple(out)
 
 

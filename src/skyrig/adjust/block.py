@@ -26,9 +26,10 @@ Observation groups
 A :class:`Block` is the geometry (stations, images, heads, cameras, points and the calibration values)
 plus observation groups.  Each group belongs to one observation type of :mod:`skyrig.adjust.factors`
 (one module each: image, control, GNSS, IMU, distance, ...), which normalises, checks, evaluates and
-labels its rows; the block only loops over the registered types.  The built-in types keep their rows in
-the block's own fields (``obs_*``, ``control_*``, ``gnss_*``, ``imu_*``, ``distance_*``: the public API),
-any other type in ``observations[name]``.
+labels its rows; the block only loops over the registered types.  Every type keeps its rows in
+``observations[name]``, an object of the type's own data class (``ImageRows``, ``GnssRows``... for the
+built-in ones); the block's flat keywords and attributes of the built-in types (``obs_*``, ``control_*``,
+``gnss_*``, ``imu_*``, ``distance_*``: the public API) read and write those rows.
 
 Parameter groups
 ----------------
@@ -40,8 +41,8 @@ config); solver, data snooping and statistics options are the config's other par
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar, Generic, Sequence, TypeVar, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,24 +51,17 @@ from skyrig.adjust.config import MODES, AdjustConfig, Mode
 from skyrig.adjust.factors import image_type, observation_types, require_type
 from skyrig.adjust.factors.base import BalCamera, BlockError, check_finite, check_index
 from skyrig.camera.frame import FrameCamera
+from skyrig.geodesy.frame import WorldFrame
 
 
-__all__ = ["BalCamera", "Block", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
+__all__ = ["BalCamera", "Block", "BlockFrame", "Stations", "Images", "Heads", "Points", "Systematics", "AdjustConfig", "Mode", "MODES", "BlockError"]  # AdjustConfig: skyrig.adjust.config
 
 
 CameraModel = FrameCamera | BalCamera
-
-#: default of a field that ``Block.__post_init__`` fills: a field left out (or given as None) takes its canonical
-#: value there (zeros, identity, the type's default sigma...); after construction every such field is an array
-_FILLED: Any = None
+T = TypeVar("T")
 
 
-def _filled(default: float) -> Any:
-    """A scalar default (a sigma) that ``__post_init__`` broadcasts to the field's rows."""
-    return default
-
-
-def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:
+def _arr(x: Any, shape_tail: tuple[int, ...], dtype: Any = np.float64, n: int | None = None) -> NDArray:
     a = np.asarray(x, dtype=dtype)
     if n is None:
         n = a.shape[0] if a.ndim else 0
@@ -75,13 +69,157 @@ def _arr(x, shape_tail, dtype=np.float64, n=None) -> NDArray:
 
 
 @dataclass
+class Stations:
+    """The pose unknowns: ``name (S,)``, ``rotation (S, 3, 3)`` ``world_from_station``, ``centre (S, 3)`` m,
+    ``time (S,)`` s (for strip drift) and ``strip (S,)`` strip index (-1: none)."""
+
+    name: NDArray[np.str_]
+    rotation: NDArray[np.float64]
+    centre: NDArray[np.float64]
+    time: NDArray[np.float64]
+    strip: NDArray[np.int64]
+
+
+@dataclass
+class Images:
+    """The exposures: ``name (I,)``, indices ``station``, ``camera``, ``head`` ``(I,)``, ``rotation (I, 3, 3)``
+    ``station_from_camera``, ``offset (I, 3)`` m in the station frame, ``beta_rad (I,)`` actuator angle (NaN
+    for images of fixed heads)."""
+
+    name: NDArray[np.str_]
+    station: NDArray[np.int64]
+    camera: NDArray[np.int64]
+    head: NDArray[np.int64]
+    rotation: NDArray[np.float64]
+    offset: NDArray[np.float64]
+    beta_rad: NDArray[np.float64]
+
+
+@dataclass
+class Heads:
+    """Boresight-correction groups: ``name (H,)``, ``boresight (H, 3)`` rad, ``actuated`` (an
+    :class:`~skyrig.rig.rig.ActuatedHead` or None per head) and ``actuator_correction (H, 2 + 6 N)``."""
+
+    name: NDArray[np.str_]
+    boresight: NDArray[np.float64]
+    actuated: list[Any]
+    actuator_correction: NDArray[np.float64]
+
+
+@dataclass
+class Points:
+    """Object points: ``name (P,)``, ``xyz (P, 3)`` m (starting values)."""
+
+    name: NDArray[np.str_]
+    xyz: NDArray[np.float64]
+
+
+@dataclass
+class Systematics:
+    """The GNSS systematic unknowns: ``lever_arm (3,)`` m in the station frame, ``datum_shift (3,)`` m,
+    ``strip_shift (T, 3)`` m and ``strip_drift (T, 3)`` m/s per strip, ``strip_t0 (T,)`` s."""
+
+    lever_arm: NDArray[np.float64]
+    datum_shift: NDArray[np.float64]
+    strip_shift: NDArray[np.float64]
+    strip_drift: NDArray[np.float64]
+    strip_t0: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BlockFrame:
+    """The block's one Cartesian world frame: its words (``text``: reports, files; ``str(frame)``) and, when the
+    block was built in a frame skyrig knows, that :class:`~skyrig.geodesy.frame.WorldFrame` (``world``).
+
+    A block takes a ``BlockFrame``, a ``WorldFrame`` (text: its :meth:`~WorldFrame.describe`) or a text (a
+    description skyrig may read back with :meth:`world_frame`, or free words such as "COLMAP model frame")."""
+
+    text: str
+    world: WorldFrame | None = None
+
+    @classmethod
+    def of(cls, frame: "BlockFrame | WorldFrame | str") -> "BlockFrame":
+        if isinstance(frame, BlockFrame):
+            return frame
+        if isinstance(frame, WorldFrame):
+            return cls(frame.describe(), frame)
+        return cls(str(frame))
+
+    def __str__(self) -> str:
+        return self.text
+
+    def world_frame(self) -> WorldFrame | None:
+        """``world`` when given, else the frame read from ``text`` (None for free words)."""
+        if self.world is not None:
+            return self.world
+        from skyrig.errors import CRSError
+
+        try:
+            return WorldFrame.from_text(self.text or "")
+        except (CRSError, ValueError):
+            return None
+
+
+#: ``part -> (class, {Block keyword: attribute})``: where each flat keyword of the block lives
+_PARTS: dict[str, tuple[type, dict[str, str]]] = {
+    "stations": (Stations, {"station_name": "name", "station_rotation": "rotation", "station_centre": "centre",
+                            "station_time": "time", "station_strip": "strip"}),
+    "images": (Images, {"image_name": "name", "image_station": "station", "image_camera": "camera",
+                        "image_head": "head", "image_rotation": "rotation", "image_offset": "offset",
+                        "image_beta_rad": "beta_rad"}),
+    "heads": (Heads, {"head_name": "name", "head_boresight": "boresight", "head_actuated": "actuated",
+                      "actuator_correction": "actuator_correction"}),
+    "points": (Points, {"point_name": "name", "point_xyz": "xyz"}),
+    "systematics": (Systematics, {"lever_arm": "lever_arm", "datum_shift": "datum_shift",
+                                  "strip_shift": "strip_shift", "strip_drift": "strip_drift", "strip_t0": "strip_t0"}),
+}
+_REQUIRED = ("station_name", "station_rotation", "station_centre", "image_name", "image_station", "image_camera",
+             "point_name", "point_xyz")
+
+
+class _In(Generic[T]):
+    """A flat name of the block (``station_centre``, ``gnss_sigma``...): the attribute of one of its parts, or
+    of one observation type's rows (``block.observations[type]``), read and written there."""
+
+    def __init__(self, part: str, attr: str, rows: bool = False) -> None:
+        self.part, self.attr, self.rows = part, attr, rows
+
+    def _holder(self, obj: Any) -> Any:
+        return obj.observations[self.part] if self.rows else getattr(obj, self.part)
+
+    @overload
+    def __get__(self, obj: None, owner: type) -> "_In[T]": ...
+
+    @overload
+    def __get__(self, obj: object, owner: type) -> T: ...
+
+    def __get__(self, obj: Any, owner: Any = None) -> Any:
+        if obj is None:
+            return self
+        return getattr(self._holder(obj), self.attr)
+
+    def __set__(self, obj: Any, value: T) -> None:
+        setattr(self._holder(obj), self.attr, value)
+
+
+def _copied(v: Any) -> Any:
+    return v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
+
+
 class Block:
     """Observations and parameter values of a bundle block (all in one Cartesian world frame).
 
-    Attributes
-    ----------
-    cameras
-        Camera models (interior orientation); images refer to them by index.
+    The block is its parts: ``cameras`` (camera models, images refer to them by index), ``stations``
+    (:class:`Stations`), ``images`` (:class:`Images`), ``heads`` (:class:`Heads`), ``points``
+    (:class:`Points`), ``systematics`` (:class:`Systematics`), ``observations`` (the rows of each
+    observation type by group name: the built-in types' data classes ``ImageRows``, ``ControlRows``,
+    ``GnssRows``, ``ImuRows``, ``DistanceRows`` of :mod:`skyrig.adjust.factors` and any registered type's
+    own), ``parameters`` and ``frame``.  It is built from the parts or from the flat keywords below (each
+    routed to its part; ``dataclasses.replace(block, station_centre=...)`` works alike), and the flat names
+    are attributes reading and writing the parts.
+
+    Flat keywords
+    -------------
     station_name, station_rotation, station_centre
         ``(S,)``, ``(S, 3, 3)`` ``world_from_station``, ``(S, 3)`` metres: pose unknowns.
     station_time
@@ -114,7 +252,7 @@ class Block:
     strip_t0
         ``(T,)`` reference time of each strip's drift (s).
     frame
-        Description of the world frame (for reports), e.g. ``WorldFrame.describe()``.
+        The world frame (:class:`BlockFrame`; given as one, as a ``WorldFrame`` or as its description).
     obs_cov_px2, control_cov_m2, gnss_cov_m2, imu_cov_rad2
         Optional full covariance per observation: ``(N, 2, 2)`` px² (column, row), ``(K, 3, 3)`` and
         ``(G, 3, 3)`` m² (X, Y, Z), ``(M, 3, 3)`` rad² of the IMU attitude error as a rotation vector
@@ -139,9 +277,10 @@ class Block:
         (paper 000 eqs 1-2, :meth:`ActuatedHead.tilt_angles` with its calibrated curve), followed by the
         head's boresight correction ``expmap(head_boresight)`` like any head.
     observations
-        Rows of observation types other than the built-in ones, ``{group name: data object}`` (the data
-        object is the type's own, see :class:`~skyrig.adjust.factors.base.ObservationType`); a name no
-        registered type owns is a :class:`BlockError`.
+        Rows of the observation types, ``{group name: data object}`` (the data object is the type's own,
+        see :class:`~skyrig.adjust.factors.base.ObservationType`); a name no registered type owns is a
+        :class:`BlockError`.  A block built from its parts (``dataclasses.replace``) takes every type's rows
+        from here: to add a type's rows pass ``{**block.observations, name: rows}``.
     parameters
         Values ``(n_owners, n_components)`` of the parameter groups that factor modules declare, by group
         name (:class:`~skyrig.adjust.factors.base.ParameterGroup`): starting values here, adjusted values in
@@ -151,56 +290,108 @@ class Block:
         the Fourier coefficients ``[c_roll, c_pitch, c_yaw, s_roll, s_pitch, s_yaw]`` (rad); default zeros.
     """
 
-    cameras: list
-    station_name: NDArray[np.str_]
-    station_rotation: NDArray[np.float64]
-    station_centre: NDArray[np.float64]
-    image_name: NDArray[np.str_]
-    image_station: NDArray[np.int64]
-    image_camera: NDArray[np.int64]
-    point_name: NDArray[np.str_]
-    point_xyz: NDArray[np.float64]
-    obs_image: NDArray[np.int64]
-    obs_point: NDArray[np.int64]
-    obs_pixel: NDArray[np.float64]
-    obs_sigma_px: NDArray[np.float64] = _filled(1.0)
-    image_rotation: NDArray[np.float64] = _FILLED
-    image_offset: NDArray[np.float64] = _FILLED
-    image_head: NDArray[np.int64] = _FILLED
-    head_name: NDArray[np.str_] = _FILLED
-    station_time: NDArray[np.float64] = _FILLED
-    station_strip: NDArray[np.int64] = _FILLED
-    control_point: NDArray[np.int64] = _FILLED
-    control_xyz: NDArray[np.float64] = _FILLED
-    control_sigma: NDArray[np.float64] = _filled(0.01)
-    control_check: NDArray[np.bool_] = _FILLED
-    gnss_station: NDArray[np.int64] = _FILLED
-    gnss_xyz: NDArray[np.float64] = _FILLED
-    gnss_sigma: NDArray[np.float64] = _filled(0.05)
-    imu_station: NDArray[np.int64] = _FILLED
-    imu_rotation: NDArray[np.float64] = _FILLED
-    imu_sigma_rad: NDArray[np.float64] = _filled(1e-4)
-    lever_arm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    head_boresight: NDArray[np.float64] = _FILLED
-    datum_shift: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    strip_shift: NDArray[np.float64] = _FILLED
-    strip_drift: NDArray[np.float64] = _FILLED
-    strip_t0: NDArray[np.float64] = _FILLED
-    frame: str = "local Cartesian frame"
-    obs_cov_px2: NDArray[np.float64] | None = None
-    control_cov_m2: NDArray[np.float64] | None = None
-    gnss_cov_m2: NDArray[np.float64] | None = None
-    distance_point: NDArray[np.int64] = _FILLED
-    distance_m: NDArray[np.float64] = _FILLED
-    distance_sigma_m: NDArray[np.float64] = _filled(0.001)
-    image_beta_rad: NDArray[np.float64] = _FILLED
-    head_actuated: list[Any] = _FILLED
-    actuator_correction: NDArray[np.float64] = _FILLED
-    imu_cov_rad2: NDArray[np.float64] | None = None
-    observations: dict = field(default_factory=dict)
-    parameters: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    #: a data class at run time (``dataclass(init=False)`` below: fields, repr, ``dataclasses.replace``); to the
+    #: type checker a class with its own ``__init__``, so ``replace(block, station_centre=...)`` with the flat
+    #: keywords checks as it did before the parts
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+    cameras: list[Any]
+    stations: Stations
+    images: Images
+    heads: Heads
+    points: Points
+    systematics: Systematics
+    observations: dict[str, Any]
+    parameters: dict[str, NDArray[np.float64]]
+    frame: BlockFrame
+
+    station_name = _In[NDArray[np.str_]]("stations", "name")
+    station_rotation = _In[NDArray[np.float64]]("stations", "rotation")
+    station_centre = _In[NDArray[np.float64]]("stations", "centre")
+    station_time = _In[NDArray[np.float64]]("stations", "time")
+    station_strip = _In[NDArray[np.int64]]("stations", "strip")
+    image_name = _In[NDArray[np.str_]]("images", "name")
+    image_station = _In[NDArray[np.int64]]("images", "station")
+    image_camera = _In[NDArray[np.int64]]("images", "camera")
+    image_head = _In[NDArray[np.int64]]("images", "head")
+    image_rotation = _In[NDArray[np.float64]]("images", "rotation")
+    image_offset = _In[NDArray[np.float64]]("images", "offset")
+    image_beta_rad = _In[NDArray[np.float64]]("images", "beta_rad")
+    head_name = _In[NDArray[np.str_]]("heads", "name")
+    head_boresight = _In[NDArray[np.float64]]("heads", "boresight")
+    head_actuated = _In[list[Any]]("heads", "actuated")
+    actuator_correction = _In[NDArray[np.float64]]("heads", "actuator_correction")
+    point_name = _In[NDArray[np.str_]]("points", "name")
+    point_xyz = _In[NDArray[np.float64]]("points", "xyz")
+    lever_arm = _In[NDArray[np.float64]]("systematics", "lever_arm")
+    datum_shift = _In[NDArray[np.float64]]("systematics", "datum_shift")
+    strip_shift = _In[NDArray[np.float64]]("systematics", "strip_shift")
+    strip_drift = _In[NDArray[np.float64]]("systematics", "strip_drift")
+    strip_t0 = _In[NDArray[np.float64]]("systematics", "strip_t0")
+    obs_image = _In[NDArray[np.int64]]("image", "image", rows=True)
+    obs_point = _In[NDArray[np.int64]]("image", "point", rows=True)
+    obs_pixel = _In[NDArray[np.float64]]("image", "pixel", rows=True)
+    obs_sigma_px = _In[NDArray[np.float64]]("image", "sigma_px", rows=True)
+    obs_cov_px2 = _In[NDArray[np.float64] | None]("image", "cov_px2", rows=True)
+    control_point = _In[NDArray[np.int64]]("control", "point", rows=True)
+    control_xyz = _In[NDArray[np.float64]]("control", "xyz", rows=True)
+    control_sigma = _In[NDArray[np.float64]]("control", "sigma", rows=True)
+    control_check = _In[NDArray[np.bool_]]("control", "check", rows=True)
+    control_cov_m2 = _In[NDArray[np.float64] | None]("control", "cov_m2", rows=True)
+    gnss_station = _In[NDArray[np.int64]]("gnss", "station", rows=True)
+    gnss_xyz = _In[NDArray[np.float64]]("gnss", "xyz", rows=True)
+    gnss_sigma = _In[NDArray[np.float64]]("gnss", "sigma", rows=True)
+    gnss_cov_m2 = _In[NDArray[np.float64] | None]("gnss", "cov_m2", rows=True)
+    imu_station = _In[NDArray[np.int64]]("imu", "station", rows=True)
+    imu_rotation = _In[NDArray[np.float64]]("imu", "rotation", rows=True)
+    imu_sigma_rad = _In[NDArray[np.float64]]("imu", "sigma_rad", rows=True)
+    imu_cov_rad2 = _In[NDArray[np.float64] | None]("imu", "cov_rad2", rows=True)
+    distance_point = _In[NDArray[np.int64]]("distance", "point", rows=True)
+    distance_m = _In[NDArray[np.float64]]("distance", "m", rows=True)
+    distance_sigma_m = _In[NDArray[np.float64]]("distance", "sigma_m", rows=True)
+
+    def __init__(self, cameras: list[Any], stations: Stations | None = None, images: Images | None = None,
+                 heads: Heads | None = None, points: Points | None = None, systematics: Systematics | None = None,
+                 observations: dict[str, Any] | None = None, parameters: dict[str, Any] | None = None,
+                 frame: BlockFrame | WorldFrame | str = "local Cartesian frame", **flat: Any) -> None:
+        given: dict[str, Any] = dict(stations=stations, images=images, heads=heads, points=points,
+                                     systematics=systematics)
+        self.cameras = cameras
+        for pname, (cls, names) in _PARTS.items():
+            part = given[pname]
+            vals: dict[str, Any] = {}
+            for kw, attr in names.items():
+                if kw in flat:
+                    vals[attr] = flat.pop(kw)
+                elif part is not None:
+                    vals[attr] = getattr(part, attr)
+                elif kw in _REQUIRED:
+                    raise TypeError(f"Block() missing required argument {kw!r}")
+                else:
+                    vals[attr] = np.zeros(3) if kw in ("lever_arm", "datum_shift") else None
+            setattr(self, pname, cls(**vals))  # a new part: the given one is never written to
+        self.observations = dict(observations or {})
+        unknown = sorted(set(self.observations) - {t.name for t in observation_types()})
+        if unknown:
+            raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
+                             "(skyrig.adjust.factors.register) before building the block")
+        from_parts = any(p is not None for p in given.values())
+        for ot in observation_types():
+            if ot.rows is None:
+                continue
+            rows = self.observations.get(ot.name)
+            if rows is None and from_parts and not any(kw in flat for kw, _, _ in ot.keywords):
+                raise BlockError(f"observations lacks the rows of the built-in type {ot.name!r}: a block built from "
+                                 "its parts takes every type's rows from observations (pass "
+                                 "{**block.observations, name: rows} to add a type's rows)")
+            self.observations[ot.name] = ot.rows_from(rows, flat)
+        if flat:
+            raise TypeError(f"Block() got unexpected keyword argument(s) {sorted(flat)}")
+        self.parameters = dict(parameters or {})
+        self.frame = BlockFrame.of(frame)
+        self.__post_init__()
 
     def __post_init__(self) -> None:
+        """Bring every part and each type's rows to canonical arrays (at construction; again after fields were set)."""
         self.station_name = np.asarray(self.station_name, dtype=str).reshape(-1)
         s = len(self.station_name)
         self.station_rotation = _arr(self.station_rotation, (3, 3), n=s)
@@ -251,11 +442,6 @@ class Block:
         self.actuator_correction = ac.copy()
         self.parameters = {str(k): np.asarray(v, dtype=np.float64) for k, v in self.parameters.items()}
         # the observation groups: each type brings its rows to canonical arrays
-        self.observations = dict(self.observations)
-        unknown = sorted(set(self.observations) - {t.name for t in observation_types()})
-        if unknown:
-            raise BlockError(f"observations holds unknown observation type(s) {unknown}: register them "
-                             "(skyrig.adjust.factors.register) before building the block")
         for ot in observation_types():
             ot.normalise(self)
 
@@ -286,14 +472,12 @@ class Block:
 
     def copy(self) -> "Block":
         """A deep copy of the arrays (cameras are immutable)."""
-        kw: dict[str, Any] = {}
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
-            kw[f] = v.copy() if isinstance(v, np.ndarray) else (list(v) if isinstance(v, list) else v)
-        kw["observations"] = {k: require_type(k).copy_data(v)
-                              for k, v in self.observations.items()}
-        kw["parameters"] = {k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()}
-        return Block(**kw)
+        parts = {p: type(getattr(self, p))(**{f.name: _copied(getattr(getattr(self, p), f.name))
+                                              for f in fields(getattr(self, p))}) for p in _PARTS}
+        return Block(cameras=list(self.cameras), **parts,
+                     observations={k: require_type(k).copy_data(v) for k, v in self.observations.items()},
+                     parameters={k: np.array(v, dtype=np.float64) for k, v in self.parameters.items()},
+                     frame=self.frame)
 
     # ------------------------------------------------------------------ checks
     def validate(self) -> None:
@@ -324,6 +508,9 @@ class Block:
             if c is not None:
                 ctrl |= c
         image_type().validate_rays(self, ctrl)
+
+
+dataclass(init=False)(Block)
 
 
 def sequence_index(names: Sequence[str]) -> dict[str, int]:

@@ -123,7 +123,7 @@ def block_from_georef(
         obs_image=np.array([img_index[i] for i in m_image], dtype=np.int64),
         obs_point=np.array([pidx[p] for p in m_point], dtype=np.int64), obs_pixel=m_pixel,
         obs_sigma_px=np.asarray(sigma_px, dtype=np.float64),
-        frame=frame.describe(), **ctrl_kw, **kw,
+        frame=frame, **ctrl_kw, **kw,
     )
     return block, frame
 

@@ -189,7 +189,7 @@ def adjustment_report(result: AdjustmentResult, gsd_m: float | None = None,
     b, b0 = result.block, result.initial
     info = result.info
     out: dict[str, Any] = {
-        "summary": dict(frame=b.frame, sigma0=result.sigma0, observations=result.n_observations,
+        "summary": dict(frame=b.frame.text, sigma0=result.sigma0, observations=result.n_observations,
                         unknowns=result.n_unknowns, redundancy=result.redundancy, iterations=info.iterations,
                         converged=info.converged, message=info.message, wall_s=info.wall_s,
                         initial_cost=info.initial_cost, final_cost=info.final_cost, images=b.n_images,

@@ -727,9 +727,9 @@ def write_block(path: PathLike, block: Block, config: AdjustConfig | None = None
             d["distortion"] = c.distortion.to_dict()
         cams.append(d)
     try:
-        frame_text = WorldFrame.from_text(block.frame).to_text()
+        frame_text = WorldFrame.from_text(block.frame.text).to_text()  # the text's frame, as written before
     except (CRSError, ValueError):
-        frame_text = block.frame
+        frame_text = block.frame.text
     man: dict[str, Any] = {"format": FORMAT, "version": version, "frame": frame_text, "cameras": cams,
                            "heads": block.head_name.tolist(), "lever_arm_m": block.lever_arm.tolist(),  # type: ignore[union-attr]
                            "tables": tables, "checksums": sums}

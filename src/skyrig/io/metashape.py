@@ -473,7 +473,7 @@ def block_from_metashape(chunk: MetashapeChunk, sigma_px: float = 1.0, control_s
         obs_pixel=chunk.obs_pixel, obs_sigma_px=sigma_px,
         control_point=ctrl if ctrl.size else None, control_xyz=xyz[ctrl] if ctrl.size else None,
         control_sigma=control_sigma_m,
-        frame=chunk.frame.describe() if chunk.frame is not None else "Metashape chunk frame")
+        frame=chunk.frame if chunk.frame is not None else "Metashape chunk frame")
 
 
 def metashape_from_block(block: Block) -> MetashapeChunk:

@@ -384,7 +384,7 @@ def _build_block(inp: UavBlockInput, camera: FrameCamera, R: NDArray, C: NDArray
         imu_station=imu if cfg.attitude_sigma_deg else None,
         imu_rotation=inp.rotation[img_sel[imu]] if cfg.attitude_sigma_deg else None,
         imu_sigma_rad=np.radians(cfg.attitude_sigma_deg or 1.0),
-        frame=inp.frame.describe() if inp.frame is not None else "local ENU",
+        frame=inp.frame if inp.frame is not None else "local ENU",
         station_strip=None if strip is None else _renumber_strips(strip[img_sel]),
         **ctl,
     )

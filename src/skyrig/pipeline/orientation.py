@@ -401,7 +401,7 @@ def write_outputs(outdir: PathArg, result: Any, config: Any, title: str, gsd_m: 
     d.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}
     b = result.block
-    frame = frame or _frame_of_text(b.frame)
+    frame = frame or _frame_of_text(b.frame.text)
     project = None if frame is None else (to or default_project(frame))
     if all(isinstance(c, FrameCamera) for c in b.cameras):
         rel = None if rig_file is None else os.path.relpath(Path(rig_file).resolve(), d.resolve())
@@ -504,7 +504,7 @@ def run_adjustment(block_path: PathArg, *, preset: str | None = None, gsd: float
     project = given if given is not None else bf.crs
     notices: list[str] = []
     if bf.frame is None:
-        notices.append(f"{block_path}: the block's frame {block.frame!r} is not a frame skyrig knows; EO and points "
+        notices.append(f"{block_path}: the block's frame {block.frame.text!r} is not a frame skyrig knows; EO and points "
                        "are not written (only the adjusted block and the report)")
     title = f"skyrig adjust {Path(block_path).name}"
     conflicts: list[str] = []

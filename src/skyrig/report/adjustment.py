@@ -127,7 +127,7 @@ def _table_frame(rep: dict[str, Any], b: Any) -> tuple[tuple[str, str, str], str
     if s.get("adjusted_in") and s.get("frame"):
         vert = f"; {s['vertical']}" if s.get("vertical") else ""
         return ("E", "N", "H"), f"project CRS {s['frame']}{vert} (grid east, grid north, height)"
-    return _frame_axes(b.frame), f"block frame {b.frame}"
+    return _frame_axes(str(b.frame)), f"block frame {b.frame}"
 
 
 def _frames_of(rep: dict[str, Any], b: Any) -> tuple[Any, Any]:
@@ -138,7 +138,7 @@ def _frames_of(rep: dict[str, Any], b: Any) -> tuple[Any, Any]:
         return None, None
     s = rep.get("summary", {})
     out = []
-    for text in (s.get("adjusted_in") or b.frame, s.get("frame") if s.get("adjusted_in") else None):
+    for text in (s.get("adjusted_in") or str(b.frame), s.get("frame") if s.get("adjusted_in") else None):
         try:
             out.append(WorldFrame.from_text(text) if text else None)
         except Exception:  # noqa: BLE001 - free text: no frame
@@ -363,7 +363,7 @@ def _map_coordinates(result: Any, xyz: NDArray[np.float64], frame: Any, map_fram
                         f"map: {map_frame.describe()}", map_frame)
         except Exception:  # noqa: BLE001 - an exotic CRS: fall back to the block frame
             pass
-    ax = _frame_axes(b.frame)
+    ax = _frame_axes(str(b.frame))
     return xyz.copy(), (f"{ax[0]} (block frame)", f"{ax[1]} (block frame)"), f"block frame: {b.frame}", None
 
 
@@ -532,7 +532,7 @@ def points_section(result: Any) -> Section:
     """Statistics of the object points' a-posteriori sigmas (all estimated points, and the control/check ones)."""
     b = result.block
     ps = result.point_sigma
-    ax = _frame_axes(b.frame)
+    ax = _frame_axes(str(b.frame))
     cols = [Column("statistic"), Column(f"sigma {ax[0]}", "m", 4), Column(f"sigma {ax[1]}", "m", 4),
             Column(f"sigma {ax[2]}", "m", 4), Column("sigma 3D", "m", 4)]
     if ps is None:

@@ -25,7 +25,7 @@ One new module (plus its tests), nothing else in skyrig changes:
 
 1. a data class with the rows as required arrays (``__len__``; checked once in the type's
    :meth:`~ObservationType.normalise` / :meth:`~ObservationType.validate`), stored by the caller as
-   ``block.observations[name]`` (``dataclasses.replace(block, observations={name: rows})``);
+   ``block.observations[name]`` (``dataclasses.replace(block, observations={**block.observations, name: rows})``);
 2. a subclass of :class:`ObservationType` with its group name, words, components and units, and
    :meth:`~ObservationType.evaluate`: whitened residuals and the Jacobian on the reduced columns of
    ``model.layout`` (``pose``, ``intr``, ``groups[...]``...) and/or one eliminated point;

@@ -3,9 +3,10 @@
 An observation type is one module of :mod:`skyrig.adjust.factors` holding one instance of a subclass of
 :class:`ObservationType`, registered with :func:`skyrig.adjust.factors.register`.  It owns
 
-* its **data**: where its rows live in a :class:`~skyrig.adjust.block.Block` (the block's own fields for
-  the built-in types, kept for the public API; ``block.observations[name]`` for any other type), how they
-  are normalised when the block is built (:meth:`normalise`) and checked (:meth:`validate`);
+* its **data**: a data class of its module whose rows live in ``block.observations[name]`` of a
+  :class:`~skyrig.adjust.block.Block` (the built-in types also take the block's flat keywords, ``gnss_xyz=``...,
+  through :attr:`rows` / :attr:`keywords`), how they are normalised when the block is built
+  (:meth:`normalise`) and checked (:meth:`validate`);
 * its **residual and Jacobian**: :meth:`evaluate` returns whitened :class:`Factor` rows (computed minus
   observed, over sigma or whitened by a full covariance) with the Jacobian with respect to the reduced
   columns of :class:`~skyrig.adjust.model.Layout` and, for rows that touch one eliminated object point,
@@ -36,7 +37,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
-__all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "BalCamera", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
+__all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "BalCamera", "REQUIRED", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
            "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
 
 
@@ -64,6 +65,10 @@ class BalCamera:
 
     def with_intrinsics(self, v: NDArray[np.float64]) -> "BalCamera":
         return replace(self, f=float(v[0]), k1=float(v[1]), k2=float(v[2]))
+
+
+#: default of a :attr:`ObservationType.keywords` entry that a block must be given
+REQUIRED: Any = object()
 
 
 def pad_actuator(a: NDArray[np.float64] | None, n_heads: int, width: int) -> NDArray[np.float64]:
@@ -230,6 +235,27 @@ class ObservationType:
     #: (built-in types); other types keep them in their data object (attributes ``sigma`` / ``cov``)
     sigma_field: ClassVar[str | None] = None
     cov_field: ClassVar[str | None] = None
+    #: the class of the type's rows (a data class of the type's module, kept in ``block.observations[name]``)
+    #: for the built-in types that a :class:`~skyrig.adjust.block.Block` also takes as its own keywords
+    rows: ClassVar[type | None] = None
+    #: ``(Block keyword, attribute of rows, default)`` of those keywords (``REQUIRED``: no default)
+    keywords: ClassVar[tuple[tuple[str, str, Any], ...]] = ()
+
+    def rows_from(self, given: Any, flat: dict[str, Any]) -> Any:
+        """The rows object from a given one (copied, not shared) with ``flat`` keywords of the block (popped)
+        overriding its attributes; from the keywords and defaults alone when ``given`` is None."""
+        vals: dict[str, Any] = {}
+        for kw, attr, default in self.keywords:
+            if kw in flat:
+                vals[attr] = flat.pop(kw)
+            elif given is not None:
+                vals[attr] = getattr(given, attr)
+            elif default is REQUIRED:
+                raise TypeError(f"Block() missing required argument {kw!r}")
+            else:
+                vals[attr] = default() if callable(default) else default
+        assert self.rows is not None
+        return self.rows(**vals)
 
     # ------------------------------------------------------------------ data
     def data(self, block: "Block") -> Any:

@@ -8,6 +8,7 @@ Data (``Block`` fields): ``control_point (K,)`` point indices, ``control_xyz (K,
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,6 +33,35 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
 
 
+@dataclass
+class ControlRows:
+    """Ground coordinates of control (and check) points: the rows of the ``control`` type (``block.observations['control']``; the block's keywords
+    ``control_*`` route here).
+
+    Attributes
+    ----------
+    point
+        ``(K,)`` point index.
+    xyz
+        ``(K, 3)`` coordinates, m.
+    sigma
+        ``(K, 3)`` sigma per axis, m.
+    check
+        ``(K,)`` True for a check point (compared, not used).
+    cov_m2
+        optional ``(K, 3, 3)`` covariance, m².
+    """
+
+    point: NDArray[np.int64]
+    xyz: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    check: NDArray[np.bool_]
+    cov_m2: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.point)
+
+
 class Control(ObservationType):
     name = "control"
     words = "control-point"
@@ -44,6 +74,8 @@ class Control(ObservationType):
     vce_split = ((0, 1), (2,))
     sigma_field = "control_sigma"
     cov_field = "control_cov_m2"
+    rows = ControlRows
+    keywords = (('control_point', 'point', None), ('control_xyz', 'xyz', None), ('control_sigma', 'sigma', 0.01), ('control_check', 'check', None), ('control_cov_m2', 'cov_m2', None))
 
     def count(self, block: "Block") -> int:
         return len(block.control_point)

@@ -8,6 +8,7 @@ unknowns (``Layout.rpoint``).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,6 +31,29 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
 
 
+@dataclass
+class DistanceRows:
+    """Distances between two object points (scale bars): the rows of the ``distance`` type (``block.observations['distance']``; the block's keywords
+    ``distance_*`` route here).
+
+    Attributes
+    ----------
+    point
+        ``(D, 2)`` point indices.
+    m
+        ``(D,)`` observed distances, m.
+    sigma_m
+        ``(D,)`` sigma, m.
+    """
+
+    point: NDArray[np.int64]
+    m: NDArray[np.float64]
+    sigma_m: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.point)
+
+
 class Distance(ObservationType):
     name = "distance"
     words = "distance"
@@ -37,6 +61,8 @@ class Distance(ObservationType):
     units = "m"
     order = 40.0
     sigma_field = "distance_sigma_m"
+    rows = DistanceRows
+    keywords = (('distance_point', 'point', None), ('distance_m', 'm', None), ('distance_sigma_m', 'sigma_m', 0.001))
 
     def count(self, block: "Block") -> int:
         return block.n_distances

@@ -11,6 +11,7 @@ datum shift and the strip's shift and drift (each estimated or fixed by the conf
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,6 +38,32 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
 
 
+@dataclass
+class GnssRows:
+    """GNSS antenna positions of stations: the rows of the ``gnss`` type (``block.observations['gnss']``; the block's keywords
+    ``gnss_*`` route here).
+
+    Attributes
+    ----------
+    station
+        ``(G,)`` station index.
+    xyz
+        ``(G, 3)`` positions, m.
+    sigma
+        ``(G, 3)`` sigma per axis, m.
+    cov_m2
+        optional ``(G, 3, 3)`` covariance, m².
+    """
+
+    station: NDArray[np.int64]
+    xyz: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    cov_m2: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.station)
+
+
 class Gnss(ObservationType):
     name = "gnss"
     words = "GNSS"
@@ -50,6 +77,8 @@ class Gnss(ObservationType):
     vce_split = ((0, 1), (2,))
     sigma_field = "gnss_sigma"
     cov_field = "gnss_cov_m2"
+    rows = GnssRows
+    keywords = (('gnss_station', 'station', None), ('gnss_xyz', 'xyz', None), ('gnss_sigma', 'sigma', 0.05), ('gnss_cov_m2', 'cov_m2', None))
 
     def count(self, block: "Block") -> int:
         return len(block.gnss_station)

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from skyrig.adjust.factors import register
 from skyrig.adjust.factors.image_grid import bilinear_weights, grids_of
 from skyrig.adjust.factors.base import (
+    REQUIRED,
     BalCamera,
     BlockError,
     Factor,
@@ -138,6 +139,35 @@ def _camera_frame(Rc: NDArray[np.float64], Cc: NDArray[np.float64], X: NDArray[n
     return pc
 
 
+@dataclass
+class ImageRows:
+    """Image measurements of object points: the rows of the ``image`` type (``block.observations['image']``; the block's keywords
+    ``obs_*`` route here).
+
+    Attributes
+    ----------
+    image
+        ``(N,)`` image index.
+    point
+        ``(N,)`` point index.
+    pixel
+        ``(N, 2)`` measured (column, row), px.
+    sigma_px
+        ``(N, 2)`` sigma, px.
+    cov_px2
+        optional ``(N, 2, 2)`` covariance, px².
+    """
+
+    image: NDArray[np.int64]
+    point: NDArray[np.int64]
+    pixel: NDArray[np.float64]
+    sigma_px: NDArray[np.float64]
+    cov_px2: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.image)
+
+
 class Image(ObservationType):
     name = "image"
     words = "image"
@@ -149,6 +179,8 @@ class Image(ObservationType):
     vce_split = ((0, 1),)
     sigma_field = "obs_sigma_px"
     cov_field = "obs_cov_px2"
+    rows = ImageRows
+    keywords = (('obs_image', 'image', REQUIRED), ('obs_point', 'point', REQUIRED), ('obs_pixel', 'pixel', REQUIRED), ('obs_sigma_px', 'sigma_px', 1.0), ('obs_cov_px2', 'cov_px2', None))
 
     def count(self, block: "Block") -> int:
         return block.n_observations

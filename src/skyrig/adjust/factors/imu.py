@@ -8,6 +8,7 @@ Jacobian of SO(3) (to first order) on the station rotation.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,6 +35,32 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
 
 
+@dataclass
+class ImuRows:
+    """IMU attitudes of stations: the rows of the ``imu`` type (``block.observations['imu']``; the block's keywords
+    ``imu_*`` route here).
+
+    Attributes
+    ----------
+    station
+        ``(M,)`` station index.
+    rotation
+        ``(M, 3, 3)`` observed ``world_from_station``.
+    sigma_rad
+        ``(M, 3)`` sigma about the station axes, rad.
+    cov_rad2
+        optional ``(M, 3, 3)`` covariance, rad².
+    """
+
+    station: NDArray[np.int64]
+    rotation: NDArray[np.float64]
+    sigma_rad: NDArray[np.float64]
+    cov_rad2: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.station)
+
+
 class Imu(ObservationType):
     name = "imu"
     words = "IMU"
@@ -45,6 +72,8 @@ class Imu(ObservationType):
     vce_split = ((0, 1, 2),)
     sigma_field = "imu_sigma_rad"
     cov_field = "imu_cov_rad2"
+    rows = ImuRows
+    keywords = (('imu_station', 'station', None), ('imu_rotation', 'rotation', None), ('imu_sigma_rad', 'sigma_rad', 1e-4), ('imu_cov_rad2', 'cov_rad2', None))
 
     def count(self, block: "Block") -> int:
         return len(block.imu_station)
