@@ -122,7 +122,11 @@ def flat_site_block(strips: Sequence[tuple[str, float, float]], seed: int, camer
     gnss = Ca + rng.normal(0, 1, Ca.shape) * np.asarray(gnss_noise_m, float)
     start = camera.with_(focal_mm=camera.focal_mm * focal_error)
     names = np.array([f"IMG_{k:03d}.JPG" for k in range(len(Ca))])
+    times = None
+    if v is not None:  # capture times: 12 m apart along a strip at speed_m_s, a 20 s turn between strips
+        k_strip = np.repeat(np.arange(len(strips)), len(C) // len(strips))
+        times = np.arange(len(C)) * 12.0 / speed_m_s + 20.0 * k_strip
     inp = UavBlockInput(names, start, gnss, R_meta, 0.0, ot_a[keep], oi_a[keep], op_a[keep],
                         np.array([f"p{k}" for k in range(n_points)]), frame,
-                        intrinsic_sigma={"focal_mm": prior_rel * start.focal_mm})
+                        intrinsic_sigma={"focal_mm": prior_rel * start.focal_mm}, times_s=times)
     return inp, UavBlockTruth(true_cam, Ca, R_true, X, v, w, float(readout_s))
