@@ -124,8 +124,11 @@ def flat_site_block(strips: Sequence[tuple[str, float, float]], seed: int, camer
     names = np.array([f"IMG_{k:03d}.JPG" for k in range(len(Ca))])
     times = None
     if v is not None:  # capture times: 12 m apart along a strip at speed_m_s, a 20 s turn between strips
-        k_strip = np.repeat(np.arange(len(strips)), len(C) // len(strips))
-        times = np.arange(len(C)) * 12.0 / speed_m_s + 20.0 * k_strip
+        per = len(C) // len(strips)
+        k_strip = np.repeat(np.arange(len(strips)), per)
+        j = np.tile(np.arange(per), len(strips))
+        j = np.where(k_strip % 2 == 0, j, per - 1 - j)  # odd strips flown backwards (v points that way too)
+        times = (k_strip * per + j) * 12.0 / speed_m_s + 20.0 * k_strip
     inp = UavBlockInput(names, start, gnss, R_meta, 0.0, ot_a[keep], oi_a[keep], op_a[keep],
                         np.array([f"p{k}" for k in range(n_points)]), frame,
                         intrinsic_sigma={"focal_mm": prior_rel * start.focal_mm}, times_s=times)
