@@ -193,7 +193,8 @@ def test_adjust_uav_models_the_shutter_of_a_rolling_shutter_flight():
     inp, tr = _flight(5)
     out = {}
     for mode in ("off", "on"):
-        cfg = UavConfig(gnss_sigma_m=GNSS_SIGMA, pixel_sigma_px=0.3, rolling_shutter=mode, velocity_sigma_m_s=0.5)
+        cfg = UavConfig(gnss_sigma_m=GNSS_SIGMA, pixel_sigma_px=0.3, rolling_shutter=mode, velocity_sigma_m_s=0.5,
+                        estimate_readout=True)
         r = adjust_uav_block(inp, cfg)
         out[mode] = (float(np.sqrt(((r.centre - tr.C) ** 2).sum(axis=1).mean())), r.summary["rolling_shutter"])
     assert not out["off"][1]["modelled"] and out["on"][1]["modelled"]

@@ -106,6 +106,10 @@ class UavConfig:
     #: time's prior and sigma (s), the floor of the velocity prior's sigma (m/s; the velocity comes from the GNSS
     #: positions and image times) and the sigma of a zero angular velocity (rad/s, a stabilised gimbal)
     rolling_shutter: Literal["auto", "on", "off"] = "auto"
+    #: estimate the readout time (needs velocity priors from capture times and motion in the images' rows; on a flat
+    #: GNSS-only block with self-calibration the readout x velocity absorbs the focal / height valley: brighton's
+    #: readout runs off to 0.5 s), else held at ``readout_s``
+    estimate_readout: bool = False
     readout_s: float = 0.03
     readout_sigma_s: float = 0.02
     velocity_sigma_m_s: float = 1.0
@@ -738,7 +742,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
                        intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names),
                        strip_shift="weighted" if cfg.gnss_strip_shift == "weighted" else "fixed",
                        strip_shift_sigma_m=cfg.strip_shift_sigma_m)
-        return AdjustConfig(unknowns=rolling_shutter_unknowns(unk) if rs_on else unk,
+        unk = rolling_shutter_unknowns(unk, readout="free" if cfg.estimate_readout else "fixed") if rs_on else unk
+        return AdjustConfig(unknowns=unk,
                             solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
                                                  max_iterations=cfg.max_iterations),
                             statistics=StatisticsOptions(compute=False))

@@ -26,6 +26,8 @@ __all__ = ["KNOWN_ROLLING_SHUTTER", "PHONE_MAKES", "rolling_shutter_decision", "
 #: (FC6310, FC6310R, FC6310S), whose mechanical leaf shutter exposes the frame at once.
 KNOWN_ROLLING_SHUTTER = ("FC300S", "FC300X", "FC300C", "FC330", "FC220", "FC2103", "FC2204", "L1D-20C", "FC3170",
                          "FC3411", "FC7203", "FC7303", "FC3582")
+#: sigma (m/s) of the zero velocity prior of a station without a velocity from the trajectory
+UNKNOWN_SPEED_M_S = 20.0
 #: EXIF ``Make`` of phone makers (every phone camera reads out row by row)
 PHONE_MAKES = ("APPLE", "SAMSUNG", "GOOGLE", "HUAWEI", "XIAOMI", "ONEPLUS", "SONY MOBILE", "MOTOROLA", "OPPO", "HMD")
 
@@ -80,13 +82,16 @@ def velocity_prior(gnss: NDArray[np.float64], times_s: NDArray[np.float64] | Non
 def with_rolling_shutter(block: Any, camera_name: str, v: NDArray[np.float64], v_sigma: NDArray[np.float64],
                          readout_s: float, readout_sigma_s: float, angular_sigma_rad_s: float | None) -> Any:
     """``block`` (one station per image, in the order of ``v``) with the ``rolling_shutter`` data: every station's
-    velocity prior where known (the starting velocity; zero elsewhere), the readout prior, the angular prior."""
-    have = np.flatnonzero(np.isfinite(v).all(axis=1))
+    velocity prior where known (the starting velocity), else zero with a sigma of :data:`UNKNOWN_SPEED_M_S` (a
+    drone's top speed: the velocity is then the images' alone), the readout prior, the angular prior."""
+    have = np.isfinite(v).all(axis=1) & np.isfinite(v_sigma).all(axis=1)
+    vp = np.where(have[:, None], v, 0.0)
+    vs = np.where(have[:, None], v_sigma, UNKNOWN_SPEED_M_S)
     rs = RollingShutter(cameras=[camera_name], readout_s=readout_s, readout_sigma_s=readout_sigma_s,
-                        velocity_station=have, velocity_m_s=v[have], velocity_sigma_m_s=v_sigma[have],
+                        velocity_station=np.arange(len(v)), velocity_m_s=vp, velocity_sigma_m_s=vs,
                         angular_sigma_rad_s=angular_sigma_rad_s)
     start = np.zeros((block.n_stations, 6))
-    start[have, :3] = v[have]
+    start[:, :3] = vp
     obs = dict(block.observations)
     obs[NAME] = rs
     params = dict(block.parameters)
@@ -108,11 +113,16 @@ def rolling_shutter_summary(res: Any, on: bool, words: str) -> dict[str, Any]:
     except Exception:  # noqa: BLE001 - statistics not computed
         sig = float("nan")
     m = np.asarray(res.block.parameters[MOTION], float)
+    held = READOUT not in dict(res.config.unknowns.groups) or res.config.unknowns.group_mode(READOUT) == "fixed"
+    if held:
+        sig = float("nan")
+        out["readout_held"] = "readout time held at its prior (estimate_readout: false)"
     out.update(readout_s=ro, readout_sigma_s=sig, readout_prior_s=float(d.readout_s[0]),
-               readout_prior_sigma_s=float(d.readout_sigma_s[0]), velocity_priors=int(len(d.velocity_station)),
+               readout_prior_sigma_s=float(d.readout_sigma_s[0]),
+               velocity_priors=int((d.velocity_sigma_m_s < UNKNOWN_SPEED_M_S).all(axis=1).sum()),
                median_speed_m_s=float(np.median(np.linalg.norm(m[:, :3], axis=1))) if len(m) else float("nan"),
                median_angular_rate_rad_s=float(np.median(np.linalg.norm(m[:, 3:], axis=1))) if len(m) else float("nan"))
-    if not len(d.velocity_station):
+    if not out["velocity_priors"]:
         out["note"] = ("no velocity prior (no image times): the readout time stays at its prior; the velocities "
                        "absorb the shutter's motion")
     return out
