@@ -217,3 +217,25 @@ def test_velocity_prior_and_which_cameras_roll():
     on, words = rolling_shutter_decision("auto", "DJI", "FC6310")
     assert not on and "FC6310" in words
     assert not rolling_shutter_decision("off", "DJI", "FC330")[0]
+
+
+def test_capture_time_read_from_exif(tmp_path):
+    """``ImageMetadata.time_s``: DateTimeOriginal plus SubSecTimeOriginal (the velocity prior's clock), against
+    Python's own calendar arithmetic; None without the tag."""
+    import datetime as dt
+
+    from PIL import Image
+
+    from skyrig.io.image_read import read_image_metadata
+
+    ex = Image.Exif()
+    ifd = ex.get_ifd(0x8769)
+    ifd[36867] = "2016:06:23 16:31:59"
+    ifd[37521] = "25"
+    p = tmp_path / "a.jpg"
+    Image.new("RGB", (8, 6)).save(p, exif=ex)
+    want = dt.datetime(2016, 6, 23, 16, 31, 59, tzinfo=dt.timezone.utc).timestamp() + 0.25
+    assert abs(read_image_metadata(p).time_s - want) < 1e-6
+    q = tmp_path / "b.jpg"
+    Image.new("RGB", (8, 6)).save(q)
+    assert read_image_metadata(q).time_s is None

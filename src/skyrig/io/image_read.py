@@ -255,7 +255,7 @@ def _exif_time(tags: dict) -> float | None:
         t = _dt.datetime.strptime(raw[:19], "%Y:%m:%d %H:%M:%S").replace(tzinfo=_dt.timezone.utc).timestamp()
     except ValueError:
         return None
-    sub = _clean(tags.get("SubSecTimeOriginal"))
+    sub = _clean(tags.get("SubsecTimeOriginal") or tags.get("SubSecTimeOriginal"))  # Pillow spells it Subsec
     if sub.isdigit():
         t += float("0." + sub)
     return t

@@ -113,7 +113,7 @@ class UavConfig:
     readout_s: float = 0.03
     readout_sigma_s: float = 0.02
     velocity_sigma_m_s: float = 1.0
-    angular_sigma_rad_s: float = 0.2
+    angular_sigma_rad_s: float = 0.05  # brighton (FC300S on its gimbal): 0.2 rad/s lets it reach 0.28 rad/s median
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "UavConfig":
