@@ -239,3 +239,14 @@ def test_capture_time_read_from_exif(tmp_path):
     q = tmp_path / "b.jpg"
     Image.new("RGB", (8, 6)).save(q)
     assert read_image_metadata(q).time_s is None
+
+
+def test_bad_rolling_shutter_options_are_named():
+    from skyrig.errors import ConfigError
+    from skyrig.orient.gnss_block import UavConfig
+
+    with pytest.raises(ConfigError, match="rolling_shutter must be 'auto', 'on' or 'off'"):
+        UavConfig.from_dict({"rolling_shutter": "maybe"}, "cfg.json")
+    with pytest.raises(ConfigError, match="cfg.json: readout_sigma_s must be a positive number"):
+        UavConfig.from_dict({"readout_sigma_s": 0}, "cfg.json")
+    assert UavConfig.from_dict({"rolling_shutter": "off"}).rolling_shutter == "off"
