@@ -90,6 +90,10 @@ class _NotPublished(Exception):
                    "the block cannot determine them (default: held at the prior with a warning; the report states "
                    "the choice).")
 @click.option("--no-self-calibration", is_flag=True, help="Keep the EXIF camera fixed.")
+@click.option("--rolling-shutter", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
+              help="Model the rolling shutter (pose change over the readout: velocity per image, readout time with a "
+                   "30 +- 20 ms prior). auto: on for cameras known to have one (DJI FC300S/X, FC330, FC220, Mavic "
+                   "models, phones), off for others (global or mechanical shutter, e.g. FC6310).")
 @click.option("--compare-pycolmap", is_flag=True,
               help="Also orient with pycolmap and compare camera centres after a similarity (RMS, max, in units of "
                    "skyrig's predicted sigma; report.json key pycolmap).")
@@ -135,7 +139,7 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
             pycolmap_size: int, pycolmap_mapper: str, crs: str | None, config_path: str | None, keep_failed: bool, no_gps: bool = False,
             gcp_path: str | None = None, gcp_sigma: str = "0.01", check_path: str | None = None,
             scale_bar_path: str | None = None, meas_paths: tuple[str, ...] = (), camera_path: str | None = None,
-            datum: str = "auto") -> None:
+            datum: str = "auto", rolling_shutter: str = "auto") -> None:
     """GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`); with --no-gps
     (or --control / --scale-bar / --camera) the orientation of an image set without GNSS."""
     from skyrig.errors import InputFormatError, OutputPathError
@@ -179,7 +183,8 @@ def command(project: str, image_dir: str | None, match_dir: str | None, out: str
                 self_calibration=not no_self_calibration, config=config, config_source=config_path, crs=crs,
                 compare_pycolmap=compare_pycolmap, pycolmap_size=pycolmap_size, pycolmap_mapper=pycolmap_mapper,
                 pycolmap_input=pycolmap_input, control=gcp_path, control_sigma=cs, check=check_path, scale_bars=scale_bar_path,
-                measurements=meas_paths, camera=camera_path, datum=datum, spell=_spell)
+                measurements=meas_paths, camera=camera_path, datum=datum, spell=_spell,
+                rolling_shutter=rolling_shutter)
             options.update(res.options, keep_failed=keep_failed)
             for line in res.summary_lines():
                 click.echo(line)

@@ -64,6 +64,9 @@ class ImageMetadata:
     focal_plane_width_mm
         Sensor width (long side) from EXIF ``FocalPlaneXResolution`` / ``FocalPlaneResolutionUnit`` alone; None when
         absent.
+    time_s
+        EXIF ``DateTimeOriginal`` (+ ``SubSecTimeOriginal``) as seconds of the POSIX epoch, the camera's clock read
+        as UTC (no time zone: use differences between images only); None when absent or unreadable.
     """
 
     name: str
@@ -85,6 +88,7 @@ class ImageMetadata:
     sensor_width_mm: float | None = None
     focal_plane_width_mm: float | None = None
     xmp: dict[str, str] = field(default_factory=dict, repr=False)
+    time_s: float | None = None
 
     @property
     def has_gps(self) -> bool:
@@ -237,8 +241,24 @@ def read_image_metadata(path: PathLike) -> ImageMetadata:
         gimbal_ypr_deg=gimbal, flight_ypr_deg=ypr("Flight"),
         relative_alt_m=_xmp_float(xmp, "drone-dji:RelativeAltitude", p),
         heading_deg=heading, focal_mm=focal, focal35_mm=f35, sensor_width_mm=sensor_w,
-        focal_plane_width_mm=fp_w, xmp=xmp,
+        focal_plane_width_mm=fp_w, xmp=xmp, time_s=_exif_time(tags),
     )
+
+
+def _exif_time(tags: dict) -> float | None:
+    """``DateTimeOriginal`` (``YYYY:MM:DD HH:MM:SS``) plus ``SubSecTimeOriginal`` in seconds (read as UTC); None when
+    absent or not a date (cameras write blanks or zeros when the clock was not set)."""
+    import datetime as _dt
+
+    raw = _clean(tags.get("DateTimeOriginal") or tags.get("DateTime"))
+    try:
+        t = _dt.datetime.strptime(raw[:19], "%Y:%m:%d %H:%M:%S").replace(tzinfo=_dt.timezone.utc).timestamp()
+    except ValueError:
+        return None
+    sub = _clean(tags.get("SubsecTimeOriginal") or tags.get("SubSecTimeOriginal"))  # Pillow spells it Subsec
+    if sub.isdigit():
+        t += float("0." + sub)
+    return t
 
 
 def check_image_complete(path: PathLike) -> None:

@@ -767,7 +767,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
                          pycolmap_input: str | None = None, control: PathArg | None = None, control_sigma: Sequence[float] = (0.01,) * 3,
                          check: PathArg | None = None, scale_bars: PathArg | None = None,
                          measurements: Sequence[PathArg] = (), camera: PathArg | None = None, datum: str = "auto",
-                         spell: Spell = cli_spelling) -> UavOutcome:
+                         spell: Spell = cli_spelling, rolling_shutter: str = "auto") -> UavOutcome:
     """Orient a UAV / terrestrial image set into ``outdir``: ``eo.csv``, ``points.csv`` (+ ``adjusted.gpkg`` when
     georeferenced), ``camera.yaml``, ``report.json``, ``report.html`` (the full report of :mod:`skyrig.report`).
 
@@ -839,7 +839,8 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
         raise OptionError(spell("attitude_sigma"), f"must be >= 0, got {attitude_sigma}")
     gs = _sigma3(gnss_sigma, "gnss_sigma", spell, "east,north,up")
     kw: dict[str, Any] = dict(gnss_sigma_m=gs, attitude_sigma_deg=attitude_sigma or None, altitude=altitude,
-                              geoid=geoid, focal_prior_rel=focal_prior, free_anyway=free)
+                              geoid=geoid, focal_prior_rel=focal_prior, free_anyway=free,
+                              rolling_shutter=rolling_shutter)
     if not self_calibration:
         kw["self_calibration"] = ()
     kw.update(config or {})
@@ -869,7 +870,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
     options = {"images": str(imgs), "ties": str(tie_file), "gnss_sigma_m": list(kw["gnss_sigma_m"]),
                "attitude_sigma_deg": attitude_sigma, "altitude": altitude, "geoid": geoid,
                "focal_prior": focal_prior, "free_intrinsics": list(free), "self_calibration": self_calibration,
-               "compare_pycolmap": compare_pycolmap, "pycolmap_input": pycolmap_input if compare_pycolmap else None,
+               "rolling_shutter": rolling_shutter, "compare_pycolmap": compare_pycolmap, "pycolmap_input": pycolmap_input if compare_pycolmap else None,
                "crs": crs, "config": config_source}
     outcome = UavOutcome(res, rep, failure_reasons(res.adjustment), False, options, inputs)
     for line in outcome.summary_lines():

@@ -702,6 +702,7 @@ def _adjust_uav(ctx: StageContext) -> dict[str, Any]:
                                    gnss_sigma=o["gnss_sigma"], attitude_sigma=o["attitude_sigma"],
                                    altitude=o["altitude"], focal_prior=o["focal_prior"],
                                    free_intrinsics=o.get("free_intrinsics") or (),
+                                   rolling_shutter=o.get("rolling_shutter") or "auto",
                                    self_calibration=o["self_calibration"], crs=p.crs,
                                    compare_pycolmap=o["compare_pycolmap"], pycolmap_size=o["pycolmap_size"],
                                    pycolmap_mapper=o["pycolmap_mapper"], pycolmap_input=o["pycolmap_input"],
@@ -824,6 +825,8 @@ register_stage(Stage(
              "free_intrinsics": Option([], "strs", "intrinsics left free even when the block cannot determine them "
                                        "(default: held at the prior with a warning)"),
              "self_calibration": Option(True, "bool", "self-calibrate the camera"),
+             "rolling_shutter": Option("auto", "choice", "model the rolling shutter (auto: for cameras known to have "
+                                       "one, e.g. DJI FC300S / FC330, phones)", ("auto", "on", "off")),
              "keep_failed": Option(False, "bool", "publish the outputs of a failed adjustment"),
              "no_gps": Option(False, "bool", "orient without GNSS (two-view start, resection, bundle adjustment): "
                               "start camera from inputs.cameras or EXIF, datum from inputs.control / scale_bars"),

@@ -156,8 +156,11 @@ def metadata_block_input(metas: Sequence[Any], measurements: Any, cfg: UavConfig
         raise InputFormatError(f"tie points name {len(unknown)} image(s) without metadata, e.g. {unknown[0]!r}")
     track_name, obs_track = np.unique(measurements.point, return_inverse=True)
     obs_image = by_name[pos].astype(np.int64)
+    times = np.array([np.nan if m.time_s is None else m.time_s for m in metas], float)
     return UavBlockInput(names, cam, gnss, rot, ground, obs_track.astype(np.int64), obs_image,
-                         np.asarray(measurements.pixel, float), track_name, frame, notes, isig, prior.source)
+                         np.asarray(measurements.pixel, float), track_name, frame, notes, isig, prior.source,
+                         camera_make=metas[0].make, camera_model=metas[0].model,
+                         times_s=times if np.isfinite(times).any() else None)
 
 
 def _with_extra(meas: Any, extra: Sequence[Any]) -> Any:

@@ -17,6 +17,9 @@ module         observation
                and strip shifts, actuator offset / scale and correction curve) when ``"weighted"``
 ``image_grid`` the collocation prior of a camera's correction-grid node values (``image_grid="weighted"``;
                the grid's bilinear value is added to the projected pixel in ``image``)
+``rolling_shutter`` the rolling-shutter cameras and the priors of their readout time and of the stations'
+               velocities; registers the groups ``rs_motion`` / ``rs_readout`` and re-registers ``image``
+               (a subclass) so that rolling-shutter rows are projected at their row's pose
 =============  =========================================================================================
 
 How to add an observation type
@@ -68,7 +71,7 @@ _GROUPS: dict[str, ParameterGroup] = {}
 _SORTED: list[ObservationType] = []
 #: the built-in types, imported on first use of the registry (their modules import the block and the
 #: model, which import this package: loading them lazily keeps the imports one-way)
-BUILTIN = ("image", "control", "gnss", "imu", "distance", "prior", "calibration")
+BUILTIN = ("image", "control", "gnss", "imu", "distance", "prior", "calibration", "rolling_shutter")
 _loaded = False
 
 
