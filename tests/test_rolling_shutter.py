@@ -63,7 +63,7 @@ def _with_rs(b: Block, tr, seed: int, readout_sigma: float = 0.02) -> Block:
     rs = RollingShutter(cameras=[tr.camera.name], readout_s=READOUT_S + 0.01, readout_sigma_s=readout_sigma,
                         velocity_station=np.arange(n), velocity_m_s=vp, velocity_sigma_m_s=V_SIGMA,
                         angular_sigma_rad_s=0.5)
-    return dataclasses.replace(b, observations={NAME: rs}, parameters={MOTION: np.column_stack([vp, np.zeros((n, 3))])})
+    return dataclasses.replace(b, observations={**b.observations, NAME: rs}, parameters={MOTION: np.column_stack([vp, np.zeros((n, 3))])})
 
 
 def test_simulator_renders_each_point_at_its_own_rows_pose():
@@ -179,9 +179,9 @@ def test_bad_rolling_shutter_data_is_named():
     inp, tr = _flight(7, strips=FLAT[:1], n_points=100)
     b = _block(inp, tr, 7)
     with pytest.raises(BlockError, match=r"rolling_shutter'\]\.cameras\[0\] = 'nope'"):
-        dataclasses.replace(b, observations={NAME: RollingShutter(cameras=["nope"])}).validate()
+        dataclasses.replace(b, observations={**b.observations, NAME: RollingShutter(cameras=["nope"])}).validate()
     with pytest.raises(BlockError, match=r"readout_sigma_s\[0\] must be > 0"):
-        dataclasses.replace(b, observations={NAME: RollingShutter(cameras=[tr.camera.name], readout_sigma_s=0.0)}).validate()
+        dataclasses.replace(b, observations={**b.observations, NAME: RollingShutter(cameras=[tr.camera.name], readout_sigma_s=0.0)}).validate()
 
 
 def test_adjust_uav_models_the_shutter_of_a_rolling_shutter_flight():
