@@ -34,8 +34,10 @@ def command() -> None:
               help="Where tiles run: this process or local Dask worker processes (or --scheduler).")
 @click.option("--workers", type=int, default=None, help="Local worker processes.")
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
+@click.option("--copc", "copc_path", default=None, type=click.Path(dir_okay=False),
+              help="Also write the classified cloud as COPC (cloud-optimised LAZ for web viewers; needs copclib).")
 def classify(cloud, output, crs, cloth_resolution, class_threshold, rigidness, building_min_height, tile_m, buffer_m,
-             executor, workers, scheduler) -> None:
+             executor, workers, scheduler, copc_path) -> None:
     """Classify CLOUD: ground by the cloth simulation filter (Zhang et al. 2016), then building (6), vegetation
     (3-5, where colour or shape supports it) and noise (7) by height above ground; written as ASPRS classes."""
     from skyrig.cli.progress import tile_progress
@@ -52,6 +54,11 @@ def classify(cloud, output, crs, cloth_resolution, class_threshold, rigidness, b
     click.echo(f"{s['points']} points classified in {s['seconds']:.1f} s -> {output}")
     for k, n in s["classes"].items():
         click.echo(f"  class {k}: {n}")
+    if copc_path:
+        from skyrig.io.copc import copc_from_las
+
+        c = copc_from_las(output, copc_path)
+        click.echo(f"COPC: {c['points']} points in {c['nodes']} octree nodes (depth {c['depth']}) -> {copc_path}")
 
 
 @command.command("dtm")
