@@ -38,7 +38,8 @@ def init_command(folder: str, crs: str | None, geoid: str | None, output: str | 
              if getattr(det, k) is not None]
     click.echo(f"wrote {out}: {det.n_images} images in {len(det.images)} folder(s); "
                + (", ".join(found) + "; " if found else "")
-               + f"CRS {proj.crs}; stages {', '.join(s.name for s in proj.stages)}")
+               + (f"CRS {proj.crs}" if proj.crs else "no CRS (a block in its own frame)")
+               + f"; stages {', '.join(s.name for s in proj.stages)}")
     for note in det.notes:
         click.echo(f"note: {note}")
     click.echo(f"edit it, then: skyrig run {out}")
