@@ -66,9 +66,11 @@ def session(data: Path, work: Path, run: int, output: Path):
     return MeasureSession(eo, cams, pts, roles, files, output, operator="bench", lock=False, target_kinds=())
 
 
-def _pred(state: dict, image: str, key: str) -> np.ndarray:
+def _pred(state: dict, image: str, key: str) -> tuple[np.ndarray, float]:
+    """The prediction of a point in an image and the search radius the page would use around it: 3 times the
+    prediction ellipse's major semi-axis, at least 8 px (like ``MeasureSession.detect``), at most 80 px."""
     p = next(p for p in state["predictions"] if p["image"] == image)[key]
-    return np.array([p["column"], p["row"]], dtype=np.float64)
+    return np.array([p["column"], p["row"]], dtype=np.float64), float(np.clip(3.0 * (p["a"] or 0.0), 8.0, 80.0))
 
 
 def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
@@ -79,7 +81,7 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
     by_point: dict[str, list[str]] = {}
     for (p, i) in pub:
         by_point.setdefault(p, []).append(i)
-    out: dict[str, list[dict]] = {"one": [], "loo": []}
+    out: dict[str, list[dict]] = {"one": [], "loo": [], "consistency": []}
     with tempfile.TemporaryDirectory() as td:
         s = session(data, work, run, Path(td) / "m.csv")
         try:
@@ -89,12 +91,17 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
                     st = s.point_state(p)
                     for b in imgs:
                         if b != a:
-                            out["one"].append(_case(s, p, b, [a], _pred(st, b, "ground"), pub))
+                            out["one"].append(_case(s, p, b, [a], *_pred(st, b, "ground"), pub))
                 if len(imgs) >= 3:
                     for b in imgs:  # the others measured, B predicted by their intersection
                         given = [i for i in imgs if i != b]
                         _reset(s, p, given, pub)
-                        out["loo"].append(_case(s, p, b, given, _pred(s.point_state(p), b, "intersection"), pub))
+                        out["loo"].append(_case(s, p, b, given, *_pred(s.point_state(p), b, "intersection"), pub))
+                if len(imgs) >= 3:  # the published measurements' own consistency: all in, intersection residuals
+                    _reset(s, p, imgs, pub)
+                    out["consistency"] += [{"point": p, "image": m["image"], "residual_px": float(np.hypot(
+                        m["vs_intersection"]["dcolumn"], m["vs_intersection"]["drow"]))}
+                        for m in s.point_state(p, with_predictions=False)["measurements"]]
                 _reset(s, p, [], pub)
         finally:
             s.close()
@@ -108,12 +115,12 @@ def _reset(s, point: str, images: list[str], pub: dict) -> None:
         s.accept(point, i, *pub[point, i], method="click", sigma_px=1.0)
 
 
-def _case(s, point: str, image: str, given: list[str], start: np.ndarray, pub: dict) -> dict:
-    prop = s.propose(point, image, float(start[0]), float(start[1]), method="lsm")
+def _case(s, point: str, image: str, given: list[str], start: np.ndarray, search: float, pub: dict) -> dict:
+    prop = s.propose(point, image, float(start[0]), float(start[1]), method="lsm", search_px=search)
     xy = np.array([prop["column"], prop["row"]])
     truth = pub[point, image]
     return {"point": point, "image": image, "given": "+".join(given), "role": s.roles[point],
-            "start_px": float(np.linalg.norm(start - truth)), "refined": bool(prop["refined"]),
+            "start_px": float(np.linalg.norm(start - truth)), "search_px": search, "refined": bool(prop["refined"]),
             "error_px": float(np.linalg.norm(xy - truth)), "method": prop["method"], "note": prop["note"]}
 
 
@@ -137,14 +144,17 @@ def main(argv: list[str] | None = None) -> int:
     for key, words in (("one", "one image measured, the others predicted from the ground point"),
                        ("loo", "leave one out: predicted by the intersection of the others")):
         print(f"\n{words}")
-        print(f"{'point':6s} {'role':8s} {'image':7s} {'given':16s} {'start px':>9s} {'refined':>8s} {'error px':>9s}  note")
+        print(f"{'point':6s} {'role':8s} {'image':7s} {'given':16s} {'start px':>9s} {'search':>7s} {'refined':>8s} {'error px':>9s}  note")
         for c in res[key]:
-            print(f"{c['point']:6s} {c['role']:8s} {c['image']:7s} {c['given']:16s} {c['start_px']:9.2f} "
+            print(f"{c['point']:6s} {c['role']:8s} {c['image']:7s} {c['given']:16s} {c['start_px']:9.2f} {c['search_px']:7.1f} "
                   f"{'yes' if c['refined'] else 'no':>8s} {c['error_px']:9.2f}  {c['note']}")
         sm = summary(res[key])
         print(f"-> {sm['within_tol']} / {sm['cases']} within 2 px (prediction alone: {sm['start_within_tol']}); "
               f"RMS {sm['rms_px']:.2f} px (median {sm['median_px']:.2f}; refined {sm['refined']}, their RMS "
               f"{sm['rms_refined_px']:.2f}); prediction RMS {sm['start_rms_px']:.2f} px")
+    r = np.array([c["residual_px"] for c in res["consistency"]])
+    print(f"\nthe published measurements themselves (points in 3 images, all three intersected): residual RMS "
+          f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px over {len(r)} measurements")
     return 0
 
 

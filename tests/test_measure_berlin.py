@@ -3,15 +3,17 @@ published image measurements"): ``bench/measure_berlin.py`` drives :class:`skyri
 (one image measured -> prediction -> ``propose(..., "lsm")`` in the others; leave one out by intersection) on the
 three phone images, against the published ODM measurements.
 
-Measured (adjust0 block of bench/real.py, 2026-11-29): one image measured, 44 cases: 1 within 2 px, 4 refined by
-LSM (their RMS 4.3 px), prediction RMS 21.6 px; leave one out, 18 cases: 0 within 2 px, 6 refined (RMS 3.8 px),
-prediction RMS 12.3 px.  Why it falls short (see the report / bench output): the predictions are 5-50 px off
-(the check points' surveyed coordinates are 0.16-0.65 m off the block at 20-30 m range, and image 03's
-intersection-based predictions are 10-28 px off), beyond what the page's LSM reaches (a 49 x 49 px window with a
-21 x 21 px template: starts more than ~10 px off leave the window, correlation reported -1); where LSM converges
-(correlation 0.92-1.00) it lands 2-6 px from the published clicks (hand clicks on phone images, wide-baseline
-facade views with a ground-plane affine start).  The acceptance figure is kept as a strict xfail so that it flips
-when the refinement gains a coarse search.
+Measured (adjust0 block of bench/real.py, 2026-11-29), the page's refinement with a cross-correlation search
+within 3 sigma of the prediction (``propose(..., search_px=)``, :func:`skyrig.match.lsm.search_lsm`): one image
+measured, 44 cases: 7 within 2 px (the predictions alone: 0; prediction RMS 21.6 px), 20 refined, their RMS 5.2 px;
+leave one out, 18 cases: 1 within 2 px (prediction RMS 12.3 px), 11 refined, RMS 5.9 px.  Without the search (LSM
+from the prediction, as before): 1/44 and 0/18.
+
+Why 2 px is out of reach on these images: the published measurements are not 2 px measurements.  Intersected
+all three together (6 points seen in 3 images), they leave residuals of 3.6 px RMS (max 6.7 px) against an
+orientation whose 4,077 tie observations fit to 0.53 / 0.34 px RMS; where the matching converges with correlation
+0.98-1.00 it lands 2-6 px from the published click (hand clicks on 3264 x 2448 phone images of facades seen from
+a wide baseline).  The 2 px acceptance is kept as a strict xfail.
 """
 
 from __future__ import annotations
@@ -42,21 +44,34 @@ def cases():
 def test_berlin_cases_complete(cases):
     """Every published measurement is proposed from every other image of its point (26 measurements of 10 points:
     44 ordered pairs) and, for the 6 points seen in 3 images, from the other two (18)."""
+    assert len(cases["one"]) == 44 and len(cases["loo"]) == 18
+
+
+def test_berlin_refinement_beats_prediction(cases):
+    """The searched refinement brings proposals nearer the published clicks than the predictions: more within
+    2 px, a smaller median error; a proposal never lies beyond its search radius + 3 px from its start."""
     from measure_berlin import summary
 
-    assert len(cases["one"]) == 44 and len(cases["loo"]) == 18
-    for key in ("one", "loo"):
+    for key, least in (("one", 15), ("loo", 8)):
         s = summary(cases[key])
-        # a proposal never ends further from the truth than the prediction plus LSM's shift limit (8 px)
         e = np.array([c["error_px"] for c in cases[key]])
         s0 = np.array([c["start_px"] for c in cases[key]])
-        assert np.all(e <= s0 + 8.0 + 1e-6)
-        # where LSM converged it lands within 6 px of the published click (measured: RMS 3.8-4.3 px)
-        assert s["refined"] >= 4 and s["rms_refined_px"] < 6.0, s
+        assert s["refined"] >= least and s["within_tol"] > s["start_within_tol"], s
+        assert np.median(e) < np.median(s0), (np.median(e), np.median(s0))
+        assert s["rms_refined_px"] < 7.0, s
+        assert np.all(e <= s0 + np.array([c["search_px"] for c in cases[key]]) + 3.0 + 1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="the page's LSM starts from predictions 5-50 px off and reaches only "
-                   "1/44 (one image) and 0/18 (leave one out) within 2 px: needs a coarse search first")
+def test_berlin_published_consistency(cases):
+    """The reason for the xfail below: the published measurements disagree with their own intersection by more
+    than 2 px RMS (measured 3.6 px) on an orientation that fits its tie points to about half a pixel."""
+    r = np.array([c["residual_px"] for c in cases["consistency"]])
+    assert len(r) == 18
+    assert 2.0 < np.sqrt(np.mean(r**2)) < 6.0
+
+
+@pytest.mark.xfail(strict=True, reason="the published measurements are themselves only ~3.6 px consistent "
+                   "(test_berlin_published_consistency): 7/44 (one image) and 1/18 (leave one out) within 2 px")
 def test_berlin_within_2px(cases):
     from measure_berlin import summary
 
