@@ -9,11 +9,14 @@ measured, 44 cases: 7 within 2 px (the predictions alone: 0; prediction RMS 21.6
 leave one out, 18 cases: 1 within 2 px (prediction RMS 12.3 px), 11 refined, RMS 5.9 px.  Without the search (LSM
 from the prediction, as before): 1/44 and 0/18.
 
-Why 2 px is out of reach on these images: the published measurements are not 2 px measurements.  Intersected
-all three together (6 points seen in 3 images), they leave residuals of 3.6 px RMS (max 6.7 px) against an
-orientation whose 4,077 tie observations fit to 0.53 / 0.34 px RMS; where the matching converges with correlation
-0.98-1.00 it lands 2-6 px from the published click (hand clicks on 3264 x 2448 phone images of facades seen from
-a wide baseline).  The 2 px acceptance is kept as a strict xfail.
+Why 2 px is out of reach on this block: 2 px agreement is below what the block's geometry can confirm at these
+points.  The published measurements, intersected all three together (6 points seen in 3 images), leave residuals
+of 3.6 px RMS (max 6.7 px); one published measurement with the two LSM proposals (correlation 0.92-1.00) leaves
+4.3 px RMS (max 6.8 px), against an orientation whose 4,077 tie observations fit to 0.53 / 0.34 px RMS.  So
+neither the clicks nor the matched homologues are consistent with the orientation to 2 px at these natural points
+(plausible causes, not verified here: points on building edges at depth discontinuities, several near the frame
+edge where the self-calibrated phone distortion is least determined, wide-baseline views); which of the two is
+nearer the truth cannot be told from these three images.  The 2 px acceptance is kept as a strict xfail.
 """
 
 from __future__ import annotations
@@ -63,15 +66,19 @@ def test_berlin_refinement_beats_prediction(cases):
 
 
 def test_berlin_published_consistency(cases):
-    """The reason for the xfail below: the published measurements disagree with their own intersection by more
-    than 2 px RMS (measured 3.6 px) on an orientation that fits its tie points to about half a pixel."""
+    """The reason for the xfail below: on an orientation that fits its tie points to about half a pixel, the
+    published measurements disagree with their own intersection by more than 2 px RMS (measured 3.6 px), and so
+    do the matched homologues (one published + two proposals: 4.3 px)."""
     r = np.array([c["residual_px"] for c in cases["consistency"]])
     assert len(r) == 18
     assert 2.0 < np.sqrt(np.mean(r**2)) < 6.0
+    q = np.array([c["residual_px"] for c in cases["proposal_consistency"]])  # one published + two proposals
+    assert len(q) >= 6 and 2.0 < np.sqrt(np.mean(q**2)) < 6.0
 
 
-@pytest.mark.xfail(strict=True, reason="the published measurements are themselves only ~3.6 px consistent "
-                   "(test_berlin_published_consistency): 7/44 (one image) and 1/18 (leave one out) within 2 px")
+@pytest.mark.xfail(strict=True, reason="published clicks and matched homologues are both only ~4 px consistent "
+                   "with the block at these points (test_berlin_published_consistency): 7/44 (one image) and 1/18 "
+                   "(leave one out) within 2 px")
 def test_berlin_within_2px(cases):
     from measure_berlin import summary
 
