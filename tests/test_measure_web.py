@@ -118,7 +118,8 @@ def test_refinement_recovers_target_centres(sim, tmp_path):
 
 
 def test_lsm_transfers_a_measurement(sim, tmp_path):
-    """Least-squares matching against an image measured before lands on the target's centre (within 0.3 px)."""
+    """Least-squares matching against an image measured before lands on the target's centre (within 0.3 px),
+    from a click 1.8 px off and, with a search, from a start 15 px off."""
     _, _, _, truth = _truth(sim)
     s = _session(sim, tmp_path / "m.csv", lock=False)
     sel = np.flatnonzero(truth.point == "GCP02")
@@ -127,6 +128,10 @@ def test_lsm_transfers_a_measurement(sim, tmp_path):
     prop = s.propose("GCP02", str(truth.image[i1]), *(truth.pixel[i1] + [1.5, -1.0]), method="lsm")
     assert prop["method"] == "lsm", prop
     assert np.hypot(prop["column"] - truth.pixel[i1, 0], prop["row"] - truth.pixel[i1, 1]) < 0.3, prop
+    # from a start 15 px off (a prediction, not a click), found by the cross-correlation search first
+    far = s.propose("GCP02", str(truth.image[i1]), *(truth.pixel[i1] + [12.0, -9.0]), method="lsm", search_px=25.0)
+    assert far["method"] == "lsm", far
+    assert np.hypot(far["column"] - truth.pixel[i1, 0], far["row"] - truth.pixel[i1, 1]) < 0.3, far
 
 
 def test_intersection_repredicts_and_flags(sim, tmp_path):

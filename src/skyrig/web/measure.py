@@ -514,13 +514,16 @@ class MeasureSession:
             except (InputFormatError, OSError):
                 pass  # the page reports it when the user opens the image
 
-    def propose(self, point: str, image: str, column: float, row: float, method: str = "auto") -> dict:
+    def propose(self, point: str, image: str, column: float, row: float, method: str = "auto",
+                search_px: float = 0.0) -> dict:
         """Refine a click (column, row) in ``image`` to the exact position of ``point``.
 
         ``method``: ``"auto"`` (a target of :attr:`target_kinds` near the click, else least-squares matching
         against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
         point nearest the click), ``"aruco"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
         ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
+        ``search_px``: how far the least-squares matching looks from the click (a cross-correlation search first,
+        for a start taken from a prediction, e.g. 3 times its ellipse's major semi-axis); 0: LSM from the click.
         """
         from skyrig.match.targets import corner_centre, detect_target, target_centre
 
@@ -549,7 +552,7 @@ class MeasureSession:
                     return self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
                 notes.append(f"corner: {f.note}")
             if method in ("auto", "lsm"):
-                got = self._lsm(point, image, click)
+                got = self._lsm(point, image, click, min(max(float(search_px), 0.0), 200.0))
                 if isinstance(got, dict):
                     return got
                 notes.append(f"lsm: {got}")
@@ -560,9 +563,12 @@ class MeasureSession:
         return {"column": _num(xy[0]), "row": _num(xy[1]), "method": method, "refined": refined,
                 "sigma_px": _num(sigma), "note": note}
 
-    def _lsm(self, point: str, image: str, click: NDArray) -> dict | str:
-        """Least-squares matching of the click against the best other image this point is measured in."""
-        from skyrig.match.lsm import lsm_refine
+    def _lsm(self, point: str, image: str, click: NDArray, search_px: float = 0.0) -> dict | str:
+        """Least-squares matching of the click against the best other image this point is measured in, started
+        from the ground-plane affine between the two views and from the identity (the better correlation wins),
+        after a cross-correlation search within ``search_px`` of the click (:func:`skyrig.match.lsm.search_lsm`;
+        a searched match needs a correlation of 0.85, one from the click 0.7)."""
+        from skyrig.match.lsm import search_lsm
 
         others = [r for r in self._recs(point) if r.image != image and self.files.get(r.image) is not None]
         if not others:
@@ -577,14 +583,14 @@ class MeasureSession:
             A = j2 @ np.linalg.inv(j1)
         except np.linalg.LinAlgError:
             return "degenerate geometry"
-        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], _HALF)
-        w2, (c0, d0) = self.windows(image).around(click[0], click[1], _HALF)
-        res = lsm_refine(w1, w2, (ref.xy - [a0, b0])[None], (click - [c0, d0])[None], A[None], half_size=10,
-                         max_shift_px=8.0, min_correlation=0.7)
-        if not res.ok[0]:
-            return f"no convergence against {ref.image} (correlation {res.correlation[0]:.2f})"
-        return self._proposal(res.xy2[0] + [c0, d0], "lsm", True, float(max(res.sigma_px[0], 0.02)),
-                              f"least-squares matching to {ref.image}, correlation {res.correlation[0]:.2f}")
+        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], 2 * _HALF)
+        w2, (c0, d0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(search_px)))
+        xy, ok, sig, corr, _ = search_lsm(w1, w2, ref.xy - [a0, b0], click - [c0, d0], np.stack([A, np.eye(2)]),
+                                          search_px, half_size=10, min_correlation=0.85 if search_px > 0 else 0.7)
+        if not ok:
+            return f"no convergence against {ref.image}"
+        return self._proposal(xy + [c0, d0], "lsm", True, float(max(sig, 0.02)),
+                              f"least-squares matching to {ref.image}, correlation {corr:.2f}")
 
     # ------------------------------------------------------------------------------------------- changes
     def accept(self, point: str, image: str, column: float, row: float, method: str = "click", refined: bool = False,

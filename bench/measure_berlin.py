@@ -1,0 +1,180 @@
+"""The measuring aid on real images: OpenSfM berlin's 10 natural-point GCPs (ODM ``gcp_list.txt``, published
+image measurements in 2-3 phone images each).
+
+What the page does for a natural point, driven through :class:`skyrig.web.measure.MeasureSession` (no browser):
+
+* **one image measured** (the published measurement of image A accepted as the user's click): the page predicts
+  the point in every other image B (from the surveyed coordinates through the orientations) and ``propose(...,
+  "lsm")`` refines it there (least-squares matching against A, the library function the page calls);
+* **leave one out** (points measured in 3 images): the two others accepted, B predicted by their intersection,
+  then refined the same way.
+
+Each proposal is compared with the published measurement in B: the count within 2 px and the RMS, next to the
+unrefined prediction's error.  Two consistency lines follow (points in 3 images): the intersection residuals of
+the three published measurements, and of one published measurement with the two proposals.  The orientations are a ``skyrig adjust-uav --no-gps`` block of the three images
+(``bench/real.py`` ``berlin()``: half the GCPs control, half check; rerun here when absent).
+
+    PYTHONPATH=src .venv/bin/python bench/measure_berlin.py [--work /tmp/skyrig-real] [--run 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def published(folder: Path) -> dict[tuple[str, str], np.ndarray]:
+    """``{(point, image): (column, row)}`` from the ODM file, points named g01.. in order of first appearance
+    (the names ``bench/real.py`` gives them)."""
+    names: dict[tuple[str, str, str], str] = {}
+    out = {}
+    for line in (folder / "gcp_list.txt_from_commit_c7d5152_parent").read_text().splitlines()[1:]:
+        if line.strip():
+            lon, lat, h, col, row, img = line.split()[:6]
+            out[names.setdefault((lon, lat, h), f"g{len(names) + 1:02d}"), img] = np.array([float(col), float(row)])
+    return out
+
+
+def ensure_block(data: Path, work: Path, run: int) -> Path:
+    """The adjusted block folder (``work/berlin/adjust<run>``), made by ``bench/real.py`` when absent."""
+    out = work / "berlin" / f"adjust{run}"
+    if not (out / "manifest.json").exists():
+        sys.path.insert(0, str(ROOT / "bench"))
+        from real import berlin
+
+        berlin(data, work, 1600)
+    return out
+
+
+def session(data: Path, work: Path, run: int, output: Path):
+    from skyrig.cli._common import load_cameras, load_eo, load_points
+    from skyrig.web.inputs import merge_points
+    from skyrig.web.measure import MeasureSession
+
+    adj = ensure_block(data, work, run)
+    eo = load_eo(adj / "eo.csv", None, None, None)
+    cams = load_cameras([str(adj / "camera.yaml")])
+    ctl = load_points(work / "berlin" / f"control{run}.csv", None, default_crs=eo.frame.crs)
+    chk = load_points(work / "berlin" / f"check{run}.csv", None, default_crs=eo.frame.crs)
+    pts, roles = merge_points(ctl, chk, "check")
+    files = {str(n): data / "opensfm" / "berlin" / "images" / str(n) for n in eo.image}
+    return MeasureSession(eo, cams, pts, roles, files, output, operator="bench", lock=False, target_kinds=())
+
+
+def _pred(state: dict, image: str, key: str) -> tuple[np.ndarray, float]:
+    """The prediction of a point in an image and the search radius the page would use around it: 3 times the
+    prediction ellipse's major semi-axis, at least 8 px (like ``MeasureSession.detect``), at most 80 px."""
+    p = next(p for p in state["predictions"] if p["image"] == image)[key]
+    return np.array([p["column"], p["row"]], dtype=np.float64), float(np.clip(3.0 * (p["a"] or 0.0), 8.0, 80.0))
+
+
+def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
+    """The two experiments; every case as ``{point, image, given (images measured), role, start_px, refined,
+    error_px, method, note}`` with ``start_px`` the prediction's and ``error_px`` the proposal's distance to
+    the published measurement."""
+    pub = published(data / "opensfm" / "berlin")
+    by_point: dict[str, list[str]] = {}
+    for (p, i) in pub:
+        by_point.setdefault(p, []).append(i)
+    out: dict[str, list[dict]] = {"one": [], "loo": [], "consistency": [], "proposal_consistency": []}
+    with tempfile.TemporaryDirectory() as td:
+        s = session(data, work, run, Path(td) / "m.csv")
+        try:
+            for p, imgs in by_point.items():
+                for a in imgs:  # the user measured A only
+                    _reset(s, p, [a], pub)
+                    st = s.point_state(p)
+                    for b in imgs:
+                        if b != a:
+                            out["one"].append(_case(s, p, b, [a], *_pred(st, b, "ground"), pub))
+                if len(imgs) >= 3:
+                    for b in imgs:  # the others measured, B predicted by their intersection
+                        given = [i for i in imgs if i != b]
+                        _reset(s, p, given, pub)
+                        out["loo"].append(_case(s, p, b, given, *_pred(s.point_state(p), b, "intersection"), pub))
+                if len(imgs) >= 3:  # the proposals' consistency: A published, the two others as proposed, intersected
+                    for a in imgs:
+                        props = [c for c in out["one"] if c["point"] == p and c["given"] == a and c["refined"]]
+                        if len(props) == len(imgs) - 1:
+                            _reset(s, p, [a], pub)
+                            for c in props:
+                                s.accept(p, c["image"], *c["xy"], method="lsm", refined=True, sigma_px=1.0)
+                            out["proposal_consistency"] += [_resid(p, m) for m in s.point_state(
+                                p, with_predictions=False)["measurements"]]
+                if len(imgs) >= 3:  # the published measurements' own consistency: all in, intersection residuals
+                    _reset(s, p, imgs, pub)
+                    out["consistency"] += [_resid(p, m) for m in s.point_state(p, with_predictions=False)[
+                        "measurements"]]
+                _reset(s, p, [], pub)
+        finally:
+            s.close()
+    return out
+
+
+def _resid(point: str, m: dict) -> dict:
+    return {"point": point, "image": m["image"], "residual_px": float(np.hypot(m["vs_intersection"]["dcolumn"],
+                                                                               m["vs_intersection"]["drow"]))}
+
+
+def _reset(s, point: str, images: list[str], pub: dict) -> None:
+    for i in list({i for (q, i) in s.records if q == point}):
+        s.delete(point, i)
+    for i in images:
+        s.accept(point, i, *pub[point, i], method="click", sigma_px=1.0)
+
+
+def _case(s, point: str, image: str, given: list[str], start: np.ndarray, search: float, pub: dict) -> dict:
+    prop = s.propose(point, image, float(start[0]), float(start[1]), method="lsm", search_px=search)
+    xy = np.array([prop["column"], prop["row"]])
+    truth = pub[point, image]
+    return {"point": point, "image": image, "given": "+".join(given), "role": s.roles[point],
+            "start_px": float(np.linalg.norm(start - truth)), "search_px": search, "refined": bool(prop["refined"]),
+            "error_px": float(np.linalg.norm(xy - truth)), "xy": xy.tolist(), "method": prop["method"], "note": prop["note"]}
+
+
+def summary(cases: list[dict], tol: float = 2.0) -> dict:
+    e = np.array([c["error_px"] for c in cases])
+    s0 = np.array([c["start_px"] for c in cases])
+    ref = np.array([c["refined"] for c in cases])
+    return {"cases": len(cases), "refined": int(ref.sum()), "within_tol": int(np.sum(e <= tol)),
+            "rms_px": float(np.sqrt(np.mean(e**2))), "median_px": float(np.median(e)),
+            "rms_refined_px": float(np.sqrt(np.mean(e[ref] ** 2))) if ref.any() else float("nan"),
+            "start_rms_px": float(np.sqrt(np.mean(s0**2))), "start_within_tol": int(np.sum(s0 <= tol))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/skyrig-real"))
+    ap.add_argument("--run", type=int, default=0, choices=(0, 1), help="which control / check split of real.py")
+    a = ap.parse_args(argv)
+    res = evaluate(a.data, a.work, a.run)
+    for key, words in (("one", "one image measured, the others predicted from the ground point"),
+                       ("loo", "leave one out: predicted by the intersection of the others")):
+        print(f"\n{words}")
+        print(f"{'point':6s} {'role':8s} {'image':7s} {'given':16s} {'start px':>9s} {'search':>7s} {'refined':>8s} {'error px':>9s}  note")
+        for c in res[key]:
+            print(f"{c['point']:6s} {c['role']:8s} {c['image']:7s} {c['given']:16s} {c['start_px']:9.2f} {c['search_px']:7.1f} "
+                  f"{'yes' if c['refined'] else 'no':>8s} {c['error_px']:9.2f}  {c['note']}")
+        sm = summary(res[key])
+        print(f"-> {sm['within_tol']} / {sm['cases']} within 2 px (prediction alone: {sm['start_within_tol']}); "
+              f"RMS {sm['rms_px']:.2f} px (median {sm['median_px']:.2f}; refined {sm['refined']}, their RMS "
+              f"{sm['rms_refined_px']:.2f}); prediction RMS {sm['start_rms_px']:.2f} px")
+    r = np.array([c["residual_px"] for c in res["consistency"]])
+    print(f"\nthe published measurements themselves (points in 3 images, all three intersected): residual RMS "
+          f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px over {len(r)} measurements")
+    r = np.array([c["residual_px"] for c in res["proposal_consistency"]])
+    if len(r):
+        print(f"one published + the two proposals (where both refined), intersected: residual RMS "
+              f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px over {len(r)} measurements")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
