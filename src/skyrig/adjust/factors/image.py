@@ -362,51 +362,10 @@ class Image(ObservationType):
         pose_on = bool((lay.pose >= 0).any())
         bore_on = bool(model._bore_on)
         # the Jacobian's column blocks, written into one preallocated (N, 2, k) array (no concatenation)
-        widths = []
-        if pose_on:
-            widths.append(("pose", 6))
-        if bore_on:
-            widths.append(("bore", 3))
-        if d_in is not None:
-            widths.append(("intr", d_in.shape[2]))
-        if model._act_on:
-            widths.append(("act", model._act_width))
         red = ic.red_cols is not None and ic.red_cols.shape[1] > 0
-        if red:
-            widths.append(("red", ic.red_cols.shape[1]))
-        if grid_cols_on:
-            widths.append(("grid", 8))
-        offs: dict[str, slice] = {}
-        o0 = 0
-        for name, wdt in widths:
-            offs[name] = slice(o0, o0 + wdt)
-            o0 += wdt
+        offs, o0 = _column_offsets(model, ic, d_in, pose_on, bore_on, red, grid_cols_on)
         jc = np.empty((n, dpc.shape[1], o0))  # (no column: not attached to the factor)
-        if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
-            jX = np.empty((n, 2, 3))
-            jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))
-            jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))
-            off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
-            chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
-                         np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
-                         bool(np.any(off_i)), jX, jpose, jthc)
-        else:
-            Ro = Rc[oi]
-            jX = dpc @ np.swapaxes(Ro, 1, 2)
-            del Ro
-            if pose_on:
-                jth_cam = dpc @ skew(pc)
-                jpose = jc[:, :, offs["pose"]]
-                jpose[:, :, :3] = -jX
-                off = b.image_offset[oi]
-                jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
-                if np.any(b.image_offset):
-                    jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
-                jpose[:, :, 3:] = jth
-                if bore_on:
-                    jc[:, :, offs["bore"]] = jth_cam
-            elif bore_on:
-                jc[:, :, offs["bore"]] = dpc @ skew(pc)
+        jX = _chain_rule(model, s, oi, st, dpc, pc, Rc, M, jc, offs, pose_on, bore_on, chain_kernel)
         if d_in is not None:
             if Wm is None:
                 np.multiply(d_in, isig, out=jc[:, :, offs["intr"]])
@@ -438,29 +397,7 @@ class Image(ObservationType):
         if o0:
             f.jc = jc
             if ic.frame_cols is None:  # the columns depend on the layout only
-                colblocks = []
-                if pose_on:
-                    colblocks.append(lay.pose[st])
-                if bore_on:
-                    colblocks.append(lay.bore[b.image_head[oi]])
-                if "intr" in offs:
-                    colblocks.append(model._icols[ic.obs_cam])
-                if model._act_on:
-                    cols = np.full((n, model._act_width), -1, np.int64)
-                    ia = model._img2act[oi]
-                    rows = np.flatnonzero(ia >= 0)
-                    cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
-                    colblocks.append(cols)
-                if red:
-                    colblocks.append(ic.red_cols)
-                lgrid = lay.grid
-                if grid_cols_on and lgrid is not None:
-                    gi = ic.grid_idx
-                    has = gi >= 0
-                    gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
-                    gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
-                    colblocks.append(np.concatenate([gc, gcy], axis=1))
-                ic.frame_cols = np.concatenate(colblocks, axis=1)
+                ic.frame_cols = _frame_columns(model, ic, oi, st, offs, pose_on, bore_on, red, grid_cols_on)
             f.cols = ic.frame_cols
         if lay.n_p:
             if ic.frame_point is None:
@@ -533,3 +470,91 @@ def _add_grid(pred: NDArray[np.float64], gi: NDArray[np.int64], gw: NDArray[np.f
     gy = grid[np.maximum(gi, 0) + 1] * has
     pred[:, 0] += (gw * gx).sum(axis=1)
     pred[:, 1] += (gw * gy).sum(axis=1)
+
+
+def _column_offsets(model: "Model", ic, d_in, pose_on: bool, bore_on: bool, red: bool,
+                   grid_cols_on: bool) -> tuple[dict[str, slice], int]:
+    """The slices of the image Jacobian's column blocks in one (N, 2, k) array, and k."""
+    widths = []
+    if pose_on:
+        widths.append(("pose", 6))
+    if bore_on:
+        widths.append(("bore", 3))
+    if d_in is not None:
+        widths.append(("intr", d_in.shape[2]))
+    if model._act_on:
+        widths.append(("act", model._act_width))
+    if red:
+        widths.append(("red", ic.red_cols.shape[1]))
+    if grid_cols_on:
+        widths.append(("grid", 8))
+    offs: dict[str, slice] = {}
+    o0 = 0
+    for name, wdt in widths:
+        offs[name] = slice(o0, o0 + wdt)
+        o0 += wdt
+    return offs, o0
+
+
+def _chain_rule(model: "Model", s: "State", oi, st, dpc, pc, Rc, M, jc, offs: dict[str, slice], pose_on: bool,
+                bore_on: bool, chain_kernel):
+    """d pixel / d point (returned) and the pose / boresight blocks of ``jc`` from d pixel / d camera-frame point;
+    the compiled chain rule when ``chain_kernel`` is given (same values)."""
+    b = model.block
+    n = len(oi)
+    if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
+        jX = np.empty((n, 2, 3))
+        jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))
+        jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))
+        off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+        chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
+                     np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
+                     bool(np.any(off_i)), jX, jpose, jthc)
+    else:
+        Ro = Rc[oi]
+        jX = dpc @ np.swapaxes(Ro, 1, 2)
+        del Ro
+        if pose_on:
+            jth_cam = dpc @ skew(pc)
+            jpose = jc[:, :, offs["pose"]]
+            jpose[:, :, :3] = -jX
+            off = b.image_offset[oi]
+            jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
+            if np.any(b.image_offset):
+                jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
+            jpose[:, :, 3:] = jth
+            if bore_on:
+                jc[:, :, offs["bore"]] = jth_cam
+        elif bore_on:
+            jc[:, :, offs["bore"]] = dpc @ skew(pc)
+    return jX
+
+
+def _frame_columns(model: "Model", ic, oi, st, offs: dict[str, slice], pose_on: bool, bore_on: bool, red: bool,
+                   grid_cols_on: bool):
+    """The image Jacobian's unknown columns (-1: none), in the order of :func:`_column_offsets`."""
+    b, lay = model.block, model.layout
+    n = len(oi)
+    colblocks = []
+    if pose_on:
+        colblocks.append(lay.pose[st])
+    if bore_on:
+        colblocks.append(lay.bore[b.image_head[oi]])
+    if "intr" in offs:
+        colblocks.append(model._icols[ic.obs_cam])
+    if model._act_on:
+        cols = np.full((n, model._act_width), -1, np.int64)
+        ia = model._img2act[oi]
+        rows = np.flatnonzero(ia >= 0)
+        cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
+        colblocks.append(cols)
+    if red:
+        colblocks.append(ic.red_cols)
+    lgrid = lay.grid
+    if grid_cols_on and lgrid is not None:
+        gi = ic.grid_idx
+        has = gi >= 0
+        gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
+        gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
+        colblocks.append(np.concatenate([gc, gcy], axis=1))
+    return np.concatenate(colblocks, axis=1)
