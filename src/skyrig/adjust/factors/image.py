@@ -177,40 +177,46 @@ class Image(ObservationType):
     share_checked = False  # many image blunders are data snooping's normal work (its cap applies)
     hints = (("intrinsics", "an uncalibrated interior orientation"), ("boresight", "a boresight misalignment"))
     vce_split = ((0, 1),)
-    sigma_field = "obs_sigma_px"
-    cov_field = "obs_cov_px2"
+    sigma_field = "sigma_px"
+    cov_field = "cov_px2"
     rows = ImageRows
     keywords = (('obs_image', 'image', REQUIRED), ('obs_point', 'point', REQUIRED), ('obs_pixel', 'pixel', REQUIRED), ('obs_sigma_px', 'sigma_px', 1.0), ('obs_cov_px2', 'cov_px2', None))
+
+    def data(self, block: "Block") -> ImageRows:
+        return block.observations[self.name]
 
     def count(self, block: "Block") -> int:
         return block.n_observations
 
     def normalise(self, block: "Block") -> None:
-        block.obs_image = np.asarray(block.obs_image, dtype=np.int64).reshape(-1)
-        n = len(block.obs_image)
-        block.obs_point = rows_of(block.obs_point, (), np.int64, n)
-        block.obs_pixel = rows_of(block.obs_pixel, (2,), n=n)
-        block.obs_sigma_px = sigma_rows(block.obs_sigma_px, n, 2)
-        covariance_rows(block, "obs_cov_px2", "obs_sigma_px", n, 2)
+        d = self.data(block)
+        d.image = np.asarray(d.image, dtype=np.int64).reshape(-1)
+        n = len(d.image)
+        d.point = rows_of(d.point, (), np.int64, n)
+        d.pixel = rows_of(d.pixel, (2,), n=n)
+        d.sigma_px = sigma_rows(d.sigma_px, n, 2)
+        covariance_rows(d, "cov_px2", "sigma_px", n, 2, label="obs_cov_px2")
 
     def validate(self, block: "Block") -> None:
-        check_index("obs_image", block.obs_image, block.n_images, "image")
-        check_index("obs_point", block.obs_point, block.n_points, "point")
-        check_finite("obs_pixel", block.obs_pixel)
-        check_finite("obs_sigma_px", block.obs_sigma_px)
-        check_positive("obs_sigma_px", block.obs_sigma_px)
-        check_covariance("obs_cov_px2", block.obs_cov_px2)
+        d = self.data(block)
+        check_index("obs_image", d.image, block.n_images, "image")
+        check_index("obs_point", d.point, block.n_points, "point")
+        check_finite("obs_pixel", d.pixel)
+        check_finite("obs_sigma_px", d.sigma_px)
+        check_positive("obs_sigma_px", d.sigma_px)
+        check_covariance("obs_cov_px2", d.cov_px2)
 
     def validate_rays(self, block: "Block", controlled: NDArray[np.bool_]) -> None:
         """Every point needs two rays or control; no point measured twice in one image."""
-        rays = np.bincount(block.obs_point, minlength=block.n_points)
+        d = self.data(block)
+        rays = np.bincount(d.point, minlength=block.n_points)
         bad = np.flatnonzero((rays < 2) & ~controlled)
         if bad.size:
             raise BlockError(
                 f"point {str(block.point_name[bad[0]])!r} is seen in {rays[bad[0]]} image(s) and is not control: "
                 f"it cannot be determined ({bad.size} such points); remove it or add observations"
             )
-        pair = block.obs_image * max(block.n_points, 1) + block.obs_point
+        pair = d.image * max(block.n_points, 1) + d.point
         u, c = np.unique(pair, return_counts=True)
         if (c > 1).any():
             k = u[c > 1][0]
@@ -219,24 +225,25 @@ class Image(ObservationType):
 
     def prepare(self, model: "Model") -> ImageCache:
         b, lay = model.block, model.layout
-        W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
+        d = self.data(b)
+        W = None if d.cov_px2 is None else whitening_matrices(d.cov_px2)
         red_cols = red_rows = red_idx = None
         if lay.has_rpoint:
-            rp = lay.rpoint_cols[b.obs_point]
+            rp = lay.rpoint_cols[d.point]
             rows = np.flatnonzero(rp[:, 0] >= 0)
-            rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
-            img = b.obs_image[rows]
+            rows = rows[np.argsort(d.image[rows], kind="stable")]
+            img = d.image[rows]
             first = np.searchsorted(img, img, side="left")
             rank = np.arange(len(rows)) - first
             m = int(rank.max()) + 1 if rows.size else 0
             img_cols = np.full((b.n_images, 3 * m), -1, np.int64)
             for c in range(3):
                 img_cols[img, 3 * rank + c] = rp[rows, c]
-            red_cols = img_cols[b.obs_image]
+            red_cols = img_cols[d.image]
             red_rows = rows
             red_idx = 3 * rank[:, None] + np.arange(3)[None, :]
         bal = np.array([isinstance(c, BalCamera) for c in b.cameras], bool)
-        obs_cam = b.image_camera[b.obs_image]
+        obs_cam = b.image_camera[d.image]
         groups = [(c, np.flatnonzero(obs_cam == c)) for c in range(len(b.cameras)) if not bal[c]]
         groups = [(c, idx) for c, idx in groups if idx.size]
         gi = gw = None
@@ -249,7 +256,7 @@ class Image(ObservationType):
             for k, g in enumerate(grids.grids):
                 rows = np.flatnonzero(obs_cam == cam_idx[g.camera])
                 if rows.size:
-                    idx, w = bilinear_weights(g.x_px, g.y_px, b.obs_pixel[rows])
+                    idx, w = bilinear_weights(g.x_px, g.y_px, d.pixel[rows])
                     gi[rows] = off[k] + 2 * idx
                     gw[rows] = w
         return ImageCache(W, red_cols, red_rows, red_idx, bal, obs_cam, groups, np.flatnonzero(bal[obs_cam]),
@@ -273,11 +280,12 @@ class Image(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         b, lay = model.block, model.layout
+        d = self.data(b)
         img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]
                | np.asarray((model._icols >= 0).any(axis=1), dtype=bool)[b.image_camera])
         if lay.act is not None:
             img |= any_on(lay.act)[b.image_head]
-        out = img[b.obs_image] | model.estimated_points()[b.obs_point]
+        out = img[d.image] | model.estimated_points()[d.point]
         ic = model.cache[self.name]
         if lay.grid is not None and ic.grid_idx is not None:
             gi = ic.grid_idx
@@ -286,7 +294,8 @@ class Image(ObservationType):
         return out
 
     def label(self, block: "Block", i: int) -> str:
-        return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
+        d = self.data(block)
+        return f"point {block.point_name[d.point[i]]} in image {block.image_name[d.image[i]]}"
 
     @staticmethod
     def _project(model: "Model", s: "State", ic: ImageCache, pc: NDArray[np.float64], n: int, jac: bool
@@ -323,23 +332,24 @@ class Image(ObservationType):
     def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:
         """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
         b, lay = model.block, model.layout
+        d = self.data(b)
         ic = model.cache[self.name]
         n = b.n_observations
         Rc, Cc, M = model.camera_poses(s)
-        oi = b.obs_image
-        pc = _camera_frame(Rc, Cc, s.X, oi, b.obs_point)
+        oi = d.image
+        pc = _camera_frame(Rc, Cc, s.X, oi, d.point)
         pred, d_pc, d_in = self._project(model, s, ic, pc, n, jac)
         grid_on = ic.grid_idx is not None and s.grid is not None
         if grid_on:  # the correction grids at the measured pixels (observed = projected + grid)
             _add_grid(pred, ic.grid_idx, ic.grid_w, s.grid)  # type: ignore[arg-type]
         grid_cols_on = grid_on and lay.grid is not None
-        sig = b.obs_sigma_px
+        sig = d.sigma_px
         w = model.weights["image"]
         Wm = ic.W
         if Wm is None:
-            r = (pred - b.obs_pixel) / sig
+            r = (pred - d.pixel) / sig
         else:
-            r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
+            r = np.einsum("nij,nj->ni", Wm, pred - d.pixel)
         bad = np.asarray(~np.isfinite(r).all(axis=1), dtype=bool)
         if bad.any():
             r[bad] = 0.0  # behind the camera: reported by the solver
@@ -401,7 +411,7 @@ class Image(ObservationType):
             f.cols = ic.frame_cols
         if lay.n_p:
             if ic.frame_point is None:
-                ic.frame_point = lay.point[b.obs_point]
+                ic.frame_point = lay.point[d.point]
             f.point = ic.frame_point
             f.jp = jX
         return f
@@ -409,6 +419,7 @@ class Image(ObservationType):
     def _bal(self, model: "Model", s: "State", jac: bool, bal_kernel) -> Factor:
         """:meth:`_numpy` for blocks of BAL cameras only, through the compiled kernel (same values)."""
         b, lay = model.block, model.layout
+        d = self.data(b)
         ic = model.cache[self.name]
         n = b.n_observations
         Rc, Cc, M = model.camera_poses(s)
@@ -431,11 +442,11 @@ class Image(ObservationType):
         jc = np.empty((n if jac else 0, 2, k))  # the kernel writes every column
         jp = np.empty((n if jac else 0, 2, 3))
         off = np.ascontiguousarray(b.image_offset, dtype=np.float64)
-        bal_kernel(b.obs_image, b.obs_point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
+        bal_kernel(d.image, d.point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
                     np.ascontiguousarray(M), np.ascontiguousarray(s.R), off, bool(np.any(off)),
-                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(b.obs_pixel, dtype=np.float64),
-                    np.ascontiguousarray(b.obs_sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
-        f = Factor(self.name, r, b.obs_sigma_px, weight=model.weights["image"])
+                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(d.pixel, dtype=np.float64),
+                    np.ascontiguousarray(d.sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
+        f = Factor(self.name, r, d.sigma_px, weight=model.weights["image"])
         f.bad = bad
         if not jac:
             return f
@@ -444,15 +455,15 @@ class Image(ObservationType):
             if ic.bal_cols is None:
                 colblocks = []
                 if pose_on:
-                    colblocks.append(lay.pose[b.image_station[b.obs_image]])
+                    colblocks.append(lay.pose[b.image_station[d.image]])
                 if model._bore_on:
-                    colblocks.append(lay.bore[b.image_head[b.obs_image]])
+                    colblocks.append(lay.bore[b.image_head[d.image]])
                 if model._intr_on:
                     colblocks.append(model._icols[ic.obs_cam])
                 ic.bal_cols = np.concatenate(colblocks, axis=1)
             f.cols = ic.bal_cols
         if lay.n_p:
-            f.point = lay.point[b.obs_point]
+            f.point = lay.point[d.point]
             f.jp = jp
         return f
 
