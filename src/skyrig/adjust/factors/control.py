@@ -1,6 +1,7 @@
 """Ground coordinates of control points (and check points, compared but not used).
 
-Data (``Block`` fields): ``control_point (K,)`` point indices, ``control_xyz (K, 3)`` m, ``control_sigma
+Data (:class:`ControlRows` in ``block.observations['control']``;
+the Block's keywords): ``control_point (K,)`` point indices, ``control_xyz (K, 3)`` m, ``control_sigma
 (K, 3)`` m per axis, ``control_check (K,)`` True for a check point (weight 0) and optional
 ``control_cov_m2 (K, 3, 3)`` m².  Residual ``X[point] - xyz`` with the identity Jacobian on the point
 (eliminated, or among the reduced columns for the end points of distances).

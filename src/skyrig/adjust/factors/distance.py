@@ -1,6 +1,7 @@
 """Distances between two object points (scale bars, paper 004's close-range test field).
 
-Data (``Block`` fields): ``distance_point (D, 2)`` point indices, ``distance_m (D,)`` observed distances
+Data (:class:`DistanceRows` in ``block.observations['distance']``;
+the Block's keywords): ``distance_point (D, 2)`` point indices, ``distance_m (D,)`` observed distances
 and ``distance_sigma_m (D,)`` m.  Residual ``|X_a - X_b| - d``, one row each.  A distance couples two
 points, which the Schur elimination of points cannot: its end points are estimated among the reduced
 unknowns (``Layout.rpoint``).

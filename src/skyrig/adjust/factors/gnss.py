@@ -1,6 +1,7 @@
 """GNSS antenna positions of the stations (papers 003 and 004).
 
-Data (``Block`` fields): ``gnss_station (G,)``, ``gnss_xyz (G, 3)`` m, ``gnss_sigma (G, 3)`` m per axis and
+Data (:class:`GnssRows` in ``block.observations['gnss']``;
+the Block's keywords): ``gnss_station (G,)``, ``gnss_xyz (G, 3)`` m, ``gnss_sigma (G, 3)`` m per axis and
 optional ``gnss_cov_m2 (G, 3, 3)`` m².  Residual (computed minus observed)::
 
     C_station + R_station @ lever_arm + datum_shift + strip_shift[s] + strip_drift[s] * (t - t0[s]) - xyz

@@ -1,6 +1,7 @@
 """Image coordinates of object points: the collinearity observations of the bundle.
 
-Data (``Block`` fields): ``obs_image (N,)``, ``obs_point (N,)``, ``obs_pixel (N, 2)`` px (column, row),
+Data (:class:`ImageRows` in ``block.observations['image']``;
+the Block's keywords): ``obs_image (N,)``, ``obs_point (N,)``, ``obs_pixel (N, 2)`` px (column, row),
 ``obs_sigma_px (N, 2)`` px and optional ``obs_cov_px2 (N, 2, 2)`` px².  Residual: the projection of the
 point through the image's camera (``world_from_camera = R_station @ station_from_camera @
 expmap(boresight)``, the mounting of an actuated head from its actuator angle, see

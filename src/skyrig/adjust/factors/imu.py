@@ -1,6 +1,7 @@
 """IMU attitudes of the stations (integrated sensor orientation, paper 003).
 
-Data (``Block`` fields): ``imu_station (M,)``, ``imu_rotation (M, 3, 3)`` observed ``world_from_station``,
+Data (:class:`ImuRows` in ``block.observations['imu']``;
+the Block's keywords): ``imu_station (M,)``, ``imu_rotation (M, 3, 3)`` observed ``world_from_station``,
 ``imu_sigma_rad (M, 3)`` rad about the station axes and optional ``imu_cov_rad2 (M, 3, 3)`` rad².
 Residual: the rotation vector ``e = log(R_imu^T R_station)`` (station axes), with the inverse right
 Jacobian of SO(3) (to first order) on the station rotation.
