@@ -423,6 +423,50 @@ def _others_above(groups: dict[str, GroupResiduals], crit: float) -> bool:
         for g, gr in groups.items())
 
 
+def _snooping_picks(block: Block, model: Model, groups: dict[str, GroupResiduals], snooped: list[Rejection],
+                    cfg: AdjustConfig, crit: float) -> tuple[list[tuple[float, str, int]], str | None]:
+    """One data-snooping round's rejections ``(|w|, group, index)``; none (with why, when it failed) ends the snooping."""
+    msg = _implausible_rejections(model, snooped, cfg)
+    if msg:
+        return [], msg
+    # data snooping: the largest normalised residual among active observations
+    best = _largest_normalised(groups)
+    if cfg.reliability.familywise:
+        crit = critical_value(cfg.reliability.alpha / max(_n_tests(groups), 1))
+    if best[0] <= crit:
+        return [], None
+    n_obs = sum(len(gr.weight) for g, gr in groups.items() if gr.normalised is not None and _tested(g))
+    cap = max(int(cfg.reliability.max_rejections), int(np.ceil(cfg.reliability.max_share * n_obs)))
+    if len(snooped) >= cap:
+        counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
+        return [], (
+            f"data snooping stopped at its cap of {cap} rejections (the larger of max_rejections "
+            f"{cfg.reliability.max_rejections} and snooping_max_share {cfg.reliability.max_share:g} of {n_obs} observations; "
+            f"{counts}) with observations "
+            f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
+            "so many blunders mean the functional model is probably wrong - " + _what_to_free(
+                cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
+    picks = [(best[0], best[1], best[2])]
+    # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
+    # above the critical value (its spill into the images of its station would look like blunders there)
+    if best[1] == "image" and cfg.reliability.per_round > 1 and not _others_above(groups, crit):
+        room = min(cfg.reliability.per_round, cap - len(snooped)) - 1
+        picks += [(w, "image", j) for w, j in
+                  _further_image_rejections(block, groups["image"], best[2], crit, room)]
+    return picks, None
+
+
+def _reject(block: Block, model: Model, picks: list[tuple[float, str, int]], rejected: list[Rejection]) -> Model:
+    """Weight the snooped observations out (recorded in ``rejected``); a point left undetermined goes with its rays."""
+    for w_, g, i in picks:
+        _weights(model)[g][i] = 0.0
+        rejected.append(Rejection(g, i, _label(block, g, i), w_))
+        logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, w_)
+        if g == "image":
+            model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
+    return model
+
+
 def adjust(block: Block, config: AdjustConfig | None = None,
            callback: Callable[[str, int, float], None] | None = None, start: Block | None = None) -> AdjustmentResult:
     """Adjust a block.
@@ -466,7 +510,7 @@ def adjust(block: Block, config: AdjustConfig | None = None,
     eng0 = check_datum(model, state, free) if cfg.unknowns.datum != "none" else None
     opt = cfg.solver
     huber = opt.robust_k if opt.robust == "huber" else None
-    crit = critical_value(cfg.reliability.alpha)
+    crit = critical_value(cfg.reliability.alpha)  # familywise: recomputed per round in _snooping_picks
     n_start = len(rejected)
     failures: list[str] = []
     total_info = SolveInfo()
@@ -495,41 +539,12 @@ def adjust(block: Block, config: AdjustConfig | None = None,
         if not cfg.reliability.snooping or res[0] is None:
             break
         snooped = [r for r in rejected[n_start:] if np.isfinite(r.normalised_residual)]
-        msg = _implausible_rejections(model, snooped, cfg)
+        picks, msg = _snooping_picks(block, model, res[1], snooped, cfg, crit)
         if msg:
             failures.append(msg)
+        if not picks:
             break
-        # data snooping: the largest normalised residual among active observations
-        best = _largest_normalised(res[1])
-        if cfg.reliability.familywise:
-            crit = critical_value(cfg.reliability.alpha / max(_n_tests(res[1]), 1))
-        if best[0] <= crit:
-            break
-        n_obs = sum(len(gr.weight) for g, gr in res[1].items() if gr.normalised is not None and _tested(g))
-        cap = max(int(cfg.reliability.max_rejections), int(np.ceil(cfg.reliability.max_share * n_obs)))
-        if len(snooped) >= cap:
-            counts = ", ".join(f"{n} {_words(g)}" for g, n in _counts(snooped).items())
-            failures.append(
-                f"data snooping stopped at its cap of {cap} rejections (the larger of max_rejections "
-                f"{cfg.reliability.max_rejections} and snooping_max_share {cfg.reliability.max_share:g} of {n_obs} observations; "
-                f"{counts}) with observations "
-                f"still above the critical value (|w| = {best[0]:.1f} > {crit:.1f}, {_label(block, best[1], best[2])}): "
-                "so many blunders mean the functional model is probably wrong - " + _what_to_free(
-                    cfg, [g for g, _ in sorted(_counts(snooped).items(), key=lambda kv: -kv[1])]))
-            break
-        picks = [(best[0], best[1], best[2])]
-        # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
-        # above the critical value (its spill into the images of its station would look like blunders there)
-        if best[1] == "image" and cfg.reliability.per_round > 1 and not _others_above(res[1], crit):
-            room = min(cfg.reliability.per_round, cap - len(snooped)) - 1
-            picks += [(w, "image", j) for w, j in
-                      _further_image_rejections(block, res[1]["image"], best[2], crit, room)]
-        for w_, g, i in picks:
-            _weights(model)[g][i] = 0.0
-            rejected.append(Rejection(g, i, _label(block, g, i), w_))
-            logger.info("data snooping rejects %s (|w| = %.2f)", rejected[-1].label, w_)
-            if g == "image":
-                model = _drop_undetermined_point(block, model, int(block.obs_point[i]), rejected)
+        model = _reject(block, model, picks, rejected)
         stage = f"snooping {len(rejected)}"
     cov, residuals, groups, sigma0, n_obs, n_unk, warnings, selected, total_info.final_cost = res
     redundancy = n_obs - n_unk + (_datum_defect(model.layout) if free else 0)

@@ -40,6 +40,42 @@ _REFILLED: dict[str, Any] = dict(head_boresight=None, strip_shift=None, strip_dr
                                  actuator_correction=None)
 
 
+def _exposure_stations(events: CameraEvents, base: Block, same_exposure_s: float):
+    """The block images' event rows and events, the exposure ids (one station each), each image's station,
+    the event times and each station's first image; :class:`BlockError` when an exposure's images are
+    farther apart in time than ``same_exposure_s``."""
+    ev_index = {str(n): k for k, n in enumerate(events.image_name)}
+    rows = np.array([ev_index[str(n)] for n in base.image_name], dtype=np.int64)
+    ev = events.subset(rows)
+    expo, station_of_image = np.unique(np.asarray(ev.exposure_id), return_inverse=True)
+    t = np.asarray(ev.time_s, dtype=np.float64)
+    order = np.argsort(station_of_image, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(station_of_image[order]) != 0])
+    first = order[starts]  # first image (in block order) of each exposure
+    spreads = np.maximum.reduceat(t[order], starts) - np.minimum.reduceat(t[order], starts)
+    too_long = np.flatnonzero(spreads > same_exposure_s)
+    if too_long.size:
+        s, spread = int(too_long[0]), float(spreads[too_long[0]])
+        raise BlockError(f"exposure {int(expo[s])}: its images were taken {spread:.6f} s apart (more than "
+                         f"{same_exposure_s} s), so they cannot share one platform pose; give them separate "
+                         f"exposure ids in {events.source or 'the events'}")
+    return rows, ev, expo, station_of_image, t, first
+
+
+def _gnss_imu_rows(rig: Rig, body: ExteriorOrientations, gnss_sigma_m, imu_sigma_rad) -> dict:
+    """The GNSS (antenna) and IMU (body attitude) observation fields of one row per station (None: left out)."""
+    kw: dict = {}
+    n_st = len(body.rotation)
+    if gnss_sigma_m is not None:
+        antenna = antenna_from_body_origin(body.rotation, body.centre, rig.antenna_lever_arm_m)
+        kw.update(gnss_station=np.arange(n_st), gnss_xyz=antenna,
+                  gnss_sigma=np.broadcast_to(np.asarray(gnss_sigma_m, dtype=np.float64), (n_st, 3)).copy())
+    if imu_sigma_rad is not None:
+        kw.update(imu_station=np.arange(n_st), imu_rotation=body.rotation,
+                  imu_sigma_rad=np.broadcast_to(np.asarray(imu_sigma_rad, dtype=np.float64), (n_st, 3)).copy())
+    return kw
+
+
 def block_from_trajectory(
     trajectory: Trajectory,
     rig: Rig,
@@ -96,21 +132,7 @@ def block_from_trajectory(
     base, frame = block_from_georef(eo, cameras, measurements, control, gnss_sigma_m=None, imu_sigma_rad=None,
                                     control_sigma_m=control_sigma_m, check_points=tuple(check_points),  # type: ignore[arg-type]
                                     sigma_px=sigma_px, frame=frame, min_rays=min_rays)
-    ev_index = {str(n): k for k, n in enumerate(events.image_name)}
-    rows = np.array([ev_index[str(n)] for n in base.image_name], dtype=np.int64)
-    ev = events.subset(rows)
-    expo, station_of_image = np.unique(np.asarray(ev.exposure_id), return_inverse=True)
-    t = np.asarray(ev.time_s, dtype=np.float64)
-    order = np.argsort(station_of_image, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(station_of_image[order]) != 0])
-    first = order[starts]  # first image (in block order) of each exposure
-    spreads = np.maximum.reduceat(t[order], starts) - np.minimum.reduceat(t[order], starts)
-    too_long = np.flatnonzero(spreads > same_exposure_s)
-    if too_long.size:
-        s, spread = int(too_long[0]), float(spreads[too_long[0]])
-        raise BlockError(f"exposure {int(expo[s])}: its images were taken {spread:.6f} s apart (more than "
-                         f"{same_exposure_s} s), so they cannot share one platform pose; give them separate "
-                         f"exposure ids in {events.source or 'the events'}")
+    rows, ev, expo, station_of_image, t, first = _exposure_stations(events, base, same_exposure_s)
     # platform (IMU body) pose per station, in the local frame: the pose the cameras were composed from (all
     # images of an exposure share it, within same_exposure_s)
     at = rows[first]
@@ -129,15 +151,8 @@ def block_from_trajectory(
     if wrong.size:  # pragma: no cover
         i = int(wrong[0])
         raise BlockError(f"image {str(base.image_name[i])!r}: camera does not match head {str(ev.head[i])!r}")
-    kw: dict = {}
     n_st = len(expo)
-    if gnss_sigma_m is not None:
-        antenna = antenna_from_body_origin(body.rotation, body.centre, rig.antenna_lever_arm_m)
-        kw.update(gnss_station=np.arange(n_st), gnss_xyz=antenna,
-                  gnss_sigma=np.broadcast_to(np.asarray(gnss_sigma_m, dtype=np.float64), (n_st, 3)).copy())
-    if imu_sigma_rad is not None:
-        kw.update(imu_station=np.arange(n_st), imu_rotation=body.rotation,
-                  imu_sigma_rad=np.broadcast_to(np.asarray(imu_sigma_rad, dtype=np.float64), (n_st, 3)).copy())
+    kw = _gnss_imu_rows(rig, body, gnss_sigma_m, imu_sigma_rad)
     block = replace(
         base,
         station_name=names, station_rotation=body.rotation, station_centre=body.centre,

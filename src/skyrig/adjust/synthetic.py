@@ -42,6 +42,69 @@ def _default_camera() -> FrameCamera:
     return FrameCamera.from_pixels("cam", 3000, 2000, 2500.0, 1499.5, 999.5, pixel_size_mm=0.004)
 
 
+def _flown_heads(rig: Rig | None, cam: FrameCamera, true_camera: FrameCamera | None, true_rig: Rig | None):
+    """The heads flown ``(name, camera, body_from_camera or None when actuated, lever arm)``, the head objects of
+    the block's rig and of the true rig, which are actuated, and the true and given camera of each head."""
+    if rig is None:
+        from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA
+
+        heads = [("nadir", cam, NADIR_BODY_FROM_CAMERA, np.zeros(3))]
+    else:
+        heads = [(h.name, h.camera, None if h.is_actuated else h.body_from_camera_rotation(), h.lever_arm_m)  # type: ignore[misc]
+                 for h in rig.heads.values()]
+    head_objs = list(rig.heads.values()) if rig is not None else [None]
+    true_objs = list((true_rig or rig).heads.values()) if rig is not None else [None]
+    actuated = [h is not None and h.is_actuated for h in head_objs]
+    true_cams = [true_camera or h[1] for h in heads] if rig is None else [h[1] for h in heads]
+    given_cams = [cam] if rig is None else [h[1] for h in heads]
+    return heads, head_objs, true_objs, actuated, true_cams, given_cams
+
+
+def _points(rng: np.random.Generator, n_points: int, n_strips: int, n_per_strip: int, base: float, spacing: float,
+            fx: float, fy: float, relief_m: float) -> tuple[NDArray[np.float64], float, float]:
+    """Uniform random points over the flown area (and its half extents x, y)."""
+    ext_x = (n_per_strip - 1) * base / 2 + fx / 2
+    ext_y = (n_strips - 1) * spacing / 2 + fy / 2
+    X = np.column_stack([rng.uniform(-ext_x, ext_x, n_points), rng.uniform(-ext_y, ext_y, n_points),
+                         rng.uniform(-relief_m / 2, relief_m / 2, n_points)])
+    return X, ext_x, ext_y
+
+
+def _platform_observations(rng: np.random.Generator, R, C, lever, shift, gnss_sigma_m: float | None,
+                           imu_sigma_rad: float | None) -> dict:
+    """Noisy GNSS antenna positions and IMU attitudes of every station (None sigma: left out)."""
+    S = len(C)
+    block_kw: dict = {}
+    if gnss_sigma_m is not None:
+        ant = antenna_from_body_origin(R, C, lever) + shift
+        block_kw.update(gnss_station=np.arange(S), gnss_xyz=ant + rng.normal(0, gnss_sigma_m, (S, 3)),
+                        gnss_sigma=gnss_sigma_m)
+    if imu_sigma_rad is not None:
+        block_kw.update(imu_station=np.arange(S), imu_sigma_rad=imu_sigma_rad,
+                        imu_rotation=R @ matrix_from_rotvec(rng.normal(0, imu_sigma_rad, (S, 3))))
+    return block_kw
+
+
+def _footprint(ref: FrameCamera, height_m: float, forward_overlap: float,
+               side_overlap: float) -> tuple[float, float, float, float]:
+    """The ground footprint of ``ref`` (x along track, y across), the base and the strip spacing."""
+    gsd = ref.pixel_size_mm / ref.focal_mm * height_m
+    fx, fy = ref.width * gsd, ref.height * gsd  # footprint: image x along track
+    base = fx * (1 - forward_overlap)
+    spacing = fy * (1 - side_overlap)
+    return fx, fy, base, spacing
+
+
+def _start_values(rng: np.random.Generator, R, C, X, perturb_pose_rad: float, perturb_pose_m: float,
+                  perturb_point_m: float):
+    """The true station rotations, centres and points, perturbed (Gaussian) as the block's starting values."""
+    S = len(C)
+    R0 = R @ matrix_from_rotvec(rng.normal(0, perturb_pose_rad, (S, 3)))
+    C0 = C + rng.normal(0, perturb_pose_m, (S, 3))
+    X0 = X + rng.normal(0, perturb_point_m, X.shape)
+    return R0, C0, X0
+
+
 def synthetic_block(
     seed: int = 0,
     n_strips: int = 2,
@@ -100,35 +163,16 @@ def synthetic_block(
     """
     rng = np.random.default_rng(seed)
     cam = camera or _default_camera()
-    if rig is None:
-        from skyrig.rig.rig import NADIR_BODY_FROM_CAMERA
-
-        heads = [("nadir", cam, NADIR_BODY_FROM_CAMERA, np.zeros(3))]
-    else:
-        heads = [(h.name, h.camera, None if h.is_actuated else h.body_from_camera_rotation(), h.lever_arm_m)  # type: ignore[misc]
-                 for h in rig.heads.values()]
-    head_objs = list(rig.heads.values()) if rig is not None else [None]
-    true_objs = list((true_rig or rig).heads.values()) if rig is not None else [None]
-    actuated = [h is not None and h.is_actuated for h in head_objs]
+    heads, head_objs, true_objs, actuated, true_cams, given_cams = _flown_heads(rig, cam, true_camera, true_rig)
     nh = len(heads)
-    true_cams = [true_camera or h[1] for h in heads] if rig is None else [h[1] for h in heads]
-    given_cams = [cam] if rig is None else [h[1] for h in heads]
-    ref = heads[0][1]
-    gsd = ref.pixel_size_mm / ref.focal_mm * height_m
-    fx, fy = ref.width * gsd, ref.height * gsd  # footprint: image x along track
-    base = fx * (1 - forward_overlap)
-    spacing = fy * (1 - side_overlap)
+    fx, fy, base, spacing = _footprint(heads[0][1], height_m, forward_overlap, side_overlap)
     lever = np.zeros(3) if lever_arm is None else np.asarray(lever_arm, float)
     bore = np.zeros((nh, 3)) if head_boresight is None else np.asarray(head_boresight, float).reshape(nh, 3)
     shift = np.zeros(3) if datum_shift is None else np.asarray(datum_shift, float)
 
     R, C, strip, t = _stations(rng, n_strips, n_per_strip, base, spacing, height_m)
     S = len(C)
-    # points
-    ext_x = (n_per_strip - 1) * base / 2 + fx / 2
-    ext_y = (n_strips - 1) * spacing / 2 + fy / 2
-    X = np.column_stack([rng.uniform(-ext_x, ext_x, n_points), rng.uniform(-ext_y, ext_y, n_points),
-                         rng.uniform(-relief_m / 2, relief_m / 2, n_points)])
+    X, ext_x, ext_y = _points(rng, n_points, n_strips, n_per_strip, base, spacing, fx, fy, relief_m)
     # images
     img_station = np.repeat(np.arange(S), nh)
     img_head = np.tile(np.arange(nh), S)
@@ -147,16 +191,8 @@ def synthetic_block(
     block_kw: dict = {}
     if any(actuated):
         block_kw.update(image_beta_rad=img_beta, head_actuated=[h if a else None for h, a in zip(head_objs, actuated)])
-    if gnss_sigma_m is not None:
-        ant = antenna_from_body_origin(R, C, lever) + shift
-        block_kw.update(gnss_station=np.arange(S), gnss_xyz=ant + rng.normal(0, gnss_sigma_m, (S, 3)),
-                        gnss_sigma=gnss_sigma_m)
-    if imu_sigma_rad is not None:
-        block_kw.update(imu_station=np.arange(S), imu_sigma_rad=imu_sigma_rad,
-                        imu_rotation=R @ matrix_from_rotvec(rng.normal(0, imu_sigma_rad, (S, 3))))
-    R0 = R @ matrix_from_rotvec(rng.normal(0, perturb_pose_rad, (S, 3)))
-    C0 = C + rng.normal(0, perturb_pose_m, (S, 3))
-    X0 = X + rng.normal(0, perturb_point_m, X.shape)
+    block_kw.update(_platform_observations(rng, R, C, lever, shift, gnss_sigma_m, imu_sigma_rad))
+    R0, C0, X0 = _start_values(rng, R, C, X, perturb_pose_rad, perturb_pose_m, perturb_point_m)
     block = Block(
         cameras=list(given_cams), station_name=np.array([f"s{s:04d}" for s in range(S)]), station_rotation=R0,
         station_centre=C0, station_time=np.array(t, float), station_strip=np.array(strip),

@@ -591,6 +591,31 @@ def _grid_residuals(res: AdjustmentResult) -> dict[int, tuple[NDArray[np.bool_],
     return {ci: (use & (cam_of_obs == ci), err) for ci in range(len(b.cameras))}
 
 
+def _estimated_grids(r: AdjustmentResult, fits: dict[str, CovarianceFit]) -> dict[str, CorrectionGrid]:
+    """The correction grids the adjustment ``r`` estimated, with their posterior sigma and factor (from its
+    covariance) and the covariance fit each was set up from."""
+    grids: dict[str, CorrectionGrid] = {}
+    est = r.block.observations.get("image_grid")
+    if est is not None and r.covariance is not None:
+        lab = r.layout.labels
+        pos = {q: j for j, q in enumerate(lab)}
+        Q = r.covariance.Qcc * r.sigma0 ** 2
+        for g in est.grids:
+            ny, nx = g.value_px.shape[:2]
+            ix = [pos[("image_grid", g.camera, f"x{iy}_{jx}")] for iy in range(ny) for jx in range(nx)]
+            Qx = Q[np.ix_(ix, ix)]
+            lam, V = np.linalg.eigh(0.5 * (Qx + Qx.T))
+            factor = V * np.sqrt(np.clip(lam, 0.0, None))
+            ci = [c.name for c in r.block.cameras].index(g.camera)
+            n_obs = int(np.sum(r.block.image_camera[r.block.obs_image] == ci))
+            # the posterior sigma and factor of the x values (the prior is the same for y; their posteriors differ
+            # only by the observations' geometry)
+            grids[g.camera] = CorrectionGrid(g.camera, g.x_px, g.y_px, g.value_px.copy(),
+                                             np.sqrt(np.clip(np.diag(Qx), 0.0, None)).reshape(ny, nx),
+                                             fits[g.camera], n_obs, factor)
+    return grids
+
+
 def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig, nodes_x: int | None = None,
                           max_cycles: int = 3, what: str = "joint (IO, boresights, datum shift) with correction grids",
                           min_signal_fraction: float = 0.05, min_signal_chi2: float = 25.0,
@@ -675,26 +700,7 @@ def joint_grid_adjustment(block: Block, res: AdjustmentResult, cfg: AdjustConfig
         r = _run(bg, cfg_g, f"{what}, cycle {cycles}")
         for k, cf in fits.items():
             log.info("calqc grid %s: c0 %.4f px^2, L %.0f px, nugget %.4f px^2", k, cf.c0, cf.length_px, cf.nugget)
-    grids: dict[str, CorrectionGrid] = {}
-    est = r.block.observations.get("image_grid")
-    if est is not None and r.covariance is not None:
-        lab = r.layout.labels
-        pos = {q: j for j, q in enumerate(lab)}
-        Q = r.covariance.Qcc * r.sigma0 ** 2
-        for g in est.grids:
-            ny, nx = g.value_px.shape[:2]
-            ix = [pos[("image_grid", g.camera, f"x{iy}_{jx}")] for iy in range(ny) for jx in range(nx)]
-            Qx = Q[np.ix_(ix, ix)]
-            lam, V = np.linalg.eigh(0.5 * (Qx + Qx.T))
-            factor = V * np.sqrt(np.clip(lam, 0.0, None))
-            ci = [c.name for c in r.block.cameras].index(g.camera)
-            n_obs = int(np.sum(r.block.image_camera[r.block.obs_image] == ci))
-            # the posterior sigma and factor of the x values (the prior is the same for y; their posteriors differ
-            # only by the observations' geometry)
-            grids[g.camera] = CorrectionGrid(g.camera, g.x_px, g.y_px, g.value_px.copy(),
-                                             np.sqrt(np.clip(np.diag(Qx), 0.0, None)).reshape(ny, nx),
-                                             fits[g.camera], n_obs, factor)
-    return r, grids, cycles
+    return r, _estimated_grids(r, fits), cycles
 
 
 def apply_grids(block: Block, grids: Mapping[str, CorrectionGrid]) -> Block:

@@ -41,6 +41,40 @@ class ScenarioTruth:
                 "image_sigma_um": float(e.measurement_sigma_px * px_um)}
 
 
+def _midas_spec(size: str, seed: int, camera_width_px: int | None):
+    """The MIDAS scenario's spec: ``"full"`` as published, ``"reduced"`` a smaller block of narrower cameras;
+    ``camera_width_px`` cameras of that width with the same field of view."""
+    from skyrig.simulate.scenarios import FlightSpec, ci_camera, scenario_spec
+
+    spec = scenario_spec("midas", "full", seed)
+    if size == "reduced":
+        w = int(camera_width_px or 1200)
+        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, w)) for n, h in spec.rig.heads.items()})
+        fls = (FlightSpec(609.6, 3, (-500, -500, 500, 500), speed_mps=60.0, forward_overlap=0.6),
+               FlightSpec(1219.2, 2, (-500, -500, 500, 500), direction_deg=180.0, speed_mps=60.0))
+        spec = replace(spec, rig=rig, flights=fls, scene_extent=(-2500, -2500, 2500, 2500), n_buildings=40,
+                       n_gcp=12, n_check=4)
+    elif camera_width_px:
+        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, int(camera_width_px)))
+                                       for n, h in spec.rig.heads.items()})
+        spec = replace(spec, rig=rig)
+    return spec
+
+
+def _kept_strips(data: CalqcData, survey, spec, directions: str, heights: str) -> CalqcData:
+    """``data`` of the strips flown in the first strip's direction (``directions="one"``) and / or of the lower
+    flight only (``heights="low"``)."""
+    n_low = spec.flights[0].n_strips
+    st_keep = {}
+    for i in range(len(survey.plan)):
+        same = float(np.cos(survey.plan.heading_rad[i] - survey.plan.heading_rad[0])) > 0
+        low = int(survey.plan.strip[i]) < n_low
+        st_keep[i + 1] = (same or directions == "both") and (low or heights == "both")
+    keep = {str(n) for n, x in zip(survey.events_recorded.image_name, survey.events_recorded.exposure_id)
+            if st_keep[int(x)]}
+    return data.subset_images(sorted(keep))
+
+
 def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str = "both", tie_points: int | None = None,
                          io_error: Mapping[str, tuple[float, float, float]] | None = None,
                          datum_shift_m: tuple[float, float, float] = (0.25, -0.15, 0.2),
@@ -65,7 +99,7 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
     grid's prior assumes.  The IO errors and the deformation are applied to the simulated image
     measurements exactly (pixel -> ray with the recorded camera -> pixel with the true camera, plus the field).
     """
-    from skyrig.simulate.scenarios import FlightSpec, build_survey, ci_camera, scenario_spec
+    from skyrig.simulate.scenarios import build_survey
 
     if size not in ("full", "reduced"):
         raise SkyrigError(f"size must be 'full' or 'reduced', not {size!r}")
@@ -73,18 +107,7 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
         raise SkyrigError(f"heights must be 'both' or 'low', not {heights!r}")
     if directions not in ("both", "one"):
         raise SkyrigError(f"directions must be 'both' or 'one', not {directions!r}")
-    spec = scenario_spec("midas", "full", seed)
-    if size == "reduced":
-        w = int(camera_width_px or 1200)
-        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, w)) for n, h in spec.rig.heads.items()})
-        fls = (FlightSpec(609.6, 3, (-500, -500, 500, 500), speed_mps=60.0, forward_overlap=0.6),
-               FlightSpec(1219.2, 2, (-500, -500, 500, 500), direction_deg=180.0, speed_mps=60.0))
-        spec = replace(spec, rig=rig, flights=fls, scene_extent=(-2500, -2500, 2500, 2500), n_buildings=40,
-                       n_gcp=12, n_check=4)
-    elif camera_width_px:
-        rig = replace(spec.rig, heads={n: h.with_(camera=ci_camera(h.camera, int(camera_width_px)))
-                                       for n, h in spec.rig.heads.items()})
-        spec = replace(spec, rig=rig)
+    spec = _midas_spec(size, seed, camera_width_px)
     cam_px_um = {n: h.camera.pixel_size_mm * 1000.0 for n, h in spec.rig.heads.items()}
     n_tie = tie_points if tie_points is not None else (3000 if size == "full" else 1500)
     err = replace(spec.errors, tie_points=int(n_tie), datum_shift_m=tuple(float(v) for v in datum_shift_m),
@@ -134,15 +157,7 @@ def midas_calqc_scenario(size: str = "full", seed: int = 1, *, directions: str =
                      tie_points=None if survey.tie_points is None else distort(survey.tie_points))
     data = calqc_data_from_survey(survey)
     if directions == "one" or heights == "low":
-        n_low = spec.flights[0].n_strips
-        st_keep = {}
-        for i in range(len(survey.plan)):
-            same = float(np.cos(survey.plan.heading_rad[i] - survey.plan.heading_rad[0])) > 0
-            low = int(survey.plan.strip[i]) < n_low
-            st_keep[i + 1] = (same or directions == "both") and (low or heights == "both")
-        keep = {str(n) for n, x in zip(survey.events_recorded.image_name, survey.events_recorded.exposure_id)
-                if st_keep[int(x)]}
-        data = data.subset_images(sorted(keep))
+        data = _kept_strips(data, survey, spec, directions, heights)
     bore = {}
     for h in rig_rec:
         bt = survey.rig_true.head(h.name).boresight

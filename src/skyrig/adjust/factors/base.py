@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 from skyrig.errors import BlockError  # noqa: F401 - re-exported (defined in skyrig.errors)
 
 __all__ = ["ObservationType", "ParameterGroup", "Factor", "BlockError", "BalCamera", "REQUIRED", "pad_actuator", "any_on", "whitening_matrices", "check_index", "check_finite",
-           "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows"]
+           "check_positive", "check_covariance", "rows_of", "sigma_rows", "covariance_rows", "indexed_rows"]
 
 
 @dataclass(frozen=True)
@@ -94,18 +94,34 @@ def sigma_rows(sigma: Any, n: int, d: int | None) -> NDArray[np.float64]:
     return np.broadcast_to(np.asarray(sigma, dtype=np.float64), shape).copy()
 
 
-def covariance_rows(block: Any, cov_field: str, sigma_field: str, n: int, d: int) -> None:
-    """Check the optional full covariance ``(n, d, d)`` of a block field; when given, the per-axis sigma
-    field becomes ``sqrt(diag)`` (for reports)."""
-    cv = getattr(block, cov_field)
+def covariance_rows(rows: Any, cov_field: str, sigma_field: str, n: int, d: int, label: str | None = None) -> None:
+    """Check the optional full covariance ``(n, d, d)`` in field ``cov_field`` of ``rows`` (a type's rows or a
+    block; ``label``: its name in the message, default ``cov_field``); when given, the per-axis sigma field
+    becomes ``sqrt(diag)`` (for reports)."""
+    cv = getattr(rows, cov_field)
     if cv is None:
         return
     cv = np.asarray(cv, dtype=np.float64)
     if cv.shape != (n, d, d):
-        raise BlockError(f"{cov_field} must have shape ({n}, {d}, {d}), got {cv.shape}")
-    setattr(block, cov_field, cv.copy())
+        raise BlockError(f"{label or cov_field} must have shape ({n}, {d}, {d}), got {cv.shape}")
+    setattr(rows, cov_field, cv.copy())
     with np.errstate(invalid="ignore"):
-        setattr(block, sigma_field, np.sqrt(np.diagonal(cv, axis1=1, axis2=2)).copy())
+        setattr(rows, sigma_field, np.sqrt(np.diagonal(cv, axis1=1, axis2=2)).copy())
+
+
+def indexed_rows(rows: Any, index: str, values: str, tail: tuple[int, ...], sigma: str, cov: str, label: str) -> int:
+    """Normalise rows of one station or point each: the ``index`` field (None: no rows), the observed ``values``
+    ``(n,) + tail``, the ``sigma`` ``(n, 3)`` and the optional covariance ``cov`` ``(n, 3, 3)`` (``label``: its name
+    in messages); returns n."""
+    if getattr(rows, index) is None:
+        setattr(rows, index, np.zeros(0, np.int64))
+        setattr(rows, values, np.zeros((0,) + tail))
+    n = len(np.asarray(getattr(rows, index)).reshape(-1))
+    setattr(rows, index, rows_of(getattr(rows, index), (), np.int64, n))
+    setattr(rows, values, rows_of(getattr(rows, values), tail, n=n))
+    setattr(rows, sigma, sigma_rows(getattr(rows, sigma), n, 3))
+    covariance_rows(rows, cov, sigma, n, 3, label)
+    return n
 
 
 def check_index(name: str, idx: NDArray, n: int, what: str) -> None:
@@ -231,8 +247,8 @@ class ObservationType:
     datum_words: ClassVar[str] = ""
     #: default axis sets of variance component estimation, None = not estimated for this group
     vce_split: ClassVar[tuple[tuple[int, ...], ...] | None] = None
-    #: names of the block fields holding the group's sigma ``(n, d)`` and optional covariance ``(n, d, d)``
-    #: (built-in types); other types keep them in their data object (attributes ``sigma`` / ``cov``)
+    #: names of the fields of the type's data object (:meth:`data`) holding the group's sigma ``(n, d)`` and
+    #: optional covariance ``(n, d, d)``; None: its attributes ``sigma`` / ``cov``
     sigma_field: ClassVar[str | None] = None
     cov_field: ClassVar[str | None] = None
     #: the class of the type's rows (a data class of the type's module, kept in ``block.observations[name]``)
@@ -295,28 +311,20 @@ class ObservationType:
 
     # ------------------------------------------------------------------ sigma / covariance
     def get_sigma(self, block: "Block") -> NDArray[np.float64]:
-        if self.sigma_field is not None:
-            return getattr(block, self.sigma_field)
         d = self.data(block)
-        return np.zeros((0, len(self.components))) if d is None else d.sigma
+        if d is None:
+            return np.zeros((0, len(self.components)))
+        return getattr(d, self.sigma_field or "sigma")
 
     def set_sigma(self, block: "Block", value: NDArray[np.float64]) -> None:
-        if self.sigma_field is not None:
-            setattr(block, self.sigma_field, value)
-        else:
-            self.data(block).sigma = value
+        setattr(self.data(block), self.sigma_field or "sigma", value)
 
     def get_cov(self, block: "Block") -> NDArray[np.float64] | None:
-        if self.cov_field is not None:
-            return getattr(block, self.cov_field)
         d = self.data(block)
-        return None if d is None else getattr(d, "cov", None)
+        return None if d is None else getattr(d, self.cov_field or "cov", None)
 
     def set_cov(self, block: "Block", value: NDArray[np.float64] | None) -> None:
-        if self.cov_field is not None:
-            setattr(block, self.cov_field, value)
-        else:
-            self.data(block).cov = value
+        setattr(self.data(block), self.cov_field or "cov", value)
 
     # ------------------------------------------------------------------ model
     def initial_weight(self, block: "Block") -> NDArray[np.float64] | None:

@@ -1,6 +1,7 @@
 """Ground coordinates of control points (and check points, compared but not used).
 
-Data (``Block`` fields): ``control_point (K,)`` point indices, ``control_xyz (K, 3)`` m, ``control_sigma
+Data (:class:`ControlRows` in ``block.observations['control']``;
+the Block's keywords): ``control_point (K,)`` point indices, ``control_xyz (K, 3)`` m, ``control_sigma
 (K, 3)`` m per axis, ``control_check (K,)`` True for a check point (weight 0) and optional
 ``control_cov_m2 (K, 3, 3)`` m².  Residual ``X[point] - xyz`` with the identity Jacobian on the point
 (eliminated, or among the reduced columns for the end points of distances).
@@ -22,9 +23,7 @@ from skyrig.adjust.factors.base import (
     check_finite,
     check_index,
     check_positive,
-    covariance_rows,
-    rows_of,
-    sigma_rows,
+    indexed_rows,
     whitening_matrices,
 )
 
@@ -72,44 +71,43 @@ class Control(ObservationType):
                              "height reference)"),)
     datum_words = "control points"
     vce_split = ((0, 1), (2,))
-    sigma_field = "control_sigma"
-    cov_field = "control_cov_m2"
+    sigma_field = "sigma"
+    cov_field = "cov_m2"
     rows = ControlRows
     keywords = (('control_point', 'point', None), ('control_xyz', 'xyz', None), ('control_sigma', 'sigma', 0.01), ('control_check', 'check', None), ('control_cov_m2', 'cov_m2', None))
 
+    def data(self, block: "Block") -> ControlRows:
+        return block.observations[self.name]
+
     def count(self, block: "Block") -> int:
-        return len(block.control_point)
+        return len(self.data(block).point)
 
     def tested_count(self, block: "Block") -> int:
-        return int((~block.control_check).sum())
+        return int((~self.data(block).check).sum())
 
     def normalise(self, block: "Block") -> None:
-        if block.control_point is None:
-            block.control_point = np.zeros(0, np.int64)
-            block.control_xyz = np.zeros((0, 3))
-        k = len(np.asarray(block.control_point).reshape(-1))
-        block.control_point = rows_of(block.control_point, (), np.int64, k)
-        block.control_xyz = rows_of(block.control_xyz, (3,), n=k)
-        block.control_sigma = sigma_rows(block.control_sigma, k, 3)
-        block.control_check = (np.zeros(k, bool) if block.control_check is None
-                               else np.asarray(block.control_check, dtype=bool).reshape(k))
-        covariance_rows(block, "control_cov_m2", "control_sigma", k, 3)
+        d = self.data(block)
+        k = indexed_rows(d, "point", "xyz", (3,), "sigma", "cov_m2", "control_cov_m2")
+        d.check = np.zeros(k, bool) if d.check is None else np.asarray(d.check, dtype=bool).reshape(k)
 
     def validate(self, block: "Block") -> None:
-        check_index("control_point", block.control_point, block.n_points, "point")
-        check_finite("control_xyz", block.control_xyz)
-        check_finite("control_sigma", block.control_sigma)
-        check_positive("control_sigma", block.control_sigma)
-        check_covariance("control_cov_m2", block.control_cov_m2)
+        d = self.data(block)
+        check_index("control_point", d.point, block.n_points, "point")
+        check_finite("control_xyz", d.xyz)
+        check_finite("control_sigma", d.sigma)
+        check_positive("control_sigma", d.sigma)
+        check_covariance("control_cov_m2", d.cov_m2)
 
     def controlled_points(self, block: "Block") -> NDArray[np.bool_]:
+        d = self.data(block)
         out = np.zeros(block.n_points, bool)
-        out[block.control_point[~block.control_check]] = True
+        out[d.point[~d.check]] = True
         return out
 
     def initial_weight(self, block: "Block") -> NDArray[np.float64]:
+        d = self.data(block)
         w = np.ones(self.count(block))
-        w[block.control_check] = 0.0
+        w[d.check] = 0.0
         return w
 
     def fixes_datum(self, model: "Model") -> bool:
@@ -117,19 +115,21 @@ class Control(ObservationType):
 
     def prepare(self, model: "Model") -> NDArray[np.float64] | None:
         b = model.block
-        return None if b.control_cov_m2 is None else whitening_matrices(b.control_cov_m2)
+        d = self.data(b)
+        return None if d.cov_m2 is None else whitening_matrices(d.cov_m2)
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
-        p = b.control_point
-        sig = b.control_sigma
+        d = self.data(b)
+        p = d.point
+        sig = d.sigma
         Wm = model.cache[self.name]
         if Wm is None:
-            r = (s.X[p] - b.control_xyz) / sig
+            r = (s.X[p] - d.xyz) / sig
             J = np.zeros((len(p), 3, 3))
             J[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sig
         else:
-            r = np.einsum("nij,nj->ni", Wm, s.X[p] - b.control_xyz)
+            r = np.einsum("nij,nj->ni", Wm, s.X[p] - d.xyz)
             J = Wm
         f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)
         if jac and lay.n_p:
@@ -141,10 +141,10 @@ class Control(ObservationType):
         return [f]
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
-        return model.estimated_points()[model.block.control_point]
+        return model.estimated_points()[self.data(model.block).point]
 
     def label(self, block: "Block", i: int) -> str:
-        return f"control point {block.point_name[block.control_point[i]]}"
+        return f"control point {block.point_name[self.data(block).point[i]]}"
 
 
 CONTROL = register(Control())

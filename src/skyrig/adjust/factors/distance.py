@@ -1,6 +1,7 @@
 """Distances between two object points (scale bars, paper 004's close-range test field).
 
-Data (``Block`` fields): ``distance_point (D, 2)`` point indices, ``distance_m (D,)`` observed distances
+Data (:class:`DistanceRows` in ``block.observations['distance']``;
+the Block's keywords): ``distance_point (D, 2)`` point indices, ``distance_m (D,)`` observed distances
 and ``distance_sigma_m (D,)`` m.  Residual ``|X_a - X_b| - d``, one row each.  A distance couples two
 points, which the Schur elimination of points cannot: its end points are estimated among the reduced
 unknowns (``Layout.rpoint``).
@@ -60,41 +61,47 @@ class Distance(ObservationType):
     components = ("d",)
     units = "m"
     order = 40.0
-    sigma_field = "distance_sigma_m"
+    sigma_field = "sigma_m"
     rows = DistanceRows
     keywords = (('distance_point', 'point', None), ('distance_m', 'm', None), ('distance_sigma_m', 'sigma_m', 0.001))
+
+    def data(self, block: "Block") -> DistanceRows:
+        return block.observations[self.name]
 
     def count(self, block: "Block") -> int:
         return block.n_distances
 
     def normalise(self, block: "Block") -> None:
-        if block.distance_point is None:
-            block.distance_point = np.zeros((0, 2), np.int64)
-            block.distance_m = np.zeros(0)
-        nd = len(np.asarray(block.distance_point).reshape(-1, 2))
-        block.distance_point = rows_of(block.distance_point, (2,), np.int64, nd)
-        block.distance_m = rows_of(block.distance_m, (), n=nd)
-        block.distance_sigma_m = sigma_rows(block.distance_sigma_m, nd, None)
+        d = self.data(block)
+        if d.point is None:
+            d.point = np.zeros((0, 2), np.int64)
+            d.m = np.zeros(0)
+        nd = len(np.asarray(d.point).reshape(-1, 2))
+        d.point = rows_of(d.point, (2,), np.int64, nd)
+        d.m = rows_of(d.m, (), n=nd)
+        d.sigma_m = sigma_rows(d.sigma_m, nd, None)
 
     def validate(self, block: "Block") -> None:
-        check_positive("distance_sigma_m", block.distance_sigma_m)
-        check_index("distance_point", block.distance_point.reshape(-1), block.n_points, "point")
-        check_finite("distance_m", block.distance_m)
-        bad = np.flatnonzero(~(block.distance_m > 0))
+        d = self.data(block)
+        check_positive("distance_sigma_m", d.sigma_m)
+        check_index("distance_point", d.point.reshape(-1), block.n_points, "point")
+        check_finite("distance_m", d.m)
+        bad = np.flatnonzero(~(d.m > 0))
         if bad.size:
-            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {block.distance_m[bad[0]]}")
-        bad = np.flatnonzero(block.distance_point[:, 0] == block.distance_point[:, 1])
+            raise BlockError(f"distance_m[{bad[0]}] must be > 0, got {d.m[bad[0]]}")
+        bad = np.flatnonzero(d.point[:, 0] == d.point[:, 1])
         if bad.size:
             raise BlockError(f"distance {bad[0]} joins point "
-                             f"{str(block.point_name[block.distance_point[bad[0], 0]])!r} to itself")
+                             f"{str(block.point_name[d.point[bad[0], 0]])!r} to itself")
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
-        a, c = b.distance_point[:, 0], b.distance_point[:, 1]
+        d = self.data(b)
+        a, c = d.point[:, 0], d.point[:, 1]
         dx = s.X[a] - s.X[c]
         L = np.linalg.norm(dx, axis=1)
-        sig = b.distance_sigma_m[:, None]
-        f = Factor(self.name, ((L - b.distance_m) / sig[:, 0])[:, None], sig,
+        sig = d.sigma_m[:, None]
+        f = Factor(self.name, ((L - d.m) / sig[:, 0])[:, None], sig,
                    weight=model.weights[self.name])
         if not jac:
             return [f]
@@ -106,11 +113,13 @@ class Distance(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         lay, b = model.layout, model.block
+        d = self.data(b)
         rp_on = np.asarray((lay.rpoint_cols >= 0).any(axis=1), dtype=bool)
-        return np.asarray(rp_on[b.distance_point].any(axis=1), dtype=bool)
+        return np.asarray(rp_on[d.point].any(axis=1), dtype=bool)
 
     def label(self, block: "Block", i: int) -> str:
-        a, b = block.distance_point[i]
+        d = self.data(block)
+        a, b = d.point[i]
         return f"distance {block.point_name[a]} - {block.point_name[b]}"
 
 

@@ -1,6 +1,7 @@
 """GNSS antenna positions of the stations (papers 003 and 004).
 
-Data (``Block`` fields): ``gnss_station (G,)``, ``gnss_xyz (G, 3)`` m, ``gnss_sigma (G, 3)`` m per axis and
+Data (:class:`GnssRows` in ``block.observations['gnss']``;
+the Block's keywords): ``gnss_station (G,)``, ``gnss_xyz (G, 3)`` m, ``gnss_sigma (G, 3)`` m per axis and
 optional ``gnss_cov_m2 (G, 3, 3)`` m².  Residual (computed minus observed)::
 
     C_station + R_station @ lever_arm + datum_shift + strip_shift[s] + strip_drift[s] * (t - t0[s]) - xyz
@@ -26,9 +27,7 @@ from skyrig.adjust.factors.base import (
     check_finite,
     check_index,
     check_positive,
-    covariance_rows,
-    rows_of,
-    sigma_rows,
+    indexed_rows,
     whitening_matrices,
 )
 from skyrig.geometry.rotations import skew
@@ -75,38 +74,37 @@ class Gnss(ObservationType):
     parameters = ("lever_arm", "datum_shift", "strip_shift", "strip_drift")
     datum_words = "GNSS positions"
     vce_split = ((0, 1), (2,))
-    sigma_field = "gnss_sigma"
-    cov_field = "gnss_cov_m2"
+    sigma_field = "sigma"
+    cov_field = "cov_m2"
     rows = GnssRows
     keywords = (('gnss_station', 'station', None), ('gnss_xyz', 'xyz', None), ('gnss_sigma', 'sigma', 0.05), ('gnss_cov_m2', 'cov_m2', None))
 
+    def data(self, block: "Block") -> GnssRows:
+        return block.observations[self.name]
+
     def count(self, block: "Block") -> int:
-        return len(block.gnss_station)
+        return len(self.data(block).station)
 
     def normalise(self, block: "Block") -> None:
-        if block.gnss_station is None:
-            block.gnss_station = np.zeros(0, np.int64)
-            block.gnss_xyz = np.zeros((0, 3))
-        g = len(np.asarray(block.gnss_station).reshape(-1))
-        block.gnss_station = rows_of(block.gnss_station, (), np.int64, g)
-        block.gnss_xyz = rows_of(block.gnss_xyz, (3,), n=g)
-        block.gnss_sigma = sigma_rows(block.gnss_sigma, g, 3)
-        covariance_rows(block, "gnss_cov_m2", "gnss_sigma", g, 3)
+        indexed_rows(self.data(block), "station", "xyz", (3,), "sigma", "cov_m2", "gnss_cov_m2")
 
     def validate(self, block: "Block") -> None:
-        check_index("gnss_station", block.gnss_station, block.n_stations, "station")
-        check_finite("gnss_xyz", block.gnss_xyz)
-        check_finite("gnss_sigma", block.gnss_sigma)
-        check_positive("gnss_sigma", block.gnss_sigma)
-        check_covariance("gnss_cov_m2", block.gnss_cov_m2)
+        d = self.data(block)
+        check_index("gnss_station", d.station, block.n_stations, "station")
+        check_finite("gnss_xyz", d.xyz)
+        check_finite("gnss_sigma", d.sigma)
+        check_positive("gnss_sigma", d.sigma)
+        check_covariance("gnss_cov_m2", d.cov_m2)
 
     def prepare(self, model: "Model") -> NDArray[np.float64] | None:
         b = model.block
-        return None if b.gnss_cov_m2 is None else whitening_matrices(b.gnss_cov_m2)
+        d = self.data(b)
+        return None if d.cov_m2 is None else whitening_matrices(d.cov_m2)
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
-        st = b.gnss_station
+        d = self.data(b)
+        st = d.station
         R = s.R[st]
         strip = b.station_strip[st]
         has = strip >= 0
@@ -115,12 +113,12 @@ class Gnss(ObservationType):
         pred = s.C[st] + np.einsum("nij,j->ni", R, s.lever) + s.shift
         if b.n_strips:
             pred = pred + has[:, None] * (s.sshift[sk] + s.sdrift[sk] * dt[:, None])
-        sig = b.gnss_sigma
+        sig = d.sigma
         Wm = model.cache[self.name]
         if Wm is None:
-            r = (pred - b.gnss_xyz) / sig
+            r = (pred - d.xyz) / sig
         else:
-            r = np.einsum("nij,nj->ni", Wm, pred - b.gnss_xyz)
+            r = np.einsum("nij,nj->ni", Wm, pred - d.xyz)
         f = Factor(self.name, r, sig, weight=model.weights[self.name], whiten=Wm)
         if not jac:
             return [f]
@@ -139,7 +137,8 @@ class Gnss(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         b, lay = model.block, model.layout
-        st = b.gnss_station
+        d = self.data(b)
+        st = d.station
         on = any_on(lay.pose)[st] | bool((lay.lever >= 0).any() or (lay.shift >= 0).any())
         if b.n_strips:
             strip = b.station_strip[st]
@@ -147,7 +146,7 @@ class Gnss(ObservationType):
         return on
 
     def label(self, block: "Block", i: int) -> str:
-        return f"GNSS position of station {block.station_name[block.gnss_station[i]]}"
+        return f"GNSS position of station {block.station_name[self.data(block).station[i]]}"
 
 
 GNSS = register(Gnss())

@@ -1,6 +1,7 @@
 """Image coordinates of object points: the collinearity observations of the bundle.
 
-Data (``Block`` fields): ``obs_image (N,)``, ``obs_point (N,)``, ``obs_pixel (N, 2)`` px (column, row),
+Data (:class:`ImageRows` in ``block.observations['image']``;
+the Block's keywords): ``obs_image (N,)``, ``obs_point (N,)``, ``obs_pixel (N, 2)`` px (column, row),
 ``obs_sigma_px (N, 2)`` px and optional ``obs_cov_px2 (N, 2, 2)`` px².  Residual: the projection of the
 point through the image's camera (``world_from_camera = R_station @ station_from_camera @
 expmap(boresight)``, the mounting of an actuated head from its actuator angle, see
@@ -177,40 +178,46 @@ class Image(ObservationType):
     share_checked = False  # many image blunders are data snooping's normal work (its cap applies)
     hints = (("intrinsics", "an uncalibrated interior orientation"), ("boresight", "a boresight misalignment"))
     vce_split = ((0, 1),)
-    sigma_field = "obs_sigma_px"
-    cov_field = "obs_cov_px2"
+    sigma_field = "sigma_px"
+    cov_field = "cov_px2"
     rows = ImageRows
     keywords = (('obs_image', 'image', REQUIRED), ('obs_point', 'point', REQUIRED), ('obs_pixel', 'pixel', REQUIRED), ('obs_sigma_px', 'sigma_px', 1.0), ('obs_cov_px2', 'cov_px2', None))
+
+    def data(self, block: "Block") -> ImageRows:
+        return block.observations[self.name]
 
     def count(self, block: "Block") -> int:
         return block.n_observations
 
     def normalise(self, block: "Block") -> None:
-        block.obs_image = np.asarray(block.obs_image, dtype=np.int64).reshape(-1)
-        n = len(block.obs_image)
-        block.obs_point = rows_of(block.obs_point, (), np.int64, n)
-        block.obs_pixel = rows_of(block.obs_pixel, (2,), n=n)
-        block.obs_sigma_px = sigma_rows(block.obs_sigma_px, n, 2)
-        covariance_rows(block, "obs_cov_px2", "obs_sigma_px", n, 2)
+        d = self.data(block)
+        d.image = np.asarray(d.image, dtype=np.int64).reshape(-1)
+        n = len(d.image)
+        d.point = rows_of(d.point, (), np.int64, n)
+        d.pixel = rows_of(d.pixel, (2,), n=n)
+        d.sigma_px = sigma_rows(d.sigma_px, n, 2)
+        covariance_rows(d, "cov_px2", "sigma_px", n, 2, label="obs_cov_px2")
 
     def validate(self, block: "Block") -> None:
-        check_index("obs_image", block.obs_image, block.n_images, "image")
-        check_index("obs_point", block.obs_point, block.n_points, "point")
-        check_finite("obs_pixel", block.obs_pixel)
-        check_finite("obs_sigma_px", block.obs_sigma_px)
-        check_positive("obs_sigma_px", block.obs_sigma_px)
-        check_covariance("obs_cov_px2", block.obs_cov_px2)
+        d = self.data(block)
+        check_index("obs_image", d.image, block.n_images, "image")
+        check_index("obs_point", d.point, block.n_points, "point")
+        check_finite("obs_pixel", d.pixel)
+        check_finite("obs_sigma_px", d.sigma_px)
+        check_positive("obs_sigma_px", d.sigma_px)
+        check_covariance("obs_cov_px2", d.cov_px2)
 
     def validate_rays(self, block: "Block", controlled: NDArray[np.bool_]) -> None:
         """Every point needs two rays or control; no point measured twice in one image."""
-        rays = np.bincount(block.obs_point, minlength=block.n_points)
+        d = self.data(block)
+        rays = np.bincount(d.point, minlength=block.n_points)
         bad = np.flatnonzero((rays < 2) & ~controlled)
         if bad.size:
             raise BlockError(
                 f"point {str(block.point_name[bad[0]])!r} is seen in {rays[bad[0]]} image(s) and is not control: "
                 f"it cannot be determined ({bad.size} such points); remove it or add observations"
             )
-        pair = block.obs_image * max(block.n_points, 1) + block.obs_point
+        pair = d.image * max(block.n_points, 1) + d.point
         u, c = np.unique(pair, return_counts=True)
         if (c > 1).any():
             k = u[c > 1][0]
@@ -219,24 +226,25 @@ class Image(ObservationType):
 
     def prepare(self, model: "Model") -> ImageCache:
         b, lay = model.block, model.layout
-        W = None if b.obs_cov_px2 is None else whitening_matrices(b.obs_cov_px2)
+        d = self.data(b)
+        W = None if d.cov_px2 is None else whitening_matrices(d.cov_px2)
         red_cols = red_rows = red_idx = None
         if lay.has_rpoint:
-            rp = lay.rpoint_cols[b.obs_point]
+            rp = lay.rpoint_cols[d.point]
             rows = np.flatnonzero(rp[:, 0] >= 0)
-            rows = rows[np.argsort(b.obs_image[rows], kind="stable")]
-            img = b.obs_image[rows]
+            rows = rows[np.argsort(d.image[rows], kind="stable")]
+            img = d.image[rows]
             first = np.searchsorted(img, img, side="left")
             rank = np.arange(len(rows)) - first
             m = int(rank.max()) + 1 if rows.size else 0
             img_cols = np.full((b.n_images, 3 * m), -1, np.int64)
             for c in range(3):
                 img_cols[img, 3 * rank + c] = rp[rows, c]
-            red_cols = img_cols[b.obs_image]
+            red_cols = img_cols[d.image]
             red_rows = rows
             red_idx = 3 * rank[:, None] + np.arange(3)[None, :]
         bal = np.array([isinstance(c, BalCamera) for c in b.cameras], bool)
-        obs_cam = b.image_camera[b.obs_image]
+        obs_cam = b.image_camera[d.image]
         groups = [(c, np.flatnonzero(obs_cam == c)) for c in range(len(b.cameras)) if not bal[c]]
         groups = [(c, idx) for c, idx in groups if idx.size]
         gi = gw = None
@@ -249,7 +257,7 @@ class Image(ObservationType):
             for k, g in enumerate(grids.grids):
                 rows = np.flatnonzero(obs_cam == cam_idx[g.camera])
                 if rows.size:
-                    idx, w = bilinear_weights(g.x_px, g.y_px, b.obs_pixel[rows])
+                    idx, w = bilinear_weights(g.x_px, g.y_px, d.pixel[rows])
                     gi[rows] = off[k] + 2 * idx
                     gw[rows] = w
         return ImageCache(W, red_cols, red_rows, red_idx, bal, obs_cam, groups, np.flatnonzero(bal[obs_cam]),
@@ -273,11 +281,12 @@ class Image(ObservationType):
 
     def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
         b, lay = model.block, model.layout
+        d = self.data(b)
         img = (any_on(lay.pose)[b.image_station] | any_on(lay.bore)[b.image_head]
                | np.asarray((model._icols >= 0).any(axis=1), dtype=bool)[b.image_camera])
         if lay.act is not None:
             img |= any_on(lay.act)[b.image_head]
-        out = img[b.obs_image] | model.estimated_points()[b.obs_point]
+        out = img[d.image] | model.estimated_points()[d.point]
         ic = model.cache[self.name]
         if lay.grid is not None and ic.grid_idx is not None:
             gi = ic.grid_idx
@@ -286,7 +295,8 @@ class Image(ObservationType):
         return out
 
     def label(self, block: "Block", i: int) -> str:
-        return f"point {block.point_name[block.obs_point[i]]} in image {block.image_name[block.obs_image[i]]}"
+        d = self.data(block)
+        return f"point {block.point_name[d.point[i]]} in image {block.image_name[d.image[i]]}"
 
     @staticmethod
     def _project(model: "Model", s: "State", ic: ImageCache, pc: NDArray[np.float64], n: int, jac: bool
@@ -323,23 +333,24 @@ class Image(ObservationType):
     def _numpy(self, model: "Model", s: "State", jac: bool, chain_kernel) -> Factor:
         """The numpy path (any camera model), the compiled chain rule when ``chain_kernel`` is given."""
         b, lay = model.block, model.layout
+        d = self.data(b)
         ic = model.cache[self.name]
         n = b.n_observations
         Rc, Cc, M = model.camera_poses(s)
-        oi = b.obs_image
-        pc = _camera_frame(Rc, Cc, s.X, oi, b.obs_point)
+        oi = d.image
+        pc = _camera_frame(Rc, Cc, s.X, oi, d.point)
         pred, d_pc, d_in = self._project(model, s, ic, pc, n, jac)
         grid_on = ic.grid_idx is not None and s.grid is not None
         if grid_on:  # the correction grids at the measured pixels (observed = projected + grid)
             _add_grid(pred, ic.grid_idx, ic.grid_w, s.grid)  # type: ignore[arg-type]
         grid_cols_on = grid_on and lay.grid is not None
-        sig = b.obs_sigma_px
+        sig = d.sigma_px
         w = model.weights["image"]
         Wm = ic.W
         if Wm is None:
-            r = (pred - b.obs_pixel) / sig
+            r = (pred - d.pixel) / sig
         else:
-            r = np.einsum("nij,nj->ni", Wm, pred - b.obs_pixel)
+            r = np.einsum("nij,nj->ni", Wm, pred - d.pixel)
         bad = np.asarray(~np.isfinite(r).all(axis=1), dtype=bool)
         if bad.any():
             r[bad] = 0.0  # behind the camera: reported by the solver
@@ -362,51 +373,10 @@ class Image(ObservationType):
         pose_on = bool((lay.pose >= 0).any())
         bore_on = bool(model._bore_on)
         # the Jacobian's column blocks, written into one preallocated (N, 2, k) array (no concatenation)
-        widths = []
-        if pose_on:
-            widths.append(("pose", 6))
-        if bore_on:
-            widths.append(("bore", 3))
-        if d_in is not None:
-            widths.append(("intr", d_in.shape[2]))
-        if model._act_on:
-            widths.append(("act", model._act_width))
         red = ic.red_cols is not None and ic.red_cols.shape[1] > 0
-        if red:
-            widths.append(("red", ic.red_cols.shape[1]))
-        if grid_cols_on:
-            widths.append(("grid", 8))
-        offs: dict[str, slice] = {}
-        o0 = 0
-        for name, wdt in widths:
-            offs[name] = slice(o0, o0 + wdt)
-            o0 += wdt
+        offs, o0 = _column_offsets(model, ic, d_in, pose_on, bore_on, red, grid_cols_on)
         jc = np.empty((n, dpc.shape[1], o0))  # (no column: not attached to the factor)
-        if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
-            jX = np.empty((n, 2, 3))
-            jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))
-            jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))
-            off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
-            chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
-                         np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
-                         bool(np.any(off_i)), jX, jpose, jthc)
-        else:
-            Ro = Rc[oi]
-            jX = dpc @ np.swapaxes(Ro, 1, 2)
-            del Ro
-            if pose_on:
-                jth_cam = dpc @ skew(pc)
-                jpose = jc[:, :, offs["pose"]]
-                jpose[:, :, :3] = -jX
-                off = b.image_offset[oi]
-                jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
-                if np.any(b.image_offset):
-                    jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
-                jpose[:, :, 3:] = jth
-                if bore_on:
-                    jc[:, :, offs["bore"]] = jth_cam
-            elif bore_on:
-                jc[:, :, offs["bore"]] = dpc @ skew(pc)
+        jX = _chain_rule(model, s, oi, st, dpc, pc, Rc, M, jc, offs, pose_on, bore_on, chain_kernel)
         if d_in is not None:
             if Wm is None:
                 np.multiply(d_in, isig, out=jc[:, :, offs["intr"]])
@@ -438,33 +408,11 @@ class Image(ObservationType):
         if o0:
             f.jc = jc
             if ic.frame_cols is None:  # the columns depend on the layout only
-                colblocks = []
-                if pose_on:
-                    colblocks.append(lay.pose[st])
-                if bore_on:
-                    colblocks.append(lay.bore[b.image_head[oi]])
-                if "intr" in offs:
-                    colblocks.append(model._icols[ic.obs_cam])
-                if model._act_on:
-                    cols = np.full((n, model._act_width), -1, np.int64)
-                    ia = model._img2act[oi]
-                    rows = np.flatnonzero(ia >= 0)
-                    cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
-                    colblocks.append(cols)
-                if red:
-                    colblocks.append(ic.red_cols)
-                lgrid = lay.grid
-                if grid_cols_on and lgrid is not None:
-                    gi = ic.grid_idx
-                    has = gi >= 0
-                    gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
-                    gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
-                    colblocks.append(np.concatenate([gc, gcy], axis=1))
-                ic.frame_cols = np.concatenate(colblocks, axis=1)
+                ic.frame_cols = _frame_columns(model, ic, oi, st, offs, pose_on, bore_on, red, grid_cols_on)
             f.cols = ic.frame_cols
         if lay.n_p:
             if ic.frame_point is None:
-                ic.frame_point = lay.point[b.obs_point]
+                ic.frame_point = lay.point[d.point]
             f.point = ic.frame_point
             f.jp = jX
         return f
@@ -472,6 +420,7 @@ class Image(ObservationType):
     def _bal(self, model: "Model", s: "State", jac: bool, bal_kernel) -> Factor:
         """:meth:`_numpy` for blocks of BAL cameras only, through the compiled kernel (same values)."""
         b, lay = model.block, model.layout
+        d = self.data(b)
         ic = model.cache[self.name]
         n = b.n_observations
         Rc, Cc, M = model.camera_poses(s)
@@ -494,11 +443,11 @@ class Image(ObservationType):
         jc = np.empty((n if jac else 0, 2, k))  # the kernel writes every column
         jp = np.empty((n if jac else 0, 2, 3))
         off = np.ascontiguousarray(b.image_offset, dtype=np.float64)
-        bal_kernel(b.obs_image, b.obs_point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
+        bal_kernel(d.image, d.point, b.image_station, np.ascontiguousarray(Rc), np.ascontiguousarray(Cc),
                     np.ascontiguousarray(M), np.ascontiguousarray(s.R), off, bool(np.any(off)),
-                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(b.obs_pixel, dtype=np.float64),
-                    np.ascontiguousarray(b.obs_sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
-        f = Factor(self.name, r, b.obs_sigma_px, weight=model.weights["image"])
+                    np.ascontiguousarray(s.X), intr, np.ascontiguousarray(d.pixel, dtype=np.float64),
+                    np.ascontiguousarray(d.sigma_px, dtype=np.float64), jac, o_pose, o_bore, o_intr, r, bad, jc, jp)
+        f = Factor(self.name, r, d.sigma_px, weight=model.weights["image"])
         f.bad = bad
         if not jac:
             return f
@@ -507,15 +456,15 @@ class Image(ObservationType):
             if ic.bal_cols is None:
                 colblocks = []
                 if pose_on:
-                    colblocks.append(lay.pose[b.image_station[b.obs_image]])
+                    colblocks.append(lay.pose[b.image_station[d.image]])
                 if model._bore_on:
-                    colblocks.append(lay.bore[b.image_head[b.obs_image]])
+                    colblocks.append(lay.bore[b.image_head[d.image]])
                 if model._intr_on:
                     colblocks.append(model._icols[ic.obs_cam])
                 ic.bal_cols = np.concatenate(colblocks, axis=1)
             f.cols = ic.bal_cols
         if lay.n_p:
-            f.point = lay.point[b.obs_point]
+            f.point = lay.point[d.point]
             f.jp = jp
         return f
 
@@ -533,3 +482,91 @@ def _add_grid(pred: NDArray[np.float64], gi: NDArray[np.int64], gw: NDArray[np.f
     gy = grid[np.maximum(gi, 0) + 1] * has
     pred[:, 0] += (gw * gx).sum(axis=1)
     pred[:, 1] += (gw * gy).sum(axis=1)
+
+
+def _column_offsets(model: "Model", ic, d_in, pose_on: bool, bore_on: bool, red: bool,
+                   grid_cols_on: bool) -> tuple[dict[str, slice], int]:
+    """The slices of the image Jacobian's column blocks in one (N, 2, k) array, and k."""
+    widths = []
+    if pose_on:
+        widths.append(("pose", 6))
+    if bore_on:
+        widths.append(("bore", 3))
+    if d_in is not None:
+        widths.append(("intr", d_in.shape[2]))
+    if model._act_on:
+        widths.append(("act", model._act_width))
+    if red:
+        widths.append(("red", ic.red_cols.shape[1]))
+    if grid_cols_on:
+        widths.append(("grid", 8))
+    offs: dict[str, slice] = {}
+    o0 = 0
+    for name, wdt in widths:
+        offs[name] = slice(o0, o0 + wdt)
+        o0 += wdt
+    return offs, o0
+
+
+def _chain_rule(model: "Model", s: "State", oi, st, dpc, pc, Rc, M, jc, offs: dict[str, slice], pose_on: bool,
+                bore_on: bool, chain_kernel):
+    """d pixel / d point (returned) and the pose / boresight blocks of ``jc`` from d pixel / d camera-frame point;
+    the compiled chain rule when ``chain_kernel`` is given (same values)."""
+    b = model.block
+    n = len(oi)
+    if chain_kernel is not None and dpc.shape[1] == 2:  # compiled chain rule (same values)
+        jX = np.empty((n, 2, 3))
+        jpose = jc[:, :, offs["pose"]] if pose_on else np.empty((n, 2, 6))
+        jthc = jc[:, :, offs["bore"]] if bore_on else np.empty((n, 2, 3))
+        off_i = np.ascontiguousarray(b.image_offset, dtype=np.float64)
+        chain_kernel(oi, b.image_station, np.ascontiguousarray(dpc), np.ascontiguousarray(pc),
+                     np.ascontiguousarray(Rc), np.ascontiguousarray(M), np.ascontiguousarray(s.R), off_i,
+                     bool(np.any(off_i)), jX, jpose, jthc)
+    else:
+        Ro = Rc[oi]
+        jX = dpc @ np.swapaxes(Ro, 1, 2)
+        del Ro
+        if pose_on:
+            jth_cam = dpc @ skew(pc)
+            jpose = jc[:, :, offs["pose"]]
+            jpose[:, :, :3] = -jX
+            off = b.image_offset[oi]
+            jth = jth_cam @ np.swapaxes(M[oi], 1, 2)
+            if np.any(b.image_offset):
+                jth = jth + (-jX) @ (-(s.R[st] @ skew(off)))
+            jpose[:, :, 3:] = jth
+            if bore_on:
+                jc[:, :, offs["bore"]] = jth_cam
+        elif bore_on:
+            jc[:, :, offs["bore"]] = dpc @ skew(pc)
+    return jX
+
+
+def _frame_columns(model: "Model", ic, oi, st, offs: dict[str, slice], pose_on: bool, bore_on: bool, red: bool,
+                   grid_cols_on: bool):
+    """The image Jacobian's unknown columns (-1: none), in the order of :func:`_column_offsets`."""
+    b, lay = model.block, model.layout
+    n = len(oi)
+    colblocks = []
+    if pose_on:
+        colblocks.append(lay.pose[st])
+    if bore_on:
+        colblocks.append(lay.bore[b.image_head[oi]])
+    if "intr" in offs:
+        colblocks.append(model._icols[ic.obs_cam])
+    if model._act_on:
+        cols = np.full((n, model._act_width), -1, np.int64)
+        ia = model._img2act[oi]
+        rows = np.flatnonzero(ia >= 0)
+        cols[rows] = model.layout.act_cols[b.image_head[oi[rows]]]
+        colblocks.append(cols)
+    if red:
+        colblocks.append(ic.red_cols)
+    lgrid = lay.grid
+    if grid_cols_on and lgrid is not None:
+        gi = ic.grid_idx
+        has = gi >= 0
+        gc = np.where(has, lgrid[np.maximum(gi, 0)], -1)
+        gcy = np.where(has, lgrid[np.maximum(gi, 0) + 1], -1)
+        colblocks.append(np.concatenate([gc, gcy], axis=1))
+    return np.concatenate(colblocks, axis=1)

@@ -280,6 +280,7 @@ class RollingShutterType(ObservationType):
 
     def label(self, block: "Block", i: int) -> str:
         d = _data(block)
+        assert d is not None  # (internal: only rows of the block's own rolling-shutter data are labelled)
         q, k = len(d.cameras), len(d.velocity_station)
         if i < q:
             return f"readout time prior of camera {d.cameras[i]}"
@@ -375,7 +376,7 @@ class RollingShutterImage(Image):
             return Wm[rows] @ J
 
         dr = whiten((pred_rs - pred_0)[:, :, None])[:, :, 0]
-        ok = np.isfinite(dr).all(axis=1)
+        ok = np.asarray(np.isfinite(dr).all(axis=1), dtype=bool)
         if f.bad is not None:
             ok &= ~f.bad[rows]
         f.r[rows[ok]] += dr[ok]
@@ -429,8 +430,8 @@ def rolling_shutter_unknowns(unknowns: "Unknowns", motion: str = "free", readout
     observations, so ``"free"`` is the usual choice; ``"fixed"`` keeps them at their starting values)."""
     from dataclasses import replace
 
-    groups = tuple((n, m) for n, m in unknowns.groups if n not in (MOTION, READOUT))
-    return replace(unknowns, groups=groups + ((MOTION, motion), (READOUT, readout)))  # type: ignore[arg-type]
+    groups: tuple[Any, ...] = tuple((n, m) for n, m in unknowns.groups if n not in (MOTION, READOUT))
+    return replace(unknowns, groups=groups + ((MOTION, motion), (READOUT, readout)))
 
 
 register(RollingShutterType())
