@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from skyrig.web.server import MeasureServer, _static, base_handler
+from skyrig.web.server import MeasureServer, base_handler, page_handlers
 
 __all__ = ["LiveServer", "LIVE_STATIC"]
 
@@ -46,22 +46,7 @@ class LiveServer(MeasureServer):
 
         server = self
         Base = base_handler(self)
-
-        class Page(Base):
-            def get(self) -> None:
-                html = _static("live.html").decode("utf-8")
-                self.set_header("Content-Type", "text/html; charset=utf-8")
-                self.set_header("Content-Security-Policy", "default-src 'self'; img-src 'self' data: blob:; "
-                                                           "style-src 'self' 'unsafe-inline'; script-src 'self'")
-                self.finish(html.replace("__TOKEN__", server.token).replace("__TITLE__", server.title))
-
-        class Static(Base):
-            def get(self, name: str) -> None:
-                if name not in LIVE_STATIC:
-                    raise tornado.web.HTTPError(404, "no such file")
-                path, ctype = LIVE_STATIC[name]
-                self.set_header("Content-Type", ctype)
-                self.finish(_static(path))
+        Page, Static = page_handlers(self, Base, "live.html", LIVE_STATIC)
 
         class Status(Base):
             def get(self) -> None:

@@ -107,16 +107,14 @@ def base_handler(server: "MeasureServer"):
     return Base
 
 
-def _make_app(server: "MeasureServer"):
+def page_handlers(server: "MeasureServer", Base, page: str, static: dict[str, tuple[str, str]]):  # type: ignore[no-untyped-def]
+    """The page (``page`` with the token and title filled in, a strict Content-Security-Policy) and the handler of
+    its vendored files (``static``: URL name -> (package path, content type); any other name is a 404)."""
     import tornado.web
-
-    session = server.session
-
-    Base = base_handler(server)
 
     class Page(Base):
         def get(self) -> None:
-            html = _static("measure.html").decode("utf-8")
+            html = _static(page).decode("utf-8")
             self.set_header("Content-Type", "text/html; charset=utf-8")
             self.set_header("Content-Security-Policy", "default-src 'self'; img-src 'self' data: blob:; "
                                                        "style-src 'self' 'unsafe-inline'; script-src 'self'")
@@ -124,11 +122,22 @@ def _make_app(server: "MeasureServer"):
 
     class Static(Base):
         def get(self, name: str) -> None:
-            if name not in STATIC:
+            if name not in static:
                 raise tornado.web.HTTPError(404, "no such file")
-            path, ctype = STATIC[name]
+            path, ctype = static[name]
             self.set_header("Content-Type", ctype)
             self.finish(_static(path))
+
+    return Page, Static
+
+
+def _make_app(server: "MeasureServer"):
+    import tornado.web
+
+    session = server.session
+
+    Base = base_handler(server)
+    Page, Static = page_handlers(server, Base, "measure.html", STATIC)
 
     class Points(Base):
         async def get(self) -> None:
