@@ -452,21 +452,24 @@ def hand_rows(inp: Any) -> NDArray[np.bool_]:
     and of scale-bar ends.  They are judged by their own limit (``hand_cut_px``), never by the tie points'
     outlier rules: a click 2 px off is an ordinary hand measurement, and cutting it silently can take a control
     point out of the block."""
+    return is_hand(inp, np.arange(len(inp.obs_track)))
+
+
+def is_hand(inp: Any, rows: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """:func:`hand_rows` for the observation rows ``rows`` only (one image's rows in a resection: no pass over the
+    whole block per image)."""
     tracks = [np.asarray(t, np.int64).ravel() for t in (getattr(inp, "control_track", None),
                                                          getattr(inp, "distance_track", None)) if t is not None]
     if not tracks:
-        return np.zeros(len(inp.obs_track), bool)
-    return np.isin(inp.obs_track, np.concatenate(tracks))
+        return np.zeros(len(rows), bool)
+    return np.isin(inp.obs_track[rows], np.concatenate(tracks))
 
 
-def spare_hand(inp: Any, rows: NDArray[np.int64], bad: NDArray[np.bool_], r: NDArray[np.float64] | None,
+def spare_hand(inp: Any, rows: NDArray[np.int64], bad: NDArray[np.bool_], r: NDArray[np.float64],
                hand: NDArray[np.bool_], limit_px: float, cut: dict[tuple[str, str], float]) -> NDArray[np.bool_]:
-    """``bad`` (per row of ``rows``) without the hand-measured rows whose residual ``r`` is within ``limit_px``
-    (all of them when ``r`` is None: a RANSAC verdict is no verdict on a hand measurement).  The hand rows still
-    cut are recorded in ``cut`` as ``{(point, image): residual px}`` for the warning."""
+    """``bad`` (per row of ``rows``) without the hand-measured rows whose residual ``r`` is within ``limit_px``.
+    The hand rows still cut are recorded in ``cut`` as ``{(point, image): residual px}`` for the warning."""
     h = hand[rows] & bad
-    if r is None:
-        return bad & ~h
     keep = h & (r <= limit_px)
     for q in np.flatnonzero(h & ~keep):
         o = rows[q]
@@ -540,7 +543,7 @@ def _resect_all(inp: UavBlockInput, camera: FrameCamera, X: NDArray, R: NDArray,
         R[k], C[k] = Rk, Ck
         oriented[k] = True
         rows_k = np.flatnonzero(m)
-        active[rows_k[spare_hand(inp, rows_k, ~inl, None, hand_rows(inp), np.inf, {})]] = False
+        active[rows_k[~inl & ~is_hand(inp, rows_k)]] = False  # a RANSAC verdict is no verdict on a click
         added.append(int(k))
         info = check[str(inp.names[k])]
         if np.isfinite(inp.rotation[k]).all():

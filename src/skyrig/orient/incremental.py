@@ -60,7 +60,7 @@ from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
 from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - OrientError re-exported
 from skyrig.orient.gnss_block import (
-    UavResult, _usable_obs, ground_point_summary, hand_rows, intermediate_adjustment, spare_hand,
+    UavResult, _usable_obs, ground_point_summary, hand_rows, intermediate_adjustment, is_hand, spare_hand,
 )
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
@@ -348,7 +348,7 @@ def _resect_round(inp: OrientInput, cfg: OrientConfig, camera: FrameCamera, X: N
             continue
         R[k], C[k], inl = out
         mk = np.flatnonzero(m)
-        active[mk[spare_hand(inp, mk, ~inl, None, hand_rows(inp), np.inf, {})]] = False
+        active[mk[~inl & ~is_hand(inp, mk)]] = False  # a RANSAC verdict is no verdict on a click
         oriented[k] = True
         added.append(int(k))
         check[str(inp.names[k])]["orientation"] = f"resection ({int(inl.sum())} inliers)"
