@@ -648,7 +648,8 @@ def adjust_uav_block(inp: UavBlockInput, cfg: UavConfig = UavConfig()) -> UavRes
     if not isinstance(camera.distortion, OpenCVDistortion):
         camera = camera.with_(distortion=OpenCVDistortion())
     active = np.ones(len(inp.obs_track), bool)
-    hand, hand_cut = hand_rows(inp), {}  # hand measurements (control, check, scale bars) and those cut as blunders
+    hand = hand_rows(inp)  # hand measurements (control, check, scale bars)
+    hand_cut: dict[tuple[str, str], float] = {}  # those cut as blunders
     agree, dis = attitude_agreement(inp, cfg)
     seed = _largest_component(agree)
     R = np.full((n, 3, 3), np.nan)

@@ -547,7 +547,8 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     logger.info("start pair %s - %s: %d inliers, median intersection angle %.1f deg", *seed_info["images"],
                 seed_info["inliers"], seed_info["median_intersection_angle_deg"])
     active = np.ones(len(inp.obs_track), bool)
-    hand, hand_cut = hand_rows(inp), {}  # hand measurements and those cut as blunders
+    hand = hand_rows(inp)  # hand measurements (control, check, scale bars)
+    hand_cut: dict[tuple[str, str], float] = {}  # those cut as blunders
     # growth adjustments only need to be close (the final one converges): looser tolerances than the default
     grow_cfg = AdjustConfig(solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
                                                  max_iterations=cfg.max_iterations,
