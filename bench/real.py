@@ -232,17 +232,14 @@ def berlin(data: Path, work: Path, match_size: int) -> dict[str, Any]:
     if not (w / "match" / "manifest.json").exists():
         _skyrig("match", str(w), "--images", str(images), "--pairs", "exhaustive", "--max-size", str(match_size),
                 "-o", str(w / "match"))
+    from skyrig.io.odm import read_gcp_list
+
+    gp, m = read_gcp_list(folder / "gcp_list.txt_from_commit_c7d5152_parent")  # WGS 84: x = longitude
+    names = {n: f"g{k + 1:02d}" for k, n in enumerate(gp.name)}
+    (w / "measurements.csv").write_text("point,image,column,row\n" + "".join(
+        f"{names[p]},{i},{float(c)!r},{float(r)!r}\n" for p, i, (c, r) in zip(m.point, m.image, m.pixel)))
     t = Transformer.from_crs(4326, 32633, always_xy=True)
-    pts: dict[tuple[str, str, str], str] = {}
-    meas = ["point,image,column,row"]
-    for line in (folder / "gcp_list.txt_from_commit_c7d5152_parent").read_text().splitlines()[1:]:
-        if not line.strip():
-            continue
-        lon, lat, h, col, row, img = line.split()[:6]
-        name = pts.setdefault((lon, lat, h), f"g{len(pts) + 1:02d}")
-        meas.append(f"{name},{img},{col},{row}")
-    (w / "measurements.csv").write_text("\n".join(meas) + "\n")
-    rows = [(n, *t.transform(float(k[0]), float(k[1])), float(k[2])) for k, n in pts.items()]
+    rows = [(names[n], *t.transform(x, y), z) for n, (x, y, z) in zip(gp.name, gp.xyz)]
     out: dict[str, Any] = {"ground_points": len(rows), "runs": []}
     errs, zs = [], []
     for run in (0, 1):
