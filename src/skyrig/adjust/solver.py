@@ -265,6 +265,7 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
     for a in range(3):
         G[cols[on, 3:], 3 + a] = state.R[on, a, :]  # R^T e_a
     G[cols[on, :3], 6] = dC
+    _group_motions(G, state, layout)
     if layout.has_rpoint:
         # points estimated in the reduced part (end points of distances) move with the block; the
         # distances fix the scale, so the scale is no null-space motion then
@@ -274,6 +275,22 @@ def inner_constraint_basis(state: State, layout: Layout) -> NDArray[np.float64]:
     nrm = np.linalg.norm(G, axis=0)
     nrm[nrm == 0] = 1.0
     return G / nrm
+
+
+def _group_motions(G: NDArray[np.float64], state: State, layout: Layout) -> None:
+    """The columns of ``G`` for the estimated parameter groups that move with the block (world-frame vectors such
+    as a station's velocity: :meth:`~skyrig.adjust.factors.base.ParameterGroup.similarity_motion`)."""
+    from skyrig.adjust.factors import parameter_groups
+
+    for g in parameter_groups():
+        cols = layout.groups.get(g.name)
+        if cols is None or not (cols >= 0).any():
+            continue
+        m = g.similarity_motion(np.asarray(state.groups[g.name], float))
+        if m is None:
+            continue
+        on = cols >= 0
+        G[cols[on]] = m[on]
 
 
 def _splu_spd(indptr: NDArray, indices: NDArray, data: NDArray, n: int, b: NDArray) -> NDArray[np.float64]:

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust import AdjustConfig, AdjustmentResult, Block, adjust
 from skyrig.adjust.config import SolverOptions, StatisticsOptions, Unknowns
+from skyrig.adjust.factors.rolling_shutter import rolling_shutter_unknowns
 from skyrig.camera.frame import FrameCamera
 from skyrig.camera.distortion import NoDistortion
 from skyrig.camera.opencv import OpenCVDistortion
@@ -62,6 +63,8 @@ from skyrig.errors import ConfigError, OrientError, SkyrigError  # noqa: F401 - 
 from skyrig.orient.gnss_block import (
     UavResult, _usable_obs, ground_point_summary, hand_rows, intermediate_adjustment, is_hand, spare_hand,
 )
+from skyrig.orient.rolling_shutter import (rolling_shutter_decision, rolling_shutter_summary, velocity_neighbours,
+                                           with_rolling_shutter)
 from skyrig.orient.similarity import _robust_similarity
 from skyrig.orient.triangulation import (
     _SKYRIG_FROM_CV, _k_matrix, _reproject, _track_pairs, resect, triangulate_tracks,
@@ -119,6 +122,28 @@ class OrientConfig:
     #: (kept, with a warning that the metadata is contradicted); above it, the contradiction holds it at the prior
     overrule_ratio: float = 0.3
     free_anyway: tuple[str, ...] = ()
+    #: rolling shutter in the final adjustment (:mod:`skyrig.adjust.factors.rolling_shutter`), as in the GNSS path:
+    #: "auto" (modelled for the cameras known to read out row by row, :mod:`skyrig.orient.rolling_shutter`), "on"
+    #: or "off".  The readout time is held at its prior unless ``estimate_readout``.  Without GNSS the velocity prior
+    #: of each image comes from the block's own centres of its neighbours in capture time, with a sigma of
+    #: ``velocity_sigma_rel`` x the speed (the frame may have no metric scale); angular rates 0 +- the sigma given.
+    rolling_shutter: Literal["auto", "on", "off"] = "auto"
+    readout_s: float = 0.03
+    readout_sigma_s: float = 0.02
+    estimate_readout: bool = False
+    velocity_sigma_rel: float = 0.25
+    angular_sigma_rad_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.rolling_shutter not in ("auto", "on", "off"):
+            raise ConfigError(f"rolling_shutter must be 'auto', 'on' or 'off', got {self.rolling_shutter!r}")
+        for k in ("readout_s", "readout_sigma_s", "velocity_sigma_rel", "angular_sigma_rad_s"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"{k} must be a positive number, got {v!r}")
+        if self.readout_s > 0.2:
+            raise ConfigError(f"readout_s {self.readout_s} s: a sensor reads out in milliseconds (e.g. 0.03 s); "
+                              "was it given in ms?")
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "OrientConfig":
@@ -129,7 +154,10 @@ class OrientConfig:
         for k in ("self_calibration", "free_anyway"):
             if d.get(k) is not None:
                 d[k] = tuple(d[k])
-        return cls(**d)
+        try:
+            return cls(**d)
+        except ConfigError as e:
+            raise ConfigError(f"{source}: {e}") from None
 
 
 @dataclass
@@ -156,6 +184,10 @@ class OrientInput:
         :class:`skyrig.georef.eo.WorldFrame` of control / positions (None: an arbitrary Cartesian frame).
     notes
         What was assumed while reading.
+    focal_prior_rel
+        Relative sigma of the metadata's focal length (None: the config's).
+    camera_make, camera_model, times_s
+        EXIF make and model (rolling shutter or not) and ``(I,)`` capture times in s (NaN where unknown).
     """
 
     names: NDArray[np.str_]
@@ -175,6 +207,11 @@ class OrientInput:
     frame: Any = None
     notes: list[str] = field(default_factory=list)
     focal_prior_rel: float | None = None
+    #: the camera's EXIF make and model (whether it has a rolling shutter) and each image's capture time (s, NaN
+    #: where unknown; None: no times)
+    camera_make: str = ""
+    camera_model: str = ""
+    times_s: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         self.names = np.asarray(self.names, dtype=str)
@@ -196,6 +233,8 @@ class OrientInput:
                                                            else self.distance_sigma_m, float), (d,)).copy()
         if self.positions is not None:
             self.positions = np.asarray(self.positions, float).reshape(len(self.names), 3)
+        if self.times_s is not None:
+            self.times_s = np.asarray(self.times_s, float).reshape(len(self.names))
 
 
 # ---------------------------------------------------------------------------------------------- two-view start
@@ -301,6 +340,28 @@ def _block(inp: OrientInput, camera: FrameCamera, R: NDArray, C: NDArray, X: NDA
                   point_xyz=X[tracks], obs_image=img_map[oi], obs_point=tmap, obs_pixel=op, obs_sigma_px=sigma_px,
                   frame=inp.frame.describe() if inp.frame is not None else "arbitrary Cartesian frame", **kw)
     return block, tracks, np.flatnonzero(obs_sel)
+
+
+def _with_rolling_shutter(block: Block, inp: OrientInput, cfg: OrientConfig, camera_name: str, C_sel: NDArray,
+                          img_sel: NDArray[np.int64]) -> Block:
+    """``block`` with the rolling-shutter data of an orientation without GNSS: each image's velocity prior is the
+    difference of the block's own (adjusted) centres of its neighbours in capture time over the time between them
+    (a relation between unknowns: it fixes neither the frame nor the scale of a free network), with a sigma of
+    ``cfg.velocity_sigma_rel`` x the larger of its starting speed and the median one (a drone's speed changes
+    between exposures; a hand-held camera stops for each); images without a time get none (the velocity is then
+    the images' alone)."""
+    times = None if inp.times_s is None else inp.times_s[img_sel]
+    pair, dt = velocity_neighbours(times, len(img_sel))
+    ok = pair[:, 0] >= 0
+    v = np.full((len(img_sel), 3), np.nan)
+    v[ok] = (C_sel[pair[ok, 1]] - C_sel[pair[ok, 0]]) / dt[ok, None]
+    speed = np.linalg.norm(v, axis=1)
+    ref = float(np.median(speed[ok])) if ok.any() else 0.0
+    vs = np.full_like(v, np.nan)
+    if ref > 0:
+        vs[ok] = cfg.velocity_sigma_rel * np.maximum(speed[ok], ref)[:, None]
+    return with_rolling_shutter(block, camera_name, v, vs, cfg.readout_s, cfg.readout_sigma_s,
+                                cfg.angular_sigma_rad_s, between=pair, dt_s=np.nan_to_num(dt, nan=1.0))
 
 
 def _residual_norm(b: Block) -> NDArray[np.float64]:
@@ -694,13 +755,26 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     sig = {"focal_mm": f_rel * f0, "ppx_mm": 0.05 * w_mm, "ppy_mm": 0.05 * w_mm,
            "k1": 1.0, "k2": 1.0, "k3": 1.0, "p1": 0.1, "p2": 0.1, "b1": 0.01, "b2": 0.01}
     names_cal = tuple(nm for nm in camera.intrinsic_names if nm in cfg.self_calibration)
-    final_cfg = AdjustConfig(unknowns=Unknowns(intrinsics="weighted" if names_cal else "fixed",
-                                               intrinsic_names=names_cal or None,
-                                               intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
-                                               datum="auto" if datum == "control" else "free"),
+    rs_on, rs_words = rolling_shutter_decision(cfg.rolling_shutter, inp.camera_make, inp.camera_model)
+    final_unknowns = Unknowns(intrinsics="weighted" if names_cal else "fixed", intrinsic_names=names_cal or None,
+                              intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names_cal),
+                              datum="auto" if datum == "control" else "free")
+    if rs_on:
+        final_unknowns = rolling_shutter_unknowns(final_unknowns,
+                                                  readout="free" if cfg.estimate_readout else "fixed")
+    final_cfg = AdjustConfig(unknowns=final_unknowns,
                              solver=SolverOptions(robust="huber", robust_k=cfg.robust_k,
                                                   max_iterations=cfg.max_iterations),
                              statistics=StatisticsOptions(compute=False))
+    use_ctrl = use_dist = datum in ("control", "scale-bar")
+
+    def final_block(Rc: NDArray, Cc: NDArray, Xc: NDArray, obs_sel: NDArray[np.bool_]
+                    ) -> tuple[Block, NDArray[np.int64], NDArray[np.int64]]:
+        blk, trk, rws = _block(inp, nominal, Rc, Cc, Xc, img_sel, obs_sel, cfg.pixel_sigma_px, use_ctrl, use_dist)
+        if rs_on:
+            blk = _with_rolling_shutter(blk, inp, cfg, camera.name, Cc[img_sel], img_sel)
+        return blk, trk, rws
+
     use_ctrl = use_dist = datum in ("control", "scale-bar")
     lim = 2.0 * cfg.pnp_threshold_px
     for stage in range(2):
@@ -708,7 +782,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         # the priors are centred on the nominal (EXIF) camera in every stage and the solve starts from the current
         # estimate (``start=``): restarting at the EXIF focal length (lund: 995 px for about 730) walks the weakly
         # determined focal valley again and can end on the function tolerance short of the minimum
-        block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+        block, tracks, rows = final_block(R, C, X, obs)
         res = adjust(block, final_cfg, start=replace(block, cameras=[camera]))
         camera = res.block.cameras[0]
         R[img_sel], C[img_sel] = res.block.station_rotation, res.block.station_centre
@@ -724,7 +798,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
     X = np.where(np.isfinite(X).all(axis=1)[:, None], X,
                  _triangulate(inp, camera, R, C, oriented, active, cfg.min_angle_deg))
     obs = _usable(inp, oriented, X, active, camera, R, C, cfg.min_angle_deg, lim, cfg.hand_cut_px, hand_cut)
-    block, tracks, rows = _block(inp, nominal, R, C, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+    block, tracks, rows = final_block(R, C, X, obs)
     res = adjust(block, final_cfg.with_solver(robust=None).with_statistics(compute=True), start=replace(block, cameras=[camera]))
     verdicts: list[Any] = []
     if names_cal:
@@ -733,7 +807,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
         def readjust(r: AdjustmentResult, names: tuple[str, ...], start_cam: FrameCamera) -> AdjustmentResult:
             R2, C2 = R.copy(), C.copy()
             R2[img_sel], C2[img_sel] = r.block.station_rotation, r.block.station_centre
-            blk, _, _ = _block(inp, nominal, R2, C2, X, img_sel, obs, cfg.pixel_sigma_px, use_ctrl, use_dist)
+            blk, _, _ = final_block(R2, C2, X, obs)
             blk = replace(blk, point_xyz=np.array(r.block.point_xyz, float))  # same observations: same points
             c2 = final_cfg.with_unknowns(intrinsics="weighted" if names else "fixed", intrinsic_names=names or None,
                                          intrinsic_sigma=tuple((k, v) for k, v in sig.items() if k in names)).with_solver(robust=None).with_statistics(compute=True)
@@ -769,6 +843,7 @@ def orient_incremental(inp: OrientInput, cfg: OrientConfig = OrientConfig()) -> 
                    calibration=[v.to_dict() for v in verdicts], calibration_held=[v.name for v in verdicts if v.held],
                    calibration_rule=rule_words(cfg.determinable_ratio, cfg.prior_conflict_z, cfg.overrule_ratio))
     summary.update(ground_point_summary(inp, res.block, hand_cut, cfg.hand_cut_px))
+    summary["rolling_shutter"] = rolling_shutter_summary(res, rs_on, rs_words)
     return UavResult(inp.names, oriented, Rout, Cout, camera, res, img_sel, check, summary)
 
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.factors.rolling_shutter import MOTION, NAME, READOUT, RollingShutter
 
-__all__ = ["KNOWN_ROLLING_SHUTTER", "PHONE_MAKES", "rolling_shutter_decision", "velocity_prior", "with_rolling_shutter",
+__all__ = ["KNOWN_ROLLING_SHUTTER", "PHONE_MAKES", "rolling_shutter_decision", "velocity_prior", "velocity_neighbours", "with_rolling_shutter",
            "rolling_shutter_summary"]
 
 #: EXIF ``Model`` of drone cameras with an electronic rolling shutter (DJI's published specifications: Phantom 3
@@ -47,22 +47,19 @@ def rolling_shutter_decision(mode: str, make: str, model: str) -> tuple[bool, st
     return False, f"rolling shutter not modelled: {what} is not known to have one (rolling_shutter: auto)"
 
 
-def velocity_prior(gnss: NDArray[np.float64], times_s: NDArray[np.float64] | None, gnss_sigma_m: Any,
-                   floor_m_s: float, max_gap_s: float = 30.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Velocity ``(I, 3)`` m/s and its sigma ``(I, 3)`` of every image from the GNSS positions of its neighbours in
-    time (central differences; one-sided at the ends and where one neighbour is more than 3 x farther in time than
-    the other: a turn between strips); NaN where the times are missing or the neighbours more than
-    ``max_gap_s`` away.  Sigma: the GNSS noise over the time span, at least ``floor_m_s`` (turns, gusts, a
-    whole-second clock)."""
-    n = len(gnss)
-    v = np.full((n, 3), np.nan)
-    s = np.full((n, 3), np.nan)
+def velocity_neighbours(times_s: NDArray[np.float64] | None, n: int, max_gap_s: float = 30.0
+                        ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """For each of ``n`` images, the images ``(a, b)`` whose positions give its velocity (its neighbours in time:
+    central differences; one-sided at the ends and where one neighbour is more than 3 x farther in time than the
+    other: a turn between strips) and ``dt = t_b - t_a``; ``(-1, -1)`` where the times are missing or the
+    neighbours more than ``max_gap_s`` away."""
+    pair = np.full((n, 2), -1, np.int64)
+    span = np.full(n, np.nan)
     if times_s is None or n < 2:
-        return v, s
+        return pair, span
     t = np.asarray(times_s, float)
     ok = np.flatnonzero(np.isfinite(t))
     order = ok[np.argsort(t[ok], kind="stable")]
-    g_sig = np.broadcast_to(np.asarray(gnss_sigma_m, float), (3,))
     for j, k in enumerate(order):
         a = order[max(j - 1, 0)]
         b = order[min(j + 1, len(order) - 1)]
@@ -74,22 +71,47 @@ def velocity_prior(gnss: NDArray[np.float64], times_s: NDArray[np.float64] | Non
         dt = t[b] - t[a]
         if a == b or dt <= 0 or dt > 2 * max_gap_s:
             continue
-        v[k] = (gnss[b] - gnss[a]) / dt
-        s[k] = np.maximum(np.sqrt(2.0) * g_sig / dt, floor_m_s)
+        pair[k] = a, b
+        span[k] = dt
+    return pair, span
+
+
+def velocity_prior(gnss: NDArray[np.float64], times_s: NDArray[np.float64] | None, gnss_sigma_m: Any,
+                   floor_m_s: float, max_gap_s: float = 30.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Velocity ``(I, 3)`` m/s and its sigma ``(I, 3)`` of every image from the GNSS positions of its neighbours in
+    time (:func:`velocity_neighbours`); NaN where the times are missing or the neighbours more than
+    ``max_gap_s`` away.  Sigma: the GNSS noise over the time span, at least ``floor_m_s`` (turns, gusts, a
+    whole-second clock)."""
+    n = len(gnss)
+    pair, dt = velocity_neighbours(times_s, n, max_gap_s)
+    v = np.full((n, 3), np.nan)
+    s = np.full((n, 3), np.nan)
+    ok = pair[:, 0] >= 0
+    g_sig = np.broadcast_to(np.asarray(gnss_sigma_m, float), (3,))
+    v[ok] = (gnss[pair[ok, 1]] - gnss[pair[ok, 0]]) / dt[ok, None]
+    s[ok] = np.maximum(np.sqrt(2.0) * g_sig / dt[ok, None], floor_m_s)
     return v, s
 
 
 def with_rolling_shutter(block: Any, camera_name: str, v: NDArray[np.float64], v_sigma: NDArray[np.float64],
-                         readout_s: float, readout_sigma_s: float, angular_sigma_rad_s: float | None) -> Any:
+                         readout_s: float, readout_sigma_s: float, angular_sigma_rad_s: float | None,
+                         between: NDArray[np.int64] | None = None, dt_s: NDArray[np.float64] | None = None) -> Any:
     """``block`` (one station per image, in the order of ``v``) with the ``rolling_shutter`` data: every station's
     velocity prior where known (the starting velocity), else zero with a sigma of :data:`UNKNOWN_SPEED_M_S` (a
-    drone's top speed: the velocity is then the images' alone), the readout prior, the angular prior."""
+    drone's top speed: the velocity is then the images' alone), the readout prior, the angular prior.
+    ``between`` / ``dt_s`` (:func:`velocity_neighbours`, a block without GNSS): where given, the prior is the
+    velocity from the block's own centres of the two stations (``v`` is then only the starting value)."""
     have = np.isfinite(v).all(axis=1) & np.isfinite(v_sigma).all(axis=1)
     vp = np.where(have[:, None], v, 0.0)
     vs = np.where(have[:, None], v_sigma, UNKNOWN_SPEED_M_S)
+    rel: dict[str, Any] = {}
+    if between is not None:
+        pair = np.where(have[:, None], np.asarray(between, np.int64), -1)
+        rel = dict(velocity_between=pair, velocity_dt_s=np.where(pair[:, 0] >= 0, dt_s, 1.0),
+                   velocity_m_s=np.where((pair[:, 0] >= 0)[:, None], 0.0, vp))
     rs = RollingShutter(cameras=[camera_name], readout_s=readout_s, readout_sigma_s=readout_sigma_s,
-                        velocity_station=np.arange(len(v)), velocity_m_s=vp, velocity_sigma_m_s=vs,
-                        angular_sigma_rad_s=angular_sigma_rad_s)
+                        velocity_station=np.arange(len(v)), velocity_m_s=rel.pop("velocity_m_s", vp),
+                        velocity_sigma_m_s=vs, angular_sigma_rad_s=angular_sigma_rad_s, **rel)
     start = np.zeros((block.n_stations, 6))
     start[:, :3] = vp
     obs = dict(block.observations)

@@ -693,6 +693,7 @@ class UavOutcome:
                 out.append("scale-bar residuals (m): " + ", ".join(f"{v:.4f}" for v in s["scale_bar_residuals_m"]))
             if "control_fit_rms_xyz_m" in s:
                 out.append("control fit RMS x, y, z (m): " + ", ".join(f"{v:.4f}" for v in s["control_fit_rms_xyz_m"]))
+            out.extend(_shutter_lines(s))
             out.extend(_check_lines(rep))
             out.extend(_pycolmap_lines(rep))
             return out
@@ -705,6 +706,7 @@ class UavOutcome:
         for k, v in bad.items():
             dev = v.get("metadata_vs_adjusted_deg", float("nan"))
             out.append(f"{k}: metadata attitude rejected (differs by {dev:.1f} deg from the adjusted one)")
+        out.extend(_shutter_lines(s))
         out.extend(_check_lines(rep))
         out.extend(_pycolmap_lines(rep))
         return out
@@ -716,6 +718,22 @@ class UavOutcome:
         if self.without_gnss:
             out["datum"] = s["datum"]["kind"]
         return out
+
+
+def _shutter_lines(s: Mapping[str, Any]) -> list[str]:
+    """The rolling shutter in words: modelled or not and why, and the readout time (estimated or held)."""
+    rs = s.get("rolling_shutter")
+    if not rs:
+        return []
+    if not rs.get("modelled"):
+        return [str(rs.get("why", "rolling shutter not modelled"))]
+    ro = rs.get("readout_s", float("nan")) * 1e3
+    if rs.get("readout_held"):
+        how = f"readout time {ro:.1f} ms held at its prior"
+    else:
+        how = f"readout time {ro:.1f} +- {rs.get('readout_sigma_s', float('nan')) * 1e3:.1f} ms estimated"
+    return [f"{rs['why']}; {how}; velocity priors for {rs.get('velocity_priors', 0)} images"
+            + (f" ({rs['note']})" if rs.get("note") else "")]
 
 
 def _check_lines(rep: Mapping[str, Any]) -> list[str]:
@@ -832,7 +850,7 @@ def make_uav_orientation(images: PathArg | None, ties: PathArg, outdir: PathArg,
                              pycolmap_mapper=pycolmap_mapper, pycolmap_input=pycolmap_input, control=control,
                              control_sigma=control_sigma,
                              check=check, scale_bars=scale_bars, measurements=measurements, camera=camera,
-                             datum=datum, spell=spell)
+                             datum=datum, spell=spell, rolling_shutter=rolling_shutter)
     if images is None:
         raise OptionError(spell("images"), "the GNSS-supported adjustment needs the image folder (EXIF GPS)")
     if not (math.isfinite(attitude_sigma) and attitude_sigma >= 0):
@@ -912,7 +930,7 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
                   config_source: str | None, crs: str | None, compare_pycolmap: bool, pycolmap_size: int,
                   pycolmap_mapper: str, pycolmap_input: str, control: PathArg | None, control_sigma: Sequence[float],
                   check: PathArg | None, scale_bars: PathArg | None, measurements: Sequence[PathArg],
-                  camera: PathArg | None, datum: str, spell: Spell) -> UavOutcome:
+                  camera: PathArg | None, datum: str, spell: Spell, rolling_shutter: str = "auto") -> UavOutcome:
     from skyrig.io.image_read import list_images
     from skyrig.io.points_csv import read_measurements_csv, read_points_csv
     from skyrig.orient.incremental import OrientConfig
@@ -921,7 +939,8 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
     if datum not in ("auto", "control", "scale-bar", "gps-similarity", "free"):
         raise OptionError(spell("datum"), f"unknown datum {datum!r} (auto, control, scale-bar, gps-similarity, free)")
     kw: dict[str, Any] = {"pixel_sigma_px": 1.0, "focal_prior_rel": focal_prior,
-                          "datum": {"gps-similarity": "positions"}.get(datum, datum)}
+                          "datum": {"gps-similarity": "positions"}.get(datum, datum),
+                          "rolling_shutter": rolling_shutter}
     if not self_calibration:
         kw["self_calibration"] = ()
     kw.update(config or {})
@@ -968,7 +987,7 @@ def _without_gnss(images: PathArg | None, tie_file: Path, out: Path, *, altitude
                "config": config_source, "control": sources["control"], "control_sigma": list(cs),
                "check": sources["check"], "scale_bars": sources["scale_bars"],
                "measurements": [str(p) for p in measurements], "camera": None if camera is None else str(camera),
-               "datum": datum}
+               "datum": datum, "rolling_shutter": cfg.rolling_shutter}
     outcome = UavOutcome(res, rep, failure_reasons(res.adjustment), True, options, inputs)
     for line in outcome.summary_lines():
         logger.info("%s", line)

@@ -548,6 +548,10 @@ def orient_input(images: str | Path | None, measurements: Any, camera: Any = Non
                                        "measurement of that name)", src.get("scale_bars"))
         kw.update(distance_track=np.array([[tidx[str(a)], tidx[str(b)]] for a, b in ends]), distance_m=length,
                   distance_sigma_m=sigma)
+    if metas:
+        times = np.array([np.nan if m.time_s is None else m.time_s for m in metas], float)
+        kw.update(camera_make=metas[0].make or "", camera_model=metas[0].model or "",
+                  times_s=times if np.isfinite(times).any() else None)
     return OrientInput(names, camera, obs_track.astype(np.int64), by_name[pos].astype(np.int64),
                        np.asarray(measurements.pixel, float), track_name, positions=positions, frame=frame,
                        notes=notes, focal_prior_rel=focal_rel, **kw)

@@ -409,3 +409,11 @@ class ParameterGroup:
     def retract(self, value: NDArray[np.float64], step: NDArray[np.float64]) -> NDArray[np.float64]:
         """``value`` moved by the step ``(n_owners, n_components)`` (default additive; a rotation overrides)."""
         return value + step
+
+    def similarity_motion(self, values: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """How the group's values move when the whole block is moved by a similarity (a free network's datum):
+        ``(n_owners, n_components, 7)`` derivatives with respect to a translation (x, y, z), a small rotation
+        about x, y, z and a scale, in the columns' order of
+        :func:`skyrig.adjust.solver.inner_constraint_basis`; None (default): the values do not move (offsets in
+        a body frame, times, scale factors)."""
+        return None

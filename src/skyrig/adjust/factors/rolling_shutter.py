@@ -104,6 +104,11 @@ class RollingShutter:
         trajectory) and its sigma ``(K, 3)`` (m/s); empty = no velocity prior.
     angular_sigma_rad_s
         sigma (rad/s) of a zero angular velocity per rolling-shutter station; None = no such prior.
+    velocity_between, velocity_dt_s
+        Optional ``(K, 2)`` stations ``(a, b)`` and ``(K,)`` time span (s) per velocity prior: where ``a >= 0``
+        the prior is the velocity from the block's own centres, ``v_k = (C_b - C_a) / dt + velocity_m_s`` (the
+        centres are unknowns: a block without GNSS, whose frame and scale the prior must not fix; it moves with
+        the block under a similarity); ``-1``: the fixed ``velocity_m_s`` (e.g. from a GNSS trajectory).
     """
 
     cameras: Any
@@ -113,6 +118,8 @@ class RollingShutter:
     velocity_m_s: Any = field(default_factory=lambda: np.zeros((0, 3)))
     velocity_sigma_m_s: Any = field(default_factory=lambda: np.zeros((0, 3)))
     angular_sigma_rad_s: float | None = None
+    velocity_between: Any = None
+    velocity_dt_s: Any = None
     #: ``(n, 1)`` sigma of the prior rows (filled by :meth:`normalise`; not used by VCE)
     sigma: Any = None
 
@@ -128,6 +135,12 @@ class RollingShutter:
         k = len(self.velocity_station)
         self.velocity_m_s = np.asarray(self.velocity_m_s, float).reshape(k, 3)
         self.velocity_sigma_m_s = np.broadcast_to(np.asarray(self.velocity_sigma_m_s, float), (k, 3)).copy()
+        if self.velocity_between is None:
+            self.velocity_between = np.full((k, 2), -1, np.int64)
+            self.velocity_dt_s = np.ones(k)
+        self.velocity_between = np.asarray(self.velocity_between, np.int64).reshape(k, 2)
+        self.velocity_dt_s = np.broadcast_to(np.asarray(1.0 if self.velocity_dt_s is None else self.velocity_dt_s,
+                                                        float), (k,)).copy()
         self.sigma = np.ones((len(self), 1))
 
     def validate(self, block: "Block") -> None:
@@ -146,6 +159,15 @@ class RollingShutter:
         check_index(f"observations['{NAME}'].velocity_station", self.velocity_station, block.n_stations, "station")
         check_finite(f"observations['{NAME}'].velocity_m_s", self.velocity_m_s)
         check_positive(f"observations['{NAME}'].velocity_sigma_m_s", self.velocity_sigma_m_s)
+        rel = self.velocity_between[:, 0] >= 0
+        if rel.any():
+            check_index(f"observations['{NAME}'].velocity_between", self.velocity_between[rel], block.n_stations,
+                        "station")
+            check_positive(f"observations['{NAME}'].velocity_dt_s", self.velocity_dt_s[rel])
+            same = np.flatnonzero(self.velocity_between[rel, 0] == self.velocity_between[rel, 1])
+            if len(same):
+                raise BlockError(f"observations['{NAME}'].velocity_between: a velocity between station "
+                                 f"{int(self.velocity_between[rel][same[0], 0])} and itself")
         a = self.angular_sigma_rad_s
         if a is not None and not (np.isfinite(a) and a > 0):
             raise BlockError(f"observations['{NAME}'].angular_sigma_rad_s must be > 0 (a standard deviation) or "
@@ -181,6 +203,16 @@ class RsMotion(ParameterGroup):
 
     def estimated(self, block: Any) -> bool:
         return _data(block) is not None
+
+    def similarity_motion(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Both velocities are world-frame vectors: a rotation ``e_a`` of the block turns them (``e_a x v``), a
+        scale stretches the linear one (``v``), a translation leaves them."""
+        m = np.zeros(values.shape + (7,))
+        for a in range(3):
+            m[:, :3, 3 + a] = np.cross(np.eye(3)[a], values[:, :3])
+            m[:, 3:, 3 + a] = np.cross(np.eye(3)[a], values[:, 3:])
+        m[:, :3, 6] = values[:, :3]
+        return m
 
 
 class RsReadout(ParameterGroup):
@@ -239,21 +271,24 @@ class RollingShutterType(ObservationType):
         slot = np.full(b.n_stations, -1, np.int64)
         rs = _rs_stations(b)
         slot[rs] = np.arange(len(rs))
-        k = len(d.velocity_station)
-        if k:
+        if len(d.velocity_station):
             sl = slot[d.velocity_station]
             if (sl < 0).any():
                 bad = int(d.velocity_station[np.flatnonzero(sl < 0)[0]])
                 raise BlockError(f"observations['{NAME}'].velocity_station names station "
                                  f"{b.station_name[bad]!r}, which holds no rolling-shutter image")
-            sg = d.velocity_sigma_m_s
-            f = Factor(f"{NAME}:velocity", (s.groups[MOTION][sl, :3] - d.velocity_m_s) / sg, sg,
-                       weight=np.ones(k))
-            if jac:
-                f.cols = lay.groups[MOTION][sl, :3].copy()
-                f.jc = np.zeros((k, 3, 3))
-                f.jc[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sg
-            out.append(f)
+            fixed, rel = _velocity_rows(d)
+            if len(fixed):
+                sg = d.velocity_sigma_m_s[fixed]
+                f = Factor(f"{NAME}:velocity", (s.groups[MOTION][sl[fixed], :3] - d.velocity_m_s[fixed]) / sg, sg,
+                           weight=np.ones(len(fixed)))
+                if jac:
+                    f.cols = lay.groups[MOTION][sl[fixed], :3].copy()
+                    f.jc = np.zeros((len(fixed), 3, 3))
+                    f.jc[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sg
+                out.append(f)
+            if len(rel):
+                out.append(_relative_velocity_factor(d, rel, sl, s, lay, jac))
         if d.angular_sigma_rad_s is not None and len(rs):
             sg = np.full((len(rs), 3), float(d.angular_sigma_rad_s))
             f = Factor(f"{NAME}:angular", s.groups[MOTION][:, 3:] / sg, sg,
@@ -285,8 +320,35 @@ class RollingShutterType(ObservationType):
         if i < q:
             return f"readout time prior of camera {d.cameras[i]}"
         if i < q + k:
-            return f"velocity prior of station {block.station_name[d.velocity_station[i - q]]}"
+            j = int(np.concatenate(_velocity_rows(d))[i - q])  # the factors' row order: fixed, then relative
+            return f"velocity prior of station {block.station_name[d.velocity_station[j]]}"
         return f"angular velocity prior of station {block.station_name[_rs_stations(block)[i - q - k]]}"
+
+
+def _velocity_rows(d: RollingShutter) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Rows of the velocity priors on a fixed velocity and on the block's own centres."""
+    rel = d.velocity_between[:, 0] >= 0
+    return np.flatnonzero(~rel), np.flatnonzero(rel)
+
+
+def _relative_velocity_factor(d: RollingShutter, rel: NDArray[np.int64], sl: NDArray[np.int64], s: "State",
+                              lay: Any, jac: bool) -> Factor:
+    """``(v_k - (C_b - C_a) / dt - velocity_m_s) / sigma`` of the rows ``rel``; columns: the velocity, ``C_a``,
+    ``C_b``."""
+    a, bb = d.velocity_between[rel, 0], d.velocity_between[rel, 1]
+    dt = d.velocity_dt_s[rel][:, None]
+    sg = d.velocity_sigma_m_s[rel]
+    v = s.groups[MOTION][sl[rel], :3]
+    r = (v - (s.C[bb] - s.C[a]) / dt - d.velocity_m_s[rel]) / sg
+    f = Factor(f"{NAME}:velocity_from_centres", r, sg, weight=np.ones(len(rel)))
+    if jac:
+        f.cols = np.concatenate([lay.groups[MOTION][sl[rel], :3], lay.pose[a, :3], lay.pose[bb, :3]], axis=1)
+        f.jc = np.zeros((len(rel), 3, 9))
+        i3 = [0, 1, 2]
+        f.jc[:, i3, i3] = 1.0 / sg
+        f.jc[:, i3, [3, 4, 5]] = 1.0 / (dt * sg)
+        f.jc[:, i3, [6, 7, 8]] = -1.0 / (dt * sg)
+    return f
 
 
 @dataclass
