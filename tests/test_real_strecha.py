@@ -64,4 +64,10 @@ def test_strecha_self_calibration_and_orientation_against_ground_truth(tmp_path)
     assert sky["rotation_rms_deg"] < 0.12 and sky["rotation_rms_deg"] < col["rotation_rms_deg"], (sky, col)
     assert sky["rotation_rms_own_alignment_deg"] <= 0.05, sky
     assert sky["rotation_rms_own_alignment_deg"] < col["rotation_rms_own_alignment_deg"], (sky, col)
+    # one similarity fitted to the whole poses (centres and rotations, nominal weights 1 cm / 0.05 deg for both
+    # programs): centres and rotations judged after the same transform.  Measured: 0.0109 m / 0.043 deg (pycolmap
+    # 0.042 m / 0.23 deg)
+    ps, pc_ = sky["pose_similarity"], col["pose_similarity"]
+    assert ps["centre_rms_m"] <= 1.5 * pc_["centre_rms_m"], (ps, pc_)
+    assert ps["rotation_rms_deg"] <= 0.05, ps
 
