@@ -53,7 +53,11 @@ def test_every_adjustment_kernel_loads_from_the_cache_in_a_second_process(tmp_pa
     assert all(m >= 1 for _, m in first["used"].values())  # compiled and written
     n_files = _files(cache)
     second = _run(cache)
-    assert set(second["used"]) == set(first["used"])
+    # a kernel called only from inside another (linalg's _add_row, _find) is compiled through its dispatcher in the
+    # first process and comes with its caller's cached code in the second: the second uses a subset, each loaded
+    assert set(second["used"]) <= set(first["used"])
+    callees = set(first["used"]) - set(second["used"])
+    assert len(callees) <= 2 and all(k.startswith("skyrig.adjust.linalg:_") for k in callees), callees
     missed = {k: v for k, v in second["used"].items() if v[1] != 0 or v[0] < 1}
     assert missed == {}, missed  # every kernel loaded, none compiled
     _run(cache)

@@ -442,7 +442,8 @@ def test_killed_stage_and_local_cluster(sim_project: Path) -> None:
     for s, m in before.items():
         assert read_manifest(out / s) == m and verify_folder(out / s) == [], s
     plan = {n: a for n, a, _ in plan_run(load_project(sim_project))}
-    assert plan == {s: "skip" for s in stages}, plan
+    # every stage of the project (the ortho after the DSM too) is still up to date: nothing to redo
+    assert set(stages) <= set(plan) and set(plan.values()) == {"skip"}, plan
     text = sim_project.read_text()
     try:
         sim_project.write_text(text.replace("  kind: serial ", "  kind: local ").replace("  workers: null ",

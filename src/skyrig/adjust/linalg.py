@@ -362,101 +362,98 @@ except ImportError:  # pragma: no cover - numba is a dependency
     _numba = None  # type: ignore[assignment]
 
 
-def _make_pattern_kernels():
-    if _numba is None:  # pragma: no cover
-        return None
-    njit = _numba.njit
+def _jit(f):  # module-level kernels: a kernel calling another is cached only when both are module globals
+    return _numba.njit(cache=True, nogil=True)(f) if _numba is not None else f
 
-    @njit(cache=True, nogil=True)
-    def row_sets(n_c, ucols, adj_ptr, adj, cu_ptr, cu, groups, cg_ptr, cg, fill, indptr, indices):  # pragma: no cover
-        # fill=False: count the entries of each row into indptr[r + 1]; fill=True: write them (sorted)
-        mark = np.full(n_c, -1, np.int64)
-        k = ucols.shape[1]
-        kg = groups.shape[1]
-        for r in range(n_c):
-            n = 0
-            base = indptr[r] if fill else 0
-            mark[r] = r
-            if fill:
-                indices[base] = r
-            n += 1
-            for ii in range(cu_ptr[r], cu_ptr[r + 1]):
-                u = cu[ii]
-                for jj in range(adj_ptr[u], adj_ptr[u + 1]):
-                    v = adj[jj]
-                    for j in range(k):
-                        c = ucols[v, j]
-                        if c >= 0 and mark[c] != r:
-                            mark[c] = r
-                            if fill:
-                                indices[base + n] = c
-                            n += 1
-            for ii in range(cg_ptr[r], cg_ptr[r + 1]):
-                g = cg[ii]
-                for j in range(kg):
-                    c = groups[g, j]
+
+@_jit
+def _row_sets(n_c, ucols, adj_ptr, adj, cu_ptr, cu, groups, cg_ptr, cg, fill, indptr, indices):  # pragma: no cover
+    # fill=False: count the entries of each row into indptr[r + 1]; fill=True: write them (sorted)
+    mark = np.full(n_c, -1, np.int64)
+    k = ucols.shape[1]
+    kg = groups.shape[1]
+    for r in range(n_c):
+        n = 0
+        base = indptr[r] if fill else 0
+        mark[r] = r
+        if fill:
+            indices[base] = r
+        n += 1
+        for ii in range(cu_ptr[r], cu_ptr[r + 1]):
+            u = cu[ii]
+            for jj in range(adj_ptr[u], adj_ptr[u + 1]):
+                v = adj[jj]
+                for j in range(k):
+                    c = ucols[v, j]
                     if c >= 0 and mark[c] != r:
                         mark[c] = r
                         if fill:
                             indices[base + n] = c
                         n += 1
-            if fill:
-                indices[base:base + n] = np.sort(indices[base:base + n])
-            else:
-                indptr[r + 1] = n
+        for ii in range(cg_ptr[r], cg_ptr[r + 1]):
+            g = cg[ii]
+            for j in range(kg):
+                c = groups[g, j]
+                if c >= 0 and mark[c] != r:
+                    mark[c] = r
+                    if fill:
+                        indices[base + n] = c
+                    n += 1
+        if fill:
+            indices[base:base + n] = np.sort(indices[base:base + n])
+        else:
+            indptr[r + 1] = n
 
-    @njit(cache=True, nogil=True)
-    def _find(indptr, indices, i, j):  # pragma: no cover - compiled
-        lo = indptr[i]
-        hi = indptr[i + 1]
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if indices[mid] < j:
-                lo = mid + 1
-            else:
-                hi = mid
-        return lo
+@_jit
+def _find(indptr, indices, i, j):  # pragma: no cover - compiled
+    lo = indptr[i]
+    hi = indptr[i + 1]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if indices[mid] < j:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
-    @njit(cache=True, nogil=True)
-    def _add_row(indptr, indices, r, cols, vals, dst):  # pragma: no cover - compiled
-        # dst[(r, cols[j])] += vals[j]; the columns of a unit mostly run consecutively, so the next entry
-        # is tried before a binary search
-        p = -1
-        end = indptr[r + 1]
-        for j in range(len(cols)):
-            c = cols[j]
-            if c < 0:
-                continue
-            if p >= 0 and p + 1 < end and indices[p + 1] == c:
-                p += 1
-            else:
-                p = _find(indptr, indices, r, c)
-            dst[p] += vals[j]
+@_jit
+def _add_row(indptr, indices, r, cols, vals, dst):  # pragma: no cover - compiled
+    # dst[(r, cols[j])] += vals[j]; the columns of a unit mostly run consecutively, so the next entry
+    # is tried before a binary search
+    p = -1
+    end = indptr[r + 1]
+    for j in range(len(cols)):
+        c = cols[j]
+        if c < 0:
+            continue
+        if p >= 0 and p + 1 < end and indices[p + 1] == c:
+            p += 1
+        else:
+            p = _find(indptr, indices, r, c)
+        dst[p] += vals[j]
 
-    @njit(cache=True, nogil=True)
-    def scatter_pairs(blocks, row_ptr, col_idx, ucols, indptr, indices, dst):  # pragma: no cover - compiled
-        n_u = len(row_ptr) - 1
-        k = ucols.shape[1]
-        col = np.empty(k)
-        for u in range(n_u):
-            for q in range(row_ptr[u], row_ptr[u + 1]):
-                v = col_idx[q]
-                for i in range(k):
-                    r = ucols[u, i]
+@_jit
+def _scatter_pairs(blocks, row_ptr, col_idx, ucols, indptr, indices, dst):  # pragma: no cover - compiled
+    n_u = len(row_ptr) - 1
+    k = ucols.shape[1]
+    col = np.empty(k)
+    for u in range(n_u):
+        for q in range(row_ptr[u], row_ptr[u + 1]):
+            v = col_idx[q]
+            for i in range(k):
+                r = ucols[u, i]
+                if r >= 0:
+                    _add_row(indptr, indices, r, ucols[v], blocks[q, i], dst)
+            if v != u:  # the mirror block: row ucols[v, j] gets column j of the block
+                for j in range(k):
+                    r = ucols[v, j]
                     if r >= 0:
-                        _add_row(indptr, indices, r, ucols[v], blocks[q, i], dst)
-                if v != u:  # the mirror block: row ucols[v, j] gets column j of the block
-                    for j in range(k):
-                        r = ucols[v, j]
-                        if r >= 0:
-                            for i in range(k):
-                                col[i] = blocks[q, i, j]
-                            _add_row(indptr, indices, r, ucols[u], col, dst)
-
-    return dict(row_sets=row_sets, scatter_pairs=scatter_pairs)
+                        for i in range(k):
+                            col[i] = blocks[q, i, j]
+                        _add_row(indptr, indices, r, ucols[u], col, dst)
 
 
-_PK = _make_pattern_kernels()
+_PK = dict(row_sets=_row_sets, scatter_pairs=_scatter_pairs) if _numba is not None else None
 
 
 def _csr_of_lists(owner: NDArray[np.int64], item: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
