@@ -113,7 +113,7 @@ def test_refinement_recovers_target_centres(sim, tmp_path):
     e = np.hypot(*np.array(err).T)
     assert len(e) == len(truth) and e.max() < 0.2 and np.sqrt(np.mean(e**2)) < 0.1, (e.max(), np.sqrt(np.mean(e**2)))
     click = s.propose("GCP01", str(truth.image[0]), 100.0, 100.0, method="click")
-    assert click == {"column": 100.0, "row": 100.0, "method": "click", "refined": False, "sigma_px": 0.5,
+    assert click == {"column": 100.0, "row": 100.0, "method": "click", "refined": False, "sigma_px": 0.5, "search_px": 0.0,
                      "note": "as clicked"}
 
 
@@ -283,6 +283,14 @@ def test_server_token_host_origin_traversal(sim, tmp_path):
                                                                    "column": 1e6, "row": 0})
         assert code == 400 and b"outside image" in body
         assert _get(f"{base}/api/propose", data={"point": "GCP01"})[0] == 403
+        # the search radius: a number of pixels in [0, 200], echoed; anything else a 400 naming the field
+        q = {"point": str(truth.point[k]), "image": str(truth.image[k]), "column": truth.pixel[k, 0] + 1,
+             "row": truth.pixel[k, 1] - 1}
+        code, body = _get(f"{base}/api/propose?token={tok}", data={**q, "search_px": 25})
+        assert code == 200 and json.loads(body)["search_px"] == 25.0 and json.loads(body)["method"] == "target"
+        for bad in ("25", True, -1, 201, None, [3]):
+            code, body = _get(f"{base}/api/propose?token={tok}", data={**q, "search_px": bad})
+            assert code == 400 and "search_px" in json.loads(body)["error"], (bad, body)
         # bound to the loopback interface only
         others = {a[4][0] for a in socket.getaddrinfo(socket.gethostname(), None, socket.AF_INET)} - {"127.0.0.1"}
         others = {a for a in others if not a.startswith("127.")}
@@ -404,11 +412,32 @@ def test_page_in_headless_chromium(sim, tmp_path):
                     v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
                 wait.until(lambda d: js("return document.body.dataset.proposal"))
                 shown[point, image] = json.loads(js("return document.body.dataset.proposal"))
+                # the request carried the search radius of the prediction the page shows (95 % major semi-axis)
+                pred = _pairs(s.point_state(point))[image]
+                g = pred["intersection"] if pred.get("intersection") and pred["intersection"]["column"] is not None \
+                    else pred["ground"]
+                assert shown[point, image]["search_px"] == pytest.approx(min(200, max(3, round(2.4477 * g["a"], 1))),
+                                                                         abs=0.051)
                 drv.find_element(By.ID, "accept").click()
                 wait.until(lambda d: js("return document.body.dataset.saved") == str(n + 1))
                 js("delete document.body.dataset.proposal")
             drv.save_screenshot(str(tmp_path / "measure_page.png"))
             assert js("return document.body.dataset.lastError") is None
+
+            def click_with_search(typed: str) -> None:
+                box = drv.find_element(By.ID, "search")
+                box.clear()
+                box.send_keys(typed)
+                ActionChains(drv).move_to_element_with_offset(
+                    v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
+
+            # the user's own radius travels; one out of the server's bounds is refused in words on the page
+            click_with_search("30")
+            wait.until(lambda d: js("return document.body.dataset.proposal"))
+            assert json.loads(js("return document.body.dataset.proposal"))["search_px"] == 30.0
+            click_with_search("500")
+            wait.until(lambda d: js("return document.body.dataset.lastError"))
+            assert "search_px = 500 px is outside [0, 200] px" in js("return document.body.dataset.lastError")
     finally:
         drv.quit()
         s.close()

@@ -59,6 +59,19 @@ _PROPOSE = ("target", "corner", "aruco", "lsm", "click")  # refinements the page
 TARGET_KINDS = ("aruco", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
 _KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco"}
 _HALF = 24  # refinement window half size, pixels
+#: the largest search radius a proposal may be asked for, pixels (a window of 2 x (24 + 200) px around the click)
+MAX_SEARCH_PX = 200.0
+
+
+def search_radius(value: object, name: str = "search_px") -> float:
+    """``value`` as a search radius in pixels: a real number (not a boolean, not a string) in
+    ``[0, MAX_SEARCH_PX]``; else ValueError naming ``name``, the value and the bounds."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number of pixels in [0, {MAX_SEARCH_PX:g}], not {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and 0.0 <= v <= MAX_SEARCH_PX):
+        raise ValueError(f"{name} = {value!r} px is outside [0, {MAX_SEARCH_PX:g}] px")
+    return v
 
 
 @dataclass(frozen=True)
@@ -522,8 +535,10 @@ class MeasureSession:
         against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
         point nearest the click), ``"aruco"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
         ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
-        ``search_px``: how far the least-squares matching looks from the click (a cross-correlation search first,
-        for a start taken from a prediction, e.g. 3 times its ellipse's major semi-axis); 0: LSM from the click.
+        ``search_px``: how far from the click a target (``auto``, ``target``, ``aruco``: at least 12 px) and the
+        least-squares matching (a cross-correlation search first) look; the page sends the 95 % prediction ellipse's
+        major semi-axis unless the user sets one; 0: a target within 12 px, LSM from the click.  A number in
+        ``[0, MAX_SEARCH_PX]`` (:func:`search_radius`), else ValueError.  The proposal echoes it (``search_px``).
         """
         from skyrig.match.targets import corner_centre, detect_target, target_centre
 
@@ -531,32 +546,43 @@ class MeasureSession:
             raise KeyError(f"no ground point {point!r}")
         if method not in ("auto", *_PROPOSE):
             raise ValueError(f"unknown method {method!r} (auto, {', '.join(_PROPOSE)})")
+        search = search_radius(search_px)
         click = np.array([float(column), float(row)])
         notes = []
+        out = None
         if method != "click":
-            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF)
+            reach = max(12.0, search)  # a target's search: detect_target's default at least
+            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
             o = np.array([c0, r0], dtype=np.float64)
             if method == "auto" and self.target_kinds:
-                f, words, kind = detect_target(win, click - o, kinds=self.target_kinds)
+                f, words, kind = detect_target(win, click - o, search_px=reach, kinds=self.target_kinds)
                 if f.ok:
-                    return self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
-                notes.append(f.note)
-            if method in ("target", "aruco"):
-                f, words, _ = detect_target(win, click - o, kinds=("disc" if method == "target" else "aruco",))
+                    out = self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
+                else:
+                    notes.append(f.note)
+            if out is None and method in ("target", "aruco"):
+                f, words, _ = detect_target(win, click - o, search_px=reach,
+                                            kinds=("disc" if method == "target" else "aruco",))
                 if f.ok:
-                    return self._proposal(f.xy + o, method, True, f.sigma_px, words)
-                notes.append(f.note)
-            if method == "corner":
+                    out = self._proposal(f.xy + o, method, True, f.sigma_px, words)
+                else:
+                    notes.append(f.note)
+            if out is None and method == "corner":
                 f = corner_centre(win, click - o)
                 if f.ok:
-                    return self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
-                notes.append(f"corner: {f.note}")
-            if method in ("auto", "lsm"):
-                got = self._lsm(point, image, click, min(max(float(search_px), 0.0), 200.0))
+                    out = self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
+                else:
+                    notes.append(f"corner: {f.note}")
+            if out is None and method in ("auto", "lsm"):
+                got = self._lsm(point, image, click, search)
                 if isinstance(got, dict):
-                    return got
-                notes.append(f"lsm: {got}")
-        return self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
+                    out = got
+                else:
+                    notes.append(f"lsm: {got}")
+        if out is None:
+            out = self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
+        out["search_px"] = _num(search, 1)
+        return out
 
     @staticmethod
     def _proposal(xy: NDArray, method: str, refined: bool, sigma: float, note: str) -> dict:
