@@ -508,15 +508,16 @@ def _measure_targets(scene: Scene, rig: Rig, eo: ExteriorOrientations, names: ND
 
     pts, imgs, pix = [], [], []
     r = scene.targets.radius_m if scene.targets is not None else 0.0
+    half = scene.targets.half_side_m + 0.5 * r if scene.targets is not None else 0.0  # 3 r for a disc target
     for k in range(len(eo)):
         cam = rig.head(str(eo.head[k])).camera
         pose = Pose(eo.rotation[k], eo.centre[k], "world", "camera")
         px = cam.world_to_pixel(pose, xyz)
         if len(xyz) == 0:
             continue
-        # margin: the whole target (black square, half side 2 r) must be inside
+        # margin: the whole target (its black square) must be inside
         gs = cam.gsd(np.linalg.norm(xyz - eo.centre[k], axis=1))
-        margin = 3.0 * r / np.maximum(gs, 1e-9) + 2
+        margin = half / np.maximum(gs, 1e-9) + 2
         ok = cam.in_image(px) & (px[:, 0] > margin) & (px[:, 1] > margin) & (px[:, 0] < cam.width - 1 - margin) & (px[:, 1] < cam.height - 1 - margin)
         if not np.any(ok):
             continue

@@ -19,7 +19,11 @@ The truth of the scene is analytic:
   height is added to it: part of the bare earth a DTM shows), of analytic volume ``pi h (R^2 + R r + r^2) / 3``
   above the natural ground;
 * **signalised targets** (GCPs): a white disc of radius ``r`` (linear edge ramp of width ``r / 2``) in a black square of half side ``2.5 r``
-  painted onto the ground texture, centred on ``(x, y, terrain(x, y))``.
+  painted onto the ground texture, centred on ``(x, y, terrain(x, y))``; or **circular coded targets** (ring-coded,
+  of the Schneider / AICON kind): a white centre dot of radius ``r``, a black gap to ``2 r``, a code ring from ``2 r``
+  to ``3 r`` of ``N`` equal sectors (sector ``b``, from ``2 pi b / N`` counter-clockwise from east seen from above,
+  white when bit ``b`` of the target's code is set), in a black square of half side ``4 r`` (every edge with the
+  same ramp).
 
 :func:`rasterize_dsm` and :func:`rasterize_orthophoto` sample the scene on grids (the files written
 by a simulated project); the renderer uses the analytic scene.
@@ -247,11 +251,20 @@ class Stockpiles:
 @dataclass(frozen=True)
 class Target:
     """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local
-    frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``)."""
+    frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``); with
+    ``codes`` ``(K,)`` circular coded targets of ``code_bits`` sectors instead (module docstring; half side
+    ``4 radius``)."""
 
     name: NDArray[np.str_]
     xyz: NDArray[np.float64]
     radius_m: float
+    codes: NDArray[np.int64] | None = None
+    code_bits: int = 12
+
+    @property
+    def half_side_m(self) -> float:
+        """Half side of the black square the target is painted on."""
+        return (2.5 if self.codes is None else 4.0) * self.radius_m
 
 
 @dataclass(frozen=True)
@@ -404,14 +417,27 @@ class Scene:
         r = t.radius_m
         dx, dy = x - t.xyz[k, 0], y - t.xyz[k, 1]
         w = max(0.5 * r, 1e-3)  # anti-aliasing ramp (symmetric: keeps the centroid unbiased)
-        sq = np.clip((2.5 * r - np.maximum(np.abs(dx), np.abs(dy))) / w + 0.5, 0.0, 1.0)
-        disc = np.clip((r - np.hypot(dx, dy)) / w + 0.5, 0.0, 1.0)
-        return sq, disc
+        ramp = lambda d: np.clip(d / w + 0.5, 0.0, 1.0)  # noqa: E731  coverage at signed distance d inside an edge
+        sq = ramp(t.half_side_m - np.maximum(np.abs(dx), np.abs(dy)))
+        rho = np.hypot(dx, dy)
+        disc = ramp(r - rho)
+        if t.codes is None:
+            return sq, disc
+        n = int(t.code_bits)
+        step = 2.0 * np.pi / n
+        phi = np.mod(np.arctan2(dy, dx), 2.0 * np.pi)
+        j = np.floor(phi / step + 0.5)  # the sector boundary nearest (at angle j step)
+        bit = lambda i: ((int(t.codes[k]) >> np.mod(i, n).astype(np.int64)) & 1).astype(np.float64)  # noqa: E731
+        # signed distance from the boundary's ray, positive into the sector counter-clockwise of it
+        d = -np.sin(j * step) * dx + np.cos(j * step) * dy
+        code = bit(j) * ramp(d) + bit(j - 1) * (1.0 - ramp(d))
+        ring = ramp(rho - 2.0 * r) * ramp(3.0 * r - rho)
+        return sq, np.maximum(disc, ring * code)
 
     def _paint_targets(self, x: NDArray, y: NDArray, rgb: NDArray) -> NDArray:
         t = self.targets
         assert t is not None
-        reach = 2.5 * t.radius_m * 1.5 + 1.0
+        reach = t.half_side_m * 1.5 + 1.0
         for k in range(len(t.name)):
             near = (np.abs(x - t.xyz[k, 0]) < reach) & (np.abs(y - t.xyz[k, 1]) < reach)
             if not np.any(near):
@@ -466,6 +492,8 @@ def make_scene(
     targets: tuple[ArrayLike, ArrayLike] | None = None,
     target_radius_m: float = 0.5,
     stockpiles: ArrayLike | None = None,
+    target_codes: ArrayLike | None = None,
+    code_bits: int = 12,
 ) -> Scene:
     """A seeded scene: gentle terrain of total relief ``relief_m``, ``n_buildings`` houses in ``town``.
 
@@ -487,6 +515,8 @@ def make_scene(
     stockpiles
         Rows ``(cx, cy, R, r, h)`` of :class:`Stockpiles` standing on the terrain; buildings are kept 3 m away from
         their toes.  None (the default) leaves every other output of the scene unchanged.
+    target_codes, code_bits
+        ``(K,)`` codes of ``code_bits`` bits: the targets are circular coded targets (:class:`Target`); None: discs.
     """
     rng = np.random.default_rng(seed)
     xmin, ymin, xmax, ymax = extent
@@ -539,7 +569,10 @@ def make_scene(
     if targets is not None:
         names = np.asarray(targets[0], dtype=str).reshape(-1)
         z = proto.terrain_height(tg_xy[:, 0], tg_xy[:, 1])
-        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m))
+        codes = None if target_codes is None else np.asarray(target_codes, dtype=np.int64).reshape(-1)
+        if codes is not None and (len(codes) != len(names) or np.any(codes < 0) or np.any(codes >= 2**code_bits)):
+            raise SkyrigError(f"target_codes: {len(names)} codes of {code_bits} bits expected")
+        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m), codes, int(code_bits))
     return Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase, bld, tgt, texture_fine_m=texture_fine_m,
                  texture_coarse_m=40.0, stockpiles=piles)
 
