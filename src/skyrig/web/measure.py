@@ -54,10 +54,10 @@ __all__ = ["Sigmas", "Record", "MeasureSession", "METHODS"]
 
 #: How a position was found: a plain click, a disc target's centre, a corner's saddle point, least-squares
 #: matching against an image measured before, a target detected automatically, or read from the file.
-METHODS = ("click", "target", "corner", "lsm", "detected", "aruco")
-_PROPOSE = ("target", "corner", "aruco", "lsm", "click")  # refinements the page may ask for (besides "auto")
-TARGET_KINDS = ("aruco", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
-_KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco"}
+METHODS = ("click", "target", "corner", "lsm", "detected", "aruco", "coded")
+_PROPOSE = ("target", "corner", "aruco", "coded", "lsm", "click")  # refinements the page may ask for (besides "auto")
+TARGET_KINDS = ("aruco", "coded", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
+_KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco", "coded": "coded"}
 _HALF = 24  # refinement window half size, pixels
 #: the largest search radius a proposal may be asked for, pixels (a window of 2 x (24 + 200) px around the click)
 MAX_SEARCH_PX = 200.0
@@ -143,7 +143,7 @@ class MeasureSession:
         Take the lock file (a second session on the same file raises :class:`SessionLockedError`).
     target_kinds
         The targets that ``"auto"`` refinement and :meth:`detect` look for, in this order (:data:`TARGET_KINDS`:
-        ArUco / AprilTag markers, 2 x 2 chequer corners, discs); empty: none.
+        ArUco / AprilTag markers, circular coded targets, 2 x 2 chequer corners, discs); empty: none.
     adjustment
         The control / check residuals of the adjustment whose orientations these are
         (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
@@ -293,7 +293,8 @@ class MeasureSession:
                          for c in MEASUREMENT_PROVENANCE})
             write_table_meta(self.output, None, cols, "skyrig-measurements 1", {
                 "written_by": "skyrig measure", "orientations": self._src("eo"), "points": self._src("points"),
-                "methods": "click: as clicked; target: disc-target centre; corner: corner saddle point; lsm: "
+                "methods": "click: as clicked; target: disc-target centre; corner: corner saddle point; aruco: "
+                           "ArUco / AprilTag marker centre; coded: circular coded target centre; lsm: "
                            "least-squares matching to an image measured before; detected: target found automatically"})
 
     # ------------------------------------------------------------------------------------------- geometry
@@ -533,7 +534,7 @@ class MeasureSession:
 
         ``method``: ``"auto"`` (a target of :attr:`target_kinds` near the click, else least-squares matching
         against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
-        point nearest the click), ``"aruco"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
+        point nearest the click), ``"aruco"``, ``"coded"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
         ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
         ``search_px``: how far from the click a target (``auto``, ``target``, ``aruco``: at least 12 px) and the
         least-squares matching (a cross-correlation search first) look; the page sends the 95 % prediction ellipse's
@@ -560,9 +561,9 @@ class MeasureSession:
                     out = self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
                 else:
                     notes.append(f.note)
-            if out is None and method in ("target", "aruco"):
+            if out is None and method in ("target", "aruco", "coded"):
                 f, words, _ = detect_target(win, click - o, search_px=reach,
-                                            kinds=("disc" if method == "target" else "aruco",))
+                                            kinds=("disc" if method == "target" else method,))
                 if f.ok:
                     out = self._proposal(f.xy + o, method, True, f.sigma_px, words)
                 else:
