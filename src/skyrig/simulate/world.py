@@ -23,7 +23,7 @@ The truth of the scene is analytic:
   of the Schneider / AICON kind): a white centre dot of radius ``r``, a black gap to ``2 r``, a code ring from ``2 r``
   to ``3 r`` of ``N`` equal sectors (sector ``b``, from ``2 pi b / N`` counter-clockwise from east seen from above,
   white when bit ``b`` of the target's code is set), in a black square of half side ``4 r`` (every edge with the
-  same ramp).
+  same ramp); or 2 x 2 chequers, or ArUco markers (:class:`Target`).
 
 :func:`rasterize_dsm` and :func:`rasterize_orthophoto` sample the scene on grids (the files written
 by a simulated project); the renderer uses the analytic scene.
@@ -248,23 +248,59 @@ class Stockpiles:
         return gx, gy
 
 
+#: kinds of signalised target the scene paints (module docstring)
+TARGET_KINDS = ("disc", "coded", "chequer", "aruco")
+
+
 @dataclass(frozen=True)
 class Target:
-    """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local
-    frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``); with
-    ``codes`` ``(K,)`` circular coded targets of ``code_bits`` sectors instead (module docstring; half side
-    ``4 radius``)."""
+    """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local frame, on the
+    terrain) and size ``radius_m``; ``kind`` (:data:`TARGET_KINDS`):
+
+    * ``"disc"``: a white disc of radius ``r`` on a black square of half side ``2.5 r``;
+    * ``"coded"``: a circular coded target of ``code_bits`` sectors, ring code ``codes[k]`` (module docstring;
+      black square of half side ``4 r``);
+    * ``"chequer"``: a 2 x 2 chequer of half side ``2.5 r`` (white where east and north offsets have the same sign),
+      its corner on the centre;
+    * ``"aruco"``: ArUco marker ``codes[k]`` of OpenCV's ``DICT_4X4_250`` (6 x 6 cells with its black border) of side
+      ``4 r``, its top towards north, on a white square of half side ``2 r`` plus one cell (the quiet zone);
+      cell edges ramp over a quarter cell.
+
+    Edges ramp linearly over ``r / 2`` (anti-aliasing: the renderer samples one ray per pixel)."""
 
     name: NDArray[np.str_]
     xyz: NDArray[np.float64]
     radius_m: float
     codes: NDArray[np.int64] | None = None
     code_bits: int = 12
+    kind: str = "disc"
 
     @property
     def half_side_m(self) -> float:
-        """Half side of the black square the target is painted on."""
-        return (2.5 if self.codes is None else 4.0) * self.radius_m
+        """Half side of the square the target is painted on."""
+        r = self.radius_m
+        return {"disc": 2.5 * r, "coded": 4.0 * r, "chequer": 2.5 * r, "aruco": 2.0 * r + 4.0 * r / 6.0}[self.kind]
+
+
+def _marker_coverage(marker_id: int, u: NDArray[np.float64], v: NDArray[np.float64], ramp_cells: float = 0.25
+                     ) -> NDArray[np.float64]:
+    """White coverage of ArUco marker ``marker_id`` (``DICT_4X4_250``, 6 x 6 cells with the border, white
+    outside) at cell coordinates ``u`` (right) and ``v`` (down) from its top-left corner: per axis the two cells
+    either side of the nearest cell edge, blended by a linear ramp of ``ramp_cells`` (a partition of unity)."""
+    import cv2
+
+    bits = np.ones((8, 8))
+    bits[1:7, 1:7] = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250).generateImageMarker(marker_id, 6) > 127
+    out = np.zeros(np.shape(u))
+    bu, bv = np.round(u), np.round(v)
+    au = np.clip((u - bu) / ramp_cells + 0.5, 0.0, 1.0)  # weight of the cell right of the edge
+    av = np.clip((v - bv) / ramp_cells + 0.5, 0.0, 1.0)
+    for du, wu in ((0, au), (-1, 1.0 - au)):
+        for dv, wv in ((0, av), (-1, 1.0 - av)):
+            i = np.clip(bv + dv + 1, 0, 7).astype(int)
+            j = np.clip(bu + du + 1, 0, 7).astype(int)
+            out += wu * wv * bits[i, j]
+    return out
 
 
 @dataclass(frozen=True)
@@ -419,9 +455,13 @@ class Scene:
         w = max(0.5 * r, 1e-3)  # anti-aliasing ramp (symmetric: keeps the centroid unbiased)
         ramp = lambda d: np.clip(d / w + 0.5, 0.0, 1.0)  # noqa: E731  coverage at signed distance d inside an edge
         sq = ramp(t.half_side_m - np.maximum(np.abs(dx), np.abs(dy)))
+        if t.kind == "chequer":
+            return sq, ramp(dx) * ramp(dy) + (1.0 - ramp(dx)) * (1.0 - ramp(dy))
+        if t.kind == "aruco":
+            return sq, _marker_coverage(int(t.codes[k]), (dx + 2.0 * r) / (4.0 * r / 6.0), (2.0 * r - dy) / (4.0 * r / 6.0))
         rho = np.hypot(dx, dy)
         disc = ramp(r - rho)
-        if t.codes is None:
+        if t.kind == "disc":
             return sq, disc
         n = int(t.code_bits)
         step = 2.0 * np.pi / n
@@ -494,6 +534,7 @@ def make_scene(
     stockpiles: ArrayLike | None = None,
     target_codes: ArrayLike | None = None,
     code_bits: int = 12,
+    target_kind: str | None = None,
 ) -> Scene:
     """A seeded scene: gentle terrain of total relief ``relief_m``, ``n_buildings`` houses in ``town``.
 
@@ -515,8 +556,9 @@ def make_scene(
     stockpiles
         Rows ``(cx, cy, R, r, h)`` of :class:`Stockpiles` standing on the terrain; buildings are kept 3 m away from
         their toes.  None (the default) leaves every other output of the scene unchanged.
-    target_codes, code_bits
-        ``(K,)`` codes of ``code_bits`` bits: the targets are circular coded targets (:class:`Target`); None: discs.
+    target_codes, code_bits, target_kind
+        The targets' kind (:class:`Target`; default ``"coded"`` with ``target_codes``, else ``"disc"``) and ``(K,)``
+        codes (ring codes of ``code_bits`` bits for ``"coded"``, marker ids for ``"aruco"``).
     """
     rng = np.random.default_rng(seed)
     xmin, ymin, xmax, ymax = extent
@@ -570,9 +612,13 @@ def make_scene(
         names = np.asarray(targets[0], dtype=str).reshape(-1)
         z = proto.terrain_height(tg_xy[:, 0], tg_xy[:, 1])
         codes = None if target_codes is None else np.asarray(target_codes, dtype=np.int64).reshape(-1)
-        if codes is not None and (len(codes) != len(names) or np.any(codes < 0) or np.any(codes >= 2**code_bits)):
-            raise SkyrigError(f"target_codes: {len(names)} codes of {code_bits} bits expected")
-        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m), codes, int(code_bits))
+        kind = target_kind or ("disc" if codes is None else "coded")
+        if kind not in TARGET_KINDS:
+            raise SkyrigError(f"target_kind {kind!r} is none of {', '.join(TARGET_KINDS)}")
+        limit = {"coded": 2**code_bits, "aruco": 250}.get(kind)
+        if limit is not None and (codes is None or len(codes) != len(names) or np.any(codes < 0) or np.any(codes >= limit)):
+            raise SkyrigError(f"target_codes: {len(names)} codes in [0, {limit}) expected for {kind} targets")
+        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m), codes, int(code_bits), kind)
     return Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase, bld, tgt, texture_fine_m=texture_fine_m,
                  texture_coarse_m=40.0, stockpiles=piles)
 
