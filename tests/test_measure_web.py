@@ -454,6 +454,26 @@ def test_page_in_headless_chromium(sim, tmp_path):
 def test_auto_measurements_give_the_check_rms_of_the_truth(sim, tmp_path):
     """The block adjusted (GNSS/IMU + GCPs, skyrig block / adjust) with the automatically measured targets reaches
     the check-point RMS of the same block with the true image positions, within 10 % (issue 32's acceptance)."""
+    _check_rms_auto_vs_truth(sim, tmp_path)
+
+
+@pytest.mark.slow
+def test_auto_coded_targets_give_the_check_rms_of_the_truth(tmp_path):
+    """The same with circular coded targets painted instead of discs (``ScenarioSpec.target_kind``), found with the
+    default ``--targets``: the check-point RMS is that of the true image positions within 10 %."""
+    from dataclasses import replace
+
+    from skyrig.pipeline.simulate import write_project
+    from skyrig.simulate.scenarios import build_survey, scenario_spec
+
+    out = tmp_path / "midas_coded"
+    write_project(build_survey(replace(scenario_spec("midas", "ci", seed=1), target_kind="coded")), out, workers=1)
+    auto = _check_rms_auto_vs_truth(out, tmp_path)
+    _, _, prov = read_measurements_table(auto)
+    assert prov["method"] and set(prov["method"]) == {"detected"}
+
+
+def _check_rms_auto_vs_truth(sim: Path, tmp_path: Path) -> Path:
     from skyrig.cli import main as cli
 
     auto = tmp_path / "auto.csv"
@@ -472,9 +492,11 @@ def test_auto_measurements_give_the_check_rms_of_the_truth(sim, tmp_path):
         rep = json.loads((tmp_path / f"adj_{name}" / "report.json").read_text())
         assert rep["check"]["stats"]["n"] == 3
         rms[name] = rep["check"]["stats"]["rms_xyz_m"]
-    print(f"check-point RMS (3D): truth image positions {rms['truth']:.4f} m, auto-detected {rms['auto']:.4f} m "
-          f"(ratio {rms['auto'] / rms['truth']:.3f})")
+    n_auto, n_truth = len(read_measurements_csv(auto)), len(read_measurements_csv(sim / "truth" / "image_measurements.csv"))
+    print(f"{sim.name}: {n_auto} targets detected of {n_truth} visible; check-point RMS (3D): truth image positions "
+          f"{rms['truth']:.4f} m, auto-detected {rms['auto']:.4f} m (ratio {rms['auto'] / rms['truth']:.3f})")
     assert abs(rms["auto"] / rms["truth"] - 1.0) <= 0.10, rms
+    return auto
 
 
 def test_adjustment_residuals_shown_with_the_points(sim, tmp_path):

@@ -552,7 +552,7 @@ def make_scene(
         Range of footprint side lengths.
     targets
         ``(names (K,), xy (K, 2))`` of signalised targets; their heights are put on the terrain; buildings
-        are kept ``3 radius + 3 m`` away from them.
+        are kept ``3 radius + 3 m`` away from them (coded targets: ``4 sqrt(2) radius + 3 m``).
     stockpiles
         Rows ``(cx, cy, R, r, h)`` of :class:`Stockpiles` standing on the terrain; buildings are kept 3 m away from
         their toes.  None (the default) leaves every other output of the scene unchanged.
@@ -579,6 +579,9 @@ def make_scene(
         town = (xmin + w / 4, ymin + h / 4, xmax - w / 4, ymax - h / 4)
     tx0, ty0, tx1, ty1 = town
     tg_xy = None if targets is None else np.asarray(targets[1], dtype=np.float64).reshape(-1, 2)
+    # buildings kept 3 radii + 3 m from a target; a coded target's square (half side 4 r) by its half diagonal + 3 m
+    clear_m = (3.0 if target_codes is None or target_kind not in (None, "coded") else 4.0 * np.sqrt(2.0)) \
+        * target_radius_m + 3.0
     lo, hi = building_size_m
     b: dict[str, list[float]] = {k_: [] for k_ in ("cx", "cy", "hl", "hw", "az", "base", "eave", "ridge")}
     tries = 0
@@ -592,7 +595,7 @@ def make_scene(
         if any(np.hypot(cx - ox, cy - oy) < rad + orad + 3.0 for ox, oy, orad in
                zip(b["cx"], b["cy"], [0.5 * np.hypot(2 * a, 2 * c) for a, c in zip(b["hl"], b["hw"])])):
             continue
-        if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + 3 * target_radius_m + 3.0:
+        if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + clear_m:
             continue
         if piles is not None and np.any(np.hypot(piles.cx - cx, piles.cy - cy) < rad + piles.radius_m + 3.0):
             continue

@@ -650,8 +650,8 @@ class MeasureSession:
     def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
         """Look for a target (:attr:`target_kinds`) around the point's prediction in every image predicted to see it (within
         ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
-        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii)
-        plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
+        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii
+        of a disc, 4 of a coded target's dot) plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
         centre closer than 8 px."""
         from skyrig.match.targets import detect_target
 
@@ -666,14 +666,15 @@ class MeasureSession:
             reach = max(6.0, search_sigma * (g["a"] or 0.0))
             half = int(min(max(reach + 12, _HALF), 200))
             win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
-            f, words, _ = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
-                                        kinds=self.target_kinds)
+            f, words, kind = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
+                                           kinds=self.target_kinds)
             if not f.ok:
                 continue
             xy = f.xy + [c0, r0]
             edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
-            if edge < (2.5 * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
-                continue  # the target's surround (2.5 radii for a disc on a square) is cut by the frame: no proposal
+            surround = 4.0 if kind == "coded" else 2.5  # radii: a coded target's black ground, a disc's square
+            if edge < (surround * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
+                continue  # the target's surround is cut by the frame: no proposal
             prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, words)
             prop["image"] = p["image"]
             found.append(prop)
