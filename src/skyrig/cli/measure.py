@@ -29,7 +29,7 @@ from skyrig.cli._types import CONTROL_SIGMA_M, GNSS_SIGMA_M, IMU_SIGMA_DEG, PIXE
 @click.option("--operator", default=None, help="Who measures (default: the login name); written with every measurement.")
 @click.option("--port", type=int, default=0, show_default=True, help="Port on 127.0.0.1 (0: any free port).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the page's address.")
-@click.option("--targets", default="aruco,chequer,disc", show_default=True, help="Target kinds the refinement and --auto look for, in this order: aruco (ArUco / AprilTag markers), chequer (2 x 2 checkerboard corners), disc; 'none' for none.")
+@click.option("--targets", default="aruco,coded,chequer,disc", show_default=True, help="Target kinds the refinement and --auto look for, in this order: aruco (ArUco / AprilTag markers), coded (circular ring-coded targets), chequer (2 x 2 checkerboard corners), disc; 'none' for none.")
 @click.option("--auto", is_flag=True, help="No page: detect the targets around every prediction, store them as 'detected' and exit.")
 def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_dirs, points_path, check_path, points_crs,
             output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, targets, auto) -> None:

@@ -11,7 +11,11 @@ orientations) and fits its centre:
   from 200 m);
 * a **checkerboard / chevron corner** (:func:`corner_centre`): the saddle point of OpenCV's ``cornerSubPix``;
   found automatically, with a test that it is a 2 x 2 chequer, by :func:`chequer_centre`;
-* an **ArUco / AprilTag marker** (:func:`aruco_centre`, OpenCV's ``cv2.aruco``): the intersection of its diagonals.
+* an **ArUco / AprilTag marker** (:func:`aruco_centre`, OpenCV's ``cv2.aruco``): the intersection of its diagonals;
+* a **circular coded target** (:func:`coded_centre`; ring-coded, of the Schneider / AICON kind: a bright centre dot
+  of radius ``r``, a dark gap to ``2 r``, a ring from ``2 r`` to ``3 r`` of ``N`` bright or dark sectors, dark
+  around to ``4 r`` at least): an ellipse fitted to sub-pixel edge points of the dot, corrected to the projected
+  centre with the ring's edge (projective-centre correction), and the code read on the ring.
 
 :func:`detect_target` tries the kinds in turn.
 
@@ -26,7 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["TargetFit", "MarkerFit", "target_centre", "corner_centre", "chequer_centre", "aruco_centre", "detect_target"]
+__all__ = ["TargetFit", "MarkerFit", "CodedFit", "target_centre", "corner_centre", "chequer_centre", "aruco_centre",
+           "coded_centre", "rotation_code", "detect_target"]
 
 
 @dataclass(frozen=True)
@@ -295,20 +300,22 @@ class MarkerFit:
 def _marker_edges(g: NDArray[np.float64], q: NDArray[np.float64], reach: float = 3.0, n: int = 16
                   ) -> NDArray[np.float64]:
     """The marker's corners ``q`` (4, 2) re-measured as intersections of its four outer edges: on each side the
-    mid-grey crossing of ``n`` profiles across the edge (``reach`` px each way) and a straight line fitted to
+    mid-grey crossing of ``n`` profiles across the edge (``reach`` px each way, at most an eighth of the shortest
+    side: the profiles stay within the black border cell and the quiet zone) and a straight line fitted to
     them.  A blurred straight edge's mid-grey crossing is unbiased; the corner of a blurred square, which the
-    detector's ``cornerSubPix`` refines, is pulled inwards (measured: up to 0.17 px at a 0.8-px blur).  ``q``
-    unchanged when a side is too short or an edge not found."""
+    detector's ``cornerSubPix`` refines, is pulled inwards (measured: up to 0.17 px at a 0.8-px blur; 0.7 px on
+    an oblique marker of 18 px).  ``q`` unchanged when a side is under 12 px or an edge not found."""
     import cv2
 
     gf = g.astype(np.float32)
     ctr = q.mean(axis=0)
+    reach = min(reach, float(np.min(np.hypot(*(q - np.roll(q, -1, axis=0)).T))) / 8.0)
+    if reach < 1.5:
+        return q  # cells too small for profiles across the edge
     lines = []
     for i in range(4):
         a, b = q[i], q[(i + 1) % 4]
         side = float(np.hypot(*(b - a)))
-        if side < 8.0 * reach:
-            return q  # cells too small for profiles this long
         d = (b - a) / side
         nrm = np.array([d[1], -d[0]])
         if np.dot(nrm, (a + b) / 2.0 - ctr) < 0:
@@ -388,8 +395,217 @@ def aruco_centre(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0,
     return best
 
 
+@dataclass(frozen=True)
+class CodedFit:
+    """A circular coded target: ``fit`` (its centre, :class:`TargetFit`; ``radius_px`` the dot's mean radius),
+    ``code`` (the smallest of the ``bits``-bit ring code's rotations, bit ``b`` the ``b``-th sector counter-clockwise
+    as seen from the target's front), ``bits`` and ``ellipse_xy`` (the dot ellipse's centre: ``fit.xy`` minus the
+    projective-centre correction)."""
+
+    fit: TargetFit
+    code: int
+    bits: int
+    ellipse_xy: NDArray[np.float64]
+
+    @property
+    def corrected_px(self) -> float:
+        """Length of the projective-centre correction, pixels."""
+        return float(np.hypot(*(self.fit.xy - self.ellipse_xy)))
+
+
+def _crossings(prof: NDArray[np.float64], rho: NDArray[np.float64], lo: float, hi: float, rising: bool
+               ) -> NDArray[np.float64]:
+    """Per profile (rows of ``prof`` sampled at ``rho``), the first radius where it crosses ``(lo + hi) / 2``
+    going outwards, upwards when ``rising``; NaN where none."""
+    mid = (lo + hi) / 2.0
+    above = prof > mid
+    edge = (above[:, 1:] & ~above[:, :-1]) if rising else (~above[:, 1:] & above[:, :-1])
+    out = np.full(prof.shape[0], np.nan)
+    rows = np.nonzero(edge.any(axis=1))[0]
+    j = np.argmax(edge[rows], axis=1)
+    a, b = prof[rows, j], prof[rows, j + 1]
+    out[rows] = rho[j] + (mid - a) / (b - a) * (rho[j + 1] - rho[j])
+    return out
+
+
+def _ring_centre_shift(pts: NDArray[np.float64], c1: NDArray[np.float64], A1: NDArray[np.float64]
+                       ) -> NDArray[np.float64] | None:
+    """The projected centre from the dot's ellipse (centre ``c1``, frame ``A1``: the unit circle onto it) and edge
+    points ``pts`` of a concentric circle ``s`` times larger.  Under perspective the centre of a projected circle
+    of radius ``r`` misses the projected centre by ``k r^2`` to first order (the same ``k`` for concentric
+    circles), so ``c = c1 - (e2 - c1) / (s^2 - 1)`` with ``e2`` the larger ellipse's centre.  ``e2`` and ``s`` are
+    fitted with the larger ellipse's shape fixed to the dot's (three unknowns, linear: partial arcs suffice);
+    None when the arcs do not pin the shift down."""
+    q = np.linalg.solve(A1, (pts - c1).T).T  # in dot radii
+    rho = np.hypot(*q.T)
+    n = q / rho[:, None]
+    J = np.column_stack([np.ones(len(q)), n])
+    if np.linalg.cond(J) > 10.0:
+        return None
+    s_, dx, dy = np.linalg.lstsq(J, rho, rcond=None)[0]
+    if not 1.5 < s_ < 4.0:
+        return None
+    return c1 - (A1 @ np.array([dx, dy])) / (s_**2 - 1.0)
+
+
+def coded_centre(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0, bits: int = 12, min_radius_px: float = 2.5,
+                 candidates: int = 4) -> CodedFit | None:
+    """The circular coded target (module docstring) nearest ``xy0`` (its centre within ``search_px``), or None.
+
+    Candidates are the compact bright blobs of the window's Otsu threshold, nearest first.  For each, with the
+    blob's ellipse as a first affine frame (``rho`` in dot radii), grey profiles along 64 rays give: the dot's
+    edge (the mid-grey crossing between the dot and the gap), the ring's inner (``2 r``) and outer (``3 r``)
+    edges where a sector is bright.  A candidate is a coded target when the gap (``1.5 r``) and the surround
+    (``3.5 r``: the target's black ground reaches ``4 r``) are dark all round, the dot bright, and every sector of
+    the ring (read at ``2.5 r``, phase chosen by the most uniform sectors) clearly bright or dark (beyond a quarter
+    of the contrast from mid-grey), with both present.  An ellipse (OpenCV ``fitEllipseDirect``) is fitted to the dot's edge points;
+    its centre is corrected to the projected centre with the ring's outer (else inner) edge points
+    (:func:`_ring_centre_shift`), unless they are too few (under 3 bright sectors) or the correction exceeds a
+    quarter of the dot's radius.  ``sigma_px``: the RMS of the dot edge points' distances to their ellipse over
+    ``sqrt(n / 2)``.  ``code``: bit ``b`` is sector ``b`` counter-clockwise on the target's face seen from the
+    front; an image of the face (column right, row down) mirrors it, so the ring is read clockwise there."""
+    import cv2
+
+    g = np.asarray(window, dtype=np.float64)
+    gf = g.astype(np.float32)
+    xy0 = np.asarray(xy0, dtype=np.float64).reshape(2)
+    if g.ndim != 2 or min(g.shape) < 15:
+        return None
+    lo_, hi_ = float(np.min(g)), float(np.max(g))
+    if hi_ - lo_ < 1e-6:
+        return None
+    u8 = np.round((g - lo_) / (hi_ - lo_) * 255.0).astype(np.uint8)
+    _, bw = cv2.threshold(u8, 0, 1, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    n_lab, lab, stats, cents = cv2.connectedComponentsWithStats(bw, connectivity=8)
+    h, w = g.shape
+    cand = []
+    for k in range(1, n_lab):
+        x, y, bw_, bh, area = (int(v) for v in stats[k])
+        if area < np.pi * min_radius_px**2 or x == 0 or y == 0 or x + bw_ >= w or y + bh >= h:
+            continue
+        if area < 0.5 * np.pi / 4.0 * bw_ * bh or max(bw_, bh) > 3.0 * max(min(bw_, bh), 1):
+            continue  # not an ellipse-like blob
+        d = float(np.hypot(*(cents[k] - xy0)))
+        if d <= search_px + max(bw_, bh) / 2.0:
+            cand.append((d, k))
+    noise = float(1.4826 * np.median(np.abs(np.diff(g, axis=1))) / np.sqrt(2.0))
+    nray = 64
+    t = (np.arange(nray) + 0.5) * (2.0 * np.pi / nray)
+    u = np.stack([np.cos(t), np.sin(t)], axis=1)
+
+    def sample(c: NDArray, A: NDArray, rho: NDArray) -> NDArray[np.float64]:
+        pts = c[None, None, :] + rho[None, :, None] * (u @ A.T)[:, None, :]
+        return cv2.remap(gf, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+
+    def frame(e: tuple) -> tuple[NDArray, NDArray]:
+        (cx, cy), (ew, eh), ang = e
+        a_ = np.radians(ang)
+        R = np.array([[np.cos(a_), -np.sin(a_)], [np.sin(a_), np.cos(a_)]])
+        return np.array([cx, cy]), R @ np.diag([ew / 2.0, eh / 2.0])
+
+    for _, k in sorted(cand)[:candidates]:
+        cnt, _ = cv2.findContours((lab == k).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        pts = max(cnt, key=len).reshape(-1, 2).astype(np.float32)
+        if len(pts) < 6:
+            continue
+        c, A = frame(cv2.fitEllipseDirect(pts))
+        if not np.all(np.isfinite(A)) or np.linalg.det(A) <= 0:
+            continue
+        # the outermost sample must stay in the window
+        if not (4.0 * np.linalg.norm(A, 2) < min(c[0], c[1], w - 1 - c[0], h - 1 - c[1])):
+            continue
+        ok = True
+        for _it in range(2):  # the dot's ellipse from sub-pixel edge points, twice (the second in its own frame)
+            rho = np.arange(0.0, 1.81, 0.05)
+            prof = sample(c, A, rho)
+            fg = float(np.median(prof[:, rho <= 0.5]))
+            gap = float(np.median(prof[:, (rho >= 1.3) & (rho <= 1.7)]))
+            if fg - gap <= 6.0 * noise:
+                ok = False
+                break
+            rd = _crossings(prof, rho, gap, fg, rising=False)
+            good = np.isfinite(rd) & (rd > 0.6) & (rd < 1.4)
+            if good.sum() < 0.8 * nray:
+                ok = False
+                break
+            ep = c + (rd[good, None] * u[good]) @ A.T
+            e1 = cv2.fitEllipseDirect(ep.astype(np.float32))
+            c, A = frame(e1)
+            if not np.all(np.isfinite(A)) or np.linalg.det(A) <= 0:
+                ok = False
+                break
+        if not ok:
+            continue
+        contrast = fg - gap
+        prof = sample(c, A, np.array([1.5, 3.5]))
+        mid = (fg + gap) / 2.0
+        if np.any(prof > mid - 0.25 * contrast):
+            continue  # the gap or the surround is not dark all round
+        # the code: 16 samples per sector at 2.5 r, phase by the most uniform sectors
+        ns = 16
+        tt = np.arange(bits * ns) * (2.0 * np.pi / (bits * ns))
+        uu = np.stack([np.cos(tt), np.sin(tt)], axis=1)
+        q = c[None, :] + 2.5 * (uu @ A.T)
+        ring = cv2.remap(gf, q[:, 0].astype(np.float32).reshape(1, -1), q[:, 1].astype(np.float32).reshape(1, -1),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1).astype(np.float64)
+        best = None
+        for ph in range(ns):
+            sec = np.roll(ring, -ph).reshape(bits, ns)[:, 3:ns - 3]  # away from the sector's ends
+            spread = float(np.sum(np.ptp(sec, axis=1)))
+            if best is None or spread < best[0]:
+                best = (spread, ph, sec)
+        _, ph, sec = best
+        val = np.median(sec, axis=1)
+        if np.any(np.abs(sec - mid) < 0.25 * contrast) or np.any((sec > mid) != (val > mid)[:, None]):
+            continue  # a sector neither clearly bright nor dark
+        on = val > mid
+        if on.all() or not on.any():
+            continue
+        # ring edges where the sector is bright (samples of the 64 rays whose angle falls in a bright sector)
+        rho = np.arange(1.5, 3.31, 0.05)
+        prof = sample(c, A, rho)
+        sector = np.floor((t / (2.0 * np.pi) * bits * ns - ph) / ns).astype(int) % bits
+        pos = (t / (2.0 * np.pi) * bits * ns - ph) % ns
+        bright = on[sector] & (pos > 4) & (pos < ns - 4)
+        ring_pts = None
+        if on.sum() >= 3 and bright.sum() >= 8:
+            for rising, r0, band in ((False, 3.0, rho >= 2.5), (True, 2.0, rho <= 2.5)):
+                rr = _crossings(prof[:, band], rho[band], gap, fg, rising=rising)
+                sel = bright & np.isfinite(rr) & (np.abs(rr - r0) < 0.4 * r0)
+                if sel.sum() >= 8:
+                    ring_pts = c + (rr[sel, None] * u[sel]) @ A.T
+                    break
+        # the dot's edge points again in the final frame: the centre's precision
+        rho = np.arange(0.0, 1.81, 0.05)
+        rd = _crossings(sample(c, A, rho), rho, gap, fg, rising=False)
+        good = np.isfinite(rd) & (rd > 0.6) & (rd < 1.4)
+        e1 = cv2.fitEllipseDirect((c + (rd[good, None] * u[good]) @ A.T).astype(np.float32))
+        c1, A1 = frame(e1)
+        resid = (rd[good] - 1.0) * np.linalg.norm(A1, 2)  # radial, pixels (the frame is the fitted ellipse)
+        radius = float(np.sqrt(abs(np.linalg.det(A1))))
+        centre = c1
+        if ring_pts is not None:
+            cc = _ring_centre_shift(ring_pts, c1, A1)
+            if cc is not None and np.hypot(*(cc - c1)) < 0.25 * radius:
+                centre = cc
+        if np.hypot(*(centre - xy0)) > search_px:
+            continue
+        sig = float(np.sqrt(np.mean(resid**2)) / np.sqrt(max(good.sum(), 2) / 2.0))
+        # bits in sampling order run clockwise on the target's front (an image from above mirrors it): reverse
+        code = rotation_code(sum(1 << j for j, x in enumerate(on[::-1]) if x), bits)
+        return CodedFit(TargetFit(centre, True, float(np.hypot(sig, 0.01)), radius, contrast), code, bits, c1)
+    return None
+
+
+def rotation_code(code: int, bits: int = 12) -> int:
+    """The smallest of the ``bits``-bit rotations of ``code``: the identity a ring code is read as."""
+    m = (1 << bits) - 1
+    return min(((code << i) | (code >> (bits - i))) & m for i in range(bits))
+
+
 def detect_target(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0,
-                  kinds: tuple[str, ...] = ("aruco", "chequer", "disc")) -> tuple[TargetFit, str, str]:
+                  kinds: tuple[str, ...] = ("aruco", "coded", "chequer", "disc")) -> tuple[TargetFit, str, str]:
     """The first target of ``kinds`` (``"disc"``: :func:`target_centre`, ``"aruco"``: :func:`aruco_centre`,
     ``"chequer"``: :func:`chequer_centre`) found near ``xy0``: its fit, a few words on what it is and its kind
     (or, when none is, a failed fit whose note says what each kind found, and two empty strings).  Markers first and chequers next: a disc's Otsu blob would
@@ -405,11 +621,16 @@ def detect_target(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0,
             if m is not None:
                 return m.fit, f"{m.dictionary[5:]} marker {m.marker_id}, side {2 * m.fit.radius_px:.1f} px", kind
             f = _fail(np.asarray(xy0, dtype=np.float64), "no marker")
+        elif kind == "coded":
+            c = coded_centre(window, xy0, search_px=search_px)
+            if c is not None:
+                return c.fit, f"coded target {c.code}, dot radius {c.fit.radius_px:.1f} px", kind
+            f = _fail(np.asarray(xy0, dtype=np.float64), "no coded target")
         elif kind == "chequer":
             f = chequer_centre(window, xy0, search_px=search_px)
             if f.ok:
                 return f, "chequer corner", kind
         else:
-            raise ValueError(f"unknown target kind {kind!r} (disc, aruco, chequer)")
+            raise ValueError(f"unknown target kind {kind!r} (disc, aruco, coded, chequer)")
         notes.append(f"{kind}: {f.note}")
     return _fail(np.asarray(xy0, dtype=np.float64), "; ".join(notes)), "", ""

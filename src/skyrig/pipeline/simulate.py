@@ -162,8 +162,11 @@ def _scene_json(sc: Scene) -> dict[str, Any]:
                                    f"on a {sc.window_spacing_m} m grid, hashed value noise at 0.25 m and 0.06 m",
                     "window_spacing_m": sc.window_spacing_m},
         "sun": sc.sun.tolist(),
-        "targets": None if sc.targets is None else {"name": sc.targets.name.tolist(), "xyz": sc.targets.xyz.tolist(),
-                                                    "radius_m": sc.targets.radius_m},
+        "targets": None if sc.targets is None else {
+            "name": sc.targets.name.tolist(), "xyz": sc.targets.xyz.tolist(), "radius_m": sc.targets.radius_m,
+            "kind": sc.targets.kind, "half_side_m": sc.targets.half_side_m,
+            **({} if sc.targets.codes is None else {"codes": sc.targets.codes.tolist()}),
+            **({"code_bits": sc.targets.code_bits} if sc.targets.kind == "coded" else {})},
     }
 
 

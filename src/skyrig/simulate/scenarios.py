@@ -102,6 +102,25 @@ class ScenarioSpec:
     # optional stockpiles (cx, cy, R, r, h) in the local frame (skyrig.simulate.world.Stockpiles); () = none, the
     # procedural scene unchanged
     stockpiles: tuple[tuple[float, float, float, float, float], ...] = ()
+    # the painted targets' kind (skyrig.simulate.world.Target: disc, coded, chequer, aruco); codes / marker ids are
+    # assigned in the order of the names (target_codes)
+    target_kind: str = "disc"
+
+
+def target_codes(kind: str, n: int, bits: int = 12) -> NDArray[np.int64] | None:
+    """``n`` distinct codes for targets of ``kind``: for ``"coded"`` ring codes of ``bits`` bits that read the same
+    from any starting sector only once (canonical: the smallest of their rotations, not periodic), spread over the
+    code space; for ``"aruco"`` marker ids ``0 .. n-1``; None for the others."""
+    if kind == "aruco":
+        return np.arange(n, dtype=np.int64)
+    if kind != "coded":
+        return None
+    m = (1 << bits) - 1
+    rots = lambda c: {((c << i) | (c >> (bits - i))) & m for i in range(bits)}  # noqa: E731
+    canon = [c for c in range(1, m) if min(rots(c)) == c and len(rots(c)) == bits]
+    if n > len(canon):
+        raise SkyrigError(f"{n} coded targets: only {len(canon)} distinct {bits}-bit ring codes")
+    return np.array([canon[int(i)] for i in np.linspace(0, len(canon) - 1, n)] if n else [], dtype=np.int64)
 
 
 def with_scene(spec: ScenarioSpec, scene: Scene) -> ScenarioSpec:
@@ -374,6 +393,10 @@ def build_survey(spec: ScenarioSpec) -> Survey:
             rotation_speed_deg_s=fl.rotation_speed_deg_s, n_strips=fl.n_strips, turn_time_s=30.0, run_in_bases=0.0))
     plan = _merge_plans(plans, 30.0)
     gsd = min(min(float(h.camera.gsd(fl.flying_height_m)) for h in spec.rig) for fl in spec.flights)
+    # target size: a disc of 6 of the finest ground pixels; a coded target's dot also 3 of the coarsest (its ring
+    # code must be readable in every head's images)
+    gsd_max = max(max(float(h.camera.gsd(fl.flying_height_m)) for h in spec.rig) for fl in spec.flights)
+    radius = max(6.0 * gsd, 0.05, 3.0 * gsd_max if spec.target_kind == "coded" else 0.0)
     # ---- scene with targets
     txy = _targets_xy(spec, plan, rng)
     names = np.array([f"GCP{i + 1:02d}" for i in range(spec.n_gcp)] + [f"CHK{i + 1:02d}" for i in range(spec.n_check)])
@@ -383,13 +406,15 @@ def build_survey(spec: ScenarioSpec) -> Survey:
         if tuple(spec.scene.origin) != tuple(spec.origin):
             raise SkyrigError("the given scene's origin differs from the scenario's: build the spec with with_scene()")
         tz = spec.scene.terrain_height(txy[:, 0], txy[:, 1]) if len(txy) else np.zeros(0)
-        scene = replace(spec.scene, targets=Target(names, np.column_stack([txy, tz]), max(6.0 * gsd, 0.05)))
+        scene = replace(spec.scene, targets=Target(names, np.column_stack([txy, tz]), radius,
+                                                   target_codes(spec.target_kind, len(names)), kind=spec.target_kind))
     else:
         scene = make_scene(spec.seed, spec.scene_extent, spec.origin, base_height_m=spec.base_height_m,
                            n_buildings=spec.n_buildings, texture_fine_m=max(gsd * 0.6, 0.005),
-                           targets=(names, txy), target_radius_m=max(6.0 * gsd, 0.05),
+                           targets=(names, txy), target_radius_m=radius,
                            town=_town(plan), building_size_m=(8.0, 25.0) if gsd < 0.5 else (20.0, 60.0),
-                           stockpiles=spec.stockpiles or None)
+                           stockpiles=spec.stockpiles or None, target_kind=spec.target_kind,
+                           target_codes=target_codes(spec.target_kind, len(names)))
     # ---- dense true trajectory: samples per strip + the station times, with attitude / lateral wobble
     t_all, strip_all = [], []
     for s in np.unique(plan.strip):
@@ -508,15 +533,16 @@ def _measure_targets(scene: Scene, rig: Rig, eo: ExteriorOrientations, names: ND
 
     pts, imgs, pix = [], [], []
     r = scene.targets.radius_m if scene.targets is not None else 0.0
+    half = scene.targets.half_side_m + 0.5 * r if scene.targets is not None else 0.0  # 3 r for a disc target
     for k in range(len(eo)):
         cam = rig.head(str(eo.head[k])).camera
         pose = Pose(eo.rotation[k], eo.centre[k], "world", "camera")
         px = cam.world_to_pixel(pose, xyz)
         if len(xyz) == 0:
             continue
-        # margin: the whole target (black square, half side 2 r) must be inside
+        # margin: the whole target (its black square) must be inside
         gs = cam.gsd(np.linalg.norm(xyz - eo.centre[k], axis=1))
-        margin = 3.0 * r / np.maximum(gs, 1e-9) + 2
+        margin = half / np.maximum(gs, 1e-9) + 2
         ok = cam.in_image(px) & (px[:, 0] > margin) & (px[:, 1] > margin) & (px[:, 0] < cam.width - 1 - margin) & (px[:, 1] < cam.height - 1 - margin)
         if not np.any(ok):
             continue

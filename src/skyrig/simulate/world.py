@@ -19,7 +19,11 @@ The truth of the scene is analytic:
   height is added to it: part of the bare earth a DTM shows), of analytic volume ``pi h (R^2 + R r + r^2) / 3``
   above the natural ground;
 * **signalised targets** (GCPs): a white disc of radius ``r`` (linear edge ramp of width ``r / 2``) in a black square of half side ``2.5 r``
-  painted onto the ground texture, centred on ``(x, y, terrain(x, y))``.
+  painted onto the ground texture, centred on ``(x, y, terrain(x, y))``; or **circular coded targets** (ring-coded,
+  of the Schneider / AICON kind): a white centre dot of radius ``r``, a black gap to ``2 r``, a code ring from ``2 r``
+  to ``3 r`` of ``N`` equal sectors (sector ``b``, from ``2 pi b / N`` counter-clockwise from east seen from above,
+  white when bit ``b`` of the target's code is set), in a black square of half side ``4 r`` (every edge with the
+  same ramp); or 2 x 2 chequers, or ArUco markers (:class:`Target`).
 
 :func:`rasterize_dsm` and :func:`rasterize_orthophoto` sample the scene on grids (the files written
 by a simulated project); the renderer uses the analytic scene.
@@ -244,14 +248,59 @@ class Stockpiles:
         return gx, gy
 
 
+#: kinds of signalised target the scene paints (module docstring)
+TARGET_KINDS = ("disc", "coded", "chequer", "aruco")
+
+
 @dataclass(frozen=True)
 class Target:
-    """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local
-    frame, on the terrain), white disc radius ``radius_m`` (black square of half side ``2.5 radius``)."""
+    """Signalised ground targets (GCPs and check points): names ``(K,)``, centres ``(K, 3)`` (local frame, on the
+    terrain) and size ``radius_m``; ``kind`` (:data:`TARGET_KINDS`):
+
+    * ``"disc"``: a white disc of radius ``r`` on a black square of half side ``2.5 r``;
+    * ``"coded"``: a circular coded target of ``code_bits`` sectors, ring code ``codes[k]`` (module docstring;
+      black square of half side ``4 r``);
+    * ``"chequer"``: a 2 x 2 chequer of half side ``2.5 r`` (white where east and north offsets have the same sign),
+      its corner on the centre;
+    * ``"aruco"``: ArUco marker ``codes[k]`` of OpenCV's ``DICT_4X4_250`` (6 x 6 cells with its black border) of side
+      ``4 r``, its top towards north, on a white square of half side ``2 r`` plus one cell (the quiet zone);
+      cell edges ramp over a quarter cell.
+
+    Edges ramp linearly over ``r / 2`` (anti-aliasing: the renderer samples one ray per pixel)."""
 
     name: NDArray[np.str_]
     xyz: NDArray[np.float64]
     radius_m: float
+    codes: NDArray[np.int64] | None = None
+    code_bits: int = 12
+    kind: str = "disc"
+
+    @property
+    def half_side_m(self) -> float:
+        """Half side of the square the target is painted on."""
+        r = self.radius_m
+        return {"disc": 2.5 * r, "coded": 4.0 * r, "chequer": 2.5 * r, "aruco": 2.0 * r + 4.0 * r / 6.0}[self.kind]
+
+
+def _marker_coverage(marker_id: int, u: NDArray[np.float64], v: NDArray[np.float64], ramp_cells: float = 0.25
+                     ) -> NDArray[np.float64]:
+    """White coverage of ArUco marker ``marker_id`` (``DICT_4X4_250``, 6 x 6 cells with the border, white
+    outside) at cell coordinates ``u`` (right) and ``v`` (down) from its top-left corner: per axis the two cells
+    either side of the nearest cell edge, blended by a linear ramp of ``ramp_cells`` (a partition of unity)."""
+    import cv2
+
+    bits = np.ones((8, 8))
+    bits[1:7, 1:7] = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250).generateImageMarker(marker_id, 6) > 127
+    out = np.zeros(np.shape(u))
+    bu, bv = np.round(u), np.round(v)
+    au = np.clip((u - bu) / ramp_cells + 0.5, 0.0, 1.0)  # weight of the cell right of the edge
+    av = np.clip((v - bv) / ramp_cells + 0.5, 0.0, 1.0)
+    for du, wu in ((0, au), (-1, 1.0 - au)):
+        for dv, wv in ((0, av), (-1, 1.0 - av)):
+            i = np.clip(bv + dv + 1, 0, 7).astype(int)
+            j = np.clip(bu + du + 1, 0, 7).astype(int)
+            out += wu * wv * bits[i, j]
+    return out
 
 
 @dataclass(frozen=True)
@@ -404,14 +453,31 @@ class Scene:
         r = t.radius_m
         dx, dy = x - t.xyz[k, 0], y - t.xyz[k, 1]
         w = max(0.5 * r, 1e-3)  # anti-aliasing ramp (symmetric: keeps the centroid unbiased)
-        sq = np.clip((2.5 * r - np.maximum(np.abs(dx), np.abs(dy))) / w + 0.5, 0.0, 1.0)
-        disc = np.clip((r - np.hypot(dx, dy)) / w + 0.5, 0.0, 1.0)
-        return sq, disc
+        ramp = lambda d: np.clip(d / w + 0.5, 0.0, 1.0)  # noqa: E731  coverage at signed distance d inside an edge
+        sq = ramp(t.half_side_m - np.maximum(np.abs(dx), np.abs(dy)))
+        if t.kind == "chequer":
+            return sq, ramp(dx) * ramp(dy) + (1.0 - ramp(dx)) * (1.0 - ramp(dy))
+        if t.kind == "aruco":
+            return sq, _marker_coverage(int(t.codes[k]), (dx + 2.0 * r) / (4.0 * r / 6.0), (2.0 * r - dy) / (4.0 * r / 6.0))
+        rho = np.hypot(dx, dy)
+        disc = ramp(r - rho)
+        if t.kind == "disc":
+            return sq, disc
+        n = int(t.code_bits)
+        step = 2.0 * np.pi / n
+        phi = np.mod(np.arctan2(dy, dx), 2.0 * np.pi)
+        j = np.floor(phi / step + 0.5)  # the sector boundary nearest (at angle j step)
+        bit = lambda i: ((int(t.codes[k]) >> np.mod(i, n).astype(np.int64)) & 1).astype(np.float64)  # noqa: E731
+        # signed distance from the boundary's ray, positive into the sector counter-clockwise of it
+        d = -np.sin(j * step) * dx + np.cos(j * step) * dy
+        code = bit(j) * ramp(d) + bit(j - 1) * (1.0 - ramp(d))
+        ring = ramp(rho - 2.0 * r) * ramp(3.0 * r - rho)
+        return sq, np.maximum(disc, ring * code)
 
     def _paint_targets(self, x: NDArray, y: NDArray, rgb: NDArray) -> NDArray:
         t = self.targets
         assert t is not None
-        reach = 2.5 * t.radius_m * 1.5 + 1.0
+        reach = t.half_side_m * 1.5 + 1.0
         for k in range(len(t.name)):
             near = (np.abs(x - t.xyz[k, 0]) < reach) & (np.abs(y - t.xyz[k, 1]) < reach)
             if not np.any(near):
@@ -466,6 +532,9 @@ def make_scene(
     targets: tuple[ArrayLike, ArrayLike] | None = None,
     target_radius_m: float = 0.5,
     stockpiles: ArrayLike | None = None,
+    target_codes: ArrayLike | None = None,
+    code_bits: int = 12,
+    target_kind: str | None = None,
 ) -> Scene:
     """A seeded scene: gentle terrain of total relief ``relief_m``, ``n_buildings`` houses in ``town``.
 
@@ -483,10 +552,13 @@ def make_scene(
         Range of footprint side lengths.
     targets
         ``(names (K,), xy (K, 2))`` of signalised targets; their heights are put on the terrain; buildings
-        are kept ``3 radius + 3 m`` away from them.
+        are kept ``3 radius + 3 m`` away from them (coded targets: ``4 sqrt(2) radius + 3 m``).
     stockpiles
         Rows ``(cx, cy, R, r, h)`` of :class:`Stockpiles` standing on the terrain; buildings are kept 3 m away from
         their toes.  None (the default) leaves every other output of the scene unchanged.
+    target_codes, code_bits, target_kind
+        The targets' kind (:class:`Target`; default ``"coded"`` with ``target_codes``, else ``"disc"``) and ``(K,)``
+        codes (ring codes of ``code_bits`` bits for ``"coded"``, marker ids for ``"aruco"``).
     """
     rng = np.random.default_rng(seed)
     xmin, ymin, xmax, ymax = extent
@@ -507,6 +579,9 @@ def make_scene(
         town = (xmin + w / 4, ymin + h / 4, xmax - w / 4, ymax - h / 4)
     tx0, ty0, tx1, ty1 = town
     tg_xy = None if targets is None else np.asarray(targets[1], dtype=np.float64).reshape(-1, 2)
+    # buildings kept 3 radii + 3 m from a target; a coded target's square (half side 4 r) by its half diagonal + 3 m
+    clear_m = (3.0 if target_codes is None or target_kind not in (None, "coded") else 4.0 * np.sqrt(2.0)) \
+        * target_radius_m + 3.0
     lo, hi = building_size_m
     b: dict[str, list[float]] = {k_: [] for k_ in ("cx", "cy", "hl", "hw", "az", "base", "eave", "ridge")}
     tries = 0
@@ -520,7 +595,7 @@ def make_scene(
         if any(np.hypot(cx - ox, cy - oy) < rad + orad + 3.0 for ox, oy, orad in
                zip(b["cx"], b["cy"], [0.5 * np.hypot(2 * a, 2 * c) for a, c in zip(b["hl"], b["hw"])])):
             continue
-        if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + 3 * target_radius_m + 3.0:
+        if tg_xy is not None and len(tg_xy) and np.min(np.hypot(tg_xy[:, 0] - cx, tg_xy[:, 1] - cy)) < rad + clear_m:
             continue
         if piles is not None and np.any(np.hypot(piles.cx - cx, piles.cy - cy) < rad + piles.radius_m + 3.0):
             continue
@@ -539,7 +614,14 @@ def make_scene(
     if targets is not None:
         names = np.asarray(targets[0], dtype=str).reshape(-1)
         z = proto.terrain_height(tg_xy[:, 0], tg_xy[:, 1])
-        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m))
+        codes = None if target_codes is None else np.asarray(target_codes, dtype=np.int64).reshape(-1)
+        kind = target_kind or ("disc" if codes is None else "coded")
+        if kind not in TARGET_KINDS:
+            raise SkyrigError(f"target_kind {kind!r} is none of {', '.join(TARGET_KINDS)}")
+        limit = {"coded": 2**code_bits, "aruco": 250}.get(kind)
+        if limit is not None and (codes is None or len(codes) != len(names) or np.any(codes < 0) or np.any(codes >= limit)):
+            raise SkyrigError(f"target_codes: {len(names)} codes in [0, {limit}) expected for {kind} targets")
+        tgt = Target(names, np.column_stack([tg_xy, z]), float(target_radius_m), codes, int(code_bits), kind)
     return Scene(origin, extent, seed, base_height_m, amp, kx, ky, phase, bld, tgt, texture_fine_m=texture_fine_m,
                  texture_coarse_m=40.0, stockpiles=piles)
 

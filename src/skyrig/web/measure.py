@@ -54,11 +54,24 @@ __all__ = ["Sigmas", "Record", "MeasureSession", "METHODS"]
 
 #: How a position was found: a plain click, a disc target's centre, a corner's saddle point, least-squares
 #: matching against an image measured before, a target detected automatically, or read from the file.
-METHODS = ("click", "target", "corner", "lsm", "detected", "aruco")
-_PROPOSE = ("target", "corner", "aruco", "lsm", "click")  # refinements the page may ask for (besides "auto")
-TARGET_KINDS = ("aruco", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
-_KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco"}
+METHODS = ("click", "target", "corner", "lsm", "detected", "aruco", "coded")
+_PROPOSE = ("target", "corner", "aruco", "coded", "lsm", "click")  # refinements the page may ask for (besides "auto")
+TARGET_KINDS = ("aruco", "coded", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
+_KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco", "coded": "coded"}
 _HALF = 24  # refinement window half size, pixels
+#: the largest search radius a proposal may be asked for, pixels (a window of 2 x (24 + 200) px around the click)
+MAX_SEARCH_PX = 200.0
+
+
+def search_radius(value: object, name: str = "search_px") -> float:
+    """``value`` as a search radius in pixels: a real number (not a boolean, not a string) in
+    ``[0, MAX_SEARCH_PX]``; else ValueError naming ``name``, the value and the bounds."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number of pixels in [0, {MAX_SEARCH_PX:g}], not {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and 0.0 <= v <= MAX_SEARCH_PX):
+        raise ValueError(f"{name} = {value!r} px is outside [0, {MAX_SEARCH_PX:g}] px")
+    return v
 
 
 @dataclass(frozen=True)
@@ -130,7 +143,7 @@ class MeasureSession:
         Take the lock file (a second session on the same file raises :class:`SessionLockedError`).
     target_kinds
         The targets that ``"auto"`` refinement and :meth:`detect` look for, in this order (:data:`TARGET_KINDS`:
-        ArUco / AprilTag markers, 2 x 2 chequer corners, discs); empty: none.
+        ArUco / AprilTag markers, circular coded targets, 2 x 2 chequer corners, discs); empty: none.
     adjustment
         The control / check residuals of the adjustment whose orientations these are
         (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
@@ -280,7 +293,8 @@ class MeasureSession:
                          for c in MEASUREMENT_PROVENANCE})
             write_table_meta(self.output, None, cols, "skyrig-measurements 1", {
                 "written_by": "skyrig measure", "orientations": self._src("eo"), "points": self._src("points"),
-                "methods": "click: as clicked; target: disc-target centre; corner: corner saddle point; lsm: "
+                "methods": "click: as clicked; target: disc-target centre; corner: corner saddle point; aruco: "
+                           "ArUco / AprilTag marker centre; coded: circular coded target centre; lsm: "
                            "least-squares matching to an image measured before; detected: target found automatically"})
 
     # ------------------------------------------------------------------------------------------- geometry
@@ -520,10 +534,12 @@ class MeasureSession:
 
         ``method``: ``"auto"`` (a target of :attr:`target_kinds` near the click, else least-squares matching
         against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
-        point nearest the click), ``"aruco"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
+        point nearest the click), ``"aruco"``, ``"coded"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
         ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
-        ``search_px``: how far the least-squares matching looks from the click (a cross-correlation search first,
-        for a start taken from a prediction, e.g. 3 times its ellipse's major semi-axis); 0: LSM from the click.
+        ``search_px``: how far from the click a target (``auto``, ``target``, ``aruco``: at least 12 px) and the
+        least-squares matching (a cross-correlation search first) look; the page sends the 95 % prediction ellipse's
+        major semi-axis unless the user sets one; 0: a target within 12 px, LSM from the click.  A number in
+        ``[0, MAX_SEARCH_PX]`` (:func:`search_radius`), else ValueError.  The proposal echoes it (``search_px``).
         """
         from skyrig.match.targets import corner_centre, detect_target, target_centre
 
@@ -531,32 +547,43 @@ class MeasureSession:
             raise KeyError(f"no ground point {point!r}")
         if method not in ("auto", *_PROPOSE):
             raise ValueError(f"unknown method {method!r} (auto, {', '.join(_PROPOSE)})")
+        search = search_radius(search_px)
         click = np.array([float(column), float(row)])
         notes = []
+        out = None
         if method != "click":
-            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF)
+            reach = max(12.0, search)  # a target's search: detect_target's default at least
+            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
             o = np.array([c0, r0], dtype=np.float64)
             if method == "auto" and self.target_kinds:
-                f, words, kind = detect_target(win, click - o, kinds=self.target_kinds)
+                f, words, kind = detect_target(win, click - o, search_px=reach, kinds=self.target_kinds)
                 if f.ok:
-                    return self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
-                notes.append(f.note)
-            if method in ("target", "aruco"):
-                f, words, _ = detect_target(win, click - o, kinds=("disc" if method == "target" else "aruco",))
+                    out = self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
+                else:
+                    notes.append(f.note)
+            if out is None and method in ("target", "aruco", "coded"):
+                f, words, _ = detect_target(win, click - o, search_px=reach,
+                                            kinds=("disc" if method == "target" else method,))
                 if f.ok:
-                    return self._proposal(f.xy + o, method, True, f.sigma_px, words)
-                notes.append(f.note)
-            if method == "corner":
+                    out = self._proposal(f.xy + o, method, True, f.sigma_px, words)
+                else:
+                    notes.append(f.note)
+            if out is None and method == "corner":
                 f = corner_centre(win, click - o)
                 if f.ok:
-                    return self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
-                notes.append(f"corner: {f.note}")
-            if method in ("auto", "lsm"):
-                got = self._lsm(point, image, click, min(max(float(search_px), 0.0), 200.0))
+                    out = self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
+                else:
+                    notes.append(f"corner: {f.note}")
+            if out is None and method in ("auto", "lsm"):
+                got = self._lsm(point, image, click, search)
                 if isinstance(got, dict):
-                    return got
-                notes.append(f"lsm: {got}")
-        return self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
+                    out = got
+                else:
+                    notes.append(f"lsm: {got}")
+        if out is None:
+            out = self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
+        out["search_px"] = _num(search, 1)
+        return out
 
     @staticmethod
     def _proposal(xy: NDArray, method: str, refined: bool, sigma: float, note: str) -> dict:
@@ -623,8 +650,8 @@ class MeasureSession:
     def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
         """Look for a target (:attr:`target_kinds`) around the point's prediction in every image predicted to see it (within
         ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
-        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii)
-        plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
+        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii
+        of a disc, 4 of a coded target's dot) plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
         centre closer than 8 px."""
         from skyrig.match.targets import detect_target
 
@@ -639,14 +666,15 @@ class MeasureSession:
             reach = max(6.0, search_sigma * (g["a"] or 0.0))
             half = int(min(max(reach + 12, _HALF), 200))
             win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
-            f, words, _ = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
-                                        kinds=self.target_kinds)
+            f, words, kind = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
+                                           kinds=self.target_kinds)
             if not f.ok:
                 continue
             xy = f.xy + [c0, r0]
             edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
-            if edge < (2.5 * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
-                continue  # the target's surround (2.5 radii for a disc on a square) is cut by the frame: no proposal
+            surround = 4.0 if kind == "coded" else 2.5  # radii: a coded target's black ground, a disc's square
+            if edge < (surround * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
+                continue  # the target's surround is cut by the frame: no proposal
             prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, words)
             prop["image"] = p["image"]
             found.append(prop)

@@ -15,7 +15,8 @@ Routes (JSON unless stated; ``POST`` bodies are JSON)::
     GET  /api/point/<name>                  a point's predictions, measurements, intersection
     GET  /api/image/<index>                 an image's name and tile-source geometry
     GET  /api/tile/<index>/<level>/<x>_<y>.jpg   a deep-zoom tile (JPEG)
-    POST /api/propose   {point, image, column, row, method}   the refined position
+    POST /api/propose   {point, image, column, row, method, search_px}   the refined position (search_px: the
+                        search radius, a number of pixels in [0, 200]; 400 naming it otherwise)
     POST /api/accept    {point, image, column, row, method, refined, sigma_px}   store + save
     POST /api/delete    {point, image}
     POST /api/detect    {point, accept}      automatic targets around the predictions
@@ -34,7 +35,7 @@ from importlib import resources
 from urllib.parse import quote
 
 from skyrig.errors import SkyrigError
-from skyrig.web.measure import MeasureSession
+from skyrig.web.measure import MeasureSession, search_radius
 
 __all__ = ["MeasureServer", "STATIC"]
 
@@ -191,7 +192,8 @@ def _make_app(server: "MeasureServer"):
             b = self.body()
             try:
                 if self.action == "propose":
-                    args = (b["point"], b["image"], float(b["column"]), float(b["row"]), b.get("method", "auto"))
+                    args = (b["point"], b["image"], float(b["column"]), float(b["row"]), b.get("method", "auto"),
+                            search_radius(b.get("search_px", 0.0)))
                     fn = session.propose
                 elif self.action == "accept":
                     sig = b.get("sigma_px")
@@ -202,8 +204,10 @@ def _make_app(server: "MeasureServer"):
                     args, fn = (b["point"], b["image"]), session.delete
                 else:
                     args, fn = (b["point"], 3.0, bool(b.get("accept", False))), session.detect
-            except (KeyError, TypeError, ValueError) as exc:
-                raise tornado.web.HTTPError(400, f"bad request body ({exc!r})") from None
+            except KeyError as exc:
+                raise tornado.web.HTTPError(400, f"bad request body: no field {exc.args[0]!r}") from None
+            except (TypeError, ValueError) as exc:
+                raise tornado.web.HTTPError(400, f"bad request body: {exc}") from None
             out = await self.run(fn, *args)
             if out is not None:
                 self.json(out if isinstance(out, dict) else {"found": out})

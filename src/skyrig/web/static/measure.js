@@ -142,6 +142,17 @@
     status(`${pred.image}: click on the point`);
   }
 
+  // the search radius of a proposal: the user's value, else the 95 % ellipse's major semi-axis of the prediction
+  // the page centres on (intersection, else ground), at least 3 px and at most the server's bound (200 px)
+  const MAX_SEARCH = 200;
+  function searchRadius() {
+    const typed = $("search").value.trim();
+    if (typed !== "") return Number(typed);  // sent as typed: the server refuses what is not in [0, 200]
+    const g = (S.pred.intersection && S.pred.intersection.column !== null) ? S.pred.intersection : S.pred.ground;
+    if (g.a === null) return 0;
+    return Math.min(MAX_SEARCH, Math.max(3, Math.round(K95 * g.a * 10) / 10));
+  }
+
   viewer.addHandler("canvas-click", async (e) => {
     if (!e.quick || !S.pred) return;
     e.preventDefaultAction = true;
@@ -150,12 +161,12 @@
     S.click = { column: col, row: row };
     try {
       const prop = await api("/api/propose", { point: S.point, image: S.pred.image, column: col, row: row,
-                                                method: $("method").value });
+                                                method: $("method").value, search_px: searchRadius() });
       S.proposal = prop;
       body.dataset.proposal = JSON.stringify(prop);
       $("accept").disabled = $("keep").disabled = false;
       status(`proposal ${prop.column}, ${prop.row} (${prop.method}${prop.refined ? ", refined" : ""}, ` +
-             `sigma ${prop.sigma_px} px): ${prop.note}. Enter accepts, a new click moves it.`);
+             `sigma ${prop.sigma_px} px, search ${prop.search_px} px): ${prop.note}. Enter accepts, a new click moves it.`);
       draw();
     } catch (err) { status(String(err.message || err), true); }
   });
