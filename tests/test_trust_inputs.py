@@ -398,3 +398,23 @@ def test_init_refuses_side_car_and_control_crs_that_disagree_listing_them(tmp_pa
     r = _init(d, "--crs", "EPSG:25832")  # the user's choice settles it
     assert r.exit_code == 0, r.output
     assert "crs: EPSG:25832" in (d / "project.yaml").read_text()
+
+
+def test_run_dry_run_refuses_stages_out_of_order(tmp_path):
+    """Issue 29 (``run --dry-run`` accepted stages out of order): block listed before the match stage that makes
+    its measurements is refused naming the project file and the stage; in order the same stages pass."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    _uav_folder(tmp_path / "f", n=3)
+    assert _init(tmp_path / "f").exit_code == 0
+    p = tmp_path / "f" / "project.yaml"
+    text = p.read_text()
+    head = text[:text.index("stages:")]
+    p.write_text(head + "stages:\n  georef: {}\n  block: {}\n  match: {}\n")
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 2 and "project.yaml" in r.output and "field 'stages.block'" in r.output \
+        and "a match stage before it" in r.output, r.output
+    p.write_text(head + "stages:\n  georef: {}\n  match: {}\n  block: {}\n")
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 0, r.output
