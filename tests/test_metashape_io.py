@@ -335,3 +335,21 @@ def test_convert_reads_a_psx_project(tmp_path):
     assert list(eo.image) == list(ref.image)
     np.testing.assert_allclose(eo.centre, ref.centre, rtol=0, atol=1e-4)
     np.testing.assert_allclose(eo.rotation, ref.rotation, rtol=0, atol=1e-9)
+
+
+def test_import_metashape_psx_writes_the_block(tmp_path):
+    """``skyrig import metashape-psx NAME.psx -o block.json``: the same block as from the cameras export."""
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.io.block_file import read_block
+
+    (tmp_path / "cameras.xml").write_text(_cameras_xml())
+    psx = psx_from_cameras_xml(_cameras_xml(), tmp_path / "proj.psx")
+    for fmt, src in (("metashape-xml", tmp_path / "cameras.xml"), ("metashape-psx", psx)):
+        r = CliRunner().invoke(main, ["import", fmt, str(src), "-o", str(tmp_path / f"{fmt}.json")])
+        assert r.exit_code == 0, r.output
+    a = read_block(tmp_path / "metashape-xml.json").block
+    b = read_block(tmp_path / "metashape-psx.json").block
+    assert list(a.image_name) == list(b.image_name) and a.n_observations == b.n_observations
+    np.testing.assert_array_equal(a.station_centre, b.station_centre)
