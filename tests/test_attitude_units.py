@@ -257,3 +257,99 @@ def test_check_names_eo_images_looking_another_way_than_their_head(demo):
     problems = eo_heads_problems(ExteriorOrientations(eo.image, eo.camera, eo.centre, as_ypr, eo.frame), rig,
                                  Path("eo.csv"))
     assert any("'nadir'" in x for x in problems), problems
+
+
+def test_odm_geo_txt_in_gon_or_opk_is_refused(tmp_path):
+    """ODM geo.txt declares nothing: its angles are DJI-gimbal yaw/pitch/roll in degrees.  A DJI lawnmower flight
+    as its gimbal records it (DJI's convention: yaw the heading of the image top, here the track's, east 90 /
+    west -90, pitch -90 straight down, roll 0, plus half a degree of noise; four strips flown east and west) reads
+    back; the same numbers turned into gon, or the rows' omega-phi-kappa written in place of the gimbal angles,
+    are refused naming the file, a line and the way to fix it."""
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.geometry.rotations import opk_from_matrix
+    from skyrig.io.odm import read_geo_txt, rotation_from_gimbal_ypr
+
+    rng = np.random.default_rng(29)
+    rows, ypr, xyz = [], [], []
+    for s in range(4):
+        east = s % 2 == 0
+        for i in range(12):
+            x = 550_000.0 + (i if east else 11 - i) * 30.0
+            xyz.append([x, 5_800_000.0 + s * 40.0, 160.0])
+            ypr.append([(90.0 if east else -90.0) + rng.normal(0, 0.5), -90.0 + rng.normal(0, 0.5),
+                        rng.normal(0, 0.5)])
+    xyz, ypr = np.array(xyz), np.array(ypr)
+
+    def write(name, angles):
+        (tmp_path / name).write_text("EPSG:25832\n" + "".join(
+            f"img_{k:03d}.jpg {c[0]:.3f} {c[1]:.3f} {c[2]:.3f} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}\n"
+            for k, (c, a) in enumerate(zip(xyz, angles))))
+        return tmp_path / name
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PlausibilityWarning)
+        g = read_geo_txt(write("geo.txt", ypr))
+    np.testing.assert_allclose(g.ypr_deg, ypr, atol=1e-6)
+    with pytest.raises(InputFormatError, match=r"gon\.txt, line \d+, field '(yaw|roll)'.*read with angles in gon"
+                                               r".*DJI gimbal convention"):
+        read_geo_txt(write("gon.txt", ypr * 400.0 / 360.0))
+    r = rotation_from_gimbal_ypr(WorldFrame.map("EPSG:25832"), xyz, ypr)
+    opk = np.stack(opk_from_matrix(r, unit="deg", sequence="opk"), axis=1)
+    with pytest.raises(InputFormatError, match=r"opk\.txt, line \d+.*read with convention opk"):
+        read_geo_txt(write("opk.txt", opk))
+
+
+def _tumbling_events(tmp_path):
+    """Two strips of a tumbling head (gear step 45 deg per frame, paper 000 Fig. 5; its own crab angle per strip,
+    a turn of 60 s between them) and a fixed nadir head, from :func:`skyrig.plan.flight.tumble_schedule`."""
+    from skyrig.plan.flight import tumble_schedule
+    from skyrig.trajectory.events import CameraEvents
+
+    n = 40
+    t = np.r_[100.0 + np.arange(n) * 0.5, 100.0 + n * 0.5 + 60.0 + np.arange(n) * 0.5]
+    beta = np.r_[tumble_schedule(n, 2.0, 90.0, 10.0, crab_deg=3.0), tumble_schedule(n, 2.0, 90.0, 10.0, -2.5)]
+    names = [f"{i:04d}_oblique.jpg" for i in range(2 * n)] + [f"{i:04d}_nadir.jpg" for i in range(2 * n)]
+    return CameraEvents.create(np.r_[t, t], np.r_[["oblique"] * 2 * n, ["nadir"] * 2 * n], names,
+                               np.r_[beta, np.full(2 * n, np.nan)])
+
+
+@pytest.mark.parametrize("written", ["deg", "gon", "rad"])
+def test_events_beta_in_a_wrong_unit_is_refused(tmp_path, written):
+    """The tumbling camera's actuator angle written in each unit reads back in its own; declared in any other
+    unit (the numbers kept, only '# angles:' changed) it is refused naming head, line and field -- except where
+    the numbers are beyond one turn of the declared unit (refused by the range check already)."""
+    from skyrig.io.events_csv import read_events_csv, write_events_csv
+
+    ev = _tumbling_events(tmp_path)
+    f = tmp_path / "events.csv"
+    write_events_csv(f, ev, angles=written)
+    back = read_events_csv(f)
+    ob = back.head == "oblique"
+    np.testing.assert_allclose(np.mod(back.beta_rad[ob] - ev.beta_rad[ob] + np.pi, 2 * np.pi) - np.pi, 0.0,
+                               atol=1e-9)
+    text = f.read_text()
+    for declared in ("deg", "gon", "rad"):
+        if declared == written:
+            continue
+        g = tmp_path / "declared.csv"
+        g.write_text(text.replace(f"# angles: {written}", f"# angles: {declared}"))
+        with pytest.raises(InputFormatError) as exc:
+            read_events_csv(g)
+        msg = str(exc.value)
+        assert "declared.csv, line " in msg and "field 'beta'" in msg, msg
+        assert "exceeds 1 turn" in msg or (f"read in {written} every step is the same" in msg
+                                           and "'oblique'" in msg), msg
+    if written == "gon":  # gon kept within (-200, 200]: within a turn of degrees, only the cadence tells
+        rows = text.splitlines()
+        k0 = rows.index("image,time,head,beta,exposure")
+        out = rows[:k0 + 1]
+        for ln in rows[k0 + 1:]:
+            c = ln.split(",")
+            if c[3]:
+                c[3] = f"{(float(c[3]) + 200.0) % 400.0 - 200.0:.10f}"
+            out.append(",".join(c))
+        g = tmp_path / "wrapped.csv"
+        g.write_text("\n".join(out).replace("# angles: gon", "# angles: deg") + "\n")
+        with pytest.raises(InputFormatError, match=r"wrapped\.csv, line \d+, field 'beta': head 'oblique': read in "
+                                                   r"deg, \d+ of 7\d steps .* read in gon every step is the same"):
+            read_events_csv(g)

@@ -68,7 +68,13 @@ def test_same_sigma0_through_colmap_opensfm_metashape(block, sigma0, tmp_path):
     write_metashape_cameras(tmp_path / "cameras.xml", metashape_from_block(block))
     b3 = block_from_metashape(read_metashape_cameras(tmp_path / "cameras.xml"), sigma_px=0.3, control_sigma_m=0.01)
     assert b3.control_point is not None and len(b3.control_point) == 6
-    for b in (b1, b2, b3):
+    from test_metashape_io import psx_from_cameras_xml
+
+    from skyrig.io.metashape import read_metashape_project
+
+    psx = psx_from_cameras_xml((tmp_path / "cameras.xml").read_text(), tmp_path / "block.psx", group=True)
+    b4 = block_from_metashape(read_metashape_project(psx), sigma_px=0.3, control_sigma_m=0.01)
+    for b in (b1, b2, b3, b4):
         assert b.n_observations == block.n_observations
         assert _sigma0(b) == pytest.approx(s0, rel=1e-6)
 

@@ -246,3 +246,110 @@ def test_reference_csv(tmp_path):
         read_metashape_reference(tmp_path / "ref.csv", frame, columns="nxyzXZ")
     with pytest.raises(OptionError, match="columns"):
         read_metashape_reference(tmp_path / "back.csv", frame, columns="nxy")
+
+
+def psx_from_cameras_xml(xml_text: str, psx: Path, group: bool = False) -> Path:
+    """A Metashape project ``psx`` (``NAME.psx`` + ``NAME.files``) holding the chunk of a cameras export, built to
+    the documented layout: the .psx an XML ``<document path="{projectname}.files/project.zip">``; project.zip's
+    doc.xml listing ``<chunks><chunk id="0" path="0/chunk.zip"/>``; chunk.zip's doc.xml the ``<chunk>`` with its
+    frames as ``<frame id path="0/frame.zip"/>``; frame.zip's doc.xml the ``<frame>`` with the marker
+    measurements.  ``group``: the cameras inside a camera group (a folder in Metashape's workspace)."""
+    import xml.etree.ElementTree as ET
+    import zipfile
+
+    doc = ET.fromstring(xml_text)
+    ch = doc.find("chunk")
+    files = psx.with_name(psx.stem + ".files")
+    (files / "0" / "0").mkdir(parents=True)
+    frames = ch.find("frames")
+    for k, fr in enumerate(list(frames) if frames is not None else []):
+        frame_doc = ET.Element("frame", {"version": doc.get("version", "1.5.0")})
+        frame_doc.extend(list(fr))
+        with zipfile.ZipFile(files / "0" / f"{k}" / "frame.zip", "w") as z:
+            z.writestr("doc.xml", ET.tostring(frame_doc, encoding="unicode"))
+        frames.remove(fr)
+        ET.SubElement(frames, "frame", {"id": str(k), "path": f"{k}/frame.zip"})
+    if group:
+        cams = ch.find("cameras")
+        g = ET.SubElement(cams, "group", {"id": "0", "label": "100MEDIA", "type": "folder"})
+        for c in [c for c in cams if c.tag == "camera"]:
+            cams.remove(c)
+            g.append(c)
+    ch.set("version", doc.get("version", "1.5.0"))
+    with zipfile.ZipFile(files / "0" / "chunk.zip", "w") as z:
+        z.writestr("doc.xml", ET.tostring(ch, encoding="unicode"))
+    with zipfile.ZipFile(files / "project.zip", "w") as z:
+        z.writestr("doc.xml", '<document version="1.5.0"><chunks next_id="1" active_id="0">'
+                              '<chunk id="0" path="0/chunk.zip"/></chunks></document>')
+    psx.write_text('<?xml version="1.0" encoding="UTF-8"?>\n'
+                   '<document version="1.5.0" path="{projectname}.files/project.zip"/>\n')
+    return psx
+
+
+@pytest.mark.parametrize("group", [False, True])
+def test_psx_project_reads_as_its_cameras_export(tmp_path, group):
+    """The .psx holding the chunk of the export above reads to the same sensors, poses and markers (whose
+    projections the export test checks by hand against Metashape's documented model)."""
+    from skyrig.io.metashape import read_metashape_project
+
+    (tmp_path / "cameras.xml").write_text(_cameras_xml())
+    ref = read_metashape_cameras(tmp_path / "cameras.xml")
+    ch = read_metashape_project(psx_from_cameras_xml(_cameras_xml(), tmp_path / "proj.psx", group))
+    assert list(ch.image_name) == list(ref.image_name) and ch.frame == ref.frame and ch.crs_wkt == ref.crs_wkt
+    assert ch.cameras == ref.cameras
+    np.testing.assert_array_equal(ch.world_from_camera.rotation, ref.world_from_camera.rotation)
+    np.testing.assert_array_equal(ch.world_from_camera.translation, ref.world_from_camera.translation)
+    np.testing.assert_array_equal(ch.obs_pixel, ref.obs_pixel)
+    np.testing.assert_array_equal(ch.obs_image, ref.obs_image)
+    np.testing.assert_array_equal(ch.marker_xyz, ref.marker_xyz)
+
+
+def test_psx_project_damaged_is_named(tmp_path):
+    from skyrig.io.metashape import read_metashape_project
+
+    psx = psx_from_cameras_xml(_cameras_xml(), tmp_path / "proj.psx")
+    (tmp_path / "proj.files" / "0" / "0" / "frame.zip").write_bytes(b"PK\x03\x04 cut")
+    with pytest.raises(InputFormatError, match=r"frame\.zip.*not a readable zip archive"):
+        read_metashape_project(psx)
+    (tmp_path / "proj.files" / "0" / "chunk.zip").unlink()
+    with pytest.raises(InputFormatError, match=r"chunk\.zip.*file not found"):
+        read_metashape_project(psx)
+    psx.write_text('<document version="1.5.0" path="../elsewhere/project.zip"/>')
+    with pytest.raises(InputFormatError, match=r"proj\.psx, line 1, field 'path'.*leads out of"):
+        read_metashape_project(psx)
+
+
+def test_convert_reads_a_psx_project(tmp_path):
+    """``skyrig convert NAME.psx`` (format told by the name): the chunk's orientations as the export's."""
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.io.eo_csv import read_eo_csv
+
+    (tmp_path / "cameras.xml").write_text(_cameras_xml())
+    ref = read_metashape_cameras(tmp_path / "cameras.xml").orientations(WorldFrame.ecef())
+    psx = psx_from_cameras_xml(_cameras_xml(), tmp_path / "proj.psx")
+    r = CliRunner().invoke(main, ["convert", str(psx), "-o", str(tmp_path / "eo.csv")])
+    assert r.exit_code == 0, r.output
+    eo = read_eo_csv(tmp_path / "eo.csv")
+    assert list(eo.image) == list(ref.image)
+    np.testing.assert_allclose(eo.centre, ref.centre, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(eo.rotation, ref.rotation, rtol=0, atol=1e-9)
+
+
+def test_import_metashape_psx_writes_the_block(tmp_path):
+    """``skyrig import metashape-psx NAME.psx -o block.json``: the same block as from the cameras export."""
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.io.block_file import read_block
+
+    (tmp_path / "cameras.xml").write_text(_cameras_xml())
+    psx = psx_from_cameras_xml(_cameras_xml(), tmp_path / "proj.psx")
+    for fmt, src in (("metashape-xml", tmp_path / "cameras.xml"), ("metashape-psx", psx)):
+        r = CliRunner().invoke(main, ["import", fmt, str(src), "-o", str(tmp_path / f"{fmt}.json")])
+        assert r.exit_code == 0, r.output
+    a = read_block(tmp_path / "metashape-xml.json").block
+    b = read_block(tmp_path / "metashape-psx.json").block
+    assert list(a.image_name) == list(b.image_name) and a.n_observations == b.n_observations
+    np.testing.assert_array_equal(a.station_centre, b.station_centre)

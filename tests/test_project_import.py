@@ -63,6 +63,15 @@ def _write(kind: str, m, root: Path) -> Path:
 
         folder.mkdir()
         write_metashape_cameras(folder / "cameras.xml", metashape_from_block(block))
+    elif kind == "metashape-psx":  # the same chunk as a Metashape project (NAME.psx + NAME.files)
+        from test_metashape_io import psx_from_cameras_xml
+
+        from skyrig.io.metashape import metashape_from_block, write_metashape_cameras
+
+        folder.mkdir()
+        write_metashape_cameras(root / "chunk.xml", metashape_from_block(block))
+        psx_from_cameras_xml((root / "chunk.xml").read_text(), folder / "ring.psx", group=True)
+        (root / "chunk.xml").unlink()
     else:
         from skyrig.io.pix4d import Pix4dCameras, write_pix4d_calibrated_cameras
 
@@ -87,7 +96,7 @@ def _import(folder: Path, out: Path, *extra: str):
     return r
 
 
-@pytest.mark.parametrize("kind", ["colmap", "opensfm", "metashape", "pix4d"])
+@pytest.mark.parametrize("kind", ["colmap", "opensfm", "metashape", "metashape-psx", "pix4d"])
 def test_project_folder_import_gives_back_the_truth(model, tmp_path, kind):
     from skyrig.io.eo_csv import read_eo_csv
     from skyrig.io.points_csv import read_measurements_csv, read_points_csv

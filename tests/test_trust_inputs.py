@@ -353,3 +353,68 @@ def test_block_refuses_a_control_measurement_with_column_and_row_swapped(tmp_pat
              tmp_path / "px2.csv", "--control", tmp_path / "gcp.csv", "-o", tmp_path / "b2.json")
     assert r.exit_code == 2, r.output
     assert f"px2.csv, line {far + 1}" in r.output and "field 'column'" in r.output and "swapped" in r.output, r.output
+
+
+def _eo_side_car_folder(d: Path) -> Path:
+    """Images, a rig file and an EO table with its side-car (a plain CSV: the CRS only in eo.csv.json)."""
+    from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
+
+    _uav_folder(d, n=3)
+    (d / "rig.yaml").write_text(RIG)
+    (d / "h.csv").write_text(EO)
+    (d / "eo").mkdir()
+    write_eo_csv(read_eo_csv(d / "h.csv"), d / "eo" / "eo.csv")
+    (d / "h.csv").unlink()
+    assert not (d / "eo" / "eo.csv").read_text().startswith("#")
+    return d
+
+
+def test_init_takes_the_crs_from_an_eo_side_car_and_says_so(tmp_path):
+    """Was: a plain EO table whose CRS is in its side-car was not taken for an EO file (init went the UAV way
+    with the EXIF GPS's UTM zone 30, the side-car's EPSG:25832 unread)."""
+    d = _eo_side_car_folder(tmp_path / "f")
+    r = _init(d)
+    assert r.exit_code == 0, r.output
+    text = (d / "project.yaml").read_text()
+    assert "eo: eo/eo.csv" in text, text
+    assert "crs: EPSG:25832    # from the EO file's side-car (eo.csv.json)" in text, text
+
+
+def test_init_refuses_side_car_and_control_crs_that_disagree_listing_them(tmp_path):
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.georef.observations import GroundPoints
+    from skyrig.io.points_csv import write_points_csv
+
+    d = _eo_side_car_folder(tmp_path / "f")
+    write_points_csv(d / "ground_control.csv", GroundPoints(["g1", "g2", "g3"], np.array(
+        [[300_100.0, 5_350_050.0, 310.0], [300_300.0, 5_349_950.0, 305.0], [300_450.0, 5_350_020.0, 298.0]]),
+        WorldFrame.map("EPSG:32633")))
+    r = _init(d)
+    assert r.exit_code == 2, r.output
+    assert ("EPSG:25832 from the EO file's side-car (eo.csv.json)" in r.output
+            and "EPSG:32633 from the control points' CRS (ground_control.csv)" in r.output
+            and "--crs" in r.output), r.output
+    assert not (d / "project.yaml").exists()
+    r = _init(d, "--crs", "EPSG:25832")  # the user's choice settles it
+    assert r.exit_code == 0, r.output
+    assert "crs: EPSG:25832" in (d / "project.yaml").read_text()
+
+
+def test_run_dry_run_refuses_stages_out_of_order(tmp_path):
+    """Issue 29 (``run --dry-run`` accepted stages out of order): block listed before the match stage that makes
+    its measurements is refused naming the project file and the stage; in order the same stages pass."""
+    from skyrig.pipeline.demo import build_demo_project
+
+    build_demo_project(tmp_path / "f")
+    _uav_folder(tmp_path / "f", n=3)
+    assert _init(tmp_path / "f").exit_code == 0
+    p = tmp_path / "f" / "project.yaml"
+    text = p.read_text()
+    head = text[:text.index("stages:")]
+    p.write_text(head + "stages:\n  georef: {}\n  block: {}\n  match: {}\n")
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 2 and "project.yaml" in r.output and "field 'stages.block'" in r.output \
+        and "a match stage before it" in r.output, r.output
+    p.write_text(head + "stages:\n  georef: {}\n  match: {}\n  block: {}\n")
+    r = _run("run", p, "--dry-run")
+    assert r.exit_code == 0, r.output

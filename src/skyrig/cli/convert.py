@@ -113,7 +113,7 @@ def command(src, dst, output, from_format, from_crs, from_geoid, from_map_z_grou
     from skyrig.pipeline.inputs import _guess_eo_format
 
     fmt = from_format or _guess_eo_format(src)
-    if fmt in ("colmap", "opensfm", "metashape-xml", "micmac", "pix4d"):
+    if fmt in ("colmap", "opensfm", "metashape-xml", "metashape-psx", "micmac", "pix4d"):
         from skyrig.io.exchange import read_model_orientations
 
         eo, cameras = read_model_orientations(src, fmt, from_crs, from_geoid, "--from-crs")

@@ -1,5 +1,5 @@
 """``skyrig import FORMAT PATH -o block.json`` and ``skyrig export FORMAT BLOCK -o OUT``: a bundle block from and to
-other programs' projects (COLMAP, OpenSfM, Metashape cameras XML; MicMac Ori folders out).
+other programs' projects (COLMAP, OpenSfM, Metashape cameras XML or .psx project; MicMac Ori folders out).
 
 ``import`` writes a skyrig block file (cameras, oriented images, tie points and their measurements, control where
 the format has it) that ``skyrig adjust`` adjusts; ``export`` writes a block file (e.g. the ``adjusted.json`` of
@@ -13,7 +13,7 @@ import click
 
 from skyrig.cli._types import CONTROL_SIGMA_M, CRS_TEXT, GEOID, PIXEL_SIGMA_PX
 
-IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml", "project")
+IMPORT_FORMATS = ("colmap", "opensfm", "metashape-xml", "metashape-psx", "project")
 EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
 
 
@@ -32,7 +32,7 @@ EXPORT_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac")
               help="Metashape: sigma of the markers' enabled references (m, per axis).")
 def import_command(fmt, path, output, crs, geoid, tracks, sigma_px, control_sigma_m) -> None:
     """Bring another program's project PATH in as a skyrig block file -o/--output; FORMAT 'project': a whole
-    project folder (COLMAP, OpenSfM, Metashape cameras XML or Pix4D, told by its files) as a skyrig project folder
+    project folder (COLMAP, OpenSfM, Metashape cameras XML or .psx, or Pix4D, told by its files) as a skyrig project folder
     (eo.csv, cameras.yaml, points.csv, tie_points.csv, block.json, import.json)."""
     from skyrig.io.block_file import write_block
 
@@ -66,9 +66,10 @@ def import_command(fmt, path, output, crs, geoid, tracks, sigma_px, control_sigm
             raise click.BadParameter(f"{tr} not found: give the measurements with --tracks", param_hint="--tracks")
         block = block_from_opensfm(read_opensfm_tracks(tr, rec), sigma_px=sigma_px)
     else:
-        from skyrig.io.metashape import block_from_metashape, read_metashape_cameras
+        from skyrig.io.metashape import block_from_metashape, read_metashape_cameras, read_metashape_project
 
-        block = block_from_metashape(read_metashape_cameras(path), sigma_px=sigma_px, control_sigma_m=control_sigma_m)
+        read = read_metashape_cameras if fmt == "metashape-xml" else read_metashape_project
+        block = block_from_metashape(read(path), sigma_px=sigma_px, control_sigma_m=control_sigma_m)
     block.validate()
     write_block(output, block)
     click.echo(f"wrote {output}: {block.n_images} images, {len(block.cameras)} camera(s), {block.n_points} points, "

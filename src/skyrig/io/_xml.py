@@ -53,13 +53,16 @@ class XmlElement:
             yield from c.iter(tag)
 
 
-def read_xml(path: str | PathLike[str]) -> XmlElement:
-    """Parse ``path``: the root element; a malformed file is an :class:`InputFormatError` naming the line."""
+def read_xml(path: str | PathLike[str], data: bytes | None = None) -> XmlElement:
+    """Parse ``path``: the root element; a malformed file is an :class:`InputFormatError` naming the line.
+    ``data``: the XML's bytes when they come from elsewhere (a member of a zip archive), ``path`` then names it
+    in messages."""
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputFormatError("file not found", p) from None
+    if data is None:
+        try:
+            data = p.read_bytes()
+        except FileNotFoundError:
+            raise InputFormatError("file not found", p) from None
     parser = xml.parsers.expat.ParserCreate()
     stack: list[XmlElement] = []
     root: list[XmlElement] = []

@@ -59,6 +59,10 @@ def read_events_csv(path: PathLike) -> CameraEvents:
         non-integer exposure ids, repeated image names.
     ImplausibleAngleError
         For actuator angles beyond one full turn in the declared unit.
+    InputFormatError
+        For actuator angles whose steps between consecutive frames of a head agree with a constant gear step in
+        another unit than the declared one (gon written, degrees declared;
+        :func:`skyrig.io.plausibility.check_actuator_cadence`).
     """
     hdr = _split_file(path, "skyrig-events", _KEYS)
     if not hdr.data:
@@ -129,6 +133,11 @@ def read_events_csv(path: PathLike) -> CameraEvents:
     if tsys == "gps-week-sow":
         time = week * SECONDS_PER_WEEK + time
         tsys = "gps"
+    if unit is not None and i_beta is not None:
+        from skyrig.io.plausibility import check_actuator_cadence
+
+        check_actuator_cadence(beta, unit, heads, time, path, lines,
+                               "declare the unit of beta with the header line '# angles: deg|gon|rad'")
     beta_rad = beta if unit is None else to_radians(beta, unit)
     return CameraEvents.create(
         time, np.array(heads, dtype=str), np.array(names, dtype=str), beta_rad,

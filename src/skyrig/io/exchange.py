@@ -34,7 +34,7 @@ __all__ = ["MODEL_FORMATS", "CAMERA_FORMATS", "read_model_orientations", "write_
            "read_camera_file", "write_camera_file", "guess_camera_format"]
 
 #: model formats (``--from-format`` / ``--to-format`` of ``skyrig convert``)
-MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "micmac", "pix4d")
+MODEL_FORMATS = ("colmap", "colmap-text", "opensfm", "metashape-xml", "metashape-psx", "micmac", "pix4d")
 #: camera file formats (``skyrig convert --camera``)
 CAMERA_FORMATS = ("metashape-calibration", "micmac-calibration", "opensfm-cameras", "colmap-cameras", "ign-camera",
                   "rig")
@@ -77,10 +77,10 @@ def read_model_orientations(path: str | PathLike[str], fmt: str, crs: str | None
                                                            "reference_lla", crs_option, p)
         return _eo(r.image_name, [r.cameras[c].name for c in r.image_camera_id], r.world_from_camera, frame), \
             {c.name: c for c in r.cameras.values()}
-    if fmt == "metashape-xml":
-        from skyrig.io.metashape import read_metashape_cameras
+    if fmt in ("metashape-xml", "metashape-psx"):
+        from skyrig.io.metashape import read_metashape_cameras, read_metashape_project
 
-        ch = read_metashape_cameras(p)
+        ch = read_metashape_cameras(p) if fmt == "metashape-xml" else read_metashape_project(p)
         frame = ch.frame if ch.frame is not None else _frame(crs, geoid, "a Metashape chunk in local coordinates",
                                                              crs_option, p)
         return _eo(ch.image_name, [ch.cameras[c].name for c in ch.image_camera_id], ch.world_from_camera, frame), \

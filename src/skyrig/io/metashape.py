@@ -66,7 +66,7 @@ from skyrig.io._xml import XmlElement, finite_float as _float, floats_of as _flo
 
 __all__ = ["MetashapeChunk", "read_metashape_calibration", "write_metashape_calibration", "read_metashape_cameras",
            "write_metashape_cameras", "camera_from_metashape", "metashape_calibration", "block_from_metashape",
-           "metashape_from_block", "MetashapeReference", "read_metashape_reference", "write_metashape_reference"]
+           "metashape_from_block", "read_metashape_project", "MetashapeReference", "read_metashape_reference", "write_metashape_reference"]
 
 F = np.diag([1.0, -1.0, -1.0])
 HALF = 0.5  # Metashape pixel (corner origin) minus skyrig pixel
@@ -275,6 +275,12 @@ def read_metashape_cameras(path: str | PathLike[str], chunk: int = 0) -> Metasha
     if len(chunks) <= chunk:
         raise InputFormatError(f"the document has {len(chunks)} chunk(s); chunk {chunk} asked for", p, root.line)
     ch = chunks[chunk]
+    return _chunk_of(ch, p, [(p, fr) for fr in ch.findall("frames/frame")])
+
+
+def _chunk_of(ch: XmlElement, p: Path, frames: list[tuple[Path, XmlElement]]) -> MetashapeChunk:
+    """A ``<chunk>`` element (of a cameras export, or a project's ``chunk.zip``) and its frames (elements holding
+    ``<markers>``, each with the file it comes from) in skyrig's conventions."""
     # sensors
     cams: dict[str, FrameCamera] = {}
     for s in ch.findall("sensors/sensor"):
@@ -301,7 +307,7 @@ def read_metashape_cameras(path: str | PathLike[str], chunk: int = 0) -> Metasha
     geo = ch.find("transform") is not None and crs_wkt is not None and not crs_wkt.lstrip().upper().startswith(
         ("LOCAL_CS", "ENGCRS", "ENGINEERINGCRS"))
     names, sids, R, C, index = [], [], [], [], {}
-    for c in ch.findall("cameras/camera"):
+    for c in ch.findall("cameras/camera") + [c for g in ch.findall("cameras/group") for c in g.findall("camera")]:
         cid = str(_int_attr(c, "id", p))
         t = c.find("transform")
         if t is None:
@@ -344,24 +350,90 @@ def read_metashape_cameras(path: str | PathLike[str], chunk: int = 0) -> Metasha
         mxyz.append(xyz)
         men.append(en)
     oi, om, opx = [], [], []
-    for fr in ch.findall("frames/frame"):
+    for fp, fr in frames:
         for m in fr.findall("markers/marker"):
             mid = m.attrib.get("marker_id")
             if mid not in mindex:
-                raise InputFormatError(f"measurement of unknown marker {mid!r}", p, m.line, "marker_id")
+                raise InputFormatError(f"measurement of unknown marker {mid!r}", fp, m.line, "marker_id")
             for loc in m.findall("location"):
                 cid = loc.attrib.get("camera_id")
                 if cid not in index:
                     continue  # a camera that is not aligned (or not in this chunk)
                 oi.append(index[cid])
                 om.append(mindex[mid])
-                opx.append([_float(loc.attrib.get("x", ""), p, loc.line, "x") - HALF,
-                            _float(loc.attrib.get("y", ""), p, loc.line, "y") - HALF])
+                opx.append([_float(loc.attrib.get("x", ""), fp, loc.line, "x") - HALF,
+                            _float(loc.attrib.get("y", ""), fp, loc.line, "y") - HALF])
     return MetashapeChunk(
         cams, np.array(names, dtype=str), np.array(sids, dtype=str),
         Pose(np.array(R).reshape(-1, 3, 3), np.array(C).reshape(-1, 3), "world", "camera"),
         WorldFrame.ecef() if geo else None, crs_wkt, np.array(mnames, dtype=str), np.array(mxyz).reshape(-1, 3),
         np.array(men, bool), np.array(oi, np.int64), np.array(om, np.int64), np.array(opx).reshape(-1, 2))
+
+
+def _zip_xml(archive: Path, member: str = "doc.xml") -> tuple[Path, XmlElement]:
+    """The XML ``member`` of the zip ``archive`` (messages name it ``ARCHIVE/doc.xml``)."""
+    import zipfile
+
+    where = archive / member
+    try:
+        with zipfile.ZipFile(archive) as z:
+            data = z.read(member)
+    except FileNotFoundError:
+        raise InputFormatError("file not found (the project's .files folder is incomplete)", archive) from None
+    except KeyError:
+        raise InputFormatError(f"the archive holds no {member}", archive) from None
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise InputFormatError(f"not a readable zip archive ({exc})", archive) from None
+    return where, read_xml(where, data)
+
+
+def _archive_path(base: Path, rel: str | None, owner: Path, e: XmlElement) -> Path:
+    """``base / rel`` for a ``path`` attribute of ``e`` (refused when absent or leaving ``base``)."""
+    if not rel:
+        raise InputFormatError("no path attribute", owner, e.line, "path")
+    q = (base / rel).resolve()
+    if base.resolve() not in q.parents:
+        raise InputFormatError(f"path {rel!r} leads out of {base.name}", owner, e.line, "path")
+    return q
+
+
+def read_metashape_project(path: str | PathLike[str], chunk: int = 0) -> MetashapeChunk:
+    """Read chunk number ``chunk`` (0: the first) of a Metashape project ``NAME.psx`` into the structures of
+    :func:`read_metashape_cameras`.
+
+    The project (Agisoft's documented layout, ``docs/formats/metashape.md``): ``NAME.psx`` is an XML
+    ``<document version path="{projectname}.files/project.zip">``; ``project.zip``'s ``doc.xml`` lists the chunks
+    (``<chunks><chunk id path="0/chunk.zip"/>``, paths relative to the ``.files`` folder); a ``chunk.zip``'s
+    ``doc.xml`` is a ``<chunk>`` with the ``<sensors>``, ``<cameras>`` (also inside ``<group>``), ``<markers>``,
+    ``<reference>`` and ``<transform>`` of the cameras export, and ``<frames><frame path="0/frame.zip"/>``
+    (relative to the chunk's folder) whose ``doc.xml`` is a ``<frame>`` holding the marker measurements
+    (``<markers><marker marker_id><location camera_id x y>``).  Same conventions as the cameras export.
+    """
+    p = Path(path)
+    root = read_xml(p)
+    if root.tag != "document":
+        raise InputFormatError(f"root element is <{root.tag}>, not <document> (not a Metashape project)", p, root.line)
+    ver = root.attrib.get("version")
+    if ver is not None and ver.split(".")[0] not in {v.split(".")[0] for v in KNOWN_VERSIONS}:
+        raise InputFormatError(f"document version {ver} is not one this reader knows ({', '.join(KNOWN_VERSIONS)})",
+                               p, root.line, "version")
+    rel = root.attrib.get("path", "{projectname}.files/project.zip").replace("{projectname}", p.stem)
+    files = p.parent / rel.split("/")[0]
+    proj_where, proj = _zip_xml(_archive_path(p.parent, rel, p, root))
+    entries = proj.findall("chunks/chunk")
+    if len(entries) <= chunk:
+        raise InputFormatError(f"the project has {len(entries)} chunk(s); chunk {chunk} asked for", proj_where,
+                               proj.line, "chunks")
+    entry = entries[chunk]
+    chunk_zip = _archive_path(files, entry.attrib.get("path"), proj_where, entry)
+    where, ch = _zip_xml(chunk_zip)
+    if ch.tag != "chunk":
+        raise InputFormatError(f"root element is <{ch.tag}>, not <chunk>", where, ch.line)
+    frames = []
+    for fr in ch.findall("frames/frame"):
+        fw, fe = _zip_xml(_archive_path(chunk_zip.parent, fr.attrib.get("path"), where, fr))
+        frames.append((fw, fe))
+    return _chunk_of(ch, where, frames)
 
 
 def write_metashape_cameras(path: str | PathLike[str], chunk: MetashapeChunk, fit_cameras: bool = False,

@@ -10,7 +10,10 @@ row down, the same as skyrig's.
 ``geo.txt`` lines: ``image_name geo_x geo_y [geo_z] [yaw pitch roll] [horz_accuracy vert_accuracy] [extras...]``
 with angles in degrees.  ODM uses the angles only for radiometric calibration; skyrig writes and reads them
 in the DJI gimbal convention (pitch -90 deg looks straight down, yaw is the heading of the image top; see
-:data:`skyrig.geometry.rotations.GIMBAL_FROM_CAMERA`).
+:data:`skyrig.geometry.rotations.GIMBAL_FROM_CAMERA`).  The file declares neither unit nor convention: angles
+written in gon or as omega-phi-kappa are refused when the cameras' rotation relative to the direction of
+travel disagrees between strips flown different ways and the other reading agrees, or when they look at the sky
+(:func:`skyrig.io.plausibility.check_attitude_reading`); radians are warned about.
 """
 
 from __future__ import annotations
@@ -154,10 +157,39 @@ def read_geo_txt(path: PathLike, geoid: str | None = None) -> ImageGeolocation:
                       [line for line, _ in rows], "camera", ("geo_x", "geo_y", "geo_z"))
     ypr_a = np.array(ypr).reshape(-1, 3)
     acc_a = np.array(acc).reshape(-1, 2)
+    _check_geo_angles(path, frame, xyz_a, ypr_a, [line for line, _ in rows])
     return ImageGeolocation(
         np.array(names), xyz_a, frame,
         None if np.all(np.isnan(ypr_a)) else ypr_a, None if np.all(np.isnan(acc_a)) else acc_a,
     )
+
+
+def _check_geo_angles(path: PathLike, frame: WorldFrame, xyz: NDArray, ypr: NDArray, lines: list[int]) -> None:
+    """The yaw / pitch / roll of a ``geo.txt`` are DJI-gimbal degrees; refuse rows written in gon or as
+    omega-phi-kappa (:func:`skyrig.io.plausibility.check_attitude_reading`: the cameras' rotation relative to the
+    direction of travel must agree between strips flown different ways; looking at the sky), warn when they look
+    like radians."""
+    from skyrig.geometry.rotations import matrix_from_opk
+    from skyrig.io.plausibility import check_angle_unit, check_attitude_reading
+
+    ok = np.all(np.isfinite(ypr), axis=1)
+    if ok.sum() < 3:
+        return
+    a, c = ypr[ok], np.where(np.isfinite(xyz), xyz, 0.0)[ok]
+    ln = [x for x, k in zip(lines, ok) if k]
+    declare = ("geo.txt angles are yaw, pitch, roll in degrees, DJI gimbal convention (pitch -90 looks straight "
+               "down, yaw the heading of the image top); convert them to that before reading")
+
+    def rotations_of(unit: str, convention: str) -> NDArray[np.float64]:
+        deg = a * (0.9 if unit == "gon" else 180.0 / np.pi if unit == "rad" else 1.0)
+        if convention == "ypr":
+            return rotation_from_gimbal_ypr(frame, c, deg)
+        return matrix_from_opk(deg[:, 0], deg[:, 1], deg[:, 2], unit="deg", sequence=convention)
+
+    check_attitude_reading(rotations_of, "deg", "ypr", c, path, ln, ("yaw", "pitch", "roll"), declare,
+                           values=a, frame=frame)
+    # radians: pitch -pi/2 looks down (the tilt from straight down is pitch + pi/2 in the file's numbers)
+    check_angle_unit(np.c_[a[:, 2], a[:, 1] + np.pi / 2.0], a[:, 0], "deg", path, "yaw/pitch/roll")
 
 
 def gimbal_ypr_from_eo(eo: ExteriorOrientations) -> NDArray[np.float64]:

@@ -34,7 +34,7 @@ from skyrig.io._text import PathLike
 __all__ = ["GROUND_MIN_M", "GROUND_MAX_M", "CAMERA_MAX_M", "LEVER_ARM_MAX_M", "LEVER_ARM_WARN_M",
            "check_coordinates", "check_lever_arm", "check_same_frame", "area_of_use", "warn",
            "check_attitude_reading", "flight_directions", "attitude_spread", "check_heading_against_track",
-           "heading_minus_track", "angle_readings"]
+           "heading_minus_track", "angle_readings", "check_actuator_cadence"]
 
 #: Lowest / highest plausible ground height (m, ellipsoidal or orthometric): Dead Sea -430 m, geoid -106 m.
 GROUND_MIN_M = -600.0
@@ -522,6 +522,73 @@ def check_attitude_reading(rotations_of: Callable[[str, str], NDArray[np.float64
                     fields[0])
         warn(f"{path}: {int(up.sum())} of {len(up)} cameras look 30 deg or more above the horizon as read "
              f"({convention} in {unit}); is the angle convention right? ({declare})")
+
+
+# ------------------------------------------------------------------------ actuator angles: unit by cadence
+#: A tumbling camera's actuator turns by a constant gear step between consecutive frames (paper 000 section 3.2,
+#: :func:`skyrig.plan.flight.tumble_schedule`); a step is off when it differs from the head's median step, modulo
+#: one turn of the reading's unit, by more than this fraction of the turn (3.6 deg; a crab change within a strip
+#: is far smaller, gon read as degrees puts 40 units on every step across the zero, radians 354).
+ACTUATOR_STEP_TOL_TURN = 0.01
+_TURN = {"deg": 360.0, "gon": 400.0, "rad": 2.0 * np.pi}
+
+
+def _cadence_off(b: NDArray[np.float64], pairs: NDArray[np.intp], turn: float) -> NDArray[np.bool_]:
+    """Steps ``b[j+1] - b[j]`` (``j`` in ``pairs``) that differ from the median step modulo ``turn``."""
+    d = np.mod(b[pairs + 1] - b[pairs], turn)
+    # the median step on the circle: centre the steps on the first one's value before taking the median
+    ref = d[0]
+    s = ref + np.median(np.mod(d - ref + turn / 2.0, turn) - turn / 2.0)
+    r = np.mod(d - s + turn / 2.0, turn) - turn / 2.0
+    return np.abs(r) > ACTUATOR_STEP_TOL_TURN * turn
+
+
+def check_actuator_cadence(beta: ArrayLike, unit: str, heads: ArrayLike, time_s: ArrayLike, path: PathLike,
+                           lines: Sequence[int] | NDArray | None, declare: str, field: str = "beta") -> None:
+    """Refuse actuator angles (the tumbling camera's beta, in the file's numbers) declared in the wrong unit.
+
+    Per head with actuator angles, in time order, the steps between consecutive frames (time step within 1.5
+    times the head's median, so the gaps of turns between strips are left out) are compared with the head's
+    median step modulo one turn of each unit (deg 360, gon 400, rad 2 pi).  A tumbling actuator turns by the same
+    gear step every frame, so in the right unit every step agrees, also across the zero of the scale; read in a
+    wrong unit each step across the zero is off by the difference of the two turns.  The declared unit is refused
+    when two steps or more are off in it and none in another unit (naming the line of the first off step).
+
+    Limits: an actuator that never crosses the zero of its scale (a partial sweep, a few fixed stops that do not
+    close the turn), or that moves back and forth, cannot be told: nothing is said.
+    """
+    b = np.asarray(beta, dtype=np.float64)
+    t = np.asarray(time_s, dtype=np.float64)
+    h = np.asarray(heads).astype(str)
+    if unit not in _TURN:
+        return
+    for name in np.unique(h[np.isfinite(b)]):
+        idx = np.flatnonzero((h == name) & np.isfinite(b))
+        idx = idx[np.argsort(t[idx], kind="stable")]
+        if len(idx) < 4:
+            continue
+        dt = np.diff(t[idx])
+        pos = dt[dt > 0]
+        if pos.size < 3:
+            continue
+        med = float(np.median(pos))
+        pairs = np.flatnonzero((dt > 0.5 * med) & (dt < 1.5 * med))
+        if pairs.size < 3:
+            continue
+        bb = b[idx]
+        off = _cadence_off(bb, pairs, _TURN[unit])
+        if off.sum() < 2:
+            continue
+        for alt in ("deg", "gon", "rad"):
+            if alt == unit or np.nanmax(np.abs(bb)) > _TURN[alt]:
+                continue
+            if not _cadence_off(bb, pairs, _TURN[alt]).any():
+                j = int(pairs[np.flatnonzero(off)[0]])
+                raise InputFormatError(
+                    f"head {name!r}: read in {unit}, {int(off.sum())} of {pairs.size} steps of the actuator angle "
+                    f"between consecutive frames differ from its gear step (the steps across the zero of the "
+                    f"scale); read in {alt} every step is the same: {declare}", path, _line(lines, idx[j + 1]),
+                    field)
 
 
 #: Moving faster than this (m/s) a platform's heading is compared with its track.

@@ -5,7 +5,8 @@ Which program wrote the folder is told by its files (the folder itself and its s
 =============  =============================================================================================
 COLMAP         ``cameras.{bin,txt}`` with ``images.*`` and ``points3D.*`` beside it (``sparse/0`` usually)
 OpenSfM        ``reconstruction.json`` (and ``tracks.csv`` beside it for the measurements)
-Metashape      an exported cameras XML (``<document>`` holding a ``<chunk>``; ``.psx`` projects are not read)
+Metashape      an exported cameras XML (``<document>`` holding a ``<chunk>``), or a project ``NAME.psx`` with
+               its ``NAME.files`` folder (the first chunk; :func:`skyrig.io.metashape.read_metashape_project`)
 Pix4D          ``1_initial/params/<project>_calibrated_camera_parameters.txt`` (``_offset.xyz`` and the
                ``_wkt.prj`` beside it give the offset and the CRS)
 =============  =============================================================================================
@@ -39,7 +40,7 @@ from skyrig.errors import InputFormatError
 
 __all__ = ["ProjectSource", "detect_project", "import_project", "PROJECT_FORMATS"]
 
-PROJECT_FORMATS = ("colmap", "opensfm", "metashape-xml", "pix4d")
+PROJECT_FORMATS = ("colmap", "opensfm", "metashape-xml", "metashape-psx", "pix4d")
 _DEPTH = 3
 
 
@@ -102,12 +103,14 @@ def detect_project(folder: str | PathLike[str]) -> ProjectSource:
             found.append(ProjectSource("opensfm", f, tr if tr.is_file() else None))
         elif f.suffix.lower() == ".xml" and _is_metashape(f):
             found.append(ProjectSource("metashape-xml", f))
+        elif f.suffix.lower() == ".psx":
+            found.append(ProjectSource("metashape-psx", f))
         elif f.name.endswith("_calibrated_camera_parameters.txt") and "_pix4d_" not in f.name:
             prj = f.with_name(f.name[: -len("_calibrated_camera_parameters.txt")] + "_wkt.prj")
             found.append(ProjectSource("pix4d", f, None, prj if prj.is_file() else None))
     if not found:
         raise InputFormatError("no project of another program found (looked for COLMAP cameras/images/points3D, "
-                               "OpenSfM reconstruction.json, a Metashape cameras XML, Pix4D "
+                               "OpenSfM reconstruction.json, a Metashape cameras XML or .psx project, Pix4D "
                                f"*_calibrated_camera_parameters.txt, {_DEPTH} folders down)", root)
     if len(found) > 1:
         listed = "; ".join(f"{s.fmt}: {s.model.relative_to(root)}" for s in found)
@@ -128,10 +131,11 @@ def _block(src: ProjectSource, sigma_px: float) -> Any:
         from skyrig.io.opensfm import block_from_opensfm, read_opensfm, read_opensfm_tracks
 
         return block_from_opensfm(read_opensfm_tracks(src.tracks, read_opensfm(src.model)[0]), sigma_px=sigma_px)
-    if src.fmt == "metashape-xml":
-        from skyrig.io.metashape import block_from_metashape, read_metashape_cameras
+    if src.fmt in ("metashape-xml", "metashape-psx"):
+        from skyrig.io.metashape import block_from_metashape, read_metashape_cameras, read_metashape_project
 
-        return block_from_metashape(read_metashape_cameras(src.model), sigma_px=sigma_px)
+        read = read_metashape_cameras if src.fmt == "metashape-xml" else read_metashape_project
+        return block_from_metashape(read(src.model), sigma_px=sigma_px)
     return None  # Pix4D's params files hold no tie points
 
 

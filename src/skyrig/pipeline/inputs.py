@@ -165,6 +165,7 @@ EO_FORMATS: dict[str, Callable[..., ExteriorOrientations]] = {
     "colmap": _eo_model("colmap"),  # a model folder, binary or text
     "opensfm": _eo_model("opensfm"),
     "metashape-xml": _eo_model("metashape-xml"),
+    "metashape-psx": _eo_model("metashape-psx"),  # a project NAME.psx (+ NAME.files), its first chunk
     "micmac": _eo_model("micmac"),  # an Ori-* folder
     "pix4d": _eo_model("pix4d"),  # ..._calibrated_camera_parameters.txt (+ ..._offset.xyz beside it)
     "pix4d-opk": _eo_pix4d_opk,  # ..._calibrated_external_camera_parameters.txt
@@ -179,6 +180,8 @@ def _guess_eo_format(path: str) -> str:
         return "opensfm"
     if name.endswith(".xml"):
         return "metashape-xml"
+    if name.endswith(".psx"):
+        return "metashape-psx"
     if name.endswith("_calibrated_external_camera_parameters.txt"):
         return "pix4d-opk"
     if name.endswith("_calibrated_camera_parameters.txt"):

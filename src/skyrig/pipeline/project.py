@@ -274,6 +274,8 @@ class Detected:
     heads: list[str] = field(default_factory=list)
     exif_gps: bool = False
     notes: list[str] = field(default_factory=list)
+    #: every output CRS the inputs state, ``(crs, where)``, in the order init takes them (the first is ``crs``)
+    crs_candidates: list[tuple[str, str]] = field(default_factory=list)
 
 
 def _first_line(p: Path) -> str:
@@ -324,13 +326,65 @@ def _header_crs(p: Path) -> str | None:
     return None
 
 
+def _side_car_table(p: Path) -> str:
+    """The ``table`` a CSV's side-car ``NAME.csv.json`` states (``"skyrig-eo 1"``), "" without one."""
+    from skyrig.io.table_meta import meta_path, read_table_meta
+
+    if not meta_path(p).is_file():
+        return ""
+    side = read_table_meta(p)  # a side-car that is not a skyrig statement is refused, naming it
+    return str((side or {}).get("table", ""))
+
+
+def _side_car_crs(p: Path) -> str | None:
+    """The map CRS a CSV's side-car states (None without a side-car or for a local / ECEF frame)."""
+    from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta
+
+    if not meta_path(p).is_file():
+        return None
+    frame = frame_of_meta(read_table_meta(p) or {}, p)
+    return str(frame.crs) if frame is not None and frame.kind == "map" else None
+
+
+def _same_horizontal_crs(a: str, b: str) -> bool:
+    from skyrig.errors import CRSError
+    from skyrig.geodesy.crs import horizontal_crs, resolve_crs
+
+    try:
+        return bool(horizontal_crs(resolve_crs(a)).equals(horizontal_crs(resolve_crs(b)), ignore_axis_order=True))
+    except (CRSError, ValueError, TypeError):
+        return a == b
+
+
+def crs_disagreement(candidates: list[tuple[str, str]]) -> str | None:
+    """Words listing the candidates when the output CRSs the inputs state differ in their horizontal CRS (None
+    when they agree or there are fewer than two); geographic ones (a trajectory in EPSG:4979) are no candidates
+    for the output CRS and are left out."""
+    from skyrig.errors import CRSError
+    from skyrig.geodesy.crs import horizontal_crs, resolve_crs
+
+    projected = []
+    for crs, where in candidates:
+        try:
+            if horizontal_crs(resolve_crs(crs)).is_geographic:
+                continue
+        except (CRSError, ValueError, TypeError):
+            pass
+        projected.append((crs, where))
+    if len(projected) < 2 or all(_same_horizontal_crs(projected[0][0], c) for c, _ in projected[1:]):
+        return None
+    return "; ".join(f"{c} from {w}" for c, w in projected)
+
+
 def detect_inputs(folder: str | Path) -> Detected:
     """Find the inputs of a flight in ``folder`` (and its sub-folders, two levels, skipping ``truth``, ``scene``,
     ``output``...): image folders, a trajectory (skyrig CSV or SBET), camera events, a rig file, an EO file,
     control / check points and their image measurements, by reading each candidate with skyrig's readers.
 
-    The output CRS is taken from the trajectory's or EO file's header, else the control points' CRS, else the
-    UTM zone of the images' EXIF GPS; the terrain height for guided matching from the control points."""
+    The output CRS is taken from the trajectory's or EO file's header or side-car (``NAME.csv.json``), else the
+    control points' CRS, else the UTM zone of the images' EXIF GPS (every stated one is kept in
+    ``crs_candidates``: :func:`project_template` refuses, listing them, when they differ); the terrain height for
+    guided matching from the control points."""
     from skyrig.io.image_read import read_image_metadata
 
     root = Path(folder).absolute()
@@ -362,11 +416,12 @@ def detect_inputs(folder: str | Path) -> Detected:
     found: dict[str, list[Path]] = {"trajectory": [], "events": [], "EO file": [], "rig file": []}
     for f in files:
         suf, first = f.suffix.lower(), _first_line(f)
-        if suf in (".out", ".sbet") or (suf == ".csv" and first.startswith("# skyrig-trajectory")):
+        if suf in (".out", ".sbet") or (suf == ".csv" and (first.startswith("# skyrig-trajectory")
+                                                           or _side_car_table(f).startswith("skyrig-trajectory"))):
             found["trajectory"].append(f)
         elif suf == ".csv" and first.startswith("# skyrig-events"):
             found["events"].append(f)
-        elif suf == ".csv" and first.startswith("# skyrig-eo"):
+        elif suf == ".csv" and (first.startswith("# skyrig-eo") or _side_car_table(f).startswith("skyrig-eo")):
             found["EO file"].append(f)
         elif suf in (".yaml", ".yml") and f.name != "project.yaml":
             from skyrig.io.rig_file import read_rig
@@ -396,17 +451,23 @@ def detect_inputs(folder: str | Path) -> Detected:
         d.notes.append(f"both a trajectory and an EO file ({d.eo.name}): the trajectory is used (rig mode)")
         d.eo = None
     for src, what in ((d.trajectory, "trajectory"), (d.eo, "EO file")):
-        if src is not None and src.suffix.lower() == ".csv" and d.crs is None:
+        if src is not None and src.suffix.lower() == ".csv":
             c = _header_crs(src)
             if c:
-                d.crs, d.crs_source = c, f"the {what}'s header"
+                d.crs_candidates.append((c, f"the {what}'s header ({src.name})"))
+            else:
+                c = _side_car_crs(src)
+                if c:
+                    d.crs_candidates.append((c, f"the {what}'s side-car ({src.name}.json)"))
     pts = None
     if d.control is not None:  # control points that do not read are refused (were left out with a note)
         from skyrig.io.points_csv import read_points_csv
 
         pts = read_points_csv(d.control)
-        if d.crs is None and pts.frame.kind == "map":
-            d.crs, d.crs_source = str(pts.frame.crs), "the control points' CRS"
+        if pts.frame.kind == "map":
+            d.crs_candidates.append((str(pts.frame.crs), f"the control points' CRS ({d.control.name})"))
+    if d.crs_candidates:
+        d.crs, d.crs_source = d.crs_candidates[0]
     if pts is not None and len(pts):
         import numpy as np
 
@@ -472,6 +533,11 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
         from skyrig.pipeline.run import STAGES
 
         registry = STAGES
+    if not crs:
+        clash = crs_disagreement(det.crs_candidates)
+        if clash:
+            raise InputFormatError(f"the inputs state different output CRSs ({clash}): skyrig init does not choose; "
+                                   "give one (option --crs)", det.folder)
     crs = crs or det.crs
     free = (not crs and det.images and not det.exif_gps and det.trajectory is None and det.eo is None
             and det.control is None)
