@@ -47,6 +47,10 @@ seconds, and ``ratio = MP/s chain / MP/s raw`` (issue 10 goal: >= 0.6).  ``match
 actually ran SGM on (blocks with their context and search-width margins are counted by their interior only;
 a block reaching several ground tiles is matched once per tile).
 
+Quality, in the same run: every size's DSM is judged against the scene's truth (:func:`judge`: cells within 2 GSD
+of building outlines valid / off by more than 5 GSD / RMSE, flat cells valid / outliers / NMAD), so a faster path
+shows its edge quality next to its speed.
+
 ``--profile N`` runs the chain for the N-image block under cProfile in this process and prints the functions
 with the most own time and cumulative time.  Nothing is written into the repository.
 """
@@ -67,6 +71,8 @@ from pathlib import Path
 import numpy as np
 
 N_STRIPS, N_PER_STRIP = 4, 16
+#: metres by which the judged area exceeds the rectangle of the sub-block's projection centres
+JUDGE_MARGIN_M = 60.0
 LAYOUT = {4: (2, 2), 8: (2, 4), 16: (4, 4), 32: (4, 8), 64: (4, 16)}
 
 
@@ -160,15 +166,20 @@ def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,
                                      "chain_cpu_s": time.process_time() - c0, "phases": _phases.totals()}
 
 
-def warm_up(eo, cameras, loader, out_frame, hr) -> dict:  # type: ignore[no-untyped-def]
+def warm_up(eo, cameras, loader, out_frame, hr, lr_check: str | None = None,  # type: ignore[no-untyped-def]
+            with_cloud: bool = True) -> dict:
     """The chain's one-time start-up in a fresh process (numba loading its compiled kernels from the cache, LLVM
     set-up, first OpenCV calls), paid once per process whatever the block: the whole chain on a 10 x 10 m area
-    in the block's middle with 64-pixel blocks (every kernel runs once, on the same types as the timed run)."""
+    in the block's middle with 64-pixel blocks (every kernel runs once, on the same types and options as the timed
+    run: a kernel variant the warm-up does not run would be compiled inside the chain's time)."""
     from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
 
     c0, t0 = time.process_time(), time.perf_counter()
     m = eo.to_frame(out_frame).centre[:, :2].mean(axis=0)
-    plan = plan_dense(eo, cameras, out_frame, hr, (m[0] - 5, m[1] - 5, m[0] + 5, m[1] + 5), DenseConfig(block_px=64))
+    cfg = DenseConfig(block_px=64, cloud=with_cloud)
+    if lr_check is not None:
+        cfg = replace(cfg, sgm=replace(cfg.sgm, lr_check=lr_check))
+    plan = plan_dense(eo, cameras, out_frame, hr, (m[0] - 5, m[1] - 5, m[0] + 5, m[1] + 5), cfg)
     assemble(plan, [run_tile(plan, k, loader) for k in range(len(plan.tiles))])
     return {"startup_s": time.perf_counter() - t0, "startup_cpu_s": time.process_time() - c0}
 
@@ -243,15 +254,33 @@ def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, col
 
     eo, cameras, loader, out_frame, hr = setup(cache, n)
     cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
-    start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr)
+    start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr, lr_check, with_cloud)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check, with_cloud)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     raw = run_raw(plan, loader)
     h = dsm.height
-    return {"n": n, "pairs": stats.pairs, "tiles": stats.tiles, "blocks": stats.blocks, "points": stats.points,
+    q = judge(dsm, eo, plan.gsd_m)
+    return {"judge": q, "n": n, "pairs": stats.pairs, "tiles": stats.tiles, "blocks": stats.blocks, "points": stats.points,
             "matched_mp": stats.megapixels, "cells": int(h.size), "valid_cells": float(np.isfinite(h).mean()),
             "rss0_mb": rss0 / 1024, "rss_chain_mb": rss_chain / 1024, **t, **raw, **start}
+
+
+def judge(dsm, eo, gsd_m: float) -> dict:  # type: ignore[no-untyped-def]
+    """The DSM against the scene's truth (:func:`skyrig.simulate.judge.judge_dsm`) inside the rectangle of the
+    sub-block's projection centres grown by :data:`JUDGE_MARGIN_M` (a third of an image's ground footprint: the
+    scene's buildings are sparse, the centres' rectangle of the small blocks holds next to none): completeness,
+    outliers (> 5 GSD), RMSE and NMAD of the cells within 2 GSD of building outlines (edge) and of the others
+    (flat)."""
+    from skyrig.simulate.judge import judge_dsm
+    from skyrig.simulate.scenarios import build_survey
+
+    c = eo.centre
+    g = JUDGE_MARGIN_M
+    r = judge_dsm(dsm, build_survey(bench_spec()).scene, gsd_m, (float(c[:, 0].min()) - g, float(c[:, 1].min()) - g,
+                                                                 float(c[:, 0].max()) + g, float(c[:, 1].max()) + g))
+    return {k: {f: r[k][f] for f in ("n", "completeness", "outliers", "rmse_gsd", "nmad_gsd", "bias_gsd")}
+            for k in ("edge", "flat")}
 
 
 def profile(cache: Path, n: int, top: int = 25) -> None:
@@ -357,6 +386,15 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{r['n']:>6} {r['chain_cpu_s']:>7.2f} {r['raw_cpu_s']:>6.2f} {r['raw_cpu_s'] / r['chain_cpu_s']:>5.2f} "
               f"{r['raw_ov_cpu_s']:>6.2f} {r['raw_ov_cpu_s'] / r['chain_cpu_s']:>8.2f}  "
               + " ".join(f"{r['phases'].get(k, (0, 0))[1]:>11.2f}" for k in names))
+    print("\nDSM against the scene's truth inside the projection centres' rectangle + JUDGE_MARGIN_M (edge: cells within 2 GSD of "
+          "building outlines; outliers: valid cells off by > 5 GSD):")
+    print(f"{'images':>6} {'edge cells':>10} {'edge valid %':>12} {'edge outl %':>11} {'edge RMSE':>9} "
+          f"{'flat valid %':>12} {'flat outl %':>11} {'flat NMAD':>9}  (RMSE, NMAD in GSD)")
+    for r in rows:
+        e, f = r["judge"]["edge"], r["judge"]["flat"]
+        print(f"{r['n']:>6} {e['n']:>10} {100 * e['completeness']:>12.2f} {100 * e['outliers']:>11.2f} "
+              f"{e['rmse_gsd']:>9.2f} {100 * f['completeness']:>12.2f} {100 * f['outliers']:>11.2f} "
+              f"{f['nmad_gsd']:>9.3f}")
     tot_c = sum(r["chain_s"] for r in rows)
     tot_r = sum(r["raw_s"] for r in rows)
     cpu_c = sum(r["chain_cpu_s"] for r in rows)

@@ -16,6 +16,14 @@ phone walk with GPS only -> GPS-neighbour pairs):
 Penta-rig precision (``--penta-only`` runs just this, no data needed): tie precision per head-pair class on the
 simulator's MIDAS block against its truth, oblique rectification off vs on (:func:`penta_rig_precision`).
 
+Speed side by side (``--speed``, issue 35: skyrig <= 1.0 x pycolmap's extraction + matching): on the first
+``--images`` images of brighton-uav, in one process one after the other, skyrig's :func:`match_images` (features,
+footprint-guided pairs from the DJI metadata, verified matches, tracks) and pycolmap's ``extract_features`` +
+``match_exhaustive`` (COLMAP's SIFT and its matching with geometric verification), both at ``--max-size`` (0: full
+resolution), ``--max-features``, 2 threads each; wall seconds and CPU seconds of the process (all threads; the CPU
+figure holds on a shared machine) (:func:`speed_side_by_side`).  COLMAP's ``max_num_features`` bounds the detected
+keypoints, each of which may get two orientations (descriptors), so it ends with up to twice the budget.
+
 Growth: pair counts and matching times of guided vs exhaustive on the first n images (n = 6, 12, 18).
 Nothing is written into the repository; everything goes under --work.
 """
@@ -24,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import time
 from pathlib import Path
@@ -87,6 +96,53 @@ def run_dataset(name: str, images: Path, work: Path, fc: FeatureConfig, mode: st
             "rms_relative_to_extent": float(np.sqrt(np.mean(d**2)) / extent),
         }
     return res
+
+
+def speed_side_by_side(images: Path, work: Path, fc: FeatureConfig, n_images: int) -> dict:
+    """skyrig's matching and pycolmap's extraction + exhaustive matching on the first ``n_images`` images, timed in
+    wall and process CPU seconds (see the module docstring)."""
+    import resource
+
+    import pycolmap
+
+    from skyrig.io.image_read import list_images
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    sub = work / f"speed_{n_images}"
+    shutil.rmtree(sub, ignore_errors=True)
+    (sub / "images").mkdir(parents=True)
+    for p in list_images(images)[:n_images]:
+        (sub / "images" / p.name).symlink_to(p.resolve())
+    t, c = time.perf_counter(), cpu()
+    r = match_images([sub / "images"], sub / "skyrig", fc, pair_mode="guided")
+    sk = {"wall_s": time.perf_counter() - t, "cpu_s": cpu() - c, "pairs": len(r.pairs),
+          "pairs_matched": r.report["pairs_matched"], "features_wall_s": r.timings_s["features"],
+          "matching_wall_s": r.timings_s["matching"],
+          "features_per_image": float(np.mean([len(f) for f in r.features]))}
+    db = sub / "colmap.db"
+    t, c = time.perf_counter(), cpu()
+    eo = pycolmap.FeatureExtractionOptions()
+    eo.max_image_size = int(fc.max_size or 100000)
+    eo.sift.max_num_features = int(fc.max_features)
+    eo.use_gpu = False
+    eo.num_threads = 2
+    pycolmap.extract_features(db, sub / "images", image_names=list(r.names), camera_mode=pycolmap.CameraMode.SINGLE,
+                              extraction_options=eo, device=pycolmap.Device.cpu)
+    t_ex, c_ex = time.perf_counter() - t, cpu() - c
+    mo = pycolmap.FeatureMatchingOptions()
+    mo.use_gpu = False
+    mo.num_threads = 2
+    pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+    pc = {"wall_s": time.perf_counter() - t, "cpu_s": cpu() - c, "extraction_wall_s": t_ex, "extraction_cpu_s": c_ex,
+          "pairs": len(r.names) * (len(r.names) - 1) // 2}
+    with pycolmap.Database.open(db) as d:
+        pc["features_per_image"] = float(np.mean([d.read_keypoints(im.image_id).shape[0] for im in d.read_all_images()]))
+    return {"images": len(r.names), "max_size": fc.max_size, "max_features": fc.max_features, "skyrig": sk,
+            "pycolmap": pc, "ratio_wall": sk["wall_s"] / pc["wall_s"], "ratio_cpu": sk["cpu_s"] / pc["cpu_s"],
+            "load_average": os.getloadavg()}
 
 
 def growth(images: Path, work: Path, fc: FeatureConfig, sizes: list[int]) -> list[dict]:
@@ -210,6 +266,9 @@ def main() -> None:
     ap.add_argument("--method", default="pycolmap")
     ap.add_argument("--datasets", default="brighton,lund")
     ap.add_argument("--skip-growth", action="store_true")
+    ap.add_argument("--speed", action="store_true",
+                    help="only skyrig vs pycolmap extraction + matching time on brighton's first --images images")
+    ap.add_argument("--images", type=int, default=6, help="images of the --speed comparison")
     ap.add_argument("--penta-only", action="store_true",
                     help="only the simulated penta-rig precision table (no shared data needed)")
     a = ap.parse_args()
@@ -218,7 +277,10 @@ def main() -> None:
         return
     data, work = Path(a.data), Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
-    fc = FeatureConfig(method=a.method, max_size=a.max_size, max_features=a.max_features)
+    fc = FeatureConfig(method=a.method, max_size=a.max_size or None, max_features=a.max_features)
+    if a.speed:
+        print(json.dumps(speed_side_by_side(data / "brighton-uav", work, fc, a.images), indent=1))
+        return
     results = {"config": {"max_size": a.max_size, "max_features": a.max_features, "method": a.method}}
     # lund is a forward-moving phone walk: COLMAP's incremental mapper cannot initialise on it (with its own
     # matches either), so both pipelines use the global mapper there

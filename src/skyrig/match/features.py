@@ -51,6 +51,14 @@ class FeatureConfig:
     rectify_min_tilt_deg: float = 20.0
     #: Largest rectified image as a multiple of the image's own pixel count (the far field is coarsened beyond).
     rectify_max_area: float = 3.0
+    #: COLMAP's SIFT (``method="pycolmap"``) starts at octave -1 (the image upsampled 2 x: four times the pixels).
+    #: Its budget keeps the largest scales, so on a large image that fills ``max_features`` from octave 0 on the
+    #: upsampled octave's keypoints are dropped after costing most of the time.  ``None`` (auto): octave 0 when the
+    #: detected image has at least :data:`OCTAVE0_PIXELS_PER_FEATURE` pixels per feature of the budget, and octave
+    #: -1 again if octave 0 then falls short of the budget; otherwise -1 (COLMAP's default).  ``-1`` / ``0``: always
+    #: that octave.  brighton-uav at full resolution (4000 x 2250, 8,000 features): 19.4 -> 3.2 CPU s per image,
+    #: 97.5 % of the keypoints within 0.5 px of octave -1's (91.7 % within 0.05 px).
+    colmap_first_octave: int | None = None
 
     def __post_init__(self) -> None:
         if self.method not in ("opencv", "pycolmap"):
@@ -61,6 +69,8 @@ class FeatureConfig:
             raise ConfigError("max_features must be positive")
         if self.rectify not in ("off", "oblique", "always"):
             raise ConfigError(f"unknown rectify mode {self.rectify!r} (off, oblique or always)")
+        if self.colmap_first_octave not in (None, -1, 0):
+            raise ConfigError(f"colmap_first_octave must be None (auto), -1 or 0, not {self.colmap_first_octave!r}")
 
 
 @dataclass(frozen=True)
@@ -145,6 +155,20 @@ def _quantise(desc: NDArray[np.float32]) -> NDArray[np.uint8]:
     return np.clip(np.round(d * 512.0), 0, 255).astype(np.uint8)
 
 
+#: auto first octave of COLMAP's SIFT (:attr:`FeatureConfig.colmap_first_octave`): octave 0 is tried on images with
+#: at least this many pixels per feature of the budget (brighton's 9.0 MP frames gave 10,693 keypoints from octave 0,
+#: 1.2 per 1,000 pixels; a default 1,600 px level of them, 1.4 MP, stays at octave -1)
+OCTAVE0_PIXELS_PER_FEATURE = 800
+
+
+def first_octave(config: FeatureConfig, shape: tuple[int, ...]) -> int:
+    """The first octave COLMAP's SIFT is run at first on an image of ``shape`` (see
+    :attr:`FeatureConfig.colmap_first_octave`)."""
+    if config.colmap_first_octave is not None:
+        return int(config.colmap_first_octave)
+    return 0 if shape[0] * shape[1] >= OCTAVE0_PIXELS_PER_FEATURE * config.max_features else -1
+
+
 def _colmap_sift(opts: object) -> object:
     import warnings
 
@@ -207,7 +231,11 @@ def _detect(level: NDArray[np.uint8], config: FeatureConfig) -> tuple[NDArray, .
     opts.sift.max_num_features = config.max_features
     opts.sift.peak_threshold = config.contrast_threshold / 3.0
     opts.use_gpu = False
+    opts.sift.first_octave = first_octave(config, level.shape)
     kp, desc = _colmap_sift(opts).extract(np.ascontiguousarray(level))  # type: ignore[attr-defined]
+    if opts.sift.first_octave == 0 and config.colmap_first_octave is None and len(kp) < config.max_features:
+        opts.sift.first_octave = -1  # the budget is not filled without the upsampled octave: COLMAP's default
+        kp, desc = _colmap_sift(opts).extract(np.ascontiguousarray(level))  # type: ignore[attr-defined]
     kp = np.asarray(kp, dtype=np.float64).reshape(-1, 4)
     xy = kp[:, :2] - 0.5  # COLMAP: origin at the top-left corner of the top-left pixel
     size = kp[:, 2] * 2.0
