@@ -70,9 +70,27 @@ from skyrig.io.trajectory_csv import read_trajectory_csv
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
-__all__ = ["LiveConfig", "LiveRun", "image_complete", "run_live"]
+__all__ = ["FlightPaths", "LiveConfig", "LiveRun", "image_complete", "run_live"]
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FlightPaths:
+    """Where a flight is recorded: the rig file (present from the start), the trajectory and events CSV files and
+    the image folder (written as the flight goes), and the file whose appearance says the flight is over."""
+
+    rig: Path
+    trajectory: Path
+    events: Path
+    images: Path
+    end: Path
+
+    @classmethod
+    def of_folder(cls, folder: str | os.PathLike[str]) -> "FlightPaths":
+        """The layout of a watched flight folder (module docstring)."""
+        f = Path(folder)
+        return cls(f / "rig.yaml", f / "trajectory.csv", f / "events.csv", f / "images", f / "flight.end")
 
 
 @dataclass(frozen=True)
@@ -176,15 +194,16 @@ class _Exposure:
 class LiveRun:
     """One live run over a watched folder (:meth:`poll` once, :meth:`run` until the flight ends)."""
 
-    def __init__(self, folder: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+    def __init__(self, folder: str | os.PathLike[str] | FlightPaths, out: str | os.PathLike[str] | None = None,
                  config: LiveConfig = LiveConfig(), say: Callable[[str], None] | None = None) -> None:
-        self.folder = Path(folder)
+        self.paths = folder if isinstance(folder, FlightPaths) else FlightPaths.of_folder(folder)
+        self.folder = self.paths.events.parent
         self.out = Path(out) if out is not None else self.folder / "live"
         self.config = config
         self.say = say or (lambda line: logger.warning("%s", line))
-        rig_path = self.folder / "rig.yaml"
+        rig_path = self.paths.rig
         if not rig_path.is_file():
-            raise SkyrigError(f"{rig_path}: no rig file in the watched folder (the live run needs it from the start)")
+            raise SkyrigError(f"{rig_path}: no rig file (the live run needs it from the start)")
         self.rig_nominal: Rig = read_rig(rig_path)
         self.rig: Rig = self.rig_nominal
         self.cameras: dict[str, FrameCamera] = {h.camera.name: h.camera for h in self.rig_nominal}
@@ -252,31 +271,31 @@ class LiveRun:
         self.reported.append(line)
         self.say(line)
 
-    def _read_table(self, name: str, current: str | None, reader: Callable[[Path], Any], min_rows: int
+    def _read_table(self, path: Path, current: str | None, reader: Callable[[Path], Any], min_rows: int
                     ) -> tuple[str | None, Any]:
-        text = _complete_lines(self.folder / name)
+        text = _complete_lines(path)
         if text is None or text == current:
             return current, None
         if sum(1 for line in text.splitlines() if line.strip() and not line.startswith("#")) < 1 + min_rows:
             return current, None  # the column header and fewer rows than a reader takes
-        snap = self.out / "_inputs" / name
+        snap = self.out / "_inputs" / path.name
         with atomic_write(snap, "w", newline="") as fh:
             fh.write(text)
         try:
             return text, reader(snap)
         except SkyrigError as exc:
-            line = f"{self.folder / name}: cannot be read ({exc}); waiting for more lines"
+            line = f"{path}: cannot be read ({exc}); waiting for more lines"
             if line not in self.reported:
                 self._report(line)
             return text, None
 
     def _read_inputs(self, now: float) -> None:
-        text, traj = self._read_table("trajectory.csv", self._traj_text, read_trajectory_csv, 2)
+        text, traj = self._read_table(self.paths.trajectory, self._traj_text, read_trajectory_csv, 2)
         if traj is not None:
             self._traj_text, self.trajectory = text, traj
             self._traj_changed_wall = now
             self._last_input_wall = now
-        text, ev = self._read_table("events.csv", self._ev_text, read_events_csv, 1)
+        text, ev = self._read_table(self.paths.events, self._ev_text, read_events_csv, 1)
         if ev is not None:
             self._ev_text, self.events = text, ev
             self._last_input_wall = now
@@ -291,7 +310,7 @@ class LiveRun:
     def _check_image(self, img: _Image, now: float) -> None:
         if img.written_wall is not None or img.failed:
             return
-        p = self.folder / "images" / img.name
+        p = self.paths.images / img.name
         try:
             st = p.stat()
         except OSError:
@@ -355,9 +374,11 @@ class LiveRun:
         self._write_status()
         return done
 
-    def run(self, stop: threading.Event | None = None, max_wall_s: float | None = None) -> dict[str, Any]:
-        """Poll until ``FOLDER/flight.end`` exists and nothing is waiting, ``stop`` is set, no input came for
-        ``idle_stop_s`` or ``max_wall_s`` passed; then :meth:`finish`."""
+    def run(self, stop: threading.Event | None = None, max_wall_s: float | None = None, complete: bool = False
+            ) -> dict[str, Any]:
+        """Poll until ``FOLDER/flight.end`` exists (or the flight is ``complete`` already: a recorded flight) and
+        nothing is waiting, ``stop`` is set, no input came for ``idle_stop_s`` or ``max_wall_s`` passed; then
+        :meth:`finish`."""
         t0 = time.time()
         while True:
             busy = self.poll()
@@ -365,7 +386,7 @@ class LiveRun:
             waiting = any(x.state == "waiting" for x in self.exposures.values())
             if stop is not None and stop.is_set():
                 break
-            if (self.folder / "flight.end").exists() and not waiting and self._read_done():
+            if (complete or self.paths.end.exists()) and not waiting and self._read_done():
                 break
             if self.config.idle_stop_s is not None and now - self._last_input_wall > self.config.idle_stop_s:
                 break
@@ -376,7 +397,7 @@ class LiveRun:
         return self.finish()
 
     def _read_done(self) -> bool:
-        return _complete_lines(self.folder / "events.csv") == self._ev_text
+        return _complete_lines(self.paths.events) == self._ev_text
 
     # ------------------------------------------------------------------------------------------ processing
     def height_at(self, x: NDArray, y: NDArray) -> NDArray[np.float64]:
