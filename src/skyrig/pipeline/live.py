@@ -13,14 +13,22 @@ trajectory reaches past its time:
 
 1. **direct georeferencing** (:func:`skyrig.georef.direct.direct_georeference`) with the rig as calibrated online
    so far;
-2. an **ortho tile** per image: the true-ortho code (:func:`skyrig.dense.ortho.orthomosaic`) on the image alone,
-   onto the reference surface (a plane at ``surface_height_m``), painted into the XYZ tiles of layer ``ortho``;
-3. a **DSM tile** as soon as the exposure has a stereo partner (the previous exposure of the same strip, stereo
-   head, e.g. nadir): :func:`skyrig.dense.surface.dense_surface` on the pair, coloured by height into layer ``dsm``
-   (in a worker thread: it may lag the orthos by a few exposures);
+2. **ortho tiles** per image: the image resampled straight onto the Web Mercator pixels of the XYZ tiles (layer
+   ``ortho``) it touches at every zoom, over the reference surface (the DEM, else the plane at
+   ``surface_height_m``): :func:`skyrig.dense.grid_rectify.rectify_onto_grid`, a coarser zoom from the image
+   reduced by ``cv2.pyrDown``; the exposure's tiles composited in memory and written once
+   (:func:`skyrig.io.xyz_tiles.paint_tiles`, with a cache of the tiles written last);
+3. a **DSM tile** as soon as the exposure has a stereo partner (the exposure before or after it in the same strip,
+   stereo head, e.g. nadir): :func:`skyrig.dense.surface.dense_surface` on the pair, coloured by height into layer
+   ``dsm`` (in a worker thread: it may lag the orthos by a few exposures);
 4. the **online boresight** (:mod:`skyrig.calibrate.online_boresight`, worker thread): features of the new images,
    guided matching against the recent exposures, and every ``window`` exposures a rig adjustment of the window
    with the boresights free; the combination of the windows so far calibrates the rig of later exposures.
+
+Scheduling: each :meth:`LiveRun.poll` processes the newest ready exposure; older ready ones (the chain fell behind)
+are caught up by later polls and painted beneath what the tiles hold (``caught_up`` in ``latency.jsonl``).  The
+DSM and the online boresight run in worker threads at a lower priority (nice +5, +10 on Linux), the online
+boresight fed in time order (a window is consecutive exposures).
 
 Inputs are polled (``os.stat`` every ``poll_s``), not watched through inotify (``watchdog``): completion of a file
 cannot be told from file-system events anyway (a camera or a copy tool writes in pieces, network shares deliver no
@@ -62,6 +70,7 @@ from skyrig.errors import SkyrigError
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.io import xyz_tiles
+from skyrig.match.features import FeatureConfig
 from skyrig.io._text import atomic_write
 from skyrig.io.events_csv import read_events_csv
 from skyrig.io.images import read_image
@@ -100,7 +109,9 @@ class LiveConfig:
     ``dem_path``: a reference DEM (GeoTIFF, ellipsoidal heights of its CRS, e.g. a public 30 m DEM) the orthos are
     projected on and the online boresight's reference heights come from, with ``surface_sigma_m``; without one
     (and outside it) the plane at ``surface_height_m``.  ``crs``: output map CRS (projected, metres).
-    ``window``: exposures per online adjustment (0: no online boresight).  ``stereo_head``: the head whose
+    ``window``: exposures per online adjustment (0: no online boresight); ``features``: SIFT features per image
+    for its tie points (800: as many tie points survive the thinning to 2 per cell as with 1,500, at 0.55 x the
+    matching time).  ``stereo_head``: the head whose
     consecutive images make the DSM pairs (None: the head closest to nadir).  ``zoom_levels``: tile levels below
     the finest (which matches the ortho cell)."""
 
@@ -112,6 +123,7 @@ class LiveConfig:
     dsm: bool = True
     dsm_height_range_m: float = 150.0
     window: int = 8
+    features: int = 800
     stereo_head: str | None = None
     zoom_levels: int = 4
     poll_s: float = 0.2
@@ -628,7 +640,8 @@ class LiveRun:
         cpu0 = time.thread_time()
         try:
             for n in eo.image:
-                self._features[str(n)] = ob.features_of(arrays[str(n)])
+                self._features[str(n)] = ob.features_of(arrays[str(n)], FeatureConfig(
+                    max_size=None, max_features=self.config.features))
             self._cal_eo.append(eo)
             win = self.config.window
             if len(self._cal_eo) < win:
