@@ -76,7 +76,8 @@ def rectify_onto_grid(image: NDArray[np.uint8], eo: ExteriorOrientations, i: int
     mu, mv = rectify_maps(eo, i, camera, grid_crs, xmin, ymax, pixel, width, height, height_at, step, level)
     img = image if image.ndim == 3 else np.dstack([image] * 3)
     src = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2RGBA)  # alpha 255 inside the image
-    out = cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    out = np.asarray(cv2.remap(src, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0),
+                     np.uint8)
     # a pixel whose bilinear footprint reaches outside the image (alpha < 255) has no whole colour: none
     out[..., 3] = cv2.threshold(np.ascontiguousarray(out[..., 3]), 254, 255, cv2.THRESH_BINARY)[1]
     return out
@@ -100,14 +101,16 @@ def rectify_maps(eo: ExteriorOrientations, i: int, camera: FrameCamera, grid_crs
     u, v = grid_to_image(eo, i, camera, grid_crs, gx, gy, height_at)
     if f > 1:  # pixel centres of the reduced image (cv2.pyrDown halves about the pixel centres' grid)
         u, v = (u + 0.5) / f - 0.5, (v + 0.5) / f - 0.5
+    mu: NDArray[np.float32]
+    mv: NDArray[np.float32]
     if step == 1:
         mu, mv = u[1:-1, 1:-1].astype(np.float32), v[1:-1, 1:-1].astype(np.float32)
     else:
         size = ((n + 2) * step, (m + 2) * step)
-        mu = cv2.resize(u.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)[step:step + height,
-                                                                                      step:step + width]
-        mv = cv2.resize(v.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)[step:step + height,
-                                                                                      step:step + width]
+        mu = np.asarray(cv2.resize(u.astype(np.float32), size, interpolation=cv2.INTER_LINEAR),
+                        np.float32)[step:step + height, step:step + width]
+        mv = np.asarray(cv2.resize(v.astype(np.float32), size, interpolation=cv2.INTER_LINEAR),
+                        np.float32)[step:step + height, step:step + width]
     mu, mv = np.ascontiguousarray(mu), np.ascontiguousarray(mv)
     cv2.patchNaNs(mu, -10.0)  # behind the camera or no height: outside the image
     cv2.patchNaNs(mv, -10.0)
