@@ -38,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--half-length", type=float, default=2450.0)
     ap.add_argument("--max-exposures", type=int, default=None)
     ap.add_argument("--dem-sigma", type=float, default=2.0)
+    ap.add_argument("--features", type=int, default=800,
+                    help="SIFT features per image of the online boresight and of the batch calibration it is judged "
+                         "against (the same observations)")
     a = ap.parse_args(argv)
     from skyrig._plain import plain
     from skyrig.pipeline import live_check as lc
@@ -60,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     dem = flight / "reference_dem.tif"
     if not dem.exists():
         lc.reference_dem(flight, crs)
-    cfg = LiveConfig(surface_height_m=height, crs=crs, window=a.window, dem_path=str(dem), surface_sigma_m=a.dem_sigma)
+    cfg = LiveConfig(surface_height_m=height, crs=crs, window=a.window, dem_path=str(dem), surface_sigma_m=a.dem_sigma,
+                     features=a.features)
     run = LiveRun(watch, out / "live", cfg,
                   say=lambda line: print("live:", line, flush=True))
     import os
@@ -84,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{s['process_cpu_s_per_exposure']:.2f} (interval {iv:.2f} s)", flush=True)
     truth = lc.true_corrections(flight)
     t = time.time()
-    batch = lc.batch_boresight(flight, crs, a.max_exposures, dem, a.dem_sigma)
+    batch = lc.batch_boresight(flight, crs, a.max_exposures, dem, a.dem_sigma, a.features)
     print(f"batch calibration {time.time() - t:.0f} s: sigma0 {batch.sigma0:.3f}, {batch.n_points} points")
     t = time.time()
     gcp = lc.batch_boresight(flight, crs, a.max_exposures)

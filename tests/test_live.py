@@ -324,7 +324,7 @@ def test_rate_replay_against_batch(tmp_path):
     assert s["exposures_done"] == 16 and not s["reported"], s["reported"]
     assert s["ortho_cpu_s"]["median"] < s["exposure_interval_flight_s"]
     assert s["dsm_latency_s"]["n"] >= 12
-    batch = lc.batch_boresight(fl, "EPSG:25832", 16, dem, 2.0)
+    batch = lc.batch_boresight(fl, "EPSG:25832", 16, dem, 2.0, LiveConfig().features)  # the same observations
     truth = lc.true_corrections(fl)
     est = run.estimate
     assert est.n_exposures == 16

@@ -618,7 +618,9 @@ def _live_step(outdir: str | Path) -> None:
     if verify_folder(live_out) or not (proj / "output" / "georef" / "eo.csv").is_file():
         raise click.ClickException(f"demo checks FAILED (live project: {verify_folder(live_out)[:1]})")
     s = json.loads((live_out / "summary.json").read_text())
-    batch = lc.batch_boresight(flight, "EPSG:25832", None, dem, 2.0)
+    from skyrig.pipeline.live import LiveConfig
+
+    batch = lc.batch_boresight(flight, "EPSG:25832", None, dem, 2.0, LiveConfig().features)  # same observations
     truth = lc.true_corrections(flight)
     worst_b = worst_t = 0.0
     for h in sorted(s["boresight_deg"]):
