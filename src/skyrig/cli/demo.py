@@ -599,7 +599,8 @@ def _live_step(outdir: str | Path) -> None:
 
     from skyrig.io.stage import verify_folder
 
-    click.echo("\n=== skyrig run --live: a 3K flight replayed into a project's inputs, judged against the batch answer ===")
+    click.echo("\n=== skyrig run --live: a 3K flight replayed into a project's inputs, judged against the batch "
+               "answer ===")
     base = Path(outdir) / "live"
     flight, proj = base / "flight", base / "project"
     if not (flight / "events.csv").exists():
