@@ -118,10 +118,10 @@ def _flight(folder: Path, crs: str):
 
 
 def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = None,
-                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, features: int = 1500
+                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500
                     ) -> ob.WindowEstimate:
     """The batch calibration: every exposure (or the first ``max_exposures``) in one rig adjustment with the tie
-    points of all images (``features`` SIFT features per image) and either the reference heights of ``dem_path`` (the live run's observations, in one
+    points of all images (``n_features`` SIFT features per image) and either the reference heights of ``dem_path`` (the live run's observations, in one
     adjustment) or, without a DEM, the surveyed control points (``gcp/``) and their image measurements."""
     from skyrig.georef.observations import ImageMeasurements
     from skyrig.io.dem import read_dem
@@ -140,7 +140,7 @@ def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = No
         n = str(eo.image[i])
         if n not in feats:
             feats[n] = ob.features_of(read_image(folder / "images" / n),
-                                      FeatureConfig(max_size=None, max_features=features))
+                                      FeatureConfig(max_size=None, max_features=n_features))
         return feats[n]
 
     pairs = ob.window_pairs(eo.exposure, eo.head, max_lag=1,
