@@ -121,8 +121,9 @@ def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = No
                     dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500
                     ) -> ob.WindowEstimate:
     """The batch calibration: every exposure (or the first ``max_exposures``) in one rig adjustment with the tie
-    points of all images (``n_features`` SIFT features per image) and either the reference heights of ``dem_path`` (the live run's observations, in one
-    adjustment) or, without a DEM, the surveyed control points (``gcp/``) and their image measurements."""
+    points of all images (``n_features`` SIFT features per image) and either the reference heights of
+    ``dem_path`` (the live run's observations, in one adjustment) or, without a DEM, the surveyed control points
+    (``gcp/``) and their image measurements."""
     from skyrig.georef.observations import ImageMeasurements
     from skyrig.io.dem import read_dem
     from skyrig.io.points_csv import read_measurements_csv, read_points_csv
