@@ -38,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--half-length", type=float, default=2450.0)
     ap.add_argument("--max-exposures", type=int, default=None)
     ap.add_argument("--dem-sigma", type=float, default=2.0)
+    ap.add_argument("--features", type=int, default=800,
+                    help="SIFT features per image of the online boresight and of the batch calibration it is judged "
+                         "against (the same observations)")
     a = ap.parse_args(argv)
     from skyrig._plain import plain
     from skyrig.pipeline import live_check as lc
@@ -60,16 +63,32 @@ def main(argv: list[str] | None = None) -> int:
     dem = flight / "reference_dem.tif"
     if not dem.exists():
         lc.reference_dem(flight, crs)
-    cfg = LiveConfig(surface_height_m=height, crs=crs, window=a.window, dem_path=str(dem), surface_sigma_m=a.dem_sigma)
+    cfg = LiveConfig(surface_height_m=height, crs=crs, window=a.window, dem_path=str(dem), surface_sigma_m=a.dem_sigma,
+                     features=a.features)
     run = LiveRun(watch, out / "live", cfg,
                   say=lambda line: print("live:", line, flush=True))
+    import os
+
+    load0 = os.getloadavg()
     rep.start()
     t = time.time()
     s = run.run(max_wall_s=3600)
-    print(f"live run {time.time() - t:.0f} s wall")
+    load1 = os.getloadavg()
+    print(f"live run {time.time() - t:.0f} s wall; load average (1, 5, 15 min) before {load0}, after {load1} "
+          f"on {os.cpu_count()} CPUs")
+    iv = s["exposure_interval_s"]
+    for k in ("ortho_latency_s", "dsm_latency_s", "dsm_latency_exposures", "ortho_cpu_s", "dsm_cpu_s"):
+        v = s.get(k) or {}
+        print(f"{k}: median {v.get('median', float('nan')):.2f}, p90 {v.get('p90', float('nan')):.2f}, "
+              f"max {v.get('max', float('nan')):.2f} (n {v.get('n')})")
+    print(f"interval {iv:.2f} s; orthos within it: {s['ortho_within_interval_fraction']:.0%}; caught up "
+          f"{s['caught_up']}; CPU s per exposure: ortho thread {s['ortho_cpu_s']['median']:.2f}, DSM thread "
+          f"{(s.get('dsm_cpu_s') or {}).get('median', float('nan')):.2f}, online boresight "
+          f"{s['boresight_cpu_s_per_exposure'] or float('nan'):.2f}, whole process "
+          f"{s['process_cpu_s_per_exposure']:.2f} (interval {iv:.2f} s)", flush=True)
     truth = lc.true_corrections(flight)
     t = time.time()
-    batch = lc.batch_boresight(flight, crs, a.max_exposures, dem, a.dem_sigma)
+    batch = lc.batch_boresight(flight, crs, a.max_exposures, dem, a.dem_sigma, a.features)
     print(f"batch calibration {time.time() - t:.0f} s: sigma0 {batch.sigma0:.3f}, {batch.n_points} points")
     t = time.time()
     gcp = lc.batch_boresight(flight, crs, a.max_exposures)
@@ -100,10 +119,12 @@ def main(argv: list[str] | None = None) -> int:
     off["median_offset_gsd"] = off["median_offset_m"] / gsd
     off["p90_offset_gsd"] = off["p90_offset_m"] / gsd
     print(f"batch ortho + comparison {time.time() - t:.0f} s: {off}")
-    res = {"speed": a.speed, "window": a.window, "summary": s, "boresight": rows,
+    res = {"speed": a.speed, "window": a.window, "load_before": load0, "load_after": load1, "summary": s,
+           "boresight": rows,
            "boresight_windows": est.n_windows, "boresight_exposures": est.n_exposures, "mosaic": off}
     (out / "acceptance.json").write_text(json.dumps(plain(res), indent=1))
-    for k in ("exposure_interval_s", "ortho_latency_s", "ortho_cpu_s", "dsm_latency_s", "dsm_latency_exposures"):
+    for k in ("exposure_interval_s", "ortho_latency_s", "ortho_cpu_s", "dsm_latency_s", "dsm_latency_exposures",
+              "dsm_cpu_s", "boresight_cpu_s_per_exposure", "process_cpu_s_per_exposure", "caught_up"):
         print(k, json.dumps(plain(s.get(k))))
     return 0
 

@@ -192,6 +192,110 @@ def test_live_page_in_headless_chromium(flight, tmp_path):
             drv.quit()
 
 
+# --------------------------------------------------------------------------------------------- quick ortho
+def test_rectify_lattice_against_exact_mapping(flight):
+    """The live ortho's maps (exact on a lattice every 8 tile pixels, bilinear in between) against the exact
+    mapping of every pixel (PROJ + camera model per pixel): under a tenth of a pixel at the 99th percentile for the
+    nadir and an oblique head over the reference DEM; and a pixel's colour is the image's at the exact position."""
+    from skyrig.dense.grid_rectify import grid_to_image, rectify_maps, rectify_onto_grid
+    from skyrig.georef.direct import direct_georeference
+    from skyrig.io.dem import read_dem
+    from skyrig.io.events_csv import read_events_csv
+    from skyrig.io.images import read_image
+    from skyrig.io.rig_file import read_rig
+    from skyrig.io.trajectory_csv import read_trajectory_csv
+    from skyrig.georef.eo import WorldFrame
+
+    rig = read_rig(flight / "rig.yaml")
+    ev = read_events_csv(flight / "events.csv")
+    eo = direct_georeference(read_trajectory_csv(flight / "trajectory.csv"), rig, ev.subset([0, 1, 2]),
+                             WorldFrame.map("EPSG:25832"))
+    dem = read_dem(flight / "reference_dem.tif")
+
+    def height_at(x, y):
+        h = dem.sample(x, y)
+        return np.where(np.isfinite(h), h, 80.0)
+
+    cams = {h.camera.name: h.camera for h in rig}
+    from pyproj import Transformer
+
+    to_merc = Transformer.from_crs("EPSG:25832", "EPSG:3857", always_xy=True)
+    for i in range(3):
+        cam = cams[str(eo.camera[i])]
+        d = cam.rays_from_pixels(np.array([[cam.width / 2, cam.height / 2]])) @ eo.rotation[i].T
+        g = eo.centre[i] + (80.0 - eo.centre[i, 2]) / d[0, 2] * d[0]  # the image centre's ground point
+        mx, my = to_merc.transform(g[0], g[1])
+        px, w, h = 1.6, 300, 260
+        x0, y1 = mx - w * px / 2, my + h * px / 2
+        exact_u, exact_v = rectify_maps(eo, i, cam, "EPSG:3857", x0, y1, px, w, h, height_at, step=1)
+        u, v = rectify_maps(eo, i, cam, "EPSG:3857", x0, y1, px, w, h, height_at, step=8)
+        inside = (exact_u >= 0) & (exact_v >= 0) & (exact_u <= cam.width - 1) & (exact_v <= cam.height - 1)
+        assert inside.mean() > 0.3
+        err = np.hypot(u - exact_u, v - exact_v)[inside]
+        assert np.percentile(err, 99) < 0.1 and err.max() < 1.0, (str(eo.head[i]), np.percentile(err, 99))
+        # the exact mapping itself: one grid pixel's centre through pyproj and the camera model directly
+        r, c = h // 3, w // 2
+        gx, gy = x0 + (c + 0.5) * px, y1 - (r + 0.5) * px
+        uu, vv = grid_to_image(eo, i, cam, "EPSG:3857", np.array([gx]), np.array([gy]), height_at)
+        e, n = Transformer.from_crs("EPSG:3857", "EPSG:25832", always_xy=True).transform(gx, gy)
+        from skyrig.geodesy.frame import local_frame_for
+
+        local = local_frame_for(eo.frame.to_ecef(eo.centre[i:i + 1]))
+        el = eo.subset([i]).to_frame(local)
+        p = eo.frame.points_to(np.array([[e, n, float(height_at(np.array([e]), np.array([n]))[0])]]), local)
+        pix = cam.project_pixels((p - el.centre[0]) @ el.rotation[0])[0]
+        assert (uu[0], vv[0]) == pytest.approx((pix[0], pix[1]), abs=1e-6)
+        assert (exact_u[r, c], exact_v[r, c]) == pytest.approx((pix[0], pix[1]), abs=1e-3)
+        img = read_image(flight / "images" / str(eo.image[i]))
+        rgba = rectify_onto_grid(img, eo, i, cam, "EPSG:3857", x0, y1, px, w, h, height_at, step=1)
+        if rgba[r, c, 3]:
+            ref = cv2.remap(img, np.float32([[pix[0]]]), np.float32([[pix[1]]]), cv2.INTER_LINEAR)[0, 0]
+            assert np.abs(rgba[r, c, :3].astype(int) - ref.astype(int)).max() <= 1
+
+
+# --------------------------------------------------------------------------------------------- live project mode
+def test_live_project_mode_then_batch(flight, tmp_path):
+    """skyrig run PROJECT --live --replay FLIGHT --then-batch on a project whose trajectory, events and images do
+    not exist yet: the replayed flight processed live, published as OUTPUT/live (manifest last, consistent, no
+    working folder left), then the batch stages, which find the live stage up to date."""
+    from click.testing import CliRunner
+
+    from skyrig.cli import main
+    from skyrig.errors import InputFormatError
+    from skyrig.io.stage import verify_folder
+    from skyrig.pipeline.project import load_project
+
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    shutil.copyfile(flight / "rig.yaml", proj / "rig.yaml")
+    (proj / "project.yaml").write_text(
+        "format: skyrig-project\nversion: 1\ncrs: EPSG:25832\noutput: out\n"
+        "inputs:\n  images: [images]\n  trajectory: trajectory.csv\n  events: events.csv\n  rig: rig.yaml\n"
+        "stages:\n  live: {height: 80.0, window: 0, trajectory_timeout: 5.0}\n  georef: {}\n")
+    with pytest.raises(InputFormatError, match="trajectory"):
+        load_project(proj)  # batch: the flight is not recorded yet
+    assert load_project(proj, live=True).stage("live").options["height"] == 80.0
+    n_exp = len({ln.split(",")[3] for ln in _lines(flight / "events.csv") if ln[0] != "#" and
+                 not ln.startswith("image,")})
+    r = CliRunner().invoke(main, ["run", str(proj), "--live", "--replay", str(flight), "--speed", "20",
+                                  "--no-serve", "--then-batch"])
+    assert r.exit_code == 0, r.output
+    out = proj / "out"
+    assert (out / "live" / "manifest.json").is_file() and verify_folder(out / "live") == []
+    assert not (out / ".live.running").exists()
+    s = json.loads((out / "live" / "summary.json").read_text())
+    assert s["exposures_done"] == n_exp and s["exposures_skipped"] == 0 and not s["reported"]
+    assert s["dsm_latency_s"]["n"] >= n_exp - 2  # every consecutive pair of a strip
+    tiles = list((out / "live" / "tiles" / "ortho").rglob("*.png"))
+    assert tiles and all(xyz_tiles.read_tile(p) is not None for p in tiles)
+    run = json.loads((out / "run.json").read_text())
+    assert [(st["stage"], st["status"]) for st in run["stages"]] == [("live", "skipped"), ("georef", "done")]
+    assert (out / "georef" / "eo.csv").is_file()
+    # --live alone with batch-only options is refused
+    r = CliRunner().invoke(main, ["run", str(proj), "--live", "--only", "georef"])
+    assert r.exit_code != 0 and "--live" in r.output
+
+
 # --------------------------------------------------------------------------------------------- slow: rate replay
 @pytest.mark.slow
 def test_rate_replay_against_batch(tmp_path):
@@ -220,7 +324,7 @@ def test_rate_replay_against_batch(tmp_path):
     assert s["exposures_done"] == 16 and not s["reported"], s["reported"]
     assert s["ortho_cpu_s"]["median"] < s["exposure_interval_flight_s"]
     assert s["dsm_latency_s"]["n"] >= 12
-    batch = lc.batch_boresight(fl, "EPSG:25832", 16, dem, 2.0)
+    batch = lc.batch_boresight(fl, "EPSG:25832", 16, dem, 2.0, LiveConfig().features)  # the same observations
     truth = lc.true_corrections(fl)
     est = run.estimate
     assert est.n_exposures == 16

@@ -585,7 +585,8 @@ def _papers_step(outdir: str | Path) -> None:
 
 def _live_step(outdir: str | Path) -> None:
     """Issue 35: a short 3K flight (8 exposures of the triple rig, boresights misaligned) replayed at 4 x its rate
-    into a watched folder, ``skyrig live`` on it; judged against the batch answer: the online boresight within 3 of
+    into a project's inputs, ``skyrig run --live --then-batch`` on it (OUTPUT/live published whole, then the georef
+    stage); judged against the batch answer: the online boresight within 3 of
     its sigma (nine angles; bench/live.py's acceptance figure of 2 sigma is for 50 exposures) of the batch adjustment (every exposure in one adjustment) and within 5 of the injected truth (both sit up
     to ~4 sigma from it on bench/live.py's 50 exposures), the live mosaic within 0.5 GSD of the batch ortho."""
     import json
@@ -594,16 +595,33 @@ def _live_step(outdir: str | Path) -> None:
 
     from skyrig.pipeline import live_check as lc
 
-    click.echo("\n=== skyrig live: a 3K flight replayed into a watched folder, judged against the batch answer ===")
+    import shutil
+
+    from skyrig.io.stage import verify_folder
+
+    click.echo("\n=== skyrig run --live: a 3K flight replayed into a project's inputs, judged against the batch "
+               "answer ===")
     base = Path(outdir) / "live"
-    flight, watched = base / "flight", base / "watched"
+    flight, proj = base / "flight", base / "project"
     if not (flight / "events.csv").exists():
         lc.simulate_3k_flight(flight, half_length_m=300.0)
     dem = flight / "reference_dem.tif"
-    _run(["live", str(watched), "--replay", str(flight), "--speed", "4", "--crs", "EPSG:25832", "--dem", str(dem),
-          "--height-sigma", "2", "--window", "4", "--no-serve", "--image-timeout", "60", "--trajectory-timeout", "60"])
-    s = json.loads((watched / "live" / "summary.json").read_text())
-    batch = lc.batch_boresight(flight, "EPSG:25832", None, dem, 2.0)
+    shutil.rmtree(proj, ignore_errors=True)
+    proj.mkdir(parents=True)
+    shutil.copyfile(flight / "rig.yaml", proj / "rig.yaml")
+    (proj / "project.yaml").write_text(
+        "format: skyrig-project\nversion: 1\ncrs: EPSG:25832\noutput: output\n"
+        "inputs: {images: [images], trajectory: trajectory.csv, events: events.csv, rig: rig.yaml}\n"
+        f"stages:\n  live: {{dem: {dem}, height_sigma: 2.0, window: 4, image_timeout: 60.0, "
+        "trajectory_timeout: 60.0}\n  georef: {}\n")
+    _run(["run", str(proj), "--live", "--replay", str(flight), "--speed", "4", "--no-serve", "--then-batch"])
+    live_out = proj / "output" / "live"
+    if verify_folder(live_out) or not (proj / "output" / "georef" / "eo.csv").is_file():
+        raise click.ClickException(f"demo checks FAILED (live project: {verify_folder(live_out)[:1]})")
+    s = json.loads((live_out / "summary.json").read_text())
+    from skyrig.pipeline.live import LiveConfig
+
+    batch = lc.batch_boresight(flight, "EPSG:25832", None, dem, 2.0, LiveConfig().features)  # same observations
     truth = lc.true_corrections(flight)
     worst_b = worst_t = 0.0
     for h in sorted(s["boresight_deg"]):
@@ -613,7 +631,7 @@ def _live_step(outdir: str | Path) -> None:
         worst_t = max(worst_t, float(np.max(np.abs(on - truth[h]) / so)))
     cell = s["cell_m"]["median"]
     ortho = lc.batch_ortho(flight, "EPSG:25832", 80.0, batch.correction, cell, None, dem)
-    off = lc.mosaic_offsets(watched / "live" / "tiles", max(s["zooms"]), ortho)
+    off = lc.mosaic_offsets(live_out / "tiles", max(s["zooms"]), ortho)
     click.echo(f"{s['exposures_done']} exposures live; online boresight ({s['boresight_windows']} windows) - batch: "
                f"at most {worst_b:.2f} sigma, - truth: at most {worst_t:.2f} sigma; live mosaic - batch ortho: median "
                f"{off['median_offset_m'] / cell:.2f} GSD over {off['patches']} patches")

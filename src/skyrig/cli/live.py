@@ -107,6 +107,10 @@ def _print_summary(s: dict, out) -> None:
     click.echo(f"ortho tiles after the last image was written: {med('ortho_latency_s')}; CPU per exposure "
                f"{med('ortho_cpu_s')}")
     click.echo(f"DSM tiles: {med('dsm_latency_s')}")
+    if s.get("process_cpu_s_per_exposure") is not None:
+        click.echo(f"CPU per exposure: {s['process_cpu_s_per_exposure']:.2f} s in all (online boresight "
+                   f"{s.get('boresight_cpu_s_per_exposure') or 0.0:.2f} s); {s.get('caught_up', 0)} exposure(s) "
+                   "caught up after a newer one")
     for h, v in (s.get("boresight_deg") or {}).items():
         sg = s["boresight_sigma_deg"][h]
         click.echo(f"online boresight {h} (deg, rotation vector, camera axes): "

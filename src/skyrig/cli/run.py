@@ -53,15 +53,41 @@ def init_command(folder: str, crs: str | None, geoid: str | None, output: str | 
 @click.option("--force", is_flag=True, help="Rerun the selected stages even when they are up to date.")
 @click.option("--dry-run", is_flag=True, help="Say which stages would run or be skipped, and why; run nothing.")
 @click.option("--list-stages", is_flag=True, help="List the stages skyrig knows with their options; run nothing.")
+@click.option("--live", is_flag=True,
+              help="Live project mode: process the flight as it is recorded into the project's inputs (stage live, "
+                   "options stages.live), publish OUTPUT/live when it is over.")
+@click.option("--then-batch", is_flag=True, help="With --live: then run the project's stages.")
+@click.option("--replay", "replay_src", type=click.Path(exists=True, file_okay=False), default=None,
+              help="With --live: replay this recorded or simulated flight folder into the project's inputs at "
+                   "--speed (a test of the chain).")
+@click.option("--speed", type=float, default=1.0, show_default=True,
+              help="With --replay: flight seconds per wall-clock second.")
+@click.option("--serve/--no-serve", default=True, show_default=True,
+              help="With --live: serve the growing map on 127.0.0.1.")
+@click.option("--port", type=int, default=0, show_default=True, help="With --serve: port (0: any free port).")
 def run_command(project: str, from_stage: str | None, only: str | None, force: bool, dry_run: bool,
-                list_stages: bool) -> None:
+                list_stages: bool, live: bool, then_batch: bool, replay_src: str | None, speed: float, serve: bool,
+                port: int) -> None:
     """Run the stages of PROJECT (a project.yaml, or a folder holding one), each into OUTPUT/<stage>/.
 
     A stage whose inputs and options are unchanged since its last run is skipped; a failed stage publishes
     nothing and leaves every earlier output as it was.  Exit status: 0 ok, 1 a stage failed, 2 bad input.
+    With --live, the flight is processed as it is recorded first (OUTPUT/live), then with --then-batch the stages.
     """
     from skyrig.pipeline.project import load_project
     from skyrig.pipeline.run import STAGES, plan_run, run_project
+
+    if not live:
+        for name, val in (("--then-batch", then_batch), ("--replay", replay_src)):
+            if val:
+                raise click.UsageError(f"{name} goes with --live")
+    elif from_stage or only or dry_run or list_stages:
+        raise click.UsageError("--live runs the live stage, then (--then-batch) every stage: without --from, --only, "
+                               "--dry-run, --list-stages")
+    if live:
+        _run_live(project, replay_src, speed, serve, port)
+        if not then_batch:
+            return
 
     if list_stages:
         for st in STAGES.values():
@@ -72,7 +98,7 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
             for name, opt in st.options.items():
                 click.echo(f"    {name} = {opt.default!r}  ({opt.kind}) {opt.help}")
         return
-    proj = load_project(project)
+    proj = load_project(project)  # with --live --then-batch: now that the flight is recorded
     if dry_run:
         for name, action, why in plan_run(proj, from_stage=from_stage, only=only, force=force):
             click.echo(f"{name:12s} {action:12s} {why}")
@@ -120,3 +146,43 @@ def run_command(project: str, from_stage: str | None, only: str | None, force: b
     ran = sum(1 for s in res.stages if s["status"] == "done")
     skipped = sum(1 for s in res.stages if s["status"] == "skipped")
     click.echo(f"{ran} stage(s) ran, {skipped} up to date; summary in {proj.output / 'run.json'}")
+
+
+def _run_live(project: str, replay_src: str | None, speed: float, serve: bool, port: int) -> None:
+    """``skyrig run PROJECT --live``: the live stage while the flight is recorded, published as OUTPUT/live."""
+    import threading
+
+    from skyrig.cli.live import _print_summary
+    from skyrig.pipeline.live_project import flight_paths, live_spec, run_live_project
+    from skyrig.pipeline.project import load_project
+
+    if speed <= 0:
+        raise click.BadParameter("must be > 0", param_hint="--speed")
+    proj = load_project(project, live=True)
+    paths = flight_paths(proj, live_spec(proj).options)
+    rep = None
+    if replay_src is not None:
+        from skyrig.pipeline.live_replay import replay_flight
+
+        paths.end.unlink(missing_ok=True)
+        rep = threading.Thread(target=replay_flight, args=(replay_src, paths, speed), daemon=True,
+                               name="skyrig-live-replay")
+    srv: list = []
+
+    def started(run) -> None:  # type: ignore[no-untyped-def]
+        if serve:
+            from skyrig.web.live import LiveServer
+
+            srv.append(LiveServer(run.out).start())
+            click.echo(f"live map (this machine only): {srv[0].url}")
+        if rep is not None:
+            rep.start()
+
+    click.echo(f"project {proj.name} ({proj.path}): live, watching {paths.images} (the flight is over when "
+               f"{paths.end} appears)")
+    try:
+        summary, folder = run_live_project(proj, say=lambda line: click.echo(line, err=True), on_start=started)
+    finally:
+        for s in srv:
+            s.stop()
+    _print_summary(summary, folder)

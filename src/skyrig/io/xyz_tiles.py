@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from skyrig.errors import OutputPathError
 from skyrig.io._text import PathLike, atomic_write
 
-__all__ = ["TILE_PX", "WEB_MERCATOR_HALF", "tile_range", "tile_bounds", "zoom_for_cell", "paint", "read_tile",
-           "lonlat_bounds"]
+__all__ = ["TILE_PX", "WEB_MERCATOR_HALF", "tile_range", "tile_bounds", "zoom_for_cell", "paint", "paint_tiles",
+           "TileCache", "read_tile", "lonlat_bounds"]
 
 TILE_PX = 256
 #: half the side of the Web Mercator square (m): pi * 6378137
@@ -83,7 +83,9 @@ def read_tile(path: PathLike) -> NDArray[np.uint8] | None:
 
 
 def _write_tile(path: Path, rgba: NDArray[np.uint8]) -> None:
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    # fast deflate (run lengths only): a live tile is rewritten as exposures overlap it
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA),
+                           [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE])
     if not ok:
         raise OutputPathError("PNG encoding failed", path)
     with atomic_write(path, "wb") as fh:
@@ -132,4 +134,60 @@ def paint(root: PathLike, layer: str, rgba: NDArray[np.uint8], transform: Sequen
                 out = new.copy() if old is None else np.where(on[..., None], new, old)
                 _write_tile(p, np.ascontiguousarray(out))
                 written.append((z, tx, ty))
+    return written
+
+
+
+class TileCache:
+    """The tiles written last, in memory (``(layer, z, x, y)`` -> RGBA, at most ``size``: 256 KB each): a tile
+    painted again (the overlap of consecutive exposures) is composited without reading it back."""
+
+    def __init__(self, size: int = 256) -> None:
+        from collections import OrderedDict
+
+        self.size = size
+        self._d: OrderedDict[tuple[str, int, int, int], NDArray[np.uint8]] = OrderedDict()
+
+    def get(self, key: tuple[str, int, int, int]) -> NDArray[np.uint8] | None:
+        t = self._d.get(key)
+        if t is not None:
+            self._d.move_to_end(key)
+        return t
+
+    def put(self, key: tuple[str, int, int, int], tile: NDArray[np.uint8]) -> None:
+        self._d[key] = tile
+        self._d.move_to_end(key)
+        while len(self._d) > self.size:
+            self._d.popitem(last=False)
+
+
+def paint_tiles(root: PathLike, layer: str, tiles: dict[tuple[int, int, int], NDArray[np.uint8]],
+                under: bool = False, cache: TileCache | None = None) -> list[tuple[int, int, int]]:
+    """Paint RGBA tiles already on the tile grid (``(z, x, y)`` -> ``(256, 256, 4)``; alpha 0 = no data) into
+    ``layer`` over what the tiles hold (``under``: beneath it, only where they are empty); returns the tiles
+    written."""
+    root = Path(root)
+    written = []
+    for (z, x, y), new in tiles.items():
+        on = new[..., 3] > 0
+        if not on.any():
+            continue
+        key = (layer, z, x, y)
+        p = _path(root, layer, z, x, y)
+        old = cache.get(key) if cache is not None else None
+        if old is None:
+            old = read_tile(p)
+        if old is None:
+            out = new
+        elif under:
+            if not (on & (old[..., 3] == 0)).any():
+                continue
+            out = np.where((old[..., 3] > 0)[..., None], old, new)
+        else:
+            out = np.where(on[..., None], new, old)
+        out = np.ascontiguousarray(out)
+        _write_tile(p, out)
+        if cache is not None:
+            cache.put(key, out)
+        written.append((z, x, y))
     return written

@@ -13,14 +13,22 @@ trajectory reaches past its time:
 
 1. **direct georeferencing** (:func:`skyrig.georef.direct.direct_georeference`) with the rig as calibrated online
    so far;
-2. an **ortho tile** per image: the true-ortho code (:func:`skyrig.dense.ortho.orthomosaic`) on the image alone,
-   onto the reference surface (a plane at ``surface_height_m``), painted into the XYZ tiles of layer ``ortho``;
-3. a **DSM tile** as soon as the exposure has a stereo partner (the previous exposure of the same strip, stereo
-   head, e.g. nadir): :func:`skyrig.dense.surface.dense_surface` on the pair, coloured by height into layer ``dsm``
-   (in a worker thread: it may lag the orthos by a few exposures);
+2. **ortho tiles** per image: the image resampled straight onto the Web Mercator pixels of the XYZ tiles (layer
+   ``ortho``) it touches at every zoom, over the reference surface (the DEM, else the plane at
+   ``surface_height_m``): :func:`skyrig.dense.grid_rectify.rectify_onto_grid`, a coarser zoom from the image
+   reduced by ``cv2.pyrDown``; the exposure's tiles composited in memory and written once
+   (:func:`skyrig.io.xyz_tiles.paint_tiles`, with a cache of the tiles written last);
+3. a **DSM tile** as soon as the exposure has a stereo partner (the exposure before or after it in the same strip,
+   stereo head, e.g. nadir): :func:`skyrig.dense.surface.dense_surface` on the pair, coloured by height into layer
+   ``dsm`` (in a worker thread: it may lag the orthos by a few exposures);
 4. the **online boresight** (:mod:`skyrig.calibrate.online_boresight`, worker thread): features of the new images,
    guided matching against the recent exposures, and every ``window`` exposures a rig adjustment of the window
    with the boresights free; the combination of the windows so far calibrates the rig of later exposures.
+
+Scheduling: each :meth:`LiveRun.poll` processes the newest ready exposure; older ready ones (the chain fell behind)
+are caught up by later polls and painted beneath what the tiles hold (``caught_up`` in ``latency.jsonl``).  The
+DSM and the online boresight run in worker threads at a lower priority (nice +5, +10 on Linux), the online
+boresight fed in time order (a window is consecutive exposures).
 
 Inputs are polled (``os.stat`` every ``poll_s``), not watched through inotify (``watchdog``): completion of a file
 cannot be told from file-system events anyway (a camera or a copy tool writes in pieces, network shares deliver no
@@ -56,13 +64,13 @@ from skyrig._plain import plain
 from skyrig.calibrate import online_boresight as ob
 from skyrig.camera.frame import FrameCamera
 from skyrig.dense.fusion import FusionConfig
-from skyrig.dense.grid import DsmGrid, GridSpec
-from skyrig.dense.ortho import OrthoConfig, orthomosaic
+from skyrig.dense.grid_rectify import rectify_onto_grid
 from skyrig.dense.surface import DenseConfig, dense_surface
 from skyrig.errors import SkyrigError
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 from skyrig.io import xyz_tiles
+from skyrig.match.features import FeatureConfig
 from skyrig.io._text import atomic_write
 from skyrig.io.events_csv import read_events_csv
 from skyrig.io.images import read_image
@@ -71,9 +79,27 @@ from skyrig.io.trajectory_csv import read_trajectory_csv
 from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
-__all__ = ["LiveConfig", "LiveRun", "image_complete", "run_live"]
+__all__ = ["FlightPaths", "LiveConfig", "LiveRun", "image_complete", "run_live"]
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FlightPaths:
+    """Where a flight is recorded: the rig file (present from the start), the trajectory and events CSV files and
+    the image folder (written as the flight goes), and the file whose appearance says the flight is over."""
+
+    rig: Path
+    trajectory: Path
+    events: Path
+    images: Path
+    end: Path
+
+    @classmethod
+    def of_folder(cls, folder: str | os.PathLike[str]) -> "FlightPaths":
+        """The layout of a watched flight folder (module docstring)."""
+        f = Path(folder)
+        return cls(f / "rig.yaml", f / "trajectory.csv", f / "events.csv", f / "images", f / "flight.end")
 
 
 @dataclass(frozen=True)
@@ -83,7 +109,9 @@ class LiveConfig:
     ``dem_path``: a reference DEM (GeoTIFF, ellipsoidal heights of its CRS, e.g. a public 30 m DEM) the orthos are
     projected on and the online boresight's reference heights come from, with ``surface_sigma_m``; without one
     (and outside it) the plane at ``surface_height_m``.  ``crs``: output map CRS (projected, metres).
-    ``window``: exposures per online adjustment (0: no online boresight).  ``stereo_head``: the head whose
+    ``window``: exposures per online adjustment (0: no online boresight); ``features``: SIFT features per image
+    for its tie points (800: as many tie points survive the thinning to 2 per cell as with 1,500, at 0.55 x the
+    matching time).  ``stereo_head``: the head whose
     consecutive images make the DSM pairs (None: the head closest to nadir).  ``zoom_levels``: tile levels below
     the finest (which matches the ortho cell)."""
 
@@ -95,6 +123,7 @@ class LiveConfig:
     dsm: bool = True
     dsm_height_range_m: float = 150.0
     window: int = 8
+    features: int = 800
     stereo_head: str | None = None
     zoom_levels: int = 4
     poll_s: float = 0.2
@@ -103,6 +132,21 @@ class LiveConfig:
     trajectory_timeout_s: float = 20.0
     trajectory_margin_s: float = 0.3
     idle_stop_s: float | None = None
+
+
+def _nice(increment: int) -> None:
+    """Lower the calling thread's scheduling priority (Linux: a thread is a task with its own nice value); a no-op
+    where that is not supported."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + increment)
+    except (AttributeError, OSError):
+        pass
+
+
+def _process_cpu() -> float:
+    """CPU seconds of this process, every thread and the child processes waited for."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def image_complete(path: Path) -> tuple[bool, str]:
@@ -162,15 +206,16 @@ class _Exposure:
 class LiveRun:
     """One live run over a watched folder (:meth:`poll` once, :meth:`run` until the flight ends)."""
 
-    def __init__(self, folder: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+    def __init__(self, folder: str | os.PathLike[str] | FlightPaths, out: str | os.PathLike[str] | None = None,
                  config: LiveConfig = LiveConfig(), say: Callable[[str], None] | None = None) -> None:
-        self.folder = Path(folder)
+        self.paths = folder if isinstance(folder, FlightPaths) else FlightPaths.of_folder(folder)
+        self.folder = self.paths.events.parent
         self.out = Path(out) if out is not None else self.folder / "live"
         self.config = config
         self.say = say or (lambda line: logger.warning("%s", line))
-        rig_path = self.folder / "rig.yaml"
+        rig_path = self.paths.rig
         if not rig_path.is_file():
-            raise SkyrigError(f"{rig_path}: no rig file in the watched folder (the live run needs it from the start)")
+            raise SkyrigError(f"{rig_path}: no rig file (the live run needs it from the start)")
         self.rig_nominal: Rig = read_rig(rig_path)
         self.rig: Rig = self.rig_nominal
         self.cameras: dict[str, FrameCamera] = {h.camera.name: h.camera for h in self.rig_nominal}
@@ -196,16 +241,26 @@ class LiveRun:
                     raise SkyrigError(f"{config.dem_path}: the reference DEM must be in the output CRS {config.crs} "
                                       "(option: dem)")
         self._lock = threading.Lock()
-        self._dsm_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-dsm")
-        self._cal_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-cal")
+        # the workers run below the ortho loop's priority (Linux: a nicer thread), the online boresight lowest
+        self._dsm_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-dsm", initializer=_nice,
+                                            initargs=(5,))
+        self._cal_pool = ThreadPoolExecutor(1, thread_name_prefix="skyrig-live-cal", initializer=_nice,
+                                            initargs=(10,))
         self._pending: list[Future] = []
-        self._prev: tuple[int, float, ExteriorOrientations, dict[str, NDArray]] | None = None
+        # the stereo head's image of every exposure processed lately: exposure -> (time, EO row, image)
+        self._stereo: dict[int, tuple[float, ExteriorOrientations, NDArray]] = {}
+        self._cal_buf: dict[int, tuple[ExteriorOrientations, dict[str, NDArray]]] = {}
+        self._cal_fed: set[int] = set()
+        self._newest_done = -np.inf  # time of the newest exposure processed (older ones are caught up later)
+        self._to_merc: Any = None
+        self._tile_cache = xyz_tiles.TileCache(256)
+        self._cal_cpu = 0.0  # CPU seconds of the online boresight's thread
+        self._cpu0 = _process_cpu()
         self._features: dict[str, Any] = {}
         self._matches: dict[tuple[str, str], NDArray] = {}
         self._cal_eo: list[ExteriorOrientations] = []
         self._windows: list[ob.WindowEstimate] = []
         self.estimate = ob.BoresightEstimate()
-        self._interval: list[float] = []
         self._written: list[float] = []
         self._zooms: list[int] | None = None
         self._bounds_ll: list[float] | None = None
@@ -228,31 +283,31 @@ class LiveRun:
         self.reported.append(line)
         self.say(line)
 
-    def _read_table(self, name: str, current: str | None, reader: Callable[[Path], Any], min_rows: int
+    def _read_table(self, path: Path, current: str | None, reader: Callable[[Path], Any], min_rows: int
                     ) -> tuple[str | None, Any]:
-        text = _complete_lines(self.folder / name)
+        text = _complete_lines(path)
         if text is None or text == current:
             return current, None
         if sum(1 for line in text.splitlines() if line.strip() and not line.startswith("#")) < 1 + min_rows:
             return current, None  # the column header and fewer rows than a reader takes
-        snap = self.out / "_inputs" / name
+        snap = self.out / "_inputs" / path.name
         with atomic_write(snap, "w", newline="") as fh:
             fh.write(text)
         try:
             return text, reader(snap)
         except SkyrigError as exc:
-            line = f"{self.folder / name}: cannot be read ({exc}); waiting for more lines"
+            line = f"{path}: cannot be read ({exc}); waiting for more lines"
             if line not in self.reported:
                 self._report(line)
             return text, None
 
     def _read_inputs(self, now: float) -> None:
-        text, traj = self._read_table("trajectory.csv", self._traj_text, read_trajectory_csv, 2)
+        text, traj = self._read_table(self.paths.trajectory, self._traj_text, read_trajectory_csv, 2)
         if traj is not None:
             self._traj_text, self.trajectory = text, traj
             self._traj_changed_wall = now
             self._last_input_wall = now
-        text, ev = self._read_table("events.csv", self._ev_text, read_events_csv, 1)
+        text, ev = self._read_table(self.paths.events, self._ev_text, read_events_csv, 1)
         if ev is not None:
             self._ev_text, self.events = text, ev
             self._last_input_wall = now
@@ -267,7 +322,7 @@ class LiveRun:
     def _check_image(self, img: _Image, now: float) -> None:
         if img.written_wall is not None or img.failed:
             return
-        p = self.folder / "images" / img.name
+        p = self.paths.images / img.name
         try:
             st = p.stat()
         except OSError:
@@ -299,7 +354,7 @@ class LiveRun:
         """Read what is new and process every exposure that is ready; returns how many were processed."""
         now = time.time()
         self._read_inputs(now)
-        done = 0
+        ready: list[tuple[_Exposure, list[_Image]]] = []
         for eid in sorted(self.exposures):
             x = self.exposures[eid]
             if x.state != "waiting":
@@ -321,32 +376,40 @@ class LiveRun:
                     self._report(f"trajectory stopped: exposure {eid} at t={x.time_s:.3f} s is past its end "
                                  f"({t_end:.3f} s, no new samples for {self.config.trajectory_timeout_s:g} s); skipped")
                 continue
-            self._process(x, good)
-            done += 1
+            ready.append((x, good))
+        done = 0
+        if ready:  # the newest exposure first; the older ones ready now are caught up by the next polls
+            x, good = max(ready, key=lambda r: r[0].time_s)
+            self._process(x, good, waiting=len(ready) - 1)
+            done = 1
+        self._feed_calibration()
         self._write_status()
         return done
 
-    def run(self, stop: threading.Event | None = None, max_wall_s: float | None = None) -> dict[str, Any]:
-        """Poll until ``FOLDER/flight.end`` exists and nothing is waiting, ``stop`` is set, no input came for
-        ``idle_stop_s`` or ``max_wall_s`` passed; then :meth:`finish`."""
+    def run(self, stop: threading.Event | None = None, max_wall_s: float | None = None, complete: bool = False
+            ) -> dict[str, Any]:
+        """Poll until ``FOLDER/flight.end`` exists (or the flight is ``complete`` already: a recorded flight) and
+        nothing is waiting, ``stop`` is set, no input came for ``idle_stop_s`` or ``max_wall_s`` passed; then
+        :meth:`finish`."""
         t0 = time.time()
         while True:
-            self.poll()
+            busy = self.poll()
             now = time.time()
             waiting = any(x.state == "waiting" for x in self.exposures.values())
             if stop is not None and stop.is_set():
                 break
-            if (self.folder / "flight.end").exists() and not waiting and self._read_done():
+            if (complete or self.paths.end.exists()) and not waiting and self._read_done():
                 break
             if self.config.idle_stop_s is not None and now - self._last_input_wall > self.config.idle_stop_s:
                 break
             if max_wall_s is not None and now - t0 > max_wall_s:
                 break
-            time.sleep(self.config.poll_s)
+            if not busy:
+                time.sleep(self.config.poll_s)
         return self.finish()
 
     def _read_done(self) -> bool:
-        return _complete_lines(self.folder / "events.csv") == self._ev_text
+        return _complete_lines(self.paths.events) == self._ev_text
 
     # ------------------------------------------------------------------------------------------ processing
     def height_at(self, x: NDArray, y: NDArray) -> NDArray[np.float64]:
@@ -357,18 +420,10 @@ class LiveRun:
         h = self.dem.sample(x, y)
         return np.where(np.isfinite(h), h, base)
 
-    def _surface(self, bounds: tuple[float, float, float, float], cell: float) -> DsmGrid:
-        assert self.frame is not None
-        xmin, ymin, xmax, ymax = bounds
-        w, h = max(int(np.ceil((xmax - xmin) / cell)), 2), max(int(np.ceil((ymax - ymin) / cell)), 2)
-        g = GridSpec(xmin, ymax, cell, w, h)
-        xx, yy = np.meshgrid(xmin + (np.arange(w) + 0.5) * cell, ymax - (np.arange(h) + 0.5) * cell)
-        hz = self.height_at(xx, yy).astype(np.float32)
-        return DsmGrid(g, self.frame, hz, np.ones((h, w), np.int16), np.full((h, w), np.nan, np.float32),
-                       np.full((h, w), np.float32(self.config.surface_sigma_m)), np.zeros((h, w), bool),
-                       "reference DEM" if self.dem is not None else "reference plane")
-
-    def _footprint(self, eo: ExteriorOrientations, i: int) -> tuple[tuple[float, float, float, float], float]:
+    def _footprint(self, eo: ExteriorOrientations, i: int
+                   ) -> tuple[tuple[float, float, float, float], float, NDArray[np.float64]]:
+        """Bounds (map CRS) of image ``i``'s footprint on the reference plane, its GSD at the image centre, and the
+        nine points (corners, edge middles, centre) the bounds come from."""
         cam = self.cameras[str(eo.camera[i])]
         w, h = cam.width, cam.height
         px = np.array([[0, 0], [w / 2, 0], [w, 0], [w, h / 2], [w, h], [w / 2, h], [0, h], [0, h / 2],
@@ -380,18 +435,53 @@ class LiveRun:
             raise SkyrigError(f"image {eo.image[i]} does not look down onto the reference surface")
         xy = c[:2] + s[:, None] * d[:, :2]
         gsd = float(cam.gsd(np.linalg.norm(s[-1] * d[-1])))
-        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max())), gsd
+        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max())), gsd, xy
 
     def _tiles_setup(self, eo: ExteriorOrientations, cell: float) -> None:
         if self._zooms is not None:
             return
         assert self.frame is not None
+        from skyrig.geodesy.crs import horizontal_crs, resolve_crs, transformer
+
+        self._to_merc = transformer(horizontal_crs(resolve_crs(self.frame.crs)), "EPSG:3857")
         ll = xyz_tiles.lonlat_bounds(self.frame.crs, (eo.centre[0, 0] - 1, eo.centre[0, 1] - 1,
                                                       eo.centre[0, 0] + 1, eo.centre[0, 1] + 1))
         zmax = xyz_tiles.zoom_for_cell(cell, 0.5 * (ll[1] + ll[3]))
         self._zooms = list(range(max(zmax - self.config.zoom_levels, 0), zmax + 1))
 
-    def _process(self, x: _Exposure, good: list[_Image]) -> None:
+    def _ortho_tiles(self, eo: ExteriorOrientations, i: int, image: NDArray, xy: NDArray[np.float64],
+                     tiles: dict[tuple[int, int, int], NDArray[np.uint8]]) -> None:
+        """Image ``i`` resampled straight onto the Web Mercator pixels of the tiles it touches at every zoom
+        (:func:`skyrig.dense.grid_rectify.rectify_onto_grid`; a coarser zoom from the image reduced as many times
+        by ``cv2.pyrDown``), composited over ``tiles`` (z, x, y) -> RGBA."""
+        import cv2
+
+        assert self._zooms is not None and self._to_merc is not None
+        zmax = self._zooms[-1]
+        mx, my = self._to_merc.transform(xy[:, 0], xy[:, 1])
+        pad = 0.1 * max(np.ptp(mx), np.ptp(my))  # the reference surface is not the plane the footprint is on
+        box = (np.min(mx) - pad, np.min(my) - pad, np.max(mx) + pad, np.max(my) + pad)
+        T = xyz_tiles.TILE_PX
+        cam = self.cameras[str(eo.camera[i])]
+        level_img, reduced = image, 0
+        for level, z in enumerate(sorted(self._zooms, reverse=True)):
+            if reduced < level and min(level_img.shape[:2]) > 16:
+                level_img, reduced = cv2.pyrDown(level_img), reduced + 1
+            x0, y0, x1, y1 = xyz_tiles.tile_range(z, box)
+            b = xyz_tiles.tile_bounds(z, x0, y0)
+            rgba = rectify_onto_grid(level_img, eo, i, cam, "EPSG:3857", b[0], b[3], (b[2] - b[0]) / T,
+                                     (x1 - x0 + 1) * T, (y1 - y0 + 1) * T, self.height_at,
+                                     step=8 if z == zmax else 4, level=reduced)
+            for ty in range(y0, y1 + 1):
+                for tx in range(x0, x1 + 1):
+                    new = rgba[(ty - y0) * T:(ty - y0 + 1) * T, (tx - x0) * T:(tx - x0 + 1) * T]
+                    on = new[..., 3] > 0
+                    if not on.any():
+                        continue
+                    old = tiles.get((z, tx, ty))
+                    tiles[(z, tx, ty)] = new.copy() if old is None else np.where(on[..., None], new, old)
+
+    def _process(self, x: _Exposure, good: list[_Image], waiting: int = 0) -> None:
         t_start, cpu0 = time.time(), time.thread_time()
         assert self.events is not None and self.trajectory is not None
         names = {i.name for i in good}
@@ -404,53 +494,92 @@ class LiveRun:
         arrays = {str(n): next(i.array for i in good if i.name == str(n)) for n in eo.image}
         written = max(i.written_wall or 0.0 for i in good)
         self._written.append(written)
+        # an exposure older than one already painted is caught up: painted beneath what is there (newest on top)
+        caught_up = x.time_s < self._newest_done
+        self._newest_done = max(self._newest_done, x.time_s)
         cell_used = None
+        tiles: dict[tuple[int, int, int], NDArray[np.uint8]] = {}
         # the stereo (nadir) head painted last: on top where the heads overlap (least relief displacement)
         for i in sorted(range(len(eo)), key=lambda k: str(eo.head[k]) == self.stereo_head):
-            bounds, gsd = self._footprint(eo, i)
+            bounds, gsd, xy = self._footprint(eo, i)
             cell = self.config.cell_m or gsd
             if str(eo.head[i]) == self.stereo_head or cell_used is None:
                 cell_used = cell
-            self._tiles_setup(eo, self.config.cell_m or gsd)
-            surf = self._surface(bounds, max(4 * cell, 5.0))
-            img = arrays[str(eo.image[i])]
-            m = orthomosaic(eo.subset([i]), self.cameras, surf, lambda k, a=img: a, area=bounds,
-                            config=OrthoConfig(cell_m=cell, balance=False, square_buildings=False,
-                                               occlusion_slack_px=0, max_off_nadir_deg=75.0))
-            rgba = np.dstack([m.rgb, np.where(m.valid, 255, 0).astype(np.uint8)])
-            xyz_tiles.paint(self.out / "tiles", "ortho", rgba, m.grid.transform, self.frame.crs, self._zooms or [])
-            self._grow_bounds(m.grid.bounds)
+            self._tiles_setup(eo, cell)
+            self._ortho_tiles(eo, i, arrays[str(eo.image[i])], xy, tiles)
+            self._grow_bounds(bounds)
+        n_tiles = len(xyz_tiles.paint_tiles(self.out / "tiles", "ortho", tiles, under=caught_up,
+                                            cache=self._tile_cache))
         t_ortho = time.time()
         rec = {"exposure": x.exposure, "time_s": x.time_s, "images": sorted(names),
                "written_wall": written, "dg_s": t_dg - written, "ortho_s": t_ortho - written,
                "queue_s": t_start - written, "cpu_s": time.thread_time() - cpu0, "cell_m": cell_used, "dsm_s": None,
-               "dsm_exposures": None}
+               "dsm_exposures": None, "tiles": n_tiles, "caught_up": caught_up, "waiting": waiting}
         x.record = rec
         x.state = "done"
-        # the DSM of the stereo pair (previous exposure of the same strip), in the DSM worker
+        # the DSM of the stereo pairs this exposure completes (with the exposure before and, when it was caught
+        # up, the one after it in the same strip), in the DSM worker
         sel = [k for k in range(len(eo)) if str(eo.head[k]) == self.stereo_head]
-        if self._prev is not None and sel:
-            self._interval.append(x.time_s - self._prev[1])
-        if self.config.dsm and sel and self._prev is not None and self._same_strip(x.time_s):
-            prev = self._prev
-            k = sel[0]
-            self._pending.append(self._dsm_pool.submit(self._dsm, x, prev, eo.subset([k]), arrays[str(eo.image[k])],
-                                                       written, cell_used or 1.0))
         if sel:
             k = sel[0]
-            self._prev = (x.exposure, x.time_s, eo.subset([k]), {str(eo.image[k]): arrays[str(eo.image[k])]})
+            self._stereo[x.exposure] = (x.time_s, eo.subset([k]), arrays[str(eo.image[k])])
+            if self.config.dsm:
+                before, after = self._neighbours(x)
+                if before is not None and before.exposure in self._stereo:
+                    self._pending.append(self._dsm_pool.submit(
+                        self._dsm, x, (before.exposure, *self._stereo[before.exposure]),
+                        (x.exposure, *self._stereo[x.exposure]), written, cell_used or 1.0))
+                if after is not None and after.exposure in self._stereo:
+                    self._pending.append(self._dsm_pool.submit(
+                        self._dsm, after, (x.exposure, *self._stereo[x.exposure]),
+                        (after.exposure, *self._stereo[after.exposure]), after.record.get("written_wall", written),
+                        cell_used or 1.0))
+            for old in [e for e in self._stereo if e not in self._recent(16)]:
+                self._stereo.pop(old, None)
         if self.config.window > 0:
-            self._pending.append(self._cal_pool.submit(self._calibrate, eo, arrays))
+            self._cal_buf[x.exposure] = (eo, arrays)
         self._pending = [f for f in self._pending if not f.done()]
         with open(self.out / "latency.jsonl", "a", encoding="utf-8") as fh:
             fh.write(json.dumps(plain({k: v for k, v in rec.items() if k != "images"})) + "\n")
 
-    def _same_strip(self, t: float) -> bool:
-        if self._prev is None:
-            return False
-        gap = t - self._prev[1]
-        med = float(np.median(self._interval)) if self._interval else gap
-        return 0 < gap <= 1.5 * med
+    def _recent(self, n: int) -> set[int]:
+        """The ``n`` newest exposures processed."""
+        done = sorted((e.time_s, e.exposure) for e in self.exposures.values() if e.state == "done")
+        return {e for _, e in done[-n:]}
+
+    def _flight_interval(self) -> float | None:
+        """Median time between consecutive exposures of the flight (event times)."""
+        t = np.diff(np.sort([e.time_s for e in self.exposures.values()]))
+        return float(np.median(t)) if len(t) else None
+
+    def _neighbours(self, x: _Exposure) -> tuple[_Exposure | None, _Exposure | None]:
+        """The exposures just before and after ``x`` in time when they are of the same strip (no gap over 1.5
+        intervals)."""
+        med = self._flight_interval()
+        if med is None:
+            return None, None
+        before = [e for e in self.exposures.values() if e.time_s < x.time_s]
+        after = [e for e in self.exposures.values() if e.time_s > x.time_s]
+        b = max(before, key=lambda e: e.time_s) if before else None
+        a = min(after, key=lambda e: e.time_s) if after else None
+        b = b if b is not None and x.time_s - b.time_s <= 1.5 * med else None
+        a = a if a is not None and a.time_s - x.time_s <= 1.5 * med else None
+        return b, a
+
+    def _feed_calibration(self) -> None:
+        """Hand the processed exposures to the online boresight in time order (a window is consecutive exposures),
+        past the skipped ones; stop at the first still waiting."""
+        if self.config.window <= 0:
+            return
+        for x in sorted(self.exposures.values(), key=lambda e: e.time_s):
+            if x.exposure in self._cal_fed:
+                continue
+            if x.state == "waiting":
+                break
+            self._cal_fed.add(x.exposure)
+            item = self._cal_buf.pop(x.exposure, None)
+            if item is not None:
+                self._pending.append(self._cal_pool.submit(self._calibrate, *item))
 
     def _wall_interval(self) -> float | None:
         """Median wall-clock time between consecutive exposures' last images (the rate they arrive at)."""
@@ -466,18 +595,21 @@ class LiveRun:
             o = self._bounds_ll
             self._bounds_ll = [min(o[0], ll[0]), min(o[1], ll[1]), max(o[2], ll[2]), max(o[3], ll[3])]
 
-    def _dsm(self, x: _Exposure, prev: tuple, eo_new: ExteriorOrientations, img_new: NDArray, written: float,
-             cell: float) -> None:
+    def _dsm(self, x: _Exposure, old: tuple[int, float, ExteriorOrientations, NDArray],
+             new: tuple[int, float, ExteriorOrientations, NDArray], written: float, cell: float) -> None:
+        """DSM tiles of the stereo pair ``old``, ``new`` (exposure, time, EO row, image of the stereo head),
+        reported for ``x`` (the later exposure)."""
         assert self.frame is not None
+        old_id, _, eo_old, img_old = old
+        new_id, _, eo_new, img_new = new
+        cpu0 = time.thread_time()
         try:
-            eo_old: ExteriorOrientations = prev[2]
-            img_old = next(iter(prev[3].values()))
             eo2 = _concat(eo_old, eo_new)
             imgs = [img_old, img_new]
             h0 = self.config.surface_height_m
             r = self.config.dsm_height_range_m
-            b0, _ = self._footprint(eo_old, 0)
-            b1, _ = self._footprint(eo_new, 0)
+            b0 = self._footprint(eo_old, 0)[0]
+            b1 = self._footprint(eo_new, 0)[0]
             area = (max(b0[0], b1[0]), max(b0[1], b1[1]), min(b0[2], b1[2]), min(b0[3], b1[3]))
             if area[0] >= area[2] or area[1] >= area[3]:
                 return
@@ -495,17 +627,21 @@ class LiveRun:
             x.record["dsm_s"] = now - written
             x.record["dsm_exposures"] = done_exposures
             x.record["dsm_cells"] = int(np.isfinite(dsm.height).sum())
+            x.record["dsm_cpu_s"] = time.thread_time() - cpu0
             with open(self.out / "latency.jsonl", "a", encoding="utf-8") as fh:
                 fh.write(json.dumps(plain({"exposure": x.exposure, "dsm_s": x.record["dsm_s"],
                                            "dsm_exposures": done_exposures,
-                                           "dsm_cells": x.record["dsm_cells"]})) + "\n")
+                                           "dsm_cells": x.record["dsm_cells"],
+                                           "dsm_cpu_s": x.record["dsm_cpu_s"]})) + "\n")
         except Exception as exc:  # noqa: BLE001 - one pair failing must not stop the flight
-            self._report(f"DSM of exposure {x.exposure} with exposure {prev[0]} failed: {exc}")
+            self._report(f"DSM of exposure {new_id} with exposure {old_id} failed: {exc}")
 
     def _calibrate(self, eo: ExteriorOrientations, arrays: dict[str, NDArray]) -> None:
+        cpu0 = time.thread_time()
         try:
             for n in eo.image:
-                self._features[str(n)] = ob.features_of(arrays[str(n)])
+                self._features[str(n)] = ob.features_of(arrays[str(n)], FeatureConfig(
+                    max_size=None, max_features=self.config.features))
             self._cal_eo.append(eo)
             win = self.config.window
             if len(self._cal_eo) < win:
@@ -542,6 +678,8 @@ class LiveRun:
                 fh.write(json.dumps(plain(line)) + "\n")
         except Exception as exc:  # noqa: BLE001 - a failed window must not stop the flight
             self._report(f"online boresight window failed: {exc}")
+        finally:
+            self._cal_cpu += time.thread_time() - cpu0
 
     # ------------------------------------------------------------------------------------------ outputs
     def _write_status(self) -> None:
@@ -570,18 +708,24 @@ class LiveRun:
             v = np.array([r[key] for r in recs if r.get(key) is not None], dtype=float)
             if not len(v):
                 return None
-            return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
-                    "n": int(len(v))}
+            return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)),
+                    "p95": float(np.percentile(v, 95)), "max": float(v.max()), "n": int(len(v))}
 
         est = self.estimate
         summary = {"exposures_done": len(recs),
                    "exposures_skipped": sum(1 for x in self.exposures.values() if x.state == "skipped"),
-                   "exposure_interval_flight_s": float(np.median(self._interval)) if self._interval else None,
+                   "exposure_interval_flight_s": self._flight_interval(),
                    "exposure_interval_s": interval, "ortho_latency_s": stats("ortho_s"),
-                   "cell_m": stats("cell_m"), "dg_latency_s": stats("dg_s"), "ortho_cpu_s": stats("cpu_s"), "dsm_latency_s": stats("dsm_s"),
-                   "dsm_latency_exposures": stats("dsm_exposures"),
+                   "cell_m": stats("cell_m"), "dg_latency_s": stats("dg_s"), "ortho_cpu_s": stats("cpu_s"),
+                   "dsm_latency_s": stats("dsm_s"), "dsm_latency_exposures": stats("dsm_exposures"),
+                   "dsm_cpu_s": stats("dsm_cpu_s"),
+                   "boresight_cpu_s_per_exposure": self._cal_cpu / len(recs) if recs else None,
+                   "process_cpu_s_per_exposure": (_process_cpu() - self._cpu0) / len(recs) if recs else None,
+                   "caught_up": sum(1 for r in recs if r.get("caught_up")),
                    "ortho_within_interval": (None if interval is None or not recs else
                                              bool(all(r["ortho_s"] <= interval for r in recs))),
+                   "ortho_within_interval_fraction": (None if interval is None or not recs else
+                                                      float(np.mean([r["ortho_s"] <= interval for r in recs]))),
                    "boresight_windows": est.n_windows, "boresight_exposures": est.n_exposures,
                    "boresight_deg": {h: np.degrees(v) for h, v in est.correction.items()},
                    "boresight_sigma_deg": {h: np.degrees(est.sigma(h)) for h in est.correction},

@@ -31,6 +31,7 @@ from skyrig.io.events_csv import read_events_csv
 from skyrig.io.images import read_image
 from skyrig.io.rig_file import read_rig
 from skyrig.io.trajectory_csv import read_trajectory_csv
+from skyrig.match.features import FeatureConfig
 
 __all__ = ["INJECTED_BORESIGHT_DEG", "simulate_3k_flight", "true_corrections", "batch_boresight", "batch_ortho",
            "mosaic_offsets"]
@@ -117,10 +118,12 @@ def _flight(folder: Path, crs: str):
 
 
 def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = None,
-                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0) -> ob.WindowEstimate:
+                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500
+                    ) -> ob.WindowEstimate:
     """The batch calibration: every exposure (or the first ``max_exposures``) in one rig adjustment with the tie
-    points of all images and either the reference heights of ``dem_path`` (the live run's observations, in one
-    adjustment) or, without a DEM, the surveyed control points (``gcp/``) and their image measurements."""
+    points of all images (``n_features`` SIFT features per image) and either the reference heights of
+    ``dem_path`` (the live run's observations, in one adjustment) or, without a DEM, the surveyed control points
+    (``gcp/``) and their image measurements."""
     from skyrig.georef.observations import ImageMeasurements
     from skyrig.io.dem import read_dem
     from skyrig.io.points_csv import read_measurements_csv, read_points_csv
@@ -137,7 +140,8 @@ def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = No
     def features(i: int):
         n = str(eo.image[i])
         if n not in feats:
-            feats[n] = ob.features_of(read_image(folder / "images" / n))
+            feats[n] = ob.features_of(read_image(folder / "images" / n),
+                                      FeatureConfig(max_size=None, max_features=n_features))
         return feats[n]
 
     pairs = ob.window_pairs(eo.exposure, eo.head, max_lag=1,

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Sequence
 
 from skyrig.errors import SkyrigError
+from skyrig.pipeline.live import FlightPaths
 
 __all__ = ["ReplayFaults", "replay_flight"]
 
@@ -50,23 +51,31 @@ def _table(path: Path) -> tuple[list[str], list[tuple[float, str]]]:
     return head, rows
 
 
-def replay_flight(src: str | os.PathLike[str], dst: str | os.PathLike[str], speed: float = 1.0,
+def replay_flight(src: str | os.PathLike[str], dst: str | os.PathLike[str] | FlightPaths, speed: float = 1.0,
                   faults: ReplayFaults = ReplayFaults(), stop: threading.Event | None = None,
                   max_exposures: int | None = None, trajectory_lag_s: float = 0.5) -> dict[str, float]:
-    """Write ``src``'s flight into ``dst`` at ``speed`` x its real rate; returns the flight-time span replayed and
-    the wall time it took."""
-    src, dst = Path(src), Path(dst)
+    """Write ``src``'s flight (a flight folder) into ``dst`` (a flight folder, given its rig; or the paths a project
+    names, whose rig must be there) at ``speed`` x its real rate; returns the flight-time span replayed and the
+    wall time it took."""
+    src = Path(src)
     if speed <= 0:
         raise SkyrigError(f"replay speed must be > 0, not {speed}")
-    (dst / "images").mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(src / "rig.yaml", dst / "rig.yaml")
+    if isinstance(dst, FlightPaths):
+        out = dst
+    else:
+        out = FlightPaths.of_folder(dst)
+        out.rig.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src / "rig.yaml", out.rig)
+    out.images.mkdir(parents=True, exist_ok=True)
+    out.trajectory.parent.mkdir(parents=True, exist_ok=True)
+    out.events.parent.mkdir(parents=True, exist_ok=True)
     th, trows = _table(src / "trajectory.csv")
     eh, erows = _table(src / "events.csv")
     exposures: dict[float, list[str]] = {}
     for t, ln in erows:
         exposures.setdefault(t, []).append(ln)
     times = sorted(exposures)[:max_exposures] if max_exposures else sorted(exposures)
-    with open(dst / "trajectory.csv", "w", encoding="utf-8") as ft, open(dst / "events.csv", "w", encoding="utf-8") as fe:
+    with open(out.trajectory, "w", encoding="utf-8") as ft, open(out.events, "w", encoding="utf-8") as fe:
         ft.writelines(th)
         fe.writelines(eh)
         ft.flush()
@@ -94,7 +103,7 @@ def replay_flight(src: str | os.PathLike[str], dst: str | os.PathLike[str], spee
                 if name in faults.drop:
                     continue
                 data = (src / "images" / name).read_bytes()
-                with open(dst / "images" / name, "wb") as fh:
+                with open(out.images / name, "wb") as fh:
                     fh.write(data[: len(data) // 2])
                     fh.flush()
                     if name in faults.truncate:
@@ -106,5 +115,5 @@ def replay_flight(src: str | os.PathLike[str], dst: str | os.PathLike[str], spee
         while ti < len(trows) and (faults.trajectory_stop_s is None or trows[ti][0] <= faults.trajectory_stop_s):
             ft.write(trows[ti][1])
             ti += 1
-    (dst / "flight.end").write_text("end\n", encoding="utf-8")
+    out.end.write_text("end\n", encoding="utf-8")
     return {"flight_s": times[-1] - times[0], "wall_s": time.time() - w0, "exposures": float(len(times))}

@@ -63,7 +63,7 @@ _INPUT_LISTS = ("images", "cameras", "measurements")
 _EXECUTOR = {"kind", "workers", "scheduler"}
 
 
-def load_project(path: str | Path, registry: Mapping[str, Stage] | None = None) -> Project:
+def load_project(path: str | Path, registry: Mapping[str, Stage] | None = None, live: bool = False) -> Project:
     """Read and validate a project file (see the module docstring).
 
     Parameters
@@ -72,6 +72,9 @@ def load_project(path: str | Path, registry: Mapping[str, Stage] | None = None) 
         The ``project.yaml``.
     registry
         The stages that may be listed (default :data:`skyrig.pipeline.run.STAGES`).
+    live
+        The flight is still to be recorded (``skyrig run --live``): the trajectory, the events and the image
+        folders need not exist yet.
 
     Raises
     ------
@@ -88,10 +91,11 @@ def load_project(path: str | Path, registry: Mapping[str, Stage] | None = None) 
         raise InputFormatError("no such project file (skyrig init FOLDER writes one)", p) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFormatError(f"cannot read the project file ({exc})", p) from None
-    return parse_project(text, p, registry)
+    return parse_project(text, p, registry, live)
 
 
-def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = None) -> Project:
+def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = None, live: bool = False
+                  ) -> Project:
     """:func:`load_project` on the text of a project file (``path`` names it in errors and anchors its paths)."""
     if registry is None:
         from skyrig.pipeline.run import STAGES
@@ -145,7 +149,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
             raise err(f"no such {'folder' if folder else 'file'}: {q}", m, kp, key)
         return q
 
-    def files_of(m: _Map, key: str, kp: str, folder: bool = False) -> tuple[Path, ...]:
+    def files_of(m: _Map, key: str, kp: str, folder: bool = False, must_exist: bool = True) -> tuple[Path, ...]:
         v = m.get(key)
         if v is None:
             return ()
@@ -157,7 +161,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         for i, item in enumerate(v):
             tmp = _Map({key: item})
             tmp.line, tmp.key_lines = m.line, {key: m.key_lines.get(key, m.line)}
-            q = file_of(tmp, key, f"{kp}[{i}]", folder=folder)
+            q = file_of(tmp, key, f"{kp}[{i}]", must_exist=must_exist, folder=folder)
             if q is not None:
                 out.append(q)
         return tuple(out)
@@ -189,8 +193,9 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     output = output if output.is_absolute() else path.parent / output
 
     inp = mapping(top.get("inputs"), top, "inputs", "inputs", set(_INPUT_FILES) | set(_INPUT_LISTS))
-    files = {k: file_of(inp, k, f"inputs.{k}") for k in _INPUT_FILES}
-    images = files_of(inp, "images", "inputs.images", folder=True)
+    recorded = ("trajectory", "events") if live else ()  # written during a live run's flight
+    files = {k: file_of(inp, k, f"inputs.{k}", must_exist=k not in recorded) for k in _INPUT_FILES}
+    images = files_of(inp, "images", "inputs.images", folder=True, must_exist=not live)
     cameras = files_of(inp, "cameras", "inputs.cameras")
     measurements = files_of(inp, "measurements", "inputs.measurements")
 

@@ -1002,3 +1002,45 @@ register_stage(Stage(
     requires=("eo", "dtm"), uses=("cameras",), provides={"ortho_dtm": "ortho.tif"}, inputs=_dsm_inputs,
     check=_product_check("ortho-dtm")))
 
+
+
+def _live_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    dem = None if o["dem"] is None else p.root / Path(o["dem"]).expanduser()
+    return _opt_files(p.rig, p.trajectory, p.events, p.images[0] if p.images else None, dem)
+
+
+def _live_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    from skyrig.pipeline.live_project import live_problem
+
+    return live_problem(p, o)
+
+
+def _live(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.pipeline.live_project import live_stage
+
+    return live_stage(ctx.out, ctx.project, ctx.options)
+
+
+register_stage(Stage(
+    "live", "Near-real-time chain (skyrig live) over the flight: DG, ortho and DSM XYZ tiles, online boresight; "
+            "with skyrig run --live while the flight is recorded, else over the recorded flight.", _live,
+    options={"height": Option(None, "float", "reference plane height (m, ellipsoidal; default: the DEM's median, "
+                                             "else the match stage's terrain_height)", nullable=True),
+             "height_sigma": Option(5.0, "float", "standard deviation of the reference surface (m)", positive=True),
+             "dem": Option(None, "file", "reference DEM (GeoTIFF in the output CRS, ellipsoidal heights)",
+                           nullable=True),
+             "cell": Option(None, "float", "ortho cell (m) choosing the finest tile zoom; default each image's GSD",
+                            nullable=True, positive=True),
+             "window": Option(8, "int", "exposures per online boresight adjustment (0: none)"),
+             "dsm": Option(True, "bool", "DSM tiles of consecutive stereo-head images"),
+             "stereo_head": Option(None, "str", "head of the DSM pairs (default: the one closest to nadir)",
+                                   nullable=True),
+             "zoom_levels": Option(4, "int", "tile zoom levels below the finest"),
+             "image_timeout": Option(20.0, "float", "seconds an image may take to be written", positive=True),
+             "trajectory_timeout": Option(20.0, "float", "seconds an exposure past the trajectory's end waits",
+                                          positive=True),
+             "idle_stop": Option(None, "float", "--live: stop after this many seconds without new input (default: "
+                                                "when end_file appears)", nullable=True, positive=True),
+             "end_file": Option("flight.end", "str", "--live: the file (relative to the project folder) the "
+                                                      "recording system writes when the flight is over")},
+    provides={"live_tiles": "tiles", "live_summary": "summary.json"}, inputs=_live_inputs, check=_live_check))
