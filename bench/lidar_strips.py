@@ -58,13 +58,15 @@ def seeds(n: int, first: int = 1, step_deg: float = 0.25) -> dict:
         zs_all.append(z)
         n_cls = np.abs(p.normal[:, 2]) > 0.9
         rows.append({"seed": seed, "horizontal_patches_above_3m": int(np.sum(n_cls & (p.centre[:, 2] > 3.0))), "seconds": time.perf_counter() - t, "planes": p.n_planes, "points": len(p),
-                     "sigma0": r.sigma0, "held": list(r.held), "z_calibration": np.round(z[:8], 2).tolist(),
+                     "sigma0": r.sigma0, "iterations": r.iterations, "held": list(r.held),
+                     "z_calibration": np.round(z[:8], 2).tolist(),
                      "max_abs_z_strips": float(np.nanmax(np.abs(z[8:])))})
         print(json.dumps(rows[-1]), flush=True)
     zc, za = np.concatenate(zs_cal), np.concatenate(zs_all)
     return {"seeds": n, "calibration_z_mean": float(np.nanmean(zc)), "calibration_z_std": float(np.nanstd(zc)),
             "all_z_mean": float(np.nanmean(za)), "all_z_std": float(np.nanstd(za)),
             "calibration_within_3_sigma_share": float(np.mean(np.abs(zc) < 3)),
+            "per_parameter_z_mean": dict(zip(CALIBRATION_NAMES, np.nanmean(np.array(zs_cal), axis=0).round(2).tolist())),
             "per_parameter_z_std": dict(zip(CALIBRATION_NAMES, np.nanstd(np.array(zs_cal), axis=0).round(2).tolist()))}
 
 
