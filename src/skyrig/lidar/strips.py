@@ -79,7 +79,9 @@ __all__ = [
     "PlanarPatches",
     "StripModel",
     "StripAdjustmentResult",
+    "adjust_line_offsets",
     "adjust_strips",
+    "LineOffsetResult",
     "apply_strip_corrections",
     "find_planar_patches",
     "patch_discrepancies",
@@ -1114,3 +1116,198 @@ def apply_strip_corrections(
         rot = matrix_from_rotvec(sc[:, 6:9] + dt[:, None] * sc[:, 9:12]) @ rot
         out[a:a + chunk] = pos + sc[:, 0:3] + dt[:, None] * sc[:, 3:6] + np.einsum("nij,nj->ni", rot, x_b)
     return out
+
+
+# ---------------------------------------------------------------------------------------------- georeferenced clouds
+@dataclass(frozen=True, eq=False)
+class LineOffsetResult:
+    """Per-flight-line offsets of a georeferenced cloud (no trajectory: :func:`adjust_line_offsets`).
+
+    Attributes
+    ----------
+    line_ids
+        ``(K,)`` the line ids (sorted).
+    offset, sigma
+        ``(K, 3)`` corrections to add to each line's points (m; zero where ``mode="vertical"`` for x, y) and their
+        standard deviations (NaN: the line shares no patch with another line).
+    mode, datum
+        ``"vertical"`` or ``"3d"``; ``"mean"`` (corrections of the lines seen sum to zero) or ``"first"``.
+    patches, pairs
+        Patches seen by two or more lines; line pairs on them.
+    sigma0
+        Square root of the variance factor of the discrepancies.
+    before, after
+        Discrepancies on the patches (:func:`patch_discrepancies` keys: ``pairs``, ``rms_m``, ``p95_abs_m``,
+        ``normalised_rms``, ``noise_rms_m``).
+    rejected
+        Patches left out as outliers (normalised residual > 4 after the first solve).
+    """
+
+    line_ids: NDArray[np.int64]
+    offset: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    mode: str
+    datum: str
+    patches: int
+    pairs: int
+    sigma0: float
+    before: dict[str, float]
+    after: dict[str, float]
+    rejected: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mode": self.mode, "datum": self.datum, "patches": self.patches, "pairs": self.pairs,
+                "sigma0": self.sigma0, "rejected_patches": self.rejected,
+                "units": "m, corrections added to the line's points (map axes x, y, height)",
+                "lines": [{"id": int(i), "offset_m": [float(v) for v in o], "sigma_m": [float(v) for v in s]}
+                          for i, o, s in zip(self.line_ids, self.offset, self.sigma)],
+                "discrepancies_before": self.before, "discrepancies_after": self.after}
+
+
+def adjust_line_offsets(
+    xyz: ArrayLike,
+    line: ArrayLike,
+    *,
+    cell_m: float = 4.0,
+    mode: str = "vertical",
+    datum: str = "mean",
+    min_points: int = 5,
+    max_thickness_m: float = 0.15,
+    min_extent_m: float = 0.5,
+    max_normal_angle_deg: float = 10.0,
+) -> LineOffsetResult:
+    """Per-line offsets of a georeferenced laser cloud from planar patches seen by overlapping lines.
+
+    Without a trajectory (a delivered LAS/LAZ: points, no ranges, no scan angles, no poses) only a rigid shift per
+    flight line can be estimated.  Each vertical column of ``cell_m`` (metric, map axes) holding a plane of at least
+    ``min_points`` points of a line (RMS distance <= ``max_thickness_m``, second spread >= ``min_extent_m``) is a
+    patch of that line; where two or more lines have a patch in the same column with normals within
+    ``max_normal_angle_deg``, each line's centroid distance from the common plane is an observation
+    ``n . (c_k + t_k) = d`` with the variance of its plane fit (RMS^2 / count).  The plane offsets ``d`` are
+    eliminated; ``mode="vertical"`` estimates ``t_k = (0, 0, dz_k)`` (what near-horizontal patches determine),
+    ``"3d"`` a full shift (needs walls and slopes).  The datum: corrections summing to zero over the lines seen
+    (``"mean"``) or the first line fixed (``"first"``).  Patches with a normalised residual above 4 after a first
+    solve are left out.
+
+    Raises
+    ------
+    InputFormatError
+        Bad shapes or options.
+    GeometryError
+        No patch seen by two lines.
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    ln = np.asarray(line)
+    if p.ndim != 2 or p.shape[1] != 3 or ln.shape != (len(p),):
+        raise InputFormatError(f"xyz must be (N, 3) and line (N,), got {p.shape} and {ln.shape}", field="xyz")
+    if mode not in ("vertical", "3d"):
+        raise InputFormatError(f"mode must be 'vertical' or '3d', not {mode!r}", field="mode")
+    if datum not in ("mean", "first"):
+        raise InputFormatError(f"datum must be 'mean' or 'first', not {datum!r}", field="datum")
+    if not cell_m > 0:
+        raise InputFormatError(f"cell_m must be positive, got {cell_m!r}", field="cell_m")
+    ids, li = np.unique(ln, return_inverse=True)
+    k_lines = len(ids)
+    origin = np.floor(p.min(axis=0)) if len(p) else np.zeros(3)
+    q = p - origin
+    cij = np.floor(q[:, :2] / cell_m).astype(np.int64)
+    cells, ci = np.unique(cij, axis=0, return_inverse=True)
+    ci = ci.ravel()
+    n_g = len(cells) * k_lines
+    g = ci * k_lines + li
+    ref = np.repeat(np.column_stack([(cells + 0.5) * cell_m, np.zeros(len(cells))]), k_lines, axis=0)
+    ref[:, 2] = np.repeat(np.bincount(ci, q[:, 2], minlength=len(cells)) / np.maximum(np.bincount(ci, minlength=len(cells)), 1), k_lines)
+    cnt, s1, s2 = _moments(g, q, n_g, ref)
+    w, v = np.linalg.eigh(_scatter(cnt, s1, s2))
+    thick = np.sqrt(np.maximum(w[:, 0], 0.0))
+    ok = (cnt >= min_points) & (thick <= max_thickness_m) & (np.sqrt(np.maximum(w[:, 1], 0.0)) >= min_extent_m)
+    nrm = v[:, :, 0] * np.where(v[:, 2, 0] < 0, -1.0, 1.0)[:, None]
+    cen = ref + s1 / np.maximum(cnt, 1.0)[:, None]
+    var = np.maximum(w[:, 0], 1e-8) / np.maximum(cnt, 1.0)  # variance of the centroid across the plane
+    ok = ok.reshape(-1, k_lines)
+    nrm, cen, var = nrm.reshape(-1, k_lines, 3), cen.reshape(-1, k_lines, 3), var.reshape(-1, k_lines)
+    # the patch normal: count-weighted mean of the lines' normals; lines disagreeing with it leave the patch
+    cw = np.where(ok, cnt.reshape(-1, k_lines), 0.0)
+    pn = np.einsum("ck,cki->ci", cw, nrm)
+    pn /= np.maximum(np.linalg.norm(pn, axis=1, keepdims=True), 1e-12)
+    ok &= np.abs(np.einsum("cki,ci->ck", nrm, pn)) >= np.cos(np.radians(max_normal_angle_deg))
+    use = np.flatnonzero(ok.sum(axis=1) >= 2)
+    if use.size == 0:
+        raise GeometryError(f"no {cell_m:g} m column holds a plane of two flight lines: do the lines overlap?")
+    pn, okp, cenp, varp = pn[use], ok[use], cen[use], var[use]
+    rows = [(j, k) for j in range(len(use)) for k in range(k_lines) if okp[j, k]]
+    pj = np.array([r[0] for r in rows])
+    pk = np.array([r[1] for r in rows])
+    obs = -np.einsum("ij,ij->i", pn[pj], cenp[pj, pk])  # n . t_k - d_j = -n . c_jk
+    sig2 = varp[pj, pk]
+    dims = [2] if mode == "vertical" else [0, 1, 2]
+    nd = len(dims)
+    seen = np.unique(pk)
+    # unknowns: t of the lines seen (nd each), then d per patch; eliminated by solving the full (small) system
+    col = {int(k): i for i, k in enumerate(seen)}
+    n_t = nd * len(seen)
+    n_u = n_t + len(use)
+    A = np.zeros((len(rows), n_u))
+    for a, d in enumerate(dims):
+        A[np.arange(len(rows)), [col[int(k)] * nd + a for k in pk]] = pn[pj, d]
+    A[np.arange(len(rows)), n_t + pj] = -1.0
+    # datum: sum of the corrections zero (mean) or the first line's zero, as weighted constraint rows
+    C = np.zeros((nd, n_u))
+    for a in range(nd):
+        if datum == "mean":
+            C[a, [i * nd + a for i in range(len(seen))]] = 1.0
+        else:
+            C[a, a] = 1.0
+    keep = np.ones(len(use), bool)
+    res = np.zeros(len(rows))
+    x = np.zeros(n_u)
+    s0 = 1.0
+    Q = np.zeros((n_u, n_u))
+    for _ in range(2):
+        wr = np.where(keep[pj], 1.0 / sig2, 0.0)
+        N = A.T @ (A * wr[:, None]) + 1e6 * (C.T @ C) / max(float(np.median(sig2)), 1e-12)
+        dead = np.diag(N) == 0
+        N[dead, dead] = 1.0
+        Q = np.linalg.pinv(N)
+        x = Q @ (A.T @ (wr * obs))
+        res = A @ x - obs
+        dof = max(int(np.sum(wr > 0)) - n_u + nd + int(dead.sum()), 1)
+        s0 = float(np.sqrt(np.sum(wr * res**2) / dof))
+        zp = np.abs(res) / np.sqrt(sig2) / max(s0, 1e-12)
+        bad = np.bincount(pj, zp > 4.0, minlength=len(use)) > 0
+        if not (bad & keep).any():
+            break
+        keep &= ~bad
+    offset = np.zeros((k_lines, 3))
+    sigma = np.full((k_lines, 3), np.nan)
+    for k, i in col.items():
+        offset[k, dims] = x[i * nd:(i + 1) * nd]
+        sigma[k, dims] = s0 * np.sqrt(np.maximum(np.diag(Q)[i * nd:(i + 1) * nd], 0.0))
+        sigma[k, [d for d in range(3) if d not in dims]] = 0.0
+
+    def discrepancies(t: NDArray[np.float64]) -> dict[str, float]:
+        d, z, pv = [], [], []
+        for j in np.flatnonzero(keep):
+            ks = np.flatnonzero(okp[j])
+            for a in range(len(ks)):
+                for b in range(a + 1, len(ks)):
+                    ka, kb = ks[a], ks[b]
+                    dd = float(pn[j] @ (cenp[j, kb] + t[kb] - cenp[j, ka] - t[ka]))
+                    vv = float(varp[j, ka] + varp[j, kb])
+                    d.append(dd)
+                    z.append(dd / np.sqrt(vv))
+                    pv.append(vv)
+        da, za, pa = np.array(d), np.array(z), np.array(pv)
+        if not da.size:
+            return {"pairs": 0, "rms_m": float("nan"), "p95_abs_m": float("nan"), "normalised_rms": float("nan"),
+                    "noise_rms_m": float("nan")}
+        return {"pairs": int(da.size), "rms_m": float(np.sqrt(np.mean(da**2))),
+                "p95_abs_m": float(np.percentile(np.abs(da), 95)), "normalised_rms": float(np.sqrt(np.mean(za**2))),
+                "noise_rms_m": float(np.sqrt(np.mean(pa)))}
+
+    before = discrepancies(np.zeros((k_lines, 3)))
+    after = discrepancies(offset)
+    logger.info("line offsets: %d lines, %d patches, %d pairs, discrepancy RMS %.4f -> %.4f m", k_lines,
+                int(keep.sum()), before["pairs"], before["rms_m"], after["rms_m"])
+    return LineOffsetResult(ids.astype(np.int64), offset, sigma, mode, datum, int(keep.sum()), before["pairs"], s0,
+                            before, after, int((~keep).sum()))

@@ -22,6 +22,7 @@ every error names the file, the line and the key path (``stages.dsm.mode``)::
       measurements: [gcp/image_measurements.csv]   # measured image positions of the control / check points
       scale_bars: null            # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav without GNSS)
       ties: null                  # tie points measured elsewhere (point,image,column,row) instead of a match stage
+      laser: [scan.csv]           # a raw scan CSV with strips (+ trajectory, rig with a scanner) or LAS/LAZ files
     executor: {kind: auto, workers: null, scheduler: null}
     stages:                       # run in this order; a stage not listed is not run
       georef: {}
@@ -59,7 +60,7 @@ PROJECT_FORMAT = "skyrig-project"
 
 _TOP = {"format", "version", "name", "crs", "geoid", "output", "inputs", "executor", "stages"}
 _INPUT_FILES = ("trajectory", "events", "rig", "eo", "control", "check", "scale_bars", "ties")
-_INPUT_LISTS = ("images", "cameras", "measurements")
+_INPUT_LISTS = ("images", "cameras", "measurements", "laser")
 _EXECUTOR = {"kind", "workers", "scheduler"}
 
 
@@ -193,6 +194,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     images = files_of(inp, "images", "inputs.images", folder=True)
     cameras = files_of(inp, "cameras", "inputs.cameras")
     measurements = files_of(inp, "measurements", "inputs.measurements")
+    laser = files_of(inp, "laser", "inputs.laser")
 
     ex = mapping(top.get("executor"), top, "executor", "executor", _EXECUTOR)
     kind = ex.get("kind", "auto")
@@ -239,7 +241,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
                       f"{sname!r} needs an output CRS: give one", top, "crs", "crs")
     project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
-                      lines, files["scale_bars"], files["ties"])
+                      lines, files["scale_bars"], files["ties"], laser)
     for spec in project.stages:
         check = registry[spec.name].check
         if check is not None:
