@@ -136,3 +136,23 @@ def test_lidar_stage_refuses_missing_inputs(tmp_path):
     (tmp_path / "p2.yaml").write_text("format: skyrig-project\nversion: 1\ncrs: EPSG:32633\nstages: {lidar: {}}\n")
     with pytest.raises(InputFormatError, match=r"inputs\.laser"):
         load_project(tmp_path / "p2.yaml")
+
+
+def test_init_recognises_a_laser_project(tmp_path):
+    from skyrig.io.laz import write_las
+    from skyrig.io.scanner_record import write_scanner_record
+    from skyrig.pipeline.project import detect_inputs, parse_project, project_template
+
+    (tmp_path / "scan.csv").write_text("# skyrig-raw-scan 1\ntime,range,alpha,strip\n1,2,3,0\n")
+    (tmp_path / "trajectory.csv").write_text("# skyrig-trajectory 1\n# crs: EPSG:4979\n")
+    write_scanner_record(tmp_path / "rig.yaml", {"name": "lidar", "body_from_scanner": np.eye(3).tolist(),
+                                                 "lever_arm_m": [0.1, 0.0, 0.1]})
+    write_las(tmp_path / "tls_reference.laz", np.array([[500000.0, 5650000.0, 100.0]] * 3), "EPSG:32633")
+    det = detect_inputs(tmp_path)
+    assert [q.name for q in det.laser] == ["scan.csv"] and det.laser_reference.name == "tls_reference.laz"
+    assert det.rig is not None and det.heads == []
+    text = project_template(det, crs="EPSG:32633")
+    p = parse_project(text, tmp_path / "project.yaml")
+    assert [s.name for s in p.stages] == ["lidar", "dtm"]
+    assert p.stage("lidar").options["reference"] == "tls_reference.laz"
+    assert [q.name for q in p.laser] == ["scan.csv"] and p.trajectory.name == "trajectory.csv"

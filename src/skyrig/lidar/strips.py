@@ -898,7 +898,7 @@ def _run(p: PlanarPatches, mount: ScannerMount, model: StripModel, x0: NDArray, 
         # the step in posterior sigmas (diagonal of N^-1; held unknowns have a unit diagonal and no step)
         step = float(np.max(np.abs(dx) / np.sqrt(np.maximum(np.diag(np.linalg.inv(N)), 1e-300))))
         logger.debug("strip adjustment iteration %d: step %.3g sigmas, vtpv %.6g", it, step, vtpv)
-        if it >= 2 and reject_sigma > 0:
+        if 2 <= it <= 6 and reject_sigma > 0:  # rejections settle early; later ones would hold off convergence
             z = np.abs(res["r"]) / res["sigma"]
             newly = active & (z > reject_sigma)
             if newly.any():
@@ -939,7 +939,7 @@ def adjust_strips(
     iterations
         Gauss-Newton iterations (at most).
     reject_sigma
-        Points with a normalised residual above this are left out from the second iteration on (0: never).
+        Points with a normalised residual above this are left out in the second to sixth iterations (0: never).
     ratio_max, z_max, strong_ratio
         The determinability rule (:mod:`skyrig.adjust.determinability`).
     covariance

@@ -249,14 +249,26 @@ def laser_folder(laser: tuple[Path, ...], out: Path, out_frame: Any, *, trajecto
     else:
         from skyrig.lidar.strips import adjust_line_offsets
 
-        xyz, line, gps, inten = _read_clouds(clouds, out_frame)
+        xyz, line, gps, inten, own = _read_clouds(clouds, out_frame)
         progress(1, 3)
         r = adjust_line_offsets(xyz, line, cell_m=opts.get("cell_lines", 4.0), mode=opts.get("offsets", "vertical"))
         k = np.searchsorted(r.line_ids, line)
         adjusted = xyz + np.nan_to_num(r.offset)[k]
         progress(2, 3)
-        stated = write_laser_cloud(out / "laser.laz", adjusted, out_frame, out_frame, gps_time=gps, intensity=inten,
-                                   point_source_id=line, note="per-line offsets (skyrig lidar stage)")
+        note = "per-line offsets (skyrig lidar stage)"
+        if own is None:
+            stated = write_laser_cloud(out / "laser.laz", adjusted, out_frame, out_frame, gps_time=gps,
+                                       intensity=inten, point_source_id=line, note=note)
+        else:  # the project's horizontal CRS: the files' own CRS and heights kept (in their units)
+            from skyrig.io.laz import write_las
+
+            crs, fac = own
+            words = (f"as delivered: {crs.sub_crs_list[1].name}" if crs.is_compound else
+                     "ellipsoidal heights" if len(crs.axis_info) >= 3 else "heights as delivered (CRS without a "
+                     "vertical part)")
+            write_las(out / "laser.laz", adjusted / fac, crs, gps_time=gps, intensity=inten, extra={"line": line},
+                      extra_types={"line": np.int32}, metadata={"skyrig_vertical_reference": words, "skyrig_note": note})
+            stated = {"crs": crs.name, "vertical_reference": words}
         summary = {"mode": f"per-line {r.mode} offsets (georeferenced clouds, no trajectory)", "points": len(xyz),
                    "lines": len(r.line_ids), "patches": r.patches, "sigma0": r.sigma0,
                    "discrepancies_before": r.before, "discrepancies_after": r.after, **stated}
@@ -267,23 +279,33 @@ def laser_folder(laser: tuple[Path, ...], out: Path, out_frame: Any, *, trajecto
     return summary
 
 
-def _read_clouds(paths: list[Path], out_frame: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
-                                                               np.ndarray | None]:
-    """Points of LAS/LAZ files in ``out_frame`` (metres), their line ids, GPS times and intensities."""
+def _read_clouds(paths: list[Path], out_frame: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Any]:
+    """Points of LAS/LAZ files in metres, their line ids, GPS times, intensities, and how to write them back:
+    ``None`` (``xyz`` is in ``out_frame``) or ``(crs, factors)`` -- files in the project's horizontal CRS keep their
+    own CRS and heights (no datum change: a vertical datum needs its geoid grid), ``xyz`` scaled to metres by
+    ``factors`` (e.g. heights in US survey feet)."""
     import pyproj
 
+    from skyrig.geodesy.crs import horizontal_crs, resolve_crs
     from skyrig.geodesy.statement import frame_from_file_crs
     from skyrig.io.laz import read_las
 
-    xyz, line, gps, inten = [], [], [], []
-    for p in paths:
-        c = read_las(p, require_crs=True)
+    clouds = [read_las(p, require_crs=True) for p in paths]
+    for p, c in zip(paths, clouds):
         if c.point_source_id is None:
             raise InputFormatError("no point_source_id (flight line) dimension", p, field="point_source_id")
-        fr = frame_from_file_crs(pyproj.CRS.from_wkt(c.crs_wkt), c.metadata.get("geoid") or None,
-                                 c.metadata.get("vertical_reference"))
+    crss = [pyproj.CRS.from_wkt(str(c.crs_wkt)) for c in clouds]
+    line = np.concatenate([np.asarray(c.point_source_id, np.int64) for c in clouds])
+    gps = np.concatenate([c.gps_time if c.gps_time is not None else np.zeros(len(c)) for c in clouds])
+    inten = np.concatenate([c.intensity if c.intensity is not None else np.zeros(len(c)) for c in clouds])
+    same = all(c == crss[0] for c in crss) and horizontal_crs(crss[0]) == horizontal_crs(resolve_crs(out_frame.crs))
+    if same:
+        axes = crss[0].axis_info
+        f = np.array([float(axes[0].unit_conversion_factor), float(axes[1].unit_conversion_factor),
+                      float(axes[-1].unit_conversion_factor) if len(axes) >= 3 else 1.0])
+        return np.concatenate([c.xyz for c in clouds]) * f, line, gps, inten, (crss[0], f)
+    xyz = []
+    for p, c, crs in zip(paths, clouds, crss):
+        fr = frame_from_file_crs(crs, c.metadata.get("geoid") or None, c.metadata.get("vertical_reference"))
         xyz.append(out_frame.from_ecef(fr.to_ecef(c.xyz)))
-        line.append(np.asarray(c.point_source_id, np.int64))
-        gps.append(c.gps_time if c.gps_time is not None else np.zeros(len(c)))
-        inten.append(c.intensity if c.intensity is not None else np.zeros(len(c)))
-    return np.concatenate(xyz), np.concatenate(line), np.concatenate(gps), np.concatenate(inten)
+    return np.concatenate(xyz), line, gps, inten, None

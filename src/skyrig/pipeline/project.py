@@ -276,6 +276,8 @@ class Detected:
     heads: list[str] = field(default_factory=list)
     exif_gps: bool = False
     notes: list[str] = field(default_factory=list)
+    laser: list[Path] = field(default_factory=list)  # a raw scan CSV or LAS/LAZ files
+    laser_reference: Path | None = None  # a reference cloud (name with 'reference' / 'tls'): control of the strips
 
 
 def _first_line(p: Path) -> str:
@@ -370,11 +372,22 @@ def detect_inputs(folder: str | Path) -> Detected:
             found["events"].append(f)
         elif suf == ".csv" and first.startswith("# skyrig-eo"):
             found["EO file"].append(f)
+        elif suf == ".csv" and first.startswith("# skyrig-raw-scan"):
+            d.laser.append(f)
+        elif suf in (".las", ".laz"):
+            low = f.stem.lower()
+            if any(w in low for w in ("reference", "tls")) and d.laser_reference is None:
+                d.laser_reference = f
+            else:
+                d.laser.append(f)
         elif suf in (".yaml", ".yml") and f.name != "project.yaml":
             from skyrig.io.rig_file import read_rig
 
             if _looks_like_rig(f):  # a rig file that does not read is an error, not "no rig"
-                d.heads = list(read_rig(f).heads) if not found["rig file"] else d.heads
+                text = f.read_text(encoding="utf-8-sig", errors="replace")
+                laser_only = "scanners:" in text and not any(ln.startswith("heads:") for ln in text.splitlines())
+                if not found["rig file"] and not laser_only:
+                    d.heads = list(read_rig(f).heads)
                 found["rig file"].append(f)
         elif suf == ".csv" and f.parent.name != "tie":
             header = _column_row(f).lower().replace(" ", "")
@@ -402,6 +415,17 @@ def detect_inputs(folder: str | Path) -> Detected:
             c = _header_crs(src)
             if c:
                 d.crs, d.crs_source = c, f"the {what}'s header"
+    if d.laser and d.crs is None:  # the horizontal CRS of a georeferenced laser cloud
+        import laspy
+
+        for q in d.laser:
+            if q.suffix.lower() in (".las", ".laz"):
+                with laspy.open(q) as fh:
+                    c = fh.header.parse_crs()
+                h = c.sub_crs_list[0] if c is not None and c.is_compound else c
+                if h is not None and h.to_epsg():
+                    d.crs, d.crs_source = f"EPSG:{h.to_epsg()}", f"the horizontal CRS of {q.name}"
+                break
     pts = None
     if d.control is not None:  # control points that do not read are refused (were left out with a note)
         from skyrig.io.points_csv import read_points_csv
@@ -522,9 +546,13 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
             chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]
         if "ortho" in registry:
             chosen["ortho"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
+    if det.laser and "lidar" in registry:
+        chosen["lidar"] = {"reference": rel(det.laser_reference).strip(chr(34))} if det.laser_reference is not None else {}
+        if "dtm" in registry and "dtm" not in chosen:
+            chosen["dtm"] = {}
     if not chosen:
-        raise InputFormatError("found nothing to run: no images, and no trajectory + events + rig (skyrig init "
-                               "looks for them in the folder and two levels of sub-folders)", det.folder)
+        raise InputFormatError("found nothing to run: no images, no trajectory + events + rig, no laser data (skyrig "
+                               "init looks for them in the folder and two levels of sub-folders)", det.folder)
     out = [f"# skyrig project file (written by skyrig init from {det.folder}).",
            "# Paths are relative to this file. Unknown keys are errors. Run it with: skyrig run project.yaml",
            "# A stage reruns only when its inputs or options change (its manifest keeps a fingerprint).",
@@ -550,6 +578,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
            "    # image positions of control / check points",
            "  scale_bars: null    # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav with no_gps)",
            "  ties: null    # tie points measured elsewhere (point,image,column,row) instead of a match stage",
+           f"  laser: {_yaml_value([rel(q).strip(chr(34)) for q in det.laser])}"
+           "    # a raw scan CSV with strips (+ trajectory, rig with a scanner) or LAS/LAZ files",
            "executor:    # where parallel work runs; never changes the results",
            "  kind: auto    # auto | serial | local (Dask worker processes)",
            "  workers: null    # local worker processes (default: up to 4)",
