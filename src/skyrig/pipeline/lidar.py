@@ -309,3 +309,43 @@ def _read_clouds(paths: list[Path], out_frame: Any) -> tuple[np.ndarray, np.ndar
         fr = frame_from_file_crs(crs, c.metadata.get("geoid") or None, c.metadata.get("vertical_reference"))
         xyz.append(out_frame.from_ecef(fr.to_ecef(c.xyz)))
     return np.concatenate(xyz), line, gps, inten, None
+
+
+def simulate_laser_project(folder: PathLike, seed: int = 2, step_deg: float = 1.0,
+                           pass_u_m: tuple[float, float] = (26.0, 12.0)) -> Any:
+    """A tiny laser project of the uav-bridge-lidar strip flight in ``folder``: ``scan.csv`` (raw scan with strip ids),
+    ``trajectory.csv`` (recorded), ``rig.yaml`` (the nominal scanner record), ``tls_reference.laz`` (the terrestrial
+    reference, EPSG:32633, ellipsoidal heights) and ``project.yaml`` (stages ``lidar`` with the flight's stated
+    accuracies, ``dtm``).  Returns the simulated survey (its truth judges the outputs)."""
+    from dataclasses import replace
+
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.io.laz import write_las
+    from skyrig.io.raw_scan_csv import write_raw_scan_csv
+    from skyrig.io.scanner_record import write_scanner_record
+    from skyrig.io.trajectory_csv import write_trajectory_csv
+    from skyrig.lidar.scanner import Scanner2D
+    from skyrig.simulate.lidar import build_lidar_survey, lidar_scenario_spec
+
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    spec = replace(lidar_scenario_spec("strips-ci", seed), scanner=Scanner2D(step_deg=step_deg), pass_u_m=pass_u_m,
+                   reference_density_per_m2=40.0, reference_ground_density_per_m2=10.0)
+    sv = build_lidar_survey(spec)
+    write_raw_scan_csv(root / "scan.csv", sv.scan)
+    write_trajectory_csv(root / "trajectory.csv", sv.trajectory_recorded, crs="EPSG:4979")
+    m = sv.mount_recorded
+    write_scanner_record(root / "rig.yaml", {"name": "lidar", "body_from_scanner": m.body_from_scanner.tolist(),
+                                             "lever_arm_m": m.lever_arm_m.tolist()})
+    write_las(root / "tls_reference.laz", WorldFrame.map("EPSG:32633").from_ecef(sv.frame.to_ecef(sv.reference_xyz)),
+              "EPSG:32633")
+    e = spec.errors
+    deg = float(np.degrees(1.0))
+    (root / "project.yaml").write_text(
+        "format: skyrig-project\nversion: 1\nname: laser-strips\ncrs: EPSG:32633\noutput: output\n"
+        "inputs: {laser: [scan.csv], trajectory: trajectory.csv, rig: rig.yaml}\n"
+        f"stages:\n  lidar: {{reference: tls_reference.laz, range_sigma: {e.range_sigma_m}, "
+        f"position_sigma: [{', '.join('%g' % v for v in e.strip_position_sigma_m)}], "
+        f"attitude_sigma_deg: [{', '.join('%.6g' % (v * deg) for v in e.strip_attitude_sigma_rad)}]}}\n"
+        "  dtm: {resolution: 1.0, cloth_resolution: 0.5}\n")
+    return sv
