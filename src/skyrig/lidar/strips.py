@@ -1262,7 +1262,7 @@ def adjust_line_offsets(
     res = np.zeros(len(rows))
     x = np.zeros(n_u)
     s0 = 1.0
-    Q = np.zeros((n_u, n_u))
+    Q: NDArray[Any] = np.zeros((n_u, n_u))
     for _ in range(2):
         wr = np.where(keep[pj], 1.0 / sig2, 0.0)
         N = A.T @ (A * wr[:, None]) + 1e6 * (C.T @ C) / max(float(np.median(sig2)), 1e-12)
@@ -1309,5 +1309,5 @@ def adjust_line_offsets(
     after = discrepancies(offset)
     logger.info("line offsets: %d lines, %d patches, %d pairs, discrepancy RMS %.4f -> %.4f m", k_lines,
                 int(keep.sum()), before["pairs"], before["rms_m"], after["rms_m"])
-    return LineOffsetResult(ids.astype(np.int64), offset, sigma, mode, datum, int(keep.sum()), before["pairs"], s0,
+    return LineOffsetResult(ids.astype(np.int64), offset, sigma, mode, datum, int(keep.sum()), int(before["pairs"]), s0,
                             before, after, int((~keep).sum()))

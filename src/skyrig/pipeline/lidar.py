@@ -170,6 +170,7 @@ def write_laser_cloud(path: PathLike, xyz: np.ndarray, source_frame: Any, out_fr
     from skyrig.io.laz import write_las
 
     pts = out_frame.from_ecef(source_frame.to_ecef(xyz))
+    crs: Any
     if out_frame.kind == "ecef":
         crs, words, kind = "EPSG:4978", "ECEF (geocentric, no height)", "ecef"
     else:
@@ -179,7 +180,7 @@ def write_laser_cloud(path: PathLike, xyz: np.ndarray, source_frame: Any, out_fr
             "geoid": str(getattr(out_frame, "geoid", "") or "")}
     if note:
         meta["skyrig_note"] = note
-    extra = {"line": np.asarray(point_source_id)} if point_source_id is not None else None
+    extra: dict[str, Any] | None = {"line": np.asarray(point_source_id)} if point_source_id is not None else None
     write_las(path, pts, crs, gps_time=gps_time, intensity=intensity, extra=extra,
               extra_types={"line": np.int32} if extra else None, metadata=meta)
     return {"crs": crs if isinstance(crs, str) else crs.name, "vertical_reference": words}
