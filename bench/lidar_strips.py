@@ -11,8 +11,9 @@ discrepancies before/after, and the cloud against the TLS reference (C2C with a 
 mount, after skyrig.lidar.boresight's separate TLS calibration (boresight) and after the strip adjustment, next to
 the scanner's range noise.
 ``--autzen``: ../shared/data/autzen-lidar has georeferenced points only (no trajectory, no ranges or scan angles
-of a full strip adjustment): two epochs of two flight lines each; what the data supports is a 3D offset per flight
-line from planar patches (first line fixed), and the discrepancies on the patches before and after.
+of a full strip adjustment): two epochs of two flight lines each; what the data supports is a vertical offset per
+flight line from planar patches (skyrig.lidar.strips.adjust_line_offsets, the lidar stage's LAS path; corrections
+summing to zero), and the discrepancies on the patches before and after (autzen_trim.laz is one flight line).
 """
 
 from __future__ import annotations
@@ -58,13 +59,15 @@ def seeds(n: int, first: int = 1, step_deg: float = 0.25) -> dict:
         zs_all.append(z)
         n_cls = np.abs(p.normal[:, 2]) > 0.9
         rows.append({"seed": seed, "horizontal_patches_above_3m": int(np.sum(n_cls & (p.centre[:, 2] > 3.0))), "seconds": time.perf_counter() - t, "planes": p.n_planes, "points": len(p),
-                     "sigma0": r.sigma0, "held": list(r.held), "z_calibration": np.round(z[:8], 2).tolist(),
+                     "sigma0": r.sigma0, "iterations": r.iterations, "held": list(r.held),
+                     "z_calibration": np.round(z[:8], 2).tolist(),
                      "max_abs_z_strips": float(np.nanmax(np.abs(z[8:])))})
         print(json.dumps(rows[-1]), flush=True)
     zc, za = np.concatenate(zs_cal), np.concatenate(zs_all)
     return {"seeds": n, "calibration_z_mean": float(np.nanmean(zc)), "calibration_z_std": float(np.nanstd(zc)),
             "all_z_mean": float(np.nanmean(za)), "all_z_std": float(np.nanstd(za)),
             "calibration_within_3_sigma_share": float(np.mean(np.abs(zc) < 3)),
+            "per_parameter_z_mean": dict(zip(CALIBRATION_NAMES, np.nanmean(np.array(zs_cal), axis=0).round(2).tolist())),
             "per_parameter_z_std": dict(zip(CALIBRATION_NAMES, np.nanstd(np.array(zs_cal), axis=0).round(2).tolist()))}
 
 
@@ -111,80 +114,24 @@ def full(seed: int = 1) -> dict:
 
 
 def autzen(root: Path, cell: float = 4.0) -> dict:
-    """Per-flight-line 3D offsets from planar patches of two epochs x two flight lines (first line fixed)."""
+    """Per-flight-line vertical offsets (skyrig.lidar.strips.adjust_line_offsets, the lidar stage's LAS/LAZ path) of
+    two epochs x two flight lines; heights converted from the files' US survey feet to metres."""
     import laspy
+    import pyproj
+
+    from skyrig.lidar.strips import adjust_line_offsets
 
     pts, line = [], []
     for name in ("autzen-bmx-2010.las", "autzen-bmx-2023.las"):
         f = laspy.read(root / name)
-        pts.append(np.column_stack([f.x, f.y, f.z]))
-        line.append([f"{name[11:15]}/{int(s)}" for s in f.point_source_id])
-    xyz = np.concatenate(pts)
-    lines = np.concatenate(line)
-    ids, li = np.unique(lines, return_inverse=True)
-    xyz = xyz - xyz.mean(axis=0)
-    key = np.floor(xyz[:, :2] / cell).astype(np.int64)  # 2D cells: vertical columns (ground and roofs)
-    cells, ci = np.unique(key, axis=0, return_inverse=True)
-    ci = ci.ravel()
-    planes = []  # (cell, line) plane fits: centre, normal, count, rms
-    for c in range(len(cells)):
-        for k in range(len(ids)):
-            m = (ci == c) & (li == k)
-            if m.sum() < 5:
-                continue
-            q = xyz[m]
-            w, v = np.linalg.eigh(np.cov((q - q.mean(axis=0)).T))
-            if np.sqrt(max(w[0], 0)) > 0.15 or np.sqrt(w[1]) < 0.5:
-                continue
-            planes.append((c, k, q.mean(axis=0), v[:, 0] * np.sign(v[2, 0] or 1.0), int(m.sum()), float(np.sqrt(max(w[0], 0)))))
-    pairs = []  # discrepancy of line b's points from line a's plane at the patch, along a's normal
-    for i, (c, a, ca, na, nn, sa) in enumerate(planes):
-        for (c2, b, cb, nb, nn2, sb) in planes[i + 1:]:
-            if c2 != c or abs(float(na @ nb)) < np.cos(np.radians(10)):
-                continue
-            pairs.append((a, b, na, float(na @ (cb - ca)), np.hypot(sa / np.sqrt(nn), sb / np.sqrt(nn2))))
-    if not pairs:
-        return {"lines": ids.tolist(), "pairs": 0}
-    # per-line vertical offsets dz_k (dz_0 = 0): the patches are near-horizontal (ground, roofs), which determine the
-    # heights only; n_z (dz_b - dz_a) = -d, least squares with weights 1/sigma^2 (sigma: the two plane fits' noise)
-    K = len(ids)
-    A = np.zeros((len(pairs), K - 1))
-    y = np.zeros(len(pairs))
-    w = np.zeros(len(pairs))
-    for r_, (a, b, n, d, s) in enumerate(pairs):
-        if b > 0:
-            A[r_, b - 1] += n[2]
-        if a > 0:
-            A[r_, a - 1] -= n[2]
-        y[r_] = -d
-        w[r_] = 1.0 / max(s, 0.01) ** 2
-    seen = np.flatnonzero(np.abs(A).sum(axis=0) > 0)  # lines sharing no patch with another stay undetermined
-    Ar = A[:, seen]
-    N = Ar.T @ (Ar * w[:, None])
-    t = np.full(K - 1, np.nan)
-    sig = np.full(K - 1, np.nan)
-    t[seen] = np.linalg.lstsq(N, Ar.T @ (w * y), rcond=None)[0]
-    res = Ar @ t[seen] - y
-    dof = max(len(pairs) - len(seen), 1)
-    s0 = float(np.sqrt(np.sum(w * res**2) / dof))
-    sig[seen] = s0 * np.sqrt(np.diag(np.linalg.pinv(N)))
-    before = np.array([p[3] for p in pairs])
-    same = np.array([ids[p[0]][:4] == ids[p[1]][:4] for p in pairs])
-
-    def rms(v: np.ndarray) -> float | None:
-        return float(np.sqrt(np.mean(v**2))) if v.size else None
-
-    return {"lines": ids.tolist(), "cell_m": cell, "planes": len(planes), "pairs": len(pairs),
-            "pairs_same_epoch": int(same.sum()), "pairs_across_epochs": int((~same).sum()),
-            "reference_line": ids[0],
-            "vertical_offsets_m": {ids[k + 1]: (round(float(t[k]), 3) if np.isfinite(t[k]) else "no shared patch")
-                                   for k in range(K - 1)},
-            "vertical_offset_sigmas_m": {ids[k + 1]: round(float(sig[k]), 3) for k in range(K - 1) if np.isfinite(sig[k])},
-            "sigma0": s0,
-            "discrepancy_rms_before_m": {"all": rms(before), "same_epoch": rms(before[same]),
-                                         "across_epochs": rms(before[~same])},
-            "discrepancy_rms_after_m": {"all": rms(res), "same_epoch": rms(res[same]), "across_epochs": rms(res[~same])},
-            "predicted_noise_rms_m": rms(np.array([p[4] for p in pairs]))}
+        axes = pyproj.CRS.from_wkt(f.header.parse_crs().to_wkt()).axis_info
+        hv = [float(ax.unit_conversion_factor) for ax in axes]
+        pts.append(np.column_stack([np.asarray(f.x) * hv[0], np.asarray(f.y) * hv[1], np.asarray(f.z) * hv[-1]]))
+        line.append(np.asarray(f.point_source_id, np.int64))
+    r = adjust_line_offsets(np.concatenate(pts), np.concatenate(line), cell_m=cell, mode="vertical")
+    trim = laspy.read(root / "autzen_trim.laz")
+    return {**r.to_dict(), "cell_m": cell, "lines_note": "point_source_id 7328/7329: 2010 epoch, 310/311: 2023 epoch",
+            "autzen_trim_lines": np.unique(np.asarray(trim.point_source_id)).tolist()}
 
 
 def main() -> None:

@@ -59,6 +59,7 @@ class LasPoints:
     extra: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     rgb: NDArray[np.uint16] | None = None
     metadata: dict[str, str] = field(default_factory=dict)
+    point_source_id: NDArray[np.int64] | None = None  # the flight line of each point (LAS point_source_id)
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -110,7 +111,8 @@ def read_las(path: PathLike, require_crs: bool = False) -> LasPoints:
                 meta = {str(k): str(v) for k, v in json.loads(bytes(vlr.record_data).decode("utf-8")).items()}
             except (ValueError, AttributeError, UnicodeDecodeError):
                 raise InputFormatError("unreadable skyrig metadata VLR", p, field="metadata") from None
-    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra, rgb, meta)
+    psid = np.asarray(las.point_source_id, np.int64) if "point_source_id" in dims else None
+    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra, rgb, meta, psid)
 
 
 def write_las(

@@ -20,7 +20,12 @@ scan) on the same patches, fixed, with their own noise.
 
 **Stochastic model.**  A point's residual has the variance propagated from range noise (along the beam), deflection
 angle noise (across the beam in the scan plane), white trajectory noise (position and attitude) and a surface
-roughness; the per-strip trajectory corrections are weighted with the trajectory's stated accuracy (zero-mean
+roughness.  The Jacobians are evaluated at the *adjusted observations* (Gauss-Helmert: each point moved onto its
+plane, along its beam for the range's share of the residual; :func:`plane_residuals` ``linearise="adjusted"``): with
+the Jacobians at the recorded points, the noise along a slanted beam enters the plane's tilt, the boresight, range
+scale and attitude columns correlated with the residual, a bias of ``O(sigma^2)`` per point that does not average
+out while the formal sigmas shrink with the number of points (20 seeds of the strips-ci flight: range scale z mean
++1.1, range offset -0.8, calibration z std 1.23 at the recorded points; mean 0.04, std 1.08 at the adjusted ones); the per-strip trajectory corrections are weighted with the trajectory's stated accuracy (zero-mean
 priors), the calibration with wide priors centred on the nominal values.  Covariances are ``sigma0^2 N^-1``
 (a-posteriori) or ``N^-1`` (a-priori).
 
@@ -74,7 +79,9 @@ __all__ = [
     "PlanarPatches",
     "StripModel",
     "StripAdjustmentResult",
+    "adjust_line_offsets",
     "adjust_strips",
+    "LineOffsetResult",
     "apply_strip_corrections",
     "find_planar_patches",
     "patch_discrepancies",
@@ -527,6 +534,7 @@ def plane_residuals(
     offset: NDArray[np.float64],
     model: StripModel,
     rows: NDArray[np.intp] | slice = slice(None),
+    linearise: str = "observed",
 ) -> dict[str, NDArray[np.float64]]:
     """Point-to-plane residuals of laser points, their Jacobians and sigmas.
 
@@ -546,6 +554,17 @@ def plane_residuals(
         The stochastic model.
     rows
         Subset of the points.
+    linearise
+        Where the Jacobians are evaluated: ``"observed"`` -- at the recorded range and angle (the exact derivatives
+        of ``r``, what a finite difference gives); ``"adjusted"`` -- at the *adjusted observations* of the
+        Gauss-Helmert model: the range, deflection angle, trajectory pose and surface each corrected by its share
+        of the residual (share ``sigma_l^2 B_l / sigma^2``, ``B_l = dr/dl``), which puts the point on the plane.
+        The noise of a laser point lies along its beam, not along the normal, so the recorded point's noise enters
+        the Jacobians (the plane's tilt ``e . y``, the boresight's ``x_s``, the range scale's ``rho``, the
+        attitude's ``w``) correlated with the residual: least squares with Jacobians at the observations is then
+        biased by ``O(sigma^2)`` per point, a bias that does not shrink with the number of points while the
+        formal sigmas do (errors-in-variables).  At the adjusted observations the normal equations are those of
+        the maximum-likelihood (total least squares) solution, without that bias.
 
     Returns
     -------
@@ -554,35 +573,60 @@ def plane_residuals(
         ``J_plane`` ``(m, 3)`` (two tangent rotations of the normal along ``e1``, ``e2``, and ``d``); ``e1``, ``e2``
         ``(m, 3)``; ``sigma`` ``(m,)``; ``X`` ``(m, 3)`` the georeferenced points.
     """
+    if linearise not in ("observed", "adjusted"):
+        raise InputFormatError(f"linearise must be 'observed' or 'adjusted', not {linearise!r}", field="linearise")
     pl = patches.plane[rows]
     st = patches.strip[rows]
     dt = patches.dt_s[rows]
     rho_rec = patches.range_m[rows]
     u_s = patches.beam_s[rows]
+    du_s = patches.dbeam_s[rows]
     b_cur = mount.body_from_scanner @ matrix_from_rotvec(calibration[0:3])
     lever = mount.lever_arm_m + calibration[3:6]
     r0, scale = calibration[6], calibration[7]
-    rho = (rho_rec - r0) / (1.0 + scale)
-    x_s = rho[:, None] * u_s
-    x_b = x_s @ b_cur.T + lever
     sc = strips[st]
     rot_corr = matrix_from_rotvec(sc[:, 6:9] + dt[:, None] * sc[:, 9:12])
     r_full = rot_corr @ patches.rotation[rows]  # (m, 3, 3) corrected local_from_body
-    w = np.einsum("nij,nj->ni", r_full, x_b)
-    X = patches.position[rows] + sc[:, 0:3] + dt[:, None] * sc[:, 3:6] + w
+    p_full = patches.position[rows] + sc[:, 0:3] + dt[:, None] * sc[:, 3:6]
     n = normal[pl]
-    y = X - patches.centre[pl]
-    r = np.einsum("ij,ij->i", n, y) - offset[pl]
-    # Jacobians
     n_b = np.einsum("nji,nj->ni", r_full, n)  # normal in the body frame
     n_s = n_b @ b_cur  # ... in the scanner frame
     g_s = np.einsum("ij,ij->i", n_s, u_s)  # n . beam (world)
+    g_a = np.einsum("ij,ij->i", n_s, du_s)  # n . d beam / d alpha
+
+    def georef(rho_obs: NDArray, u: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        rho_ = (rho_obs - r0) / (1.0 + scale)
+        x_s_ = rho_[:, None] * u
+        w_ = np.einsum("nij,nj->ni", r_full, x_s_ @ b_cur.T + lever)
+        return rho_, x_s_, w_, p_full + w_
+
+    rho, x_s, w, X_obs = georef(rho_rec, u_s)
+    y = X_obs - patches.centre[pl]
+    r = np.einsum("ij,ij->i", n, y) - offset[pl]
+    wxn = np.cross(w, n)
+    # variance: range along the beam, angle across it, trajectory noise, roughness (each sigma_l^2 B_l^2)
+    v_rng = (model.range_sigma_m * g_s / (1.0 + scale)) ** 2
+    v_ang = (model.scan_angle_sigma_rad * rho * g_a) ** 2
+    v_att = model.attitude_noise_rad ** 2 * np.einsum("ij,ij->i", wxn, wxn)
+    v_pos_rough = model.position_noise_m ** 2 + model.roughness_m ** 2
+    var = v_rng + v_ang + v_att + v_pos_rough
+    if linearise == "adjusted":
+        # adjusted observations: each error source takes its share of the residual (sigma_l^2 B_l / var); the
+        # corrected point lies on the plane; the Jacobians below are evaluated there
+        f = r / var
+        rho_hat = rho_rec - f * model.range_sigma_m ** 2 * g_s / (1.0 + scale)
+        u_hat = u_s - (f * model.scan_angle_sigma_rad ** 2 * rho * g_a)[:, None] * du_s
+        rho, x_s, w, X = georef(rho_hat, u_hat)
+        X = X - (f * v_pos_rough)[:, None] * n - np.cross((f * model.attitude_noise_rad ** 2)[:, None] * wxn, w)
+        y = X - patches.centre[pl]
+        wxn = np.cross(w, n)
+        rho_rec = rho_hat
     J_cal = np.empty((len(r), N_CAL))
     J_cal[:, 0:3] = np.cross(x_s, n_s)
     J_cal[:, 3:6] = n_b
-    J_cal[:, 6] = -g_s / (1.0 + scale)
-    J_cal[:, 7] = -g_s * (rho_rec - r0) / (1.0 + scale) ** 2
-    wxn = np.cross(w, n)
+    g_j = g_s if linearise == "observed" else np.einsum("ij,ij->i", n_s, x_s) / np.where(rho != 0, rho, 1.0)
+    J_cal[:, 6] = -g_j / (1.0 + scale)
+    J_cal[:, 7] = -g_j * (rho_rec - r0) / (1.0 + scale) ** 2
     J_strip = np.empty((len(r), N_STRIP))
     J_strip[:, 0:3] = n
     J_strip[:, 3:6] = dt[:, None] * n
@@ -590,13 +634,8 @@ def plane_residuals(
     J_strip[:, 9:12] = dt[:, None] * wxn
     e1, e2 = _plane_basis(n)  # tangent basis of each normal
     J_plane = np.column_stack([np.einsum("ij,ij->i", e1, y), np.einsum("ij,ij->i", e2, y), -np.ones(len(r))])
-    # variance: range along the beam, angle across it, trajectory noise, roughness
-    g_a = np.einsum("ij,ij->i", n_s, patches.dbeam_s[rows])
-    var = (model.range_sigma_m * g_s) ** 2 + (model.scan_angle_sigma_rad * rho * g_a) ** 2 \
-        + model.position_noise_m ** 2 + model.attitude_noise_rad ** 2 * np.einsum("ij,ij->i", wxn, wxn) \
-        + model.roughness_m ** 2
     return {"r": r, "J_cal": J_cal, "J_strip": J_strip, "J_plane": J_plane, "e1": e1, "e2": e2,
-            "sigma": np.sqrt(var), "X": X}
+            "sigma": np.sqrt(var), "X": X_obs}
 
 
 def _plane_basis(n: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -755,7 +794,8 @@ def _normal_equations(p: PlanarPatches, mount: ScannerMount, x: NDArray, normal:
     """Reduced normal equations (planes eliminated): ``N (u, u)``, ``b (u,)`` and the per-plane blocks."""
     k = p.n_strips
     u = N_CAL + N_STRIP * k
-    res = plane_residuals(p, mount, x[:N_CAL], x[N_CAL:].reshape(k, N_STRIP), normal, offset, model)
+    res = plane_residuals(p, mount, x[:N_CAL], x[N_CAL:].reshape(k, N_STRIP), normal, offset, model,
+                          linearise="adjusted")
     wt = np.where(active, 1.0 / res["sigma"], 0.0)
     rw = res["r"] * wt
     Jc = res["J_cal"] * wt[:, None]
@@ -858,7 +898,7 @@ def _run(p: PlanarPatches, mount: ScannerMount, model: StripModel, x0: NDArray, 
         # the step in posterior sigmas (diagonal of N^-1; held unknowns have a unit diagonal and no step)
         step = float(np.max(np.abs(dx) / np.sqrt(np.maximum(np.diag(np.linalg.inv(N)), 1e-300))))
         logger.debug("strip adjustment iteration %d: step %.3g sigmas, vtpv %.6g", it, step, vtpv)
-        if it >= 2 and reject_sigma > 0:
+        if 2 <= it <= 6 and reject_sigma > 0:  # rejections settle early; later ones would hold off convergence
             z = np.abs(res["r"]) / res["sigma"]
             newly = active & (z > reject_sigma)
             if newly.any():
@@ -899,7 +939,7 @@ def adjust_strips(
     iterations
         Gauss-Newton iterations (at most).
     reject_sigma
-        Points with a normalised residual above this are left out from the second iteration on (0: never).
+        Points with a normalised residual above this are left out in the second to sixth iterations (0: never).
     ratio_max, z_max, strong_ratio
         The determinability rule (:mod:`skyrig.adjust.determinability`).
     covariance
@@ -1076,3 +1116,198 @@ def apply_strip_corrections(
         rot = matrix_from_rotvec(sc[:, 6:9] + dt[:, None] * sc[:, 9:12]) @ rot
         out[a:a + chunk] = pos + sc[:, 0:3] + dt[:, None] * sc[:, 3:6] + np.einsum("nij,nj->ni", rot, x_b)
     return out
+
+
+# ---------------------------------------------------------------------------------------------- georeferenced clouds
+@dataclass(frozen=True, eq=False)
+class LineOffsetResult:
+    """Per-flight-line offsets of a georeferenced cloud (no trajectory: :func:`adjust_line_offsets`).
+
+    Attributes
+    ----------
+    line_ids
+        ``(K,)`` the line ids (sorted).
+    offset, sigma
+        ``(K, 3)`` corrections to add to each line's points (m; zero where ``mode="vertical"`` for x, y) and their
+        standard deviations (NaN: the line shares no patch with another line).
+    mode, datum
+        ``"vertical"`` or ``"3d"``; ``"mean"`` (corrections of the lines seen sum to zero) or ``"first"``.
+    patches, pairs
+        Patches seen by two or more lines; line pairs on them.
+    sigma0
+        Square root of the variance factor of the discrepancies.
+    before, after
+        Discrepancies on the patches (:func:`patch_discrepancies` keys: ``pairs``, ``rms_m``, ``p95_abs_m``,
+        ``normalised_rms``, ``noise_rms_m``).
+    rejected
+        Patches left out as outliers (normalised residual > 4 after the first solve).
+    """
+
+    line_ids: NDArray[np.int64]
+    offset: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    mode: str
+    datum: str
+    patches: int
+    pairs: int
+    sigma0: float
+    before: dict[str, float]
+    after: dict[str, float]
+    rejected: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mode": self.mode, "datum": self.datum, "patches": self.patches, "pairs": self.pairs,
+                "sigma0": self.sigma0, "rejected_patches": self.rejected,
+                "units": "m, corrections added to the line's points (map axes x, y, height)",
+                "lines": [{"id": int(i), "offset_m": [float(v) for v in o], "sigma_m": [float(v) for v in s]}
+                          for i, o, s in zip(self.line_ids, self.offset, self.sigma)],
+                "discrepancies_before": self.before, "discrepancies_after": self.after}
+
+
+def adjust_line_offsets(
+    xyz: ArrayLike,
+    line: ArrayLike,
+    *,
+    cell_m: float = 4.0,
+    mode: str = "vertical",
+    datum: str = "mean",
+    min_points: int = 5,
+    max_thickness_m: float = 0.15,
+    min_extent_m: float = 0.5,
+    max_normal_angle_deg: float = 10.0,
+) -> LineOffsetResult:
+    """Per-line offsets of a georeferenced laser cloud from planar patches seen by overlapping lines.
+
+    Without a trajectory (a delivered LAS/LAZ: points, no ranges, no scan angles, no poses) only a rigid shift per
+    flight line can be estimated.  Each vertical column of ``cell_m`` (metric, map axes) holding a plane of at least
+    ``min_points`` points of a line (RMS distance <= ``max_thickness_m``, second spread >= ``min_extent_m``) is a
+    patch of that line; where two or more lines have a patch in the same column with normals within
+    ``max_normal_angle_deg``, each line's centroid distance from the common plane is an observation
+    ``n . (c_k + t_k) = d`` with the variance of its plane fit (RMS^2 / count).  The plane offsets ``d`` are
+    eliminated; ``mode="vertical"`` estimates ``t_k = (0, 0, dz_k)`` (what near-horizontal patches determine),
+    ``"3d"`` a full shift (needs walls and slopes).  The datum: corrections summing to zero over the lines seen
+    (``"mean"``) or the first line fixed (``"first"``).  Patches with a normalised residual above 4 after a first
+    solve are left out.
+
+    Raises
+    ------
+    InputFormatError
+        Bad shapes or options.
+    GeometryError
+        No patch seen by two lines.
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    ln = np.asarray(line)
+    if p.ndim != 2 or p.shape[1] != 3 or ln.shape != (len(p),):
+        raise InputFormatError(f"xyz must be (N, 3) and line (N,), got {p.shape} and {ln.shape}", field="xyz")
+    if mode not in ("vertical", "3d"):
+        raise InputFormatError(f"mode must be 'vertical' or '3d', not {mode!r}", field="mode")
+    if datum not in ("mean", "first"):
+        raise InputFormatError(f"datum must be 'mean' or 'first', not {datum!r}", field="datum")
+    if not cell_m > 0:
+        raise InputFormatError(f"cell_m must be positive, got {cell_m!r}", field="cell_m")
+    ids, li = np.unique(ln, return_inverse=True)
+    k_lines = len(ids)
+    origin = np.floor(p.min(axis=0)) if len(p) else np.zeros(3)
+    q = p - origin
+    cij = np.floor(q[:, :2] / cell_m).astype(np.int64)
+    cells, ci = np.unique(cij, axis=0, return_inverse=True)
+    ci = ci.ravel()
+    n_g = len(cells) * k_lines
+    g = ci * k_lines + li
+    ref = np.repeat(np.column_stack([(cells + 0.5) * cell_m, np.zeros(len(cells))]), k_lines, axis=0)
+    ref[:, 2] = np.repeat(np.bincount(ci, q[:, 2], minlength=len(cells)) / np.maximum(np.bincount(ci, minlength=len(cells)), 1), k_lines)
+    cnt, s1, s2 = _moments(g, q, n_g, ref)
+    w, v = np.linalg.eigh(_scatter(cnt, s1, s2))
+    thick = np.sqrt(np.maximum(w[:, 0], 0.0))
+    ok = (cnt >= min_points) & (thick <= max_thickness_m) & (np.sqrt(np.maximum(w[:, 1], 0.0)) >= min_extent_m)
+    nrm = v[:, :, 0] * np.where(v[:, 2, 0] < 0, -1.0, 1.0)[:, None]
+    cen = ref + s1 / np.maximum(cnt, 1.0)[:, None]
+    var = np.maximum(w[:, 0], 1e-8) / np.maximum(cnt, 1.0)  # variance of the centroid across the plane
+    ok = ok.reshape(-1, k_lines)
+    nrm, cen, var = nrm.reshape(-1, k_lines, 3), cen.reshape(-1, k_lines, 3), var.reshape(-1, k_lines)
+    # the patch normal: count-weighted mean of the lines' normals; lines disagreeing with it leave the patch
+    cw = np.where(ok, cnt.reshape(-1, k_lines), 0.0)
+    pn = np.einsum("ck,cki->ci", cw, nrm)
+    pn /= np.maximum(np.linalg.norm(pn, axis=1, keepdims=True), 1e-12)
+    ok &= np.abs(np.einsum("cki,ci->ck", nrm, pn)) >= np.cos(np.radians(max_normal_angle_deg))
+    use = np.flatnonzero(ok.sum(axis=1) >= 2)
+    if use.size == 0:
+        raise GeometryError(f"no {cell_m:g} m column holds a plane of two flight lines: do the lines overlap?")
+    pn, okp, cenp, varp = pn[use], ok[use], cen[use], var[use]
+    rows = [(j, k) for j in range(len(use)) for k in range(k_lines) if okp[j, k]]
+    pj = np.array([r[0] for r in rows])
+    pk = np.array([r[1] for r in rows])
+    obs = -np.einsum("ij,ij->i", pn[pj], cenp[pj, pk])  # n . t_k - d_j = -n . c_jk
+    sig2 = varp[pj, pk]
+    dims = [2] if mode == "vertical" else [0, 1, 2]
+    nd = len(dims)
+    seen = np.unique(pk)
+    # unknowns: t of the lines seen (nd each), then d per patch; eliminated by solving the full (small) system
+    col = {int(k): i for i, k in enumerate(seen)}
+    n_t = nd * len(seen)
+    n_u = n_t + len(use)
+    A = np.zeros((len(rows), n_u))
+    for a, d in enumerate(dims):
+        A[np.arange(len(rows)), [col[int(k)] * nd + a for k in pk]] = pn[pj, d]
+    A[np.arange(len(rows)), n_t + pj] = -1.0
+    # datum: sum of the corrections zero (mean) or the first line's zero, as weighted constraint rows
+    C = np.zeros((nd, n_u))
+    for a in range(nd):
+        if datum == "mean":
+            C[a, [i * nd + a for i in range(len(seen))]] = 1.0
+        else:
+            C[a, a] = 1.0
+    keep = np.ones(len(use), bool)
+    res = np.zeros(len(rows))
+    x = np.zeros(n_u)
+    s0 = 1.0
+    Q: NDArray[Any] = np.zeros((n_u, n_u))
+    for _ in range(2):
+        wr = np.where(keep[pj], 1.0 / sig2, 0.0)
+        N = A.T @ (A * wr[:, None]) + 1e6 * (C.T @ C) / max(float(np.median(sig2)), 1e-12)
+        dead = np.diag(N) == 0
+        N[dead, dead] = 1.0
+        Q = np.linalg.pinv(N)
+        x = Q @ (A.T @ (wr * obs))
+        res = A @ x - obs
+        dof = max(int(np.sum(wr > 0)) - n_u + nd + int(dead.sum()), 1)
+        s0 = float(np.sqrt(np.sum(wr * res**2) / dof))
+        zp = np.abs(res) / np.sqrt(sig2) / max(s0, 1e-12)
+        bad = np.bincount(pj, zp > 4.0, minlength=len(use)) > 0
+        if not (bad & keep).any():
+            break
+        keep &= ~bad
+    offset = np.zeros((k_lines, 3))
+    sigma = np.full((k_lines, 3), np.nan)
+    for k, i in col.items():
+        offset[k, dims] = x[i * nd:(i + 1) * nd]
+        sigma[k, dims] = s0 * np.sqrt(np.maximum(np.diag(Q)[i * nd:(i + 1) * nd], 0.0))
+        sigma[k, [d for d in range(3) if d not in dims]] = 0.0
+
+    def discrepancies(t: NDArray[np.float64]) -> dict[str, float]:
+        d, z, pv = [], [], []
+        for j in np.flatnonzero(keep):
+            ks = np.flatnonzero(okp[j])
+            for a in range(len(ks)):
+                for b in range(a + 1, len(ks)):
+                    ka, kb = ks[a], ks[b]
+                    dd = float(pn[j] @ (cenp[j, kb] + t[kb] - cenp[j, ka] - t[ka]))
+                    vv = float(varp[j, ka] + varp[j, kb])
+                    d.append(dd)
+                    z.append(dd / np.sqrt(vv))
+                    pv.append(vv)
+        da, za, pa = np.array(d), np.array(z), np.array(pv)
+        if not da.size:
+            return {"pairs": 0, "rms_m": float("nan"), "p95_abs_m": float("nan"), "normalised_rms": float("nan"),
+                    "noise_rms_m": float("nan")}
+        return {"pairs": int(da.size), "rms_m": float(np.sqrt(np.mean(da**2))),
+                "p95_abs_m": float(np.percentile(np.abs(da), 95)), "normalised_rms": float(np.sqrt(np.mean(za**2))),
+                "noise_rms_m": float(np.sqrt(np.mean(pa)))}
+
+    before = discrepancies(np.zeros((k_lines, 3)))
+    after = discrepancies(offset)
+    logger.info("line offsets: %d lines, %d patches, %d pairs, discrepancy RMS %.4f -> %.4f m", k_lines,
+                int(keep.sum()), before["pairs"], before["rms_m"], after["rms_m"])
+    return LineOffsetResult(ids.astype(np.int64), offset, sigma, mode, datum, int(keep.sum()), int(before["pairs"]), s0,
+                            before, after, int((~keep).sum()))

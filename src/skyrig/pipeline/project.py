@@ -22,6 +22,7 @@ every error names the file, the line and the key path (``stages.dsm.mode``)::
       measurements: [gcp/image_measurements.csv]   # measured image positions of the control / check points
       scale_bars: null            # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav without GNSS)
       ties: null                  # tie points measured elsewhere (point,image,column,row) instead of a match stage
+      laser: [scan.csv]           # a raw scan CSV with strips (+ trajectory, rig with a scanner) or LAS/LAZ files
     executor: {kind: auto, workers: null, scheduler: null}
     stages:                       # run in this order; a stage not listed is not run
       georef: {}
@@ -59,7 +60,7 @@ PROJECT_FORMAT = "skyrig-project"
 
 _TOP = {"format", "version", "name", "crs", "geoid", "output", "inputs", "executor", "stages"}
 _INPUT_FILES = ("trajectory", "events", "rig", "eo", "control", "check", "scale_bars", "ties")
-_INPUT_LISTS = ("images", "cameras", "measurements")
+_INPUT_LISTS = ("images", "cameras", "measurements", "laser")
 _EXECUTOR = {"kind", "workers", "scheduler"}
 
 
@@ -198,6 +199,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
     images = files_of(inp, "images", "inputs.images", folder=True, must_exist=not live)
     cameras = files_of(inp, "cameras", "inputs.cameras")
     measurements = files_of(inp, "measurements", "inputs.measurements")
+    laser = files_of(inp, "laser", "inputs.laser")
 
     ex = mapping(top.get("executor"), top, "executor", "executor", _EXECUTOR)
     kind = ex.get("kind", "auto")
@@ -244,7 +246,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
                       f"{sname!r} needs an output CRS: give one", top, "crs", "crs")
     project = Project(path, name, crs, geoid, output, images, files["trajectory"], files["events"], files["rig"],
                       files["eo"], cameras, files["control"], files["check"], measurements, executor, tuple(stages),
-                      lines, files["scale_bars"], files["ties"])
+                      lines, files["scale_bars"], files["ties"], laser)
     for spec in project.stages:
         check = registry[spec.name].check
         if check is not None:
@@ -281,6 +283,8 @@ class Detected:
     notes: list[str] = field(default_factory=list)
     #: every output CRS the inputs state, ``(crs, where)``, in the order init takes them (the first is ``crs``)
     crs_candidates: list[tuple[str, str]] = field(default_factory=list)
+    laser: list[Path] = field(default_factory=list)  # a raw scan CSV or LAS/LAZ files
+    laser_reference: Path | None = None  # a reference cloud (name with 'reference' / 'tls'): control of the strips
 
 
 def _first_line(p: Path) -> str:
@@ -428,11 +432,22 @@ def detect_inputs(folder: str | Path) -> Detected:
             found["events"].append(f)
         elif suf == ".csv" and (first.startswith("# skyrig-eo") or _side_car_table(f).startswith("skyrig-eo")):
             found["EO file"].append(f)
+        elif suf == ".csv" and first.startswith("# skyrig-raw-scan"):
+            d.laser.append(f)
+        elif suf in (".las", ".laz"):
+            low = f.stem.lower()
+            if any(w in low for w in ("reference", "tls")) and d.laser_reference is None:
+                d.laser_reference = f
+            else:
+                d.laser.append(f)
         elif suf in (".yaml", ".yml") and f.name != "project.yaml":
             from skyrig.io.rig_file import read_rig
 
             if _looks_like_rig(f):  # a rig file that does not read is an error, not "no rig"
-                d.heads = list(read_rig(f).heads) if not found["rig file"] else d.heads
+                text = f.read_text(encoding="utf-8-sig", errors="replace")
+                laser_only = "scanners:" in text and not any(ln.startswith("heads:") for ln in text.splitlines())
+                if not found["rig file"] and not laser_only:
+                    d.heads = list(read_rig(f).heads)
                 found["rig file"].append(f)
         elif suf == ".csv" and f.parent.name != "tie":
             header = _column_row(f).lower().replace(" ", "")
@@ -473,6 +488,17 @@ def detect_inputs(folder: str | Path) -> Detected:
             d.crs_candidates.append((str(pts.frame.crs), f"the control points' CRS ({d.control.name})"))
     if d.crs_candidates:
         d.crs, d.crs_source = d.crs_candidates[0]
+    if d.laser and d.crs is None:  # the horizontal CRS of a georeferenced laser cloud
+        import laspy
+
+        for q in d.laser:
+            if q.suffix.lower() in (".las", ".laz"):
+                with laspy.open(q) as fh:
+                    c = fh.header.parse_crs()
+                h = c.sub_crs_list[0] if c is not None and c.is_compound else c
+                if h is not None and h.to_epsg():
+                    d.crs, d.crs_source = f"EPSG:{h.to_epsg()}", f"the horizontal CRS of {q.name}"
+                break
     if pts is not None and len(pts):
         import numpy as np
 
@@ -591,9 +617,13 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
             chosen["dsm"]["height_range"] = [det.terrain_height - 50.0, det.terrain_height + 100.0]
         if "ortho" in registry:
             chosen["ortho"] = {"heads": ["nadir"]} if "nadir" in det.heads else {}
+    if det.laser and "lidar" in registry:
+        chosen["lidar"] = {"reference": rel(det.laser_reference).strip(chr(34))} if det.laser_reference is not None else {}
+        if "dtm" in registry and "dtm" not in chosen:
+            chosen["dtm"] = {}
     if not chosen:
-        raise InputFormatError("found nothing to run: no images, and no trajectory + events + rig (skyrig init "
-                               "looks for them in the folder and two levels of sub-folders)", det.folder)
+        raise InputFormatError("found nothing to run: no images, no trajectory + events + rig, no laser data (skyrig "
+                               "init looks for them in the folder and two levels of sub-folders)", det.folder)
     out = [f"# skyrig project file (written by skyrig init from {det.folder}).",
            "# Paths are relative to this file. Unknown keys are errors. Run it with: skyrig run project.yaml",
            "# A stage reruns only when its inputs or options change (its manifest keeps a fingerprint).",
@@ -619,6 +649,8 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
            "    # image positions of control / check points",
            "  scale_bars: null    # scale bars CSV from,to,length_m[,sigma_m] (adjust-uav with no_gps)",
            "  ties: null    # tie points measured elsewhere (point,image,column,row) instead of a match stage",
+           f"  laser: {_yaml_value([rel(q).strip(chr(34)) for q in det.laser])}"
+           "    # a raw scan CSV with strips (+ trajectory, rig with a scanner) or LAS/LAZ files",
            "executor:    # where parallel work runs; never changes the results",
            "  kind: auto    # auto | serial | local (Dask worker processes)",
            "  workers: null    # local worker processes (default: up to 4)",

@@ -222,13 +222,16 @@ def _upstream(project: Project, registry: Mapping[str, Stage], index: int) -> tu
     stage = registry[project.stages[index].name]
     files: dict[str, Path] = {}
     folders: dict[str, Path] = {}
-    for kind in (*stage.requires, *stage.uses):
-        for spec in reversed(project.stages[:index]):
-            prov = registry[spec.name].provides
-            if kind in prov:
-                folder = project.output / spec.name
-                files[kind] = folder / prov[kind]
-                folders[spec.name] = folder
+    for need in (*stage.requires, *stage.uses):
+        for kind in need.split("|"):  # "dsm|laser": the first kind an earlier stage provides
+            for spec in reversed(project.stages[:index]):
+                prov = registry[spec.name].provides
+                if kind in prov:
+                    folder = project.output / spec.name
+                    files[kind] = folder / prov[kind]
+                    folders[spec.name] = folder
+                    break
+            if kind in files:
                 break
     return files, folders
 
@@ -344,7 +347,7 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
             continue
         files, folders = _upstream(project, reg, i)
         missing = [s for s, f in folders.items() if not (f / MANIFEST).is_file()]
-        missing += [k for k in stage.requires if k not in files]
+        missing += [k for k in stage.requires if not any(a in files for a in k.split("|"))]
         if missing:
             msg = (f"needs the output of stage {missing[0]}, which has not been published "
                    f"(run the earlier stages first: skyrig run without --from / --only)")
@@ -352,7 +355,7 @@ def run_project(project: Project, *, from_stage: str | None = None, only: str | 
             emit(StageEvent(spec.name, "failed", msg))
             result.exit_code, result.error = 2, f"stage {spec.name}: {msg}"
             break
-        files = {k: p for k, p in files.items() if p.exists() or k in stage.requires}
+        files = {k: p for k, p in files.items() if p.exists() or any(k in r.split("|") for r in stage.requires)}
         inputs, options, fp = stage_fingerprint(project, stage, spec, folders)
         if not (force or from_stage or only):
             ok, why = _up_to_date(folder, fp)
@@ -966,13 +969,18 @@ register_stage(Stage(
 
 
 def _dtm(ctx: StageContext) -> dict[str, Any]:
-    """Classify the dsm stage's dense cloud (cloth simulation filter + ASPRS rule) and grid the DTM on its grid."""
+    """Classify the laser cloud of the lidar stage, else the dsm stage's dense cloud (cloth simulation filter +
+    ASPRS rule) and grid the DTM (on the DSM's grid when there is one)."""
     from skyrig.pipeline.terrain import classify_cloud_file, dtm_folder
     from skyrig.terrain.classify import GroundFilter
 
     o = ctx.options
-    dsm = ctx.need("dsm")
-    cloud = dsm.parent / "cloud.laz"
+    dsm: Path | None
+    if "laser" in ctx.upstream:
+        cloud, dsm = ctx.need("laser"), None
+    else:
+        dsm = ctx.need("dsm")
+        cloud = dsm.parent / "cloud.laz"
     if not cloud.is_file():
         raise StageError("dtm", f"the dsm stage wrote no dense cloud ({cloud}): set stages.dsm.cloud: true", 2)
     c = classify_cloud_file(cloud, ctx.out / "classified.laz",
@@ -988,14 +996,15 @@ register_stage(Stage(
     "dtm", "Terrain: ASPRS classes of the dense cloud (classified.laz), DTM with mask, nDSM, hillshade.", _dtm,
     options={"cloth_resolution": Option(1.0, "float", "cloth simulation filter: cloth spacing (m)", positive=True),
              "rigidness": Option(2, "int", "cloth rigidness: 1 steep, 2 relief, 3 flat", positive=True),
-             "resolution": Option(None, "float", "DTM cell size (m); default the DSM's", nullable=True,
+             "resolution": Option(None, "float", "DTM cell size (m); default the DSM's (1 m on a laser cloud)",
+                                  nullable=True,
                                   positive=True),
              "max_gap": Option(20.0, "float", "open gaps farther than this from ground stay without data (m)",
                                positive=True),
              "tile": Option(500.0, "float", "a wider cloud is classified in tiles of this side (m)", positive=True),
              "buffer": Option(50.0, "float", "buffer around each tile (m); holds the largest building",
                               positive=True)},
-    requires=("dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))
+    requires=("laser|dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))
 register_stage(Stage(
     "ortho-dtm", "Classic orthomosaic of the oriented images on the DTM (next to the true ortho: buildings lean).",
     _ortho_dtm, options={k: v for k, v in _ORTHO_OPTIONS.items() if k != "square"},
@@ -1044,3 +1053,61 @@ register_stage(Stage(
              "end_file": Option("flight.end", "str", "--live: the file (relative to the project folder) the "
                                                       "recording system writes when the flight is over")},
     provides={"live_tiles": "tiles", "live_summary": "summary.json"}, inputs=_live_inputs, check=_live_check))
+
+# ------------------------------------------------------------------------------------------ laser
+def _lidar_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
+    return [*p.laser, *_opt_files(p.trajectory, p.rig), *([p.root / o["reference"]] if o["reference"] else [])]
+
+
+def _lidar_check(p: Project, o: dict[str, Any]) -> tuple[str, str] | None:
+    if not p.laser:
+        return "inputs.laser", "the lidar stage needs laser data: a raw scan CSV with strips or LAS/LAZ files"
+    if any(q.suffix.lower() == ".csv" for q in p.laser):
+        if p.trajectory is None:
+            return "inputs.trajectory", "a raw scan needs the trajectory"
+        if p.rig is None:
+            return "inputs.rig", "a raw scan needs a rig file with a 'scanners' record (the scanner's mount)"
+    return None
+
+
+def _lidar(ctx: StageContext) -> dict[str, Any]:
+    from skyrig.geodesy.frame import WorldFrame
+    from skyrig.pipeline.lidar import laser_folder
+
+    p, o = ctx.project, ctx.options
+    deg = 3.141592653589793 / 180.0
+    opts = {"scanner": o["scanner"], "reference": str(p.root / o["reference"]) if o["reference"] else None,
+            "name": o["scanner"] or "lidar", "offsets": o["offsets"], "cell_lines": o["line_cell"],
+            "model": {"range_sigma_m": o["range_sigma"], "scan_angle_sigma_rad": o["angle_sigma_deg"] * deg,
+                      "strip_position_sigma_m": tuple(o["position_sigma"]),
+                      "strip_attitude_sigma_rad": tuple(v * deg for v in o["attitude_sigma_deg"])},
+            "patches": {"cell_m": o["cell"]}}
+    if o["estimate"] is not None:
+        opts["estimate"] = tuple(o["estimate"])
+    s = laser_folder(p.laser, ctx.out, WorldFrame.map(p.crs, p.geoid), trajectory=p.trajectory, rig=p.rig, opts=opts,
+                     progress=ctx.progress)
+    return {k: s[k] for k in ("mode", "points", "discrepancies_before", "discrepancies_after", "crs",
+                              "vertical_reference") if k in s}
+
+
+register_stage(Stage(
+    "lidar", "Laser strips: strip adjustment of a raw scan (calibration + per-strip trajectory corrections) or "
+    "per-line offsets of LAS/LAZ; the adjusted cloud (laser.laz) and strip discrepancies (strips.json).", _lidar,
+    options={"scanner": Option(None, "str", "scanner record of the rig file (default: its only one)", nullable=True),
+             "reference": Option(None, "file", "control: a reference cloud (.las/.laz with a CRS) on the same surfaces",
+                                 nullable=True),
+             "range_sigma": Option(0.02, "float", "range noise (m)", positive=True),
+             "angle_sigma_deg": Option(0.0, "float", "deflection-angle noise (deg)"),
+             "position_sigma": Option([0.05, 0.05, 0.08], "floats", "trajectory position accuracy per strip E,N,U (m)",
+                                      n=3, positive=True),
+             "attitude_sigma_deg": Option([0.03, 0.03, 0.08], "floats",
+                                          "trajectory attitude accuracy per strip about E,N,U (deg)", n=3, positive=True),
+             "estimate": Option(None, "strs", "calibration unknowns (default all: boresight, lever arm, range offset "
+                                "and scale)", nullable=True, choices=("boresight_x", "boresight_y", "boresight_z",
+                                                                      "lever_x", "lever_y", "lever_z", "range_offset",
+                                                                      "range_scale")),
+             "cell": Option(1.0, "float", "planar patch size of the strip adjustment (m)", positive=True),
+             "offsets": Option("vertical", "choice", "LAS/LAZ input: per-line offsets vertical or 3d",
+                               choices=("vertical", "3d")),
+             "line_cell": Option(4.0, "float", "LAS/LAZ input: patch column size (m)", positive=True)},
+    provides={"laser": "laser.laz", "strips": "strips.json"}, inputs=_lidar_inputs, check=_lidar_check))

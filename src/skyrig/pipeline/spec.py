@@ -125,6 +125,7 @@ class Project:
     lines: dict[str, int] = field(default_factory=dict)  # key path -> line, for error messages
     scale_bars: Path | None = None  # scale bars CSV from,to,length_m[,sigma_m] (orientation without GNSS)
     ties: Path | None = None  # tie points measured elsewhere (point,image,column,row) instead of a match stage
+    laser: tuple[Path, ...] = ()  # laser data: a raw scan CSV (with strips) or georeferenced LAS/LAZ files
 
     @property
     def root(self) -> Path:
