@@ -153,7 +153,8 @@ def _run_live(project: str, replay_src: str | None, speed: float, serve: bool, p
     import threading
 
     from skyrig.cli.live import _print_summary
-    from skyrig.pipeline.live_project import flight_paths, live_spec, run_live_project
+    from skyrig.pipeline.live_project import flight_paths
+    from skyrig.pipeline.live_run import live_spec, run_live_project
     from skyrig.pipeline.project import load_project
 
     if speed <= 0:

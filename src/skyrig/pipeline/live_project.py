@@ -11,6 +11,8 @@ them:
   folder, or ``idle_stop`` seconds pass without new input, or Ctrl-C) the products are published as the stage
   folder ``OUTPUT/live/`` in one step (:func:`skyrig.io.stage.stage_folder`: ``manifest.json`` last, with the
   fingerprint of the inputs as they are at the end), and ``OUTPUT/run.json`` says so;
+(the run itself: :func:`skyrig.pipeline.live_run.run_live_project`, which uses the runner's fingerprints; this
+module is the stage's body, which the runner imports)
 * then (``--then-batch``) the project's stages run as ``skyrig run`` runs them (:func:`skyrig.pipeline.run.run_project`);
   a ``live`` stage in the list is then up to date (same inputs, same options) and skipped;
 * without ``--live``, a listed ``live`` stage processes the recorded flight through the same chain (a quick look:
@@ -23,33 +25,19 @@ events as last read).
 
 from __future__ import annotations
 
-import os
-import shutil
-import threading
-import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from skyrig.errors import SkyrigError
 from skyrig.pipeline.live import FlightPaths, LiveConfig, LiveRun
-from skyrig.pipeline.spec import Project, StageSpec
+from skyrig.pipeline.spec import Project
 
-__all__ = ["LIVE_STAGE", "WORK_FOLDER", "live_spec", "flight_paths", "live_config", "live_problem",
-           "run_live_project"]
+__all__ = ["LIVE_STAGE", "WORK_FOLDER", "flight_paths", "live_config", "live_problem", "live_stage",
+           "stage_summary"]
 
 LIVE_STAGE = "live"
 #: the working folder of a live run in the project's output folder (published as OUTPUT/live at the end)
 WORK_FOLDER = ".live.running"
-
-
-def live_spec(project: Project) -> StageSpec:
-    """The project's ``live`` stage as listed, or the stage with its default options when it lists none."""
-    from skyrig.pipeline.run import STAGES
-
-    try:
-        return project.stage(LIVE_STAGE)
-    except KeyError:
-        return StageSpec(LIVE_STAGE, {k: o.default for k, o in STAGES[LIVE_STAGE].options.items()})
 
 
 def flight_paths(project: Project, options: dict[str, Any]) -> FlightPaths:
@@ -114,42 +102,6 @@ def stage_summary(summary: dict[str, Any]) -> dict[str, Any]:
     keep = ("exposures_done", "exposures_skipped", "exposure_interval_s", "ortho_latency_s", "dsm_latency_s",
             "process_cpu_s_per_exposure", "boresight_windows", "boresight_deg", "reported")
     return {k: summary.get(k) for k in keep}
-
-
-def run_live_project(project: Project, *, say: Callable[[str], None] | None = None,
-                     stop: threading.Event | None = None, max_wall_s: float | None = None,
-                     on_start: Callable[[LiveRun], None] | None = None) -> tuple[dict[str, Any], Path]:
-    """The live run of ``project`` (loaded with ``live=True``) until the flight is over, then its products
-    published as ``OUTPUT/live`` (manifest last) and ``OUTPUT/run.json``; the run's summary and the folder.
-
-    ``on_start(run)`` is called once the run is set up, before the first poll (e.g. to serve ``run.out``, or start
-    a replay)."""
-    from skyrig.io.stage import stage_folder
-    from skyrig.pipeline.run import STAGES, RunResult, _write_run_json, stage_fingerprint
-
-    spec = live_spec(project)
-    cfg = live_config(project, spec.options)
-    work = project.output / WORK_FOLDER
-    shutil.rmtree(work, ignore_errors=True)
-    t0 = time.time()
-    run = LiveRun(flight_paths(project, spec.options), work, cfg, say)
-    if on_start is not None:
-        on_start(run)
-    try:
-        summary = run.run(stop, max_wall_s)
-    except KeyboardInterrupt:
-        summary = run.finish()
-    # published as the inputs are now (the flight complete): a later ``skyrig run`` finds the stage up to date
-    inputs, options, _ = stage_fingerprint(project, STAGES[LIVE_STAGE], spec, {})
-    folder = project.output / LIVE_STAGE
-    with stage_folder(folder, stage=LIVE_STAGE, inputs=inputs, options=options, started=t0) as tmp:
-        for entry in sorted(work.iterdir()):
-            os.replace(entry, tmp / entry.name)
-    shutil.rmtree(work, ignore_errors=True)
-    row = {"stage": LIVE_STAGE, "status": "done", "reason": "live", "seconds": round(time.time() - t0, 3),
-           "summary": stage_summary(summary)}
-    _write_run_json(RunResult(project, [row]))
-    return summary, folder
 
 
 def live_stage(out: Path, project: Project, options: dict[str, Any]) -> dict[str, Any]:

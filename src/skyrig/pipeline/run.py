@@ -1054,6 +1054,7 @@ register_stage(Stage(
                                                       "recording system writes when the flight is over")},
     provides={"live_tiles": "tiles", "live_summary": "summary.json"}, inputs=_live_inputs, check=_live_check))
 
+
 # ------------------------------------------------------------------------------------------ laser
 def _lidar_inputs(p: Project, o: dict[str, Any]) -> list[Path]:
     return [*p.laser, *_opt_files(p.trajectory, p.rig), *([p.root / o["reference"]] if o["reference"] else [])]
