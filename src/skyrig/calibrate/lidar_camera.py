@@ -117,6 +117,7 @@ class JointOptions:
     camera_prior_range_rad: float = 0.0087
     max_iterations: int = 30
     max_plane_rms: float = 2.0  # a plane whose normalised residual RMS exceeds this after an adjustment is dropped
+    max_point_z: float = 4.5  # a laser point whose normalised residual exceeds this is dropped (data snooping)
     seed: int = 0
 
 
@@ -146,6 +147,7 @@ class JointCalibration:
     n_laser_points: int
     sigma0: float
     n_dropped_planes: int = 0
+    n_dropped_points: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -286,20 +288,23 @@ def calibrate_lidar_camera(inputs: JointInputs, options: JointOptions = JointOpt
     """
     block, cfg, info = build_joint_block(inputs, options)
     res = adjust(block, cfg)
-    dropped = 0
-    for _ in range(3):  # planes that do not fit a plane (edges, vegetation, moving objects) go, then again
+    dropped = [0, 0]
+    for _ in range(4):  # points off their plane (edges, corners) and planes that are not planes go, then again
         if not res.ok:
             break
-        rms = LIDAR.plane_rms(res.block)
-        bad = rms > options.max_plane_rms
-        if not bad.any():
+        lp = res.block.observations["lidar"]
+        z, rms = LIDAR.normalised_residuals(res.block)
+        bad_pt, bad_pl = np.abs(z) > options.max_point_z, rms > options.max_plane_rms
+        if not bad_pt.any() and not bad_pl.any():
             break
-        dropped += int(bad.sum())
-        logger.info("%d laser planes with a normalised RMS over %g dropped", int(bad.sum()), options.max_plane_rms)
-        lp = res.block.observations["lidar"].without_planes(bad)
-        block = replace(block, observations={**block.observations, "lidar": lp})
+        lp2 = lp.without(bad_pt, bad_pl)
+        dropped[0] += len(lp) - len(lp2)
+        dropped[1] += lp.n_planes - lp2.n_planes
+        logger.info("%d laser points off their plane (|z| > %g) and %d planes dropped", int(bad_pt.sum()),
+                    options.max_point_z, lp.n_planes - lp2.n_planes)
+        block = replace(block, observations={**block.observations, "lidar": lp2})
         res = adjust(block, cfg)
-    info["n_dropped_planes"] = dropped
+    info["n_dropped_points"], info["n_dropped_planes"] = dropped
     if not res.ok:
         raise CalibrationFailed("the joint laser and image adjustment failed: " + "; ".join(res.failures))
     s0 = float(res.sigma0) if np.isfinite(res.sigma0) and res.sigma0 > 0 else 1.0
@@ -324,7 +329,7 @@ def calibrate_lidar_camera(inputs: JointInputs, options: JointOptions = JointOpt
     n_tie = int((lp.plane_point >= 0).sum())
     return JointCalibration(sc, sc_s, cb, cb_s, st, st_s, np.asarray(lp.strip_epoch_s),
                             np.asarray(info["strip_ids"], np.int64), tuple(verdicts), res, res.block,
-                            lp.n_planes - n_tie, n_tie, len(lp), float(res.sigma0), dropped)
+                            lp.n_planes - n_tie, n_tie, len(lp), float(res.sigma0), dropped[1], dropped[0])
 
 
 def georeference_adjusted(inputs: JointInputs, scanner: NDArray[np.float64], strips: NDArray[np.float64],

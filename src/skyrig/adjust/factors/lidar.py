@@ -213,11 +213,16 @@ class LidarPoints:
                              "tie plane 3)")
 
 
-    def without_planes(self, drop: NDArray[np.bool_]) -> "LidarPoints":
-        """A copy without the planes ``drop (Q,)`` (and their points), the other planes renumbered."""
-        keep_pl = ~np.asarray(drop, bool)
+    def without(self, drop_points: NDArray[np.bool_] | None = None, drop_planes: NDArray[np.bool_] | None = None
+                ) -> "LidarPoints":
+        """A copy without the points ``drop_points (N,)`` and the planes ``drop_planes (Q,)`` (and their points);
+        planes left with too few points (3 for a tie plane, 4 for a patch) go as well; the rest renumbered."""
+        keep = np.ones(len(self), bool) if drop_points is None else ~np.asarray(drop_points, bool)
+        keep_pl = np.ones(self.n_planes, bool) if drop_planes is None else ~np.asarray(drop_planes, bool)
+        cnt = np.bincount(self.plane[keep], minlength=self.n_planes)
+        keep_pl &= cnt >= np.where(self.plane_point >= 0, 3, 4)
         new = np.cumsum(keep_pl) - 1
-        k = keep_pl[self.plane]
+        k = keep & keep_pl[self.plane]
         return replace(self, time_s=self.time_s[k], strip=self.strip[k], range_m=self.range_m[k], beam=self.beam[k],
                        beam_dangle=self.beam_dangle[k], plane=new[self.plane[k]], position_m=self.position_m[k],
                        rotation=self.rotation[k], plane_point=self.plane_point[keep_pl], sigma=None)
@@ -394,9 +399,10 @@ class Lidar(ObservationType):
         n1, c1 = _fit_planes(X, 1.0 / sig**2, d.plane, tie_xyz, is_tie, q)
         return n1, c1, sig
 
-    def plane_rms(self, block: "Block") -> NDArray[np.float64]:
-        """``(Q,)`` RMS of each plane's normalised point-to-plane residuals at the block's values (about 1 for a
-        plane that fits its model; a plane over an edge or a moving object shows far more)."""
+    def normalised_residuals(self, block: "Block") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Each point's point-to-plane residual over its sigma ``(N,)`` at the block's values (planes refitted),
+        and each plane's RMS of them over its redundancy ``(Q,)`` (about 1 for a plane that fits its model; a
+        point over an edge or a plane over a corner shows far more)."""
         d = _data(block)
         assert d is not None
         sc = LidarScanner().initial(block)[0]
@@ -409,7 +415,7 @@ class Lidar(ObservationType):
         r = np.einsum("ni,ni->n", normal[d.plane], geo["X"] - centre[d.plane]) / sig
         cnt = np.bincount(d.plane, minlength=d.n_planes)
         dof = np.maximum(cnt - np.where(tie, 2, 3), 1)
-        return np.sqrt(np.bincount(d.plane, r**2, d.n_planes) / dof)
+        return r, np.sqrt(np.bincount(d.plane, r**2, d.n_planes) / dof)
 
     def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
         b, lay = model.block, model.layout
