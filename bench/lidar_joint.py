@@ -24,11 +24,12 @@ import time
 
 import numpy as np
 
-from skyrig.calibrate.lidar_camera import JointOptions, calibrate_lidar_camera, georeference_adjusted
+from skyrig.calibrate.lidar_camera import (JointOptions, calibrate_lidar_camera, georeference_adjusted,
+                                           joint_inputs_from_flight)
 from skyrig.lidar.compare import cloud_to_cloud
 from skyrig.lidar.strips import PatchOptions, StripModel, adjust_strips, find_planar_patches
 from skyrig.simulate.lidar import strip_truth_vector
-from skyrig.simulate.lidar_camera import build_joint_flight, joint_inputs
+from skyrig.simulate.lidar_camera import build_joint_flight
 
 
 def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
@@ -40,7 +41,7 @@ def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
 def run_seed(size: str, seed: int, every: int) -> dict:
     fl = build_joint_flight(size, seed)
     sv = fl.survey
-    inp = joint_inputs(fl)
+    inp = joint_inputs_from_flight(fl)
     t0 = time.perf_counter()
     cal = calibrate_lidar_camera(inp, JointOptions())
     t_joint = time.perf_counter() - t0

@@ -97,7 +97,7 @@ def test_truth_vector_matches_the_recipe_conventions():
     """The simulator's truth (the corrections' negatives) reproduces the true laser points through the factor's
     georeferencing model: the conventions of the recipe and of the simulation agree (noise only left)."""
     from skyrig.adjust.factors.lidar import LidarPoints, georeference
-    from skyrig.calibrate.lidar_camera import beams, local_poses
+    from skyrig.lidar.pulse_poses import beams, local_poses
 
     sv = build_lidar_survey(replace(lidar_scenario_spec("strips-ci", 3), scanner=Scanner2D(step_deg=4.0)))
     sid = sv.scan.strip_id

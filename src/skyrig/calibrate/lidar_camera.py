@@ -32,7 +32,8 @@ from skyrig.adjust.factors.lidar import (LIDAR, SCANNER, SCANNER_COMPONENTS, STR
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import CalibrationFailed, InputFormatError
 from skyrig.georef.eo import WorldFrame
-from skyrig.lidar.georef import PulseGeoreferencer, ScannerMount
+from skyrig.lidar.georef import ScannerMount
+from skyrig.lidar.pulse_poses import beams, local_poses
 from skyrig.lidar.scanner import RawScan
 from skyrig.lidar.strips import PatchOptions, find_planar_patches, prepare_observations
 from skyrig.orient.triangulation import triangulate_tracks
@@ -41,28 +42,7 @@ from skyrig.trajectory.trajectory import Trajectory
 logger = logging.getLogger(__name__)
 
 __all__ = ["JointInputs", "JointOptions", "JointCalibration", "build_joint_block", "calibrate_lidar_camera",
-           "georeference_adjusted", "local_poses", "beams"]
-
-
-def local_poses(trajectory: Trajectory, frame: WorldFrame, time_s: NDArray[np.float64]
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """IMU positions ``(N, 3)`` and ``local_from_body`` ``(N, 3, 3)`` of a trajectory in a local ``frame``
-    (a time outside the trajectory raises :class:`~skyrig.errors.OutOfRangeError` naming it)."""
-    geo = PulseGeoreferencer(trajectory, ScannerMount(np.eye(3)))
-    p, r = geo.poses(time_s)
-    return frame.from_ecef(p), frame.tangent.ecef_from_local.T @ r
-
-
-def beams(scan: RawScan, rows: NDArray[np.int64] | slice = slice(None)) -> tuple[NDArray, NDArray]:
-    """Unit beams ``(n, 3)`` in the scanner frame and their derivatives by the deflection angle alpha."""
-    a = scan.alpha_rad[rows]
-    ca, sa = np.cos(a), np.sin(a)
-    if scan.beta_rad is None:
-        b = np.column_stack([ca, sa, np.zeros_like(ca)])
-    else:
-        cb, sb = np.cos(scan.beta_rad[rows]), np.sin(scan.beta_rad[rows])
-        b = np.column_stack([cb * ca, cb * sa, sb])
-    return b, np.column_stack([-b[:, 1], b[:, 0], np.zeros_like(ca)])
+           "georeference_adjusted", "joint_inputs_from_flight"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,3 +337,12 @@ def georeference_adjusted(inputs: JointInputs, scanner: NDArray[np.float64], str
         lp.normalise(None)  # type: ignore[arg-type]
         out[a:a + chunk] = georeference(lp, scanner, st_ext)["X"]
     return out
+
+
+def joint_inputs_from_flight(flight: Any) -> JointInputs:
+    """The recipe's inputs from a simulated flight (:class:`skyrig.simulate.lidar_camera.JointFlight`): the recorded
+    scan, trajectory and nominal mounts, the images and their measurements (what a user has; no truth)."""
+    s = flight.survey
+    return JointInputs(s.scan, s.trajectory_recorded, s.mount_recorded, s.frame, flight.camera, flight.body_from_camera,
+                       flight.camera_lever_arm_m, flight.image_time_s, flight.image_strip, flight.obs_image,
+                       flight.obs_point, flight.obs_pixel, flight.sigma_px)

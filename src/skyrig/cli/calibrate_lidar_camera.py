@@ -218,7 +218,8 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
     truth = None
     if simulate is not None:
         from skyrig.simulate.lidar import strip_truth_vector
-        from skyrig.simulate.lidar_camera import build_joint_flight, joint_inputs
+        from skyrig.simulate.lidar_camera import build_joint_flight
+        from skyrig.calibrate.lidar_camera import joint_inputs_from_flight as joint_inputs
 
         fl = build_joint_flight(simulate, seed)
         inputs, rig_head = joint_inputs(fl), None

@@ -21,13 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from skyrig.calibrate.lidar_camera import JointInputs, local_poses
 from skyrig.camera.frame import FrameCamera
 from skyrig.geometry.rotations import matrix_from_rotvec
+from skyrig.lidar.pulse_poses import local_poses
 from skyrig.simulate.bridge_camera import _body_from_camera, gt3300c_camera
 from skyrig.simulate.lidar import LidarErrors, LidarSurvey, build_lidar_survey, lidar_scenario_spec
 
-__all__ = ["JointFlight", "build_joint_flight", "joint_inputs"]
+__all__ = ["JointFlight", "build_joint_flight"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,10 +132,3 @@ def build_joint_flight(size: str = "strips-ci", seed: int = 1, errors: LidarErro
     return JointFlight(survey, cam, mount, lever, bore, t_img, s_img, pt, rt, pr, rr, xyz[keep_pt],
                        obs_i.astype(np.int64), obs_p.astype(np.int64), obs_x, float(sigma_px))
 
-
-def joint_inputs(flight: JointFlight) -> JointInputs:
-    """The raw inputs of the calibration recipe (what a user has): recorded scan, trajectory, nominal mounts."""
-    s = flight.survey
-    return JointInputs(s.scan, s.trajectory_recorded, s.mount_recorded, s.frame, flight.camera, flight.body_from_camera,
-                       flight.camera_lever_arm_m, flight.image_time_s, flight.image_strip, flight.obs_image,
-                       flight.obs_point, flight.obs_pixel, flight.sigma_px)
