@@ -215,7 +215,7 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     Cc = pos + np.einsum("nij,j->ni", rot, lever)
     n_pts = int(inputs.obs_point.max()) + 1
     tie_xyz, _ = triangulate_tracks(cam, Rc, Cc, inputs.obs_point, inputs.obs_image, inputs.obs_pixel, n_pts)
-    ok_pt = np.isfinite(tie_xyz).all(axis=1)
+    ok_pt: NDArray[np.bool_] = np.asarray(np.isfinite(tie_xyz).all(axis=1), bool)
     keep_obs = ok_pt[inputs.obs_point]
     newp = np.cumsum(ok_pt) - 1
     # laser: patch planes, then the tie planes of the (triangulated) tie points

@@ -470,7 +470,7 @@ class Lidar(ObservationType):
                 M[:, nb + k - 3:nb + k] = -nrm[idx] / sig[idx, None]
                 cols[k - 3:k] = rp[d.plane_point[p]]
             M[:, -1] = r[idx]
-            Rq = np.linalg.qr(M, mode="r")
+            Rq: NDArray[np.float64] = np.asarray(np.linalg.qr(M, mode="r"))
             rows = Rq[nb:nb + k + 1]
             jcp = np.zeros((len(rows), W))
             jcp[:, :k] = rows[:, nb:nb + k]
@@ -541,6 +541,7 @@ def lidar_unknowns(unknowns: "Unknowns", strip_sigma: tuple[float, ...] | None =
     return replace(unknowns, groups=groups, group_sigma=gs)
 
 
-LIDAR = register(Lidar())
+LIDAR = Lidar()
+register(LIDAR)
 register_group(LidarScanner())
 register_group(LidarStrip())
