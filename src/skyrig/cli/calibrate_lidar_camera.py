@@ -91,8 +91,9 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
 
 
 def run(inputs: Any, rig_head: tuple[Any, str] | None, opts: dict[str, Any], output: str, report_path: str | None,
-        truth: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Calibrate, write the rig file (camera head + scanner record) and the report; returns the result and paths."""
+        truth_of: Any = None) -> dict[str, Any]:
+    """Calibrate, write the rig file (camera head + scanner record) and the report; returns the result and paths.
+    ``truth_of(calibration)``: the simulation's truth in the result's conventions (for the report), or None."""
     from skyrig import __version__
     from skyrig.adjust.factors.lidar import SCANNER_COMPONENTS
     from skyrig.calibrate.lidar_camera import JointOptions, calibrate_lidar_camera
@@ -104,6 +105,7 @@ def run(inputs: Any, rig_head: tuple[Any, str] | None, opts: dict[str, Any], out
     from skyrig.rig.rig import Head, Rig
 
     cal = calibrate_lidar_camera(inputs, JointOptions(range_sigma_m=opts["range_sigma_m"]))
+    truth = None if truth_of is None else truth_of(cal)
     mount = inputs.mount
     if rig_head is None:
         rig, head = Rig("uav", {"camera": Head("camera", inputs.camera, inputs.camera_lever_arm_m,
@@ -215,7 +217,6 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
                          image_sigma_px, range_sigma_m, simulate, seed, name, flight, date, output, report_path) -> None:
     """Laser scanner and camera calibrated in one adjustment (laser strips + images + trajectory)."""
     opts = {"name": name, "flight": flight, "date": date, "range_sigma_m": range_sigma_m}
-    truth = None
     if simulate is not None:
         from skyrig.simulate.lidar import strip_truth_vector
         from skyrig.simulate.lidar_camera import build_joint_flight
@@ -232,10 +233,12 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
             raise click.UsageError(f"give {', '.join(missing)} (or --simulate)")
         inputs, rig_head = _inputs_from_files(scan_path, traj_path, mount_path, scanner, rig_path, head, events_path,
                                               meas_path, image_sigma_px)
-    out = run(inputs, rig_head, opts, output, report_path)
+    truth_of = None
     if simulate is not None:
-        cal = out["calibration"]
-        tv = strip_truth_vector(fl.survey.injected, cal.strip_epoch_s)
-        out["truth"] = {"scanner": tv[:8].tolist(), "camera_boresight_rad": fl.camera_boresight_rad.tolist()}
+        def truth_of(cal: Any) -> dict[str, Any]:
+            tv = strip_truth_vector(fl.survey.injected, cal.strip_epoch_s)
+            return {"scanner": tv[:8].tolist(), "camera_boresight_rad": fl.camera_boresight_rad.tolist(),
+                    "strips": tv[8:].reshape(-1, 12).tolist()}
+    out = run(inputs, rig_head, opts, output, report_path, truth_of)
     echo_table(out)
     click.echo(f"wrote {out['output']} and {out['report']}")
