@@ -89,8 +89,9 @@ def test_simulated_bridge_flight_recovers_the_injected_calibration(tmp_path):
     assert "camera" in rig.head_names and "lidar" in read_rig_scanners(out)
     assert 0.85 < rep["sigma0"] < 1.15
     if abs(z["range_scale"]) >= 3.0:
-        pytest.xfail(f"range scale off by {z['range_scale']:+.1f} sigma on this flight (open: a positive bias on the "
-                     "simulated strip flight, seen by the laser-only strip adjustment as well)")
+        pytest.xfail(f"range scale off by {z['range_scale']:+.1f} sigma on this flight (open: a positive bias of about "
+                     "2 sigma over seeds 1-3, from the weights of grazing beams; the laser-only strip adjustment shows "
+                     "it as well)")
 
 
 def test_truth_vector_matches_the_recipe_conventions():
