@@ -786,6 +786,7 @@ def _statistics(block: Block, model: Model, state: State, cfg: AdjustConfig, fre
     cost = factor_cost([Factor(f.name, f.r * varying[f.name][:, None], f.sigma, weight=f.weight) for f in factors])
     n_obs = int(sum((((f.weight if f.weight is not None else np.ones(len(f))) > 0) & varying[f.name]).sum()
                     * f.r.shape[1] for f in factors))
+    n_obs += int(sum(f.n_extra for f in factors))  # observations reduced to fewer square-root rows
     n_unk = lay.n_c + 3 * lay.n_p
     red = n_obs - n_unk + (_datum_defect(lay) if free else 0)
     sigma0 = float(np.sqrt(2.0 * cost / red)) if red > 0 else float("nan")

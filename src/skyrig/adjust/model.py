@@ -120,7 +120,8 @@ class Layout:
     n_p: int
     labels: list[tuple[str, str, str]] = field(default_factory=list)
     #: ``(P, 3)`` reduced columns of the points estimated in the reduced part (end points of distance
-    #: observations: a distance couples two points, which the Schur elimination of points cannot);
+    #: observations: a distance couples two points, which the Schur elimination of points cannot; the points
+    #: other types name in :meth:`~skyrig.adjust.factors.base.ObservationType.reduced_points`);
     #: -1 for the others (eliminated or fixed).  None = no such points.
     rpoint: NDArray[np.int64] | None = None
     #: ``(H, 2 + 6 N)`` columns of the actuator corrections of actuated heads (-1: fixed / not actuated)
@@ -205,9 +206,12 @@ class Layout:
             grid_cols = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         act = np.ones(b.n_points, bool) if point_active is None else np.asarray(point_active, bool).copy()
         rpoint = None
-        if cfg.unknowns.points != "fixed" and b.n_distances:
+        wanted = [np.asarray(b.distance_point).reshape(-1)] if b.n_distances else []
+        wanted += [np.asarray(rp, np.int64).reshape(-1) for t in observation_types() if t.count(b) > 0
+                   and (rp := t.reduced_points(b)) is not None]
+        if cfg.unknowns.points != "fixed" and wanted:
             red = np.zeros(b.n_points, bool)
-            red[np.asarray(b.distance_point).reshape(-1)] = True
+            red[np.concatenate(wanted)] = True
             red &= act
             if red.any():
                 rpoint = np.full((b.n_points, 3), -1, np.int64)

@@ -49,7 +49,7 @@ COMMANDS: dict[str, CommandEntry] = {
                           "Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."),
     "adjust": CommandEntry("skyrig.cli.adjust:command",
                            "Adjust a block file and write the adjusted EO, points and report."),
-    "calibrate": CommandEntry("skyrig.cli.calibrate:command", "Calibration recipes (camera: test-field calibration) -> calibrated rig file + report."),
+    "calibrate": CommandEntry("skyrig.cli.calibrate:command", "Calibration recipes (camera: test-field calibration; lidar-camera: laser and images in one adjustment) -> calibrated rig file + report."),
     "adjust-uav": CommandEntry("skyrig.cli.uav:command",
                                "GNSS-supported adjustment of the UAV images of PROJECT (tie points from `skyrig match`)."),
     "dsm": CommandEntry("skyrig.cli.dsm:command",

@@ -631,3 +631,12 @@ def calqc_command(trajectory_path, events_path, rig_path, meas_paths, control_pa
         fh.write(report_html(report))
     click.echo(format_tables(report))
     click.echo(f"-> {output}, {report_path}, {html_path}, {poseo_path}")
+
+
+def _lidar_camera() -> None:
+    from skyrig.cli.calibrate_lidar_camera import lidar_camera_command
+
+    command.add_command(lidar_camera_command)
+
+
+_lidar_camera()

@@ -203,6 +203,9 @@ class Factor:
     whiten: NDArray[np.float64] | None = None
     #: ``(n,)`` rows that could not be evaluated (a point behind its camera...; image rows), None = none
     bad: NDArray[np.bool_] | None = None
+    #: observations the rows stand for beyond their own count (a type that reduces many observations to a few
+    #: square-root rows per nuisance group, e.g. the laser points of a plane; counted in the redundancy)
+    n_extra: int = 0
 
     def unwhitened(self) -> NDArray[np.float64]:
         """``(n, d)`` residuals in observation units (computed minus observed)."""
@@ -304,6 +307,12 @@ class ObservationType:
         import copy
 
         return copy.deepcopy(data)
+
+    def reduced_points(self, block: "Block") -> NDArray[np.int64] | None:
+        """Indices of the object points whose rows of this type also touch reduced columns (a plane through a
+        tie point observed by laser points, a distance's end points): the layout estimates them in the reduced
+        part (``Layout.rpoint``); None = none."""
+        return None
 
     def controlled_points(self, block: "Block") -> NDArray[np.bool_] | None:
         """``(P,)`` points this type determines without rays (control), None = none."""

@@ -1,0 +1,112 @@
+"""LiDAR and camera in one adjustment on the simulated bridge strip flight of paper 002 (issue 34).
+
+For each seed: simulate the laser strip flight with its camera (:func:`skyrig.simulate.lidar_camera.build_joint_flight`:
+scanner boresight, lever arm, range offset and scale, per-strip trajectory offsets and drifts, camera boresight
+injected), run the joint recipe (:func:`skyrig.calibrate.lidar_camera.calibrate_lidar_camera`) and report
+
+* the normalised errors ``(estimate - truth) / predicted sigma`` of every injected calibration parameter (scanner 8,
+  camera boresight 3) and of the strip corrections: per seed the largest, over the seeds mean and std (goal: mean
+  within 0.2, std 0.8-1.2);
+* the laser cloud against the TLS reference (plane-model C2C RMS, :func:`skyrig.lidar.compare.cloud_to_cloud`) with
+  the nominal mount, after the laser-only strip adjustment (:func:`skyrig.lidar.strips.adjust_strips`, the separate
+  calibration) and after the joint adjustment;
+* the image cloud -- the tie points of the ADJUSTED image block -- against the same reference;
+* the joint adjustment's time, laser points and images.
+
+Run: ``PYTHONPATH=src python bench/lidar_joint.py --seeds 20 [--size strips-ci|strips] [--json out.json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from skyrig.calibrate.lidar_camera import (JointOptions, calibrate_lidar_camera, georeference_adjusted,
+                                           joint_inputs_from_flight)
+from skyrig.lidar.compare import cloud_to_cloud
+from skyrig.lidar.strips import PatchOptions, StripModel, adjust_strips, find_planar_patches
+from skyrig.simulate.lidar import strip_truth_vector
+from skyrig.simulate.lidar_camera import build_joint_flight
+
+
+def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
+    d = cloud_to_cloud(xyz, ref, model="plane", k=10, max_distance=0.5).distance_m
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def run_seed(size: str, seed: int, every: int) -> dict:
+    fl = build_joint_flight(size, seed)
+    sv = fl.survey
+    inp = joint_inputs_from_flight(fl)
+    t0, c0 = time.perf_counter(), time.process_time()
+    cal = calibrate_lidar_camera(inp, JointOptions())
+    t_joint, c_joint = time.perf_counter() - t0, time.process_time() - c0
+    truth = strip_truth_vector(sv.injected, cal.strip_epoch_s)
+    z_sc = (cal.scanner - truth[:8]) / cal.scanner_sigma
+    z_cam = (cal.camera_boresight_rad - fl.camera_boresight_rad) / cal.camera_boresight_sigma_rad
+    z_st = ((cal.strips - truth[8:].reshape(-1, 12)) / cal.strips_sigma).ravel()
+    # the separate calibration: the laser-only strip adjustment (no control), on the same patches' options
+    e = sv.spec.errors
+    model = StripModel(range_sigma_m=0.02, strip_position_sigma_m=e.strip_position_sigma_m,
+                       strip_position_drift_sigma_mps=e.strip_position_drift_sigma_mps,
+                       strip_attitude_sigma_rad=e.strip_attitude_sigma_rad,
+                       strip_attitude_drift_sigma_radps=e.strip_attitude_drift_sigma_radps)
+    patches = find_planar_patches(sv.scan, sv.trajectory_recorded, sv.mount_recorded, sv.frame,
+                                  options=JointOptions().patches)
+    sep = adjust_strips(patches, sv.mount_recorded, model=model)
+    rows = np.flatnonzero(sv.scan.strip_id >= 0)[::every]
+    ref = sv.reference_xyz
+    nominal = georeference_adjusted(inp, np.zeros(8), np.zeros_like(cal.strips), cal.strip_epoch_s, cal.strip_ids,
+                                    rows=rows)
+    separate = georeference_adjusted(inp, sep.calibration, sep.strips, sep.strip_epoch_s, sep.strip_ids, rows=rows)
+    joint = georeference_adjusted(inp, cal.scanner, cal.strips, cal.strip_epoch_s, cal.strip_ids, rows=rows)
+    image = cal.block.point_xyz
+    return {
+        "seed": seed, "time_joint_s": t_joint, "cpu_joint_s": c_joint, "laser_points": cal.n_laser_points, "images": fl.n_images,
+        "image_observations": int(len(cal.block.obs_image)), "pulses": len(sv.scan),
+        "patch_planes": cal.n_patch_planes, "tie_planes": cal.n_tie_planes, "dropped_points": cal.n_dropped_points,
+        "dropped_planes": cal.n_dropped_planes, "sigma0": cal.sigma0,
+        "z_scanner": z_sc.tolist(), "z_camera": z_cam.tolist(), "z_strips": z_st.tolist(),
+        "rms_tls_m": {"nominal": _rms_vs_tls(nominal, ref), "separate": _rms_vs_tls(separate, ref),
+                      "joint": _rms_vs_tls(joint, ref), "image_tie_points": _rms_vs_tls(image, ref)},
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--size", default="strips-ci", choices=("strips-ci", "strips"))
+    ap.add_argument("--every", type=int, default=10, help="compare every n-th laser pulse with the TLS")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args()
+    out = []
+    for s in range(a.first_seed, a.first_seed + a.seeds):
+        r = run_seed(a.size, s, a.every)
+        out.append(r)
+        t = r["rms_tls_m"]
+        print(f"seed {s}: {r['laser_points']} laser points, {r['images']} images, joint {r['time_joint_s']:.1f} s "
+              f"({r['cpu_joint_s']:.1f} s CPU), "
+              f"sigma0 {r['sigma0']:.2f}; max |z| scanner {np.max(np.abs(r['z_scanner'])):.2f}, camera "
+              f"{np.max(np.abs(r['z_camera'])):.2f}, strips {np.max(np.abs(r['z_strips'])):.2f}; laser vs TLS RMS "
+              f"nominal {t['nominal'] * 1e3:.1f} mm, separate {t['separate'] * 1e3:.1f} mm, joint "
+              f"{t['joint'] * 1e3:.1f} mm; image tie points {t['image_tie_points'] * 1e3:.1f} mm", flush=True)
+    zc = np.array([r["z_scanner"] + r["z_camera"] for r in out])
+    zs = np.concatenate([r["z_strips"] for r in out])
+    print(f"calibration z over {len(out)} seeds ({zc.size} values): mean {zc.mean():+.2f}, std {zc.std():.2f}; "
+          f"per parameter mean {np.round(zc.mean(axis=0), 2).tolist()} std {np.round(zc.std(axis=0), 2).tolist()}")
+    print(f"strip corrections z ({zs.size} values): mean {zs.mean():+.2f}, std {zs.std():.2f}")
+    for k in ("nominal", "separate", "joint", "image_tie_points"):
+        v = np.array([r["rms_tls_m"][k] for r in out])
+        print(f"RMS vs TLS {k}: mean {v.mean() * 1e3:.1f} mm")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

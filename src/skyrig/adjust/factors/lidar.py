@@ -1,0 +1,547 @@
+"""Laser points as observations of the adjustment (issue 34): LiDAR and camera in one block.
+
+Model
+-----
+A laser point ``i`` (pulse time ``t``, recorded range ``rho_rec``, unit beam ``u`` in the scanner frame from its
+scan angle, strip ``k``) is georeferenced in the block's frame from the recorded trajectory pose at the pulse
+time (``P(t)``, ``R(t)`` = ``world_from_body``) and the unknowns (paper 002 eqs 1-4, the model of
+:mod:`skyrig.lidar.strips`)::
+
+    rho = (rho_rec - range_offset) / (1 + range_scale)                           range correction
+    x_b = lever_nominal + dlever + B_nominal expmap(boresight) (rho u)            body frame
+    X   = P(t) + dp_k + dv_k tau + expmap(da_k + dw_k tau) R(t) x_b,  tau = t - t_k  (t_k: strip epoch)
+
+Every point lies on a plane; the observation is the point-to-plane distance (computed minus zero):
+
+* a **patch** plane (``plane_point = -1``) seen by overlapping strips: ``r = n . (X - c) - d`` with the plane
+  ``(n, d)`` a nuisance unknown (strip adjustment);
+* a **tie** plane (``plane_point = j``): the local plane of the image block's tie point ``j`` (an object point of
+  the adjustment, so images and laser share it), ``r = n . (X - X_j)``, the normal a nuisance unknown.  The
+  points ``j`` are estimated in the reduced part (:meth:`Lidar.reduced_points`, ``Layout.rpoint``): a row that
+  touches the scanner's unknowns and a tie point cannot be eliminated with the points.
+
+Unknowns declared here (:class:`~skyrig.adjust.factors.base.ParameterGroup`)
+----------------------------------------------------------------------------
+* ``lidar_scanner`` (one owner, ``scanner``): boresight (rotation vector, scanner frame, rad), lever-arm
+  correction (body frame, m), range offset (m), range scale (dimensionless);
+* ``lidar_strip`` (one owner per strip ``strip<k>``): position offset and drift (block frame, m and m/s),
+  attitude offset and drift (rotation vector, block frame, rad and rad/s).
+
+The trajectory's accuracy enters as priors of ``lidar_strip`` (mode ``"weighted"`` with ``group_sigma``), the
+calibration's nominal values as wide priors of ``lidar_scanner`` or none (``"free"``); see
+:func:`lidar_unknowns`.  The camera's boresight, IO and the image orientations are the block's own unknowns.
+
+Stochastic model
+----------------
+The variance of a point-to-plane distance is propagated from range noise (along the beam), scan-angle noise
+(across the beam in the scan plane), white trajectory noise (position, and attitude times the lever from the body
+origin) and a surface roughness::
+
+    s^2 = s_r^2 (n.u_w)^2 + s_a^2 rho^2 (n.u'_w)^2 + s_p^2 + s_att^2 |y x n|^2 + s_rough^2
+
+with ``u_w``, ``u'_w`` the beam and its derivative by the scan angle in the block frame and ``y = R x_b``.
+
+Memory: one factor row per unknown of a plane, not per point
+------------------------------------------------------------
+Each plane's whitened rows ``[B | A | r]`` (``B``: the plane's nuisance columns, ``A``: the ``k`` unknowns it
+touches) are reduced by a QR factorisation; the rows below the nuisance block, ``k + 1`` of them, carry exactly
+the same normal equations and the same sum of squares as the plane's points with the plane eliminated (a Schur
+complement in square-root form, the plane refitted at every evaluation: variable projection).  The factor has
+``sum_planes (k_p + 1)`` rows whatever the number of points; ``Factor.n_extra`` counts the observations they
+stand for in the redundancy.  (The points themselves are the data: a caller keeps a bounded number per plane and
+strip, as :mod:`skyrig.lidar.strips` does.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skyrig.adjust.factors import register, register_group
+from skyrig.adjust.factors.base import (BlockError, Factor, ObservationType, ParameterGroup, check_finite,
+                                        check_index)
+from skyrig.adjust.factors.rolling_shutter import right_jacobian
+from skyrig.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix, skew
+
+if TYPE_CHECKING:  # pragma: no cover
+    from skyrig.adjust.block import Block
+    from skyrig.adjust.config import Unknowns
+    from skyrig.adjust.model import Model, State
+
+__all__ = ["LidarPoints", "Lidar", "LidarScanner", "LidarStrip", "lidar_unknowns", "georeference", "NAME", "SCANNER",
+           "STRIP", "SCANNER_COMPONENTS", "STRIP_COMPONENTS"]
+
+NAME = "lidar"
+SCANNER = "lidar_scanner"
+STRIP = "lidar_strip"
+SCANNER_COMPONENTS = ("bore_x_rad", "bore_y_rad", "bore_z_rad", "lever_x_m", "lever_y_m", "lever_z_m",
+                      "range_offset_m", "range_scale")
+STRIP_COMPONENTS = ("dp_x_m", "dp_y_m", "dp_z_m", "dv_x_m_s", "dv_y_m_s", "dv_z_m_s", "da_x_rad", "da_y_rad",
+                    "da_z_rad", "dw_x_rad_s", "dw_y_rad_s", "dw_z_rad_s")
+NS, NK = len(SCANNER_COMPONENTS), len(STRIP_COMPONENTS)
+
+
+@dataclass
+class LidarPoints:
+    """Laser points on planes (rows of the ``lidar`` type, ``block.observations["lidar"]``).
+
+    Attributes
+    ----------
+    time_s, strip, range_m
+        ``(N,)`` pulse time (s, the trajectory's time scale), strip index, recorded range (m).
+    beam, beam_dangle
+        ``(N, 3)`` unit beam direction in the scanner frame (from the scan angle) and its derivative by the scan
+        angle (per rad).
+    plane
+        ``(N,)`` plane index of each point.
+    position_m, rotation
+        ``(N, 3)`` trajectory position (IMU origin, block frame, m) and ``(N, 3, 3)`` ``world_from_body`` at the
+        pulse time.
+    plane_point
+        ``(Q,)`` per plane: -1 for a patch plane, else the object point (tie point) the plane passes through.
+    strip_epoch_s
+        ``(K,)`` reference time of each strip's drifts (s).
+    body_from_scanner, lever_arm_m
+        ``(3, 3)`` nominal mounting (a rotation: right-handed) and ``(3,)`` nominal lever arm (body frame, m).
+    range_sigma_m, angle_sigma_rad, position_sigma_m, attitude_sigma_rad, roughness_m
+        The stochastic model (module docstring), one sigma each.
+    """
+
+    time_s: Any
+    strip: Any
+    range_m: Any
+    beam: Any
+    beam_dangle: Any
+    plane: Any
+    position_m: Any
+    rotation: Any
+    plane_point: Any
+    strip_epoch_s: Any
+    body_from_scanner: Any
+    lever_arm_m: Any
+    range_sigma_m: float = 0.02
+    angle_sigma_rad: float = 0.0
+    position_sigma_m: float = 0.0
+    attitude_sigma_rad: float = 0.0
+    roughness_m: float = 0.002
+    #: stations of the block flown on the same trajectory (camera exposures): ``(S,)`` station index, strip,
+    #: time (s), recorded trajectory position ``(S, 3)`` and ``world_from_body`` ``(S, 3, 3)``; the station pose
+    #: is observed as the recorded pose corrected by its strip's corrections (the factor ``lidar:trajectory``),
+    #: with white noise ``station_position_sigma_m`` / ``station_attitude_sigma_rad``: images and laser share
+    #: the trajectory's errors
+    station: Any = None
+    station_strip: Any = None
+    station_time_s: Any = None
+    station_position_m: Any = None
+    station_rotation: Any = None
+    station_position_sigma_m: float = 0.005
+    station_attitude_sigma_rad: float = 2e-5
+    #: ``(N, 1)`` sigma placeholder for reports (the rows are per plane; not used by variance components)
+    sigma: Any = None
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def n_planes(self) -> int:
+        return len(self.plane_point)
+
+    @property
+    def n_strips(self) -> int:
+        return len(self.strip_epoch_s)
+
+    def normalise(self, block: "Block") -> None:
+        self.time_s = np.asarray(self.time_s, float).reshape(-1)
+        n = len(self.time_s)
+        self.strip = np.asarray(self.strip, np.int64).reshape(n)
+        self.range_m = np.asarray(self.range_m, float).reshape(n)
+        self.beam = np.asarray(self.beam, float).reshape(n, 3)
+        self.beam_dangle = np.asarray(self.beam_dangle, float).reshape(n, 3)
+        self.plane = np.asarray(self.plane, np.int64).reshape(n)
+        self.position_m = np.asarray(self.position_m, float).reshape(n, 3)
+        self.rotation = np.asarray(self.rotation, float).reshape(n, 3, 3)
+        self.plane_point = np.asarray(self.plane_point, np.int64).reshape(-1)
+        self.strip_epoch_s = np.asarray(self.strip_epoch_s, float).reshape(-1)
+        self.body_from_scanner = np.asarray(self.body_from_scanner, float).reshape(3, 3)
+        self.lever_arm_m = np.asarray(self.lever_arm_m, float).reshape(3)
+        self.sigma = np.full((n, 1), float(self.range_sigma_m))
+        self.station = np.zeros(0, np.int64) if self.station is None else np.asarray(self.station, np.int64).reshape(-1)
+        m = len(self.station)
+        self.station_strip = np.asarray(self.station_strip if m else np.zeros(0), np.int64).reshape(m)
+        self.station_time_s = np.asarray(self.station_time_s if m else np.zeros(0), float).reshape(m)
+        self.station_position_m = np.asarray(self.station_position_m if m else np.zeros(0), float).reshape(m, 3)
+        self.station_rotation = np.asarray(self.station_rotation if m else np.zeros(0), float).reshape(m, 3, 3)
+
+    def validate(self, block: "Block") -> None:
+        w = f"observations['{NAME}']"
+        for nm in ("time_s", "range_m", "beam", "beam_dangle", "position_m", "rotation", "strip_epoch_s"):
+            check_finite(f"{w}.{nm}", getattr(self, nm))
+        check_index(f"{w}.strip", self.strip, self.n_strips, "strip")
+        check_index(f"{w}.plane", self.plane, self.n_planes, "plane")
+        tie = self.plane_point[self.plane_point >= 0]
+        check_index(f"{w}.plane_point", tie, block.n_points, "point")
+        nb = np.abs(np.linalg.norm(self.beam, axis=1) - 1.0)
+        if len(nb) and nb.max() > 1e-6:
+            raise BlockError(f"{w}.beam[{int(np.argmax(nb))}] is not a unit vector")
+        m = self.body_from_scanner
+        if not np.allclose(m @ m.T, np.eye(3), atol=1e-9) or np.linalg.det(m) < 0:
+            raise BlockError(f"{w}.body_from_scanner is not a rotation (det {np.linalg.det(m):+.3f}): a scanner frame "
+                             "with a left-handed axis set must be turned right-handed (flip one axis) first")
+        det = np.linalg.det(self.rotation) if len(self) else np.ones(0)
+        if len(det) and (np.abs(det - 1.0) > 1e-6).any():
+            raise BlockError(f"{w}.rotation[{int(np.argmax(np.abs(det - 1.0)))}] is not a rotation")
+        for nm in ("range_sigma_m", "angle_sigma_rad", "position_sigma_m", "attitude_sigma_rad", "roughness_m"):
+            v = float(getattr(self, nm))
+            if not (np.isfinite(v) and v >= 0):
+                raise BlockError(f"{w}.{nm} must be >= 0 (a standard deviation), got {v!r}")
+        if self.range_sigma_m + self.roughness_m <= 0:
+            raise BlockError(f"{w}: range_sigma_m and roughness_m are both zero: the point-to-plane sigma needs one")
+        check_index(f"{w}.station", self.station, block.n_stations, "station")
+        check_index(f"{w}.station_strip", self.station_strip, self.n_strips, "strip")
+        for nm in ("station_time_s", "station_position_m", "station_rotation"):
+            check_finite(f"{w}.{nm}", getattr(self, nm))
+        if len(self.station) and not (self.station_position_sigma_m > 0 and self.station_attitude_sigma_rad > 0):
+            raise BlockError(f"{w}: station_position_sigma_m and station_attitude_sigma_rad must be > 0")
+        counts = np.bincount(self.plane, minlength=self.n_planes)
+        need = np.where(self.plane_point >= 0, 3, 4)
+        bad = np.flatnonzero(counts < need)
+        if bad.size:
+            raise BlockError(f"{w}: plane {int(bad[0])} has {int(counts[bad[0]])} points (a patch plane needs 4, a "
+                             "tie plane 3)")
+
+
+    def without(self, drop_points: NDArray[np.bool_] | None = None, drop_planes: NDArray[np.bool_] | None = None
+                ) -> "LidarPoints":
+        """A copy without the points ``drop_points (N,)`` and the planes ``drop_planes (Q,)`` (and their points);
+        planes left with too few points (3 for a tie plane, 4 for a patch) go as well; the rest renumbered."""
+        keep = np.ones(len(self), bool) if drop_points is None else ~np.asarray(drop_points, bool)
+        keep_pl = np.ones(self.n_planes, bool) if drop_planes is None else ~np.asarray(drop_planes, bool)
+        cnt = np.bincount(self.plane[keep], minlength=self.n_planes)
+        keep_pl &= cnt >= np.where(self.plane_point >= 0, 3, 4)
+        new = np.cumsum(keep_pl) - 1
+        k = keep & keep_pl[self.plane]
+        return replace(self, time_s=self.time_s[k], strip=self.strip[k], range_m=self.range_m[k], beam=self.beam[k],
+                       beam_dangle=self.beam_dangle[k], plane=new[self.plane[k]], position_m=self.position_m[k],
+                       rotation=self.rotation[k], plane_point=self.plane_point[keep_pl], sigma=None)
+
+
+def _data(block: Any) -> LidarPoints | None:
+    return block.observations.get(NAME)
+
+
+class LidarScanner(ParameterGroup):
+    """The laser scanner's calibration: boresight, lever-arm correction, range offset and scale."""
+
+    name = SCANNER
+    components = SCANNER_COMPONENTS
+    words = "laser scanner calibration (boresight, lever arm, range offset and scale)"
+
+    def owners(self, block: Any) -> list[str]:
+        return ["scanner"]
+
+    def estimated(self, block: Any) -> bool:
+        return _data(block) is not None
+
+
+class LidarStrip(ParameterGroup):
+    """Per-strip corrections of the trajectory under the laser: position/attitude offsets and drifts."""
+
+    name = STRIP
+    components = STRIP_COMPONENTS
+    words = "per-strip trajectory correction of the laser (offsets and drifts)"
+
+    def owners(self, block: Any) -> list[str]:
+        d = _data(block)
+        return [] if d is None else [f"strip{k}" for k in range(d.n_strips)]
+
+    def estimated(self, block: Any) -> bool:
+        return _data(block) is not None
+
+
+def georeference(d: LidarPoints, scanner: NDArray[np.float64], strips: NDArray[np.float64], jac: bool = False,
+                 rows: NDArray[np.int64] | slice = slice(None)) -> dict[str, NDArray[np.float64]]:
+    """Laser points in the block frame from the unknowns (module docstring).
+
+    Parameters
+    ----------
+    d
+        The laser points.
+    scanner, strips
+        ``(8,)`` scanner calibration and ``(K, 12)`` strip corrections (the groups' component order).
+    jac
+        Also return the Jacobians ``dX/dscanner (n, 3, 8)`` and ``dX/dstrip (n, 3, 12)``.
+    rows
+        The points to georeference (default all).
+
+    Returns
+    -------
+    dict
+        ``X (n, 3)``, ``beam_w (n, 3)``, ``dbeam_w (n, 3)`` (beam and its scan-angle derivative, block frame),
+        ``rho (n,)``, ``y (n, 3)`` (``R x_b``, the body-to-point vector), and ``JS``, ``JK`` when ``jac``.
+    """
+    st = d.strip[rows]
+    tau = d.time_s[rows] - d.strip_epoch_s[st]
+    sc = np.asarray(scanner, float)
+    bore, dl, off, scale = sc[0:3], sc[3:6], sc[6], sc[7]
+    Eb = matrix_from_rotvec(bore)
+    Bc = d.body_from_scanner @ Eb
+    rho = (d.range_m[rows] - off) / (1.0 + scale)
+    xs = rho[:, None] * d.beam[rows]
+    xb = d.lever_arm_m + dl + xs @ Bc.T
+    R = d.rotation[rows]
+    y = np.einsum("nij,nj->ni", R, xb)
+    S = np.asarray(strips, float)[st]
+    g = S[:, 6:9] + S[:, 9:12] * tau[:, None]
+    E = matrix_from_rotvec(g)
+    X = d.position_m[rows] + S[:, 0:3] + S[:, 3:6] * tau[:, None] + np.einsum("nij,nj->ni", E, y)
+    ER = E @ R
+    ERB = ER @ Bc
+    out = {"X": X, "beam_w": np.einsum("nij,nj->ni", ERB, d.beam[rows]),
+           "dbeam_w": np.einsum("nij,nj->ni", ERB, d.beam_dangle[rows]), "rho": rho, "y": np.einsum("nij,nj->ni", E, y)}
+    if not jac:
+        return out
+    n = len(rho)
+    JS = np.empty((n, 3, NS))
+    JS[:, :, 0:3] = -(ERB @ skew(xs)) @ right_jacobian(bore[None])[0]
+    JS[:, :, 3:6] = ER
+    JS[:, :, 6] = out["beam_w"] * (-1.0 / (1.0 + scale))
+    JS[:, :, 7] = out["beam_w"] * (-(d.range_m[rows] - off) / (1.0 + scale) ** 2)[:, None]
+    JK = np.zeros((n, 3, NK))
+    JK[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    JK[:, [0, 1, 2], [3, 4, 5]] = tau[:, None]
+    Ja = -(E @ skew(y)) @ right_jacobian(g)
+    JK[:, :, 6:9] = Ja
+    JK[:, :, 9:12] = Ja * tau[:, None, None]
+    out["JS"], out["JK"] = JS, JK
+    return out
+
+
+@dataclass
+class _Planes:
+    """Per-model constants: points sorted by plane, plane offsets, strips per plane."""
+
+    order: NDArray[np.int64]
+    ptr: NDArray[np.int64]
+    strips: list[NDArray[np.int64]]
+    width: int
+
+
+def _fit_planes(X: NDArray, w: NDArray, plane: NDArray, anchor: NDArray, is_tie: NDArray, q: int
+                ) -> tuple[NDArray, NDArray]:
+    """Weighted planes ``(normal (Q, 3), centre (Q, 3))``: patch planes through their weighted centroid, tie planes
+    through their anchor (the tie point); the normal minimises the weighted squared distances."""
+    sw = np.bincount(plane, w, q)
+    c = np.column_stack([np.bincount(plane, w * X[:, j], q) for j in range(3)]) / sw[:, None]
+    c = np.where(is_tie[:, None], anchor, c)
+    dx = X - c[plane]
+    S = np.zeros((q, 3, 3))
+    np.add.at(S, plane, w[:, None, None] * dx[:, :, None] * dx[:, None, :])
+    _, V = np.linalg.eigh(S)
+    return V[:, :, 0], c
+
+
+class Lidar(ObservationType):
+    """Laser points on planes: point-to-plane distances, reduced per plane (module docstring)."""
+
+    name = NAME
+    words = "laser point-to-plane"
+    components = ("d",)
+    units = "m"
+    order = 47.0
+    snooped = False
+    share_checked = False
+    datum_words = "the laser trajectory (laser points)"
+    vce_split = None
+
+    def reduced_points(self, block: "Block") -> NDArray[np.int64] | None:
+        d = _data(block)
+        if d is None:
+            return None
+        return np.unique(d.plane_point[d.plane_point >= 0])
+
+    def initial_weight(self, block: "Block") -> None:
+        return None  # rows per plane: not reweighted, not snooped
+
+    def get_sigma(self, block: "Block") -> NDArray[np.float64]:
+        return np.ones((0, 1))
+
+    def set_sigma(self, block: "Block", value: NDArray[np.float64]) -> None:
+        pass
+
+    def prepare(self, model: "Model") -> _Planes:
+        d = _data(model.block)
+        assert d is not None
+        order = np.argsort(d.plane, kind="stable")
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(d.plane, minlength=d.n_planes))])
+        strips = [np.unique(d.strip[order[ptr[p]:ptr[p + 1]]]) for p in range(d.n_planes)]
+        smax = max([len(s) for s in strips] + [0])
+        return _Planes(order, ptr, strips, NS + NK * smax + 3)
+
+    def point_sigma(self, d: LidarPoints, geo: dict[str, NDArray], normal: NDArray) -> NDArray[np.float64]:
+        """``(n,)`` point-to-plane sigma (m) of points with georeferencing ``geo`` on planes of ``normal (n, 3)``."""
+        nu = np.einsum("ni,ni->n", normal, geo["beam_w"])
+        nd = np.einsum("ni,ni->n", normal, geo["dbeam_w"]) * geo["rho"]
+        ya = np.linalg.norm(np.cross(geo["y"], normal), axis=1)
+        return np.sqrt((d.range_sigma_m * nu) ** 2 + (d.angle_sigma_rad * nd) ** 2 + d.position_sigma_m ** 2
+                       + (d.attitude_sigma_rad * ya) ** 2 + d.roughness_m ** 2)
+
+    def planes(self, d: LidarPoints, X: NDArray, geo: dict[str, NDArray], tie_xyz: NDArray
+               ) -> tuple[NDArray, NDArray, NDArray]:
+        """Planes at the current georeferencing: ``normal (Q, 3)``, ``centre (Q, 3)`` and the points' sigma ``(N,)``
+        (an unweighted fit gives the normals for the sigmas, a weighted fit the planes)."""
+        q = d.n_planes
+        is_tie = d.plane_point >= 0
+        n0, _ = _fit_planes(X, np.ones(len(X)), d.plane, tie_xyz, is_tie, q)
+        sig = self.point_sigma(d, geo, n0[d.plane])
+        n1, c1 = _fit_planes(X, 1.0 / sig**2, d.plane, tie_xyz, is_tie, q)
+        return n1, c1, sig
+
+    def normalised_residuals(self, block: "Block") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Each point's point-to-plane residual over its sigma ``(N,)`` at the block's values (planes refitted),
+        and each plane's RMS of them over its redundancy ``(Q,)`` (about 1 for a plane that fits its model; a
+        point over an edge or a plane over a corner shows far more)."""
+        d = _data(block)
+        assert d is not None
+        sc = LidarScanner().initial(block)[0]
+        st = LidarStrip().initial(block)
+        geo = georeference(d, sc, st)
+        anchor = np.zeros((d.n_planes, 3))
+        tie = d.plane_point >= 0
+        anchor[tie] = block.point_xyz[d.plane_point[tie]]
+        normal, centre, sig = self.planes(d, geo["X"], geo, anchor)
+        r = np.einsum("ni,ni->n", normal[d.plane], geo["X"] - centre[d.plane]) / sig
+        cnt = np.bincount(d.plane, minlength=d.n_planes)
+        dof = np.maximum(cnt - np.where(tie, 2, 3), 1)
+        return r, np.sqrt(np.bincount(d.plane, r**2, d.n_planes) / dof)
+
+    def evaluate(self, model: "Model", s: "State", jac: bool) -> list[Factor]:
+        b, lay = model.block, model.layout
+        d = _data(b)
+        assert d is not None
+        pc: _Planes = model.cache[NAME]
+        geo = georeference(d, s.groups[SCANNER][0], s.groups[STRIP], jac)
+        X = geo["X"]
+        tie = d.plane_point >= 0
+        anchor = np.zeros((d.n_planes, 3))
+        anchor[tie] = s.X[d.plane_point[tie]]
+        normal, centre, sig = self.planes(d, X, geo, anchor)
+        nrm = normal[d.plane]
+        r = np.einsum("ni,ni->n", nrm, X - centre[d.plane]) / sig
+        if not jac:  # the same sum of squares as the reduced rows, one row per plane
+            ss = np.bincount(d.plane, r**2, d.n_planes)
+            n_nuis = int(np.where(tie, 2, 3).sum())
+            f0 = Factor(NAME, np.sqrt(ss)[:, None], np.ones((d.n_planes, 1)), n_extra=len(X) - n_nuis - d.n_planes)
+            return [f0] + ([self.trajectory(model, s, jac)] if len(d.station) else [])
+        # whitened Jacobians per point
+        AS = np.einsum("ni,nik->nk", nrm, geo["JS"]) / sig[:, None]
+        AK = np.einsum("ni,nik->nk", nrm, geo["JK"]) / sig[:, None]
+        t1 = np.cross(nrm, np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+        t1 /= np.linalg.norm(t1, axis=1)[:, None]
+        t2 = np.cross(nrm, t1)
+        dx = X - centre[d.plane]
+        Bm = np.column_stack([np.einsum("ni,ni->n", t1, dx), np.einsum("ni,ni->n", t2, dx), -np.ones(len(X))])
+        Bm /= sig[:, None]
+        scols = lay.groups[SCANNER][0]
+        kcols = lay.groups[STRIP]
+        rp = lay.rpoint_cols
+        W = pc.width
+        jc_rows, col_rows, r_rows = [], [], []
+        extra = 0
+        for p in range(d.n_planes):
+            idx = pc.order[pc.ptr[p]:pc.ptr[p + 1]]
+            strips = pc.strips[p]
+            nb = 2 if tie[p] else 3
+            k = NS + NK * len(strips) + (3 if tie[p] else 0)
+            M = np.zeros((len(idx), nb + k + 1))
+            M[:, :nb] = Bm[idx, :nb]
+            M[:, nb:nb + NS] = AS[idx]
+            cols = np.full(W, -1, np.int64)
+            cols[:NS] = scols
+            st = d.strip[idx]
+            for j, sk in enumerate(strips):
+                on = st == sk
+                o = nb + NS + NK * j
+                M[on, o:o + NK] = AK[idx[on]]
+                cols[NS + NK * j:NS + NK * (j + 1)] = kcols[sk]
+            if tie[p]:
+                M[:, nb + k - 3:nb + k] = -nrm[idx] / sig[idx, None]
+                cols[k - 3:k] = rp[d.plane_point[p]]
+            M[:, -1] = r[idx]
+            Rq: NDArray[np.float64] = np.asarray(np.linalg.qr(M, mode="r"))
+            rows = Rq[nb:nb + k + 1]
+            jcp = np.zeros((len(rows), W))
+            jcp[:, :k] = rows[:, nb:nb + k]
+            jc_rows.append(jcp)
+            col_rows.append(np.broadcast_to(cols, (len(rows), W)))
+            r_rows.append(rows[:, -1])
+            extra += len(idx) - nb - len(rows)
+        rr = np.concatenate(r_rows)[:, None]
+        f = Factor(NAME, rr, np.ones_like(rr), jc=np.concatenate(jc_rows)[:, None, :],
+                   cols=np.ascontiguousarray(np.concatenate(col_rows)), n_extra=extra)
+        return [f] + ([self.trajectory(model, s, jac)] if len(d.station) else [])
+
+    def trajectory(self, model: "Model", s: "State", jac: bool) -> Factor:
+        """The stations' poses against the recorded trajectory corrected by their strips' corrections: ``(S, 6)``
+        rows ``C - (P + dp + dv tau)`` and ``log(R_s^T expmap(da + dw tau) R_rec)`` (body frame), whitened."""
+        b, lay = model.block, model.layout
+        d = _data(b)
+        assert d is not None
+        st, k = d.station, d.station_strip
+        tau = d.station_time_s - d.strip_epoch_s[k]
+        S = s.groups[STRIP][k]
+        g = S[:, 6:9] + S[:, 9:12] * tau[:, None]
+        E = matrix_from_rotvec(g)
+        Q = np.swapaxes(s.R[st], 1, 2) @ E @ d.station_rotation
+        sp, sa = float(d.station_position_sigma_m), float(d.station_attitude_sigma_rad)
+        sig = np.array([sp, sp, sp, sa, sa, sa])
+        r = np.column_stack([s.C[st] - d.station_position_m - S[:, 0:3] - S[:, 3:6] * tau[:, None],
+                             rotvec_from_matrix(Q)]) / sig
+        f = Factor(f"{NAME}:trajectory", r, np.broadcast_to(sig, r.shape).copy())
+        if not jac:
+            return f
+        m = len(st)
+        jc = np.zeros((m, 6, 6 + NK))
+        i3 = np.eye(3)
+        jc[:, 0:3, 0:3] = i3
+        jc[:, 3:6, 3:6] = -i3
+        jc[:, 0:3, 6:9] = -i3
+        jc[:, 0:3, 9:12] = -i3 * tau[:, None, None]
+        Ja = np.swapaxes(d.station_rotation, 1, 2) @ right_jacobian(g)
+        jc[:, 3:6, 12:15] = Ja
+        jc[:, 3:6, 15:18] = Ja * tau[:, None, None]
+        f.jc = jc / sig[None, :, None]
+        f.cols = np.concatenate([lay.pose[st], lay.groups[STRIP][k]], axis=1)
+        return f
+
+    def varying(self, model: "Model", factor: Factor) -> NDArray[np.bool_]:
+        if factor.name != NAME and factor.cols is not None:
+            return np.asarray((factor.cols >= 0).any(axis=1), bool)
+        return np.ones(len(factor), bool)  # laser points observe their planes whatever is free
+
+    def label(self, block: "Block", i: int) -> str:
+        return f"laser plane row {i}"
+
+
+def lidar_unknowns(unknowns: "Unknowns", strip_sigma: tuple[float, ...] | None = None,
+                   scanner_sigma: tuple[float, ...] | None = None) -> "Unknowns":
+    """``unknowns`` with the laser groups on: the scanner calibration ``"free"`` (or ``"weighted"`` with
+    ``scanner_sigma``, 8 sigmas in the component order), the strip corrections ``"weighted"`` with ``strip_sigma``
+    (12 sigmas: the trajectory's accuracy, component order of ``lidar_strip``) or ``"free"`` when None."""
+    groups: tuple[Any, ...] = tuple((n, m) for n, m in unknowns.groups if n not in (SCANNER, STRIP))
+    gs: tuple[Any, ...] = tuple((n, v) for n, v in unknowns.group_sigma if n not in (SCANNER, STRIP))
+    groups += ((SCANNER, "free" if scanner_sigma is None else "weighted"),
+               (STRIP, "free" if strip_sigma is None else "weighted"))
+    if scanner_sigma is not None:
+        gs += ((SCANNER, tuple(float(v) for v in scanner_sigma)),)
+    if strip_sigma is not None:
+        gs += ((STRIP, tuple(float(v) for v in strip_sigma)),)
+    return replace(unknowns, groups=groups, group_sigma=gs)
+
+
+LIDAR = Lidar()
+register(LIDAR)
+register_group(LidarScanner())
+register_group(LidarStrip())

@@ -1,0 +1,227 @@
+"""The LiDAR observation type of the adjustment (issue 34, ``skyrig.adjust.factors.lidar``).
+
+A seeded, model-exact laser flight over a synthetic image block: three laser strips (different headings and
+heights) see planar patches and the local planes of some of the block's tie points; every laser point is made from
+a true surface point by inverting the georeferencing with the true scanner calibration and the true trajectory, and
+the recorded trajectory carries per-strip offsets and drifts drawn from the priors' sigmas.  The adjustment of
+images and laser together must find the injected scanner calibration within 3 predicted sigmas.  The Jacobians
+are checked against finite differences, and the reduced rows of a plane against the plane's points with the plane
+eliminated by an independent dense least-squares computation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from skyrig.adjust import AdjustConfig, adjust
+from skyrig.adjust.config import Unknowns
+from skyrig.adjust.factors.lidar import (LIDAR, NK, NS, SCANNER, SCANNER_COMPONENTS, STRIP, LidarPoints, georeference,
+                                         lidar_unknowns)
+from skyrig.adjust.model import Model, State
+from skyrig.adjust.synthetic import synthetic_block
+from skyrig.errors import BlockError
+from skyrig.geometry.rotations import matrix_from_rotvec
+
+STRIP_SIGMA = np.array([0.03, 0.03, 0.05, 5e-4, 5e-4, 8e-4, 3e-4, 3e-4, 8e-4, 3e-6, 3e-6, 8e-6])
+TRUE_SCANNER = np.array([0.004, -0.003, 0.005, 0.03, -0.04, 0.05, 0.04, 8e-4])
+BODY_FROM_SCANNER = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # a proper rotation
+LEVER = np.array([0.1, -0.02, 0.15])
+RANGE_SIGMA = 0.02
+
+
+def _strip_pose(k: int, t: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """True body position and world_from_body of strip ``k`` at times ``t`` (s from the strip's epoch)."""
+    head = [0.0, np.pi, np.pi / 2][k]
+    h = [300.0, 360.0, 330.0][k]
+    u = np.array([np.cos(head), np.sin(head), 0.0])
+    P = centre + np.array([0.0, 0.0, h]) + t[:, None] * 20.0 * u + np.array([[0.0, [0, 40, -30][k], 0.0]])
+    yaw = head + 0.01 * np.sin(0.7 * t)
+    rv = np.column_stack([0.02 * np.sin(0.9 * t), 0.015 * np.cos(0.5 * t), np.zeros_like(t)])
+    Rz = matrix_from_rotvec(np.column_stack([np.zeros_like(t), np.zeros_like(t), yaw]))
+    # body z down: x forward, y right
+    flip = np.diag([1.0, -1.0, -1.0])
+    return P, Rz @ matrix_from_rotvec(rv) @ flip
+
+
+def _laser_on_plane(rng, X0, normal, k, n, centre, true_strip, epoch):
+    """``n`` laser points of strip ``k`` on the plane ``(X0, normal)`` near ``X0``: recorded data of each."""
+    a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    uv = rng.uniform(-1.5, 1.5, (n, 2))
+    X = X0 + uv[:, :1] * a + uv[:, 1:] * b
+    # pulse times: when the strip passes near the point
+    t = np.clip((X0[0] - centre[0]) * 0 + rng.uniform(-8.0, 8.0, n), -10, 10)
+    P, R = _strip_pose(k, t, centre)
+    Bt = BODY_FROM_SCANNER @ matrix_from_rotvec(TRUE_SCANNER[:3])
+    xs = np.einsum("ji,nj->ni", Bt, np.einsum("nji,nj->ni", R, X - P) - (LEVER + TRUE_SCANNER[3:6]))
+    rho = np.linalg.norm(xs, axis=1)
+    beam = xs / rho[:, None]
+    db = np.cross(beam, [0.0, 0.0, 1.0])
+    db /= np.linalg.norm(db, axis=1)[:, None]
+    rec = (1 + TRUE_SCANNER[7]) * rho + TRUE_SCANNER[6] + rng.normal(0.0, RANGE_SIGMA, n)
+    # recorded trajectory: the true one with the strip's error (the corrections' negatives)
+    s = true_strip[k]
+    tau = t
+    g = s[6:9] + s[9:12] * tau[:, None]
+    P_rec = P - s[0:3] - s[3:6] * tau[:, None]
+    R_rec = matrix_from_rotvec(-g) @ R
+    return dict(time_s=epoch[k] + t, strip=np.full(n, k), range_m=rec, beam=beam, beam_dangle=db, position_m=P_rec,
+                rotation=R_rec)
+
+
+def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 12):
+    b, truth = synthetic_block(seed=seed, n_points=120, n_strips=2, n_per_strip=5)
+    rng = np.random.default_rng(seed)
+    centre = truth.point_xyz.mean(axis=0)
+    epoch = np.array([1000.0, 1100.0, 1200.0])
+    true_strip = rng.normal(0.0, 1.0, (3, 12)) * STRIP_SIGMA
+    parts, plane_point = [], []
+    q = 0
+    for j in range(n_patch + n_tie):
+        tie = j >= n_patch
+        if tie:
+            pj = int(rng.integers(b.n_points))
+            X0 = truth.point_xyz[pj]
+        else:
+            X0 = centre + np.array([*rng.uniform(-150, 150, 2), rng.uniform(-10, 10)])
+        nrm = rng.normal(0.0, 1.0, 3)
+        nrm[2] = abs(nrm[2]) + 1.0  # facing up-ish, within about 60 deg of the vertical
+        nrm /= np.linalg.norm(nrm)
+        for k in range(3):
+            if tie and k == 2:
+                continue  # tie planes: two strips
+            d = _laser_on_plane(rng, X0, nrm, k, per, centre, true_strip, epoch)
+            d["plane"] = np.full(per, q)
+            parts.append(d)
+        plane_point.append(pj if tie else -1)
+        q += 1
+    cat = {k_: np.concatenate([p[k_] for p in parts]) for k_ in parts[0]}
+    lp = LidarPoints(**cat, plane_point=np.array(plane_point), strip_epoch_s=epoch, body_from_scanner=BODY_FROM_SCANNER,
+                     lever_arm_m=LEVER, range_sigma_m=RANGE_SIGMA, roughness_m=0.001)
+    b = dataclasses.replace(b, observations={**b.observations, "lidar": lp})
+    return b, truth, true_strip
+
+
+@pytest.fixture(scope="module")
+def joint():
+    b, truth, true_strip = _joint_block()
+    cfg = AdjustConfig(unknowns=lidar_unknowns(Unknowns(), strip_sigma=tuple(STRIP_SIGMA)))
+    return b, truth, true_strip, cfg, adjust(b, cfg)
+
+
+def test_images_and_laser_recover_the_scanner_within_predicted_sigmas(joint):
+    b, truth, true_strip, cfg, r = joint
+    assert r.ok, r.failures
+    sig = r.sigma_reduced()
+    s0 = r.sigma0
+    est = r.block.parameters[SCANNER][0]
+    sd = np.array([sig[(SCANNER, "scanner", c)] for c in SCANNER_COMPONENTS]) / s0  # a-priori sigmas
+    z = (est - TRUE_SCANNER) / sd
+    assert np.all(np.abs(z) < 3.0), dict(zip(SCANNER_COMPONENTS, np.round(z, 2)))
+    assert 0.8 < s0 < 1.2
+    # it can fail: the nominal values (zero corrections) are far outside the same bounds
+    assert np.sum(np.abs(TRUE_SCANNER) > 3 * sd) >= 5
+    zs = (r.block.parameters[STRIP] - true_strip) / np.array(
+        [[sig[(STRIP, f"strip{k}", c)] for c in
+          ("dp_x_m", "dp_y_m", "dp_z_m", "dv_x_m_s", "dv_y_m_s", "dv_z_m_s", "da_x_rad", "da_y_rad", "da_z_rad",
+           "dw_x_rad_s", "dw_y_rad_s", "dw_z_rad_s")] for k in range(3)]) * s0
+    assert np.all(np.abs(zs) < 4.0)
+    # the image block is not pulled off: points stay at their GNSS-and-image precision
+    assert np.abs(r.block.point_xyz - truth.point_xyz).max() < 1.0
+    # the group's rows are per plane (at most one per unknown it touches, plus one), not per point
+    lp = b.observations["lidar"]
+    assert len(r.residuals["lidar"].residual) <= lp.n_planes * (NS + 3 * NK + 3 + 1)
+
+
+def test_georeference_jacobians_match_finite_differences(joint):
+    b, _, true_strip, _, _ = joint
+    d = b.observations["lidar"]
+    rows = np.arange(0, len(d), 7)
+    g = georeference(d, TRUE_SCANNER, true_strip, jac=True, rows=rows)
+    h = 1e-6
+    for which, base, J in (("S", TRUE_SCANNER, g["JS"]), ("K", true_strip, g["JK"])):
+        for c in range(base.shape[-1]):
+            p, m = base.copy(), base.copy()
+            p[..., c] += h
+            m[..., c] -= h
+            args_p = (p, true_strip) if which == "S" else (TRUE_SCANNER, p)
+            args_m = (m, true_strip) if which == "S" else (TRUE_SCANNER, m)
+            fd = (georeference(d, *args_p, rows=rows)["X"] - georeference(d, *args_m, rows=rows)["X"]) / (2 * h)
+            scale = np.abs(J[:, :, c]).max() + 1e-12
+            assert np.abs(fd - J[:, :, c]).max() < 1e-5 * scale, (which, c)
+
+
+def test_reduced_rows_equal_the_points_with_the_plane_eliminated(joint):
+    """Per plane, the square-root rows carry the normal equations and the sum of squares of the plane's points with
+    the plane eliminated; checked against finite differences of the residuals and a dense elimination."""
+    b, _, true_strip, cfg, _ = joint
+    model = Model(b, cfg)
+    s = State.from_block(b)
+    s.groups[SCANNER] = TRUE_SCANNER[None] + 1e-3
+    s.groups[STRIP] = true_strip * 0.5
+    f = [x for x in model.evaluate(s, True) if x.name == "lidar"][0]
+    d = b.observations["lidar"]
+    lay = model.layout
+    # the cost agrees between the per-plane rows and the residual-only evaluation
+    f0 = [x for x in model.evaluate(s, False) if x.name == "lidar"][0]
+    assert np.isclose((f.r**2).sum(), (f0.r**2).sum(), rtol=1e-9)
+    assert len(f) + f.n_extra == len(f0) + f0.n_extra
+    # gradient J^T r of the reduced rows vs a central difference of 1/2 |r|^2 (sigmas frozen by a zero range noise:
+    # roughness only, so that the weights do not depend on the unknowns)
+    d2 = dataclasses.replace(d, range_sigma_m=0.0, roughness_m=0.02)
+    b2 = dataclasses.replace(b, observations={**b.observations, "lidar": d2})
+    m2 = Model(b2, cfg)
+    f2 = [x for x in m2.evaluate(s, True) if x.name == "lidar"][0]
+    n_c = lay.n_c
+    grad = np.zeros(n_c + 1)
+    c = np.where(f2.cols >= 0, f2.cols, n_c)
+    np.add.at(grad, c, f2.jc[:, 0, :] * f2.r[:, :1])
+    cols = lay.groups[SCANNER][0]
+
+    def cost(delta_col: int, hstep: float) -> float:
+        s2 = s.copy()
+        s2.groups[SCANNER] = s.groups[SCANNER].copy()
+        s2.groups[SCANNER][0, delta_col] += hstep
+        return 0.5 * float(sum((x.r**2).sum() for x in m2.evaluate(s2, False) if x.name == "lidar"))
+
+    for j in range(NS):
+        h = 1e-7 if j in (0, 1, 2, 7) else 1e-5
+        fd = (cost(j, h) - cost(j, -h)) / (2 * h)
+        assert np.isclose(grad[cols[j]], fd, rtol=2e-4, atol=1e-6 * abs(fd) + 1e-3), (j, grad[cols[j]], fd)
+    # one plane by dense elimination: J_A^T (I - B B^+) J_A equals the rows' normal matrix
+    p = 0
+    idx = np.flatnonzero(d2.plane == p)
+    geo = georeference(d2, s.groups[SCANNER][0], s.groups[STRIP], jac=True, rows=idx)
+    n, cen, sig = LIDAR.planes(d2, georeference(d2, s.groups[SCANNER][0], s.groups[STRIP])["X"],
+                               georeference(d2, s.groups[SCANNER][0], s.groups[STRIP]), np.zeros((d2.n_planes, 3)))
+    A = np.einsum("i,nik->nk", n[p], geo["JS"]) / sig[idx, None]
+    t1 = np.cross(n[p], [1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n[p], t1)
+    dx = geo["X"] - cen[p]
+    B = np.column_stack([dx @ t1, dx @ t2, -np.ones(len(idx))]) / sig[idx, None]
+    P = np.eye(len(idx)) - B @ np.linalg.pinv(B)
+    N_dense = A.T @ P @ A
+    k = NS + NK * len(np.unique(d2.strip[idx]))
+    first = np.arange(min(len(idx), 3 + k + 1) - 3)  # plane 0's rows come first (at most its points less 3)
+    N_rows = f2.jc[first, 0, :NS].T @ f2.jc[first, 0, :NS]
+    assert np.allclose(N_rows, N_dense, rtol=1e-8, atol=1e-8 * np.abs(N_dense).max())
+
+
+def test_bad_laser_input_is_named():
+    b, _, _ = _joint_block(n_patch=4, n_tie=0, per=5)
+    d = b.observations["lidar"]
+    mirror = BODY_FROM_SCANNER @ np.diag([1.0, 1.0, -1.0])
+    with pytest.raises(BlockError, match="left-handed"):
+        dataclasses.replace(b, observations={**b.observations, "lidar": dataclasses.replace(
+            d, body_from_scanner=mirror)}).validate()
+    with pytest.raises(BlockError, match="plane"):
+        dataclasses.replace(b, observations={**b.observations, "lidar": dataclasses.replace(
+            d, plane=np.where(d.plane == 0, 99, d.plane))}).validate()
+    bad = dataclasses.replace(d, plane=np.where(d.plane == 1, 2, d.plane))  # plane 1 left empty
+    with pytest.raises(BlockError, match="plane 1 has 0 points"):
+        dataclasses.replace(b, observations={**b.observations, "lidar": bad}).validate()
