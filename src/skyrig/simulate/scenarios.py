@@ -14,7 +14,8 @@ scenario               set-up
                        boresight misalignment and datum shift of its Tab. 4, GCPs with sigma 0.6 m in another
                        projection (PT-TM06, EPSG:3763) with geoid heights, GNSS/IMU in UTM 29N.
 ``uav-bridge-lidar``   paper 002: see :mod:`skyrig.simulate.lidar`.
-``midas-dsm``          ``midas`` flown as a surface block (80 % forward / 60 % side overlap) for dense matching.
+``midas-dsm``          ``midas`` flown as a surface block (80 % forward / 60 % side overlap) for dense matching;
+                       CI: a stockpile of known volume in the town (:data:`MIDAS_DSM_STOCKPILE`).
 ``tumblecam-dsm``      ``tumblecam`` (same rig, height, speed, crab, 45 deg gear steps) flown as an 80 / 60 nadir
                        block (CI: 4 strips x 6 exposures over 100 x 90 m) for dense matching (issue 10).
 =====================  ====================================================================================
@@ -102,6 +103,13 @@ class ScenarioSpec:
     # optional stockpiles (cx, cy, R, r, h) in the local frame (skyrig.simulate.world.Stockpiles); () = none, the
     # procedural scene unchanged
     stockpiles: tuple[tuple[float, float, float, float, float], ...] = ()
+
+
+#: The stockpile of the CI ``midas-dsm`` town (local frame, metres): a truncated cone at (-16, -30), toe radius
+#: 11 m, flat top of radius 2 m, 4 m high (volume pi h (R^2 + R r + r^2) / 3 = 615.8 m^3), on open ground 19 m
+#: from the nearest building's bounding circle and target, so that seed 1 draws the same buildings and targets as
+#: without it; ``make demo`` measures its volume from the rendered images (issue 31).
+MIDAS_DSM_STOCKPILE = (-16.0, -30.0, 11.0, 2.0, 4.0)
 
 
 def with_scene(spec: ScenarioSpec, scene: Scene) -> ScenarioSpec:
@@ -207,7 +215,9 @@ def scenario_spec(name: str, size: str = "ci", seed: int = 1) -> ScenarioSpec:
         s = scenario_spec("midas", size, seed)
         fl = (FlightSpec(150.0, 3, (-50, -50, 50, 50), speed_mps=50.0, forward_overlap=0.8, side_overlap=0.6),) if ci \
             else (FlightSpec(609.6, 6, (-1200, -1200, 1200, 1200), speed_mps=60.0, forward_overlap=0.8, side_overlap=0.6),)
-        return replace(s, name="midas-dsm", flights=fl)
+        # CI: a stockpile of known volume in the town's open ground (MIDAS_DSM_STOCKPILE; its place keeps the
+        # seed-1 town's buildings and targets as they were without it)
+        return replace(s, name="midas-dsm", flights=fl, stockpiles=(MIDAS_DSM_STOCKPILE,) if ci else ())
     if key == "tumblecam-dsm":
         # paper 000's DEM flight of the TumbleCam: the same rig, height, speed, crab and 45 deg gear steps, flown
         # as a photogrammetric surface block (80 % forward / 60 % side overlap of the nadir head) so that every
