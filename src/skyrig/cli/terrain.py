@@ -117,7 +117,8 @@ def contours(dtm, output, interval, index_every, smooth_cells, smooth_sigmas) ->
               help="Base surface COG (e.g. an earlier epoch).")
 @click.option("--base-plane", type=GROUND_HEIGHT_M, default=None, help="Base: the horizontal plane at this height (m).")
 @click.option("--base-points", default=None, type=click.Path(exists=True, dir_okay=False),
-              help="Base: a surface through these points (name,x,y,z CSV, e.g. the toe of a stockpile).")
+              help="Base: a surface through these points (name,x,y,z CSV, e.g. the toe of a stockpile; an sz "
+                   "column of height sigmas (m) is propagated to the volume's sigma).")
 @click.option("--correlation-length", type=float, default=None,
               help="Length over which height errors are correlated (m; default 3 cells).")
 @click.option("--sigma-sys", type=float, default=0.0, show_default=True,
