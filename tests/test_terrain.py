@@ -310,6 +310,13 @@ def test_base_point_sigmas_propagated_match_monte_carlo():
     vols = 0.25 * np.sum(top[m][:, None] - base, axis=0)
     assert abs(np.mean(vols) - r.net_m3) < 3 * r.sigma_net_m3 / np.sqrt(2000)
     assert np.std(vols, ddof=1) == pytest.approx(r.sigma_net_m3, rel=0.06), (np.std(vols, ddof=1), r.sigma_net_m3)
+    # the least-squares plane through the ring (fit="plane"): every point weighs the same, a smaller sigma; the same
+    # draws through numpy's least squares
+    rp = cut_fill(top, base_from_points(g, toe, "plane"), g, poly, base_points=(toe[:, :2], sz, "plane"))
+    A = np.column_stack([np.ones(24), toe[:, :2]])
+    coef = np.linalg.lstsq(A, z, rcond=None)[0]
+    vp = 0.25 * np.sum(top[m][:, None] - (coef[0] + np.outer(xx[m], coef[1]) + np.outer(yy[m], coef[2])), axis=0)
+    assert np.std(vp, ddof=1) == pytest.approx(rp.sigma_net_m3, rel=0.06) and rp.sigma_net_m3 < r.sigma_net_m3
     with pytest.raises(InputFormatError, match="sigmas"):
         cut_fill(top, base_from_points(g, toe), g, poly, base_points=(toe[:, :2], sz[:5]))
 

@@ -377,7 +377,8 @@ def contours_file(dtm_path: PathLike, out: PathLike, *, interval_m: float, index
 
 def volume_file(top: PathLike, polygon: PathLike, out: PathLike | None = None, *, base: PathLike | None = None,
                 base_plane: float | None = None, base_points: PathLike | None = None, layer: str | None = None,
-                correlation_length_m: float | None = None, sigma_sys_m: float = 0.0) -> dict[str, Any]:
+                correlation_length_m: float | None = None, sigma_sys_m: float = 0.0, base_fit: str = "tin"
+                ) -> dict[str, Any]:
     """Cut / fill between the surface ``top`` (a DTM or DSM COG) and one base (another surface, a horizontal
     plane, or a surface through boundary points) inside the polygons of a vector file; written as JSON to ``out``.
 
@@ -419,11 +420,14 @@ def volume_file(top: PathLike, polygon: PathLike, out: PathLike | None = None, *
         kind = f"plane z = {base_plane}"
     else:
         pts = read_points_csv(base_points, t.frame, option="--base-points")
-        bh = base_from_points(t.grid, pts.xyz)
-        kind = f"through {len(pts.xyz)} points of {base_points}"
+        if base_fit not in ("tin", "plane"):
+            raise OptionError("--base-fit", f"is tin or plane, got {base_fit!r}")
+        bh = base_from_points(t.grid, pts.xyz, base_fit)
+        kind = f"{'triangulated' if base_fit == 'tin' else 'a plane fitted'} through {len(pts.xyz)} points of " \
+            f"{base_points}"
         sz = read_point_extras(base_points).get("sz")
         if sz is not None:  # the points' height precision, propagated to the volume
-            bp = (pts.xyz[:, :2], _sigma_column(sz, base_points))
+            bp = (pts.xyz[:, :2], _sigma_column(sz, base_points), base_fit)
             kind += " (height sigmas sz propagated)"
     r = cut_fill(t.height, bh, t.grid, poly, sigma_top=t.sigma, sigma_base=sb,
                  correlation_length_m=correlation_length_m, sigma_sys_m=sigma_sys_m, base_points=bp,

@@ -167,12 +167,12 @@ def ring_to_map(scene: Scene, ring_local: NDArray[np.float64], frame: WorldFrame
     return frame.from_ecef(local.to_ecef(np.column_stack([ring_local, z])))[:, :2]
 
 
-def stockpile_volume_truth(scene: Scene, i: int, ring_local: NDArray[np.float64], step_m: float = 0.05
-                           ) -> dict[str, float]:
+def stockpile_volume_truth(scene: Scene, i: int, ring_local: NDArray[np.float64], step_m: float = 0.05,
+                           fit: str = "tin") -> dict[str, float]:
     """Truths of stockpile ``i``'s volume (m^3): ``pile``, its closed form ``pi h (R^2 + R r + r^2) / 3`` (the
     material above the natural ground); ``above_toe_base``, the material between the scene's surface and the base
-    through the ring's true ground heights (:func:`skyrig.terrain.volume.base_from_points`' surface: linear on
-    their triangles) inside the ring's polygon, on a ``step_m`` midpoint lattice in the scene's local frame: what
+    through the ring's true ground heights (:func:`skyrig.terrain.volume.base_from_points`' surface of ``fit``:
+    linear on their triangles, or their least-squares plane) inside the ring's polygon, on a ``step_m`` midpoint lattice in the scene's local frame: what
     a measurement with that base estimates (it differs from ``pile`` by the natural ground's curvature under the
     triangles, ``base_error``).  Local metres: a map projection's scale (UTM: ~1e-3 of the area) is not in it."""
     import shapely
@@ -184,7 +184,12 @@ def stockpile_volume_truth(scene: Scene, i: int, ring_local: NDArray[np.float64]
     gx, gy = np.meshgrid(np.arange(lo[0] + step_m / 2, hi[0], step_m), np.arange(lo[1] + step_m / 2, hi[1], step_m))
     ins = shapely.contains_xy(shapely.Polygon(ring), gx, gy)
     x, y = gx[ins], gy[ins]
-    base = LinearNDInterpolator(ring, zr)(x, y)
+    if fit == "plane":  # the least-squares plane through the ring's true heights
+        A = np.column_stack([np.ones(len(ring)), ring])
+        coef = np.linalg.lstsq(A, zr, rcond=None)[0]
+        base = coef[0] + coef[1] * x + coef[2] * y
+    else:
+        base = LinearNDInterpolator(ring, zr)(x, y)
     a = step_m * step_m
     above = float(np.sum(scene.terrain_height(x, y) - base) * a)
     pile = float(scene.stockpiles.volume()[i])

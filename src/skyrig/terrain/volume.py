@@ -91,19 +91,20 @@ def plane_base(grid: GridSpec, z0: float, slope_x: float = 0.0, slope_y: float =
     return z0 + slope_x * (xx - x_ref) + slope_y * (yy - y_ref)
 
 
-def base_from_points(grid: GridSpec, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
-    """A base surface through boundary points (e.g. the toe of a stockpile measured around it): linear on their
-    Delaunay triangulation inside their hull, the least-squares plane through them outside (and for 3 points or
-    collinear ones).
+def base_from_points(grid: GridSpec, xyz: NDArray[np.float64], fit: str = "tin") -> NDArray[np.float64]:
+    """A base surface through boundary points (e.g. the toe of a stockpile measured around it): ``fit="tin"``
+    linear on their Delaunay triangulation inside their hull, the least-squares plane through them outside (and for
+    3 points or collinear ones); ``fit="plane"`` the least-squares plane everywhere (every point weighs the same: a
+    ring of points around a pile, whose triangulation is a fan of slivers, gets a base as precise as their mean).
 
     Raises
     ------
     GeometryError
-        With fewer than 3 points.
+        With fewer than 3 points, or another ``fit``.
     """
     p = _base_points(xyz)
     xx, yy = grid.cell_centres()
-    return _base_at(p[:, :2], p[:, 2], xx, yy)
+    return _base_at(p[:, :2], p[:, 2], xx, yy, fit)
 
 
 def _base_points(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -113,8 +114,8 @@ def _base_points(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
     return p
 
 
-def _base_at(xy: NDArray[np.float64], z: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]
-             ) -> NDArray[np.float64]:
+def _base_at(xy: NDArray[np.float64], z: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],
+             fit: str = "tin") -> NDArray[np.float64]:
     """:func:`base_from_points`' surface at ``x, y``; ``z`` ``(K,)`` or ``(K, M)`` (M surfaces on the same points:
     the result then has a trailing axis of M).  Linear in ``z``."""
     from scipy.interpolate import LinearNDInterpolator
@@ -125,6 +126,10 @@ def _base_at(xy: NDArray[np.float64], z: NDArray[np.float64], x: NDArray[np.floa
     if z.ndim == 2:
         dx, dy = dx[..., None], dy[..., None]
     plane = coef[0] + coef[1] * dx + coef[2] * dy
+    if fit not in ("tin", "plane"):
+        raise GeometryError(f"a base fit is 'tin' or 'plane', got {fit!r}")
+    if fit == "plane":
+        return plane
     try:
         tin = LinearNDInterpolator(xy, z)(x, y)
     except Exception:  # collinear points
@@ -132,19 +137,20 @@ def _base_at(xy: NDArray[np.float64], z: NDArray[np.float64], x: NDArray[np.floa
     return np.where(np.isfinite(tin), tin, plane)
 
 
-def base_point_weights(grid: GridSpec, xy: NDArray[np.float64], cells: NDArray[np.bool_]) -> NDArray[np.float64]:
+def base_point_weights(grid: GridSpec, xy: NDArray[np.float64], cells: NDArray[np.bool_], fit: str = "tin"
+                       ) -> NDArray[np.float64]:
     """``(M, K)`` weights of the ``K`` base points' heights in :func:`base_from_points`' surface at the ``M`` cells
     of the mask ``cells``: the surface there is ``weights @ z`` (the surface is linear in the heights), so the
     heights' errors reach a volume through these weights."""
     p = _base_points(xy)
     xx, yy = grid.cell_centres()
-    return _base_at(p[:, :2], np.eye(len(p)), xx[cells], yy[cells])
+    return _base_at(p[:, :2], np.eye(len(p)), xx[cells], yy[cells], fit)
 
 
 def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec, polygon, *,
              sigma_top: NDArray[np.float64] | float = 0.0, sigma_base: NDArray[np.float64] | float = 0.0,
              correlation_length_m: float | None = None, sigma_sys_m: float = 0.0,
-             fill_missing: bool = True, base_points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+             fill_missing: bool = True, base_points: tuple | None = None,
              base_regions: NDArray[np.integer] | None = None) -> VolumeResult:
     """Cut and fill between ``top`` and ``base`` inside ``polygon`` (module docstring).
 
@@ -165,7 +171,7 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
         valid cells around; variance: the spread of the valid differences within 7 cells); False leaves them out
         (the volume is then of the cells with data only, ``cells_without_data`` says how many).
     base_points
-        ``(xy (K, 2), sigma_z (K,))`` when ``base`` is :func:`base_from_points` of these points: their heights'
+        ``(xy (K, 2), sigma_z (K,)[, fit])`` when ``base`` is :func:`base_from_points` of these points: their heights'
         standard deviations (metres, independent) are propagated to the volumes through the surface's weights
         (:func:`base_point_weights`): an error of a point moves the base over every cell its triangles cover, the
         same way for all of them (``sigma_base`` is then the base's own per-cell error, usually 0).
@@ -210,7 +216,7 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
         bxy, bs = np.asarray(base_points[0], np.float64), np.asarray(base_points[1], np.float64)
         if bs.shape != (len(bxy),) or not np.all(np.isfinite(bs) & (bs >= 0)):
             raise InputFormatError(f"base point sigmas must be ({len(bxy)},) non-negative numbers", field="sz")
-        W = base_point_weights(grid, bxy, ok)  # (cells of ok in row-major order, K): the order of dz
+        W = base_point_weights(grid, bxy, ok, *base_points[2:])  # (cells of ok, row-major, K): the order of dz
 
     if base_regions is not None:
         reg = np.asarray(base_regions)[ok]
