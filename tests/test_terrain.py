@@ -238,7 +238,6 @@ def test_stockpile_from_noisy_cloud_within_one_percent_and_two_sigma():
     assert abs(r2.net_m3 - dv_true) < max(r2.sigma_net_m3, 0.005 * dv_true), (r2.net_m3, dv_true, r2.sigma_net_m3)
 
 
-@pytest.mark.slow
 def test_streamed_tiles_classify_like_classify_tiled(town, tmp_path):
     """``classify_cloud_file`` on a cloud wider than a tile streams it into tile pieces (chunks of 10,000 points here)
     and classifies tile by tile: the same classes as :func:`classify_tiled` on the whole cloud read back, point for
