@@ -105,8 +105,8 @@ def test_cut_fill_between_two_epochs_equals_the_truths_difference(epochs):
 
 
 def test_stockpiles_in_the_scene_and_its_renderer():
-    """The stockpile is part of the scene's bare earth: the ray caster hits the pile's top at its height (the
-    analytic fast path is left for the general one), the gradient is the cone's slope, and a scene without piles
+    """The stockpile is part of the scene's bare earth: the ray caster hits the pile's top at its height (its
+    analytic path adds the piles), the gradient is the cone's slope, and a scene without piles
     is unchanged; bad piles are refused."""
     from skyrig.errors import SkyrigError
     from skyrig.simulate.render import intersect_terrain
@@ -122,6 +122,25 @@ def test_stockpiles_in_the_scene_and_its_renderer():
     down = np.array([[0.0, 0.0, -1.0]])
     t = intersect_terrain(site, np.array([cx, cy, 300.0]), down)
     assert t[0] == pytest.approx(300.0 - z_nat - h, abs=1e-4)
+    # oblique rays over the pile: the analytic path (sines + piles) hits where the general one (any terrain_height)
+    # does
+    from dataclasses import fields
+
+    from skyrig.simulate.world import Scene
+
+    class General(Scene):
+        def terrain_height(self, x, y):
+            return Scene.terrain_height(self, x, y)
+
+    general = General(**{f.name: getattr(site, f.name) for f in fields(site)})
+    rng = np.random.default_rng(2)
+    d = np.column_stack([rng.uniform(-0.4, 0.4, 200), rng.uniform(-0.4, 0.4, 200), -np.ones(200)])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o = np.array([cx, cy, 150.0])
+    t_a, t_g = intersect_terrain(site, o, d), intersect_terrain(general, o, d)
+    assert np.allclose(t_a, t_g, atol=1e-4)
+    hit = o + t_a[:, None] * d
+    assert np.any(site.stockpiles.height(hit[:, 0], hit[:, 1]) > 0.5)  # some rays hit the flanks or the top
     # half-way down the flank, the pile's slope h / (R - r) adds to the terrain's gradient
     gx0, gy0 = plain.terrain_gradient(cx + (r + R) / 2, cy)
     gx, gy = site.terrain_gradient(cx + (r + R) / 2, cy)
@@ -134,13 +153,22 @@ def test_stockpiles_in_the_scene_and_its_renderer():
 
 def test_scenario_spec_stockpiles_opt_in():
     """``ScenarioSpec.stockpiles`` puts piles into a flown scenario's scene (buildings kept off them); without them
-    the scene is the scenario's usual one."""
-    from skyrig.simulate.scenarios import build_survey, scenario_spec
+    the scene is the scenario's usual one.  The CI ``midas-dsm`` town (``make demo``'s) has one pile, placed where
+    the seed draws the same buildings, targets and flight as without it."""
+    from skyrig.simulate.scenarios import MIDAS_DSM_STOCKPILE, build_survey, scenario_spec
 
-    spec = scenario_spec("midas-dsm", "ci", 1)
+    spec = scenario_spec("midas", "ci", 1)
     pile = (20.0, -20.0, 10.0, 2.0, 3.0)
     s = build_survey(replace(spec, stockpiles=(pile,))).scene
     assert float(s.terrain_height(20.0, -20.0) - s.natural_ground_height(20.0, -20.0)) == pytest.approx(3.0)
     b = s.buildings
     assert np.all(np.hypot(b.cx - 20.0, b.cy + 20.0) > 10.0 + np.hypot(b.hl, b.hw))
     assert build_survey(spec).scene.stockpiles is None
+    dsm = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    plain = build_survey(replace(dsm.spec, stockpiles=()))
+    cx, cy, R, r, h = MIDAS_DSM_STOCKPILE
+    assert float(dsm.scene.stockpiles.volume()[0]) == pytest.approx(np.pi * h * (R * R + R * r + r * r) / 3)
+    for f in ("cx", "cy", "hl", "hw", "eave_z", "ridge_z"):
+        assert np.array_equal(getattr(dsm.scene.buildings, f), getattr(plain.scene.buildings, f)), f
+    assert np.array_equal(dsm.scene.targets.xyz, plain.scene.targets.xyz)
+    assert np.array_equal(dsm.eo_true.centre, plain.eo_true.centre)

@@ -117,18 +117,22 @@ def contours(dtm, output, interval, index_every, smooth_cells, smooth_sigmas) ->
               help="Base surface COG (e.g. an earlier epoch).")
 @click.option("--base-plane", type=GROUND_HEIGHT_M, default=None, help="Base: the horizontal plane at this height (m).")
 @click.option("--base-points", default=None, type=click.Path(exists=True, dir_okay=False),
-              help="Base: a surface through these points (name,x,y,z CSV, e.g. the toe of a stockpile).")
+              help="Base: a surface through these points (name,x,y,z CSV, e.g. the toe of a stockpile; an sz "
+                   "column of height sigmas (m) is propagated to the volume's sigma).")
+@click.option("--base-fit", type=click.Choice(["tin", "plane"]), default="tin", show_default=True,
+              help="With --base-points: triangulated through them, or the least-squares plane (a ring of toe points).")
 @click.option("--correlation-length", type=float, default=None,
               help="Length over which height errors are correlated (m; default 3 cells).")
 @click.option("--sigma-sys", type=float, default=0.0, show_default=True,
               help="Height error common to the whole surface difference (m), e.g. a datum uncertainty.")
 @click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="JSON file to write.")
-def volume(top, polygon, layer, base, base_plane, base_points, correlation_length, sigma_sys, output) -> None:
+def volume(top, polygon, layer, base, base_plane, base_points, base_fit, correlation_length, sigma_sys, output
+           ) -> None:
     """Cut and fill between --top and one base inside --polygon, with the predicted uncertainty."""
     from skyrig.pipeline.terrain import volume_file
 
-    r = volume_file(top, polygon, output, base=base, base_plane=base_plane, base_points=base_points, layer=layer,
-                    correlation_length_m=correlation_length, sigma_sys_m=sigma_sys)
+    r = volume_file(top, polygon, output, base=base, base_plane=base_plane, base_points=base_points,
+                    base_fit=base_fit, layer=layer, correlation_length_m=correlation_length, sigma_sys_m=sigma_sys)
     click.echo(f"fill {r['fill_m3']:.3f} +- {r['sigma_fill_m3']:.3f} m3, cut {r['cut_m3']:.3f} +- "
                f"{r['sigma_cut_m3']:.3f}"
                f" m3, net {r['net_m3']:.3f} +- {r['sigma_net_m3']:.3f} m3 over {r['area_m2']:.1f} m2 "

@@ -104,15 +104,21 @@ def read_las(path: PathLike, require_crs: bool = False) -> LasPoints:
     rgb = None
     if {"red", "green", "blue"} <= dims:
         rgb = np.column_stack([np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)]).astype(np.uint16)
+    psid = np.asarray(las.point_source_id, np.int64) if "point_source_id" in dims else None
+    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra, rgb, las_metadata(las.header, p),
+                     psid)
+
+
+def las_metadata(header, path: PathLike) -> dict[str, str]:
+    """skyrig's metadata VLR of a laspy header (``{}`` when there is none)."""
     meta: dict[str, str] = {}
-    for vlr in las.header.vlrs:
+    for vlr in header.vlrs:
         if vlr.user_id == METADATA_VLR_USER_ID and vlr.record_id == METADATA_VLR_RECORD_ID:
             try:
                 meta = {str(k): str(v) for k, v in json.loads(bytes(vlr.record_data).decode("utf-8")).items()}
             except (ValueError, AttributeError, UnicodeDecodeError):
-                raise InputFormatError("unreadable skyrig metadata VLR", p, field="metadata") from None
-    psid = np.asarray(las.point_source_id, np.int64) if "point_source_id" in dims else None
-    return LasPoints(xyz, gps, inten, sa, None if crs is None else crs.to_wkt(), extra, rgb, meta, psid)
+                raise InputFormatError("unreadable skyrig metadata VLR", path, field="metadata") from None
+    return meta
 
 
 def write_las(

@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 from skyrig.errors import CRSError, InputFormatError
 from skyrig.io._text import PathLike, output_temp, publish
 
-__all__ = ["TerrainCloud", "read_terrain_cloud", "write_classified_cloud", "write_dtm_cog", "read_dtm_cog",
+__all__ = ["TerrainCloud", "read_terrain_cloud", "CloudHeader", "read_cloud_header", "spill_tiles",
+           "write_classified_stream", "write_classified_cloud", "write_dtm_cog", "read_dtm_cog",
            "write_ndsm_cog", "read_height_surface", "write_contours_gpkg", "read_volume_polygon", "DTM_BANDS"]
 
 #: Band order of a DTM COG.
@@ -93,32 +94,151 @@ def read_terrain_cloud(path: PathLike, crs: str | None = None) -> TerrainCloud:
     """
     import laspy
 
-    from skyrig.geodesy.crs import resolve_crs
-    from skyrig.geodesy.statement import frame_from_file_crs
     from skyrig.io.laz import read_las
 
     pts = read_las(path, require_crs=crs is None)
+    frame, mpu, words = _cloud_frame(path, pts.crs_wkt, crs, pts.metadata)
+    las = laspy.read(str(path))
+    cls = np.asarray(las.classification, np.uint8)
+    sigma = pts.extra.get("sigma")
+    return TerrainCloud(pts.xyz, pts.rgb, None if sigma is None else np.asarray(sigma, float), cls, frame, mpu, words)
+
+
+def _cloud_frame(path: PathLike, crs_wkt: str | None, crs: str | None, metadata: dict[str, str]):
+    """``(frame, metres_per_unit, vertical words)`` of a cloud from its file CRS and the CRS given (see
+    :func:`read_terrain_cloud`)."""
+    from skyrig.geodesy.crs import resolve_crs
+    from skyrig.geodesy.statement import frame_from_file_crs
+
     given = resolve_crs(crs) if crs else None
-    if pts.crs_wkt is not None:
-        file_c = pyproj.CRS.from_wkt(pts.crs_wkt)
+    if crs_wkt is not None:
+        file_c = pyproj.CRS.from_wkt(crs_wkt)
         same = given is None or file_c == given or (file_c.is_compound and file_c.sub_crs_list[0] == given)
         completes = (given is not None and given.is_compound and len(file_c.axis_info) < 3
                      and given.sub_crs_list[0] == file_c)  # a 2D file CRS completed with its vertical CRS
         if not (same or completes):
             raise InputFormatError(f"the file's CRS is {file_c.name}, not the {given.name} given", path, field="crs")
         c = given if completes else file_c
+    elif given is None:
+        raise InputFormatError("the LAS file has no CRS (neither a WKT nor a GeoTIFF VLR); give the CRS explicitly "
+                               "(e.g. --crs EPSG:...)", path, field="crs")
     else:
         c = given
     try:
-        frame = frame_from_file_crs(c, pts.metadata.get("geoid") or None, pts.metadata.get("vertical_reference"))
+        frame = frame_from_file_crs(c, metadata.get("geoid") or None, metadata.get("vertical_reference"))
         mpu = _axis_metres(c)
     except CRSError as exc:
         raise InputFormatError(str(exc), path, field="crs") from None
-    las = laspy.read(str(path))
-    cls = np.asarray(las.classification, np.uint8)
-    sigma = pts.extra.get("sigma")
-    words = pts.metadata.get("skyrig_vertical_reference", pts.metadata.get("vertical_crs", ""))
-    return TerrainCloud(pts.xyz, pts.rgb, None if sigma is None else np.asarray(sigma, float), cls, frame, mpu, words)
+    return frame, mpu, metadata.get("skyrig_vertical_reference", metadata.get("vertical_crs", ""))
+
+
+@dataclass(frozen=True)
+class CloudHeader:
+    """What a LAS/LAZ header says of a cloud read tile by tile (:func:`spill_tiles`): the frame as
+    :func:`read_terrain_cloud` gives it, the point count and the bounds (metres: the file's units scaled by
+    ``metres_per_unit``)."""
+
+    frame: object
+    metres_per_unit: tuple[float, float]
+    vertical_reference: str
+    points: int
+    mins_m: tuple[float, float]
+    maxs_m: tuple[float, float]
+    rgb: bool
+    sigma: bool
+
+
+def read_cloud_header(path: PathLike, crs: str | None = None) -> CloudHeader:
+    """The header of a LAS/LAZ cloud (no point is read); the errors of :func:`read_terrain_cloud`."""
+    import laspy
+
+    from skyrig.io.laz import las_metadata
+
+    p = Path(path)
+    if not p.exists():
+        raise InputFormatError("file not found", p)
+    try:
+        with laspy.open(str(p)) as rd:
+            h = rd.header
+    except Exception as exc:  # laspy raises several types for bad files
+        raise InputFormatError(f"not a readable LAS/LAZ file ({exc})", p) from None
+    try:
+        file_crs = h.parse_crs()
+    except Exception as exc:
+        raise InputFormatError(f"unreadable CRS VLR ({exc})", p, field="crs") from None
+    frame, mpu, words = _cloud_frame(p, None if file_crs is None else file_crs.to_wkt(), crs, las_metadata(h, p))
+    dims = set(h.point_format.dimension_names)
+    return CloudHeader(frame, mpu, words, int(h.point_count), (float(h.mins[0]) * mpu[0], float(h.mins[1]) * mpu[0]),
+                       (float(h.maxs[0]) * mpu[0], float(h.maxs[1]) * mpu[0]), {"red", "green", "blue"} <= dims,
+                       "sigma" in dims)
+
+
+def spill_tiles(path: PathLike, head: CloudHeader, windows: list[tuple[float, float, float, float]], folder: PathLike,
+                chunk_points: int = 1_000_000) -> list[list[Path]]:
+    """Stream a cloud once, ``chunk_points`` at a time, into ``.npy`` pieces per window: every point whose metre
+    coordinates lie in window ``k`` (``(x0, y0, x1, y1)``, half-open) goes into ``folder/w{k}_c{chunk}.npy`` with
+    its index in the file (``gid``), ``x, y, z`` in metres, its class (``code``), ``sigma`` and ``red, green, blue``
+    when the cloud has them.  Returns the pieces of each window (in file order); the caller holds one chunk at a time."""
+    import laspy
+
+    h, v = head.metres_per_unit
+    fields = [("gid", "<i8"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("code", "u1")]
+    fields += [("sigma", "<f8")] if head.sigma else []
+    fields += [(c, "<u2") for c in ("red", "green", "blue")] if head.rgb else []
+    out: list[list[Path]] = [[] for _ in windows]
+    off = 0
+    with laspy.open(str(path)) as rd:
+        for c, pts in enumerate(rd.chunk_iterator(chunk_points)):
+            x, y = np.asarray(pts.x, float) * h, np.asarray(pts.y, float) * h
+            rec = np.empty(len(x), fields)
+            rec["gid"] = off + np.arange(len(x))
+            rec["x"], rec["y"], rec["z"] = x, y, np.asarray(pts.z, float) * v
+            rec["code"] = np.asarray(pts.classification)
+            if head.sigma:
+                rec["sigma"] = np.asarray(pts["sigma"], float)
+            for col in ("red", "green", "blue") if head.rgb else ():
+                rec[col] = np.asarray(pts[col])
+            for k, (x0, y0, x1, y1) in enumerate(windows):
+                m = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+                if m.any():
+                    f = Path(folder) / f"w{k}_c{c}.npy"
+                    np.save(f, rec[m])
+                    out[k].append(f)
+            off += len(x)
+    return out
+
+
+def write_classified_stream(src: PathLike, dst: PathLike, code: NDArray[np.integer],
+                            chunk_points: int = 1_000_000) -> None:
+    """:func:`write_classified_cloud` chunk by chunk (the cloud is never whole in memory)."""
+    import laspy
+
+    code = np.asarray(code)
+    with laspy.open(str(src)) as rd:
+        n, fmt = int(rd.header.point_count), rd.header.point_format.id
+    _check_codes(code, n, fmt, src, dst)
+    p = Path(dst)
+    fd, tmp = output_temp(p, p.suffix)
+    os.close(fd)
+    try:
+        with laspy.open(str(src)) as rd, laspy.open(tmp, mode="w", header=rd.header,
+                                                     do_compress=p.suffix.lower() == ".laz") as wr:
+            off = 0
+            for pts in rd.chunk_iterator(chunk_points):
+                pts.classification = code[off:off + len(pts)].astype(np.uint8)
+                wr.write_points(pts)
+                off += len(pts)
+        publish(tmp, p)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _check_codes(code: NDArray, n: int, fmt: int, src: PathLike, dst: PathLike) -> None:
+    if code.shape != (n,):
+        raise InputFormatError(f"{code.shape} classes for {n} points", src, field="classification")
+    top = 255 if fmt >= 6 else 31
+    if code.size and (code.min() < 0 or code.max() > top):
+        raise InputFormatError(f"class codes must be 0..{top} for point format {fmt}", dst, field="classification")
 
 
 def write_classified_cloud(src: PathLike, dst: PathLike, code: NDArray[np.integer]) -> None:
@@ -133,12 +253,7 @@ def write_classified_cloud(src: PathLike, dst: PathLike, code: NDArray[np.intege
 
     las = laspy.read(str(src))
     code = np.asarray(code)
-    if code.shape != (len(las.points),):
-        raise InputFormatError(f"{code.shape} classes for {len(las.points)} points", src, field="classification")
-    top = 255 if las.header.point_format.id >= 6 else 31
-    if code.size and (code.min() < 0 or code.max() > top):
-        raise InputFormatError(f"class codes must be 0..{top} for point format {las.header.point_format.id}",
-                               dst, field="classification")
+    _check_codes(code, len(las.points), las.header.point_format.id, src, dst)
     las.classification = code.astype(np.uint8)
     p = Path(dst)
     fd, tmp = output_temp(p, p.suffix)

@@ -988,7 +988,7 @@ def _dtm(ctx: StageContext) -> dict[str, Any]:
                             tile_m=o["tile"], buffer_m=o["buffer"], **_executor_kw(ctx.project.executor),
                             progress=ctx.progress)
     s = dtm_folder(ctx.out / "classified.laz", ctx.out, dsm=dsm, cell_m=o["resolution"], max_gap_m=o["max_gap"],
-                   published=False)
+                   published=False, tile_m=o["tile"], buffer_m=o["buffer"], **_executor_kw(ctx.project.executor))
     return {"points": c["points"], "classes": c["classes"], "cells_by_source": s["cells_by_source"]}
 
 
@@ -1001,7 +1001,8 @@ register_stage(Stage(
                                   positive=True),
              "max_gap": Option(20.0, "float", "open gaps farther than this from ground stay without data (m)",
                                positive=True),
-             "tile": Option(500.0, "float", "a wider cloud is classified in tiles of this side (m)", positive=True),
+             "tile": Option(500.0, "float", "a wider cloud is classified and gridded in tiles of this side (m)",
+                            positive=True),
              "buffer": Option(50.0, "float", "buffer around each tile (m); holds the largest building",
                               positive=True)},
     requires=("laser|dsm",), provides={"dtm": "dtm.tif", "classified": "classified.laz"}))

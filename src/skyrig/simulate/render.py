@@ -65,7 +65,7 @@ class Hits:
 
 
 def _terrain_is_analytic(scene: Scene) -> bool:
-    return type(scene).terrain_height is Scene.terrain_height and scene.stockpiles is None
+    return type(scene).terrain_height is Scene.terrain_height
 
 
 def intersect_terrain(scene: Scene, origin: NDArray[np.float64], d: NDArray[np.float64],
@@ -111,10 +111,14 @@ def _terrain_t(scene: Scene, origin: NDArray[np.float64], cols: tuple[NDArray, N
         slope = [float(kx) * rx + float(ky) * ry for kx, ky in zip(scene.terrain_kx, scene.terrain_ky)]
         base = float(scene.base_height_m)
 
+        piles = scene.stockpiles if scene.stockpiles is not None and len(scene.stockpiles) else None
+
         def f(sel: NDArray[np.intp] | None, tt: NDArray[np.float64]) -> NDArray[np.float64]:
             z = (oz - base) + tt * (rz if sel is None else rz[sel])
             for ak, ck, sk in zip(amp, c0, slope):
                 z -= ak * np.sin(ck + tt * (sk if sel is None else sk[sel]))
+            if piles is not None:  # the stockpiles' heights at the ray's point (they stand on the analytic terrain)
+                z -= piles.height(ox + tt * (rx if sel is None else rx[sel]), oy + tt * (ry if sel is None else ry[sel]))
             return z
     else:
         def f(sel: NDArray[np.intp] | None, tt: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -14,7 +14,8 @@ scenario               set-up
                        boresight misalignment and datum shift of its Tab. 4, GCPs with sigma 0.6 m in another
                        projection (PT-TM06, EPSG:3763) with geoid heights, GNSS/IMU in UTM 29N.
 ``uav-bridge-lidar``   paper 002: see :mod:`skyrig.simulate.lidar`.
-``midas-dsm``          ``midas`` flown as a surface block (80 % forward / 60 % side overlap) for dense matching.
+``midas-dsm``          ``midas`` flown as a surface block (80 % forward / 60 % side overlap) for dense matching;
+                       CI: a stockpile of known volume in the town (:data:`MIDAS_DSM_STOCKPILE`).
 ``tumblecam-dsm``      ``tumblecam`` (same rig, height, speed, crab, 45 deg gear steps) flown as an 80 / 60 nadir
                        block (CI: 4 strips x 6 exposures over 100 x 90 m) for dense matching (issue 10).
 =====================  ====================================================================================
@@ -123,6 +124,14 @@ def target_codes(kind: str, n: int, bits: int = 12) -> NDArray[np.int64] | None:
     return np.array([canon[int(i)] for i in np.linspace(0, len(canon) - 1, n)] if n else [], dtype=np.int64)
 
 
+#: The stockpile of the CI ``midas-dsm`` town (local frame, metres): a truncated cone at (-16, -30), toe radius
+#: 14 m, flat top of radius 5 m, 1.8 m high (volume pi h (R^2 + R r + r^2) / 3 = 548.6 m^3), on open ground 19 m
+#: from the nearest building's bounding circle and target, so that seed 1 draws the same buildings and targets as
+#: without it; lower than the building rules' 2 m (classification) and 2.5 m (building extraction from the DSM), so
+#: that no rule takes it for a building; ``make demo`` measures its volume from the rendered images (issue 31).
+MIDAS_DSM_STOCKPILE = (-16.0, -30.0, 14.0, 5.0, 1.8)
+
+
 def with_scene(spec: ScenarioSpec, scene: Scene) -> ScenarioSpec:
     """The scenario flown over a given scene (e.g. :class:`~skyrig.simulate.world.RasterScene` of a real DSM
     and orthophoto, see :func:`skyrig.pipeline.simulate.load_raster_scene`): the scene's origin, extent and
@@ -226,7 +235,9 @@ def scenario_spec(name: str, size: str = "ci", seed: int = 1) -> ScenarioSpec:
         s = scenario_spec("midas", size, seed)
         fl = (FlightSpec(150.0, 3, (-50, -50, 50, 50), speed_mps=50.0, forward_overlap=0.8, side_overlap=0.6),) if ci \
             else (FlightSpec(609.6, 6, (-1200, -1200, 1200, 1200), speed_mps=60.0, forward_overlap=0.8, side_overlap=0.6),)
-        return replace(s, name="midas-dsm", flights=fl)
+        # CI: a stockpile of known volume in the town's open ground (MIDAS_DSM_STOCKPILE; its place keeps the
+        # seed-1 town's buildings and targets as they were without it)
+        return replace(s, name="midas-dsm", flights=fl, stockpiles=(MIDAS_DSM_STOCKPILE,) if ci else ())
     if key == "tumblecam-dsm":
         # paper 000's DEM flight of the TumbleCam: the same rig, height, speed, crab and 45 deg gear steps, flown
         # as a photogrammetric surface block (80 % forward / 60 % side overlap of the nadir head) so that every

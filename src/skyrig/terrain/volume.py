@@ -17,7 +17,12 @@ independent cells times the number of cells one correlated patch holds, ``max(1,
     var(net) = A^2 * max(1, pi L^2 / (5 A)) * sum(sigma_top^2 + sigma_base^2) + (sigma_sys * area)^2
 
 ``sigma_sys`` is an error shared by the whole surface (a datum or height bias: e.g. the adjustment's height
-precision); it adds fully correlated.  Cut and fill get the same formula over their own cells.
+precision); it adds fully correlated.  Cut and fill get the same formula over their own cells.  A base through
+boundary points (:func:`base_from_points`) with the points' height precision adds
+``sum_k (A sum_cells w_k sigma_k)^2``, ``w_k`` the weight of point ``k``'s height in the base at a cell
+(:func:`base_point_weights`): each point's error shifts the base over the cells its triangles cover.  A DTM base's
+cells interpolated under a building or across a gap (``base_regions``) share one error per gap: their
+``sigma_base`` adds as ``(A sum sigma_base)^2`` per gap.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from numpy.typing import NDArray
 from skyrig.dense.grid import GridSpec
 from skyrig.errors import GeometryError, InputFormatError
 
-__all__ = ["VolumeResult", "cut_fill", "plane_base", "base_from_points", "polygon_mask"]
+__all__ = ["VolumeResult", "cut_fill", "plane_base", "base_from_points", "base_point_weights", "polygon_mask"]
 
 
 @dataclass(frozen=True)
@@ -86,36 +91,67 @@ def plane_base(grid: GridSpec, z0: float, slope_x: float = 0.0, slope_y: float =
     return z0 + slope_x * (xx - x_ref) + slope_y * (yy - y_ref)
 
 
-def base_from_points(grid: GridSpec, xyz: NDArray[np.float64]) -> NDArray[np.float64]:
-    """A base surface through boundary points (e.g. the toe of a stockpile measured around it): linear on their
-    Delaunay triangulation inside their hull, the least-squares plane through them outside (and for 3 points or
-    collinear ones).
+def base_from_points(grid: GridSpec, xyz: NDArray[np.float64], fit: str = "tin") -> NDArray[np.float64]:
+    """A base surface through boundary points (e.g. the toe of a stockpile measured around it): ``fit="tin"``
+    linear on their Delaunay triangulation inside their hull, the least-squares plane through them outside (and for
+    3 points or collinear ones); ``fit="plane"`` the least-squares plane everywhere (every point weighs the same: a
+    ring of points around a pile, whose triangulation is a fan of slivers, gets a base as precise as their mean).
 
     Raises
     ------
     GeometryError
-        With fewer than 3 points.
+        With fewer than 3 points, or another ``fit``.
     """
+    p = _base_points(xyz)
+    xx, yy = grid.cell_centres()
+    return _base_at(p[:, :2], p[:, 2], xx, yy, fit)
+
+
+def _base_points(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+    p = np.asarray(xyz, np.float64)
+    if p.ndim != 2 or p.shape[1] not in (2, 3) or len(p) < 3:
+        raise GeometryError(f"a base surface needs at least 3 points (x, y, z), got {p.shape}")
+    return p
+
+
+def _base_at(xy: NDArray[np.float64], z: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],
+             fit: str = "tin") -> NDArray[np.float64]:
+    """:func:`base_from_points`' surface at ``x, y``; ``z`` ``(K,)`` or ``(K, M)`` (M surfaces on the same points:
+    the result then has a trailing axis of M).  Linear in ``z``."""
     from scipy.interpolate import LinearNDInterpolator
 
-    p = np.asarray(xyz, np.float64)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3:
-        raise GeometryError(f"a base surface needs at least 3 points (x, y, z), got {p.shape}")
-    xx, yy = grid.cell_centres()
-    A = np.column_stack([np.ones(len(p)), p[:, 0] - p[:, 0].mean(), p[:, 1] - p[:, 1].mean()])
-    coef, *_ = np.linalg.lstsq(A, p[:, 2], rcond=None)
-    plane = coef[0] + coef[1] * (xx - p[:, 0].mean()) + coef[2] * (yy - p[:, 1].mean())
+    A = np.column_stack([np.ones(len(xy)), xy[:, 0] - xy[:, 0].mean(), xy[:, 1] - xy[:, 1].mean()])
+    coef, *_ = np.linalg.lstsq(A, z, rcond=None)
+    dx, dy = x - xy[:, 0].mean(), y - xy[:, 1].mean()
+    if z.ndim == 2:
+        dx, dy = dx[..., None], dy[..., None]
+    plane = coef[0] + coef[1] * dx + coef[2] * dy
+    if fit not in ("tin", "plane"):
+        raise GeometryError(f"a base fit is 'tin' or 'plane', got {fit!r}")
+    if fit == "plane":
+        return plane
     try:
-        tin = LinearNDInterpolator(p[:, :2], p[:, 2])(xx, yy)
+        tin = LinearNDInterpolator(xy, z)(x, y)
     except Exception:  # collinear points
         return plane
     return np.where(np.isfinite(tin), tin, plane)
 
 
+def base_point_weights(grid: GridSpec, xy: NDArray[np.float64], cells: NDArray[np.bool_], fit: str = "tin"
+                       ) -> NDArray[np.float64]:
+    """``(M, K)`` weights of the ``K`` base points' heights in :func:`base_from_points`' surface at the ``M`` cells
+    of the mask ``cells``: the surface there is ``weights @ z`` (the surface is linear in the heights), so the
+    heights' errors reach a volume through these weights."""
+    p = _base_points(xy)
+    xx, yy = grid.cell_centres()
+    return _base_at(p[:, :2], np.eye(len(p)), xx[cells], yy[cells], fit)
+
+
 def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec, polygon, *,
              sigma_top: NDArray[np.float64] | float = 0.0, sigma_base: NDArray[np.float64] | float = 0.0,
              correlation_length_m: float | None = None, sigma_sys_m: float = 0.0,
-             fill_missing: bool = True) -> VolumeResult:
+             fill_missing: bool = True, base_points: tuple | None = None,
+             base_regions: NDArray[np.integer] | None = None) -> VolumeResult:
     """Cut and fill between ``top`` and ``base`` inside ``polygon`` (module docstring).
 
     Parameters
@@ -134,6 +170,15 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
         Interpolate the difference into cells inside the polygon where a surface has no height (linear from the
         valid cells around; variance: the spread of the valid differences within 7 cells); False leaves them out
         (the volume is then of the cells with data only, ``cells_without_data`` says how many).
+    base_points
+        ``(xy (K, 2), sigma_z (K,)[, fit])`` when ``base`` is :func:`base_from_points` of these points: their heights'
+        standard deviations (metres, independent) are propagated to the volumes through the surface's weights
+        (:func:`base_point_weights`): an error of a point moves the base over every cell its triangles cover, the
+        same way for all of them (``sigma_base`` is then the base's own per-cell error, usually 0).
+    base_regions
+        ``(rows, cols)`` labels (0: none) of regions whose base errors are one error: a DTM's ground interpolated
+        under a building or across a gap is off by about the same amount over the whole gap, so ``sigma_base``
+        there adds as ``(A sum sigma_base)^2`` per region (fully correlated) instead of cell by cell.
 
     Raises
     ------
@@ -167,9 +212,23 @@ def cut_fill(top: NDArray[np.float64], base: NDArray[np.float64], grid: GridSpec
     v = var[ok]
     up, down = dz > 0, dz < 0
 
+    if base_points is not None:
+        bxy, bs = np.asarray(base_points[0], np.float64), np.asarray(base_points[1], np.float64)
+        if bs.shape != (len(bxy),) or not np.all(np.isfinite(bs) & (bs >= 0)):
+            raise InputFormatError(f"base point sigmas must be ({len(bxy)},) non-negative numbers", field="sz")
+        W = base_point_weights(grid, bxy, ok, *base_points[2:])  # (cells of ok, row-major, K): the order of dz
+
+    if base_regions is not None:
+        reg = np.asarray(base_regions)[ok]
+        sb_ok = np.nan_to_num(sb[ok]) * (reg > 0)
+        v = v - sb_ok ** 2  # those cells' base variance is counted per region below
+
     def sig(sel: NDArray[np.bool_]) -> float:
         area = A * float(sel.sum())
-        return float(np.sqrt(A * A * patch * v[sel].sum() + (sigma_sys_m * area) ** 2))
+        var_pts = float(np.sum((A * W[sel].sum(axis=0) * bs) ** 2)) if base_points is not None else 0.0
+        var_reg = float(np.sum((A * np.bincount(reg[sel], weights=sb_ok[sel])) ** 2)) if base_regions is not None \
+            else 0.0
+        return float(np.sqrt(A * A * patch * v[sel].sum() + (sigma_sys_m * area) ** 2 + var_pts + var_reg))
 
     fill = A * float(dz[up].sum())
     cut = -A * float(dz[down].sum())
