@@ -157,7 +157,8 @@ def test_project_stage_dtm(files, tmp_path):
     from skyrig.pipeline.run import STAGES
 
     d, _, scene = files
-    assert list(STAGES).index("dtm") > list(STAGES).index("dsm") and STAGES["dtm"].requires == ("dsm",)
+    # the DTM stage takes the lidar stage's laser cloud when the project has one, else the DSM stage's cloud
+    assert list(STAGES).index("dtm") > list(STAGES).index("dsm") and STAGES["dtm"].requires == ("laser|dsm",)
     dsm_dir = tmp_path / "dsm"
     dsm_dir.mkdir()
     (dsm_dir / "cloud.laz").write_bytes((d / "cloud.laz").read_bytes())
@@ -172,7 +173,7 @@ def test_project_stage_dtm(files, tmp_path):
     opts = {k: v.default for k, v in STAGES["dtm"].options.items()}
     from skyrig.pipeline.project import ExecutorSpec
 
-    ctx = SimpleNamespace(options=opts, need=lambda kind: dsm_dir / "dsm.tif", out=out,
+    ctx = SimpleNamespace(options=opts, need=lambda kind: dsm_dir / "dsm.tif", out=out, upstream={"dsm": "dsm"},
                           project=SimpleNamespace(executor=ExecutorSpec()), progress=lambda done, total: None)
     s = STAGES["dtm"].run(ctx)
     assert s["cells_by_source"]["building"] > 100

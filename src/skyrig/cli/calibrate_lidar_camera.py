@@ -34,11 +34,10 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
     """The recipe's inputs from files, every bad input named (file, line, field)."""
     from skyrig.calibrate.lidar_camera import JointInputs
     from skyrig.cli.georef import load_trajectory
-    from skyrig.cli.lidar_strips import _data_line
     from skyrig.georef.eo import WorldFrame
     from skyrig.io.events_csv import read_events_csv
     from skyrig.io.points_csv import read_measurements_csv
-    from skyrig.io.raw_scan_csv import read_raw_scan_csv
+    from skyrig.io.raw_scan_csv import data_line, read_raw_scan_csv
     from skyrig.io.rig_file import read_calibrated_rig
     from skyrig.io.scanner_record import read_scanner_mount
 
@@ -53,7 +52,7 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
         k = int(out[0])
         raise InputFormatError(f"laser time {scan.time_s[k]!r} s lies outside the trajectory {traj_path} "
                                f"({t0!r} .. {t1!r} s, {traj.time_system}); {out.size} pulse(s) in all",
-                               scan_path, _data_line(scan_path, k), "time")
+                               scan_path, data_line(scan_path, k), "time")
     mount, _ = read_scanner_mount(mount_path, scanner)  # left-handed frames and lever arms in mm are named there
     rig, _ = read_calibrated_rig(rig_path)
     if head is None:

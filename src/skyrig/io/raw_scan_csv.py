@@ -25,7 +25,7 @@ from skyrig.geometry.angles import from_radians, normalize_unit, to_radians
 from skyrig.io._text import atomic_write, parse_float, read_text
 from skyrig.lidar.scanner import RawScan
 
-__all__ = ["read_raw_scan_csv", "write_raw_scan_csv"]
+__all__ = ["read_raw_scan_csv", "write_raw_scan_csv", "data_line"]
 
 PathLike = str | os.PathLike[str]
 MAGIC = "# skyrig-raw-scan 1"
@@ -118,6 +118,24 @@ def read_raw_scan_csv(path: PathLike) -> tuple[RawScan, dict[str, str]]:
         strip = col["strip"].astype(np.int64)
     scan = RawScan(t, col["range"], to_radians(col["alpha"], unit), beta, col.get("intensity"), strip)
     return scan, header
+
+
+def data_line(path: PathLike, k: int) -> int | None:
+    """The line number (1-based) of data row ``k`` of a raw scan CSV (comments, blank lines and the header skipped)."""
+    seen_header = False
+    row = -1
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, ln in enumerate(fh, start=1):
+            s = ln.strip()
+            if not s or s.startswith("#"):
+                continue
+            if not seen_header:
+                seen_header = True
+                continue
+            row += 1
+            if row == k:
+                return lineno
+    return None
 
 
 def write_raw_scan_csv(path: PathLike, scan: RawScan, unit: str = "deg", time_system: str = "gps-sow") -> None:

@@ -25,24 +25,6 @@ __all__ = ["StripRun", "strip_adjustment", "scanner_record", "write_laser_cloud"
 log = logging.getLogger(__name__)
 
 
-def _data_line(path: PathLike, k: int) -> int | None:
-    """The line number (1-based) of data row ``k`` of a raw scan CSV (comments, blank lines and the header skipped)."""
-    seen_header = False
-    row = -1
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, ln in enumerate(fh, start=1):
-            s = ln.strip()
-            if not s or s.startswith("#"):
-                continue
-            if not seen_header:
-                seen_header = True
-                continue
-            row += 1
-            if row == k:
-                return lineno
-    return None
-
-
 @dataclass(frozen=True, eq=False)
 class StripRun:
     """A strip adjustment of a raw scan with everything its outputs need."""
@@ -73,7 +55,7 @@ def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathL
         No strip column; a pulse outside the trajectory (file, line, field ``time``); a bad scanner record.
     """
     from skyrig.georef.eo import WorldFrame
-    from skyrig.io.raw_scan_csv import read_raw_scan_csv
+    from skyrig.io.raw_scan_csv import data_line, read_raw_scan_csv
     from skyrig.io.scanner_record import read_scanner_mount
     from skyrig.pipeline.inputs import load_trajectory
     from skyrig.lidar.scanner import RawScan
@@ -90,7 +72,7 @@ def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathL
         k = int(bad[0])
         raise InputFormatError(f"pulse time {scan.time_s[k]!r} is outside the trajectory {traj_path} "
                                f"([{t0!r}, {t1!r}] s, {traj.time_system}); {bad.size} pulse(s) in all",
-                               scan_path, _data_line(scan_path, k), "time")
+                               scan_path, data_line(scan_path, k), "time")
     mount, extra = read_scanner_mount(mount_path, scanner)
     r0n = float(extra.get("range_offset_m", 0.0))
     sn = float(extra.get("range_scale_ppm", 0.0)) * 1e-6
