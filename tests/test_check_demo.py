@@ -46,6 +46,10 @@ def _demo_tumble(root: Path) -> Path:
     from skyrig.pipeline.demo import tumble_circle_demo
 
     tumble_circle_demo(root)
+    # the demo's own results (two adjusted EO tables with their side-cars) are outputs, not inputs: left in the
+    # folder, init finds two EO files and refuses to choose (issue 29)
+    for p in root.glob("eo_*"):
+        p.unlink()
     return root
 
 

@@ -153,8 +153,8 @@ def test_stockpiles_in_the_scene_and_its_renderer():
 
 def test_scenario_spec_stockpiles_opt_in():
     """``ScenarioSpec.stockpiles`` puts piles into a flown scenario's scene (buildings kept off them); without them
-    the scene is the scenario's usual one.  The CI ``midas-dsm`` town (``make demo``'s) has one pile, placed where
-    the seed draws the same buildings, targets and flight as without it."""
+    the scene is the scenario's usual one.  The CI ``midas-dsm`` town's opt-in pile is placed where the seed draws the
+    same buildings, targets and flight as without it."""
     from skyrig.simulate.scenarios import MIDAS_DSM_STOCKPILE, build_survey, scenario_spec
 
     spec = scenario_spec("midas", "ci", 1)
@@ -164,8 +164,9 @@ def test_scenario_spec_stockpiles_opt_in():
     b = s.buildings
     assert np.all(np.hypot(b.cx - 20.0, b.cy + 20.0) > 10.0 + np.hypot(b.hl, b.hw))
     assert build_survey(spec).scene.stockpiles is None
-    dsm = build_survey(scenario_spec("midas-dsm", "ci", 1))
-    plain = build_survey(replace(dsm.spec, stockpiles=()))
+    plain = build_survey(scenario_spec("midas-dsm", "ci", 1))
+    assert plain.scene.stockpiles is None  # opt-in
+    dsm = build_survey(replace(plain.spec, stockpiles=(MIDAS_DSM_STOCKPILE,)))
     cx, cy, R, r, h = MIDAS_DSM_STOCKPILE
     assert float(dsm.scene.stockpiles.volume()[0]) == pytest.approx(np.pi * h * (R * R + R * r + r * r) / 3)
     for f in ("cx", "cy", "hl", "hw", "eave_z", "ridge_z"):
