@@ -11,6 +11,8 @@ injected), run the joint recipe (:func:`skyrig.calibrate.lidar_camera.calibrate_
   the nominal mount, after the laser-only strip adjustment (:func:`skyrig.lidar.strips.adjust_strips`, the separate
   calibration) and after the joint adjustment;
 * the image cloud -- the tie points of the ADJUSTED image block -- against the same reference;
+* the strip-to-strip discrepancies on the patch planes before and after the joint adjustment
+  (:func:`skyrig.calibrate.lidar_camera.strip_discrepancies`);
 * the joint adjustment's time, laser points and images.
 
 Run: ``PYTHONPATH=src python bench/lidar_joint.py --seeds 20 [--size strips-ci|strips] [--json out.json]``.
@@ -38,12 +40,13 @@ def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d**2)))
 
 
-def run_seed(size: str, seed: int, every: int) -> dict:
+def run_seed(size: str, seed: int, every: int, roughness_m: float | None = None) -> dict:
     fl = build_joint_flight(size, seed)
     sv = fl.survey
     inp = joint_inputs_from_flight(fl)
     t0, c0 = time.perf_counter(), time.process_time()
-    cal = calibrate_lidar_camera(inp, JointOptions())
+    opts = JointOptions() if roughness_m is None else JointOptions(roughness_m=roughness_m)
+    cal = calibrate_lidar_camera(inp, opts)
     t_joint, c_joint = time.perf_counter() - t0, time.process_time() - c0
     truth = strip_truth_vector(sv.injected, cal.strip_epoch_s)
     z_sc = (cal.scanner - truth[:8]) / cal.scanner_sigma
@@ -70,6 +73,7 @@ def run_seed(size: str, seed: int, every: int) -> dict:
         "image_observations": int(len(cal.block.obs_image)), "pulses": len(sv.scan),
         "patch_planes": cal.n_patch_planes, "tie_planes": cal.n_tie_planes, "dropped_points": cal.n_dropped_points,
         "dropped_planes": cal.n_dropped_planes, "sigma0": cal.sigma0,
+        "discrepancies": {"before": cal.discrepancies_before, "after": cal.discrepancies_after},
         "z_scanner": z_sc.tolist(), "z_camera": z_cam.tolist(), "z_strips": z_st.tolist(),
         "rms_tls_m": {"nominal": _rms_vs_tls(nominal, ref), "separate": _rms_vs_tls(separate, ref),
                       "joint": _rms_vs_tls(joint, ref), "image_tie_points": _rms_vs_tls(image, ref)},
@@ -83,23 +87,32 @@ def main() -> None:
     ap.add_argument("--size", default="strips-ci", choices=("strips-ci", "strips"))
     ap.add_argument("--every", type=int, default=10, help="compare every n-th laser pulse with the TLS")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--roughness", type=float, default=None, help="the joint model's roughness floor (m)")
     a = ap.parse_args()
     out = []
     for s in range(a.first_seed, a.first_seed + a.seeds):
-        r = run_seed(a.size, s, a.every)
+        r = run_seed(a.size, s, a.every, a.roughness)
         out.append(r)
         t = r["rms_tls_m"]
-        print(f"seed {s}: {r['laser_points']} laser points, {r['images']} images, joint {r['time_joint_s']:.1f} s "
+        print(f"seed {s}: range scale z {r['z_scanner'][7]:+.2f}; {r['laser_points']} laser points, {r['images']} images, joint {r['time_joint_s']:.1f} s "
               f"({r['cpu_joint_s']:.1f} s CPU), "
               f"sigma0 {r['sigma0']:.2f}; max |z| scanner {np.max(np.abs(r['z_scanner'])):.2f}, camera "
               f"{np.max(np.abs(r['z_camera'])):.2f}, strips {np.max(np.abs(r['z_strips'])):.2f}; laser vs TLS RMS "
               f"nominal {t['nominal'] * 1e3:.1f} mm, separate {t['separate'] * 1e3:.1f} mm, joint "
-              f"{t['joint'] * 1e3:.1f} mm; image tie points {t['image_tie_points'] * 1e3:.1f} mm", flush=True)
+              f"{t['joint'] * 1e3:.1f} mm; image tie points {t['image_tie_points'] * 1e3:.1f} mm; strip-to-strip "
+              f"discrepancies RMS {r['discrepancies']['before']['rms_m'] * 1e3:.1f} -> "
+              f"{r['discrepancies']['after']['rms_m'] * 1e3:.1f} mm (over sigma "
+              f"{r['discrepancies']['before']['normalised_rms']:.2f} -> "
+              f"{r['discrepancies']['after']['normalised_rms']:.2f})", flush=True)
     zc = np.array([r["z_scanner"] + r["z_camera"] for r in out])
     zs = np.concatenate([r["z_strips"] for r in out])
     print(f"calibration z over {len(out)} seeds ({zc.size} values): mean {zc.mean():+.2f}, std {zc.std():.2f}; "
           f"per parameter mean {np.round(zc.mean(axis=0), 2).tolist()} std {np.round(zc.std(axis=0), 2).tolist()}")
     print(f"strip corrections z ({zs.size} values): mean {zs.mean():+.2f}, std {zs.std():.2f}")
+    for k in ("before", "after"):
+        v = np.array([[r["discrepancies"][k][c] for c in ("rms_m", "normalised_rms", "noise_rms_m")] for r in out])
+        print(f"strip-to-strip discrepancies {k}: RMS {v[:, 0].mean() * 1e3:.1f} mm, over sigma {v[:, 1].mean():.2f} "
+              f"(predicted noise {v[:, 2].mean() * 1e3:.1f} mm)")
     for k in ("nominal", "separate", "joint", "image_tie_points"):
         v = np.array([r["rms_tls_m"][k] for r in out])
         print(f"RMS vs TLS {k}: mean {v.mean() * 1e3:.1f} mm")

@@ -225,3 +225,73 @@ def test_bad_laser_input_is_named():
     bad = dataclasses.replace(d, plane=np.where(d.plane == 1, 2, d.plane))  # plane 1 left empty
     with pytest.raises(BlockError, match="plane 1 has 0 points"):
         dataclasses.replace(b, observations={**b.observations, "lidar": bad}).validate()
+
+
+def _rows_at(d, scanner, strips, rows, normal, centre, tilt=(0.0, 0.0)):
+    """Whitened residuals of ``rows`` at a plane held fixed (normal tilted by ``tilt`` along the tangents)."""
+    geo = georeference(d, scanner, strips, rows=rows)
+    T = LIDAR.point_rows(d, geo, normal, centre, np.ones(len(rows)))["T"]
+    n = normal + tilt[0] * T[:, 0] + tilt[1] * T[:, 1]
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    return np.einsum("ni,ni->n", n, geo["X"] - centre) / LIDAR.point_sigma(d, geo, n)
+
+
+def test_adjusted_jacobians_are_the_derivatives_of_the_whitened_residual(joint):
+    """``linearise="adjusted"``: the per-point rows are the exact derivatives of ``r / sigma(unknowns, plane)``
+    (every error source of the stochastic model on, a state off the truth so that the residuals are large); the
+    ``"observed"`` rows (sigma frozen) are not."""
+    b, _, true_strip, _, _ = joint
+    d = dataclasses.replace(b.observations["lidar"], angle_sigma_rad=2e-3, attitude_sigma_rad=3e-4,
+                            position_sigma_m=0.01)
+    sc = TRUE_SCANNER + np.array([3e-3, -2e-3, 4e-3, 0.02, 0.01, -0.03, 0.05, 2e-3])
+    st = true_strip * 0.5 + STRIP_SIGMA
+    rows = np.arange(0, len(d), 11)
+    geo = georeference(d, sc, st, jac=True, rows=rows)
+    full = georeference(d, sc, st)
+    normal, centre, _ = LIDAR.planes(d, full["X"], full, np.zeros((d.n_planes, 3)))
+    nrm, cen = normal[d.plane[rows]], centre[d.plane[rows]] + 0.3 * normal[d.plane[rows]]  # residuals ~ 0.3 m
+    sig = LIDAR.point_sigma(d, geo, nrm)
+    pr = LIDAR.point_rows(d, geo, nrm, cen, sig)
+    obs = LIDAR.point_rows(dataclasses.replace(d, linearise="observed"), geo, nrm, cen, sig)
+    cases = [("AS", j, lambda h, j=j: (sc + h * np.eye(NS)[j], st, (0.0, 0.0))) for j in range(NS)]
+    cases += [("AK", j, lambda h, j=j: (sc, st + h * np.eye(NK)[j][None], (0.0, 0.0))) for j in range(NK)]
+    cases += [("B", j, lambda h, j=j: (sc, st, tuple(h * np.eye(2)[j]))) for j in range(2)]
+    worst_obs = 0.0
+    for key, j, at in cases:
+        h = 1e-7 if key == "B" or (key == "AS" and j in (0, 1, 2, 7)) or (key == "AK" and j >= 6) else 1e-5
+        fd = (_rows_at(d, *at(h)[:2], rows, nrm, cen, at(h)[2]) - _rows_at(d, *at(-h)[:2], rows, nrm, cen,
+                                                                          at(-h)[2])) / (2 * h)
+        scale = np.abs(fd).max() + 1e-12
+        assert np.abs(pr[key][:, j] - fd).max() < 1e-5 * scale, (key, j)
+        worst_obs = max(worst_obs, np.abs(obs[key][:, j] - fd).max() / scale)
+    assert worst_obs > 1e-3  # the sigma's dependence on the unknowns is not negligible here
+
+
+def test_adjusted_jacobians_are_those_at_the_adjusted_observations(joint):
+    """Range noise only (and roughness along the normal): the ``"adjusted"`` rows at the recorded ranges equal the
+    ``"observed"`` rows at the ranges of the Gauss-Helmert adjusted observations, built here independently (each
+    range moved by its share ``sigma_r^2 B_r r / var`` of the residual, which puts the point on its plane)."""
+    b, _, true_strip, _, _ = joint
+    d = b.observations["lidar"]
+    sc = TRUE_SCANNER + np.array([3e-3, -2e-3, 4e-3, 0.02, 0.01, -0.03, 0.05, 2e-3])
+    st = true_strip * 0.5
+    rows = np.arange(0, len(d), 5)
+    rows = rows[d.plane_point[d.plane[rows]] < 0]  # patch planes (their centre is the points' centroid)
+    geo = georeference(d, sc, st, jac=True, rows=rows)
+    full = georeference(d, sc, st)
+    normal, centre, _ = LIDAR.planes(d, full["X"], full, np.zeros((d.n_planes, 3)))
+    nrm, cen = normal[d.plane[rows]], centre[d.plane[rows]]
+    sig = LIDAR.point_sigma(d, geo, nrm)
+    pr = LIDAR.point_rows(d, geo, nrm, cen, sig)
+    r_m = pr["r"] * sig
+    B_r = np.einsum("ni,ni->n", nrm, geo["beam_w"]) / (1.0 + sc[7])  # dr / d recorded range
+    d_hat = dataclasses.replace(d, linearise="observed", range_m=d.range_m.copy())
+    d_hat.range_m[rows] -= r_m / sig**2 * d.range_sigma_m**2 * B_r
+    geo_hat = georeference(d_hat, sc, st, jac=True, rows=rows)
+    # what is left of the residual is the roughness's share (the surface's correction along the normal)
+    r_hat = np.einsum("ni,ni->n", nrm, geo_hat["X"] - cen)
+    assert np.allclose(r_hat, r_m * d.roughness_m**2 / sig**2, rtol=1e-6, atol=1e-9)
+    obs_hat = LIDAR.point_rows(d_hat, geo_hat, nrm, cen, sig)
+    for key in ("AS", "AK"):
+        scale = np.abs(pr[key]).max(axis=0) + 1e-12
+        assert np.all(np.abs(pr[key] - obs_hat[key]).max(axis=0) <= 1e-6 * scale), key

@@ -69,7 +69,8 @@ def test_bad_inputs_are_named(files):
 @pytest.mark.slow
 def test_simulated_bridge_flight_recovers_the_injected_calibration(tmp_path):
     """Paper 002's bridge strip flight with its camera (CI size, seed 2): scanner boresight, lever arm, range offset
-    and camera boresight within 3 predicted sigmas; the rig file holds both sensors."""
+    and scale and camera boresight within 3 predicted sigmas; the strip-to-strip discrepancies on the patch planes
+    reduced to their predicted noise; the rig file holds both sensors."""
     from skyrig.cli.calibrate import command
     from skyrig.io.rig_file import read_calibrated_rig
     from skyrig.io.scanner_record import read_rig_scanners
@@ -81,17 +82,16 @@ def test_simulated_bridge_flight_recovers_the_injected_calibration(tmp_path):
     sc = rep["scanner"]
     truth = rep["truth"]["scanner"]
     z = {n: (sc[n]["value"] - t) / sc[n]["sigma"] for n, t in zip(sc, truth)}
-    assert all(abs(v) < 3.0 for n, v in z.items() if n != "range_scale"), z
+    assert all(abs(v) < 3.0 for v in z.values()), z
     cb = rep["camera_boresight_rad"]
     zc = (np.array(cb["value"]) - rep["truth"]["camera_boresight_rad"]) / np.array(cb["sigma"])
     assert np.all(np.abs(zc) < 3.0), zc
     rig, _ = read_calibrated_rig(out)
     assert "camera" in rig.head_names and "lidar" in read_rig_scanners(out)
     assert 0.85 < rep["sigma0"] < 1.15
-    if abs(z["range_scale"]) >= 3.0:
-        pytest.xfail(f"range scale off by {z['range_scale']:+.1f} sigma on this flight (open: a positive bias of about "
-                     "2 sigma over seeds 1-3, from the weights of grazing beams; the laser-only strip adjustment shows "
-                     "it as well)")
+    dis = rep["strip_discrepancies"]
+    assert dis["before"]["normalised_rms"] > 5.0  # the injected errors show
+    assert dis["after"]["normalised_rms"] < 1.2 and dis["after"]["rms_m"] < 1.5 * dis["after"]["noise_rms_m"], dis
 
 
 def test_truth_vector_matches_the_recipe_conventions():

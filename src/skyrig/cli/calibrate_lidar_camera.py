@@ -183,6 +183,11 @@ def echo_table(out: dict[str, Any]) -> None:
     click.echo(f"{cal.n_patch_planes} patch planes, {cal.n_tie_planes} tie-point planes, {cal.n_laser_points:,} laser "
                f"points, {len(cal.block.image_name)} images, {len(cal.block.obs_image):,} image measurements; sigma0 "
                f"{cal.sigma0:.3f}; dropped {cal.n_dropped_points} points off their plane, {cal.n_dropped_planes} planes")
+    b, a = cal.discrepancies_before, cal.discrepancies_after
+    if b is not None and a is not None and a["pairs"]:
+        click.echo(f"strip-to-strip discrepancies on {a['pairs']} patch/strip pairs: RMS {b['rms_m'] * 1e3:.1f} mm "
+                   f"before, {a['rms_m'] * 1e3:.1f} mm after (predicted noise {a['noise_rms_m'] * 1e3:.1f} mm; "
+                   f"over their sigma {b['normalised_rms']:.2f} -> {a['normalised_rms']:.2f})")
 
 
 @click.command("lidar-camera")
