@@ -606,7 +606,7 @@ def _live_step(outdir: str | Path) -> None:
 
     click.echo("\n=== skyrig run --live: a 3K flight replayed into a project's inputs, judged against the batch "
                "answer ===")
-    base = Path(outdir) / "live"
+    base = Path(outdir).resolve() / "live"  # absolute: the project file's paths are read relative to its folder
     flight, proj = base / "flight", base / "project"
     if not (flight / "events.csv").exists():
         lc.simulate_3k_flight(flight, half_length_m=300.0)
