@@ -33,26 +33,15 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
                        head: str | None, events_path: str, meas_path: str, sigma_px: float) -> tuple[Any, Any]:
     """The recipe's inputs from files, every bad input named (file, line, field)."""
     from skyrig.calibrate.lidar_camera import JointInputs
-    from skyrig.cli.georef import load_trajectory
     from skyrig.georef.eo import WorldFrame
     from skyrig.io.events_csv import read_events_csv
     from skyrig.io.points_csv import read_measurements_csv
-    from skyrig.io.raw_scan_csv import data_line, read_raw_scan_csv
+    from skyrig.pipeline.lidar import read_strip_scan
     from skyrig.io.rig_file import read_calibrated_rig
     from skyrig.io.scanner_record import read_scanner_mount
 
-    scan, _ = read_raw_scan_csv(scan_path)
-    if scan.strip_id is None:
-        raise InputFormatError("the raw scan has no 'strip' column: the joint adjustment needs the flight line of "
-                               "every pulse", scan_path, None, "strip")
-    traj = load_trajectory(traj_path, None)
+    scan, traj = read_strip_scan(scan_path, traj_path, "the joint adjustment")
     t0, t1 = traj.span
-    out = np.flatnonzero((scan.time_s < t0) | (scan.time_s > t1))
-    if out.size:
-        k = int(out[0])
-        raise InputFormatError(f"laser time {scan.time_s[k]!r} s lies outside the trajectory {traj_path} "
-                               f"({t0!r} .. {t1!r} s, {traj.time_system}); {out.size} pulse(s) in all",
-                               scan_path, data_line(scan_path, k), "time")
     mount, _ = read_scanner_mount(mount_path, scanner)  # left-handed frames and lever arms in mm are named there
     rig, _ = read_calibrated_rig(rig_path)
     if head is None:

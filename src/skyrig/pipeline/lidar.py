@@ -20,9 +20,35 @@ import numpy as np
 from skyrig.errors import InputFormatError
 from skyrig.io._text import PathLike
 
-__all__ = ["StripRun", "strip_adjustment", "scanner_record", "write_laser_cloud", "laser_folder"]
+__all__ = ["read_strip_scan", "StripRun", "strip_adjustment", "scanner_record", "write_laser_cloud", "laser_folder"]
 
 log = logging.getLogger(__name__)
+
+
+def read_strip_scan(scan_path: PathLike, traj_path: PathLike, purpose: str) -> tuple[Any, Any]:
+    """A raw scan with strip ids and its trajectory, every pulse inside the trajectory's span.
+
+    Raises
+    ------
+    InputFormatError
+        No ``strip`` column (``purpose`` says what needs it); a pulse outside the trajectory (file, line, field
+        ``time``)."""
+    from skyrig.io.raw_scan_csv import data_line, read_raw_scan_csv
+    from skyrig.pipeline.inputs import load_trajectory
+
+    scan, _ = read_raw_scan_csv(scan_path)
+    if scan.strip_id is None:
+        raise InputFormatError(f"the raw scan has no 'strip' column: {purpose} needs the flight line of every pulse",
+                               scan_path, None, "strip")
+    traj = load_trajectory(traj_path, None)
+    t0, t1 = traj.span
+    bad = np.flatnonzero((scan.time_s < t0) | (scan.time_s > t1))
+    if bad.size:
+        k = int(bad[0])
+        raise InputFormatError(f"pulse time {scan.time_s[k]!r} s is outside the trajectory {traj_path} "
+                               f"([{t0!r}, {t1!r}] s, {traj.time_system}); {bad.size} pulse(s) in all",
+                               scan_path, data_line(scan_path, k), "time")
+    return scan, traj
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,24 +81,11 @@ def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathL
         No strip column; a pulse outside the trajectory (file, line, field ``time``); a bad scanner record.
     """
     from skyrig.georef.eo import WorldFrame
-    from skyrig.io.raw_scan_csv import data_line, read_raw_scan_csv
     from skyrig.io.scanner_record import read_scanner_mount
-    from skyrig.pipeline.inputs import load_trajectory
     from skyrig.lidar.scanner import RawScan
     from skyrig.lidar.strips import PatchOptions, StripModel, adjust_strips, find_planar_patches, patch_discrepancies
 
-    scan, _ = read_raw_scan_csv(scan_path)
-    if scan.strip_id is None:
-        raise InputFormatError("the raw scan has no 'strip' column: the strip adjustment needs the flight line of "
-                               "every pulse", scan_path, None, "strip")
-    traj = load_trajectory(traj_path, None)
-    t0, t1 = traj.span
-    bad = np.flatnonzero((scan.time_s < t0) | (scan.time_s > t1))
-    if bad.size:
-        k = int(bad[0])
-        raise InputFormatError(f"pulse time {scan.time_s[k]!r} is outside the trajectory {traj_path} "
-                               f"([{t0!r}, {t1!r}] s, {traj.time_system}); {bad.size} pulse(s) in all",
-                               scan_path, data_line(scan_path, k), "time")
+    scan, traj = read_strip_scan(scan_path, traj_path, "the strip adjustment")
     mount, extra = read_scanner_mount(mount_path, scanner)
     r0n = float(extra.get("range_offset_m", 0.0))
     sn = float(extra.get("range_scale_ppm", 0.0)) * 1e-6
