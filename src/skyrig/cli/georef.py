@@ -2,28 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from skyrig.cli._types import CRS_TEXT, GEOID
-
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import WorldFrame
-
-
-def load_trajectory(path: str, reference: str | None):
-    """A trajectory from a skyrig trajectory CSV or an Applanix SBET (``.out`` / ``.sbet``)."""
-    if Path(path).suffix.lower() in (".out", ".sbet", ".bin"):
-        from skyrig.io.sbet import read_sbet
-
-        return read_sbet(path, reference=reference or "imu")
-    from skyrig.io.trajectory_csv import read_trajectory_csv
-
-    traj = read_trajectory_csv(path)
-    if reference and reference != traj.reference:
-        raise click.UsageError(f"--reference {reference} contradicts the trajectory file's '# reference: {traj.reference}'")
-    return traj
 
 
 @click.command("georef")
@@ -43,6 +26,7 @@ def command(traj_path, reference, events_path, rig_path, crs, heights, geoid, an
     from skyrig.io.eo_csv import write_eo_csv
     from skyrig.io.events_csv import read_events_csv
     from skyrig.io.rig_file import read_rig
+    from skyrig.pipeline.inputs import load_trajectory
 
     if heights == "orthometric" and not geoid:
         raise click.UsageError("--heights orthometric needs --geoid")

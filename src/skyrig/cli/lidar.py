@@ -127,12 +127,12 @@ def command() -> None:
 def georef_cmd(scan_path, traj_path, reference, lever_arm, antenna_lever_arm, boresight, mounting, sequence, passive,
                angles, yaw_correction, barometric, position, crs, geoid, output) -> None:
     """Georeference a raw scan: scanner -> body -> NED -> ECEF -> CRS, trajectory interpolated per pulse."""
-    from skyrig.cli.georef import load_trajectory
     from skyrig.georef.eo import WorldFrame
     from skyrig.geometry.angles import to_radians
     from skyrig.io.laz import write_las
     from skyrig.io.raw_scan_csv import read_raw_scan_csv
     from skyrig.lidar.georef import ScannerMount, georeference_scan
+    from skyrig.pipeline.inputs import load_trajectory
 
     scan, _ = read_raw_scan_csv(scan_path)
     traj = load_trajectory(traj_path, reference)

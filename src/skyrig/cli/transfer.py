@@ -39,11 +39,11 @@ def command(eo_path, rig_path, events_path, traj_path, traj_reference, no_curve,
     import numpy as np
 
     from skyrig.cli._common import project_frame_option
-    from skyrig.cli.georef import load_trajectory
     from skyrig.georef.transfer import METHODS, transfer_orientations, with_transferred
     from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
     from skyrig.io.events_csv import read_events_csv
     from skyrig.io.rig_file import read_rig
+    from skyrig.pipeline.inputs import load_trajectory
 
     if max_gap <= 0:
         raise click.BadParameter("must be a positive number of seconds", param_hint="--max-gap")
