@@ -1,0 +1,168 @@
+"""Issue 29, open line: ``init`` refused the frame-free forms the EO headers accept (``local <lat> <lon> <h>``).
+
+A project whose ``crs:`` is a local ENU frame now runs: inputs in the frame convert exactly (through ECEF), products
+are written in the CRS files carry for it (orthographic at its origin on WGS 84, WGS 84 ellipsoidal heights,
+:mod:`skyrig.geodesy.local_crs`), and the side-cars say how far that is from ENU.  Checked against PROJ: its
+topocentric conversion (ENU) and its own transformation into the carried CRS.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+from click.testing import CliRunner
+
+from skyrig.cli import main
+from skyrig.geodesy.frame import WorldFrame
+from skyrig.geodesy.local_crs import carried_crs, carried_frame, enu_departure, local_of_carried
+from test_bad_input_cli import EO, EVENTS, RIG, TRAJ
+
+ORIGIN = (43.64, 4.57, 1807.36)  # a block in the Alps' foothills: a high origin shows the horizontal departure
+R_EARTH = 6_371_000.0
+
+
+def _run(*args):
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    assert "Traceback" not in r.output, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    return r
+
+
+def _proj_enu(origin, lat, lon, h):
+    """ENU from PROJ's topocentric conversion (independent of skyrig's tangent-frame code)."""
+    t = pyproj.Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=axisswap +order=2,1 +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+        f"+step +proj=cart +ellps=WGS84 +step +proj=topocentric +ellps=WGS84 +lat_0={origin[0]} +lon_0={origin[1]} "
+        f"+h_0={origin[2]}")
+    return np.stack(t.transform(lat, lon, h), axis=1)
+
+
+def _ring(origin, d, h):
+    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    lat = origin[0] + d * np.sin(a) / 111_132.0
+    lon = origin[1] + d * np.cos(a) / (111_320.0 * np.cos(np.radians(origin[0])))
+    return lat, lon, np.full(a.shape, float(h))
+
+
+def test_skyrig_local_frame_is_proj_topocentric():
+    rng = np.random.default_rng(3)
+    lat = ORIGIN[0] + rng.uniform(-0.05, 0.05, 50)
+    lon = ORIGIN[1] + rng.uniform(-0.05, 0.05, 50)
+    h = rng.uniform(0, 3000, 50)
+    g = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    xyz = np.stack(g.transform(lon, lat, h), axis=1)
+    ours = WorldFrame.local(*ORIGIN).from_ecef(xyz)
+    assert np.abs(ours - _proj_enu(ORIGIN, lat, lon, h)).max() < 1e-6
+
+
+def test_carried_crs_is_enu_on_the_ellipsoid_and_departs_as_stated():
+    """On the ellipsoid (h = 0) the carried x, y are PROJ's ENU east, north exactly (the origin's height does not
+    move the horizontal axes); above it they depart by h d / R, and the heights by d^2 / 2R (curvature)."""
+    local = WorldFrame.local(*ORIGIN)
+    to_carried = pyproj.Transformer.from_crs("EPSG:4979", carried_crs(local).to_3d(), always_xy=True)
+    lat, lon, h = _ring(ORIGIN, 1000.0, 0.0)
+    xy = np.stack(to_carried.transform(lon, lat, h), axis=1)[:, :2]
+    assert np.abs(xy - _proj_enu(ORIGIN, lat, lon, h)[:, :2]).max() < 1e-6
+    for d in (1000.0, 5000.0):
+        lat, lon, h = _ring(ORIGIN, d, ORIGIN[2])
+        x, y, z = to_carried.transform(lon, lat, h)
+        horizontal, vertical = enu_departure(local, np.stack([x, y, z], axis=1))
+        assert horizontal == pytest.approx(ORIGIN[2] * d / R_EARTH, rel=0.02), (d, horizontal)
+        assert vertical == pytest.approx(d * d / (2 * R_EARTH), rel=0.02), (d, vertical)
+
+
+def test_carried_crs_survives_geotiff_and_las(tmp_path):
+    import laspy
+    import rasterio
+    from rasterio.transform import from_origin
+
+    local = WorldFrame.local(*ORIGIN)
+    crs = carried_crs(local)
+    with rasterio.open(tmp_path / "t.tif", "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
+                       crs=crs.to_wkt(), transform=from_origin(-10, 10, 5, 5)) as ds:
+        ds.write(np.zeros((1, 4, 4), "float32"))
+    with rasterio.open(tmp_path / "t.tif") as ds:
+        back = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+    assert back.equals(crs, ignore_axis_order=True) and local_of_carried(back) == WorldFrame.local(
+        *(float(f"{v:.9f}") for v in ORIGIN[:2]), float(f"{ORIGIN[2]:.4f}"))
+    hdr = laspy.LasHeader(point_format=6, version="1.4")
+    hdr.add_crs(crs.to_3d())
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = np.array([1.0]), np.array([2.0]), np.array([ORIGIN[2]])
+    las.write(tmp_path / "t.las")
+    assert local_of_carried(laspy.read(tmp_path / "t.las").header.parse_crs()) is not None
+
+
+def test_a_geoid_with_a_local_frame_is_refused():
+    from skyrig.errors import CRSError
+
+    with pytest.raises(CRSError, match="no geoid"):
+        carried_frame("local 43.64 4.57 1807.36", "egm96_15.gtx")
+
+
+def _local_eo_folder(d: Path) -> WorldFrame:
+    """Images, a rig file and an EO table in a local ENU frame (its frame in the side-car)."""
+    from skyrig.io.eo_csv import read_eo_csv, write_eo_csv
+    from test_trust_inputs import _uav_folder
+
+    _uav_folder(d, n=3)
+    (d / "rig.yaml").write_text(RIG)
+    (d / "h.csv").write_text(EO)
+    eo = read_eo_csv(d / "h.csv")
+    (d / "h.csv").unlink()
+    g = WorldFrame.map("EPSG:25832").projection.to_geodetic([[500300.0, 5350000.0, 300.0]])[0]
+    local = WorldFrame.local(*g)
+    write_eo_csv(eo.to_frame(local), d / "eo.csv")
+    return local
+
+
+def test_init_and_dry_run_on_a_local_frame_project(tmp_path):
+    d = tmp_path / "f"
+    local = _local_eo_folder(d)
+    r = _run("init", d)
+    assert r.exit_code == 0, r.output
+    assert "carried as Orthographic" in r.output, r.output
+    text = (d / "project.yaml").read_text()
+    assert f'crs: "{local.to_text()}"' in text and "# crs is a local ENU frame" in text, text
+    r = _run("run", d / "project.yaml", "--dry-run")
+    assert r.exit_code == 0 and "adjust" in r.output and "ortho" in r.output, r.output
+    (d / "project.yaml").write_text(text.replace("geoid: null", "geoid: egm96_15.gtx"))
+    r = _run("run", d / "project.yaml", "--dry-run")
+    assert r.exit_code == 2 and "no geoid" in r.output and "field 'geoid'" in r.output, r.output
+
+
+def test_init_with_a_local_crs_option(tmp_path):
+    d = tmp_path / "f"
+    _local_eo_folder(d)
+    r = _run("init", d, "--crs", "local 48.3 9.0 300", "--force")
+    assert r.exit_code == 0 and 'crs: "local 48.3 9.0 300"' in (d / "project.yaml").read_text(), r.output
+
+
+def test_georef_in_a_local_frame_equals_proj(tmp_path):
+    """A cheap stage end to end: georef with ``--crs local ...`` writes its EO in the carried CRS; the centres equal
+    those of a georef in EPSG:25832 taken into the carried CRS by PROJ, and the side-car states the frame and the
+    departure from ENU in words."""
+    for name, text in {"rig.yaml": RIG, "traj.csv": TRAJ, "events.csv": EVENTS}.items():
+        (tmp_path / name).write_text(text)
+    geo = ["georef", "--trajectory", tmp_path / "traj.csv", "--events", tmp_path / "events.csv", "--rig",
+           tmp_path / "rig.yaml"]
+    local_text = "local 48.3 9.0016 300"
+    assert _run(*geo, "--crs", "EPSG:25832", "-o", tmp_path / "utm.csv").exit_code == 0
+    r = _run(*geo, "--crs", local_text, "-o", tmp_path / "loc.csv")
+    assert r.exit_code == 0, r.output
+    from skyrig.io.eo_csv import read_eo_csv
+
+    utm, loc = read_eo_csv(tmp_path / "utm.csv"), read_eo_csv(tmp_path / "loc.csv")
+    crs = carried_crs(WorldFrame.from_fields(local_text))
+    assert pyproj.CRS.from_user_input(loc.frame.crs).equals(crs)
+    t = pyproj.Transformer.from_crs(pyproj.CRS("EPSG:25832").to_3d(), crs.to_3d(), always_xy=True)
+    ref = np.stack(t.transform(*utm.centre.T), axis=1)
+    assert np.abs(loc.centre - ref).max() < 1e-4  # both files written to 0.1 mm (4 decimals)
+    side = json.loads((tmp_path / "loc.csv.json").read_text())
+    words = json.dumps(side)
+    assert "orthographic projection centred at the origin of the local ENU frame" in words, words
+    assert "Departure from ENU" in words and "ellipsoidal height, not ENU up" in words, words
