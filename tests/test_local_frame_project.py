@@ -166,3 +166,25 @@ def test_georef_in_a_local_frame_equals_proj(tmp_path):
     words = json.dumps(side)
     assert "orthographic projection centred at the origin of the local ENU frame" in words, words
     assert "Departure from ENU" in words and "ellipsoidal height, not ENU up" in words, words
+
+
+def test_a_dsm_in_a_local_frame_project_is_a_cog_that_says_so(tmp_path):
+    """The DSM writer (as the dsm stage calls it) in the carried frame: a GeoTIFF whose CRS is the carried one and
+    whose tags state the local frame and the departure from ENU; read back into the same frame."""
+    import rasterio
+
+    from skyrig.dense.grid import DsmGrid, GridSpec
+    from skyrig.io.dsm_cog import read_dsm_cog, write_dsm_cog
+
+    frame = carried_frame("local 48.3 9.0 300")
+    n = 16
+    dsm = DsmGrid(GridSpec(-40.0, 40.0, 5.0, n, n), frame, np.full((n, n), 305.0, np.float32), np.ones((n, n), np.int16),
+                  np.full((n, n), np.nan, np.float32), np.full((n, n), 0.1, np.float32), np.zeros((n, n), bool))
+    write_dsm_cog(tmp_path / "dsm.tif", dsm, overviews=False)
+    with rasterio.open(tmp_path / "dsm.tif") as ds:
+        tags = json.dumps(ds.tags())
+        assert local_of_carried(pyproj.CRS.from_wkt(ds.crs.to_wkt())) == WorldFrame.from_fields("local 48.3 9.0 300")
+    assert "not ENU up" in tags and "Departure from ENU" in tags, tags
+    back = read_dsm_cog(tmp_path / "dsm.tif")
+    assert back.frame.kind == "map" and pyproj.CRS.from_user_input(back.frame.crs).equals(
+        pyproj.CRS.from_user_input(frame.crs), ignore_axis_order=True)
