@@ -59,20 +59,33 @@ def test_skyrig_local_frame_is_proj_topocentric():
     assert np.abs(ours - _proj_enu(ORIGIN, lat, lon, h)).max() < 1e-6
 
 
-def test_carried_crs_is_enu_on_the_ellipsoid_and_departs_as_stated():
-    """On the ellipsoid (h = 0) the carried x, y are PROJ's ENU east, north exactly (the origin's height does not
-    move the horizontal axes); above it they depart by h d / R, and the heights by d^2 / 2R (curvature)."""
+def test_carried_crs_is_scaled_enu_on_the_ellipsoid_and_departs_as_stated():
+    """On the ellipsoid (h = 0) the carried x, y are k0 times PROJ's ENU east, north exactly (the origin's height
+    does not move the horizontal axes); at the origin's height they are ENU to a millimetre at 1 km, and at other
+    heights they depart by (h - h0) d / R; the heights by d^2 / 2R (curvature)."""
     local = WorldFrame.local(*ORIGIN)
-    to_carried = pyproj.Transformer.from_crs("EPSG:4979", carried_crs(local).to_3d(), always_xy=True)
+    crs = carried_crs(local)
+    k = next(p.value for p in crs.coordinate_operation.params if "scale" in p.name.lower())
+    assert k == pytest.approx(1 + ORIGIN[2] / R_EARTH, rel=1e-5)
+    to_carried = pyproj.Transformer.from_crs("EPSG:4979", crs.to_3d(), always_xy=True)
     lat, lon, h = _ring(ORIGIN, 1000.0, 0.0)
     xy = np.stack(to_carried.transform(lon, lat, h), axis=1)[:, :2]
-    assert np.abs(xy - _proj_enu(ORIGIN, lat, lon, h)[:, :2]).max() < 1e-6
+    assert np.abs(xy / k - _proj_enu(ORIGIN, lat, lon, h)[:, :2]).max() < 1e-6
+    # one scale factor for both axes: east wants (N + h0) / N, north (M + h0) / M; k0 uses sqrt(M N), so at the
+    # origin's height x, y keep d h0 (N - M) / (2 M N) (2.5 mm at 5 km here)
+    e2 = (1 / 298.257223563) * (2 - 1 / 298.257223563)
+    s2 = np.sin(np.radians(ORIGIN[0])) ** 2
+    n_, m_ = 6378137.0 / np.sqrt(1 - e2 * s2), 6378137.0 * (1 - e2) / (1 - e2 * s2) ** 1.5
     for d in (1000.0, 5000.0):
-        lat, lon, h = _ring(ORIGIN, d, ORIGIN[2])
-        x, y, z = to_carried.transform(lon, lat, h)
-        horizontal, vertical = enu_departure(local, np.stack([x, y, z], axis=1))
-        assert horizontal == pytest.approx(ORIGIN[2] * d / R_EARTH, rel=0.02), (d, horizontal)
-        assert vertical == pytest.approx(d * d / (2 * R_EARTH), rel=0.02), (d, vertical)
+        for dh, tol in ((0.0, 1.05 * d * ORIGIN[2] * (n_ - m_) / (2 * m_ * n_)), (200.0, None), (-500.0, None)):
+            lat, lon, h = _ring(ORIGIN, d, ORIGIN[2] + dh)
+            x, y, z = to_carried.transform(lon, lat, h)
+            horizontal, vertical = enu_departure(local, np.stack([x, y, z], axis=1))
+            if tol is not None:
+                assert horizontal < tol, (d, horizontal)
+            else:
+                assert horizontal == pytest.approx(abs(dh) * d / R_EARTH, rel=0.03), (d, dh, horizontal)
+            assert vertical == pytest.approx(d * d / (2 * R_EARTH), rel=0.02), (d, vertical)
 
 
 def test_carried_crs_survives_geotiff_and_las(tmp_path):
@@ -87,14 +100,13 @@ def test_carried_crs_survives_geotiff_and_las(tmp_path):
         ds.write(np.zeros((1, 4, 4), "float32"))
     with rasterio.open(tmp_path / "t.tif") as ds:
         back = pyproj.CRS.from_wkt(ds.crs.to_wkt())
-    assert back.equals(crs, ignore_axis_order=True) and local_of_carried(back) == WorldFrame.local(
-        *(float(f"{v:.9f}") for v in ORIGIN[:2]), float(f"{ORIGIN[2]:.4f}"))
+    assert back.equals(crs, ignore_axis_order=True) and local_of_carried(back) == local  # the frame, from the CRS
     hdr = laspy.LasHeader(point_format=6, version="1.4")
     hdr.add_crs(crs.to_3d())
     las = laspy.LasData(hdr)
     las.x, las.y, las.z = np.array([1.0]), np.array([2.0]), np.array([ORIGIN[2]])
     las.write(tmp_path / "t.las")
-    assert local_of_carried(laspy.read(tmp_path / "t.las").header.parse_crs()) is not None
+    assert local_of_carried(laspy.read(tmp_path / "t.las").header.parse_crs()) == local
 
 
 def test_a_geoid_with_a_local_frame_is_refused():
@@ -125,7 +137,7 @@ def test_init_and_dry_run_on_a_local_frame_project(tmp_path):
     local = _local_eo_folder(d)
     r = _run("init", d)
     assert r.exit_code == 0, r.output
-    assert "carried as Orthographic" in r.output, r.output
+    assert "carried as Local Orthographic" in r.output, r.output
     text = (d / "project.yaml").read_text()
     assert f'crs: "{local.to_text()}"' in text and "# crs is a local ENU frame" in text, text
     r = _run("run", d / "project.yaml", "--dry-run")
@@ -164,7 +176,7 @@ def test_georef_in_a_local_frame_equals_proj(tmp_path):
     assert np.abs(loc.centre - ref).max() < 1e-4  # both files written to 0.1 mm (4 decimals)
     side = json.loads((tmp_path / "loc.csv.json").read_text())
     words = json.dumps(side)
-    assert "orthographic projection centred at the origin of the local ENU frame" in words, words
+    assert "Local Orthographic projection centred at the origin of the local ENU frame" in words, words
     assert "Departure from ENU" in words and "ellipsoidal height, not ENU up" in words, words
 
 
@@ -188,3 +200,26 @@ def test_a_dsm_in_a_local_frame_project_is_a_cog_that_says_so(tmp_path):
     back = read_dsm_cog(tmp_path / "dsm.tif")
     assert back.frame.kind == "map" and pyproj.CRS.from_user_input(back.frame.crs).equals(
         pyproj.CRS.from_user_input(frame.crs), ignore_axis_order=True)
+
+
+def test_run_georef_stage_of_a_local_frame_project(tmp_path):
+    """``skyrig run`` on a project whose ``crs:`` is a local frame: the georef stage publishes its EO in the carried
+    CRS, equal to PROJ's transformation of a georef in EPSG:25832 (to the 0.1 mm the table is written to)."""
+    for name, text in {"rig.yaml": RIG, "traj.csv": TRAJ, "events.csv": EVENTS}.items():
+        (tmp_path / name).write_text(text)
+    local_text = "local 48.3 9.0016 300"
+    (tmp_path / "project.yaml").write_text(
+        f'format: skyrig-project\nversion: 1\ncrs: "{local_text}"\ninputs:\n  trajectory: traj.csv\n'
+        "  events: events.csv\n  rig: rig.yaml\nstages:\n  georef: {}\n")
+    r = _run("run", tmp_path / "project.yaml")
+    assert r.exit_code == 0, r.output
+    from skyrig.io.eo_csv import read_eo_csv
+
+    eo = read_eo_csv(tmp_path / "output" / "georef" / "eo.csv")
+    crs = carried_crs(WorldFrame.from_fields(local_text))
+    assert local_of_carried(eo.frame.crs) == WorldFrame.from_fields(local_text)
+    assert _run("georef", "--trajectory", tmp_path / "traj.csv", "--events", tmp_path / "events.csv", "--rig",
+                tmp_path / "rig.yaml", "--crs", "EPSG:25832", "-o", tmp_path / "utm.csv").exit_code == 0
+    utm = read_eo_csv(tmp_path / "utm.csv")
+    t = pyproj.Transformer.from_crs(pyproj.CRS("EPSG:25832").to_3d(), crs.to_3d(), always_xy=True)
+    assert np.abs(eo.centre - np.stack(t.transform(*utm.centre.T), axis=1)).max() < 1e-4

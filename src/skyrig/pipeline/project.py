@@ -642,9 +642,10 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
                                          "orientation is in a model frame (scale bars or a free network); give "
                                          "control points and a CRS to place it"),
            *([f"# crs is a local ENU frame: orientations and points read in it convert exactly; the products are "
-              "written in the CRS files carry for it, the orthographic projection at its origin on WGS 84 with WGS 84 "
-              "ellipsoidal heights (named 'skyrig local ENU ... carried as Orthographic'); each side-car states how "
-              "far that is from ENU (docs/formats/local_frame.md)"] if crs and is_local_text(crs) else []),
+              "written in the CRS files carry for it, the Local Orthographic projection at its origin on WGS 84 "
+              "scaled to its height, with WGS 84 ellipsoidal heights (named 'skyrig local ENU ... carried as Local "
+              "Orthographic'); each side-car states how far that is from ENU (docs/formats/local_frame.md)"]
+             if crs and is_local_text(crs) else []),
            f"geoid: {_yaml_value(geoid)}    # geoid grid for orthometric heights; null: ellipsoidal heights "
            "(or those of a compound CRS)",
            "output: output    # each stage publishes output/<stage>/ with its manifest.json; output/run.json",
