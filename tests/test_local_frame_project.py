@@ -223,3 +223,19 @@ def test_run_georef_stage_of_a_local_frame_project(tmp_path):
     utm = read_eo_csv(tmp_path / "utm.csv")
     t = pyproj.Transformer.from_crs(pyproj.CRS("EPSG:25832").to_3d(), crs.to_3d(), always_xy=True)
     assert np.abs(eo.centre - np.stack(t.transform(*utm.centre.T), axis=1)).max() < 1e-4
+
+
+def test_a_local_text_means_the_carried_crs_wherever_a_map_crs_is_asked():
+    """Every command that builds a map frame or resolves a CRS from a user's text (``--crs`` of dsm, ortho, lidar,
+    convert...) takes ``local lat lon h`` as the carried CRS; a table header keeps the exact local frame."""
+    from skyrig.errors import CRSError
+    from skyrig.geodesy.crs import check_metric_projected, resolve_crs
+
+    text = "local 48.3 9.0 300"
+    assert WorldFrame.map(text) == carried_frame(text)
+    assert resolve_crs(text).equals(carried_crs(WorldFrame.from_fields(text)))
+    check_metric_projected(text, "a DSM")
+    assert WorldFrame.from_text(text).kind == "local"
+    assert WorldFrame.from_text(WorldFrame.map(text).to_text()) == WorldFrame.map(text)  # the text form round trips
+    with pytest.raises(CRSError, match="no geoid"):
+        WorldFrame.map(text, "egm96_15.gtx")

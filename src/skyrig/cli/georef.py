@@ -46,15 +46,7 @@ def command(traj_path, reference, events_path, rig_path, crs, heights, geoid, an
 
     if heights == "orthometric" and not geoid:
         raise click.UsageError("--heights orthometric needs --geoid")
-    from skyrig.cli._common import project_frame_option
-    from skyrig.geodesy.local_crs import is_local_text
-
-    if crs.lower() == "ecef":
-        frame = WorldFrame.ecef()
-    elif is_local_text(crs):  # a local ENU frame: the CRS files carry for it (skyrig.geodesy.local_crs)
-        frame = project_frame_option(crs, geoid if heights == "orthometric" else None)
-    else:
-        frame = WorldFrame.map(crs, geoid if heights == "orthometric" else None)
+    frame = WorldFrame.ecef() if crs.lower() == "ecef" else WorldFrame.map(crs, geoid if heights == "orthometric" else None)
     traj = load_trajectory(traj_path, reference)
     events = read_events_csv(events_path)
     rig = read_rig(rig_path)
