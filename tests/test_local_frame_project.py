@@ -107,6 +107,14 @@ def test_carried_crs_survives_geotiff_and_las(tmp_path):
     las.x, las.y, las.z = np.array([1.0]), np.array([2.0]), np.array([ORIGIN[2]])
     las.write(tmp_path / "t.las")
     assert local_of_carried(laspy.read(tmp_path / "t.las").header.parse_crs()) == local
+    import pyogrio
+    import shapely
+
+    from skyrig.io.gpkg import write_gpkg
+
+    write_gpkg(tmp_path / "t.gpkg", {"p": ([shapely.Point(1.0, 2.0, ORIGIN[2])], {"name": ["a"]})}, "local %r %r %r" % ORIGIN)
+    gp = pyproj.CRS.from_user_input(pyogrio.read_info(tmp_path / "t.gpkg", layer="p")["crs"])
+    assert local_of_carried(gp) == local
 
 
 def test_a_geoid_with_a_local_frame_is_refused():
