@@ -150,6 +150,8 @@ def test_init_and_dry_run_on_a_local_frame_project(tmp_path):
     assert f'crs: "{local.to_text()}"' in text and "# crs is a local ENU frame" in text, text
     r = _run("run", d / "project.yaml", "--dry-run")
     assert r.exit_code == 0 and "adjust" in r.output and "ortho" in r.output, r.output
+    r = _run("check", d / "project.yaml")
+    assert r.exit_code == 0 and "no problem found" in r.output, r.output
     (d / "project.yaml").write_text(text.replace("geoid: null", "geoid: egm96_15.gtx"))
     r = _run("run", d / "project.yaml", "--dry-run")
     assert r.exit_code == 2 and "no geoid" in r.output and "field 'geoid'" in r.output, r.output

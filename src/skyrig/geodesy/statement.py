@@ -128,8 +128,8 @@ def project_frame(crs: Any, geoid: str | None = None) -> WorldFrame:
     CRSError
         An unknown CRS, a geocentric one, or a compound CRS whose geoid PROJ does not know (give ``geoid``).
 
-    A local ENU frame ``local <lat> <lon> <h>`` gives the map frame products carry for it (orthographic at its
-    origin, WGS 84 ellipsoidal heights: :mod:`skyrig.geodesy.local_crs`).
+    A local ENU frame ``local <lat> <lon> <h>`` gives the map frame products carry for it (Local Orthographic at
+    its origin scaled to its height, WGS 84 ellipsoidal heights: :mod:`skyrig.geodesy.local_crs`).
     """
     from skyrig.geodesy.local_crs import carried_frame, is_local_text
 
