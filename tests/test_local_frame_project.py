@@ -117,6 +117,22 @@ def test_carried_crs_survives_geotiff_and_las(tmp_path):
     assert local_of_carried(gp) == local
 
 
+@pytest.mark.parametrize("origin", [(52.3759, 9.732, 0.0), (-33.9, 151.2, -20.0), (78.2, 15.6, 3.5)],
+                         ids=["h0=0", "south-negative-h", "arctic"])
+def test_the_frame_comes_back_from_its_crs(origin, tmp_path):
+    """An origin on the ellipsoid (k0 = 1: PROJ writes plain Orthographic, found by the full run on a simulated
+    flight), a southern one below it, an Arctic one: the local frame comes back from the CRS through a GeoTIFF."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    local = WorldFrame.local(*origin)
+    with rasterio.open(tmp_path / "t.tif", "w", driver="GTiff", width=2, height=2, count=1, dtype="uint8",
+                       crs=carried_crs(local).to_wkt(), transform=from_origin(-10, 10, 5, 5)) as ds:
+        ds.write(np.zeros((1, 2, 2), "uint8"))
+    with rasterio.open(tmp_path / "t.tif") as ds:
+        assert local_of_carried(pyproj.CRS.from_wkt(ds.crs.to_wkt())) == local
+
+
 def test_a_geoid_with_a_local_frame_is_refused():
     from skyrig.errors import CRSError
 

@@ -113,6 +113,7 @@ def local_of_carried(crs: object) -> WorldFrame | None:
         key = "lat" if "latitude" in low else "lon" if "longitude" in low else "k" if "scale" in low else None
         if key:
             values[key] = float(p.value)
+    values.setdefault("k", 1.0)  # an origin on the ellipsoid (h0 = 0): PROJ writes it as plain Orthographic
     if set(values) != {"lat", "lon", "k"}:
         return None
     h = (values["k"] - 1.0) * _gauss_radius(values["lat"])
