@@ -38,11 +38,21 @@ def init_command(folder: str, crs: str | None, geoid: str | None, output: str | 
              if getattr(det, k) is not None]
     click.echo(f"wrote {out}: {det.n_images} images in {len(det.images)} folder(s); "
                + (", ".join(found) + "; " if found else "")
-               + (f"CRS {proj.crs}" if proj.crs else "no CRS (a block in its own frame)")
+               + (f"CRS {_crs_name(proj.crs)}" if proj.crs else "no CRS (a block in its own frame)")
                + f"; stages {', '.join(s.name for s in proj.stages)}")
     for note in det.notes:
         click.echo(f"note: {note}")
     click.echo(f"edit it, then: skyrig run {out}")
+
+
+def _crs_name(crs: str) -> str:
+    """A CRS in a few words: its text when short (``EPSG:25832``), else its name (a WKT, e.g. the CRS carrying a
+    local ENU frame)."""
+    if len(crs) < 60:
+        return crs
+    from skyrig.geodesy.crs import resolve_crs
+
+    return resolve_crs(crs).name
 
 
 @click.command("run")

@@ -36,7 +36,8 @@ WGS84_ECEF = "EPSG:4978"
 
 
 def resolve_crs(spec: Any) -> pyproj.CRS:
-    """A :class:`pyproj.CRS` from an EPSG code (``2154``, ``"EPSG:2154"``), WKT, PROJ string or CRS.
+    """A :class:`pyproj.CRS` from an EPSG code (``2154``, ``"EPSG:2154"``), WKT, PROJ string or CRS; a local ENU
+    frame's text ``local <lat> <lon> <h>`` gives the CRS files carry for it (:mod:`skyrig.geodesy.local_crs`).
 
     Raises
     ------
@@ -45,6 +46,11 @@ def resolve_crs(spec: Any) -> pyproj.CRS:
     """
     if isinstance(spec, pyproj.CRS):
         return spec
+    if isinstance(spec, str) and spec.strip().lower().startswith("local"):
+        from skyrig.geodesy.frame import WorldFrame
+        from skyrig.geodesy.local_crs import carried_crs
+
+        return carried_crs(WorldFrame.from_fields(spec))
     try:
         if isinstance(spec, (int, np.integer)):
             return pyproj.CRS.from_epsg(int(spec))

@@ -84,7 +84,13 @@ class WorldFrame:
     def map(cls, crs: object, geoid: str | None = None) -> "WorldFrame":
         """A map frame; a compound CRS (``EPSG:25832+5773``) means what PROJ means by it: its horizontal CRS with
         heights above the geoid grid PROJ uses for its vertical CRS (refused when that grid is not installed), or above
-        ``geoid`` when given (refused when PROJ ties that grid to another vertical CRS)."""
+        ``geoid`` when given (refused when PROJ ties that grid to another vertical CRS).  A local ENU frame's text
+        ``local <lat> <lon> <h>`` gives the map frame of the CRS files carry for it
+        (:func:`skyrig.geodesy.local_crs.carried_frame`: Local Orthographic at its origin, ellipsoidal heights)."""
+        if isinstance(crs, str) and crs.strip().lower().startswith("local"):
+            from skyrig.geodesy.local_crs import carried_frame
+
+            return carried_frame(crs, geoid)
         c = resolve_crs(crs)  # validate early
         if c.is_compound:
             if geoid is None:

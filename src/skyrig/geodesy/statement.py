@@ -73,7 +73,10 @@ def file_crs(frame: WorldFrame) -> FileCRS:
         code = ell.to_epsg() if ell is not None else None
         words = "ellipsoidal heights" + (f" ({ell.name} ellipsoid, EPSG:{code})" if code else
                                          f" ({ell.name})" if ell is not None else "")
-        return FileCRS(h, full, False, "ellipsoidal", None, words)
+        from skyrig.geodesy.local_crs import carried_words
+
+        local = carried_words(h)  # the CRS that carries a local ENU frame: say which, and how far from ENU
+        return FileCRS(h, full, False, "ellipsoidal", None, words + (f"; {local}" if local else ""))
     v = vertical_crs_of_geoid(frame.geoid)
     gname = Path(str(frame.geoid)).name
     if v is not None:
@@ -124,7 +127,14 @@ def project_frame(crs: Any, geoid: str | None = None) -> WorldFrame:
     ------
     CRSError
         An unknown CRS, a geocentric one, or a compound CRS whose geoid PROJ does not know (give ``geoid``).
+
+    A local ENU frame ``local <lat> <lon> <h>`` gives the map frame products carry for it (Local Orthographic at
+    its origin scaled to its height, WGS 84 ellipsoidal heights: :mod:`skyrig.geodesy.local_crs`).
     """
+    from skyrig.geodesy.local_crs import carried_frame, is_local_text
+
+    if is_local_text(crs):
+        return carried_frame(str(crs), geoid)
     c = resolve_crs(crs)
     if c.is_geocentric:
         raise CRSError(f"{c.name}: outputs need a map CRS (projected or geographic), not a geocentric one")

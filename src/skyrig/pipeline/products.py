@@ -107,7 +107,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     elif eo.frame.kind == "map":
         out_frame = WorldFrame.map(eo.frame.crs, geoid if geoid else eo.frame.geoid)
     else:
-        raise OptionError(spell("crs"), f"the EO file is in a {eo.frame.kind} frame: give the output CRS")
+        hint = f" (its own: '{eo.frame.to_text()}', the CRS carrying it)" if eo.frame.kind == "local" else ""
+        raise OptionError(spell("crs"), f"the EO file is in a {eo.frame.kind} frame: give the output CRS{hint}")
     if height_range is None:
         if points is None:
             raise OptionError(spell("height_range"), "give the expected surface heights (MIN MAX) or sparse points "

@@ -180,11 +180,14 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         try:
             from skyrig.geodesy.crs import check_metric_projected
             from skyrig.geodesy.frame import WorldFrame
+            from skyrig.geodesy.local_crs import carried_frame, is_local_text
 
-            frame = WorldFrame.map(crs, geoid)
+            frame = carried_frame(crs, geoid) if is_local_text(crs) else WorldFrame.map(crs, geoid)
             check_metric_projected(frame.crs, "the project's output CRS")
             if frame.geoid:
                 frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
+            if is_local_text(crs):  # every stage writes in the CRS files carry for it (its name says which frame)
+                crs = str(frame.crs)
         except Exception as exc:  # CRSError, pyproj errors: the reason in words
             key = "geoid" if geoid and "geoid" in str(exc).lower() else "crs"
             raise err(f"not a usable CRS / geoid: {exc}", top, key, key) from None
@@ -328,8 +331,8 @@ def _header_crs(p: Path) -> str | None:
                 if not line.startswith("#"):
                     break
                 key, _, val = line[1:].partition(":")
-                if key.strip() == "crs" and val.strip() and not val.strip().startswith(("local", "ecef")):
-                    return val.strip()
+                if key.strip() == "crs" and val.strip() and not val.strip().lower().startswith("ecef"):
+                    return val.strip()  # a map CRS, or a local ENU frame (products in the CRS carrying it)
     except OSError:
         return None
     return None
@@ -346,12 +349,15 @@ def _side_car_table(p: Path) -> str:
 
 
 def _side_car_crs(p: Path) -> str | None:
-    """The map CRS a CSV's side-car states (None without a side-car or for a local / ECEF frame)."""
+    """The map CRS or local ENU frame (its text ``local lat lon h``) a CSV's side-car states (None without a side-car
+    or for ECEF)."""
     from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta
 
     if not meta_path(p).is_file():
         return None
     frame = frame_of_meta(read_table_meta(p) or {}, p)
+    if frame is not None and frame.kind == "local":
+        return frame.to_text()
     return str(frame.crs) if frame is not None and frame.kind == "map" else None
 
 
@@ -578,10 +584,12 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
     from skyrig.geodesy.crs import check_metric_projected
     from skyrig.geodesy.frame import WorldFrame
 
+    from skyrig.geodesy.local_crs import carried_frame, is_local_text
+
     try:
         if crs:
-            WorldFrame.map(crs, geoid)
-            check_metric_projected(crs, "the project's output CRS")
+            frame = carried_frame(crs, geoid) if is_local_text(crs) else WorldFrame.map(crs, geoid)
+            check_metric_projected(frame.crs, "the project's output CRS")
     except SkyrigError as exc:
         raise OptionError("--crs" if crs != det.crs else f"--crs (none given; {det.crs} from {det.crs_source})",
                           str(exc)) from None
@@ -633,6 +641,11 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
                                          "    # none: no GNSS and no control points in a map CRS, so the "
                                          "orientation is in a model frame (scale bars or a free network); give "
                                          "control points and a CRS to place it"),
+           *([f"# crs is a local ENU frame: orientations and points read in it convert exactly; the products are "
+              "written in the CRS files carry for it, the Local Orthographic projection at its origin on WGS 84 "
+              "scaled to its height, with WGS 84 ellipsoidal heights (named 'skyrig local ENU ... carried as Local "
+              "Orthographic'); each side-car states how far that is from ENU (docs/formats/local_frame.md)"]
+             if crs and is_local_text(crs) else []),
            f"geoid: {_yaml_value(geoid)}    # geoid grid for orthometric heights; null: ellipsoidal heights "
            "(or those of a compound CRS)",
            "output: output    # each stage publishes output/<stage>/ with its manifest.json; output/run.json",
