@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from pyproj.exceptions import CRSError as _PyprojCRSError, ProjError
 
 from skyrig.errors import CRSError
+from skyrig.geodesy.carried import carried_crs_at, is_local_text, parse_local_text
 
 HeightKind = Literal["ellipsoidal", "orthometric"]
 
@@ -37,7 +38,7 @@ WGS84_ECEF = "EPSG:4978"
 
 def resolve_crs(spec: Any) -> pyproj.CRS:
     """A :class:`pyproj.CRS` from an EPSG code (``2154``, ``"EPSG:2154"``), WKT, PROJ string or CRS; a local ENU
-    frame's text ``local <lat> <lon> <h>`` gives the CRS files carry for it (:mod:`skyrig.geodesy.local_crs`).
+    frame's text ``local <lat> <lon> <h>`` gives the CRS files carry for it (:mod:`skyrig.geodesy.carried`).
 
     Raises
     ------
@@ -46,11 +47,8 @@ def resolve_crs(spec: Any) -> pyproj.CRS:
     """
     if isinstance(spec, pyproj.CRS):
         return spec
-    if isinstance(spec, str) and spec.strip().lower().startswith("local"):
-        from skyrig.geodesy.frame import WorldFrame
-        from skyrig.geodesy.local_crs import carried_crs
-
-        return carried_crs(WorldFrame.from_fields(spec))
+    if is_local_text(spec):
+        return carried_crs_at(*parse_local_text(spec))
     try:
         if isinstance(spec, (int, np.integer)):
             return pyproj.CRS.from_epsg(int(spec))

@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skyrig.errors import CRSError
+from skyrig.geodesy.carried import carried_crs_at, is_local_text, parse_local_text
 from skyrig.geodesy.crs import (Geoid, MapProjection, compound_geoid, crs_spec, ecef_to_geodetic, horizontal_crs,
                                 resolve_crs)
 from skyrig.geodesy.local import LocalTangentFrame, ecef_from_enu_rotation, grid_from_enu_rotation
@@ -87,10 +88,11 @@ class WorldFrame:
         ``geoid`` when given (refused when PROJ ties that grid to another vertical CRS).  A local ENU frame's text
         ``local <lat> <lon> <h>`` gives the map frame of the CRS files carry for it
         (:func:`skyrig.geodesy.local_crs.carried_frame`: Local Orthographic at its origin, ellipsoidal heights)."""
-        if isinstance(crs, str) and crs.strip().lower().startswith("local"):
-            from skyrig.geodesy.local_crs import carried_frame
-
-            return carried_frame(crs, geoid)
+        if is_local_text(crs):
+            if geoid:
+                raise CRSError("a local ENU frame has no geoid: its products carry WGS 84 ellipsoidal heights (give a "
+                               "map CRS with the geoid for orthometric heights)")
+            crs = crs_spec(carried_crs_at(*parse_local_text(str(crs))))
         c = resolve_crs(crs)  # validate early
         if c.is_compound:
             if geoid is None:
@@ -149,16 +151,7 @@ class WorldFrame:
         text = str(crs).strip()
         low = text.lower()
         if low.startswith("local"):
-            parts = text.split()
-            if len(parts) != 4:
-                raise CRSError("expected 'local <lat_deg> <lon_deg> <h_m>'")
-            try:
-                lat, lon, h = (float(p) for p in parts[1:])
-            except ValueError:
-                raise CRSError(f"expected 'local <lat_deg> <lon_deg> <h_m>', not {text!r}") from None
-            if not all(np.isfinite([lat, lon, h])) or abs(lat) > 90:
-                raise CRSError(f"local frame origin out of range: {text!r}")
-            return cls.local(lat, lon, h)
+            return cls.local(*parse_local_text(text))
         if text.upper() in ("EPSG:4978", "ECEF"):
             return cls.ecef()
         heights = (heights or "ellipsoidal").strip().lower()

@@ -28,7 +28,6 @@ are in the carried CRS.
 
 from __future__ import annotations
 
-import re
 from functools import lru_cache
 
 import numpy as np
@@ -36,39 +35,12 @@ import pyproj
 from numpy.typing import ArrayLike
 
 from skyrig.errors import CRSError
+from skyrig.geodesy.carried import CARRIED_PREFIX, carried_crs_at, carried_origin, is_local_text
 from skyrig.geodesy.crs import crs_spec, geodetic_to_ecef
 from skyrig.geodesy.frame import WorldFrame
 
 __all__ = ["is_local_text", "carried_crs", "carried_frame", "local_of_carried", "enu_departure", "carried_words",
            "CARRIED_PREFIX"]
-
-#: The start of the name of every CRS :func:`carried_crs` makes (GDAL's GeoTIFF writes it with underscores).
-CARRIED_PREFIX = "skyrig local ENU"
-_PREFIX = re.compile(r"^skyrig[ _]local[ _]ENU")
-_A, _F = 6378137.0, 1 / 298.257223563  # WGS 84
-
-
-def is_local_text(text: object) -> bool:
-    """True for a frame text ``local <lat> <lon> <h>`` (checked by :meth:`WorldFrame.from_fields`)."""
-    return isinstance(text, str) and text.strip().lower().startswith("local")
-
-
-def _gauss_radius(lat_deg: float) -> float:
-    """sqrt(M N) of WGS 84 at ``lat_deg`` (the Gaussian mean radius of curvature, metres)."""
-    e2 = _F * (2 - _F)
-    s2 = np.sin(np.radians(lat_deg)) ** 2
-    return float(_A * np.sqrt(1 - e2) / (1 - e2 * s2))
-
-
-@lru_cache(maxsize=32)
-def _carried(lat: float, lon: float, h: float) -> pyproj.CRS:
-    k = 1.0 + h / _gauss_radius(lat)
-    c = pyproj.CRS.from_proj4(f"+proj=ortho +lat_0={lat!r} +lon_0={lon!r} +k_0={k!r} +datum=WGS84 +units=m "
-                              "+no_defs +type=crs")
-    d = c.to_json_dict()
-    d["name"] = f"{CARRIED_PREFIX} {lat:.9f} {lon:.9f} {h:.4f} carried as Local Orthographic (WGS 84 ellipsoidal heights)"
-    d["base_crs"] = pyproj.CRS.from_epsg(4326).to_json_dict()
-    return pyproj.CRS.from_json_dict(d)
 
 
 def carried_crs(local: WorldFrame) -> pyproj.CRS:
@@ -77,7 +49,7 @@ def carried_crs(local: WorldFrame) -> pyproj.CRS:
     if local.kind != "local" or local.origin is None:
         raise CRSError(f"a {local.kind} frame is not a local ENU frame")
     lat, lon, h = local.origin
-    return _carried(float(lat), float(lon), float(h))
+    return carried_crs_at(float(lat), float(lon), float(h))
 
 
 def carried_frame(local: WorldFrame | str, geoid: str | None = None) -> WorldFrame:
@@ -90,34 +62,17 @@ def carried_frame(local: WorldFrame | str, geoid: str | None = None) -> WorldFra
         to give.
     """
     if isinstance(local, str):
-        local = WorldFrame.from_fields(local)
+        return WorldFrame.map(local, geoid)  # parses the text, refuses a geoid
     if geoid:
-        raise CRSError("a local ENU frame has no geoid: its products carry WGS 84 ellipsoidal heights (give a map CRS "
-                       "with the geoid for orthometric heights)")
+        return WorldFrame.map(local.fields()["crs"], geoid)  # the same refusal
     return WorldFrame.map(crs_spec(carried_crs(local)))
 
 
 def local_of_carried(crs: object) -> WorldFrame | None:
     """The local frame a CRS made by :func:`carried_crs` stands for (its projection centre, and h0 from its scale
     factor), else None."""
-    try:
-        c = crs if isinstance(crs, pyproj.CRS) else pyproj.CRS.from_user_input(crs)
-    except (pyproj.exceptions.CRSError, TypeError, ValueError):
-        return None
-    op = c.coordinate_operation
-    if not _PREFIX.match(c.name or "") or op is None:
-        return None
-    values = {}
-    for p in op.params:
-        low = p.name.lower()
-        key = "lat" if "latitude" in low else "lon" if "longitude" in low else "k" if "scale" in low else None
-        if key:
-            values[key] = float(p.value)
-    values.setdefault("k", 1.0)  # an origin on the ellipsoid (h0 = 0): PROJ writes it as plain Orthographic
-    if set(values) != {"lat", "lon", "k"}:
-        return None
-    h = (values["k"] - 1.0) * _gauss_radius(values["lat"])
-    return WorldFrame.local(values["lat"], values["lon"], round(h, 4))
+    origin = carried_origin(crs)
+    return None if origin is None else WorldFrame.local(*origin)
 
 
 @lru_cache(maxsize=32)
