@@ -552,8 +552,8 @@ def test_project_yaml_takes_the_latest_stage_orientations(sim, tmp_path):
 
 
 def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
-    """A JPEG above the size limit gets a tiled copy (written in the background) that its fine levels read: the
-    same pixels up to the copy's JPEG compression; the copy goes with the session."""
+    """A JPEG above the size limit gets a tiled copy (written in the background) that its fine levels read once
+    written: the same pixels up to the copy's JPEG compression; the copy goes with the session."""
     import cv2
 
     import skyrig.web.tiles as tiles
@@ -565,11 +565,63 @@ def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
     cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, 95])
     pyr = tiles.TilePyramid(ImageWindows(jpg), copy_to=str(tmp_path / "copy.tif"))
     pyr.prepare()
+    assert pyr._copy_done.wait(30) and pyr._copy_error is None
     a = pyr.tile_array(pyr.max_level, 1, 0)
-    assert pyr._fine is not None and (tmp_path / "copy.tif").is_file()
+    assert pyr._fine is not None and (tmp_path / "copy.tif").is_file() and pyr._decoded is None
     ref = ImageWindows(jpg).window(256, 0, 256, 256)
     assert a.shape == ref.shape and np.mean(np.abs(a.astype(int) - ref)) < 4.0  # JPEG q92, YCbCr: for display
     pyr.close()
+
+
+def test_first_fine_tiles_come_from_one_decode_until_the_copy_is_written(sim, tmp_path, monkeypatch):
+    """Until its tiled copy is written (held back here), a large JPEG's full- and half-resolution tiles are cut
+    from one whole decode: the full-resolution ones are the file's pixels (GDAL's window of the original, up to
+    the two JPEG decoders), and every one is the tile the copy gives once written, up to the copy's compression
+    (a tile one pixel off differs several times more: the comparison sees a shift).  The decode is dropped when the
+    copy is written; at most DECODED_SLOTS images are held (least recently used dropped first)."""
+    import threading
+
+    import cv2
+
+    import skyrig.web.tiles as tiles
+    from skyrig.io.image_windows import ImageWindows
+
+    monkeypatch.setattr(tiles, "COPY_ABOVE_PIXELS", 0)
+    gate = threading.Semaphore(0)  # the copies wait until released
+    monkeypatch.setattr(tiles, "_COPY_SLOTS", gate)
+    monkeypatch.setattr(tiles, "DECODED_SLOTS", 1)
+    jpgs = []
+    for k, name in enumerate(("s01_e0001_nadir.png", "s01_e0002_nadir.png")):
+        jpgs.append(tmp_path / f"frame{k}.jpg")
+        cv2.imwrite(str(jpgs[-1]), cv2.imread(str(sim / "images" / name)), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    pyr = tiles.TilePyramid(ImageWindows(jpgs[0]), copy_to=str(tmp_path / "copy0.tif"))
+    pyr.prepare()
+    orig = ImageWindows(jpgs[0])
+    early = {}
+    for lv in (pyr.max_level, pyr.max_level - 1):
+        s = 2 ** (pyr.max_level - lv)
+        for y in range(math.ceil(pyr.height / s / 256)):
+            for x in range(math.ceil(pyr.width / s / 256)):
+                early[lv, x, y] = pyr.tile_array(lv, x, y)
+                if s == 1:
+                    ref = orig.window(x * 256, y * 256, 256, 256)
+                    assert early[lv, x, y].shape == ref.shape
+                    assert np.mean(np.abs(early[lv, x, y].astype(int) - ref)) < 1.0, (lv, x, y)
+    assert len(early) >= 6 and pyr._decoded is not None and not pyr._copy_done.is_set()
+    other = tiles.TilePyramid(ImageWindows(jpgs[1]), copy_to=str(tmp_path / "copy1.tif"))
+    other.tile_array(other.max_level, 0, 0)  # a second image decoded: the first one's decode is dropped (1 slot)
+    assert other._decoded is not None and pyr._decoded is None
+    gate.release()
+    gate.release()
+    assert pyr._copy_done.wait(30) and other._copy_done.wait(30) and pyr._copy_error is None
+    assert pyr._decoded is None and other._decoded is None and not tiles._DECODED
+    for key, a in early.items():
+        b = pyr.tile_array(*key)  # from the copy now
+        d = np.mean(np.abs(a.astype(int) - b))
+        shifted = np.mean(np.abs(a[:, 1:].astype(int) - b[:, :-1]))
+        assert a.shape == b.shape and d < 4.0 and shifted > 2.0 * d, (key, d, shifted)
+    pyr.close()
+    other.close()
 
 
 def test_auto_refinement_takes_a_chequer_corner(sim, tmp_path):
