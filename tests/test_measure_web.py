@@ -114,7 +114,7 @@ def test_refinement_recovers_target_centres(sim, tmp_path):
     assert len(e) == len(truth) and e.max() < 0.2 and np.sqrt(np.mean(e**2)) < 0.1, (e.max(), np.sqrt(np.mean(e**2)))
     click = s.propose("GCP01", str(truth.image[0]), 100.0, 100.0, method="click")
     assert click == {"column": 100.0, "row": 100.0, "method": "click", "refined": False, "sigma_px": 0.5, "search_px": 0.0,
-                     "note": "as clicked"}
+                     "note": "as clicked", "refused": None}
 
 
 def test_lsm_transfers_a_measurement(sim, tmp_path):
@@ -376,12 +376,32 @@ def _browser():
         pytest.skip(f"{driver} could not start {exe}: {str(exc).splitlines()[0]}")
 
 
+def _open_page(drv, srv):
+    """The measuring page of ``srv`` loaded in ``drv``: a 30-s waiter and the script runner."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    drv.get(srv.url)
+    wait = WebDriverWait(drv, 30)
+    js = drv.execute_script
+    wait.until(lambda d: js("return document.body.dataset.ready") == "1")
+    return wait, js
+
+
+def _click_image(drv, column: float, row: float) -> None:
+    """A click on the viewer at the image position (column, row)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    pos = drv.execute_script("return window.skyrigMeasure.imageToElement(arguments[0], arguments[1])", column, row)
+    v = drv.find_element(By.ID, "viewer")
+    ActionChains(drv).move_to_element_with_offset(v, pos["x"] - v.size["width"] / 2,
+                                                  pos["y"] - v.size["height"] / 2).click().perform()
+
+
 def test_page_in_headless_chromium(sim, tmp_path):
     """The page in real headless Chromium: three GCPs, each clicked 1-2 px off its target in its best image and
     accepted; the file holds exactly the proposals the page showed, each within 0.3 px of the simulator's truth."""
-    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
 
     from skyrig.web.server import MeasureServer
 
@@ -393,10 +413,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
     shown = {}
     try:
         with MeasureServer(s) as srv:
-            drv.get(srv.url)
-            wait = WebDriverWait(drv, 30)
-            js = drv.execute_script
-            wait.until(lambda d: js("return document.body.dataset.ready") == "1")
+            wait, js = _open_page(drv, srv)
             for n, point in enumerate(("GCP01", "GCP03", "GCP05")):
                 loads = int(js("return document.body.dataset.pointLoads || '0'"))
                 drv.find_element(By.ID, f"pt-{point}").click()
@@ -406,10 +423,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
                 wait.until(lambda d: js("return document.body.dataset.imageReady") == "1")
                 image = js("return document.body.dataset.image")
                 c, r = t[point, image] + [1.2, -0.8]
-                pos = js("return window.skyrigMeasure.imageToElement(arguments[0], arguments[1])", c, r)
-                v = drv.find_element(By.ID, "viewer")
-                ActionChains(drv).move_to_element_with_offset(
-                    v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
+                _click_image(drv, c, r)
                 wait.until(lambda d: js("return document.body.dataset.proposal"))
                 shown[point, image] = json.loads(js("return document.body.dataset.proposal"))
                 # the request carried the search radius of the prediction the page shows (95 % major semi-axis)
@@ -428,8 +442,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
                 box = drv.find_element(By.ID, "search")
                 box.clear()
                 box.send_keys(typed)
-                ActionChains(drv).move_to_element_with_offset(
-                    v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
+                _click_image(drv, c, r)
 
             # the user's own radius travels; one out of the server's bounds is refused in words on the page
             click_with_search("30")
@@ -653,3 +666,35 @@ def test_auto_refinement_takes_a_chequer_corner(sim, tmp_path):
     assert [m["method"] for m in st["measurements"] if m["image"] == img] == ["aruco"], st["measurements"]
     s.target_kinds = ("disc",)
     assert s.propose("GCP01", img, *(corner + [2.0, -1.5]))["method"] != "corner"
+
+
+def test_cli_reads_the_codes_and_sizes_of_the_points(sim, tmp_path):
+    """``--points`` with ``code`` / ``target_radius_m`` columns (docs/formats/points_csv.md): the simulated block's
+    targets are discs, so GCPs given a code are coded points and are never fitted as discs (nothing detected for
+    them, the check points still are); with a dot radius predicting under 2.5 px every image of a coded point is
+    passed over with the reason printed; a code that is no ring code is refused naming file, line and field."""
+    from skyrig.cli import main as cli
+    from skyrig.io.points_csv import write_points_csv
+
+    gcp = read_points_csv(sim / "gcp" / "ground_points.csv")
+    pf = tmp_path / "coded.csv"
+    write_points_csv(pf, gcp, {"code": np.array(["37"] * len(gcp)), "target_radius_m": np.full(len(gcp), 5.0)})
+    base = ["measure", str(sim), "--points", str(pf), "--auto"]
+    r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / "a.csv")])
+    assert r.exit_code == 0, r.output
+    m = read_measurements_csv(tmp_path / "a.csv")
+    assert set(map(str, m.point)) == {"CHK01", "CHK02", "CHK03"}, r.output  # no disc fit of a coded point
+    assert "passed over" not in r.output
+    r = CliRunner().invoke(cli, [*base, "--target-radius", "0.001", "-o", str(tmp_path / "b.csv")])
+    assert r.exit_code == 0, r.output  # the file's 5 m wins over --target-radius
+    assert "passed over" not in r.output
+    write_points_csv(pf, gcp, {"code": np.array(["37"] * len(gcp)), "target_radius_m": np.array([""] * len(gcp))})
+    r = CliRunner().invoke(cli, [*base, "--target-radius", "0.001", "-o", str(tmp_path / "c.csv")])
+    assert r.exit_code == 0, r.output
+    assert "GCP01: 0 target(s) detected" in r.output and "below the 2.5 px its code can be read at" in r.output
+    assert "CHK01: 0 target(s)" not in r.output
+    codes = ["37"] * len(gcp)
+    codes[1] = "4095"
+    write_points_csv(pf, gcp, {"code": np.array(codes)})
+    r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / "d.csv")])
+    assert r.exit_code == 2 and f"{pf}, line 3, field 'code'" in r.output and "not a 12-bit ring code" in r.output, r.output
