@@ -482,8 +482,46 @@ def test_auto_coded_targets_give_the_check_rms_of_the_truth(tmp_path):
     out = tmp_path / "midas_coded"
     write_project(build_survey(replace(scenario_spec("midas", "ci", seed=1), target_kind="coded")), out, workers=1)
     auto = _check_rms_auto_vs_truth(out, tmp_path)
-    _, _, prov = read_measurements_table(auto)
+    m_auto, _, prov = read_measurements_table(auto)
     assert prov["method"] and set(prov["method"]) == {"detected"}
+    _coded_points_files_tie_the_codes(out, tmp_path, m_auto)
+
+
+def _coded_points_files_tie_the_codes(sim: Path, tmp_path: Path, m_auto) -> None:
+    """The project's points files with the codes scene.json records (and the dot radius): ``--auto`` measures the
+    same targets at the same positions; with every GCP given its neighbour's code, no GCP is measured and every
+    image of one is passed over naming both codes (the check points, codes right, are still measured)."""
+    from skyrig.cli import main as cli
+    from skyrig.io.points_csv import write_points_csv
+
+    scene = json.loads((sim / "scene" / "scene.json").read_text())["targets"]
+    code = dict(zip(scene["name"], scene["codes"]))
+    radius = float(scene["radius_m"])
+    got = {}
+    for case, shift in (("right", 0), ("wrong", 1)):
+        files = []
+        for role in ("ground_points", "check_points"):
+            g = read_points_csv(sim / "gcp" / f"{role}.csv")
+            names = list(map(str, g.name))
+            given = [code[names[(k + shift) % len(names)] if role == "ground_points" else names[k]]
+                     for k in range(len(names))]
+            files.append(tmp_path / f"{case}_{role}.csv")
+            write_points_csv(files[-1], g, {"code": np.array([str(c) for c in given]),
+                                            "target_radius_m": np.full(len(g), radius)})
+        out = tmp_path / f"auto_{case}.csv"
+        r = CliRunner().invoke(cli, ["measure", str(sim), "--points", str(files[0]), "--check", str(files[1]),
+                                     "--auto", "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        got[case] = (read_measurements_csv(out), r.output)
+    a = {(str(p), str(i)): px for p, i, px in zip(m_auto.point, m_auto.image, m_auto.pixel)}
+    m, text = got["right"]
+    b = {(str(p), str(i)): px for p, i, px in zip(m.point, m.image, m.pixel)}
+    assert set(b) == set(a) and "passed over" not in text
+    assert max(np.hypot(*(b[k] - a[k])) for k in a) < 0.01  # the window differs (sized from the radius)
+    m, text = got["wrong"]
+    assert {str(p) for p in m.point} == {str(p) for p in m_auto.point if str(p).startswith("CHK")}
+    n_gcp = sum(str(p).startswith("GCP") for p in m_auto.point)
+    assert text.count("read here, but") >= n_gcp, text
 
 
 def _check_rms_auto_vs_truth(sim: Path, tmp_path: Path) -> Path:

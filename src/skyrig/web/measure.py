@@ -625,20 +625,20 @@ class MeasureSession:
             refused = self._coded_refusal(point, image)
         if method not in ("click", "lsm") and refused is None:
             reach = max(12.0, search)  # a target's search: detect_target's default at least
-            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
-            o = np.array([c0, r0], dtype=np.float64)
             if method == "corner":
-                f = corner_centre(win, click - o)
+                win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
+                f = corner_centre(win, click - [c0, r0])
                 if f.ok:
-                    out = self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
+                    out = self._proposal(f.xy + [c0, r0], "corner", True, self.sigmas.pixel / 5.0,
+                                         "corner saddle point")
                 else:
                     notes.append(f"corner: {f.note}")
             else:
                 kinds = self.target_kinds if method == "auto" else ("disc" if method == "target" else method,)
-                f, words, kind, refused = self._find_target(point, win, click - o, reach, kinds)
+                f, words, kind, refused = self._find_target(point, image, click, reach, kinds)
                 wrong_code = refused is not None  # another target under the click: no matching from it either
                 if f.ok and refused is None:
-                    out = self._proposal(f.xy + o, _KIND_METHOD[kind] if method == "auto" else method, True,
+                    out = self._proposal(f.xy, _KIND_METHOD[kind] if method == "auto" else method, True,
                                          f.sigma_px, words)
                 elif not f.ok:
                     notes.append(f.note)
@@ -654,21 +654,50 @@ class MeasureSession:
         out["refused"] = refused
         return out
 
-    def _find_target(self, point: str, win: NDArray, xy0: NDArray, reach: float, kinds: tuple[str, ...]
-                     ) -> tuple:
-        """The target of ``kinds`` around ``xy0`` in ``win`` (:func:`~skyrig.match.targets.detect_target`): its
-        fit, words, kind and, for a coded point (:class:`PointTarget`), only a coded target (if ``kinds`` has it)
-        with why it is refused when its code is not the point's (else None)."""
+    def _find_target(self, point: str, image: str, xy: NDArray, reach: float, kinds: tuple[str, ...]) -> tuple:
+        """The target of ``kinds`` whose centre lies within ``reach`` of ``xy`` in ``image``
+        (:func:`~skyrig.match.targets.detect_target`, in a window of ``reach + 12`` px, at least 24, around ``xy``):
+        its fit (image pixels), words, kind and None; for a coded point (:class:`PointTarget`) only a coded target
+        (if ``kinds`` has it), and why it is refused when its code is not the point's (else None).
+
+        A coded target's ring and ground reach 4 dot radii: the window is widened to hold them where the dot's
+        size is predicted (``radius_m``); where it is not, a disc found (possibly the dot of a coded target whose
+        ring the window cut) is looked at again as a coded target in a window wide enough for its radius."""
+        from dataclasses import replace
+
         from skyrig.match.targets import TargetFit, coded_centre, detect_target
 
-        if self.point_targets.get(point, PointTarget()).code is None:
-            return (*detect_target(win, xy0, search_px=reach, kinds=kinds), None)
-        c = coded_centre(win, xy0, search_px=reach) if "coded" in kinds else None
-        if c is None:
-            return (TargetFit(np.asarray(xy0, dtype=np.float64), False, float("nan"), float("nan"), 0.0,
+        def look(half: float) -> tuple[NDArray, NDArray]:
+            win, o = self.windows(image).around(xy[0], xy[1], int(math.ceil(min(half, MAX_SEARCH_PX + _HALF))))
+            return win, np.asarray(o, dtype=np.float64)
+
+        def coded_of(half: float) -> tuple:
+            win, o = look(half)
+            c = coded_centre(win, xy - o, search_px=reach)
+            return (None, "") if c is None else (replace(c.fit, xy=c.fit.xy + o), c.words, c.code)
+
+        t = self.point_targets.get(point, PointTarget())
+        half = max(reach + 12.0, float(_HALF))
+        if "coded" in kinds and math.isfinite(t.radius_m):
+            _, _, jx = self._project(self.xyz_l[self.pidx[point]], np.array([self.iidx[image]]))
+            r_px = float(self._target_px(point, jx)[0])
+            if math.isfinite(r_px):
+                half = max(half, reach + 4.5 * r_px + 3.0)
+        if t.code is None:
+            win, o = look(half)
+            f, words, kind = detect_target(win, xy - o, search_px=reach, kinds=kinds)
+            wide = reach + 4.5 * f.radius_px + 3.0 if kind == "disc" else 0.0
+            if "coded" in kinds and wide > half:  # the dot of a coded target whose ring the window cut?
+                got = coded_of(wide)
+                if got[0] is not None:
+                    return got[0], got[1], "coded", None
+            return (replace(f, xy=f.xy + o), words, kind, None)
+        got = coded_of(half) if "coded" in kinds else (None, "")
+        if got[0] is None:
+            return (TargetFit(np.asarray(xy, dtype=np.float64), False, float("nan"), float("nan"), 0.0,
                               "coded: no coded target" if "coded" in kinds else "coded targets not looked for"),
                     "", "", None)
-        return c.fit, c.words, "coded", self._code_refusal(point, c.code)
+        return got[0], got[1], "coded", self._code_refusal(point, got[2])
 
     @staticmethod
     def _proposal(xy: NDArray, method: str, refined: bool, sigma: float, note: str) -> dict:
@@ -755,17 +784,15 @@ class MeasureSession:
             if why is not None:
                 skipped.append({"image": p["image"], "reason": why})
                 continue
-            reach = max(6.0, search_sigma * (g["a"] or 0.0))
-            half = int(min(max(reach + 12, _HALF), 200))
-            win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
-            f, words, kind, why = self._find_target(point, win, np.array([g["column"] - c0, g["row"] - r0]), reach,
+            reach = min(max(6.0, search_sigma * (g["a"] or 0.0)), MAX_SEARCH_PX)
+            f, words, kind, why = self._find_target(point, p["image"], np.array([g["column"], g["row"]]), reach,
                                                     self.target_kinds)
             if why is not None:
                 skipped.append({"image": p["image"], "reason": why})
                 continue
             if not f.ok:
                 continue
-            xy = f.xy + [c0, r0]
+            xy = f.xy
             edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
             surround = 4.0 if kind == "coded" else 2.5  # radii: a coded target's black ground, a disc's square
             if edge < (surround * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
