@@ -258,7 +258,7 @@ BAD: list[Bad] = [
     Bad("pts-unknown-crs", "pts", rep(PTS, "EPSG:25832", "EPSG:0"), 1, "crs", "EPSG:0"),
     Bad("pts-missing-z", "pts", "\n".join(ln.rsplit(",", 1)[0] for ln in PTS.splitlines()) + "\n", 3, "z",
         "missing column"),
-    Bad("pts-unknown-column", "pts", rep(PTS, "name,x,y,z", "name,x,y,z,code"), 3, "code", "unknown column 'code'"),
+    Bad("pts-unknown-column", "pts", rep(PTS, "name,x,y,z", "name,x,y,z,colour"), 3, "colour", "unknown column 'colour'"),
     Bad("pts-short-row", "pts", rep(PTS, ",305.5", ""), 5, None, "expected 4 fields, found 3"),
     Bad("pts-semicolon", "pts", PTS.replace(",", ";"), 3, "name", "missing column"),
     Bad("pts-tab-separated", "pts", PTS.replace(",", "\t"), 3, "name", "missing column"),

@@ -21,7 +21,9 @@ positions (every published measurement of the point intersected and projected ba
 prints both): 9/44 (one image) and 2/18 (leave one out) within 2 px, refined RMS 5.7 / 5.9 px, while the published
 measurements themselves lie 3.3 / 3.6 px RMS from those positions: the proposals are no nearer the block's
 consistent positions than the published clicks, so this does not rescue the 2 px line either (measured
-2026-11-29).  The 2 px acceptance is kept as a strict xfail.
+2026-11-29).  Through OpenSfM's own reconstruction instead of skyrig's block the published clicks disagree the same
+(3.6 px RMS, 6 of 18 within 2 px of their own intersection): the judge asks a proposal to reproduce click errors
+of several pixels, which even the block-consistent position cannot.  The 2 px acceptance is kept as a strict xfail.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from conftest import shared_path
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
+sys.path.insert(0, str(ROOT / "bench"))
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +82,26 @@ def test_berlin_published_consistency(cases):
     assert 2.0 < np.sqrt(np.mean(r**2)) < 6.0
     q = np.array([c["residual_px"] for c in cases["proposal_consistency"]])  # one published + two proposals
     assert len(q) >= 6 and 2.0 < np.sqrt(np.mean(q**2)) < 6.0
+
+
+def test_berlin_published_clicks_disagree_through_opensfms_own_reconstruction():
+    """The judge of the xfail below, checked against the peer's orientation instead of skyrig's: through OpenSfM's
+    own reconstruction of the three images (``reconstruction_example.json``, fitting OpenSfM's own features to
+    about a pixel: test_opensfm_io), the published clicks of the 6 points seen in 3 images disagree with their own
+    intersection by 3.6 px RMS (max 8.0 px), as through skyrig's block (3.6 px): the disagreement is the clicks',
+    not skyrig's orientation.  Residuals understate the clicks' errors (the intersection absorbs part of them), yet
+    only 6 of the 18 clicks lie within 2 px of even their own intersection: a proposal at the block-consistent
+    position, the best any refinement can aim for, would meet "within 2 px of the published measurement" for about
+    a third of them, not the 90 % the test below asks.  The points seen twice (one redundant coordinate) agree to
+    0.6 px."""
+    from measure_berlin import opensfm_consistency
+
+    res = opensfm_consistency(shared_path("opensfm", "berlin").parents[1])
+    three = np.array([c["residual_px"] for c in res if c["n_images"] == 3])
+    two = np.array([c["residual_px"] for c in res if c["n_images"] == 2])
+    assert len(three) == 18 and len(two) == 8
+    assert 2.0 < np.sqrt(np.mean(three**2)) < 6.0 and np.mean(three <= 2.0) < 0.5
+    assert two.max() < 1.0
 
 
 @pytest.mark.xfail(strict=True, reason="published clicks and matched homologues are both only ~4 px consistent "

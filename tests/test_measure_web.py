@@ -114,7 +114,7 @@ def test_refinement_recovers_target_centres(sim, tmp_path):
     assert len(e) == len(truth) and e.max() < 0.2 and np.sqrt(np.mean(e**2)) < 0.1, (e.max(), np.sqrt(np.mean(e**2)))
     click = s.propose("GCP01", str(truth.image[0]), 100.0, 100.0, method="click")
     assert click == {"column": 100.0, "row": 100.0, "method": "click", "refined": False, "sigma_px": 0.5, "search_px": 0.0,
-                     "note": "as clicked"}
+                     "note": "as clicked", "refused": None}
 
 
 def test_lsm_transfers_a_measurement(sim, tmp_path):
@@ -376,12 +376,32 @@ def _browser():
         pytest.skip(f"{driver} could not start {exe}: {str(exc).splitlines()[0]}")
 
 
+def _open_page(drv, srv):
+    """The measuring page of ``srv`` loaded in ``drv``: a 30-s waiter and the script runner."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    drv.get(srv.url)
+    wait = WebDriverWait(drv, 30)
+    js = drv.execute_script
+    wait.until(lambda d: js("return document.body.dataset.ready") == "1")
+    return wait, js
+
+
+def _click_image(drv, column: float, row: float) -> None:
+    """A click on the viewer at the image position (column, row)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    pos = drv.execute_script("return window.skyrigMeasure.imageToElement(arguments[0], arguments[1])", column, row)
+    v = drv.find_element(By.ID, "viewer")
+    ActionChains(drv).move_to_element_with_offset(v, pos["x"] - v.size["width"] / 2,
+                                                  pos["y"] - v.size["height"] / 2).click().perform()
+
+
 def test_page_in_headless_chromium(sim, tmp_path):
     """The page in real headless Chromium: three GCPs, each clicked 1-2 px off its target in its best image and
     accepted; the file holds exactly the proposals the page showed, each within 0.3 px of the simulator's truth."""
-    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
 
     from skyrig.web.server import MeasureServer
 
@@ -393,10 +413,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
     shown = {}
     try:
         with MeasureServer(s) as srv:
-            drv.get(srv.url)
-            wait = WebDriverWait(drv, 30)
-            js = drv.execute_script
-            wait.until(lambda d: js("return document.body.dataset.ready") == "1")
+            wait, js = _open_page(drv, srv)
             for n, point in enumerate(("GCP01", "GCP03", "GCP05")):
                 loads = int(js("return document.body.dataset.pointLoads || '0'"))
                 drv.find_element(By.ID, f"pt-{point}").click()
@@ -406,10 +423,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
                 wait.until(lambda d: js("return document.body.dataset.imageReady") == "1")
                 image = js("return document.body.dataset.image")
                 c, r = t[point, image] + [1.2, -0.8]
-                pos = js("return window.skyrigMeasure.imageToElement(arguments[0], arguments[1])", c, r)
-                v = drv.find_element(By.ID, "viewer")
-                ActionChains(drv).move_to_element_with_offset(
-                    v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
+                _click_image(drv, c, r)
                 wait.until(lambda d: js("return document.body.dataset.proposal"))
                 shown[point, image] = json.loads(js("return document.body.dataset.proposal"))
                 # the request carried the search radius of the prediction the page shows (95 % major semi-axis)
@@ -428,8 +442,7 @@ def test_page_in_headless_chromium(sim, tmp_path):
                 box = drv.find_element(By.ID, "search")
                 box.clear()
                 box.send_keys(typed)
-                ActionChains(drv).move_to_element_with_offset(
-                    v, pos["x"] - v.size["width"] / 2, pos["y"] - v.size["height"] / 2).click().perform()
+                _click_image(drv, c, r)
 
             # the user's own radius travels; one out of the server's bounds is refused in words on the page
             click_with_search("30")
@@ -469,8 +482,46 @@ def test_auto_coded_targets_give_the_check_rms_of_the_truth(tmp_path):
     out = tmp_path / "midas_coded"
     write_project(build_survey(replace(scenario_spec("midas", "ci", seed=1), target_kind="coded")), out, workers=1)
     auto = _check_rms_auto_vs_truth(out, tmp_path)
-    _, _, prov = read_measurements_table(auto)
+    m_auto, _, prov = read_measurements_table(auto)
     assert prov["method"] and set(prov["method"]) == {"detected"}
+    _coded_points_files_tie_the_codes(out, tmp_path, m_auto)
+
+
+def _coded_points_files_tie_the_codes(sim: Path, tmp_path: Path, m_auto) -> None:
+    """The project's points files with the codes scene.json records (and the dot radius): ``--auto`` measures the
+    same targets at the same positions; with every GCP given its neighbour's code, no GCP is measured and every
+    image of one is passed over naming both codes (the check points, codes right, are still measured)."""
+    from skyrig.cli import main as cli
+    from skyrig.io.points_csv import write_points_csv
+
+    scene = json.loads((sim / "scene" / "scene.json").read_text())["targets"]
+    code = dict(zip(scene["name"], scene["codes"]))
+    radius = float(scene["radius_m"])
+    got = {}
+    for case, shift in (("right", 0), ("wrong", 1)):
+        files = []
+        for role in ("ground_points", "check_points"):
+            g = read_points_csv(sim / "gcp" / f"{role}.csv")
+            names = list(map(str, g.name))
+            given = [code[names[(k + shift) % len(names)] if role == "ground_points" else names[k]]
+                     for k in range(len(names))]
+            files.append(tmp_path / f"{case}_{role}.csv")
+            write_points_csv(files[-1], g, {"code": np.array([str(c) for c in given]),
+                                            "target_radius_m": np.full(len(g), radius)})
+        out = tmp_path / f"auto_{case}.csv"
+        r = CliRunner().invoke(cli, ["measure", str(sim), "--points", str(files[0]), "--check", str(files[1]),
+                                     "--auto", "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        got[case] = (read_measurements_csv(out), r.output)
+    a = {(str(p), str(i)): px for p, i, px in zip(m_auto.point, m_auto.image, m_auto.pixel)}
+    m, text = got["right"]
+    b = {(str(p), str(i)): px for p, i, px in zip(m.point, m.image, m.pixel)}
+    assert set(b) == set(a) and "passed over" not in text
+    assert max(np.hypot(*(b[k] - a[k])) for k in a) < 0.01  # the window differs (sized from the radius)
+    m, text = got["wrong"]
+    assert {str(p) for p in m.point} == {str(p) for p in m_auto.point if str(p).startswith("CHK")}
+    n_gcp = sum(str(p).startswith("GCP") for p in m_auto.point)
+    assert text.count("read here, but") >= n_gcp, text
 
 
 def _check_rms_auto_vs_truth(sim: Path, tmp_path: Path) -> Path:
@@ -552,8 +603,8 @@ def test_project_yaml_takes_the_latest_stage_orientations(sim, tmp_path):
 
 
 def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
-    """A JPEG above the size limit gets a tiled copy (written in the background) that its fine levels read: the
-    same pixels up to the copy's JPEG compression; the copy goes with the session."""
+    """A JPEG above the size limit gets a tiled copy (written in the background) that its fine levels read once
+    written: the same pixels up to the copy's JPEG compression; the copy goes with the session."""
     import cv2
 
     import skyrig.web.tiles as tiles
@@ -565,11 +616,63 @@ def test_large_jpeg_tiles_come_from_a_tiled_copy(sim, tmp_path, monkeypatch):
     cv2.imwrite(str(jpg), img, [cv2.IMWRITE_JPEG_QUALITY, 95])
     pyr = tiles.TilePyramid(ImageWindows(jpg), copy_to=str(tmp_path / "copy.tif"))
     pyr.prepare()
+    assert pyr._copy_done.wait(30) and pyr._copy_error is None
     a = pyr.tile_array(pyr.max_level, 1, 0)
-    assert pyr._fine is not None and (tmp_path / "copy.tif").is_file()
+    assert pyr._fine is not None and (tmp_path / "copy.tif").is_file() and pyr._decoded is None
     ref = ImageWindows(jpg).window(256, 0, 256, 256)
     assert a.shape == ref.shape and np.mean(np.abs(a.astype(int) - ref)) < 4.0  # JPEG q92, YCbCr: for display
     pyr.close()
+
+
+def test_first_fine_tiles_come_from_one_decode_until_the_copy_is_written(sim, tmp_path, monkeypatch):
+    """Until its tiled copy is written (held back here), a large JPEG's full- and half-resolution tiles are cut
+    from one whole decode: the full-resolution ones are the file's pixels (GDAL's window of the original, up to
+    the two JPEG decoders), and every one is the tile the copy gives once written, up to the copy's compression
+    (a tile one pixel off differs several times more: the comparison sees a shift).  The decode is dropped when the
+    copy is written; at most DECODED_SLOTS images are held (least recently used dropped first)."""
+    import threading
+
+    import cv2
+
+    import skyrig.web.tiles as tiles
+    from skyrig.io.image_windows import ImageWindows
+
+    monkeypatch.setattr(tiles, "COPY_ABOVE_PIXELS", 0)
+    gate = threading.Semaphore(0)  # the copies wait until released
+    monkeypatch.setattr(tiles, "_COPY_SLOTS", gate)
+    monkeypatch.setattr(tiles, "DECODED_SLOTS", 1)
+    jpgs = []
+    for k, name in enumerate(("s01_e0001_nadir.png", "s01_e0002_nadir.png")):
+        jpgs.append(tmp_path / f"frame{k}.jpg")
+        cv2.imwrite(str(jpgs[-1]), cv2.imread(str(sim / "images" / name)), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    pyr = tiles.TilePyramid(ImageWindows(jpgs[0]), copy_to=str(tmp_path / "copy0.tif"))
+    pyr.prepare()
+    orig = ImageWindows(jpgs[0])
+    early = {}
+    for lv in (pyr.max_level, pyr.max_level - 1):
+        s = 2 ** (pyr.max_level - lv)
+        for y in range(math.ceil(pyr.height / s / 256)):
+            for x in range(math.ceil(pyr.width / s / 256)):
+                early[lv, x, y] = pyr.tile_array(lv, x, y)
+                if s == 1:
+                    ref = orig.window(x * 256, y * 256, 256, 256)
+                    assert early[lv, x, y].shape == ref.shape
+                    assert np.mean(np.abs(early[lv, x, y].astype(int) - ref)) < 1.0, (lv, x, y)
+    assert len(early) >= 6 and pyr._decoded is not None and not pyr._copy_done.is_set()
+    other = tiles.TilePyramid(ImageWindows(jpgs[1]), copy_to=str(tmp_path / "copy1.tif"))
+    other.tile_array(other.max_level, 0, 0)  # a second image decoded: the first one's decode is dropped (1 slot)
+    assert other._decoded is not None and pyr._decoded is None
+    gate.release()
+    gate.release()
+    assert pyr._copy_done.wait(30) and other._copy_done.wait(30) and pyr._copy_error is None
+    assert pyr._decoded is None and other._decoded is None and not tiles._DECODED
+    for key, a in early.items():
+        b = pyr.tile_array(*key)  # from the copy now
+        d = np.mean(np.abs(a.astype(int) - b))
+        shifted = np.mean(np.abs(a[:, 1:].astype(int) - b[:, :-1]))
+        assert a.shape == b.shape and d < 4.0 and shifted > 2.0 * d, (key, d, shifted)
+    pyr.close()
+    other.close()
 
 
 def test_auto_refinement_takes_a_chequer_corner(sim, tmp_path):
@@ -601,3 +704,35 @@ def test_auto_refinement_takes_a_chequer_corner(sim, tmp_path):
     assert [m["method"] for m in st["measurements"] if m["image"] == img] == ["aruco"], st["measurements"]
     s.target_kinds = ("disc",)
     assert s.propose("GCP01", img, *(corner + [2.0, -1.5]))["method"] != "corner"
+
+
+def test_cli_reads_the_codes_and_sizes_of_the_points(sim, tmp_path):
+    """``--points`` with ``code`` / ``target_radius_m`` columns (docs/formats/points_csv.md): the simulated block's
+    targets are discs, so GCPs given a code are coded points and are never fitted as discs (nothing detected for
+    them, the check points still are); with a dot radius predicting under 2.5 px every image of a coded point is
+    passed over with the reason printed; a code that is no ring code is refused naming file, line and field."""
+    from skyrig.cli import main as cli
+    from skyrig.io.points_csv import write_points_csv
+
+    gcp = read_points_csv(sim / "gcp" / "ground_points.csv")
+    pf = tmp_path / "coded.csv"
+    write_points_csv(pf, gcp, {"code": np.array(["37"] * len(gcp)), "target_radius_m": np.full(len(gcp), 5.0)})
+    base = ["measure", str(sim), "--points", str(pf), "--auto"]
+    r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / "a.csv")])
+    assert r.exit_code == 0, r.output
+    m = read_measurements_csv(tmp_path / "a.csv")
+    assert set(map(str, m.point)) == {"CHK01", "CHK02", "CHK03"}, r.output  # no disc fit of a coded point
+    assert "passed over" not in r.output
+    r = CliRunner().invoke(cli, [*base, "--target-radius", "0.001", "-o", str(tmp_path / "b.csv")])
+    assert r.exit_code == 0, r.output  # the file's 5 m wins over --target-radius
+    assert "passed over" not in r.output
+    write_points_csv(pf, gcp, {"code": np.array(["37"] * len(gcp)), "target_radius_m": np.array([""] * len(gcp))})
+    r = CliRunner().invoke(cli, [*base, "--target-radius", "0.001", "-o", str(tmp_path / "c.csv")])
+    assert r.exit_code == 0, r.output
+    assert "GCP01: 0 target(s) detected" in r.output and "below the 2.5 px its code can be read at" in r.output
+    assert "CHK01: 0 target(s)" not in r.output
+    codes = ["37"] * len(gcp)
+    codes[1] = "4095"
+    write_points_csv(pf, gcp, {"code": np.array(codes)})
+    r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / "d.csv")])
+    assert r.exit_code == 2 and f"{pf}, line 3, field 'code'" in r.output and "not a 12-bit ring code" in r.output, r.output

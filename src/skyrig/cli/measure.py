@@ -30,16 +30,19 @@ from skyrig.cli._types import CONTROL_SIGMA_M, GNSS_SIGMA_M, IMU_SIGMA_DEG, PIXE
 @click.option("--port", type=int, default=0, show_default=True, help="Port on 127.0.0.1 (0: any free port).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the page's address.")
 @click.option("--targets", default="aruco,coded,chequer,disc", show_default=True, help="Target kinds the refinement and --auto look for, in this order: aruco (ArUco / AprilTag markers), coded (circular ring-coded targets), chequer (2 x 2 checkerboard corners), disc; 'none' for none.")
+@click.option("--target-radius", type=click.FloatRange(min=0.0, min_open=True), default=None, help="Radius of the targets in metres (a coded target's centre dot), for points whose file has no target_radius_m: where a coded point's dot is predicted under 2.5 px its code cannot be read and no target fit is made (the page says why, --auto skips the image).")
 @click.option("--auto", is_flag=True, help="No page: detect the targets around every prediction, store them as 'detected' and exit.")
 def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_dirs, points_path, check_path, points_crs,
-            output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, targets, auto) -> None:
+            output, adjustment, eo_sigma, attitude_sigma, points_sigma, pixel_sigma, operator, port, no_browser, targets, target_radius,
+            auto) -> None:
     """Measure ground control and check points in the images of PROJECT (a project.yaml or a flight folder), or of
     --eo/--camera/--images/--points: a local page (127.0.0.1, a random token in its address) lists the points and
     the images predicted to see them, refines each click to the target's centre and saves every change to the
     measurements CSV."""
     from skyrig.cli._common import load_cameras, load_eo, load_points
-    from skyrig.web.inputs import MeasureInputs, adjustment_residuals, image_files, merge_points, project_inputs
-    from skyrig.web.measure import MeasureSession, Sigmas
+    from skyrig.web.inputs import (MeasureInputs, adjustment_residuals, image_files, merge_points, point_targets,
+                                   project_inputs)
+    from skyrig.web.measure import MeasureSession, PointTarget, Sigmas
 
     if project is None and not eo_path:
         raise click.UsageError("give a PROJECT or --eo with --camera, --images and --points")
@@ -70,11 +73,17 @@ def command(project, eo_path, eo_format, eo_crs, eo_geoid, camera_paths, image_d
                                f"{', '.join(map(str, inp.images))}")
     sig = Sigmas(eo_sigma, attitude_sigma, points_sigma, pixel_sigma)
     kinds = _target_kinds(targets)
+    given = point_targets([inp.control, inp.check])
+    default_r = float("nan") if target_radius is None else float(target_radius)
+    tgt = {}
+    for n in map(str, pts.name):
+        code, r = given.get(n, (None, float("nan")))
+        tgt[n] = PointTarget(code, r if r == r else default_r)  # the file's radius, else --target-radius
     session = MeasureSession(eo, cams, pts, roles, files, inp.output, sig, operator,
                              {"eo": str(inp.eo_path or inp.eo_words),
                               "points": [str(p) for p in (inp.control, inp.check) if p]},
                              adjustment=adjustment_residuals(inp.adjusted_control) if inp.adjusted_control else None,
-                             target_kinds=kinds)
+                             target_kinds=kinds, point_targets=tgt)
     if inp.adjusted_control:
         click.echo(f"adjustment residuals: {inp.adjusted_control}")
     try:
@@ -110,12 +119,17 @@ def _target_kinds(text: str) -> tuple[str, ...]:
 
 
 def _auto(session) -> None:
-    n = 0
+    n = n_skip = 0
     for p in session.points.name:
-        found = session.detect(str(p), accept=True)
-        n += len(found)
-        click.echo(f"{p}: {len(found)} target(s) detected")
-    click.echo(f"wrote {len(session.records)} measurements ({n} detected now) to {session.output}")
+        got = session.detect(str(p), accept=True)
+        n += len(got["found"])
+        n_skip += len(got["skipped"])
+        click.echo(f"{p}: {len(got['found'])} target(s) detected" +
+                   (f", {len(got['skipped'])} image(s) passed over:" if got["skipped"] else ""))
+        for s in got["skipped"]:
+            click.echo(f"  {s['image']}: {s['reason']}")
+    click.echo(f"wrote {len(session.records)} measurements ({n} detected now"
+               + (f", {n_skip} passed over with the reason above" if n_skip else "") + f") to {session.output}")
 
 
 def _serve(session, port: int, no_browser: bool) -> None:

@@ -10,6 +10,7 @@ out_w, out_h)`` gives the pixels of the full-resolution rectangle ``[col0, col0 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -88,23 +89,45 @@ class ImageWindows:
             return a[..., 0] if a.shape[-1] == 1 else (a @ np.array([0.299, 0.587, 0.114])).astype(np.float32)
         return a[..., 0] if a.shape[-1] == 1 else a
 
-    def tiled_copy(self, dest: PathLike) -> "ImageWindows":
+    def tiled_copy(self, dest: PathLike, pixels: NDArray | None = None,
+                   pause: Callable[[], None] | None = None) -> "ImageWindows":
         """Write a tiled copy (GeoTIFF, 256 px blocks, JPEG-compressed for 8-bit samples, DEFLATE otherwise) to
-        ``dest``, streaming (GDAL reads the source line by line), and open it.  A JPEG or PNG can only be decoded
-        from its top: every window of it costs a decode down to the window; of the copy, only its blocks."""
+        ``dest`` and open it.  A JPEG or PNG can only be decoded from its top: every window of it costs a decode
+        down to the window; of the copy, only its blocks.
+
+        ``pixels``: the whole image already decoded, as :meth:`window` gives it (``(h, w, 3)`` RGB or ``(h, w)``,
+        the file's sample type): written from memory a row of blocks at a time, calling ``pause()`` before each
+        (to yield to more urgent work); without it GDAL streams the file (reads it line by line)."""
         import warnings
 
+        import rasterio
         import rasterio.shutil
         from rasterio.errors import NotGeoreferencedWarning
+        from rasterio.windows import Window
 
+        nb = self.bands if pixels is None else (pixels.shape[2] if pixels.ndim == 3 else 1)
         opts: dict = {"TILED": "YES", "BLOCKXSIZE": 256, "BLOCKYSIZE": 256, "NUM_THREADS": "ALL_CPUS"}
         if self.dtype == np.uint8:
-            opts.update(COMPRESS="JPEG", JPEG_QUALITY=92, **({"PHOTOMETRIC": "YCBCR"} if self.bands == 3 else {}))
+            opts.update(COMPRESS="JPEG", JPEG_QUALITY=92, **({"PHOTOMETRIC": "YCBCR"} if nb == 3 else {}))
         else:
             opts.update(COMPRESS="DEFLATE", ZLEVEL=1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            rasterio.shutil.copy(str(self.path), str(dest), driver="GTiff", **opts)
+            if pixels is None:
+                rasterio.shutil.copy(str(self.path), str(dest), driver="GTiff", **opts)
+                return ImageWindows(dest)
+            a = pixels if pixels.ndim == 3 else pixels[..., None]
+            if a.shape[:2] != (self.height, self.width) or a.dtype != self.dtype:
+                raise ValueError(f"pixels {pixels.shape} {pixels.dtype} are not {self.path.name} "
+                                 f"({self.height} x {self.width}, {self.dtype})")
+            with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(
+                    str(dest), "w", driver="GTiff", width=self.width, height=self.height, count=a.shape[2],
+                    dtype=a.dtype, **opts) as ds:
+                for r0 in range(0, self.height, 256):
+                    if pause is not None:
+                        pause()
+                    r1 = min(r0 + 256, self.height)
+                    ds.write(np.moveaxis(a[r0:r1], -1, 0), window=Window(0, r0, self.width, r1 - r0))
         return ImageWindows(dest)
 
     def around(self, col: float, row: float, half: int, gray: bool = True) -> tuple[NDArray, tuple[int, int]]:

@@ -24,6 +24,10 @@ from skyrig.io.table_meta import frame_of_meta, meta_path, read_table_meta, writ
 #: Extra columns skyrig writes next to ground points (read back and ignored).
 POINT_EXTRAS = ["n_rays", "rms_px", "image_column", "image_row", "sx", "sy", "sz", "role", "rays", "given_x", "given_y",
                 "given_z", "vx", "vy", "vz"]
+#: Optional columns on the target painted at a ground point (``skyrig measure`` reads them, others ignore them):
+#: ``code`` the ring code of a circular coded target, ``target_radius_m`` the target's radius (a coded target's
+#: centre dot) in metres; an empty field: not known.
+POINT_TARGET_COLUMNS = ["code", "target_radius_m"]
 
 
 def _header_line(path: PathLike) -> int:
@@ -125,7 +129,7 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
     from skyrig.io.eo_csv import frame_from_header
     from skyrig.io.plausibility import check_coordinates, check_same_frame
 
-    meta, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
+    meta, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS + POINT_TARGET_COLUMNS)
     _check_keys(meta, path)
     if "height" in meta and "heights" not in meta:  # the trajectory format's spelling, accepted here too
         meta["heights"] = meta["height"]
@@ -164,8 +168,49 @@ def read_points_csv(path: PathLike, frame: WorldFrame | None = None, default_fra
 def read_point_extras(path: PathLike) -> dict[str, list[str]]:
     """The ``name`` column and the text of the :data:`POINT_EXTRAS` columns a points CSV has (e.g. the residuals
     ``vx, vy, vz`` and sigmas of an adjustment's ``ground_control.csv``), by column name."""
-    _, _, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS)
+    _, _, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS + POINT_TARGET_COLUMNS)
     return {c: cols[c] for c in ["name", *POINT_EXTRAS] if c in cols}
+
+
+def read_point_targets(path: PathLike, bits: int = 12) -> dict[str, tuple[int | None, float]]:
+    """``{name: (code, target_radius_m)}`` from the :data:`POINT_TARGET_COLUMNS` of a points CSV (``code`` None and
+    the radius NaN where the file has no such column or an empty field); ``{}`` when it has neither column.
+
+    Raises
+    ------
+    InputFormatError
+        Naming file, line and field: a code that is not a whole number whose ``bits``-bit ring has both bright
+        and dark sectors (``1 .. 2**bits - 2``), a radius that is not a positive number of metres.
+    """
+    from skyrig.io._text import parse_float
+
+    _, ln, cols = _table(path, ["name", "x", "y", "z"], POINT_EXTRAS + POINT_TARGET_COLUMNS)
+    if not any(c in cols for c in POINT_TARGET_COLUMNS):
+        return {}
+    out: dict[str, tuple[int | None, float]] = {}
+    top = (1 << bits) - 2
+    for k, (name, line) in enumerate(zip(cols["name"], ln)):
+        code, radius = None, float("nan")
+        text = cols.get("code", [""] * len(ln))[k]
+        if text:
+            try:
+                code = int(text)
+            except ValueError:
+                try:  # a whole number a spreadsheet wrote as 37.0
+                    v = float(text)
+                    code = int(v) if v.is_integer() else -1
+                except (ValueError, OverflowError):
+                    code = -1
+            if not 1 <= code <= top:
+                raise InputFormatError(f"code {text!r} is not a {bits}-bit ring code (a whole number 1 .. {top}: "
+                                       f"some sectors bright, some dark)", path, line, "code")
+        text = cols.get("target_radius_m", [""] * len(ln))[k]
+        if text:
+            radius = parse_float(text, path, line, "target_radius_m")
+            if not radius > 0.0:
+                raise InputFormatError(f"target radius {text!r} m is not positive", path, line, "target_radius_m")
+        out[name] = (code, radius)
+    return out
 
 
 def read_measurements_csv(path: PathLike) -> ImageMeasurements:

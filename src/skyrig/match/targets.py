@@ -31,7 +31,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["TargetFit", "MarkerFit", "CodedFit", "target_centre", "corner_centre", "chequer_centre", "aruco_centre",
-           "coded_centre", "rotation_code", "detect_target"]
+           "coded_centre", "rotation_code", "detect_target", "CODED_MIN_RADIUS_PX", "CODE_BITS"]
+
+#: The smallest dot radius (pixels, from the dot's area) :func:`coded_centre` reads a coded target at: a smaller
+#: dot's Otsu blob merges with the ring (measured on the simulator's rendered targets: read from about 2.4 px, not
+#: below 2.2 px; tests/test_targets_rendered.py).
+CODED_MIN_RADIUS_PX = 2.5
+#: Sectors of a coded target's ring (the bits of its code).
+CODE_BITS = 12
 
 
 @dataclass(frozen=True)
@@ -412,6 +419,11 @@ class CodedFit:
         """Length of the projective-centre correction, pixels."""
         return float(np.hypot(*(self.fit.xy - self.ellipse_xy)))
 
+    @property
+    def words(self) -> str:
+        """What was found, in words (the code and the dot's radius)."""
+        return f"coded target {self.code}, dot radius {self.fit.radius_px:.1f} px"
+
 
 def _crossings(prof: NDArray[np.float64], rho: NDArray[np.float64], lo: float, hi: float, rising: bool
                ) -> NDArray[np.float64]:
@@ -448,7 +460,8 @@ def _ring_centre_shift(pts: NDArray[np.float64], c1: NDArray[np.float64], A1: ND
     return c1 - (A1 @ np.array([dx, dy])) / (s_**2 - 1.0)
 
 
-def coded_centre(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0, bits: int = 12, min_radius_px: float = 2.5,
+def coded_centre(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0, bits: int = CODE_BITS,
+                 min_radius_px: float = CODED_MIN_RADIUS_PX,
                  candidates: int = 4) -> CodedFit | None:
     """The circular coded target (module docstring) nearest ``xy0`` (its centre within ``search_px``), or None.
 
@@ -624,7 +637,7 @@ def detect_target(window: ArrayLike, xy0: ArrayLike, search_px: float = 12.0,
         elif kind == "coded":
             c = coded_centre(window, xy0, search_px=search_px)
             if c is not None:
-                return c.fit, f"coded target {c.code}, dot radius {c.fit.radius_px:.1f} px", kind
+                return c.fit, c.words, kind
             f = _fail(np.asarray(xy0, dtype=np.float64), "no coded target")
         elif kind == "chequer":
             f = chequer_centre(window, xy0, search_px=search_px)

@@ -17,7 +17,7 @@ from skyrig.errors import InputFormatError
 from skyrig.georef.eo import ExteriorOrientations
 from skyrig.georef.observations import GroundPoints
 
-__all__ = ["MeasureInputs", "project_inputs", "image_files", "merge_points"]
+__all__ = ["MeasureInputs", "project_inputs", "image_files", "merge_points", "point_targets"]
 
 _STAGE_EO = (("adjust-uav", "adjusted (adjust-uav stage)"), ("adjust", "adjusted (adjust stage)"),
              ("georef", "direct georeferencing (georef stage)"))
@@ -170,3 +170,18 @@ def merge_points(control: GroundPoints | None, check: GroundPoints | None, check
             xyz.append(v)
             roles[str(n)] = role
     return GroundPoints(np.array(names), np.array(xyz).reshape(-1, 3), frame), roles
+
+
+def point_targets(paths: list[Path | None]) -> dict[str, tuple[int | None, float]]:
+    """``{point: (code, target_radius_m)}`` from the ``code`` / ``target_radius_m`` columns of the skyrig points
+    CSVs among ``paths`` (:func:`skyrig.io.points_csv.read_point_targets`; IGN and ODM point files have no such
+    columns)."""
+    from skyrig.io.points_csv import read_point_targets
+    from skyrig.match.targets import CODE_BITS
+
+    out: dict[str, tuple[int | None, float]] = {}
+    for p in paths:
+        if p is None or p.name.lower().endswith((".app", ".mes")) or p.name.lower().startswith("gcp_list"):
+            continue
+        out.update(read_point_targets(p, CODE_BITS))
+    return out

@@ -50,7 +50,7 @@ from skyrig.georef.eo import ExteriorOrientations, local_frame_for
 from skyrig.georef.observations import GroundPoints, ImageMeasurements
 from skyrig.geometry.pose import Pose
 
-__all__ = ["Sigmas", "Record", "MeasureSession", "METHODS"]
+__all__ = ["Sigmas", "Record", "PointTarget", "MeasureSession", "METHODS"]
 
 #: How a position was found: a plain click, a disc target's centre, a corner's saddle point, least-squares
 #: matching against an image measured before, a target detected automatically, or read from the file.
@@ -82,6 +82,16 @@ class Sigmas:
     attitude_deg: float = 0.01  # orientation angles, degrees (IMU + boresight)
     point_m: float = 0.02  # surveyed ground point, metres
     pixel: float = 0.5  # a measurement without a refinement's own sigma (a click), pixels
+
+
+@dataclass(frozen=True)
+class PointTarget:
+    """What the points file says is painted at a ground point (``docs/formats/points_csv.md``): ``code`` the ring
+    code of a circular coded target (any rotation; None: not known to be a coded target), ``radius_m`` the target's
+    radius in metres (a coded target's centre dot; NaN: not known)."""
+
+    code: int | None = None
+    radius_m: float = float("nan")
 
 
 @dataclass
@@ -147,13 +157,20 @@ class MeasureSession:
     adjustment
         The control / check residuals of the adjustment whose orientations these are
         (:func:`skyrig.web.inputs.adjustment_residuals`), shown with the points.
+    point_targets
+        ``{point: PointTarget}``: the coded targets' codes and the targets' sizes (points not named: nothing known).
+        A point with a code is a coded target: only a coded target is looked for around it (a disc centroid of a
+        coded target is pulled by its ring, a marker "read" in its ring is false), a coded target of another code
+        is refused, and so is the target refinement where its dot is predicted smaller than
+        :data:`~skyrig.match.targets.CODED_MIN_RADIUS_PX` (its code cannot be read there; needs ``radius_m``).
     """
 
     def __init__(self, eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], points: GroundPoints,
                  roles: Mapping[str, str], image_files: Mapping[str, str | os.PathLike], output: str | os.PathLike,
                  sigmas: Sigmas = Sigmas(), operator: str | None = None, sources: Mapping | None = None,
                  lock: bool = True, adjustment: Mapping[str, dict] | None = None,
-                 target_kinds: tuple[str, ...] = TARGET_KINDS) -> None:
+                 target_kinds: tuple[str, ...] = TARGET_KINDS,
+                 point_targets: Mapping[str, PointTarget] | None = None) -> None:
         self.frame_local = local_frame_for(eo.frame.to_ecef(eo.centre))
         self.eo = eo
         self.eo_l = eo.to_frame(self.frame_local)
@@ -177,6 +194,10 @@ class MeasureSession:
         self.target_kinds = tuple(target_kinds)
         self.sources = dict(sources or {})
         self.adjustment = {str(k): dict(v) for k, v in (adjustment or {}).items()}
+        self.point_targets = {str(k): v for k, v in (point_targets or {}).items()}
+        unknown = sorted(set(self.point_targets) - {str(n) for n in points.name})
+        if unknown:
+            raise ValueError(f"target of {unknown[0]!r}, which is not among the ground points")
         self.records: dict[tuple[str, str], Record] = {}
         self._lock = threading.RLock()
         self._windows: dict[str, object] = {}
@@ -386,8 +407,46 @@ class MeasureSession:
                 out.append({"name": n, "role": self.roles[n], "x": float(self.points.xyz[k, 0]),
                             "y": float(self.points.xyz[k, 1]), "z": float(self.points.xyz[k, 2]), "predicted_in": seen,
                             "measured_in": len(st["measurements"]), "flagged": st["flagged"],
-                            "adjustment": self._adjusted(n)})
+                            "adjustment": self._adjusted(n), **self._target_words(n)})
         return out
+
+    def _target_words(self, point: str) -> dict:
+        t = self.point_targets.get(point, PointTarget())
+        return {"code": t.code, "target_radius_m": _num(t.radius_m, 4)}
+
+    def _target_px(self, point: str, jx: NDArray) -> NDArray:
+        """The target's radius in pixels (``(N,)``, NaN where its size is not known) in the images whose point
+        Jacobians (local ENU) are ``jx`` ``(N, 2, 3)``: the radius of the circle of the same area as the target's
+        image, the target lying level (``r sqrt(|det d(col, row) / d(E, N)|)``)."""
+        r = self.point_targets.get(point, PointTarget()).radius_m
+        with np.errstate(invalid="ignore"):
+            return r * np.sqrt(np.abs(np.linalg.det(jx[:, :, :2])))
+
+    def _coded_refusal(self, point: str, image: str) -> str | None:
+        """Why the target refinement of a coded ``point`` is refused in ``image`` (its dot predicted too small to
+        read), else None."""
+        from skyrig.match.targets import CODED_MIN_RADIUS_PX
+
+        t = self.point_targets.get(point)
+        if t is None or t.code is None or not math.isfinite(t.radius_m):
+            return None
+        _, _, jx = self._project(self.xyz_l[self.pidx[point]], np.array([self.iidx[image]]))
+        r_px = float(self._target_px(point, jx)[0])
+        if not r_px < CODED_MIN_RADIUS_PX:
+            return None
+        return (f"{point}'s coded target (dot radius {t.radius_m:g} m) is predicted {r_px:.1f} px in {image}, below "
+                f"the {CODED_MIN_RADIUS_PX:g} px its code can be read at: no target fit here (a disc fit would centre "
+                f"on dot and ring together, about a pixel off); measure it where it is larger")
+
+    def _code_refusal(self, point: str, code: int) -> str | None:
+        """Why a coded target read with ``code`` is refused as ``point`` (the point's code differs), else None."""
+        from skyrig.match.targets import rotation_code
+
+        t = self.point_targets.get(point)
+        if t is None or t.code is None or rotation_code(t.code) == code:
+            return None
+        return (f"coded target {code} read here, but {point}'s code is {_code_words(t.code)} (points file): another "
+                f"target, or a misread")
 
     def _adjusted(self, point: str) -> dict | None:
         a = self.adjustment.get(point)
@@ -444,7 +503,7 @@ class MeasureSession:
                 measurements.append(e)
             state: dict = {"point": point, "role": self.roles[point], "measurements": measurements, "flagged": flagged,
                            "xyz": [float(v) for v in self.points.xyz[k]], "frame": self.points.frame.describe(),
-                           "adjustment": self._adjusted(point)}
+                           "adjustment": self._adjusted(point), **self._target_words(point)}
             if inter is not None:
                 xyz = self.points.frame.from_ecef(self.frame_local.to_ecef(inter["xyz_local"][None]))[0]
                 dl = inter["xyz_local"] - X
@@ -454,6 +513,7 @@ class MeasureSession:
             if not with_predictions:
                 return state
             preds = []
+            r_px = self._target_px(point, jx_g)
             for j in order:
                 row = int(rows[j])
                 name = str(self.eo_l.image[row])
@@ -461,7 +521,7 @@ class MeasureSession:
                 f = self.files.get(name)
                 p = {"image": name, "index": row, "camera": str(self.eo_l.camera[row]), "width": cam.width,
                      "height": cam.height, "quality": _num(qual[j]), "measured": row in meas_rows,
-                     "file": bool(f is not None and f.is_file()),
+                     "file": bool(f is not None and f.is_file()), "target_px": _num(r_px[row], 2),
                      "ground": {"column": _num(px_g[row, 0]), "row": _num(px_g[row, 1]), **_ellipse(cov_g[row]),
                                 "inside": bool(self._inside(np.array([row]), px_g[row:row + 1])[0])}}
                 if inter is not None:
@@ -535,13 +595,17 @@ class MeasureSession:
         ``method``: ``"auto"`` (a target of :attr:`target_kinds` near the click, else least-squares matching
         against the best image measured before, else the click), ``"target"`` (disc), ``"corner"`` (the saddle
         point nearest the click), ``"aruco"``, ``"coded"``, ``"lsm"`` or ``"click"`` (no refinement).  Returns the proposed
-        ``column``, ``row``, ``method``, ``refined``, ``sigma_px`` and a ``note`` on what was tried.
+        ``column``, ``row``, ``method``, ``refined``, ``sigma_px``, a ``note`` on what was tried and ``refused``:
+        None, or why the target refinement was refused for this point in this image (a coded point,
+        :class:`PointTarget`: its dot predicted too small to read, a coded target of another code read, or a disc /
+        corner / marker fit asked for; ``auto`` then still tries the least-squares matching, except after a wrong code,
+        the others give the click).
         ``search_px``: how far from the click a target (``auto``, ``target``, ``aruco``: at least 12 px) and the
         least-squares matching (a cross-correlation search first) look; the page sends the 95 % prediction ellipse's
         major semi-axis unless the user sets one; 0: a target within 12 px, LSM from the click.  A number in
         ``[0, MAX_SEARCH_PX]`` (:func:`search_radius`), else ValueError.  The proposal echoes it (``search_px``).
         """
-        from skyrig.match.targets import corner_centre, detect_target, target_centre
+        from skyrig.match.targets import corner_centre, rotation_code
 
         if point not in self.pidx:
             raise KeyError(f"no ground point {point!r}")
@@ -551,39 +615,89 @@ class MeasureSession:
         click = np.array([float(column), float(row)])
         notes = []
         out = None
-        if method != "click":
+        code = self.point_targets.get(point, PointTarget()).code
+        refused, wrong_code = None, False
+        if code is not None and method in ("target", "corner", "aruco"):
+            refused = (f"{point} is coded target {_code_words(code)} (points file): a "
+                       f"{ {'target': 'disc', 'corner': 'corner', 'aruco': 'marker'}[method]} fit would not find its "
+                       f"centre (refine with auto, coded or lsm)")
+        elif method in ("auto", "coded"):
+            refused = self._coded_refusal(point, image)
+        if method not in ("click", "lsm") and refused is None:
             reach = max(12.0, search)  # a target's search: detect_target's default at least
-            win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
-            o = np.array([c0, r0], dtype=np.float64)
-            if method == "auto" and self.target_kinds:
-                f, words, kind = detect_target(win, click - o, search_px=reach, kinds=self.target_kinds)
+            if method == "corner":
+                win, (c0, r0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(reach - 12.0)))
+                f = corner_centre(win, click - [c0, r0])
                 if f.ok:
-                    out = self._proposal(f.xy + o, _KIND_METHOD[kind], True, f.sigma_px, words)
-                else:
-                    notes.append(f.note)
-            if out is None and method in ("target", "aruco", "coded"):
-                f, words, _ = detect_target(win, click - o, search_px=reach,
-                                            kinds=("disc" if method == "target" else method,))
-                if f.ok:
-                    out = self._proposal(f.xy + o, method, True, f.sigma_px, words)
-                else:
-                    notes.append(f.note)
-            if out is None and method == "corner":
-                f = corner_centre(win, click - o)
-                if f.ok:
-                    out = self._proposal(f.xy + o, "corner", True, self.sigmas.pixel / 5.0, "corner saddle point")
+                    out = self._proposal(f.xy + [c0, r0], "corner", True, self.sigmas.pixel / 5.0,
+                                         "corner saddle point")
                 else:
                     notes.append(f"corner: {f.note}")
-            if out is None and method in ("auto", "lsm"):
-                got = self._lsm(point, image, click, search)
-                if isinstance(got, dict):
-                    out = got
-                else:
-                    notes.append(f"lsm: {got}")
+            else:
+                kinds = self.target_kinds if method == "auto" else ("disc" if method == "target" else method,)
+                f, words, kind, refused = self._find_target(point, image, click, reach, kinds)
+                wrong_code = refused is not None  # another target under the click: no matching from it either
+                if f.ok and refused is None:
+                    out = self._proposal(f.xy, _KIND_METHOD[kind] if method == "auto" else method, True,
+                                         f.sigma_px, words)
+                elif not f.ok:
+                    notes.append(f.note)
+        if out is None and method in ("auto", "lsm") and not wrong_code:
+            got = self._lsm(point, image, click, search)
+            if isinstance(got, dict):
+                out = got
+            else:
+                notes.append(f"lsm: {got}")
         if out is None:
             out = self._proposal(click, "click", False, self.sigmas.pixel, "; ".join(notes) or "as clicked")
         out["search_px"] = _num(search, 1)
+        out["refused"] = refused
         return out
+
+    def _find_target(self, point: str, image: str, xy: NDArray, reach: float, kinds: tuple[str, ...]) -> tuple:
+        """The target of ``kinds`` whose centre lies within ``reach`` of ``xy`` in ``image``
+        (:func:`~skyrig.match.targets.detect_target`, in a window of ``reach + 12`` px, at least 24, around ``xy``):
+        its fit (image pixels), words, kind and None; for a coded point (:class:`PointTarget`) only a coded target
+        (if ``kinds`` has it), and why it is refused when its code is not the point's (else None).
+
+        A coded target's ring and ground reach 4 dot radii: the window is widened to hold them where the dot's
+        size is predicted (``radius_m``); where it is not, a disc found (possibly the dot of a coded target whose
+        ring the window cut) is looked at again as a coded target in a window wide enough for its radius."""
+        from dataclasses import replace
+
+        from skyrig.match.targets import TargetFit, coded_centre, detect_target
+
+        def look(half: float) -> tuple[NDArray, NDArray]:
+            win, o = self.windows(image).around(xy[0], xy[1], int(math.ceil(min(half, MAX_SEARCH_PX + _HALF))))
+            return win, np.asarray(o, dtype=np.float64)
+
+        def coded_of(half: float) -> tuple:
+            win, o = look(half)
+            c = coded_centre(win, xy - o, search_px=reach)
+            return (None, "") if c is None else (replace(c.fit, xy=c.fit.xy + o), c.words, c.code)
+
+        t = self.point_targets.get(point, PointTarget())
+        half = max(reach + 12.0, float(_HALF))
+        if "coded" in kinds and math.isfinite(t.radius_m):
+            _, _, jx = self._project(self.xyz_l[self.pidx[point]], np.array([self.iidx[image]]))
+            r_px = float(self._target_px(point, jx)[0])
+            if math.isfinite(r_px):
+                half = max(half, reach + 4.5 * r_px + 3.0)
+        if t.code is None:
+            win, o = look(half)
+            f, words, kind = detect_target(win, xy - o, search_px=reach, kinds=kinds)
+            wide = reach + 4.5 * f.radius_px + 3.0 if kind == "disc" else 0.0
+            if "coded" in kinds and wide > half:  # the dot of a coded target whose ring the window cut?
+                got = coded_of(wide)
+                if got[0] is not None:
+                    return got[0], got[1], "coded", None
+            return (replace(f, xy=f.xy + o), words, kind, None)
+        got = coded_of(half) if "coded" in kinds else (None, "")
+        if got[0] is None:
+            return (TargetFit(np.asarray(xy, dtype=np.float64), False, float("nan"), float("nan"), 0.0,
+                              "coded: no coded target" if "coded" in kinds else "coded targets not looked for"),
+                    "", "", None)
+        return got[0], got[1], "coded", self._code_refusal(point, got[2])
 
     @staticmethod
     def _proposal(xy: NDArray, method: str, refined: bool, sigma: float, note: str) -> dict:
@@ -647,44 +761,61 @@ class MeasureSession:
                 self.save()
             return self.point_state(point)
 
-    def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> list[dict]:
-        """Look for a target (:attr:`target_kinds`) around the point's prediction in every image predicted to see it (within
-        ``search_sigma`` times the prediction ellipse's major semi-axis, at least 6 px); the proposals found, and
-        stored as ``detected`` when ``accept``.  A target closer to the frame's edge than its surround (2.5 radii
-        of a disc, 4 of a coded target's dot) plus 3 px is passed over (its background is cut: measure it by hand); so is a chequer corner or marker
-        centre closer than 8 px."""
-        from skyrig.match.targets import detect_target
+    def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> dict:
+        """Look for a target (:attr:`target_kinds`; of a coded point, :class:`PointTarget`, only a coded target of
+        its code) around the point's prediction in every image predicted to see it (within ``search_sigma`` times
+        the prediction ellipse's major semi-axis, at least 6 px); the proposals found, stored as ``detected`` when
+        ``accept``, and the images passed over with the reason.  Returns ``{"found": [proposal + "image"],
+        "skipped": [{"image", "reason"}]}``.
 
+        Passed over (``skipped``): a coded point's image where its dot is predicted too small to read, or where a
+        coded target of another code is found.  Passed over silently: a target closer to the frame's edge than
+        its surround (2.5 radii of a disc, 4 of a coded target's dot) plus 3 px (its background is cut: measure
+        it by hand); so is a chequer corner or marker centre closer than 8 px."""
         st = self.point_state(point)
-        found = []
+        found, skipped = [], []
         for p in st["predictions"]:
             if not p["file"] or p["measured"] or not p["ground"]["inside"]:
                 continue
             g = p.get("intersection") or p["ground"]
             if g["column"] is None:
                 continue
-            reach = max(6.0, search_sigma * (g["a"] or 0.0))
-            half = int(min(max(reach + 12, _HALF), 200))
-            win, (c0, r0) = self.windows(p["image"]).around(g["column"], g["row"], half)
-            f, words, kind = detect_target(win, np.array([g["column"] - c0, g["row"] - r0]), search_px=reach,
-                                           kinds=self.target_kinds)
+            why = self._coded_refusal(point, p["image"])
+            if why is not None:
+                skipped.append({"image": p["image"], "reason": why})
+                continue
+            reach = min(max(6.0, search_sigma * (g["a"] or 0.0)), MAX_SEARCH_PX)
+            f, words, kind, why = self._find_target(point, p["image"], np.array([g["column"], g["row"]]), reach,
+                                                    self.target_kinds)
+            if why is not None:
+                skipped.append({"image": p["image"], "reason": why})
+                continue
             if not f.ok:
                 continue
-            xy = f.xy + [c0, r0]
+            xy = f.xy
             edge = min(xy[0] + 0.5, xy[1] + 0.5, p["width"] - 0.5 - xy[0], p["height"] - 0.5 - xy[1])
             surround = 4.0 if kind == "coded" else 2.5  # radii: a coded target's black ground, a disc's square
             if edge < (surround * f.radius_px + 3.0 if np.isfinite(f.radius_px) else 8.0):
                 continue  # the target's surround is cut by the frame: no proposal
-            prop = self._proposal(f.xy + [c0, r0], "detected", True, f.sigma_px, words)
+            prop = self._proposal(xy, "detected", True, f.sigma_px, words)
             prop["image"] = p["image"]
             found.append(prop)
             if accept:
                 with self._lock:
-                    self.records[point, p["image"]] = Record(point, p["image"], f.xy + [c0, r0], "detected", True,
-                                                             f.sigma_px, self.operator, _now())
+                    self.records[point, p["image"]] = Record(point, p["image"], xy, "detected", True, f.sigma_px,
+                                                             self.operator, _now())
         if accept and found:
             self.save()
-        return found
+        return {"found": found, "skipped": skipped}
+
+
+def _code_words(code: int) -> str:
+    """A ring code as the points file gives it and, when that is not its smallest rotation, the code a reading
+    names."""
+    from skyrig.match.targets import rotation_code
+
+    rc = rotation_code(code)
+    return str(code) if rc == code else f"{code} (read as {rc}, its smallest rotation)"
 
 
 def _alive(pid: int) -> bool:

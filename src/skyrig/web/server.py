@@ -19,7 +19,7 @@ Routes (JSON unless stated; ``POST`` bodies are JSON)::
                         search radius, a number of pixels in [0, 200]; 400 naming it otherwise)
     POST /api/accept    {point, image, column, row, method, refined, sigma_px}   store + save
     POST /api/delete    {point, image}
-    POST /api/detect    {point, accept}      automatic targets around the predictions
+    POST /api/detect    {point, accept}      automatic targets around the predictions: {found, skipped (image, reason)}
 """
 
 from __future__ import annotations

@@ -9,8 +9,15 @@ read once per image with GDAL's reduced decoding), so that a 100-MP frame is nev
 
 A JPEG or PNG can only be decoded from its top, so a window near its bottom costs most of a full decode: for such
 a file of more than :data:`COPY_ABOVE_PIXELS`, :meth:`TilePyramid.prepare` writes a tiled copy into the session's
-cache folder in a background thread (streamed, a few seconds for 100 MP) and the fine levels come from it.  The
-copy is for display only; measurements are refined on the original file.
+cache folder in a background thread (a few seconds for 100 MP; copies one at a time) and the fine levels come
+from it once written.  The copy is written from one whole decode of the file (OpenCV, about 0.4 s for 100 MP), and
+until it is written the fine tiles are cut from that decode: the first fine tile of a never-opened image costs
+about one decode, not the copy.  A decode is made once per image, by whichever comes first (the copy or a tile
+request; the others wait for it); decodes are held in a small cache shared by all pyramids (at most
+:data:`DECODED_SLOTS` images, least recently used dropped first, plus the one the copy is being written from) and
+dropped as soon as the image's copy is written: in steady state no image is held whole.  While a tile request
+decodes, the copy being written waits (between rows of blocks): the image the user looks at comes first.  The copy
+is for display only; measurements are refined on the original file.
 """
 
 from __future__ import annotations
@@ -30,9 +37,43 @@ __all__ = ["TILE", "OVERVIEW_MAX", "TilePyramid", "TileNotFound"]
 TILE = 256  # tile size, pixels of a level
 OVERVIEW_MAX = 2048  # longer side of the overview coarse levels come from
 COPY_ABOVE_PIXELS = 16_000_000  # JPEG / PNG files larger than this get a tiled copy for their fine levels
+DECODED_SLOTS = 2  # whole decodes held while their tiled copies are written (module docstring)
 
 
 _COPY_SLOTS = threading.Semaphore(1)  # tiled copies are written one at a time (each keeps a core busy)
+_DECODED: OrderedDict[int, "TilePyramid"] = OrderedDict()  # pyramids holding a whole decode, least recent first
+_DECODED_LOCK = threading.Lock()
+_URGENT = threading.Condition()  # tile requests decoding now: the copy being written waits for them
+_urgent_n = 0
+
+
+def _hold_decoded(pyr: "TilePyramid") -> None:
+    """``pyr`` holds a whole decode now: mark it most recent, drop the decodes beyond :data:`DECODED_SLOTS`."""
+    with _DECODED_LOCK:
+        _DECODED[id(pyr)] = pyr
+        _DECODED.move_to_end(id(pyr))
+        while len(_DECODED) > DECODED_SLOTS:
+            _, old = _DECODED.popitem(last=False)
+            old._decoded = None
+
+
+def _drop_decoded(pyr: "TilePyramid") -> None:
+    with _DECODED_LOCK:
+        _DECODED.pop(id(pyr), None)
+        pyr._decoded = None
+
+
+def _urgent(delta: int) -> None:
+    global _urgent_n
+    with _URGENT:
+        _urgent_n += delta
+        _URGENT.notify_all()
+
+
+def _yield_to_urgent() -> None:
+    """The copy's pause between rows of blocks: wait while a tile request decodes (at most a few seconds)."""
+    with _URGENT:
+        _URGENT.wait_for(lambda: _urgent_n == 0, timeout=10.0)
 
 
 class TilePyramid:
@@ -46,6 +87,9 @@ class TilePyramid:
         self._copy_started = False
         self._copy_done = threading.Event()
         self._copy_error: BaseException | None = None
+        self._decoded: NDArray | None = None  # a whole decode while the copy is written (module docstring)
+        self._decode_lock = threading.Lock()
+        self._decode_failed = False
         self.width, self.height = windows.width, windows.height
         self.max_level = max(int(math.ceil(math.log2(max(self.width, self.height, 1)))), 0)
         self._overview: tuple[NDArray, float] | None = None
@@ -64,24 +108,62 @@ class TilePyramid:
         def run() -> None:
             try:
                 with _COPY_SLOTS:
-                    self._fine = self.img.tiled_copy(self._copy_to)
+                    a = self._decode(urgent=False)
+                    self._fine = self.img.tiled_copy(self._copy_to, pixels=a, pause=_yield_to_urgent)
             except BaseException as exc:  # noqa: BLE001 - the fine levels then read the original
                 self._copy_error = exc
             finally:
                 self._copy_done.set()
+                _drop_decoded(self)
 
         threading.Thread(target=run, name="skyrig-tiled-copy", daemon=True).start()
 
-    def _fine_source(self) -> ImageWindows:
+    def _fine_source(self) -> ImageWindows | NDArray:
+        """Where full- and half-resolution tiles come from: the file itself, its tiled copy once written, until
+        then the whole decode (module docstring)."""
         if self._copy_to is None:
             return self.img
         self.prepare()
+        if not self._copy_done.is_set():
+            a = self._decode(urgent=True)
+            if a is not None:
+                return a
         self._copy_done.wait()
         return self._fine if self._fine is not None else self.img
+
+    def _decode(self, urgent: bool) -> NDArray | None:
+        """The whole image as :meth:`ImageWindows.window` gives it (RGB or one band, as stored), decoded once by
+        OpenCV and held (module docstring); None when the copy is written (unless the copy itself asks) or OpenCV
+        cannot decode the file as GDAL reads it (then the copy streams the file and fine tiles wait for it).
+        ``urgent``: a tile request (the copy being written pauses while it decodes)."""
+        import cv2
+
+        with self._decode_lock:
+            a = self._decoded
+            if a is None and not self._decode_failed and not (urgent and self._copy_done.is_set()):
+                if urgent:
+                    _urgent(+1)
+                try:
+                    a = cv2.imread(str(self.img.path), cv2.IMREAD_UNCHANGED)  # as stored: no EXIF rotation, any depth
+                finally:
+                    if urgent:
+                        _urgent(-1)
+                if a is not None and a.ndim == 3:
+                    a = a[..., 2::-1] if self.img.bands >= 3 and a.shape[2] >= 3 else a[..., 0]  # BGR(A) -> RGB
+                if a is None or a.shape[:2] != (self.height, self.width) or a.dtype != self.img.dtype:
+                    self._decode_failed = True
+                    return None
+                if self._copy_done.is_set():  # written while decoding: the copy serves
+                    return a
+                self._decoded = a
+            if a is not None:
+                _hold_decoded(self)
+            return a
 
     def close(self) -> None:
         if self._copy_started:
             self._copy_done.wait()
+        _drop_decoded(self)
         if self._fine is not None:
             self._fine.close()
 
@@ -129,7 +211,13 @@ class TilePyramid:
             a = cv2.resize(a, (tw, th), interpolation=cv2.INTER_AREA)
         else:
             src = self._fine_source()
-            a = src.window(int(c0), int(r0), int(math.ceil(c1)) - int(c0), int(math.ceil(r1)) - int(r0), tw, th)
+            ci0, ri0, ci1, ri1 = int(c0), int(r0), int(math.ceil(c1)), int(math.ceil(r1))
+            if isinstance(src, np.ndarray):  # the whole decode: GDAL's averaging of the window, in OpenCV
+                a = np.ascontiguousarray(src[ri0:ri1, ci0:ci1])
+                if a.shape[:2] != (th, tw):
+                    a = cv2.resize(a, (tw, th), interpolation=cv2.INTER_AREA)
+            else:
+                a = src.window(ci0, ri0, ci1 - ci0, ri1 - ri0, tw, th)
         return self._to_8bit(a)
 
     def tile_jpeg(self, level: int, x: int, y: int, quality: int = 90) -> bytes:

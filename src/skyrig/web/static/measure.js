@@ -48,7 +48,7 @@
       const li = document.createElement("li");
       li.id = "pt-" + p.name;
       li.dataset.point = p.name;
-      li.textContent = `${p.name} (${p.role}) ${p.measured_in}/${p.predicted_in}` +
+      li.textContent = `${p.name} (${p.role}${p.code !== null ? ", code " + p.code : ""}) ${p.measured_in}/${p.predicted_in}` +
         (p.adjustment ? `  v ${p.adjustment.v3d_m} m` : "");
       if (p.flagged) li.classList.add("flag");
       if (S.point === p.name) li.classList.add("sel");
@@ -93,6 +93,9 @@
       li.dataset.image = p.image;
       const m = byImage[p.image];
       let text = `${p.image}  q ${p.quality}`;
+      if (p.target_px !== null) text += `  target ${p.target_px} px`;
+      if (st.code !== null && p.target_px !== null && p.target_px < 2.5) {
+        li.classList.add("small"); text += " (too small)"; li.title = "the coded target's dot is predicted under 2.5 px here: its code cannot be read"; }
       if (m) {
         const v = m.vs_intersection || m.vs_ground;
         text += `  \u2713 ${m.method}  d ${v.dcolumn}, ${v.drow}`;
@@ -164,9 +167,13 @@
                                                 method: $("method").value, search_px: searchRadius() });
       S.proposal = prop;
       body.dataset.proposal = JSON.stringify(prop);
-      $("accept").disabled = $("keep").disabled = false;
+      $("keep").disabled = false;
+      // a refused target refinement: said in red; Accept only for what was still refined (least-squares matching)
+      $("accept").disabled = Boolean(prop.refused) && !prop.refined;
       status(`proposal ${prop.column}, ${prop.row} (${prop.method}${prop.refined ? ", refined" : ""}, ` +
-             `sigma ${prop.sigma_px} px, search ${prop.search_px} px): ${prop.note}. Enter accepts, a new click moves it.`);
+             `sigma ${prop.sigma_px} px, search ${prop.search_px} px): ${prop.note}. ` +
+             (prop.refused ? "Refused: " + prop.refused + ". Keep click stores the click; a new click moves it."
+                           : "Enter accepts, a new click moves it."), Boolean(prop.refused));
       draw();
     } catch (err) { status(String(err.message || err), true); }
   });
@@ -200,7 +207,9 @@
   $("detect").addEventListener("click", async () => {
     try {
       const j = await api("/api/detect", { point: S.point, accept: true });
-      status(`${j.found.length} target(s) detected and stored for ${S.point}`);
+      status(`${j.found.length} target(s) detected and stored for ${S.point}` + (j.skipped.length ?
+             `; ${j.skipped.length} image(s) passed over: ` + j.skipped.map((k) => `${k.image}: ${k.reason}`).join("; ")
+             : ""), j.skipped.length > 0);
       await refreshPoint();
       await loadPoints();
     } catch (err) { status(String(err.message || err), true); }
