@@ -297,20 +297,19 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
     vl = np.ones((H, W), bool) if valid_left is None else np.ascontiguousarray(valid_left, bool)
     vr = np.ones((H, W), bool) if valid_right is None else np.ascontiguousarray(valid_right, bool)
     tol = np.float32(max(cfg.lr_max_diff, 0.5))
-    rm = None
-    if cfg.lr_check != "opencv":  # the same matcher (or lr_mode's) on the mirrored pair
-        rm = matcher if cfg.lr_mode in (None, cfg.mode) else _matcher(replace(cfg, mode=cfg.lr_mode), n, channels)
-    if cfg.lr_check == "full":
-        with phase("sgm right"):
-            e16 = np.ascontiguousarray(rm.compute(np.ascontiguousarray(right[:, ::-1]),
-                                                  np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
-        with phase("lr check"):
-            d = check_disparities(d16, e16, vl, vr, tol, int(shift), True)
-    elif cfg.lr_check == "banded":
-        d = _banded_check(left, right, d16, vl, vr, tol, shift, n, cfg, rm)
-    else:
+    if cfg.lr_check == "opencv":
         with phase("lr check"):
             d = check_disparities(d16, np.zeros((1, 1), np.int16), vl, vr, tol, int(shift), False)
+    else:  # the same matcher (or lr_mode's) on the mirrored pair
+        rm = matcher if cfg.lr_mode in (None, cfg.mode) else _matcher(replace(cfg, mode=cfg.lr_mode), n, channels)
+        if cfg.lr_check == "banded":
+            d = _banded_check(left, right, d16, vl, vr, tol, shift, n, cfg, rm)
+        else:
+            with phase("sgm right"):
+                e16 = np.ascontiguousarray(rm.compute(np.ascontiguousarray(right[:, ::-1]),
+                                                      np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
+            with phase("lr check"):
+                d = check_disparities(d16, e16, vl, vr, tol, int(shift), True)
     with phase("filters"):
         d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px, cfg.edge_erode_left_px)
         if cfg.fill_occlusions:
