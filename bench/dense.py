@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check opencv] [--no-cloud]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check banded|full|opencv] [--no-cloud]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -19,8 +19,9 @@ reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
 
 * **chain**: :func:`skyrig.dense.surface.plan_dense`, :func:`run_tile` for every tile, :func:`assemble`, with
   image reading from PNG (rectify, match, triangulate, fuse, cloud) -- the default :class:`DenseConfig`
-  (its left-right check is the second, right-based matching, ``SgmConfig.lr_check="full"``; ``--lr-check opencv``
-  measures OpenCV's internal check instead; ``--no-cloud`` leaves the dense cloud out, as ``skyrig dsm --no-cloud``
+  (its left-right check is the second, right-based matching on the row bands with depth edges,
+  ``SgmConfig.lr_check="banded"``; ``--lr-check full`` runs it on every row, ``--lr-check opencv`` measures OpenCV's
+  internal check instead; ``--no-cloud`` leaves the dense cloud out, as ``skyrig dsm --no-cloud``
   does: the DSM chain alone);
 * **raw**: for every pair the plan selected, ``cv2.StereoSGBM_create(...).compute`` once on the pair's
   whole rectified overlap (the left image's rectified bounds plus the search width on the left, the right
@@ -28,7 +29,7 @@ reported as ``start s``; ``--cold`` leaves it inside the chain's time instead):
   windows, via the same multiple-of-16 rounding) and the same block size / penalties / filters as
   ``SgmConfig``.  Rectification and image reading are *not* timed for raw (they are for the chain).
 
-With the full check (the default) raw is also timed on the mirrored pair (the chain's second, right-based matching,
+With the full check (``--lr-check full``) raw is also timed on the mirrored pair (the chain's second, right-based matching,
 with ``SgmConfig.lr_mode``), and the ratio against raw plus that pass is printed too: the chain's overhead beyond
 the two SGM passes it runs (issue 10's goal is against raw alone).
 
@@ -317,8 +318,8 @@ def main(argv: list[str] | None = None) -> None:
                          "kernels, LLVM set-up - inside the chain's time); default: the start-up is run first on a "
                          "10 x 10 m area and reported on its own (like raw's OpenCV import, it is paid once per "
                          "process)")
-    ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
-                    help="SgmConfig.lr_check of the chain (default: DenseConfig's, the full check); raw "
+    ap.add_argument("--lr-check", choices=("banded", "full", "opencv"), default=None,
+                    help="SgmConfig.lr_check of the chain (default: DenseConfig's, the banded check); raw "
                          "StereoSGBM always runs OpenCV's internal check (disp12MaxDiff)")
     ap.add_argument("--no-cloud", action="store_true",
                     help="the chain without the dense point cloud (DenseConfig.cloud=False, skyrig dsm --no-cloud)")

@@ -656,7 +656,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("/tmp/skyrig-acc"))
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--redo-dense", action="store_true", help="recompute the dense products even when cached")
-    ap.add_argument("--lr-check", choices=("full", "opencv"), default=None,
+    ap.add_argument("--lr-check", choices=("banded", "full", "opencv"), default=None,
                     help="midas / tumblecam: skyrig dsm --lr-check (default: skyrig's default, the full check)")
     ap.add_argument("--no-cloud", action="store_true", help="midas / tumblecam: skyrig dsm --no-cloud")
     a = ap.parse_args(argv)

@@ -31,7 +31,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("demo", type=Path)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--lr-check", choices=("full", "opencv"), default="full")
+    ap.add_argument("--lr-check", choices=("banded", "full", "opencv"), default="full")
     ap.add_argument("--erode-left", type=int, default=None, help="SgmConfig.edge_erode_left_px (default: None)")
     a = ap.parse_args()
     sim = a.demo / "simulated"

@@ -574,7 +574,8 @@ def test_cli_bad_input_is_a_clear_error_and_writes_nothing(project, tmp_path, ca
 
 def test_cli_lr_check_option_reaches_the_matcher(project, tmp_path, monkeypatch):
     """``skyrig dsm --lr-check full`` runs the second, right-based matching (two SGBM passes per block; OpenCV's
-    internal check: one), records the choice in the manifest, and an unknown value is refused naming the option."""
+    internal check: one; the banded check, the default: one, and one more per run of row bands with a depth edge),
+    records the choice in the manifest, and an unknown value is refused naming the option."""
     from skyrig.dense import sgm
 
     calls: list[str] = []
@@ -592,7 +593,7 @@ def test_cli_lr_check_option_reaches_the_matcher(project, tmp_path, monkeypatch)
     c = _to_map(np.array([-6.0, 6.0]), np.array([-5.0, 5.0]), np.array([50.0, 50.0]))
     area = [str(v) for v in (c[0, 0], c[0, 1], c[1, 0], c[1, 1])]
     counts = {}
-    for lr in ("opencv", "full"):
+    for lr in ("opencv", "banded", "full"):
         calls.clear()
         out = tmp_path / lr
         r = _dsm(project, out, "--height-range", "40", "75", "--pairs-per-image", "2", "--no-cloud", "--area", *area,
@@ -602,6 +603,7 @@ def test_cli_lr_check_option_reaches_the_matcher(project, tmp_path, monkeypatch)
         counts[lr] = len(calls)
         assert json.loads((out / "manifest.json").read_text())["options"]["lr_check"] == lr
     assert counts["full"] == 2 * counts["opencv"]
+    assert counts["opencv"] < counts["banded"]  # the buildings' edges have bands
     r = _dsm(project, tmp_path / "bad", "--height-range", "40", "75", "--lr-check", "both")
     assert r.exit_code != 0 and "--lr-check" in r.output and not (tmp_path / "bad").exists()
 

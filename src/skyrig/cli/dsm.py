@@ -25,8 +25,9 @@ from skyrig.cli._common import eo_options
 @click.option("--resolution", type=POSITIVE_M, default=None, help="Cell size in metres (default: 1 GSD).")
 @click.option("--mode", type=click.Choice(["sgbm", "hh", "3way", "hh4"]), default="sgbm", show_default=True,
               help="OpenCV semi-global matching mode.")
-@click.option("--lr-check", type=click.Choice(["full", "opencv"]), default=None,
-              help="Left-right check: 'full' (default: a second matching from the right image) or 'opencv' "
+@click.option("--lr-check", type=click.Choice(["banded", "full", "opencv"]), default=None,
+              help="Left-right check: 'banded' (default: a second matching from the right image on the row bands "
+                   "where the first shows a depth edge), 'full' (that matching on every row) or 'opencv' "
                    "(OpenCV's internal one: half the matching time, rounder building edges, a few more outliers).")
 @click.option("--pairs-per-image", type=POSITIVE_INT, default=6, show_default=True, help="Stereo pairs an image takes part in.")
 @click.option("--min-support", type=POSITIVE_INT, default=2, show_default=True,

@@ -564,6 +564,31 @@ def check_disparities(d16, e16, valid_left, valid_right, tol, shift, full):  # p
 
 
 @numba.njit(cache=True, error_model="numpy")
+def lr_band_rows(d, jump, c0, band):  # pragma: no cover - compiled
+    """Rows of a crop whose right-based matching the banded left-right check runs (see
+    :func:`skyrig.dense.sgm.match_crop`): every row of a band of ``band`` rows (bands counted from the crop's first
+    row) in which some row has a depth edge: two finite disparities of ``d`` (NaN = none), consecutive along the row
+    from column ``c0`` on (holes between them skipped: an occlusion leaves a hole between the two sides of an edge),
+    that differ by more than ``jump`` pixels."""
+    H, W = d.shape
+    out = np.zeros(H, np.bool_)
+    for r in range(H):
+        have = False
+        last = np.float32(0.0)
+        for c in range(c0, W):
+            v = d[r, c]
+            if v == v:
+                if have and abs(v - last) > jump:
+                    b0 = (r // band) * band
+                    for q in range(b0, min(H, b0 + band)):
+                        out[q] = True
+                    break
+                have = True
+                last = v
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
     """|z component| of the unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (closed-form
     eigenvalue, the eigenvector as the longest cross product of two rows of ``A - lambda I``); NaN if undefined."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 import logging
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +25,8 @@ from skyrig.errors import SkyrigError
 logger = logging.getLogger(__name__)
 
 MODES = ("sgbm", "hh", "3way", "hh4")
+#: left-right checks (:attr:`SgmConfig.lr_check`)
+LR_CHECKS = ("full", "banded", "opencv")
 
 
 @dataclass(frozen=True)
@@ -82,32 +85,46 @@ class SgmConfig:
         2 GSD of building edges valid 83.9 / 83.5 / 82.2 %, RMSE 14.7 / 16.0 / 15.4 GSD, cells off by > 5 GSD
         0.46 / 0.63 / 0.51 %; flat cells NMAD 0.166 / 0.165 / 0.167 GSD, completeness 99.7 % in all three.
     lr_check
-        ``"full"``: a second matching from the right image (the mirrored pair) must confirm every disparity
-        within ``lr_max_diff`` (occlusions and fattening next to depth edges fail); ``"opencv"``: only
-        OpenCV's internal check (``disp12MaxDiff``): the right image's disparities taken from the same aggregated
-        cost volume (per right pixel the best of the costs along its diagonal, Hirschmueller 2008), no second
-        matching, half the time.  Middlebury (block size 3, the tests' settings) full / opencv: Cones bad > 1 px
-        non-occluded 7.18 / 6.38 %, all known 17.76 / 17.00 %, all known with ``fill_occlusions`` 11.00 / 12.17 %;
-        Motorcycle bad > 2 px 15.85 / 14.52 %, filled 7.50 / 10.60 %.  The DSM's figures are in
-        :class:`skyrig.dense.surface.DenseConfig`.  Cheaper right-based passes cost edge cells
-        (midas-dsm, adjusted orientations, DenseConfig defaults otherwise; cells within 2 GSD of building edges
-        valid / outliers > 5 GSD of all valid cells): full 80.0 / 0.42 %; ``"opencv"`` 77.4 / 0.55 %; the mirrored
-        pair reduced 2 x 2 (a fifth of the time; tolerance 1 / 1.5 / 2 px) 73.9 / 0.45, 76.8 / 0.52, 77.5 / 0.55 %;
-        rows averaged in pairs (half the time, disparities kept at full resolution) 77.9 / 0.46 %.  Searching the
-        right-based pass over the left pass's disparities only (their least to largest, +- ``lr_max_diff + 1``)
-        changes 348 of 1.05 M cells of the 16-image ``bench/dense.py`` block but saves no time: OpenCV's cost per
-        pixel does grow with the width (3-way, 1 thread: 94 / 133 / 172 ns at 16 / 32 / 64 disparities), but a
-        block's left disparities span nearly its whole geometric window (ground to roofs, and hundreds to
-        thousands of pixels stuck at either end of the search, which the full check then rejects: 28 of 7.0 M
-        disparities outside the window survive it), so the narrower windows model at 11 % of the pass's time
-        and measured within noise (sgm right 2.09 vs 2.07 CPU s).
+        ``"full"``: a second matching from the right image (the mirrored pair) must confirm every disparity within
+        ``lr_max_diff`` (occlusions and fattening next to depth edges fail); ``"banded"``: that second matching only on
+        the bands of ``lr_band_px`` rows (counted from the crop's first row) in which OpenCV's own check leaves a depth
+        edge: two finite disparities next to each other along a row (holes skipped) that differ by more than
+        ``lr_band_jump_px``; each run of such bands is matched with ``lr_band_context_px`` rows above it (the top-down
+        path of the 3-way mode starts there), its rows get the full check and the other rows OpenCV's (where no depth
+        edge is left, neither occlusion nor fattening is either: on the 16-image ``bench/dense.py`` block the full
+        check rejects 0.95 % of the disparities OpenCV's keeps, and 89 % of those lie in the banded rows).  The DSM's
+        default (:class:`skyrig.dense.surface.DenseConfig`): on that block the bands hold 64 % of the rows and the
+        right-based pass takes 0.64-0.67 instead of 0.91-0.96 CPU s, the DSM's edge cells as with the full check (valid
+        38.87 / 38.81 %, off by > 5 GSD 22.70 / 22.69 %, RMSE 19.11 / 19.07 GSD, flat NMAD 0.139 GSD both).  Bands of
+        16 rows, 8 rows of context, jumps over 2 / 4 / 8 px: 22.89 / 22.81 / 23.24 % and 19.23 / 19.18 / 19.28 GSD,
+        0.66 / 0.61 / 0.50 CPU s; bands of 32, 8 rows, 2 px: 22.57 %, 18.99 GSD, 0.72 CPU s (the spread of these
+        figures is about what the choice of band moves them: +-0.2 % and +-0.15 GSD).  ``"opencv"``: only OpenCV's
+        internal check (``disp12MaxDiff``): the right image's disparities taken from the same aggregated cost volume
+        (per right pixel the best of the costs along its diagonal, Hirschmueller 2008), no second matching, half the
+        time.  Middlebury (block size 3, the tests' settings) full / opencv: Cones bad > 1 px non-occluded 7.18 / 6.38
+        %, all known 17.76 / 17.00 %, all known with ``fill_occlusions`` 11.00 / 12.17 %; Motorcycle bad > 2 px 15.85 /
+        14.52 %, filled 7.50 / 10.60 %.  The DSM's figures are in :class:`skyrig.dense.surface.DenseConfig`.  Cheaper
+        right-based passes cost edge cells (midas-dsm, adjusted orientations, DenseConfig defaults otherwise; cells
+        within 2 GSD of building edges valid / outliers > 5 GSD of all valid cells): full 80.0 / 0.42 %; ``"opencv"``
+        77.4 / 0.55 %; the mirrored pair reduced 2 x 2 (a fifth of the time; tolerance 1 / 1.5 / 2 px) 73.9 / 0.45,
+        76.8 / 0.52, 77.5 / 0.55 %; rows averaged in pairs (half the time, disparities kept at full resolution) 77.9 /
+        0.46 %.  Searching the right-based pass over the left pass's disparities only (their least to largest, +-
+        ``lr_max_diff + 1``) changes 348 of 1.05 M cells of the 16-image ``bench/dense.py`` block but saves no time:
+        OpenCV's cost per pixel does grow with the width (3-way, 1 thread: 94 / 133 / 172 ns at 16 / 32 / 64
+        disparities), but a block's left disparities span nearly its whole geometric window (ground to roofs, and
+        hundreds to thousands of pixels stuck at either end of the search, which the full check then rejects: 28 of 7.0
+        M disparities outside the window survive it), so the narrower windows model at 11 % of the pass's time and
+        measured within noise (sgm right 2.09 vs 2.07 CPU s).
     max_incidence_deg
         Points whose surface (from the depth grid of the pair) is seen at a more grazing angle than this
         (angle between the surface normal and the ray to the camera) are dropped: next to a depth edge the
         matcher smooths the jump into a steep ramp whose points float off the surface; a real surface seen
         that obliquely cannot be matched reliably either.  90 disables.
     lr_mode
-        Matcher mode of the right-based pass of the full left-right check (None: ``mode``).
+        Matcher mode of the right-based pass of the full (or banded) left-right check (None: ``mode``).
+    lr_band_px, lr_band_context_px, lr_band_jump_px
+        The banded check's bands (rows), the rows matched above each run of bands, and the disparity jump (pixels)
+        that marks a depth edge (see ``lr_check``).
     wall_max_nz, wall_window_px
         A triangulated point gets a DSM height only where the matched pixels of its ``wall_window_px`` square
         window are at least half of the window and their points fit a plane no steeper than
@@ -153,6 +170,9 @@ class SgmConfig:
     lr_check: str = "full"
     fill_occlusions: bool = False
     lr_mode: str | None = None
+    lr_band_px: int = 16
+    lr_band_context_px: int = 4
+    lr_band_jump_px: float = 2.0
     wall_max_nz: float = 0.3
     wall_window_px: int = 5
 
@@ -163,8 +183,13 @@ class SgmConfig:
             raise SkyrigError(f"SGM block size must be odd and 1..11, not {self.block_size} (option: block_size)")
         if self.lr_mode is not None and self.lr_mode not in MODES:
             raise SkyrigError(f"lr_mode must be one of {', '.join(MODES)} or None, not {self.lr_mode!r} (option: lr_mode)")
-        if self.lr_check not in ("full", "opencv"):
-            raise SkyrigError(f"lr_check must be 'full' or 'opencv', not {self.lr_check!r} (option: lr_check)")
+        if self.lr_check not in LR_CHECKS:
+            raise SkyrigError(f"lr_check must be one of {', '.join(LR_CHECKS)}, not {self.lr_check!r} "
+                              "(option: lr_check)")
+        if self.lr_band_px < 1 or self.lr_band_context_px < 0 or not self.lr_band_jump_px >= 0:
+            raise SkyrigError(f"lr_band_px must be >= 1, lr_band_context_px >= 0 and lr_band_jump_px >= 0, got "
+                              f"{self.lr_band_px}, {self.lr_band_context_px}, {self.lr_band_jump_px} "
+                              "(options: lr_band_px, lr_band_context_px, lr_band_jump_px)")
         if self.edge_erode_left_px is not None and (self.edge_erode_left_px < 0 or self.edge_erode_across_px is None):
             raise SkyrigError("edge_erode_left_px must be >= 0 and needs edge_erode_across_px (the erosion along rows "
                               f"and columns), got {self.edge_erode_left_px} with edge_erode_across_px "
@@ -244,8 +269,8 @@ def match_rectified(left: NDArray, right: NDArray, d_min: float, d_max: float, c
 
 def crop_extra_right(n: int, cfg: SgmConfig) -> int:
     """Columns a crop needs right of its interior: the right-based pass of the full left-right check leaves
-    its last ``n`` columns without result."""
-    return n if cfg.lr_check == "full" else 0
+    its last ``n`` columns without result (the banded one too, on its bands)."""
+    return n if cfg.lr_check in ("full", "banded") else 0
 
 
 def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig,
@@ -265,27 +290,66 @@ def match_crop(left: NDArray, right: NDArray, shift: int, n: int, cfg: SgmConfig
     channels = 1 if left.ndim == 2 else left.shape[2]
     matcher = _matcher(cfg, n, channels)
     H, W = left.shape[:2]
-    full = cfg.lr_check == "full"
     extra = crop_extra_right(n, cfg) if W - crop_extra_right(n, cfg) > n else 0
     with phase("sgm left"):  # the last n columns (full check) only serve the right-based pass: skipped here
-        d16 = matcher.compute(np.ascontiguousarray(left[:, :W - extra]), np.ascontiguousarray(right[:, :W - extra]))
-    if full:
-        with phase("sgm right"):  # the same matcher on the mirrored pair
-            rm = matcher if cfg.lr_mode in (None, cfg.mode) else _matcher(replace(cfg, mode=cfg.lr_mode), n, channels)
-            e16 = np.ascontiguousarray(rm.compute(np.ascontiguousarray(right[:, ::-1]),
-                                                       np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
-    else:
-        e16 = np.zeros((1, 1), np.int16)
-    with phase("lr check"):
-        vl = np.ones((H, W), bool) if valid_left is None else np.ascontiguousarray(valid_left, bool)
-        vr = np.ones((H, W), bool) if valid_right is None else np.ascontiguousarray(valid_right, bool)
-        d = check_disparities(np.ascontiguousarray(d16, np.int16), e16, vl, vr, np.float32(max(cfg.lr_max_diff, 0.5)),
-                              int(shift), full)
+        d16 = np.ascontiguousarray(matcher.compute(np.ascontiguousarray(left[:, :W - extra]),
+                                                   np.ascontiguousarray(right[:, :W - extra])), np.int16)
+    vl = np.ones((H, W), bool) if valid_left is None else np.ascontiguousarray(valid_left, bool)
+    vr = np.ones((H, W), bool) if valid_right is None else np.ascontiguousarray(valid_right, bool)
+    tol = np.float32(max(cfg.lr_max_diff, 0.5))
+    if cfg.lr_check == "opencv":
+        with phase("lr check"):
+            d = check_disparities(d16, np.zeros((1, 1), np.int16), vl, vr, tol, int(shift), False)
+    else:  # the same matcher (or lr_mode's) on the mirrored pair
+        rm = matcher if cfg.lr_mode in (None, cfg.mode) else _matcher(replace(cfg, mode=cfg.lr_mode), n, channels)
+        if cfg.lr_check == "banded":
+            d = _banded_check(left, right, d16, vl, vr, tol, shift, n, cfg, rm)
+        else:
+            with phase("sgm right"):
+                e16 = np.ascontiguousarray(rm.compute(np.ascontiguousarray(right[:, ::-1]),
+                                                      np.ascontiguousarray(left[:, ::-1]))[:, ::-1])
+            with phase("lr check"):
+                d = check_disparities(d16, e16, vl, vr, tol, int(shift), True)
     with phase("filters"):
         d = erode_foreground(d, cfg.edge_jump_px, cfg.edge_erode_px, cfg.edge_erode_across_px, cfg.edge_erode_left_px)
         if cfg.fill_occlusions:
             d = fill_background(d, valid_left)
     return d
+
+
+def _banded_check(left: NDArray, right: NDArray, d16: NDArray[np.int16], vl: NDArray[np.bool_],
+                  vr: NDArray[np.bool_], tol: np.float32, shift: int, n: int, cfg: SgmConfig, rm: Any
+                  ) -> NDArray[np.float32]:
+    """The banded left-right check of :func:`match_crop` (``cfg.lr_check == "banded"``): the right-based matching
+    only on the bands of ``cfg.lr_band_px`` rows where OpenCV's own check leaves a depth edge (:func:`lr_band_rows`),
+    each run of such bands matched with ``cfg.lr_band_context_px`` rows above it; those rows get the full check, the
+    others OpenCV's."""
+    from skyrig.dense._kernels import check_disparities, lr_band_rows
+    from skyrig.dense._phases import phase
+
+    H, W = left.shape[:2]
+    with phase("lr check"):
+        dc = check_disparities(d16, np.zeros((1, 1), np.int16), vl, vr, tol, int(shift), False)
+        rows = lr_band_rows(dc, np.float32(cfg.lr_band_jump_px), n, int(cfg.lr_band_px))
+    if not rows.any():
+        return dc
+    e16 = np.full((H, W), -1, np.int16)
+    with phase("sgm right"):
+        for r0, r1 in _runs(rows):
+            y0 = max(0, r0 - cfg.lr_band_context_px)
+            e = rm.compute(np.ascontiguousarray(right[y0:r1, ::-1]), np.ascontiguousarray(left[y0:r1, ::-1]))
+            e16[r0:r1] = e[r0 - y0:, ::-1]
+    with phase("lr check"):
+        d = check_disparities(d16, e16, vl, vr, tol, int(shift), True)
+        d[~rows] = dc[~rows]
+    return d
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``[start, end)`` of every run of True in a 1-D mask."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(m[1:] != m[:-1])
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
 
 
 def _match_tile(left: NDArray, right: NDArray, cfg: SgmConfig, shift: int, n: int, r0: int, r1: int, c0: int,

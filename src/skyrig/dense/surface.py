@@ -66,16 +66,28 @@ class DenseConfig:
         whose pairs split into two camps (ground and roof rim) takes the camp its fused neighbours clearly continue
         (``FusionConfig.split_by_neighbours``): edge cells 80.0 -> 83.0 % on midas-dsm, 91.3 -> 93.4 % on
         tumblecam-dsm, outliers 0.42 -> 0.45 % and 0.27 -> 0.28 %, edge RMSE 14.0 -> 14.4 and 21.6 -> 21.9 GSD.
-        The left-right check is a second, right-based matching (``SgmConfig.lr_check="full"``).  OpenCV's internal
-        check (``"opencv"``: the right image's disparities from the left matching's own cost volume) saves that
-        second matching, which costs as much time as the left one (``bench/dense.py``, 16 images: 1.9 of 8.1 CPU s;
-        whole-chain throughput ratio to raw StereoSGBM 0.35 -> 0.47).  Its price, ``bench/dense_acceptance.py
-        midas tumblecam`` (adjusted orientations), full -> opencv: edge completeness 83.0 -> 82.0 % (midas-dsm) and
-        93.4 -> 91.6 % (tumblecam-dsm), cells off by more than 5 GSD 0.45 -> 0.63 % and 0.28 -> 0.34 %, edge RMSE
-        14.4 -> 15.9 and 21.9 -> 23.7 GSD; flat cells unchanged.  The rounder building edges also move squared
-        buildings: on ``make demo``'s town the orthomosaic's roof corners go from 100 % within 1 GSD (0.28 GSD
-        RMS) to 96.5 % (0.70 GSD RMS, one corner 4.2 GSD off), so ``"full"`` is the default for products and
-        ``"opencv"`` (``skyrig dsm --lr-check opencv``) the option when a DSM is wanted fast.
+        The left-right check is a second, right-based matching on the row bands where the first leaves a depth edge
+        (``SgmConfig.lr_check="banded"``; OpenCV's own check on the other rows, where a second matching changes next to
+        nothing).  ``bench/dense.py --sizes 16`` (CPU s, median of 4 runs each, the same runs judge the DSM against the
+        scene's truth), banded / ``"full"`` (the second matching on every row): chain 3.44 / 3.79, throughput ratio to
+        raw StereoSGBM 0.39 / 0.36 (0.38-0.41 / 0.35-0.36), right-based pass 0.65 / 0.94; cells within 2 GSD of
+        building outlines valid 38.87 / 38.81 %, off by more than 5 GSD 22.70 / 22.69 %, RMSE 19.11 / 19.07 GSD; flat
+        cells NMAD 0.139 GSD both; 32 images (3 runs each): ratio 0.36 / 0.35, right-based pass 1.35 / 1.74, edge cells
+        valid 70.71 / 70.70 %, off by more than 5 GSD 18.14 / 18.38 %, RMSE 15.79 / 15.85 GSD.  Where the rest of the
+        chain's time goes: the fusion (points into cells and the cells' grid and cloud, about 1.0 CPU s for the block's
+        7.0 M points) costs as much as one matching pass, triangulation with the wall test 0.28, rectification 0.14, so
+        that even without any right-based pass the chain would stay near 0.48 of raw StereoSGBM.  The full check
+        (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
+        below were measured with it (not re-run with the banded check).  OpenCV's internal check (``"opencv"``: the
+        right image's disparities from the left matching's own cost volume) saves that second matching, which costs as
+        much time as the left one (``bench/dense.py``, 16 images: 1.9 of 8.1 CPU s; whole-chain throughput ratio to raw
+        StereoSGBM 0.35 -> 0.47).  Its price, ``bench/dense_acceptance.py midas tumblecam`` (adjusted orientations),
+        full -> opencv: edge completeness 83.0 -> 82.0 % (midas-dsm) and 93.4 -> 91.6 % (tumblecam-dsm), cells off by
+        more than 5 GSD 0.45 -> 0.63 % and 0.28 -> 0.34 %, edge RMSE 14.4 -> 15.9 and 21.9 -> 23.7 GSD; flat cells
+        unchanged.  The rounder building edges also move squared buildings: on ``make demo``'s town the orthomosaic's
+        roof corners go from 100 % within 1 GSD (0.28 GSD RMS) to 96.5 % (0.70 GSD RMS, one corner 4.2 GSD off), so a
+        second matching (banded) is the default for products and ``"opencv"`` (``skyrig dsm --lr-check opencv``) the
+        option when a DSM is wanted fast.
     block_px
         Side of a rectified block matched in one SGM run (bounds memory: about
         ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
@@ -119,7 +131,7 @@ class DenseConfig:
     cell_m: float | None = None
     pairs: PairConfig = field(default_factory=PairConfig)
     sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
-                                                             lr_check="full"))
+                                                             lr_check="banded"))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048

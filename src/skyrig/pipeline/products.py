@@ -129,8 +129,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     _positive(tile_cells, "tile_cells", spell, "at least 64 cells", 64)
     if mode not in ("sgbm", "hh", "3way", "hh4"):
         raise OptionError(spell("mode"), f"unknown mode {mode!r} (sgbm, hh, 3way, hh4)")
-    if lr_check is not None and lr_check not in ("opencv", "full"):
-        raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (opencv, full)")
+    if lr_check is not None and lr_check not in ("opencv", "banded", "full"):
+        raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (banded, full, opencv)")
     if window_min_mp is not None and not window_min_mp >= 0:
         raise OptionError(spell("window_min_mp"), f"must be >= 0 megapixels, got {window_min_mp}")
     scale = _image_scale(image_scale, spell)

@@ -857,9 +857,10 @@ register_stage(Stage(
              "area": Option(None, "floats", "[XMIN, YMIN, XMAX, YMAX] in the project CRS", n=4, nullable=True),
              "resolution": Option(None, "float", "cell size (m); default 1 GSD", nullable=True, positive=True),
              "mode": Option("sgbm", "choice", "OpenCV SGM mode", ("sgbm", "hh", "3way", "hh4")),
-             "lr_check": Option("full", "choice", "left-right check: a second, mirrored matching, or OpenCV's own "
-                                "on the same costs (half the matching time, rounder building edges)",
-                                ("full", "opencv")),
+             "lr_check": Option("banded", "choice", "left-right check: a second, mirrored matching on the row bands "
+                                "with depth edges (banded), on every row (full), or OpenCV's own on the same costs "
+                                "(opencv: half the matching time, rounder building edges)",
+                                ("banded", "full", "opencv")),
              "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
