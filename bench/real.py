@@ -171,7 +171,7 @@ def pose_similarity(centres: np.ndarray, world_from_cv: np.ndarray, G: np.ndarra
 
 
 def compare_with_truth(names: list[str], centres: np.ndarray, world_from_cv: np.ndarray,
-                       gt: dict[str, dict[str, Any]]) -> dict[str, float]:
+                       gt: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """Centres and rotations against the ground truth after a similarity (``world_from_cv``: ``(N, 3, 3)`` camera ->
     world rotations with OpenCV camera axes: x right, y down, z forward)."""
     from skyrig.match.colmap_check import similarity_transform
@@ -487,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     a.work.mkdir(parents=True, exist_ok=True)
     results: dict[str, Any] = {}
     for ds in [d.strip() for d in a.datasets.split(",") if d.strip()]:
-        fn = {"brighton": brighton, "strecha": strecha, "berlin": berlin, "lund": lund, "ign": ign}.get(ds)
+        fn: Any = {"brighton": brighton, "strecha": strecha, "berlin": berlin, "lund": lund, "ign": ign}.get(ds)
         if fn is None:
             print(f"unknown dataset {ds!r}: brighton, strecha, berlin, lund, ign", file=sys.stderr)
             return 2
@@ -543,8 +543,9 @@ def main(argv: list[str] | None = None) -> int:
             rows += [("  principal point sigma x, y (px)", ", ".join(f"{v:.2f}" for v in s["pp_sigma_px"]), "", ""),
                      ("  predicted from the covariance (deg)", f"{pr['rotation_rms_deg']:.4f}",
                       f"p90 {pr['rotation_rms_p90_deg']:.4f}", "random part"),
-                     ("camera held at the GT's own K: pose rot. (deg)", f"{kk['pose_similarity']['rotation_rms_deg']:.4f}",
-                      f"pred. {pk['rotation_rms_deg']:.4f}", "floor"),
+                     ("camera held at the GT's own K: pose rot. (deg)",
+                      f"{kk['pose_similarity']['rotation_rms_deg']:.4f}", f"pred. {pk['rotation_rms_deg']:.4f}",
+                      "floor"),
                      ("  and centre RMS (m)", f"{kk['pose_similarity']['centre_rms_m']:.4f}",
                       f"pred. {pk['centre_rms_m']:.4f}", ""),
                      ("GT poses vs tie points (GT K): delta chi2", f"{tc['delta_chi2']:.0f}",
