@@ -69,7 +69,9 @@ def inputs(prev: Path = PREV) -> dict[str, Path]:
 
 def _skyrig(*args: str) -> None:
     exe = ROOT / ".venv" / "bin" / "skyrig"
-    cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-m", "skyrig.cli", *args]
+    # (skyrig.cli has no __main__: without the project's venv, its console-script entry point run directly)
+    cmd = [str(exe), *args] if exe.exists() else [sys.executable, "-c", "import sys; from skyrig.cli import main; "
+                                                  "sys.exit(main())", *args]
     print("$ skyrig " + " ".join(args), flush=True)
     subprocess.run(cmd, check=True)
 
