@@ -261,7 +261,7 @@ class CellSorter:
             cl = (a["s3"], a["rgb"], a["nrm"])
         else:
             cl = (f32, np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
-        k = triangulate_take(*tri_args, *poly, int(pair), a["xyz"], a["sh"], a["pair"], cl[0], cl[1], cl[2],
+        k = triangulate_take(*tri_args, *poly, int(pair), a["xyz"], a["sh"], a["pair"], cl[0], cl[1], cl[2],  # type: ignore[call-arg]
                              a["cell"], self.n, float(g.x0), float(g.y0), float(g.cell_m), H, W, self.TILE,
                              np.array(bounds, np.float64), self.counts)
         self.n += int(k)

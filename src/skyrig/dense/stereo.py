@@ -254,6 +254,6 @@ def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], co
     if wall_nz > 0 and len(rr):
         from skyrig.dense._kernels import steep_points
 
-        nz = steep_points(args[0], rr, cc, *args[1:6], half, min_count, flat)
+        nz = steep_points(args[0], rr, cc, *args[1:6], half, min_count, flat)  # type: ignore[call-arg]
         sigma_h[~(nz >= wall_nz)] = np.float32(np.nan)  # NaN: steep or sparse (a fresh array: in place)
     return PairPoints(xyz, sigma_h, sigma_3d, rgb, normal, np.ascontiguousarray(rect.centres, np.float64))
