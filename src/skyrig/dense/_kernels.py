@@ -469,8 +469,8 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
     """:func:`triangulate_block`, the wall test of :func:`steep_points` (``wall_nz > 0``), the local -> map
     polynomial of :func:`poly_map` and :func:`take_points` (without a sigma test) in one pass over a block's
     pixels: each kept pixel's point goes straight into rows ``at..`` of a :class:`~skyrig.dense.fusion.CellSorter`'s
-    arrays, with no per-block point arrays in between, and only the points that fall in a cell inside ``bounds``
-    are wall-tested.  The same arithmetic in the same order as those kernels one after the other, so the same
+    arrays, with no per-block point arrays in between; a pixel's normal, incidence and wall test are computed only when
+    its point falls in a cell inside ``bounds`` (a block reaching several ground tiles is triangulated in each).  The same arithmetic in the same order as those kernels one after the other, so the same
     rows, bit for bit.  Returns the number of points taken."""
     H, W = disp.shape
     fb = f * B
@@ -496,17 +496,23 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
             if not d > 0:
                 continue
             D = Dg[r, c]
+            u = u0 + c
+            v = v0 + r
+            px = u * D / f
+            py = -v * D / f
+            pz = -D
+            for i in range(3):
+                w[i] = C[i] + R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz
+            _poly_point(w, m_c0, m_s, m_coef, m_offset, q)
+            cell = _cell_of(q[0], q[1], q[2], 1.0, test_bounds, bounds, x0, y0, cell_m, Hg, Wg, tile, ntc)
+            if cell < 0:  # outside the tile: no normal, incidence or wall test needed
+                continue
             du = np.nan
             if 0 < c < W - 1 and disp[r, c - 1] > 0 and disp[r, c + 1] > 0:
                 du = 0.5 * (Dg[r, c + 1] - Dg[r, c - 1])
             dv = np.nan
             if 0 < r < H - 1 and disp[r - 1, c] > 0 and disp[r + 1, c] > 0:
                 dv = 0.5 * (Dg[r + 1, c] - Dg[r - 1, c])
-            u = u0 + c
-            v = v0 + r
-            px = u * D / f
-            py = -v * D / f
-            pz = -D
             ax = (D + u * du) / f
             ay = -v * du / f
             az = -du
@@ -524,12 +530,6 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
             sg = 1.0 / nn
             if cosi < 0:
                 sg = -sg
-            for i in range(3):
-                w[i] = C[i] + R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz
-            _poly_point(w, m_c0, m_s, m_coef, m_offset, q)
-            cell = _cell_of(q[0], q[1], q[2], 1.0, test_bounds, bounds, x0, y0, cell_m, Hg, Wg, tile, ntc)
-            if cell < 0:
-                continue
             wz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
             if wall_nz > 0:
                 rows[j - at] = r
