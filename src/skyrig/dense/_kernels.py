@@ -463,6 +463,116 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
 
 
 @numba.njit(cache=True, error_model="numpy")
+def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_nz, half, min_count, flat_range,
+                     m_c0, m_s, m_coef, m_offset, pair_const, o_xyz, o_sh, o_pair, o_s3, o_rgb, o_n, o_cell, at, x0, y0,
+                     cell_m, Hg, Wg, tile, bounds, counts):  # pragma: no cover - compiled
+    """:func:`triangulate_block`, the wall test of :func:`steep_points` (``wall_nz > 0``), the local -> map
+    polynomial of :func:`poly_map` and :func:`take_points` (without a sigma test) in one pass over a block's
+    pixels: each kept pixel's point goes straight into rows ``at..`` of a :class:`~skyrig.dense.fusion.CellSorter`'s
+    arrays, with no per-block point arrays in between; a pixel's normal, incidence and wall test are computed only when
+    its point falls in a cell inside ``bounds`` (a block reaching several ground tiles is triangulated in each).  The same arithmetic in the same order as those kernels one after the other, so the same
+    rows, bit for bit.  Returns the number of points taken."""
+    H, W = disp.shape
+    fb = f * B
+    nch = colour.shape[2]
+    cloud = o_s3.shape[0] > 0
+    test_bounds = bounds.shape[0] == 4
+    ntc = (Wg + tile - 1) // tile if tile > 0 else 0
+    nmax = 0
+    Dg = np.empty((H, W))  # depth of every matched pixel (as triangulate_block)
+    for r in range(H):
+        for c in range(W):
+            if disp[r, c] > 0:
+                nmax += 1
+                Dg[r, c] = fb / disp[r, c]
+    rows = np.empty(nmax if wall_nz > 0 else 0, np.int64)  # the pixels taken, for the wall test
+    cols = np.empty(nmax if wall_nz > 0 else 0, np.int64)
+    j = at
+    w = np.empty(3)
+    q = np.empty(3)
+    for r in range(H):
+        for c in range(W):
+            d = disp[r, c]
+            if not d > 0:
+                continue
+            D = Dg[r, c]
+            u = u0 + c
+            v = v0 + r
+            px = u * D / f
+            py = -v * D / f
+            pz = -D
+            for i in range(3):
+                w[i] = C[i] + R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz
+            _poly_point(w, m_c0, m_s, m_coef, m_offset, q)
+            cell = _cell_of(q[0], q[1], q[2], 1.0, test_bounds, bounds, x0, y0, cell_m, Hg, Wg, tile, ntc)
+            if cell < 0:  # outside the tile: no normal, incidence or wall test needed
+                continue
+            du = np.nan
+            if 0 < c < W - 1 and disp[r, c - 1] > 0 and disp[r, c + 1] > 0:
+                du = 0.5 * (Dg[r, c + 1] - Dg[r, c - 1])
+            dv = np.nan
+            if 0 < r < H - 1 and disp[r - 1, c] > 0 and disp[r + 1, c] > 0:
+                dv = 0.5 * (Dg[r + 1, c] - Dg[r - 1, c])
+            ax = (D + u * du) / f
+            ay = -v * du / f
+            az = -du
+            bx = u * dv / f
+            by = -(D + v * dv) / f
+            bz = -dv
+            nx = by * az - bz * ay
+            ny = bz * ax - bx * az
+            nz = bx * ay - by * ax
+            nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+            rng = np.sqrt(px * px + py * py + pz * pz)
+            cosi = -(nx * px + ny * py + nz * pz) / (nn * rng)
+            if abs(cosi) < cos_lim:  # NaN (no neighbours) passes
+                continue
+            sg = 1.0 / nn
+            if cosi < 0:
+                sg = -sg
+            wz = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz
+            if wall_nz > 0:
+                rows[j - at] = r
+                cols[j - at] = c
+            o_cell[j] = cell
+            counts[cell + 1] += 1
+            if o_xyz.shape[1] == 3:
+                o_xyz[j, 0] = q[0]
+                o_xyz[j, 1] = q[1]
+                o_xyz[j, 2] = q[2]
+            else:
+                o_xyz[j, 0] = q[2]
+            o_sh[j] = abs(wz) / d * sigma_px
+            o_pair[j] = pair_const
+            if cloud:
+                o_s3[j] = rng / d * sigma_px
+                for i in range(3):
+                    o_n[j, i] = (R[i, 0] * nx + R[i, 1] * ny + R[i, 2] * nz) * sg
+                    o_rgb[j, i] = colour[r, c, min(i, nch - 1)]
+            j += 1
+    if wall_nz > 0 and j > at:  # NaN: steep or sparse
+        vz = steep_points(disp, rows[:j - at], cols[:j - at], u0, v0, f, B, R, half, min_count, flat_range)
+        for k in range(j - at):
+            if not vz[k] >= wall_nz:
+                o_sh[at + k] = np.nan
+    return j - at
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _poly_point(p, c0, s, coef, offset, out):  # pragma: no cover - compiled
+    """One point ``p`` (3,) through the polynomial of :func:`poly_map`, into ``out`` (3,)."""
+    x = (p[0] - c0[0]) / s[0]
+    y = (p[1] - c0[1]) / s[1]
+    z = (p[2] - c0[2]) / s[2]
+    t = (1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z, x * x * x, x * x * y, x * y * y, y * y * y)
+    for k in range(3):
+        acc = offset[k]
+        for j in range(14):
+            acc += coef[j, k] * t[j]
+        out[k] = acc
+
+
+@numba.njit(cache=True, error_model="numpy")
 def poly_map(xyz, c0, s, coef, offset):  # pragma: no cover - compiled
     """The polynomial of :class:`skyrig.dense.surface.FrameMap` (terms as ``FrameMap._terms``)."""
     n = xyz.shape[0]

@@ -243,6 +243,30 @@ class CellSorter:
         self.n += int(k)  # only the points with a cell are kept
         return int(k)
 
+    def add_block(self, pair: int, tri_args: tuple, poly: tuple, bounds: tuple[float, float, float, float]) -> int:
+        """A block's matched pixels triangulated straight into the arrays (:func:`skyrig.dense._kernels.
+        triangulate_take`): the same rows :meth:`add` takes of ``block_points`` then the local -> map polynomial, with
+        no per-block point arrays.  ``tri_args``: :func:`skyrig.dense.stereo.triangulation_args`; ``poly``: the
+        polynomial's ``(centre, scale, coef, offset)`` (:class:`skyrig.dense.surface.FrameMap`); ``bounds`` as in
+        :meth:`add`.  Returns the number of points taken."""
+        from skyrig.dense._kernels import triangulate_take
+
+        g = self.grid
+        H, W = g.shape
+        disp = tri_args[0]
+        f32 = np.zeros(0, np.float32)
+        self._reserve(disp.size, f32, f32)  # at most one point per pixel (the sorter's precisions: float32)
+        a = self.arrays
+        if self.cloud:
+            cl = (a["s3"], a["rgb"], a["nrm"])
+        else:
+            cl = (f32, np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32))
+        k = triangulate_take(*tri_args, *poly, int(pair), a["xyz"], a["sh"], a["pair"], cl[0], cl[1], cl[2],  # type: ignore[call-arg]
+                             a["cell"], self.n, float(g.x0), float(g.y0), float(g.cell_m), H, W, self.TILE,
+                             np.array(bounds, np.float64), self.counts)
+        self.n += int(k)
+        return int(k)
+
     def fuse(self, cfg: FusionConfig, grid_layers: bool = True, normal_rotation: NDArray[np.float64] | None = None
              ) -> tuple[tuple[NDArray, ...] | None, tuple[NDArray, ...] | None]:
         """Grid fusion (with ``grid_layers``: ``(height, support, spread, sigma, cand_height, cand_sigma,

@@ -224,25 +224,36 @@ def block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], col
         return _block_points(rect, blk, disp, colour, cfg, triangulate_block)
 
 
-def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig,
-                  triangulate_block) -> PairPoints:  # type: ignore[no-untyped-def]
+def triangulation_args(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig
+                       ) -> tuple:
+    """The arguments of the triangulation kernels for a block (:func:`skyrig.dense._kernels.triangulate_block`'s,
+    then the wall test's ``wall_nz, half, min_count, flat_range`` of :func:`skyrig.dense._kernels.steep_points`;
+    ``wall_nz`` 0: no wall test)."""
     cos_lim = float(np.cos(np.radians(cfg.max_incidence_deg)))
     d = np.nan_to_num(np.ascontiguousarray(disp, np.float32), nan=-1.0)
     col = np.ascontiguousarray(colour, np.uint8)
-    rr, cc, xyz, normal, sigma_h, sigma_3d, rgb = triangulate_block(
-        d, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m), np.ascontiguousarray(rect.rotation),
-        np.ascontiguousarray(rect.centres[0]), float(cfg.disparity_sigma_px), cos_lim,
-        col if col.ndim == 3 else col[:, :, None])
-    if cfg.wall_max_nz > 0 and len(rr):
-        from skyrig.dense._kernels import steep_points
-
-        half = cfg.wall_window_px // 2
+    half = cfg.wall_window_px // 2
+    flat = 0.0
+    if cfg.wall_max_nz > 0:
         # windows whose disparities differ by less than this are not fitted: across 2 half pixels of a window
         # seen straight down (ground sample D / f) a height change D dd / d is a slope of f dd / (2 half d);
         # half the disparity change of the steepest slope tested, at the block's largest disparity
         slope = np.sqrt(1.0 - cfg.wall_max_nz ** 2) / cfg.wall_max_nz
         flat = 0.5 * slope * 2 * half * max(blk.d_max, 1e-6) / float(rect.focal_px)
-        nz = steep_points(d, rr, cc, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
-                          np.ascontiguousarray(rect.rotation), half, max(3, (2 * half + 1) ** 2 // 2), flat)
-        sigma_h[~(nz >= cfg.wall_max_nz)] = np.float32(np.nan)  # NaN: steep or sparse (a fresh array: in place)
+    return (d, float(blk.u0), float(blk.v0), float(rect.focal_px), float(rect.base_m),
+            np.ascontiguousarray(rect.rotation, np.float64), np.ascontiguousarray(rect.centres[0], np.float64),
+            float(cfg.disparity_sigma_px), cos_lim, col if col.ndim == 3 else col[:, :, None],
+            float(max(cfg.wall_max_nz, 0.0)), int(half), int(max(3, (2 * half + 1) ** 2 // 2)), float(flat))
+
+
+def _block_points(rect: Rectification, blk: Block, disp: NDArray[np.float32], colour: NDArray, cfg: SgmConfig,
+                  triangulate_block) -> PairPoints:  # type: ignore[no-untyped-def]
+    args = triangulation_args(rect, blk, disp, colour, cfg)
+    rr, cc, xyz, normal, sigma_h, sigma_3d, rgb = triangulate_block(*args[:10])
+    wall_nz, half, min_count, flat = args[10:]
+    if wall_nz > 0 and len(rr):
+        from skyrig.dense._kernels import steep_points
+
+        nz = steep_points(args[0], rr, cc, *args[1:6], half, min_count, flat)  # type: ignore[call-arg]
+        sigma_h[~(nz >= wall_nz)] = np.float32(np.nan)  # NaN: steep or sparse (a fresh array: in place)
     return PairPoints(xyz, sigma_h, sigma_3d, rgb, normal, np.ascontiguousarray(rect.centres, np.float64))

@@ -32,7 +32,8 @@ from skyrig.dense.levels import auto_image_scale, level_of_scale, pyramid, scale
 from skyrig.dense.pairs import PairConfig, StereoPair, select_pairs
 from skyrig.dense.rectify import Rectification, WindowedImage, rectify_pair
 from skyrig.dense.sgm import SgmConfig
-from skyrig.dense.stereo import Block, ImageLoader, PairPoints, block_ground_bounds, block_points, match_block, pair_blocks
+from skyrig.dense.stereo import (Block, ImageLoader, PairPoints, block_ground_bounds, block_points, match_block, pair_blocks,
+                                 triangulation_args)
 from skyrig.errors import GeometryError, SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame, local_frame_for
 
@@ -553,6 +554,11 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     srt = CellSorter(tg, vox if with_cloud else 0.0, cloud=with_cloud, capacity=cap)
     extra: list[tuple[int, PairPoints, NDArray]] = []  # a cloud on its own voxel grid
     npts, nblocks, mpx, counts = 0, 0, 0.0, SearchCounts()
+    # the points go straight from the disparities into the sorter where nothing else needs them (no cloud on its
+    # own voxel grid) and the local -> map conversion is the polynomial
+    fm = plan.to_map
+    direct = (with_cloud or not plan.config.cloud) and fm.coef is not None
+    poly = (fm.c, fm.s, np.ascontiguousarray(fm.coef, np.float64), fm.offset) if direct else ()
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
         for bi in hit:
             blk = bl[bi]
@@ -564,6 +570,11 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                 disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), part,
                                               plan.config.sgm)
                 mpx += disp.size / 1e6
+                if direct:  # triangulated straight into the sorter (the same points as block_points + to_map)
+                    with phase("triangulate"):
+                        npts += srt.add_block(pid, triangulation_args(rect, part, disp, colour, plan.config.sgm),
+                                              poly, (xb0, yb0, xb1, yb1))
+                    continue
                 npts += _add_points(plan, srt, extra, pid, block_points(rect, part, disp, colour, plan.config.sgm),
                                     with_cloud, (xb0, yb0, xb1, yb1))
     rot = _grid_from_local(plan, np.array([0.5 * (xb0 + xb1), 0.5 * (yb0 + yb1), 0.0]))
