@@ -812,12 +812,14 @@ def _normal_equations(p: PlanarPatches, mount: ScannerMount, x: NDArray, normal:
     u = N_CAL + N_STRIP * k
     res = plane_residuals(p, mount, x[:N_CAL], x[N_CAL:].reshape(k, N_STRIP), normal, offset, model,
                           linearise="adjusted")
-    wt = np.where(active, 1.0 / res["sigma"], 0.0)
+    n_pl = p.n_planes
+    # a plane left with fewer than 3 laser and control points (its points rejected) is held where it is
+    dead = np.bincount(p.plane, active.astype(float), minlength=n_pl) + p.control_count < 3
+    wt = np.where(active & ~dead[p.plane], 1.0 / res["sigma"], 0.0)
     rw = res["r"] * wt
     Jc = res["J_cal"] * wt[:, None]
     Js = res["J_strip"] * wt[:, None]
     Jp = res["J_plane"] * wt[:, None]
-    n_pl = p.n_planes
     # global blocks: calibration x calibration, calibration x own strip, strip x strip (one per strip)
     N = np.zeros((u, u))
     b = np.zeros(u)
@@ -839,6 +841,8 @@ def _normal_equations(p: PlanarPatches, mount: ScannerMount, x: NDArray, normal:
     cN, cb, crr = _control_blocks(p, normal, offset, model.control_sigma_m)
     Npp += cN
     bp += cb
+    Npp[dead] = np.eye(3)
+    bp[dead] = 0.0
     # plane x global: (P, 3, u) built from per-point products scattered by (plane, a, column)
     Npg = np.zeros((n_pl, 3, u))
     for a in range(3):
