@@ -412,6 +412,10 @@ class LidarErrors:
     strip_attitude_sigma_rad: _Vec = (0.0, 0.0, 0.0)
     strip_attitude_drift_sigma_radps: _Vec = (0.0, 0.0, 0.0)
     scan_angle_sigma_rad: float = 0.0  # white noise of the recorded deflection angle alpha
+    # surface roughness: each return hits the surface N(0, roughness) (one sigma) off its plane along the plane's
+    # normal, the true range lengthened by that height over |cos incidence| (incidence capped at 85 deg); the model
+    # of :class:`skyrig.lidar.strips.StripModel` ``roughness_m`` (a point-to-plane noise independent of the beam)
+    surface_roughness_m: float = 0.0
     # the camera's boresight error (rotation vector in the camera frame) of the same system: not used by the laser
     # simulation, written to the truth so that a joint laser + image adjustment can be judged against it
     camera_boresight_rad: _Vec = (0.0, 0.0, 0.0)
@@ -905,6 +909,12 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     comp = np.concatenate(out_c)
     truth = np.concatenate(out_x)
     n_ret = len(t_true)
+    if err.surface_roughness_m:  # an independent stream: the other draws stay as they were
+        beam0 = np.concatenate(out_o)
+        cos_i = np.maximum(np.abs(np.einsum("ij,ij->i", beam0, normal)), np.cos(np.radians(85.0)))
+        dr = np.random.default_rng([spec.seed, 5]).normal(0.0, err.surface_roughness_m, n_ret) / cos_i
+        r_true = r_true + dr
+        truth = truth + dr[:, None] * beam0
     r_rec = r_true + err.range_bias_m + (rng.normal(0.0, err.range_sigma_m, n_ret) if err.range_sigma_m else 0.0)
     if err.range_scale_ppm:
         r_rec = r_rec + r_true * err.range_scale_ppm * 1e-6
