@@ -19,7 +19,7 @@ Angles are rotation vectors of the boresight correction in the camera frame (rad
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -43,7 +43,7 @@ from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
 __all__ = ["WindowEstimate", "BoresightEstimate", "window_pairs", "window_tie_points", "reference_heights",
-           "adjust_window", "combine", "rig_with_corrections"]
+           "adjust_window", "estimate_window", "combine", "rig_with_corrections"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,7 @@ class WindowEstimate:
     n_height_points: int
     seconds: float = 0.0
     warnings: tuple[str, ...] = ()
+    ties: ImageMeasurements | None = None  # the tie-point observations (by :func:`estimate_window`)
 
 
 @dataclass(frozen=True)
@@ -138,12 +139,16 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
                   heights: GroundPoints | None, *, height_sigma_m: float, plan_sigma_m: float = 1000.0,
                   gnss_sigma_m: Sequence[float] = (0.05, 0.05, 0.1), imu_sigma_rad: Sequence[float] = (1e-4, 1e-4, 2e-4),
                   sigma_px: float = 0.5, control: GroundPoints | None = None, control_sigma_m: float | None = None,
-                  check_points: Sequence[str] = ()) -> WindowEstimate:
+                  check_points: Sequence[str] = (), variance_components: bool = False) -> WindowEstimate:
     """Rig adjustment of one window with every head's boresight correction free.
 
     ``heights`` are the reference-height points (sigma ``plan_sigma_m`` in plan, ``height_sigma_m`` in height);
     ``control`` (instead of ``heights``) surveyed ground control with ``control_sigma_m`` on every axis (the batch
-    calibration).  Raises :class:`SkyrigError` when the adjustment gives no covariance of the boresights."""
+    calibration).  With ``variance_components`` the a-priori sigmas of the observation groups (image points,
+    GNSS, IMU, heights) are first re-estimated from the window's own residuals
+    (:func:`skyrig.adjust.vce.estimate_variance_components`); without it one variance factor (sigma0^2) scales
+    every group alike.  Raises :class:`SkyrigError` when the adjustment gives no covariance of the
+    boresights."""
     import time
 
     t0 = time.perf_counter()
@@ -155,8 +160,13 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     block, _ = block_from_trajectory(trajectory, rig, events, measurements, ctrl if ctrl is not None and len(ctrl)
                                      else None, gnss_sigma_m=tuple(gnss_sigma_m), imu_sigma_rad=tuple(imu_sigma_rad),
                                      control_sigma_m=csig, sigma_px=sigma_px, check_points=tuple(check_points))
-    res = adjust(block, AdjustConfig(unknowns=Unknowns(boresight="free"),
-                                     statistics=StatisticsOptions(compute=True)))
+    cfg = AdjustConfig(unknowns=Unknowns(boresight="free"), statistics=StatisticsOptions(compute=True))
+    if variance_components:
+        from skyrig.adjust.vce import estimate_variance_components
+
+        res = estimate_variance_components(block, cfg, max_iterations=8, tolerance=0.05).result
+    else:
+        res = adjust(block, cfg)
     sel = res.selected
     if sel is None:
         raise SkyrigError("the window adjustment gave no covariance of the boresight corrections")
@@ -172,6 +182,25 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     ex = tuple(sorted({int(e) for e in events.exposure_id}))
     return WindowEstimate(ex, corr, cov, float(res.sigma0), int(block.n_points), int(n_h),
                           time.perf_counter() - t0, tuple(res.warnings) + tuple(res.failures))
+
+
+def estimate_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], features: Callable[[int], Features],
+                    trajectory: Trajectory, rig: Rig, events: CameraEvents,
+                    height_at: Callable[[NDArray, NDArray], NDArray], height_sigma_m: float, *,
+                    cross: Sequence[tuple[str, str]], prefix: str = "t", per_cell: int = 2,
+                    variance_components: bool = False) -> WindowEstimate:
+    """One window of the online boresight (or the batch calibration: every exposure as one window): tie points of
+    consecutive exposures and of the ``cross`` head pairs (:func:`window_pairs`, :func:`window_tie_points`, guided
+    by ``eo``), their reference heights (:func:`reference_heights`) and the rig adjustment of the events of
+    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`)."""
+    pairs = window_pairs(eo.exposure, eo.head, max_lag=1, cross=cross)
+    m = window_tie_points(eo, cameras, features, pairs, per_cell=per_cell, prefix=prefix)
+    hp = reference_heights(eo, cameras, m, height_at, height_sigma_m)
+    names = {str(n) for n in eo.image}
+    ev = events.subset([k for k in range(len(events)) if str(events.image_name[k]) in names])
+    w = adjust_window(trajectory, rig, ev, m, hp, height_sigma_m=height_sigma_m,
+                      variance_components=variance_components)
+    return replace(w, ties=m)
 
 
 def combine(windows: Sequence[WindowEstimate]) -> BoresightEstimate:
