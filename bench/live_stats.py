@@ -34,8 +34,12 @@ from pathlib import Path
 import numpy as np
 
 
+#: variant name -> (variance components, data snooping) of every adjustment
+VARIANTS = {"sigma0": (False, False), "vce": (True, False), "snooping": (False, True)}
+
+
 def one_seed(out: Path, seed: int, window: int, n_exposures: int, n_features: int, dem_sigma: float,
-             half_length: float) -> dict:
+             half_length: float, variants: list[str]) -> dict:
     from skyrig._plain import plain
     from skyrig.calibrate import online_boresight as ob
     from skyrig.georef.direct import direct_georeference
@@ -71,7 +75,11 @@ def one_seed(out: Path, seed: int, window: int, n_exposures: int, n_features: in
     truth = lc.true_corrections(flight)
     res: dict = {"seed": seed, "window": window, "exposures": n_exposures, "features": n_features,
                  "truth": truth, "variants": {}}
-    for vce in (False, True):
+    path = out / f"seed{seed}" / "stats.json"
+    if path.exists():  # earlier variants of this seed are kept
+        res["variants"] = json.loads(path.read_text()).get("variants", {})
+    for variant in variants:
+        vce, snoop = VARIANTS[variant]
         t = time.time()
         windows: list = []
         est = ob.BoresightEstimate()
@@ -80,39 +88,44 @@ def one_seed(out: Path, seed: int, window: int, n_exposures: int, n_features: in
             eo = direct_georeference(traj, ob.rig_with_corrections(rig, est.correction), ev.subset(sel), frame)
             windows.append(ob.estimate_window(eo, cams, lambda i, eo=eo: feature(str(eo.image[i])), traj, rig, ev,
                                               height_at, dem_sigma, cross=cross, prefix=f"w{k}_",
-                                              variance_components=vce))
+                                              variance_components=vce, snooping=snoop))
             est = ob.combine(windows)
         t_on = time.time() - t
         t = time.time()
         eo = direct_georeference(traj, rig, ev, frame)
         batch = ob.estimate_window(eo, cams, lambda i: feature(str(eo.image[i])), traj, rig, ev, height_at,
-                                   dem_sigma, cross=cross, prefix="b", variance_components=vce)
+                                   dem_sigma, cross=cross, prefix="b", variance_components=vce, snooping=snoop)
         t_b = time.time() - t
         shared = lc.shared_observations([w.ties for w in windows], batch.ties)
-        res["variants"]["vce" if vce else "sigma0"] = {
+        res["variants"][variant] = {
             "online": {"correction": est.correction, "covariance": est.covariance, "seconds": t_on,
                        "sigma0": [w.sigma0 for w in windows], "points": [w.n_points for w in windows]},
             "batch": {"correction": batch.correction, "covariance": batch.covariance, "seconds": t_b,
                       "sigma0": batch.sigma0, "points": batch.n_points},
             "shared_tie_observations": shared}
-        print(f"seed {seed} {'vce' if vce else 'sigma0'}: online {t_on:.0f} s, batch {t_b:.0f} s, shared ties "
+        print(f"seed {seed} {variant}: online {t_on:.0f} s, batch {t_b:.0f} s, shared ties "
               f"{shared:.2f}", flush=True)
-    (out / f"seed{seed}" / "stats.json").write_text(json.dumps(plain(res)))
+    path.write_text(json.dumps(plain(res)))
     return res
 
 
 def summarise(out: Path) -> dict:
+    from scipy.stats import chi2
+
     from skyrig.pipeline.live_check import difference_sigma
 
     runs = [json.loads(p.read_text()) for p in sorted(out.glob("seed*/stats.json"))]
     if not runs:
         raise SystemExit(f"no {out}/seed*/stats.json")
     summary: dict = {"seeds": [r["seed"] for r in runs]}
-    for var in ("sigma0", "vce"):
+    for var in VARIANTS:
+        runs_v = [r for r in runs if var in r["variants"]]
+        if not runs_v:
+            continue
         z: dict[str, list] = {k: [] for k in ("online_truth", "batch_truth", "diff_online_sigma", "diff_nested",
                                               "diff_independent", "diff_shared")}
         err_on, err_b, f_all = [], [], []
-        for r in runs:
+        for r in runs_v:
             v = r["variants"][var]
             f = v["shared_tie_observations"]
             f_all.append(f)
@@ -133,21 +146,19 @@ def summarise(out: Path) -> dict:
         n = len(z["online_truth"])
         s = {k: {"rms": float(np.sqrt(np.mean(np.square(x)))), "max_abs": float(np.max(np.abs(x))),
                  "within_2": float(np.mean(np.abs(x) <= 2.0))} for k, x in z.items()}
-        e_on = np.array(err_on).reshape(len(runs), -1, 3)  # seed, head, angle
-        e_b = np.array(err_b).reshape(len(runs), -1, 3)
-        sd = max(len(runs) - 1, 1)
+        e_on = np.array(err_on).reshape(len(runs_v), -1, 3)  # seed, head, angle
+        e_b = np.array(err_b).reshape(len(runs_v), -1, 3)
+        s["seeds"] = [r["seed"] for r in runs_v]
         s["n_values"] = n
         s["shared_tie_observations"] = f_all
         s["online_mean_error_deg"] = e_on.mean(axis=0).tolist()
-        s["online_mean_error_se_deg"] = (e_on.std(axis=0, ddof=1) / np.sqrt(len(runs))).tolist() if sd else None
+        s["online_mean_error_se_deg"] = (e_on.std(axis=0, ddof=1) / np.sqrt(len(runs_v))).tolist() \
+            if len(runs_v) > 1 else None
         s["batch_mean_error_deg"] = e_b.mean(axis=0).tolist()
         s["online_rms_error_deg"] = float(np.sqrt(np.mean(e_on**2)))
         summary[var] = s
-    # the chi-square bounds a realistic sigma's RMS of n normalised values stays within (95 %, values independent)
-    from scipy.stats import chi2
-
-    n = summary["sigma0"]["n_values"]
-    summary["rms_bounds_95"] = [float(np.sqrt(chi2.ppf(0.025, n) / n)), float(np.sqrt(chi2.ppf(0.975, n) / n))]
+        # the chi-square bounds a realistic sigma's RMS of n normalised values stays within (95 %, independent)
+        s["rms_bounds_95"] = [float(np.sqrt(chi2.ppf(0.025, n) / n)), float(np.sqrt(chi2.ppf(0.975, n) / n))]
     return summary
 
 
@@ -160,12 +171,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--features", type=int, default=800)
     ap.add_argument("--dem-sigma", type=float, default=2.0)
     ap.add_argument("--half-length", type=float, default=2450.0)
+    ap.add_argument("--variants", nargs="*", default=["snooping"], choices=sorted(VARIANTS),
+                    help="sigma0: one variance factor, no snooping (the live default before); vce: variance "
+                         "components; snooping: data snooping (the live default)")
     ap.add_argument("--summary", action="store_true", help="only summarise OUT/seed*/stats.json")
     a = ap.parse_args(argv)
     out = Path(a.out)
     if not a.summary:
         for seed in a.seeds:
-            one_seed(out, seed, a.window, a.exposures, a.features, a.dem_sigma, a.half_length)
+            one_seed(out, seed, a.window, a.exposures, a.features, a.dem_sigma, a.half_length, a.variants)
     s = summarise(out)
     (out / "summary.json").write_text(json.dumps(s, indent=1))
     print(json.dumps(s, indent=1))

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import adjust
 from skyrig.adjust.block import AdjustConfig
-from skyrig.adjust.config import StatisticsOptions, Unknowns
+from skyrig.adjust.config import ReliabilityOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import SkyrigError
@@ -139,12 +139,14 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
                   heights: GroundPoints | None, *, height_sigma_m: float, plan_sigma_m: float = 1000.0,
                   gnss_sigma_m: Sequence[float] = (0.05, 0.05, 0.1), imu_sigma_rad: Sequence[float] = (1e-4, 1e-4, 2e-4),
                   sigma_px: float = 0.5, control: GroundPoints | None = None, control_sigma_m: float | None = None,
-                  check_points: Sequence[str] = (), variance_components: bool = False) -> WindowEstimate:
+                  check_points: Sequence[str] = (), variance_components: bool = False,
+                  snooping: bool = False) -> WindowEstimate:
     """Rig adjustment of one window with every head's boresight correction free.
 
     ``heights`` are the reference-height points (sigma ``plan_sigma_m`` in plan, ``height_sigma_m`` in height);
     ``control`` (instead of ``heights``) surveyed ground control with ``control_sigma_m`` on every axis (the batch
-    calibration).  With ``variance_components`` the a-priori sigmas of the observation groups (image points,
+    calibration).  ``snooping``: Baarda's data snooping (up to 20 non-adjacent image observations rejected per
+    round).  With ``variance_components`` the a-priori sigmas of the observation groups (image points,
     GNSS, IMU, heights) are first re-estimated from the window's own residuals
     (:func:`skyrig.adjust.vce.estimate_variance_components`); without it one variance factor (sigma0^2) scales
     every group alike.  Raises :class:`SkyrigError` when the adjustment gives no covariance of the
@@ -160,7 +162,8 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     block, _ = block_from_trajectory(trajectory, rig, events, measurements, ctrl if ctrl is not None and len(ctrl)
                                      else None, gnss_sigma_m=tuple(gnss_sigma_m), imu_sigma_rad=tuple(imu_sigma_rad),
                                      control_sigma_m=csig, sigma_px=sigma_px, check_points=tuple(check_points))
-    cfg = AdjustConfig(unknowns=Unknowns(boresight="free"), statistics=StatisticsOptions(compute=True))
+    cfg = AdjustConfig(unknowns=Unknowns(boresight="free"), statistics=StatisticsOptions(compute=True),
+                       reliability=ReliabilityOptions(snooping=snooping, per_round=20))
     if variance_components:
         from skyrig.adjust.vce import estimate_variance_components
 
@@ -188,18 +191,20 @@ def estimate_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera]
                     trajectory: Trajectory, rig: Rig, events: CameraEvents,
                     height_at: Callable[[NDArray, NDArray], NDArray], height_sigma_m: float, *,
                     cross: Sequence[tuple[str, str]], prefix: str = "t", per_cell: int = 2,
-                    variance_components: bool = False) -> WindowEstimate:
+                    variance_components: bool = False, snooping: bool = True) -> WindowEstimate:
     """One window of the online boresight (or the batch calibration: every exposure as one window): tie points of
     consecutive exposures and of the ``cross`` head pairs (:func:`window_pairs`, :func:`window_tie_points`, guided
     by ``eo``), their reference heights (:func:`reference_heights`) and the rig adjustment of the events of
-    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`)."""
+    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`), with data snooping (a false match left
+    in makes the window's sigma0 and so its covariance many times too large, and its estimate wrong: measured
+    in ``bench/live_stats.py``)."""
     pairs = window_pairs(eo.exposure, eo.head, max_lag=1, cross=cross)
     m = window_tie_points(eo, cameras, features, pairs, per_cell=per_cell, prefix=prefix)
     hp = reference_heights(eo, cameras, m, height_at, height_sigma_m)
     names = {str(n) for n in eo.image}
     ev = events.subset([k for k in range(len(events)) if str(events.image_name[k]) in names])
     w = adjust_window(trajectory, rig, ev, m, hp, height_sigma_m=height_sigma_m,
-                      variance_components=variance_components)
+                      variance_components=variance_components, snooping=snooping)
     return replace(w, ties=m)
 
 

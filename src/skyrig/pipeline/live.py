@@ -124,7 +124,6 @@ class LiveConfig:
     dsm_height_range_m: float = 150.0
     window: int = 8
     features: int = 800
-    boresight_variance_components: bool = False
     stereo_head: str | None = None
     zoom_levels: int = 4
     poll_s: float = 0.2
@@ -655,8 +654,7 @@ class LiveRun:
             assert self.events is not None and self.trajectory is not None
             w = ob.estimate_window(eo_w, self.cameras, lambda i: self._features[str(eo_w.image[i])], self.trajectory,
                                    self.rig_nominal, self.events, self.height_at, self.config.surface_sigma_m,
-                                   cross=self.cross, prefix=f"w{len(self._windows)}_",
-                                   variance_components=self.config.boresight_variance_components)
+                                   cross=self.cross, prefix=f"w{len(self._windows)}_")
             self._windows.append(w)
             est = ob.combine(self._windows)
             with self._lock:
