@@ -7,8 +7,11 @@ Printed (and written to OUT/acceptance.json):
   (median, 95 %, max; and the CPU seconds of that work), and to its DSM tiles in exposure intervals;
 * the online boresight after the windows so far (``--window`` exposures each) against the batch adjustment
   (every exposure in one adjustment: the same kinds of observations, tie points of all images + the reference DEM's
-  heights, :func:`skyrig.pipeline.live_check.batch_boresight`), in units of the online estimate's sigma; also
-  against a batch calibration with the surveyed control points instead of the DEM, and against the injected truth;
+  heights, :func:`skyrig.pipeline.live_check.batch_boresight`), in units of the sigma of their difference
+  (:func:`skyrig.pipeline.live_check.difference_sigma`: the two share most observations, so neither the online
+  sigma nor the root sum of squares is the yardstick; the share is counted, docs/cli.md) and, as before, of the
+  online sigma; also against a batch calibration with the surveyed control points instead of the DEM, and against
+  the injected truth (``bench/live_stats.py`` checks over seeds that the sigmas are realistic);
 * the live mosaic (finest zoom) against the batch ortho (all nadir images, DG with the control-point calibrated
   rig, same reference DEM):
   phase-correlation offsets of textured patches, in GSD.

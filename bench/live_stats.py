@@ -156,6 +156,17 @@ def summarise(out: Path) -> dict:
             if len(runs_v) > 1 else None
         s["batch_mean_error_deg"] = e_b.mean(axis=0).tolist()
         s["online_rms_error_deg"] = float(np.sqrt(np.mean(e_on**2)))
+        # the errors less their mean over the seeds (the bias common to the seeds), in sigma: the random part
+        if len(runs_v) > 1:
+            k = len(runs_v)
+            for name, e, key in (("online_truth_less_mean", e_on, "online"), ("batch_truth_less_mean", e_b, "batch")):
+                sig = np.degrees(np.array([[np.sqrt(np.diag(np.array(r["variants"][var][key]["covariance"][h])))
+                                            for h in sorted(r["truth"])] for r in runs_v]))
+                zz = (e - e.mean(axis=0)) / sig * np.sqrt(k / (k - 1))
+                s[name] = {"rms": float(np.sqrt(np.mean(zz**2))), "max_abs": float(np.max(np.abs(zz)))}
+            s["online_mean_error_in_sigma"] = (e_on.mean(axis=0) / np.degrees(np.array(
+                [[np.sqrt(np.diag(np.array(r["variants"][var]["online"]["covariance"][h]))) for h in sorted(r["truth"])]
+                 for r in runs_v])).mean(axis=0)).tolist()
         summary[var] = s
         # the chi-square bounds a realistic sigma's RMS of n normalised values stays within (95 %, independent)
         s["rms_bounds_95"] = [float(np.sqrt(chi2.ppf(0.025, n) / n)), float(np.sqrt(chi2.ppf(0.975, n) / n))]
