@@ -129,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     off["median_offset_gsd"] = off["median_offset_m"] / gsd
     off["p90_offset_gsd"] = off["p90_offset_m"] / gsd
     print(f"batch ortho + comparison {time.time() - t:.0f} s: {off}")
-    res = {"speed": a.speed, "window": a.window, "shared_tie_observations": shared, "load_before": load0, "load_after": load1, "summary": s,
-           "boresight": rows,
+    res = {"speed": a.speed, "window": a.window, "shared_tie_observations": shared, "load_before": load0,
+           "load_after": load1, "summary": s, "boresight": rows,
            "boresight_windows": est.n_windows, "boresight_exposures": est.n_exposures, "mosaic": off}
     (out / "acceptance.json").write_text(json.dumps(plain(res), indent=1))
     for k in ("exposure_interval_s", "ortho_latency_s", "ortho_cpu_s", "dsm_latency_s", "dsm_latency_exposures",

@@ -139,7 +139,7 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
                   heights: GroundPoints | None, *, height_sigma_m: float, plan_sigma_m: float = 1000.0,
                   gnss_sigma_m: Sequence[float] = (0.05, 0.05, 0.1), imu_sigma_rad: Sequence[float] = (1e-4, 1e-4, 2e-4),
                   sigma_px: float = 0.5, control: GroundPoints | None = None, control_sigma_m: float | None = None,
-                  check_points: Sequence[str] = (), variance_components: bool = False,
+                  check_points: Sequence[str] = (), variance_components: bool | str = False,
                   snooping: bool = False) -> WindowEstimate:
     """Rig adjustment of one window with every head's boresight correction free.
 
@@ -149,8 +149,10 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     round).  With ``variance_components`` the a-priori sigmas of the observation groups (image points,
     GNSS, IMU, heights) are first re-estimated from the window's own residuals
     (:func:`skyrig.adjust.vce.estimate_variance_components`); without it one variance factor (sigma0^2) scales
-    every group alike.  Raises :class:`SkyrigError` when the adjustment gives no covariance of the
-    boresights."""
+    every group alike; with ``variance_components="image"`` only the image points' sigma is re-estimated (the
+    matcher's precision is what the a-priori ``sigma_px`` does not know) and the GNSS/IMU and height sigmas stay
+    as given, the covariance taken at those weights without a further global factor.  Raises :class:`SkyrigError` when the adjustment gives no
+    covariance of the boresights."""
     import time
 
     t0 = time.perf_counter()
@@ -167,12 +169,17 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     if variance_components:
         from skyrig.adjust.vce import estimate_variance_components
 
-        res = estimate_variance_components(block, cfg, max_iterations=8, tolerance=0.05).result
+        split = {"image": ((0, 1),)} if variance_components == "image" else None
+        res = estimate_variance_components(block, cfg, split, max_iterations=8, tolerance=0.05).result
     else:
         res = adjust(block, cfg)
     sel = res.selected
     if sel is None:
         raise SkyrigError("the window adjustment gave no covariance of the boresight corrections")
+    # the image sigma re-estimated alone: the other groups' sigmas are the stated ones, so the covariance is the
+    # cofactor matrix at those weights (a global sigma0^2, ~0.04 here, would shrink the GNSS/IMU sigmas below their
+    # noise: bench/live_stats.py)
+    scale = 1.0 if variance_components == "image" else res.sigma0 ** 2
     pos = {tuple(lab): k for k, lab in enumerate(sel.labels)}
     corr, cov = {}, {}
     for hi, h in enumerate(res.block.head_name):
@@ -180,7 +187,7 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
         if any(i is None for i in ix):
             continue
         corr[str(h)] = res.block.head_boresight[hi].copy()
-        cov[str(h)] = res.sigma0 ** 2 * sel.Qcc[np.ix_(ix, ix)]
+        cov[str(h)] = scale * sel.Qcc[np.ix_(ix, ix)]
     n_h = 0 if ctrl is None else len(ctrl)
     ex = tuple(sorted({int(e) for e in events.exposure_id}))
     return WindowEstimate(ex, corr, cov, float(res.sigma0), int(block.n_points), int(n_h),
@@ -191,11 +198,13 @@ def estimate_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera]
                     trajectory: Trajectory, rig: Rig, events: CameraEvents,
                     height_at: Callable[[NDArray, NDArray], NDArray], height_sigma_m: float, *,
                     cross: Sequence[tuple[str, str]], prefix: str = "t", per_cell: int = 2,
-                    variance_components: bool = False, snooping: bool = True) -> WindowEstimate:
+                    variance_components: bool | str = "image", snooping: bool = True) -> WindowEstimate:
     """One window of the online boresight (or the batch calibration: every exposure as one window): tie points of
     consecutive exposures and of the ``cross`` head pairs (:func:`window_pairs`, :func:`window_tie_points`, guided
     by ``eo``), their reference heights (:func:`reference_heights`) and the rig adjustment of the events of
-    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`), with data snooping (a false match left
+    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`), the image points' sigma estimated from
+    their residuals (``variance_components="image"``: with one global variance factor the sigma was ~2.5 x too
+    optimistic against the truth, with this realistic; ``bench/live_stats.py``), with data snooping (a false match left
     in makes the window's sigma0 and so its covariance many times too large, and its estimate wrong: measured
     in ``bench/live_stats.py``)."""
     pairs = window_pairs(eo.exposure, eo.head, max_lag=1, cross=cross)

@@ -59,8 +59,8 @@ def simulate_3k_flight(outdir: str | Path, half_length_m: float = 2450.0, seed: 
             "images": int(len(survey.events_recorded)), "base_height_m": float(s.base_height_m), "info": info}
 
 
-def reference_dem(folder: Path, crs: str, cell_m: float = 30.0) -> Path:
-    """``folder/reference_dem.tif``: the scene's surface (``scene/dsm.tif``, local ENU) resampled onto a ``cell_m``
+def reference_dem(folder: Path, crs: str, cell_m: float = 30.0, name: str = "reference_dem.tif") -> Path:
+    """``folder/<name>``: the scene's surface (``scene/dsm.tif``, local ENU) resampled onto a ``cell_m``
     grid of ``crs`` with ellipsoidal heights (what a public 30 m DEM gives a real flight: coarse, buildings smeared
     over their cells)."""
     import json
@@ -89,7 +89,7 @@ def reference_dem(folder: Path, crs: str, cell_m: float = 30.0) -> Path:
     r = np.clip(((p[:, 1] - t.f) / t.e).astype(int), 0, z.shape[0] - 1)
     p[:, 2] = zs[r, c]
     h = local.points_to(p, frame)[:, 2].reshape(rows, cols)
-    out = folder / "reference_dem.tif"
+    out = folder / name
     write_dem(out, Dem(h, (cell_m, 0.0, x0, 0.0, -cell_m, y1), frame))
     return out
 
@@ -120,7 +120,7 @@ def _flight(folder: Path, crs: str):
 
 def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = None,
                     dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500,
-                    variance_components: bool = False) -> ob.WindowEstimate:
+                    variance_components: bool | str = "image") -> ob.WindowEstimate:
     """The batch calibration: every exposure (or the first ``max_exposures``) in one rig adjustment with the tie
     points of all images (``n_features`` SIFT features per image) and either the reference heights of
     ``dem_path`` (the live run's observations, in one adjustment) or, without a DEM, the surveyed control points
