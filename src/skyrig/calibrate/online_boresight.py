@@ -19,7 +19,7 @@ Angles are rotation vectors of the boresight correction in the camera frame (rad
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from skyrig.adjust.adjust import adjust
 from skyrig.adjust.block import AdjustConfig
-from skyrig.adjust.config import StatisticsOptions, Unknowns
+from skyrig.adjust.config import ReliabilityOptions, StatisticsOptions, Unknowns
 from skyrig.adjust.rig_block import block_from_trajectory
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import SkyrigError
@@ -43,7 +43,7 @@ from skyrig.rig.rig import Rig
 from skyrig.trajectory import CameraEvents, Trajectory
 
 __all__ = ["WindowEstimate", "BoresightEstimate", "window_pairs", "window_tie_points", "reference_heights",
-           "adjust_window", "combine", "rig_with_corrections"]
+           "adjust_window", "estimate_window", "combine", "rig_with_corrections"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,7 @@ class WindowEstimate:
     n_height_points: int
     seconds: float = 0.0
     warnings: tuple[str, ...] = ()
+    ties: ImageMeasurements | None = None  # the tie-point observations (by :func:`estimate_window`)
 
 
 @dataclass(frozen=True)
@@ -138,12 +139,20 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
                   heights: GroundPoints | None, *, height_sigma_m: float, plan_sigma_m: float = 1000.0,
                   gnss_sigma_m: Sequence[float] = (0.05, 0.05, 0.1), imu_sigma_rad: Sequence[float] = (1e-4, 1e-4, 2e-4),
                   sigma_px: float = 0.5, control: GroundPoints | None = None, control_sigma_m: float | None = None,
-                  check_points: Sequence[str] = ()) -> WindowEstimate:
+                  check_points: Sequence[str] = (), variance_components: bool | str = False,
+                  snooping: bool = False) -> WindowEstimate:
     """Rig adjustment of one window with every head's boresight correction free.
 
     ``heights`` are the reference-height points (sigma ``plan_sigma_m`` in plan, ``height_sigma_m`` in height);
     ``control`` (instead of ``heights``) surveyed ground control with ``control_sigma_m`` on every axis (the batch
-    calibration).  Raises :class:`SkyrigError` when the adjustment gives no covariance of the boresights."""
+    calibration).  ``snooping``: Baarda's data snooping (up to 20 non-adjacent image observations rejected per
+    round).  With ``variance_components`` the a-priori sigmas of the observation groups (image points,
+    GNSS, IMU, heights) are first re-estimated from the window's own residuals
+    (:func:`skyrig.adjust.vce.estimate_variance_components`); without it one variance factor (sigma0^2) scales
+    every group alike; with ``variance_components="image"`` only the image points' sigma is re-estimated (the
+    matcher's precision is what the a-priori ``sigma_px`` does not know) and the GNSS/IMU and height sigmas stay
+    as given, the covariance taken at those weights without a further global factor.  Raises :class:`SkyrigError` when the adjustment gives no
+    covariance of the boresights."""
     import time
 
     t0 = time.perf_counter()
@@ -155,11 +164,22 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
     block, _ = block_from_trajectory(trajectory, rig, events, measurements, ctrl if ctrl is not None and len(ctrl)
                                      else None, gnss_sigma_m=tuple(gnss_sigma_m), imu_sigma_rad=tuple(imu_sigma_rad),
                                      control_sigma_m=csig, sigma_px=sigma_px, check_points=tuple(check_points))
-    res = adjust(block, AdjustConfig(unknowns=Unknowns(boresight="free"),
-                                     statistics=StatisticsOptions(compute=True)))
+    cfg = AdjustConfig(unknowns=Unknowns(boresight="free"), statistics=StatisticsOptions(compute=True),
+                       reliability=ReliabilityOptions(snooping=snooping, per_round=20))
+    if variance_components:
+        from skyrig.adjust.vce import estimate_variance_components
+
+        split = {"image": ((0, 1),)} if variance_components == "image" else None
+        res = estimate_variance_components(block, cfg, split, max_iterations=8, tolerance=0.05).result
+    else:
+        res = adjust(block, cfg)
     sel = res.selected
     if sel is None:
         raise SkyrigError("the window adjustment gave no covariance of the boresight corrections")
+    # the image sigma re-estimated alone: the other groups' sigmas are the stated ones, so the covariance is the
+    # cofactor matrix at those weights (a global sigma0^2, ~0.04 here, would shrink the GNSS/IMU sigmas below their
+    # noise: bench/live_stats.py)
+    scale = 1.0 if variance_components == "image" else res.sigma0 ** 2
     pos = {tuple(lab): k for k, lab in enumerate(sel.labels)}
     corr, cov = {}, {}
     for hi, h in enumerate(res.block.head_name):
@@ -167,11 +187,34 @@ def adjust_window(trajectory: Trajectory, rig: Rig, events: CameraEvents, measur
         if any(i is None for i in ix):
             continue
         corr[str(h)] = res.block.head_boresight[hi].copy()
-        cov[str(h)] = res.sigma0 ** 2 * sel.Qcc[np.ix_(ix, ix)]
+        cov[str(h)] = scale * sel.Qcc[np.ix_(ix, ix)]
     n_h = 0 if ctrl is None else len(ctrl)
     ex = tuple(sorted({int(e) for e in events.exposure_id}))
     return WindowEstimate(ex, corr, cov, float(res.sigma0), int(block.n_points), int(n_h),
                           time.perf_counter() - t0, tuple(res.warnings) + tuple(res.failures))
+
+
+def estimate_window(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], features: Callable[[int], Features],
+                    trajectory: Trajectory, rig: Rig, events: CameraEvents,
+                    height_at: Callable[[NDArray, NDArray], NDArray], height_sigma_m: float, *,
+                    cross: Sequence[tuple[str, str]], prefix: str = "t", per_cell: int = 2,
+                    variance_components: bool | str = "image", snooping: bool = True) -> WindowEstimate:
+    """One window of the online boresight (or the batch calibration: every exposure as one window): tie points of
+    consecutive exposures and of the ``cross`` head pairs (:func:`window_pairs`, :func:`window_tie_points`, guided
+    by ``eo``), their reference heights (:func:`reference_heights`) and the rig adjustment of the events of
+    ``eo``'s images against the nominal ``rig`` (:func:`adjust_window`), the image points' sigma estimated from
+    their residuals (``variance_components="image"``: with one global variance factor the sigma was ~2.5 x too
+    optimistic against the truth, with this realistic; ``bench/live_stats.py``), with data snooping (a false match left
+    in makes the window's sigma0 and so its covariance many times too large, and its estimate wrong: measured
+    in ``bench/live_stats.py``)."""
+    pairs = window_pairs(eo.exposure, eo.head, max_lag=1, cross=cross)
+    m = window_tie_points(eo, cameras, features, pairs, per_cell=per_cell, prefix=prefix)
+    hp = reference_heights(eo, cameras, m, height_at, height_sigma_m)
+    names = {str(n) for n in eo.image}
+    ev = events.subset([k for k in range(len(events)) if str(events.image_name[k]) in names])
+    w = adjust_window(trajectory, rig, ev, m, hp, height_sigma_m=height_sigma_m,
+                      variance_components=variance_components, snooping=snooping)
+    return replace(w, ties=m)
 
 
 def combine(windows: Sequence[WindowEstimate]) -> BoresightEstimate:

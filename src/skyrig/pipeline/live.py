@@ -651,15 +651,10 @@ class LiveRun:
             eo_w = block[0]
             for e in block[1:]:
                 eo_w = _concat(eo_w, e)
-            pairs = ob.window_pairs(eo_w.exposure, eo_w.head, max_lag=1, cross=self.cross)
-            m = ob.window_tie_points(eo_w, self.cameras, lambda i: self._features[str(eo_w.image[i])], pairs,
-                                     per_cell=2, prefix=f"w{len(self._windows)}_")
-            sig = self.config.surface_sigma_m
-            hp = ob.reference_heights(eo_w, self.cameras, m, self.height_at, sig)
             assert self.events is not None and self.trajectory is not None
-            names = set(str(n) for n in eo_w.image)
-            ev = self.events.subset([k for k in range(len(self.events)) if str(self.events.image_name[k]) in names])
-            w = ob.adjust_window(self.trajectory, self.rig_nominal, ev, m, hp, height_sigma_m=sig)
+            w = ob.estimate_window(eo_w, self.cameras, lambda i: self._features[str(eo_w.image[i])], self.trajectory,
+                                   self.rig_nominal, self.events, self.height_at, self.config.surface_sigma_m,
+                                   cross=self.cross, prefix=f"w{len(self._windows)}_")
             self._windows.append(w)
             est = ob.combine(self._windows)
             with self._lock:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from skyrig.dense.grid import DsmGrid, GridSpec
 from skyrig.dense.ortho import OrthoConfig, Orthomosaic, orthomosaic
 from skyrig.georef.direct import direct_georeference
 from skyrig.georef.eo import WorldFrame
+from skyrig.georef.observations import ImageMeasurements
 from skyrig.io import xyz_tiles
 from skyrig.io.events_csv import read_events_csv
 from skyrig.io.images import read_image
@@ -34,7 +35,7 @@ from skyrig.io.trajectory_csv import read_trajectory_csv
 from skyrig.match.features import FeatureConfig
 
 __all__ = ["INJECTED_BORESIGHT_DEG", "simulate_3k_flight", "true_corrections", "batch_boresight", "batch_ortho",
-           "mosaic_offsets"]
+           "mosaic_offsets", "shared_observations", "difference_sigma"]
 
 #: boresight misalignments injected into the 3K heads (roll, pitch, yaw in degrees; body axes of each head)
 INJECTED_BORESIGHT_DEG = {"nadir": (0.02, -0.03, 0.05), "left": (-0.03, 0.02, -0.04), "right": (0.025, 0.015, 0.03)}
@@ -58,8 +59,8 @@ def simulate_3k_flight(outdir: str | Path, half_length_m: float = 2450.0, seed: 
             "images": int(len(survey.events_recorded)), "base_height_m": float(s.base_height_m), "info": info}
 
 
-def reference_dem(folder: Path, crs: str, cell_m: float = 30.0) -> Path:
-    """``folder/reference_dem.tif``: the scene's surface (``scene/dsm.tif``, local ENU) resampled onto a ``cell_m``
+def reference_dem(folder: Path, crs: str, cell_m: float = 30.0, name: str = "reference_dem.tif") -> Path:
+    """``folder/<name>``: the scene's surface (``scene/dsm.tif``, local ENU) resampled onto a ``cell_m``
     grid of ``crs`` with ellipsoidal heights (what a public 30 m DEM gives a real flight: coarse, buildings smeared
     over their cells)."""
     import json
@@ -88,7 +89,7 @@ def reference_dem(folder: Path, crs: str, cell_m: float = 30.0) -> Path:
     r = np.clip(((p[:, 1] - t.f) / t.e).astype(int), 0, z.shape[0] - 1)
     p[:, 2] = zs[r, c]
     h = local.points_to(p, frame)[:, 2].reshape(rows, cols)
-    out = folder / "reference_dem.tif"
+    out = folder / name
     write_dem(out, Dem(h, (cell_m, 0.0, x0, 0.0, -cell_m, y1), frame))
     return out
 
@@ -118,13 +119,12 @@ def _flight(folder: Path, crs: str):
 
 
 def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = None,
-                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500
-                    ) -> ob.WindowEstimate:
+                    dem_path: str | Path | None = None, dem_sigma_m: float = 2.0, n_features: int = 1500,
+                    variance_components: bool | str = "image") -> ob.WindowEstimate:
     """The batch calibration: every exposure (or the first ``max_exposures``) in one rig adjustment with the tie
     points of all images (``n_features`` SIFT features per image) and either the reference heights of
     ``dem_path`` (the live run's observations, in one adjustment) or, without a DEM, the surveyed control points
     (``gcp/``) and their image measurements."""
-    from skyrig.georef.observations import ImageMeasurements
     from skyrig.io.dem import read_dem
     from skyrig.io.points_csv import read_measurements_csv, read_points_csv
 
@@ -144,17 +144,17 @@ def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = No
                                       FeatureConfig(max_size=None, max_features=n_features))
         return feats[n]
 
-    pairs = ob.window_pairs(eo.exposure, eo.head, max_lag=1,
-                            cross=[("nadir", h) for h in rig.heads if h != "nadir"])
-    ties = ob.window_tie_points(eo, cams, features, pairs, per_cell=2)
+    cross = [("nadir", h) for h in rig.heads if h != "nadir"]
     if dem_path is not None:
         dem = read_dem(dem_path)
 
         def height_at(x, y):
             return dem.sample(x, y)
 
-        hp = ob.reference_heights(eo, cams, ties, height_at, dem_sigma_m)
-        return ob.adjust_window(traj, rig, ev, ties, hp, height_sigma_m=dem_sigma_m)
+        return ob.estimate_window(eo, cams, features, traj, rig, ev, height_at, dem_sigma_m, cross=cross, prefix="t",
+                                  variance_components=variance_components)
+    ties = ob.window_tie_points(eo, cams, features, ob.window_pairs(eo.exposure, eo.head, max_lag=1, cross=cross),
+                                per_cell=2)
     gm = read_measurements_csv(folder / "gcp" / "image_measurements.csv")
     names = set(eo.image.tolist())
     sel = np.array([str(i) in names for i in gm.image])
@@ -162,6 +162,26 @@ def batch_boresight(folder: str | Path, crs: str, max_exposures: int | None = No
                           np.vstack([ties.pixel, gm.pixel[sel]]))
     gcp = read_points_csv(folder / "gcp" / "ground_points.csv", default_frame=frame)
     return ob.adjust_window(traj, rig, ev, m, None, height_sigma_m=1.0, control=gcp, control_sigma_m=0.02)
+
+
+def shared_observations(online: Sequence[ImageMeasurements], batch: ImageMeasurements) -> float:
+    """The share of the online windows' tie observations (image, pixel) that the batch adjustment also holds."""
+    def keys(m: ImageMeasurements) -> set[tuple[str, float, float]]:
+        return {(str(i), round(float(p[0]), 2), round(float(p[1]), 2)) for i, p in zip(m.image, m.pixel)}
+
+    on = set().union(*(keys(m) for m in online)) if online else set()
+    return len(on & keys(batch)) / len(on) if on else 0.0
+
+
+def difference_sigma(sigma_online: np.ndarray, sigma_batch: np.ndarray, shared: float) -> np.ndarray:
+    """Sigma of ``online - batch`` per angle when the online estimate shares the fraction ``shared`` of its
+    observations' information with the batch (both least squares of one model):
+    ``Var(d) = s_on^2 + s_b^2 - 2 Cov`` with ``Cov = C_on I_S C_b`` (``I_S``: information of the shared
+    observations), ``I_S = shared * I_on`` gives ``s_on^2 + (1 - 2 shared) s_b^2``; ``shared`` = 1 is the nested
+    case ``s_on^2 - s_b^2``, 0 the independent one ``s_on^2 + s_b^2``.  Never below ``|s_on - s_b|`` (``|Cov| <=
+    s_on s_b``)."""
+    so, sb = np.asarray(sigma_online, float), np.asarray(sigma_batch, float)
+    return np.sqrt(np.maximum(so**2 + (1.0 - 2.0 * shared) * sb**2, (so - sb) ** 2))
 
 
 def batch_ortho(folder: str | Path, crs: str, height_m: float, correction: dict[str, np.ndarray],
