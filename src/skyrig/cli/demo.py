@@ -591,9 +591,11 @@ def _papers_step(outdir: str | Path) -> None:
 def _live_step(outdir: str | Path) -> None:
     """Issue 35: a short 3K flight (8 exposures of the triple rig, boresights misaligned) replayed at 4 x its rate
     into a project's inputs, ``skyrig run --live --then-batch`` on it (OUTPUT/live published whole, then the georef
-    stage); judged against the batch answer: the online boresight within 3 of
-    its sigma (nine angles; bench/live.py's acceptance figure of 2 sigma is for 50 exposures) of the batch adjustment (every exposure in one adjustment) and within 5 of the injected truth (both sit up
-    to ~4 sigma from it on bench/live.py's 50 exposures), the live mosaic within 0.5 GSD of the batch ortho."""
+    stage); judged against the batch answer: the online boresight within 3 of its sigma (nine angles) of the batch
+    adjustment (every exposure in one adjustment; bench/live.py states the difference in its own sigma, which needs
+    the windows' observations) and within 3 of its sigma of the injected truth (the window's sigma is realistic since
+    only the image group's variance is estimated: error / sigma RMS 1.04 over 5 seeds, bench/live_stats.py), the
+    live mosaic within 0.5 GSD of the batch ortho."""
     import json
 
     import numpy as np
@@ -640,7 +642,7 @@ def _live_step(outdir: str | Path) -> None:
     click.echo(f"{s['exposures_done']} exposures live; online boresight ({s['boresight_windows']} windows) - batch: "
                f"at most {worst_b:.2f} sigma, - truth: at most {worst_t:.2f} sigma; live mosaic - batch ortho: median "
                f"{off['median_offset_m'] / cell:.2f} GSD over {off['patches']} patches")
-    if not (s["exposures_done"] == 8 and worst_b <= 3.0 and worst_t <= 5.0 and off["median_offset_m"] <= 0.5 * cell):
+    if not (s["exposures_done"] == 8 and worst_b <= 3.0 and worst_t <= 3.0 and off["median_offset_m"] <= 0.5 * cell):
         raise click.ClickException("demo checks FAILED (live)")
 
 
