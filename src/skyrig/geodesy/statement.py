@@ -131,10 +131,6 @@ def project_frame(crs: Any, geoid: str | None = None) -> WorldFrame:
     A local ENU frame ``local <lat> <lon> <h>`` gives the map frame products carry for it (Local Orthographic at
     its origin scaled to its height, WGS 84 ellipsoidal heights: :mod:`skyrig.geodesy.local_crs`).
     """
-    from skyrig.geodesy.local_crs import carried_frame, is_local_text
-
-    if is_local_text(crs):
-        return carried_frame(str(crs), geoid)
     c = resolve_crs(crs)
     if c.is_geocentric:
         raise CRSError(f"{c.name}: outputs need a map CRS (projected or geographic), not a geocentric one")

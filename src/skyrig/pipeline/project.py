@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
 from skyrig.errors import InputFormatError, OptionError, SkyrigError
+from skyrig.geodesy.carried import is_local_text
 from skyrig.io.rig_file import _Map, load_yaml_lines
 
 from skyrig.pipeline.spec import ExecutorSpec, Option, Project, StageSpec
@@ -180,9 +181,7 @@ def parse_project(text: str, path: Path, registry: Mapping[str, Stage] | None = 
         try:
             from skyrig.geodesy.crs import check_metric_projected
             from skyrig.geodesy.frame import WorldFrame
-            from skyrig.geodesy.local_crs import carried_frame, is_local_text
-
-            frame = carried_frame(crs, geoid) if is_local_text(crs) else WorldFrame.map(crs, geoid)
+            frame = WorldFrame.map(crs, geoid)  # a local ENU frame's text gives the CRS files carry for it
             check_metric_projected(frame.crs, "the project's output CRS")
             if frame.geoid:
                 frame.projection  # noqa: B018  (the geoid grid must exist now, not after the match stage)
@@ -584,11 +583,9 @@ def project_template(det: Detected, crs: str | None = None, geoid: str | None = 
     from skyrig.geodesy.crs import check_metric_projected
     from skyrig.geodesy.frame import WorldFrame
 
-    from skyrig.geodesy.local_crs import carried_frame, is_local_text
-
     try:
         if crs:
-            frame = carried_frame(crs, geoid) if is_local_text(crs) else WorldFrame.map(crs, geoid)
+            frame = WorldFrame.map(crs, geoid)
             check_metric_projected(frame.crs, "the project's output CRS")
     except SkyrigError as exc:
         raise OptionError("--crs" if crs != det.crs else f"--crs (none given; {det.crs} from {det.crs_source})",
