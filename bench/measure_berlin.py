@@ -103,7 +103,9 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
                     st = s.point_state(p)
                     for b in imgs:
                         if b != a:
-                            out["one"].append(_case(s, p, b, [a], *_pred(st, b, "ground"), pub))
+                            c = _case(s, p, b, [a], *_pred(st, b, "ray"), pub)
+                            c["ground_px"] = float(np.linalg.norm(_pred(st, b, "ground")[0] - pub[p, b]))
+                            out["one"].append(c)
                 if len(imgs) >= 3:
                     for b in imgs:  # the others measured, B predicted by their intersection
                         given = [i for i in imgs if i != b]

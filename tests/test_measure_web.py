@@ -428,8 +428,8 @@ def test_page_in_headless_chromium(sim, tmp_path):
                 shown[point, image] = json.loads(js("return document.body.dataset.proposal"))
                 # the request carried the search radius of the prediction the page shows (95 % major semi-axis)
                 pred = _pairs(s.point_state(point))[image]
-                g = pred["intersection"] if pred.get("intersection") and pred["intersection"]["column"] is not None \
-                    else pred["ground"]
+                g = next((pred[k] for k in ("intersection", "ray") if pred.get(k) and pred[k]["column"] is not None),
+                         pred["ground"])
                 assert shown[point, image]["search_px"] == pytest.approx(min(200, max(3, round(2.4477 * g["a"], 1))),
                                                                          abs=0.051)
                 drv.find_element(By.ID, "accept").click()

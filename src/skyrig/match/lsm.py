@@ -170,39 +170,18 @@ def search_lsm(
     off: for each candidate ``(2, 2)`` linear map of ``affines`` ``(K, 2, 2)`` (image 1 -> image 2), the template
     resampled into image 2's geometry is located by normalised cross-correlation within ``search_px`` of
     ``xy2`` (OpenCV ``matchTemplate``), then refined by :func:`lsm_refine` (shift limit 3 px); the candidate with
-    the highest final correlation wins.
+    the highest final correlation wins (:func:`skyrig.match.propagate.propagate_point` without its ambiguity check).
 
     Returns ``(xy2, ok, sigma_px, correlation, k)`` (``k`` the winning candidate, -1 when none converged)."""
-    import cv2
+    from skyrig.match.propagate import propagate_point
 
-    g1 = np.asarray(image1, dtype=np.float32)
-    g2 = np.asarray(image2, dtype=np.float32)
-    p1 = np.asarray(xy1, dtype=np.float64).reshape(2)
-    p2 = np.asarray(xy2, dtype=np.float64).reshape(2)
-    s = int(math.ceil(max(search_px, 0.0)))
-    r = np.arange(-half_size, half_size + 1, dtype=np.float64)
-    ex, ey = np.meshgrid(r, r)
-    c2, r2 = int(round(p2[0])), int(round(p2[1]))
-    h2, w2 = g2.shape
-    a0, b0 = max(c2 - s - half_size, 0), max(r2 - s - half_size, 0)
-    region = g2[b0:min(r2 + s + half_size + 1, h2), a0:min(c2 + s + half_size + 1, w2)]
-    best = (p2, False, float("nan"), -1.0, -1)
-    for k, A in enumerate(np.asarray(affines, dtype=np.float64).reshape(-1, 2, 2)):
-        try:
-            Ai = np.linalg.inv(A)
-        except np.linalg.LinAlgError:
-            continue
-        tpl = _sample(g1, p1[0] + Ai[0, 0] * ex + Ai[0, 1] * ey, p1[1] + Ai[1, 0] * ex + Ai[1, 1] * ey)
-        start, limit = p2, max_shift_px
-        if s > 0 and np.all(np.isfinite(tpl)) and region.shape[0] > tpl.shape[0] and region.shape[1] > tpl.shape[1]:
-            ncc = cv2.matchTemplate(region, tpl.astype(np.float32), cv2.TM_CCOEFF_NORMED)
-            _, _, _, (mx, my) = cv2.minMaxLoc(ncc)
-            start, limit = np.array([a0 + mx + half_size, b0 + my + half_size], dtype=np.float64), 3.0
-        res = lsm_refine(g1, g2, p1[None], start[None], A[None], half_size=half_size, max_shift_px=limit,
-                         min_correlation=min_correlation)
-        if res.ok[0] and np.hypot(*(res.xy2[0] - p2)) <= s + limit and res.correlation[0] > best[3]:
-            best = (res.xy2[0].copy(), True, float(res.sigma_px[0]), float(res.correlation[0]), k)
-    return best
+    maps = {str(k): A for k, A in enumerate(np.asarray(affines, dtype=np.float64).reshape(-1, 2, 2))}
+    got = propagate_point(image1, xy1, image2, xy2, search_px, maps, half_size=half_size,
+                          min_correlation=min_correlation, ambiguity=None,
+                          lsm_shift_px=3.0 if math.ceil(max(search_px, 0.0)) > 0 else max_shift_px, identity=False)
+    if not got.ok:
+        return np.asarray(xy2, dtype=np.float64).reshape(2).copy(), False, float("nan"), -1.0, -1
+    return got.xy, True, got.sigma_px, got.correlation, int(got.source)
 
 
 def refine_tracks(

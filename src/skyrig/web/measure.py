@@ -13,6 +13,9 @@ Geometry (in a local ENU frame at the block, :func:`skyrig.geodesy.frame.local_f
   so they are stated: defaults for direct georeferencing, smaller values for adjusted orientations);
 * **view quality** (the order images are listed in): ``(1 - 0.5 r) cos(i)`` with ``r`` the distance from the
   image centre over the half diagonal and ``i`` the angle of the ray from the vertical;
+* **one measurement**: the point of its ray nearest the surveyed point, projected into the other images (the
+  measurement fixes the direction, the surveyed point only the depth: the orientation's and the surveyed point's
+  errors across the ray drop out), shown with the ground prediction's ellipse;
 * **intersection** once a point is measured in two or more images: weighted least squares (each measurement
   weighted by ``(s_px^2 I + J_pose S_pose J_pose^T)^-1``, its own precision plus its orientation's), started
   from :func:`skyrig.georef.ground.forward_intersection`; the other images are predicted again from the
@@ -59,6 +62,7 @@ _PROPOSE = ("target", "corner", "aruco", "coded", "lsm", "click")  # refinements
 TARGET_KINDS = ("aruco", "coded", "chequer", "disc")  # automatic target kinds, in the order tried (skyrig.match.targets)
 _KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco", "coded": "coded"}
 _HALF = 24  # refinement window half size, pixels
+_TEMPLATE_HALF = 12  # half width of the matching template in the image searched, pixels (a 25 x 25 template)
 #: the largest search radius a proposal may be asked for, pixels (a window of 2 x (24 + 200) px around the click)
 MAX_SEARCH_PX = 200.0
 
@@ -455,11 +459,26 @@ class MeasureSession:
         return {"role": a.get("role"), "v_m": [_num(v, 4) for v in a["v_m"]], "v3d_m": _num(a["v3d_m"], 4),
                 "sigma_m": [_num(v, 4) for v in a.get("sigma_m", [])]}
 
+    def _ray_point(self, rec: Record, X: NDArray) -> NDArray | None:
+        """The point of ``rec``'s ray (local frame) nearest the surveyed point ``X``: the measurement fixes the
+        direction, the surveyed point only the depth; None where it lies behind the camera."""
+        row = self.iidx[rec.image]
+        cam = self.cameras[str(self.eo_l.camera[row])]
+        with np.errstate(invalid="ignore"):
+            d = self.eo_l.rotation[row] @ cam.rays_from_pixels(rec.xy[None])[0]
+        C = self.eo_l.centre[row]
+        t = float((X - C) @ d) / float(d @ d) if np.all(np.isfinite(d)) else float("nan")
+        return C + t * d if math.isfinite(t) and t > 0 else None
+
     def _recs(self, point: str) -> list[Record]:
         return [r for (p, _), r in sorted(self.records.items()) if p == point]
 
     def point_state(self, point: str, with_predictions: bool = True) -> dict:
-        """A point's predictions (sorted by view quality), measurements with residuals, and intersection."""
+        """A point's predictions (sorted by view quality), measurements with residuals, and intersection.
+
+        Each prediction has ``ground`` (from the surveyed point), ``intersection`` (two or more measurements) or
+        ``ray`` (one measurement: the point of its ray nearest the surveyed point, projected; the ground
+        prediction's ellipse, a conservative bound)."""
         if point not in self.pidx:
             raise KeyError(f"no ground point {point!r}")
         with self._lock:
@@ -473,6 +492,9 @@ class MeasureSession:
             if inter is not None:
                 px_i, jp_i, jx_i = self._project(inter["xyz_local"])
                 cov_i = self._pose_part(jp_i) + np.einsum("nij,jk,nlk->nil", jx_i, inter["cov"], jx_i)
+            ray = self._ray_point(recs[0], X) if len(recs) == 1 else None
+            if ray is not None:
+                px_r, _, _ = self._project(ray)
             rows = np.arange(len(self.eo_l))
             shown = self._inside(rows, px_g) | np.isin(rows, list(meas_rows))
             if inter is not None:
@@ -526,6 +548,8 @@ class MeasureSession:
                                 "inside": bool(self._inside(np.array([row]), px_g[row:row + 1])[0])}}
                 if inter is not None:
                     p["intersection"] = {"column": _num(px_i[row, 0]), "row": _num(px_i[row, 1]), **_ellipse(cov_i[row])}
+                if ray is not None:
+                    p["ray"] = {"column": _num(px_r[row, 0]), "row": _num(px_r[row, 1]), **_ellipse(cov_g[row])}
                 preds.append(p)
             state["predictions"] = preds
             if not preds:
@@ -705,11 +729,15 @@ class MeasureSession:
                 "sigma_px": _num(sigma), "note": note}
 
     def _lsm(self, point: str, image: str, click: NDArray, search_px: float = 0.0) -> dict | str:
-        """Least-squares matching of the click against the best other image this point is measured in, started
-        from the ground-plane affine between the two views and from the identity (the better correlation wins),
-        after a cross-correlation search within ``search_px`` of the click (:func:`skyrig.match.lsm.search_lsm`;
-        a searched match needs a correlation of 0.85, one from the click 0.7)."""
-        from skyrig.match.lsm import search_lsm
+        """The point's homologue near the click by its appearance in the best other image it is measured in
+        (:func:`skyrig.match.propagate.propagate_point`): the template around that measurement warped by the local
+        map between the two views that planes through the point induce (level ground, the plane facing both
+        cameras, the vertical plane facing them; :func:`~skyrig.match.propagate.plane_maps`) or the identity,
+        searched by normalised cross-correlation within ``search_px`` of the click, refined by least-squares
+        matching with an affine model; the best correlation wins.  Refused below a correlation of 0.85 (0.7 without
+        a search: least-squares matching from the click) and where the correlation has a second peak within 0.03 of
+        the best (a repeated pattern)."""
+        from skyrig.match.propagate import plane_maps, propagate_point
 
         others = [r for r in self._recs(point) if r.image != image and self.files.get(r.image) is not None]
         if not others:
@@ -717,21 +745,26 @@ class MeasureSession:
         X = self.xyz_l[self.pidx[point]]
         rows = np.array([self.iidx[r.image] for r in others] + [self.iidx[image]])
         px, _, jx = self._project(X, rows)
-        q = self._quality(rows[:-1], px[:-1], X)
-        ref = others[int(np.argmax(q))]
-        j1, j2 = jx[int(np.argmax(q)), :, :2], jx[-1, :, :2]  # pixels per metre east / north on the ground
-        try:
-            A = j2 @ np.linalg.inv(j1)
-        except np.linalg.LinAlgError:
-            return "degenerate geometry"
-        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], 2 * _HALF)
-        w2, (c0, d0) = self.windows(image).around(click[0], click[1], _HALF + int(math.ceil(search_px)))
-        xy, ok, sig, corr, _ = search_lsm(w1, w2, ref.xy - [a0, b0], click - [c0, d0], np.stack([A, np.eye(2)]),
-                                          search_px, half_size=10, min_correlation=0.85 if search_px > 0 else 0.7)
-        if not ok:
-            return f"no convergence against {ref.image}"
-        return self._proposal(xy + [c0, d0], "lsm", True, float(max(sig, 0.02)),
-                              f"least-squares matching to {ref.image}, correlation {corr:.2f}")
+        k = int(np.argmax(self._quality(rows[:-1], px[:-1], X)))
+        ref = others[k]
+        maps = plane_maps(jx[k], jx[-1], X - self.eo_l.centre[rows[k]], X - self.eo_l.centre[rows[-1]])
+        h = _TEMPLATE_HALF
+        if maps:  # windows wide enough for the template under the largest scale either way
+            grow_a = max(np.linalg.norm(np.linalg.inv(M), 2) for M in maps.values())
+            grow_b = max(np.linalg.norm(M, 2) for M in maps.values())
+        else:
+            grow_a = grow_b = 1.0
+        half_a = int(min(max(2 * _HALF, math.ceil(h * max(grow_a, 1.0)) + 4), MAX_SEARCH_PX))
+        half_b = int(min(max(_HALF, math.ceil(h * max(grow_b, 1.0)) + 4), MAX_SEARCH_PX)) + int(math.ceil(search_px))
+        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], half_a)
+        w2, (c0, d0) = self.windows(image).around(click[0], click[1], half_b)
+        got = propagate_point(w1, ref.xy - [a0, b0], w2, click - [c0, d0], search_px, maps, half_size=h,
+                              min_correlation=0.85 if search_px > 0 else 0.7, ambiguity=0.03,
+                              lsm_shift_px=3.0 if search_px > 0 else 8.0)
+        if not got.ok:
+            return f"against {ref.image}: {got.note}"
+        return self._proposal(got.xy + [c0, d0], "lsm", True, float(max(got.sigma_px, 0.02)),
+                              f"least-squares matching to {ref.image} ({got.note})")
 
     # ------------------------------------------------------------------------------------------- changes
     def accept(self, point: str, image: str, column: float, row: float, method: str = "click", refined: bool = False,

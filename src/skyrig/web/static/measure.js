@@ -6,6 +6,9 @@
 (function () {
   const TOKEN = document.querySelector('meta[name="skyrig-token"]').content;
   const K95 = 2.4477; // sqrt of chi-square(2 dof) 95 %
+  // the prediction the page centres on: by intersection (two or more measurements), else along the one measured
+  // ray (depth from the surveyed point), else from the surveyed point
+  const centredOn = (p) => [p.intersection, p.ray].find((q) => q && q.column !== null) || p.ground;
   const withToken = (u) => u + (u.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN);
   const $ = (id) => document.getElementById(id);
   const body = document.body;
@@ -130,7 +133,7 @@
       getTileUrl: (l, x, y) => withToken(`/api/tile/${info.index}/${l}/${x}_${y}.jpg`),
     };
     viewer.addOnceHandler("open", () => {
-      const g = (S.pred.intersection && S.pred.intersection.column !== null) ? S.pred.intersection : S.pred.ground;
+      const g = centredOn(S.pred);
       const half = Math.max(48, 4 * K95 * (g.a || 0));
       const rect = viewer.viewport.imageToViewportRectangle(g.column + 0.5 - half, g.row + 0.5 - half, 2 * half, 2 * half);
       viewer.viewport.fitBounds(rect, true);
@@ -146,12 +149,12 @@
   }
 
   // the search radius of a proposal: the user's value, else the 95 % ellipse's major semi-axis of the prediction
-  // the page centres on (intersection, else ground), at least 3 px and at most the server's bound (200 px)
+  // the page centres on (centredOn), at least 3 px and at most the server's bound (200 px)
   const MAX_SEARCH = 200;
   function searchRadius() {
     const typed = $("search").value.trim();
     if (typed !== "") return Number(typed);  // sent as typed: the server refuses what is not in [0, 200]
-    const g = (S.pred.intersection && S.pred.intersection.column !== null) ? S.pred.intersection : S.pred.ground;
+    const g = centredOn(S.pred);
     if (g.a === null) return 0;
     return Math.min(MAX_SEARCH, Math.max(3, Math.round(K95 * g.a * 10) / 10));
   }
@@ -248,8 +251,8 @@
     if (!S.pred || !viewer.world.getItemCount()) return;
     const g = S.pred.ground;
     if (g.column !== null) { ellipse(svg, g, "#2a7de1"); cross(svg, g.column, g.row, "#2a7de1", 8, false); }
-    const i = S.pred.intersection;
-    if (i && i.column !== null) { ellipse(svg, i, "#1a9c3a"); cross(svg, i.column, i.row, "#1a9c3a", 8, false); }
+    const i = [S.pred.intersection, S.pred.ray].find((q) => q && q.column !== null);
+    if (i) { ellipse(svg, i, "#1a9c3a"); cross(svg, i.column, i.row, "#1a9c3a", 8, false); }
     const m = S.pstate && S.pstate.measurements.find((x) => x.image === S.pred.image);
     if (m) { const p = P(m.column, m.row);
       svg.appendChild(el("circle", { cx: p.x, cy: p.y, r: 7, fill: "none", stroke: "#d0202e", "stroke-width": 1.5 }));
