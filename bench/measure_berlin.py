@@ -84,7 +84,7 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
     by_point: dict[str, list[str]] = {}
     for (p, i) in pub:
         by_point.setdefault(p, []).append(i)
-    out: dict[str, list[dict]] = {"one": [], "loo": [], "consistency": [], "proposal_consistency": []}
+    out: dict[str, list[dict]] = {"one": [], "loo": [], "consistency": [], "proposal_consistency": [], "chain": []}
     with tempfile.TemporaryDirectory() as td:
         s = session(data, work, run, Path(td) / "m.csv")
         try:
@@ -120,6 +120,8 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
                                 s.accept(p, c["image"], *c["xy"], method="lsm", refined=True, sigma_px=1.0)
                             out["proposal_consistency"] += [_resid(p, m) for m in s.point_state(
                                 p, with_predictions=False)["measurements"]]
+                if len(imgs) >= 3:  # the matcher's own consistency: A -> B directly against A -> C -> B
+                    out["chain"] += _chains(s, p, imgs, [c for c in out["one"] if c["point"] == p], pub)
                 if len(imgs) >= 3:  # the published measurements' own consistency: all in, intersection residuals
                     _reset(s, p, imgs, pub)
                     out["consistency"] += [_resid(p, m) for m in s.point_state(p, with_predictions=False)[
@@ -133,6 +135,27 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
             else float("nan")
         c["published_consistent_px"] = float(np.linalg.norm(pub[k] - consistent[k])) if k in consistent \
             else float("nan")
+    return out
+
+
+def _chains(s, point: str, imgs: list[str], ones: list[dict], pub: dict) -> list[dict]:
+    """For a point in three images: the proposal in B from A's published measurement against the proposal in B
+    from the proposal in C (itself from A), both matched: their distance measures the matching alone (no
+    published measurement of B or C enters)."""
+    got = {(c["given"], c["image"]): c for c in ones if c["refined"]}
+    out = []
+    for a in imgs:
+        for c in imgs:
+            for b in imgs:
+                if len({a, b, c}) < 3 or (a, c) not in got or (a, b) not in got:
+                    continue
+                _reset(s, point, [], pub)
+                s.accept(point, c, *got[a, c]["xy"], method="lsm", refined=True, sigma_px=1.0)
+                start, search = _pred(s.point_state(point), b, "ray")
+                prop = s.propose(point, b, float(start[0]), float(start[1]), method="lsm", search_px=search)
+                if prop["refined"]:
+                    out.append({"point": point, "chain": f"{a}>{c}>{b}", "difference_px": float(np.hypot(
+                        prop["column"] - got[a, b]["xy"][0], prop["row"] - got[a, b]["xy"][1]))})
     return out
 
 
@@ -210,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run", type=int, default=0, choices=(0, 1), help="which control / check split of real.py")
     a = ap.parse_args(argv)
     res = evaluate(a.data, a.work, a.run)
-    for key, words in (("one", "one image measured, the others predicted from the ground point"),
+    for key, words in (("one", "one image measured, the others predicted along its ray (depth from the surveyed point)"),
                        ("loo", "leave one out: predicted by the intersection of the others")):
         print(f"\n{words}")
         print(f"{'point':6s} {'role':8s} {'image':7s} {'given':16s} {'start px':>9s} {'search':>7s} {'refined':>8s} {'error px':>9s}  note")
@@ -227,6 +250,16 @@ def main(argv: list[str] | None = None) -> int:
               f"intersected, projected back): {sc['within_tol']} / {sc['cases']} within 2 px, RMS {sc['rms_px']:.2f} px "
               f"(refined: RMS {sc['rms_refined_px']:.2f}); the published measurements themselves: "
               f"{int(np.sum(pc <= 2.0))} / {len(pc)} within 2 px, RMS {np.sqrt(np.mean(pc**2)):.2f} px")
+    print("\nper point (one image measured): proposals within 2 px of the published measurement / refined / cases, "
+          "RMS of the refined")
+    for p in sorted({c["point"] for c in res["one"]}):
+        sp = summary([c for c in res["one"] if c["point"] == p])
+        print(f"  {p}: {sp['within_tol']} / {sp['refined']} / {sp['cases']}, RMS {sp['rms_refined_px']:.2f} px")
+    d = np.array([c["difference_px"] for c in res["chain"]])
+    if len(d):
+        print(f"the matching's own consistency (A -> B directly against A -> C -> B, points in 3 images): "
+              f"{int(np.sum(d <= 2.0))} / {len(d)} within 2 px, RMS {np.sqrt(np.mean(d**2)):.2f} px, median "
+              f"{np.median(d):.2f} px")
     r = np.array([c["residual_px"] for c in res["consistency"]])
     print(f"\nthe published measurements themselves (points in 3 images, all three intersected): residual RMS "
           f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px over {len(r)} measurements")

@@ -1,29 +1,25 @@
 """The measuring aid on real images (issue 32's acceptance "the opensfm berlin GCPs found within 2 px of their
-published image measurements"): ``bench/measure_berlin.py`` drives :class:`skyrig.web.measure.MeasureSession`
-(one image measured -> prediction -> ``propose(..., "lsm")`` in the others; leave one out by intersection) on the
-three phone images, against the published ODM measurements.
+published image measurements"): ``bench/measure_berlin.py`` drives :class:`skyrig.web.measure.MeasureSession` on the
+three phone images against the published ODM measurements: each published measurement in turn taken as the user's
+one click, the point predicted in the other images along that click's ray (depth from the surveyed point) and
+``propose(..., "lsm")`` there (:func:`skyrig.match.propagate.propagate_point`: the template warped by the maps
+planes through the point induce, cross-correlation within 3 sigma of the prediction, affine least-squares matching,
+refused below 0.85 or where the correlation peak is not unique); and leave one out (the two others measured, the
+third predicted by their intersection).
 
-Measured (adjust0 block of bench/real.py, 2026-11-29), the page's refinement with a cross-correlation search
-within 3 sigma of the prediction (``propose(..., search_px=)``, :func:`skyrig.match.lsm.search_lsm`): one image
-measured, 44 cases: 7 within 2 px (the predictions alone: 0; prediction RMS 21.6 px), 20 refined, their RMS 5.2 px;
-leave one out, 18 cases: 1 within 2 px (prediction RMS 12.3 px), 11 refined, RMS 5.9 px.  Without the search (LSM
-from the prediction, as before): 1/44 and 0/18.
+Measured (adjust0 block of bench/real.py, 2026-11-29): one image measured, 44 cases: 12 within 2 px of the published
+measurement (the ray predictions alone: 8, RMS 10.9 px), 31 refined, their RMS 4.1 px (median of all 3.9 px); per
+point within 2 px / refined / cases: g01 0/6/6, g02 3/6/6, g03 2/2/2, g04 0/0/6, g05 0/3/6, g06 2/2/2, g07 0/4/6,
+g08 2/6/6, g09 2/0/2, g10 1/2/2.  Leave one out, 18 cases: 1 within 2 px, 12 refined, RMS 4.7 px.  (Before, LSM
+from the ground prediction with the ground-plane map and the identity: 7/44 and 1/18, refined RMS 5.2 / 5.9 px.)
 
-Why 2 px is out of reach on this block: 2 px agreement is below what the block's geometry can confirm at these
-points.  The published measurements, intersected all three together (6 points seen in 3 images), leave residuals
-of 3.6 px RMS (max 6.7 px); one published measurement with the two LSM proposals (correlation 0.92-1.00) leaves
-4.3 px RMS (max 6.8 px), against an orientation whose 4,077 tie observations fit to 0.53 / 0.34 px RMS.  So
-neither the clicks nor the matched homologues are consistent with the orientation to 2 px at these natural points
-(plausible causes, not verified here: points on building edges at depth discontinuities, several near the frame
-edge where the self-calibrated phone distortion is least determined, wide-baseline views); which of the two is
-nearer the truth cannot be told from these three images.  Scored instead against the intersection-consistent
-positions (every published measurement of the point intersected and projected back into each image; the bench
-prints both): 9/44 (one image) and 2/18 (leave one out) within 2 px, refined RMS 5.7 / 5.9 px, while the published
-measurements themselves lie 3.3 / 3.6 px RMS from those positions: the proposals are no nearer the block's
-consistent positions than the published clicks, so this does not rescue the 2 px line either (measured
-2026-11-29).  Through OpenSfM's own reconstruction instead of skyrig's block the published clicks disagree the same
-(3.6 px RMS, 6 of 18 within 2 px of their own intersection): the judge asks a proposal to reproduce click errors
-of several pixels, which even the block-consistent position cannot.  The 2 px acceptance is kept as a strict xfail.
+Why 2 px is out of reach: the published clicks are not repeatable to 2 px on these natural points (a blank patch of
+sunlit wall g05, a dark blot in a railing g07, a small square on a pipe clicked left, right and at the centre of it
+in the three images g01), while the matching is: the proposal in B from A's click and the proposal in B through C
+(A -> C, then C -> B) agree to 0.20 px RMS (20 chains, all within 2 px), and the published clicks, intersected all
+three together, leave 3.6 px RMS (through skyrig's block and through OpenSfM's own reconstruction alike).  A
+proposal that lands on the homologue of A's click differs from B's click by both clicks' errors.  The 2 px
+acceptance is kept as a strict xfail.
 """
 
 from __future__ import annotations
@@ -63,20 +59,29 @@ def test_berlin_refinement_beats_prediction(cases):
     2 px, a smaller median error; a proposal never lies beyond its search radius + 3 px from its start."""
     from measure_berlin import summary
 
-    for key, least in (("one", 15), ("loo", 8)):
+    for key, least in (("one", 25), ("loo", 10)):
         s = summary(cases[key])
         e = np.array([c["error_px"] for c in cases[key]])
         s0 = np.array([c["start_px"] for c in cases[key]])
         assert s["refined"] >= least and s["within_tol"] > s["start_within_tol"], s
         assert np.median(e) < np.median(s0), (np.median(e), np.median(s0))
-        assert s["rms_refined_px"] < 7.0, s
+        assert s["rms_refined_px"] < 5.5, s
         assert np.all(e <= s0 + np.array([c["search_px"] for c in cases[key]]) + 3.0 + 1e-6)
+
+
+def test_berlin_matching_is_self_consistent(cases):
+    """The matching alone, no published measurement of the target image entering: the proposal in B from A's click
+    and the one through C (A -> C proposed, accepted, then C -> B) agree to well under a pixel (measured 0.20 px RMS
+    over 20 chains, all within 2 px), where the published clicks disagree by 3.6 px RMS."""
+    d = np.array([c["difference_px"] for c in cases["chain"]])
+    assert len(d) >= 15, len(d)
+    assert np.sqrt(np.mean(d**2)) < 0.5 and np.all(d <= 2.0), d
 
 
 def test_berlin_published_consistency(cases):
     """The reason for the xfail below: on an orientation that fits its tie points to about half a pixel, the
     published measurements disagree with their own intersection by more than 2 px RMS (measured 3.6 px), and so
-    do the matched homologues (one published + two proposals: 4.3 px)."""
+    do the matched homologues (one published + two proposals: 3.4 px)."""
     r = np.array([c["residual_px"] for c in cases["consistency"]])
     assert len(r) == 18
     assert 2.0 < np.sqrt(np.mean(r**2)) < 6.0
@@ -104,9 +109,9 @@ def test_berlin_published_clicks_disagree_through_opensfms_own_reconstruction():
     assert two.max() < 1.0
 
 
-@pytest.mark.xfail(strict=True, reason="published clicks and matched homologues are both only ~4 px consistent "
-                   "with the block at these points (test_berlin_published_consistency): 7/44 (one image) and 1/18 "
-                   "(leave one out) within 2 px")
+@pytest.mark.xfail(strict=True, reason="the published clicks of these natural points are repeatable to ~4 px, the "
+                   "matching to 0.2 px (test_berlin_matching_is_self_consistent): 12/44 (one image) and 1/18 (leave "
+                   "one out) within 2 px")
 def test_berlin_within_2px(cases):
     from measure_berlin import summary
 
