@@ -129,12 +129,43 @@ def evaluate(data: Path, work: Path, run: int = 0) -> dict[str, list[dict]]:
                 _reset(s, p, [], pub)
         finally:
             s.close()
+    out["reversal"] = _reversals(data, work, run, out["one"], pub)
     for c in out["one"] + out["loo"]:
         k = (c["point"], c["image"])
         c["error_consistent_px"] = float(np.linalg.norm(np.array(c["xy"]) - consistent[k])) if k in consistent \
             else float("nan")
         c["published_consistent_px"] = float(np.linalg.norm(pub[k] - consistent[k])) if k in consistent \
             else float("nan")
+    return out
+
+
+def _reversals(data: Path, work: Path, run: int, ones: list[dict], pub: dict) -> list[dict]:
+    """For every pair of images both of whose proposals were refined (A -> B and B -> A): if the matching finds the
+    homologue of the click it starts from, A -> B errs by ``M n_A - n_B`` (``n`` the clicks' errors, ``M`` the local
+    map A -> B) and B -> A by ``-M^-1`` of that, so ``e_AB + M e_BA`` vanishes whatever the clicks' errors; ``M``
+    the map the plane facing both cameras induces (:func:`skyrig.match.propagate.plane_maps`)."""
+    from skyrig.match.propagate import plane_maps
+
+    got = {(c["point"], c["given"], c["image"]): c for c in ones if c["refined"]}
+    out = []
+    with tempfile.TemporaryDirectory() as td:
+        s = session(data, work, run, Path(td) / "m.csv")
+        try:
+            for (p, a, b), c in got.items():
+                back = got.get((p, b, a))
+                if back is None or a > b:
+                    continue
+                X = s.xyz_l[s.pidx[p]]
+                rows = np.array([s.iidx[a], s.iidx[b]])
+                _, _, jx = s._project(X, rows)
+                M = plane_maps(jx[0], jx[1], X - s.eo_l.centre[rows[0]], X - s.eo_l.centre[rows[1]])["facing"]
+                e_ab = np.array(c["xy"]) - pub[p, b]
+                e_ba = np.array(back["xy"]) - pub[p, a]
+                out.append({"point": p, "pair": f"{a}<>{b}", "error_px": float(np.linalg.norm(e_ab)),
+                            "back_error_px": float(np.linalg.norm(e_ba)),
+                            "closure_px": float(np.linalg.norm(e_ab + M @ e_ba))})
+        finally:
+            s.close()
     return out
 
 
@@ -260,6 +291,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"the matching's own consistency (A -> B directly against A -> C -> B, points in 3 images): "
               f"{int(np.sum(d <= 2.0))} / {len(d)} within 2 px, RMS {np.sqrt(np.mean(d**2)):.2f} px, median "
               f"{np.median(d):.2f} px")
+    rv = res["reversal"]
+    if rv:
+        e = np.array([[c["error_px"], c["back_error_px"]] for c in rv])
+        cl = np.array([c["closure_px"] for c in rv])
+        print(f"there and back (A -> B and B -> A both refined, {len(rv)} pairs): errors {np.sqrt(np.mean(e**2)):.2f} px "
+              f"RMS against the published, yet e_AB + M e_BA (zero when the matching lands on the homologue of the "
+              f"click it starts from, whatever the clicks' errors) {np.sqrt(np.mean(cl**2)):.2f} px RMS")
     r = np.array([c["residual_px"] for c in res["consistency"]])
     print(f"\nthe published measurements themselves (points in 3 images, all three intersected): residual RMS "
           f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px over {len(r)} measurements")

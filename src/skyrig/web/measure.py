@@ -63,6 +63,7 @@ TARGET_KINDS = ("aruco", "coded", "chequer", "disc")  # automatic target kinds, 
 _KIND_METHOD = {"disc": "target", "chequer": "corner", "aruco": "aruco", "coded": "coded"}
 _HALF = 24  # refinement window half size, pixels
 _TEMPLATE_HALF = 12  # half width of the matching template in the image searched, pixels (a 25 x 25 template)
+_ANCHORS = 3  # a proposal by matching looks at the point's measurements in at most this many images (best views)
 #: the largest search radius a proposal may be asked for, pixels (a window of 2 x (24 + 200) px around the click)
 MAX_SEARCH_PX = 200.0
 
@@ -729,14 +730,16 @@ class MeasureSession:
                 "sigma_px": _num(sigma), "note": note}
 
     def _lsm(self, point: str, image: str, click: NDArray, search_px: float = 0.0) -> dict | str:
-        """The point's homologue near the click by its appearance in the best other image it is measured in
-        (:func:`skyrig.match.propagate.propagate_point`): the template around that measurement warped by the local
-        map between the two views that planes through the point induce (level ground, the plane facing both
-        cameras, the vertical plane facing them; :func:`~skyrig.match.propagate.plane_maps`) or the identity,
-        searched by normalised cross-correlation within ``search_px`` of the click, refined by least-squares
-        matching with an affine model; the best correlation wins.  Refused below a correlation of 0.85 (0.7 without
-        a search: least-squares matching from the click) and where the correlation has a second peak within 0.03 of
-        the best (a repeated pattern)."""
+        """The point's homologue near the click by its appearance in the images it is measured in (the
+        :data:`_ANCHORS` best views): from each, :func:`skyrig.match.propagate.propagate_point` (the template
+        around the measurement warped by the local map between the two views that planes through the point induce:
+        level ground, the plane facing both cameras, the vertical plane facing them,
+        :func:`~skyrig.match.propagate.plane_maps`; or the identity), searched by normalised cross-correlation
+        within ``search_px`` of the click, refined by least-squares matching with an affine model, the best
+        correlation winning.  A match is refused below a correlation of 0.85 (0.7 without a search: least-squares
+        matching from the click) and where the correlation has a second peak within 0.03 of the best (a repeated
+        pattern).  The proposal is the mean of the matches found (each measurement's own error enters its match:
+        the mean averages them), its sigma the larger of the formal one and the matches' spread over sqrt(n)."""
         from skyrig.match.propagate import plane_maps, propagate_point
 
         others = [r for r in self._recs(point) if r.image != image and self.files.get(r.image) is not None]
@@ -745,26 +748,38 @@ class MeasureSession:
         X = self.xyz_l[self.pidx[point]]
         rows = np.array([self.iidx[r.image] for r in others] + [self.iidx[image]])
         px, _, jx = self._project(X, rows)
-        k = int(np.argmax(self._quality(rows[:-1], px[:-1], X)))
-        ref = others[k]
-        maps = plane_maps(jx[k], jx[-1], X - self.eo_l.centre[rows[k]], X - self.eo_l.centre[rows[-1]])
+        order = np.argsort(-self._quality(rows[:-1], px[:-1], X), kind="stable")[:_ANCHORS]
         h = _TEMPLATE_HALF
-        if maps:  # windows wide enough for the template under the largest scale either way
-            grow_a = max(np.linalg.norm(np.linalg.inv(M), 2) for M in maps.values())
-            grow_b = max(np.linalg.norm(M, 2) for M in maps.values())
-        else:
-            grow_a = grow_b = 1.0
-        half_a = int(min(max(2 * _HALF, math.ceil(h * max(grow_a, 1.0)) + 4), MAX_SEARCH_PX))
-        half_b = int(min(max(_HALF, math.ceil(h * max(grow_b, 1.0)) + 4), MAX_SEARCH_PX)) + int(math.ceil(search_px))
-        w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], half_a)
-        w2, (c0, d0) = self.windows(image).around(click[0], click[1], half_b)
-        got = propagate_point(w1, ref.xy - [a0, b0], w2, click - [c0, d0], search_px, maps, half_size=h,
-                              min_correlation=0.85 if search_px > 0 else 0.7, ambiguity=0.03,
-                              lsm_shift_px=3.0 if search_px > 0 else 8.0)
-        if not got.ok:
-            return f"against {ref.image}: {got.note}"
-        return self._proposal(got.xy + [c0, d0], "lsm", True, float(max(got.sigma_px, 0.02)),
-                              f"least-squares matching to {ref.image} ({got.note})")
+        found, refusals = [], []
+        for k in order:
+            ref = others[int(k)]
+            maps = plane_maps(jx[k], jx[-1], X - self.eo_l.centre[rows[k]], X - self.eo_l.centre[rows[-1]])
+            # windows wide enough for the template under the largest scale either way
+            grow_a = max([np.linalg.norm(np.linalg.inv(M), 2) for M in maps.values()] + [1.0])
+            grow_b = max([np.linalg.norm(M, 2) for M in maps.values()] + [1.0])
+            half_a = int(min(max(2 * _HALF, math.ceil(h * grow_a) + 4), MAX_SEARCH_PX))
+            half_b = int(min(max(_HALF, math.ceil(h * grow_b) + 4), MAX_SEARCH_PX)) + int(math.ceil(search_px))
+            w1, (a0, b0) = self.windows(ref.image).around(ref.xy[0], ref.xy[1], half_a)
+            w2, (c0, d0) = self.windows(image).around(click[0], click[1], half_b)
+            got = propagate_point(w1, ref.xy - [a0, b0], w2, click - [c0, d0], search_px, maps, half_size=h,
+                                  min_correlation=0.85 if search_px > 0 else 0.7, ambiguity=0.03,
+                                  lsm_shift_px=3.0 if search_px > 0 else 8.0)
+            if got.ok:
+                found.append((ref.image, got.xy + [c0, d0], got))
+            else:
+                refusals.append(f"against {ref.image}: {got.note}")
+        if not found:
+            return "; ".join(refusals)
+        xy = np.mean([f[1] for f in found], axis=0)
+        sig = math.sqrt(sum(f[2].sigma_px ** 2 for f in found)) / len(found)
+        spread = float(np.sqrt(np.mean([np.sum((f[1] - xy) ** 2) for f in found]) / 2.0))
+        if len(found) > 1:
+            sig = max(sig, spread / math.sqrt(len(found)))
+        words = "; ".join(f"to {f[0]}: {f[2].note}" for f in found)
+        if len(found) > 1:
+            words = f"mean of {len(found)} (spread {spread:.2f} px): {words}"
+        return self._proposal(xy, "lsm", True, float(max(sig, 0.02)), f"least-squares matching {words}"
+                              + "".join(f"; {r}" for r in refusals))
 
     # ------------------------------------------------------------------------------------------- changes
     def accept(self, point: str, image: str, column: float, row: float, method: str = "click", refined: bool = False,
