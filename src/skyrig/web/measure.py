@@ -811,7 +811,8 @@ class MeasureSession:
 
     def detect(self, point: str, search_sigma: float = 3.0, accept: bool = False) -> dict:
         """Look for a target (:attr:`target_kinds`; of a coded point, :class:`PointTarget`, only a coded target of
-        its code) around the point's prediction in every image predicted to see it (within ``search_sigma`` times
+        its code) around the point's prediction (by intersection, else along the one measured ray, else from the
+        surveyed point) in every image predicted to see it (within ``search_sigma`` times
         the prediction ellipse's major semi-axis, at least 6 px); the proposals found, stored as ``detected`` when
         ``accept``, and the images passed over with the reason.  Returns ``{"found": [proposal + "image"],
         "skipped": [{"image", "reason"}]}``.
@@ -825,7 +826,7 @@ class MeasureSession:
         for p in st["predictions"]:
             if not p["file"] or p["measured"] or not p["ground"]["inside"]:
                 continue
-            g = p.get("intersection") or p["ground"]
+            g = p.get("intersection") or p.get("ray") or p["ground"]
             if g["column"] is None:
                 continue
             why = self._coded_refusal(point, p["image"])
