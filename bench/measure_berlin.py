@@ -223,19 +223,20 @@ def summary(cases: list[dict], tol: float = 2.0, against: str = "published") -> 
             "start_rms_px": float(np.sqrt(np.mean(s0**2))), "start_within_tol": int(np.sum(s0 <= tol))}
 
 
-def opensfm_consistency(data: Path) -> list[dict]:
+def opensfm_consistency(data: Path, measurements: dict | None = None) -> list[dict]:
     """The published measurements against OpenSfM's own reconstruction of the three images
     (``reconstruction_example.json``, the peer's orientation, not skyrig's): each point seen in two or more images
     intersected from its published measurements (least squares on the reprojection errors, OpenSfM's cameras and
     poses as skyrig reads them), every measurement's residual ``{point, image, n_images, residual_px}``.  No
-    ground coordinate enters: only how the clicks agree with each other through that orientation."""
+    ground coordinate enters: only how the clicks agree with each other through that orientation.
+    ``measurements``: ``{(point, image): (column, row)}`` to judge instead of the published ones (default)."""
     from scipy.optimize import least_squares
 
     from skyrig.io.opensfm import read_opensfm
 
     folder = data / "opensfm" / "berlin"
     rec = read_opensfm(folder / "reconstruction_example.json")[0]
-    pub = published(folder)
+    pub = published(folder) if measurements is None else measurements
     names = [str(n) for n in rec.image_name]
     out = []
     for p in sorted({p for p, _ in pub}):
@@ -254,6 +255,25 @@ def opensfm_consistency(data: Path) -> list[dict]:
         r = min(fits, key=lambda f: f.cost).fun.reshape(-1, 2)
         out += [{"point": p, "image": names[j], "n_images": len(k), "residual_px": float(np.hypot(*v))}
                 for j, v in zip(k, r)]
+    return out
+
+
+def opensfm_proposal_consistency(data: Path, ones: list[dict]) -> list[dict]:
+    """The matched homologues through OpenSfM's own reconstruction: for each point in three images and each of its
+    published measurements A whose two proposals (from A) were refined, A's measurement and the two proposals
+    intersected (:func:`opensfm_consistency`), every residual ``{point, anchor, image, residual_px}``: near the
+    orientation's own fit where the proposals are images of the point A's click is on."""
+    pub = published(data / "opensfm" / "berlin")
+    out = []
+    for p in sorted({p for p, _ in pub}):
+        imgs = [i for q, i in pub if q == p]
+        if len(imgs) < 3:
+            continue
+        for a in imgs:
+            props = {c["image"]: np.array(c["xy"]) for c in ones if c["point"] == p and c["given"] == a and c["refined"]}
+            if len(props) == len(imgs) - 1:
+                m = {(p, a): pub[p, a], **{(p, b): v for b, v in props.items()}}
+                out += [{**c, "anchor": a} for c in opensfm_consistency(data, m)]
     return out
 
 
@@ -310,6 +330,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"the published measurements through OpenSfM's own reconstruction (reconstruction_example.json; points in "
           f"3 images): residual RMS {np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px, {int(np.sum(r <= 2.0))} / "
           f"{len(r)} within 2 px of their own intersection")
+    r = np.array([c["residual_px"] for c in opensfm_proposal_consistency(a.data, res["one"])])
+    if len(r):
+        print(f"one published measurement + its two proposals through OpenSfM's reconstruction: residual RMS "
+              f"{np.sqrt(np.mean(r**2)):.2f} px, max {r.max():.2f} px, {int(np.sum(r <= 2.0))} / {len(r)} within 2 px")
     return 0
 
 
