@@ -1,4 +1,4 @@
-"""skyrig.match.lsm.search_lsm: a start far off (beyond LSM's pull-in) and a scale / shear change between the
+"""skyrig.match.propagate.search_lsm: a start far off (beyond LSM's pull-in) and a scale / shear change between the
 views, on a synthetic texture whose true homologue is known exactly (image 2 = image 1 under a known affine)."""
 
 from __future__ import annotations
@@ -6,7 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from skyrig.match.lsm import lsm_refine, search_lsm
+from skyrig.match.lsm import lsm_refine
+from skyrig.match.propagate import search_lsm
 
 
 def _pair(A: np.ndarray, t: np.ndarray, seed: int = 3):

@@ -10,7 +10,6 @@ matches.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,28 +159,6 @@ def lsm_refine(
     out = np.where(ok[:, None], x0 + t, x0)
     sigma = np.sqrt(np.mean(np.abs(cov_diag), axis=1))
     return LsmResult(out, ok, sigma, np.nan_to_num(corr, nan=-1.0))
-
-
-def search_lsm(
-    image1: NDArray, image2: NDArray, xy1: NDArray, xy2: NDArray, affines: NDArray, search_px: float,
-    half_size: int = 10, min_correlation: float = 0.7, max_shift_px: float = 8.0,
-) -> tuple[NDArray[np.float64], bool, float, float, int]:
-    """Find the homologue of one point ``xy1`` of image 1 in image 2 when the start ``xy2`` may be ``search_px``
-    off: for each candidate ``(2, 2)`` linear map of ``affines`` ``(K, 2, 2)`` (image 1 -> image 2), the template
-    resampled into image 2's geometry is located by normalised cross-correlation within ``search_px`` of
-    ``xy2`` (OpenCV ``matchTemplate``), then refined by :func:`lsm_refine` (shift limit 3 px); the candidate with
-    the highest final correlation wins (:func:`skyrig.match.propagate.propagate_point` without its ambiguity check).
-
-    Returns ``(xy2, ok, sigma_px, correlation, k)`` (``k`` the winning candidate, -1 when none converged)."""
-    from skyrig.match.propagate import propagate_point
-
-    maps = {str(k): A for k, A in enumerate(np.asarray(affines, dtype=np.float64).reshape(-1, 2, 2))}
-    got = propagate_point(image1, xy1, image2, xy2, search_px, maps, half_size=half_size,
-                          min_correlation=min_correlation, ambiguity=None,
-                          lsm_shift_px=3.0 if math.ceil(max(search_px, 0.0)) > 0 else max_shift_px, identity=False)
-    if not got.ok:
-        return np.asarray(xy2, dtype=np.float64).reshape(2).copy(), False, float("nan"), -1.0, -1
-    return got.xy, True, got.sigma_px, got.correlation, int(got.source)
 
 
 def refine_tracks(

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from skyrig.match.lsm import _sample, lsm_refine
 
-__all__ = ["Propagation", "plane_maps", "propagate_point"]
+__all__ = ["Propagation", "plane_maps", "propagate_point", "search_lsm"]
 
 
 @dataclass(frozen=True)
@@ -203,3 +203,23 @@ def propagate_point(
     if best is None:
         return Propagation(p2.copy(), False, float("nan"), -1.0, "", "no template could be made", tried)
     return Propagation(best.xy, best.ok, best.sigma_px, best.correlation, best.source, best.note, tried)
+
+
+def search_lsm(
+    image1: NDArray, image2: NDArray, xy1: NDArray, xy2: NDArray, affines: NDArray, search_px: float,
+    half_size: int = 10, min_correlation: float = 0.7, max_shift_px: float = 8.0,
+) -> tuple[NDArray[np.float64], bool, float, float, int]:
+    """Find the homologue of one point ``xy1`` of image 1 in image 2 when the start ``xy2`` may be ``search_px``
+    off: for each candidate ``(2, 2)`` linear map of ``affines`` ``(K, 2, 2)`` (image 1 -> image 2), the template
+    resampled into image 2's geometry is located by normalised cross-correlation within ``search_px`` of
+    ``xy2`` (OpenCV ``matchTemplate``), then refined by :func:`lsm_refine` (shift limit 3 px); the candidate with
+    the highest final correlation wins (:func:`propagate_point` without its ambiguity check).
+
+    Returns ``(xy2, ok, sigma_px, correlation, k)`` (``k`` the winning candidate, -1 when none converged)."""
+    maps = {str(k): A for k, A in enumerate(np.asarray(affines, dtype=np.float64).reshape(-1, 2, 2))}
+    got = propagate_point(image1, xy1, image2, xy2, search_px, maps, half_size=half_size,
+                          min_correlation=min_correlation, ambiguity=None,
+                          lsm_shift_px=3.0 if math.ceil(max(search_px, 0.0)) > 0 else max_shift_px, identity=False)
+    if not got.ok:
+        return np.asarray(xy2, dtype=np.float64).reshape(2).copy(), False, float("nan"), -1.0, -1
+    return got.xy, True, got.sigma_px, got.correlation, int(got.source)
