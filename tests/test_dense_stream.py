@@ -99,6 +99,7 @@ def test_streamed_stage_writes_what_the_whole_arrays_give(small_block, whole, tm
     eo, cams, paths, area = small_block
     ref, fill, plan, _, figures = whole
     assert len(plan.tiles) >= 6
+    (tmp_path / ".streamed.scratch-killed").mkdir()  # what a killed run left: cleared
     res = run_dsm(eo, cams, paths, WorldFrame.map(CRS), RANGE, tmp_path / "streamed", area=area,
                   config=_config(fill), executor="serial")
     _same_products(ref, tmp_path / "streamed")

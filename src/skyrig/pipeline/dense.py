@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 import tempfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -305,6 +306,8 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
     job = _TileJob(plan, loader)
     out = Path(outdir)
     out.parent.mkdir(parents=True, exist_ok=True)
+    for stale in out.parent.glob(f".{out.name}.scratch-*"):  # what a killed run into the same folder left
+        shutil.rmtree(stale, ignore_errors=True)
     # every tile's result is written out as it comes (StreamedDsm): the stage holds one tile, never the block
     with tempfile.TemporaryDirectory(prefix=f".{out.name}.scratch-", dir=out.parent) as scratch, \
             StreamedDsm(plan, Path(scratch)) as streamed:
