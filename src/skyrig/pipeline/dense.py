@@ -3,7 +3,8 @@
 ``run_dsm`` checks the inputs (every oriented image exists, is readable and has its camera's size), plans the
 work with :func:`skyrig.dense.surface.plan_dense`, runs the ground tiles through
 :class:`skyrig.pipeline.executor.Executor` (serial, local worker processes or a ``dask.distributed``
-scheduler) and publishes the output folder as a set (:func:`skyrig.io.stage.stage_folder`): nothing is
+scheduler), writes each tile's result out as it completes (:mod:`skyrig.pipeline.dense_stream`: the stage holds a
+tile, never the block) and publishes the output folder as a set (:func:`skyrig.io.stage.stage_folder`): nothing is
 half-written, the manifest comes last.
 """
 
