@@ -4,6 +4,7 @@
     .venv/bin/python bench/run.py --scenario midas-demo --scenario midas --executor local --workers 2
     .venv/bin/python bench/run.py --scenario tumblecam --max-features 3000 --json figures.json
     .venv/bin/python bench/run.py --grow 1 2          # the midas-dsm 80/60 surface block, area x1, x2
+    .venv/bin/python bench/run.py --grow 1 2 --only dsm --dsm-tile-cells 512   # one stage again (after --keep)
 
 For each scenario: ``skyrig simulate SCENARIO --size ci`` (timed) into ``--workdir``, ``skyrig init`` on it, the
 executor and the matcher's feature count set in the project file, then each stage in its own child process
@@ -80,7 +81,8 @@ def _simulate_grown(folder: Path, k: int, image_scale: float = 1.0) -> None:
 
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
                    keep: bool, grow: int | None = None, image_scale: float = 1.0,
-                   max_pairs_per_image: int | None = None) -> dict:
+                   max_pairs_per_image: int | None = None, dsm_tile_cells: int | None = None,
+                   only: list[str] | None = None) -> dict:
     tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
     folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
     out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
@@ -102,6 +104,9 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     if max_pairs_per_image is not None:
         text = text.replace("    # max_pairs_per_image: 12 ", f"    max_pairs_per_image: {max_pairs_per_image} ")
     out["max_pairs_per_image"] = max_pairs_per_image
+    if dsm_tile_cells is not None:
+        text = text.replace("    # tile_cells: 2048    # ground tile side in cells", f"    tile_cells: {dsm_tile_cells}")
+    out["dsm_tile_cells"] = dsm_tile_cells
     proj.write_text(text)
     truth = json.loads((folder / "truth" / "truth.json").read_text())
     out["images"] = truth.get("statistics", {}).get("images")
@@ -109,6 +114,11 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     from skyrig.pipeline.project import load_project
 
     stages = [s.name for s in load_project(proj).stages]
+    if only:
+        unknown = sorted(set(only) - set(stages))
+        if unknown:
+            raise SystemExit(f"--only: no stage {', '.join(unknown)} in {proj} (stages: {', '.join(stages)})")
+        stages = [st for st in stages if st in only]
     for st in stages:
         r = subprocess.run([sys.executable, "-c", CHILD, str(proj), st], capture_output=True, text=True)
         line = next((ln for ln in r.stdout.splitlines() if ln.startswith("BENCH ")), None)
@@ -121,6 +131,8 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
               f"  (workers {row['children_peak_mib']:6.0f} MiB)  exit {row['exit']}", flush=True)
         if row["exit"]:
             break
+    if only:  # a resume run would run the stages after these again
+        return out
     t0 = time.perf_counter()
     r = subprocess.run([_skyrig(), "run", str(proj)], capture_output=True, text=True)
     out["resume_all_skipped_s"] = time.perf_counter() - t0
@@ -185,6 +197,11 @@ def main() -> None:
     ap.add_argument("--max-pairs-per-image", type=int, default=None,
                     help="stages.match.max_pairs_per_image (guided pairs' per-image budget; 0 = every overlapping "
                     "pair; default: the stage's default)")
+    ap.add_argument("--dsm-tile-cells", type=int, default=None,
+                    help="stages.dsm.tile_cells (ground tile side in cells; default: the stage's default)")
+    ap.add_argument("--only", nargs="+", default=None, metavar="STAGE",
+                    help="run only these stages (the earlier stages' outputs must be there: an earlier run with "
+                    "--keep), e.g. --only dsm")
     ap.add_argument("--keep", action="store_true", help="keep the run outputs")
     ap.add_argument("--json", default=None, help="write the figures here")
     ap.add_argument("--report", default=None, metavar="JSON",
@@ -207,13 +224,15 @@ def main() -> None:
     if a.grow:
         for k in a.grow:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
-            rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features, a.keep, k,
-                                       a.image_scale, a.max_pairs_per_image))
+            rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features,
+                                       a.keep or bool(a.only), k, a.image_scale, a.max_pairs_per_image,
+                                       a.dsm_tile_cells, a.only))
             save()
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
-        rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep,
-                                   max_pairs_per_image=a.max_pairs_per_image))
+        rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep or bool(a.only),
+                                   max_pairs_per_image=a.max_pairs_per_image, dsm_tile_cells=a.dsm_tile_cells,
+                                   only=a.only))
         save()
     growth = _print_tables(rows, a.project_to)
     if growth is not None:

@@ -5,6 +5,7 @@ Prints per setting the rounds, the seconds, the blunders found / missed / good o
 the injected truth), sigma0, and how far the two solutions are apart in units of their sigma.
 
     nice .venv/bin/python bench/snooping.py --exposures 120 --blunders 40 --per-round 1 10
+    nice .venv/bin/python bench/snooping.py --exposures 48 --blunders 40 --per-round 10 --per-round-share 0.001
 """
 
 from __future__ import annotations
@@ -23,6 +24,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--points-per-exposure", type=int, default=40)
     ap.add_argument("--blunders", type=int, default=40, help="image observations given a 12-20 sigma blunder")
     ap.add_argument("--per-round", type=int, nargs="+", default=[1, 10])
+    ap.add_argument("--per-round-share", type=float, default=0.0,
+                    help="reliability.per_round_share of every run (the round's cap: the larger of per_round and "
+                    "this share of the tested observations)")
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args(argv)
 
@@ -53,6 +57,7 @@ def main(argv: list[str] | None = None) -> None:
         t = time.perf_counter()
         r = adjust(block, AdjustConfig(unknowns=Unknowns(boresight="free"),
                                        reliability=ReliabilityOptions(snooping=True, per_round=k,
+                                                                      per_round_share=a.per_round_share,
                                                                       max_rejections=10 * bad.size)),
                    callback=lambda s, i, c: stages.append(s))
         dt = time.perf_counter() - t

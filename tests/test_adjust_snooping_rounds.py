@@ -32,9 +32,10 @@ def blundered():  # type: ignore[no-untyped-def]
     return b, bad
 
 
-def _run(b, per_round):  # type: ignore[no-untyped-def]
+def _run(b, per_round, share=0.0):  # type: ignore[no-untyped-def]
     stages: list[str] = []
-    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True, per_round=per_round)),
+    res = adjust(b, AdjustConfig(reliability=ReliabilityOptions(snooping=True, per_round=per_round,
+                                                                per_round_share=share)),
                  callback=lambda s, i, c: stages.append(s))
     return res, len(dict.fromkeys(stages))
 
@@ -59,8 +60,25 @@ def test_several_rejections_per_round_find_the_same_blunders_in_fewer_rounds(blu
 
 def test_one_per_round_is_the_default_and_per_round_is_checked():
     assert AdjustConfig().reliability.per_round == 1
+    assert AdjustConfig().reliability.per_round_share == 0.0
     with pytest.raises(ValueError, match="per_round"):
         AdjustConfig(reliability=ReliabilityOptions(per_round=0))
+    with pytest.raises(ValueError, match="per_round_share"):
+        AdjustConfig(reliability=ReliabilityOptions(per_round_share=1.5))
+
+
+def test_a_share_of_the_observations_per_round_keeps_the_rounds_down_with_the_same_result(blundered):
+    """A fixed cap per round makes the rounds grow with the blunders (16 here, 2 a round: at least 8 rounds); a
+    share of the tested observations (1 %: about 40 a round here) grows with the block instead, and ends with the
+    same rejections and sigma0 as the fixed cap (the same non-adjacent picks, only fewer rounds)."""
+    b, bad = blundered
+    fixed, rounds_fixed = _run(b, 2)
+    share, rounds_share = _run(b, 2, 0.01)
+    assert rounds_fixed >= bad.size // 2 + 1
+    assert rounds_share <= 5 < rounds_fixed, (rounds_share, rounds_fixed)
+    for r in (fixed, share):
+        assert sorted(x.index for x in r.rejected) == sorted(bad.tolist()) and not r.failures
+    assert abs(share.sigma0 - fixed.sigma0) < 1e-9 * fixed.sigma0
 
 
 def test_a_gnss_blunder_is_rejected_alone_and_the_result_equals_baardas(blundered):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -55,6 +57,28 @@ def test_order_preserved_and_progress(local: Executor) -> None:
         assert ser.map(abs, [-1, -2], progress=lambda d, t: calls.append((d, t))) == [1, 2]
         assert calls == [(0, 2), (1, 2), (2, 2)]
         assert ser.map(abs, []) == []
+
+
+def test_completed_yields_every_item_once_and_forgets_it_on_the_cluster(local: Executor) -> None:
+    """``completed`` hands each result over with its index as tasks finish (the dense stage writes each out and
+    drops it); the cluster holds no result once it is handed over."""
+    items = list(range(9))
+    got: dict[int, np.ndarray] = {}
+    held = [""]
+    for i, r in local.completed(tile_work, items, desc="handed-over"):
+        got[i] = r
+        if len(got) == len(items):  # the generator still runs: the results handed over must be gone already
+            for _ in range(100):  # releases reach the scheduler asynchronously
+                held = [k for k in local.client.who_has() if str(k).startswith("handed-over-")]
+                if not held:
+                    break
+                time.sleep(0.05)
+    assert sorted(got) == items
+    for i in items:
+        np.testing.assert_array_equal(got[i], tile_work(i))
+    assert not held, held  # no result left in the workers' memory
+    with Executor(kind="serial") as ser:
+        assert [i for i, _ in ser.completed(abs, [-3, -1])] == [0, 1]
 
 
 @pytest.mark.parametrize("kind", ["serial", "local"])

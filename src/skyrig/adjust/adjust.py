@@ -449,8 +449,9 @@ def _snooping_picks(block: Block, model: Model, groups: dict[str, GroupResiduals
     picks = [(best[0], best[1], best[2])]
     # several per round only among image observations, and only while no GNSS / IMU / control / ... one is
     # above the critical value (its spill into the images of its station would look like blunders there)
-    if best[1] == "image" and cfg.reliability.per_round > 1 and not _others_above(groups, crit):
-        room = min(cfg.reliability.per_round, cap - len(snooped)) - 1
+    per_round = max(int(cfg.reliability.per_round), int(np.ceil(cfg.reliability.per_round_share * n_obs)))
+    if best[1] == "image" and per_round > 1 and not _others_above(groups, crit):
+        room = min(per_round, cap - len(snooped)) - 1
         picks += [(w, "image", j) for w, j in
                   _further_image_rejections(block, groups["image"], best[2], crit, room)]
     return picks, None

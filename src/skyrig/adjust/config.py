@@ -134,10 +134,13 @@ class ReliabilityOptions:
     max_share: float = 0.02  # ... or this share of the tested observations, whichever is larger
     max_group_share: float = 0.1  # largest share of a GNSS / IMU / control / distance group
     per_round: int = 1  # image observations rejected per round at most (non-adjacent local maxima)
+    per_round_share: float = 0.0  # ... or this share of the tested observations, whichever is larger
 
     def __post_init__(self) -> None:
         if int(self.per_round) < 1:
             raise ConfigError(f"reliability.per_round must be >= 1, got {self.per_round!r}")
+        if not 0.0 <= float(self.per_round_share) <= 1.0:
+            raise ConfigError(f"reliability.per_round_share must be in [0, 1], got {self.per_round_share!r}")
         if not 0.0 <= float(self.max_share) <= 1.0:
             raise ConfigError(f"reliability.max_share must be in [0, 1], got {self.max_share!r}")
         if not 0.0 < float(self.max_group_share) <= 1.0:
@@ -167,6 +170,7 @@ FLAT_KEYS: dict[str, tuple[str, str]] = {
     "snooping_max_share": ("reliability", "max_share"),
     "snooping_max_group_share": ("reliability", "max_group_share"),
     "snooping_per_round": ("reliability", "per_round"),
+    "snooping_per_round_share": ("reliability", "per_round_share"),
     "statistics": ("statistics", "compute"), "max_statistics_parameters": ("statistics", "max_parameters"),
     "statistics_images": ("statistics", "images"), "statistics_points": ("statistics", "points"),
 }
@@ -304,6 +308,11 @@ class AdjustConfig:
             weakly into its image; observations apart from it are tested as before).  Large blocks need one
             statistics pass per round, so this cuts their snooping time by the ratio.  While a GNSS / IMU /
             control / distance observation is above the critical value, rounds reject one observation.
+        reliability.per_round_share
+            With it the round's cap is the larger of ``per_round`` and this share of the tested observations
+            (default 0: ``per_round`` alone), so that a large block's cap grows with it as its blunders do: with a
+            fixed cap the rounds, each a statistics pass over the whole block, grow with the block (the 540-image
+            midas-dsm growth run of issue 35: 19 solver iterations over its rounds against 10 at 240 images).
         statistics.compute
             Compute covariance, redundancy numbers and normalised residuals (costs one inverse of the
             reduced system; skipped above ``max_parameters``).

@@ -115,6 +115,9 @@ def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
               help="Image observations data snooping may reject in one round of the adjustment: the largest "
                    "normalised residual and further ones above the critical value that share neither point nor image "
                    "with a larger one (1: Baarda's one at a time; each round costs one statistics pass).")
+@click.option("--snooping-per-round-share", type=float, default=0.001, show_default=True,
+              help="... or this share of the tested observations when that is more, so that the rounds do not grow "
+                   "with the block (0: --snooping-per-round alone).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file (.json) to write.")
 def command(trajectory: str | None, reference: str | None, events: str | None, rig_path: str | None,
             eo_path: str | None, eo_format: str | None, eo_crs: str | None, eo_geoid: str | None,
@@ -122,7 +125,8 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
             meas_paths: tuple[str, ...], control_path: str | None, check_path: str | None, points_crs: str | None,
             points_heights: str, points_geoid: str | None, sigma_px: float, gnss_sigma: str, imu_sigma_deg: str,
             control_sigma: str, free: str, fourier_order: int | None, datum: str, datum_points: str | None,
-            crs: str | None, geoid: str | None, snooping_per_round: int, output: str) -> None:
+            crs: str | None, geoid: str | None, snooping_per_round: int, snooping_per_round_share: float,
+            output: str) -> None:
     """Assemble a block file from a trajectory + events + rig (or EO + cameras), measurements and control."""
     from skyrig.pipeline.orientation import make_block
 
@@ -137,7 +141,8 @@ def command(trajectory: str | None, reference: str | None, events: str | None, r
                      control=control_path, check=check_path, points_crs=points_crs, points_heights=points_heights,
                      points_geoid=points_geoid, sigma_px=sigma_px, gnss_sigma=gs, imu_sigma_deg=imu,
                      control_sigma=cs, free=groups, fourier_order=fourier_order, datum=datum, datum_points=points,
-                     crs=crs, geoid=geoid, snooping_per_round=snooping_per_round, spell=_spell)
+                     crs=crs, geoid=geoid, snooping_per_round=snooping_per_round,
+                     snooping_per_round_share=snooping_per_round_share, spell=_spell)
     for line in res.summary_lines():
         click.echo(line)
 

@@ -686,49 +686,93 @@ class DenseStats:
         return self.search.summary_line(self.blocks)
 
 
+#: the layers of a tile's result that the assembly puts together (:func:`tile_layers`), in this order
+TILE_LAYERS = ("height", "support", "spread", "sigma", "cand_height", "cand_sigma", "cand_support", "cand2_height",
+               "cand2_sigma", "cand2_support")
+_COUNT_LAYERS = ("support", "cand_support", "cand2_support")
+
+
+def tile_layers(r: TileResult) -> list[NDArray]:
+    """The tile's :data:`TILE_LAYERS` (a missing candidate layer as no data: NaN, count 0)."""
+    _, _, h, w = r.window
+    return [_no_data(n, h, w) if getattr(r, n) is None else getattr(r, n) for n in TILE_LAYERS]
+
+
+def empty_layers(h: int, w: int) -> list[NDArray]:
+    """:data:`TILE_LAYERS` of ``h x w`` cells without data."""
+    return [_no_data(n, h, w) for n in TILE_LAYERS]
+
+
+def _no_data(name: str, h: int, w: int) -> NDArray:
+    return np.zeros((h, w), np.int16) if name in _COUNT_LAYERS else np.full((h, w), np.nan, np.float32)
+
+
+def confirm_reach(config: DenseConfig) -> int:
+    """How far (cells) the neighbour confirmation of :func:`confirm_window` looks: a window's cells come out as
+    the whole grid's when the layers it is given reach this far beyond it (or to the grid's edge)."""
+    return max(0, int(config.fusion.neighbour_cells))
+
+
+def confirm_window(layers: list[NDArray], inner: tuple[int, int, int, int], cell_m: float, config: DenseConfig
+                   ) -> tuple[NDArray[np.float32], NDArray[np.int16], NDArray[np.float32], NDArray[np.float32]]:
+    """Step 4 and 5 of the fusion (:func:`skyrig.dense.fusion.confirm_by_neighbours`) on :data:`TILE_LAYERS` of a
+    part of the grid, and the ``(rows, cols)`` window ``inner = (row0, col0, rows, cols)`` of it out: height,
+    support, spread, sigma.  With :func:`confirm_reach` cells around the window (or the grid's edge) in
+    ``layers``, the window's cells are those of the whole grid's confirmation (only cells of steps 1-3 confirm,
+    no chains).  ``layers`` are not changed."""
+    height, support, spread, sigma = (np.array(a) for a in layers[:4])
+    confirm_by_neighbours(height, support, sigma, *layers[4:7], cell_m, config.fusion, *layers[7:10])
+    r0, c0, h, w = inner
+    sl = (slice(r0, r0 + h), slice(c0, c0 + w))
+    return height[sl], support[sl], spread[sl], sigma[sl]
+
+
+class TileTally:
+    """The counts of a dense run, tile result by tile result (:class:`DenseStats`)."""
+
+    def __init__(self) -> None:
+        self.blocks = self.points = self.tiles = 0
+        self.megapixels = self.seconds = 0.0
+        self.search = SearchCounts()
+
+    def add(self, r: TileResult) -> None:
+        self.blocks += r.blocks
+        self.search = self.search + r.search
+        self.points += r.points
+        self.megapixels += r.megapixels
+        self.seconds += r.seconds
+        self.tiles += 1
+
+    def stats(self, plan: DensePlan) -> DenseStats:
+        """The counts as :class:`DenseStats`; the disparity search's line logged (a warning when windows were cut)."""
+        stats = DenseStats(len(plan.pairs), self.tiles, self.blocks, self.points, self.megapixels, self.seconds,
+                           plan.gsd_m, plan.grid.cell_m, 0.5 ** plan.image_level, self.search)
+        if stats.summary_line():
+            (logger.warning if self.search.cut else logger.info)("dense: %s", stats.summary_line())
+        return stats
+
+
 def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, DenseCloud | None, DenseStats]:
-    """Put tile results together into the DSM (and cloud)."""
+    """Put tile results together into the DSM (and cloud), whole in memory (``skyrig.pipeline.dense`` writes
+    them window by window instead, with the same cells and points)."""
     H, W = plan.grid.shape
-    height = np.full((H, W), np.nan, np.float32)
-    support = np.zeros((H, W), np.int16)
-    spread = np.full((H, W), np.nan, np.float32)
-    sigma = np.full((H, W), np.nan, np.float32)
-    cand_h = np.full((H, W), np.nan, np.float32)
-    cand_s = np.full((H, W), np.nan, np.float32)
-    cand_n = np.zeros((H, W), np.int16)
-    cand2_h = np.full((H, W), np.nan, np.float32)
-    cand2_s = np.full((H, W), np.nan, np.float32)
-    cand2_n = np.zeros((H, W), np.int16)
+    layers = empty_layers(H, W)
     clouds = []
-    nb = npt = 0
-    search = SearchCounts()
-    mpx = secs = 0.0
-    ntiles = 0
+    tally = TileTally()
     for r in results:
         r0, c0, h, w = r.window
-        sl = (slice(r0, r0 + h), slice(c0, c0 + w))
-        height[sl], support[sl], spread[sl], sigma[sl] = r.height, r.support, r.spread, r.sigma
-        if r.cand_height is not None:
-            cand_h[sl], cand_s[sl], cand_n[sl] = r.cand_height, r.cand_sigma, r.cand_support
-        if r.cand2_height is not None:
-            cand2_h[sl], cand2_s[sl], cand2_n[sl] = r.cand2_height, r.cand2_sigma, r.cand2_support
+        for a, t in zip(layers, tile_layers(r)):
+            a[r0:r0 + h, c0:c0 + w] = t
         if r.cloud is not None:
             clouds.append(r.cloud)
-        nb += r.blocks
-        search = search + r.search
-        npt += r.points
-        mpx += r.megapixels
-        secs += r.seconds
-        ntiles += 1
-    confirm_by_neighbours(height, support, sigma, cand_h, cand_s, cand_n, plan.grid.cell_m, plan.config.fusion,
-                          cand2_h, cand2_s, cand2_n)
-    del cand_h, cand_s, cand_n, cand2_h, cand2_s, cand2_n
+        tally.add(r)
+    height, support, spread, sigma = confirm_window(layers, (0, 0, H, W), plan.grid.cell_m, plan.config)
+    del layers
     filled = np.zeros((H, W), bool)
     if plan.config.fill_holes:
         height, filled = fill_holes(height, plan.config.fill_max_cells)
     vref = vertical_reference(plan.out_frame)
-    dsm = DsmGrid(plan.grid, plan.out_frame, height, support, spread, sigma, filled, vref,
-                  {"gsd_m": plan.gsd_m, "pairs": len(plan.pairs)})
+    dsm = DsmGrid(plan.grid, plan.out_frame, height, support, spread, sigma, filled, vref, dsm_metadata(plan))
     cloud = None
     if plan.config.cloud:
         if clouds:
@@ -737,11 +781,12 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
             cat = [np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32), np.zeros(0, np.int16),
                    np.zeros(0, np.float32)]
         cloud = DenseCloud(cat[0], cat[1], cat[2], cat[3], cat[4], plan.out_frame, vref)
-    stats = DenseStats(len(plan.pairs), ntiles, nb, npt, mpx, secs, plan.gsd_m, plan.grid.cell_m,
-                       0.5 ** plan.image_level, search)
-    if stats.summary_line():
-        (logger.warning if search.cut else logger.info)("dense: %s", stats.summary_line())
-    return dsm, cloud, stats
+    return dsm, cloud, tally.stats(plan)
+
+
+def dsm_metadata(plan: DensePlan) -> dict:
+    """The DSM's metadata (:attr:`DsmGrid.metadata`)."""
+    return {"gsd_m": plan.gsd_m, "pairs": len(plan.pairs)}
 
 
 def dense_surface(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], loader: ImageLoader,

@@ -25,20 +25,22 @@ from __future__ import annotations
 
 import math
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 import pyproj
+from numpy.typing import ArrayLike, NDArray
 
 from skyrig.dense.grid import DenseCloud
 from skyrig.errors import CRSError, InputFormatError
-from skyrig.geodesy.statement import file_crs, frame_from_file_crs
-from skyrig.io.laz import read_las, write_las
+from skyrig.geodesy.statement import FileCRS, file_crs, frame_from_file_crs
+from skyrig.geodesy.frame import WorldFrame
+from skyrig.io.laz import read_las, write_las, write_las_chunks
 
 if TYPE_CHECKING:
     from pyproj._crs import Axis
 
-__all__ = ["write_dense_cloud", "read_dense_cloud", "coordinate_scale", "DENSE_EXTRA_TYPES"]
+__all__ = ["write_dense_cloud", "write_dense_cloud_chunks", "read_dense_cloud", "coordinate_scale", "DENSE_EXTRA_TYPES"]
 
 PathLike = str | os.PathLike[str]
 
@@ -99,12 +101,50 @@ def write_dense_cloud(path: PathLike, cloud: DenseCloud, *, scale: float | tuple
     InputFormatError
         On arrays of the wrong shape or non-finite coordinates.
     """
-    fc = file_crs(cloud.frame)
-    n = len(cloud)
-    for name, arr, shape in (("xyz", cloud.xyz, (n, 3)), ("rgb", cloud.rgb, (n, 3)), ("normal", cloud.normal, (n, 3)),
-                             ("support", cloud.support, (n,)), ("sigma", cloud.sigma, (n,))):
-        if np.shape(arr) != shape:
-            raise InputFormatError(f"DenseCloud.{name} must be {shape}, got {np.shape(arr)}", path, field=name)
+    fc, scales, meta = _dense_las_setup(path, cloud.frame, cloud.vertical_reference, scale)
+    try:
+        write_las(path, cloud.xyz, fc.full, extra=_dense_extra(path, cloud), extra_types=DENSE_EXTRA_TYPES,
+                  scale=scales, rgb=np.asarray(cloud.rgb, np.uint8), metadata=meta)
+    except InputFormatError as exc:
+        if exc.path is None:
+            raise InputFormatError(exc.reason, path, field=exc.field) from None
+        raise
+
+
+def write_dense_cloud_chunks(path: PathLike, chunks: Iterable[DenseCloud], frame: WorldFrame, vertical_reference: str,
+                             mins: ArrayLike, maxs: ArrayLike, *, scale: float | tuple[float, float, float] | None = None
+                             ) -> int:
+    """:func:`write_dense_cloud` of a cloud that comes in pieces (e.g. one per ground tile, read back one at a
+    time): the file holds what :func:`write_dense_cloud` of the pieces put together holds, in their order, and
+    only one piece is in memory at a time.  Every piece must be in ``frame``; ``mins`` / ``maxs``: the ``(3,)``
+    extremes of all pieces' coordinates (the LAS offsets come from them).  Returns the number of points written.
+
+    Raises
+    ------
+    CRSError, InputFormatError
+        As :func:`write_dense_cloud`; a piece in another frame, or outside ``mins`` .. ``maxs``.
+    """
+    fc, scales, meta = _dense_las_setup(path, frame, vertical_reference, scale)
+
+    def pieces() -> Iterator[tuple[NDArray, NDArray, dict[str, NDArray]]]:
+        for c in chunks:
+            if c.frame != frame:
+                raise InputFormatError(f"a piece of the cloud is in {c.frame.describe()}, not {frame.describe()}", path)
+            yield c.xyz, np.asarray(c.rgb, np.uint8), _dense_extra(path, c)
+
+    try:
+        return write_las_chunks(path, pieces(), fc.full, mins, maxs, scale=scales, rgb=True,
+                                extra_types=DENSE_EXTRA_TYPES, metadata=meta)
+    except InputFormatError as exc:
+        if exc.path is None:
+            raise InputFormatError(exc.reason, path, field=exc.field) from None
+        raise
+
+
+def _dense_las_setup(path: PathLike, frame: WorldFrame, vertical_reference: str,
+                     scale: float | tuple[float, float, float] | None) -> tuple[FileCRS, tuple[float, ...], dict]:
+    """The file CRS, the coordinate scales (checked) and the metadata VLR of a dense cloud file."""
+    fc = file_crs(frame)
     auto = coordinate_scale(fc.full)
     if scale is None:
         scales = auto
@@ -115,18 +155,21 @@ def write_dense_cloud(path: PathLike, cloud: DenseCloud, *, scale: float | tuple
             units = ", ".join(ax.unit_name for ax in fc.full.axis_info[:3])
             raise CRSError(f"{path}: LAS scale {scales} in {fc.full.name} (units {units}) is {max(ground):.3g} m on "
                            f"the ground; use e.g. {auto} (option 'scale')")
-    normal = np.asarray(cloud.normal, np.float32)
-    extra = {"support": np.asarray(cloud.support), "sigma": np.asarray(cloud.sigma),
-             "normal_x": normal[:, 0], "normal_y": normal[:, 1], "normal_z": normal[:, 2]}
     meta = {"vertical_reference": fc.kind, "vertical_crs": fc.vertical_words, "geoid": fc.geoid or "",
-            "skyrig_vertical_reference": cloud.vertical_reference or fc.vertical_words}
-    try:
-        write_las(path, cloud.xyz, fc.full, extra=extra, extra_types=DENSE_EXTRA_TYPES, scale=scales,
-                  rgb=np.asarray(cloud.rgb, np.uint8), metadata=meta)
-    except InputFormatError as exc:
-        if exc.path is None:
-            raise InputFormatError(exc.reason, path, field=exc.field) from None
-        raise
+            "skyrig_vertical_reference": vertical_reference or fc.vertical_words}
+    return fc, scales, meta
+
+
+def _dense_extra(path: PathLike, cloud: DenseCloud) -> dict[str, NDArray]:
+    """The cloud's arrays checked, its extra dimensions by name."""
+    n = len(cloud)
+    for name, arr, shape in (("xyz", cloud.xyz, (n, 3)), ("rgb", cloud.rgb, (n, 3)), ("normal", cloud.normal, (n, 3)),
+                             ("support", cloud.support, (n,)), ("sigma", cloud.sigma, (n,))):
+        if np.shape(arr) != shape:
+            raise InputFormatError(f"DenseCloud.{name} must be {shape}, got {np.shape(arr)}", path, field=name)
+    normal = np.asarray(cloud.normal, np.float32)
+    return {"support": np.asarray(cloud.support), "sigma": np.asarray(cloud.sigma),
+            "normal_x": normal[:, 0], "normal_y": normal[:, 1], "normal_z": normal[:, 2]}
 
 
 def read_dense_cloud(path: PathLike) -> DenseCloud:

@@ -65,6 +65,8 @@ __all__ = [
     "vertical_crs_of_geoid",
     "write_dsm_cog",
     "write_bands_cog",
+    "WindowedBands",
+    "write_hillshade_png_windows",
     "read_dsm_cog",
     "write_hillshade_png",
     "hillshade",
@@ -155,10 +157,37 @@ def write_bands_cog(path: PathLike, grid: GridSpec, frame, bands: list[tuple[str
     with the vertical reference stated as the module docstring describes (the layout and tags of
     :func:`write_dsm_cog`, which calls it); no-data :data:`DSM_NODATA` (NaN is written as it)."""
     import rasterio
+    from rasterio.io import MemoryFile
+
+    rows, cols = grid.shape
+    data = []
+    for name, a, _ in bands:
+        a = np.asarray(a, np.float32)
+        if a.shape != (rows, cols):
+            raise InputFormatError(f"band {name!r} is {a.shape}, the grid {(rows, cols)}", path, field=name)
+        data.append(_nodata_float32(a))
+    profile, tags, blocksize = _cog_profile(grid, frame, vertical_reference, metadata, blocksize, extra_tags)
+    profile.update(count=len(bands))
+    with _atomic_target(path, ".tif") as tmp:
+        # PAM off: everything must be inside the .tif, never in a side-car a COG copy would lose
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), MemoryFile() as mem:
+            with mem.open(**profile) as src:
+                for i, a in enumerate(data, start=1):
+                    src.write(a, i)
+                _describe_bands(src, [(n, u) for n, _, u in bands], tags)
+            with mem.open() as src:
+                _copy_cog(src, tmp, path, blocksize, overviews)
+
+
+def _nodata_float32(a: NDArray) -> NDArray[np.float32]:
+    return np.where(np.isfinite(a), a, np.float32(DSM_NODATA)).astype(np.float32)
+
+
+def _cog_profile(grid: GridSpec, frame, vertical_reference: str, metadata: dict | None, blocksize: int | None,
+                 extra_tags: dict[str, str] | None) -> tuple[dict, dict[str, str], int]:
+    """The GeoTIFF profile (without ``count``), the tags and the COG tile size of :func:`write_bands_cog`."""
     from affine import Affine
     from rasterio.crs import CRS as RioCRS
-    from rasterio.io import MemoryFile
-    from rasterio.shutil import copy as rio_copy
 
     fc = file_crs(frame)
     rows, cols = grid.shape
@@ -178,30 +207,104 @@ def write_bands_cog(path: PathLike, grid: GridSpec, frame, bands: list[tuple[str
     }
     if fc.geoid:
         tags["GEOID"] = fc.geoid
-    data = []
-    for name, a, _ in bands:
-        a = np.asarray(a, np.float32)
-        if a.shape != (rows, cols):
-            raise InputFormatError(f"band {name!r} is {a.shape}, the grid {(rows, cols)}", path, field=name)
-        data.append(np.where(np.isfinite(a), a, np.float32(DSM_NODATA)).astype(np.float32))
-    profile = dict(driver="GTiff", width=cols, height=rows, count=len(bands), dtype="float32",
-                   nodata=DSM_NODATA, crs=RioCRS.from_wkt(geokeys_crs.to_wkt()), transform=Affine(*grid.transform))
-    cog_options = dict(BLOCKSIZE=str(blocksize), COMPRESS="DEFLATE", PREDICTOR="YES", BIGTIFF="IF_SAFER",
-                       OVERVIEWS="AUTO" if overviews else "NONE", OVERVIEW_RESAMPLING="NEAREST")
-    with _atomic_target(path, ".tif") as tmp:
-        # PAM off: everything must be inside the .tif, never in a side-car a COG copy would lose
-        with rasterio.Env(GDAL_PAM_ENABLED="NO"), MemoryFile() as mem:
-            with mem.open(**profile) as src:
-                for i, ((name, _, _), a) in enumerate(zip(bands, data), start=1):
-                    src.write(a, i)
-                    src.set_band_description(i, name)
-                src.units = tuple(u for _, _, u in bands)
-                src.update_tags(**tags)
-            with mem.open() as src:
-                rio_copy(src, tmp, driver="COG", **cog_options)
-        problems = cog_problems(tmp, expect_overviews=overviews)
-        if problems:
-            raise InputFormatError("GDAL wrote an invalid COG: " + "; ".join(problems), path)
+    profile = dict(driver="GTiff", width=cols, height=rows, dtype="float32", nodata=DSM_NODATA,
+                   crs=RioCRS.from_wkt(geokeys_crs.to_wkt()), transform=Affine(*grid.transform))
+    return profile, tags, blocksize
+
+
+def _describe_bands(src, bands: list[tuple[str, str]], tags: dict[str, str]) -> None:
+    for i, (name, _) in enumerate(bands, start=1):
+        src.set_band_description(i, name)
+    src.units = tuple(u for _, u in bands)
+    src.update_tags(**tags)
+
+
+def _copy_cog(src, tmp: str, path: PathLike, blocksize: int, overviews: bool) -> None:
+    """GDAL's COG copy of an open dataset into ``tmp``, its layout checked (:func:`cog_problems`)."""
+    from rasterio.shutil import copy as rio_copy
+
+    rio_copy(src, tmp, driver="COG", BLOCKSIZE=str(blocksize), COMPRESS="DEFLATE", PREDICTOR="YES",
+             BIGTIFF="IF_SAFER", OVERVIEWS="AUTO" if overviews else "NONE", OVERVIEW_RESAMPLING="NEAREST")
+    problems = cog_problems(tmp, expect_overviews=overviews)
+    if problems:
+        raise InputFormatError("GDAL wrote an invalid COG: " + "; ".join(problems), path)
+
+
+#: GDAL's block cache while a grid is written window by window (bytes): the windows, not the grid
+WINDOWED_CACHE_BYTES = 64 * 2**20
+
+
+def _windowed_env():
+    """GDAL's settings for window-by-window writing: no side-car files, a block cache of
+    :data:`WINDOWED_CACHE_BYTES`."""
+    import rasterio
+
+    return rasterio.Env(GDAL_PAM_ENABLED="NO", GDAL_CACHEMAX=WINDOWED_CACHE_BYTES)
+
+
+class WindowedBands:
+    """Float32 bands on a grid written and read window by window, then published as a COG: the layout, tags and
+    values :func:`write_bands_cog` writes from whole arrays, without the grid ever in memory.
+
+    The bands live in an uncompressed tiled GeoTIFF ``scratch`` (GDAL's block cache bounded by
+    :data:`WINDOWED_CACHE_BYTES`) until :meth:`publish` copies it into a COG; :meth:`close` (or ``with``) closes it,
+    the caller removes ``scratch``.  Cells never written read as no data (NaN)."""
+
+    def __init__(self, scratch: PathLike, grid: GridSpec, frame, bands: list[tuple[str, str]], *,
+                 vertical_reference: str = "", metadata: dict | None = None, blocksize: int | None = None,
+                 extra_tags: dict[str, str] | None = None) -> None:
+        import rasterio
+
+        self.grid = grid
+        self.names = [n for n, _ in bands]
+        profile, tags, self.blocksize = _cog_profile(grid, frame, vertical_reference, metadata, blocksize, extra_tags)
+        with _windowed_env():
+            self._ds = rasterio.open(scratch, "w+", **profile, count=len(bands), tiled=True, blockxsize=256,
+                                     blockysize=256, BIGTIFF="IF_SAFER")
+            _describe_bands(self._ds, bands, tags)
+
+    def write(self, row0: int, col0: int, arrays: list[NDArray]) -> None:
+        """Every band's ``(rows, cols)`` values at ``(row0, col0)`` (NaN = no data)."""
+        from rasterio.windows import Window
+
+        if len(arrays) != len(self.names):
+            raise InputFormatError(f"{len(arrays)} arrays for {len(self.names)} bands", self._ds.name)
+        h, w = np.shape(arrays[0])
+        with _windowed_env():
+            self._ds.write(np.stack([_nodata_float32(np.asarray(a, np.float32)) for a in arrays]),
+                           window=Window(col0, row0, w, h))
+
+    def read(self, name: str, row0: int, col0: int, height: int, width: int) -> NDArray[np.float32]:
+        """Band ``name`` in a window (clipped to nothing outside the grid: the caller asks for cells inside it),
+        no data as NaN."""
+        from rasterio.windows import Window
+
+        with _windowed_env():
+            a = self._ds.read(self.names.index(name) + 1, window=Window(col0, row0, width, height))
+        a[a == np.float32(DSM_NODATA)] = np.nan
+        return a
+
+    def publish(self, path: PathLike, *, overviews: bool = True) -> None:
+        """Copy the bands into a COG at ``path`` (atomically, layout checked); the bands can be read still, no
+        longer written."""
+        import rasterio
+
+        with _windowed_env():
+            self._ds.close()
+            self._ds = rasterio.open(self._ds.name)  # read-only from now on
+        with _atomic_target(path, ".tif") as tmp, _windowed_env():
+            _copy_cog(self._ds, tmp, path, self.blocksize, overviews)
+
+    def close(self) -> None:
+        if not self._ds.closed:
+            with _windowed_env():
+                self._ds.close()
+
+    def __enter__(self) -> "WindowedBands":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def read_dsm_cog(path: PathLike) -> DsmGrid:
@@ -444,11 +547,48 @@ def write_hillshade_png(path: PathLike, dsm: DsmGrid, *, azimuth_deg: float = 31
 
     if dsm.height.size == 0:
         raise InputFormatError("empty DSM grid", path)
-    s = hillshade(dsm.height, dsm.grid.cell_m, azimuth_deg=azimuth_deg, altitude_deg=altitude_deg,
-                  z_factor=z_factor)
+    img = Image.fromarray(_hillshade_grey_alpha(dsm.height, dsm.grid.cell_m, azimuth_deg, altitude_deg, z_factor),
+                          mode="LA")
+    with _atomic_target(path, ".png") as tmp:
+        img.save(tmp, format="PNG")
+
+
+def _hillshade_grey_alpha(height: NDArray, cell_m: float, azimuth_deg: float, altitude_deg: float,
+                          z_factor: float) -> NDArray[np.uint8]:
+    """The hillshade preview's ``(rows, cols, 2)`` grey and alpha (0 where no data)."""
+    s = hillshade(height, cell_m, azimuth_deg=azimuth_deg, altitude_deg=altitude_deg, z_factor=z_factor)
     ok = np.isfinite(s)
     grey = np.where(ok, np.round(np.nan_to_num(s) * 255.0), 0).astype(np.uint8)
     alpha = np.where(ok, 255, 0).astype(np.uint8)
-    img = Image.fromarray(np.dstack([grey, alpha]), mode="LA")
-    with _atomic_target(path, ".png") as tmp:
-        img.save(tmp, format="PNG")
+    return np.dstack([grey, alpha])
+
+
+def write_hillshade_png_windows(path: PathLike, bands: WindowedBands, scratch: PathLike, *, window_cells: int = 2048,
+                                azimuth_deg: float = 315.0, altitude_deg: float = 45.0, z_factor: float = 1.0) -> None:
+    """:func:`write_hillshade_png` of the ``height`` band of ``bands``, computed window by window (a one-cell halo
+    from the neighbouring windows, so the pixels are those of the whole grid) into an uncompressed GeoTIFF
+    ``scratch`` that GDAL's PNG driver copies row by row into ``path`` (atomically); the caller removes
+    ``scratch``."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.shutil import copy as rio_copy
+    from rasterio.windows import Window
+
+    grid = bands.grid
+    rows, cols = grid.shape
+    if rows * cols == 0:
+        raise InputFormatError("empty DSM grid", path)
+    with _windowed_env(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a picture: no georeference, as the PNG has none
+        with rasterio.open(scratch, "w", driver="GTiff", width=cols, height=rows, count=2, dtype="uint8", tiled=True,
+                           blockxsize=256, blockysize=256) as dst:
+            for r0, c0, h, w in grid.tiles(window_cells):
+                a0, b0 = max(r0 - 1, 0), max(c0 - 1, 0)
+                a1, b1 = min(r0 + h + 1, rows), min(c0 + w + 1, cols)
+                z = bands.read("height", a0, b0, a1 - a0, b1 - b0)
+                la = _hillshade_grey_alpha(z, grid.cell_m, azimuth_deg, altitude_deg, z_factor)
+                dst.write(np.moveaxis(la[r0 - a0:r0 - a0 + h, c0 - b0:c0 - b0 + w], -1, 0), window=Window(c0, r0, w, h))
+        with _atomic_target(path, ".png") as tmp, rasterio.open(scratch) as src:
+            rio_copy(src, tmp, driver="PNG")

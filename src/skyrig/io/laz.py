@@ -15,6 +15,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
@@ -23,7 +24,7 @@ from skyrig.errors import CRSError, InputFormatError
 from skyrig.geodesy.crs import resolve_crs
 from skyrig.io._text import output_temp, publish
 
-__all__ = ["LasPoints", "read_las", "write_las"]
+__all__ = ["LasPoints", "read_las", "write_las", "write_las_chunks"]
 
 PathLike = str | os.PathLike[str]
 SCAN_ANGLE_STEP_DEG = 0.006  # LAS 1.4 point formats 6-10
@@ -170,13 +171,117 @@ def write_las(
     InputFormatError
         On arrays of the wrong shape.
     """
+    p = Path(path)
+    pts = _finite_points(xyz)
+    n = len(pts)
+    colours = _las_colours(rgb, n)
+    extra = extra or {}
+    for name, v in extra.items():
+        if np.asarray(v).shape != (n,):
+            raise InputFormatError(f"extra dimension must be ({n},), got {np.asarray(v).shape}", field=name)
+    header = _las_header(p, crs, scale, pts.min(axis=0) if n else None, pts.max(axis=0) if n else None,
+                         list(extra), extra_types or {}, metadata, colours is not None)
+    las = _las_record(header, pts, colours, extra, extra_types or {}, gps_time, intensity, scan_angle_deg)
+    fd, tmp = output_temp(p, p.suffix)
+    os.close(fd)
+    try:
+        las.write(tmp, do_compress=p.suffix.lower() == ".laz")
+        _publishable(tmp)
+        publish(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_las_chunks(path: PathLike, chunks: Iterable[tuple[ArrayLike, ArrayLike | None, dict[str, ArrayLike]]],
+                     crs: object, mins: ArrayLike, maxs: ArrayLike, *, scale: float | ArrayLike | None = None,
+                     rgb: bool = False, extra_types: dict[str, DTypeLike] | None = None,
+                     metadata: dict[str, str] | None = None) -> int:
+    """:func:`write_las` of points that come chunk by chunk (one chunk in memory at a time): ``chunks`` yields
+    ``(xyz, rgb or None, extra)`` as :func:`write_las` takes them (the same extra names in every chunk, ``rgb``
+    in every chunk when ``rgb``); ``mins`` / ``maxs``: the ``(3,)`` extremes of all chunks' coordinates, known
+    beforehand (the offsets are chosen from them, as :func:`write_las` chooses them from its points; a chunk
+    outside them is refused).  The file holds what :func:`write_las` of the concatenated chunks holds.  Returns
+    the number of points written.
+
+    Raises
+    ------
+    InputFormatError
+        As :func:`write_las`, naming ``path``.
+    """
     import laspy
 
     p = Path(path)
+    lo = np.asarray(mins, np.float64).reshape(3)
+    hi = np.asarray(maxs, np.float64).reshape(3)
+    header = None
+    n_all = 0
+    fd, tmp = output_temp(p, p.suffix)
+    os.close(fd)
+    try:
+        writer = None
+        try:
+            for xyz, colour, extra in chunks:
+                pts = _finite_points(xyz)
+                n = len(pts)
+                if n and (np.any(pts.min(axis=0) < lo) or np.any(pts.max(axis=0) > hi)):
+                    raise InputFormatError(f"a chunk's points lie outside the extremes given ({lo} .. {hi})", p)
+                colours = _las_colours(colour, n) if rgb else None
+                if rgb and colours is None:
+                    raise InputFormatError("a chunk without colours in a cloud with colours", p, field="rgb")
+                if header is None:
+                    header = _las_header(p, crs, scale, lo, hi, list(extra), extra_types or {}, metadata, rgb)
+                    writer = laspy.open(tmp, mode="w", header=header, do_compress=p.suffix.lower() == ".laz")
+                for name, v in extra.items():
+                    if np.asarray(v).shape != (n,):
+                        raise InputFormatError(f"extra dimension must be ({n},), got {np.asarray(v).shape}", p,
+                                               field=name)
+                if n:
+                    assert writer is not None
+                    writer.write_points(_las_record(header, pts, colours, extra, extra_types or {}).points)
+                    n_all += n
+            if writer is None:  # no chunk at all: an empty file
+                header = _las_header(p, crs, scale, None, None, [], {}, metadata, rgb)
+                writer = laspy.open(tmp, mode="w", header=header, do_compress=p.suffix.lower() == ".laz")
+        finally:
+            if writer is not None:
+                writer.close()
+        _publishable(tmp)
+        publish(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return n_all
+
+
+def _finite_points(xyz: ArrayLike) -> NDArray[np.float64]:
     pts = np.asarray(xyz, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
         raise InputFormatError(f"points must be a finite (N, 3) array, got {pts.shape}", field="xyz")
-    n = len(pts)
+    return pts
+
+
+def _las_colours(rgb: ArrayLike | None, n: int) -> NDArray[np.uint16] | None:
+    """Colours in LAS's 16 bits (uint8 scaled by 257), checked."""
+    if rgb is None:
+        return None
+    colours = np.asarray(rgb)
+    if colours.shape != (n, 3):
+        raise InputFormatError(f"rgb must be ({n}, 3), got {colours.shape}", field="rgb")
+    if colours.dtype == np.uint8:
+        return colours.astype(np.uint16) * np.uint16(257)
+    if colours.dtype != np.uint16:
+        raise InputFormatError(f"rgb must be uint8 or uint16, got {colours.dtype}", field="rgb")
+    return colours
+
+
+def _las_header(p: Path, crs: object, scale: float | ArrayLike | None, mins: NDArray | None, maxs: NDArray | None,
+                extra_names: list[str], extra_types: dict[str, DTypeLike], metadata: dict[str, str] | None,
+                with_rgb: bool):
+    """The LAS 1.4 header of :func:`write_las`: scales, offsets (``floor(mins)``; zero without points), extra
+    dimensions, metadata and CRS VLRs."""
+    import laspy
+
     c = resolve_crs(crs)
     geographic = bool((c.sub_crs_list[0] if c.is_compound else c).is_geographic)
     if scale is None:
@@ -187,28 +292,16 @@ def write_las(
     if geographic and np.any(scales[:2] > 1e-6):
         raise InputFormatError(f"scale {float(scales[:2].max()):g} deg on a geographic CRS is up to "
                                f"{float(scales[:2].max()) * 111_320.0:.3g} m on the ground; use 1e-8 (about 1 mm)",
-                               path, None, "scale")
-    colours = None
-    if rgb is not None:
-        colours = np.asarray(rgb)
-        if colours.shape != (n, 3):
-            raise InputFormatError(f"rgb must be ({n}, 3), got {colours.shape}", field="rgb")
-        if colours.dtype == np.uint8:
-            colours = colours.astype(np.uint16) * np.uint16(257)
-        elif colours.dtype != np.uint16:
-            raise InputFormatError(f"rgb must be uint8 or uint16, got {colours.dtype}", field="rgb")
-    header = laspy.LasHeader(point_format=6 if colours is None else 7, version="1.4")
+                               p, None, "scale")
+    header = laspy.LasHeader(point_format=7 if with_rgb else 6, version="1.4")
     header.scales = scales
-    header.offsets = np.floor(pts.min(axis=0)) if n else np.zeros(3)
-    span = (pts.max(axis=0) - header.offsets) / scales if n else np.zeros(3)
-    if np.any(span > 2**31 - 1):
-        raise InputFormatError(f"coordinates span {np.ptp(pts, axis=0)} does not fit LAS 32-bit integers at scale "
-                               f"{scales}; use a coarser scale", field="scale")
-    extra = extra or {}
-    extra_types = extra_types or {}
-    for name, v in extra.items():
-        if np.asarray(v).shape != (n,):
-            raise InputFormatError(f"extra dimension must be ({n},), got {np.asarray(v).shape}", field=name)
+    header.offsets = np.floor(mins) if mins is not None else np.zeros(3)
+    if maxs is not None and mins is not None:
+        span = (maxs - header.offsets) / scales
+        if np.any(span > 2**31 - 1):
+            raise InputFormatError(f"coordinates span {maxs - mins} does not fit LAS 32-bit integers at scale "
+                                   f"{scales}; use a coarser scale", field="scale")
+    for name in extra_names:
         header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.dtype(extra_types.get(name, np.float64))))
     if metadata:
         header.vlrs.append(laspy.VLR(METADATA_VLR_USER_ID, METADATA_VLR_RECORD_ID, "skyrig metadata (JSON)",
@@ -217,6 +310,16 @@ def write_las(
         header.add_crs(c)
     except Exception as exc:
         raise CRSError(f"cannot store the CRS in a LAS header: {exc}") from None
+    return header
+
+
+def _las_record(header, pts: NDArray[np.float64], colours: NDArray[np.uint16] | None, extra: dict[str, ArrayLike],
+                extra_types: dict[str, DTypeLike], gps_time: ArrayLike | None = None,
+                intensity: ArrayLike | None = None, scan_angle_deg: ArrayLike | None = None):
+    """The points as a ``laspy.LasData`` on ``header``."""
+    import laspy
+
+    n = len(pts)
     las = laspy.LasData(header)
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
     for name, v in (("gps_time", gps_time), ("intensity", intensity), ("scan_angle_deg", scan_angle_deg)):
@@ -233,15 +336,7 @@ def write_las(
         las.red, las.green, las.blue = colours[:, 0], colours[:, 1], colours[:, 2]
     for name, v in extra.items():
         las[name] = np.asarray(v).astype(np.dtype(extra_types.get(name, np.float64)))
-    fd, tmp = output_temp(p, p.suffix)
-    os.close(fd)
-    try:
-        las.write(tmp, do_compress=p.suffix.lower() == ".laz")
-        _publishable(tmp)
-        publish(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    return las
 
 
 def _publishable(tmp: str) -> None:

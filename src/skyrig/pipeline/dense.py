@@ -3,7 +3,8 @@
 ``run_dsm`` checks the inputs (every oriented image exists, is readable and has its camera's size), plans the
 work with :func:`skyrig.dense.surface.plan_dense`, runs the ground tiles through
 :class:`skyrig.pipeline.executor.Executor` (serial, local worker processes or a ``dask.distributed``
-scheduler) and publishes the output folder as a set (:func:`skyrig.io.stage.stage_folder`): nothing is
+scheduler), writes each tile's result out as it completes (:mod:`skyrig.pipeline.dense_stream`: the stage holds a
+tile, never the block) and publishes the output folder as a set (:func:`skyrig.io.stage.stage_folder`): nothing is
 half-written, the manifest comes last.
 """
 
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
+import tempfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from functools import partial
@@ -20,7 +23,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from skyrig.camera.frame import FrameCamera
-from skyrig.dense.surface import DenseConfig, DenseStats, _TileJob, assemble, plan_dense
+from skyrig.dense.surface import DenseConfig, DenseStats, _TileJob, plan_dense
 from skyrig.errors import InputFormatError, SkyrigError
 from skyrig.georef.eo import ExteriorOrientations, WorldFrame
 
@@ -285,9 +288,8 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
     ``executor``: ``"serial"``, ``"local"`` (Dask worker processes), ``"scheduler"`` (with ``scheduler``), or
     ``"auto"`` (serial for one tile, local processes otherwise).  ``window_min_pixels``: TIFFs of at least this many
     pixels are read window by window (:meth:`ImageFiles.windowed_image`; None: its default)."""
-    from skyrig.io.dense_laz import write_dense_cloud
-    from skyrig.io.dsm_cog import write_dsm_cog, write_hillshade_png
     from skyrig.io.stage import describe_inputs, stage_folder
+    from skyrig.pipeline.dense_stream import StreamedDsm
     from skyrig.pipeline.executor import Executor
 
     from skyrig.pipeline.inputs import require_cameras
@@ -303,37 +305,44 @@ def run_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image_
     if kind == "auto":
         kind = "scheduler" if scheduler else ("serial" if len(plan.tiles) == 1 else "local")
     job = _TileJob(plan, loader)
-    with Executor(kind, workers=workers, scheduler=scheduler) as ex:
-        results = ex.map(job, list(range(len(plan.tiles))), desc="dense tiles", progress=progress)
-    dsm, cloud, stats = assemble(plan, results)
-    valid = np.isfinite(dsm.height)
-    if not valid.any():
-        raise SkyrigError("dense matching found no surface: no cell has a height confirmed by two stereo pairs "
-                          "(check the orientations, the height range and the image overlap)")
-    summary = {
-        "pairs": [{"left": str(plan.eo.image[p.left]), "right": str(plan.eo.image[p.right]),
-                   "overlap": round(p.overlap, 3), "base_height": round(p.base_height, 3),
-                   "intersection_deg": round(p.intersection_deg, 2)} for p in plan.pairs],
-        "grid": {"x0": plan.grid.x0, "y0": plan.grid.y0, "cell_m": plan.grid.cell_m, "width": plan.grid.width,
-                 "height": plan.grid.height},
-        "frame": out_frame.to_text(),
-        "vertical_reference": dsm.vertical_reference,
-        "height_range": list(height_range),
-        "cells_valid": int(valid.sum()), "cells": int(valid.size),
-        "height_sigma_median_m": float(np.nanmedian(dsm.sigma)) if valid.any() else None,
-        "support_median": float(np.median(dsm.support[valid])),
-        "cloud_points": 0 if cloud is None else len(cloud),
-        "stats": asdict(stats),
-        "config": json.loads(json.dumps(asdict(config), default=str)),
-        "executor": kind,
-        "image_levels_16bit": None if loader.levels is None else list(loader.levels),
-    }
     out = Path(outdir)
-    with stage_folder(out, stage="dsm", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:
-        write_dsm_cog(tmp / "dsm.tif", dsm)
-        write_hillshade_png(tmp / "dsm_hillshade.png", dsm)
-        if cloud is not None and len(cloud):
-            write_dense_cloud(tmp / "cloud.laz", cloud)
-        (tmp / "dense.json").write_text(json.dumps(summary, indent=1) + "\n")
-    return DsmOutputs(out, out / "dsm.tif", out / "cloud.laz" if cloud is not None and len(cloud) else None,
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for stale in out.parent.glob(f".{out.name}.scratch-*"):  # what a killed run into the same folder left
+        shutil.rmtree(stale, ignore_errors=True)
+    # every tile's result is written out as it comes (StreamedDsm): the stage holds one tile, never the block
+    with tempfile.TemporaryDirectory(prefix=f".{out.name}.scratch-", dir=out.parent) as scratch, \
+            StreamedDsm(plan, Path(scratch)) as streamed:
+        with Executor(kind, workers=workers, scheduler=scheduler) as ex:
+            for k, r in ex.completed(job, list(range(len(plan.tiles))), desc="dense tiles", progress=progress):
+                streamed.add(k, r)
+                del r
+        stats = streamed.stats()
+        streamed.finish()
+        if not streamed.cells_valid:
+            raise SkyrigError("dense matching found no surface: no cell has a height confirmed by two stereo pairs "
+                              "(check the orientations, the height range and the image overlap)")
+        n_cloud = streamed.cloud_points if config.cloud else 0
+        summary = {
+            "pairs": [{"left": str(plan.eo.image[p.left]), "right": str(plan.eo.image[p.right]),
+                       "overlap": round(p.overlap, 3), "base_height": round(p.base_height, 3),
+                       "intersection_deg": round(p.intersection_deg, 2)} for p in plan.pairs],
+            "grid": {"x0": plan.grid.x0, "y0": plan.grid.y0, "cell_m": plan.grid.cell_m, "width": plan.grid.width,
+                     "height": plan.grid.height},
+            "frame": out_frame.to_text(),
+            "vertical_reference": streamed.vref,
+            "height_range": list(height_range),
+            "cells_valid": streamed.cells_valid, "cells": plan.grid.width * plan.grid.height,
+            "height_sigma_median_m": streamed.sigma_median,
+            "support_median": streamed.support_median,
+            "cloud_points": n_cloud,
+            "stats": asdict(stats),
+            "config": json.loads(json.dumps(asdict(config), default=str)),
+            "executor": kind,
+            "image_levels_16bit": None if loader.levels is None else list(loader.levels),
+        }
+        with stage_folder(out, stage="dsm", inputs=describe_inputs(list(inputs)), options=options or {}) as tmp:
+            streamed.publish(tmp / "dsm.tif", tmp / "dsm_hillshade.png", tmp / "cloud.laz" if n_cloud else None)
+            (tmp / "dense.json").write_text(json.dumps(summary, indent=1) + "\n")
+    cloud = n_cloud > 0
+    return DsmOutputs(out, out / "dsm.tif", out / "cloud.laz" if cloud else None,
                       out / "dsm_hillshade.png", out / "dense.json", stats, summary)

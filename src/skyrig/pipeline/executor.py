@@ -9,7 +9,7 @@ Built on Dask's ``distributed`` scheduler:
   started with ``dask scheduler`` / ``dask worker``, or dask-jobqueue); the workers must have skyrig
   installed.
 
-``map`` keeps the order of its items, names the failing item when a task raises, and reports progress as
+``map`` keeps the order of its items (``completed`` yields them as they finish), names the failing item when a task raises, and reports progress as
 ``progress(done, total)`` so that the CLI can draw a bar (this layer prints nothing).
 
 Example
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Literal, TypeVar
 
 from skyrig.errors import SkyrigError, TaskError  # noqa: F401 - TaskError re-exported (defined in skyrig.errors)
@@ -172,23 +172,35 @@ class Executor:
             exception is chained as ``__cause__``. Remaining tasks are cancelled.
         """
         seq = list(items)
+        results: list[Any] = [None] * len(seq)
+        for i, r in self.completed(func, seq, desc=desc, progress=progress):
+            results[i] = r
+        return results
+
+    def completed(self, func: Callable[[T], R], items: Iterable[T], *, desc: str | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> Iterator[tuple[int, R]]:
+        """``(index, func(item))`` for every item, yielded as the tasks finish (in order for a serial executor):
+        the caller can write each result out and drop it, so that it never holds all of them (:meth:`map`
+        collects them).  A result is released on the cluster when it is yielded.  ``desc``, ``progress`` and
+        the errors as :meth:`map`'s."""
+        seq = list(items)
         total = len(seq)
         what = desc or getattr(func, "__name__", "task")
         if progress is not None:
             progress(0, total)
         if total == 0:
-            return []
+            return
         if self.kind == "serial":
-            out: list[R] = []
             for i, item in enumerate(seq):
                 try:
-                    out.append(func(item))
+                    r = func(item)
                 except Exception as exc:
                     raise TaskError(f"{what}: task {i} failed for item {_describe(item)}: "
                                     f"{type(exc).__name__}: {exc}", i, item) from exc
                 if progress is not None:
                     progress(i + 1, total)
-            return out
+                yield i, r
+            return
         self.start()
         from dask.distributed import as_completed
 
@@ -196,7 +208,6 @@ class Executor:
         futures = [client.submit(func, item, pure=False, key=f"{what}-{i}-{os.urandom(4).hex()}")
                    for i, item in enumerate(seq)]
         index = {f.key: i for i, f in enumerate(futures)}
-        results: list[Any] = [None] * total
         done = 0
         try:
             for fut in as_completed(futures):
@@ -205,11 +216,14 @@ class Executor:
                     exc = fut.exception()
                     raise TaskError(f"{what}: task {i} failed for item {_describe(seq[i])}: "
                                     f"{type(exc).__name__}: {exc}", i, seq[i]) from exc
-                results[i] = fut.result()
+                r = fut.result()
+                futures[i] = None  # type: ignore[call-overload]  # the cluster may forget it
+                fut.release()
                 done += 1
                 if progress is not None:
                     progress(done, total)
+                yield i, r
+                del r
         except BaseException:
-            client.cancel(futures)
+            client.cancel([f for f in futures if f is not None])
             raise
-        return results

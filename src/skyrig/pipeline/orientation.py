@@ -40,6 +40,11 @@ Spell = Callable[[str], str]
 PathArg = str | PathLike[str]
 
 #: System-calibration groups of ``--free`` / ``stages.block.free`` -> the field of :class:`skyrig.adjust.config.Unknowns`.
+#: ``make_block``'s default share of the tested observations data snooping may reject per round (when more than
+#: ``snooping_per_round``): the midas-dsm growth blocks (60 / 240 images, 8 / 24 rejections) keep their rejections
+#: and sigma0, and their rounds no longer grow with the block (bench/run.py --grow, issue 35)
+SNOOPING_PER_ROUND_SHARE = 0.001
+
 BLOCK_GROUPS = {"boresight": "boresight", "lever-arm": "lever_arm", "datum-shift": "datum_shift",
                 "strip-shift": "strip_shift", "intrinsics": "intrinsics", "actuator": "actuator",
                 "actuator-curve": "actuator_curve"}
@@ -170,7 +175,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
                imu_sigma_deg: Sequence[float] = (0.005, 0.005, 0.01), control_sigma: Sequence[float] = (0.02,) * 3,
                free: Sequence[str] = (), fourier_order: int | None = None, datum: str = "auto",
                datum_points: Sequence[str] | None = None, crs: str | None = None, geoid: str | None = None,
-               snooping_per_round: int = 10, spell: Spell = cli_spelling) -> BlockOutcome:
+               snooping_per_round: int = 10, snooping_per_round_share: float = SNOOPING_PER_ROUND_SHARE,
+               spell: Spell = cli_spelling) -> BlockOutcome:
     """Assemble a block file (docs/formats/block.md) and write it (atomically) to ``output``.
 
     Rig mode (``trajectory`` + ``events`` + ``rig``): one station per platform exposure
@@ -182,7 +188,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
     ``free``: system-calibration groups (:data:`BLOCK_GROUPS`); ``datum``: auto / free / free-points / none;
     ``crs`` / ``geoid``: the project CRS recorded in the file (default the control points' map CRS, else the EO's).
     ``snooping_per_round``: image observations data snooping may reject per round (``AdjustConfig.reliability.per_round``; 1 = Baarda's
-    one at a time).
+    one at a time), or ``snooping_per_round_share`` of the tested observations when that is more
+    (``reliability.per_round_share``: the rounds do not grow with the block; 0 = ``snooping_per_round`` alone).
 
     Raises
     ------
@@ -222,6 +229,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
         raise OptionError(spell("fourier_order"), f"goes with {spell('free')} actuator-curve")
     if not 1 <= int(snooping_per_round) <= 1000:
         raise OptionError(spell("snooping_per_round"), f"must be a whole number from 1 to 1000, got {snooping_per_round}")
+    if not 0.0 <= float(snooping_per_round_share) <= 1.0:
+        raise OptionError(spell("snooping_per_round_share"), f"must be a share from 0 to 1, got {snooping_per_round_share}")
     if fourier_order is not None and not 1 <= fourier_order <= 12:
         raise OptionError(spell("fourier_order"), "must be a whole number from 1 to 12")
     if datum not in ("auto", "free", "free-points", "none"):
@@ -310,7 +319,8 @@ def make_block(output: PathArg, measurements: Sequence[PathArg], *, trajectory: 
         if datum_points:
             modes["datum_points"] = tuple(str(p) for p in datum_points)
     cfg = AdjustConfig(unknowns=Unknowns(**modes),
-                       reliability=ReliabilityOptions(snooping=True, per_round=int(snooping_per_round)))
+                       reliability=ReliabilityOptions(snooping=True, per_round=int(snooping_per_round),
+                                                      per_round_share=float(snooping_per_round_share)))
     out = Path(output)
     out.parent.mkdir(parents=True, exist_ok=True)
     if project is None and ctrl is not None and ctrl.frame.kind == "map":

@@ -622,7 +622,8 @@ def _block(ctx: StageContext) -> dict[str, Any]:
                      imu_sigma_deg=o["imu_sigma_deg"], control_sigma=o["control_sigma"], free=o["free"],
                      start_values_only=o["start_values_only"], datum=o["datum"], datum_points=o["datum_points"],
                      fourier_order=o["fourier_order"], crs=p.crs, geoid=p.geoid,
-                     snooping_per_round=o["snooping_per_round"], spell=_project_spelling("block"))
+                     snooping_per_round=o["snooping_per_round"],
+                     snooping_per_round_share=o["snooping_per_round_share"], spell=_project_spelling("block"))
     return res.summary()
 
 
@@ -807,7 +808,10 @@ register_stage(Stage(
              "datum_points": Option(None, "strs", "with datum: free-points, the points defining it (default all)",
                                     nullable=True),
              "snooping_per_round": Option(10, "int", "image observations data snooping rejects per round at most "
-                                          "(non-adjacent; 1: one at a time)", positive=True)},
+                                          "(non-adjacent; 1: one at a time)", positive=True),
+             "snooping_per_round_share": Option(0.001, "float", "... or this share of the tested observations when "
+                                                "that is more (the rounds do not grow with the block; 0: "
+                                                "snooping_per_round alone)")},
     uses=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
