@@ -315,8 +315,9 @@ def test_joint_rows_uncorrelated_with_residuals_at_grazing_beams(roughness_in_da
     2 cm, the 2 mm roughness floor modelled as an error of the range (``roughness_variances``, the strip
     adjustment's model); the data's roughness absent or along the beam, where a rough surface puts it.  The
     statistic sum(a r) over its own spread is N(0, 1) when unbiased (the plane's offset column projected out):
-    range offset, range scale and the plane's tilts here within 4; with the roughness across the plane (the model
-    before) the range scale came out -57 / -55; the recorded-point rows ("observed") beyond 20."""
+    range offset, range scale and the plane's tilts here within 4 (range scale -0.3 / -0.3); with the roughness
+    across the plane (the model before) the range scale came out -57 / -55; the recorded-point rows ("observed")
+    beyond 20."""
     rng = np.random.default_rng(7)
     m, h, sr, rough = 20000, 5.0, 0.02, 0.002
     el = -np.radians(rng.uniform(10.0, 80.0, m))
