@@ -11,6 +11,17 @@ injected), run the joint recipe (:func:`skyrig.calibrate.lidar_camera.calibrate_
   the nominal mount, after the laser-only strip adjustment (:func:`skyrig.lidar.strips.adjust_strips`, the separate
   calibration) and after the joint adjustment;
 * the image cloud -- the tie points of the ADJUSTED image block -- against the same reference;
+* the systematic part of each cloud's deviation: M3C2 (:func:`skyrig.lidar.compare.m3c2`, PDAL's behaviour) from the
+  reference (cloud 1) to the cloud at core points on a 0.5 m grid of the reference: normals from the reference within
+  0.5 m, projection cylinders of 0.25 m radius and 0.5 m half-length, so that each distance is the mean of the
+  cloud's points in the cylinder and the scanner's per-point range noise averages out (the laser clouds use every
+  pulse of the strips; the sparse image tie points cylinders of 1 m radius); cores whose reference points spread
+  more than 1 cm along the normal in the cylinder (edges, corners) are left out, a property of the reference alone;
+  and the M3C2 RMS left after the rigid motion that best explains the distances (linearised point-to-plane: paper
+  002 registers its clouds onto the TLS by ICP before Table 1), which separates the cloud's shape error from its
+  datum (the trajectory's absolute accuracy, which neither calibration can improve without control);
+* the noise floor: the laser cloud at the TRUE calibration and strip corrections (the recorded ranges, so the range
+  noise and the surface roughness only), C2C and M3C2 alike;
 * the strip-to-strip discrepancies on the patch planes before and after the joint adjustment
   (:func:`skyrig.calibrate.lidar_camera.strip_discrepancies`);
 * the joint adjustment's time, laser points and images.
@@ -22,16 +33,47 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import threading
 import time
 
 import numpy as np
 
 from skyrig.calibrate.lidar_camera import (JointInputs, JointOptions, calibrate_lidar_camera, georeference_adjusted,
                                            joint_inputs_from_flight)
-from skyrig.lidar.compare import cloud_to_cloud
+from skyrig.lidar.compare import M3C2Params, cloud_to_cloud, m3c2
 from skyrig.lidar.strips import StripModel, adjust_strips, find_planar_patches
 from skyrig.simulate.lidar import strip_truth_vector
 from skyrig.simulate.lidar_camera import build_joint_flight
+
+
+class RssPeak:
+    """The process's resident memory sampled every 0.1 s in a thread (``with RssPeak() as m: ...``): ``m.start_b`` at
+    entry, ``m.peak_b`` the largest seen, so that ``peak_b - start_b`` is what the block added at its peak."""
+
+    def __init__(self) -> None:
+        self.start_b = self.peak_b = self._rss()
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+
+    @staticmethod
+    def _rss() -> int:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.1):
+            self.peak_b = max(self.peak_b, self._rss())
+
+    def __enter__(self) -> "RssPeak":
+        self.start_b = self.peak_b = self._rss()
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._t.join()
+        self.peak_b = max(self.peak_b, self._rss())
 
 
 def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
@@ -40,7 +82,44 @@ def _rms_vs_tls(xyz: np.ndarray, ref: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d**2)))
 
 
-def separate_seed(fl, inp: JointInputs, rows: np.ndarray) -> dict:
+#: M3C2 of a cloud from the TLS reference: normals within 0.5 m of the reference, cylinders 0.25 m x +-0.5 m (the
+#: laser clouds, tens of points per cylinder); the image tie points (about 1.5 per m^2): cylinders of 1 m radius, at
+#: least 3 points
+M3C2_PARAMS = M3C2Params.pdal(normal_radius=0.5, cylinder_radius=0.25, cylinder_half_length=0.5, min_points=5)
+M3C2_PARAMS_SPARSE = M3C2Params.pdal(normal_radius=0.5, cylinder_radius=1.0, cylinder_half_length=0.5, min_points=3)
+M3C2_CORE_SPACING_M = 0.5
+M3C2_PLANAR_STD_M = 0.01  # cores kept: the reference's spread along the normal in the cylinder below this
+
+
+def m3c2_cores(ref: np.ndarray, spacing: float = M3C2_CORE_SPACING_M) -> np.ndarray:
+    """Core points: the first reference point of each ``spacing`` voxel."""
+    key = np.floor((ref - ref.min(axis=0)) / spacing).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return ref[np.sort(first)]
+
+
+def m3c2_vs_tls(xyz: np.ndarray, ref: np.ndarray, core: np.ndarray, params: M3C2Params = M3C2_PARAMS) -> dict:
+    """M3C2 from the reference to ``xyz`` at ``core``: RMS, mean and 68th percentile of |d| over the planar cores
+    with at least ``params.min_points_for_stats`` points of each cloud, their count and the mean points per cylinder
+    of ``xyz`` (NaN figures where no core qualifies)."""
+    res = m3c2(ref, xyz, core, params)
+    ok = np.isfinite(res.distance_m) & np.isfinite(res.uncertainty_m) & (res.std1_m < M3C2_PLANAR_STD_M)
+    d = res.distance_m[ok]
+    if d.size < 6:
+        return {"rms_m": np.nan, "mean_m": np.nan, "p68_abs_m": np.nan, "cores": int(d.size),
+                "points_per_cylinder": np.nan, "rms_rigid_m": np.nan, "shift_m": [np.nan] * 3, "rotation_deg": np.nan}
+    # the rigid motion that best explains the distances (linearised point-to-plane, as an ICP registration onto the
+    # reference, paper 002's Table 1): d ~ n . (t + w x (p - c)); what is left is the cloud's shape error
+    n, p = res.normal[ok], res.core[ok] - res.core[ok].mean(axis=0)
+    sol = np.linalg.lstsq(np.column_stack([n, np.cross(p, n)]), d, rcond=None)[0]
+    left = d - np.column_stack([n, np.cross(p, n)]) @ sol
+    return {"rms_m": float(np.sqrt(np.mean(d**2))), "mean_m": float(np.mean(d)),
+            "p68_abs_m": float(np.percentile(np.abs(d), 68)), "cores": int(ok.sum()),
+            "points_per_cylinder": float(np.mean(res.count2[ok])), "rms_rigid_m": float(np.sqrt(np.mean(left**2))),
+            "shift_m": sol[:3].tolist(), "rotation_deg": float(np.degrees(np.linalg.norm(sol[3:])))}
+
+
+def separate_seed(fl, inp: JointInputs, rows: np.ndarray, rows_m3c2: np.ndarray, core: np.ndarray) -> dict:
     """The separate calibration of the laser (paper 002's "separate": the scanner calibrated from its own strips):
     the laser-only strip adjustment (:func:`skyrig.lidar.strips.adjust_strips`, no control) on the joint recipe's
     patch options, range noise and roughness, with the same priors of the per-strip corrections (the trajectory's
@@ -64,7 +143,16 @@ def separate_seed(fl, inp: JointInputs, rows: np.ndarray) -> dict:
     nominal = georeference_adjusted(inp, np.zeros(8), np.zeros_like(sep.strips), sep.strip_epoch_s, sep.strip_ids,
                                     rows=rows)
     separate = georeference_adjusted(inp, sep.calibration, sep.strips, sep.strip_epoch_s, sep.strip_ids, rows=rows)
+    # the noise floor: the recorded data at the true calibration and strip corrections
+    floor = georeference_adjusted(inp, truth[:8], truth[8:].reshape(-1, 12), sep.strip_epoch_s, sep.strip_ids,
+                                  rows=rows)
+    m3 = {}
+    for name, cal, st in (("nominal", np.zeros(8), np.zeros_like(sep.strips)), ("separate", sep.calibration, sep.strips),
+                          ("noise_floor", truth[:8], truth[8:].reshape(-1, 12))):
+        m3[name] = m3c2_vs_tls(georeference_adjusted(inp, cal, st, sep.strip_epoch_s, sep.strip_ids, rows=rows_m3c2),
+                               ref, core)
     return {"rms_nominal_m": _rms_vs_tls(nominal, ref), "rms_separate_m": _rms_vs_tls(separate, ref),
+            "rms_noise_floor_m": _rms_vs_tls(floor, ref), "m3c2": m3,
             "separate": {"held": list(sep.held), "iterations": sep.iterations, "sigma0": sep.sigma0,
                          "time_s": t_sep, "z_scanner": [None if not np.isfinite(v) else float(v) for v in z],
                          "range_scale": float(sep.calibration[7])}}
@@ -74,14 +162,18 @@ def run_seed(size: str, seed: int, every: int, roughness_m: float | None = None,
     fl = build_joint_flight(size, seed)
     sv = fl.survey
     inp = joint_inputs_from_flight(fl)
-    rows = np.flatnonzero(sv.scan.strip_id >= 0)[::every]
-    sep = separate_seed(fl, inp, rows)
+    rows_m3c2 = np.flatnonzero(sv.scan.strip_id >= 0)
+    rows = rows_m3c2[::every]
+    core = m3c2_cores(sv.reference_xyz)
+    sep = separate_seed(fl, inp, rows, rows_m3c2, core)
     if not joint:
-        return {"seed": seed, "rms_tls_m": {"nominal": sep["rms_nominal_m"], "separate": sep["rms_separate_m"]},
-                "separate": sep["separate"]}
+        return {"seed": seed, "rms_tls_m": {"nominal": sep["rms_nominal_m"], "separate": sep["rms_separate_m"],
+                                            "noise_floor": sep["rms_noise_floor_m"]},
+                "m3c2_tls": sep["m3c2"], "separate": sep["separate"]}
     t0, c0 = time.perf_counter(), time.process_time()
     opts = JointOptions() if roughness_m is None else JointOptions(roughness_m=roughness_m)
-    cal = calibrate_lidar_camera(inp, opts)
+    with RssPeak() as mem:
+        cal = calibrate_lidar_camera(inp, opts)
     t_joint, c_joint = time.perf_counter() - t0, time.process_time() - c0
     truth = strip_truth_vector(sv.injected, cal.strip_epoch_s)
     z_sc = (cal.scanner - truth[:8]) / cal.scanner_sigma
@@ -90,17 +182,62 @@ def run_seed(size: str, seed: int, every: int, roughness_m: float | None = None,
     ref = sv.reference_xyz
     joint = georeference_adjusted(inp, cal.scanner, cal.strips, cal.strip_epoch_s, cal.strip_ids, rows=rows)
     image = cal.block.point_xyz
+    m3 = dict(sep["m3c2"])
+    m3["joint"] = m3c2_vs_tls(georeference_adjusted(inp, cal.scanner, cal.strips, cal.strip_epoch_s, cal.strip_ids,
+                                                    rows=rows_m3c2), ref, core)
+    m3["image_tie_points"] = m3c2_vs_tls(image, ref, core, M3C2_PARAMS_SPARSE)
     return {
-        "seed": seed, "time_joint_s": t_joint, "cpu_joint_s": c_joint, "laser_points": cal.n_laser_points, "images": fl.n_images,
+        "seed": seed, "time_joint_s": t_joint, "cpu_joint_s": c_joint,
+        "rss_joint_start_gb": mem.start_b / 1e9, "rss_joint_peak_gb": mem.peak_b / 1e9, "laser_points": cal.n_laser_points, "images": fl.n_images,
         "image_observations": int(len(cal.block.obs_image)), "pulses": len(sv.scan),
         "patch_planes": cal.n_patch_planes, "tie_planes": cal.n_tie_planes, "dropped_points": cal.n_dropped_points,
         "dropped_planes": cal.n_dropped_planes, "sigma0": cal.sigma0,
         "discrepancies": {"before": cal.discrepancies_before, "after": cal.discrepancies_after},
         "z_scanner": z_sc.tolist(), "z_camera": z_cam.tolist(), "z_strips": z_st.tolist(),
         "rms_tls_m": {"nominal": sep["rms_nominal_m"], "separate": sep["rms_separate_m"],
-                      "joint": _rms_vs_tls(joint, ref), "image_tie_points": _rms_vs_tls(image, ref)},
+                      "joint": _rms_vs_tls(joint, ref), "image_tie_points": _rms_vs_tls(image, ref),
+                      "noise_floor": sep["rms_noise_floor_m"]},
+        "m3c2_tls": m3,
         "separate": sep["separate"],
     }
+
+
+CLOUDS = ("nominal", "separate", "joint", "image_tie_points", "noise_floor")
+
+
+def _m3c2_line(r: dict) -> str:
+    m = r["m3c2_tls"]
+    return "; ".join(f"{k} {m[k]['rms_m'] * 1e3:.1f} mm, {m[k]['rms_rigid_m'] * 1e3:.1f} after a rigid fit (shift "
+                     f"{np.round(np.array(m[k]['shift_m']) * 1e3, 1).tolist()} mm, {m[k]['rotation_deg']:.3f} deg; "
+                     f"{m[k]['cores']} cores, {m[k]['points_per_cylinder']:.0f} pts/cyl)" for k in CLOUDS if k in m)
+
+
+def print_table(out: list[dict]) -> None:
+    """Paper 002's Table 1 side by side: per cloud the C2C RMS (per-point: range noise included) and the M3C2 RMS,
+    mean |d| 68 % and mean (cylinder means: the systematic part), means over the seeds."""
+    from skyrig.papers.p002 import PAPER_LSRF, PAPER_SFM
+
+    print(f"\nlaser and image clouds against the TLS reference, mean of {len(out)} seeds (mm)")
+    print(f"{'cloud':<18}{'C2C RMS':>9}{'M3C2 RMS':>10}{'M3C2 68%':>10}{'M3C2 mean':>11}{'M3C2 rigid':>12}{'shift':>8}"
+          f"{'cores':>8}{'pts/cyl':>9}")
+    for k in CLOUDS:
+        if not all(k in r["m3c2_tls"] and k in r["rms_tls_m"] for r in out):
+            continue
+        c2c = np.mean([r["rms_tls_m"][k] for r in out]) * 1e3
+        m = {f: np.mean([r["m3c2_tls"][k][f] for r in out]) for f in ("rms_m", "p68_abs_m", "mean_m", "cores",
+                                                                        "points_per_cylinder", "rms_rigid_m")}
+        shift = np.mean([np.linalg.norm(r["m3c2_tls"][k]["shift_m"]) for r in out])
+        print(f"{k:<18}{c2c:>9.1f}{m['rms_m'] * 1e3:>10.1f}{m['p68_abs_m'] * 1e3:>10.1f}{m['mean_m'] * 1e3:>11.1f}"
+              f"{m['rms_rigid_m'] * 1e3:>12.1f}{shift * 1e3:>8.1f}{m['cores']:>8.0f}{m['points_per_cylinder']:>9.0f}")
+    print(f"paper 002 Table 1 (C2C after ICP): LSRF RMS {PAPER_LSRF[0] * 1e3:.0f}, 2/3 below {PAPER_LSRF[1] * 1e3:.0f}; "
+          f"SfM RMS {PAPER_SFM[0] * 1e3:.0f}, 2/3 below {PAPER_SFM[1] * 1e3:.0f}")
+    print("(M3C2 rigid: the RMS left after the rigid motion that best explains the M3C2 distances, as the paper's ICP "
+          "registration; shift: its length, mean of the seeds)")
+    if all("joint" in r["m3c2_tls"] for r in out):
+        for what, key in (("C2C", None), ("M3C2", "rms_m"), ("M3C2 after a rigid fit", "rms_rigid_m")):
+            v = {k: np.mean([r["rms_tls_m"][k] if key is None else r["m3c2_tls"][k][key] for r in out])
+                 for k in ("separate", "joint")}
+            print(f"joint / separate {what} RMS: {v['joint'] / v['separate']:.2f} (acceptance <= 1/3)")
 
 
 def main() -> None:
@@ -122,11 +259,14 @@ def main() -> None:
         sp = r["separate"]
         print(f"seed {s}: separate calibration {sp['iterations']} iterations, held {sp['held']}, range scale "
               f"{sp['range_scale'] * 1e6:.0f} ppm, z {np.round(np.array(sp['z_scanner'], float), 2).tolist()}; laser vs "
-              f"TLS RMS nominal {t['nominal'] * 1e3:.1f} mm, separate {t['separate'] * 1e3:.1f} mm", flush=True)
+              f"TLS RMS nominal {t['nominal'] * 1e3:.1f} mm, separate {t['separate'] * 1e3:.1f} mm, noise floor "
+              f"{t['noise_floor'] * 1e3:.1f} mm", flush=True)
         if a.separate_only:
+            print(f"seed {s}: M3C2 RMS vs TLS {_m3c2_line(r)}", flush=True)
             continue
         print(f"seed {s}: range scale z {r['z_scanner'][7]:+.2f}; {r['laser_points']} laser points, {r['images']} images, joint {r['time_joint_s']:.1f} s "
-              f"({r['cpu_joint_s']:.1f} s CPU), "
+              f"({r['cpu_joint_s']:.1f} s CPU, resident memory {r['rss_joint_start_gb']:.2f} -> peak "
+              f"{r['rss_joint_peak_gb']:.2f} GB), "
               f"sigma0 {r['sigma0']:.2f}; max |z| scanner {np.max(np.abs(r['z_scanner'])):.2f}, camera "
               f"{np.max(np.abs(r['z_camera'])):.2f}, strips {np.max(np.abs(r['z_strips'])):.2f}; laser vs TLS RMS "
               f"nominal {t['nominal'] * 1e3:.1f} mm, separate {t['separate'] * 1e3:.1f} mm, joint "
@@ -135,12 +275,14 @@ def main() -> None:
               f"{r['discrepancies']['after']['rms_m'] * 1e3:.1f} mm (over sigma "
               f"{r['discrepancies']['before']['normalised_rms']:.2f} -> "
               f"{r['discrepancies']['after']['normalised_rms']:.2f})", flush=True)
+        print(f"seed {s}: M3C2 RMS vs TLS {_m3c2_line(r)}", flush=True)
     zsep = np.array([r["separate"]["z_scanner"] for r in out], float)
     print(f"separate calibration z over {len(out)} seeds (held parameters left out): mean per parameter "
           f"{np.round(np.nanmean(zsep, axis=0), 2).tolist()}, std {np.round(np.nanstd(zsep, axis=0), 2).tolist()}")
     for k in ("nominal", "separate"):
         print(f"RMS vs TLS {k}: mean {np.mean([r['rms_tls_m'][k] for r in out]) * 1e3:.1f} mm")
     if a.separate_only:
+        print_table(out)
         if a.json:
             with open(a.json, "w") as f:
                 json.dump(out, f, indent=1)
@@ -159,6 +301,7 @@ def main() -> None:
         print(f"RMS vs TLS {k}: mean {v.mean() * 1e3:.1f} mm")
     ratio = np.mean([r["rms_tls_m"]["joint"] for r in out]) / np.mean([r["rms_tls_m"]["separate"] for r in out])
     print(f"joint / separate RMS vs TLS: {ratio:.2f} (acceptance <= 1/3)")
+    print_table(out)
     if a.json:
         with open(a.json, "w") as f:
             json.dump(out, f, indent=1)

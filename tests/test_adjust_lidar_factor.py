@@ -79,7 +79,7 @@ def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 1
     centre = truth.point_xyz.mean(axis=0)
     epoch = np.array([1000.0, 1100.0, 1200.0])
     true_strip = rng.normal(0.0, 1.0, (3, 12)) * STRIP_SIGMA
-    parts, plane_point = [], []
+    parts, plane_point, normals = [], [], []
     q = 0
     for j in range(n_patch + n_tie):
         tie = j >= n_patch
@@ -97,11 +97,16 @@ def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 1
             d = _laser_on_plane(rng, X0, nrm, k, per, centre, true_strip, epoch)
             d["plane"] = np.full(per, q)
             parts.append(d)
+            normals.append(np.broadcast_to(nrm, (per, 3)))
         plane_point.append(pj if tie else -1)
         q += 1
     cat = {k_: np.concatenate([p[k_] for p in parts]) for k_ in parts[0]}
     lp = LidarPoints(**cat, plane_point=np.array(plane_point), strip_epoch_s=epoch, body_from_scanner=BODY_FROM_SCANNER,
                      lever_arm_m=LEVER, range_sigma_m=RANGE_SIGMA, roughness_m=0.001)
+    # n . beam at the planes as found (here: the true planes; a fit of 12 noisy points per strip on a 3 m plane seen
+    # from 300 m tilts by up to 40 deg, and a beam taken for steeper than it is loses its roughness floor)
+    lp.incidence0 = np.einsum("ni,ni->n", np.concatenate(normals),
+                              georeference(lp, TRUE_SCANNER, true_strip)["beam_w"])
     b = dataclasses.replace(b, observations={**b.observations, "lidar": lp})
     return b, truth, true_strip
 
@@ -170,9 +175,10 @@ def test_reduced_rows_equal_the_points_with_the_plane_eliminated(joint):
     f0 = [x for x in model.evaluate(s, False) if x.name == "lidar"][0]
     assert np.isclose((f.r**2).sum(), (f0.r**2).sum(), rtol=1e-9)
     assert len(f) + f.n_extra == len(f0) + f0.n_extra
-    # gradient J^T r of the reduced rows vs a central difference of 1/2 |r|^2 (sigmas frozen by a zero range noise:
-    # roughness only, so that the weights do not depend on the unknowns)
-    d2 = dataclasses.replace(d, range_sigma_m=0.0, roughness_m=0.02)
+    # gradient J^T r of the reduced rows vs a central difference of 1/2 |r|^2 (sigmas frozen by a zero range noise
+    # and a nil roughness, an error of the range: white position noise only, so that the weights do not depend on
+    # the unknowns)
+    d2 = dataclasses.replace(d, range_sigma_m=0.0, roughness_m=1e-12, position_sigma_m=0.02)
     b2 = dataclasses.replace(b, observations={**b.observations, "lidar": d2})
     m2 = Model(b2, cfg)
     f2 = [x for x in m2.evaluate(s, True) if x.name == "lidar"][0]
@@ -268,9 +274,10 @@ def test_adjusted_jacobians_are_the_derivatives_of_the_whitened_residual(joint):
 
 
 def test_adjusted_jacobians_are_those_at_the_adjusted_observations(joint):
-    """Range noise only (and roughness along the normal): the ``"adjusted"`` rows at the recorded ranges equal the
-    ``"observed"`` rows at the ranges of the Gauss-Helmert adjusted observations, built here independently (each
-    range moved by its share ``sigma_r^2 B_r r / var`` of the residual, which puts the point on its plane)."""
+    """Range noise and roughness (an error of the range, the rest across the plane at grazing beams): the
+    ``"adjusted"`` rows at the recorded ranges equal the ``"observed"`` rows at the ranges of the Gauss-Helmert
+    adjusted observations, built here independently (each range moved by its share ``sigma_r^2 B_r r / var`` of the
+    residual, which puts the point on its plane)."""
     b, _, true_strip, _, _ = joint
     d = b.observations["lidar"]
     sc = TRUE_SCANNER + np.array([3e-3, -2e-3, 4e-3, 0.02, 0.01, -0.03, 0.05, 2e-3])
@@ -286,12 +293,57 @@ def test_adjusted_jacobians_are_those_at_the_adjusted_observations(joint):
     r_m = pr["r"] * sig
     B_r = np.einsum("ni,ni->n", nrm, geo["beam_w"]) / (1.0 + sc[7])  # dr / d recorded range
     d_hat = dataclasses.replace(d, linearise="observed", range_m=d.range_m.copy())
-    d_hat.range_m[rows] -= r_m / sig**2 * d.range_sigma_m**2 * B_r
+    # the roughness: sigma roughness / |n0 . beam| along the range, the rest (grazing beams) across the plane
+    b0 = np.maximum(np.abs(d.incidence(rows)), 0.1)
+    s2_rng = d.range_sigma_m**2 + (d.roughness_m / b0) ** 2
+    d_hat.range_m[rows] -= r_m / sig**2 * s2_rng * B_r
     geo_hat = georeference(d_hat, sc, st, jac=True, rows=rows)
-    # what is left of the residual is the roughness's share (the surface's correction along the normal)
+    # what is left of the residual is the roughness's share across the plane (the surface's correction)
     r_hat = np.einsum("ni,ni->n", nrm, geo_hat["X"] - cen)
-    assert np.allclose(r_hat, r_m * d.roughness_m**2 / sig**2, rtol=1e-6, atol=1e-9)
+    assert np.allclose(r_hat, r_m * d.roughness_m**2 * (1 - (d.incidence(rows) / b0) ** 2) / sig**2, rtol=1e-6,
+                       atol=1e-9)
     obs_hat = LIDAR.point_rows(d_hat, geo_hat, nrm, cen, sig)
     for key in ("AS", "AK"):
         scale = np.abs(pr[key]).max(axis=0) + 1e-12
         assert np.all(np.abs(pr[key] - obs_hat[key]).max(axis=0) <= 1e-6 * scale), key
+
+
+@pytest.mark.parametrize("roughness_in_data", [False, True])
+def test_joint_rows_uncorrelated_with_residuals_at_grazing_beams(roughness_in_data):
+    """At the true parameters the joint factor's whitened rows must be uncorrelated with the whitened residuals (else
+    the adjustment is biased: errors-in-variables).  Ground points seen from 5 m at 10-80 deg depression, range noise
+    2 cm, the 2 mm roughness floor modelled as an error of the range (``roughness_variances``, the strip
+    adjustment's model); the data's roughness absent or along the beam, where a rough surface puts it.  The
+    statistic sum(a r) over its own spread is N(0, 1) when unbiased (the plane's offset column projected out):
+    range offset, range scale and the plane's tilts here within 4 (range scale -0.3 / -0.3); with the roughness
+    across the plane (the model before) the range scale came out -57 / -55; the recorded-point rows ("observed")
+    beyond 20."""
+    rng = np.random.default_rng(7)
+    m, h, sr, rough = 20000, 5.0, 0.02, 0.002
+    el = -np.radians(rng.uniform(10.0, 80.0, m))
+    az = rng.uniform(0.0, 2 * np.pi, m)
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    rho = h / -u[:, 2] + rng.normal(0.0, sr, m)
+    if roughness_in_data:
+        rho += rng.normal(0.0, rough, m) / -u[:, 2]
+    d = LidarPoints(time_s=np.zeros(m), strip=np.zeros(m, np.int64), range_m=rho, beam=u,
+                    beam_dangle=np.column_stack([-u[:, 1], u[:, 0], np.zeros(m)]), plane=np.zeros(m, np.int64),
+                    position_m=np.tile([0.0, 0.0, h], (m, 1)), rotation=np.broadcast_to(np.eye(3), (m, 3, 3)),
+                    plane_point=np.array([-1]), strip_epoch_s=np.zeros(1), body_from_scanner=np.eye(3),
+                    lever_arm_m=np.zeros(3), range_sigma_m=sr, roughness_m=rough)
+    d.normalise(None)  # type: ignore[arg-type]
+    nrm, cen = np.tile([0.0, 0.0, 1.0], (m, 1)), np.zeros((m, 3))
+
+    def stat(linearise: str) -> np.ndarray:
+        dd = dataclasses.replace(d, linearise=linearise)
+        geo = georeference(dd, np.zeros(NS), np.zeros((1, NK)), jac=True)
+        pr = LIDAR.point_rows(dd, geo, nrm, cen, LIDAR.point_sigma(dd, geo, nrm))
+        j = np.column_stack([pr["AS"][:, 6:8], pr["B"][:, :2]])
+        off = pr["B"][:, 2]
+        j = j - np.outer(off, off @ j) / (off @ off)  # the plane's offset column projected out (its reduced rows)
+        g = j * pr["r"][:, None]
+        return g.sum(axis=0) / np.sqrt((g**2).sum(axis=0))
+
+    z = stat("adjusted")
+    assert np.all(np.abs(z) < 4.0), np.round(z, 1)  # range offset, range scale, plane tilts
+    assert abs(stat("observed")[1]) > 20.0  # the recorded-point rows: the bias this test can see

@@ -130,6 +130,25 @@ def test_cloud_to_cloud_nearest_and_plane_on_a_known_offset():
     assert np.isnan(far.distance_m[0])
 
 
+def test_plane_model_fits_the_neighbours_within_max_distance_on_a_sparse_reference():
+    # a sparse reference (8 points/m^2 on the plane z = 0, as the strip flight's TLS ground was): 10 neighbours rarely
+    # all lie within 0.5 m; the plane through those that do gives the offset, not the nearest point's distance
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    ref = np.c_[rng.uniform(0, 20, (3200, 2)), np.zeros(3200)]
+    q = np.c_[rng.uniform(2, 18, (2000, 2)), np.full(2000, 0.05)]
+    res = cloud_to_cloud(q, ref, model="plane", k=10, max_distance=0.5)
+    within = np.array([len(v) for v in cKDTree(ref).query_ball_point(q, 0.5)])
+    assert np.mean(within < 10) > 0.5  # the case at hand: most points have fewer than k neighbours there
+    ok = within >= 3
+    np.testing.assert_allclose(res.distance_m[ok], 0.05, atol=1e-9)
+    assert res.n_fallback == np.count_nonzero((within > 0) & (within < 3))
+    near = cKDTree(ref).query(q[(within > 0) & (within < 3)])[0]
+    np.testing.assert_allclose(res.distance_m[(within > 0) & (within < 3)], near)
+    assert np.all(np.isnan(res.distance_m[within == 0]))
+
+
 def test_statistics_two_thirds_figure_of_a_normal_distribution():
     rng = np.random.default_rng(7)
     sigma = 0.3

@@ -249,6 +249,13 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
         station_time_s=inputs.image_time_s, station_position_m=pos, station_rotation=rot,
         station_position_sigma_m=options.station_position_sigma_m,
         station_attitude_sigma_rad=options.station_attitude_sigma_rad)
+    # the roughness as an error of the range needs each point's n . beam at a starting plane: the patch planes' own
+    # normals for their points (as the laser-only strip adjustment), the default fit for the tie planes' points
+    lp.normalise(None)  # type: ignore[arg-type]
+    inc = np.array(lp.incidence(), dtype=np.float64)
+    n_b = np.einsum("nji,nj->ni", patches.rotation, patches.normal[patches.plane]) @ inputs.mount.body_from_scanner
+    inc[:len(patches.plane)] = np.einsum("ni,ni->n", n_b, patches.beam_s)
+    lp.incidence0 = inc
     block = Block(
         cameras=[cam], station_name=[f"exp{i}" for i in range(n_img)], station_rotation=rot, station_centre=pos,
         station_time=inputs.image_time_s, image_name=[f"img{i}" for i in range(n_img)],

@@ -185,14 +185,17 @@ class C2CResult:
     distance_m
         ``(N,)`` distances (metres): unsigned for ``model="nearest"``; for ``model="plane"`` signed along
         the plane normal when the result was asked ``signed=True``, otherwise absolute.  NaN where no
-        reference point lies within ``max_distance`` (or the plane is undefined, with a nearest-neighbour
-        fallback counted in ``n_fallback``).
+        reference point lies within ``max_distance``.  The plane model fits the ``k`` nearest reference points
+        within ``max_distance`` (all of them where fewer lie there, at least 3); where fewer than 3 lie there or
+        they are collinear, the point gets its nearest distance, counted in ``n_fallback``.
     nearest_index
         ``(N,)`` index of the nearest reference point (``len(reference)`` where none).
     model
         ``"nearest"`` or ``"plane"``.
     n_fallback
-        Points whose local plane was degenerate (collinear neighbours) and got the nearest distance.
+        Points of the plane model that got the nearest distance: fewer than 3 reference points within
+        ``max_distance`` or collinear ones (a sparse reference makes these common: the distance to the nearest
+        point then includes the reference's sampling spacing).
     """
 
     distance_m: NDArray[np.float64]
@@ -227,7 +230,8 @@ def cloud_to_cloud(
     k
         Neighbours for the plane model (>= 3).
     max_distance
-        Ignore reference points farther than this (metres): such points get NaN.
+        Ignore reference points farther than this (metres): a point with none within it gets NaN; the plane
+        model's neighbours are the ``k`` nearest within it (fewer where fewer lie there).
     signed
         Plane model only: keep the sign along the plane normal oriented by ``orientation``.
     orientation
@@ -261,14 +265,18 @@ def cloud_to_cloud(
             nearest[a:a + len(q)] = i
             continue
         nearest[a:a + len(q)] = i[:, 0]
-        valid = np.isfinite(d)
-        full = valid.all(axis=1)
+        valid = np.isfinite(d)  # neighbours within max_distance
+        nv = valid.sum(axis=1)
         out = np.where(np.isfinite(d[:, 0]), d[:, 0], np.nan)
-        if np.any(full):
-            nb = r[i[full]] - q[full][:, None, :]  # (F, k, 3) offsets from the query point
-            c = nb.mean(axis=1)
-            dev = nb - c[:, None, :]
-            cov = np.einsum("fki,fkj->fij", dev, dev) / kk
+        enough = nv >= 3
+        fallback += int(np.count_nonzero((nv > 0) & ~enough))
+        if np.any(enough):
+            wv = valid[enough].astype(np.float64)[:, :, None]  # (F, k, 1): 0 for the missing neighbours
+            nb = r[np.where(valid[enough], i[enough], 0)] - q[enough][:, None, :]  # (F, k, 3) offsets from the query
+            cnt = nv[enough].astype(np.float64)[:, None]
+            c = (wv * nb).sum(axis=1) / cnt
+            dev = (nb - c[:, None, :]) * wv
+            cov = np.einsum("fki,fkj->fij", dev, dev) / cnt[:, :, None]
             w, vec = np.linalg.eigh(cov)
             nrm = vec[:, :, 0]
             # collinear / coincident neighbours: the plane is undefined -> nearest distance
@@ -276,9 +284,9 @@ def cloud_to_cloud(
             nrm = _orient(nrm, orientation if not isinstance(orientation, str) or orientation != "none" else "none")
             sd = -np.einsum("fi,fi->f", c, nrm)  # signed distance of the query point to the plane
             vals = sd if signed else np.abs(sd)
-            vals = np.where(degenerate, d[full, 0], vals)
+            vals = np.where(degenerate, d[enough, 0], vals)
             fallback += int(degenerate.sum())
-            out[full] = vals
+            out[enough] = vals
         dist[a:a + len(q)] = out
     return C2CResult(dist, nearest, model, fallback)
 

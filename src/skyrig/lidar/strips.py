@@ -68,6 +68,7 @@ from skyrig.adjust.determinability import (
     OVERRULES_PRIOR,
     rule_words,
 )
+from skyrig.adjust.factors.lidar import roughness_variances
 from skyrig.errors import GeometryError, InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.geometry.rotations import matrix_from_rotvec
@@ -615,16 +616,16 @@ def plane_residuals(
     # plane.  (With the roughness across the plane and the range left as measured, the range's deviation stays in
     # the range-scale, plane-tilt and boresight columns correlated with the residual -- an errors-in-variables bias
     # where the floor is most of a beam's variance, at grazing beams: strips-ci laser-only range scale +0.0127
-    # (+6 sigma) on seeds 3 and 5.)
+    # (+6 sigma) on seeds 3 and 5.)  The split is :func:`skyrig.adjust.factors.lidar.roughness_variances`, the joint
+    # laser factor's own.
     n_s0 = np.einsum("nji,nj->ni", patches.rotation[rows], patches.normal[pl]) @ mount.body_from_scanner
-    g0 = np.einsum("ij,ij->i", n_s0, u_s)
-    b0 = np.maximum(np.abs(g0), _GRAZING_B)
-    s2_rng = model.range_sigma_m ** 2 + (model.roughness_m / b0) ** 2  # range noise and roughness, along the beam
+    rough_rng, rough_nrm = roughness_variances(model.roughness_m, np.einsum("ij,ij->i", n_s0, u_s))
+    s2_rng = model.range_sigma_m ** 2 + rough_rng  # range noise and roughness, along the beam
     b_r = g_s / (1.0 + scale)  # d r / d recorded range
     v_rng = s2_rng * b_r ** 2
     v_ang = (model.scan_angle_sigma_rad * rho * g_a) ** 2
     v_att = model.attitude_noise_rad ** 2 * np.einsum("ij,ij->i", wxn, wxn)
-    v_normal = model.position_noise_m ** 2 + model.roughness_m ** 2 * (1.0 - (g0 / b0) ** 2)
+    v_normal = model.position_noise_m ** 2 + rough_nrm
     var = v_rng + v_ang + v_att + v_normal
     if linearise == "adjusted":
         # adjusted observations: each error source takes its share of the residual (sigma_l^2 B_l / var); the
@@ -652,10 +653,6 @@ def plane_residuals(
     J_plane = np.column_stack([np.einsum("ij,ij->i", e1, y), np.einsum("ij,ij->i", e2, y), -np.ones(len(r))])
     return {"r": r, "J_cal": J_cal, "J_strip": J_strip, "J_plane": J_plane, "e1": e1, "e2": e2,
             "sigma": np.sqrt(var), "X": X_obs}
-
-
-#: Below this |n . beam| (a beam within ~6 deg of its plane) the roughness is not all an error of the range.
-_GRAZING_B = 0.1
 
 
 def _plane_basis(n: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -74,6 +74,7 @@ __all__ = [
     "build_lidar_survey",
     "lidar_scenario_spec",
     "make_bridge",
+    "reference_reach_m",
     "strip_scenario_spec",
     "strip_truth_vector",
 ]
@@ -574,7 +575,7 @@ def strip_scenario_spec(size: str = "strips", seed: int = 1, errors: LidarErrors
     return LidarScenarioSpec(size=size, seed=seed, errors=err, passes="strips", pass_u_m=(85.0, -85.0), speed_mps=4.0,
                              body_from_scanner=tilted,
                              strip_layout=((12.0, 5.0), (12.0, 5.0), (9.0, 3.5), (9.0, 3.5), (15.0, 4.5)),
-                             reference_density_per_m2=40.0, reference_ground_density_per_m2=8.0)
+                             reference_density_per_m2=120.0, reference_ground_density_per_m2=30.0)
 
 
 def strip_truth_vector(injected: dict[str, Any], strip_epoch_s: ArrayLike) -> NDArray[np.float64]:
@@ -595,6 +596,14 @@ def strip_truth_vector(injected: dict[str, Any], strip_epoch_s: ArrayLike) -> ND
                                     -(np.asarray(s_["attitude_offset_rad"]) + np.asarray(s_["attitude_drift_radps"]) * dt),
                                     -np.asarray(s_["attitude_drift_radps"])]))
     return np.concatenate([cal, *rows])
+
+
+def reference_reach_m(spec: LidarScenarioSpec) -> float:
+    """How far the terrestrial reference's ground reaches out from the bridge side (metres, both sides): the farthest
+    flight line (a strip flight's widest strip, else ``distance_m``) plus 8 m, where the scanner's ground returns end
+    (its blind sector points up and away from the bridge)."""
+    far = max([spec.distance_m] + ([float(d) for d, _ in spec.strip_layout] if spec.passes == "strips" else []))
+    return far + 8.0
 
 
 # ---------------------------------------------------------------------------------------------- flight
@@ -955,7 +964,7 @@ def build_lidar_survey(spec: LidarScenarioSpec, lines_per_chunk: int = 200) -> L
     # ---- the terrestrial reference scan
     uv = pos[:, :2] @ scene.local_from_bridge[:2, :2]
     u_range = (float(uv[:, 0].min()) - 5.0, float(uv[:, 0].max()) + 5.0)
-    rv = scene.width_m / 2 + spec.distance_m + 8.0
+    rv = scene.width_m / 2 + reference_reach_m(spec)
     ref_rng = np.random.default_rng([spec.seed, 2])  # independent stream: the reference does not change with errors
     ref, ref_n = scene.sample_surfaces(ref_rng, spec.reference_density_per_m2, spec.reference_ground_density_per_m2,
                                        spec.reference_noise_m, u_range, (-rv, rv))

@@ -37,9 +37,17 @@ The variance of a point-to-plane distance is propagated from range noise (along 
 (across the beam in the scan plane), white trajectory noise (position, and attitude times the lever from the body
 origin) and a surface roughness::
 
-    s^2 = s_r^2 (n.u_w)^2 / (1 + range_scale)^2 + s_a^2 rho^2 (n.u'_w)^2 + s_p^2 + s_att^2 |y x n|^2 + s_rough^2
+    s^2 = (s_r^2 + s_rough^2 / b0^2) (n.u_w)^2 / (1 + range_scale)^2 + s_a^2 rho^2 (n.u'_w)^2 + s_p^2
+          + s_att^2 |y x n|^2 + s_rough^2 (1 - g0^2 / b0^2),      b0 = max(|g0|, 0.1)
 
-with ``u_w``, ``u'_w`` the beam and its derivative by the scan angle in the block frame and ``y = R x_b``.
+with ``u_w``, ``u'_w`` the beam and its derivative by the scan angle in the block frame and ``y = R x_b``.  The
+roughness is where the beam met the rough surface, an error of the measured range of sigma ``s_rough / |g0|``
+(:func:`roughness_variances`, shared with :mod:`skyrig.lidar.strips`), ``g0 = n0 . u_w`` a constant of the point:
+its beam against its plane's starting fit (nominal calibration, no strip corrections; ``LidarPoints.incidence0``);
+beams within ~6 deg of their plane keep the rest of it across the plane.  (With the roughness across the plane the
+range's deviation it causes stays in the range-scale, plane-tilt and boresight columns correlated with the
+residual, an errors-in-variables bias where the floor is most of a grazing beam's variance: the joint range scale
+came out +0.47 sigma off on average over 20 seeds of the strips-ci flight.)
 
 The Jacobians are those at the *adjusted observations* (Gauss-Helmert; :meth:`Lidar.point_rows`): the derivatives
 of ``r / s`` with ``s`` a function of the unknowns and the plane.  At the recorded points (``s`` frozen,
@@ -79,7 +87,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from skyrig.adjust.model import Model, State
 
 __all__ = ["LidarPoints", "Lidar", "LidarScanner", "LidarStrip", "lidar_unknowns", "georeference", "NAME", "SCANNER",
-           "STRIP", "SCANNER_COMPONENTS", "STRIP_COMPONENTS"]
+           "STRIP", "SCANNER_COMPONENTS", "STRIP_COMPONENTS", "GRAZING_INCIDENCE", "roughness_variances"]
 
 NAME = "lidar"
 SCANNER = "lidar_scanner"
@@ -152,9 +160,20 @@ class LidarPoints:
     #: ``"observed"`` (the recorded points, sigmas frozen: biased by the noise along slanted beams); see
     #: :meth:`Lidar.point_rows`
     linearise: str = "adjusted"
+    #: ``(N,)`` ``n0 . beam`` of each point at its plane's starting fit (nominal calibration, no strip corrections,
+    #: the plane through its points unweighted): the constant that makes the roughness an error of the range
+    #: (:func:`roughness_variances`); computed at first use (:meth:`incidence`) when None
+    incidence0: Any = None
 
     def __len__(self) -> int:
         return len(self.time_s)
+
+    def incidence(self, rows: NDArray[np.int64] | slice = slice(None)) -> NDArray[np.float64]:
+        """``n0 . beam`` of the points ``rows`` (:attr:`incidence0`, computed once for all points)."""
+        if self.incidence0 is None:
+            geo = georeference(self, np.zeros(NS), np.zeros((self.n_strips, NK)))
+            self.incidence0 = np.einsum("ni,ni->n", _start_normals(self, geo["X"]), geo["beam_w"])
+        return np.asarray(self.incidence0)[rows]
 
     @property
     def n_planes(self) -> int:
@@ -238,7 +257,40 @@ class LidarPoints:
         k = keep & keep_pl[self.plane]
         return replace(self, time_s=self.time_s[k], strip=self.strip[k], range_m=self.range_m[k], beam=self.beam[k],
                        beam_dangle=self.beam_dangle[k], plane=new[self.plane[k]], position_m=self.position_m[k],
-                       rotation=self.rotation[k], plane_point=self.plane_point[keep_pl], sigma=None)
+                       rotation=self.rotation[k], plane_point=self.plane_point[keep_pl], sigma=None,
+                       incidence0=None if self.incidence0 is None else np.asarray(self.incidence0)[k])
+
+
+#: Below this ``|n . beam|`` (a beam within ~6 deg of its plane) the roughness is not all an error of the range.
+GRAZING_INCIDENCE = 0.1
+
+
+def roughness_variances(roughness_m: float, incidence: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A laser point's surface roughness as an error of its measured range.
+
+    The beam meets a rough surface ``N(0, roughness)`` off the mean plane along its normal, which lengthens the
+    measured range by that height over ``|n . beam|``: a range error of variance ``(roughness / |n . beam|)^2``,
+    moving the point along its beam, not across the plane.  For beams within ~6 deg of the plane
+    (``|n . beam| <`` :data:`GRAZING_INCIDENCE`) the range's share is capped and the rest is left across the plane,
+    so that the total across the plane stays ``roughness^2``.  The joint laser factor (:class:`Lidar`) and the
+    laser-only strip adjustment (:func:`skyrig.lidar.strips.plane_residuals`) both take their roughness from here.
+
+    Parameters
+    ----------
+    roughness_m
+        One sigma of the surface's height about its plane (m).
+    incidence
+        ``(n,)`` ``n . beam`` of each point (a constant of the point: its beam against its plane's starting fit).
+
+    Returns
+    -------
+    range_var, normal_var
+        ``(n,)`` variance added to the measured range (m^2) and variance left across the plane (m^2).
+    """
+    g = np.asarray(incidence, dtype=np.float64)
+    b0 = np.maximum(np.abs(g), GRAZING_INCIDENCE)
+    return (roughness_m / b0) ** 2, roughness_m ** 2 * (1.0 - (g / b0) ** 2)
 
 
 def _data(block: Any) -> LidarPoints | None:
@@ -293,7 +345,8 @@ def georeference(d: LidarPoints, scanner: NDArray[np.float64], strips: NDArray[n
     -------
     dict
         ``X (n, 3)``, ``beam_w (n, 3)``, ``dbeam_w (n, 3)`` (beam and its scan-angle derivative, block frame),
-        ``rho (n,)``, ``y (n, 3)`` (``R x_b``, the body-to-point vector), and ``JS``, ``JK`` when ``jac``.
+        ``rho (n,)``, ``y (n, 3)`` (``R x_b``, the body-to-point vector), ``rows (n,)`` (the points' indices), and
+        ``JS``, ``JK`` when ``jac``.
     """
     st = d.strip[rows]
     tau = d.time_s[rows] - d.strip_epoch_s[st]
@@ -314,7 +367,7 @@ def georeference(d: LidarPoints, scanner: NDArray[np.float64], strips: NDArray[n
     ERB = ER @ Bc
     out = {"X": X, "beam_w": np.einsum("nij,nj->ni", ERB, d.beam[rows]),
            "dbeam_w": np.einsum("nij,nj->ni", ERB, d.beam_dangle[rows]), "rho": rho, "y": np.einsum("nij,nj->ni", E, y),
-           "gain": np.full(len(rho), 1.0 / (1.0 + scale)), "tau": tau}
+           "gain": np.full(len(rho), 1.0 / (1.0 + scale)), "tau": tau, "rows": np.arange(len(d))[rows]}
     if not jac:
         return out
     n = len(rho)
@@ -358,6 +411,27 @@ def _projected_ss(r: NDArray, B: NDArray, plane: NDArray, is_tie: NDArray, q: in
     g = np.column_stack([np.bincount(plane, Bt[:, j] * r, q) for j in range(3)])
     ss = np.bincount(plane, r**2, q) - np.einsum("qi,qi->q", g, np.linalg.solve(N, g[:, :, None])[:, :, 0])
     return np.maximum(ss, 0.0)
+
+
+def _start_normals(d: LidarPoints, X: NDArray) -> NDArray[np.float64]:
+    """``(N, 3)`` each point's plane normal at the nominal georeferencing ``X``, fitted to the points of its own strip
+    on the plane (strips disagree by their trajectory and calibration errors until adjusted: centimetres over a patch
+    of a metre or two tilt a fit of all strips by degrees); the fit of all its strips where its own strip's points on
+    the plane are fewer than 5 or nearly collinear."""
+    q, k = d.n_planes, max(d.n_strips, 1)
+    n_all, _ = _fit_planes(X, np.ones(len(X)), d.plane, np.zeros((q, 3)), np.zeros(q, bool), q)
+    g = d.plane * k + d.strip
+    ug, grp = np.unique(g, return_inverse=True)
+    m = len(ug)
+    cnt = np.bincount(grp, minlength=m)
+    c = np.column_stack([np.bincount(grp, X[:, j], m) for j in range(3)]) / cnt[:, None]
+    dx = X - c[grp]
+    S = np.zeros((m, 3, 3))
+    np.add.at(S, grp, dx[:, :, None] * dx[:, None, :])
+    w, V = np.linalg.eigh(S)
+    ok = (cnt >= 5) & (w[:, 1] > 0.01 * w[:, 2])  # a patch of the strip, not a line of it
+    n_grp = np.where(ok[:, None], V[:, :, 0], n_all[ug // k])
+    return n_grp[grp]
 
 
 def _fit_planes(X: NDArray, w: NDArray, plane: NDArray, anchor: NDArray, is_tie: NDArray, q: int
@@ -416,8 +490,9 @@ class Lidar(ObservationType):
         nu = np.einsum("ni,ni->n", normal, geo["beam_w"]) * geo["gain"]
         nd = np.einsum("ni,ni->n", normal, geo["dbeam_w"]) * geo["rho"]
         ya = np.linalg.norm(np.cross(geo["y"], normal), axis=1)
-        return np.sqrt((d.range_sigma_m * nu) ** 2 + (d.angle_sigma_rad * nd) ** 2 + d.position_sigma_m ** 2
-                       + (d.attitude_sigma_rad * ya) ** 2 + d.roughness_m ** 2)
+        rough_rng, rough_nrm = roughness_variances(d.roughness_m, d.incidence(geo["rows"]))
+        return np.sqrt((d.range_sigma_m ** 2 + rough_rng) * nu ** 2 + (d.angle_sigma_rad * nd) ** 2
+                       + d.position_sigma_m ** 2 + (d.attitude_sigma_rad * ya) ** 2 + rough_nrm)
 
     def variance_derivatives(self, d: LidarPoints, geo: dict[str, NDArray], normal: NDArray, tangents: NDArray
                              ) -> dict[str, NDArray]:
@@ -425,7 +500,8 @@ class Lidar(ObservationType):
         tilts (``n -> n + delta t_k``, ``tangents (n, 2, 3)``): ``"tilt" (n, 2)``; and, when ``geo`` carries the
         Jacobians, by the scanner ``"scanner" (n, 8)`` and strip ``"strip" (n, 12)`` unknowns."""
         u, ud, y, rho, gain = geo["beam_w"], geo["dbeam_w"], geo["y"], geo["rho"], geo["gain"]
-        cr = (d.range_sigma_m * gain) ** 2  # the recorded range's variance in the corrected range
+        # the recorded range's variance (noise and roughness, a constant of each point) in the corrected range
+        cr = (d.range_sigma_m ** 2 + roughness_variances(d.roughness_m, d.incidence(geo["rows"]))[0]) * gain ** 2
         ca = d.angle_sigma_rad ** 2
         ct = d.attitude_sigma_rad ** 2
         nu = np.einsum("ni,ni->n", normal, u)
