@@ -175,8 +175,10 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
     lk = np.empty(maxb, np.int64)
     lpr = np.empty(maxb, np.int64)
     li = np.empty(maxb, np.int64)
+    bp = np.empty(maxb, np.int64)  # the bucket's pairs, heights and height precisions in cell order
+    bz = np.empty(maxb)
+    bs = np.empty(maxb)
     out = 0
-    touch = 0
     for b in range(nb):
         if tail[b] < 0:
             continue
@@ -194,11 +196,14 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
             k = corder[ci]
             r0 = k * chunk
             r1 = r0 + (fill[b] if k == tail[b] else chunk)
-            for r in range(r0, r1):
+            for r in range(r0, r1):  # reads the bucket's points in memory order (the cells' reads then hit the cache)
                 q = lc[r]
-                order[pos[q]] = r
-                pos[q] += 1
-                touch += pair[r]
+                t = pos[q]
+                order[t] = r
+                bp[t] = pair[r]
+                bz[t] = xyz[r, zc]
+                bs[t] = sigma_h[r]
+                pos[q] = t + 1
         for lq in range(t2):
             a, e = cnt[lq], cnt[lq + 1]
             if a == e:
@@ -207,10 +212,8 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
             if do_grid:
                 m = 0
                 for q in range(a, e):
-                    i = order[q]
-                    sh = np.float64(sigma_h[i])
-                    if sh > 0:
-                        m = _insert_sorted(lp, lh, ls, m, pair[i], xyz[i, zc], sh)
+                    if bs[q] > 0:
+                        m = _insert_sorted(lp, lh, ls, m, bp[q], bz[q], bs[q])
                 if m:
                     _grid_cell(cg, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_range, ph, ps, pw, pi,
                                dev, out_h, out_n, out_sp, out_s, out_ch, out_cs, out_cn, out_ch2, out_cs2, out_cn2)
@@ -221,8 +224,6 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
                     mv = _insert_sorted(lk, lpr, li, mv, int(np.floor(xyz[i, 2] / voxel_z_m)), pair[i], i)
                 out = _voxel_cell(lk, lpr, li, mv, xyz, sigma_3d, rgb, normal, rot, min_support, o_xyz, o_rgb, o_n,
                                   o_sup, o_sig, out)
-    if touch == -12345:
-        out += 1
     return out
 
 
@@ -811,6 +812,29 @@ def lr_band_rows(d, jump, c0, band):  # pragma: no cover - compiled
                     break
                 have = True
                 last = v
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def lr_band_cols(d, jump, c0, r0, r1, zone):  # pragma: no cover - compiled
+    """Columns of a crop within ``zone`` pixels of a depth edge (as :func:`lr_band_rows` finds them: consecutive finite
+    disparities of ``d`` from column ``c0`` on, holes skipped, that differ by more than ``jump``; the columns from
+    the edge's left pixel to its right one) in any of the rows ``r0 .. r1 - 1``."""
+    W = d.shape[1]
+    out = np.zeros(W, np.bool_)
+    for r in range(r0, r1):
+        have = False
+        last = np.float32(0.0)
+        lc = 0
+        for c in range(c0, W):
+            v = d[r, c]
+            if v == v:
+                if have and abs(v - last) > jump:
+                    for q in range(max(0, lc - zone), min(W, c + zone + 1)):
+                        out[q] = True
+                have = True
+                last = v
+                lc = c
     return out
 
 
