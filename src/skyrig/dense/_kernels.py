@@ -454,6 +454,7 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
     :attr:`skyrig.dense.stereo.PairPoints.angle_deg`, on demand."""
     H, W = disp.shape
     fb = f * B
+    fi = 1.0 / f  # a product, not a division per term (within an ulp of u * D / f)
     nmax = 0
     Dg = np.empty((H, W))  # depth of every matched pixel (one division each; neighbours reuse it)
     for r in range(H):
@@ -484,14 +485,14 @@ def triangulate_block(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour):  # p
                 dv = 0.5 * (Dg[r + 1, c] - Dg[r - 1, c])
             u = u0 + c
             v = v0 + r
-            px = u * D / f
-            py = -v * D / f
+            px = u * D * fi
+            py = -v * D * fi
             pz = -D
-            ax = (D + u * du) / f
-            ay = -v * du / f
+            ax = (D + u * du) * fi
+            ay = -v * du * fi
             az = -du
-            bx = u * dv / f
-            by = -(D + v * dv) / f
+            bx = u * dv * fi
+            by = -(D + v * dv) * fi
             bz = -dv
             nx = by * az - bz * ay
             ny = bz * ax - bx * az
@@ -530,6 +531,7 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
     rows, bit for bit.  Returns the number of points taken."""
     H, W = disp.shape
     fb = f * B
+    fi = 1.0 / f  # a product, not a division per term (within an ulp of u * D / f)
     nch_c = colour.shape[2]
     cloud = o_s3.shape[0] > 0
     test_bounds = bounds.shape[0] == 4
@@ -575,8 +577,8 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
                 D = Dg[r, c]
                 u = u0 + c
                 v = v0 + r
-                px = u * D / f
-                py = -v * D / f
+                px = u * D * fi
+                py = -v * D * fi
                 pz = -D
                 for i in range(3):
                     w[i] = C[i] + R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz
@@ -590,11 +592,11 @@ def triangulate_take(disp, u0, v0, f, B, R, C, sigma_px, cos_lim, colour, wall_n
                 dv = np.nan
                 if 0 < r < H - 1 and disp[r - 1, c] > 0 and disp[r + 1, c] > 0:
                     dv = 0.5 * (Dg[r + 1, c] - Dg[r - 1, c])
-                ax = (D + u * du) / f
-                ay = -v * du / f
+                ax = (D + u * du) * fi
+                ay = -v * du * fi
                 az = -du
-                bx = u * dv / f
-                by = -(D + v * dv) / f
+                bx = u * dv * fi
+                by = -(D + v * dv) * fi
                 bz = -dv
                 nx = by * az - bz * ay
                 ny = bz * ax - bx * az

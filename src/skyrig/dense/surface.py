@@ -734,7 +734,9 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
                   {"gsd_m": plan.gsd_m, "pairs": len(plan.pairs)})
     cloud = None
     if plan.config.cloud:
-        if clouds:
+        if len(clouds) == 1:  # one tile: its arrays as they are (no copy)
+            cat = list(clouds[0])
+        elif clouds:
             cat = [np.concatenate([c[k] for c in clouds]) for k in range(5)]
         else:
             cat = [np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32), np.zeros(0, np.int16),
