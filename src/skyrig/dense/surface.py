@@ -76,10 +76,13 @@ class DenseConfig:
         cells NMAD 0.139 GSD both; 32 images (3 runs each): ratio 0.36 / 0.35, right-based pass 1.35 / 1.74, edge cells
         valid 70.71 / 70.70 %, off by more than 5 GSD 18.14 / 18.38 %, RMSE 15.79 / 15.85 GSD.  Inside the bands the
         second matching runs only on the columns within 32 px of a depth edge (``SgmConfig.lr_band_cols_px``, figures
-        there: a third less time for the right-based pass, edge figures within their spread).  Where the rest of the
-        chain's time goes: the fusion (points into cells and the cells' grid and cloud, about 1.0 CPU s for the block's
-        7.0 M points) costs as much as one matching pass, triangulation with the wall test 0.28, rectification 0.14, so
-        that even without any right-based pass the chain would stay near 0.48 of raw StereoSGBM.  The full check
+        there: a third less time for the right-based pass, edge figures within their spread).  With that and the fusion's
+        buckets (:class:`~skyrig.dense.fusion.CellSorter`), ``bench/dense.py --sizes 16`` (CPU s, medians of 4 runs,
+        each against raw StereoSGBM in the same run): chain 3.58 -> 2.94, ratio 0.38 -> 0.455 (0.35-0.40 -> 0.43-0.47);
+        32 images: 6.25 -> 6.18, 0.38 -> 0.39 (0.35-0.38 -> 0.35-0.44; the machine's noise is as large as the gain
+        there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
+        test 0.57, fusion of the 7.0 M points into grid and cloud 0.48, rectification and reading 0.21, so that without
+        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  The full check
         (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
         below were measured with it (not re-run with the banded check).  OpenCV's internal check (``"opencv"``: the
         right image's disparities from the left matching's own cost volume) saves that second matching, which costs as
