@@ -841,6 +841,59 @@ def lr_band_cols(d, jump, c0, r0, r1, zone):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, error_model="numpy")
+def lr_band_crops(d, rows, jump, c0, zone, n, context):  # pragma: no cover - compiled
+    """The right-based matchings of the banded check on columns (``SgmConfig.lr_band_cols_px`` = ``zone`` > 0): for
+    each run of banded ``rows``, the columns near its depth edges (:func:`lr_band_cols`), widened by ``n + zone`` on
+    the left and on the right (a left pixel's right pixel lies up to ``n`` columns left of it, whose own matches up
+    to ``n`` right of that, and the mirrored pass leaves the last ``n`` columns of its crop without result; ``zone``
+    more of path on either side), overlapping spans merged.  Returns the crops ``(y0, r0, r1, ca, cb)`` (rows ``y0``
+    = ``r0 - context`` (>= 0) .. ``r1``, columns ``ca .. cb``; rows ``r0 .. r1`` kept) and the mask of the pixels
+    the second matching checks (banded rows, columns near an edge)."""
+    H, W = d.shape
+    full = np.zeros((H, W), np.bool_)
+    crops = np.empty((64, 5), np.int64)
+    span = np.empty(W, np.bool_)
+    k = 0
+    r0 = 0
+    while r0 < H:
+        if not rows[r0]:
+            r0 += 1
+            continue
+        r1 = r0
+        while r1 < H and rows[r1]:
+            r1 += 1
+        near = lr_band_cols(d, jump, c0, r0, r1, zone)
+        span[:] = False
+        for c in range(W):
+            if near[c]:
+                for r in range(r0, r1):
+                    full[r, c] = True
+                for q in range(max(0, c - n - zone), min(W, c + n + zone + 1)):
+                    span[q] = True
+        c = 0
+        while c < W:
+            if not span[c]:
+                c += 1
+                continue
+            e = c
+            while e < W and span[e]:
+                e += 1
+            if k == crops.shape[0]:
+                more = np.empty((2 * k, 5), np.int64)
+                more[:k] = crops
+                crops = more
+            crops[k, 0] = max(0, r0 - context)
+            crops[k, 1] = r0
+            crops[k, 2] = r1
+            crops[k, 3] = c
+            crops[k, 4] = e
+            k += 1
+            c = e
+        r0 = r1
+    return crops[:k], full
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _smallest_eigvec_z(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
     """|z component| of the unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (closed-form
     eigenvalue, the eigenvector as the longest cross product of two rows of ``A - lambda I``); NaN if undefined."""

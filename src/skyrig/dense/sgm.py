@@ -336,7 +336,7 @@ def _banded_check(left: NDArray, right: NDArray, d16: NDArray[np.int16], vl: NDA
     only on the bands of ``cfg.lr_band_px`` rows where OpenCV's own check leaves a depth edge (:func:`lr_band_rows`),
     each run of such bands matched with ``cfg.lr_band_context_px`` rows above it; those rows get the full check, the
     others OpenCV's."""
-    from skyrig.dense._kernels import check_disparities, lr_band_cols, lr_band_rows
+    from skyrig.dense._kernels import check_disparities, lr_band_crops, lr_band_rows
     from skyrig.dense._phases import phase
 
     H, W = left.shape[:2]
@@ -347,23 +347,13 @@ def _banded_check(left: NDArray, right: NDArray, d16: NDArray[np.int16], vl: NDA
         return dc
     e16 = np.full((H, W), -1, np.int16)
     zone = int(cfg.lr_band_cols_px)
-    full = np.zeros((H, W), bool) if zone else rows[:, None]  # the pixels the second matching checks
-    crops = []  # rows y0 (context), r0..r1 and columns ca..cb of each right-based matching
     with phase("lr check"):
-        for r0, r1 in _runs(rows):
-            y0 = max(0, r0 - cfg.lr_band_context_px)
-            if not zone:
-                crops.append((y0, r0, r1, 0, W))
-                continue
-            near = lr_band_cols(dc, np.float32(cfg.lr_band_jump_px), n, r0, r1, zone)
-            full[r0:r1, near] = True
-            # the left pixels a..b-1 match right pixels a-n..b-1, whose own matches lie up to n further right (the
-            # mirrored pass leaves the last n columns of its crop without result); zone pixels of path on either side;
-            # overlapping crops merged
-            span = np.zeros(W, bool)
-            for a, b in _runs(near):
-                span[max(0, a - n - zone):min(W, b + n + zone)] = True
-            crops += [(y0, r0, r1, ca, cb) for ca, cb in _runs(span)]
+        if zone:  # the crops of the columns near the edges, the pixels they check
+            crops, full = lr_band_crops(dc, rows, np.float32(cfg.lr_band_jump_px), n, zone, n,
+                                        int(cfg.lr_band_context_px))
+        else:
+            crops = [(max(0, r0 - cfg.lr_band_context_px), r0, r1, 0, W) for r0, r1 in _runs(rows)]
+            full = rows[:, None]
     with phase("sgm right"):
         for y0, r0, r1, ca, cb in crops:
             e = rm.compute(np.ascontiguousarray(right[y0:r1, ca:cb][:, ::-1]),
