@@ -361,7 +361,7 @@ def _banded_check(left: NDArray, right: NDArray, d16: NDArray[np.int16], vl: NDA
             e16[r0:r1, ca:cb] = e[r0 - y0:, ::-1]
     with phase("lr check"):
         d = check_disparities(d16, e16, vl, vr, tol, int(shift), True)
-        d = np.where(full, d, dc)
+        np.copyto(d, dc, where=~full)  # in place (a new array is new memory, page by page)
     return d
 
 
