@@ -79,8 +79,8 @@ class DenseConfig:
         there: a third less time for the right-based pass, edge figures within their spread).  With that and the fusion's
         buckets (:class:`~skyrig.dense.fusion.CellSorter`), ``bench/dense.py --sizes 16`` (CPU s, medians of 4 runs,
         each against raw StereoSGBM in the same run): chain 3.58 -> 2.94, ratio 0.38 -> 0.455 (0.35-0.40 -> 0.43-0.47);
-        32 images: 6.25 -> 6.18, 0.38 -> 0.39 (0.35-0.38 -> 0.35-0.44; the machine's noise is as large as the gain
-        there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
+        32 images (6 runs each): 6.35 -> 5.94, 0.375 -> 0.40 (0.35-0.38 -> 0.35-0.44; on this shared machine the
+        noise is about as large as the gain there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
         test 0.57, fusion of the 7.0 M points into grid and cloud 0.48, rectification and reading 0.21, so that without
         any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  The full check
         (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
