@@ -88,8 +88,64 @@ def test_banded_check_matches_the_full_check_next_to_a_step():
 
 
 def test_banded_check_options_are_checked():
-    for kw in ({"lr_band_px": 0}, {"lr_band_context_px": -1}, {"lr_band_jump_px": -1.0}):
+    for kw in ({"lr_band_px": 0}, {"lr_band_context_px": -1}, {"lr_band_jump_px": -1.0}, {"lr_band_cols_px": -1}):
         with pytest.raises(SkyrigError, match="lr_band"):
             SgmConfig(**kw)
     with pytest.raises(SkyrigError, match="banded"):
         SgmConfig(lr_check="half")
+
+
+def test_banded_check_on_columns_near_the_edges_only():
+    """``lr_band_cols_px`` (the DSM's default): in the banded rows the right-based matching runs only on the columns
+    near a depth edge (with its search width and path context), and only the left pixels within ``lr_band_cols_px``
+    of an edge get its check; the others keep OpenCV's, as the rows outside the bands do.  On the seeded step: the
+    checked pixels agree with the whole-row banded check (paths started ``lr_band_cols_px`` columns away settle the
+    same: at least 99.5 % of them the same), the other pixels are OpenCV's bit for bit, and next to the step it keeps
+    no more pixels off by more than 1 px and no more occluded ones than the whole-row check, within 1 % of their count
+    (as the whole-row check against the full one)."""
+    from skyrig.dense._kernels import lr_band_cols
+
+    left, right, truth, occluded = _occlusion_pair(db=8, df=24)
+    H, W = left.shape
+    n = 32
+    base = SgmConfig(lr_check="banded")
+    rows_cfg = match_crop(left, right, 0, n, base)
+    cols_cfg = replace(base, lr_band_cols_px=16)
+    cols = match_crop(left, right, 0, n, cols_cfg)
+    cv = np.full((H, W), np.nan, np.float32)
+    cv[:, :W - n] = match_crop(np.ascontiguousarray(left[:, :W - n]), np.ascontiguousarray(right[:, :W - n]), 0, n,
+                               replace(base, lr_check="opencv"))
+    rows = lr_band_rows(cv, np.float32(base.lr_band_jump_px), n, base.lr_band_px)
+    near = np.zeros((H, W), bool)
+    for r0 in np.flatnonzero(rows):
+        near[r0] = lr_band_cols(cv, np.float32(base.lr_band_jump_px), n, r0, r0 + 1, 16)
+    checked = near & rows[:, None]
+    assert 0 < checked.sum() < 0.5 * rows.sum() * W, "the checked columns must be a part of the banded rows"
+    rk, ck = np.isfinite(rows_cfg), np.isfinite(cols)
+    same = (rk == ck) & (~rk | (np.abs(np.nan_to_num(rows_cfg) - np.nan_to_num(cols)) < 1e-6))
+    # a band's columns are the union over its rows: compare on every row's own near columns
+    assert same[checked].mean() >= 0.995, f"{100 * same[checked].mean():.2f} % the same where both check"
+    band_cols = np.zeros((H, W), bool)
+    for r0, r1 in [(int(a), int(b)) for a, b in _band_runs(rows)]:
+        band_cols[r0:r1] = lr_band_cols(cv, np.float32(base.lr_band_jump_px), n, r0, r1, 16)[None, :]
+    assert np.array_equal(cols[~band_cols], cv[~band_cols], equal_nan=True)
+    from scipy import ndimage
+
+    step = np.zeros(truth.shape, bool)
+    step[:, 1:] |= truth[:, 1:] != truth[:, :-1]
+    step[1:, :] |= truth[1:, :] != truth[:-1, :]
+    edge = ndimage.binary_dilation(step, np.ones((7, 7), bool))
+    edge[:, :40] = False
+    edge[:, W - n:] = False
+    with np.errstate(invalid="ignore"):
+        bad_r = int((rk & edge & (np.abs(rows_cfg - truth) > 1.0)).sum())
+        bad_c = int((ck & edge & (np.abs(cols - truth) > 1.0)).sum())
+    assert bad_c <= bad_r + 0.01 * int(edge.sum()), f"edge pixels off by > 1 px: columns {bad_c}, rows {bad_r}"
+    occ_r, occ_c = int((rk & occluded).sum()), int((ck & occluded).sum())
+    assert occ_c <= occ_r + 0.01 * int(occluded.sum()), f"occluded pixels kept: columns {occ_c}, rows {occ_r}"
+
+
+def _band_runs(rows):  # type: ignore[no-untyped-def]
+    m = np.concatenate([[False], rows, [False]])
+    e = np.flatnonzero(m[1:] != m[:-1])
+    return zip(e[::2], e[1::2])

@@ -74,10 +74,15 @@ class DenseConfig:
         raw StereoSGBM 0.39 / 0.36 (0.38-0.41 / 0.35-0.36), right-based pass 0.65 / 0.94; cells within 2 GSD of
         building outlines valid 38.87 / 38.81 %, off by more than 5 GSD 22.70 / 22.69 %, RMSE 19.11 / 19.07 GSD; flat
         cells NMAD 0.139 GSD both; 32 images (3 runs each): ratio 0.36 / 0.35, right-based pass 1.35 / 1.74, edge cells
-        valid 70.71 / 70.70 %, off by more than 5 GSD 18.14 / 18.38 %, RMSE 15.79 / 15.85 GSD.  Where the rest of the
-        chain's time goes: the fusion (points into cells and the cells' grid and cloud, about 1.0 CPU s for the block's
-        7.0 M points) costs as much as one matching pass, triangulation with the wall test 0.28, rectification 0.14, so
-        that even without any right-based pass the chain would stay near 0.48 of raw StereoSGBM.  The full check
+        valid 70.71 / 70.70 %, off by more than 5 GSD 18.14 / 18.38 %, RMSE 15.79 / 15.85 GSD.  Inside the bands the
+        second matching runs only on the columns within 32 px of a depth edge (``SgmConfig.lr_band_cols_px``, figures
+        there: a third less time for the right-based pass, edge figures within their spread).  With that and the fusion's
+        buckets (:class:`~skyrig.dense.fusion.CellSorter`), ``bench/dense.py --sizes 16`` (CPU s, medians of 4 runs,
+        each against raw StereoSGBM in the same run): chain 3.58 -> 2.94, ratio 0.38 -> 0.455 (0.35-0.40 -> 0.43-0.47);
+        32 images (6 runs each): 6.35 -> 5.94, 0.375 -> 0.40 (0.35-0.38 -> 0.35-0.44; on this shared machine the
+        noise is about as large as the gain there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
+        test 0.57, fusion of the 7.0 M points into grid and cloud 0.48, rectification and reading 0.21, so that without
+        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  The full check
         (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
         below were measured with it (not re-run with the banded check).  OpenCV's internal check (``"opencv"``: the
         right image's disparities from the left matching's own cost volume) saves that second matching, which costs as
@@ -132,7 +137,8 @@ class DenseConfig:
     cell_m: float | None = None
     pairs: PairConfig = field(default_factory=PairConfig)
     sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
-                                                             lr_check="banded"))
+                                                             lr_check="banded",
+                                                             lr_band_cols_px=32))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
@@ -775,7 +781,9 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
     dsm = DsmGrid(plan.grid, plan.out_frame, height, support, spread, sigma, filled, vref, dsm_metadata(plan))
     cloud = None
     if plan.config.cloud:
-        if clouds:
+        if len(clouds) == 1:  # one tile: its arrays as they are (no copy)
+            cat = list(clouds[0])
+        elif clouds:
             cat = [np.concatenate([c[k] for c in clouds]) for k in range(5)]
         else:
             cat = [np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3), np.float32), np.zeros(0, np.int16),
