@@ -27,6 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
+import scipy.linalg.lapack
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.stats import norm
@@ -71,12 +73,29 @@ class Covariance:
         residuals need), or None.
     Vinv
         ``(n_p, 3, 3)`` inverse point blocks of the normal matrix.
+    W
+        ``(n_c, 3 n_p)`` sparse ``W = P^T Wb`` (reduced x point block of the normal matrix), or None: any
+        cross cofactor ``Q_cp = -Q_cc W_p V_p^-1`` off ``M``'s pattern is ``Q_cc`` times a few of its columns.
     """
 
     Qcc: NDArray[np.float64]
     Qpp: NDArray[np.float64]
     Vinv: NDArray[np.float64]
     M: NDArray[np.float64] | None = None
+    W: sp.csr_matrix | None = None
+
+    def cross(self, points: NDArray[np.int64], rows: NDArray[np.int64] | None = None) -> NDArray[np.float64] | None:
+        """``(m, k, 3)`` ``(Q_cc W)[rows, points' columns]`` (all reduced rows when ``rows`` is None) for free-point
+        indices ``points``: sliced from a dense ``M``, else ``Q_cc[rows] W[:, cols]`` (None without ``W``)."""
+        cols3 = (3 * np.asarray(points, np.int64)[:, None] + np.arange(3)[None, :]).reshape(-1)
+        r = slice(None) if rows is None else np.asarray(rows, np.int64)
+        if isinstance(self.M, np.ndarray):
+            out = self.M[r][:, cols3]
+        elif self.W is not None:
+            out = np.asarray(self.W[:, cols3].T @ self.Qcc[r].T).T
+        else:
+            return None
+        return out.reshape(out.shape[0], len(points), 3)
 
 
 class PointPatternM:
@@ -107,26 +126,64 @@ class PointPatternM:
         return np.where(found[:, :, None], self.vals[pos], 0.0)
 
 
-def _point_pattern(N: Normal, n_c: int, n_p: int
+def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
-    there ``(nnz, 3)``."""
+    there ``(nnz, 3)``; ``W``: that product when the caller has it."""
     Wb = N.wb.tocoo()  # every stored block entry, zeros included
     Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
-    S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
-    key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
-    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()).tocoo()
+    S = sp.csc_matrix(Pc.T @ ones)  # positive entries: no cancellation
+    S.sort_indices()
+    # a point's three columns share their structure (full k x 3 blocks): its pattern is the column 3 p
+    cnt = np.diff(S.indptr)[0::3].astype(np.int64)
+    first = np.repeat(S.indptr[:-1][0::3].astype(np.int64), cnt)
+    within = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    key_s = np.repeat(np.arange(n_p, dtype=np.int64), cnt) * (n_c + 1) + S.indices[first + within]
+    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr() if W is None else W)
+    Wfull.sum_duplicates()  # canonical: one entry per (row, column)
+    Wfull = Wfull.tocoo()
     key_w = (Wfull.col // 3).astype(np.int64) * (n_c + 1) + Wfull.row
     wv = np.zeros((len(key_s), 3))
     pos = np.searchsorted(key_s, key_w)
     if len(key_w) and not np.all(key_s[np.minimum(pos, len(key_s) - 1)] == key_w):
         raise AssertionError("W has entries outside its structural pattern")
-    np.add.at(wv, (pos, Wfull.col % 3), Wfull.data)
+    wv[pos, Wfull.col % 3] = Wfull.data
     indptr = np.zeros(n_p + 1, np.int64)
     np.cumsum(np.bincount(key_s // (n_c + 1), minlength=n_p), out=indptr[1:])
     return indptr, (key_s % (n_c + 1)).astype(np.int64), wv
+
+
+def _make_pattern_kernel():  # type: ignore[no-untyped-def]
+    """numba kernel of :func:`_pattern_products` (one point at a time, parallel over points), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def kernel(Q, indptr, rows, wv, vals, WtM):  # type: ignore[no-untyped-def]
+        for p in numba.prange(len(indptr) - 1):
+            a, b = indptr[p], indptr[p + 1]
+            for i in range(a, b):
+                ri = rows[i]
+                for c in range(3):
+                    acc = 0.0
+                    for j in range(a, b):
+                        acc += Q[ri, rows[j]] * wv[j, c]
+                    vals[i, c] = acc
+            for c in range(3):
+                for e in range(3):
+                    acc = 0.0
+                    for i in range(a, b):
+                        acc += wv[i, c] * vals[i, e]
+                    WtM[p, c, e] = acc
+
+    return kernel
+
+
+_pattern_kernel = _make_pattern_kernel()
 
 
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
@@ -136,6 +193,12 @@ def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: N
     chunks of points of similar pattern size (padded gathers of at most ``max_elements`` doubles)."""
     n_c = Q.shape[0]
     n_p = len(indptr) - 1
+    if _pattern_kernel is not None:
+        vals = np.zeros_like(wv)
+        WtM = np.zeros((n_p, 3, 3))
+        _pattern_kernel(np.ascontiguousarray(Q), indptr.astype(np.int64), rows.astype(np.int64),
+                        np.ascontiguousarray(wv), vals, WtM)
+        return vals, WtM
     Qe = np.zeros((n_c + 1, n_c + 1))
     Qe[:n_c, :n_c] = Q
     m = np.diff(indptr)
@@ -161,6 +224,25 @@ def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: N
         WtM[ps] = np.swapaxes(Wp, 1, 2) @ Mp
         s0 = s1
     return vals, WtM
+
+
+def _spd_inverse(A: NDArray[np.float64], what: str) -> NDArray[np.float64]:
+    """Inverse of the symmetric positive definite ``A`` from its Cholesky factor (LAPACK ``potrf`` + ``potri``:
+    a third of the work of inverting the factor and multiplying, the same numbers to rounding); raises
+    :class:`SingularError` with ``what`` when ``A`` is not positive definite."""
+    n = A.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    c, info = scipy.linalg.lapack.dpotrf(A, lower=1, clean=0, overwrite_a=0)
+    if info != 0:
+        raise SingularError(f"{what}: leading minor {info} not positive definite" if info > 0
+                            else f"{what}: LAPACK potrf argument {-info}")
+    X, info = scipy.linalg.lapack.dpotri(c, lower=1, overwrite_c=1)
+    if info != 0:
+        raise SingularError(f"{what}: zero pivot {info}")
+    il = np.triu_indices(n, 1)
+    X[il] = X.T[il]  # potri fills the lower triangle
+    return X
 
 
 def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -190,12 +272,7 @@ def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.fl
     else:
         H, _ = np.linalg.qr(G / sc[:, None])
     A = S * sc[:, None] * sc[None, :] + H @ H.T
-    try:
-        L = np.linalg.cholesky(A)
-    except np.linalg.LinAlgError as e:
-        raise SingularError(f"the normal matrix is singular beyond the datum defect: {e}") from e
-    Li = np.linalg.inv(L)
-    X = (Li.T @ Li) * sc[:, None] * sc[None, :]
+    X = _spd_inverse(A, "the normal matrix is singular beyond the datum defect") * sc[:, None] * sc[None, :]
     if G.shape[1] == 0:
         return X
     q, _ = np.linalg.qr(G)
@@ -205,8 +282,13 @@ def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.fl
 
 
 def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False,
-               max_dense_products: int = 60_000_000) -> Covariance:
-    """Cofactor matrices at the solution (see module docstring).  Raises :class:`SingularError`."""
+               max_dense_products: int = 2_000_000) -> Covariance:
+    """Cofactor matrices at the solution (see module docstring).  Raises :class:`SingularError`.
+
+    ``M = Q_cc W`` is dense only up to ``max_dense_products`` entries; above, it is kept on ``W``'s block pattern
+    (:class:`PointPatternM`: work ``sum_p |R_p|^2`` instead of ``n_c x 3 n_p``, which grew with the square of the
+    block) and ``W`` is kept for the few cross cofactors off the pattern a caller asks for (:meth:`Covariance.cross`).
+    """
     S, _, Vinv = schur_matrix(N, 0.0)
     Sd = S.toarray()
     if free_datum:
@@ -216,15 +298,11 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
         if np.any(d <= 0):
             raise SingularError("unknowns without observations")
         sc = 1.0 / np.sqrt(d)
-        try:
-            L = np.linalg.cholesky(Sd * sc[:, None] * sc[None, :])
-        except np.linalg.LinAlgError as e:
-            raise SingularError(f"the normal matrix is singular: {e}") from e
-        Li = np.linalg.inv(L)
-        Q = (Li.T @ Li) * sc[:, None] * sc[None, :]
+        Q = _spd_inverse(Sd * sc[:, None] * sc[None, :], "the normal matrix is singular") * sc[:, None] * sc[None, :]
     n_p = layout.n_p
     Qpp = Vinv.copy()
     M = None
+    Wfull = None
     if n_p and N.Wb is not None:
         Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr())
         if Q.shape[0] * 3 * n_p <= max_dense_products:
@@ -236,11 +314,11 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                     WtM[:, a, b] = np.asarray(Wc[:, a::3].multiply(M[:, b::3]).sum(axis=0)).reshape(-1)
             Qpp = Vinv + Vinv @ WtM @ Vinv
         else:  # M on W's block pattern only (what the image observations' cofactors need)
-            indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p)
+            indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p, Wfull)
             vals, WtM = _pattern_products(Q, indptr, rows, wv)
             Qpp = Vinv + Vinv @ WtM @ Vinv
             M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)  # type: ignore[assignment]
-    return Covariance(Q, Qpp, Vinv, M)
+    return Covariance(Q, Qpp, Vinv, M, Wfull)
 
 
 def similarity_basis(state: State, layout: Layout, scale: bool
@@ -366,7 +444,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
             D = (np.einsum("cd,pda->cpa", Gc, TQp) + np.einsum("dc,pad->cpa", TQc, Gp)
                  - np.einsum("cd,pad->cpa", GcZ, Gp))
             M = M + np.einsum("cpa,pab->cpb", D, N.V).reshape(n_c, 3 * n_p)
-    return Covariance(Qcc, Qpp, Vinv, M)
+    return Covariance(Qcc, Qpp, Vinv, M, cov.W)
 
 
 @dataclass
@@ -442,10 +520,9 @@ def selected_from_dense(cov: Covariance, layout: Layout, columns: NDArray[np.int
     pi = layout.point[points]
     Qcp = np.zeros((len(columns), len(points), 3))
     if len(points):
-        if cov.M is None or isinstance(cov.M, PointPatternM):  # cross terms off the pattern are not kept
+        QcW = cov.cross(pi, columns)  # (m, k, 3)
+        if QcW is None:
             return None
-        cols3 = 3 * pi[:, None] + np.arange(3)[None, :]
-        QcW = cov.M[columns][:, cols3]  # (m, k, 3)
         Qcp = -np.einsum("mka,kab->mkb", QcW, cov.Vinv[pi])
     return SelectedCovariance([layout.labels[j] for j in columns], columns, cov.Qcc[np.ix_(columns, columns)],
                               points, cov.Qpp[pi], Qcp, "dense inverse")
