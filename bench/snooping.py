@@ -14,6 +14,7 @@ import argparse
 import os
 import sys
 import time
+import zlib
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> None:
               f"failures {len(r.failures)}", flush=True)
         if timers is not None:
             rej = sorted((x.group, x.index) for x in r.rejected)
-            print(f"    rejected set digest {hash(tuple(rej)) & 0xFFFFFFFF:08x}, sigma0 {r.sigma0:.12f}")
+            print(f"    rejected set digest {zlib.crc32(repr(rej).encode()):08x}, sigma0 {r.sigma0:.12f}")
             print(f"    statistics {timers['_statistics']:.1f} s, of which stats.covariance {timers['covariance']:.1f} s "
                   f"({timers['n_covariance']} calls)", flush=True)
             timers.update(_statistics=0.0, covariance=0.0, n_covariance=0)

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.stats import norm
 
+from skyrig.adjust.linalg import _blas_single_thread
 from skyrig.adjust.model import Factor, Layout, Model, State
 from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
 from skyrig.errors import ConfigError, GeometryError
@@ -118,6 +119,12 @@ class PointPatternM:
         """``(n, k, 3)`` ``M[cols[i, j], 3 point[i] : 3 point[i] + 3]`` for columns of the points' own
         observations (on the pattern by construction); ``cols`` entries ``>= n_c`` give 0."""
         n_c = self.n_c
+        if _pattern_gather is not None:
+            out = np.zeros(cols.shape + (3,))
+            if _pattern_gather(self.indptr, self.rows, self.vals, np.ascontiguousarray(cols, dtype=np.int64),
+                               np.ascontiguousarray(point, dtype=np.int64), n_c, out):
+                raise AssertionError("a cross cofactor off the observations' pattern was asked for")
+            return out
         keys = point[:, None] * (n_c + 1) + np.minimum(cols, n_c)
         pos = np.clip(np.searchsorted(self._keys, keys), 0, max(len(self._keys) - 1, 0))
         found = (self._keys[pos] == keys) if len(self._keys) else np.zeros(keys.shape, bool)
@@ -131,6 +138,24 @@ def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
     there ``(nnz, 3)``; ``W``: that product when the caller has it."""
+    if _pattern_build is not None:
+        Wb = N.wb
+        if isinstance(Wb, sp.bsr_matrix) and Wb.blocksize[1] == 3 and Wb.shape[1] == 3 * n_p:
+            P = sp.csr_matrix(N.p)
+            k = Wb.blocksize[0]
+            blk_row = np.repeat(np.arange(len(Wb.indptr) - 1, dtype=np.int64), np.diff(Wb.indptr))
+            order = np.argsort(Wb.indices, kind="stable").astype(np.int64)
+            pptr = np.zeros(n_p + 1, np.int64)
+            np.cumsum(np.bincount(Wb.indices, minlength=n_p), out=pptr[1:])
+            unit_nnz = np.diff(P.indptr).reshape(-1, k).sum(axis=1) if P.shape[0] else np.zeros(0, np.int64)
+            cap = int(unit_nnz[blk_row].sum()) if len(blk_row) else 0
+            indptr = np.zeros(n_p + 1, np.int64)
+            rows = np.zeros(cap, np.int64)
+            wv = np.zeros((cap, 3))
+            _pattern_build(pptr, order, blk_row, np.ascontiguousarray(Wb.data, dtype=np.float64), k,
+                           P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data.astype(np.float64), n_c,
+                           indptr, rows, wv)
+            return indptr, rows[:indptr[-1]].copy(), wv[:indptr[-1]].copy()
     Wb = N.wb.tocoo()  # every stored block entry, zeros included
     Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
@@ -168,11 +193,17 @@ def _make_pattern_kernel():  # type: ignore[no-untyped-def]
             a, b = indptr[p], indptr[p + 1]
             for i in range(a, b):
                 ri = rows[i]
-                for c in range(3):
-                    acc = 0.0
-                    for j in range(a, b):
-                        acc += Q[ri, rows[j]] * wv[j, c]
-                    vals[i, c] = acc
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for j in range(a, b):
+                    q = Q[ri, rows[j]]
+                    a0 += q * wv[j, 0]
+                    a1 += q * wv[j, 1]
+                    a2 += q * wv[j, 2]
+                vals[i, 0] = a0
+                vals[i, 1] = a1
+                vals[i, 2] = a2
             for c in range(3):
                 for e in range(3):
                     acc = 0.0
@@ -184,6 +215,92 @@ def _make_pattern_kernel():  # type: ignore[no-untyped-def]
 
 
 _pattern_kernel = _make_pattern_kernel()
+
+
+def _make_pattern_build():  # type: ignore[no-untyped-def]
+    """numba builder of :func:`_point_pattern` from ``Wb``'s blocks and ``P``'s rows, or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def build(pptr, order, blk_row, data, k, pind, pcol, pval, n_c, indptr, rows, wv):  # type: ignore[no-untyped-def]
+        slot = np.full(n_c, -1, np.int64)
+        tmp_c = np.empty(n_c, np.int64)
+        tmp_v = np.zeros((n_c, 3))
+        out = 0
+        for p in range(len(pptr) - 1):
+            m = 0
+            for t in range(pptr[p], pptr[p + 1]):
+                blk = order[t]
+                u = blk_row[blk]
+                for a in range(k):
+                    r = u * k + a
+                    for e in range(pind[r], pind[r + 1]):
+                        c = pcol[e]
+                        if slot[c] < 0:
+                            slot[c] = m
+                            tmp_c[m] = c
+                            tmp_v[m, 0] = 0.0
+                            tmp_v[m, 1] = 0.0
+                            tmp_v[m, 2] = 0.0
+                            m += 1
+                        j = slot[c]
+                        for b in range(3):
+                            tmp_v[j, b] += pval[e] * data[blk, a, b]
+            srt = np.argsort(tmp_c[:m])
+            for i in range(m):
+                j = srt[i]
+                rows[out + i] = tmp_c[j]
+                wv[out + i, 0] = tmp_v[j, 0]
+                wv[out + i, 1] = tmp_v[j, 1]
+                wv[out + i, 2] = tmp_v[j, 2]
+                slot[tmp_c[j]] = -1
+            out += m
+            indptr[p + 1] = out
+
+    return build
+
+
+_pattern_build = _make_pattern_build()
+
+
+def _make_pattern_gather():  # type: ignore[no-untyped-def]
+    """numba lookup of :meth:`PointPatternM.gather` (a binary search in each point's sorted rows), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def gather(indptr, rows, vals, cols, point, n_c, out):  # type: ignore[no-untyped-def]
+        missing = False
+        for i in range(cols.shape[0]):
+            a0, b0 = indptr[point[i]], indptr[point[i] + 1]
+            for j in range(cols.shape[1]):
+                c = cols[i, j]
+                if c >= n_c or c < 0:
+                    continue
+                lo, hi = a0, b0
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if rows[mid] < c:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo < b0 and rows[lo] == c:
+                    out[i, j, 0] = vals[lo, 0]
+                    out[i, j, 1] = vals[lo, 1]
+                    out[i, j, 2] = vals[lo, 2]
+                else:
+                    missing = True
+        return missing
+
+    return gather
+
+
+_pattern_gather = _make_pattern_gather()
 
 
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
@@ -228,16 +345,18 @@ def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: N
 
 def _spd_inverse(A: NDArray[np.float64], what: str) -> NDArray[np.float64]:
     """Inverse of the symmetric positive definite ``A`` from its Cholesky factor (LAPACK ``potrf`` + ``potri``:
-    a third of the work of inverting the factor and multiplying, the same numbers to rounding); raises
+    a third of the work of inverting the factor and multiplying, the same numbers to rounding; BLAS on one
+    thread); raises
     :class:`SingularError` with ``what`` when ``A`` is not positive definite."""
     n = A.shape[0]
     if n == 0:
         return np.zeros((0, 0))
-    c, info = scipy.linalg.lapack.dpotrf(A, lower=1, clean=0, overwrite_a=0)
-    if info != 0:
-        raise SingularError(f"{what}: leading minor {info} not positive definite" if info > 0
-                            else f"{what}: LAPACK potrf argument {-info}")
-    X, info = scipy.linalg.lapack.dpotri(c, lower=1, overwrite_c=1)
+    with _blas_single_thread():  # OpenBLAS threads busy-wait for each other on a loaded machine
+        c, info = scipy.linalg.lapack.dpotrf(A, lower=1, clean=0, overwrite_a=0)
+        if info != 0:
+            raise SingularError(f"{what}: leading minor {info} not positive definite" if info > 0
+                                else f"{what}: LAPACK potrf argument {-info}")
+        X, info = scipy.linalg.lapack.dpotri(c, lower=1, overwrite_c=1)
     if info != 0:
         raise SingularError(f"{what}: zero pivot {info}")
     il = np.triu_indices(n, 1)
