@@ -35,7 +35,8 @@ from scipy.stats import norm
 
 from skyrig.adjust.linalg import _blas_single_thread
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
+from skyrig.adjust.solver import (Normal, SingularError, assemble, inner_constraint_basis, point_inverses, schur_matrix,
+                                  solve_reduced)
 from skyrig.errors import ConfigError, GeometryError
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
@@ -303,6 +304,33 @@ def _make_pattern_gather():  # type: ignore[no-untyped-def]
 _pattern_gather = _make_pattern_gather()
 
 
+def _make_schur_kernel():  # type: ignore[no-untyped-def]
+    """numba ``S -= W_p V_p^-1 W_p^T`` for every point on its pattern (dense ``S``, in place), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def schur(S, indptr, rows, wv, Vinv):  # type: ignore[no-untyped-def]
+        t = np.empty((S.shape[0], 3))
+        for p in range(len(indptr) - 1):
+            a, b = indptr[p], indptr[p + 1]
+            for i in range(a, b):
+                for c in range(3):
+                    t[i - a, c] = wv[i, 0] * Vinv[p, 0, c] + wv[i, 1] * Vinv[p, 1, c] + wv[i, 2] * Vinv[p, 2, c]
+            for i in range(a, b):
+                ri = rows[i]
+                t0, t1, t2 = t[i - a, 0], t[i - a, 1], t[i - a, 2]
+                for j in range(a, b):
+                    S[ri, rows[j]] -= t0 * wv[j, 0] + t1 * wv[j, 1] + t2 * wv[j, 2]
+
+    return schur
+
+
+_schur_kernel = _make_schur_kernel()
+
+
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
                       wv: NDArray[np.float64], max_elements: int = 20_000_000
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -408,8 +436,23 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
     (:class:`PointPatternM`: work ``sum_p |R_p|^2`` instead of ``n_c x 3 n_p``, which grew with the square of the
     block) and ``W`` is kept for the few cross cofactors off the pattern a caller asks for (:meth:`Covariance.cross`).
     """
-    S, _, Vinv = schur_matrix(N, 0.0)
-    Sd = S.toarray()
+    n_p, n_c = layout.n_p, layout.n_c
+    pattern = None
+    if n_p and N.Wb is not None and _schur_kernel is not None:
+        # the dense S = U - W V^-1 W^T straight from W's point pattern (which M needs anyway): the same work as
+        # the sparse product's, without building the sparse reduced matrix first
+        Vinv = point_inverses(N.V)
+        pattern = _point_pattern(N, n_c, n_p)
+        Sd = N.U.toarray()
+        _schur_kernel(Sd, *pattern, np.ascontiguousarray(Vinv))
+        ip, rows, wv = pattern
+        e_p = np.repeat(np.arange(n_p, dtype=np.int64), np.diff(ip))
+        Wfull = sp.csr_matrix((wv.reshape(-1), (np.repeat(rows, 3), (3 * e_p[:, None] + np.arange(3)).reshape(-1))),
+                              shape=(n_c, 3 * n_p))
+    else:
+        S, _, Vinv = schur_matrix(N, 0.0)
+        Sd = S.toarray()
+        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()) if n_p and N.Wb is not None else None
     if free_datum:
         Q = _pinv_inner(Sd, inner_constraint_basis(state, layout))
     else:
@@ -418,12 +461,9 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
             raise SingularError("unknowns without observations")
         sc = 1.0 / np.sqrt(d)
         Q = _spd_inverse(Sd * sc[:, None] * sc[None, :], "the normal matrix is singular") * sc[:, None] * sc[None, :]
-    n_p = layout.n_p
     Qpp = Vinv.copy()
     M = None
-    Wfull = None
-    if n_p and N.Wb is not None:
-        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr())
+    if Wfull is not None:
         if Q.shape[0] * 3 * n_p <= max_dense_products:
             M = np.asarray(Wfull.T @ Q).T  # Q_cc W  (n_c, 3 n_p)
             Wc = Wfull.tocsc()
@@ -433,7 +473,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                     WtM[:, a, b] = np.asarray(Wc[:, a::3].multiply(M[:, b::3]).sum(axis=0)).reshape(-1)
             Qpp = Vinv + Vinv @ WtM @ Vinv
         else:  # M on W's block pattern only (what the image observations' cofactors need)
-            indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p, Wfull)
+            indptr, rows, wv = pattern if pattern is not None else _point_pattern(N, Q.shape[0], n_p, Wfull)
             vals, WtM = _pattern_products(Q, indptr, rows, wv)
             Qpp = Vinv + Vinv @ WtM @ Vinv
             M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)  # type: ignore[assignment]
