@@ -331,6 +331,37 @@ def _make_schur_kernel():  # type: ignore[no-untyped-def]
 _schur_kernel = _make_schur_kernel()
 
 
+def _make_row_kernel():  # type: ignore[no-untyped-def]
+    """numba ``H[i, d] += J_c[i, d] Q_cc[cols_i, cols_i] J_c[i, d]^T`` (columns ``>= n_c``: none), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def rows(Q, cols, jc, H):  # type: ignore[no-untyped-def]
+        n_c = Q.shape[0]
+        for i in numba.prange(cols.shape[0]):
+            for d in range(jc.shape[1]):
+                acc = 0.0
+                for k in range(cols.shape[1]):
+                    ck = cols[i, k]
+                    if ck >= n_c:
+                        continue
+                    v = 0.0
+                    for m in range(cols.shape[1]):
+                        cm = cols[i, m]
+                        if cm < n_c:
+                            v += Q[ck, cm] * jc[i, d, m]
+                    acc += jc[i, d, k] * v
+                H[i, d] += acc
+
+    return rows
+
+
+_row_kernel = _make_row_kernel()
+
+
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
                       wv: NDArray[np.float64], max_elements: int = 20_000_000
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -730,7 +761,10 @@ def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
     H = np.zeros((n, d))
     Q = cov.Qcc
     n_c = Q.shape[0]
-    if f.jc is not None and f.cols is not None and f.cols.shape[1]:
+    if f.jc is not None and f.cols is not None and f.cols.shape[1] and _row_kernel is not None:
+        _row_kernel(np.ascontiguousarray(Q), np.ascontiguousarray(np.where(f.cols >= 0, f.cols, n_c), dtype=np.int64),
+                    np.ascontiguousarray(f.jc, dtype=np.float64), H)
+    elif f.jc is not None and f.cols is not None and f.cols.shape[1]:
         Qe = np.zeros((n_c + 1, n_c + 1))
         Qe[:n_c, :n_c] = Q
         c = np.where(f.cols >= 0, f.cols, n_c)
