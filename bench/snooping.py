@@ -14,6 +14,7 @@ import argparse
 import os
 import sys
 import time
+import zlib
 
 import numpy as np
 
@@ -28,7 +29,11 @@ def main(argv: list[str] | None = None) -> None:
                     help="reliability.per_round_share of every run (the round's cap: the larger of per_round and "
                     "this share of the tested observations)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--time-statistics", action="store_true",
+                    help="also print the seconds spent in the statistics pass (adjust._statistics) and in its "
+                    "stats.covariance, summed over the rounds")
     a = ap.parse_args(argv)
+    timers = _time_statistics() if a.time_statistics else None
 
     from skyrig.adjust import AdjustConfig, adjust
     from skyrig.adjust.config import ReliabilityOptions, Unknowns
@@ -67,6 +72,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"per_round {k:3d}: rounds {len(dict.fromkeys(stages)):4d}  {dt:7.1f} s  found {len(got & truth)}/"
               f"{len(truth)}  good rejected {len(got - truth)} (+{len(other)} non-image)  sigma0 {r.sigma0:.5f}  "
               f"failures {len(r.failures)}", flush=True)
+        if timers is not None:
+            rej = sorted((x.group, x.index) for x in r.rejected)
+            print(f"    rejected set digest {zlib.crc32(repr(rej).encode()):08x}, sigma0 {r.sigma0:.12f}")
+            print(f"    statistics {timers['_statistics']:.1f} s, of which stats.covariance {timers['covariance']:.1f} s "
+                  f"({timers['n_covariance']} calls)", flush=True)
+            timers.update(_statistics=0.0, covariance=0.0, n_covariance=0)
     ks = list(out)
     base = out[ks[0]]
     for k in ks[1:]:
@@ -76,6 +87,28 @@ def main(argv: list[str] | None = None) -> None:
         same = {(x.group, x.index) for x in r.rejected} == {(x.group, x.index) for x in base.rejected}
         print(f"per_round {k} vs {ks[0]}: same rejected set {same}; largest difference / sigma: centres {dc:.4f}, "
               f"points {dp:.4f}")
+
+
+def _time_statistics() -> dict[str, float]:
+    """Wrap ``skyrig.adjust.adjust._statistics`` and its ``covariance`` with timers (same names in every version)."""
+    import importlib
+
+    mod = importlib.import_module("skyrig.adjust.adjust")
+    timers = {"_statistics": 0.0, "covariance": 0.0, "n_covariance": 0}
+    for name in ("_statistics", "covariance"):
+        fn = getattr(mod, name)
+
+        def timed(*args, _fn=fn, _name=name, **kw):  # type: ignore[no-untyped-def]
+            t = time.perf_counter()
+            try:
+                return _fn(*args, **kw)
+            finally:
+                timers[_name] += time.perf_counter() - t
+                if _name == "covariance":
+                    timers["n_covariance"] += 1
+
+        setattr(mod, name, timed)
+    return timers
 
 
 if __name__ == "__main__":

@@ -134,20 +134,26 @@ def ground_height_correlation(res: Any, labels: Sequence[tuple[str, str, str]]) 
 
     With ``Q`` the reduced cofactors, ``V_p`` the inverse point blocks and ``M = Q W`` (``Covariance.M``), the
     cross cofactor of column ``c`` with point ``p`` is ``-(M_p V_p)[c, :]``; the mean height's cofactor is
-    ``(sum_p V_p[z, z] + g^T Q g) / n^2`` with ``Q g = h = sum_p M_p V_p[:, z]``.  NaN when the covariance or its dense
-    cross terms are not available (very large blocks)."""
+    ``(sum_p V_p[z, z] + g^T Q g) / n^2`` with ``Q g = h = sum_p M_p V_p[:, z]``.  NaN when the covariance or its cross
+    terms are not available."""
     out = np.full(len(labels), np.nan)
     cov, lay = getattr(res, "covariance", None), res.layout
-    if cov is None or cov.M is None or not isinstance(cov.M, np.ndarray):
+    if cov is None or cov.M is None:
         return out
     free = np.flatnonzero(lay.point >= 0)
     if len(free) == 0:
         return out
     pi = lay.point[free]
     Vz = cov.Vinv[pi][:, :, 2]  # (n, 3)  V_p[:, z]
-    cols3 = 3 * pi[:, None] + np.arange(3)[None, :]  # (n, 3)
-    Mp = cov.M[:, cols3]  # (n_c, n, 3)
-    h = np.einsum("cna,na->c", Mp, Vz)  # Q g
+    if isinstance(cov.M, np.ndarray):
+        cols3 = 3 * pi[:, None] + np.arange(3)[None, :]  # (n, 3)
+        h = np.einsum("cna,na->c", cov.M[:, cols3], Vz)  # Q g
+    elif getattr(cov, "W", None) is not None:  # M on the pattern only: h = Q (W z), z the points' V_p[:, z]
+        z = np.zeros(cov.W.shape[1])
+        z[(3 * pi[:, None] + np.arange(3)[None, :]).reshape(-1)] = Vz.reshape(-1)
+        h = cov.Qcc @ np.asarray(cov.W @ z).reshape(-1)
+    else:
+        return out
     try:
         g = np.linalg.solve(cov.Qcc, h)
     except np.linalg.LinAlgError:

@@ -368,6 +368,21 @@ def solve_reduced(S: sp.spmatrix, rhs: NDArray[np.float64], G: NDArray[np.float6
     return x * (s if x.ndim == 1 else s[:, None])
 
 
+def point_inverses(V: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n_p, 3, 3)`` inverses of the point blocks; :class:`SingularError` (``.points``: the free-point indices)
+    when a point is not determined by its observations."""
+    if not len(V):
+        return np.zeros((0, 3, 3))
+    try:
+        return np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        ev = np.linalg.eigvalsh(V)
+        bad = np.flatnonzero(~(ev[:, 0] > 1e-12 * np.abs(ev[:, -1]).clip(1e-300)))
+        err = SingularError(f"{bad.size} object point(s) not determined by their observations")
+        err.points = bad  # free-point indices
+        raise err from None
+
+
 def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):
     """``S``, its right-hand side and the damped inverse point blocks for damping ``lam``."""
     n_p = N.V.shape[0]
@@ -378,17 +393,7 @@ def schur_matrix(N: Normal, lam: float = 0.0, diag_min: float = 1e-6):
         U = U + sp.diags(lam * du)
         dv = np.clip(np.diagonal(V, axis1=1, axis2=2), diag_min, None)
         V = V + lam * dv[:, :, None] * np.eye(3)[None]
-    if n_p:
-        try:
-            Vinv = np.linalg.inv(V)
-        except np.linalg.LinAlgError:
-            ev = np.linalg.eigvalsh(V)
-            bad = np.flatnonzero(~(ev[:, 0] > 1e-12 * np.abs(ev[:, -1]).clip(1e-300)))
-            err = SingularError(f"{bad.size} object point(s) not determined by their observations")
-            err.points = bad  # free-point indices
-            raise err from None
-    else:
-        Vinv = np.zeros((0, 3, 3))
+    Vinv = point_inverses(V)
     S = U
     rhs = -N.gc.copy()
     if N.Wb is not None and n_p:

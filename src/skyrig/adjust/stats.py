@@ -27,12 +27,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
+import scipy.linalg.lapack
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.stats import norm
 
+from skyrig.adjust.linalg import _blas_single_thread
 from skyrig.adjust.model import Factor, Layout, Model, State
-from skyrig.adjust.solver import Normal, SingularError, assemble, inner_constraint_basis, schur_matrix, solve_reduced
+from skyrig.adjust.solver import (Normal, SingularError, assemble, inner_constraint_basis, point_inverses, schur_matrix,
+                                  solve_reduced)
 from skyrig.errors import ConfigError, GeometryError
 
 __all__ = ["Covariance", "covariance", "row_cofactors", "critical_value", "describe_null_space",
@@ -71,12 +75,29 @@ class Covariance:
         residuals need), or None.
     Vinv
         ``(n_p, 3, 3)`` inverse point blocks of the normal matrix.
+    W
+        ``(n_c, 3 n_p)`` sparse ``W = P^T Wb`` (reduced x point block of the normal matrix), or None: any
+        cross cofactor ``Q_cp = -Q_cc W_p V_p^-1`` off ``M``'s pattern is ``Q_cc`` times a few of its columns.
     """
 
     Qcc: NDArray[np.float64]
     Qpp: NDArray[np.float64]
     Vinv: NDArray[np.float64]
     M: NDArray[np.float64] | None = None
+    W: sp.csr_matrix | None = None
+
+    def cross(self, points: NDArray[np.int64], rows: NDArray[np.int64] | None = None) -> NDArray[np.float64] | None:
+        """``(m, k, 3)`` ``(Q_cc W)[rows, points' columns]`` (all reduced rows when ``rows`` is None) for free-point
+        indices ``points``: sliced from a dense ``M``, else ``Q_cc[rows] W[:, cols]`` (None without ``W``)."""
+        cols3 = (3 * np.asarray(points, np.int64)[:, None] + np.arange(3)[None, :]).reshape(-1)
+        r = slice(None) if rows is None else np.asarray(rows, np.int64)
+        if isinstance(self.M, np.ndarray):
+            out = self.M[r][:, cols3]
+        elif self.W is not None:
+            out = np.asarray(self.W[:, cols3].T @ self.Qcc[r].T).T
+        else:
+            return None
+        return out.reshape(out.shape[0], len(points), 3)
 
 
 class PointPatternM:
@@ -99,6 +120,12 @@ class PointPatternM:
         """``(n, k, 3)`` ``M[cols[i, j], 3 point[i] : 3 point[i] + 3]`` for columns of the points' own
         observations (on the pattern by construction); ``cols`` entries ``>= n_c`` give 0."""
         n_c = self.n_c
+        if _pattern_gather is not None:
+            out = np.zeros(cols.shape + (3,))
+            if _pattern_gather(self.indptr, self.rows, self.vals, np.ascontiguousarray(cols, dtype=np.int64),
+                               np.ascontiguousarray(point, dtype=np.int64), n_c, out):
+                raise AssertionError("a cross cofactor off the observations' pattern was asked for")
+            return out
         keys = point[:, None] * (n_c + 1) + np.minimum(cols, n_c)
         pos = np.clip(np.searchsorted(self._keys, keys), 0, max(len(self._keys) - 1, 0))
         found = (self._keys[pos] == keys) if len(self._keys) else np.zeros(keys.shape, bool)
@@ -107,26 +134,232 @@ class PointPatternM:
         return np.where(found[:, :, None], self.vals[pos], 0.0)
 
 
-def _point_pattern(N: Normal, n_c: int, n_p: int
+def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
-    there ``(nnz, 3)``."""
+    there ``(nnz, 3)``; ``W``: that product when the caller has it."""
+    if _pattern_build is not None:
+        Wb = N.wb
+        if isinstance(Wb, sp.bsr_matrix) and Wb.blocksize[1] == 3 and Wb.shape[1] == 3 * n_p:
+            P = sp.csr_matrix(N.p)
+            k = Wb.blocksize[0]
+            blk_row = np.repeat(np.arange(len(Wb.indptr) - 1, dtype=np.int64), np.diff(Wb.indptr))
+            order = np.argsort(Wb.indices, kind="stable").astype(np.int64)
+            pptr = np.zeros(n_p + 1, np.int64)
+            np.cumsum(np.bincount(Wb.indices, minlength=n_p), out=pptr[1:])
+            unit_nnz = np.diff(P.indptr).reshape(-1, k).sum(axis=1) if P.shape[0] else np.zeros(0, np.int64)
+            cap = int(unit_nnz[blk_row].sum()) if len(blk_row) else 0
+            indptr = np.zeros(n_p + 1, np.int64)
+            rows = np.zeros(cap, np.int64)
+            wv = np.zeros((cap, 3))
+            _pattern_build(pptr, order, blk_row, np.ascontiguousarray(Wb.data, dtype=np.float64), k,
+                           P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data.astype(np.float64), n_c,
+                           indptr, rows, wv)
+            return indptr, rows[:indptr[-1]].copy(), wv[:indptr[-1]].copy()
     Wb = N.wb.tocoo()  # every stored block entry, zeros included
     Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
-    S = (Pc.T @ ones).tocoo()  # positive entries: no cancellation
-    key_s = np.unique((S.col // 3).astype(np.int64) * (n_c + 1) + S.row)
-    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()).tocoo()
+    S = sp.csc_matrix(Pc.T @ ones)  # positive entries: no cancellation
+    S.sort_indices()
+    # a point's three columns share their structure (full k x 3 blocks): its pattern is the column 3 p
+    cnt = np.diff(S.indptr)[0::3].astype(np.int64)
+    first = np.repeat(S.indptr[:-1][0::3].astype(np.int64), cnt)
+    within = np.arange(int(cnt.sum()), dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    key_s = np.repeat(np.arange(n_p, dtype=np.int64), cnt) * (n_c + 1) + S.indices[first + within]
+    Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr() if W is None else W)
+    Wfull.sum_duplicates()  # canonical: one entry per (row, column)
+    Wfull = Wfull.tocoo()
     key_w = (Wfull.col // 3).astype(np.int64) * (n_c + 1) + Wfull.row
     wv = np.zeros((len(key_s), 3))
     pos = np.searchsorted(key_s, key_w)
     if len(key_w) and not np.all(key_s[np.minimum(pos, len(key_s) - 1)] == key_w):
         raise AssertionError("W has entries outside its structural pattern")
-    np.add.at(wv, (pos, Wfull.col % 3), Wfull.data)
+    wv[pos, Wfull.col % 3] = Wfull.data
     indptr = np.zeros(n_p + 1, np.int64)
     np.cumsum(np.bincount(key_s // (n_c + 1), minlength=n_p), out=indptr[1:])
     return indptr, (key_s % (n_c + 1)).astype(np.int64), wv
+
+
+def _make_pattern_kernel():  # type: ignore[no-untyped-def]
+    """numba kernel of :func:`_pattern_products` (one point at a time, parallel over points), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def kernel(Q, indptr, rows, wv, vals, WtM):  # type: ignore[no-untyped-def]
+        for p in numba.prange(len(indptr) - 1):
+            a, b = indptr[p], indptr[p + 1]
+            for i in range(a, b):
+                ri = rows[i]
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for j in range(a, b):
+                    q = Q[ri, rows[j]]
+                    a0 += q * wv[j, 0]
+                    a1 += q * wv[j, 1]
+                    a2 += q * wv[j, 2]
+                vals[i, 0] = a0
+                vals[i, 1] = a1
+                vals[i, 2] = a2
+            for c in range(3):
+                for e in range(3):
+                    acc = 0.0
+                    for i in range(a, b):
+                        acc += wv[i, c] * vals[i, e]
+                    WtM[p, c, e] = acc
+
+    return kernel
+
+
+_pattern_kernel = _make_pattern_kernel()
+
+
+def _make_pattern_build():  # type: ignore[no-untyped-def]
+    """numba builder of :func:`_point_pattern` from ``Wb``'s blocks and ``P``'s rows, or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def build(pptr, order, blk_row, data, k, pind, pcol, pval, n_c, indptr, rows, wv):  # type: ignore[no-untyped-def]
+        slot = np.full(n_c, -1, np.int64)
+        tmp_c = np.empty(n_c, np.int64)
+        tmp_v = np.zeros((n_c, 3))
+        out = 0
+        for p in range(len(pptr) - 1):
+            m = 0
+            for t in range(pptr[p], pptr[p + 1]):
+                blk = order[t]
+                u = blk_row[blk]
+                for a in range(k):
+                    r = u * k + a
+                    for e in range(pind[r], pind[r + 1]):
+                        c = pcol[e]
+                        if slot[c] < 0:
+                            slot[c] = m
+                            tmp_c[m] = c
+                            tmp_v[m, 0] = 0.0
+                            tmp_v[m, 1] = 0.0
+                            tmp_v[m, 2] = 0.0
+                            m += 1
+                        j = slot[c]
+                        for b in range(3):
+                            tmp_v[j, b] += pval[e] * data[blk, a, b]
+            srt = np.argsort(tmp_c[:m])
+            for i in range(m):
+                j = srt[i]
+                rows[out + i] = tmp_c[j]
+                wv[out + i, 0] = tmp_v[j, 0]
+                wv[out + i, 1] = tmp_v[j, 1]
+                wv[out + i, 2] = tmp_v[j, 2]
+                slot[tmp_c[j]] = -1
+            out += m
+            indptr[p + 1] = out
+
+    return build
+
+
+_pattern_build = _make_pattern_build()
+
+
+def _make_pattern_gather():  # type: ignore[no-untyped-def]
+    """numba lookup of :meth:`PointPatternM.gather` (a binary search in each point's sorted rows), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def gather(indptr, rows, vals, cols, point, n_c, out):  # type: ignore[no-untyped-def]
+        missing = False
+        for i in range(cols.shape[0]):
+            a0, b0 = indptr[point[i]], indptr[point[i] + 1]
+            for j in range(cols.shape[1]):
+                c = cols[i, j]
+                if c >= n_c or c < 0:
+                    continue
+                lo, hi = a0, b0
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if rows[mid] < c:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo < b0 and rows[lo] == c:
+                    out[i, j, 0] = vals[lo, 0]
+                    out[i, j, 1] = vals[lo, 1]
+                    out[i, j, 2] = vals[lo, 2]
+                else:
+                    missing = True
+        return missing
+
+    return gather
+
+
+_pattern_gather = _make_pattern_gather()
+
+
+def _make_schur_kernel():  # type: ignore[no-untyped-def]
+    """numba ``S -= W_p V_p^-1 W_p^T`` for every point on its pattern (dense ``S``, in place), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def schur(S, indptr, rows, wv, Vinv):  # type: ignore[no-untyped-def]
+        t = np.empty((S.shape[0], 3))
+        for p in range(len(indptr) - 1):
+            a, b = indptr[p], indptr[p + 1]
+            for i in range(a, b):
+                for c in range(3):
+                    t[i - a, c] = wv[i, 0] * Vinv[p, 0, c] + wv[i, 1] * Vinv[p, 1, c] + wv[i, 2] * Vinv[p, 2, c]
+            for i in range(a, b):
+                ri = rows[i]
+                t0, t1, t2 = t[i - a, 0], t[i - a, 1], t[i - a, 2]
+                for j in range(a, b):
+                    S[ri, rows[j]] -= t0 * wv[j, 0] + t1 * wv[j, 1] + t2 * wv[j, 2]
+
+    return schur
+
+
+_schur_kernel = _make_schur_kernel()
+
+
+def _make_row_kernel():  # type: ignore[no-untyped-def]
+    """numba ``H[i, d] += J_c[i, d] Q_cc[cols_i, cols_i] J_c[i, d]^T`` (columns ``>= n_c``: none), or None."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def rows(Q, cols, jc, H):  # type: ignore[no-untyped-def]
+        n_c = Q.shape[0]
+        for i in numba.prange(cols.shape[0]):
+            for d in range(jc.shape[1]):
+                acc = 0.0
+                for k in range(cols.shape[1]):
+                    ck = cols[i, k]
+                    if ck >= n_c:
+                        continue
+                    v = 0.0
+                    for m in range(cols.shape[1]):
+                        cm = cols[i, m]
+                        if cm < n_c:
+                            v += Q[ck, cm] * jc[i, d, m]
+                    acc += jc[i, d, k] * v
+                H[i, d] += acc
+
+    return rows
+
+
+_row_kernel = _make_row_kernel()
 
 
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
@@ -136,6 +369,12 @@ def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: N
     chunks of points of similar pattern size (padded gathers of at most ``max_elements`` doubles)."""
     n_c = Q.shape[0]
     n_p = len(indptr) - 1
+    if _pattern_kernel is not None:
+        vals = np.zeros_like(wv)
+        WtM = np.zeros((n_p, 3, 3))
+        _pattern_kernel(np.ascontiguousarray(Q), indptr.astype(np.int64), rows.astype(np.int64),
+                        np.ascontiguousarray(wv), vals, WtM)
+        return vals, WtM
     Qe = np.zeros((n_c + 1, n_c + 1))
     Qe[:n_c, :n_c] = Q
     m = np.diff(indptr)
@@ -161,6 +400,27 @@ def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: N
         WtM[ps] = np.swapaxes(Wp, 1, 2) @ Mp
         s0 = s1
     return vals, WtM
+
+
+def _spd_inverse(A: NDArray[np.float64], what: str) -> NDArray[np.float64]:
+    """Inverse of the symmetric positive definite ``A`` from its Cholesky factor (LAPACK ``potrf`` + ``potri``:
+    a third of the work of inverting the factor and multiplying, the same numbers to rounding; BLAS on one
+    thread); raises
+    :class:`SingularError` with ``what`` when ``A`` is not positive definite."""
+    n = A.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    with _blas_single_thread():  # OpenBLAS threads busy-wait for each other on a loaded machine
+        c, info = scipy.linalg.lapack.dpotrf(A, lower=1, clean=0, overwrite_a=0)
+        if info != 0:
+            raise SingularError(f"{what}: leading minor {info} not positive definite" if info > 0
+                                else f"{what}: LAPACK potrf argument {-info}")
+        X, info = scipy.linalg.lapack.dpotri(c, lower=1, overwrite_c=1)
+    if info != 0:
+        raise SingularError(f"{what}: zero pivot {info}")
+    il = np.triu_indices(n, 1)
+    X[il] = X.T[il]  # potri fills the lower triangle
+    return X
 
 
 def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -190,12 +450,7 @@ def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.fl
     else:
         H, _ = np.linalg.qr(G / sc[:, None])
     A = S * sc[:, None] * sc[None, :] + H @ H.T
-    try:
-        L = np.linalg.cholesky(A)
-    except np.linalg.LinAlgError as e:
-        raise SingularError(f"the normal matrix is singular beyond the datum defect: {e}") from e
-    Li = np.linalg.inv(L)
-    X = (Li.T @ Li) * sc[:, None] * sc[None, :]
+    X = _spd_inverse(A, "the normal matrix is singular beyond the datum defect") * sc[:, None] * sc[None, :]
     if G.shape[1] == 0:
         return X
     q, _ = np.linalg.qr(G)
@@ -205,10 +460,30 @@ def _pinv_inner(S: NDArray[np.float64], G: NDArray[np.float64]) -> NDArray[np.fl
 
 
 def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False,
-               max_dense_products: int = 60_000_000) -> Covariance:
-    """Cofactor matrices at the solution (see module docstring).  Raises :class:`SingularError`."""
-    S, _, Vinv = schur_matrix(N, 0.0)
-    Sd = S.toarray()
+               max_dense_products: int = 2_000_000) -> Covariance:
+    """Cofactor matrices at the solution (see module docstring).  Raises :class:`SingularError`.
+
+    ``M = Q_cc W`` is dense only up to ``max_dense_products`` entries; above, it is kept on ``W``'s block pattern
+    (:class:`PointPatternM`: work ``sum_p |R_p|^2`` instead of ``n_c x 3 n_p``, which grew with the square of the
+    block) and ``W`` is kept for the few cross cofactors off the pattern a caller asks for (:meth:`Covariance.cross`).
+    """
+    n_p, n_c = layout.n_p, layout.n_c
+    pattern = None
+    if n_p and N.Wb is not None and _schur_kernel is not None:
+        # the dense S = U - W V^-1 W^T straight from W's point pattern (which M needs anyway): the same work as
+        # the sparse product's, without building the sparse reduced matrix first
+        Vinv = point_inverses(N.V)
+        pattern = _point_pattern(N, n_c, n_p)
+        Sd = N.U.toarray()
+        _schur_kernel(Sd, *pattern, np.ascontiguousarray(Vinv))
+        ip, rows, wv = pattern
+        e_p = np.repeat(np.arange(n_p, dtype=np.int64), np.diff(ip))
+        Wfull = sp.csr_matrix((wv.reshape(-1), (np.repeat(rows, 3), (3 * e_p[:, None] + np.arange(3)).reshape(-1))),
+                              shape=(n_c, 3 * n_p))
+    else:
+        S, _, Vinv = schur_matrix(N, 0.0)
+        Sd = S.toarray()
+        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr()) if n_p and N.Wb is not None else None
     if free_datum:
         Q = _pinv_inner(Sd, inner_constraint_basis(state, layout))
     else:
@@ -216,17 +491,10 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
         if np.any(d <= 0):
             raise SingularError("unknowns without observations")
         sc = 1.0 / np.sqrt(d)
-        try:
-            L = np.linalg.cholesky(Sd * sc[:, None] * sc[None, :])
-        except np.linalg.LinAlgError as e:
-            raise SingularError(f"the normal matrix is singular: {e}") from e
-        Li = np.linalg.inv(L)
-        Q = (Li.T @ Li) * sc[:, None] * sc[None, :]
-    n_p = layout.n_p
+        Q = _spd_inverse(Sd * sc[:, None] * sc[None, :], "the normal matrix is singular") * sc[:, None] * sc[None, :]
     Qpp = Vinv.copy()
     M = None
-    if n_p and N.Wb is not None:
-        Wfull = sp.csr_matrix(N.p.T @ N.wb.tocsr())
+    if Wfull is not None:
         if Q.shape[0] * 3 * n_p <= max_dense_products:
             M = np.asarray(Wfull.T @ Q).T  # Q_cc W  (n_c, 3 n_p)
             Wc = Wfull.tocsc()
@@ -236,11 +504,11 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
                     WtM[:, a, b] = np.asarray(Wc[:, a::3].multiply(M[:, b::3]).sum(axis=0)).reshape(-1)
             Qpp = Vinv + Vinv @ WtM @ Vinv
         else:  # M on W's block pattern only (what the image observations' cofactors need)
-            indptr, rows, wv = _point_pattern(N, Q.shape[0], n_p)
+            indptr, rows, wv = pattern if pattern is not None else _point_pattern(N, Q.shape[0], n_p, Wfull)
             vals, WtM = _pattern_products(Q, indptr, rows, wv)
             Qpp = Vinv + Vinv @ WtM @ Vinv
             M = PointPatternM(Q.shape[0], indptr, rows, wv, vals)  # type: ignore[assignment]
-    return Covariance(Q, Qpp, Vinv, M)
+    return Covariance(Q, Qpp, Vinv, M, Wfull)
 
 
 def similarity_basis(state: State, layout: Layout, scale: bool
@@ -366,7 +634,7 @@ def point_datum_covariance(cov: Covariance, N: Normal, layout: Layout, state: St
             D = (np.einsum("cd,pda->cpa", Gc, TQp) + np.einsum("dc,pad->cpa", TQc, Gp)
                  - np.einsum("cd,pad->cpa", GcZ, Gp))
             M = M + np.einsum("cpa,pab->cpb", D, N.V).reshape(n_c, 3 * n_p)
-    return Covariance(Qcc, Qpp, Vinv, M)
+    return Covariance(Qcc, Qpp, Vinv, M, cov.W)
 
 
 @dataclass
@@ -442,10 +710,9 @@ def selected_from_dense(cov: Covariance, layout: Layout, columns: NDArray[np.int
     pi = layout.point[points]
     Qcp = np.zeros((len(columns), len(points), 3))
     if len(points):
-        if cov.M is None or isinstance(cov.M, PointPatternM):  # cross terms off the pattern are not kept
+        QcW = cov.cross(pi, columns)  # (m, k, 3)
+        if QcW is None:
             return None
-        cols3 = 3 * pi[:, None] + np.arange(3)[None, :]
-        QcW = cov.M[columns][:, cols3]  # (m, k, 3)
         Qcp = -np.einsum("mka,kab->mkb", QcW, cov.Vinv[pi])
     return SelectedCovariance([layout.labels[j] for j in columns], columns, cov.Qcc[np.ix_(columns, columns)],
                               points, cov.Qpp[pi], Qcp, "dense inverse")
@@ -494,7 +761,10 @@ def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
     H = np.zeros((n, d))
     Q = cov.Qcc
     n_c = Q.shape[0]
-    if f.jc is not None and f.cols is not None and f.cols.shape[1]:
+    if f.jc is not None and f.cols is not None and f.cols.shape[1] and _row_kernel is not None:
+        _row_kernel(np.ascontiguousarray(Q), np.ascontiguousarray(np.where(f.cols >= 0, f.cols, n_c), dtype=np.int64),
+                    np.ascontiguousarray(f.jc, dtype=np.float64), H)
+    elif f.jc is not None and f.cols is not None and f.cols.shape[1]:
         Qe = np.zeros((n_c + 1, n_c + 1))
         Qe[:n_c, :n_c] = Q
         c = np.where(f.cols >= 0, f.cols, n_c)
