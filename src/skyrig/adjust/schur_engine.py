@@ -83,13 +83,24 @@ def set_normals(jc: NDArray[np.float64], r: NDArray[np.float64], sw: NDArray[np.
                 set_of_row: NDArray[np.int64], n_sets: int, chunk_entries: int = SET_CHUNK_ENTRIES
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(J^T J (G, kf, kf), J^T r (G, kf))`` of the rows ``jc (n, d, kf)``, ``r (n, d)`` scaled by ``sw (n,)``,
-    summed per column set (:func:`column_sets`).  The rows are taken in set order (stable: each set's rows in their
-    own order), ``chunk_entries / kf^2`` at a time: the memory is the sets' blocks and one chunk."""
+    summed per column set (:func:`column_sets`).  Sets of many rows (a laser plane's): one product of the set's
+    stacked rows each, no per-row ``kf x kf`` product; else the rows in set order (stable: each set's rows in their
+    own order), ``chunk_entries / kf^2`` at a time.  The memory is the sets' blocks and one set or chunk."""
     n, d, kf = jc.shape
     kk = kf * kf
+    order = np.argsort(set_of_row, kind="stable")
+    if n >= 4 * n_sets:
+        JtJ3 = np.zeros((n_sets, kf, kf))
+        g = np.zeros((n_sets, kf))
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(set_of_row, minlength=n_sets))])
+        for s_ in np.flatnonzero(np.diff(ptr)):
+            o = order[ptr[s_]:ptr[s_ + 1]]
+            A = (jc[o] * sw[o, None, None]).reshape(-1, kf)
+            JtJ3[s_] = A.T @ A
+            g[s_] = A.T @ (r[o] * sw[o, None]).reshape(-1)
+        return JtJ3, g
     JtJ = np.zeros((n_sets, kk))
     g = np.zeros((n_sets, kf))
-    order = np.argsort(set_of_row, kind="stable")
     step = max(1, chunk_entries // max(1, kk, d * kf))
     for s0 in range(0, n, step):
         o = order[s0:s0 + step]
