@@ -61,6 +61,60 @@ def _predicted_decrease(lam: float, diag_u: NDArray[np.float64], V: NDArray[np.f
     return float(0.5 * (lam * (du * dc * dc).sum() + lam * (dv * dpf * dpf).sum()
                         - (gc * dc).sum() - (gp.reshape(-1) * dpf).sum()))
 
+
+#: entries of the per-row products ``J^T J`` formed at once by :func:`set_normals` (32 MB of float64)
+SET_CHUNK_ENTRIES = 4_000_000
+
+
+def column_sets(cols: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The distinct column sets of a factor's rows: ``(set_cols (G, kf), set_of_row (n,))``.
+
+    Rows that share their columns (the square-root rows of one laser plane, :mod:`skyrig.adjust.factors.lidar`)
+    share one ``kf x kf`` block of the normal equations: kept per set, not per row, the normals' memory is that of
+    the sets (planes), whatever the rows (points)."""
+    cols = np.asarray(cols, np.int64)
+    if len(cols) == 0:
+        return np.zeros((0, cols.shape[1]), np.int64), np.zeros(0, np.int64)
+    sc, inv = np.unique(cols, axis=0, return_inverse=True)
+    return np.ascontiguousarray(sc, np.int64), np.asarray(inv, np.int64).reshape(-1)
+
+
+def set_normals(jc: NDArray[np.float64], r: NDArray[np.float64], sw: NDArray[np.float64],
+                set_of_row: NDArray[np.int64], n_sets: int, chunk_entries: int = SET_CHUNK_ENTRIES
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(J^T J (G, kf, kf), J^T r (G, kf))`` of the rows ``jc (n, d, kf)``, ``r (n, d)`` scaled by ``sw (n,)``,
+    summed per column set (:func:`column_sets`).  Sets of many rows (a laser plane's): one product of the set's
+    stacked rows each, no per-row ``kf x kf`` product; else the rows in set order (stable: each set's rows in their
+    own order), ``chunk_entries / kf^2`` at a time.  The memory is the sets' blocks and one set or chunk."""
+    n, d, kf = jc.shape
+    kk = kf * kf
+    order = np.argsort(set_of_row, kind="stable")
+    if n >= 4 * n_sets:
+        JtJ3 = np.zeros((n_sets, kf, kf))
+        g = np.zeros((n_sets, kf))
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(set_of_row, minlength=n_sets))])
+        for s_ in np.flatnonzero(np.diff(ptr)):
+            o = order[ptr[s_]:ptr[s_ + 1]]
+            A = (jc[o] * sw[o, None, None]).reshape(-1, kf)
+            JtJ3[s_] = A.T @ A
+            g[s_] = A.T @ (r[o] * sw[o, None]).reshape(-1)
+        return JtJ3, g
+    JtJ = np.zeros((n_sets, kk))
+    g = np.zeros((n_sets, kf))
+    step = max(1, chunk_entries // max(1, kk, d * kf))
+    for s0 in range(0, n, step):
+        o = order[s0:s0 + step]
+        s = set_of_row[o]
+        lo, hi = int(s[0]), int(s[-1]) + 1
+        loc = s - lo
+        j = jc[o] * sw[o, None, None]
+        rw = r[o] * sw[o, None]
+        JtJ[lo:hi] += np.bincount((loc[:, None] * kk + np.arange(kk)).reshape(-1),
+                                  np.einsum("nda,ndb->nab", j, j).reshape(-1), (hi - lo) * kk).reshape(hi - lo, kk)
+        g[lo:hi] += np.bincount((loc[:, None] * kf + np.arange(kf)).reshape(-1),
+                                np.einsum("ndk,nd->nk", j, rw).reshape(-1), (hi - lo) * kf).reshape(hi - lo, kf)
+    return JtJ.reshape(n_sets, kf, kf), g
+
 # ============================================================================ compiled Schur engine
 # The levenberg_marquardt loop builds the reduced camera system directly from per-observation blocks:
 # rows of the "image" factor are grouped into *units* (the distinct sets of reduced columns: a station
@@ -368,10 +422,11 @@ class SchurEngine:
             self.diag_slot, ua, ub = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
         # ---- global pattern of S: unit blocks (and mirrors), other factors, the diagonal (built row by
         # row, no per-entry keys or maps: skyrig.adjust.linalg.schur_pattern)
-        oth_cols = [(i, f.cols) for i, f in enumerate(factors)
+        # (the other factors by their distinct column sets: one block per set, not per row)
+        oth_cols = [(i, *column_sets(f.cols)) for i, f in enumerate(factors)
                     if i != self._img_index and f.jc is not None and f.cols is not None and f.cols.shape[1] > 0]
         self.indptr, self.indices = _linalg.schur_pattern(n_c, ucols if has_jc else np.zeros((0, 0), np.int64),
-                                                          self.row_ptr, self.col_idx, [c for _, c in oth_cols])
+                                                          self.row_ptr, self.col_idx, [c for _, c, _ in oth_cols])
         self.nnz = len(self.indices)
 
         def pos(r_: NDArray[np.int64], c_: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -380,11 +435,12 @@ class SchurEngine:
             _K["csr_positions"](self.indptr, self.indices, np.ascontiguousarray(r_), np.ascontiguousarray(c_), out)
             return out
 
-        self.others: list[tuple[int, NDArray[np.int64]]] = []
-        for i, c in oth_cols:
+        #: per other factor: its column sets, the set of each row, the positions of each set's block in the pattern
+        self.others: list[tuple[int, tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]]] = []
+        for i, c, srow in oth_cols:
             kf = c.shape[1]
-            self.others.append((i, pos(np.broadcast_to(c[:, :, None], (len(c), kf, kf)).reshape(-1),
-                                       np.broadcast_to(c[:, None, :], (len(c), kf, kf)).reshape(-1))))
+            self.others.append((i, (c, srow, pos(np.broadcast_to(c[:, :, None], (len(c), kf, kf)).reshape(-1),
+                                                 np.broadcast_to(c[:, None, :], (len(c), kf, kf)).reshape(-1)))))
         diag = np.arange(n_c, dtype=np.int64)
         self.diagpos = pos(diag, diag)
         self.rows = np.repeat(np.arange(n_c, dtype=np.int64), np.diff(self.indptr))
@@ -439,16 +495,14 @@ class SchurEngine:
                 continue
             if f.jc is None or f.cols is None:  # (a row touching no reduced column: nothing to add)
                 continue
-            jc = f.jc * sw[:, None, None]
-            r = r * sw[:, None]
-            cols = f.cols
-            valid = cols >= 0
-            g = np.einsum("ndk,nd->nk", jc, r)
-            gc += np.bincount(cols[valid], weights=g[valid], minlength=n_c)
-            jtj = np.einsum("nda,ndb->nab", jc, jc).reshape(-1)
-            m = oth[i]
+            sc, srow, m = oth[i]
+            if len(srow) != len(f):
+                raise RuntimeError(f"factor {f.name!r} has {len(f)} rows, the engine was built for {len(srow)}")
+            jtj, g = set_normals(f.jc, r, sw, srow, len(sc))
+            valid = sc >= 0
+            gc += np.bincount(sc[valid], weights=g[valid], minlength=n_c)
             v = m >= 0
-            U0 += np.bincount(m[v], weights=jtj[v], minlength=self.nnz)
+            U0 += np.bincount(m[v], weights=jtj.reshape(-1)[v], minlength=self.nnz)
         self.cost, self.U0, self.gc, self.V, self.gp = cost, U0, gc, V, gp
         self.diagU = U0[self.diagpos]
         return cost

@@ -65,7 +65,7 @@ except ImportError:  # pragma: no cover - depends on the environment
 from skyrig.adjust import linalg as _linalg
 from skyrig.adjust.linalg import _blas_single_thread
 from skyrig.adjust.schur_engine import (  # noqa: F401 - the compiled engine, re-exported
-    _K, HAVE_NUMBA, SchurEngine, _numba, _predicted_decrease, _robust, _units)
+    _K, HAVE_NUMBA, SchurEngine, _numba, _predicted_decrease, _robust, _units, column_sets, set_normals)
 
 #: the reduced solver of :func:`solve_reduced` when called with ``method="auto"`` (the statistics):
 #: ``"auto"`` (dense up to 400 unknowns, CHOLMOD through cvxopt above, SuperLU without cvxopt) or a
@@ -146,27 +146,24 @@ def assemble(factors: list[Factor], layout: Layout, image_group: NDArray[np.int6
                 gp[:, a] += np.bincount(pt, weights=jtr[:, a], minlength=n_p)
         if f.jc is None or f.cols is None or f.cols.shape[1] == 0:
             continue
-        jc = f.jc * sw[:, None, None]
-        k = jc.shape[2]
         if f.jp is not None and f.name == "image" and image_group is not None:
-            Wb, P, U_img, g_img = _image_blocks(f, jc, r, sw, layout, image_group, chunk)
+            Wb, P, U_img, g_img = _image_blocks(f, f.jc * sw[:, None, None], r, sw, layout, image_group, chunk)
             gc += g_img
             rows.append(U_img.row)
             colsl.append(U_img.col)
             vals.append(U_img.data)
             continue
-        cols = f.cols
+        # one block per distinct column set (a laser plane's rows share theirs), rows a chunk at a time
+        cols, srow = column_sets(f.cols)
+        jtj, g = set_normals(f.jc, f.r, sw, srow, len(cols))
         valid = cols >= 0
-        g = np.einsum("ndk,nd->nk", jc, r)
         gc += np.bincount(cols[valid], weights=g[valid], minlength=n_c)
-        jtj = np.einsum("nda,ndb->nab", jc, jc)
         ii = np.broadcast_to(cols[:, :, None], jtj.shape)
         jj = np.broadcast_to(cols[:, None, :], jtj.shape)
         m = (ii >= 0) & (jj >= 0)
         rows.append(ii[m])
         colsl.append(jj[m])
         vals.append(jtj[m])
-        del k
     if rows:
         U = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(colsl))),
                           shape=(n_c, n_c)).tocsr()

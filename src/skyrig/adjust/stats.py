@@ -768,7 +768,7 @@ def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
         Qe = np.zeros((n_c + 1, n_c + 1))
         Qe[:n_c, :n_c] = Q
         c = np.where(f.cols >= 0, f.cols, n_c)
-        step = max(1, min(100_000, 20_000_000 // max(1, c.shape[1] ** 2)))  # rows per chunk: bounded memory
+        step = max(1, min(100_000, 2_000_000 // max(1, c.shape[1] ** 2)))  # rows per chunk: bounded memory
         for s0 in range(0, n, step):
             sl = slice(s0, s0 + step)
             Qs = Qe[c[sl][:, :, None], c[sl][:, None, :]]

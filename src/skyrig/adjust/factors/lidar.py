@@ -64,7 +64,11 @@ the same normal equations and the same sum of squares as the plane's points with
 complement in square-root form, the plane refitted at every evaluation: variable projection).  The factor has
 ``sum_planes (k_p + 1)`` rows whatever the number of points; ``Factor.n_extra`` counts the observations they
 stand for in the redundancy.  (The points themselves are the data: a caller keeps a bounded number per plane and
-strip, as :mod:`skyrig.lidar.strips` does.)
+strip, as :mod:`skyrig.lidar.strips` does.)  The points are georeferenced with their Jacobians a chunk of whole
+planes at a time (:func:`plane_chunks`, :data:`CHUNK_POINTS`), and the rows of a plane, which share their columns,
+enter the normal equations as one ``k x k`` block per column set (:func:`skyrig.adjust.schur_engine.set_normals`),
+not one per row: the adjustment's memory grows with the planes (and the largest plane's points), not with the
+laser points.
 """
 
 from __future__ import annotations
@@ -401,6 +405,33 @@ class _Planes:
     width: int
 
 
+#: laser points georeferenced (with their Jacobians) at once by :meth:`Lidar.evaluate`: whole planes up to about
+#: this many points per chunk, so that the evaluation's memory does not grow with the number of points
+CHUNK_POINTS = 8192
+
+
+def _sorted_planes(d: LidarPoints) -> _Planes:
+    """The points sorted by plane (stable), the planes' offsets and strips, the factor rows' width."""
+    order = np.argsort(d.plane, kind="stable")
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(d.plane, minlength=d.n_planes))])
+    strips = [np.unique(d.strip[order[ptr[p]:ptr[p + 1]]]) for p in range(d.n_planes)]
+    smax = max([len(s) for s in strips] + [0])
+    return _Planes(order, ptr, strips, NS + NK * smax + 3)
+
+
+def plane_chunks(pc: _Planes, n_planes: int, max_points: int | None = None):
+    """``(p0, p1, rows)``: runs of whole planes ``p0 .. p1 - 1`` of about ``max_points`` points
+    (:data:`CHUNK_POINTS`; a larger plane alone), ``rows`` their points in plane order (each plane's points in
+    their own order)."""
+    m = CHUNK_POINTS if max_points is None else max_points
+    p0 = 0
+    while p0 < n_planes:
+        p1 = int(np.searchsorted(pc.ptr, pc.ptr[p0] + m, side="right")) - 1
+        p1 = min(max(p1, p0 + 1), n_planes)
+        yield p0, p1, pc.order[pc.ptr[p0]:pc.ptr[p1]]
+        p0 = p1
+
+
 def _projected_ss(r: NDArray, B: NDArray, plane: NDArray, is_tie: NDArray, q: int) -> NDArray[np.float64]:
     """Per plane ``(Q,)``: ``|r|^2 - |P_B r|^2``, the sum of squares left with the plane's columns ``B (n, 3)``
     eliminated (a tie plane's two tilts, a patch plane's tilts and offset)."""
@@ -479,11 +510,7 @@ class Lidar(ObservationType):
     def prepare(self, model: "Model") -> _Planes:
         d = _data(model.block)
         assert d is not None
-        order = np.argsort(d.plane, kind="stable")
-        ptr = np.concatenate([[0], np.cumsum(np.bincount(d.plane, minlength=d.n_planes))])
-        strips = [np.unique(d.strip[order[ptr[p]:ptr[p + 1]]]) for p in range(d.n_planes)]
-        smax = max([len(s) for s in strips] + [0])
-        return _Planes(order, ptr, strips, NS + NK * smax + 3)
+        return _sorted_planes(d)
 
     def point_sigma(self, d: LidarPoints, geo: dict[str, NDArray], normal: NDArray) -> NDArray[np.float64]:
         """``(n,)`` point-to-plane sigma (m) of points with georeferencing ``geo`` on planes of ``normal (n, 3)``."""
@@ -567,17 +594,20 @@ class Lidar(ObservationType):
                 out["AK"] -= h[:, None] * dv["strip"]
         return out
 
-    def planes(self, d: LidarPoints, X: NDArray, geo: dict[str, NDArray], tie_xyz: NDArray
-               ) -> tuple[NDArray, NDArray, NDArray]:
+    def planes(self, d: LidarPoints, X: NDArray, geo: dict[str, NDArray], tie_xyz: NDArray,
+               planes: tuple[int, int] | None = None) -> tuple[NDArray, NDArray, NDArray]:
         """Planes at the current georeferencing: ``normal (Q, 3)``, ``centre (Q, 3)`` and the points' sigma ``(N,)``
         (an unweighted fit gives the normals for the weights of a weighted fit, the planes; the sigmas are those at
-        the planes)."""
-        q = d.n_planes
-        is_tie = d.plane_point >= 0
-        n0, _ = _fit_planes(X, np.ones(len(X)), d.plane, tie_xyz, is_tie, q)
-        sig = self.point_sigma(d, geo, n0[d.plane])
-        n1, c1 = _fit_planes(X, 1.0 / sig**2, d.plane, tie_xyz, is_tie, q)
-        return n1, c1, self.point_sigma(d, geo, n1[d.plane])
+        the planes).  ``planes=(p0, p1)``: ``X``/``geo`` are the points of the planes ``p0 .. p1 - 1`` only
+        (``geo["rows"]``, :func:`plane_chunks`), ``tie_xyz`` those planes' anchors, the planes returned those."""
+        p0, p1 = (0, d.n_planes) if planes is None else planes
+        q = p1 - p0
+        is_tie = d.plane_point[p0:p1] >= 0
+        plane = d.plane[geo["rows"]] - p0
+        n0, _ = _fit_planes(X, np.ones(len(X)), plane, tie_xyz, is_tie, q)
+        sig = self.point_sigma(d, geo, n0[plane])
+        n1, c1 = _fit_planes(X, 1.0 / sig**2, plane, tie_xyz, is_tie, q)
+        return n1, c1, self.point_sigma(d, geo, n1[plane])
 
     def normalised_residuals(self, block: "Block") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Each point's point-to-plane residual over its sigma ``(N,)`` at the block's values (planes refitted),
@@ -587,12 +617,15 @@ class Lidar(ObservationType):
         assert d is not None
         sc = LidarScanner().initial(block)[0]
         st = LidarStrip().initial(block)
-        geo = georeference(d, sc, st)
         anchor = np.zeros((d.n_planes, 3))
         tie = d.plane_point >= 0
         anchor[tie] = block.point_xyz[d.plane_point[tie]]
-        normal, centre, sig = self.planes(d, geo["X"], geo, anchor)
-        r = np.einsum("ni,ni->n", normal[d.plane], geo["X"] - centre[d.plane]) / sig
+        r = np.zeros(len(d))
+        for p0, p1, rows in plane_chunks(_sorted_planes(d), d.n_planes):  # (whole planes a chunk at a time)
+            geo = georeference(d, sc, st, False, rows)
+            normal, centre, sig = self.planes(d, geo["X"], geo, anchor[p0:p1], (p0, p1))
+            plane = d.plane[rows] - p0
+            r[rows] = np.einsum("ni,ni->n", normal[plane], geo["X"] - centre[plane]) / sig
         cnt = np.bincount(d.plane, minlength=d.n_planes)
         dof = np.maximum(cnt - np.where(tie, 2, 3), 1)
         return r, np.sqrt(np.bincount(d.plane, r**2, d.n_planes) / dof)
@@ -602,58 +635,72 @@ class Lidar(ObservationType):
         d = _data(b)
         assert d is not None
         pc: _Planes = model.cache[NAME]
-        geo = georeference(d, s.groups[SCANNER][0], s.groups[STRIP], jac)
-        X = geo["X"]
         tie = d.plane_point >= 0
         anchor = np.zeros((d.n_planes, 3))
         anchor[tie] = s.X[d.plane_point[tie]]
-        normal, centre, sig = self.planes(d, X, geo, anchor)
-        nrm = normal[d.plane]
-        pr = self.point_rows(d, geo, nrm, centre[d.plane], sig)
-        r, Bm = pr["r"], pr["B"]
+        sc, st_ = s.groups[SCANNER][0], s.groups[STRIP]
         if not jac:  # the same sum of squares as the reduced rows (the plane eliminated), one row per plane
-            ss = _projected_ss(r, Bm, d.plane, tie, d.n_planes)
+            ss = np.zeros(d.n_planes)
+            for p0, p1, rows in plane_chunks(pc, d.n_planes):
+                geo = georeference(d, sc, st_, False, rows)
+                normal, centre, sig = self.planes(d, geo["X"], geo, anchor[p0:p1], (p0, p1))
+                plane = d.plane[rows] - p0
+                pr = self.point_rows(d, geo, normal[plane], centre[plane], sig)
+                ss[p0:p1] = _projected_ss(pr["r"], pr["B"], plane, tie[p0:p1], p1 - p0)
             n_nuis = int(np.where(tie, 2, 3).sum())
-            f0 = Factor(NAME, np.sqrt(ss)[:, None], np.ones((d.n_planes, 1)), n_extra=len(X) - n_nuis - d.n_planes)
+            f0 = Factor(NAME, np.sqrt(ss)[:, None], np.ones((d.n_planes, 1)), n_extra=len(d) - n_nuis - d.n_planes)
             return [f0] + ([self.trajectory(model, s, jac)] if len(d.station) else [])
-        AS, AK = pr["AS"], pr["AK"]
         scols = lay.groups[SCANNER][0]
         kcols = lay.groups[STRIP]
         rp = lay.rpoint_cols
         W = pc.width
-        jc_rows, col_rows, r_rows = [], [], []
+        # rows of each plane: k + 1 below its nuisance block, fewer when it has fewer points (mode "r" QR)
+        n_pts = np.diff(pc.ptr)
+        nb_all = np.where(tie, 2, 3)
+        k_all = NS + NK * np.array([len(x) for x in pc.strips], np.int64) + np.where(tie, 3, 0)
+        n_rows = np.minimum(n_pts, nb_all + k_all + 1) - nb_all
+        row0 = np.concatenate([[0], np.cumsum(n_rows)])
+        jc_all = np.zeros((int(row0[-1]), 1, W))
+        cols_all = np.full((int(row0[-1]), W), -1, np.int64)
+        r_all = np.zeros((int(row0[-1]), 1))
         extra = 0
-        for p in range(d.n_planes):
-            idx = pc.order[pc.ptr[p]:pc.ptr[p + 1]]
-            strips = pc.strips[p]
-            nb = 2 if tie[p] else 3
-            k = NS + NK * len(strips) + (3 if tie[p] else 0)
-            M = np.zeros((len(idx), nb + k + 1))
-            M[:, :nb] = Bm[idx, :nb]
-            M[:, nb:nb + NS] = AS[idx]
-            cols = np.full(W, -1, np.int64)
-            cols[:NS] = scols
-            st = d.strip[idx]
-            for j, sk in enumerate(strips):
-                on = st == sk
-                o = nb + NS + NK * j
-                M[on, o:o + NK] = AK[idx[on]]
-                cols[NS + NK * j:NS + NK * (j + 1)] = kcols[sk]
-            if tie[p]:
-                M[:, nb + k - 3:nb + k] = -nrm[idx] / sig[idx, None]
-                cols[k - 3:k] = rp[d.plane_point[p]]
-            M[:, -1] = r[idx]
-            Rq: NDArray[np.float64] = np.asarray(np.linalg.qr(M, mode="r"))
-            rows = Rq[nb:nb + k + 1]
-            jcp = np.zeros((len(rows), W))
-            jcp[:, :k] = rows[:, nb:nb + k]
-            jc_rows.append(jcp)
-            col_rows.append(np.broadcast_to(cols, (len(rows), W)))
-            r_rows.append(rows[:, -1])
-            extra += len(idx) - nb - len(rows)
-        rr = np.concatenate(r_rows)[:, None]
-        f = Factor(NAME, rr, np.ones_like(rr), jc=np.concatenate(jc_rows)[:, None, :],
-                   cols=np.ascontiguousarray(np.concatenate(col_rows)), n_extra=extra)
+        # the points a chunk of whole planes at a time: the per-point Jacobians of one chunk only, the factor's
+        # rows per plane (at most k + 1 each)
+        for p0, p1, rows in plane_chunks(pc, d.n_planes):
+            geo = georeference(d, sc, st_, True, rows)
+            normal, centre, sig = self.planes(d, geo["X"], geo, anchor[p0:p1], (p0, p1))
+            nrm = normal[d.plane[rows] - p0]
+            pr = self.point_rows(d, geo, nrm, centre[d.plane[rows] - p0], sig)
+            r, Bm, AS, AK = pr["r"], pr["B"], pr["AS"], pr["AK"]
+            for p in range(p0, p1):
+                idx = np.arange(pc.ptr[p] - pc.ptr[p0], pc.ptr[p + 1] - pc.ptr[p0])  # (chunk-local)
+                strips = pc.strips[p]
+                nb = 2 if tie[p] else 3
+                k = NS + NK * len(strips) + (3 if tie[p] else 0)
+                M = np.zeros((len(idx), nb + k + 1))
+                M[:, :nb] = Bm[idx, :nb]
+                M[:, nb:nb + NS] = AS[idx]
+                cols = np.full(W, -1, np.int64)
+                cols[:NS] = scols
+                st = d.strip[rows[idx]]
+                for j, sk in enumerate(strips):
+                    on = st == sk
+                    o = nb + NS + NK * j
+                    M[on, o:o + NK] = AK[idx[on]]
+                    cols[NS + NK * j:NS + NK * (j + 1)] = kcols[sk]
+                if tie[p]:
+                    M[:, nb + k - 3:nb + k] = -nrm[idx] / sig[idx, None]
+                    cols[k - 3:k] = rp[d.plane_point[p]]
+                M[:, -1] = r[idx]
+                Rq: NDArray[np.float64] = np.asarray(np.linalg.qr(M, mode="r"))
+                rows_p = Rq[nb:nb + k + 1]
+                out = slice(row0[p], row0[p + 1])
+                assert len(rows_p) == n_rows[p]
+                jc_all[out, 0, :k] = rows_p[:, nb:nb + k]
+                cols_all[out] = cols
+                r_all[out, 0] = rows_p[:, -1]
+                extra += len(idx) - nb - len(rows_p)
+        f = Factor(NAME, r_all, np.ones_like(r_all), jc=jc_all, cols=cols_all, n_extra=extra)
         return [f] + ([self.trajectory(model, s, jac)] if len(d.station) else [])
 
     def trajectory(self, model: "Model", s: "State", jac: bool) -> Factor:
