@@ -122,15 +122,18 @@ def _seed_pair(a: str, b: str) -> None:
         pass
 
 
-def _match_one(i: int, j: int, names: list[str], db_root: str, cfg: MatchConfig,
-               cams: list[FrameCamera | None], poses: list) -> str:
+def _match_one(name_i: str, name_j: str, db_root: str, cfg: MatchConfig, cam_i: FrameCamera | None,
+               pose_i: object, cam_j: FrameCamera | None, pose_j: object) -> str:
+    """Match one pair.  The task carries its two images' own camera and pose only: a task holding the block's lists
+    was pickled once per pair, memory ~ images x pairs in the process submitting them (``bench/run.py --grow 3
+    --executor local``, 540 images: the match stage's peak 4,417 MiB)."""
     db = MatchDatabase(db_root)
-    if db.has_matches(names[i], names[j]):
+    if db.has_matches(name_i, name_j):
         return "cached"
-    f1, f2 = db.read_features(names[i]), db.read_features(names[j])
-    _seed_pair(names[i], names[j])
-    pm = match_pair(f1, f2, cfg, cams[i], poses[i], cams[j], poses[j])
-    db.write_matches(names[i], names[j], pm)
+    f1, f2 = db.read_features(name_i), db.read_features(name_j)
+    _seed_pair(name_i, name_j)
+    pm = match_pair(f1, f2, cfg, cam_i, pose_i, cam_j, pose_j)
+    db.write_matches(name_i, name_j, pm)
     return "done"
 
 
@@ -324,7 +327,8 @@ def match_images(
         cams = [None] * len(metas)
         poses = [None] * len(metas)
 
-    tasks = [_Call(_match_one, int(i), int(j), names, str(out), match_config, cams, poses) for i, j in pairs]
+    tasks = [_Call(_match_one, names[i], names[j], str(out), match_config, cams[i], poses[i], cams[j], poses[j])
+             for i, j in pairs]
     _run_dask(tasks, scheduler, workers, tick("matches", len(tasks)))
     t2 = time.perf_counter()
 
