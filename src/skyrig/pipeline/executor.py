@@ -37,6 +37,11 @@ R = TypeVar("R")
 Kind = Literal["serial", "local", "scheduler"]
 
 
+def _apply(func: Callable[[T], R], item: T) -> R:
+    """``func(item)`` on a worker (``func`` scattered once, see :meth:`Executor.completed`)."""
+    return func(item)
+
+
 def default_workers() -> int:
     """``min(cpu_count, 4)``: the default number of local worker processes."""
     n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -205,7 +210,11 @@ class Executor:
         from dask.distributed import as_completed
 
         client = self._client
-        futures = [client.submit(func, item, pure=False, key=f"{what}-{i}-{os.urandom(4).hex()}")
+        # the function (often a job object holding a plan, a DSM...) goes to each worker once: submitted with every
+        # task it was pickled once per task in this process (a 200-MB job, 20 tasks: 4.1 GB peak here; the
+        # 540-image growth block's ortho stage 7.1 GB against 1.3 GB serial)
+        shared = client.scatter(func, broadcast=True, hash=False)
+        futures = [client.submit(_apply, shared, item, pure=False, key=f"{what}-{i}-{os.urandom(4).hex()}")
                    for i, item in enumerate(seq)]
         index = {f.key: i for i, f in enumerate(futures)}
         done = 0
@@ -227,3 +236,5 @@ class Executor:
         except BaseException:
             client.cancel([f for f in futures if f is not None])
             raise
+        finally:
+            shared.release()
