@@ -82,7 +82,7 @@ def _simulate_grown(folder: Path, k: int, image_scale: float = 1.0) -> None:
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
                    keep: bool, grow: int | None = None, image_scale: float = 1.0,
                    max_pairs_per_image: int | None = None, dsm_tile_cells: int | None = None,
-                   only: list[str] | None = None) -> dict:
+                   only: list[str] | None = None, snooping_share: float | None = None) -> dict:
     tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
     folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
     out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
@@ -107,6 +107,10 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     if dsm_tile_cells is not None:
         text = text.replace("    # tile_cells: 2048    # ground tile side in cells", f"    tile_cells: {dsm_tile_cells}")
     out["dsm_tile_cells"] = dsm_tile_cells
+    if snooping_share is not None:
+        line = next(ln for ln in text.splitlines() if ln.startswith("    # snooping_per_round_share: "))
+        text = text.replace(line, f"    snooping_per_round_share: {snooping_share}")
+    out["snooping_per_round_share"] = snooping_share
     proj.write_text(text)
     truth = json.loads((folder / "truth" / "truth.json").read_text())
     out["images"] = truth.get("statistics", {}).get("images")
@@ -199,6 +203,9 @@ def main() -> None:
                     "pair; default: the stage's default)")
     ap.add_argument("--dsm-tile-cells", type=int, default=None,
                     help="stages.dsm.tile_cells (ground tile side in cells; default: the stage's default)")
+    ap.add_argument("--snooping-per-round-share", type=float, default=None,
+                    help="stages.block.snooping_per_round_share (e.g. 0.001: snooping's rounds do not grow with the "
+                    "block; default: the stage's default, 0)")
     ap.add_argument("--only", nargs="+", default=None, metavar="STAGE",
                     help="run only these stages (the earlier stages' outputs must be there: an earlier run with "
                     "--keep), e.g. --only dsm")
@@ -226,13 +233,13 @@ def main() -> None:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
             rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features,
                                        a.keep or bool(a.only), k, a.image_scale, a.max_pairs_per_image,
-                                       a.dsm_tile_cells, a.only))
+                                       a.dsm_tile_cells, a.only, a.snooping_per_round_share))
             save()
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
         rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep or bool(a.only),
                                    max_pairs_per_image=a.max_pairs_per_image, dsm_tile_cells=a.dsm_tile_cells,
-                                   only=a.only))
+                                   only=a.only, snooping_share=a.snooping_per_round_share))
         save()
     growth = _print_tables(rows, a.project_to)
     if growth is not None:

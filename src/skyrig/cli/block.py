@@ -115,9 +115,9 @@ def _sigmas(text: str, option: str, names: str) -> tuple[float, float, float]:
               help="Image observations data snooping may reject in one round of the adjustment: the largest "
                    "normalised residual and further ones above the critical value that share neither point nor image "
                    "with a larger one (1: Baarda's one at a time; each round costs one statistics pass).")
-@click.option("--snooping-per-round-share", type=float, default=0.001, show_default=True,
+@click.option("--snooping-per-round-share", type=float, default=0.0, show_default=True,
               help="... or this share of the tested observations when that is more, so that the rounds do not grow "
-                   "with the block (0: --snooping-per-round alone).")
+                   "with the block (e.g. 0.001 for large blocks; 0: --snooping-per-round alone).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file (.json) to write.")
 def command(trajectory: str | None, reference: str | None, events: str | None, rig_path: str | None,
             eo_path: str | None, eo_format: str | None, eo_crs: str | None, eo_geoid: str | None,

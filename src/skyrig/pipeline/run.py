@@ -809,9 +809,9 @@ register_stage(Stage(
                                     nullable=True),
              "snooping_per_round": Option(10, "int", "image observations data snooping rejects per round at most "
                                           "(non-adjacent; 1: one at a time)", positive=True),
-             "snooping_per_round_share": Option(0.001, "float", "... or this share of the tested observations when "
-                                                "that is more (the rounds do not grow with the block; 0: "
-                                                "snooping_per_round alone)")},
+             "snooping_per_round_share": Option(0.0, "float", "... or this share of the tested observations when "
+                                                "that is more (e.g. 0.001: the rounds do not grow with the block; "
+                                                "0: snooping_per_round alone)")},
     uses=("ties",), provides={"block": "block.json"}, inputs=_block_inputs, check=_block_check))
 register_stage(Stage(
     "adjust", "Bundle adjustment / integrated sensor orientation: eo.csv, points.csv, report in the project CRS.",
