@@ -16,6 +16,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import grazing_ground_beams
 from skyrig.adjust import AdjustConfig, adjust
 from skyrig.adjust.config import Unknowns
 from skyrig.adjust.factors.lidar import (LIDAR, NK, NS, SCANNER, SCANNER_COMPONENTS, STRIP, LidarPoints, georeference,
@@ -318,14 +319,8 @@ def test_joint_rows_uncorrelated_with_residuals_at_grazing_beams(roughness_in_da
     range offset, range scale and the plane's tilts here within 4 (range scale -0.3 / -0.3); with the roughness
     across the plane (the model before) the range scale came out -57 / -55; the recorded-point rows ("observed")
     beyond 20."""
-    rng = np.random.default_rng(7)
     m, h, sr, rough = 20000, 5.0, 0.02, 0.002
-    el = -np.radians(rng.uniform(10.0, 80.0, m))
-    az = rng.uniform(0.0, 2 * np.pi, m)
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    rho = h / -u[:, 2] + rng.normal(0.0, sr, m)
-    if roughness_in_data:
-        rho += rng.normal(0.0, rough, m) / -u[:, 2]
+    rho, u = grazing_ground_beams(roughness_in_data, m, h, sr, rough)
     d = LidarPoints(time_s=np.zeros(m), strip=np.zeros(m, np.int64), range_m=rho, beam=u,
                     beam_dangle=np.column_stack([-u[:, 1], u[:, 0], np.zeros(m)]), plane=np.zeros(m, np.int64),
                     position_m=np.tile([0.0, 0.0, h], (m, 1)), rotation=np.broadcast_to(np.eye(3), (m, 3, 3)),

@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 from numpy.typing import NDArray
 
+from conftest import grazing_ground_beams
 from skyrig.errors import InputFormatError
 from skyrig.georef.eo import WorldFrame
 
@@ -205,14 +206,8 @@ def test_adjusted_jacobians_uncorrelated_with_residuals_at_grazing_beams(roughne
     where a rough surface puts it (along the beam).  The statistic sum(J r / s^2) over its own spread is N(0, 1)
     when unbiased (the plane's offset column projected out): range scale -0.3 / -0.2 here; with the roughness's share
     along the normal (the range left as measured) -57 / -55; the recorded-point Jacobians -82."""
-    rng = np.random.default_rng(7)
     m, h, sr, rough = 20000, 5.0, 0.02, 0.002
-    el = -np.radians(rng.uniform(10.0, 80.0, m))
-    az = rng.uniform(0.0, 2 * np.pi, m)
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    rho = h / -u[:, 2] + rng.normal(0.0, sr, m)
-    if roughness_in_data:
-        rho += rng.normal(0.0, rough, m) / -u[:, 2]
+    rho, u = grazing_ground_beams(roughness_in_data, m, h, sr, rough)
     patches = PlanarPatches(
         WorldFrame.local(45.0, 7.0, 0.0), np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.zeros(m, np.intp),
         np.zeros(m, np.intp), np.zeros(m), rho, u, np.column_stack([-u[:, 1], u[:, 0], np.zeros(m)]),
