@@ -229,7 +229,8 @@ class LiveRun:
         self.exposures: dict[int, _Exposure] = {}
         if not config.crs:
             raise SkyrigError("the live run needs an output map CRS (option: crs), e.g. EPSG:25832")
-        self.frame: WorldFrame | None = WorldFrame.map(config.crs)
+        self.frame: WorldFrame = WorldFrame.map(config.crs)
+        self.map_crs: str = self.frame.crs or config.crs  # the output map CRS (a map frame always carries one)
         self.dem = None
         if config.dem_path:
             from skyrig.io.dem import read_dem
@@ -237,7 +238,7 @@ class LiveRun:
             if self.dem.frame.crs != self.frame.crs:
                 from skyrig.geodesy.crs import resolve_crs
 
-                if resolve_crs(self.dem.frame.crs) != resolve_crs(self.frame.crs):
+                if resolve_crs(self.dem.frame.crs) != resolve_crs(self.map_crs):
                     raise SkyrigError(f"{config.dem_path}: the reference DEM must be in the output CRS {config.crs} "
                                       "(option: dem)")
         self._lock = threading.Lock()
@@ -440,11 +441,10 @@ class LiveRun:
     def _tiles_setup(self, eo: ExteriorOrientations, cell: float) -> None:
         if self._zooms is not None:
             return
-        assert self.frame is not None
         from skyrig.geodesy.crs import horizontal_crs, resolve_crs, transformer
 
-        self._to_merc = transformer(horizontal_crs(resolve_crs(self.frame.crs)), "EPSG:3857")
-        ll = xyz_tiles.lonlat_bounds(self.frame.crs, (eo.centre[0, 0] - 1, eo.centre[0, 1] - 1,
+        self._to_merc = transformer(horizontal_crs(resolve_crs(self.map_crs)), "EPSG:3857")
+        ll = xyz_tiles.lonlat_bounds(self.map_crs, (eo.centre[0, 0] - 1, eo.centre[0, 1] - 1,
                                                       eo.centre[0, 0] + 1, eo.centre[0, 1] + 1))
         zmax = xyz_tiles.zoom_for_cell(cell, 0.5 * (ll[1] + ll[3]))
         self._zooms = list(range(max(zmax - self.config.zoom_levels, 0), zmax + 1))
@@ -491,7 +491,13 @@ class LiveRun:
             rig = self.rig
         eo = direct_georeference(self.trajectory, rig, ev, self.frame)
         t_dg = time.time()
-        arrays = {str(n): next(i.array for i in good if i.name == str(n)) for n in eo.image}
+        heads = eo.head
+        assert heads is not None  # direct georeferencing names every image's head
+        arrays: dict[str, NDArray] = {}
+        for n in eo.image:
+            a = next(i.array for i in good if i.name == str(n))
+            assert a is not None  # only complete images reach _process
+            arrays[str(n)] = a
         written = max(i.written_wall or 0.0 for i in good)
         self._written.append(written)
         # an exposure older than one already painted is caught up: painted beneath what is there (newest on top)
@@ -500,10 +506,10 @@ class LiveRun:
         cell_used = None
         tiles: dict[tuple[int, int, int], NDArray[np.uint8]] = {}
         # the stereo (nadir) head painted last: on top where the heads overlap (least relief displacement)
-        for i in sorted(range(len(eo)), key=lambda k: str(eo.head[k]) == self.stereo_head):
+        for i in sorted(range(len(eo)), key=lambda k: str(heads[k]) == self.stereo_head):
             bounds, gsd, xy = self._footprint(eo, i)
             cell = self.config.cell_m or gsd
-            if str(eo.head[i]) == self.stereo_head or cell_used is None:
+            if str(heads[i]) == self.stereo_head or cell_used is None:
                 cell_used = cell
             self._tiles_setup(eo, cell)
             self._ortho_tiles(eo, i, arrays[str(eo.image[i])], xy, tiles)
@@ -519,7 +525,7 @@ class LiveRun:
         x.state = "done"
         # the DSM of the stereo pairs this exposure completes (with the exposure before and, when it was caught
         # up, the one after it in the same strip), in the DSM worker
-        sel = [k for k in range(len(eo)) if str(eo.head[k]) == self.stereo_head]
+        sel = [k for k in range(len(eo)) if str(heads[k]) == self.stereo_head]
         if sel:
             k = sel[0]
             self._stereo[x.exposure] = (x.time_s, eo.subset([k]), arrays[str(eo.image[k])])
@@ -587,8 +593,7 @@ class LiveRun:
         return float(np.median(w)) if len(w) else None
 
     def _grow_bounds(self, b: tuple[float, float, float, float]) -> None:
-        assert self.frame is not None
-        ll = list(xyz_tiles.lonlat_bounds(self.frame.crs, b))
+        ll = list(xyz_tiles.lonlat_bounds(self.map_crs, b))
         if self._bounds_ll is None:
             self._bounds_ll = ll
         else:
@@ -599,7 +604,6 @@ class LiveRun:
              new: tuple[int, float, ExteriorOrientations, NDArray], written: float, cell: float) -> None:
         """DSM tiles of the stereo pair ``old``, ``new`` (exposure, time, EO row, image of the stereo head),
         reported for ``x`` (the later exposure)."""
-        assert self.frame is not None
         old_id, _, eo_old, img_old = old
         new_id, _, eo_new, img_new = new
         cpu0 = time.thread_time()
@@ -618,7 +622,7 @@ class LiveRun:
             dsm, _, _ = dense_surface(eo2, self.cameras, lambda k: imgs[k], self.frame, (h0 - 0.2 * r, h0 + r),
                                       area=area, config=cfg)
             rgba = _height_colours(dsm.height, h0 - 0.2 * r, h0 + 0.5 * r)
-            xyz_tiles.paint(self.out / "tiles", "dsm", rgba, dsm.grid.transform, self.frame.crs,
+            xyz_tiles.paint(self.out / "tiles", "dsm", rgba, dsm.grid.transform, self.map_crs,
                             (self._zooms or [])[:-1] or (self._zooms or []))
             now = time.time()
             # in exposure intervals after the exposure's last image was written (the flight's own rate)
