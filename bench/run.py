@@ -39,9 +39,11 @@ res = run_project(proj, only=sys.argv[2], force=True)
 t2 = time.perf_counter()
 me = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")) / 1024  # reset at exec
 kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+cpu = sum(getattr(resource.getrusage(w), f) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+          for f in ("ru_utime", "ru_stime"))  # the stage process and its reaped worker processes
 row = next(r for r in res.stages if r["stage"] == sys.argv[2])
 print("BENCH " + json.dumps({"exit": res.exit_code, "error": res.error, "load_s": t1 - t0, "stage_s": row.get("seconds"),
-                             "wall_s": t2 - t0, "peak_mib": me, "children_peak_mib": kids,
+                             "wall_s": t2 - t0, "cpu_s": cpu, "peak_mib": me, "children_peak_mib": kids,
                              "summary": row.get("summary")}))
 """
 
@@ -137,7 +139,8 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
             break
         row = {"stage": st, **json.loads(line[6:])}
         out["stages"].append(row)
-        print(f"  {out['scenario']:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  peak {row['peak_mib']:7.0f} MiB"
+        print(f"  {out['scenario']:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  (CPU {row['cpu_s']:6.1f} s)  "
+              f"peak {row['peak_mib']:7.0f} MiB"
               f"  (workers {row['children_peak_mib']:6.0f} MiB)  exit {row['exit']}", flush=True)
         if row["exit"]:
             break

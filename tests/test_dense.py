@@ -702,7 +702,7 @@ def test_large_tiffs_read_in_windows_give_the_same_surface_bit_for_bit(block, tm
 
 
 def test_tile_side_from_the_memory_budget_and_predicted_points_per_tile(block):
-    """With a memory budget the ground tiles' side is the largest (multiples of 256 cells, then 128, 64) whose
+    """With a memory budget the ground tiles' side is the largest (multiples of 128 cells, then 64) whose
     tiles' predicted work fits it; the predicted points of a tile (every block's matchable pixels spread over its
     ground bounds) are, against the points its run triangulates into the tile, an upper bound within a factor
     (0.4-1.1; 0.77-1.03 on the 240-image growth block's 768-cell tiles, where a few points more than predicted
@@ -729,6 +729,25 @@ def test_tile_side_from_the_memory_budget_and_predicted_points_per_tile(block):
     for k in (int(np.argmax(pts)), int(np.argsort(pts)[len(pts) // 2])):  # the loaded tiles the budget is about
         assert 0.4 * pts[k] <= got[k] <= 1.1 * pts[k], (k, got[k], pts[k])
     assert got[0] <= 1.1 * pts[0]  # a corner of the grid, where few images reach: far below the bound
+
+
+def test_an_unreachable_tile_budget_takes_the_least_work_side_and_says_so(block, caplog):
+    """The images reaching a tile do not shrink with tiles smaller than their footprints: a budget below them
+    takes the largest side within 10 % of the least predicted work, with a warning naming the option."""
+    from skyrig.dense.surface import ground_tiles, plan_dense, tile_load
+
+    eo, cams, _ = block
+    cfg = DenseConfig(tile_cells=256, block_px=256, pairs=PairConfig(pairs_per_image=4), tile_memory_mb=1.0)
+    with caplog.at_level("WARNING", logger="skyrig.dense.surface"):
+        plan = plan_dense(eo, cams, WorldFrame.map(CRS), (40.0, 75.0), config=cfg)
+    assert "option: tile_memory_mb" in caplog.text
+    px = [plan.cameras[str(c)].width * plan.cameras[str(c)].height for c in plan.eo.camera]
+    work = {s: tile_load(plan.grid, ground_tiles(plan.grid, s), plan.pairs, plan.rects, plan.blocks,
+                         plan.block_bounds, plan.config.sgm, px)[1].max() for s in (256, 128, 64)}
+    side = max(max(h, w) for _, _, h, w in plan.tiles)
+    chosen = min(s for s in work if s >= side)
+    assert work[chosen] <= 1.1 * min(work.values()) and min(work.values()) > 2 ** 20
+    assert all(work[s] > 1.1 * min(work.values()) for s in work if s > chosen)
 
 
 def test_tile_memory_option_is_checked(block, tmp_path):
