@@ -105,7 +105,9 @@ class DenseConfig:
         MiB): the side is the largest up to ``tile_cells`` whose tiles' predicted points and images fit it
         (:func:`tile_side`, :func:`tile_load`), so that a worker's peak is bounded by the budget, not by the block;
         None: tiles of ``tile_cells``.  On the grown midas-dsm blocks (``bench/run.py --grow 2 3``, 240 and 540
-        images at full size, 0.29 m cells, 10-16 points a cell) 1024 MiB gives tiles of 1024 and 768 cells a side.
+        images at full size, 0.29 m cells, up to 27 predicted points a cell) 1024 MiB gives sides of 1024 and 896 cells
+        (4 tiles of 544 x 992, 8 of 720 x 704; before one and two tiles): the workers' peak on a LocalCluster
+        690 and 900-920 MiB instead of 1,670 and 2,840 (docs/cli.md).
     tile_crop
         Each tile matches, of every block reaching it, only the part whose pixels can fall in the tile
         (:func:`tile_part`) instead of the whole block: small tiles then match about their own footprint (240-image
