@@ -680,11 +680,11 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
             parts, cnt = block_parts(rect, blk, plan.config, grey if whole else None, pair.left, pair.right)
             counts = counts + cnt
             nblocks += 1
-            for part in parts:
-                if plan.config.tile_crop:
-                    part = tile_part(rect, part, plan.config.sgm, fm, (xb0, yb0, xb1, yb1), pad)
-                    if part is None:
-                        continue
+            for whole_part in parts:
+                part = tile_part(rect, whole_part, plan.config.sgm, fm, (xb0, yb0, xb1, yb1), pad) \
+                    if plan.config.tile_crop else whole_part
+                if part is None:
+                    continue
                 disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), part,
                                               plan.config.sgm)
                 mpx += disp.size / 1e6
