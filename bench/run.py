@@ -5,6 +5,7 @@
     .venv/bin/python bench/run.py --scenario tumblecam --max-features 3000 --json figures.json
     .venv/bin/python bench/run.py --grow 1 2          # the midas-dsm 80/60 surface block, area x1, x2
     .venv/bin/python bench/run.py --grow 1 2 --only dsm --dsm-tile-cells 512   # one stage again (after --keep)
+    .venv/bin/python bench/run.py --grow 1 2 3 --only dsm --dsm-tile-memory-mb 0   # dsm tiles of tile_cells (no budget)
 
 For each scenario: ``skyrig simulate SCENARIO --size ci`` (timed) into ``--workdir``, ``skyrig init`` on it, the
 executor and the matcher's feature count set in the project file, then each stage in its own child process
@@ -38,9 +39,11 @@ res = run_project(proj, only=sys.argv[2], force=True)
 t2 = time.perf_counter()
 me = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")) / 1024  # reset at exec
 kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+cpu = sum(getattr(resource.getrusage(w), f) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+          for f in ("ru_utime", "ru_stime"))  # the stage process and its reaped worker processes
 row = next(r for r in res.stages if r["stage"] == sys.argv[2])
 print("BENCH " + json.dumps({"exit": res.exit_code, "error": res.error, "load_s": t1 - t0, "stage_s": row.get("seconds"),
-                             "wall_s": t2 - t0, "peak_mib": me, "children_peak_mib": kids,
+                             "wall_s": t2 - t0, "cpu_s": cpu, "peak_mib": me, "children_peak_mib": kids,
                              "summary": row.get("summary")}))
 """
 
@@ -82,7 +85,8 @@ def _simulate_grown(folder: Path, k: int, image_scale: float = 1.0) -> None:
 def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: int | None, max_features: int,
                    keep: bool, grow: int | None = None, image_scale: float = 1.0,
                    max_pairs_per_image: int | None = None, dsm_tile_cells: int | None = None,
-                   only: list[str] | None = None, snooping_share: float | None = None) -> dict:
+                   only: list[str] | None = None, snooping_share: float | None = None,
+                   dsm_tile_memory_mb: float | None = None) -> dict:
     tag = "" if image_scale == 1.0 else f"-s{image_scale:g}"
     folder = workdir / (f"{name}-x{grow}{tag}" if grow is not None else f"{name}-{size}")
     out: dict = {"scenario": name if grow is None else f"{name}-x{grow}{tag}", "size": size, "stages": [],
@@ -107,6 +111,10 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
     if dsm_tile_cells is not None:
         text = text.replace("    # tile_cells: 2048    # ground tile side in cells", f"    tile_cells: {dsm_tile_cells}")
     out["dsm_tile_cells"] = dsm_tile_cells
+    if dsm_tile_memory_mb is not None:
+        line = next(ln for ln in text.splitlines() if ln.startswith("    # tile_memory_mb: "))
+        text = text.replace(line, f"    tile_memory_mb: {dsm_tile_memory_mb if dsm_tile_memory_mb > 0 else 'null'}")
+    out["dsm_tile_memory_mb"] = dsm_tile_memory_mb
     if snooping_share is not None:
         line = next(ln for ln in text.splitlines() if ln.startswith("    # snooping_per_round_share: "))
         text = text.replace(line, f"    snooping_per_round_share: {snooping_share}")
@@ -131,7 +139,8 @@ def bench_scenario(name: str, size: str, workdir: Path, executor: str, workers: 
             break
         row = {"stage": st, **json.loads(line[6:])}
         out["stages"].append(row)
-        print(f"  {out['scenario']:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  peak {row['peak_mib']:7.0f} MiB"
+        print(f"  {out['scenario']:12s} {st:10s} {row['stage_s'] or 0:8.1f} s  (CPU {row['cpu_s']:6.1f} s)  "
+              f"peak {row['peak_mib']:7.0f} MiB"
               f"  (workers {row['children_peak_mib']:6.0f} MiB)  exit {row['exit']}", flush=True)
         if row["exit"]:
             break
@@ -203,6 +212,9 @@ def main() -> None:
                     "pair; default: the stage's default)")
     ap.add_argument("--dsm-tile-cells", type=int, default=None,
                     help="stages.dsm.tile_cells (ground tile side in cells; default: the stage's default)")
+    ap.add_argument("--dsm-tile-memory-mb", type=float, default=None,
+                    help="stages.dsm.tile_memory_mb (memory budget of a ground tile's work, MiB; 0: null, tiles of "
+                    "tile_cells; default: the stage's default)")
     ap.add_argument("--snooping-per-round-share", type=float, default=None,
                     help="stages.block.snooping_per_round_share (e.g. 0.001: snooping's rounds do not grow with the "
                     "block; default: the stage's default, 0)")
@@ -233,13 +245,15 @@ def main() -> None:
             print(f"midas-dsm x{k}, executor {a.executor}", flush=True)
             rows.append(bench_scenario("midas-dsm", a.size, work, a.executor, a.workers, a.max_features,
                                        a.keep or bool(a.only), k, a.image_scale, a.max_pairs_per_image,
-                                       a.dsm_tile_cells, a.only, a.snooping_per_round_share))
+                                       a.dsm_tile_cells, a.only, a.snooping_per_round_share,
+                                       a.dsm_tile_memory_mb))
             save()
     for name in a.scenario or ([] if a.grow else ["midas-demo"]):
         print(f"{name} ({a.size}), executor {a.executor}", flush=True)
         rows.append(bench_scenario(name, a.size, work, a.executor, a.workers, a.max_features, a.keep or bool(a.only),
                                    max_pairs_per_image=a.max_pairs_per_image, dsm_tile_cells=a.dsm_tile_cells,
-                                   only=a.only, snooping_share=a.snooping_per_round_share))
+                                   only=a.only, snooping_share=a.snooping_per_round_share,
+                                   dsm_tile_memory_mb=a.dsm_tile_memory_mb))
         save()
     growth = _print_tables(rows, a.project_to)
     if growth is not None:

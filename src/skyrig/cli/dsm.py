@@ -36,7 +36,11 @@ from skyrig.cli._common import eo_options
 @click.option("--no-cloud", is_flag=True, help="Do not write the dense point cloud.")
 @click.option("--min-depth", type=POSITIVE_M, default=None,
               help="Nearest depth searched from a camera in metres (default: a quarter of its distance to the scene).")
-@click.option("--tile-cells", type=POSITIVE_INT, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work).")
+@click.option("--tile-cells", type=POSITIVE_INT, default=2048, show_default=True, help="Ground tile side in cells (unit of parallel work); with --tile-memory-mb the largest side.")
+@click.option("--tile-memory-mb", type=NONNEGATIVE, default=1024.0, show_default=True,
+              help="Memory budget of one ground tile's work in MiB (beyond a worker's own, about 250-500 MiB): the "
+                   "tiles' side is the largest up to --tile-cells whose predicted points and images fit; 0: tiles "
+                   "of --tile-cells.")
 @click.option("--window-min-mp", type=NONNEGATIVE, default=60.0, show_default=True,
               help="TIFF images of at least this many megapixels are read window by window (only what each block "
                    "needs: memory bounded by the block, not the image); 0 reads every TIFF so.")
@@ -55,7 +59,7 @@ from skyrig.cli._common import eo_options
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
-            points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, window_min_mp,
+            points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, tile_memory_mb, window_min_mp,
             image_scale, orientation_sigma_px, executor, workers, scheduler, output) -> None:
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
@@ -76,7 +80,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
                        min_depth=min_depth, tile_cells=tile_cells, executor=executor, workers=workers,
                        scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, echo=click.echo,
                        lr_check=lr_check, window_min_mp=window_min_mp, image_scale=image_scale,
-                       orientation_sigma_px=orientation_sigma_px)
+                       orientation_sigma_px=orientation_sigma_px, tile_memory_mb=tile_memory_mb or None)
     s = res.summary
     click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "
                f"cells ({res.stats.cell_m:.3f} m), {s['cloud_points']} cloud points -> {res.outdir} "

@@ -2,12 +2,13 @@
 
 Work is cut twice:
 
-* each stereo pair's left rectified image into fixed *blocks* (bounded memory per SGM run, and results that do
-  not depend on the tiling);
+* each stereo pair's left rectified image into fixed *blocks* (bounded memory per SGM run);
 * the output grid into ground *tiles*: a tile matches the blocks whose view can reach it, triangulates, keeps
   the points inside it and fuses them.  Tiles are independent (:func:`run_tile`), so any ``map`` runs them:
-  the builtin one, a process pool, or a Dask cluster (``skyrig.pipeline.executor``).  Cells are computed
-  from the same points in any tiling, so tiled and untiled DSMs are bit-identical.
+  the builtin one, a process pool, or a Dask cluster (``skyrig.pipeline.executor``).  A tile matches only the
+  part of each block whose pixels can fall in it (:func:`tile_part`), and the tiles' side fits a memory budget
+  (:func:`tile_side`); matching whole blocks instead (``DenseConfig.tile_crop=False``), cells are computed from the
+  same points in any tiling, so tiled and untiled DSMs are bit-identical.
 
 Frames: matching and triangulation run in a local tangent frame (east, north, up) at the block; points are
 then converted rigorously (through ECEF, with the output frame's geoid if any) to the output map frame,
@@ -98,7 +99,24 @@ class DenseConfig:
         Side of a rectified block matched in one SGM run (bounds memory: about
         ``(block_px + 2 margin) * (block_px + 2 margin + n_disp) * n_disp * 2`` bytes).
     tile_cells
-        Side of a ground tile in cells (the unit of parallel work).
+        Side of a ground tile in cells (the unit of parallel work); with ``tile_memory_mb`` the largest side.
+    tile_memory_mb
+        Memory budget of one tile's work (MiB, beyond a worker's own: Python, OpenCV, the plan, about 250-500
+        MiB): the side is the largest up to ``tile_cells`` whose tiles' predicted points and images fit it
+        (:func:`tile_side`, :func:`tile_load`), so that a worker's peak is bounded by the budget, not by the block;
+        None: tiles of ``tile_cells``.  On the grown midas-dsm blocks (``bench/run.py --grow 2 3``, 240 and 540
+        images at full size, 0.29 m cells, up to 27 predicted points a cell) 1024 MiB gives sides of 1024 and 896 cells
+        (4 tiles of 544 x 992, 8 of 720 x 704; before one and two tiles): the workers' peak on a LocalCluster
+        690 and 900-920 MiB instead of 1,670 and 2,840 (docs/cli.md).
+    tile_crop
+        Each tile matches, of every block reaching it, only the part whose pixels can fall in the tile
+        (:func:`tile_part`) instead of the whole block: small tiles then match about their own footprint (240-image
+        growth block, serial CPU s / block megapixels matched: whole blocks 2048-cell tiles 15.4-16.5 / 40.3,
+        1024 18.5-19.7 / 66.8, 512 / 178.7; cropped 1024 15.9-16.3 / 46.3, 768 18.1 / 55.7, 512 21.1-21.7 /
+        66.5).  A part is matched with the same context margin as a block, so disparities near a part's edge can
+        differ from the whole block's where SGM's paths reach farther: 512-cell tiles against one tile, 0.9 % of
+        the valid cells differ (0.4 mm median, 111 of 1.72 M cells by more than 0.1 m), 61 cells change validity,
+        cloud points +0.02 %.  False: tiled and untiled DSMs are bit-identical.
     fill_holes
         Interpolate holes of at most ``fill_max_cells`` cells' distance from measured cells (flagged in the
         ``filled`` layer).
@@ -142,6 +160,8 @@ class DenseConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
+    tile_crop: bool = True
+    tile_memory_mb: float | None = 1024.0
     fill_holes: bool = False
     fill_max_cells: int = 16
     max_cells: int = 400_000_000
@@ -486,9 +506,96 @@ def plan_dense(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], out
     m = _local_to_map(local, out_frame, np.concatenate(bounds).reshape(-1, 3)).reshape(-1, 4, 3)
     bounds = [np.column_stack([m[:, :, 0].min(axis=1) - pad, m[:, :, 1].min(axis=1) - pad,
                                m[:, :, 0].max(axis=1) + pad, m[:, :, 1].max(axis=1) + pad]) for m in np.split(m, cut)]
-    tiles = grid.tiles(config.tile_cells)
+    px = [cameras[str(c)].width * cameras[str(c)].height for c in eo_l.camera]  # at the matched level
+    side, load = tile_side(grid, config, tuple(kept), tuple(rects), tuple(blocks), tuple(bounds), px)
+    tiles = ground_tiles(grid, side)
+    if config.tile_memory_mb is not None:
+        logger.info("dense: ground tiles of %d cells a side (at most %d, memory budget %g MiB a tile): %d tiles, "
+                    "predicted at most %.3g M points and %.0f MiB a tile", side, config.tile_cells,
+                    config.tile_memory_mb, len(tiles), load[0] / 1e6, load[1] / 2 ** 20)
     return DensePlan(eo_l, dict(cameras), out_frame, box, grid, gsd_m, tuple(kept), tuple(rects), tuple(blocks),
                      tuple(bounds), tiles, config, FrameMap(local, out_frame, box), level)
+
+
+#: memory a tile's work takes per point (bytes): the fusion's record (pair, x y z, precisions, colour, normal: 53
+#: bytes) with its sort and the tile's results; measured 62-82 bytes a point on the 240-image growth block
+#: (``bench/run.py --grow 2``, RSS growth over each 768-cell tile's run, 0.5-9.4 M points)
+TILE_BYTES_PER_POINT = 80
+
+
+def ground_tiles(grid: GridSpec, side: int) -> tuple[tuple[int, int, int, int], ...]:
+    """``(row0, col0, height, width)`` windows of at most ``side`` cells covering the grid, as few as
+    :meth:`GridSpec.tiles` gives along each axis but of about equal size (no sliver of a tile that would read and
+    match every image reaching it for a few cells), in multiples of the fusion's 16-cell buckets where ``side`` is
+    one."""
+    g = 16 if side % 16 == 0 else 1
+
+    def cuts(n: int) -> list[int]:
+        k = -(-n // side)  # tiles along the axis
+        step = -(-n // k)  # their equal size, rounded up to g
+        step = -(-step // g) * g
+        return list(range(0, n, step)) + [n]
+
+    rows, cols = cuts(grid.height), cuts(grid.width)
+    return tuple((r0, c0, r1 - r0, c1 - c0) for r0, r1 in zip(rows[:-1], rows[1:]) for c0, c1 in zip(cols[:-1], cols[1:]))
+
+
+def tile_load(grid: GridSpec, tiles: tuple[tuple[int, int, int, int], ...], pairs: tuple[StereoPair, ...],
+              rects: tuple[Rectification, ...], blocks: tuple[tuple[Block, ...], ...],
+              bounds: tuple[NDArray[np.float64], ...], sgm: SgmConfig, image_px: list[int]
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Predicted points and bytes of each tile's work.
+
+    Points: every block's pixels that can match (the columns whose search window reaches the right image,
+    :func:`skyrig.dense.stereo.block_crop`) spread evenly over the block's ground bounds, the share inside the tile
+    (the overlap times ``(cell / GSD)^2`` of the matched images, where the pairs overlap).  Against the points a
+    tile's run triangulates into it: 0.77-1.03 on the 240-image growth block's 768-cell tiles, 0.78-1.05 on the
+    loaded tiles of ``tests/test_dense.py``'s block (far less at the grid's corners).  Bytes: :data:`TILE_BYTES_PER_POINT` a point, and the images
+    of the pairs reaching the tile whole (RGB and grey at the matched level, ``image_px`` pixels each)."""
+    from skyrig.dense.stereo import block_crop
+
+    bb = np.concatenate(bounds) if bounds else np.zeros((0, 4))
+    n_px = np.array([float((c[3] - c[2]) * (b.v1 - b.v0)) if (c := block_crop(r, b, sgm)) else 0.0
+                     for r, bl in zip(rects, blocks) for b in bl])
+    owner = np.repeat(np.arange(len(blocks)), [len(bl) for bl in blocks])
+    area = np.maximum(bb[:, 2] - bb[:, 0], 1e-9) * np.maximum(bb[:, 3] - bb[:, 1], 1e-9)
+    pts, nbytes = np.zeros(len(tiles)), np.zeros(len(tiles))
+    for k, (r0, c0, h, w) in enumerate(tiles):
+        x0, y0, x1, y1 = grid.window(r0, c0, h, w).bounds
+        ox = np.clip(np.minimum(bb[:, 2], x1) - np.maximum(bb[:, 0], x0), 0, None)
+        oy = np.clip(np.minimum(bb[:, 3], y1) - np.maximum(bb[:, 1], y0), 0, None)
+        pts[k] = float((n_px * ox * oy / area).sum())
+        imgs = {i for p in np.unique(owner[(ox > 0) & (oy > 0)]) for i in (pairs[p].left, pairs[p].right)}
+        nbytes[k] = pts[k] * TILE_BYTES_PER_POINT + 4.0 * sum(image_px[i] for i in imgs)
+    return pts, nbytes
+
+
+def tile_side(grid: GridSpec, config: DenseConfig, pairs: tuple[StereoPair, ...], rects: tuple[Rectification, ...],
+              blocks: tuple[tuple[Block, ...], ...], bounds: tuple[NDArray[np.float64], ...], image_px: list[int]
+              ) -> tuple[int, tuple[float, float]]:
+    """The ground tiles' side: ``config.tile_cells``, or with ``config.tile_memory_mb`` the largest side at most
+    that whose tiles' predicted work (:func:`tile_load`) fits the budget (multiples of 128 cells, then 64).
+    When none fits (the images reaching a tile alone take more: they do not shrink with a tile smaller than their
+    footprints), the largest side within 10 % of the smallest predicted work, with a warning.  Returns the side
+    and the largest tile's predicted ``(points, bytes)``."""
+    side = int(config.tile_cells)
+    if config.tile_memory_mb is None:
+        return side, (float("nan"), float("nan"))
+    budget = float(config.tile_memory_mb) * 2 ** 20
+    sides = [side] + [s for s in range(side - side % 128, 127, -128) if s < side] + [s for s in (64,) if s < side]
+    seen = []
+    for s in sides:
+        pts, nbytes = tile_load(grid, ground_tiles(grid, s), pairs, rects, blocks, bounds, config.sgm, image_px)
+        k = int(np.argmax(nbytes))
+        seen.append((s, float(pts[k]), float(nbytes[k])))
+        if nbytes[k] <= budget:
+            return s, seen[-1][1:]
+    least = min(b for _, _, b in seen)
+    s, p, b = next(x for x in seen if x[2] <= 1.1 * least)
+    logger.warning("dense: no ground tile of %d to %d cells fits the memory budget of %g MiB (option: tile_memory_mb): "
+                   "tiles of %d cells, predicted at most %.0f MiB a tile", sides[-1], sides[0], config.tile_memory_mb,
+                   s, b / 2 ** 20)
+    return s, (p, b)
 
 
 def _grid_from_local(plan: DensePlan, at_map: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -563,6 +670,7 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
     # the points go straight from the disparities into the sorter where nothing else needs them (no cloud on its
     # own voxel grid) and the local -> map conversion is the polynomial
     fm = plan.to_map
+    pad = 2 * plan.grid.cell_m  # as the blocks' ground bounds
     direct = (with_cloud or not plan.config.cloud) and fm.coef is not None
     poly = (fm.c, fm.s, np.ascontiguousarray(fm.coef, np.float64), fm.offset) if direct else ()
     for pid, (pair, rect, bl, hit) in enumerate(zip(plan.pairs, plan.rects, plan.blocks, hits)):
@@ -572,7 +680,11 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
             parts, cnt = block_parts(rect, blk, plan.config, grey if whole else None, pair.left, pair.right)
             counts = counts + cnt
             nblocks += 1
-            for part in parts:
+            for whole_part in parts:
+                part = tile_part(rect, whole_part, plan.config.sgm, fm, (xb0, yb0, xb1, yb1), pad) \
+                    if plan.config.tile_crop else whole_part
+                if part is None:
+                    continue
                 disp, colour, _ = match_block(rect, source(pair.left, False), source(pair.right, True), part,
                                               plan.config.sgm)
                 mpx += disp.size / 1e6
@@ -596,6 +708,51 @@ def run_tile(plan: DensePlan, k: int, loader: ImageLoader) -> TileResult:
                                plan.config.fusion, rot)
     return TileResult((r0, c0, h, w), hgt, sup, spr, sg, cloud if plan.config.cloud and npts else None, npts, nblocks,
                       mpx, time.perf_counter() - t0, ch, cs, cn, ch2, cs2, cn2, counts)
+
+
+def tile_part(rect: Rectification, blk: Block, sgm: SgmConfig, to_map: Callable[[NDArray], NDArray],
+              bounds: tuple[float, float, float, float], pad_m: float, step: int = 32) -> Block | None:
+    """The part of a block whose pixels can give points in a ground tile (map ``bounds`` ``(xmin, ymin, xmax,
+    ymax)``), with the block's disparity window; None: no pixel can.
+
+    A pixel's point lies on its ray between the depths of the disparities OpenCV searches for the block
+    (:func:`skyrig.dense.sgm.disparity_window`).  Pixels on a lattice of ``step`` are taken along their rays at
+    both ends of that range to the map; those whose segment's bounds meet the tile, widened by the largest ground
+    distance between neighbours of the lattice and ``pad_m``, span the part, widened by ``step`` pixels.  Every
+    pixel whose point can fall in the tile is in it (at a fixed depth the rectified pixels map affinely onto the
+    local frame; the map's own curvature over a lattice step is far below ``pad_m``).  The part is matched with
+    the same context margin as any block (:func:`skyrig.dense.stereo.block_crop`), so a small ground tile matches
+    about its own footprint, not every block that reaches it whole; the disparities of a pixel can then differ
+    from the whole block's where SGM's paths reach farther than that margin (figures: ``DenseConfig.tile_cells``).
+    The whole block when its far end is unbounded (a window reaching disparity 0)."""
+    from skyrig.dense.sgm import disparity_window
+
+    shift, n = disparity_window(blk.d_min, blk.d_max, sgm)
+    if shift < 2:
+        return blk
+    us = np.unique(np.r_[np.arange(blk.u0, blk.u1, step), blk.u1 - 1])
+    vs = np.unique(np.r_[np.arange(blk.v0, blk.v1, step), blk.v1 - 1])
+    uu, vv = np.meshgrid(us, vs)
+    dirs = rect.rect_directions(uu.ravel(), vv.ravel()) @ rect.rotation.T
+    fb = rect.focal_px * rect.base_m
+    ends = [to_map(rect.centres[0] + dirs * (fb / d)) for d in (shift + n, shift - 1)]  # near, far
+    lo = np.minimum(ends[0][:, :2], ends[1][:, :2]).reshape(len(vs), len(us), 2)
+    hi = np.maximum(ends[0][:, :2], ends[1][:, :2]).reshape(len(vs), len(us), 2)
+    gap = 0.0
+    for e in ends:
+        g = e[:, :2].reshape(len(vs), len(us), 2)
+        for ax in (0, 1):
+            if g.shape[ax] > 1:
+                gap = max(gap, float(np.hypot(*np.moveaxis(np.diff(g, axis=ax), -1, 0)).max()))
+    m = gap + pad_m
+    xb0, yb0, xb1, yb1 = bounds
+    hit = (lo[..., 0] <= xb1 + m) & (hi[..., 0] >= xb0 - m) & (lo[..., 1] <= yb1 + m) & (hi[..., 1] >= yb0 - m)
+    if not hit.any():
+        return None
+    rows, cols = np.flatnonzero(hit.any(axis=1)), np.flatnonzero(hit.any(axis=0))
+    u0, u1 = max(blk.u0, int(us[cols[0]]) - step), min(blk.u1, int(us[cols[-1]]) + step + 1)
+    v0, v1 = max(blk.v0, int(vs[rows[0]]) - step), min(blk.v1, int(vs[rows[-1]]) + step + 1)
+    return replace(blk, u0=u0, u1=u1, v0=v0, v1=v1)
 
 
 def _add_points(plan: DensePlan, srt: CellSorter, extra: list, pid: int, pp: PairPoints, with_cloud: bool,

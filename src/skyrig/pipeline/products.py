@@ -80,7 +80,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              inputs: Sequence[str | PathLike[str]] = (), progress: Progress = None,
              echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
              lr_check: str | None = None, window_min_mp: float | None = None,
-             image_scale: float | str | None = "auto", orientation_sigma_px: float | None = None) -> Any:
+             image_scale: float | str | None = "auto", orientation_sigma_px: float | None = None,
+             tile_memory_mb: float | None = 1024.0) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
@@ -94,6 +95,8 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     ``resolution``, without it the largest scale that keeps the images within 2048 px
     (:func:`skyrig.dense.levels.auto_image_scale`).  ``orientation_sigma_px``: the orientations' relative error
     as a disparity in full-resolution pixels, for the fusion's tolerance (:class:`DenseConfig`; None: 0).
+    ``tile_memory_mb``: memory budget of one ground tile's work, the tiles' side chosen up to ``tile_cells`` to fit
+    it (:class:`DenseConfig`; None: tiles of ``tile_cells``).
     """
     from dataclasses import replace
 
@@ -127,6 +130,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     _positive(min_support, "min_support", spell, "at least 1", 1)
     _positive(pairs_per_image, "pairs_per_image", spell, "at least 1", 1)
     _positive(tile_cells, "tile_cells", spell, "at least 64 cells", 64)
+    _positive(tile_memory_mb, "tile_memory_mb", spell, "a positive number of MiB (null: tiles of tile_cells)")
     if mode not in ("sgbm", "hh", "3way", "hh4"):
         raise OptionError(spell("mode"), f"unknown mode {mode!r} (sgbm, hh, 3way, hh4)")
     if lr_check is not None and lr_check not in ("opencv", "banded", "full"):
@@ -141,14 +145,15 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
                       sgm=replace(base.sgm, mode=mode, lr_check=lr_check),
                       fusion=replace(base.fusion, min_support=min_support),
                       fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth, image_scale=scale,
-                      orientation_sigma_px=orientation_sigma_px or 0.0)
+                      orientation_sigma_px=orientation_sigma_px or 0.0,
+                      tile_memory_mb=None if tile_memory_mb is None else float(tile_memory_mb))
     heads_text = heads if heads is None or isinstance(heads, str) else ",".join(heads)
     options = {"crs": out_frame.crs, "geoid": out_frame.geoid, "height_range": [float(h) for h in height_range],
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
                "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
                "lr_check": lr_check, "window_min_mp": window_min_mp, "image_scale": image_scale,
-               "orientation_sigma_px": orientation_sigma_px}
+               "orientation_sigma_px": orientation_sigma_px, "tile_memory_mb": tile_memory_mb}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,
                    scheduler=scheduler, inputs=[str(i) for i in inputs] + ([str(points)] if points else []),

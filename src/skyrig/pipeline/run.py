@@ -757,6 +757,7 @@ def _dsm(ctx: StageContext) -> dict[str, Any]:
                    points=points, heads=o["heads"], area=o["area"], resolution=o["resolution"], mode=o["mode"],
                    lr_check=o["lr_check"], pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
                    cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"], image_scale=o["image_scale"],
+                   tile_memory_mb=o["tile_memory_mb"],
                    orientation_sigma_px=o["orientation_sigma_px"],
                    **_executor_kw(p.executor), inputs=files, progress=ctx.progress,
                    echo=lambda line: logger.info("stage dsm: %s", line), spell=_spelling("dsm"))
@@ -868,6 +869,9 @@ register_stage(Stage(
              "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
+             "tile_memory_mb": Option(1024.0, "float", "memory budget of a tile's work (MiB): tiles up to tile_cells "
+                                      "whose predicted points and images fit; null = tiles of tile_cells",
+                                      nullable=True, positive=True),
              "min_depth": Option(None, "float", "nearest searched depth (m)", nullable=True, positive=True),
              "image_scale": Option("auto", "choice", "scale of the images dense matching sees, as ODM's quality: "
                                    "ultra 1, high 0.5, medium 0.25, low 0.125, lowest 0.0625; auto: from resolution, "
