@@ -762,16 +762,23 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
     """Put tile results together into the DSM (and cloud), whole in memory (``skyrig.pipeline.dense`` writes
     them window by window instead, with the same cells and points)."""
     H, W = plan.grid.shape
-    layers = empty_layers(H, W)
+    layers: list[NDArray] | None = None
     clouds = []
     tally = TileTally()
     for r in results:
         r0, c0, h, w = r.window
-        for a, t in zip(layers, tile_layers(r)):
-            a[r0:r0 + h, c0:c0 + w] = t
+        if layers is None and tuple(r.window) == (0, 0, H, W):  # one tile, the whole grid: its layers as they are
+            layers = tile_layers(r)  # (the grid's copies of fresh memory cost 0.05 of the 16-image bench's 2.9 s)
+        else:
+            if layers is None:
+                layers = empty_layers(H, W)
+            for a, t in zip(layers, tile_layers(r)):
+                a[r0:r0 + h, c0:c0 + w] = t
         if r.cloud is not None:
             clouds.append(r.cloud)
         tally.add(r)
+    if layers is None:
+        layers = empty_layers(H, W)
     height, support, spread, sigma = confirm_window(layers, (0, 0, H, W), plan.grid.cell_m, plan.config)
     del layers
     filled = np.zeros((H, W), bool)
