@@ -144,6 +144,8 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
     returns the number of rows written."""
     nb = tail.shape[0]
     t2 = 1 << (2 * ts)
+    ntc = (W + (1 << ts) - 1) >> ts
+    tmask = (1 << ts) - 1
     n_ch = nch[0]
     cstart = np.zeros(nb + 1, np.int64)  # the chunks by bucket, in the order they were taken (a counting sort)
     for k in range(n_ch):
@@ -204,11 +206,14 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
                 bz[t] = xyz[r, zc]
                 bs[t] = sigma_h[r]
                 pos[q] = t + 1
+        br = (b // ntc) << ts  # the bucket's first row and column (tiled_cell, one division per bucket)
+        bc = (b % ntc) << ts
         for lq in range(t2):
             a, e = cnt[lq], cnt[lq + 1]
             if a == e:
                 continue
-            cg = tiled_cell(b * t2 + lq, W, ts)
+            cc = bc + (lq & tmask)
+            cg = (br + (lq >> ts)) * W + cc if cc < W else -1
             if do_grid:
                 m = 0
                 for q in range(a, e):
