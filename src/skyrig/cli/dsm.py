@@ -31,7 +31,7 @@ from skyrig.cli._common import eo_options
                    "(OpenCV's internal one: half the matching time, rounder building edges, a few more outliers).")
 @click.option("--lr-band-cols", type=Number(integer=True, nonnegative=True), default=None, metavar="PX",
               help="Banded check: the second matching runs only on the columns within this many pixels of a depth "
-                   "edge (default 32; 0: on the bands' whole rows).")
+                   "edge (default 8; 0: on the bands' whole rows).")
 @click.option("--pairs-per-image", type=POSITIVE_INT, default=6, show_default=True, help="Stereo pairs an image takes part in.")
 @click.option("--min-support", type=POSITIVE_INT, default=2, show_default=True,
               help="Stereo pairs that must agree on a cell's height.")

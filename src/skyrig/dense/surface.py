@@ -82,7 +82,10 @@ class DenseConfig:
         32 images (6 runs each): 6.35 -> 5.94, 0.375 -> 0.40 (0.35-0.38 -> 0.35-0.44; on this shared machine the
         noise is about as large as the gain there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
         test 0.57, fusion of the 7.0 M points into grid and cloud 0.48, rectification and reading 0.21, so that without
-        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  The full check
+        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  Issue 35: the columns'
+        zone is 8 px (``SgmConfig.lr_band_cols_px``: right-based pass 0.43 -> 0.33 CPU s, edge figures within their
+        spread) and the fusion's spread and cell indices cost less (bit-identical products); figures in docs/cli.md
+        ("skyrig dsm --lr-band-cols").  The full check
         (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
         below were measured with it (not re-run with the banded check).  OpenCV's internal check (``"opencv"``: the
         right image's disparities from the left matching's own cost volume) saves that second matching, which costs as
@@ -138,7 +141,7 @@ class DenseConfig:
     pairs: PairConfig = field(default_factory=PairConfig)
     sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
                                                              lr_check="banded",
-                                                             lr_band_cols_px=32))
+                                                             lr_band_cols_px=8))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048

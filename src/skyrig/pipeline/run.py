@@ -866,7 +866,7 @@ register_stage(Stage(
                                 "(opencv: half the matching time, rounder building edges)",
                                 ("banded", "full", "opencv")),
              "lr_band_cols": Option(None, "int", "banded check: the second matching only on the columns within this "
-                                    "many pixels of a depth edge (>= 0; 0: the bands' whole rows; null: 32)",
+                                    "many pixels of a depth edge (>= 0; 0: the bands' whole rows; null: 8)",
                                     nullable=True),
              "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
