@@ -3,7 +3,8 @@
 Usage::
 
     .venv/bin/python bench/dense.py [--quick] [--sizes 4,8,16,32,64] [--cache /tmp/skyrig-bench-dense]
-        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check banded|full|opencv] [--no-cloud]
+        [--profile N] [--workers 2] [--cv-threads 1] [--tile-cells N] [--cold] [--lr-check banded|full|opencv]
+        [--lr-band-cols PX] [--no-cloud]
 
 Data: the simulator's ``midas-dsm`` scenario (MIDAS rig, 150 m, 80 % forward / 60 % side overlap, 640 x 427
 images) with two changes made through :func:`dataclasses.replace` on its spec: only the nadir head is flown
@@ -143,7 +144,7 @@ def setup(cache: Path, n: int, workers: int | None = None):  # type: ignore[no-u
 
 
 def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,  # type: ignore[no-untyped-def]
-              lr_check: str | None = None, with_cloud: bool = True):
+              lr_check: str | None = None, with_cloud: bool = True, lr_band_cols: int | None = None):
     from skyrig.dense.surface import DenseConfig, assemble, plan_dense, run_tile
 
     from skyrig.dense import _phases
@@ -151,6 +152,8 @@ def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,
     cfg = DenseConfig() if tile_cells is None else DenseConfig(tile_cells=tile_cells)
     if lr_check is not None:
         cfg = replace(cfg, sgm=replace(cfg.sgm, lr_check=lr_check))
+    if lr_band_cols is not None:
+        cfg = replace(cfg, sgm=replace(cfg.sgm, lr_band_cols_px=lr_band_cols))
     cfg = replace(cfg, cloud=with_cloud)
     _phases.reset()
     c0 = time.process_time()
@@ -168,7 +171,7 @@ def run_chain(eo, cameras, loader, out_frame, hr, tile_cells: int | None = None,
 
 
 def warm_up(eo, cameras, loader, out_frame, hr, lr_check: str | None = None,  # type: ignore[no-untyped-def]
-            with_cloud: bool = True) -> dict:
+            with_cloud: bool = True, lr_band_cols: int | None = None) -> dict:
     """The chain's one-time start-up in a fresh process (numba loading its compiled kernels from the cache, LLVM
     set-up, first OpenCV calls), paid once per process whatever the block: the whole chain on a 10 x 10 m area
     in the block's middle with 64-pixel blocks (every kernel runs once, on the same types and options as the timed
@@ -180,6 +183,8 @@ def warm_up(eo, cameras, loader, out_frame, hr, lr_check: str | None = None,  # 
     cfg = DenseConfig(block_px=64, cloud=with_cloud)
     if lr_check is not None:
         cfg = replace(cfg, sgm=replace(cfg.sgm, lr_check=lr_check))
+    if lr_band_cols is not None:
+        cfg = replace(cfg, sgm=replace(cfg.sgm, lr_band_cols_px=lr_band_cols))
     plan = plan_dense(eo, cameras, out_frame, hr, (m[0] - 5, m[1] - 5, m[0] + 5, m[1] + 5), cfg)
     assemble(plan, [run_tile(plan, k, loader) for k in range(len(plan.tiles))])
     return {"startup_s": time.perf_counter() - t0, "startup_cpu_s": time.process_time() - c0}
@@ -249,15 +254,17 @@ def run_raw(plan, loader) -> dict:  # type: ignore[no-untyped-def]
 
 
 def worker(cache: Path, n: int, tile_cells: int | None, cv_threads: int = 1, cold: bool = False,
-           lr_check: str | None = None, with_cloud: bool = True) -> dict:
+           lr_check: str | None = None, with_cloud: bool = True, lr_band_cols: int | None = None) -> dict:
     """One size, in this (fresh) process: start-up (unless ``cold``), chain, then raw; peak memory of each phase."""
     import cv2
 
     eo, cameras, loader, out_frame, hr = setup(cache, n)
     cv2.setNumThreads(cv_threads)  # the same for the chain and raw (OpenCV's MODE_SGBM itself is single-threaded)
-    start = {"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else warm_up(eo, cameras, loader, out_frame, hr, lr_check, with_cloud)
+    start = ({"startup_s": 0.0, "startup_cpu_s": 0.0} if cold else
+             warm_up(eo, cameras, loader, out_frame, hr, lr_check, with_cloud, lr_band_cols))
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check, with_cloud)
+    plan, dsm, cloud, stats, t = run_chain(eo, cameras, loader, out_frame, hr, tile_cells, lr_check, with_cloud,
+                                           lr_band_cols)
     rss_chain = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     raw = run_raw(plan, loader)
     h = dsm.height
@@ -321,6 +328,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lr-check", choices=("banded", "full", "opencv"), default=None,
                     help="SgmConfig.lr_check of the chain (default: DenseConfig's, the banded check); raw "
                          "StereoSGBM always runs OpenCV's internal check (disp12MaxDiff)")
+    ap.add_argument("--lr-band-cols", type=int, default=None, metavar="PX",
+                    help="SgmConfig.lr_band_cols_px of the chain (default: DenseConfig's; skyrig dsm --lr-band-cols)")
     ap.add_argument("--no-cloud", action="store_true",
                     help="the chain without the dense point cloud (DenseConfig.cloud=False, skyrig dsm --no-cloud)")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
@@ -328,7 +337,7 @@ def main(argv: list[str] | None = None) -> None:
     cache = Path(a.cache)
     if a.worker is not None:
         print("RESULT " + json.dumps(worker(cache, a.worker, a.tile_cells, a.cv_threads, a.cold, a.lr_check,
-                                                 not a.no_cloud)))
+                                                 not a.no_cloud, a.lr_band_cols)))
         return
     if a.profile is not None:
         profile(cache, a.profile)
@@ -342,6 +351,7 @@ def main(argv: list[str] | None = None) -> None:
 
     print(f"{'cold start (start-up in the chain)' if a.cold else 'start-up timed apart (column start s)'}; "
           f"tile_cells {a.tile_cells or 'default'}; lr_check {a.lr_check or 'default'}; "
+          f"lr_band_cols {'default' if a.lr_band_cols is None else a.lr_band_cols}; "
           f"{'no cloud' if a.no_cloud else 'with cloud'}; OpenCV {cv2.__version__}, "
           f"cv2.setNumThreads({a.cv_threads}) in chain "
           f"and raw, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.1f}); cache {cache}")
@@ -356,6 +366,8 @@ def main(argv: list[str] | None = None) -> None:
             cmd += ["--lr-check", a.lr_check]
         if a.no_cloud:
             cmd.append("--no-cloud")
+        if a.lr_band_cols is not None:
+            cmd += ["--lr-band-cols", str(a.lr_band_cols)]
         p = subprocess.run(cmd, capture_output=True, text=True)
         line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
         if p.returncode != 0 or not line:

@@ -620,6 +620,35 @@ def test_cli_lr_check_option_reaches_the_matcher(project, tmp_path, monkeypatch)
     assert r.exit_code != 0 and "--lr-check" in r.output and not (tmp_path / "bad").exists()
 
 
+def test_lr_band_cols_option_reaches_the_config_and_bad_values_name_the_option(project, block, tmp_path, monkeypatch):
+    """``skyrig dsm --lr-band-cols PX`` and the dsm stage's ``lr_band_cols`` set ``SgmConfig.lr_band_cols_px`` (and
+    the manifest's options); without it DenseConfig's default; a negative or fractional value is refused naming the
+    option (the command line while parsing, the stage's project spelling in make_dsm)."""
+    from skyrig.errors import OptionError
+    from skyrig.pipeline import dense as pdense
+    from skyrig.pipeline.products import make_dsm
+    from skyrig.pipeline.run import STAGES, _spelling
+
+    seen: list = []
+    monkeypatch.setattr(pdense, "run_dsm", lambda *a, **k: seen.append((k["config"], k["options"])))
+    eo, cams, _ = block
+    kw = dict(crs=CRS, height_range=(40.0, 75.0))
+    for given, want in ((None, DenseConfig().sgm.lr_band_cols_px), (8, 8), (0, 0)):
+        seen.clear()
+        make_dsm(eo, cams, [project / "images"], tmp_path / "o", lr_band_cols=given, **kw)
+        cfg, options = seen[0]
+        assert cfg.sgm.lr_band_cols_px == want and options["lr_band_cols"] == want
+    for bad in (-1, 2.5, True):
+        with pytest.raises(OptionError, match="stages.dsm.lr_band_cols"):
+            make_dsm(eo, cams, [project / "images"], tmp_path / "o", lr_band_cols=bad, spell=_spelling("dsm"), **kw)
+    assert STAGES["dsm"].options["lr_band_cols"].check(16) == 16
+    with pytest.raises(ValueError):
+        STAGES["dsm"].options["lr_band_cols"].check(1.5)
+    for bad in ("-4", "3.5", "x"):
+        r = _dsm(project, tmp_path / "bad", "--height-range", "40", "75", "--lr-band-cols", bad)
+        assert r.exit_code != 0 and "--lr-band-cols" in r.output and not (tmp_path / "bad").exists()
+
+
 def test_cli_on_12_bit_images_gives_the_8_bit_blocks_surface(project, tmp_path):
     """The block's images as 12-bit data in 16-bit PNGs (what aerial cameras deliver, here 16 x the 8-bit value +
     40): ``skyrig dsm`` scales them to 8 bit by the block's levels (OpenCV's own conversion, a shift by 8 bits, leaves

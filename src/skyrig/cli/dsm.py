@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, NONNEGATIVE, POSITIVE, POSITIVE_INT, POSITIVE_M
+from skyrig.cli._types import CRS_TEXT, FINITE, GEOID, NONNEGATIVE, POSITIVE, POSITIVE_INT, POSITIVE_M, Number
 
 from skyrig.cli._common import eo_options
 
@@ -29,6 +29,9 @@ from skyrig.cli._common import eo_options
               help="Left-right check: 'banded' (default: a second matching from the right image on the row bands "
                    "where the first shows a depth edge), 'full' (that matching on every row) or 'opencv' "
                    "(OpenCV's internal one: half the matching time, rounder building edges, a few more outliers).")
+@click.option("--lr-band-cols", type=Number(integer=True, nonnegative=True), default=None, metavar="PX",
+              help="Banded check: the second matching runs only on the columns within this many pixels of a depth "
+                   "edge (default 8; 0: on the bands' whole rows).")
 @click.option("--pairs-per-image", type=POSITIVE_INT, default=6, show_default=True, help="Stereo pairs an image takes part in.")
 @click.option("--min-support", type=POSITIVE_INT, default=2, show_default=True,
               help="Stereo pairs that must agree on a cell's height.")
@@ -59,7 +62,7 @@ from skyrig.cli._common import eo_options
 @click.option("--scheduler", default=None, help="Address of a dask.distributed scheduler (tcp://host:8786).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Output folder.")
 def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths, images, heads, crs, geoid, height_range,
-            points_path, area, resolution, mode, lr_check, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, tile_memory_mb, window_min_mp,
+            points_path, area, resolution, mode, lr_check, lr_band_cols, pairs_per_image, min_support, fill, no_cloud, min_depth, tile_cells, tile_memory_mb, window_min_mp,
             image_scale, orientation_sigma_px, executor, workers, scheduler, output) -> None:
     """Dense matching: DSM (COG) and dense point cloud (LAZ) from oriented images.
 
@@ -79,7 +82,7 @@ def command(eo_path, eo_format, eo_crs, eo_geoid, eo_map_z_ground, camera_paths,
                        pairs_per_image=pairs_per_image, min_support=min_support, fill=fill, cloud=not no_cloud,
                        min_depth=min_depth, tile_cells=tile_cells, executor=executor, workers=workers,
                        scheduler=scheduler, inputs=[eo_path, *camera_paths], progress=progress, echo=click.echo,
-                       lr_check=lr_check, window_min_mp=window_min_mp, image_scale=image_scale,
+                       lr_check=lr_check, lr_band_cols=lr_band_cols, window_min_mp=window_min_mp, image_scale=image_scale,
                        orientation_sigma_px=orientation_sigma_px, tile_memory_mb=tile_memory_mb or None)
     s = res.summary
     click.echo(f"{len(s['pairs'])} stereo pairs, {res.stats.megapixels:.1f} MP matched, {s['cells_valid']} of {s['cells']} "

@@ -144,6 +144,8 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
     returns the number of rows written."""
     nb = tail.shape[0]
     t2 = 1 << (2 * ts)
+    ntc = (W + (1 << ts) - 1) >> ts
+    tmask = (1 << ts) - 1
     n_ch = nch[0]
     cstart = np.zeros(nb + 1, np.int64)  # the chunks by bucket, in the order they were taken (a counting sort)
     for k in range(n_ch):
@@ -204,11 +206,14 @@ def fuse_buckets(lc, tail, fill, chunk_bucket, nch, chunk, pair, xyz, sigma_h, v
                 bz[t] = xyz[r, zc]
                 bs[t] = sigma_h[r]
                 pos[q] = t + 1
+        br = (b // ntc) << ts  # the bucket's first row and column (tiled_cell, one division per bucket)
+        bc = (b % ntc) << ts
         for lq in range(t2):
             a, e = cnt[lq], cnt[lq + 1]
             if a == e:
                 continue
-            cg = tiled_cell(b * t2 + lq, W, ts)
+            cc = bc + (lq & tmask)
+            cg = (br + (lq >> ts)) * W + cc if cc < W else -1
             if do_grid:
                 m = 0
                 for q in range(a, e):
@@ -300,12 +305,12 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     nsup = 0
     wsum = 0.0
     hsum = 0.0
-    for q in range(np_):  # pi from here on: 1 where the pair supports the median
-        pi[q] = 0
+    for q in range(np_):  # dev: 1 where the pair supports the median (pi keeps the heights' order)
+        dev[q] = 0.0
         dq = abs(ph[q] - med)
         # within the least tolerance the pair supports whatever its sigma (no square root needed)
         if dq <= min_tol or dq <= k_sigma * np.sqrt(ps[q] * ps[q] + smed * smed):
-            pi[q] = 1
+            dev[q] = 1.0
             nsup += 1
             wsum += pw[q]
             hsum += pw[q] * ph[q]
@@ -321,19 +326,29 @@ def _grid_cell(c, lp, lh, ls, m, k_sigma, min_tol, min_support, min_ratio, max_r
     out_h[c] = fused
     out_n[c] = min(nsup, 32767)
     out_s[c] = 1.0 / np.sqrt(wsum)
-    if nsup >= 2:  # the median absolute deviation: the two middle deviations picked by their ranks
+    if nsup >= 2:  # the median absolute deviation: the supporting heights in ascending order (pi) into pw, whose
+        # deviations from the fused height fall, then rise: the two middle ones by a merge outward from it
         t = 0
+        below = 0
         for q in range(np_):
-            if pi[q]:
-                dev[t] = abs(ph[q] - fused)
+            i = pi[q]
+            if dev[i] > 0:
+                pw[t] = ph[i]
+                below += pw[t] < fused
                 t += 1
         lo_v = hi_v = 0.0
-        for q in range(nsup):
-            r = _rank(dev, nsup, q)
+        a = below - 1
+        b = below
+        for r in range(nsup // 2 + 1):
+            if b >= nsup or (a >= 0 and abs(pw[a] - fused) <= abs(pw[b] - fused)):
+                v = abs(pw[a] - fused)
+                a -= 1
+            else:
+                v = abs(pw[b] - fused)
+                b += 1
             if r == (nsup - 1) // 2:
-                lo_v = dev[q]
-            if r == nsup // 2:
-                hi_v = dev[q]
+                lo_v = v
+            hi_v = v
         out_sp[c] = 1.4826 * 0.5 * (lo_v + hi_v)
     else:
         out_sp[c] = np.nan

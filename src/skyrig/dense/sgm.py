@@ -134,7 +134,13 @@ class SgmConfig:
         the DSM's default (32): right-based pass 0.65 -> 0.44 CPU s, cells within 2 GSD of building outlines valid
         38.87 -> 39.01 %, off by more than 5 GSD 22.70 -> 22.80 %, RMSE 19.11 -> 19.14 GSD, flat NMAD 0.139 GSD both
         (16 px: 0.38 s, 39.03 %, 22.79 %, 19.15 GSD; 64 px: 0.54 s, 39.01 %, 22.80 %, 19.14 GSD; within the spread
-        that the choice of band moves these figures).
+        that the choice of band moves these figures).  The DSM's default since issue 35 is 8 px (the crops keep the
+        search width and 8 px of path on either side; ``bench/dense.py --lr-band-cols``, products deterministic, CPU s
+        medians of 2 runs): 16 images 32 / 16 / 8 / 4 px: right-based pass 0.43 / 0.375 / 0.33 / 0.305 s, edge cells
+        valid 39.01 / 39.03 / 39.04 / 39.05 %, off by more than 5 GSD 22.80 / 22.79 / 22.78 / 22.66 %, RMSE 19.14 /
+        19.15 / 19.15 / 19.07 GSD, flat NMAD 0.139 GSD in all; 32 images (one run each) 32 / 8 / 4 px: 1.03 / 0.85 /
+        0.78 s, edge cells valid 70.83 / 70.89 / 70.92 %, off by more than 5 GSD 18.18 / 18.24 / 18.28 %, RMSE 15.81 /
+        15.83 / 15.84 GSD, flat NMAD 0.142 GSD in all.
     wall_max_nz, wall_window_px
         A triangulated point gets a DSM height only where the matched pixels of its ``wall_window_px`` square
         window are at least half of the window and their points fit a plane no steeper than

@@ -83,7 +83,10 @@ class DenseConfig:
         32 images (6 runs each): 6.35 -> 5.94, 0.375 -> 0.40 (0.35-0.38 -> 0.35-0.44; on this shared machine the
         noise is about as large as the gain there).  Where the 16 images' time goes now: left matching 0.91, right-based 0.43, triangulation with the wall
         test 0.57, fusion of the 7.0 M points into grid and cloud 0.48, rectification and reading 0.21, so that without
-        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  The full check
+        any triangulation and fusion the chain would reach about 0.68 of raw StereoSGBM.  Issue 35: the columns'
+        zone is 8 px (``SgmConfig.lr_band_cols_px``: right-based pass 0.43 -> 0.33 CPU s, edge figures within their
+        spread) and the fusion's spread and cell indices cost less (bit-identical products); figures in docs/cli.md
+        ("skyrig dsm --lr-band-cols").  The full check
         (``"full"``) stays available; the figures of ``bench/dense_acceptance.py`` and of ``make demo``'s roof corners
         below were measured with it (not re-run with the banded check).  OpenCV's internal check (``"opencv"``: the
         right image's disparities from the left matching's own cost volume) saves that second matching, which costs as
@@ -156,7 +159,7 @@ class DenseConfig:
     pairs: PairConfig = field(default_factory=PairConfig)
     sgm: SgmConfig = field(default_factory=lambda: SgmConfig(edge_erode_px=2, edge_erode_across_px=0, lr_mode="3way",
                                                              lr_check="banded",
-                                                             lr_band_cols_px=32))
+                                                             lr_band_cols_px=8))
     fusion: FusionConfig = field(default_factory=FusionConfig)
     block_px: int = 768
     tile_cells: int = 2048
@@ -919,16 +922,23 @@ def assemble(plan: DensePlan, results: Iterable[TileResult]) -> tuple[DsmGrid, D
     """Put tile results together into the DSM (and cloud), whole in memory (``skyrig.pipeline.dense`` writes
     them window by window instead, with the same cells and points)."""
     H, W = plan.grid.shape
-    layers = empty_layers(H, W)
+    layers: list[NDArray] | None = None
     clouds = []
     tally = TileTally()
     for r in results:
         r0, c0, h, w = r.window
-        for a, t in zip(layers, tile_layers(r)):
-            a[r0:r0 + h, c0:c0 + w] = t
+        if layers is None and tuple(r.window) == (0, 0, H, W):  # one tile, the whole grid: its layers as they are
+            layers = tile_layers(r)  # (the grid's copies of fresh memory cost 0.05 of the 16-image bench's 2.9 s)
+        else:
+            if layers is None:
+                layers = empty_layers(H, W)
+            for a, t in zip(layers, tile_layers(r)):
+                a[r0:r0 + h, c0:c0 + w] = t
         if r.cloud is not None:
             clouds.append(r.cloud)
         tally.add(r)
+    if layers is None:
+        layers = empty_layers(H, W)
     height, support, spread, sigma = confirm_window(layers, (0, 0, H, W), plan.grid.cell_m, plan.config)
     del layers
     filled = np.zeros((H, W), bool)

@@ -81,7 +81,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
              echo: Echo = lambda line: None, spell: Callable[[str], str] = cli_spelling,
              lr_check: str | None = None, window_min_mp: float | None = None,
              image_scale: float | str | None = "auto", orientation_sigma_px: float | None = None,
-             tile_memory_mb: float | None = 1024.0) -> Any:
+             tile_memory_mb: float | None = 1024.0, lr_band_cols: int | None = None) -> Any:
     """DSM (COG), dense cloud (LAZ), hillshade and summary of oriented images into ``outdir``
     (:func:`skyrig.pipeline.dense.run_dsm`).
 
@@ -97,6 +97,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
     as a disparity in full-resolution pixels, for the fusion's tolerance (:class:`DenseConfig`; None: 0).
     ``tile_memory_mb``: memory budget of one ground tile's work, the tiles' side chosen up to ``tile_cells`` to fit
     it (:class:`DenseConfig`; None: tiles of ``tile_cells``).
+    ``lr_band_cols``: the banded check's ``SgmConfig.lr_band_cols_px`` (pixels, >= 0; None: :class:`DenseConfig`'s).
     """
     from dataclasses import replace
 
@@ -135,14 +136,18 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
         raise OptionError(spell("mode"), f"unknown mode {mode!r} (sgbm, hh, 3way, hh4)")
     if lr_check is not None and lr_check not in ("opencv", "banded", "full"):
         raise OptionError(spell("lr_check"), f"unknown left-right check {lr_check!r} (banded, full, opencv)")
+    if lr_band_cols is not None and (isinstance(lr_band_cols, bool) or not isinstance(lr_band_cols, (int, np.integer))
+                                     or lr_band_cols < 0):
+        raise OptionError(spell("lr_band_cols"), f"must be a whole number of pixels >= 0, got {lr_band_cols!r}")
     if window_min_mp is not None and not window_min_mp >= 0:
         raise OptionError(spell("window_min_mp"), f"must be >= 0 megapixels, got {window_min_mp}")
     scale = _image_scale(image_scale, spell)
     paths = find_images(eo, [str(p) for p in images])
     base = DenseConfig()
     lr_check = base.sgm.lr_check if lr_check is None else lr_check
+    lr_band_cols = base.sgm.lr_band_cols_px if lr_band_cols is None else int(lr_band_cols)
     cfg = DenseConfig(cell_m=resolution, pairs=replace(base.pairs, pairs_per_image=pairs_per_image),
-                      sgm=replace(base.sgm, mode=mode, lr_check=lr_check),
+                      sgm=replace(base.sgm, mode=mode, lr_check=lr_check, lr_band_cols_px=lr_band_cols),
                       fusion=replace(base.fusion, min_support=min_support),
                       fill_holes=fill, cloud=cloud, tile_cells=tile_cells, min_depth_m=min_depth, image_scale=scale,
                       orientation_sigma_px=orientation_sigma_px or 0.0,
@@ -152,7 +157,7 @@ def make_dsm(eo: ExteriorOrientations, cameras: Mapping[str, FrameCamera], image
                "area": None if area is None else [float(a) for a in area], "resolution": resolution, "mode": mode,
                "pairs_per_image": pairs_per_image, "min_support": min_support, "fill": fill, "cloud": cloud,
                "tile_cells": tile_cells, "heads": heads_text or None, "min_depth": min_depth,
-               "lr_check": lr_check, "window_min_mp": window_min_mp, "image_scale": image_scale,
+               "lr_check": lr_check, "lr_band_cols": lr_band_cols, "window_min_mp": window_min_mp, "image_scale": image_scale,
                "orientation_sigma_px": orientation_sigma_px, "tile_memory_mb": tile_memory_mb}
     return run_dsm(eo, cameras, paths, out_frame, (float(height_range[0]), float(height_range[1])), outdir,
                    area=tuple(area) if area else None, config=cfg, executor=_executor_kind(executor), workers=workers,

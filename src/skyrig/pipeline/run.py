@@ -755,7 +755,7 @@ def _dsm(ctx: StageContext) -> dict[str, Any]:
         points = ctx.upstream["points"]
     res = make_dsm(eo, cameras, p.images, ctx.out, crs=p.crs, geoid=p.geoid, height_range=o["height_range"],
                    points=points, heads=o["heads"], area=o["area"], resolution=o["resolution"], mode=o["mode"],
-                   lr_check=o["lr_check"], pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
+                   lr_check=o["lr_check"], lr_band_cols=o["lr_band_cols"], pairs_per_image=o["pairs_per_image"], min_support=o["min_support"], fill=o["fill"],
                    cloud=o["cloud"], min_depth=o["min_depth"], tile_cells=o["tile_cells"], image_scale=o["image_scale"],
                    tile_memory_mb=o["tile_memory_mb"],
                    orientation_sigma_px=o["orientation_sigma_px"],
@@ -866,6 +866,9 @@ register_stage(Stage(
                                 "with depth edges (banded), on every row (full), or OpenCV's own on the same costs "
                                 "(opencv: half the matching time, rounder building edges)",
                                 ("banded", "full", "opencv")),
+             "lr_band_cols": Option(None, "int", "banded check: the second matching only on the columns within this "
+                                    "many pixels of a depth edge (>= 0; 0: the bands' whole rows; null: 8)",
+                                    nullable=True),
              "pairs_per_image": Option(6, "int", "stereo pairs per image", positive=True),
              "min_support": Option(2, "int", "pairs that must agree on a cell", positive=True),
              "tile_cells": Option(2048, "int", "ground tile side in cells", positive=True),
