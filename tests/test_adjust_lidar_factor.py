@@ -74,12 +74,17 @@ def _laser_on_plane(rng, X0, normal, k, n, centre, true_strip, epoch):
                 rotation=R_rec)
 
 
-def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 12):
+def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 12, shift=(0.0, 0.0, 0.0),
+                 planes: list | None = None):
+    """The block, the truth and the true strip corrections; ``shift``: a position error common to all strips (the
+    trajectory's absolute error) added to their corrections; ``planes``: a list given gets each plane's true
+    ``(point, normal)``."""
     b, truth = synthetic_block(seed=seed, n_points=120, n_strips=2, n_per_strip=5)
     rng = np.random.default_rng(seed)
     centre = truth.point_xyz.mean(axis=0)
     epoch = np.array([1000.0, 1100.0, 1200.0])
     true_strip = rng.normal(0.0, 1.0, (3, 12)) * STRIP_SIGMA
+    true_strip[:, 0:3] += np.asarray(shift, float)
     parts, plane_point, normals = [], [], []
     q = 0
     for j in range(n_patch + n_tie):
@@ -100,6 +105,8 @@ def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 1
             parts.append(d)
             normals.append(np.broadcast_to(nrm, (per, 3)))
         plane_point.append(pj if tie else -1)
+        if planes is not None:
+            planes.append((X0, nrm))
         q += 1
     cat = {k_: np.concatenate([p[k_] for p in parts]) for k_ in parts[0]}
     lp = LidarPoints(**cat, plane_point=np.array(plane_point), strip_epoch_s=epoch, body_from_scanner=BODY_FROM_SCANNER,
