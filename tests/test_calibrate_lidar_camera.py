@@ -66,6 +66,27 @@ def test_bad_inputs_are_named(files):
     assert r.exit_code != 0 and "--scan" in r.output
 
 
+def test_bad_control_file_is_named(files):
+    """``--control``: read before the camera's inputs; a LAS without a CRS, a points CSV with a bad row, an empty
+    one: each error names the file (and line and field)."""
+    import laspy
+
+    from skyrig.cli.calibrate import command
+
+    d, sv, _ = files
+    las = laspy.LasData(laspy.LasHeader(point_format=0, version="1.2"))
+    las.x, las.y, las.z = [1.0, 2.0], [3.0, 4.0], [5.0, 6.0]
+    las.write(str(d / "nocrs.las"))
+    r = CliRunner().invoke(command, _args(d) + ["--control", str(d / "nocrs.las")])
+    assert r.exit_code != 0 and "nocrs.las" in str(r.exception) and "CRS" in str(r.exception), r.output
+    (d / "ctl.csv").write_text("# crs: EPSG:32633\nname,x,y,z\nc1,500000.0,5000000.0,100.0\nc2,500001.0,oops,100.0\n")
+    r = CliRunner().invoke(command, _args(d) + ["--control", str(d / "ctl.csv")])
+    msg = str(r.exception)
+    assert r.exit_code != 0 and "ctl.csv" in msg and "line 4" in msg and "field 'y'" in msg, msg
+    r = CliRunner().invoke(command, _args(d) + ["--control-sigma-m", "0"])
+    assert r.exit_code != 0 and "--control-sigma-m" in r.output
+
+
 @pytest.mark.slow
 def test_simulated_bridge_flight_recovers_the_injected_calibration(tmp_path):
     """Paper 002's bridge strip flight with its camera (CI size, seed 2): scanner boresight, lever arm, range offset

@@ -36,7 +36,7 @@ from skyrig.adjust.factors.lidar import (LIDAR, SCANNER, SCANNER_COMPONENTS, STR
                                          ControlResiduals, LidarPoints, control_residuals, georeference,
                                          lidar_unknowns)
 from skyrig.camera.frame import FrameCamera
-from skyrig.errors import CalibrationFailed, GeometryError, InputFormatError
+from skyrig.errors import CalibrationFailed, InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.lidar.georef import ScannerMount
 from skyrig.lidar.pulse_poses import beams, local_poses
@@ -245,9 +245,10 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     patches = find_planar_patches(scan, inputs.trajectory, inputs.mount, frame, options=options.patches, xyz=xyz,
                                   control=control)
     if control is not None and not (patches.control_count >= 3).any():
-        raise GeometryError(f"none of the {len(control)} control points lies on a planar patch of the laser strips "
-                            f"(within {options.patches.max_thickness_m:g} m of a patch, {options.patches.cell_m:g} m "
-                            "cells): is the control in the same frame (CRS, vertical reference) as the flight?")
+        raise InputFormatError(f"none of the {len(control)} control points lies on a planar patch of the laser strips "
+                               f"(within {options.patches.max_thickness_m:g} m of a patch, {options.patches.cell_m:g} m "
+                               "cells): is the control in the same frame (CRS, vertical reference) as the flight?",
+                               field="control_xyz")
     ids = [int(v) for v in patches.strip_ids]
     bad = [int(s) for s in np.unique(inputs.image_strip) if int(s) not in ids]
     if bad:
