@@ -28,7 +28,10 @@ injected), run the joint recipe (:func:`skyrig.calibrate.lidar_camera.calibrate_
 
 **Control** (``--control none,sparse,area``): the separate and the joint calibration each run without control and
 with the SAME control, a part of the TLS reference given to both as control planes (the laser-only strip adjustment's
-``find_planar_patches(control=...)``, the joint recipe's ``JointInputs.control_xyz``).  ``sparse``: the reference
+``find_planar_patches(control=...)``, the joint recipe's ``JointInputs.control_xyz``); ``gcp``: 8 ground control
+points (tie points spread over the site, true coordinates + 5 mm survey noise) measured in the images, which only the
+joint adjustment can use (the separate laser calibration has no image: its figures are those without control);
+``sparse+gcp``, ``area+gcp``: both.  ``sparse``: the reference
 points in a random ``--control-fraction`` of the ``--control-cell`` m plan cells (a surveyor's control planes spread
 over the site); ``area``: the reference points in the first third of the flown stretch along the bridge.  The clouds
 are then judged against the whole TLS reference and, separately, on the part not used as control (C2C of the laser
@@ -191,34 +194,64 @@ def cloud_vs_tls(inp: JointInputs, cal: np.ndarray, strips: np.ndarray, epoch: n
     if split is not None:
         h = ok & ~split.is_control(xyz)
         out["c2c_rms_held_out_m"] = float(np.sqrt(np.mean(d[h] ** 2)))
-        out["c2c_mean_held_out_m"] = float(np.mean(d[h]))
         held = ~split.is_control(core)
     out["m3c2"] = m3c2_vs_tls(georeference_adjusted(inp, cal, strips, epoch, ids, rows=rows_m3c2), ref, core,
                               held=held)
     return out
 
 
+def simulated_gcps(fl, seed: int, n: int = 8, sigma_m: float = 0.005, min_rays: int = 6) -> dict:
+    """Ground control points of the simulated flight: ``n`` tie points (measured in at least ``min_rays`` images)
+    spread over the site (farthest-point order in plan), their true coordinates plus survey noise ``sigma_m`` per
+    axis (a seeded draw): the ``gcp_*`` fields of :class:`JointInputs`."""
+    rays = np.bincount(fl.obs_point, minlength=len(fl.point_xyz))
+    cand = np.flatnonzero(rays >= min_rays)
+    xy = fl.point_xyz[cand, :2]
+    pick = [int(np.argmin(np.linalg.norm(xy - xy.mean(axis=0), axis=1)))]
+    d = np.linalg.norm(xy - xy[pick[0]], axis=1)
+    while len(pick) < min(n, len(cand)):
+        pick.append(int(np.argmax(d)))
+        d = np.minimum(d, np.linalg.norm(xy - xy[pick[-1]], axis=1))
+    pts = cand[pick]
+    rng = np.random.default_rng([seed, 3402])
+    return {"gcp_point": pts, "gcp_xyz": fl.point_xyz[pts] + rng.normal(0.0, sigma_m, (len(pts), 3)),
+            "gcp_sigma_m": np.full((len(pts), 3), sigma_m)}
+
+
 def control_setting(fl, inp: JointInputs, split: ControlSplit | None, rows: np.ndarray, rows_m3c2: np.ndarray,
-                    core: np.ndarray, floor: dict | None = None) -> dict:
-    """Separate and joint calibration with the control of ``split`` (None: without control), each cloud judged
-    against the TLS (:func:`cloud_vs_tls`), the noise floor judged the same way."""
+                    core: np.ndarray, floor: dict | None = None, gcp: dict | None = None,
+                    separate: dict | None = None) -> dict:
+    """Separate and joint calibration with the control of ``split`` (None: no reference-cloud control) and the
+    ground control points ``gcp`` in the images (the joint adjustment only: the laser-only separate calibration has
+    no image to measure them in), each cloud judged against the TLS (:func:`cloud_vs_tls`), the noise floor judged
+    the same way; ``separate``: the separate figures of the same ``split`` (reused)."""
     sv = fl.survey
     ref = sv.reference_xyz
     ctrl = None if split is None else ref[split.is_control(ref)]
-    sep, t_sep = separate_calibration(fl, ctrl)
-    truth = strip_truth_vector(sv.injected, sep.strip_epoch_s)
-    ep, ids = sep.strip_epoch_s, sep.strip_ids
-    out: dict = {"control_points": 0 if ctrl is None else int(len(ctrl)), "separate_control_points": sep.n_control,
-                 "separate": cloud_vs_tls(inp, sep.calibration, sep.strips, ep, ids, rows, rows_m3c2, ref, core,
-                                          split),
-                 "separate_fit": {"held": list(sep.held), "sigma0": sep.sigma0, "time_s": t_sep}}
-    out["noise_floor"] = floor if floor is not None and split is None else cloud_vs_tls(
-        inp, truth[:8], truth[8:].reshape(-1, 12), ep, ids, rows, rows_m3c2, ref, core, split)
+    out: dict
+    if separate is None:
+        sep, t_sep = separate_calibration(fl, ctrl)
+        truth = strip_truth_vector(sv.injected, sep.strip_epoch_s)
+        ep, ids = sep.strip_epoch_s, sep.strip_ids
+        out = {"control_points": 0 if ctrl is None else int(len(ctrl)), "separate_control_points": sep.n_control,
+               "separate": cloud_vs_tls(inp, sep.calibration, sep.strips, ep, ids, rows, rows_m3c2, ref, core,
+                                        split),
+               "separate_fit": {"held": list(sep.held), "sigma0": sep.sigma0, "time_s": t_sep}}
+        out["noise_floor"] = floor if floor is not None and split is None else cloud_vs_tls(
+            inp, truth[:8], truth[8:].reshape(-1, 12), ep, ids, rows, rows_m3c2, ref, core, split)
+    else:
+        out = {k: separate[k] for k in ("control_points", "separate_control_points", "separate", "separate_fit",
+                                        "noise_floor")}
     t0 = time.perf_counter()
-    cal = calibrate_lidar_camera(inp if ctrl is None else replace(inp, control_xyz=ctrl))
+    cal = calibrate_lidar_camera(replace(inp, **({} if ctrl is None else {"control_xyz": ctrl}), **(gcp or {})))
     out["joint_fit"] = {"time_s": time.perf_counter() - t0, "sigma0": cal.sigma0,
                         "control": None if cal.control is None else cal.control.summary(),
-                        "control_rejected": 0 if cal.control_rejected is None else len(cal.control_rejected)}
+                        "control_rejected": 0 if cal.control_rejected is None else len(cal.control_rejected),
+                        "gcp": None if cal.gcp_residual_m is None else {
+                            "count": len(cal.gcp_residual_m),
+                            "rms_m": np.sqrt(np.mean(cal.gcp_residual_m**2, axis=0)).tolist(),
+                            "max_abs_normalised": None if cal.gcp_normalised is None else
+                            float(np.nanmax(np.abs(cal.gcp_normalised)))}}
     out["joint"] = cloud_vs_tls(inp, cal.scanner, cal.strips, cal.strip_epoch_s, cal.strip_ids, rows, rows_m3c2,
                                 ref, core, split)
     tj = strip_truth_vector(sv.injected, cal.strip_epoch_s)
@@ -348,10 +381,14 @@ def run_control_seed(size: str, seed: int, every: int, modes: list[str], fractio
     core = m3c2_cores(sv.reference_xyz)
     traj_xy = fl.body_rec_position[:, :2]
     out = {"seed": seed, "range_sigma_m": float(sv.spec.errors.range_sigma_m)}
+    gcps = simulated_gcps(fl, seed)
     for mode in modes:
-        split = None if mode == "none" else ControlSplit(mode, sv.reference_xyz, traj_xy, seed, fraction, cell)
+        tls, _, g = mode.partition("+")
+        tls = "none" if tls == "gcp" else tls
+        split = None if tls == "none" else ControlSplit(tls, sv.reference_xyz, traj_xy, seed, fraction, cell)
         t0 = time.perf_counter()
-        out[mode] = control_setting(fl, inp, split, rows, rows_m3c2, core, out.get("none", {}).get("noise_floor"))
+        out[mode] = control_setting(fl, inp, split, rows, rows_m3c2, core, out.get("none", {}).get("noise_floor"),
+                                    gcps if (g == "gcp" or mode == "gcp") else None, out.get(tls))
         out[mode]["time_s"] = time.perf_counter() - t0
     return out
 
@@ -359,14 +396,14 @@ def run_control_seed(size: str, seed: int, every: int, modes: list[str], fractio
 def _ctl_fig(r: dict, mode: str, cloud: str, what: str) -> float:
     c = r[mode][cloud]
     return {"c2c": c["c2c_rms_m"], "c2c_held": c.get("c2c_rms_held_out_m", np.nan),
-            "c2c_mean_held": c.get("c2c_mean_held_out_m", np.nan), "m3c2": c["m3c2"]["rms_m"],
+            "m3c2": c["m3c2"]["rms_m"], "m3c2_mean": c["m3c2"]["mean_m"],
             "m3c2_held": c["m3c2"].get("held_out", {}).get("rms_m", np.nan),
             "m3c2_mean_held": c["m3c2"].get("held_out", {}).get("mean_m", np.nan),
             "m3c2_rigid": c["m3c2"]["rms_rigid_m"]}[what]
 
 
-CONTROL_FIGURES = (("c2c", "C2C RMS, all"), ("c2c_held", "C2C RMS, held out"), ("c2c_mean_held", "C2C mean, held out"),
-                   ("m3c2", "M3C2 RMS, all"), ("m3c2_held", "M3C2 RMS, held out"),
+CONTROL_FIGURES = (("c2c", "C2C RMS, all"), ("c2c_held", "C2C RMS, held out"), ("m3c2", "M3C2 RMS, all"),
+                   ("m3c2_mean", "M3C2 mean, all"), ("m3c2_held", "M3C2 RMS, held out"),
                    ("m3c2_mean_held", "M3C2 mean, held out"), ("m3c2_rigid", "M3C2 RMS after rigid fit, all"))
 
 
@@ -380,7 +417,7 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
           f"<=1.5 noise")
     for mode in modes:
         for key, words in CONTROL_FIGURES:
-            if key not in ("c2c", "m3c2", "m3c2_rigid") and mode == "none":
+            if "held" in key and mode == "none":
                 continue
             rows_ = [(str(r["seed"]), *(_ctl_fig(r, mode, c, key) for c in ("separate", "joint", "noise_floor")))
                      for r in out]
@@ -393,7 +430,12 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
                 print(f"{mode:<8}{words:<31}{sd:>6}{a * 1e3:>10.1f}{b * 1e3:>8.1f}{f * 1e3:>8.1f}"
                       f"{ratio:>7.2f}  {ok1:<5}  {ok2}")
     for mode in modes:
-        if mode == "none":
+        gs = [r[mode]["joint_fit"]["gcp"] for r in out if r[mode]["joint_fit"].get("gcp")]
+        if gs:
+            print(f"{mode}: {gs[0]['count']} ground control points in the images, residual RMS (x, y, z) "
+                  f"{np.round(np.mean([g['rms_m'] for g in gs], axis=0) * 1e3, 1).tolist()} mm (mean of the seeds), "
+                  f"largest |normalised| {max(g['max_abs_normalised'] or 0.0 for g in gs):.2f}")
+        if mode in ("none", "gcp"):
             continue
         c = [r[mode]["joint_fit"]["control"] for r in out]
         print(f"{mode}: control points {np.mean([r[mode]['control_points'] for r in out]):.0f} (mean), control planes "
@@ -418,14 +460,16 @@ def main() -> None:
     ap.add_argument("--separate-only", action="store_true",
                     help="only the nominal mount and the separate (laser-only) calibration against the TLS")
     ap.add_argument("--control", default="none",
-                    help="comma-separated control settings to compare: none, sparse, area (module docstring)")
+                    help="comma-separated control settings to compare: none, sparse, area, gcp, sparse+gcp, area+gcp "
+                         "(module docstring)")
     ap.add_argument("--control-fraction", type=float, default=0.15, help="sparse: share of the plan cells")
     ap.add_argument("--control-cell", type=float, default=5.0, help="sparse: plan cell size (m)")
     a = ap.parse_args()
     modes = [m.strip() for m in a.control.split(",") if m.strip()]
-    bad = [m for m in modes if m not in ("none", "sparse", "area")]
+    known = ("none", "sparse", "area", "gcp", "sparse+gcp", "area+gcp")
+    bad = [m for m in modes if m not in known]
     if bad:
-        ap.error(f"--control: unknown setting(s) {bad}; choose from none, sparse, area")
+        ap.error(f"--control: unknown setting(s) {bad}; choose from {', '.join(known)}")
     if modes != ["none"]:
         modes = ["none"] + [m for m in modes if m != "none"]
         res = []

@@ -60,7 +60,7 @@ class JointInputs:
     (a local tangent frame near the flight: every coordinate of the block), ``camera`` with its nominal
     ``body_from_camera`` and lever arm, the images' exposure times and strips, and the tie-point measurements
     ``obs_image``, ``obs_point``, ``obs_pixel`` (column, row px) with noise ``sigma_px``; optional control points
-    ``control_xyz`` (a reference cloud in ``frame``).
+    ``control_xyz`` (a reference cloud in ``frame``) and ground control points measured in the images (``gcp_*``).
     """
 
     scan: RawScan
@@ -78,6 +78,11 @@ class JointInputs:
     sigma_px: float = 0.5
     #: ``(R, 3)`` control points (a reference cloud) in ``frame``, or None
     control_xyz: NDArray[np.float64] | None = None
+    #: ground control points measured in the images: ``(G,)`` their tie-point ids (the numbering of ``obs_point``),
+    #: ``(G, 3)`` surveyed coordinates in ``frame`` and ``(G, 3)`` sigmas (m), or None
+    gcp_point: NDArray[np.int64] | None = None
+    gcp_xyz: NDArray[np.float64] | None = None
+    gcp_sigma_m: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -158,6 +163,10 @@ class JointCalibration:
     #: blunders (tested in the adjustment they were left out of)
     control: ControlResiduals | None = None
     control_rejected: ControlResiduals | None = None
+    #: ground control points in the images: residuals (adjusted minus surveyed, m, ``(G, 3)``) and normalised
+    #: residuals (``(G, 3)``, the adjustment's own test), or None
+    gcp_residual_m: NDArray[np.float64] | None = None
+    gcp_normalised: NDArray[np.float64] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -177,6 +186,9 @@ class JointCalibration:
                 **self.control.to_dict(),
                 "rejected_as_blunders": [] if self.control_rejected is None else
                 self.control_rejected.to_dict().get("control_planes", [])}}),
+            **({} if self.gcp_residual_m is None else {"ground_control": {
+                "units": "m, adjusted minus surveyed (block frame)", "residual_m": self.gcp_residual_m.tolist(),
+                "normalised": None if self.gcp_normalised is None else self.gcp_normalised.tolist()}}),
         }
 
 
@@ -301,6 +313,20 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     n_b = np.einsum("nji,nj->ni", patches.rotation, patches.normal[patches.plane]) @ inputs.mount.body_from_scanner
     inc[:len(patches.plane)] = np.einsum("ni,ni->n", n_b, patches.beam_s)
     lp.incidence0 = inc
+    gcp: dict[str, Any] = {}
+    if inputs.gcp_point is not None:
+        gp = np.asarray(inputs.gcp_point, np.int64).reshape(-1)
+        gx = np.asarray(inputs.gcp_xyz, float).reshape(len(gp), 3)
+        gs = np.broadcast_to(np.asarray(inputs.gcp_sigma_m if inputs.gcp_sigma_m is not None else 0.01, float),
+                             (len(gp), 3))
+        bad_g = [int(j) for j in gp if not (0 <= j < n_pts and ok_pt[j])]
+        if bad_g:
+            raise InputFormatError(f"ground control point(s) {bad_g[:5]} are not tie points measured in 2 or more "
+                                   "images of the block", field="gcp_point")
+        if not (np.isfinite(gx).all() and np.isfinite(gs).all() and (gs > 0).all()):
+            raise InputFormatError("ground control coordinates and sigmas must be finite, sigmas positive",
+                                   field="gcp_xyz")
+        gcp = {"control_point": newp[gp], "control_xyz": gx, "control_sigma": np.array(gs)}
     block = Block(
         cameras=[cam], station_name=[f"exp{i}" for i in range(n_img)], station_rotation=rot, station_centre=pos,
         station_time=inputs.image_time_s, image_name=[f"img{i}" for i in range(n_img)],
@@ -309,14 +335,14 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
         head_name=["camera"], point_name=[f"t{j}" for j in range(int(ok_pt.sum()))], point_xyz=tie_xyz[ok_pt],
         obs_image=inputs.obs_image[keep_obs], obs_point=newp[inputs.obs_point[keep_obs]],
         obs_pixel=inputs.obs_pixel[keep_obs], obs_sigma_px=np.full((int(keep_obs.sum()), 2), inputs.sigma_px),
-        observations={"lidar": lp}, frame=frame)
+        observations={"lidar": lp}, frame=frame, **gcp)
     unk = lidar_unknowns(Unknowns(poses="free", points="free", boresight="free", intrinsics="fixed"),
                          strip_sigma=options.strip_sigma)
     cfg = AdjustConfig(unknowns=unk)
     cfg = replace(cfg, solver=replace(cfg.solver, max_iterations=options.max_iterations))
     info = {"n_patch_planes": patches.n_planes, "n_tie_planes": len(tie_pts), "strip_ids": patches.strip_ids,
             "n_points_searched": patches.n_points_total, "n_laser_points": len(lp),
-            "n_control_planes": int(lp.has_control.sum())}
+            "n_control_planes": int(lp.has_control.sum()), "n_gcp": len(gcp.get("control_point", []))}
     return block, cfg, info
 
 
@@ -358,7 +384,16 @@ def calibrate_lidar_camera(inputs: JointInputs, options: JointOptions = JointOpt
     return JointCalibration(sc, sc_s, cb, cb_s, st, st_s, np.asarray(lp.strip_epoch_s),
                             np.asarray(info["strip_ids"], np.int64), tuple(verdicts), res, res.block,
                             lp.n_planes - n_tie, n_tie, len(lp), float(res.sigma0), info["n_dropped_planes"],
-                            info["n_dropped_points"], before, after, snoop["control"], snoop["control_rejected"])
+                            info["n_dropped_points"], before, after, snoop["control"], snoop["control_rejected"],
+                            *_gcp_residuals(res))
+
+
+def _gcp_residuals(res: Any) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """The ground control points' residuals ``(G, 3)`` (m) and normalised residuals, or None without them."""
+    g = getattr(res, "residuals", {}).get("control")
+    if g is None or not len(g.residual):
+        return None, None
+    return np.asarray(g.residual, float), None if g.normalised is None else np.asarray(g.normalised, float)
 
 
 def _scanner_strip_cofactors(res: Any, n_strips: int) -> NDArray[np.float64] | None:
@@ -383,7 +418,8 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
     corners), planes that are not planes (``max_plane_rms``) and control planes that are blunders (``|z| >
     max_control_z`` against the laser, :func:`~skyrig.adjust.factors.lidar.control_residuals`; the worst one a
     round, alone: a large blunder pulls the block towards itself and lifts its neighbours' residuals) are left out
-    and the block adjusted again (at most 4 rounds for the laser, 8 in all).
+    and the block adjusted again (at most 4 rounds for the laser, 8 in all).  With control the block is adjusted
+    without it first and from there with it.
 
     Returns the adjustment, the block it adjusted and ``{"dropped_points", "dropped_planes", "control" (the control
     planes' residuals at the end, or None), "control_rejected" (the blunders, tested in the adjustment they were
@@ -394,6 +430,16 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
     CalibrationFailed
         The adjustment did not converge (its failures named).
     """
+    lp0 = block.observations["lidar"]
+    if lp0.has_control.any():
+        # without the control first, then with it from there: from the nominal calibration the laser points lie
+        # decimetres off planes the control holds, where the rows at the adjusted observations are no model of the
+        # cost (strips-ci seed 2: 30 iterations of trust-region steps of a millimetre, no convergence); from the
+        # block adjusted without control what is left is the trajectory's common error, centimetres
+        free = adjust(replace(block, observations={**block.observations,
+                                                   "lidar": lp0.without_control(np.ones(lp0.n_planes, bool))}), cfg)
+        if free.ok:
+            block = replace(free.block, observations={**free.block.observations, "lidar": lp0})
     res = adjust(block, cfg)
     dropped = [0, 0]
     rejected: list[ControlResiduals] = []
