@@ -287,7 +287,7 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     tb, tdb = beams(scan, trow)
     tstrip = np.array([k_of[int(s)] for s in strip_of[trow]], np.int64)
     q_tie = len(tie_pts)
-    ctrl = {} if control is None else {
+    ctrl: dict[str, Any] = {} if control is None else {
         "control_count": np.concatenate([patches.control_count, np.zeros(q_tie)]),
         "control_sum": np.concatenate([patches.control_sum, np.zeros((q_tie, 3))]),
         "control_sum2": np.concatenate([patches.control_sum2, np.zeros((q_tie, 3, 3))]),

@@ -34,7 +34,8 @@ def _unit(name: str) -> tuple[str, float]:
 
 def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner: str | None, rig_path: str,
                        head: str | None, events_path: str, meas_path: str, sigma_px: float,
-                       control_path: str | None = None) -> tuple[Any, Any]:
+                       control_path: str | None = None, gcp_path: str | None = None,
+                       gcp_sigma_m: float = 0.01) -> tuple[Any, Any]:
     """The recipe's inputs from files, every bad input named (file, line, field); the laser's inputs and the control
     first."""
     from skyrig.calibrate.lidar_camera import JointInputs
@@ -83,9 +84,22 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
     keep = np.array([str(i) in img_index for i in meas.image], bool)
     pts, obs_point = np.unique(np.asarray(meas.point)[keep], return_inverse=True)
     obs_image = np.array([img_index[str(i)] for i in np.asarray(meas.image)[keep]], np.int64)
+    gcp: dict[str, Any] = {}
+    if gcp_path is not None:  # ground control points: those of the file measured in the block's images
+        from skyrig.io.points_csv import read_points_csv
+
+        g = read_points_csv(gcp_path, option="--gcp")
+        at = {str(n): i for i, n in enumerate(pts)}
+        use = [i for i, n in enumerate(g.name) if str(n) in at]
+        if not use:
+            raise InputFormatError(f"none of the {len(g)} ground control points is measured in an image of the block "
+                                   f"(names {', '.join(map(str, g.name[:5]))}...)", gcp_path, None, "name")
+        gcp = {"gcp_point": np.array([at[str(g.name[i])] for i in use], np.int64),
+               "gcp_xyz": frame.from_ecef(g.frame.to_ecef(g.xyz[use])), "gcp_sigma_m": np.full((len(use), 3),
+                                                                                                  gcp_sigma_m)}
     inputs = JointInputs(scan, traj, mount, frame, h.camera, h.body_from_camera_rotation(),
                          np.asarray(h.lever_arm_m, float), times[on], strip[on], obs_image, obs_point.astype(np.int64),
-                         np.asarray(meas.pixel, float)[keep], sigma_px, control)
+                         np.asarray(meas.pixel, float)[keep], sigma_px, control, **gcp)
     return inputs, (rig, head)
 
 
@@ -200,6 +214,11 @@ def echo_table(out: dict[str, Any]) -> None:
             assert rej is not None
             click.echo(f"control plane at {np.round(rej.centroid[i], 3).tolist()} m (local frame) left out as a "
                        f"blunder: {rej.residual_m[i] * 1e3:+.1f} mm from the laser, z = {rej.z[i]:+.1f}")
+    if cal.gcp_residual_m is not None:
+        rms = np.sqrt(np.mean(cal.gcp_residual_m**2, axis=0)) * 1e3
+        zmax = "" if cal.gcp_normalised is None else f", largest |normalised| {np.nanmax(np.abs(cal.gcp_normalised)):.2f}"
+        click.echo(f"ground control: {len(cal.gcp_residual_m)} points in the images, residual RMS x {rms[0]:.1f}, "
+                   f"y {rms[1]:.1f}, z {rms[2]:.1f} mm{zmax}")
     b, a = cal.discrepancies_before, cal.discrepancies_after
     if b is not None and a is not None and a["pairs"]:
         click.echo(f"strip-to-strip discrepancies on {a['pairs']} patch/strip pairs: RMS {b['rms_m'] * 1e3:.1f} mm "
@@ -234,6 +253,11 @@ def echo_table(out: dict[str, Any]) -> None:
               help="Error common to a patch's control points (the reference's registration).")
 @click.option("--max-control-z", type=float, default=4.0, show_default=True,
               help="A control plane whose normalised residual against the laser exceeds this is a blunder, left out.")
+@click.option("--gcp", "gcp_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Ground control points measured in the images: a points CSV (name,x,y,z, CRS in its header) whose "
+                   "names are points of --measurements.")
+@click.option("--gcp-sigma-m", type=float, default=0.01, show_default=True,
+              help="Sigma of a ground control point's coordinates (per axis).")
 @click.option("--simulate", type=click.Choice(["strips-ci", "strips"]), default=None,
               help="Instead of files: paper 002's simulated bridge strip flight with its camera (errors injected).")
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of --simulate.")
@@ -246,10 +270,12 @@ def echo_table(out: dict[str, Any]) -> None:
               help="JSON report (default: next to --output).")
 def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, head, events_path, meas_path,
                          image_sigma_px, range_sigma_m, control_path, control_sigma_m, control_plane_sigma_m,
-                         max_control_z, simulate, seed, name, flight, date, output, report_path) -> None:
+                         max_control_z, gcp_path, gcp_sigma_m, simulate, seed, name, flight, date, output,
+                         report_path) -> None:
     """Laser scanner and camera calibrated in one adjustment (laser strips + images + trajectory)."""
     for opt, v_, low in (("--control-sigma-m", control_sigma_m, 0.0), ("--control-plane-sigma-m", control_plane_sigma_m,
-                                                                       -1.0), ("--max-control-z", max_control_z, 0.0)):
+                                                                       -1.0), ("--max-control-z", max_control_z, 0.0),
+                         ("--gcp-sigma-m", gcp_sigma_m, 0.0)):
         if not (np.isfinite(v_) and v_ > low) or (low < 0 and v_ < 0):
             raise click.BadParameter(f"must be {'>= 0' if low < 0 else 'positive'}, got {v_!r}", param_hint=opt)
     opts = {"name": name, "flight": flight, "date": date, "range_sigma_m": range_sigma_m,
@@ -270,7 +296,7 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
         if missing:
             raise click.UsageError(f"give {', '.join(missing)} (or --simulate)")
         inputs, rig_head = _inputs_from_files(scan_path, traj_path, mount_path, scanner, rig_path, head, events_path,
-                                              meas_path, image_sigma_px, control_path)
+                                              meas_path, image_sigma_px, control_path, gcp_path, gcp_sigma_m)
     if control_path is not None and simulate is not None:
         from dataclasses import replace
 
@@ -289,6 +315,8 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
     except InputFormatError as exc:
         if control_path is not None and exc.field == "control_xyz":  # the control file's fault: name it
             raise InputFormatError(exc.reason, control_path, field="points") from None
+        if gcp_path is not None and exc.field in ("gcp_point", "gcp_xyz"):
+            raise InputFormatError(exc.reason, gcp_path, field="name") from None
         raise
     echo_table(out)
     click.echo(f"wrote {out['output']} and {out['report']}")

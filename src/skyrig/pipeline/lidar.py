@@ -92,12 +92,12 @@ def read_control_cloud(path: PathLike, frame: Any) -> tuple[np.ndarray, str]:
         from skyrig.io.laz import read_las
 
         ref = read_las(path, require_crs=True)
-        crs = ref.crs_wkt
+        crs = str(ref.crs_wkt)  # (required: never None here)
         xyz = frame.from_ecef(WorldFrame.map(crs).to_ecef(ref.xyz))
     xyz = np.asarray(xyz, float)
     if len(xyz) == 0:
         raise InputFormatError("the control file holds no point", path, field="points")
-    return xyz, str(crs)
+    return xyz, crs
 
 
 def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathLike, scanner: str | None,
