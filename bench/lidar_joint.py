@@ -55,6 +55,7 @@ import numpy as np
 
 from skyrig.calibrate.lidar_camera import (JointInputs, JointOptions, calibrate_lidar_camera, georeference_adjusted,
                                            joint_inputs_from_flight)
+from skyrig.errors import CalibrationFailed
 from skyrig.lidar.compare import M3C2Params, cloud_to_cloud, m3c2
 from skyrig.lidar.strips import StripModel, adjust_strips, find_planar_patches
 from skyrig.simulate.lidar import strip_truth_vector
@@ -243,7 +244,12 @@ def control_setting(fl, inp: JointInputs, split: ControlSplit | None, rows: np.n
         out = {k: separate[k] for k in ("control_points", "separate_control_points", "separate", "separate_fit",
                                         "noise_floor")}
     t0 = time.perf_counter()
-    cal = calibrate_lidar_camera(replace(inp, **({} if ctrl is None else {"control_xyz": ctrl}), **(gcp or {})))
+    try:
+        cal = calibrate_lidar_camera(replace(inp, **({} if ctrl is None else {"control_xyz": ctrl}), **(gcp or {})))
+    except CalibrationFailed as exc:  # counted and reported, not hidden
+        out["joint_fit"] = {"failed": str(exc), "time_s": time.perf_counter() - t0}
+        out["joint"] = None
+        return out
     out["joint_fit"] = {"time_s": time.perf_counter() - t0, "sigma0": cal.sigma0,
                         "control": None if cal.control is None else cal.control.summary(),
                         "control_rejected": 0 if cal.control_rejected is None else len(cal.control_rejected),
@@ -395,6 +401,8 @@ def run_control_seed(size: str, seed: int, every: int, modes: list[str], fractio
 
 def _ctl_fig(r: dict, mode: str, cloud: str, what: str) -> float:
     c = r[mode][cloud]
+    if c is None:  # the joint adjustment failed on this seed and setting
+        return np.nan
     return {"c2c": c["c2c_rms_m"], "c2c_held": c.get("c2c_rms_held_out_m", np.nan),
             "m3c2": c["m3c2"]["rms_m"], "m3c2_mean": c["m3c2"]["mean_m"],
             "m3c2_held": c["m3c2"].get("held_out", {}).get("rms_m", np.nan),
@@ -421,7 +429,7 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
                 continue
             rows_ = [(str(r["seed"]), *(_ctl_fig(r, mode, c, key) for c in ("separate", "joint", "noise_floor")))
                      for r in out]
-            rows_.append(("mean", *(float(np.mean([x[i] for x in rows_])) for i in (1, 2, 3))))
+            rows_.append(("mean", *(float(np.nanmean([x[i] for x in rows_])) for i in (1, 2, 3))))
             for sd, a, b, f in rows_:
                 signed = "mean" in key
                 ratio = abs(b) / abs(a) if not signed else np.nan
@@ -430,6 +438,10 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
                 print(f"{mode:<8}{words:<31}{sd:>6}{a * 1e3:>10.1f}{b * 1e3:>8.1f}{f * 1e3:>8.1f}"
                       f"{ratio:>7.2f}  {ok1:<5}  {ok2}")
     for mode in modes:
+        failed = [r["seed"] for r in out if r[mode]["joint_fit"].get("failed")]
+        if failed:
+            print(f"{mode}: the joint adjustment FAILED on seed(s) {failed} (left out of the means): "
+                  f"{out[[r['seed'] for r in out].index(failed[0])][mode]['joint_fit']['failed']}")
         gs = [r[mode]["joint_fit"]["gcp"] for r in out if r[mode]["joint_fit"].get("gcp")]
         if gs:
             print(f"{mode}: {gs[0]['count']} ground control points in the images, residual RMS (x, y, z) "
@@ -437,7 +449,9 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
                   f"largest |normalised| {max(g['max_abs_normalised'] or 0.0 for g in gs):.2f}")
         if mode in ("none", "gcp"):
             continue
-        c = [r[mode]["joint_fit"]["control"] for r in out]
+        c = [r[mode]["joint_fit"]["control"] for r in out if r[mode]["joint_fit"].get("control")]
+        if not c:
+            continue
         print(f"{mode}: control points {np.mean([r[mode]['control_points'] for r in out]):.0f} (mean), control planes "
               f"in the joint adjustment {np.mean([x['planes'] for x in c]):.0f}, in the separate one's points "
               f"{np.mean([r[mode]['separate_control_points'] for r in out]):.0f}; control residual z mean "
@@ -445,7 +459,7 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
               f"{np.max([x['z_max_abs'] for x in c]):.2f}, left out as blunders "
               f"{sum(r[mode]['joint_fit']['control_rejected'] for r in out)}")
     for mode in modes:
-        z = np.array([r[mode]["joint_fit"]["z_scanner"] for r in out])
+        z = np.array([r[mode]["joint_fit"]["z_scanner"] for r in out if "z_scanner" in r[mode]["joint_fit"]])
         print(f"{mode}: joint scanner calibration z mean {z.mean():+.2f}, std {z.std():.2f} ({z.size} values)")
 
 
@@ -476,10 +490,14 @@ def main() -> None:
         for s in range(a.first_seed, a.first_seed + a.seeds):
             r = run_control_seed(a.size, s, a.every, modes, a.control_fraction, a.control_cell)
             res.append(r)
+            if a.json:  # after every seed: a late failure keeps the seeds before it
+                with open(a.json, "w") as f:
+                    json.dump(res, f, indent=1)
             print(f"seed {s}: " + "; ".join(
-                f"{m}: C2C separate {r[m]['separate']['c2c_rms_m'] * 1e3:.1f} joint {r[m]['joint']['c2c_rms_m'] * 1e3:.1f}"
-                f" mm, M3C2 separate {r[m]['separate']['m3c2']['rms_m'] * 1e3:.1f} joint "
-                f"{r[m]['joint']['m3c2']['rms_m'] * 1e3:.1f} mm ({r[m]['time_s']:.0f} s)" for m in modes), flush=True)
+                f"{m}: C2C separate {r[m]['separate']['c2c_rms_m'] * 1e3:.1f} joint "
+                f"{_ctl_fig(r, m, 'joint', 'c2c') * 1e3:.1f} mm, M3C2 separate "
+                f"{r[m]['separate']['m3c2']['rms_m'] * 1e3:.1f} joint {_ctl_fig(r, m, 'joint', 'm3c2') * 1e3:.1f} mm "
+                f"({r[m]['time_s']:.0f} s)" for m in modes), flush=True)
         print_control_table(res, modes)
         if a.json:
             with open(a.json, "w") as f:
