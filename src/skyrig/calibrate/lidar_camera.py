@@ -418,8 +418,8 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
     corners), planes that are not planes (``max_plane_rms``) and control planes that are blunders (``|z| >
     max_control_z`` against the laser, :func:`~skyrig.adjust.factors.lidar.control_residuals`; the worst one a
     round, alone: a large blunder pulls the block towards itself and lifts its neighbours' residuals) are left out
-    and the block adjusted again (at most 4 rounds for the laser, 8 in all).  With control the block is adjusted
-    without it first and from there with it.
+    and the block adjusted again (at most 4 rounds for the laser, 8 in all).  With control (planes or ground control
+    points) the block is adjusted without it first and from there with it.
 
     Returns the adjustment, the block it adjusted and ``{"dropped_points", "dropped_planes", "control" (the control
     planes' residuals at the end, or None), "control_rejected" (the blunders, tested in the adjustment they were
@@ -431,15 +431,21 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
         The adjustment did not converge (its failures named).
     """
     lp0 = block.observations["lidar"]
-    if lp0.has_control.any():
+    gcp0 = block.observations.get("control")
+    has_gcp = gcp0 is not None and len(gcp0) > 0 and not np.all(gcp0.check)
+    if lp0.has_control.any() or has_gcp:
         # without the control first, then with it from there: from the nominal calibration the laser points lie
         # decimetres off planes the control holds, where the rows at the adjusted observations are no model of the
-        # cost (strips-ci seed 2: 30 iterations of trust-region steps of a millimetre, no convergence); from the
-        # block adjusted without control what is left is the trajectory's common error, centimetres
-        free = adjust(replace(block, observations={**block.observations,
-                                                   "lidar": lp0.without_control(np.ones(lp0.n_planes, bool))}), cfg)
+        # cost (strips-ci seed 2 with control planes, seed 6 with ground control points: 30 iterations of
+        # trust-region steps of a millimetre, no convergence); from the block adjusted without control what is left
+        # is the trajectory's common error, centimetres.  (Ground control points are check points meanwhile.)
+        obs0 = {**block.observations, "lidar": lp0.without_control(np.ones(lp0.n_planes, bool))}
+        if has_gcp:
+            obs0["control"] = replace(gcp0, check=np.ones(len(gcp0), bool))
+        free = adjust(replace(block, observations=obs0), cfg)
         if free.ok:
-            block = replace(free.block, observations={**free.block.observations, "lidar": lp0})
+            block = replace(free.block, observations={**free.block.observations, "lidar": lp0,
+                                                      **({"control": gcp0} if has_gcp else {})})
     res = adjust(block, cfg)
     dropped = [0, 0]
     rejected: list[ControlResiduals] = []
