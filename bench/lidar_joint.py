@@ -425,7 +425,7 @@ def print_control_table(out: list[dict], modes: list[str]) -> None:
           f"<=1.5 noise")
     for mode in modes:
         for key, words in CONTROL_FIGURES:
-            if "held" in key and mode == "none":
+            if "held" in key and mode in ("none", "gcp"):  # no reference-cloud control: all of the TLS is held out
                 continue
             rows_ = [(str(r["seed"]), *(_ctl_fig(r, mode, c, key) for c in ("separate", "joint", "noise_floor")))
                      for r in out]
