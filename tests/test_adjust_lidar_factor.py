@@ -19,7 +19,8 @@ import pytest
 from conftest import grazing_ground_beams
 from skyrig.adjust import AdjustConfig, adjust
 from skyrig.adjust.config import Unknowns
-from skyrig.adjust.factors.lidar import (LIDAR, NK, NS, SCANNER, SCANNER_COMPONENTS, STRIP, LidarPoints, georeference,
+from skyrig.adjust.factors.lidar import (LIDAR, NK, NS, SCANNER, SCANNER_COMPONENTS, STRIP, LidarPoints, control_gram,
+                                         control_residuals, georeference, plane_basis,
                                          lidar_unknowns)
 from skyrig.adjust.model import Model, State
 from skyrig.adjust.synthetic import synthetic_block
@@ -74,12 +75,17 @@ def _laser_on_plane(rng, X0, normal, k, n, centre, true_strip, epoch):
                 rotation=R_rec)
 
 
-def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 12):
+def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 12, shift=(0.0, 0.0, 0.0),
+                 planes: list | None = None):
+    """The block, the truth and the true strip corrections; ``shift``: a position error common to all strips (the
+    trajectory's absolute error) added to their corrections; ``planes``: a list given gets each plane's true
+    ``(point, normal)``."""
     b, truth = synthetic_block(seed=seed, n_points=120, n_strips=2, n_per_strip=5)
     rng = np.random.default_rng(seed)
     centre = truth.point_xyz.mean(axis=0)
     epoch = np.array([1000.0, 1100.0, 1200.0])
     true_strip = rng.normal(0.0, 1.0, (3, 12)) * STRIP_SIGMA
+    true_strip[:, 0:3] += np.asarray(shift, float)
     parts, plane_point, normals = [], [], []
     q = 0
     for j in range(n_patch + n_tie):
@@ -100,6 +106,8 @@ def _joint_block(seed: int = 4, n_patch: int = 30, n_tie: int = 15, per: int = 1
             parts.append(d)
             normals.append(np.broadcast_to(nrm, (per, 3)))
         plane_point.append(pj if tie else -1)
+        if planes is not None:
+            planes.append((X0, nrm))
         q += 1
     cat = {k_: np.concatenate([p[k_] for p in parts]) for k_ in parts[0]}
     lp = LidarPoints(**cat, plane_point=np.array(plane_point), strip_epoch_s=epoch, body_from_scanner=BODY_FROM_SCANNER,
@@ -342,3 +350,146 @@ def test_joint_rows_uncorrelated_with_residuals_at_grazing_beams(roughness_in_da
     z = stat("adjusted")
     assert np.all(np.abs(z) < 4.0), np.round(z, 1)  # range offset, range scale, plane tilts
     assert abs(stat("observed")[1]) > 20.0  # the recorded-point rows: the bias this test can see
+
+
+# ---------------------------------------------------------------------------------------------- control planes
+#: the trajectory's absolute error common to the three strips (beyond what the strips' priors allow: what a
+#: calibration without control keeps as a shift of the whole cloud)
+COMMON_SHIFT = np.array([0.0, 0.0, -0.2])
+CONTROL_SIGMA = 0.003
+
+
+def _control_moments(planes, which, m: int = 200, seed: int = 11, blunder: dict | None = None):
+    """Control points (a reference scan, noise ``CONTROL_SIGMA``) on the true planes ``which``: their moments about
+    the planes' true points; ``blunder``: plane -> offset (m) along its normal."""
+    rng = np.random.default_rng(seed)
+    q = len(planes)
+    cnt, s1, s2 = np.zeros(q), np.zeros((q, 3)), np.zeros((q, 3, 3))
+    for j in which:
+        X0, n = planes[j]
+        t1, t2 = plane_basis(n[None])
+        uv = rng.uniform(-1.5, 1.5, (m, 2))
+        y = uv[:, :1] * t1 + uv[:, 1:] * t2 + (rng.normal(0.0, CONTROL_SIGMA, m) + (blunder or {}).get(j, 0.0))[:, None] * n
+        cnt[j], s1[j], s2[j] = m, y.sum(axis=0), y.T @ y
+    return dict(control_count=cnt, control_sum=s1, control_sum2=s2, control_ref=np.array([p[0] for p in planes]),
+                control_sigma_m=CONTROL_SIGMA)
+
+
+def _held_out_offset(r, lp, planes, held):
+    """Mean signed distance of the adjusted laser points of the planes ``held`` from their true planes, and its
+    predicted sigma (the adjustment's cofactors of the scanner and strips propagated, and the points' noise)."""
+    from skyrig.calibrate.lidar_camera import _scanner_strip_cofactors
+
+    rows = np.flatnonzero(np.isin(lp.plane, held))
+    g = georeference(lp, r.block.parameters[SCANNER][0], r.block.parameters[STRIP], True, rows)
+    n = np.array([planes[q][1] for q in lp.plane[rows]])
+    d = np.einsum("ni,ni->n", n, g["X"] - np.array([planes[q][0] for q in lp.plane[rows]]))
+    A = np.zeros((len(rows), NS + NK * lp.n_strips))
+    A[:, :NS] = np.einsum("ni,nik->nk", n, g["JS"])
+    JK = np.einsum("ni,nik->nk", n, g["JK"])
+    for k in range(lp.n_strips):
+        on = lp.strip[rows] == k
+        A[on, NS + NK * k:NS + NK * (k + 1)] = JK[on]
+    a = A.mean(axis=0)
+    return float(d.mean()), float(np.sqrt(a @ _scanner_strip_cofactors(r, lp.n_strips) @ a + RANGE_SIGMA**2 / len(rows)))
+
+
+@pytest.fixture(scope="module")
+def controlled():
+    """The laser strips with a common trajectory error (no tie planes: nothing but control ties the laser to the
+    ground) adjusted without control and with control points on the even patches; the odd ones held out."""
+    from skyrig.calibrate.lidar_camera import adjust_joint_block
+
+    planes: list = []
+    b, _, _ = _joint_block(seed=4, n_patch=30, n_tie=0, shift=COMMON_SHIFT, planes=planes)
+    ctrl, held = np.arange(0, 30, 2), np.arange(1, 30, 2)
+    cfg = AdjustConfig(unknowns=lidar_unknowns(Unknowns(), strip_sigma=tuple(STRIP_SIGMA)))
+    lp = b.observations["lidar"]
+    lpc = dataclasses.replace(lp, **_control_moments(planes, ctrl))
+    bc = dataclasses.replace(b, observations={**b.observations, "lidar": lpc})
+    return {"planes": planes, "held": held, "ctrl": ctrl, "cfg": cfg, "block": b, "block_c": bc,
+            "free": adjust(b, cfg), "with": adjust_joint_block(bc, cfg)}
+
+
+def test_control_removes_the_common_shift(controlled):
+    c = controlled
+    lp = c["block"].observations["lidar"]
+    d0, s0 = _held_out_offset(c["free"], lp, c["planes"], c["held"])
+    res, blk, snoop = c["with"]
+    d1, s1 = _held_out_offset(res, blk.observations["lidar"], c["planes"], c["held"])
+    assert abs(d0) > 3 * s0  # without control the cloud keeps the trajectory's common error (it can fail)
+    assert abs(d1) < 3 * s1 and s1 < 0.2 * abs(d0), (d1, s1, d0)  # with control, on the planes held out: gone
+    assert res.ok and 0.8 < res.sigma0 < 1.2 and snoop["control_rejected"] is None
+
+
+def test_control_residuals_are_normalised(controlled):
+    """Each control plane against the laser's own plane: Baarda's normalised residuals about N(0, 1) (15 planes:
+    loose bounds), the residuals at the level of their predicted sigmas."""
+    res, blk, snoop = controlled["with"]
+    cr = snoop["control"]
+    assert len(cr) == 15 and not cr.blunder.any()
+    assert abs(np.mean(cr.z)) < 3.0 / np.sqrt(len(cr)) and 0.6 < np.std(cr.z) < 1.4, cr.z
+    assert np.sqrt(np.mean(cr.residual_m**2)) < 2.0 * np.sqrt(np.mean(cr.sigma_m**2))
+    # without the cofactors (the adjustment's explained share) the same residuals over a larger sigma
+    raw = control_residuals(blk.observations["lidar"], res.block.parameters[SCANNER][0], res.block.parameters[STRIP])
+    assert np.allclose(raw.residual_m, cr.residual_m) and np.all(raw.sigma_m >= cr.sigma_m)
+
+
+def test_blundered_control_plane_is_flagged_and_left_out(controlled):
+    """A control plane 6 cm off its surface (a moved object, a wrong reference) is the blunder, alone; without it
+    the block keeps no shift on the planes held out."""
+    from skyrig.calibrate.lidar_camera import adjust_joint_block
+
+    c = controlled
+    lp = c["block"].observations["lidar"]
+    bad = int(c["ctrl"][3])
+    lpb = dataclasses.replace(lp, **_control_moments(c["planes"], c["ctrl"], blunder={bad: 0.06}))
+    res, blk, snoop = adjust_joint_block(dataclasses.replace(c["block"], observations={**c["block"].observations,
+                                                                                        "lidar": lpb}), c["cfg"])
+    rej = snoop["control_rejected"]
+    assert rej is not None and rej.plane.tolist() == [bad] and abs(rej.z[0]) > 4.0
+    assert len(snoop["control"]) == 14 and not snoop["control"].blunder.any()
+    d1, s1 = _held_out_offset(res, blk.observations["lidar"], c["planes"], c["held"])
+    assert abs(d1) < 3 * s1
+
+
+def test_control_rows_carry_the_points_normal_equations():
+    """``control_gram`` from moments equals the dense sums over the points, with a per-plane error too (generalised
+    least squares, covariance ``s^2 I + s_p^2 1 1^T``); the joint factor's reduced rows agree with its cost."""
+    rng = np.random.default_rng(3)
+    n = np.array([0.3, -0.2, 0.93])
+    n /= np.linalg.norm(n)
+    t1, t2 = plane_basis(n[None])
+    ref, c, off = np.array([1.0, 2.0, 3.0]), np.array([1.2, 1.9, 3.05]), 0.004
+    y = ref + rng.normal(0.0, 1.0, (40, 3))
+    J = np.column_stack([(y - c) @ t1[0], (y - c) @ t2[0], -np.ones(len(y)), (y - c) @ n - off])
+    for sp in (0.0, 0.01):
+        Cinv = np.linalg.inv(0.003**2 * np.eye(len(y)) + sp**2 * np.ones((len(y), len(y))))
+        G = control_gram(np.array([len(y)]), (y - ref).sum(0)[None], ((y - ref).T @ (y - ref))[None], ref[None], n[None],
+                         c[None], off, 0.003, sp)[0]
+        assert np.allclose(G, J.T @ Cinv @ J, rtol=1e-9, atol=1e-9 * np.abs(G).max())
+
+
+def test_reduced_rows_with_control_match_the_cost(controlled):
+    c = controlled
+    model = Model(c["block_c"], c["cfg"])
+    s = State.from_block(c["block_c"])
+    s.groups[SCANNER] = TRUE_SCANNER[None] + 1e-3
+    f = [x for x in model.evaluate(s, True) if x.name == "lidar"][0]
+    f0 = [x for x in model.evaluate(s, False) if x.name == "lidar"][0]
+    assert np.isclose((f.r**2).sum(), (f0.r**2).sum(), rtol=1e-9)
+    n_ctrl = int(c["block_c"].observations["lidar"].control_count.sum())
+    assert len(f) + f.n_extra == len(f0) + f0.n_extra == len(c["block"].observations["lidar"]) + n_ctrl - 3 * 30
+
+
+def test_bad_control_is_named(controlled):
+    lp = controlled["block_c"].observations["lidar"]
+    b = controlled["block"]
+    with pytest.raises(BlockError, match="control_sigma_m"):
+        dataclasses.replace(b, observations={**b.observations, "lidar": dataclasses.replace(
+            lp, control_sigma_m=-0.01)}).validate()
+    nan = lp.control_sum.copy()
+    nan[0, 0] = np.nan
+    with pytest.raises(BlockError, match="control_sum"):
+        dataclasses.replace(b, observations={**b.observations, "lidar": dataclasses.replace(
+            lp, control_sum=nan)}).validate()

@@ -66,6 +66,27 @@ def test_bad_inputs_are_named(files):
     assert r.exit_code != 0 and "--scan" in r.output
 
 
+def test_bad_control_file_is_named(files):
+    """``--control``: read before the camera's inputs; a LAS without a CRS, a points CSV with a bad row, an empty
+    one: each error names the file (and line and field)."""
+    import laspy
+
+    from skyrig.cli.calibrate import command
+
+    d, sv, _ = files
+    las = laspy.LasData(laspy.LasHeader(point_format=0, version="1.2"))
+    las.x, las.y, las.z = [1.0, 2.0], [3.0, 4.0], [5.0, 6.0]
+    las.write(str(d / "nocrs.las"))
+    r = CliRunner().invoke(command, _args(d) + ["--control", str(d / "nocrs.las")])
+    assert r.exit_code != 0 and "nocrs.las" in str(r.exception) and "CRS" in str(r.exception), r.output
+    (d / "ctl.csv").write_text("# crs: EPSG:32633\nname,x,y,z\nc1,500000.0,5000000.0,100.0\nc2,500001.0,oops,100.0\n")
+    r = CliRunner().invoke(command, _args(d) + ["--control", str(d / "ctl.csv")])
+    msg = str(r.exception)
+    assert r.exit_code != 0 and "ctl.csv" in msg and "line 4" in msg and "field 'y'" in msg, msg
+    r = CliRunner().invoke(command, _args(d) + ["--control-sigma-m", "0"])
+    assert r.exit_code != 0 and "--control-sigma-m" in r.output
+
+
 @pytest.mark.slow
 def test_simulated_bridge_flight_recovers_the_injected_calibration(tmp_path):
     """Paper 002's bridge strip flight with its camera (CI size, seed 2): scanner boresight, lever arm, range offset
@@ -119,3 +140,44 @@ def test_truth_vector_matches_the_recipe_conventions():
                             axis=1)
     assert abs(np.std(along) - sv.spec.errors.range_sigma_m) < 0.15 * sv.spec.errors.range_sigma_m
     assert np.sqrt(np.mean(across**2)) < 2e-3  # nothing but range noise (and trajectory interpolation) left
+
+
+@pytest.mark.slow
+def test_tls_control_removes_the_common_shift_on_the_simulated_flight():
+    """Paper 002's bridge strip flight (CI size, seed 2): the joint recipe without control keeps the trajectory's
+    common error as a shift of the laser cloud against the TLS; with control planes from a sixth of the site's 5 m
+    cells of the TLS reference, the cloud's mean offset on the cells NOT used as control is within 3 predicted sigmas
+    of zero (the strips' common position offset's sigma), the control planes' normalised residuals about N(0, 1)."""
+    from skyrig.calibrate.lidar_camera import calibrate_lidar_camera, georeference_adjusted, joint_inputs_from_flight
+    from skyrig.lidar.compare import M3C2Params, m3c2
+    from skyrig.simulate.lidar_camera import build_joint_flight
+
+    fl = build_joint_flight("strips-ci", 2)
+    sv = fl.survey
+    ref = sv.reference_xyz
+
+    def is_control(p):
+        ij = np.floor(p[:, :2] / 5.0).astype(np.int64)
+        return (ij[:, 0] * 7 + ij[:, 1] * 3) % 6 == 0
+
+    inp = joint_inputs_from_flight(fl)
+    rows = np.flatnonzero(sv.scan.strip_id >= 0)
+    key = np.floor((ref - ref.min(axis=0)) / 0.5).astype(np.int64)
+    core = ref[np.sort(np.unique(key, axis=0, return_index=True)[1])]
+    core = core[~is_control(core)]
+    params = M3C2Params.pdal(normal_radius=0.5, cylinder_radius=0.25, cylinder_half_length=0.5, min_points=5)
+    out = {}
+    for name, ctrl in (("free", None), ("control", ref[is_control(ref)])):
+        cal = calibrate_lidar_camera(inp if ctrl is None else replace(inp, control_xyz=ctrl))
+        xyz = georeference_adjusted(inp, cal.scanner, cal.strips, cal.strip_epoch_s, cal.strip_ids, rows=rows)
+        r = m3c2(ref, xyz, core, params)
+        ok = np.isfinite(r.distance_m) & (r.std1_m < 0.01) & (np.abs(r.normal[:, 2]) > 0.9)  # level faces: heights
+        # the cloud's mean height offset on the held-out cells; its sigma: the strips' common height offset's
+        sig = float(np.sqrt(np.mean(cal.strips_sigma[:, 2] ** 2)))
+        out[name] = (float(np.mean(r.distance_m[ok] * np.sign(r.normal[ok, 2]))), sig, cal)
+    d0, s0, _ = out["free"]
+    d1, s1, cal = out["control"]
+    assert abs(d1) < 3 * s1 and abs(d1) < 0.3 * abs(d0), (d0, s0, d1, s1)
+    assert abs(d0) > 3 * s1  # without control the shift is far beyond the controlled precision (it can fail)
+    z = cal.control.z
+    assert len(z) >= 10 and abs(np.mean(z)) < 0.5 and 0.6 < np.std(z) < 1.4 and cal.control_rejected is None

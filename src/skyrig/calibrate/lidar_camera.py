@@ -5,7 +5,12 @@ strips (:mod:`skyrig.adjust.factors.lidar`): laser points on planar patches seen
 points on the local planes of the image block's tie points, and the image stations tied to the same recorded
 trajectory as the laser, corrected by the same per-strip offsets and drifts.  Unknowns: the scanner's boresight,
 lever arm, range offset and scale, per-strip trajectory corrections (priors: the trajectory's stated accuracy),
-the camera's boresight, the stations and the tie points.
+the camera's boresight, the stations and the tie points.  Optional control (``JointInputs.control_xyz``: a
+reference cloud, e.g. a terrestrial scan registered to the survey's control, or a surveyor's control planes): its
+points on the patch planes observe those planes (:mod:`skyrig.adjust.factors.lidar`, point-to-plane with
+``JointOptions.control_sigma_m`` per point and ``control_plane_sigma_m`` per plane) and give the block the datum no
+calibration without control has (the trajectory's absolute accuracy); each control plane is tested against the
+laser's own plane and left out as a blunder when its normalised residual exceeds ``max_control_z``.
 
 :func:`calibrate_lidar_camera` builds the block from the raw inputs (:class:`JointInputs`), adjusts it and returns
 a :class:`JointCalibration`: parameters with sigmas, determinability verdicts, the adjusted block.
@@ -27,8 +32,9 @@ from scipy.spatial import cKDTree
 from skyrig.adjust import AdjustConfig, adjust
 from skyrig.adjust.block import Block
 from skyrig.adjust.config import Unknowns
-from skyrig.adjust.factors.lidar import (LIDAR, SCANNER, SCANNER_COMPONENTS, STRIP, STRIP_COMPONENTS, LidarPoints,
-                                         georeference, lidar_unknowns)
+from skyrig.adjust.factors.lidar import (LIDAR, SCANNER, SCANNER_COMPONENTS, STRIP, STRIP_COMPONENTS,
+                                         ControlResiduals, LidarPoints, control_residuals, georeference,
+                                         lidar_unknowns)
 from skyrig.camera.frame import FrameCamera
 from skyrig.errors import CalibrationFailed, InputFormatError
 from skyrig.georef.eo import WorldFrame
@@ -41,7 +47,8 @@ from skyrig.trajectory.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["JointInputs", "JointOptions", "JointCalibration", "build_joint_block", "calibrate_lidar_camera",
+__all__ = ["JointInputs", "JointOptions", "JointCalibration", "adjust_joint_block", "build_joint_block",
+           "calibrate_lidar_camera",
            "georeference_adjusted", "joint_inputs_from_flight"]
 
 
@@ -52,7 +59,8 @@ class JointInputs:
     ``scan`` (raw pulses with strip ids), ``trajectory`` (recorded), ``mount`` (nominal scanner mount), ``frame``
     (a local tangent frame near the flight: every coordinate of the block), ``camera`` with its nominal
     ``body_from_camera`` and lever arm, the images' exposure times and strips, and the tie-point measurements
-    ``obs_image``, ``obs_point``, ``obs_pixel`` (column, row px) with noise ``sigma_px``.
+    ``obs_image``, ``obs_point``, ``obs_pixel`` (column, row px) with noise ``sigma_px``; optional control points
+    ``control_xyz`` (a reference cloud in ``frame``) and ground control points measured in the images (``gcp_*``).
     """
 
     scan: RawScan
@@ -68,6 +76,13 @@ class JointInputs:
     obs_point: NDArray[np.int64]
     obs_pixel: NDArray[np.float64]
     sigma_px: float = 0.5
+    #: ``(R, 3)`` control points (a reference cloud) in ``frame``, or None
+    control_xyz: NDArray[np.float64] | None = None
+    #: ground control points measured in the images: ``(G,)`` their tie-point ids (the numbering of ``obs_point``),
+    #: ``(G, 3)`` surveyed coordinates in ``frame`` and ``(G, 3)`` sigmas (m), or None
+    gcp_point: NDArray[np.int64] | None = None
+    gcp_xyz: NDArray[np.float64] | None = None
+    gcp_sigma_m: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -102,6 +117,12 @@ class JointOptions:
     max_iterations: int = 30
     max_plane_rms: float = 2.0  # a plane whose normalised residual RMS exceeds this after an adjustment is dropped
     max_point_z: float = 4.5  # a laser point whose normalised residual exceeds this is dropped (data snooping)
+    #: control (reference cloud) points: noise across their surface per point, and common to a patch's points (the
+    #: reference's registration); a control plane whose normalised residual against the laser exceeds max_control_z
+    #: is a blunder and left out
+    control_sigma_m: float = 0.003
+    control_plane_sigma_m: float = 0.0
+    max_control_z: float = 4.0
     seed: int = 0
 
 
@@ -112,7 +133,9 @@ class JointCalibration:
     ``scanner`` / ``scanner_sigma`` ``(8,)`` (components of ``lidar_scanner``), ``camera_boresight_rad`` /
     ``camera_boresight_sigma_rad`` ``(3,)``, ``strips`` / ``strips_sigma`` ``(K, 12)``, ``strip_epoch_s`` ``(K,)``
     and ``strip_ids``; ``verdicts``: per calibration parameter ``(name, value, sigma, "determined" | "not
-    determinable", words)``; ``result``: the adjustment; ``n_patch_planes``, ``n_tie_planes``, ``n_laser_points``.
+    determinable", words)``; ``result``: the adjustment; ``n_patch_planes``, ``n_tie_planes``, ``n_laser_points``;
+    ``control``: the control planes' residuals (:class:`~skyrig.adjust.factors.lidar.ControlResiduals`) when the
+    inputs had control, ``control_rejected`` the blunders left out.
     """
 
     scanner: NDArray[np.float64]
@@ -136,6 +159,14 @@ class JointCalibration:
     #: and after the joint adjustment (:func:`strip_discrepancies`)
     discrepancies_before: dict[str, float] | None = None
     discrepancies_after: dict[str, float] | None = None
+    #: each control plane against the laser after the adjustment (None: no control), and those left out as
+    #: blunders (tested in the adjustment they were left out of)
+    control: ControlResiduals | None = None
+    control_rejected: ControlResiduals | None = None
+    #: ground control points in the images: residuals (adjusted minus surveyed, m, ``(G, 3)``) and normalised
+    #: residuals (``(G, 3)``, the adjustment's own test), or None
+    gcp_residual_m: NDArray[np.float64] | None = None
+    gcp_normalised: NDArray[np.float64] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -151,6 +182,13 @@ class JointCalibration:
             "planes": {"patch": self.n_patch_planes, "tie": self.n_tie_planes},
             "laser_points_used": self.n_laser_points, "sigma0": self.sigma0,
             "strip_discrepancies": {"before": self.discrepancies_before, "after": self.discrepancies_after},
+            **({} if self.control is None else {"control": {
+                **self.control.to_dict(),
+                "rejected_as_blunders": [] if self.control_rejected is None else
+                self.control_rejected.to_dict().get("control_planes", [])}}),
+            **({} if self.gcp_residual_m is None else {"ground_control": {
+                "units": "m, adjusted minus surveyed (block frame)", "residual_m": self.gcp_residual_m.tolist(),
+                "normalised": None if self.gcp_normalised is None else self.gcp_normalised.tolist()}}),
         }
 
 
@@ -210,7 +248,19 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
         raise InputFormatError(f"scanner lever arm {inputs.mount.lever_arm_m.tolist()} is over 10 m: lever arms are in "
                                "metres (given in mm?)", field="lever_arm_m")
     xyz, strip_of = prepare_observations(scan, inputs.trajectory, inputs.mount, frame)
-    patches = find_planar_patches(scan, inputs.trajectory, inputs.mount, frame, options=options.patches, xyz=xyz)
+    control = None
+    if inputs.control_xyz is not None:
+        control = np.asarray(inputs.control_xyz, float)
+        if control.ndim != 2 or control.shape[1] != 3 or not np.isfinite(control).all():
+            raise InputFormatError(f"control points must be finite (R, 3) coordinates, got shape {control.shape}",
+                                   field="control_xyz")
+    patches = find_planar_patches(scan, inputs.trajectory, inputs.mount, frame, options=options.patches, xyz=xyz,
+                                  control=control)
+    if control is not None and not (patches.control_count >= 3).any():
+        raise InputFormatError(f"none of the {len(control)} control points lies on a planar patch of the laser strips "
+                               f"(within {options.patches.max_thickness_m:g} m of a patch, {options.patches.cell_m:g} m "
+                               "cells): is the control in the same frame (CRS, vertical reference) as the flight?",
+                               field="control_xyz")
     ids = [int(v) for v in patches.strip_ids]
     bad = [int(s) for s in np.unique(inputs.image_strip) if int(s) not in ids]
     if bad:
@@ -236,6 +286,13 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     tpos, trot = local_poses(inputs.trajectory, frame, scan.time_s[trow])
     tb, tdb = beams(scan, trow)
     tstrip = np.array([k_of[int(s)] for s in strip_of[trow]], np.int64)
+    q_tie = len(tie_pts)
+    ctrl: dict[str, Any] = {} if control is None else {
+        "control_count": np.concatenate([patches.control_count, np.zeros(q_tie)]),
+        "control_sum": np.concatenate([patches.control_sum, np.zeros((q_tie, 3))]),
+        "control_sum2": np.concatenate([patches.control_sum2, np.zeros((q_tie, 3, 3))]),
+        "control_ref": np.concatenate([patches.centre, np.zeros((q_tie, 3))]),
+        "control_sigma_m": options.control_sigma_m, "control_plane_sigma_m": options.control_plane_sigma_m}
     lp = LidarPoints(
         time_s=np.concatenate([used_time, scan.time_s[trow]]), strip=np.concatenate([patches.strip, tstrip]),
         range_m=np.concatenate([patches.range_m, scan.range_m[trow]]), beam=np.concatenate([patches.beam_s, tb]),
@@ -248,7 +305,7 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
         station=np.arange(n_img), station_strip=np.array([k_of[int(s)] for s in inputs.image_strip], np.int64),
         station_time_s=inputs.image_time_s, station_position_m=pos, station_rotation=rot,
         station_position_sigma_m=options.station_position_sigma_m,
-        station_attitude_sigma_rad=options.station_attitude_sigma_rad)
+        station_attitude_sigma_rad=options.station_attitude_sigma_rad, **ctrl)
     # the roughness as an error of the range needs each point's n . beam at a starting plane: the patch planes' own
     # normals for their points (as the laser-only strip adjustment), the default fit for the tie planes' points
     lp.normalise(None)  # type: ignore[arg-type]
@@ -256,6 +313,20 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
     n_b = np.einsum("nji,nj->ni", patches.rotation, patches.normal[patches.plane]) @ inputs.mount.body_from_scanner
     inc[:len(patches.plane)] = np.einsum("ni,ni->n", n_b, patches.beam_s)
     lp.incidence0 = inc
+    gcp: dict[str, Any] = {}
+    if inputs.gcp_point is not None:
+        gp = np.asarray(inputs.gcp_point, np.int64).reshape(-1)
+        gx = np.asarray(inputs.gcp_xyz, float).reshape(len(gp), 3)
+        gs = np.broadcast_to(np.asarray(inputs.gcp_sigma_m if inputs.gcp_sigma_m is not None else 0.01, float),
+                             (len(gp), 3))
+        bad_g = [int(j) for j in gp if not (0 <= j < n_pts and ok_pt[j])]
+        if bad_g:
+            raise InputFormatError(f"ground control point(s) {bad_g[:5]} are not tie points measured in 2 or more "
+                                   "images of the block", field="gcp_point")
+        if not (np.isfinite(gx).all() and np.isfinite(gs).all() and (gs > 0).all()):
+            raise InputFormatError("ground control coordinates and sigmas must be finite, sigmas positive",
+                                   field="gcp_xyz")
+        gcp = {"control_point": newp[gp], "control_xyz": gx, "control_sigma": np.array(gs)}
     block = Block(
         cameras=[cam], station_name=[f"exp{i}" for i in range(n_img)], station_rotation=rot, station_centre=pos,
         station_time=inputs.image_time_s, image_name=[f"img{i}" for i in range(n_img)],
@@ -264,13 +335,14 @@ def build_joint_block(inputs: JointInputs, options: JointOptions = JointOptions(
         head_name=["camera"], point_name=[f"t{j}" for j in range(int(ok_pt.sum()))], point_xyz=tie_xyz[ok_pt],
         obs_image=inputs.obs_image[keep_obs], obs_point=newp[inputs.obs_point[keep_obs]],
         obs_pixel=inputs.obs_pixel[keep_obs], obs_sigma_px=np.full((int(keep_obs.sum()), 2), inputs.sigma_px),
-        observations={"lidar": lp}, frame=frame)
+        observations={"lidar": lp}, frame=frame, **gcp)
     unk = lidar_unknowns(Unknowns(poses="free", points="free", boresight="free", intrinsics="fixed"),
                          strip_sigma=options.strip_sigma)
     cfg = AdjustConfig(unknowns=unk)
     cfg = replace(cfg, solver=replace(cfg.solver, max_iterations=options.max_iterations))
     info = {"n_patch_planes": patches.n_planes, "n_tie_planes": len(tie_pts), "strip_ids": patches.strip_ids,
-            "n_points_searched": patches.n_points_total, "n_laser_points": len(lp)}
+            "n_points_searched": patches.n_points_total, "n_laser_points": len(lp),
+            "n_control_planes": int(lp.has_control.sum()), "n_gcp": len(gcp.get("control_point", []))}
     return block, cfg, info
 
 
@@ -283,26 +355,8 @@ def calibrate_lidar_camera(inputs: JointInputs, options: JointOptions = JointOpt
         The adjustment did not converge (its failures named).
     """
     block, cfg, info = build_joint_block(inputs, options)
-    res = adjust(block, cfg)
-    dropped = [0, 0]
-    for _ in range(4):  # points off their plane (edges, corners) and planes that are not planes go, then again
-        if not res.ok:
-            break
-        lp = res.block.observations["lidar"]
-        z, rms = LIDAR.normalised_residuals(res.block)
-        bad_pt, bad_pl = np.abs(z) > options.max_point_z, rms > options.max_plane_rms
-        if not bad_pt.any() and not bad_pl.any():
-            break
-        lp2 = lp.without(bad_pt, bad_pl)
-        dropped[0] += len(lp) - len(lp2)
-        dropped[1] += lp.n_planes - lp2.n_planes
-        logger.info("%d laser points off their plane (|z| > %g) and %d planes dropped", int(bad_pt.sum()),
-                    options.max_point_z, lp.n_planes - lp2.n_planes)
-        block = replace(block, observations={**block.observations, "lidar": lp2})
-        res = adjust(block, cfg)
-    info["n_dropped_points"], info["n_dropped_planes"] = dropped
-    if not res.ok:
-        raise CalibrationFailed("the joint laser and image adjustment failed: " + "; ".join(res.failures))
+    res, block, snoop = adjust_joint_block(block, cfg, options)
+    info["n_dropped_points"], info["n_dropped_planes"] = snoop["dropped_points"], snoop["dropped_planes"]
     s0 = float(res.sigma0) if np.isfinite(res.sigma0) and res.sigma0 > 0 else 1.0
     sig = {k_: v / s0 for k_, v in res.sigma_reduced().items()}  # a-priori sigmas (the model's own precision)
     sc = np.asarray(res.block.parameters[SCANNER][0], float)
@@ -329,8 +383,117 @@ def calibrate_lidar_camera(inputs: JointInputs, options: JointOptions = JointOpt
                 after["pairs"], before["rms_m"], after["rms_m"], before["normalised_rms"], after["normalised_rms"])
     return JointCalibration(sc, sc_s, cb, cb_s, st, st_s, np.asarray(lp.strip_epoch_s),
                             np.asarray(info["strip_ids"], np.int64), tuple(verdicts), res, res.block,
-                            lp.n_planes - n_tie, n_tie, len(lp), float(res.sigma0), dropped[1], dropped[0], before,
-                            after)
+                            lp.n_planes - n_tie, n_tie, len(lp), float(res.sigma0), info["n_dropped_planes"],
+                            info["n_dropped_points"], before, after, snoop["control"], snoop["control_rejected"],
+                            *_gcp_residuals(res))
+
+
+def _gcp_residuals(res: Any) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """The ground control points' residuals ``(G, 3)`` (m) and normalised residuals, or None without them."""
+    g = getattr(res, "residuals", {}).get("control")
+    if g is None or not len(g.residual):
+        return None, None
+    return np.asarray(g.residual, float), None if g.normalised is None else np.asarray(g.normalised, float)
+
+
+def _scanner_strip_cofactors(res: Any, n_strips: int) -> NDArray[np.float64] | None:
+    """The a-priori cofactors ``(8 + 12 K)`` square of the scanner calibration and the strip corrections (the
+    groups' component order), or None without a covariance."""
+    cov = getattr(res, "covariance", None)
+    if cov is None:
+        return None
+    lab = {l_: i for i, l_ in enumerate(res.layout.labels)}
+    idx = [lab.get((SCANNER, "scanner", c), -1) for c in SCANNER_COMPONENTS]
+    idx += [lab.get((STRIP, f"strip{k}", c), -1) for k in range(n_strips) for c in STRIP_COMPONENTS]
+    ix = np.asarray(idx)
+    Q = np.zeros((len(ix), len(ix)))
+    ok = ix >= 0
+    Q[np.ix_(ok, ok)] = np.asarray(cov.Qcc)[np.ix_(ix[ok], ix[ok])]
+    return Q
+
+
+def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = JointOptions()
+                       ) -> tuple[Any, Block, dict[str, Any]]:
+    """Adjust the joint block with data snooping: laser points off their plane (``|z| > max_point_z``: edges,
+    corners), planes that are not planes (``max_plane_rms``) and control planes that are blunders (``|z| >
+    max_control_z`` against the laser, :func:`~skyrig.adjust.factors.lidar.control_residuals`; the worst one a
+    round, alone: a large blunder pulls the block towards itself and lifts its neighbours' residuals) are left out
+    and the block adjusted again (at most 4 rounds for the laser, 8 in all).  With control (planes or ground control
+    points) the block is adjusted without it first and from there with it.
+
+    Returns the adjustment, the block it adjusted and ``{"dropped_points", "dropped_planes", "control" (the control
+    planes' residuals at the end, or None), "control_rejected" (the blunders, tested in the adjustment they were
+    left out of)}``.
+
+    Raises
+    ------
+    CalibrationFailed
+        The adjustment did not converge (its failures named).
+    """
+    lp0 = block.observations["lidar"]
+    gcp0 = block.observations.get("control")
+    has_gcp = gcp0 is not None and len(gcp0) > 0 and not np.all(gcp0.check)
+    if lp0.has_control.any() or has_gcp:
+        # without the control first, then with it from there: from the nominal calibration the laser points lie
+        # decimetres off planes the control holds, where the rows at the adjusted observations are no model of the
+        # cost (strips-ci seed 2 with control planes, seed 6 with ground control points: 30 iterations of
+        # trust-region steps of a millimetre, no convergence); from the block adjusted without control what is left
+        # is the trajectory's common error, centimetres.  (Ground control points are check points meanwhile.)
+        obs0 = {**block.observations, "lidar": lp0.without_control(np.ones(lp0.n_planes, bool))}
+        if has_gcp:
+            obs0["control"] = replace(gcp0, check=np.ones(len(gcp0), bool))
+        free = adjust(replace(block, observations=obs0), cfg)
+        if free.ok:
+            block = replace(free.block, observations={**free.block.observations, "lidar": lp0,
+                                                      **({"control": gcp0} if has_gcp else {})})
+    res = adjust(block, cfg)
+    dropped = [0, 0]
+    rejected: list[ControlResiduals] = []
+    control: ControlResiduals | None = None
+    laser_rounds = 0
+    for _ in range(8):  # points off their plane (edges, corners), planes that are not planes and control blunders go
+        if not res.ok:
+            break
+        lp = res.block.observations["lidar"]
+        z, rms = LIDAR.normalised_residuals(res.block)
+        bad_pt, bad_pl = np.abs(z) > options.max_point_z, rms > options.max_plane_rms
+        bad_c = np.zeros(lp.n_planes, bool)
+        control = None
+        if lp.has_control.any():
+            control = control_residuals(lp, np.asarray(res.block.parameters[SCANNER][0], float),
+                                        np.asarray(res.block.parameters[STRIP], float),
+                                        _scanner_strip_cofactors(res, lp.n_strips), options.max_control_z)
+            out = control.blunder & (np.abs(control.z) >= np.max(np.abs(np.where(control.blunder, control.z, 0.0))))
+            if out.any():  # the control first: a blunder pulls its plane off the laser points, which go next round
+                bad_pt[:], bad_pl[:] = False, False
+                bad_c[control.plane[out]] = True
+                rejected.append(ControlResiduals(*(getattr(control, f)[out] for f in (
+                    "plane", "count", "centroid", "normal", "residual_m", "sigma_m", "z", "blunder", "redundancy"))))
+                logger.warning("%d control plane(s) left out as blunders: residuals %s mm (|z| > %g)", int(out.sum()),
+                               np.round(control.residual_m[out] * 1e3, 1).tolist(), options.max_control_z)
+        if not bad_c.any():
+            if laser_rounds == 4 or (not bad_pt.any() and not bad_pl.any()):
+                break
+            laser_rounds += 1
+        lp2 = lp.without_control(bad_c).without(bad_pt, bad_pl)
+        dropped[0] += len(lp) - len(lp2)
+        dropped[1] += lp.n_planes - lp2.n_planes
+        logger.info("%d laser points off their plane (|z| > %g) and %d planes dropped", int(bad_pt.sum()),
+                    options.max_point_z, lp.n_planes - lp2.n_planes)
+        block = replace(block, observations={**block.observations, "lidar": lp2})
+        res = adjust(block, cfg)
+        control = None
+    if not res.ok:
+        raise CalibrationFailed("the joint laser and image adjustment failed: " + "; ".join(res.failures))
+    lp = res.block.observations["lidar"]
+    if control is None and lp.has_control.any():
+        control = control_residuals(lp, np.asarray(res.block.parameters[SCANNER][0], float),
+                                    np.asarray(res.block.parameters[STRIP], float),
+                                    _scanner_strip_cofactors(res, lp.n_strips), options.max_control_z)
+    rej = None if not rejected else ControlResiduals(*(np.concatenate([getattr(r, f) for r in rejected]) for f in (
+        "plane", "count", "centroid", "normal", "residual_m", "sigma_m", "z", "blunder", "redundancy")))
+    return res, block, {"dropped_points": dropped[0], "dropped_planes": dropped[1], "control": control,
+                        "control_rejected": rej}
 
 
 def strip_discrepancies(lp: LidarPoints, scanner: NDArray[np.float64], strips: NDArray[np.float64]

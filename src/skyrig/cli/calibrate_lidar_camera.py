@@ -19,6 +19,9 @@ import numpy as np
 
 from skyrig.errors import InputFormatError
 
+#: the recipe's control options (:class:`~skyrig.calibrate.lidar_camera.JointOptions`) the command sets
+CONTROL_OPTIONS = ("control_sigma_m", "control_plane_sigma_m", "max_control_z")
+
 _UNIT = {"rad": ("deg", float(np.degrees(1.0))), "_m": ("mm", 1000.0), "range_scale": ("ppm", 1e6)}
 
 
@@ -30,8 +33,11 @@ def _unit(name: str) -> tuple[str, float]:
 
 
 def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner: str | None, rig_path: str,
-                       head: str | None, events_path: str, meas_path: str, sigma_px: float) -> tuple[Any, Any]:
-    """The recipe's inputs from files, every bad input named (file, line, field)."""
+                       head: str | None, events_path: str, meas_path: str, sigma_px: float,
+                       control_path: str | None = None, gcp_path: str | None = None,
+                       gcp_sigma_m: float = 0.01) -> tuple[Any, Any]:
+    """The recipe's inputs from files, every bad input named (file, line, field); the laser's inputs and the control
+    first."""
     from skyrig.calibrate.lidar_camera import JointInputs
     from skyrig.georef.eo import WorldFrame
     from skyrig.io.events_csv import read_events_csv
@@ -43,6 +49,13 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
     scan, traj = read_strip_scan(scan_path, traj_path, "the joint adjustment")
     t0, t1 = traj.span
     mount, _ = read_scanner_mount(mount_path, scanner)  # left-handed frames and lever arms in mm are named there
+    lat, lon, hh = (float(np.mean(traj.lat_deg)), float(np.mean(traj.lon_deg)), float(np.mean(traj.h_m)))
+    frame = WorldFrame.local(lat, lon, hh)
+    control = None
+    if control_path is not None:
+        from skyrig.pipeline.lidar import read_control_cloud
+
+        control, _ = read_control_cloud(control_path, frame)
     rig, _ = read_calibrated_rig(rig_path)
     if head is None:
         if len(rig) != 1:
@@ -71,10 +84,22 @@ def _inputs_from_files(scan_path: str, traj_path: str, mount_path: str, scanner:
     keep = np.array([str(i) in img_index for i in meas.image], bool)
     pts, obs_point = np.unique(np.asarray(meas.point)[keep], return_inverse=True)
     obs_image = np.array([img_index[str(i)] for i in np.asarray(meas.image)[keep]], np.int64)
-    lat, lon, hh = (float(np.mean(traj.lat_deg)), float(np.mean(traj.lon_deg)), float(np.mean(traj.h_m)))
-    inputs = JointInputs(scan, traj, mount, WorldFrame.local(lat, lon, hh), h.camera, h.body_from_camera_rotation(),
+    gcp: dict[str, Any] = {}
+    if gcp_path is not None:  # ground control points: those of the file measured in the block's images
+        from skyrig.io.points_csv import read_points_csv
+
+        g = read_points_csv(gcp_path, option="--gcp")
+        at = {str(n): i for i, n in enumerate(pts)}
+        use = [i for i, n in enumerate(g.name) if str(n) in at]
+        if not use:
+            raise InputFormatError(f"none of the {len(g)} ground control points is measured in an image of the block "
+                                   f"(names {', '.join(map(str, g.name[:5]))}...)", gcp_path, None, "name")
+        gcp = {"gcp_point": np.array([at[str(g.name[i])] for i in use], np.int64),
+               "gcp_xyz": frame.from_ecef(g.frame.to_ecef(g.xyz[use])), "gcp_sigma_m": np.full((len(use), 3),
+                                                                                                  gcp_sigma_m)}
+    inputs = JointInputs(scan, traj, mount, frame, h.camera, h.body_from_camera_rotation(),
                          np.asarray(h.lever_arm_m, float), times[on], strip[on], obs_image, obs_point.astype(np.int64),
-                         np.asarray(meas.pixel, float)[keep], sigma_px)
+                         np.asarray(meas.pixel, float)[keep], sigma_px, control, **gcp)
     return inputs, (rig, head)
 
 
@@ -92,7 +117,8 @@ def run(inputs: Any, rig_head: tuple[Any, str] | None, opts: dict[str, Any], out
     from skyrig.io.truth import _plain
     from skyrig.rig.rig import Head, Rig
 
-    cal = calibrate_lidar_camera(inputs, JointOptions(range_sigma_m=opts["range_sigma_m"]))
+    cal = calibrate_lidar_camera(inputs, JointOptions(range_sigma_m=opts["range_sigma_m"],
+                                                      **{k: opts[k] for k in CONTROL_OPTIONS if k in opts}))
     truth = None if truth_of is None else truth_of(cal)
     mount = inputs.mount
     if rig_head is None:
@@ -139,7 +165,12 @@ def run(inputs: Any, rig_head: tuple[Any, str] | None, opts: dict[str, Any], out
                                           "tie_planes": cal.n_tie_planes, "laser_points": cal.n_laser_points,
                                           "images": int(len(inputs.image_time_s)),
                                           "dropped_points": cal.n_dropped_points,
-                                          "dropped_planes": cal.n_dropped_planes},
+                                          "dropped_planes": cal.n_dropped_planes,
+                                          **({} if cal.control is None else {
+                                              "control": opts.get("control"),
+                                              "control_planes": len(cal.control),
+                                              "control_rejected": 0 if cal.control_rejected is None
+                                              else len(cal.control_rejected)})},
                            "notes": ["boresight: rotation vector in the scanner frame, body_from_scanner = nominal @ "
                                      "expmap(boresight); lever arm: correction to the nominal, body frame; range: "
                                      "recorded = (1 + scale) true + offset",
@@ -172,6 +203,22 @@ def echo_table(out: dict[str, Any]) -> None:
     click.echo(f"{cal.n_patch_planes} patch planes, {cal.n_tie_planes} tie-point planes, {cal.n_laser_points:,} laser "
                f"points, {len(cal.block.image_name)} images, {len(cal.block.obs_image):,} image measurements; sigma0 "
                f"{cal.sigma0:.3f}; dropped {cal.n_dropped_points} points off their plane, {cal.n_dropped_planes} planes")
+    c = cal.control
+    if c is not None:
+        sm = c.summary()
+        click.echo(f"control: {sm['planes']} planes ({sm['points']:,} points) against the laser: residual RMS "
+                   f"{sm['rms_m'] * 1e3:.1f} mm, mean {sm['mean_m'] * 1e3:+.1f} mm; normalised mean {sm['z_mean']:+.2f}, "
+                   f"std {sm['z_std']:.2f}, max |z| {sm['z_max_abs']:.2f}")
+        rej = cal.control_rejected
+        for i in range(0 if rej is None else len(rej)):
+            assert rej is not None
+            click.echo(f"control plane at {np.round(rej.centroid[i], 3).tolist()} m (local frame) left out as a "
+                       f"blunder: {rej.residual_m[i] * 1e3:+.1f} mm from the laser, z = {rej.z[i]:+.1f}")
+    if cal.gcp_residual_m is not None:
+        rms = np.sqrt(np.mean(cal.gcp_residual_m**2, axis=0)) * 1e3
+        zmax = "" if cal.gcp_normalised is None else f", largest |normalised| {np.nanmax(np.abs(cal.gcp_normalised)):.2f}"
+        click.echo(f"ground control: {len(cal.gcp_residual_m)} points in the images, residual RMS x {rms[0]:.1f}, "
+                   f"y {rms[1]:.1f}, z {rms[2]:.1f} mm{zmax}")
     b, a = cal.discrepancies_before, cal.discrepancies_after
     if b is not None and a is not None and a["pairs"]:
         click.echo(f"strip-to-strip discrepancies on {a['pairs']} patch/strip pairs: RMS {b['rms_m'] * 1e3:.1f} mm "
@@ -196,6 +243,21 @@ def echo_table(out: dict[str, Any]) -> None:
               help="Tie-point measurements CSV (point, image, column, row).")
 @click.option("--image-sigma-px", type=float, default=0.5, show_default=True, help="Sigma of an image coordinate.")
 @click.option("--range-sigma-m", type=float, default=0.02, show_default=True, help="Range noise of the scanner.")
+@click.option("--control", "control_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Control: a reference cloud (LAS/LAZ with its CRS, e.g. a terrestrial scan registered to the "
+                   "survey's control) or a points CSV (name,x,y,z, CRS in its header) on planar surfaces the strips "
+                   "see; its points on the laser patches observe them.")
+@click.option("--control-sigma-m", type=float, default=0.003, show_default=True,
+              help="Noise of one control point across its surface.")
+@click.option("--control-plane-sigma-m", type=float, default=0.0, show_default=True,
+              help="Error common to a patch's control points (the reference's registration).")
+@click.option("--max-control-z", type=float, default=4.0, show_default=True,
+              help="A control plane whose normalised residual against the laser exceeds this is a blunder, left out.")
+@click.option("--gcp", "gcp_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Ground control points measured in the images: a points CSV (name,x,y,z, CRS in its header) whose "
+                   "names are points of --measurements.")
+@click.option("--gcp-sigma-m", type=float, default=0.01, show_default=True,
+              help="Sigma of a ground control point's coordinates (per axis).")
 @click.option("--simulate", type=click.Choice(["strips-ci", "strips"]), default=None,
               help="Instead of files: paper 002's simulated bridge strip flight with its camera (errors injected).")
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of --simulate.")
@@ -207,9 +269,18 @@ def echo_table(out: dict[str, Any]) -> None:
 @click.option("--report", "report_path", type=click.Path(dir_okay=False), default=None,
               help="JSON report (default: next to --output).")
 def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, head, events_path, meas_path,
-                         image_sigma_px, range_sigma_m, simulate, seed, name, flight, date, output, report_path) -> None:
+                         image_sigma_px, range_sigma_m, control_path, control_sigma_m, control_plane_sigma_m,
+                         max_control_z, gcp_path, gcp_sigma_m, simulate, seed, name, flight, date, output,
+                         report_path) -> None:
     """Laser scanner and camera calibrated in one adjustment (laser strips + images + trajectory)."""
-    opts = {"name": name, "flight": flight, "date": date, "range_sigma_m": range_sigma_m}
+    for opt, v_, low in (("--control-sigma-m", control_sigma_m, 0.0), ("--control-plane-sigma-m", control_plane_sigma_m,
+                                                                       -1.0), ("--max-control-z", max_control_z, 0.0),
+                         ("--gcp-sigma-m", gcp_sigma_m, 0.0)):
+        if not (np.isfinite(v_) and v_ > low) or (low < 0 and v_ < 0):
+            raise click.BadParameter(f"must be {'>= 0' if low < 0 else 'positive'}, got {v_!r}", param_hint=opt)
+    opts = {"name": name, "flight": flight, "date": date, "range_sigma_m": range_sigma_m,
+            "control_sigma_m": control_sigma_m, "control_plane_sigma_m": control_plane_sigma_m,
+            "max_control_z": max_control_z, "control": control_path}
     if simulate is not None:
         from skyrig.simulate.lidar import strip_truth_vector
         from skyrig.simulate.lidar_camera import build_joint_flight
@@ -225,13 +296,27 @@ def lidar_camera_command(scan_path, traj_path, mount_path, scanner, rig_path, he
         if missing:
             raise click.UsageError(f"give {', '.join(missing)} (or --simulate)")
         inputs, rig_head = _inputs_from_files(scan_path, traj_path, mount_path, scanner, rig_path, head, events_path,
-                                              meas_path, image_sigma_px)
+                                              meas_path, image_sigma_px, control_path, gcp_path, gcp_sigma_m)
+    if control_path is not None and simulate is not None:
+        from dataclasses import replace
+
+        from skyrig.pipeline.lidar import read_control_cloud
+
+        control, _ = read_control_cloud(control_path, inputs.frame)
+        inputs = replace(inputs, control_xyz=control)
     truth_of = None
     if simulate is not None:
         def truth_of(cal: Any) -> dict[str, Any]:
             tv = strip_truth_vector(fl.survey.injected, cal.strip_epoch_s)
             return {"scanner": tv[:8].tolist(), "camera_boresight_rad": fl.camera_boresight_rad.tolist(),
                     "strips": tv[8:].reshape(-1, 12).tolist()}
-    out = run(inputs, rig_head, opts, output, report_path, truth_of)
+    try:
+        out = run(inputs, rig_head, opts, output, report_path, truth_of)
+    except InputFormatError as exc:
+        if control_path is not None and exc.field == "control_xyz":  # the control file's fault: name it
+            raise InputFormatError(exc.reason, control_path, field="points") from None
+        if gcp_path is not None and exc.field in ("gcp_point", "gcp_xyz"):
+            raise InputFormatError(exc.reason, gcp_path, field="name") from None
+        raise
     echo_table(out)
     click.echo(f"wrote {out['output']} and {out['report']}")

@@ -68,7 +68,7 @@ from skyrig.adjust.determinability import (
     OVERRULES_PRIOR,
     rule_words,
 )
-from skyrig.adjust.factors.lidar import roughness_variances
+from skyrig.adjust.factors.lidar import control_gram, plane_basis, roughness_variances
 from skyrig.errors import GeometryError, InputFormatError
 from skyrig.georef.eo import WorldFrame
 from skyrig.geometry.rotations import matrix_from_rotvec
@@ -129,6 +129,7 @@ class StripModel:
     attitude_noise_rad: float = 0.0  # white trajectory attitude noise (per axis)
     roughness_m: float = 0.002  # surface roughness / non-planarity within a patch (also bounds the weight of grazing beams)
     control_sigma_m: float = 0.003  # noise of a control (reference cloud) point across its surface
+    control_plane_sigma_m: float = 0.0  # common to a patch's control points (the reference's registration error)
     # priors of the calibration, centred on the nominal values
     boresight_sigma_rad: float = float(np.radians(1.0))
     lever_sigma_m: float = 0.10
@@ -146,7 +147,8 @@ class StripModel:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise InputFormatError(f"must be a positive number, got {v!r}", field=name)
-        for name in ("scan_angle_sigma_rad", "position_noise_m", "attitude_noise_rad", "roughness_m"):
+        for name in ("scan_angle_sigma_rad", "position_noise_m", "attitude_noise_rad", "roughness_m",
+                     "control_plane_sigma_m"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 raise InputFormatError(f"must be a number >= 0, got {v!r}", field=name)
@@ -406,7 +408,7 @@ def find_planar_patches(
     # (not the cell: a surface on a cell boundary would keep the points on one side of it only, a biased half);
     # each point goes to the nearest patch centre
     tree = cKDTree(centre)
-    e1p, e2p = _plane_basis(normal)
+    e1p, e2p = plane_basis(normal)
     half = 0.4 * options.cell_m  # inside the cell whose planarity was tested (its centroid +- 0.4 cell)
 
     def assign(pts: NDArray[np.float64], origin: NDArray[np.float64] | None = None) -> NDArray[np.intp]:
@@ -649,39 +651,20 @@ def plane_residuals(
     J_strip[:, 3:6] = dt[:, None] * n
     J_strip[:, 6:9] = wxn
     J_strip[:, 9:12] = dt[:, None] * wxn
-    e1, e2 = _plane_basis(n)  # tangent basis of each normal
+    e1, e2 = plane_basis(n)  # tangent basis of each normal
     J_plane = np.column_stack([np.einsum("ij,ij->i", e1, y), np.einsum("ij,ij->i", e2, y), -np.ones(len(r))])
     return {"r": r, "J_cal": J_cal, "J_strip": J_strip, "J_plane": J_plane, "e1": e1, "e2": e2,
             "sigma": np.sqrt(var), "X": X_obs}
 
 
-def _plane_basis(n: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    a = np.where(np.abs(n[:, 0:1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(n, a)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return e1, np.cross(n, e1)
-
-
-def _control_blocks(p: PlanarPatches, normal: NDArray, offset: NDArray, sigma: float
+def _control_blocks(p: PlanarPatches, normal: NDArray, offset: NDArray, model: StripModel
                     ) -> tuple[NDArray, NDArray, NDArray]:
     """Normal-equation blocks ``(P, 3, 3)``, right-hand sides ``(P, 3)`` and weighted squared residual sums ``(P,)``
-    of the control points (from their moments)."""
-    e1, e2 = _plane_basis(normal)
-    E = np.stack([e1, e2, normal], axis=1)  # (P, 3, 3) rows e1, e2, n
-    cnt, s1, s2 = p.control_count, p.control_sum, p.control_sum2
-    M = np.einsum("pai,pij,pbj->pab", E, s2, E)  # second moments in (e1, e2, n)
-    m1 = np.einsum("pai,pi->pa", E, s1)
-    wgt = 1.0 / sigma**2
-    # residual r = (n . y) - d, J = [e1 . y, e2 . y, -1]
-    N = np.zeros((len(cnt), 3, 3))
-    N[:, :2, :2] = M[:, :2, :2]
-    N[:, :2, 2] = N[:, 2, :2] = -m1[:, :2]
-    N[:, 2, 2] = cnt
-    Jr = np.empty((len(cnt), 3))
-    Jr[:, :2] = M[:, :2, 2] - offset[:, None] * m1[:, :2]
-    Jr[:, 2] = -(m1[:, 2] - offset * cnt)
-    rr = M[:, 2, 2] - 2 * offset * m1[:, 2] + offset**2 * cnt
-    return wgt * N, -wgt * Jr, wgt * rr
+    of the control points (from their moments; residual ``r = n . (y - c) - d``, derivatives ``[e1 . y, e2 . y,
+    -1]``: :func:`skyrig.adjust.factors.lidar.control_gram`, the joint factor's own)."""
+    G = control_gram(p.control_count, p.control_sum, p.control_sum2, p.centre, normal, p.centre, offset,
+                     model.control_sigma_m, model.control_plane_sigma_m)
+    return G[:, :3, :3], -G[:, :3, 3], G[:, 3, 3]
 
 
 # ---------------------------------------------------------------------------------------------- result
@@ -839,7 +822,7 @@ def _normal_equations(p: PlanarPatches, mount: ScannerMount, x: NDArray, normal:
         for c in range(a, 3):
             Npp[:, a, c] = Npp[:, c, a] = np.bincount(p.plane, Jp[:, a] * Jp[:, c], minlength=n_pl)
     bp = -np.column_stack([np.bincount(p.plane, Jp[:, a] * rw, minlength=n_pl) for a in range(3)])
-    cN, cb, crr = _control_blocks(p, normal, offset, model.control_sigma_m)
+    cN, cb, crr = _control_blocks(p, normal, offset, model)
     Npp += cN
     bp += cb
     Npp[dead] = np.eye(3)
@@ -877,7 +860,7 @@ def _vtpv(p: PlanarPatches, mount: ScannerMount, x: NDArray, normal: NDArray, of
     k = p.n_strips
     res = plane_residuals(p, mount, x[:N_CAL], x[N_CAL:].reshape(k, N_STRIP), normal, offset, model)
     z = np.where(active, res["r"] / res["sigma"], 0.0)
-    crr = _control_blocks(p, normal, offset, model.control_sigma_m)[2]
+    crr = _control_blocks(p, normal, offset, model)[2]
     return float(np.sum(z**2) + np.sum(crr) + np.sum((x / model.prior_sigma(k)) ** 2))
 
 
@@ -899,7 +882,7 @@ def _run(p: PlanarPatches, mount: ScannerMount, model: StripModel, x0: NDArray, 
     ps = model.prior_sigma(p.n_strips)
 
     def moved(x: NDArray, normal: NDArray, offset: NDArray, dx: NDArray, dpl: NDArray, f: float) -> tuple:
-        e1, e2 = _plane_basis(normal)
+        e1, e2 = plane_basis(normal)
         nn = normal + f * (dpl[:, 0:1] * e1 + dpl[:, 1:2] * e2)
         return x + f * dx, nn / np.linalg.norm(nn, axis=1, keepdims=True), offset + f * dpl[:, 2]
 

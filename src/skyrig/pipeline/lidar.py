@@ -68,6 +68,38 @@ class StripRun:
     reference_crs: str | None
 
 
+def read_control_cloud(path: PathLike, frame: Any) -> tuple[np.ndarray, str]:
+    """Control points for a laser adjustment (a reference cloud: a terrestrial scan registered to the survey's
+    control, a surveyor's points on planar surfaces): a LAS/LAZ file with its CRS, or a points CSV (``name,x,y,z``
+    with the CRS stated in its header, :func:`skyrig.io.points_csv.read_points_csv`), in the local ``frame`` of the
+    adjustment; and the file's CRS (WKT or the stated CRS).
+
+    Raises
+    ------
+    InputFormatError
+        Naming the file (and line and field where there is one): not found, unreadable, no CRS, malformed rows, no
+        point.
+    """
+    from skyrig.georef.eo import WorldFrame
+
+    if Path(path).suffix.lower() in (".csv", ".txt"):
+        from skyrig.io.points_csv import read_points_csv
+
+        pts = read_points_csv(path, option="--control")
+        xyz = frame.from_ecef(pts.frame.to_ecef(np.asarray(pts.xyz, float)))
+        crs = str(pts.frame.describe())
+    else:
+        from skyrig.io.laz import read_las
+
+        ref = read_las(path, require_crs=True)
+        crs = str(ref.crs_wkt)  # (required: never None here)
+        xyz = frame.from_ecef(WorldFrame.map(crs).to_ecef(ref.xyz))
+    xyz = np.asarray(xyz, float)
+    if len(xyz) == 0:
+        raise InputFormatError("the control file holds no point", path, field="points")
+    return xyz, crs
+
+
 def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathLike, scanner: str | None,
                      reference: PathLike | None, opts: dict[str, Any]) -> StripRun:
     """Read a raw scan (with strip ids), a trajectory and a scanner mount, find planar patches and adjust.
@@ -96,11 +128,7 @@ def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathL
     control = None
     ref_crs = None
     if reference is not None:
-        from skyrig.io.laz import read_las
-
-        ref = read_las(reference, require_crs=True)
-        ref_crs = ref.crs_wkt
-        control = frame.from_ecef(WorldFrame.map(ref_crs).to_ecef(ref.xyz))
+        control, ref_crs = read_control_cloud(reference, frame)
     model = StripModel(**opts.get("model", {}))
     patches = find_planar_patches(scan, traj, mount, frame, options=PatchOptions(**opts.get("patches", {})),
                                   control=control)
