@@ -295,13 +295,17 @@ def separate_seed(fl, inp: JointInputs, rows: np.ndarray, rows_m3c2: np.ndarray,
                          "range_scale": float(sep.calibration[7])}}
 
 
-def run_seed(size: str, seed: int, every: int, roughness_m: float | None = None, joint: bool = True) -> dict:
+def _seed_setup(size: str, seed: int, every: int):  # type: ignore[no-untyped-def]
+    """One seed's flight, its survey, the joint recipe's inputs, the laser rows compared by M3C2 (every pulse of the
+    strips) and by C2C (every ``every``-th) and the M3C2 core points."""
     fl = build_joint_flight(size, seed)
     sv = fl.survey
-    inp = joint_inputs_from_flight(fl)
     rows_m3c2 = np.flatnonzero(sv.scan.strip_id >= 0)
-    rows = rows_m3c2[::every]
-    core = m3c2_cores(sv.reference_xyz)
+    return fl, sv, joint_inputs_from_flight(fl), rows_m3c2, rows_m3c2[::every], m3c2_cores(sv.reference_xyz)
+
+
+def run_seed(size: str, seed: int, every: int, roughness_m: float | None = None, joint: bool = True) -> dict:
+    fl, sv, inp, rows_m3c2, rows, core = _seed_setup(size, seed, every)
     sep = separate_seed(fl, inp, rows, rows_m3c2, core)
     if not joint:
         return {"seed": seed, "rms_tls_m": {"nominal": sep["rms_nominal_m"], "separate": sep["rms_separate_m"],
@@ -379,12 +383,7 @@ def print_table(out: list[dict]) -> None:
 
 def run_control_seed(size: str, seed: int, every: int, modes: list[str], fraction: float, cell: float) -> dict:
     """One seed: separate and joint calibration without control and with each control ``modes`` setting."""
-    fl = build_joint_flight(size, seed)
-    sv = fl.survey
-    inp = joint_inputs_from_flight(fl)
-    rows_m3c2 = np.flatnonzero(sv.scan.strip_id >= 0)
-    rows = rows_m3c2[::every]
-    core = m3c2_cores(sv.reference_xyz)
+    fl, sv, inp, rows_m3c2, rows, core = _seed_setup(size, seed, every)
     traj_xy = fl.body_rec_position[:, :2]
     out = {"seed": seed, "range_sigma_m": float(sv.spec.errors.range_sigma_m)}
     gcps = simulated_gcps(fl, seed)
