@@ -118,6 +118,25 @@ def test_clean_stale_removes_leftovers_and_restores_an_interrupted_swap(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == [".adj.partial-x3", "adj"]
 
 
+def test_clean_stale_removes_the_scratch_a_killed_stage_left_beside_its_staging_folder(tmp_path) -> None:
+    # the dsm stage writes its tiles into a scratch folder named after the folder it writes into; in a project run
+    # that is the staging folder, so a killed run leaves ``..dsm.partial-X.scratch-Y`` beside ``.dsm.partial-X``
+    out = tmp_path / "dsm"
+    staging = tmp_path / ".dsm.partial-x1"
+    scratch = tmp_path / "..dsm.partial-x1.scratch-y1"
+    other = tmp_path / "..ortho.partial-x2.scratch-y2"  # another stage's: not this one's to remove
+    for d in (staging, scratch, other):
+        d.mkdir()
+        (d / "layers.tif").write_bytes(b"x")
+        past = time.time() - 60
+        os.utime(d, (past, past))
+    newer = tmp_path / "..dsm.partial-x3.scratch-y3"  # a run's started after this one: not touched
+    newer.mkdir()
+    removed = clean_stale(out, started=time.time() - 30)
+    assert sorted(p.name for p in removed) == ["..dsm.partial-x1.scratch-y1", ".dsm.partial-x1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["..dsm.partial-x3.scratch-y3", "..ortho.partial-x2.scratch-y2"]
+
+
 def test_adjust_publishes_a_manifest_and_a_failed_run_writes_nothing(tmp_path) -> None:
     from click.testing import CliRunner
 

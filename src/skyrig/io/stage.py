@@ -5,8 +5,8 @@ the new one is complete, then the two are swapped (rename) and the old one remov
 (``manifest.json``) lists the inputs (path, size, SHA-256), the options, the software version, the date and
 every output file with its size and SHA-256.
 
-A run killed while staging leaves a ``.NAME.partial-*`` sibling, one killed while swapping a ``.NAME.old-*``
-sibling; the next run removes those older than itself (:func:`clean_stale`) and, when the kill fell between the
+A run killed while staging leaves a ``.NAME.partial-*`` sibling (and the scratch a stage keeps beside its staging
+folder, ``..NAME.partial-*.scratch-*``), one killed while swapping a ``.NAME.old-*`` sibling; the next run removes those older than itself (:func:`clean_stale`) and, when the kill fell between the
 two renames of the swap (NAME absent, the previous complete folder inside ``.NAME.old-*``), puts the previous
 folder back first.
 """
@@ -53,7 +53,8 @@ def describe_inputs(paths: list[PathLike]) -> list[dict[str, Any]]:
 
 def clean_stale(outdir: PathLike, started: float | None = None) -> list[Path]:
     """Remove the ``.NAME.partial-*`` / ``.NAME.old-*`` siblings of ``outdir`` last modified before ``started``
-    (a Unix time; default now) - what killed runs left.  When ``outdir`` is absent and such an ``.old-*`` sibling
+    (a Unix time; default now) - what killed runs left - and the scratch folders named after such a staging folder
+    (``..NAME.partial-*``).  When ``outdir`` is absent and such an ``.old-*`` sibling
     holds the previously published folder (a run killed between the two renames of the swap), that folder is moved
     back to ``outdir`` first.  Returns the paths removed."""
     out = Path(outdir)
@@ -62,7 +63,10 @@ def clean_stale(outdir: PathLike, started: float | None = None) -> list[Path]:
     t = time.time() if started is None else started
     stale = []
     for p in out.parent.iterdir():
-        if not (p.name.startswith(f".{out.name}.partial-") or p.name.startswith(f".{out.name}.old-")):
+        # a stage's scratch beside its staging folder is named after it: ``..NAME.partial-*.scratch-*`` (the dsm
+        # stage's tiles, :func:`skyrig.pipeline.dense.run_dsm`)
+        if not (p.name.startswith(f".{out.name}.partial-") or p.name.startswith(f".{out.name}.old-")
+                or p.name.startswith(f"..{out.name}.partial-")):
             continue
         try:
             if p.is_dir() and not p.is_symlink() and p.stat().st_mtime < t:
