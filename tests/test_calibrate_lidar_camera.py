@@ -85,6 +85,10 @@ def test_bad_control_file_is_named(files):
     assert r.exit_code != 0 and "ctl.csv" in msg and "line 4" in msg and "field 'y'" in msg, msg
     r = CliRunner().invoke(command, _args(d) + ["--control-sigma-m", "0"])
     assert r.exit_code != 0 and "--control-sigma-m" in r.output
+    r = CliRunner().invoke(command, _args(d) + ["--gcp-sigma-m", "-0.01"])
+    assert r.exit_code != 0 and "--gcp-sigma-m" in r.output
+    r = CliRunner().invoke(command, _args(d) + ["--gcp", str(d / "no_such_gcp.csv")])
+    assert r.exit_code != 0 and "no_such_gcp.csv" in r.output
 
 
 @pytest.mark.slow
