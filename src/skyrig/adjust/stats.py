@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
@@ -114,24 +115,15 @@ class PointPatternM:
                  vals: NDArray[np.float64]) -> None:
         self.n_c, self.indptr, self.rows, self.wvals, self.vals = n_c, indptr, rows, wvals, vals
         self.entry_point = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
-        self._keys = self.entry_point * (n_c + 1) + rows  # ascending: points ascending, rows sorted per point
 
     def gather(self, cols: NDArray[np.int64], point: NDArray[np.int64]) -> NDArray[np.float64]:
         """``(n, k, 3)`` ``M[cols[i, j], 3 point[i] : 3 point[i] + 3]`` for columns of the points' own
         observations (on the pattern by construction); ``cols`` entries ``>= n_c`` give 0."""
-        n_c = self.n_c
-        if _pattern_gather is not None:
-            out = np.zeros(cols.shape + (3,))
-            if _pattern_gather(self.indptr, self.rows, self.vals, np.ascontiguousarray(cols, dtype=np.int64),
-                               np.ascontiguousarray(point, dtype=np.int64), n_c, out):
-                raise AssertionError("a cross cofactor off the observations' pattern was asked for")
-            return out
-        keys = point[:, None] * (n_c + 1) + np.minimum(cols, n_c)
-        pos = np.clip(np.searchsorted(self._keys, keys), 0, max(len(self._keys) - 1, 0))
-        found = (self._keys[pos] == keys) if len(self._keys) else np.zeros(keys.shape, bool)
-        if np.any(~found & (cols < n_c)):
+        out = np.zeros(cols.shape + (3,))
+        if _pattern_gather(self.indptr, self.rows, self.vals, np.ascontiguousarray(cols, dtype=np.int64),
+                           np.ascontiguousarray(point, dtype=np.int64), self.n_c, out):
             raise AssertionError("a cross cofactor off the observations' pattern was asked for")
-        return np.where(found[:, :, None], self.vals[pos], 0.0)
+        return out
 
 
 def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
@@ -139,24 +131,23 @@ def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
     """Per point the reduced columns its observations touch (the *structural* block pattern of
     ``W = P^T Wb``, exact zeros included): ``indptr (n_p+1)``, ``rows`` (sorted per point) and ``W``'s values
     there ``(nnz, 3)``; ``W``: that product when the caller has it."""
-    if _pattern_build is not None:
-        Wb = N.wb
-        if isinstance(Wb, sp.bsr_matrix) and Wb.blocksize[1] == 3 and Wb.shape[1] == 3 * n_p:
-            P = sp.csr_matrix(N.p)
-            k = Wb.blocksize[0]
-            blk_row = np.repeat(np.arange(len(Wb.indptr) - 1, dtype=np.int64), np.diff(Wb.indptr))
-            order = np.argsort(Wb.indices, kind="stable").astype(np.int64)
-            pptr = np.zeros(n_p + 1, np.int64)
-            np.cumsum(np.bincount(Wb.indices, minlength=n_p), out=pptr[1:])
-            unit_nnz = np.diff(P.indptr).reshape(-1, k).sum(axis=1) if P.shape[0] else np.zeros(0, np.int64)
-            cap = int(unit_nnz[blk_row].sum()) if len(blk_row) else 0
-            indptr = np.zeros(n_p + 1, np.int64)
-            rows = np.zeros(cap, np.int64)
-            wv = np.zeros((cap, 3))
-            _pattern_build(pptr, order, blk_row, np.ascontiguousarray(Wb.data, dtype=np.float64), k,
-                           P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data.astype(np.float64), n_c,
-                           indptr, rows, wv)
-            return indptr, rows[:indptr[-1]].copy(), wv[:indptr[-1]].copy()
+    Wb = N.wb
+    if isinstance(Wb, sp.bsr_matrix) and Wb.blocksize[1] == 3 and Wb.shape[1] == 3 * n_p:
+        P = sp.csr_matrix(N.p)
+        k = Wb.blocksize[0]
+        blk_row = np.repeat(np.arange(len(Wb.indptr) - 1, dtype=np.int64), np.diff(Wb.indptr))
+        order = np.argsort(Wb.indices, kind="stable").astype(np.int64)
+        pptr = np.zeros(n_p + 1, np.int64)
+        np.cumsum(np.bincount(Wb.indices, minlength=n_p), out=pptr[1:])
+        unit_nnz = np.diff(P.indptr).reshape(-1, k).sum(axis=1) if P.shape[0] else np.zeros(0, np.int64)
+        cap = int(unit_nnz[blk_row].sum()) if len(blk_row) else 0
+        indptr = np.zeros(n_p + 1, np.int64)
+        rows = np.zeros(cap, np.int64)
+        wv = np.zeros((cap, 3))
+        _pattern_build(pptr, order, blk_row, np.ascontiguousarray(Wb.data, dtype=np.float64), k,
+                       P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data.astype(np.float64), n_c,
+                       indptr, rows, wv)
+        return indptr, rows[:indptr[-1]].copy(), wv[:indptr[-1]].copy()
     Wb = N.wb.tocoo()  # every stored block entry, zeros included
     Pc = abs(N.p).tocsc()  # (unit columns, n_c)
     ones = sp.csr_matrix((np.ones(len(Wb.data)), (Wb.row, Wb.col)), shape=Wb.shape)
@@ -181,224 +172,145 @@ def _point_pattern(N: Normal, n_c: int, n_p: int, W: sp.csr_matrix | None = None
     return indptr, (key_s % (n_c + 1)).astype(np.int64), wv
 
 
-def _make_pattern_kernel():  # type: ignore[no-untyped-def]
-    """numba kernel of :func:`_pattern_products` (one point at a time, parallel over points), or None."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def kernel(Q, indptr, rows, wv, vals, WtM):  # type: ignore[no-untyped-def]
-        for p in numba.prange(len(indptr) - 1):
-            a, b = indptr[p], indptr[p + 1]
-            for i in range(a, b):
-                ri = rows[i]
-                a0 = 0.0
-                a1 = 0.0
-                a2 = 0.0
-                for j in range(a, b):
-                    q = Q[ri, rows[j]]
-                    a0 += q * wv[j, 0]
-                    a1 += q * wv[j, 1]
-                    a2 += q * wv[j, 2]
-                vals[i, 0] = a0
-                vals[i, 1] = a1
-                vals[i, 2] = a2
-            for c in range(3):
-                for e in range(3):
-                    acc = 0.0
-                    for i in range(a, b):
-                        acc += wv[i, c] * vals[i, e]
-                    WtM[p, c, e] = acc
-
-    return kernel
-
-
-_pattern_kernel = _make_pattern_kernel()
-
-
-def _make_pattern_build():  # type: ignore[no-untyped-def]
-    """numba builder of :func:`_point_pattern` from ``Wb``'s blocks and ``P``'s rows, or None."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-
-    @numba.njit(cache=True, nogil=True)
-    def build(pptr, order, blk_row, data, k, pind, pcol, pval, n_c, indptr, rows, wv):  # type: ignore[no-untyped-def]
-        slot = np.full(n_c, -1, np.int64)
-        tmp_c = np.empty(n_c, np.int64)
-        tmp_v = np.zeros((n_c, 3))
-        out = 0
-        for p in range(len(pptr) - 1):
-            m = 0
-            for t in range(pptr[p], pptr[p + 1]):
-                blk = order[t]
-                u = blk_row[blk]
-                for a in range(k):
-                    r = u * k + a
-                    for e in range(pind[r], pind[r + 1]):
-                        c = pcol[e]
-                        if slot[c] < 0:
-                            slot[c] = m
-                            tmp_c[m] = c
-                            tmp_v[m, 0] = 0.0
-                            tmp_v[m, 1] = 0.0
-                            tmp_v[m, 2] = 0.0
-                            m += 1
-                        j = slot[c]
-                        for b in range(3):
-                            tmp_v[j, b] += pval[e] * data[blk, a, b]
-            srt = np.argsort(tmp_c[:m])
-            for i in range(m):
-                j = srt[i]
-                rows[out + i] = tmp_c[j]
-                wv[out + i, 0] = tmp_v[j, 0]
-                wv[out + i, 1] = tmp_v[j, 1]
-                wv[out + i, 2] = tmp_v[j, 2]
-                slot[tmp_c[j]] = -1
-            out += m
-            indptr[p + 1] = out
-
-    return build
-
-
-_pattern_build = _make_pattern_build()
-
-
-def _make_pattern_gather():  # type: ignore[no-untyped-def]
-    """numba lookup of :meth:`PointPatternM.gather` (a binary search in each point's sorted rows), or None."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-
-    @numba.njit(cache=True, nogil=True)
-    def gather(indptr, rows, vals, cols, point, n_c, out):  # type: ignore[no-untyped-def]
-        missing = False
-        for i in range(cols.shape[0]):
-            a0, b0 = indptr[point[i]], indptr[point[i] + 1]
-            for j in range(cols.shape[1]):
-                c = cols[i, j]
-                if c >= n_c or c < 0:
-                    continue
-                lo, hi = a0, b0
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if rows[mid] < c:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                if lo < b0 and rows[lo] == c:
-                    out[i, j, 0] = vals[lo, 0]
-                    out[i, j, 1] = vals[lo, 1]
-                    out[i, j, 2] = vals[lo, 2]
-                else:
-                    missing = True
-        return missing
-
-    return gather
-
-
-_pattern_gather = _make_pattern_gather()
-
-
-def _make_schur_kernel():  # type: ignore[no-untyped-def]
-    """numba ``S -= W_p V_p^-1 W_p^T`` for every point on its pattern (dense ``S``, in place), or None."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-
-    @numba.njit(cache=True, nogil=True)
-    def schur(S, indptr, rows, wv, Vinv):  # type: ignore[no-untyped-def]
-        t = np.empty((S.shape[0], 3))
-        for p in range(len(indptr) - 1):
-            a, b = indptr[p], indptr[p + 1]
-            for i in range(a, b):
-                for c in range(3):
-                    t[i - a, c] = wv[i, 0] * Vinv[p, 0, c] + wv[i, 1] * Vinv[p, 1, c] + wv[i, 2] * Vinv[p, 2, c]
-            for i in range(a, b):
-                ri = rows[i]
-                t0, t1, t2 = t[i - a, 0], t[i - a, 1], t[i - a, 2]
-                for j in range(a, b):
-                    S[ri, rows[j]] -= t0 * wv[j, 0] + t1 * wv[j, 1] + t2 * wv[j, 2]
-
-    return schur
-
-
-_schur_kernel = _make_schur_kernel()
-
-
-def _make_row_kernel():  # type: ignore[no-untyped-def]
-    """numba ``H[i, d] += J_c[i, d] Q_cc[cols_i, cols_i] J_c[i, d]^T`` (columns ``>= n_c``: none), or None."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def rows(Q, cols, jc, H):  # type: ignore[no-untyped-def]
-        n_c = Q.shape[0]
-        for i in numba.prange(cols.shape[0]):
-            for d in range(jc.shape[1]):
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _pattern_kernel(Q, indptr, rows, wv, vals, WtM):  # type: ignore[no-untyped-def]
+    """numba kernel of :func:`_pattern_products` (one point at a time, parallel over points)."""
+    for p in numba.prange(len(indptr) - 1):
+        a, b = indptr[p], indptr[p + 1]
+        for i in range(a, b):
+            ri = rows[i]
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for j in range(a, b):
+                q = Q[ri, rows[j]]
+                a0 += q * wv[j, 0]
+                a1 += q * wv[j, 1]
+                a2 += q * wv[j, 2]
+            vals[i, 0] = a0
+            vals[i, 1] = a1
+            vals[i, 2] = a2
+        for c in range(3):
+            for e in range(3):
                 acc = 0.0
-                for k in range(cols.shape[1]):
-                    ck = cols[i, k]
-                    if ck >= n_c:
-                        continue
-                    v = 0.0
-                    for m in range(cols.shape[1]):
-                        cm = cols[i, m]
-                        if cm < n_c:
-                            v += Q[ck, cm] * jc[i, d, m]
-                    acc += jc[i, d, k] * v
-                H[i, d] += acc
-
-    return rows
+                for i in range(a, b):
+                    acc += wv[i, c] * vals[i, e]
+                WtM[p, c, e] = acc
 
 
-_row_kernel = _make_row_kernel()
+
+@numba.njit(cache=True, nogil=True)
+def _pattern_build(pptr, order, blk_row, data, k, pind, pcol, pval, n_c, indptr, rows, wv):  # type: ignore[no-untyped-def]
+    """numba builder of :func:`_point_pattern` from ``Wb``'s blocks and ``P``'s rows."""
+    slot = np.full(n_c, -1, np.int64)
+    tmp_c = np.empty(n_c, np.int64)
+    tmp_v = np.zeros((n_c, 3))
+    out = 0
+    for p in range(len(pptr) - 1):
+        m = 0
+        for t in range(pptr[p], pptr[p + 1]):
+            blk = order[t]
+            u = blk_row[blk]
+            for a in range(k):
+                r = u * k + a
+                for e in range(pind[r], pind[r + 1]):
+                    c = pcol[e]
+                    if slot[c] < 0:
+                        slot[c] = m
+                        tmp_c[m] = c
+                        tmp_v[m, 0] = 0.0
+                        tmp_v[m, 1] = 0.0
+                        tmp_v[m, 2] = 0.0
+                        m += 1
+                    j = slot[c]
+                    for b in range(3):
+                        tmp_v[j, b] += pval[e] * data[blk, a, b]
+        srt = np.argsort(tmp_c[:m])
+        for i in range(m):
+            j = srt[i]
+            rows[out + i] = tmp_c[j]
+            wv[out + i, 0] = tmp_v[j, 0]
+            wv[out + i, 1] = tmp_v[j, 1]
+            wv[out + i, 2] = tmp_v[j, 2]
+            slot[tmp_c[j]] = -1
+        out += m
+        indptr[p + 1] = out
+
+
+
+@numba.njit(cache=True, nogil=True)
+def _pattern_gather(indptr, rows, vals, cols, point, n_c, out):  # type: ignore[no-untyped-def]
+    """numba lookup of :meth:`PointPatternM.gather` (a binary search in each point's sorted rows)."""
+    missing = False
+    for i in range(cols.shape[0]):
+        a0, b0 = indptr[point[i]], indptr[point[i] + 1]
+        for j in range(cols.shape[1]):
+            c = cols[i, j]
+            if c >= n_c or c < 0:
+                continue
+            lo, hi = a0, b0
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if rows[mid] < c:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < b0 and rows[lo] == c:
+                out[i, j, 0] = vals[lo, 0]
+                out[i, j, 1] = vals[lo, 1]
+                out[i, j, 2] = vals[lo, 2]
+            else:
+                missing = True
+    return missing
+
+
+
+@numba.njit(cache=True, nogil=True)
+def _schur_kernel(S, indptr, rows, wv, Vinv):  # type: ignore[no-untyped-def]
+    """numba ``S -= W_p V_p^-1 W_p^T`` for every point on its pattern (dense ``S``, in place)."""
+    t = np.empty((S.shape[0], 3))
+    for p in range(len(indptr) - 1):
+        a, b = indptr[p], indptr[p + 1]
+        for i in range(a, b):
+            for c in range(3):
+                t[i - a, c] = wv[i, 0] * Vinv[p, 0, c] + wv[i, 1] * Vinv[p, 1, c] + wv[i, 2] * Vinv[p, 2, c]
+        for i in range(a, b):
+            ri = rows[i]
+            t0, t1, t2 = t[i - a, 0], t[i - a, 1], t[i - a, 2]
+            for j in range(a, b):
+                S[ri, rows[j]] -= t0 * wv[j, 0] + t1 * wv[j, 1] + t2 * wv[j, 2]
+
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _row_kernel(Q, cols, jc, H):  # type: ignore[no-untyped-def]
+    """numba ``H[i, d] += J_c[i, d] Q_cc[cols_i, cols_i] J_c[i, d]^T`` (columns ``>= n_c``: none)."""
+    n_c = Q.shape[0]
+    for i in numba.prange(cols.shape[0]):
+        for d in range(jc.shape[1]):
+            acc = 0.0
+            for k in range(cols.shape[1]):
+                ck = cols[i, k]
+                if ck >= n_c:
+                    continue
+                v = 0.0
+                for m in range(cols.shape[1]):
+                    cm = cols[i, m]
+                    if cm < n_c:
+                        v += Q[ck, cm] * jc[i, d, m]
+                acc += jc[i, d, k] * v
+            H[i, d] += acc
+
 
 
 def _pattern_products(Q: NDArray[np.float64], indptr: NDArray[np.int64], rows: NDArray[np.int64],
-                      wv: NDArray[np.float64], max_elements: int = 20_000_000
-                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``M[R_p, p] = Q[R_p, R_p] W[R_p, p]`` for every point ``(nnz, 3)`` and ``W_p^T M_p`` ``(n_p, 3, 3)``, in
-    chunks of points of similar pattern size (padded gathers of at most ``max_elements`` doubles)."""
-    n_c = Q.shape[0]
-    n_p = len(indptr) - 1
-    if _pattern_kernel is not None:
-        vals = np.zeros_like(wv)
-        WtM = np.zeros((n_p, 3, 3))
-        _pattern_kernel(np.ascontiguousarray(Q), indptr.astype(np.int64), rows.astype(np.int64),
-                        np.ascontiguousarray(wv), vals, WtM)
-        return vals, WtM
-    Qe = np.zeros((n_c + 1, n_c + 1))
-    Qe[:n_c, :n_c] = Q
-    m = np.diff(indptr)
-    order = np.argsort(m, kind="stable")
+                      wv: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``M[R_p, p] = Q[R_p, R_p] W[R_p, p]`` for every point ``(nnz, 3)`` and ``W_p^T M_p`` ``(n_p, 3, 3)``
+    (:func:`_pattern_kernel`, one point at a time)."""
     vals = np.zeros_like(wv)
-    WtM = np.zeros((n_p, 3, 3))
-    s0 = 0
-    while s0 < n_p:
-        mmax = int(max(m[order[s0]], 1))
-        s1 = min(n_p, s0 + max(1, max_elements // (mmax * mmax)))
-        mend = int(max(m[order[s1 - 1]], 1))  # sizes ascend: the chunk's last point is its largest
-        if mend * mend * (s1 - s0) > max_elements:
-            s1 = min(n_p, s0 + max(1, max_elements // (mend * mend)))
-        ps = order[s0:s1]
-        mmax = int(max(m[ps].max(), 1))
-        idx = indptr[ps][:, None] + np.arange(mmax)[None, :]
-        ok = np.arange(mmax)[None, :] < m[ps][:, None]
-        idx_c = np.where(ok, idx, 0)
-        R = np.where(ok, rows[idx_c] if len(rows) else 0, n_c)
-        Wp = np.where(ok[:, :, None], wv[idx_c] if len(wv) else 0.0, 0.0)
-        Mp = Qe[R[:, :, None], R[:, None, :]] @ Wp  # (k, m, 3)
-        vals[idx_c[ok]] = Mp[ok]
-        WtM[ps] = np.swapaxes(Wp, 1, 2) @ Mp
-        s0 = s1
+    WtM = np.zeros((len(indptr) - 1, 3, 3))
+    _pattern_kernel(np.ascontiguousarray(Q), indptr.astype(np.int64), rows.astype(np.int64), np.ascontiguousarray(wv),
+                    vals, WtM)
     return vals, WtM
 
 
@@ -469,7 +381,7 @@ def covariance(N: Normal, layout: Layout, state: State, free_datum: bool = False
     """
     n_p, n_c = layout.n_p, layout.n_c
     pattern = None
-    if n_p and N.Wb is not None and _schur_kernel is not None:
+    if n_p and N.Wb is not None:
         # the dense S = U - W V^-1 W^T straight from W's point pattern (which M needs anyway): the same work as
         # the sparse product's, without building the sparse reduced matrix first
         Vinv = point_inverses(N.V)
@@ -761,18 +673,9 @@ def row_cofactors(f: Factor, cov: Covariance) -> NDArray[np.float64] | None:
     H = np.zeros((n, d))
     Q = cov.Qcc
     n_c = Q.shape[0]
-    if f.jc is not None and f.cols is not None and f.cols.shape[1] and _row_kernel is not None:
+    if f.jc is not None and f.cols is not None and f.cols.shape[1]:
         _row_kernel(np.ascontiguousarray(Q), np.ascontiguousarray(np.where(f.cols >= 0, f.cols, n_c), dtype=np.int64),
                     np.ascontiguousarray(f.jc, dtype=np.float64), H)
-    elif f.jc is not None and f.cols is not None and f.cols.shape[1]:
-        Qe = np.zeros((n_c + 1, n_c + 1))
-        Qe[:n_c, :n_c] = Q
-        c = np.where(f.cols >= 0, f.cols, n_c)
-        step = max(1, min(100_000, 2_000_000 // max(1, c.shape[1] ** 2)))  # rows per chunk: bounded memory
-        for s0 in range(0, n, step):
-            sl = slice(s0, s0 + step)
-            Qs = Qe[c[sl][:, :, None], c[sl][:, None, :]]
-            H[sl] += np.einsum("ndk,nkl,ndl->nd", f.jc[sl], Qs, f.jc[sl])
     if f.jp is not None and f.point is not None:
         has = f.point >= 0
         p = np.where(has, f.point, 0)
