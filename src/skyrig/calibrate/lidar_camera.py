@@ -467,8 +467,7 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
             if out.any():  # the control first: a blunder pulls its plane off the laser points, which go next round
                 bad_pt[:], bad_pl[:] = False, False
                 bad_c[control.plane[out]] = True
-                rejected.append(ControlResiduals(*(getattr(control, f)[out] for f in (
-                    "plane", "count", "centroid", "normal", "residual_m", "sigma_m", "z", "blunder", "redundancy"))))
+                rejected.append(control.subset(out))
                 logger.warning("%d control plane(s) left out as blunders: residuals %s mm (|z| > %g)", int(out.sum()),
                                np.round(control.residual_m[out] * 1e3, 1).tolist(), options.max_control_z)
         if not bad_c.any():
@@ -490,8 +489,7 @@ def adjust_joint_block(block: Block, cfg: AdjustConfig, options: JointOptions = 
         control = control_residuals(lp, np.asarray(res.block.parameters[SCANNER][0], float),
                                     np.asarray(res.block.parameters[STRIP], float),
                                     _scanner_strip_cofactors(res, lp.n_strips), options.max_control_z)
-    rej = None if not rejected else ControlResiduals(*(np.concatenate([getattr(r, f) for r in rejected]) for f in (
-        "plane", "count", "centroid", "normal", "residual_m", "sigma_m", "z", "blunder", "redundancy")))
+    rej = ControlResiduals.concatenate(rejected) if rejected else None
     return res, block, {"dropped_points": dropped[0], "dropped_planes": dropped[1], "control": control,
                         "control_rejected": rej}
 

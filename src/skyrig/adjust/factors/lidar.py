@@ -82,7 +82,7 @@ laser points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -935,6 +935,19 @@ class ControlResiduals:
 
     def __len__(self) -> int:
         return len(self.plane)
+
+    def subset(self, keep: NDArray[np.bool_]) -> "ControlResiduals":
+        """The control planes ``keep`` selects."""
+        kw: dict[str, Any] = {f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[keep]
+                              for f in fields(self)}
+        return replace(self, **kw)
+
+    @staticmethod
+    def concatenate(parts: list["ControlResiduals"]) -> "ControlResiduals":
+        """The control planes of ``parts`` one after the other (redundancy numbers only when all have them)."""
+        kw: dict[str, Any] = {f.name: None if any(getattr(r, f.name) is None for r in parts)
+                              else np.concatenate([getattr(r, f.name) for r in parts]) for f in fields(ControlResiduals)}
+        return replace(parts[0], **kw)
 
     def summary(self) -> dict[str, Any]:
         n = len(self)
