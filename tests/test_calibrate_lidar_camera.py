@@ -185,3 +185,30 @@ def test_tls_control_removes_the_common_shift_on_the_simulated_flight():
     assert abs(d0) > 3 * s1  # without control the shift is far beyond the controlled precision (it can fail)
     z = cal.control.z
     assert len(z) >= 10 and abs(np.mean(z)) < 0.5 and 0.6 < np.std(z) < 1.4 and cal.control_rejected is None
+
+
+def test_control_cloud_keeps_its_own_frame(tmp_path):
+    """``read_control_cloud``: a points CSV's and a LAS file's points in the adjustment's local frame (against
+    PROJ's own UTM -> ECEF), and the file's frame handed back as a frame (the strip command writes its cloud in it),
+    not a description of it."""
+    import laspy
+    import pyproj
+
+    from skyrig.georef.eo import WorldFrame
+    from skyrig.pipeline.lidar import read_control_cloud
+
+    e, n, h = np.array([500010.0, 500020.0, 500030.0]), np.array([5000005.0, 5000015.0, 5000025.0]), np.array([101.0, 102.5, 99.0])
+    ecef = np.column_stack(pyproj.Transformer.from_crs("EPSG:32633", "EPSG:4978", always_xy=True).transform(e, n, h))
+    local = WorldFrame.local(45.1, 15.0, 100.0)
+    (tmp_path / "ctl.csv").write_text("# crs: EPSG:32633\nname,x,y,z\n" + "".join(
+        f"c{i},{e[i]:.3f},{n[i]:.3f},{h[i]:.3f}\n" for i in range(3)))
+    las = laspy.LasData(laspy.LasHeader(point_format=0, version="1.4"))
+    las.header.add_crs(pyproj.CRS("EPSG:32633"))
+    las.header.scales = [0.001] * 3
+    las.header.offsets = [500000.0, 5000000.0, 0.0]
+    las.x, las.y, las.z = e, n, h
+    las.write(str(tmp_path / "ctl.las"))
+    for name in ("ctl.csv", "ctl.las"):
+        xyz, own = read_control_cloud(tmp_path / name, local)
+        assert np.abs(local.to_ecef(xyz) - ecef).max() < 2e-3, name  # the LAS file's 1 mm scale
+        assert own.kind == "map" and pyproj.CRS(own.crs).to_epsg() == 32633 and own.geoid is None, name

@@ -52,9 +52,14 @@ def run_strips(scan_path: str, traj_path: str, mount_path: str, scanner: str | N
         from skyrig.io.laz import write_las
         from skyrig.lidar.strips import apply_strip_corrections
 
-        out_crs = crs or run.reference_crs or "EPSG:4978"
+        from skyrig.geodesy.statement import file_crs
+
+        # --crs, else the reference cloud's own frame (its vertical reference included), else ECEF
+        ref = run.reference_frame
+        of = (WorldFrame.ecef() if crs == "EPSG:4978" else WorldFrame.map(crs) if crs
+              else ref if ref is not None and ref.kind == "map" else WorldFrame.ecef())
+        out_crs: object = "EPSG:4978" if of.kind == "ecef" else file_crs(of).full
         xyz = apply_strip_corrections(run.scan, run.trajectory, run.mount, run.frame, res)
-        of = WorldFrame.ecef() if out_crs == "EPSG:4978" else WorldFrame.map(out_crs)
         write_las(cloud, of.from_ecef(run.frame.to_ecef(xyz)), out_crs, gps_time=run.scan.time_s,
                   intensity=run.scan.intensity)
     return {"result": res, "before": run.before, "after": run.after, "report": report_path}

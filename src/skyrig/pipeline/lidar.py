@@ -65,14 +65,14 @@ class StripRun:
     before: dict[str, float]
     after: dict[str, float]
     nominal_range: tuple[float, float]  # (offset m, scale) of the scanner record
-    reference_crs: str | None
+    reference_frame: Any  # the reference cloud's own frame (WorldFrame: CRS and vertical reference), or None
 
 
-def read_control_cloud(path: PathLike, frame: Any) -> tuple[np.ndarray, str]:
+def read_control_cloud(path: PathLike, frame: Any) -> tuple[np.ndarray, Any]:
     """Control points for a laser adjustment (a reference cloud: a terrestrial scan registered to the survey's
     control, a surveyor's points on planar surfaces): a LAS/LAZ file with its CRS, or a points CSV (``name,x,y,z``
     with the CRS stated in its header, :func:`skyrig.io.points_csv.read_points_csv`), in the local ``frame`` of the
-    adjustment; and the file's CRS (WKT or the stated CRS).
+    adjustment; and the file's own frame (:class:`~skyrig.georef.eo.WorldFrame`: its CRS and vertical reference).
 
     Raises
     ------
@@ -86,18 +86,18 @@ def read_control_cloud(path: PathLike, frame: Any) -> tuple[np.ndarray, str]:
         from skyrig.io.points_csv import read_points_csv
 
         pts = read_points_csv(path, option="--control")
-        xyz = frame.from_ecef(pts.frame.to_ecef(np.asarray(pts.xyz, float)))
-        crs = str(pts.frame.describe())
+        own = pts.frame
+        xyz = frame.from_ecef(own.to_ecef(np.asarray(pts.xyz, float)))
     else:
         from skyrig.io.laz import read_las
 
         ref = read_las(path, require_crs=True)
-        crs = str(ref.crs_wkt)  # (required: never None here)
-        xyz = frame.from_ecef(WorldFrame.map(crs).to_ecef(ref.xyz))
+        own = WorldFrame.map(str(ref.crs_wkt))  # (required: never None here)
+        xyz = frame.from_ecef(own.to_ecef(ref.xyz))
     xyz = np.asarray(xyz, float)
     if len(xyz) == 0:
         raise InputFormatError("the control file holds no point", path, field="points")
-    return xyz, crs
+    return xyz, own
 
 
 def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathLike, scanner: str | None,
@@ -126,16 +126,16 @@ def strip_adjustment(scan_path: PathLike, traj_path: PathLike, mount_path: PathL
                        scan.strip_id)
     frame = WorldFrame.local(float(np.mean(traj.lat_deg)), float(np.mean(traj.lon_deg)), float(np.mean(traj.h_m)))
     control = None
-    ref_crs = None
+    ref_frame = None
     if reference is not None:
-        control, ref_crs = read_control_cloud(reference, frame)
+        control, ref_frame = read_control_cloud(reference, frame)
     model = StripModel(**opts.get("model", {}))
     patches = find_planar_patches(scan, traj, mount, frame, options=PatchOptions(**opts.get("patches", {})),
                                   control=control)
     res = adjust_strips(patches, mount, model=model, **({"estimate": opts["estimate"]} if "estimate" in opts else {}))
     before = patch_discrepancies(patches, mount, model)
     after = patch_discrepancies(patches, mount, model, res)
-    return StripRun(scan, traj, mount, frame, patches, model, res, before, after, (r0n, sn), ref_crs)
+    return StripRun(scan, traj, mount, frame, patches, model, res, before, after, (r0n, sn), ref_frame)
 
 
 def scanner_record(run: StripRun, name: str, provenance: dict[str, Any]) -> dict[str, Any]:
